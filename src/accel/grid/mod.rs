@@ -1,0 +1,154 @@
+//! Uniform grid rebuilt from scratch every frame, with a macrocell layer.
+//!
+//! Source: Wald, Ize, Kensler, Knoll, Parker 2006, "Ray Tracing Animated
+//! Scenes using Coherent Grid Traversal" (papers/coherent-grid-traversal.txt).
+//!
+//! | file | implements |
+//! |---|---|
+//! | `build.rs` | section 3: resolution from lambda x N, bounding-box insertion with a counting sort into preallocated pools; section 2.4: macrocell occupancy flags |
+//! | `traverse_single.rs` | the single-ray baseline: 3DDDA (Amanatides and Woo 1987) with macrocell skipping, nearest hit and occlusion |
+//!
+//! # Deviations
+//! - Triangle boxes are widened by `INSERT_EPS` cells before insertion, so a
+//!   3DDDA whose cell stepping rounds to the neighbouring cell still finds
+//!   the triangle (exactness over a few extra references).
+//! - The counting sort needs the exact reference count before anything is
+//!   written, so the build reads the triangles three times; in exchange a
+//!   capacity error leaves the previous frame's grid untouched.
+
+pub mod build;
+pub mod traverse_single;
+
+use crate::geom::{Aabb, TriTest, TriVerts};
+use glam::Vec3;
+
+/// Tunables of the grid (C: `sheaf_grid_params`).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GridParams {
+    /// Cells per triangle, lambda (section 3, Figure 6: best near 5).
+    pub lambda: f32,
+    /// Macrocell side M in cells (section 2.4: M = 6); 0 or 1 disables macrocells.
+    pub macrocell: u32,
+    /// Ray-triangle test used by every traversal of this grid.
+    pub test: TriTest,
+    /// When the cells for `lambda` exceed `Limits::max_grid_cells`, lower
+    /// lambda to fit instead of failing.
+    pub fit: bool,
+}
+
+impl Default for GridParams {
+    fn default() -> Self {
+        GridParams { lambda: 5.0, macrocell: 6, test: TriTest::MollerTrumbore, fit: false }
+    }
+}
+
+/// What the last build produced (all counts exact).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct GridInfo {
+    /// Cells per axis.
+    pub res: [u32; 3],
+    /// World-space bounds of the grid (the valid triangles' bounds, padded
+    /// so no axis is flat).
+    pub bounds: Aabb,
+    pub cell_size: Vec3,
+    /// Cells per world unit, per axis.
+    pub inv_cell: Vec3,
+    /// Macrocell side M (1: no macrocells) and macrocells per axis.
+    pub macrocell: u32,
+    pub macro_res: [u32; 3],
+    /// Triangles in the scene, stored, and excluded (non-finite / zero area).
+    pub triangles_in: u32,
+    pub triangles: u32,
+    pub excluded_non_finite: u32,
+    pub excluded_zero_area: u32,
+    /// Triangle references in cells.
+    pub refs: u32,
+    /// Lambda actually used (lower than asked only in fit mode).
+    pub lambda: f32,
+    pub test: TriTest,
+}
+
+impl GridInfo {
+    pub fn cells(&self) -> u64 {
+        self.res[0] as u64 * self.res[1] as u64 * self.res[2] as u64
+    }
+}
+
+/// The pools a grid lives in (carved once from the arena).
+pub struct GridPools<'a> {
+    pub tris: &'a mut [TriVerts],
+    pub tri_ids: &'a mut [u32],
+    pub cell_start: &'a mut [u32],
+    pub refs: &'a mut [u32],
+    pub macro_bits: &'a mut [u32],
+}
+
+/// A per-frame grid: pools plus what the last successful build wrote.
+pub struct Grid<'a> {
+    pools: GridPools<'a>,
+    info: Option<GridInfo>,
+}
+
+/// Read-only view of a built grid; `Sync`, shared by all tracing threads.
+#[derive(Clone, Copy)]
+pub struct GridView<'r> {
+    pub info: &'r GridInfo,
+    /// Stored triangles (compact order) and their ids in the caller's index buffer.
+    pub tris: &'r [TriVerts],
+    pub tri_ids: &'r [u32],
+    /// Cell `c` holds `refs[cell_start[c]..cell_start[c + 1]]`, cells in x-fastest order.
+    pub cell_start: &'r [u32],
+    pub refs: &'r [u32],
+    /// One bit per macrocell, set when any of its cells holds a reference.
+    pub macro_bits: &'r [u32],
+}
+
+impl<'a> Grid<'a> {
+    pub(crate) fn pools_mut(&mut self) -> &mut GridPools<'a> {
+        &mut self.pools
+    }
+    pub(crate) fn set_info(&mut self, info: GridInfo) {
+        self.info = Some(info);
+    }
+    pub fn new(pools: GridPools<'a>) -> Self {
+        Grid { pools, info: None }
+    }
+    /// The last successful build, if any.
+    pub fn view(&self) -> Option<GridView<'_>> {
+        let info = self.info.as_ref()?;
+        let cells = info.cells() as usize;
+        Some(GridView {
+            info,
+            tris: &self.pools.tris[..info.triangles as usize],
+            tri_ids: &self.pools.tri_ids[..info.triangles as usize],
+            cell_start: &self.pools.cell_start[..cells + 1],
+            refs: &self.pools.refs[..info.refs as usize],
+            macro_bits: &self.pools.macro_bits[..],
+        })
+    }
+    pub fn info(&self) -> Option<&GridInfo> {
+        self.info.as_ref()
+    }
+}
+
+impl GridView<'_> {
+    /// Linear index of cell (x, y, z).
+    #[inline(always)]
+    pub fn cell_index(&self, c: [i32; 3]) -> usize {
+        let r = &self.info.res;
+        (c[0] as usize) + r[0] as usize * ((c[1] as usize) + r[1] as usize * c[2] as usize)
+    }
+    /// References of cell `idx`.
+    #[inline(always)]
+    pub fn cell(&self, idx: usize) -> &[u32] {
+        &self.refs[self.cell_start[idx] as usize..self.cell_start[idx + 1] as usize]
+    }
+    /// Whether macrocell (x, y, z) holds any reference.
+    #[inline(always)]
+    pub fn macro_occupied(&self, m: [i32; 3]) -> bool {
+        let r = &self.info.macro_res;
+        let i = (m[0] as usize) + r[0] as usize * ((m[1] as usize) + r[1] as usize * m[2] as usize);
+        self.macro_bits[i >> 5] & (1 << (i & 31)) != 0
+    }
+}

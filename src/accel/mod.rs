@@ -1,0 +1,5 @@
+//! Acceleration structures, one folder per family. A family never calls
+//! another; `render` and `context` compose them.
+#![forbid(unsafe_code)]
+
+pub mod grid;

@@ -1,0 +1,327 @@
+//! The context: every pool carved from one buffer at creation, then reused by
+//! every frame. After `Context::new_in` nothing here allocates.
+#![forbid(unsafe_code)]
+
+use crate::accel::grid::{self, Grid, GridInfo, GridParams, GridPools, GridView};
+use crate::error::{Error, Pool, Result};
+use crate::geom::{Hit, Mt, Ray, Scene, TriTest, TriVerts, TriangleTest, Wt};
+use crate::mem::{Arena, Limits, pool_bytes};
+use crate::render::{self, Frame, PrimaryRays, Tracer};
+use crate::trace::{Counters, Method};
+
+/// Pool sizes derived from `Limits`, in the order they are carved.
+struct Layout {
+    tris: usize,
+    cells: usize,
+    refs: usize,
+    macro_words: usize,
+    slots: usize,
+}
+
+impl Layout {
+    fn of(l: &Limits) -> Result<Layout> {
+        l.validate()?;
+        let cells = l.grid_cells() as usize;
+        Ok(Layout {
+            tris: l.max_triangles as usize,
+            cells,
+            refs: l.grid_refs() as usize,
+            macro_words: cells.div_ceil(32) + 1,
+            slots: l.max_threads as usize,
+        })
+    }
+    fn bytes(&self) -> usize {
+        pool_bytes::<TriVerts>(self.tris)
+            + pool_bytes::<u32>(self.tris)
+            + pool_bytes::<u32>(self.cells + 1)
+            + pool_bytes::<u32>(self.refs)
+            + pool_bytes::<u32>(self.macro_words)
+            + pool_bytes::<Counters>(self.slots)
+    }
+}
+
+/// Exact number of bytes `Context::new_in` needs for `limits` (the buffer
+/// must also start on a 64-byte boundary).
+pub fn required_bytes(limits: &Limits) -> Result<usize> {
+    Ok(Layout::of(limits)?.bytes())
+}
+
+/// Statistics of the last build and the last trace/render call.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Stats {
+    pub grid: GridInfo,
+    /// Wall time of the last build in nanoseconds (0 without `std`).
+    pub build_ns: u64,
+    /// Counters of the last trace, occluded or render call.
+    pub counters: Counters,
+    /// Wall time of the last trace, occluded or render call (0 without `std`).
+    pub trace_ns: u64,
+}
+
+/// A sheaf context: fixed pools, the current structure, per-thread slots.
+///
+/// Thread safety: `&Context` may be shared by threads that trace or render
+/// (those take `&self`); `build` takes `&mut self`.
+pub struct Context<'a> {
+    limits: Limits,
+    grid: Grid<'a>,
+    /// Per-thread counter slots, for threaded rendering.
+    slots: &'a mut [Counters],
+    stats: Stats,
+}
+
+#[cfg(feature = "std")]
+fn now() -> Option<std::time::Instant> {
+    Some(std::time::Instant::now())
+}
+#[cfg(not(feature = "std"))]
+fn now() -> Option<()> {
+    None
+}
+#[cfg(feature = "std")]
+fn elapsed_ns(t: Option<std::time::Instant>) -> u64 {
+    t.map_or(0, |t| t.elapsed().as_nanos() as u64)
+}
+#[cfg(not(feature = "std"))]
+fn elapsed_ns(_: Option<()>) -> u64 {
+    0
+}
+
+impl<'a> Context<'a> {
+    /// Create a context over `buf` (at least `required_bytes(limits)` bytes,
+    /// 64-byte aligned). Never allocates.
+    pub fn new_in(buf: &'a mut [u8], limits: &Limits) -> Result<Context<'a>> {
+        let layout = Layout::of(limits)?;
+        let need = layout.bytes();
+        if buf.len() < need {
+            return Err(Error::BufferTooSmall { needed: need as u64, available: buf.len() as u64 });
+        }
+        let mut arena = Arena::new(buf)?;
+        let pools = GridPools {
+            tris: arena.take(layout.tris)?,
+            tri_ids: arena.take(layout.tris)?,
+            cell_start: arena.take(layout.cells + 1)?,
+            refs: arena.take(layout.refs)?,
+            macro_bits: arena.take(layout.macro_words)?,
+        };
+        let slots = arena.take(layout.slots)?;
+        debug_assert_eq!(arena.used(), need);
+        Ok(Context { limits: *limits, grid: Grid::new(pools), slots, stats: Stats::default() })
+    }
+
+    pub fn limits(&self) -> &Limits {
+        &self.limits
+    }
+
+    /// Statistics of the last build and trace/render call.
+    pub fn stats(&self) -> &Stats {
+        &self.stats
+    }
+
+    /// Check `scene` against the limits without building.
+    pub fn check_scene(&self, scene: &Scene<'_>) -> Result<()> {
+        if scene.triangle_count() > self.limits.max_triangles {
+            return Err(Error::Capacity {
+                pool: Pool::Triangles,
+                needed: scene.triangle_count() as u64,
+                available: self.limits.max_triangles as u64,
+            });
+        }
+        if scene.vertex_count() > self.limits.max_vertices {
+            return Err(Error::Capacity {
+                pool: Pool::Vertices,
+                needed: scene.vertex_count() as u64,
+                available: self.limits.max_vertices as u64,
+            });
+        }
+        Ok(())
+    }
+
+    /// Rebuild the grid from `scene`. On error the previous grid stays valid.
+    pub fn build_grid(&mut self, scene: &Scene<'_>, params: &GridParams) -> Result<GridInfo> {
+        self.check_scene(scene)?;
+        let t = now();
+        let info = grid::build::build(&mut self.grid, scene, params, self.limits.grid_cells(), self.limits.grid_refs())?;
+        self.stats.build_ns = elapsed_ns(t);
+        self.stats.grid = info;
+        Ok(info)
+    }
+
+    /// The built structure, for tracing from several threads.
+    pub fn tracer(&self) -> Result<GridTracer<'_>> {
+        self.grid.view().map(|view| GridTracer { view }).ok_or(Error::NotBuilt)
+    }
+
+    /// Nearest hits of `rays` into `hits` (same length) with `method`.
+    pub fn trace(&mut self, method: Method, rays: &[Ray], hits: &mut [Hit]) -> Result<Counters> {
+        if rays.len() != hits.len() {
+            return Err(Error::InvalidArgument("rays and hits must have the same length"));
+        }
+        let t = now();
+        let mut ctr = Counters::default();
+        {
+            let tr = self.tracer()?;
+            match method {
+                Method::GridDda => {
+                    for (r, h) in rays.iter().zip(hits.iter_mut()) {
+                        *h = tr.intersect(r, &mut ctr);
+                    }
+                }
+            }
+        }
+        self.stats.trace_ns = elapsed_ns(t);
+        self.stats.counters = ctr;
+        Ok(ctr)
+    }
+
+    /// Occlusion of `rays` into `occluded` (same length): any hit in `[tmin, tmax)`.
+    pub fn occluded(&mut self, method: Method, rays: &[Ray], occluded: &mut [bool]) -> Result<Counters> {
+        if rays.len() != occluded.len() {
+            return Err(Error::InvalidArgument("rays and results must have the same length"));
+        }
+        let t = now();
+        let mut ctr = Counters::default();
+        {
+            let tr = self.tracer()?;
+            match method {
+                Method::GridDda => {
+                    for (r, o) in rays.iter().zip(occluded.iter_mut()) {
+                        *o = tr.occluded(r, &mut ctr);
+                    }
+                }
+            }
+        }
+        self.stats.trace_ns = elapsed_ns(t);
+        self.stats.counters = ctr;
+        Ok(ctr)
+    }
+
+    /// Check a frame against the limits and the framebuffer size.
+    pub fn check_frame(&self, frame: &Frame, pixels_len: usize, stride: usize) -> Result<PrimaryRays> {
+        let (w, h) = (frame.width, frame.height);
+        if w == 0 || h == 0 {
+            return Err(Error::InvalidArgument("image width and height must be > 0"));
+        }
+        if w > self.limits.max_image_width || h > self.limits.max_image_height {
+            return Err(Error::Capacity {
+                pool: Pool::Image,
+                needed: w as u64 * h as u64,
+                available: self.limits.max_image_width as u64 * self.limits.max_image_height as u64,
+            });
+        }
+        if stride < w as usize * 4 {
+            return Err(Error::InvalidArgument("framebuffer stride must be >= 4 * width"));
+        }
+        if pixels_len < (h as usize - 1) * stride + w as usize * 4 {
+            return Err(Error::InvalidArgument("framebuffer smaller than height * stride"));
+        }
+        PrimaryRays::new(&frame.camera, w, h)
+    }
+
+    /// Render a whole frame on the calling thread.
+    pub fn render(&mut self, method: Method, frame: &Frame, pixels: &mut [u8], stride: usize) -> Result<Counters> {
+        let rays = self.check_frame(frame, pixels.len(), stride)?;
+        let t = now();
+        let mut ctr = Counters::default();
+        match method {
+            Method::GridDda => render::render_rows(&self.tracer()?, frame, &rays, 0, frame.height, pixels, stride, &mut ctr),
+        }
+        self.slots[0] = ctr;
+        self.stats.trace_ns = elapsed_ns(t);
+        self.stats.counters = ctr;
+        Ok(ctr)
+    }
+
+    /// Record counters and time of a frame rendered by the caller's threads
+    /// (through `tracer()` and `render::render_rows`).
+    pub fn record(&mut self, ctr: Counters, trace_ns: u64) {
+        self.stats.counters = ctr;
+        self.stats.trace_ns = trace_ns;
+    }
+}
+
+/// A built grid ready to trace, shared across threads.
+#[derive(Clone, Copy)]
+pub struct GridTracer<'r> {
+    pub view: GridView<'r>,
+}
+
+impl Tracer for GridTracer<'_> {
+    #[inline]
+    fn intersect(&self, ray: &Ray, ctr: &mut Counters) -> Hit {
+        match self.view.info.test {
+            TriTest::MollerTrumbore => grid::traverse_single::intersect::<Mt>(&self.view, ray, ctr),
+            TriTest::Watertight => grid::traverse_single::intersect::<Wt>(&self.view, ray, ctr),
+        }
+    }
+    #[inline]
+    fn occluded(&self, ray: &Ray, ctr: &mut Counters) -> bool {
+        match self.view.info.test {
+            TriTest::MollerTrumbore => grid::traverse_single::occluded::<Mt>(&self.view, ray, ctr),
+            TriTest::Watertight => grid::traverse_single::occluded::<Wt>(&self.view, ray, ctr),
+        }
+    }
+    fn triangle(&self, prim: u32) -> Option<TriVerts> {
+        // Stored triangles are in the caller's order minus exclusions, so a
+        // binary search over the ids finds the slot.
+        let i = self.view.tri_ids.binary_search(&prim).ok()?;
+        Some(self.view.tris[i])
+    }
+    fn scene_scale(&self) -> f32 {
+        self.view.info.bounds.diagonal().length()
+    }
+}
+
+#[allow(dead_code)]
+fn _assert_sync() {
+    fn is_sync<T: Sync>() {}
+    is_sync::<GridTracer<'_>>();
+    let _ = <Mt as TriangleTest>::KIND;
+}
+
+/// A context that owns its memory: exactly one allocation, made at creation
+/// (std only). Offers the same calls as `Context`.
+#[cfg(feature = "std")]
+pub struct OwnedContext {
+    inner: crate::mem::owned::Lent<Context<'static>>,
+}
+
+#[cfg(feature = "std")]
+impl OwnedContext {
+    /// Allocate `required_bytes(limits)` once and create the context in it.
+    pub fn new(limits: &Limits) -> Result<OwnedContext> {
+        let bytes = required_bytes(limits)?;
+        let inner = crate::mem::owned::Lent::new(bytes, |buf| Context::new_in(buf, limits))?;
+        Ok(OwnedContext { inner })
+    }
+    pub fn limits(&self) -> &Limits {
+        self.inner.get().limits()
+    }
+    pub fn stats(&self) -> &Stats {
+        self.inner.get().stats()
+    }
+    pub fn check_scene(&self, scene: &Scene<'_>) -> Result<()> {
+        self.inner.get().check_scene(scene)
+    }
+    pub fn build_grid(&mut self, scene: &Scene<'_>, params: &GridParams) -> Result<GridInfo> {
+        self.inner.get_mut().build_grid(scene, params)
+    }
+    pub fn tracer(&self) -> Result<GridTracer<'_>> {
+        self.inner.get().tracer()
+    }
+    pub fn trace(&mut self, method: Method, rays: &[Ray], hits: &mut [Hit]) -> Result<Counters> {
+        self.inner.get_mut().trace(method, rays, hits)
+    }
+    pub fn occluded(&mut self, method: Method, rays: &[Ray], occluded: &mut [bool]) -> Result<Counters> {
+        self.inner.get_mut().occluded(method, rays, occluded)
+    }
+    pub fn check_frame(&self, frame: &Frame, pixels_len: usize, stride: usize) -> Result<PrimaryRays> {
+        self.inner.get().check_frame(frame, pixels_len, stride)
+    }
+    pub fn render(&mut self, method: Method, frame: &Frame, pixels: &mut [u8], stride: usize) -> Result<Counters> {
+        self.inner.get_mut().render(method, frame, pixels, stride)
+    }
+    pub fn record(&mut self, ctr: Counters, trace_ns: u64) {
+        self.inner.get_mut().record(ctr, trace_ns)
+    }
+}

@@ -1,0 +1,89 @@
+//! The one error type: small, `Copy`, with data, no `String` (the core never allocates).
+
+use core::fmt;
+
+/// A fixed-memory pool, named in capacity errors.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Pool {
+    /// Triangles accepted by `Limits::max_triangles`.
+    Triangles,
+    /// Vertices accepted by `Limits::max_vertices`.
+    Vertices,
+    /// Grid cells (`Limits::max_grid_cells`): the resolution chosen from lambda x triangles.
+    GridCells,
+    /// Triangle references stored in grid cells (`Limits::max_grid_refs`).
+    GridRefs,
+    /// Image width x height (`Limits::max_image_width/height`).
+    Image,
+    /// Per-thread slots (`Limits::max_threads`).
+    Threads,
+}
+
+impl Pool {
+    /// Stable lower-case name used in messages.
+    pub const fn name(self) -> &'static str {
+        match self {
+            Pool::Triangles => "triangles",
+            Pool::Vertices => "vertices",
+            Pool::GridCells => "grid_cells",
+            Pool::GridRefs => "grid_refs",
+            Pool::Image => "image",
+            Pool::Threads => "threads",
+        }
+    }
+}
+
+/// Everything that can go wrong in sheaf. Every failing call leaves the
+/// context as it was before the call.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Error {
+    /// A required pointer was NULL (C ABI only).
+    NullPointer,
+    /// An argument is out of its documented domain; the text names it.
+    InvalidArgument(&'static str),
+    /// Triangle `triangle` references vertex `index`, but only `vertex_count` exist.
+    IndexOutOfRange { triangle: u32, index: u32, vertex_count: u32 },
+    /// A fixed pool is too small for this input.
+    Capacity { pool: Pool, needed: u64, available: u64 },
+    /// The memory handed to `create` is smaller than `required_bytes`.
+    BufferTooSmall { needed: u64, available: u64 },
+    /// The memory handed to `create` is not aligned to `required` bytes.
+    Misaligned { required: u32 },
+    /// `build` was called before any geometry was set (C ABI only).
+    NoGeometry,
+    /// A trace or render call came before the first successful `build`.
+    NotBuilt,
+    /// A panic was caught at the C boundary (a bug in sheaf: please report).
+    Panic,
+}
+
+impl fmt::Display for Error {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match *self {
+            Error::NullPointer => write!(f, "a required pointer is NULL"),
+            Error::InvalidArgument(what) => write!(f, "invalid argument: {what}"),
+            Error::IndexOutOfRange { triangle, index, vertex_count } => write!(
+                f,
+                "triangle {triangle} references vertex {index} but the vertex buffer holds {vertex_count}"
+            ),
+            Error::Capacity { pool, needed, available } => write!(
+                f,
+                "capacity exceeded in pool '{}': needed {needed}, available {available}",
+                pool.name()
+            ),
+            Error::BufferTooSmall { needed, available } => {
+                write!(f, "memory buffer too small: needed {needed} bytes, got {available}")
+            }
+            Error::Misaligned { required } => write!(f, "memory buffer must be aligned to {required} bytes"),
+            Error::NoGeometry => write!(f, "no geometry set"),
+            Error::NotBuilt => write!(f, "no acceleration structure built yet"),
+            Error::Panic => write!(f, "internal error (panic caught at the C boundary)"),
+        }
+    }
+}
+
+#[cfg(feature = "std")]
+impl std::error::Error for Error {}
+
+/// Result alias used throughout sheaf.
+pub type Result<T> = core::result::Result<T, Error>;

@@ -1,0 +1,15 @@
+//! Geometry: the 2x2 SIMD ray and its single-ray twin, boxes, triangle tests
+//! and the borrowed scene input. Knows nothing about acceleration structures.
+#![forbid(unsafe_code)]
+
+pub mod aabb;
+pub mod lane;
+pub mod ray;
+pub mod scene;
+pub mod triangle;
+
+pub use aabb::Aabb;
+pub use lane::{F4, Lane, M4};
+pub use ray::{Hit, Hit4, INVALID_ID, Ray, Ray4};
+pub use scene::{Excluded, Scene};
+pub use triangle::{Mt, RayLanes, TriTest, TriVerts, TriangleTest, Wt};

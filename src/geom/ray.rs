@@ -1,0 +1,157 @@
+//! Rays and hits: the single ray (`Ray`, `Hit`, also the C layout) and the
+//! 2x2 SIMD ray (`Ray4`, `Hit4`).
+//!
+//! # Semantics
+//! A ray is `org + t * dir` for `t` in `[tmin, tmax)`. `dir` need not be
+//! normalised (t is in units of `dir`). Zero direction components are allowed
+//! and exact. A hit at exactly `tmax` is not reported, so a shadow ray with
+//! `dir = light - p`, `tmax = 1` never reports the light's own position.
+//! Of two hits at the same t, the lower triangle id wins: results do not depend
+//! on traversal order, which is what lets packet methods match single-ray ones
+//! bit for bit.
+
+use crate::geom::lane::{F4, M4};
+use bytemuck::{Pod, Zeroable};
+
+/// Triangle id of a miss.
+pub const INVALID_ID: u32 = u32::MAX;
+
+/// One ray (32 bytes, C layout `sheaf_ray`).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+pub struct Ray {
+    pub org: [f32; 3],
+    pub tmin: f32,
+    pub dir: [f32; 3],
+    pub tmax: f32,
+}
+
+/// One hit (16 bytes, C layout `sheaf_hit`). On a miss `prim == INVALID_ID`,
+/// `t == +inf`, `u == v == 0`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+pub struct Hit {
+    /// Ray parameter of the hit.
+    pub t: f32,
+    /// Triangle index in the caller's index buffer (`INVALID_ID`: miss).
+    pub prim: u32,
+    /// Barycentric weight of the triangle's second vertex.
+    pub u: f32,
+    /// Barycentric weight of the triangle's third vertex.
+    pub v: f32,
+}
+
+impl Hit {
+    pub const MISS: Hit = Hit { t: f32::INFINITY, prim: INVALID_ID, u: 0.0, v: 0.0 };
+    #[inline]
+    pub fn is_hit(&self) -> bool {
+        self.prim != INVALID_ID
+    }
+}
+
+impl Ray {
+    #[inline]
+    pub fn new(org: glam::Vec3, dir: glam::Vec3, tmin: f32, tmax: f32) -> Ray {
+        Ray { org: org.to_array(), tmin, dir: dir.to_array(), tmax }
+    }
+    /// `true` when every field is usable: finite origin and direction, a
+    /// non-zero direction, `tmin >= 0` and `tmin <= tmax` (tmax may be +inf).
+    /// Other rays are reported as misses without being traced.
+    #[inline]
+    pub fn is_valid(&self) -> bool {
+        let finite = self.org.iter().chain(self.dir.iter()).all(|x| x.is_finite());
+        let nonzero = self.dir.iter().any(|&x| x != 0.0);
+        finite && nonzero && self.tmin >= 0.0 && self.tmin <= self.tmax
+    }
+}
+
+/// Four rays in structure-of-arrays form, one per lane.
+///
+/// Lane order is the 2x2 pixel quad: lane 0 = (x, y), 1 = (x+1, y),
+/// 2 = (x, y+1), 3 = (x+1, y+1). `rcp` is `1 / dir` per component (IEEE:
+/// +-inf for zero components). Inactive lanes carry `tmax < tmin`... callers
+/// use the `active` mask of the packet instead; the struct holds no mask.
+#[repr(C, align(16))]
+#[derive(Clone, Copy, Debug)]
+pub struct Ray4 {
+    pub org: [F4; 3],
+    pub dir: [F4; 3],
+    pub rcp: [F4; 3],
+    pub tmin: F4,
+    pub tmax: F4,
+}
+
+/// Four hits, structure of arrays, lanes as in `Ray4`.
+#[repr(C, align(16))]
+#[derive(Clone, Copy, Debug)]
+pub struct Hit4 {
+    pub t: F4,
+    pub prim: [u32; 4],
+    pub u: F4,
+    pub v: F4,
+}
+
+const _: () = assert!(core::mem::size_of::<Ray>() == 32);
+const _: () = assert!(core::mem::size_of::<Hit>() == 16);
+const _: () = assert!(core::mem::size_of::<Ray4>() == 11 * 16);
+const _: () = assert!(core::mem::align_of::<Ray4>() == 16);
+const _: () = assert!(core::mem::size_of::<Hit4>() == 4 * 16);
+
+impl Hit4 {
+    pub const MISS: Hit4 = Hit4 {
+        t: F4::splat(f32::INFINITY),
+        prim: [INVALID_ID; 4],
+        u: F4::ZERO,
+        v: F4::ZERO,
+    };
+    /// Lane `i` as a `Hit`.
+    #[inline]
+    pub fn lane(&self, i: usize) -> Hit {
+        Hit { t: self.t[i], prim: self.prim[i], u: self.u[i], v: self.v[i] }
+    }
+    #[inline]
+    pub fn set_lane(&mut self, i: usize, h: Hit) {
+        self.t[i] = h.t;
+        self.prim[i] = h.prim;
+        self.u[i] = h.u;
+        self.v[i] = h.v;
+    }
+    /// Lanes that hit something.
+    #[inline]
+    pub fn hit_mask(&self) -> M4 {
+        M4::new(
+            self.prim[0] != INVALID_ID,
+            self.prim[1] != INVALID_ID,
+            self.prim[2] != INVALID_ID,
+            self.prim[3] != INVALID_ID,
+        )
+    }
+}
+
+impl Ray4 {
+    /// Pack four rays (reciprocals computed here).
+    #[inline]
+    pub fn from_rays(r: &[Ray; 4]) -> Ray4 {
+        let c = |f: &dyn Fn(&Ray) -> f32| F4::new(f(&r[0]), f(&r[1]), f(&r[2]), f(&r[3]));
+        let org = [c(&|r| r.org[0]), c(&|r| r.org[1]), c(&|r| r.org[2])];
+        let dir = [c(&|r| r.dir[0]), c(&|r| r.dir[1]), c(&|r| r.dir[2])];
+        let one = F4::ONE;
+        Ray4 {
+            org,
+            dir,
+            rcp: [one / dir[0], one / dir[1], one / dir[2]],
+            tmin: c(&|r| r.tmin),
+            tmax: c(&|r| r.tmax),
+        }
+    }
+    /// Lane `i` as a `Ray`.
+    #[inline]
+    pub fn lane(&self, i: usize) -> Ray {
+        Ray {
+            org: [self.org[0][i], self.org[1][i], self.org[2][i]],
+            tmin: self.tmin[i],
+            dir: [self.dir[0][i], self.dir[1][i], self.dir[2][i]],
+            tmax: self.tmax[i],
+        }
+    }
+}

@@ -1,0 +1,233 @@
+//! Ray-triangle tests, written once over `Lane` so the single ray (`f32`)
+//! and the 2x2 SIMD ray (`F4`) run the same arithmetic:
+//!
+//! - Moller and Trumbore 1997, "Fast, minimum storage ray-triangle
+//!   intersection" (no per-triangle precomputation; determinant compared to
+//!   exactly zero, no absolute epsilon).
+//! - Woop, Benthin and Wald 2013, "Watertight ray/triangle intersection"
+//!   (JCGT 2(1)): shear to ray space, 2D edge functions, f64 recomputation of
+//!   edge functions that come out exactly zero (section 4 of the paper). A ray
+//!   through a shared edge or vertex of a closed mesh hits at least one of the
+//!   triangles.
+//!
+//! Both tests are two-sided and report `t` in `[tmin, tmax)` and the
+//! barycentric weights `u` (second vertex) and `v` (third vertex).
+
+use crate::geom::lane::{F4, Lane};
+use bytemuck::{Pod, Zeroable};
+
+/// A triangle's three vertices, copied out of the caller's buffers at build.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct TriVerts {
+    pub v0: [f32; 3],
+    pub v1: [f32; 3],
+    pub v2: [f32; 3],
+}
+
+impl TriVerts {
+    /// Geometric normal `(v1 - v0) x (v2 - v0)` (not normalised).
+    #[inline]
+    pub fn normal(&self) -> glam::Vec3 {
+        let a = glam::Vec3::from(self.v0);
+        (glam::Vec3::from(self.v1) - a).cross(glam::Vec3::from(self.v2) - a)
+    }
+}
+
+/// Which ray-triangle test a structure uses (a build parameter).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum TriTest {
+    /// Moller-Trumbore: fastest setup, can leak through shared edges.
+    #[default]
+    MollerTrumbore = 0,
+    /// Woop-Benthin-Wald watertight test.
+    Watertight = 1,
+}
+
+/// Per-ray shear for the watertight test (WBW 2013, section 3, Fig. 1):
+/// `kz` is the dominant axis of the direction, `kx`, `ky` the others (swapped
+/// when `dir[kz] < 0` to keep the winding), `s = (dx/dz, dy/dz, 1/dz)`.
+#[derive(Clone, Copy, Debug)]
+pub struct Shear<L: Lane> {
+    pub kx: L::Axis,
+    pub ky: L::Axis,
+    pub kz: L::Axis,
+    pub s: [L; 3],
+}
+
+/// Scalar shear of one direction: ([kx, ky, kz], [sx, sy, sz]).
+#[inline]
+pub(crate) fn shear1(d: [f32; 3]) -> ([usize; 3], [f32; 3]) {
+    let a = [d[0].abs(), d[1].abs(), d[2].abs()];
+    let kz = if a[0] >= a[1] && a[0] >= a[2] { 0 } else if a[1] >= a[2] { 1 } else { 2 };
+    let mut kx = (kz + 1) % 3;
+    let mut ky = (kx + 1) % 3;
+    if d[kz] < 0.0 {
+        core::mem::swap(&mut kx, &mut ky);
+    }
+    ([kx, ky, kz], [d[kx] / d[kz], d[ky] / d[kz], 1.0 / d[kz]])
+}
+
+impl<L: Lane> Shear<L> {
+    #[inline]
+    pub fn new(d: [L; 3]) -> Self {
+        let (k, s) = L::shear_axes(d);
+        Shear { kx: k[0], ky: k[1], kz: k[2], s }
+    }
+}
+
+/// One ray or four, as the triangle tests read them.
+#[derive(Clone, Copy, Debug)]
+pub struct RayLanes<L: Lane> {
+    pub org: [L; 3],
+    pub dir: [L; 3],
+    pub tmin: L,
+    pub tmax: L,
+}
+
+/// Result of a test: which lanes hit inside `[tmin, tmax)`, and where.
+#[derive(Clone, Copy, Debug)]
+pub struct TriHit<L: Lane> {
+    pub mask: L::Mask,
+    pub t: L,
+    pub u: L,
+    pub v: L,
+}
+
+#[inline(always)]
+fn sub3<L: Lane>(a: [L; 3], b: [L; 3]) -> [L; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+#[inline(always)]
+fn cross3<L: Lane>(a: [L; 3], b: [L; 3]) -> [L; 3] {
+    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+}
+#[inline(always)]
+fn dot3<L: Lane>(a: [L; 3], b: [L; 3]) -> L {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+#[inline(always)]
+fn splat3<L: Lane>(v: [f32; 3]) -> [L; 3] {
+    [L::splat(v[0]), L::splat(v[1]), L::splat(v[2])]
+}
+
+/// Moller-Trumbore, two-sided. Misses where the determinant is exactly zero
+/// (ray parallel to the plane) or any quantity is NaN.
+#[inline(always)]
+pub fn moller_trumbore<L: Lane>(r: &RayLanes<L>, tri: &TriVerts) -> TriHit<L> {
+    let v0 = splat3::<L>(tri.v0);
+    let e1 = sub3(splat3::<L>(tri.v1), v0);
+    let e2 = sub3(splat3::<L>(tri.v2), v0);
+    let p = cross3(r.dir, e2);
+    let det = dot3(e1, p);
+    let inv = L::splat(1.0) / det;
+    let s = sub3(r.org, v0);
+    let u = dot3(s, p) * inv;
+    let q = cross3(s, e1);
+    let v = dot3(r.dir, q) * inv;
+    let t = dot3(e2, q) * inv;
+    let zero = L::splat(0.0);
+    let one = L::splat(1.0);
+    // Written so that NaN fails every comparison and so misses.
+    let mask = zero.le(u) & u.le(one) & zero.le(v) & (u + v).le(one) & r.tmin.le(t) & t.lt(r.tmax) & !det.eq(zero);
+    TriHit { mask, t, u, v }
+}
+
+    /// Woop-Benthin-Wald watertight test, two-sided, with the ray's shear.
+#[inline(always)]
+pub fn watertight<L: Lane>(r: &RayLanes<L>, sh: &Shear<L>, tri: &TriVerts) -> TriHit<L> {
+    // Vertices relative to the ray origin (WBW Fig. 1, lines "A = v0 - org" ...).
+    let a = sub3(splat3::<L>(tri.v0), r.org);
+    let b = sub3(splat3::<L>(tri.v1), r.org);
+    let c = sub3(splat3::<L>(tri.v2), r.org);
+    let (az, bz, cz) = (L::pick(a, sh.kz), L::pick(b, sh.kz), L::pick(c, sh.kz));
+    // Shear and scale.
+    let ax = L::pick(a, sh.kx) - sh.s[0] * az;
+    let ay = L::pick(a, sh.ky) - sh.s[1] * az;
+    let bx = L::pick(b, sh.kx) - sh.s[0] * bz;
+    let by = L::pick(b, sh.ky) - sh.s[1] * bz;
+    let cx = L::pick(c, sh.kx) - sh.s[0] * cz;
+    let cy = L::pick(c, sh.ky) - sh.s[1] * cz;
+    // Scaled barycentric coordinates (2D edge functions).
+    let mut u = cx * by - cy * bx;
+    let mut v = ax * cy - ay * cx;
+    let mut w = bx * ay - by * ax;
+    let zero = L::splat(0.0);
+    let any_zero = u.eq(zero) | v.eq(zero) | w.eq(zero);
+    if L::any(any_zero) {
+        // Section 4 of the paper: recompute edge functions that are exactly
+        // zero in double precision, so edges shared by two triangles are
+        // decided consistently.
+        for i in 0..L::WIDTH {
+            if L::mask_get(any_zero, i) {
+                let f = |x: L| x.get(i) as f64;
+                u.set(i, (f(cx) * f(by) - f(cy) * f(bx)) as f32);
+                v.set(i, (f(ax) * f(cy) - f(ay) * f(cx)) as f32);
+                w.set(i, (f(bx) * f(ay) - f(by) * f(ax)) as f32);
+            }
+        }
+    }
+    let neg = u.lt(zero) | v.lt(zero) | w.lt(zero);
+    let pos = zero.lt(u) | zero.lt(v) | zero.lt(w);
+    let det = u + v + w;
+    let t_scaled = u * (sh.s[2] * az) + v * (sh.s[2] * bz) + w * (sh.s[2] * cz);
+    let t = t_scaled / det;
+    let mask = !(neg & pos) & !det.eq(zero) & r.tmin.le(t) & t.lt(r.tmax);
+    TriHit { mask, t, u: v / det, v: w / det }
+}
+
+/// A triangle test with its per-ray precomputation, so traversals are
+/// monomorphised per test (no per-triangle branch on the test kind).
+pub trait TriangleTest: Copy + Default + Send + Sync + 'static {
+    /// Per-ray data computed once before traversal.
+    type Pre<L: Lane>: Copy;
+    const KIND: TriTest;
+    fn prepare<L: Lane>(r: &RayLanes<L>) -> Self::Pre<L>;
+    fn intersect<L: Lane>(r: &RayLanes<L>, pre: &Self::Pre<L>, tri: &TriVerts) -> TriHit<L>;
+}
+
+/// Moller-Trumbore as a `TriangleTest`.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Mt;
+/// Watertight as a `TriangleTest`.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Wt;
+
+impl TriangleTest for Mt {
+    type Pre<L: Lane> = ();
+    const KIND: TriTest = TriTest::MollerTrumbore;
+    #[inline(always)]
+    fn prepare<L: Lane>(_: &RayLanes<L>) {}
+    #[inline(always)]
+    fn intersect<L: Lane>(r: &RayLanes<L>, _: &(), tri: &TriVerts) -> TriHit<L> {
+        moller_trumbore(r, tri)
+    }
+}
+
+impl TriangleTest for Wt {
+    type Pre<L: Lane> = Shear<L>;
+    const KIND: TriTest = TriTest::Watertight;
+    #[inline(always)]
+    fn prepare<L: Lane>(r: &RayLanes<L>) -> Shear<L> {
+        Shear::new(r.dir)
+    }
+    #[inline(always)]
+    fn intersect<L: Lane>(r: &RayLanes<L>, pre: &Shear<L>, tri: &TriVerts) -> TriHit<L> {
+        watertight(r, pre, tri)
+    }
+}
+
+impl RayLanes<f32> {
+    #[inline]
+    pub fn from_ray(r: &crate::geom::ray::Ray) -> Self {
+        RayLanes { org: r.org, dir: r.dir, tmin: r.tmin, tmax: r.tmax }
+    }
+}
+
+impl RayLanes<F4> {
+    #[inline]
+    pub fn from_ray4(r: &crate::geom::ray::Ray4) -> Self {
+        RayLanes { org: r.org, dir: r.dir, tmin: r.tmin, tmax: r.tmax }
+    }
+}

@@ -1,0 +1,62 @@
+//! The arena: typed pools carved, once, out of one caller-provided byte buffer.
+//!
+//! Every pool starts on a 64-byte boundary (a cache line) and its size is
+//! rounded up to 64 bytes, so the bytes a layout needs depend only on the
+//! pool sizes, never on addresses: `required_bytes` is exact.
+//! Casting bytes to typed slices goes through `bytemuck` (checked, safe).
+
+use crate::error::{Error, Result};
+use bytemuck::Pod;
+
+/// Alignment of the buffer and of every pool.
+pub const ARENA_ALIGN: usize = 64;
+
+/// Bytes a pool of `n` values of `T` occupies in an arena.
+pub const fn pool_bytes<T>(n: usize) -> usize {
+    let b = n * core::mem::size_of::<T>();
+    (b + ARENA_ALIGN - 1) / ARENA_ALIGN * ARENA_ALIGN
+}
+
+/// Hands out disjoint, aligned, zeroed pools from one buffer.
+pub struct Arena<'a> {
+    rest: &'a mut [u8],
+    used: usize,
+}
+
+impl<'a> Arena<'a> {
+    /// Wrap `buf`, which must start on a 64-byte boundary.
+    pub fn new(buf: &'a mut [u8]) -> Result<Self> {
+        if (buf.as_ptr() as usize) % ARENA_ALIGN != 0 {
+            return Err(Error::Misaligned { required: ARENA_ALIGN as u32 });
+        }
+        Ok(Arena { rest: buf, used: 0 })
+    }
+
+    /// Bytes handed out so far (including padding).
+    pub fn used(&self) -> usize {
+        self.used
+    }
+
+    /// Bytes still available.
+    pub fn remaining(&self) -> usize {
+        self.rest.len()
+    }
+
+    /// A zeroed pool of `n` values. Fails (changing nothing) when the buffer
+    /// is too small; `needed` counts this pool only.
+    pub fn take<T: Pod>(&mut self, n: usize) -> Result<&'a mut [T]> {
+        let bytes = pool_bytes::<T>(n);
+        if bytes > self.rest.len() {
+            return Err(Error::BufferTooSmall { needed: (self.used + bytes) as u64, available: (self.used + self.rest.len()) as u64 });
+        }
+        let rest = core::mem::take(&mut self.rest);
+        let (pool, rest) = rest.split_at_mut(bytes);
+        self.rest = rest;
+        self.used += bytes;
+        pool.fill(0);
+        let pool = &mut pool[..n * core::mem::size_of::<T>()];
+        // Alignment holds by construction (64-aligned start, 64-multiple sizes,
+        // align_of::<T>() <= 64): a failure here is a sheaf bug, reported as such.
+        bytemuck::try_cast_slice_mut(pool).map_err(|_| Error::Misaligned { required: ARENA_ALIGN as u32 })
+    }
+}

@@ -1,0 +1,72 @@
+//! `Limits`: every pool size of a context derives from these numbers.
+
+use crate::error::{Error, Result};
+
+/// Capacities fixed at context creation (C: `sheaf_limits`).
+///
+/// A zero in a `max_grid_*` knob means "derive from `max_triangles`"; see
+/// the field docs for the rule.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Limits {
+    /// Most triangles a scene may have (including ones excluded at build).
+    pub max_triangles: u32,
+    /// Most vertices a scene may have.
+    pub max_vertices: u32,
+    /// Largest image a render call accepts.
+    pub max_image_width: u32,
+    pub max_image_height: u32,
+    /// Largest square tile (pixels per side) a render call works on at once.
+    pub max_tile: u32,
+    /// Most threads that render or trace concurrently (one scratch slot each).
+    pub max_threads: u32,
+    /// Most grid cells. 0: `8 * max_triangles + 64`, room for lambda up to 8
+    /// (CGT paper section 3 uses lambda = 5).
+    pub max_grid_cells: u32,
+    /// Most triangle references in grid cells. 0: `16 * max_triangles + 1024`.
+    pub max_grid_refs: u32,
+}
+
+impl Limits {
+    /// Limits for scenes of up to `n` triangles with defaults for the rest:
+    /// `3n` vertices, 4096 x 4096 images, 64-pixel tiles, 8 threads.
+    pub const fn for_triangles(n: u32) -> Limits {
+        Limits {
+            max_triangles: n,
+            max_vertices: n.saturating_mul(3),
+            max_image_width: 4096,
+            max_image_height: 4096,
+            max_tile: 64,
+            max_threads: 8,
+            max_grid_cells: 0,
+            max_grid_refs: 0,
+        }
+    }
+
+    /// Grid cell capacity after applying the default rule.
+    pub fn grid_cells(&self) -> u64 {
+        if self.max_grid_cells != 0 { self.max_grid_cells as u64 } else { 8 * self.max_triangles as u64 + 64 }
+    }
+
+    /// Grid reference capacity after applying the default rule.
+    pub fn grid_refs(&self) -> u64 {
+        if self.max_grid_refs != 0 { self.max_grid_refs as u64 } else { 16 * self.max_triangles as u64 + 1024 }
+    }
+
+    /// Checks that every field is in its domain and every pool fits in memory.
+    pub fn validate(&self) -> Result<()> {
+        if self.max_threads == 0 || self.max_threads > 1024 {
+            return Err(Error::InvalidArgument("max_threads must be in 1..=1024"));
+        }
+        if self.max_tile < 2 || self.max_tile % 2 != 0 || self.max_tile > 1024 {
+            return Err(Error::InvalidArgument("max_tile must be even and in 2..=1024"));
+        }
+        if self.max_image_width == 0 || self.max_image_height == 0 {
+            return Err(Error::InvalidArgument("max_image_width and max_image_height must be > 0"));
+        }
+        if self.grid_cells() > u32::MAX as u64 - 1 || self.grid_refs() > u32::MAX as u64 {
+            return Err(Error::InvalidArgument("grid pools must stay below 2^32 entries"));
+        }
+        Ok(())
+    }
+}

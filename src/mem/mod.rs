@@ -1,0 +1,14 @@
+//! Memory fixed at setup: `Limits`, the `Arena` that carves typed pools out of
+//! one caller buffer, and (with `std`) the one-allocation owned buffer.
+//!
+//! Nothing in sheaf allocates after a context is created: the pools carved
+//! here are all the memory that build, trace and render ever touch.
+#![allow(unsafe_code)] // only owned.rs, each block with a SAFETY comment
+
+pub mod arena;
+pub mod limits;
+#[cfg(feature = "std")]
+pub mod owned;
+
+pub use arena::{ARENA_ALIGN, Arena, pool_bytes};
+pub use limits::Limits;

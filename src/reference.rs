@@ -1,0 +1,94 @@
+//! The reference oracle for tests and accuracy reports: brute force over
+//! every traceable triangle, in f64.
+//!
+//! Besides the nearest hit it reports how close the decision was, so a
+//! comparison can tell a real error from a legitimate disagreement:
+//! `gap` (relative t distance to the second-nearest hit: a tie when tiny) and
+//! `edge` (the smallest barycentric coordinate of the hit, and of any near
+//! miss: the ray passes within that distance of an edge).
+#![forbid(unsafe_code)]
+
+use crate::geom::{Ray, Scene, TriVerts, INVALID_ID};
+
+/// The oracle's answer for one ray.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RefHit {
+    /// Nearest triangle (`INVALID_ID`: miss) and its t.
+    pub prim: u32,
+    pub t: f64,
+    /// Relative distance `(t2 - t) / t` to the second-nearest hit (inf if none).
+    pub gap: f64,
+    /// Smallest |barycentric| over the nearest hit and every near miss whose
+    /// t is within the nearest hit's t (how near the ray passes an edge).
+    pub edge: f64,
+}
+
+/// f64 Moller-Trumbore without rejection: (t, b0, b1, b2) or None if parallel.
+fn mt64(o: [f64; 3], d: [f64; 3], tri: &TriVerts) -> Option<(f64, f64, f64, f64)> {
+    let v = |p: [f32; 3]| [p[0] as f64, p[1] as f64, p[2] as f64];
+    let (a, b, c) = (v(tri.v0), v(tri.v1), v(tri.v2));
+    let sub = |x: [f64; 3], y: [f64; 3]| [x[0] - y[0], x[1] - y[1], x[2] - y[2]];
+    let cross = |x: [f64; 3], y: [f64; 3]| [x[1] * y[2] - x[2] * y[1], x[2] * y[0] - x[0] * y[2], x[0] * y[1] - x[1] * y[0]];
+    let dot = |x: [f64; 3], y: [f64; 3]| x[0] * y[0] + x[1] * y[1] + x[2] * y[2];
+    let e1 = sub(b, a);
+    let e2 = sub(c, a);
+    let p = cross(d, e2);
+    let det = dot(e1, p);
+    if det == 0.0 {
+        return None;
+    }
+    let s = sub(o, a);
+    let u = dot(s, p) / det;
+    let q = cross(s, e1);
+    let w = dot(d, q) / det;
+    let t = dot(e2, q) / det;
+    Some((t, 1.0 - u - w, u, w))
+}
+
+/// Brute-force nearest hit of `ray` in f64 over the traceable triangles of
+/// `scene` (the same ones every structure stores).
+pub fn nearest(scene: &Scene<'_>, ray: &Ray) -> RefHit {
+    let mut best = RefHit { prim: INVALID_ID, t: f64::INFINITY, gap: f64::INFINITY, edge: f64::INFINITY };
+    if !ray.is_valid() {
+        return best;
+    }
+    let o = [ray.org[0] as f64, ray.org[1] as f64, ray.org[2] as f64];
+    let d = [ray.dir[0] as f64, ray.dir[1] as f64, ray.dir[2] as f64];
+    let (tmin, tmax) = (ray.tmin as f64, ray.tmax as f64);
+    let mut second = f64::INFINITY;
+    // Near misses: (t, how far outside) to fold into `edge` once the nearest t is known.
+    let mut near_miss = f64::INFINITY;
+    let mut near_miss_t = f64::INFINITY;
+    for i in 0..scene.triangle_count() {
+        let tri = scene.triangle(i);
+        if Scene::classify(&tri).is_some() {
+            continue;
+        }
+        let Some((t, b0, b1, b2)) = mt64(o, d, &tri) else { continue };
+        if !(t >= tmin && t < tmax) {
+            continue;
+        }
+        let minb = b0.min(b1).min(b2);
+        if minb >= 0.0 {
+            if t < best.t || (t == best.t && i < best.prim) {
+                second = second.min(best.t);
+                best.prim = i;
+                best.t = t;
+                best.edge = minb;
+            } else {
+                second = second.min(t);
+            }
+        } else if -minb < near_miss {
+            near_miss = -minb;
+            near_miss_t = t;
+        }
+    }
+    // A near miss matters only if it would have been in front of the hit.
+    if near_miss_t <= best.t * (1.0 + 1e-6) || best.prim == INVALID_ID {
+        best.edge = best.edge.min(near_miss);
+    }
+    if best.prim != INVALID_ID {
+        best.gap = if second.is_finite() { (second - best.t) / best.t.abs().max(1e-30) } else { f64::INFINITY };
+    }
+    best
+}
