@@ -45,31 +45,33 @@ fn mt64(o: [f64; 3], d: [f64; 3], tri: &TriVerts) -> Option<(f64, f64, f64, f64)
     Some((t, 1.0 - u - w, u, w))
 }
 
-/// Brute-force nearest hit of `ray` in f64 over the traceable triangles of
-/// `scene` (the same ones every structure stores).
-pub fn nearest(scene: &Scene<'_>, ray: &Ray) -> RefHit {
-    let mut best = RefHit { prim: INVALID_ID, t: f64::INFINITY, gap: f64::INFINITY, edge: f64::INFINITY };
-    if !ray.is_valid() {
-        return best;
-    }
+fn for_each_crossing(scene: &Scene<'_>, ray: &Ray, f: &mut dyn FnMut(u32, f64, f64)) {
     let o = [ray.org[0] as f64, ray.org[1] as f64, ray.org[2] as f64];
     let d = [ray.dir[0] as f64, ray.dir[1] as f64, ray.dir[2] as f64];
-    let (tmin, tmax) = (ray.tmin as f64, ray.tmax as f64);
-    let mut second = f64::INFINITY;
-    // Near misses: (t, how far outside) to fold into `edge` once the nearest t is known.
-    let mut near_miss = f64::INFINITY;
-    let mut near_miss_t = f64::INFINITY;
     for i in 0..scene.triangle_count() {
         let tri = scene.triangle(i);
         if Scene::classify(&tri).is_some() {
             continue;
         }
-        let Some((t, b0, b1, b2)) = mt64(o, d, &tri) else { continue };
-        if !(t >= tmin && t < tmax) {
-            continue;
+        if let Some((t, b0, b1, b2)) = mt64(o, d, &tri) {
+            f(i, t, b0.min(b1).min(b2));
         }
-        let minb = b0.min(b1).min(b2);
-        if minb >= 0.0 {
+    }
+}
+
+/// Brute-force nearest hit of `ray` in f64 over the traceable triangles of
+/// `scene` (the same ones every structure stores). `edge` covers the hit
+/// only; call `edge_distance` for the near misses in front of it (a second
+/// pass, needed only when a method disagrees).
+pub fn nearest(scene: &Scene<'_>, ray: &Ray) -> RefHit {
+    let mut best = RefHit { prim: INVALID_ID, t: f64::INFINITY, gap: f64::INFINITY, edge: f64::INFINITY };
+    if !ray.is_valid() {
+        return best;
+    }
+    let (tmin, tmax) = (ray.tmin as f64, ray.tmax as f64);
+    let mut second = f64::INFINITY;
+    for_each_crossing(scene, ray, &mut |i, t, minb| {
+        if minb >= 0.0 && t >= tmin && t < tmax {
             if t < best.t || (t == best.t && i < best.prim) {
                 second = second.min(best.t);
                 best.prim = i;
@@ -78,17 +80,29 @@ pub fn nearest(scene: &Scene<'_>, ray: &Ray) -> RefHit {
             } else {
                 second = second.min(t);
             }
-        } else if -minb < near_miss {
-            near_miss = -minb;
-            near_miss_t = t;
         }
-    }
-    // A near miss matters only if it would have been in front of the hit.
-    if near_miss_t <= best.t * (1.0 + 1e-6) || best.prim == INVALID_ID {
-        best.edge = best.edge.min(near_miss);
-    }
+    });
     if best.prim != INVALID_ID {
         best.gap = if second.is_finite() { (second - best.t) / best.t.abs().max(1e-30) } else { f64::INFINITY };
     }
     best
+}
+
+/// `hit` with `edge` lowered to the smallest barycentric distance by which
+/// `ray` misses any triangle in front of the hit (anywhere in `[tmin, tmax)`
+/// for a miss): how near an f32 test is to deciding otherwise.
+pub fn with_edge_distance(scene: &Scene<'_>, ray: &Ray, mut hit: RefHit) -> RefHit {
+    if !ray.is_valid() {
+        return hit;
+    }
+    let tmin = ray.tmin as f64;
+    let limit = if hit.prim == INVALID_ID { ray.tmax as f64 } else { hit.t };
+    let mut edge = hit.edge;
+    for_each_crossing(scene, ray, &mut |_, t, minb| {
+        if minb < 0.0 && t >= tmin * (1.0 - 1e-6) && t <= limit * (1.0 + 1e-6) {
+            edge = edge.min(-minb);
+        }
+    });
+    hit.edge = edge;
+    hit
 }
