@@ -49,14 +49,36 @@ fn cell_range(info: &GridInfo, b: &Aabb) -> ([u32; 3], [u32; 3]) {
     (a, z)
 }
 
-/// Resolution for `n` triangles in `bounds` at `lambda` (section 3).
+/// Resolution for `n` triangles in `bounds` at `lambda` (section 3):
+/// `N_a = d_a * cbrt(lambda N / V)`. An axis that would get less than one
+/// cell gets exactly one, and the others are solved again without it
+/// (`k = (lambda N / prod d_a)^(1/m)` over the m remaining axes), so flat
+/// scenes get about lambda x N cells instead of far more.
 fn resolution(bounds: &Aabb, n: u32, lambda: f32) -> [u32; 3] {
     let d = bounds.diagonal();
-    let v = d.x * d.y * d.z;
-    let k = math::cbrt(lambda * n as f32 / v);
+    let target = lambda * n as f32;
+    let mut free = [true; 3];
+    let mut k = math::cbrt(target / (d.x * d.y * d.z));
+    for _ in 0..3 {
+        let m = free.iter().filter(|f| **f).count();
+        let prod: f32 = (0..3).filter(|&a| free[a]).map(|a| d[a]).product();
+        k = if m == 3 { math::cbrt(target / prod) } else { math::powf(target / prod, 1.0 / m as f32) };
+        let mut changed = false;
+        for a in 0..3 {
+            if free[a] && d[a] * k < 1.0 && m > 1 {
+                free[a] = false;
+                changed = true;
+            }
+        }
+        if !changed {
+            break;
+        }
+    }
     let mut r = [1u32; 3];
     for a in 0..3 {
-        r[a] = (math::round(d[a] * k) as u32).clamp(1, MAX_RES);
+        if free[a] {
+            r[a] = (math::round(d[a] * k) as u32).clamp(1, MAX_RES);
+        }
     }
     r
 }

@@ -1,0 +1,236 @@
+//! The context contract: exact memory, validation, capacity errors that leave
+//! the previous frame intact, exclusions counted, robust rays.
+
+mod common;
+
+use sheaf::geom::INVALID_ID;
+use sheaf::{Context, Error, GridParams, Hit, Limits, Method, OwnedContext, Pool, Ray, Scene, required_bytes};
+
+/// 64-byte aligned scratch buffer for `Context::new_in`.
+fn aligned(bytes: usize) -> Vec<u8> {
+    // Over-allocate, then the tests slice at an aligned offset.
+    vec![0u8; bytes + 128]
+}
+fn aligned_slice(buf: &mut [u8], len: usize) -> &mut [u8] {
+    let off = buf.as_ptr().align_offset(64);
+    &mut buf[off..off + len]
+}
+
+fn two_quads() -> (Vec<f32>, Vec<u32>) {
+    // Quad A at z = 0 and quad B at z = 1, both spanning [-1, 1]^2.
+    let v = vec![
+        -1.0, -1.0, 0.0, 1.0, -1.0, 0.0, 1.0, 1.0, 0.0, -1.0, 1.0, 0.0, //
+        -1.0, -1.0, 1.0, 1.0, -1.0, 1.0, 1.0, 1.0, 1.0, -1.0, 1.0, 1.0,
+    ];
+    let i = vec![0, 1, 2, 0, 2, 3, 4, 5, 6, 4, 6, 7];
+    (v, i)
+}
+
+fn down_rays() -> Vec<Ray> {
+    (0..16)
+        .map(|k| {
+            let x = -0.9 + 0.12 * (k % 4) as f32;
+            let y = -0.8 + 0.11 * (k / 4) as f32;
+            Ray { org: [x, y, 5.0], tmin: 0.0, dir: [0.0, 0.0, -1.0], tmax: f32::INFINITY }
+        })
+        .collect()
+}
+
+#[test]
+fn required_bytes_is_exact() {
+    let limits = Limits::for_triangles(1000);
+    let need = required_bytes(&limits).unwrap();
+    let mut buf = aligned(need);
+    assert!(Context::new_in(aligned_slice(&mut buf, need), &limits).is_ok());
+    let short = Context::new_in(aligned_slice(&mut buf, need - 1), &limits).err();
+    assert_eq!(short, Some(Error::BufferTooSmall { needed: need as u64, available: need as u64 - 1 }));
+    let off = buf.as_ptr().align_offset(64) + 8;
+    let mis = Context::new_in(&mut buf[off..off + need], &limits).err();
+    assert_eq!(mis, Some(Error::Misaligned { required: 64 }));
+}
+
+#[test]
+fn bad_limits_are_rejected() {
+    let mut l = Limits::for_triangles(10);
+    l.max_threads = 0;
+    assert!(matches!(required_bytes(&l), Err(Error::InvalidArgument(_))));
+    let mut l = Limits::for_triangles(10);
+    l.max_tile = 3;
+    assert!(matches!(OwnedContext::new(&l), Err(Error::InvalidArgument(_))));
+}
+
+#[test]
+fn out_of_range_index_is_an_error() {
+    let (v, mut i) = two_quads();
+    i[7] = 8;
+    let e = Scene::from_f32(&v, &i).err();
+    assert_eq!(e, Some(Error::IndexOutOfRange { triangle: 2, index: 8, vertex_count: 8 }));
+    assert!(matches!(Scene::new(bytemuck::cast_slice(&v), 10, 8, &i), Err(Error::InvalidArgument(_))));
+    assert!(matches!(Scene::new(bytemuck::cast_slice(&v), 16, 8, &i), Err(Error::InvalidArgument(_))));
+}
+
+#[test]
+fn trace_before_build_is_not_built() {
+    let mut ctx = OwnedContext::new(&Limits::for_triangles(4)).unwrap();
+    let rays = down_rays();
+    let mut hits = vec![Hit::MISS; rays.len()];
+    assert_eq!(ctx.trace(Method::GridDda, &rays, &mut hits), Err(Error::NotBuilt));
+}
+
+#[test]
+fn nearest_hits_and_occlusion_on_two_quads() {
+    let (v, i) = two_quads();
+    let mut ctx = OwnedContext::new(&Limits::for_triangles(4)).unwrap();
+    ctx.build_grid(&Scene::from_f32(&v, &i).unwrap(), &GridParams::default()).unwrap();
+    let rays = down_rays();
+    let mut hits = vec![Hit::MISS; rays.len()];
+    ctx.trace(Method::GridDda, &rays, &mut hits).unwrap();
+    for h in &hits {
+        assert!(h.prim == 2 || h.prim == 3, "upper quad first: {h:?}");
+        assert_eq!(h.t, 4.0);
+    }
+    // Shadow rays from below the lower quad to above the upper one are blocked,
+    // rays that stop between the quads are blocked by the lower quad only when it is crossed.
+    let up: Vec<Ray> = rays.iter().map(|r| Ray { org: [r.org[0], r.org[1], 0.5], dir: [0.0, 0.0, 1.0], tmax: 0.4, ..*r }).collect();
+    let mut occ = vec![true; up.len()];
+    ctx.occluded(Method::GridDda, &up, &mut occ).unwrap();
+    assert!(occ.iter().all(|o| !o), "segments between the quads are free");
+    let through: Vec<Ray> = up.iter().map(|r| Ray { tmax: 0.6, ..*r }).collect();
+    ctx.occluded(Method::GridDda, &through, &mut occ).unwrap();
+    assert!(occ.iter().all(|o| *o), "segments crossing the upper quad are blocked");
+    assert!(ctx.stats().counters.rays as usize == through.len());
+}
+
+#[test]
+fn non_finite_and_zero_area_triangles_are_excluded_and_counted() {
+    let (mut v, mut i) = two_quads();
+    v[0] = f32::NAN; // vertex 0: triangles 0 and 1
+    i.extend_from_slice(&[4, 4, 5]); // zero area (repeated vertex)
+    i.extend_from_slice(&[4, 5, 5]);
+    let mut ctx = OwnedContext::new(&Limits::for_triangles(8)).unwrap();
+    let info = ctx.build_grid(&Scene::from_f32(&v, &i).unwrap(), &GridParams::default()).unwrap();
+    assert_eq!((info.triangles_in, info.triangles, info.excluded_non_finite, info.excluded_zero_area), (6, 2, 2, 2));
+    let rays = down_rays();
+    let mut hits = vec![Hit::MISS; rays.len()];
+    ctx.trace(Method::GridDda, &rays, &mut hits).unwrap();
+    assert!(hits.iter().all(|h| h.prim == 2 || h.prim == 3));
+}
+
+#[test]
+fn capacity_errors_name_the_pool_and_keep_the_previous_grid() {
+    let (v, i) = two_quads();
+    let mut limits = Limits::for_triangles(4);
+    limits.max_grid_refs = 64;
+    limits.max_grid_cells = 1_000_000;
+    // lambda 1000 x 4 triangles wants about 4000 cells: fits the cell pool
+    // but not the 64 references.
+    let mut ctx = OwnedContext::new(&limits).unwrap();
+    let scene = Scene::from_f32(&v, &i).unwrap();
+    let before = ctx.build_grid(&scene, &GridParams::default()).unwrap();
+    let rays = down_rays();
+    let mut hits0 = vec![Hit::MISS; rays.len()];
+    ctx.trace(Method::GridDda, &rays, &mut hits0).unwrap();
+
+    // Too many triangles.
+    let (v2, i2) = {
+        let mut v2 = v.clone();
+        v2.extend_from_slice(&v);
+        let mut i2 = i.clone();
+        i2.extend(i.iter().map(|x| x + 8));
+        (v2, i2)
+    };
+    let big = Scene::from_f32(&v2, &i2).unwrap();
+    assert_eq!(
+        ctx.build_grid(&big, &GridParams::default()).err(),
+        Some(Error::Capacity { pool: Pool::Triangles, needed: 8, available: 4 })
+    );
+    // Too many references: a high lambda makes each quad cover many cells.
+    let err = ctx.build_grid(&scene, &GridParams { lambda: 1000.0, ..GridParams::default() }).err();
+    match err {
+        Some(Error::Capacity { pool: Pool::GridRefs, needed, available: 64 }) => assert!(needed > 64),
+        other => panic!("expected a grid_refs capacity error, got {other:?}"),
+    }
+    let msg = format!("{}", err.unwrap());
+    assert!(msg.contains("grid_refs") && msg.contains("available 64"), "{msg}");
+    // Too many cells without fit (another context); fit mode lowers lambda instead.
+    let mut few_cells = Limits::for_triangles(4);
+    few_cells.max_grid_cells = 20;
+    let mut small = OwnedContext::new(&few_cells).unwrap();
+    let err = small.build_grid(&scene, &GridParams { lambda: 50.0, ..GridParams::default() }).err();
+    assert!(matches!(err, Some(Error::Capacity { pool: Pool::GridCells, available: 20, .. })), "{err:?}");
+
+    // The previous grid is intact: same info, same hits.
+    assert_eq!(ctx.stats().grid, before);
+    let mut hits1 = vec![Hit::MISS; rays.len()];
+    ctx.trace(Method::GridDda, &rays, &mut hits1).unwrap();
+    assert_eq!(hits0, hits1);
+
+    let mut fit_limits = Limits::for_triangles(4);
+    fit_limits.max_grid_cells = 20;
+    let mut fit = OwnedContext::new(&fit_limits).unwrap();
+    let info = fit.build_grid(&scene, &GridParams { lambda: 50.0, fit: true, ..GridParams::default() }).unwrap();
+    assert!(info.cells() <= 20 && info.lambda < 50.0, "{info:?}");
+}
+
+#[test]
+fn empty_scene_and_invalid_rays_miss() {
+    let mut ctx = OwnedContext::new(&Limits::for_triangles(4)).unwrap();
+    ctx.build_grid(&Scene::empty(), &GridParams::default()).unwrap();
+    let mut hits = vec![Hit::MISS; 16];
+    ctx.trace(Method::GridDda, &down_rays(), &mut hits).unwrap();
+    assert!(hits.iter().all(|h| h.prim == INVALID_ID));
+
+    let (v, i) = two_quads();
+    ctx.build_grid(&Scene::from_f32(&v, &i).unwrap(), &GridParams::default()).unwrap();
+    let base = Ray { org: [0.1, 0.1, 5.0], tmin: 0.0, dir: [0.0, 0.0, -1.0], tmax: f32::INFINITY };
+    let bad = [
+        Ray { dir: [0.0, 0.0, 0.0], ..base },
+        Ray { dir: [f32::NAN, 0.0, -1.0], ..base },
+        Ray { org: [f32::INFINITY, 0.0, 5.0], ..base },
+        Ray { tmin: 2.0, tmax: 1.0, ..base },
+        Ray { tmin: -1.0, ..base },
+        Ray { dir: [f32::INFINITY, 0.0, -1.0], ..base },
+    ];
+    let mut hits = vec![Hit { t: 1.0, prim: 0, u: 0.0, v: 0.0 }; bad.len()];
+    ctx.trace(Method::GridDda, &bad, &mut hits).unwrap();
+    assert!(hits.iter().all(|h| *h == Hit::MISS), "{hits:?}");
+}
+
+#[test]
+fn rays_along_grid_axes_and_inside_the_grid_are_exact() {
+    // Rays with two zero direction components, starting inside the grid,
+    // along cell boundaries, match brute force.
+    let s = common::builtin_scenes().into_iter().find(|s| s.name == "tetra").unwrap();
+    let scene = s.scene();
+    let mut ctx = OwnedContext::new(&Limits::for_triangles(s.triangles())).unwrap();
+    let info = ctx.build_grid(&scene, &GridParams::default()).unwrap();
+    let (lo, hi) = (info.bounds.min, info.bounds.max);
+    let mut rays = Vec::new();
+    for k in 0..=8 {
+        for j in 0..=8 {
+            let f = |a: f32, b: f32, t: f32| a + (b - a) * t;
+            let (u, w) = (k as f32 / 8.0, j as f32 / 8.0);
+            for axis in 0..3 {
+                for sign in [1.0f32, -1.0] {
+                    let mut o = [f(lo.x, hi.x, u), f(lo.y, hi.y, w), f(lo.z, hi.z, 0.5)];
+                    o.rotate_right(axis);
+                    let mut d = [0.0, 0.0, sign];
+                    d.rotate_right(axis);
+                    rays.push(Ray { org: o, tmin: 0.0, dir: d, tmax: f32::INFINITY });
+                }
+            }
+        }
+    }
+    let mut hits = vec![Hit::MISS; rays.len()];
+    ctx.trace(Method::GridDda, &rays, &mut hits).unwrap();
+    let mut hit_count = 0;
+    for (r, h) in rays.iter().zip(&hits) {
+        let want = sheaf::reference::nearest(&scene, r);
+        if want.prim != h.prim {
+            let want = sheaf::reference::with_edge_distance(&scene, r, want);
+            assert!(want.gap <= 1e-5 || want.edge <= 1e-5, "{r:?}: got {h:?}, f64 {want:?}");
+        }
+        hit_count += h.is_hit() as u32;
+    }
+    assert!(hit_count > 50, "the axis rays must hit the tetrahedra ({hit_count})");
+}

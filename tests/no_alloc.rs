@@ -1,0 +1,120 @@
+//! No allocation after setup (DESIGN.md "Memory: fixed at setup"), proved
+//! with a counting global allocator over 10 frames of the animated scene:
+//! set geometry, rebuild the grid, trace, occlude and render every frame.
+//! Its own test binary, so no other test's allocations are counted.
+
+use sheaf::render::{Camera, Frame, PointLight, Shading};
+use sheaf::scenes::animated::Animated;
+use sheaf::{Context, GridParams, Hit, Limits, Method, OwnedContext, Ray, Scene, TriTest, required_bytes};
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+struct Counting;
+static ALLOCS: AtomicUsize = AtomicUsize::new(0);
+
+// SAFETY: forwards to the system allocator; only counts calls.
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, l: Layout) -> *mut u8 {
+        ALLOCS.fetch_add(1, Ordering::SeqCst);
+        // SAFETY: same contract as the caller's.
+        unsafe { System.alloc(l) }
+    }
+    unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
+        // SAFETY: same contract as the caller's.
+        unsafe { System.dealloc(p, l) }
+    }
+    unsafe fn realloc(&self, p: *mut u8, l: Layout, n: usize) -> *mut u8 {
+        ALLOCS.fetch_add(1, Ordering::SeqCst);
+        // SAFETY: same contract as the caller's.
+        unsafe { System.realloc(p, l, n) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+fn allocs() -> usize {
+    ALLOCS.load(Ordering::SeqCst)
+}
+
+fn frame_of(anim: &Animated) -> Frame {
+    let v = anim.views()[0];
+    Frame {
+        camera: Camera { eye: v.eye.to_array(), look_at: v.look_at.to_array(), up: v.up.to_array(), fov_y_deg: v.fov_y_deg },
+        light: PointLight { position: anim.light().to_array(), color: [1.0; 3] },
+        shading: Shading::default(),
+        width: 96,
+        height: 64,
+    }
+}
+
+#[test]
+fn ten_animated_frames_allocate_nothing() {
+    let mut anim = Animated::new(1);
+    let frame = frame_of(&anim);
+    let tris = anim.mesh.triangle_count() as u32;
+    let mut limits = Limits::for_triangles(tris);
+    limits.max_vertices = anim.mesh.vertex_count() as u32;
+
+    // Creation: exactly one allocation for the owned context...
+    let a0 = allocs();
+    let mut owned = OwnedContext::new(&limits).unwrap();
+    assert_eq!(allocs() - a0, 1, "OwnedContext::new must allocate exactly once");
+    // ...and none over a caller buffer.
+    let need = required_bytes(&limits).unwrap();
+    let mut backing = vec![0u8; need + 64];
+    let off = backing.as_ptr().align_offset(64);
+    let a1 = allocs();
+    let mut borrowed = Context::new_in(&mut backing[off..off + need], &limits).unwrap();
+    assert_eq!(allocs(), a1, "Context::new_in must not allocate");
+
+    // Caller-side buffers, made before the measured loop.
+    let rays: Vec<Ray> = (0..256)
+        .map(|k| {
+            let (x, y) = ((k % 16) as f32 / 16.0 - 0.5, (k / 16) as f32 / 16.0 - 0.5);
+            let cam = &frame.camera;
+            let d = [cam.look_at[0] - cam.eye[0] + x, cam.look_at[1] - cam.eye[1] + y, cam.look_at[2] - cam.eye[2]];
+            Ray { org: cam.eye, tmin: 0.0, dir: d, tmax: f32::INFINITY }
+        })
+        .collect();
+    let mut hits = vec![Hit::MISS; rays.len()];
+    let mut occ = vec![false; rays.len()];
+    let stride = frame.width as usize * 4;
+    let mut pixels = vec![0u8; stride * frame.height as usize];
+    let mut hit_total = 0usize;
+
+    let start = allocs();
+    for f in 0..10 {
+        anim.set_time(f as f32 * 0.37);
+        let scene = Scene::from_f32(&anim.mesh.vertices, &anim.mesh.indices).unwrap();
+        let test = if f % 2 == 0 { TriTest::MollerTrumbore } else { TriTest::Watertight };
+        let params = GridParams { test, ..GridParams::default() };
+        for ctx in [&mut owned as &mut dyn Frames, &mut borrowed as &mut dyn Frames] {
+            ctx.frame(&scene, &params, &rays, &mut hits, &mut occ, &frame, &mut pixels, stride);
+            hit_total += hits.iter().filter(|h| h.is_hit()).count();
+        }
+    }
+    let during = allocs() - start;
+    assert_eq!(during, 0, "10 frames of build + trace + occluded + render allocated {during} times");
+    assert!(hit_total > 0, "the frames must trace something");
+    assert!(pixels.iter().any(|&p| p != 0));
+}
+
+/// One frame on either kind of context.
+trait Frames {
+    #[allow(clippy::too_many_arguments)]
+    fn frame(&mut self, s: &Scene, p: &GridParams, r: &[Ray], h: &mut [Hit], o: &mut [bool], f: &Frame, px: &mut [u8], stride: usize);
+}
+macro_rules! impl_frames {
+    ($($t:ty),*) => {$(
+        impl Frames for $t {
+            fn frame(&mut self, s: &Scene, p: &GridParams, r: &[Ray], h: &mut [Hit], o: &mut [bool], f: &Frame, px: &mut [u8], stride: usize) {
+                self.build_grid(s, p).unwrap();
+                self.trace(Method::GridDda, r, h).unwrap();
+                self.occluded(Method::GridDda, r, o).unwrap();
+                self.render(Method::GridDda, f, px, stride).unwrap();
+            }
+        }
+    )*};
+}
+impl_frames!(OwnedContext, Context<'_>);
