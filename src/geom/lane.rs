@@ -10,8 +10,11 @@ use core::ops::{Add, BitAnd, BitOr, Div, Mul, Neg, Not, Sub};
 
 /// Four f32 lanes (SSE2 on x86-64, scalar fallback of identical layout elsewhere).
 pub type F4 = glam::Vec4;
-/// Four lane masks matching `F4`.
+/// Four lane masks matching `F4` (glam's `scalar-math` fallback uses `BVec4`).
+#[cfg(not(feature = "scalar-math"))]
 pub type M4 = glam::BVec4A;
+#[cfg(feature = "scalar-math")]
+pub type M4 = glam::BVec4;
 
 /// An arithmetic lane: `f32` for one ray, `F4` for four.
 pub trait Lane:
