@@ -1,0 +1,296 @@
+//! The three commands: `demo`, `render`, `info`.
+
+use crate::load::{self, Loaded};
+use crate::run::{self, mrays, ms, res};
+use crate::view::{self, INSIDE_FOV, OUTSIDE_FOV};
+use crate::{DemoArgs, Failure, GridOpts, InfoArgs, OrFail, RenderArgs};
+use glam::Vec3;
+use sheaf::scenes::animated::Animated;
+use sheaf::scenes::{ANIMATED_DETAIL, View};
+use sheaf::{Camera, Frame, GridInfo, Limits, PointLight, Scene, Shading, required_bytes};
+use std::fmt::Write as _;
+use std::time::Instant;
+
+fn camera(v: &View) -> Camera {
+    Camera { eye: v.eye.to_array(), look_at: v.look_at.to_array(), up: v.up.to_array(), fov_y_deg: v.fov_y_deg }
+}
+
+fn v3(v: [f32; 3]) -> String {
+    format!("{},{},{}", v[0], v[1], v[2])
+}
+
+fn mib(bytes: usize) -> f64 {
+    bytes as f64 / (1024.0 * 1024.0)
+}
+
+fn grid_line(info: &GridInfo, g: &GridOpts) -> String {
+    format!(
+        "{} = {} cells (lambda {} asked, {:.2} used), {} refs ({:.2} per triangle), macrocell {}, {:?}",
+        res(info),
+        info.cells(),
+        g.lambda,
+        info.lambda,
+        info.refs,
+        info.refs as f64 / info.triangles.max(1) as f64,
+        info.macrocell,
+        info.test,
+    )
+}
+
+fn excluded_line(l: &Loaded, info: &GridInfo) -> String {
+    let mut s = format!(
+        "{} ({} excluded: {} non-finite, {} zero-area)",
+        info.triangles_in,
+        info.excluded_non_finite + info.excluded_zero_area,
+        info.excluded_non_finite,
+        info.excluded_zero_area
+    );
+    if l.skipped > 0 {
+        let _ = write!(s, "; {} triangles of the file's faces skipped by the OBJ loader", l.skipped);
+    }
+    s
+}
+
+/// `sheaf demo`: the animated scene, one rebuild and one render per frame.
+pub fn demo(a: &DemoArgs) -> Result<(), Failure> {
+    let threads = run::threads(a.threads)?;
+    let (w, h) = a.size;
+    let dt = a.dt;
+    if !dt.is_finite() {
+        return Err(Failure(format!("--dt {dt}: must be finite")));
+    }
+    let mut anim = Animated::new(ANIMATED_DETAIL);
+    let views = anim.views();
+    let view = *views
+        .get(a.view)
+        .ok_or_else(|| Failure(format!("--view {}: the demo has views 0..={}", a.view, views.len() - 1)))?;
+    let params = a.grid.params();
+
+    // The one context: sized on frame 0, grid pools with 25 % headroom if the
+    // default rule is too small, so later frames fit too.
+    let (mut ctx, _) = {
+        let scene = Scene::from_f32(&anim.mesh.vertices, &anim.mesh.indices)?;
+        run::context_for(&scene, run::limits(&scene, a.size, threads), &params, 1.25)?
+    };
+    let bytes = required_bytes(ctx.limits())?;
+    std::fs::create_dir_all(&a.out_dir).or_fail(|| format!("cannot create {}", a.out_dir.display()))?;
+    let frame = Frame {
+        camera: camera(&view),
+        light: PointLight { position: anim.light().to_array(), color: [1.0; 3] },
+        shading: Shading::default(),
+        width: w,
+        height: h,
+    };
+    let mut pixels = vec![0u8; w as usize * h as usize * 4];
+    println!(
+        "sheaf demo: animated scene, {} triangles, {w}x{h}, {threads} threads, dt {dt} s, context {:.2} MiB, frames in {}",
+        anim.mesh.triangle_count(),
+        mib(bytes),
+        a.out_dir.display()
+    );
+    println!(
+        "{:>5} {:>9} {:>12} {:>9} {:>9} {:>9} {:>9} {:>8}",
+        "frame", "triangles", "grid", "refs", "build ms", "trace ms", "rays", "Mrays/s"
+    );
+    let (mut build_ns, mut trace_ns, mut rays) = (0u64, 0u64, 0u64);
+    for f in 0..a.frames {
+        anim.set_time(f as f32 * dt);
+        let scene = Scene::from_f32(&anim.mesh.vertices, &anim.mesh.indices)?;
+        let info = ctx.build_grid(&scene, &params).or_fail(|| format!("frame {f}: building the grid"))?;
+        let b = ctx.stats().build_ns;
+        let ctr = run::render_frame(&mut ctx, &frame, &mut pixels, threads)?;
+        let t = ctx.stats().trace_ns;
+        run::write_png(&a.out_dir.join(format!("frame_{f:03}.png")), &pixels, w, h)?;
+        println!(
+            "{f:>5} {:>9} {:>12} {:>9} {:>9.2} {:>9.2} {:>9} {:>8.2}",
+            info.triangles,
+            res(&info),
+            info.refs,
+            ms(b),
+            ms(t),
+            ctr.rays,
+            mrays(ctr.rays, t)
+        );
+        build_ns += b;
+        trace_ns += t;
+        rays += ctr.rays;
+    }
+    let n = a.frames as u64;
+    println!(
+        "mean over {n} frames: build {:.2} ms, trace {:.2} ms, {:.2} Mrays/s (lambda {}, macrocell {}, {:?})",
+        ms(build_ns / n),
+        ms(trace_ns / n),
+        mrays(rays, trace_ns),
+        a.grid.lambda,
+        a.grid.macrocell,
+        params.test
+    );
+    Ok(())
+}
+
+/// `sheaf render`: one image of an OBJ file or a built-in scene.
+pub fn render(a: &RenderArgs) -> Result<(), Failure> {
+    let threads = run::threads(a.threads)?;
+    let (w, h) = a.size;
+    if let Some(f) = a.fov.filter(|f| !(*f > 0.0 && *f < 180.0)) {
+        return Err(Failure(format!("--fov {f}: must be in (0, 180)")));
+    }
+    if a.up == Some([0.0; 3]) {
+        return Err(Failure("--up must not be zero".into()));
+    }
+    let t_load = Instant::now();
+    let loaded = load::load(&a.scene)?;
+    let load_ns = t_load.elapsed().as_nanos() as u64;
+    let scene = loaded.scene()?;
+    if scene.triangle_count() == 0 {
+        return Err(Failure(format!("{}: no triangles", loaded.label)));
+    }
+    let params = a.grid.params();
+    let (mut ctx, info) = run::context_for(&scene, run::limits(&scene, a.size, threads), &params, 1.0)?;
+    if info.triangles == 0 {
+        return Err(Failure(format!("{}: every triangle is degenerate or non-finite", loaded.label)));
+    }
+
+    // Camera: the builtin's view or an automatic one, then the user's overrides.
+    let (lo, hi) = (info.bounds.min, info.bounds.max);
+    let scale = (hi - lo).length();
+    let (mut v, how) = match &loaded.builtin {
+        Some((views, _)) => {
+            let i = a.view.unwrap_or(0);
+            let v = *views
+                .get(i)
+                .ok_or_else(|| Failure(format!("--view {i}: {} has views 0..={}", loaded.label, views.len() - 1)))?;
+            (v, format!("builtin view {i}"))
+        }
+        None => {
+            let up = a.up.map_or(Vec3::Y, Vec3::from);
+            let tracer = ctx.tracer()?;
+            let inside = view::inside(&tracer, lo, hi, up, a.fov.unwrap_or(INSIDE_FOV));
+            let interior = view::is_interior(&tracer, inside.eye);
+            let i = a.view.unwrap_or(interior as usize);
+            let v = match i {
+                0 => view::outside(lo, hi, up, a.fov.unwrap_or(OUTSIDE_FOV), w as f32 / h as f32),
+                1 => inside,
+                _ => return Err(Failure(format!("--view {i}: OBJ scenes have views 0 (outside) and 1 (inside)"))),
+            };
+            let what = if i == 0 { "outside" } else { "inside" };
+            let why = if a.view.is_some() {
+                "chosen"
+            } else if interior {
+                "auto: the scene encloses it"
+            } else {
+                "auto"
+            };
+            (v, format!("{what} view ({why})"))
+        }
+    };
+    let custom = a.eye.is_some() || a.look_at.is_some() || a.up.is_some() || a.fov.is_some();
+    if let Some(e) = a.eye {
+        v.eye = Vec3::from(e);
+    }
+    if let Some(l) = a.look_at {
+        v.look_at = Vec3::from(l);
+    }
+    if let Some(u) = a.up {
+        v.up = Vec3::from(u);
+    }
+    if let Some(f) = a.fov {
+        v.fov_y_deg = f;
+    }
+    // Light: the user's, the builtin's, or one placed for the final eye
+    // (kept inside the room when the eye is enclosed).
+    let light = match (a.light, &loaded.builtin) {
+        (Some(p), _) => PointLight { position: p, color: [1.0; 3] },
+        (None, Some((_, l))) => PointLight { position: l.to_array(), color: [1.0; 3] },
+        (None, None) => {
+            let tracer = ctx.tracer()?;
+            view::light_for(&tracer, &v, view::is_interior(&tracer, v.eye), scale)
+        }
+    };
+    let frame = Frame {
+        camera: camera(&v),
+        light,
+        shading: Shading { shadows: !a.no_shadows, ..Shading::default() },
+        width: w,
+        height: h,
+    };
+    let mut pixels = vec![0u8; w as usize * h as usize * 4];
+    let ctr = run::render_frame(&mut ctx, &frame, &mut pixels, threads)?;
+    let st = *ctx.stats();
+    run::write_png(&a.out, &pixels, w, h)?;
+
+    let primary = w as u64 * h as u64;
+    let bytes = required_bytes(ctx.limits())?;
+    println!("scene      {} (loaded in {:.0} ms)", loaded.label, ms(load_ns));
+    println!("triangles  {}, {} vertices", excluded_line(&loaded, &info), loaded.vertex_count());
+    println!("grid       {}", grid_line(&info, &a.grid));
+    println!("memory     {bytes} bytes ({:.2} MiB) in one context", mib(bytes));
+    println!("build      {:.2} ms", ms(st.build_ns));
+    println!(
+        "trace      {:.2} ms on {threads} threads, {:.2} Mrays/s: {primary} primary + {} shadow = {} rays",
+        ms(st.trace_ns),
+        mrays(ctr.rays, st.trace_ns),
+        ctr.rays.saturating_sub(primary),
+        ctr.rays
+    );
+    println!(
+        "camera     --eye {} --look-at {} --up {} --fov {}  [{how}{}]",
+        v3(frame.camera.eye),
+        v3(frame.camera.look_at),
+        v3(frame.camera.up),
+        v.fov_y_deg,
+        if custom { ", with your overrides" } else { "" }
+    );
+    println!("light      --light {}{}", v3(light.position), if a.no_shadows { " (no shadows)" } else { "" });
+    println!("wrote      {} ({w}x{h})", a.out.display());
+    Ok(())
+}
+
+/// `sheaf info`: sizes, bounds and memory.
+pub fn info(a: &InfoArgs) -> Result<(), Failure> {
+    let loaded = load::load(&a.scene)?;
+    let scene = loaded.scene()?;
+    let n = scene.triangle_count();
+    println!("scene      {}", loaded.label);
+    let mut tri = format!("{n}");
+    if loaded.skipped > 0 {
+        let _ = write!(tri, " ({} triangles of the file's faces skipped by the OBJ loader)", loaded.skipped);
+    }
+    println!("triangles  {tri}");
+    println!("vertices   {}", loaded.vertex_count());
+    match loaded.bounds() {
+        Some((lo, hi)) => println!(
+            "bounds     min ({}) max ({}) extent ({})",
+            v3(lo.to_array()),
+            v3(hi.to_array()),
+            v3((hi - lo).to_array())
+        ),
+        None => println!("bounds     none (no finite vertex in a triangle)"),
+    }
+    let mut limits = Limits::for_triangles(n);
+    limits.max_vertices = scene.vertex_count();
+    let bytes = required_bytes(&limits)?;
+    let per_tri = if n > 0 { format!(", {:.1} bytes/triangle", bytes as f64 / n as f64) } else { String::new() };
+    println!(
+        "memory     {bytes} bytes ({:.2} MiB{per_tri}) for Limits::for_triangles({n}) (grid pools: {} cells, {} refs)",
+        mib(bytes),
+        limits.grid_cells(),
+        limits.grid_refs()
+    );
+    if n > 0 {
+        let (ctx, info) = run::context_for(&scene, limits, &a.grid.params(), 1.0)?;
+        let mut tight = *ctx.limits();
+        tight.max_grid_cells = info.cells().max(1) as u32;
+        tight.max_grid_refs = info.refs.max(1);
+        let tight_bytes = required_bytes(&tight)?;
+        println!("grid       {}", grid_line(&info, &a.grid));
+        println!("excluded   {} non-finite, {} zero-area", info.excluded_non_finite, info.excluded_zero_area);
+        println!("build      {:.2} ms", ms(ctx.stats().build_ns));
+        println!(
+            "tight      {tight_bytes} bytes ({:.2} MiB, {:.1} bytes/triangle) with the grid pools cut to this grid's cells and refs",
+            mib(tight_bytes),
+            tight_bytes as f64 / n as f64
+        );
+    }
+    Ok(())
+}

@@ -1,0 +1,153 @@
+//! Contexts sized for a scene, frames rendered in row bands on several
+//! threads, PNG output.
+
+use crate::{Failure, OrFail};
+use sheaf::render::{PrimaryRays, Tracer, render_rows};
+use sheaf::{Counters, Error, Frame, GridInfo, GridParams, Limits, OwnedContext, Pool, Scene};
+use std::path::Path;
+use std::sync::Mutex;
+use std::time::Instant;
+
+/// Rows per band handed to a thread at a time: small enough to balance
+/// cheap sky rows against busy ones, large enough that taking a band costs
+/// nothing next to tracing it.
+const BAND_ROWS: usize = 8;
+
+/// Threads to render with: `requested` (1..=1024) or the available cores,
+/// at most `Limits::for_triangles`' default of 8.
+pub fn threads(requested: Option<u32>) -> Result<u32, Failure> {
+    match requested {
+        Some(n) if (1..=1024).contains(&n) => Ok(n),
+        Some(n) => Err(Failure(format!("--threads {n}: must be in 1..=1024"))),
+        None => {
+            let cap = Limits::for_triangles(0).max_threads;
+            Ok(std::thread::available_parallelism().map_or(1, |n| n.get() as u32).min(cap))
+        }
+    }
+}
+
+/// Limits for `scene` rendered at `size` by `threads` threads (grid pools by
+/// the default rule: room for lambda up to about 7).
+pub fn limits(scene: &Scene<'_>, size: (u32, u32), threads: u32) -> Limits {
+    let mut l = Limits::for_triangles(scene.triangle_count());
+    l.max_vertices = scene.vertex_count();
+    l.max_image_width = size.0;
+    l.max_image_height = size.1;
+    l.max_threads = threads;
+    l
+}
+
+/// Create a context for `limits` and build `scene` in it. When the grid
+/// needs more cells or references than `limits` gives (a large lambda, huge
+/// triangles), the pool is grown to what the build reported times `headroom`
+/// and the context created again, so the caller ends with one context that
+/// fits. Returns the context and the first build's info.
+pub fn context_for(
+    scene: &Scene<'_>,
+    mut limits: Limits,
+    params: &GridParams,
+    headroom: f64,
+) -> Result<(OwnedContext, GridInfo), Failure> {
+    for _ in 0..3 {
+        let mut ctx = OwnedContext::new(&limits).or_fail(|| "creating the context".into())?;
+        match ctx.build_grid(scene, params) {
+            Ok(info) => return Ok((ctx, info)),
+            Err(Error::Capacity { pool: pool @ (Pool::GridCells | Pool::GridRefs), needed, .. }) => {
+                let grown = ((needed as f64 * headroom).ceil() as u64).max(needed);
+                let grown = u32::try_from(grown)
+                    .map_err(|_| Failure(format!("the grid needs {needed} {}: more than 2^32", pool.name())))?;
+                match pool {
+                    Pool::GridCells => limits.max_grid_cells = grown,
+                    _ => limits.max_grid_refs = grown,
+                }
+            }
+            Err(e) => return Err(Failure(format!("building the grid: {e}"))),
+        }
+    }
+    Err(Failure("building the grid: pools still too small after growing them".into()))
+}
+
+/// Render `frame` into `pixels` (RGBA8, stride `4 * width`) on `threads`
+/// threads through the context's tracer, and record the counters and the
+/// wall time in the context's stats.
+pub fn render_frame(
+    ctx: &mut OwnedContext,
+    frame: &Frame,
+    pixels: &mut [u8],
+    threads: u32,
+) -> Result<Counters, Failure> {
+    let stride = frame.width as usize * 4;
+    let rays = ctx.check_frame(frame, pixels.len(), stride).or_fail(|| "frame".into())?;
+    let start = Instant::now();
+    let ctr = render_bands(&ctx.tracer()?, frame, &rays, pixels, stride, threads);
+    ctx.record(ctr, start.elapsed().as_nanos() as u64);
+    Ok(ctr)
+}
+
+/// Bands of `BAND_ROWS` rows, taken in order by whichever thread is free.
+fn render_bands<T: Tracer>(
+    tracer: &T,
+    frame: &Frame,
+    rays: &PrimaryRays,
+    pixels: &mut [u8],
+    stride: usize,
+    threads: u32,
+) -> Counters {
+    let pixels = &mut pixels[..frame.height as usize * stride];
+    let bands = Mutex::new(pixels.chunks_mut(BAND_ROWS * stride).enumerate());
+    let work = || {
+        let mut ctr = Counters::default();
+        loop {
+            let next = bands.lock().unwrap_or_else(|p| p.into_inner()).next();
+            let Some((i, band)) = next else { break };
+            let y0 = (i * BAND_ROWS) as u32;
+            let y1 = (y0 + BAND_ROWS as u32).min(frame.height);
+            render_rows(tracer, frame, rays, y0, y1, band, stride, &mut ctr);
+        }
+        ctr
+    };
+    if threads <= 1 {
+        return work();
+    }
+    std::thread::scope(|s| {
+        let helpers: Vec<_> = (1..threads).map(|_| s.spawn(work)).collect();
+        let mut total = work();
+        for h in helpers {
+            match h.join() {
+                Ok(c) => total.add(&c),
+                Err(p) => std::panic::resume_unwind(p),
+            }
+        }
+        total
+    })
+}
+
+/// Write RGBA8 `pixels` (`width x height`, tightly packed) as a PNG.
+pub fn write_png(path: &Path, pixels: &[u8], width: u32, height: u32) -> Result<(), Failure> {
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).or_fail(|| format!("cannot create {}", dir.display()))?;
+    }
+    image::save_buffer_with_format(
+        path,
+        pixels,
+        width,
+        height,
+        image::ExtendedColorType::Rgba8,
+        image::ImageFormat::Png,
+    )
+    .or_fail(|| format!("cannot write {}", path.display()))
+}
+
+/// `rays / ns` in millions per second (0 for no time).
+pub fn mrays(rays: u64, ns: u64) -> f64 {
+    if ns == 0 { 0.0 } else { rays as f64 * 1e3 / ns as f64 }
+}
+
+pub fn ms(ns: u64) -> f64 {
+    ns as f64 * 1e-6
+}
+
+/// `84x12x90`.
+pub fn res(info: &GridInfo) -> String {
+    format!("{}x{}x{}", info.res[0], info.res[1], info.res[2])
+}
