@@ -13,7 +13,6 @@
 
 use super::GridView;
 use crate::geom::{Hit, Ray, RayLanes, TriangleTest, INVALID_ID};
-use crate::math;
 use crate::trace::Counters;
 use glam::Vec3;
 
@@ -57,12 +56,17 @@ fn walk<T: TriangleTest, const ANY: bool>(g: &GridView<'_>, ray: &Ray, ctr: &mut
     let p = o + d * t0;
     let mut c = [0i32; 3];
     for a in 0..3 {
-        c[a] = (math::floor((p[a] - gmin[a]) * info.inv_cell[a]) as i32).clamp(0, res[a] - 1);
+        // Truncation equals floor here: both clamp to 0 below zero.
+        c[a] = (((p[a] - gmin[a]) * info.inv_cell[a]) as i32).clamp(0, res[a] - 1);
     }
 
     let lanes = RayLanes::from_ray(ray);
     let pre = T::prepare(&lanes);
     let m = info.macrocell as i32;
+    // x / m as a multiply and shift (exact for x < 2^16, m <= 64): the
+    // macrocell lookup runs at every empty cell.
+    let magic = ((1u64 << 32) + m as u64 - 1) / m as u64;
+    let div_m = |x: i32| ((x as u64 * magic) >> 32) as i32;
 
     // t at which the ray leaves the slab [lo, hi) of cells along axis a.
     let boundary_t = |a: usize, lo: i32, hi: i32| -> f32 {
@@ -75,7 +79,7 @@ fn walk<T: TriangleTest, const ANY: bool>(g: &GridView<'_>, ray: &Ray, ctr: &mut
 
     loop {
         if m > 1 {
-            let mc = [c[0] / m, c[1] / m, c[2] / m];
+            let mc = [div_m(c[0]), div_m(c[1]), div_m(c[2])];
             if !g.macro_occupied(mc) {
                 // Jump to the exit of this empty macrocell.
                 ctr.macro_skips += 1;
@@ -105,7 +109,7 @@ fn walk<T: TriangleTest, const ANY: bool>(g: &GridView<'_>, ray: &Ray, ctr: &mut
                         let lo = mc[a] * m;
                         let hi = ((mc[a] + 1) * m).min(res[a]) - 1;
                         let q = o[a] + d[a] * t_exit;
-                        c[a] = (math::floor((q - gmin[a]) * info.inv_cell[a]) as i32).clamp(lo, hi);
+                        c[a] = (((q - gmin[a]) * info.inv_cell[a]) as i32).clamp(lo, hi);
                     }
                 }
                 continue;
