@@ -17,6 +17,17 @@ pub struct Counters {
     pub macro_skips: u64,
     /// Ray-triangle tests (one per ray, or per lane of a packet test).
     pub tri_tests: u64,
+    /// Packets traced (packet methods).
+    pub packets: u64,
+    /// Packet lanes traced singly because they do not move along the
+    /// packet's major axis like its first ray (CGT section 2.2).
+    pub stray_lanes: u64,
+    /// Triangles skipped because the packet had already tested them (mailbox).
+    pub mailbox_skips: u64,
+    /// Triangles rejected by frustum culling for a whole packet.
+    pub culled: u64,
+    /// Packets that could not use frustum culling (no common origin).
+    pub packets_no_cull: u64,
 }
 
 impl Counters {
@@ -25,6 +36,11 @@ impl Counters {
         self.cells += o.cells;
         self.macro_skips += o.macro_skips;
         self.tri_tests += o.tri_tests;
+        self.packets += o.packets;
+        self.stray_lanes += o.stray_lanes;
+        self.mailbox_skips += o.mailbox_skips;
+        self.culled += o.culled;
+        self.packets_no_cull += o.packets_no_cull;
     }
 }
 

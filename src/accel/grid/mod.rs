@@ -6,6 +6,7 @@
 //! | file | implements |
 //! |---|---|
 //! | `build.rs` | section 3: resolution from lambda x N, bounding-box insertion with a counting sort into preallocated pools; section 2.4: macrocell occupancy flags |
+//! | `traverse_cgt.rs` | sections 2.2-2.4: coherent grid traversal of n x n packets: slices, frustum, macrocells, mailboxing, SIMD frustum culling |
 //! | `traverse_single.rs` | the single-ray baseline: 3DDDA (Amanatides and Woo 1987) with macrocell skipping, nearest hit and occlusion |
 //!
 //! # Deviations
@@ -17,6 +18,7 @@
 //!   capacity error leaves the previous frame's grid untouched.
 
 pub mod build;
+pub mod traverse_cgt;
 pub mod traverse_single;
 
 use crate::geom::{Aabb, TriTest, TriVerts};

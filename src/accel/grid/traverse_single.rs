@@ -28,6 +28,13 @@ pub fn occluded<T: TriangleTest>(g: &GridView<'_>, ray: &Ray, ctr: &mut Counters
     walk::<T, true>(g, ray, ctr).is_hit()
 }
 
+/// Some hit on `ray` in `[tmin, tmax)` (the first found, not the nearest),
+/// or a miss: occlusion that also names an occluder.
+#[inline]
+pub fn any_hit<T: TriangleTest>(g: &GridView<'_>, ray: &Ray, ctr: &mut Counters) -> Hit {
+    walk::<T, true>(g, ray, ctr)
+}
+
 /// The tie rule shared by every traversal: nearer t wins; equal t, lower id.
 #[inline(always)]
 pub fn closer(t: f32, prim: u32, best: &Hit) -> bool {

@@ -1,0 +1,532 @@
+//! Coherent grid traversal: packets of n x n rays marched through the grid
+//! slice by slice (Wald, Ize, Kensler, Knoll, Parker 2006, sections 2.2-2.4).
+//!
+//! - Section 2.2: rays in canonical grid space; the major axis K is the
+//!   dominant axis of the first ray; every ray must move the same way along K
+//!   (lanes that do not are traced singly by the 3DDDA, so results stay
+//!   exact). The frustum bounds the rays' u and v slopes along K; per slice
+//!   the overlap box B is one 4-wide multiply-add of the slice number and one
+//!   truncation gives the u, v cell range. Traversal stops early once every
+//!   ray has a hit before the next slice.
+//! - Section 2.3: mailboxing per packet (one stamp per triangle, per thread)
+//!   and SIMD frustum culling (Dmitriev et al. 2004 shaft culling: if the four
+//!   corner rays of the frustum miss the same edge of a triangle, every ray
+//!   of the packet misses it).
+//! - Section 2.4: a slice of macrocells all empty skips M fine slices.
+//!
+//! Exactness: every ray is tested against every triangle of every cell it
+//! passes through before its own termination point, with the same triangle
+//! test and tie rule as `traverse_single`, so packets return the same
+//! triangle and bitwise the same t as the 3DDDA.
+//!
+//! # Deviations
+//! - `B(s)` is computed as `B(s0) + (s - s0) * dB` rather than accumulated,
+//!   so rounding does not grow with the number of slices, and the box and the
+//!   culling cone are widened by a relative epsilon (`SLOPE_EPS`): culling or
+//!   skipping a triangle a ray's f32 test would hit is never allowed.
+//! - The first and last slices come from the rays' own `[tmin, tmax)` and the
+//!   grid's extent along K; slices where the frustum lies outside the grid
+//!   in u or v cost one comparison each.
+//! - Frustum culling needs a common origin (primary rays, shadow rays traced
+//!   from the light); other packets skip culling (counted).
+
+use super::GridView;
+use crate::geom::{F4, Hit, Hit4, M4, Ray4, RayLanes, TriVerts, TriangleTest};
+use crate::trace::Counters;
+use glam::Vec3;
+
+use super::traverse_single;
+
+/// Largest packet side (32 x 32 rays = 256 `Ray4` quads).
+pub const MAX_SIDE: usize = 32;
+
+/// Relative widening of slopes and boxes (see Deviations).
+const SLOPE_EPS: f32 = 1e-4;
+/// Absolute widening of the overlap box, in cells.
+const BOX_EPS: f32 = 1e-3;
+
+/// Switches of the packet traversal (all on by default), for comparison runs.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct CgtOptions {
+    /// Skip M slices when the frustum's macrocells are all empty (section 2.4).
+    pub macrocells: bool,
+    /// Test each triangle once per packet (section 2.3).
+    pub mailbox: bool,
+    /// SIMD frustum culling with the four corner rays (section 2.3).
+    pub culling: bool,
+}
+
+impl Default for CgtOptions {
+    fn default() -> Self {
+        CgtOptions { macrocells: true, mailbox: true, culling: true }
+    }
+}
+
+/// Per-thread mailbox: one stamp per stored triangle and the current
+/// packet's stamp. A triangle stamped with the packet's number has already
+/// been tested against it.
+pub struct Mailbox<'m> {
+    stamps: &'m mut [u32],
+    packet: u32,
+}
+
+impl<'m> Mailbox<'m> {
+    /// A mailbox over `stamps` (one per triangle; cleared here, so stamps
+    /// left by an earlier mailbox cannot hide triangles).
+    pub fn new(stamps: &'m mut [u32]) -> Self {
+        stamps.fill(0);
+        Mailbox { stamps, packet: 0 }
+    }
+    /// Start a new packet over `n` triangles.
+    #[inline]
+    fn next_packet(&mut self, n: usize) {
+        self.packet = self.packet.wrapping_add(1);
+        if self.packet == 0 {
+            // Every 2^32 packets: forget all stamps once.
+            self.stamps[..n].fill(0);
+            self.packet = 1;
+        }
+    }
+    /// True the first time `tri` is seen in this packet.
+    #[inline(always)]
+    fn first_visit(&mut self, tri: usize) -> bool {
+        let s = &mut self.stamps[tri];
+        let first = *s != self.packet;
+        *s = self.packet;
+        first
+    }
+}
+
+/// Nearest hits of the active lanes of `rays` (a packet of `rays.len()`
+/// quads, at most 256) into `hits`; inactive lanes are left untouched.
+pub fn intersect<T: TriangleTest>(
+    g: &GridView<'_>,
+    rays: &[Ray4],
+    active: &[M4],
+    hits: &mut [Hit4],
+    opt: &CgtOptions,
+    mailbox: &mut Mailbox<'_>,
+    ctr: &mut Counters,
+) {
+    dispatch::<T, false>(g, rays, active, hits, opt, mailbox, ctr)
+}
+
+/// Occlusion of the active lanes: `hits[q].prim[i] != INVALID_ID` marks an
+/// occluded lane (t and the id of some occluder, not the nearest).
+pub fn occluded<T: TriangleTest>(
+    g: &GridView<'_>,
+    rays: &[Ray4],
+    active: &[M4],
+    hits: &mut [Hit4],
+    opt: &CgtOptions,
+    mailbox: &mut Mailbox<'_>,
+    ctr: &mut Counters,
+) {
+    dispatch::<T, true>(g, rays, active, hits, opt, mailbox, ctr)
+}
+
+fn dispatch<T: TriangleTest, const ANY: bool>(
+    g: &GridView<'_>,
+    rays: &[Ray4],
+    active: &[M4],
+    hits: &mut [Hit4],
+    opt: &CgtOptions,
+    mb: &mut Mailbox<'_>,
+    ctr: &mut Counters,
+) {
+    let n = rays.len().min(active.len()).min(hits.len());
+    // Per-quad scratch lives on the stack, sized by the packet class.
+    match n {
+        0 => {}
+        1 => packet::<T, ANY, 1>(g, &rays[..n], &active[..n], &mut hits[..n], opt, mb, ctr),
+        2..=4 => packet::<T, ANY, 4>(g, &rays[..n], &active[..n], &mut hits[..n], opt, mb, ctr),
+        5..=16 => packet::<T, ANY, 16>(g, &rays[..n], &active[..n], &mut hits[..n], opt, mb, ctr),
+        17..=64 => packet::<T, ANY, 64>(g, &rays[..n], &active[..n], &mut hits[..n], opt, mb, ctr),
+        _ => {
+            // Larger inputs are traced as consecutive 256-quad packets.
+            for s in (0..n).step_by(256) {
+                let e = (s + 256).min(n);
+                packet::<T, ANY, 256>(g, &rays[s..e], &active[s..e], &mut hits[s..e], opt, mb, ctr);
+            }
+        }
+    }
+}
+
+/// The tie rule of `traverse_single::closer`, lane by lane.
+#[inline(always)]
+fn closer4(t: F4, prim: u32, best: &Hit4) -> M4 {
+    let lt = t.cmplt(best.t);
+    let eq = t.cmpeq(best.t);
+    if !eq.any() {
+        return lt;
+    }
+    let b = best.prim;
+    lt | (eq & M4::new(prim < b[0], prim < b[1], prim < b[2], prim < b[3]))
+}
+
+#[inline(always)]
+fn lane_mask(m: M4) -> u32 {
+    m.bitmask()
+}
+
+/// One packet of `rays.len() <= Q` quads.
+fn packet<T: TriangleTest, const ANY: bool, const Q: usize>(
+    g: &GridView<'_>,
+    rays: &[Ray4],
+    active: &[M4],
+    hits: &mut [Hit4],
+    opt: &CgtOptions,
+    mb: &mut Mailbox<'_>,
+    ctr: &mut Counters,
+) {
+    let info = g.info;
+    let nq = rays.len();
+    ctr.packets += 1;
+    let mut live = [M4::FALSE; Q];
+    let mut any_live = false;
+    for q in 0..nq {
+        // Invalid rays are misses (Ray::is_valid), as in the 3DDDA.
+        let mut m = active[q];
+        for i in 0..4 {
+            if m.test(i) && !rays[q].lane(i).is_valid() {
+                m.set(i, false);
+            }
+        }
+        live[q] = m;
+        any_live |= m.any();
+    }
+    ctr.rays += live[..nq].iter().map(|m| lane_mask(*m).count_ones() as u64).sum::<u64>();
+    if !any_live || info.triangles == 0 {
+        return;
+    }
+    let gmin = info.bounds.min;
+    let inv = info.inv_cell;
+    let res = [info.res[0] as i32, info.res[1] as i32, info.res[2] as i32];
+
+    // Major axis K: the dominant grid-space axis of the first live ray.
+    let (q0, i0) = first_lane(&live[..nq]);
+    let d0 = Vec3::new(rays[q0].dir[0][i0] * inv.x, rays[q0].dir[1][i0] * inv.y, rays[q0].dir[2][i0] * inv.z);
+    let a0 = d0.abs();
+    let k = if a0.x >= a0.y && a0.x >= a0.z { 0 } else if a0.y >= a0.z { 1 } else { 2 };
+    let (u, v) = ((k + 1) % 3, (k + 2) % 3);
+    let flip = d0[k] < 0.0;
+    let nk = res[k] as f32;
+
+    // Per quad: position along K in the travel frame (K flipped so that
+    // travel is +K), 1 / dK, and u, v slopes.
+    let zero = F4::ZERO;
+    let mut ok = [zero; Q];
+    let mut rk = [zero; Q];
+    let mut du = [zero; Q];
+    let mut dv = [zero; Q];
+    let mut ou = [zero; Q];
+    let mut ov = [zero; Q];
+    let mut stray = 0u64;
+    for q in 0..nq {
+        let r = &rays[q];
+        let dk = r.dir[k] * F4::splat(inv[k]);
+        let dk = if flip { -dk } else { dk };
+        let okw = (r.org[k] - F4::splat(gmin[k])) * F4::splat(inv[k]);
+        ok[q] = if flip { F4::splat(nk) - okw } else { okw };
+        // Lanes not moving forward along K leave the packet for the 3DDDA.
+        let fwd = dk.cmpgt(zero);
+        let strays = live[q] & !fwd;
+        if strays.any() {
+            for i in 0..4 {
+                if strays.test(i) {
+                    stray += 1;
+                    let ray = r.lane(i);
+                    let h = if ANY {
+                        traverse_single::any_hit::<T>(g, &ray, ctr)
+                    } else {
+                        traverse_single::intersect::<T>(g, &ray, ctr)
+                    };
+                    hits[q].set_lane(i, h);
+                }
+            }
+            live[q] &= fwd;
+        }
+        rk[q] = F4::ONE / dk;
+        du[q] = r.dir[u] * F4::splat(inv[u]) * rk[q];
+        dv[q] = r.dir[v] * F4::splat(inv[v]) * rk[q];
+        ou[q] = (r.org[u] - F4::splat(gmin[u])) * F4::splat(inv[u]);
+        ov[q] = (r.org[v] - F4::splat(gmin[v])) * F4::splat(inv[v]);
+        for i in 0..4 {
+            if live[q].test(i) {
+                hits[q].set_lane(i, Hit::MISS);
+            }
+        }
+    }
+    ctr.stray_lanes += stray;
+
+    // Slices to visit: from the earliest start to the latest end of any ray.
+    let mut kin = f32::INFINITY;
+    let mut kout = f32::NEG_INFINITY;
+    let mut smin = [f32::INFINITY; 2];
+    let mut smax = [f32::NEG_INFINITY; 2];
+    for q in 0..nq {
+        let m = live[q];
+        if !m.any() {
+            continue;
+        }
+        let r = &rays[q];
+        let dk = F4::ONE / rk[q];
+        let a = ok[q] + r.tmin * dk;
+        let b = ok[q] + r.tmax * dk;
+        kin = kin.min(F4::select(m, a, F4::INFINITY).min_element());
+        kout = kout.max(F4::select(m, b, F4::NEG_INFINITY).max_element());
+        smin[0] = smin[0].min(F4::select(m, du[q], F4::INFINITY).min_element());
+        smax[0] = smax[0].max(F4::select(m, du[q], F4::NEG_INFINITY).max_element());
+        smin[1] = smin[1].min(F4::select(m, dv[q], F4::INFINITY).min_element());
+        smax[1] = smax[1].max(F4::select(m, dv[q], F4::NEG_INFINITY).max_element());
+    }
+    if !(kin < nk) || !(kout > 0.0) {
+        return;
+    }
+    let s0 = (kin.max(0.0) as i32).min(res[k] - 1);
+    let s1 = if kout >= nk { res[k] - 1 } else { (kout as i32).min(res[k] - 1) };
+    for a in 0..2 {
+        smin[a] -= SLOPE_EPS * (1.0 + smin[a].abs());
+        smax[a] += SLOPE_EPS * (1.0 + smax[a].abs());
+    }
+
+    // Overlap box at the reference plane k = s0 (travel frame): the extreme
+    // u, v of all rays there; then B(s) = base + (s - s0) * dB (Eq. in 2.2).
+    let kr = F4::splat(s0 as f32);
+    let mut lo = [f32::INFINITY; 2];
+    let mut hi = [f32::NEG_INFINITY; 2];
+    for q in 0..nq {
+        let m = live[q];
+        if !m.any() {
+            continue;
+        }
+        let uu = ou[q] + (kr - ok[q]) * du[q];
+        let vv = ov[q] + (kr - ok[q]) * dv[q];
+        lo[0] = lo[0].min(F4::select(m, uu, F4::INFINITY).min_element());
+        hi[0] = hi[0].max(F4::select(m, uu, F4::NEG_INFINITY).max_element());
+        lo[1] = lo[1].min(F4::select(m, vv, F4::INFINITY).min_element());
+        hi[1] = hi[1].max(F4::select(m, vv, F4::NEG_INFINITY).max_element());
+    }
+    let widen = |x: f32| BOX_EPS + SLOPE_EPS * x.abs();
+    // B over slab [s, s+1]: the low edge moves by min(0, slope) within it.
+    let base = F4::new(
+        lo[0] + smin[0].min(0.0) - widen(lo[0]),
+        hi[0] + smax[0].max(0.0) + widen(hi[0]),
+        lo[1] + smin[1].min(0.0) - widen(lo[1]),
+        hi[1] + smax[1].max(0.0) + widen(hi[1]),
+    );
+    let db = F4::new(smin[0], smax[0], smin[1], smax[1]);
+    let box_at = |s: i32| base + db * F4::splat((s - s0) as f32);
+    // Cell range of a box along u and v (inclusive), or None when outside.
+    let range = |b: F4| -> Option<[i32; 4]> {
+        if b.y < 0.0 || b.x >= res[u] as f32 || b.w < 0.0 || b.z >= res[v] as f32 || !(b.x <= b.y && b.z <= b.w) {
+            return None;
+        }
+        // Truncation equals floor for the clamped, non-negative values.
+        Some([
+            (b.x as i32).clamp(0, res[u] - 1),
+            (b.y as i32).clamp(0, res[u] - 1),
+            (b.z as i32).clamp(0, res[v] - 1),
+            (b.w as i32).clamp(0, res[v] - 1),
+        ])
+    };
+
+    // Frustum culling needs one common origin and the four corner rays.
+    let origin = Vec3::new(rays[q0].org[0][i0], rays[q0].org[1][i0], rays[q0].org[2][i0]);
+    let cull = opt.culling && common_origin(rays, &live[..nq], origin);
+    if opt.culling && !cull {
+        ctr.packets_no_cull += 1;
+    }
+    let corners = corner_dirs(k, u, v, flip, info.cell_size, smin, smax);
+
+    // Per-ray precomputation of the triangle test.
+    let mut pre = [T::prepare(&RayLanes::from_ray4(&rays[q0])); Q];
+    for q in 0..nq {
+        pre[q] = T::prepare(&RayLanes::from_ray4(&rays[q]));
+    }
+    if opt.mailbox {
+        mb.next_packet(info.triangles as usize);
+    }
+
+    let m = info.macrocell as i32;
+    let use_macro = opt.macrocells && m > 1;
+    let mut s = s0;
+    let mut macro_end = i32::MIN; // last slice of the macrocell slab already checked
+    while s <= s1 {
+        let kc = if flip { res[k] - 1 - s } else { s };
+        if use_macro && s > macro_end {
+            // Slices left in this macrocell slab along the travel direction.
+            let mk = kc / m;
+            let left = if flip { kc - mk * m } else { ((mk + 1) * m).min(res[k]) - 1 - kc };
+            let end = (s + left).min(s1);
+            macro_end = end;
+            let (b0, b1) = (box_at(s), box_at(end));
+            let b = F4::new(b0.x.min(b1.x), b0.y.max(b1.y), b0.z.min(b1.z), b0.w.max(b1.w));
+            let empty = match range(b) {
+                None => true,
+                Some(r) => {
+                    let mut occupied = false;
+                    'scan: for mv in r[2] / m..=r[3] / m {
+                        for mu in r[0] / m..=r[1] / m {
+                            let mut mc = [0i32; 3];
+                            mc[k] = mk;
+                            mc[u] = mu;
+                            mc[v] = mv;
+                            if g.macro_occupied(mc) {
+                                occupied = true;
+                                break 'scan;
+                            }
+                        }
+                    }
+                    !occupied
+                }
+            };
+            if empty {
+                ctr.macro_skips += 1;
+                s = end + 1;
+                if !ANY && !still_live(&mut live[..nq], hits, &ok[..nq], &rk[..nq], rays, end + 1) {
+                    return;
+                }
+                continue;
+            }
+        }
+        if let Some(r) = range(box_at(s)) {
+            for cv in r[2]..=r[3] {
+                for cu in r[0]..=r[1] {
+                    let mut c = [0i32; 3];
+                    c[k] = kc;
+                    c[u] = cu;
+                    c[v] = cv;
+                    ctr.cells += 1;
+                    for &tri in g.cell(g.cell_index(c)) {
+                        let tri = tri as usize;
+                        if opt.mailbox && !mb.first_visit(tri) {
+                            ctr.mailbox_skips += 1;
+                            continue;
+                        }
+                        let tv = &g.tris[tri];
+                        if cull && culled(tv, origin, &corners) {
+                            ctr.culled += 1;
+                            continue;
+                        }
+                        let id = g.tri_ids[tri];
+                        let mut left = false;
+                        for q in 0..nq {
+                            let lm = live[q];
+                            if !lm.any() {
+                                continue;
+                            }
+                            left = true;
+                            ctr.tri_tests += lane_mask(lm).count_ones() as u64;
+                            let h = T::intersect(&RayLanes::from_ray4(&rays[q]), &pre[q], tv);
+                            let hm = h.mask & lm;
+                            if !hm.any() {
+                                continue;
+                            }
+                            let take = if ANY { hm } else { hm & closer4(h.t, id, &hits[q]) };
+                            if take.any() {
+                                let hq = &mut hits[q];
+                                hq.t = F4::select(take, h.t, hq.t);
+                                hq.u = F4::select(take, h.u, hq.u);
+                                hq.v = F4::select(take, h.v, hq.v);
+                                for i in 0..4 {
+                                    if take.test(i) {
+                                        hq.prim[i] = id;
+                                    }
+                                }
+                                if ANY {
+                                    live[q] &= !take;
+                                }
+                            }
+                        }
+                        if !left {
+                            return;
+                        }
+                    }
+                }
+            }
+        }
+        // Early termination: rays with a hit before the next slice plane
+        // (or whose tmax ends before it) are done.
+        if !ANY && !still_live(&mut live[..nq], hits, &ok[..nq], &rk[..nq], rays, s + 1) {
+            return;
+        }
+        if ANY && !live[..nq].iter().any(|m| m.any()) {
+            return;
+        }
+        s += 1;
+    }
+}
+
+/// After the slab ending at travel-frame plane `next`: drop lanes whose hit
+/// lies strictly before the plane, or whose interval ends there. False when
+/// no lane is left.
+#[inline]
+fn still_live(live: &mut [M4], hits: &[Hit4], ok: &[F4], rk: &[F4], rays: &[Ray4], next: i32) -> bool {
+    let plane = F4::splat(next as f32);
+    let mut any = false;
+    for q in 0..live.len() {
+        if !live[q].any() {
+            continue;
+        }
+        let tp = (plane - ok[q]) * rk[q];
+        let done = hits[q].t.cmplt(tp) | rays[q].tmax.cmple(tp);
+        live[q] &= !done;
+        any |= live[q].any();
+    }
+    any
+}
+
+fn first_lane(live: &[M4]) -> (usize, usize) {
+    for (q, m) in live.iter().enumerate() {
+        let b = m.bitmask();
+        if b != 0 {
+            return (q, b.trailing_zeros() as usize);
+        }
+    }
+    (0, 0)
+}
+
+/// Whether every live lane starts at bitwise the same point.
+fn common_origin(rays: &[Ray4], live: &[M4], o: Vec3) -> bool {
+    rays.iter().zip(live).all(|(r, m)| {
+        let same = r.org[0].cmpeq(F4::splat(o.x)) & r.org[1].cmpeq(F4::splat(o.y)) & r.org[2].cmpeq(F4::splat(o.z));
+        (*m & !same).bitmask() == 0
+    })
+}
+
+/// World-space directions of the four frustum corner rays (slope extremes,
+/// already widened), as x, y, z lanes over the corners.
+fn corner_dirs(k: usize, u: usize, v: usize, flip: bool, cell: Vec3, smin: [f32; 2], smax: [f32; 2]) -> [F4; 3] {
+    let mut d = [F4::ZERO; 3];
+    d[k] = F4::splat(if flip { -cell[k] } else { cell[k] });
+    d[u] = F4::new(smin[0], smax[0], smin[0], smax[0]) * F4::splat(cell[u]);
+    d[v] = F4::new(smin[1], smin[1], smax[1], smax[1]) * F4::splat(cell[v]);
+    d
+}
+
+/// Shaft culling (Dmitriev et al. 2004): the corner rays from `o` all miss
+/// the triangle on the same edge, so every ray inside their cone does.
+#[inline(always)]
+fn culled(t: &TriVerts, o: Vec3, corners: &[F4; 3]) -> bool {
+    let a = Vec3::from(t.v0) - o;
+    let b = Vec3::from(t.v1) - o;
+    let c = Vec3::from(t.v2) - o;
+    let n = [a.cross(b), b.cross(c), c.cross(a)];
+    // Inside the triangle all three edge functions share the sign of the
+    // triple product; one edge with every corner strictly on the other side
+    // separates the cone from the triangle.
+    let sigma = a.dot(n[1]);
+    if sigma == 0.0 || !sigma.is_finite() {
+        return false;
+    }
+    for e in &n {
+        let s = corners[0] * F4::splat(e.x) + corners[1] * F4::splat(e.y) + corners[2] * F4::splat(e.z);
+        let out = if sigma > 0.0 { s.cmplt(F4::ZERO) } else { s.cmpgt(F4::ZERO) };
+        if out.all() {
+            return true;
+        }
+    }
+    false
+}
