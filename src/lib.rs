@@ -13,6 +13,7 @@
 pub mod accel;
 pub mod context;
 pub mod error;
+#[cfg(feature = "std")] pub mod ffi;
 pub mod geom;
 pub mod math;
 pub mod mem;

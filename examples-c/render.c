@@ -1,0 +1,164 @@
+/*
+ * render.c: the smallest complete use of sheaf's C ABI.
+ *
+ * Builds a scene (a ground plane, a staircase of boxes, a pyramid and a
+ * tower), creates a context inside a buffer it allocates itself
+ * (sheaf_context_create_in: sheaf never allocates), renders one frame with
+ * shadows and writes it as a binary PPM.
+ *
+ * Build and run from the repository root (the Makefile first runs
+ * `cargo build --release --lib`, then links target/release/libsheaf.a):
+ *   make -C examples-c            (static; `make -C examples-c shared` for the .so)
+ *   examples-c/render [out.ppm] [width] [height]
+ */
+#include "sheaf.h"
+
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define MAX_VERTICES 1024
+#define MAX_TRIANGLES 1024
+
+static float vertices[MAX_VERTICES][3];
+static uint32_t indices[MAX_TRIANGLES][3];
+static uint32_t n_vertices, n_triangles;
+
+static uint32_t vertex(float x, float y, float z) {
+    vertices[n_vertices][0] = x;
+    vertices[n_vertices][1] = y;
+    vertices[n_vertices][2] = z;
+    return n_vertices++;
+}
+
+static void triangle(uint32_t a, uint32_t b, uint32_t c) {
+    indices[n_triangles][0] = a;
+    indices[n_triangles][1] = b;
+    indices[n_triangles][2] = c;
+    n_triangles++;
+}
+
+static void quad(uint32_t a, uint32_t b, uint32_t c, uint32_t d) {
+    triangle(a, b, c);
+    triangle(a, c, d);
+}
+
+/* Axis-aligned box from (x0, y0, z0) to (x1, y1, z1). */
+static void box(float x0, float y0, float z0, float x1, float y1, float z1) {
+    uint32_t v[8];
+    int i;
+    for (i = 0; i < 8; ++i) v[i] = vertex((i & 1) ? x1 : x0, (i & 2) ? y1 : y0, (i & 4) ? z1 : z0);
+    quad(v[0], v[2], v[3], v[1]); /* bottom */
+    quad(v[4], v[5], v[7], v[6]); /* top */
+    quad(v[0], v[1], v[5], v[4]);
+    quad(v[2], v[6], v[7], v[3]);
+    quad(v[0], v[4], v[6], v[2]);
+    quad(v[1], v[3], v[7], v[5]);
+}
+
+static void pyramid(float cx, float cy, float half, float height) {
+    uint32_t a = vertex(cx - half, cy - half, 0.0f), b = vertex(cx + half, cy - half, 0.0f);
+    uint32_t c = vertex(cx + half, cy + half, 0.0f), d = vertex(cx - half, cy + half, 0.0f);
+    uint32_t top = vertex(cx, cy, height);
+    triangle(a, b, top);
+    triangle(b, c, top);
+    triangle(c, d, top);
+    triangle(d, a, top);
+}
+
+static void build_scene(void) {
+    int i;
+    quad(vertex(-12.0f, -12.0f, 0.0f), vertex(12.0f, -12.0f, 0.0f), vertex(12.0f, 12.0f, 0.0f),
+         vertex(-12.0f, 12.0f, 0.0f));
+    for (i = 0; i < 6; ++i) box(-5.0f + (float)i, -1.0f, 0.0f, -4.0f + (float)i, 1.0f, 0.4f * (float)(i + 1));
+    pyramid(3.5f, 3.0f, 1.6f, 2.5f);
+    box(2.5f, -3.5f, 0.0f, 3.5f, -2.5f, 4.0f);
+}
+
+static int fail(const char *what, sheaf_status s, const sheaf_context *ctx) {
+    char msg[SHEAF_ERROR_MESSAGE_MAX] = "";
+    size_t n = 0;
+    if (ctx != NULL) (void)sheaf_context_last_error(ctx, msg, sizeof msg, &n);
+    fprintf(stderr, "%s failed: %s (%u)%s%s\n", what, sheaf_status_string(s), (unsigned)s, n ? ": " : "", msg);
+    return 1;
+}
+
+int main(int argc, char **argv) {
+    const char *path = argc > 1 ? argv[1] : "render.ppm";
+    uint32_t width = argc > 2 ? (uint32_t)atoi(argv[2]) : 640;
+    uint32_t height = argc > 3 ? (uint32_t)atoi(argv[3]) : 480;
+    sheaf_limits limits;
+    sheaf_context *ctx = NULL;
+    sheaf_frame frame;
+    sheaf_stats stats;
+    sheaf_status s;
+    size_t need = 0, stride = (size_t)width * 4, x, y;
+    void *memory, *aligned;
+    uint8_t *rgba;
+    FILE *out;
+
+    if (width == 0 || height == 0) {
+        fprintf(stderr, "usage: %s [out.ppm] [width] [height]\n", argv[0]);
+        return 2;
+    }
+    build_scene();
+
+    /* 1. All the memory the context will ever use, allocated here, 64-byte aligned. */
+    if ((s = sheaf_limits_default(n_triangles, &limits)) != SHEAF_STATUS_OK) return fail("sheaf_limits_default", s, NULL);
+    if ((s = sheaf_required_bytes(&limits, &need)) != SHEAF_STATUS_OK) return fail("sheaf_required_bytes", s, NULL);
+    memory = malloc(need + SHEAF_CONTEXT_ALIGN);
+    if (memory == NULL) return 1;
+    aligned = (void *)(((uintptr_t)memory + SHEAF_CONTEXT_ALIGN - 1) & ~(uintptr_t)(SHEAF_CONTEXT_ALIGN - 1));
+    if ((s = sheaf_context_create_in(aligned, need, &limits, &ctx)) != SHEAF_STATUS_OK)
+        return fail("sheaf_context_create_in", s, NULL);
+
+    /* 2. Geometry (borrowed, not copied) and the grid. */
+    if ((s = sheaf_context_set_geometry(ctx, &vertices[0][0], sizeof vertices[0], n_vertices, &indices[0][0],
+                                        n_triangles)) != SHEAF_STATUS_OK)
+        return fail("sheaf_context_set_geometry", s, ctx);
+    if ((s = sheaf_context_build_grid(ctx, NULL)) != SHEAF_STATUS_OK) return fail("sheaf_context_build_grid", s, ctx);
+
+    /* 3. One frame. */
+    memset(&frame, 0, sizeof frame);
+    frame.camera.eye[0] = 9.0f;
+    frame.camera.eye[1] = -12.0f;
+    frame.camera.eye[2] = 7.0f;
+    frame.camera.look_at[2] = 1.0f;
+    frame.camera.up[2] = 1.0f;
+    frame.camera.fov_y_deg = 45.0f;
+    frame.light.position[0] = -6.0f;
+    frame.light.position[1] = -8.0f;
+    frame.light.position[2] = 12.0f;
+    frame.light.color[0] = frame.light.color[1] = frame.light.color[2] = 1.0f;
+    (void)sheaf_shading_default(&frame.shading);
+    frame.width = width;
+    frame.height = height;
+    rgba = (uint8_t *)malloc(stride * height);
+    if (rgba == NULL) return 1;
+    if ((s = sheaf_context_render(ctx, SHEAF_METHOD_GRID_DDA, &frame, rgba, stride, stride * height)) !=
+        SHEAF_STATUS_OK)
+        return fail("sheaf_context_render", s, ctx);
+    (void)sheaf_context_stats(ctx, &stats);
+
+    /* 4. PPM (RGB, alpha dropped). */
+    out = fopen(path, "wb");
+    if (out == NULL) {
+        perror(path);
+        return 1;
+    }
+    fprintf(out, "P6\n%u %u\n255\n", width, height);
+    for (y = 0; y < height; ++y)
+        for (x = 0; x < width; ++x) fwrite(rgba + y * stride + 4 * x, 1, 3, out);
+    fclose(out);
+
+    printf("sheaf %s: %u triangles, grid %ux%ux%u (%u refs), build %.3f ms, %llu rays in %.3f ms -> %s\n",
+           sheaf_version_string(), stats.triangles, stats.grid_res[0], stats.grid_res[1], stats.grid_res[2],
+           stats.grid_refs, (double)stats.build_ns * 1e-6, (unsigned long long)stats.counters.rays,
+           (double)stats.trace_ns * 1e-6, path);
+
+    sheaf_context_destroy(ctx);
+    free(memory);
+    free(rgba);
+    return 0;
+}

@@ -1,0 +1,824 @@
+/*
+ * The C ABI contract, call by call: lifecycle, every bad-input path (each
+ * NULL pointer, zero and overflowing sizes, misaligned and too small
+ * buffers, out-of-range indices, NaN vertices, capacity errors) and the
+ * results of trace, occluded and render. Outputs must be written only on
+ * SHEAF_STATUS_OK, and a failed call must leave the context as it was.
+ */
+#include "common.h"
+
+/* Ground (tris 0, 1) and a unit box on it (tris 2..13): 14 triangles, 12 vertices. */
+static scene *ground_and_box(void) {
+    scene *s = scene_new();
+    scene_ground(s, 4.0f);
+    scene_box(s, -0.5f, -0.5f, 0.0f, 0.5f, 0.5f, 1.0f);
+    return s;
+}
+
+/* A created, built context over `s` (kept alive by the caller). */
+static sheaf_context *built_context(const scene *s, uint32_t max_triangles) {
+    sheaf_limits limits;
+    sheaf_context *ctx = NULL;
+    if (sheaf_limits_default(max_triangles, &limits) != SHEAF_STATUS_OK) return NULL;
+    if (sheaf_context_create(&limits, &ctx) != SHEAF_STATUS_OK) return NULL;
+    if (scene_set(ctx, s) != SHEAF_STATUS_OK || sheaf_context_build_grid(ctx, NULL) != SHEAF_STATUS_OK) {
+        sheaf_context_destroy(ctx);
+        return NULL;
+    }
+    return ctx;
+}
+
+/* Rays over ground_and_box: ground, box top, miss, axis-parallel box side, ... */
+#define N_PROBE 8
+static void probe_rays(sheaf_ray rays[N_PROBE]) {
+    rays[0] = make_ray(2.0f, -1.0f, 5.0f, 0.0f, 0.0f, -1.0f, 0.0f, INFINITY); /* ground tri 0, t = 5 */
+    rays[1] = make_ray(-2.0f, 1.0f, 5.0f, 0.0f, 0.0f, -1.0f, 0.0f, INFINITY); /* ground tri 1, t = 5 */
+    rays[2] = make_ray(0.1f, 0.2f, 5.0f, 0.0f, 0.0f, -1.0f, 0.0f, INFINITY);  /* box top, t = 4 */
+    rays[3] = make_ray(2.0f, -1.0f, 1.0f, 0.0f, 0.0f, 1.0f, 0.0f, INFINITY);  /* up: miss */
+    rays[4] = make_ray(-3.0f, 0.1f, 0.5f, 1.0f, 0.0f, 0.0f, 0.0f, INFINITY);  /* box side x = -0.5, t = 2.5 */
+    rays[5] = make_ray(2.0f, -1.0f, 5.0f, 0.0f, 0.0f, -1.0f, 0.0f, 4.5f);     /* tmax before ground: miss */
+    rays[6] = make_ray(NAN, 0.0f, 5.0f, 0.0f, 0.0f, -1.0f, 0.0f, INFINITY);   /* invalid: miss */
+    rays[7] = make_ray(3.0f, 2.5f, 2.0f, -1.0f, -1.0f, -1.0f, 0.0f, INFINITY); /* diagonal onto the ground */
+}
+
+static bool hits_equal(const sheaf_hit *a, const sheaf_hit *b, size_t n) {
+    size_t i;
+    for (i = 0; i < n; ++i) {
+        if (float_bits(a[i].t) != float_bits(b[i].t) || a[i].prim != b[i].prim ||
+            float_bits(a[i].u) != float_bits(b[i].u) || float_bits(a[i].v) != float_bits(b[i].v)) {
+            fprintf(stderr, "    hit %u differs: prim %u t %.9g vs prim %u t %.9g\n", (unsigned)i,
+                    a[i].prim, a[i].t, b[i].prim, b[i].t);
+            return false;
+        }
+    }
+    return true;
+}
+
+static bool last_error_contains(const sheaf_context *ctx, const char *what) {
+    char msg[SHEAF_ERROR_MESSAGE_MAX];
+    size_t n = 0;
+    if (sheaf_context_last_error(ctx, msg, sizeof msg, &n) != SHEAF_STATUS_OK) return false;
+    if (strstr(msg, what) == NULL) {
+        fprintf(stderr, "    last error \"%s\" does not contain \"%s\"\n", msg, what);
+        return false;
+    }
+    return n == strlen(msg);
+}
+
+/* ---- status strings and version ------------------------------------------ */
+
+static bool test_status_codes_and_strings(void) {
+    static const struct {
+        sheaf_status status;
+        unsigned code;
+    } all[] = {
+        {SHEAF_STATUS_OK, 0},
+        {SHEAF_STATUS_NULL_POINTER, 100},
+        {SHEAF_STATUS_INVALID_ARGUMENT, 101},
+        {SHEAF_STATUS_INDEX_OUT_OF_RANGE, 102},
+        {SHEAF_STATUS_MISALIGNED, 103},
+        {SHEAF_STATUS_BUFFER_TOO_SMALL, 104},
+        {SHEAF_STATUS_CAPACITY_TRIANGLES, 200},
+        {SHEAF_STATUS_CAPACITY_VERTICES, 201},
+        {SHEAF_STATUS_CAPACITY_GRID_CELLS, 202},
+        {SHEAF_STATUS_CAPACITY_GRID_REFS, 203},
+        {SHEAF_STATUS_CAPACITY_IMAGE, 204},
+        {SHEAF_STATUS_CAPACITY_THREADS, 205},
+        {SHEAF_STATUS_OUT_OF_MEMORY, 299},
+        {SHEAF_STATUS_NO_GEOMETRY, 300},
+        {SHEAF_STATUS_NOT_BUILT, 301},
+        {SHEAF_STATUS_PANIC, 900},
+    };
+    const size_t n = sizeof all / sizeof all[0];
+    const char *unknown = sheaf_status_string((sheaf_status)12345);
+    size_t i, j;
+    CHECK(unknown != NULL && strlen(unknown) > 0);
+    CHECK(sheaf_status_string((sheaf_status)1) != NULL);
+    CHECK(sheaf_status_string((sheaf_status)99) != NULL);
+    CHECK(sheaf_status_string((sheaf_status)0xFFFFFFFFu) != NULL);
+    CHECK(strcmp(sheaf_status_string((sheaf_status)199), unknown) == 0);
+    for (i = 0; i < n; ++i) {
+        const char *s = sheaf_status_string(all[i].status);
+        CHECK((unsigned)all[i].status == all[i].code); /* codes are never renumbered */
+        CHECK(s != NULL && strlen(s) > 0);
+        CHECK(strcmp(s, unknown) != 0);
+        for (j = 0; j < i; ++j) CHECK(strcmp(s, sheaf_status_string(all[j].status)) != 0);
+    }
+    CHECK(strcmp(sheaf_status_string(SHEAF_STATUS_OK), "ok") == 0);
+    return true;
+}
+
+static bool test_version(void) {
+    char want[64];
+    const char *v = sheaf_version_string();
+    CHECK(v != NULL);
+    sprintf(want, "%d.%d.%d", SHEAF_VERSION_MAJOR, SHEAF_VERSION_MINOR, SHEAF_VERSION_PATCH);
+    CHECK(strcmp(v, want) == 0);
+    return true;
+}
+
+/* ---- defaults and required bytes ------------------------------------------ */
+
+static bool test_defaults(void) {
+    sheaf_limits l;
+    sheaf_grid_params p;
+    sheaf_shading sh;
+    CHECK_OK(sheaf_limits_default(100, &l));
+    CHECK(l.max_triangles == 100 && l.max_vertices == 300 && l.max_threads == 8 && l.max_tile == 64);
+    CHECK(l.max_image_width == 4096 && l.max_image_height == 4096);
+    CHECK(l.max_grid_cells == 0 && l.max_grid_refs == 0);
+    CHECK_STATUS(sheaf_limits_default(1, NULL), SHEAF_STATUS_NULL_POINTER);
+    CHECK_OK(sheaf_grid_params_default(&p));
+    CHECK(p.lambda == 5.0f && p.macrocell == 6 && p.test == SHEAF_TRI_TEST_MOLLER_TRUMBORE && !p.fit);
+    CHECK_STATUS(sheaf_grid_params_default(NULL), SHEAF_STATUS_NULL_POINTER);
+    CHECK_OK(sheaf_shading_default(&sh));
+    CHECK(sh.shadows && sh.ambient > 0.0f);
+    CHECK_STATUS(sheaf_shading_default(NULL), SHEAF_STATUS_NULL_POINTER);
+    return true;
+}
+
+static bool test_required_bytes(void) {
+    sheaf_limits l, bad;
+    size_t a = 0, b = 0, untouched = 777;
+    CHECK_OK(sheaf_limits_default(100, &l));
+    CHECK_OK(sheaf_required_bytes(&l, &a));
+    CHECK(a > 0 && a % SHEAF_CONTEXT_ALIGN == 0);
+    l.max_triangles = 1000;
+    CHECK_OK(sheaf_required_bytes(&l, &b));
+    CHECK(b > a);
+    CHECK_STATUS(sheaf_required_bytes(NULL, &untouched), SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS(sheaf_required_bytes(&l, NULL), SHEAF_STATUS_NULL_POINTER);
+    bad = l;
+    bad.max_threads = 0; /* zero sizes are invalid */
+    CHECK_STATUS(sheaf_required_bytes(&bad, &untouched), SHEAF_STATUS_INVALID_ARGUMENT);
+    bad = l;
+    bad.max_tile = 0;
+    CHECK_STATUS(sheaf_required_bytes(&bad, &untouched), SHEAF_STATUS_INVALID_ARGUMENT);
+    bad = l;
+    bad.max_image_width = 0;
+    CHECK_STATUS(sheaf_required_bytes(&bad, &untouched), SHEAF_STATUS_INVALID_ARGUMENT);
+    bad = l;
+    bad.max_grid_refs = 0xFFFFFFFFu;
+    bad.max_grid_cells = 0xFFFFFFFFu; /* above 2^32 - 1 entries */
+    CHECK_STATUS(sheaf_required_bytes(&bad, &untouched), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK(untouched == 777);
+    return true;
+}
+
+/* ---- lifecycle -------------------------------------------------------------- */
+
+static bool test_create_destroy(void) {
+    sheaf_limits l;
+    sheaf_context *ctx = NULL;
+    sheaf_context *untouched = (sheaf_context *)&l;
+    CHECK_OK(sheaf_limits_default(10, &l));
+    CHECK_OK(sheaf_context_create(&l, &ctx));
+    CHECK(ctx != NULL);
+    sheaf_context_destroy(ctx);
+    sheaf_context_destroy(NULL); /* accepted */
+    CHECK_STATUS(sheaf_context_create(NULL, &untouched), SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS(sheaf_context_create(&l, NULL), SHEAF_STATUS_NULL_POINTER);
+    l.max_threads = 0;
+    CHECK_STATUS(sheaf_context_create(&l, &untouched), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK(untouched == (sheaf_context *)&l);
+    return true;
+}
+
+/* create_in with exactly sheaf_required_bytes: everything lives inside the
+ * buffer (guard bytes after it stay untouched through a whole frame). */
+static bool test_create_in_exact_size(void) {
+    enum { GUARD = 256 };
+    scene *s = ground_and_box();
+    sheaf_limits l;
+    size_t need = 0, i;
+    unsigned char *raw, *buf;
+    sheaf_context *ctx = NULL, *ref;
+    sheaf_ray rays[N_PROBE];
+    sheaf_hit hits[N_PROBE], want[N_PROBE];
+    sheaf_frame f = default_frame(32, 24);
+    static uint8_t rgba[32 * 24 * 4];
+
+    CHECK_OK(sheaf_limits_default(s->nt, &l));
+    CHECK_OK(sheaf_required_bytes(&l, &need));
+    raw = (unsigned char *)malloc(need + GUARD + SHEAF_CONTEXT_ALIGN);
+    CHECK(raw != NULL);
+    buf = (unsigned char *)align_up(raw, SHEAF_CONTEXT_ALIGN);
+    memset(buf, 0xEE, need + GUARD);
+    CHECK_OK(sheaf_context_create_in(buf, need, &l, &ctx));
+    CHECK(ctx != NULL);
+    CHECK((unsigned char *)ctx >= buf && (unsigned char *)ctx < buf + need); /* the handle is inside */
+    CHECK_OK(scene_set(ctx, s));
+    CHECK_OK(sheaf_context_build_grid(ctx, NULL));
+    probe_rays(rays);
+    CHECK_OK(sheaf_context_trace(ctx, SHEAF_METHOD_GRID_DDA, rays, hits, N_PROBE));
+    CHECK_OK(sheaf_context_render(ctx, SHEAF_METHOD_GRID_DDA, &f, rgba, 32 * 4, sizeof rgba));
+    /* same results as an allocating context */
+    ref = built_context(s, s->nt);
+    CHECK(ref != NULL);
+    CHECK_OK(sheaf_context_trace(ref, SHEAF_METHOD_GRID_DDA, rays, want, N_PROBE));
+    CHECK(hits_equal(hits, want, N_PROBE));
+    sheaf_context_destroy(ref);
+    sheaf_context_destroy(ctx);
+    for (i = 0; i < GUARD; ++i) CHECK(buf[need + i] == 0xEE);
+    free(raw);
+    free(s);
+    return true;
+}
+
+static bool test_create_in_bad_buffers(void) {
+    sheaf_limits l;
+    size_t need = 0;
+    unsigned char *raw, *buf;
+    sheaf_context *untouched = (sheaf_context *)&l;
+    CHECK_OK(sheaf_limits_default(50, &l));
+    CHECK_OK(sheaf_required_bytes(&l, &need));
+    raw = (unsigned char *)malloc(need + 2 * SHEAF_CONTEXT_ALIGN);
+    CHECK(raw != NULL);
+    buf = (unsigned char *)align_up(raw, SHEAF_CONTEXT_ALIGN);
+    /* one byte too small, and zero bytes */
+    CHECK_STATUS(sheaf_context_create_in(buf, need - 1, &l, &untouched), SHEAF_STATUS_BUFFER_TOO_SMALL);
+    CHECK_STATUS(sheaf_context_create_in(buf, 0, &l, &untouched), SHEAF_STATUS_BUFFER_TOO_SMALL);
+    /* misaligned, even with room to spare */
+    CHECK_STATUS(sheaf_context_create_in(buf + 8, need + 8, &l, &untouched), SHEAF_STATUS_MISALIGNED);
+    CHECK_STATUS(sheaf_context_create_in(buf + 1, need + 8, &l, &untouched), SHEAF_STATUS_MISALIGNED);
+    /* NULL arguments */
+    CHECK_STATUS(sheaf_context_create_in(NULL, need, &l, &untouched), SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS(sheaf_context_create_in(buf, need, NULL, &untouched), SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS(sheaf_context_create_in(buf, need, &l, NULL), SHEAF_STATUS_NULL_POINTER);
+    /* invalid limits */
+    l.max_tile = 3;
+    CHECK_STATUS(sheaf_context_create_in(buf, need, &l, &untouched), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK(untouched == (sheaf_context *)&l);
+    free(raw);
+    return true;
+}
+
+/* A create_in context's memory stays valid after destroy: a stale handle
+ * is then detected instead of used. */
+static bool test_create_in_stale_handle(void) {
+    sheaf_limits l;
+    size_t need = 0;
+    unsigned char *raw, *buf;
+    sheaf_context *ctx = NULL;
+    sheaf_stats st;
+    CHECK_OK(sheaf_limits_default(4, &l));
+    CHECK_OK(sheaf_required_bytes(&l, &need));
+    raw = (unsigned char *)malloc(need + SHEAF_CONTEXT_ALIGN);
+    CHECK(raw != NULL);
+    buf = (unsigned char *)align_up(raw, SHEAF_CONTEXT_ALIGN);
+    CHECK_OK(sheaf_context_create_in(buf, need, &l, &ctx));
+    sheaf_context_destroy(ctx);
+    CHECK_STATUS(sheaf_context_stats(ctx, &st), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_build_grid(ctx, NULL), SHEAF_STATUS_INVALID_ARGUMENT);
+    sheaf_context_destroy(ctx); /* second destroy: ignored */
+    free(raw);
+    return true;
+}
+
+/* ---- geometry ---------------------------------------------------------------- */
+
+static bool test_set_geometry_bad_arguments(void) {
+    scene *s = ground_and_box();
+    sheaf_limits l;
+    sheaf_context *ctx = NULL;
+    uint32_t *misaligned_storage;
+    uint32_t *misaligned;
+    CHECK_OK(sheaf_limits_default(s->nt, &l));
+    CHECK_OK(sheaf_context_create(&l, &ctx));
+    CHECK_STATUS(sheaf_context_set_geometry(NULL, &s->v[0][0], SCENE_STRIDE, s->nv, s->idx, s->nt),
+                 SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS(sheaf_context_set_geometry(ctx, NULL, SCENE_STRIDE, s->nv, s->idx, s->nt),
+                 SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS(sheaf_context_set_geometry(ctx, &s->v[0][0], SCENE_STRIDE, s->nv, NULL, s->nt),
+                 SHEAF_STATUS_NULL_POINTER);
+    /* strides: zero, below 12, not a multiple of 4, overflowing */
+    CHECK_STATUS(sheaf_context_set_geometry(ctx, &s->v[0][0], 0, s->nv, s->idx, s->nt),
+                 SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_set_geometry(ctx, &s->v[0][0], 8, s->nv, s->idx, s->nt),
+                 SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_set_geometry(ctx, &s->v[0][0], 14, s->nv, s->idx, s->nt),
+                 SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_set_geometry(ctx, &s->v[0][0], (size_t)-1 / 2, s->nv, s->idx, s->nt),
+                 SHEAF_STATUS_INVALID_ARGUMENT);
+    /* indices not 4-byte aligned */
+    misaligned_storage = (uint32_t *)malloc(sizeof(uint32_t) * (3 * s->nt + 1));
+    CHECK(misaligned_storage != NULL);
+    misaligned = (uint32_t *)(void *)((unsigned char *)misaligned_storage + 2);
+    memcpy(misaligned, s->idx, sizeof(uint32_t) * 3 * s->nt);
+    CHECK_STATUS(sheaf_context_set_geometry(ctx, &s->v[0][0], SCENE_STRIDE, s->nv, misaligned, s->nt),
+                 SHEAF_STATUS_MISALIGNED);
+    free(misaligned_storage);
+    /* nothing was set */
+    CHECK_STATUS(sheaf_context_build_grid(ctx, NULL), SHEAF_STATUS_NO_GEOMETRY);
+    /* empty geometry with NULL pointers is fine, and builds an empty grid */
+    CHECK_OK(sheaf_context_set_geometry(ctx, NULL, 12, 0, NULL, 0));
+    CHECK_OK(sheaf_context_build_grid(ctx, NULL));
+    sheaf_context_destroy(ctx);
+    free(s);
+    return true;
+}
+
+static bool test_state_errors(void) {
+    sheaf_limits l;
+    sheaf_context *ctx = NULL;
+    sheaf_ray rays[N_PROBE];
+    sheaf_hit hits[N_PROBE];
+    uint8_t occ[N_PROBE];
+    sheaf_frame f = default_frame(8, 8);
+    uint8_t rgba[8 * 8 * 4];
+    sheaf_stats st;
+    probe_rays(rays);
+    CHECK_OK(sheaf_limits_default(16, &l));
+    CHECK_OK(sheaf_context_create(&l, &ctx));
+    CHECK(last_error_contains(ctx, "no error"));
+    CHECK_STATUS(sheaf_context_build_grid(ctx, NULL), SHEAF_STATUS_NO_GEOMETRY);
+    CHECK(last_error_contains(ctx, "no geometry"));
+    CHECK_STATUS(sheaf_context_trace(ctx, SHEAF_METHOD_GRID_DDA, rays, hits, N_PROBE), SHEAF_STATUS_NOT_BUILT);
+    CHECK_STATUS(sheaf_context_occluded(ctx, SHEAF_METHOD_GRID_DDA, rays, occ, N_PROBE), SHEAF_STATUS_NOT_BUILT);
+    CHECK_STATUS(sheaf_context_render(ctx, SHEAF_METHOD_GRID_DDA, &f, rgba, 32, sizeof rgba),
+                 SHEAF_STATUS_NOT_BUILT);
+    CHECK(last_error_contains(ctx, "no acceleration structure"));
+    CHECK_OK(sheaf_context_stats(ctx, &st)); /* all zero before the first build */
+    CHECK(st.triangles_in == 0 && st.grid_cells == 0 && st.counters.rays == 0);
+    sheaf_context_destroy(ctx);
+    return true;
+}
+
+/* An out-of-range index is rejected; the previous geometry and grid stay. */
+static bool test_index_out_of_range_keeps_previous_geometry(void) {
+    scene *s = ground_and_box();
+    scene *bad = scene_new();
+    sheaf_context *ctx = built_context(s, s->nt);
+    sheaf_ray rays[N_PROBE];
+    sheaf_hit before[N_PROBE], after[N_PROBE], rebuilt[N_PROBE];
+    CHECK(ctx != NULL);
+    probe_rays(rays);
+    CHECK_OK(sheaf_context_trace(ctx, SHEAF_METHOD_GRID_DDA, rays, before, N_PROBE));
+    *bad = *s;
+    bad->idx[3 * 5 + 1] = bad->nv; /* triangle 5 references vertex 12 of 12 */
+    CHECK_STATUS(scene_set(ctx, bad), SHEAF_STATUS_INDEX_OUT_OF_RANGE);
+    CHECK(last_error_contains(ctx, "triangle 5 references vertex 12"));
+    CHECK_OK(sheaf_context_trace(ctx, SHEAF_METHOD_GRID_DDA, rays, after, N_PROBE));
+    CHECK(hits_equal(before, after, N_PROBE));
+    CHECK_OK(sheaf_context_build_grid(ctx, NULL)); /* rebuilds the previous (valid) geometry */
+    CHECK_OK(sheaf_context_trace(ctx, SHEAF_METHOD_GRID_DDA, rays, rebuilt, N_PROBE));
+    CHECK(hits_equal(before, rebuilt, N_PROBE));
+    sheaf_context_destroy(ctx);
+    free(bad);
+    free(s);
+    return true;
+}
+
+/* NaN vertices and zero-area triangles are excluded and counted. */
+static bool test_nan_and_degenerate_triangles_are_excluded(void) {
+    scene *s = scene_new();
+    sheaf_context *ctx;
+    sheaf_stats st;
+    sheaf_ray rays[N_PROBE];
+    sheaf_hit hits[N_PROBE];
+    uint32_t a, b, c;
+    scene_ground(s, 4.0f);
+    a = scene_vertex(s, 0.0f, 0.0f, 1.0f);
+    b = scene_vertex(s, NAN, 0.0f, 1.0f);
+    c = scene_vertex(s, 0.0f, 1.0f, 1.0f);
+    scene_tri(s, a, b, c); /* NaN vertex */
+    a = scene_vertex(s, 0.0f, 0.0f, 2.0f);
+    b = scene_vertex(s, 1.0f, 1.0f, 2.0f);
+    c = scene_vertex(s, 2.0f, 2.0f, 2.0f);
+    scene_tri(s, a, b, c); /* collinear: zero area */
+    a = scene_vertex(s, INFINITY, 0.0f, 3.0f);
+    scene_tri(s, a, b, c); /* infinite vertex */
+    ctx = built_context(s, s->nt);
+    CHECK(ctx != NULL);
+    CHECK_OK(sheaf_context_stats(ctx, &st));
+    CHECK(st.triangles_in == 5);
+    CHECK(st.triangles == 2);
+    CHECK(st.excluded_non_finite == 2);
+    CHECK(st.excluded_zero_area == 1);
+    probe_rays(rays);
+    CHECK_OK(sheaf_context_trace(ctx, SHEAF_METHOD_GRID_DDA, rays, hits, N_PROBE));
+    CHECK(hits[0].prim == 0 && hits[1].prim == 1);
+    CHECK(hits[2].prim == 0 || hits[2].prim == 1); /* no box here: the ground */
+    sheaf_context_destroy(ctx);
+    free(s);
+    return true;
+}
+
+/* ---- capacity -------------------------------------------------------------- */
+
+static bool test_capacity_triangles_and_vertices(void) {
+    scene *s = ground_and_box();
+    sheaf_limits l;
+    sheaf_context *ctx = NULL;
+    CHECK_OK(sheaf_limits_default(2, &l)); /* the ground fits, the box does not */
+    CHECK_OK(sheaf_context_create(&l, &ctx));
+    CHECK_STATUS(scene_set(ctx, s), SHEAF_STATUS_CAPACITY_TRIANGLES);
+    CHECK(last_error_contains(ctx, "'triangles': needed 14, available 2"));
+    sheaf_context_destroy(ctx);
+    CHECK_OK(sheaf_limits_default(s->nt, &l));
+    l.max_vertices = 4;
+    CHECK_OK(sheaf_context_create(&l, &ctx));
+    CHECK_STATUS(scene_set(ctx, s), SHEAF_STATUS_CAPACITY_VERTICES);
+    CHECK(last_error_contains(ctx, "'vertices'"));
+    sheaf_context_destroy(ctx);
+    free(s);
+    return true;
+}
+
+/* max_grid_refs fits the ground but not ground + box: the failed build
+ * leaves the previous grid tracing identically. */
+static bool test_capacity_grid_refs_keeps_previous_grid(void) {
+    scene *small = scene_new();
+    scene *big = ground_and_box();
+    sheaf_context *probe;
+    sheaf_stats st_small, st_big, st;
+    sheaf_limits l;
+    sheaf_context *ctx = NULL;
+    sheaf_ray rays[N_PROBE];
+    sheaf_hit before[N_PROBE], after[N_PROBE];
+    scene_ground(small, 4.0f);
+
+    probe = built_context(small, big->nt);
+    CHECK(probe != NULL);
+    CHECK_OK(sheaf_context_stats(probe, &st_small));
+    CHECK_OK(scene_set(probe, big));
+    CHECK_OK(sheaf_context_build_grid(probe, NULL));
+    CHECK_OK(sheaf_context_stats(probe, &st_big));
+    sheaf_context_destroy(probe);
+    CHECK(st_big.grid_refs > st_small.grid_refs);
+
+    CHECK_OK(sheaf_limits_default(big->nt, &l));
+    l.max_grid_refs = st_small.grid_refs;
+    CHECK_OK(sheaf_context_create(&l, &ctx));
+    CHECK_OK(scene_set(ctx, small));
+    CHECK_OK(sheaf_context_build_grid(ctx, NULL));
+    probe_rays(rays);
+    CHECK_OK(sheaf_context_trace(ctx, SHEAF_METHOD_GRID_DDA, rays, before, N_PROBE));
+    CHECK_OK(scene_set(ctx, big));
+    CHECK_STATUS(sheaf_context_build_grid(ctx, NULL), SHEAF_STATUS_CAPACITY_GRID_REFS);
+    CHECK(last_error_contains(ctx, "'grid_refs'"));
+    CHECK_OK(sheaf_context_trace(ctx, SHEAF_METHOD_GRID_DDA, rays, after, N_PROBE));
+    CHECK(hits_equal(before, after, N_PROBE));
+    CHECK_OK(sheaf_context_stats(ctx, &st));
+    CHECK(st.triangles_in == 2 && st.grid_refs == st_small.grid_refs); /* stats of the kept grid */
+    sheaf_context_destroy(ctx);
+    free(small);
+    free(big);
+    return true;
+}
+
+static bool test_capacity_grid_cells_and_fit(void) {
+    scene *s = ground_and_box();
+    sheaf_limits l;
+    sheaf_context *ctx = NULL;
+    sheaf_grid_params p;
+    sheaf_stats st;
+    CHECK_OK(sheaf_limits_default(s->nt, &l));
+    l.max_grid_cells = 8;
+    CHECK_OK(sheaf_context_create(&l, &ctx));
+    CHECK_OK(scene_set(ctx, s));
+    CHECK_STATUS(sheaf_context_build_grid(ctx, NULL), SHEAF_STATUS_CAPACITY_GRID_CELLS);
+    CHECK(last_error_contains(ctx, "'grid_cells'"));
+    CHECK_OK(sheaf_grid_params_default(&p));
+    p.fit = true;
+    CHECK_OK(sheaf_context_build_grid(ctx, &p));
+    CHECK_OK(sheaf_context_stats(ctx, &st));
+    CHECK(st.grid_cells <= 8 && st.lambda < 5.0f && st.triangles == 14);
+    sheaf_context_destroy(ctx);
+    free(s);
+    return true;
+}
+
+/* ---- build parameters ------------------------------------------------------ */
+
+static bool test_build_params(void) {
+    scene *s = ground_and_box();
+    sheaf_context *ctx = built_context(s, s->nt);
+    sheaf_grid_params p, bad;
+    sheaf_stats a, b;
+    sheaf_ray rays[N_PROBE];
+    sheaf_hit mt[N_PROBE], wt[N_PROBE];
+    CHECK(ctx != NULL);
+    CHECK_OK(sheaf_context_stats(ctx, &a)); /* built with NULL params */
+    CHECK_OK(sheaf_grid_params_default(&p));
+    CHECK_OK(sheaf_context_build_grid(ctx, &p));
+    CHECK_OK(sheaf_context_stats(ctx, &b));
+    CHECK(a.grid_res[0] == b.grid_res[0] && a.grid_res[1] == b.grid_res[1] && a.grid_res[2] == b.grid_res[2]);
+    CHECK(a.grid_refs == b.grid_refs && a.macrocell == b.macrocell && b.test == SHEAF_TRI_TEST_MOLLER_TRUMBORE);
+    bad = p;
+    bad.lambda = NAN;
+    CHECK_STATUS(sheaf_context_build_grid(ctx, &bad), SHEAF_STATUS_INVALID_ARGUMENT);
+    bad.lambda = 0.0f;
+    CHECK_STATUS(sheaf_context_build_grid(ctx, &bad), SHEAF_STATUS_INVALID_ARGUMENT);
+    bad.lambda = -1.0f;
+    CHECK_STATUS(sheaf_context_build_grid(ctx, &bad), SHEAF_STATUS_INVALID_ARGUMENT);
+    bad = p;
+    bad.macrocell = 1000;
+    CHECK_STATUS(sheaf_context_build_grid(ctx, &bad), SHEAF_STATUS_INVALID_ARGUMENT);
+    bad = p;
+    bad.test = (sheaf_tri_test)7;
+    CHECK_STATUS(sheaf_context_build_grid(ctx, &bad), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK(last_error_contains(ctx, "sheaf_tri_test"));
+    CHECK_STATUS(sheaf_context_build_grid(NULL, &p), SHEAF_STATUS_NULL_POINTER);
+    /* watertight: same nearest triangles on these rays */
+    probe_rays(rays);
+    CHECK_OK(sheaf_context_trace(ctx, SHEAF_METHOD_GRID_DDA, rays, mt, N_PROBE));
+    p.test = SHEAF_TRI_TEST_WATERTIGHT;
+    CHECK_OK(sheaf_context_build_grid(ctx, &p));
+    CHECK_OK(sheaf_context_stats(ctx, &b));
+    CHECK(b.test == SHEAF_TRI_TEST_WATERTIGHT);
+    CHECK_OK(sheaf_context_trace(ctx, SHEAF_METHOD_GRID_DDA, rays, wt, N_PROBE));
+    CHECK(mt[0].prim == wt[0].prim && mt[2].prim == wt[2].prim && mt[4].prim == wt[4].prim);
+    sheaf_context_destroy(ctx);
+    free(s);
+    return true;
+}
+
+/* ---- trace and occluded ---------------------------------------------------- */
+
+static bool test_trace_results(void) {
+    scene *s = ground_and_box();
+    sheaf_context *ctx = built_context(s, s->nt);
+    sheaf_ray rays[N_PROBE];
+    sheaf_hit h[N_PROBE];
+    CHECK(ctx != NULL);
+    probe_rays(rays);
+    CHECK_OK(sheaf_context_trace(ctx, SHEAF_METHOD_GRID_DDA, rays, h, N_PROBE));
+    CHECK(h[0].prim == 0 && fabsf(h[0].t - 5.0f) < 1e-5f);
+    CHECK(h[1].prim == 1 && fabsf(h[1].t - 5.0f) < 1e-5f);
+    CHECK((h[2].prim == 4 || h[2].prim == 5) && fabsf(h[2].t - 4.0f) < 1e-5f); /* box top (+z) */
+    CHECK(h[3].prim == SHEAF_INVALID_ID && isinf(h[3].t) && h[3].u == 0.0f && h[3].v == 0.0f);
+    CHECK((h[4].prim == 10 || h[4].prim == 11) && fabsf(h[4].t - 2.5f) < 1e-5f); /* box side -x */
+    CHECK(h[5].prim == SHEAF_INVALID_ID);
+    CHECK(h[6].prim == SHEAF_INVALID_ID);
+    CHECK(h[7].prim != SHEAF_INVALID_ID);
+    CHECK(h[0].u >= 0.0f && h[0].v >= 0.0f && h[0].u + h[0].v <= 1.0f);
+    sheaf_context_destroy(ctx);
+    free(s);
+    return true;
+}
+
+static bool test_trace_bad_arguments(void) {
+    scene *s = ground_and_box();
+    sheaf_context *ctx = built_context(s, s->nt);
+    sheaf_ray rays[N_PROBE];
+    sheaf_hit hits[N_PROBE], sentinel[N_PROBE];
+    unsigned char raw[sizeof(sheaf_ray) * N_PROBE + 64];
+    sheaf_ray *unaligned_rays = (sheaf_ray *)(void *)(raw + 1);
+    sheaf_hit ok_hits[N_PROBE];
+    CHECK(ctx != NULL);
+    probe_rays(rays);
+    memset(hits, 0xAB, sizeof hits);
+    memcpy(sentinel, hits, sizeof hits);
+    CHECK_STATUS(sheaf_context_trace(NULL, SHEAF_METHOD_GRID_DDA, rays, hits, N_PROBE), SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS(sheaf_context_trace(ctx, SHEAF_METHOD_GRID_DDA, NULL, hits, N_PROBE), SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS(sheaf_context_trace(ctx, SHEAF_METHOD_GRID_DDA, rays, NULL, N_PROBE), SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS(sheaf_context_trace(ctx, (sheaf_method)99, rays, hits, N_PROBE), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK(last_error_contains(ctx, "unknown sheaf_method"));
+    CHECK_STATUS(sheaf_context_trace(ctx, SHEAF_METHOD_GRID_DDA, rays, hits, (size_t)-1),
+                 SHEAF_STATUS_INVALID_ARGUMENT); /* count * 32 overflows */
+    CHECK_STATUS(sheaf_context_trace(ctx, SHEAF_METHOD_GRID_DDA, rays, (sheaf_hit *)(void *)rays, N_PROBE),
+                 SHEAF_STATUS_INVALID_ARGUMENT); /* overlapping */
+    CHECK(last_error_contains(ctx, "overlap"));
+    CHECK(memcmp(hits, sentinel, sizeof hits) == 0); /* nothing written on error */
+    /* count 0: any pointers, nothing written */
+    CHECK_OK(sheaf_context_trace(ctx, SHEAF_METHOD_GRID_DDA, NULL, NULL, 0));
+    CHECK_OK(sheaf_context_trace(ctx, SHEAF_METHOD_GRID_DDA, rays, hits, 0));
+    CHECK(memcmp(hits, sentinel, sizeof hits) == 0);
+    /* unaligned arrays are fine and give the same hits */
+    memcpy(unaligned_rays, rays, sizeof rays);
+    CHECK_OK(sheaf_context_trace(ctx, SHEAF_METHOD_GRID_DDA, rays, ok_hits, N_PROBE));
+    CHECK_OK(sheaf_context_trace(ctx, SHEAF_METHOD_GRID_DDA, unaligned_rays, hits, N_PROBE));
+    CHECK(hits_equal(hits, ok_hits, N_PROBE));
+    sheaf_context_destroy(ctx);
+    free(s);
+    return true;
+}
+
+static bool test_occluded(void) {
+    scene *s = ground_and_box();
+    sheaf_context *ctx = built_context(s, s->nt);
+    sheaf_ray rays[5];
+    uint8_t occ[5], sentinel[5] = {7, 7, 7, 7, 7};
+    CHECK(ctx != NULL);
+    rays[0] = make_ray(-3.0f, 0.0f, 0.5f, 6.0f, 0.0f, 0.0f, 0.0f, 1.0f);  /* through the box */
+    rays[1] = make_ray(-3.0f, 3.0f, 0.5f, 6.0f, 0.0f, 0.0f, 0.0f, 1.0f);  /* beside it */
+    rays[2] = make_ray(-3.0f, 0.0f, 0.5f, 6.0f, 0.0f, 0.0f, 0.0f, 0.4f);  /* stops before it */
+    rays[3] = make_ray(2.0f, -1.0f, 0.5f, 0.0f, 0.0f, -1.0f, 0.0f, 0.49f); /* ends above the ground */
+    rays[4] = make_ray(2.0f, -1.0f, 0.5f, 0.0f, 0.0f, -1.0f, 0.0f, 0.6f); /* passes the ground */
+    CHECK_OK(sheaf_context_occluded(ctx, SHEAF_METHOD_GRID_DDA, rays, occ, 5));
+    CHECK(occ[0] == 1 && occ[1] == 0 && occ[2] == 0 && occ[3] == 0 && occ[4] == 1);
+    memcpy(occ, sentinel, sizeof occ);
+    CHECK_STATUS(sheaf_context_occluded(NULL, SHEAF_METHOD_GRID_DDA, rays, occ, 5), SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS(sheaf_context_occluded(ctx, SHEAF_METHOD_GRID_DDA, NULL, occ, 5), SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS(sheaf_context_occluded(ctx, SHEAF_METHOD_GRID_DDA, rays, NULL, 5), SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS(sheaf_context_occluded(ctx, (sheaf_method)1, rays, occ, 5), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_occluded(ctx, SHEAF_METHOD_GRID_DDA, rays, occ, (size_t)-1 / 4),
+                 SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_occluded(ctx, SHEAF_METHOD_GRID_DDA, rays, (uint8_t *)rays + 3, 5),
+                 SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK(memcmp(occ, sentinel, sizeof occ) == 0);
+    CHECK_OK(sheaf_context_occluded(ctx, SHEAF_METHOD_GRID_DDA, NULL, NULL, 0));
+    sheaf_context_destroy(ctx);
+    free(s);
+    return true;
+}
+
+/* trace and occluded do not touch the stats (they may run concurrently). */
+static bool test_trace_leaves_stats(void) {
+    scene *s = ground_and_box();
+    sheaf_context *ctx = built_context(s, s->nt);
+    sheaf_stats a, b;
+    sheaf_ray rays[N_PROBE];
+    sheaf_hit hits[N_PROBE];
+    uint8_t occ[N_PROBE];
+    CHECK(ctx != NULL);
+    probe_rays(rays);
+    CHECK_OK(sheaf_context_stats(ctx, &a));
+    CHECK_OK(sheaf_context_trace(ctx, SHEAF_METHOD_GRID_DDA, rays, hits, N_PROBE));
+    CHECK_OK(sheaf_context_occluded(ctx, SHEAF_METHOD_GRID_DDA, rays, occ, N_PROBE));
+    CHECK_OK(sheaf_context_stats(ctx, &b));
+    CHECK(memcmp(&a, &b, sizeof a) == 0);
+    CHECK(a.build_ns > 0 && a.triangles == 14 && a.grid_cells == (uint64_t)a.grid_res[0] * a.grid_res[1] * a.grid_res[2]);
+    CHECK_STATUS(sheaf_context_stats(NULL, &a), SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS(sheaf_context_stats(ctx, NULL), SHEAF_STATUS_NULL_POINTER);
+    sheaf_context_destroy(ctx);
+    free(s);
+    return true;
+}
+
+/* ---- render ------------------------------------------------------------------ */
+
+#define RW 64
+#define RH 48
+#define RSTRIDE (RW * 4 + 12)
+#define RLEN ((RH - 1) * RSTRIDE + RW * 4)
+
+static bool test_render(void) {
+    scene *s = ground_and_box();
+    sheaf_context *ctx = built_context(s, s->nt);
+    sheaf_frame f = default_frame(RW, RH), sky = f, flat = f;
+    static uint8_t img[RLEN], again[RLEN], sky_img[RLEN], flat_img[RLEN];
+    sheaf_stats st;
+    uint32_t x, y, bg = 0, geo = 0;
+    CHECK(ctx != NULL);
+    memset(img, 0xCD, sizeof img);
+    memset(again, 0xCD, sizeof again);
+    memset(sky_img, 0xCD, sizeof sky_img);
+    memset(flat_img, 0xCD, sizeof flat_img);
+    CHECK_OK(sheaf_context_render(ctx, SHEAF_METHOD_GRID_DDA, &f, img, RSTRIDE, RLEN));
+    CHECK_OK(sheaf_context_stats(ctx, &st));
+    CHECK(st.counters.rays >= (uint64_t)RW * RH && st.trace_ns > 0 && st.counters.tri_tests > 0);
+    /* deterministic */
+    CHECK_OK(sheaf_context_render(ctx, SHEAF_METHOD_GRID_DDA, &f, again, RSTRIDE, RLEN));
+    CHECK(memcmp(img, again, RLEN) == 0);
+    for (y = 0; y < RH; ++y) {
+        for (x = 0; x < RW; ++x) CHECK(img[y * RSTRIDE + 4 * x + 3] == 255); /* opaque */
+        if (y + 1 < RH) {
+            for (x = RW * 4; x < RSTRIDE; ++x) CHECK(img[y * RSTRIDE + x] == 0xCD); /* padding untouched */
+        }
+    }
+    /* a camera looking up sees only background: every pixel has its colour */
+    sky.camera.look_at[0] = sky.camera.eye[0];
+    sky.camera.look_at[1] = sky.camera.eye[1] + 1.0f;
+    sky.camera.look_at[2] = sky.camera.eye[2] + 10.0f;
+    CHECK_OK(sheaf_context_render(ctx, SHEAF_METHOD_GRID_DDA, &sky, sky_img, RSTRIDE, RLEN));
+    for (y = 0; y < RH; ++y)
+        for (x = 0; x < RW; ++x) CHECK(memcmp(&sky_img[y * RSTRIDE + 4 * x], sky_img, 4) == 0);
+    for (y = 0; y < RH; ++y) {
+        for (x = 0; x < RW; ++x) {
+            if (memcmp(&img[y * RSTRIDE + 4 * x], sky_img, 4) == 0) ++bg; else ++geo;
+        }
+    }
+    CHECK(bg > 0 && geo > RW * RH / 4); /* the scene fills a good part of the view */
+    /* shadows off changes the image (the box shadows the ground) */
+    flat.shading.shadows = false;
+    CHECK_OK(sheaf_context_render(ctx, SHEAF_METHOD_GRID_DDA, &flat, flat_img, RSTRIDE, RLEN));
+    CHECK(memcmp(img, flat_img, RLEN) != 0); /* same padding: a pixel differs */
+    sheaf_context_destroy(ctx);
+    free(s);
+    return true;
+}
+
+static bool test_render_bad_arguments(void) {
+    scene *s = ground_and_box();
+    sheaf_context *ctx = built_context(s, s->nt);
+    sheaf_frame f = default_frame(RW, RH), bad;
+    static uint8_t img[RLEN], copy[RLEN];
+    CHECK(ctx != NULL);
+    memset(img, 0x3C, sizeof img);
+    memcpy(copy, img, sizeof img);
+    CHECK_STATUS(sheaf_context_render(NULL, SHEAF_METHOD_GRID_DDA, &f, img, RSTRIDE, RLEN), SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS(sheaf_context_render(ctx, SHEAF_METHOD_GRID_DDA, NULL, img, RSTRIDE, RLEN), SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS(sheaf_context_render(ctx, SHEAF_METHOD_GRID_DDA, &f, NULL, RSTRIDE, RLEN), SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS(sheaf_context_render(ctx, (sheaf_method)5, &f, img, RSTRIDE, RLEN), SHEAF_STATUS_INVALID_ARGUMENT);
+    /* buffer one byte short, zero length, stride too small, stride overflowing */
+    CHECK_STATUS(sheaf_context_render(ctx, SHEAF_METHOD_GRID_DDA, &f, img, RSTRIDE, RLEN - 1),
+                 SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_render(ctx, SHEAF_METHOD_GRID_DDA, &f, img, RSTRIDE, 0), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_render(ctx, SHEAF_METHOD_GRID_DDA, &f, img, RW * 4 - 1, RLEN),
+                 SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_render(ctx, SHEAF_METHOD_GRID_DDA, &f, img, (size_t)-1 / 2, RLEN),
+                 SHEAF_STATUS_INVALID_ARGUMENT);
+    /* zero-sized image */
+    bad = f;
+    bad.width = 0;
+    CHECK_STATUS(sheaf_context_render(ctx, SHEAF_METHOD_GRID_DDA, &bad, img, RSTRIDE, RLEN), SHEAF_STATUS_INVALID_ARGUMENT);
+    bad = f;
+    bad.height = 0;
+    CHECK_STATUS(sheaf_context_render(ctx, SHEAF_METHOD_GRID_DDA, &bad, img, RSTRIDE, RLEN), SHEAF_STATUS_INVALID_ARGUMENT);
+    /* larger than the limits */
+    bad = f;
+    bad.width = 5000;
+    bad.height = 1;
+    CHECK_STATUS(sheaf_context_render(ctx, SHEAF_METHOD_GRID_DDA, &bad, img, 5000 * 4, RLEN), SHEAF_STATUS_CAPACITY_IMAGE);
+    CHECK(last_error_contains(ctx, "'image'"));
+    /* cameras: eye == look_at, NaN, fov out of range, up parallel to the view */
+    bad = f;
+    memcpy(bad.camera.look_at, bad.camera.eye, sizeof bad.camera.eye);
+    CHECK_STATUS(sheaf_context_render(ctx, SHEAF_METHOD_GRID_DDA, &bad, img, RSTRIDE, RLEN), SHEAF_STATUS_INVALID_ARGUMENT);
+    bad = f;
+    bad.camera.eye[1] = NAN;
+    CHECK_STATUS(sheaf_context_render(ctx, SHEAF_METHOD_GRID_DDA, &bad, img, RSTRIDE, RLEN), SHEAF_STATUS_INVALID_ARGUMENT);
+    bad = f;
+    bad.camera.fov_y_deg = 180.0f;
+    CHECK_STATUS(sheaf_context_render(ctx, SHEAF_METHOD_GRID_DDA, &bad, img, RSTRIDE, RLEN), SHEAF_STATUS_INVALID_ARGUMENT);
+    bad = f;
+    bad.camera.up[0] = bad.camera.look_at[0] - bad.camera.eye[0];
+    bad.camera.up[1] = bad.camera.look_at[1] - bad.camera.eye[1];
+    bad.camera.up[2] = bad.camera.look_at[2] - bad.camera.eye[2];
+    CHECK_STATUS(sheaf_context_render(ctx, SHEAF_METHOD_GRID_DDA, &bad, img, RSTRIDE, RLEN), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK(last_error_contains(ctx, "camera"));
+    CHECK(memcmp(img, copy, sizeof img) == 0); /* nothing written on error */
+    sheaf_context_destroy(ctx);
+    free(s);
+    return true;
+}
+
+/* ---- last error ---------------------------------------------------------------- */
+
+static bool test_last_error_buffer_rules(void) {
+    sheaf_limits l;
+    sheaf_context *ctx = NULL;
+    char buf[SHEAF_ERROR_MESSAGE_MAX], small[5];
+    size_t n = 99, full;
+    CHECK_OK(sheaf_limits_default(4, &l));
+    CHECK_OK(sheaf_context_create(&l, &ctx));
+    CHECK_OK(sheaf_context_last_error(ctx, buf, sizeof buf, &n));
+    CHECK(strcmp(buf, "no error") == 0 && n == 8);
+    CHECK_STATUS(sheaf_context_build_grid(ctx, NULL), SHEAF_STATUS_NO_GEOMETRY);
+    CHECK_OK(sheaf_context_last_error(ctx, buf, sizeof buf, &full));
+    CHECK(strcmp(buf, "no geometry set") == 0 && full == strlen(buf));
+    /* truncation: len - 1 bytes and a NUL */
+    memset(small, 'x', sizeof small);
+    CHECK_OK(sheaf_context_last_error(ctx, small, sizeof small, &n));
+    CHECK(n == 4 && small[4] == '\0' && strncmp(small, "no g", 4) == 0);
+    CHECK_OK(sheaf_context_last_error(ctx, small, 1, &n));
+    CHECK(n == 0 && small[0] == '\0');
+    /* bad arguments: statuses, and the recorded error is not replaced */
+    n = 42;
+    CHECK_STATUS(sheaf_context_last_error(ctx, buf, 0, &n), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_last_error(ctx, NULL, sizeof buf, &n), SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS(sheaf_context_last_error(ctx, buf, sizeof buf, NULL), SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS(sheaf_context_last_error(NULL, buf, sizeof buf, &n), SHEAF_STATUS_NULL_POINTER);
+    CHECK(n == 42);
+    CHECK(last_error_contains(ctx, "no geometry set"));
+    /* a success does not clear it; the next failure replaces it */
+    CHECK_OK(sheaf_context_set_geometry(ctx, NULL, 12, 0, NULL, 0));
+    CHECK(last_error_contains(ctx, "no geometry set"));
+    CHECK_STATUS(sheaf_context_set_geometry(ctx, NULL, 12, 3, NULL, 0), SHEAF_STATUS_NULL_POINTER);
+    CHECK(last_error_contains(ctx, "NULL"));
+    sheaf_context_destroy(ctx);
+    return true;
+}
+
+int main(void) {
+    int passed = 0, failed = 0;
+    run_test("test_status_codes_and_strings", test_status_codes_and_strings, &passed, &failed);
+    run_test("test_version", test_version, &passed, &failed);
+    run_test("test_defaults", test_defaults, &passed, &failed);
+    run_test("test_required_bytes", test_required_bytes, &passed, &failed);
+    run_test("test_create_destroy", test_create_destroy, &passed, &failed);
+    run_test("test_create_in_exact_size", test_create_in_exact_size, &passed, &failed);
+    run_test("test_create_in_bad_buffers", test_create_in_bad_buffers, &passed, &failed);
+    run_test("test_create_in_stale_handle", test_create_in_stale_handle, &passed, &failed);
+    run_test("test_set_geometry_bad_arguments", test_set_geometry_bad_arguments, &passed, &failed);
+    run_test("test_state_errors", test_state_errors, &passed, &failed);
+    run_test("test_index_out_of_range_keeps_previous_geometry", test_index_out_of_range_keeps_previous_geometry,
+             &passed, &failed);
+    run_test("test_nan_and_degenerate_triangles_are_excluded", test_nan_and_degenerate_triangles_are_excluded,
+             &passed, &failed);
+    run_test("test_capacity_triangles_and_vertices", test_capacity_triangles_and_vertices, &passed, &failed);
+    run_test("test_capacity_grid_refs_keeps_previous_grid", test_capacity_grid_refs_keeps_previous_grid, &passed,
+             &failed);
+    run_test("test_capacity_grid_cells_and_fit", test_capacity_grid_cells_and_fit, &passed, &failed);
+    run_test("test_build_params", test_build_params, &passed, &failed);
+    run_test("test_trace_results", test_trace_results, &passed, &failed);
+    run_test("test_trace_bad_arguments", test_trace_bad_arguments, &passed, &failed);
+    run_test("test_occluded", test_occluded, &passed, &failed);
+    run_test("test_trace_leaves_stats", test_trace_leaves_stats, &passed, &failed);
+    run_test("test_render", test_render, &passed, &failed);
+    run_test("test_render_bad_arguments", test_render_bad_arguments, &passed, &failed);
+    run_test("test_last_error_buffer_rules", test_last_error_buffer_rules, &passed, &failed);
+    return report(passed, failed);
+}

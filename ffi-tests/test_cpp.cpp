@@ -1,0 +1,112 @@
+// The header as C++ (g++ -std=c++11 -Wall -Wextra -Werror -pedantic): the
+// extern "C" guards, the fixed-width enums (sheaf_status, sheaf_method and
+// sheaf_tri_test are real enum types in C++), and a few calls.
+#include "sheaf.h"
+
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <limits>
+#include <vector>
+
+static_assert(sizeof(sheaf_ray) == 32, "sheaf_ray is 32 bytes");
+static_assert(sizeof(sheaf_hit) == 16, "sheaf_hit is 16 bytes");
+static_assert(sizeof(sheaf_status) == 4, "sheaf_status is a uint32_t");
+static_assert(sizeof(sheaf_method) == 4, "sheaf_method is a uint32_t");
+static_assert(SHEAF_STATUS_OK == 0 && SHEAF_STATUS_PANIC == 900, "status codes are never renumbered");
+
+#define CHECK(cond)                                                                 \
+    do {                                                                            \
+        if (!(cond)) {                                                              \
+            std::fprintf(stderr, "    %s:%d: check failed: %s\n", __FILE__, __LINE__, #cond); \
+            return false;                                                           \
+        }                                                                           \
+    } while (0)
+
+namespace {
+
+// RAII owner of a context, as a C++ engine would write it.
+class Context {
+  public:
+    explicit Context(uint32_t max_triangles) {
+        sheaf_limits limits;
+        if (sheaf_limits_default(max_triangles, &limits) == SHEAF_STATUS_OK) {
+            status_ = sheaf_context_create(&limits, &ctx_);
+        }
+    }
+    ~Context() { sheaf_context_destroy(ctx_); }
+    Context(const Context &) = delete;
+    Context &operator=(const Context &) = delete;
+    sheaf_context *get() const { return ctx_; }
+    sheaf_status status() const { return status_; }
+
+  private:
+    sheaf_context *ctx_ = nullptr;
+    sheaf_status status_ = SHEAF_STATUS_INVALID_ARGUMENT;
+};
+
+bool test_trace_a_quad() {
+    const std::vector<float> vertices = {0, 0, 0, 1, 0, 0, 1, 1, 0, 0, 1, 0};
+    const std::vector<uint32_t> indices = {0, 1, 2, 0, 2, 3};
+    Context ctx(2);
+    CHECK(ctx.status() == SHEAF_STATUS_OK);
+    CHECK(sheaf_context_set_geometry(ctx.get(), vertices.data(), 3 * sizeof(float), 4, indices.data(), 2) ==
+          SHEAF_STATUS_OK);
+    sheaf_grid_params params;
+    CHECK(sheaf_grid_params_default(&params) == SHEAF_STATUS_OK);
+    params.test = SHEAF_TRI_TEST_WATERTIGHT;
+    CHECK(sheaf_context_build_grid(ctx.get(), &params) == SHEAF_STATUS_OK);
+
+    const float inf = std::numeric_limits<float>::infinity();
+    std::vector<sheaf_ray> rays(2);
+    rays[0] = sheaf_ray{{0.75f, 0.25f, 1.0f}, 0.0f, {0.0f, 0.0f, -1.0f}, inf};
+    rays[1] = sheaf_ray{{2.0f, 2.0f, 1.0f}, 0.0f, {0.0f, 0.0f, -1.0f}, inf};
+    std::vector<sheaf_hit> hits(rays.size());
+    CHECK(sheaf_context_trace(ctx.get(), SHEAF_METHOD_GRID_DDA, rays.data(), hits.data(), rays.size()) ==
+          SHEAF_STATUS_OK);
+    CHECK(hits[0].prim == 0 && std::fabs(hits[0].t - 1.0f) < 1e-6f);
+    CHECK(hits[1].prim == SHEAF_INVALID_ID && std::isinf(hits[1].t));
+
+    std::vector<uint8_t> occluded(rays.size(), 7);
+    CHECK(sheaf_context_occluded(ctx.get(), SHEAF_METHOD_GRID_DDA, rays.data(), occluded.data(), rays.size()) ==
+          SHEAF_STATUS_OK);
+    CHECK(occluded[0] == 1 && occluded[1] == 0);
+
+    sheaf_stats stats;
+    CHECK(sheaf_context_stats(ctx.get(), &stats) == SHEAF_STATUS_OK);
+    CHECK(stats.triangles == 2 && stats.test == SHEAF_TRI_TEST_WATERTIGHT);
+    return true;
+}
+
+bool test_errors_and_strings() {
+    Context ctx(4);
+    CHECK(ctx.status() == SHEAF_STATUS_OK);
+    CHECK(sheaf_context_build_grid(ctx.get(), nullptr) == SHEAF_STATUS_NO_GEOMETRY);
+    char msg[SHEAF_ERROR_MESSAGE_MAX];
+    size_t written = 0;
+    CHECK(sheaf_context_last_error(ctx.get(), msg, sizeof msg, &written) == SHEAF_STATUS_OK);
+    CHECK(std::strcmp(msg, "no geometry set") == 0 && written == std::strlen(msg));
+    CHECK(sheaf_context_trace(ctx.get(), static_cast<sheaf_method>(42), nullptr, nullptr, 0) ==
+          SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK(std::strcmp(sheaf_status_string(SHEAF_STATUS_OK), "ok") == 0);
+    CHECK(sheaf_status_string(static_cast<sheaf_status>(4242)) != nullptr);
+    CHECK(sheaf_version_string() != nullptr);
+    sheaf_context_destroy(nullptr);
+    return true;
+}
+
+void run_test(const char *name, bool (*test)(), int &passed, int &failed) {
+    const bool ok = test();
+    std::printf("%s: %s\n", ok ? "PASSED" : "FAILED", name);
+    (ok ? passed : failed) += 1;
+}
+
+}  // namespace
+
+int main() {
+    int passed = 0, failed = 0;
+    run_test("test_trace_a_quad", test_trace_a_quad, passed, failed);
+    run_test("test_errors_and_strings", test_errors_and_strings, passed, failed);
+    std::printf("%d passed, %d failed\n", passed, failed);
+    return failed == 0 ? 0 : 1;
+}

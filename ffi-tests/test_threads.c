@@ -1,0 +1,162 @@
+/*
+ * Thread safety as documented in sheaf.h: trace, occluded, stats and
+ * last_error may run concurrently on one built context. Eight threads trace
+ * and test occlusion of the same rays (and provoke errors, which record the
+ * last error concurrently); every thread must get exactly the single-thread
+ * results.
+ */
+#define _POSIX_C_SOURCE 200112L
+#include <pthread.h>
+
+#include "common.h"
+
+#define THREADS 8
+#define ROUNDS 20
+#define NRAYS 2000
+
+static sheaf_context *g_ctx;
+static sheaf_ray g_rays[NRAYS];
+static sheaf_hit g_want_hits[NRAYS];
+static uint8_t g_want_occ[NRAYS];
+
+static uint32_t lcg(uint32_t *state) {
+    *state = *state * 1664525u + 1013904223u;
+    return *state >> 8;
+}
+
+static float unit(uint32_t *state) {
+    return (float)lcg(state) / (float)(1u << 24);
+}
+
+/* A field of boxes on a ground. */
+static scene *box_field(void) {
+    scene *s = scene_new();
+    int i, j;
+    scene_ground(s, 10.0f);
+    for (i = -3; i <= 3; ++i) {
+        for (j = -3; j <= 3; ++j) {
+            float x = 2.5f * (float)i, y = 2.5f * (float)j, h = 0.5f + 0.25f * (float)((i + j + 6) % 5);
+            scene_box(s, x - 0.6f, y - 0.6f, 0.0f, x + 0.6f, y + 0.6f, h);
+        }
+    }
+    return s;
+}
+
+static void make_rays(void) {
+    uint32_t st = 12345u;
+    int i;
+    for (i = 0; i < NRAYS; ++i) {
+        float ox = -12.0f + 24.0f * unit(&st), oy = -12.0f + 24.0f * unit(&st), oz = 0.2f + 4.0f * unit(&st);
+        float tx = -10.0f + 20.0f * unit(&st), ty = -10.0f + 20.0f * unit(&st), tz = 0.0f;
+        g_rays[i] = make_ray(ox, oy, oz, tx - ox, ty - oy, tz - oz, 0.0f, (i % 2) ? 0.999f : INFINITY);
+    }
+}
+
+static void *worker(void *arg) {
+    static sheaf_hit hits[THREADS][NRAYS];
+    static uint8_t occ[THREADS][NRAYS];
+    size_t id = (size_t)arg;
+    int round, i;
+    char msg[SHEAF_ERROR_MESSAGE_MAX];
+    size_t n;
+    sheaf_stats st;
+    for (round = 0; round < ROUNDS; ++round) {
+        if (sheaf_context_trace(g_ctx, SHEAF_METHOD_GRID_DDA, g_rays, hits[id], NRAYS) != SHEAF_STATUS_OK) return arg;
+        if (sheaf_context_occluded(g_ctx, SHEAF_METHOD_GRID_DDA, g_rays, occ[id], NRAYS) != SHEAF_STATUS_OK) return arg;
+        for (i = 0; i < NRAYS; ++i) {
+            if (float_bits(hits[id][i].t) != float_bits(g_want_hits[i].t) || hits[id][i].prim != g_want_hits[i].prim ||
+                float_bits(hits[id][i].u) != float_bits(g_want_hits[i].u) ||
+                float_bits(hits[id][i].v) != float_bits(g_want_hits[i].v) || occ[id][i] != g_want_occ[i]) {
+                fprintf(stderr, "    thread %u round %d ray %d differs\n", (unsigned)id, round, i);
+                return arg;
+            }
+        }
+        /* concurrent failures record the last error under a lock */
+        if (sheaf_context_trace(g_ctx, SHEAF_METHOD_GRID_DDA, g_rays, NULL, NRAYS) != SHEAF_STATUS_NULL_POINTER) return arg;
+        if (sheaf_context_last_error(g_ctx, msg, sizeof msg, &n) != SHEAF_STATUS_OK || n != strlen(msg)) return arg;
+        if (sheaf_context_stats(g_ctx, &st) != SHEAF_STATUS_OK || st.triangles != 2 + 49 * 12) return arg;
+    }
+    return NULL;
+}
+
+static bool test_concurrent_trace_matches_single_thread(void) {
+    scene *s = box_field();
+    sheaf_limits l;
+    pthread_t th[THREADS];
+    size_t t;
+    int hits = 0, i;
+    char msg[SHEAF_ERROR_MESSAGE_MAX];
+    size_t n;
+    CHECK_OK(sheaf_limits_default(s->nt, &l));
+    CHECK_OK(sheaf_context_create(&l, &g_ctx));
+    CHECK_OK(scene_set(g_ctx, s));
+    CHECK_OK(sheaf_context_build_grid(g_ctx, NULL));
+    make_rays();
+    CHECK_OK(sheaf_context_trace(g_ctx, SHEAF_METHOD_GRID_DDA, g_rays, g_want_hits, NRAYS));
+    CHECK_OK(sheaf_context_occluded(g_ctx, SHEAF_METHOD_GRID_DDA, g_rays, g_want_occ, NRAYS));
+    for (i = 0; i < NRAYS; ++i) hits += g_want_hits[i].prim != SHEAF_INVALID_ID;
+    CHECK(hits > NRAYS / 4); /* the rays really hit things */
+    for (t = 0; t < THREADS; ++t) CHECK(pthread_create(&th[t], NULL, worker, (void *)t) == 0);
+    for (t = 0; t < THREADS; ++t) {
+        void *ret = NULL;
+        CHECK(pthread_join(th[t], &ret) == 0);
+        CHECK(ret == NULL);
+    }
+    CHECK_OK(sheaf_context_last_error(g_ctx, msg, sizeof msg, &n));
+    CHECK(strcmp(msg, "a required pointer is NULL") == 0);
+    sheaf_context_destroy(g_ctx);
+    free(s);
+    return true;
+}
+
+/* Several contexts on several threads: independent. */
+static void *own_context(void *arg) {
+    scene *s = (scene *)arg;
+    sheaf_limits l;
+    sheaf_context *ctx = NULL;
+    static sheaf_hit hits[THREADS][NRAYS];
+    static size_t next = 0;
+    static pthread_mutex_t lock = PTHREAD_MUTEX_INITIALIZER;
+    size_t id;
+    pthread_mutex_lock(&lock);
+    id = next++;
+    pthread_mutex_unlock(&lock);
+    if (sheaf_limits_default(s->nt, &l) != SHEAF_STATUS_OK) return arg;
+    if (sheaf_context_create(&l, &ctx) != SHEAF_STATUS_OK) return arg;
+    if (scene_set(ctx, s) != SHEAF_STATUS_OK || sheaf_context_build_grid(ctx, NULL) != SHEAF_STATUS_OK) return arg;
+    if (sheaf_context_trace(ctx, SHEAF_METHOD_GRID_DDA, g_rays, hits[id], NRAYS) != SHEAF_STATUS_OK) return arg;
+    sheaf_context_destroy(ctx);
+    if (memcmp(hits[id], g_want_hits, sizeof g_want_hits) != 0) return arg;
+    return NULL;
+}
+
+static bool test_independent_contexts_on_threads(void) {
+    scene *s = box_field();
+    pthread_t th[THREADS];
+    size_t t;
+    sheaf_context *ctx = NULL;
+    sheaf_limits l;
+    CHECK_OK(sheaf_limits_default(s->nt, &l));
+    CHECK_OK(sheaf_context_create(&l, &ctx));
+    CHECK_OK(scene_set(ctx, s));
+    CHECK_OK(sheaf_context_build_grid(ctx, NULL));
+    make_rays();
+    CHECK_OK(sheaf_context_trace(ctx, SHEAF_METHOD_GRID_DDA, g_rays, g_want_hits, NRAYS));
+    sheaf_context_destroy(ctx);
+    for (t = 0; t < THREADS; ++t) CHECK(pthread_create(&th[t], NULL, own_context, s) == 0);
+    for (t = 0; t < THREADS; ++t) {
+        void *ret = NULL;
+        CHECK(pthread_join(th[t], &ret) == 0);
+        CHECK(ret == NULL);
+    }
+    free(s);
+    return true;
+}
+
+int main(void) {
+    int passed = 0, failed = 0;
+    run_test("test_concurrent_trace_matches_single_thread", test_concurrent_trace_matches_single_thread, &passed,
+             &failed);
+    run_test("test_independent_contexts_on_threads", test_independent_contexts_on_threads, &passed, &failed);
+    return report(passed, failed);
+}

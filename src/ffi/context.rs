@@ -1,0 +1,715 @@
+//! `sheaf_context`: the opaque handle and every call on it.
+//!
+//! The handle is a `Handle` struct placed at the start of the context's
+//! memory, followed (at `HEADER_BYTES`, a multiple of 64) by the arena the
+//! core `Context` carves its pools from. `sheaf_context_create_in` puts both
+//! in the caller's buffer; `sheaf_context_create` makes one aligned
+//! allocation of the same size and layout and frees it in
+//! `sheaf_context_destroy`.
+
+use super::{
+    SHEAF_CONTEXT_ALIGN, SHEAF_ERROR_MESSAGE_MAX, array_bytes, check_array, check_non_null, guard, guard_free,
+    overlaps, raw, read_in, sheaf_frame, sheaf_grid_params, sheaf_method, sheaf_stats, sheaf_status, write_out,
+};
+use super::{sheaf_hit, sheaf_ray};
+use crate::accel::grid::GridParams;
+use crate::context::{Context, required_bytes};
+use crate::error::{Error, Result};
+use crate::geom::{Ray, Scene};
+use crate::mem::Limits;
+use crate::render::Tracer;
+use crate::trace::{Counters, Method};
+use core::cell::Cell;
+use core::ffi::{c_char, c_void};
+use core::fmt::Write as _;
+use core::panic::AssertUnwindSafe;
+use core::ptr;
+use std::sync::{Mutex, PoisonError};
+
+/// A sheaf context (opaque): fixed memory, the borrowed geometry, the
+/// current acceleration structure, the last error.
+///
+/// Made by `sheaf_context_create` or `sheaf_context_create_in`, released by
+/// `sheaf_context_destroy`.
+///
+/// Thread safety: `sheaf_context_trace`, `sheaf_context_occluded`,
+/// `sheaf_context_stats` and `sheaf_context_last_error` (the calls taking a
+/// `const sheaf_context *`) may run concurrently from any number of threads
+/// on one context. Every other call on a context (set_geometry, build_grid,
+/// render, destroy) needs exclusive access: no other call on the same
+/// context may run at the same time. Different contexts are independent.
+pub struct sheaf_context {
+    _private: [u8; 0],
+}
+
+const MAGIC: u64 = u64::from_le_bytes(*b"sheafctx");
+
+/// The caller's geometry buffers as given to `sheaf_context_set_geometry`.
+struct Geometry {
+    vertices: *const u8,
+    vertices_len: usize,
+    stride: usize,
+    vertex_count: u32,
+    indices: *const u32,
+    index_count: usize,
+}
+
+impl Geometry {
+    /// The borrowed scene, validated again (indices may have been changed
+    /// in place since `set_geometry`).
+    fn scene(&self) -> Result<Scene<'_>> {
+        let vertices: &[u8] = if self.vertices_len == 0 {
+            &[]
+        } else {
+            // SAFETY: non-NULL and checked to span `vertices_len` bytes
+            // (<= isize::MAX) in set_geometry; the C contract of
+            // set_geometry keeps the buffer alive and unwritten during
+            // calls that read it, until the next set_geometry or destroy.
+            unsafe { core::slice::from_raw_parts(self.vertices, self.vertices_len) }
+        };
+        let indices: &[u32] = if self.index_count == 0 {
+            &[]
+        } else {
+            // SAFETY: non-NULL, 4-byte aligned and size-checked in
+            // set_geometry; alive and unwritten during this call by the same
+            // contract as the vertices.
+            unsafe { core::slice::from_raw_parts(self.indices, self.index_count) }
+        };
+        Scene::new(vertices, self.stride, self.vertex_count, indices)
+    }
+}
+
+/// What a `sheaf_context *` points to.
+struct Handle {
+    /// `MAGIC` while alive, 0 after destroy (catches a second destroy of a
+    /// `create_in` context, whose memory stays valid).
+    magic: u64,
+    ctx: Context<'static>,
+    geometry: Option<Geometry>,
+    /// The last failure of a call on this context (never cleared by a
+    /// success). A mutex because trace/occluded run concurrently; locked
+    /// only on failure and by `sheaf_context_last_error`.
+    last_error: Mutex<Option<Error>>,
+    /// Size of the allocation made by `sheaf_context_create` (None: the
+    /// caller's buffer).
+    alloc_bytes: Option<usize>,
+}
+
+/// Bytes of the handle header in front of the arena (a multiple of 64).
+pub const HEADER_BYTES: usize = core::mem::size_of::<Handle>().next_multiple_of(SHEAF_CONTEXT_ALIGN);
+const _: () = assert!(core::mem::align_of::<Handle>() <= SHEAF_CONTEXT_ALIGN);
+
+/// Total bytes of a context: header plus the core's pools.
+fn total_bytes(limits: &Limits) -> Result<usize> {
+    required_bytes(limits)?
+        .checked_add(HEADER_BYTES)
+        .filter(|&b| b <= isize::MAX as usize - SHEAF_CONTEXT_ALIGN)
+        .ok_or(Error::InvalidArgument("limits need more memory than can be addressed"))
+}
+
+/// Check a handle pointer: non-NULL, aligned, alive.
+fn handle(ctx: *const sheaf_context) -> Result<*mut Handle> {
+    check_non_null!(ctx);
+    let h = ctx.cast::<Handle>().cast_mut();
+    if !h.is_aligned() {
+        return Err(Error::InvalidArgument("not a sheaf_context"));
+    }
+    // SAFETY: a non-NULL handle comes from sheaf_context_create(_in) (C
+    // contract), so the header is readable; only the magic word is read.
+    let magic = unsafe { ptr::addr_of!((*h).magic).read() };
+    if magic != MAGIC {
+        return Err(Error::InvalidArgument("not a live sheaf_context (destroyed?)"));
+    }
+    Ok(h)
+}
+
+/// Store `e` as the handle's last error.
+fn record(h: *mut Handle, e: Error) {
+    // SAFETY: `h` passed `handle()`; only the mutex field is borrowed, and a
+    // Mutex may be shared by concurrent callers.
+    let m = unsafe { &(*h).last_error };
+    *m.lock().unwrap_or_else(PoisonError::into_inner) = Some(e);
+}
+
+/// Run `f` on a shared handle (calls that may run concurrently), behind
+/// the panic boundary, recording a failure in the handle.
+fn with_ref(ctx: *const sheaf_context, f: impl FnOnce(&Handle) -> Result<()>) -> sheaf_status {
+    let seen: Cell<Option<*mut Handle>> = Cell::new(None);
+    guard(
+        || {
+            let h = handle(ctx)?;
+            seen.set(Some(h));
+            // SAFETY: a live handle; the C contract allows only other
+            // shared-access calls concurrently, so no `&mut` exists.
+            f(unsafe { &*h })
+        },
+        |e| {
+            if let Some(h) = seen.get() {
+                record(h, e)
+            }
+        },
+    )
+}
+
+/// Run `f` on the exclusively borrowed handle (calls that need exclusive
+/// access), behind the panic boundary, recording a failure in the handle.
+fn with_mut(ctx: *mut sheaf_context, f: impl FnOnce(&mut Handle) -> Result<()>) -> sheaf_status {
+    let seen: Cell<Option<*mut Handle>> = Cell::new(None);
+    guard(
+        || {
+            let h = handle(ctx)?;
+            seen.set(Some(h));
+            // SAFETY: a live handle; the C contract gives this call
+            // exclusive access to the context. The borrow ends before
+            // `record` runs.
+            f(unsafe { &mut *h })
+        },
+        |e| {
+            if let Some(h) = seen.get() {
+                record(h, e)
+            }
+        },
+    )
+}
+
+/// Build a context in `base[..need]`.
+///
+/// # Safety
+/// `base` is `SHEAF_CONTEXT_ALIGN`-aligned, valid for reads and writes of
+/// `need = total_bytes(limits)` bytes, and used by nothing else until
+/// `sheaf_context_destroy`.
+unsafe fn place(base: *mut u8, need: usize, limits: &Limits, alloc_bytes: Option<usize>) -> Result<*mut sheaf_context> {
+    // SAFETY: in bounds by the contract; initialises every byte so the
+    // slice below covers initialised memory.
+    unsafe { ptr::write_bytes(base, 0, need) };
+    // SAFETY: [HEADER_BYTES, need) is in bounds, initialised, and used only
+    // by the context (the header lies before it); 'static stands for "until
+    // destroy", which the handle enforces by owning the context.
+    let arena: &'static mut [u8] =
+        unsafe { core::slice::from_raw_parts_mut(base.add(HEADER_BYTES), need - HEADER_BYTES) };
+    let ctx = Context::new_in(arena, limits)?;
+    let h = base.cast::<Handle>();
+    // SAFETY: aligned (64 >= align_of::<Handle>()), in bounds (HEADER_BYTES
+    // >= size_of::<Handle>()), disjoint from the arena.
+    unsafe {
+        h.write(Handle { magic: MAGIC, ctx, geometry: None, last_error: Mutex::new(None), alloc_bytes });
+    }
+    Ok(h.cast())
+}
+
+/// Bytes `sheaf_context_create_in` needs for `*limits`, written to `*out`.
+///
+/// Exact, and includes everything: the handle itself and every pool
+/// (triangles, grid cells and references, per-thread slots). The buffer
+/// must also start on a `SHEAF_CONTEXT_ALIGN` (64) byte boundary.
+///
+/// Errors: `SHEAF_STATUS_NULL_POINTER`; `SHEAF_STATUS_INVALID_ARGUMENT` when
+/// a limit is outside its domain (see `sheaf_limits`).
+///
+/// Thread-safe.
+#[unsafe(no_mangle)]
+pub extern "C" fn sheaf_required_bytes(limits: *const Limits, out: *mut usize) -> sheaf_status {
+    guard_free(|| {
+        let limits = read_in(limits)?;
+        check_non_null!(out);
+        let need = total_bytes(&limits)?;
+        write_out(out, need);
+        Ok(())
+    })
+}
+
+/// Create a context inside the caller's memory; never allocates.
+///
+/// `buf` must start on a `SHEAF_CONTEXT_ALIGN` (64) byte boundary and hold
+/// at least `sheaf_required_bytes(limits)` bytes (`len`); the context (its
+/// handle included) uses exactly that many bytes from `buf` and nothing
+/// else. The caller keeps ownership of `buf`: it must stay valid and must
+/// not be touched until `sheaf_context_destroy(*out)`, after which it may
+/// be freed or reused. `*limits` is copied.
+///
+/// On success `*out` is the new context; on failure `*out` is unchanged.
+/// Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_INVALID_ARGUMENT`
+/// (limits), `SHEAF_STATUS_MISALIGNED`, `SHEAF_STATUS_BUFFER_TOO_SMALL`.
+///
+/// Thread-safe (for distinct buffers).
+#[unsafe(no_mangle)]
+pub extern "C" fn sheaf_context_create_in(
+    buf: *mut c_void,
+    len: usize,
+    limits: *const Limits,
+    out: *mut *mut sheaf_context,
+) -> sheaf_status {
+    guard_free(|| {
+        check_non_null!(buf);
+        let limits = read_in(limits)?;
+        check_non_null!(out);
+        let need = total_bytes(&limits)?;
+        if (buf as usize) % SHEAF_CONTEXT_ALIGN != 0 {
+            return Err(Error::Misaligned { required: SHEAF_CONTEXT_ALIGN as u32 });
+        }
+        if len < need {
+            return Err(Error::BufferTooSmall { needed: need as u64, available: len as u64 });
+        }
+        // SAFETY: aligned and at least `need` bytes (checked above); the C
+        // contract hands the buffer to the context until destroy.
+        let h = unsafe { place(buf.cast(), need, &limits, None)? };
+        write_out(out, h);
+        Ok(())
+    })
+}
+
+/// Create a context with exactly one allocation of
+/// `sheaf_required_bytes(limits)` bytes (the same layout as
+/// `sheaf_context_create_in`); no call on the context allocates afterwards.
+///
+/// On success `*out` is the new context, owned by the caller, released
+/// with `sheaf_context_destroy`; on failure `*out` is unchanged. `*limits`
+/// is copied.
+/// Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_INVALID_ARGUMENT`
+/// (limits), `SHEAF_STATUS_OUT_OF_MEMORY`.
+///
+/// Thread-safe.
+#[unsafe(no_mangle)]
+pub extern "C" fn sheaf_context_create(limits: *const Limits, out: *mut *mut sheaf_context) -> sheaf_status {
+    let mut oom = false;
+    let s = guard_free(|| {
+        let limits = read_in(limits)?;
+        check_non_null!(out);
+        let need = total_bytes(&limits)?;
+        let layout = std::alloc::Layout::from_size_align(need, SHEAF_CONTEXT_ALIGN)
+            .map_err(|_| Error::InvalidArgument("limits need more memory than can be addressed"))?;
+        // SAFETY: `need >= HEADER_BYTES > 0`, so the layout is not zero-sized.
+        let base = unsafe { std::alloc::alloc(layout) };
+        if base.is_null() {
+            // The crate's Error has no allocation failure (the core never
+            // allocates): flag it and report SHEAF_STATUS_OUT_OF_MEMORY.
+            oom = true;
+            return Ok(());
+        }
+        // SAFETY: a fresh allocation of `need` bytes aligned to 64, owned by
+        // the context until destroy frees it with the same layout.
+        match unsafe { place(base, need, &limits, Some(need)) } {
+            Ok(h) => {
+                write_out(out, h);
+                Ok(())
+            }
+            Err(e) => {
+                // SAFETY: allocated above with `layout`, not handed out.
+                unsafe { std::alloc::dealloc(base, layout) };
+                Err(e)
+            }
+        }
+    });
+    if oom { sheaf_status::OutOfMemory } else { s }
+}
+
+/// Destroy a context. Accepts NULL (does nothing).
+///
+/// After `sheaf_context_create` this frees its one allocation; after
+/// `sheaf_context_create_in` the caller's buffer may be freed or reused
+/// afterwards. The borrowed geometry buffers are not touched. `ctx` must
+/// not be used again.
+///
+/// Not thread-safe: no other call on `ctx` may run at the same time.
+#[unsafe(no_mangle)]
+pub extern "C" fn sheaf_context_destroy(ctx: *mut sheaf_context) {
+    if ctx.is_null() {
+        return;
+    }
+    let _ = std::panic::catch_unwind(AssertUnwindSafe(|| {
+        let Ok(h) = handle(ctx) else { return };
+        // SAFETY: a live handle with exclusive access (C contract). The
+        // magic is cleared first, the handle moved out and dropped (the
+        // context before the memory it lives in), then the allocation, if
+        // any, is freed with the layout it was made with.
+        unsafe {
+            ptr::addr_of_mut!((*h).magic).write(0);
+            let alloc_bytes = h.read().alloc_bytes; // the moved-out handle is dropped here
+            if let Some(bytes) = alloc_bytes {
+                std::alloc::dealloc(
+                    h.cast(),
+                    std::alloc::Layout::from_size_align_unchecked(bytes, SHEAF_CONTEXT_ALIGN),
+                );
+            }
+        }
+    }));
+}
+
+/// Set the scene's triangles, borrowing the caller's buffers (zero copy).
+///
+/// `vertex_count` vertices of three floats (x, y, z) start at `vertices`,
+/// `vertex_stride_bytes` apart (>= 12, a multiple of 4; extra per-vertex
+/// data in between is ignored), so an interleaved engine buffer can be
+/// passed as it is. `indices` holds `3 * triangle_count` vertex indices
+/// (4-byte aligned). A pointer may be NULL only when its count is 0.
+///
+/// Validates every index and the counts against the limits. Triangles with
+/// NaN/infinite vertices or zero area are not errors: builds skip them and
+/// count them in `sheaf_stats`. On error nothing changes: the previous
+/// geometry stays set and the built structure stays valid.
+///
+/// Lifetime: the buffers are borrowed, not copied. They must stay alive
+/// and unchanged until the next `sheaf_context_set_geometry` or
+/// `sheaf_context_destroy`, except that the caller may update them in
+/// place between calls (to animate: write new positions, then call
+/// `sheaf_context_build_grid` again; every build re-reads them and
+/// re-validates the indices). They must not be written while a build runs.
+/// Trace, occluded and render never read them (they use the copy made by
+/// the last build).
+///
+/// Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_INVALID_ARGUMENT`
+/// (stride, sizes), `SHEAF_STATUS_MISALIGNED` (indices),
+/// `SHEAF_STATUS_INDEX_OUT_OF_RANGE`, `SHEAF_STATUS_CAPACITY_TRIANGLES`,
+/// `SHEAF_STATUS_CAPACITY_VERTICES`.
+///
+/// Not thread-safe: needs exclusive access to `ctx`.
+#[unsafe(no_mangle)]
+pub extern "C" fn sheaf_context_set_geometry(
+    ctx: *mut sheaf_context,
+    vertices: *const f32,
+    vertex_stride_bytes: usize,
+    vertex_count: u32,
+    indices: *const u32,
+    triangle_count: u32,
+) -> sheaf_status {
+    with_mut(ctx, |h| {
+        if vertex_count > 0 {
+            check_non_null!(vertices);
+        }
+        if triangle_count > 0 {
+            check_non_null!(indices);
+        }
+        let vertices_len = if vertex_count == 0 {
+            0
+        } else {
+            (vertex_count as usize - 1)
+                .checked_mul(vertex_stride_bytes)
+                .and_then(|b| b.checked_add(12))
+                .filter(|&b| b <= isize::MAX as usize)
+                .ok_or(Error::InvalidArgument("vertex buffer size overflows"))?
+        };
+        let index_count =
+            (triangle_count as usize).checked_mul(3).ok_or(Error::InvalidArgument("too many triangles"))?;
+        array_bytes::<u32>(index_count, "index buffer size overflows")?;
+        if triangle_count > 0 && !indices.is_aligned() {
+            return Err(Error::Misaligned { required: core::mem::align_of::<u32>() as u32 });
+        }
+        let g = Geometry {
+            vertices: vertices.cast(),
+            vertices_len,
+            stride: vertex_stride_bytes,
+            vertex_count,
+            indices,
+            index_count,
+        };
+        h.ctx.check_scene(&g.scene()?)?;
+        h.geometry = Some(g);
+        Ok(())
+    })
+}
+
+/// Rebuild the uniform grid from the current geometry (from scratch; the
+/// per-frame call of an animation). `params` may be NULL for the defaults
+/// (`sheaf_grid_params_default`); `*params` is copied.
+///
+/// Reads the geometry buffers (see `sheaf_context_set_geometry`); never
+/// allocates. On error the previous grid stays valid and traces exactly
+/// as before.
+///
+/// Errors: `SHEAF_STATUS_NO_GEOMETRY`, `SHEAF_STATUS_INVALID_ARGUMENT`
+/// (lambda, macrocell, test), `SHEAF_STATUS_INDEX_OUT_OF_RANGE` (indices
+/// changed in place), `SHEAF_STATUS_CAPACITY_GRID_CELLS`,
+/// `SHEAF_STATUS_CAPACITY_GRID_REFS`, `SHEAF_STATUS_CAPACITY_TRIANGLES`.
+///
+/// Not thread-safe: needs exclusive access to `ctx`.
+#[unsafe(no_mangle)]
+pub extern "C" fn sheaf_context_build_grid(ctx: *mut sheaf_context, params: *const sheaf_grid_params) -> sheaf_status {
+    with_mut(ctx, |h| {
+        let params = if params.is_null() { GridParams::default() } else { read_in(params)?.to_core()? };
+        let g = h.geometry.as_ref().ok_or(Error::NoGeometry)?;
+        h.ctx.build_grid(&g.scene()?, &params)?;
+        Ok(())
+    })
+}
+
+/// Nearest hits of `count` rays: `hits[i]` for `rays[i]` (any count,
+/// including 0; `rays` and `hits` may be NULL only when `count` is 0; no
+/// alignment required; the arrays must not overlap).
+///
+/// A hit has `prim` = the triangle's index in the index buffer, `t` along
+/// the (unnormalised) direction, `u`, `v` the barycentric weights of its
+/// second and third vertex; a miss has `prim == SHEAF_INVALID_ID`,
+/// `t = +infinity`. Rays with non-finite fields, a zero direction,
+/// `tmin < 0` or `tmin > tmax` are misses. Results are those of the Rust
+/// API (`Context::trace`), bit for bit.
+///
+/// Thread-safe: several threads may trace (and call occluded, stats,
+/// last_error) on one built context at the same time. Does not update
+/// `sheaf_stats` (whose counters describe the last render).
+///
+/// Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_INVALID_ARGUMENT`
+/// (method, count, overlap), `SHEAF_STATUS_NOT_BUILT`. `hits` is written
+/// only on success.
+#[unsafe(no_mangle)]
+pub extern "C" fn sheaf_context_trace(
+    ctx: *const sheaf_context,
+    method: raw::sheaf_method,
+    rays: *const sheaf_ray,
+    hits: *mut sheaf_hit,
+    count: usize,
+) -> sheaf_status {
+    with_ref(ctx, |h| {
+        let method = sheaf_method::to_core(method)?;
+        let rb = check_array(rays, count, "ray count too large")?;
+        let hb = check_array(hits.cast_const(), count, "ray count too large")?;
+        if overlaps(rays.cast(), rb, hits.cast_const().cast(), hb) {
+            return Err(Error::InvalidArgument("rays and hits overlap"));
+        }
+        let tr = h.ctx.tracer()?;
+        let mut ctr = Counters::default();
+        match method {
+            Method::GridDda => {
+                for i in 0..count {
+                    // SAFETY: i < count, and both arrays were checked to be
+                    // non-NULL (count > 0) and to span count elements in
+                    // memory (C contract: readable / writable). Unaligned
+                    // access is allowed; the arrays do not overlap.
+                    unsafe {
+                        let ray = Ray::from(rays.add(i).read_unaligned());
+                        hits.add(i).write_unaligned(tr.intersect(&ray, &mut ctr).into());
+                    }
+                }
+            }
+        }
+        Ok(())
+    })
+}
+
+/// Occlusion of `count` rays: `occluded[i]` = 1 when `rays[i]` hits any
+/// triangle with `tmin <= t < tmax`, else 0 (shadow rays: `dir = light - p`,
+/// `tmax = 1`). Same pointer rules as `sheaf_context_trace`.
+///
+/// Thread-safe like `sheaf_context_trace`; does not update `sheaf_stats`.
+///
+/// Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_INVALID_ARGUMENT`,
+/// `SHEAF_STATUS_NOT_BUILT`. `occluded` is written only on success.
+#[unsafe(no_mangle)]
+pub extern "C" fn sheaf_context_occluded(
+    ctx: *const sheaf_context,
+    method: raw::sheaf_method,
+    rays: *const sheaf_ray,
+    occluded: *mut u8,
+    count: usize,
+) -> sheaf_status {
+    with_ref(ctx, |h| {
+        let method = sheaf_method::to_core(method)?;
+        let rb = check_array(rays, count, "ray count too large")?;
+        check_array(occluded.cast_const(), count, "ray count too large")?;
+        if overlaps(rays.cast(), rb, occluded.cast_const(), count) {
+            return Err(Error::InvalidArgument("rays and results overlap"));
+        }
+        let tr = h.ctx.tracer()?;
+        let mut ctr = Counters::default();
+        match method {
+            Method::GridDda => {
+                for i in 0..count {
+                    // SAFETY: as in sheaf_context_trace.
+                    unsafe {
+                        let ray = Ray::from(rays.add(i).read_unaligned());
+                        occluded.add(i).write(u8::from(tr.occluded(&ray, &mut ctr)));
+                    }
+                }
+            }
+        }
+        Ok(())
+    })
+}
+
+/// Render `*frame` into the caller's RGBA8 framebuffer (sRGB-encoded, alpha
+/// 255) on the calling thread: row `y` starts at `rgba + y * stride_bytes`
+/// (`stride_bytes >= 4 * width`), and the buffer holds `rgba_len >=
+/// (height - 1) * stride_bytes + 4 * width` bytes. Bytes between rows are
+/// not written. `*frame` is copied; the framebuffer is only written, and
+/// only on success; it must not be accessed by others during the call.
+///
+/// Updates `sheaf_stats` (counters, trace time).
+///
+/// Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_INVALID_ARGUMENT`
+/// (method, camera, sizes, stride), `SHEAF_STATUS_CAPACITY_IMAGE`,
+/// `SHEAF_STATUS_NOT_BUILT`.
+///
+/// Not thread-safe: needs exclusive access to `ctx` (it records stats).
+#[unsafe(no_mangle)]
+pub extern "C" fn sheaf_context_render(
+    ctx: *mut sheaf_context,
+    method: raw::sheaf_method,
+    frame: *const sheaf_frame,
+    rgba: *mut u8,
+    stride_bytes: usize,
+    rgba_len: usize,
+) -> sheaf_status {
+    with_mut(ctx, |h| {
+        let method = sheaf_method::to_core(method)?;
+        let frame = read_in(frame)?.to_core();
+        check_non_null!(rgba);
+        if rgba_len > isize::MAX as usize {
+            return Err(Error::InvalidArgument("framebuffer length too large"));
+        }
+        // The core checks sizes, limits and camera (Context::check_frame);
+        // its `(height - 1) * stride + 4 * width` must not overflow first.
+        if frame.width > 0 && frame.height > 0 {
+            (frame.height as usize - 1)
+                .checked_mul(stride_bytes)
+                .and_then(|b| b.checked_add(frame.width as usize * 4))
+                .ok_or(Error::InvalidArgument("framebuffer size overflows"))?;
+        }
+        h.ctx.check_frame(&frame, rgba_len, stride_bytes)?;
+        h.ctx.tracer()?;
+        // SAFETY: non-NULL, `rgba_len` bytes (<= isize::MAX) of writable
+        // memory not accessed by others during the call (C contract). The
+        // core only writes through it.
+        let pixels = unsafe { core::slice::from_raw_parts_mut(rgba, rgba_len) };
+        h.ctx.render(method, &frame, pixels, stride_bytes)?;
+        Ok(())
+    })
+}
+
+/// Statistics of the last build and the last render, written to `*out`
+/// (all zero before the first build).
+///
+/// Thread-safe with trace, occluded, stats and last_error; not with calls
+/// needing exclusive access.
+///
+/// Errors: `SHEAF_STATUS_NULL_POINTER`.
+#[unsafe(no_mangle)]
+pub extern "C" fn sheaf_context_stats(ctx: *const sheaf_context, out: *mut sheaf_stats) -> sheaf_status {
+    with_ref(ctx, |h| {
+        check_non_null!(out);
+        write_out(out, sheaf_stats::of(h.ctx.stats()));
+        Ok(())
+    })
+}
+
+/// A fixed-size text buffer on the stack (formatting never allocates).
+struct MessageBuf {
+    bytes: [u8; SHEAF_ERROR_MESSAGE_MAX],
+    len: usize,
+    /// Set at the first character that did not fit: later ones are dropped too.
+    full: bool,
+}
+
+impl core::fmt::Write for MessageBuf {
+    fn write_str(&mut self, s: &str) -> core::fmt::Result {
+        for ch in s.chars() {
+            if self.full {
+                break;
+            }
+            let mut tmp = [0u8; 4];
+            let enc = ch.encode_utf8(&mut tmp).as_bytes();
+            // Keep one byte for the NUL terminator; drop what does not fit.
+            if self.len + enc.len() >= SHEAF_ERROR_MESSAGE_MAX {
+                self.full = true;
+                break;
+            }
+            self.bytes[self.len..self.len + enc.len()].copy_from_slice(enc);
+            self.len += enc.len();
+        }
+        Ok(())
+    }
+}
+
+/// The message of `e` ("no error" for None).
+fn message(e: Option<Error>) -> MessageBuf {
+    let mut m = MessageBuf { bytes: [0; SHEAF_ERROR_MESSAGE_MAX], len: 0, full: false };
+    let _ = match e {
+        Some(e) => write!(m, "{e}"),
+        None => m.write_str("no error"),
+    };
+    m
+}
+
+/// Text of the last failure of a call on `ctx` (it names the pool, what was
+/// needed and what is available for capacity errors, the triangle and the
+/// index for out-of-range indices...). "no error" before any failure; a
+/// successful call does not clear it. Failures of this call itself are not
+/// recorded.
+///
+/// Writes at most `len - 1` bytes of the message plus a NUL terminator to
+/// `buf` (truncating at a character boundary; `SHEAF_ERROR_MESSAGE_MAX`
+/// bytes always suffice) and the number of bytes before the NUL to
+/// `*written`. Never allocates.
+///
+/// Thread-safe.
+///
+/// Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_INVALID_ARGUMENT`
+/// (`len == 0`).
+#[unsafe(no_mangle)]
+pub extern "C" fn sheaf_context_last_error(
+    ctx: *const sheaf_context,
+    buf: *mut c_char,
+    len: usize,
+    written: *mut usize,
+) -> sheaf_status {
+    guard_free(|| {
+        let h = handle(ctx)?;
+        check_non_null!(buf, written);
+        if len == 0 {
+            return Err(Error::InvalidArgument("len must be >= 1"));
+        }
+        // SAFETY: a live handle; only the mutex is borrowed (shared).
+        let last = *unsafe { &(*h).last_error }.lock().unwrap_or_else(PoisonError::into_inner);
+        let m = message(last);
+        let mut n = m.len.min(len - 1);
+        while n > 0 && n < m.len && (m.bytes[n] & 0xC0) == 0x80 {
+            n -= 1; // do not cut a UTF-8 sequence
+        }
+        // SAFETY: `buf` is non-NULL and writable for `len > n` bytes (C
+        // contract); the source is our stack buffer, so they do not overlap.
+        unsafe {
+            ptr::copy_nonoverlapping(m.bytes.as_ptr(), buf.cast::<u8>(), n);
+            buf.add(n).write(0);
+        }
+        write_out(written, n);
+        Ok(())
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::error::Pool;
+
+    #[test]
+    fn header_fits_and_keeps_the_arena_aligned() {
+        assert!(HEADER_BYTES >= core::mem::size_of::<Handle>());
+        assert_eq!(HEADER_BYTES % SHEAF_CONTEXT_ALIGN, 0);
+    }
+
+    #[test]
+    fn worst_case_messages_fit() {
+        let big = u64::MAX;
+        let cases = [
+            Error::IndexOutOfRange { triangle: u32::MAX, index: u32::MAX, vertex_count: u32::MAX },
+            Error::Capacity { pool: Pool::GridCells, needed: big, available: big },
+            Error::BufferTooSmall { needed: big, available: big },
+            Error::Misaligned { required: u32::MAX },
+            Error::InvalidArgument("framebuffer smaller than (height - 1) * stride + 4 * width"),
+            Error::Panic,
+        ];
+        for e in cases {
+            let m = message(Some(e));
+            let full = format!("{e}");
+            assert_eq!(&m.bytes[..m.len], full.as_bytes(), "message of {e:?} truncated");
+        }
+    }
+
+    #[test]
+    fn long_messages_are_truncated_not_overflowed() {
+        let mut m = MessageBuf { bytes: [0; SHEAF_ERROR_MESSAGE_MAX], len: 0, full: false };
+        for _ in 0..100 {
+            let _ = m.write_str("abcdefé");
+        }
+        assert!(m.len < SHEAF_ERROR_MESSAGE_MAX && m.len + 2 >= SHEAF_ERROR_MESSAGE_MAX - 1);
+        assert!(core::str::from_utf8(&m.bytes[..m.len]).is_ok());
+    }
+}

@@ -1,0 +1,47 @@
+//! `sheaf_method`: which traversal a trace, occluded or render call uses.
+
+use crate::error::{Error, Result};
+use crate::trace::Method;
+
+/// Traversal method of a trace, occluded or render call (the crate's
+/// `Method`). Codes are stable; later methods get new numbers.
+#[repr(u32)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum sheaf_method {
+    /// Uniform grid, single-ray 3DDDA with macrocell skipping (the baseline;
+    /// CGT paper section 2).
+    GridDda = 0,
+}
+
+impl sheaf_method {
+    /// The C code of a crate method (exhaustive: a new `Method` must get a
+    /// variant here before the crate compiles).
+    pub const fn of(m: Method) -> sheaf_method {
+        match m {
+            Method::GridDda => sheaf_method::GridDda,
+        }
+    }
+
+    /// The crate method with C code `raw`.
+    pub fn to_core(raw: super::raw::sheaf_method) -> Result<Method> {
+        Method::ALL
+            .iter()
+            .copied()
+            .find(|&m| sheaf_method::of(m) as u32 == raw)
+            .ok_or(Error::InvalidArgument("unknown sheaf_method"))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn codes_match_the_core() {
+        for &m in Method::ALL {
+            assert_eq!(sheaf_method::of(m) as u32, m as u32);
+            assert_eq!(sheaf_method::to_core(m as u32), Ok(m));
+        }
+        assert!(sheaf_method::to_core(77).is_err());
+    }
+}

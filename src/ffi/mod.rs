@@ -1,0 +1,199 @@
+//! The C ABI: `include/sheaf.h` is generated from this module by cbindgen
+//! (`cbindgen.toml`; `tests/header.rs` fails when the committed header is stale).
+//!
+//! One file per exported object, as in rustls-ffi:
+//!
+//! | file | C objects |
+//! |---|---|
+//! | `status.rs` | `sheaf_status` (numbered ranges, never renumbered), `sheaf_status_string` |
+//! | `context.rs` | `sheaf_context` (opaque handle): required bytes, create / create_in / destroy, geometry, build, trace, occluded, render, stats, last error |
+//! | `limits.rs` | `sheaf_limits` (the crate's `Limits`), `sheaf_limits_default` |
+//! | `grid.rs` | `sheaf_grid_params`, `sheaf_tri_test`, `sheaf_grid_params_default` |
+//! | `method.rs` | `sheaf_method` |
+//! | `ray.rs` | `sheaf_ray`, `sheaf_hit` (the C twins of `Ray`, `Hit`) |
+//! | `frame.rs` | `sheaf_frame` (camera, light, shading, size), `sheaf_shading_default` |
+//! | `stats.rs` | `sheaf_stats` |
+//! | `version.rs` | `sheaf_version_string` |
+//!
+//! # Conventions (STYLE.md rule 9)
+//! - Every export is `#[unsafe(no_mangle)] pub extern "C" fn`, takes the
+//!   handle first, then inputs, then outputs, and returns a `sheaf_status`
+//!   (except the two functions returning static strings).
+//! - Every pointer is checked: NULL gives `SHEAF_STATUS_NULL_POINTER` and is
+//!   never dereferenced. An array pointer may be NULL only when its count is
+//!   0. Single structs are read and written unaligned; arrays the core
+//!   borrows as typed slices (indices, the context buffer) are checked and
+//!   give `SHEAF_STATUS_MISALIGNED`.
+//! - Sizes are multiplied with overflow checks.
+//! - Outputs are written only when the call returns `SHEAF_STATUS_OK`
+//!   (after a caught panic, output arrays may hold partial results).
+//! - Every body runs inside `catch_unwind` (`guard`): no panic crosses the
+//!   boundary; a caught panic returns `SHEAF_STATUS_PANIC`. Only the release
+//!   profile unwinds (`Cargo.toml`), which is what C users link.
+//! - Enum values coming from C are received as their raw integer ([`raw`])
+//!   and checked, since a Rust enum holding an unknown value is undefined
+//!   behaviour; the header still shows the enum types.
+//! - No call allocates except `sheaf_context_create` (exactly once).
+// The one place besides mem/ with unsafe code (STYLE.md rule 7); every block
+// has a SAFETY comment.
+#![allow(unsafe_code)]
+// C names: sheaf_context, sheaf_status, ...
+#![allow(non_camel_case_types)]
+// Exports are safe `extern "C" fn`s taking raw pointers, as rustls-ffi's: their
+// contract is the C header's (valid or NULL pointers), checked where possible.
+#![allow(clippy::not_unsafe_ptr_arg_deref)]
+
+pub mod context;
+pub mod frame;
+pub mod grid;
+pub mod limits;
+pub mod method;
+pub mod ray;
+pub mod stats;
+pub mod status;
+pub mod version;
+
+pub use context::{
+    HEADER_BYTES, sheaf_context, sheaf_context_build_grid, sheaf_context_create, sheaf_context_create_in,
+    sheaf_context_destroy, sheaf_context_last_error, sheaf_context_occluded, sheaf_context_render,
+    sheaf_context_set_geometry, sheaf_context_stats, sheaf_context_trace, sheaf_required_bytes,
+};
+pub use frame::{sheaf_frame, sheaf_shading_default};
+pub use grid::{sheaf_grid_params, sheaf_grid_params_default, sheaf_tri_test};
+pub use limits::sheaf_limits_default;
+pub use method::sheaf_method;
+pub use ray::{sheaf_hit, sheaf_ray};
+pub use stats::sheaf_stats;
+pub use status::{sheaf_status, sheaf_status_string};
+pub use version::sheaf_version_string;
+
+use crate::error::{Error, Result};
+use core::panic::AssertUnwindSafe;
+
+/// Alignment `sheaf_context_create_in` requires of its buffer
+/// (C: `SHEAF_CONTEXT_ALIGN`).
+pub const SHEAF_CONTEXT_ALIGN: usize = crate::mem::ARENA_ALIGN;
+/// `sheaf_hit.prim` of a miss (C: `SHEAF_INVALID_ID`).
+pub const SHEAF_INVALID_ID: u32 = crate::geom::INVALID_ID;
+/// A `sheaf_context_last_error` buffer of this many bytes always holds the
+/// whole message (C: `SHEAF_ERROR_MESSAGE_MAX`).
+pub const SHEAF_ERROR_MESSAGE_MAX: usize = 256;
+
+/// Enum values as C passes them: plain integers, checked before use.
+///
+/// Each alias has the C name of its enum, so the header shows
+/// `sheaf_method method` while Rust receives a `u32` (cbindgen skips these
+/// aliases and resolves the name to the enum in `method.rs`, `grid.rs` or
+/// `status.rs`).
+pub mod raw {
+    /// cbindgen:ignore
+    pub type sheaf_status = u32;
+    /// cbindgen:ignore
+    pub type sheaf_method = u32;
+    /// cbindgen:ignore
+    pub type sheaf_tri_test = u32;
+}
+
+/// Return `Err(Error::NullPointer)` from the enclosing function when any
+/// of the pointers is NULL.
+macro_rules! check_non_null {
+    ($($p:expr),+ $(,)?) => {
+        $(
+            if $p.is_null() {
+                return Err($crate::error::Error::NullPointer);
+            }
+        )+
+    };
+}
+pub(crate) use check_non_null;
+
+/// Run `f` behind the panic boundary and map its result to a status.
+/// `on_error` sees every error (including a caught panic) before it is
+/// mapped, to record it in a handle.
+pub(crate) fn guard(f: impl FnOnce() -> Result<()>, on_error: impl FnOnce(Error)) -> sheaf_status {
+    let r = std::panic::catch_unwind(AssertUnwindSafe(f)).unwrap_or(Err(Error::Panic));
+    match r {
+        Ok(()) => sheaf_status::Ok,
+        Err(e) => {
+            on_error(e);
+            sheaf_status::from_error(&e)
+        }
+    }
+}
+
+/// [`guard`] for calls without a handle.
+pub(crate) fn guard_free(f: impl FnOnce() -> Result<()>) -> sheaf_status {
+    guard(f, |_| {})
+}
+
+/// Read a C struct (NULL checked, any alignment).
+pub(crate) fn read_in<T: Copy>(p: *const T) -> Result<T> {
+    check_non_null!(p);
+    // SAFETY: non-NULL; the C contract is that a non-NULL argument points to
+    // a readable, initialised `T`. read_unaligned puts no demand on alignment.
+    Ok(unsafe { p.read_unaligned() })
+}
+
+/// Write one output value (any alignment). Call only after the pointer was
+/// checked with `check_non_null!` and the call has succeeded.
+pub(crate) fn write_out<T: Copy>(p: *mut T, v: T) {
+    debug_assert!(!p.is_null());
+    // SAFETY: the caller checked `p` for NULL; the C contract is that a
+    // non-NULL output points to writable memory for one `T`.
+    unsafe { p.write_unaligned(v) }
+}
+
+/// Byte length of `n` values of `T`, checked against `isize::MAX` (the
+/// limit for any Rust slice).
+pub(crate) fn array_bytes<T>(n: usize, what: &'static str) -> Result<usize> {
+    n.checked_mul(core::mem::size_of::<T>()).filter(|&b| b <= isize::MAX as usize).ok_or(Error::InvalidArgument(what))
+}
+
+/// Check an array argument: NULL only when `n == 0`, `n` values fit in
+/// memory. Returns the byte length.
+pub(crate) fn check_array<T>(p: *const T, n: usize, what: &'static str) -> Result<usize> {
+    if n > 0 && p.is_null() {
+        return Err(Error::NullPointer);
+    }
+    array_bytes::<T>(n, what)
+}
+
+/// Whether the byte ranges `[a, a + alen)` and `[b, b + blen)` overlap.
+pub(crate) fn overlaps(a: *const u8, alen: usize, b: *const u8, blen: usize) -> bool {
+    let (a, b) = (a as usize, b as usize);
+    alen > 0 && blen > 0 && a < b.saturating_add(blen) && b < a.saturating_add(alen)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn guard_turns_a_panic_into_the_panic_status() {
+        let mut seen = None;
+        let s = guard(|| panic!("boom"), |e| seen = Some(e));
+        assert_eq!(s, sheaf_status::Panic);
+        assert_eq!(seen, Some(Error::Panic));
+    }
+
+    #[test]
+    fn guard_maps_errors_and_success() {
+        assert_eq!(guard_free(|| Ok(())), sheaf_status::Ok);
+        assert_eq!(guard_free(|| Err(Error::NotBuilt)), sheaf_status::NotBuilt);
+    }
+
+    #[test]
+    fn overlap_rules() {
+        let p = 1000 as *const u8;
+        let q = 1010 as *const u8;
+        assert!(overlaps(p, 11, q, 1));
+        assert!(!overlaps(p, 10, q, 1));
+        assert!(!overlaps(p, 0, p, 10));
+    }
+
+    #[test]
+    fn array_sizes_are_overflow_checked() {
+        assert!(array_bytes::<u64>(usize::MAX / 4, "x").is_err());
+        assert_eq!(array_bytes::<u64>(3, "x"), Ok(24));
+    }
+}

@@ -1,0 +1,741 @@
+//! The C ABI from C and C++ (Debian's gcc and g++), and against the Rust API.
+//!
+//! 1. Finds the `libsheaf.a` and `libsheaf.so` built with this test binary
+//!    (in `target/<profile>/deps/`, where `cargo test` writes every crate
+//!    type of the library; see `lib_dir`).
+//! 2. Compiles each C program in `ffi-tests/` twice, static
+//!    (`-l:libsheaf.a -lm -lpthread -ldl`) and shared (`-lsheaf` with an
+//!    rpath), with `gcc -std=c99 -Wall -Wextra -Werror -pedantic`, and the
+//!    C++ one with `g++ -std=c++11 -Wall -Wextra -Werror -pedantic`, into
+//!    `target/tmp/`; checks the header alone compiles as C99/C11/C++11/C++17.
+//! 3. Runs them: each must exit 0 and end with "N passed, 0 failed".
+//! 4. `ffi-tests/crosscheck.c` prints its scene, rays, hits, occlusion and
+//!    image checksum as bit patterns; the same is computed here through the
+//!    Rust API (`sheaf::OwnedContext`) and compared bit for bit.
+//! 5. No call through the C ABI allocates after `sheaf_context_create`,
+//!    which allocates exactly once (a counting global allocator).
+//!
+//! gcc and g++ are required: without them this test fails (CI installs
+//! them). Only the release profile unwinds (Cargo.toml), which is what C
+//! users link: run `cargo test --release`.
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use sheaf::ffi::{self, sheaf_frame, sheaf_grid_params, sheaf_hit, sheaf_method, sheaf_ray, sheaf_stats, sheaf_status};
+use sheaf::{Camera, Frame, GridParams, Hit, Limits, Method, OwnedContext, PointLight, Ray, Scene, Shading, TriTest};
+
+// ---- where things are --------------------------------------------------------
+
+fn root() -> &'static Path {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// The directory holding the `libsheaf.a` and `libsheaf.so` built with this
+/// test binary: `target/<profile>/deps` itself. `cargo test` writes every
+/// crate type of [lib] there (unhashed names for staticlib and cdylib) but
+/// copies them up to `target/<profile>/` only for `cargo build`, so the
+/// copies there may be stale; they are used only when deps/ has none.
+fn lib_dir() -> PathBuf {
+    let exe = std::env::current_exe().expect("current_exe");
+    let deps = exe.parent().expect("test binary lives in target/<profile>/deps").to_path_buf();
+    let has_libs = |d: &Path| d.join("libsheaf.a").is_file() && d.join("libsheaf.so").is_file();
+    if has_libs(&deps) {
+        return deps;
+    }
+    let profile = deps.parent().expect("target/<profile>").to_path_buf();
+    assert!(
+        has_libs(&profile),
+        "libsheaf.a and libsheaf.so not found in {} or {}: `cargo test` builds every crate type of [lib]",
+        deps.display(),
+        profile.display()
+    );
+    profile
+}
+
+/// Where compiled test programs go (`target/tmp/ffi-tests-<profile>`).
+fn out_dir() -> PathBuf {
+    let exe = std::env::current_exe().expect("current_exe");
+    let profile = exe.parent().and_then(Path::parent).and_then(Path::file_name).unwrap().to_string_lossy().into_owned();
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("ffi-tests-{profile}"));
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+fn require(tool: &str) {
+    let ok = Command::new(tool).arg("--version").output().map(|o| o.status.success()).unwrap_or(false);
+    assert!(ok, "`{tool}` not found: the C ABI tests need Debian's gcc and g++ (apt-get install gcc g++)");
+}
+
+#[derive(Clone, Copy, Debug)]
+enum Link {
+    Static,
+    Shared,
+}
+
+// ---- compile and run -----------------------------------------------------------
+
+fn run_tool(cmd: &mut Command) {
+    let shown = format!("{cmd:?}");
+    let out = cmd.output().unwrap_or_else(|e| panic!("cannot run {shown}: {e}"));
+    assert!(
+        out.status.success(),
+        "compilation failed:\n{shown}\n{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+/// Compile `ffi-tests/<src>` with `compiler` and `std_flags`, linked `link`.
+fn compile(compiler: &str, std_flags: &[&str], src: &str, link: Link) -> PathBuf {
+    require(compiler);
+    let lib = lib_dir();
+    let stem = Path::new(src).file_stem().unwrap().to_string_lossy().into_owned();
+    let exe = out_dir().join(format!("{stem}-{}", format!("{link:?}").to_lowercase()));
+    let mut cmd = Command::new(compiler);
+    cmd.args(std_flags)
+        .args(["-Wall", "-Wextra", "-Werror", "-pedantic", "-g"])
+        .arg("-I")
+        .arg(root().join("include"))
+        .arg(root().join("ffi-tests").join(src))
+        .arg("-o")
+        .arg(&exe)
+        .arg("-L")
+        .arg(&lib);
+    match link {
+        Link::Static => cmd.args(["-l:libsheaf.a", "-lm", "-lpthread", "-ldl"]),
+        // DT_RPATH (not RUNPATH): searched before any LD_LIBRARY_PATH.
+        Link::Shared => cmd.arg("-lsheaf").arg(format!("-Wl,-rpath,{}", lib.display())).args([
+            "-Wl,--disable-new-dtags",
+            "-lm",
+            "-lpthread",
+        ]),
+    };
+    run_tool(&mut cmd);
+    if let Link::Shared = link {
+        let bytes = std::fs::read(&exe).unwrap();
+        assert!(bytes.windows(11).any(|w| w == b"libsheaf.so"), "{} does not link libsheaf.so", exe.display());
+    }
+    exe
+}
+
+fn compile_c(src: &str, link: Link) -> PathBuf {
+    compile("gcc", &["-std=c99"], src, link)
+}
+
+/// Run a test program; it must exit 0 and report "N passed, 0 failed".
+/// Returns its stdout.
+fn run(exe: &Path) -> String {
+    check_layouts();
+    // cargo puts target/<profile> (with possibly stale copies of the
+    // libraries) on LD_LIBRARY_PATH, which would win over the rpath.
+    let out = Command::new(exe)
+        .env_remove("LD_LIBRARY_PATH")
+        .output()
+        .unwrap_or_else(|e| panic!("cannot run {}: {e}", exe.display()));
+    let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    let report: Vec<&str> = stdout.lines().filter(|l| !l.starts_with('@')).collect();
+    println!("--- {} ---\n{}\n{stderr}", exe.display(), report.join("\n"));
+    assert!(out.status.success(), "{} failed ({}):\n{}\n{stderr}", exe.display(), out.status, report.join("\n"));
+    let last = report.last().copied().unwrap_or("");
+    let (passed, failed) = last
+        .strip_suffix(" failed")
+        .and_then(|s| s.split_once(" passed, "))
+        .unwrap_or_else(|| panic!("{}: last line {last:?} is not \"N passed, M failed\"", exe.display()));
+    assert_eq!(failed, "0", "{}: {last}", exe.display());
+    assert!(passed.parse::<u32>().unwrap() > 0, "{}: no test ran", exe.display());
+    stdout
+}
+
+// ---- the header's layouts are the library's ---------------------------------------------
+
+/// Size and alignment of every struct of the header as C sees it, against
+/// the Rust types. Every program-running test checks this first: a stale
+/// header (e.g. after a field was added to `Counters`) would otherwise let
+/// the library write past the C structs and fail in confusing ways.
+fn check_layouts() {
+    static CHECKED: std::sync::OnceLock<Result<(), String>> = std::sync::OnceLock::new();
+    let r = CHECKED.get_or_init(|| {
+        use std::mem::{align_of, size_of};
+        let rust: &[(&str, usize, usize)] = &[
+            ("sheaf_limits", size_of::<Limits>(), align_of::<Limits>()),
+            ("sheaf_grid_params", size_of::<sheaf_grid_params>(), align_of::<sheaf_grid_params>()),
+            ("sheaf_ray", size_of::<sheaf_ray>(), align_of::<sheaf_ray>()),
+            ("sheaf_hit", size_of::<sheaf_hit>(), align_of::<sheaf_hit>()),
+            ("sheaf_camera", size_of::<Camera>(), align_of::<Camera>()),
+            ("sheaf_light", size_of::<PointLight>(), align_of::<PointLight>()),
+            ("sheaf_shading", size_of::<Shading>(), align_of::<Shading>()),
+            ("sheaf_frame", size_of::<sheaf_frame>(), align_of::<sheaf_frame>()),
+            ("sheaf_counters", size_of::<sheaf::Counters>(), align_of::<sheaf::Counters>()),
+            ("sheaf_stats", size_of::<sheaf_stats>(), align_of::<sheaf_stats>()),
+            ("sheaf_status", size_of::<sheaf_status>(), align_of::<sheaf_status>()),
+        ];
+        let mut c = String::from("#include \"sheaf.h\"\n#include <stdio.h>\n#include <stddef.h>\n");
+        c += "#define SHOW(T) printf(\"%s %u %u\\n\", #T, (unsigned)sizeof(T), (unsigned)offsetof(struct { char c; T t; }, t))\n";
+        c += "int main(void) {\n";
+        for (name, _, _) in rust {
+            c += &format!("    SHOW({name});\n");
+        }
+        c += "    return 0;\n}\n";
+        let src = out_dir().join("layout.c");
+        std::fs::write(&src, c).unwrap();
+        let exe = out_dir().join("layout");
+        require("gcc");
+        run_tool(
+            Command::new("gcc")
+                .args(["-std=c99", "-Wall", "-Wextra", "-Werror", "-I"])
+                .arg(root().join("include"))
+                .arg(&src)
+                .arg("-o")
+                .arg(&exe),
+        );
+        let out = Command::new(&exe).output().expect("run layout");
+        let text = String::from_utf8_lossy(&out.stdout);
+        let mut errors = Vec::new();
+        for ((name, size, align), line) in rust.iter().zip(text.lines()) {
+            let f: Vec<&str> = line.split_whitespace().collect();
+            let (cs, ca): (usize, usize) = (f[1].parse().unwrap(), f[2].parse().unwrap());
+            if f[0] != *name || cs != *size || ca != *align {
+                errors.push(format!("  {name}: C sizeof {cs} align {ca}, Rust {size} align {align}"));
+            }
+        }
+        if errors.is_empty() && text.lines().count() == rust.len() {
+            Ok(())
+        } else {
+            Err(format!(
+                "include/sheaf.h does not match the library's types:\n{}\nregenerate it: \
+                 SHEAF_BLESS=1 cargo test --release --test header",
+                errors.join("\n")
+            ))
+        }
+    });
+    if let Err(e) = r {
+        panic!("{e}");
+    }
+}
+
+#[test]
+fn header_layouts_match_rust() {
+    check_layouts();
+}
+
+// ---- the C and C++ programs ---------------------------------------------------------
+
+#[test]
+fn c_api_static() {
+    run(&compile_c("test_api.c", Link::Static));
+}
+
+#[test]
+fn c_api_shared() {
+    run(&compile_c("test_api.c", Link::Shared));
+}
+
+#[test]
+fn c_threads_static() {
+    run(&compile_c("test_threads.c", Link::Static));
+}
+
+#[test]
+fn c_threads_shared() {
+    run(&compile_c("test_threads.c", Link::Shared));
+}
+
+#[test]
+fn cpp_static_and_shared() {
+    for link in [Link::Static, Link::Shared] {
+        run(&compile("g++", &["-std=c++11"], "test_cpp.cpp", link));
+    }
+}
+
+/// The header alone, as several C and C++ standards.
+#[test]
+fn header_compiles_alone() {
+    let header = root().join("include").join("sheaf.h");
+    for (compiler, lang, std) in
+        [("gcc", "c", "-std=c99"), ("gcc", "c", "-std=c11"), ("g++", "c++", "-std=c++11"), ("g++", "c++", "-std=c++17")]
+    {
+        require(compiler);
+        run_tool(
+            Command::new(compiler)
+                .args([std, "-Wall", "-Wextra", "-Werror", "-pedantic", "-fsyntax-only", "-x", lang])
+                .arg(&header),
+        );
+    }
+}
+
+// ---- C results equal the Rust API's ------------------------------------------------------
+
+fn hex_f32(s: &str) -> f32 {
+    f32::from_bits(u32::from_str_radix(s, 16).unwrap_or_else(|_| panic!("bad float bits {s:?}")))
+}
+
+fn num(s: &str) -> u32 {
+    s.parse().unwrap_or_else(|_| panic!("bad number {s:?}"))
+}
+
+#[derive(Default)]
+struct Build {
+    params: Option<GridParams>,
+    stats: Vec<u32>,
+    hits: BTreeMap<usize, Hit>,
+    occluded: BTreeMap<usize, bool>,
+    frame: Option<(Frame, usize)>,
+    image: Option<u64>,
+}
+
+#[derive(Default)]
+struct Emitted {
+    limits: Option<Limits>,
+    vertices: Vec<[f32; 3]>,
+    indices: Vec<u32>,
+    rays: Vec<Ray>,
+    builds: BTreeMap<u32, Build>,
+}
+
+fn parse(stdout: &str) -> Emitted {
+    let mut e = Emitted::default();
+    for line in stdout.lines().filter(|l| l.starts_with('@')) {
+        let f: Vec<&str> = line.split_whitespace().collect();
+        let v3 = |at: usize| [hex_f32(f[at]), hex_f32(f[at + 1]), hex_f32(f[at + 2])];
+        match f[0] {
+            "@limits" => {
+                let n: Vec<u32> = f[1..9].iter().map(|s| num(s)).collect();
+                e.limits = Some(Limits {
+                    max_triangles: n[0],
+                    max_vertices: n[1],
+                    max_image_width: n[2],
+                    max_image_height: n[3],
+                    max_tile: n[4],
+                    max_threads: n[5],
+                    max_grid_cells: n[6],
+                    max_grid_refs: n[7],
+                });
+            }
+            "@vertex" => {
+                assert_eq!(num(f[1]) as usize, e.vertices.len());
+                e.vertices.push(v3(2));
+            }
+            "@tri" => {
+                assert_eq!(num(f[1]) as usize * 3, e.indices.len());
+                e.indices.extend(f[2..5].iter().map(|s| num(s)));
+            }
+            "@ray" => {
+                assert_eq!(num(f[1]) as usize, e.rays.len());
+                e.rays.push(Ray { org: v3(2), tmin: hex_f32(f[5]), dir: v3(6), tmax: hex_f32(f[9]) });
+            }
+            "@build" => {
+                let test = match num(f[2]) {
+                    0 => TriTest::MollerTrumbore,
+                    1 => TriTest::Watertight,
+                    t => panic!("unknown test {t}"),
+                };
+                let p = GridParams { lambda: hex_f32(f[3]), macrocell: num(f[4]), test, fit: num(f[5]) != 0 };
+                e.builds.entry(num(f[1])).or_default().params = Some(p);
+            }
+            "@stats" => e.builds.entry(num(f[1])).or_default().stats = f[2..].iter().map(|s| num(s)).collect(),
+            "@hit" => {
+                let h = Hit { prim: num(f[3]), t: hex_f32(f[4]), u: hex_f32(f[5]), v: hex_f32(f[6]) };
+                e.builds.entry(num(f[1])).or_default().hits.insert(num(f[2]) as usize, h);
+            }
+            "@occ" => {
+                e.builds.entry(num(f[1])).or_default().occluded.insert(num(f[2]) as usize, num(f[3]) != 0);
+            }
+            "@frame" => {
+                let frame = Frame {
+                    camera: Camera { eye: v3(5), look_at: v3(8), up: v3(11), fov_y_deg: hex_f32(f[14]) },
+                    light: PointLight { position: v3(15), color: v3(18) },
+                    shading: Shading {
+                        albedo: v3(21),
+                        ambient: hex_f32(f[24]),
+                        background: v3(25),
+                        shadows: num(f[28]) != 0,
+                    },
+                    width: num(f[2]),
+                    height: num(f[3]),
+                };
+                e.builds.entry(num(f[1])).or_default().frame = Some((frame, num(f[4]) as usize));
+            }
+            "@image" => {
+                let x = u64::from_str_radix(f[2], 16).expect("image checksum");
+                e.builds.entry(num(f[1])).or_default().image = Some(x);
+            }
+            other => panic!("unknown line {other}"),
+        }
+    }
+    e
+}
+
+fn fnv1a(pixels: &[u8], w: usize, h: usize, stride: usize) -> u64 {
+    let mut x: u64 = 1469598103934665603;
+    for r in 0..h {
+        for &b in &pixels[r * stride..r * stride + 4 * w] {
+            x ^= b as u64;
+            x = x.wrapping_mul(1099511628211);
+        }
+    }
+    x
+}
+
+fn same_hit(a: &Hit, b: &Hit) -> bool {
+    a.prim == b.prim
+        && a.t.to_bits() == b.t.to_bits()
+        && a.u.to_bits() == b.u.to_bits()
+        && a.v.to_bits() == b.v.to_bits()
+}
+
+fn crosscheck(link: Link) {
+    let stdout = run(&compile_c("crosscheck.c", link));
+    let e = parse(&stdout);
+    let limits = e.limits.expect("@limits line");
+    assert!(e.vertices.len() > 100 && e.indices.len() > 300 && e.rays.len() > 1000, "too little data emitted");
+    assert_eq!(e.builds.keys().copied().collect::<Vec<_>>(), [0, 1], "both grid configurations emitted");
+
+    // The same scene as in C: xyz plus one padding float per vertex (stride 16).
+    let mut vbuf: Vec<f32> = Vec::new();
+    for v in &e.vertices {
+        vbuf.extend_from_slice(&[v[0], v[1], v[2], -1234.5]);
+    }
+    let bytes: Vec<u8> = vbuf.iter().flat_map(|x| x.to_ne_bytes()).collect();
+    let scene = Scene::new(&bytes, 16, e.vertices.len() as u32, &e.indices).expect("scene");
+
+    for (k, b) in &e.builds {
+        let params = b.params.expect("@build line");
+        let mut ctx = OwnedContext::new(&limits).expect("context");
+        let info = ctx.build_grid(&scene, &params).expect("build");
+        let want_stats = [
+            info.triangles_in,
+            info.triangles,
+            info.excluded_non_finite,
+            info.excluded_zero_area,
+            info.res[0],
+            info.res[1],
+            info.res[2],
+            info.refs,
+        ];
+        assert_eq!(b.stats, want_stats, "build {k}: C stats vs Rust GridInfo");
+
+        let mut hits = vec![Hit::MISS; e.rays.len()];
+        ctx.trace(Method::GridDda, &e.rays, &mut hits).expect("trace");
+        assert_eq!(b.hits.len(), e.rays.len(), "build {k}: one @hit per ray");
+        let mut bad = Vec::new();
+        for (i, want) in hits.iter().enumerate() {
+            let got = &b.hits[&i];
+            if !same_hit(got, want) {
+                bad.push(format!("  ray {i} {:?}: C {got:?} vs Rust {want:?}", e.rays[i]));
+            }
+        }
+        let n_hit = hits.iter().filter(|h| h.is_hit()).count();
+        assert!(n_hit > e.rays.len() / 3, "build {k}: only {n_hit} hits: not a meaningful comparison");
+        assert!(
+            bad.is_empty(),
+            "build {k} ({params:?}): {} of {} hits differ:\n{}",
+            bad.len(),
+            hits.len(),
+            bad[..bad.len().min(10)].join("\n")
+        );
+
+        let mut occ = vec![false; e.rays.len()];
+        ctx.occluded(Method::GridDda, &e.rays, &mut occ).expect("occluded");
+        assert_eq!(b.occluded.len(), e.rays.len(), "build {k}: one @occ per ray");
+        let bad: Vec<usize> = (0..occ.len()).filter(|&i| b.occluded[&i] != occ[i]).collect();
+        assert!(bad.is_empty(), "build {k}: occlusion differs for rays {bad:?}");
+        assert!(occ.iter().any(|&o| o) && occ.iter().any(|&o| !o));
+
+        let (frame, stride) = b.frame.expect("@frame line");
+        let (w, h) = (frame.width as usize, frame.height as usize);
+        let mut pixels = vec![0u8; (h - 1) * stride + 4 * w];
+        ctx.render(Method::GridDda, &frame, &mut pixels, stride).expect("render");
+        assert_eq!(b.image, Some(fnv1a(&pixels, w, h, stride)), "build {k}: rendered image differs");
+        println!(
+            "build {k}: {} rays ({n_hit} hits), occlusion and a {w}x{h} image identical through C and Rust",
+            hits.len()
+        );
+    }
+}
+
+#[test]
+fn c_hits_equal_rust_api_static() {
+    crosscheck(Link::Static);
+}
+
+#[test]
+fn c_hits_equal_rust_api_shared() {
+    crosscheck(Link::Shared);
+}
+
+// ---- no allocation after create ---------------------------------------------------------
+
+/// Counts allocations made on threads that turned counting on.
+struct CountingAlloc;
+
+thread_local! {
+    static COUNTING: Cell<bool> = const { Cell::new(false) };
+    static ALLOCS: Cell<u64> = const { Cell::new(0) };
+}
+
+fn note_alloc() {
+    let _ = COUNTING.try_with(|on| {
+        if on.get() {
+            let _ = ALLOCS.try_with(|n| n.set(n.get() + 1));
+        }
+    });
+}
+
+// SAFETY: forwards every call to the system allocator unchanged.
+unsafe impl GlobalAlloc for CountingAlloc {
+    unsafe fn alloc(&self, l: Layout) -> *mut u8 {
+        note_alloc();
+        // SAFETY: same contract as the caller's.
+        unsafe { System.alloc(l) }
+    }
+    unsafe fn alloc_zeroed(&self, l: Layout) -> *mut u8 {
+        note_alloc();
+        // SAFETY: same contract as the caller's.
+        unsafe { System.alloc_zeroed(l) }
+    }
+    unsafe fn realloc(&self, p: *mut u8, l: Layout, new: usize) -> *mut u8 {
+        note_alloc();
+        // SAFETY: same contract as the caller's.
+        unsafe { System.realloc(p, l, new) }
+    }
+    unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
+        // SAFETY: same contract as the caller's.
+        unsafe { System.dealloc(p, l) }
+    }
+}
+
+#[global_allocator]
+static ALLOC: CountingAlloc = CountingAlloc;
+
+/// Allocations made by `f` on this thread.
+fn allocations<R>(f: impl FnOnce() -> R) -> (u64, R) {
+    ALLOCS.with(|n| n.set(0));
+    COUNTING.with(|c| c.set(true));
+    let r = f();
+    COUNTING.with(|c| c.set(false));
+    (ALLOCS.with(|n| n.get()), r)
+}
+
+const OK: sheaf_status = sheaf_status::Ok;
+const DDA: u32 = sheaf_method::GridDda as u32;
+
+fn ground_and_box() -> (Vec<f32>, Vec<u32>) {
+    let mut v = vec![-4.0, -4.0, 0.0, 4.0, -4.0, 0.0, 4.0, 4.0, 0.0, -4.0, 4.0, 0.0];
+    let mut idx = vec![0, 1, 2, 0, 2, 3];
+    for i in 0..8u32 {
+        let c = |bit: u32, lo: f32, hi: f32| if i & bit != 0 { hi } else { lo };
+        v.extend_from_slice(&[c(1, -0.5, 0.5), c(2, -0.5, 0.5), c(4, 0.0, 1.0)]);
+    }
+    for t in [
+        [0, 2, 3],
+        [0, 3, 1],
+        [4, 5, 7],
+        [4, 7, 6],
+        [0, 1, 5],
+        [0, 5, 4],
+        [2, 6, 7],
+        [2, 7, 3],
+        [0, 4, 6],
+        [0, 6, 2],
+        [1, 3, 7],
+        [1, 7, 5],
+    ] {
+        idx.extend(t.iter().map(|i| i + 4));
+    }
+    (v, idx)
+}
+
+/// Everything a session needs, allocated before counting starts.
+struct Inputs {
+    v: Vec<f32>,
+    idx: Vec<u32>,
+    bad_idx: Vec<u32>,
+    rays: Vec<sheaf_ray>,
+    hits: Vec<sheaf_hit>,
+    occ: Vec<u8>,
+    rgba: Vec<u8>,
+    frame: sheaf_frame,
+}
+
+fn inputs() -> Inputs {
+    let (v, idx) = ground_and_box();
+    let mut bad_idx = idx.clone();
+    bad_idx[4] = 99;
+    let rays: Vec<sheaf_ray> = (0..64)
+        .map(|i| {
+            let x = -3.0 + 0.1 * i as f32;
+            let tmax = if i % 2 == 0 { f32::INFINITY } else { 4.5 };
+            sheaf_ray { org: [x, 0.3, 5.0], tmin: 0.0, dir: [0.1, 0.0, -1.0], tmax }
+        })
+        .collect();
+    let frame = sheaf_frame {
+        camera: Camera { eye: [6.0, -8.0, 5.0], look_at: [0.0, 0.0, 0.5], up: [0.0, 0.0, 1.0], fov_y_deg: 40.0 },
+        light: PointLight { position: [4.0, -3.0, 8.0], color: [1.0; 3] },
+        shading: Shading::default(),
+        width: 32,
+        height: 24,
+    };
+    Inputs {
+        v,
+        idx,
+        bad_idx,
+        hits: vec![sheaf_hit { t: 0.0, prim: 0, u: 0.0, v: 0.0 }; rays.len()],
+        occ: vec![0; rays.len()],
+        rays,
+        rgba: vec![0; 32 * 24 * 4],
+        frame,
+    }
+}
+
+/// A whole session through the C ABI after creation, good and bad calls
+/// (each error path formats into the last error). Returns how many calls
+/// failed as expected.
+fn session(ctx: *mut ffi::sheaf_context, x: &mut Inputs) -> u32 {
+    let nt = (x.idx.len() / 3) as u32;
+    let nv = (x.v.len() / 3) as u32;
+    let mut failures = 0;
+    let mut fail = |s: sheaf_status, want: sheaf_status| {
+        assert_eq!(s, want);
+        failures += 1;
+    };
+    let null = std::ptr::null_mut();
+    // State errors, then geometry and build.
+    fail(ffi::sheaf_context_build_grid(ctx, std::ptr::null()), sheaf_status::NoGeometry);
+    fail(
+        ffi::sheaf_context_set_geometry(ctx, x.v.as_ptr(), 12, nv, x.bad_idx.as_ptr(), nt),
+        sheaf_status::IndexOutOfRange,
+    );
+    fail(ffi::sheaf_context_set_geometry(ctx, std::ptr::null(), 12, 3, x.idx.as_ptr(), nt), sheaf_status::NullPointer);
+    assert_eq!(ffi::sheaf_context_set_geometry(ctx, x.v.as_ptr(), 12, nv, x.idx.as_ptr(), nt), OK);
+    assert_eq!(ffi::sheaf_context_build_grid(ctx, std::ptr::null()), OK);
+    let mut p = sheaf_grid_params { lambda: 0.0, macrocell: 0, test: 0, fit: false };
+    assert_eq!(ffi::sheaf_grid_params_default(&mut p), OK);
+    p.test = 1;
+    assert_eq!(ffi::sheaf_context_build_grid(ctx, &p), OK);
+    p.lambda = f32::NAN;
+    fail(ffi::sheaf_context_build_grid(ctx, &p), sheaf_status::InvalidArgument);
+    // Trace and occluded.
+    let n = x.rays.len();
+    assert_eq!(ffi::sheaf_context_trace(ctx, DDA, x.rays.as_ptr(), x.hits.as_mut_ptr(), n), OK);
+    assert!(x.hits.iter().any(|h| h.prim != ffi::SHEAF_INVALID_ID));
+    assert_eq!(ffi::sheaf_context_occluded(ctx, DDA, x.rays.as_ptr(), x.occ.as_mut_ptr(), n), OK);
+    fail(ffi::sheaf_context_trace(ctx, 77, x.rays.as_ptr(), x.hits.as_mut_ptr(), n), sheaf_status::InvalidArgument);
+    fail(ffi::sheaf_context_trace(ctx, DDA, x.rays.as_ptr(), null, n), sheaf_status::NullPointer);
+    // Render and stats.
+    assert_eq!(ffi::sheaf_shading_default(&mut x.frame.shading), OK);
+    let len = x.rgba.len();
+    assert_eq!(ffi::sheaf_context_render(ctx, DDA, &x.frame, x.rgba.as_mut_ptr(), 32 * 4, len), OK);
+    fail(
+        ffi::sheaf_context_render(ctx, DDA, &x.frame, x.rgba.as_mut_ptr(), 32 * 4, len - 1),
+        sheaf_status::InvalidArgument,
+    );
+    let big = sheaf_frame { width: 5000, height: 1, ..x.frame };
+    fail(ffi::sheaf_context_render(ctx, DDA, &big, x.rgba.as_mut_ptr(), 5000 * 4, len), sheaf_status::CapacityImage);
+    let mut stats = sheaf_stats::default();
+    assert_eq!(ffi::sheaf_context_stats(ctx, &mut stats), OK);
+    assert_eq!(stats.triangles, nt);
+    // Last error (formatting with numbers), status strings, version.
+    let mut msg = [0 as core::ffi::c_char; ffi::SHEAF_ERROR_MESSAGE_MAX];
+    let mut written = 0usize;
+    assert_eq!(ffi::sheaf_context_last_error(ctx, msg.as_mut_ptr(), msg.len(), &mut written), OK);
+    assert!(written > 0);
+    fail(
+        ffi::sheaf_context_set_geometry(ctx, x.v.as_ptr(), 12, nv, x.bad_idx.as_ptr(), nt),
+        sheaf_status::IndexOutOfRange,
+    );
+    assert_eq!(ffi::sheaf_context_last_error(ctx, msg.as_mut_ptr(), msg.len(), &mut written), OK);
+    assert_eq!(ffi::sheaf_context_last_error(ctx, msg.as_mut_ptr(), 7, &mut written), OK);
+    for s in sheaf_status::ALL {
+        assert!(!ffi::sheaf_status_string(*s as u32).is_null());
+    }
+    assert!(!ffi::sheaf_status_string(4711).is_null());
+    assert!(!ffi::sheaf_version_string().is_null());
+    let mut limits = Limits::for_triangles(1);
+    assert_eq!(ffi::sheaf_limits_default(nt, &mut limits), OK);
+    let mut need = 0usize;
+    assert_eq!(ffi::sheaf_required_bytes(&limits, &mut need), OK);
+    failures
+}
+
+#[test]
+fn no_allocation_after_create() {
+    let mut x = inputs();
+    let limits = Limits::for_triangles((x.idx.len() / 3) as u32);
+
+    // sheaf_context_create: exactly one allocation; nothing afterwards.
+    let mut ctx: *mut ffi::sheaf_context = std::ptr::null_mut();
+    let (n, s) = allocations(|| ffi::sheaf_context_create(&limits, &mut ctx));
+    assert_eq!(s, OK);
+    assert_eq!(n, 1, "sheaf_context_create must allocate exactly once");
+    let (n, failures) = allocations(|| session(ctx, &mut x));
+    assert!(failures >= 9, "{failures} error paths exercised");
+    assert_eq!(n, 0, "a call through the C ABI allocated after sheaf_context_create");
+    ffi::sheaf_context_destroy(ctx);
+
+    // sheaf_context_create_in: never.
+    let mut x = inputs();
+    let mut need = 0usize;
+    assert_eq!(ffi::sheaf_required_bytes(&limits, &mut need), OK);
+    let mut buf = vec![0u64; need / 8 + 8];
+    let off = buf.as_ptr().align_offset(ffi::SHEAF_CONTEXT_ALIGN);
+    let base = buf[off..].as_mut_ptr().cast::<core::ffi::c_void>();
+    let mut ctx: *mut ffi::sheaf_context = std::ptr::null_mut();
+    let (n, s) = allocations(|| {
+        let s = ffi::sheaf_context_create_in(base, need, &limits, &mut ctx);
+        assert_eq!(s, OK);
+        session(ctx, &mut x);
+        ffi::sheaf_context_destroy(ctx);
+        s
+    });
+    assert_eq!(s, OK);
+    assert_eq!(n, 0, "sheaf_context_create_in and the calls on its context must never allocate");
+}
+
+/// The results through the C ABI equal the Rust API's, in process too (all
+/// three tests and both structures' parameters).
+#[test]
+fn ffi_trace_equals_rust_trace_in_process() {
+    let (v, idx) = ground_and_box();
+    let nt = (idx.len() / 3) as u32;
+    let limits = Limits::for_triangles(nt);
+    let scene = Scene::from_f32(&v, &idx).unwrap();
+    let rays: Vec<Ray> = (0..400)
+        .map(|i| {
+            let a = i as f32 * 0.37;
+            Ray::new(
+                glam::Vec3::new(3.0 * a.cos(), 3.0 * a.sin(), 0.2 + (i % 9) as f32 * 0.3),
+                glam::Vec3::new(-a.cos(), -a.sin(), -0.3),
+                0.0,
+                f32::INFINITY,
+            )
+        })
+        .collect();
+    let cray: Vec<sheaf_ray> =
+        rays.iter().map(|r| sheaf_ray { org: r.org, tmin: r.tmin, dir: r.dir, tmax: r.tmax }).collect();
+    for test in [TriTest::MollerTrumbore, TriTest::Watertight] {
+        let params = GridParams { test, ..GridParams::default() };
+        let mut rust = OwnedContext::new(&limits).unwrap();
+        rust.build_grid(&scene, &params).unwrap();
+        let mut want = vec![Hit::MISS; rays.len()];
+        rust.trace(Method::GridDda, &rays, &mut want).unwrap();
+
+        let mut ctx: *mut ffi::sheaf_context = std::ptr::null_mut();
+        assert_eq!(ffi::sheaf_context_create(&limits, &mut ctx), OK);
+        assert_eq!(ffi::sheaf_context_set_geometry(ctx, v.as_ptr(), 12, (v.len() / 3) as u32, idx.as_ptr(), nt), OK);
+        let cp = sheaf_grid_params::of(&params);
+        assert_eq!(ffi::sheaf_context_build_grid(ctx, &cp), OK);
+        let mut got = vec![sheaf_hit { t: 0.0, prim: 0, u: 0.0, v: 0.0 }; rays.len()];
+        assert_eq!(ffi::sheaf_context_trace(ctx, DDA, cray.as_ptr(), got.as_mut_ptr(), cray.len()), OK);
+        ffi::sheaf_context_destroy(ctx);
+        assert!(want.iter().filter(|h| h.is_hit()).count() > 100);
+        for (i, (g, w)) in got.iter().zip(&want).enumerate() {
+            let g = Hit { t: g.t, prim: g.prim, u: g.u, v: g.v };
+            assert!(same_hit(&g, w), "{test:?} ray {i}: C ABI {g:?} vs Rust {w:?}");
+        }
+    }
+}
