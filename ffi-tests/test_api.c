@@ -553,6 +553,15 @@ static bool test_trace_results(void) {
     CHECK(h[6].prim == SHEAF_INVALID_ID);
     CHECK(h[7].prim != SHEAF_INVALID_ID);
     CHECK(h[0].u >= 0.0f && h[0].v >= 0.0f && h[0].u + h[0].v <= 1.0f);
+    {
+        /* Coherent grid traversal returns the 3DDDA's hits bit for bit. */
+        sheaf_hit c[N_PROBE];
+        int i;
+        CHECK_OK(sheaf_context_trace(ctx, SHEAF_METHOD_GRID_CGT, rays, c, N_PROBE));
+        for (i = 0; i < N_PROBE; i++) {
+            CHECK(c[i].prim == h[i].prim && memcmp(&c[i].t, &h[i].t, sizeof(float)) == 0);
+        }
+    }
     sheaf_context_destroy(ctx);
     free(s);
     return true;
@@ -609,10 +618,13 @@ static bool test_occluded(void) {
     CHECK_OK(sheaf_context_occluded(ctx, SHEAF_METHOD_GRID_DDA, rays, occ, 5));
     CHECK(occ[0] == 1 && occ[1] == 0 && occ[2] == 0 && occ[3] == 0 && occ[4] == 1);
     memcpy(occ, sentinel, sizeof occ);
+    CHECK_OK(sheaf_context_occluded(ctx, SHEAF_METHOD_GRID_CGT, rays, occ, 5));
+    CHECK(occ[0] == 1 && occ[1] == 0 && occ[2] == 0 && occ[3] == 0 && occ[4] == 1);
+    memcpy(occ, sentinel, sizeof occ);
     CHECK_STATUS(sheaf_context_occluded(NULL, SHEAF_METHOD_GRID_DDA, rays, occ, 5), SHEAF_STATUS_NULL_POINTER);
     CHECK_STATUS(sheaf_context_occluded(ctx, SHEAF_METHOD_GRID_DDA, NULL, occ, 5), SHEAF_STATUS_NULL_POINTER);
     CHECK_STATUS(sheaf_context_occluded(ctx, SHEAF_METHOD_GRID_DDA, rays, NULL, 5), SHEAF_STATUS_NULL_POINTER);
-    CHECK_STATUS(sheaf_context_occluded(ctx, (sheaf_method)1, rays, occ, 5), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_occluded(ctx, (sheaf_method)77, rays, occ, 5), SHEAF_STATUS_INVALID_ARGUMENT);
     CHECK_STATUS(sheaf_context_occluded(ctx, SHEAF_METHOD_GRID_DDA, rays, occ, (size_t)-1 / 4),
                  SHEAF_STATUS_INVALID_ARGUMENT);
     CHECK_STATUS(sheaf_context_occluded(ctx, SHEAF_METHOD_GRID_DDA, rays, (uint8_t *)rays + 3, 5),
@@ -671,6 +683,9 @@ static bool test_render(void) {
     CHECK(st.counters.rays >= (uint64_t)RW * RH && st.trace_ns > 0 && st.counters.tri_tests > 0);
     /* deterministic */
     CHECK_OK(sheaf_context_render(ctx, SHEAF_METHOD_GRID_DDA, &f, again, RSTRIDE, RLEN));
+    CHECK(memcmp(img, again, RLEN) == 0);
+    /* coherent grid traversal renders the same image (and padding stays untouched) */
+    CHECK_OK(sheaf_context_render(ctx, SHEAF_METHOD_GRID_CGT, &f, again, RSTRIDE, RLEN));
     CHECK(memcmp(img, again, RLEN) == 0);
     for (y = 0; y < RH; ++y) {
         for (x = 0; x < RW; ++x) CHECK(img[y * RSTRIDE + 4 * x + 3] == 255); /* opaque */

@@ -168,6 +168,13 @@ enum sheaf_method
      * CGT paper section 2).
      */
     SHEAF_METHOD_GRID_DDA = 0,
+    /**
+     * Uniform grid, coherent grid traversal of packets (CGT paper sections
+     * 2.2-2.4). Trace and occluded calls form 8x8 packets from consecutive
+     * rays (every 4 rays a 2x2 quad) and, having no thread slot, run without
+     * mailboxing; render uses 8x8 tiles and the context's mailbox.
+     */
+    SHEAF_METHOD_GRID_CGT = 1,
 };
 #ifndef __cplusplus
 #if __STDC_VERSION__ >= 202311L
@@ -406,6 +413,10 @@ typedef struct sheaf_counters {
      * Packets that could not use frustum culling (no common origin).
      */
     uint64_t packets_no_cull;
+    /**
+     * Shadow packets split because their hit points spread too far in depth.
+     */
+    uint64_t packets_split;
 } sheaf_counters;
 
 /**

@@ -2,12 +2,13 @@
 //! every frame. After `Context::new_in` nothing here allocates.
 #![forbid(unsafe_code)]
 
+use crate::accel::grid::traverse_cgt::{self, Mailbox};
 use crate::accel::grid::{self, Grid, GridInfo, GridParams, GridPools, GridView};
 use crate::error::{Error, Pool, Result};
-use crate::geom::{Hit, Mt, Ray, Scene, TriTest, TriVerts, TriangleTest, Wt};
+use crate::geom::{Hit, Hit4, M4, Mt, Ray, Ray4, Scene, TriTest, TriVerts, TriangleTest, Wt};
 use crate::mem::{Arena, Limits, pool_bytes};
 use crate::render::{self, Frame, PrimaryRays, Tracer};
-use crate::trace::{Counters, Method};
+use crate::trace::{Counters, Method, TraceParams};
 
 /// Pool sizes derived from `Limits`, in the order they are carved.
 struct Layout {
@@ -36,7 +37,8 @@ impl Layout {
             + pool_bytes::<u32>(self.cells + 1)
             + pool_bytes::<u32>(self.refs)
             + pool_bytes::<u32>(self.macro_words)
-            + pool_bytes::<Counters>(self.slots)
+            + pool_bytes::<u32>(self.tris * self.slots)
+            + pool_bytes::<u32>(self.slots)
     }
 }
 
@@ -65,8 +67,10 @@ pub struct Stats {
 pub struct Context<'a> {
     limits: Limits,
     grid: Grid<'a>,
-    /// Per-thread counter slots, for threaded rendering.
-    slots: &'a mut [Counters],
+    /// Per-thread mailboxes (CGT section 2.3): `max_triangles` stamps and
+    /// one packet counter per thread slot.
+    stamps: &'a mut [u32],
+    mail_packets: &'a mut [u32],
     stats: Stats,
 }
 
@@ -104,9 +108,10 @@ impl<'a> Context<'a> {
             refs: arena.take(layout.refs)?,
             macro_bits: arena.take(layout.macro_words)?,
         };
-        let slots = arena.take(layout.slots)?;
+        let stamps = arena.take(layout.tris * layout.slots)?;
+        let mail_packets = arena.take(layout.slots)?;
         debug_assert_eq!(arena.used(), need);
-        Ok(Context { limits: *limits, grid: Grid::new(pools), slots, stats: Stats::default() })
+        Ok(Context { limits: *limits, grid: Grid::new(pools), stamps, mail_packets, stats: Stats::default() })
     }
 
     pub fn limits(&self) -> &Limits {
@@ -152,42 +157,81 @@ impl<'a> Context<'a> {
         self.grid.view().map(|view| GridTracer { view }).ok_or(Error::NotBuilt)
     }
 
-    /// Nearest hits of `rays` into `hits` (same length) with `method`.
+    /// The built structure and one mailbox per thread slot, for tracing
+    /// and rendering from several threads (each thread takes one mailbox).
+    pub fn parts(&mut self) -> Result<(GridTracer<'_>, impl Iterator<Item = Mailbox<'_>>)> {
+        let view = self.grid.view().ok_or(Error::NotBuilt)?;
+        let n = self.limits.max_triangles.max(1) as usize;
+        let mbs = self.stamps.chunks_mut(n).zip(self.mail_packets.iter_mut()).map(|(s, p)| Mailbox::new(s, p));
+        Ok((GridTracer { view }, mbs))
+    }
+
+    /// Nearest hits of `rays` into `hits` (same length) with `method` and
+    /// its default packet settings (`TraceParams`).
     pub fn trace(&mut self, method: Method, rays: &[Ray], hits: &mut [Hit]) -> Result<Counters> {
+        self.trace_with(&TraceParams { method, ..TraceParams::default() }, rays, hits)
+    }
+
+    /// Nearest hits of `rays` into `hits` (same length). Packet methods take
+    /// the rays in order as packets of `p.packet`^2 rays, every 4 rays one
+    /// 2x2 quad in `Ray4` lane order (a last, smaller packet is padded with
+    /// inactive lanes).
+    pub fn trace_with(&mut self, p: &TraceParams, rays: &[Ray], hits: &mut [Hit]) -> Result<Counters> {
         if rays.len() != hits.len() {
             return Err(Error::InvalidArgument("rays and hits must have the same length"));
         }
-        let t = now();
-        let mut ctr = Counters::default();
-        {
-            let tr = self.tracer()?;
-            match method {
-                Method::GridDda => {
-                    for (r, h) in rays.iter().zip(hits.iter_mut()) {
-                        *h = tr.intersect(r, &mut ctr);
-                    }
-                }
-            }
-        }
-        self.stats.trace_ns = elapsed_ns(t);
-        self.stats.counters = ctr;
-        Ok(ctr)
+        self.batch(p, rays, &mut |i, h: &Hit4, lane| hits[i] = h.lane(lane), false)
     }
 
-    /// Occlusion of `rays` into `occluded` (same length): any hit in `[tmin, tmax)`.
+    /// Occlusion of `rays` with `method` (default packet settings).
     pub fn occluded(&mut self, method: Method, rays: &[Ray], occluded: &mut [bool]) -> Result<Counters> {
+        self.occluded_with(&TraceParams { method, ..TraceParams::default() }, rays, occluded)
+    }
+
+    /// Occlusion of `rays` into `occluded` (same length): any hit in
+    /// `[tmin, tmax)`. Packets are formed as in `trace_with`.
+    pub fn occluded_with(&mut self, p: &TraceParams, rays: &[Ray], occluded: &mut [bool]) -> Result<Counters> {
         if rays.len() != occluded.len() {
             return Err(Error::InvalidArgument("rays and results must have the same length"));
         }
+        self.batch(p, rays, &mut |i, h: &Hit4, lane| occluded[i] = h.prim[lane] != crate::geom::INVALID_ID, true)
+    }
+
+    /// Trace `rays` as packets (or one by one) on the calling thread with
+    /// slot 0's mailbox, handing each result to `out(ray index, hits, lane)`.
+    fn batch(&mut self, p: &TraceParams, rays: &[Ray], out: &mut dyn FnMut(usize, &Hit4, usize), any: bool) -> Result<Counters> {
+        p.validate()?;
         let t = now();
         let mut ctr = Counters::default();
         {
-            let tr = self.tracer()?;
-            match method {
-                Method::GridDda => {
-                    for (r, o) in rays.iter().zip(occluded.iter_mut()) {
-                        *o = tr.occluded(r, &mut ctr);
+            let (tr, mut mbs) = self.parts()?;
+            let mut mb = mbs.next().ok_or(Error::Capacity { pool: Pool::Threads, needed: 1, available: 0 })?;
+            let per = if p.method.is_packet() { (p.packet * p.packet) as usize } else { 4 };
+            let mut quads = [Ray4::from_rays(&[rays.first().copied().unwrap_or(Ray::new(glam::Vec3::ZERO, glam::Vec3::X, 0.0, 0.0)); 4]); 256];
+            let mut active = [M4::FALSE; 256];
+            let mut hits = [Hit4::MISS; 256];
+            for (c, chunk) in rays.chunks(per).enumerate() {
+                let nq = chunk.len().div_ceil(4);
+                for q in 0..nq {
+                    let mut lanes = [chunk[q * 4]; 4];
+                    let mut m = [false; 4];
+                    for i in 0..4 {
+                        if let Some(r) = chunk.get(q * 4 + i) {
+                            lanes[i] = *r;
+                            m[i] = true;
+                        }
                     }
+                    quads[q] = Ray4::from_rays(&lanes);
+                    active[q] = M4::new(m[0], m[1], m[2], m[3]);
+                    hits[q] = Hit4::MISS;
+                }
+                if any {
+                    tr.occluded_packet(p, &quads[..nq], &active[..nq], &mut hits[..nq], &mut mb, &mut ctr);
+                } else {
+                    tr.intersect_packet(p, &quads[..nq], &active[..nq], &mut hits[..nq], &mut mb, &mut ctr);
+                }
+                for k in 0..chunk.len() {
+                    out(c * per + k, &hits[k / 4], k % 4);
                 }
             }
         }
@@ -218,15 +262,32 @@ impl<'a> Context<'a> {
         PrimaryRays::new(&frame.camera, w, h)
     }
 
-    /// Render a whole frame on the calling thread.
+    /// Render a whole frame on the calling thread with `method` for every
+    /// ray (default packet settings).
     pub fn render(&mut self, method: Method, frame: &Frame, pixels: &mut [u8], stride: usize) -> Result<Counters> {
+        let p = TraceParams { method, ..TraceParams::default() };
+        self.render_with(&p, &p, frame, pixels, stride)
+    }
+
+    /// Render a whole frame on the calling thread: `primary` for camera
+    /// rays, `shadow` for shadow rays.
+    pub fn render_with(&mut self, primary: &TraceParams, shadow: &TraceParams, frame: &Frame, pixels: &mut [u8], stride: usize) -> Result<Counters> {
+        primary.validate()?;
+        shadow.validate()?;
         let rays = self.check_frame(frame, pixels.len(), stride)?;
         let t = now();
         let mut ctr = Counters::default();
-        match method {
-            Method::GridDda => render::render_rows(&self.tracer()?, frame, &rays, 0, frame.height, pixels, stride, &mut ctr),
+        {
+            let (tr, mut mbs) = self.parts()?;
+            let mut mb = mbs.next().ok_or(Error::Capacity { pool: Pool::Threads, needed: 1, available: 0 })?;
+            if primary.method.is_packet() || shadow.method.is_packet() {
+                let side = if primary.method.is_packet() { primary.packet } else { shadow.packet };
+                let tile = TraceParams { packet: side, ..*primary };
+                render::render_tiles(&tr, &tile, shadow, frame, &rays, 0, frame.height, pixels, stride, &mut mb, &mut ctr);
+            } else {
+                render::render_rows(&tr, frame, &rays, 0, frame.height, pixels, stride, &mut ctr);
+            }
         }
-        self.slots[0] = ctr;
         self.stats.trace_ns = elapsed_ns(t);
         self.stats.counters = ctr;
         Ok(ctr)
@@ -261,6 +322,25 @@ impl Tracer for GridTracer<'_> {
             TriTest::Watertight => grid::traverse_single::occluded::<Wt>(&self.view, ray, ctr),
         }
     }
+    fn intersect_packet(&self, p: &TraceParams, rays: &[Ray4], active: &[M4], hits: &mut [Hit4], mb: &mut Mailbox<'_>, ctr: &mut Counters) {
+        match (p.method, self.view.info.test) {
+            (Method::GridCgt, TriTest::MollerTrumbore) => traverse_cgt::intersect::<Mt>(&self.view, rays, active, hits, &p.cgt, mb, ctr),
+            (Method::GridCgt, TriTest::Watertight) => traverse_cgt::intersect::<Wt>(&self.view, rays, active, hits, &p.cgt, mb, ctr),
+            (Method::GridDda, _) => self.lane_by_lane(rays, active, hits, |r, c| self.intersect(r, c), ctr),
+        }
+    }
+    fn occluded_packet(&self, p: &TraceParams, rays: &[Ray4], active: &[M4], hits: &mut [Hit4], mb: &mut Mailbox<'_>, ctr: &mut Counters) {
+        match (p.method, self.view.info.test) {
+            (Method::GridCgt, TriTest::MollerTrumbore) => traverse_cgt::occluded::<Mt>(&self.view, rays, active, hits, &p.cgt, mb, ctr),
+            (Method::GridCgt, TriTest::Watertight) => traverse_cgt::occluded::<Wt>(&self.view, rays, active, hits, &p.cgt, mb, ctr),
+            (Method::GridDda, TriTest::MollerTrumbore) => {
+                self.lane_by_lane(rays, active, hits, |r, c| grid::traverse_single::any_hit::<Mt>(&self.view, r, c), ctr)
+            }
+            (Method::GridDda, TriTest::Watertight) => {
+                self.lane_by_lane(rays, active, hits, |r, c| grid::traverse_single::any_hit::<Wt>(&self.view, r, c), ctr)
+            }
+        }
+    }
     fn triangle(&self, prim: u32) -> Option<TriVerts> {
         // Stored triangles are in the caller's order minus exclusions, so a
         // binary search over the ids finds the slot.
@@ -269,6 +349,19 @@ impl Tracer for GridTracer<'_> {
     }
     fn scene_scale(&self) -> f32 {
         self.view.info.bounds.diagonal().length()
+    }
+}
+
+impl GridTracer<'_> {
+    /// A packet traced one active lane at a time by a single-ray method.
+    fn lane_by_lane(&self, rays: &[Ray4], active: &[M4], hits: &mut [Hit4], f: impl Fn(&Ray, &mut Counters) -> Hit, ctr: &mut Counters) {
+        for ((r, m), h) in rays.iter().zip(active).zip(hits.iter_mut()) {
+            for i in 0..4 {
+                if m.test(i) {
+                    h.set_lane(i, f(&r.lane(i), ctr));
+                }
+            }
+        }
     }
 }
 
@@ -320,6 +413,18 @@ impl OwnedContext {
     }
     pub fn render(&mut self, method: Method, frame: &Frame, pixels: &mut [u8], stride: usize) -> Result<Counters> {
         self.inner.get_mut().render(method, frame, pixels, stride)
+    }
+    pub fn render_with(&mut self, primary: &TraceParams, shadow: &TraceParams, frame: &Frame, pixels: &mut [u8], stride: usize) -> Result<Counters> {
+        self.inner.get_mut().render_with(primary, shadow, frame, pixels, stride)
+    }
+    pub fn trace_with(&mut self, p: &TraceParams, rays: &[Ray], hits: &mut [Hit]) -> Result<Counters> {
+        self.inner.get_mut().trace_with(p, rays, hits)
+    }
+    pub fn occluded_with(&mut self, p: &TraceParams, rays: &[Ray], occluded: &mut [bool]) -> Result<Counters> {
+        self.inner.get_mut().occluded_with(p, rays, occluded)
+    }
+    pub fn parts(&mut self) -> Result<(GridTracer<'_>, impl Iterator<Item = Mailbox<'_>>)> {
+        self.inner.get_mut().parts()
     }
     pub fn record(&mut self, ctr: Counters, trace_ns: u64) {
         self.inner.get_mut().record(ctr, trace_ns)

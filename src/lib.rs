@@ -32,7 +32,7 @@ pub use error::{Error, Pool, Result};
 pub use geom::{Hit, Ray, Scene, TriTest};
 pub use mem::Limits;
 pub use render::{Camera, Frame, PointLight, Shading};
-pub use trace::{Counters, Method};
+pub use trace::{CgtOptions, Counters, Method, TraceParams};
 
 /// Without std a staticlib/cdylib needs a panic handler; sheaf's spins (no
 /// panic is reachable from caller input, see STYLE.md rule 8).

@@ -42,6 +42,7 @@ fn single<T: TriangleTest>(g: &GridView, rays: &[Ray], any: bool) -> Vec<Hit> {
 struct Run<'a> {
     g: GridView<'a>,
     stamps: Vec<u32>,
+    packet: u32,
 }
 
 impl Run<'_> {
@@ -54,7 +55,7 @@ impl Run<'_> {
             }
             for (mc, mb, cull) in [(true, true, true), (false, true, true), (true, false, true), (true, true, false), (false, false, false)] {
                 let opt = CgtOptions { macrocells: mc, mailbox: mb, culling: cull };
-                let mut mailbox = Mailbox::new(&mut self.stamps);
+                let mut mailbox = Mailbox::new(&mut self.stamps, &mut self.packet);
                 let mut ctr = Counters::default();
                 for (quads, idx) in packets(rays, w, h, n) {
                     let active = vec![M4::TRUE; quads.len()];
@@ -99,7 +100,7 @@ fn check_scene(s: &TestScene, res: usize) {
     for test in [TriTest::MollerTrumbore, TriTest::Watertight] {
         let ctx = scene_ctx(s, test);
         let g = ctx.tracer().unwrap().view;
-        let mut run = Run { g, stamps: vec![0; g.tris.len()] };
+        let mut run = Run { g, stamps: vec![0; g.tris.len()], packet: 0 };
         let mut sum = Counters::default();
         for (vname, view) in &s.views {
             let what = format!("{} {vname}", s.name);
@@ -156,7 +157,7 @@ fn adversarial_packets_stay_exact() {
     let s = builtin_scenes().into_iter().find(|s| s.name == "animated").unwrap();
     let ctx = scene_ctx(&s, TriTest::MollerTrumbore);
     let g = ctx.tracer().unwrap().view;
-    let mut run = Run { g, stamps: vec![0; g.tris.len()] };
+    let mut run = Run { g, stamps: vec![0; g.tris.len()], packet: 0 };
     let (lo, hi) = (g.info.bounds.min, g.info.bounds.max);
     let mut x = 0x2545f4914f6cdd1du64;
     let mut rnd = || {
@@ -187,9 +188,60 @@ fn adversarial_packets_stay_exact() {
     let active = vec![M4::new(true, false, true, false); quads.len()];
     let sentinel = Hit4 { t: F4::splat(-7.0), prim: [42; 4], u: F4::ZERO, v: F4::ZERO };
     let mut hits = vec![sentinel; quads.len()];
-    let mut mb = Mailbox::new(&mut run.stamps);
+    let mut mb = Mailbox::new(&mut run.stamps, &mut run.packet);
     traverse_cgt::intersect::<Mt>(&g, &quads, &active, &mut hits, &CgtOptions::default(), &mut mb, &mut Counters::default());
     for h in &hits {
         assert_eq!((h.prim[1], h.t[1], h.prim[3], h.t[3]), (42, -7.0, 42, -7.0));
+    }
+}
+
+#[test]
+fn context_trace_with_cgt_matches_dda_and_renders_identical_images() {
+    use sheaf::render::{Camera, Frame, PointLight, Shading};
+    use sheaf::{Method, TraceParams};
+    for s in builtin_scenes().into_iter().chain(obj_scenes().into_iter().filter(|s| s.name == "bunny")) {
+        let mut ctx = scene_ctx(&s, TriTest::MollerTrumbore);
+        for (vname, view) in &s.views {
+            // Rays in 2x2-quad order for packets: any order is exact, this
+            // one is also coherent.
+            let rays = view_rays(view, 48, 48);
+            let mut want = vec![Hit::MISS; rays.len()];
+            ctx.trace(Method::GridDda, &rays, &mut want).unwrap();
+            for n in [2u32, 4, 8, 16, 32] {
+                let mut got = vec![Hit::MISS; rays.len()];
+                ctx.trace_with(&TraceParams::cgt(n), &rays, &mut got).unwrap();
+                for (i, (g, w)) in got.iter().zip(&want).enumerate() {
+                    assert!(g.prim == w.prim && g.t.to_bits() == w.t.to_bits(), "{} {vname} n={n} ray {i}: {g:?} vs {w:?}", s.name);
+                }
+                let mut occ_d = vec![false; rays.len()];
+                let mut occ_c = vec![true; rays.len()];
+                ctx.occluded(Method::GridDda, &rays, &mut occ_d).unwrap();
+                ctx.occluded_with(&TraceParams::cgt(n), &rays, &mut occ_c).unwrap();
+                assert_eq!(occ_d, occ_c, "{} {vname} n={n}: occlusion differs", s.name);
+            }
+            // Whole frames: every packet size (and splitting on/off) gives
+            // the 3DDDA's image pixel for pixel (70 x 50: partial tiles too).
+            let frame = Frame {
+                camera: Camera { eye: view.eye.to_array(), look_at: view.look_at.to_array(), up: view.up.to_array(), fov_y_deg: view.fov_y_deg },
+                light: PointLight { position: s.light.to_array(), color: [1.0; 3] },
+                shading: Shading::default(),
+                width: 70,
+                height: 50,
+            };
+            let stride = 70 * 4;
+            let mut base = vec![0u8; stride * 50];
+            let dda = TraceParams::dda();
+            ctx.render_with(&dda, &dda, &frame, &mut base, stride).unwrap();
+            for n in [2u32, 4, 8, 16, 32] {
+                for split in [0.0f32, 1.5] {
+                    let p = TraceParams { split, ..TraceParams::cgt(n) };
+                    let mut img = vec![0u8; stride * 50];
+                    let c = ctx.render_with(&p, &p, &frame, &mut img, stride).unwrap();
+                    let diff = img.chunks(4).zip(base.chunks(4)).filter(|(a, b)| a != b).count();
+                    assert_eq!(diff, 0, "{} {vname} n={n} split={split}: {diff} pixels differ from the 3DDDA image", s.name);
+                    assert!(c.packets > 0);
+                }
+            }
+        }
     }
 }

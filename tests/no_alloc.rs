@@ -1,11 +1,12 @@
 //! No allocation after setup (DESIGN.md "Memory: fixed at setup"), proved
 //! with a counting global allocator over 10 frames of the animated scene:
-//! set geometry, rebuild the grid, trace, occlude and render every frame.
+//! set geometry, rebuild the grid, trace, occlude and render every frame,
+//! with the 3DDDA and with coherent grid traversal.
 //! Its own test binary, so no other test's allocations are counted.
 
 use sheaf::render::{Camera, Frame, PointLight, Shading};
 use sheaf::scenes::animated::Animated;
-use sheaf::{Context, GridParams, Hit, Limits, Method, OwnedContext, Ray, Scene, TriTest, required_bytes};
+use sheaf::{Context, GridParams, Hit, Limits, Method, OwnedContext, Ray, Scene, TraceParams, TriTest, required_bytes};
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicUsize, Ordering};
 
@@ -113,6 +114,13 @@ macro_rules! impl_frames {
                 self.trace(Method::GridDda, r, h).unwrap();
                 self.occluded(Method::GridDda, r, o).unwrap();
                 self.render(Method::GridDda, f, px, stride).unwrap();
+                // The packet method: CGT at two packet sizes, shadow splitting on.
+                for n in [4, 16] {
+                    let cgt = TraceParams::cgt(n);
+                    self.trace_with(&cgt, r, h).unwrap();
+                    self.occluded_with(&cgt, r, o).unwrap();
+                    self.render_with(&cgt, &cgt, f, px, stride).unwrap();
+                }
             }
         }
     )*};

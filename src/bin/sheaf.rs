@@ -58,7 +58,7 @@ impl<T, E: fmt::Display> OrFail<T> for Result<T, E> {
 }
 
 #[derive(Parser)]
-#[command(name = "sheaf", version, about = "Ray-trace triangle scenes with sheaf's per-frame uniform grid")]
+#[command(name = "sheaf", version, about = "Ray-trace triangle scenes with sheaf's per-frame uniform grid (3DDDA or coherent grid traversal)")]
 struct Cli {
     #[command(subcommand)]
     cmd: Cmd,
@@ -111,6 +111,77 @@ impl GridOpts {
     }
 }
 
+/// Traversal method (`Method`).
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub enum MethodArg {
+    /// Single-ray 3DDDA (the baseline).
+    GridDda,
+    /// Coherent grid traversal of n x n packets.
+    GridCgt,
+}
+
+impl MethodArg {
+    fn method(self) -> sheaf::Method {
+        match self {
+            MethodArg::GridDda => sheaf::Method::GridDda,
+            MethodArg::GridCgt => sheaf::Method::GridCgt,
+        }
+    }
+}
+
+/// How primary and shadow rays are traced (`TraceParams`).
+#[derive(Args, Clone, Copy, Debug)]
+pub struct TraceOpts {
+    /// Method for primary rays.
+    #[arg(long, value_enum, default_value = "grid-cgt")]
+    pub method: MethodArg,
+    /// Packet side n (n x n rays) for primary rays: 2, 4, 8, 16 or 32.
+    #[arg(long, default_value_t = 8)]
+    pub packet: u32,
+    /// Method for shadow rays (default: as --method).
+    #[arg(long, value_enum)]
+    pub shadow_method: Option<MethodArg>,
+    /// Packet side for shadow rays (default: as --packet).
+    #[arg(long)]
+    pub shadow_packet: Option<u32>,
+    /// Split shadow packets whose hit points' distances to the light differ by more than this
+    /// ratio (CGT section 4.7); 0 disables splitting.
+    #[arg(long, default_value_t = 2.0)]
+    pub split: f32,
+    /// Turn off macrocell skipping, mailboxing or frustum culling (for comparison runs).
+    #[arg(long)]
+    pub no_macrocells: bool,
+    #[arg(long)]
+    pub no_mailbox: bool,
+    #[arg(long)]
+    pub no_culling: bool,
+}
+
+impl TraceOpts {
+    /// (primary, shadow) parameters, checked.
+    pub fn params(&self) -> Result<(sheaf::TraceParams, sheaf::TraceParams), sheaf::Error> {
+        let cgt = sheaf::CgtOptions { macrocells: !self.no_macrocells, mailbox: !self.no_mailbox, culling: !self.no_culling };
+        let primary = sheaf::TraceParams { method: self.method.method(), packet: self.packet, cgt, split: self.split };
+        let shadow = sheaf::TraceParams {
+            method: self.shadow_method.unwrap_or(self.method).method(),
+            packet: self.shadow_packet.unwrap_or(self.packet),
+            ..primary
+        };
+        primary.validate()?;
+        shadow.validate()?;
+        Ok((primary, shadow))
+    }
+    /// `grid-cgt 8x8 / shadows grid-cgt 8x8`.
+    pub fn label(&self) -> String {
+        let name = |m: MethodArg, n: u32| match m {
+            MethodArg::GridDda => "grid-dda".to_string(),
+            MethodArg::GridCgt => format!("grid-cgt {n}x{n}"),
+        };
+        let sp = self.shadow_packet.unwrap_or(self.packet);
+        format!("{} / shadows {}", name(self.method, self.packet), name(self.shadow_method.unwrap_or(self.method), sp))
+    }
+}
+
 #[derive(Args)]
 pub struct DemoArgs {
     /// Number of frames.
@@ -134,6 +205,8 @@ pub struct DemoArgs {
     pub view: usize,
     #[command(flatten)]
     pub grid: GridOpts,
+    #[command(flatten)]
+    pub trace: TraceOpts,
 }
 
 #[derive(Args)]
@@ -173,6 +246,8 @@ pub struct RenderArgs {
     pub no_shadows: bool,
     #[command(flatten)]
     pub grid: GridOpts,
+    #[command(flatten)]
+    pub trace: TraceOpts,
 }
 
 #[derive(Args)]

@@ -480,6 +480,10 @@ pub extern "C" fn sheaf_context_trace(
                     }
                 }
             }
+            Method::GridCgt => cgt_packets(&tr, rays, count, false, &mut |i, h| {
+                // SAFETY: i < count (cgt_packets), hits checked as above.
+                unsafe { hits.add(i).write_unaligned(h.into()) }
+            }),
         }
         Ok(())
     })
@@ -520,6 +524,10 @@ pub extern "C" fn sheaf_context_occluded(
                     }
                 }
             }
+            Method::GridCgt => cgt_packets(&tr, rays, count, true, &mut |i, h| {
+                // SAFETY: i < count (cgt_packets), occluded checked as above.
+                unsafe { occluded.add(i).write(u8::from(h.is_hit())) }
+            }),
         }
         Ok(())
     })
@@ -711,5 +719,59 @@ mod tests {
         }
         assert!(m.len < SHEAF_ERROR_MESSAGE_MAX && m.len + 2 >= SHEAF_ERROR_MESSAGE_MAX - 1);
         assert!(core::str::from_utf8(&m.bytes[..m.len]).is_ok());
+    }
+}
+
+/// Consecutive rays as 8x8 CGT packets without a mailbox (trace and occluded
+/// share one context across threads, so there is no per-thread slot):
+/// `out(i, hit)` for every ray `i < count`.
+fn cgt_packets(
+    tr: &crate::context::GridTracer<'_>,
+    rays: *const sheaf_ray,
+    count: usize,
+    any: bool,
+    out: &mut dyn FnMut(usize, crate::geom::Hit),
+) {
+    use crate::geom::{Hit4, M4, Ray4};
+    use crate::render::Tracer;
+    const PER: usize = 64;
+    let p = crate::trace::TraceParams {
+        cgt: crate::trace::CgtOptions { mailbox: false, ..Default::default() },
+        ..crate::trace::TraceParams::cgt(8)
+    };
+    let (mut stamps, mut packet) = ([0u32; 0], 0u32);
+    let mut mb = crate::accel::grid::traverse_cgt::Mailbox::new(&mut stamps, &mut packet);
+    let mut ctr = Counters::default();
+    let mut start = 0;
+    while start < count {
+        let n = (count - start).min(PER);
+        let mut quads = [Ray4::from_rays(&[Ray::new(glam::Vec3::ZERO, glam::Vec3::X, 0.0, 0.0); 4]); PER / 4];
+        let mut active = [M4::FALSE; PER / 4];
+        let mut hits = [Hit4::MISS; PER / 4];
+        let nq = n.div_ceil(4);
+        for q in 0..nq {
+            let mut lanes = [Ray::new(glam::Vec3::ZERO, glam::Vec3::X, 0.0, 0.0); 4];
+            let mut m = [false; 4];
+            for i in 0..4 {
+                let k = q * 4 + i;
+                if k < n {
+                    // SAFETY: start + k < count; the caller checked `rays`
+                    // spans count readable elements (unaligned allowed).
+                    lanes[i] = Ray::from(unsafe { rays.add(start + k).read_unaligned() });
+                    m[i] = true;
+                }
+            }
+            quads[q] = Ray4::from_rays(&lanes);
+            active[q] = M4::new(m[0], m[1], m[2], m[3]);
+        }
+        if any {
+            tr.occluded_packet(&p, &quads[..nq], &active[..nq], &mut hits[..nq], &mut mb, &mut ctr);
+        } else {
+            tr.intersect_packet(&p, &quads[..nq], &active[..nq], &mut hits[..nq], &mut mb, &mut ctr);
+        }
+        for k in 0..n {
+            out(start + k, hits[k / 4].lane(k % 4));
+        }
+        start += n;
     }
 }

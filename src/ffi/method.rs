@@ -11,6 +11,11 @@ pub enum sheaf_method {
     /// Uniform grid, single-ray 3DDDA with macrocell skipping (the baseline;
     /// CGT paper section 2).
     GridDda = 0,
+    /// Uniform grid, coherent grid traversal of packets (CGT paper sections
+    /// 2.2-2.4). Trace and occluded calls form 8x8 packets from consecutive
+    /// rays (every 4 rays a 2x2 quad) and, having no thread slot, run without
+    /// mailboxing; render uses 8x8 tiles and the context's mailbox.
+    GridCgt = 1,
 }
 
 impl sheaf_method {
@@ -19,6 +24,7 @@ impl sheaf_method {
     pub const fn of(m: Method) -> sheaf_method {
         match m {
             Method::GridDda => sheaf_method::GridDda,
+            Method::GridCgt => sheaf_method::GridCgt,
         }
     }
 

@@ -4,12 +4,21 @@
 //! Each pixel traces one primary ray and, when its surface faces the light,
 //! one shadow ray. The tracing itself is delegated to a `Tracer`, so every
 //! structure and method renders through the same shading code.
+//!
+//! Single-ray methods render pixel by pixel (`render_rows`). Packet methods
+//! render n x n tiles (`render_tiles`): the tile's 2x2 quads in Morton order
+//! (so every quarter of a packet is a contiguous sub-packet), primary
+//! packets first, then shadow packets traced *from the light* towards the
+//! hit points (a common origin, CGT section 4.7), split into four while the
+//! hit points' distances from the light differ by more than `split`.
+//! Both paths shoot the same shadow rays, so they produce the same image.
 #![forbid(unsafe_code)]
 
 use crate::error::{Error, Result};
-use crate::geom::{Hit, Ray, TriVerts};
+use crate::accel::grid::traverse_cgt::Mailbox;
+use crate::geom::{F4, Hit, Hit4, M4, Ray, Ray4, TriVerts};
 use crate::math;
-use crate::trace::Counters;
+use crate::trace::{Counters, TraceParams};
 use glam::Vec3;
 
 /// Pinhole camera (C: `sheaf_camera`).
@@ -93,11 +102,17 @@ impl PrimaryRays {
     }
 }
 
-/// What a structure offers the renderer: nearest hits, occlusion, and the
-/// triangle a hit refers to (for its normal).
+/// What a structure offers the renderer: nearest hits and occlusion for
+/// single rays and for packets of 2x2 quads, and the triangle a hit refers
+/// to (for its normal).
 pub trait Tracer: Sync {
     fn intersect(&self, ray: &Ray, ctr: &mut Counters) -> Hit;
     fn occluded(&self, ray: &Ray, ctr: &mut Counters) -> bool;
+    /// Nearest hits of the active lanes of a packet (`p.method` decides how;
+    /// single-ray methods trace lane by lane). `mb` is the calling thread's.
+    fn intersect_packet(&self, p: &TraceParams, rays: &[Ray4], active: &[M4], hits: &mut [Hit4], mb: &mut Mailbox<'_>, ctr: &mut Counters);
+    /// Occlusion of the active lanes: a hit (`prim != INVALID_ID`) marks an occluded lane.
+    fn occluded_packet(&self, p: &TraceParams, rays: &[Ray4], active: &[M4], hits: &mut [Hit4], mb: &mut Mailbox<'_>, ctr: &mut Counters);
     fn triangle(&self, prim: u32) -> Option<TriVerts>;
     /// Scale of the scene, for the shadow-ray origin offset.
     fn scene_scale(&self) -> f32;
@@ -113,13 +128,47 @@ pub struct Frame {
     pub height: u32,
 }
 
-/// Shadow-ray origin offset along the normal, relative to the scene scale:
-/// large enough to leave the surface's own rounding error, small enough not
-/// to skip contact shadows.
+/// Shadow-ray end point offset along the normal, relative to the scene
+/// scale: large enough to leave the surface's own rounding error, small
+/// enough not to skip contact shadows.
 const SHADOW_OFFSET: f32 = 1e-4;
 
+/// The facing normal of a hit and, when the surface faces the light, the
+/// shadow ray from the light to a point just off the surface (t = 1 there;
+/// `tmax = 1` is exclusive, so the surface itself is never reported).
+#[inline]
+fn surface(frame: &Frame, ray: &Ray, hit: &Hit, tri: &TriVerts, eps: f32) -> (Vec3, f32, Option<Ray>) {
+    let d = Vec3::from(ray.dir);
+    let mut n = tri.normal().normalize_or_zero();
+    if n.dot(d) > 0.0 {
+        n = -n; // two-sided: face the viewer
+    }
+    let p = Vec3::from(ray.org) + d * hit.t;
+    let light = Vec3::from(frame.light.position);
+    let cos = n.dot((light - p).normalize_or_zero());
+    if cos > 0.0 && frame.shading.shadows {
+        let end = p + n * eps;
+        (n, cos, Some(Ray::new(light, end - light, 0.0, 1.0)))
+    } else {
+        (n, cos.max(0.0), None)
+    }
+}
+
+#[inline]
+fn shade(frame: &Frame, hit: bool, lit: f32) -> [u8; 4] {
+    let sh = &frame.shading;
+    let c = if hit {
+        Vec3::from(sh.albedo) * (Vec3::splat(sh.ambient) + Vec3::from(frame.light.color) * lit)
+    } else {
+        Vec3::from(sh.background)
+    };
+    [encode(c.x), encode(c.y), encode(c.z), 255]
+}
+
 /// Render rows `y0..y1` of `frame` into `pixels`, whose row `y` starts at
-/// byte `(y - y0) * stride`. RGBA8, sRGB-encoded (gamma 2.2), alpha 255.
+/// byte `(y - y0) * stride`, one ray at a time. RGBA8, sRGB-encoded (gamma
+/// 2.2), alpha 255.
+#[allow(clippy::too_many_arguments)]
 pub fn render_rows<T: Tracer + ?Sized>(
     tracer: &T,
     frame: &Frame,
@@ -130,46 +179,191 @@ pub fn render_rows<T: Tracer + ?Sized>(
     stride: usize,
     ctr: &mut Counters,
 ) {
-    let light = Vec3::from(frame.light.position);
-    let lcol = Vec3::from(frame.light.color);
-    let sh = &frame.shading;
-    let albedo = Vec3::from(sh.albedo);
     let eps = SHADOW_OFFSET * tracer.scene_scale();
     for y in y0..y1 {
         let row = &mut pixels[(y - y0) as usize * stride..];
         for x in 0..frame.width {
             let ray = rays.ray(x, y);
             let hit = tracer.intersect(&ray, ctr);
-            let mut c = Vec3::from(sh.background);
-            if let Some(tri) = hit.is_hit().then(|| tracer.triangle(hit.prim)).flatten() {
-                let d = Vec3::from(ray.dir);
-                let mut n = tri.normal().normalize_or_zero();
-                if n.dot(d) > 0.0 {
-                    n = -n; // two-sided: face the viewer
+            let tri = if hit.is_hit() { tracer.triangle(hit.prim) } else { None };
+            let px = match tri {
+                Some(tri) => {
+                    let (_, cos, sray) = surface(frame, &ray, &hit, &tri, eps);
+                    let lit = match sray {
+                        Some(s) if tracer.occluded(&s, ctr) => 0.0,
+                        _ => cos,
+                    };
+                    shade(frame, true, lit)
                 }
-                let p = Vec3::from(ray.org) + d * hit.t;
-                let to_l = light - p;
-                let cos = n.dot(to_l.normalize_or_zero());
-                let mut lit = 0.0;
-                if cos > 0.0 {
-                    lit = cos;
-                    if sh.shadows {
-                        let o = p + n * eps;
-                        let sray = Ray::new(o, light - o, 0.0, 1.0);
-                        if tracer.occluded(&sray, ctr) {
-                            lit = 0.0;
+                None => shade(frame, false, 0.0),
+            };
+            row[x as usize * 4..x as usize * 4 + 4].copy_from_slice(&px);
+        }
+    }
+}
+
+/// Quad (x, y) of Morton index `i` (bits interleaved, x in the even bits).
+#[inline]
+fn demorton(i: usize) -> (u32, u32) {
+    let (mut x, mut y) = (0u32, 0u32);
+    for b in 0..5 {
+        x |= (((i >> (2 * b)) & 1) as u32) << b;
+        y |= (((i >> (2 * b + 1)) & 1) as u32) << b;
+    }
+    (x, y)
+}
+
+/// Render rows `y0..y1` (`y0` a multiple of the packet side) in n x n tiles
+/// with packet methods: `primary.method` for camera rays, `shadow.method`
+/// for shadow rays. Same output as `render_rows` with the same structure.
+#[allow(clippy::too_many_arguments)]
+pub fn render_tiles<T: Tracer + ?Sized>(
+    tracer: &T,
+    primary: &TraceParams,
+    shadow: &TraceParams,
+    frame: &Frame,
+    rays: &PrimaryRays,
+    y0: u32,
+    y1: u32,
+    pixels: &mut [u8],
+    stride: usize,
+    mb: &mut Mailbox<'_>,
+    ctr: &mut Counters,
+) {
+    match primary.packet {
+        2 => tiles::<T, 1>(tracer, primary, shadow, frame, rays, y0, y1, pixels, stride, mb, ctr),
+        4 => tiles::<T, 4>(tracer, primary, shadow, frame, rays, y0, y1, pixels, stride, mb, ctr),
+        8 => tiles::<T, 16>(tracer, primary, shadow, frame, rays, y0, y1, pixels, stride, mb, ctr),
+        16 => tiles::<T, 64>(tracer, primary, shadow, frame, rays, y0, y1, pixels, stride, mb, ctr),
+        _ => tiles::<T, 256>(tracer, primary, shadow, frame, rays, y0, y1, pixels, stride, mb, ctr),
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
+fn tiles<T: Tracer + ?Sized, const Q: usize>(
+    tracer: &T,
+    primary: &TraceParams,
+    shadow: &TraceParams,
+    frame: &Frame,
+    rays: &PrimaryRays,
+    y0: u32,
+    y1: u32,
+    pixels: &mut [u8],
+    stride: usize,
+    mb: &mut Mailbox<'_>,
+    ctr: &mut Counters,
+) {
+    let n = 2 * (Q as f32).sqrt() as u32;
+    let eps = SHADOW_OFFSET * tracer.scene_scale();
+    let light = Vec3::from(frame.light.position);
+    let lane_xy = [(0u32, 0u32), (1, 0), (0, 1), (1, 1)];
+    let mut quads = [Ray4::from_rays(&[Ray::new(Vec3::ZERO, Vec3::X, 0.0, 0.0); 4]); Q];
+    let mut active = [M4::FALSE; Q];
+    let mut hits = [Hit4::MISS; Q];
+    let mut squads = quads;
+    let mut sactive = [M4::FALSE; Q];
+    let mut shits = [Hit4::MISS; Q];
+    let mut sdist = [F4::ZERO; Q];
+    let mut cosines = [F4::ZERO; Q];
+    let mut ty = y0;
+    while ty < y1 {
+        let mut tx = 0;
+        while tx < frame.width {
+            // Primary packet.
+            for q in 0..Q {
+                let (qx, qy) = demorton(q);
+                let mut lanes = [Ray::new(Vec3::ZERO, Vec3::X, 0.0, 0.0); 4];
+                let mut m = [false; 4];
+                for (i, (dx, dy)) in lane_xy.iter().enumerate() {
+                    let (x, y) = (tx + 2 * qx + dx, ty + 2 * qy + dy);
+                    if x < frame.width && y < y1 {
+                        lanes[i] = rays.ray(x, y);
+                        m[i] = true;
+                    }
+                }
+                quads[q] = Ray4::from_rays(&lanes);
+                active[q] = M4::new(m[0], m[1], m[2], m[3]);
+                hits[q] = Hit4::MISS;
+            }
+            tracer.intersect_packet(primary, &quads, &active, &mut hits, mb, ctr);
+            // Shadow packet from the light towards the lit hit points.
+            for q in 0..Q {
+                let mut lanes = [Ray::new(light, Vec3::X, 0.0, 0.0); 4];
+                let mut m = [false; 4];
+                for i in 0..4 {
+                    cosines[q][i] = 0.0;
+                    let h = hits[q].lane(i);
+                    if !(active[q].test(i) && h.is_hit()) {
+                        continue;
+                    }
+                    if let Some(tri) = tracer.triangle(h.prim) {
+                        let (_, cos, sray) = surface(frame, &quads[q].lane(i), &h, &tri, eps);
+                        cosines[q][i] = cos;
+                        if let Some(s) = sray {
+                            sdist[q][i] = Vec3::from(s.dir).length();
+                            lanes[i] = s;
+                            m[i] = true;
                         }
                     }
                 }
-                c = albedo * (Vec3::splat(sh.ambient) + lcol * lit);
+                squads[q] = Ray4::from_rays(&lanes);
+                sactive[q] = M4::new(m[0], m[1], m[2], m[3]);
+                shits[q] = Hit4::MISS;
             }
-            let px = &mut row[x as usize * 4..x as usize * 4 + 4];
-            px[0] = encode(c.x);
-            px[1] = encode(c.y);
-            px[2] = encode(c.z);
-            px[3] = 255;
+            shadow_packet(tracer, shadow, &squads, &sactive, &sdist, &mut shits, mb, ctr);
+            // Shade and store.
+            for q in 0..Q {
+                let (qx, qy) = demorton(q);
+                for (i, (dx, dy)) in lane_xy.iter().enumerate() {
+                    if !active[q].test(i) {
+                        continue;
+                    }
+                    let (x, y) = (tx + 2 * qx + dx, ty + 2 * qy + dy);
+                    let hit = hits[q].prim[i] != crate::geom::INVALID_ID;
+                    let lit = if shits[q].prim[i] != crate::geom::INVALID_ID { 0.0 } else { cosines[q][i] };
+                    let at = (y - y0) as usize * stride + x as usize * 4;
+                    pixels[at..at + 4].copy_from_slice(&shade(frame, hit, lit));
+                }
+            }
+            tx += n;
+        }
+        ty += n;
+    }
+}
+
+/// Trace a shadow packet, splitting it into its four Morton quarters while
+/// its hit points' distances from the light spread by more than `p.split`.
+#[allow(clippy::too_many_arguments)]
+fn shadow_packet<T: Tracer + ?Sized>(
+    tracer: &T,
+    p: &TraceParams,
+    rays: &[Ray4],
+    active: &[M4],
+    dist: &[F4],
+    hits: &mut [Hit4],
+    mb: &mut Mailbox<'_>,
+    ctr: &mut Counters,
+) {
+    if !active.iter().any(|m| m.any()) {
+        return;
+    }
+    if p.split > 0.0 && rays.len() >= 4 {
+        let (mut lo, mut hi) = (f32::INFINITY, 0.0f32);
+        for (m, d) in active.iter().zip(dist) {
+            lo = lo.min(F4::select(*m, *d, F4::INFINITY).min_element());
+            hi = hi.max(F4::select(*m, *d, F4::ZERO).max_element());
+        }
+        if hi > p.split * lo {
+            ctr.packets_split += 1;
+            let k = rays.len() / 4;
+            for s in 0..4 {
+                let r = s * k..(s + 1) * k;
+                shadow_packet(tracer, p, &rays[r.clone()], &active[r.clone()], &dist[r.clone()], &mut hits[r], mb, ctr);
+            }
+            return;
         }
     }
+    tracer.occluded_packet(p, rays, active, hits, mb, ctr);
 }
 
 #[inline]

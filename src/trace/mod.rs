@@ -28,6 +28,8 @@ pub struct Counters {
     pub culled: u64,
     /// Packets that could not use frustum culling (no common origin).
     pub packets_no_cull: u64,
+    /// Shadow packets split because their hit points spread too far in depth.
+    pub packets_split: u64,
 }
 
 impl Counters {
@@ -41,6 +43,7 @@ impl Counters {
         self.mailbox_skips += o.mailbox_skips;
         self.culled += o.culled;
         self.packets_no_cull += o.packets_no_cull;
+        self.packets_split += o.packets_split;
     }
 }
 
@@ -52,16 +55,66 @@ pub enum Method {
     /// Uniform grid, single-ray 3DDDA with macrocell skipping (the baseline).
     #[default]
     GridDda = 0,
+    /// Uniform grid, coherent grid traversal of n x n packets (CGT).
+    GridCgt = 1,
 }
 
 impl Method {
-    pub const ALL: &'static [Method] = &[Method::GridDda];
+    pub const ALL: &'static [Method] = &[Method::GridDda, Method::GridCgt];
     pub fn name(self) -> &'static str {
         match self {
             Method::GridDda => "grid-dda",
+            Method::GridCgt => "grid-cgt",
         }
+    }
+    /// Whether the method traces packets (and so uses `TraceParams::packet`).
+    pub fn is_packet(self) -> bool {
+        matches!(self, Method::GridCgt)
     }
     pub fn from_name(s: &str) -> Option<Method> {
         Method::ALL.iter().copied().find(|m| m.name() == s)
+    }
+}
+
+pub use crate::accel::grid::traverse_cgt::CgtOptions;
+
+/// How one class of rays is traced (C: `sheaf_trace_params`).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TraceParams {
+    pub method: Method,
+    /// Packet side n (n x n rays) for packet methods: 2, 4, 8, 16 or 32.
+    pub packet: u32,
+    /// CGT switches (macrocells, mailbox, frustum culling).
+    pub cgt: CgtOptions,
+    /// Shadow packets whose farthest hit point is more than `split` times as
+    /// far from the light as the nearest are split into four (CGT section
+    /// 4.7); 0 disables splitting.
+    pub split: f32,
+}
+
+impl Default for TraceParams {
+    fn default() -> Self {
+        TraceParams { method: Method::GridCgt, packet: 8, cgt: CgtOptions::default(), split: 2.0 }
+    }
+}
+
+impl TraceParams {
+    /// The single-ray baseline.
+    pub fn dda() -> Self {
+        TraceParams { method: Method::GridDda, ..TraceParams::default() }
+    }
+    pub fn cgt(packet: u32) -> Self {
+        TraceParams { method: Method::GridCgt, packet, ..TraceParams::default() }
+    }
+    /// Checks the packet side and the split ratio.
+    pub fn validate(&self) -> crate::Result<()> {
+        if self.method.is_packet() && !matches!(self.packet, 2 | 4 | 8 | 16 | 32) {
+            return Err(crate::Error::InvalidArgument("packet side must be 2, 4, 8, 16 or 32"));
+        }
+        if !(self.split == 0.0 || (self.split.is_finite() && self.split >= 1.0)) {
+            return Err(crate::Error::InvalidArgument("split must be 0 or a finite ratio >= 1"));
+        }
+        Ok(())
     }
 }

@@ -65,6 +65,7 @@ pub fn demo(a: &DemoArgs) -> Result<(), Failure> {
         .get(a.view)
         .ok_or_else(|| Failure(format!("--view {}: the demo has views 0..={}", a.view, views.len() - 1)))?;
     let params = a.grid.params();
+    let (primary, shadow) = a.trace.params()?;
 
     // The one context: sized on frame 0, grid pools with 25 % headroom if the
     // default rule is too small, so later frames fit too.
@@ -83,8 +84,9 @@ pub fn demo(a: &DemoArgs) -> Result<(), Failure> {
     };
     let mut pixels = vec![0u8; w as usize * h as usize * 4];
     println!(
-        "sheaf demo: animated scene, {} triangles, {w}x{h}, {threads} threads, dt {dt} s, context {:.2} MiB, frames in {}",
+        "sheaf demo: animated scene, {} triangles, {w}x{h}, {}, {threads} threads, dt {dt} s, context {:.2} MiB, frames in {}",
         anim.mesh.triangle_count(),
+        a.trace.label(),
         mib(bytes),
         a.out_dir.display()
     );
@@ -98,7 +100,7 @@ pub fn demo(a: &DemoArgs) -> Result<(), Failure> {
         let scene = Scene::from_f32(&anim.mesh.vertices, &anim.mesh.indices)?;
         let info = ctx.build_grid(&scene, &params).or_fail(|| format!("frame {f}: building the grid"))?;
         let b = ctx.stats().build_ns;
-        let ctr = run::render_frame(&mut ctx, &frame, &mut pixels, threads)?;
+        let ctr = run::render_frame(&mut ctx, &primary, &shadow, &frame, &mut pixels, threads)?;
         let t = ctx.stats().trace_ns;
         run::write_png(&a.out_dir.join(format!("frame_{f:03}.png")), &pixels, w, h)?;
         println!(
@@ -146,6 +148,7 @@ pub fn render(a: &RenderArgs) -> Result<(), Failure> {
         return Err(Failure(format!("{}: no triangles", loaded.label)));
     }
     let params = a.grid.params();
+    let (primary, shadow) = a.trace.params()?;
     let (mut ctx, info) = run::context_for(&scene, run::limits(&scene, a.size, threads), &params, 1.0)?;
     if info.triangles == 0 {
         return Err(Failure(format!("{}: every triangle is degenerate or non-finite", loaded.label)));
@@ -215,7 +218,7 @@ pub fn render(a: &RenderArgs) -> Result<(), Failure> {
         height: h,
     };
     let mut pixels = vec![0u8; w as usize * h as usize * 4];
-    let ctr = run::render_frame(&mut ctx, &frame, &mut pixels, threads)?;
+    let ctr = run::render_frame(&mut ctx, &primary, &shadow, &frame, &mut pixels, threads)?;
     let st = *ctx.stats();
     run::write_png(&a.out, &pixels, w, h)?;
 
@@ -226,6 +229,7 @@ pub fn render(a: &RenderArgs) -> Result<(), Failure> {
     println!("grid       {}", grid_line(&info, &a.grid));
     println!("memory     {bytes} bytes ({:.2} MiB) in one context", mib(bytes));
     println!("build      {:.2} ms", ms(st.build_ns));
+    println!("method     {}", a.trace.label());
     println!(
         "trace      {:.2} ms on {threads} threads, {:.2} Mrays/s: {primary} primary + {} shadow = {} rays",
         ms(st.trace_ns),

@@ -2,8 +2,9 @@
 //! threads, PNG output.
 
 use crate::{Failure, OrFail};
-use sheaf::render::{PrimaryRays, Tracer, render_rows};
-use sheaf::{Counters, Error, Frame, GridInfo, GridParams, Limits, OwnedContext, Pool, Scene};
+use sheaf::accel::grid::traverse_cgt::Mailbox;
+use sheaf::render::{PrimaryRays, Tracer, render_rows, render_tiles};
+use sheaf::{Counters, Error, Frame, GridInfo, GridParams, Limits, OwnedContext, Pool, Scene, TraceParams};
 use std::path::Path;
 use std::sync::Mutex;
 use std::time::Instant;
@@ -68,10 +69,12 @@ pub fn context_for(
 }
 
 /// Render `frame` into `pixels` (RGBA8, stride `4 * width`) on `threads`
-/// threads through the context's tracer, and record the counters and the
-/// wall time in the context's stats.
+/// threads, each with its own mailbox slot of the context, and record the
+/// counters and the wall time in the context's stats.
 pub fn render_frame(
     ctx: &mut OwnedContext,
+    primary: &TraceParams,
+    shadow: &TraceParams,
     frame: &Frame,
     pixels: &mut [u8],
     threads: u32,
@@ -79,39 +82,52 @@ pub fn render_frame(
     let stride = frame.width as usize * 4;
     let rays = ctx.check_frame(frame, pixels.len(), stride).or_fail(|| "frame".into())?;
     let start = Instant::now();
-    let ctr = render_bands(&ctx.tracer()?, frame, &rays, pixels, stride, threads);
+    let (tracer, mailboxes) = ctx.parts()?;
+    let mailboxes: Vec<Mailbox<'_>> = mailboxes.take(threads as usize).collect();
+    let ctr = render_bands(&tracer, primary, shadow, frame, &rays, pixels, stride, mailboxes);
     ctx.record(ctr, start.elapsed().as_nanos() as u64);
     Ok(ctr)
 }
 
-/// Bands of `BAND_ROWS` rows, taken in order by whichever thread is free.
+/// Bands of rows (a multiple of the packet side), taken in order by whichever
+/// thread is free; one thread per mailbox.
+#[allow(clippy::too_many_arguments)]
 fn render_bands<T: Tracer>(
     tracer: &T,
+    primary: &TraceParams,
+    shadow: &TraceParams,
     frame: &Frame,
     rays: &PrimaryRays,
     pixels: &mut [u8],
     stride: usize,
-    threads: u32,
+    mailboxes: Vec<Mailbox<'_>>,
 ) -> Counters {
+    let packets = primary.method.is_packet() || shadow.method.is_packet();
+    let side = if primary.method.is_packet() { primary.packet } else { shadow.packet } as usize;
+    let tile = TraceParams { packet: side as u32, ..*primary };
+    let band_rows = if packets { side * BAND_ROWS.div_ceil(side) } else { BAND_ROWS };
     let pixels = &mut pixels[..frame.height as usize * stride];
-    let bands = Mutex::new(pixels.chunks_mut(BAND_ROWS * stride).enumerate());
-    let work = || {
+    let bands = Mutex::new(pixels.chunks_mut(band_rows * stride).enumerate());
+    let work = |mut mb: Mailbox<'_>| {
         let mut ctr = Counters::default();
         loop {
             let next = bands.lock().unwrap_or_else(|p| p.into_inner()).next();
             let Some((i, band)) = next else { break };
-            let y0 = (i * BAND_ROWS) as u32;
-            let y1 = (y0 + BAND_ROWS as u32).min(frame.height);
-            render_rows(tracer, frame, rays, y0, y1, band, stride, &mut ctr);
+            let y0 = (i * band_rows) as u32;
+            let y1 = (y0 + band_rows as u32).min(frame.height);
+            if packets {
+                render_tiles(tracer, &tile, shadow, frame, rays, y0, y1, band, stride, &mut mb, &mut ctr);
+            } else {
+                render_rows(tracer, frame, rays, y0, y1, band, stride, &mut ctr);
+            }
         }
         ctr
     };
-    if threads <= 1 {
-        return work();
-    }
+    let mut mbs = mailboxes.into_iter();
+    let first = mbs.next().expect("at least one thread slot");
     std::thread::scope(|s| {
-        let helpers: Vec<_> = (1..threads).map(|_| s.spawn(work)).collect();
-        let mut total = work();
+        let helpers: Vec<_> = mbs.map(|mb| s.spawn(|| work(mb))).collect();
+        let mut total = work(first);
         for h in helpers {
             match h.join() {
                 Ok(c) => total.add(&c),
