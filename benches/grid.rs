@@ -6,6 +6,8 @@
 //!   criterion reports triangles/s.
 //! - `grid_trace_dda`: primary rays of the scene's fixed view at 256 x 256
 //!   through `Context::trace` on one thread, `Throughput::Elements` = rays.
+//! - `grid_trace_cgt`: the same rays as 4x4, 8x8 and 16x16 packets through
+//!   coherent grid traversal (`Context::trace_with`), one thread.
 //!
 //! Scenes: the built-in `animated` (frame 0) and `balls` (SPD sphereflake),
 //! and the OBJ files bunny (bunny_tinybvh), crytek_sponza and conference
@@ -20,7 +22,7 @@
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
 use glam::Vec3;
 use sheaf::scenes::{self, View};
-use sheaf::{GridParams, Hit, Limits, Method, OwnedContext, Ray, Scene, required_bytes};
+use sheaf::{TraceParams, GridParams, Hit, Limits, Method, OwnedContext, Ray, Scene, required_bytes};
 use std::hint::black_box;
 use std::time::Duration;
 
@@ -102,6 +104,24 @@ fn primary_rays(view: &View) -> Vec<Ray> {
     common::view_rays(view, SIDE, SIDE)
 }
 
+/// Row-major rays reordered for `Context::trace_with`'s packet layout:
+/// consecutive n x n tiles, each as 2x2 quads in row-major quad order.
+fn packet_order(rays: &[Ray], side: usize, n: usize) -> Vec<Ray> {
+    let mut out = Vec::with_capacity(rays.len());
+    for ty in (0..side).step_by(n) {
+        for tx in (0..side).step_by(n) {
+            for qy in (ty..ty + n).step_by(2) {
+                for qx in (tx..tx + n).step_by(2) {
+                    for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                        out.push(rays[(qy + dy) * side + qx + dx]);
+                    }
+                }
+            }
+        }
+    }
+    out
+}
+
 fn grid(c: &mut Criterion) {
     let scenes = bench_scenes();
     let params = GridParams::default();
@@ -148,6 +168,31 @@ fn grid(c: &mut Criterion) {
         g.bench_function(BenchmarkId::from_parameter(s.name), |b| {
             b.iter(|| ctx.trace(Method::GridDda, black_box(rays), hits).expect("trace"))
         });
+    }
+    g.finish();
+
+    // Coherent grid traversal of the same rays, one thread, n x n packets:
+    // the ratio to grid_trace_dda is the packet speed-up (CGT paper 4.5).
+    let mut g = c.benchmark_group("grid_trace_cgt");
+    for (s, (ctx, rays, hits)) in scenes.iter().zip(ctxs.iter_mut()) {
+        for n in [4u32, 8, 16] {
+            let ordered = packet_order(rays, SIDE as usize, n as usize);
+            let p = TraceParams::cgt(n);
+            let ctr = ctx.trace_with(&p, &ordered, hits).expect("trace");
+            eprintln!(
+                "{:<10} cgt {n:>2}x{n:<2} per ray {:.2} cells {:.2} triangle tests {:.2} mailbox skips {:.2} culled, {} stray lanes",
+                s.name,
+                ctr.cells as f64 / ordered.len() as f64,
+                ctr.tri_tests as f64 / ordered.len() as f64,
+                ctr.mailbox_skips as f64 / ordered.len() as f64,
+                ctr.culled as f64 / ordered.len() as f64,
+                ctr.stray_lanes
+            );
+            g.throughput(Throughput::Elements(ordered.len() as u64));
+            g.bench_function(BenchmarkId::new(s.name, format!("{n}x{n}")), |b| {
+                b.iter(|| ctx.trace_with(&p, black_box(&ordered), hits).expect("trace"))
+            });
+        }
     }
     g.finish();
 }
