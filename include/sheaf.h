@@ -145,6 +145,11 @@ enum sheaf_tri_test
      * Woop-Benthin-Wald 2013 watertight test.
      */
     SHEAF_TRI_TEST_WATERTIGHT = 1,
+    /**
+     * Wald 2004 precomputed projection test (needs `projection_test` in
+     * `sheaf_limits`).
+     */
+    SHEAF_TRI_TEST_PROJECTION = 2,
 };
 #ifndef __cplusplus
 #if __STDC_VERSION__ >= 202311L
@@ -237,6 +242,11 @@ typedef struct sheaf_limits {
      * Most triangle references in grid cells. 0: `16 * max_triangles + 1024`.
      */
     uint32_t max_grid_refs;
+    /**
+     * Reserve 48 bytes per triangle for the precomputed projection test
+     * (`TriTest::Projection`); without it that test cannot be selected.
+     */
+    bool projection_test;
 } sheaf_limits;
 
 /**

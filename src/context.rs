@@ -5,7 +5,7 @@
 use crate::accel::grid::traverse_cgt::{self, Mailbox};
 use crate::accel::grid::{self, Grid, GridInfo, GridParams, GridPools, GridView};
 use crate::error::{Error, Pool, Result};
-use crate::geom::{Hit, Hit4, M4, Mt, Ray, Ray4, Scene, TriTest, TriVerts, TriangleTest, Wt};
+use crate::geom::{Hit, Hit4, M4, Mt, Pt, Ray, Ray4, Scene, TriTest, TriVerts, TriangleTest, Wt};
 use crate::mem::{Arena, Limits, pool_bytes};
 use crate::render::{self, Frame, PrimaryRays, Tracer};
 use crate::trace::{Counters, Method, TraceParams};
@@ -13,6 +13,7 @@ use crate::trace::{Counters, Method, TraceParams};
 /// Pool sizes derived from `Limits`, in the order they are carved.
 struct Layout {
     tris: usize,
+    proj: usize,
     cells: usize,
     refs: usize,
     macro_words: usize,
@@ -25,6 +26,7 @@ impl Layout {
         let cells = l.grid_cells() as usize;
         Ok(Layout {
             tris: l.max_triangles as usize,
+            proj: if l.projection_test { l.max_triangles as usize } else { 0 },
             cells,
             refs: l.grid_refs() as usize,
             macro_words: cells.div_ceil(32) + 1,
@@ -33,6 +35,7 @@ impl Layout {
     }
     fn bytes(&self) -> usize {
         pool_bytes::<TriVerts>(self.tris)
+            + pool_bytes::<crate::geom::ProjTri>(self.proj)
             + pool_bytes::<u32>(self.tris)
             + pool_bytes::<u32>(self.cells + 1)
             + pool_bytes::<u32>(self.refs)
@@ -103,6 +106,7 @@ impl<'a> Context<'a> {
         let mut arena = Arena::new(buf)?;
         let pools = GridPools {
             tris: arena.take(layout.tris)?,
+            proj: arena.take(layout.proj)?,
             tri_ids: arena.take(layout.tris)?,
             cell_start: arena.take(layout.cells + 1)?,
             refs: arena.take(layout.refs)?,
@@ -313,6 +317,7 @@ impl Tracer for GridTracer<'_> {
         match self.view.info.test {
             TriTest::MollerTrumbore => grid::traverse_single::intersect::<Mt>(&self.view, ray, ctr),
             TriTest::Watertight => grid::traverse_single::intersect::<Wt>(&self.view, ray, ctr),
+            TriTest::Projection => grid::traverse_single::intersect::<Pt>(&self.view, ray, ctr),
         }
     }
     #[inline]
@@ -320,12 +325,14 @@ impl Tracer for GridTracer<'_> {
         match self.view.info.test {
             TriTest::MollerTrumbore => grid::traverse_single::occluded::<Mt>(&self.view, ray, ctr),
             TriTest::Watertight => grid::traverse_single::occluded::<Wt>(&self.view, ray, ctr),
+            TriTest::Projection => grid::traverse_single::occluded::<Pt>(&self.view, ray, ctr),
         }
     }
     fn intersect_packet(&self, p: &TraceParams, rays: &[Ray4], active: &[M4], hits: &mut [Hit4], mb: &mut Mailbox<'_>, ctr: &mut Counters) {
         match (p.method, self.view.info.test) {
             (Method::GridCgt, TriTest::MollerTrumbore) => traverse_cgt::intersect::<Mt>(&self.view, rays, active, hits, &p.cgt, mb, ctr),
             (Method::GridCgt, TriTest::Watertight) => traverse_cgt::intersect::<Wt>(&self.view, rays, active, hits, &p.cgt, mb, ctr),
+            (Method::GridCgt, TriTest::Projection) => traverse_cgt::intersect::<Pt>(&self.view, rays, active, hits, &p.cgt, mb, ctr),
             (Method::GridDda, _) => self.lane_by_lane(rays, active, hits, |r, c| self.intersect(r, c), ctr),
         }
     }
@@ -333,11 +340,15 @@ impl Tracer for GridTracer<'_> {
         match (p.method, self.view.info.test) {
             (Method::GridCgt, TriTest::MollerTrumbore) => traverse_cgt::occluded::<Mt>(&self.view, rays, active, hits, &p.cgt, mb, ctr),
             (Method::GridCgt, TriTest::Watertight) => traverse_cgt::occluded::<Wt>(&self.view, rays, active, hits, &p.cgt, mb, ctr),
+            (Method::GridCgt, TriTest::Projection) => traverse_cgt::occluded::<Pt>(&self.view, rays, active, hits, &p.cgt, mb, ctr),
             (Method::GridDda, TriTest::MollerTrumbore) => {
                 self.lane_by_lane(rays, active, hits, |r, c| grid::traverse_single::any_hit::<Mt>(&self.view, r, c), ctr)
             }
             (Method::GridDda, TriTest::Watertight) => {
                 self.lane_by_lane(rays, active, hits, |r, c| grid::traverse_single::any_hit::<Wt>(&self.view, r, c), ctr)
+            }
+            (Method::GridDda, TriTest::Projection) => {
+                self.lane_by_lane(rays, active, hits, |r, c| grid::traverse_single::any_hit::<Pt>(&self.view, r, c), ctr)
             }
         }
     }

@@ -8,8 +8,8 @@ mod common;
 use common::{TestScene, builtin_scenes, obj_scenes, view_rays};
 use glam::Vec3;
 use sheaf::accel::grid::traverse_cgt::{self, CgtOptions, Mailbox};
-use sheaf::accel::grid::{GridView, traverse_single};
-use sheaf::geom::{F4, Hit4, M4, Mt, Ray4, TriangleTest, Wt};
+use sheaf::accel::grid::{GridTest, GridView, traverse_single};
+use sheaf::geom::{F4, Hit4, M4, Mt, Pt, Ray4, Wt};
 use sheaf::{Counters, GridParams, Hit, Limits, OwnedContext, Ray, TriTest};
 
 /// Group row-major rays of a `w x h` image into n x n packets of 2x2 quads.
@@ -32,7 +32,7 @@ fn packets(rays: &[Ray], w: usize, h: usize, n: usize) -> Vec<(Vec<Ray4>, Vec<us
     out
 }
 
-fn single<T: TriangleTest>(g: &GridView, rays: &[Ray], any: bool) -> Vec<Hit> {
+fn single<T: GridTest>(g: &GridView, rays: &[Ray], any: bool) -> Vec<Hit> {
     let mut c = Counters::default();
     rays.iter()
         .map(|r| if any { traverse_single::any_hit::<T>(g, r, &mut c) } else { traverse_single::intersect::<T>(g, r, &mut c) })
@@ -46,7 +46,7 @@ struct Run<'a> {
 }
 
 impl Run<'_> {
-    fn check<T: TriangleTest>(&mut self, what: &str, rays: &[Ray], w: usize, h: usize, any: bool) -> Counters {
+    fn check<T: GridTest>(&mut self, what: &str, rays: &[Ray], w: usize, h: usize, any: bool) -> Counters {
         let want = single::<T>(&self.g, rays, any);
         let mut total = Counters::default();
         for n in [2usize, 4, 8, 16, 32] {
@@ -91,13 +91,14 @@ impl Run<'_> {
 fn scene_ctx(s: &TestScene, test: TriTest) -> OwnedContext {
     let mut l = Limits::for_triangles(s.triangles());
     l.max_vertices = (s.vertices.len() / 3) as u32;
+    l.projection_test = true;
     let mut ctx = OwnedContext::new(&l).unwrap();
     ctx.build_grid(&s.scene(), &GridParams { test, ..GridParams::default() }).unwrap();
     ctx
 }
 
 fn check_scene(s: &TestScene, res: usize) {
-    for test in [TriTest::MollerTrumbore, TriTest::Watertight] {
+    for test in [TriTest::MollerTrumbore, TriTest::Watertight, TriTest::Projection] {
         let ctx = scene_ctx(s, test);
         let g = ctx.tracer().unwrap().view;
         let mut run = Run { g, stamps: vec![0; g.tris.len()], packet: 0 };
@@ -108,6 +109,7 @@ fn check_scene(s: &TestScene, res: usize) {
             let c = match test {
                 TriTest::MollerTrumbore => run.check::<Mt>(&what, &rays, res, res, false),
                 TriTest::Watertight => run.check::<Wt>(&what, &rays, res, res, false),
+                TriTest::Projection => run.check::<Pt>(&what, &rays, res, res, false),
             };
             sum.add(&c);
             // Shadow packets traced from the light towards the primary hits
@@ -125,6 +127,7 @@ fn check_scene(s: &TestScene, res: usize) {
             let c = match test {
                 TriTest::MollerTrumbore => run.check::<Mt>(&(what.clone() + " shadow"), &shadow, res, res, true),
                 TriTest::Watertight => run.check::<Wt>(&(what.clone() + " shadow"), &shadow, res, res, true),
+                TriTest::Projection => run.check::<Pt>(&(what.clone() + " shadow"), &shadow, res, res, true),
             };
             sum.add(&c);
         }

@@ -234,3 +234,22 @@ fn rays_along_grid_axes_and_inside_the_grid_are_exact() {
     }
     assert!(hit_count > 50, "the axis rays must hit the tetrahedra ({hit_count})");
 }
+
+#[test]
+fn projection_test_needs_its_pool() {
+    let (v, i) = two_quads();
+    let scene = Scene::from_f32(&v, &i).unwrap();
+    let p = GridParams { test: sheaf::TriTest::Projection, ..GridParams::default() };
+    let mut ctx = OwnedContext::new(&Limits::for_triangles(4)).unwrap();
+    assert!(matches!(ctx.build_grid(&scene, &p), Err(Error::InvalidArgument(_))));
+    let mut l = Limits::for_triangles(4);
+    l.projection_test = true;
+    let extra = sheaf::mem::pool_bytes::<sheaf::geom::ProjTri>(4);
+    assert_eq!(required_bytes(&l).unwrap(), required_bytes(&Limits::for_triangles(4)).unwrap() + extra);
+    let mut ctx = OwnedContext::new(&l).unwrap();
+    ctx.build_grid(&scene, &p).unwrap();
+    let rays = down_rays();
+    let mut hits = vec![Hit::MISS; rays.len()];
+    ctx.trace(Method::GridDda, &rays, &mut hits).unwrap();
+    assert!(hits.iter().all(|h| (h.prim == 2 || h.prim == 3) && h.t == 4.0), "{hits:?}");
+}

@@ -4,7 +4,7 @@
 use glam::Vec3;
 use sheaf::geom::lane::F4;
 use sheaf::geom::triangle::{RayLanes, TriVerts, TriangleTest};
-use sheaf::geom::{Mt, Ray, Ray4, Wt};
+use sheaf::geom::{Mt, ProjTri, Pt, Ray, Ray4, Wt};
 
 /// Small deterministic generator (xorshift) so failures reproduce.
 struct Rng(u64);
@@ -23,11 +23,12 @@ impl Rng {
     }
 }
 
-fn check_lanes<T: TriangleTest>(name: &str) {
+fn check_lanes<T: TriangleTest>(name: &str, prim: impl Fn(&TriVerts) -> T::Prim) {
     let mut rng = Rng(0x9e3779b97f4a7c15);
     let mut hits = 0;
     for case in 0..20_000 {
         let tri = TriVerts { v0: rng.v3(1.0), v1: rng.v3(1.0), v2: rng.v3(1.0) };
+        let tri = prim(&tri);
         let mut rays = [Ray::new(Vec3::ZERO, Vec3::ONE, 0.0, f32::INFINITY); 4];
         for r in rays.iter_mut() {
             let o = rng.v3(3.0);
@@ -59,15 +60,46 @@ fn check_lanes<T: TriangleTest>(name: &str) {
 
 #[test]
 fn simd_moller_trumbore_is_bitwise_equal_to_single_ray() {
-    check_lanes::<Mt>("MT");
+    check_lanes::<Mt>("MT", |t| *t);
 }
 
 #[test]
 fn simd_watertight_is_bitwise_equal_to_single_ray() {
-    check_lanes::<Wt>("WT");
+    check_lanes::<Wt>("WT", |t| *t);
 }
 
-fn hit1<T: TriangleTest>(r: &Ray, tri: &TriVerts) -> Option<f32> {
+#[test]
+fn simd_projection_test_is_bitwise_equal_to_single_ray() {
+    check_lanes::<Pt>("projection", ProjTri::new);
+}
+
+#[test]
+fn projection_test_agrees_with_moller_trumbore_away_from_edges() {
+    // Same hit/miss decision and t within float error for rays that pass
+    // clearly inside or outside (barycentrics from MT away from 0 and 1).
+    let mut rng = Rng(99);
+    let mut checked = 0;
+    for _ in 0..20_000 {
+        let tri = TriVerts { v0: rng.v3(1.0), v1: rng.v3(1.0), v2: rng.v3(1.0) };
+        let o = rng.v3(3.0);
+        let target = rng.v3(0.8);
+        let r = Ray { org: o, tmin: 0.0, dir: [target[0] - o[0], target[1] - o[1], target[2] - o[2]], tmax: f32::INFINITY };
+        let l = RayLanes::<f32>::from_ray(&r);
+        let m = Mt::intersect(&l, &(), &tri);
+        let p = Pt::intersect(&l, &(), &ProjTri::new(&tri));
+        let (u, v) = (m.u, m.v);
+        let clear = u > 1e-3 && v > 1e-3 && u + v < 1.0 - 1e-3 || (m.mask == false && p.mask == false);
+        if m.mask && clear {
+            assert!(p.mask, "projection misses an interior hit");
+            assert!((p.t - m.t).abs() <= 1e-4 * m.t.abs().max(1.0), "t {} vs {}", p.t, m.t);
+            assert!((p.u - u).abs() < 1e-3 && (p.v - v).abs() < 1e-3);
+            checked += 1;
+        }
+    }
+    assert!(checked > 1000, "too few interior hits exercised: {checked}");
+}
+
+fn hit1<T: TriangleTest<Prim = TriVerts>>(r: &Ray, tri: &TriVerts) -> Option<f32> {
     let l = RayLanes::<f32>::from_ray(r);
     let h = T::intersect(&l, &T::prepare(&l), tri);
     h.mask.then_some(h.t)

@@ -77,13 +77,14 @@ fn check_scene(s: &TestScene, res: u32) -> Tally {
     let scene = s.scene();
     let mut limits = Limits::for_triangles(s.triangles());
     limits.max_vertices = (s.vertices.len() / 3) as u32;
+    limits.projection_test = true;
     let mut ctx = OwnedContext::new(&limits).unwrap();
     let mut tally = Tally::default();
     for (vname, view) in &s.views {
         let rays = view_rays(view, res, res);
         let want = par_map(&rays, |r| reference::nearest(&scene, r));
         let mut shadow: Option<(Vec<Ray>, Vec<RefHit>)> = None;
-        for test in [TriTest::MollerTrumbore, TriTest::Watertight] {
+        for test in [TriTest::MollerTrumbore, TriTest::Watertight, TriTest::Projection] {
             for macrocell in [6, 1] {
                 let params = GridParams { test, macrocell, ..GridParams::default() };
                 let info = ctx.build_grid(&scene, &params).unwrap();

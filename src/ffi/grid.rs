@@ -14,6 +14,9 @@ pub enum sheaf_tri_test {
     MollerTrumbore = 0,
     /// Woop-Benthin-Wald 2013 watertight test.
     Watertight = 1,
+    /// Wald 2004 precomputed projection test (needs `projection_test` in
+    /// `sheaf_limits`).
+    Projection = 2,
 }
 
 impl sheaf_tri_test {
@@ -22,12 +25,13 @@ impl sheaf_tri_test {
         match t {
             TriTest::MollerTrumbore => sheaf_tri_test::MollerTrumbore,
             TriTest::Watertight => sheaf_tri_test::Watertight,
+            TriTest::Projection => sheaf_tri_test::Projection,
         }
     }
 
     /// The crate test with C code `raw`.
     pub fn to_core(raw: raw::sheaf_tri_test) -> Result<TriTest> {
-        [TriTest::MollerTrumbore, TriTest::Watertight]
+        [TriTest::MollerTrumbore, TriTest::Watertight, TriTest::Projection]
             .into_iter()
             .find(|&t| sheaf_tri_test::of(t) as u32 == raw)
             .ok_or(Error::InvalidArgument("unknown sheaf_tri_test"))

@@ -12,4 +12,4 @@ pub use aabb::Aabb;
 pub use lane::{F4, Lane, M4};
 pub use ray::{Hit, Hit4, INVALID_ID, Ray, Ray4};
 pub use scene::{Excluded, Scene};
-pub use triangle::{Mt, RayLanes, TriTest, TriVerts, TriangleTest, Wt};
+pub use triangle::{Mt, ProjTri, Pt, RayLanes, TriTest, TriVerts, TriangleTest, Wt};

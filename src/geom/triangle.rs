@@ -9,8 +9,13 @@
 //!   edge functions that come out exactly zero (section 4 of the paper). A ray
 //!   through a shared edge or vertex of a closed mesh hits at least one of the
 //!   triangles.
+//! - Wald 2004 ("Realtime Ray Tracing and Interactive Global Illumination",
+//!   section 7.1), the precomputed projection test the CGT paper uses
+//!   (section 3): per triangle, the plane as `k + n_u u + n_v v = n_d` along
+//!   the normal's dominant axis k and the two barycentric coordinates as
+//!   linear functions of the projected hit point; rebuilt with the grid.
 //!
-//! Both tests are two-sided and report `t` in `[tmin, tmax)` and the
+//! All three tests are two-sided and report `t` in `[tmin, tmax)` and the
 //! barycentric weights `u` (second vertex) and `v` (third vertex).
 
 use crate::geom::lane::{F4, Lane};
@@ -43,7 +48,60 @@ pub enum TriTest {
     MollerTrumbore = 0,
     /// Woop-Benthin-Wald watertight test.
     Watertight = 1,
+    /// Wald 2004 precomputed projection test (48 bytes per triangle, filled
+    /// at build; needs `Limits::projection_test`).
+    Projection = 2,
 }
+
+/// Per-triangle data of the projection test (48 bytes, filled at build).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct ProjTri {
+    /// Plane `p[k] + n_u p[u] + n_v p[v] = n_d`, `u = (k+1)%3`, `v = (k+2)%3`.
+    pub n_u: f32,
+    pub n_v: f32,
+    pub n_d: f32,
+    pub k: u32,
+    /// Weight of the second vertex: `b_nu hu + b_nv hv + b_d`.
+    pub b_nu: f32,
+    pub b_nv: f32,
+    pub b_d: f32,
+    /// Weight of the third vertex: `c_nu hu + c_nv hv + c_d`.
+    pub c_nu: f32,
+    pub c_nv: f32,
+    pub c_d: f32,
+    pub pad: [u32; 2],
+}
+
+impl ProjTri {
+    /// Precompute from the vertices (the triangle must have non-zero area).
+    pub fn new(t: &TriVerts) -> ProjTri {
+        let (a, b1, c1) = (t.v0, t.v1, t.v2);
+        let e1 = [b1[0] - a[0], b1[1] - a[1], b1[2] - a[2]];
+        let e2 = [c1[0] - a[0], c1[1] - a[1], c1[2] - a[2]];
+        let n = cross3::<f32>(e1, e2);
+        let an = [n[0].abs(), n[1].abs(), n[2].abs()];
+        let k = if an[0] >= an[1] && an[0] >= an[2] { 0 } else if an[1] >= an[2] { 1 } else { 2 };
+        let (u, v) = ((k + 1) % 3, (k + 2) % 3);
+        // In the (u, v) projection: H - A = beta e1 + gamma e2.
+        let det = e1[u] * e2[v] - e1[v] * e2[u];
+        ProjTri {
+            n_u: n[u] / n[k],
+            n_v: n[v] / n[k],
+            n_d: dot3::<f32>(n, a) / n[k],
+            k: k as u32,
+            b_nu: e2[v] / det,
+            b_nv: -e2[u] / det,
+            b_d: (e2[u] * a[v] - e2[v] * a[u]) / det,
+            c_nu: -e1[v] / det,
+            c_nv: e1[u] / det,
+            c_d: (e1[v] * a[u] - e1[u] * a[v]) / det,
+            pad: [0; 2],
+        }
+    }
+}
+
+const _: () = assert!(core::mem::size_of::<ProjTri>() == 48);
 
 /// Per-ray shear for the watertight test (WBW 2013, section 3, Fig. 1):
 /// `kz` is the dominant axis of the direction, `kx`, `ky` the others (swapped
@@ -196,14 +254,39 @@ pub fn watertight<L: Lane>(r: &RayLanes<L>, sh: &Shear<L>, tri: &TriVerts) -> Tr
     TriHit { mask, t, u: v / det, v: w / det }
 }
 
-/// A triangle test with its per-ray precomputation, so traversals are
-/// monomorphised per test (no per-triangle branch on the test kind).
+/// Wald 2004 projection test on precomputed `ProjTri` data. NaN (a ray
+/// parallel to the plane) fails every comparison and so misses.
+#[inline(always)]
+pub fn projection<L: Lane>(r: &RayLanes<L>, w: &ProjTri) -> TriHit<L> {
+    let zero = L::splat(0.0);
+    let k = w.k as usize;
+    let (u, v) = ((k + 1) % 3, (k + 2) % 3);
+    let (nu, nv) = (L::splat(w.n_u), L::splat(w.n_v));
+    let nd = L::splat(1.0) / (r.dir[k] + nu * r.dir[u] + nv * r.dir[v]);
+    let t = (L::splat(w.n_d) - r.org[k] - nu * r.org[u] - nv * r.org[v]) * nd;
+    let in_t = r.tmin.le(t) & t.lt(r.tmax);
+    if !L::any(in_t) {
+        return TriHit { mask: in_t, t, u: zero, v: zero };
+    }
+    let hu = r.org[u] + t * r.dir[u];
+    let hv = r.org[v] + t * r.dir[v];
+    let beta = hu * L::splat(w.b_nu) + hv * L::splat(w.b_nv) + L::splat(w.b_d);
+    let gamma = hu * L::splat(w.c_nu) + hv * L::splat(w.c_nv) + L::splat(w.c_d);
+    let mask = in_t & zero.le(beta) & zero.le(gamma) & (beta + gamma).le(L::splat(1.0));
+    TriHit { mask, t, u: beta, v: gamma }
+}
+
+/// A triangle test with its per-ray precomputation and its per-triangle
+/// data, so traversals are monomorphised per test (no per-triangle branch on
+/// the test kind).
 pub trait TriangleTest: Copy + Default + Send + Sync + 'static {
     /// Per-ray data computed once before traversal.
     type Pre<L: Lane>: Copy;
+    /// Per-triangle data the test reads (`TriVerts`, or precomputed data).
+    type Prim: Copy;
     const KIND: TriTest;
     fn prepare<L: Lane>(r: &RayLanes<L>) -> Self::Pre<L>;
-    fn intersect<L: Lane>(r: &RayLanes<L>, pre: &Self::Pre<L>, tri: &TriVerts) -> TriHit<L>;
+    fn intersect<L: Lane>(r: &RayLanes<L>, pre: &Self::Pre<L>, tri: &Self::Prim) -> TriHit<L>;
 }
 
 /// Moller-Trumbore as a `TriangleTest`.
@@ -212,9 +295,13 @@ pub struct Mt;
 /// Watertight as a `TriangleTest`.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct Wt;
+/// The projection test as a `TriangleTest`.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Pt;
 
 impl TriangleTest for Mt {
     type Pre<L: Lane> = ();
+    type Prim = TriVerts;
     const KIND: TriTest = TriTest::MollerTrumbore;
     #[inline(always)]
     fn prepare<L: Lane>(_: &RayLanes<L>) {}
@@ -226,6 +313,7 @@ impl TriangleTest for Mt {
 
 impl TriangleTest for Wt {
     type Pre<L: Lane> = Shear<L>;
+    type Prim = TriVerts;
     const KIND: TriTest = TriTest::Watertight;
     #[inline(always)]
     fn prepare<L: Lane>(r: &RayLanes<L>) -> Shear<L> {
@@ -234,6 +322,18 @@ impl TriangleTest for Wt {
     #[inline(always)]
     fn intersect<L: Lane>(r: &RayLanes<L>, pre: &Shear<L>, tri: &TriVerts) -> TriHit<L> {
         watertight(r, pre, tri)
+    }
+}
+
+impl TriangleTest for Pt {
+    type Pre<L: Lane> = ();
+    type Prim = ProjTri;
+    const KIND: TriTest = TriTest::Projection;
+    #[inline(always)]
+    fn prepare<L: Lane>(_: &RayLanes<L>) {}
+    #[inline(always)]
+    fn intersect<L: Lane>(r: &RayLanes<L>, _: &(), tri: &ProjTri) -> TriHit<L> {
+        projection(r, tri)
     }
 }
 

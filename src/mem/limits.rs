@@ -25,6 +25,9 @@ pub struct Limits {
     pub max_grid_cells: u32,
     /// Most triangle references in grid cells. 0: `16 * max_triangles + 1024`.
     pub max_grid_refs: u32,
+    /// Reserve 48 bytes per triangle for the precomputed projection test
+    /// (`TriTest::Projection`); without it that test cannot be selected.
+    pub projection_test: bool,
 }
 
 impl Limits {
@@ -40,6 +43,7 @@ impl Limits {
             max_threads: 8,
             max_grid_cells: 0,
             max_grid_refs: 0,
+            projection_test: false,
         }
     }
 

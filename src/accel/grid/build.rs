@@ -179,6 +179,9 @@ pub fn build(grid: &mut Grid<'_>, scene: &Scene<'_>, p: &GridParams, max_cells: 
         }
     }
     let pools = grid.pools_mut();
+    if p.test == crate::geom::TriTest::Projection && pools.proj.len() < n_in as usize {
+        return Err(Error::InvalidArgument("the projection test needs Limits::projection_test"));
+    }
     if refs > max_refs.min(pools.refs.len() as u64) {
         return Err(Error::Capacity { pool: Pool::GridRefs, needed: refs, available: max_refs.min(pools.refs.len() as u64) });
     }
@@ -199,6 +202,10 @@ pub fn build(grid: &mut Grid<'_>, scene: &Scene<'_>, p: &GridParams, max_cells: 
             continue;
         }
         pools.tris[c] = tri;
+        if p.test == crate::geom::TriTest::Projection {
+            // Wald 2004 data, rebuilt with the grid (CGT paper section 3).
+            pools.proj[c] = crate::geom::ProjTri::new(&tri);
+        }
         pools.tri_ids[c] = t;
         c += 1;
         let (a, z) = cell_range(&info, &tri_bounds(&tri));

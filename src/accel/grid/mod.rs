@@ -21,7 +21,7 @@ pub mod build;
 pub mod traverse_cgt;
 pub mod traverse_single;
 
-use crate::geom::{Aabb, TriTest, TriVerts};
+use crate::geom::{Aabb, Mt, ProjTri, Pt, TriTest, TriVerts, TriangleTest, Wt};
 use glam::Vec3;
 
 /// Tunables of the grid (C: `sheaf_grid_params`).
@@ -80,6 +80,8 @@ impl GridInfo {
 /// The pools a grid lives in (carved once from the arena).
 pub struct GridPools<'a> {
     pub tris: &'a mut [TriVerts],
+    /// Projection-test data (empty unless `Limits::projection_test`).
+    pub proj: &'a mut [ProjTri],
     pub tri_ids: &'a mut [u32],
     pub cell_start: &'a mut [u32],
     pub refs: &'a mut [u32],
@@ -98,6 +100,8 @@ pub struct GridView<'r> {
     pub info: &'r GridInfo,
     /// Stored triangles (compact order) and their ids in the caller's index buffer.
     pub tris: &'r [TriVerts],
+    /// Projection-test data of the stored triangles (empty for other tests).
+    pub proj: &'r [ProjTri],
     pub tri_ids: &'r [u32],
     /// Cell `c` holds `refs[cell_start[c]..cell_start[c + 1]]`, cells in x-fastest order.
     pub cell_start: &'r [u32],
@@ -123,6 +127,7 @@ impl<'a> Grid<'a> {
         Some(GridView {
             info,
             tris: &self.pools.tris[..info.triangles as usize],
+            proj: if info.test == TriTest::Projection { &self.pools.proj[..info.triangles as usize] } else { &[] },
             tri_ids: &self.pools.tri_ids[..info.triangles as usize],
             cell_start: &self.pools.cell_start[..cells + 1],
             refs: &self.pools.refs[..info.refs as usize],
@@ -152,5 +157,31 @@ impl GridView<'_> {
         let r = &self.info.macro_res;
         let i = (m[0] as usize) + r[0] as usize * ((m[1] as usize) + r[1] as usize * m[2] as usize);
         self.macro_bits[i >> 5] & (1 << (i & 31)) != 0
+    }
+}
+
+/// Where a triangle test finds its per-triangle data in a built grid.
+pub trait GridTest: TriangleTest {
+    fn prim<'g>(g: &GridView<'g>, i: usize) -> &'g Self::Prim;
+}
+
+impl GridTest for Mt {
+    #[inline(always)]
+    fn prim<'g>(g: &GridView<'g>, i: usize) -> &'g TriVerts {
+        &g.tris[i]
+    }
+}
+
+impl GridTest for Wt {
+    #[inline(always)]
+    fn prim<'g>(g: &GridView<'g>, i: usize) -> &'g TriVerts {
+        &g.tris[i]
+    }
+}
+
+impl GridTest for Pt {
+    #[inline(always)]
+    fn prim<'g>(g: &GridView<'g>, i: usize) -> &'g ProjTri {
+        &g.proj[i]
     }
 }

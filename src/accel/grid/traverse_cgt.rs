@@ -30,8 +30,8 @@
 //! - Frustum culling needs a common origin (primary rays, shadow rays traced
 //!   from the light); other packets skip culling (counted).
 
-use super::GridView;
-use crate::geom::{F4, Hit, Hit4, M4, Ray4, RayLanes, TriVerts, TriangleTest};
+use super::{GridTest, GridView};
+use crate::geom::{F4, Hit, Hit4, M4, Ray4, RayLanes, TriVerts};
 use crate::trace::Counters;
 use glam::Vec3;
 
@@ -103,7 +103,7 @@ impl<'m> Mailbox<'m> {
 
 /// Nearest hits of the active lanes of `rays` (a packet of `rays.len()`
 /// quads, at most 256) into `hits`; inactive lanes are left untouched.
-pub fn intersect<T: TriangleTest>(
+pub fn intersect<T: GridTest>(
     g: &GridView<'_>,
     rays: &[Ray4],
     active: &[M4],
@@ -117,7 +117,7 @@ pub fn intersect<T: TriangleTest>(
 
 /// Occlusion of the active lanes: `hits[q].prim[i] != INVALID_ID` marks an
 /// occluded lane (t and the id of some occluder, not the nearest).
-pub fn occluded<T: TriangleTest>(
+pub fn occluded<T: GridTest>(
     g: &GridView<'_>,
     rays: &[Ray4],
     active: &[M4],
@@ -129,7 +129,7 @@ pub fn occluded<T: TriangleTest>(
     dispatch::<T, true>(g, rays, active, hits, opt, mailbox, ctr)
 }
 
-fn dispatch<T: TriangleTest, const ANY: bool>(
+fn dispatch<T: GridTest, const ANY: bool>(
     g: &GridView<'_>,
     rays: &[Ray4],
     active: &[M4],
@@ -174,7 +174,7 @@ fn lane_mask(m: M4) -> u32 {
 }
 
 /// One packet of `rays.len() <= Q` quads.
-fn packet<T: TriangleTest, const ANY: bool, const Q: usize>(
+fn packet<T: GridTest, const ANY: bool, const Q: usize>(
     g: &GridView<'_>,
     rays: &[Ray4],
     active: &[M4],
@@ -422,7 +422,7 @@ fn packet<T: TriangleTest, const ANY: bool, const Q: usize>(
                             }
                             left = true;
                             ctr.tri_tests += lane_mask(lm).count_ones() as u64;
-                            let h = T::intersect(&RayLanes::from_ray4(&rays[q]), &pre[q], tv);
+                            let h = T::intersect(&RayLanes::from_ray4(&rays[q]), &pre[q], T::prim(g, tri));
                             let hm = h.mask & lm;
                             if !hm.any() {
                                 continue;

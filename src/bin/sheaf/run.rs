@@ -49,6 +49,8 @@ pub fn context_for(
     params: &GridParams,
     headroom: f64,
 ) -> Result<(OwnedContext, GridInfo), Failure> {
+    // The projection test's 48 bytes per triangle only when it is chosen.
+    limits.projection_test = params.test == sheaf::TriTest::Projection;
     for _ in 0..3 {
         let mut ctx = OwnedContext::new(&limits).or_fail(|| "creating the context".into())?;
         match ctx.build_grid(scene, params) {
