@@ -253,7 +253,7 @@ fn tiles<T: Tracer + ?Sized, const Q: usize>(
     mb: &mut Mailbox<'_>,
     ctr: &mut Counters,
 ) {
-    let n = 2 * (Q as f32).sqrt() as u32;
+    let n = 2 * (Q as u32).isqrt();
     let eps = SHADOW_OFFSET * tracer.scene_scale();
     let light = Vec3::from(frame.light.position);
     let lane_xy = [(0u32, 0u32), (1, 0), (0, 1), (1, 1)];
