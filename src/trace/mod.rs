@@ -4,6 +4,18 @@
 
 use bytemuck::{Pod, Zeroable};
 
+/// A hot-loop counter update (`count!(ctr.cells += 1)`), compiled out
+/// without the `counters` feature: the cheap switch of CGT's statistics.
+macro_rules! count {
+    ($($t:tt)*) => {
+        #[cfg(feature = "counters")]
+        {
+            $($t)*;
+        }
+    };
+}
+pub(crate) use count;
+
 /// Counters of one trace or render call (C: `sheaf_counters`). Each thread
 /// fills its own and the caller adds them up.
 #[repr(C)]

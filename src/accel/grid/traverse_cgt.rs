@@ -32,7 +32,7 @@
 
 use super::{GridTest, GridView};
 use crate::geom::{F4, Hit, Hit4, M4, Ray4, RayLanes, TriVerts};
-use crate::trace::Counters;
+use crate::trace::{Counters, count};
 use glam::Vec3;
 
 use super::traverse_single;
@@ -386,7 +386,7 @@ fn packet<T: GridTest, const ANY: bool, const Q: usize>(
                 }
             };
             if empty {
-                ctr.macro_skips += 1;
+                count!(ctr.macro_skips += 1);
                 s = end + 1;
                 if !ANY && !still_live(&mut live[..nq], hits, &ok[..nq], &rk[..nq], rays, end + 1) {
                     return;
@@ -401,16 +401,16 @@ fn packet<T: GridTest, const ANY: bool, const Q: usize>(
                     c[k] = kc;
                     c[u] = cu;
                     c[v] = cv;
-                    ctr.cells += 1;
+                    count!(ctr.cells += 1);
                     for &tri in g.cell(g.cell_index(c)) {
                         let tri = tri as usize;
                         if opt.mailbox && !mb.first_visit(tri) {
-                            ctr.mailbox_skips += 1;
+                            count!(ctr.mailbox_skips += 1);
                             continue;
                         }
                         let tv = &g.tris[tri];
                         if cull && culled(tv, origin, &corners) {
-                            ctr.culled += 1;
+                            count!(ctr.culled += 1);
                             continue;
                         }
                         let id = g.tri_ids[tri];
@@ -421,7 +421,7 @@ fn packet<T: GridTest, const ANY: bool, const Q: usize>(
                                 continue;
                             }
                             left = true;
-                            ctr.tri_tests += lane_mask(lm).count_ones() as u64;
+                            count!(ctr.tri_tests += lane_mask(lm).count_ones() as u64);
                             let h = T::intersect(&RayLanes::from_ray4(&rays[q]), &pre[q], T::prim(g, tri));
                             let hm = h.mask & lm;
                             if !hm.any() {

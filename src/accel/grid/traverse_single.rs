@@ -13,7 +13,7 @@
 
 use super::{GridTest, GridView};
 use crate::geom::{Hit, INVALID_ID, Ray, RayLanes};
-use crate::trace::Counters;
+use crate::trace::{Counters, count};
 use glam::Vec3;
 
 /// Nearest hit of `ray` (a miss for invalid rays: see `Ray::is_valid`).
@@ -89,7 +89,7 @@ fn walk<T: GridTest, const ANY: bool>(g: &GridView<'_>, ray: &Ray, ctr: &mut Cou
             let mc = [div_m(c[0]), div_m(c[1]), div_m(c[2])];
             if !g.macro_occupied(mc) {
                 // Jump to the exit of this empty macrocell.
-                ctr.macro_skips += 1;
+                count!(ctr.macro_skips += 1);
                 let mut t_exit = f32::INFINITY;
                 let mut axis = 0;
                 for a in 0..3 {
@@ -128,9 +128,9 @@ fn walk<T: GridTest, const ANY: bool>(g: &GridView<'_>, ray: &Ray, ctr: &mut Cou
         let axis = if tn[0] <= tn[1] && tn[0] <= tn[2] { 0 } else if tn[1] <= tn[2] { 1 } else { 2 };
         let t_exit = tn[axis];
 
-        ctr.cells += 1;
+        count!(ctr.cells += 1);
         for &r in g.cell(g.cell_index(c)) {
-            ctr.tri_tests += 1;
+            count!(ctr.tri_tests += 1);
             let h = T::intersect(&lanes, &pre, T::prim(g, r as usize));
             if h.mask {
                 let id = g.tri_ids[r as usize];
