@@ -16,6 +16,8 @@
 #![forbid(unsafe_code)]
 
 // A binary root's modules resolve next to it: keep them in src/bin/sheaf/.
+#[path = "sheaf/bench.rs"]
+mod bench;
 #[path = "sheaf/cmd.rs"]
 mod cmd;
 #[path = "sheaf/load.rs"]
@@ -72,6 +74,9 @@ enum Cmd {
     Render(RenderArgs),
     /// Print a scene's size, bounds and the memory a context for it needs.
     Info(InfoArgs),
+    /// Benchmark every scene x method x packet size x triangle test: build and trace speed,
+    /// counters, accuracy against the f64 reference; CSV, Markdown and a speed-vs-accuracy chart.
+    Bench(BenchArgs),
 }
 
 /// Ray-triangle test of the grid.
@@ -81,6 +86,8 @@ pub enum TestArg {
     Mt,
     /// Woop-Benthin-Wald watertight test.
     Watertight,
+    /// Wald 2004 precomputed projection test.
+    Projection,
 }
 
 /// Grid build parameters (`GridParams`).
@@ -105,6 +112,7 @@ impl GridOpts {
             test: match self.test {
                 TestArg::Mt => sheaf::TriTest::MollerTrumbore,
                 TestArg::Watertight => sheaf::TriTest::Watertight,
+                TestArg::Projection => sheaf::TriTest::Projection,
             },
             fit: false,
         }
@@ -258,6 +266,52 @@ pub struct InfoArgs {
     pub grid: GridOpts,
 }
 
+#[derive(Args)]
+pub struct BenchArgs {
+    /// Scenes, comma-separated: tetra, balls, gears, animated (built in), legocar, bunny, sibenik,
+    /// sponza, conference (OBJ files in --scenes-dir, skipped when absent), or paths of OBJ files
+    /// [default: all; with --quick: tetra,gears,legocar].
+    #[arg(long, value_delimiter = ',')]
+    pub scenes: Vec<String>,
+    /// Directory of the OBJ scenes [default: ../shared/scenes, else the one beside the source tree].
+    #[arg(long)]
+    pub scenes_dir: Option<PathBuf>,
+    /// Image size, WIDTHxHEIGHT [default: 512x512; with --quick: 256x256; the CGT paper uses 1024x1024].
+    #[arg(long, value_parser = parse_size)]
+    pub size: Option<(u32, u32)>,
+    /// A small subset for CI: three small scenes, 256x256, packets 4,8,16, one timed run each.
+    #[arg(long)]
+    pub quick: bool,
+    /// CGT packet sides to run, comma-separated [default: 2,4,8,16,32; with --quick: 4,8,16].
+    #[arg(long, value_delimiter = ',')]
+    pub packets: Vec<u32>,
+    /// Triangle tests, comma-separated (one grid build each).
+    #[arg(long, value_enum, value_delimiter = ',', default_value = "mt,watertight")]
+    pub tests: Vec<TestArg>,
+    /// Thread counts to time, comma-separated.
+    #[arg(long, value_delimiter = ',', default_value = "1,2")]
+    pub threads: Vec<u32>,
+    /// Also run CGT 8x8 with macrocells, mailbox, culling, and mailbox + culling switched off.
+    #[arg(long)]
+    pub ablation: bool,
+    /// Timed runs per measurement (the median is reported) [default: 3; with --quick: 1].
+    #[arg(long)]
+    pub reps: Option<u32>,
+    /// Most ray-triangle tests the f64 oracle may spend per scene (primary plus shadow rays):
+    /// every k-th ray is checked, k chosen to fit [default: 2e9; with --quick: 2e8].
+    #[arg(long)]
+    pub oracle_budget: Option<f64>,
+    /// Grid cells per triangle (CGT paper, section 3: 5).
+    #[arg(long, default_value_t = 5.0)]
+    pub lambda: f32,
+    /// Macrocell side in cells (CGT paper, section 2.4: 6); 0 or 1 disables macrocells.
+    #[arg(long, default_value_t = 6)]
+    pub macrocell: u32,
+    /// Directory for bench.csv, bench.md, speed_accuracy.svg and speed_accuracy.png.
+    #[arg(long, default_value = "out/bench")]
+    pub out_dir: PathBuf,
+}
+
 /// `WIDTHxHEIGHT`, each in 1..=16384.
 fn parse_size(s: &str) -> Result<(u32, u32), String> {
     let (w, h) = s.split_once(['x', 'X']).ok_or_else(|| format!("'{s}' is not WIDTHxHEIGHT (e.g. 800x600)"))?;
@@ -290,6 +344,7 @@ fn main() -> ExitCode {
         Cmd::Demo(a) => cmd::demo(&a),
         Cmd::Render(a) => cmd::render(&a),
         Cmd::Info(a) => cmd::info(&a),
+        Cmd::Bench(a) => bench::bench(&a),
     };
     match res {
         Ok(()) => ExitCode::SUCCESS,

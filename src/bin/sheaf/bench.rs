@@ -1,0 +1,1503 @@
+//! `sheaf bench`: speed and accuracy of every configuration on every scene.
+//!
+//! For each scene x method (3DDDA, CGT n x n) x triangle test: build ms (the
+//! median of `BUILD_REPS` builds), trace ms and Mrays/s of the view's primary
+//! rays and of their shadow rays on each thread count, per-ray counters, and
+//! accuracy against the f64 brute-force oracle (`sheaf::reference`) on a
+//! deterministic subsample of the rays. Writes `bench.csv`, `bench.md` and a
+//! speed-vs-accuracy chart (`speed_accuracy.svg`, `speed_accuracy.png`).
+//!
+//! What is timed: traversal and intersection only. Primary rays are made and
+//! packed (n x n tiles of 2x2 quads, quads in Morton order within a tile, as
+//! `render::render_tiles` does) before the clock starts; shadow rays are made
+//! from each configuration's own primary hits, untimed, and traced as the
+//! renderer traces them: from the light towards a point just off the surface
+//! (`tmax = 1`), packets with the primary tile's layout, split into quarters
+//! while the hit points' distances from the light spread by more than
+//! `TraceParams::split`. Threads take bands of whole tile rows in order, each
+//! with its own mailbox slot of the context (as `run::render_frame` does).
+//!
+//! Accuracy: the oracle is brute force (rays x triangles), so it sees every
+//! k-th primary ray (k coprime with the image width, so the samples do not
+//! line up in columns), with k the smallest that keeps the oracle's tests
+//! under `--oracle-budget`; it runs once per scene. The shadow rays it checks
+//! are made from the oracle's own primary hits the way the renderer makes
+//! them, so every configuration is judged on the same shadow rays. A primary
+//! mismatch is a ray whose nearest triangle differs from the oracle's; it is
+//! "within tolerance" when the oracle's two nearest hits are a tie
+//! (`TIE_REL`) or the ray passes within `EDGE_BARY` of an edge in front of
+//! its hit (the tolerances of tests/reference_equivalence.rs). A shadow
+//! mismatch is an occlusion answer that differs; it is within tolerance near
+//! an edge or when the occluder lies within `END_REL` of the ray's end.
+#![forbid(unsafe_code)]
+
+use crate::load::{self, Loaded};
+use crate::run::{self, ms, res};
+use crate::view::{self, INSIDE_FOV, OUTSIDE_FOV};
+use crate::{BenchArgs, Failure, GridOpts, OrFail, TestArg};
+use clap::ValueEnum;
+use glam::Vec3;
+use sheaf::accel::grid::traverse_cgt::Mailbox;
+use sheaf::context::GridTracer;
+use sheaf::geom::{F4, Hit4, INVALID_ID, M4, Ray4};
+use sheaf::reference::{self, RefHit};
+use sheaf::render::{PrimaryRays, Tracer};
+use sheaf::{Camera, CgtOptions, Counters, GridInfo, Hit, Method, Ray, Scene, TraceParams};
+use std::collections::HashMap;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+use std::time::Instant;
+
+/// Builds per triangle test; the median is reported.
+const BUILD_REPS: usize = 3;
+/// A measurement stops repeating once its runs took this long (slow
+/// configurations get fewer runs; their runs are long enough to be stable).
+const MEASURE_NS: u64 = 300_000_000;
+/// Rows per band of the single-ray method (packet methods: whole tile rows
+/// covering at least this many rows), as in `run::render_frame`.
+const BAND_ROWS: usize = 8;
+/// Shadow-ray end point offset off the surface, relative to the scene's
+/// diagonal (the renderer's `SHADOW_OFFSET`).
+const SHADOW_OFFSET: f32 = 1e-4;
+/// Tolerances (see the module doc): relative t gap of a tie, barycentric
+/// distance to an edge, relative distance of an occluder to the ray's end.
+const TIE_REL: f64 = 1e-5;
+const EDGE_BARY: f64 = 1e-5;
+const END_REL: f64 = 1e-5;
+/// Added to every mismatch rate on the chart's log axis, so zeros show.
+const RATE_FLOOR: f64 = 1e-6;
+
+/// The OBJ scenes of ../shared/scenes: bench name and file.
+const OBJ_SCENES: &[(&str, &str)] = &[
+    ("legocar", "legocar/legocar.obj"),
+    ("bunny", "bunny/bunny_tinybvh.obj"),
+    ("sibenik", "sibenik/sibenik.obj"),
+    ("sponza", "crytek_sponza/crytek_sponza.obj"),
+    ("conference", "conference/conference.obj"),
+];
+const QUICK_SCENES: &[&str] = &["tetra", "gears", "legocar"];
+
+/// One traversal configuration (the triangle test is the grid's).
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Config {
+    method: Method,
+    packet: u32,
+    cgt: CgtOptions,
+}
+
+impl Config {
+    fn params(&self) -> TraceParams {
+        TraceParams { method: self.method, packet: self.packet, cgt: self.cgt, ..TraceParams::default() }
+    }
+    /// Chart colour: the 3DDDA 0, CGT n x n by n, the ablations after them.
+    fn colour(&self) -> usize {
+        if !self.method.is_packet() {
+            return 0;
+        }
+        let on = CgtOptions::default();
+        match self.cgt {
+            c if c == on => self.packet.trailing_zeros() as usize,
+            c if c == (CgtOptions { macrocells: false, ..on }) => 6,
+            c if c == (CgtOptions { mailbox: false, ..on }) => 7,
+            c if c == (CgtOptions { culling: false, ..on }) => 8,
+            _ => 9,
+        }
+    }
+    /// `grid-dda`, `grid-cgt 8x8`, `grid-cgt 8x8 no-mailbox`.
+    fn label(&self) -> String {
+        if !self.method.is_packet() {
+            return self.method.name().to_string();
+        }
+        let mut s = format!("{} {}x{}", self.method.name(), self.packet, self.packet);
+        let off: Vec<&str> = [(self.cgt.macrocells, "macrocells"), (self.cgt.mailbox, "mailbox"), (self.cgt.culling, "culling")]
+            .iter()
+            .filter(|(on, _)| !on)
+            .map(|(_, n)| *n)
+            .collect();
+        if !off.is_empty() {
+            let _ = write!(s, " no-{}", off.join("+"));
+        }
+        s
+    }
+}
+
+/// The configurations to run, the 3DDDA first (the others are compared with it).
+fn configs(packets: &[u32], ablation: bool) -> Vec<Config> {
+    let on = CgtOptions::default();
+    let mut v = vec![Config { method: Method::GridDda, packet: 0, cgt: on }];
+    v.extend(packets.iter().map(|&n| Config { method: Method::GridCgt, packet: n, cgt: on }));
+    if ablation {
+        for cgt in [
+            CgtOptions { macrocells: false, ..on },
+            CgtOptions { mailbox: false, ..on },
+            CgtOptions { culling: false, ..on },
+            CgtOptions { mailbox: false, culling: false, ..on },
+        ] {
+            v.push(Config { method: Method::GridCgt, packet: 8, cgt });
+        }
+    }
+    v
+}
+
+fn test_name(t: TestArg) -> String {
+    t.to_possible_value().map_or_else(|| format!("{t:?}"), |v| v.get_name().to_string())
+}
+
+/// Median of `v` (0 when empty).
+fn median(mut v: Vec<u64>) -> u64 {
+    v.sort_unstable();
+    v.get(v.len() / 2).copied().unwrap_or(0)
+}
+
+fn mrays(rays: u64, ns: u64) -> f64 {
+    run::mrays(rays, ns)
+}
+
+fn per(x: u64, n: u64) -> f64 {
+    if n == 0 { 0.0 } else { x as f64 / n as f64 }
+}
+
+// ---------------------------------------------------------------------------
+// Ray layouts
+
+/// Quad (x, y) of Morton index `i` (bits interleaved, x in the even bits).
+fn demorton(i: usize) -> (u32, u32) {
+    let (mut x, mut y) = (0u32, 0u32);
+    for b in 0..5 {
+        x |= (((i >> (2 * b)) & 1) as u32) << b;
+        y |= (((i >> (2 * b + 1)) & 1) as u32) << b;
+    }
+    (x, y)
+}
+
+/// Pixel of a lane that is not in the image.
+const NO_PIXEL: u32 = u32::MAX;
+
+/// The image in n x n tiles of 2x2 quads (lane order of `Ray4`), quads in
+/// Morton order within a tile, tiles row by row: the pixel of every lane.
+struct Tiling {
+    /// Quads per packet, `(n / 2)^2`.
+    q: usize,
+    /// Quads per band of whole tile rows.
+    band: usize,
+    /// Pixel (`y * w + x`) of lane `4 * quad + lane`, or `NO_PIXEL`.
+    pix: Vec<u32>,
+}
+
+impl Tiling {
+    fn new(w: u32, h: u32, n: u32) -> Tiling {
+        let q = (n as usize / 2).pow(2);
+        let (tiles_x, tiles_y) = (w.div_ceil(n), h.div_ceil(n));
+        let band = BAND_ROWS.div_ceil(n as usize) * tiles_x as usize * q;
+        let mut pix = Vec::with_capacity((tiles_x * tiles_y) as usize * q * 4);
+        for ty in 0..tiles_y {
+            for tx in 0..tiles_x {
+                for k in 0..q {
+                    let (qx, qy) = demorton(k);
+                    for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                        let (x, y) = (tx * n + 2 * qx + dx, ty * n + 2 * qy + dy);
+                        pix.push(if x < w && y < h { y * w + x } else { NO_PIXEL });
+                    }
+                }
+            }
+        }
+        Tiling { q, band, pix }
+    }
+
+    /// Pack per-pixel `rays` (lanes whose pixel is not `active` get `pad`,
+    /// inactive) into quads and masks.
+    fn pack(&self, rays: &[Ray], active: impl Fn(usize) -> bool, pad: Ray) -> (Vec<Ray4>, Vec<M4>) {
+        self.pix
+            .chunks_exact(4)
+            .map(|p| {
+                let p = [p[0], p[1], p[2], p[3]];
+                let on = p.map(|i| i != NO_PIXEL && active(i as usize));
+                let lanes = [0, 1, 2, 3].map(|k| if on[k] { rays[p[k] as usize] } else { pad });
+                (Ray4::from_rays(&lanes), M4::new(on[0], on[1], on[2], on[3]))
+            })
+            .unzip()
+    }
+
+    /// Scatter packet results back to pixels.
+    fn unpack<T: Copy>(&self, out: &mut [T], lanes: &[Hit4], f: impl Fn(&Hit4, usize) -> T) {
+        for (k, &p) in self.pix.iter().enumerate() {
+            if p != NO_PIXEL {
+                out[p as usize] = f(&lanes[k / 4], k % 4);
+            }
+        }
+    }
+}
+
+/// A view's primary rays: row-major (the 3DDDA's order) and packed per packet side.
+struct ViewRays {
+    w: u32,
+    rays: Vec<Ray>,
+    packed: HashMap<u32, (Tiling, Vec<Ray4>, Vec<M4>)>,
+}
+
+/// Shadow rays of a frame, one slot per pixel.
+struct Shadows {
+    rays: Vec<Ray>,
+    active: Vec<bool>,
+    /// Distance from the light to the ray's end (for packet splitting).
+    dist: Vec<f32>,
+    count: u64,
+}
+
+/// The shadow ray of a primary hit, as `render::surface` makes it: from the
+/// light to a point `eps` off the surface on the viewer's side, `tmax = 1`;
+/// None when the surface faces away from the light.
+fn shadow_ray(ray: &Ray, t: f32, normal: Vec3, light: Vec3, eps: f32) -> Option<Ray> {
+    let d = Vec3::from(ray.dir);
+    let mut n = normal.normalize_or_zero();
+    if n.dot(d) > 0.0 {
+        n = -n;
+    }
+    let p = Vec3::from(ray.org) + d * t;
+    if n.dot((light - p).normalize_or_zero()) > 0.0 {
+        let end = p + n * eps;
+        Some(Ray::new(light, end - light, 0.0, 1.0))
+    } else {
+        None
+    }
+}
+
+fn shadows(tr: &GridTracer<'_>, rays: &[Ray], hits: &[Hit], light: Vec3, eps: f32) -> Shadows {
+    let pad = Ray::new(light, Vec3::X, 0.0, 0.0);
+    let mut s = Shadows { rays: vec![pad; rays.len()], active: vec![false; rays.len()], dist: vec![0.0; rays.len()], count: 0 };
+    for (i, (r, h)) in rays.iter().zip(hits).enumerate() {
+        let Some(tri) = h.is_hit().then(|| tr.triangle(h.prim)).flatten() else { continue };
+        if let Some(sr) = shadow_ray(r, h.t, tri.normal(), light, eps) {
+            s.dist[i] = Vec3::from(sr.dir).length();
+            s.rays[i] = sr;
+            s.active[i] = true;
+            s.count += 1;
+        }
+    }
+    s
+}
+
+// ---------------------------------------------------------------------------
+// Timed tracing on one or more threads
+
+/// Hand `bands` out in order to one thread per mailbox; returns the summed counters.
+fn par_bands<B: Send>(
+    bands: impl Iterator<Item = B> + Send,
+    mbs: &mut [Mailbox<'_>],
+    work: impl Fn(B, &mut Mailbox<'_>, &mut Counters) + Sync,
+) -> Counters {
+    let queue = Mutex::new(bands);
+    let run = |mb: &mut Mailbox<'_>| {
+        let mut ctr = Counters::default();
+        loop {
+            let next = queue.lock().unwrap_or_else(|p| p.into_inner()).next();
+            let Some(b) = next else { break };
+            work(b, mb, &mut ctr);
+        }
+        ctr
+    };
+    let run = &run;
+    match mbs.split_first_mut() {
+        None => Counters::default(),
+        Some((first, [])) => run(first),
+        Some((first, rest)) => std::thread::scope(|s| {
+            let helpers: Vec<_> = rest.iter_mut().map(|mb| s.spawn(move || run(mb))).collect();
+            let mut total = run(first);
+            for h in helpers {
+                match h.join() {
+                    Ok(c) => total.add(&c),
+                    Err(p) => std::panic::resume_unwind(p),
+                }
+            }
+            total
+        }),
+    }
+}
+
+/// Nearest hits of row-major `rays`, one ray at a time.
+fn trace_single(tr: &GridTracer<'_>, rays: &[Ray], band: usize, hits: &mut [Hit], mbs: &mut [Mailbox<'_>]) -> Counters {
+    par_bands(rays.chunks(band).zip(hits.chunks_mut(band)), mbs, |(r, h), _, ctr| {
+        for (r, h) in r.iter().zip(h) {
+            *h = tr.intersect(r, ctr);
+        }
+    })
+}
+
+/// Occlusion of the active `rays`, one ray at a time.
+fn occlude_single(tr: &GridTracer<'_>, s: &Shadows, band: usize, out: &mut [bool], mbs: &mut [Mailbox<'_>]) -> Counters {
+    let bands = s.rays.chunks(band).zip(s.active.chunks(band)).zip(out.chunks_mut(band));
+    par_bands(bands, mbs, |((r, a), o), _, ctr| {
+        for ((r, a), o) in r.iter().zip(a).zip(o) {
+            *o = *a && tr.occluded(r, ctr);
+        }
+    })
+}
+
+/// Nearest hits of packed rays, one packet of `t.q` quads at a time.
+fn trace_packets(tr: &GridTracer<'_>, p: &TraceParams, t: &Tiling, rays: &[Ray4], active: &[M4], hits: &mut [Hit4], mbs: &mut [Mailbox<'_>]) -> Counters {
+    let bands = rays.chunks(t.band).zip(active.chunks(t.band)).zip(hits.chunks_mut(t.band));
+    par_bands(bands, mbs, |((r, a), h), mb, ctr| {
+        for ((r, a), h) in r.chunks(t.q).zip(a.chunks(t.q)).zip(h.chunks_mut(t.q)) {
+            tr.intersect_packet(p, r, a, h, mb, ctr);
+        }
+    })
+}
+
+/// Shadow packets with the primary tiling, split like the renderer's.
+#[allow(clippy::too_many_arguments)]
+fn occlude_packets(
+    tr: &GridTracer<'_>,
+    p: &TraceParams,
+    t: &Tiling,
+    rays: &[Ray4],
+    active: &[M4],
+    dist: &[F4],
+    hits: &mut [Hit4],
+    mbs: &mut [Mailbox<'_>],
+) -> Counters {
+    let bands = rays.chunks(t.band).zip(active.chunks(t.band)).zip(dist.chunks(t.band)).zip(hits.chunks_mut(t.band));
+    par_bands(bands, mbs, |(((r, a), d), h), mb, ctr| {
+        for (((r, a), d), h) in r.chunks(t.q).zip(a.chunks(t.q)).zip(d.chunks(t.q)).zip(h.chunks_mut(t.q)) {
+            for x in h.iter_mut() {
+                *x = Hit4::MISS;
+            }
+            shadow_packet(tr, p, r, a, d, h, mb, ctr);
+        }
+    })
+}
+
+/// `render::shadow_packet` (private there): split into the four Morton
+/// quarters while the lanes' distances from the light spread by more than
+/// `p.split`, then trace.
+#[allow(clippy::too_many_arguments)]
+fn shadow_packet(tr: &GridTracer<'_>, p: &TraceParams, rays: &[Ray4], active: &[M4], dist: &[F4], hits: &mut [Hit4], mb: &mut Mailbox<'_>, ctr: &mut Counters) {
+    if !active.iter().any(|m| m.any()) {
+        return;
+    }
+    if p.split > 0.0 && rays.len() >= 4 {
+        let (mut lo, mut hi) = (f32::INFINITY, 0.0f32);
+        for (m, d) in active.iter().zip(dist) {
+            lo = lo.min(F4::select(*m, *d, F4::INFINITY).min_element());
+            hi = hi.max(F4::select(*m, *d, F4::ZERO).max_element());
+        }
+        if hi > p.split * lo {
+            ctr.packets_split += 1;
+            let k = rays.len() / 4;
+            for s in 0..4 {
+                let r = s * k..(s + 1) * k;
+                shadow_packet(tr, p, &rays[r.clone()], &active[r.clone()], &dist[r.clone()], &mut hits[r], mb, ctr);
+            }
+            return;
+        }
+    }
+    tr.occluded_packet(p, rays, active, hits, mb, ctr);
+}
+
+/// Wall time of one trace on `threads` threads, for each measurement.
+#[derive(Clone, Copy, Debug, Default)]
+struct Timing {
+    threads: u32,
+    prim_ns: u64,
+    shadow_ns: u64,
+}
+
+/// What one configuration did on the full frame.
+struct Traced {
+    /// Per pixel: nearest hit, and whether its shadow ray was blocked.
+    hits: Vec<Hit>,
+    occluded: Vec<bool>,
+    prim_rays: u64,
+    shadow_rays: u64,
+    prim_ctr: Counters,
+    shadow_ctr: Counters,
+    timings: Vec<Timing>,
+}
+
+/// Time `f`: the median of up to `reps` runs, fewer once they took
+/// `MEASURE_NS` together (at least one).
+fn timed(reps: u32, mut f: impl FnMut()) -> u64 {
+    let mut runs = Vec::new();
+    let mut total = 0;
+    while runs.len() < reps.max(1) as usize && (runs.is_empty() || total < MEASURE_NS) {
+        let t = Instant::now();
+        f();
+        let ns = t.elapsed().as_nanos() as u64;
+        runs.push(ns);
+        total += ns;
+    }
+    median(runs)
+}
+
+#[allow(clippy::too_many_arguments)]
+fn trace_config(
+    tr: &GridTracer<'_>,
+    mbs: &mut [Mailbox<'_>],
+    cfg: &Config,
+    vr: &ViewRays,
+    light: Vec3,
+    eps: f32,
+    threads: &[u32],
+    reps: u32,
+) -> Traced {
+    let n = vr.rays.len();
+    let p = cfg.params();
+    let mut hits = vec![Hit::MISS; n];
+    let mut occluded = vec![false; n];
+    let mut timings = Vec::new();
+    let (prim_ctr, shadow_ctr, shadow_rays);
+    if !cfg.method.is_packet() {
+        let band = BAND_ROWS * vr.w as usize;
+        // Untimed first runs (warm caches, counters, results).
+        prim_ctr = trace_single(tr, &vr.rays, band, &mut hits, &mut mbs[..1]);
+        let s = shadows(tr, &vr.rays, &hits, light, eps);
+        shadow_ctr = occlude_single(tr, &s, band, &mut occluded, &mut mbs[..1]);
+        shadow_rays = s.count;
+        let (mut h2, mut o2) = (hits.clone(), occluded.clone());
+        for &t in threads {
+            let mbs = &mut mbs[..t as usize];
+            let prim_ns = timed(reps, || {
+                trace_single(tr, &vr.rays, band, &mut h2, mbs);
+            });
+            let shadow_ns = timed(reps, || {
+                occlude_single(tr, &s, band, &mut o2, mbs);
+            });
+            timings.push(Timing { threads: t, prim_ns, shadow_ns });
+        }
+    } else {
+        let (tiling, quads, active) = &vr.packed[&cfg.packet];
+        let mut h4 = vec![Hit4::MISS; quads.len()];
+        prim_ctr = trace_packets(tr, &p, tiling, quads, active, &mut h4, &mut mbs[..1]);
+        tiling.unpack(&mut hits, &h4, |h, i| h.lane(i));
+        let s = shadows(tr, &vr.rays, &hits, light, eps);
+        let (squads, sactive) = tiling.pack(&s.rays, |i| s.active[i], Ray::new(light, Vec3::X, 0.0, 0.0));
+        let sdist: Vec<F4> = tiling
+            .pix
+            .chunks_exact(4)
+            .map(|p| F4::from_array([p[0], p[1], p[2], p[3]].map(|i| if i == NO_PIXEL { 0.0 } else { s.dist[i as usize] })))
+            .collect();
+        let mut s4 = vec![Hit4::MISS; squads.len()];
+        shadow_ctr = occlude_packets(tr, &p, tiling, &squads, &sactive, &sdist, &mut s4, &mut mbs[..1]);
+        tiling.unpack(&mut occluded, &s4, |h, i| h.prim[i] != INVALID_ID);
+        for (o, a) in occluded.iter_mut().zip(&s.active) {
+            *o &= *a;
+        }
+        shadow_rays = s.count;
+        for &t in threads {
+            let mbs = &mut mbs[..t as usize];
+            let prim_ns = timed(reps, || {
+                trace_packets(tr, &p, tiling, quads, active, &mut h4, mbs);
+            });
+            let shadow_ns = timed(reps, || {
+                occlude_packets(tr, &p, tiling, &squads, &sactive, &sdist, &mut s4, mbs);
+            });
+            timings.push(Timing { threads: t, prim_ns, shadow_ns });
+        }
+    }
+    Traced { hits, occluded, prim_rays: n as u64, shadow_rays, prim_ctr, shadow_ctr, timings }
+}
+
+// ---------------------------------------------------------------------------
+// The f64 oracle
+
+/// Run `f` over `items` on every core, keeping order.
+fn par_map<T: Sync, R: Send>(items: &[T], f: impl Fn(&T) -> R + Sync) -> Vec<R> {
+    let n = std::thread::available_parallelism().map_or(1, |n| n.get()).max(1);
+    let chunk = items.len().div_ceil(n).max(1);
+    std::thread::scope(|s| {
+        let hs: Vec<_> = items.chunks(chunk).map(|c| s.spawn(|| c.iter().map(&f).collect::<Vec<_>>())).collect();
+        hs.into_iter()
+            .flat_map(|h| match h.join() {
+                Ok(v) => v,
+                Err(p) => std::panic::resume_unwind(p),
+            })
+            .collect()
+    })
+}
+
+fn gcd(a: usize, b: usize) -> usize {
+    if b == 0 { a } else { gcd(b, a % b) }
+}
+
+/// The oracle's answers for one scene and view, and the near-miss passes
+/// already made (cached: every configuration with the same triangle test
+/// disagrees on the same rays).
+struct Oracle {
+    /// Every `step`-th pixel is checked.
+    step: usize,
+    pixels: Vec<u32>,
+    prim: Vec<RefHit>,
+    /// Shadow rays of the oracle's hits, their answers, in `pixels` order.
+    shadow_rays: Vec<Ray>,
+    shadow: Vec<RefHit>,
+    prim_near: HashMap<usize, RefHit>,
+    shadow_tol: HashMap<usize, bool>,
+    ns: u64,
+}
+
+impl Oracle {
+    fn new(scene: &Scene<'_>, rays: &[Ray], w: u32, light: Vec3, eps: f32, budget: f64) -> Oracle {
+        let start = Instant::now();
+        let tris = scene.triangle_count().max(1) as f64;
+        // Primary plus at most as many shadow rays, each against every triangle.
+        let mut step = ((2.0 * rays.len() as f64 * tris / budget.max(1.0)).ceil() as usize).max(1);
+        while step > 1 && gcd(step, w as usize) != 1 {
+            step += 1;
+        }
+        let pixels: Vec<u32> = (0..rays.len()).step_by(step).map(|i| i as u32).collect();
+        let prim = par_map(&pixels, |&i| reference::nearest(scene, &rays[i as usize]));
+        let shadow_rays: Vec<Ray> = pixels
+            .iter()
+            .zip(&prim)
+            .filter(|(_, h)| h.prim != INVALID_ID)
+            .filter_map(|(&i, h)| {
+                let tri = scene.triangle(h.prim);
+                shadow_ray(&rays[i as usize], h.t as f32, tri.normal(), light, eps)
+            })
+            .collect();
+        let shadow = par_map(&shadow_rays, |r| reference::nearest(scene, r));
+        Oracle {
+            step,
+            pixels,
+            prim,
+            shadow_rays,
+            shadow,
+            prim_near: HashMap::new(),
+            shadow_tol: HashMap::new(),
+            ns: start.elapsed().as_nanos() as u64,
+        }
+    }
+}
+
+/// Disagreements of one configuration with the oracle.
+#[derive(Clone, Copy, Debug, Default)]
+struct Accuracy {
+    prim_checked: u64,
+    prim_mismatch: u64,
+    /// Of the mismatches: ties, near an edge, neither.
+    prim_tie: u64,
+    prim_edge: u64,
+    prim_outside: u64,
+    shadow_checked: u64,
+    shadow_mismatch: u64,
+    shadow_outside: u64,
+}
+
+impl Accuracy {
+    fn checked(&self) -> u64 {
+        self.prim_checked + self.shadow_checked
+    }
+    fn mismatch(&self) -> u64 {
+        self.prim_mismatch + self.shadow_mismatch
+    }
+    fn rate(&self) -> f64 {
+        per(self.mismatch(), self.checked())
+    }
+    fn outside(&self) -> u64 {
+        self.prim_outside + self.shadow_outside
+    }
+}
+
+/// Occlusion of the oracle's shadow rays by `cfg` (packets of consecutive
+/// rays for packet methods: incoherent, but the answers are what counts).
+fn occlusion_of(tr: &GridTracer<'_>, cfg: &Config, rays: &[Ray], mb: &mut Mailbox<'_>) -> Vec<bool> {
+    let mut ctr = Counters::default();
+    if !cfg.method.is_packet() {
+        return rays.iter().map(|r| tr.occluded(r, &mut ctr)).collect();
+    }
+    let p = cfg.params();
+    let q = (cfg.packet as usize / 2).pow(2);
+    let mut out = Vec::with_capacity(rays.len());
+    for chunk in rays.chunks(4 * q) {
+        let (quads, active): (Vec<Ray4>, Vec<M4>) = chunk
+            .chunks(4)
+            .map(|c| {
+                let lanes = [0, 1, 2, 3].map(|k| c.get(k).copied().unwrap_or(c[0]));
+                (Ray4::from_rays(&lanes), M4::new(true, c.len() > 1, c.len() > 2, c.len() > 3))
+            })
+            .unzip();
+        let mut hits = vec![Hit4::MISS; quads.len()];
+        tr.occluded_packet(&p, &quads, &active, &mut hits, mb, &mut ctr);
+        out.extend((0..chunk.len()).map(|k| hits[k / 4].prim[k % 4] != INVALID_ID));
+    }
+    out
+}
+
+/// Count the disagreements of `hits` / `occluded` with the oracle; describe
+/// those outside the tolerances in `details` (one line each).
+fn accuracy(scene: &Scene<'_>, o: &mut Oracle, w: u32, rays: &[Ray], hits: &[Hit], occluded: &[bool], details: &mut Vec<String>) -> Accuracy {
+    let mut a = Accuracy { prim_checked: o.pixels.len() as u64, shadow_checked: o.shadow_rays.len() as u64, ..Accuracy::default() };
+    for (k, (&px, want)) in o.pixels.iter().zip(&o.prim).enumerate() {
+        if hits[px as usize].prim == want.prim {
+            continue;
+        }
+        a.prim_mismatch += 1;
+        let near = *o.prim_near.entry(k).or_insert_with(|| reference::with_edge_distance(scene, &rays[px as usize], *want));
+        if near.gap <= TIE_REL {
+            a.prim_tie += 1;
+        } else if near.edge <= EDGE_BARY {
+            a.prim_edge += 1;
+        } else {
+            a.prim_outside += 1;
+            let (r, h) = (&rays[px as usize], &hits[px as usize]);
+            details.push(format!(
+                "primary pixel ({}, {}) {r:?}: got prim {} t {} / f64 prim {} t {} (gap {:e}, edge {:e})",
+                px % w,
+                px / w,
+                h.prim as i64,
+                h.t,
+                want.prim as i64,
+                want.t,
+                near.gap,
+                near.edge
+            ));
+        }
+    }
+    for (k, (&got, want)) in occluded.iter().zip(&o.shadow).enumerate() {
+        if got == (want.prim != INVALID_ID) {
+            continue;
+        }
+        a.shadow_mismatch += 1;
+        let r = o.shadow_rays[k];
+        let ok = *o.shadow_tol.entry(k).or_insert_with(|| {
+            let near = reference::with_edge_distance(scene, &r, *want);
+            // An occluder at the ray's end either way: the oracle's just
+            // before it, or one just past it that f32 may put before it.
+            let at_end = if want.prim != INVALID_ID {
+                want.t >= r.tmax as f64 * (1.0 - END_REL)
+            } else {
+                let longer = Ray { tmax: (r.tmax as f64 * (1.0 + END_REL)) as f32, ..r };
+                reference::nearest(scene, &longer).prim != INVALID_ID
+            };
+            near.edge <= EDGE_BARY || at_end
+        });
+        if !ok {
+            a.shadow_outside += 1;
+            details.push(format!(
+                "shadow ray {k} {r:?}: got occluded {got} / f64 prim {} t {} (edge {:e})",
+                want.prim as i64, want.t, want.edge
+            ));
+        }
+    }
+    a
+}
+
+// ---------------------------------------------------------------------------
+// Scenes
+
+/// A scene to run: its bench name and what `load::load` takes.
+struct SceneSpec {
+    name: String,
+    load: String,
+}
+
+fn scenes_dir(a: &BenchArgs) -> PathBuf {
+    if let Some(d) = &a.scenes_dir {
+        return d.clone();
+    }
+    let here = PathBuf::from("../shared/scenes");
+    if here.is_dir() {
+        return here;
+    }
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/scenes")
+}
+
+/// The scenes asked for, absent OBJ files skipped with a message.
+fn scene_specs(a: &BenchArgs) -> Result<Vec<SceneSpec>, Failure> {
+    let dir = scenes_dir(a);
+    let names: Vec<String> = if !a.scenes.is_empty() {
+        a.scenes.iter().map(|s| s.trim().to_string()).filter(|s| !s.is_empty()).collect()
+    } else if a.quick {
+        QUICK_SCENES.iter().map(|s| s.to_string()).collect()
+    } else {
+        sheaf::scenes::BUILTIN_NAMES.iter().chain(OBJ_SCENES.iter().map(|(n, _)| n)).map(|s| s.to_string()).collect()
+    };
+    let mut out = Vec::new();
+    for name in names {
+        let (label, path) = if sheaf::scenes::BUILTIN_NAMES.contains(&name.as_str()) {
+            out.push(SceneSpec { load: format!("builtin:{name}"), name });
+            continue;
+        } else if let Some((n, f)) = OBJ_SCENES.iter().find(|(n, f)| *n == name || f.starts_with(&format!("{name}/"))) {
+            (n.to_string(), dir.join(f))
+        } else if name.ends_with(".obj") {
+            let p = PathBuf::from(&name);
+            (p.file_stem().map_or(name.clone(), |s| s.to_string_lossy().into_owned()), p)
+        } else {
+            let known: Vec<&str> = sheaf::scenes::BUILTIN_NAMES.iter().copied().chain(OBJ_SCENES.iter().map(|(n, _)| *n)).collect();
+            return Err(Failure(format!("--scenes: unknown scene '{name}' (known: {}, or a path ending in .obj)", known.join(", "))));
+        };
+        if path.is_file() {
+            out.push(SceneSpec { name: label, load: path.to_string_lossy().into_owned() });
+        } else {
+            println!("note: {label}: {} not found, skipped", path.display());
+        }
+    }
+    Ok(out)
+}
+
+/// The scene's view and light: a builtin's first view and light, or for an
+/// OBJ file what `sheaf render` picks by default (inside when the scene
+/// encloses the inside view's eye, else outside; the light placed for it).
+fn view_for(loaded: &Loaded, tr: &GridTracer<'_>, info: &GridInfo, w: u32, h: u32) -> (sheaf::scenes::View, Vec3, String) {
+    if let Some((views, light)) = &loaded.builtin {
+        return (views[0], *light, "builtin view 0".into());
+    }
+    let (lo, hi) = (info.bounds.min, info.bounds.max);
+    let inside = view::inside(tr, lo, hi, Vec3::Y, INSIDE_FOV);
+    let interior = view::is_interior(tr, inside.eye);
+    let v = if interior { inside } else { view::outside(lo, hi, Vec3::Y, OUTSIDE_FOV, w as f32 / h as f32) };
+    let light = view::light_for(tr, &v, interior, (hi - lo).length());
+    (v, Vec3::from(light.position), if interior { "inside (auto)" } else { "outside (auto)" }.into())
+}
+
+// ---------------------------------------------------------------------------
+// Results
+
+/// One configuration on one scene: everything the CSV holds.
+struct Row {
+    scene: String,
+    triangles: u32,
+    view: String,
+    size: (u32, u32),
+    cfg: Config,
+    test: String,
+    build_ns: u64,
+    grid: String,
+    refs: u32,
+    prim_rays: u64,
+    shadow_rays: u64,
+    timings: Vec<Timing>,
+    prim_ctr: Counters,
+    shadow_ctr: Counters,
+    oracle_step: usize,
+    acc: Accuracy,
+    /// Pixels whose nearest triangle / shadow answer differ from the 3DDDA's
+    /// with the same triangle test (0: CGT is exact, as it must be).
+    diff_dda: (u64, u64),
+}
+
+impl Row {
+    fn prim_mrays(&self, i: usize) -> f64 {
+        self.timings.get(i).map_or(0.0, |t| mrays(self.prim_rays, t.prim_ns))
+    }
+    fn shadow_mrays(&self, i: usize) -> f64 {
+        self.timings.get(i).map_or(0.0, |t| mrays(self.shadow_rays, t.shadow_ns))
+    }
+}
+
+fn counters_csv(s: &mut String, c: &Counters, rays: u64) {
+    let _ = write!(
+        s,
+        ",{:.3},{:.3},{:.3},{:.3},{:.3},{},{},{},{}",
+        per(c.cells, rays),
+        per(c.macro_skips, rays),
+        per(c.tri_tests, rays),
+        per(c.mailbox_skips, rays),
+        per(c.culled, rays),
+        c.packets,
+        c.stray_lanes,
+        c.packets_no_cull,
+        c.packets_split
+    );
+}
+
+fn csv(rows: &[Row], threads: &[u32]) -> String {
+    let mut s = String::from(
+        "scene,triangles,view,width,height,config,method,packet,macrocells,mailbox,culling,test,build_ms,grid_res,grid_refs,primary_rays,shadow_rays",
+    );
+    for t in threads {
+        let _ = write!(s, ",primary_ms_{t}t,primary_mrays_{t}t,shadow_ms_{t}t,shadow_mrays_{t}t,total_mrays_{t}t");
+    }
+    for k in ["primary", "shadow"] {
+        for c in ["cells", "macro_skips", "tri_tests", "mailbox_skips", "culled"] {
+            let _ = write!(s, ",{k}_{c}_per_ray");
+        }
+        for c in ["packets", "stray_lanes", "packets_no_cull", "packets_split"] {
+            let _ = write!(s, ",{k}_{c}");
+        }
+    }
+    s.push_str(",oracle_step,primary_checked,primary_mismatch,primary_mismatch_tie,primary_mismatch_edge,primary_mismatch_outside_tol,shadow_checked,shadow_mismatch,shadow_mismatch_outside_tol,mismatch_rate,mismatch_outside_tol_rate,primary_diff_vs_dda,shadow_diff_vs_dda\n");
+    for r in rows {
+        let a = &r.acc;
+        let _ = write!(
+            s,
+            "{},{},{},{},{},{},{},{},{},{},{},{},{:.3},{},{},{},{}",
+            r.scene,
+            r.triangles,
+            r.view,
+            r.size.0,
+            r.size.1,
+            r.cfg.label(),
+            r.cfg.method.name(),
+            r.cfg.packet,
+            r.cfg.cgt.macrocells,
+            r.cfg.cgt.mailbox,
+            r.cfg.cgt.culling,
+            r.test,
+            ms(r.build_ns),
+            r.grid,
+            r.refs,
+            r.prim_rays,
+            r.shadow_rays
+        );
+        for (i, t) in r.timings.iter().enumerate() {
+            let _ = write!(
+                s,
+                ",{:.3},{:.3},{:.3},{:.3},{:.3}",
+                ms(t.prim_ns),
+                r.prim_mrays(i),
+                ms(t.shadow_ns),
+                r.shadow_mrays(i),
+                mrays(r.prim_rays + r.shadow_rays, t.prim_ns + t.shadow_ns)
+            );
+        }
+        counters_csv(&mut s, &r.prim_ctr, r.prim_rays);
+        counters_csv(&mut s, &r.shadow_ctr, r.shadow_rays);
+        let _ = writeln!(
+            s,
+            ",{},{},{},{},{},{},{},{},{},{:.3e},{:.3e},{},{}",
+            r.oracle_step,
+            a.prim_checked,
+            a.prim_mismatch,
+            a.prim_tie,
+            a.prim_edge,
+            a.prim_outside,
+            a.shadow_checked,
+            a.shadow_mismatch,
+            a.shadow_outside,
+            a.rate(),
+            per(a.outside(), a.checked()),
+            r.diff_dda.0,
+            r.diff_dda.1
+        );
+    }
+    s
+}
+
+/// What the Markdown header says about each scene.
+struct SceneNote {
+    name: String,
+    line: String,
+}
+
+fn markdown(rows: &[Row], notes: &[SceneNote], header: &str, threads: &[u32]) -> String {
+    let mut s = String::from(header);
+    for note in notes {
+        let _ = write!(s, "\n### {}\n\n{}\n\n", note.name, note.line);
+        s.push_str("| config | test | build ms |");
+        for t in threads {
+            let _ = write!(s, " primary Mrays/s {t}T |");
+        }
+        for t in threads {
+            let _ = write!(s, " shadow Mrays/s {t}T |");
+        }
+        s.push_str(" cells/ray | tests/ray | mailbox skips/ray | culled/ray | stray lanes | shadow splits | primary mismatch (outside tol) | shadow mismatch (outside tol) | mismatch rate |\n|---|---|--:|");
+        for _ in 0..2 * threads.len() {
+            s.push_str("--:|");
+        }
+        s.push_str("--:|--:|--:|--:|--:|--:|--:|--:|--:|\n");
+        for r in rows.iter().filter(|r| r.scene == note.name) {
+            let a = &r.acc;
+            let c = &r.prim_ctr;
+            let _ = write!(s, "| {} | {} | {:.1} |", r.cfg.label(), r.test, ms(r.build_ns));
+            for i in 0..threads.len() {
+                let _ = write!(s, " {:.2} |", r.prim_mrays(i));
+            }
+            for i in 0..threads.len() {
+                let _ = write!(s, " {:.2} |", r.shadow_mrays(i));
+            }
+            let _ = writeln!(
+                s,
+                " {:.2} | {:.2} | {:.2} | {:.2} | {} | {} | {} ({}) | {} ({}) | {:.2e} |",
+                per(c.cells, r.prim_rays),
+                per(c.tri_tests, r.prim_rays),
+                per(c.mailbox_skips, r.prim_rays),
+                per(c.culled, r.prim_rays),
+                c.stray_lanes,
+                r.shadow_ctr.packets_split,
+                a.prim_mismatch,
+                a.prim_outside,
+                a.shadow_mismatch,
+                a.shadow_outside,
+                a.rate()
+            );
+        }
+    }
+    s
+}
+
+/// Hardware threads, CPU model and load average (Linux), so a reader can
+/// tell a busy machine's numbers.
+fn machine_line() -> String {
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let mut s = format!("{cores} hardware threads");
+    let cpu = std::fs::read_to_string("/proc/cpuinfo")
+        .ok()
+        .and_then(|t| t.lines().find(|l| l.starts_with("model name")).and_then(|l| l.split_once(':')).map(|(_, v)| v.trim().to_string()));
+    if let Some(c) = cpu {
+        let _ = write!(s, " ({c})");
+    }
+    if let Some(l) = std::fs::read_to_string("/proc/loadavg").ok().map(|l| l.split_whitespace().take(3).collect::<Vec<_>>().join(" ")) {
+        let _ = write!(s, ", load average {l}");
+    }
+    s
+}
+
+fn command_line() -> String {
+    std::env::args()
+        .map(|a| if a.contains(char::is_whitespace) || a.is_empty() { format!("'{a}'") } else { a })
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
+// ---------------------------------------------------------------------------
+// The command
+
+/// `sheaf bench`.
+pub fn bench(a: &BenchArgs) -> Result<(), Failure> {
+    let start = Instant::now();
+    let (w, h) = a.size.unwrap_or(if a.quick { (256, 256) } else { (512, 512) });
+    let packets: Vec<u32> = if !a.packets.is_empty() {
+        a.packets.clone()
+    } else if a.quick {
+        vec![4, 8, 16]
+    } else {
+        vec![2, 4, 8, 16, 32]
+    };
+    for &n in &packets {
+        TraceParams::cgt(n).validate().or_fail(|| format!("--packets {n}"))?;
+    }
+    let mut threads = a.threads.clone();
+    threads.dedup();
+    if threads.is_empty() || threads.iter().any(|&t| !(1..=64).contains(&t)) {
+        return Err(Failure("--threads: each must be in 1..=64".into()));
+    }
+    let max_threads = *threads.iter().max().unwrap_or(&1);
+    let reps = a.reps.unwrap_or(if a.quick { 1 } else { 3 }).max(1);
+    let budget = a.oracle_budget.unwrap_or(if a.quick { 2e8 } else { 1e9 });
+    if budget.is_nan() || budget < 1.0 {
+        return Err(Failure("--oracle-budget must be >= 1".into()));
+    }
+    let cfgs = configs(&packets, a.ablation);
+    let mut tests = a.tests.clone();
+    tests.dedup_by_key(|t| test_name(*t));
+    let specs = scene_specs(a)?;
+    std::fs::create_dir_all(&a.out_dir).or_fail(|| format!("cannot create {}", a.out_dir.display()))?;
+    let machine = machine_line();
+
+    println!(
+        "sheaf bench: {} scenes x {} configurations x {} triangle tests, {w}x{h}, threads {:?}, median of up to {reps} timed runs, machine: {machine}",
+        specs.len(),
+        cfgs.len(),
+        tests.len(),
+        threads,
+    );
+    let mut rows: Vec<Row> = Vec::new();
+    let mut notes: Vec<SceneNote> = Vec::new();
+    let mut mismatch_log = String::from("# Mismatches with the f64 oracle outside the tolerances (scene, configuration, test: ray, both answers)\n");
+    for spec in &specs {
+        let t_load = Instant::now();
+        let loaded = match load::load(&spec.load) {
+            Ok(l) => l,
+            Err(e) => {
+                println!("note: {}: {e}, skipped", spec.name);
+                continue;
+            }
+        };
+        let scene = loaded.scene()?;
+        if scene.triangle_count() == 0 {
+            println!("note: {}: no triangles, skipped", spec.name);
+            continue;
+        }
+        let load_ms = t_load.elapsed().as_secs_f64() * 1e3;
+        let limits = run::limits(&scene, (w, h), max_threads);
+        // Set on the first triangle test's build: view, light, rays, oracle.
+        let mut prepared: Option<(ViewRays, Vec3, f32, Oracle)> = None;
+        let mut scene_line = String::new();
+        let mut view_how = String::new();
+        for &test in &tests {
+            let grid = GridOpts { test, lambda: a.lambda, macrocell: a.macrocell };
+            let params = grid.params();
+            let (mut ctx, info) = run::context_for(&scene, limits, &params, 1.0).or_fail(|| spec.name.clone())?;
+            if info.triangles == 0 {
+                println!("note: {}: every triangle is degenerate or non-finite, skipped", spec.name);
+                break;
+            }
+            let mut builds = vec![ctx.stats().build_ns];
+            for _ in 1..BUILD_REPS {
+                ctx.build_grid(&scene, &params)?;
+                builds.push(ctx.stats().build_ns);
+            }
+            let build_ns = median(builds);
+            if prepared.is_none() {
+                let tr = ctx.tracer()?;
+                let (v, light, how) = view_for(&loaded, &tr, &info, w, h);
+                let cam = Camera { eye: v.eye.to_array(), look_at: v.look_at.to_array(), up: v.up.to_array(), fov_y_deg: v.fov_y_deg };
+                let pr = PrimaryRays::new(&cam, w, h)?;
+                let rays: Vec<Ray> = (0..h).flat_map(|y| (0..w).map(move |x| (x, y))).map(|(x, y)| pr.ray(x, y)).collect();
+                let pad = Ray::new(v.eye, Vec3::X, 0.0, 0.0);
+                // Every packet side a configuration uses (the ablations' 8 too).
+                let mut sides: Vec<u32> = cfgs.iter().filter(|c| c.method.is_packet()).map(|c| c.packet).collect();
+                sides.sort_unstable();
+                sides.dedup();
+                let packed = sides
+                    .iter()
+                    .map(|&n| {
+                        let t = Tiling::new(w, h, n);
+                        let (q, m) = t.pack(&rays, |_| true, pad);
+                        (n, (t, q, m))
+                    })
+                    .collect();
+                let eps = SHADOW_OFFSET * info.bounds.diagonal().length();
+                let oracle = Oracle::new(&scene, &rays, w, light, eps, budget);
+                scene_line = format!(
+                    "{} triangles ({} traceable), loaded in {load_ms:.0} ms; view: {how}, eye ({}), look at ({}), fov {}; light ({}); \
+                     oracle (f64 brute force): 1 in {} primary rays ({} rays) and the shadow rays of its hits ({} rays), {:.1} s",
+                    scene.triangle_count(),
+                    info.triangles,
+                    fmt_v(v.eye),
+                    fmt_v(v.look_at),
+                    v.fov_y_deg,
+                    fmt_v(light),
+                    oracle.step,
+                    oracle.pixels.len(),
+                    oracle.shadow_rays.len(),
+                    oracle.ns as f64 * 1e-9
+                );
+                println!("[{}] {scene_line}", spec.name);
+                view_how = how;
+                prepared = Some((ViewRays { w, rays, packed }, light, eps, oracle));
+            }
+            let Some((vr, light, eps, oracle)) = prepared.as_mut() else { unreachable!() };
+            let grid_res = res(&info);
+            println!(
+                "[{}] {}: grid {grid_res}, {} refs, build {:.2} ms (median of {BUILD_REPS})",
+                spec.name,
+                test_name(test),
+                info.refs,
+                ms(build_ns)
+            );
+            let (tr, mbs) = ctx.parts()?;
+            let mut mbs: Vec<Mailbox<'_>> = mbs.take(max_threads as usize).collect();
+            let mut dda: Option<(Vec<u32>, Vec<bool>)> = None;
+            for cfg in &cfgs {
+                let t = trace_config(&tr, &mut mbs, cfg, vr, *light, *eps, &threads, reps);
+                let occl = occlusion_of(&tr, cfg, &oracle.shadow_rays, &mut mbs[0]);
+                let mut found = Vec::new();
+                let acc = accuracy(&scene, oracle, w, &vr.rays, &t.hits, &occl, &mut found);
+                for d in found {
+                    let _ = writeln!(mismatch_log, "{} {} {}: {d}", spec.name, cfg.label(), test_name(test));
+                }
+                let prims: Vec<u32> = t.hits.iter().map(|h| h.prim).collect();
+                let diff_dda = match &dda {
+                    None => {
+                        dda = Some((prims, t.occluded.clone()));
+                        (0, 0)
+                    }
+                    Some((p, o)) => (
+                        p.iter().zip(&prims).filter(|(a, b)| a != b).count() as u64,
+                        o.iter().zip(&t.occluded).filter(|(a, b)| a != b).count() as u64,
+                    ),
+                };
+                let row = Row {
+                    scene: spec.name.clone(),
+                    triangles: scene.triangle_count(),
+                    view: view_how.clone(),
+                    size: (w, h),
+                    cfg: *cfg,
+                    test: test_name(test),
+                    build_ns,
+                    grid: grid_res.clone(),
+                    refs: info.refs,
+                    prim_rays: t.prim_rays,
+                    shadow_rays: t.shadow_rays,
+                    timings: t.timings,
+                    prim_ctr: t.prim_ctr,
+                    shadow_ctr: t.shadow_ctr,
+                    oracle_step: oracle.step,
+                    acc,
+                    diff_dda,
+                };
+                println!("{}", progress(&row));
+                rows.push(row);
+            }
+        }
+        if prepared.is_some() {
+            notes.push(SceneNote { name: spec.name.clone(), line: scene_line });
+        }
+    }
+
+    let header = format!(
+        "# sheaf bench\n\n\
+         - command: `{}`\n\
+         - machine (at the start): {}\n\
+         - image: {w}x{h} primary rays per scene (one view), plus one shadow ray per lit hit, traced from the light\n\
+         - timing: traversal and intersection only (rays packed beforehand), after one untimed run: median of up to {reps} runs \
+         (fewer once they took {:.1} s); threads {:?}; build: median of {BUILD_REPS}\n\
+         - grid: lambda {}, macrocell {}\n\
+         - counters are per primary ray; stray lanes and shadow splits are totals\n\
+         - accuracy: f64 brute-force oracle on a subsample (every k-th primary ray, k per scene below, plus the shadow rays of the oracle's hits); \
+         mismatch = nearest triangle (primary) or occlusion (shadow) differs; in parentheses those outside the tolerances \
+         (tie gap <= {TIE_REL:e} relative, edge distance <= {EDGE_BARY:e} barycentric, occluder within {END_REL:e} of the ray's end); \
+         mismatch rate = all mismatches / rays checked\n\
+         - total time: {:.0} s\n",
+        command_line(),
+        machine,
+        MEASURE_NS as f64 * 1e-9,
+        threads,
+        a.lambda,
+        a.macrocell,
+        start.elapsed().as_secs_f64()
+    );
+    let md = markdown(&rows, &notes, &header, &threads);
+    let csv_path = a.out_dir.join("bench.csv");
+    let md_path = a.out_dir.join("bench.md");
+    std::fs::write(&csv_path, csv(&rows, &threads)).or_fail(|| format!("cannot write {}", csv_path.display()))?;
+    std::fs::write(&md_path, &md).or_fail(|| format!("cannot write {}", md_path.display()))?;
+    let log_path = a.out_dir.join("mismatches.txt");
+    std::fs::write(&log_path, &mismatch_log).or_fail(|| format!("cannot write {}", log_path.display()))?;
+    println!("\n{md}");
+    let inconsistent: u64 = rows.iter().map(|r| r.diff_dda.0 + r.diff_dda.1).sum();
+    if inconsistent > 0 {
+        println!("warning: some packet configurations differ from the 3DDDA with the same triangle test (see primary_diff_vs_dda in bench.csv)");
+    }
+    let (svg, png) = (a.out_dir.join("speed_accuracy.svg"), a.out_dir.join("speed_accuracy.png"));
+    chart::write(&rows, &notes, (w, h), &svg, &png)?;
+    println!("wrote {}, {}, {}, {}, {}", csv_path.display(), md_path.display(), log_path.display(), svg.display(), png.display());
+    Ok(())
+}
+
+fn fmt_v(v: Vec3) -> String {
+    format!("{:.3}, {:.3}, {:.3}", v.x, v.y, v.z)
+}
+
+/// One line per configuration as it completes.
+fn progress(r: &Row) -> String {
+    let ts: Vec<String> = r.timings.iter().map(|t| format!("{}T", t.threads)).collect();
+    let mut s = format!("[{}] {:<34} {:<10} Mrays/s ({}) primary", r.scene, r.cfg.label(), r.test, ts.join("/"));
+    for i in 0..r.timings.len() {
+        let _ = write!(s, " {:>6.2}", r.prim_mrays(i));
+    }
+    s.push_str("  shadow");
+    for i in 0..r.timings.len() {
+        let _ = write!(s, " {:>6.2}", r.shadow_mrays(i));
+    }
+    let a = &r.acc;
+    let _ = write!(
+        s,
+        "  tests/ray {:>6.2}  mismatch {}/{} + {}/{} shadow ({} outside tol)",
+        per(r.prim_ctr.tri_tests, r.prim_rays),
+        a.prim_mismatch,
+        a.prim_checked,
+        a.shadow_mismatch,
+        a.shadow_checked,
+        a.outside()
+    );
+    if r.diff_dda != (0, 0) {
+        let _ = write!(s, "  DIFFERS FROM 3DDDA: {} primary, {} shadow", r.diff_dda.0, r.diff_dda.1);
+    }
+    s
+}
+
+// ---------------------------------------------------------------------------
+// The chart
+
+mod chart {
+    use super::{Row, SceneNote, RATE_FLOOR, per};
+    use crate::{Failure, OrFail};
+    use plotters::coord::Shift;
+    use plotters::prelude::*;
+    use plotters::style::FontStyle;
+    use std::path::Path;
+
+    const FONT: &str = "sans-serif";
+    const PANEL: (u32, u32) = (560, 420);
+    const LEGEND_W: u32 = 260;
+    const COLS: u32 = 3;
+    const TITLE_H: u32 = 44;
+
+    /// Colours per configuration label, in order of first appearance.
+    const COLOURS: &[RGBColor] = &[
+        RGBColor(30, 30, 30),    // grid-dda
+        RGBColor(31, 119, 180),  // cgt 2
+        RGBColor(44, 160, 44),   // cgt 4
+        RGBColor(255, 127, 14),  // cgt 8
+        RGBColor(214, 39, 40),   // cgt 16
+        RGBColor(148, 103, 189), // cgt 32
+        RGBColor(140, 86, 75),
+        RGBColor(227, 119, 194),
+        RGBColor(127, 127, 127),
+        RGBColor(188, 189, 34),
+        RGBColor(23, 190, 207),
+        RGBColor(0, 0, 128),
+    ];
+
+    pub(super) struct Point {
+        pub(super) x: f64,
+        pub(super) rate: f64,
+        pub(super) colour: usize,
+        pub(super) marker: usize,
+    }
+
+    struct Panel {
+        title: String,
+        points: Vec<Point>,
+    }
+
+    /// Indices of the Pareto-optimal points (max x, min rate), by x ascending.
+    pub(super) fn front(points: &[Point]) -> Vec<usize> {
+        let mut idx: Vec<usize> = (0..points.len()).collect();
+        idx.sort_by(|&a, &b| points[b].x.total_cmp(&points[a].x).then(points[a].rate.total_cmp(&points[b].rate)));
+        let mut best = f64::INFINITY;
+        let mut out = Vec::new();
+        for i in idx {
+            if points[i].rate < best {
+                best = points[i].rate;
+                out.push(i);
+            }
+        }
+        out.reverse();
+        out
+    }
+
+    fn register_font() -> Result<(), Failure> {
+        static ONCE: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+        let ok = *ONCE.get_or_init(|| plotters::style::register_font(FONT, FontStyle::Normal, dejavu::sans::regular()).is_ok());
+        if ok { Ok(()) } else { Err(Failure("chart: the embedded DejaVu Sans font did not load".into())) }
+    }
+
+    /// Panels: all scenes, then one per scene. `labels` are (colour, configuration label).
+    fn panels(rows: &[Row], notes: &[SceneNote], labels: &[(usize, String)], tests: &[String]) -> Vec<Panel> {
+        let key = |r: &Row| (r.cfg.colour(), tests.iter().position(|t| *t == r.test).unwrap_or(0));
+        let mut out = Vec::new();
+        // All scenes: rays over summed time, mismatches over summed checks.
+        let mut all = Panel { title: "all scenes (rays / total time, mismatches / checks)".into(), points: Vec::new() };
+        for &(ci, _) in labels {
+            for (ti, _) in tests.iter().enumerate() {
+                let rs: Vec<&Row> = rows.iter().filter(|r| key(r) == (ci, ti)).collect();
+                if rs.is_empty() {
+                    continue;
+                }
+                let rays: u64 = rs.iter().map(|r| r.prim_rays).sum();
+                let ns: u64 = rs.iter().map(|r| r.timings.first().map_or(0, |t| t.prim_ns)).sum();
+                let mism: u64 = rs.iter().map(|r| r.acc.mismatch()).sum();
+                let checked: u64 = rs.iter().map(|r| r.acc.checked()).sum();
+                all.points.push(Point { x: super::mrays(rays, ns), rate: per(mism, checked), colour: ci, marker: ti });
+            }
+        }
+        if notes.len() > 1 {
+            out.push(all);
+        }
+        for n in notes {
+            let rs = rows.iter().filter(|r| r.scene == n.name);
+            let tris = rows.iter().find(|r| r.scene == n.name).map_or(0, |r| r.triangles);
+            out.push(Panel {
+                title: format!("{} ({} tris)", n.name, tris),
+                points: rs.map(|r| {
+                    let (c, m) = key(r);
+                    Point { x: r.prim_mrays(0), rate: r.acc.rate(), colour: c, marker: m }
+                })
+                .collect(),
+            });
+        }
+        out
+    }
+
+    fn marker<DB: DrawingBackend>(area: &DrawingArea<DB, Shift>, at: (i32, i32), marker: usize, c: RGBColor) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
+        let s = c.filled();
+        match marker % 3 {
+            0 => area.draw(&Circle::new(at, 5, s)),
+            1 => area.draw(&TriangleMarker::new(at, 7, s)),
+            _ => area.draw(&Rectangle::new([(at.0 - 5, at.1 - 5), (at.0 + 5, at.1 + 5)], s)),
+        }
+    }
+
+    fn draw<DB: DrawingBackend>(
+        root: DrawingArea<DB, Shift>,
+        panels: &[Panel],
+        labels: &[(usize, String)],
+        tests: &[String],
+        title: &str,
+    ) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
+        root.fill(&WHITE)?;
+        let (top, body) = root.split_vertically(TITLE_H);
+        top.draw(&Text::new(title.to_string(), (14, 12), (FONT, 20).into_font().color(&BLACK)))?;
+        let (grid, legend) = body.split_horizontally(COLS * PANEL.0);
+        let rows = (panels.len() as u32).div_ceil(COLS);
+        let cells = grid.split_evenly((rows as usize, COLS as usize));
+        for (area, p) in cells.iter().zip(panels) {
+            let xmax = p.points.iter().map(|q| q.x).fold(0.0, f64::max).max(1e-3) * 1.12;
+            let ymax = (p.points.iter().map(|q| q.rate).fold(0.0, f64::max) + RATE_FLOOR).max(1e-4) * 4.0;
+            let mut chart = ChartBuilder::on(area)
+                .caption(&p.title, (FONT, 17))
+                .margin(10)
+                .x_label_area_size(38)
+                .y_label_area_size(62)
+                .build_cartesian_2d(0.0..xmax, (RATE_FLOOR * 0.5..ymax).log_scale())?;
+            chart
+                .configure_mesh()
+                .x_desc("Mrays/s (primary rays, 1 thread)")
+                .y_desc("mismatch rate + 1e-6 (log)")
+                .label_style((FONT, 12))
+                .axis_desc_style((FONT, 13))
+                .y_label_formatter(&|v| format!("{v:.0e}"))
+                .x_label_formatter(&|v| format!("{v:.1}"))
+                .light_line_style(RGBColor(238, 238, 238))
+                .draw()?;
+            let f = front(&p.points);
+            chart.draw_series(LineSeries::new(
+                f.iter().map(|&i| (p.points[i].x, p.points[i].rate + RATE_FLOOR)),
+                ShapeStyle::from(&BLACK.mix(0.55)).stroke_width(2),
+            ))?;
+            let at = |q: &Point| (q.x, q.rate + RATE_FLOOR);
+            let col = |q: &Point| COLOURS[q.colour % COLOURS.len()].filled();
+            let of = |m: usize| p.points.iter().filter(move |q| q.marker % 3 == m);
+            chart.draw_series(of(0).map(|q| EmptyElement::at(at(q)) + Circle::new((0, 0), 5, col(q))))?;
+            chart.draw_series(of(1).map(|q| EmptyElement::at(at(q)) + TriangleMarker::new((0, 0), 7, col(q))))?;
+            chart.draw_series(of(2).map(|q| EmptyElement::at(at(q)) + Rectangle::new([(-5, -5), (5, 5)], col(q))))?;
+            // Ring the points on the front.
+            chart.draw_series(f.iter().map(|&i| Circle::new(at(&p.points[i]), 10, ShapeStyle::from(&BLACK.mix(0.55)).stroke_width(1))))?;
+        }
+        // Legend: colours per configuration, markers per triangle test, the front.
+        let font = (FONT, 14).into_font().color(&BLACK);
+        let mut y = 30;
+        legend.draw(&Text::new("configuration (colour)", (10, y), font.clone()))?;
+        y += 24;
+        for (i, l) in labels {
+            marker(&legend, (22, y + 7), 0, COLOURS[i % COLOURS.len()])?;
+            legend.draw(&Text::new(l.clone(), (36, y), font.clone()))?;
+            y += 22;
+        }
+        y += 14;
+        legend.draw(&Text::new("triangle test (marker)", (10, y), font.clone()))?;
+        y += 24;
+        for (i, t) in tests.iter().enumerate() {
+            marker(&legend, (22, y + 7), i, RGBColor(90, 90, 90))?;
+            legend.draw(&Text::new(t.clone(), (36, y), font.clone()))?;
+            y += 22;
+        }
+        y += 14;
+        legend.draw(&PathElement::new(vec![(12, y + 7), (32, y + 7)], ShapeStyle::from(&BLACK.mix(0.55)).stroke_width(2)))?;
+        legend.draw(&Circle::new((22, y + 7), 10, ShapeStyle::from(&BLACK.mix(0.55)).stroke_width(1)))?;
+        legend.draw(&Text::new("Pareto front", (36, y), font.clone()))?;
+        y += 22;
+        legend.draw(&Text::new("(max speed, min mismatch)", (36, y), font.clone()))?;
+        y += 34;
+        for line in ["y: mismatch rate vs the f64", "oracle (primary + shadow", "rays checked), + 1e-6 so", "zero shows, log scale"] {
+            legend.draw(&Text::new(line, (10, y), (FONT, 13).into_font().color(&BLACK)))?;
+            y += 18;
+        }
+        root.present()
+    }
+
+    /// Write the chart as SVG and PNG.
+    pub fn write(rows: &[Row], notes: &[SceneNote], size: (u32, u32), svg: &Path, png: &Path) -> Result<(), Failure> {
+        register_font()?;
+        let mut labels: Vec<(usize, String)> = Vec::new();
+        let mut tests: Vec<String> = Vec::new();
+        for r in rows {
+            if !labels.iter().any(|(c, _)| *c == r.cfg.colour()) {
+                labels.push((r.cfg.colour(), r.cfg.label()));
+            }
+            if !tests.contains(&r.test) {
+                tests.push(r.test.clone());
+            }
+        }
+        labels.sort();
+        let ps = panels(rows, notes, &labels, &tests);
+        let rows_n = (ps.len() as u32).div_ceil(COLS).max(1);
+        let dim = (COLS * PANEL.0 + LEGEND_W, TITLE_H + rows_n * PANEL.1);
+        let title = format!("sheaf bench: speed vs accuracy, {}x{} primary rays per scene", size.0, size.1);
+        draw(SVGBackend::new(svg, dim).into_drawing_area(), &ps, &labels, &tests, &title)
+            .or_fail(|| format!("chart {}", svg.display()))?;
+        let mut buf = vec![0u8; dim.0 as usize * dim.1 as usize * 3];
+        draw(BitMapBackend::with_buffer(&mut buf, dim).into_drawing_area(), &ps, &labels, &tests, &title)
+            .or_fail(|| format!("chart {}", png.display()))?;
+        image::save_buffer_with_format(png, &buf, dim.0, dim.1, image::ExtendedColorType::Rgb8, image::ImageFormat::Png)
+            .or_fail(|| format!("cannot write {}", png.display()))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tiling_covers_every_pixel_once() {
+        for (w, h, n) in [(10, 6, 4), (16, 16, 8), (7, 3, 2), (33, 17, 32), (64, 8, 16)] {
+            let t = Tiling::new(w, h, n);
+            let tiles = (w.div_ceil(n) * h.div_ceil(n)) as usize;
+            assert_eq!(t.pix.len(), tiles * t.q * 4, "{w}x{h} n={n}");
+            let mut seen = vec![0u8; (w * h) as usize];
+            for &p in t.pix.iter().filter(|&&p| p != NO_PIXEL) {
+                seen[p as usize] += 1;
+            }
+            assert!(seen.iter().all(|&c| c == 1), "{w}x{h} n={n}: every pixel exactly once");
+            // Lane order of a quad: (x, y), (x+1, y), (x, y+1), (x+1, y+1).
+            assert_eq!(&t.pix[..4], &[0, 1, w, w + 1]);
+        }
+    }
+
+    #[test]
+    fn pareto_front_keeps_the_undominated_points() {
+        let p = |x: f64, rate: f64| chart::Point { x, rate, colour: 0, marker: 0 };
+        let pts = [p(1.0, 0.0), p(2.0, 0.5), p(3.0, 0.1), p(0.5, 0.0), p(3.0, 0.2), p(2.5, 0.1)];
+        assert_eq!(chart::front(&pts), vec![0, 2]);
+    }
+
+    #[test]
+    fn labels_and_colours() {
+        let c = configs(&[2, 8, 32], true);
+        let labels: Vec<String> = c.iter().map(Config::label).collect();
+        assert_eq!(labels[0], "grid-dda");
+        assert_eq!(labels[2], "grid-cgt 8x8");
+        assert_eq!(labels[5], "grid-cgt 8x8 no-mailbox");
+        assert_eq!(labels[7], "grid-cgt 8x8 no-mailbox+culling");
+        let colours: Vec<usize> = c.iter().map(Config::colour).collect();
+        assert_eq!(colours, vec![0, 1, 3, 5, 6, 7, 8, 9]);
+    }
+
+    /// A tiny run end to end: every file is written, CGT agrees with the
+    /// 3DDDA on every pixel, the tetrahedra match the oracle exactly.
+    #[test]
+    fn tiny_run_writes_every_output() {
+        let dir = std::env::temp_dir().join(format!("sheaf-bench-test-{}", std::process::id()));
+        let a = BenchArgs {
+            scenes: vec!["tetra".into()],
+            scenes_dir: None,
+            size: Some((36, 20)),
+            quick: false,
+            packets: vec![4, 16],
+            tests: vec![TestArg::Mt, TestArg::Watertight],
+            threads: vec![1, 2],
+            ablation: true,
+            reps: Some(1),
+            oracle_budget: Some(1e7),
+            lambda: 5.0,
+            macrocell: 6,
+            out_dir: dir.clone(),
+        };
+        bench(&a).unwrap();
+        let csv = std::fs::read_to_string(dir.join("bench.csv")).unwrap();
+        let lines: Vec<&str> = csv.lines().collect();
+        assert_eq!(lines.len(), 1 + 2 * (1 + 2 + 4), "header + (dda + 2 packet sizes + 4 ablations) x 2 tests");
+        let head: Vec<&str> = lines[0].split(',').collect();
+        let col = |name: &str| head.iter().position(|h| *h == name).unwrap();
+        for l in &lines[1..] {
+            let f: Vec<&str> = l.split(',').collect();
+            assert_eq!(f.len(), head.len());
+            assert_eq!(f[col("primary_diff_vs_dda")], "0", "{l}");
+            assert_eq!(f[col("shadow_diff_vs_dda")], "0", "{l}");
+            assert_eq!(f[col("primary_mismatch_outside_tol")], "0", "{l}");
+            assert!(f[col("primary_checked")].parse::<u64>().unwrap() > 0);
+        }
+        let md = std::fs::read_to_string(dir.join("bench.md")).unwrap();
+        assert!(md.contains("### tetra") && md.contains("| grid-cgt 16x16 | watertight |"));
+        for f in ["speed_accuracy.svg", "speed_accuracy.png", "mismatches.txt"] {
+            assert!(std::fs::metadata(dir.join(f)).unwrap().len() > 0, "{f}");
+        }
+        let svg = std::fs::read_to_string(dir.join("speed_accuracy.svg")).unwrap();
+        assert!(svg.contains("Pareto front"));
+        std::fs::remove_dir_all(&dir).ok();
+    }
+}
