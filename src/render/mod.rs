@@ -131,7 +131,7 @@ pub struct Frame {
 /// Shadow-ray end point offset along the normal, relative to the scene
 /// scale: large enough to leave the surface's own rounding error, small
 /// enough not to skip contact shadows.
-const SHADOW_OFFSET: f32 = 1e-4;
+pub const SHADOW_OFFSET: f32 = 1e-4;
 
 /// The facing normal of a hit and, when the surface faces the light, the
 /// shadow ray from the light to a point just off the surface (t = 1 there;
@@ -204,7 +204,7 @@ pub fn render_rows<T: Tracer + ?Sized>(
 
 /// Quad (x, y) of Morton index `i` (bits interleaved, x in the even bits).
 #[inline]
-fn demorton(i: usize) -> (u32, u32) {
+pub fn demorton(i: usize) -> (u32, u32) {
     let (mut x, mut y) = (0u32, 0u32);
     for b in 0..5 {
         x |= (((i >> (2 * b)) & 1) as u32) << b;
@@ -334,7 +334,7 @@ fn tiles<T: Tracer + ?Sized, const Q: usize>(
 /// Trace a shadow packet, splitting it into its four Morton quarters while
 /// its hit points' distances from the light spread by more than `p.split`.
 #[allow(clippy::too_many_arguments)]
-fn shadow_packet<T: Tracer + ?Sized>(
+pub fn shadow_packet<T: Tracer + ?Sized>(
     tracer: &T,
     p: &TraceParams,
     rays: &[Ray4],

@@ -199,7 +199,10 @@ fn packet<T: GridTest, const ANY: bool, const Q: usize>(
         live[q] = m;
         any_live |= m.any();
     }
-    ctr.rays += live[..nq].iter().map(|m| lane_mask(*m).count_ones() as u64).sum::<u64>();
+    // Rays: every valid active lane once (stray lanes are counted by the
+    // 3DDDA that traces them, so they are subtracted below).
+    let lanes_in = live[..nq].iter().map(|m| lane_mask(*m).count_ones() as u64).sum::<u64>();
+    ctr.rays += lanes_in;
     if !any_live || info.triangles == 0 {
         return;
     }
@@ -262,6 +265,7 @@ fn packet<T: GridTest, const ANY: bool, const Q: usize>(
         }
     }
     ctr.stray_lanes += stray;
+    ctr.rays -= stray;
 
     // Slices to visit: from the earliest start to the latest end of any ray.
     let mut kin = f32::INFINITY;

@@ -41,7 +41,7 @@ use sheaf::accel::grid::traverse_cgt::Mailbox;
 use sheaf::context::GridTracer;
 use sheaf::geom::{F4, Hit4, INVALID_ID, M4, Ray4};
 use sheaf::reference::{self, RefHit};
-use sheaf::render::{PrimaryRays, Tracer};
+use sheaf::render::{PrimaryRays, SHADOW_OFFSET, Tracer, demorton, shadow_packet};
 use sheaf::{Camera, CgtOptions, Counters, GridInfo, Hit, Method, Ray, Scene, TraceParams};
 use std::collections::HashMap;
 use std::fmt::Write as _;
@@ -57,9 +57,6 @@ const MEASURE_NS: u64 = 300_000_000;
 /// Rows per band of the single-ray method (packet methods: whole tile rows
 /// covering at least this many rows), as in `run::render_frame`.
 const BAND_ROWS: usize = 8;
-/// Shadow-ray end point offset off the surface, relative to the scene's
-/// diagonal (the renderer's `SHADOW_OFFSET`).
-const SHADOW_OFFSET: f32 = 1e-4;
 /// Tolerances (see the module doc): relative t gap of a tie, barycentric
 /// distance to an edge, relative distance of an occluder to the ray's end.
 const TIE_REL: f64 = 1e-5;
@@ -160,16 +157,6 @@ fn per(x: u64, n: u64) -> f64 {
 
 // ---------------------------------------------------------------------------
 // Ray layouts
-
-/// Quad (x, y) of Morton index `i` (bits interleaved, x in the even bits).
-fn demorton(i: usize) -> (u32, u32) {
-    let (mut x, mut y) = (0u32, 0u32);
-    for b in 0..5 {
-        x |= (((i >> (2 * b)) & 1) as u32) << b;
-        y |= (((i >> (2 * b + 1)) & 1) as u32) << b;
-    }
-    (x, y)
-}
 
 /// Pixel of a lane that is not in the image.
 const NO_PIXEL: u32 = u32::MAX;
@@ -365,33 +352,6 @@ fn occlude_packets(
             shadow_packet(tr, p, r, a, d, h, mb, ctr);
         }
     })
-}
-
-/// `render::shadow_packet` (private there): split into the four Morton
-/// quarters while the lanes' distances from the light spread by more than
-/// `p.split`, then trace.
-#[allow(clippy::too_many_arguments)]
-fn shadow_packet(tr: &GridTracer<'_>, p: &TraceParams, rays: &[Ray4], active: &[M4], dist: &[F4], hits: &mut [Hit4], mb: &mut Mailbox<'_>, ctr: &mut Counters) {
-    if !active.iter().any(|m| m.any()) {
-        return;
-    }
-    if p.split > 0.0 && rays.len() >= 4 {
-        let (mut lo, mut hi) = (f32::INFINITY, 0.0f32);
-        for (m, d) in active.iter().zip(dist) {
-            lo = lo.min(F4::select(*m, *d, F4::INFINITY).min_element());
-            hi = hi.max(F4::select(*m, *d, F4::ZERO).max_element());
-        }
-        if hi > p.split * lo {
-            ctr.packets_split += 1;
-            let k = rays.len() / 4;
-            for s in 0..4 {
-                let r = s * k..(s + 1) * k;
-                shadow_packet(tr, p, &rays[r.clone()], &active[r.clone()], &dist[r.clone()], &mut hits[r], mb, ctr);
-            }
-            return;
-        }
-    }
-    tr.occluded_packet(p, rays, active, hits, mb, ctr);
 }
 
 /// Wall time of one trace on `threads` threads, for each measurement.
