@@ -666,6 +666,52 @@ static bool test_trace_leaves_stats(void) {
 #define RSTRIDE (RW * 4 + 12)
 #define RLEN ((RH - 1) * RSTRIDE + RW * 4)
 
+static bool test_trace_params(void) {
+    /* Every packet side and switch of sheaf_trace_params gives the 3DDDA's
+       hits bit for bit, and the same image; bad params are rejected. */
+    scene *s = ground_and_box();
+    sheaf_context *ctx = built_context(s, s->nt);
+    sheaf_ray rays[N_PROBE];
+    sheaf_hit want[N_PROBE], got[N_PROBE];
+    sheaf_trace_params dda, cgt, bad;
+    sheaf_frame f = default_frame(RW, RH);
+    static uint8_t base[RLEN], img[RLEN];
+    uint32_t sides[5] = {2, 4, 8, 16, 32};
+    int i, k;
+    CHECK(ctx != NULL);
+    CHECK_OK(sheaf_trace_params_default(&cgt));
+    CHECK(cgt.method == SHEAF_METHOD_GRID_CGT && cgt.packet == 8 && cgt.mailbox && cgt.culling && cgt.macrocells);
+    dda = cgt;
+    dda.method = SHEAF_METHOD_GRID_DDA;
+    probe_rays(rays);
+    CHECK_OK(sheaf_context_trace_with(ctx, &dda, rays, want, N_PROBE));
+    CHECK_OK(sheaf_context_render_with(ctx, &dda, &dda, &f, base, RSTRIDE, RLEN));
+    for (k = 0; k < 5; k++) {
+        cgt.packet = sides[k];
+        cgt.culling = (k % 2) == 0;
+        CHECK_OK(sheaf_context_trace_with(ctx, &cgt, rays, got, N_PROBE));
+        for (i = 0; i < N_PROBE; i++) {
+            CHECK(got[i].prim == want[i].prim && memcmp(&got[i].t, &want[i].t, sizeof(float)) == 0);
+        }
+        memset(img, 0, sizeof img);
+        CHECK_OK(sheaf_context_render_with(ctx, &cgt, &cgt, &f, img, RSTRIDE, RLEN));
+        CHECK(memcmp(img, base, RLEN) == 0);
+    }
+    bad = cgt;
+    bad.packet = 3;
+    CHECK_STATUS(sheaf_context_trace_with(ctx, &bad, rays, got, N_PROBE), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_render_with(ctx, &cgt, &bad, &f, img, RSTRIDE, RLEN), SHEAF_STATUS_INVALID_ARGUMENT);
+    bad = cgt;
+    bad.method = (sheaf_method)77;
+    CHECK_STATUS(sheaf_context_trace_with(ctx, &bad, rays, got, N_PROBE), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_trace_with(ctx, NULL, rays, got, N_PROBE), SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS(sheaf_context_render_with(ctx, &cgt, NULL, &f, img, RSTRIDE, RLEN), SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS(sheaf_trace_params_default(NULL), SHEAF_STATUS_NULL_POINTER);
+    sheaf_context_destroy(ctx);
+    free(s);
+    return true;
+}
+
 static bool test_render(void) {
     scene *s = ground_and_box();
     sheaf_context *ctx = built_context(s, s->nt);
@@ -833,6 +879,7 @@ int main(void) {
     run_test("test_occluded", test_occluded, &passed, &failed);
     run_test("test_trace_leaves_stats", test_trace_leaves_stats, &passed, &failed);
     run_test("test_render", test_render, &passed, &failed);
+    run_test("test_trace_params", test_trace_params, &passed, &failed);
     run_test("test_render_bad_arguments", test_render_bad_arguments, &passed, &failed);
     run_test("test_last_error_buffer_rules", test_last_error_buffer_rules, &passed, &failed);
     return report(passed, failed);

@@ -318,6 +318,39 @@ typedef struct sheaf_hit {
 } sheaf_hit;
 
 /**
+ * Method, packet side and CGT switches for one class of rays (primary or
+ * shadow). Start from `sheaf_trace_params_default`.
+ */
+typedef struct sheaf_trace_params {
+    /**
+     * A `sheaf_method` value.
+     */
+    sheaf_method method;
+    /**
+     * Packet side n (n x n rays) for packet methods: 2, 4, 8, 16 or 32.
+     */
+    uint32_t packet;
+    /**
+     * CGT: skip slices of empty macrocells (paper section 2.4).
+     */
+    bool macrocells;
+    /**
+     * CGT: test each triangle once per packet (section 2.3). Trace and
+     * occluded calls have no thread slot and ignore it; render uses it.
+     */
+    bool mailbox;
+    /**
+     * CGT: SIMD frustum culling with the corner rays (section 2.3).
+     */
+    bool culling;
+    /**
+     * Split shadow packets whose hit points' distances from the light
+     * differ by more than this ratio (section 4.7); 0 disables splitting.
+     */
+    float split;
+} sheaf_trace_params;
+
+/**
  * Pinhole camera (C: `sheaf_camera`).
  */
 typedef struct sheaf_camera {
@@ -647,6 +680,23 @@ sheaf_status sheaf_context_trace(const struct sheaf_context *ctx,
                                  size_t count);
 
 /**
+ * `sheaf_context_trace` with the packet side and CGT switches of `*params`
+ * (copied). Packet methods take the rays in order as packets of
+ * `packet * packet` rays, every 4 consecutive rays one 2x2 quad (lane order
+ * (x, y), (x+1, y), (x, y+1), (x+1, y+1)); results do not depend on the
+ * grouping. No mailbox (no thread slot). Thread-safe like
+ * `sheaf_context_trace`.
+ *
+ * Errors: those of `sheaf_context_trace`, and `SHEAF_STATUS_INVALID_ARGUMENT`
+ * for a bad packet side or split ratio.
+ */
+sheaf_status sheaf_context_trace_with(const struct sheaf_context *ctx,
+                                      const struct sheaf_trace_params *params,
+                                      const struct sheaf_ray *rays,
+                                      struct sheaf_hit *hits,
+                                      size_t count);
+
+/**
  * Occlusion of `count` rays: `occluded[i]` = 1 when `rays[i]` hits any
  * triangle with `tmin <= t < tmax`, else 0 (shadow rays: `dir = light - p`,
  * `tmax = 1`). Same pointer rules as `sheaf_context_trace`.
@@ -684,6 +734,22 @@ sheaf_status sheaf_context_render(struct sheaf_context *ctx,
                                   uint8_t *rgba,
                                   size_t stride_bytes,
                                   size_t rgba_len);
+
+/**
+ * `sheaf_context_render` with `*primary` for camera rays and `*shadow` for
+ * shadow rays (both copied): method, packet side (the tile side is the
+ * primary's, or the shadow's when only shadows use packets), CGT switches,
+ * shadow split ratio. The image does not depend on these choices.
+ *
+ * Errors: those of `sheaf_context_render`. Not thread-safe.
+ */
+sheaf_status sheaf_context_render_with(struct sheaf_context *ctx,
+                                       const struct sheaf_trace_params *primary,
+                                       const struct sheaf_trace_params *shadow,
+                                       const struct sheaf_frame *frame,
+                                       uint8_t *rgba,
+                                       size_t stride_bytes,
+                                       size_t rgba_len);
 
 /**
  * Statistics of the last build and the last render, written to `*out`
@@ -753,6 +819,14 @@ sheaf_status sheaf_limits_default(uint32_t max_triangles,
  * string is static (never free it). Thread-safe.
  */
 const char *sheaf_status_string(sheaf_status status);
+
+/**
+ * Write the defaults to `*out`: coherent grid traversal, 8x8 packets,
+ * macrocells, mailbox and culling on, shadow split ratio 2.
+ *
+ * Thread-safe. Errors: `SHEAF_STATUS_NULL_POINTER`.
+ */
+sheaf_status sheaf_trace_params_default(struct sheaf_trace_params *out);
 
 /**
  * The library's version, "MAJOR.MINOR.PATCH" (compare with the header's

@@ -185,6 +185,18 @@ fn adversarial_packets_stay_exact() {
         assert!(c.stray_lanes > 0, "mixed signs must send lanes to the 3DDDA");
         run.check::<Mt>("adversarial shadow", &rays, 32, 32, true);
     }
+    // Active lanes with invalid rays are written as misses (the sentinel
+    // below must not survive in them).
+    let mut bad = view_rays(&s.views[0].1, 4, 4);
+    bad[0].dir = [f32::NAN, 0.0, 1.0];
+    bad[5].tmin = -1.0;
+    let quads: Vec<Ray4> = packets(&bad, 4, 4, 4).remove(0).0;
+    let sentinel = Hit4 { t: F4::splat(-7.0), prim: [42; 4], u: F4::ZERO, v: F4::ZERO };
+    let mut hits = vec![sentinel; quads.len()];
+    let mut mb = Mailbox::new(&mut run.stamps, &mut run.packet);
+    let all = vec![M4::TRUE; quads.len()];
+    traverse_cgt::intersect::<Mt>(&g, &quads, &all, &mut hits, &CgtOptions::default(), &mut mb, &mut Counters::default());
+    assert!(hits.iter().all(|h| h.prim.iter().all(|&p| p != 42)), "{hits:?}");
     // Inactive lanes are left untouched.
     let rays = view_rays(&s.views[0].1, 4, 4);
     let quads: Vec<Ray4> = packets(&rays, 4, 4, 4).remove(0).0;

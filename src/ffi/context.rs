@@ -18,7 +18,8 @@ use crate::error::{Error, Result};
 use crate::geom::{Ray, Scene};
 use crate::mem::Limits;
 use crate::render::Tracer;
-use crate::trace::{Counters, Method};
+use crate::trace::{Counters, Method, TraceParams};
+use super::trace_params::sheaf_trace_params;
 use core::cell::Cell;
 use core::ffi::{c_char, c_void};
 use core::fmt::Write as _;
@@ -459,7 +460,37 @@ pub extern "C" fn sheaf_context_trace(
     count: usize,
 ) -> sheaf_status {
     with_ref(ctx, |h| {
-        let method = sheaf_method::to_core(method)?;
+        let p = TraceParams { method: sheaf_method::to_core(method)?, ..TraceParams::default() };
+        trace_impl(h, &p, rays, hits, count)
+    })
+}
+
+/// `sheaf_context_trace` with the packet side and CGT switches of `*params`
+/// (copied). Packet methods take the rays in order as packets of
+/// `packet * packet` rays, every 4 consecutive rays one 2x2 quad (lane order
+/// (x, y), (x+1, y), (x, y+1), (x+1, y+1)); results do not depend on the
+/// grouping. No mailbox (no thread slot). Thread-safe like
+/// `sheaf_context_trace`.
+///
+/// Errors: those of `sheaf_context_trace`, and `SHEAF_STATUS_INVALID_ARGUMENT`
+/// for a bad packet side or split ratio.
+#[unsafe(no_mangle)]
+pub extern "C" fn sheaf_context_trace_with(
+    ctx: *const sheaf_context,
+    params: *const sheaf_trace_params,
+    rays: *const sheaf_ray,
+    hits: *mut sheaf_hit,
+    count: usize,
+) -> sheaf_status {
+    with_ref(ctx, |h| {
+        let p = read_in(params)?.to_core()?;
+        trace_impl(h, &p, rays, hits, count)
+    })
+}
+
+fn trace_impl(h: &Handle, p: &TraceParams, rays: *const sheaf_ray, hits: *mut sheaf_hit, count: usize) -> Result<()> {
+    {
+        let method = p.method;
         let rb = check_array(rays, count, "ray count too large")?;
         let hb = check_array(hits.cast_const(), count, "ray count too large")?;
         if overlaps(rays.cast(), rb, hits.cast_const().cast(), hb) {
@@ -480,13 +511,13 @@ pub extern "C" fn sheaf_context_trace(
                     }
                 }
             }
-            Method::GridCgt => cgt_packets(&tr, rays, count, false, &mut |i, h| {
+            Method::GridCgt => cgt_packets(&tr, p, rays, count, false, &mut |i, h| {
                 // SAFETY: i < count (cgt_packets), hits checked as above.
                 unsafe { hits.add(i).write_unaligned(h.into()) }
             }),
         }
         Ok(())
-    })
+    }
 }
 
 /// Occlusion of `count` rays: `occluded[i]` = 1 when `rays[i]` hits any
@@ -524,7 +555,7 @@ pub extern "C" fn sheaf_context_occluded(
                     }
                 }
             }
-            Method::GridCgt => cgt_packets(&tr, rays, count, true, &mut |i, h| {
+            Method::GridCgt => cgt_packets(&tr, &TraceParams::default(), rays, count, true, &mut |i, h| {
                 // SAFETY: i < count (cgt_packets), occluded checked as above.
                 unsafe { occluded.add(i).write(u8::from(h.is_hit())) }
             }),
@@ -557,7 +588,44 @@ pub extern "C" fn sheaf_context_render(
     rgba_len: usize,
 ) -> sheaf_status {
     with_mut(ctx, |h| {
-        let method = sheaf_method::to_core(method)?;
+        let p = TraceParams { method: sheaf_method::to_core(method)?, ..TraceParams::default() };
+        render_impl(h, &p, &p, frame, rgba, stride_bytes, rgba_len)
+    })
+}
+
+/// `sheaf_context_render` with `*primary` for camera rays and `*shadow` for
+/// shadow rays (both copied): method, packet side (the tile side is the
+/// primary's, or the shadow's when only shadows use packets), CGT switches,
+/// shadow split ratio. The image does not depend on these choices.
+///
+/// Errors: those of `sheaf_context_render`. Not thread-safe.
+#[unsafe(no_mangle)]
+pub extern "C" fn sheaf_context_render_with(
+    ctx: *mut sheaf_context,
+    primary: *const sheaf_trace_params,
+    shadow: *const sheaf_trace_params,
+    frame: *const sheaf_frame,
+    rgba: *mut u8,
+    stride_bytes: usize,
+    rgba_len: usize,
+) -> sheaf_status {
+    with_mut(ctx, |h| {
+        let p = read_in(primary)?.to_core()?;
+        let s = read_in(shadow)?.to_core()?;
+        render_impl(h, &p, &s, frame, rgba, stride_bytes, rgba_len)
+    })
+}
+
+fn render_impl(
+    h: &mut Handle,
+    primary: &TraceParams,
+    shadow: &TraceParams,
+    frame: *const sheaf_frame,
+    rgba: *mut u8,
+    stride_bytes: usize,
+    rgba_len: usize,
+) -> Result<()> {
+    {
         let frame = read_in(frame)?.to_core();
         check_non_null!(rgba);
         if rgba_len > isize::MAX as usize {
@@ -577,9 +645,9 @@ pub extern "C" fn sheaf_context_render(
         // memory not accessed by others during the call (C contract). The
         // core only writes through it.
         let pixels = unsafe { core::slice::from_raw_parts_mut(rgba, rgba_len) };
-        h.ctx.render(method, &frame, pixels, stride_bytes)?;
+        h.ctx.render_with(primary, shadow, &frame, pixels, stride_bytes)?;
         Ok(())
-    })
+    }
 }
 
 /// Statistics of the last build and the last render, written to `*out`
@@ -727,6 +795,7 @@ mod tests {
 /// `out(i, hit)` for every ray `i < count`.
 fn cgt_packets(
     tr: &crate::context::GridTracer<'_>,
+    params: &TraceParams,
     rays: *const sheaf_ray,
     count: usize,
     any: bool,
@@ -734,20 +803,18 @@ fn cgt_packets(
 ) {
     use crate::geom::{Hit4, M4, Ray4};
     use crate::render::Tracer;
-    const PER: usize = 64;
-    let p = crate::trace::TraceParams {
-        cgt: crate::trace::CgtOptions { mailbox: false, ..Default::default() },
-        ..crate::trace::TraceParams::cgt(8)
-    };
+    const MAX: usize = 32 * 32;
+    let per = (params.packet * params.packet) as usize;
+    let p = TraceParams { cgt: crate::trace::CgtOptions { mailbox: false, ..params.cgt }, ..*params };
     let (mut stamps, mut packet) = ([0u32; 0], 0u32);
     let mut mb = crate::accel::grid::traverse_cgt::Mailbox::new(&mut stamps, &mut packet);
     let mut ctr = Counters::default();
     let mut start = 0;
+    let mut quads = [Ray4::from_rays(&[Ray::new(glam::Vec3::ZERO, glam::Vec3::X, 0.0, 0.0); 4]); MAX / 4];
+    let mut active = [M4::FALSE; MAX / 4];
+    let mut hits = [Hit4::MISS; MAX / 4];
     while start < count {
-        let n = (count - start).min(PER);
-        let mut quads = [Ray4::from_rays(&[Ray::new(glam::Vec3::ZERO, glam::Vec3::X, 0.0, 0.0); 4]); PER / 4];
-        let mut active = [M4::FALSE; PER / 4];
-        let mut hits = [Hit4::MISS; PER / 4];
+        let n = (count - start).min(per);
         let nq = n.div_ceil(4);
         for q in 0..nq {
             let mut lanes = [Ray::new(glam::Vec3::ZERO, glam::Vec3::X, 0.0, 0.0); 4];

@@ -51,6 +51,7 @@ pub mod method;
 pub mod ray;
 pub mod stats;
 pub mod status;
+pub mod trace_params;
 pub mod version;
 
 pub use context::{
@@ -65,6 +66,7 @@ pub use method::sheaf_method;
 pub use ray::{sheaf_hit, sheaf_ray};
 pub use stats::sheaf_stats;
 pub use status::{sheaf_status, sheaf_status_string};
+pub use trace_params::{sheaf_trace_params, sheaf_trace_params_default};
 pub use version::sheaf_version_string;
 
 use crate::error::{Error, Result};

@@ -193,7 +193,10 @@ fn packet<T: GridTest, const ANY: bool, const Q: usize>(
         let mut m = active[q];
         for i in 0..4 {
             if m.test(i) && !rays[q].lane(i).is_valid() {
+                // An active but invalid ray is a miss (written, like any
+                // active lane's result), and takes no part in the packet.
                 m.set(i, false);
+                hits[q].set_lane(i, Hit::MISS);
             }
         }
         live[q] = m;

@@ -1,0 +1,65 @@
+//! `sheaf_trace_params`: how one class of rays is traced (the crate's
+//! `TraceParams`, with the method received as a raw integer and checked).
+
+use super::method::sheaf_method;
+use super::{check_non_null, guard_free, raw, write_out};
+use crate::error::Result;
+use crate::trace::{CgtOptions, TraceParams};
+
+/// Method, packet side and CGT switches for one class of rays (primary or
+/// shadow). Start from `sheaf_trace_params_default`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct sheaf_trace_params {
+    /// A `sheaf_method` value.
+    pub method: raw::sheaf_method,
+    /// Packet side n (n x n rays) for packet methods: 2, 4, 8, 16 or 32.
+    pub packet: u32,
+    /// CGT: skip slices of empty macrocells (paper section 2.4).
+    pub macrocells: bool,
+    /// CGT: test each triangle once per packet (section 2.3). Trace and
+    /// occluded calls have no thread slot and ignore it; render uses it.
+    pub mailbox: bool,
+    /// CGT: SIMD frustum culling with the corner rays (section 2.3).
+    pub culling: bool,
+    /// Split shadow packets whose hit points' distances from the light
+    /// differ by more than this ratio (section 4.7); 0 disables splitting.
+    pub split: f32,
+}
+
+impl sheaf_trace_params {
+    pub fn of(p: &TraceParams) -> Self {
+        sheaf_trace_params {
+            method: sheaf_method::of(p.method) as u32,
+            packet: p.packet,
+            macrocells: p.cgt.macrocells,
+            mailbox: p.cgt.mailbox,
+            culling: p.cgt.culling,
+            split: p.split,
+        }
+    }
+    /// The checked crate value.
+    pub fn to_core(&self) -> Result<TraceParams> {
+        let p = TraceParams {
+            method: sheaf_method::to_core(self.method)?,
+            packet: self.packet,
+            cgt: CgtOptions { macrocells: self.macrocells, mailbox: self.mailbox, culling: self.culling },
+            split: self.split,
+        };
+        p.validate()?;
+        Ok(p)
+    }
+}
+
+/// Write the defaults to `*out`: coherent grid traversal, 8x8 packets,
+/// macrocells, mailbox and culling on, shadow split ratio 2.
+///
+/// Thread-safe. Errors: `SHEAF_STATUS_NULL_POINTER`.
+#[unsafe(no_mangle)]
+pub extern "C" fn sheaf_trace_params_default(out: *mut sheaf_trace_params) -> super::sheaf_status {
+    guard_free(|| {
+        check_non_null!(out);
+        write_out(out, sheaf_trace_params::of(&TraceParams::default()));
+        Ok(())
+    })
+}
