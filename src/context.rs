@@ -215,20 +215,8 @@ impl<'a> Context<'a> {
             let mut active = [M4::FALSE; 256];
             let mut hits = [Hit4::MISS; 256];
             for (c, chunk) in rays.chunks(per).enumerate() {
-                let nq = chunk.len().div_ceil(4);
-                for q in 0..nq {
-                    let mut lanes = [chunk[q * 4]; 4];
-                    let mut m = [false; 4];
-                    for i in 0..4 {
-                        if let Some(r) = chunk.get(q * 4 + i) {
-                            lanes[i] = *r;
-                            m[i] = true;
-                        }
-                    }
-                    quads[q] = Ray4::from_rays(&lanes);
-                    active[q] = M4::new(m[0], m[1], m[2], m[3]);
-                    hits[q] = Hit4::MISS;
-                }
+                let nq = crate::trace::pack_quads(chunk.len(), |k| chunk[k], &mut quads, &mut active);
+                hits[..nq].fill(Hit4::MISS);
                 if any {
                     tr.occluded_packet(p, &quads[..nq], &active[..nq], &mut hits[..nq], &mut mb, &mut ctr);
                 } else {

@@ -815,22 +815,10 @@ fn cgt_packets(
     let mut hits = [Hit4::MISS; MAX / 4];
     while start < count {
         let n = (count - start).min(per);
-        let nq = n.div_ceil(4);
-        for q in 0..nq {
-            let mut lanes = [Ray::new(glam::Vec3::ZERO, glam::Vec3::X, 0.0, 0.0); 4];
-            let mut m = [false; 4];
-            for i in 0..4 {
-                let k = q * 4 + i;
-                if k < n {
-                    // SAFETY: start + k < count; the caller checked `rays`
-                    // spans count readable elements (unaligned allowed).
-                    lanes[i] = Ray::from(unsafe { rays.add(start + k).read_unaligned() });
-                    m[i] = true;
-                }
-            }
-            quads[q] = Ray4::from_rays(&lanes);
-            active[q] = M4::new(m[0], m[1], m[2], m[3]);
-        }
+        // SAFETY: start + k < count (k < n); the caller checked `rays` spans
+        // count readable elements (unaligned allowed).
+        let read = |k: usize| Ray::from(unsafe { rays.add(start + k).read_unaligned() });
+        let nq = crate::trace::pack_quads(n, read, &mut quads, &mut active);
         if any {
             tr.occluded_packet(&p, &quads[..nq], &active[..nq], &mut hits[..nq], &mut mb, &mut ctr);
         } else {

@@ -130,3 +130,27 @@ impl TraceParams {
         Ok(())
     }
 }
+
+use crate::geom::{M4, Ray, Ray4};
+
+/// Pack `n` consecutive rays (`ray(k)` for `k < n`, at most `4 * quads.len()`)
+/// into 2x2 quads in `Ray4` lane order; lanes past `n` are inactive (they
+/// repeat the last ray so every lane holds finite data). Returns the quads used.
+#[inline]
+pub fn pack_quads(n: usize, ray: impl Fn(usize) -> Ray, quads: &mut [Ray4], active: &mut [M4]) -> usize {
+    let nq = n.div_ceil(4);
+    for q in 0..nq {
+        let last = ray((q * 4 + 3).min(n - 1));
+        let mut lanes = [last; 4];
+        let mut m = [false; 4];
+        for i in 0..4 {
+            if q * 4 + i < n {
+                lanes[i] = ray(q * 4 + i);
+                m[i] = true;
+            }
+        }
+        quads[q] = Ray4::from_rays(&lanes);
+        active[q] = M4::new(m[0], m[1], m[2], m[3]);
+    }
+    nq
+}
