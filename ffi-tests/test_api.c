@@ -712,6 +712,142 @@ static bool test_trace_params(void) {
     return true;
 }
 
+static bool test_bvh_methods(void) {
+    /* The BVH next to the grid in one context: every BVH method and packet
+       side gives the BVH single ray's hits bit for bit, the same occlusion
+       and the same image; the BVH's image equals the grid's. */
+    scene *s = ground_and_box();
+    sheaf_context *ctx = built_context(s, s->nt);
+    sheaf_ray rays[N_PROBE];
+    sheaf_hit want[N_PROBE], got[N_PROBE];
+    uint8_t occ_want[N_PROBE], occ_got[N_PROBE];
+    sheaf_trace_params p, single;
+    sheaf_bvh_params bp, bad_bp;
+    sheaf_stats st;
+    sheaf_frame f = default_frame(RW, RH);
+    static uint8_t grid_img[RLEN], base[RLEN], img[RLEN];
+    uint32_t sides[4] = {4, 8, 16, 32};
+    sheaf_method methods[4] = {SHEAF_METHOD_BVH_SIMD, SHEAF_METHOD_BVH_MASKED, SHEAF_METHOD_BVH_RANGED,
+                               SHEAF_METHOD_BVH_PARTITION};
+    int i, k, m;
+    CHECK(ctx != NULL);
+    probe_rays(rays);
+    /* not built yet */
+    CHECK_STATUS(sheaf_context_trace(ctx, SHEAF_METHOD_BVH_SINGLE, rays, got, N_PROBE), SHEAF_STATUS_NOT_BUILT);
+    CHECK_OK(sheaf_bvh_params_default(&bp));
+    CHECK(bp.leaf_size == 4 && bp.bins == 16 && bp.test == SHEAF_TRI_TEST_MOLLER_TRUMBORE);
+    bad_bp = bp;
+    bad_bp.bins = 1;
+    CHECK_STATUS(sheaf_context_build_bvh(ctx, &bad_bp), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_OK(sheaf_context_build_bvh(ctx, &bp));
+    CHECK_OK(sheaf_context_stats(ctx, &st));
+    CHECK(st.bvh_triangles == s->nt && st.bvh_nodes >= 1 && st.bvh_leaves >= 1 && st.bvh_build_ns > 0);
+    CHECK_OK(sheaf_context_trace(ctx, SHEAF_METHOD_BVH_SINGLE, rays, want, N_PROBE));
+    CHECK_OK(sheaf_context_occluded(ctx, SHEAF_METHOD_BVH_SINGLE, rays, occ_want, N_PROBE));
+    CHECK_OK(sheaf_context_trace(ctx, SHEAF_METHOD_GRID_DDA, rays, got, N_PROBE));
+    CHECK(hits_equal(got, want, N_PROBE)); /* same triangle test: the grid's answers */
+    CHECK_OK(sheaf_trace_params_default(&single));
+    single.method = SHEAF_METHOD_BVH_SINGLE;
+    CHECK_OK(sheaf_context_render_with(ctx, &single, &single, &f, base, RSTRIDE, RLEN));
+    CHECK_OK(sheaf_context_render(ctx, SHEAF_METHOD_GRID_DDA, &f, grid_img, RSTRIDE, RLEN));
+    CHECK(memcmp(grid_img, base, RLEN) == 0);
+    for (m = 0; m < 4; m++) {
+        for (k = 0; k < 4; k++) {
+            p = single;
+            p.method = methods[m];
+            p.packet = sides[k];
+            p.culling = (k % 2) == 0;
+            p.ray_kind = SHEAF_RAY_KIND_AUTO;
+            CHECK_OK(sheaf_context_trace_with(ctx, &p, rays, got, N_PROBE));
+            for (i = 0; i < N_PROBE; i++) {
+                CHECK(got[i].prim == want[i].prim && memcmp(&got[i].t, &want[i].t, sizeof(float)) == 0);
+            }
+            CHECK_OK(sheaf_context_occluded(ctx, methods[m], rays, occ_got, N_PROBE));
+            CHECK(memcmp(occ_got, occ_want, N_PROBE) == 0);
+            memset(img, 0, sizeof img);
+            CHECK_OK(sheaf_context_render_with(ctx, &p, &p, &f, img, RSTRIDE, RLEN));
+            CHECK(memcmp(img, base, RLEN) == 0);
+        }
+    }
+    p.ray_kind = 9;
+    CHECK_STATUS(sheaf_context_trace_with(ctx, &p, rays, got, N_PROBE), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_bvh_params_default(NULL), SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS(sheaf_context_build_bvh(NULL, &bp), SHEAF_STATUS_NULL_POINTER);
+    sheaf_context_destroy(ctx);
+    free(s);
+    return true;
+}
+
+static bool test_whitted(void) {
+    /* A mirror ground and a glass box: the Whitted image is the same for the
+       grid's single ray, CGT packets, and every BVH method; bad materials
+       and bounce limits are rejected and leave the framebuffer alone. */
+    scene *s = ground_and_box();
+    sheaf_context *ctx = built_context(s, s->nt);
+    sheaf_trace_params single, p, sec;
+    sheaf_whitted_params wp;
+    sheaf_material mats[2] = {{{0.6f, 0.6f, 0.6f}, 0.5f, 0.0f, 1.0f}, {{0.9f, 0.8f, 0.7f}, 0.1f, 0.7f, 1.5f}};
+    sheaf_material_range ranges[2] = {{0, 0}, {2, 1}}; /* ground: triangles 0-1 */
+    sheaf_light lights[2];
+    sheaf_frame f = default_frame(RW, RH);
+    static uint8_t base[RLEN], img[RLEN], plain[RLEN];
+    sheaf_method methods[5] = {SHEAF_METHOD_GRID_CGT, SHEAF_METHOD_BVH_SIMD, SHEAF_METHOD_BVH_MASKED,
+                               SHEAF_METHOD_BVH_RANGED, SHEAF_METHOD_BVH_PARTITION};
+    int m;
+    CHECK(ctx != NULL);
+    CHECK_OK(sheaf_context_build_bvh(ctx, NULL));
+    CHECK_OK(sheaf_whitted_params_default(&wp));
+    CHECK(wp.max_reflect == 2 && wp.max_refract == 2);
+    lights[0] = f.light;
+    lights[1] = f.light;
+    lights[1].position[0] += 3.0f;
+    lights[1].color[1] = 0.5f;
+    CHECK_OK(sheaf_trace_params_default(&single));
+    single.method = SHEAF_METHOD_GRID_DDA;
+    CHECK_OK(sheaf_context_render_whitted(ctx, &single, &single, &single, &wp, &f, lights, 2, mats, 2, ranges, 2, base,
+                                          RSTRIDE, RLEN));
+    /* no secondary materials and one light: the plain image */
+    CHECK_OK(sheaf_context_render_whitted(ctx, &single, &single, &single, NULL, &f, NULL, 0, NULL, 0, NULL, 0, img,
+                                          RSTRIDE, RLEN));
+    CHECK_OK(sheaf_context_render(ctx, SHEAF_METHOD_GRID_DDA, &f, plain, RSTRIDE, RLEN));
+    CHECK(memcmp(img, plain, RLEN) == 0);
+    CHECK(memcmp(base, plain, RLEN) != 0);
+    for (m = 0; m < 5; m++) {
+        p = single;
+        p.method = methods[m];
+        p.packet = 16;
+        p.ray_kind = SHEAF_RAY_KIND_AUTO;
+        sec = p;
+        if (methods[m] == SHEAF_METHOD_BVH_RANGED) sec.method = SHEAF_METHOD_BVH_PARTITION;
+        memset(img, 0, sizeof img);
+        CHECK_OK(sheaf_context_render_whitted(ctx, &p, &p, &sec, &wp, &f, lights, 2, mats, 2, ranges, 2, img, RSTRIDE,
+                                              RLEN));
+        CHECK(memcmp(img, base, RLEN) == 0);
+    }
+    memset(img, 0xAB, sizeof img);
+    mats[1].reflect = 0.5f; /* reflect + transmit > 1 */
+    CHECK_STATUS(sheaf_context_render_whitted(ctx, &p, &p, &p, &wp, &f, lights, 2, mats, 2, ranges, 2, img, RSTRIDE,
+                                              RLEN),
+                 SHEAF_STATUS_INVALID_ARGUMENT);
+    mats[1].reflect = 0.1f;
+    ranges[1].material = 7; /* no such material */
+    CHECK_STATUS(sheaf_context_render_whitted(ctx, &p, &p, &p, &wp, &f, lights, 2, mats, 2, ranges, 2, img, RSTRIDE,
+                                              RLEN),
+                 SHEAF_STATUS_INVALID_ARGUMENT);
+    ranges[1].material = 1;
+    wp.max_reflect = 9;
+    CHECK_STATUS(sheaf_context_render_whitted(ctx, &p, &p, &p, &wp, &f, lights, 2, mats, 2, ranges, 2, img, RSTRIDE,
+                                              RLEN),
+                 SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_render_whitted(ctx, &p, &p, &p, NULL, &f, NULL, 2, mats, 2, ranges, 2, img, RSTRIDE, RLEN),
+                 SHEAF_STATUS_NULL_POINTER);
+    CHECK(img[0] == 0xAB && img[RLEN - 1] == 0xAB);
+    CHECK_STATUS(sheaf_whitted_params_default(NULL), SHEAF_STATUS_NULL_POINTER);
+    sheaf_context_destroy(ctx);
+    free(s);
+    return true;
+}
+
 static bool test_render(void) {
     scene *s = ground_and_box();
     sheaf_context *ctx = built_context(s, s->nt);
@@ -879,6 +1015,8 @@ int main(void) {
     run_test("test_occluded", test_occluded, &passed, &failed);
     run_test("test_trace_leaves_stats", test_trace_leaves_stats, &passed, &failed);
     run_test("test_render", test_render, &passed, &failed);
+    run_test("test_bvh_methods", test_bvh_methods, &passed, &failed);
+    run_test("test_whitted", test_whitted, &passed, &failed);
     run_test("test_trace_params", test_trace_params, &passed, &failed);
     run_test("test_render_bad_arguments", test_render_bad_arguments, &passed, &failed);
     run_test("test_last_error_buffer_rules", test_last_error_buffer_rules, &passed, &failed);

@@ -2,15 +2,18 @@
 //! every frame. After `Context::new_in` nothing here allocates.
 #![forbid(unsafe_code)]
 
+use crate::accel::bvh::{self, Bvh, BvhInfo, BvhNode, BvhParams, BvhPools, BvhView, PrimRef};
 use crate::accel::grid::traverse_cgt::{self, Mailbox};
 use crate::accel::grid::{self, Grid, GridInfo, GridParams, GridPools, GridView};
 use crate::error::{Error, Pool, Result};
 use crate::geom::{Hit, Hit4, M4, Mt, Pt, Ray, Ray4, Scene, TriTest, TriVerts, TriangleTest, Wt};
 use crate::mem::{Arena, Limits, pool_bytes};
+use crate::render::whitted::{self, WhittedJob};
 use crate::render::{self, Frame, PrimaryRays, Tracer};
 use crate::trace::{Counters, Method, TraceParams};
 
-/// Pool sizes derived from `Limits`, in the order they are carved.
+/// Pool sizes derived from `Limits`, in the order they are carved. A
+/// structure left out of `Limits::structures` gets empty pools.
 struct Layout {
     tris: usize,
     proj: usize,
@@ -18,19 +21,27 @@ struct Layout {
     refs: usize,
     macro_words: usize,
     slots: usize,
+    /// BVH: triangles (0 without `Limits::BVH`) and their projection data.
+    bvh_tris: usize,
+    bvh_proj: usize,
 }
 
 impl Layout {
     fn of(l: &Limits) -> Result<Layout> {
         l.validate()?;
-        let cells = l.grid_cells() as usize;
+        let n = l.max_triangles as usize;
+        let grid = l.has(Limits::GRID);
+        let cells = if grid { l.grid_cells() as usize } else { 0 };
+        let bvh_tris = if l.has(Limits::BVH) { n } else { 0 };
         Ok(Layout {
-            tris: l.max_triangles as usize,
-            proj: if l.projection_test { l.max_triangles as usize } else { 0 },
+            tris: if grid { n } else { 0 },
+            proj: if grid && l.projection_test { n } else { 0 },
             cells,
-            refs: l.grid_refs() as usize,
-            macro_words: cells.div_ceil(32) + 1,
+            refs: if grid { l.grid_refs() as usize } else { 0 },
+            macro_words: if grid { cells.div_ceil(32) + 1 } else { 0 },
             slots: l.max_threads as usize,
+            bvh_tris,
+            bvh_proj: if l.projection_test { bvh_tris } else { 0 },
         })
     }
     fn bytes(&self) -> usize {
@@ -42,6 +53,12 @@ impl Layout {
             + pool_bytes::<u32>(self.macro_words)
             + pool_bytes::<u32>(self.tris * self.slots)
             + pool_bytes::<u32>(self.slots)
+            + pool_bytes::<BvhNode>(2 * self.bvh_tris)
+            + pool_bytes::<TriVerts>(self.bvh_tris)
+            + pool_bytes::<crate::geom::ProjTri>(self.bvh_proj)
+            + pool_bytes::<u32>(self.bvh_tris)
+            + pool_bytes::<u32>(self.bvh_tris)
+            + pool_bytes::<PrimRef>(self.bvh_tris)
     }
 }
 
@@ -55,8 +72,11 @@ pub fn required_bytes(limits: &Limits) -> Result<usize> {
 #[derive(Clone, Copy, Debug, Default)]
 pub struct Stats {
     pub grid: GridInfo,
-    /// Wall time of the last build in nanoseconds (0 without `std`).
+    /// Wall time of the last grid build in nanoseconds (0 without `std`).
     pub build_ns: u64,
+    pub bvh: BvhInfo,
+    /// Wall time of the last BVH build in nanoseconds (0 without `std`).
+    pub bvh_build_ns: u64,
     /// Counters of the last trace, occluded or render call.
     pub counters: Counters,
     /// Wall time of the last trace, occluded or render call (0 without `std`).
@@ -70,6 +90,7 @@ pub struct Stats {
 pub struct Context<'a> {
     limits: Limits,
     grid: Grid<'a>,
+    bvh: Bvh<'a>,
     /// Per-thread mailboxes (CGT section 2.3): `max_triangles` stamps and
     /// one packet counter per thread slot.
     stamps: &'a mut [u32],
@@ -114,8 +135,16 @@ impl<'a> Context<'a> {
         };
         let stamps = arena.take(layout.tris * layout.slots)?;
         let mail_packets = arena.take(layout.slots)?;
+        let bvh = BvhPools {
+            nodes: arena.take(2 * layout.bvh_tris)?,
+            tris: arena.take(layout.bvh_tris)?,
+            proj: arena.take(layout.bvh_proj)?,
+            tri_ids: arena.take(layout.bvh_tris)?,
+            slot_of: arena.take(layout.bvh_tris)?,
+            refs: arena.take(layout.bvh_tris)?,
+        };
         debug_assert_eq!(arena.used(), need);
-        Ok(Context { limits: *limits, grid: Grid::new(pools), stamps, mail_packets, stats: Stats::default() })
+        Ok(Context { limits: *limits, grid: Grid::new(pools), bvh: Bvh::new(bvh), stamps, mail_packets, stats: Stats::default() })
     }
 
     pub fn limits(&self) -> &Limits {
@@ -148,6 +177,9 @@ impl<'a> Context<'a> {
 
     /// Rebuild the grid from `scene`. On error the previous grid stays valid.
     pub fn build_grid(&mut self, scene: &Scene<'_>, params: &GridParams) -> Result<GridInfo> {
+        if !self.limits.has(Limits::GRID) {
+            return Err(Error::InvalidArgument("no grid pools: Limits::structures lacks GRID"));
+        }
         self.check_scene(scene)?;
         let t = now();
         let info = grid::build::build(&mut self.grid, scene, params, self.limits.grid_cells(), self.limits.grid_refs())?;
@@ -156,18 +188,44 @@ impl<'a> Context<'a> {
         Ok(info)
     }
 
-    /// The built structure, for tracing from several threads.
-    pub fn tracer(&self) -> Result<GridTracer<'_>> {
-        self.grid.view().map(|view| GridTracer { view }).ok_or(Error::NotBuilt)
+    /// Rebuild the BVH from `scene` (binned SAH, BVH paper section 5.1).
+    /// On error the previous BVH stays valid.
+    pub fn build_bvh(&mut self, scene: &Scene<'_>, params: &BvhParams) -> Result<BvhInfo> {
+        if !self.limits.has(Limits::BVH) {
+            return Err(Error::InvalidArgument("no BVH pools: Limits::structures lacks BVH"));
+        }
+        self.check_scene(scene)?;
+        let t = now();
+        let info = bvh::build::build(&mut self.bvh, scene, params)?;
+        self.stats.bvh_build_ns = elapsed_ns(t);
+        self.stats.bvh = info;
+        Ok(info)
     }
 
-    /// The built structure and one mailbox per thread slot, for tracing
+    /// The built structures, for tracing from several threads. Single-ray
+    /// calls use the grid's 3DDDA when a grid is built, else the BVH's
+    /// single-ray traversal (see `SceneTracer::with_single`).
+    pub fn tracer(&self) -> Result<SceneTracer<'_>> {
+        let t = SceneTracer { grid: self.grid.view(), bvh: self.bvh.view(), single: Method::GridDda };
+        match (t.grid.is_some(), t.bvh.is_some()) {
+            (false, false) => Err(Error::NotBuilt),
+            (true, _) => Ok(t),
+            (false, true) => Ok(SceneTracer { single: Method::BvhSingle, ..t }),
+        }
+    }
+
+    /// The built structures and one mailbox per thread slot, for tracing
     /// and rendering from several threads (each thread takes one mailbox).
-    pub fn parts(&mut self) -> Result<(GridTracer<'_>, impl Iterator<Item = Mailbox<'_>>)> {
-        let view = self.grid.view().ok_or(Error::NotBuilt)?;
+    pub fn parts(&mut self) -> Result<(SceneTracer<'_>, impl Iterator<Item = Mailbox<'_>>)> {
+        let t = SceneTracer { grid: self.grid.view(), bvh: self.bvh.view(), single: Method::GridDda };
+        let t = match (t.grid.is_some(), t.bvh.is_some()) {
+            (false, false) => return Err(Error::NotBuilt),
+            (true, _) => t,
+            (false, true) => SceneTracer { single: Method::BvhSingle, ..t },
+        };
         let n = self.limits.max_triangles.max(1) as usize;
         let mbs = self.stamps.chunks_mut(n).zip(self.mail_packets.iter_mut()).map(|(s, p)| Mailbox::new(s, p));
-        Ok((GridTracer { view }, mbs))
+        Ok((t, mbs))
     }
 
     /// Nearest hits of `rays` into `hits` (same length) with `method` and
@@ -209,6 +267,7 @@ impl<'a> Context<'a> {
         let mut ctr = Counters::default();
         {
             let (tr, mut mbs) = self.parts()?;
+            let tr = tr.with_single(p.method)?;
             let mut mb = mbs.next().ok_or(Error::Capacity { pool: Pool::Threads, needed: 1, available: 0 })?;
             let per = if p.method.is_packet() { (p.packet * p.packet) as usize } else { 4 };
             let mut quads = [Ray4::from_rays(&[rays.first().copied().unwrap_or(Ray::new(glam::Vec3::ZERO, glam::Vec3::X, 0.0, 0.0)); 4]); 256];
@@ -271,13 +330,45 @@ impl<'a> Context<'a> {
         let mut ctr = Counters::default();
         {
             let (tr, mut mbs) = self.parts()?;
+            tr.with_single(shadow.method)?;
+            let tr = tr.with_single(primary.method)?;
             let mut mb = mbs.next().ok_or(Error::Capacity { pool: Pool::Threads, needed: 1, available: 0 })?;
-            if primary.method.is_packet() || shadow.method.is_packet() {
-                let side = if primary.method.is_packet() { primary.packet } else { shadow.packet };
+            if primary.tile_side().max(shadow.tile_side()) > 0 {
+                let side = primary.tile_side().max(shadow.tile_side());
                 let tile = TraceParams { packet: side, ..*primary };
                 render::render_tiles(&tr, &tile, shadow, frame, &rays, 0, frame.height, pixels, stride, &mut mb, &mut ctr);
             } else {
                 render::render_rows(&tr, frame, &rays, 0, frame.height, pixels, stride, &mut ctr);
+            }
+        }
+        self.stats.trace_ns = elapsed_ns(t);
+        self.stats.counters = ctr;
+        Ok(ctr)
+    }
+
+    /// Render a Whitted frame (shadows, reflections, refractions; BVH paper
+    /// sections 2.4 and 6) on the calling thread: `job.primary`,
+    /// `job.shadow` and `job.secondary` choose the method per ray class.
+    /// Packet methods render n x n tiles, n the largest tile side of the
+    /// three (`TraceParams::tile_side`); single-ray methods alone render ray
+    /// tree by ray tree. The image does not depend on these choices.
+    pub fn render_whitted(&mut self, job: &WhittedJob<'_>, pixels: &mut [u8], stride: usize) -> Result<Counters> {
+        job.validate()?;
+        let rays = self.check_frame(job.frame, pixels.len(), stride)?;
+        let t = now();
+        let mut ctr = Counters::default();
+        {
+            let (tr, mut mbs) = self.parts()?;
+            tr.with_single(job.shadow.method)?;
+            tr.with_single(job.secondary.method)?;
+            let tr = tr.with_single(job.primary.method)?;
+            let mut mb = mbs.next().ok_or(Error::Capacity { pool: Pool::Threads, needed: 1, available: 0 })?;
+            match job.primary.tile_side().max(job.shadow.tile_side()).max(job.secondary.tile_side()) {
+                0 => whitted::render_whitted_rows(&tr, job, &rays, 0, job.frame.height, pixels, stride, &mut ctr),
+                side => {
+                    let job = WhittedJob { primary: TraceParams { packet: side, ..job.primary }, ..*job };
+                    whitted::render_whitted_tiles(&tr, &job, &rays, 0, job.frame.height, pixels, stride, &mut mb, &mut ctr)
+                }
             }
         }
         self.stats.trace_ns = elapsed_ns(t);
@@ -321,7 +412,7 @@ impl Tracer for GridTracer<'_> {
             (Method::GridCgt, TriTest::MollerTrumbore) => traverse_cgt::intersect::<Mt>(&self.view, rays, active, hits, &p.cgt, mb, ctr),
             (Method::GridCgt, TriTest::Watertight) => traverse_cgt::intersect::<Wt>(&self.view, rays, active, hits, &p.cgt, mb, ctr),
             (Method::GridCgt, TriTest::Projection) => traverse_cgt::intersect::<Pt>(&self.view, rays, active, hits, &p.cgt, mb, ctr),
-            (Method::GridDda, _) => self.lane_by_lane(rays, active, hits, |r, c| self.intersect(r, c), ctr),
+            _ => lane_by_lane(rays, active, hits, |r, c| self.intersect(r, c), ctr),
         }
     }
     fn occluded_packet(&self, p: &TraceParams, rays: &[Ray4], active: &[M4], hits: &mut [Hit4], mb: &mut Mailbox<'_>, ctr: &mut Counters) {
@@ -329,14 +420,14 @@ impl Tracer for GridTracer<'_> {
             (Method::GridCgt, TriTest::MollerTrumbore) => traverse_cgt::occluded::<Mt>(&self.view, rays, active, hits, &p.cgt, mb, ctr),
             (Method::GridCgt, TriTest::Watertight) => traverse_cgt::occluded::<Wt>(&self.view, rays, active, hits, &p.cgt, mb, ctr),
             (Method::GridCgt, TriTest::Projection) => traverse_cgt::occluded::<Pt>(&self.view, rays, active, hits, &p.cgt, mb, ctr),
-            (Method::GridDda, TriTest::MollerTrumbore) => {
-                self.lane_by_lane(rays, active, hits, |r, c| grid::traverse_single::any_hit::<Mt>(&self.view, r, c), ctr)
+            (_, TriTest::MollerTrumbore) => {
+                lane_by_lane(rays, active, hits, |r, c| grid::traverse_single::any_hit::<Mt>(&self.view, r, c), ctr)
             }
-            (Method::GridDda, TriTest::Watertight) => {
-                self.lane_by_lane(rays, active, hits, |r, c| grid::traverse_single::any_hit::<Wt>(&self.view, r, c), ctr)
+            (_, TriTest::Watertight) => {
+                lane_by_lane(rays, active, hits, |r, c| grid::traverse_single::any_hit::<Wt>(&self.view, r, c), ctr)
             }
-            (Method::GridDda, TriTest::Projection) => {
-                self.lane_by_lane(rays, active, hits, |r, c| grid::traverse_single::any_hit::<Pt>(&self.view, r, c), ctr)
+            (_, TriTest::Projection) => {
+                lane_by_lane(rays, active, hits, |r, c| grid::traverse_single::any_hit::<Pt>(&self.view, r, c), ctr)
             }
         }
     }
@@ -351,15 +442,192 @@ impl Tracer for GridTracer<'_> {
     }
 }
 
-impl GridTracer<'_> {
-    /// A packet traced one active lane at a time by a single-ray method.
-    fn lane_by_lane(&self, rays: &[Ray4], active: &[M4], hits: &mut [Hit4], f: impl Fn(&Ray, &mut Counters) -> Hit, ctr: &mut Counters) {
-        for ((r, m), h) in rays.iter().zip(active).zip(hits.iter_mut()) {
-            for i in 0..4 {
-                if m.test(i) {
-                    h.set_lane(i, f(&r.lane(i), ctr));
-                }
+/// A built BVH ready to trace, shared across threads.
+#[derive(Clone, Copy)]
+pub struct BvhTracer<'r> {
+    pub view: BvhView<'r>,
+}
+
+/// Dispatch on the BVH's triangle test: `$f::<T>($args)` with T = Mt, Wt or Pt.
+macro_rules! by_test {
+    ($test:expr, $f:ident ( $($a:expr),* )) => {
+        match $test {
+            TriTest::MollerTrumbore => $f::<Mt>($($a),*),
+            TriTest::Watertight => $f::<Wt>($($a),*),
+            TriTest::Projection => $f::<Pt>($($a),*),
+        }
+    };
+}
+
+impl Tracer for BvhTracer<'_> {
+    #[inline]
+    fn intersect(&self, ray: &Ray, ctr: &mut Counters) -> Hit {
+        use bvh::traverse_single::intersect;
+        by_test!(self.view.info.test, intersect(&self.view, ray, ctr))
+    }
+    #[inline]
+    fn occluded(&self, ray: &Ray, ctr: &mut Counters) -> bool {
+        use bvh::traverse_single::occluded;
+        by_test!(self.view.info.test, occluded(&self.view, ray, ctr))
+    }
+    fn intersect_packet(&self, p: &TraceParams, rays: &[Ray4], active: &[M4], hits: &mut [Hit4], _: &mut Mailbox<'_>, ctr: &mut Counters) {
+        let (v, o, test) = (&self.view, &p.bvh, self.view.info.test);
+        match p.method {
+            Method::BvhSimd => {
+                use bvh::traverse_simd::intersect;
+                by_test!(test, intersect(v, rays, active, hits, ctr))
             }
+            Method::BvhMasked => {
+                use bvh::traverse_masked::intersect;
+                by_test!(test, intersect(v, rays, active, hits, o, ctr))
+            }
+            Method::BvhRanged => {
+                use bvh::traverse_ranged::intersect;
+                by_test!(test, intersect(v, rays, active, hits, o, ctr))
+            }
+            Method::BvhPartition => {
+                use bvh::traverse_partition::intersect;
+                by_test!(test, intersect(v, rays, active, hits, o, ctr))
+            }
+            _ => lane_by_lane(rays, active, hits, |r, c| self.intersect(r, c), ctr),
+        }
+    }
+    fn occluded_packet(&self, p: &TraceParams, rays: &[Ray4], active: &[M4], hits: &mut [Hit4], _: &mut Mailbox<'_>, ctr: &mut Counters) {
+        let (v, o, test) = (&self.view, &p.bvh, self.view.info.test);
+        match p.method {
+            Method::BvhSimd => {
+                use bvh::traverse_simd::occluded;
+                by_test!(test, occluded(v, rays, active, hits, ctr))
+            }
+            Method::BvhMasked => {
+                use bvh::traverse_masked::occluded;
+                by_test!(test, occluded(v, rays, active, hits, o, ctr))
+            }
+            Method::BvhRanged => {
+                use bvh::traverse_ranged::occluded;
+                by_test!(test, occluded(v, rays, active, hits, o, ctr))
+            }
+            Method::BvhPartition => {
+                use bvh::traverse_partition::occluded;
+                by_test!(test, occluded(v, rays, active, hits, o, ctr))
+            }
+            _ => lane_by_lane(rays, active, hits, |r, c| if self.occluded(r, c) { OCCLUDED } else { Hit::MISS }, ctr),
+        }
+    }
+    fn triangle(&self, prim: u32) -> Option<TriVerts> {
+        self.view.triangle(prim)
+    }
+    fn scene_scale(&self) -> f32 {
+        self.view.info.bounds.diagonal().length()
+    }
+}
+
+/// What a single-ray occlusion query reports in a packet's hits: any
+/// triangle id marks the lane occluded.
+const OCCLUDED: Hit = Hit { t: 0.0, prim: 0, u: 0.0, v: 0.0 };
+
+/// A packet traced one active lane at a time by a single-ray method.
+fn lane_by_lane(rays: &[Ray4], active: &[M4], hits: &mut [Hit4], f: impl Fn(&Ray, &mut Counters) -> Hit, ctr: &mut Counters) {
+    for ((r, m), h) in rays.iter().zip(active).zip(hits.iter_mut()) {
+        for i in 0..4 {
+            if m.test(i) {
+                h.set_lane(i, f(&r.lane(i), ctr));
+            }
+        }
+    }
+}
+
+/// Every structure a context has built, shared across threads: packet
+/// calls go to the structure of `TraceParams::method`, single-ray calls
+/// (`Tracer::intersect`, `occluded`) to the single-ray method `single`.
+#[derive(Clone, Copy)]
+pub struct SceneTracer<'r> {
+    pub grid: Option<GridView<'r>>,
+    pub bvh: Option<BvhView<'r>>,
+    /// `Method::GridDda` or `Method::BvhSingle`.
+    pub single: Method,
+}
+
+impl<'r> SceneTracer<'r> {
+    /// The same structures with single-ray calls going to `method`'s
+    /// structure; `NotBuilt` when that structure has not been built.
+    pub fn with_single(&self, method: Method) -> Result<SceneTracer<'r>> {
+        let built = match method.structure() {
+            crate::trace::Structure::Grid => self.grid.is_some(),
+            crate::trace::Structure::Bvh => self.bvh.is_some(),
+        };
+        if !built {
+            return Err(Error::NotBuilt);
+        }
+        Ok(SceneTracer { single: method.single(), ..*self })
+    }
+    /// The grid part (None when no grid is built).
+    pub fn grid(&self) -> Option<GridTracer<'r>> {
+        self.grid.map(|view| GridTracer { view })
+    }
+    /// The BVH part (None when no BVH is built).
+    pub fn bvh(&self) -> Option<BvhTracer<'r>> {
+        self.bvh.map(|view| BvhTracer { view })
+    }
+    /// The tracer of `method`'s structure, as a trait object.
+    #[inline]
+    fn of(&self, method: Method) -> Option<AnyTracer<'r>> {
+        match method.structure() {
+            crate::trace::Structure::Grid => self.grid().map(AnyTracer::Grid),
+            crate::trace::Structure::Bvh => self.bvh().map(AnyTracer::Bvh),
+        }
+    }
+}
+
+/// One structure's tracer (static dispatch by match).
+enum AnyTracer<'r> {
+    Grid(GridTracer<'r>),
+    Bvh(BvhTracer<'r>),
+}
+
+impl Tracer for SceneTracer<'_> {
+    #[inline]
+    fn intersect(&self, ray: &Ray, ctr: &mut Counters) -> Hit {
+        match self.of(self.single) {
+            Some(AnyTracer::Grid(g)) => g.intersect(ray, ctr),
+            Some(AnyTracer::Bvh(b)) => b.intersect(ray, ctr),
+            None => Hit::MISS,
+        }
+    }
+    #[inline]
+    fn occluded(&self, ray: &Ray, ctr: &mut Counters) -> bool {
+        match self.of(self.single) {
+            Some(AnyTracer::Grid(g)) => g.occluded(ray, ctr),
+            Some(AnyTracer::Bvh(b)) => b.occluded(ray, ctr),
+            None => false,
+        }
+    }
+    fn intersect_packet(&self, p: &TraceParams, rays: &[Ray4], active: &[M4], hits: &mut [Hit4], mb: &mut Mailbox<'_>, ctr: &mut Counters) {
+        match self.of(p.method) {
+            Some(AnyTracer::Grid(g)) => g.intersect_packet(p, rays, active, hits, mb, ctr),
+            Some(AnyTracer::Bvh(b)) => b.intersect_packet(p, rays, active, hits, mb, ctr),
+            None => lane_by_lane(rays, active, hits, |_, _| Hit::MISS, ctr),
+        }
+    }
+    fn occluded_packet(&self, p: &TraceParams, rays: &[Ray4], active: &[M4], hits: &mut [Hit4], mb: &mut Mailbox<'_>, ctr: &mut Counters) {
+        match self.of(p.method) {
+            Some(AnyTracer::Grid(g)) => g.occluded_packet(p, rays, active, hits, mb, ctr),
+            Some(AnyTracer::Bvh(b)) => b.occluded_packet(p, rays, active, hits, mb, ctr),
+            None => lane_by_lane(rays, active, hits, |_, _| Hit::MISS, ctr),
+        }
+    }
+    fn triangle(&self, prim: u32) -> Option<TriVerts> {
+        match (self.grid(), self.bvh()) {
+            (Some(g), _) => g.triangle(prim),
+            (None, Some(b)) => b.triangle(prim),
+            (None, None) => None,
+        }
+    }
+    fn scene_scale(&self) -> f32 {
+        match (self.grid(), self.bvh()) {
+            (Some(g), _) => g.scene_scale(),
+            (None, Some(b)) => b.scene_scale(),
+            (None, None) => 1.0,
         }
     }
 }
@@ -368,6 +636,7 @@ impl GridTracer<'_> {
 fn _assert_sync() {
     fn is_sync<T: Sync>() {}
     is_sync::<GridTracer<'_>>();
+    is_sync::<SceneTracer<'_>>();
     let _ = <Mt as TriangleTest>::KIND;
 }
 
@@ -398,7 +667,10 @@ impl OwnedContext {
     pub fn build_grid(&mut self, scene: &Scene<'_>, params: &GridParams) -> Result<GridInfo> {
         self.inner.get_mut().build_grid(scene, params)
     }
-    pub fn tracer(&self) -> Result<GridTracer<'_>> {
+    pub fn build_bvh(&mut self, scene: &Scene<'_>, params: &BvhParams) -> Result<BvhInfo> {
+        self.inner.get_mut().build_bvh(scene, params)
+    }
+    pub fn tracer(&self) -> Result<SceneTracer<'_>> {
         self.inner.get().tracer()
     }
     pub fn trace(&mut self, method: Method, rays: &[Ray], hits: &mut [Hit]) -> Result<Counters> {
@@ -422,10 +694,13 @@ impl OwnedContext {
     pub fn occluded_with(&mut self, p: &TraceParams, rays: &[Ray], occluded: &mut [bool]) -> Result<Counters> {
         self.inner.get_mut().occluded_with(p, rays, occluded)
     }
-    pub fn parts(&mut self) -> Result<(GridTracer<'_>, impl Iterator<Item = Mailbox<'_>>)> {
+    pub fn parts(&mut self) -> Result<(SceneTracer<'_>, impl Iterator<Item = Mailbox<'_>>)> {
         self.inner.get_mut().parts()
     }
     pub fn record(&mut self, ctr: Counters, trace_ns: u64) {
         self.inner.get_mut().record(ctr, trace_ns)
+    }
+    pub fn render_whitted(&mut self, job: &WhittedJob<'_>, pixels: &mut [u8], stride: usize) -> Result<Counters> {
+        self.inner.get_mut().render_whitted(job, pixels, stride)
     }
 }

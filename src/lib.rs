@@ -24,6 +24,7 @@ pub mod trace;
 #[cfg(feature = "std")]
 pub mod scenes;
 
+pub use accel::bvh::{BvhInfo, BvhParams};
 pub use accel::grid::{GridInfo, GridParams};
 pub use context::{Context, Stats, required_bytes};
 #[cfg(feature = "std")]

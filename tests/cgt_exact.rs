@@ -100,7 +100,7 @@ fn scene_ctx(s: &TestScene, test: TriTest) -> OwnedContext {
 fn check_scene(s: &TestScene, res: usize) {
     for test in [TriTest::MollerTrumbore, TriTest::Watertight, TriTest::Projection] {
         let ctx = scene_ctx(s, test);
-        let g = ctx.tracer().unwrap().view;
+        let g = ctx.tracer().unwrap().grid.unwrap();
         let mut run = Run { g, stamps: vec![0; g.tris.len()], packet: 0 };
         let mut sum = Counters::default();
         for (vname, view) in &s.views {
@@ -159,7 +159,7 @@ fn adversarial_packets_stay_exact() {
     // common origin inside the grid and from scattered origins.
     let s = builtin_scenes().into_iter().find(|s| s.name == "animated").unwrap();
     let ctx = scene_ctx(&s, TriTest::MollerTrumbore);
-    let g = ctx.tracer().unwrap().view;
+    let g = ctx.tracer().unwrap().grid.unwrap();
     let mut run = Run { g, stamps: vec![0; g.tris.len()], packet: 0 };
     let (lo, hi) = (g.info.bounds.min, g.info.bounds.max);
     let mut x = 0x2545f4914f6cdd1du64;

@@ -85,6 +85,8 @@ fn header_macros_match_the_crate() {
     assert_eq!(define("SHEAF_VERSION_PATCH"), version[2], "SHEAF_VERSION_PATCH vs Cargo.toml: edit cbindgen.toml");
     assert_eq!(define("SHEAF_CONTEXT_ALIGN"), sheaf::ffi::SHEAF_CONTEXT_ALIGN.to_string());
     assert_eq!(define("SHEAF_ERROR_MESSAGE_MAX"), sheaf::ffi::SHEAF_ERROR_MESSAGE_MAX.to_string());
+    assert_eq!(define("SHEAF_STRUCTURE_GRID"), format!("{}u", sheaf::Limits::GRID));
+    assert_eq!(define("SHEAF_STRUCTURE_BVH"), format!("{}u", sheaf::Limits::BVH));
     assert_eq!(sheaf::ffi::SHEAF_INVALID_ID, u32::MAX);
     assert_eq!(define("SHEAF_INVALID_ID"), "UINT32_MAX");
 }

@@ -7,6 +7,7 @@
 use sheaf::render::{Camera, Frame, PointLight, Shading};
 use sheaf::scenes::animated::Animated;
 use sheaf::{Context, GridParams, Hit, Limits, Method, OwnedContext, Ray, Scene, TraceParams, TriTest, required_bytes};
+use sheaf::accel::bvh::BvhParams;
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicUsize, Ordering};
 
@@ -96,7 +97,7 @@ fn ten_animated_frames_allocate_nothing() {
         }
     }
     let during = allocs() - start;
-    assert_eq!(during, 0, "10 frames of build + trace + occluded + render allocated {during} times");
+    assert_eq!(during, 0, "10 frames of grid and BVH builds + trace + occluded + render allocated {during} times");
     assert!(hit_total > 0, "the frames must trace something");
     assert!(pixels.iter().any(|&p| p != 0));
 }
@@ -120,6 +121,14 @@ macro_rules! impl_frames {
                     self.trace_with(&cgt, r, h).unwrap();
                     self.occluded_with(&cgt, r, o).unwrap();
                     self.render_with(&cgt, &cgt, f, px, stride).unwrap();
+                }
+                // The BVH beside the grid: build, then every BVH method.
+                self.build_bvh(s, &BvhParams { test: p.test, ..BvhParams::default() }).unwrap();
+                for m in [Method::BvhSingle, Method::BvhSimd, Method::BvhMasked, Method::BvhRanged, Method::BvhPartition] {
+                    let bp = TraceParams::bvh(m, 16);
+                    self.trace_with(&bp, r, h).unwrap();
+                    self.occluded_with(&bp, r, o).unwrap();
+                    self.render_with(&bp, &bp, f, px, stride).unwrap();
                 }
             }
         }

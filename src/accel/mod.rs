@@ -2,4 +2,5 @@
 //! another; `render` and `context` compose them.
 #![forbid(unsafe_code)]
 
+pub mod bvh;
 pub mod grid;

@@ -26,6 +26,8 @@ mod load;
 mod run;
 #[path = "sheaf/view.rs"]
 mod view;
+#[path = "sheaf/whitted_bench.rs"]
+mod whitted_bench;
 
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use std::fmt;
@@ -122,19 +124,41 @@ impl GridOpts {
 /// Traversal method (`Method`).
 #[derive(Clone, Copy, Debug, ValueEnum)]
 pub enum MethodArg {
-    /// Single-ray 3DDDA (the baseline).
+    /// Single-ray 3DDDA (the grid baseline).
     GridDda,
     /// Coherent grid traversal of n x n packets.
     GridCgt,
+    /// BVH, single-ray traversal (the BVH baseline).
+    BvhSingle,
+    /// BVH, 2x2 SIMD rays.
+    BvhSimd,
+    /// BVH, n x n packets, Masked traversal.
+    BvhMasked,
+    /// BVH, n x n packets, Ranged traversal.
+    BvhRanged,
+    /// BVH, n x n packets, Partition traversal.
+    BvhPartition,
 }
 
 impl MethodArg {
-    fn method(self) -> sheaf::Method {
+    pub fn method(self) -> sheaf::Method {
         match self {
             MethodArg::GridDda => sheaf::Method::GridDda,
             MethodArg::GridCgt => sheaf::Method::GridCgt,
+            MethodArg::BvhSingle => sheaf::Method::BvhSingle,
+            MethodArg::BvhSimd => sheaf::Method::BvhSimd,
+            MethodArg::BvhMasked => sheaf::Method::BvhMasked,
+            MethodArg::BvhRanged => sheaf::Method::BvhRanged,
+            MethodArg::BvhPartition => sheaf::Method::BvhPartition,
         }
     }
+}
+
+/// Acceleration structure families.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum StructureArg {
+    Grid,
+    Bvh,
 }
 
 /// How primary and shadow rays are traced (`TraceParams`).
@@ -169,7 +193,8 @@ impl TraceOpts {
     /// (primary, shadow) parameters, checked.
     pub fn params(&self) -> Result<(sheaf::TraceParams, sheaf::TraceParams), sheaf::Error> {
         let cgt = sheaf::CgtOptions { macrocells: !self.no_macrocells, mailbox: !self.no_mailbox, culling: !self.no_culling };
-        let primary = sheaf::TraceParams { method: self.method.method(), packet: self.packet, cgt, split: self.split };
+        let bvh = sheaf::trace::BvhOptions { culling: !self.no_culling, ..Default::default() };
+        let primary = sheaf::TraceParams { method: self.method.method(), packet: self.packet, cgt, bvh, split: self.split };
         let shadow = sheaf::TraceParams {
             method: self.shadow_method.unwrap_or(self.method).method(),
             packet: self.shadow_packet.unwrap_or(self.packet),
@@ -181,9 +206,9 @@ impl TraceOpts {
     }
     /// `grid-cgt 8x8 / shadows grid-cgt 8x8`.
     pub fn label(&self) -> String {
-        let name = |m: MethodArg, n: u32| match m {
-            MethodArg::GridDda => "grid-dda".to_string(),
-            MethodArg::GridCgt => format!("grid-cgt {n}x{n}"),
+        let name = |m: MethodArg, n: u32| {
+            let m = m.method();
+            if m.is_packet() { format!("{} {n}x{n}", m.name()) } else { m.name().to_string() }
         };
         let sp = self.shadow_packet.unwrap_or(self.packet);
         format!("{} / shadows {}", name(self.method, self.packet), name(self.shadow_method.unwrap_or(self.method), sp))
@@ -252,10 +277,37 @@ pub struct RenderArgs {
     /// Lambert shading without shadow rays.
     #[arg(long)]
     pub no_shadows: bool,
+    /// Whitted ray tracing: most mirror reflections on a path (with --refract: at most 8 in total).
+    #[arg(long, default_value_t = 0)]
+    pub reflect: u32,
+    /// Whitted ray tracing: most refractions on a path.
+    #[arg(long, default_value_t = 0)]
+    pub refract: u32,
+    /// Materials: the OBJ's .mtl (default), or every surface a mirror, glass, or both.
+    #[arg(long, value_enum, default_value = "scene")]
+    pub materials: MaterialsArg,
+    /// Method for reflection and refraction rays (default: bvh-partition when the primary
+    /// method is a BVH packet method at 16x16 or more, as the BVH paper recommends; else
+    /// the primary method).
+    #[arg(long, value_enum)]
+    pub secondary_method: Option<MethodArg>,
     #[command(flatten)]
     pub grid: GridOpts,
     #[command(flatten)]
     pub trace: TraceOpts,
+}
+
+/// Materials of a Whitted render.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum MaterialsArg {
+    /// The scene's own (OBJ .mtl: Kd, Ks with illum 3/5/7, Tr or d, Ni); built-ins are diffuse.
+    Scene,
+    /// Every surface reflects 60 %.
+    Mirror,
+    /// Every surface transmits 70 % (index 1.5).
+    Glass,
+    /// Every surface reflects 30 % and transmits 30 % (index 1.5).
+    Mixed,
 }
 
 #[derive(Args)]
@@ -288,6 +340,15 @@ pub struct BenchArgs {
     /// Triangle tests, comma-separated (one grid build each).
     #[arg(long, value_enum, value_delimiter = ',', default_value = "mt,watertight")]
     pub tests: Vec<TestArg>,
+    /// Instead of the ray table: the Whitted study of the BVH traversals
+    /// (BVH paper Figure 5, Table 2 and the culling benefit): frame times per
+    /// traversal, packet side and ray recursion level, at 1024x1024 by
+    /// default (256x256 with --quick).
+    #[arg(long)]
+    pub whitted: bool,
+    /// Structures whose methods are measured.
+    #[arg(long, value_enum, value_delimiter = ',', default_value = "grid,bvh")]
+    pub structures: Vec<StructureArg>,
     /// Thread counts to time, comma-separated.
     #[arg(long, value_delimiter = ',', default_value = "1,2")]
     pub threads: Vec<u32>,

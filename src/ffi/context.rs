@@ -16,9 +16,11 @@ use crate::accel::grid::GridParams;
 use crate::context::{Context, required_bytes};
 use crate::error::{Error, Result};
 use crate::geom::{Ray, Scene};
+use crate::accel::bvh::BvhParams;
 use crate::mem::Limits;
+use super::bvh::sheaf_bvh_params;
 use crate::render::Tracer;
-use crate::trace::{Counters, Method, TraceParams};
+use crate::trace::{Counters, TraceParams};
 use super::trace_params::sheaf_trace_params;
 use core::cell::Cell;
 use core::ffi::{c_char, c_void};
@@ -81,11 +83,11 @@ impl Geometry {
 }
 
 /// What a `sheaf_context *` points to.
-struct Handle {
+pub(super) struct Handle {
     /// `MAGIC` while alive, 0 after destroy (catches a second destroy of a
     /// `create_in` context, whose memory stays valid).
     magic: u64,
-    ctx: Context<'static>,
+    pub(super) ctx: Context<'static>,
     geometry: Option<Geometry>,
     /// The last failure of a call on this context (never cleared by a
     /// success). A mutex because trace/occluded run concurrently; locked
@@ -154,7 +156,7 @@ fn with_ref(ctx: *const sheaf_context, f: impl FnOnce(&Handle) -> Result<()>) ->
 
 /// Run `f` on the exclusively borrowed handle (calls that need exclusive
 /// access), behind the panic boundary, recording a failure in the handle.
-fn with_mut(ctx: *mut sheaf_context, f: impl FnOnce(&mut Handle) -> Result<()>) -> sheaf_status {
+pub(super) fn with_mut(ctx: *mut sheaf_context, f: impl FnOnce(&mut Handle) -> Result<()>) -> sheaf_status {
     let seen: Cell<Option<*mut Handle>> = Cell::new(None);
     guard(
         || {
@@ -433,6 +435,30 @@ pub extern "C" fn sheaf_context_build_grid(ctx: *mut sheaf_context, params: *con
     })
 }
 
+/// Rebuild the BVH from the geometry with `*params` (copied; NULL: the
+/// defaults of `sheaf_bvh_params_default`): a binned SAH build from scratch
+/// (BVH paper section 5.1). The grid, if built, is untouched: a context may
+/// hold both and trace each with its methods.
+///
+/// Reads the geometry buffers (see `sheaf_context_set_geometry`); never
+/// allocates. On error the previous BVH stays valid and traces exactly as
+/// before.
+///
+/// Errors: `SHEAF_STATUS_NO_GEOMETRY`, `SHEAF_STATUS_INVALID_ARGUMENT`
+/// (params, or no BVH pools in `sheaf_limits.structures`),
+/// `SHEAF_STATUS_INDEX_OUT_OF_RANGE`, `SHEAF_STATUS_CAPACITY_TRIANGLES`.
+///
+/// Not thread-safe: needs exclusive access to `ctx`.
+#[unsafe(no_mangle)]
+pub extern "C" fn sheaf_context_build_bvh(ctx: *mut sheaf_context, params: *const sheaf_bvh_params) -> sheaf_status {
+    with_mut(ctx, |h| {
+        let params = if params.is_null() { BvhParams::default() } else { read_in(params)?.to_core()? };
+        let g = h.geometry.as_ref().ok_or(Error::NoGeometry)?;
+        h.ctx.build_bvh(&g.scene()?, &params)?;
+        Ok(())
+    })
+}
+
 /// Nearest hits of `count` rays: `hits[i]` for `rays[i]` (any count,
 /// including 0; `rays` and `hits` may be NULL only when `count` is 0; no
 /// alignment required; the arrays must not overlap).
@@ -496,25 +522,24 @@ fn trace_impl(h: &Handle, p: &TraceParams, rays: *const sheaf_ray, hits: *mut sh
         if overlaps(rays.cast(), rb, hits.cast_const().cast(), hb) {
             return Err(Error::InvalidArgument("rays and hits overlap"));
         }
-        let tr = h.ctx.tracer()?;
+        let tr = h.ctx.tracer()?.with_single(method)?;
         let mut ctr = Counters::default();
-        match method {
-            Method::GridDda => {
-                for i in 0..count {
-                    // SAFETY: i < count, and both arrays were checked to be
-                    // non-NULL (count > 0) and to span count elements in
-                    // memory (C contract: readable / writable). Unaligned
-                    // access is allowed; the arrays do not overlap.
-                    unsafe {
-                        let ray = Ray::from(rays.add(i).read_unaligned());
-                        hits.add(i).write_unaligned(tr.intersect(&ray, &mut ctr).into());
-                    }
+        if p.tile_side() == 0 {
+            for i in 0..count {
+                // SAFETY: i < count, and both arrays were checked to be
+                // non-NULL (count > 0) and to span count elements in
+                // memory (C contract: readable / writable). Unaligned
+                // access is allowed; the arrays do not overlap.
+                unsafe {
+                    let ray = Ray::from(rays.add(i).read_unaligned());
+                    hits.add(i).write_unaligned(tr.intersect(&ray, &mut ctr).into());
                 }
             }
-            Method::GridCgt => cgt_packets(&tr, p, rays, count, false, &mut |i, h| {
-                // SAFETY: i < count (cgt_packets), hits checked as above.
+        } else {
+            packets(&tr, p, rays, count, false, &mut |i, h| {
+                // SAFETY: i < count (packets), hits checked as above.
                 unsafe { hits.add(i).write_unaligned(h.into()) }
-            }),
+            });
         }
         Ok(())
     }
@@ -543,22 +568,22 @@ pub extern "C" fn sheaf_context_occluded(
         if overlaps(rays.cast(), rb, occluded.cast_const(), count) {
             return Err(Error::InvalidArgument("rays and results overlap"));
         }
-        let tr = h.ctx.tracer()?;
+        let p = TraceParams { method, ..TraceParams::default() };
+        let tr = h.ctx.tracer()?.with_single(method)?;
         let mut ctr = Counters::default();
-        match method {
-            Method::GridDda => {
-                for i in 0..count {
-                    // SAFETY: as in sheaf_context_trace.
-                    unsafe {
-                        let ray = Ray::from(rays.add(i).read_unaligned());
-                        occluded.add(i).write(u8::from(tr.occluded(&ray, &mut ctr)));
-                    }
+        if p.tile_side() == 0 {
+            for i in 0..count {
+                // SAFETY: as in sheaf_context_trace.
+                unsafe {
+                    let ray = Ray::from(rays.add(i).read_unaligned());
+                    occluded.add(i).write(u8::from(tr.occluded(&ray, &mut ctr)));
                 }
             }
-            Method::GridCgt => cgt_packets(&tr, &TraceParams::default(), rays, count, true, &mut |i, h| {
-                // SAFETY: i < count (cgt_packets), occluded checked as above.
+        } else {
+            packets(&tr, &p, rays, count, true, &mut |i, h| {
+                // SAFETY: i < count (packets), occluded checked as above.
                 unsafe { occluded.add(i).write(u8::from(h.is_hit())) }
-            }),
+            });
         }
         Ok(())
     })
@@ -625,29 +650,33 @@ fn render_impl(
     stride_bytes: usize,
     rgba_len: usize,
 ) -> Result<()> {
-    {
-        let frame = read_in(frame)?.to_core();
-        check_non_null!(rgba);
-        if rgba_len > isize::MAX as usize {
-            return Err(Error::InvalidArgument("framebuffer length too large"));
-        }
-        // The core checks sizes, limits and camera (Context::check_frame);
-        // its `(height - 1) * stride + 4 * width` must not overflow first.
-        if frame.width > 0 && frame.height > 0 {
-            (frame.height as usize - 1)
-                .checked_mul(stride_bytes)
-                .and_then(|b| b.checked_add(frame.width as usize * 4))
-                .ok_or(Error::InvalidArgument("framebuffer size overflows"))?;
-        }
-        h.ctx.check_frame(&frame, rgba_len, stride_bytes)?;
-        h.ctx.tracer()?;
-        // SAFETY: non-NULL, `rgba_len` bytes (<= isize::MAX) of writable
-        // memory not accessed by others during the call (C contract). The
-        // core only writes through it.
-        let pixels = unsafe { core::slice::from_raw_parts_mut(rgba, rgba_len) };
-        h.ctx.render_with(primary, shadow, &frame, pixels, stride_bytes)?;
-        Ok(())
+    let frame = read_in(frame)?.to_core();
+    let pixels = framebuffer(h, &frame, rgba, stride_bytes, rgba_len)?;
+    h.ctx.render_with(primary, shadow, &frame, pixels, stride_bytes)?;
+    Ok(())
+}
+
+/// The caller's framebuffer for `frame`, checked (sizes, limits, camera, a
+/// built structure) before anything is written.
+pub(super) fn framebuffer<'p>(h: &Handle, frame: &crate::render::Frame, rgba: *mut u8, stride_bytes: usize, rgba_len: usize) -> Result<&'p mut [u8]> {
+    check_non_null!(rgba);
+    if rgba_len > isize::MAX as usize {
+        return Err(Error::InvalidArgument("framebuffer length too large"));
     }
+    // The core checks sizes, limits and camera (Context::check_frame);
+    // its `(height - 1) * stride + 4 * width` must not overflow first.
+    if frame.width > 0 && frame.height > 0 {
+        (frame.height as usize - 1)
+            .checked_mul(stride_bytes)
+            .and_then(|b| b.checked_add(frame.width as usize * 4))
+            .ok_or(Error::InvalidArgument("framebuffer size overflows"))?;
+    }
+    h.ctx.check_frame(frame, rgba_len, stride_bytes)?;
+    h.ctx.tracer()?;
+    // SAFETY: non-NULL, `rgba_len` bytes (<= isize::MAX) of writable
+    // memory not accessed by others during the call (C contract). The
+    // core only writes through it.
+    Ok(unsafe { core::slice::from_raw_parts_mut(rgba, rgba_len) })
 }
 
 /// Statistics of the last build and the last render, written to `*out`
@@ -790,11 +819,12 @@ mod tests {
     }
 }
 
-/// Consecutive rays as 8x8 CGT packets without a mailbox (trace and occluded
-/// share one context across threads, so there is no per-thread slot):
+/// Consecutive rays as packets of `params` (n x n for packet methods, 2x2
+/// quads for the SIMD ray), CGT without a mailbox (trace and occluded share
+/// one context across threads, so there is no per-thread slot):
 /// `out(i, hit)` for every ray `i < count`.
-fn cgt_packets(
-    tr: &crate::context::GridTracer<'_>,
+fn packets(
+    tr: &crate::context::SceneTracer<'_>,
     params: &TraceParams,
     rays: *const sheaf_ray,
     count: usize,
@@ -804,7 +834,7 @@ fn cgt_packets(
     use crate::geom::{Hit4, M4, Ray4};
     use crate::render::Tracer;
     const MAX: usize = 32 * 32;
-    let per = (params.packet * params.packet) as usize;
+    let per = if params.method.is_packet() { (params.packet * params.packet) as usize } else { 4 };
     let p = TraceParams { cgt: crate::trace::CgtOptions { mailbox: false, ..params.cgt }, ..*params };
     let (mut stamps, mut packet) = ([0u32; 0], 0u32);
     let mut mb = crate::accel::grid::traverse_cgt::Mailbox::new(&mut stamps, &mut packet);

@@ -16,6 +16,16 @@ pub enum sheaf_method {
     /// rays (every 4 rays a 2x2 quad) and, having no thread slot, run without
     /// mailboxing; render uses 8x8 tiles and the context's mailbox.
     GridCgt = 1,
+    /// BVH, single-ray stack traversal (the BVH reference; BVH paper).
+    BvhSingle = 2,
+    /// BVH, 2x2 SIMD rays: every 4 consecutive rays one `Ray4` (Table 2's baseline).
+    BvhSimd = 3,
+    /// BVH, n x n packets, Masked traversal (BVH paper section 3.1).
+    BvhMasked = 4,
+    /// BVH, n x n packets, Ranged traversal (section 3.2).
+    BvhRanged = 5,
+    /// BVH, n x n packets, Partition traversal (section 3.3).
+    BvhPartition = 6,
 }
 
 impl sheaf_method {
@@ -25,6 +35,11 @@ impl sheaf_method {
         match m {
             Method::GridDda => sheaf_method::GridDda,
             Method::GridCgt => sheaf_method::GridCgt,
+            Method::BvhSingle => sheaf_method::BvhSingle,
+            Method::BvhSimd => sheaf_method::BvhSimd,
+            Method::BvhMasked => sheaf_method::BvhMasked,
+            Method::BvhRanged => sheaf_method::BvhRanged,
+            Method::BvhPartition => sheaf_method::BvhPartition,
         }
     }
 

@@ -9,11 +9,13 @@
 //! | `context.rs` | `sheaf_context` (opaque handle): required bytes, create / create_in / destroy, geometry, build, trace, occluded, render, stats, last error |
 //! | `limits.rs` | `sheaf_limits` (the crate's `Limits`), `sheaf_limits_default` |
 //! | `grid.rs` | `sheaf_grid_params`, `sheaf_tri_test`, `sheaf_grid_params_default` |
+//! | `bvh.rs` | `sheaf_bvh_params`, `sheaf_ray_kind`, `sheaf_bvh_params_default` |
 //! | `method.rs` | `sheaf_method` |
 //! | `ray.rs` | `sheaf_ray`, `sheaf_hit` (the C twins of `Ray`, `Hit`) |
 //! | `frame.rs` | `sheaf_frame` (camera, light, shading, size), `sheaf_shading_default` |
 //! | `stats.rs` | `sheaf_stats` |
 //! | `version.rs` | `sheaf_version_string` |
+//! | `whitted.rs` | `sheaf_material`, `sheaf_material_range`, `sheaf_whitted_params`, `sheaf_context_render_whitted` |
 //!
 //! # Conventions (STYLE.md rule 9)
 //! - Every export is `#[unsafe(no_mangle)] pub extern "C" fn`, takes the
@@ -43,6 +45,7 @@
 // contract is the C header's (valid or NULL pointers), checked where possible.
 #![allow(clippy::not_unsafe_ptr_arg_deref)]
 
+pub mod bvh;
 pub mod context;
 pub mod frame;
 pub mod grid;
@@ -53,12 +56,14 @@ pub mod stats;
 pub mod status;
 pub mod trace_params;
 pub mod version;
+pub mod whitted;
 
 pub use context::{
-    HEADER_BYTES, sheaf_context, sheaf_context_build_grid, sheaf_context_create, sheaf_context_create_in,
+    HEADER_BYTES, sheaf_context, sheaf_context_build_bvh, sheaf_context_build_grid, sheaf_context_create, sheaf_context_create_in,
     sheaf_context_destroy, sheaf_context_last_error, sheaf_context_occluded, sheaf_context_render,
     sheaf_context_set_geometry, sheaf_context_stats, sheaf_context_trace, sheaf_required_bytes,
 };
+pub use bvh::{sheaf_bvh_params, sheaf_bvh_params_default, sheaf_ray_kind};
 pub use frame::{sheaf_frame, sheaf_shading_default};
 pub use grid::{sheaf_grid_params, sheaf_grid_params_default, sheaf_tri_test};
 pub use limits::sheaf_limits_default;
@@ -68,6 +73,7 @@ pub use stats::sheaf_stats;
 pub use status::{sheaf_status, sheaf_status_string};
 pub use trace_params::{sheaf_trace_params, sheaf_trace_params_default};
 pub use version::sheaf_version_string;
+pub use whitted::{sheaf_context_render_whitted, sheaf_whitted_params_default};
 
 use crate::error::{Error, Result};
 use core::panic::AssertUnwindSafe;
@@ -94,6 +100,8 @@ pub mod raw {
     pub type sheaf_method = u32;
     /// cbindgen:ignore
     pub type sheaf_tri_test = u32;
+    /// cbindgen:ignore
+    pub type sheaf_ray_kind = u32;
 }
 
 /// Return `Err(Error::NullPointer)` from the enclosing function when any

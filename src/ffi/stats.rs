@@ -3,7 +3,7 @@
 use crate::context::Stats;
 use crate::trace::Counters;
 
-/// Statistics of a context: the last successful grid build and the last
+/// Statistics of a context: the last successful grid and BVH builds and the last
 /// render (`sheaf_context_stats`). All zero before the first build.
 ///
 /// `sheaf_context_trace` and `sheaf_context_occluded` do not update the
@@ -40,6 +40,17 @@ pub struct sheaf_stats {
     pub counters: Counters,
     /// Wall time of the last render in nanoseconds.
     pub trace_ns: u64,
+    /// BVH of the last BVH build: nodes, leaves, deepest leaf, stored triangles.
+    pub bvh_nodes: u32,
+    pub bvh_leaves: u32,
+    pub bvh_depth: u32,
+    pub bvh_triangles: u32,
+    /// SAH cost of that BVH.
+    pub bvh_sah_cost: f32,
+    /// Triangle test of the BVH (a `sheaf_tri_test`).
+    pub bvh_test: super::raw::sheaf_tri_test,
+    /// Wall time of the last BVH build in nanoseconds.
+    pub bvh_build_ns: u64,
 }
 
 impl sheaf_stats {
@@ -60,6 +71,13 @@ impl sheaf_stats {
             build_ns: s.build_ns,
             counters: s.counters,
             trace_ns: s.trace_ns,
+            bvh_nodes: s.bvh.nodes,
+            bvh_leaves: s.bvh.leaves,
+            bvh_depth: s.bvh.depth,
+            bvh_triangles: s.bvh.triangles,
+            bvh_sah_cost: s.bvh.sah_cost,
+            bvh_test: super::sheaf_tri_test::of(s.bvh.test) as u32,
+            bvh_build_ns: s.bvh_build_ns,
         }
     }
 }
@@ -70,5 +88,6 @@ const _: () = {
     use core::mem::{offset_of, size_of};
     assert!(offset_of!(sheaf_stats, build_ns) == 64);
     assert!(size_of::<Counters>() % 8 == 0);
-    assert!(size_of::<sheaf_stats>() == offset_of!(sheaf_stats, trace_ns) + 8);
+    assert!(offset_of!(sheaf_stats, bvh_nodes) == offset_of!(sheaf_stats, trace_ns) + 8);
+    assert!(size_of::<sheaf_stats>() == offset_of!(sheaf_stats, bvh_build_ns) + 8);
 };

@@ -20,8 +20,11 @@ pub struct sheaf_trace_params {
     /// CGT: test each triangle once per packet (section 2.3). Trace and
     /// occluded calls have no thread slot and ignore it; render uses it.
     pub mailbox: bool,
-    /// CGT: SIMD frustum culling with the corner rays (section 2.3).
+    /// Frustum culling: CGT's SIMD corner-ray culling (CGT section 2.3) and
+    /// the BVH packets' box and triangle culling (BVH paper section 4).
     pub culling: bool,
+    /// BVH packets: which frustum they get (a `sheaf_ray_kind`).
+    pub ray_kind: raw::sheaf_ray_kind,
     /// Split shadow packets whose hit points' distances from the light
     /// differ by more than this ratio (section 4.7); 0 disables splitting.
     pub split: f32,
@@ -35,6 +38,7 @@ impl sheaf_trace_params {
             macrocells: p.cgt.macrocells,
             mailbox: p.cgt.mailbox,
             culling: p.cgt.culling,
+            ray_kind: super::bvh::sheaf_ray_kind::of(p.bvh.kind) as u32,
             split: p.split,
         }
     }
@@ -44,6 +48,7 @@ impl sheaf_trace_params {
             method: sheaf_method::to_core(self.method)?,
             packet: self.packet,
             cgt: CgtOptions { macrocells: self.macrocells, mailbox: self.mailbox, culling: self.culling },
+            bvh: crate::trace::BvhOptions { culling: self.culling, kind: super::bvh::sheaf_ray_kind::to_core(self.ray_kind)? },
             split: self.split,
         };
         p.validate()?;

@@ -28,9 +28,25 @@ pub struct Limits {
     /// Reserve 48 bytes per triangle for the precomputed projection test
     /// (`TriTest::Projection`); without it that test cannot be selected.
     pub projection_test: bool,
+    /// Which structures get pools, a bit set of `Limits::GRID` (169 bytes
+    /// per triangle with the default grid rules and 8 threads) and
+    /// `Limits::BVH` (140 bytes per triangle). A structure without pools
+    /// cannot be built; model no more than the scene needs.
+    pub structures: u32,
 }
 
 impl Limits {
+    /// `structures` bit: the uniform grid (C: `SHEAF_STRUCTURE_GRID`).
+    pub const GRID: u32 = 1;
+    /// `structures` bit: the BVH (C: `SHEAF_STRUCTURE_BVH`).
+    pub const BVH: u32 = 2;
+    /// Every structure bit this version knows.
+    pub const ALL_STRUCTURES: u32 = Self::GRID | Self::BVH;
+
+    /// Whether `structure` (a `Limits::GRID`-style bit) has pools.
+    pub const fn has(&self, structure: u32) -> bool {
+        self.structures & structure != 0
+    }
     /// Limits for scenes of up to `n` triangles with defaults for the rest:
     /// `3n` vertices, 4096 x 4096 images, 64-pixel tiles, 8 threads.
     pub const fn for_triangles(n: u32) -> Limits {
@@ -44,6 +60,7 @@ impl Limits {
             max_grid_cells: 0,
             max_grid_refs: 0,
             projection_test: false,
+            structures: Self::ALL_STRUCTURES,
         }
     }
 
@@ -67,6 +84,9 @@ impl Limits {
         }
         if self.max_image_width == 0 || self.max_image_height == 0 {
             return Err(Error::InvalidArgument("max_image_width and max_image_height must be > 0"));
+        }
+        if self.structures & !Self::ALL_STRUCTURES != 0 {
+            return Err(Error::InvalidArgument("structures holds unknown bits"));
         }
         if self.grid_cells() > u32::MAX as u64 - 1 || self.grid_refs() > u32::MAX as u64 {
             return Err(Error::InvalidArgument("grid pools must stay below 2^32 entries"));

@@ -19,7 +19,7 @@ pub(crate) use count;
 /// Counters of one trace or render call (C: `sheaf_counters`). Each thread
 /// fills its own and the caller adds them up.
 #[repr(C)]
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Pod, Zeroable)]
 pub struct Counters {
     /// Rays traced (primary, shadow, any kind).
     pub rays: u64,
@@ -42,6 +42,25 @@ pub struct Counters {
     pub packets_no_cull: u64,
     /// Shadow packets split because their hit points spread too far in depth.
     pub packets_split: u64,
+    /// Ray-box tests of tree traversals (one per single ray or per 2x2
+    /// SIMD ray tested against a node's box).
+    pub aabb_tests: u64,
+    /// Tree nodes rejected by frustum culling for a whole packet.
+    pub culled_nodes: u64,
+    /// `aabb_tests` by node depth (root 0; deeper levels add to the last
+    /// bin): the histograms of the BVH paper's Figure 6.
+    pub aabb_by_depth: [u64; DEPTH_BINS],
+    /// `tri_tests` of tree traversals by leaf depth.
+    pub tri_by_depth: [u64; DEPTH_BINS],
+}
+
+/// Depth bins of the per-depth counters.
+pub const DEPTH_BINS: usize = 32;
+
+impl Default for Counters {
+    fn default() -> Self {
+        Zeroable::zeroed()
+    }
 }
 
 impl Counters {
@@ -56,6 +75,26 @@ impl Counters {
         self.culled += o.culled;
         self.packets_no_cull += o.packets_no_cull;
         self.packets_split += o.packets_split;
+        self.aabb_tests += o.aabb_tests;
+        self.culled_nodes += o.culled_nodes;
+        for d in 0..DEPTH_BINS {
+            self.aabb_by_depth[d] += o.aabb_by_depth[d];
+            self.tri_by_depth[d] += o.tri_by_depth[d];
+        }
+    }
+    /// Record `n` ray-box tests at `depth` (compiled out without `counters`).
+    #[inline(always)]
+    pub fn aabb_at(&mut self, depth: usize, n: u64) {
+        let _ = (depth, n);
+        count!(self.aabb_tests += n);
+        count!(self.aabb_by_depth[depth.min(DEPTH_BINS - 1)] += n);
+    }
+    /// Record `n` ray-triangle tests in a leaf at `depth`.
+    #[inline(always)]
+    pub fn tri_at(&mut self, depth: usize, n: u64) {
+        let _ = (depth, n);
+        count!(self.tri_tests += n);
+        count!(self.tri_by_depth[depth.min(DEPTH_BINS - 1)] += n);
     }
 }
 
@@ -69,26 +108,71 @@ pub enum Method {
     GridDda = 0,
     /// Uniform grid, coherent grid traversal of n x n packets (CGT).
     GridCgt = 1,
+    /// BVH, single-ray stack traversal (the BVH baseline and reference).
+    BvhSingle = 2,
+    /// BVH, 2x2 SIMD rays traversed one `Ray4` at a time (Table 2's baseline).
+    BvhSimd = 3,
+    /// BVH, n x n packets, Masked traversal (section 3.1).
+    BvhMasked = 4,
+    /// BVH, n x n packets, Ranged traversal (section 3.2).
+    BvhRanged = 5,
+    /// BVH, n x n packets, Partition traversal (section 3.3).
+    BvhPartition = 6,
 }
 
 impl Method {
-    pub const ALL: &'static [Method] = &[Method::GridDda, Method::GridCgt];
+    pub const ALL: &'static [Method] = &[
+        Method::GridDda,
+        Method::GridCgt,
+        Method::BvhSingle,
+        Method::BvhSimd,
+        Method::BvhMasked,
+        Method::BvhRanged,
+        Method::BvhPartition,
+    ];
     pub fn name(self) -> &'static str {
         match self {
             Method::GridDda => "grid-dda",
             Method::GridCgt => "grid-cgt",
+            Method::BvhSingle => "bvh-single",
+            Method::BvhSimd => "bvh-simd",
+            Method::BvhMasked => "bvh-masked",
+            Method::BvhRanged => "bvh-ranged",
+            Method::BvhPartition => "bvh-partition",
         }
     }
-    /// Whether the method traces packets (and so uses `TraceParams::packet`).
+    /// Whether the method traces n x n packets (and so uses `TraceParams::packet`).
     pub fn is_packet(self) -> bool {
-        matches!(self, Method::GridCgt)
+        matches!(self, Method::GridCgt | Method::BvhMasked | Method::BvhRanged | Method::BvhPartition)
+    }
+    /// Which structure the method traverses.
+    pub fn structure(self) -> Structure {
+        match self {
+            Method::GridDda | Method::GridCgt => Structure::Grid,
+            _ => Structure::Bvh,
+        }
+    }
+    /// The single-ray method of the same structure (the reference).
+    pub fn single(self) -> Method {
+        match self.structure() {
+            Structure::Grid => Method::GridDda,
+            Structure::Bvh => Method::BvhSingle,
+        }
     }
     pub fn from_name(s: &str) -> Option<Method> {
         Method::ALL.iter().copied().find(|m| m.name() == s)
     }
 }
 
+pub use crate::accel::bvh::{BvhOptions, RayKind};
 pub use crate::accel::grid::traverse_cgt::CgtOptions;
+
+/// Acceleration structure families of a context.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Structure {
+    Grid,
+    Bvh,
+}
 
 /// How one class of rays is traced (C: `sheaf_trace_params`).
 #[repr(C)]
@@ -99,6 +183,8 @@ pub struct TraceParams {
     pub packet: u32,
     /// CGT switches (macrocells, mailbox, frustum culling).
     pub cgt: CgtOptions,
+    /// BVH large-packet switches (frustum culling, ray kind).
+    pub bvh: BvhOptions,
     /// Shadow packets whose farthest hit point is more than `split` times as
     /// far from the light as the nearest are split into four (CGT section
     /// 4.7); 0 disables splitting.
@@ -107,7 +193,7 @@ pub struct TraceParams {
 
 impl Default for TraceParams {
     fn default() -> Self {
-        TraceParams { method: Method::GridCgt, packet: 8, cgt: CgtOptions::default(), split: 2.0 }
+        TraceParams { method: Method::GridCgt, packet: 8, cgt: CgtOptions::default(), bvh: BvhOptions::default(), split: 2.0 }
     }
 }
 
@@ -118,6 +204,25 @@ impl TraceParams {
     }
     pub fn cgt(packet: u32) -> Self {
         TraceParams { method: Method::GridCgt, packet, ..TraceParams::default() }
+    }
+    /// A BVH method with packet side `packet` (ignored by single and SIMD).
+    pub fn bvh(method: Method, packet: u32) -> Self {
+        TraceParams { method, packet, ..TraceParams::default() }
+    }
+    /// The same parameters with the BVH ray kind set (which frustum packets get).
+    pub fn with_kind(&self, kind: RayKind) -> Self {
+        TraceParams { bvh: BvhOptions { kind, ..self.bvh }, ..*self }
+    }
+    /// Side of the square pixel tile this method traces at once: the packet
+    /// side for n x n methods, 2 for the 2x2 SIMD ray, 0 for single rays.
+    pub fn tile_side(&self) -> u32 {
+        if self.method.is_packet() {
+            self.packet
+        } else if self.method == Method::BvhSimd {
+            2
+        } else {
+            0
+        }
     }
     /// Checks the packet side and the split ratio.
     pub fn validate(&self) -> crate::Result<()> {

@@ -38,11 +38,13 @@ use crate::{BenchArgs, Failure, GridOpts, OrFail, TestArg};
 use clap::ValueEnum;
 use glam::Vec3;
 use sheaf::accel::grid::traverse_cgt::Mailbox;
-use sheaf::context::GridTracer;
+use sheaf::accel::bvh::BvhParams;
+use sheaf::context::SceneTracer as GridTracer;
+use sheaf::trace::{BvhOptions, RayKind};
 use sheaf::geom::{F4, Hit4, INVALID_ID, M4, Ray4};
 use sheaf::reference::{self, RefHit};
 use sheaf::render::{PrimaryRays, SHADOW_OFFSET, Tracer, demorton, shadow_packet};
-use sheaf::{Camera, CgtOptions, Counters, GridInfo, Hit, Method, Ray, Scene, TraceParams};
+use sheaf::{Camera, CgtOptions, Counters, Hit, Method, Ray, Scene, TraceParams};
 use std::collections::HashMap;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -85,10 +87,23 @@ struct Config {
 
 impl Config {
     fn params(&self) -> TraceParams {
-        TraceParams { method: self.method, packet: self.packet, cgt: self.cgt, ..TraceParams::default() }
+        let bvh = BvhOptions { culling: self.cgt.culling, ..BvhOptions::default() };
+        TraceParams { method: self.method, packet: self.packet, cgt: self.cgt, bvh, ..TraceParams::default() }
     }
-    /// Chart colour: the 3DDDA 0, CGT n x n by n, the ablations after them.
+    /// Chart colour: the 3DDDA 0, CGT n x n by n, the ablations after them;
+    /// the BVH from 10: single 10, SIMD 11, then Ranged, Partition, Masked
+    /// by packet side 4..32, then the BVH without culling.
     fn colour(&self) -> usize {
+        let side = (self.packet.max(4).trailing_zeros() as usize).min(5) - 2;
+        match self.method {
+            Method::BvhSingle => return 10,
+            Method::BvhSimd => return 11,
+            _ if self.method.structure() == sheaf::trace::Structure::Bvh && !self.cgt.culling => return 24,
+            Method::BvhRanged => return 12 + side,
+            Method::BvhPartition => return 16 + side,
+            Method::BvhMasked => return 20 + side,
+            _ => {}
+        }
         if !self.method.is_packet() {
             return 0;
         }
@@ -107,7 +122,8 @@ impl Config {
             return self.method.name().to_string();
         }
         let mut s = format!("{} {}x{}", self.method.name(), self.packet, self.packet);
-        let off: Vec<&str> = [(self.cgt.macrocells, "macrocells"), (self.cgt.mailbox, "mailbox"), (self.cgt.culling, "culling")]
+        let bvh = self.method.structure() == sheaf::trace::Structure::Bvh;
+        let off: Vec<&str> = [(self.cgt.macrocells || bvh, "macrocells"), (self.cgt.mailbox || bvh, "mailbox"), (self.cgt.culling, "culling")]
             .iter()
             .filter(|(on, _)| !on)
             .map(|(_, n)| *n)
@@ -119,10 +135,30 @@ impl Config {
     }
 }
 
-/// The configurations to run, the 3DDDA first (the others are compared with it).
-fn configs(packets: &[u32], ablation: bool) -> Vec<Config> {
+/// The configurations to run, the 3DDDA first (the others are compared with
+/// it), then (with `bvh`) the BVH's: single ray, 2x2 SIMD ray, and the three
+/// large-packet traversals at every packet side from 4.
+fn configs(packets: &[u32], ablation: bool, grid: bool, bvh: bool) -> Vec<Config> {
     let on = CgtOptions::default();
     let mut v = vec![Config { method: Method::GridDda, packet: 0, cgt: on }];
+    if !grid {
+        v.clear();
+    }
+    if bvh {
+        v.push(Config { method: Method::BvhSingle, packet: 0, cgt: on });
+        v.push(Config { method: Method::BvhSimd, packet: 0, cgt: on });
+        for m in [Method::BvhRanged, Method::BvhPartition, Method::BvhMasked] {
+            v.extend(packets.iter().filter(|&&n| n >= 4).map(|&n| Config { method: m, packet: n, cgt: on }));
+        }
+        if ablation {
+            for m in [Method::BvhRanged, Method::BvhPartition] {
+                v.push(Config { method: m, packet: 16, cgt: CgtOptions { culling: false, ..on } });
+            }
+        }
+    }
+    if !grid {
+        return v;
+    }
     v.extend(packets.iter().map(|&n| Config { method: Method::GridCgt, packet: n, cgt: on }));
     if ablation {
         for cgt in [
@@ -142,7 +178,7 @@ fn test_name(t: TestArg) -> String {
 }
 
 /// Median of `v` (0 when empty).
-fn median(mut v: Vec<u64>) -> u64 {
+pub(crate) fn median(mut v: Vec<u64>) -> u64 {
     v.sort_unstable();
     v.get(v.len() / 2).copied().unwrap_or(0)
 }
@@ -376,7 +412,7 @@ struct Traced {
 
 /// Time `f`: the median of up to `reps` runs, fewer once they took
 /// `MEASURE_NS` together (at least one).
-fn timed(reps: u32, mut f: impl FnMut()) -> u64 {
+pub(crate) fn timed(reps: u32, mut f: impl FnMut()) -> u64 {
     let mut runs = Vec::new();
     let mut total = 0;
     while runs.len() < reps.max(1) as usize && (runs.is_empty() || total < MEASURE_NS) {
@@ -401,12 +437,14 @@ fn trace_config(
     reps: u32,
 ) -> Traced {
     let n = vr.rays.len();
-    let p = cfg.params();
+    let tr = &tr.with_single(cfg.method).expect("the configuration's structure is built");
+    let p = cfg.params().with_kind(RayKind::Primary);
+    let ps = cfg.params().with_kind(RayKind::Shadow);
     let mut hits = vec![Hit::MISS; n];
     let mut occluded = vec![false; n];
     let mut timings = Vec::new();
     let (prim_ctr, shadow_ctr, shadow_rays);
-    if !cfg.method.is_packet() {
+    if p.tile_side() == 0 {
         let band = BAND_ROWS * vr.w as usize;
         // Untimed first runs (warm caches, counters, results).
         prim_ctr = trace_single(tr, &vr.rays, band, &mut hits, &mut mbs[..1]);
@@ -425,7 +463,7 @@ fn trace_config(
             timings.push(Timing { threads: t, prim_ns, shadow_ns });
         }
     } else {
-        let (tiling, quads, active) = &vr.packed[&cfg.packet];
+        let (tiling, quads, active) = &vr.packed[&p.tile_side()];
         let mut h4 = vec![Hit4::MISS; quads.len()];
         prim_ctr = trace_packets(tr, &p, tiling, quads, active, &mut h4, &mut mbs[..1]);
         tiling.unpack(&mut hits, &h4, |h, i| h.lane(i));
@@ -437,7 +475,7 @@ fn trace_config(
             .map(|p| F4::from_array([p[0], p[1], p[2], p[3]].map(|i| if i == NO_PIXEL { 0.0 } else { s.dist[i as usize] })))
             .collect();
         let mut s4 = vec![Hit4::MISS; squads.len()];
-        shadow_ctr = occlude_packets(tr, &p, tiling, &squads, &sactive, &sdist, &mut s4, &mut mbs[..1]);
+        shadow_ctr = occlude_packets(tr, &ps, tiling, &squads, &sactive, &sdist, &mut s4, &mut mbs[..1]);
         tiling.unpack(&mut occluded, &s4, |h, i| h.prim[i] != INVALID_ID);
         for (o, a) in occluded.iter_mut().zip(&s.active) {
             *o &= *a;
@@ -449,7 +487,7 @@ fn trace_config(
                 trace_packets(tr, &p, tiling, quads, active, &mut h4, mbs);
             });
             let shadow_ns = timed(reps, || {
-                occlude_packets(tr, &p, tiling, &squads, &sactive, &sdist, &mut s4, mbs);
+                occlude_packets(tr, &ps, tiling, &squads, &sactive, &sdist, &mut s4, mbs);
             });
             timings.push(Timing { threads: t, prim_ns, shadow_ns });
         }
@@ -646,9 +684,9 @@ fn accuracy(scene: &Scene<'_>, o: &mut Oracle, w: u32, rays: &[Ray], hits: &[Hit
 // Scenes
 
 /// A scene to run: its bench name and what `load::load` takes.
-struct SceneSpec {
-    name: String,
-    load: String,
+pub(crate) struct SceneSpec {
+    pub(crate) name: String,
+    pub(crate) load: String,
 }
 
 fn scenes_dir(a: &BenchArgs) -> PathBuf {
@@ -663,7 +701,7 @@ fn scenes_dir(a: &BenchArgs) -> PathBuf {
 }
 
 /// The scenes asked for, absent OBJ files skipped with a message.
-fn scene_specs(a: &BenchArgs) -> Result<Vec<SceneSpec>, Failure> {
+pub(crate) fn scene_specs(a: &BenchArgs) -> Result<Vec<SceneSpec>, Failure> {
     let dir = scenes_dir(a);
     let names: Vec<String> = if !a.scenes.is_empty() {
         a.scenes.iter().map(|s| s.trim().to_string()).filter(|s| !s.is_empty()).collect()
@@ -698,11 +736,11 @@ fn scene_specs(a: &BenchArgs) -> Result<Vec<SceneSpec>, Failure> {
 /// The scene's view and light: a builtin's first view and light, or for an
 /// OBJ file what `sheaf render` picks by default (inside when the scene
 /// encloses the inside view's eye, else outside; the light placed for it).
-fn view_for(loaded: &Loaded, tr: &GridTracer<'_>, info: &GridInfo, w: u32, h: u32) -> (sheaf::scenes::View, Vec3, String) {
+pub(crate) fn view_for(loaded: &Loaded, tr: &GridTracer<'_>, bounds: &sheaf::geom::Aabb, w: u32, h: u32) -> (sheaf::scenes::View, Vec3, String) {
     if let Some((views, light)) = &loaded.builtin {
         return (views[0], *light, "builtin view 0".into());
     }
-    let (lo, hi) = (info.bounds.min, info.bounds.max);
+    let (lo, hi) = (bounds.min, bounds.max);
     let inside = view::inside(tr, lo, hi, Vec3::Y, INSIDE_FOV);
     let interior = view::is_interior(tr, inside.eye);
     let v = if interior { inside } else { view::outside(lo, hi, Vec3::Y, OUTSIDE_FOV, w as f32 / h as f32) };
@@ -888,7 +926,7 @@ fn markdown(rows: &[Row], notes: &[SceneNote], header: &str, threads: &[u32]) ->
 
 /// Hardware threads, CPU model and load average (Linux), so a reader can
 /// tell a busy machine's numbers.
-fn machine_line() -> String {
+pub(crate) fn machine_line() -> String {
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     let mut s = format!("{cores} hardware threads");
     let cpu = std::fs::read_to_string("/proc/cpuinfo")
@@ -903,7 +941,7 @@ fn machine_line() -> String {
     s
 }
 
-fn command_line() -> String {
+pub(crate) fn command_line() -> String {
     std::env::args()
         .map(|a| if a.contains(char::is_whitespace) || a.is_empty() { format!("'{a}'") } else { a })
         .collect::<Vec<_>>()
@@ -915,6 +953,9 @@ fn command_line() -> String {
 
 /// `sheaf bench`.
 pub fn bench(a: &BenchArgs) -> Result<(), Failure> {
+    if a.whitted {
+        return crate::whitted_bench::run(a);
+    }
     let start = Instant::now();
     let (w, h) = a.size.unwrap_or(if a.quick { (256, 256) } else { (512, 512) });
     let packets: Vec<u32> = if !a.packets.is_empty() {
@@ -938,7 +979,11 @@ pub fn bench(a: &BenchArgs) -> Result<(), Failure> {
     if budget.is_nan() || budget < 1.0 {
         return Err(Failure("--oracle-budget must be >= 1".into()));
     }
-    let cfgs = configs(&packets, a.ablation);
+    let with = |s: crate::StructureArg| a.structures.contains(&s);
+    let cfgs = configs(&packets, a.ablation, with(crate::StructureArg::Grid), with(crate::StructureArg::Bvh));
+    if cfgs.is_empty() {
+        return Err(Failure("--structures: name at least one of grid, bvh".into()));
+    }
     let mut tests = a.tests.clone();
     tests.dedup_by_key(|t| test_name(*t));
     let specs = scene_specs(a)?;
@@ -989,15 +1034,25 @@ pub fn bench(a: &BenchArgs) -> Result<(), Failure> {
                 builds.push(ctx.stats().build_ns);
             }
             let build_ns = median(builds);
+            let bvh_params = BvhParams { test: params.test, ..BvhParams::default() };
+            let mut bvh_builds = Vec::new();
+            let mut bvh_info = None;
+            if cfgs.iter().any(|c| c.method.structure() == sheaf::trace::Structure::Bvh) {
+                for _ in 0..BUILD_REPS {
+                    bvh_info = Some(ctx.build_bvh(&scene, &bvh_params)?);
+                    bvh_builds.push(ctx.stats().bvh_build_ns);
+                }
+            }
+            let bvh_build_ns = if bvh_builds.is_empty() { 0 } else { median(bvh_builds) };
             if prepared.is_none() {
                 let tr = ctx.tracer()?;
-                let (v, light, how) = view_for(&loaded, &tr, &info, w, h);
+                let (v, light, how) = view_for(&loaded, &tr, &info.bounds, w, h);
                 let cam = Camera { eye: v.eye.to_array(), look_at: v.look_at.to_array(), up: v.up.to_array(), fov_y_deg: v.fov_y_deg };
                 let pr = PrimaryRays::new(&cam, w, h)?;
                 let rays: Vec<Ray> = (0..h).flat_map(|y| (0..w).map(move |x| (x, y))).map(|(x, y)| pr.ray(x, y)).collect();
                 let pad = Ray::new(v.eye, Vec3::X, 0.0, 0.0);
                 // Every packet side a configuration uses (the ablations' 8 too).
-                let mut sides: Vec<u32> = cfgs.iter().filter(|c| c.method.is_packet()).map(|c| c.packet).collect();
+                let mut sides: Vec<u32> = cfgs.iter().map(|c| c.params().tile_side()).filter(|&n| n > 0).collect();
                 sides.sort_unstable();
                 sides.dedup();
                 let packed = sides
@@ -1037,6 +1092,17 @@ pub fn bench(a: &BenchArgs) -> Result<(), Failure> {
                 info.refs,
                 ms(build_ns)
             );
+            let bvh_line = bvh_info.map(|b| format!("bvh {} nodes, {} leaves, depth {}", b.nodes, b.leaves, b.depth)).unwrap_or_default();
+            if let Some(b) = bvh_info {
+                println!(
+                    "[{}] {}: {bvh_line}, SAH cost {:.1}, build {:.2} ms (median of {BUILD_REPS}) = {:.2} M triangles/s",
+                    spec.name,
+                    test_name(test),
+                    b.sah_cost,
+                    ms(bvh_build_ns),
+                    b.triangles as f64 / (bvh_build_ns.max(1) as f64 * 1e-3)
+                );
+            }
             let (tr, mbs) = ctx.parts()?;
             let mut mbs: Vec<Mailbox<'_>> = mbs.take(max_threads as usize).collect();
             let mut dda: Option<(Vec<u32>, Vec<bool>)> = None;
@@ -1066,9 +1132,9 @@ pub fn bench(a: &BenchArgs) -> Result<(), Failure> {
                     size: (w, h),
                     cfg: *cfg,
                     test: test_name(test),
-                    build_ns,
-                    grid: grid_res.clone(),
-                    refs: info.refs,
+                    build_ns: if cfg.method.structure() == sheaf::trace::Structure::Bvh { bvh_build_ns } else { build_ns },
+                    grid: if cfg.method.structure() == sheaf::trace::Structure::Bvh { bvh_line.clone() } else { grid_res.clone() },
+                    refs: if cfg.method.structure() == sheaf::trace::Structure::Bvh { 0 } else { info.refs },
                     prim_rays: t.prim_rays,
                     shadow_rays: t.shadow_rays,
                     timings: t.timings,
@@ -1162,7 +1228,7 @@ fn progress(r: &Row) -> String {
 // ---------------------------------------------------------------------------
 // The chart
 
-mod chart {
+pub(crate) mod chart {
     use super::{Row, SceneNote, RATE_FLOOR, per};
     use crate::{Failure, OrFail};
     use plotters::coord::Shift;
@@ -1170,7 +1236,7 @@ mod chart {
     use plotters::style::FontStyle;
     use std::path::Path;
 
-    const FONT: &str = "sans-serif";
+    pub(crate) const FONT: &str = "sans-serif";
     const PANEL: (u32, u32) = (560, 420);
     const LEGEND_W: u32 = 260;
     const COLS: u32 = 3;
@@ -1190,6 +1256,22 @@ mod chart {
         RGBColor(188, 189, 34),
         RGBColor(23, 190, 207),
         RGBColor(0, 0, 128),
+        // BVH: single, SIMD; Ranged 4..32 (blues), Partition 4..32 (reds), Masked 4..32 (greens); no culling.
+        RGBColor(90, 90, 90),
+        RGBColor(160, 160, 160),
+        RGBColor(158, 202, 225),
+        RGBColor(107, 174, 214),
+        RGBColor(33, 113, 181),
+        RGBColor(8, 48, 107),
+        RGBColor(252, 146, 114),
+        RGBColor(239, 59, 44),
+        RGBColor(165, 15, 21),
+        RGBColor(103, 0, 13),
+        RGBColor(161, 217, 155),
+        RGBColor(65, 171, 93),
+        RGBColor(0, 109, 44),
+        RGBColor(0, 68, 27),
+        RGBColor(255, 200, 0),
     ];
 
     pub(super) struct Point {
@@ -1220,7 +1302,7 @@ mod chart {
         out
     }
 
-    fn register_font() -> Result<(), Failure> {
+    pub(crate) fn register_font() -> Result<(), Failure> {
         static ONCE: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
         let ok = *ONCE.get_or_init(|| plotters::style::register_font(FONT, FontStyle::Normal, dejavu::sans::regular()).is_ok());
         if ok { Ok(()) } else { Err(Failure("chart: the embedded DejaVu Sans font did not load".into())) }
@@ -1351,7 +1433,7 @@ mod chart {
     }
 
     /// Write the chart as SVG and PNG.
-    pub fn write(rows: &[Row], notes: &[SceneNote], size: (u32, u32), svg: &Path, png: &Path) -> Result<(), Failure> {
+    pub(super) fn write(rows: &[Row], notes: &[SceneNote], size: (u32, u32), svg: &Path, png: &Path) -> Result<(), Failure> {
         register_font()?;
         let mut labels: Vec<(usize, String)> = Vec::new();
         let mut tests: Vec<String> = Vec::new();
@@ -1407,7 +1489,7 @@ mod tests {
 
     #[test]
     fn labels_and_colours() {
-        let c = configs(&[2, 8, 32], true);
+        let c = configs(&[2, 8, 32], true, true, false);
         let labels: Vec<String> = c.iter().map(Config::label).collect();
         assert_eq!(labels[0], "grid-dda");
         assert_eq!(labels[2], "grid-cgt 8x8");

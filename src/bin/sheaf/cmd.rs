@@ -3,7 +3,10 @@
 use crate::load::{self, Loaded};
 use crate::run::{self, mrays, ms, res};
 use crate::view::{self, INSIDE_FOV, OUTSIDE_FOV};
-use crate::{DemoArgs, Failure, GridOpts, InfoArgs, OrFail, RenderArgs};
+use crate::{DemoArgs, Failure, GridOpts, InfoArgs, MaterialsArg, OrFail, RenderArgs};
+use sheaf::render::material::{Material, Materials};
+use sheaf::render::whitted::{WhittedJob, WhittedParams};
+use sheaf::trace::RayKind;
 use glam::Vec3;
 use sheaf::scenes::animated::Animated;
 use sheaf::scenes::{ANIMATED_DETAIL, View};
@@ -99,7 +102,8 @@ pub fn demo(a: &DemoArgs) -> Result<(), Failure> {
         anim.set_time(f as f32 * dt);
         let scene = Scene::from_f32(&anim.mesh.vertices, &anim.mesh.indices)?;
         let info = ctx.build_grid(&scene, &params).or_fail(|| format!("frame {f}: building the grid"))?;
-        let b = ctx.stats().build_ns;
+        let bvh = run::build_bvh_if_used(&mut ctx, &scene, params.test, &[primary, shadow])?;
+        let b = ctx.stats().build_ns + if bvh.is_some() { ctx.stats().bvh_build_ns } else { 0 };
         let ctr = run::render_frame(&mut ctx, &primary, &shadow, &frame, &mut pixels, threads)?;
         let t = ctx.stats().trace_ns;
         run::write_png(&a.out_dir.join(format!("frame_{f:03}.png")), &pixels, w, h)?;
@@ -153,6 +157,15 @@ pub fn render(a: &RenderArgs) -> Result<(), Failure> {
     if info.triangles == 0 {
         return Err(Failure(format!("{}: every triangle is degenerate or non-finite", loaded.label)));
     }
+    let whitted = a.reflect > 0 || a.refract > 0;
+    let secondary = match a.secondary_method {
+        Some(m) => sheaf::TraceParams { method: m.method(), ..primary },
+        None if primary.method.structure() == sheaf::trace::Structure::Bvh && primary.method.is_packet() && primary.packet >= 16 => {
+            sheaf::TraceParams { method: sheaf::Method::BvhPartition, ..primary }
+        }
+        None => primary,
+    };
+    let bvh = run::build_bvh_if_used(&mut ctx, &scene, params.test, &[primary, shadow, secondary])?;
 
     // Camera: the builtin's view or an automatic one, then the user's overrides.
     let (lo, hi) = (info.bounds.min, info.bounds.max);
@@ -218,7 +231,30 @@ pub fn render(a: &RenderArgs) -> Result<(), Failure> {
         height: h,
     };
     let mut pixels = vec![0u8; w as usize * h as usize * 4];
-    let ctr = run::render_frame(&mut ctx, &primary, &shadow, &frame, &mut pixels, threads)?;
+    let forced = match a.materials {
+        MaterialsArg::Scene => None,
+        MaterialsArg::Mirror => Some(Material { reflect: 0.6, ..Material::diffuse(frame.shading.albedo) }),
+        MaterialsArg::Glass => Some(Material { transmit: 0.7, ior: 1.5, ..Material::diffuse(frame.shading.albedo) }),
+        MaterialsArg::Mixed => Some(Material { reflect: 0.3, transmit: 0.3, ior: 1.5, ..Material::diffuse(frame.shading.albedo) }),
+    };
+    let ctr = if whitted {
+        let materials = match &forced {
+            Some(m) => Materials::uniform(m),
+            None => loaded.materials(),
+        };
+        let job = WhittedJob {
+            frame: &frame,
+            lights: &[],
+            materials,
+            params: WhittedParams { max_reflect: a.reflect, max_refract: a.refract },
+            primary: primary.with_kind(RayKind::Primary),
+            shadow: shadow.with_kind(RayKind::Shadow),
+            secondary: secondary.with_kind(RayKind::Secondary),
+        };
+        run::render_whitted_frame(&mut ctx, &job, &mut pixels, threads)?
+    } else {
+        run::render_frame(&mut ctx, &primary, &shadow, &frame, &mut pixels, threads)?
+    };
     let st = *ctx.stats();
     run::write_png(&a.out, &pixels, w, h)?;
 
@@ -228,10 +264,30 @@ pub fn render(a: &RenderArgs) -> Result<(), Failure> {
     println!("triangles  {}, {} vertices", excluded_line(&loaded, &info), loaded.vertex_count());
     println!("grid       {}", grid_line(&info, &a.grid));
     println!("memory     {bytes} bytes ({:.2} MiB) in one context", mib(bytes));
-    println!("build      {:.2} ms", ms(st.build_ns));
+    println!("build      grid {:.2} ms", ms(st.build_ns));
+    if let Some(b) = bvh {
+        println!(
+            "bvh        {} nodes, {} leaves, depth {}, SAH cost {:.1}, build {:.2} ms = {:.2} M triangles/s",
+            b.nodes,
+            b.leaves,
+            b.depth,
+            b.sah_cost,
+            ms(st.bvh_build_ns),
+            b.triangles as f64 / (st.bvh_build_ns.max(1) as f64 * 1e-3)
+        );
+    }
     println!("method     {}", a.trace.label());
+    if whitted {
+        println!(
+            "whitted    up to {} reflections and {} refractions per path, materials {:?}, reflection/refraction rays {}",
+            a.reflect,
+            a.refract,
+            a.materials,
+            if secondary.method.is_packet() { format!("{} {}x{}", secondary.method.name(), secondary.packet, secondary.packet) } else { secondary.method.name().to_string() }
+        );
+    }
     println!(
-        "trace      {:.2} ms on {threads} threads, {:.2} Mrays/s: {primary} primary + {} shadow = {} rays",
+        "trace      {:.2} ms on {threads} threads, {:.2} Mrays/s: {primary} primary + {} shadow and secondary = {} rays",
         ms(st.trace_ns),
         mrays(ctr.rays, st.trace_ns),
         ctr.rays.saturating_sub(primary),

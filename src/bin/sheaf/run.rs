@@ -4,6 +4,7 @@
 use crate::{Failure, OrFail};
 use sheaf::accel::grid::traverse_cgt::Mailbox;
 use sheaf::render::{PrimaryRays, Tracer, render_rows, render_tiles};
+use sheaf::render::whitted::{WhittedJob, render_whitted_rows, render_whitted_tiles};
 use sheaf::{Counters, Error, Frame, GridInfo, GridParams, Limits, OwnedContext, Pool, Scene, TraceParams};
 use std::path::Path;
 use std::sync::Mutex;
@@ -70,6 +71,21 @@ pub fn context_for(
     Err(Failure("building the grid: pools still too small after growing them".into()))
 }
 
+/// Build the BVH (default parameters, triangle test `test`) when one of
+/// `params` traces it; returns its info then.
+pub fn build_bvh_if_used(
+    ctx: &mut OwnedContext,
+    scene: &Scene<'_>,
+    test: sheaf::TriTest,
+    params: &[TraceParams],
+) -> Result<Option<sheaf::accel::bvh::BvhInfo>, Failure> {
+    if !params.iter().any(|p| p.method.structure() == sheaf::trace::Structure::Bvh) {
+        return Ok(None);
+    }
+    let p = sheaf::accel::bvh::BvhParams { test, ..Default::default() };
+    ctx.build_bvh(scene, &p).map(Some).or_fail(|| "building the BVH".into())
+}
+
 /// Render `frame` into `pixels` (RGBA8, stride `4 * width`) on `threads`
 /// threads, each with its own mailbox slot of the context, and record the
 /// counters and the wall time in the context's stats.
@@ -85,6 +101,8 @@ pub fn render_frame(
     let rays = ctx.check_frame(frame, pixels.len(), stride).or_fail(|| "frame".into())?;
     let start = Instant::now();
     let (tracer, mailboxes) = ctx.parts()?;
+    tracer.with_single(shadow.method)?;
+    let tracer = tracer.with_single(primary.method)?;
     let mailboxes: Vec<Mailbox<'_>> = mailboxes.take(threads as usize).collect();
     let ctr = render_bands(&tracer, primary, shadow, frame, &rays, pixels, stride, mailboxes);
     ctx.record(ctr, start.elapsed().as_nanos() as u64);
@@ -104,32 +122,52 @@ fn render_bands<T: Tracer>(
     stride: usize,
     mailboxes: Vec<Mailbox<'_>>,
 ) -> Counters {
-    let packets = primary.method.is_packet() || shadow.method.is_packet();
-    let side = if primary.method.is_packet() { primary.packet } else { shadow.packet } as usize;
-    let tile = TraceParams { packet: side as u32, ..*primary };
-    let band_rows = if packets { side * BAND_ROWS.div_ceil(side) } else { BAND_ROWS };
-    let pixels = &mut pixels[..frame.height as usize * stride];
-    let bands = Mutex::new(pixels.chunks_mut(band_rows * stride).enumerate());
-    let work = |mut mb: Mailbox<'_>| {
+    let side = primary.tile_side().max(shadow.tile_side());
+    let tile = TraceParams { packet: side, ..*primary };
+    bands(side, frame.height, pixels, stride, mailboxes, |y0, y1, band, mb, ctr| {
+        if side > 0 {
+            render_tiles(tracer, &tile, shadow, frame, rays, y0, y1, band, stride, mb, ctr);
+        } else {
+            render_rows(tracer, frame, rays, y0, y1, band, stride, ctr);
+        }
+    })
+}
+
+/// Split `height` rows of `pixels` into bands of whole tile rows (tiles of
+/// `side` pixels; 0: single rays), hand them in order to one thread per
+/// mailbox, run `work(y0, y1, band pixels, mailbox, counters)` on each, and
+/// return the summed counters. Threads get `THREAD_STACK` bytes of stack
+/// (Whitted 32x32 tiles keep their packets there).
+fn bands(
+    side: u32,
+    height: u32,
+    pixels: &mut [u8],
+    stride: usize,
+    mailboxes: Vec<Mailbox<'_>>,
+    work: impl Fn(u32, u32, &mut [u8], &mut Mailbox<'_>, &mut Counters) + Sync,
+) -> Counters {
+    let side = side as usize;
+    let band_rows = if side > 0 { side * BAND_ROWS.div_ceil(side) } else { BAND_ROWS };
+    let pixels = &mut pixels[..height as usize * stride];
+    let queue = Mutex::new(pixels.chunks_mut(band_rows * stride).enumerate());
+    let run = |mut mb: Mailbox<'_>| {
         let mut ctr = Counters::default();
         loop {
-            let next = bands.lock().unwrap_or_else(|p| p.into_inner()).next();
+            let next = queue.lock().unwrap_or_else(|p| p.into_inner()).next();
             let Some((i, band)) = next else { break };
             let y0 = (i * band_rows) as u32;
-            let y1 = (y0 + band_rows as u32).min(frame.height);
-            if packets {
-                render_tiles(tracer, &tile, shadow, frame, rays, y0, y1, band, stride, &mut mb, &mut ctr);
-            } else {
-                render_rows(tracer, frame, rays, y0, y1, band, stride, &mut ctr);
-            }
+            let y1 = (y0 + band_rows as u32).min(height);
+            work(y0, y1, band, &mut mb, &mut ctr);
         }
         ctr
     };
     let mut mbs = mailboxes.into_iter();
     let first = mbs.next().expect("at least one thread slot");
     std::thread::scope(|s| {
-        let helpers: Vec<_> = mbs.map(|mb| s.spawn(|| work(mb))).collect();
-        let mut total = work(first);
+        let helpers: Vec<_> = mbs
+            .map(|mb| std::thread::Builder::new().stack_size(THREAD_STACK).spawn_scoped(s, || run(mb)).expect("spawn a render thread"))
+            .collect();
+        let mut total = run(first);
         for h in helpers {
             match h.join() {
                 Ok(c) => total.add(&c),
@@ -138,6 +176,36 @@ fn render_bands<T: Tracer>(
         }
         total
     })
+}
+
+/// Stack of each render thread: the Whitted packet path needs about 850 KB
+/// at 32x32 with 8 bounces (`sheaf::render::whitted`, Memory).
+const THREAD_STACK: usize = 4 << 20;
+
+/// Render a Whitted frame (`job`) into `pixels` (RGBA8, stride `4 * width`)
+/// on `threads` threads, as `render_frame` does for plain frames.
+pub fn render_whitted_frame(ctx: &mut OwnedContext, job: &WhittedJob<'_>, pixels: &mut [u8], threads: u32) -> Result<Counters, Failure> {
+    job.validate().or_fail(|| "Whitted parameters".into())?;
+    let frame = job.frame;
+    let stride = frame.width as usize * 4;
+    let rays = ctx.check_frame(frame, pixels.len(), stride).or_fail(|| "frame".into())?;
+    let start = Instant::now();
+    let (tracer, mailboxes) = ctx.parts()?;
+    tracer.with_single(job.shadow.method)?;
+    tracer.with_single(job.secondary.method)?;
+    let tracer = tracer.with_single(job.primary.method)?;
+    let mailboxes: Vec<Mailbox<'_>> = mailboxes.take(threads as usize).collect();
+    let side = job.primary.tile_side().max(job.shadow.tile_side()).max(job.secondary.tile_side());
+    let tiled = WhittedJob { primary: TraceParams { packet: side, ..job.primary }, ..*job };
+    let ctr = bands(side, frame.height, pixels, stride, mailboxes, |y0, y1, band, mb, ctr| {
+        if side > 0 {
+            render_whitted_tiles(&tracer, &tiled, &rays, y0, y1, band, stride, mb, ctr);
+        } else {
+            render_whitted_rows(&tracer, job, &rays, y0, y1, band, stride, ctr);
+        }
+    });
+    ctx.record(ctr, start.elapsed().as_nanos() as u64);
+    Ok(ctr)
 }
 
 /// Write RGBA8 `pixels` (`width x height`, tightly packed) as a PNG.

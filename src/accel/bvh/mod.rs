@@ -1,0 +1,300 @@
+//! Bounding volume hierarchy rebuilt from scratch every frame, traversed by
+//! single rays, 2x2 SIMD rays and large n x n packets.
+//!
+//! Source: Overbeck, Ramamoorthi, Mark 2008, "Large Ray Packets for
+//! Real-time Whitted Ray Tracing" (papers/large-ray-packets-whitted.txt).
+//!
+//! | file | implements |
+//! |---|---|
+//! | `build.rs` | section 5.1: single-threaded binned SAH build (Wald 2007), an explicit work stack, into preallocated pools |
+//! | `traverse_single.rs` | the single-ray reference: stack traversal, near child first |
+//! | `traverse_simd.rs` | section 2.1: the 2x2 SIMD ray (`Ray4`) traversal, the "2x2 SIMD ray packets" of Table 2 |
+//! | `frustum.rs` | section 4: frusta for primary (4.1), point-light shadow (4.2), reflection and refraction (4.3) packets; plane test (Eq. 1-3) and corner-ray test |
+//! | `traverse_masked.rs` | section 3.1, Figure 2: Masked traversal |
+//! | `traverse_ranged.rs` | section 3.2, Appendix A.1: Ranged traversal (first alive ray `i_a` on the stack, `getFirstHit`/`getLastHit`) |
+//! | `traverse_partition.rs` | section 3.3, Appendix A.2: Partition traversal (index list `I` partitioned in place by `partRays`) |
+//!
+//! # Node layout
+//! 32-byte nodes (`BvhNode`), two per cache line: the box, then for an inner
+//! node the index of its left child (the right child follows it) and the
+//! split axis; for a leaf the first stored triangle and the count. Node 0 is
+//! the root. Triangles are stored in leaf order.
+//!
+//! # Exactness
+//! Every stored box is padded by `BOX_PAD` times the scene's largest
+//! coordinate magnitude, so the point a triangle test reports lies inside
+//! every box on the way to that triangle despite rounding. A box is skipped
+//! only when its entry lies strictly beyond the ray's current nearest hit, so
+//! the set of triangles tested always contains the nearest one, whatever the
+//! visiting order: all traversals return the same triangle and bitwise the
+//! same t (the tie rule of `geom::ray`).
+
+pub mod build;
+pub mod frustum;
+pub mod traverse_masked;
+pub mod traverse_partition;
+pub mod traverse_ranged;
+pub mod traverse_simd;
+pub mod traverse_single;
+
+use crate::geom::{Aabb, Mt, ProjTri, Pt, TriTest, TriVerts, TriangleTest, Wt};
+use bytemuck::{Pod, Zeroable};
+
+/// Deepest level a build creates (root = depth 0). Nodes at this depth
+/// become leaves whatever their size, so every traversal stack of
+/// `MAX_DEPTH + 1` entries suffices.
+pub const MAX_DEPTH: usize = 48;
+
+/// Relative padding of stored boxes (see the module docs, Exactness).
+pub const BOX_PAD: f32 = 1e-5;
+
+/// Largest leaf size a build accepts.
+pub const MAX_LEAF: u32 = 64;
+
+/// Most SAH bins.
+pub const MAX_BINS: u32 = 64;
+
+/// Tunables of the BVH build (C: `sheaf_bvh_params`).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BvhParams {
+    /// Most triangles in a leaf (1..=64) before the build must split; below
+    /// it, the SAH decides. Default 4.
+    pub leaf_size: u32,
+    /// SAH bins per axis (2..=64). Default 16 (Wald 2007 uses 16 to 32).
+    pub bins: u32,
+    /// SAH cost of one traversal step relative to one triangle test. Default 1.
+    pub traversal_cost: f32,
+    /// Ray-triangle test used by every traversal of this BVH.
+    pub test: TriTest,
+}
+
+impl Default for BvhParams {
+    fn default() -> Self {
+        BvhParams { leaf_size: 4, bins: 16, traversal_cost: 1.0, test: TriTest::MollerTrumbore }
+    }
+}
+
+impl BvhParams {
+    pub fn validate(&self) -> crate::Result<()> {
+        if !(1..=MAX_LEAF).contains(&self.leaf_size) {
+            return Err(crate::Error::InvalidArgument("bvh leaf_size must be in 1..=64"));
+        }
+        if !(2..=MAX_BINS).contains(&self.bins) {
+            return Err(crate::Error::InvalidArgument("bvh bins must be in 2..=64"));
+        }
+        if !(self.traversal_cost.is_finite() && self.traversal_cost > 0.0) {
+            return Err(crate::Error::InvalidArgument("bvh traversal_cost must be finite and > 0"));
+        }
+        Ok(())
+    }
+}
+
+/// What the last build produced (all counts exact).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct BvhInfo {
+    /// Bounds of the stored triangles (unpadded; the root box is padded).
+    pub bounds: Aabb,
+    pub nodes: u32,
+    pub leaves: u32,
+    /// Deepest leaf (root = 0).
+    pub depth: u32,
+    /// Triangles in the scene, stored, and excluded (non-finite / zero area).
+    pub triangles_in: u32,
+    pub triangles: u32,
+    pub excluded_non_finite: u32,
+    pub excluded_zero_area: u32,
+    /// SAH cost of the tree (traversal_cost per inner node and 1 per
+    /// triangle, weighted by surface area relative to the root).
+    pub sah_cost: f32,
+    pub leaf_size: u32,
+    pub bins: u32,
+    pub test: TriTest,
+}
+
+/// One node (32 bytes). `meta`: for a leaf, the triangle count (> 0) in the
+/// low 30 bits; for an inner node 0 there and the split axis in the top 2
+/// bits. `first`: leaf: first stored triangle; inner: left child (right =
+/// left + 1).
+#[repr(C, align(32))]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct BvhNode {
+    pub min: [f32; 3],
+    pub first: u32,
+    pub max: [f32; 3],
+    pub meta: u32,
+}
+
+const _: () = assert!(core::mem::size_of::<BvhNode>() == 32);
+
+impl BvhNode {
+    const COUNT_MASK: u32 = (1 << 30) - 1;
+    #[inline(always)]
+    pub fn is_leaf(&self) -> bool {
+        self.meta & Self::COUNT_MASK != 0
+    }
+    /// Triangles in a leaf (0 for an inner node).
+    #[inline(always)]
+    pub fn count(&self) -> u32 {
+        self.meta & Self::COUNT_MASK
+    }
+    /// Split axis of an inner node (0, 1, 2).
+    #[inline(always)]
+    pub fn axis(&self) -> usize {
+        (self.meta >> 30) as usize
+    }
+    #[inline]
+    pub fn leaf(b: &Aabb, first: u32, count: u32) -> BvhNode {
+        debug_assert!(count > 0 && count <= Self::COUNT_MASK);
+        BvhNode { min: b.min.to_array(), first, max: b.max.to_array(), meta: count }
+    }
+    #[inline]
+    pub fn inner(b: &Aabb, left: u32, axis: usize) -> BvhNode {
+        BvhNode { min: b.min.to_array(), first: left, max: b.max.to_array(), meta: (axis as u32) << 30 }
+    }
+    #[inline(always)]
+    pub fn aabb(&self) -> Aabb {
+        Aabb { min: self.min.into(), max: self.max.into() }
+    }
+}
+
+/// Build scratch per triangle: its box and its index in the caller's buffer.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct PrimRef {
+    pub min: [f32; 3],
+    pub id: u32,
+    pub max: [f32; 3],
+    pub _pad: u32,
+}
+
+/// The pools a BVH lives in (carved once from the arena).
+pub struct BvhPools<'a> {
+    /// `2 * max_triangles` nodes (a binary tree over N leaves-or-fewer).
+    pub nodes: &'a mut [BvhNode],
+    /// Stored triangles in leaf order.
+    pub tris: &'a mut [TriVerts],
+    /// Projection-test data (empty unless `Limits::projection_test`).
+    pub proj: &'a mut [ProjTri],
+    /// Caller's triangle id of each stored triangle.
+    pub tri_ids: &'a mut [u32],
+    /// Stored slot of each caller triangle id (`INVALID_ID`: excluded), for
+    /// shading lookups by id.
+    pub slot_of: &'a mut [u32],
+    /// Build scratch.
+    pub refs: &'a mut [PrimRef],
+}
+
+/// A per-frame BVH: pools plus what the last successful build wrote.
+pub struct Bvh<'a> {
+    pools: BvhPools<'a>,
+    info: Option<BvhInfo>,
+}
+
+/// Read-only view of a built BVH; `Sync`, shared by all tracing threads.
+#[derive(Clone, Copy)]
+pub struct BvhView<'r> {
+    pub info: &'r BvhInfo,
+    pub nodes: &'r [BvhNode],
+    pub tris: &'r [TriVerts],
+    pub proj: &'r [ProjTri],
+    pub tri_ids: &'r [u32],
+    pub slot_of: &'r [u32],
+}
+
+impl<'a> Bvh<'a> {
+    pub fn new(pools: BvhPools<'a>) -> Self {
+        Bvh { pools, info: None }
+    }
+    pub(crate) fn pools_mut(&mut self) -> &mut BvhPools<'a> {
+        &mut self.pools
+    }
+    pub(crate) fn set_info(&mut self, info: Option<BvhInfo>) {
+        self.info = info;
+    }
+    pub fn info(&self) -> Option<&BvhInfo> {
+        self.info.as_ref()
+    }
+    /// The last successful build, if any.
+    pub fn view(&self) -> Option<BvhView<'_>> {
+        let info = self.info.as_ref()?;
+        let n = info.triangles as usize;
+        Some(BvhView {
+            info,
+            nodes: &self.pools.nodes[..info.nodes as usize],
+            tris: &self.pools.tris[..n],
+            proj: if info.test == TriTest::Projection { &self.pools.proj[..n] } else { &[] },
+            tri_ids: &self.pools.tri_ids[..n],
+            slot_of: &self.pools.slot_of[..info.triangles_in as usize],
+        })
+    }
+}
+
+impl BvhView<'_> {
+    /// The stored triangle with caller id `prim`, if it was stored.
+    #[inline]
+    pub fn triangle(&self, prim: u32) -> Option<TriVerts> {
+        let s = *self.slot_of.get(prim as usize)?;
+        self.tris.get(s as usize).copied()
+    }
+}
+
+/// Where a triangle test finds its per-triangle data in a built BVH.
+pub trait BvhTest: TriangleTest {
+    fn prim<'b>(b: &BvhView<'b>, i: usize) -> &'b Self::Prim;
+}
+
+impl BvhTest for Mt {
+    #[inline(always)]
+    fn prim<'b>(b: &BvhView<'b>, i: usize) -> &'b TriVerts {
+        &b.tris[i]
+    }
+}
+
+impl BvhTest for Wt {
+    #[inline(always)]
+    fn prim<'b>(b: &BvhView<'b>, i: usize) -> &'b TriVerts {
+        &b.tris[i]
+    }
+}
+
+impl BvhTest for Pt {
+    #[inline(always)]
+    fn prim<'b>(b: &BvhView<'b>, i: usize) -> &'b ProjTri {
+        &b.proj[i]
+    }
+}
+
+/// Which frustum a packet gets (section 4). `Auto` picks the common-origin
+/// frustum (4.2) when all active rays share their origin, else the
+/// near/far-plane frustum (4.3).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum RayKind {
+    #[default]
+    Auto = 0,
+    /// Camera rays of an n x n pixel packet (lanes as the renderer packs
+    /// them): the frustum of the 4 corner rays (4.1). Full packets only;
+    /// others fall back to `Auto`.
+    Primary = 1,
+    /// Rays from one point light (4.2).
+    Shadow = 2,
+    /// Reflection or refraction rays (4.3).
+    Secondary = 3,
+}
+
+/// Large-packet switches (C: `sheaf_bvh_options`).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct BvhOptions {
+    /// Frustum culling of boxes and triangles (section 4); off for comparison.
+    pub culling: bool,
+    /// What the rays are, which decides the frustum.
+    pub kind: RayKind,
+}
+
+impl Default for BvhOptions {
+    fn default() -> Self {
+        BvhOptions { culling: true, kind: RayKind::Auto }
+    }
+}

@@ -1,0 +1,109 @@
+//! `sheaf_bvh_params` and `sheaf_ray_kind`: the tunables of the BVH and the
+//! frustum its large packets get.
+
+use super::grid::sheaf_tri_test;
+use super::{check_non_null, guard_free, raw, write_out};
+use crate::accel::bvh::{BvhParams, RayKind};
+use crate::error::{Error, Result};
+
+/// Tunables of the BVH (Overbeck, Ramamoorthi, Mark 2008, section 5.1: a
+/// binned SAH build). Start from `sheaf_bvh_params_default`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct sheaf_bvh_params {
+    /// Most triangles in a leaf before the build must split (1..=64, default 4).
+    pub leaf_size: u32,
+    /// SAH bins per axis (2..=64, default 16).
+    pub bins: u32,
+    /// SAH cost of a traversal step relative to a triangle test (> 0, default 1).
+    pub traversal_cost: f32,
+    /// Ray-triangle test of every traversal of this BVH (a `sheaf_tri_test`).
+    pub test: raw::sheaf_tri_test,
+}
+
+impl sheaf_bvh_params {
+    pub fn of(p: &BvhParams) -> sheaf_bvh_params {
+        sheaf_bvh_params {
+            leaf_size: p.leaf_size,
+            bins: p.bins,
+            traversal_cost: p.traversal_cost,
+            test: sheaf_tri_test::of(p.test) as u32,
+        }
+    }
+    /// The checked crate value.
+    pub fn to_core(&self) -> Result<BvhParams> {
+        let p = BvhParams {
+            leaf_size: self.leaf_size,
+            bins: self.bins,
+            traversal_cost: self.traversal_cost,
+            test: sheaf_tri_test::to_core(self.test)?,
+        };
+        p.validate()?;
+        Ok(p)
+    }
+}
+
+/// Which frustum a BVH packet gets (BVH paper section 4; the crate's `RayKind`).
+#[repr(u32)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum sheaf_ray_kind {
+    /// Common-origin frustum when all rays share their origin, else the
+    /// near/far-plane frustum.
+    Auto = 0,
+    /// Camera rays of an n x n pixel packet in the renderer's quad order:
+    /// the corner rays' frustum (4.1).
+    Primary = 1,
+    /// Rays from one point light (4.2).
+    Shadow = 2,
+    /// Reflection or refraction rays (4.3).
+    Secondary = 3,
+}
+
+impl sheaf_ray_kind {
+    pub const fn of(k: RayKind) -> sheaf_ray_kind {
+        match k {
+            RayKind::Auto => sheaf_ray_kind::Auto,
+            RayKind::Primary => sheaf_ray_kind::Primary,
+            RayKind::Shadow => sheaf_ray_kind::Shadow,
+            RayKind::Secondary => sheaf_ray_kind::Secondary,
+        }
+    }
+    pub fn to_core(raw: u32) -> Result<RayKind> {
+        [RayKind::Auto, RayKind::Primary, RayKind::Shadow, RayKind::Secondary]
+            .into_iter()
+            .find(|&k| sheaf_ray_kind::of(k) as u32 == raw)
+            .ok_or(Error::InvalidArgument("unknown sheaf_ray_kind"))
+    }
+}
+
+/// Write the default BVH parameters (leaves of up to 4 triangles, 16 bins,
+/// traversal cost 1, Moller-Trumbore) to `*out`.
+///
+/// `out` must not be NULL. Thread-safe.
+#[unsafe(no_mangle)]
+pub extern "C" fn sheaf_bvh_params_default(out: *mut sheaf_bvh_params) -> super::sheaf_status {
+    guard_free(|| {
+        check_non_null!(out);
+        write_out(out, sheaf_bvh_params::of(&BvhParams::default()));
+        Ok(())
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geom::TriTest;
+
+    #[test]
+    fn params_round_trip() {
+        let p = BvhParams { leaf_size: 8, bins: 32, traversal_cost: 0.5, test: TriTest::Watertight };
+        assert_eq!(sheaf_bvh_params::of(&p).to_core(), Ok(p));
+        assert!(sheaf_bvh_params { test: 9, ..sheaf_bvh_params::of(&p) }.to_core().is_err());
+        assert!(sheaf_bvh_params { leaf_size: 0, ..sheaf_bvh_params::of(&p) }.to_core().is_err());
+        assert!(sheaf_bvh_params { bins: 1, ..sheaf_bvh_params::of(&p) }.to_core().is_err());
+        for k in 0..4 {
+            assert_eq!(sheaf_ray_kind::of(sheaf_ray_kind::to_core(k).unwrap()) as u32, k);
+        }
+        assert!(sheaf_ray_kind::to_core(4).is_err());
+    }
+}

@@ -1,0 +1,106 @@
+//! Whitted frames from C: `sheaf_material`, `sheaf_material_range`,
+//! `sheaf_whitted_params` (the crate's `Material`, `MaterialRange`,
+//! `WhittedParams`) and `sheaf_context_render_whitted`.
+
+use super::context::{Handle, sheaf_context, with_mut};
+use super::frame::sheaf_frame;
+use super::trace_params::sheaf_trace_params;
+use super::{check_array, check_non_null, guard_free, read_in, write_out};
+use crate::error::{Error, Result};
+use crate::render::PointLight;
+use crate::render::material::{Material, MaterialRange, Materials};
+use crate::render::whitted::{WhittedJob, WhittedParams};
+
+/// Write the default bounce limits (2 reflections, 2 refractions) to `*out`.
+///
+/// `out` must not be NULL. Thread-safe.
+#[unsafe(no_mangle)]
+pub extern "C" fn sheaf_whitted_params_default(out: *mut WhittedParams) -> super::sheaf_status {
+    guard_free(|| {
+        check_non_null!(out);
+        write_out(out, WhittedParams::default());
+        Ok(())
+    })
+}
+
+/// Borrow a C array as a slice: NULL only when `n == 0`, naturally aligned.
+fn borrow<'a, T>(p: *const T, n: usize, what: &'static str) -> Result<&'a [T]> {
+    check_array(p, n, what)?;
+    if n == 0 {
+        return Ok(&[]);
+    }
+    if !(p as usize).is_multiple_of(core::mem::align_of::<T>()) {
+        return Err(Error::Misaligned { required: core::mem::align_of::<T>() as u32 });
+    }
+    // SAFETY: non-NULL (n > 0, checked), aligned (checked), and the C
+    // contract is that `p` points to `n` initialised values that stay
+    // unchanged for the call; `n * size_of::<T>() <= isize::MAX` (checked).
+    Ok(unsafe { core::slice::from_raw_parts(p, n) })
+}
+
+/// Render a Whitted frame into the caller's RGBA8 framebuffer (same
+/// framebuffer rules as `sheaf_context_render`): point-light shadows from
+/// every light of `lights` (`light_count` of them; 0: `frame->light`),
+/// mirror reflections and refractions from the materials, up to
+/// `params->max_reflect` reflections and `params->max_refract` refractions
+/// per path (NULL: `sheaf_whitted_params_default`). BVH paper sections 2.4
+/// and 6: secondary packets are the surviving lanes of their parent packet.
+///
+/// Materials: triangles `ranges[i].first` up to the next range's `first`
+/// use `materials[ranges[i].material]`; triangles before the first range
+/// (or all, when `range_count` is 0) are diffuse with
+/// `frame->shading.albedo`. Ranges sorted by `first`.
+///
+/// `primary`, `shadow` and `secondary` (copied) choose the method of camera,
+/// shadow, and reflection/refraction rays; their structures must be built.
+/// Packet methods render n x n tiles, n the largest tile side of the three.
+/// The image does not depend on these choices.
+///
+/// Updates `sheaf_stats` (counters, trace time). All arrays are only read
+/// and must be naturally aligned.
+///
+/// Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_INVALID_ARGUMENT`
+/// (methods, bounce limits above 8 in total, materials, ranges, lights,
+/// camera, sizes), `SHEAF_STATUS_MISALIGNED`, `SHEAF_STATUS_CAPACITY_IMAGE`,
+/// `SHEAF_STATUS_NOT_BUILT`.
+///
+/// Not thread-safe: needs exclusive access to `ctx`.
+#[unsafe(no_mangle)]
+#[allow(clippy::too_many_arguments)]
+pub extern "C" fn sheaf_context_render_whitted(
+    ctx: *mut sheaf_context,
+    primary: *const sheaf_trace_params,
+    shadow: *const sheaf_trace_params,
+    secondary: *const sheaf_trace_params,
+    params: *const WhittedParams,
+    frame: *const sheaf_frame,
+    lights: *const PointLight,
+    light_count: usize,
+    materials: *const Material,
+    material_count: usize,
+    ranges: *const MaterialRange,
+    range_count: usize,
+    rgba: *mut u8,
+    stride_bytes: usize,
+    rgba_len: usize,
+) -> super::sheaf_status {
+    with_mut(ctx, |h: &mut Handle| {
+        let frame = read_in(frame)?.to_core();
+        let params = if params.is_null() { WhittedParams::default() } else { read_in(params)? };
+        let job = WhittedJob {
+            frame: &frame,
+            lights: borrow(lights, light_count, "light count too large")?,
+            materials: Materials {
+                materials: borrow(materials, material_count, "material count too large")?,
+                ranges: borrow(ranges, range_count, "range count too large")?,
+            },
+            params,
+            primary: read_in(primary)?.to_core()?,
+            shadow: read_in(shadow)?.to_core()?,
+            secondary: read_in(secondary)?.to_core()?,
+        };
+        let pixels = super::context::framebuffer(h, &frame, rgba, stride_bytes, rgba_len)?;
+        h.ctx.render_whitted(&job, pixels, stride_bytes)?;
+        Ok(())
+    })
+}
