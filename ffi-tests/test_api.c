@@ -908,7 +908,7 @@ static bool test_render_bad_arguments(void) {
     CHECK_STATUS(sheaf_context_render(NULL, SHEAF_METHOD_GRID_DDA, &f, img, RSTRIDE, RLEN), SHEAF_STATUS_NULL_POINTER);
     CHECK_STATUS(sheaf_context_render(ctx, SHEAF_METHOD_GRID_DDA, NULL, img, RSTRIDE, RLEN), SHEAF_STATUS_NULL_POINTER);
     CHECK_STATUS(sheaf_context_render(ctx, SHEAF_METHOD_GRID_DDA, &f, NULL, RSTRIDE, RLEN), SHEAF_STATUS_NULL_POINTER);
-    CHECK_STATUS(sheaf_context_render(ctx, (sheaf_method)5, &f, img, RSTRIDE, RLEN), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_render(ctx, (sheaf_method)77, &f, img, RSTRIDE, RLEN), SHEAF_STATUS_INVALID_ARGUMENT);
     /* buffer one byte short, zero length, stride too small, stride overflowing */
     CHECK_STATUS(sheaf_context_render(ctx, SHEAF_METHOD_GRID_DDA, &f, img, RSTRIDE, RLEN - 1),
                  SHEAF_STATUS_INVALID_ARGUMENT);

@@ -30,6 +30,13 @@
 /** A sheaf_context_last_error buffer of this many bytes always holds the whole message. */
 #define SHEAF_ERROR_MESSAGE_MAX 256
 
+/** sheaf_limits.structures bits: which structures get pools. */
+#define SHEAF_STRUCTURE_GRID 1u
+#define SHEAF_STRUCTURE_BVH 2u
+
+/** Entries of sheaf_counters.aabb_by_depth and tri_by_depth (deeper nodes add to the last). */
+#define SHEAF_DEPTH_BINS 32
+
 /**
  * Result of a sheaf call.
  *
@@ -180,12 +187,67 @@ enum sheaf_method
      * mailboxing; render uses 8x8 tiles and the context's mailbox.
      */
     SHEAF_METHOD_GRID_CGT = 1,
+    /**
+     * BVH, single-ray stack traversal (the BVH reference; BVH paper).
+     */
+    SHEAF_METHOD_BVH_SINGLE = 2,
+    /**
+     * BVH, 2x2 SIMD rays: every 4 consecutive rays one `Ray4` (Table 2's baseline).
+     */
+    SHEAF_METHOD_BVH_SIMD = 3,
+    /**
+     * BVH, n x n packets, Masked traversal (BVH paper section 3.1).
+     */
+    SHEAF_METHOD_BVH_MASKED = 4,
+    /**
+     * BVH, n x n packets, Ranged traversal (section 3.2).
+     */
+    SHEAF_METHOD_BVH_RANGED = 5,
+    /**
+     * BVH, n x n packets, Partition traversal (section 3.3).
+     */
+    SHEAF_METHOD_BVH_PARTITION = 6,
 };
 #ifndef __cplusplus
 #if __STDC_VERSION__ >= 202311L
 typedef enum sheaf_method sheaf_method;
 #else
 typedef uint32_t sheaf_method;
+#endif // __STDC_VERSION__ >= 202311L
+#endif // __cplusplus
+
+/**
+ * Which frustum a BVH packet gets (BVH paper section 4; the crate's `RayKind`).
+ */
+enum sheaf_ray_kind
+#if defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+  : uint32_t
+#endif // defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+ {
+    /**
+     * Common-origin frustum when all rays share their origin, else the
+     * near/far-plane frustum.
+     */
+    SHEAF_RAY_KIND_AUTO = 0,
+    /**
+     * Camera rays of an n x n pixel packet in the renderer's quad order:
+     * the corner rays' frustum (4.1).
+     */
+    SHEAF_RAY_KIND_PRIMARY = 1,
+    /**
+     * Rays from one point light (4.2).
+     */
+    SHEAF_RAY_KIND_SHADOW = 2,
+    /**
+     * Reflection or refraction rays (4.3).
+     */
+    SHEAF_RAY_KIND_SECONDARY = 3,
+};
+#ifndef __cplusplus
+#if __STDC_VERSION__ >= 202311L
+typedef enum sheaf_ray_kind sheaf_ray_kind;
+#else
+typedef uint32_t sheaf_ray_kind;
 #endif // __STDC_VERSION__ >= 202311L
 #endif // __cplusplus
 
@@ -204,6 +266,29 @@ typedef uint32_t sheaf_method;
  * context may run at the same time. Different contexts are independent.
  */
 typedef struct sheaf_context sheaf_context;
+
+/**
+ * Tunables of the BVH (Overbeck, Ramamoorthi, Mark 2008, section 5.1: a
+ * binned SAH build). Start from `sheaf_bvh_params_default`.
+ */
+typedef struct sheaf_bvh_params {
+    /**
+     * Most triangles in a leaf before the build must split (1..=64, default 4).
+     */
+    uint32_t leaf_size;
+    /**
+     * SAH bins per axis (2..=64, default 16).
+     */
+    uint32_t bins;
+    /**
+     * SAH cost of a traversal step relative to a triangle test (> 0, default 1).
+     */
+    float traversal_cost;
+    /**
+     * Ray-triangle test of every traversal of this BVH (a `sheaf_tri_test`).
+     */
+    sheaf_tri_test test;
+} sheaf_bvh_params;
 
 /**
  * Capacities fixed at context creation (C: `sheaf_limits`).
@@ -247,7 +332,26 @@ typedef struct sheaf_limits {
      * (`TriTest::Projection`); without it that test cannot be selected.
      */
     bool projection_test;
+    /**
+     * Which structures get pools, a bit set of `Limits::GRID` (169 bytes
+     * per triangle with the default grid rules and 8 threads) and
+     * `Limits::BVH` (140 bytes per triangle). A structure without pools
+     * cannot be built; model no more than the scene needs.
+     */
+    uint32_t structures;
 } sheaf_limits;
+/**
+ * `structures` bit: the uniform grid (C: `SHEAF_STRUCTURE_GRID`).
+ */
+#define sheaf_limits_GRID 1
+/**
+ * `structures` bit: the BVH (C: `SHEAF_STRUCTURE_BVH`).
+ */
+#define sheaf_limits_BVH 2
+/**
+ * Every structure bit this version knows.
+ */
+#define sheaf_limits_ALL_STRUCTURES (sheaf_limits_GRID | sheaf_limits_BVH)
 
 /**
  * Tunables of the uniform grid (Wald et al. 2006, "Ray Tracing Animated
@@ -340,9 +444,14 @@ typedef struct sheaf_trace_params {
      */
     bool mailbox;
     /**
-     * CGT: SIMD frustum culling with the corner rays (section 2.3).
+     * Frustum culling: CGT's SIMD corner-ray culling (CGT section 2.3) and
+     * the BVH packets' box and triangle culling (BVH paper section 4).
      */
     bool culling;
+    /**
+     * BVH packets: which frustum they get (a `sheaf_ray_kind`).
+     */
+    sheaf_ray_kind ray_kind;
     /**
      * Split shadow packets whose hit points' distances from the light
      * differ by more than this ratio (section 4.7); 0 disables splitting.
@@ -460,10 +569,29 @@ typedef struct sheaf_counters {
      * Shadow packets split because their hit points spread too far in depth.
      */
     uint64_t packets_split;
+    /**
+     * Ray-box tests of tree traversals (one per single ray or per 2x2
+     * SIMD ray tested against a node's box).
+     */
+    uint64_t aabb_tests;
+    /**
+     * Tree nodes rejected by frustum culling for a whole packet.
+     */
+    uint64_t culled_nodes;
+    /**
+     * `aabb_tests` by node depth (root 0; deeper levels add to the last
+     * bin): the histograms of the BVH paper's Figure 6.
+     * (C: `SHEAF_DEPTH_BINS` entries; the literal keeps the header self-contained.)
+     */
+    uint64_t aabb_by_depth[32];
+    /**
+     * `tri_tests` of tree traversals by leaf depth.
+     */
+    uint64_t tri_by_depth[32];
 } sheaf_counters;
 
 /**
- * Statistics of a context: the last successful grid build and the last
+ * Statistics of a context: the last successful grid and BVH builds and the last
  * render (`sheaf_context_stats`). All zero before the first build.
  *
  * `sheaf_context_trace` and `sheaf_context_occluded` do not update the
@@ -527,11 +655,99 @@ typedef struct sheaf_stats {
      * Wall time of the last render in nanoseconds.
      */
     uint64_t trace_ns;
+    /**
+     * BVH of the last BVH build: nodes, leaves, deepest leaf, stored triangles.
+     */
+    uint32_t bvh_nodes;
+    uint32_t bvh_leaves;
+    uint32_t bvh_depth;
+    uint32_t bvh_triangles;
+    /**
+     * SAH cost of that BVH.
+     */
+    float bvh_sah_cost;
+    /**
+     * Triangle test of the BVH (a `sheaf_tri_test`).
+     */
+    sheaf_tri_test bvh_test;
+    /**
+     * Wall time of the last BVH build in nanoseconds.
+     */
+    uint64_t bvh_build_ns;
 } sheaf_stats;
+
+/**
+ * Bounce limits (C: `sheaf_whitted_params`).
+ */
+typedef struct sheaf_whitted_params {
+    /**
+     * Most mirror reflections on a path. Default 2 (the paper's
+     * "2-bounce reflections", section 5.2).
+     */
+    uint32_t max_reflect;
+    /**
+     * Most refractions on a path. Default 2 (the paper's "2-deep
+     * refractions", section 5.2).
+     */
+    uint32_t max_refract;
+} sheaf_whitted_params;
+
+/**
+ * One surface material (C: `sheaf_material`).
+ *
+ * A hit's light splits into a diffuse part `1 - reflect - transmit`, a
+ * mirror-reflected part `reflect` and a refracted part `transmit` (see
+ * `render::whitted` for the whole model).
+ */
+typedef struct sheaf_material {
+    /**
+     * Linear RGB diffuse albedo, each component in [0, 1].
+     */
+    float diffuse[3];
+    /**
+     * Reflectance: fraction of the light arriving along the mirror
+     * direction, in [0, 1].
+     */
+    float reflect;
+    /**
+     * Transmittance: fraction of the light arriving through the surface
+     * along the refracted direction, in [0, 1]; `reflect + transmit <= 1`.
+     */
+    float transmit;
+    /**
+     * Index of refraction of the material behind the surface (the side
+     * its geometric normal points away from), relative to the medium in
+     * front; > 0. Only used when `transmit > 0`. Glass: 1.5.
+     */
+    float ior;
+} sheaf_material;
+
+/**
+ * Triangles `first` up to (excluding) the next range's `first` use
+ * material `material` (C: `sheaf_material_range`).
+ */
+typedef struct sheaf_material_range {
+    /**
+     * First triangle (index into the scene's index triples).
+     */
+    uint32_t first;
+    /**
+     * Index into `Materials::materials`, or `DEFAULT_MATERIAL`.
+     */
+    uint32_t material;
+} sheaf_material_range;
 
 #ifdef __cplusplus
 extern "C" {
 #endif // __cplusplus
+
+/**
+ * Write the default BVH parameters (leaves of up to 4 triangles, 16 bins,
+ * traversal cost 1, Moller-Trumbore) to `*out`.
+ *
+ * `out` must not be NULL. Thread-safe.
+ */
+sheaf_status sheaf_bvh_params_default(struct sheaf_bvh_params *out);
 
 /**
  * Bytes `sheaf_context_create_in` needs for `*limits`, written to `*out`.
@@ -652,6 +868,25 @@ sheaf_status sheaf_context_set_geometry(struct sheaf_context *ctx,
  */
 sheaf_status sheaf_context_build_grid(struct sheaf_context *ctx,
                                       const struct sheaf_grid_params *params);
+
+/**
+ * Rebuild the BVH from the geometry with `*params` (copied; NULL: the
+ * defaults of `sheaf_bvh_params_default`): a binned SAH build from scratch
+ * (BVH paper section 5.1). The grid, if built, is untouched: a context may
+ * hold both and trace each with its methods.
+ *
+ * Reads the geometry buffers (see `sheaf_context_set_geometry`); never
+ * allocates. On error the previous BVH stays valid and traces exactly as
+ * before.
+ *
+ * Errors: `SHEAF_STATUS_NO_GEOMETRY`, `SHEAF_STATUS_INVALID_ARGUMENT`
+ * (params, or no BVH pools in `sheaf_limits.structures`),
+ * `SHEAF_STATUS_INDEX_OUT_OF_RANGE`, `SHEAF_STATUS_CAPACITY_TRIANGLES`.
+ *
+ * Not thread-safe: needs exclusive access to `ctx`.
+ */
+sheaf_status sheaf_context_build_bvh(struct sheaf_context *ctx,
+                                     const struct sheaf_bvh_params *params);
 
 /**
  * Nearest hits of `count` rays: `hits[i]` for `rays[i]` (any count,
@@ -835,6 +1070,58 @@ sheaf_status sheaf_trace_params_default(struct sheaf_trace_params *out);
  * Static string, never NULL, never free it. Thread-safe.
  */
 const char *sheaf_version_string(void);
+
+/**
+ * Write the default bounce limits (2 reflections, 2 refractions) to `*out`.
+ *
+ * `out` must not be NULL. Thread-safe.
+ */
+sheaf_status sheaf_whitted_params_default(struct sheaf_whitted_params *out);
+
+/**
+ * Render a Whitted frame into the caller's RGBA8 framebuffer (same
+ * framebuffer rules as `sheaf_context_render`): point-light shadows from
+ * every light of `lights` (`light_count` of them; 0: `frame->light`),
+ * mirror reflections and refractions from the materials, up to
+ * `params->max_reflect` reflections and `params->max_refract` refractions
+ * per path (NULL: `sheaf_whitted_params_default`). BVH paper sections 2.4
+ * and 6: secondary packets are the surviving lanes of their parent packet.
+ *
+ * Materials: triangles `ranges[i].first` up to the next range's `first`
+ * use `materials[ranges[i].material]`; triangles before the first range
+ * (or all, when `range_count` is 0) are diffuse with
+ * `frame->shading.albedo`. Ranges sorted by `first`.
+ *
+ * `primary`, `shadow` and `secondary` (copied) choose the method of camera,
+ * shadow, and reflection/refraction rays; their structures must be built.
+ * Packet methods render n x n tiles, n the largest tile side of the three.
+ * The image does not depend on these choices.
+ *
+ * Updates `sheaf_stats` (counters, trace time). All arrays are only read
+ * and must be naturally aligned.
+ *
+ * Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_INVALID_ARGUMENT`
+ * (methods, bounce limits above 8 in total, materials, ranges, lights,
+ * camera, sizes), `SHEAF_STATUS_MISALIGNED`, `SHEAF_STATUS_CAPACITY_IMAGE`,
+ * `SHEAF_STATUS_NOT_BUILT`.
+ *
+ * Not thread-safe: needs exclusive access to `ctx`.
+ */
+sheaf_status sheaf_context_render_whitted(struct sheaf_context *ctx,
+                                          const struct sheaf_trace_params *primary,
+                                          const struct sheaf_trace_params *shadow,
+                                          const struct sheaf_trace_params *secondary,
+                                          const struct sheaf_whitted_params *params,
+                                          const struct sheaf_frame *frame,
+                                          const struct sheaf_light *lights,
+                                          size_t light_count,
+                                          const struct sheaf_material *materials,
+                                          size_t material_count,
+                                          const struct sheaf_material_range *ranges,
+                                          size_t range_count,
+                                          uint8_t *rgba,
+                                          size_t stride_bytes,
+                                          size_t rgba_len);
 
 #ifdef __cplusplus
 }  // extern "C"

@@ -87,6 +87,7 @@ fn header_macros_match_the_crate() {
     assert_eq!(define("SHEAF_ERROR_MESSAGE_MAX"), sheaf::ffi::SHEAF_ERROR_MESSAGE_MAX.to_string());
     assert_eq!(define("SHEAF_STRUCTURE_GRID"), format!("{}u", sheaf::Limits::GRID));
     assert_eq!(define("SHEAF_STRUCTURE_BVH"), format!("{}u", sheaf::Limits::BVH));
+    assert_eq!(define("SHEAF_DEPTH_BINS"), sheaf::trace::DEPTH_BINS.to_string());
     assert_eq!(sheaf::ffi::SHEAF_INVALID_ID, u32::MAX);
     assert_eq!(define("SHEAF_INVALID_ID"), "UINT32_MAX");
 }

@@ -14,6 +14,9 @@
 //! Both paths shoot the same shadow rays, so they produce the same image.
 #![forbid(unsafe_code)]
 
+pub mod material;
+pub mod whitted;
+
 use crate::error::{Error, Result};
 use crate::accel::grid::traverse_cgt::Mailbox;
 use crate::geom::{F4, Hit, Hit4, M4, Ray, Ray4, TriVerts};
@@ -367,6 +370,6 @@ pub fn shadow_packet<T: Tracer + ?Sized>(
 }
 
 #[inline]
-fn encode(x: f32) -> u8 {
+pub(crate) fn encode(x: f32) -> u8 {
     (math::powf(x.clamp(0.0, 1.0), 1.0 / 2.2) * 255.0 + 0.5) as u8
 }

@@ -49,12 +49,13 @@ pub struct Counters {
     pub culled_nodes: u64,
     /// `aabb_tests` by node depth (root 0; deeper levels add to the last
     /// bin): the histograms of the BVH paper's Figure 6.
-    pub aabb_by_depth: [u64; DEPTH_BINS],
+    /// (C: `SHEAF_DEPTH_BINS` entries; the literal keeps the header self-contained.)
+    pub aabb_by_depth: [u64; 32],
     /// `tri_tests` of tree traversals by leaf depth.
-    pub tri_by_depth: [u64; DEPTH_BINS],
+    pub tri_by_depth: [u64; 32],
 }
 
-/// Depth bins of the per-depth counters.
+/// Depth bins of the per-depth counters (C: `SHEAF_DEPTH_BINS`).
 pub const DEPTH_BINS: usize = 32;
 
 impl Default for Counters {

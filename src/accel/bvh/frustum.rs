@@ -1,0 +1,671 @@
+//! Bounding frusta of large ray packets (Overbeck, Ramamoorthi, Mark 2008,
+//! section 4), for culling boxes and triangles a whole packet misses.
+//!
+//! A frustum is four side planes `(n_i, b_i)`; a point `p` lies outside
+//! plane `i` when `H_i = n_i . p - b_i > 0` (Eq. 1), and a box or triangle
+//! with all its vertices outside one plane is culled. The planes come from
+//! four corner rays (Eq. 2 and 3):
+//!
+//! - `from_primary` (4.1): the packet's own corner rays, for the n x n
+//!   camera packets the renderer packs (quads in Morton order, see
+//!   `render::demorton`).
+//! - `from_common_origin` (4.2, point-light shadow rays traced from the
+//!   light): dominant axis `k` of the direction sum, the extents of
+//!   `(u, v) = (d_u / d_k, d_v / d_k)`, corner rays from the shared origin.
+//! - `from_general` (4.3, reflection and refraction rays): a near plane at
+//!   the origins' box and a far plane at the scene's box along `k`, the
+//!   rays' `(u, v)` extents on both, corner rays from the near rectangle to
+//!   the far one.
+//!
+//! Frusta with a common apex also cull triangles by the corner-ray test:
+//! all four corner rays outside the same edge plane of the triangle (the
+//! plane through the apex and the edge) means every ray of the packet
+//! misses it (Dmitriev et al. 2004; Reshetov 2007).
+//!
+//! # Exactness
+//! Culling must never reject a box or triangle that some ray's f32 test
+//! hits, or packet results would differ from single rays. So everything here
+//! is computed in f64 from the rays' f32 values, and a plane culls only what
+//! lies beyond it by more than `margin`, `CULL_EPS` times the magnitude of
+//! the scene's and the origins' coordinates. That covers the rounding of
+//! the f32 ray-triangle tests (which may report a hit for a line passing a
+//! few ulps of the coordinates beside a triangle). The boxes a traversal
+//! tests contain their triangles, so a box culled by a plane has all its
+//! triangles culled by it too. The corner-ray test needs an angular
+//! separation that, at the triangle's distance from the apex, exceeds twice
+//! the margin (see `cull_triangle`).
+//!
+//! # Deviations
+//! - The side planes of the common-origin and general frusta are built
+//!   directly from the `(u, v)` extents and their change per unit of `k`
+//!   (Eq. 2 simplified: adjacent corner rays share an extreme, so
+//!   `d_i x d_(i+1)` is a multiple of `(-1, 0, slope)` in `(u, v, k)`
+//!   coordinates), which stays well defined for parallel rays, where
+//!   Eq. 2 degenerates to a zero normal.
+//! - `from_primary` checks that every active ray lies inside its corner
+//!   frustum (to a tolerance far below the margin, which absorbs the
+//!   rounding of camera rays) and that all share the origin; otherwise the
+//!   packet is not a pinhole packet and gets the `Auto` frustum.
+//! - The general frustum's near and far planes are moved out by the margin
+//!   (hits within rounding of a ray's origin or of the scene box stay inside).
+
+use super::{BvhNode, RayKind};
+use crate::geom::{Aabb, M4, Ray4, TriVerts};
+use crate::math;
+
+/// Relative culling margin: a plane culls only what lies beyond it by more
+/// than `CULL_EPS` times the largest coordinate magnitude of the scene box
+/// and the ray origins. f32 triangle tests err by a few ulps (6e-8) of
+/// that magnitude; the margin is ~1000 times larger, and at packet widths
+/// of a pixel or more it costs no measurable culling.
+pub const CULL_EPS: f64 = 1e-4;
+
+type V3 = [f64; 3];
+
+#[inline(always)]
+fn dot(a: V3, b: V3) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+#[inline(always)]
+fn cross(a: V3, b: V3) -> V3 {
+    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+}
+#[inline(always)]
+fn sub(a: V3, b: V3) -> V3 {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+#[inline(always)]
+fn norm(a: V3) -> f64 {
+    math::sqrt64(dot(a, a))
+}
+#[inline(always)]
+fn v3(p: [f32; 3]) -> V3 {
+    [p[0] as f64, p[1] as f64, p[2] as f64]
+}
+
+/// Which construction produced a frustum.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FrustumKind {
+    /// Section 4.1: the packet's corner rays.
+    Primary,
+    /// Section 4.2: `(u, v)` extents from a shared origin.
+    CommonOrigin,
+    /// Section 4.3: near and far planes.
+    General,
+}
+
+/// Apex data of a frustum whose rays share one origin (corner-ray test).
+#[derive(Clone, Copy, Debug)]
+struct Apex {
+    o: V3,
+    /// Unit corner directions.
+    c: [V3; 4],
+    /// How far (as the sine of an angle) a ray may lie outside the corner
+    /// cone (rounding of camera rays; 0 for `CommonOrigin`).
+    slack: f64,
+}
+
+/// Four side planes around a packet (see the module docs).
+#[derive(Clone, Copy, Debug)]
+pub struct Frustum {
+    pub kind: FrustumKind,
+    /// Outward unit normals `n_i` (Eq. 2, normalised).
+    pub n: [V3; 4],
+    /// Offsets `b_i` (Eq. 3, normalised with `n_i`).
+    pub b: [f64; 4],
+    /// `H_i` beyond which a point counts as outside (see Exactness).
+    pub margin: f64,
+    /// `CULL_EPS` times the scene's coordinate magnitude (the margin of a
+    /// frustum whose rays lie exactly inside it).
+    pub eps: f64,
+    /// Per plane, the node coordinate (in `BvhNode` read as `[f32; 8]`:
+    /// min at 0..3, max at 4..7) of the box corner with the least `H_i`.
+    sel: [[usize; 3]; 4],
+    apex: Option<Apex>,
+}
+
+/// Origin and direction of each live lane.
+fn lanes<'a>(rays: &'a [Ray4], live: &'a [M4]) -> impl Iterator<Item = (V3, V3)> + 'a {
+    rays.iter().zip(live).flat_map(|(r, m)| {
+        let m = *m;
+        (0..4).filter(move |&i| m.test(i)).map(move |i| {
+            ([r.org[0][i] as f64, r.org[1][i] as f64, r.org[2][i] as f64], [r.dir[0][i] as f64, r.dir[1][i] as f64, r.dir[2][i] as f64])
+        })
+    })
+}
+
+/// The origin every live lane shares (bitwise-equal values), if any.
+pub fn common_origin(rays: &[Ray4], live: &[M4]) -> Option<V3> {
+    let mut it = lanes(rays, live);
+    let (o, _) = it.next()?;
+    it.all(|(p, _)| p == o).then_some(o)
+}
+
+/// Largest coordinate magnitude of the scene box and the live origins.
+fn scale(bounds: &Aabb, rays: &[Ray4], live: &[M4]) -> f64 {
+    let mut s = 0.0f64;
+    for a in 0..3 {
+        s = s.max((bounds.min[a] as f64).abs()).max((bounds.max[a] as f64).abs());
+    }
+    for (o, _) in lanes(rays, live) {
+        s = s.max(o[0].abs()).max(o[1].abs()).max(o[2].abs());
+    }
+    // A floor keeps the margin positive for a scene at the origin's ulp scale.
+    s.max(f32::MIN_POSITIVE as f64)
+}
+
+/// Dominant axis `k` of the direction sum and its sign (`None` when zero
+/// or not finite).
+fn dominant_axis(rays: &[Ray4], live: &[M4]) -> Option<(usize, f64)> {
+    let mut s = [0.0f64; 3];
+    for (_, d) in lanes(rays, live) {
+        for a in 0..3 {
+            s[a] += d[a];
+        }
+    }
+    let a = [s[0].abs(), s[1].abs(), s[2].abs()];
+    let k = if a[0] >= a[1] && a[0] >= a[2] { 0 } else if a[1] >= a[2] { 1 } else { 2 };
+    if !(a[k] > 0.0 && a[k].is_finite()) {
+        return None;
+    }
+    Some((k, if s[k] > 0.0 { 1.0 } else { -1.0 }))
+}
+
+/// Morton index of quad (x, y) (x in the even bits, as `render::demorton`).
+#[inline]
+fn morton(x: usize, y: usize) -> usize {
+    let mut i = 0;
+    for b in 0..8 {
+        i |= ((x >> b) & 1) << (2 * b) | ((y >> b) & 1) << (2 * b + 1);
+    }
+    i
+}
+
+impl Frustum {
+    /// The frustum `kind` asks for, or `None` when none can be built (the
+    /// packet is then traced without culling). `live` marks the lanes to
+    /// bound (active and valid); `bounds` is the scene's (root) box.
+    pub fn new(kind: RayKind, rays: &[Ray4], live: &[M4], bounds: &Aabb) -> Option<Frustum> {
+        if bounds.is_empty() || !live.iter().zip(rays).any(|(m, _)| m.any()) {
+            return None;
+        }
+        match kind {
+            RayKind::Primary => Self::from_primary(rays, live, bounds).or_else(|| Self::auto(rays, live, bounds)),
+            // Point-light shadow rays share the light as origin; when they
+            // do not, Auto picks the general frustum.
+            RayKind::Auto | RayKind::Shadow => Self::auto(rays, live, bounds),
+            RayKind::Secondary => Self::from_general(rays, live, bounds),
+        }
+    }
+
+    /// `Auto`: the common-origin frustum when every live ray starts at the
+    /// same point, else the general one.
+    pub fn auto(rays: &[Ray4], live: &[M4], bounds: &Aabb) -> Option<Frustum> {
+        if common_origin(rays, live).is_some() {
+            Self::from_common_origin(rays, live, bounds)
+        } else {
+            Self::from_general(rays, live, bounds)
+        }
+    }
+
+    /// Section 4.1: the corner rays of an n x n camera packet of
+    /// `rays.len()` = 1, 4, 16, 64 or 256 quads in Morton order (lanes as in
+    /// `Ray4`). `None` unless the four corner lanes are live, every live ray
+    /// shares their origin and lies inside their frustum.
+    pub fn from_primary(rays: &[Ray4], live: &[M4], bounds: &Aabb) -> Option<Frustum> {
+        let nq = rays.len().min(live.len());
+        let side = nq.isqrt();
+        if nq == 0 || side * side != nq || !side.is_power_of_two() {
+            return None;
+        }
+        let s = side - 1;
+        // Cyclic order TL, TR, BR, BL: (quad, lane).
+        let corners = [(0, 0), (morton(s, 0), 1), (morton(s, s), 3), (morton(0, s), 2)];
+        if corners.iter().any(|&(q, i)| !live[q].test(i)) {
+            return None;
+        }
+        let o = common_origin(&rays[..nq], &live[..nq])?;
+        let mut d = [[0.0; 3]; 4];
+        let mut c = [[0.0; 3]; 4];
+        for (j, &(q, i)) in corners.iter().enumerate() {
+            d[j] = [rays[q].dir[0][i] as f64, rays[q].dir[1][i] as f64, rays[q].dir[2][i] as f64];
+            let l = norm(d[j]);
+            if !(l > 0.0 && l.is_finite()) {
+                return None;
+            }
+            c[j] = [d[j][0] / l, d[j][1] / l, d[j][2] / l];
+        }
+        let inside = [c[0][0] + c[1][0] + c[2][0] + c[3][0], c[0][1] + c[1][1] + c[2][1] + c[3][1], c[0][2] + c[1][2] + c[2][2] + c[3][2]];
+        let mut n = [[0.0; 3]; 4];
+        let mut b = [0.0; 4];
+        for i in 0..4 {
+            // Eq. 2: n_i = d_i x d_(i+1); Eq. 3: b_i = o_i . n_i.
+            let mut ni = cross(c[i], c[(i + 1) % 4]);
+            let l = norm(ni);
+            if !(l > 0.0 && l.is_finite()) {
+                return None;
+            }
+            ni = [ni[0] / l, ni[1] / l, ni[2] / l];
+            // Outward: the cone's axis lies inside.
+            let h = dot(ni, inside);
+            if h > 0.0 {
+                ni = [-ni[0], -ni[1], -ni[2]];
+            } else if !(h < 0.0) {
+                return None;
+            }
+            // A convex cone: the two corners off the plane lie strictly inside.
+            if !(dot(ni, c[(i + 2) % 4]) < 0.0 && dot(ni, c[(i + 3) % 4]) < 0.0) {
+                return None;
+            }
+            n[i] = ni;
+            b[i] = dot(o, ni);
+        }
+        let sc = scale(bounds, &rays[..nq], &live[..nq]);
+        let eps = CULL_EPS * sc;
+        // Farthest scene point from the apex: rays may stray outside the
+        // cone by an angle `slack` only as far as that costs less than a
+        // tenth of the margin there.
+        let mut far2 = 0.0f64;
+        for a in 0..3 {
+            let lo = (bounds.min[a] as f64 - o[a]).abs();
+            let hi = (bounds.max[a] as f64 - o[a]).abs();
+            far2 += lo.max(hi) * lo.max(hi);
+        }
+        let far = math::sqrt64(far2);
+        let tol = 0.1 * eps / far.max(eps);
+        let mut slack = 0.0f64;
+        for (_, dir) in lanes(&rays[..nq], &live[..nq]) {
+            let l = norm(dir);
+            for ni in &n {
+                let out = dot(*ni, dir) / l;
+                if !(out <= tol) {
+                    return None;
+                }
+                slack = slack.max(out);
+            }
+        }
+        // Rays outside the planes by at most `slack` lie within about
+        // `4 slack` of the corner cone (its corners are far from flat).
+        Some(Self::finish(FrustumKind::Primary, n, b, eps, eps + slack * far, Some(Apex { o, c, slack: 4.0 * slack })))
+    }
+
+    /// Section 4.2: live rays from one origin, bounded by their `(u, v)`
+    /// extents along the dominant axis `k` of their direction sum. `None`
+    /// without a common origin, or when some ray's `d_k` is zero or points
+    /// against the sum.
+    pub fn from_common_origin(rays: &[Ray4], live: &[M4], bounds: &Aabb) -> Option<Frustum> {
+        let o = common_origin(rays, live)?;
+        let (k, sg) = dominant_axis(rays, live)?;
+        let (u, v) = ((k + 1) % 3, (k + 2) % 3);
+        // Slopes per unit of travel along k: (d_u, d_v) / |d_k|.
+        let mut ext = [f64::INFINITY, f64::NEG_INFINITY, f64::INFINITY, f64::NEG_INFINITY];
+        for (_, d) in lanes(rays, live) {
+            let dk = d[k] * sg;
+            if !(dk > 0.0) {
+                return None;
+            }
+            let (su, sv) = (d[u] / dk, d[v] / dk);
+            ext = [ext[0].min(su), ext[1].max(su), ext[2].min(sv), ext[3].max(sv)];
+        }
+        if !ext.iter().all(|x| x.is_finite()) {
+            return None;
+        }
+        let (n, b) = side_planes(k, sg, o[k], [o[u], o[u], o[v], o[v]], ext);
+        // Corner directions (u, v, k) = (slope_u, slope_v, +-1), cyclic.
+        let corner = |su: f64, sv: f64| {
+            let mut c = [0.0; 3];
+            c[k] = sg;
+            c[u] = su;
+            c[v] = sv;
+            let l = norm(c);
+            [c[0] / l, c[1] / l, c[2] / l]
+        };
+        let c = [corner(ext[0], ext[2]), corner(ext[1], ext[2]), corner(ext[1], ext[3]), corner(ext[0], ext[3])];
+        let eps = CULL_EPS * scale(bounds, rays, live);
+        Some(Self::finish(FrustumKind::CommonOrigin, n, b, eps, eps, Some(Apex { o, c, slack: 0.0 })))
+    }
+
+    /// Section 4.3: any live rays moving the same way along the dominant
+    /// axis `k`: their `(u, v)` extents on a near plane (behind the origins'
+    /// box) and a far plane (beyond the scene box). `None` when some ray's
+    /// `d_k` is zero or points against the sum, or the planes coincide.
+    pub fn from_general(rays: &[Ray4], live: &[M4], bounds: &Aabb) -> Option<Frustum> {
+        let (k, sg) = dominant_axis(rays, live)?;
+        let (u, v) = ((k + 1) % 3, (k + 2) % 3);
+        let eps = CULL_EPS * scale(bounds, rays, live);
+        // Near plane: the origins' box along -k (travel frame); far plane:
+        // the scene box along +k. Both moved out by the margin.
+        let mut onear = f64::INFINITY;
+        for (o, d) in lanes(rays, live) {
+            if !(d[k] * sg > 0.0) {
+                return None;
+            }
+            onear = onear.min(o[k] * sg);
+        }
+        let k_near = sg * (onear - eps);
+        let k_far = if sg > 0.0 { bounds.max[k] as f64 + eps } else { bounds.min[k] as f64 - eps };
+        let delta = (k_far - k_near) * sg;
+        if !(delta > 0.0 && delta.is_finite()) {
+            return None;
+        }
+        // (u, v) extents on both planes.
+        let mut near = [f64::INFINITY, f64::NEG_INFINITY, f64::INFINITY, f64::NEG_INFINITY];
+        let mut far = near;
+        for (o, d) in lanes(rays, live) {
+            let (su, sv) = (d[u] / d[k], d[v] / d[k]);
+            let (un, vn) = (o[u] + (k_near - o[k]) * su, o[v] + (k_near - o[k]) * sv);
+            let (uf, vf) = (o[u] + (k_far - o[k]) * su, o[v] + (k_far - o[k]) * sv);
+            near = [near[0].min(un), near[1].max(un), near[2].min(vn), near[3].max(vn)];
+            far = [far[0].min(uf), far[1].max(uf), far[2].min(vf), far[3].max(vf)];
+        }
+        if !near.iter().chain(far.iter()).all(|x| x.is_finite()) {
+            return None;
+        }
+        // Corner rays run from near[j] to far[j]: slope per unit of travel.
+        let slope = [
+            (far[0] - near[0]) / delta,
+            (far[1] - near[1]) / delta,
+            (far[2] - near[2]) / delta,
+            (far[3] - near[3]) / delta,
+        ];
+        let (n, b) = side_planes(k, sg, k_near, near, slope);
+        Some(Self::finish(FrustumKind::General, n, b, eps, eps, None))
+    }
+
+    fn finish(kind: FrustumKind, n: [V3; 4], b: [f64; 4], eps: f64, margin: f64, apex: Option<Apex>) -> Frustum {
+        let mut sel = [[0usize; 3]; 4];
+        for i in 0..4 {
+            for a in 0..3 {
+                // The corner with the least H: min where n > 0, max where n < 0.
+                sel[i][a] = if n[i][a] > 0.0 { a } else { a + 4 };
+            }
+        }
+        Frustum { kind, n, b, margin, eps, sel, apex }
+    }
+
+    /// Signed distance of `p` beyond plane `i` (Eq. 1 with unit normals).
+    #[inline(always)]
+    pub fn h(&self, i: usize, p: V3) -> f64 {
+        dot(self.n[i], p) - self.b[i]
+    }
+
+    /// Whether `node`'s box lies entirely outside one plane (Eq. 1 at the
+    /// box corner nearest the inside, the "n-vertex"), beyond the margin.
+    #[inline]
+    pub fn cull_aabb(&self, node: &BvhNode) -> bool {
+        let f: &[f32; 8] = bytemuck::cast_ref(node);
+        for i in 0..4 {
+            let s = &self.sel[i];
+            let p = [f[s[0] & 7] as f64, f[s[1] & 7] as f64, f[s[2] & 7] as f64];
+            if self.h(i, p) > self.margin {
+                return true;
+            }
+        }
+        false
+    }
+
+    /// Whether every ray of the packet misses triangle `t`: all three
+    /// vertices beyond one plane (Eq. 1), or, for a common apex, all four
+    /// corner rays beyond one edge plane.
+    #[inline]
+    pub fn cull_triangle(&self, t: &TriVerts) -> bool {
+        let p = [v3(t.v0), v3(t.v1), v3(t.v2)];
+        for i in 0..4 {
+            if self.h(i, p[0]) > self.margin && self.h(i, p[1]) > self.margin && self.h(i, p[2]) > self.margin {
+                return true;
+            }
+        }
+        match &self.apex {
+            Some(a) => self.cull_by_corners(a, &p),
+            None => false,
+        }
+    }
+
+    /// The corner-ray test. With `e` an edge plane's normal pointing to the
+    /// triangle's side and `m = max_j e . c_j / |e|` over the unit corner
+    /// directions, every ray direction `d` in the corner cone has
+    /// `e . d / (|e| |d|) <= m`, so a ray point at distance `r` from the
+    /// apex lies `-m r` outside the plane, while points within the margin
+    /// `eps` of the triangle lie at most `eps` outside it. A ray can then
+    /// come within `eps` of the triangle only where `r <= eps / -m`, and
+    /// the triangle lies at least `R` (its box's distance) from the apex:
+    /// culling is safe when `(-m - slack) R > 2 eps`.
+    fn cull_by_corners(&self, a: &Apex, p: &[V3; 3]) -> bool {
+        let v = [sub(p[0], a.o), sub(p[1], a.o), sub(p[2], a.o)];
+        let e = [cross(v[0], v[1]), cross(v[1], v[2]), cross(v[2], v[0])];
+        // Triple product: e[0] . v[2] = e[1] . v[0] = e[2] . v[1].
+        let sigma = dot(e[1], v[0]);
+        if sigma == 0.0 || !sigma.is_finite() {
+            return false;
+        }
+        // Distance from the apex to the triangle's box.
+        let mut r2 = 0.0;
+        for ax in 0..3 {
+            let lo = v[0][ax].min(v[1][ax]).min(v[2][ax]);
+            let hi = v[0][ax].max(v[1][ax]).max(v[2][ax]);
+            let g = if lo > 0.0 {
+                lo
+            } else if hi < 0.0 {
+                -hi
+            } else {
+                0.0
+            };
+            r2 += g * g;
+        }
+        let eps = self.eps;
+        if !(r2 > 4.0 * eps * eps) {
+            return false;
+        }
+        let r = math::sqrt64(r2);
+        for ei in &e {
+            let l = norm(*ei);
+            if !(l > 0.0) {
+                continue;
+            }
+            let mut m = f64::NEG_INFINITY;
+            for c in &a.c {
+                m = m.max(dot(*ei, *c) * sigma.signum());
+            }
+            let sep = -m / l - a.slack;
+            if sep * r > 2.0 * eps {
+                return true;
+            }
+        }
+        false
+    }
+
+}
+
+/// Eq. 2 and 3 for frusta bounded by `(u, v)` extents along axis `k`
+/// (travel direction `sg`): at `k = k0` the extents are `near = [u_min,
+/// u_max, v_min, v_max]`, and each changes by `slope[j]` per unit of travel.
+/// The plane of the `u_min` side holds the corner rays `(u_min, v_min)` and
+/// `(u_min, v_max)`, whose cross product (Eq. 2) is a multiple of `(-1, 0,
+/// sg slope)` in `(u, v, k)` coordinates; `b` is its dot product with a
+/// corner origin (Eq. 3). Normals are returned outward and unit length.
+fn side_planes(k: usize, sg: f64, k0: f64, near: [f64; 4], slope: [f64; 4]) -> ([V3; 4], [f64; 4]) {
+    let (u, v) = ((k + 1) % 3, (k + 2) % 3);
+    let mut n = [[0.0; 3]; 4];
+    let mut b = [0.0; 4];
+    for j in 0..4 {
+        // j = 0: u_min, 1: u_max, 2: v_min, 3: v_max; outward is -u, +u, -v, +v.
+        let (axis, out) = if j < 2 { (u, if j == 0 { -1.0 } else { 1.0 }) } else { (v, if j == 2 { -1.0 } else { 1.0 }) };
+        let mut ni = [0.0; 3];
+        ni[axis] = out;
+        ni[k] = -out * sg * slope[j];
+        let mut o = [0.0; 3];
+        o[axis] = near[j];
+        o[k] = k0;
+        let l = norm(ni);
+        n[j] = [ni[0] / l, ni[1] / l, ni[2] / l];
+        b[j] = dot(o, ni) / l;
+    }
+    (n, b)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::accel::bvh::BvhView;
+    use crate::accel::bvh::build::testutil::Store;
+    use crate::accel::bvh::traverse_masked::tests::{RaySet, built, lattice, packets, ray_sets};
+    use crate::accel::bvh::traverse_simd::QuadBox;
+    use crate::geom::{F4, Mt, RayLanes, TriangleTest, Wt};
+    use glam::Vec3;
+
+    /// Active lanes with valid rays.
+    fn live_of(quads: &[Ray4], active: &[M4]) -> Vec<M4> {
+        quads
+            .iter()
+            .zip(active)
+            .map(|(r, m)| {
+                let mut l = *m;
+                for i in 0..4 {
+                    if !r.lane(i).is_valid() {
+                        l.set(i, false);
+                    }
+                }
+                l
+            })
+            .collect()
+    }
+
+    #[derive(Default, Debug)]
+    struct Tally {
+        frusta: u64,
+        tris: u64,
+        tris_culled: u64,
+        nodes: u64,
+        nodes_culled: u64,
+    }
+
+    /// Every live ray inside `f` wherever it can meet geometry, and nothing
+    /// a live ray hits (triangle tests, slab tests) culled.
+    fn check(b: &BvhView<'_>, quads: &[Ray4], live: &[M4], f: &Frustum, what: &str, tally: &mut Tally) {
+        let root = b.nodes[0].aabb();
+        tally.frusta += 1;
+        // Sample points: within the root box (and from the apex on).
+        for (o, d) in lanes(quads, live) {
+            let (of, df) = (Vec3::new(o[0] as f32, o[1] as f32, o[2] as f32), Vec3::new(d[0] as f32, d[1] as f32, d[2] as f32));
+            let Some((t0, t1)) = root.clip_ray(of, df, df.recip(), 0.0, f32::INFINITY) else { continue };
+            for s in 0..=16 {
+                let t = t0 as f64 + (t1 as f64 - t0 as f64) * s as f64 / 16.0;
+                let p = [o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]];
+                for i in 0..4 {
+                    let h = f.h(i, p);
+                    assert!(h <= f.margin - 0.5 * f.eps, "{what}: ray {o:?} {d:?} t {t}: plane {i} H {h} margin {}", f.margin);
+                }
+            }
+        }
+        // Triangles some live ray hits in [0, inf) are kept.
+        let mut unbounded: Vec<Ray4> = quads.to_vec();
+        for r in &mut unbounded {
+            r.tmin = F4::ZERO;
+            r.tmax = F4::INFINITY;
+        }
+        for (i, t) in b.tris.iter().enumerate() {
+            let culled = f.cull_triangle(t);
+            tally.tris += 1;
+            tally.tris_culled += culled as u64;
+            if !culled {
+                continue;
+            }
+            for (q, r) in unbounded.iter().enumerate() {
+                let l = RayLanes::from_ray4(r);
+                let hm = Mt::intersect(&l, &(), t).mask | Wt::intersect(&l, &Wt::prepare(&l), t).mask;
+                assert!(!(hm & live[q]).any(), "{what}: triangle {i} {t:?} culled but hit by quad {q} {:?}", hm & live[q]);
+            }
+        }
+        // Boxes some live ray's slab test enters are kept.
+        for (i, n) in b.nodes.iter().enumerate() {
+            let culled = f.cull_aabb(n);
+            tally.nodes += 1;
+            tally.nodes_culled += culled as u64;
+            if !culled {
+                continue;
+            }
+            for (q, r) in unbounded.iter().enumerate() {
+                let (m, _) = QuadBox::new(r).entry(n, F4::INFINITY);
+                assert!(!(m & live[q]).any(), "{what}: node {i} culled but entered by quad {q}");
+            }
+        }
+    }
+
+    fn check_sets(b: &BvhView<'_>, sets: &[RaySet], sides: &[u32], name: &str) -> Tally {
+        let root = b.nodes[0].aabb();
+        let mut tally = Tally::default();
+        for set in sets {
+            for &n in sides {
+                for (quads, active, _) in packets(set, n) {
+                    let live = live_of(&quads, &active);
+                    for kind in [RayKind::Primary, RayKind::Auto, RayKind::Shadow, RayKind::Secondary] {
+                        if let Some(f) = Frustum::new(kind, &quads, &live, &root) {
+                            check(b, &quads, &live, &f, &format!("{name} {} n={n} {kind:?} -> {:?}", set.name, f.kind), &mut tally);
+                        }
+                    }
+                }
+            }
+        }
+        tally
+    }
+
+    #[test]
+    fn rays_inside_and_hits_never_culled_builtin() {
+        for name in ["tetra", "gears", "animated"] {
+            let s = crate::scenes::builtin(name).unwrap();
+            let mut st = Store::new(0, false);
+            let bvh = built::<Mt>(&mut st, &s.mesh.vertices, &s.mesh.indices, 4);
+            let b = bvh.view().unwrap();
+            let sets = ray_sets::<Mt>(&b, &s.views[0], s.light, 32, 32, 99);
+            let t = check_sets(&b, &sets, &[4, 16], name);
+            assert!(t.frusta > 100 && t.tris_culled > t.tris / 4 && t.nodes_culled > 0, "{name}: {t:?}");
+        }
+    }
+
+    #[test]
+    fn rays_inside_and_hits_never_culled_lattice() {
+        let (v, ix, sets) = lattice();
+        let mut st = Store::new(0, false);
+        let bvh = built::<Wt>(&mut st, &v, &ix, 2);
+        let b = bvh.view().unwrap();
+        let t = check_sets(&b, &sets, &[2, 4, 16, 32], "lattice");
+        assert!(t.tris_culled > t.tris / 2, "{t:?}");
+    }
+
+    #[test]
+    fn kinds() {
+        let (v, ix, sets) = lattice();
+        let mut st = Store::new(0, false);
+        let bvh = built::<Wt>(&mut st, &v, &ix, 2);
+        let b = bvh.view().unwrap();
+        let root = b.nodes[0].aabb();
+        let kind_of = |set: &RaySet, n: u32, k: RayKind| {
+            let (quads, active, _) = packets(set, n).swap_remove(0);
+            Frustum::new(k, &quads, &live_of(&quads, &active), &root).map(|f| f.kind)
+        };
+        for n in [2, 4, 8, 16, 32] {
+            assert_eq!(kind_of(&sets[0], n, RayKind::Primary), Some(FrustumKind::Primary));
+            assert_eq!(kind_of(&sets[0], n, RayKind::Auto), Some(FrustumKind::CommonOrigin));
+            assert_eq!(kind_of(&sets[1], n, RayKind::Shadow), Some(FrustumKind::CommonOrigin));
+            assert_eq!(kind_of(&sets[0], n, RayKind::Secondary), Some(FrustumKind::General));
+            assert_eq!(kind_of(&sets[2], n, RayKind::Auto), Some(FrustumKind::General));
+            // Not a pinhole packet: Primary falls back to Auto.
+            assert_eq!(kind_of(&sets[2], n, RayKind::Primary), Some(FrustumKind::General));
+        }
+        // A partial packet (corner lanes inactive) falls back too.
+        let (quads, mut active, _) = packets(&sets[0], 8).swap_remove(0);
+        active[0] = M4::new(false, true, true, true);
+        let f = Frustum::new(RayKind::Primary, &quads, &active, &root).unwrap();
+        assert_eq!(f.kind, FrustumKind::CommonOrigin);
+        // Directions on both sides of every axis: no frustum.
+        let r = crate::geom::Ray::new(Vec3::splat(5.0), Vec3::X, 0.0, f32::INFINITY);
+        let mut rays = [r; 4];
+        rays[1].dir = [-1.0, 0.0, 0.0];
+        let q = [Ray4::from_rays(&rays)];
+        assert!(Frustum::new(RayKind::Auto, &q, &[M4::TRUE], &root).is_none());
+        assert!(Frustum::new(RayKind::Secondary, &q, &[M4::TRUE], &root).is_none());
+        // A single ray: a degenerate but valid frustum around it.
+        let f = Frustum::new(RayKind::Auto, &q, &[M4::new(true, false, false, false)], &root).unwrap();
+        assert!(f.cull_aabb(&crate::accel::bvh::BvhNode::leaf(&Aabb { min: Vec3::splat(6.0), max: Vec3::splat(7.0) }, 0, 1)));
+    }
+}

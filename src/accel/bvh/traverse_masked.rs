@@ -1,0 +1,776 @@
+//! Masked traversal of large ray packets (Overbeck, Ramamoorthi, Mark 2008,
+//! section 3.1, Figure 2; Wald et al. 2001, Reshetov et al. 2005).
+//!
+//! The packet `R` is `rays.len()` SIMD rays (2x2 `Ray4` quads, `R[i]` =
+//! quad `i`), at most 256 (32 x 32 rays) at a time. At each cell, the
+//! frustum test first (section 4), then every quad is tested against the
+//! cell's box in order; at an inner cell the first quad that hits sends the
+//! whole packet down (near child first, far child pushed), at a leaf all
+//! quads are tested and the mask `rayMasks[i]` decides which quads are
+//! tested against the leaf's (unculled) triangles.
+//!
+//! This file also holds what the three large-packet traversals share (the
+//! paper presents Ranged and Partition as changes to Figure 2): `Packet`
+//! (per-quad slab data, triangle-test precomputation, live lanes, frustum)
+//! and the dispatch of inputs to stack-sized packet classes.
+//!
+//! # Exactness
+//! A quad is *alive* in a box when one of its live lanes overlaps the box
+//! within `[tmin, min(tmax, best.t)]` (inclusive, the single-ray slab test
+//! lane by lane, with that lane's current nearest hit). A lane's nearest
+//! triangle lies in boxes that test alive for it whatever has been found
+//! before, frusta cull only what no ray hits (see `frustum`), and every lane
+//! keeps its nearest hit by the tie rule, so the result equals
+//! `traverse_single` bitwise, whatever the visiting order.
+//!
+//! # Deviations
+//! - Lanes, not only quads: an active but invalid ray (`Ray::is_valid`) is a
+//!   miss and takes no part; a quad whose lanes are all inactive, invalid or
+//!   (for occlusion) done is dead without a test.
+//! - Near/far child by the sign of the packet's direction sum on the split
+//!   axis (the paper leaves `nearChild(R)` unspecified).
+//! - Occlusion: a lane with any hit is done; traversal ends when all are.
+
+use super::frustum::Frustum;
+use super::traverse_simd::{QuadBox, closer4};
+use super::{BvhNode, BvhOptions, BvhTest, BvhView, MAX_DEPTH};
+use crate::geom::{F4, Hit, Hit4, M4, Ray4, RayLanes};
+use crate::trace::{Counters, count};
+
+/// Most quads traced as one packet (32 x 32 rays).
+pub const MAX_QUADS: usize = 256;
+
+/// Nearest hits of the active lanes of `rays` into `hits`, Masked traversal.
+/// `rays.len()` quads form one packet (longer inputs: consecutive packets
+/// of 256); `rays`, `active` and `hits` are read up to the shortest length.
+/// Active lanes are written (`Hit::MISS` when nothing is hit, and for
+/// invalid rays); inactive lanes are left untouched.
+pub fn intersect<T: BvhTest>(
+    b: &BvhView<'_>,
+    rays: &[Ray4],
+    active: &[M4],
+    hits: &mut [Hit4],
+    opt: &BvhOptions,
+    ctr: &mut Counters,
+) {
+    dispatch::<Masked, T, false>(b, rays, active, hits, opt, ctr)
+}
+
+/// Occlusion of the active lanes, Masked traversal: `hits[q].prim[i] !=
+/// INVALID_ID` marks an occluded lane (t and id of some occluder in `[tmin,
+/// tmax)`, not the nearest); other active lanes get `Hit::MISS`, inactive
+/// ones are untouched.
+pub fn occluded<T: BvhTest>(
+    b: &BvhView<'_>,
+    rays: &[Ray4],
+    active: &[M4],
+    hits: &mut [Hit4],
+    opt: &BvhOptions,
+    ctr: &mut Counters,
+) {
+    dispatch::<Masked, T, true>(b, rays, active, hits, opt, ctr)
+}
+
+/// A large-packet traversal: walks one prepared packet through the tree.
+pub(crate) trait Walk {
+    fn walk<T: BvhTest, const ANY: bool, const Q: usize>(
+        p: &mut Packet<T, Q>,
+        b: &BvhView<'_>,
+        rays: &[Ray4],
+        hits: &mut [Hit4],
+        ctr: &mut Counters,
+    );
+}
+
+/// Split the input into packets of at most 256 quads, each traced with
+/// scratch sized by its class (1, 4, 16, 64 or 256 quads) on the stack.
+pub(crate) fn dispatch<W: Walk, T: BvhTest, const ANY: bool>(
+    b: &BvhView<'_>,
+    rays: &[Ray4],
+    active: &[M4],
+    hits: &mut [Hit4],
+    opt: &BvhOptions,
+    ctr: &mut Counters,
+) {
+    let n = rays.len().min(active.len()).min(hits.len());
+    match n {
+        0 => {}
+        1 => packet::<W, T, ANY, 1>(b, &rays[..n], &active[..n], &mut hits[..n], opt, ctr),
+        2..=4 => packet::<W, T, ANY, 4>(b, &rays[..n], &active[..n], &mut hits[..n], opt, ctr),
+        5..=16 => packet::<W, T, ANY, 16>(b, &rays[..n], &active[..n], &mut hits[..n], opt, ctr),
+        17..=64 => packet::<W, T, ANY, 64>(b, &rays[..n], &active[..n], &mut hits[..n], opt, ctr),
+        _ => {
+            for s in (0..n).step_by(MAX_QUADS) {
+                let e = (s + MAX_QUADS).min(n);
+                packet::<W, T, ANY, MAX_QUADS>(b, &rays[s..e], &active[s..e], &mut hits[s..e], opt, ctr);
+            }
+        }
+    }
+}
+
+fn packet<W: Walk, T: BvhTest, const ANY: bool, const Q: usize>(
+    b: &BvhView<'_>,
+    rays: &[Ray4],
+    active: &[M4],
+    hits: &mut [Hit4],
+    opt: &BvhOptions,
+    ctr: &mut Counters,
+) {
+    if let Some(mut p) = Packet::<T, Q>::new(b, rays, active, hits, opt, ctr) {
+        W::walk::<T, ANY, Q>(&mut p, b, rays, hits, ctr);
+    }
+}
+
+/// One packet of `nq <= Q` quads during traversal.
+pub(crate) struct Packet<T: BvhTest, const Q: usize> {
+    pub nq: usize,
+    /// Slab-test data per quad (reciprocals, direction signs).
+    qb: [QuadBox; Q],
+    /// Triangle-test precomputation per quad.
+    pre: [T::Pre<F4>; Q],
+    /// Lanes still traced: active, valid and (occlusion) not yet occluded.
+    pub live: [M4; Q],
+    /// Per quad and lane: `min(tmax, best.t)`, the end of the interval a
+    /// box must overlap.
+    tfar: [F4; Q],
+    /// Live lanes in the packet.
+    n_live: u32,
+    /// Near child first when the packet's direction sum is negative on the
+    /// split axis.
+    neg: [bool; 3],
+    pub frustum: Option<Frustum>,
+}
+
+impl<T: BvhTest, const Q: usize> Packet<T, Q> {
+    /// Write `Hit::MISS` to every active lane, count the packet and its
+    /// rays, and prepare the live lanes; `None` when nothing is to be traced.
+    pub(crate) fn new(
+        b: &BvhView<'_>,
+        rays: &[Ray4],
+        active: &[M4],
+        hits: &mut [Hit4],
+        opt: &BvhOptions,
+        ctr: &mut Counters,
+    ) -> Option<Self> {
+        let nq = rays.len().min(active.len()).min(hits.len()).min(Q);
+        ctr.packets += 1;
+        let mut live = [M4::FALSE; Q];
+        let mut n_live = 0;
+        let mut sum = [0.0f32; 3];
+        for q in 0..nq {
+            let mut m = active[q];
+            for i in 0..4 {
+                if m.test(i) {
+                    hits[q].set_lane(i, Hit::MISS);
+                    let r = rays[q].lane(i);
+                    if r.is_valid() {
+                        for a in 0..3 {
+                            sum[a] += r.dir[a];
+                        }
+                    } else {
+                        m.set(i, false);
+                    }
+                }
+            }
+            live[q] = m;
+            n_live += m.bitmask().count_ones();
+        }
+        ctr.rays += n_live as u64;
+        if n_live == 0 || b.nodes.is_empty() {
+            return None;
+        }
+        let frustum = if opt.culling {
+            let f = Frustum::new(opt.kind, &rays[..nq], &live[..nq], &b.nodes[0].aabb());
+            if f.is_none() {
+                ctr.packets_no_cull += 1;
+            }
+            f
+        } else {
+            None
+        };
+        let q0 = live[..nq].iter().position(|m| m.any()).unwrap_or(0);
+        let mut qb = [QuadBox::new(&rays[q0]); Q];
+        let mut pre = [T::prepare(&RayLanes::from_ray4(&rays[q0])); Q];
+        let mut tfar = [F4::ZERO; Q];
+        for q in 0..nq {
+            if live[q].any() {
+                qb[q] = QuadBox::new(&rays[q]);
+                pre[q] = T::prepare(&RayLanes::from_ray4(&rays[q]));
+                tfar[q] = rays[q].tmax;
+            }
+        }
+        // A zero (or NaN) sum on an axis: the first live lane decides.
+        let f = live[q0].bitmask().trailing_zeros() as usize;
+        let neg = core::array::from_fn(|a| if sum[a] != 0.0 { sum[a] < 0.0 } else { rays[q0].dir[a][f].is_sign_negative() });
+        Some(Packet { nq, qb, pre, live, tfar, n_live, neg, frustum })
+    }
+
+    /// Near and far child of inner node `n`, by the packet's direction.
+    #[inline(always)]
+    pub(crate) fn children(&self, n: &BvhNode) -> (usize, usize) {
+        let l = n.first as usize;
+        if self.neg[n.axis()] { (l + 1, l) } else { (l, l + 1) }
+    }
+
+    /// `rayIntersectsAABB(R[q], B)`: the lanes of quad `q` alive in `n`'s
+    /// box (no test, and none, for a quad without live lanes).
+    #[inline(always)]
+    pub(crate) fn alive(&self, q: usize, n: &BvhNode, depth: usize, ctr: &mut Counters) -> M4 {
+        let lm = self.live[q];
+        if !lm.any() {
+            return M4::FALSE;
+        }
+        ctr.aabb_at(depth, 1);
+        self.qb[q].entry(n, self.tfar[q]).0 & lm
+    }
+
+    /// `frustumIntersectsAABB(F, B)` (true without a frustum).
+    #[inline(always)]
+    pub(crate) fn frustum_admits(&self, n: &BvhNode, ctr: &mut Counters) -> bool {
+        let _ = &ctr;
+        match &self.frustum {
+            Some(f) if f.cull_aabb(n) => {
+                count!(ctr.culled_nodes += 1);
+                false
+            }
+            _ => true,
+        }
+    }
+
+    /// `!frustumIntersectsTriangle(F, T[j])` for stored triangle `i`.
+    #[inline(always)]
+    pub(crate) fn frustum_culls(&self, b: &BvhView<'_>, i: usize, ctr: &mut Counters) -> bool {
+        let _ = &ctr;
+        match &self.frustum {
+            Some(f) if f.cull_triangle(&b.tris[i]) => {
+                count!(ctr.culled += 1);
+                true
+            }
+            _ => false,
+        }
+    }
+
+    /// `rayIntersectTriangle(R[q], T[i])`: the live lanes of quad `q`
+    /// against stored triangle `i` (caller id `id`), each lane keeping its
+    /// nearest hit (tie rule of `geom::ray`); for occlusion, lanes that hit
+    /// are done.
+    #[inline(always)]
+    pub(crate) fn test<const ANY: bool>(
+        &mut self,
+        b: &BvhView<'_>,
+        rays: &[Ray4],
+        hits: &mut [Hit4],
+        q: usize,
+        i: usize,
+        id: u32,
+        depth: usize,
+        ctr: &mut Counters,
+    ) {
+        let lm = self.live[q];
+        if !lm.any() {
+            return;
+        }
+        ctr.tri_at(depth, lm.bitmask().count_ones() as u64);
+        let h = T::intersect(&RayLanes::from_ray4(&rays[q]), &self.pre[q], T::prim(b, i));
+        let hm = h.mask & lm;
+        if !hm.any() {
+            return;
+        }
+        let hq = &mut hits[q];
+        let take = if ANY { hm } else { hm & closer4(h.t, id, hq) };
+        if !take.any() {
+            return;
+        }
+        hq.t = F4::select(take, h.t, hq.t);
+        hq.u = F4::select(take, h.u, hq.u);
+        hq.v = F4::select(take, h.v, hq.v);
+        for k in 0..4 {
+            if take.test(k) {
+                hq.prim[k] = id;
+            }
+        }
+        // A taken hit lies in [tmin, tmax) and not beyond best.t.
+        self.tfar[q] = F4::select(take, h.t, self.tfar[q]);
+        if ANY {
+            self.live[q] &= !take;
+            self.n_live -= take.bitmask().count_ones();
+        }
+    }
+
+    /// Whether every lane is done (occlusion).
+    #[inline(always)]
+    pub(crate) fn done(&self) -> bool {
+        self.n_live == 0
+    }
+}
+
+/// Figure 2.
+pub(crate) struct Masked;
+
+impl Walk for Masked {
+    fn walk<T: BvhTest, const ANY: bool, const Q: usize>(
+        p: &mut Packet<T, Q>,
+        b: &BvhView<'_>,
+        rays: &[Ray4],
+        hits: &mut [Hit4],
+        ctr: &mut Counters,
+    ) {
+        let nodes = b.nodes;
+        let nq = p.nq;
+        // rayMasks: which quads are alive in the current leaf.
+        let mut masks = [false; Q];
+        let mut st_node = [0u32; MAX_DEPTH + 1];
+        let mut st_depth = [0u8; MAX_DEPTH + 1];
+        let mut sp = 0usize;
+        let mut node = 0usize;
+        let mut depth = 0usize;
+        loop {
+            let n = &nodes[node];
+            let leaf = n.is_leaf();
+            let mut any_hit = false;
+            if p.frustum_admits(n, ctr) {
+                for q in 0..nq {
+                    let m = p.alive(q, n, depth, ctr).any();
+                    masks[q] = m;
+                    if m {
+                        any_hit = true;
+                        if !leaf {
+                            break;
+                        }
+                    }
+                }
+            }
+            if any_hit {
+                if !leaf {
+                    let (near, far) = p.children(n);
+                    st_node[sp] = far as u32;
+                    st_depth[sp] = (depth + 1) as u8;
+                    sp += 1;
+                    node = near;
+                    depth += 1;
+                    continue;
+                }
+                let first = n.first as usize;
+                for i in first..first + n.count() as usize {
+                    if p.frustum_culls(b, i, ctr) {
+                        continue;
+                    }
+                    let id = b.tri_ids[i];
+                    for q in 0..nq {
+                        if masks[q] {
+                            p.test::<ANY>(b, rays, hits, q, i, id, depth, ctr);
+                        }
+                    }
+                }
+                if ANY && p.done() {
+                    return;
+                }
+            }
+            if sp == 0 {
+                return;
+            }
+            sp -= 1;
+            node = st_node[sp] as usize;
+            depth = st_depth[sp] as usize;
+        }
+    }
+}
+
+/// The packet-exactness harness of the three large-packet traversals:
+/// packets of every kind and size against `traverse_single`, lane by lane.
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::*;
+    use crate::accel::bvh::build::build;
+    use crate::accel::bvh::build::testutil::Store;
+    use crate::accel::bvh::traverse_single::{self, tests::Rng};
+    use crate::accel::bvh::{BvhParams, RayKind};
+    use crate::geom::{Aabb, INVALID_ID, Mt, Pt, Ray, Scene, TriTest, Wt};
+    use crate::render::{PrimaryRays, demorton};
+    use glam::Vec3;
+
+    /// A w x h "image" of rays (`None`: inactive lane) and the frustum
+    /// kinds to trace it with.
+    pub struct RaySet {
+        pub name: &'static str,
+        pub w: u32,
+        pub h: u32,
+        pub rays: Vec<Option<Ray>>,
+        pub kinds: &'static [RayKind],
+    }
+
+    pub fn camera(v: &crate::scenes::View, w: u32, h: u32) -> PrimaryRays {
+        let cam = crate::Camera { eye: v.eye.to_array(), look_at: v.look_at.to_array(), up: v.up.to_array(), fov_y_deg: v.fov_y_deg };
+        PrimaryRays::new(&cam, w, h).unwrap()
+    }
+
+    /// Primary rays of `view`; shadow rays from `light` to their lit hits
+    /// (as the renderer shoots them); reflection rays at their hits; the
+    /// primary rays with inactive and invalid lanes sprinkled in; random
+    /// rays with scattered origins and mixed direction signs.
+    pub fn ray_sets<T: BvhTest>(b: &BvhView<'_>, view: &crate::scenes::View, light: Vec3, w: u32, h: u32, seed: u64) -> Vec<RaySet> {
+        let pr = camera(view, w, h);
+        let mut ctr = Counters::default();
+        let bounds = if b.nodes.is_empty() { Aabb { min: Vec3::ZERO, max: Vec3::ONE } } else { b.nodes[0].aabb() };
+        let eps = 1e-4 * bounds.min.abs().max(bounds.max.abs()).max_element().max(1e-6);
+        let mut primary = Vec::new();
+        let mut shadow = Vec::new();
+        let mut reflect = Vec::new();
+        for y in 0..h {
+            for x in 0..w {
+                let r = pr.ray(x, y);
+                primary.push(Some(r));
+                let hit = traverse_single::intersect::<T>(b, &r, &mut ctr);
+                let (mut s, mut f) = (None, None);
+                if let Some(tri) = b.triangle(hit.prim) {
+                    let d = Vec3::from(r.dir);
+                    let mut n = tri.normal().normalize_or_zero();
+                    if n.dot(d) > 0.0 {
+                        n = -n;
+                    }
+                    let p = Vec3::from(r.org) + d * hit.t;
+                    if n.dot(light - p) > 0.0 {
+                        let end = p + n * eps;
+                        s = Some(Ray::new(light, end - light, 0.0, 1.0));
+                    }
+                    f = Some(Ray::new(p + n * eps, d - 2.0 * d.dot(n) * n, 0.0, f32::INFINITY));
+                }
+                shadow.push(s);
+                reflect.push(f);
+            }
+        }
+        let mut rng = Rng(seed | 1);
+        let mut mixed = primary.clone();
+        for (i, r) in mixed.iter_mut().enumerate() {
+            match rng.next() % 16 {
+                0 => *r = None,
+                1 => {
+                    let mut x = r.unwrap();
+                    x.dir = [f32::NAN, x.dir[1], x.dir[2]];
+                    *r = Some(x);
+                }
+                2 => *r = Some(Ray::new(Vec3::from(r.unwrap().org), Vec3::ZERO, 0.0, 1.0)),
+                3 => {
+                    let mut x = r.unwrap();
+                    x.tmin = 2.0;
+                    x.tmax = 1.0;
+                    *r = Some(x);
+                }
+                4 => {
+                    // Bounded and late-starting rays.
+                    let mut x = r.unwrap();
+                    x.tmin = 0.3 * (i % 5) as f32;
+                    x.tmax = x.tmin + 0.7 * (1 + i % 3) as f32;
+                    *r = Some(x);
+                }
+                _ => {}
+            }
+        }
+        let (c, d) = (0.5 * (bounds.min + bounds.max), bounds.diagonal());
+        let mut random = Vec::new();
+        for i in 0..(w * h) as usize {
+            let o = c + Vec3::new(rng.range(-0.8, 0.8), rng.range(-0.8, 0.8), rng.range(-0.8, 0.8)) * d;
+            let mut dir = Vec3::new(rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(-1.0, 1.0));
+            if i % 9 == 0 {
+                dir[(i / 9) % 3] = if i % 2 == 0 { 0.0 } else { -0.0 };
+            }
+            random.push(if i % 13 == 0 { None } else { Some(Ray::new(o, dir, 0.0, f32::INFINITY)) });
+        }
+        // Coherent bundle from scattered origins (a general frustum that culls).
+        let mut bundle = Vec::new();
+        let axis = (view.look_at - view.eye).normalize();
+        for _ in 0..(w * h) as usize {
+            let o = view.eye + Vec3::new(rng.range(-0.05, 0.05), rng.range(-0.05, 0.05), rng.range(-0.05, 0.05)) * d;
+            let dir = axis + 0.2 * Vec3::new(rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(-1.0, 1.0));
+            bundle.push(Some(Ray::new(o, dir, 0.0, f32::INFINITY)));
+        }
+        use RayKind::*;
+        vec![
+            RaySet { name: "primary", w, h, rays: primary, kinds: &[Primary, Auto] },
+            RaySet { name: "shadow", w, h, rays: shadow, kinds: &[Shadow, Auto] },
+            RaySet { name: "reflect", w, h, rays: reflect, kinds: &[Secondary, Auto] },
+            RaySet { name: "mixed", w, h, rays: mixed, kinds: &[Primary, Auto] },
+            RaySet { name: "random", w, h, rays: random, kinds: &[Auto, Secondary] },
+            RaySet { name: "bundle", w, h, rays: bundle, kinds: &[Secondary, Primary, Shadow] },
+        ]
+    }
+
+    /// Packets of side `n` over `set` (quads in Morton order per tile, as
+    /// `render::render_tiles` packs them), with the pixel of every lane.
+    pub fn packets(set: &RaySet, n: u32) -> Vec<(Vec<Ray4>, Vec<M4>, Vec<[Option<usize>; 4]>)> {
+        let q = ((n / 2) * (n / 2)) as usize;
+        let lane_xy = [(0u32, 0u32), (1, 0), (0, 1), (1, 1)];
+        let filler = Ray::new(Vec3::ZERO, Vec3::X, 0.0, 0.0);
+        let mut out = Vec::new();
+        for ty in (0..set.h).step_by(n as usize) {
+            for tx in (0..set.w).step_by(n as usize) {
+                let (mut quads, mut active, mut pix) = (Vec::new(), Vec::new(), Vec::new());
+                for k in 0..q {
+                    let (qx, qy) = demorton(k);
+                    let mut lanes = [filler; 4];
+                    let mut m = [false; 4];
+                    let mut p = [None; 4];
+                    for (i, (dx, dy)) in lane_xy.iter().enumerate() {
+                        let (x, y) = (tx + 2 * qx + dx, ty + 2 * qy + dy);
+                        if x < set.w && y < set.h {
+                            let at = (y * set.w + x) as usize;
+                            p[i] = Some(at);
+                            if let Some(r) = set.rays[at] {
+                                lanes[i] = r;
+                                m[i] = true;
+                            }
+                        }
+                    }
+                    quads.push(Ray4::from_rays(&lanes));
+                    active.push(M4::new(m[0], m[1], m[2], m[3]));
+                    pix.push(p);
+                }
+                out.push((quads, active, pix));
+            }
+        }
+        out
+    }
+
+    pub fn same(a: &Hit, b: &Hit) -> bool {
+        a.prim == b.prim && a.t.to_bits() == b.t.to_bits() && a.u.to_bits() == b.u.to_bits() && a.v.to_bits() == b.v.to_bits()
+    }
+
+    const SENTINEL: Hit = Hit { t: -7.0, prim: 0xdead, u: 3.0, v: 4.0 };
+
+    /// Trace `quads` (a packet, or several concatenated) with traversal `W`
+    /// and compare every lane with `traverse_single`; returns the counters.
+    #[allow(clippy::too_many_arguments)]
+    pub fn check_packet<W: Walk, T: BvhTest>(
+        b: &BvhView<'_>,
+        quads: &[Ray4],
+        active: &[M4],
+        opt: &BvhOptions,
+        any: bool,
+        reference: &dyn Fn(usize, usize) -> Hit,
+        what: &dyn Fn() -> String,
+    ) -> Counters {
+        let mut fill = Hit4::MISS;
+        for i in 0..4 {
+            fill.set_lane(i, SENTINEL);
+        }
+        let mut hits = vec![fill; quads.len()];
+        let mut ctr = Counters::default();
+        if any {
+            dispatch::<W, T, true>(b, quads, active, &mut hits, opt, &mut ctr);
+        } else {
+            dispatch::<W, T, false>(b, quads, active, &mut hits, opt, &mut ctr);
+        }
+        let mut valid = 0;
+        for (q, (h, m)) in hits.iter().zip(active).enumerate() {
+            for i in 0..4 {
+                let got = h.lane(i);
+                if !m.test(i) {
+                    assert!(same(&got, &SENTINEL), "{}: inactive lane {q}.{i} written", what());
+                    continue;
+                }
+                let ray = quads[q].lane(i);
+                valid += ray.is_valid() as u64;
+                let want = reference(q, i);
+                if any {
+                    assert_eq!(got.is_hit(), want.is_hit(), "{}: quad {q} lane {i} {ray:?} occluded", what());
+                    if got.is_hit() {
+                        assert!(got.t >= ray.tmin && got.t < ray.tmax && b.slot_of[got.prim as usize] != INVALID_ID);
+                    } else {
+                        assert!(same(&got, &Hit::MISS));
+                    }
+                } else {
+                    assert!(same(&got, &want), "{}: quad {q} lane {i} {ray:?}: packet {got:?} single {want:?}", what());
+                }
+            }
+        }
+        assert_eq!(ctr.rays, valid, "{}", what());
+        assert_eq!(ctr.packets, quads.len().div_ceil(MAX_QUADS) as u64, "{}", what());
+        ctr
+    }
+
+    /// Build a BVH over `v`, `ix` with test `T` into `st`.
+    pub fn built<'s, T: BvhTest>(st: &'s mut Store, v: &[f32], ix: &[u32], leaf: u32) -> crate::accel::bvh::Bvh<'s> {
+        let scene = Scene::from_f32(v, ix).unwrap();
+        *st = Store::new(scene.triangle_count() as usize, T::KIND == TriTest::Projection);
+        let mut bvh = st.bvh();
+        let p = BvhParams { leaf_size: leaf, test: T::KIND, ..BvhParams::default() };
+        build(&mut bvh, &scene, &p).unwrap();
+        bvh
+    }
+
+    /// Every set at every packet side, culling on and off, every kind of
+    /// the set, nearest hit and occlusion; then the whole image as one input
+    /// (chunks of 256 quads) and a 3-quad packet.
+    pub fn check_sets<W: Walk, T: BvhTest>(name: &str, b: &BvhView<'_>, sets: &[RaySet]) -> Counters {
+        let mut total = Counters::default();
+        for set in sets {
+            let mut c1 = Counters::default();
+            let near: Vec<Hit> = set.rays.iter().map(|r| r.map_or(Hit::MISS, |r| traverse_single::intersect::<T>(b, &r, &mut c1))).collect();
+            let occl: Vec<bool> = set.rays.iter().map(|r| r.is_some_and(|r| traverse_single::occluded::<T>(b, &r, &mut c1))).collect();
+            let reference = |pix: &[[Option<usize>; 4]], q: usize, i: usize, any: bool| {
+                let at = pix[q][i].unwrap();
+                if any {
+                    if occl[at] { Hit { t: 0.0, prim: 0, u: 0.0, v: 0.0 } } else { Hit::MISS }
+                } else {
+                    near[at]
+                }
+            };
+            for n in [2u32, 4, 8, 16, 32] {
+                for (quads, active, pix) in packets(set, n) {
+                    for any in [false, true] {
+                        for culling in [true, false] {
+                            for &kind in set.kinds {
+                                let opt = BvhOptions { culling, kind };
+                                let what = || format!("{name} {} n={n} {opt:?} any={any} ({:?})", set.name, T::KIND);
+                                let c = check_packet::<W, T>(b, &quads, &active, &opt, any, &|q, i| reference(&pix, q, i, any), &what);
+                                total.add(&c);
+                            }
+                        }
+                    }
+                }
+            }
+            let (mut quads, mut active, mut pix) = (vec![], vec![], vec![]);
+            for (q, a, p) in packets(set, 2) {
+                quads.extend(q);
+                active.extend(a);
+                pix.extend(p);
+            }
+            for (s, e) in [(0, quads.len()), (5, 8)] {
+                for any in [false, true] {
+                    let opt = BvhOptions { culling: true, kind: set.kinds[0] };
+                    let what = || format!("{name} {} quads {s}..{e} any={any} ({:?})", set.name, T::KIND);
+                    check_packet::<W, T>(b, &quads[s..e], &active[s..e], &opt, any, &|q, i| reference(&pix, s + q, i, any), &what);
+                }
+            }
+        }
+        total
+    }
+
+    /// `check_sets` over the ray sets of every view of a scene.
+    pub fn check_scene<W: Walk, T: BvhTest>(name: &str, v: &[f32], ix: &[u32], views: &[crate::scenes::View], light: Vec3, leaf: u32) -> Counters {
+        let mut st = Store::new(0, false);
+        let bvh = built::<T>(&mut st, v, ix, leaf);
+        let b = bvh.view().unwrap();
+        let mut total = Counters::default();
+        for (vi, view) in views.iter().enumerate() {
+            let sets = ray_sets::<T>(&b, view, light, 80, 72, 0x1234_5678 ^ (vi as u64) << 20 ^ ix.len() as u64);
+            total.add(&check_sets::<W, T>(&format!("{name} view {vi}"), &b, &sets));
+        }
+        total
+    }
+
+    /// A lattice of unit squares in z = 0 (two triangles each, diagonals
+    /// alternating), a few raised triangles, and ray sets aimed exactly at
+    /// lattice points: frustum planes then pass through vertices and edges,
+    /// and watertight rays through shared vertices decide between
+    /// neighbours (the frustum must not cull the one a ray hits).
+    pub fn lattice() -> (Vec<f32>, Vec<u32>, Vec<RaySet>) {
+        let m = 40i32;
+        let mut tris: Vec<[[f32; 3]; 3]> = Vec::new();
+        for y in 0..m {
+            for x in 0..m {
+                let (x0, y0, x1, y1) = (x as f32, y as f32, (x + 1) as f32, (y + 1) as f32);
+                if (x + y) % 2 == 0 {
+                    tris.push([[x0, y0, 0.0], [x1, y0, 0.0], [x1, y1, 0.0]]);
+                    tris.push([[x0, y0, 0.0], [x1, y1, 0.0], [x0, y1, 0.0]]);
+                } else {
+                    tris.push([[x0, y0, 0.0], [x1, y0, 0.0], [x0, y1, 0.0]]);
+                    tris.push([[x1, y0, 0.0], [x1, y1, 0.0], [x0, y1, 0.0]]);
+                }
+            }
+        }
+        for k in 0..30 {
+            let (x, y) = ((k * 7 % m) as f32, (k * 11 % m) as f32);
+            tris.push([[x, y, 2.0], [x + 3.0, y, 2.0], [x, y + 3.0, 1.0]]);
+        }
+        let (v, ix) = crate::accel::bvh::build::testutil::soup(&tris);
+        let (w, h) = (64u32, 64u32);
+        let eye = Vec3::new(20.0, 17.0, 30.0);
+        let light = Vec3::new(-5.0, 50.0, 40.0);
+        let mut rng = Rng(0x7777);
+        let mut prim = Vec::new();
+        let mut shadow = Vec::new();
+        let mut general = Vec::new();
+        for y in 0..h {
+            for x in 0..w {
+                // Pixel (x, y) -> lattice point (x - 12, 49 - y): a pinhole grid.
+                let p = Vec3::new(x as f32 - 12.0, 49.0 - y as f32, 0.0);
+                prim.push(Some(Ray::new(eye, p - eye, 0.0, f32::INFINITY)));
+                shadow.push(Some(Ray::new(light, p - light, 0.0, 1.0)));
+                let o = Vec3::new(rng.range(0.0, 40.0).floor(), rng.range(0.0, 40.0).floor(), 8.0 + (x % 3) as f32);
+                let q = Vec3::new(o.x + (x % 5) as f32 - 2.0, o.y + (y % 5) as f32 - 2.0, 0.0);
+                general.push(Some(Ray::new(o, q - o, 0.0, f32::INFINITY)));
+            }
+        }
+        use RayKind::*;
+        let sets = vec![
+            RaySet { name: "lattice-primary", w, h, rays: prim, kinds: &[Primary, Auto] },
+            RaySet { name: "lattice-shadow", w, h, rays: shadow, kinds: &[Shadow] },
+            RaySet { name: "lattice-general", w, h, rays: general, kinds: &[Secondary] },
+        ];
+        (v, ix, sets)
+    }
+
+    pub fn check_lattice<W: Walk>() {
+        let (v, ix, sets) = lattice();
+        for leaf in [1, 4] {
+            let mut st = Store::new(0, false);
+            let bvh = built::<Wt>(&mut st, &v, &ix, leaf);
+            let c = check_sets::<W, Wt>("lattice", &bvh.view().unwrap(), &sets);
+            assert!(c.culled_nodes > 0 && c.culled > 0, "{c:?}");
+            let mut st = Store::new(0, false);
+            let bvh = built::<Mt>(&mut st, &v, &ix, leaf);
+            check_sets::<W, Mt>("lattice", &bvh.view().unwrap(), &sets);
+        }
+    }
+
+    /// `check_scene` for every built-in scene with Moller-Trumbore and
+    /// watertight tests (and the projection test on one scene).
+    pub fn check_builtin<W: Walk>(scenes: &[&str]) {
+        for &name in scenes {
+            let s = crate::scenes::builtin(name).unwrap();
+            let views = &s.views[..s.views.len().min(2)];
+            let c = check_scene::<W, Mt>(name, &s.mesh.vertices, &s.mesh.indices, views, s.light, 4);
+            assert!(c.culled_nodes > 0 && c.culled > 0 && c.tri_tests > 0, "{name}: {c:?}");
+            check_scene::<W, Wt>(name, &s.mesh.vertices, &s.mesh.indices, views, s.light, 2);
+            if name == "tetra" {
+                check_scene::<W, Pt>(name, &s.mesh.vertices, &s.mesh.indices, views, s.light, 8);
+            }
+        }
+    }
+
+    /// Degenerate inputs: an empty BVH, coincident triangles (ties).
+    pub fn check_edge_cases<W: Walk>() {
+        let view = crate::scenes::View { eye: Vec3::new(0.3, 0.2, 3.0), look_at: Vec3::new(0.3, 0.2, 0.0), up: Vec3::Y, fov_y_deg: 40.0 };
+        let t = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
+        let mut tris = vec![t; 60];
+        tris.extend(vec![[[0.0, 0.0, 0.5], [1.0, 0.0, 0.5], [0.0, 1.0, 0.5]]; 30]);
+        tris.reverse();
+        let (v, ix) = crate::accel::bvh::build::testutil::soup(&tris);
+        for leaf in [1, 3] {
+            check_scene::<W, Mt>("ties", &v, &ix, &[view], Vec3::new(0.2, 0.2, 4.0), leaf);
+            check_scene::<W, Wt>("ties", &v, &ix, &[view], Vec3::new(0.2, 0.2, 4.0), leaf);
+        }
+        check_scene::<W, Mt>("empty", &[], &[], &[view], Vec3::ONE, 4);
+    }
+
+    #[test]
+    fn masked_matches_single_tetra_gears() {
+        check_builtin::<Masked>(&["tetra", "gears"]);
+    }
+
+    #[test]
+    fn masked_matches_single_balls_animated() {
+        check_builtin::<Masked>(&["balls", "animated"]);
+    }
+
+    #[test]
+    fn masked_edge_cases() {
+        check_edge_cases::<Masked>();
+    }
+
+    #[test]
+    fn masked_lattice() {
+        check_lattice::<Masked>();
+    }
+}

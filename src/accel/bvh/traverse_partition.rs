@@ -1,0 +1,170 @@
+//! Partition traversal of large ray packets (Overbeck, Ramamoorthi, Mark
+//! 2008, section 3.3 and Appendix A.2), the paper's new algorithm.
+//!
+//! A list `I` of quad indices is partitioned in place at every cell by
+//! `partRays`: the frustum test first, then each of the first `i_a` listed
+//! quads against the cell's box, alive ones swapped to the front. `i_a`
+//! (one past the last alive quad) is the only state on the stack; deeper
+//! cells only reorder `I[0..i_a]`, so after a pop the first `i_a` entries
+//! are again the quads alive in the popped cell's parent. At a leaf exactly
+//! the alive quads `I[0..i_a]` are tested against each unculled triangle.
+//!
+//! Shared machinery (packet setup, slab and triangle tests, exactness) is in
+//! `traverse_masked`. Results equal `traverse_single` lane by lane, bitwise.
+//!
+//! # Deviations
+//! - Two slips in the Appendix pseudo-code are corrected: `partRays`
+//!   returns 0 (no quad alive), not `size(R)`, when the frustum culls the
+//!   box, and `i_a` starts at the number of quads, not 0, so the root tests
+//!   every quad. The unused `getLastHit` call at the leaf (line 19) is left
+//!   out: it would only add box tests.
+//! - `I` starts with the quads that have live lanes (others can never be
+//!   alive), so `i_a` starts at their number.
+//! - See `traverse_masked` for child order and occlusion.
+
+use super::traverse_masked::{Packet, Walk, dispatch};
+use super::{BvhNode, BvhOptions, BvhTest, BvhView, MAX_DEPTH};
+use crate::geom::{Hit4, M4, Ray4};
+use crate::trace::Counters;
+
+/// Nearest hits of the active lanes of `rays` into `hits`, Partition
+/// traversal (contract of `traverse_masked::intersect`).
+pub fn intersect<T: BvhTest>(
+    b: &BvhView<'_>,
+    rays: &[Ray4],
+    active: &[M4],
+    hits: &mut [Hit4],
+    opt: &BvhOptions,
+    ctr: &mut Counters,
+) {
+    dispatch::<Partition, T, false>(b, rays, active, hits, opt, ctr)
+}
+
+/// Occlusion of the active lanes, Partition traversal (contract of
+/// `traverse_masked::occluded`).
+pub fn occluded<T: BvhTest>(
+    b: &BvhView<'_>,
+    rays: &[Ray4],
+    active: &[M4],
+    hits: &mut [Hit4],
+    opt: &BvhOptions,
+    ctr: &mut Counters,
+) {
+    dispatch::<Partition, T, true>(b, rays, active, hits, opt, ctr)
+}
+
+/// `partRays`: move the quads of `idx[..ia]` alive in `n`'s box to the
+/// front (in place) and return how many there are.
+#[inline(always)]
+fn part_rays<T: BvhTest, const Q: usize>(
+    p: &Packet<T, Q>,
+    n: &BvhNode,
+    idx: &mut [u16; Q],
+    ia: usize,
+    depth: usize,
+    ctr: &mut Counters,
+) -> usize {
+    if !p.frustum_admits(n, ctr) {
+        return 0;
+    }
+    let mut ie = 0;
+    for i in 0..ia {
+        if p.alive(idx[i] as usize, n, depth, ctr).any() {
+            idx.swap(ie, i);
+            ie += 1;
+        }
+    }
+    ie
+}
+
+/// Appendix A.2.
+pub(crate) struct Partition;
+
+impl Walk for Partition {
+    fn walk<T: BvhTest, const ANY: bool, const Q: usize>(
+        p: &mut Packet<T, Q>,
+        b: &BvhView<'_>,
+        rays: &[Ray4],
+        hits: &mut [Hit4],
+        ctr: &mut Counters,
+    ) {
+        let nodes = b.nodes;
+        // I: the quads with live lanes.
+        let mut idx = [0u16; Q];
+        let mut ia = 0usize;
+        for q in 0..p.nq {
+            if p.live[q].any() {
+                idx[ia] = q as u16;
+                ia += 1;
+            }
+        }
+        let mut st_node = [0u32; MAX_DEPTH + 1];
+        let mut st_ia = [0u16; MAX_DEPTH + 1];
+        let mut st_depth = [0u8; MAX_DEPTH + 1];
+        let mut sp = 0usize;
+        let mut node = 0usize;
+        let mut depth = 0usize;
+        loop {
+            let n = &nodes[node];
+            ia = part_rays(p, n, &mut idx, ia, depth, ctr);
+            if ia > 0 {
+                if !n.is_leaf() {
+                    let (near, far) = p.children(n);
+                    st_node[sp] = far as u32;
+                    st_ia[sp] = ia as u16;
+                    st_depth[sp] = (depth + 1) as u8;
+                    sp += 1;
+                    node = near;
+                    depth += 1;
+                    continue;
+                }
+                let first = n.first as usize;
+                for j in first..first + n.count() as usize {
+                    if p.frustum_culls(b, j, ctr) {
+                        continue;
+                    }
+                    let id = b.tri_ids[j];
+                    for &q in &idx[..ia] {
+                        p.test::<ANY>(b, rays, hits, q as usize, j, id, depth, ctr);
+                    }
+                }
+                if ANY && p.done() {
+                    return;
+                }
+            }
+            if sp == 0 {
+                return;
+            }
+            sp -= 1;
+            node = st_node[sp] as usize;
+            ia = st_ia[sp] as usize;
+            depth = st_depth[sp] as usize;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Partition;
+    use crate::accel::bvh::traverse_masked::tests::{check_builtin, check_edge_cases, check_lattice};
+
+    #[test]
+    fn partition_matches_single_tetra_gears() {
+        check_builtin::<Partition>(&["tetra", "gears"]);
+    }
+
+    #[test]
+    fn partition_matches_single_balls_animated() {
+        check_builtin::<Partition>(&["balls", "animated"]);
+    }
+
+    #[test]
+    fn partition_edge_cases() {
+        check_edge_cases::<Partition>();
+    }
+
+    #[test]
+    fn partition_lattice() {
+        check_lattice::<Partition>();
+    }
+}

@@ -1,0 +1,169 @@
+//! Ranged traversal of large ray packets (Overbeck, Ramamoorthi, Mark 2008,
+//! section 3.2 and Appendix A.1; introduced for BVHs by Wald, Boulos,
+//! Shirley 2007).
+//!
+//! Figure 2 with the per-cell box tests replaced by `getFirstHit`: the index
+//! `i_a` of the first alive SIMD ray (quad) is carried down the tree and on
+//! the stack, so quads before it are never tested again below; the frustum
+//! is consulted only when `R[i_a]` itself misses. At a leaf `getLastHit`
+//! finds `i_e`, one past the last alive quad, and every quad in `[i_a, i_e)`
+//! is tested against each unculled triangle, alive or not.
+//!
+//! Shared machinery (packet setup, slab and triangle tests, exactness) is in
+//! `traverse_masked`. Results equal `traverse_single` lane by lane, bitwise.
+//!
+//! # Deviations
+//! - Quads without live lanes (inactive, invalid, or occluded) never test
+//!   alive and are skipped, uncounted, in the triangle loop; dead quads in
+//!   `[i_a, i_e)` with live lanes are tested and counted (the cost the paper
+//!   attributes to Ranged traversal).
+//! - See `traverse_masked` for child order and occlusion.
+
+use super::traverse_masked::{Packet, Walk, dispatch};
+use super::{BvhNode, BvhOptions, BvhTest, BvhView, MAX_DEPTH};
+use crate::geom::{Hit4, M4, Ray4};
+use crate::trace::Counters;
+
+/// Nearest hits of the active lanes of `rays` into `hits`, Ranged
+/// traversal (contract of `traverse_masked::intersect`).
+pub fn intersect<T: BvhTest>(
+    b: &BvhView<'_>,
+    rays: &[Ray4],
+    active: &[M4],
+    hits: &mut [Hit4],
+    opt: &BvhOptions,
+    ctr: &mut Counters,
+) {
+    dispatch::<Ranged, T, false>(b, rays, active, hits, opt, ctr)
+}
+
+/// Occlusion of the active lanes, Ranged traversal (contract of
+/// `traverse_masked::occluded`).
+pub fn occluded<T: BvhTest>(
+    b: &BvhView<'_>,
+    rays: &[Ray4],
+    active: &[M4],
+    hits: &mut [Hit4],
+    opt: &BvhOptions,
+    ctr: &mut Counters,
+) {
+    dispatch::<Ranged, T, true>(b, rays, active, hits, opt, ctr)
+}
+
+/// `getFirstHit`: the first quad from `ia` on alive in `n`'s box, or `nq`.
+#[inline(always)]
+fn first_hit<T: BvhTest, const Q: usize>(p: &Packet<T, Q>, n: &BvhNode, ia: usize, depth: usize, ctr: &mut Counters) -> usize {
+    let nq = p.nq;
+    if p.alive(ia, n, depth, ctr).any() {
+        return ia;
+    }
+    if !p.frustum_admits(n, ctr) {
+        return nq;
+    }
+    for i in ia + 1..nq {
+        if p.alive(i, n, depth, ctr).any() {
+            return i;
+        }
+    }
+    nq
+}
+
+/// `getLastHit`: one past the last quad after `ia` alive in `n`'s box, or
+/// `ia + 1`.
+#[inline(always)]
+fn last_hit<T: BvhTest, const Q: usize>(p: &Packet<T, Q>, n: &BvhNode, ia: usize, depth: usize, ctr: &mut Counters) -> usize {
+    let mut ie = p.nq - 1;
+    while ie > ia {
+        if p.alive(ie, n, depth, ctr).any() {
+            return ie + 1;
+        }
+        ie -= 1;
+    }
+    ia + 1
+}
+
+/// Appendix A.1.
+pub(crate) struct Ranged;
+
+impl Walk for Ranged {
+    fn walk<T: BvhTest, const ANY: bool, const Q: usize>(
+        p: &mut Packet<T, Q>,
+        b: &BvhView<'_>,
+        rays: &[Ray4],
+        hits: &mut [Hit4],
+        ctr: &mut Counters,
+    ) {
+        let nodes = b.nodes;
+        let nq = p.nq;
+        let mut st_node = [0u32; MAX_DEPTH + 1];
+        let mut st_ia = [0u16; MAX_DEPTH + 1];
+        let mut st_depth = [0u8; MAX_DEPTH + 1];
+        let mut sp = 0usize;
+        let mut node = 0usize;
+        let mut depth = 0usize;
+        let mut ia = 0usize;
+        loop {
+            let n = &nodes[node];
+            ia = first_hit(p, n, ia, depth, ctr);
+            if ia < nq {
+                if !n.is_leaf() {
+                    let (near, far) = p.children(n);
+                    st_node[sp] = far as u32;
+                    st_ia[sp] = ia as u16;
+                    st_depth[sp] = (depth + 1) as u8;
+                    sp += 1;
+                    node = near;
+                    depth += 1;
+                    continue;
+                }
+                let ie = last_hit(p, n, ia, depth, ctr);
+                let first = n.first as usize;
+                for j in first..first + n.count() as usize {
+                    if p.frustum_culls(b, j, ctr) {
+                        continue;
+                    }
+                    let id = b.tri_ids[j];
+                    for q in ia..ie {
+                        p.test::<ANY>(b, rays, hits, q, j, id, depth, ctr);
+                    }
+                }
+                if ANY && p.done() {
+                    return;
+                }
+            }
+            if sp == 0 {
+                return;
+            }
+            sp -= 1;
+            node = st_node[sp] as usize;
+            ia = st_ia[sp] as usize;
+            depth = st_depth[sp] as usize;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Ranged;
+    use crate::accel::bvh::traverse_masked::tests::{check_builtin, check_edge_cases, check_lattice};
+
+    #[test]
+    fn ranged_matches_single_tetra_gears() {
+        check_builtin::<Ranged>(&["tetra", "gears"]);
+    }
+
+    #[test]
+    fn ranged_matches_single_balls_animated() {
+        check_builtin::<Ranged>(&["balls", "animated"]);
+    }
+
+    #[test]
+    fn ranged_edge_cases() {
+        check_edge_cases::<Ranged>();
+    }
+
+    #[test]
+    fn ranged_lattice() {
+        check_lattice::<Ranged>();
+    }
+}

@@ -1,0 +1,330 @@
+//! The 2x2 SIMD ray (BVH paper section 2.1; Wald, Slusallek, Benthin,
+//! Wagner 2001, "Interactive Rendering with Coherent Ray Tracing"): the four
+//! rays of one `Ray4` traverse the BVH together, one node at a time. A node
+//! is entered when any live lane's interval `[tmin, min(tmax, best.t)]`
+//! overlaps its box; every live lane is tested against every triangle of an
+//! entered leaf (4-wide, the same `Lane` arithmetic as the single ray), and
+//! each lane keeps its own nearest hit by the tie rule of `geom::ray`.
+//!
+//! This is Table 2's baseline ("2x2 SIMD ray packets"), which the large
+//! packet traversals are measured against. Results equal `traverse_single`
+//! lane by lane, bitwise.
+//!
+//! # Deviations
+//! - Each quad of the input is traced on its own (a packet of one `Ray4`);
+//!   larger packets are the Masked, Ranged and Partition traversals.
+//! - The reciprocal directions are recomputed from `dir` per quad (three
+//!   divisions) rather than read from `Ray4::rcp`, so a caller-built `Ray4`
+//!   cannot make the box test disagree with its directions.
+//! - The near child is chosen by the sign of the first live lane's
+//!   direction on the node's split axis; lanes going the other way still
+//!   visit both children, only in a worse order.
+
+use super::{BvhNode, BvhTest, BvhView, MAX_DEPTH};
+use crate::geom::lane::mask_from_bits;
+use crate::geom::{F4, Hit, Hit4, INVALID_ID, M4, Ray4, RayLanes};
+use crate::trace::Counters;
+
+/// Nearest hits of the active lanes of `rays` into `hits` (one quad at a
+/// time; `rays`, `active` and `hits` are read up to the shortest length).
+/// Active lanes are written (`Hit::MISS` when nothing is hit, and for
+/// invalid rays); inactive lanes are left untouched.
+pub fn intersect<T: BvhTest>(b: &BvhView<'_>, rays: &[Ray4], active: &[M4], hits: &mut [Hit4], ctr: &mut Counters) {
+    for ((r, m), h) in rays.iter().zip(active).zip(hits.iter_mut()) {
+        quad::<T, false>(b, r, *m, h, ctr);
+    }
+}
+
+/// Occlusion of the active lanes: `hits[q].prim[i] != INVALID_ID` marks an
+/// occluded lane (t and id of some occluder in `[tmin, tmax)`, not the
+/// nearest); other active lanes get `Hit::MISS`, inactive ones are untouched.
+pub fn occluded<T: BvhTest>(b: &BvhView<'_>, rays: &[Ray4], active: &[M4], hits: &mut [Hit4], ctr: &mut Counters) {
+    for ((r, m), h) in rays.iter().zip(active).zip(hits.iter_mut()) {
+        quad::<T, true>(b, r, *m, h, ctr);
+    }
+}
+
+/// The tie rule of `traverse_single::closer`, lane by lane.
+#[inline(always)]
+pub(crate) fn closer4(t: F4, prim: u32, best: &Hit4) -> M4 {
+    let lt = t.cmplt(best.t);
+    let eq = t.cmpeq(best.t);
+    if !eq.any() {
+        return lt;
+    }
+    let b = best.prim;
+    lt | (eq & M4::new(prim < b[0], prim < b[1], prim < b[2], prim < b[3]))
+}
+
+/// Per-quad data of the 4-wide slab test (the same arithmetic as
+/// `traverse_single::RayBox`, lane by lane).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct QuadBox {
+    org: [F4; 3],
+    rcp: [F4; 3],
+    /// Lanes whose direction has the sign bit set on each axis.
+    neg: [M4; 3],
+    tmin: F4,
+}
+
+impl QuadBox {
+    #[inline(always)]
+    pub(crate) fn new(r: &Ray4) -> QuadBox {
+        let one = F4::ONE;
+        QuadBox {
+            org: r.org,
+            rcp: [one / r.dir[0], one / r.dir[1], one / r.dir[2]],
+            neg: [
+                mask_from_bits(r.dir[0].is_negative_bitmask()),
+                mask_from_bits(r.dir[1].is_negative_bitmask()),
+                mask_from_bits(r.dir[2].is_negative_bitmask()),
+            ],
+            tmin: r.tmin,
+        }
+    }
+
+    /// Lanes whose `[tmin, tmax]` overlaps `n`'s box, and their entry t.
+    /// NaN slab terms (zero direction, origin on a plane) never replace the
+    /// running interval, as in the single-ray test.
+    #[inline(always)]
+    pub(crate) fn entry(&self, n: &BvhNode, tmax: F4) -> (M4, F4) {
+        let mut t0 = self.tmin;
+        let mut t1 = tmax;
+        for a in 0..3 {
+            let lo = (F4::splat(n.min[a]) - self.org[a]) * self.rcp[a];
+            let hi = (F4::splat(n.max[a]) - self.org[a]) * self.rcp[a];
+            let near = F4::select(self.neg[a], hi, lo);
+            let far = F4::select(self.neg[a], lo, hi);
+            t0 = F4::select(near.cmpgt(t0), near, t0);
+            t1 = F4::select(far.cmplt(t1), far, t1);
+        }
+        (t0.cmple(t1), t0)
+    }
+}
+
+fn quad<T: BvhTest, const ANY: bool>(b: &BvhView<'_>, r: &Ray4, active: M4, out: &mut Hit4, ctr: &mut Counters) {
+    ctr.packets += 1;
+    // Active but invalid lanes are misses and take no part (Ray::is_valid).
+    let mut live = active;
+    for i in 0..4 {
+        if active.test(i) && !r.lane(i).is_valid() {
+            live.set(i, false);
+        }
+    }
+    ctr.rays += live.bitmask().count_ones() as u64;
+    let mut best = Hit4::MISS;
+    if live.any() && !b.nodes.is_empty() {
+        walk::<T, ANY>(b, r, live, &mut best, ctr);
+    }
+    for i in 0..4 {
+        if active.test(i) {
+            out.set_lane(i, if best.prim[i] == INVALID_ID { Hit::MISS } else { best.lane(i) });
+        }
+    }
+}
+
+#[inline(always)]
+fn walk<T: BvhTest, const ANY: bool>(b: &BvhView<'_>, r: &Ray4, mut live: M4, best: &mut Hit4, ctr: &mut Counters) {
+    let nodes = b.nodes;
+    let qb = QuadBox::new(r);
+    ctr.aabb_at(0, 1);
+    let (h0, _) = qb.entry(&nodes[0], r.tmax);
+    if !(h0 & live).any() {
+        return;
+    }
+    let lanes = RayLanes::from_ray4(r);
+    let pre = T::prepare(&lanes);
+    // Child order from the first live lane.
+    let f = live.bitmask().trailing_zeros() as usize;
+    let neg = [r.dir[0][f].is_sign_negative(), r.dir[1][f].is_sign_negative(), r.dir[2][f].is_sign_negative()];
+    let nan = F4::splat(f32::NAN);
+
+    let mut st_node = [0u32; MAX_DEPTH + 1];
+    let mut st_t = [F4::ZERO; MAX_DEPTH + 1];
+    let mut st_depth = [0u8; MAX_DEPTH + 1];
+    let mut sp = 0usize;
+    let mut node = 0usize;
+    let mut depth = 0usize;
+    loop {
+        let n = &nodes[node];
+        if !n.is_leaf() {
+            let l = n.first as usize;
+            let (near, far) = if neg[n.axis()] { (l + 1, l) } else { (l, l + 1) };
+            let tmax = F4::select(best.t.cmplt(r.tmax), best.t, r.tmax);
+            ctr.aabb_at(depth + 1, 2);
+            let (hn, _) = qb.entry(&nodes[near], tmax);
+            let (hf, tf) = qb.entry(&nodes[far], tmax);
+            let (hn, hf) = ((hn & live).any(), hf & live);
+            depth += 1;
+            match (hn, hf.any()) {
+                (true, true) => {
+                    st_node[sp] = far as u32;
+                    // Lanes that miss the box get NaN: never <= best.t.
+                    st_t[sp] = F4::select(hf, tf, nan);
+                    st_depth[sp] = depth as u8;
+                    sp += 1;
+                    node = near;
+                    continue;
+                }
+                (true, false) => {
+                    node = near;
+                    continue;
+                }
+                (false, true) => {
+                    node = far;
+                    continue;
+                }
+                (false, false) => {}
+            }
+        } else {
+            let first = n.first as usize;
+            let mut live_n = live.bitmask().count_ones() as u64;
+            for i in first..first + n.count() as usize {
+                ctr.tri_at(depth, live_n);
+                let h = T::intersect(&lanes, &pre, T::prim(b, i));
+                let hm = h.mask & live;
+                if hm.any() {
+                    let id = b.tri_ids[i];
+                    let take = if ANY { hm } else { hm & closer4(h.t, id, best) };
+                    if take.any() {
+                        best.t = F4::select(take, h.t, best.t);
+                        best.u = F4::select(take, h.u, best.u);
+                        best.v = F4::select(take, h.v, best.v);
+                        for k in 0..4 {
+                            if take.test(k) {
+                                best.prim[k] = id;
+                            }
+                        }
+                        if ANY {
+                            live &= !take;
+                            if !live.any() {
+                                return;
+                            }
+                            live_n = live.bitmask().count_ones() as u64;
+                        }
+                    }
+                }
+            }
+        }
+        // Pop the next node some live lane enters before its nearest hit.
+        loop {
+            if sp == 0 {
+                return;
+            }
+            sp -= 1;
+            if (st_t[sp].cmple(best.t) & live).any() {
+                node = st_node[sp] as usize;
+                depth = st_depth[sp] as usize;
+                break;
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::accel::bvh::build::build;
+    use crate::accel::bvh::build::testutil::{Store, soup};
+    use crate::accel::bvh::traverse_single::{self, tests::{Rng, test_rays, tris_of}};
+    use crate::accel::bvh::BvhParams;
+    use crate::geom::{Mt, Pt, Ray, Scene, TriTest, Wt};
+
+    fn same(a: &Hit, b: &Hit) -> bool {
+        a.prim == b.prim && a.t.to_bits() == b.t.to_bits() && a.u.to_bits() == b.u.to_bits() && a.v.to_bits() == b.v.to_bits()
+    }
+
+    fn check<T: BvhTest>(v: &[f32], ix: &[u32], views: &[crate::scenes::View], p: &BvhParams) {
+        let scene = Scene::from_f32(v, ix).unwrap();
+        let mut st = Store::new(scene.triangle_count() as usize, true);
+        let mut bvh = st.bvh();
+        build(&mut bvh, &scene, p).unwrap();
+        let view = bvh.view().unwrap();
+        let mut rays = test_rays(&tris_of(&scene), views, 0x51ed_270b ^ ix.len() as u64);
+        while rays.len() % 4 != 0 {
+            rays.push(rays[rays.len() % 7]);
+        }
+        let quads: Vec<Ray4> = rays.chunks_exact(4).map(|c| Ray4::from_rays(&[c[0], c[1], c[2], c[3]])).collect();
+        let mut rng = Rng(0x2545_f491);
+        // Mixed masks: every third quad full, the others random.
+        let active: Vec<M4> =
+            (0..quads.len()).map(|q| mask_from_bits(if q % 3 == 0 { 15 } else { (rng.next() % 16) as u32 })).collect();
+        let sentinel = Hit { t: -7.0, prim: 0xdead, u: 3.0, v: 4.0 };
+        let fill = {
+            let mut h = Hit4::MISS;
+            for i in 0..4 {
+                h.set_lane(i, sentinel);
+            }
+            h
+        };
+        for any in [false, true] {
+            let mut hits = vec![fill; quads.len()];
+            let mut ctr = Counters::default();
+            if any {
+                occluded::<T>(&view, &quads, &active, &mut hits, &mut ctr);
+            } else {
+                intersect::<T>(&view, &quads, &active, &mut hits, &mut ctr);
+            }
+            let mut valid = 0;
+            let mut c1 = Counters::default();
+            for (q, (h, m)) in hits.iter().zip(&active).enumerate() {
+                for i in 0..4 {
+                    let ray: Ray = rays[4 * q + i];
+                    assert_eq!(bytemuck::bytes_of(&quads[q].lane(i)), bytemuck::bytes_of(&ray));
+                    let got = h.lane(i);
+                    if !m.test(i) {
+                        assert!(same(&got, &sentinel), "inactive lane {q}.{i} written");
+                        continue;
+                    }
+                    valid += ray.is_valid() as u64;
+                    if any {
+                        let want = traverse_single::occluded::<T>(&view, &ray, &mut c1);
+                        assert_eq!(got.is_hit(), want, "quad {q} lane {i} {ray:?} occluded ({:?})", T::KIND);
+                        if got.is_hit() {
+                            assert!(got.t >= ray.tmin && got.t < ray.tmax);
+                        } else {
+                            assert!(same(&got, &Hit::MISS));
+                        }
+                    } else {
+                        let want = traverse_single::intersect::<T>(&view, &ray, &mut c1);
+                        assert!(same(&got, &want), "quad {q} lane {i} {ray:?} ({:?}): simd {got:?} single {want:?}", T::KIND);
+                    }
+                }
+            }
+            assert_eq!(ctr.rays, valid);
+            assert_eq!(ctr.packets, quads.len() as u64);
+        }
+    }
+
+    fn check_all(v: &[f32], ix: &[u32], views: &[crate::scenes::View], leaf_size: u32) {
+        for (test, bins) in [(TriTest::MollerTrumbore, 16), (TriTest::Watertight, 12), (TriTest::Projection, 4)] {
+            let p = BvhParams { leaf_size, bins, traversal_cost: 1.0, test };
+            match test {
+                TriTest::MollerTrumbore => check::<Mt>(v, ix, views, &p),
+                TriTest::Watertight => check::<Wt>(v, ix, views, &p),
+                TriTest::Projection => check::<Pt>(v, ix, views, &p),
+            }
+        }
+    }
+
+    #[test]
+    fn simd_matches_single_builtin() {
+        for &name in crate::scenes::BUILTIN_NAMES {
+            let s = crate::scenes::builtin(name).unwrap();
+            check_all(&s.mesh.vertices, &s.mesh.indices, &s.views, 4);
+        }
+    }
+
+    #[test]
+    fn simd_matches_single_ties_and_empty() {
+        let t = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
+        let mut tris = vec![t; 100];
+        tris.extend(vec![[[0.0, 0.0, 0.5], [1.0, 0.0, 0.5], [0.0, 1.0, 0.5]]; 50]);
+        tris.reverse();
+        let (v, ix) = soup(&tris);
+        check_all(&v, &ix, &[], 2);
+        check_all(&[], &[], &[], 4);
+        let s = crate::scenes::builtin("gears").unwrap();
+        check_all(&s.mesh.vertices, &s.mesh.indices, &s.views, 1);
+    }
+}

@@ -1,0 +1,355 @@
+//! Single-ray BVH traversal: the reference every BVH packet method must
+//! match bit for bit (same triangle test, same tie rule).
+//!
+//! Iterative, with a fixed stack of `MAX_DEPTH + 1` entries (the build never
+//! goes deeper). At an inner node both children's boxes are tested; the near
+//! child (by the sign of the ray direction on the node's split axis) is
+//! visited first and the far one pushed with its entry t, so a popped node
+//! whose entry lies strictly beyond the nearest hit so far is dropped without
+//! another box test.
+//!
+//! Exactness (see `mod.rs`): a box is skipped only when the ray's interval
+//! `[tmin, min(tmax, best.t)]` (inclusive) misses it, so a triangle at
+//! exactly `best.t` with a lower id is still found.
+
+use super::{BvhNode, BvhTest, BvhView, MAX_DEPTH};
+use crate::accel::grid::traverse_single::closer;
+use crate::geom::{Hit, Ray, RayLanes};
+use crate::trace::Counters;
+
+/// Per-ray data of the slab test (Kay and Kajiya 1986; the near plane chosen
+/// by the sign of the direction, as in Williams et al. 2005, "An efficient
+/// and robust ray-box intersection algorithm").
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct RayBox {
+    org: [f32; 3],
+    rcp: [f32; 3],
+    /// Index of the near (and far) plane of each axis in the node read as
+    /// `[f32; 8]` (min at 0..3, max at 4..7).
+    near: [usize; 3],
+    far: [usize; 3],
+    tmin: f32,
+}
+
+impl RayBox {
+    #[inline(always)]
+    pub(crate) fn new(ray: &Ray) -> RayBox {
+        let mut b = RayBox { org: ray.org, rcp: [0.0; 3], near: [0; 3], far: [0; 3], tmin: ray.tmin };
+        for a in 0..3 {
+            b.rcp[a] = 1.0 / ray.dir[a];
+            // The sign bit, not a comparison: -0 has its near plane at max.
+            let neg = ray.dir[a].is_sign_negative();
+            b.near[a] = if neg { a + 4 } else { a };
+            b.far[a] = if neg { a } else { a + 4 };
+        }
+        b
+    }
+
+    /// Entry t of the ray into `n`'s box within `[tmin, tmax]`, or `None`.
+    ///
+    /// Same answer as `Aabb::clip_ray`: for a zero direction component the
+    /// slab terms are +-inf (origin outside: rejected) or NaN (origin on a
+    /// plane), and NaN never replaces the running interval, so that axis
+    /// constrains nothing.
+    #[inline(always)]
+    pub(crate) fn entry(&self, n: &BvhNode, tmax: f32) -> Option<f32> {
+        let f: &[f32; 8] = bytemuck::cast_ref(n);
+        let mut t0 = self.tmin;
+        let mut t1 = tmax;
+        for a in 0..3 {
+            let near = (f[self.near[a] & 7] - self.org[a]) * self.rcp[a];
+            let far = (f[self.far[a] & 7] - self.org[a]) * self.rcp[a];
+            t0 = if near > t0 { near } else { t0 };
+            t1 = if far < t1 { far } else { t1 };
+        }
+        if t0 <= t1 { Some(t0) } else { None }
+    }
+}
+
+/// Nearest hit of `ray` (a miss for invalid rays: see `Ray::is_valid`).
+#[inline]
+pub fn intersect<T: BvhTest>(b: &BvhView<'_>, ray: &Ray, ctr: &mut Counters) -> Hit {
+    walk::<T, false>(b, ray, ctr)
+}
+
+/// Whether anything lies on `ray` in `[tmin, tmax)`.
+#[inline]
+pub fn occluded<T: BvhTest>(b: &BvhView<'_>, ray: &Ray, ctr: &mut Counters) -> bool {
+    walk::<T, true>(b, ray, ctr).is_hit()
+}
+
+/// Some hit on `ray` in `[tmin, tmax)` (the first found, not the nearest),
+/// or a miss: occlusion that also names an occluder.
+#[inline]
+pub fn any_hit<T: BvhTest>(b: &BvhView<'_>, ray: &Ray, ctr: &mut Counters) -> Hit {
+    walk::<T, true>(b, ray, ctr)
+}
+
+fn walk<T: BvhTest, const ANY: bool>(b: &BvhView<'_>, ray: &Ray, ctr: &mut Counters) -> Hit {
+    ctr.rays += 1;
+    let mut best = Hit::MISS;
+    let nodes = b.nodes;
+    if !ray.is_valid() || nodes.is_empty() {
+        return best;
+    }
+    let rb = RayBox::new(ray);
+    ctr.aabb_at(0, 1);
+    if rb.entry(&nodes[0], ray.tmax).is_none() {
+        return best;
+    }
+    let lanes = RayLanes::from_ray(ray);
+    let pre = T::prepare(&lanes);
+    let neg = [ray.dir[0].is_sign_negative(), ray.dir[1].is_sign_negative(), ray.dir[2].is_sign_negative()];
+
+    let mut st_node = [0u32; MAX_DEPTH + 1];
+    let mut st_t = [0.0f32; MAX_DEPTH + 1];
+    let mut st_depth = [0u8; MAX_DEPTH + 1];
+    let mut sp = 0usize;
+    let mut node = 0usize;
+    let mut depth = 0usize;
+    loop {
+        let n = &nodes[node];
+        if !n.is_leaf() {
+            let l = n.first as usize;
+            let (near, far) = if neg[n.axis()] { (l + 1, l) } else { (l, l + 1) };
+            let tmax = if best.t < ray.tmax { best.t } else { ray.tmax };
+            ctr.aabb_at(depth + 1, 2);
+            let tn = rb.entry(&nodes[near], tmax);
+            let tf = rb.entry(&nodes[far], tmax);
+            depth += 1;
+            match (tn, tf) {
+                (Some(_), Some(t)) => {
+                    st_node[sp] = far as u32;
+                    st_t[sp] = t;
+                    st_depth[sp] = depth as u8;
+                    sp += 1;
+                    node = near;
+                    continue;
+                }
+                (Some(_), None) => {
+                    node = near;
+                    continue;
+                }
+                (None, Some(_)) => {
+                    node = far;
+                    continue;
+                }
+                (None, None) => {}
+            }
+        } else {
+            let first = n.first as usize;
+            for i in first..first + n.count() as usize {
+                ctr.tri_at(depth, 1);
+                let h = T::intersect(&lanes, &pre, T::prim(b, i));
+                if h.mask {
+                    let id = b.tri_ids[i];
+                    if closer(h.t, id, &best) {
+                        best = Hit { t: h.t, prim: id, u: h.u, v: h.v };
+                        if ANY {
+                            return best;
+                        }
+                    }
+                }
+            }
+        }
+        // Pop the next node whose entry is not beyond the nearest hit.
+        loop {
+            if sp == 0 {
+                return best;
+            }
+            sp -= 1;
+            if st_t[sp] <= best.t {
+                node = st_node[sp] as usize;
+                depth = st_depth[sp] as usize;
+                break;
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::*;
+    use crate::accel::bvh::build::build;
+    use crate::accel::bvh::build::testutil::{Store, soup};
+    use crate::accel::bvh::BvhParams;
+    use crate::geom::{Aabb, INVALID_ID, Mt, Pt, Scene, TriTest, Wt};
+    use glam::Vec3;
+
+    /// Small deterministic generator (xorshift).
+    pub struct Rng(pub u64);
+    impl Rng {
+        pub fn next(&mut self) -> u64 {
+            self.0 ^= self.0 << 13;
+            self.0 ^= self.0 >> 7;
+            self.0 ^= self.0 << 17;
+            self.0
+        }
+        pub fn f(&mut self) -> f32 {
+            (self.next() >> 40) as f32 / (1u64 << 24) as f32
+        }
+        pub fn range(&mut self, lo: f32, hi: f32) -> f32 {
+            lo + (hi - lo) * self.f()
+        }
+    }
+
+    /// Nearest (or, with `any`, some) hit by testing every stored triangle.
+    pub fn brute<T: BvhTest>(b: &BvhView<'_>, ray: &Ray) -> Hit {
+        let mut best = Hit::MISS;
+        if !ray.is_valid() {
+            return best;
+        }
+        let lanes = RayLanes::from_ray(ray);
+        let pre = T::prepare(&lanes);
+        for i in 0..b.tris.len() {
+            let h = T::intersect(&lanes, &pre, T::prim(b, i));
+            if h.mask && closer(h.t, b.tri_ids[i], &best) {
+                best = Hit { t: h.t, prim: b.tri_ids[i], u: h.u, v: h.v };
+            }
+        }
+        best
+    }
+
+    /// Test rays for a scene: camera rays of every view, random rays through
+    /// the bounds (some from inside), axis-parallel rays with zero direction
+    /// components, rays along triangle edges and through vertices, bounded
+    /// and shadow-like rays, and invalid rays.
+    pub fn test_rays(tris: &[[[f32; 3]; 3]], views: &[crate::scenes::View], seed: u64) -> Vec<Ray> {
+        let mut rays = Vec::new();
+        for v in views {
+            let cam = crate::Camera { eye: v.eye.to_array(), look_at: v.look_at.to_array(), up: v.up.to_array(), fov_y_deg: v.fov_y_deg };
+            let pr = crate::render::PrimaryRays::new(&cam, 24, 24).unwrap();
+            for y in 0..24 {
+                for x in 0..24 {
+                    rays.push(pr.ray(x, y));
+                }
+            }
+        }
+        let mut bb = Aabb::EMPTY;
+        for t in tris {
+            for p in t {
+                bb.grow(Vec3::from(*p));
+            }
+        }
+        if bb.is_empty() {
+            bb = Aabb { min: Vec3::ZERO, max: Vec3::ONE };
+        }
+        let (c, d) = (0.5 * (bb.min + bb.max), bb.diagonal());
+        let mut r = Rng(seed | 1);
+        let pt = |r: &mut Rng, s: f32| c + Vec3::new(r.range(-s, s), r.range(-s, s), r.range(-s, s)) * d;
+        for i in 0..1500 {
+            let o = pt(&mut r, if i % 3 == 0 { 0.4 } else { 1.5 });
+            let to = pt(&mut r, 0.4);
+            let mut dir = to - o;
+            if i % 5 == 0 {
+                // Axis-parallel or in an axis plane: exact zero components.
+                let keep = (r.next() % 3) as usize;
+                for a in 0..3 {
+                    if a != keep && (i % 2 == 0 || a == (keep + 1) % 3) {
+                        dir[a] = if r.next() % 2 == 0 { 0.0 } else { -0.0 };
+                    }
+                }
+            }
+            let tmax = if i % 7 == 0 { r.range(0.2, 1.2) } else { f32::INFINITY };
+            let tmin = if i % 11 == 0 { r.range(0.0, 0.5) } else { 0.0 };
+            rays.push(Ray::new(o, dir, tmin, tmax));
+        }
+        // Through vertices and along/through edges of triangles.
+        for k in 0..300usize.min(tris.len() * 2) {
+            let t = tris[(r.next() as usize) % tris.len()];
+            let v = Vec3::from(t[k % 3]);
+            let w = Vec3::from(t[(k + 1) % 3]);
+            let target = if k % 2 == 0 { v } else { 0.5 * (v + w) };
+            let o = pt(&mut r, 1.5);
+            rays.push(Ray::new(o, target - o, 0.0, f32::INFINITY));
+            // Shadow-like: stop exactly at the target.
+            rays.push(Ray::new(o, target - o, 0.0, 1.0));
+        }
+        // Invalid rays.
+        let o = c;
+        rays.push(Ray::new(o, Vec3::ZERO, 0.0, f32::INFINITY));
+        rays.push(Ray::new(o, Vec3::new(f32::NAN, 1.0, 0.0), 0.0, f32::INFINITY));
+        rays.push(Ray::new(Vec3::new(f32::INFINITY, 0.0, 0.0), Vec3::X, 0.0, f32::INFINITY));
+        rays.push(Ray::new(o, Vec3::X, -1.0, f32::INFINITY));
+        rays.push(Ray::new(o, Vec3::X, 2.0, 1.0));
+        rays.push(Ray::new(o, Vec3::X, f32::NAN, 1.0));
+        rays
+    }
+
+    pub fn tris_of(scene: &Scene<'_>) -> Vec<[[f32; 3]; 3]> {
+        (0..scene.triangle_count()).map(|t| scene.triangle(t)).map(|t| [t.v0, t.v1, t.v2]).collect()
+    }
+
+    fn same(a: &Hit, b: &Hit) -> bool {
+        a.prim == b.prim && a.t.to_bits() == b.t.to_bits() && a.u.to_bits() == b.u.to_bits() && a.v.to_bits() == b.v.to_bits()
+    }
+
+    fn check_scene<T: BvhTest>(v: &[f32], ix: &[u32], views: &[crate::scenes::View], p: &BvhParams) {
+        let scene = Scene::from_f32(v, ix).unwrap();
+        let mut st = Store::new(scene.triangle_count() as usize, true);
+        let mut bvh = st.bvh();
+        build(&mut bvh, &scene, p).unwrap();
+        let view = bvh.view().unwrap();
+        let rays = test_rays(&tris_of(&scene), views, 0x9e37_79b9 ^ ix.len() as u64);
+        let mut ctr = Counters::default();
+        let mut hits = 0;
+        for (k, ray) in rays.iter().enumerate() {
+            let want = brute::<T>(&view, ray);
+            let got = intersect::<T>(&view, ray, &mut ctr);
+            assert!(same(&got, &want), "ray {k} {ray:?} ({:?}): bvh {got:?} brute {want:?}", T::KIND);
+            assert_eq!(occluded::<T>(&view, ray, &mut ctr), want.is_hit(), "ray {k} {ray:?} occluded ({:?})", T::KIND);
+            let any = any_hit::<T>(&view, ray, &mut ctr);
+            assert_eq!(any.is_hit(), want.is_hit());
+            if any.is_hit() {
+                assert!(any.t >= ray.tmin && any.t < ray.tmax && view.slot_of[any.prim as usize] != INVALID_ID);
+            }
+            hits += want.is_hit() as u32;
+        }
+        assert_eq!(ctr.rays, 3 * rays.len() as u64);
+        if view.info.triangles > 0 && !views.is_empty() {
+            assert!(hits > 0, "some rays should hit");
+        }
+    }
+
+    fn check_all_tests(v: &[f32], ix: &[u32], views: &[crate::scenes::View], leaf_size: u32) {
+        for (test, bins) in [(TriTest::MollerTrumbore, 16), (TriTest::Watertight, 8), (TriTest::Projection, 32)] {
+            let p = BvhParams { leaf_size, bins, traversal_cost: 1.0, test };
+            match test {
+                TriTest::MollerTrumbore => check_scene::<Mt>(v, ix, views, &p),
+                TriTest::Watertight => check_scene::<Wt>(v, ix, views, &p),
+                TriTest::Projection => check_scene::<Pt>(v, ix, views, &p),
+            }
+        }
+    }
+
+    #[test]
+    fn matches_brute_force_builtin() {
+        for &name in crate::scenes::BUILTIN_NAMES {
+            let s = crate::scenes::builtin(name).unwrap();
+            check_all_tests(&s.mesh.vertices, &s.mesh.indices, &s.views, 4);
+        }
+    }
+
+    #[test]
+    fn matches_brute_force_small_leaves_and_ties() {
+        let s = crate::scenes::builtin("tetra").unwrap();
+        check_all_tests(&s.mesh.vertices, &s.mesh.indices, &s.views, 1);
+        check_all_tests(&s.mesh.vertices, &s.mesh.indices, &s.views, 64);
+        // Coincident copies: every hit ties; the lowest id must win.
+        let t = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
+        let mut tris = vec![t; 257];
+        tris.push([[0.0, 0.0, 0.5], [1.0, 0.0, 0.5], [0.0, 1.0, 0.5]]);
+        tris.extend(vec![[[0.0, 0.0, 0.5], [1.0, 0.0, 0.5], [0.0, 1.0, 0.5]]; 100]);
+        tris.reverse();
+        let (v, ix) = soup(&tris);
+        check_all_tests(&v, &ix, &[], 4);
+        check_all_tests(&v, &ix, &[], 1);
+    }
+
+    #[test]
+    fn empty_bvh_misses() {
+        let (v, ix) = soup(&[[[0.0; 3], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0]]]);
+        check_all_tests(&v, &ix, &[], 4);
+        check_all_tests(&[], &[], &[], 4);
+    }
+}
