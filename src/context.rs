@@ -223,8 +223,11 @@ impl<'a> Context<'a> {
             (true, _) => t,
             (false, true) => SceneTracer { single: Method::BvhSingle, ..t },
         };
+        // One mailbox per thread slot; without grid pools (no stamps) the
+        // mailboxes are empty, which only the grid's CGT would use.
         let n = self.limits.max_triangles.max(1) as usize;
-        let mbs = self.stamps.chunks_mut(n).zip(self.mail_packets.iter_mut()).map(|(s, p)| Mailbox::new(s, p));
+        let mut stamps = self.stamps.chunks_mut(n);
+        let mbs = self.mail_packets.iter_mut().map(move |p| Mailbox::new(stamps.next().unwrap_or(&mut []), p));
         Ok((t, mbs))
     }
 

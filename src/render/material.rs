@@ -46,7 +46,7 @@ impl Material {
         if !unit(self.reflect) || !unit(self.transmit) {
             return Err(Error::InvalidArgument("material reflect and transmit must be finite and in [0, 1]"));
         }
-        if !(self.reflect + self.transmit <= 1.0) {
+        if self.reflect + self.transmit > 1.0 {
             return Err(Error::InvalidArgument("material reflect + transmit must be <= 1"));
         }
         if !(self.ior.is_finite() && self.ior > 0.0) {

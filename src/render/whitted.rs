@@ -209,13 +209,13 @@ fn surface_at<T: Tracer + ?Sized>(tracer: &T, job: &WhittedJob<'_>, ray: &Ray, h
     let tri = tracer.triangle(hit.prim)?;
     let d = Vec3::from(ray.dir);
     let mut n = tri.normal().normalize_or_zero();
-    let entering = !(n.dot(d) > 0.0);
-    if !entering {
+    let behind = n.dot(d) > 0.0;
+    if behind {
         n = -n; // two-sided: face the incoming ray
     }
     let p = Vec3::from(ray.org) + d * hit.t;
     let mat = job.materials.lookup(hit.prim, job.frame.shading.albedo);
-    Some(Surface { p, n, u: d.normalize_or_zero(), entering, mat })
+    Some(Surface { p, n, u: d.normalize_or_zero(), entering: !behind, mat })
 }
 
 /// Cosine towards `light` and, when the surface faces it (and shadows are
@@ -560,11 +560,11 @@ fn shade_packet<T: Tracer + ?Sized, const Q: usize>(
     let mut surf = [[None::<Surface>; 4]; Q];
     let mut sum = [[Vec3::splat(sh.ambient); 4]; Q];
     let mut any_hit = false;
-    for q in 0..Q {
-        for i in 0..4 {
+    for (q, lanes) in surf.iter_mut().enumerate() {
+        for (i, s) in lanes.iter_mut().enumerate() {
             if active[q].test(i) {
-                surf[q][i] = surface_at(tracer, job, &rays[q].lane(i), &hits[q].lane(i));
-                any_hit |= surf[q][i].is_some();
+                *s = surface_at(tracer, job, &rays[q].lane(i), &hits[q].lane(i));
+                any_hit |= s.is_some();
             }
         }
     }

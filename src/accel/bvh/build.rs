@@ -8,10 +8,11 @@
 //!    before anything a traversal reads is written.
 //! 2. Top-down split with an explicit work stack of `MAX_DEPTH + 1` entries
 //!    (one child is processed, the other pushed; no recursion). Per node:
-//!    `bins` bins along each axis over the centroid bounds (Wald 2007,
-//!    section 3.2: `bin = k1 (c - cmin)`, `k1 = bins (1 - eps) / extent`),
-//!    the SAH of every bin plane (two sweeps), and an in-place partition of
-//!    the `PrimRef` range.
+//!    `bins` bins along each of the three axes over the centroid bounds
+//!    (Wald 2007, section 3.2: `bin = k1 (c - cmin)`,
+//!    `k1 = bins (1 - eps) / extent`), the SAH of every bin plane (two
+//!    sweeps, the three axes side by side in SIMD lanes), and an in-place
+//!    partition of the `PrimRef` range.
 //! 3. A node becomes a leaf with one triangle, at `MAX_DEPTH`, or when it
 //!    holds at most `leaf_size` triangles and its SAH leaf cost `N` is not
 //!    above the best split's `C_trav + (A_L N_L + A_R N_R) / A` (Eq. 1 of
@@ -19,21 +20,32 @@
 //!    order (`tris`, `proj`, `tri_ids`), and `slot_of` maps caller ids back.
 //!
 //! # Deviations
+//! - Nodes of at most `SWEEP_MAX` (12) references are split by the full
+//!   SAH sweep over their centroids sorted along each axis (every object
+//!   split, so never worse than the bins) instead of binning: below about
+//!   the bin count, resetting and sweeping the bins costs more than sorting.
 //! - Nodes holding more than `leaf_size` triangles whose centroids all
 //!   coincide (no bin plane separates them: duplicated triangles, common in
 //!   the conference scene) are split at the object median, so such a heap
-//!   of N copies still ends in leaves of `leaf_size` after `log2 N` levels.
+//!   of N copies still ends in leaves of `leaf_size` after `log2 N` levels;
+//!   the sweep prefers the most balanced of equal-cost splits for the same
+//!   reason.
 //! - Every stored box is padded by `BOX_PAD * (max |coordinate| + diagonal)`
 //!   of the scene (see `mod.rs`, Exactness); `BvhInfo::bounds` and the SAH
 //!   figures use the unpadded boxes.
 //! - Child centroid bounds are gathered during the partition pass instead of
 //!   a separate pass over each child.
+//!
+//! NOTE(perf): bunny (69,630 triangles) costs about 180 M instructions per
+//! build (callgrind), down from 230 M before the sweep for small nodes, the
+//! two bin sets, the SIMD bin index and the side-by-side axis sweeps; see
+//! the `perf` test below for times.
 
 use super::{BOX_PAD, Bvh, BvhInfo, BvhNode, BvhParams, MAX_BINS, MAX_DEPTH, PrimRef};
 use crate::error::{Error, Pool, Result};
-use crate::geom::{Aabb, Excluded, INVALID_ID, ProjTri, Scene, TriTest};
+use crate::geom::{Aabb, Excluded, F4, INVALID_ID, M4, ProjTri, Scene, TriTest};
 use crate::math;
-use glam::{UVec3, Vec3A};
+use glam::Vec3A;
 
 /// A box in SIMD registers (build-internal).
 #[derive(Clone, Copy, Debug)]
@@ -44,9 +56,15 @@ struct Box3 {
 
 impl Box3 {
     const EMPTY: Box3 = Box3 { min: Vec3A::splat(f32::INFINITY), max: Vec3A::splat(f32::NEG_INFINITY) };
+    /// The box of a reference: two 16-byte loads, the fourth lanes (id and
+    /// padding) cleared.
     #[inline(always)]
     fn of(r: &PrimRef) -> Box3 {
-        Box3 { min: Vec3A::from_array(r.min), max: Vec3A::from_array(r.max) }
+        let f: &[f32; 8] = bytemuck::cast_ref(r);
+        let xyz = M4::new(true, true, true, false);
+        let lo = F4::select(xyz, F4::from_slice(&f[..4]), F4::ZERO);
+        let hi = F4::select(xyz, F4::from_slice(&f[4..]), F4::ZERO);
+        Box3 { min: Vec3A::from_vec4(lo), max: Vec3A::from_vec4(hi) }
     }
     #[inline(always)]
     fn grow(&mut self, o: &Box3) {
@@ -74,10 +92,34 @@ impl Box3 {
     }
 }
 
+/// Half areas of three boxes, one per lane (x: `b[0]`, ...).
+#[inline(always)]
+fn areas3(b: &[Box3; 3]) -> Vec3A {
+    let (d0, d1, d2) = (b[0].max - b[0].min, b[1].max - b[1].min, b[2].max - b[2].min);
+    let dx = Vec3A::new(d0.x, d1.x, d2.x);
+    let dy = Vec3A::new(d0.y, d1.y, d2.y);
+    let dz = Vec3A::new(d0.z, d1.z, d2.z);
+    dx * dy + dy * dz + dz * dx
+}
+
+/// The lane of the smallest of `cost` (lanes in `ok` only; ties: the lowest
+/// lane), or `None`.
+#[inline(always)]
+fn min_lane(cost: Vec3A, ok: u32) -> Option<usize> {
+    let mut best: Option<usize> = None;
+    for a in 0..3 {
+        if ok & (1 << a) != 0 && best.is_none_or(|b| cost[a] < cost[b]) {
+            best = Some(a);
+        }
+    }
+    best
+}
+
 /// Twice the centroid of a reference (the factor cancels in binning).
 #[inline(always)]
 fn centroid2(r: &PrimRef) -> Vec3A {
-    Vec3A::from_array(r.min) + Vec3A::from_array(r.max)
+    let b = Box3::of(r);
+    b.min + b.max
 }
 
 /// A node waiting to be split: its `PrimRef` range, box and centroid box.
@@ -91,16 +133,16 @@ struct Task {
     cent: Box3,
 }
 
-#[derive(Clone, Copy, Debug)]
-struct Bin {
-    b: Box3,
-    n: u32,
-}
-
-/// Binning of one node along the three axes.
+/// Binning of one node along the three axes, in two interleaved sets (even
+/// and odd references) merged before the sweep.
+///
+/// NOTE(perf): references in mesh order are spatially coherent, so
+/// consecutive ones mostly fall into the same bins; with one set each bin
+/// update waits for the previous one's store.
 struct Binner {
     bins: usize,
-    bin: [[Bin; MAX_BINS as usize]; 3],
+    boxes: [[[Box3; MAX_BINS as usize]; 3]; 2],
+    counts: [[[u32; MAX_BINS as usize]; 3]; 2],
 }
 
 /// The best bin plane of a node: references with bin `< pos` on `axis` go left.
@@ -114,13 +156,12 @@ struct Split {
     right: Box3,
 }
 
-/// Bin mapping of a node (Wald 2007, section 3.2): `x = k (c - cmin)`
-/// with `k = bins (1 - eps) / extent`, and bin `round(x - 1/2)` clamped to
-/// `0..bins` (floor, except that exact integers may round down).
+/// Bin mapping of a node (Wald 2007, section 3.2): bin
+/// `floor(clamp(k (c - cmin), 0, bins - 1))`, `k = bins (1 - eps) / extent`.
 ///
-/// NOTE(perf): rounding with the `2^23` trick keeps the three axes in one
-/// SIMD register; three saturating float-to-int casts cost more than the
-/// binning itself (bunny build 11.8 ms -> see `perf` below).
+/// NOTE(perf): the floor uses the `2^23` rounding trick on all three axes in
+/// one SIMD register; three saturating float-to-int casts cost about as
+/// much as the rest of the binning.
 #[derive(Clone, Copy, Debug)]
 struct BinMap {
     cmin: Vec3A,
@@ -128,7 +169,7 @@ struct BinMap {
     top: f32,
 }
 
-/// `2^23`: adding it to `0 <= y < 2^22` leaves `round(y)` in the low bits.
+/// `2^23`: `y + 2^23` holds `round(y)` in its low mantissa bits for `0 <= y < 2^22`.
 const ROUND: f32 = 8_388_608.0;
 
 impl BinMap {
@@ -139,85 +180,120 @@ impl BinMap {
         let k = Vec3A::select(ext.cmpgt(Vec3A::ZERO), Vec3A::splat(scale) / ext, Vec3A::ZERO);
         BinMap { cmin: cent.min, k, top: (bins - 1) as f32 }
     }
-    /// Bin of a (doubled) centroid on all three axes, in `0..bins` whatever
-    /// the input (NaN goes to bin 0).
+    /// Bins of a (doubled) centroid on the three axes, in `0..bins` whatever
+    /// the input (NaN: bin 0, as `max` returns its second operand then).
     #[inline(always)]
     fn bins3(&self, c: Vec3A) -> [usize; 3] {
-        let y = ((c - self.cmin) * self.k - Vec3A::splat(0.5)).max(Vec3A::ZERO).min(Vec3A::splat(self.top));
+        let y = ((c - self.cmin) * self.k).max(Vec3A::ZERO).min(Vec3A::splat(self.top));
         let r = y + Vec3A::splat(ROUND);
-        [(r.x.to_bits() & 0xff) as usize, (r.y.to_bits() & 0xff) as usize, (r.z.to_bits() & 0xff) as usize]
+        // round(y) > y: one less for the floor.
+        let down = (r - Vec3A::splat(ROUND)).cmpgt(y).bitmask();
+        [
+            ((r.x.to_bits() & 0xff) - (down & 1)) as usize,
+            ((r.y.to_bits() & 0xff) - ((down >> 1) & 1)) as usize,
+            ((r.z.to_bits() & 0xff) - ((down >> 2) & 1)) as usize,
+        ]
     }
-    /// The same arithmetic on one axis (bitwise the same bin as `bins3`).
+    /// Whether a centroid's bin on `axis` is below `pos` (`1 <= pos < bins`):
+    /// `floor(clamp(x)) < pos` iff `x < pos`, and NaN (bin 0) is below.
     #[inline(always)]
-    fn bin(&self, c: Vec3A, axis: usize) -> usize {
-        let y = ((c[axis] - self.cmin[axis]) * self.k[axis] - 0.5).max(0.0).min(self.top);
-        ((y + ROUND).to_bits() & 0xff) as usize
+    fn below(&self, c: Vec3A, axis: usize, pos: f32) -> bool {
+        let x = (c[axis] - self.cmin[axis]) * self.k[axis];
+        x < pos || x.is_nan()
     }
 }
 
+/// Nodes of at least this many references bin into two sets.
+const TWO_SETS: usize = 64;
+
 impl Binner {
     fn new(bins: usize) -> Binner {
-        Binner { bins, bin: [[Bin { b: Box3::EMPTY, n: 0 }; MAX_BINS as usize]; 3] }
+        Binner { bins, boxes: [[[Box3::EMPTY; MAX_BINS as usize]; 3]; 2], counts: [[[0; MAX_BINS as usize]; 3]; 2] }
+    }
+
+    #[inline(always)]
+    fn add(&mut self, set: usize, r: &PrimRef, map: &BinMap) {
+        let bx = Box3::of(r);
+        let i = map.bins3(bx.min + bx.max);
+        for (a, &ia) in i.iter().enumerate() {
+            // `& 63`: in range already; lets the compiler drop the checks.
+            let b = ia & (MAX_BINS as usize - 1);
+            self.boxes[set][a][b].grow(&bx);
+            self.counts[set][a][b] += 1;
+        }
     }
 
     /// Bin `refs` and return the cheapest plane, or `None` when no plane has
     /// references on both sides (all centroids in one bin on every axis).
     fn find(&mut self, refs: &[PrimRef], map: &BinMap) -> Option<Split> {
         let nb = self.bins;
-        for a in 0..3 {
-            for b in &mut self.bin[a][..nb] {
-                *b = Bin { b: Box3::EMPTY, n: 0 };
-            }
-        }
-        for r in refs {
-            let bx = Box3::of(r);
-            let i = map.bins3(bx.min + bx.max);
+        let sets = if refs.len() >= TWO_SETS { 2 } else { 1 };
+        for set in 0..sets {
             for a in 0..3 {
-                let b = &mut self.bin[a][i[a]];
-                b.b.grow(&bx);
-                b.n += 1;
+                self.boxes[set][a][..nb].fill(Box3::EMPTY);
+                self.counts[set][a][..nb].fill(0);
             }
         }
-        let mut best: Option<Split> = None;
-        let mut left_area = [0.0f32; MAX_BINS as usize];
-        let mut left_n = [0u32; MAX_BINS as usize];
-        for a in 0..3 {
-            if map.k[a] == 0.0 {
-                continue;
+        if sets == 2 {
+            let mut pairs = refs.chunks_exact(2);
+            for pr in &mut pairs {
+                self.add(0, &pr[0], map);
+                self.add(1, &pr[1], map);
             }
-            let bins = &self.bin[a][..nb];
-            let (mut acc, mut n) = (Box3::EMPTY, 0u32);
-            for i in 0..nb - 1 {
-                if bins[i].n != 0 {
-                    acc.grow(&bins[i].b);
-                    n += bins[i].n;
-                }
-                left_area[i] = acc.half_area();
-                left_n[i] = n;
+            if let [r] = pairs.remainder() {
+                self.add(0, r, map);
             }
-            let (mut acc, mut n) = (Box3::EMPTY, 0u32);
-            for i in (1..nb).rev() {
-                if bins[i].n != 0 {
-                    acc.grow(&bins[i].b);
-                    n += bins[i].n;
-                }
-                let nl = left_n[i - 1];
-                if n == 0 || nl == 0 {
-                    continue;
-                }
-                let cost = left_area[i - 1] * nl as f32 + acc.half_area() * n as f32;
-                if best.is_none_or(|b| cost < b.cost) {
-                    best = Some(Split { axis: a, pos: i, cost, left: Box3::EMPTY, right: Box3::EMPTY });
+        } else {
+            for r in refs {
+                self.add(0, r, map);
+            }
+        }
+        if sets == 2 {
+            for a in 0..3 {
+                for i in 0..nb {
+                    let (b1, n1) = (self.boxes[1][a][i], self.counts[1][a][i]);
+                    self.boxes[0][a][i].grow(&b1);
+                    self.counts[0][a][i] += n1;
                 }
             }
         }
-        let mut s = best?;
-        let bins = &self.bin[s.axis][..nb];
-        for (i, b) in bins.iter().enumerate() {
+        // The three axes' sweeps run side by side, one per lane.
+        let (counts, boxes) = (&self.counts[0], &self.boxes[0]);
+        let count3 = |i: usize| Vec3A::new(counts[0][i] as f32, counts[1][i] as f32, counts[2][i] as f32);
+        let mut left_area = [Vec3A::ZERO; MAX_BINS as usize];
+        let mut left_n = [Vec3A::ZERO; MAX_BINS as usize];
+        let (mut acc, mut n) = ([Box3::EMPTY; 3], Vec3A::ZERO);
+        for i in 0..nb - 1 {
+            for a in 0..3 {
+                acc[a].grow(&boxes[a][i]);
+            }
+            n += count3(i);
+            left_area[i] = areas3(&acc);
+            left_n[i] = n;
+        }
+        let axes = map.k.cmpne(Vec3A::ZERO);
+        let (mut acc, mut n) = ([Box3::EMPTY; 3], Vec3A::ZERO);
+        let (mut best_cost, mut best_pos) = (Vec3A::INFINITY, Vec3A::ZERO);
+        for i in (1..nb).rev() {
+            for a in 0..3 {
+                acc[a].grow(&boxes[a][i]);
+            }
+            n += count3(i);
+            let (la, ln) = (left_area[i - 1], left_n[i - 1]);
+            let cost = la * ln + areas3(&acc) * n;
+            // Strict: of equal costs the highest plane, as NaN never wins.
+            let take = cost.cmplt(best_cost) & n.cmpgt(Vec3A::ZERO) & ln.cmpgt(Vec3A::ZERO) & axes;
+            best_cost = Vec3A::select(take, cost, best_cost);
+            best_pos = Vec3A::select(take, Vec3A::splat(i as f32), best_pos);
+        }
+        let axis = min_lane(best_cost, best_pos.cmpgt(Vec3A::ZERO).bitmask())?;
+        let best = (best_cost[axis], axis, best_pos[axis] as usize);
+        let mut s = Split { axis: best.1, pos: best.2, cost: best.0, left: Box3::EMPTY, right: Box3::EMPTY };
+        for (i, b) in self.boxes[0][s.axis][..nb].iter().enumerate() {
             if i < s.pos {
-                s.left.grow(&b.b);
+                s.left.grow(b);
             } else {
-                s.right.grow(&b.b);
+                s.right.grow(b);
             }
         }
         Some(s)
@@ -229,7 +305,7 @@ impl Binner {
 /// left count and the centroid boxes of both sides.
 fn partition(refs: &mut [PrimRef], map: &BinMap, s: &Split) -> (usize, Box3, Box3) {
     let (mut cl, mut cr) = (Box3::EMPTY, Box3::EMPTY);
-    let left = |c: Vec3A| map.bin(c, s.axis) < s.pos;
+    let (axis, pos) = (s.axis, s.pos as f32);
     let (mut i, mut j) = (0usize, refs.len());
     loop {
         // [0, i) left, [j, len) right, [i, j) not yet seen.
@@ -238,7 +314,7 @@ fn partition(refs: &mut [PrimRef], map: &BinMap, s: &Split) -> (usize, Box3, Box
                 return (i, cl, cr);
             }
             let c = centroid2(&refs[i]);
-            if !left(c) {
+            if !map.below(c, axis, pos) {
                 break c;
             }
             cl.grow_point(c);
@@ -251,7 +327,7 @@ fn partition(refs: &mut [PrimRef], map: &BinMap, s: &Split) -> (usize, Box3, Box
                 return (i, cl, cr);
             }
             let c = centroid2(&refs[j]);
-            if left(c) {
+            if map.below(c, axis, pos) {
                 break c;
             }
             cr.grow_point(c);
@@ -267,86 +343,113 @@ fn partition(refs: &mut [PrimRef], map: &BinMap, s: &Split) -> (usize, Box3, Box
 /// their sorted centroids instead of binning (see the module Deviations).
 const SWEEP_MAX: usize = 12;
 
+/// A split of a node: axis, left count, `A_L N_L + A_R N_R`, the children's
+/// boxes and centroid boxes.
+type Cut = (usize, usize, f32, Box3, Box3, Box3, Box3);
+
 /// Best split of a small node (2 <= refs.len() <= SWEEP_MAX) by the full
 /// SAH sweep: references sorted by centroid on each axis, every prefix
-/// evaluated. On return `refs` is ordered for the chosen axis; the result
-/// is (axis, left count, `A_L N_L + A_R N_R`, left box, right box).
-fn sweep_split(refs: &mut [PrimRef]) -> (usize, usize, f32, Box3, Box3) {
+/// evaluated. On return `refs` is ordered for the chosen axis.
+fn sweep_split(refs: &mut [PrimRef]) -> Cut {
     let n = refs.len();
     debug_assert!((2..=SWEEP_MAX).contains(&n));
     if n == 2 {
         // One possible split; order the pair along the axis where their
         // centroids lie farthest apart.
         let (b0, b1) = (Box3::of(&refs[0]), Box3::of(&refs[1]));
-        let d = (b1.min + b1.max) - (b0.min + b0.max);
-        let ad = d.abs();
+        let (c0, c1) = (b0.min + b0.max, b1.min + b1.max);
+        let ad = (c1 - c0).abs();
         let axis = if ad.x >= ad.y && ad.x >= ad.z { 0 } else if ad.y >= ad.z { 1 } else { 2 };
         let cost = b0.half_area() + b1.half_area();
-        return if d[axis] < 0.0 {
+        let pt = |c: Vec3A| Box3 { min: c, max: c };
+        return if c1[axis] < c0[axis] {
             refs.swap(0, 1);
-            (axis, 1, cost, b1, b0)
+            (axis, 1, cost, b1, b0, pt(c1), pt(c0))
         } else {
-            (axis, 1, cost, b0, b1)
+            (axis, 1, cost, b0, b1, pt(c0), pt(c1))
         };
     }
-    let mut boxes = [Box3::EMPTY; SWEEP_MAX];
-    let mut cent = [Vec3A::ZERO; SWEEP_MAX];
+    // NOTE(perf): scratch arrays sized by the node (most are tiny).
+    match n {
+        3..=4 => sweep::<4>(refs),
+        5..=8 => sweep::<8>(refs),
+        _ => sweep::<SWEEP_MAX>(refs),
+    }
+}
+
+/// `sweep_split` for `3 <= refs.len() <= M`.
+#[inline(always)]
+fn sweep<const M: usize>(refs: &mut [PrimRef]) -> Cut {
+    let n = refs.len();
+    let mut boxes = [Box3::EMPTY; M];
+    let mut cent = [Vec3A::ZERO; M];
     for (i, r) in refs.iter().enumerate() {
         boxes[i] = Box3::of(r);
         cent[i] = boxes[i].min + boxes[i].max;
     }
-    let mut best = (0usize, 0usize, f32::INFINITY);
-    let mut best_order = [0u8; SWEEP_MAX];
-    for a in 0..3 {
-        // Insertion sort of the indices by centroid (stable).
-        let mut order = [0u8; SWEEP_MAX];
-        for i in 0..n {
-            let key = cent[i][a];
+    let mut orders = [[0u8; M]; 3];
+    for (a, order) in orders.iter_mut().enumerate() {
+        // Insertion sort of (key, index) by key (stable).
+        let mut key = [0.0f32; M];
+        for (i, c) in cent[..n].iter().enumerate() {
+            let k = c[a];
             let mut j = i;
-            while j > 0 && cent[order[j - 1] as usize][a] > key {
+            while j > 0 && key[j - 1] > k {
+                key[j] = key[j - 1];
                 order[j] = order[j - 1];
                 j -= 1;
             }
+            key[j] = k;
             order[j] = i as u8;
         }
-        let mut left_area = [0.0f32; SWEEP_MAX];
-        let mut acc = Box3::EMPTY;
-        for i in 0..n - 1 {
-            acc.grow(&boxes[order[i] as usize]);
-            left_area[i] = acc.half_area();
-        }
-        let mut acc = Box3::EMPTY;
-        for i in (1..n).rev() {
-            acc.grow(&boxes[order[i] as usize]);
-            // Left: order[..i], right: order[i..].
-            let cost = left_area[i - 1] * i as f32 + acc.half_area() * (n - i) as f32;
-            // Equal costs (coincident references): the more balanced split.
-            if cost < best.2 || (cost == best.2 && (2 * i).abs_diff(n) < (2 * best.1).abs_diff(n)) {
-                best = (a, i, cost);
-                best_order = order;
-            }
-        }
     }
-    if !(best.2 < f32::INFINITY) {
+    // The three axes' sweeps side by side, one per lane.
+    let mut left_area = [Vec3A::ZERO; M];
+    let mut acc = [Box3::EMPTY; 3];
+    for i in 0..n - 1 {
+        for a in 0..3 {
+            acc[a].grow(&boxes[orders[a][i] as usize]);
+        }
+        left_area[i] = areas3(&acc);
+    }
+    let mut acc = [Box3::EMPTY; 3];
+    let (mut best_cost, mut best_pos) = (Vec3A::INFINITY, Vec3A::ZERO);
+    let nf = Vec3A::splat(n as f32);
+    for i in (1..n).rev() {
+        for a in 0..3 {
+            acc[a].grow(&boxes[orders[a][i] as usize]);
+        }
+        // Left: order[..i], right: order[i..].
+        let fi = Vec3A::splat(i as f32);
+        let cost = left_area[i - 1] * fi + areas3(&acc) * (nf - fi);
+        // Equal costs (coincident references): the more balanced split.
+        let balanced = (fi * 2.0 - nf).abs().cmplt((best_pos * 2.0 - nf).abs());
+        let take = cost.cmplt(best_cost) | (cost.cmpeq(best_cost) & balanced);
+        best_cost = Vec3A::select(take, cost, best_cost);
+        best_pos = Vec3A::select(take, fi, best_pos);
+    }
+    let found = best_pos.cmpgt(Vec3A::ZERO).bitmask();
+    let best = match min_lane(best_cost, found) {
+        Some(a) => (a, best_pos[a] as usize, best_cost[a]),
         // NaN areas (overflowing coordinates): split in the middle.
-        best = (0, n / 2, f32::NAN);
-        for (i, o) in best_order.iter_mut().enumerate() {
-            *o = i as u8;
-        }
-    }
-    let mut tmp = [PrimRef::default(); SWEEP_MAX];
+        None => (0, n / 2, f32::NAN),
+    };
+    let best_order = &orders[best.0];
+    let mut tmp = [PrimRef::default(); M];
     tmp[..n].copy_from_slice(refs);
-    let (mut bl, mut br) = (Box3::EMPTY, Box3::EMPTY);
+    let (mut bl, mut br, mut cl, mut cr) = (Box3::EMPTY, Box3::EMPTY, Box3::EMPTY, Box3::EMPTY);
     for i in 0..n {
         let o = best_order[i] as usize;
         refs[i] = tmp[o];
         if i < best.1 {
             bl.grow(&boxes[o]);
+            cl.grow_point(cent[o]);
         } else {
             br.grow(&boxes[o]);
+            cr.grow_point(cent[o]);
         }
     }
-    (best.0, best.1, best.2, bl, br)
+    (best.0, best.1, best.2, bl, br, cl, cr)
 }
 
 /// Box and centroid box of `refs`.
@@ -448,33 +551,35 @@ pub fn build(bvh: &mut Bvh<'_>, scene: &Scene<'_>, p: &BvhParams) -> Result<BvhI
         // Some((axis, left count, left box, right box, left cent, right cent)).
         let mut split = None;
         if count > 1 && count <= SWEEP_MAX && (task.depth as usize) < MAX_DEPTH {
-            let (axis, nl, cost, bl, br) = sweep_split(&mut refs[begin..end]);
+            let (axis, nl, cost, bl, br, cl, cr) = sweep_split(&mut refs[begin..end]);
             let split_cost = p.traversal_cost + cost / task.bounds.half_area();
-            if count > leaf_size || !(count as f32 <= split_cost) {
-                let (_, cl) = bounds_of(&refs[begin..begin + nl]);
-                let (_, cr) = bounds_of(&refs[begin + nl..end]);
+            // NaN costs (overflowing coordinates) split rather than keep a
+            // large leaf.
+            if count > leaf_size || count as f32 > split_cost || split_cost.is_nan() {
                 split = Some((axis, nl, bl, br, cl, cr));
             }
         } else if count > 1 && (task.depth as usize) < MAX_DEPTH {
             let map = BinMap::new(&task.cent, binner.bins);
-            match binner.find(&refs[begin..end], &map) {
-                Some(s) => {
-                    let split_cost = p.traversal_cost + s.cost / task.bounds.half_area();
-                    // NaN costs (overflowing coordinates) split rather than
-                    // keep a large leaf.
-                    if count > leaf_size || !(count as f32 <= split_cost) {
-                        let (nl, cl, cr) = partition(&mut refs[begin..end], &map, &s);
+            let mut median = count > leaf_size;
+            if let Some(s) = binner.find(&refs[begin..end], &map) {
+                let split_cost = p.traversal_cost + s.cost / task.bounds.half_area();
+                median = false;
+                if count > leaf_size || count as f32 > split_cost || split_cost.is_nan() {
+                    let (nl, cl, cr) = partition(&mut refs[begin..end], &map, &s);
+                    if nl > 0 && nl < count {
                         split = Some((s.axis, nl, s.left, s.right, cl, cr));
+                    } else {
+                        // Cannot happen (binning and partition agree); stay safe.
+                        median = true;
                     }
                 }
-                None if count > leaf_size => {
-                    // All centroids coincide: object median.
-                    let nl = count / 2;
-                    let (bl, cl) = bounds_of(&refs[begin..begin + nl]);
-                    let (br, cr) = bounds_of(&refs[begin + nl..end]);
-                    split = Some((0, nl, bl, br, cl, cr));
-                }
-                None => {}
+            }
+            if median {
+                // All centroids coincide: object median.
+                let nl = count / 2;
+                let (bl, cl) = bounds_of(&refs[begin..begin + nl]);
+                let (br, cr) = bounds_of(&refs[begin + nl..end]);
+                split = Some((0, nl, bl, br, cl, cr));
             }
         }
         let area = task.bounds.half_area() as f64;
@@ -497,8 +602,8 @@ pub fn build(bvh: &mut Bvh<'_>, scene: &Scene<'_>, p: &BvhParams) -> Result<BvhI
                 sah_leaf += area * count as f64;
                 info.leaves += 1;
                 info.depth = info.depth.max(task.depth);
-                for s in begin..end {
-                    let id = refs[s].id;
+                for (s, r) in refs.iter().enumerate().take(end).skip(begin) {
+                    let id = r.id;
                     let tri = scene.triangle(id);
                     pools.tris[s] = tri;
                     if proj {
@@ -560,6 +665,21 @@ pub(crate) mod testutil {
         }
     }
 
+    /// Small triangles in the planes x = 1e-9 * 2.2^i: built with two bins
+    /// and leaf size 1, every plane can only peel off the farthest one, so
+    /// the tree would be 53 levels deep and MAX_DEPTH caps it with a forced
+    /// leaf. (Coordinates from 2e-9 to 7e9 keep the triangle tests and the
+    /// SAH areas far from overflow and underflow.)
+    pub fn deep_tris() -> Vec<[[f32; 3]; 3]> {
+        (1..55)
+            .map(|i| {
+                let x = 1e-9 * 2.2f32.powi(i);
+                let s = 0.01 * x;
+                [[x, 0.0, 0.0], [x, s, 0.0], [x, 0.0, s]]
+            })
+            .collect()
+    }
+
     /// A scene's buffers as packed f32 vertices and indices.
     pub fn soup(tris: &[[[f32; 3]; 3]]) -> (Vec<f32>, Vec<u32>) {
         let v: Vec<f32> = tris.iter().flat_map(|t| t.iter().flatten().copied()).collect();
@@ -570,7 +690,7 @@ pub(crate) mod testutil {
 
 #[cfg(test)]
 mod tests {
-    use super::testutil::{Store, soup};
+    use super::testutil::{Store, deep_tris, soup};
     use super::*;
     use crate::accel::bvh::BvhView;
     use glam::Vec3;
@@ -629,7 +749,7 @@ mod tests {
                 assert!(l + 1 < info.nodes as usize && l > i);
                 reached += 2;
                 for c in [l, l + 1] {
-                    assert!(contains(&b, &v.nodes[c].aabb()), "child {c} outside node {i}");
+                    assert!(contains(&b, &v.nodes[c].aabb()), "child {c} outside node {i}: {:?} {:?} {:?}", b, v.nodes[c], node);
                     todo.push((c, d + 1));
                 }
             }
@@ -697,16 +817,9 @@ mod tests {
 
     #[test]
     fn deep_scene_hits_depth_limit_safely() {
-        // Triangles at geometrically shrinking positions force a deep,
-        // unbalanced tree; MAX_DEPTH caps it with a forced leaf.
-        let mut tris = Vec::new();
-        for i in 0..200 {
-            let s = 0.5f32.powi(i);
-            tris.push([[s, 0.0, 0.0], [s + s * 0.1, 0.0, 0.0], [s, s * 0.1, 0.0]]);
-        }
-        let (v, ix) = soup(&tris);
-        let info = build_check(&v, &ix, &BvhParams { leaf_size: 1, ..Default::default() });
-        assert!(info.depth as usize <= MAX_DEPTH);
+        let (v, ix) = soup(&deep_tris());
+        let info = build_check(&v, &ix, &BvhParams { leaf_size: 1, bins: 2, ..Default::default() });
+        assert_eq!(info.depth as usize, MAX_DEPTH);
     }
 
     #[test]

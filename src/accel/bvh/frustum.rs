@@ -24,16 +24,19 @@
 //!
 //! # Exactness
 //! Culling must never reject a box or triangle that some ray's f32 test
-//! hits, or packet results would differ from single rays. So everything here
-//! is computed in f64 from the rays' f32 values, and a plane culls only what
-//! lies beyond it by more than `margin`, `CULL_EPS` times the magnitude of
-//! the scene's and the origins' coordinates. That covers the rounding of
-//! the f32 ray-triangle tests (which may report a hit for a line passing a
-//! few ulps of the coordinates beside a triangle). The boxes a traversal
-//! tests contain their triangles, so a box culled by a plane has all its
-//! triangles culled by it too. The corner-ray test needs an angular
+//! hits, or packet results would differ from single rays. A plane culls
+//! only what lies beyond it by more than `margin`, `CULL_EPS` times the
+//! magnitude of the scene's and the origins' coordinates: that covers the
+//! rounding of the f32 ray-triangle tests (which may report a hit for a
+//! line passing a few ulps of the coordinates beside a triangle). The
+//! `(u, v)` extents are computed 4-wide in f32 and then widened by a bound
+//! on their rounding, so every ray lies inside the planes; planes, corner
+//! rays and the corner-ray test are f64; the plane tests run 4-wide in f32
+//! against the margin plus a bound on their own rounding. The boxes a
+//! traversal tests contain their triangles, so a box culled by a plane has
+//! all its triangles culled by it too. The corner-ray test needs an angular
 //! separation that, at the triangle's distance from the apex, exceeds twice
-//! the margin (see `cull_triangle`).
+//! the margin (see `cull_by_corners`).
 //!
 //! # Deviations
 //! - The side planes of the common-origin and general frusta are built
@@ -50,7 +53,7 @@
 //!   (hits within rounding of a ray's origin or of the scene box stay inside).
 
 use super::{BvhNode, RayKind};
-use crate::geom::{Aabb, M4, Ray4, TriVerts};
+use crate::geom::{Aabb, F4, M4, Ray4, TriVerts};
 use crate::math;
 
 /// Relative culling margin: a plane culls only what lies beyond it by more
@@ -59,6 +62,10 @@ use crate::math;
 /// that magnitude; the margin is ~1000 times larger, and at packet widths
 /// of a pixel or more it costs no measurable culling.
 pub const CULL_EPS: f64 = 1e-4;
+
+/// Relative rounding allowance of the f32 parts (extents, plane tests):
+/// ~16 ulps.
+const F32_ERR: f64 = 1e-6;
 
 type V3 = [f64; 3];
 
@@ -77,6 +84,11 @@ fn sub(a: V3, b: V3) -> V3 {
 #[inline(always)]
 fn norm(a: V3) -> f64 {
     math::sqrt64(dot(a, a))
+}
+#[inline(always)]
+fn unit(a: V3) -> Option<V3> {
+    let l = norm(a);
+    (l > 0.0 && l.is_finite()).then(|| [a[0] / l, a[1] / l, a[2] / l])
 }
 #[inline(always)]
 fn v3(p: [f32; 3]) -> V3 {
@@ -118,57 +130,71 @@ pub struct Frustum {
     /// `CULL_EPS` times the scene's coordinate magnitude (the margin of a
     /// frustum whose rays lie exactly inside it).
     pub eps: f64,
-    /// Per plane, the node coordinate (in `BvhNode` read as `[f32; 8]`:
-    /// min at 0..3, max at 4..7) of the box corner with the least `H_i`.
-    sel: [[usize; 3]; 4],
+    /// The planes 4-wide (lane i = plane i) in f32, for Eq. 1.
+    nx: F4,
+    ny: F4,
+    nz: F4,
+    b4: F4,
+    /// Planes whose normal is positive on x, y, z: their n-vertex (the box
+    /// corner with the least `H`) takes the box's min there, else its max.
+    pos: [M4; 3],
+    /// `margin` plus the rounding bound of the f32 plane test.
+    margin4: F4,
     apex: Option<Apex>,
 }
 
-/// Origin and direction of each live lane.
-fn lanes<'a>(rays: &'a [Ray4], live: &'a [M4]) -> impl Iterator<Item = (V3, V3)> + 'a {
-    rays.iter().zip(live).flat_map(|(r, m)| {
-        let m = *m;
-        (0..4).filter(move |&i| m.test(i)).map(move |i| {
-            ([r.org[0][i] as f64, r.org[1][i] as f64, r.org[2][i] as f64], [r.dir[0][i] as f64, r.dir[1][i] as f64, r.dir[2][i] as f64])
-        })
-    })
+#[inline(always)]
+fn splat3(o: [f32; 3]) -> [F4; 3] {
+    [F4::splat(o[0]), F4::splat(o[1]), F4::splat(o[2])]
 }
 
 /// The origin every live lane shares (bitwise-equal values), if any.
-pub fn common_origin(rays: &[Ray4], live: &[M4]) -> Option<V3> {
-    let mut it = lanes(rays, live);
-    let (o, _) = it.next()?;
-    it.all(|(p, _)| p == o).then_some(o)
+pub fn common_origin(rays: &[Ray4], live: &[M4]) -> Option<[f32; 3]> {
+    let q = live.iter().position(|m| m.any())?;
+    let i = live[q].bitmask().trailing_zeros() as usize;
+    let o = [rays[q].org[0][i], rays[q].org[1][i], rays[q].org[2][i]];
+    let s = splat3(o);
+    let same = rays.iter().zip(live).all(|(r, m)| {
+        let eq = r.org[0].cmpeq(s[0]) & r.org[1].cmpeq(s[1]) & r.org[2].cmpeq(s[2]);
+        (*m & !eq).bitmask() == 0
+    });
+    same.then_some(o)
 }
 
 /// Largest coordinate magnitude of the scene box and the live origins.
 fn scale(bounds: &Aabb, rays: &[Ray4], live: &[M4]) -> f64 {
-    let mut s = 0.0f64;
-    for a in 0..3 {
-        s = s.max((bounds.min[a] as f64).abs()).max((bounds.max[a] as f64).abs());
-    }
-    for (o, _) in lanes(rays, live) {
-        s = s.max(o[0].abs()).max(o[1].abs()).max(o[2].abs());
+    let mut s = bounds.min.abs().max(bounds.max.abs()).max_element();
+    for (r, m) in rays.iter().zip(live) {
+        let a = r.org[0].abs().max(r.org[1].abs()).max(r.org[2].abs());
+        s = s.max(F4::select(*m, a, F4::ZERO).max_element());
     }
     // A floor keeps the margin positive for a scene at the origin's ulp scale.
-    s.max(f32::MIN_POSITIVE as f64)
+    (s as f64).max(f32::MIN_POSITIVE as f64)
 }
 
-/// Dominant axis `k` of the direction sum and its sign (`None` when zero
-/// or not finite).
-fn dominant_axis(rays: &[Ray4], live: &[M4]) -> Option<(usize, f64)> {
-    let mut s = [0.0f64; 3];
-    for (_, d) in lanes(rays, live) {
+/// Dominant axis `k` of the live lanes' direction sum and its sign (`None`
+/// when zero or not finite).
+fn dominant_axis(rays: &[Ray4], live: &[M4]) -> Option<(usize, f32)> {
+    let mut s = [F4::ZERO; 3];
+    for (r, m) in rays.iter().zip(live) {
         for a in 0..3 {
-            s[a] += d[a];
+            s[a] += F4::select(*m, r.dir[a], F4::ZERO);
         }
     }
+    let s = [s[0].element_sum(), s[1].element_sum(), s[2].element_sum()];
     let a = [s[0].abs(), s[1].abs(), s[2].abs()];
     let k = if a[0] >= a[1] && a[0] >= a[2] { 0 } else if a[1] >= a[2] { 1 } else { 2 };
     if !(a[k] > 0.0 && a[k].is_finite()) {
         return None;
     }
     Some((k, if s[k] > 0.0 { 1.0 } else { -1.0 }))
+}
+
+/// Masked lane minimum and maximum of `x`, accumulated into `ext`.
+#[inline(always)]
+fn extend(ext: &mut [f32; 2], m: M4, x: F4) {
+    ext[0] = ext[0].min(F4::select(m, x, F4::INFINITY).min_element());
+    ext[1] = ext[1].max(F4::select(m, x, F4::NEG_INFINITY).max_element());
 }
 
 /// Morton index of quad (x, y) (x in the even bits, as `render::demorton`).
@@ -184,9 +210,12 @@ fn morton(x: usize, y: usize) -> usize {
 impl Frustum {
     /// The frustum `kind` asks for, or `None` when none can be built (the
     /// packet is then traced without culling). `live` marks the lanes to
-    /// bound (active and valid); `bounds` is the scene's (root) box.
+    /// bound (active and valid: `Ray::is_valid`); `bounds` is the scene's
+    /// (root) box.
     pub fn new(kind: RayKind, rays: &[Ray4], live: &[M4], bounds: &Aabb) -> Option<Frustum> {
-        if bounds.is_empty() || !live.iter().zip(rays).any(|(m, _)| m.any()) {
+        let n = rays.len().min(live.len());
+        let (rays, live) = (&rays[..n], &live[..n]);
+        if bounds.is_empty() || !live.iter().any(|m| m.any()) {
             return None;
         }
         match kind {
@@ -201,10 +230,9 @@ impl Frustum {
     /// `Auto`: the common-origin frustum when every live ray starts at the
     /// same point, else the general one.
     pub fn auto(rays: &[Ray4], live: &[M4], bounds: &Aabb) -> Option<Frustum> {
-        if common_origin(rays, live).is_some() {
-            Self::from_common_origin(rays, live, bounds)
-        } else {
-            Self::from_general(rays, live, bounds)
+        match common_origin(rays, live) {
+            Some(o) => Self::common(o, rays, live, bounds),
+            None => Self::from_general(rays, live, bounds),
         }
     }
 
@@ -224,28 +252,18 @@ impl Frustum {
         if corners.iter().any(|&(q, i)| !live[q].test(i)) {
             return None;
         }
-        let o = common_origin(&rays[..nq], &live[..nq])?;
-        let mut d = [[0.0; 3]; 4];
+        let o32 = common_origin(&rays[..nq], &live[..nq])?;
+        let o = v3(o32);
         let mut c = [[0.0; 3]; 4];
         for (j, &(q, i)) in corners.iter().enumerate() {
-            d[j] = [rays[q].dir[0][i] as f64, rays[q].dir[1][i] as f64, rays[q].dir[2][i] as f64];
-            let l = norm(d[j]);
-            if !(l > 0.0 && l.is_finite()) {
-                return None;
-            }
-            c[j] = [d[j][0] / l, d[j][1] / l, d[j][2] / l];
+            c[j] = unit([rays[q].dir[0][i] as f64, rays[q].dir[1][i] as f64, rays[q].dir[2][i] as f64])?;
         }
         let inside = [c[0][0] + c[1][0] + c[2][0] + c[3][0], c[0][1] + c[1][1] + c[2][1] + c[3][1], c[0][2] + c[1][2] + c[2][2] + c[3][2]];
         let mut n = [[0.0; 3]; 4];
         let mut b = [0.0; 4];
         for i in 0..4 {
             // Eq. 2: n_i = d_i x d_(i+1); Eq. 3: b_i = o_i . n_i.
-            let mut ni = cross(c[i], c[(i + 1) % 4]);
-            let l = norm(ni);
-            if !(l > 0.0 && l.is_finite()) {
-                return None;
-            }
-            ni = [ni[0] / l, ni[1] / l, ni[2] / l];
+            let mut ni = unit(cross(c[i], c[(i + 1) % 4]))?;
             // Outward: the cone's axis lies inside.
             let h = dot(ni, inside);
             if h > 0.0 {
@@ -260,30 +278,39 @@ impl Frustum {
             n[i] = ni;
             b[i] = dot(o, ni);
         }
-        let sc = scale(bounds, &rays[..nq], &live[..nq]);
-        let eps = CULL_EPS * sc;
+        let eps = CULL_EPS * scale(bounds, &rays[..nq], &live[..nq]);
         // Farthest scene point from the apex: rays may stray outside the
         // cone by an angle `slack` only as far as that costs less than a
         // tenth of the margin there.
         let mut far2 = 0.0f64;
         for a in 0..3 {
-            let lo = (bounds.min[a] as f64 - o[a]).abs();
-            let hi = (bounds.max[a] as f64 - o[a]).abs();
-            far2 += lo.max(hi) * lo.max(hi);
+            let g = (bounds.min[a] as f64 - o[a]).abs().max((bounds.max[a] as f64 - o[a]).abs());
+            far2 += g * g;
         }
         let far = math::sqrt64(far2);
         let tol = 0.1 * eps / far.max(eps);
+        // Every live ray inside, 4-wide: n_i . d <= 0 in f32, which may err
+        // by F32_ERR |d|; lanes outside are measured in f64.
         let mut slack = 0.0f64;
-        for (_, dir) in lanes(&rays[..nq], &live[..nq]) {
-            let l = norm(dir);
+        for (r, m) in rays[..nq].iter().zip(&live[..nq]) {
             for ni in &n {
-                let out = dot(*ni, dir) / l;
-                if !(out <= tol) {
-                    return None;
+                let d = r.dir[0] * F4::splat(ni[0] as f32) + r.dir[1] * F4::splat(ni[1] as f32) + r.dir[2] * F4::splat(ni[2] as f32);
+                let out = d.cmpgt(F4::ZERO) & *m;
+                if out.any() {
+                    for l in 0..4 {
+                        if out.test(l) {
+                            let dl = [r.dir[0][l] as f64, r.dir[1][l] as f64, r.dir[2][l] as f64];
+                            let x = dot(*ni, dl) / norm(dl);
+                            if !(x <= tol) {
+                                return None;
+                            }
+                            slack = slack.max(x);
+                        }
+                    }
                 }
-                slack = slack.max(out);
             }
         }
+        let slack = slack + F32_ERR;
         // Rays outside the planes by at most `slack` lie within about
         // `4 slack` of the corner cone (its corners are far from flat).
         Some(Self::finish(FrustumKind::Primary, n, b, eps, eps + slack * far, Some(Apex { o, c, slack: 4.0 * slack })))
@@ -294,22 +321,33 @@ impl Frustum {
     /// without a common origin, or when some ray's `d_k` is zero or points
     /// against the sum.
     pub fn from_common_origin(rays: &[Ray4], live: &[M4], bounds: &Aabb) -> Option<Frustum> {
-        let o = common_origin(rays, live)?;
+        Self::common(common_origin(rays, live)?, rays, live, bounds)
+    }
+
+    fn common(o32: [f32; 3], rays: &[Ray4], live: &[M4], bounds: &Aabb) -> Option<Frustum> {
+        let o = v3(o32);
         let (k, sg) = dominant_axis(rays, live)?;
         let (u, v) = ((k + 1) % 3, (k + 2) % 3);
         // Slopes per unit of travel along k: (d_u, d_v) / |d_k|.
-        let mut ext = [f64::INFINITY, f64::NEG_INFINITY, f64::INFINITY, f64::NEG_INFINITY];
-        for (_, d) in lanes(rays, live) {
-            let dk = d[k] * sg;
-            if !(dk > 0.0) {
+        let (mut eu, mut ev) = ([f32::INFINITY, f32::NEG_INFINITY], [f32::INFINITY, f32::NEG_INFINITY]);
+        for (r, m) in rays.iter().zip(live) {
+            if !m.any() {
+                continue;
+            }
+            let dk = r.dir[k] * F4::splat(sg);
+            if (*m & !dk.cmpgt(F4::ZERO)).any() {
                 return None;
             }
-            let (su, sv) = (d[u] / dk, d[v] / dk);
-            ext = [ext[0].min(su), ext[1].max(su), ext[2].min(sv), ext[3].max(sv)];
+            extend(&mut eu, *m, r.dir[u] / dk);
+            extend(&mut ev, *m, r.dir[v] / dk);
         }
+        // A correctly rounded quotient errs by half an ulp: widen.
+        let w = |x: f32, s: f64| x as f64 + s * F32_ERR * (1.0 + (x as f64).abs());
+        let ext = [w(eu[0], -1.0), w(eu[1], 1.0), w(ev[0], -1.0), w(ev[1], 1.0)];
         if !ext.iter().all(|x| x.is_finite()) {
             return None;
         }
+        let sg = sg as f64;
         let (n, b) = side_planes(k, sg, o[k], [o[u], o[u], o[v], o[v]], ext);
         // Corner directions (u, v, k) = (slope_u, slope_v, +-1), cyclic.
         let corner = |su: f64, sv: f64| {
@@ -317,10 +355,9 @@ impl Frustum {
             c[k] = sg;
             c[u] = su;
             c[v] = sv;
-            let l = norm(c);
-            [c[0] / l, c[1] / l, c[2] / l]
+            unit(c)
         };
-        let c = [corner(ext[0], ext[2]), corner(ext[1], ext[2]), corner(ext[1], ext[3]), corner(ext[0], ext[3])];
+        let c = [corner(ext[0], ext[2])?, corner(ext[1], ext[2])?, corner(ext[1], ext[3])?, corner(ext[0], ext[3])?];
         let eps = CULL_EPS * scale(bounds, rays, live);
         Some(Self::finish(FrustumKind::CommonOrigin, n, b, eps, eps, Some(Apex { o, c, slack: 0.0 })))
     }
@@ -332,32 +369,52 @@ impl Frustum {
     pub fn from_general(rays: &[Ray4], live: &[M4], bounds: &Aabb) -> Option<Frustum> {
         let (k, sg) = dominant_axis(rays, live)?;
         let (u, v) = ((k + 1) % 3, (k + 2) % 3);
-        let eps = CULL_EPS * scale(bounds, rays, live);
+        let sc = scale(bounds, rays, live);
+        let eps = CULL_EPS * sc;
         // Near plane: the origins' box along -k (travel frame); far plane:
-        // the scene box along +k. Both moved out by the margin.
-        let mut onear = f64::INFINITY;
-        for (o, d) in lanes(rays, live) {
-            if !(d[k] * sg > 0.0) {
+        // the scene box along +k. Both moved out by the margin, and kept in
+        // f32 (exactly representable) as the extents are computed in f32.
+        let mut onear = f32::INFINITY;
+        let mut smax = 0.0f32;
+        let sgv = F4::splat(sg);
+        for (r, m) in rays.iter().zip(live) {
+            if !m.any() {
+                continue;
+            }
+            if (*m & !(r.dir[k] * sgv).cmpgt(F4::ZERO)).any() {
                 return None;
             }
-            onear = onear.min(o[k] * sg);
+            onear = onear.min(F4::select(*m, r.org[k] * sgv, F4::INFINITY).min_element());
+            let su = (r.dir[u] / r.dir[k]).abs().max((r.dir[v] / r.dir[k]).abs());
+            smax = smax.max(F4::select(*m, su, F4::ZERO).max_element());
         }
-        let k_near = sg * (onear - eps);
-        let k_far = if sg > 0.0 { bounds.max[k] as f64 + eps } else { bounds.min[k] as f64 - eps };
-        let delta = (k_far - k_near) * sg;
-        if !(delta > 0.0 && delta.is_finite()) {
+        let k_near = (sg as f64 * (onear as f64 - eps)) as f32;
+        let k_far = (if sg > 0.0 { bounds.max[k] as f64 + eps } else { bounds.min[k] as f64 - eps }) as f32;
+        let delta = (k_far as f64 - k_near as f64) * sg as f64;
+        if !(delta > 0.0 && delta.is_finite() && smax.is_finite()) {
             return None;
         }
         // (u, v) extents on both planes.
-        let mut near = [f64::INFINITY, f64::NEG_INFINITY, f64::INFINITY, f64::NEG_INFINITY];
-        let mut far = near;
-        for (o, d) in lanes(rays, live) {
-            let (su, sv) = (d[u] / d[k], d[v] / d[k]);
-            let (un, vn) = (o[u] + (k_near - o[k]) * su, o[v] + (k_near - o[k]) * sv);
-            let (uf, vf) = (o[u] + (k_far - o[k]) * su, o[v] + (k_far - o[k]) * sv);
-            near = [near[0].min(un), near[1].max(un), near[2].min(vn), near[3].max(vn)];
-            far = [far[0].min(uf), far[1].max(uf), far[2].min(vf), far[3].max(vf)];
+        let (kn, kf) = (F4::splat(k_near), F4::splat(k_far));
+        let mut e = [[f32::INFINITY, f32::NEG_INFINITY]; 4];
+        for (r, m) in rays.iter().zip(live) {
+            if !m.any() {
+                continue;
+            }
+            let (su, sv) = (r.dir[u] / r.dir[k], r.dir[v] / r.dir[k]);
+            extend(&mut e[0], *m, r.org[u] + (kn - r.org[k]) * su);
+            extend(&mut e[1], *m, r.org[v] + (kn - r.org[k]) * sv);
+            extend(&mut e[2], *m, r.org[u] + (kf - r.org[k]) * su);
+            extend(&mut e[3], *m, r.org[v] + (kf - r.org[k]) * sv);
         }
+        // Rounding of the f32 extents: a few ulps of the origins' and the
+        // planes' coordinates, the distance between them times the slope.
+        let span = sc + 2.0 * delta;
+        let w = F32_ERR * (sc + span * (1.0 + smax as f64));
+        let lo = |x: f32| x as f64 - w;
+        let hi = |x: f32| x as f64 + w;
+        let near = [lo(e[0][0]), hi(e[0][1]), lo(e[1][0]), hi(e[1][1])];
+        let far = [lo(e[2][0]), hi(e[2][1]), lo(e[3][0]), hi(e[3][1])];
         if !near.iter().chain(far.iter()).all(|x| x.is_finite()) {
             return None;
         }
@@ -368,19 +425,33 @@ impl Frustum {
             (far[2] - near[2]) / delta,
             (far[3] - near[3]) / delta,
         ];
-        let (n, b) = side_planes(k, sg, k_near, near, slope);
+        let (n, b) = side_planes(k, sg as f64, k_near as f64, near, slope);
         Some(Self::finish(FrustumKind::General, n, b, eps, eps, None))
     }
 
     fn finish(kind: FrustumKind, n: [V3; 4], b: [f64; 4], eps: f64, margin: f64, apex: Option<Apex>) -> Frustum {
-        let mut sel = [[0usize; 3]; 4];
-        for i in 0..4 {
-            for a in 0..3 {
-                // The corner with the least H: min where n > 0, max where n < 0.
-                sel[i][a] = if n[i][a] > 0.0 { a } else { a + 4 };
-            }
+        let lanes = |f: &dyn Fn(usize) -> f64| F4::new(f(0) as f32, f(1) as f32, f(2) as f32, f(3) as f32);
+        let nx = lanes(&|i| n[i][0]);
+        let ny = lanes(&|i| n[i][1]);
+        let nz = lanes(&|i| n[i][2]);
+        // The f32 plane test: unit normals, points and offsets of magnitude
+        // up to the scale (eps / CULL_EPS) plus |b|, a few roundings each.
+        let bmax = b.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+        let err = F32_ERR * (4.0 * eps / CULL_EPS + bmax);
+        Frustum {
+            kind,
+            n,
+            b,
+            margin,
+            eps,
+            nx,
+            ny,
+            nz,
+            b4: lanes(&|i| b[i]),
+            pos: [nx.cmpgt(F4::ZERO), ny.cmpgt(F4::ZERO), nz.cmpgt(F4::ZERO)],
+            margin4: F4::splat((margin + err) as f32),
+            apex,
         }
-        Frustum { kind, n, b, margin, eps, sel, apex }
     }
 
     /// Signed distance of `p` beyond plane `i` (Eq. 1 with unit normals).
@@ -389,19 +460,22 @@ impl Frustum {
         dot(self.n[i], p) - self.b[i]
     }
 
+    /// Eq. 1 for point `p` and the four planes at once (lane i = plane i).
+    #[inline(always)]
+    fn h4(&self, p: [F4; 3]) -> F4 {
+        self.nx * p[0] + self.ny * p[1] + self.nz * p[2] - self.b4
+    }
+
     /// Whether `node`'s box lies entirely outside one plane (Eq. 1 at the
     /// box corner nearest the inside, the "n-vertex"), beyond the margin.
     #[inline]
     pub fn cull_aabb(&self, node: &BvhNode) -> bool {
-        let f: &[f32; 8] = bytemuck::cast_ref(node);
-        for i in 0..4 {
-            let s = &self.sel[i];
-            let p = [f[s[0] & 7] as f64, f[s[1] & 7] as f64, f[s[2] & 7] as f64];
-            if self.h(i, p) > self.margin {
-                return true;
-            }
-        }
-        false
+        let p = [
+            F4::select(self.pos[0], F4::splat(node.min[0]), F4::splat(node.max[0])),
+            F4::select(self.pos[1], F4::splat(node.min[1]), F4::splat(node.max[1])),
+            F4::select(self.pos[2], F4::splat(node.min[2]), F4::splat(node.max[2])),
+        ];
+        self.h4(p).cmpgt(self.margin4).any()
     }
 
     /// Whether every ray of the packet misses triangle `t`: all three
@@ -409,14 +483,13 @@ impl Frustum {
     /// corner rays beyond one edge plane.
     #[inline]
     pub fn cull_triangle(&self, t: &TriVerts) -> bool {
-        let p = [v3(t.v0), v3(t.v1), v3(t.v2)];
-        for i in 0..4 {
-            if self.h(i, p[0]) > self.margin && self.h(i, p[1]) > self.margin && self.h(i, p[2]) > self.margin {
-                return true;
-            }
+        let m = self.margin4;
+        let out = self.h4(splat3(t.v0)).cmpgt(m) & self.h4(splat3(t.v1)).cmpgt(m) & self.h4(splat3(t.v2)).cmpgt(m);
+        if out.any() {
+            return true;
         }
         match &self.apex {
-            Some(a) => self.cull_by_corners(a, &p),
+            Some(a) => self.cull_by_corners(a, &[v3(t.v0), v3(t.v1), v3(t.v2)]),
             None => false,
         }
     }
@@ -432,12 +505,6 @@ impl Frustum {
     /// culling is safe when `(-m - slack) R > 2 eps`.
     fn cull_by_corners(&self, a: &Apex, p: &[V3; 3]) -> bool {
         let v = [sub(p[0], a.o), sub(p[1], a.o), sub(p[2], a.o)];
-        let e = [cross(v[0], v[1]), cross(v[1], v[2]), cross(v[2], v[0])];
-        // Triple product: e[0] . v[2] = e[1] . v[0] = e[2] . v[1].
-        let sigma = dot(e[1], v[0]);
-        if sigma == 0.0 || !sigma.is_finite() {
-            return false;
-        }
         // Distance from the apex to the triangle's box.
         let mut r2 = 0.0;
         for ax in 0..3 {
@@ -456,24 +523,25 @@ impl Frustum {
         if !(r2 > 4.0 * eps * eps) {
             return false;
         }
-        let r = math::sqrt64(r2);
+        let e = [cross(v[0], v[1]), cross(v[1], v[2]), cross(v[2], v[0])];
+        // Triple product: e[0] . v[2] = e[1] . v[0] = e[2] . v[1].
+        let sigma = dot(e[1], v[0]);
+        if sigma == 0.0 || !sigma.is_finite() {
+            return false;
+        }
+        // Cull when, for one edge, -m > |e| (slack + 2 eps / R).
+        let need = a.slack + 2.0 * eps / math::sqrt64(r2);
         for ei in &e {
-            let l = norm(*ei);
-            if !(l > 0.0) {
-                continue;
-            }
             let mut m = f64::NEG_INFINITY;
             for c in &a.c {
                 m = m.max(dot(*ei, *c) * sigma.signum());
             }
-            let sep = -m / l - a.slack;
-            if sep * r > 2.0 * eps {
+            if m < 0.0 && m * m > dot(*ei, *ei) * need * need {
                 return true;
             }
         }
         false
     }
-
 }
 
 /// Eq. 2 and 3 for frusta bounded by `(u, v)` extents along axis `k`
@@ -510,8 +578,18 @@ mod tests {
     use crate::accel::bvh::build::testutil::Store;
     use crate::accel::bvh::traverse_masked::tests::{RaySet, built, lattice, packets, ray_sets};
     use crate::accel::bvh::traverse_simd::QuadBox;
-    use crate::geom::{F4, Mt, RayLanes, TriangleTest, Wt};
+    use crate::geom::{Mt, RayLanes, TriangleTest, Wt};
     use glam::Vec3;
+
+    /// Origin and direction of each live lane.
+    fn lanes<'a>(rays: &'a [Ray4], live: &'a [M4]) -> impl Iterator<Item = (V3, V3)> + 'a {
+        rays.iter().zip(live).flat_map(|(r, m)| {
+            let m = *m;
+            (0..4).filter(move |&i| m.test(i)).map(move |i| {
+                ([r.org[0][i] as f64, r.org[1][i] as f64, r.org[2][i] as f64], [r.dir[0][i] as f64, r.dir[1][i] as f64, r.dir[2][i] as f64])
+            })
+        })
+    }
 
     /// Active lanes with valid rays.
     fn live_of(quads: &[Ray4], active: &[M4]) -> Vec<M4> {

@@ -225,7 +225,7 @@ fn walk<T: BvhTest, const ANY: bool>(b: &BvhView<'_>, r: &Ray4, mut live: M4, be
 mod tests {
     use super::*;
     use crate::accel::bvh::build::build;
-    use crate::accel::bvh::build::testutil::{Store, soup};
+    use crate::accel::bvh::build::testutil::{Store, deep_tris, soup};
     use crate::accel::bvh::traverse_single::{self, tests::{Rng, test_rays, tris_of}};
     use crate::accel::bvh::BvhParams;
     use crate::geom::{Mt, Pt, Ray, Scene, TriTest, Wt};
@@ -326,5 +326,8 @@ mod tests {
         check_all(&[], &[], &[], 4);
         let s = crate::scenes::builtin("gears").unwrap();
         check_all(&s.mesh.vertices, &s.mesh.indices, &s.views, 1);
+        // A tree at MAX_DEPTH (full traversal stacks).
+        let (v, ix) = soup(&deep_tris());
+        check::<Mt>(&v, &ix, &[], &BvhParams { leaf_size: 1, bins: 2, ..Default::default() });
     }
 }

@@ -1092,7 +1092,7 @@ pub fn bench(a: &BenchArgs) -> Result<(), Failure> {
                 info.refs,
                 ms(build_ns)
             );
-            let bvh_line = bvh_info.map(|b| format!("bvh {} nodes, {} leaves, depth {}", b.nodes, b.leaves, b.depth)).unwrap_or_default();
+            let bvh_line = bvh_info.map(|b| format!("bvh {} nodes {} leaves depth {}", b.nodes, b.leaves, b.depth)).unwrap_or_default();
             if let Some(b) = bvh_info {
                 println!(
                     "[{}] {}: {bvh_line}, SAH cost {:.1}, build {:.2} ms (median of {BUILD_REPS}) = {:.2} M triangles/s",
@@ -1518,11 +1518,17 @@ mod tests {
             lambda: 5.0,
             macrocell: 6,
             out_dir: dir.clone(),
+            whitted: false,
+            structures: vec![crate::StructureArg::Grid, crate::StructureArg::Bvh],
         };
         bench(&a).unwrap();
         let csv = std::fs::read_to_string(dir.join("bench.csv")).unwrap();
         let lines: Vec<&str> = csv.lines().collect();
-        assert_eq!(lines.len(), 1 + 2 * (1 + 2 + 4), "header + (dda + 2 packet sizes + 4 ablations) x 2 tests");
+        assert_eq!(
+            lines.len(),
+            1 + 2 * (1 + 2 + 4 + 2 + 3 * 2 + 2),
+            "header + (dda + 2 CGT sizes + 4 ablations + BVH single, SIMD, 3 traversals x 2 sizes, 2 without culling) x 2 tests"
+        );
         let head: Vec<&str> = lines[0].split(',').collect();
         let col = |name: &str| head.iter().position(|h| *h == name).unwrap();
         for l in &lines[1..] {
@@ -1540,6 +1546,20 @@ mod tests {
         }
         let svg = std::fs::read_to_string(dir.join("speed_accuracy.svg")).unwrap();
         assert!(svg.contains("Pareto front"));
+        // The Whitted study: every frame identical to its level's SIMD frame.
+        let w = BenchArgs { whitted: true, size: Some((32, 32)), packets: vec![4, 16], threads: vec![2], out_dir: dir.join("whitted"), ..a };
+        bench(&w).unwrap();
+        let csv = std::fs::read_to_string(dir.join("whitted/whitted.csv")).unwrap();
+        let lines: Vec<&str> = csv.lines().collect();
+        let head: Vec<&str> = lines[0].split(',').collect();
+        let diff = head.iter().position(|h| *h == "pixels_differing").unwrap();
+        assert_eq!(lines.len(), 1 + 4 * (1 + 3 * 2 + 2) + 6, "header + 4 levels x 9 configurations + Table 2's 6");
+        for l in &lines[1..] {
+            assert_eq!(l.split(',').nth(diff), Some("0"), "{l}");
+        }
+        for f in ["whitted.md", "figure5.svg", "figure5.png", "whitted_tetra.png"] {
+            assert!(std::fs::metadata(dir.join("whitted").join(f)).unwrap().len() > 0, "{f}");
+        }
         std::fs::remove_dir_all(&dir).ok();
     }
 }

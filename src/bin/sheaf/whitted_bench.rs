@@ -57,7 +57,7 @@ const LEVELS: [Level; 4] = [
     level("2-bounce reflections", false, Some(Material { diffuse: GREY, reflect: 0.8, transmit: 0.0, ior: 1.0 }), 2, 0),
 ];
 /// Table 2's frame.
-const WHITTED: Level = level("Whitted: shadows, 1 reflection, 2 refractions", true, Some(Material { diffuse: GREY, reflect: 0.3, transmit: 0.3, ior: 1.5 }), 1, 2);
+const WHITTED: Level = level("Whitted: shadows + 1 reflection + 2 refractions", true, Some(Material { diffuse: GREY, reflect: 0.3, transmit: 0.3, ior: 1.5 }), 1, 2);
 
 const TRAVERSALS: [Method; 3] = [Method::BvhMasked, Method::BvhRanged, Method::BvhPartition];
 
@@ -461,6 +461,7 @@ mod figure5 {
     use std::path::Path;
 
     const PANEL: (u32, u32) = (360, 260);
+    const TITLE_H: u32 = 52;
 
     fn colour(m: Method) -> RGBColor {
         match m {
@@ -478,14 +479,14 @@ mod figure5 {
         root.fill(&WHITE).map_err(|x| e(&x))?;
         let mut scenes: Vec<&str> = rows.iter().map(|r| r.scene.as_str()).collect();
         scenes.dedup();
-        let (title, body) = root.split_vertically(40);
-        title
-            .draw(&Text::new(
-                "Frame ms vs packet side (BVH paper Figure 5): Masked (green), Ranged (blue), Partition (red), 2x2 SIMD (grey, dashed)",
-                (10, 12),
-                (chart::FONT, 16).into_font(),
-            ))
-            .map_err(|x| e(&x))?;
+        let (title, body) = root.split_vertically(TITLE_H);
+        title.draw(&Text::new("Frame ms vs packet side (BVH paper Figure 5)", (10, 8), (chart::FONT, 16).into_font())).map_err(|x| e(&x))?;
+        let mut x = 10;
+        for (label, c) in [("Masked", colour(Method::BvhMasked)), ("Ranged", colour(Method::BvhRanged)), ("Partition", colour(Method::BvhPartition)), ("2x2 SIMD", RGBColor(120, 120, 120))] {
+            title.draw(&Rectangle::new([(x, 34), (x + 18, 40)], c.filled())).map_err(|x| e(&x))?;
+            title.draw(&Text::new(label, (x + 24, 30), (chart::FONT, 13).into_font())).map_err(|x| e(&x))?;
+            x += 110;
+        }
         let panels = body.split_evenly((LEVELS.len(), scenes.len().max(1)));
         for (i, p) in panels.iter().enumerate() {
             let (lv, sc) = (LEVELS[i / scenes.len().max(1)], scenes.get(i % scenes.len().max(1)).copied().unwrap_or(""));
@@ -527,7 +528,7 @@ mod figure5 {
         chart::register_font()?;
         let mut scenes: Vec<&str> = rows.iter().map(|r| r.scene.as_str()).collect();
         scenes.dedup();
-        let size = (PANEL.0 * scenes.len().max(1) as u32, PANEL.1 * LEVELS.len() as u32 + 40);
+        let size = (PANEL.0 * scenes.len().max(2) as u32, PANEL.1 * LEVELS.len() as u32 + TITLE_H);
         draw(SVGBackend::new(svg, size).into_drawing_area(), rows, packets).map_err(|x| Failure(format!("chart {}: {x}", svg.display())))?;
         let mut buf = vec![0u8; size.0 as usize * size.1 as usize * 3];
         draw(BitMapBackend::with_buffer(&mut buf, size).into_drawing_area(), rows, packets).map_err(|x| Failure(format!("chart: {x}")))?;
