@@ -51,6 +51,16 @@
 //!   packet is not a pinhole packet and gets the `Auto` frustum.
 //! - The general frustum's near and far planes are moved out by the margin
 //!   (hits within rounding of a ray's origin or of the scene box stay inside).
+//! - `RayKind::Shadow` packets whose rays do not share an origin get the
+//!   general frustum (as `Auto`), not none.
+//! - Boxes are culled by the planes only (not by the corner rays' slab
+//!   test of Reshetov et al. 2005); the corner-ray triangle test is used
+//!   only where the rays share an apex, as section 4.2's frusta.
+//! - The dominant axis is that of the largest `|d^s|` component (the paper
+//!   writes `max(d^s_x, d^s_y, d^s_z)`; the sign gives the `+-1`).
+
+// `!(x > 0.0)` and the like are deliberate: NaN must fail the test.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 use super::{BvhNode, RayKind};
 use crate::geom::{Aabb, F4, M4, Ray4, TriVerts};
@@ -177,8 +187,8 @@ fn scale(bounds: &Aabb, rays: &[Ray4], live: &[M4]) -> f64 {
 fn dominant_axis(rays: &[Ray4], live: &[M4]) -> Option<(usize, f32)> {
     let mut s = [F4::ZERO; 3];
     for (r, m) in rays.iter().zip(live) {
-        for a in 0..3 {
-            s[a] += F4::select(*m, r.dir[a], F4::ZERO);
+        for (sa, da) in s.iter_mut().zip(&r.dir) {
+            *sa += F4::select(*m, *da, F4::ZERO);
         }
     }
     let s = [s[0].element_sum(), s[1].element_sum(), s[2].element_sum()];
@@ -278,13 +288,14 @@ impl Frustum {
             n[i] = ni;
             b[i] = dot(o, ni);
         }
-        let eps = CULL_EPS * scale(bounds, &rays[..nq], &live[..nq]);
+        let sc = scale(bounds, &rays[..nq], &live[..nq]);
+        let eps = CULL_EPS * sc;
         // Farthest scene point from the apex: rays may stray outside the
         // cone by an angle `slack` only as far as that costs less than a
         // tenth of the margin there.
         let mut far2 = 0.0f64;
-        for a in 0..3 {
-            let g = (bounds.min[a] as f64 - o[a]).abs().max((bounds.max[a] as f64 - o[a]).abs());
+        for (a, oa) in o.iter().enumerate() {
+            let g = (bounds.min[a] as f64 - oa).abs().max((bounds.max[a] as f64 - oa).abs());
             far2 += g * g;
         }
         let far = math::sqrt64(far2);
@@ -313,7 +324,7 @@ impl Frustum {
         let slack = slack + F32_ERR;
         // Rays outside the planes by at most `slack` lie within about
         // `4 slack` of the corner cone (its corners are far from flat).
-        Some(Self::finish(FrustumKind::Primary, n, b, eps, eps + slack * far, Some(Apex { o, c, slack: 4.0 * slack })))
+        Some(Self::finish(FrustumKind::Primary, n, b, sc, eps + slack * far, Some(Apex { o, c, slack: 4.0 * slack })))
     }
 
     /// Section 4.2: live rays from one origin, bounded by their `(u, v)`
@@ -358,8 +369,8 @@ impl Frustum {
             unit(c)
         };
         let c = [corner(ext[0], ext[2])?, corner(ext[1], ext[2])?, corner(ext[1], ext[3])?, corner(ext[0], ext[3])?];
-        let eps = CULL_EPS * scale(bounds, rays, live);
-        Some(Self::finish(FrustumKind::CommonOrigin, n, b, eps, eps, Some(Apex { o, c, slack: 0.0 })))
+        let sc = scale(bounds, rays, live);
+        Some(Self::finish(FrustumKind::CommonOrigin, n, b, sc, CULL_EPS * sc, Some(Apex { o, c, slack: 0.0 })))
     }
 
     /// Section 4.3: any live rays moving the same way along the dominant
@@ -426,24 +437,25 @@ impl Frustum {
             (far[3] - near[3]) / delta,
         ];
         let (n, b) = side_planes(k, sg as f64, k_near as f64, near, slope);
-        Some(Self::finish(FrustumKind::General, n, b, eps, eps, None))
+        Some(Self::finish(FrustumKind::General, n, b, sc, eps, None))
     }
 
-    fn finish(kind: FrustumKind, n: [V3; 4], b: [f64; 4], eps: f64, margin: f64, apex: Option<Apex>) -> Frustum {
+    /// `sc`: the scale (see `scale`); `margin`: the plane margin.
+    fn finish(kind: FrustumKind, n: [V3; 4], b: [f64; 4], sc: f64, margin: f64, apex: Option<Apex>) -> Frustum {
         let lanes = |f: &dyn Fn(usize) -> f64| F4::new(f(0) as f32, f(1) as f32, f(2) as f32, f(3) as f32);
         let nx = lanes(&|i| n[i][0]);
         let ny = lanes(&|i| n[i][1]);
         let nz = lanes(&|i| n[i][2]);
         // The f32 plane test: unit normals, points and offsets of magnitude
-        // up to the scale (eps / CULL_EPS) plus |b|, a few roundings each.
+        // up to the scale plus |b|, a few roundings each.
         let bmax = b.iter().fold(0.0f64, |m, x| m.max(x.abs()));
-        let err = F32_ERR * (4.0 * eps / CULL_EPS + bmax);
+        let err = F32_ERR * (4.0 * sc + bmax);
         Frustum {
             kind,
             n,
             b,
             margin,
-            eps,
+            eps: CULL_EPS * sc,
             nx,
             ny,
             nz,
@@ -507,9 +519,8 @@ impl Frustum {
         let v = [sub(p[0], a.o), sub(p[1], a.o), sub(p[2], a.o)];
         // Distance from the apex to the triangle's box.
         let mut r2 = 0.0;
-        for ax in 0..3 {
-            let lo = v[0][ax].min(v[1][ax]).min(v[2][ax]);
-            let hi = v[0][ax].max(v[1][ax]).max(v[2][ax]);
+        for ((a, b), c) in v[0].iter().zip(&v[1]).zip(&v[2]) {
+            let (lo, hi) = (a.min(*b).min(*c), a.max(*b).max(*c));
             let g = if lo > 0.0 {
                 lo
             } else if hi < 0.0 {
@@ -729,6 +740,24 @@ mod tests {
             assert_eq!(kind_of(&sets[2], n, RayKind::Auto), Some(FrustumKind::General));
             // Not a pinhole packet: Primary falls back to Auto.
             assert_eq!(kind_of(&sets[2], n, RayKind::Primary), Some(FrustumKind::General));
+        }
+        // Camera rays of every built-in view: full packets get the corner
+        // frustum (the rounding of camera rays is within its tolerance).
+        for name in crate::scenes::BUILTIN_NAMES {
+            let sc = crate::scenes::builtin(name).unwrap();
+            let mut st2 = Store::new(0, false);
+            let bvh2 = built::<Mt>(&mut st2, &sc.mesh.vertices, &sc.mesh.indices, 4);
+            let b2 = bvh2.view().unwrap();
+            let root2 = b2.nodes[0].aabb();
+            for view in &sc.views {
+                let set = &ray_sets::<Mt>(&b2, view, sc.light, 64, 64, 1)[0];
+                for n in [2, 4, 8, 16, 32] {
+                    for (quads, active, _) in packets(set, n) {
+                        let f = Frustum::new(RayKind::Primary, &quads, &active, &root2).unwrap();
+                        assert_eq!(f.kind, FrustumKind::Primary, "{name} {view:?} n={n}");
+                    }
+                }
+            }
         }
         // A partial packet (corner lanes inactive) falls back too.
         let (quads, mut active, _) = packets(&sets[0], 8).swap_remove(0);

@@ -338,7 +338,7 @@ pub fn info(a: &InfoArgs) -> Result<(), Failure> {
         limits.grid_refs()
     );
     if n > 0 {
-        let (ctx, info) = run::context_for(&scene, limits, &a.grid.params(), 1.0)?;
+        let (mut ctx, info) = run::context_for(&scene, limits, &a.grid.params(), 1.0)?;
         let mut tight = *ctx.limits();
         tight.max_grid_cells = info.cells().max(1) as u32;
         tight.max_grid_refs = info.refs.max(1);
@@ -350,6 +350,23 @@ pub fn info(a: &InfoArgs) -> Result<(), Failure> {
             "tight      {tight_bytes} bytes ({:.2} MiB, {:.1} bytes/triangle) with the grid pools cut to this grid's cells and refs",
             mib(tight_bytes),
             tight_bytes as f64 / n as f64
+        );
+        let b = ctx.build_bvh(&scene, &sheaf::BvhParams { test: info.test, ..Default::default() })?;
+        let bvh_only = Limits { structures: Limits::BVH, ..limits };
+        println!(
+            "bvh        {} nodes, {} leaves, depth {}, SAH cost {:.1} (leaves of up to 4, 16 bins), build {:.2} ms = {:.2} M triangles/s",
+            b.nodes,
+            b.leaves,
+            b.depth,
+            b.sah_cost,
+            ms(ctx.stats().bvh_build_ns),
+            b.triangles as f64 / (ctx.stats().bvh_build_ns.max(1) as f64 * 1e-3)
+        );
+        println!(
+            "bvh only   {} bytes ({:.2} MiB, {:.1} bytes/triangle) with Limits::structures = BVH",
+            required_bytes(&bvh_only)?,
+            mib(required_bytes(&bvh_only)?),
+            required_bytes(&bvh_only)? as f64 / n as f64
         );
     }
     Ok(())
