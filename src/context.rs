@@ -620,9 +620,12 @@ impl Tracer for SceneTracer<'_> {
         }
     }
     fn triangle(&self, prim: u32) -> Option<TriVerts> {
-        match (self.grid(), self.bvh()) {
-            (Some(g), _) => g.triangle(prim),
-            (None, Some(b)) => b.triangle(prim),
+        // NOTE(perf): the BVH finds a triangle by id in O(1) (`slot_of`), the
+        // grid by binary search; shading every hit of a Whitted frame spent
+        // 23 % of its time in that search (conference, perf).
+        match (self.bvh(), self.grid()) {
+            (Some(b), _) => b.triangle(prim),
+            (None, Some(g)) => g.triangle(prim),
             (None, None) => None,
         }
     }
