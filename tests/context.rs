@@ -244,8 +244,14 @@ fn projection_test_needs_its_pool() {
     assert!(matches!(ctx.build_grid(&scene, &p), Err(Error::InvalidArgument(_))));
     let mut l = Limits::for_triangles(4);
     l.projection_test = true;
+    // One projection pool per structure with pools (grid and BVH by default).
     let extra = sheaf::mem::pool_bytes::<sheaf::geom::ProjTri>(4);
-    assert_eq!(required_bytes(&l).unwrap(), required_bytes(&Limits::for_triangles(4)).unwrap() + extra);
+    assert_eq!(required_bytes(&l).unwrap(), required_bytes(&Limits::for_triangles(4)).unwrap() + 2 * extra);
+    let grid_only = |mut l: Limits| {
+        l.structures = Limits::GRID;
+        l
+    };
+    assert_eq!(required_bytes(&grid_only(l)).unwrap(), required_bytes(&grid_only(Limits::for_triangles(4))).unwrap() + extra);
     let mut ctx = OwnedContext::new(&l).unwrap();
     ctx.build_grid(&scene, &p).unwrap();
     let rays = down_rays();

@@ -2,7 +2,8 @@
 //! as the single-ray path with the same structure, for reflective,
 //! refractive and mixed materials, several lights and every packet size;
 //! total internal reflection keeps a path's weight; bad materials and
-//! bounce limits are rejected.
+//! bounce limits are rejected. Every BVH traversal renders the BVH single
+//! ray's image, which is also the grid's.
 
 mod common;
 
@@ -27,7 +28,6 @@ fn context(vertices: &[f32], indices: &[u32]) -> OwnedContext {
     let mut ctx = OwnedContext::new(&l).unwrap();
     let scene = Scene::from_f32(vertices, indices).unwrap();
     ctx.build_grid(&scene, &GridParams::default()).unwrap();
-    // BVH methods: ctx.build_bvh(&scene, &BvhParams::default()).unwrap();
     ctx
 }
 
@@ -365,6 +365,49 @@ fn timing_512() {
                 ts / tp,
                 ts / td
             );
+        }
+    }
+}
+
+/// The BVH traversals render the same Whitted image as the BVH's single
+/// ray: SIMD, Masked, Ranged and Partition at 4x4 to 32x32, with and without
+/// culling, the paper's mixed setup (Ranged camera and shadow rays,
+/// Partition reflection and refraction rays) included; and that image is
+/// the grid's (same triangle test, same rays).
+#[test]
+fn bvh_traversals_render_the_same_whitted_frames() {
+    for s in builtin_scenes() {
+        let mut ctx = context(&s.vertices, &s.indices);
+        ctx.build_bvh(&s.scene(), &sheaf::BvhParams::default()).unwrap();
+        let (v, light) = (&s.views[0].1, s.light);
+        let f = frame(v, light, 64, 48);
+        let ranges = mixed_ranges(s.triangles());
+        let mats = [REFLECTIVE, REFRACTIVE, BOTH, RED];
+        let materials = Materials { materials: &mats, ranges: &ranges };
+        let params = WhittedParams { max_reflect: 2, max_refract: 2 };
+        let stride = 64 * 4;
+        let mut want = vec![0u8; stride * 48];
+        let single = TraceParams::bvh(Method::BvhSingle, 0);
+        ctx.render_whitted(&WhittedJob::new(&f, materials, params, single), &mut want, stride).unwrap();
+        let mut grid = vec![0u8; stride * 48];
+        ctx.render_whitted(&WhittedJob::new(&f, materials, params, TraceParams::dda()), &mut grid, stride).unwrap();
+        assert_same(&format!("{} bvh-single vs grid-dda", s.name), &grid, &want, 64);
+        let mut cases = vec![WhittedJob::new(&f, materials, params, TraceParams::bvh(Method::BvhSimd, 2))];
+        for m in [Method::BvhMasked, Method::BvhRanged, Method::BvhPartition] {
+            for n in [4, 16, 32] {
+                for culling in [true, false] {
+                    let p = TraceParams { bvh: sheaf::trace::BvhOptions { culling, ..Default::default() }, ..TraceParams::bvh(m, n) };
+                    cases.push(WhittedJob::new(&f, materials, params, p));
+                }
+            }
+        }
+        let ranged = TraceParams::bvh(Method::BvhRanged, 16);
+        cases.push(WhittedJob { secondary: TraceParams::bvh(Method::BvhPartition, 16), ..WhittedJob::new(&f, materials, params, ranged) });
+        for job in &cases {
+            let mut got = vec![0u8; stride * 48];
+            ctx.render_whitted(job, &mut got, stride).unwrap();
+            let what = format!("{} {} {} culling {}", s.name, job.primary.method.name(), job.primary.packet, job.primary.bvh.culling);
+            assert_same(&what, &got, &want, 64);
         }
     }
 }
