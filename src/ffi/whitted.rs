@@ -29,7 +29,7 @@ fn borrow<'a, T>(p: *const T, n: usize, what: &'static str) -> Result<&'a [T]> {
     if n == 0 {
         return Ok(&[]);
     }
-    if !(p as usize).is_multiple_of(core::mem::align_of::<T>()) {
+    if (p as usize) % core::mem::align_of::<T>() != 0 {
         return Err(Error::Misaligned { required: core::mem::align_of::<T>() as u32 });
     }
     // SAFETY: non-NULL (n > 0, checked), aligned (checked), and the C
