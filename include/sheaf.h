@@ -333,25 +333,14 @@ typedef struct sheaf_limits {
      */
     bool projection_test;
     /**
-     * Which structures get pools, a bit set of `Limits::GRID` (169 bytes
-     * per triangle with the default grid rules and 8 threads) and
-     * `Limits::BVH` (140 bytes per triangle). A structure without pools
-     * cannot be built; model no more than the scene needs.
+     * Which structures get pools, a bit set of `SHEAF_STRUCTURE_GRID` (169
+     * bytes per triangle with the default grid rules and 8 threads) and
+     * `SHEAF_STRUCTURE_BVH` (140 bytes per triangle), at least one. A
+     * structure without pools cannot be built; model no more than the
+     * scene needs.
      */
     uint32_t structures;
 } sheaf_limits;
-/**
- * `structures` bit: the uniform grid (C: `SHEAF_STRUCTURE_GRID`).
- */
-#define sheaf_limits_GRID 1
-/**
- * `structures` bit: the BVH (C: `SHEAF_STRUCTURE_BVH`).
- */
-#define sheaf_limits_BVH 2
-/**
- * Every structure bit this version knows.
- */
-#define sheaf_limits_ALL_STRUCTURES (sheaf_limits_GRID | sheaf_limits_BVH)
 
 /**
  * Tunables of the uniform grid (Wald et al. 2006, "Ray Tracing Animated
@@ -422,8 +411,8 @@ typedef struct sheaf_hit {
 } sheaf_hit;
 
 /**
- * Method, packet side and CGT switches for one class of rays (primary or
- * shadow). Start from `sheaf_trace_params_default`.
+ * Method, packet side, CGT switches and BVH frustum settings for one class
+ * of rays (camera, shadow, or reflection and refraction). Start from `sheaf_trace_params_default`.
  */
 typedef struct sheaf_trace_params {
     /**
@@ -900,6 +889,9 @@ sheaf_status sheaf_context_build_bvh(struct sheaf_context *ctx,
  * `tmin < 0` or `tmin > tmax` are misses. Results are those of the Rust
  * API (`Context::trace`), bit for bit.
  *
+ * Packet methods keep a packet's rays and scratch on the calling thread's
+ * stack (up to about 160 KB at 32x32).
+ *
  * Thread-safe: several threads may trace (and call occluded, stats,
  * last_error) on one built context at the same time. Does not update
  * `sheaf_stats` (whose counters describe the last render).
@@ -1094,8 +1086,13 @@ sheaf_status sheaf_whitted_params_default(struct sheaf_whitted_params *out);
  *
  * `primary`, `shadow` and `secondary` (copied) choose the method of camera,
  * shadow, and reflection/refraction rays; their structures must be built.
- * Packet methods render n x n tiles, n the largest tile side of the three.
- * The image does not depend on these choices.
+ * Packet methods render n x n tiles, n the largest tile side of the three
+ * (camera packets take that side). The image does not depend on these
+ * choices.
+ *
+ * Stack: packets live on the calling thread's stack, about 300 KB for
+ * 16x16 tiles and 900 KB for 32x32 tiles at 8 bounces; call it from a
+ * thread with at least 1 MB of stack for 32x32.
  *
  * Updates `sheaf_stats` (counters, trace time). All arrays are only read
  * and must be naturally aligned.

@@ -353,8 +353,10 @@ impl<'a> Context<'a> {
     /// sections 2.4 and 6) on the calling thread: `job.primary`,
     /// `job.shadow` and `job.secondary` choose the method per ray class.
     /// Packet methods render n x n tiles, n the largest tile side of the
-    /// three (`TraceParams::tile_side`); single-ray methods alone render ray
-    /// tree by ray tree. The image does not depend on these choices.
+    /// three (`TraceParams::tile_side`), and camera packets take that side;
+    /// single-ray methods alone render ray tree by ray tree. Hit triangles
+    /// are looked up in the primary method's structure. The image does not
+    /// depend on these choices.
     pub fn render_whitted(&mut self, job: &WhittedJob<'_>, pixels: &mut [u8], stride: usize) -> Result<Counters> {
         job.validate()?;
         let rays = self.check_frame(job.frame, pixels.len(), stride)?;
@@ -441,7 +443,7 @@ impl Tracer for GridTracer<'_> {
         Some(self.view.tris[i])
     }
     fn scene_scale(&self) -> f32 {
-        self.view.info.bounds.diagonal().length()
+        scale_of(&self.view.info.scene_bounds)
     }
 }
 
@@ -514,20 +516,26 @@ impl Tracer for BvhTracer<'_> {
                 use bvh::traverse_partition::occluded;
                 by_test!(test, occluded(v, rays, active, hits, o, ctr))
             }
-            _ => lane_by_lane(rays, active, hits, |r, c| if self.occluded(r, c) { OCCLUDED } else { Hit::MISS }, ctr),
+            _ => {
+                use bvh::traverse_single::any_hit;
+                lane_by_lane(rays, active, hits, |r, c| by_test!(test, any_hit(v, r, c)), ctr)
+            }
         }
     }
     fn triangle(&self, prim: u32) -> Option<TriVerts> {
         self.view.triangle(prim)
     }
     fn scene_scale(&self) -> f32 {
-        self.view.info.bounds.diagonal().length()
+        scale_of(&self.view.info.bounds)
     }
 }
 
-/// What a single-ray occlusion query reports in a packet's hits: any
-/// triangle id marks the lane occluded.
-const OCCLUDED: Hit = Hit { t: 0.0, prim: 0, u: 0.0, v: 0.0 };
+/// Scene scale of the stored triangles' (unpadded) bounds, the same for
+/// every structure built from one scene, so shading offsets (and images) do
+/// not depend on the structure.
+fn scale_of(b: &crate::geom::Aabb) -> f32 {
+    if b.is_empty() { 1.0 } else { b.diagonal().length() }
+}
 
 /// A packet traced one active lane at a time by a single-ray method.
 fn lane_by_lane(rays: &[Ray4], active: &[M4], hits: &mut [Hit4], f: impl Fn(&Ray, &mut Counters) -> Hit, ctr: &mut Counters) {
@@ -619,21 +627,22 @@ impl Tracer for SceneTracer<'_> {
             None => lane_by_lane(rays, active, hits, |_, _| Hit::MISS, ctr),
         }
     }
+    /// The triangle from the structure of `single` (the primary method's):
+    /// a structure left over from an older frame is never consulted.
+    /// NOTE(perf): the BVH finds a triangle by id in O(1) (`slot_of`), the
+    /// grid by binary search (23 % of a Whitted frame on conference, perf).
     fn triangle(&self, prim: u32) -> Option<TriVerts> {
-        // NOTE(perf): the BVH finds a triangle by id in O(1) (`slot_of`), the
-        // grid by binary search; shading every hit of a Whitted frame spent
-        // 23 % of its time in that search (conference, perf).
-        match (self.bvh(), self.grid()) {
-            (Some(b), _) => b.triangle(prim),
-            (None, Some(g)) => g.triangle(prim),
-            (None, None) => None,
+        match self.of(self.single) {
+            Some(AnyTracer::Grid(g)) => g.triangle(prim),
+            Some(AnyTracer::Bvh(b)) => b.triangle(prim),
+            None => None,
         }
     }
     fn scene_scale(&self) -> f32 {
-        match (self.grid(), self.bvh()) {
-            (Some(g), _) => g.scene_scale(),
-            (None, Some(b)) => b.scene_scale(),
-            (None, None) => 1.0,
+        match self.of(self.single) {
+            Some(AnyTracer::Grid(g)) => g.scene_scale(),
+            Some(AnyTracer::Bvh(b)) => b.scene_scale(),
+            None => 1.0,
         }
     }
 }

@@ -277,3 +277,38 @@ fn context_calls_and_failed_builds() {
     assert!(matches!(grid_only.build_bvh(&s.scene(), &BvhParams::default()), Err(sheaf::Error::InvalidArgument(_))));
     assert!(sheaf::required_bytes(&l2).unwrap() < sheaf::required_bytes(&l).unwrap());
 }
+
+/// A structure left over from an older scene is never consulted: build the
+/// grid and the BVH from one scene, rebuild only the grid from another, and
+/// the grid's frame equals a fresh grid-only context's. And `structures`
+/// must name a structure.
+#[test]
+fn stale_structures_do_not_shade_new_frames() {
+    let scenes = builtin_scenes();
+    let (a, b) = (&scenes[0], &scenes[2]);
+    let n = a.triangles().max(b.triangles());
+    let mut l = Limits::for_triangles(n);
+    l.max_vertices = ((a.vertices.len().max(b.vertices.len())) / 3) as u32;
+    let frame = sheaf::Frame {
+        camera: sheaf::Camera { eye: b.views[0].1.eye.to_array(), look_at: b.views[0].1.look_at.to_array(), up: b.views[0].1.up.to_array(), fov_y_deg: 45.0 },
+        light: sheaf::PointLight { position: b.light.to_array(), color: [1.0; 3] },
+        shading: sheaf::Shading::default(),
+        width: 48,
+        height: 32,
+    };
+    let mut both = OwnedContext::new(&l).unwrap();
+    both.build_grid(&a.scene(), &sheaf::GridParams::default()).unwrap();
+    both.build_bvh(&a.scene(), &BvhParams::default()).unwrap();
+    both.build_grid(&b.scene(), &sheaf::GridParams::default()).unwrap();
+    let mut fresh = OwnedContext::new(&l).unwrap();
+    fresh.build_grid(&b.scene(), &sheaf::GridParams::default()).unwrap();
+    let (mut got, mut want) = (vec![0u8; 48 * 32 * 4], vec![0u8; 48 * 32 * 4]);
+    for m in [Method::GridDda, Method::GridCgt] {
+        both.render(m, &frame, &mut got, 48 * 4).unwrap();
+        fresh.render(m, &frame, &mut want, 48 * 4).unwrap();
+        assert!(got == want, "{}: the old BVH shaded the new grid's hits", m.name());
+    }
+    let mut none = l;
+    none.structures = 0;
+    assert!(matches!(OwnedContext::new(&none), Err(sheaf::Error::InvalidArgument(_))));
+}

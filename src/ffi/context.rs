@@ -470,6 +470,9 @@ pub extern "C" fn sheaf_context_build_bvh(ctx: *mut sheaf_context, params: *cons
 /// `tmin < 0` or `tmin > tmax` are misses. Results are those of the Rust
 /// API (`Context::trace`), bit for bit.
 ///
+/// Packet methods keep a packet's rays and scratch on the calling thread's
+/// stack (up to about 160 KB at 32x32).
+///
 /// Thread-safe: several threads may trace (and call occluded, stats,
 /// last_error) on one built context at the same time. Does not update
 /// `sheaf_stats` (whose counters describe the last render).

@@ -6,8 +6,8 @@ use super::{check_non_null, guard_free, raw, write_out};
 use crate::error::Result;
 use crate::trace::{CgtOptions, TraceParams};
 
-/// Method, packet side and CGT switches for one class of rays (primary or
-/// shadow). Start from `sheaf_trace_params_default`.
+/// Method, packet side, CGT switches and BVH frustum settings for one class
+/// of rays (camera, shadow, or reflection and refraction). Start from `sheaf_trace_params_default`.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct sheaf_trace_params {

@@ -28,19 +28,23 @@ pub struct Limits {
     /// Reserve 48 bytes per triangle for the precomputed projection test
     /// (`TriTest::Projection`); without it that test cannot be selected.
     pub projection_test: bool,
-    /// Which structures get pools, a bit set of `Limits::GRID` (169 bytes
-    /// per triangle with the default grid rules and 8 threads) and
-    /// `Limits::BVH` (140 bytes per triangle). A structure without pools
-    /// cannot be built; model no more than the scene needs.
+    /// Which structures get pools, a bit set of `SHEAF_STRUCTURE_GRID` (169
+    /// bytes per triangle with the default grid rules and 8 threads) and
+    /// `SHEAF_STRUCTURE_BVH` (140 bytes per triangle), at least one. A
+    /// structure without pools cannot be built; model no more than the
+    /// scene needs.
     pub structures: u32,
 }
 
 impl Limits {
     /// `structures` bit: the uniform grid (C: `SHEAF_STRUCTURE_GRID`).
+    /// cbindgen:ignore
     pub const GRID: u32 = 1;
     /// `structures` bit: the BVH (C: `SHEAF_STRUCTURE_BVH`).
+    /// cbindgen:ignore
     pub const BVH: u32 = 2;
     /// Every structure bit this version knows.
+    /// cbindgen:ignore
     pub const ALL_STRUCTURES: u32 = Self::GRID | Self::BVH;
 
     /// Whether `structure` (a `Limits::GRID`-style bit) has pools.
@@ -85,8 +89,8 @@ impl Limits {
         if self.max_image_width == 0 || self.max_image_height == 0 {
             return Err(Error::InvalidArgument("max_image_width and max_image_height must be > 0"));
         }
-        if self.structures & !Self::ALL_STRUCTURES != 0 {
-            return Err(Error::InvalidArgument("structures holds unknown bits"));
+        if self.structures & !Self::ALL_STRUCTURES != 0 || self.structures == 0 {
+            return Err(Error::InvalidArgument("structures must name at least one structure and no unknown bits"));
         }
         if self.grid_cells() > u32::MAX as u64 - 1 || self.grid_refs() > u32::MAX as u64 {
             return Err(Error::InvalidArgument("grid pools must stay below 2^32 entries"));

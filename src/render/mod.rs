@@ -350,7 +350,7 @@ pub fn shadow_packet<T: Tracer + ?Sized>(
     if !active.iter().any(|m| m.any()) {
         return;
     }
-    if p.split > 0.0 && rays.len() >= 4 {
+    if p.split > 0.0 && rays.len() >= 4 && rays.len() % 4 == 0 {
         let (mut lo, mut hi) = (f32::INFINITY, 0.0f32);
         for (m, d) in active.iter().zip(dist) {
             lo = lo.min(F4::select(*m, *d, F4::INFINITY).min_element());

@@ -21,8 +21,8 @@
 //! the root. Triangles are stored in leaf order.
 //!
 //! # Exactness
-//! Every stored box is padded by `BOX_PAD` times the scene's largest
-//! coordinate magnitude, so the point a triangle test reports lies inside
+//! Every stored box is padded by `BOX_PAD` times (the scene's largest
+//! coordinate magnitude + its bounds' diagonal), so the point a triangle test reports lies inside
 //! every box on the way to that triangle despite rounding. A box is skipped
 //! only when its entry lies strictly beyond the ray's current nearest hit, so
 //! the set of triangles tested always contains the nearest one, whatever the

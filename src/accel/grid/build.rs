@@ -124,6 +124,7 @@ pub fn build(grid: &mut Grid<'_>, scene: &Scene<'_>, p: &GridParams, max_cells: 
         test: p.test,
         ..GridInfo::default()
     };
+    info.scene_bounds = bounds;
     if n == 0 {
         bounds = Aabb { min: Vec3::ZERO, max: Vec3::ONE };
         info.res = [1, 1, 1];

@@ -53,6 +53,9 @@ pub struct GridInfo {
     /// World-space bounds of the grid (the valid triangles' bounds, padded
     /// so no axis is flat).
     pub bounds: Aabb,
+    /// Bounds of the stored triangles, unpadded (what `BvhInfo::bounds`
+    /// holds too: the scene scale shading offsets derive from).
+    pub scene_bounds: Aabb,
     pub cell_size: Vec3,
     /// Cells per world unit, per axis.
     pub inv_cell: Vec3,
