@@ -6,10 +6,15 @@
  * (sheaf_context_create_in: sheaf never allocates), renders one frame with
  * shadows and writes it as a binary PPM.
  *
+ * With a fourth argument `whitted` it reserves and builds only the BVH and
+ * renders a Whitted frame instead: a mirror floor, a glass pyramid, two
+ * lights, 16x16 packets (Ranged for camera and shadow rays, Partition for
+ * reflection and refraction rays).
+ *
  * Build and run from the repository root (the Makefile first runs
  * `cargo build --release --lib`, then links target/release/libsheaf.a):
  *   make -C examples-c            (static; `make -C examples-c shared` for the .so)
- *   examples-c/render [out.ppm] [width] [height]
+ *   examples-c/render [out.ppm] [width] [height] [whitted]
  */
 #include "sheaf.h"
 
@@ -88,6 +93,8 @@ int main(int argc, char **argv) {
     const char *path = argc > 1 ? argv[1] : "render.ppm";
     uint32_t width = argc > 2 ? (uint32_t)atoi(argv[2]) : 640;
     uint32_t height = argc > 3 ? (uint32_t)atoi(argv[3]) : 480;
+    int whitted = argc > 4 && strcmp(argv[4], "whitted") == 0;
+    uint32_t pyramid_first = 0;
     sheaf_limits limits;
     sheaf_context *ctx = NULL;
     sheaf_frame frame;
@@ -99,13 +106,15 @@ int main(int argc, char **argv) {
     FILE *out;
 
     if (width == 0 || height == 0) {
-        fprintf(stderr, "usage: %s [out.ppm] [width] [height]\n", argv[0]);
+        fprintf(stderr, "usage: %s [out.ppm] [width] [height] [whitted]\n", argv[0]);
         return 2;
     }
     build_scene();
+    pyramid_first = n_triangles - 16; /* the pyramid's 4 faces, then the tower's 12 */
 
     /* 1. All the memory the context will ever use, allocated here, 64-byte aligned. */
     if ((s = sheaf_limits_default(n_triangles, &limits)) != SHEAF_STATUS_OK) return fail("sheaf_limits_default", s, NULL);
+    if (whitted) limits.structures = SHEAF_STRUCTURE_BVH; /* pools for the BVH only */
     if ((s = sheaf_required_bytes(&limits, &need)) != SHEAF_STATUS_OK) return fail("sheaf_required_bytes", s, NULL);
     memory = malloc(need + SHEAF_CONTEXT_ALIGN);
     if (memory == NULL) return 1;
@@ -117,7 +126,11 @@ int main(int argc, char **argv) {
     if ((s = sheaf_context_set_geometry(ctx, &vertices[0][0], sizeof vertices[0], n_vertices, &indices[0][0],
                                         n_triangles)) != SHEAF_STATUS_OK)
         return fail("sheaf_context_set_geometry", s, ctx);
-    if ((s = sheaf_context_build_grid(ctx, NULL)) != SHEAF_STATUS_OK) return fail("sheaf_context_build_grid", s, ctx);
+    if (whitted) {
+        if ((s = sheaf_context_build_bvh(ctx, NULL)) != SHEAF_STATUS_OK) return fail("sheaf_context_build_bvh", s, ctx);
+    } else if ((s = sheaf_context_build_grid(ctx, NULL)) != SHEAF_STATUS_OK) {
+        return fail("sheaf_context_build_grid", s, ctx);
+    }
 
     /* 3. One frame. */
     memset(&frame, 0, sizeof frame);
@@ -136,9 +149,34 @@ int main(int argc, char **argv) {
     frame.height = height;
     rgba = (uint8_t *)malloc(stride * height);
     if (rgba == NULL) return 1;
-    if ((s = sheaf_context_render(ctx, SHEAF_METHOD_GRID_DDA, &frame, rgba, stride, stride * height)) !=
-        SHEAF_STATUS_OK)
+    if (whitted) {
+        /* Floor (triangles 0-1) a mirror, boxes diffuse, pyramid glass, tower diffuse. */
+        sheaf_material mats[3] = {{{0.5f, 0.5f, 0.55f}, 0.5f, 0.0f, 1.0f},
+                                  {{0.8f, 0.78f, 0.72f}, 0.0f, 0.0f, 1.0f},
+                                  {{0.9f, 0.95f, 1.0f}, 0.1f, 0.8f, 1.5f}};
+        sheaf_material_range ranges[4] = {{0, 0}, {2, 1}, {0, 2}, {0, 1}};
+        sheaf_light lights[2];
+        sheaf_trace_params camera, secondary;
+        ranges[2].first = pyramid_first;
+        ranges[3].first = pyramid_first + 4;
+        lights[0] = frame.light;
+        lights[1] = frame.light;
+        lights[1].position[0] = 8.0f;
+        lights[1].color[0] = 0.5f;
+        lights[1].color[1] = 0.45f;
+        lights[1].color[2] = 0.3f;
+        (void)sheaf_trace_params_default(&camera);
+        camera.method = SHEAF_METHOD_BVH_RANGED;
+        camera.packet = 16;
+        secondary = camera;
+        secondary.method = SHEAF_METHOD_BVH_PARTITION;
+        if ((s = sheaf_context_render_whitted(ctx, &camera, &camera, &secondary, NULL, &frame, lights, 2, mats, 3,
+                                              ranges, 4, rgba, stride, stride * height)) != SHEAF_STATUS_OK)
+            return fail("sheaf_context_render_whitted", s, ctx);
+    } else if ((s = sheaf_context_render(ctx, SHEAF_METHOD_GRID_DDA, &frame, rgba, stride, stride * height)) !=
+               SHEAF_STATUS_OK) {
         return fail("sheaf_context_render", s, ctx);
+    }
     (void)sheaf_context_stats(ctx, &stats);
 
     /* 4. PPM (RGB, alpha dropped). */
@@ -152,10 +190,16 @@ int main(int argc, char **argv) {
         for (x = 0; x < width; ++x) fwrite(rgba + y * stride + 4 * x, 1, 3, out);
     fclose(out);
 
-    printf("sheaf %s: %u triangles, grid %ux%ux%u (%u refs), build %.3f ms, %llu rays in %.3f ms -> %s\n",
-           sheaf_version_string(), stats.triangles, stats.grid_res[0], stats.grid_res[1], stats.grid_res[2],
-           stats.grid_refs, (double)stats.build_ns * 1e-6, (unsigned long long)stats.counters.rays,
-           (double)stats.trace_ns * 1e-6, path);
+    if (whitted)
+        printf("sheaf %s: %u triangles, BVH %u nodes (depth %u), build %.3f ms, Whitted frame: %llu rays in %.3f ms -> %s\n",
+               sheaf_version_string(), stats.bvh_triangles, stats.bvh_nodes, stats.bvh_depth,
+               (double)stats.bvh_build_ns * 1e-6, (unsigned long long)stats.counters.rays,
+               (double)stats.trace_ns * 1e-6, path);
+    else
+        printf("sheaf %s: %u triangles, grid %ux%ux%u (%u refs), build %.3f ms, %llu rays in %.3f ms -> %s\n",
+               sheaf_version_string(), stats.triangles, stats.grid_res[0], stats.grid_res[1], stats.grid_res[2],
+               stats.grid_refs, (double)stats.build_ns * 1e-6, (unsigned long long)stats.counters.rays,
+               (double)stats.trace_ns * 1e-6, path);
 
     sheaf_context_destroy(ctx);
     free(memory);
