@@ -124,12 +124,6 @@ impl<'a> Materials<'a> {
             None => Material::diffuse(albedo),
         }
     }
-
-    /// Whether any material reflects or transmits (else a Whitted frame is
-    /// a plain diffuse frame).
-    pub fn any_secondary(&self) -> bool {
-        self.materials.iter().any(|m| m.reflect > 0.0 || m.transmit > 0.0)
-    }
 }
 
 #[cfg(test)]
@@ -157,7 +151,6 @@ mod tests {
         assert_eq!(m.lookup(u32::MAX, A), mats[0]);
         assert_eq!(Materials::NONE.lookup(3, A), d);
         assert_eq!(Materials::uniform(&mats[1]).lookup(12345, A), mats[1]);
-        assert!(m.any_secondary() && !Materials::NONE.any_secondary());
     }
 
     #[test]
