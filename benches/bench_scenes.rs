@@ -11,8 +11,8 @@ use sheaf::{Limits, Ray, Scene};
 /// Shared with the tests: OBJ loading (tobj) and the scenes folder.
 #[path = "../tests/common/mod.rs"]
 mod common;
-use common::{load_obj, scenes_dir};
 pub use common::view_rays;
+use common::{load_obj, scenes_dir};
 
 /// Image side of the traced view (rays per iteration: `SIDE * SIDE`).
 pub const SIDE: u32 = 256;
@@ -47,9 +47,21 @@ fn obj_specs() -> [(&'static str, &'static str, View); 3] {
         fov_y_deg,
     };
     [
-        ("bunny/bunny_tinybvh.obj", "bunny", y_up([9.0, 11.42, 16.70], [-1.08, 3.86, -0.10], 45.0)),
-        ("crytek_sponza/crytek_sponza.obj", "sponza", y_up([-120.0, 20.0, -4.0], [100.0, 45.0, -4.0], 60.0)),
-        ("conference/conference.obj", "conference", y_up([-500.0, 400.0, 300.0], [333.0, 80.0, -194.0], 60.0)),
+        (
+            "bunny/bunny_tinybvh.obj",
+            "bunny",
+            y_up([9.0, 11.42, 16.70], [-1.08, 3.86, -0.10], 45.0),
+        ),
+        (
+            "crytek_sponza/crytek_sponza.obj",
+            "sponza",
+            y_up([-120.0, 20.0, -4.0], [100.0, 45.0, -4.0], 60.0),
+        ),
+        (
+            "conference/conference.obj",
+            "conference",
+            y_up([-500.0, 400.0, 300.0], [333.0, 80.0, -194.0], 60.0),
+        ),
     ]
 }
 
@@ -57,7 +69,12 @@ pub fn bench_scenes() -> Vec<BenchScene> {
     let mut out = Vec::new();
     for name in ["animated", "balls"] {
         let s = scenes::builtin(name).expect("builtin scene");
-        out.push(BenchScene { name: s.name, vertices: s.mesh.vertices, indices: s.mesh.indices, view: s.views[0] });
+        out.push(BenchScene {
+            name: s.name,
+            vertices: s.mesh.vertices,
+            indices: s.mesh.indices,
+            view: s.views[0],
+        });
     }
     if let Some(dir) = scenes_dir() {
         for (file, name, view) in obj_specs() {
@@ -67,7 +84,12 @@ pub fn bench_scenes() -> Vec<BenchScene> {
                 continue;
             }
             if let Some((vertices, indices)) = load_obj(&path) {
-                out.push(BenchScene { name, vertices, indices, view });
+                out.push(BenchScene {
+                    name,
+                    vertices,
+                    indices,
+                    view,
+                });
             }
         }
     }
@@ -104,4 +126,3 @@ pub fn packet_order(rays: &[Ray], side: usize, n: usize) -> Vec<Ray> {
     }
     out
 }
-

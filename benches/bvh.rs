@@ -49,17 +49,31 @@ fn bvh(c: &mut Criterion) {
         let scene = s.scene();
         g.throughput(Throughput::Elements(s.triangles() as u64));
         g.bench_function(BenchmarkId::from_parameter(s.name), |b| {
-            b.iter(|| ctx.build_bvh(black_box(&scene), &params).expect("bvh build"))
+            b.iter(|| {
+                ctx.build_bvh(black_box(&scene), &params)
+                    .expect("bvh build")
+            })
         });
     }
     g.finish();
 
     let mut g = c.benchmark_group("bvh_trace");
     for (s, (ctx, rays, hits)) in scenes.iter().zip(ctxs.iter_mut()) {
-        let mut cases = vec![("single".to_string(), TraceParams::bvh(Method::BvhSingle, 0), 2), ("simd".to_string(), TraceParams::bvh(Method::BvhSimd, 0), 2)];
+        let mut cases = vec![
+            (
+                "single".to_string(),
+                TraceParams::bvh(Method::BvhSingle, 0),
+                2,
+            ),
+            ("simd".to_string(), TraceParams::bvh(Method::BvhSimd, 0), 2),
+        ];
         for m in [Method::BvhMasked, Method::BvhRanged, Method::BvhPartition] {
             for n in [8u32, 16] {
-                cases.push((format!("{} {n}x{n}", &m.name()[4..]), TraceParams::bvh(m, n), n as usize));
+                cases.push((
+                    format!("{} {n}x{n}", &m.name()[4..]),
+                    TraceParams::bvh(m, n),
+                    n as usize,
+                ));
             }
         }
         for (label, p, n) in cases {
@@ -75,7 +89,10 @@ fn bvh(c: &mut Criterion) {
             );
             g.throughput(Throughput::Elements(ordered.len() as u64));
             g.bench_function(BenchmarkId::new(s.name, label), |b| {
-                b.iter(|| ctx.trace_with(&p, black_box(&ordered), hits).expect("trace"))
+                b.iter(|| {
+                    ctx.trace_with(&p, black_box(&ordered), hits)
+                        .expect("trace")
+                })
             });
         }
     }

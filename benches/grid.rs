@@ -63,7 +63,10 @@ fn grid(c: &mut Criterion) {
         let scene = s.scene();
         g.throughput(Throughput::Elements(s.triangles() as u64));
         g.bench_function(BenchmarkId::from_parameter(s.name), |b| {
-            b.iter(|| ctx.build_grid(black_box(&scene), &params).expect("grid build"))
+            b.iter(|| {
+                ctx.build_grid(black_box(&scene), &params)
+                    .expect("grid build")
+            })
         });
     }
     g.finish();
@@ -72,7 +75,10 @@ fn grid(c: &mut Criterion) {
     for (s, (ctx, rays, hits)) in scenes.iter().zip(ctxs.iter_mut()) {
         g.throughput(Throughput::Elements(rays.len() as u64));
         g.bench_function(BenchmarkId::from_parameter(s.name), |b| {
-            b.iter(|| ctx.trace(Method::GridDda, black_box(rays), hits).expect("trace"))
+            b.iter(|| {
+                ctx.trace(Method::GridDda, black_box(rays), hits)
+                    .expect("trace")
+            })
         });
     }
     g.finish();
@@ -96,7 +102,10 @@ fn grid(c: &mut Criterion) {
             );
             g.throughput(Throughput::Elements(ordered.len() as u64));
             g.bench_function(BenchmarkId::new(s.name, format!("{n}x{n}")), |b| {
-                b.iter(|| ctx.trace_with(&p, black_box(&ordered), hits).expect("trace"))
+                b.iter(|| {
+                    ctx.trace_with(&p, black_box(&ordered), hits)
+                        .expect("trace")
+                })
             });
         }
     }

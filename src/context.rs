@@ -122,7 +122,10 @@ impl<'a> Context<'a> {
         let layout = Layout::of(limits)?;
         let need = layout.bytes();
         if buf.len() < need {
-            return Err(Error::BufferTooSmall { needed: need as u64, available: buf.len() as u64 });
+            return Err(Error::BufferTooSmall {
+                needed: need as u64,
+                available: buf.len() as u64,
+            });
         }
         let mut arena = Arena::new(buf)?;
         let pools = GridPools {
@@ -144,7 +147,14 @@ impl<'a> Context<'a> {
             refs: arena.take(layout.bvh_tris)?,
         };
         debug_assert_eq!(arena.used(), need);
-        Ok(Context { limits: *limits, grid: Grid::new(pools), bvh: Bvh::new(bvh), stamps, mail_packets, stats: Stats::default() })
+        Ok(Context {
+            limits: *limits,
+            grid: Grid::new(pools),
+            bvh: Bvh::new(bvh),
+            stamps,
+            mail_packets,
+            stats: Stats::default(),
+        })
     }
 
     pub fn limits(&self) -> &Limits {
@@ -178,11 +188,19 @@ impl<'a> Context<'a> {
     /// Rebuild the grid from `scene`. On error the previous grid stays valid.
     pub fn build_grid(&mut self, scene: &Scene<'_>, params: &GridParams) -> Result<GridInfo> {
         if !self.limits.has(Limits::GRID) {
-            return Err(Error::InvalidArgument("no grid pools: Limits::structures lacks GRID"));
+            return Err(Error::InvalidArgument(
+                "no grid pools: Limits::structures lacks GRID",
+            ));
         }
         self.check_scene(scene)?;
         let t = now();
-        let info = grid::build::build(&mut self.grid, scene, params, self.limits.grid_cells(), self.limits.grid_refs())?;
+        let info = grid::build::build(
+            &mut self.grid,
+            scene,
+            params,
+            self.limits.grid_cells(),
+            self.limits.grid_refs(),
+        )?;
         self.stats.build_ns = elapsed_ns(t);
         self.stats.grid = info;
         Ok(info)
@@ -192,7 +210,9 @@ impl<'a> Context<'a> {
     /// On error the previous BVH stays valid.
     pub fn build_bvh(&mut self, scene: &Scene<'_>, params: &BvhParams) -> Result<BvhInfo> {
         if !self.limits.has(Limits::BVH) {
-            return Err(Error::InvalidArgument("no BVH pools: Limits::structures lacks BVH"));
+            return Err(Error::InvalidArgument(
+                "no BVH pools: Limits::structures lacks BVH",
+            ));
         }
         self.check_scene(scene)?;
         let t = now();
@@ -206,83 +226,179 @@ impl<'a> Context<'a> {
     /// calls use the grid's 3DDDA when a grid is built, else the BVH's
     /// single-ray traversal (see `SceneTracer::with_single`).
     pub fn tracer(&self) -> Result<SceneTracer<'_>> {
-        let t = SceneTracer { grid: self.grid.view(), bvh: self.bvh.view(), single: Method::GridDda };
+        let t = SceneTracer {
+            grid: self.grid.view(),
+            bvh: self.bvh.view(),
+            single: Method::GridDda,
+        };
         match (t.grid.is_some(), t.bvh.is_some()) {
             (false, false) => Err(Error::NotBuilt),
             (true, _) => Ok(t),
-            (false, true) => Ok(SceneTracer { single: Method::BvhSingle, ..t }),
+            (false, true) => Ok(SceneTracer {
+                single: Method::BvhSingle,
+                ..t
+            }),
         }
     }
 
     /// The built structures and one mailbox per thread slot, for tracing
     /// and rendering from several threads (each thread takes one mailbox).
     pub fn parts(&mut self) -> Result<(SceneTracer<'_>, impl Iterator<Item = Mailbox<'_>>)> {
-        let t = SceneTracer { grid: self.grid.view(), bvh: self.bvh.view(), single: Method::GridDda };
+        let t = SceneTracer {
+            grid: self.grid.view(),
+            bvh: self.bvh.view(),
+            single: Method::GridDda,
+        };
         let t = match (t.grid.is_some(), t.bvh.is_some()) {
             (false, false) => return Err(Error::NotBuilt),
             (true, _) => t,
-            (false, true) => SceneTracer { single: Method::BvhSingle, ..t },
+            (false, true) => SceneTracer {
+                single: Method::BvhSingle,
+                ..t
+            },
         };
         // One mailbox per thread slot; without grid pools (no stamps) the
         // mailboxes are empty, which only the grid's CGT would use.
         let n = self.limits.max_triangles.max(1) as usize;
         let mut stamps = self.stamps.chunks_mut(n);
-        let mbs = self.mail_packets.iter_mut().map(move |p| Mailbox::new(stamps.next().unwrap_or(&mut []), p));
+        let mbs = self
+            .mail_packets
+            .iter_mut()
+            .map(move |p| Mailbox::new(stamps.next().unwrap_or(&mut []), p));
         Ok((t, mbs))
     }
 
     /// Nearest hits of `rays` into `hits` (same length) with `method` and
     /// its default packet settings (`TraceParams`).
     pub fn trace(&mut self, method: Method, rays: &[Ray], hits: &mut [Hit]) -> Result<Counters> {
-        self.trace_with(&TraceParams { method, ..TraceParams::default() }, rays, hits)
+        self.trace_with(
+            &TraceParams {
+                method,
+                ..TraceParams::default()
+            },
+            rays,
+            hits,
+        )
     }
 
     /// Nearest hits of `rays` into `hits` (same length). Packet methods take
     /// the rays in order as packets of `p.packet`^2 rays, every 4 rays one
     /// 2x2 quad in `Ray4` lane order (a last, smaller packet is padded with
     /// inactive lanes).
-    pub fn trace_with(&mut self, p: &TraceParams, rays: &[Ray], hits: &mut [Hit]) -> Result<Counters> {
+    pub fn trace_with(
+        &mut self,
+        p: &TraceParams,
+        rays: &[Ray],
+        hits: &mut [Hit],
+    ) -> Result<Counters> {
         if rays.len() != hits.len() {
-            return Err(Error::InvalidArgument("rays and hits must have the same length"));
+            return Err(Error::InvalidArgument(
+                "rays and hits must have the same length",
+            ));
         }
-        self.batch(p, rays, &mut |i, h: &Hit4, lane| hits[i] = h.lane(lane), false)
+        self.batch(
+            p,
+            rays,
+            &mut |i, h: &Hit4, lane| hits[i] = h.lane(lane),
+            false,
+        )
     }
 
     /// Occlusion of `rays` with `method` (default packet settings).
-    pub fn occluded(&mut self, method: Method, rays: &[Ray], occluded: &mut [bool]) -> Result<Counters> {
-        self.occluded_with(&TraceParams { method, ..TraceParams::default() }, rays, occluded)
+    pub fn occluded(
+        &mut self,
+        method: Method,
+        rays: &[Ray],
+        occluded: &mut [bool],
+    ) -> Result<Counters> {
+        self.occluded_with(
+            &TraceParams {
+                method,
+                ..TraceParams::default()
+            },
+            rays,
+            occluded,
+        )
     }
 
     /// Occlusion of `rays` into `occluded` (same length): any hit in
     /// `[tmin, tmax)`. Packets are formed as in `trace_with`.
-    pub fn occluded_with(&mut self, p: &TraceParams, rays: &[Ray], occluded: &mut [bool]) -> Result<Counters> {
+    pub fn occluded_with(
+        &mut self,
+        p: &TraceParams,
+        rays: &[Ray],
+        occluded: &mut [bool],
+    ) -> Result<Counters> {
         if rays.len() != occluded.len() {
-            return Err(Error::InvalidArgument("rays and results must have the same length"));
+            return Err(Error::InvalidArgument(
+                "rays and results must have the same length",
+            ));
         }
-        self.batch(p, rays, &mut |i, h: &Hit4, lane| occluded[i] = h.prim[lane] != crate::geom::INVALID_ID, true)
+        self.batch(
+            p,
+            rays,
+            &mut |i, h: &Hit4, lane| occluded[i] = h.prim[lane] != crate::geom::INVALID_ID,
+            true,
+        )
     }
 
     /// Trace `rays` as packets (or one by one) on the calling thread with
     /// slot 0's mailbox, handing each result to `out(ray index, hits, lane)`.
-    fn batch(&mut self, p: &TraceParams, rays: &[Ray], out: &mut dyn FnMut(usize, &Hit4, usize), any: bool) -> Result<Counters> {
+    fn batch(
+        &mut self,
+        p: &TraceParams,
+        rays: &[Ray],
+        out: &mut dyn FnMut(usize, &Hit4, usize),
+        any: bool,
+    ) -> Result<Counters> {
         p.validate()?;
         let t = now();
         let mut ctr = Counters::default();
         {
             let (tr, mut mbs) = self.parts()?;
             let tr = tr.with_single(p.method)?;
-            let mut mb = mbs.next().ok_or(Error::Capacity { pool: Pool::Threads, needed: 1, available: 0 })?;
-            let per = if p.method.is_packet() { (p.packet * p.packet) as usize } else { 4 };
-            let mut quads = [Ray4::from_rays(&[rays.first().copied().unwrap_or(Ray::new(glam::Vec3::ZERO, glam::Vec3::X, 0.0, 0.0)); 4]); 256];
+            let mut mb = mbs.next().ok_or(Error::Capacity {
+                pool: Pool::Threads,
+                needed: 1,
+                available: 0,
+            })?;
+            let per = if p.method.is_packet() {
+                (p.packet * p.packet) as usize
+            } else {
+                4
+            };
+            let mut quads = [Ray4::from_rays(
+                &[rays.first().copied().unwrap_or(Ray::new(
+                    glam::Vec3::ZERO,
+                    glam::Vec3::X,
+                    0.0,
+                    0.0,
+                )); 4],
+            ); 256];
             let mut active = [M4::FALSE; 256];
             let mut hits = [Hit4::MISS; 256];
             for (c, chunk) in rays.chunks(per).enumerate() {
-                let nq = crate::trace::pack_quads(chunk.len(), |k| chunk[k], &mut quads, &mut active);
+                let nq =
+                    crate::trace::pack_quads(chunk.len(), |k| chunk[k], &mut quads, &mut active);
                 hits[..nq].fill(Hit4::MISS);
                 if any {
-                    tr.occluded_packet(p, &quads[..nq], &active[..nq], &mut hits[..nq], &mut mb, &mut ctr);
+                    tr.occluded_packet(
+                        p,
+                        &quads[..nq],
+                        &active[..nq],
+                        &mut hits[..nq],
+                        &mut mb,
+                        &mut ctr,
+                    );
                 } else {
-                    tr.intersect_packet(p, &quads[..nq], &active[..nq], &mut hits[..nq], &mut mb, &mut ctr);
+                    tr.intersect_packet(
+                        p,
+                        &quads[..nq],
+                        &active[..nq],
+                        &mut hits[..nq],
+                        &mut mb,
+                        &mut ctr,
+                    );
                 }
                 for k in 0..chunk.len() {
                     out(c * per + k, &hits[k / 4], k % 4);
@@ -295,7 +411,12 @@ impl<'a> Context<'a> {
     }
 
     /// Check a frame against the limits and the framebuffer size.
-    pub fn check_frame(&self, frame: &Frame, pixels_len: usize, stride: usize) -> Result<PrimaryRays> {
+    pub fn check_frame(
+        &self,
+        frame: &Frame,
+        pixels_len: usize,
+        stride: usize,
+    ) -> Result<PrimaryRays> {
         let (w, h) = (frame.width, frame.height);
         if w == 0 || h == 0 {
             return Err(Error::InvalidArgument("image width and height must be > 0"));
@@ -308,24 +429,44 @@ impl<'a> Context<'a> {
             });
         }
         if stride < w as usize * 4 {
-            return Err(Error::InvalidArgument("framebuffer stride must be >= 4 * width"));
+            return Err(Error::InvalidArgument(
+                "framebuffer stride must be >= 4 * width",
+            ));
         }
         if pixels_len < (h as usize - 1) * stride + w as usize * 4 {
-            return Err(Error::InvalidArgument("framebuffer smaller than height * stride"));
+            return Err(Error::InvalidArgument(
+                "framebuffer smaller than height * stride",
+            ));
         }
         PrimaryRays::new(&frame.camera, w, h)
     }
 
     /// Render a whole frame on the calling thread with `method` for every
     /// ray (default packet settings).
-    pub fn render(&mut self, method: Method, frame: &Frame, pixels: &mut [u8], stride: usize) -> Result<Counters> {
-        let p = TraceParams { method, ..TraceParams::default() };
+    pub fn render(
+        &mut self,
+        method: Method,
+        frame: &Frame,
+        pixels: &mut [u8],
+        stride: usize,
+    ) -> Result<Counters> {
+        let p = TraceParams {
+            method,
+            ..TraceParams::default()
+        };
         self.render_with(&p, &p, frame, pixels, stride)
     }
 
     /// Render a whole frame on the calling thread: `primary` for camera
     /// rays, `shadow` for shadow rays.
-    pub fn render_with(&mut self, primary: &TraceParams, shadow: &TraceParams, frame: &Frame, pixels: &mut [u8], stride: usize) -> Result<Counters> {
+    pub fn render_with(
+        &mut self,
+        primary: &TraceParams,
+        shadow: &TraceParams,
+        frame: &Frame,
+        pixels: &mut [u8],
+        stride: usize,
+    ) -> Result<Counters> {
         primary.validate()?;
         shadow.validate()?;
         let rays = self.check_frame(frame, pixels.len(), stride)?;
@@ -335,11 +476,30 @@ impl<'a> Context<'a> {
             let (tr, mut mbs) = self.parts()?;
             tr.with_single(shadow.method)?;
             let tr = tr.with_single(primary.method)?;
-            let mut mb = mbs.next().ok_or(Error::Capacity { pool: Pool::Threads, needed: 1, available: 0 })?;
+            let mut mb = mbs.next().ok_or(Error::Capacity {
+                pool: Pool::Threads,
+                needed: 1,
+                available: 0,
+            })?;
             if primary.tile_side().max(shadow.tile_side()) > 0 {
                 let side = primary.tile_side().max(shadow.tile_side());
-                let tile = TraceParams { packet: side, ..*primary };
-                render::render_tiles(&tr, &tile, shadow, frame, &rays, 0, frame.height, pixels, stride, &mut mb, &mut ctr);
+                let tile = TraceParams {
+                    packet: side,
+                    ..*primary
+                };
+                render::render_tiles(
+                    &tr,
+                    &tile,
+                    shadow,
+                    frame,
+                    &rays,
+                    0,
+                    frame.height,
+                    pixels,
+                    stride,
+                    &mut mb,
+                    &mut ctr,
+                );
             } else {
                 render::render_rows(&tr, frame, &rays, 0, frame.height, pixels, stride, &mut ctr);
             }
@@ -357,7 +517,12 @@ impl<'a> Context<'a> {
     /// single-ray methods alone render ray tree by ray tree. Hit triangles
     /// are looked up in the primary method's structure. The image does not
     /// depend on these choices.
-    pub fn render_whitted(&mut self, job: &WhittedJob<'_>, pixels: &mut [u8], stride: usize) -> Result<Counters> {
+    pub fn render_whitted(
+        &mut self,
+        job: &WhittedJob<'_>,
+        pixels: &mut [u8],
+        stride: usize,
+    ) -> Result<Counters> {
         job.validate()?;
         let rays = self.check_frame(job.frame, pixels.len(), stride)?;
         let t = now();
@@ -367,12 +532,46 @@ impl<'a> Context<'a> {
             tr.with_single(job.shadow.method)?;
             tr.with_single(job.secondary.method)?;
             let tr = tr.with_single(job.primary.method)?;
-            let mut mb = mbs.next().ok_or(Error::Capacity { pool: Pool::Threads, needed: 1, available: 0 })?;
-            match job.primary.tile_side().max(job.shadow.tile_side()).max(job.secondary.tile_side()) {
-                0 => whitted::render_whitted_rows(&tr, job, &rays, 0, job.frame.height, pixels, stride, &mut ctr),
+            let mut mb = mbs.next().ok_or(Error::Capacity {
+                pool: Pool::Threads,
+                needed: 1,
+                available: 0,
+            })?;
+            match job
+                .primary
+                .tile_side()
+                .max(job.shadow.tile_side())
+                .max(job.secondary.tile_side())
+            {
+                0 => whitted::render_whitted_rows(
+                    &tr,
+                    job,
+                    &rays,
+                    0,
+                    job.frame.height,
+                    pixels,
+                    stride,
+                    &mut ctr,
+                ),
                 side => {
-                    let job = WhittedJob { primary: TraceParams { packet: side, ..job.primary }, ..*job };
-                    whitted::render_whitted_tiles(&tr, &job, &rays, 0, job.frame.height, pixels, stride, &mut mb, &mut ctr)
+                    let job = WhittedJob {
+                        primary: TraceParams {
+                            packet: side,
+                            ..job.primary
+                        },
+                        ..*job
+                    };
+                    whitted::render_whitted_tiles(
+                        &tr,
+                        &job,
+                        &rays,
+                        0,
+                        job.frame.height,
+                        pixels,
+                        stride,
+                        &mut mb,
+                        &mut ctr,
+                    )
                 }
             }
         }
@@ -412,28 +611,68 @@ impl Tracer for GridTracer<'_> {
             TriTest::Projection => grid::traverse_single::occluded::<Pt>(&self.view, ray, ctr),
         }
     }
-    fn intersect_packet(&self, p: &TraceParams, rays: &[Ray4], active: &[M4], hits: &mut [Hit4], mb: &mut Mailbox<'_>, ctr: &mut Counters) {
+    fn intersect_packet(
+        &self,
+        p: &TraceParams,
+        rays: &[Ray4],
+        active: &[M4],
+        hits: &mut [Hit4],
+        mb: &mut Mailbox<'_>,
+        ctr: &mut Counters,
+    ) {
         match (p.method, self.view.info.test) {
-            (Method::GridCgt, TriTest::MollerTrumbore) => traverse_cgt::intersect::<Mt>(&self.view, rays, active, hits, &p.cgt, mb, ctr),
-            (Method::GridCgt, TriTest::Watertight) => traverse_cgt::intersect::<Wt>(&self.view, rays, active, hits, &p.cgt, mb, ctr),
-            (Method::GridCgt, TriTest::Projection) => traverse_cgt::intersect::<Pt>(&self.view, rays, active, hits, &p.cgt, mb, ctr),
+            (Method::GridCgt, TriTest::MollerTrumbore) => {
+                traverse_cgt::intersect::<Mt>(&self.view, rays, active, hits, &p.cgt, mb, ctr)
+            }
+            (Method::GridCgt, TriTest::Watertight) => {
+                traverse_cgt::intersect::<Wt>(&self.view, rays, active, hits, &p.cgt, mb, ctr)
+            }
+            (Method::GridCgt, TriTest::Projection) => {
+                traverse_cgt::intersect::<Pt>(&self.view, rays, active, hits, &p.cgt, mb, ctr)
+            }
             _ => lane_by_lane(rays, active, hits, |r, c| self.intersect(r, c), ctr),
         }
     }
-    fn occluded_packet(&self, p: &TraceParams, rays: &[Ray4], active: &[M4], hits: &mut [Hit4], mb: &mut Mailbox<'_>, ctr: &mut Counters) {
+    fn occluded_packet(
+        &self,
+        p: &TraceParams,
+        rays: &[Ray4],
+        active: &[M4],
+        hits: &mut [Hit4],
+        mb: &mut Mailbox<'_>,
+        ctr: &mut Counters,
+    ) {
         match (p.method, self.view.info.test) {
-            (Method::GridCgt, TriTest::MollerTrumbore) => traverse_cgt::occluded::<Mt>(&self.view, rays, active, hits, &p.cgt, mb, ctr),
-            (Method::GridCgt, TriTest::Watertight) => traverse_cgt::occluded::<Wt>(&self.view, rays, active, hits, &p.cgt, mb, ctr),
-            (Method::GridCgt, TriTest::Projection) => traverse_cgt::occluded::<Pt>(&self.view, rays, active, hits, &p.cgt, mb, ctr),
-            (_, TriTest::MollerTrumbore) => {
-                lane_by_lane(rays, active, hits, |r, c| grid::traverse_single::any_hit::<Mt>(&self.view, r, c), ctr)
+            (Method::GridCgt, TriTest::MollerTrumbore) => {
+                traverse_cgt::occluded::<Mt>(&self.view, rays, active, hits, &p.cgt, mb, ctr)
             }
-            (_, TriTest::Watertight) => {
-                lane_by_lane(rays, active, hits, |r, c| grid::traverse_single::any_hit::<Wt>(&self.view, r, c), ctr)
+            (Method::GridCgt, TriTest::Watertight) => {
+                traverse_cgt::occluded::<Wt>(&self.view, rays, active, hits, &p.cgt, mb, ctr)
             }
-            (_, TriTest::Projection) => {
-                lane_by_lane(rays, active, hits, |r, c| grid::traverse_single::any_hit::<Pt>(&self.view, r, c), ctr)
+            (Method::GridCgt, TriTest::Projection) => {
+                traverse_cgt::occluded::<Pt>(&self.view, rays, active, hits, &p.cgt, mb, ctr)
             }
+            (_, TriTest::MollerTrumbore) => lane_by_lane(
+                rays,
+                active,
+                hits,
+                |r, c| grid::traverse_single::any_hit::<Mt>(&self.view, r, c),
+                ctr,
+            ),
+            (_, TriTest::Watertight) => lane_by_lane(
+                rays,
+                active,
+                hits,
+                |r, c| grid::traverse_single::any_hit::<Wt>(&self.view, r, c),
+                ctr,
+            ),
+            (_, TriTest::Projection) => lane_by_lane(
+                rays,
+                active,
+                hits,
+                |r, c| grid::traverse_single::any_hit::<Pt>(&self.view, r, c),
+                ctr,
+            ),
         }
     }
     fn triangle(&self, prim: u32) -> Option<TriVerts> {
@@ -475,7 +714,15 @@ impl Tracer for BvhTracer<'_> {
         use bvh::traverse_single::occluded;
         by_test!(self.view.info.test, occluded(&self.view, ray, ctr))
     }
-    fn intersect_packet(&self, p: &TraceParams, rays: &[Ray4], active: &[M4], hits: &mut [Hit4], _: &mut Mailbox<'_>, ctr: &mut Counters) {
+    fn intersect_packet(
+        &self,
+        p: &TraceParams,
+        rays: &[Ray4],
+        active: &[M4],
+        hits: &mut [Hit4],
+        _: &mut Mailbox<'_>,
+        ctr: &mut Counters,
+    ) {
         let (v, o, test) = (&self.view, &p.bvh, self.view.info.test);
         match p.method {
             Method::BvhSimd => {
@@ -497,7 +744,15 @@ impl Tracer for BvhTracer<'_> {
             _ => lane_by_lane(rays, active, hits, |r, c| self.intersect(r, c), ctr),
         }
     }
-    fn occluded_packet(&self, p: &TraceParams, rays: &[Ray4], active: &[M4], hits: &mut [Hit4], _: &mut Mailbox<'_>, ctr: &mut Counters) {
+    fn occluded_packet(
+        &self,
+        p: &TraceParams,
+        rays: &[Ray4],
+        active: &[M4],
+        hits: &mut [Hit4],
+        _: &mut Mailbox<'_>,
+        ctr: &mut Counters,
+    ) {
         let (v, o, test) = (&self.view, &p.bvh, self.view.info.test);
         match p.method {
             Method::BvhSimd => {
@@ -518,7 +773,13 @@ impl Tracer for BvhTracer<'_> {
             }
             _ => {
                 use bvh::traverse_single::any_hit;
-                lane_by_lane(rays, active, hits, |r, c| by_test!(test, any_hit(v, r, c)), ctr)
+                lane_by_lane(
+                    rays,
+                    active,
+                    hits,
+                    |r, c| by_test!(test, any_hit(v, r, c)),
+                    ctr,
+                )
             }
         }
     }
@@ -534,11 +795,21 @@ impl Tracer for BvhTracer<'_> {
 /// every structure built from one scene, so shading offsets (and images) do
 /// not depend on the structure.
 fn scale_of(b: &crate::geom::Aabb) -> f32 {
-    if b.is_empty() { 1.0 } else { b.diagonal().length() }
+    if b.is_empty() {
+        1.0
+    } else {
+        b.diagonal().length()
+    }
 }
 
 /// A packet traced one active lane at a time by a single-ray method.
-fn lane_by_lane(rays: &[Ray4], active: &[M4], hits: &mut [Hit4], f: impl Fn(&Ray, &mut Counters) -> Hit, ctr: &mut Counters) {
+fn lane_by_lane(
+    rays: &[Ray4],
+    active: &[M4],
+    hits: &mut [Hit4],
+    f: impl Fn(&Ray, &mut Counters) -> Hit,
+    ctr: &mut Counters,
+) {
     for ((r, m), h) in rays.iter().zip(active).zip(hits.iter_mut()) {
         for i in 0..4 {
             if m.test(i) {
@@ -570,7 +841,10 @@ impl<'r> SceneTracer<'r> {
         if !built {
             return Err(Error::NotBuilt);
         }
-        Ok(SceneTracer { single: method.single(), ..*self })
+        Ok(SceneTracer {
+            single: method.single(),
+            ..*self
+        })
     }
     /// The grid part (None when no grid is built).
     pub fn grid(&self) -> Option<GridTracer<'r>> {
@@ -613,14 +887,30 @@ impl Tracer for SceneTracer<'_> {
             None => false,
         }
     }
-    fn intersect_packet(&self, p: &TraceParams, rays: &[Ray4], active: &[M4], hits: &mut [Hit4], mb: &mut Mailbox<'_>, ctr: &mut Counters) {
+    fn intersect_packet(
+        &self,
+        p: &TraceParams,
+        rays: &[Ray4],
+        active: &[M4],
+        hits: &mut [Hit4],
+        mb: &mut Mailbox<'_>,
+        ctr: &mut Counters,
+    ) {
         match self.of(p.method) {
             Some(AnyTracer::Grid(g)) => g.intersect_packet(p, rays, active, hits, mb, ctr),
             Some(AnyTracer::Bvh(b)) => b.intersect_packet(p, rays, active, hits, mb, ctr),
             None => lane_by_lane(rays, active, hits, |_, _| Hit::MISS, ctr),
         }
     }
-    fn occluded_packet(&self, p: &TraceParams, rays: &[Ray4], active: &[M4], hits: &mut [Hit4], mb: &mut Mailbox<'_>, ctr: &mut Counters) {
+    fn occluded_packet(
+        &self,
+        p: &TraceParams,
+        rays: &[Ray4],
+        active: &[M4],
+        hits: &mut [Hit4],
+        mb: &mut Mailbox<'_>,
+        ctr: &mut Counters,
+    ) {
         match self.of(p.method) {
             Some(AnyTracer::Grid(g)) => g.occluded_packet(p, rays, active, hits, mb, ctr),
             Some(AnyTracer::Bvh(b)) => b.occluded_packet(p, rays, active, hits, mb, ctr),
@@ -691,22 +981,57 @@ impl OwnedContext {
     pub fn trace(&mut self, method: Method, rays: &[Ray], hits: &mut [Hit]) -> Result<Counters> {
         self.inner.get_mut().trace(method, rays, hits)
     }
-    pub fn occluded(&mut self, method: Method, rays: &[Ray], occluded: &mut [bool]) -> Result<Counters> {
+    pub fn occluded(
+        &mut self,
+        method: Method,
+        rays: &[Ray],
+        occluded: &mut [bool],
+    ) -> Result<Counters> {
         self.inner.get_mut().occluded(method, rays, occluded)
     }
-    pub fn check_frame(&self, frame: &Frame, pixels_len: usize, stride: usize) -> Result<PrimaryRays> {
+    pub fn check_frame(
+        &self,
+        frame: &Frame,
+        pixels_len: usize,
+        stride: usize,
+    ) -> Result<PrimaryRays> {
         self.inner.get().check_frame(frame, pixels_len, stride)
     }
-    pub fn render(&mut self, method: Method, frame: &Frame, pixels: &mut [u8], stride: usize) -> Result<Counters> {
+    pub fn render(
+        &mut self,
+        method: Method,
+        frame: &Frame,
+        pixels: &mut [u8],
+        stride: usize,
+    ) -> Result<Counters> {
         self.inner.get_mut().render(method, frame, pixels, stride)
     }
-    pub fn render_with(&mut self, primary: &TraceParams, shadow: &TraceParams, frame: &Frame, pixels: &mut [u8], stride: usize) -> Result<Counters> {
-        self.inner.get_mut().render_with(primary, shadow, frame, pixels, stride)
+    pub fn render_with(
+        &mut self,
+        primary: &TraceParams,
+        shadow: &TraceParams,
+        frame: &Frame,
+        pixels: &mut [u8],
+        stride: usize,
+    ) -> Result<Counters> {
+        self.inner
+            .get_mut()
+            .render_with(primary, shadow, frame, pixels, stride)
     }
-    pub fn trace_with(&mut self, p: &TraceParams, rays: &[Ray], hits: &mut [Hit]) -> Result<Counters> {
+    pub fn trace_with(
+        &mut self,
+        p: &TraceParams,
+        rays: &[Ray],
+        hits: &mut [Hit],
+    ) -> Result<Counters> {
         self.inner.get_mut().trace_with(p, rays, hits)
     }
-    pub fn occluded_with(&mut self, p: &TraceParams, rays: &[Ray], occluded: &mut [bool]) -> Result<Counters> {
+    pub fn occluded_with(
+        &mut self,
+        p: &TraceParams,
+        rays: &[Ray],
+        occluded: &mut [bool],
+    ) -> Result<Counters> {
         self.inner.get_mut().occluded_with(p, rays, occluded)
     }
     pub fn parts(&mut self) -> Result<(SceneTracer<'_>, impl Iterator<Item = Mailbox<'_>>)> {
@@ -715,7 +1040,12 @@ impl OwnedContext {
     pub fn record(&mut self, ctr: Counters, trace_ns: u64) {
         self.inner.get_mut().record(ctr, trace_ns)
     }
-    pub fn render_whitted(&mut self, job: &WhittedJob<'_>, pixels: &mut [u8], stride: usize) -> Result<Counters> {
+    pub fn render_whitted(
+        &mut self,
+        job: &WhittedJob<'_>,
+        pixels: &mut [u8],
+        stride: usize,
+    ) -> Result<Counters> {
         self.inner.get_mut().render_whitted(job, pixels, stride)
     }
 }

@@ -42,9 +42,17 @@ pub enum Error {
     /// An argument is out of its documented domain; the text names it.
     InvalidArgument(&'static str),
     /// Triangle `triangle` references vertex `index`, but only `vertex_count` exist.
-    IndexOutOfRange { triangle: u32, index: u32, vertex_count: u32 },
+    IndexOutOfRange {
+        triangle: u32,
+        index: u32,
+        vertex_count: u32,
+    },
     /// A fixed pool is too small for this input.
-    Capacity { pool: Pool, needed: u64, available: u64 },
+    Capacity {
+        pool: Pool,
+        needed: u64,
+        available: u64,
+    },
     /// The memory handed to `create` is smaller than `required_bytes`.
     BufferTooSmall { needed: u64, available: u64 },
     /// The memory handed to `create` is not aligned to `required` bytes.
@@ -62,19 +70,32 @@ impl fmt::Display for Error {
         match *self {
             Error::NullPointer => write!(f, "a required pointer is NULL"),
             Error::InvalidArgument(what) => write!(f, "invalid argument: {what}"),
-            Error::IndexOutOfRange { triangle, index, vertex_count } => write!(
+            Error::IndexOutOfRange {
+                triangle,
+                index,
+                vertex_count,
+            } => write!(
                 f,
                 "triangle {triangle} references vertex {index} but the vertex buffer holds {vertex_count}"
             ),
-            Error::Capacity { pool, needed, available } => write!(
+            Error::Capacity {
+                pool,
+                needed,
+                available,
+            } => write!(
                 f,
                 "capacity exceeded in pool '{}': needed {needed}, available {available}",
                 pool.name()
             ),
             Error::BufferTooSmall { needed, available } => {
-                write!(f, "memory buffer too small: needed {needed} bytes, got {available}")
+                write!(
+                    f,
+                    "memory buffer too small: needed {needed} bytes, got {available}"
+                )
             }
-            Error::Misaligned { required } => write!(f, "memory buffer must be aligned to {required} bytes"),
+            Error::Misaligned { required } => {
+                write!(f, "memory buffer must be aligned to {required} bytes")
+            }
             Error::NoGeometry => write!(f, "no geometry set"),
             Error::NotBuilt => write!(f, "no acceleration structure built yet"),
             Error::Panic => write!(f, "internal error (panic caught at the C boundary)"),

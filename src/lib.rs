@@ -13,7 +13,8 @@
 pub mod accel;
 pub mod context;
 pub mod error;
-#[cfg(feature = "std")] pub mod ffi;
+#[cfg(feature = "std")]
+pub mod ffi;
 pub mod geom;
 pub mod math;
 pub mod mem;
@@ -26,9 +27,9 @@ pub mod scenes;
 
 pub use accel::bvh::{BvhInfo, BvhParams};
 pub use accel::grid::{GridInfo, GridParams};
-pub use context::{Context, Stats, required_bytes};
 #[cfg(feature = "std")]
 pub use context::OwnedContext;
+pub use context::{Context, Stats, required_bytes};
 pub use error::{Error, Pool, Result};
 pub use geom::{Hit, Ray, Scene, TriTest};
 pub use mem::Limits;

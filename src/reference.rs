@@ -8,7 +8,7 @@
 //! miss: the ray passes within that distance of an edge).
 #![forbid(unsafe_code)]
 
-use crate::geom::{Ray, Scene, TriVerts, INVALID_ID};
+use crate::geom::{INVALID_ID, Ray, Scene, TriVerts};
 
 /// The oracle's answer for one ray.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -28,7 +28,13 @@ fn mt64(o: [f64; 3], d: [f64; 3], tri: &TriVerts) -> Option<(f64, f64, f64, f64)
     let v = |p: [f32; 3]| [p[0] as f64, p[1] as f64, p[2] as f64];
     let (a, b, c) = (v(tri.v0), v(tri.v1), v(tri.v2));
     let sub = |x: [f64; 3], y: [f64; 3]| [x[0] - y[0], x[1] - y[1], x[2] - y[2]];
-    let cross = |x: [f64; 3], y: [f64; 3]| [x[1] * y[2] - x[2] * y[1], x[2] * y[0] - x[0] * y[2], x[0] * y[1] - x[1] * y[0]];
+    let cross = |x: [f64; 3], y: [f64; 3]| {
+        [
+            x[1] * y[2] - x[2] * y[1],
+            x[2] * y[0] - x[0] * y[2],
+            x[0] * y[1] - x[1] * y[0],
+        ]
+    };
     let dot = |x: [f64; 3], y: [f64; 3]| x[0] * y[0] + x[1] * y[1] + x[2] * y[2];
     let e1 = sub(b, a);
     let e2 = sub(c, a);
@@ -64,7 +70,12 @@ fn for_each_crossing(scene: &Scene<'_>, ray: &Ray, f: &mut dyn FnMut(u32, f64, f
 /// only; call `edge_distance` for the near misses in front of it (a second
 /// pass, needed only when a method disagrees).
 pub fn nearest(scene: &Scene<'_>, ray: &Ray) -> RefHit {
-    let mut best = RefHit { prim: INVALID_ID, t: f64::INFINITY, gap: f64::INFINITY, edge: f64::INFINITY };
+    let mut best = RefHit {
+        prim: INVALID_ID,
+        t: f64::INFINITY,
+        gap: f64::INFINITY,
+        edge: f64::INFINITY,
+    };
     if !ray.is_valid() {
         return best;
     }
@@ -83,7 +94,11 @@ pub fn nearest(scene: &Scene<'_>, ray: &Ray) -> RefHit {
         }
     });
     if best.prim != INVALID_ID {
-        best.gap = if second.is_finite() { (second - best.t) / best.t.abs().max(1e-30) } else { f64::INFINITY };
+        best.gap = if second.is_finite() {
+            (second - best.t) / best.t.abs().max(1e-30)
+        } else {
+            f64::INFINITY
+        };
     }
     best
 }
@@ -96,7 +111,11 @@ pub fn with_edge_distance(scene: &Scene<'_>, ray: &Ray, mut hit: RefHit) -> RefH
         return hit;
     }
     let tmin = ray.tmin as f64;
-    let limit = if hit.prim == INVALID_ID { ray.tmax as f64 } else { hit.t };
+    let limit = if hit.prim == INVALID_ID {
+        ray.tmax as f64
+    } else {
+        hit.t
+    };
     let mut edge = hit.edge;
     for_each_crossing(scene, ray, &mut |_, t, minb| {
         if minb < 0.0 && t >= tmin * (1.0 - 1e-6) && t <= limit * (1.0 + 1e-6) {

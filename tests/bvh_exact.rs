@@ -30,7 +30,12 @@ fn packets(rays: &[Ray], n: usize) -> Vec<(Vec<Ray4>, Vec<usize>)> {
             for q in 0..(n / 2) * (n / 2) {
                 let (qx, qy) = demorton(q);
                 let (x, y) = (tx + 2 * qx as usize, ty + 2 * qy as usize);
-                let ids = [y * RES + x, y * RES + x + 1, (y + 1) * RES + x, (y + 1) * RES + x + 1];
+                let ids = [
+                    y * RES + x,
+                    y * RES + x + 1,
+                    (y + 1) * RES + x,
+                    (y + 1) * RES + x + 1,
+                ];
                 quads.push(Ray4::from_rays(&ids.map(|i| rays[i])));
                 idx.extend(ids);
             }
@@ -56,7 +61,16 @@ fn reference(tr: &BvhTracer<'_>, c: &Class) -> Vec<Hit> {
         .iter()
         .map(|r| {
             if c.any {
-                if tr.occluded(r, &mut ctr) { Hit { t: 0.0, prim: 0, u: 0.0, v: 0.0 } } else { Hit::MISS }
+                if tr.occluded(r, &mut ctr) {
+                    Hit {
+                        t: 0.0,
+                        prim: 0,
+                        u: 0.0,
+                        v: 0.0,
+                    }
+                } else {
+                    Hit::MISS
+                }
             } else {
                 tr.intersect(r, &mut ctr)
             }
@@ -77,9 +91,24 @@ fn check_class(tr: &BvhTracer<'_>, what: &str, c: &Class) -> Counters {
     for (method, n) in cases {
         for culling in [true, false] {
             for kind in [c.kind, RayKind::Auto] {
-                let p = TraceParams { method, packet: n as u32, bvh: BvhOptions { culling, kind }, ..TraceParams::default() };
+                let p = TraceParams {
+                    method,
+                    packet: n as u32,
+                    bvh: BvhOptions { culling, kind },
+                    ..TraceParams::default()
+                };
                 for (quads, idx) in packets(&c.rays, n) {
-                    let active: Vec<M4> = idx.chunks(4).map(|k| M4::new(c.active[k[0]], c.active[k[1]], c.active[k[2]], c.active[k[3]])).collect();
+                    let active: Vec<M4> = idx
+                        .chunks(4)
+                        .map(|k| {
+                            M4::new(
+                                c.active[k[0]],
+                                c.active[k[1]],
+                                c.active[k[2]],
+                                c.active[k[3]],
+                            )
+                        })
+                        .collect();
                     let mut hits = vec![Hit4::MISS; quads.len()];
                     if c.any {
                         tr.occluded_packet(&p, &quads, &active, &mut hits, &mut mb, &mut total);
@@ -92,7 +121,11 @@ fn check_class(tr: &BvhTracer<'_>, what: &str, c: &Class) -> Counters {
                         }
                         let got = hits[k / 4].lane(k % 4);
                         let exp = want[ri];
-                        let ok = if c.any { got.is_hit() == exp.is_hit() } else { got.prim == exp.prim && got.t.to_bits() == exp.t.to_bits() };
+                        let ok = if c.any {
+                            got.is_hit() == exp.is_hit()
+                        } else {
+                            got.prim == exp.prim && got.t.to_bits() == exp.t.to_bits()
+                        };
                         assert!(
                             ok,
                             "{what} {}: {} {n}x{n} culling {culling} {kind:?}: ray {ri} {:?}\n  packet {got:?}\n  single {exp:?}",
@@ -112,10 +145,24 @@ fn check_class(tr: &BvhTracer<'_>, what: &str, c: &Class) -> Counters {
 /// and refracts with index 1.5; total internal reflection gives no ray).
 fn secondary(tr: &BvhTracer<'_>, rays: &[Ray], hits: &[Hit], eps: f32) -> (Class, Class) {
     let pad = Ray::new(Vec3::ZERO, Vec3::X, 0.0, 0.0);
-    let mut refl = Class { name: "reflection", rays: vec![pad; rays.len()], active: vec![false; rays.len()], kind: RayKind::Secondary, any: false };
-    let mut refr = Class { name: "refraction", rays: vec![pad; rays.len()], active: vec![false; rays.len()], kind: RayKind::Secondary, any: false };
+    let mut refl = Class {
+        name: "reflection",
+        rays: vec![pad; rays.len()],
+        active: vec![false; rays.len()],
+        kind: RayKind::Secondary,
+        any: false,
+    };
+    let mut refr = Class {
+        name: "refraction",
+        rays: vec![pad; rays.len()],
+        active: vec![false; rays.len()],
+        kind: RayKind::Secondary,
+        any: false,
+    };
     for (i, (r, h)) in rays.iter().zip(hits).enumerate() {
-        let Some(tri) = h.is_hit().then(|| tr.triangle(h.prim)).flatten() else { continue };
+        let Some(tri) = h.is_hit().then(|| tr.triangle(h.prim)).flatten() else {
+            continue;
+        };
         let d = Vec3::from(r.dir).normalize();
         let mut n = tri.normal().normalize_or_zero();
         let entering = n.dot(d) < 0.0;
@@ -144,7 +191,15 @@ fn check_scene(s: &TestScene) {
         l.max_vertices = (s.vertices.len() / 3) as u32;
         l.structures = Limits::BVH;
         let mut ctx = OwnedContext::new(&l).unwrap();
-        let info = ctx.build_bvh(&s.scene(), &BvhParams { test, ..BvhParams::default() }).unwrap();
+        let info = ctx
+            .build_bvh(
+                &s.scene(),
+                &BvhParams {
+                    test,
+                    ..BvhParams::default()
+                },
+            )
+            .unwrap();
         let tr = ctx.tracer().unwrap().bvh().unwrap();
         let eps = SHADOW_OFFSET * info.bounds.diagonal().length();
         let mut sum = Counters::default();
@@ -152,11 +207,23 @@ fn check_scene(s: &TestScene) {
             let what = format!("{} {vname} {test:?}", s.name);
             let rays = view_rays(view, RES as u32, RES as u32);
             let all = vec![true; rays.len()];
-            let primary = Class { name: "primary", rays: rays.clone(), active: all, kind: RayKind::Primary, any: false };
+            let primary = Class {
+                name: "primary",
+                rays: rays.clone(),
+                active: all,
+                kind: RayKind::Primary,
+                any: false,
+            };
             sum.add(&check_class(&tr, &what, &primary));
             let hits = reference(&tr, &primary);
             // Shadow rays from the light to just off the hit surfaces.
-            let mut shadow = Class { name: "shadow", rays: rays.clone(), active: vec![false; rays.len()], kind: RayKind::Shadow, any: true };
+            let mut shadow = Class {
+                name: "shadow",
+                rays: rays.clone(),
+                active: vec![false; rays.len()],
+                kind: RayKind::Shadow,
+                any: true,
+            };
             for (i, (r, h)) in rays.iter().zip(&hits).enumerate() {
                 if let Some(tri) = h.is_hit().then(|| tr.triangle(h.prim)).flatten() {
                     let mut n = tri.normal().normalize_or_zero();
@@ -175,10 +242,23 @@ fn check_scene(s: &TestScene) {
         }
         println!(
             "{:>10} {test:?}: {} nodes, depth {}: {} packets, {} rays, {} box tests, {} triangle tests, {} nodes and {} triangles culled, {} packets without frustum",
-            s.name, info.nodes, info.depth, sum.packets, sum.rays, sum.aabb_tests, sum.tri_tests, sum.culled_nodes, sum.culled, sum.packets_no_cull
+            s.name,
+            info.nodes,
+            info.depth,
+            sum.packets,
+            sum.rays,
+            sum.aabb_tests,
+            sum.tri_tests,
+            sum.culled_nodes,
+            sum.culled,
+            sum.packets_no_cull
         );
         if cfg!(feature = "counters") && info.triangles > 100 {
-            assert!(sum.culled_nodes > 0 && sum.culled > 0, "{}: frustum culling must be exercised", s.name);
+            assert!(
+                sum.culled_nodes > 0 && sum.culled > 0,
+                "{}: frustum culling must be exercised",
+                s.name
+            );
         }
     }
 }
@@ -207,7 +287,10 @@ fn random_packets_equal_the_single_ray() {
     let mut ctx = OwnedContext::new(&l).unwrap();
     let info = ctx.build_bvh(&s.scene(), &BvhParams::default()).unwrap();
     let tr = ctx.tracer().unwrap().bvh().unwrap();
-    let (c, r) = (info.bounds.min.lerp(info.bounds.max, 0.5), info.bounds.diagonal().length());
+    let (c, r) = (
+        info.bounds.min.lerp(info.bounds.max, 0.5),
+        info.bounds.diagonal().length(),
+    );
     let mut seed = 0x9e3779b9u32;
     let mut rnd = move || {
         seed ^= seed << 13;
@@ -219,7 +302,11 @@ fn random_packets_equal_the_single_ray() {
         let mut rays = Vec::new();
         let mut active = Vec::new();
         for i in 0..RES * RES {
-            let o = if common_origin { c + Vec3::new(0.1, 0.2, 0.3) * r } else { c + Vec3::new(rnd(), rnd(), rnd()) * r };
+            let o = if common_origin {
+                c + Vec3::new(0.1, 0.2, 0.3) * r
+            } else {
+                c + Vec3::new(rnd(), rnd(), rnd()) * r
+            };
             let mut d = Vec3::new(rnd(), rnd(), rnd());
             if i % 97 == 0 {
                 d = Vec3::ZERO;
@@ -232,8 +319,18 @@ fn random_packets_equal_the_single_ray() {
             active.push(i % 7 != 0);
         }
         for any in [false, true] {
-            let class = Class { name: if any { "random occlusion" } else { "random" }, rays: rays.clone(), active: active.clone(), kind: RayKind::Auto, any };
-            check_class(&tr, &format!("{} common origin {common_origin}", s.name), &class);
+            let class = Class {
+                name: if any { "random occlusion" } else { "random" },
+                rays: rays.clone(),
+                active: active.clone(),
+                kind: RayKind::Auto,
+                any,
+            };
+            check_class(
+                &tr,
+                &format!("{} common origin {common_origin}", s.name),
+                &class,
+            );
         }
     }
 }
@@ -247,18 +344,30 @@ fn context_calls_and_failed_builds() {
     let mut l = Limits::for_triangles(s.triangles());
     l.max_vertices = (s.vertices.len() / 3) as u32;
     let mut ctx = OwnedContext::new(&l).unwrap();
-    assert_eq!(ctx.trace(Method::BvhSingle, &[], &mut []).unwrap_err(), sheaf::Error::NotBuilt);
+    assert_eq!(
+        ctx.trace(Method::BvhSingle, &[], &mut []).unwrap_err(),
+        sheaf::Error::NotBuilt
+    );
     ctx.build_bvh(&s.scene(), &BvhParams::default()).unwrap();
     // A grid method without a grid is NotBuilt, not a wrong answer.
     let rays = view_rays(&s.views[0].1, 32, 32);
     let mut hits = vec![Hit::MISS; rays.len()];
-    assert_eq!(ctx.trace(Method::GridDda, &rays, &mut hits).unwrap_err(), sheaf::Error::NotBuilt);
+    assert_eq!(
+        ctx.trace(Method::GridDda, &rays, &mut hits).unwrap_err(),
+        sheaf::Error::NotBuilt
+    );
     let mut want = vec![Hit::MISS; rays.len()];
     ctx.trace(Method::BvhSingle, &rays, &mut want).unwrap();
     assert!(want.iter().any(|h| h.is_hit()));
-    for m in [Method::BvhSimd, Method::BvhMasked, Method::BvhRanged, Method::BvhPartition] {
+    for m in [
+        Method::BvhSimd,
+        Method::BvhMasked,
+        Method::BvhRanged,
+        Method::BvhPartition,
+    ] {
         for n in [4, 8, 16, 32] {
-            ctx.trace_with(&TraceParams::bvh(m, n), &rays, &mut hits).unwrap();
+            ctx.trace_with(&TraceParams::bvh(m, n), &rays, &mut hits)
+                .unwrap();
             assert_eq!(hits, want, "{} {n}", m.name());
         }
     }
@@ -266,15 +375,30 @@ fn context_calls_and_failed_builds() {
     let big: Vec<u32> = (0..(l.max_triangles + 1) * 3).map(|i| i % 3).collect();
     let verts = [0.0f32, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0];
     let too_big = sheaf::Scene::from_f32(&verts, &big).unwrap();
-    assert!(matches!(ctx.build_bvh(&too_big, &BvhParams::default()), Err(sheaf::Error::Capacity { .. })));
-    assert!(ctx.build_bvh(&s.scene(), &BvhParams { leaf_size: 0, ..BvhParams::default() }).is_err());
+    assert!(matches!(
+        ctx.build_bvh(&too_big, &BvhParams::default()),
+        Err(sheaf::Error::Capacity { .. })
+    ));
+    assert!(
+        ctx.build_bvh(
+            &s.scene(),
+            &BvhParams {
+                leaf_size: 0,
+                ..BvhParams::default()
+            }
+        )
+        .is_err()
+    );
     ctx.trace(Method::BvhRanged, &rays, &mut hits).unwrap();
     assert_eq!(hits, want);
     // No BVH pools: a clear error.
     let mut l2 = l;
     l2.structures = Limits::GRID;
     let mut grid_only = OwnedContext::new(&l2).unwrap();
-    assert!(matches!(grid_only.build_bvh(&s.scene(), &BvhParams::default()), Err(sheaf::Error::InvalidArgument(_))));
+    assert!(matches!(
+        grid_only.build_bvh(&s.scene(), &BvhParams::default()),
+        Err(sheaf::Error::InvalidArgument(_))
+    ));
     assert!(sheaf::required_bytes(&l2).unwrap() < sheaf::required_bytes(&l).unwrap());
 }
 
@@ -290,25 +414,44 @@ fn stale_structures_do_not_shade_new_frames() {
     let mut l = Limits::for_triangles(n);
     l.max_vertices = ((a.vertices.len().max(b.vertices.len())) / 3) as u32;
     let frame = sheaf::Frame {
-        camera: sheaf::Camera { eye: b.views[0].1.eye.to_array(), look_at: b.views[0].1.look_at.to_array(), up: b.views[0].1.up.to_array(), fov_y_deg: 45.0 },
-        light: sheaf::PointLight { position: b.light.to_array(), color: [1.0; 3] },
+        camera: sheaf::Camera {
+            eye: b.views[0].1.eye.to_array(),
+            look_at: b.views[0].1.look_at.to_array(),
+            up: b.views[0].1.up.to_array(),
+            fov_y_deg: 45.0,
+        },
+        light: sheaf::PointLight {
+            position: b.light.to_array(),
+            color: [1.0; 3],
+        },
         shading: sheaf::Shading::default(),
         width: 48,
         height: 32,
     };
     let mut both = OwnedContext::new(&l).unwrap();
-    both.build_grid(&a.scene(), &sheaf::GridParams::default()).unwrap();
+    both.build_grid(&a.scene(), &sheaf::GridParams::default())
+        .unwrap();
     both.build_bvh(&a.scene(), &BvhParams::default()).unwrap();
-    both.build_grid(&b.scene(), &sheaf::GridParams::default()).unwrap();
+    both.build_grid(&b.scene(), &sheaf::GridParams::default())
+        .unwrap();
     let mut fresh = OwnedContext::new(&l).unwrap();
-    fresh.build_grid(&b.scene(), &sheaf::GridParams::default()).unwrap();
+    fresh
+        .build_grid(&b.scene(), &sheaf::GridParams::default())
+        .unwrap();
     let (mut got, mut want) = (vec![0u8; 48 * 32 * 4], vec![0u8; 48 * 32 * 4]);
     for m in [Method::GridDda, Method::GridCgt] {
         both.render(m, &frame, &mut got, 48 * 4).unwrap();
         fresh.render(m, &frame, &mut want, 48 * 4).unwrap();
-        assert!(got == want, "{}: the old BVH shaded the new grid's hits", m.name());
+        assert!(
+            got == want,
+            "{}: the old BVH shaded the new grid's hits",
+            m.name()
+        );
     }
     let mut none = l;
     none.structures = 0;
-    assert!(matches!(OwnedContext::new(&none), Err(sheaf::Error::InvalidArgument(_))));
+    assert!(matches!(
+        OwnedContext::new(&none),
+        Err(sheaf::Error::InvalidArgument(_))
+    ));
 }

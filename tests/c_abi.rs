@@ -25,8 +25,14 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use sheaf::ffi::{self, sheaf_frame, sheaf_grid_params, sheaf_hit, sheaf_method, sheaf_ray, sheaf_stats, sheaf_status};
-use sheaf::{Camera, Frame, GridParams, Hit, Limits, Method, OwnedContext, PointLight, Ray, Scene, Shading, TriTest};
+use sheaf::ffi::{
+    self, sheaf_frame, sheaf_grid_params, sheaf_hit, sheaf_method, sheaf_ray, sheaf_stats,
+    sheaf_status,
+};
+use sheaf::{
+    Camera, Frame, GridParams, Hit, Limits, Method, OwnedContext, PointLight, Ray, Scene, Shading,
+    TriTest,
+};
 
 // ---- where things are --------------------------------------------------------
 
@@ -41,7 +47,10 @@ fn root() -> &'static Path {
 /// copies there may be stale; they are used only when deps/ has none.
 fn lib_dir() -> PathBuf {
     let exe = std::env::current_exe().expect("current_exe");
-    let deps = exe.parent().expect("test binary lives in target/<profile>/deps").to_path_buf();
+    let deps = exe
+        .parent()
+        .expect("test binary lives in target/<profile>/deps")
+        .to_path_buf();
     let has_libs = |d: &Path| d.join("libsheaf.a").is_file() && d.join("libsheaf.so").is_file();
     if has_libs(&deps) {
         return deps;
@@ -59,15 +68,28 @@ fn lib_dir() -> PathBuf {
 /// Where compiled test programs go (`target/tmp/ffi-tests-<profile>`).
 fn out_dir() -> PathBuf {
     let exe = std::env::current_exe().expect("current_exe");
-    let profile = exe.parent().and_then(Path::parent).and_then(Path::file_name).unwrap().to_string_lossy().into_owned();
+    let profile = exe
+        .parent()
+        .and_then(Path::parent)
+        .and_then(Path::file_name)
+        .unwrap()
+        .to_string_lossy()
+        .into_owned();
     let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("ffi-tests-{profile}"));
     std::fs::create_dir_all(&dir).unwrap();
     dir
 }
 
 fn require(tool: &str) {
-    let ok = Command::new(tool).arg("--version").output().map(|o| o.status.success()).unwrap_or(false);
-    assert!(ok, "`{tool}` not found: the C ABI tests need Debian's gcc and g++ (apt-get install gcc g++)");
+    let ok = Command::new(tool)
+        .arg("--version")
+        .output()
+        .map(|o| o.status.success())
+        .unwrap_or(false);
+    assert!(
+        ok,
+        "`{tool}` not found: the C ABI tests need Debian's gcc and g++ (apt-get install gcc g++)"
+    );
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -80,7 +102,9 @@ enum Link {
 
 fn run_tool(cmd: &mut Command) {
     let shown = format!("{cmd:?}");
-    let out = cmd.output().unwrap_or_else(|e| panic!("cannot run {shown}: {e}"));
+    let out = cmd
+        .output()
+        .unwrap_or_else(|e| panic!("cannot run {shown}: {e}"));
     assert!(
         out.status.success(),
         "compilation failed:\n{shown}\n{}{}",
@@ -93,7 +117,11 @@ fn run_tool(cmd: &mut Command) {
 fn compile(compiler: &str, std_flags: &[&str], src: &str, link: Link) -> PathBuf {
     require(compiler);
     let lib = lib_dir();
-    let stem = Path::new(src).file_stem().unwrap().to_string_lossy().into_owned();
+    let stem = Path::new(src)
+        .file_stem()
+        .unwrap()
+        .to_string_lossy()
+        .into_owned();
     let exe = out_dir().join(format!("{stem}-{}", format!("{link:?}").to_lowercase()));
     let mut cmd = Command::new(compiler);
     cmd.args(std_flags)
@@ -108,16 +136,19 @@ fn compile(compiler: &str, std_flags: &[&str], src: &str, link: Link) -> PathBuf
     match link {
         Link::Static => cmd.args(["-l:libsheaf.a", "-lm", "-lpthread", "-ldl"]),
         // DT_RPATH (not RUNPATH): searched before any LD_LIBRARY_PATH.
-        Link::Shared => cmd.arg("-lsheaf").arg(format!("-Wl,-rpath,{}", lib.display())).args([
-            "-Wl,--disable-new-dtags",
-            "-lm",
-            "-lpthread",
-        ]),
+        Link::Shared => cmd
+            .arg("-lsheaf")
+            .arg(format!("-Wl,-rpath,{}", lib.display()))
+            .args(["-Wl,--disable-new-dtags", "-lm", "-lpthread"]),
     };
     run_tool(&mut cmd);
     if let Link::Shared = link {
         let bytes = std::fs::read(&exe).unwrap();
-        assert!(bytes.windows(11).any(|w| w == b"libsheaf.so"), "{} does not link libsheaf.so", exe.display());
+        assert!(
+            bytes.windows(11).any(|w| w == b"libsheaf.so"),
+            "{} does not link libsheaf.so",
+            exe.display()
+        );
     }
     exe
 }
@@ -140,14 +171,29 @@ fn run(exe: &Path) -> String {
     let stderr = String::from_utf8_lossy(&out.stderr);
     let report: Vec<&str> = stdout.lines().filter(|l| !l.starts_with('@')).collect();
     println!("--- {} ---\n{}\n{stderr}", exe.display(), report.join("\n"));
-    assert!(out.status.success(), "{} failed ({}):\n{}\n{stderr}", exe.display(), out.status, report.join("\n"));
+    assert!(
+        out.status.success(),
+        "{} failed ({}):\n{}\n{stderr}",
+        exe.display(),
+        out.status,
+        report.join("\n")
+    );
     let last = report.last().copied().unwrap_or("");
     let (passed, failed) = last
         .strip_suffix(" failed")
         .and_then(|s| s.split_once(" passed, "))
-        .unwrap_or_else(|| panic!("{}: last line {last:?} is not \"N passed, M failed\"", exe.display()));
+        .unwrap_or_else(|| {
+            panic!(
+                "{}: last line {last:?} is not \"N passed, M failed\"",
+                exe.display()
+            )
+        });
     assert_eq!(failed, "0", "{}: {last}", exe.display());
-    assert!(passed.parse::<u32>().unwrap() > 0, "{}: no test ran", exe.display());
+    assert!(
+        passed.parse::<u32>().unwrap() > 0,
+        "{}: no test ran",
+        exe.display()
+    );
     stdout
 }
 
@@ -256,13 +302,25 @@ fn cpp_static_and_shared() {
 #[test]
 fn header_compiles_alone() {
     let header = root().join("include").join("sheaf.h");
-    for (compiler, lang, std) in
-        [("gcc", "c", "-std=c99"), ("gcc", "c", "-std=c11"), ("g++", "c++", "-std=c++11"), ("g++", "c++", "-std=c++17")]
-    {
+    for (compiler, lang, std) in [
+        ("gcc", "c", "-std=c99"),
+        ("gcc", "c", "-std=c11"),
+        ("g++", "c++", "-std=c++11"),
+        ("g++", "c++", "-std=c++17"),
+    ] {
         require(compiler);
         run_tool(
             Command::new(compiler)
-                .args([std, "-Wall", "-Wextra", "-Werror", "-pedantic", "-fsyntax-only", "-x", lang])
+                .args([
+                    std,
+                    "-Wall",
+                    "-Wextra",
+                    "-Werror",
+                    "-pedantic",
+                    "-fsyntax-only",
+                    "-x",
+                    lang,
+                ])
                 .arg(&header),
         );
     }
@@ -328,7 +386,12 @@ fn parse(stdout: &str) -> Emitted {
             }
             "@ray" => {
                 assert_eq!(num(f[1]) as usize, e.rays.len());
-                e.rays.push(Ray { org: v3(2), tmin: hex_f32(f[5]), dir: v3(6), tmax: hex_f32(f[9]) });
+                e.rays.push(Ray {
+                    org: v3(2),
+                    tmin: hex_f32(f[5]),
+                    dir: v3(6),
+                    tmax: hex_f32(f[9]),
+                });
             }
             "@build" => {
                 let test = match num(f[2]) {
@@ -336,21 +399,50 @@ fn parse(stdout: &str) -> Emitted {
                     1 => TriTest::Watertight,
                     t => panic!("unknown test {t}"),
                 };
-                let p = GridParams { lambda: hex_f32(f[3]), macrocell: num(f[4]), test, fit: num(f[5]) != 0 };
+                let p = GridParams {
+                    lambda: hex_f32(f[3]),
+                    macrocell: num(f[4]),
+                    test,
+                    fit: num(f[5]) != 0,
+                };
                 e.builds.entry(num(f[1])).or_default().params = Some(p);
             }
-            "@stats" => e.builds.entry(num(f[1])).or_default().stats = f[2..].iter().map(|s| num(s)).collect(),
+            "@stats" => {
+                e.builds.entry(num(f[1])).or_default().stats =
+                    f[2..].iter().map(|s| num(s)).collect()
+            }
             "@hit" => {
-                let h = Hit { prim: num(f[3]), t: hex_f32(f[4]), u: hex_f32(f[5]), v: hex_f32(f[6]) };
-                e.builds.entry(num(f[1])).or_default().hits.insert(num(f[2]) as usize, h);
+                let h = Hit {
+                    prim: num(f[3]),
+                    t: hex_f32(f[4]),
+                    u: hex_f32(f[5]),
+                    v: hex_f32(f[6]),
+                };
+                e.builds
+                    .entry(num(f[1]))
+                    .or_default()
+                    .hits
+                    .insert(num(f[2]) as usize, h);
             }
             "@occ" => {
-                e.builds.entry(num(f[1])).or_default().occluded.insert(num(f[2]) as usize, num(f[3]) != 0);
+                e.builds
+                    .entry(num(f[1]))
+                    .or_default()
+                    .occluded
+                    .insert(num(f[2]) as usize, num(f[3]) != 0);
             }
             "@frame" => {
                 let frame = Frame {
-                    camera: Camera { eye: v3(5), look_at: v3(8), up: v3(11), fov_y_deg: hex_f32(f[14]) },
-                    light: PointLight { position: v3(15), color: v3(18) },
+                    camera: Camera {
+                        eye: v3(5),
+                        look_at: v3(8),
+                        up: v3(11),
+                        fov_y_deg: hex_f32(f[14]),
+                    },
+                    light: PointLight {
+                        position: v3(15),
+                        color: v3(18),
+                    },
                     shading: Shading {
                         albedo: v3(21),
                         ambient: hex_f32(f[24]),
@@ -394,8 +486,15 @@ fn crosscheck(link: Link) {
     let stdout = run(&compile_c("crosscheck.c", link));
     let e = parse(&stdout);
     let limits = e.limits.expect("@limits line");
-    assert!(e.vertices.len() > 100 && e.indices.len() > 300 && e.rays.len() > 1000, "too little data emitted");
-    assert_eq!(e.builds.keys().copied().collect::<Vec<_>>(), [0, 1], "both grid configurations emitted");
+    assert!(
+        e.vertices.len() > 100 && e.indices.len() > 300 && e.rays.len() > 1000,
+        "too little data emitted"
+    );
+    assert_eq!(
+        e.builds.keys().copied().collect::<Vec<_>>(),
+        [0, 1],
+        "both grid configurations emitted"
+    );
 
     // The same scene as in C: xyz plus one padding float per vertex (stride 16).
     let mut vbuf: Vec<f32> = Vec::new();
@@ -422,17 +521,24 @@ fn crosscheck(link: Link) {
         assert_eq!(b.stats, want_stats, "build {k}: C stats vs Rust GridInfo");
 
         let mut hits = vec![Hit::MISS; e.rays.len()];
-        ctx.trace(Method::GridDda, &e.rays, &mut hits).expect("trace");
+        ctx.trace(Method::GridDda, &e.rays, &mut hits)
+            .expect("trace");
         assert_eq!(b.hits.len(), e.rays.len(), "build {k}: one @hit per ray");
         let mut bad = Vec::new();
         for (i, want) in hits.iter().enumerate() {
             let got = &b.hits[&i];
             if !same_hit(got, want) {
-                bad.push(format!("  ray {i} {:?}: C {got:?} vs Rust {want:?}", e.rays[i]));
+                bad.push(format!(
+                    "  ray {i} {:?}: C {got:?} vs Rust {want:?}",
+                    e.rays[i]
+                ));
             }
         }
         let n_hit = hits.iter().filter(|h| h.is_hit()).count();
-        assert!(n_hit > e.rays.len() / 3, "build {k}: only {n_hit} hits: not a meaningful comparison");
+        assert!(
+            n_hit > e.rays.len() / 3,
+            "build {k}: only {n_hit} hits: not a meaningful comparison"
+        );
         assert!(
             bad.is_empty(),
             "build {k} ({params:?}): {} of {} hits differ:\n{}",
@@ -442,17 +548,32 @@ fn crosscheck(link: Link) {
         );
 
         let mut occ = vec![false; e.rays.len()];
-        ctx.occluded(Method::GridDda, &e.rays, &mut occ).expect("occluded");
-        assert_eq!(b.occluded.len(), e.rays.len(), "build {k}: one @occ per ray");
-        let bad: Vec<usize> = (0..occ.len()).filter(|&i| b.occluded[&i] != occ[i]).collect();
-        assert!(bad.is_empty(), "build {k}: occlusion differs for rays {bad:?}");
+        ctx.occluded(Method::GridDda, &e.rays, &mut occ)
+            .expect("occluded");
+        assert_eq!(
+            b.occluded.len(),
+            e.rays.len(),
+            "build {k}: one @occ per ray"
+        );
+        let bad: Vec<usize> = (0..occ.len())
+            .filter(|&i| b.occluded[&i] != occ[i])
+            .collect();
+        assert!(
+            bad.is_empty(),
+            "build {k}: occlusion differs for rays {bad:?}"
+        );
         assert!(occ.iter().any(|&o| o) && occ.iter().any(|&o| !o));
 
         let (frame, stride) = b.frame.expect("@frame line");
         let (w, h) = (frame.width as usize, frame.height as usize);
         let mut pixels = vec![0u8; (h - 1) * stride + 4 * w];
-        ctx.render(Method::GridDda, &frame, &mut pixels, stride).expect("render");
-        assert_eq!(b.image, Some(fnv1a(&pixels, w, h, stride)), "build {k}: rendered image differs");
+        ctx.render(Method::GridDda, &frame, &mut pixels, stride)
+            .expect("render");
+        assert_eq!(
+            b.image,
+            Some(fnv1a(&pixels, w, h, stride)),
+            "build {k}: rendered image differs"
+        );
         println!(
             "build {k}: {} rays ({n_hit} hits), occlusion and a {w}x{h} image identical through C and Rust",
             hits.len()
@@ -527,7 +648,9 @@ const OK: sheaf_status = sheaf_status::Ok;
 const DDA: u32 = sheaf_method::GridDda as u32;
 
 fn ground_and_box() -> (Vec<f32>, Vec<u32>) {
-    let mut v = vec![-4.0, -4.0, 0.0, 4.0, -4.0, 0.0, 4.0, 4.0, 0.0, -4.0, 4.0, 0.0];
+    let mut v = vec![
+        -4.0, -4.0, 0.0, 4.0, -4.0, 0.0, 4.0, 4.0, 0.0, -4.0, 4.0, 0.0,
+    ];
     let mut idx = vec![0, 1, 2, 0, 2, 3];
     for i in 0..8u32 {
         let c = |bit: u32, lo: f32, hi: f32| if i & bit != 0 { hi } else { lo };
@@ -572,12 +695,25 @@ fn inputs() -> Inputs {
         .map(|i| {
             let x = -3.0 + 0.1 * i as f32;
             let tmax = if i % 2 == 0 { f32::INFINITY } else { 4.5 };
-            sheaf_ray { org: [x, 0.3, 5.0], tmin: 0.0, dir: [0.1, 0.0, -1.0], tmax }
+            sheaf_ray {
+                org: [x, 0.3, 5.0],
+                tmin: 0.0,
+                dir: [0.1, 0.0, -1.0],
+                tmax,
+            }
         })
         .collect();
     let frame = sheaf_frame {
-        camera: Camera { eye: [6.0, -8.0, 5.0], look_at: [0.0, 0.0, 0.5], up: [0.0, 0.0, 1.0], fov_y_deg: 40.0 },
-        light: PointLight { position: [4.0, -3.0, 8.0], color: [1.0; 3] },
+        camera: Camera {
+            eye: [6.0, -8.0, 5.0],
+            look_at: [0.0, 0.0, 0.5],
+            up: [0.0, 0.0, 1.0],
+            fov_y_deg: 40.0,
+        },
+        light: PointLight {
+            position: [4.0, -3.0, 8.0],
+            color: [1.0; 3],
+        },
         shading: Shading::default(),
         width: 32,
         height: 24,
@@ -586,7 +722,15 @@ fn inputs() -> Inputs {
         v,
         idx,
         bad_idx,
-        hits: vec![sheaf_hit { t: 0.0, prim: 0, u: 0.0, v: 0.0 }; rays.len()],
+        hits: vec![
+            sheaf_hit {
+                t: 0.0,
+                prim: 0,
+                u: 0.0,
+                v: 0.0
+            };
+            rays.len()
+        ],
         occ: vec![0; rays.len()],
         rays,
         rgba: vec![0; 32 * 24 * 4],
@@ -607,51 +751,99 @@ fn session(ctx: *mut ffi::sheaf_context, x: &mut Inputs) -> u32 {
     };
     let null = std::ptr::null_mut();
     // State errors, then geometry and build.
-    fail(ffi::sheaf_context_build_grid(ctx, std::ptr::null()), sheaf_status::NoGeometry);
+    fail(
+        ffi::sheaf_context_build_grid(ctx, std::ptr::null()),
+        sheaf_status::NoGeometry,
+    );
     fail(
         ffi::sheaf_context_set_geometry(ctx, x.v.as_ptr(), 12, nv, x.bad_idx.as_ptr(), nt),
         sheaf_status::IndexOutOfRange,
     );
-    fail(ffi::sheaf_context_set_geometry(ctx, std::ptr::null(), 12, 3, x.idx.as_ptr(), nt), sheaf_status::NullPointer);
-    assert_eq!(ffi::sheaf_context_set_geometry(ctx, x.v.as_ptr(), 12, nv, x.idx.as_ptr(), nt), OK);
+    fail(
+        ffi::sheaf_context_set_geometry(ctx, std::ptr::null(), 12, 3, x.idx.as_ptr(), nt),
+        sheaf_status::NullPointer,
+    );
+    assert_eq!(
+        ffi::sheaf_context_set_geometry(ctx, x.v.as_ptr(), 12, nv, x.idx.as_ptr(), nt),
+        OK
+    );
     assert_eq!(ffi::sheaf_context_build_grid(ctx, std::ptr::null()), OK);
-    let mut p = sheaf_grid_params { lambda: 0.0, macrocell: 0, test: 0, fit: false };
+    let mut p = sheaf_grid_params {
+        lambda: 0.0,
+        macrocell: 0,
+        test: 0,
+        fit: false,
+    };
     assert_eq!(ffi::sheaf_grid_params_default(&mut p), OK);
     p.test = 1;
     assert_eq!(ffi::sheaf_context_build_grid(ctx, &p), OK);
     p.lambda = f32::NAN;
-    fail(ffi::sheaf_context_build_grid(ctx, &p), sheaf_status::InvalidArgument);
+    fail(
+        ffi::sheaf_context_build_grid(ctx, &p),
+        sheaf_status::InvalidArgument,
+    );
     // Trace and occluded.
     let n = x.rays.len();
-    assert_eq!(ffi::sheaf_context_trace(ctx, DDA, x.rays.as_ptr(), x.hits.as_mut_ptr(), n), OK);
+    assert_eq!(
+        ffi::sheaf_context_trace(ctx, DDA, x.rays.as_ptr(), x.hits.as_mut_ptr(), n),
+        OK
+    );
     assert!(x.hits.iter().any(|h| h.prim != ffi::SHEAF_INVALID_ID));
-    assert_eq!(ffi::sheaf_context_occluded(ctx, DDA, x.rays.as_ptr(), x.occ.as_mut_ptr(), n), OK);
-    fail(ffi::sheaf_context_trace(ctx, 77, x.rays.as_ptr(), x.hits.as_mut_ptr(), n), sheaf_status::InvalidArgument);
-    fail(ffi::sheaf_context_trace(ctx, DDA, x.rays.as_ptr(), null, n), sheaf_status::NullPointer);
+    assert_eq!(
+        ffi::sheaf_context_occluded(ctx, DDA, x.rays.as_ptr(), x.occ.as_mut_ptr(), n),
+        OK
+    );
+    fail(
+        ffi::sheaf_context_trace(ctx, 77, x.rays.as_ptr(), x.hits.as_mut_ptr(), n),
+        sheaf_status::InvalidArgument,
+    );
+    fail(
+        ffi::sheaf_context_trace(ctx, DDA, x.rays.as_ptr(), null, n),
+        sheaf_status::NullPointer,
+    );
     // Render and stats.
     assert_eq!(ffi::sheaf_shading_default(&mut x.frame.shading), OK);
     let len = x.rgba.len();
-    assert_eq!(ffi::sheaf_context_render(ctx, DDA, &x.frame, x.rgba.as_mut_ptr(), 32 * 4, len), OK);
+    assert_eq!(
+        ffi::sheaf_context_render(ctx, DDA, &x.frame, x.rgba.as_mut_ptr(), 32 * 4, len),
+        OK
+    );
     fail(
         ffi::sheaf_context_render(ctx, DDA, &x.frame, x.rgba.as_mut_ptr(), 32 * 4, len - 1),
         sheaf_status::InvalidArgument,
     );
-    let big = sheaf_frame { width: 5000, height: 1, ..x.frame };
-    fail(ffi::sheaf_context_render(ctx, DDA, &big, x.rgba.as_mut_ptr(), 5000 * 4, len), sheaf_status::CapacityImage);
+    let big = sheaf_frame {
+        width: 5000,
+        height: 1,
+        ..x.frame
+    };
+    fail(
+        ffi::sheaf_context_render(ctx, DDA, &big, x.rgba.as_mut_ptr(), 5000 * 4, len),
+        sheaf_status::CapacityImage,
+    );
     let mut stats = sheaf_stats::default();
     assert_eq!(ffi::sheaf_context_stats(ctx, &mut stats), OK);
     assert_eq!(stats.triangles, nt);
     // Last error (formatting with numbers), status strings, version.
     let mut msg = [0 as core::ffi::c_char; ffi::SHEAF_ERROR_MESSAGE_MAX];
     let mut written = 0usize;
-    assert_eq!(ffi::sheaf_context_last_error(ctx, msg.as_mut_ptr(), msg.len(), &mut written), OK);
+    assert_eq!(
+        ffi::sheaf_context_last_error(ctx, msg.as_mut_ptr(), msg.len(), &mut written),
+        OK
+    );
     assert!(written > 0);
     fail(
         ffi::sheaf_context_set_geometry(ctx, x.v.as_ptr(), 12, nv, x.bad_idx.as_ptr(), nt),
         sheaf_status::IndexOutOfRange,
     );
-    assert_eq!(ffi::sheaf_context_last_error(ctx, msg.as_mut_ptr(), msg.len(), &mut written), OK);
-    assert_eq!(ffi::sheaf_context_last_error(ctx, msg.as_mut_ptr(), 7, &mut written), OK);
+    assert_eq!(
+        ffi::sheaf_context_last_error(ctx, msg.as_mut_ptr(), msg.len(), &mut written),
+        OK
+    );
+    assert_eq!(
+        ffi::sheaf_context_last_error(ctx, msg.as_mut_ptr(), 7, &mut written),
+        OK
+    );
     for s in sheaf_status::ALL {
         assert!(!ffi::sheaf_status_string(*s as u32).is_null());
     }
@@ -676,7 +868,10 @@ fn no_allocation_after_create() {
     assert_eq!(n, 1, "sheaf_context_create must allocate exactly once");
     let (n, failures) = allocations(|| session(ctx, &mut x));
     assert!(failures >= 9, "{failures} error paths exercised");
-    assert_eq!(n, 0, "a call through the C ABI allocated after sheaf_context_create");
+    assert_eq!(
+        n, 0,
+        "a call through the C ABI allocated after sheaf_context_create"
+    );
     ffi::sheaf_context_destroy(ctx);
 
     // sheaf_context_create_in: never.
@@ -695,7 +890,10 @@ fn no_allocation_after_create() {
         s
     });
     assert_eq!(s, OK);
-    assert_eq!(n, 0, "sheaf_context_create_in and the calls on its context must never allocate");
+    assert_eq!(
+        n, 0,
+        "sheaf_context_create_in and the calls on its context must never allocate"
+    );
 }
 
 /// The results through the C ABI equal the Rust API's, in process too (all
@@ -717,10 +915,20 @@ fn ffi_trace_equals_rust_trace_in_process() {
             )
         })
         .collect();
-    let cray: Vec<sheaf_ray> =
-        rays.iter().map(|r| sheaf_ray { org: r.org, tmin: r.tmin, dir: r.dir, tmax: r.tmax }).collect();
+    let cray: Vec<sheaf_ray> = rays
+        .iter()
+        .map(|r| sheaf_ray {
+            org: r.org,
+            tmin: r.tmin,
+            dir: r.dir,
+            tmax: r.tmax,
+        })
+        .collect();
     for test in [TriTest::MollerTrumbore, TriTest::Watertight] {
-        let params = GridParams { test, ..GridParams::default() };
+        let params = GridParams {
+            test,
+            ..GridParams::default()
+        };
         let mut rust = OwnedContext::new(&limits).unwrap();
         rust.build_grid(&scene, &params).unwrap();
         let mut want = vec![Hit::MISS; rays.len()];
@@ -728,16 +936,45 @@ fn ffi_trace_equals_rust_trace_in_process() {
 
         let mut ctx: *mut ffi::sheaf_context = std::ptr::null_mut();
         assert_eq!(ffi::sheaf_context_create(&limits, &mut ctx), OK);
-        assert_eq!(ffi::sheaf_context_set_geometry(ctx, v.as_ptr(), 12, (v.len() / 3) as u32, idx.as_ptr(), nt), OK);
+        assert_eq!(
+            ffi::sheaf_context_set_geometry(
+                ctx,
+                v.as_ptr(),
+                12,
+                (v.len() / 3) as u32,
+                idx.as_ptr(),
+                nt
+            ),
+            OK
+        );
         let cp = sheaf_grid_params::of(&params);
         assert_eq!(ffi::sheaf_context_build_grid(ctx, &cp), OK);
-        let mut got = vec![sheaf_hit { t: 0.0, prim: 0, u: 0.0, v: 0.0 }; rays.len()];
-        assert_eq!(ffi::sheaf_context_trace(ctx, DDA, cray.as_ptr(), got.as_mut_ptr(), cray.len()), OK);
+        let mut got = vec![
+            sheaf_hit {
+                t: 0.0,
+                prim: 0,
+                u: 0.0,
+                v: 0.0
+            };
+            rays.len()
+        ];
+        assert_eq!(
+            ffi::sheaf_context_trace(ctx, DDA, cray.as_ptr(), got.as_mut_ptr(), cray.len()),
+            OK
+        );
         ffi::sheaf_context_destroy(ctx);
         assert!(want.iter().filter(|h| h.is_hit()).count() > 100);
         for (i, (g, w)) in got.iter().zip(&want).enumerate() {
-            let g = Hit { t: g.t, prim: g.prim, u: g.u, v: g.v };
-            assert!(same_hit(&g, w), "{test:?} ray {i}: C ABI {g:?} vs Rust {w:?}");
+            let g = Hit {
+                t: g.t,
+                prim: g.prim,
+                u: g.u,
+                v: g.v,
+            };
+            assert!(
+                same_hit(&g, w),
+                "{test:?} ray {i}: C ABI {g:?} vs Rust {w:?}"
+            );
         }
     }
 }

@@ -21,7 +21,12 @@ fn packets(rays: &[Ray], w: usize, h: usize, n: usize) -> Vec<(Vec<Ray4>, Vec<us
             let mut idx = Vec::new();
             for qy in (ty..ty + n).step_by(2) {
                 for qx in (tx..tx + n).step_by(2) {
-                    let ids = [qy * w + qx, qy * w + qx + 1, (qy + 1) * w + qx, (qy + 1) * w + qx + 1];
+                    let ids = [
+                        qy * w + qx,
+                        qy * w + qx + 1,
+                        (qy + 1) * w + qx,
+                        (qy + 1) * w + qx + 1,
+                    ];
                     quads.push(Ray4::from_rays(&ids.map(|i| rays[i])));
                     idx.extend(ids);
                 }
@@ -35,7 +40,13 @@ fn packets(rays: &[Ray], w: usize, h: usize, n: usize) -> Vec<(Vec<Ray4>, Vec<us
 fn single<T: GridTest>(g: &GridView, rays: &[Ray], any: bool) -> Vec<Hit> {
     let mut c = Counters::default();
     rays.iter()
-        .map(|r| if any { traverse_single::any_hit::<T>(g, r, &mut c) } else { traverse_single::intersect::<T>(g, r, &mut c) })
+        .map(|r| {
+            if any {
+                traverse_single::any_hit::<T>(g, r, &mut c)
+            } else {
+                traverse_single::intersect::<T>(g, r, &mut c)
+            }
+        })
         .collect()
 }
 
@@ -46,24 +57,57 @@ struct Run<'a> {
 }
 
 impl Run<'_> {
-    fn check<T: GridTest>(&mut self, what: &str, rays: &[Ray], w: usize, h: usize, any: bool) -> Counters {
+    fn check<T: GridTest>(
+        &mut self,
+        what: &str,
+        rays: &[Ray],
+        w: usize,
+        h: usize,
+        any: bool,
+    ) -> Counters {
         let want = single::<T>(&self.g, rays, any);
         let mut total = Counters::default();
         for n in [2usize, 4, 8, 16, 32] {
             if w % n != 0 || h % n != 0 {
                 continue;
             }
-            for (mc, mb, cull) in [(true, true, true), (false, true, true), (true, false, true), (true, true, false), (false, false, false)] {
-                let opt = CgtOptions { macrocells: mc, mailbox: mb, culling: cull };
+            for (mc, mb, cull) in [
+                (true, true, true),
+                (false, true, true),
+                (true, false, true),
+                (true, true, false),
+                (false, false, false),
+            ] {
+                let opt = CgtOptions {
+                    macrocells: mc,
+                    mailbox: mb,
+                    culling: cull,
+                };
                 let mut mailbox = Mailbox::new(&mut self.stamps, &mut self.packet);
                 let mut ctr = Counters::default();
                 for (quads, idx) in packets(rays, w, h, n) {
                     let active = vec![M4::TRUE; quads.len()];
                     let mut hits = vec![Hit4::MISS; quads.len()];
                     if any {
-                        traverse_cgt::occluded::<T>(&self.g, &quads, &active, &mut hits, &opt, &mut mailbox, &mut ctr);
+                        traverse_cgt::occluded::<T>(
+                            &self.g,
+                            &quads,
+                            &active,
+                            &mut hits,
+                            &opt,
+                            &mut mailbox,
+                            &mut ctr,
+                        );
                     } else {
-                        traverse_cgt::intersect::<T>(&self.g, &quads, &active, &mut hits, &opt, &mut mailbox, &mut ctr);
+                        traverse_cgt::intersect::<T>(
+                            &self.g,
+                            &quads,
+                            &active,
+                            &mut hits,
+                            &opt,
+                            &mut mailbox,
+                            &mut ctr,
+                        );
                     }
                     for (k, &ri) in idx.iter().enumerate() {
                         let got = hits[k / 4].lane(k % 4);
@@ -93,15 +137,30 @@ fn scene_ctx(s: &TestScene, test: TriTest) -> OwnedContext {
     l.max_vertices = (s.vertices.len() / 3) as u32;
     l.projection_test = true;
     let mut ctx = OwnedContext::new(&l).unwrap();
-    ctx.build_grid(&s.scene(), &GridParams { test, ..GridParams::default() }).unwrap();
+    ctx.build_grid(
+        &s.scene(),
+        &GridParams {
+            test,
+            ..GridParams::default()
+        },
+    )
+    .unwrap();
     ctx
 }
 
 fn check_scene(s: &TestScene, res: usize) {
-    for test in [TriTest::MollerTrumbore, TriTest::Watertight, TriTest::Projection] {
+    for test in [
+        TriTest::MollerTrumbore,
+        TriTest::Watertight,
+        TriTest::Projection,
+    ] {
         let ctx = scene_ctx(s, test);
         let g = ctx.tracer().unwrap().grid.unwrap();
-        let mut run = Run { g, stamps: vec![0; g.tris.len()], packet: 0 };
+        let mut run = Run {
+            g,
+            stamps: vec![0; g.tris.len()],
+            packet: 0,
+        };
         let mut sum = Counters::default();
         for (vname, view) in &s.views {
             let what = format!("{} {vname}", s.name);
@@ -120,22 +179,42 @@ fn check_scene(s: &TestScene, res: usize) {
                 .iter()
                 .zip(&hits)
                 .map(|(r, h)| {
-                    let p = if h.is_hit() { Vec3::from(r.org) + Vec3::from(r.dir) * h.t } else { Vec3::from(r.org) + Vec3::from(r.dir) };
+                    let p = if h.is_hit() {
+                        Vec3::from(r.org) + Vec3::from(r.dir) * h.t
+                    } else {
+                        Vec3::from(r.org) + Vec3::from(r.dir)
+                    };
                     Ray::new(light, p - light, 0.0, 1.0 - 1e-4)
                 })
                 .collect();
             let c = match test {
-                TriTest::MollerTrumbore => run.check::<Mt>(&(what.clone() + " shadow"), &shadow, res, res, true),
-                TriTest::Watertight => run.check::<Wt>(&(what.clone() + " shadow"), &shadow, res, res, true),
-                TriTest::Projection => run.check::<Pt>(&(what.clone() + " shadow"), &shadow, res, res, true),
+                TriTest::MollerTrumbore => {
+                    run.check::<Mt>(&(what.clone() + " shadow"), &shadow, res, res, true)
+                }
+                TriTest::Watertight => {
+                    run.check::<Wt>(&(what.clone() + " shadow"), &shadow, res, res, true)
+                }
+                TriTest::Projection => {
+                    run.check::<Pt>(&(what.clone() + " shadow"), &shadow, res, res, true)
+                }
             };
             sum.add(&c);
         }
         println!(
             "{:>10} {test:?}: {} packets, {} rays, {} stray lanes, {} cells, {} tests, {} mailbox skips, {} culled",
-            s.name, sum.packets, sum.rays, sum.stray_lanes, sum.cells, sum.tri_tests, sum.mailbox_skips, sum.culled
+            s.name,
+            sum.packets,
+            sum.rays,
+            sum.stray_lanes,
+            sum.cells,
+            sum.tri_tests,
+            sum.mailbox_skips,
+            sum.culled
         );
-        assert!(sum.culled > 0 && sum.mailbox_skips > 0, "culling and mailboxing must be exercised");
+        assert!(
+            sum.culled > 0 && sum.mailbox_skips > 0,
+            "culling and mailboxing must be exercised"
+        );
     }
 }
 
@@ -157,10 +236,17 @@ fn cgt_equals_3dda_on_obj_scenes() {
 fn adversarial_packets_stay_exact() {
     // Random directions inside a packet (mixed signs on every axis), from a
     // common origin inside the grid and from scattered origins.
-    let s = builtin_scenes().into_iter().find(|s| s.name == "animated").unwrap();
+    let s = builtin_scenes()
+        .into_iter()
+        .find(|s| s.name == "animated")
+        .unwrap();
     let ctx = scene_ctx(&s, TriTest::MollerTrumbore);
     let g = ctx.tracer().unwrap().grid.unwrap();
-    let mut run = Run { g, stamps: vec![0; g.tris.len()], packet: 0 };
+    let mut run = Run {
+        g,
+        stamps: vec![0; g.tris.len()],
+        packet: 0,
+    };
     let (lo, hi) = (g.info.bounds.min, g.info.bounds.max);
     let mut x = 0x2545f4914f6cdd1du64;
     let mut rnd = || {
@@ -173,7 +259,11 @@ fn adversarial_packets_stay_exact() {
     for common in [true, false] {
         let rays: Vec<Ray> = (0..32 * 32)
             .map(|_| {
-                let o = if common { centre } else { lo + (hi - lo) * Vec3::new(rnd(), rnd(), rnd()) };
+                let o = if common {
+                    centre
+                } else {
+                    lo + (hi - lo) * Vec3::new(rnd(), rnd(), rnd())
+                };
                 let mut d = Vec3::new(rnd() - 0.5, rnd() - 0.5, rnd() - 0.5);
                 if rnd() < 0.1 {
                     d.x = 0.0; // axis-parallel components too
@@ -182,7 +272,10 @@ fn adversarial_packets_stay_exact() {
             })
             .collect();
         let c = run.check::<Mt>("adversarial", &rays, 32, 32, false);
-        assert!(c.stray_lanes > 0, "mixed signs must send lanes to the 3DDDA");
+        assert!(
+            c.stray_lanes > 0,
+            "mixed signs must send lanes to the 3DDDA"
+        );
         run.check::<Mt>("adversarial shadow", &rays, 32, 32, true);
     }
     // Active lanes with invalid rays are written as misses (the sentinel
@@ -191,20 +284,49 @@ fn adversarial_packets_stay_exact() {
     bad[0].dir = [f32::NAN, 0.0, 1.0];
     bad[5].tmin = -1.0;
     let quads: Vec<Ray4> = packets(&bad, 4, 4, 4).remove(0).0;
-    let sentinel = Hit4 { t: F4::splat(-7.0), prim: [42; 4], u: F4::ZERO, v: F4::ZERO };
+    let sentinel = Hit4 {
+        t: F4::splat(-7.0),
+        prim: [42; 4],
+        u: F4::ZERO,
+        v: F4::ZERO,
+    };
     let mut hits = vec![sentinel; quads.len()];
     let mut mb = Mailbox::new(&mut run.stamps, &mut run.packet);
     let all = vec![M4::TRUE; quads.len()];
-    traverse_cgt::intersect::<Mt>(&g, &quads, &all, &mut hits, &CgtOptions::default(), &mut mb, &mut Counters::default());
-    assert!(hits.iter().all(|h| h.prim.iter().all(|&p| p != 42)), "{hits:?}");
+    traverse_cgt::intersect::<Mt>(
+        &g,
+        &quads,
+        &all,
+        &mut hits,
+        &CgtOptions::default(),
+        &mut mb,
+        &mut Counters::default(),
+    );
+    assert!(
+        hits.iter().all(|h| h.prim.iter().all(|&p| p != 42)),
+        "{hits:?}"
+    );
     // Inactive lanes are left untouched.
     let rays = view_rays(&s.views[0].1, 4, 4);
     let quads: Vec<Ray4> = packets(&rays, 4, 4, 4).remove(0).0;
     let active = vec![M4::new(true, false, true, false); quads.len()];
-    let sentinel = Hit4 { t: F4::splat(-7.0), prim: [42; 4], u: F4::ZERO, v: F4::ZERO };
+    let sentinel = Hit4 {
+        t: F4::splat(-7.0),
+        prim: [42; 4],
+        u: F4::ZERO,
+        v: F4::ZERO,
+    };
     let mut hits = vec![sentinel; quads.len()];
     let mut mb = Mailbox::new(&mut run.stamps, &mut run.packet);
-    traverse_cgt::intersect::<Mt>(&g, &quads, &active, &mut hits, &CgtOptions::default(), &mut mb, &mut Counters::default());
+    traverse_cgt::intersect::<Mt>(
+        &g,
+        &quads,
+        &active,
+        &mut hits,
+        &CgtOptions::default(),
+        &mut mb,
+        &mut Counters::default(),
+    );
     for h in &hits {
         assert_eq!((h.prim[1], h.t[1], h.prim[3], h.t[3]), (42, -7.0, 42, -7.0));
     }
@@ -214,7 +336,10 @@ fn adversarial_packets_stay_exact() {
 fn context_trace_with_cgt_matches_dda_and_renders_identical_images() {
     use sheaf::render::{Camera, Frame, PointLight, Shading};
     use sheaf::{Method, TraceParams};
-    for s in builtin_scenes().into_iter().chain(obj_scenes().into_iter().filter(|s| s.name == "bunny")) {
+    for s in builtin_scenes()
+        .into_iter()
+        .chain(obj_scenes().into_iter().filter(|s| s.name == "bunny"))
+    {
         let mut ctx = scene_ctx(&s, TriTest::MollerTrumbore);
         for (vname, view) in &s.views {
             // Rays in 2x2-quad order for packets: any order is exact, this
@@ -224,21 +349,35 @@ fn context_trace_with_cgt_matches_dda_and_renders_identical_images() {
             ctx.trace(Method::GridDda, &rays, &mut want).unwrap();
             for n in [2u32, 4, 8, 16, 32] {
                 let mut got = vec![Hit::MISS; rays.len()];
-                ctx.trace_with(&TraceParams::cgt(n), &rays, &mut got).unwrap();
+                ctx.trace_with(&TraceParams::cgt(n), &rays, &mut got)
+                    .unwrap();
                 for (i, (g, w)) in got.iter().zip(&want).enumerate() {
-                    assert!(g.prim == w.prim && g.t.to_bits() == w.t.to_bits(), "{} {vname} n={n} ray {i}: {g:?} vs {w:?}", s.name);
+                    assert!(
+                        g.prim == w.prim && g.t.to_bits() == w.t.to_bits(),
+                        "{} {vname} n={n} ray {i}: {g:?} vs {w:?}",
+                        s.name
+                    );
                 }
                 let mut occ_d = vec![false; rays.len()];
                 let mut occ_c = vec![true; rays.len()];
                 ctx.occluded(Method::GridDda, &rays, &mut occ_d).unwrap();
-                ctx.occluded_with(&TraceParams::cgt(n), &rays, &mut occ_c).unwrap();
+                ctx.occluded_with(&TraceParams::cgt(n), &rays, &mut occ_c)
+                    .unwrap();
                 assert_eq!(occ_d, occ_c, "{} {vname} n={n}: occlusion differs", s.name);
             }
             // Whole frames: every packet size (and splitting on/off) gives
             // the 3DDDA's image pixel for pixel (70 x 50: partial tiles too).
             let frame = Frame {
-                camera: Camera { eye: view.eye.to_array(), look_at: view.look_at.to_array(), up: view.up.to_array(), fov_y_deg: view.fov_y_deg },
-                light: PointLight { position: s.light.to_array(), color: [1.0; 3] },
+                camera: Camera {
+                    eye: view.eye.to_array(),
+                    look_at: view.look_at.to_array(),
+                    up: view.up.to_array(),
+                    fov_y_deg: view.fov_y_deg,
+                },
+                light: PointLight {
+                    position: s.light.to_array(),
+                    color: [1.0; 3],
+                },
                 shading: Shading::default(),
                 width: 70,
                 height: 50,
@@ -246,14 +385,26 @@ fn context_trace_with_cgt_matches_dda_and_renders_identical_images() {
             let stride = 70 * 4;
             let mut base = vec![0u8; stride * 50];
             let dda = TraceParams::dda();
-            ctx.render_with(&dda, &dda, &frame, &mut base, stride).unwrap();
+            ctx.render_with(&dda, &dda, &frame, &mut base, stride)
+                .unwrap();
             for n in [2u32, 4, 8, 16, 32] {
                 for split in [0.0f32, 1.5] {
-                    let p = TraceParams { split, ..TraceParams::cgt(n) };
+                    let p = TraceParams {
+                        split,
+                        ..TraceParams::cgt(n)
+                    };
                     let mut img = vec![0u8; stride * 50];
                     let c = ctx.render_with(&p, &p, &frame, &mut img, stride).unwrap();
-                    let diff = img.chunks(4).zip(base.chunks(4)).filter(|(a, b)| a != b).count();
-                    assert_eq!(diff, 0, "{} {vname} n={n} split={split}: {diff} pixels differ from the 3DDDA image", s.name);
+                    let diff = img
+                        .chunks(4)
+                        .zip(base.chunks(4))
+                        .filter(|(a, b)| a != b)
+                        .count();
+                    assert_eq!(
+                        diff, 0,
+                        "{} {vname} n={n} split={split}: {diff} pixels differ from the 3DDDA image",
+                        s.name
+                    );
                     assert!(c.packets > 0);
                 }
             }

@@ -4,7 +4,9 @@
 mod common;
 
 use sheaf::geom::INVALID_ID;
-use sheaf::{Context, Error, GridParams, Hit, Limits, Method, OwnedContext, Pool, Ray, Scene, required_bytes};
+use sheaf::{
+    Context, Error, GridParams, Hit, Limits, Method, OwnedContext, Pool, Ray, Scene, required_bytes,
+};
 
 /// 64-byte aligned scratch buffer for `Context::new_in`.
 fn aligned(bytes: usize) -> Vec<u8> {
@@ -31,7 +33,12 @@ fn down_rays() -> Vec<Ray> {
         .map(|k| {
             let x = -0.9 + 0.12 * (k % 4) as f32;
             let y = -0.8 + 0.11 * (k / 4) as f32;
-            Ray { org: [x, y, 5.0], tmin: 0.0, dir: [0.0, 0.0, -1.0], tmax: f32::INFINITY }
+            Ray {
+                org: [x, y, 5.0],
+                tmin: 0.0,
+                dir: [0.0, 0.0, -1.0],
+                tmax: f32::INFINITY,
+            }
         })
         .collect()
 }
@@ -43,7 +50,13 @@ fn required_bytes_is_exact() {
     let mut buf = aligned(need);
     assert!(Context::new_in(aligned_slice(&mut buf, need), &limits).is_ok());
     let short = Context::new_in(aligned_slice(&mut buf, need - 1), &limits).err();
-    assert_eq!(short, Some(Error::BufferTooSmall { needed: need as u64, available: need as u64 - 1 }));
+    assert_eq!(
+        short,
+        Some(Error::BufferTooSmall {
+            needed: need as u64,
+            available: need as u64 - 1
+        })
+    );
     let off = buf.as_ptr().align_offset(64) + 8;
     let mis = Context::new_in(&mut buf[off..off + need], &limits).err();
     assert_eq!(mis, Some(Error::Misaligned { required: 64 }));
@@ -56,7 +69,10 @@ fn bad_limits_are_rejected() {
     assert!(matches!(required_bytes(&l), Err(Error::InvalidArgument(_))));
     let mut l = Limits::for_triangles(10);
     l.max_tile = 3;
-    assert!(matches!(OwnedContext::new(&l), Err(Error::InvalidArgument(_))));
+    assert!(matches!(
+        OwnedContext::new(&l),
+        Err(Error::InvalidArgument(_))
+    ));
 }
 
 #[test]
@@ -64,9 +80,22 @@ fn out_of_range_index_is_an_error() {
     let (v, mut i) = two_quads();
     i[7] = 8;
     let e = Scene::from_f32(&v, &i).err();
-    assert_eq!(e, Some(Error::IndexOutOfRange { triangle: 2, index: 8, vertex_count: 8 }));
-    assert!(matches!(Scene::new(bytemuck::cast_slice(&v), 10, 8, &i), Err(Error::InvalidArgument(_))));
-    assert!(matches!(Scene::new(bytemuck::cast_slice(&v), 16, 8, &i), Err(Error::InvalidArgument(_))));
+    assert_eq!(
+        e,
+        Some(Error::IndexOutOfRange {
+            triangle: 2,
+            index: 8,
+            vertex_count: 8
+        })
+    );
+    assert!(matches!(
+        Scene::new(bytemuck::cast_slice(&v), 10, 8, &i),
+        Err(Error::InvalidArgument(_))
+    ));
+    assert!(matches!(
+        Scene::new(bytemuck::cast_slice(&v), 16, 8, &i),
+        Err(Error::InvalidArgument(_))
+    ));
 }
 
 #[test]
@@ -74,14 +103,18 @@ fn trace_before_build_is_not_built() {
     let mut ctx = OwnedContext::new(&Limits::for_triangles(4)).unwrap();
     let rays = down_rays();
     let mut hits = vec![Hit::MISS; rays.len()];
-    assert_eq!(ctx.trace(Method::GridDda, &rays, &mut hits), Err(Error::NotBuilt));
+    assert_eq!(
+        ctx.trace(Method::GridDda, &rays, &mut hits),
+        Err(Error::NotBuilt)
+    );
 }
 
 #[test]
 fn nearest_hits_and_occlusion_on_two_quads() {
     let (v, i) = two_quads();
     let mut ctx = OwnedContext::new(&Limits::for_triangles(4)).unwrap();
-    ctx.build_grid(&Scene::from_f32(&v, &i).unwrap(), &GridParams::default()).unwrap();
+    ctx.build_grid(&Scene::from_f32(&v, &i).unwrap(), &GridParams::default())
+        .unwrap();
     let rays = down_rays();
     let mut hits = vec![Hit::MISS; rays.len()];
     ctx.trace(Method::GridDda, &rays, &mut hits).unwrap();
@@ -91,13 +124,27 @@ fn nearest_hits_and_occlusion_on_two_quads() {
     }
     // Shadow rays from below the lower quad to above the upper one are blocked,
     // rays that stop between the quads are blocked by the lower quad only when it is crossed.
-    let up: Vec<Ray> = rays.iter().map(|r| Ray { org: [r.org[0], r.org[1], 0.5], dir: [0.0, 0.0, 1.0], tmax: 0.4, ..*r }).collect();
+    let up: Vec<Ray> = rays
+        .iter()
+        .map(|r| Ray {
+            org: [r.org[0], r.org[1], 0.5],
+            dir: [0.0, 0.0, 1.0],
+            tmax: 0.4,
+            ..*r
+        })
+        .collect();
     let mut occ = vec![true; up.len()];
     ctx.occluded(Method::GridDda, &up, &mut occ).unwrap();
-    assert!(occ.iter().all(|o| !o), "segments between the quads are free");
+    assert!(
+        occ.iter().all(|o| !o),
+        "segments between the quads are free"
+    );
     let through: Vec<Ray> = up.iter().map(|r| Ray { tmax: 0.6, ..*r }).collect();
     ctx.occluded(Method::GridDda, &through, &mut occ).unwrap();
-    assert!(occ.iter().all(|o| *o), "segments crossing the upper quad are blocked");
+    assert!(
+        occ.iter().all(|o| *o),
+        "segments crossing the upper quad are blocked"
+    );
     assert!(ctx.stats().counters.rays as usize == through.len());
 }
 
@@ -108,8 +155,18 @@ fn non_finite_and_zero_area_triangles_are_excluded_and_counted() {
     i.extend_from_slice(&[4, 4, 5]); // zero area (repeated vertex)
     i.extend_from_slice(&[4, 5, 5]);
     let mut ctx = OwnedContext::new(&Limits::for_triangles(8)).unwrap();
-    let info = ctx.build_grid(&Scene::from_f32(&v, &i).unwrap(), &GridParams::default()).unwrap();
-    assert_eq!((info.triangles_in, info.triangles, info.excluded_non_finite, info.excluded_zero_area), (6, 2, 2, 2));
+    let info = ctx
+        .build_grid(&Scene::from_f32(&v, &i).unwrap(), &GridParams::default())
+        .unwrap();
+    assert_eq!(
+        (
+            info.triangles_in,
+            info.triangles,
+            info.excluded_non_finite,
+            info.excluded_zero_area
+        ),
+        (6, 2, 2, 2)
+    );
     let rays = down_rays();
     let mut hits = vec![Hit::MISS; rays.len()];
     ctx.trace(Method::GridDda, &rays, &mut hits).unwrap();
@@ -142,22 +199,59 @@ fn capacity_errors_name_the_pool_and_keep_the_previous_grid() {
     let big = Scene::from_f32(&v2, &i2).unwrap();
     assert_eq!(
         ctx.build_grid(&big, &GridParams::default()).err(),
-        Some(Error::Capacity { pool: Pool::Triangles, needed: 8, available: 4 })
+        Some(Error::Capacity {
+            pool: Pool::Triangles,
+            needed: 8,
+            available: 4
+        })
     );
     // Too many references: a high lambda makes each quad cover many cells.
-    let err = ctx.build_grid(&scene, &GridParams { lambda: 1000.0, ..GridParams::default() }).err();
+    let err = ctx
+        .build_grid(
+            &scene,
+            &GridParams {
+                lambda: 1000.0,
+                ..GridParams::default()
+            },
+        )
+        .err();
     match err {
-        Some(Error::Capacity { pool: Pool::GridRefs, needed, available: 64 }) => assert!(needed > 64),
+        Some(Error::Capacity {
+            pool: Pool::GridRefs,
+            needed,
+            available: 64,
+        }) => assert!(needed > 64),
         other => panic!("expected a grid_refs capacity error, got {other:?}"),
     }
     let msg = format!("{}", err.unwrap());
-    assert!(msg.contains("grid_refs") && msg.contains("available 64"), "{msg}");
+    assert!(
+        msg.contains("grid_refs") && msg.contains("available 64"),
+        "{msg}"
+    );
     // Too many cells without fit (another context); fit mode lowers lambda instead.
     let mut few_cells = Limits::for_triangles(4);
     few_cells.max_grid_cells = 20;
     let mut small = OwnedContext::new(&few_cells).unwrap();
-    let err = small.build_grid(&scene, &GridParams { lambda: 50.0, ..GridParams::default() }).err();
-    assert!(matches!(err, Some(Error::Capacity { pool: Pool::GridCells, available: 20, .. })), "{err:?}");
+    let err = small
+        .build_grid(
+            &scene,
+            &GridParams {
+                lambda: 50.0,
+                ..GridParams::default()
+            },
+        )
+        .err();
+    assert!(
+        matches!(
+            err,
+            Some(Error::Capacity {
+                pool: Pool::GridCells,
+                available: 20,
+                ..
+            })
+        ),
+        "{err:?}"
+    );
 
     // The previous grid is intact: same info, same hits.
     assert_eq!(ctx.stats().grid, before);
@@ -168,30 +262,70 @@ fn capacity_errors_name_the_pool_and_keep_the_previous_grid() {
     let mut fit_limits = Limits::for_triangles(4);
     fit_limits.max_grid_cells = 20;
     let mut fit = OwnedContext::new(&fit_limits).unwrap();
-    let info = fit.build_grid(&scene, &GridParams { lambda: 50.0, fit: true, ..GridParams::default() }).unwrap();
+    let info = fit
+        .build_grid(
+            &scene,
+            &GridParams {
+                lambda: 50.0,
+                fit: true,
+                ..GridParams::default()
+            },
+        )
+        .unwrap();
     assert!(info.cells() <= 20 && info.lambda < 50.0, "{info:?}");
 }
 
 #[test]
 fn empty_scene_and_invalid_rays_miss() {
     let mut ctx = OwnedContext::new(&Limits::for_triangles(4)).unwrap();
-    ctx.build_grid(&Scene::empty(), &GridParams::default()).unwrap();
+    ctx.build_grid(&Scene::empty(), &GridParams::default())
+        .unwrap();
     let mut hits = vec![Hit::MISS; 16];
     ctx.trace(Method::GridDda, &down_rays(), &mut hits).unwrap();
     assert!(hits.iter().all(|h| h.prim == INVALID_ID));
 
     let (v, i) = two_quads();
-    ctx.build_grid(&Scene::from_f32(&v, &i).unwrap(), &GridParams::default()).unwrap();
-    let base = Ray { org: [0.1, 0.1, 5.0], tmin: 0.0, dir: [0.0, 0.0, -1.0], tmax: f32::INFINITY };
+    ctx.build_grid(&Scene::from_f32(&v, &i).unwrap(), &GridParams::default())
+        .unwrap();
+    let base = Ray {
+        org: [0.1, 0.1, 5.0],
+        tmin: 0.0,
+        dir: [0.0, 0.0, -1.0],
+        tmax: f32::INFINITY,
+    };
     let bad = [
-        Ray { dir: [0.0, 0.0, 0.0], ..base },
-        Ray { dir: [f32::NAN, 0.0, -1.0], ..base },
-        Ray { org: [f32::INFINITY, 0.0, 5.0], ..base },
-        Ray { tmin: 2.0, tmax: 1.0, ..base },
+        Ray {
+            dir: [0.0, 0.0, 0.0],
+            ..base
+        },
+        Ray {
+            dir: [f32::NAN, 0.0, -1.0],
+            ..base
+        },
+        Ray {
+            org: [f32::INFINITY, 0.0, 5.0],
+            ..base
+        },
+        Ray {
+            tmin: 2.0,
+            tmax: 1.0,
+            ..base
+        },
         Ray { tmin: -1.0, ..base },
-        Ray { dir: [f32::INFINITY, 0.0, -1.0], ..base },
+        Ray {
+            dir: [f32::INFINITY, 0.0, -1.0],
+            ..base
+        },
     ];
-    let mut hits = vec![Hit { t: 1.0, prim: 0, u: 0.0, v: 0.0 }; bad.len()];
+    let mut hits = vec![
+        Hit {
+            t: 1.0,
+            prim: 0,
+            u: 0.0,
+            v: 0.0
+        };
+        bad.len()
+    ];
     ctx.trace(Method::GridDda, &bad, &mut hits).unwrap();
     assert!(hits.iter().all(|h| *h == Hit::MISS), "{hits:?}");
 }
@@ -200,7 +334,10 @@ fn empty_scene_and_invalid_rays_miss() {
 fn rays_along_grid_axes_and_inside_the_grid_are_exact() {
     // Rays with two zero direction components, starting inside the grid,
     // along cell boundaries, match brute force.
-    let s = common::builtin_scenes().into_iter().find(|s| s.name == "tetra").unwrap();
+    let s = common::builtin_scenes()
+        .into_iter()
+        .find(|s| s.name == "tetra")
+        .unwrap();
     let scene = s.scene();
     let mut ctx = OwnedContext::new(&Limits::for_triangles(s.triangles())).unwrap();
     let info = ctx.build_grid(&scene, &GridParams::default()).unwrap();
@@ -216,7 +353,12 @@ fn rays_along_grid_axes_and_inside_the_grid_are_exact() {
                     o.rotate_right(axis);
                     let mut d = [0.0, 0.0, sign];
                     d.rotate_right(axis);
-                    rays.push(Ray { org: o, tmin: 0.0, dir: d, tmax: f32::INFINITY });
+                    rays.push(Ray {
+                        org: o,
+                        tmin: 0.0,
+                        dir: d,
+                        tmax: f32::INFINITY,
+                    });
                 }
             }
         }
@@ -228,34 +370,56 @@ fn rays_along_grid_axes_and_inside_the_grid_are_exact() {
         let want = sheaf::reference::nearest(&scene, r);
         if want.prim != h.prim {
             let want = sheaf::reference::with_edge_distance(&scene, r, want);
-            assert!(want.gap <= 1e-5 || want.edge <= 1e-5, "{r:?}: got {h:?}, f64 {want:?}");
+            assert!(
+                want.gap <= 1e-5 || want.edge <= 1e-5,
+                "{r:?}: got {h:?}, f64 {want:?}"
+            );
         }
         hit_count += h.is_hit() as u32;
     }
-    assert!(hit_count > 50, "the axis rays must hit the tetrahedra ({hit_count})");
+    assert!(
+        hit_count > 50,
+        "the axis rays must hit the tetrahedra ({hit_count})"
+    );
 }
 
 #[test]
 fn projection_test_needs_its_pool() {
     let (v, i) = two_quads();
     let scene = Scene::from_f32(&v, &i).unwrap();
-    let p = GridParams { test: sheaf::TriTest::Projection, ..GridParams::default() };
+    let p = GridParams {
+        test: sheaf::TriTest::Projection,
+        ..GridParams::default()
+    };
     let mut ctx = OwnedContext::new(&Limits::for_triangles(4)).unwrap();
-    assert!(matches!(ctx.build_grid(&scene, &p), Err(Error::InvalidArgument(_))));
+    assert!(matches!(
+        ctx.build_grid(&scene, &p),
+        Err(Error::InvalidArgument(_))
+    ));
     let mut l = Limits::for_triangles(4);
     l.projection_test = true;
     // One projection pool per structure with pools (grid and BVH by default).
     let extra = sheaf::mem::pool_bytes::<sheaf::geom::ProjTri>(4);
-    assert_eq!(required_bytes(&l).unwrap(), required_bytes(&Limits::for_triangles(4)).unwrap() + 2 * extra);
+    assert_eq!(
+        required_bytes(&l).unwrap(),
+        required_bytes(&Limits::for_triangles(4)).unwrap() + 2 * extra
+    );
     let grid_only = |mut l: Limits| {
         l.structures = Limits::GRID;
         l
     };
-    assert_eq!(required_bytes(&grid_only(l)).unwrap(), required_bytes(&grid_only(Limits::for_triangles(4))).unwrap() + extra);
+    assert_eq!(
+        required_bytes(&grid_only(l)).unwrap(),
+        required_bytes(&grid_only(Limits::for_triangles(4))).unwrap() + extra
+    );
     let mut ctx = OwnedContext::new(&l).unwrap();
     ctx.build_grid(&scene, &p).unwrap();
     let rays = down_rays();
     let mut hits = vec![Hit::MISS; rays.len()];
     ctx.trace(Method::GridDda, &rays, &mut hits).unwrap();
-    assert!(hits.iter().all(|h| (h.prim == 2 || h.prim == 3) && h.t == 4.0), "{hits:?}");
+    assert!(
+        hits.iter()
+            .all(|h| (h.prim == 2 || h.prim == 3) && h.t == 4.0),
+        "{hits:?}"
+    );
 }

@@ -27,7 +27,11 @@ fn check_lanes<T: TriangleTest>(name: &str, prim: impl Fn(&TriVerts) -> T::Prim)
     let mut rng = Rng(0x9e3779b97f4a7c15);
     let mut hits = 0;
     for case in 0..20_000 {
-        let tri = TriVerts { v0: rng.v3(1.0), v1: rng.v3(1.0), v2: rng.v3(1.0) };
+        let tri = TriVerts {
+            v0: rng.v3(1.0),
+            v1: rng.v3(1.0),
+            v2: rng.v3(1.0),
+        };
         let tri = prim(&tri);
         let mut rays = [Ray::new(Vec3::ZERO, Vec3::ONE, 0.0, f32::INFINITY); 4];
         for r in rays.iter_mut() {
@@ -38,7 +42,12 @@ fn check_lanes<T: TriangleTest>(name: &str, prim: impl Fn(&TriVerts) -> T::Prim)
             if case % 4 == 0 {
                 d[case / 4 % 3] = 0.0;
             }
-            *r = Ray { org: o, tmin: 0.0, dir: d, tmax: f32::INFINITY };
+            *r = Ray {
+                org: o,
+                tmin: 0.0,
+                dir: d,
+                tmax: f32::INFINITY,
+            };
         }
         let r4 = Ray4::from_rays(&rays);
         let l4 = RayLanes::<F4>::from_ray4(&r4);
@@ -46,16 +55,35 @@ fn check_lanes<T: TriangleTest>(name: &str, prim: impl Fn(&TriVerts) -> T::Prim)
         for (i, r) in rays.iter().enumerate() {
             let l1 = RayLanes::<f32>::from_ray(r);
             let h1 = T::intersect(&l1, &T::prepare(&l1), &tri);
-            assert_eq!(h1.mask, h4.mask.test(i), "{name} case {case} lane {i}: hit/miss differ");
+            assert_eq!(
+                h1.mask,
+                h4.mask.test(i),
+                "{name} case {case} lane {i}: hit/miss differ"
+            );
             if h1.mask {
                 hits += 1;
-                assert_eq!(h1.t.to_bits(), h4.t[i].to_bits(), "{name} case {case} lane {i}: t differs");
-                assert_eq!(h1.u.to_bits(), h4.u[i].to_bits(), "{name} case {case} lane {i}: u differs");
-                assert_eq!(h1.v.to_bits(), h4.v[i].to_bits(), "{name} case {case} lane {i}: v differs");
+                assert_eq!(
+                    h1.t.to_bits(),
+                    h4.t[i].to_bits(),
+                    "{name} case {case} lane {i}: t differs"
+                );
+                assert_eq!(
+                    h1.u.to_bits(),
+                    h4.u[i].to_bits(),
+                    "{name} case {case} lane {i}: u differs"
+                );
+                assert_eq!(
+                    h1.v.to_bits(),
+                    h4.v[i].to_bits(),
+                    "{name} case {case} lane {i}: v differs"
+                );
             }
         }
     }
-    assert!(hits > 5_000, "{name}: the random cases must actually hit ({hits})");
+    assert!(
+        hits > 5_000,
+        "{name}: the random cases must actually hit ({hits})"
+    );
 }
 
 #[test]
@@ -80,18 +108,33 @@ fn projection_test_agrees_with_moller_trumbore_away_from_edges() {
     let mut rng = Rng(99);
     let mut checked = 0;
     for _ in 0..20_000 {
-        let tri = TriVerts { v0: rng.v3(1.0), v1: rng.v3(1.0), v2: rng.v3(1.0) };
+        let tri = TriVerts {
+            v0: rng.v3(1.0),
+            v1: rng.v3(1.0),
+            v2: rng.v3(1.0),
+        };
         let o = rng.v3(3.0);
         let target = rng.v3(0.8);
-        let r = Ray { org: o, tmin: 0.0, dir: [target[0] - o[0], target[1] - o[1], target[2] - o[2]], tmax: f32::INFINITY };
+        let r = Ray {
+            org: o,
+            tmin: 0.0,
+            dir: [target[0] - o[0], target[1] - o[1], target[2] - o[2]],
+            tmax: f32::INFINITY,
+        };
         let l = RayLanes::<f32>::from_ray(&r);
         let m = Mt::intersect(&l, &(), &tri);
         let p = Pt::intersect(&l, &(), &ProjTri::new(&tri));
         let (u, v) = (m.u, m.v);
-        let clear = u > 1e-3 && v > 1e-3 && u + v < 1.0 - 1e-3 || (m.mask == false && p.mask == false);
+        let clear =
+            u > 1e-3 && v > 1e-3 && u + v < 1.0 - 1e-3 || (m.mask == false && p.mask == false);
         if m.mask && clear {
             assert!(p.mask, "projection misses an interior hit");
-            assert!((p.t - m.t).abs() <= 1e-4 * m.t.abs().max(1.0), "t {} vs {}", p.t, m.t);
+            assert!(
+                (p.t - m.t).abs() <= 1e-4 * m.t.abs().max(1.0),
+                "t {} vs {}",
+                p.t,
+                m.t
+            );
             assert!((p.u - u).abs() < 1e-3 && (p.v - v).abs() < 1e-3);
             checked += 1;
         }
@@ -107,15 +150,31 @@ fn hit1<T: TriangleTest<Prim = TriVerts>>(r: &Ray, tri: &TriVerts) -> Option<f32
 
 #[test]
 fn axis_parallel_rays_hit_exactly() {
-    let tri = TriVerts { v0: [-1.0, -1.0, 2.0], v1: [1.0, -1.0, 2.0], v2: [0.0, 1.0, 2.0] };
-    let r = Ray { org: [0.0, 0.0, 0.0], tmin: 0.0, dir: [0.0, 0.0, 1.0], tmax: f32::INFINITY };
+    let tri = TriVerts {
+        v0: [-1.0, -1.0, 2.0],
+        v1: [1.0, -1.0, 2.0],
+        v2: [0.0, 1.0, 2.0],
+    };
+    let r = Ray {
+        org: [0.0, 0.0, 0.0],
+        tmin: 0.0,
+        dir: [0.0, 0.0, 1.0],
+        tmax: f32::INFINITY,
+    };
     assert_eq!(hit1::<Mt>(&r, &tri), Some(2.0));
     assert_eq!(hit1::<Wt>(&r, &tri), Some(2.0));
-    let r = Ray { dir: [0.0, 0.0, -1.0], ..r };
+    let r = Ray {
+        dir: [0.0, 0.0, -1.0],
+        ..r
+    };
     assert_eq!(hit1::<Mt>(&r, &tri), None);
     assert_eq!(hit1::<Wt>(&r, &tri), None);
     // tmax is exclusive: a hit at exactly tmax is not reported.
-    let r = Ray { dir: [0.0, 0.0, 1.0], tmax: 2.0, ..r };
+    let r = Ray {
+        dir: [0.0, 0.0, 1.0],
+        tmax: 2.0,
+        ..r
+    };
     assert_eq!(hit1::<Mt>(&r, &tri), None);
     assert_eq!(hit1::<Wt>(&r, &tri), None);
 }
@@ -132,18 +191,37 @@ fn watertight_has_no_cracks_on_shared_edges_and_vertices() {
             [c[0] + a.cos(), c[1] + a.sin(), 3.0 + 0.1 * (k as f32).sin()]
         })
         .collect();
-    let tris: Vec<TriVerts> = (0..n).map(|k| TriVerts { v0: c, v1: ring[k], v2: ring[(k + 1) % n] }).collect();
+    let tris: Vec<TriVerts> = (0..n)
+        .map(|k| TriVerts {
+            v0: c,
+            v1: ring[k],
+            v2: ring[(k + 1) % n],
+        })
+        .collect();
     let mut targets = vec![c];
     for p in &ring {
         for s in [0.25f32, 0.5, 0.75] {
-            targets.push([c[0] + (p[0] - c[0]) * s, c[1] + (p[1] - c[1]) * s, c[2] + (p[2] - c[2]) * s]);
+            targets.push([
+                c[0] + (p[0] - c[0]) * s,
+                c[1] + (p[1] - c[1]) * s,
+                c[2] + (p[2] - c[2]) * s,
+            ]);
         }
     }
     let mut rng = Rng(7);
     for origin in 0..50 {
-        let o = [rng.range(-2.0, 2.0), rng.range(-2.0, 2.0), rng.range(-1.0, 0.5)];
+        let o = [
+            rng.range(-2.0, 2.0),
+            rng.range(-2.0, 2.0),
+            rng.range(-1.0, 0.5),
+        ];
         for t in &targets {
-            let r = Ray { org: o, tmin: 0.0, dir: [t[0] - o[0], t[1] - o[1], t[2] - o[2]], tmax: f32::INFINITY };
+            let r = Ray {
+                org: o,
+                tmin: 0.0,
+                dir: [t[0] - o[0], t[1] - o[1], t[2] - o[2]],
+                tmax: f32::INFINITY,
+            };
             let any = tris.iter().any(|tri| hit1::<Wt>(&r, tri).is_some());
             assert!(any, "watertight leak: origin {origin} {o:?} towards {t:?}");
         }

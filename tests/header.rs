@@ -38,20 +38,39 @@ fn header_is_up_to_date() {
     let path = header_path();
     if std::env::var("SHEAF_BLESS").as_deref() == Ok("1") {
         std::fs::create_dir_all(path.parent().unwrap()).unwrap();
-        std::fs::write(&path, &fresh).unwrap_or_else(|e| panic!("cannot write {}: {e}", path.display()));
+        std::fs::write(&path, &fresh)
+            .unwrap_or_else(|e| panic!("cannot write {}: {e}", path.display()));
         eprintln!("wrote {} ({} bytes)", path.display(), fresh.len());
         return;
     }
-    let committed = std::fs::read(&path)
-        .unwrap_or_else(|e| panic!("cannot read {} ({e}); generate it with:\n    {REGENERATE}", path.display()));
+    let committed = std::fs::read(&path).unwrap_or_else(|e| {
+        panic!(
+            "cannot read {} ({e}); generate it with:\n    {REGENERATE}",
+            path.display()
+        )
+    });
     if committed == fresh {
         return;
     }
-    let (old, new) = (String::from_utf8_lossy(&committed), String::from_utf8_lossy(&fresh));
-    let (old_lines, new_lines): (Vec<&str>, Vec<&str>) = (old.lines().collect(), new.lines().collect());
-    let first =
-        old_lines.iter().zip(&new_lines).position(|(a, b)| a != b).unwrap_or(old_lines.len().min(new_lines.len()));
-    let show = |lines: &[&str]| lines.iter().skip(first).take(6).map(|l| format!("    | {l}\n")).collect::<String>();
+    let (old, new) = (
+        String::from_utf8_lossy(&committed),
+        String::from_utf8_lossy(&fresh),
+    );
+    let (old_lines, new_lines): (Vec<&str>, Vec<&str>) =
+        (old.lines().collect(), new.lines().collect());
+    let first = old_lines
+        .iter()
+        .zip(&new_lines)
+        .position(|(a, b)| a != b)
+        .unwrap_or(old_lines.len().min(new_lines.len()));
+    let show = |lines: &[&str]| {
+        lines
+            .iter()
+            .skip(first)
+            .take(6)
+            .map(|l| format!("    | {l}\n"))
+            .collect::<String>()
+    };
     panic!(
         "include/sheaf.h is out of date with src/ffi/ (never edit it by hand).\n\
          First difference at line {} (committed {} lines, generated {} lines).\n\
@@ -80,14 +99,41 @@ fn header_macros_match_the_crate() {
         line[prefix.len()..].trim().to_string()
     };
     let version: Vec<&str> = env!("CARGO_PKG_VERSION").split(['.', '-', '+']).collect();
-    assert_eq!(define("SHEAF_VERSION_MAJOR"), version[0], "SHEAF_VERSION_MAJOR vs Cargo.toml: edit cbindgen.toml");
-    assert_eq!(define("SHEAF_VERSION_MINOR"), version[1], "SHEAF_VERSION_MINOR vs Cargo.toml: edit cbindgen.toml");
-    assert_eq!(define("SHEAF_VERSION_PATCH"), version[2], "SHEAF_VERSION_PATCH vs Cargo.toml: edit cbindgen.toml");
-    assert_eq!(define("SHEAF_CONTEXT_ALIGN"), sheaf::ffi::SHEAF_CONTEXT_ALIGN.to_string());
-    assert_eq!(define("SHEAF_ERROR_MESSAGE_MAX"), sheaf::ffi::SHEAF_ERROR_MESSAGE_MAX.to_string());
-    assert_eq!(define("SHEAF_STRUCTURE_GRID"), format!("{}u", sheaf::Limits::GRID));
-    assert_eq!(define("SHEAF_STRUCTURE_BVH"), format!("{}u", sheaf::Limits::BVH));
-    assert_eq!(define("SHEAF_DEPTH_BINS"), sheaf::trace::DEPTH_BINS.to_string());
+    assert_eq!(
+        define("SHEAF_VERSION_MAJOR"),
+        version[0],
+        "SHEAF_VERSION_MAJOR vs Cargo.toml: edit cbindgen.toml"
+    );
+    assert_eq!(
+        define("SHEAF_VERSION_MINOR"),
+        version[1],
+        "SHEAF_VERSION_MINOR vs Cargo.toml: edit cbindgen.toml"
+    );
+    assert_eq!(
+        define("SHEAF_VERSION_PATCH"),
+        version[2],
+        "SHEAF_VERSION_PATCH vs Cargo.toml: edit cbindgen.toml"
+    );
+    assert_eq!(
+        define("SHEAF_CONTEXT_ALIGN"),
+        sheaf::ffi::SHEAF_CONTEXT_ALIGN.to_string()
+    );
+    assert_eq!(
+        define("SHEAF_ERROR_MESSAGE_MAX"),
+        sheaf::ffi::SHEAF_ERROR_MESSAGE_MAX.to_string()
+    );
+    assert_eq!(
+        define("SHEAF_STRUCTURE_GRID"),
+        format!("{}u", sheaf::Limits::GRID)
+    );
+    assert_eq!(
+        define("SHEAF_STRUCTURE_BVH"),
+        format!("{}u", sheaf::Limits::BVH)
+    );
+    assert_eq!(
+        define("SHEAF_DEPTH_BINS"),
+        sheaf::trace::DEPTH_BINS.to_string()
+    );
     assert_eq!(sheaf::ffi::SHEAF_INVALID_ID, u32::MAX);
     assert_eq!(define("SHEAF_INVALID_ID"), "UINT32_MAX");
 }
@@ -103,6 +149,9 @@ fn header_lists_every_status_code() {
             let l = l.trim();
             l.starts_with("SHEAF_STATUS_") && l.ends_with(&format!(" = {code},"))
         });
-        assert!(found, "{s:?} = {code} missing from include/sheaf.h; regenerate with {REGENERATE}");
+        assert!(
+            found,
+            "{s:?} = {code} missing from include/sheaf.h; regenerate with {REGENERATE}"
+        );
     }
 }

@@ -4,10 +4,13 @@
 //! with the 3DDDA and with coherent grid traversal.
 //! Its own test binary, so no other test's allocations are counted.
 
+use sheaf::accel::bvh::BvhParams;
 use sheaf::render::{Camera, Frame, PointLight, Shading};
 use sheaf::scenes::animated::Animated;
-use sheaf::{Context, GridParams, Hit, Limits, Method, OwnedContext, Ray, Scene, TraceParams, TriTest, required_bytes};
-use sheaf::accel::bvh::BvhParams;
+use sheaf::{
+    Context, GridParams, Hit, Limits, Method, OwnedContext, Ray, Scene, TraceParams, TriTest,
+    required_bytes,
+};
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicUsize, Ordering};
 
@@ -42,8 +45,16 @@ fn allocs() -> usize {
 fn frame_of(anim: &Animated) -> Frame {
     let v = anim.views()[0];
     Frame {
-        camera: Camera { eye: v.eye.to_array(), look_at: v.look_at.to_array(), up: v.up.to_array(), fov_y_deg: v.fov_y_deg },
-        light: PointLight { position: anim.light().to_array(), color: [1.0; 3] },
+        camera: Camera {
+            eye: v.eye.to_array(),
+            look_at: v.look_at.to_array(),
+            up: v.up.to_array(),
+            fov_y_deg: v.fov_y_deg,
+        },
+        light: PointLight {
+            position: anim.light().to_array(),
+            color: [1.0; 3],
+        },
         shading: Shading::default(),
         width: 96,
         height: 64,
@@ -61,7 +72,11 @@ fn ten_animated_frames_allocate_nothing() {
     // Creation: exactly one allocation for the owned context...
     let a0 = allocs();
     let mut owned = OwnedContext::new(&limits).unwrap();
-    assert_eq!(allocs() - a0, 1, "OwnedContext::new must allocate exactly once");
+    assert_eq!(
+        allocs() - a0,
+        1,
+        "OwnedContext::new must allocate exactly once"
+    );
     // ...and none over a caller buffer.
     let need = required_bytes(&limits).unwrap();
     let mut backing = vec![0u8; need + 64];
@@ -75,8 +90,17 @@ fn ten_animated_frames_allocate_nothing() {
         .map(|k| {
             let (x, y) = ((k % 16) as f32 / 16.0 - 0.5, (k / 16) as f32 / 16.0 - 0.5);
             let cam = &frame.camera;
-            let d = [cam.look_at[0] - cam.eye[0] + x, cam.look_at[1] - cam.eye[1] + y, cam.look_at[2] - cam.eye[2]];
-            Ray { org: cam.eye, tmin: 0.0, dir: d, tmax: f32::INFINITY }
+            let d = [
+                cam.look_at[0] - cam.eye[0] + x,
+                cam.look_at[1] - cam.eye[1] + y,
+                cam.look_at[2] - cam.eye[2],
+            ];
+            Ray {
+                org: cam.eye,
+                tmin: 0.0,
+                dir: d,
+                tmax: f32::INFINITY,
+            }
         })
         .collect();
     let mut hits = vec![Hit::MISS; rays.len()];
@@ -89,15 +113,37 @@ fn ten_animated_frames_allocate_nothing() {
     for f in 0..10 {
         anim.set_time(f as f32 * 0.37);
         let scene = Scene::from_f32(&anim.mesh.vertices, &anim.mesh.indices).unwrap();
-        let test = if f % 2 == 0 { TriTest::MollerTrumbore } else { TriTest::Watertight };
-        let params = GridParams { test, ..GridParams::default() };
-        for ctx in [&mut owned as &mut dyn Frames, &mut borrowed as &mut dyn Frames] {
-            ctx.frame(&scene, &params, &rays, &mut hits, &mut occ, &frame, &mut pixels, stride);
+        let test = if f % 2 == 0 {
+            TriTest::MollerTrumbore
+        } else {
+            TriTest::Watertight
+        };
+        let params = GridParams {
+            test,
+            ..GridParams::default()
+        };
+        for ctx in [
+            &mut owned as &mut dyn Frames,
+            &mut borrowed as &mut dyn Frames,
+        ] {
+            ctx.frame(
+                &scene,
+                &params,
+                &rays,
+                &mut hits,
+                &mut occ,
+                &frame,
+                &mut pixels,
+                stride,
+            );
             hit_total += hits.iter().filter(|h| h.is_hit()).count();
         }
     }
     let during = allocs() - start;
-    assert_eq!(during, 0, "10 frames of grid and BVH builds + trace + occluded + render allocated {during} times");
+    assert_eq!(
+        during, 0,
+        "10 frames of grid and BVH builds + trace + occluded + render allocated {during} times"
+    );
     assert!(hit_total > 0, "the frames must trace something");
     assert!(pixels.iter().any(|&p| p != 0));
 }
@@ -105,7 +151,17 @@ fn ten_animated_frames_allocate_nothing() {
 /// One frame on either kind of context.
 trait Frames {
     #[allow(clippy::too_many_arguments)]
-    fn frame(&mut self, s: &Scene, p: &GridParams, r: &[Ray], h: &mut [Hit], o: &mut [bool], f: &Frame, px: &mut [u8], stride: usize);
+    fn frame(
+        &mut self,
+        s: &Scene,
+        p: &GridParams,
+        r: &[Ray],
+        h: &mut [Hit],
+        o: &mut [bool],
+        f: &Frame,
+        px: &mut [u8],
+        stride: usize,
+    );
 }
 macro_rules! impl_frames {
     ($($t:ty),*) => {$(

@@ -32,17 +32,30 @@ struct Tally {
     errors: Vec<String>,
 }
 
-fn classify_hit(scene: &Scene, i: usize, ray: &Ray, got: &Hit, want: &RefHit, t: &mut Tally, what: &str) {
+fn classify_hit(
+    scene: &Scene,
+    i: usize,
+    ray: &Ray,
+    got: &Hit,
+    want: &RefHit,
+    t: &mut Tally,
+    what: &str,
+) {
     t.rays += 1;
     let mut want = *want;
-    if got.prim != want.prim || (got.prim != INVALID_ID && (got.t as f64 - want.t).abs() > T_REL * want.t.abs()) {
+    if got.prim != want.prim
+        || (got.prim != INVALID_ID && (got.t as f64 - want.t).abs() > T_REL * want.t.abs())
+    {
         want = reference::with_edge_distance(scene, ray, want);
     }
     if got.prim == want.prim {
         if got.prim != INVALID_ID {
             let rel = (got.t as f64 - want.t).abs() / want.t.abs().max(1e-30);
             if rel > T_REL && want.edge > EDGE_BARY {
-                t.errors.push(format!("{what} ray {i} {ray:?}: same triangle {} but t {} vs f64 {} (rel {rel:e})", got.prim, got.t, want.t));
+                t.errors.push(format!(
+                    "{what} ray {i} {ray:?}: same triangle {} but t {} vs f64 {} (rel {rel:e})",
+                    got.prim, got.t, want.t
+                ));
                 return;
             }
         }
@@ -84,9 +97,17 @@ fn check_scene(s: &TestScene, res: u32) -> Tally {
         let rays = view_rays(view, res, res);
         let want = par_map(&rays, |r| reference::nearest(&scene, r));
         let mut shadow: Option<(Vec<Ray>, Vec<RefHit>)> = None;
-        for test in [TriTest::MollerTrumbore, TriTest::Watertight, TriTest::Projection] {
+        for test in [
+            TriTest::MollerTrumbore,
+            TriTest::Watertight,
+            TriTest::Projection,
+        ] {
             for macrocell in [6, 1] {
-                let params = GridParams { test, macrocell, ..GridParams::default() };
+                let params = GridParams {
+                    test,
+                    macrocell,
+                    ..GridParams::default()
+                };
                 let info = ctx.build_grid(&scene, &params).unwrap();
                 let mut hits = vec![Hit::MISS; rays.len()];
                 ctx.trace(Method::GridDda, &rays, &mut hits).unwrap();
@@ -113,7 +134,9 @@ fn check_scene(s: &TestScene, res: u32) -> Tally {
                         // Occluder at the light itself (t ~ tmax): either answer is right.
                         tally.ties += 1;
                     } else {
-                        tally.errors.push(format!("{what} shadow ray {i} {r:?}: occluded {o}, f64 {w:?}"));
+                        tally.errors.push(format!(
+                            "{what} shadow ray {i} {r:?}: occluded {o}, f64 {w:?}"
+                        ));
                     }
                 }
             }
@@ -141,11 +164,20 @@ fn dda_matches_f64_reference_on_builtin_scenes() {
     for s in builtin_scenes() {
         let t = check_scene(&s, 48);
         report(&s.name, &t);
-        assert!(t.errors.is_empty(), "{}: {} rays disagree with the reference", s.name, t.errors.len());
+        assert!(
+            t.errors.is_empty(),
+            "{}: {} rays disagree with the reference",
+            s.name,
+            t.errors.len()
+        );
         // Edge decisions must stay rare, or the tolerance hides a bug. (Ties
         // are not limited: the oracle itself finds two hits at one depth,
         // as in scenes with coincident faces.)
-        assert!(t.edges <= t.rays / 200, "{}: too many edge disagreements", s.name);
+        assert!(
+            t.edges <= t.rays / 200,
+            "{}: too many edge disagreements",
+            s.name
+        );
     }
 }
 
@@ -161,7 +193,16 @@ fn dda_matches_f64_reference_on_obj_scenes() {
         let res = if s.triangles() > 100_000 { 20 } else { 40 };
         let t = check_scene(&s, res);
         report(&s.name, &t);
-        assert!(t.errors.is_empty(), "{}: {} rays disagree with the reference", s.name, t.errors.len());
-        assert!(t.edges <= t.rays / 200, "{}: too many edge disagreements", s.name);
+        assert!(
+            t.errors.is_empty(),
+            "{}: {} rays disagree with the reference",
+            s.name,
+            t.errors.len()
+        );
+        assert!(
+            t.edges <= t.rays / 200,
+            "{}: too many edge disagreements",
+            s.name
+        );
     }
 }

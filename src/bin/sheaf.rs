@@ -62,7 +62,11 @@ impl<T, E: fmt::Display> OrFail<T> for Result<T, E> {
 }
 
 #[derive(Parser)]
-#[command(name = "sheaf", version, about = "Ray-trace triangle scenes with sheaf's per-frame uniform grid (3DDDA or coherent grid traversal)")]
+#[command(
+    name = "sheaf",
+    version,
+    about = "Ray-trace triangle scenes with sheaf's per-frame uniform grid (3DDDA or coherent grid traversal)"
+)]
 struct Cli {
     #[command(subcommand)]
     cmd: Cmd,
@@ -192,9 +196,22 @@ pub struct TraceOpts {
 impl TraceOpts {
     /// (primary, shadow) parameters, checked.
     pub fn params(&self) -> Result<(sheaf::TraceParams, sheaf::TraceParams), sheaf::Error> {
-        let cgt = sheaf::CgtOptions { macrocells: !self.no_macrocells, mailbox: !self.no_mailbox, culling: !self.no_culling };
-        let bvh = sheaf::trace::BvhOptions { culling: !self.no_culling, ..Default::default() };
-        let primary = sheaf::TraceParams { method: self.method.method(), packet: self.packet, cgt, bvh, split: self.split };
+        let cgt = sheaf::CgtOptions {
+            macrocells: !self.no_macrocells,
+            mailbox: !self.no_mailbox,
+            culling: !self.no_culling,
+        };
+        let bvh = sheaf::trace::BvhOptions {
+            culling: !self.no_culling,
+            ..Default::default()
+        };
+        let primary = sheaf::TraceParams {
+            method: self.method.method(),
+            packet: self.packet,
+            cgt,
+            bvh,
+            split: self.split,
+        };
         let shadow = sheaf::TraceParams {
             method: self.shadow_method.unwrap_or(self.method).method(),
             packet: self.shadow_packet.unwrap_or(self.packet),
@@ -208,10 +225,18 @@ impl TraceOpts {
     pub fn label(&self) -> String {
         let name = |m: MethodArg, n: u32| {
             let m = m.method();
-            if m.is_packet() { format!("{} {n}x{n}", m.name()) } else { m.name().to_string() }
+            if m.is_packet() {
+                format!("{} {n}x{n}", m.name())
+            } else {
+                m.name().to_string()
+            }
         };
         let sp = self.shadow_packet.unwrap_or(self.packet);
-        format!("{} / shadows {}", name(self.method, self.packet), name(self.shadow_method.unwrap_or(self.method), sp))
+        format!(
+            "{} / shadows {}",
+            name(self.method, self.packet),
+            name(self.shadow_method.unwrap_or(self.method), sp)
+        )
     }
 }
 
@@ -338,7 +363,12 @@ pub struct BenchArgs {
     #[arg(long, value_delimiter = ',')]
     pub packets: Vec<u32>,
     /// Triangle tests, comma-separated (one grid build each).
-    #[arg(long, value_enum, value_delimiter = ',', default_value = "mt,watertight")]
+    #[arg(
+        long,
+        value_enum,
+        value_delimiter = ',',
+        default_value = "mt,watertight"
+    )]
     pub tests: Vec<TestArg>,
     /// Instead of the ray table: the Whitted study of the BVH traversals
     /// (BVH paper Figure 5, Table 2 and the culling benefit): frame times per
@@ -375,10 +405,19 @@ pub struct BenchArgs {
 
 /// `WIDTHxHEIGHT`, each in 1..=16384.
 fn parse_size(s: &str) -> Result<(u32, u32), String> {
-    let (w, h) = s.split_once(['x', 'X']).ok_or_else(|| format!("'{s}' is not WIDTHxHEIGHT (e.g. 800x600)"))?;
+    let (w, h) = s
+        .split_once(['x', 'X'])
+        .ok_or_else(|| format!("'{s}' is not WIDTHxHEIGHT (e.g. 800x600)"))?;
     let dim = |t: &str| -> Result<u32, String> {
-        let v: u32 = t.trim().parse().map_err(|_| format!("'{t}' is not a whole number"))?;
-        if (1..=16384).contains(&v) { Ok(v) } else { Err(format!("{v} is outside 1..=16384")) }
+        let v: u32 = t
+            .trim()
+            .parse()
+            .map_err(|_| format!("'{t}' is not a whole number"))?;
+        if (1..=16384).contains(&v) {
+            Ok(v)
+        } else {
+            Err(format!("{v} is outside 1..=16384"))
+        }
     };
     Ok((dim(w)?, dim(h)?))
 }
@@ -387,11 +426,16 @@ fn parse_size(s: &str) -> Result<(u32, u32), String> {
 fn parse_vec3(s: &str) -> Result<[f32; 3], String> {
     let parts: Vec<&str> = s.split(',').collect();
     if parts.len() != 3 {
-        return Err(format!("'{s}' is not x,y,z (three comma-separated numbers)"));
+        return Err(format!(
+            "'{s}' is not x,y,z (three comma-separated numbers)"
+        ));
     }
     let mut v = [0.0f32; 3];
     for (o, p) in v.iter_mut().zip(parts) {
-        *o = p.trim().parse().map_err(|_| format!("'{p}' is not a number"))?;
+        *o = p
+            .trim()
+            .parse()
+            .map_err(|_| format!("'{p}' is not a number"))?;
         if !o.is_finite() {
             return Err(format!("'{p}' is not finite"));
         }

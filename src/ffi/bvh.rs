@@ -69,10 +69,15 @@ impl sheaf_ray_kind {
         }
     }
     pub fn to_core(raw: u32) -> Result<RayKind> {
-        [RayKind::Auto, RayKind::Primary, RayKind::Shadow, RayKind::Secondary]
-            .into_iter()
-            .find(|&k| sheaf_ray_kind::of(k) as u32 == raw)
-            .ok_or(Error::InvalidArgument("unknown sheaf_ray_kind"))
+        [
+            RayKind::Auto,
+            RayKind::Primary,
+            RayKind::Shadow,
+            RayKind::Secondary,
+        ]
+        .into_iter()
+        .find(|&k| sheaf_ray_kind::of(k) as u32 == raw)
+        .ok_or(Error::InvalidArgument("unknown sheaf_ray_kind"))
     }
 }
 
@@ -96,13 +101,42 @@ mod tests {
 
     #[test]
     fn params_round_trip() {
-        let p = BvhParams { leaf_size: 8, bins: 32, traversal_cost: 0.5, test: TriTest::Watertight };
+        let p = BvhParams {
+            leaf_size: 8,
+            bins: 32,
+            traversal_cost: 0.5,
+            test: TriTest::Watertight,
+        };
         assert_eq!(sheaf_bvh_params::of(&p).to_core(), Ok(p));
-        assert!(sheaf_bvh_params { test: 9, ..sheaf_bvh_params::of(&p) }.to_core().is_err());
-        assert!(sheaf_bvh_params { leaf_size: 0, ..sheaf_bvh_params::of(&p) }.to_core().is_err());
-        assert!(sheaf_bvh_params { bins: 1, ..sheaf_bvh_params::of(&p) }.to_core().is_err());
+        assert!(
+            sheaf_bvh_params {
+                test: 9,
+                ..sheaf_bvh_params::of(&p)
+            }
+            .to_core()
+            .is_err()
+        );
+        assert!(
+            sheaf_bvh_params {
+                leaf_size: 0,
+                ..sheaf_bvh_params::of(&p)
+            }
+            .to_core()
+            .is_err()
+        );
+        assert!(
+            sheaf_bvh_params {
+                bins: 1,
+                ..sheaf_bvh_params::of(&p)
+            }
+            .to_core()
+            .is_err()
+        );
         for k in 0..4 {
-            assert_eq!(sheaf_ray_kind::of(sheaf_ray_kind::to_core(k).unwrap()) as u32, k);
+            assert_eq!(
+                sheaf_ray_kind::of(sheaf_ray_kind::to_core(k).unwrap()) as u32,
+                k
+            );
         }
         assert!(sheaf_ray_kind::to_core(4).is_err());
     }

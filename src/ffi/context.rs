@@ -7,21 +7,22 @@
 //! allocation of the same size and layout and frees it in
 //! `sheaf_context_destroy`.
 
+use super::bvh::sheaf_bvh_params;
+use super::trace_params::sheaf_trace_params;
 use super::{
-    SHEAF_CONTEXT_ALIGN, SHEAF_ERROR_MESSAGE_MAX, array_bytes, check_array, check_non_null, guard, guard_free,
-    overlaps, raw, read_in, sheaf_frame, sheaf_grid_params, sheaf_method, sheaf_stats, sheaf_status, write_out,
+    SHEAF_CONTEXT_ALIGN, SHEAF_ERROR_MESSAGE_MAX, array_bytes, check_array, check_non_null, guard,
+    guard_free, overlaps, raw, read_in, sheaf_frame, sheaf_grid_params, sheaf_method, sheaf_stats,
+    sheaf_status, write_out,
 };
 use super::{sheaf_hit, sheaf_ray};
+use crate::accel::bvh::BvhParams;
 use crate::accel::grid::GridParams;
 use crate::context::{Context, required_bytes};
 use crate::error::{Error, Result};
 use crate::geom::{Ray, Scene};
-use crate::accel::bvh::BvhParams;
 use crate::mem::Limits;
-use super::bvh::sheaf_bvh_params;
 use crate::render::Tracer;
 use crate::trace::{Counters, TraceParams};
-use super::trace_params::sheaf_trace_params;
 use core::cell::Cell;
 use core::ffi::{c_char, c_void};
 use core::fmt::Write as _;
@@ -99,7 +100,8 @@ pub(super) struct Handle {
 }
 
 /// Bytes of the handle header in front of the arena (a multiple of 64).
-pub const HEADER_BYTES: usize = core::mem::size_of::<Handle>().next_multiple_of(SHEAF_CONTEXT_ALIGN);
+pub const HEADER_BYTES: usize =
+    core::mem::size_of::<Handle>().next_multiple_of(SHEAF_CONTEXT_ALIGN);
 const _: () = assert!(core::mem::align_of::<Handle>() <= SHEAF_CONTEXT_ALIGN);
 
 /// Total bytes of a context: header plus the core's pools.
@@ -107,7 +109,9 @@ fn total_bytes(limits: &Limits) -> Result<usize> {
     required_bytes(limits)?
         .checked_add(HEADER_BYTES)
         .filter(|&b| b <= isize::MAX as usize - SHEAF_CONTEXT_ALIGN)
-        .ok_or(Error::InvalidArgument("limits need more memory than can be addressed"))
+        .ok_or(Error::InvalidArgument(
+            "limits need more memory than can be addressed",
+        ))
 }
 
 /// Check a handle pointer: non-NULL, aligned, alive.
@@ -121,7 +125,9 @@ fn handle(ctx: *const sheaf_context) -> Result<*mut Handle> {
     // contract), so the header is readable; only the magic word is read.
     let magic = unsafe { ptr::addr_of!((*h).magic).read() };
     if magic != MAGIC {
-        return Err(Error::InvalidArgument("not a live sheaf_context (destroyed?)"));
+        return Err(Error::InvalidArgument(
+            "not a live sheaf_context (destroyed?)",
+        ));
     }
     Ok(h)
 }
@@ -156,7 +162,10 @@ fn with_ref(ctx: *const sheaf_context, f: impl FnOnce(&Handle) -> Result<()>) ->
 
 /// Run `f` on the exclusively borrowed handle (calls that need exclusive
 /// access), behind the panic boundary, recording a failure in the handle.
-pub(super) fn with_mut(ctx: *mut sheaf_context, f: impl FnOnce(&mut Handle) -> Result<()>) -> sheaf_status {
+pub(super) fn with_mut(
+    ctx: *mut sheaf_context,
+    f: impl FnOnce(&mut Handle) -> Result<()>,
+) -> sheaf_status {
     let seen: Cell<Option<*mut Handle>> = Cell::new(None);
     guard(
         || {
@@ -181,7 +190,12 @@ pub(super) fn with_mut(ctx: *mut sheaf_context, f: impl FnOnce(&mut Handle) -> R
 /// `base` is `SHEAF_CONTEXT_ALIGN`-aligned, valid for reads and writes of
 /// `need = total_bytes(limits)` bytes, and used by nothing else until
 /// `sheaf_context_destroy`.
-unsafe fn place(base: *mut u8, need: usize, limits: &Limits, alloc_bytes: Option<usize>) -> Result<*mut sheaf_context> {
+unsafe fn place(
+    base: *mut u8,
+    need: usize,
+    limits: &Limits,
+    alloc_bytes: Option<usize>,
+) -> Result<*mut sheaf_context> {
     // SAFETY: in bounds by the contract; initialises every byte so the
     // slice below covers initialised memory.
     unsafe { ptr::write_bytes(base, 0, need) };
@@ -195,7 +209,13 @@ unsafe fn place(base: *mut u8, need: usize, limits: &Limits, alloc_bytes: Option
     // SAFETY: aligned (64 >= align_of::<Handle>()), in bounds (HEADER_BYTES
     // >= size_of::<Handle>()), disjoint from the arena.
     unsafe {
-        h.write(Handle { magic: MAGIC, ctx, geometry: None, last_error: Mutex::new(None), alloc_bytes });
+        h.write(Handle {
+            magic: MAGIC,
+            ctx,
+            geometry: None,
+            last_error: Mutex::new(None),
+            alloc_bytes,
+        });
     }
     Ok(h.cast())
 }
@@ -248,10 +268,15 @@ pub extern "C" fn sheaf_context_create_in(
         check_non_null!(out);
         let need = total_bytes(&limits)?;
         if (buf as usize) % SHEAF_CONTEXT_ALIGN != 0 {
-            return Err(Error::Misaligned { required: SHEAF_CONTEXT_ALIGN as u32 });
+            return Err(Error::Misaligned {
+                required: SHEAF_CONTEXT_ALIGN as u32,
+            });
         }
         if len < need {
-            return Err(Error::BufferTooSmall { needed: need as u64, available: len as u64 });
+            return Err(Error::BufferTooSmall {
+                needed: need as u64,
+                available: len as u64,
+            });
         }
         // SAFETY: aligned and at least `need` bytes (checked above); the C
         // contract hands the buffer to the context until destroy.
@@ -273,7 +298,10 @@ pub extern "C" fn sheaf_context_create_in(
 ///
 /// Thread-safe.
 #[unsafe(no_mangle)]
-pub extern "C" fn sheaf_context_create(limits: *const Limits, out: *mut *mut sheaf_context) -> sheaf_status {
+pub extern "C" fn sheaf_context_create(
+    limits: *const Limits,
+    out: *mut *mut sheaf_context,
+) -> sheaf_status {
     let mut oom = false;
     let s = guard_free(|| {
         let limits = read_in(limits)?;
@@ -391,11 +419,14 @@ pub extern "C" fn sheaf_context_set_geometry(
                 .filter(|&b| b <= isize::MAX as usize)
                 .ok_or(Error::InvalidArgument("vertex buffer size overflows"))?
         };
-        let index_count =
-            (triangle_count as usize).checked_mul(3).ok_or(Error::InvalidArgument("too many triangles"))?;
+        let index_count = (triangle_count as usize)
+            .checked_mul(3)
+            .ok_or(Error::InvalidArgument("too many triangles"))?;
         array_bytes::<u32>(index_count, "index buffer size overflows")?;
         if triangle_count > 0 && !indices.is_aligned() {
-            return Err(Error::Misaligned { required: core::mem::align_of::<u32>() as u32 });
+            return Err(Error::Misaligned {
+                required: core::mem::align_of::<u32>() as u32,
+            });
         }
         let g = Geometry {
             vertices: vertices.cast(),
@@ -426,9 +457,16 @@ pub extern "C" fn sheaf_context_set_geometry(
 ///
 /// Not thread-safe: needs exclusive access to `ctx`.
 #[unsafe(no_mangle)]
-pub extern "C" fn sheaf_context_build_grid(ctx: *mut sheaf_context, params: *const sheaf_grid_params) -> sheaf_status {
+pub extern "C" fn sheaf_context_build_grid(
+    ctx: *mut sheaf_context,
+    params: *const sheaf_grid_params,
+) -> sheaf_status {
     with_mut(ctx, |h| {
-        let params = if params.is_null() { GridParams::default() } else { read_in(params)?.to_core()? };
+        let params = if params.is_null() {
+            GridParams::default()
+        } else {
+            read_in(params)?.to_core()?
+        };
         let g = h.geometry.as_ref().ok_or(Error::NoGeometry)?;
         h.ctx.build_grid(&g.scene()?, &params)?;
         Ok(())
@@ -450,9 +488,16 @@ pub extern "C" fn sheaf_context_build_grid(ctx: *mut sheaf_context, params: *con
 ///
 /// Not thread-safe: needs exclusive access to `ctx`.
 #[unsafe(no_mangle)]
-pub extern "C" fn sheaf_context_build_bvh(ctx: *mut sheaf_context, params: *const sheaf_bvh_params) -> sheaf_status {
+pub extern "C" fn sheaf_context_build_bvh(
+    ctx: *mut sheaf_context,
+    params: *const sheaf_bvh_params,
+) -> sheaf_status {
     with_mut(ctx, |h| {
-        let params = if params.is_null() { BvhParams::default() } else { read_in(params)?.to_core()? };
+        let params = if params.is_null() {
+            BvhParams::default()
+        } else {
+            read_in(params)?.to_core()?
+        };
         let g = h.geometry.as_ref().ok_or(Error::NoGeometry)?;
         h.ctx.build_bvh(&g.scene()?, &params)?;
         Ok(())
@@ -489,7 +534,10 @@ pub extern "C" fn sheaf_context_trace(
     count: usize,
 ) -> sheaf_status {
     with_ref(ctx, |h| {
-        let p = TraceParams { method: sheaf_method::to_core(method)?, ..TraceParams::default() };
+        let p = TraceParams {
+            method: sheaf_method::to_core(method)?,
+            ..TraceParams::default()
+        };
         trace_impl(h, &p, rays, hits, count)
     })
 }
@@ -517,7 +565,13 @@ pub extern "C" fn sheaf_context_trace_with(
     })
 }
 
-fn trace_impl(h: &Handle, p: &TraceParams, rays: *const sheaf_ray, hits: *mut sheaf_hit, count: usize) -> Result<()> {
+fn trace_impl(
+    h: &Handle,
+    p: &TraceParams,
+    rays: *const sheaf_ray,
+    hits: *mut sheaf_hit,
+    count: usize,
+) -> Result<()> {
     {
         let method = p.method;
         let rb = check_array(rays, count, "ray count too large")?;
@@ -535,7 +589,8 @@ fn trace_impl(h: &Handle, p: &TraceParams, rays: *const sheaf_ray, hits: *mut sh
                 // access is allowed; the arrays do not overlap.
                 unsafe {
                     let ray = Ray::from(rays.add(i).read_unaligned());
-                    hits.add(i).write_unaligned(tr.intersect(&ray, &mut ctr).into());
+                    hits.add(i)
+                        .write_unaligned(tr.intersect(&ray, &mut ctr).into());
                 }
             }
         } else {
@@ -571,7 +626,10 @@ pub extern "C" fn sheaf_context_occluded(
         if overlaps(rays.cast(), rb, occluded.cast_const(), count) {
             return Err(Error::InvalidArgument("rays and results overlap"));
         }
-        let p = TraceParams { method, ..TraceParams::default() };
+        let p = TraceParams {
+            method,
+            ..TraceParams::default()
+        };
         let tr = h.ctx.tracer()?.with_single(method)?;
         let mut ctr = Counters::default();
         if p.tile_side() == 0 {
@@ -616,7 +674,10 @@ pub extern "C" fn sheaf_context_render(
     rgba_len: usize,
 ) -> sheaf_status {
     with_mut(ctx, |h| {
-        let p = TraceParams { method: sheaf_method::to_core(method)?, ..TraceParams::default() };
+        let p = TraceParams {
+            method: sheaf_method::to_core(method)?,
+            ..TraceParams::default()
+        };
         render_impl(h, &p, &p, frame, rgba, stride_bytes, rgba_len)
     })
 }
@@ -655,13 +716,20 @@ fn render_impl(
 ) -> Result<()> {
     let frame = read_in(frame)?.to_core();
     let pixels = framebuffer(h, &frame, rgba, stride_bytes, rgba_len)?;
-    h.ctx.render_with(primary, shadow, &frame, pixels, stride_bytes)?;
+    h.ctx
+        .render_with(primary, shadow, &frame, pixels, stride_bytes)?;
     Ok(())
 }
 
 /// The caller's framebuffer for `frame`, checked (sizes, limits, camera, a
 /// built structure) before anything is written.
-pub(super) fn framebuffer<'p>(h: &Handle, frame: &crate::render::Frame, rgba: *mut u8, stride_bytes: usize, rgba_len: usize) -> Result<&'p mut [u8]> {
+pub(super) fn framebuffer<'p>(
+    h: &Handle,
+    frame: &crate::render::Frame,
+    rgba: *mut u8,
+    stride_bytes: usize,
+    rgba_len: usize,
+) -> Result<&'p mut [u8]> {
     check_non_null!(rgba);
     if rgba_len > isize::MAX as usize {
         return Err(Error::InvalidArgument("framebuffer length too large"));
@@ -690,7 +758,10 @@ pub(super) fn framebuffer<'p>(h: &Handle, frame: &crate::render::Frame, rgba: *m
 ///
 /// Errors: `SHEAF_STATUS_NULL_POINTER`.
 #[unsafe(no_mangle)]
-pub extern "C" fn sheaf_context_stats(ctx: *const sheaf_context, out: *mut sheaf_stats) -> sheaf_status {
+pub extern "C" fn sheaf_context_stats(
+    ctx: *const sheaf_context,
+    out: *mut sheaf_stats,
+) -> sheaf_status {
     with_ref(ctx, |h| {
         check_non_null!(out);
         write_out(out, sheaf_stats::of(h.ctx.stats()));
@@ -728,7 +799,11 @@ impl core::fmt::Write for MessageBuf {
 
 /// The message of `e` ("no error" for None).
 fn message(e: Option<Error>) -> MessageBuf {
-    let mut m = MessageBuf { bytes: [0; SHEAF_ERROR_MESSAGE_MAX], len: 0, full: false };
+    let mut m = MessageBuf {
+        bytes: [0; SHEAF_ERROR_MESSAGE_MAX],
+        len: 0,
+        full: false,
+    };
     let _ = match e {
         Some(e) => write!(m, "{e}"),
         None => m.write_str("no error"),
@@ -765,7 +840,9 @@ pub extern "C" fn sheaf_context_last_error(
             return Err(Error::InvalidArgument("len must be >= 1"));
         }
         // SAFETY: a live handle; only the mutex is borrowed (shared).
-        let last = *unsafe { &(*h).last_error }.lock().unwrap_or_else(PoisonError::into_inner);
+        let last = *unsafe { &(*h).last_error }
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner);
         let m = message(last);
         let mut n = m.len.min(len - 1);
         while n > 0 && n < m.len && (m.bytes[n] & 0xC0) == 0x80 {
@@ -797,9 +874,20 @@ mod tests {
     fn worst_case_messages_fit() {
         let big = u64::MAX;
         let cases = [
-            Error::IndexOutOfRange { triangle: u32::MAX, index: u32::MAX, vertex_count: u32::MAX },
-            Error::Capacity { pool: Pool::GridCells, needed: big, available: big },
-            Error::BufferTooSmall { needed: big, available: big },
+            Error::IndexOutOfRange {
+                triangle: u32::MAX,
+                index: u32::MAX,
+                vertex_count: u32::MAX,
+            },
+            Error::Capacity {
+                pool: Pool::GridCells,
+                needed: big,
+                available: big,
+            },
+            Error::BufferTooSmall {
+                needed: big,
+                available: big,
+            },
             Error::Misaligned { required: u32::MAX },
             Error::InvalidArgument("framebuffer smaller than (height - 1) * stride + 4 * width"),
             Error::Panic,
@@ -807,13 +895,21 @@ mod tests {
         for e in cases {
             let m = message(Some(e));
             let full = format!("{e}");
-            assert_eq!(&m.bytes[..m.len], full.as_bytes(), "message of {e:?} truncated");
+            assert_eq!(
+                &m.bytes[..m.len],
+                full.as_bytes(),
+                "message of {e:?} truncated"
+            );
         }
     }
 
     #[test]
     fn long_messages_are_truncated_not_overflowed() {
-        let mut m = MessageBuf { bytes: [0; SHEAF_ERROR_MESSAGE_MAX], len: 0, full: false };
+        let mut m = MessageBuf {
+            bytes: [0; SHEAF_ERROR_MESSAGE_MAX],
+            len: 0,
+            full: false,
+        };
         for _ in 0..100 {
             let _ = m.write_str("abcdefé");
         }
@@ -837,13 +933,24 @@ fn packets(
     use crate::geom::{Hit4, M4, Ray4};
     use crate::render::Tracer;
     const MAX: usize = 32 * 32;
-    let per = if params.method.is_packet() { (params.packet * params.packet) as usize } else { 4 };
-    let p = TraceParams { cgt: crate::trace::CgtOptions { mailbox: false, ..params.cgt }, ..*params };
+    let per = if params.method.is_packet() {
+        (params.packet * params.packet) as usize
+    } else {
+        4
+    };
+    let p = TraceParams {
+        cgt: crate::trace::CgtOptions {
+            mailbox: false,
+            ..params.cgt
+        },
+        ..*params
+    };
     let (mut stamps, mut packet) = ([0u32; 0], 0u32);
     let mut mb = crate::accel::grid::traverse_cgt::Mailbox::new(&mut stamps, &mut packet);
     let mut ctr = Counters::default();
     let mut start = 0;
-    let mut quads = [Ray4::from_rays(&[Ray::new(glam::Vec3::ZERO, glam::Vec3::X, 0.0, 0.0); 4]); MAX / 4];
+    let mut quads =
+        [Ray4::from_rays(&[Ray::new(glam::Vec3::ZERO, glam::Vec3::X, 0.0, 0.0); 4]); MAX / 4];
     let mut active = [M4::FALSE; MAX / 4];
     let mut hits = [Hit4::MISS; MAX / 4];
     while start < count {
@@ -853,9 +960,23 @@ fn packets(
         let read = |k: usize| Ray::from(unsafe { rays.add(start + k).read_unaligned() });
         let nq = crate::trace::pack_quads(n, read, &mut quads, &mut active);
         if any {
-            tr.occluded_packet(&p, &quads[..nq], &active[..nq], &mut hits[..nq], &mut mb, &mut ctr);
+            tr.occluded_packet(
+                &p,
+                &quads[..nq],
+                &active[..nq],
+                &mut hits[..nq],
+                &mut mb,
+                &mut ctr,
+            );
         } else {
-            tr.intersect_packet(&p, &quads[..nq], &active[..nq], &mut hits[..nq], &mut mb, &mut ctr);
+            tr.intersect_packet(
+                &p,
+                &quads[..nq],
+                &active[..nq],
+                &mut hits[..nq],
+                &mut mb,
+                &mut ctr,
+            );
         }
         for k in 0..n {
             out(start + k, hits[k / 4].lane(k % 4));

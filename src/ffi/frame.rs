@@ -21,7 +21,13 @@ pub struct sheaf_frame {
 
 impl sheaf_frame {
     pub fn to_core(&self) -> Frame {
-        Frame { camera: self.camera, light: self.light, shading: self.shading, width: self.width, height: self.height }
+        Frame {
+            camera: self.camera,
+            light: self.light,
+            shading: self.shading,
+            width: self.width,
+            height: self.height,
+        }
     }
 }
 

@@ -31,10 +31,14 @@ impl sheaf_tri_test {
 
     /// The crate test with C code `raw`.
     pub fn to_core(raw: raw::sheaf_tri_test) -> Result<TriTest> {
-        [TriTest::MollerTrumbore, TriTest::Watertight, TriTest::Projection]
-            .into_iter()
-            .find(|&t| sheaf_tri_test::of(t) as u32 == raw)
-            .ok_or(Error::InvalidArgument("unknown sheaf_tri_test"))
+        [
+            TriTest::MollerTrumbore,
+            TriTest::Watertight,
+            TriTest::Projection,
+        ]
+        .into_iter()
+        .find(|&t| sheaf_tri_test::of(t) as u32 == raw)
+        .ok_or(Error::InvalidArgument("unknown sheaf_tri_test"))
     }
 }
 
@@ -97,9 +101,17 @@ mod tests {
 
     #[test]
     fn params_round_trip() {
-        let p = GridParams { lambda: 3.0, macrocell: 4, test: TriTest::Watertight, fit: true };
+        let p = GridParams {
+            lambda: 3.0,
+            macrocell: 4,
+            test: TriTest::Watertight,
+            fit: true,
+        };
         assert_eq!(sheaf_grid_params::of(&p).to_core(), Ok(p));
-        let bad = sheaf_grid_params { test: 9, ..sheaf_grid_params::of(&p) };
+        let bad = sheaf_grid_params {
+            test: 9,
+            ..sheaf_grid_params::of(&p)
+        };
         assert!(bad.to_core().is_err());
     }
 }

@@ -12,7 +12,10 @@ use crate::mem::Limits;
 ///
 /// `out` must not be NULL. Thread-safe.
 #[unsafe(no_mangle)]
-pub extern "C" fn sheaf_limits_default(max_triangles: u32, out: *mut Limits) -> super::sheaf_status {
+pub extern "C" fn sheaf_limits_default(
+    max_triangles: u32,
+    out: *mut Limits,
+) -> super::sheaf_status {
     guard_free(|| {
         check_non_null!(out);
         write_out(out, Limits::for_triangles(max_triangles));

@@ -58,12 +58,13 @@ pub mod trace_params;
 pub mod version;
 pub mod whitted;
 
-pub use context::{
-    HEADER_BYTES, sheaf_context, sheaf_context_build_bvh, sheaf_context_build_grid, sheaf_context_create, sheaf_context_create_in,
-    sheaf_context_destroy, sheaf_context_last_error, sheaf_context_occluded, sheaf_context_render,
-    sheaf_context_set_geometry, sheaf_context_stats, sheaf_context_trace, sheaf_required_bytes,
-};
 pub use bvh::{sheaf_bvh_params, sheaf_bvh_params_default, sheaf_ray_kind};
+pub use context::{
+    HEADER_BYTES, sheaf_context, sheaf_context_build_bvh, sheaf_context_build_grid,
+    sheaf_context_create, sheaf_context_create_in, sheaf_context_destroy, sheaf_context_last_error,
+    sheaf_context_occluded, sheaf_context_render, sheaf_context_set_geometry, sheaf_context_stats,
+    sheaf_context_trace, sheaf_required_bytes,
+};
 pub use frame::{sheaf_frame, sheaf_shading_default};
 pub use grid::{sheaf_grid_params, sheaf_grid_params_default, sheaf_tri_test};
 pub use limits::sheaf_limits_default;
@@ -156,7 +157,9 @@ pub(crate) fn write_out<T: Copy>(p: *mut T, v: T) {
 /// Byte length of `n` values of `T`, checked against `isize::MAX` (the
 /// limit for any Rust slice).
 pub(crate) fn array_bytes<T>(n: usize, what: &'static str) -> Result<usize> {
-    n.checked_mul(core::mem::size_of::<T>()).filter(|&b| b <= isize::MAX as usize).ok_or(Error::InvalidArgument(what))
+    n.checked_mul(core::mem::size_of::<T>())
+        .filter(|&b| b <= isize::MAX as usize)
+        .ok_or(Error::InvalidArgument(what))
 }
 
 /// Check an array argument: NULL only when `n == 0`, `n` values fit in

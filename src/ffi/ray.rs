@@ -40,16 +40,27 @@ pub struct sheaf_hit {
 impl From<sheaf_ray> for Ray {
     #[inline]
     fn from(r: sheaf_ray) -> Ray {
-        Ray::new(glam::Vec3::from(r.org), glam::Vec3::from(r.dir), r.tmin, r.tmax)
+        Ray::new(
+            glam::Vec3::from(r.org),
+            glam::Vec3::from(r.dir),
+            r.tmin,
+            r.tmax,
+        )
     }
 }
 
 impl From<Hit> for sheaf_hit {
     #[inline]
     fn from(h: Hit) -> sheaf_hit {
-        sheaf_hit { t: h.t, prim: h.prim, u: h.u, v: h.v }
+        sheaf_hit {
+            t: h.t,
+            prim: h.prim,
+            u: h.u,
+            v: h.v,
+        }
     }
 }
 
 // The C layout of these two is part of the ABI: 32 and 16 bytes, no padding.
-const _: () = assert!(core::mem::size_of::<sheaf_ray>() == 32 && core::mem::size_of::<sheaf_hit>() == 16);
+const _: () =
+    assert!(core::mem::size_of::<sheaf_ray>() == 32 && core::mem::size_of::<sheaf_hit>() == 16);

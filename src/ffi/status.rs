@@ -115,12 +115,24 @@ impl sheaf_status {
             sheaf_status::IndexOutOfRange => c"a vertex index is out of range",
             sheaf_status::Misaligned => c"buffer is not aligned as required",
             sheaf_status::BufferTooSmall => c"buffer is smaller than sheaf_required_bytes",
-            sheaf_status::CapacityTriangles => c"capacity exceeded: triangles (sheaf_limits.max_triangles)",
-            sheaf_status::CapacityVertices => c"capacity exceeded: vertices (sheaf_limits.max_vertices)",
-            sheaf_status::CapacityGridCells => c"capacity exceeded: grid cells (sheaf_limits.max_grid_cells)",
-            sheaf_status::CapacityGridRefs => c"capacity exceeded: grid references (sheaf_limits.max_grid_refs)",
-            sheaf_status::CapacityImage => c"capacity exceeded: image size (sheaf_limits.max_image_width/height)",
-            sheaf_status::CapacityThreads => c"capacity exceeded: threads (sheaf_limits.max_threads)",
+            sheaf_status::CapacityTriangles => {
+                c"capacity exceeded: triangles (sheaf_limits.max_triangles)"
+            }
+            sheaf_status::CapacityVertices => {
+                c"capacity exceeded: vertices (sheaf_limits.max_vertices)"
+            }
+            sheaf_status::CapacityGridCells => {
+                c"capacity exceeded: grid cells (sheaf_limits.max_grid_cells)"
+            }
+            sheaf_status::CapacityGridRefs => {
+                c"capacity exceeded: grid references (sheaf_limits.max_grid_refs)"
+            }
+            sheaf_status::CapacityImage => {
+                c"capacity exceeded: image size (sheaf_limits.max_image_width/height)"
+            }
+            sheaf_status::CapacityThreads => {
+                c"capacity exceeded: threads (sheaf_limits.max_threads)"
+            }
             sheaf_status::OutOfMemory => c"out of memory",
             sheaf_status::NoGeometry => c"no geometry set",
             sheaf_status::NotBuilt => c"no acceleration structure built yet",
@@ -175,7 +187,11 @@ mod tests {
             };
             assert!(range.contains(&c), "{s:?} = {c}");
         }
-        assert!(sheaf_status::ALL.windows(2).all(|w| (w[0] as u32) < (w[1] as u32)));
+        assert!(
+            sheaf_status::ALL
+                .windows(2)
+                .all(|w| (w[0] as u32) < (w[1] as u32))
+        );
     }
 
     #[test]

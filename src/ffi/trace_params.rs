@@ -47,8 +47,15 @@ impl sheaf_trace_params {
         let p = TraceParams {
             method: sheaf_method::to_core(self.method)?,
             packet: self.packet,
-            cgt: CgtOptions { macrocells: self.macrocells, mailbox: self.mailbox, culling: self.culling },
-            bvh: crate::trace::BvhOptions { culling: self.culling, kind: super::bvh::sheaf_ray_kind::to_core(self.ray_kind)? },
+            cgt: CgtOptions {
+                macrocells: self.macrocells,
+                mailbox: self.mailbox,
+                culling: self.culling,
+            },
+            bvh: crate::trace::BvhOptions {
+                culling: self.culling,
+                kind: super::bvh::sheaf_ray_kind::to_core(self.ray_kind)?,
+            },
             split: self.split,
         };
         p.validate()?;

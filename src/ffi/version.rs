@@ -2,10 +2,11 @@
 
 use core::ffi::{CStr, c_char};
 
-const VERSION: &CStr = match CStr::from_bytes_with_nul(concat!(env!("CARGO_PKG_VERSION"), "\0").as_bytes()) {
-    Ok(v) => v,
-    Err(_) => panic!("package version contains a NUL byte"),
-};
+const VERSION: &CStr =
+    match CStr::from_bytes_with_nul(concat!(env!("CARGO_PKG_VERSION"), "\0").as_bytes()) {
+        Ok(v) => v,
+        Err(_) => panic!("package version contains a NUL byte"),
+    };
 
 /// The library's version, "MAJOR.MINOR.PATCH" (compare with the header's
 /// `SHEAF_VERSION_MAJOR/MINOR/PATCH` to detect a header/library mismatch).

@@ -30,7 +30,9 @@ fn borrow<'a, T>(p: *const T, n: usize, what: &'static str) -> Result<&'a [T]> {
         return Ok(&[]);
     }
     if (p as usize) % core::mem::align_of::<T>() != 0 {
-        return Err(Error::Misaligned { required: core::mem::align_of::<T>() as u32 });
+        return Err(Error::Misaligned {
+            required: core::mem::align_of::<T>() as u32,
+        });
     }
     // SAFETY: non-NULL (n > 0, checked), aligned (checked), and the C
     // contract is that `p` points to `n` initialised values that stay
@@ -91,7 +93,11 @@ pub extern "C" fn sheaf_context_render_whitted(
 ) -> super::sheaf_status {
     with_mut(ctx, |h: &mut Handle| {
         let frame = read_in(frame)?.to_core();
-        let params = if params.is_null() { WhittedParams::default() } else { read_in(params)? };
+        let params = if params.is_null() {
+            WhittedParams::default()
+        } else {
+            read_in(params)?
+        };
         let job = WhittedJob {
             frame: &frame,
             lights: borrow(lights, light_count, "light count too large")?,

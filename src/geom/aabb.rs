@@ -11,7 +11,10 @@ pub struct Aabb {
 }
 
 impl Aabb {
-    pub const EMPTY: Aabb = Aabb { min: Vec3::splat(f32::INFINITY), max: Vec3::splat(f32::NEG_INFINITY) };
+    pub const EMPTY: Aabb = Aabb {
+        min: Vec3::splat(f32::INFINITY),
+        max: Vec3::splat(f32::NEG_INFINITY),
+    };
 
     #[inline]
     pub fn is_empty(&self) -> bool {
@@ -24,7 +27,10 @@ impl Aabb {
     }
     #[inline]
     pub fn union(&self, o: &Aabb) -> Aabb {
-        Aabb { min: self.min.min(o.min), max: self.max.max(o.max) }
+        Aabb {
+            min: self.min.min(o.min),
+            max: self.max.max(o.max),
+        }
     }
     #[inline]
     pub fn diagonal(&self) -> Vec3 {
@@ -40,7 +46,14 @@ impl Aabb {
     /// axis constrains nothing when the origin lies within the slab, and rejects
     /// the ray otherwise (no `0 * inf` NaNs).
     #[inline]
-    pub fn clip_ray(&self, o: Vec3, d: Vec3, rcp: Vec3, tmin: f32, tmax: f32) -> Option<(f32, f32)> {
+    pub fn clip_ray(
+        &self,
+        o: Vec3,
+        d: Vec3,
+        rcp: Vec3,
+        tmin: f32,
+        tmax: f32,
+    ) -> Option<(f32, f32)> {
         let mut t0 = tmin;
         let mut t1 = tmax;
         for a in 0..3 {

@@ -18,10 +18,18 @@ pub type M4 = glam::BVec4;
 
 /// An arithmetic lane: `f32` for one ray, `F4` for four.
 pub trait Lane:
-    Copy + Add<Output = Self> + Sub<Output = Self> + Mul<Output = Self> + Div<Output = Self> + Neg<Output = Self>
+    Copy
+    + Add<Output = Self>
+    + Sub<Output = Self>
+    + Mul<Output = Self>
+    + Div<Output = Self>
+    + Neg<Output = Self>
 {
     /// Per-lane boolean.
-    type Mask: Copy + BitAnd<Output = Self::Mask> + BitOr<Output = Self::Mask> + Not<Output = Self::Mask>;
+    type Mask: Copy
+        + BitAnd<Output = Self::Mask>
+        + BitOr<Output = Self::Mask>
+        + Not<Output = Self::Mask>;
     /// Per-lane choice of one of the three axes (x = 0, y = 1, z = 2).
     type Axis: Copy;
     fn splat(x: f32) -> Self;
@@ -46,16 +54,46 @@ pub trait Lane:
 impl Lane for f32 {
     type Mask = bool;
     type Axis = usize;
-    #[inline(always)] fn splat(x: f32) -> Self { x }
-    #[inline(always)] fn lt(self, o: Self) -> bool { self < o }
-    #[inline(always)] fn le(self, o: Self) -> bool { self <= o }
-    #[inline(always)] fn eq(self, o: Self) -> bool { self == o }
-    #[inline(always)] fn select(m: bool, a: Self, b: Self) -> Self { if m { a } else { b } }
-    #[inline(always)] fn any(m: bool) -> bool { m }
-    #[inline(always)] fn pick(v: [Self; 3], axis: usize) -> Self { v[axis] }
-    #[inline(always)] fn get(self, _i: usize) -> f32 { self }
-    #[inline(always)] fn set(&mut self, _i: usize, x: f32) { *self = x }
-    #[inline(always)] fn mask_get(m: bool, _i: usize) -> bool { m }
+    #[inline(always)]
+    fn splat(x: f32) -> Self {
+        x
+    }
+    #[inline(always)]
+    fn lt(self, o: Self) -> bool {
+        self < o
+    }
+    #[inline(always)]
+    fn le(self, o: Self) -> bool {
+        self <= o
+    }
+    #[inline(always)]
+    fn eq(self, o: Self) -> bool {
+        self == o
+    }
+    #[inline(always)]
+    fn select(m: bool, a: Self, b: Self) -> Self {
+        if m { a } else { b }
+    }
+    #[inline(always)]
+    fn any(m: bool) -> bool {
+        m
+    }
+    #[inline(always)]
+    fn pick(v: [Self; 3], axis: usize) -> Self {
+        v[axis]
+    }
+    #[inline(always)]
+    fn get(self, _i: usize) -> f32 {
+        self
+    }
+    #[inline(always)]
+    fn set(&mut self, _i: usize, x: f32) {
+        *self = x
+    }
+    #[inline(always)]
+    fn mask_get(m: bool, _i: usize) -> bool {
+        m
+    }
     #[inline]
     fn shear_axes(d: [f32; 3]) -> ([usize; 3], [f32; 3]) {
         crate::geom::triangle::shear1(d)
@@ -84,19 +122,46 @@ impl Axis4 {
 impl Lane for F4 {
     type Mask = M4;
     type Axis = Axis4;
-    #[inline(always)] fn splat(x: f32) -> Self { F4::splat(x) }
-    #[inline(always)] fn lt(self, o: Self) -> M4 { self.cmplt(o) }
-    #[inline(always)] fn le(self, o: Self) -> M4 { self.cmple(o) }
-    #[inline(always)] fn eq(self, o: Self) -> M4 { self.cmpeq(o) }
-    #[inline(always)] fn select(m: M4, a: Self, b: Self) -> Self { F4::select(m, a, b) }
-    #[inline(always)] fn any(m: M4) -> bool { m.any() }
+    #[inline(always)]
+    fn splat(x: f32) -> Self {
+        F4::splat(x)
+    }
+    #[inline(always)]
+    fn lt(self, o: Self) -> M4 {
+        self.cmplt(o)
+    }
+    #[inline(always)]
+    fn le(self, o: Self) -> M4 {
+        self.cmple(o)
+    }
+    #[inline(always)]
+    fn eq(self, o: Self) -> M4 {
+        self.cmpeq(o)
+    }
+    #[inline(always)]
+    fn select(m: M4, a: Self, b: Self) -> Self {
+        F4::select(m, a, b)
+    }
+    #[inline(always)]
+    fn any(m: M4) -> bool {
+        m.any()
+    }
     #[inline(always)]
     fn pick(v: [Self; 3], axis: Axis4) -> Self {
         F4::select(axis.is_x, v[0], F4::select(axis.is_y, v[1], v[2]))
     }
-    #[inline(always)] fn get(self, i: usize) -> f32 { self[i] }
-    #[inline(always)] fn set(&mut self, i: usize, x: f32) { self[i] = x }
-    #[inline(always)] fn mask_get(m: M4, i: usize) -> bool { m.test(i) }
+    #[inline(always)]
+    fn get(self, i: usize) -> f32 {
+        self[i]
+    }
+    #[inline(always)]
+    fn set(&mut self, i: usize, x: f32) {
+        self[i] = x
+    }
+    #[inline(always)]
+    fn mask_get(m: M4, i: usize) -> bool {
+        m.test(i)
+    }
     #[inline]
     fn shear_axes(d: [F4; 3]) -> ([Axis4; 3], [F4; 3]) {
         let mut k = [[0usize; 3]; 4];

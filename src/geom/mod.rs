@@ -3,6 +3,7 @@
 #![forbid(unsafe_code)]
 
 pub mod aabb;
+pub mod frustum;
 pub mod lane;
 pub mod ray;
 pub mod scene;

@@ -42,7 +42,12 @@ pub struct Hit {
 }
 
 impl Hit {
-    pub const MISS: Hit = Hit { t: f32::INFINITY, prim: INVALID_ID, u: 0.0, v: 0.0 };
+    pub const MISS: Hit = Hit {
+        t: f32::INFINITY,
+        prim: INVALID_ID,
+        u: 0.0,
+        v: 0.0,
+    };
     #[inline]
     pub fn is_hit(&self) -> bool {
         self.prim != INVALID_ID
@@ -52,14 +57,23 @@ impl Hit {
 impl Ray {
     #[inline]
     pub fn new(org: glam::Vec3, dir: glam::Vec3, tmin: f32, tmax: f32) -> Ray {
-        Ray { org: org.to_array(), tmin, dir: dir.to_array(), tmax }
+        Ray {
+            org: org.to_array(),
+            tmin,
+            dir: dir.to_array(),
+            tmax,
+        }
     }
     /// `true` when every field is usable: finite origin and direction, a
     /// non-zero direction, `tmin >= 0` and `tmin <= tmax` (tmax may be +inf).
     /// Other rays are reported as misses without being traced.
     #[inline]
     pub fn is_valid(&self) -> bool {
-        let finite = self.org.iter().chain(self.dir.iter()).all(|x| x.is_finite());
+        let finite = self
+            .org
+            .iter()
+            .chain(self.dir.iter())
+            .all(|x| x.is_finite());
         let nonzero = self.dir.iter().any(|&x| x != 0.0);
         finite && nonzero && self.tmin >= 0.0 && self.tmin <= self.tmax
     }
@@ -107,7 +121,12 @@ impl Hit4 {
     /// Lane `i` as a `Hit`.
     #[inline]
     pub fn lane(&self, i: usize) -> Hit {
-        Hit { t: self.t[i], prim: self.prim[i], u: self.u[i], v: self.v[i] }
+        Hit {
+            t: self.t[i],
+            prim: self.prim[i],
+            u: self.u[i],
+            v: self.v[i],
+        }
     }
     #[inline]
     pub fn set_lane(&mut self, i: usize, h: Hit) {

@@ -34,9 +34,16 @@ impl<'g> Scene<'g> {
     /// Errors: stride below 12 or not a multiple of 4, a vertex buffer shorter
     /// than `vertex_count` vertices, an index count that is not a multiple of
     /// 3, a count above `u32::MAX`, or an index `>= vertex_count`.
-    pub fn new(vertices: &'g [u8], stride: usize, vertex_count: u32, indices: &'g [u32]) -> Result<Self> {
+    pub fn new(
+        vertices: &'g [u8],
+        stride: usize,
+        vertex_count: u32,
+        indices: &'g [u32],
+    ) -> Result<Self> {
         if stride < 12 || stride % 4 != 0 {
-            return Err(Error::InvalidArgument("vertex stride must be >= 12 and a multiple of 4"));
+            return Err(Error::InvalidArgument(
+                "vertex stride must be >= 12 and a multiple of 4",
+            ));
         }
         if vertex_count > 0 {
             let need = (vertex_count as usize - 1)
@@ -44,11 +51,15 @@ impl<'g> Scene<'g> {
                 .and_then(|x| x.checked_add(12))
                 .ok_or(Error::InvalidArgument("vertex buffer size overflows"))?;
             if vertices.len() < need {
-                return Err(Error::InvalidArgument("vertex buffer shorter than vertex_count * stride"));
+                return Err(Error::InvalidArgument(
+                    "vertex buffer shorter than vertex_count * stride",
+                ));
             }
         }
         if indices.len() % 3 != 0 {
-            return Err(Error::InvalidArgument("index count must be a multiple of 3"));
+            return Err(Error::InvalidArgument(
+                "index count must be a multiple of 3",
+            ));
         }
         if indices.len() / 3 > u32::MAX as usize {
             return Err(Error::InvalidArgument("too many triangles"));
@@ -60,18 +71,29 @@ impl<'g> Scene<'g> {
                 vertex_count,
             });
         }
-        Ok(Scene { vertices, stride, vertex_count, indices })
+        Ok(Scene {
+            vertices,
+            stride,
+            vertex_count,
+            indices,
+        })
     }
 
     /// Packed xyz vertices (stride 12).
     pub fn from_f32(vertices: &'g [f32], indices: &'g [u32]) -> Result<Self> {
-        let count = u32::try_from(vertices.len() / 3).map_err(|_| Error::InvalidArgument("too many vertices"))?;
+        let count = u32::try_from(vertices.len() / 3)
+            .map_err(|_| Error::InvalidArgument("too many vertices"))?;
         Scene::new(bytemuck::cast_slice(vertices), 12, count, indices)
     }
 
     /// An empty scene.
     pub const fn empty() -> Scene<'static> {
-        Scene { vertices: &[], stride: 12, vertex_count: 0, indices: &[] }
+        Scene {
+            vertices: &[],
+            stride: 12,
+            vertex_count: 0,
+            indices: &[],
+        }
     }
 
     #[inline]

@@ -81,7 +81,13 @@ impl ProjTri {
         let e2 = [c1[0] - a[0], c1[1] - a[1], c1[2] - a[2]];
         let n = cross3::<f32>(e1, e2);
         let an = [n[0].abs(), n[1].abs(), n[2].abs()];
-        let k = if an[0] >= an[1] && an[0] >= an[2] { 0 } else if an[1] >= an[2] { 1 } else { 2 };
+        let k = if an[0] >= an[1] && an[0] >= an[2] {
+            0
+        } else if an[1] >= an[2] {
+            1
+        } else {
+            2
+        };
         let (u, v) = ((k + 1) % 3, (k + 2) % 3);
         // In the (u, v) projection: H - A = beta e1 + gamma e2.
         let det = e1[u] * e2[v] - e1[v] * e2[u];
@@ -118,7 +124,13 @@ pub struct Shear<L: Lane> {
 #[inline]
 pub(crate) fn shear1(d: [f32; 3]) -> ([usize; 3], [f32; 3]) {
     let a = [d[0].abs(), d[1].abs(), d[2].abs()];
-    let kz = if a[0] >= a[1] && a[0] >= a[2] { 0 } else if a[1] >= a[2] { 1 } else { 2 };
+    let kz = if a[0] >= a[1] && a[0] >= a[2] {
+        0
+    } else if a[1] >= a[2] {
+        1
+    } else {
+        2
+    };
     let mut kx = (kz + 1) % 3;
     let mut ky = (kx + 1) % 3;
     if d[kz] < 0.0 {
@@ -131,7 +143,12 @@ impl<L: Lane> Shear<L> {
     #[inline]
     pub fn new(d: [L; 3]) -> Self {
         let (k, s) = L::shear_axes(d);
-        Shear { kx: k[0], ky: k[1], kz: k[2], s }
+        Shear {
+            kx: k[0],
+            ky: k[1],
+            kz: k[2],
+            s,
+        }
     }
 }
 
@@ -159,7 +176,11 @@ fn sub3<L: Lane>(a: [L; 3], b: [L; 3]) -> [L; 3] {
 }
 #[inline(always)]
 fn cross3<L: Lane>(a: [L; 3], b: [L; 3]) -> [L; 3] {
-    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
 }
 #[inline(always)]
 fn dot3<L: Lane>(a: [L; 3], b: [L; 3]) -> L {
@@ -192,19 +213,34 @@ pub fn moller_trumbore<L: Lane>(r: &RayLanes<L>, tri: &TriVerts) -> TriHit<L> {
     let neg = det.lt(zero);
     let ok_u = (pos & zero.le(un) & un.le(det)) | (neg & det.le(un) & un.le(zero));
     if !L::any(ok_u) {
-        return TriHit { mask: ok_u, t: zero, u: zero, v: zero };
+        return TriHit {
+            mask: ok_u,
+            t: zero,
+            u: zero,
+            v: zero,
+        };
     }
     let q = cross3(s, e1);
     let vn = dot3(r.dir, q);
     let uvn = un + vn;
     let ok = ok_u & ((pos & zero.le(vn) & uvn.le(det)) | (neg & vn.le(zero) & det.le(uvn)));
     if !L::any(ok) {
-        return TriHit { mask: ok, t: zero, u: zero, v: zero };
+        return TriHit {
+            mask: ok,
+            t: zero,
+            u: zero,
+            v: zero,
+        };
     }
     let inv = L::splat(1.0) / det;
     let t = dot3(e2, q) * inv;
     let mask = ok & r.tmin.le(t) & t.lt(r.tmax);
-    TriHit { mask, t, u: un * inv, v: vn * inv }
+    TriHit {
+        mask,
+        t,
+        u: un * inv,
+        v: vn * inv,
+    }
 }
 
 /// Woop-Benthin-Wald watertight test, two-sided, with the ray's shear.
@@ -246,12 +282,22 @@ pub fn watertight<L: Lane>(r: &RayLanes<L>, sh: &Shear<L>, tri: &TriVerts) -> Tr
     let det = u + v + w;
     let inside = !(neg & pos) & !det.eq(zero);
     if !L::any(inside) {
-        return TriHit { mask: inside, t: zero, u: zero, v: zero };
+        return TriHit {
+            mask: inside,
+            t: zero,
+            u: zero,
+            v: zero,
+        };
     }
     let t_scaled = u * (sh.s[2] * az) + v * (sh.s[2] * bz) + w * (sh.s[2] * cz);
     let t = t_scaled / det;
     let mask = inside & r.tmin.le(t) & t.lt(r.tmax);
-    TriHit { mask, t, u: v / det, v: w / det }
+    TriHit {
+        mask,
+        t,
+        u: v / det,
+        v: w / det,
+    }
 }
 
 /// Wald 2004 projection test on precomputed `ProjTri` data. NaN (a ray
@@ -266,14 +312,24 @@ pub fn projection<L: Lane>(r: &RayLanes<L>, w: &ProjTri) -> TriHit<L> {
     let t = (L::splat(w.n_d) - r.org[k] - nu * r.org[u] - nv * r.org[v]) * nd;
     let in_t = r.tmin.le(t) & t.lt(r.tmax);
     if !L::any(in_t) {
-        return TriHit { mask: in_t, t, u: zero, v: zero };
+        return TriHit {
+            mask: in_t,
+            t,
+            u: zero,
+            v: zero,
+        };
     }
     let hu = r.org[u] + t * r.dir[u];
     let hv = r.org[v] + t * r.dir[v];
     let beta = hu * L::splat(w.b_nu) + hv * L::splat(w.b_nv) + L::splat(w.b_d);
     let gamma = hu * L::splat(w.c_nu) + hv * L::splat(w.c_nv) + L::splat(w.c_d);
     let mask = in_t & zero.le(beta) & zero.le(gamma) & (beta + gamma).le(L::splat(1.0));
-    TriHit { mask, t, u: beta, v: gamma }
+    TriHit {
+        mask,
+        t,
+        u: beta,
+        v: gamma,
+    }
 }
 
 /// A triangle test with its per-ray precomputation and its per-triangle
@@ -340,13 +396,23 @@ impl TriangleTest for Pt {
 impl RayLanes<f32> {
     #[inline]
     pub fn from_ray(r: &crate::geom::ray::Ray) -> Self {
-        RayLanes { org: r.org, dir: r.dir, tmin: r.tmin, tmax: r.tmax }
+        RayLanes {
+            org: r.org,
+            dir: r.dir,
+            tmin: r.tmin,
+            tmax: r.tmax,
+        }
     }
 }
 
 impl RayLanes<F4> {
     #[inline]
     pub fn from_ray4(r: &crate::geom::ray::Ray4) -> Self {
-        RayLanes { org: r.org, dir: r.dir, tmin: r.tmin, tmax: r.tmax }
+        RayLanes {
+            org: r.org,
+            dir: r.dir,
+            tmin: r.tmin,
+            tmax: r.tmax,
+        }
     }
 }

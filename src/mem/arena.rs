@@ -27,7 +27,9 @@ impl<'a> Arena<'a> {
     /// Wrap `buf`, which must start on a 64-byte boundary.
     pub fn new(buf: &'a mut [u8]) -> Result<Self> {
         if (buf.as_ptr() as usize) % ARENA_ALIGN != 0 {
-            return Err(Error::Misaligned { required: ARENA_ALIGN as u32 });
+            return Err(Error::Misaligned {
+                required: ARENA_ALIGN as u32,
+            });
         }
         Ok(Arena { rest: buf, used: 0 })
     }
@@ -47,7 +49,10 @@ impl<'a> Arena<'a> {
     pub fn take<T: Pod>(&mut self, n: usize) -> Result<&'a mut [T]> {
         let bytes = pool_bytes::<T>(n);
         if bytes > self.rest.len() {
-            return Err(Error::BufferTooSmall { needed: (self.used + bytes) as u64, available: (self.used + self.rest.len()) as u64 });
+            return Err(Error::BufferTooSmall {
+                needed: (self.used + bytes) as u64,
+                available: (self.used + self.rest.len()) as u64,
+            });
         }
         let rest = core::mem::take(&mut self.rest);
         let (pool, rest) = rest.split_at_mut(bytes);
@@ -57,6 +62,8 @@ impl<'a> Arena<'a> {
         let pool = &mut pool[..n * core::mem::size_of::<T>()];
         // Alignment holds by construction (64-aligned start, 64-multiple sizes,
         // align_of::<T>() <= 64): a failure here is a sheaf bug, reported as such.
-        bytemuck::try_cast_slice_mut(pool).map_err(|_| Error::Misaligned { required: ARENA_ALIGN as u32 })
+        bytemuck::try_cast_slice_mut(pool).map_err(|_| Error::Misaligned {
+            required: ARENA_ALIGN as u32,
+        })
     }
 }

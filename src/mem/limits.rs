@@ -70,12 +70,20 @@ impl Limits {
 
     /// Grid cell capacity after applying the default rule.
     pub fn grid_cells(&self) -> u64 {
-        if self.max_grid_cells != 0 { self.max_grid_cells as u64 } else { 8 * self.max_triangles as u64 + 64 }
+        if self.max_grid_cells != 0 {
+            self.max_grid_cells as u64
+        } else {
+            8 * self.max_triangles as u64 + 64
+        }
     }
 
     /// Grid reference capacity after applying the default rule.
     pub fn grid_refs(&self) -> u64 {
-        if self.max_grid_refs != 0 { self.max_grid_refs as u64 } else { 16 * self.max_triangles as u64 + 1024 }
+        if self.max_grid_refs != 0 {
+            self.max_grid_refs as u64
+        } else {
+            16 * self.max_triangles as u64 + 1024
+        }
     }
 
     /// Checks that every field is in its domain and every pool fits in memory.
@@ -84,16 +92,24 @@ impl Limits {
             return Err(Error::InvalidArgument("max_threads must be in 1..=1024"));
         }
         if self.max_tile < 2 || self.max_tile % 2 != 0 || self.max_tile > 1024 {
-            return Err(Error::InvalidArgument("max_tile must be even and in 2..=1024"));
+            return Err(Error::InvalidArgument(
+                "max_tile must be even and in 2..=1024",
+            ));
         }
         if self.max_image_width == 0 || self.max_image_height == 0 {
-            return Err(Error::InvalidArgument("max_image_width and max_image_height must be > 0"));
+            return Err(Error::InvalidArgument(
+                "max_image_width and max_image_height must be > 0",
+            ));
         }
         if self.structures & !Self::ALL_STRUCTURES != 0 || self.structures == 0 {
-            return Err(Error::InvalidArgument("structures must name at least one structure and no unknown bits"));
+            return Err(Error::InvalidArgument(
+                "structures must name at least one structure and no unknown bits",
+            ));
         }
         if self.grid_cells() > u32::MAX as u64 - 1 || self.grid_refs() > u32::MAX as u64 {
-            return Err(Error::InvalidArgument("grid pools must stay below 2^32 entries"));
+            return Err(Error::InvalidArgument(
+                "grid pools must stay below 2^32 entries",
+            ));
         }
         Ok(())
     }

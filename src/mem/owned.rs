@@ -37,7 +37,8 @@ impl OwnedBuffer {
     pub unsafe fn lend(&mut self) -> &'static mut [u8] {
         // SAFETY: ptr/blocks come from a live Box<[Block]> we own; the caller
         // promises the borrow ends before `drop` and is the only one.
-        let blocks: &'static mut [Block] = unsafe { core::slice::from_raw_parts_mut(self.ptr, self.blocks) };
+        let blocks: &'static mut [Block] =
+            unsafe { core::slice::from_raw_parts_mut(self.ptr, self.blocks) };
         bytemuck::cast_slice_mut(blocks)
     }
 
@@ -69,13 +70,19 @@ pub(crate) struct Lent<T> {
 
 impl<T> Lent<T> {
     /// Allocate `bytes` once and build the value over them.
-    pub(crate) fn new<E>(bytes: usize, f: impl FnOnce(&'static mut [u8]) -> Result<T, E>) -> Result<Self, E> {
+    pub(crate) fn new<E>(
+        bytes: usize,
+        f: impl FnOnce(&'static mut [u8]) -> Result<T, E>,
+    ) -> Result<Self, E> {
         let mut buf = OwnedBuffer::new(bytes);
         // SAFETY: lent once; the only borrow goes into `value`, which Drop
         // destroys before `_buf` frees the memory.
         let bytes = unsafe { buf.lend() };
         let value = f(bytes)?;
-        Ok(Lent { value: core::mem::ManuallyDrop::new(value), _buf: buf })
+        Ok(Lent {
+            value: core::mem::ManuallyDrop::new(value),
+            _buf: buf,
+        })
     }
     pub(crate) fn get(&self) -> &T {
         &self.value

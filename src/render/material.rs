@@ -34,23 +34,36 @@ pub struct Material {
 impl Material {
     /// A purely diffuse material of colour `albedo`.
     pub const fn diffuse(albedo: [f32; 3]) -> Material {
-        Material { diffuse: albedo, reflect: 0.0, transmit: 0.0, ior: 1.0 }
+        Material {
+            diffuse: albedo,
+            reflect: 0.0,
+            transmit: 0.0,
+            ior: 1.0,
+        }
     }
 
     /// Finite values, coefficients in [0, 1], `reflect + transmit <= 1`, `ior > 0`.
     pub fn validate(&self) -> Result<()> {
         let unit = |x: f32| (0.0..=1.0).contains(&x);
         if !self.diffuse.iter().all(|&c| unit(c)) {
-            return Err(Error::InvalidArgument("material diffuse components must be finite and in [0, 1]"));
+            return Err(Error::InvalidArgument(
+                "material diffuse components must be finite and in [0, 1]",
+            ));
         }
         if !unit(self.reflect) || !unit(self.transmit) {
-            return Err(Error::InvalidArgument("material reflect and transmit must be finite and in [0, 1]"));
+            return Err(Error::InvalidArgument(
+                "material reflect and transmit must be finite and in [0, 1]",
+            ));
         }
         if self.reflect + self.transmit > 1.0 {
-            return Err(Error::InvalidArgument("material reflect + transmit must be <= 1"));
+            return Err(Error::InvalidArgument(
+                "material reflect + transmit must be <= 1",
+            ));
         }
         if !(self.ior.is_finite() && self.ior > 0.0) {
-            return Err(Error::InvalidArgument("material ior must be finite and > 0"));
+            return Err(Error::InvalidArgument(
+                "material ior must be finite and > 0",
+            ));
         }
         Ok(())
     }
@@ -71,7 +84,10 @@ pub struct MaterialRange {
 /// material (`Shading::albedo`).
 pub const DEFAULT_MATERIAL: u32 = u32::MAX;
 
-const UNIFORM: [MaterialRange; 1] = [MaterialRange { first: 0, material: 0 }];
+const UNIFORM: [MaterialRange; 1] = [MaterialRange {
+    first: 0,
+    material: 0,
+}];
 
 /// The materials of a scene, borrowed: a material table and the ranges of
 /// triangles using each, sorted by `first`. Triangles before the first range
@@ -85,11 +101,17 @@ pub struct Materials<'a> {
 
 impl<'a> Materials<'a> {
     /// No materials: every triangle is diffuse with `Shading::albedo`.
-    pub const NONE: Materials<'static> = Materials { materials: &[], ranges: &[] };
+    pub const NONE: Materials<'static> = Materials {
+        materials: &[],
+        ranges: &[],
+    };
 
     /// Every triangle uses `material` (tests and benches).
     pub fn uniform(material: &'a Material) -> Materials<'a> {
-        Materials { materials: core::slice::from_ref(material), ranges: &UNIFORM }
+        Materials {
+            materials: core::slice::from_ref(material),
+            ranges: &UNIFORM,
+        }
     }
 
     /// Every material valid (`Material::validate`), ranges sorted by
@@ -101,10 +123,14 @@ impl<'a> Materials<'a> {
         }
         for (k, r) in self.ranges.iter().enumerate() {
             if r.material != DEFAULT_MATERIAL && r.material as usize >= self.materials.len() {
-                return Err(Error::InvalidArgument("material range refers to a material past the table"));
+                return Err(Error::InvalidArgument(
+                    "material range refers to a material past the table",
+                ));
             }
             if k > 0 && self.ranges[k - 1].first >= r.first {
-                return Err(Error::InvalidArgument("material ranges must be sorted by strictly increasing first"));
+                return Err(Error::InvalidArgument(
+                    "material ranges must be sorted by strictly increasing first",
+                ));
             }
         }
         Ok(())
@@ -135,19 +161,44 @@ mod tests {
     #[test]
     fn lookup_by_range() {
         let mats = [
-            Material { diffuse: [1.0, 0.0, 0.0], reflect: 0.5, transmit: 0.0, ior: 1.0 },
-            Material { diffuse: [0.0, 1.0, 0.0], reflect: 0.0, transmit: 0.6, ior: 1.5 },
+            Material {
+                diffuse: [1.0, 0.0, 0.0],
+                reflect: 0.5,
+                transmit: 0.0,
+                ior: 1.0,
+            },
+            Material {
+                diffuse: [0.0, 1.0, 0.0],
+                reflect: 0.0,
+                transmit: 0.6,
+                ior: 1.5,
+            },
         ];
         let ranges = [
-            MaterialRange { first: 2, material: 1 },
-            MaterialRange { first: 5, material: DEFAULT_MATERIAL },
-            MaterialRange { first: 7, material: 0 },
+            MaterialRange {
+                first: 2,
+                material: 1,
+            },
+            MaterialRange {
+                first: 5,
+                material: DEFAULT_MATERIAL,
+            },
+            MaterialRange {
+                first: 7,
+                material: 0,
+            },
         ];
-        let m = Materials { materials: &mats, ranges: &ranges };
+        let m = Materials {
+            materials: &mats,
+            ranges: &ranges,
+        };
         m.validate().unwrap();
         let got: [Material; 9] = core::array::from_fn(|i| m.lookup(i as u32, A));
         let d = Material::diffuse(A);
-        assert_eq!(got, [d, d, mats[1], mats[1], mats[1], d, d, mats[0], mats[0]]);
+        assert_eq!(
+            got,
+            [d, d, mats[1], mats[1], mats[1], d, d, mats[0], mats[0]]
+        );
         assert_eq!(m.lookup(u32::MAX, A), mats[0]);
         assert_eq!(Materials::NONE.lookup(3, A), d);
         assert_eq!(Materials::uniform(&mats[1]).lookup(12345, A), mats[1]);
@@ -155,27 +206,90 @@ mod tests {
 
     #[test]
     fn validation() {
-        let ok = Material { diffuse: [1.0, 0.5, 0.0], reflect: 0.4, transmit: 0.6, ior: 1.5 };
+        let ok = Material {
+            diffuse: [1.0, 0.5, 0.0],
+            reflect: 0.4,
+            transmit: 0.6,
+            ior: 1.5,
+        };
         assert!(ok.validate().is_ok());
         let bad = [
-            Material { diffuse: [1.5, 0.0, 0.0], ..ok },
-            Material { diffuse: [f32::NAN, 0.0, 0.0], ..ok },
-            Material { reflect: -0.1, ..ok },
-            Material { transmit: f32::INFINITY, ..ok },
-            Material { reflect: 0.5, transmit: 0.6, ..ok },
+            Material {
+                diffuse: [1.5, 0.0, 0.0],
+                ..ok
+            },
+            Material {
+                diffuse: [f32::NAN, 0.0, 0.0],
+                ..ok
+            },
+            Material {
+                reflect: -0.1,
+                ..ok
+            },
+            Material {
+                transmit: f32::INFINITY,
+                ..ok
+            },
+            Material {
+                reflect: 0.5,
+                transmit: 0.6,
+                ..ok
+            },
             Material { ior: 0.0, ..ok },
-            Material { ior: f32::NAN, ..ok },
+            Material {
+                ior: f32::NAN,
+                ..ok
+            },
         ];
         for b in bad {
-            assert!(matches!(b.validate(), Err(Error::InvalidArgument(_))), "{b:?}");
+            assert!(
+                matches!(b.validate(), Err(Error::InvalidArgument(_))),
+                "{b:?}"
+            );
             assert!(Materials::uniform(&b).validate().is_err());
         }
         let mats = [ok];
-        let unsorted = [MaterialRange { first: 3, material: 0 }, MaterialRange { first: 3, material: 0 }];
-        assert!(Materials { materials: &mats, ranges: &unsorted }.validate().is_err());
-        let past = [MaterialRange { first: 0, material: 1 }];
-        assert!(Materials { materials: &mats, ranges: &past }.validate().is_err());
-        let default = [MaterialRange { first: 0, material: DEFAULT_MATERIAL }];
-        assert!(Materials { materials: &[], ranges: &default }.validate().is_ok());
+        let unsorted = [
+            MaterialRange {
+                first: 3,
+                material: 0,
+            },
+            MaterialRange {
+                first: 3,
+                material: 0,
+            },
+        ];
+        assert!(
+            Materials {
+                materials: &mats,
+                ranges: &unsorted
+            }
+            .validate()
+            .is_err()
+        );
+        let past = [MaterialRange {
+            first: 0,
+            material: 1,
+        }];
+        assert!(
+            Materials {
+                materials: &mats,
+                ranges: &past
+            }
+            .validate()
+            .is_err()
+        );
+        let default = [MaterialRange {
+            first: 0,
+            material: DEFAULT_MATERIAL,
+        }];
+        assert!(
+            Materials {
+                materials: &[],
+                ranges: &default
+            }
+            .validate()
+            .is_ok()
+        );
     }
 }

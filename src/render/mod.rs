@@ -17,8 +17,8 @@
 pub mod material;
 pub mod whitted;
 
-use crate::error::{Error, Result};
 use crate::accel::grid::traverse_cgt::Mailbox;
+use crate::error::{Error, Result};
 use crate::geom::{F4, Hit, Hit4, M4, Ray, Ray4, TriVerts};
 use crate::math;
 use crate::trace::{Counters, TraceParams};
@@ -60,7 +60,12 @@ pub struct Shading {
 
 impl Default for Shading {
     fn default() -> Self {
-        Shading { albedo: [0.8, 0.78, 0.72], ambient: 0.12, background: [0.078, 0.361, 0.753], shadows: true }
+        Shading {
+            albedo: [0.8, 0.78, 0.72],
+            ambient: 0.12,
+            background: [0.078, 0.361, 0.753],
+            shadows: true,
+        }
     }
 }
 
@@ -80,12 +85,16 @@ impl PrimaryRays {
         let up = Vec3::from(cam.up);
         let ok = eye.is_finite() && fwd.is_finite() && up.is_finite() && fwd.length_squared() > 0.0;
         if !ok || !(cam.fov_y_deg > 0.0 && cam.fov_y_deg < 180.0) {
-            return Err(Error::InvalidArgument("camera: finite eye/look_at/up, eye != look_at, fov in (0, 180)"));
+            return Err(Error::InvalidArgument(
+                "camera: finite eye/look_at/up, eye != look_at, fov in (0, 180)",
+            ));
         }
         let w = fwd.normalize();
         let u = w.cross(up);
         if !(u.length_squared() > 0.0) {
-            return Err(Error::InvalidArgument("camera: up must not be parallel to the view direction"));
+            return Err(Error::InvalidArgument(
+                "camera: up must not be parallel to the view direction",
+            ));
         }
         let u = u.normalize();
         let v = u.cross(w);
@@ -94,7 +103,12 @@ impl PrimaryRays {
         let du = u * (2.0 * half_w / width as f32);
         let dv = -v * (2.0 * half_h / height as f32);
         let corner = w - u * half_w + v * half_h;
-        Ok(PrimaryRays { eye, corner, du, dv })
+        Ok(PrimaryRays {
+            eye,
+            corner,
+            du,
+            dv,
+        })
     }
 
     /// Ray through the centre of pixel (x, y); y grows downwards.
@@ -113,9 +127,25 @@ pub trait Tracer: Sync {
     fn occluded(&self, ray: &Ray, ctr: &mut Counters) -> bool;
     /// Nearest hits of the active lanes of a packet (`p.method` decides how;
     /// single-ray methods trace lane by lane). `mb` is the calling thread's.
-    fn intersect_packet(&self, p: &TraceParams, rays: &[Ray4], active: &[M4], hits: &mut [Hit4], mb: &mut Mailbox<'_>, ctr: &mut Counters);
+    fn intersect_packet(
+        &self,
+        p: &TraceParams,
+        rays: &[Ray4],
+        active: &[M4],
+        hits: &mut [Hit4],
+        mb: &mut Mailbox<'_>,
+        ctr: &mut Counters,
+    );
     /// Occlusion of the active lanes: a hit (`prim != INVALID_ID`) marks an occluded lane.
-    fn occluded_packet(&self, p: &TraceParams, rays: &[Ray4], active: &[M4], hits: &mut [Hit4], mb: &mut Mailbox<'_>, ctr: &mut Counters);
+    fn occluded_packet(
+        &self,
+        p: &TraceParams,
+        rays: &[Ray4],
+        active: &[M4],
+        hits: &mut [Hit4],
+        mb: &mut Mailbox<'_>,
+        ctr: &mut Counters,
+    );
     fn triangle(&self, prim: u32) -> Option<TriVerts>;
     /// Scale of the scene, for the shadow-ray origin offset.
     fn scene_scale(&self) -> f32;
@@ -140,7 +170,13 @@ pub const SHADOW_OFFSET: f32 = 1e-4;
 /// shadow ray from the light to a point just off the surface (t = 1 there;
 /// `tmax = 1` is exclusive, so the surface itself is never reported).
 #[inline]
-fn surface(frame: &Frame, ray: &Ray, hit: &Hit, tri: &TriVerts, eps: f32) -> (Vec3, f32, Option<Ray>) {
+fn surface(
+    frame: &Frame,
+    ray: &Ray,
+    hit: &Hit,
+    tri: &TriVerts,
+    eps: f32,
+) -> (Vec3, f32, Option<Ray>) {
     let d = Vec3::from(ray.dir);
     let mut n = tri.normal().normalize_or_zero();
     if n.dot(d) > 0.0 {
@@ -188,7 +224,11 @@ pub fn render_rows<T: Tracer + ?Sized>(
         for x in 0..frame.width {
             let ray = rays.ray(x, y);
             let hit = tracer.intersect(&ray, ctr);
-            let tri = if hit.is_hit() { tracer.triangle(hit.prim) } else { None };
+            let tri = if hit.is_hit() {
+                tracer.triangle(hit.prim)
+            } else {
+                None
+            };
             let px = match tri {
                 Some(tri) => {
                     let (_, cos, sray) = surface(frame, &ray, &hit, &tri, eps);
@@ -234,11 +274,21 @@ pub fn render_tiles<T: Tracer + ?Sized>(
     ctr: &mut Counters,
 ) {
     match primary.packet {
-        2 => tiles::<T, 1>(tracer, primary, shadow, frame, rays, y0, y1, pixels, stride, mb, ctr),
-        4 => tiles::<T, 4>(tracer, primary, shadow, frame, rays, y0, y1, pixels, stride, mb, ctr),
-        8 => tiles::<T, 16>(tracer, primary, shadow, frame, rays, y0, y1, pixels, stride, mb, ctr),
-        16 => tiles::<T, 64>(tracer, primary, shadow, frame, rays, y0, y1, pixels, stride, mb, ctr),
-        _ => tiles::<T, 256>(tracer, primary, shadow, frame, rays, y0, y1, pixels, stride, mb, ctr),
+        2 => tiles::<T, 1>(
+            tracer, primary, shadow, frame, rays, y0, y1, pixels, stride, mb, ctr,
+        ),
+        4 => tiles::<T, 4>(
+            tracer, primary, shadow, frame, rays, y0, y1, pixels, stride, mb, ctr,
+        ),
+        8 => tiles::<T, 16>(
+            tracer, primary, shadow, frame, rays, y0, y1, pixels, stride, mb, ctr,
+        ),
+        16 => tiles::<T, 64>(
+            tracer, primary, shadow, frame, rays, y0, y1, pixels, stride, mb, ctr,
+        ),
+        _ => tiles::<T, 256>(
+            tracer, primary, shadow, frame, rays, y0, y1, pixels, stride, mb, ctr,
+        ),
     }
 }
 
@@ -313,7 +363,9 @@ fn tiles<T: Tracer + ?Sized, const Q: usize>(
                 sactive[q] = M4::new(m[0], m[1], m[2], m[3]);
                 shits[q] = Hit4::MISS;
             }
-            shadow_packet(tracer, shadow, &squads, &sactive, &sdist, &mut shits, mb, ctr);
+            shadow_packet(
+                tracer, shadow, &squads, &sactive, &sdist, &mut shits, mb, ctr,
+            );
             // Shade and store.
             for q in 0..Q {
                 let (qx, qy) = demorton(q);
@@ -323,7 +375,11 @@ fn tiles<T: Tracer + ?Sized, const Q: usize>(
                     }
                     let (x, y) = (tx + 2 * qx + dx, ty + 2 * qy + dy);
                     let hit = hits[q].prim[i] != crate::geom::INVALID_ID;
-                    let lit = if shits[q].prim[i] != crate::geom::INVALID_ID { 0.0 } else { cosines[q][i] };
+                    let lit = if shits[q].prim[i] != crate::geom::INVALID_ID {
+                        0.0
+                    } else {
+                        cosines[q][i]
+                    };
                     let at = (y - y0) as usize * stride + x as usize * 4;
                     pixels[at..at + 4].copy_from_slice(&shade(frame, hit, lit));
                 }
@@ -361,7 +417,16 @@ pub fn shadow_packet<T: Tracer + ?Sized>(
             let k = rays.len() / 4;
             for s in 0..4 {
                 let r = s * k..(s + 1) * k;
-                shadow_packet(tracer, p, &rays[r.clone()], &active[r.clone()], &dist[r.clone()], &mut hits[r], mb, ctr);
+                shadow_packet(
+                    tracer,
+                    p,
+                    &rays[r.clone()],
+                    &active[r.clone()],
+                    &dist[r.clone()],
+                    &mut hits[r],
+                    mb,
+                    ctr,
+                );
             }
             return;
         }

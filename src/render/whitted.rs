@@ -91,7 +91,9 @@
 #![forbid(unsafe_code)]
 
 use super::material::{Material, Materials};
-use super::{Frame, PointLight, PrimaryRays, SHADOW_OFFSET, Tracer, demorton, encode, shadow_packet};
+use super::{
+    Frame, PointLight, PrimaryRays, SHADOW_OFFSET, Tracer, demorton, encode, shadow_packet,
+};
 use crate::accel::grid::traverse_cgt::Mailbox;
 use crate::error::{Error, Result};
 use crate::geom::{F4, Hit, Hit4, INVALID_ID, M4, Ray, Ray4};
@@ -117,7 +119,10 @@ pub struct WhittedParams {
 
 impl Default for WhittedParams {
     fn default() -> Self {
-        WhittedParams { max_reflect: 2, max_refract: 2 }
+        WhittedParams {
+            max_reflect: 2,
+            max_refract: 2,
+        }
     }
 }
 
@@ -125,7 +130,9 @@ impl WhittedParams {
     /// `max_reflect + max_refract <= MAX_BOUNCES`.
     pub fn validate(&self) -> Result<()> {
         if self.max_reflect as u64 + self.max_refract as u64 > MAX_BOUNCES as u64 {
-            return Err(Error::InvalidArgument("whitted max_reflect + max_refract must be <= 8"));
+            return Err(Error::InvalidArgument(
+                "whitted max_reflect + max_refract must be <= 8",
+            ));
         }
         Ok(())
     }
@@ -156,14 +163,31 @@ pub struct WhittedJob<'a> {
 
 impl<'a> WhittedJob<'a> {
     /// A job tracing every kind of ray with `p`, lit by `frame.light`.
-    pub fn new(frame: &'a Frame, materials: Materials<'a>, params: WhittedParams, p: TraceParams) -> Self {
-        WhittedJob { frame, lights: &[], materials, params, primary: p, shadow: p, secondary: p }
+    pub fn new(
+        frame: &'a Frame,
+        materials: Materials<'a>,
+        params: WhittedParams,
+        p: TraceParams,
+    ) -> Self {
+        WhittedJob {
+            frame,
+            lights: &[],
+            materials,
+            params,
+            primary: p,
+            shadow: p,
+            secondary: p,
+        }
     }
 
     /// The lights shading uses: `lights`, or `frame.light` when empty.
     #[inline]
     pub fn lights(&self) -> &'a [PointLight] {
-        if self.lights.is_empty() { core::slice::from_ref(&self.frame.light) } else { self.lights }
+        if self.lights.is_empty() {
+            core::slice::from_ref(&self.frame.light)
+        } else {
+            self.lights
+        }
     }
 
     /// Checks the bounce limits, the materials, the three `TraceParams` and
@@ -175,8 +199,14 @@ impl<'a> WhittedJob<'a> {
         self.shadow.validate()?;
         self.secondary.validate()?;
         let finite = |v: &[f32; 3]| v.iter().all(|x| x.is_finite());
-        if !self.lights().iter().all(|l| finite(&l.position) && finite(&l.color)) {
-            return Err(Error::InvalidArgument("light position and color must be finite"));
+        if !self
+            .lights()
+            .iter()
+            .all(|l| finite(&l.position) && finite(&l.color))
+        {
+            return Err(Error::InvalidArgument(
+                "light position and color must be finite",
+            ));
         }
         Ok(())
     }
@@ -202,7 +232,12 @@ struct Surface {
 /// The surface `ray` hit, or None for a miss (or a triangle the structure
 /// does not hold, which `render_rows` also shades as a miss).
 #[inline]
-fn surface_at<T: Tracer + ?Sized>(tracer: &T, job: &WhittedJob<'_>, ray: &Ray, hit: &Hit) -> Option<Surface> {
+fn surface_at<T: Tracer + ?Sized>(
+    tracer: &T,
+    job: &WhittedJob<'_>,
+    ray: &Ray,
+    hit: &Hit,
+) -> Option<Surface> {
     if !hit.is_hit() {
         return None;
     }
@@ -215,7 +250,13 @@ fn surface_at<T: Tracer + ?Sized>(tracer: &T, job: &WhittedJob<'_>, ray: &Ray, h
     }
     let p = Vec3::from(ray.org) + d * hit.t;
     let mat = job.materials.lookup(hit.prim, job.frame.shading.albedo);
-    Some(Surface { p, n, u: d.normalize_or_zero(), entering: !behind, mat })
+    Some(Surface {
+        p,
+        n,
+        u: d.normalize_or_zero(),
+        entering: !behind,
+        mat,
+    })
 }
 
 /// Cosine towards `light` and, when the surface faces it (and shadows are
@@ -252,9 +293,21 @@ pub struct Split {
 /// reflections and `refractions` refractions.
 #[inline]
 pub fn split(m: &Material, params: &WhittedParams, reflections: u32, refractions: u32) -> Split {
-    let kr = if m.reflect > 0.0 && reflections < params.max_reflect { m.reflect } else { 0.0 };
-    let kt = if m.transmit > 0.0 && refractions < params.max_refract { m.transmit } else { 0.0 };
-    Split { kd: 1.0 - kr - kt, kr, kt }
+    let kr = if m.reflect > 0.0 && reflections < params.max_reflect {
+        m.reflect
+    } else {
+        0.0
+    };
+    let kt = if m.transmit > 0.0 && refractions < params.max_refract {
+        m.transmit
+    } else {
+        0.0
+    };
+    Split {
+        kd: 1.0 - kr - kt,
+        kr,
+        kt,
+    }
 }
 
 /// Local (diffuse) colour of a hit with diffuse weight `kd` and light sum `sum`.
@@ -283,7 +336,11 @@ pub fn reflect(u: Vec3, n: Vec3) -> Vec3 {
 pub fn refract(u: Vec3, n: Vec3, eta: f32) -> Option<Vec3> {
     let c = -n.dot(u);
     let k = 1.0 - eta * eta * (1.0 - c * c);
-    if k < 0.0 { None } else { Some(u * eta + n * (eta * c - math::sqrt(k))) }
+    if k < 0.0 {
+        None
+    } else {
+        Some(u * eta + n * (eta * c - math::sqrt(k)))
+    }
 }
 
 #[inline]
@@ -294,7 +351,11 @@ fn reflect_ray(s: &Surface, eps: f32) -> Ray {
 /// The transmitted ray, or the reflected one on total internal reflection.
 #[inline]
 fn refract_ray(s: &Surface, eps: f32) -> Ray {
-    let eta = if s.entering { 1.0 / s.mat.ior } else { s.mat.ior };
+    let eta = if s.entering {
+        1.0 / s.mat.ior
+    } else {
+        s.mat.ior
+    };
     match refract(s.u, s.n, eta) {
         Some(t) => Ray::new(s.p - s.n * eps, t, 0.0, f32::INFINITY),
         None => reflect_ray(s, eps),
@@ -341,18 +402,53 @@ fn trace_ray<T: Tracer + ?Sized>(
     let k = split(&s.mat, &job.params, reflections, refractions);
     *acc = accumulate(*acc, local(&s, k.kd, sum), w);
     if k.kr > 0.0 {
-        trace_ray(tracer, job, &reflect_ray(&s, eps), w * k.kr, reflections + 1, refractions, eps, acc, ctr);
+        trace_ray(
+            tracer,
+            job,
+            &reflect_ray(&s, eps),
+            w * k.kr,
+            reflections + 1,
+            refractions,
+            eps,
+            acc,
+            ctr,
+        );
     }
     if k.kt > 0.0 {
-        trace_ray(tracer, job, &refract_ray(&s, eps), w * k.kt, reflections, refractions + 1, eps, acc, ctr);
+        trace_ray(
+            tracer,
+            job,
+            &refract_ray(&s, eps),
+            w * k.kt,
+            reflections,
+            refractions + 1,
+            eps,
+            acc,
+            ctr,
+        );
     }
 }
 
 /// Linear RGB colour of one ray's Whitted tree (single rays), as the
 /// renderers compute it before encoding.
-pub fn radiance<T: Tracer + ?Sized>(tracer: &T, job: &WhittedJob<'_>, ray: &Ray, ctr: &mut Counters) -> [f32; 3] {
+pub fn radiance<T: Tracer + ?Sized>(
+    tracer: &T,
+    job: &WhittedJob<'_>,
+    ray: &Ray,
+    ctr: &mut Counters,
+) -> [f32; 3] {
     let mut acc = Vec3::ZERO;
-    trace_ray(tracer, job, ray, 1.0, 0, 0, SHADOW_OFFSET * tracer.scene_scale(), &mut acc, ctr);
+    trace_ray(
+        tracer,
+        job,
+        ray,
+        1.0,
+        0,
+        0,
+        SHADOW_OFFSET * tracer.scene_scale(),
+        &mut acc,
+        ctr,
+    );
     acc.to_array()
 }
 
@@ -469,7 +565,9 @@ fn tiles<T: Tracer + ?Sized, const Q: usize>(
                 (quads[q], active[q]) = pack(&mut lanes, &m);
             }
             let mut acc = [[Vec3::ZERO; 4]; Q];
-            level::<T, Q>(tracer, job, &primary, &quads, &active, &ones, 0, 0, eps, &mut acc, mb, ctr);
+            level::<T, Q>(
+                tracer, job, &primary, &quads, &active, &ones, 0, 0, eps, &mut acc, mb, ctr,
+            );
             for q in 0..Q {
                 let (qx, qy) = demorton(q);
                 for (i, (dx, dy)) in LANE_XY.iter().enumerate() {
@@ -491,7 +589,11 @@ fn tiles<T: Tracer + ?Sized, const Q: usize>(
 /// single-ray methods take the whole tile (they trace lane by lane).
 #[inline]
 fn packets(p: &TraceParams, q: usize) -> impl Iterator<Item = core::ops::Range<usize>> {
-    let k = if p.method.is_packet() { ((p.packet / 2) as usize).pow(2).clamp(1, q) } else { q };
+    let k = if p.method.is_packet() {
+        ((p.packet / 2) as usize).pow(2).clamp(1, q)
+    } else {
+        q
+    };
     (0..q).step_by(k).map(move |s| s..(s + k).min(q))
 }
 
@@ -517,10 +619,30 @@ fn level<T: Tracer + ?Sized, const Q: usize>(
     let mut hits = [Hit4::MISS; Q];
     for r in packets(p, Q) {
         if active[r.clone()].iter().any(|m| m.any()) {
-            tracer.intersect_packet(p, &rays[r.clone()], &active[r.clone()], &mut hits[r], mb, ctr);
+            tracer.intersect_packet(
+                p,
+                &rays[r.clone()],
+                &active[r.clone()],
+                &mut hits[r],
+                mb,
+                ctr,
+            );
         }
     }
-    let (want_r, want_t) = shade_packet::<T, Q>(tracer, job, rays, active, &hits, w, reflections, refractions, eps, acc, mb, ctr);
+    let (want_r, want_t) = shade_packet::<T, Q>(
+        tracer,
+        job,
+        rays,
+        active,
+        &hits,
+        w,
+        reflections,
+        refractions,
+        eps,
+        acc,
+        mb,
+        ctr,
+    );
     if !(want_r || want_t) {
         return;
     }
@@ -529,11 +651,67 @@ fn level<T: Tracer + ?Sized, const Q: usize>(
     let mut cactive = [M4::FALSE; Q];
     let mut cw = [F4::ZERO; Q];
     let levels = (reflections, refractions);
-    if want_r && child::<T, Q>(tracer, job, true, rays, active, &hits, w, levels, eps, &mut crays, &mut cactive, &mut cw) {
-        level::<T, Q>(tracer, job, &secondary, &crays, &cactive, &cw, reflections + 1, refractions, eps, acc, mb, ctr);
+    if want_r
+        && child::<T, Q>(
+            tracer,
+            job,
+            true,
+            rays,
+            active,
+            &hits,
+            w,
+            levels,
+            eps,
+            &mut crays,
+            &mut cactive,
+            &mut cw,
+        )
+    {
+        level::<T, Q>(
+            tracer,
+            job,
+            &secondary,
+            &crays,
+            &cactive,
+            &cw,
+            reflections + 1,
+            refractions,
+            eps,
+            acc,
+            mb,
+            ctr,
+        );
     }
-    if want_t && child::<T, Q>(tracer, job, false, rays, active, &hits, w, levels, eps, &mut crays, &mut cactive, &mut cw) {
-        level::<T, Q>(tracer, job, &secondary, &crays, &cactive, &cw, reflections, refractions + 1, eps, acc, mb, ctr);
+    if want_t
+        && child::<T, Q>(
+            tracer,
+            job,
+            false,
+            rays,
+            active,
+            &hits,
+            w,
+            levels,
+            eps,
+            &mut crays,
+            &mut cactive,
+            &mut cw,
+        )
+    {
+        level::<T, Q>(
+            tracer,
+            job,
+            &secondary,
+            &crays,
+            &cactive,
+            &cw,
+            reflections,
+            refractions + 1,
+            eps,
+            acc,
+            mb,
+            ctr,
+        );
     }
 }
 
@@ -569,7 +747,11 @@ fn shade_packet<T: Tracer + ?Sized, const Q: usize>(
         }
     }
     if any_hit {
-        let shadow = if reflections + refractions == 0 { job.shadow } else { job.secondary };
+        let shadow = if reflections + refractions == 0 {
+            job.shadow
+        } else {
+            job.secondary
+        };
         let shadow = shadow.with_kind(RayKind::Shadow);
         let mut squads = [Ray4::from_rays(&[idle_ray(); 4]); Q];
         let mut sactive = [M4::FALSE; Q];
@@ -596,12 +778,25 @@ fn shade_packet<T: Tracer + ?Sized, const Q: usize>(
                 shits[q] = Hit4::MISS;
             }
             for r in packets(&shadow, Q) {
-                shadow_packet(tracer, &shadow, &squads[r.clone()], &sactive[r.clone()], &sdist[r.clone()], &mut shits[r], mb, ctr);
+                shadow_packet(
+                    tracer,
+                    &shadow,
+                    &squads[r.clone()],
+                    &sactive[r.clone()],
+                    &sdist[r.clone()],
+                    &mut shits[r],
+                    mb,
+                    ctr,
+                );
             }
             for q in 0..Q {
                 for i in 0..4 {
                     if surf[q][i].is_some() {
-                        let lit = if shits[q].prim[i] != INVALID_ID { 0.0 } else { cosines[q][i] };
+                        let lit = if shits[q].prim[i] != INVALID_ID {
+                            0.0
+                        } else {
+                            cosines[q][i]
+                        };
                         sum[q][i] = add_light(sum[q][i], light, lit);
                     }
                 }
@@ -654,11 +849,17 @@ fn child<T: Tracer + ?Sized, const Q: usize>(
             if !active[q].test(i) {
                 continue;
             }
-            let Some(s) = surface_at(tracer, job, &rays[q].lane(i), &hits[q].lane(i)) else { continue };
+            let Some(s) = surface_at(tracer, job, &rays[q].lane(i), &hits[q].lane(i)) else {
+                continue;
+            };
             let k = split(&s.mat, &job.params, reflections, refractions);
             let kk = if reflected { k.kr } else { k.kt };
             if kk > 0.0 {
-                lanes[i] = if reflected { reflect_ray(&s, eps) } else { refract_ray(&s, eps) };
+                lanes[i] = if reflected {
+                    reflect_ray(&s, eps)
+                } else {
+                    refract_ray(&s, eps)
+                };
                 out_w[q][i] = w[q][i] * kk;
                 m[i] = true;
             }
@@ -680,9 +881,30 @@ mod tests {
     #[test]
     fn params_validate() {
         assert!(WhittedParams::default().validate().is_ok());
-        assert!(WhittedParams { max_reflect: 8, max_refract: 0 }.validate().is_ok());
-        assert!(WhittedParams { max_reflect: 5, max_refract: 4 }.validate().is_err());
-        assert!(WhittedParams { max_reflect: u32::MAX, max_refract: 2 }.validate().is_err());
+        assert!(
+            WhittedParams {
+                max_reflect: 8,
+                max_refract: 0
+            }
+            .validate()
+            .is_ok()
+        );
+        assert!(
+            WhittedParams {
+                max_reflect: 5,
+                max_refract: 4
+            }
+            .validate()
+            .is_err()
+        );
+        assert!(
+            WhittedParams {
+                max_reflect: u32::MAX,
+                max_refract: 2
+            }
+            .validate()
+            .is_err()
+        );
     }
 
     #[test]
@@ -706,28 +928,74 @@ mod tests {
 
     #[test]
     fn split_sends_capped_weight_to_diffuse() {
-        let m = Material { diffuse: [1.0; 3], reflect: 0.3, transmit: 0.5, ior: 1.5 };
-        let p = WhittedParams { max_reflect: 1, max_refract: 2 };
+        let m = Material {
+            diffuse: [1.0; 3],
+            reflect: 0.3,
+            transmit: 0.5,
+            ior: 1.5,
+        };
+        let p = WhittedParams {
+            max_reflect: 1,
+            max_refract: 2,
+        };
         let s = split(&m, &p, 0, 0);
         assert_eq!((s.kr, s.kt), (0.3, 0.5));
         assert!((s.kd + s.kr + s.kt - 1.0).abs() < 1e-6);
-        assert_eq!(split(&m, &p, 1, 0), Split { kd: 0.5, kr: 0.0, kt: 0.5 });
-        assert_eq!(split(&m, &p, 1, 2), Split { kd: 1.0, kr: 0.0, kt: 0.0 });
-        assert_eq!(split(&Material::diffuse([0.5; 3]), &p, 0, 0), Split { kd: 1.0, kr: 0.0, kt: 0.0 });
+        assert_eq!(
+            split(&m, &p, 1, 0),
+            Split {
+                kd: 0.5,
+                kr: 0.0,
+                kt: 0.5
+            }
+        );
+        assert_eq!(
+            split(&m, &p, 1, 2),
+            Split {
+                kd: 1.0,
+                kr: 0.0,
+                kt: 0.0
+            }
+        );
+        assert_eq!(
+            split(&Material::diffuse([0.5; 3]), &p, 0, 0),
+            Split {
+                kd: 1.0,
+                kr: 0.0,
+                kt: 0.0
+            }
+        );
     }
 
     #[test]
     fn total_internal_reflection_keeps_the_weight_on_the_mirror_ray() {
-        let mat = Material { diffuse: [1.0; 3], reflect: 0.0, transmit: 1.0, ior: 1.5 };
+        let mat = Material {
+            diffuse: [1.0; 3],
+            reflect: 0.0,
+            transmit: 1.0,
+            ior: 1.5,
+        };
         // Inside a glass surface (leaving it), grazing: the transmitted ray
         // is the mirror ray, offset outwards (to the incoming side).
         let u = Vec3::new(0.9, 0.0, -(1.0f32 - 0.81).sqrt());
-        let s = Surface { p: Vec3::ZERO, n: Vec3::Z, u, entering: false, mat };
+        let s = Surface {
+            p: Vec3::ZERO,
+            n: Vec3::Z,
+            u,
+            entering: false,
+            mat,
+        };
         let r = refract_ray(&s, 1e-3);
         assert_eq!(r, reflect_ray(&s, 1e-3));
         assert!(r.org[2] > 0.0 && Vec3::from(r.dir).is_finite() && r.dir[2] > 0.0);
         // Entering at the same angle refracts inwards.
-        let e = refract_ray(&Surface { entering: true, ..s }, 1e-3);
+        let e = refract_ray(
+            &Surface {
+                entering: true,
+                ..s
+            },
+            1e-3,
+        );
         assert!(e.org[2] < 0.0 && e.dir[2] < 0.0);
     }
 }

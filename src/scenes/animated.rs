@@ -48,8 +48,15 @@ impl Orbit {
     fn at(&self, t: f32) -> (Vec3, Quat) {
         let a = self.phase + self.rate * t;
         let (s, c) = a.sin_cos();
-        let pos = Vec3::new(self.radius * c, self.radius * s, self.height + self.bob * (2.0 * a).sin());
-        (pos, Quat::from_axis_angle(self.spin_axis, self.phase + self.spin_rate * t))
+        let pos = Vec3::new(
+            self.radius * c,
+            self.radius * s,
+            self.height + self.bob * (2.0 * a).sin(),
+        );
+        (
+            pos,
+            Quat::from_axis_angle(self.spin_axis, self.phase + self.spin_rate * t),
+        )
     }
 }
 
@@ -133,9 +140,21 @@ fn torus(major: f32, minor: f32, nu: u32, nv: u32) -> (Vec<Vec3>, Vec<u32>) {
 /// Box with half extents `h` about the origin: 8 corners (bit k of the index
 /// selects +h along axis k), 12 triangles wound outward.
 fn cuboid(h: Vec3) -> (Vec<Vec3>, Vec<u32>) {
-    let p = (0..8).map(|k| Vec3::new(sgn(k & 1), sgn(k & 2), sgn(k & 4)) * h).collect();
-    let quads = [[0, 4, 6, 2], [1, 3, 7, 5], [0, 1, 5, 4], [2, 6, 7, 3], [0, 2, 3, 1], [4, 5, 7, 6]];
-    let idx = quads.iter().flat_map(|q| [q[0], q[1], q[2], q[0], q[2], q[3]]).collect();
+    let p = (0..8)
+        .map(|k| Vec3::new(sgn(k & 1), sgn(k & 2), sgn(k & 4)) * h)
+        .collect();
+    let quads = [
+        [0, 4, 6, 2],
+        [1, 3, 7, 5],
+        [0, 1, 5, 4],
+        [2, 6, 7, 3],
+        [0, 2, 3, 1],
+        [4, 5, 7, 6],
+    ];
+    let idx = quads
+        .iter()
+        .flat_map(|q| [q[0], q[1], q[2], q[0], q[2], q[3]])
+        .collect();
     (p, idx)
 }
 
@@ -159,11 +178,20 @@ impl Animated {
                 mesh.push_vertex(Vec3::ZERO); // placed by set_time below
             }
             mesh.indices.extend(idx.iter().map(|&i| first as u32 + i));
-            parts.push(Part { first, rest, motion });
+            parts.push(Part {
+                first,
+                rest,
+                motion,
+            });
         };
 
         let (dirs, idx) = super::spd::cube_sphere(32 * d);
-        add(&mut mesh, dirs.iter().map(|d| d.as_vec3()).collect(), &idx, Motion::Blob);
+        add(
+            &mut mesh,
+            dirs.iter().map(|d| d.as_vec3()).collect(),
+            &idx,
+            Motion::Blob,
+        );
 
         let (tp, ti) = torus(0.9, 0.28, 64 * d, 20 * d);
         let tori = [
@@ -198,7 +226,13 @@ impl Animated {
                 Vec3::new(0.25, 0.45, 0.3),
             ][k];
             let (bp, bi) = cuboid(h);
-            let axis = [Vec3::Z, Vec3::X, Vec3::new(1.0, 1.0, 0.0), Vec3::new(0.0, 1.0, 1.0)][k].normalize();
+            let axis = [
+                Vec3::Z,
+                Vec3::X,
+                Vec3::new(1.0, 1.0, 0.0),
+                Vec3::new(0.0, 1.0, 1.0),
+            ][k]
+                .normalize();
             // Same orbit and rate for all four, a quarter turn apart: they never meet.
             let o = Orbit {
                 radius: 3.4,
@@ -212,7 +246,11 @@ impl Animated {
             add(&mut mesh, bp, &bi, Motion::Rigid(o));
         }
 
-        let mut a = Self { mesh, parts, time: f32::NAN };
+        let mut a = Self {
+            mesh,
+            parts,
+            time: f32::NAN,
+        };
         a.set_time(0.0);
         a
     }
@@ -221,7 +259,11 @@ impl Animated {
     /// (no allocation; indices untouched). `t` is wrapped into one [`PERIOD`];
     /// a non-finite `t` is treated as 0 so vertices stay finite.
     pub fn set_time(&mut self, t: f32) {
-        let t = if t.is_finite() { t.rem_euclid(PERIOD) } else { 0.0 };
+        let t = if t.is_finite() {
+            t.rem_euclid(PERIOD)
+        } else {
+            0.0
+        };
         self.time = t;
         let Self { mesh, parts, .. } = self;
         for part in parts.iter() {
@@ -287,14 +329,28 @@ mod tests {
         let mut a = Animated::new(1);
         check::mesh_sane(&a.mesh);
         let idx = a.mesh.indices.clone();
-        let (ptr, len, cap) = (a.mesh.vertices.as_ptr(), a.mesh.vertices.len(), a.mesh.vertices.capacity());
+        let (ptr, len, cap) = (
+            a.mesh.vertices.as_ptr(),
+            a.mesh.vertices.len(),
+            a.mesh.vertices.capacity(),
+        );
         for t in TIMES {
             a.set_time(t);
             assert_eq!(a.mesh.indices, idx);
             // Rewritten in place: same buffer, same length, same capacity.
-            assert_eq!((a.mesh.vertices.as_ptr(), a.mesh.vertices.len(), a.mesh.vertices.capacity()), (ptr, len, cap));
+            assert_eq!(
+                (
+                    a.mesh.vertices.as_ptr(),
+                    a.mesh.vertices.len(),
+                    a.mesh.vertices.capacity()
+                ),
+                (ptr, len, cap)
+            );
             check::mesh_sane(&a.mesh);
-            assert!(a.mesh.bounds().0.z == 0.0, "t {t}: something dips below the ground");
+            assert!(
+                a.mesh.bounds().0.z == 0.0,
+                "t {t}: something dips below the ground"
+            );
         }
         for t in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY] {
             a.set_time(t);
@@ -329,11 +385,17 @@ mod tests {
             assert!(check::inside(views[2].eye, a.mesh.bounds()));
             // A bounding sphere per part (about its vertex mean) misses every eye.
             for p in &a.parts {
-                let pts: Vec<Vec3> = (p.first..p.first + p.rest.len()).map(|i| a.mesh.vertex(i)).collect();
+                let pts: Vec<Vec3> = (p.first..p.first + p.rest.len())
+                    .map(|i| a.mesh.vertex(i))
+                    .collect();
                 let c = pts.iter().sum::<Vec3>() / pts.len() as f32;
                 let r = pts.iter().map(|q| q.distance(c)).fold(0.0, f32::max);
                 for v in &views {
-                    assert!(v.eye.distance(c) > r + 0.05, "eye {} in part at {c} r {r}", v.eye);
+                    assert!(
+                        v.eye.distance(c) > r + 0.05,
+                        "eye {} in part at {c} r {r}",
+                        v.eye
+                    );
                 }
             }
         }

@@ -40,7 +40,12 @@ impl View {
 
     /// A view with +Z up and SPD's 45 degree field of view.
     pub const fn z_up(eye: Vec3, look_at: Vec3) -> Self {
-        Self { eye, look_at, up: Vec3::Z, fov_y_deg: Self::SPD_FOV_Y_DEG }
+        Self {
+            eye,
+            look_at,
+            up: Vec3::Z,
+            fov_y_deg: Self::SPD_FOV_Y_DEG,
+        }
     }
 }
 
@@ -54,7 +59,10 @@ pub struct Mesh {
 impl Mesh {
     /// An empty mesh with room for `vertices` vertices and `triangles` triangles.
     pub fn with_capacity(vertices: usize, triangles: usize) -> Self {
-        Self { vertices: Vec::with_capacity(3 * vertices), indices: Vec::with_capacity(3 * triangles) }
+        Self {
+            vertices: Vec::with_capacity(3 * vertices),
+            indices: Vec::with_capacity(3 * triangles),
+        }
     }
 
     pub fn triangle_count(&self) -> usize {
@@ -89,7 +97,11 @@ impl Mesh {
     /// The three corners of triangle `t`. Panics if out of range.
     pub fn triangle(&self, t: usize) -> [Vec3; 3] {
         let i = &self.indices[3 * t..3 * t + 3];
-        [self.vertex(i[0] as usize), self.vertex(i[1] as usize), self.vertex(i[2] as usize)]
+        [
+            self.vertex(i[0] as usize),
+            self.vertex(i[1] as usize),
+            self.vertex(i[2] as usize),
+        ]
     }
 
     /// Appends a vertex and returns its index.
@@ -166,7 +178,12 @@ pub fn builtin(name: &str) -> Option<BuiltinScene> {
         "animated" => {
             let a = animated::Animated::new(ANIMATED_DETAIL);
             let (views, light) = (a.views(), a.light());
-            BuiltinScene { name: "animated", mesh: a.mesh, views, light }
+            BuiltinScene {
+                name: "animated",
+                mesh: a.mesh,
+                views,
+                light,
+            }
         }
         _ => return None,
     };
@@ -187,7 +204,10 @@ pub(crate) mod check {
     }
 
     pub fn finite(m: &Mesh) {
-        assert!(m.vertices.iter().all(|v| v.is_finite()), "non-finite vertex");
+        assert!(
+            m.vertices.iter().all(|v| v.is_finite()),
+            "non-finite vertex"
+        );
     }
 
     /// Exact cross product (in f32, from the stored vertices) is non-zero.
@@ -213,7 +233,10 @@ pub(crate) mod check {
         for v in views {
             let d = v.look_at - v.eye;
             assert!(v.eye != v.look_at);
-            assert!(d.cross(v.up).length() > 1e-3 * d.length() * v.up.length(), "up parallel to view: {v:?}");
+            assert!(
+                d.cross(v.up).length() > 1e-3 * d.length() * v.up.length(),
+                "up parallel to view: {v:?}"
+            );
             assert!(v.fov_y_deg > 0.0 && v.fov_y_deg < 180.0);
         }
     }
@@ -242,7 +265,10 @@ mod tests {
             let n = s.mesh.triangle_count();
             assert!((4_000..=60_000).contains(&n), "{name}: {n} triangles");
             // views[2] is the inside view in every scene.
-            assert!(check::inside(s.views[2].eye, s.mesh.bounds()), "{name}: inside view is outside");
+            assert!(
+                check::inside(s.views[2].eye, s.mesh.bounds()),
+                "{name}: inside view is outside"
+            );
         }
         assert!(builtin("nope").is_none());
     }
@@ -261,6 +287,9 @@ mod tests {
         let copy = m.clone();
         m.append(&copy);
         assert_eq!(m.indices[6..9], [4, 5, 6]);
-        assert_eq!(m.triangle(3), [Vec3::ZERO, Vec3::new(1.0, 1.0, 2.0), Vec3::Y]);
+        assert_eq!(
+            m.triangle(3),
+            [Vec3::ZERO, Vec3::new(1.0, 1.0, 2.0), Vec3::Y]
+        );
     }
 }

@@ -91,17 +91,28 @@ pub fn tetra_views() -> Vec<View> {
         up,
         fov_y_deg: View::SPD_FOV_Y_DEG,
     };
-    let close = View { eye: spd.look_at.lerp(spd.eye, 0.45), ..spd };
+    let close = View {
+        eye: spd.look_at.lerp(spd.eye, 0.45),
+        ..spd
+    };
     // The big tetrahedron minus its 4 corner sub-tetrahedra is the
     // octahedron |x|+|y|+|z| <= 1; its centre is empty at every sf >= 2.
-    let inside = View { eye: Vec3::new(0.02, -0.03, 0.01), look_at: Vec3::new(0.5, -0.5, -0.2), ..spd };
+    let inside = View {
+        eye: Vec3::new(0.02, -0.03, 0.01),
+        look_at: Vec3::new(0.5, -0.5, -0.2),
+        ..spd
+    };
     // Base face: corners (1,1,1), (1,-1,-1), (-1,1,-1), plane x+y-z = 1,
     // `up` points from it to the apex. Look across it from beyond the edge
     // opposite (1,1,1), a hair above the plane.
     let u = up.normalize();
     let centroid = Vec3::new(1.0, 1.0, -1.0) / 3.0;
     let along = Vec3::new(-1.0, -1.0, -2.0).normalize(); // in the plane, away from (1,1,1)
-    let grazing = View { eye: centroid + 3.0 * along + 0.04 * u, look_at: centroid + 0.12 * u, ..spd };
+    let grazing = View {
+        eye: centroid + 3.0 * along + 0.04 * u,
+        look_at: centroid + 0.12 * u,
+        ..spd
+    };
     vec![spd, close, inside, grazing]
 }
 
@@ -112,8 +123,16 @@ pub fn tetra_views() -> Vec<View> {
 /// asin(2/sqrt 6), then copied at 0, 120 and 240 degrees about Z.
 fn objset() -> [DVec3; 9] {
     let d = 1.0 / 2f64.sqrt();
-    let tilt = DMat3::from_axis_angle(DVec3::new(1.0, -1.0, 0.0).normalize(), (2.0 / 6f64.sqrt()).asin());
-    let trio = [DVec3::new(d, d, 0.0), DVec3::new(d, 0.0, -d), DVec3::new(0.0, d, -d)].map(|v| tilt * v);
+    let tilt = DMat3::from_axis_angle(
+        DVec3::new(1.0, -1.0, 0.0).normalize(),
+        (2.0 / 6f64.sqrt()).asin(),
+    );
+    let trio = [
+        DVec3::new(d, d, 0.0),
+        DVec3::new(d, 0.0, -d),
+        DVec3::new(0.0, d, -d),
+    ]
+    .map(|v| tilt * v);
     let mut set = [DVec3::ZERO; 9];
     for s in 0..3 {
         let rz = DMat3::from_rotation_z(s as f64 * 2.0 * PI / 3.0);
@@ -130,7 +149,10 @@ fn objset() -> [DVec3; 9] {
 /// set rotated so +Z maps onto the parent's own direction. `sum 9^n, n = 0..=sf`
 /// spheres.
 pub fn sphereflake(sf: u32) -> Vec<(Vec3, f32)> {
-    sphereflake_f64(sf).into_iter().map(|(c, r)| (f32v(c), r as f32)).collect()
+    sphereflake_f64(sf)
+        .into_iter()
+        .map(|(c, r)| (f32v(c), r as f32))
+        .collect()
 }
 
 fn sphereflake_f64(sf: u32) -> Vec<(DVec3, f64)> {
@@ -145,7 +167,14 @@ pub fn sphere_count(sf: u32) -> usize {
     (0..=sf).map(|n| 9usize.pow(n)).sum()
 }
 
-fn flake(out: &mut Vec<(DVec3, f64)>, depth: u32, centre: DVec3, r: f64, dir: DVec3, set: &[DVec3; 9]) {
+fn flake(
+    out: &mut Vec<(DVec3, f64)>,
+    depth: u32,
+    centre: DVec3,
+    r: f64,
+    dir: DVec3,
+    set: &[DVec3; 9],
+) {
     out.push((centre, r));
     if depth == 0 {
         return;
@@ -178,8 +207,14 @@ pub(crate) fn cube_sphere(res: u32) -> (Vec<DVec3>, Vec<u32>) {
     let mut dirs = Vec::new();
     let mut idx = Vec::with_capacity(36 * n * n);
     // (fixed axis, at max?, tangent u, tangent v) with u x v = outward normal.
-    let faces =
-        [(0, true, 1, 2), (0, false, 2, 1), (1, true, 2, 0), (1, false, 0, 2), (2, true, 0, 1), (2, false, 1, 0)];
+    let faces = [
+        (0, true, 1, 2),
+        (0, false, 2, 1),
+        (1, true, 2, 0),
+        (1, false, 0, 2),
+        (2, true, 0, 1),
+        (2, false, 1, 0),
+    ];
     for (axis, at_max, ua, va) in faces {
         let mut id = |u: usize, v: usize| {
             let mut g = [0usize; 3];
@@ -189,7 +224,8 @@ pub(crate) fn cube_sphere(res: u32) -> (Vec<DVec3>, Vec<u32>) {
             let s = &mut slot[(g[0] * n + g[1]) * n + g[2]];
             if *s == u32::MAX {
                 *s = dirs.len() as u32;
-                let c = DVec3::new(g[0] as f64, g[1] as f64, g[2] as f64) * (2.0 / res as f64) - 1.0;
+                let c =
+                    DVec3::new(g[0] as f64, g[1] as f64, g[2] as f64) * (2.0 / res as f64) - 1.0;
                 dirs.push(c.normalize());
             }
             *s
@@ -213,10 +249,13 @@ pub fn balls(sf: u32, sphere_res: u32) -> Mesh {
     let res = sphere_res.max(1);
     let (dirs, tmpl) = cube_sphere(res);
     let spheres = sphereflake_f64(sf);
-    let mut m = Mesh::with_capacity(4 + dirs.len() * spheres.len(), 2 + tmpl.len() / 3 * spheres.len());
+    let mut m = Mesh::with_capacity(
+        4 + dirs.len() * spheres.len(),
+        2 + tmpl.len() / 3 * spheres.len(),
+    );
     // SPD's corner order: (+,+), (-,+), (-,-), (+,-): counter-clockwise from above.
-    let f =
-        [(12.0, 12.0), (-12.0, 12.0), (-12.0, -12.0), (12.0, -12.0)].map(|(x, y)| m.push_vertex(Vec3::new(x, y, -0.5)));
+    let f = [(12.0, 12.0), (-12.0, 12.0), (-12.0, -12.0), (12.0, -12.0)]
+        .map(|(x, y)| m.push_vertex(Vec3::new(x, y, -0.5)));
     m.push_quad(f[0], f[1], f[2], f[3]);
     for (c, r) in spheres {
         let base = m.vertex_count() as u32;
@@ -286,11 +325,19 @@ pub fn gears(sf: u32) -> Mesh {
             for ix in 0..sf {
                 let c = first + DVec3::new(ix as f64, iy as f64, iz as f64) * step;
                 let offset = PI * ((ix + iy + iz) % 2) as f64 / TEETH as f64;
-                gear(&mut m, c, offset, OUTER_EDGE_RATIO * r, INNER_EDGE_RATIO * r, thickness);
+                gear(
+                    &mut m,
+                    c,
+                    offset,
+                    OUTER_EDGE_RATIO * r,
+                    INNER_EDGE_RATIO * r,
+                    thickness,
+                );
             }
         }
     }
-    let g = [(2.0, 2.0), (-2.0, 2.0), (-2.0, -2.0), (2.0, -2.0)].map(|(x, y)| m.push_vertex(Vec3::new(x, y, 0.0)));
+    let g = [(2.0, 2.0), (-2.0, 2.0), (-2.0, -2.0), (2.0, -2.0)]
+        .map(|(x, y)| m.push_vertex(Vec3::new(x, y, 0.0)));
     m.push_quad(g[0], g[1], g[2], g[3]);
     m
 }
@@ -332,7 +379,11 @@ pub fn gears_views(sf: u32) -> Vec<View> {
     let close = View::z_up(f32v(first + DVec3::new(-1.2, -2.0, 1.6) * r), f32v(first));
     // Mid-height of the gap under the top layer; with one layer, halfway
     // between it and the ground.
-    let z = if sf >= 2 { (first.z - thickness + first.z + step.z) / 2.0 } else { 0.5 };
+    let z = if sf >= 2 {
+        (first.z - thickness + first.z + step.z) / 2.0
+    } else {
+        0.5
+    };
     let z = z as f32;
     let inside = View::z_up(Vec3::new(0.0, -0.4, z), Vec3::new(0.8, 0.6, z - 0.05));
     let grazing = View::z_up(Vec3::new(-1.95, -1.7, 0.04), Vec3::new(1.0, 1.2, 0.08));
@@ -387,7 +438,11 @@ mod tests {
         // member 0 of each copy), 6 around the parent's equator.
         for (i, d) in set.iter().enumerate() {
             assert!((d.length() - 1.0).abs() < 1e-12);
-            let z = if i % 3 == 0 { (2.0f64 / 3.0).sqrt() } else { 0.0 };
+            let z = if i % 3 == 0 {
+                (2.0f64 / 3.0).sqrt()
+            } else {
+                0.0
+            };
             assert!((d.z - z).abs() < 1e-12, "{i}: {d}");
         }
         // The trio is spread 120 degrees about Z.
@@ -447,7 +502,10 @@ mod tests {
         let m = balls(3, 2);
         check::mesh_sane(&m);
         let (lo, hi) = m.bounds();
-        assert_eq!((lo.x, lo.y, lo.z, hi.x, hi.y), (-12.0, -12.0, -0.5, 12.0, 12.0));
+        assert_eq!(
+            (lo.x, lo.y, lo.z, hi.x, hi.y),
+            (-12.0, -12.0, -0.5, 12.0, 12.0)
+        );
     }
 
     #[test]
@@ -458,7 +516,11 @@ mod tests {
         for sf in [3, 4] {
             for (c, r) in sphereflake(sf) {
                 for view in &v {
-                    assert!(view.eye.distance(c) > r * 1.05, "eye {} in sphere {c} {r}", view.eye);
+                    assert!(
+                        view.eye.distance(c) > r * 1.05,
+                        "eye {} in sphere {c} {r}",
+                        view.eye
+                    );
                 }
             }
         }
@@ -495,14 +557,20 @@ mod tests {
             let t0 = g * GEAR_TRIANGLES;
             let (mut top, mut bot) = (0.0f64, 0.0f64);
             for k in 0..144 {
-                for (t, sign, sum) in [(t0 + 4 * k, 1.0, &mut top), (t0 + 4 * k + 1, -1.0, &mut bot)] {
+                for (t, sign, sum) in [
+                    (t0 + 4 * k, 1.0, &mut top),
+                    (t0 + 4 * k + 1, -1.0, &mut bot),
+                ] {
                     let [c, a, b] = m.triangle(t);
                     let (u, v) = ((a - c).truncate(), (b - c).truncate());
                     assert!(u.perp_dot(v) * sign > 0.0);
                     *sum += u.angle_to(v).abs() as f64;
                 }
             }
-            assert!((top - 2.0 * PI).abs() < 1e-4 && (bot - 2.0 * PI).abs() < 1e-4, "{top} {bot}");
+            assert!(
+                (top - 2.0 * PI).abs() < 1e-4 && (bot - 2.0 * PI).abs() < 1e-4,
+                "{top} {bot}"
+            );
         }
     }
 
@@ -517,7 +585,10 @@ mod tests {
             for iz in 0..sf {
                 let top = (first.z + iz as f64 * step.z) as f32;
                 let e = v[2].eye.z;
-                assert!(e > top + 0.01 || e < top - thickness as f32 - 0.01, "sf {sf}");
+                assert!(
+                    e > top + 0.01 || e < top - thickness as f32 - 0.01,
+                    "sf {sf}"
+                );
             }
         }
     }

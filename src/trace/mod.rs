@@ -144,7 +144,10 @@ impl Method {
     }
     /// Whether the method traces n x n packets (and so uses `TraceParams::packet`).
     pub fn is_packet(self) -> bool {
-        matches!(self, Method::GridCgt | Method::BvhMasked | Method::BvhRanged | Method::BvhPartition)
+        matches!(
+            self,
+            Method::GridCgt | Method::BvhMasked | Method::BvhRanged | Method::BvhPartition
+        )
     }
     /// Which structure the method traverses.
     pub fn structure(self) -> Structure {
@@ -194,25 +197,45 @@ pub struct TraceParams {
 
 impl Default for TraceParams {
     fn default() -> Self {
-        TraceParams { method: Method::GridCgt, packet: 8, cgt: CgtOptions::default(), bvh: BvhOptions::default(), split: 2.0 }
+        TraceParams {
+            method: Method::GridCgt,
+            packet: 8,
+            cgt: CgtOptions::default(),
+            bvh: BvhOptions::default(),
+            split: 2.0,
+        }
     }
 }
 
 impl TraceParams {
     /// The single-ray baseline.
     pub fn dda() -> Self {
-        TraceParams { method: Method::GridDda, ..TraceParams::default() }
+        TraceParams {
+            method: Method::GridDda,
+            ..TraceParams::default()
+        }
     }
     pub fn cgt(packet: u32) -> Self {
-        TraceParams { method: Method::GridCgt, packet, ..TraceParams::default() }
+        TraceParams {
+            method: Method::GridCgt,
+            packet,
+            ..TraceParams::default()
+        }
     }
     /// A BVH method with packet side `packet` (ignored by single and SIMD).
     pub fn bvh(method: Method, packet: u32) -> Self {
-        TraceParams { method, packet, ..TraceParams::default() }
+        TraceParams {
+            method,
+            packet,
+            ..TraceParams::default()
+        }
     }
     /// The same parameters with the BVH ray kind set (which frustum packets get).
     pub fn with_kind(&self, kind: RayKind) -> Self {
-        TraceParams { bvh: BvhOptions { kind, ..self.bvh }, ..*self }
+        TraceParams {
+            bvh: BvhOptions { kind, ..self.bvh },
+            ..*self
+        }
     }
     /// Side of the square pixel tile this method traces at once: the packet
     /// side for n x n methods, 2 for the 2x2 SIMD ray, 0 for single rays.
@@ -228,10 +251,14 @@ impl TraceParams {
     /// Checks the packet side and the split ratio.
     pub fn validate(&self) -> crate::Result<()> {
         if self.method.is_packet() && !matches!(self.packet, 2 | 4 | 8 | 16 | 32) {
-            return Err(crate::Error::InvalidArgument("packet side must be 2, 4, 8, 16 or 32"));
+            return Err(crate::Error::InvalidArgument(
+                "packet side must be 2, 4, 8, 16 or 32",
+            ));
         }
         if !(self.split == 0.0 || (self.split.is_finite() && self.split >= 1.0)) {
-            return Err(crate::Error::InvalidArgument("split must be 0 or a finite ratio >= 1"));
+            return Err(crate::Error::InvalidArgument(
+                "split must be 0 or a finite ratio >= 1",
+            ));
         }
         Ok(())
     }
@@ -243,7 +270,12 @@ use crate::geom::{M4, Ray, Ray4};
 /// into 2x2 quads in `Ray4` lane order; lanes past `n` are inactive (they
 /// repeat the last ray so every lane holds finite data). Returns the quads used.
 #[inline]
-pub fn pack_quads(n: usize, ray: impl Fn(usize) -> Ray, quads: &mut [Ray4], active: &mut [M4]) -> usize {
+pub fn pack_quads(
+    n: usize,
+    ray: impl Fn(usize) -> Ray,
+    quads: &mut [Ray4],
+    active: &mut [M4],
+) -> usize {
     let nq = n.div_ceil(4);
     for q in 0..nq {
         let last = ray((q * 4 + 3).min(n - 1));

@@ -38,7 +38,11 @@ pub fn scenes_dir() -> Option<PathBuf> {
 
 /// Load an OBJ (all models merged) with tobj.
 pub fn load_obj(path: &std::path::Path) -> Option<(Vec<f32>, Vec<u32>)> {
-    let opts = tobj::LoadOptions { triangulate: true, single_index: false, ..Default::default() };
+    let opts = tobj::LoadOptions {
+        triangulate: true,
+        single_index: false,
+        ..Default::default()
+    };
     let (models, _) = match tobj::load_obj(path, &opts) {
         Ok(x) => x,
         Err(e) => {
@@ -78,16 +82,33 @@ pub fn auto_views(v: &[f32]) -> Vec<(String, View)> {
     let fov = 45.0f32;
     let dist = r / (fov.to_radians() * 0.5).sin();
     vec![
-        ("outside".into(), View { eye: c + dir * dist, look_at: c, up, fov_y_deg: fov }),
+        (
+            "outside".into(),
+            View {
+                eye: c + dir * dist,
+                look_at: c,
+                up,
+                fov_y_deg: fov,
+            },
+        ),
         (
             "inside".into(),
-            View { eye: c + Vec3::new(0.07, 0.03, -0.05) * (hi - lo), look_at: hi * 0.8 + lo * 0.2, up, fov_y_deg: 70.0 },
+            View {
+                eye: c + Vec3::new(0.07, 0.03, -0.05) * (hi - lo),
+                look_at: hi * 0.8 + lo * 0.2,
+                up,
+                fov_y_deg: 70.0,
+            },
         ),
         (
             "grazing".into(),
             View {
                 eye: Vec3::new(lo.x + 0.1 * (hi.x - lo.x), lo.y + 0.01 * (hi.y - lo.y), c.z),
-                look_at: Vec3::new(hi.x, lo.y + 0.012 * (hi.y - lo.y), c.z + 0.1 * (hi.z - lo.z)),
+                look_at: Vec3::new(
+                    hi.x,
+                    lo.y + 0.012 * (hi.y - lo.y),
+                    c.z + 0.1 * (hi.z - lo.z),
+                ),
                 up,
                 fov_y_deg: 50.0,
             },
@@ -101,8 +122,19 @@ pub fn builtin_scenes() -> Vec<TestScene> {
         .iter()
         .map(|&name| {
             let s = scenes::builtin(name).expect("builtin exists");
-            let views = s.views.iter().enumerate().map(|(i, v)| (format!("view{i}"), *v)).collect();
-            TestScene { name: name.into(), vertices: s.mesh.vertices, indices: s.mesh.indices, views, light: s.light }
+            let views = s
+                .views
+                .iter()
+                .enumerate()
+                .map(|(i, v)| (format!("view{i}"), *v))
+                .collect();
+            TestScene {
+                name: name.into(),
+                vertices: s.mesh.vertices,
+                indices: s.mesh.indices,
+                views,
+                light: s.light,
+            }
         })
         .collect()
 }
@@ -122,11 +154,20 @@ pub fn obj_scene(file: &str, name: &str) -> Option<TestScene> {
     let views = auto_views(&vertices);
     let (lo, hi) = bounds(&vertices);
     let light = 0.5 * (lo + hi) + Vec3::new(0.1, 0.45, 0.2) * (hi - lo);
-    Some(TestScene { name: name.into(), vertices, indices, views, light })
+    Some(TestScene {
+        name: name.into(),
+        vertices,
+        indices,
+        views,
+        light,
+    })
 }
 
 pub fn obj_scenes() -> Vec<TestScene> {
-    OBJ_SCENES.iter().filter_map(|(f, n)| obj_scene(f, n)).collect()
+    OBJ_SCENES
+        .iter()
+        .filter_map(|(f, n)| obj_scene(f, n))
+        .collect()
 }
 
 /// Primary rays of `view` at `w x h`, row-major, through pixel centres.
@@ -138,15 +179,23 @@ pub fn view_rays(view: &View, w: u32, h: u32) -> Vec<Ray> {
         fov_y_deg: view.fov_y_deg,
     };
     let primary = sheaf::render::PrimaryRays::new(&cam, w, h).expect("valid view");
-    (0..h).flat_map(|y| (0..w).map(move |x| (x, y))).map(|(x, y)| primary.ray(x, y)).collect()
+    (0..h)
+        .flat_map(|y| (0..w).map(move |x| (x, y)))
+        .map(|(x, y)| primary.ray(x, y))
+        .collect()
 }
 
 /// Run `f` over `items` on all cores, keeping order.
 pub fn par_map<T: Sync, R: Send>(items: &[T], f: impl Fn(&T) -> R + Sync) -> Vec<R> {
-    let n = std::thread::available_parallelism().map_or(1, |n| n.get()).max(1);
+    let n = std::thread::available_parallelism()
+        .map_or(1, |n| n.get())
+        .max(1);
     let chunk = items.len().div_ceil(n).max(1);
     std::thread::scope(|s| {
-        let hs: Vec<_> = items.chunks(chunk).map(|c| s.spawn(|| c.iter().map(&f).collect::<Vec<_>>())).collect();
+        let hs: Vec<_> = items
+            .chunks(chunk)
+            .map(|c| s.spawn(|| c.iter().map(&f).collect::<Vec<_>>()))
+            .collect();
         hs.into_iter().flat_map(|h| h.join().unwrap()).collect()
     })
 }

@@ -55,7 +55,10 @@ struct Box3 {
 }
 
 impl Box3 {
-    const EMPTY: Box3 = Box3 { min: Vec3A::splat(f32::INFINITY), max: Vec3A::splat(f32::NEG_INFINITY) };
+    const EMPTY: Box3 = Box3 {
+        min: Vec3A::splat(f32::INFINITY),
+        max: Vec3A::splat(f32::NEG_INFINITY),
+    };
     /// The box of a reference: two 16-byte loads, the fourth lanes (id and
     /// padding) cleared.
     #[inline(always)]
@@ -64,7 +67,10 @@ impl Box3 {
         let xyz = M4::new(true, true, true, false);
         let lo = F4::select(xyz, F4::from_slice(&f[..4]), F4::ZERO);
         let hi = F4::select(xyz, F4::from_slice(&f[4..]), F4::ZERO);
-        Box3 { min: Vec3A::from_vec4(lo), max: Vec3A::from_vec4(hi) }
+        Box3 {
+            min: Vec3A::from_vec4(lo),
+            max: Vec3A::from_vec4(hi),
+        }
     }
     #[inline(always)]
     fn grow(&mut self, o: &Box3) {
@@ -84,18 +90,28 @@ impl Box3 {
     }
     #[inline]
     fn aabb(&self) -> Aabb {
-        Aabb { min: self.min.into(), max: self.max.into() }
+        Aabb {
+            min: self.min.into(),
+            max: self.max.into(),
+        }
     }
     #[inline]
     fn padded(&self, pad: Vec3A) -> Aabb {
-        Aabb { min: (self.min - pad).into(), max: (self.max + pad).into() }
+        Aabb {
+            min: (self.min - pad).into(),
+            max: (self.max + pad).into(),
+        }
     }
 }
 
 /// Half areas of three boxes, one per lane (x: `b[0]`, ...).
 #[inline(always)]
 fn areas3(b: &[Box3; 3]) -> Vec3A {
-    let (d0, d1, d2) = (b[0].max - b[0].min, b[1].max - b[1].min, b[2].max - b[2].min);
+    let (d0, d1, d2) = (
+        b[0].max - b[0].min,
+        b[1].max - b[1].min,
+        b[2].max - b[2].min,
+    );
     let dx = Vec3A::new(d0.x, d1.x, d2.x);
     let dy = Vec3A::new(d0.y, d1.y, d2.y);
     let dz = Vec3A::new(d0.z, d1.z, d2.z);
@@ -177,14 +193,24 @@ impl BinMap {
         let ext = cent.max - cent.min;
         let scale = bins as f32 * (1.0 - 1e-6);
         // An axis without extent maps everything to bin 0 (no plane there).
-        let k = Vec3A::select(ext.cmpgt(Vec3A::ZERO), Vec3A::splat(scale) / ext, Vec3A::ZERO);
-        BinMap { cmin: cent.min, k, top: (bins - 1) as f32 }
+        let k = Vec3A::select(
+            ext.cmpgt(Vec3A::ZERO),
+            Vec3A::splat(scale) / ext,
+            Vec3A::ZERO,
+        );
+        BinMap {
+            cmin: cent.min,
+            k,
+            top: (bins - 1) as f32,
+        }
     }
     /// Bins of a (doubled) centroid on the three axes, in `0..bins` whatever
     /// the input (NaN: bin 0, as `max` returns its second operand then).
     #[inline(always)]
     fn bins3(&self, c: Vec3A) -> [usize; 3] {
-        let y = ((c - self.cmin) * self.k).max(Vec3A::ZERO).min(Vec3A::splat(self.top));
+        let y = ((c - self.cmin) * self.k)
+            .max(Vec3A::ZERO)
+            .min(Vec3A::splat(self.top));
         let r = y + Vec3A::splat(ROUND);
         // round(y) > y: one less for the floor.
         let down = (r - Vec3A::splat(ROUND)).cmpgt(y).bitmask();
@@ -208,7 +234,11 @@ const TWO_SETS: usize = 64;
 
 impl Binner {
     fn new(bins: usize) -> Binner {
-        Binner { bins, boxes: [[[Box3::EMPTY; MAX_BINS as usize]; 3]; 2], counts: [[[0; MAX_BINS as usize]; 3]; 2] }
+        Binner {
+            bins,
+            boxes: [[[Box3::EMPTY; MAX_BINS as usize]; 3]; 2],
+            counts: [[[0; MAX_BINS as usize]; 3]; 2],
+        }
     }
 
     #[inline(always)]
@@ -259,7 +289,13 @@ impl Binner {
         }
         // The three axes' sweeps run side by side, one per lane.
         let (counts, boxes) = (&self.counts[0], &self.boxes[0]);
-        let count3 = |i: usize| Vec3A::new(counts[0][i] as f32, counts[1][i] as f32, counts[2][i] as f32);
+        let count3 = |i: usize| {
+            Vec3A::new(
+                counts[0][i] as f32,
+                counts[1][i] as f32,
+                counts[2][i] as f32,
+            )
+        };
         let mut left_area = [Vec3A::ZERO; MAX_BINS as usize];
         let mut left_n = [Vec3A::ZERO; MAX_BINS as usize];
         let (mut acc, mut n) = ([Box3::EMPTY; 3], Vec3A::ZERO);
@@ -288,7 +324,13 @@ impl Binner {
         }
         let axis = min_lane(best_cost, best_pos.cmpgt(Vec3A::ZERO).bitmask())?;
         let best = (best_cost[axis], axis, best_pos[axis] as usize);
-        let mut s = Split { axis: best.1, pos: best.2, cost: best.0, left: Box3::EMPTY, right: Box3::EMPTY };
+        let mut s = Split {
+            axis: best.1,
+            pos: best.2,
+            cost: best.0,
+            left: Box3::EMPTY,
+            right: Box3::EMPTY,
+        };
         for (i, b) in self.boxes[0][s.axis][..nb].iter().enumerate() {
             if i < s.pos {
                 s.left.grow(b);
@@ -359,7 +401,13 @@ fn sweep_split(refs: &mut [PrimRef]) -> Cut {
         let (b0, b1) = (Box3::of(&refs[0]), Box3::of(&refs[1]));
         let (c0, c1) = (b0.min + b0.max, b1.min + b1.max);
         let ad = (c1 - c0).abs();
-        let axis = if ad.x >= ad.y && ad.x >= ad.z { 0 } else if ad.y >= ad.z { 1 } else { 2 };
+        let axis = if ad.x >= ad.y && ad.x >= ad.z {
+            0
+        } else if ad.y >= ad.z {
+            1
+        } else {
+            2
+        };
         let cost = b0.half_area() + b1.half_area();
         let pt = |c: Vec3A| Box3 { min: c, max: c };
         return if c1[axis] < c0[axis] {
@@ -473,7 +521,11 @@ pub fn build(bvh: &mut Bvh<'_>, scene: &Scene<'_>, p: &BvhParams) -> Result<BvhI
     p.validate()?;
     let n_in = scene.triangle_count();
     let pools = bvh.pools_mut();
-    let cap = |needed: u64, available: usize| Error::Capacity { pool: Pool::Triangles, needed, available: available as u64 };
+    let cap = |needed: u64, available: usize| Error::Capacity {
+        pool: Pool::Triangles,
+        needed,
+        available: available as u64,
+    };
     if n_in as usize > pools.slot_of.len() {
         return Err(cap(n_in as u64, pools.slot_of.len()));
     }
@@ -486,12 +538,24 @@ pub fn build(bvh: &mut Bvh<'_>, scene: &Scene<'_>, p: &BvhParams) -> Result<BvhI
         let tri = scene.triangle(t);
         match Scene::classify(&tri) {
             None => {
-                let (a, b, c) = (Vec3A::from(tri.v0), Vec3A::from(tri.v1), Vec3A::from(tri.v2));
-                let bx = Box3 { min: a.min(b).min(c), max: a.max(b).max(c) };
+                let (a, b, c) = (
+                    Vec3A::from(tri.v0),
+                    Vec3A::from(tri.v1),
+                    Vec3A::from(tri.v2),
+                );
+                let bx = Box3 {
+                    min: a.min(b).min(c),
+                    max: a.max(b).max(c),
+                };
                 bounds.grow(&bx);
                 cent.grow_point(bx.min + bx.max);
                 if n < refs_cap {
-                    pools.refs[n] = PrimRef { min: bx.min.into(), id: t, max: bx.max.into(), _pad: 0 };
+                    pools.refs[n] = PrimRef {
+                        min: bx.min.into(),
+                        id: t,
+                        max: bx.max.into(),
+                        _pad: 0,
+                    };
                 }
                 n += 1;
             }
@@ -506,11 +570,17 @@ pub fn build(bvh: &mut Bvh<'_>, scene: &Scene<'_>, p: &BvhParams) -> Result<BvhI
         }
     }
     if need_nodes > pools.nodes.len() {
-        return Err(Error::Capacity { pool: Pool::Triangles, needed: n as u64, available: (pools.nodes.len() / 2) as u64 });
+        return Err(Error::Capacity {
+            pool: Pool::Triangles,
+            needed: n as u64,
+            available: (pools.nodes.len() / 2) as u64,
+        });
     }
     let proj = p.test == TriTest::Projection;
     if proj && pools.proj.len() < n {
-        return Err(Error::InvalidArgument("the projection test needs Limits::projection_test"));
+        return Err(Error::InvalidArgument(
+            "the projection test needs Limits::projection_test",
+        ));
     }
 
     // From here on nothing fails.
@@ -542,9 +612,23 @@ pub fn build(bvh: &mut Bvh<'_>, scene: &Scene<'_>, p: &BvhParams) -> Result<BvhI
     let root_area = bounds.half_area();
     let (mut sah_inner, mut sah_leaf) = (0.0f64, 0.0f64);
     let mut next = 1u32;
-    let mut stack = [Task { node: 0, begin: 0, end: 0, depth: 0, bounds: Box3::EMPTY, cent: Box3::EMPTY }; MAX_DEPTH + 1];
+    let mut stack = [Task {
+        node: 0,
+        begin: 0,
+        end: 0,
+        depth: 0,
+        bounds: Box3::EMPTY,
+        cent: Box3::EMPTY,
+    }; MAX_DEPTH + 1];
     let mut sp = 0usize;
-    let mut task = Task { node: 0, begin: 0, end: n as u32, depth: 0, bounds, cent };
+    let mut task = Task {
+        node: 0,
+        begin: 0,
+        end: n as u32,
+        depth: 0,
+        bounds,
+        cent,
+    };
     loop {
         let (begin, end) = (task.begin as usize, task.end as usize);
         let count = end - begin;
@@ -592,9 +676,23 @@ pub fn build(bvh: &mut Bvh<'_>, scene: &Scene<'_>, p: &BvhParams) -> Result<BvhI
                 sah_inner += area;
                 let mid = task.begin + nl as u32;
                 let depth = task.depth + 1;
-                stack[sp] = Task { node: left + 1, begin: mid, end: task.end, depth, bounds: br, cent: cr };
+                stack[sp] = Task {
+                    node: left + 1,
+                    begin: mid,
+                    end: task.end,
+                    depth,
+                    bounds: br,
+                    cent: cr,
+                };
                 sp += 1;
-                task = Task { node: left, begin: task.begin, end: mid, depth, bounds: bl, cent: cl };
+                task = Task {
+                    node: left,
+                    begin: task.begin,
+                    end: mid,
+                    depth,
+                    bounds: bl,
+                    cent: cl,
+                };
                 continue;
             }
             None => {
@@ -682,7 +780,10 @@ pub(crate) mod testutil {
 
     /// A scene's buffers as packed f32 vertices and indices.
     pub fn soup(tris: &[[[f32; 3]; 3]]) -> (Vec<f32>, Vec<u32>) {
-        let v: Vec<f32> = tris.iter().flat_map(|t| t.iter().flatten().copied()).collect();
+        let v: Vec<f32> = tris
+            .iter()
+            .flat_map(|t| t.iter().flatten().copied())
+            .collect();
         let ix: Vec<u32> = (0..3 * tris.len() as u32).collect();
         (v, ix)
     }
@@ -699,7 +800,10 @@ mod tests {
         let info = v.info;
         let n = info.triangles as usize;
         assert_eq!(info.triangles_in, scene.triangle_count());
-        assert_eq!(info.triangles + info.excluded_non_finite + info.excluded_zero_area, info.triangles_in);
+        assert_eq!(
+            info.triangles + info.excluded_non_finite + info.excluded_zero_area,
+            info.triangles_in
+        );
         // Every valid triangle exactly once, slot_of consistent.
         let mut seen = vec![false; info.triangles_in as usize];
         for s in 0..n {
@@ -724,7 +828,9 @@ mod tests {
             return;
         }
         // Walk the tree.
-        let contains = |outer: &Aabb, inner: &Aabb| inner.min.cmpge(outer.min).all() && inner.max.cmple(outer.max).all();
+        let contains = |outer: &Aabb, inner: &Aabb| {
+            inner.min.cmpge(outer.min).all() && inner.max.cmple(outer.max).all()
+        };
         let mut covered = vec![0u32; n];
         let (mut leaves, mut depth, mut reached) = (0u32, 0u32, 1u32);
         let mut todo = vec![(0usize, 0u32)];
@@ -736,7 +842,10 @@ mod tests {
                 leaves += 1;
                 depth = depth.max(d);
                 let c = node.count();
-                assert!(c <= info.leaf_size || d as usize == MAX_DEPTH, "leaf of {c} at depth {d}");
+                assert!(
+                    c <= info.leaf_size || d as usize == MAX_DEPTH,
+                    "leaf of {c} at depth {d}"
+                );
                 for s in node.first..node.first + c {
                     covered[s as usize] += 1;
                     let t = &v.tris[s as usize];
@@ -749,12 +858,21 @@ mod tests {
                 assert!(l + 1 < info.nodes as usize && l > i);
                 reached += 2;
                 for c in [l, l + 1] {
-                    assert!(contains(&b, &v.nodes[c].aabb()), "child {c} outside node {i}: {:?} {:?} {:?}", b, v.nodes[c], node);
+                    assert!(
+                        contains(&b, &v.nodes[c].aabb()),
+                        "child {c} outside node {i}: {:?} {:?} {:?}",
+                        b,
+                        v.nodes[c],
+                        node
+                    );
                     todo.push((c, d + 1));
                 }
             }
         }
-        assert!(covered.iter().all(|&c| c == 1), "every slot in exactly one leaf");
+        assert!(
+            covered.iter().all(|&c| c == 1),
+            "every slot in exactly one leaf"
+        );
         assert_eq!(reached, info.nodes);
         assert_eq!(leaves, info.leaves);
         assert_eq!(depth, info.depth);
@@ -769,12 +887,19 @@ mod tests {
         }
         assert_eq!(bb, info.bounds);
         assert!(contains(&v.nodes[0].aabb(), &bb));
-        assert!(info.sah_cost.is_finite() && info.sah_cost >= 1.0, "sah {}", info.sah_cost);
+        assert!(
+            info.sah_cost.is_finite() && info.sah_cost >= 1.0,
+            "sah {}",
+            info.sah_cost
+        );
     }
 
     fn build_check(v: &[f32], ix: &[u32], p: &BvhParams) -> BvhInfo {
         let scene = Scene::from_f32(v, ix).unwrap();
-        let mut st = Store::new(scene.triangle_count() as usize, p.test == TriTest::Projection);
+        let mut st = Store::new(
+            scene.triangle_count() as usize,
+            p.test == TriTest::Projection,
+        );
         let mut bvh = st.bvh();
         let info = build(&mut bvh, &scene, p).unwrap();
         let view = bvh.view().unwrap();
@@ -787,10 +912,18 @@ mod tests {
     fn builtin_scenes_invariants() {
         for &name in crate::scenes::BUILTIN_NAMES {
             let s = crate::scenes::builtin(name).unwrap();
-            for (leaf_size, bins, test) in
-                [(4, 16, TriTest::MollerTrumbore), (1, 2, TriTest::Watertight), (8, 64, TriTest::Projection), (64, 7, TriTest::MollerTrumbore)]
-            {
-                let p = BvhParams { leaf_size, bins, traversal_cost: 1.0, test };
+            for (leaf_size, bins, test) in [
+                (4, 16, TriTest::MollerTrumbore),
+                (1, 2, TriTest::Watertight),
+                (8, 64, TriTest::Projection),
+                (64, 7, TriTest::MollerTrumbore),
+            ] {
+                let p = BvhParams {
+                    leaf_size,
+                    bins,
+                    traversal_cost: 1.0,
+                    test,
+                };
                 let info = build_check(&s.mesh.vertices, &s.mesh.indices, &p);
                 assert_eq!(info.triangles as usize, s.mesh.triangle_count(), "{name}");
             }
@@ -810,7 +943,14 @@ mod tests {
             let o = i as f32 * 0.37;
             tris.push([[o, 2.0, 0.0], [o + 0.2, 2.0, 0.1], [o, 2.3, 0.5]]);
         }
-        let info = build_check(&soup(&tris).0, &soup(&tris).1, &BvhParams { leaf_size: 2, ..Default::default() });
+        let info = build_check(
+            &soup(&tris).0,
+            &soup(&tris).1,
+            &BvhParams {
+                leaf_size: 2,
+                ..Default::default()
+            },
+        );
         assert_eq!(info.triangles, 600);
         assert!((info.depth as usize) < MAX_DEPTH);
     }
@@ -818,7 +958,15 @@ mod tests {
     #[test]
     fn deep_scene_hits_depth_limit_safely() {
         let (v, ix) = soup(&deep_tris());
-        let info = build_check(&v, &ix, &BvhParams { leaf_size: 1, bins: 2, ..Default::default() });
+        let info = build_check(
+            &v,
+            &ix,
+            &BvhParams {
+                leaf_size: 1,
+                bins: 2,
+                ..Default::default()
+            },
+        );
         assert_eq!(info.depth as usize, MAX_DEPTH);
     }
 
@@ -834,9 +982,20 @@ mod tests {
             [[f32::INFINITY, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
         ]);
         let info = build_check(&v, &ix, &BvhParams::default());
-        assert_eq!((info.triangles, info.nodes, info.excluded_zero_area, info.excluded_non_finite), (0, 0, 2, 2));
+        assert_eq!(
+            (
+                info.triangles,
+                info.nodes,
+                info.excluded_zero_area,
+                info.excluded_non_finite
+            ),
+            (0, 0, 2, 2)
+        );
         // One valid triangle among degenerate ones.
-        let (v, ix) = soup(&[[[0.0; 3], [0.0; 3], [0.0; 3]], [[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]]);
+        let (v, ix) = soup(&[
+            [[0.0; 3], [0.0; 3], [0.0; 3]],
+            [[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
+        ]);
         let info = build_check(&v, &ix, &BvhParams::default());
         assert_eq!((info.triangles, info.nodes, info.leaves), (1, 1, 1));
     }
@@ -855,18 +1014,39 @@ mod tests {
         // Too many triangles.
         let big = crate::scenes::builtin("balls").unwrap();
         let big_scene = Scene::from_f32(&big.mesh.vertices, &big.mesh.indices).unwrap();
-        assert!(matches!(build(&mut bvh, &big_scene, &p), Err(Error::Capacity { pool: Pool::Triangles, .. })));
+        assert!(matches!(
+            build(&mut bvh, &big_scene, &p),
+            Err(Error::Capacity {
+                pool: Pool::Triangles,
+                ..
+            })
+        ));
         // Bad parameters, projection without its pool.
         for bad in [
             BvhParams { leaf_size: 0, ..p },
             BvhParams { leaf_size: 65, ..p },
             BvhParams { bins: 1, ..p },
             BvhParams { bins: 65, ..p },
-            BvhParams { traversal_cost: f32::NAN, ..p },
-            BvhParams { traversal_cost: 0.0, ..p },
-            BvhParams { test: TriTest::Projection, ..p },
+            BvhParams {
+                traversal_cost: f32::NAN,
+                ..p
+            },
+            BvhParams {
+                traversal_cost: 0.0,
+                ..p
+            },
+            BvhParams {
+                test: TriTest::Projection,
+                ..p
+            },
         ] {
-            assert!(matches!(build(&mut bvh, &scene, &bad), Err(Error::InvalidArgument(_))), "{bad:?}");
+            assert!(
+                matches!(
+                    build(&mut bvh, &scene, &bad),
+                    Err(Error::InvalidArgument(_))
+                ),
+                "{bad:?}"
+            );
         }
         let v = bvh.view().unwrap();
         assert_eq!(*v.info, first);
@@ -877,7 +1057,10 @@ mod tests {
         let mut st2 = Store::new(n, false);
         st2.nodes.truncate(n);
         let mut bvh2 = st2.bvh();
-        assert!(matches!(build(&mut bvh2, &scene, &p), Err(Error::Capacity { .. })));
+        assert!(matches!(
+            build(&mut bvh2, &scene, &p),
+            Err(Error::Capacity { .. })
+        ));
         assert!(bvh2.view().is_none());
     }
 
@@ -913,7 +1096,11 @@ mod perf {
     }
 
     fn load(path: &std::path::Path) -> Option<(Vec<f32>, Vec<u32>)> {
-        let opts = tobj::LoadOptions { triangulate: true, single_index: false, ..Default::default() };
+        let opts = tobj::LoadOptions {
+            triangulate: true,
+            single_index: false,
+            ..Default::default()
+        };
         let (models, _) = tobj::load_obj(path, &opts).ok()?;
         let (mut v, mut ix) = (Vec::new(), Vec::new());
         for m in models {
@@ -928,7 +1115,11 @@ mod perf {
     #[ignore]
     fn perf_obj_scenes() {
         let dir = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/scenes");
-        for file in ["bunny/bunny_tinybvh.obj", "crytek_sponza/crytek_sponza.obj", "conference/conference.obj"] {
+        for file in [
+            "bunny/bunny_tinybvh.obj",
+            "crytek_sponza/crytek_sponza.obj",
+            "conference/conference.obj",
+        ] {
             let Some((v, ix)) = load(&dir.join(file)) else {
                 eprintln!("{file}: not found, skipped");
                 continue;
@@ -965,12 +1156,21 @@ mod perf {
             let c = 0.5 * (lo + hi);
             let r = 0.5 * (hi - lo).length();
             let fov = 45.0f32;
-            let eye = c + Vec3::new(0.6, 0.45, 1.0).normalize() * (r / (fov.to_radians() * 0.5).sin());
-            let cam = crate::Camera { eye: eye.to_array(), look_at: c.to_array(), up: [0.0, 1.0, 0.0], fov_y_deg: fov };
+            let eye =
+                c + Vec3::new(0.6, 0.45, 1.0).normalize() * (r / (fov.to_radians() * 0.5).sin());
+            let cam = crate::Camera {
+                eye: eye.to_array(),
+                look_at: c.to_array(),
+                up: [0.0, 1.0, 0.0],
+                fov_y_deg: fov,
+            };
             let (w, h) = (1024u32, 1024u32);
             let pr = crate::render::PrimaryRays::new(&cam, w, h).unwrap();
             let view = bvh.view().unwrap();
-            let rays: Vec<Ray> = (0..h).flat_map(|y| (0..w).map(move |x| (x, y))).map(|(x, y)| pr.ray(x, y)).collect();
+            let rays: Vec<Ray> = (0..h)
+                .flat_map(|y| (0..w).map(move |x| (x, y)))
+                .map(|(x, y)| pr.ray(x, y))
+                .collect();
             let mut ctr = Counters::default();
             let t = cpu();
             let mut hits = 0u32;
@@ -982,7 +1182,12 @@ mod perf {
             let mut quads = Vec::new();
             for y in (0..h).step_by(2) {
                 for x in (0..w).step_by(2) {
-                    quads.push(Ray4::from_rays(&[pr.ray(x, y), pr.ray(x + 1, y), pr.ray(x, y + 1), pr.ray(x + 1, y + 1)]));
+                    quads.push(Ray4::from_rays(&[
+                        pr.ray(x, y),
+                        pr.ray(x + 1, y),
+                        pr.ray(x, y + 1),
+                        pr.ray(x + 1, y + 1),
+                    ]));
                 }
             }
             let active = vec![M4::TRUE; quads.len()];

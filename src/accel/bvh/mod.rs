@@ -30,13 +30,16 @@
 //! same t (the tie rule of `geom::ray`).
 
 pub mod build;
-pub mod frustum;
 pub mod traverse_masked;
 pub mod traverse_partition;
 pub mod traverse_ranged;
 pub mod traverse_simd;
 pub mod traverse_single;
 
+/// The packet frusta (section 4) live in `geom` because the kd-tree
+/// packets use them too.
+pub use crate::geom::frustum;
+pub use crate::geom::frustum::RayKind;
 use crate::geom::{Aabb, Mt, ProjTri, Pt, TriTest, TriVerts, TriangleTest, Wt};
 use bytemuck::{Pod, Zeroable};
 
@@ -71,20 +74,29 @@ pub struct BvhParams {
 
 impl Default for BvhParams {
     fn default() -> Self {
-        BvhParams { leaf_size: 4, bins: 16, traversal_cost: 1.0, test: TriTest::MollerTrumbore }
+        BvhParams {
+            leaf_size: 4,
+            bins: 16,
+            traversal_cost: 1.0,
+            test: TriTest::MollerTrumbore,
+        }
     }
 }
 
 impl BvhParams {
     pub fn validate(&self) -> crate::Result<()> {
         if !(1..=MAX_LEAF).contains(&self.leaf_size) {
-            return Err(crate::Error::InvalidArgument("bvh leaf_size must be in 1..=64"));
+            return Err(crate::Error::InvalidArgument(
+                "bvh leaf_size must be in 1..=64",
+            ));
         }
         if !(2..=MAX_BINS).contains(&self.bins) {
             return Err(crate::Error::InvalidArgument("bvh bins must be in 2..=64"));
         }
         if !(self.traversal_cost.is_finite() && self.traversal_cost > 0.0) {
-            return Err(crate::Error::InvalidArgument("bvh traversal_cost must be finite and > 0"));
+            return Err(crate::Error::InvalidArgument(
+                "bvh traversal_cost must be finite and > 0",
+            ));
         }
         Ok(())
     }
@@ -146,15 +158,28 @@ impl BvhNode {
     #[inline]
     pub fn leaf(b: &Aabb, first: u32, count: u32) -> BvhNode {
         debug_assert!(count > 0 && count <= Self::COUNT_MASK);
-        BvhNode { min: b.min.to_array(), first, max: b.max.to_array(), meta: count }
+        BvhNode {
+            min: b.min.to_array(),
+            first,
+            max: b.max.to_array(),
+            meta: count,
+        }
     }
     #[inline]
     pub fn inner(b: &Aabb, left: u32, axis: usize) -> BvhNode {
-        BvhNode { min: b.min.to_array(), first: left, max: b.max.to_array(), meta: (axis as u32) << 30 }
+        BvhNode {
+            min: b.min.to_array(),
+            first: left,
+            max: b.max.to_array(),
+            meta: (axis as u32) << 30,
+        }
     }
     #[inline(always)]
     pub fn aabb(&self) -> Aabb {
-        Aabb { min: self.min.into(), max: self.max.into() }
+        Aabb {
+            min: self.min.into(),
+            max: self.max.into(),
+        }
     }
 }
 
@@ -223,7 +248,11 @@ impl<'a> Bvh<'a> {
             info,
             nodes: &self.pools.nodes[..info.nodes as usize],
             tris: &self.pools.tris[..n],
-            proj: if info.test == TriTest::Projection { &self.pools.proj[..n] } else { &[] },
+            proj: if info.test == TriTest::Projection {
+                &self.pools.proj[..n]
+            } else {
+                &[]
+            },
             tri_ids: &self.pools.tri_ids[..n],
             slot_of: &self.pools.slot_of[..info.triangles_in as usize],
         })
@@ -265,24 +294,6 @@ impl BvhTest for Pt {
     }
 }
 
-/// Which frustum a packet gets (section 4). `Auto` picks the common-origin
-/// frustum (4.2) when all active rays share their origin, else the
-/// near/far-plane frustum (4.3).
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub enum RayKind {
-    #[default]
-    Auto = 0,
-    /// Camera rays of an n x n pixel packet (lanes as the renderer packs
-    /// them): the frustum of the 4 corner rays (4.1). Full packets only;
-    /// others fall back to `Auto`.
-    Primary = 1,
-    /// Rays from one point light (4.2).
-    Shadow = 2,
-    /// Reflection or refraction rays (4.3).
-    Secondary = 3,
-}
-
 /// Large-packet switches (C: `sheaf_bvh_options`).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -295,6 +306,9 @@ pub struct BvhOptions {
 
 impl Default for BvhOptions {
     fn default() -> Self {
-        BvhOptions { culling: true, kind: RayKind::Auto }
+        BvhOptions {
+            culling: true,
+            kind: RayKind::Auto,
+        }
     }
 }

@@ -112,7 +112,14 @@ pub(crate) fn dispatch<W: Walk, T: BvhTest, const ANY: bool>(
         _ => {
             for s in (0..n).step_by(MAX_QUADS) {
                 let e = (s + MAX_QUADS).min(n);
-                packet::<W, T, ANY, MAX_QUADS>(b, &rays[s..e], &active[s..e], &mut hits[s..e], opt, ctr);
+                packet::<W, T, ANY, MAX_QUADS>(
+                    b,
+                    &rays[s..e],
+                    &active[s..e],
+                    &mut hits[s..e],
+                    opt,
+                    ctr,
+                );
             }
         }
     }
@@ -216,21 +223,45 @@ impl<T: BvhTest, const Q: usize> Packet<T, Q> {
         // Scratch of quads past nq repeats the last quad (never read).
         let at = |q: usize| &rays[q.min(nq - 1)];
         let qb: [QuadBox; Q] = core::array::from_fn(|q| QuadBox::new(at(q)));
-        let pre: [T::Pre<F4>; Q] = core::array::from_fn(|q| T::prepare(&RayLanes::from_ray4(at(q))));
+        let pre: [T::Pre<F4>; Q] =
+            core::array::from_fn(|q| T::prepare(&RayLanes::from_ray4(at(q))));
         let tfar: [F4; Q] = core::array::from_fn(|q| at(q).tmax);
         // A zero sum on an axis: the first live lane decides.
         let q0 = live[..nq].iter().position(|m| m.any()).unwrap_or(0);
         let f = live[q0].bitmask().trailing_zeros() as usize;
-        let sum = [sum[0].element_sum(), sum[1].element_sum(), sum[2].element_sum()];
-        let neg = core::array::from_fn(|a| if sum[a] != 0.0 { sum[a] < 0.0 } else { rays[q0].dir[a][f].is_sign_negative() });
-        Some(Packet { nq, qb, pre, live, tfar, n_live, neg, frustum })
+        let sum = [
+            sum[0].element_sum(),
+            sum[1].element_sum(),
+            sum[2].element_sum(),
+        ];
+        let neg = core::array::from_fn(|a| {
+            if sum[a] != 0.0 {
+                sum[a] < 0.0
+            } else {
+                rays[q0].dir[a][f].is_sign_negative()
+            }
+        });
+        Some(Packet {
+            nq,
+            qb,
+            pre,
+            live,
+            tfar,
+            n_live,
+            neg,
+            frustum,
+        })
     }
 
     /// Near and far child of inner node `n`, by the packet's direction.
     #[inline(always)]
     pub(crate) fn children(&self, n: &BvhNode) -> (usize, usize) {
         let l = n.first as usize;
-        if self.neg[n.axis()] { (l + 1, l) } else { (l, l + 1) }
+        if self.neg[n.axis()] {
+            (l + 1, l)
+        } else {
+            (l, l + 1)
+        }
     }
 
     /// `rayIntersectsAABB(R[q], B)`: the lanes of quad `q` alive in `n`'s
@@ -250,7 +281,7 @@ impl<T: BvhTest, const Q: usize> Packet<T, Q> {
     pub(crate) fn frustum_admits(&self, n: &BvhNode, ctr: &mut Counters) -> bool {
         let _ = &ctr;
         match &self.frustum {
-            Some(f) if f.cull_aabb(n) => {
+            Some(f) if f.cull_box(&n.min, &n.max) => {
                 count!(ctr.culled_nodes += 1);
                 false
             }
@@ -421,7 +452,12 @@ pub(crate) mod tests {
     }
 
     pub fn camera(v: &crate::scenes::View, w: u32, h: u32) -> PrimaryRays {
-        let cam = crate::Camera { eye: v.eye.to_array(), look_at: v.look_at.to_array(), up: v.up.to_array(), fov_y_deg: v.fov_y_deg };
+        let cam = crate::Camera {
+            eye: v.eye.to_array(),
+            look_at: v.look_at.to_array(),
+            up: v.up.to_array(),
+            fov_y_deg: v.fov_y_deg,
+        };
         PrimaryRays::new(&cam, w, h).unwrap()
     }
 
@@ -429,11 +465,31 @@ pub(crate) mod tests {
     /// (as the renderer shoots them); reflection rays at their hits; the
     /// primary rays with inactive and invalid lanes sprinkled in; random
     /// rays with scattered origins and mixed direction signs.
-    pub fn ray_sets<T: BvhTest>(b: &BvhView<'_>, view: &crate::scenes::View, light: Vec3, w: u32, h: u32, seed: u64) -> Vec<RaySet> {
+    pub fn ray_sets<T: BvhTest>(
+        b: &BvhView<'_>,
+        view: &crate::scenes::View,
+        light: Vec3,
+        w: u32,
+        h: u32,
+        seed: u64,
+    ) -> Vec<RaySet> {
         let pr = camera(view, w, h);
         let mut ctr = Counters::default();
-        let bounds = if b.nodes.is_empty() { Aabb { min: Vec3::ZERO, max: Vec3::ONE } } else { b.nodes[0].aabb() };
-        let eps = 1e-4 * bounds.min.abs().max(bounds.max.abs()).max_element().max(1e-6);
+        let bounds = if b.nodes.is_empty() {
+            Aabb {
+                min: Vec3::ZERO,
+                max: Vec3::ONE,
+            }
+        } else {
+            b.nodes[0].aabb()
+        };
+        let eps = 1e-4
+            * bounds
+                .min
+                .abs()
+                .max(bounds.max.abs())
+                .max_element()
+                .max(1e-6);
         let mut primary = Vec::new();
         let mut shadow = Vec::new();
         let mut reflect = Vec::new();
@@ -454,7 +510,12 @@ pub(crate) mod tests {
                         let end = p + n * eps;
                         s = Some(Ray::new(light, end - light, 0.0, 1.0));
                     }
-                    f = Some(Ray::new(p + n * eps, d - 2.0 * d.dot(n) * n, 0.0, f32::INFINITY));
+                    f = Some(Ray::new(
+                        p + n * eps,
+                        d - 2.0 * d.dot(n) * n,
+                        0.0,
+                        f32::INFINITY,
+                    ));
                 }
                 shadow.push(s);
                 reflect.push(f);
@@ -490,29 +551,88 @@ pub(crate) mod tests {
         let (c, d) = (0.5 * (bounds.min + bounds.max), bounds.diagonal());
         let mut random = Vec::new();
         for i in 0..(w * h) as usize {
-            let o = c + Vec3::new(rng.range(-0.8, 0.8), rng.range(-0.8, 0.8), rng.range(-0.8, 0.8)) * d;
-            let mut dir = Vec3::new(rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(-1.0, 1.0));
+            let o = c + Vec3::new(
+                rng.range(-0.8, 0.8),
+                rng.range(-0.8, 0.8),
+                rng.range(-0.8, 0.8),
+            ) * d;
+            let mut dir = Vec3::new(
+                rng.range(-1.0, 1.0),
+                rng.range(-1.0, 1.0),
+                rng.range(-1.0, 1.0),
+            );
             if i % 9 == 0 {
                 dir[(i / 9) % 3] = if i % 2 == 0 { 0.0 } else { -0.0 };
             }
-            random.push(if i % 13 == 0 { None } else { Some(Ray::new(o, dir, 0.0, f32::INFINITY)) });
+            random.push(if i % 13 == 0 {
+                None
+            } else {
+                Some(Ray::new(o, dir, 0.0, f32::INFINITY))
+            });
         }
         // Coherent bundle from scattered origins (a general frustum that culls).
         let mut bundle = Vec::new();
         let axis = (view.look_at - view.eye).normalize();
         for _ in 0..(w * h) as usize {
-            let o = view.eye + Vec3::new(rng.range(-0.05, 0.05), rng.range(-0.05, 0.05), rng.range(-0.05, 0.05)) * d;
-            let dir = axis + 0.2 * Vec3::new(rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(-1.0, 1.0));
+            let o = view.eye
+                + Vec3::new(
+                    rng.range(-0.05, 0.05),
+                    rng.range(-0.05, 0.05),
+                    rng.range(-0.05, 0.05),
+                ) * d;
+            let dir = axis
+                + 0.2
+                    * Vec3::new(
+                        rng.range(-1.0, 1.0),
+                        rng.range(-1.0, 1.0),
+                        rng.range(-1.0, 1.0),
+                    );
             bundle.push(Some(Ray::new(o, dir, 0.0, f32::INFINITY)));
         }
         use RayKind::*;
         vec![
-            RaySet { name: "primary", w, h, rays: primary, kinds: &[Primary, Auto] },
-            RaySet { name: "shadow", w, h, rays: shadow, kinds: &[Shadow, Auto] },
-            RaySet { name: "reflect", w, h, rays: reflect, kinds: &[Secondary, Auto] },
-            RaySet { name: "mixed", w, h, rays: mixed, kinds: &[Primary, Auto] },
-            RaySet { name: "random", w, h, rays: random, kinds: &[Auto, Secondary] },
-            RaySet { name: "bundle", w, h, rays: bundle, kinds: &[Secondary, Primary, Shadow] },
+            RaySet {
+                name: "primary",
+                w,
+                h,
+                rays: primary,
+                kinds: &[Primary, Auto],
+            },
+            RaySet {
+                name: "shadow",
+                w,
+                h,
+                rays: shadow,
+                kinds: &[Shadow, Auto],
+            },
+            RaySet {
+                name: "reflect",
+                w,
+                h,
+                rays: reflect,
+                kinds: &[Secondary, Auto],
+            },
+            RaySet {
+                name: "mixed",
+                w,
+                h,
+                rays: mixed,
+                kinds: &[Primary, Auto],
+            },
+            RaySet {
+                name: "random",
+                w,
+                h,
+                rays: random,
+                kinds: &[Auto, Secondary],
+            },
+            RaySet {
+                name: "bundle",
+                w,
+                h,
+                rays: bundle,
+                kinds: &[Secondary, Primary, Shadow],
+            },
         ]
     }
 
@@ -556,10 +676,18 @@ pub(crate) mod tests {
     }
 
     pub fn same(a: &Hit, b: &Hit) -> bool {
-        a.prim == b.prim && a.t.to_bits() == b.t.to_bits() && a.u.to_bits() == b.u.to_bits() && a.v.to_bits() == b.v.to_bits()
+        a.prim == b.prim
+            && a.t.to_bits() == b.t.to_bits()
+            && a.u.to_bits() == b.u.to_bits()
+            && a.v.to_bits() == b.v.to_bits()
     }
 
-    const SENTINEL: Hit = Hit { t: -7.0, prim: 0xdead, u: 3.0, v: 4.0 };
+    const SENTINEL: Hit = Hit {
+        t: -7.0,
+        prim: 0xdead,
+        u: 3.0,
+        v: 4.0,
+    };
 
     /// Trace `quads` (a packet, or several concatenated) with traversal `W`
     /// and compare every lane with `traverse_single`; returns the counters.
@@ -589,35 +717,69 @@ pub(crate) mod tests {
             for i in 0..4 {
                 let got = h.lane(i);
                 if !m.test(i) {
-                    assert!(same(&got, &SENTINEL), "{}: inactive lane {q}.{i} written", what());
+                    assert!(
+                        same(&got, &SENTINEL),
+                        "{}: inactive lane {q}.{i} written",
+                        what()
+                    );
                     continue;
                 }
                 let ray = quads[q].lane(i);
                 valid += ray.is_valid() as u64;
                 let want = reference(q, i);
                 if any {
-                    assert_eq!(got.is_hit(), want.is_hit(), "{}: quad {q} lane {i} {ray:?} occluded", what());
+                    assert_eq!(
+                        got.is_hit(),
+                        want.is_hit(),
+                        "{}: quad {q} lane {i} {ray:?} occluded",
+                        what()
+                    );
                     if got.is_hit() {
-                        assert!(got.t >= ray.tmin && got.t < ray.tmax && b.slot_of[got.prim as usize] != INVALID_ID);
+                        assert!(
+                            got.t >= ray.tmin
+                                && got.t < ray.tmax
+                                && b.slot_of[got.prim as usize] != INVALID_ID
+                        );
                     } else {
                         assert!(same(&got, &Hit::MISS));
                     }
                 } else {
-                    assert!(same(&got, &want), "{}: quad {q} lane {i} {ray:?}: packet {got:?} single {want:?}", what());
+                    assert!(
+                        same(&got, &want),
+                        "{}: quad {q} lane {i} {ray:?}: packet {got:?} single {want:?}",
+                        what()
+                    );
                 }
             }
         }
         assert_eq!(ctr.rays, valid, "{}", what());
-        assert_eq!(ctr.packets, quads.len().div_ceil(MAX_QUADS) as u64, "{}", what());
+        assert_eq!(
+            ctr.packets,
+            quads.len().div_ceil(MAX_QUADS) as u64,
+            "{}",
+            what()
+        );
         ctr
     }
 
     /// Build a BVH over `v`, `ix` with test `T` into `st`.
-    pub fn built<'s, T: BvhTest>(st: &'s mut Store, v: &[f32], ix: &[u32], leaf: u32) -> crate::accel::bvh::Bvh<'s> {
+    pub fn built<'s, T: BvhTest>(
+        st: &'s mut Store,
+        v: &[f32],
+        ix: &[u32],
+        leaf: u32,
+    ) -> crate::accel::bvh::Bvh<'s> {
         let scene = Scene::from_f32(v, ix).unwrap();
-        *st = Store::new(scene.triangle_count() as usize, T::KIND == TriTest::Projection);
+        *st = Store::new(
+            scene.triangle_count() as usize,
+            T::KIND == TriTest::Projection,
+        );
         let mut bvh = st.bvh();
-        let p = BvhParams { leaf_size: leaf, test: T::KIND, ..BvhParams::default() };
+        let p = BvhParams {
+            leaf_size: leaf,
+            test: T::KIND,
+            ..BvhParams::default()
+        };
         build(&mut bvh, &scene, &p).unwrap();
         bvh
     }
@@ -625,16 +787,41 @@ pub(crate) mod tests {
     /// Every set at every packet side, culling on and off, every kind of
     /// the set, nearest hit and occlusion; then the whole image as one input
     /// (chunks of 256 quads) and a 3-quad packet.
-    pub fn check_sets<W: Walk, T: BvhTest>(name: &str, b: &BvhView<'_>, sets: &[RaySet]) -> Counters {
+    pub fn check_sets<W: Walk, T: BvhTest>(
+        name: &str,
+        b: &BvhView<'_>,
+        sets: &[RaySet],
+    ) -> Counters {
         let mut total = Counters::default();
         for set in sets {
             let mut c1 = Counters::default();
-            let near: Vec<Hit> = set.rays.iter().map(|r| r.map_or(Hit::MISS, |r| traverse_single::intersect::<T>(b, &r, &mut c1))).collect();
-            let occl: Vec<bool> = set.rays.iter().map(|r| r.is_some_and(|r| traverse_single::occluded::<T>(b, &r, &mut c1))).collect();
+            let near: Vec<Hit> = set
+                .rays
+                .iter()
+                .map(|r| {
+                    r.map_or(Hit::MISS, |r| {
+                        traverse_single::intersect::<T>(b, &r, &mut c1)
+                    })
+                })
+                .collect();
+            let occl: Vec<bool> = set
+                .rays
+                .iter()
+                .map(|r| r.is_some_and(|r| traverse_single::occluded::<T>(b, &r, &mut c1)))
+                .collect();
             let reference = |pix: &[[Option<usize>; 4]], q: usize, i: usize, any: bool| {
                 let at = pix[q][i].unwrap();
                 if any {
-                    if occl[at] { Hit { t: 0.0, prim: 0, u: 0.0, v: 0.0 } } else { Hit::MISS }
+                    if occl[at] {
+                        Hit {
+                            t: 0.0,
+                            prim: 0,
+                            u: 0.0,
+                            v: 0.0,
+                        }
+                    } else {
+                        Hit::MISS
+                    }
                 } else {
                     near[at]
                 }
@@ -645,8 +832,22 @@ pub(crate) mod tests {
                         for culling in [true, false] {
                             for &kind in set.kinds {
                                 let opt = BvhOptions { culling, kind };
-                                let what = || format!("{name} {} n={n} {opt:?} any={any} ({:?})", set.name, T::KIND);
-                                let c = check_packet::<W, T>(b, &quads, &active, &opt, any, &|q, i| reference(&pix, q, i, any), &what);
+                                let what = || {
+                                    format!(
+                                        "{name} {} n={n} {opt:?} any={any} ({:?})",
+                                        set.name,
+                                        T::KIND
+                                    )
+                                };
+                                let c = check_packet::<W, T>(
+                                    b,
+                                    &quads,
+                                    &active,
+                                    &opt,
+                                    any,
+                                    &|q, i| reference(&pix, q, i, any),
+                                    &what,
+                                );
                                 total.add(&c);
                             }
                         }
@@ -661,9 +862,26 @@ pub(crate) mod tests {
             }
             for (s, e) in [(0, quads.len()), (5, 8)] {
                 for any in [false, true] {
-                    let opt = BvhOptions { culling: true, kind: set.kinds[0] };
-                    let what = || format!("{name} {} quads {s}..{e} any={any} ({:?})", set.name, T::KIND);
-                    check_packet::<W, T>(b, &quads[s..e], &active[s..e], &opt, any, &|q, i| reference(&pix, s + q, i, any), &what);
+                    let opt = BvhOptions {
+                        culling: true,
+                        kind: set.kinds[0],
+                    };
+                    let what = || {
+                        format!(
+                            "{name} {} quads {s}..{e} any={any} ({:?})",
+                            set.name,
+                            T::KIND
+                        )
+                    };
+                    check_packet::<W, T>(
+                        b,
+                        &quads[s..e],
+                        &active[s..e],
+                        &opt,
+                        any,
+                        &|q, i| reference(&pix, s + q, i, any),
+                        &what,
+                    );
                 }
             }
         }
@@ -671,13 +889,27 @@ pub(crate) mod tests {
     }
 
     /// `check_sets` over the ray sets of every view of a scene.
-    pub fn check_scene<W: Walk, T: BvhTest>(name: &str, v: &[f32], ix: &[u32], views: &[crate::scenes::View], light: Vec3, leaf: u32) -> Counters {
+    pub fn check_scene<W: Walk, T: BvhTest>(
+        name: &str,
+        v: &[f32],
+        ix: &[u32],
+        views: &[crate::scenes::View],
+        light: Vec3,
+        leaf: u32,
+    ) -> Counters {
         let mut st = Store::new(0, false);
         let bvh = built::<T>(&mut st, v, ix, leaf);
         let b = bvh.view().unwrap();
         let mut total = Counters::default();
         for (vi, view) in views.iter().enumerate() {
-            let sets = ray_sets::<T>(&b, view, light, 80, 72, 0x1234_5678 ^ (vi as u64) << 20 ^ ix.len() as u64);
+            let sets = ray_sets::<T>(
+                &b,
+                view,
+                light,
+                80,
+                72,
+                0x1234_5678 ^ (vi as u64) << 20 ^ ix.len() as u64,
+            );
             total.add(&check_sets::<W, T>(&format!("{name} view {vi}"), &b, &sets));
         }
         total
@@ -721,16 +953,38 @@ pub(crate) mod tests {
                 let p = Vec3::new(x as f32 - 12.0, 49.0 - y as f32, 0.0);
                 prim.push(Some(Ray::new(eye, p - eye, 0.0, f32::INFINITY)));
                 shadow.push(Some(Ray::new(light, p - light, 0.0, 1.0)));
-                let o = Vec3::new(rng.range(0.0, 40.0).floor(), rng.range(0.0, 40.0).floor(), 8.0 + (x % 3) as f32);
+                let o = Vec3::new(
+                    rng.range(0.0, 40.0).floor(),
+                    rng.range(0.0, 40.0).floor(),
+                    8.0 + (x % 3) as f32,
+                );
                 let q = Vec3::new(o.x + (x % 5) as f32 - 2.0, o.y + (y % 5) as f32 - 2.0, 0.0);
                 general.push(Some(Ray::new(o, q - o, 0.0, f32::INFINITY)));
             }
         }
         use RayKind::*;
         let sets = vec![
-            RaySet { name: "lattice-primary", w, h, rays: prim, kinds: &[Primary, Auto] },
-            RaySet { name: "lattice-shadow", w, h, rays: shadow, kinds: &[Shadow] },
-            RaySet { name: "lattice-general", w, h, rays: general, kinds: &[Secondary] },
+            RaySet {
+                name: "lattice-primary",
+                w,
+                h,
+                rays: prim,
+                kinds: &[Primary, Auto],
+            },
+            RaySet {
+                name: "lattice-shadow",
+                w,
+                h,
+                rays: shadow,
+                kinds: &[Shadow],
+            },
+            RaySet {
+                name: "lattice-general",
+                w,
+                h,
+                rays: general,
+                kinds: &[Secondary],
+            },
         ];
         (v, ix, sets)
     }
@@ -756,9 +1010,13 @@ pub(crate) mod tests {
         for &name in scenes {
             let s = crate::scenes::builtin(name).unwrap();
             let views = &s.views[..s.views.len().min(2)];
-            let c = check_scene::<W, Mt>(name, &s.mesh.vertices, &s.mesh.indices, views, s.light, 4);
+            let c =
+                check_scene::<W, Mt>(name, &s.mesh.vertices, &s.mesh.indices, views, s.light, 4);
             if cfg!(feature = "counters") {
-                assert!(c.culled_nodes > 0 && c.culled > 0 && c.tri_tests > 0, "{name}: {c:?}");
+                assert!(
+                    c.culled_nodes > 0 && c.culled > 0 && c.tri_tests > 0,
+                    "{name}: {c:?}"
+                );
             }
             check_scene::<W, Wt>(name, &s.mesh.vertices, &s.mesh.indices, views, s.light, 2);
             if name == "tetra" {
@@ -769,10 +1027,18 @@ pub(crate) mod tests {
 
     /// Degenerate inputs: an empty BVH, coincident triangles (ties).
     pub fn check_edge_cases<W: Walk>() {
-        let view = crate::scenes::View { eye: Vec3::new(0.3, 0.2, 3.0), look_at: Vec3::new(0.3, 0.2, 0.0), up: Vec3::Y, fov_y_deg: 40.0 };
+        let view = crate::scenes::View {
+            eye: Vec3::new(0.3, 0.2, 3.0),
+            look_at: Vec3::new(0.3, 0.2, 0.0),
+            up: Vec3::Y,
+            fov_y_deg: 40.0,
+        };
         let t = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
         let mut tris = vec![t; 60];
-        tris.extend(vec![[[0.0, 0.0, 0.5], [1.0, 0.0, 0.5], [0.0, 1.0, 0.5]]; 30]);
+        tris.extend(vec![
+            [[0.0, 0.0, 0.5], [1.0, 0.0, 0.5], [0.0, 1.0, 0.5]];
+            30
+        ]);
         tris.reverse();
         let (v, ix) = crate::accel::bvh::build::testutil::soup(&tris);
         for leaf in [1, 3] {
@@ -782,23 +1048,62 @@ pub(crate) mod tests {
         check_scene::<W, Mt>("empty", &[], &[], &[view], Vec3::ONE, 4);
         // A BVH at the depth limit (leaves at MAX_DEPTH), rays from the
         // origin down the whole chain: the stacks must hold.
-        let (v, ix) = crate::accel::bvh::build::testutil::soup(&crate::accel::bvh::build::testutil::deep_tris());
+        let (v, ix) = crate::accel::bvh::build::testutil::soup(
+            &crate::accel::bvh::build::testutil::deep_tris(),
+        );
         let scene = Scene::from_f32(&v, &ix).unwrap();
         let mut st = Store::new(scene.triangle_count() as usize, false);
         let mut bvh = st.bvh();
-        build(&mut bvh, &scene, &BvhParams { leaf_size: 1, bins: 2, traversal_cost: 1.0, test: TriTest::Watertight }).unwrap();
+        build(
+            &mut bvh,
+            &scene,
+            &BvhParams {
+                leaf_size: 1,
+                bins: 2,
+                traversal_cost: 1.0,
+                test: TriTest::Watertight,
+            },
+        )
+        .unwrap();
         let b = bvh.view().unwrap();
         assert!(b.info.depth as usize >= MAX_DEPTH - 8, "{:?}", b.info);
         let (w, h) = (32u32, 32u32);
-        let grid = |x: u32, y: u32| Vec3::new(1.0, 0.001 + 0.008 * x as f32 / w as f32, 0.001 + 0.008 * y as f32 / h as f32);
-        let rays: Vec<Option<Ray>> = (0..h).flat_map(|y| (0..w).map(move |x| Some(Ray::new(Vec3::ZERO, grid(x, y), 0.0, f32::INFINITY)))).collect();
-        let far: Vec<Option<Ray>> = (0..h).flat_map(|y| (0..w).map(move |x| Some(Ray::new(Vec3::ZERO, grid(x, y), 1e3, 1e8)))).collect();
+        let grid = |x: u32, y: u32| {
+            Vec3::new(
+                1.0,
+                0.001 + 0.008 * x as f32 / w as f32,
+                0.001 + 0.008 * y as f32 / h as f32,
+            )
+        };
+        let rays: Vec<Option<Ray>> = (0..h)
+            .flat_map(|y| {
+                (0..w).map(move |x| Some(Ray::new(Vec3::ZERO, grid(x, y), 0.0, f32::INFINITY)))
+            })
+            .collect();
+        let far: Vec<Option<Ray>> = (0..h)
+            .flat_map(|y| (0..w).map(move |x| Some(Ray::new(Vec3::ZERO, grid(x, y), 1e3, 1e8))))
+            .collect();
         let sets = [
-            RaySet { name: "deep", w, h, rays, kinds: &[RayKind::Primary, RayKind::Secondary] },
-            RaySet { name: "deep-far", w, h, rays: far, kinds: &[RayKind::Shadow] },
+            RaySet {
+                name: "deep",
+                w,
+                h,
+                rays,
+                kinds: &[RayKind::Primary, RayKind::Secondary],
+            },
+            RaySet {
+                name: "deep-far",
+                w,
+                h,
+                rays: far,
+                kinds: &[RayKind::Shadow],
+            },
         ];
         let c = check_sets::<W, Wt>("deep", &b, &sets);
-        assert!(!cfg!(feature = "counters") || c.tri_by_depth[DEPTH_BINS - 1] > 0, "{c:?}");
+        assert!(
+            !cfg!(feature = "counters") || c.tri_by_depth[DEPTH_BINS - 1] > 0,
+            "{c:?}"
+        );
     }
 
     /// Release-mode throughput of 16 x 16 primary packets, culling on and
@@ -816,9 +1121,21 @@ pub(crate) mod tests {
         use std::time::Instant;
         let mut scenes: Vec<(String, Vec<f32>, Vec<u32>, crate::scenes::View)> = Vec::new();
         let s = crate::scenes::builtin("balls").unwrap();
-        scenes.push(("balls".into(), s.mesh.vertices.clone(), s.mesh.indices.clone(), s.views[0]));
-        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../shared/scenes/conference/conference.obj");
-        let opts = tobj::LoadOptions { triangulate: true, single_index: false, ..Default::default() };
+        scenes.push((
+            "balls".into(),
+            s.mesh.vertices.clone(),
+            s.mesh.indices.clone(),
+            s.views[0],
+        ));
+        let path = concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../shared/scenes/conference/conference.obj"
+        );
+        let opts = tobj::LoadOptions {
+            triangulate: true,
+            single_index: false,
+            ..Default::default()
+        };
         if let Ok((models, _)) = tobj::load_obj(path, &opts) {
             let (mut v, mut ix) = (Vec::new(), Vec::new());
             for m in models {
@@ -843,8 +1160,12 @@ pub(crate) mod tests {
             println!("note: {path} not loaded");
         }
         let (w, h, side) = (1024u32, 1024u32, 16u32);
-        println!("{w}x{h} primary rays, {side}x{side} packets, Moller-Trumbore, one thread; per ray: box tests, triangle tests (lanes), culled nodes / triangles per packet");
-        println!("| scene | method | culling | Mrays/s | aabb/ray | tri/ray | culled nodes/pkt | culled tris/pkt | no-cull pkts |");
+        println!(
+            "{w}x{h} primary rays, {side}x{side} packets, Moller-Trumbore, one thread; per ray: box tests, triangle tests (lanes), culled nodes / triangles per packet"
+        );
+        println!(
+            "| scene | method | culling | Mrays/s | aabb/ray | tri/ray | culled nodes/pkt | culled tris/pkt | no-cull pkts |"
+        );
         println!("|---|---|---|---|---|---|---|---|---|");
         for (name, v, ix, view) in &scenes {
             let mut st = Store::new(0, false);
@@ -855,15 +1176,24 @@ pub(crate) mod tests {
                 name: "primary",
                 w,
                 h,
-                rays: (0..h).flat_map(|y| (0..w).map(move |x| (x, y))).map(|(x, y)| Some(pr.ray(x, y))).collect(),
+                rays: (0..h)
+                    .flat_map(|y| (0..w).map(move |x| (x, y)))
+                    .map(|(x, y)| Some(pr.ray(x, y)))
+                    .collect(),
                 kinds: &[RayKind::Primary],
             };
             let pk = packets(&set, side);
-            let mut hits: Vec<Vec<Hit4>> = pk.iter().map(|(q, _, _)| vec![Hit4::MISS; q.len()]).collect();
+            let mut hits: Vec<Vec<Hit4>> = pk
+                .iter()
+                .map(|(q, _, _)| vec![Hit4::MISS; q.len()])
+                .collect();
             let rays = (w * h) as f64;
             type Trace<'t> = Box<dyn FnMut(&[Ray4], &[M4], &mut [Hit4], &mut Counters) + 't>;
             let (b, pk) = (&b, &pk);
-            let opt = |culling| BvhOptions { culling, kind: RayKind::Primary };
+            let opt = |culling| BvhOptions {
+                culling,
+                kind: RayKind::Primary,
+            };
             let mut runs: Vec<(&str, &str, Trace<'_>)> = vec![
                 (
                     "bvh-single",
@@ -872,19 +1202,40 @@ pub(crate) mod tests {
                         for (k, (r, m)) in q.iter().zip(a).enumerate() {
                             for i in 0..4 {
                                 if m.test(i) {
-                                    hs[k].set_lane(i, traverse_single::intersect::<Mt>(b, &r.lane(i), c));
+                                    hs[k].set_lane(
+                                        i,
+                                        traverse_single::intersect::<Mt>(b, &r.lane(i), c),
+                                    );
                                 }
                             }
                         }
                     }),
                 ),
-                ("bvh-simd (2x2)", "-", Box::new(move |q, a, hs, c| traverse_simd::intersect::<Mt>(b, q, a, hs, c))),
+                (
+                    "bvh-simd (2x2)",
+                    "-",
+                    Box::new(move |q, a, hs, c| traverse_simd::intersect::<Mt>(b, q, a, hs, c)),
+                ),
             ];
             for (culling, cs) in [(false, "off"), (true, "on")] {
                 let o = opt(culling);
-                runs.push(("masked", cs, Box::new(move |q, a, hs, c| dispatch::<Masked, Mt, false>(b, q, a, hs, &o, c))));
-                runs.push(("ranged", cs, Box::new(move |q, a, hs, c| dispatch::<Ranged, Mt, false>(b, q, a, hs, &o, c))));
-                runs.push(("partition", cs, Box::new(move |q, a, hs, c| dispatch::<Partition, Mt, false>(b, q, a, hs, &o, c))));
+                runs.push((
+                    "masked",
+                    cs,
+                    Box::new(move |q, a, hs, c| dispatch::<Masked, Mt, false>(b, q, a, hs, &o, c)),
+                ));
+                runs.push((
+                    "ranged",
+                    cs,
+                    Box::new(move |q, a, hs, c| dispatch::<Ranged, Mt, false>(b, q, a, hs, &o, c)),
+                ));
+                runs.push((
+                    "partition",
+                    cs,
+                    Box::new(move |q, a, hs, c| {
+                        dispatch::<Partition, Mt, false>(b, q, a, hs, &o, c)
+                    }),
+                ));
             }
             // Best of 3 passes of 3 runs each, passes interleaved over the
             // methods so a burst of load on the machine hits them alike.

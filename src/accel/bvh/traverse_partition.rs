@@ -146,7 +146,9 @@ impl Walk for Partition {
 #[cfg(test)]
 mod tests {
     use super::Partition;
-    use crate::accel::bvh::traverse_masked::tests::{check_builtin, check_edge_cases, check_lattice};
+    use crate::accel::bvh::traverse_masked::tests::{
+        check_builtin, check_edge_cases, check_lattice,
+    };
 
     #[test]
     fn partition_matches_single_tetra_gears() {

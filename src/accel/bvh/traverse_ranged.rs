@@ -52,7 +52,13 @@ pub fn occluded<T: BvhTest>(
 
 /// `getFirstHit`: the first quad from `ia` on alive in `n`'s box, or `nq`.
 #[inline(always)]
-fn first_hit<T: BvhTest, const Q: usize>(p: &Packet<T, Q>, n: &BvhNode, ia: usize, depth: usize, ctr: &mut Counters) -> usize {
+fn first_hit<T: BvhTest, const Q: usize>(
+    p: &Packet<T, Q>,
+    n: &BvhNode,
+    ia: usize,
+    depth: usize,
+    ctr: &mut Counters,
+) -> usize {
     let nq = p.nq;
     if p.alive(ia, n, depth, ctr).any() {
         return ia;
@@ -71,7 +77,13 @@ fn first_hit<T: BvhTest, const Q: usize>(p: &Packet<T, Q>, n: &BvhNode, ia: usiz
 /// `getLastHit`: one past the last quad after `ia` alive in `n`'s box, or
 /// `ia + 1`.
 #[inline(always)]
-fn last_hit<T: BvhTest, const Q: usize>(p: &Packet<T, Q>, n: &BvhNode, ia: usize, depth: usize, ctr: &mut Counters) -> usize {
+fn last_hit<T: BvhTest, const Q: usize>(
+    p: &Packet<T, Q>,
+    n: &BvhNode,
+    ia: usize,
+    depth: usize,
+    ctr: &mut Counters,
+) -> usize {
     let mut ie = p.nq - 1;
     while ie > ia {
         if p.alive(ie, n, depth, ctr).any() {
@@ -145,7 +157,9 @@ impl Walk for Ranged {
 #[cfg(test)]
 mod tests {
     use super::Ranged;
-    use crate::accel::bvh::traverse_masked::tests::{check_builtin, check_edge_cases, check_lattice};
+    use crate::accel::bvh::traverse_masked::tests::{
+        check_builtin, check_edge_cases, check_lattice,
+    };
 
     #[test]
     fn ranged_matches_single_tetra_gears() {

@@ -29,7 +29,13 @@ use crate::trace::Counters;
 /// time; `rays`, `active` and `hits` are read up to the shortest length).
 /// Active lanes are written (`Hit::MISS` when nothing is hit, and for
 /// invalid rays); inactive lanes are left untouched.
-pub fn intersect<T: BvhTest>(b: &BvhView<'_>, rays: &[Ray4], active: &[M4], hits: &mut [Hit4], ctr: &mut Counters) {
+pub fn intersect<T: BvhTest>(
+    b: &BvhView<'_>,
+    rays: &[Ray4],
+    active: &[M4],
+    hits: &mut [Hit4],
+    ctr: &mut Counters,
+) {
     for ((r, m), h) in rays.iter().zip(active).zip(hits.iter_mut()) {
         quad::<T, false>(b, r, *m, h, ctr);
     }
@@ -38,7 +44,13 @@ pub fn intersect<T: BvhTest>(b: &BvhView<'_>, rays: &[Ray4], active: &[M4], hits
 /// Occlusion of the active lanes: `hits[q].prim[i] != INVALID_ID` marks an
 /// occluded lane (t and id of some occluder in `[tmin, tmax)`, not the
 /// nearest); other active lanes get `Hit::MISS`, inactive ones are untouched.
-pub fn occluded<T: BvhTest>(b: &BvhView<'_>, rays: &[Ray4], active: &[M4], hits: &mut [Hit4], ctr: &mut Counters) {
+pub fn occluded<T: BvhTest>(
+    b: &BvhView<'_>,
+    rays: &[Ray4],
+    active: &[M4],
+    hits: &mut [Hit4],
+    ctr: &mut Counters,
+) {
     for ((r, m), h) in rays.iter().zip(active).zip(hits.iter_mut()) {
         quad::<T, true>(b, r, *m, h, ctr);
     }
@@ -102,7 +114,13 @@ impl QuadBox {
     }
 }
 
-fn quad<T: BvhTest, const ANY: bool>(b: &BvhView<'_>, r: &Ray4, active: M4, out: &mut Hit4, ctr: &mut Counters) {
+fn quad<T: BvhTest, const ANY: bool>(
+    b: &BvhView<'_>,
+    r: &Ray4,
+    active: M4,
+    out: &mut Hit4,
+    ctr: &mut Counters,
+) {
     ctr.packets += 1;
     // Active but invalid lanes are misses and take no part (Ray::is_valid).
     let mut live = active;
@@ -118,13 +136,26 @@ fn quad<T: BvhTest, const ANY: bool>(b: &BvhView<'_>, r: &Ray4, active: M4, out:
     }
     for i in 0..4 {
         if active.test(i) {
-            out.set_lane(i, if best.prim[i] == INVALID_ID { Hit::MISS } else { best.lane(i) });
+            out.set_lane(
+                i,
+                if best.prim[i] == INVALID_ID {
+                    Hit::MISS
+                } else {
+                    best.lane(i)
+                },
+            );
         }
     }
 }
 
 #[inline(always)]
-fn walk<T: BvhTest, const ANY: bool>(b: &BvhView<'_>, r: &Ray4, mut live: M4, best: &mut Hit4, ctr: &mut Counters) {
+fn walk<T: BvhTest, const ANY: bool>(
+    b: &BvhView<'_>,
+    r: &Ray4,
+    mut live: M4,
+    best: &mut Hit4,
+    ctr: &mut Counters,
+) {
     let nodes = b.nodes;
     let qb = QuadBox::new(r);
     ctr.aabb_at(0, 1);
@@ -136,7 +167,11 @@ fn walk<T: BvhTest, const ANY: bool>(b: &BvhView<'_>, r: &Ray4, mut live: M4, be
     let pre = T::prepare(&lanes);
     // Child order from the first live lane.
     let f = live.bitmask().trailing_zeros() as usize;
-    let neg = [r.dir[0][f].is_sign_negative(), r.dir[1][f].is_sign_negative(), r.dir[2][f].is_sign_negative()];
+    let neg = [
+        r.dir[0][f].is_sign_negative(),
+        r.dir[1][f].is_sign_negative(),
+        r.dir[2][f].is_sign_negative(),
+    ];
     let nan = F4::splat(f32::NAN);
 
     let mut st_node = [0u32; MAX_DEPTH + 1];
@@ -149,7 +184,11 @@ fn walk<T: BvhTest, const ANY: bool>(b: &BvhView<'_>, r: &Ray4, mut live: M4, be
         let n = &nodes[node];
         if !n.is_leaf() {
             let l = n.first as usize;
-            let (near, far) = if neg[n.axis()] { (l + 1, l) } else { (l, l + 1) };
+            let (near, far) = if neg[n.axis()] {
+                (l + 1, l)
+            } else {
+                (l, l + 1)
+            };
             let tmax = F4::select(best.t.cmplt(r.tmax), best.t, r.tmax);
             ctr.aabb_at(depth + 1, 2);
             let (hn, _) = qb.entry(&nodes[near], tmax);
@@ -224,14 +263,20 @@ fn walk<T: BvhTest, const ANY: bool>(b: &BvhView<'_>, r: &Ray4, mut live: M4, be
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::accel::bvh::BvhParams;
     use crate::accel::bvh::build::build;
     use crate::accel::bvh::build::testutil::{Store, deep_tris, soup};
-    use crate::accel::bvh::traverse_single::{self, tests::{Rng, test_rays, tris_of}};
-    use crate::accel::bvh::BvhParams;
+    use crate::accel::bvh::traverse_single::{
+        self,
+        tests::{Rng, test_rays, tris_of},
+    };
     use crate::geom::{Mt, Pt, Ray, Scene, TriTest, Wt};
 
     fn same(a: &Hit, b: &Hit) -> bool {
-        a.prim == b.prim && a.t.to_bits() == b.t.to_bits() && a.u.to_bits() == b.u.to_bits() && a.v.to_bits() == b.v.to_bits()
+        a.prim == b.prim
+            && a.t.to_bits() == b.t.to_bits()
+            && a.u.to_bits() == b.u.to_bits()
+            && a.v.to_bits() == b.v.to_bits()
     }
 
     fn check<T: BvhTest>(v: &[f32], ix: &[u32], views: &[crate::scenes::View], p: &BvhParams) {
@@ -244,12 +289,27 @@ mod tests {
         while rays.len() % 4 != 0 {
             rays.push(rays[rays.len() % 7]);
         }
-        let quads: Vec<Ray4> = rays.chunks_exact(4).map(|c| Ray4::from_rays(&[c[0], c[1], c[2], c[3]])).collect();
+        let quads: Vec<Ray4> = rays
+            .chunks_exact(4)
+            .map(|c| Ray4::from_rays(&[c[0], c[1], c[2], c[3]]))
+            .collect();
         let mut rng = Rng(0x2545_f491);
         // Mixed masks: every third quad full, the others random.
-        let active: Vec<M4> =
-            (0..quads.len()).map(|q| mask_from_bits(if q % 3 == 0 { 15 } else { (rng.next() % 16) as u32 })).collect();
-        let sentinel = Hit { t: -7.0, prim: 0xdead, u: 3.0, v: 4.0 };
+        let active: Vec<M4> = (0..quads.len())
+            .map(|q| {
+                mask_from_bits(if q % 3 == 0 {
+                    15
+                } else {
+                    (rng.next() % 16) as u32
+                })
+            })
+            .collect();
+        let sentinel = Hit {
+            t: -7.0,
+            prim: 0xdead,
+            u: 3.0,
+            v: 4.0,
+        };
         let fill = {
             let mut h = Hit4::MISS;
             for i in 0..4 {
@@ -270,7 +330,10 @@ mod tests {
             for (q, (h, m)) in hits.iter().zip(&active).enumerate() {
                 for i in 0..4 {
                     let ray: Ray = rays[4 * q + i];
-                    assert_eq!(bytemuck::bytes_of(&quads[q].lane(i)), bytemuck::bytes_of(&ray));
+                    assert_eq!(
+                        bytemuck::bytes_of(&quads[q].lane(i)),
+                        bytemuck::bytes_of(&ray)
+                    );
                     let got = h.lane(i);
                     if !m.test(i) {
                         assert!(same(&got, &sentinel), "inactive lane {q}.{i} written");
@@ -279,7 +342,12 @@ mod tests {
                     valid += ray.is_valid() as u64;
                     if any {
                         let want = traverse_single::occluded::<T>(&view, &ray, &mut c1);
-                        assert_eq!(got.is_hit(), want, "quad {q} lane {i} {ray:?} occluded ({:?})", T::KIND);
+                        assert_eq!(
+                            got.is_hit(),
+                            want,
+                            "quad {q} lane {i} {ray:?} occluded ({:?})",
+                            T::KIND
+                        );
                         if got.is_hit() {
                             assert!(got.t >= ray.tmin && got.t < ray.tmax);
                         } else {
@@ -287,7 +355,11 @@ mod tests {
                         }
                     } else {
                         let want = traverse_single::intersect::<T>(&view, &ray, &mut c1);
-                        assert!(same(&got, &want), "quad {q} lane {i} {ray:?} ({:?}): simd {got:?} single {want:?}", T::KIND);
+                        assert!(
+                            same(&got, &want),
+                            "quad {q} lane {i} {ray:?} ({:?}): simd {got:?} single {want:?}",
+                            T::KIND
+                        );
                     }
                 }
             }
@@ -297,8 +369,17 @@ mod tests {
     }
 
     fn check_all(v: &[f32], ix: &[u32], views: &[crate::scenes::View], leaf_size: u32) {
-        for (test, bins) in [(TriTest::MollerTrumbore, 16), (TriTest::Watertight, 12), (TriTest::Projection, 4)] {
-            let p = BvhParams { leaf_size, bins, traversal_cost: 1.0, test };
+        for (test, bins) in [
+            (TriTest::MollerTrumbore, 16),
+            (TriTest::Watertight, 12),
+            (TriTest::Projection, 4),
+        ] {
+            let p = BvhParams {
+                leaf_size,
+                bins,
+                traversal_cost: 1.0,
+                test,
+            };
             match test {
                 TriTest::MollerTrumbore => check::<Mt>(v, ix, views, &p),
                 TriTest::Watertight => check::<Wt>(v, ix, views, &p),
@@ -319,7 +400,10 @@ mod tests {
     fn simd_matches_single_ties_and_empty() {
         let t = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
         let mut tris = vec![t; 100];
-        tris.extend(vec![[[0.0, 0.0, 0.5], [1.0, 0.0, 0.5], [0.0, 1.0, 0.5]]; 50]);
+        tris.extend(vec![
+            [[0.0, 0.0, 0.5], [1.0, 0.0, 0.5], [0.0, 1.0, 0.5]];
+            50
+        ]);
         tris.reverse();
         let (v, ix) = soup(&tris);
         check_all(&v, &ix, &[], 2);
@@ -328,6 +412,15 @@ mod tests {
         check_all(&s.mesh.vertices, &s.mesh.indices, &s.views, 1);
         // A tree at MAX_DEPTH (full traversal stacks).
         let (v, ix) = soup(&deep_tris());
-        check::<Mt>(&v, &ix, &[], &BvhParams { leaf_size: 1, bins: 2, ..Default::default() });
+        check::<Mt>(
+            &v,
+            &ix,
+            &[],
+            &BvhParams {
+                leaf_size: 1,
+                bins: 2,
+                ..Default::default()
+            },
+        );
     }
 }

@@ -34,7 +34,13 @@ pub(crate) struct RayBox {
 impl RayBox {
     #[inline(always)]
     pub(crate) fn new(ray: &Ray) -> RayBox {
-        let mut b = RayBox { org: ray.org, rcp: [0.0; 3], near: [0; 3], far: [0; 3], tmin: ray.tmin };
+        let mut b = RayBox {
+            org: ray.org,
+            rcp: [0.0; 3],
+            near: [0; 3],
+            far: [0; 3],
+            tmin: ray.tmin,
+        };
         for a in 0..3 {
             b.rcp[a] = 1.0 / ray.dir[a];
             // The sign bit, not a comparison: -0 has its near plane at max.
@@ -99,7 +105,11 @@ fn walk<T: BvhTest, const ANY: bool>(b: &BvhView<'_>, ray: &Ray, ctr: &mut Count
     }
     let lanes = RayLanes::from_ray(ray);
     let pre = T::prepare(&lanes);
-    let neg = [ray.dir[0].is_sign_negative(), ray.dir[1].is_sign_negative(), ray.dir[2].is_sign_negative()];
+    let neg = [
+        ray.dir[0].is_sign_negative(),
+        ray.dir[1].is_sign_negative(),
+        ray.dir[2].is_sign_negative(),
+    ];
 
     let mut st_node = [0u32; MAX_DEPTH + 1];
     let mut st_t = [0.0f32; MAX_DEPTH + 1];
@@ -111,7 +121,11 @@ fn walk<T: BvhTest, const ANY: bool>(b: &BvhView<'_>, ray: &Ray, ctr: &mut Count
         let n = &nodes[node];
         if !n.is_leaf() {
             let l = n.first as usize;
-            let (near, far) = if neg[n.axis()] { (l + 1, l) } else { (l, l + 1) };
+            let (near, far) = if neg[n.axis()] {
+                (l + 1, l)
+            } else {
+                (l, l + 1)
+            };
             let tmax = if best.t < ray.tmax { best.t } else { ray.tmax };
             ctr.aabb_at(depth + 1, 2);
             let tn = rb.entry(&nodes[near], tmax);
@@ -144,7 +158,12 @@ fn walk<T: BvhTest, const ANY: bool>(b: &BvhView<'_>, ray: &Ray, ctr: &mut Count
                 if h.mask {
                     let id = b.tri_ids[i];
                     if closer(h.t, id, &best) {
-                        best = Hit { t: h.t, prim: id, u: h.u, v: h.v };
+                        best = Hit {
+                            t: h.t,
+                            prim: id,
+                            u: h.u,
+                            v: h.v,
+                        };
                         if ANY {
                             return best;
                         }
@@ -170,9 +189,9 @@ fn walk<T: BvhTest, const ANY: bool>(b: &BvhView<'_>, ray: &Ray, ctr: &mut Count
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;
+    use crate::accel::bvh::BvhParams;
     use crate::accel::bvh::build::build;
     use crate::accel::bvh::build::testutil::{Store, deep_tris, soup};
-    use crate::accel::bvh::BvhParams;
     use crate::geom::{Aabb, INVALID_ID, Mt, Pt, Scene, TriTest, Wt};
     use glam::Vec3;
 
@@ -204,7 +223,12 @@ pub(crate) mod tests {
         for i in 0..b.tris.len() {
             let h = T::intersect(&lanes, &pre, T::prim(b, i));
             if h.mask && closer(h.t, b.tri_ids[i], &best) {
-                best = Hit { t: h.t, prim: b.tri_ids[i], u: h.u, v: h.v };
+                best = Hit {
+                    t: h.t,
+                    prim: b.tri_ids[i],
+                    u: h.u,
+                    v: h.v,
+                };
             }
         }
         best
@@ -217,7 +241,12 @@ pub(crate) mod tests {
     pub fn test_rays(tris: &[[[f32; 3]; 3]], views: &[crate::scenes::View], seed: u64) -> Vec<Ray> {
         let mut rays = Vec::new();
         for v in views {
-            let cam = crate::Camera { eye: v.eye.to_array(), look_at: v.look_at.to_array(), up: v.up.to_array(), fov_y_deg: v.fov_y_deg };
+            let cam = crate::Camera {
+                eye: v.eye.to_array(),
+                look_at: v.look_at.to_array(),
+                up: v.up.to_array(),
+                fov_y_deg: v.fov_y_deg,
+            };
             let pr = crate::render::PrimaryRays::new(&cam, 24, 24).unwrap();
             for y in 0..24 {
                 for x in 0..24 {
@@ -232,11 +261,15 @@ pub(crate) mod tests {
             }
         }
         if bb.is_empty() {
-            bb = Aabb { min: Vec3::ZERO, max: Vec3::ONE };
+            bb = Aabb {
+                min: Vec3::ZERO,
+                max: Vec3::ONE,
+            };
         }
         let (c, d) = (0.5 * (bb.min + bb.max), bb.diagonal());
         let mut r = Rng(seed | 1);
-        let pt = |r: &mut Rng, s: f32| c + Vec3::new(r.range(-s, s), r.range(-s, s), r.range(-s, s)) * d;
+        let pt =
+            |r: &mut Rng, s: f32| c + Vec3::new(r.range(-s, s), r.range(-s, s), r.range(-s, s)) * d;
         for i in 0..1500 {
             let o = pt(&mut r, if i % 3 == 0 { 0.4 } else { 1.5 });
             let to = pt(&mut r, 0.4);
@@ -250,7 +283,11 @@ pub(crate) mod tests {
                     }
                 }
             }
-            let tmax = if i % 7 == 0 { r.range(0.2, 1.2) } else { f32::INFINITY };
+            let tmax = if i % 7 == 0 {
+                r.range(0.2, 1.2)
+            } else {
+                f32::INFINITY
+            };
             let tmin = if i % 11 == 0 { r.range(0.0, 0.5) } else { 0.0 };
             rays.push(Ray::new(o, dir, tmin, tmax));
         }
@@ -268,8 +305,18 @@ pub(crate) mod tests {
         // Invalid rays.
         let o = c;
         rays.push(Ray::new(o, Vec3::ZERO, 0.0, f32::INFINITY));
-        rays.push(Ray::new(o, Vec3::new(f32::NAN, 1.0, 0.0), 0.0, f32::INFINITY));
-        rays.push(Ray::new(Vec3::new(f32::INFINITY, 0.0, 0.0), Vec3::X, 0.0, f32::INFINITY));
+        rays.push(Ray::new(
+            o,
+            Vec3::new(f32::NAN, 1.0, 0.0),
+            0.0,
+            f32::INFINITY,
+        ));
+        rays.push(Ray::new(
+            Vec3::new(f32::INFINITY, 0.0, 0.0),
+            Vec3::X,
+            0.0,
+            f32::INFINITY,
+        ));
         rays.push(Ray::new(o, Vec3::X, -1.0, f32::INFINITY));
         rays.push(Ray::new(o, Vec3::X, 2.0, 1.0));
         rays.push(Ray::new(o, Vec3::X, f32::NAN, 1.0));
@@ -277,14 +324,25 @@ pub(crate) mod tests {
     }
 
     pub fn tris_of(scene: &Scene<'_>) -> Vec<[[f32; 3]; 3]> {
-        (0..scene.triangle_count()).map(|t| scene.triangle(t)).map(|t| [t.v0, t.v1, t.v2]).collect()
+        (0..scene.triangle_count())
+            .map(|t| scene.triangle(t))
+            .map(|t| [t.v0, t.v1, t.v2])
+            .collect()
     }
 
     fn same(a: &Hit, b: &Hit) -> bool {
-        a.prim == b.prim && a.t.to_bits() == b.t.to_bits() && a.u.to_bits() == b.u.to_bits() && a.v.to_bits() == b.v.to_bits()
+        a.prim == b.prim
+            && a.t.to_bits() == b.t.to_bits()
+            && a.u.to_bits() == b.u.to_bits()
+            && a.v.to_bits() == b.v.to_bits()
     }
 
-    fn check_scene<T: BvhTest>(v: &[f32], ix: &[u32], views: &[crate::scenes::View], p: &BvhParams) {
+    fn check_scene<T: BvhTest>(
+        v: &[f32],
+        ix: &[u32],
+        views: &[crate::scenes::View],
+        p: &BvhParams,
+    ) {
         let scene = Scene::from_f32(v, ix).unwrap();
         let mut st = Store::new(scene.triangle_count() as usize, true);
         let mut bvh = st.bvh();
@@ -296,12 +354,25 @@ pub(crate) mod tests {
         for (k, ray) in rays.iter().enumerate() {
             let want = brute::<T>(&view, ray);
             let got = intersect::<T>(&view, ray, &mut ctr);
-            assert!(same(&got, &want), "ray {k} {ray:?} ({:?}): bvh {got:?} brute {want:?}", T::KIND);
-            assert_eq!(occluded::<T>(&view, ray, &mut ctr), want.is_hit(), "ray {k} {ray:?} occluded ({:?})", T::KIND);
+            assert!(
+                same(&got, &want),
+                "ray {k} {ray:?} ({:?}): bvh {got:?} brute {want:?}",
+                T::KIND
+            );
+            assert_eq!(
+                occluded::<T>(&view, ray, &mut ctr),
+                want.is_hit(),
+                "ray {k} {ray:?} occluded ({:?})",
+                T::KIND
+            );
             let any = any_hit::<T>(&view, ray, &mut ctr);
             assert_eq!(any.is_hit(), want.is_hit());
             if any.is_hit() {
-                assert!(any.t >= ray.tmin && any.t < ray.tmax && view.slot_of[any.prim as usize] != INVALID_ID);
+                assert!(
+                    any.t >= ray.tmin
+                        && any.t < ray.tmax
+                        && view.slot_of[any.prim as usize] != INVALID_ID
+                );
             }
             hits += want.is_hit() as u32;
         }
@@ -312,8 +383,17 @@ pub(crate) mod tests {
     }
 
     fn check_all_tests(v: &[f32], ix: &[u32], views: &[crate::scenes::View], leaf_size: u32) {
-        for (test, bins) in [(TriTest::MollerTrumbore, 16), (TriTest::Watertight, 8), (TriTest::Projection, 32)] {
-            let p = BvhParams { leaf_size, bins, traversal_cost: 1.0, test };
+        for (test, bins) in [
+            (TriTest::MollerTrumbore, 16),
+            (TriTest::Watertight, 8),
+            (TriTest::Projection, 32),
+        ] {
+            let p = BvhParams {
+                leaf_size,
+                bins,
+                traversal_cost: 1.0,
+                test,
+            };
             match test {
                 TriTest::MollerTrumbore => check_scene::<Mt>(v, ix, views, &p),
                 TriTest::Watertight => check_scene::<Wt>(v, ix, views, &p),
@@ -339,7 +419,10 @@ pub(crate) mod tests {
         let t = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
         let mut tris = vec![t; 257];
         tris.push([[0.0, 0.0, 0.5], [1.0, 0.0, 0.5], [0.0, 1.0, 0.5]]);
-        tris.extend(vec![[[0.0, 0.0, 0.5], [1.0, 0.0, 0.5], [0.0, 1.0, 0.5]]; 100]);
+        tris.extend(vec![
+            [[0.0, 0.0, 0.5], [1.0, 0.0, 0.5], [0.0, 1.0, 0.5]];
+            100
+        ]);
         tris.reverse();
         let (v, ix) = soup(&tris);
         check_all_tests(&v, &ix, &[], 4);
@@ -349,8 +432,17 @@ pub(crate) mod tests {
     #[test]
     fn matches_brute_force_at_max_depth() {
         let (v, ix) = soup(&deep_tris());
-        for test in [TriTest::MollerTrumbore, TriTest::Watertight, TriTest::Projection] {
-            let p = BvhParams { leaf_size: 1, bins: 2, traversal_cost: 1.0, test };
+        for test in [
+            TriTest::MollerTrumbore,
+            TriTest::Watertight,
+            TriTest::Projection,
+        ] {
+            let p = BvhParams {
+                leaf_size: 1,
+                bins: 2,
+                traversal_cost: 1.0,
+                test,
+            };
             match test {
                 TriTest::MollerTrumbore => check_scene::<Mt>(&v, &ix, &[], &p),
                 TriTest::Watertight => check_scene::<Wt>(&v, &ix, &[], &p),

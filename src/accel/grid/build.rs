@@ -62,7 +62,11 @@ fn resolution(bounds: &Aabb, n: u32, lambda: f32) -> [u32; 3] {
     for _ in 0..3 {
         let m = free.iter().filter(|f| **f).count();
         let prod: f32 = (0..3).filter(|&a| free[a]).map(|a| d[a]).product();
-        k = if m == 3 { math::cbrt(target / prod) } else { math::powf(target / prod, 1.0 / m as f32) };
+        k = if m == 3 {
+            math::cbrt(target / prod)
+        } else {
+            math::powf(target / prod, 1.0 / m as f32)
+        };
         let mut changed = false;
         for a in 0..3 {
             if free[a] && d[a] * k < 1.0 && m > 1 {
@@ -88,7 +92,13 @@ fn product(r: [u32; 3]) -> u64 {
 }
 
 /// Rebuild `grid` from `scene`. On error nothing in `grid` changes.
-pub fn build(grid: &mut Grid<'_>, scene: &Scene<'_>, p: &GridParams, max_cells: u64, max_refs: u64) -> Result<GridInfo> {
+pub fn build(
+    grid: &mut Grid<'_>,
+    scene: &Scene<'_>,
+    p: &GridParams,
+    max_cells: u64,
+    max_refs: u64,
+) -> Result<GridInfo> {
     if !(p.lambda.is_finite() && p.lambda > 0.0 && p.lambda <= 1024.0) {
         return Err(Error::InvalidArgument("lambda must be in (0, 1024]"));
     }
@@ -97,7 +107,11 @@ pub fn build(grid: &mut Grid<'_>, scene: &Scene<'_>, p: &GridParams, max_cells: 
     }
     let n_in = scene.triangle_count();
     if n_in as usize > grid.pools_mut().tris.len() {
-        return Err(Error::Capacity { pool: Pool::Triangles, needed: n_in as u64, available: grid.pools_mut().tris.len() as u64 });
+        return Err(Error::Capacity {
+            pool: Pool::Triangles,
+            needed: n_in as u64,
+            available: grid.pools_mut().tris.len() as u64,
+        });
     }
 
     // 1. Bounds and exclusions (read only).
@@ -126,7 +140,10 @@ pub fn build(grid: &mut Grid<'_>, scene: &Scene<'_>, p: &GridParams, max_cells: 
     };
     info.scene_bounds = bounds;
     if n == 0 {
-        bounds = Aabb { min: Vec3::ZERO, max: Vec3::ONE };
+        bounds = Aabb {
+            min: Vec3::ZERO,
+            max: Vec3::ONE,
+        };
         info.res = [1, 1, 1];
     } else {
         let d = bounds.diagonal();
@@ -142,7 +159,11 @@ pub fn build(grid: &mut Grid<'_>, scene: &Scene<'_>, p: &GridParams, max_cells: 
         info.res = resolution(&bounds, n, lambda);
         if product(info.res) > max_cells {
             if !p.fit {
-                return Err(Error::Capacity { pool: Pool::GridCells, needed: product(info.res), available: max_cells });
+                return Err(Error::Capacity {
+                    pool: Pool::GridCells,
+                    needed: product(info.res),
+                    available: max_cells,
+                });
             }
             // Fit mode: lower lambda until the cells fit (rounding may need a few steps).
             while product(info.res) > max_cells {
@@ -153,7 +174,11 @@ pub fn build(grid: &mut Grid<'_>, scene: &Scene<'_>, p: &GridParams, max_cells: 
                 }
             }
             if product(info.res) > max_cells {
-                return Err(Error::Capacity { pool: Pool::GridCells, needed: product(info.res), available: max_cells });
+                return Err(Error::Capacity {
+                    pool: Pool::GridCells,
+                    needed: product(info.res),
+                    available: max_cells,
+                });
             }
         }
     }
@@ -175,19 +200,30 @@ pub fn build(grid: &mut Grid<'_>, scene: &Scene<'_>, p: &GridParams, max_cells: 
             let tri = scene.triangle(t);
             if Scene::classify(&tri).is_none() {
                 let (a, z) = cell_range(&info, &tri_bounds(&tri));
-                refs += (z[0] - a[0] + 1) as u64 * (z[1] - a[1] + 1) as u64 * (z[2] - a[2] + 1) as u64;
+                refs +=
+                    (z[0] - a[0] + 1) as u64 * (z[1] - a[1] + 1) as u64 * (z[2] - a[2] + 1) as u64;
             }
         }
     }
     let pools = grid.pools_mut();
     if p.test == crate::geom::TriTest::Projection && pools.proj.len() < n_in as usize {
-        return Err(Error::InvalidArgument("the projection test needs Limits::projection_test"));
+        return Err(Error::InvalidArgument(
+            "the projection test needs Limits::projection_test",
+        ));
     }
     if refs > max_refs.min(pools.refs.len() as u64) {
-        return Err(Error::Capacity { pool: Pool::GridRefs, needed: refs, available: max_refs.min(pools.refs.len() as u64) });
+        return Err(Error::Capacity {
+            pool: Pool::GridRefs,
+            needed: refs,
+            available: max_refs.min(pools.refs.len() as u64),
+        });
     }
     if cells + 1 > pools.cell_start.len() as u64 {
-        return Err(Error::Capacity { pool: Pool::GridCells, needed: cells, available: pools.cell_start.len() as u64 - 1 });
+        return Err(Error::Capacity {
+            pool: Pool::GridCells,
+            needed: cells,
+            available: pools.cell_start.len() as u64 - 1,
+        });
     }
     info.refs = refs as u32;
 

@@ -41,7 +41,12 @@ pub struct GridParams {
 
 impl Default for GridParams {
     fn default() -> Self {
-        GridParams { lambda: 5.0, macrocell: 6, test: TriTest::MollerTrumbore, fit: false }
+        GridParams {
+            lambda: 5.0,
+            macrocell: 6,
+            test: TriTest::MollerTrumbore,
+            fit: false,
+        }
     }
 }
 
@@ -130,7 +135,11 @@ impl<'a> Grid<'a> {
         Some(GridView {
             info,
             tris: &self.pools.tris[..info.triangles as usize],
-            proj: if info.test == TriTest::Projection { &self.pools.proj[..info.triangles as usize] } else { &[] },
+            proj: if info.test == TriTest::Projection {
+                &self.pools.proj[..info.triangles as usize]
+            } else {
+                &[]
+            },
             tri_ids: &self.pools.tri_ids[..info.triangles as usize],
             cell_start: &self.pools.cell_start[..cells + 1],
             refs: &self.pools.refs[..info.refs as usize],

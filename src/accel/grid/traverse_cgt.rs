@@ -59,7 +59,11 @@ pub struct CgtOptions {
 
 impl Default for CgtOptions {
     fn default() -> Self {
-        CgtOptions { macrocells: true, mailbox: true, culling: true }
+        CgtOptions {
+            macrocells: true,
+            mailbox: true,
+            culling: true,
+        }
     }
 }
 
@@ -204,7 +208,10 @@ fn packet<T: GridTest, const ANY: bool, const Q: usize>(
     }
     // Rays: every valid active lane once (stray lanes are counted by the
     // 3DDDA that traces them, so they are subtracted below).
-    let lanes_in = live[..nq].iter().map(|m| lane_mask(*m).count_ones() as u64).sum::<u64>();
+    let lanes_in = live[..nq]
+        .iter()
+        .map(|m| lane_mask(*m).count_ones() as u64)
+        .sum::<u64>();
     ctr.rays += lanes_in;
     if !any_live || info.triangles == 0 {
         return;
@@ -215,9 +222,19 @@ fn packet<T: GridTest, const ANY: bool, const Q: usize>(
 
     // Major axis K: the dominant grid-space axis of the first live ray.
     let (q0, i0) = first_lane(&live[..nq]);
-    let d0 = Vec3::new(rays[q0].dir[0][i0] * inv.x, rays[q0].dir[1][i0] * inv.y, rays[q0].dir[2][i0] * inv.z);
+    let d0 = Vec3::new(
+        rays[q0].dir[0][i0] * inv.x,
+        rays[q0].dir[1][i0] * inv.y,
+        rays[q0].dir[2][i0] * inv.z,
+    );
     let a0 = d0.abs();
-    let k = if a0.x >= a0.y && a0.x >= a0.z { 0 } else if a0.y >= a0.z { 1 } else { 2 };
+    let k = if a0.x >= a0.y && a0.x >= a0.z {
+        0
+    } else if a0.y >= a0.z {
+        1
+    } else {
+        2
+    };
     let (u, v) = ((k + 1) % 3, (k + 2) % 3);
     let flip = d0[k] < 0.0;
     let nk = res[k] as f32;
@@ -295,7 +312,11 @@ fn packet<T: GridTest, const ANY: bool, const Q: usize>(
         return;
     }
     let s0 = (kin.max(0.0) as i32).min(res[k] - 1);
-    let s1 = if kout >= nk { res[k] - 1 } else { (kout as i32).min(res[k] - 1) };
+    let s1 = if kout >= nk {
+        res[k] - 1
+    } else {
+        (kout as i32).min(res[k] - 1)
+    };
     for a in 0..2 {
         smin[a] -= SLOPE_EPS * (1.0 + smin[a].abs());
         smax[a] += SLOPE_EPS * (1.0 + smax[a].abs());
@@ -330,7 +351,12 @@ fn packet<T: GridTest, const ANY: bool, const Q: usize>(
     let box_at = |s: i32| base + db * F4::splat((s - s0) as f32);
     // Cell range of a box along u and v (inclusive), or None when outside.
     let range = |b: F4| -> Option<[i32; 4]> {
-        if b.y < 0.0 || b.x >= res[u] as f32 || b.w < 0.0 || b.z >= res[v] as f32 || !(b.x <= b.y && b.z <= b.w) {
+        if b.y < 0.0
+            || b.x >= res[u] as f32
+            || b.w < 0.0
+            || b.z >= res[v] as f32
+            || !(b.x <= b.y && b.z <= b.w)
+        {
             return None;
         }
         // Truncation equals floor for the clamped, non-negative values.
@@ -343,7 +369,11 @@ fn packet<T: GridTest, const ANY: bool, const Q: usize>(
     };
 
     // Frustum culling needs one common origin and the four corner rays.
-    let origin = Vec3::new(rays[q0].org[0][i0], rays[q0].org[1][i0], rays[q0].org[2][i0]);
+    let origin = Vec3::new(
+        rays[q0].org[0][i0],
+        rays[q0].org[1][i0],
+        rays[q0].org[2][i0],
+    );
     let cull = opt.culling && common_origin(rays, &live[..nq], origin);
     if opt.culling && !cull {
         ctr.packets_no_cull += 1;
@@ -368,11 +398,20 @@ fn packet<T: GridTest, const ANY: bool, const Q: usize>(
         if use_macro && s > macro_end {
             // Slices left in this macrocell slab along the travel direction.
             let mk = kc / m;
-            let left = if flip { kc - mk * m } else { ((mk + 1) * m).min(res[k]) - 1 - kc };
+            let left = if flip {
+                kc - mk * m
+            } else {
+                ((mk + 1) * m).min(res[k]) - 1 - kc
+            };
             let end = (s + left).min(s1);
             macro_end = end;
             let (b0, b1) = (box_at(s), box_at(end));
-            let b = F4::new(b0.x.min(b1.x), b0.y.max(b1.y), b0.z.min(b1.z), b0.w.max(b1.w));
+            let b = F4::new(
+                b0.x.min(b1.x),
+                b0.y.max(b1.y),
+                b0.z.min(b1.z),
+                b0.w.max(b1.w),
+            );
             let empty = match range(b) {
                 None => true,
                 Some(r) => {
@@ -429,12 +468,20 @@ fn packet<T: GridTest, const ANY: bool, const Q: usize>(
                             }
                             left = true;
                             count!(ctr.tri_tests += lane_mask(lm).count_ones() as u64);
-                            let h = T::intersect(&RayLanes::from_ray4(&rays[q]), &pre[q], T::prim(g, tri));
+                            let h = T::intersect(
+                                &RayLanes::from_ray4(&rays[q]),
+                                &pre[q],
+                                T::prim(g, tri),
+                            );
                             let hm = h.mask & lm;
                             if !hm.any() {
                                 continue;
                             }
-                            let take = if ANY { hm } else { hm & closer4(h.t, id, &hits[q]) };
+                            let take = if ANY {
+                                hm
+                            } else {
+                                hm & closer4(h.t, id, &hits[q])
+                            };
                             if take.any() {
                                 let hq = &mut hits[q];
                                 hq.t = F4::select(take, h.t, hq.t);
@@ -473,7 +520,14 @@ fn packet<T: GridTest, const ANY: bool, const Q: usize>(
 /// lies strictly before the plane, or whose interval ends there. False when
 /// no lane is left.
 #[inline]
-fn still_live(live: &mut [M4], hits: &[Hit4], ok: &[F4], rk: &[F4], rays: &[Ray4], next: i32) -> bool {
+fn still_live(
+    live: &mut [M4],
+    hits: &[Hit4],
+    ok: &[F4],
+    rk: &[F4],
+    rays: &[Ray4],
+    next: i32,
+) -> bool {
     let plane = F4::splat(next as f32);
     let mut any = false;
     for q in 0..live.len() {
@@ -501,14 +555,24 @@ fn first_lane(live: &[M4]) -> (usize, usize) {
 /// Whether every live lane starts at bitwise the same point.
 fn common_origin(rays: &[Ray4], live: &[M4], o: Vec3) -> bool {
     rays.iter().zip(live).all(|(r, m)| {
-        let same = r.org[0].cmpeq(F4::splat(o.x)) & r.org[1].cmpeq(F4::splat(o.y)) & r.org[2].cmpeq(F4::splat(o.z));
+        let same = r.org[0].cmpeq(F4::splat(o.x))
+            & r.org[1].cmpeq(F4::splat(o.y))
+            & r.org[2].cmpeq(F4::splat(o.z));
         (*m & !same).bitmask() == 0
     })
 }
 
 /// World-space directions of the four frustum corner rays (slope extremes,
 /// already widened), as x, y, z lanes over the corners.
-fn corner_dirs(k: usize, u: usize, v: usize, flip: bool, cell: Vec3, smin: [f32; 2], smax: [f32; 2]) -> [F4; 3] {
+fn corner_dirs(
+    k: usize,
+    u: usize,
+    v: usize,
+    flip: bool,
+    cell: Vec3,
+    smin: [f32; 2],
+    smax: [f32; 2],
+) -> [F4; 3] {
     let mut d = [F4::ZERO; 3];
     d[k] = F4::splat(if flip { -cell[k] } else { cell[k] });
     d[u] = F4::new(smin[0], smax[0], smin[0], smax[0]) * F4::splat(cell[u]);
@@ -532,8 +596,13 @@ fn culled(t: &TriVerts, o: Vec3, corners: &[F4; 3]) -> bool {
         return false;
     }
     for e in &n {
-        let s = corners[0] * F4::splat(e.x) + corners[1] * F4::splat(e.y) + corners[2] * F4::splat(e.z);
-        let out = if sigma > 0.0 { s.cmplt(F4::ZERO) } else { s.cmpgt(F4::ZERO) };
+        let s =
+            corners[0] * F4::splat(e.x) + corners[1] * F4::splat(e.y) + corners[2] * F4::splat(e.z);
+        let out = if sigma > 0.0 {
+            s.cmplt(F4::ZERO)
+        } else {
+            s.cmpgt(F4::ZERO)
+        };
         if out.all() {
             return true;
         }

@@ -102,7 +102,11 @@ fn walk<T: GridTest, const ANY: bool>(g: &GridView<'_>, ray: &Ray, ctr: &mut Cou
                 if !(t_exit < t1) {
                     break;
                 }
-                let next = if step[axis] > 0 { ((mc[axis] + 1) * m).min(res[axis]) } else { mc[axis] * m - 1 };
+                let next = if step[axis] > 0 {
+                    ((mc[axis] + 1) * m).min(res[axis])
+                } else {
+                    mc[axis] * m - 1
+                };
                 if next < 0 || next >= res[axis] {
                     break;
                 }
@@ -124,8 +128,18 @@ fn walk<T: GridTest, const ANY: bool>(g: &GridView<'_>, ray: &Ray, ctr: &mut Cou
         }
 
         // Cell exit along each axis.
-        let tn = [boundary_t(0, c[0], c[0] + 1), boundary_t(1, c[1], c[1] + 1), boundary_t(2, c[2], c[2] + 1)];
-        let axis = if tn[0] <= tn[1] && tn[0] <= tn[2] { 0 } else if tn[1] <= tn[2] { 1 } else { 2 };
+        let tn = [
+            boundary_t(0, c[0], c[0] + 1),
+            boundary_t(1, c[1], c[1] + 1),
+            boundary_t(2, c[2], c[2] + 1),
+        ];
+        let axis = if tn[0] <= tn[1] && tn[0] <= tn[2] {
+            0
+        } else if tn[1] <= tn[2] {
+            1
+        } else {
+            2
+        };
         let t_exit = tn[axis];
 
         count!(ctr.cells += 1);
@@ -135,7 +149,12 @@ fn walk<T: GridTest, const ANY: bool>(g: &GridView<'_>, ray: &Ray, ctr: &mut Cou
             if h.mask {
                 let id = g.tri_ids[r as usize];
                 if closer(h.t, id, &best) {
-                    best = Hit { t: h.t, prim: id, u: h.u, v: h.v };
+                    best = Hit {
+                        t: h.t,
+                        prim: id,
+                        u: h.u,
+                        v: h.v,
+                    };
                     if ANY {
                         return best;
                     }
@@ -152,7 +171,11 @@ fn walk<T: GridTest, const ANY: bool>(g: &GridView<'_>, ray: &Ray, ctr: &mut Cou
             break;
         }
     }
-    if best.prim == INVALID_ID { Hit::MISS } else { best }
+    if best.prim == INVALID_ID {
+        Hit::MISS
+    } else {
+        best
+    }
 }
 
 #[inline(always)]

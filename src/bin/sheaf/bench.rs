@@ -37,13 +37,13 @@ use crate::view::{self, INSIDE_FOV, OUTSIDE_FOV};
 use crate::{BenchArgs, Failure, GridOpts, OrFail, TestArg};
 use clap::ValueEnum;
 use glam::Vec3;
-use sheaf::accel::grid::traverse_cgt::Mailbox;
 use sheaf::accel::bvh::BvhParams;
+use sheaf::accel::grid::traverse_cgt::Mailbox;
 use sheaf::context::SceneTracer as GridTracer;
-use sheaf::trace::{BvhOptions, RayKind};
 use sheaf::geom::{F4, Hit4, INVALID_ID, M4, Ray4};
 use sheaf::reference::{self, RefHit};
 use sheaf::render::{PrimaryRays, SHADOW_OFFSET, Tracer, demorton, shadow_packet};
+use sheaf::trace::{BvhOptions, RayKind};
 use sheaf::{Camera, CgtOptions, Counters, Hit, Method, Ray, Scene, TraceParams};
 use std::collections::HashMap;
 use std::fmt::Write as _;
@@ -87,8 +87,17 @@ struct Config {
 
 impl Config {
     fn params(&self) -> TraceParams {
-        let bvh = BvhOptions { culling: self.cgt.culling, ..BvhOptions::default() };
-        TraceParams { method: self.method, packet: self.packet, cgt: self.cgt, bvh, ..TraceParams::default() }
+        let bvh = BvhOptions {
+            culling: self.cgt.culling,
+            ..BvhOptions::default()
+        };
+        TraceParams {
+            method: self.method,
+            packet: self.packet,
+            cgt: self.cgt,
+            bvh,
+            ..TraceParams::default()
+        }
     }
     /// Chart colour: the 3DDDA 0, CGT n x n by n, the ablations after them;
     /// the BVH from 10: single 10, SIMD 11, then Ranged, Partition, Masked
@@ -98,7 +107,9 @@ impl Config {
         match self.method {
             Method::BvhSingle => return 10,
             Method::BvhSimd => return 11,
-            _ if self.method.structure() == sheaf::trace::Structure::Bvh && !self.cgt.culling => return 24,
+            _ if self.method.structure() == sheaf::trace::Structure::Bvh && !self.cgt.culling => {
+                return 24;
+            }
             Method::BvhRanged => return 12 + side,
             Method::BvhPartition => return 16 + side,
             Method::BvhMasked => return 20 + side,
@@ -110,9 +121,30 @@ impl Config {
         let on = CgtOptions::default();
         match self.cgt {
             c if c == on => self.packet.trailing_zeros() as usize,
-            c if c == (CgtOptions { macrocells: false, ..on }) => 6,
-            c if c == (CgtOptions { mailbox: false, ..on }) => 7,
-            c if c == (CgtOptions { culling: false, ..on }) => 8,
+            c if c
+                == (CgtOptions {
+                    macrocells: false,
+                    ..on
+                }) =>
+            {
+                6
+            }
+            c if c
+                == (CgtOptions {
+                    mailbox: false,
+                    ..on
+                }) =>
+            {
+                7
+            }
+            c if c
+                == (CgtOptions {
+                    culling: false,
+                    ..on
+                }) =>
+            {
+                8
+            }
             _ => 9,
         }
     }
@@ -123,11 +155,15 @@ impl Config {
         }
         let mut s = format!("{} {}x{}", self.method.name(), self.packet, self.packet);
         let bvh = self.method.structure() == sheaf::trace::Structure::Bvh;
-        let off: Vec<&str> = [(self.cgt.macrocells || bvh, "macrocells"), (self.cgt.mailbox || bvh, "mailbox"), (self.cgt.culling, "culling")]
-            .iter()
-            .filter(|(on, _)| !on)
-            .map(|(_, n)| *n)
-            .collect();
+        let off: Vec<&str> = [
+            (self.cgt.macrocells || bvh, "macrocells"),
+            (self.cgt.mailbox || bvh, "mailbox"),
+            (self.cgt.culling, "culling"),
+        ]
+        .iter()
+        .filter(|(on, _)| !on)
+        .map(|(_, n)| *n)
+        .collect();
         if !off.is_empty() {
             let _ = write!(s, " no-{}", off.join("+"));
         }
@@ -140,41 +176,86 @@ impl Config {
 /// large-packet traversals at every packet side from 4.
 fn configs(packets: &[u32], ablation: bool, grid: bool, bvh: bool) -> Vec<Config> {
     let on = CgtOptions::default();
-    let mut v = vec![Config { method: Method::GridDda, packet: 0, cgt: on }];
+    let mut v = vec![Config {
+        method: Method::GridDda,
+        packet: 0,
+        cgt: on,
+    }];
     if !grid {
         v.clear();
     }
     if bvh {
-        v.push(Config { method: Method::BvhSingle, packet: 0, cgt: on });
-        v.push(Config { method: Method::BvhSimd, packet: 0, cgt: on });
+        v.push(Config {
+            method: Method::BvhSingle,
+            packet: 0,
+            cgt: on,
+        });
+        v.push(Config {
+            method: Method::BvhSimd,
+            packet: 0,
+            cgt: on,
+        });
         for m in [Method::BvhRanged, Method::BvhPartition, Method::BvhMasked] {
-            v.extend(packets.iter().filter(|&&n| n >= 4).map(|&n| Config { method: m, packet: n, cgt: on }));
+            v.extend(packets.iter().filter(|&&n| n >= 4).map(|&n| Config {
+                method: m,
+                packet: n,
+                cgt: on,
+            }));
         }
         if ablation {
             for m in [Method::BvhRanged, Method::BvhPartition] {
-                v.push(Config { method: m, packet: 16, cgt: CgtOptions { culling: false, ..on } });
+                v.push(Config {
+                    method: m,
+                    packet: 16,
+                    cgt: CgtOptions {
+                        culling: false,
+                        ..on
+                    },
+                });
             }
         }
     }
     if !grid {
         return v;
     }
-    v.extend(packets.iter().map(|&n| Config { method: Method::GridCgt, packet: n, cgt: on }));
+    v.extend(packets.iter().map(|&n| Config {
+        method: Method::GridCgt,
+        packet: n,
+        cgt: on,
+    }));
     if ablation {
         for cgt in [
-            CgtOptions { macrocells: false, ..on },
-            CgtOptions { mailbox: false, ..on },
-            CgtOptions { culling: false, ..on },
-            CgtOptions { mailbox: false, culling: false, ..on },
+            CgtOptions {
+                macrocells: false,
+                ..on
+            },
+            CgtOptions {
+                mailbox: false,
+                ..on
+            },
+            CgtOptions {
+                culling: false,
+                ..on
+            },
+            CgtOptions {
+                mailbox: false,
+                culling: false,
+                ..on
+            },
         ] {
-            v.push(Config { method: Method::GridCgt, packet: 8, cgt });
+            v.push(Config {
+                method: Method::GridCgt,
+                packet: 8,
+                cgt,
+            });
         }
     }
     v
 }
 
 fn test_name(t: TestArg) -> String {
-    t.to_possible_value().map_or_else(|| format!("{t:?}"), |v| v.get_name().to_string())
+    t.to_possible_value()
+        .map_or_else(|| format!("{t:?}"), |v| v.get_name().to_string())
 }
 
 /// Median of `v` (0 when empty).
@@ -288,9 +369,16 @@ fn shadow_ray(ray: &Ray, t: f32, normal: Vec3, light: Vec3, eps: f32) -> Option<
 
 fn shadows(tr: &GridTracer<'_>, rays: &[Ray], hits: &[Hit], light: Vec3, eps: f32) -> Shadows {
     let pad = Ray::new(light, Vec3::X, 0.0, 0.0);
-    let mut s = Shadows { rays: vec![pad; rays.len()], active: vec![false; rays.len()], dist: vec![0.0; rays.len()], count: 0 };
+    let mut s = Shadows {
+        rays: vec![pad; rays.len()],
+        active: vec![false; rays.len()],
+        dist: vec![0.0; rays.len()],
+        count: 0,
+    };
     for (i, (r, h)) in rays.iter().zip(hits).enumerate() {
-        let Some(tri) = h.is_hit().then(|| tr.triangle(h.prim)).flatten() else { continue };
+        let Some(tri) = h.is_hit().then(|| tr.triangle(h.prim)).flatten() else {
+            continue;
+        };
         if let Some(sr) = shadow_ray(r, h.t, tri.normal(), light, eps) {
             s.dist[i] = Vec3::from(sr.dir).length();
             s.rays[i] = sr;
@@ -339,17 +427,37 @@ fn par_bands<B: Send>(
 }
 
 /// Nearest hits of row-major `rays`, one ray at a time.
-fn trace_single(tr: &GridTracer<'_>, rays: &[Ray], band: usize, hits: &mut [Hit], mbs: &mut [Mailbox<'_>]) -> Counters {
-    par_bands(rays.chunks(band).zip(hits.chunks_mut(band)), mbs, |(r, h), _, ctr| {
-        for (r, h) in r.iter().zip(h) {
-            *h = tr.intersect(r, ctr);
-        }
-    })
+fn trace_single(
+    tr: &GridTracer<'_>,
+    rays: &[Ray],
+    band: usize,
+    hits: &mut [Hit],
+    mbs: &mut [Mailbox<'_>],
+) -> Counters {
+    par_bands(
+        rays.chunks(band).zip(hits.chunks_mut(band)),
+        mbs,
+        |(r, h), _, ctr| {
+            for (r, h) in r.iter().zip(h) {
+                *h = tr.intersect(r, ctr);
+            }
+        },
+    )
 }
 
 /// Occlusion of the active `rays`, one ray at a time.
-fn occlude_single(tr: &GridTracer<'_>, s: &Shadows, band: usize, out: &mut [bool], mbs: &mut [Mailbox<'_>]) -> Counters {
-    let bands = s.rays.chunks(band).zip(s.active.chunks(band)).zip(out.chunks_mut(band));
+fn occlude_single(
+    tr: &GridTracer<'_>,
+    s: &Shadows,
+    band: usize,
+    out: &mut [bool],
+    mbs: &mut [Mailbox<'_>],
+) -> Counters {
+    let bands = s
+        .rays
+        .chunks(band)
+        .zip(s.active.chunks(band))
+        .zip(out.chunks_mut(band));
     par_bands(bands, mbs, |((r, a), o), _, ctr| {
         for ((r, a), o) in r.iter().zip(a).zip(o) {
             *o = *a && tr.occluded(r, ctr);
@@ -358,8 +466,19 @@ fn occlude_single(tr: &GridTracer<'_>, s: &Shadows, band: usize, out: &mut [bool
 }
 
 /// Nearest hits of packed rays, one packet of `t.q` quads at a time.
-fn trace_packets(tr: &GridTracer<'_>, p: &TraceParams, t: &Tiling, rays: &[Ray4], active: &[M4], hits: &mut [Hit4], mbs: &mut [Mailbox<'_>]) -> Counters {
-    let bands = rays.chunks(t.band).zip(active.chunks(t.band)).zip(hits.chunks_mut(t.band));
+fn trace_packets(
+    tr: &GridTracer<'_>,
+    p: &TraceParams,
+    t: &Tiling,
+    rays: &[Ray4],
+    active: &[M4],
+    hits: &mut [Hit4],
+    mbs: &mut [Mailbox<'_>],
+) -> Counters {
+    let bands = rays
+        .chunks(t.band)
+        .zip(active.chunks(t.band))
+        .zip(hits.chunks_mut(t.band));
     par_bands(bands, mbs, |((r, a), h), mb, ctr| {
         for ((r, a), h) in r.chunks(t.q).zip(a.chunks(t.q)).zip(h.chunks_mut(t.q)) {
             tr.intersect_packet(p, r, a, h, mb, ctr);
@@ -379,9 +498,18 @@ fn occlude_packets(
     hits: &mut [Hit4],
     mbs: &mut [Mailbox<'_>],
 ) -> Counters {
-    let bands = rays.chunks(t.band).zip(active.chunks(t.band)).zip(dist.chunks(t.band)).zip(hits.chunks_mut(t.band));
+    let bands = rays
+        .chunks(t.band)
+        .zip(active.chunks(t.band))
+        .zip(dist.chunks(t.band))
+        .zip(hits.chunks_mut(t.band));
     par_bands(bands, mbs, |(((r, a), d), h), mb, ctr| {
-        for (((r, a), d), h) in r.chunks(t.q).zip(a.chunks(t.q)).zip(d.chunks(t.q)).zip(h.chunks_mut(t.q)) {
+        for (((r, a), d), h) in r
+            .chunks(t.q)
+            .zip(a.chunks(t.q))
+            .zip(d.chunks(t.q))
+            .zip(h.chunks_mut(t.q))
+        {
             for x in h.iter_mut() {
                 *x = Hit4::MISS;
             }
@@ -437,7 +565,9 @@ fn trace_config(
     reps: u32,
 ) -> Traced {
     let n = vr.rays.len();
-    let tr = &tr.with_single(cfg.method).expect("the configuration's structure is built");
+    let tr = &tr
+        .with_single(cfg.method)
+        .expect("the configuration's structure is built");
     let p = cfg.params().with_kind(RayKind::Primary);
     let ps = cfg.params().with_kind(RayKind::Shadow);
     let mut hits = vec![Hit::MISS; n];
@@ -460,7 +590,11 @@ fn trace_config(
             let shadow_ns = timed(reps, || {
                 occlude_single(tr, &s, band, &mut o2, mbs);
             });
-            timings.push(Timing { threads: t, prim_ns, shadow_ns });
+            timings.push(Timing {
+                threads: t,
+                prim_ns,
+                shadow_ns,
+            });
         }
     } else {
         let (tiling, quads, active) = &vr.packed[&p.tile_side()];
@@ -468,14 +602,32 @@ fn trace_config(
         prim_ctr = trace_packets(tr, &p, tiling, quads, active, &mut h4, &mut mbs[..1]);
         tiling.unpack(&mut hits, &h4, |h, i| h.lane(i));
         let s = shadows(tr, &vr.rays, &hits, light, eps);
-        let (squads, sactive) = tiling.pack(&s.rays, |i| s.active[i], Ray::new(light, Vec3::X, 0.0, 0.0));
+        let (squads, sactive) =
+            tiling.pack(&s.rays, |i| s.active[i], Ray::new(light, Vec3::X, 0.0, 0.0));
         let sdist: Vec<F4> = tiling
             .pix
             .chunks_exact(4)
-            .map(|p| F4::from_array([p[0], p[1], p[2], p[3]].map(|i| if i == NO_PIXEL { 0.0 } else { s.dist[i as usize] })))
+            .map(|p| {
+                F4::from_array([p[0], p[1], p[2], p[3]].map(|i| {
+                    if i == NO_PIXEL {
+                        0.0
+                    } else {
+                        s.dist[i as usize]
+                    }
+                }))
+            })
             .collect();
         let mut s4 = vec![Hit4::MISS; squads.len()];
-        shadow_ctr = occlude_packets(tr, &ps, tiling, &squads, &sactive, &sdist, &mut s4, &mut mbs[..1]);
+        shadow_ctr = occlude_packets(
+            tr,
+            &ps,
+            tiling,
+            &squads,
+            &sactive,
+            &sdist,
+            &mut s4,
+            &mut mbs[..1],
+        );
         tiling.unpack(&mut occluded, &s4, |h, i| h.prim[i] != INVALID_ID);
         for (o, a) in occluded.iter_mut().zip(&s.active) {
             *o &= *a;
@@ -489,10 +641,22 @@ fn trace_config(
             let shadow_ns = timed(reps, || {
                 occlude_packets(tr, &ps, tiling, &squads, &sactive, &sdist, &mut s4, mbs);
             });
-            timings.push(Timing { threads: t, prim_ns, shadow_ns });
+            timings.push(Timing {
+                threads: t,
+                prim_ns,
+                shadow_ns,
+            });
         }
     }
-    Traced { hits, occluded, prim_rays: n as u64, shadow_rays, prim_ctr, shadow_ctr, timings }
+    Traced {
+        hits,
+        occluded,
+        prim_rays: n as u64,
+        shadow_rays,
+        prim_ctr,
+        shadow_ctr,
+        timings,
+    }
 }
 
 // ---------------------------------------------------------------------------
@@ -500,10 +664,15 @@ fn trace_config(
 
 /// Run `f` over `items` on every core, keeping order.
 fn par_map<T: Sync, R: Send>(items: &[T], f: impl Fn(&T) -> R + Sync) -> Vec<R> {
-    let n = std::thread::available_parallelism().map_or(1, |n| n.get()).max(1);
+    let n = std::thread::available_parallelism()
+        .map_or(1, |n| n.get())
+        .max(1);
     let chunk = items.len().div_ceil(n).max(1);
     std::thread::scope(|s| {
-        let hs: Vec<_> = items.chunks(chunk).map(|c| s.spawn(|| c.iter().map(&f).collect::<Vec<_>>())).collect();
+        let hs: Vec<_> = items
+            .chunks(chunk)
+            .map(|c| s.spawn(|| c.iter().map(&f).collect::<Vec<_>>()))
+            .collect();
         hs.into_iter()
             .flat_map(|h| match h.join() {
                 Ok(v) => v,
@@ -598,7 +767,12 @@ impl Accuracy {
 
 /// Occlusion of the oracle's shadow rays by `cfg` (packets of consecutive
 /// rays for packet methods: incoherent, but the answers are what counts).
-fn occlusion_of(tr: &GridTracer<'_>, cfg: &Config, rays: &[Ray], mb: &mut Mailbox<'_>) -> Vec<bool> {
+fn occlusion_of(
+    tr: &GridTracer<'_>,
+    cfg: &Config,
+    rays: &[Ray],
+    mb: &mut Mailbox<'_>,
+) -> Vec<bool> {
     let mut ctr = Counters::default();
     if !cfg.method.is_packet() {
         return rays.iter().map(|r| tr.occluded(r, &mut ctr)).collect();
@@ -611,7 +785,10 @@ fn occlusion_of(tr: &GridTracer<'_>, cfg: &Config, rays: &[Ray], mb: &mut Mailbo
             .chunks(4)
             .map(|c| {
                 let lanes = [0, 1, 2, 3].map(|k| c.get(k).copied().unwrap_or(c[0]));
-                (Ray4::from_rays(&lanes), M4::new(true, c.len() > 1, c.len() > 2, c.len() > 3))
+                (
+                    Ray4::from_rays(&lanes),
+                    M4::new(true, c.len() > 1, c.len() > 2, c.len() > 3),
+                )
             })
             .unzip();
         let mut hits = vec![Hit4::MISS; quads.len()];
@@ -623,14 +800,29 @@ fn occlusion_of(tr: &GridTracer<'_>, cfg: &Config, rays: &[Ray], mb: &mut Mailbo
 
 /// Count the disagreements of `hits` / `occluded` with the oracle; describe
 /// those outside the tolerances in `details` (one line each).
-fn accuracy(scene: &Scene<'_>, o: &mut Oracle, w: u32, rays: &[Ray], hits: &[Hit], occluded: &[bool], details: &mut Vec<String>) -> Accuracy {
-    let mut a = Accuracy { prim_checked: o.pixels.len() as u64, shadow_checked: o.shadow_rays.len() as u64, ..Accuracy::default() };
+fn accuracy(
+    scene: &Scene<'_>,
+    o: &mut Oracle,
+    w: u32,
+    rays: &[Ray],
+    hits: &[Hit],
+    occluded: &[bool],
+    details: &mut Vec<String>,
+) -> Accuracy {
+    let mut a = Accuracy {
+        prim_checked: o.pixels.len() as u64,
+        shadow_checked: o.shadow_rays.len() as u64,
+        ..Accuracy::default()
+    };
     for (k, (&px, want)) in o.pixels.iter().zip(&o.prim).enumerate() {
         if hits[px as usize].prim == want.prim {
             continue;
         }
         a.prim_mismatch += 1;
-        let near = *o.prim_near.entry(k).or_insert_with(|| reference::with_edge_distance(scene, &rays[px as usize], *want));
+        let near = *o
+            .prim_near
+            .entry(k)
+            .or_insert_with(|| reference::with_edge_distance(scene, &rays[px as usize], *want));
         if near.gap <= TIE_REL {
             a.prim_tie += 1;
         } else if near.edge <= EDGE_BARY {
@@ -664,7 +856,10 @@ fn accuracy(scene: &Scene<'_>, o: &mut Oracle, w: u32, rays: &[Ray], hits: &[Hit
             let at_end = if want.prim != INVALID_ID {
                 want.t >= r.tmax as f64 * (1.0 - END_REL)
             } else {
-                let longer = Ray { tmax: (r.tmax as f64 * (1.0 + END_REL)) as f32, ..r };
+                let longer = Ray {
+                    tmax: (r.tmax as f64 * (1.0 + END_REL)) as f32,
+                    ..r
+                };
                 reference::nearest(scene, &longer).prim != INVALID_ID
             };
             near.edge <= EDGE_BARY || at_end
@@ -704,28 +899,56 @@ fn scenes_dir(a: &BenchArgs) -> PathBuf {
 pub(crate) fn scene_specs(a: &BenchArgs) -> Result<Vec<SceneSpec>, Failure> {
     let dir = scenes_dir(a);
     let names: Vec<String> = if !a.scenes.is_empty() {
-        a.scenes.iter().map(|s| s.trim().to_string()).filter(|s| !s.is_empty()).collect()
+        a.scenes
+            .iter()
+            .map(|s| s.trim().to_string())
+            .filter(|s| !s.is_empty())
+            .collect()
     } else if a.quick {
         QUICK_SCENES.iter().map(|s| s.to_string()).collect()
     } else {
-        sheaf::scenes::BUILTIN_NAMES.iter().chain(OBJ_SCENES.iter().map(|(n, _)| n)).map(|s| s.to_string()).collect()
+        sheaf::scenes::BUILTIN_NAMES
+            .iter()
+            .chain(OBJ_SCENES.iter().map(|(n, _)| n))
+            .map(|s| s.to_string())
+            .collect()
     };
     let mut out = Vec::new();
     for name in names {
         let (label, path) = if sheaf::scenes::BUILTIN_NAMES.contains(&name.as_str()) {
-            out.push(SceneSpec { load: format!("builtin:{name}"), name });
+            out.push(SceneSpec {
+                load: format!("builtin:{name}"),
+                name,
+            });
             continue;
-        } else if let Some((n, f)) = OBJ_SCENES.iter().find(|(n, f)| *n == name || f.starts_with(&format!("{name}/"))) {
+        } else if let Some((n, f)) = OBJ_SCENES
+            .iter()
+            .find(|(n, f)| *n == name || f.starts_with(&format!("{name}/")))
+        {
             (n.to_string(), dir.join(f))
         } else if name.ends_with(".obj") {
             let p = PathBuf::from(&name);
-            (p.file_stem().map_or(name.clone(), |s| s.to_string_lossy().into_owned()), p)
+            (
+                p.file_stem()
+                    .map_or(name.clone(), |s| s.to_string_lossy().into_owned()),
+                p,
+            )
         } else {
-            let known: Vec<&str> = sheaf::scenes::BUILTIN_NAMES.iter().copied().chain(OBJ_SCENES.iter().map(|(n, _)| *n)).collect();
-            return Err(Failure(format!("--scenes: unknown scene '{name}' (known: {}, or a path ending in .obj)", known.join(", "))));
+            let known: Vec<&str> = sheaf::scenes::BUILTIN_NAMES
+                .iter()
+                .copied()
+                .chain(OBJ_SCENES.iter().map(|(n, _)| *n))
+                .collect();
+            return Err(Failure(format!(
+                "--scenes: unknown scene '{name}' (known: {}, or a path ending in .obj)",
+                known.join(", ")
+            )));
         };
         if path.is_file() {
-            out.push(SceneSpec { name: label, load: path.to_string_lossy().into_owned() });
+            out.push(SceneSpec {
+                name: label,
+                load: path.to_string_lossy().into_owned(),
+            });
         } else {
             println!("note: {label}: {} not found, skipped", path.display());
         }
@@ -736,16 +959,35 @@ pub(crate) fn scene_specs(a: &BenchArgs) -> Result<Vec<SceneSpec>, Failure> {
 /// The scene's view and light: a builtin's first view and light, or for an
 /// OBJ file what `sheaf render` picks by default (inside when the scene
 /// encloses the inside view's eye, else outside; the light placed for it).
-pub(crate) fn view_for(loaded: &Loaded, tr: &GridTracer<'_>, bounds: &sheaf::geom::Aabb, w: u32, h: u32) -> (sheaf::scenes::View, Vec3, String) {
+pub(crate) fn view_for(
+    loaded: &Loaded,
+    tr: &GridTracer<'_>,
+    bounds: &sheaf::geom::Aabb,
+    w: u32,
+    h: u32,
+) -> (sheaf::scenes::View, Vec3, String) {
     if let Some((views, light)) = &loaded.builtin {
         return (views[0], *light, "builtin view 0".into());
     }
     let (lo, hi) = (bounds.min, bounds.max);
     let inside = view::inside(tr, lo, hi, Vec3::Y, INSIDE_FOV);
     let interior = view::is_interior(tr, inside.eye);
-    let v = if interior { inside } else { view::outside(lo, hi, Vec3::Y, OUTSIDE_FOV, w as f32 / h as f32) };
+    let v = if interior {
+        inside
+    } else {
+        view::outside(lo, hi, Vec3::Y, OUTSIDE_FOV, w as f32 / h as f32)
+    };
     let light = view::light_for(tr, &v, interior, (hi - lo).length());
-    (v, Vec3::from(light.position), if interior { "inside (auto)" } else { "outside (auto)" }.into())
+    (
+        v,
+        Vec3::from(light.position),
+        if interior {
+            "inside (auto)"
+        } else {
+            "outside (auto)"
+        }
+        .into(),
+    )
 }
 
 // ---------------------------------------------------------------------------
@@ -776,10 +1018,14 @@ struct Row {
 
 impl Row {
     fn prim_mrays(&self, i: usize) -> f64 {
-        self.timings.get(i).map_or(0.0, |t| mrays(self.prim_rays, t.prim_ns))
+        self.timings
+            .get(i)
+            .map_or(0.0, |t| mrays(self.prim_rays, t.prim_ns))
     }
     fn shadow_mrays(&self, i: usize) -> f64 {
-        self.timings.get(i).map_or(0.0, |t| mrays(self.shadow_rays, t.shadow_ns))
+        self.timings
+            .get(i)
+            .map_or(0.0, |t| mrays(self.shadow_rays, t.shadow_ns))
     }
 }
 
@@ -804,10 +1050,19 @@ fn csv(rows: &[Row], threads: &[u32]) -> String {
         "scene,triangles,view,width,height,config,method,packet,macrocells,mailbox,culling,test,build_ms,grid_res,grid_refs,primary_rays,shadow_rays",
     );
     for t in threads {
-        let _ = write!(s, ",primary_ms_{t}t,primary_mrays_{t}t,shadow_ms_{t}t,shadow_mrays_{t}t,total_mrays_{t}t");
+        let _ = write!(
+            s,
+            ",primary_ms_{t}t,primary_mrays_{t}t,shadow_ms_{t}t,shadow_mrays_{t}t,total_mrays_{t}t"
+        );
     }
     for k in ["primary", "shadow"] {
-        for c in ["cells", "macro_skips", "tri_tests", "mailbox_skips", "culled"] {
+        for c in [
+            "cells",
+            "macro_skips",
+            "tri_tests",
+            "mailbox_skips",
+            "culled",
+        ] {
             let _ = write!(s, ",{k}_{c}_per_ray");
         }
         for c in ["packets", "stray_lanes", "packets_no_cull", "packets_split"] {
@@ -897,7 +1152,13 @@ fn markdown(rows: &[Row], notes: &[SceneNote], header: &str, threads: &[u32]) ->
         for r in rows.iter().filter(|r| r.scene == note.name) {
             let a = &r.acc;
             let c = &r.prim_ctr;
-            let _ = write!(s, "| {} | {} | {:.1} |", r.cfg.label(), r.test, ms(r.build_ns));
+            let _ = write!(
+                s,
+                "| {} | {} | {:.1} |",
+                r.cfg.label(),
+                r.test,
+                ms(r.build_ns)
+            );
             for i in 0..threads.len() {
                 let _ = write!(s, " {:.2} |", r.prim_mrays(i));
             }
@@ -929,13 +1190,19 @@ fn markdown(rows: &[Row], notes: &[SceneNote], header: &str, threads: &[u32]) ->
 pub(crate) fn machine_line() -> String {
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     let mut s = format!("{cores} hardware threads");
-    let cpu = std::fs::read_to_string("/proc/cpuinfo")
-        .ok()
-        .and_then(|t| t.lines().find(|l| l.starts_with("model name")).and_then(|l| l.split_once(':')).map(|(_, v)| v.trim().to_string()));
+    let cpu = std::fs::read_to_string("/proc/cpuinfo").ok().and_then(|t| {
+        t.lines()
+            .find(|l| l.starts_with("model name"))
+            .and_then(|l| l.split_once(':'))
+            .map(|(_, v)| v.trim().to_string())
+    });
     if let Some(c) = cpu {
         let _ = write!(s, " ({c})");
     }
-    if let Some(l) = std::fs::read_to_string("/proc/loadavg").ok().map(|l| l.split_whitespace().take(3).collect::<Vec<_>>().join(" ")) {
+    if let Some(l) = std::fs::read_to_string("/proc/loadavg")
+        .ok()
+        .map(|l| l.split_whitespace().take(3).collect::<Vec<_>>().join(" "))
+    {
         let _ = write!(s, ", load average {l}");
     }
     s
@@ -943,7 +1210,13 @@ pub(crate) fn machine_line() -> String {
 
 pub(crate) fn command_line() -> String {
     std::env::args()
-        .map(|a| if a.contains(char::is_whitespace) || a.is_empty() { format!("'{a}'") } else { a })
+        .map(|a| {
+            if a.contains(char::is_whitespace) || a.is_empty() {
+                format!("'{a}'")
+            } else {
+                a
+            }
+        })
         .collect::<Vec<_>>()
         .join(" ")
 }
@@ -957,7 +1230,9 @@ pub fn bench(a: &BenchArgs) -> Result<(), Failure> {
         return crate::whitted_bench::run(a);
     }
     let start = Instant::now();
-    let (w, h) = a.size.unwrap_or(if a.quick { (256, 256) } else { (512, 512) });
+    let (w, h) = a
+        .size
+        .unwrap_or(if a.quick { (256, 256) } else { (512, 512) });
     let packets: Vec<u32> = if !a.packets.is_empty() {
         a.packets.clone()
     } else if a.quick {
@@ -966,7 +1241,9 @@ pub fn bench(a: &BenchArgs) -> Result<(), Failure> {
         vec![2, 4, 8, 16, 32]
     };
     for &n in &packets {
-        TraceParams::cgt(n).validate().or_fail(|| format!("--packets {n}"))?;
+        TraceParams::cgt(n)
+            .validate()
+            .or_fail(|| format!("--packets {n}"))?;
     }
     let mut threads = a.threads.clone();
     threads.dedup();
@@ -980,14 +1257,22 @@ pub fn bench(a: &BenchArgs) -> Result<(), Failure> {
         return Err(Failure("--oracle-budget must be >= 1".into()));
     }
     let with = |s: crate::StructureArg| a.structures.contains(&s);
-    let cfgs = configs(&packets, a.ablation, with(crate::StructureArg::Grid), with(crate::StructureArg::Bvh));
+    let cfgs = configs(
+        &packets,
+        a.ablation,
+        with(crate::StructureArg::Grid),
+        with(crate::StructureArg::Bvh),
+    );
     if cfgs.is_empty() {
-        return Err(Failure("--structures: name at least one of grid, bvh".into()));
+        return Err(Failure(
+            "--structures: name at least one of grid, bvh".into(),
+        ));
     }
     let mut tests = a.tests.clone();
     tests.dedup_by_key(|t| test_name(*t));
     let specs = scene_specs(a)?;
-    std::fs::create_dir_all(&a.out_dir).or_fail(|| format!("cannot create {}", a.out_dir.display()))?;
+    std::fs::create_dir_all(&a.out_dir)
+        .or_fail(|| format!("cannot create {}", a.out_dir.display()))?;
     let machine = machine_line();
 
     println!(
@@ -999,7 +1284,9 @@ pub fn bench(a: &BenchArgs) -> Result<(), Failure> {
     );
     let mut rows: Vec<Row> = Vec::new();
     let mut notes: Vec<SceneNote> = Vec::new();
-    let mut mismatch_log = String::from("# Mismatches with the f64 oracle outside the tolerances (scene, configuration, test: ray, both answers)\n");
+    let mut mismatch_log = String::from(
+        "# Mismatches with the f64 oracle outside the tolerances (scene, configuration, test: ray, both answers)\n",
+    );
     for spec in &specs {
         let t_load = Instant::now();
         let loaded = match load::load(&spec.load) {
@@ -1021,11 +1308,19 @@ pub fn bench(a: &BenchArgs) -> Result<(), Failure> {
         let mut scene_line = String::new();
         let mut view_how = String::new();
         for &test in &tests {
-            let grid = GridOpts { test, lambda: a.lambda, macrocell: a.macrocell };
+            let grid = GridOpts {
+                test,
+                lambda: a.lambda,
+                macrocell: a.macrocell,
+            };
             let params = grid.params();
-            let (mut ctx, info) = run::context_for(&scene, limits, &params, 1.0).or_fail(|| spec.name.clone())?;
+            let (mut ctx, info) =
+                run::context_for(&scene, limits, &params, 1.0).or_fail(|| spec.name.clone())?;
             if info.triangles == 0 {
-                println!("note: {}: every triangle is degenerate or non-finite, skipped", spec.name);
+                println!(
+                    "note: {}: every triangle is degenerate or non-finite, skipped",
+                    spec.name
+                );
                 break;
             }
             let mut builds = vec![ctx.stats().build_ns];
@@ -1034,25 +1329,47 @@ pub fn bench(a: &BenchArgs) -> Result<(), Failure> {
                 builds.push(ctx.stats().build_ns);
             }
             let build_ns = median(builds);
-            let bvh_params = BvhParams { test: params.test, ..BvhParams::default() };
+            let bvh_params = BvhParams {
+                test: params.test,
+                ..BvhParams::default()
+            };
             let mut bvh_builds = Vec::new();
             let mut bvh_info = None;
-            if cfgs.iter().any(|c| c.method.structure() == sheaf::trace::Structure::Bvh) {
+            if cfgs
+                .iter()
+                .any(|c| c.method.structure() == sheaf::trace::Structure::Bvh)
+            {
                 for _ in 0..BUILD_REPS {
                     bvh_info = Some(ctx.build_bvh(&scene, &bvh_params)?);
                     bvh_builds.push(ctx.stats().bvh_build_ns);
                 }
             }
-            let bvh_build_ns = if bvh_builds.is_empty() { 0 } else { median(bvh_builds) };
+            let bvh_build_ns = if bvh_builds.is_empty() {
+                0
+            } else {
+                median(bvh_builds)
+            };
             if prepared.is_none() {
                 let tr = ctx.tracer()?;
                 let (v, light, how) = view_for(&loaded, &tr, &info.bounds, w, h);
-                let cam = Camera { eye: v.eye.to_array(), look_at: v.look_at.to_array(), up: v.up.to_array(), fov_y_deg: v.fov_y_deg };
+                let cam = Camera {
+                    eye: v.eye.to_array(),
+                    look_at: v.look_at.to_array(),
+                    up: v.up.to_array(),
+                    fov_y_deg: v.fov_y_deg,
+                };
                 let pr = PrimaryRays::new(&cam, w, h)?;
-                let rays: Vec<Ray> = (0..h).flat_map(|y| (0..w).map(move |x| (x, y))).map(|(x, y)| pr.ray(x, y)).collect();
+                let rays: Vec<Ray> = (0..h)
+                    .flat_map(|y| (0..w).map(move |x| (x, y)))
+                    .map(|(x, y)| pr.ray(x, y))
+                    .collect();
                 let pad = Ray::new(v.eye, Vec3::X, 0.0, 0.0);
                 // Every packet side a configuration uses (the ablations' 8 too).
-                let mut sides: Vec<u32> = cfgs.iter().map(|c| c.params().tile_side()).filter(|&n| n > 0).collect();
+                let mut sides: Vec<u32> = cfgs
+                    .iter()
+                    .map(|c| c.params().tile_side())
+                    .filter(|&n| n > 0)
+                    .collect();
                 sides.sort_unstable();
                 sides.dedup();
                 let packed = sides
@@ -1083,7 +1400,9 @@ pub fn bench(a: &BenchArgs) -> Result<(), Failure> {
                 view_how = how;
                 prepared = Some((ViewRays { w, rays, packed }, light, eps, oracle));
             }
-            let Some((vr, light, eps, oracle)) = prepared.as_mut() else { unreachable!() };
+            let Some((vr, light, eps, oracle)) = prepared.as_mut() else {
+                unreachable!()
+            };
             let grid_res = res(&info);
             println!(
                 "[{}] {}: grid {grid_res}, {} refs, build {:.2} ms (median of {BUILD_REPS})",
@@ -1092,7 +1411,14 @@ pub fn bench(a: &BenchArgs) -> Result<(), Failure> {
                 info.refs,
                 ms(build_ns)
             );
-            let bvh_line = bvh_info.map(|b| format!("bvh {} nodes {} leaves depth {}", b.nodes, b.leaves, b.depth)).unwrap_or_default();
+            let bvh_line = bvh_info
+                .map(|b| {
+                    format!(
+                        "bvh {} nodes {} leaves depth {}",
+                        b.nodes, b.leaves, b.depth
+                    )
+                })
+                .unwrap_or_default();
             if let Some(b) = bvh_info {
                 println!(
                     "[{}] {}: {bvh_line}, SAH cost {:.1}, build {:.2} ms (median of {BUILD_REPS}) = {:.2} M triangles/s",
@@ -1112,7 +1438,13 @@ pub fn bench(a: &BenchArgs) -> Result<(), Failure> {
                 let mut found = Vec::new();
                 let acc = accuracy(&scene, oracle, w, &vr.rays, &t.hits, &occl, &mut found);
                 for d in found {
-                    let _ = writeln!(mismatch_log, "{} {} {}: {d}", spec.name, cfg.label(), test_name(test));
+                    let _ = writeln!(
+                        mismatch_log,
+                        "{} {} {}: {d}",
+                        spec.name,
+                        cfg.label(),
+                        test_name(test)
+                    );
                 }
                 let prims: Vec<u32> = t.hits.iter().map(|h| h.prim).collect();
                 let diff_dda = match &dda {
@@ -1132,9 +1464,21 @@ pub fn bench(a: &BenchArgs) -> Result<(), Failure> {
                     size: (w, h),
                     cfg: *cfg,
                     test: test_name(test),
-                    build_ns: if cfg.method.structure() == sheaf::trace::Structure::Bvh { bvh_build_ns } else { build_ns },
-                    grid: if cfg.method.structure() == sheaf::trace::Structure::Bvh { bvh_line.clone() } else { grid_res.clone() },
-                    refs: if cfg.method.structure() == sheaf::trace::Structure::Bvh { 0 } else { info.refs },
+                    build_ns: if cfg.method.structure() == sheaf::trace::Structure::Bvh {
+                        bvh_build_ns
+                    } else {
+                        build_ns
+                    },
+                    grid: if cfg.method.structure() == sheaf::trace::Structure::Bvh {
+                        bvh_line.clone()
+                    } else {
+                        grid_res.clone()
+                    },
+                    refs: if cfg.method.structure() == sheaf::trace::Structure::Bvh {
+                        0
+                    } else {
+                        info.refs
+                    },
                     prim_rays: t.prim_rays,
                     shadow_rays: t.shadow_rays,
                     timings: t.timings,
@@ -1149,7 +1493,10 @@ pub fn bench(a: &BenchArgs) -> Result<(), Failure> {
             }
         }
         if prepared.is_some() {
-            notes.push(SceneNote { name: spec.name.clone(), line: scene_line });
+            notes.push(SceneNote {
+                name: spec.name.clone(),
+                line: scene_line,
+            });
         }
     }
 
@@ -1178,18 +1525,32 @@ pub fn bench(a: &BenchArgs) -> Result<(), Failure> {
     let md = markdown(&rows, &notes, &header, &threads);
     let csv_path = a.out_dir.join("bench.csv");
     let md_path = a.out_dir.join("bench.md");
-    std::fs::write(&csv_path, csv(&rows, &threads)).or_fail(|| format!("cannot write {}", csv_path.display()))?;
+    std::fs::write(&csv_path, csv(&rows, &threads))
+        .or_fail(|| format!("cannot write {}", csv_path.display()))?;
     std::fs::write(&md_path, &md).or_fail(|| format!("cannot write {}", md_path.display()))?;
     let log_path = a.out_dir.join("mismatches.txt");
-    std::fs::write(&log_path, &mismatch_log).or_fail(|| format!("cannot write {}", log_path.display()))?;
+    std::fs::write(&log_path, &mismatch_log)
+        .or_fail(|| format!("cannot write {}", log_path.display()))?;
     println!("\n{md}");
     let inconsistent: u64 = rows.iter().map(|r| r.diff_dda.0 + r.diff_dda.1).sum();
     if inconsistent > 0 {
-        println!("warning: some packet configurations differ from the 3DDDA with the same triangle test (see primary_diff_vs_dda in bench.csv)");
+        println!(
+            "warning: some packet configurations differ from the 3DDDA with the same triangle test (see primary_diff_vs_dda in bench.csv)"
+        );
     }
-    let (svg, png) = (a.out_dir.join("speed_accuracy.svg"), a.out_dir.join("speed_accuracy.png"));
+    let (svg, png) = (
+        a.out_dir.join("speed_accuracy.svg"),
+        a.out_dir.join("speed_accuracy.png"),
+    );
     chart::write(&rows, &notes, (w, h), &svg, &png)?;
-    println!("wrote {}, {}, {}, {}, {}", csv_path.display(), md_path.display(), log_path.display(), svg.display(), png.display());
+    println!(
+        "wrote {}, {}, {}, {}, {}",
+        csv_path.display(),
+        md_path.display(),
+        log_path.display(),
+        svg.display(),
+        png.display()
+    );
     Ok(())
 }
 
@@ -1199,8 +1560,18 @@ fn fmt_v(v: Vec3) -> String {
 
 /// One line per configuration as it completes.
 fn progress(r: &Row) -> String {
-    let ts: Vec<String> = r.timings.iter().map(|t| format!("{}T", t.threads)).collect();
-    let mut s = format!("[{}] {:<34} {:<10} Mrays/s ({}) primary", r.scene, r.cfg.label(), r.test, ts.join("/"));
+    let ts: Vec<String> = r
+        .timings
+        .iter()
+        .map(|t| format!("{}T", t.threads))
+        .collect();
+    let mut s = format!(
+        "[{}] {:<34} {:<10} Mrays/s ({}) primary",
+        r.scene,
+        r.cfg.label(),
+        r.test,
+        ts.join("/")
+    );
     for i in 0..r.timings.len() {
         let _ = write!(s, " {:>6.2}", r.prim_mrays(i));
     }
@@ -1220,7 +1591,11 @@ fn progress(r: &Row) -> String {
         a.outside()
     );
     if r.diff_dda != (0, 0) {
-        let _ = write!(s, "  DIFFERS FROM 3DDDA: {} primary, {} shadow", r.diff_dda.0, r.diff_dda.1);
+        let _ = write!(
+            s,
+            "  DIFFERS FROM 3DDDA: {} primary, {} shadow",
+            r.diff_dda.0, r.diff_dda.1
+        );
     }
     s
 }
@@ -1229,7 +1604,7 @@ fn progress(r: &Row) -> String {
 // The chart
 
 pub(crate) mod chart {
-    use super::{Row, SceneNote, RATE_FLOOR, per};
+    use super::{RATE_FLOOR, Row, SceneNote, per};
     use crate::{Failure, OrFail};
     use plotters::coord::Shift;
     use plotters::prelude::*;
@@ -1289,7 +1664,12 @@ pub(crate) mod chart {
     /// Indices of the Pareto-optimal points (max x, min rate), by x ascending.
     pub(super) fn front(points: &[Point]) -> Vec<usize> {
         let mut idx: Vec<usize> = (0..points.len()).collect();
-        idx.sort_by(|&a, &b| points[b].x.total_cmp(&points[a].x).then(points[a].rate.total_cmp(&points[b].rate)));
+        idx.sort_by(|&a, &b| {
+            points[b]
+                .x
+                .total_cmp(&points[a].x)
+                .then(points[a].rate.total_cmp(&points[b].rate))
+        });
         let mut best = f64::INFINITY;
         let mut out = Vec::new();
         for i in idx {
@@ -1304,16 +1684,37 @@ pub(crate) mod chart {
 
     pub(crate) fn register_font() -> Result<(), Failure> {
         static ONCE: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-        let ok = *ONCE.get_or_init(|| plotters::style::register_font(FONT, FontStyle::Normal, dejavu::sans::regular()).is_ok());
-        if ok { Ok(()) } else { Err(Failure("chart: the embedded DejaVu Sans font did not load".into())) }
+        let ok = *ONCE.get_or_init(|| {
+            plotters::style::register_font(FONT, FontStyle::Normal, dejavu::sans::regular()).is_ok()
+        });
+        if ok {
+            Ok(())
+        } else {
+            Err(Failure(
+                "chart: the embedded DejaVu Sans font did not load".into(),
+            ))
+        }
     }
 
     /// Panels: all scenes, then one per scene. `labels` are (colour, configuration label).
-    fn panels(rows: &[Row], notes: &[SceneNote], labels: &[(usize, String)], tests: &[String]) -> Vec<Panel> {
-        let key = |r: &Row| (r.cfg.colour(), tests.iter().position(|t| *t == r.test).unwrap_or(0));
+    fn panels(
+        rows: &[Row],
+        notes: &[SceneNote],
+        labels: &[(usize, String)],
+        tests: &[String],
+    ) -> Vec<Panel> {
+        let key = |r: &Row| {
+            (
+                r.cfg.colour(),
+                tests.iter().position(|t| *t == r.test).unwrap_or(0),
+            )
+        };
         let mut out = Vec::new();
         // All scenes: rays over summed time, mismatches over summed checks.
-        let mut all = Panel { title: "all scenes (rays / total time, mismatches / checks)".into(), points: Vec::new() };
+        let mut all = Panel {
+            title: "all scenes (rays / total time, mismatches / checks)".into(),
+            points: Vec::new(),
+        };
         for &(ci, _) in labels {
             for (ti, _) in tests.iter().enumerate() {
                 let rs: Vec<&Row> = rows.iter().filter(|r| key(r) == (ci, ti)).collect();
@@ -1321,10 +1722,18 @@ pub(crate) mod chart {
                     continue;
                 }
                 let rays: u64 = rs.iter().map(|r| r.prim_rays).sum();
-                let ns: u64 = rs.iter().map(|r| r.timings.first().map_or(0, |t| t.prim_ns)).sum();
+                let ns: u64 = rs
+                    .iter()
+                    .map(|r| r.timings.first().map_or(0, |t| t.prim_ns))
+                    .sum();
                 let mism: u64 = rs.iter().map(|r| r.acc.mismatch()).sum();
                 let checked: u64 = rs.iter().map(|r| r.acc.checked()).sum();
-                all.points.push(Point { x: super::mrays(rays, ns), rate: per(mism, checked), colour: ci, marker: ti });
+                all.points.push(Point {
+                    x: super::mrays(rays, ns),
+                    rate: per(mism, checked),
+                    colour: ci,
+                    marker: ti,
+                });
             }
         }
         if notes.len() > 1 {
@@ -1332,25 +1741,42 @@ pub(crate) mod chart {
         }
         for n in notes {
             let rs = rows.iter().filter(|r| r.scene == n.name);
-            let tris = rows.iter().find(|r| r.scene == n.name).map_or(0, |r| r.triangles);
+            let tris = rows
+                .iter()
+                .find(|r| r.scene == n.name)
+                .map_or(0, |r| r.triangles);
             out.push(Panel {
                 title: format!("{} ({} tris)", n.name, tris),
-                points: rs.map(|r| {
-                    let (c, m) = key(r);
-                    Point { x: r.prim_mrays(0), rate: r.acc.rate(), colour: c, marker: m }
-                })
-                .collect(),
+                points: rs
+                    .map(|r| {
+                        let (c, m) = key(r);
+                        Point {
+                            x: r.prim_mrays(0),
+                            rate: r.acc.rate(),
+                            colour: c,
+                            marker: m,
+                        }
+                    })
+                    .collect(),
             });
         }
         out
     }
 
-    fn marker<DB: DrawingBackend>(area: &DrawingArea<DB, Shift>, at: (i32, i32), marker: usize, c: RGBColor) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
+    fn marker<DB: DrawingBackend>(
+        area: &DrawingArea<DB, Shift>,
+        at: (i32, i32),
+        marker: usize,
+        c: RGBColor,
+    ) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
         let s = c.filled();
         match marker % 3 {
             0 => area.draw(&Circle::new(at, 5, s)),
             1 => area.draw(&TriangleMarker::new(at, 7, s)),
-            _ => area.draw(&Rectangle::new([(at.0 - 5, at.1 - 5), (at.0 + 5, at.1 + 5)], s)),
+            _ => area.draw(&Rectangle::new(
+                [(at.0 - 5, at.1 - 5), (at.0 + 5, at.1 + 5)],
+                s,
+            )),
         }
     }
 
@@ -1363,13 +1789,18 @@ pub(crate) mod chart {
     ) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
         root.fill(&WHITE)?;
         let (top, body) = root.split_vertically(TITLE_H);
-        top.draw(&Text::new(title.to_string(), (14, 12), (FONT, 20).into_font().color(&BLACK)))?;
+        top.draw(&Text::new(
+            title.to_string(),
+            (14, 12),
+            (FONT, 20).into_font().color(&BLACK),
+        ))?;
         let (grid, legend) = body.split_horizontally(COLS * PANEL.0);
         let rows = (panels.len() as u32).div_ceil(COLS);
         let cells = grid.split_evenly((rows as usize, COLS as usize));
         for (area, p) in cells.iter().zip(panels) {
             let xmax = p.points.iter().map(|q| q.x).fold(0.0, f64::max).max(1e-3) * 1.12;
-            let ymax = (p.points.iter().map(|q| q.rate).fold(0.0, f64::max) + RATE_FLOOR).max(1e-4) * 4.0;
+            let ymax =
+                (p.points.iter().map(|q| q.rate).fold(0.0, f64::max) + RATE_FLOOR).max(1e-4) * 4.0;
             let mut chart = ChartBuilder::on(area)
                 .caption(&p.title, (FONT, 17))
                 .margin(10)
@@ -1388,17 +1819,30 @@ pub(crate) mod chart {
                 .draw()?;
             let f = front(&p.points);
             chart.draw_series(LineSeries::new(
-                f.iter().map(|&i| (p.points[i].x, p.points[i].rate + RATE_FLOOR)),
+                f.iter()
+                    .map(|&i| (p.points[i].x, p.points[i].rate + RATE_FLOOR)),
                 ShapeStyle::from(&BLACK.mix(0.55)).stroke_width(2),
             ))?;
             let at = |q: &Point| (q.x, q.rate + RATE_FLOOR);
             let col = |q: &Point| COLOURS[q.colour % COLOURS.len()].filled();
             let of = |m: usize| p.points.iter().filter(move |q| q.marker % 3 == m);
-            chart.draw_series(of(0).map(|q| EmptyElement::at(at(q)) + Circle::new((0, 0), 5, col(q))))?;
-            chart.draw_series(of(1).map(|q| EmptyElement::at(at(q)) + TriangleMarker::new((0, 0), 7, col(q))))?;
-            chart.draw_series(of(2).map(|q| EmptyElement::at(at(q)) + Rectangle::new([(-5, -5), (5, 5)], col(q))))?;
+            chart.draw_series(
+                of(0).map(|q| EmptyElement::at(at(q)) + Circle::new((0, 0), 5, col(q))),
+            )?;
+            chart.draw_series(
+                of(1).map(|q| EmptyElement::at(at(q)) + TriangleMarker::new((0, 0), 7, col(q))),
+            )?;
+            chart.draw_series(
+                of(2).map(|q| EmptyElement::at(at(q)) + Rectangle::new([(-5, -5), (5, 5)], col(q))),
+            )?;
             // Ring the points on the front.
-            chart.draw_series(f.iter().map(|&i| Circle::new(at(&p.points[i]), 10, ShapeStyle::from(&BLACK.mix(0.55)).stroke_width(1))))?;
+            chart.draw_series(f.iter().map(|&i| {
+                Circle::new(
+                    at(&p.points[i]),
+                    10,
+                    ShapeStyle::from(&BLACK.mix(0.55)).stroke_width(1),
+                )
+            }))?;
         }
         // Legend: colours per configuration, markers per triangle test, the front.
         let font = (FONT, 14).into_font().color(&BLACK);
@@ -1419,21 +1863,47 @@ pub(crate) mod chart {
             y += 22;
         }
         y += 14;
-        legend.draw(&PathElement::new(vec![(12, y + 7), (32, y + 7)], ShapeStyle::from(&BLACK.mix(0.55)).stroke_width(2)))?;
-        legend.draw(&Circle::new((22, y + 7), 10, ShapeStyle::from(&BLACK.mix(0.55)).stroke_width(1)))?;
+        legend.draw(&PathElement::new(
+            vec![(12, y + 7), (32, y + 7)],
+            ShapeStyle::from(&BLACK.mix(0.55)).stroke_width(2),
+        ))?;
+        legend.draw(&Circle::new(
+            (22, y + 7),
+            10,
+            ShapeStyle::from(&BLACK.mix(0.55)).stroke_width(1),
+        ))?;
         legend.draw(&Text::new("Pareto front", (36, y), font.clone()))?;
         y += 22;
-        legend.draw(&Text::new("(max speed, min mismatch)", (36, y), font.clone()))?;
+        legend.draw(&Text::new(
+            "(max speed, min mismatch)",
+            (36, y),
+            font.clone(),
+        ))?;
         y += 34;
-        for line in ["y: mismatch rate vs the f64", "oracle (primary + shadow", "rays checked), + 1e-6 so", "zero shows, log scale"] {
-            legend.draw(&Text::new(line, (10, y), (FONT, 13).into_font().color(&BLACK)))?;
+        for line in [
+            "y: mismatch rate vs the f64",
+            "oracle (primary + shadow",
+            "rays checked), + 1e-6 so",
+            "zero shows, log scale",
+        ] {
+            legend.draw(&Text::new(
+                line,
+                (10, y),
+                (FONT, 13).into_font().color(&BLACK),
+            ))?;
             y += 18;
         }
         root.present()
     }
 
     /// Write the chart as SVG and PNG.
-    pub(super) fn write(rows: &[Row], notes: &[SceneNote], size: (u32, u32), svg: &Path, png: &Path) -> Result<(), Failure> {
+    pub(super) fn write(
+        rows: &[Row],
+        notes: &[SceneNote],
+        size: (u32, u32),
+        svg: &Path,
+        png: &Path,
+    ) -> Result<(), Failure> {
         register_font()?;
         let mut labels: Vec<(usize, String)> = Vec::new();
         let mut tests: Vec<String> = Vec::new();
@@ -1449,14 +1919,36 @@ pub(crate) mod chart {
         let ps = panels(rows, notes, &labels, &tests);
         let rows_n = (ps.len() as u32).div_ceil(COLS).max(1);
         let dim = (COLS * PANEL.0 + LEGEND_W, TITLE_H + rows_n * PANEL.1);
-        let title = format!("sheaf bench: speed vs accuracy, {}x{} primary rays per scene", size.0, size.1);
-        draw(SVGBackend::new(svg, dim).into_drawing_area(), &ps, &labels, &tests, &title)
-            .or_fail(|| format!("chart {}", svg.display()))?;
+        let title = format!(
+            "sheaf bench: speed vs accuracy, {}x{} primary rays per scene",
+            size.0, size.1
+        );
+        draw(
+            SVGBackend::new(svg, dim).into_drawing_area(),
+            &ps,
+            &labels,
+            &tests,
+            &title,
+        )
+        .or_fail(|| format!("chart {}", svg.display()))?;
         let mut buf = vec![0u8; dim.0 as usize * dim.1 as usize * 3];
-        draw(BitMapBackend::with_buffer(&mut buf, dim).into_drawing_area(), &ps, &labels, &tests, &title)
-            .or_fail(|| format!("chart {}", png.display()))?;
-        image::save_buffer_with_format(png, &buf, dim.0, dim.1, image::ExtendedColorType::Rgb8, image::ImageFormat::Png)
-            .or_fail(|| format!("cannot write {}", png.display()))
+        draw(
+            BitMapBackend::with_buffer(&mut buf, dim).into_drawing_area(),
+            &ps,
+            &labels,
+            &tests,
+            &title,
+        )
+        .or_fail(|| format!("chart {}", png.display()))?;
+        image::save_buffer_with_format(
+            png,
+            &buf,
+            dim.0,
+            dim.1,
+            image::ExtendedColorType::Rgb8,
+            image::ImageFormat::Png,
+        )
+        .or_fail(|| format!("cannot write {}", png.display()))
     }
 }
 
@@ -1466,7 +1958,13 @@ mod tests {
 
     #[test]
     fn tiling_covers_every_pixel_once() {
-        for (w, h, n) in [(10, 6, 4), (16, 16, 8), (7, 3, 2), (33, 17, 32), (64, 8, 16)] {
+        for (w, h, n) in [
+            (10, 6, 4),
+            (16, 16, 8),
+            (7, 3, 2),
+            (33, 17, 32),
+            (64, 8, 16),
+        ] {
             let t = Tiling::new(w, h, n);
             let tiles = (w.div_ceil(n) * h.div_ceil(n)) as usize;
             assert_eq!(t.pix.len(), tiles * t.q * 4, "{w}x{h} n={n}");
@@ -1474,7 +1972,10 @@ mod tests {
             for &p in t.pix.iter().filter(|&&p| p != NO_PIXEL) {
                 seen[p as usize] += 1;
             }
-            assert!(seen.iter().all(|&c| c == 1), "{w}x{h} n={n}: every pixel exactly once");
+            assert!(
+                seen.iter().all(|&c| c == 1),
+                "{w}x{h} n={n}: every pixel exactly once"
+            );
             // Lane order of a quad: (x, y), (x+1, y), (x, y+1), (x+1, y+1).
             assert_eq!(&t.pix[..4], &[0, 1, w, w + 1]);
         }
@@ -1482,8 +1983,20 @@ mod tests {
 
     #[test]
     fn pareto_front_keeps_the_undominated_points() {
-        let p = |x: f64, rate: f64| chart::Point { x, rate, colour: 0, marker: 0 };
-        let pts = [p(1.0, 0.0), p(2.0, 0.5), p(3.0, 0.1), p(0.5, 0.0), p(3.0, 0.2), p(2.5, 0.1)];
+        let p = |x: f64, rate: f64| chart::Point {
+            x,
+            rate,
+            colour: 0,
+            marker: 0,
+        };
+        let pts = [
+            p(1.0, 0.0),
+            p(2.0, 0.5),
+            p(3.0, 0.1),
+            p(0.5, 0.0),
+            p(3.0, 0.2),
+            p(2.5, 0.1),
+        ];
         assert_eq!(chart::front(&pts), vec![0, 2]);
     }
 
@@ -1547,18 +2060,40 @@ mod tests {
         let svg = std::fs::read_to_string(dir.join("speed_accuracy.svg")).unwrap();
         assert!(svg.contains("Pareto front"));
         // The Whitted study: every frame identical to its level's SIMD frame.
-        let w = BenchArgs { whitted: true, size: Some((32, 32)), packets: vec![4, 16], threads: vec![2], out_dir: dir.join("whitted"), ..a };
+        let w = BenchArgs {
+            whitted: true,
+            size: Some((32, 32)),
+            packets: vec![4, 16],
+            threads: vec![2],
+            out_dir: dir.join("whitted"),
+            ..a
+        };
         bench(&w).unwrap();
         let csv = std::fs::read_to_string(dir.join("whitted/whitted.csv")).unwrap();
         let lines: Vec<&str> = csv.lines().collect();
         let head: Vec<&str> = lines[0].split(',').collect();
         let diff = head.iter().position(|h| *h == "pixels_differing").unwrap();
-        assert_eq!(lines.len(), 1 + 4 * (1 + 3 * 2 + 2) + 6, "header + 4 levels x 9 configurations + Table 2's 6");
+        assert_eq!(
+            lines.len(),
+            1 + 4 * (1 + 3 * 2 + 2) + 6,
+            "header + 4 levels x 9 configurations + Table 2's 6"
+        );
         for l in &lines[1..] {
             assert_eq!(l.split(',').nth(diff), Some("0"), "{l}");
         }
-        for f in ["whitted.md", "figure5.svg", "figure5.png", "whitted_tetra.png"] {
-            assert!(std::fs::metadata(dir.join("whitted").join(f)).unwrap().len() > 0, "{f}");
+        for f in [
+            "whitted.md",
+            "figure5.svg",
+            "figure5.png",
+            "whitted_tetra.png",
+        ] {
+            assert!(
+                std::fs::metadata(dir.join("whitted").join(f))
+                    .unwrap()
+                    .len()
+                    > 0,
+                "{f}"
+            );
         }
         std::fs::remove_dir_all(&dir).ok();
     }

@@ -4,18 +4,23 @@ use crate::load::{self, Loaded};
 use crate::run::{self, mrays, ms, res};
 use crate::view::{self, INSIDE_FOV, OUTSIDE_FOV};
 use crate::{DemoArgs, Failure, GridOpts, InfoArgs, MaterialsArg, OrFail, RenderArgs};
+use glam::Vec3;
 use sheaf::render::material::{Material, Materials};
 use sheaf::render::whitted::{WhittedJob, WhittedParams};
-use sheaf::trace::RayKind;
-use glam::Vec3;
 use sheaf::scenes::animated::Animated;
 use sheaf::scenes::{ANIMATED_DETAIL, View};
+use sheaf::trace::RayKind;
 use sheaf::{Camera, Frame, GridInfo, Limits, PointLight, Scene, Shading, required_bytes};
 use std::fmt::Write as _;
 use std::time::Instant;
 
 fn camera(v: &View) -> Camera {
-    Camera { eye: v.eye.to_array(), look_at: v.look_at.to_array(), up: v.up.to_array(), fov_y_deg: v.fov_y_deg }
+    Camera {
+        eye: v.eye.to_array(),
+        look_at: v.look_at.to_array(),
+        up: v.up.to_array(),
+        fov_y_deg: v.fov_y_deg,
+    }
 }
 
 fn v3(v: [f32; 3]) -> String {
@@ -49,7 +54,11 @@ fn excluded_line(l: &Loaded, info: &GridInfo) -> String {
         info.excluded_zero_area
     );
     if l.skipped > 0 {
-        let _ = write!(s, "; {} triangles of the file's faces skipped by the OBJ loader", l.skipped);
+        let _ = write!(
+            s,
+            "; {} triangles of the file's faces skipped by the OBJ loader",
+            l.skipped
+        );
     }
     s
 }
@@ -64,9 +73,13 @@ pub fn demo(a: &DemoArgs) -> Result<(), Failure> {
     }
     let mut anim = Animated::new(ANIMATED_DETAIL);
     let views = anim.views();
-    let view = *views
-        .get(a.view)
-        .ok_or_else(|| Failure(format!("--view {}: the demo has views 0..={}", a.view, views.len() - 1)))?;
+    let view = *views.get(a.view).ok_or_else(|| {
+        Failure(format!(
+            "--view {}: the demo has views 0..={}",
+            a.view,
+            views.len() - 1
+        ))
+    })?;
     let params = a.grid.params();
     let (primary, shadow) = a.trace.params()?;
 
@@ -77,10 +90,14 @@ pub fn demo(a: &DemoArgs) -> Result<(), Failure> {
         run::context_for(&scene, run::limits(&scene, a.size, threads), &params, 1.25)?
     };
     let bytes = required_bytes(ctx.limits())?;
-    std::fs::create_dir_all(&a.out_dir).or_fail(|| format!("cannot create {}", a.out_dir.display()))?;
+    std::fs::create_dir_all(&a.out_dir)
+        .or_fail(|| format!("cannot create {}", a.out_dir.display()))?;
     let frame = Frame {
         camera: camera(&view),
-        light: PointLight { position: anim.light().to_array(), color: [1.0; 3] },
+        light: PointLight {
+            position: anim.light().to_array(),
+            color: [1.0; 3],
+        },
         shading: Shading::default(),
         width: w,
         height: h,
@@ -101,9 +118,16 @@ pub fn demo(a: &DemoArgs) -> Result<(), Failure> {
     for f in 0..a.frames {
         anim.set_time(f as f32 * dt);
         let scene = Scene::from_f32(&anim.mesh.vertices, &anim.mesh.indices)?;
-        let info = ctx.build_grid(&scene, &params).or_fail(|| format!("frame {f}: building the grid"))?;
+        let info = ctx
+            .build_grid(&scene, &params)
+            .or_fail(|| format!("frame {f}: building the grid"))?;
         let bvh = run::build_bvh_if_used(&mut ctx, &scene, params.test, &[primary, shadow])?;
-        let b = ctx.stats().build_ns + if bvh.is_some() { ctx.stats().bvh_build_ns } else { 0 };
+        let b = ctx.stats().build_ns
+            + if bvh.is_some() {
+                ctx.stats().bvh_build_ns
+            } else {
+                0
+            };
         let ctr = run::render_frame(&mut ctx, &primary, &shadow, &frame, &mut pixels, threads)?;
         let t = ctx.stats().trace_ns;
         run::write_png(&a.out_dir.join(format!("frame_{f:03}.png")), &pixels, w, h)?;
@@ -153,15 +177,28 @@ pub fn render(a: &RenderArgs) -> Result<(), Failure> {
     }
     let params = a.grid.params();
     let (primary, shadow) = a.trace.params()?;
-    let (mut ctx, info) = run::context_for(&scene, run::limits(&scene, a.size, threads), &params, 1.0)?;
+    let (mut ctx, info) =
+        run::context_for(&scene, run::limits(&scene, a.size, threads), &params, 1.0)?;
     if info.triangles == 0 {
-        return Err(Failure(format!("{}: every triangle is degenerate or non-finite", loaded.label)));
+        return Err(Failure(format!(
+            "{}: every triangle is degenerate or non-finite",
+            loaded.label
+        )));
     }
     let whitted = a.reflect > 0 || a.refract > 0;
     let secondary = match a.secondary_method {
-        Some(m) => sheaf::TraceParams { method: m.method(), ..primary },
-        None if primary.method.structure() == sheaf::trace::Structure::Bvh && primary.method.is_packet() && primary.packet >= 16 => {
-            sheaf::TraceParams { method: sheaf::Method::BvhPartition, ..primary }
+        Some(m) => sheaf::TraceParams {
+            method: m.method(),
+            ..primary
+        },
+        None if primary.method.structure() == sheaf::trace::Structure::Bvh
+            && primary.method.is_packet()
+            && primary.packet >= 16 =>
+        {
+            sheaf::TraceParams {
+                method: sheaf::Method::BvhPartition,
+                ..primary
+            }
         }
         None => primary,
     };
@@ -173,9 +210,13 @@ pub fn render(a: &RenderArgs) -> Result<(), Failure> {
     let (mut v, how) = match &loaded.builtin {
         Some((views, _)) => {
             let i = a.view.unwrap_or(0);
-            let v = *views
-                .get(i)
-                .ok_or_else(|| Failure(format!("--view {i}: {} has views 0..={}", loaded.label, views.len() - 1)))?;
+            let v = *views.get(i).ok_or_else(|| {
+                Failure(format!(
+                    "--view {i}: {} has views 0..={}",
+                    loaded.label,
+                    views.len() - 1
+                ))
+            })?;
             (v, format!("builtin view {i}"))
         }
         None => {
@@ -185,9 +226,19 @@ pub fn render(a: &RenderArgs) -> Result<(), Failure> {
             let interior = view::is_interior(&tracer, inside.eye);
             let i = a.view.unwrap_or(interior as usize);
             let v = match i {
-                0 => view::outside(lo, hi, up, a.fov.unwrap_or(OUTSIDE_FOV), w as f32 / h as f32),
+                0 => view::outside(
+                    lo,
+                    hi,
+                    up,
+                    a.fov.unwrap_or(OUTSIDE_FOV),
+                    w as f32 / h as f32,
+                ),
                 1 => inside,
-                _ => return Err(Failure(format!("--view {i}: OBJ scenes have views 0 (outside) and 1 (inside)"))),
+                _ => {
+                    return Err(Failure(format!(
+                        "--view {i}: OBJ scenes have views 0 (outside) and 1 (inside)"
+                    )));
+                }
             };
             let what = if i == 0 { "outside" } else { "inside" };
             let why = if a.view.is_some() {
@@ -216,8 +267,14 @@ pub fn render(a: &RenderArgs) -> Result<(), Failure> {
     // Light: the user's, the builtin's, or one placed for the final eye
     // (kept inside the room when the eye is enclosed).
     let light = match (a.light, &loaded.builtin) {
-        (Some(p), _) => PointLight { position: p, color: [1.0; 3] },
-        (None, Some((_, l))) => PointLight { position: l.to_array(), color: [1.0; 3] },
+        (Some(p), _) => PointLight {
+            position: p,
+            color: [1.0; 3],
+        },
+        (None, Some((_, l))) => PointLight {
+            position: l.to_array(),
+            color: [1.0; 3],
+        },
         (None, None) => {
             let tracer = ctx.tracer()?;
             view::light_for(&tracer, &v, view::is_interior(&tracer, v.eye), scale)
@@ -226,16 +283,31 @@ pub fn render(a: &RenderArgs) -> Result<(), Failure> {
     let frame = Frame {
         camera: camera(&v),
         light,
-        shading: Shading { shadows: !a.no_shadows, ..Shading::default() },
+        shading: Shading {
+            shadows: !a.no_shadows,
+            ..Shading::default()
+        },
         width: w,
         height: h,
     };
     let mut pixels = vec![0u8; w as usize * h as usize * 4];
     let forced = match a.materials {
         MaterialsArg::Scene => None,
-        MaterialsArg::Mirror => Some(Material { reflect: 0.6, ..Material::diffuse(frame.shading.albedo) }),
-        MaterialsArg::Glass => Some(Material { transmit: 0.7, ior: 1.5, ..Material::diffuse(frame.shading.albedo) }),
-        MaterialsArg::Mixed => Some(Material { reflect: 0.3, transmit: 0.3, ior: 1.5, ..Material::diffuse(frame.shading.albedo) }),
+        MaterialsArg::Mirror => Some(Material {
+            reflect: 0.6,
+            ..Material::diffuse(frame.shading.albedo)
+        }),
+        MaterialsArg::Glass => Some(Material {
+            transmit: 0.7,
+            ior: 1.5,
+            ..Material::diffuse(frame.shading.albedo)
+        }),
+        MaterialsArg::Mixed => Some(Material {
+            reflect: 0.3,
+            transmit: 0.3,
+            ior: 1.5,
+            ..Material::diffuse(frame.shading.albedo)
+        }),
     };
     let ctr = if whitted {
         let materials = match &forced {
@@ -246,7 +318,10 @@ pub fn render(a: &RenderArgs) -> Result<(), Failure> {
             frame: &frame,
             lights: &[],
             materials,
-            params: WhittedParams { max_reflect: a.reflect, max_refract: a.refract },
+            params: WhittedParams {
+                max_reflect: a.reflect,
+                max_refract: a.refract,
+            },
             primary: primary.with_kind(RayKind::Primary),
             shadow: shadow.with_kind(RayKind::Shadow),
             secondary: secondary.with_kind(RayKind::Secondary),
@@ -260,10 +335,21 @@ pub fn render(a: &RenderArgs) -> Result<(), Failure> {
 
     let primary = w as u64 * h as u64;
     let bytes = required_bytes(ctx.limits())?;
-    println!("scene      {} (loaded in {:.0} ms)", loaded.label, ms(load_ns));
-    println!("triangles  {}, {} vertices", excluded_line(&loaded, &info), loaded.vertex_count());
+    println!(
+        "scene      {} (loaded in {:.0} ms)",
+        loaded.label,
+        ms(load_ns)
+    );
+    println!(
+        "triangles  {}, {} vertices",
+        excluded_line(&loaded, &info),
+        loaded.vertex_count()
+    );
     println!("grid       {}", grid_line(&info, &a.grid));
-    println!("memory     {bytes} bytes ({:.2} MiB) in one context", mib(bytes));
+    println!(
+        "memory     {bytes} bytes ({:.2} MiB) in one context",
+        mib(bytes)
+    );
     println!("build      grid {:.2} ms", ms(st.build_ns));
     if let Some(b) = bvh {
         println!(
@@ -283,7 +369,16 @@ pub fn render(a: &RenderArgs) -> Result<(), Failure> {
             a.reflect,
             a.refract,
             a.materials,
-            if secondary.method.is_packet() { format!("{} {}x{}", secondary.method.name(), secondary.packet, secondary.packet) } else { secondary.method.name().to_string() }
+            if secondary.method.is_packet() {
+                format!(
+                    "{} {}x{}",
+                    secondary.method.name(),
+                    secondary.packet,
+                    secondary.packet
+                )
+            } else {
+                secondary.method.name().to_string()
+            }
         );
     }
     println!(
@@ -301,7 +396,11 @@ pub fn render(a: &RenderArgs) -> Result<(), Failure> {
         v.fov_y_deg,
         if custom { ", with your overrides" } else { "" }
     );
-    println!("light      --light {}{}", v3(light.position), if a.no_shadows { " (no shadows)" } else { "" });
+    println!(
+        "light      --light {}{}",
+        v3(light.position),
+        if a.no_shadows { " (no shadows)" } else { "" }
+    );
     println!("wrote      {} ({w}x{h})", a.out.display());
     Ok(())
 }
@@ -314,7 +413,11 @@ pub fn info(a: &InfoArgs) -> Result<(), Failure> {
     println!("scene      {}", loaded.label);
     let mut tri = format!("{n}");
     if loaded.skipped > 0 {
-        let _ = write!(tri, " ({} triangles of the file's faces skipped by the OBJ loader)", loaded.skipped);
+        let _ = write!(
+            tri,
+            " ({} triangles of the file's faces skipped by the OBJ loader)",
+            loaded.skipped
+        );
     }
     println!("triangles  {tri}");
     println!("vertices   {}", loaded.vertex_count());
@@ -330,7 +433,11 @@ pub fn info(a: &InfoArgs) -> Result<(), Failure> {
     let mut limits = Limits::for_triangles(n);
     limits.max_vertices = scene.vertex_count();
     let bytes = required_bytes(&limits)?;
-    let per_tri = if n > 0 { format!(", {:.1} bytes/triangle", bytes as f64 / n as f64) } else { String::new() };
+    let per_tri = if n > 0 {
+        format!(", {:.1} bytes/triangle", bytes as f64 / n as f64)
+    } else {
+        String::new()
+    };
     println!(
         "memory     {bytes} bytes ({:.2} MiB{per_tri}) for Limits::for_triangles({n}) (grid pools: {} cells, {} refs)",
         mib(bytes),
@@ -344,15 +451,27 @@ pub fn info(a: &InfoArgs) -> Result<(), Failure> {
         tight.max_grid_refs = info.refs.max(1);
         let tight_bytes = required_bytes(&tight)?;
         println!("grid       {}", grid_line(&info, &a.grid));
-        println!("excluded   {} non-finite, {} zero-area", info.excluded_non_finite, info.excluded_zero_area);
+        println!(
+            "excluded   {} non-finite, {} zero-area",
+            info.excluded_non_finite, info.excluded_zero_area
+        );
         println!("build      {:.2} ms", ms(ctx.stats().build_ns));
         println!(
             "tight      {tight_bytes} bytes ({:.2} MiB, {:.1} bytes/triangle) with the grid pools cut to this grid's cells and refs",
             mib(tight_bytes),
             tight_bytes as f64 / n as f64
         );
-        let b = ctx.build_bvh(&scene, &sheaf::BvhParams { test: info.test, ..Default::default() })?;
-        let bvh_only = Limits { structures: Limits::BVH, ..limits };
+        let b = ctx.build_bvh(
+            &scene,
+            &sheaf::BvhParams {
+                test: info.test,
+                ..Default::default()
+            },
+        )?;
+        let bvh_only = Limits {
+            structures: Limits::BVH,
+            ..limits
+        };
         println!(
             "bvh        {} nodes, {} leaves, depth {}, SAH cost {:.1} (leaves of up to 4, 16 bins), build {:.2} ms = {:.2} M triangles/s",
             b.nodes,

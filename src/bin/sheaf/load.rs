@@ -31,12 +31,16 @@ impl Loaded {
         (self.vertices.len() / 3) as u32
     }
     pub fn scene(&self) -> Result<sheaf::Scene<'_>, Failure> {
-        sheaf::Scene::from_f32(&self.vertices, &self.indices).or_fail(|| format!("scene {}", self.label))
+        sheaf::Scene::from_f32(&self.vertices, &self.indices)
+            .or_fail(|| format!("scene {}", self.label))
     }
     /// The materials as the Whitted renderer borrows them.
     #[allow(dead_code)] // for commands rendering OBJ materials
     pub fn materials(&self) -> Materials<'_> {
-        Materials { materials: &self.materials, ranges: &self.ranges }
+        Materials {
+            materials: &self.materials,
+            ranges: &self.ranges,
+        }
     }
     /// Bounds of the vertices the triangles use (finite ones only), or None.
     pub fn bounds(&self) -> Option<(Vec3, Vec3)> {
@@ -57,7 +61,10 @@ impl Loaded {
 pub fn load(spec: &str) -> Result<Loaded, Failure> {
     if let Some(name) = spec.strip_prefix("builtin:") {
         let s = scenes::builtin(name).ok_or_else(|| {
-            Failure(format!("unknown built-in scene '{name}' (known: {})", scenes::BUILTIN_NAMES.join(", ")))
+            Failure(format!(
+                "unknown built-in scene '{name}' (known: {})",
+                scenes::BUILTIN_NAMES.join(", ")
+            ))
         })?;
         return Ok(Loaded {
             label: spec.to_string(),
@@ -76,7 +83,13 @@ pub fn load(spec: &str) -> Result<Loaded, Failure> {
 fn face_triangles(text: &[u8]) -> u64 {
     text.split(|&b| b == b'\n')
         .filter(|l| l.len() > 1 && l[0] == b'f' && l[1].is_ascii_whitespace())
-        .map(|l| l[1..].split(|b| b.is_ascii_whitespace()).filter(|t| !t.is_empty()).count().saturating_sub(2) as u64)
+        .map(|l| {
+            l[1..]
+                .split(|b| b.is_ascii_whitespace())
+                .filter(|t| !t.is_empty())
+                .count()
+                .saturating_sub(2) as u64
+        })
         .sum()
 }
 
@@ -99,10 +112,14 @@ fn load_obj(path: &Path) -> Result<Loaded, Failure> {
         eprintln!("warning: {}: cannot load its materials ({e}): every surface diffuse with the default albedo", path.display());
         Vec::new()
     });
-    let (nv, ni) =
-        models.iter().fold((0usize, 0usize), |(v, i), m| (v + m.mesh.positions.len(), i + m.mesh.indices.len()));
+    let (nv, ni) = models.iter().fold((0usize, 0usize), |(v, i), m| {
+        (v + m.mesh.positions.len(), i + m.mesh.indices.len())
+    });
     if nv / 3 > u32::MAX as usize || ni / 3 > u32::MAX as usize {
-        return Err(Failure(format!("{}: more than 2^32 vertices or triangles", path.display())));
+        return Err(Failure(format!(
+            "{}: more than 2^32 vertices or triangles",
+            path.display()
+        )));
     }
     let (mut vertices, mut indices) = (Vec::with_capacity(nv), Vec::with_capacity(ni));
     let mut ranges: Vec<MaterialRange> = Vec::new();
@@ -122,7 +139,15 @@ fn load_obj(path: &Path) -> Result<Loaded, Failure> {
     }
     let materials = mtl.iter().map(material).collect();
     let skipped = face_triangles(&text).saturating_sub(indices.len() as u64 / 3);
-    Ok(Loaded { label: path.display().to_string(), vertices, indices, builtin: None, skipped, materials, ranges })
+    Ok(Loaded {
+        label: path.display().to_string(),
+        vertices,
+        indices,
+        builtin: None,
+        skipped,
+        materials,
+        ranges,
+    })
 }
 
 /// One .mtl material: `Kd` the diffuse colour (default: the renderer's
@@ -132,13 +157,24 @@ fn load_obj(path: &Path) -> Result<Loaded, Failure> {
 /// 1.5 for transmissive materials, else 1). Values are clamped into range,
 /// reflectance so that reflectance + transmittance <= 1.
 fn material(m: &tobj::Material) -> Material {
-    let unit = |x: f32| if x.is_finite() { x.clamp(0.0, 1.0) } else { 0.0 };
-    let diffuse = m.diffuse.map_or(sheaf::Shading::default().albedo, |d| d.map(unit));
+    let unit = |x: f32| {
+        if x.is_finite() {
+            x.clamp(0.0, 1.0)
+        } else {
+            0.0
+        }
+    };
+    let diffuse = m
+        .diffuse
+        .map_or(sheaf::Shading::default().albedo, |d| d.map(unit));
     let reflect = match (m.illumination_model, m.specular) {
         (Some(3 | 5 | 7), Some(ks)) => unit(ks[0].max(ks[1]).max(ks[2])),
         _ => 0.0,
     };
-    let tr = m.unknown_param.get("Tr").and_then(|t| t.trim().parse::<f32>().ok());
+    let tr = m
+        .unknown_param
+        .get("Tr")
+        .and_then(|t| t.trim().parse::<f32>().ok());
     let transmit = match (tr, m.dissolve) {
         (Some(t), _) => unit(t),
         (None, Some(d)) if d < 1.0 => unit(1.0 - d),
@@ -149,7 +185,12 @@ fn material(m: &tobj::Material) -> Material {
         _ if transmit > 0.0 => 1.5,
         _ => 1.0,
     };
-    Material { diffuse, reflect: reflect.min(1.0 - transmit), transmit, ior }
+    Material {
+        diffuse,
+        reflect: reflect.min(1.0 - transmit),
+        transmit,
+        ior,
+    }
 }
 
 #[cfg(test)]
@@ -158,7 +199,10 @@ mod tests {
 
     #[test]
     fn counts_faces() {
-        assert_eq!(face_triangles(b"v 0 0 0\nf 1 2 3\nf 1/1/1 2/2/2 3/3/3 4/4/4\nfoo\nf\n"), 3);
+        assert_eq!(
+            face_triangles(b"v 0 0 0\nf 1 2 3\nf 1/1/1 2/2/2 3/3/3 4/4/4\nfoo\nf\n"),
+            3
+        );
     }
 
     #[test]
@@ -172,7 +216,10 @@ mod tests {
         )
         .unwrap();
         let l = load(good.to_str().unwrap()).unwrap();
-        assert_eq!((l.indices.len() / 3, l.vertex_count(), l.skipped), (3, 7, 0));
+        assert_eq!(
+            (l.indices.len() / 3, l.vertex_count(), l.skipped),
+            (3, 7, 0)
+        );
         assert!(l.indices.iter().all(|&i| i < 7));
         let bad = dir.join("bad.obj");
         std::fs::write(&bad, "v 0 0 0\nf 1 2 9\n").unwrap();
@@ -200,25 +247,66 @@ mod tests {
         )
         .unwrap();
         let l = load(dir.join("a.obj").to_str().unwrap()).unwrap();
-        let find = |name: &str| ["glass", "mirror", "plain"].iter().position(|&n| n == name).unwrap();
+        let find = |name: &str| {
+            ["glass", "mirror", "plain"]
+                .iter()
+                .position(|&n| n == name)
+                .unwrap()
+        };
         assert_eq!(l.materials.len(), 3);
         let glass = l.materials[find("glass")];
-        assert_eq!((glass.diffuse, glass.transmit, glass.ior), ([0.1, 0.2, 0.3], 0.75, 1.33));
-        assert!((glass.reflect - 0.25).abs() < 1e-6, "clamped to 1 - transmit: {glass:?}");
+        assert_eq!(
+            (glass.diffuse, glass.transmit, glass.ior),
+            ([0.1, 0.2, 0.3], 0.75, 1.33)
+        );
+        assert!(
+            (glass.reflect - 0.25).abs() < 1e-6,
+            "clamped to 1 - transmit: {glass:?}"
+        );
         let mirror = l.materials[find("mirror")];
-        assert_eq!(mirror, Material { diffuse: [1.0, 0.5, 0.5], reflect: 0.7, transmit: 0.0, ior: 1.0 });
+        assert_eq!(
+            mirror,
+            Material {
+                diffuse: [1.0, 0.5, 0.5],
+                reflect: 0.7,
+                transmit: 0.0,
+                ior: 1.0
+            }
+        );
         let plain = l.materials[find("plain")];
-        assert_eq!(plain, Material { diffuse: [0.5; 3], reflect: 0.0, transmit: 0.4, ior: 1.5 });
-        let r = |first, name: &str| MaterialRange { first, material: find(name) as u32 };
+        assert_eq!(
+            plain,
+            Material {
+                diffuse: [0.5; 3],
+                reflect: 0.0,
+                transmit: 0.4,
+                ior: 1.5
+            }
+        );
+        let r = |first, name: &str| MaterialRange {
+            first,
+            material: find(name) as u32,
+        };
         assert_eq!(
             l.ranges,
-            [r(0, "glass"), r(2, "mirror"), MaterialRange { first: 3, material: DEFAULT_MATERIAL }, r(4, "plain")]
+            [
+                r(0, "glass"),
+                r(2, "mirror"),
+                MaterialRange {
+                    first: 3,
+                    material: DEFAULT_MATERIAL
+                },
+                r(4, "plain")
+            ]
         );
         l.materials().validate().unwrap();
         // Without the .mtl: a warning, every surface default.
         std::fs::remove_file(dir.join("m.mtl")).unwrap();
         let l = load(dir.join("a.obj").to_str().unwrap()).unwrap();
-        assert_eq!((l.indices.len() / 3, l.materials.len(), l.ranges.len()), (6, 0, 0));
+        assert_eq!(
+            (l.indices.len() / 3, l.materials.len(), l.ranges.len()),
+            (6, 0, 0)
+        );
         std::fs::remove_dir_all(&dir).ok();
     }
 }

@@ -3,9 +3,11 @@
 
 use crate::{Failure, OrFail};
 use sheaf::accel::grid::traverse_cgt::Mailbox;
-use sheaf::render::{PrimaryRays, Tracer, render_rows, render_tiles};
 use sheaf::render::whitted::{WhittedJob, render_whitted_rows, render_whitted_tiles};
-use sheaf::{Counters, Error, Frame, GridInfo, GridParams, Limits, OwnedContext, Pool, Scene, TraceParams};
+use sheaf::render::{PrimaryRays, Tracer, render_rows, render_tiles};
+use sheaf::{
+    Counters, Error, Frame, GridInfo, GridParams, Limits, OwnedContext, Pool, Scene, TraceParams,
+};
 use std::path::Path;
 use std::sync::Mutex;
 use std::time::Instant;
@@ -23,7 +25,9 @@ pub fn threads(requested: Option<u32>) -> Result<u32, Failure> {
         Some(n) => Err(Failure(format!("--threads {n}: must be in 1..=1024"))),
         None => {
             let cap = Limits::for_triangles(0).max_threads;
-            Ok(std::thread::available_parallelism().map_or(1, |n| n.get() as u32).min(cap))
+            Ok(std::thread::available_parallelism()
+                .map_or(1, |n| n.get() as u32)
+                .min(cap))
         }
     }
 }
@@ -56,10 +60,18 @@ pub fn context_for(
         let mut ctx = OwnedContext::new(&limits).or_fail(|| "creating the context".into())?;
         match ctx.build_grid(scene, params) {
             Ok(info) => return Ok((ctx, info)),
-            Err(Error::Capacity { pool: pool @ (Pool::GridCells | Pool::GridRefs), needed, .. }) => {
+            Err(Error::Capacity {
+                pool: pool @ (Pool::GridCells | Pool::GridRefs),
+                needed,
+                ..
+            }) => {
                 let grown = ((needed as f64 * headroom).ceil() as u64).max(needed);
-                let grown = u32::try_from(grown)
-                    .map_err(|_| Failure(format!("the grid needs {needed} {}: more than 2^32", pool.name())))?;
+                let grown = u32::try_from(grown).map_err(|_| {
+                    Failure(format!(
+                        "the grid needs {needed} {}: more than 2^32",
+                        pool.name()
+                    ))
+                })?;
                 match pool {
                     Pool::GridCells => limits.max_grid_cells = grown,
                     _ => limits.max_grid_refs = grown,
@@ -68,7 +80,9 @@ pub fn context_for(
             Err(e) => return Err(Failure(format!("building the grid: {e}"))),
         }
     }
-    Err(Failure("building the grid: pools still too small after growing them".into()))
+    Err(Failure(
+        "building the grid: pools still too small after growing them".into(),
+    ))
 }
 
 /// Build the BVH (default parameters, triangle test `test`) when one of
@@ -79,11 +93,19 @@ pub fn build_bvh_if_used(
     test: sheaf::TriTest,
     params: &[TraceParams],
 ) -> Result<Option<sheaf::accel::bvh::BvhInfo>, Failure> {
-    if !params.iter().any(|p| p.method.structure() == sheaf::trace::Structure::Bvh) {
+    if !params
+        .iter()
+        .any(|p| p.method.structure() == sheaf::trace::Structure::Bvh)
+    {
         return Ok(None);
     }
-    let p = sheaf::accel::bvh::BvhParams { test, ..Default::default() };
-    ctx.build_bvh(scene, &p).map(Some).or_fail(|| "building the BVH".into())
+    let p = sheaf::accel::bvh::BvhParams {
+        test,
+        ..Default::default()
+    };
+    ctx.build_bvh(scene, &p)
+        .map(Some)
+        .or_fail(|| "building the BVH".into())
 }
 
 /// Render `frame` into `pixels` (RGBA8, stride `4 * width`) on `threads`
@@ -98,13 +120,17 @@ pub fn render_frame(
     threads: u32,
 ) -> Result<Counters, Failure> {
     let stride = frame.width as usize * 4;
-    let rays = ctx.check_frame(frame, pixels.len(), stride).or_fail(|| "frame".into())?;
+    let rays = ctx
+        .check_frame(frame, pixels.len(), stride)
+        .or_fail(|| "frame".into())?;
     let start = Instant::now();
     let (tracer, mailboxes) = ctx.parts()?;
     tracer.with_single(shadow.method)?;
     let tracer = tracer.with_single(primary.method)?;
     let mailboxes: Vec<Mailbox<'_>> = mailboxes.take(threads as usize).collect();
-    let ctr = render_bands(&tracer, primary, shadow, frame, &rays, pixels, stride, mailboxes);
+    let ctr = render_bands(
+        &tracer, primary, shadow, frame, &rays, pixels, stride, mailboxes,
+    );
     ctx.record(ctr, start.elapsed().as_nanos() as u64);
     Ok(ctr)
 }
@@ -123,14 +149,26 @@ fn render_bands<T: Tracer>(
     mailboxes: Vec<Mailbox<'_>>,
 ) -> Counters {
     let side = primary.tile_side().max(shadow.tile_side());
-    let tile = TraceParams { packet: side, ..*primary };
-    bands(side, frame.height, pixels, stride, mailboxes, |y0, y1, band, mb, ctr| {
-        if side > 0 {
-            render_tiles(tracer, &tile, shadow, frame, rays, y0, y1, band, stride, mb, ctr);
-        } else {
-            render_rows(tracer, frame, rays, y0, y1, band, stride, ctr);
-        }
-    })
+    let tile = TraceParams {
+        packet: side,
+        ..*primary
+    };
+    bands(
+        side,
+        frame.height,
+        pixels,
+        stride,
+        mailboxes,
+        |y0, y1, band, mb, ctr| {
+            if side > 0 {
+                render_tiles(
+                    tracer, &tile, shadow, frame, rays, y0, y1, band, stride, mb, ctr,
+                );
+            } else {
+                render_rows(tracer, frame, rays, y0, y1, band, stride, ctr);
+            }
+        },
+    )
 }
 
 /// Split `height` rows of `pixels` into bands of whole tile rows (tiles of
@@ -147,7 +185,11 @@ fn bands(
     work: impl Fn(u32, u32, &mut [u8], &mut Mailbox<'_>, &mut Counters) + Sync,
 ) -> Counters {
     let side = side as usize;
-    let band_rows = if side > 0 { side * BAND_ROWS.div_ceil(side) } else { BAND_ROWS };
+    let band_rows = if side > 0 {
+        side * BAND_ROWS.div_ceil(side)
+    } else {
+        BAND_ROWS
+    };
     let pixels = &mut pixels[..height as usize * stride];
     let queue = Mutex::new(pixels.chunks_mut(band_rows * stride).enumerate());
     let run = |mut mb: Mailbox<'_>| {
@@ -165,7 +207,12 @@ fn bands(
     let first = mbs.next().expect("at least one thread slot");
     std::thread::scope(|s| {
         let helpers: Vec<_> = mbs
-            .map(|mb| std::thread::Builder::new().stack_size(THREAD_STACK).spawn_scoped(s, || run(mb)).expect("spawn a render thread"))
+            .map(|mb| {
+                std::thread::Builder::new()
+                    .stack_size(THREAD_STACK)
+                    .spawn_scoped(s, || run(mb))
+                    .expect("spawn a render thread")
+            })
             .collect();
         let mut total = run(first);
         for h in helpers {
@@ -184,26 +231,50 @@ const THREAD_STACK: usize = 4 << 20;
 
 /// Render a Whitted frame (`job`) into `pixels` (RGBA8, stride `4 * width`)
 /// on `threads` threads, as `render_frame` does for plain frames.
-pub fn render_whitted_frame(ctx: &mut OwnedContext, job: &WhittedJob<'_>, pixels: &mut [u8], threads: u32) -> Result<Counters, Failure> {
+pub fn render_whitted_frame(
+    ctx: &mut OwnedContext,
+    job: &WhittedJob<'_>,
+    pixels: &mut [u8],
+    threads: u32,
+) -> Result<Counters, Failure> {
     job.validate().or_fail(|| "Whitted parameters".into())?;
     let frame = job.frame;
     let stride = frame.width as usize * 4;
-    let rays = ctx.check_frame(frame, pixels.len(), stride).or_fail(|| "frame".into())?;
+    let rays = ctx
+        .check_frame(frame, pixels.len(), stride)
+        .or_fail(|| "frame".into())?;
     let start = Instant::now();
     let (tracer, mailboxes) = ctx.parts()?;
     tracer.with_single(job.shadow.method)?;
     tracer.with_single(job.secondary.method)?;
     let tracer = tracer.with_single(job.primary.method)?;
     let mailboxes: Vec<Mailbox<'_>> = mailboxes.take(threads as usize).collect();
-    let side = job.primary.tile_side().max(job.shadow.tile_side()).max(job.secondary.tile_side());
-    let tiled = WhittedJob { primary: TraceParams { packet: side, ..job.primary }, ..*job };
-    let ctr = bands(side, frame.height, pixels, stride, mailboxes, |y0, y1, band, mb, ctr| {
-        if side > 0 {
-            render_whitted_tiles(&tracer, &tiled, &rays, y0, y1, band, stride, mb, ctr);
-        } else {
-            render_whitted_rows(&tracer, job, &rays, y0, y1, band, stride, ctr);
-        }
-    });
+    let side = job
+        .primary
+        .tile_side()
+        .max(job.shadow.tile_side())
+        .max(job.secondary.tile_side());
+    let tiled = WhittedJob {
+        primary: TraceParams {
+            packet: side,
+            ..job.primary
+        },
+        ..*job
+    };
+    let ctr = bands(
+        side,
+        frame.height,
+        pixels,
+        stride,
+        mailboxes,
+        |y0, y1, band, mb, ctr| {
+            if side > 0 {
+                render_whitted_tiles(&tracer, &tiled, &rays, y0, y1, band, stride, mb, ctr);
+            } else {
+                render_whitted_rows(&tracer, job, &rays, y0, y1, band, stride, ctr);
+            }
+        },
+    );
     ctx.record(ctr, start.elapsed().as_nanos() as u64);
     Ok(ctr)
 }
@@ -226,7 +297,11 @@ pub fn write_png(path: &Path, pixels: &[u8], width: u32, height: u32) -> Result<
 
 /// `rays / ns` in millions per second (0 for no time).
 pub fn mrays(rays: u64, ns: u64) -> f64 {
-    if ns == 0 { 0.0 } else { rays as f64 * 1e3 / ns as f64 }
+    if ns == 0 {
+        0.0
+    } else {
+        rays as f64 * 1e3 / ns as f64
+    }
 }
 
 pub fn ms(ns: u64) -> f64 {

@@ -42,7 +42,12 @@ pub fn outside(lo: Vec3, hi: Vec3, up: Vec3, fov_y_deg: f32, aspect: f32) -> Vie
     let half_y = (fov_y_deg.to_radians() * 0.5).clamp(1e-3, 1.5);
     let half_x = (half_y.tan() * aspect).atan();
     let dist = r / half_y.min(half_x).sin();
-    View { eye: c + dir * dist, look_at: c, up, fov_y_deg }
+    View {
+        eye: c + dir * dist,
+        look_at: c,
+        up,
+        fov_y_deg,
+    }
 }
 
 /// Axis closest to `up`, and the longer of the two others.
@@ -61,7 +66,9 @@ fn probe<T: Tracer>(t: &T, p: Vec3, d: Vec3) -> (f32, bool) {
     if !h.is_hit() {
         return (f32::INFINITY, false);
     }
-    let facing = t.triangle(h.prim).is_some_and(|tri| tri.normal().dot(d) < 0.0);
+    let facing = t
+        .triangle(h.prim)
+        .is_some_and(|tri| tri.normal().dot(d) < 0.0);
     (h.t, facing)
 }
 
@@ -74,13 +81,19 @@ pub fn inside<T: Tracer>(t: &T, lo: Vec3, hi: Vec3, up: Vec3, fov_y_deg: f32) ->
     let ext = hi - lo;
     let mut base = 0.5 * (lo + hi);
     // A quarter of the height, above the floor as `up` sees it.
-    base[ua] = if up[ua] >= 0.0 { lo[ua] + 0.25 * ext[ua] } else { hi[ua] - 0.25 * ext[ua] };
+    base[ua] = if up[ua] >= 0.0 {
+        lo[ua] + 0.25 * ext[ua]
+    } else {
+        hi[ua] - 0.25 * ext[ua]
+    };
     // Candidates from the centre outwards; a farther one wins only with strictly more clearance.
     let mut best = (f32::NEG_INFINITY, base);
     for k in [0i32, -1, 1, -2, 2, -3, 3, -4, 4] {
         let mut p = base;
         p[ha] += ext[ha] * 0.09 * k as f32;
-        let clearance = (0..PROBES).map(|i| probe(t, p, probe_dir(i)).0).fold(f32::INFINITY, f32::min);
+        let clearance = (0..PROBES)
+            .map(|i| probe(t, p, probe_dir(i)).0)
+            .fold(f32::INFINITY, f32::min);
         if clearance > best.0 {
             best = (clearance, p);
         }
@@ -89,10 +102,19 @@ pub fn inside<T: Tracer>(t: &T, lo: Vec3, hi: Vec3, up: Vec3, fov_y_deg: f32) ->
     let mut axis = Vec3::ZERO;
     axis[ha] = 1.0;
     let open = |d: Vec3| probe(t, eye, d).0.min(ext[ha]);
-    let dir = if open(axis) >= open(-axis) { axis } else { -axis };
+    let dir = if open(axis) >= open(-axis) {
+        axis
+    } else {
+        -axis
+    };
     // Look slightly down, a quarter of the way along the axis.
     let look_at = eye + dir * (0.25 * ext[ha]) - up * (0.02 * ext[ha]);
-    View { eye, look_at, up, fov_y_deg }
+    View {
+        eye,
+        look_at,
+        up,
+        fov_y_deg,
+    }
 }
 
 /// Whether `eye` is inside a room: at least 70 % of the probe rays hit and
@@ -124,5 +146,8 @@ pub fn light_for<T: Tracer>(t: &T, v: &View, interior: bool, scale: f32) -> Poin
         let d = (v.eye - v.look_at).length();
         v.eye + (up * 0.8 + right * 0.5 + back * 0.2) * (0.6 * d)
     };
-    PointLight { position: position.to_array(), color: [1.0; 3] }
+    PointLight {
+        position: position.to_array(),
+        color: [1.0; 3],
+    }
 }

@@ -22,14 +22,19 @@
 //! median of `--reps` timed runs after an untimed one.
 #![forbid(unsafe_code)]
 
-use crate::bench::{SceneSpec, chart, command_line, machine_line, median, scene_specs, timed, view_for};
+use crate::bench::{
+    SceneSpec, chart, command_line, machine_line, median, scene_specs, timed, view_for,
+};
 use crate::load;
 use crate::run::{self, ms};
 use crate::{BenchArgs, Failure, OrFail, TestArg};
 use sheaf::render::material::{Material, Materials};
 use sheaf::render::whitted::{WhittedJob, WhittedParams};
-use sheaf::trace::{BvhOptions, RayKind, DEPTH_BINS};
-use sheaf::{BvhParams, Camera, Counters, Frame, Limits, Method, OwnedContext, PointLight, Shading, TraceParams};
+use sheaf::trace::{BvhOptions, DEPTH_BINS, RayKind};
+use sheaf::{
+    BvhParams, Camera, Counters, Frame, Limits, Method, OwnedContext, PointLight, Shading,
+    TraceParams,
+};
 use std::fmt::Write as _;
 use std::time::Instant;
 
@@ -45,19 +50,66 @@ struct Level {
     params: WhittedParams,
 }
 
-const fn level(name: &'static str, shadows: bool, material: Option<Material>, max_reflect: u32, max_refract: u32) -> Level {
-    Level { name, shadows, material, params: WhittedParams { max_reflect, max_refract } }
+const fn level(
+    name: &'static str,
+    shadows: bool,
+    material: Option<Material>,
+    max_reflect: u32,
+    max_refract: u32,
+) -> Level {
+    Level {
+        name,
+        shadows,
+        material,
+        params: WhittedParams {
+            max_reflect,
+            max_refract,
+        },
+    }
 }
 
 const GREY: [f32; 3] = [0.8, 0.78, 0.72];
 const LEVELS: [Level; 4] = [
     level("primary", false, None, 0, 0),
     level("primary + shadows", true, None, 0, 0),
-    level("2-deep refractions", false, Some(Material { diffuse: GREY, reflect: 0.0, transmit: 0.8, ior: 1.5 }), 0, 2),
-    level("2-bounce reflections", false, Some(Material { diffuse: GREY, reflect: 0.8, transmit: 0.0, ior: 1.0 }), 2, 0),
+    level(
+        "2-deep refractions",
+        false,
+        Some(Material {
+            diffuse: GREY,
+            reflect: 0.0,
+            transmit: 0.8,
+            ior: 1.5,
+        }),
+        0,
+        2,
+    ),
+    level(
+        "2-bounce reflections",
+        false,
+        Some(Material {
+            diffuse: GREY,
+            reflect: 0.8,
+            transmit: 0.0,
+            ior: 1.0,
+        }),
+        2,
+        0,
+    ),
 ];
 /// Table 2's frame.
-const WHITTED: Level = level("Whitted: shadows + 1 reflection + 2 refractions", true, Some(Material { diffuse: GREY, reflect: 0.3, transmit: 0.3, ior: 1.5 }), 1, 2);
+const WHITTED: Level = level(
+    "Whitted: shadows + 1 reflection + 2 refractions",
+    true,
+    Some(Material {
+        diffuse: GREY,
+        reflect: 0.3,
+        transmit: 0.3,
+        ior: 1.5,
+    }),
+    1,
+    2,
+);
 
 const TRAVERSALS: [Method; 3] = [Method::BvhMasked, Method::BvhRanged, Method::BvhPartition];
 
@@ -72,7 +124,15 @@ struct Config {
 
 impl Config {
     fn params(&self, m: Method) -> TraceParams {
-        TraceParams { method: m, packet: self.packet.max(2), bvh: BvhOptions { culling: self.culling, kind: RayKind::Auto }, ..TraceParams::default() }
+        TraceParams {
+            method: m,
+            packet: self.packet.max(2),
+            bvh: BvhOptions {
+                culling: self.culling,
+                kind: RayKind::Auto,
+            },
+            ..TraceParams::default()
+        }
     }
     fn label(&self) -> String {
         let name = |m: Method| m.name().trim_start_matches("bvh-").to_string();
@@ -81,7 +141,13 @@ impl Config {
         } else if self.primary == self.secondary {
             format!("{} {}x{}", name(self.primary), self.packet, self.packet)
         } else {
-            format!("{}/{} {}x{}", name(self.primary), name(self.secondary), self.packet, self.packet)
+            format!(
+                "{}/{} {}x{}",
+                name(self.primary),
+                name(self.secondary),
+                self.packet,
+                self.packet
+            )
         };
         if !self.culling {
             s.push_str(" no-culling");
@@ -110,10 +176,30 @@ struct Setup<'a> {
 
 impl Setup<'_> {
     /// Render `level` with `cfg`: untimed run (counters, image), then the timed median.
-    fn frame(&mut self, level: &Level, cfg: &Config, pixels: &mut Vec<u8>) -> Result<(u64, Counters), Failure> {
-        let frame = Frame { shading: Shading { shadows: level.shadows, ..self.frame.shading }, ..self.frame };
-        let material = level.material.unwrap_or(Material::diffuse(frame.shading.albedo));
-        let materials = if level.material.is_some() { Materials::uniform(&material) } else { Materials { materials: &[], ranges: &[] } };
+    fn frame(
+        &mut self,
+        level: &Level,
+        cfg: &Config,
+        pixels: &mut Vec<u8>,
+    ) -> Result<(u64, Counters), Failure> {
+        let frame = Frame {
+            shading: Shading {
+                shadows: level.shadows,
+                ..self.frame.shading
+            },
+            ..self.frame
+        };
+        let material = level
+            .material
+            .unwrap_or(Material::diffuse(frame.shading.albedo));
+        let materials = if level.material.is_some() {
+            Materials::uniform(&material)
+        } else {
+            Materials {
+                materials: &[],
+                ranges: &[],
+            }
+        };
         let job = WhittedJob {
             frame: &frame,
             lights: &[],
@@ -140,17 +226,25 @@ impl Setup<'_> {
 
 pub fn run(a: &BenchArgs) -> Result<(), Failure> {
     let start = Instant::now();
-    let (w, h) = a.size.unwrap_or(if a.quick { (256, 256) } else { (1024, 1024) });
+    let (w, h) = a
+        .size
+        .unwrap_or(if a.quick { (256, 256) } else { (1024, 1024) });
     let threads = *a.threads.iter().max().unwrap_or(&1);
     if !(1..=64).contains(&threads) {
         return Err(Failure("--threads: each must be in 1..=64".into()));
     }
     let reps = a.reps.unwrap_or(if a.quick { 1 } else { 3 }).max(1);
-    let mut packets: Vec<u32> = if a.packets.is_empty() { vec![4, 8, 16, 32] } else { a.packets.iter().copied().filter(|&n| n >= 4).collect() };
+    let mut packets: Vec<u32> = if a.packets.is_empty() {
+        vec![4, 8, 16, 32]
+    } else {
+        a.packets.iter().copied().filter(|&n| n >= 4).collect()
+    };
     packets.sort_unstable();
     packets.dedup();
     for &n in &packets {
-        TraceParams::bvh(Method::BvhRanged, n).validate().or_fail(|| format!("--packets {n}"))?;
+        TraceParams::bvh(Method::BvhRanged, n)
+            .validate()
+            .or_fail(|| format!("--packets {n}"))?;
     }
     let test = match a.tests.first() {
         Some(TestArg::Watertight) => sheaf::TriTest::Watertight,
@@ -158,23 +252,67 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
         _ => sheaf::TriTest::MollerTrumbore,
     };
     let specs: Vec<SceneSpec> = scene_specs(a)?;
-    std::fs::create_dir_all(&a.out_dir).or_fail(|| format!("cannot create {}", a.out_dir.display()))?;
+    std::fs::create_dir_all(&a.out_dir)
+        .or_fail(|| format!("cannot create {}", a.out_dir.display()))?;
     let machine = machine_line();
-    let mut cfgs = vec![Config { primary: Method::BvhSimd, secondary: Method::BvhSimd, packet: 2, culling: true }];
+    let mut cfgs = vec![Config {
+        primary: Method::BvhSimd,
+        secondary: Method::BvhSimd,
+        packet: 2,
+        culling: true,
+    }];
     for m in TRAVERSALS {
-        cfgs.extend(packets.iter().map(|&n| Config { primary: m, secondary: m, packet: n, culling: true }));
+        cfgs.extend(packets.iter().map(|&n| Config {
+            primary: m,
+            secondary: m,
+            packet: n,
+            culling: true,
+        }));
     }
     for m in [Method::BvhRanged, Method::BvhPartition] {
-        cfgs.extend(packets.iter().filter(|&&n| n >= 16).map(|&n| Config { primary: m, secondary: m, packet: n, culling: false }));
+        cfgs.extend(packets.iter().filter(|&&n| n >= 16).map(|&n| Config {
+            primary: m,
+            secondary: m,
+            packet: n,
+            culling: false,
+        }));
     }
-    let recommended = Config { primary: Method::BvhRanged, secondary: Method::BvhPartition, packet: 16, culling: true };
+    let recommended = Config {
+        primary: Method::BvhRanged,
+        secondary: Method::BvhPartition,
+        packet: 16,
+        culling: true,
+    };
     let table2 = [
-        Config { primary: Method::BvhSingle, secondary: Method::BvhSingle, packet: 0, culling: true },
-        Config { primary: Method::BvhSimd, secondary: Method::BvhSimd, packet: 2, culling: true },
+        Config {
+            primary: Method::BvhSingle,
+            secondary: Method::BvhSingle,
+            packet: 0,
+            culling: true,
+        },
+        Config {
+            primary: Method::BvhSimd,
+            secondary: Method::BvhSimd,
+            packet: 2,
+            culling: true,
+        },
         recommended,
-        Config { culling: false, ..recommended },
-        Config { primary: Method::BvhRanged, secondary: Method::BvhRanged, packet: 16, culling: true },
-        Config { primary: Method::BvhPartition, secondary: Method::BvhPartition, packet: 16, culling: true },
+        Config {
+            culling: false,
+            ..recommended
+        },
+        Config {
+            primary: Method::BvhRanged,
+            secondary: Method::BvhRanged,
+            packet: 16,
+            culling: true,
+        },
+        Config {
+            primary: Method::BvhPartition,
+            secondary: Method::BvhPartition,
+            packet: 16,
+            culling: true,
+        },
     ];
     println!(
         "sheaf bench --whitted: {} scenes x {} levels x {} configurations (+ Table 2: {}), {w}x{h}, {threads} threads, {:?}, median of up to {reps} timed runs, machine: {machine}",
@@ -206,23 +344,40 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
         limits.structures = Limits::BVH;
         limits.projection_test = test == sheaf::TriTest::Projection;
         let mut ctx = OwnedContext::new(&limits).or_fail(|| "creating the context".into())?;
-        let bp = BvhParams { test, ..BvhParams::default() };
+        let bp = BvhParams {
+            test,
+            ..BvhParams::default()
+        };
         let mut builds = Vec::new();
         let mut info = None;
         for _ in 0..BUILD_REPS {
-            info = Some(ctx.build_bvh(&scene, &bp).or_fail(|| format!("{}: building the BVH", spec.name))?);
+            info = Some(
+                ctx.build_bvh(&scene, &bp)
+                    .or_fail(|| format!("{}: building the BVH", spec.name))?,
+            );
             builds.push(ctx.stats().bvh_build_ns);
         }
         let info = info.expect("BUILD_REPS > 0");
         if info.triangles == 0 {
-            println!("note: {}: every triangle is degenerate or non-finite, skipped", spec.name);
+            println!(
+                "note: {}: every triangle is degenerate or non-finite, skipped",
+                spec.name
+            );
             continue;
         }
         let build_ns = median(builds);
         let (v, light, how) = view_for(&loaded, &ctx.tracer()?, &info.bounds, w, h);
         let frame = Frame {
-            camera: Camera { eye: v.eye.to_array(), look_at: v.look_at.to_array(), up: v.up.to_array(), fov_y_deg: v.fov_y_deg },
-            light: PointLight { position: light.to_array(), color: [1.0; 3] },
+            camera: Camera {
+                eye: v.eye.to_array(),
+                look_at: v.look_at.to_array(),
+                up: v.up.to_array(),
+                fov_y_deg: v.fov_y_deg,
+            },
+            light: PointLight {
+                position: light.to_array(),
+                color: [1.0; 3],
+            },
             shading: Shading::default(),
             width: w,
             height: h,
@@ -240,17 +395,37 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
         );
         println!("[{}] {note}", spec.name);
         notes.push(note);
-        let mut setup = Setup { frame, threads, reps, ctx: &mut ctx };
+        let mut setup = Setup {
+            frame,
+            threads,
+            reps,
+            ctx: &mut ctx,
+        };
         for lv in LEVELS.iter().chain([&WHITTED]) {
-            let list: &[Config] = if lv.name == WHITTED.name { &table2 } else { &cfgs };
+            let list: &[Config] = if lv.name == WHITTED.name {
+                &table2
+            } else {
+                &cfgs
+            };
             for (k, cfg) in list.iter().enumerate() {
                 let (ns, ctr) = setup.frame(lv, cfg, &mut pixels)?;
                 if k == 0 {
                     std::mem::swap(&mut base, &mut pixels);
                 }
                 let src = if k == 0 { &base } else { &pixels };
-                let diff = src.chunks_exact(4).zip(base.chunks_exact(4)).filter(|(a, b)| a != b).count();
-                let row = Row { scene: spec.name.clone(), level: lv.name, cfg: *cfg, ns, ctr, diff };
+                let diff = src
+                    .chunks_exact(4)
+                    .zip(base.chunks_exact(4))
+                    .filter(|(a, b)| a != b)
+                    .count();
+                let row = Row {
+                    scene: spec.name.clone(),
+                    level: lv.name,
+                    cfg: *cfg,
+                    ns,
+                    ctr,
+                    diff,
+                };
                 println!(
                     "[{}] {:<46} {:<32} {:>9.1} ms {:>7.2} Mrays/s {:>6.1} box {:>6.1} tri tests/ray{}",
                     spec.name,
@@ -260,7 +435,11 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
                     run::mrays(ctr.rays, ns),
                     ctr.aabb_tests as f64 / ctr.rays.max(1) as f64,
                     ctr.tri_tests as f64 / ctr.rays.max(1) as f64,
-                    if diff > 0 { format!("  IMAGE DIFFERS: {diff} pixels") } else { String::new() }
+                    if diff > 0 {
+                        format!("  IMAGE DIFFERS: {diff} pixels")
+                    } else {
+                        String::new()
+                    }
                 );
                 if lv.name == WHITTED.name {
                     if k == 2 {
@@ -274,11 +453,21 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
             }
         }
     }
-    let md = markdown(&rows, &t2, &notes, &machine, (w, h), threads, reps, start.elapsed().as_secs_f64());
+    let md = markdown(
+        &rows,
+        &t2,
+        &notes,
+        &machine,
+        (w, h),
+        threads,
+        reps,
+        start.elapsed().as_secs_f64(),
+    );
     let md_path = a.out_dir.join("whitted.md");
     std::fs::write(&md_path, &md).or_fail(|| format!("cannot write {}", md_path.display()))?;
     let csv_path = a.out_dir.join("whitted.csv");
-    std::fs::write(&csv_path, csv(&rows, &t2)).or_fail(|| format!("cannot write {}", csv_path.display()))?;
+    std::fs::write(&csv_path, csv(&rows, &t2))
+        .or_fail(|| format!("cannot write {}", csv_path.display()))?;
     let (svg, png) = (a.out_dir.join("figure5.svg"), a.out_dir.join("figure5.png"));
     figure5::write(&rows, &packets, &svg, &png)?;
     println!("\n{md}");
@@ -286,12 +475,20 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
     if differ > 0 {
         println!("warning: some frames differ from their level's SIMD frame (see the diff column)");
     }
-    println!("wrote {}, {}, {}, {}", md_path.display(), csv_path.display(), svg.display(), png.display());
+    println!(
+        "wrote {}, {}, {}, {}",
+        md_path.display(),
+        csv_path.display(),
+        svg.display(),
+        png.display()
+    );
     Ok(())
 }
 
 fn csv(rows: &[Row], t2: &[Row]) -> String {
-    let mut s = String::from("table,scene,level,config,primary,secondary,packet,culling,frame_ms,rays,aabb_tests,tri_tests,culled_nodes,culled_tris,pixels_differing");
+    let mut s = String::from(
+        "table,scene,level,config,primary,secondary,packet,culling,frame_ms,rays,aabb_tests,tri_tests,culled_nodes,culled_tris,pixels_differing",
+    );
     for d in 0..DEPTH_BINS {
         let _ = write!(s, ",aabb_d{d}");
     }
@@ -299,7 +496,11 @@ fn csv(rows: &[Row], t2: &[Row]) -> String {
         let _ = write!(s, ",tri_d{d}");
     }
     s.push('\n');
-    for (table, r) in rows.iter().map(|r| ("figure5", r)).chain(t2.iter().map(|r| ("table2", r))) {
+    for (table, r) in rows
+        .iter()
+        .map(|r| ("figure5", r))
+        .chain(t2.iter().map(|r| ("table2", r)))
+    {
         let c = &r.ctr;
         let _ = write!(
             s,
@@ -332,7 +533,16 @@ fn ratio(a: u64, b: u64) -> f64 {
 }
 
 #[allow(clippy::too_many_arguments)]
-fn markdown(rows: &[Row], t2: &[Row], notes: &[String], machine: &str, (w, h): (u32, u32), threads: u32, reps: u32, secs: f64) -> String {
+fn markdown(
+    rows: &[Row],
+    t2: &[Row],
+    notes: &[String],
+    machine: &str,
+    (w, h): (u32, u32),
+    threads: u32,
+    reps: u32,
+    secs: f64,
+) -> String {
     let mut s = String::from("# sheaf bench --whitted\n\n");
     let _ = writeln!(s, "- command: `{}`", command_line());
     let _ = writeln!(s, "- machine (at the start): {machine}");
@@ -340,7 +550,10 @@ fn markdown(rows: &[Row], t2: &[Row], notes: &[String], machine: &str, (w, h): (
         s,
         "- {w}x{h}, {threads} threads, frame time = ray generation + traversal + shading of the whole frame, median of up to {reps} runs after an untimed one; total {secs:.0} s"
     );
-    let _ = writeln!(s, "- every frame is compared pixel for pixel with its level's 2x2 SIMD frame: `diff` is the count of differing pixels (must be 0)\n");
+    let _ = writeln!(
+        s,
+        "- every frame is compared pixel for pixel with its level's 2x2 SIMD frame: `diff` is the count of differing pixels (must be 0)\n"
+    );
     for n in notes {
         let _ = writeln!(s, "- {n}");
     }
@@ -354,7 +567,11 @@ fn markdown(rows: &[Row], t2: &[Row], notes: &[String], machine: &str, (w, h): (
     s.push_str("| scene | single ms | 2x2 SIMD ms | 16x16 Ranged/Partition ms | speed-up vs SIMD | culling benefit | 16x16 Ranged ms | 16x16 Partition ms | diff |\n|---|--:|--:|--:|--:|--:|--:|--:|--:|\n");
     for sc in &scenes {
         let get = |i: usize| t2.iter().filter(|r| r.scene == *sc).nth(i);
-        let (Some(single), Some(simd), Some(rec), Some(nocull), Some(rg), Some(pt)) = (get(0), get(1), get(2), get(3), get(4), get(5)) else { continue };
+        let (Some(single), Some(simd), Some(rec), Some(nocull), Some(rg), Some(pt)) =
+            (get(0), get(1), get(2), get(3), get(4), get(5))
+        else {
+            continue;
+        };
         let diff: usize = t2.iter().filter(|r| r.scene == *sc).map(|r| r.diff).sum();
         let _ = writeln!(
             s,
@@ -370,7 +587,11 @@ fn markdown(rows: &[Row], t2: &[Row], notes: &[String], machine: &str, (w, h): (
     }
     s.push_str("\n## Figure 5: frame ms per traversal and packet side (culling on); SIMD = 2x2 SIMD rays\n\n");
     let sides: Vec<u32> = {
-        let mut v: Vec<u32> = rows.iter().filter(|r| r.cfg.packet >= 4).map(|r| r.cfg.packet).collect();
+        let mut v: Vec<u32> = rows
+            .iter()
+            .filter(|r| r.cfg.packet >= 4)
+            .map(|r| r.cfg.packet)
+            .collect();
         v.sort_unstable();
         v.dedup();
         v
@@ -389,8 +610,18 @@ fn markdown(rows: &[Row], t2: &[Row], notes: &[String], machine: &str, (w, h): (
         }
         s.push_str("---|---|--:|\n");
         for lv in LEVELS {
-            let of = |m: Method, n: u32, cull: bool| rows.iter().find(|r| r.scene == *sc && r.level == lv.name && r.cfg.primary == m && r.cfg.packet == n && r.cfg.culling == cull);
-            let Some(simd) = of(Method::BvhSimd, 2, true) else { continue };
+            let of = |m: Method, n: u32, cull: bool| {
+                rows.iter().find(|r| {
+                    r.scene == *sc
+                        && r.level == lv.name
+                        && r.cfg.primary == m
+                        && r.cfg.packet == n
+                        && r.cfg.culling == cull
+                })
+            };
+            let Some(simd) = of(Method::BvhSimd, 2, true) else {
+                continue;
+            };
             let _ = write!(s, "| {} | {:.1} |", lv.name, ms(simd.ns));
             let mut best: Option<&Row> = None;
             for m in TRAVERSALS {
@@ -410,7 +641,11 @@ fn markdown(rows: &[Row], t2: &[Row], notes: &[String], machine: &str, (w, h): (
                 (Some(on), Some(off)) => format!("{:.2}x", ratio(off.ns, on.ns)),
                 _ => "-".into(),
             };
-            let diff: usize = rows.iter().filter(|r| r.scene == *sc && r.level == lv.name).map(|r| r.diff).sum();
+            let diff: usize = rows
+                .iter()
+                .filter(|r| r.scene == *sc && r.level == lv.name)
+                .map(|r| r.diff)
+                .sum();
             let _ = writeln!(
                 s,
                 " {} ({:.2}x SIMD) | {} / {} | {diff} |",
@@ -422,12 +657,33 @@ fn markdown(rows: &[Row], t2: &[Row], notes: &[String], machine: &str, (w, h): (
         }
         s.push('\n');
     }
-    s.push_str("## Figure 6: ray-box and ray-triangle tests per BVH depth, 16x16, Ranged vs Partition\n\n");
+    s.push_str(
+        "## Figure 6: ray-box and ray-triangle tests per BVH depth, 16x16, Ranged vs Partition\n\n",
+    );
     for sc in &scenes {
         for lv in [LEVELS[0].name, LEVELS[3].name] {
-            let of = |m: Method| rows.iter().find(|r| r.scene == *sc && r.level == lv && r.cfg.primary == m && r.cfg.packet == 16 && r.cfg.culling);
-            let (Some(rg), Some(pt)) = (of(Method::BvhRanged), of(Method::BvhPartition)) else { continue };
-            let deepest = (0..DEPTH_BINS).rev().find(|&d| rg.ctr.aabb_by_depth[d] + pt.ctr.aabb_by_depth[d] + rg.ctr.tri_by_depth[d] + pt.ctr.tri_by_depth[d] > 0).unwrap_or(0);
+            let of = |m: Method| {
+                rows.iter().find(|r| {
+                    r.scene == *sc
+                        && r.level == lv
+                        && r.cfg.primary == m
+                        && r.cfg.packet == 16
+                        && r.cfg.culling
+                })
+            };
+            let (Some(rg), Some(pt)) = (of(Method::BvhRanged), of(Method::BvhPartition)) else {
+                continue;
+            };
+            let deepest = (0..DEPTH_BINS)
+                .rev()
+                .find(|&d| {
+                    rg.ctr.aabb_by_depth[d]
+                        + pt.ctr.aabb_by_depth[d]
+                        + rg.ctr.tri_by_depth[d]
+                        + pt.ctr.tri_by_depth[d]
+                        > 0
+                })
+                .unwrap_or(0);
             let _ = writeln!(
                 s,
                 "**{sc}, {lv}**: totals box tests Ranged {} / Partition {}, triangle tests Ranged {} / Partition {}\n",
@@ -471,7 +727,11 @@ mod figure5 {
         }
     }
 
-    fn draw<DB: DrawingBackend>(root: DrawingArea<DB, plotters::coord::Shift>, rows: &[Row], packets: &[u32]) -> Result<(), String>
+    fn draw<DB: DrawingBackend>(
+        root: DrawingArea<DB, plotters::coord::Shift>,
+        rows: &[Row],
+        packets: &[u32],
+    ) -> Result<(), String>
     where
         DB::ErrorType: 'static,
     {
@@ -480,17 +740,42 @@ mod figure5 {
         let mut scenes: Vec<&str> = rows.iter().map(|r| r.scene.as_str()).collect();
         scenes.dedup();
         let (title, body) = root.split_vertically(TITLE_H);
-        title.draw(&Text::new("Frame ms vs packet side (BVH paper Figure 5)", (10, 8), (chart::FONT, 16).into_font())).map_err(|x| e(&x))?;
+        title
+            .draw(&Text::new(
+                "Frame ms vs packet side (BVH paper Figure 5)",
+                (10, 8),
+                (chart::FONT, 16).into_font(),
+            ))
+            .map_err(|x| e(&x))?;
         let mut x = 10;
-        for (label, c) in [("Masked", colour(Method::BvhMasked)), ("Ranged", colour(Method::BvhRanged)), ("Partition", colour(Method::BvhPartition)), ("2x2 SIMD", RGBColor(120, 120, 120))] {
-            title.draw(&Rectangle::new([(x, 34), (x + 18, 40)], c.filled())).map_err(|x| e(&x))?;
-            title.draw(&Text::new(label, (x + 24, 30), (chart::FONT, 13).into_font())).map_err(|x| e(&x))?;
+        for (label, c) in [
+            ("Masked", colour(Method::BvhMasked)),
+            ("Ranged", colour(Method::BvhRanged)),
+            ("Partition", colour(Method::BvhPartition)),
+            ("2x2 SIMD", RGBColor(120, 120, 120)),
+        ] {
+            title
+                .draw(&Rectangle::new([(x, 34), (x + 18, 40)], c.filled()))
+                .map_err(|x| e(&x))?;
+            title
+                .draw(&Text::new(
+                    label,
+                    (x + 24, 30),
+                    (chart::FONT, 13).into_font(),
+                ))
+                .map_err(|x| e(&x))?;
             x += 110;
         }
         let panels = body.split_evenly((LEVELS.len(), scenes.len().max(1)));
         for (i, p) in panels.iter().enumerate() {
-            let (lv, sc) = (LEVELS[i / scenes.len().max(1)], scenes.get(i % scenes.len().max(1)).copied().unwrap_or(""));
-            let here: Vec<&Row> = rows.iter().filter(|r| r.scene == sc && r.level == lv.name && r.cfg.culling).collect();
+            let (lv, sc) = (
+                LEVELS[i / scenes.len().max(1)],
+                scenes.get(i % scenes.len().max(1)).copied().unwrap_or(""),
+            );
+            let here: Vec<&Row> = rows
+                .iter()
+                .filter(|r| r.scene == sc && r.level == lv.name && r.cfg.culling)
+                .collect();
             if here.is_empty() {
                 continue;
             }
@@ -513,25 +798,56 @@ mod figure5 {
                 .map_err(|x| e(&x))?;
             if let Some(simd) = here.iter().find(|r| r.cfg.primary == Method::BvhSimd) {
                 let y = simd.ns as f64 * 1e-6;
-                c.draw_series(DashedLineSeries::new([(lo, y), (hi, y)], 6, 4, RGBColor(120, 120, 120).stroke_width(2))).map_err(|x| e(&x))?;
+                c.draw_series(DashedLineSeries::new(
+                    [(lo, y), (hi, y)],
+                    6,
+                    4,
+                    RGBColor(120, 120, 120).stroke_width(2),
+                ))
+                .map_err(|x| e(&x))?;
             }
             for m in TRAVERSALS {
-                let pts: Vec<(f64, f64)> = here.iter().filter(|r| r.cfg.primary == m).map(|r| ((r.cfg.packet as f64).log2(), r.ns as f64 * 1e-6)).collect();
-                c.draw_series(LineSeries::new(pts.clone(), colour(m).stroke_width(2))).map_err(|x| e(&x))?;
-                c.draw_series(pts.iter().map(|&p| Circle::new(p, 3, colour(m).filled()))).map_err(|x| e(&x))?;
+                let pts: Vec<(f64, f64)> = here
+                    .iter()
+                    .filter(|r| r.cfg.primary == m)
+                    .map(|r| ((r.cfg.packet as f64).log2(), r.ns as f64 * 1e-6))
+                    .collect();
+                c.draw_series(LineSeries::new(pts.clone(), colour(m).stroke_width(2)))
+                    .map_err(|x| e(&x))?;
+                c.draw_series(pts.iter().map(|&p| Circle::new(p, 3, colour(m).filled())))
+                    .map_err(|x| e(&x))?;
             }
         }
         root.present().map_err(|x| e(&x))
     }
 
-    pub(super) fn write(rows: &[Row], packets: &[u32], svg: &Path, png: &Path) -> Result<(), Failure> {
+    pub(super) fn write(
+        rows: &[Row],
+        packets: &[u32],
+        svg: &Path,
+        png: &Path,
+    ) -> Result<(), Failure> {
         chart::register_font()?;
         let mut scenes: Vec<&str> = rows.iter().map(|r| r.scene.as_str()).collect();
         scenes.dedup();
-        let size = (PANEL.0 * scenes.len().max(2) as u32, PANEL.1 * LEVELS.len() as u32 + TITLE_H);
-        draw(SVGBackend::new(svg, size).into_drawing_area(), rows, packets).map_err(|x| Failure(format!("chart {}: {x}", svg.display())))?;
+        let size = (
+            PANEL.0 * scenes.len().max(2) as u32,
+            PANEL.1 * LEVELS.len() as u32 + TITLE_H,
+        );
+        draw(
+            SVGBackend::new(svg, size).into_drawing_area(),
+            rows,
+            packets,
+        )
+        .map_err(|x| Failure(format!("chart {}: {x}", svg.display())))?;
         let mut buf = vec![0u8; size.0 as usize * size.1 as usize * 3];
-        draw(BitMapBackend::with_buffer(&mut buf, size).into_drawing_area(), rows, packets).map_err(|x| Failure(format!("chart: {x}")))?;
-        image::save_buffer(png, &buf, size.0, size.1, image::ExtendedColorType::Rgb8).or_fail(|| format!("cannot write {}", png.display()))
+        draw(
+            BitMapBackend::with_buffer(&mut buf, size).into_drawing_area(),
+            rows,
+            packets,
+        )
+        .map_err(|x| Failure(format!("chart: {x}")))?;
+        image::save_buffer(png, &buf, size.0, size.1, image::ExtendedColorType::Rgb8)
+            .or_fail(|| format!("cannot write {}", png.display()))
     }
 }

@@ -1,5 +1,7 @@
 //! Bounding frusta of large ray packets (Overbeck, Ramamoorthi, Mark 2008,
-//! section 4), for culling boxes and triangles a whole packet misses.
+//! section 4), for culling boxes and triangles a whole packet misses. The
+//! BVH packets cull with them; the kd-tree packets and the entry-point
+//! searches (MLRTA, AEPSA) use them as the "ray proxy frustum".
 //!
 //! A frustum is four side planes `(n_i, b_i)`; a point `p` lies outside
 //! plane `i` when `H_i = n_i . p - b_i > 0` (Eq. 1), and a box or triangle
@@ -62,8 +64,26 @@
 // `!(x > 0.0)` and the like are deliberate: NaN must fail the test.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
-use super::{BvhNode, RayKind};
 use crate::geom::{Aabb, F4, M4, Ray4, TriVerts};
+
+/// Which frustum a packet gets (section 4). `Auto` picks the common-origin
+/// frustum (4.2) when all active rays share their origin, else the
+/// near/far-plane frustum (4.3).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum RayKind {
+    #[default]
+    Auto = 0,
+    /// Camera rays of an n x n pixel packet (lanes as the renderer packs
+    /// them): the frustum of the 4 corner rays (4.1). Full packets only;
+    /// others fall back to `Auto`.
+    Primary = 1,
+    /// Rays from one point light (4.2).
+    Shadow = 2,
+    /// Reflection or refraction rays (4.3).
+    Secondary = 3,
+}
+
 use crate::math;
 
 /// Relative culling margin: a plane culls only what lies beyond it by more
@@ -85,7 +105,11 @@ fn dot(a: V3, b: V3) -> f64 {
 }
 #[inline(always)]
 fn cross(a: V3, b: V3) -> V3 {
-    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
 }
 #[inline(always)]
 fn sub(a: V3, b: V3) -> V3 {
@@ -193,7 +217,13 @@ fn dominant_axis(rays: &[Ray4], live: &[M4]) -> Option<(usize, f32)> {
     }
     let s = [s[0].element_sum(), s[1].element_sum(), s[2].element_sum()];
     let a = [s[0].abs(), s[1].abs(), s[2].abs()];
-    let k = if a[0] >= a[1] && a[0] >= a[2] { 0 } else if a[1] >= a[2] { 1 } else { 2 };
+    let k = if a[0] >= a[1] && a[0] >= a[2] {
+        0
+    } else if a[1] >= a[2] {
+        1
+    } else {
+        2
+    };
     if !(a[k] > 0.0 && a[k].is_finite()) {
         return None;
     }
@@ -229,7 +259,9 @@ impl Frustum {
             return None;
         }
         match kind {
-            RayKind::Primary => Self::from_primary(rays, live, bounds).or_else(|| Self::auto(rays, live, bounds)),
+            RayKind::Primary => {
+                Self::from_primary(rays, live, bounds).or_else(|| Self::auto(rays, live, bounds))
+            }
             // Point-light shadow rays share the light as origin; when they
             // do not, Auto picks the general frustum.
             RayKind::Auto | RayKind::Shadow => Self::auto(rays, live, bounds),
@@ -258,7 +290,12 @@ impl Frustum {
         }
         let s = side - 1;
         // Cyclic order TL, TR, BR, BL: (quad, lane).
-        let corners = [(0, 0), (morton(s, 0), 1), (morton(s, s), 3), (morton(0, s), 2)];
+        let corners = [
+            (0, 0),
+            (morton(s, 0), 1),
+            (morton(s, s), 3),
+            (morton(0, s), 2),
+        ];
         if corners.iter().any(|&(q, i)| !live[q].test(i)) {
             return None;
         }
@@ -266,9 +303,17 @@ impl Frustum {
         let o = v3(o32);
         let mut c = [[0.0; 3]; 4];
         for (j, &(q, i)) in corners.iter().enumerate() {
-            c[j] = unit([rays[q].dir[0][i] as f64, rays[q].dir[1][i] as f64, rays[q].dir[2][i] as f64])?;
+            c[j] = unit([
+                rays[q].dir[0][i] as f64,
+                rays[q].dir[1][i] as f64,
+                rays[q].dir[2][i] as f64,
+            ])?;
         }
-        let inside = [c[0][0] + c[1][0] + c[2][0] + c[3][0], c[0][1] + c[1][1] + c[2][1] + c[3][1], c[0][2] + c[1][2] + c[2][2] + c[3][2]];
+        let inside = [
+            c[0][0] + c[1][0] + c[2][0] + c[3][0],
+            c[0][1] + c[1][1] + c[2][1] + c[3][1],
+            c[0][2] + c[1][2] + c[2][2] + c[3][2],
+        ];
         let mut n = [[0.0; 3]; 4];
         let mut b = [0.0; 4];
         for i in 0..4 {
@@ -295,7 +340,9 @@ impl Frustum {
         // tenth of the margin there.
         let mut far2 = 0.0f64;
         for (a, oa) in o.iter().enumerate() {
-            let g = (bounds.min[a] as f64 - oa).abs().max((bounds.max[a] as f64 - oa).abs());
+            let g = (bounds.min[a] as f64 - oa)
+                .abs()
+                .max((bounds.max[a] as f64 - oa).abs());
             far2 += g * g;
         }
         let far = math::sqrt64(far2);
@@ -305,7 +352,9 @@ impl Frustum {
         let mut slack = 0.0f64;
         for (r, m) in rays[..nq].iter().zip(&live[..nq]) {
             for ni in &n {
-                let d = r.dir[0] * F4::splat(ni[0] as f32) + r.dir[1] * F4::splat(ni[1] as f32) + r.dir[2] * F4::splat(ni[2] as f32);
+                let d = r.dir[0] * F4::splat(ni[0] as f32)
+                    + r.dir[1] * F4::splat(ni[1] as f32)
+                    + r.dir[2] * F4::splat(ni[2] as f32);
                 let out = d.cmpgt(F4::ZERO) & *m;
                 if out.any() {
                     for l in 0..4 {
@@ -324,7 +373,18 @@ impl Frustum {
         let slack = slack + F32_ERR;
         // Rays outside the planes by at most `slack` lie within about
         // `4 slack` of the corner cone (its corners are far from flat).
-        Some(Self::finish(FrustumKind::Primary, n, b, sc, eps + slack * far, Some(Apex { o, c, slack: 4.0 * slack })))
+        Some(Self::finish(
+            FrustumKind::Primary,
+            n,
+            b,
+            sc,
+            eps + slack * far,
+            Some(Apex {
+                o,
+                c,
+                slack: 4.0 * slack,
+            }),
+        ))
     }
 
     /// Section 4.2: live rays from one origin, bounded by their `(u, v)`
@@ -340,7 +400,10 @@ impl Frustum {
         let (k, sg) = dominant_axis(rays, live)?;
         let (u, v) = ((k + 1) % 3, (k + 2) % 3);
         // Slopes per unit of travel along k: (d_u, d_v) / |d_k|.
-        let (mut eu, mut ev) = ([f32::INFINITY, f32::NEG_INFINITY], [f32::INFINITY, f32::NEG_INFINITY]);
+        let (mut eu, mut ev) = (
+            [f32::INFINITY, f32::NEG_INFINITY],
+            [f32::INFINITY, f32::NEG_INFINITY],
+        );
         for (r, m) in rays.iter().zip(live) {
             if !m.any() {
                 continue;
@@ -368,9 +431,21 @@ impl Frustum {
             c[v] = sv;
             unit(c)
         };
-        let c = [corner(ext[0], ext[2])?, corner(ext[1], ext[2])?, corner(ext[1], ext[3])?, corner(ext[0], ext[3])?];
+        let c = [
+            corner(ext[0], ext[2])?,
+            corner(ext[1], ext[2])?,
+            corner(ext[1], ext[3])?,
+            corner(ext[0], ext[3])?,
+        ];
         let sc = scale(bounds, rays, live);
-        Some(Self::finish(FrustumKind::CommonOrigin, n, b, sc, CULL_EPS * sc, Some(Apex { o, c, slack: 0.0 })))
+        Some(Self::finish(
+            FrustumKind::CommonOrigin,
+            n,
+            b,
+            sc,
+            CULL_EPS * sc,
+            Some(Apex { o, c, slack: 0.0 }),
+        ))
     }
 
     /// Section 4.3: any live rays moving the same way along the dominant
@@ -400,7 +475,11 @@ impl Frustum {
             smax = smax.max(F4::select(*m, su, F4::ZERO).max_element());
         }
         let k_near = (sg as f64 * (onear as f64 - eps)) as f32;
-        let k_far = (if sg > 0.0 { bounds.max[k] as f64 + eps } else { bounds.min[k] as f64 - eps }) as f32;
+        let k_far = (if sg > 0.0 {
+            bounds.max[k] as f64 + eps
+        } else {
+            bounds.min[k] as f64 - eps
+        }) as f32;
         let delta = (k_far as f64 - k_near as f64) * sg as f64;
         if !(delta > 0.0 && delta.is_finite() && smax.is_finite()) {
             return None;
@@ -441,8 +520,16 @@ impl Frustum {
     }
 
     /// `sc`: the scale (see `scale`); `margin`: the plane margin.
-    fn finish(kind: FrustumKind, n: [V3; 4], b: [f64; 4], sc: f64, margin: f64, apex: Option<Apex>) -> Frustum {
-        let lanes = |f: &dyn Fn(usize) -> f64| F4::new(f(0) as f32, f(1) as f32, f(2) as f32, f(3) as f32);
+    fn finish(
+        kind: FrustumKind,
+        n: [V3; 4],
+        b: [f64; 4],
+        sc: f64,
+        margin: f64,
+        apex: Option<Apex>,
+    ) -> Frustum {
+        let lanes =
+            |f: &dyn Fn(usize) -> f64| F4::new(f(0) as f32, f(1) as f32, f(2) as f32, f(3) as f32);
         let nx = lanes(&|i| n[i][0]);
         let ny = lanes(&|i| n[i][1]);
         let nz = lanes(&|i| n[i][2]);
@@ -478,16 +565,27 @@ impl Frustum {
         self.nx * p[0] + self.ny * p[1] + self.nz * p[2] - self.b4
     }
 
-    /// Whether `node`'s box lies entirely outside one plane (Eq. 1 at the
-    /// box corner nearest the inside, the "n-vertex"), beyond the margin.
+    /// Whether the box `min..max` lies entirely outside one plane (Eq. 1 at
+    /// the box corner nearest the inside, the "n-vertex"), beyond the margin.
     #[inline]
-    pub fn cull_aabb(&self, node: &BvhNode) -> bool {
+    pub fn cull_box(&self, min: &[f32; 3], max: &[f32; 3]) -> bool {
         let p = [
-            F4::select(self.pos[0], F4::splat(node.min[0]), F4::splat(node.max[0])),
-            F4::select(self.pos[1], F4::splat(node.min[1]), F4::splat(node.max[1])),
-            F4::select(self.pos[2], F4::splat(node.min[2]), F4::splat(node.max[2])),
+            F4::select(self.pos[0], F4::splat(min[0]), F4::splat(max[0])),
+            F4::select(self.pos[1], F4::splat(min[1]), F4::splat(max[1])),
+            F4::select(self.pos[2], F4::splat(min[2]), F4::splat(max[2])),
         ];
         self.h4(p).cmpgt(self.margin4).any()
+    }
+
+    /// Whether all three vertices of `t` lie beyond one of the four planes
+    /// (Eq. 1 only; the AEPSA paper's four-plane test, section 3.1).
+    #[inline]
+    pub fn cull_triangle_planes(&self, t: &TriVerts) -> bool {
+        let m = self.margin4;
+        (self.h4(splat3(t.v0)).cmpgt(m)
+            & self.h4(splat3(t.v1)).cmpgt(m)
+            & self.h4(splat3(t.v2)).cmpgt(m))
+        .any()
     }
 
     /// Whether every ray of the packet misses triangle `t`: all three
@@ -496,7 +594,9 @@ impl Frustum {
     #[inline]
     pub fn cull_triangle(&self, t: &TriVerts) -> bool {
         let m = self.margin4;
-        let out = self.h4(splat3(t.v0)).cmpgt(m) & self.h4(splat3(t.v1)).cmpgt(m) & self.h4(splat3(t.v2)).cmpgt(m);
+        let out = self.h4(splat3(t.v0)).cmpgt(m)
+            & self.h4(splat3(t.v1)).cmpgt(m)
+            & self.h4(splat3(t.v2)).cmpgt(m);
         if out.any() {
             return true;
         }
@@ -568,7 +668,11 @@ fn side_planes(k: usize, sg: f64, k0: f64, near: [f64; 4], slope: [f64; 4]) -> (
     let mut b = [0.0; 4];
     for j in 0..4 {
         // j = 0: u_min, 1: u_max, 2: v_min, 3: v_max; outward is -u, +u, -v, +v.
-        let (axis, out) = if j < 2 { (u, if j == 0 { -1.0 } else { 1.0 }) } else { (v, if j == 2 { -1.0 } else { 1.0 }) };
+        let (axis, out) = if j < 2 {
+            (u, if j == 0 { -1.0 } else { 1.0 })
+        } else {
+            (v, if j == 2 { -1.0 } else { 1.0 })
+        };
         let mut ni = [0.0; 3];
         ni[axis] = out;
         ni[k] = -out * sg * slope[j];
@@ -583,196 +687,4 @@ fn side_planes(k: usize, sg: f64, k0: f64, near: [f64; 4], slope: [f64; 4]) -> (
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::accel::bvh::BvhView;
-    use crate::accel::bvh::build::testutil::Store;
-    use crate::accel::bvh::traverse_masked::tests::{RaySet, built, lattice, packets, ray_sets};
-    use crate::accel::bvh::traverse_simd::QuadBox;
-    use crate::geom::{Mt, RayLanes, TriangleTest, Wt};
-    use glam::Vec3;
-
-    /// Origin and direction of each live lane.
-    fn lanes<'a>(rays: &'a [Ray4], live: &'a [M4]) -> impl Iterator<Item = (V3, V3)> + 'a {
-        rays.iter().zip(live).flat_map(|(r, m)| {
-            let m = *m;
-            (0..4).filter(move |&i| m.test(i)).map(move |i| {
-                ([r.org[0][i] as f64, r.org[1][i] as f64, r.org[2][i] as f64], [r.dir[0][i] as f64, r.dir[1][i] as f64, r.dir[2][i] as f64])
-            })
-        })
-    }
-
-    /// Active lanes with valid rays.
-    fn live_of(quads: &[Ray4], active: &[M4]) -> Vec<M4> {
-        quads
-            .iter()
-            .zip(active)
-            .map(|(r, m)| {
-                let mut l = *m;
-                for i in 0..4 {
-                    if !r.lane(i).is_valid() {
-                        l.set(i, false);
-                    }
-                }
-                l
-            })
-            .collect()
-    }
-
-    #[derive(Default, Debug)]
-    struct Tally {
-        frusta: u64,
-        tris: u64,
-        tris_culled: u64,
-        nodes: u64,
-        nodes_culled: u64,
-    }
-
-    /// Every live ray inside `f` wherever it can meet geometry, and nothing
-    /// a live ray hits (triangle tests, slab tests) culled.
-    fn check(b: &BvhView<'_>, quads: &[Ray4], live: &[M4], f: &Frustum, what: &str, tally: &mut Tally) {
-        let root = b.nodes[0].aabb();
-        tally.frusta += 1;
-        // Sample points: within the root box (and from the apex on).
-        for (o, d) in lanes(quads, live) {
-            let (of, df) = (Vec3::new(o[0] as f32, o[1] as f32, o[2] as f32), Vec3::new(d[0] as f32, d[1] as f32, d[2] as f32));
-            let Some((t0, t1)) = root.clip_ray(of, df, df.recip(), 0.0, f32::INFINITY) else { continue };
-            for s in 0..=16 {
-                let t = t0 as f64 + (t1 as f64 - t0 as f64) * s as f64 / 16.0;
-                let p = [o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]];
-                for i in 0..4 {
-                    let h = f.h(i, p);
-                    assert!(h <= f.margin - 0.5 * f.eps, "{what}: ray {o:?} {d:?} t {t}: plane {i} H {h} margin {}", f.margin);
-                }
-            }
-        }
-        // Triangles some live ray hits in [0, inf) are kept.
-        let mut unbounded: Vec<Ray4> = quads.to_vec();
-        for r in &mut unbounded {
-            r.tmin = F4::ZERO;
-            r.tmax = F4::INFINITY;
-        }
-        for (i, t) in b.tris.iter().enumerate() {
-            let culled = f.cull_triangle(t);
-            tally.tris += 1;
-            tally.tris_culled += culled as u64;
-            if !culled {
-                continue;
-            }
-            for (q, r) in unbounded.iter().enumerate() {
-                let l = RayLanes::from_ray4(r);
-                let hm = Mt::intersect(&l, &(), t).mask | Wt::intersect(&l, &Wt::prepare(&l), t).mask;
-                assert!(!(hm & live[q]).any(), "{what}: triangle {i} {t:?} culled but hit by quad {q} {:?}", hm & live[q]);
-            }
-        }
-        // Boxes some live ray's slab test enters are kept.
-        for (i, n) in b.nodes.iter().enumerate() {
-            let culled = f.cull_aabb(n);
-            tally.nodes += 1;
-            tally.nodes_culled += culled as u64;
-            if !culled {
-                continue;
-            }
-            for (q, r) in unbounded.iter().enumerate() {
-                let (m, _) = QuadBox::new(r).entry(n, F4::INFINITY);
-                assert!(!(m & live[q]).any(), "{what}: node {i} culled but entered by quad {q}");
-            }
-        }
-    }
-
-    fn check_sets(b: &BvhView<'_>, sets: &[RaySet], sides: &[u32], name: &str) -> Tally {
-        let root = b.nodes[0].aabb();
-        let mut tally = Tally::default();
-        for set in sets {
-            for &n in sides {
-                for (quads, active, _) in packets(set, n) {
-                    let live = live_of(&quads, &active);
-                    for kind in [RayKind::Primary, RayKind::Auto, RayKind::Shadow, RayKind::Secondary] {
-                        if let Some(f) = Frustum::new(kind, &quads, &live, &root) {
-                            check(b, &quads, &live, &f, &format!("{name} {} n={n} {kind:?} -> {:?}", set.name, f.kind), &mut tally);
-                        }
-                    }
-                }
-            }
-        }
-        tally
-    }
-
-    #[test]
-    fn rays_inside_and_hits_never_culled_builtin() {
-        for name in ["tetra", "gears", "animated"] {
-            let s = crate::scenes::builtin(name).unwrap();
-            let mut st = Store::new(0, false);
-            let bvh = built::<Mt>(&mut st, &s.mesh.vertices, &s.mesh.indices, 4);
-            let b = bvh.view().unwrap();
-            let sets = ray_sets::<Mt>(&b, &s.views[0], s.light, 32, 32, 99);
-            let t = check_sets(&b, &sets, &[4, 16], name);
-            assert!(t.frusta > 100 && t.tris_culled > t.tris / 4 && t.nodes_culled > 0, "{name}: {t:?}");
-        }
-    }
-
-    #[test]
-    fn rays_inside_and_hits_never_culled_lattice() {
-        let (v, ix, sets) = lattice();
-        let mut st = Store::new(0, false);
-        let bvh = built::<Wt>(&mut st, &v, &ix, 2);
-        let b = bvh.view().unwrap();
-        let t = check_sets(&b, &sets, &[2, 4, 16, 32], "lattice");
-        assert!(t.tris_culled > t.tris / 2, "{t:?}");
-    }
-
-    #[test]
-    fn kinds() {
-        let (v, ix, sets) = lattice();
-        let mut st = Store::new(0, false);
-        let bvh = built::<Wt>(&mut st, &v, &ix, 2);
-        let b = bvh.view().unwrap();
-        let root = b.nodes[0].aabb();
-        let kind_of = |set: &RaySet, n: u32, k: RayKind| {
-            let (quads, active, _) = packets(set, n).swap_remove(0);
-            Frustum::new(k, &quads, &live_of(&quads, &active), &root).map(|f| f.kind)
-        };
-        for n in [2, 4, 8, 16, 32] {
-            assert_eq!(kind_of(&sets[0], n, RayKind::Primary), Some(FrustumKind::Primary));
-            assert_eq!(kind_of(&sets[0], n, RayKind::Auto), Some(FrustumKind::CommonOrigin));
-            assert_eq!(kind_of(&sets[1], n, RayKind::Shadow), Some(FrustumKind::CommonOrigin));
-            assert_eq!(kind_of(&sets[0], n, RayKind::Secondary), Some(FrustumKind::General));
-            assert_eq!(kind_of(&sets[2], n, RayKind::Auto), Some(FrustumKind::General));
-            // Not a pinhole packet: Primary falls back to Auto.
-            assert_eq!(kind_of(&sets[2], n, RayKind::Primary), Some(FrustumKind::General));
-        }
-        // Camera rays of every built-in view: full packets get the corner
-        // frustum (the rounding of camera rays is within its tolerance).
-        for name in crate::scenes::BUILTIN_NAMES {
-            let sc = crate::scenes::builtin(name).unwrap();
-            let mut st2 = Store::new(0, false);
-            let bvh2 = built::<Mt>(&mut st2, &sc.mesh.vertices, &sc.mesh.indices, 4);
-            let b2 = bvh2.view().unwrap();
-            let root2 = b2.nodes[0].aabb();
-            for view in &sc.views {
-                let set = &ray_sets::<Mt>(&b2, view, sc.light, 64, 64, 1)[0];
-                for n in [2, 4, 8, 16, 32] {
-                    for (quads, active, _) in packets(set, n) {
-                        let f = Frustum::new(RayKind::Primary, &quads, &active, &root2).unwrap();
-                        assert_eq!(f.kind, FrustumKind::Primary, "{name} {view:?} n={n}");
-                    }
-                }
-            }
-        }
-        // A partial packet (corner lanes inactive) falls back too.
-        let (quads, mut active, _) = packets(&sets[0], 8).swap_remove(0);
-        active[0] = M4::new(false, true, true, true);
-        let f = Frustum::new(RayKind::Primary, &quads, &active, &root).unwrap();
-        assert_eq!(f.kind, FrustumKind::CommonOrigin);
-        // Directions on both sides of every axis: no frustum.
-        let r = crate::geom::Ray::new(Vec3::splat(5.0), Vec3::X, 0.0, f32::INFINITY);
-        let mut rays = [r; 4];
-        rays[1].dir = [-1.0, 0.0, 0.0];
-        let q = [Ray4::from_rays(&rays)];
-        assert!(Frustum::new(RayKind::Auto, &q, &[M4::TRUE], &root).is_none());
-        assert!(Frustum::new(RayKind::Secondary, &q, &[M4::TRUE], &root).is_none());
-        // A single ray: a degenerate but valid frustum around it.
-        let f = Frustum::new(RayKind::Auto, &q, &[M4::new(true, false, false, false)], &root).unwrap();
-        assert!(f.cull_aabb(&crate::accel::bvh::BvhNode::leaf(&Aabb { min: Vec3::splat(6.0), max: Vec3::splat(7.0) }, 0, 1)));
-    }
-}
+mod tests;
