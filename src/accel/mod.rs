@@ -3,4 +3,6 @@
 #![forbid(unsafe_code)]
 
 pub mod bvh;
+pub mod entry;
 pub mod grid;
+pub mod kd;

@@ -42,8 +42,8 @@ pub struct Counters {
     pub packets_no_cull: u64,
     /// Shadow packets split because their hit points spread too far in depth.
     pub packets_split: u64,
-    /// Ray-box tests of tree traversals (one per single ray or per 2x2
-    /// SIMD ray tested against a node's box).
+    /// Ray-box tests of BVH traversals and split-plane steps of kd-tree
+    /// traversals (one per single ray or per 2x2 SIMD ray at a node).
     pub aabb_tests: u64,
     /// Tree nodes rejected by frustum culling for a whole packet.
     pub culled_nodes: u64,
@@ -53,6 +53,17 @@ pub struct Counters {
     pub aabb_by_depth: [u64; 32],
     /// `tri_tests` of tree traversals by leaf depth.
     pub tri_by_depth: [u64; 32],
+    /// Entry-point searches run (one per packet with MLRTA or AEPSA).
+    pub entry_searches: u64,
+    /// Sum of the entry points' depths (root 0); searches that found no
+    /// leaf count the tree's average leaf depth, as the AEPSA paper's
+    /// section 5 does, rounded down.
+    pub entry_depth_sum: u64,
+    /// Nodes the searches visited (phase 1 and phase 2).
+    pub entry_nodes: u64,
+    /// Searches whose frustum overlaps no triangle: the packet is a miss
+    /// without traversal.
+    pub entry_misses: u64,
 }
 
 /// Depth bins of the per-depth counters (C: `SHEAF_DEPTH_BINS`).
@@ -78,6 +89,10 @@ impl Counters {
         self.packets_split += o.packets_split;
         self.aabb_tests += o.aabb_tests;
         self.culled_nodes += o.culled_nodes;
+        self.entry_searches += o.entry_searches;
+        self.entry_depth_sum += o.entry_depth_sum;
+        self.entry_nodes += o.entry_nodes;
+        self.entry_misses += o.entry_misses;
         for d in 0..DEPTH_BINS {
             self.aabb_by_depth[d] += o.aabb_by_depth[d];
             self.tri_by_depth[d] += o.tri_by_depth[d];
