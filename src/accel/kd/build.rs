@@ -18,10 +18,9 @@
 //!    or both by the chosen event's index, and the node's list is split
 //!    into the children's lists by a stable pass: both stay sorted without
 //!    another sort (the O(N log N) of Wald and Havran). A triangle in both
-//!    children gets its box clipped to each child on the split axis: its
-//!    end event moves to the split plane in the left list (appended after
-//!    that segment's events, where the sort would put it) and its start
-//!    event in the right list (prepended).
+//!    children is clipped to each child's box ("perfect splits"): its new
+//!    events, few (O(sqrt N) per node in practice), are sorted and merged
+//!    into the children's lists; one that misses a child's box leaves it.
 //! 4. Depth first with an explicit stack of `MAX_DEPTH + 1` pending right
 //!    children, whose event lists stay at the bottom of the event pool
 //!    while the left child is built above them.
@@ -32,9 +31,6 @@
 //!   stored on both sides: a ray's computed hit point always lies in a leaf
 //!   interval that holds the triangle, and single-ray kd traversal finds
 //!   exactly the brute-force nearest hit (see `mod.rs`, Exactness).
-//! - Straddling triangles are clipped by their boxes, not by the exact
-//!   polygon ("perfect splits"): the child lists stay exact supersets, the
-//!   tree a little less tight.
 //! - Planar triangles get a start and an end event at the same position
 //!   (pbrt's handling, not Wald and Havran's planar events and side choice).
 //! - When the node, reference or event pool cannot hold a split the SAH
@@ -42,7 +38,7 @@
 
 use super::{KdInfo, KdNode, KdParams, KdTree, MAX_DEPTH, ROOT_PAD};
 use crate::error::{Error, Pool, Result};
-use crate::geom::{Aabb, Excluded, INVALID_ID, ProjTri, Scene, TriTest};
+use crate::geom::{Aabb, Excluded, INVALID_ID, ProjTri, Scene, TriTest, TriVerts};
 use crate::math;
 use glam::Vec3;
 
@@ -94,16 +90,92 @@ fn ev_end(e: u64) -> bool {
 fn ev_slot(e: u64) -> usize {
     (e & SLOT_MASK) as usize
 }
-/// The same event at another position (the clipped box of a straddler).
-#[inline(always)]
-fn ev_moved(e: u64, pos: f32) -> u64 {
-    (e & !(0xffff_ffffu64 << 30)) | (order_key(pos + 0.0) << 30)
-}
-
 #[inline(always)]
 fn half_area(b: &Aabb) -> f32 {
     let d = (b.max - b.min).max(Vec3::ZERO);
     d.x * d.y + d.y * d.z + d.z * d.x
+}
+
+/// `parent`'s events of triangles whose side flag passes `keep`, merged by
+/// key with the sorted `new` events, into `out`; returns the count.
+#[inline]
+fn merge(
+    parent: &[u64],
+    new: &[u64],
+    keep: impl Fn(u8) -> bool,
+    side: &[u8],
+    out: &mut [u64],
+) -> usize {
+    let (mut w, mut j) = (0usize, 0usize);
+    for &e in parent {
+        if !keep(side[ev_slot(e)]) {
+            continue;
+        }
+        while j < new.len() && new[j] < e {
+            out[w] = new[j];
+            w += 1;
+            j += 1;
+        }
+        out[w] = e;
+        w += 1;
+    }
+    for &e in &new[j..] {
+        out[w] = e;
+        w += 1;
+    }
+    w
+}
+
+/// The box of triangle `t` clipped to box `b` (Sutherland-Hodgman in f64
+/// against the six planes), or `None` when they do not meet.
+fn clip_triangle(t: &TriVerts, b: &Aabb) -> Option<Aabb> {
+    let mut poly = [[0.0f64; 3]; 10];
+    let mut tmp = [[0.0f64; 3]; 10];
+    for (p, v) in poly.iter_mut().zip([t.v0, t.v1, t.v2]) {
+        *p = [v[0] as f64, v[1] as f64, v[2] as f64];
+    }
+    let mut n = 3usize;
+    for axis in 0..3 {
+        for (plane, keep_above) in [(b.min[axis] as f64, true), (b.max[axis] as f64, false)] {
+            let inside = |p: &[f64; 3]| {
+                if keep_above {
+                    p[axis] >= plane
+                } else {
+                    p[axis] <= plane
+                }
+            };
+            let mut m = 0usize;
+            for i in 0..n {
+                let (p, q) = (poly[i], poly[(i + 1) % n]);
+                let (pi, qi) = (inside(&p), inside(&q));
+                if pi {
+                    tmp[m] = p;
+                    m += 1;
+                }
+                if pi != qi {
+                    let f = (plane - p[axis]) / (q[axis] - p[axis]);
+                    let mut x = [
+                        p[0] + f * (q[0] - p[0]),
+                        p[1] + f * (q[1] - p[1]),
+                        p[2] + f * (q[2] - p[2]),
+                    ];
+                    x[axis] = plane;
+                    tmp[m] = x;
+                    m += 1;
+                }
+            }
+            n = m;
+            if n == 0 {
+                return None;
+            }
+            poly[..n].copy_from_slice(&tmp[..n]);
+        }
+    }
+    let mut out = Aabb::EMPTY;
+    for p in &poly[..n] {
+        out.grow(Vec3::new(p[0] as f32, p[1] as f32, p[2] as f32));
+    }
+    Some(out)
 }
 
 /// A node waiting to be built.
@@ -308,6 +380,7 @@ pub fn build(kd: &mut KdTree<'_>, scene: &Scene<'_>, p: &KdParams) -> Result<KdI
     let nodes = &mut *pools.nodes;
     let refs = &mut *pools.refs;
     let side = &mut *pools.side;
+    let tris = &*pools.tris;
     let root_area = half_area(&root) as f64;
     let mut t = Tally::default();
     let mut next = 1usize;
@@ -321,6 +394,8 @@ pub fn build(kd: &mut KdTree<'_>, scene: &Scene<'_>, p: &KdParams) -> Result<KdI
     let mut sp = 0usize;
     // References promised to pending right children.
     let mut pending_refs = 0usize;
+    // High-water mark of the event pool.
+    let mut peak = EVENTS_PER_TRI * n;
     let mut task = Task {
         node: 0,
         depth: 0,
@@ -354,67 +429,89 @@ pub fn build(kd: &mut KdTree<'_>, scene: &Scene<'_>, p: &KdParams) -> Result<KdI
                     side[ev_slot(e)] |= 2;
                 }
             }
+            let mut lbox = task.bounds;
+            lbox.max[sx.axis] = sx.pos;
+            let mut rbox = task.bounds;
+            rbox.min[sx.axis] = sx.pos;
+            // Perfect splits: a straddler's events in each child come from
+            // the triangle clipped to that child's (padded) box; one that
+            // misses a child's box leaves that child.
+            let tmp = base + EVENTS_PER_TRI * nn;
+            let mut straddlers = 0usize;
+            for &e in &events[seg..seg + 2 * nn] {
+                straddlers += (!ev_end(e) && side[ev_slot(e)] == 3) as usize;
+            }
+            let mut fits = tmp + 2 * EVENTS_PER_TRI * straddlers <= events.len();
+            let (mut ln, mut rn) = (0usize, 0usize);
+            if fits && straddlers > 0 {
+                let grow = |b: &Aabb| Aabb {
+                    min: b.min - pad,
+                    max: b.max + pad,
+                };
+                let (lp, rp) = (grow(&lbox), grow(&rbox));
+                let (head, scratch) = events.split_at_mut(tmp);
+                let (new_l, new_r) = scratch.split_at_mut(EVENTS_PER_TRI * straddlers);
+                for &e in &head[seg..seg + 2 * nn] {
+                    let sl = ev_slot(e);
+                    if ev_end(e) || side[sl] != 3 {
+                        continue;
+                    }
+                    let tri = &tris[sl];
+                    let cl = clip_triangle(tri, &lp);
+                    let cr = clip_triangle(tri, &rp);
+                    // Rounding could clip a straddler away on both sides:
+                    // keep it in both with the whole child boxes.
+                    let (cl, cr) = match (cl, cr) {
+                        (None, None) => (Some(lbox), Some(rbox)),
+                        c => c,
+                    };
+                    // Bit 4: clipped (its events come from `new_l`/`new_r` only).
+                    side[sl] = 4 | cl.is_some() as u8 | (cr.is_some() as u8) << 1;
+                    for (c, out, w) in [(cl, &mut *new_l, &mut ln), (cr, &mut *new_r, &mut rn)] {
+                        if let Some(c) = c {
+                            for a in 0..3 {
+                                out[*w] = event(a, c.min[a] - pad.x, false, sl as u32);
+                                out[*w + 1] = event(a, c.max[a] + pad.x, true, sl as u32);
+                                *w += 2;
+                            }
+                        }
+                    }
+                }
+                new_l[..ln].sort_unstable();
+                new_r[..rn].sort_unstable();
+            }
             let (mut nl, mut nr) = (0usize, 0usize);
             for &e in &events[seg..seg + 2 * nn] {
                 if !ev_end(e) {
                     nl += (side[ev_slot(e)] & 1) as usize;
-                    nr += (side[ev_slot(e)] >> 1) as usize;
+                    nr += ((side[ev_slot(e)] >> 1) & 1) as usize;
                 }
             }
             let (el, er) = (EVENTS_PER_TRI * nl, EVENTS_PER_TRI * nr);
-            let fits = next + 2 <= nodes.len()
-                && base + EVENTS_PER_TRI * nn + el + er <= events.len()
+            // Merged lists go above the sorted new events: right, then left.
+            let out = tmp + 2 * EVENTS_PER_TRI * straddlers;
+            fits = fits
+                && next + 2 <= nodes.len()
+                && out + el + er <= events.len()
                 && (t.refs as usize) + pending_refs + nl + nr <= refs.len()
                 && next + 2 <= KdNode::MAX_COUNT as usize;
             if fits {
-                // Right list, then left list, above the node's own list.
-                let (rb, lb) = (base + EVENTS_PER_TRI * nn, base + EVENTS_PER_TRI * nn + er);
-                let (mut wr, mut wl) = (rb, lb);
-                let (src, dst) = events.split_at_mut(rb);
-                let src = &src[base..];
-                for a in 0..3 {
-                    let seg = &src[2 * nn * a..2 * nn * (a + 1)];
-                    if a == sx.axis {
-                        // Straddlers start at the plane on the right.
-                        for &e in seg {
-                            if !ev_end(e) && side[ev_slot(e)] == 3 {
-                                dst[wr - rb] = ev_moved(e, sx.pos);
-                                wr += 1;
-                            }
-                        }
-                    }
-                    for &e in seg {
-                        let sd = side[ev_slot(e)];
-                        let moved = a == sx.axis && sd == 3;
-                        if sd & 1 != 0 && !(moved && ev_end(e)) {
-                            dst[wl - rb] = e;
-                            wl += 1;
-                        }
-                        if sd & 2 != 0 && !(moved && !ev_end(e)) {
-                            dst[wr - rb] = e;
-                            wr += 1;
-                        }
-                    }
-                    if a == sx.axis {
-                        // ... and end at it on the left.
-                        for &e in seg {
-                            if ev_end(e) && side[ev_slot(e)] == 3 {
-                                dst[wl - rb] = ev_moved(e, sx.pos);
-                                wl += 1;
-                            }
-                        }
-                    }
-                }
-                debug_assert!(wr == rb + er && wl == lb + el);
-                events.copy_within(rb..rb + er + el, base);
+                peak = peak.max(out + el + er);
+                let (src, dst) = events.split_at_mut(out);
+                let parent = &src[base..tmp];
+                let new_l = &src[tmp..tmp + ln];
+                let new_r =
+                    &src[tmp + EVENTS_PER_TRI * straddlers..tmp + EVENTS_PER_TRI * straddlers + rn];
+                // Lists stay sorted by key: the one-sided triangles' events
+                // in the parent's order, merged with the clipped ones.
+                let wr = merge(parent, new_r, |sd| sd == 2, side, &mut dst[..er]);
+                let wl = merge(parent, new_l, |sd| sd == 1, side, &mut dst[er..er + el]);
+                debug_assert!(wr == er && wl == el);
+                events.copy_within(out..out + er + el, base);
                 let left = next as u32;
                 next += 2;
                 nodes[task.node as usize] = KdNode::inner(sx.axis, sx.pos, left);
                 t.sah_inner += area;
-                let mut lbox = task.bounds;
-                lbox.max[sx.axis] = sx.pos;
-                let mut rbox = task.bounds;
-                rbox.min[sx.axis] = sx.pos;
                 let depth = task.depth + 1;
                 stack[sp] = Task {
                     node: left + 1,
@@ -466,6 +563,7 @@ pub fn build(kd: &mut KdTree<'_>, scene: &Scene<'_>, p: &KdParams) -> Result<KdI
     info.depth = t.max_depth;
     info.avg_leaf_depth = (t.depth_sum as f64 / t.leaves as f64) as f32;
     info.forced_leaves = t.forced;
+    info.events_peak = peak as u32;
     info.sah_cost = ((p.traversal_cost as f64 * t.sah_inner + t.sah_leaf) / root_area) as f32;
     kd.set_info(Some(info));
     Ok(info)
@@ -490,16 +588,17 @@ pub(crate) mod testutil {
     }
 
     impl Store {
-        /// Pools for `n` triangles with the default sizing rules of `Limits`.
+        /// Pools for `n` triangles with the default sizing rules of `Limits`
+        /// (nodes `4n + 1024`, references `12n + 1024`, events `16n + 1024`).
         pub fn new(n: usize, proj: bool) -> Store {
             Store {
-                nodes: vec![KdNode::default(); 8 * n + 64],
-                refs: vec![0; 6 * n + 64],
+                nodes: vec![KdNode::default(); 4 * n + 1024],
+                refs: vec![0; 12 * n + 1024],
                 tris: vec![TriVerts::default(); n],
                 proj: vec![ProjTri::default(); if proj { n } else { 0 }],
                 ids: vec![0; n],
                 slot: vec![0; n],
-                events: vec![0; 4 * EVENTS_PER_TRI * n + 64],
+                events: vec![0; 16 * n + 1024],
                 side: vec![0; n],
             }
         }
@@ -514,6 +613,181 @@ pub(crate) mod testutil {
                 events: &mut self.events,
                 side: &mut self.side,
             })
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::testutil::Store;
+    use super::*;
+    use crate::accel::kd::{KdNode, KdView};
+
+    /// Every stored triangle sits in the leaves its padded box reaches,
+    /// node boxes nest, and the tallies agree with the tree.
+    fn check_invariants(v: &KdView<'_>) {
+        let info = v.info;
+        let mut stack = vec![(0usize, info.root, 0u32)];
+        let (mut leaves, mut empty, mut refs, mut depth_sum) = (0u32, 0u32, 0u32, 0u64);
+        let mut seen = vec![false; v.tris.len()];
+        while let Some((n, b, d)) = stack.pop() {
+            let node: &KdNode = &v.nodes[n];
+            assert!(d <= info.max_depth);
+            if node.is_leaf() {
+                leaves += 1;
+                empty += (node.count() == 0) as u32;
+                refs += node.count() as u32;
+                depth_sum += d as u64;
+                for &s in v.leaf_refs(node) {
+                    seen[s as usize] = true;
+                }
+                continue;
+            }
+            let (l, r) = KdView::child_boxes(node, &b);
+            let s = node.split();
+            assert!(
+                s > b.min[node.axis()] && s < b.max[node.axis()],
+                "split inside the node"
+            );
+            stack.push((node.left(), l, d + 1));
+            stack.push((node.left() + 1, r, d + 1));
+        }
+        assert!(seen.iter().all(|&x| x), "every triangle in some leaf");
+        assert_eq!(
+            (leaves, empty, refs),
+            (info.leaves, info.empty_leaves, info.refs)
+        );
+        assert!((depth_sum as f64 / leaves as f64 - info.avg_leaf_depth as f64).abs() < 1e-3);
+        assert_eq!(info.nodes as usize, 2 * leaves as usize - 1);
+    }
+
+    #[test]
+    fn builtin_scenes_invariants() {
+        for name in crate::scenes::BUILTIN_NAMES {
+            let sc = crate::scenes::builtin(name).unwrap();
+            let scene = Scene::from_f32(&sc.mesh.vertices, &sc.mesh.indices).unwrap();
+            let mut st = Store::new(scene.triangle_count() as usize, false);
+            // Roomy pools: gears' fan triangles need 20 references each.
+            st.refs.resize(32 * scene.triangle_count() as usize, 0);
+            let mut kd = st.kd();
+            let info = build(&mut kd, &scene, &KdParams::default()).unwrap();
+            check_invariants(&kd.view().unwrap());
+            assert!(
+                info.empty_leaves > 0 && info.forced_leaves == 0,
+                "{name}: {info:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn empty_degenerate_and_tiny_pools() {
+        // No traceable triangle: a single empty leaf.
+        let v = [
+            0.0f32,
+            0.0,
+            0.0,
+            1.0,
+            0.0,
+            0.0,
+            2.0,
+            0.0,
+            0.0,
+            f32::NAN,
+            0.0,
+            0.0,
+        ];
+        let ix = [0u32, 1, 2, 0, 1, 3];
+        let scene = Scene::from_f32(&v, &ix).unwrap();
+        let mut st = Store::new(2, false);
+        let mut kd = st.kd();
+        let info = build(&mut kd, &scene, &KdParams::default()).unwrap();
+        assert_eq!(
+            (
+                info.triangles,
+                info.excluded_zero_area,
+                info.excluded_non_finite,
+                info.leaves
+            ),
+            (0, 1, 1, 1)
+        );
+        // Pools just big enough for the root: splits are refused, the tree
+        // is one leaf with every triangle, counted as forced.
+        let sc = crate::scenes::builtin("tetra").unwrap();
+        let scene = Scene::from_f32(&sc.mesh.vertices, &sc.mesh.indices).unwrap();
+        let n = scene.triangle_count() as usize;
+        let mut st = Store::new(n, false);
+        st.events.truncate(EVENTS_PER_TRI * n);
+        let mut kd = st.kd();
+        let info = build(&mut kd, &scene, &KdParams::default()).unwrap();
+        assert_eq!(
+            (info.leaves, info.forced_leaves, info.refs as usize),
+            (1, 1, n)
+        );
+        check_invariants(&kd.view().unwrap());
+        // Too few triangle slots: an error, and the previous tree stays.
+        let mut st = Store::new(n, false);
+        st.tris.truncate(n - 1);
+        let mut kd = st.kd();
+        assert!(build(&mut kd, &scene, &KdParams::default()).is_err());
+        assert!(kd.view().is_none());
+    }
+
+    /// Table 1 of the AEPSA paper for the OBJ scenes (skips absent files).
+    #[test]
+    #[ignore]
+    fn table1_obj_scenes() {
+        let dir = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/scenes");
+        for file in [
+            "legocar/legocar.obj",
+            "bunny/bunny_tinybvh.obj",
+            "sibenik/sibenik.obj",
+            "crytek_sponza/crytek_sponza.obj",
+            "conference/conference.obj",
+        ] {
+            let Ok((models, _)) = tobj::load_obj(
+                dir.join(file),
+                &tobj::LoadOptions {
+                    triangulate: true,
+                    ..Default::default()
+                },
+            ) else {
+                eprintln!("{file}: not found, skipped");
+                continue;
+            };
+            let (mut v, mut ix) = (Vec::new(), Vec::new());
+            for m in models {
+                let base = (v.len() / 3) as u32;
+                v.extend_from_slice(&m.mesh.positions);
+                ix.extend(m.mesh.indices.iter().map(|i| i + base));
+            }
+            let scene = Scene::from_f32(&v, &ix).unwrap();
+            let mut st = Store::new(scene.triangle_count() as usize, false);
+            let mut kd = st.kd();
+            let mut p = KdParams::default();
+            if let Ok(c) = std::env::var("KD_TRAV") {
+                p.traversal_cost = c.parse().unwrap();
+            }
+            let mut info = build(&mut kd, &scene, &p).unwrap();
+            let t = std::time::Instant::now();
+            for _ in 0..3 {
+                info = build(&mut kd, &scene, &p).unwrap();
+            }
+            let ms = t.elapsed().as_secs_f64() * 1e3 / 3.0;
+            check_invariants(&kd.view().unwrap());
+            println!(
+                "{file}: tris {} leaves {} empty {:.2}% avg depth {:.2} max {} refs/tri {:.2} nodes/tri {:.2} events/tri {:.2} forced {} sah {:.1} build {:.1} ms",
+                info.triangles,
+                info.leaves,
+                100.0 * info.empty_leaves as f64 / info.leaves as f64,
+                info.avg_leaf_depth,
+                info.depth,
+                info.refs as f64 / info.triangles as f64,
+                info.nodes as f64 / info.triangles as f64,
+                info.events_peak as f64 / info.triangles as f64,
+                info.forced_leaves,
+                info.sah_cost,
+                ms
+            );
         }
     }
 }

@@ -37,6 +37,10 @@
 //! lie below the entry point.
 
 pub mod build;
+pub mod traverse_aepsa;
+pub mod traverse_mlrta;
+pub mod traverse_packet;
+pub mod traverse_simd;
 pub mod traverse_single;
 
 use crate::geom::{Aabb, Mt, ProjTri, Pt, TriTest, TriVerts, TriangleTest, Wt};
@@ -56,7 +60,9 @@ pub const ROOT_PAD: f32 = 1e-5;
 pub struct KdParams {
     /// Depth limit (1..=48); 0: `8 + 1.3 log2 N` (pbrt's rule), capped at 48.
     pub max_depth: u32,
-    /// SAH cost of one traversal step relative to one triangle test. Default 0.5.
+    /// SAH cost of one traversal step relative to one triangle test.
+    /// Default 2: lower values deepen the tree and multiply the references
+    /// a triangle has (bunny: 9.7 per triangle at 1, 4.4 at 2).
     pub traversal_cost: f32,
     /// Cost discount of a split with an empty side, in [0, 1): the bias
     /// towards cutting off empty space (Hurley et al. 2002). Default 0.2.
@@ -69,7 +75,7 @@ impl Default for KdParams {
     fn default() -> Self {
         KdParams {
             max_depth: 0,
-            traversal_cost: 0.5,
+            traversal_cost: 2.0,
             empty_bonus: 0.2,
             test: TriTest::MollerTrumbore,
         }
@@ -125,6 +131,8 @@ pub struct KdInfo {
     /// Leaves made because a pool (nodes, refs, events) was full, though
     /// the SAH wanted a split: the tree is valid, only slower.
     pub forced_leaves: u32,
+    /// Most split events the build held at once (size `Limits` from it).
+    pub events_peak: u32,
     /// Triangles in the scene, stored, and excluded (non-finite / zero area).
     pub triangles_in: u32,
     pub triangles: u32,
