@@ -3,8 +3,11 @@
 #![forbid(unsafe_code)]
 
 use crate::accel::bvh::{self, Bvh, BvhInfo, BvhNode, BvhParams, BvhPools, BvhView, PrimRef};
+use crate::accel::entry::{self, EntryPoint, EntrySearch, EntryTree};
+use crate::geom::frustum::Frustum;
 use crate::accel::grid::traverse_cgt::{self, Mailbox};
 use crate::accel::grid::{self, Grid, GridInfo, GridParams, GridPools, GridView};
+use crate::accel::kd::{self, KdInfo, KdNode, KdParams, KdPools, KdTree, KdView};
 use crate::error::{Error, Pool, Result};
 use crate::geom::{Hit, Hit4, M4, Mt, Pt, Ray, Ray4, Scene, TriTest, TriVerts, TriangleTest, Wt};
 use crate::mem::{Arena, Limits, pool_bytes};
@@ -24,6 +27,13 @@ struct Layout {
     /// BVH: triangles (0 without `Limits::BVH`) and their projection data.
     bvh_tris: usize,
     bvh_proj: usize,
+    /// kd-tree: triangles (0 without `Limits::KD`), projection data, nodes,
+    /// leaf references, build events.
+    kd_tris: usize,
+    kd_proj: usize,
+    kd_nodes: usize,
+    kd_refs: usize,
+    kd_events: usize,
 }
 
 impl Layout {
@@ -33,6 +43,8 @@ impl Layout {
         let grid = l.has(Limits::GRID);
         let cells = if grid { l.grid_cells() as usize } else { 0 };
         let bvh_tris = if l.has(Limits::BVH) { n } else { 0 };
+        let kd = l.has(Limits::KD);
+        let kd_tris = if kd { n } else { 0 };
         Ok(Layout {
             tris: if grid { n } else { 0 },
             proj: if grid && l.projection_test { n } else { 0 },
@@ -42,6 +54,11 @@ impl Layout {
             slots: l.max_threads as usize,
             bvh_tris,
             bvh_proj: if l.projection_test { bvh_tris } else { 0 },
+            kd_tris,
+            kd_proj: if l.projection_test { kd_tris } else { 0 },
+            kd_nodes: if kd { l.kd_nodes() as usize } else { 0 },
+            kd_refs: if kd { l.kd_refs() as usize } else { 0 },
+            kd_events: if kd { l.kd_events() as usize } else { 0 },
         })
     }
     fn bytes(&self) -> usize {
@@ -59,6 +76,14 @@ impl Layout {
             + pool_bytes::<u32>(self.bvh_tris)
             + pool_bytes::<u32>(self.bvh_tris)
             + pool_bytes::<PrimRef>(self.bvh_tris)
+            + pool_bytes::<KdNode>(self.kd_nodes)
+            + pool_bytes::<u32>(self.kd_refs)
+            + pool_bytes::<TriVerts>(self.kd_tris)
+            + pool_bytes::<crate::geom::ProjTri>(self.kd_proj)
+            + pool_bytes::<u32>(self.kd_tris)
+            + pool_bytes::<u32>(self.kd_tris)
+            + pool_bytes::<u64>(self.kd_events)
+            + pool_bytes::<u8>(self.kd_tris)
     }
 }
 
@@ -77,6 +102,9 @@ pub struct Stats {
     pub bvh: BvhInfo,
     /// Wall time of the last BVH build in nanoseconds (0 without `std`).
     pub bvh_build_ns: u64,
+    pub kd: KdInfo,
+    /// Wall time of the last kd-tree build in nanoseconds (0 without `std`).
+    pub kd_build_ns: u64,
     /// Counters of the last trace, occluded or render call.
     pub counters: Counters,
     /// Wall time of the last trace, occluded or render call (0 without `std`).
@@ -91,6 +119,7 @@ pub struct Context<'a> {
     limits: Limits,
     grid: Grid<'a>,
     bvh: Bvh<'a>,
+    kd: KdTree<'a>,
     /// Per-thread mailboxes (CGT section 2.3): `max_triangles` stamps and
     /// one packet counter per thread slot.
     stamps: &'a mut [u32],
@@ -146,11 +175,22 @@ impl<'a> Context<'a> {
             slot_of: arena.take(layout.bvh_tris)?,
             refs: arena.take(layout.bvh_tris)?,
         };
+        let kd = KdPools {
+            nodes: arena.take(layout.kd_nodes)?,
+            refs: arena.take(layout.kd_refs)?,
+            tris: arena.take(layout.kd_tris)?,
+            proj: arena.take(layout.kd_proj)?,
+            tri_ids: arena.take(layout.kd_tris)?,
+            slot_of: arena.take(layout.kd_tris)?,
+            events: arena.take(layout.kd_events)?,
+            side: arena.take(layout.kd_tris)?,
+        };
         debug_assert_eq!(arena.used(), need);
         Ok(Context {
             limits: *limits,
             grid: Grid::new(pools),
             bvh: Bvh::new(bvh),
+            kd: KdTree::new(kd),
             stamps,
             mail_packets,
             stats: Stats::default(),
@@ -222,41 +262,49 @@ impl<'a> Context<'a> {
         Ok(info)
     }
 
+    /// Rebuild the kd-tree from `scene` (O(N log N) SAH with perfect
+    /// splits, AEPSA paper section 5.1). On error the previous tree stays
+    /// valid.
+    pub fn build_kd(&mut self, scene: &Scene<'_>, params: &KdParams) -> Result<KdInfo> {
+        if !self.limits.has(Limits::KD) {
+            return Err(Error::InvalidArgument("no kd-tree pools: Limits::structures lacks KD"));
+        }
+        self.check_scene(scene)?;
+        let t = now();
+        let info = kd::build::build(&mut self.kd, scene, params)?;
+        self.stats.kd_build_ns = elapsed_ns(t);
+        self.stats.kd = info;
+        Ok(info)
+    }
+
+    /// The built structures with single-ray calls going to the first built
+    /// of grid, BVH, kd-tree.
+    fn scene_tracer(&self) -> Result<SceneTracer<'_>> {
+        let t = SceneTracer { grid: self.grid.view(), bvh: self.bvh.view(), kd: self.kd.view(), single: Method::GridDda };
+        let single = if t.grid.is_some() {
+            Method::GridDda
+        } else if t.bvh.is_some() {
+            Method::BvhSingle
+        } else if t.kd.is_some() {
+            Method::KdSingle
+        } else {
+            return Err(Error::NotBuilt);
+        };
+        Ok(SceneTracer { single, ..t })
+    }
+
     /// The built structures, for tracing from several threads. Single-ray
     /// calls use the grid's 3DDDA when a grid is built, else the BVH's
     /// single-ray traversal (see `SceneTracer::with_single`).
     pub fn tracer(&self) -> Result<SceneTracer<'_>> {
-        let t = SceneTracer {
-            grid: self.grid.view(),
-            bvh: self.bvh.view(),
-            single: Method::GridDda,
-        };
-        match (t.grid.is_some(), t.bvh.is_some()) {
-            (false, false) => Err(Error::NotBuilt),
-            (true, _) => Ok(t),
-            (false, true) => Ok(SceneTracer {
-                single: Method::BvhSingle,
-                ..t
-            }),
-        }
+        self.scene_tracer()
     }
 
     /// The built structures and one mailbox per thread slot, for tracing
     /// and rendering from several threads (each thread takes one mailbox).
     pub fn parts(&mut self) -> Result<(SceneTracer<'_>, impl Iterator<Item = Mailbox<'_>>)> {
-        let t = SceneTracer {
-            grid: self.grid.view(),
-            bvh: self.bvh.view(),
-            single: Method::GridDda,
-        };
-        let t = match (t.grid.is_some(), t.bvh.is_some()) {
-            (false, false) => return Err(Error::NotBuilt),
-            (true, _) => t,
-            (false, true) => SceneTracer {
-                single: Method::BvhSingle,
-                ..t
-            },
-        };
+        let t = SceneTracer { grid: self.grid.view(), bvh: self.bvh.view(), kd: self.kd.view(), single: Method::GridDda };
+        let t = SceneTracer { single: self.scene_tracer()?.single, ..t };
         // One mailbox per thread slot; without grid pools (no stamps) the
         // mailboxes are empty, which only the grid's CGT would use.
         let n = self.limits.max_triangles.max(1) as usize;
@@ -724,6 +772,19 @@ impl Tracer for BvhTracer<'_> {
         ctr: &mut Counters,
     ) {
         let (v, o, test) = (&self.view, &p.bvh, self.view.info.test);
+        let start = match p.method {
+            Method::BvhMasked | Method::BvhRanged | Method::BvhPartition => {
+                let bounds = v.nodes.first().map_or(crate::geom::Aabb::EMPTY, |n| n.aabb());
+                search_entry(v, p, rays, active, &bounds, ctr).1
+            }
+            _ => Start::Root,
+        };
+        let e = match start {
+            Start::Root => None,
+            Start::At(e) => Some(e),
+            Start::Miss => return lane_by_lane(rays, active, hits, |_, _| Hit::MISS, ctr),
+        };
+        let e = e.as_ref();
         match p.method {
             Method::BvhSimd => {
                 use bvh::traverse_simd::intersect;
@@ -731,15 +792,15 @@ impl Tracer for BvhTracer<'_> {
             }
             Method::BvhMasked => {
                 use bvh::traverse_masked::intersect;
-                by_test!(test, intersect(v, rays, active, hits, o, ctr))
+                by_test!(test, intersect(v, rays, active, hits, o, e, ctr))
             }
             Method::BvhRanged => {
                 use bvh::traverse_ranged::intersect;
-                by_test!(test, intersect(v, rays, active, hits, o, ctr))
+                by_test!(test, intersect(v, rays, active, hits, o, e, ctr))
             }
             Method::BvhPartition => {
                 use bvh::traverse_partition::intersect;
-                by_test!(test, intersect(v, rays, active, hits, o, ctr))
+                by_test!(test, intersect(v, rays, active, hits, o, e, ctr))
             }
             _ => lane_by_lane(rays, active, hits, |r, c| self.intersect(r, c), ctr),
         }
@@ -754,6 +815,19 @@ impl Tracer for BvhTracer<'_> {
         ctr: &mut Counters,
     ) {
         let (v, o, test) = (&self.view, &p.bvh, self.view.info.test);
+        let start = match p.method {
+            Method::BvhMasked | Method::BvhRanged | Method::BvhPartition => {
+                let bounds = v.nodes.first().map_or(crate::geom::Aabb::EMPTY, |n| n.aabb());
+                search_entry(v, p, rays, active, &bounds, ctr).1
+            }
+            _ => Start::Root,
+        };
+        let e = match start {
+            Start::Root => None,
+            Start::At(e) => Some(e),
+            Start::Miss => return lane_by_lane(rays, active, hits, |_, _| Hit::MISS, ctr),
+        };
+        let e = e.as_ref();
         match p.method {
             Method::BvhSimd => {
                 use bvh::traverse_simd::occluded;
@@ -761,15 +835,15 @@ impl Tracer for BvhTracer<'_> {
             }
             Method::BvhMasked => {
                 use bvh::traverse_masked::occluded;
-                by_test!(test, occluded(v, rays, active, hits, o, ctr))
+                by_test!(test, occluded(v, rays, active, hits, o, e, ctr))
             }
             Method::BvhRanged => {
                 use bvh::traverse_ranged::occluded;
-                by_test!(test, occluded(v, rays, active, hits, o, ctr))
+                by_test!(test, occluded(v, rays, active, hits, o, e, ctr))
             }
             Method::BvhPartition => {
                 use bvh::traverse_partition::occluded;
-                by_test!(test, occluded(v, rays, active, hits, o, ctr))
+                by_test!(test, occluded(v, rays, active, hits, o, e, ctr))
             }
             _ => {
                 use bvh::traverse_single::any_hit;
@@ -780,6 +854,159 @@ impl Tracer for BvhTracer<'_> {
                     |r, c| by_test!(test, any_hit(v, r, c)),
                     ctr,
                 )
+            }
+        }
+    }
+    fn triangle(&self, prim: u32) -> Option<TriVerts> {
+        self.view.triangle(prim)
+    }
+    fn scene_scale(&self) -> f32 {
+        scale_of(&self.view.info.bounds)
+    }
+}
+
+/// Where a tree packet starts (`search_entry`).
+enum Start {
+    Root,
+    At(EntryPoint),
+    /// The frustum overlaps no triangle: every ray misses.
+    Miss,
+}
+
+/// The packet's frustum (of `p.bvh.kind`; `None` without live lanes or when
+/// none can be built) and, with `p.entry`, the entry point MLRTA or AEPSA
+/// finds for it in `tree` (counted in `ctr`).
+fn search_entry<E: EntryTree + ?Sized>(
+    tree: &E,
+    p: &TraceParams,
+    rays: &[Ray4],
+    active: &[M4],
+    bounds: &crate::geom::Aabb,
+    ctr: &mut Counters,
+) -> (Option<Frustum>, Start) {
+    let nq = rays.len().min(active.len()).min(kd::traverse_packet::MAX_QUADS);
+    let mut live = [M4::FALSE; kd::traverse_packet::MAX_QUADS];
+    for q in 0..nq {
+        live[q] = entry::live_mask(&rays[q], active[q]);
+    }
+    let f = Frustum::new(p.bvh.kind, &rays[..nq], &live[..nq], bounds);
+    let (Some(fr), false) = (f, p.entry == EntrySearch::None) else {
+        return (f, Start::Root);
+    };
+    let neg = entry::dir_signs(&rays[..nq], &live[..nq]);
+    let e = match p.entry {
+        EntrySearch::Mlrta => kd::traverse_mlrta::mlrta(tree, &fr, neg, ctr),
+        _ => kd::traverse_aepsa::aepsa(tree, &fr, neg, ctr),
+    };
+    (f, e.map_or(Start::Miss, Start::At))
+}
+
+/// A built kd-tree as a `Tracer`.
+#[derive(Clone, Copy)]
+pub struct KdTracer<'r> {
+    pub view: KdView<'r>,
+}
+
+impl KdTracer<'_> {
+    /// Frustum and start of a `KdPacket` packet; the frustum only when
+    /// culling is on.
+    fn packet_start(&self, p: &TraceParams, rays: &[Ray4], active: &[M4], ctr: &mut Counters) -> (Option<Frustum>, Start) {
+        if !p.bvh.culling && p.entry == EntrySearch::None {
+            return (None, Start::Root);
+        }
+        let (f, start) = search_entry(&self.view, p, rays, active, &self.view.info.root, ctr);
+        (if p.bvh.culling { f } else { None }, start)
+    }
+}
+
+impl Tracer for KdTracer<'_> {
+    #[inline]
+    fn intersect(&self, ray: &Ray, ctr: &mut Counters) -> Hit {
+        use kd::traverse_single::intersect;
+        by_test!(self.view.info.test, intersect(&self.view, ray, ctr))
+    }
+    #[inline]
+    fn occluded(&self, ray: &Ray, ctr: &mut Counters) -> bool {
+        use kd::traverse_single::occluded;
+        by_test!(self.view.info.test, occluded(&self.view, ray, ctr))
+    }
+    fn intersect_packet(
+        &self,
+        p: &TraceParams,
+        rays: &[Ray4],
+        active: &[M4],
+        hits: &mut [Hit4],
+        _: &mut Mailbox<'_>,
+        ctr: &mut Counters,
+    ) {
+        let (v, test) = (&self.view, self.view.info.test);
+        match p.method {
+            Method::KdSimd => {
+                use kd::traverse_simd::intersect;
+                for ((r, m), h) in rays.iter().zip(active).zip(hits.iter_mut()) {
+                    let got = by_test!(test, intersect(v, r, *m, ctr));
+                    for i in 0..4 {
+                        if m.test(i) {
+                            h.set_lane(i, got.lane(i));
+                        }
+                    }
+                }
+            }
+            Method::KdPacket => {
+                use kd::traverse_packet::intersect;
+                let (f, start) = self.packet_start(p, rays, active, ctr);
+                match start {
+                    Start::Miss => lane_by_lane(rays, active, hits, |_, _| Hit::MISS, ctr),
+                    Start::Root => by_test!(test, intersect(v, rays, active, hits, f.as_ref(), None, ctr)),
+                    Start::At(e) => by_test!(test, intersect(v, rays, active, hits, f.as_ref(), Some(&e), ctr)),
+                }
+            }
+            _ => lane_by_lane(rays, active, hits, |r, c| self.intersect(r, c), ctr),
+        }
+    }
+    fn occluded_packet(
+        &self,
+        p: &TraceParams,
+        rays: &[Ray4],
+        active: &[M4],
+        hits: &mut [Hit4],
+        _: &mut Mailbox<'_>,
+        ctr: &mut Counters,
+    ) {
+        let (v, test) = (&self.view, self.view.info.test);
+        // Occluded lanes get `Hit::OCCLUDED` (the kd packets know no occluder id).
+        let mut occ = [M4::FALSE; kd::traverse_packet::MAX_QUADS];
+        let mark = |occ: &[M4], hits: &mut [Hit4]| {
+            for ((o, m), h) in occ.iter().zip(active).zip(hits.iter_mut()) {
+                for i in 0..4 {
+                    if m.test(i) {
+                        h.set_lane(i, if o.test(i) { Hit::OCCLUDED } else { Hit::MISS });
+                    }
+                }
+            }
+        };
+        match p.method {
+            Method::KdSimd => {
+                use kd::traverse_simd::occluded;
+                for (q, (r, m)) in rays.iter().zip(active).enumerate() {
+                    occ[q % kd::traverse_packet::MAX_QUADS] = by_test!(test, occluded(v, r, *m, ctr));
+                    mark(&occ[q % kd::traverse_packet::MAX_QUADS..][..1], &mut hits[q..q + 1]);
+                }
+            }
+            Method::KdPacket => {
+                use kd::traverse_packet::occluded;
+                let (f, start) = self.packet_start(p, rays, active, ctr);
+                let n = rays.len().min(active.len()).min(hits.len()).min(kd::traverse_packet::MAX_QUADS);
+                match start {
+                    Start::Miss => {}
+                    Start::Root => by_test!(test, occluded(v, &rays[..n], &active[..n], &mut occ[..n], f.as_ref(), None, ctr)),
+                    Start::At(e) => by_test!(test, occluded(v, &rays[..n], &active[..n], &mut occ[..n], f.as_ref(), Some(&e), ctr)),
+                }
+                mark(&occ[..n], &mut hits[..n]);
+            }
+            _ => {
+                use kd::traverse_single::any_hit;
+                lane_by_lane(rays, active, hits, |r, c| by_test!(test, any_hit(v, r, c)), ctr)
             }
         }
     }
@@ -826,7 +1053,8 @@ fn lane_by_lane(
 pub struct SceneTracer<'r> {
     pub grid: Option<GridView<'r>>,
     pub bvh: Option<BvhView<'r>>,
-    /// `Method::GridDda` or `Method::BvhSingle`.
+    pub kd: Option<KdView<'r>>,
+    /// `Method::GridDda`, `Method::BvhSingle` or `Method::KdSingle`.
     pub single: Method,
 }
 
@@ -837,6 +1065,7 @@ impl<'r> SceneTracer<'r> {
         let built = match method.structure() {
             crate::trace::Structure::Grid => self.grid.is_some(),
             crate::trace::Structure::Bvh => self.bvh.is_some(),
+            crate::trace::Structure::Kd => self.kd.is_some(),
         };
         if !built {
             return Err(Error::NotBuilt);
@@ -854,12 +1083,17 @@ impl<'r> SceneTracer<'r> {
     pub fn bvh(&self) -> Option<BvhTracer<'r>> {
         self.bvh.map(|view| BvhTracer { view })
     }
+    /// The kd-tree part (None when no kd-tree is built).
+    pub fn kd(&self) -> Option<KdTracer<'r>> {
+        self.kd.map(|view| KdTracer { view })
+    }
     /// The tracer of `method`'s structure, as a trait object.
     #[inline]
     fn of(&self, method: Method) -> Option<AnyTracer<'r>> {
         match method.structure() {
             crate::trace::Structure::Grid => self.grid().map(AnyTracer::Grid),
             crate::trace::Structure::Bvh => self.bvh().map(AnyTracer::Bvh),
+            crate::trace::Structure::Kd => self.kd().map(AnyTracer::Kd),
         }
     }
 }
@@ -868,6 +1102,7 @@ impl<'r> SceneTracer<'r> {
 enum AnyTracer<'r> {
     Grid(GridTracer<'r>),
     Bvh(BvhTracer<'r>),
+    Kd(KdTracer<'r>),
 }
 
 impl Tracer for SceneTracer<'_> {
@@ -876,6 +1111,7 @@ impl Tracer for SceneTracer<'_> {
         match self.of(self.single) {
             Some(AnyTracer::Grid(g)) => g.intersect(ray, ctr),
             Some(AnyTracer::Bvh(b)) => b.intersect(ray, ctr),
+            Some(AnyTracer::Kd(k)) => k.intersect(ray, ctr),
             None => Hit::MISS,
         }
     }
@@ -884,6 +1120,7 @@ impl Tracer for SceneTracer<'_> {
         match self.of(self.single) {
             Some(AnyTracer::Grid(g)) => g.occluded(ray, ctr),
             Some(AnyTracer::Bvh(b)) => b.occluded(ray, ctr),
+            Some(AnyTracer::Kd(k)) => k.occluded(ray, ctr),
             None => false,
         }
     }
@@ -899,6 +1136,7 @@ impl Tracer for SceneTracer<'_> {
         match self.of(p.method) {
             Some(AnyTracer::Grid(g)) => g.intersect_packet(p, rays, active, hits, mb, ctr),
             Some(AnyTracer::Bvh(b)) => b.intersect_packet(p, rays, active, hits, mb, ctr),
+            Some(AnyTracer::Kd(k)) => k.intersect_packet(p, rays, active, hits, mb, ctr),
             None => lane_by_lane(rays, active, hits, |_, _| Hit::MISS, ctr),
         }
     }
@@ -914,6 +1152,7 @@ impl Tracer for SceneTracer<'_> {
         match self.of(p.method) {
             Some(AnyTracer::Grid(g)) => g.occluded_packet(p, rays, active, hits, mb, ctr),
             Some(AnyTracer::Bvh(b)) => b.occluded_packet(p, rays, active, hits, mb, ctr),
+            Some(AnyTracer::Kd(k)) => k.occluded_packet(p, rays, active, hits, mb, ctr),
             None => lane_by_lane(rays, active, hits, |_, _| Hit::MISS, ctr),
         }
     }
@@ -925,6 +1164,7 @@ impl Tracer for SceneTracer<'_> {
         match self.of(self.single) {
             Some(AnyTracer::Grid(g)) => g.triangle(prim),
             Some(AnyTracer::Bvh(b)) => b.triangle(prim),
+            Some(AnyTracer::Kd(k)) => k.triangle(prim),
             None => None,
         }
     }
@@ -932,6 +1172,7 @@ impl Tracer for SceneTracer<'_> {
         match self.of(self.single) {
             Some(AnyTracer::Grid(g)) => g.scene_scale(),
             Some(AnyTracer::Bvh(b)) => b.scene_scale(),
+            Some(AnyTracer::Kd(k)) => k.scene_scale(),
             None => 1.0,
         }
     }
@@ -974,6 +1215,9 @@ impl OwnedContext {
     }
     pub fn build_bvh(&mut self, scene: &Scene<'_>, params: &BvhParams) -> Result<BvhInfo> {
         self.inner.get_mut().build_bvh(scene, params)
+    }
+    pub fn build_kd(&mut self, scene: &Scene<'_>, params: &KdParams) -> Result<KdInfo> {
+        self.inner.get_mut().build_kd(scene, params)
     }
     pub fn tracer(&self) -> Result<SceneTracer<'_>> {
         self.inner.get().tracer()

@@ -210,6 +210,7 @@ impl TraceOpts {
             packet: self.packet,
             cgt,
             bvh,
+            entry: sheaf::trace::EntrySearch::None,
             split: self.split,
         };
         let shadow = sheaf::TraceParams {

@@ -49,7 +49,7 @@ pub struct sheaf_context {
 const MAGIC: u64 = u64::from_le_bytes(*b"sheafctx");
 
 /// The caller's geometry buffers as given to `sheaf_context_set_geometry`.
-struct Geometry {
+pub(super) struct Geometry {
     vertices: *const u8,
     vertices_len: usize,
     stride: usize,
@@ -61,7 +61,7 @@ struct Geometry {
 impl Geometry {
     /// The borrowed scene, validated again (indices may have been changed
     /// in place since `set_geometry`).
-    fn scene(&self) -> Result<Scene<'_>> {
+    pub(super) fn scene(&self) -> Result<Scene<'_>> {
         let vertices: &[u8] = if self.vertices_len == 0 {
             &[]
         } else {
@@ -89,7 +89,7 @@ pub(super) struct Handle {
     /// `create_in` context, whose memory stays valid).
     magic: u64,
     pub(super) ctx: Context<'static>,
-    geometry: Option<Geometry>,
+    pub(super) geometry: Option<Geometry>,
     /// The last failure of a call on this context (never cleared by a
     /// success). A mutex because trace/occluded run concurrently; locked
     /// only on failure and by `sheaf_context_last_error`.

@@ -26,6 +26,13 @@ pub enum sheaf_method {
     BvhRanged = 5,
     /// BVH, n x n packets, Partition traversal (section 3.3).
     BvhPartition = 6,
+    /// kd-tree, single-ray front-to-back traversal (the kd reference; AEPSA paper).
+    KdSingle = 7,
+    /// kd-tree, 2x2 SIMD rays: every 4 consecutive rays one `Ray4`.
+    KdSimd = 8,
+    /// kd-tree, n x n packets driven by their frustum, from the root or from
+    /// the entry point of `sheaf_trace_params.entry` (MLRTA, AEPSA).
+    KdPacket = 9,
 }
 
 impl sheaf_method {
@@ -40,6 +47,9 @@ impl sheaf_method {
             Method::BvhMasked => sheaf_method::BvhMasked,
             Method::BvhRanged => sheaf_method::BvhRanged,
             Method::BvhPartition => sheaf_method::BvhPartition,
+            Method::KdSingle => sheaf_method::KdSingle,
+            Method::KdSimd => sheaf_method::KdSimd,
+            Method::KdPacket => sheaf_method::KdPacket,
         }
     }
 

@@ -10,6 +10,7 @@
 //! | `limits.rs` | `sheaf_limits` (the crate's `Limits`), `sheaf_limits_default` |
 //! | `grid.rs` | `sheaf_grid_params`, `sheaf_tri_test`, `sheaf_grid_params_default` |
 //! | `bvh.rs` | `sheaf_bvh_params`, `sheaf_ray_kind`, `sheaf_bvh_params_default` |
+//! | `kd.rs` | `sheaf_kd_params`, `sheaf_entry_search`, `sheaf_kd_params_default`, `sheaf_context_build_kd` |
 //! | `method.rs` | `sheaf_method` |
 //! | `ray.rs` | `sheaf_ray`, `sheaf_hit` (the C twins of `Ray`, `Hit`) |
 //! | `frame.rs` | `sheaf_frame` (camera, light, shading, size), `sheaf_shading_default` |
@@ -49,6 +50,7 @@ pub mod bvh;
 pub mod context;
 pub mod frame;
 pub mod grid;
+pub mod kd;
 pub mod limits;
 pub mod method;
 pub mod ray;
@@ -67,6 +69,7 @@ pub use context::{
 };
 pub use frame::{sheaf_frame, sheaf_shading_default};
 pub use grid::{sheaf_grid_params, sheaf_grid_params_default, sheaf_tri_test};
+pub use kd::{sheaf_context_build_kd, sheaf_entry_search, sheaf_kd_params, sheaf_kd_params_default};
 pub use limits::sheaf_limits_default;
 pub use method::sheaf_method;
 pub use ray::{sheaf_hit, sheaf_ray};
@@ -103,6 +106,8 @@ pub mod raw {
     pub type sheaf_tri_test = u32;
     /// cbindgen:ignore
     pub type sheaf_ray_kind = u32;
+    /// cbindgen:ignore
+    pub type sheaf_entry_search = u32;
 }
 
 /// Return `Err(Error::NullPointer)` from the enclosing function when any

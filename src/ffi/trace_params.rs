@@ -23,8 +23,11 @@ pub struct sheaf_trace_params {
     /// Frustum culling: CGT's SIMD corner-ray culling (CGT section 2.3) and
     /// the BVH packets' box and triangle culling (BVH paper section 4).
     pub culling: bool,
-    /// BVH packets: which frustum they get (a `sheaf_ray_kind`).
+    /// BVH and kd-tree packets: which frustum they get (a `sheaf_ray_kind`).
     pub ray_kind: raw::sheaf_ray_kind,
+    /// Tree packets (`KD_PACKET`, `BVH_MASKED`, `BVH_RANGED`,
+    /// `BVH_PARTITION`): entry-point search first (a `sheaf_entry_search`).
+    pub entry: raw::sheaf_entry_search,
     /// Split shadow packets whose hit points' distances from the light
     /// differ by more than this ratio (section 4.7); 0 disables splitting.
     pub split: f32,
@@ -39,6 +42,7 @@ impl sheaf_trace_params {
             mailbox: p.cgt.mailbox,
             culling: p.cgt.culling,
             ray_kind: super::bvh::sheaf_ray_kind::of(p.bvh.kind) as u32,
+            entry: super::kd::sheaf_entry_search::of(p.entry) as u32,
             split: p.split,
         }
     }
@@ -56,6 +60,7 @@ impl sheaf_trace_params {
                 culling: self.culling,
                 kind: super::bvh::sheaf_ray_kind::to_core(self.ray_kind)?,
             },
+            entry: super::kd::sheaf_entry_search::to_core(self.entry)?,
             split: self.split,
         };
         p.validate()?;

@@ -29,11 +29,19 @@ pub struct Limits {
     /// (`TriTest::Projection`); without it that test cannot be selected.
     pub projection_test: bool,
     /// Which structures get pools, a bit set of `SHEAF_STRUCTURE_GRID` (169
-    /// bytes per triangle with the default grid rules and 8 threads) and
-    /// `SHEAF_STRUCTURE_BVH` (140 bytes per triangle), at least one. A
-    /// structure without pools cannot be built; model no more than the
-    /// scene needs.
+    /// bytes per triangle with the default grid rules and 8 threads),
+    /// `SHEAF_STRUCTURE_BVH` (140 bytes per triangle) and
+    /// `SHEAF_STRUCTURE_KD` (237 bytes per triangle with the default kd
+    /// rules, 112 of them build scratch), at least one. A structure without
+    /// pools cannot be built; model no more than the scene needs.
     pub structures: u32,
+    /// Most kd-tree nodes. 0: `4 * max_triangles + 1024` (the OBJ scenes
+    /// need 0.6 to 3.7 per triangle with the default `KdParams`).
+    pub max_kd_nodes: u32,
+    /// Most triangle references in kd-tree leaves. 0: `12 * max_triangles +
+    /// 1024` (the OBJ scenes need 3.4 to 6.1 per triangle, the gears scene
+    /// 20). A build that runs out makes leaves early (`KdInfo::forced_leaves`).
+    pub max_kd_refs: u32,
 }
 
 impl Limits {
@@ -43,9 +51,12 @@ impl Limits {
     /// `structures` bit: the BVH (C: `SHEAF_STRUCTURE_BVH`).
     /// cbindgen:ignore
     pub const BVH: u32 = 2;
+    /// `structures` bit: the kd-tree (C: `SHEAF_STRUCTURE_KD`).
+    /// cbindgen:ignore
+    pub const KD: u32 = 4;
     /// Every structure bit this version knows.
     /// cbindgen:ignore
-    pub const ALL_STRUCTURES: u32 = Self::GRID | Self::BVH;
+    pub const ALL_STRUCTURES: u32 = Self::GRID | Self::BVH | Self::KD;
 
     /// Whether `structure` (a `Limits::GRID`-style bit) has pools.
     pub const fn has(&self, structure: u32) -> bool {
@@ -65,7 +76,26 @@ impl Limits {
             max_grid_refs: 0,
             projection_test: false,
             structures: Self::ALL_STRUCTURES,
+            max_kd_nodes: 0,
+            max_kd_refs: 0,
         }
+    }
+
+    /// kd-tree node capacity after applying the default rule.
+    pub fn kd_nodes(&self) -> u64 {
+        if self.max_kd_nodes != 0 { self.max_kd_nodes as u64 } else { 4 * self.max_triangles as u64 + 1024 }
+    }
+
+    /// kd-tree reference capacity after applying the default rule.
+    pub fn kd_refs(&self) -> u64 {
+        if self.max_kd_refs != 0 { self.max_kd_refs as u64 } else { 12 * self.max_triangles as u64 + 1024 }
+    }
+
+    /// kd-tree build events (scratch): the root's list and its children's
+    /// (`KdInfo::events_peak` is 12.0 to 12.2 per triangle on the test
+    /// scenes); a build short of events makes leaves early.
+    pub fn kd_events(&self) -> u64 {
+        14 * self.max_triangles as u64 + 1024
     }
 
     /// Grid cell capacity after applying the default rule.

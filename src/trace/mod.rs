@@ -134,6 +134,13 @@ pub enum Method {
     BvhRanged = 5,
     /// BVH, n x n packets, Partition traversal (section 3.3).
     BvhPartition = 6,
+    /// kd-tree, single-ray front-to-back traversal (the kd reference).
+    KdSingle = 7,
+    /// kd-tree, 2x2 SIMD rays one `Ray4` at a time (Wald 2004).
+    KdSimd = 8,
+    /// kd-tree, n x n packets driven by their frustum, from the root or
+    /// from the entry point `TraceParams::entry` finds (MLRTA, AEPSA).
+    KdPacket = 9,
 }
 
 impl Method {
@@ -145,6 +152,9 @@ impl Method {
         Method::BvhMasked,
         Method::BvhRanged,
         Method::BvhPartition,
+        Method::KdSingle,
+        Method::KdSimd,
+        Method::KdPacket,
     ];
     pub fn name(self) -> &'static str {
         match self {
@@ -155,6 +165,9 @@ impl Method {
             Method::BvhMasked => "bvh-masked",
             Method::BvhRanged => "bvh-ranged",
             Method::BvhPartition => "bvh-partition",
+            Method::KdSingle => "kd-single",
+            Method::KdSimd => "kd-simd",
+            Method::KdPacket => "kd-packet",
         }
     }
     /// Whether the method traces n x n packets (and so uses `TraceParams::packet`).
@@ -168,6 +181,7 @@ impl Method {
     pub fn structure(self) -> Structure {
         match self {
             Method::GridDda | Method::GridCgt => Structure::Grid,
+            Method::KdSingle | Method::KdSimd | Method::KdPacket => Structure::Kd,
             _ => Structure::Bvh,
         }
     }
@@ -176,6 +190,7 @@ impl Method {
         match self.structure() {
             Structure::Grid => Method::GridDda,
             Structure::Bvh => Method::BvhSingle,
+            Structure::Kd => Method::KdSingle,
         }
     }
     pub fn from_name(s: &str) -> Option<Method> {
@@ -184,6 +199,7 @@ impl Method {
 }
 
 pub use crate::accel::bvh::{BvhOptions, RayKind};
+pub use crate::accel::entry::EntrySearch;
 pub use crate::accel::grid::traverse_cgt::CgtOptions;
 
 /// Acceleration structure families of a context.
@@ -191,6 +207,7 @@ pub use crate::accel::grid::traverse_cgt::CgtOptions;
 pub enum Structure {
     Grid,
     Bvh,
+    Kd,
 }
 
 /// How one class of rays is traced (C: `sheaf_trace_params`).
@@ -202,8 +219,13 @@ pub struct TraceParams {
     pub packet: u32,
     /// CGT switches (macrocells, mailbox, frustum culling).
     pub cgt: CgtOptions,
-    /// BVH large-packet switches (frustum culling, ray kind).
+    /// Tree packet switches (frustum culling, ray kind), for the BVH's and
+    /// the kd-tree's n x n packets.
     pub bvh: BvhOptions,
+    /// Entry-point search before each n x n packet of a tree method
+    /// (`KdPacket`, `BvhMasked`, `BvhRanged`, `BvhPartition`); ignored by
+    /// the other methods.
+    pub entry: EntrySearch,
     /// Shadow packets whose farthest hit point is more than `split` times as
     /// far from the light as the nearest are split into four (CGT section
     /// 4.7); 0 disables splitting.
@@ -217,6 +239,7 @@ impl Default for TraceParams {
             packet: 8,
             cgt: CgtOptions::default(),
             bvh: BvhOptions::default(),
+            entry: EntrySearch::None,
             split: 2.0,
         }
     }
@@ -245,6 +268,10 @@ impl TraceParams {
             ..TraceParams::default()
         }
     }
+    /// The same parameters with entry-point search `entry`.
+    pub fn with_entry(&self, entry: EntrySearch) -> Self {
+        TraceParams { entry, ..*self }
+    }
     /// The same parameters with the BVH ray kind set (which frustum packets get).
     pub fn with_kind(&self, kind: RayKind) -> Self {
         TraceParams {
@@ -257,7 +284,7 @@ impl TraceParams {
     pub fn tile_side(&self) -> u32 {
         if self.method.is_packet() {
             self.packet
-        } else if self.method == Method::BvhSimd {
+        } else if matches!(self.method, Method::BvhSimd | Method::KdSimd) {
             2
         } else {
             0

@@ -13,6 +13,7 @@
 //! | `traverse_masked.rs` | section 3.1, Figure 2: Masked traversal |
 //! | `traverse_ranged.rs` | section 3.2, Appendix A.1: Ranged traversal (first alive ray `i_a` on the stack, `getFirstHit`/`getLastHit`) |
 //! | `traverse_partition.rs` | section 3.3, Appendix A.2: Partition traversal (index list `I` partitioned in place by `partRays`) |
+//! | `entry.rs` | the BVH as an `accel::entry::EntryTree`: MLRTA/AEPSA entry points (AEPSA paper, section 8), where the three packet traversals can start |
 //!
 //! # Node layout
 //! 32-byte nodes (`BvhNode`), two per cache line: the box, then for an inner
@@ -30,6 +31,7 @@
 //! same t (the tie rule of `geom::ray`).
 
 pub mod build;
+pub mod entry;
 pub mod traverse_masked;
 pub mod traverse_partition;
 pub mod traverse_ranged;

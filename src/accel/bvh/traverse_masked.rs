@@ -44,6 +44,7 @@
 use super::frustum::Frustum;
 use super::traverse_simd::{QuadBox, closer4};
 use super::{BvhNode, BvhOptions, BvhTest, BvhView, MAX_DEPTH};
+use crate::accel::entry::EntryPoint;
 use crate::geom::{F4, Hit4, INVALID_ID, M4, Ray4, RayLanes};
 use crate::trace::{Counters, count};
 
@@ -54,70 +55,88 @@ pub const MAX_QUADS: usize = 256;
 /// `rays.len()` quads form one packet (longer inputs: consecutive packets
 /// of 256); `rays`, `active` and `hits` are read up to the shortest length.
 /// Active lanes are written (`Hit::MISS` when nothing is hit, and for
-/// invalid rays); inactive lanes are left untouched.
+/// invalid rays); inactive lanes are left untouched. `entry`: start at this
+/// node instead of the root (an MLRTA or AEPSA entry point of a frustum
+/// bounding every live ray of `rays`; see `bvh::entry`).
 pub fn intersect<T: BvhTest>(
     b: &BvhView<'_>,
     rays: &[Ray4],
     active: &[M4],
     hits: &mut [Hit4],
     opt: &BvhOptions,
+    entry: Option<&EntryPoint>,
     ctr: &mut Counters,
 ) {
-    dispatch::<Masked, T, false>(b, rays, active, hits, opt, ctr)
+    dispatch::<Masked, T, false>(b, rays, active, hits, opt, entry, ctr)
 }
 
 /// Occlusion of the active lanes, Masked traversal: `hits[q].prim[i] !=
 /// INVALID_ID` marks an occluded lane (t and id of some occluder in `[tmin,
 /// tmax)`, not the nearest); other active lanes get `Hit::MISS`, inactive
-/// ones are untouched.
+/// ones are untouched. `entry` as for `intersect`.
 pub fn occluded<T: BvhTest>(
     b: &BvhView<'_>,
     rays: &[Ray4],
     active: &[M4],
     hits: &mut [Hit4],
     opt: &BvhOptions,
+    entry: Option<&EntryPoint>,
     ctr: &mut Counters,
 ) {
-    dispatch::<Masked, T, true>(b, rays, active, hits, opt, ctr)
+    dispatch::<Masked, T, true>(b, rays, active, hits, opt, entry, ctr)
 }
 
 /// A large-packet traversal: walks one prepared packet through the tree.
 pub(crate) trait Walk {
+    /// `start`: the node to start at and its depth (the root: `(0, 0)`).
     fn walk<T: BvhTest, const ANY: bool, const Q: usize>(
         p: &mut Packet<T, Q>,
         b: &BvhView<'_>,
         rays: &[Ray4],
         hits: &mut [Hit4],
+        start: (usize, usize),
         ctr: &mut Counters,
     );
 }
 
 /// Split the input into packets of at most 256 quads, each traced with
-/// scratch sized by its class (1, 4, 16, 64 or 256 quads) on the stack.
+/// scratch sized by its class (1, 4, 16, 64 or 256 quads) on the stack,
+/// from `entry` (every packet of the input) or the root. An entry node
+/// outside the tree starts at the root.
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn dispatch<W: Walk, T: BvhTest, const ANY: bool>(
     b: &BvhView<'_>,
     rays: &[Ray4],
     active: &[M4],
     hits: &mut [Hit4],
     opt: &BvhOptions,
+    entry: Option<&EntryPoint>,
     ctr: &mut Counters,
 ) {
+    let start = match entry {
+        Some(e) if (e.node as usize) < b.nodes.len() => {
+            (e.node as usize, (e.depth as usize).min(MAX_DEPTH))
+        }
+        _ => (0, 0),
+    };
     let n = rays.len().min(active.len()).min(hits.len());
+    let (r, a, h) = (&rays[..n], &active[..n], &mut hits[..n]);
     match n {
         0 => {}
-        1 => packet::<W, T, ANY, 1>(b, &rays[..n], &active[..n], &mut hits[..n], opt, ctr),
-        2..=4 => packet::<W, T, ANY, 4>(b, &rays[..n], &active[..n], &mut hits[..n], opt, ctr),
-        5..=16 => packet::<W, T, ANY, 16>(b, &rays[..n], &active[..n], &mut hits[..n], opt, ctr),
-        17..=64 => packet::<W, T, ANY, 64>(b, &rays[..n], &active[..n], &mut hits[..n], opt, ctr),
+        1 => packet::<W, T, ANY, 1>(b, r, a, h, opt, start, ctr),
+        2..=4 => packet::<W, T, ANY, 4>(b, r, a, h, opt, start, ctr),
+        5..=16 => packet::<W, T, ANY, 16>(b, r, a, h, opt, start, ctr),
+        17..=64 => packet::<W, T, ANY, 64>(b, r, a, h, opt, start, ctr),
         _ => {
             for s in (0..n).step_by(MAX_QUADS) {
                 let e = (s + MAX_QUADS).min(n);
                 packet::<W, T, ANY, MAX_QUADS>(
                     b,
-                    &rays[s..e],
-                    &active[s..e],
-                    &mut hits[s..e],
+                    &r[s..e],
+                    &a[s..e],
+                    &mut h[s..e],
                     opt,
+                    start,
                     ctr,
                 );
             }
@@ -131,10 +150,11 @@ fn packet<W: Walk, T: BvhTest, const ANY: bool, const Q: usize>(
     active: &[M4],
     hits: &mut [Hit4],
     opt: &BvhOptions,
+    start: (usize, usize),
     ctr: &mut Counters,
 ) {
     if let Some(mut p) = Packet::<T, Q>::new(b, rays, active, hits, opt, ctr) {
-        W::walk::<T, ANY, Q>(&mut p, b, rays, hits, ctr);
+        W::walk::<T, ANY, Q>(&mut p, b, rays, hits, start, ctr);
     }
 }
 
@@ -366,6 +386,7 @@ impl Walk for Masked {
         b: &BvhView<'_>,
         rays: &[Ray4],
         hits: &mut [Hit4],
+        start: (usize, usize),
         ctr: &mut Counters,
     ) {
         let nodes = b.nodes;
@@ -375,8 +396,7 @@ impl Walk for Masked {
         let mut st_node = [0u32; MAX_DEPTH + 1];
         let mut st_depth = [0u8; MAX_DEPTH + 1];
         let mut sp = 0usize;
-        let mut node = 0usize;
-        let mut depth = 0usize;
+        let (mut node, mut depth) = start;
         loop {
             let n = &nodes[node];
             let leaf = n.is_leaf();
@@ -689,14 +709,28 @@ pub(crate) mod tests {
         v: 4.0,
     };
 
+    /// Where a checked packet starts: what an entry-point search decided.
+    #[derive(Clone, Copy, Debug)]
+    pub enum Start {
+        Root,
+        At(EntryPoint),
+        /// No entry point: the packet is not traced, its active lanes miss.
+        Miss,
+    }
+
+    /// An entry-point search per packet: `(tree, quads, active, options)`.
+    pub type Search<'s> = &'s dyn Fn(&BvhView<'_>, &[Ray4], &[M4], &BvhOptions) -> Start;
+
     /// Trace `quads` (a packet, or several concatenated) with traversal `W`
-    /// and compare every lane with `traverse_single`; returns the counters.
+    /// from `start` and compare every lane with `traverse_single`; returns
+    /// the counters.
     #[allow(clippy::too_many_arguments)]
     pub fn check_packet<W: Walk, T: BvhTest>(
         b: &BvhView<'_>,
         quads: &[Ray4],
         active: &[M4],
         opt: &BvhOptions,
+        start: Start,
         any: bool,
         reference: &dyn Fn(usize, usize) -> Hit,
         what: &dyn Fn() -> String,
@@ -707,10 +741,26 @@ pub(crate) mod tests {
         }
         let mut hits = vec![fill; quads.len()];
         let mut ctr = Counters::default();
-        if any {
-            dispatch::<W, T, true>(b, quads, active, &mut hits, opt, &mut ctr);
-        } else {
-            dispatch::<W, T, false>(b, quads, active, &mut hits, opt, &mut ctr);
+        let entry = match &start {
+            Start::Root => None,
+            Start::At(e) => Some(e),
+            Start::Miss => {
+                // What the trace layer does: every active lane misses.
+                for (h, m) in hits.iter_mut().zip(active) {
+                    for i in 0..4 {
+                        if m.test(i) {
+                            h.set_lane(i, Hit::MISS);
+                        }
+                    }
+                }
+                None
+            }
+        };
+        let traced = !matches!(start, Start::Miss);
+        if traced && any {
+            dispatch::<W, T, true>(b, quads, active, &mut hits, opt, entry, &mut ctr);
+        } else if traced {
+            dispatch::<W, T, false>(b, quads, active, &mut hits, opt, entry, &mut ctr);
         }
         let mut valid = 0;
         for (q, (h, m)) in hits.iter().zip(active).enumerate() {
@@ -752,6 +802,9 @@ pub(crate) mod tests {
                 }
             }
         }
+        if !traced {
+            return ctr;
+        }
         assert_eq!(ctr.rays, valid, "{}", what());
         assert_eq!(
             ctr.packets,
@@ -791,6 +844,17 @@ pub(crate) mod tests {
         name: &str,
         b: &BvhView<'_>,
         sets: &[RaySet],
+    ) -> Counters {
+        check_sets_from::<W, T>(name, b, sets, &|_, _, _, _| Start::Root)
+    }
+
+    /// `check_sets` with every packet (and every whole input) started
+    /// where `search` says.
+    pub fn check_sets_from<W: Walk, T: BvhTest>(
+        name: &str,
+        b: &BvhView<'_>,
+        sets: &[RaySet],
+        search: Search<'_>,
     ) -> Counters {
         let mut total = Counters::default();
         for set in sets {
@@ -832,9 +896,10 @@ pub(crate) mod tests {
                         for culling in [true, false] {
                             for &kind in set.kinds {
                                 let opt = BvhOptions { culling, kind };
+                                let start = search(b, &quads, &active, &opt);
                                 let what = || {
                                     format!(
-                                        "{name} {} n={n} {opt:?} any={any} ({:?})",
+                                        "{name} {} n={n} {opt:?} any={any} ({:?}) from {start:?}",
                                         set.name,
                                         T::KIND
                                     )
@@ -844,6 +909,7 @@ pub(crate) mod tests {
                                     &quads,
                                     &active,
                                     &opt,
+                                    start,
                                     any,
                                     &|q, i| reference(&pix, q, i, any),
                                     &what,
@@ -866,9 +932,10 @@ pub(crate) mod tests {
                         culling: true,
                         kind: set.kinds[0],
                     };
+                    let start = search(b, &quads[s..e], &active[s..e], &opt);
                     let what = || {
                         format!(
-                            "{name} {} quads {s}..{e} any={any} ({:?})",
+                            "{name} {} quads {s}..{e} any={any} ({:?}) from {start:?}",
                             set.name,
                             T::KIND
                         )
@@ -878,6 +945,7 @@ pub(crate) mod tests {
                         &quads[s..e],
                         &active[s..e],
                         &opt,
+                        start,
                         any,
                         &|q, i| reference(&pix, s + q, i, any),
                         &what,
@@ -1222,18 +1290,18 @@ pub(crate) mod tests {
                 runs.push((
                     "masked",
                     cs,
-                    Box::new(move |q, a, hs, c| dispatch::<Masked, Mt, false>(b, q, a, hs, &o, c)),
+                    Box::new(move |q, a, hs, c| dispatch::<Masked, Mt, false>(b, q, a, hs, &o, None, c)),
                 ));
                 runs.push((
                     "ranged",
                     cs,
-                    Box::new(move |q, a, hs, c| dispatch::<Ranged, Mt, false>(b, q, a, hs, &o, c)),
+                    Box::new(move |q, a, hs, c| dispatch::<Ranged, Mt, false>(b, q, a, hs, &o, None, c)),
                 ));
                 runs.push((
                     "partition",
                     cs,
                     Box::new(move |q, a, hs, c| {
-                        dispatch::<Partition, Mt, false>(b, q, a, hs, &o, c)
+                        dispatch::<Partition, Mt, false>(b, q, a, hs, &o, None, c)
                     }),
                 ));
             }

@@ -24,33 +24,36 @@
 
 use super::traverse_masked::{Packet, Walk, dispatch};
 use super::{BvhNode, BvhOptions, BvhTest, BvhView, MAX_DEPTH};
+use crate::accel::entry::EntryPoint;
 use crate::geom::{Hit4, M4, Ray4};
 use crate::trace::Counters;
 
 /// Nearest hits of the active lanes of `rays` into `hits`, Partition
-/// traversal (contract of `traverse_masked::intersect`).
+/// traversal (contract of `traverse_masked::intersect`, `entry` included).
 pub fn intersect<T: BvhTest>(
     b: &BvhView<'_>,
     rays: &[Ray4],
     active: &[M4],
     hits: &mut [Hit4],
     opt: &BvhOptions,
+    entry: Option<&EntryPoint>,
     ctr: &mut Counters,
 ) {
-    dispatch::<Partition, T, false>(b, rays, active, hits, opt, ctr)
+    dispatch::<Partition, T, false>(b, rays, active, hits, opt, entry, ctr)
 }
 
 /// Occlusion of the active lanes, Partition traversal (contract of
-/// `traverse_masked::occluded`).
+/// `traverse_masked::occluded`, `entry` included).
 pub fn occluded<T: BvhTest>(
     b: &BvhView<'_>,
     rays: &[Ray4],
     active: &[M4],
     hits: &mut [Hit4],
     opt: &BvhOptions,
+    entry: Option<&EntryPoint>,
     ctr: &mut Counters,
 ) {
-    dispatch::<Partition, T, true>(b, rays, active, hits, opt, ctr)
+    dispatch::<Partition, T, true>(b, rays, active, hits, opt, entry, ctr)
 }
 
 /// `partRays`: move the quads of `idx[..ia]` alive in `n`'s box to the
@@ -86,6 +89,7 @@ impl Walk for Partition {
         b: &BvhView<'_>,
         rays: &[Ray4],
         hits: &mut [Hit4],
+        start: (usize, usize),
         ctr: &mut Counters,
     ) {
         let nodes = b.nodes;
@@ -102,8 +106,7 @@ impl Walk for Partition {
         let mut st_ia = [0u16; MAX_DEPTH + 1];
         let mut st_depth = [0u8; MAX_DEPTH + 1];
         let mut sp = 0usize;
-        let mut node = 0usize;
-        let mut depth = 0usize;
+        let (mut node, mut depth) = start;
         loop {
             let n = &nodes[node];
             ia = part_rays(p, n, &mut idx, ia, depth, ctr);

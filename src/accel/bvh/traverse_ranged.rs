@@ -21,33 +21,36 @@
 
 use super::traverse_masked::{Packet, Walk, dispatch};
 use super::{BvhNode, BvhOptions, BvhTest, BvhView, MAX_DEPTH};
+use crate::accel::entry::EntryPoint;
 use crate::geom::{Hit4, M4, Ray4};
 use crate::trace::Counters;
 
 /// Nearest hits of the active lanes of `rays` into `hits`, Ranged
-/// traversal (contract of `traverse_masked::intersect`).
+/// traversal (contract of `traverse_masked::intersect`, `entry` included).
 pub fn intersect<T: BvhTest>(
     b: &BvhView<'_>,
     rays: &[Ray4],
     active: &[M4],
     hits: &mut [Hit4],
     opt: &BvhOptions,
+    entry: Option<&EntryPoint>,
     ctr: &mut Counters,
 ) {
-    dispatch::<Ranged, T, false>(b, rays, active, hits, opt, ctr)
+    dispatch::<Ranged, T, false>(b, rays, active, hits, opt, entry, ctr)
 }
 
 /// Occlusion of the active lanes, Ranged traversal (contract of
-/// `traverse_masked::occluded`).
+/// `traverse_masked::occluded`, `entry` included).
 pub fn occluded<T: BvhTest>(
     b: &BvhView<'_>,
     rays: &[Ray4],
     active: &[M4],
     hits: &mut [Hit4],
     opt: &BvhOptions,
+    entry: Option<&EntryPoint>,
     ctr: &mut Counters,
 ) {
-    dispatch::<Ranged, T, true>(b, rays, active, hits, opt, ctr)
+    dispatch::<Ranged, T, true>(b, rays, active, hits, opt, entry, ctr)
 }
 
 /// `getFirstHit`: the first quad from `ia` on alive in `n`'s box, or `nq`.
@@ -103,6 +106,7 @@ impl Walk for Ranged {
         b: &BvhView<'_>,
         rays: &[Ray4],
         hits: &mut [Hit4],
+        start: (usize, usize),
         ctr: &mut Counters,
     ) {
         let nodes = b.nodes;
@@ -111,8 +115,7 @@ impl Walk for Ranged {
         let mut st_ia = [0u16; MAX_DEPTH + 1];
         let mut st_depth = [0u8; MAX_DEPTH + 1];
         let mut sp = 0usize;
-        let mut node = 0usize;
-        let mut depth = 0usize;
+        let (mut node, mut depth) = start;
         let mut ia = 0usize;
         loop {
             let n = &nodes[node];

@@ -1,0 +1,993 @@
+//! n x n ray packets through the kd-tree, driven by the packet's frustum,
+//! from the root or from an entry point (the AEPSA paper's section 2 and
+//! its "plain packet tracing"; Wald 2004's packet traversal widened to
+//! `(n/2)^2` SIMD rays; Reshetov, Soupikov, Hurley 2005 for the frustum
+//! and the entry point).
+//!
+//! A packet is `rays.len()` 2x2 quads (at most 256: 32 x 32 rays), every
+//! lane with its own interval `[t0, t1]`. All traced lanes share their
+//! direction signs, hence the near and far child of every split. At an
+//! inner node the packet first culls the child boxes its frustum misses,
+//! then one pass over the quads alive in the node narrows every lane's
+//! interval by `split_interval` and tells whether some lane needs the near
+//! child, the far child, or both; the packet goes near (pushing the far
+//! child when needed) or far. At a leaf the triangles the frustum does not
+//! cull are tested against the lanes inside the leaf, and a lane is done
+//! once its nearest hit lies at or before the end of its leaf interval.
+//!
+//! # Exactness
+//! Lane by lane this is the single ray's traversal (`mod.rs`, Exactness):
+//! the same intervals, hence the same leaves in the same order and the
+//! same stop. A pushed far child keeps no intervals: when it is popped,
+//! every lane's interval is recomputed by the slab test of the child's box
+//! (`clip4`), which equals the interval the descent would have given. The
+//! traversal starts at an entry point with the slab test of its box, which
+//! equals the single ray's interval there; the entry is valid when its
+//! subtree holds every leaf with a triangle the frustum does not cull, as
+//! the rays' hits are on such triangles. Culled boxes lie beyond a frustum
+//! plane by more than the rounding of any ray's slab test, and culled
+//! triangles are hit by no ray, so culling removes nothing a lane would
+//! have visited or hit.
+//!
+//! # Memory
+//! Fixed scratch sized by the packet's class (1, 4, 16, 64 or 256 quads,
+//! as the BVH packets): per quad the reciprocal directions, the triangle
+//! test's precomputation, the live lanes and the current interval; a stack
+//! of `MAX_DEPTH + 1` entries `(node, depth, box, quads)` (64 bytes each),
+//! where `quads` marks the quads with some lane in the far child when it
+//! was pushed (the only ones to recompute when it is popped). No
+//! allocation, no recursion.
+//!
+//! # Deviations
+//! - Lanes whose direction sign bits differ from the packet's first live
+//!   lane on some axis (`Counters::stray_lanes`) are traced one by one with
+//!   `traverse_single::from_node` from the packet's start node and box.
+//! - Inputs longer than 256 quads are traced as consecutive packets of 256
+//!   with the same frustum and entry point (both stay valid for a subset).
+//! - An entry point whose node lies outside the tree is ignored (the
+//!   packet starts at the root).
+//!
+//! # Counters
+//! `rays` (valid active lanes), `packets` (per packet of at most 256
+//! quads), `stray_lanes`, `aabb_at` one per quad and split step (the slab
+//! tests of popped boxes are not counted), `tri_at` the live lanes of each
+//! quad-triangle test, `culled_nodes` / `culled` for frustum rejections.
+
+use super::traverse_simd::{clip4, closer4, lane_from, lane_signs, stray_bits, valid4};
+use super::{KdTest, KdView, MAX_DEPTH};
+use crate::accel::entry::EntryPoint;
+use crate::geom::frustum::Frustum;
+use crate::geom::lane::mask_from_bits;
+use crate::geom::{Aabb, F4, Hit, Hit4, INVALID_ID, M4, Ray4, RayLanes};
+use crate::trace::{Counters, count};
+
+/// Most quads traced as one packet (32 x 32 rays).
+pub const MAX_QUADS: usize = 256;
+
+/// Nearest hits of the active lanes of `rays` (one packet of `(n/2)^2`
+/// quads; `rays`, `active` and `hits` are read up to the shortest length)
+/// into `hits`. Active lanes are written (`Hit::MISS` when nothing is hit,
+/// and for invalid rays, see `Ray::is_valid`); inactive lanes are left
+/// untouched. `frustum` must bound every active valid ray (as
+/// `Frustum::new` builds it), `entry` must hold every leaf with a triangle
+/// that frustum does not cull (see the module docs); either may be `None`.
+#[allow(clippy::too_many_arguments)]
+pub fn intersect<T: KdTest>(
+    k: &KdView<'_>,
+    rays: &[Ray4],
+    active: &[M4],
+    hits: &mut [Hit4],
+    frustum: Option<&Frustum>,
+    entry: Option<&EntryPoint>,
+    ctr: &mut Counters,
+) {
+    let n = rays.len().min(active.len()).min(hits.len());
+    dispatch::<T, false>(
+        k,
+        &rays[..n],
+        &active[..n],
+        &mut hits[..n],
+        &mut [],
+        frustum,
+        entry,
+        ctr,
+    );
+}
+
+/// Occlusion of the active lanes (anything in `[tmin, tmax)`): lane `i` of
+/// `occluded[q]` is set when it is active and occluded, cleared otherwise
+/// (every quad read is written). Arguments as `intersect`.
+#[allow(clippy::too_many_arguments)]
+pub fn occluded<T: KdTest>(
+    k: &KdView<'_>,
+    rays: &[Ray4],
+    active: &[M4],
+    occluded: &mut [M4],
+    frustum: Option<&Frustum>,
+    entry: Option<&EntryPoint>,
+    ctr: &mut Counters,
+) {
+    let n = rays.len().min(active.len()).min(occluded.len());
+    dispatch::<T, true>(
+        k,
+        &rays[..n],
+        &active[..n],
+        &mut [],
+        &mut occluded[..n],
+        frustum,
+        entry,
+        ctr,
+    );
+}
+
+/// Packets of at most 256 quads, each traced with scratch sized by its
+/// class. `hits` (nearest) or `occ` (ANY) has the length of `rays`.
+#[allow(clippy::too_many_arguments)]
+fn dispatch<T: KdTest, const ANY: bool>(
+    k: &KdView<'_>,
+    rays: &[Ray4],
+    active: &[M4],
+    hits: &mut [Hit4],
+    occ: &mut [M4],
+    frustum: Option<&Frustum>,
+    entry: Option<&EntryPoint>,
+    ctr: &mut Counters,
+) {
+    let n = rays.len();
+    let (f, e) = (frustum, entry);
+    match n {
+        0 => {}
+        1 => packet::<T, ANY, 1>(k, rays, active, hits, occ, f, e, ctr),
+        2..=4 => packet::<T, ANY, 4>(k, rays, active, hits, occ, f, e, ctr),
+        5..=16 => packet::<T, ANY, 16>(k, rays, active, hits, occ, f, e, ctr),
+        17..=64 => packet::<T, ANY, 64>(k, rays, active, hits, occ, f, e, ctr),
+        _ => {
+            for s in (0..n).step_by(MAX_QUADS) {
+                let e2 = (s + MAX_QUADS).min(n);
+                let (h, o) = if ANY {
+                    (&mut [][..], &mut occ[s..e2])
+                } else {
+                    (&mut hits[s..e2], &mut [][..])
+                };
+                packet::<T, ANY, MAX_QUADS>(k, &rays[s..e2], &active[s..e2], h, o, f, e, ctr);
+            }
+        }
+    }
+}
+
+/// A pushed far child: its node, depth and box, and the quads with some
+/// lane inside it when it was pushed (bit `q`).
+#[derive(Clone, Copy)]
+struct Entry {
+    node: u32,
+    depth: u32,
+    bx: Aabb,
+    quads: [u64; MAX_QUADS / 64],
+}
+
+/// One packet of `rays.len() <= Q` quads (`Q` a power of two).
+#[allow(clippy::too_many_arguments)]
+fn packet<T: KdTest, const ANY: bool, const Q: usize>(
+    k: &KdView<'_>,
+    rays: &[Ray4],
+    active: &[M4],
+    hits: &mut [Hit4],
+    occ: &mut [M4],
+    frustum: Option<&Frustum>,
+    entry: Option<&EntryPoint>,
+    ctr: &mut Counters,
+) {
+    let nq = rays.len().min(Q);
+    ctr.packets += 1;
+    // Outputs of the active lanes, and the live ones: active and valid.
+    let mut live = [M4::FALSE; Q];
+    let mut n_live = 0u32;
+    for q in 0..nq {
+        let m = active[q];
+        if ANY {
+            occ[q] = M4::FALSE;
+        } else if m.any() {
+            let h = &mut hits[q];
+            h.t = F4::select(m, F4::INFINITY, h.t);
+            h.u = F4::select(m, F4::ZERO, h.u);
+            h.v = F4::select(m, F4::ZERO, h.v);
+            for i in 0..4 {
+                if m.test(i) {
+                    h.prim[i] = INVALID_ID;
+                }
+            }
+        }
+        let l = m & valid4(&rays[q]);
+        live[q] = l;
+        n_live += l.bitmask().count_ones();
+    }
+    ctr.rays += n_live as u64;
+    if n_live == 0 || k.nodes.is_empty() || k.info.triangles == 0 {
+        return;
+    }
+    let (node0, depth0, bx0) = match entry {
+        Some(e) if (e.node as usize) < k.nodes.len() => (e.node as usize, e.depth as usize, e.aabb),
+        _ => (0, 0, k.info.root),
+    };
+    if let Some(f) = frustum {
+        if f.cull_box(&bx0.min.to_array(), &bx0.max.to_array()) {
+            count!(ctr.culled_nodes += 1);
+            return;
+        }
+    }
+    // Near sides from the first live lane; lanes going another way alone.
+    let q0 = live[..nq].iter().position(|m| m.any()).unwrap_or(0);
+    let neg = lane_signs(&rays[q0], live[q0].bitmask().trailing_zeros() as usize);
+    for q in 0..nq {
+        let s = stray_bits(&rays[q], neg) & live[q].bitmask();
+        if s == 0 {
+            continue;
+        }
+        ctr.stray_lanes += s.count_ones() as u64;
+        for i in 0..4 {
+            if s & (1 << i) != 0 {
+                let h: Hit = lane_from::<T, ANY>(k, &rays[q], i, node0, depth0, &bx0, ctr);
+                if ANY {
+                    occ[q].set(i, h.is_hit());
+                } else {
+                    hits[q].set_lane(i, h);
+                }
+            }
+        }
+        live[q] &= !mask_from_bits(s);
+        n_live -= s.count_ones();
+    }
+    if n_live == 0 {
+        return;
+    }
+    walk::<T, ANY, Q>(
+        k,
+        rays,
+        hits,
+        occ,
+        frustum,
+        &mut live,
+        n_live,
+        neg,
+        (node0, depth0, bx0),
+        ctr,
+    );
+}
+
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn walk<T: KdTest, const ANY: bool, const Q: usize>(
+    k: &KdView<'_>,
+    rays: &[Ray4],
+    hits: &mut [Hit4],
+    occ: &mut [M4],
+    frustum: Option<&Frustum>,
+    live: &mut [M4; Q],
+    mut n_live: u32,
+    neg: [bool; 3],
+    start: (usize, usize, Aabb),
+    ctr: &mut Counters,
+) {
+    let nq = rays.len().min(Q);
+    // Per-quad constants; scratch past nq repeats the last quad (never read).
+    let at = |q: usize| &rays[q.min(nq - 1)];
+    let org: [[F4; Q]; 3] = core::array::from_fn(|a| core::array::from_fn(|q| at(q).org[a]));
+    let rcp: [[F4; Q]; 3] =
+        core::array::from_fn(|a| core::array::from_fn(|q| F4::ONE / at(q).dir[a]));
+    let tmin: [F4; Q] = core::array::from_fn(|q| at(q).tmin);
+    let tmax: [F4; Q] = core::array::from_fn(|q| at(q).tmax);
+    let pre: [T::Pre<F4>; Q] = core::array::from_fn(|q| T::prepare(&RayLanes::from_ray4(at(q))));
+    // Current intervals (valid for the quads in `act`).
+    let mut t0 = [F4::ZERO; Q];
+    let mut t1 = [F4::ZERO; Q];
+    // Quads with a live lane inside the current node, and per entry of
+    // `act` the split's t_s (inner node) or the lanes inside (leaf).
+    let mut act = [0u16; Q];
+    let mut tsb = [F4::ZERO; Q];
+    let mut lm = [M4::FALSE; Q];
+    let slab = |q: usize, bx: &Aabb| {
+        clip4(
+            &bx.min.to_array(),
+            &bx.max.to_array(),
+            &[org[0][q], org[1][q], org[2][q]],
+            &[rcp[0][q], rcp[1][q], rcp[2][q]],
+            neg,
+            tmin[q],
+            tmax[q],
+        )
+    };
+    let (mut node, mut depth, mut bx) = start;
+    let mut na = 0usize;
+    for q in 0..nq {
+        if live[q].any() {
+            let (a0, a1) = slab(q, &bx);
+            if (live[q] & a0.cmple(a1)).any() {
+                (t0[q], t1[q]) = (a0, a1);
+                act[na] = q as u16;
+                na += 1;
+            }
+        }
+    }
+    if na == 0 {
+        return;
+    }
+    let nodes = k.nodes;
+    let mut st = [Entry {
+        node: 0,
+        depth: 0,
+        bx: Aabb::EMPTY,
+        quads: [0; MAX_QUADS / 64],
+    }; MAX_DEPTH + 1];
+    let mut sp = 0usize;
+    let words = Q.div_ceil(64);
+    loop {
+        let n = &nodes[node];
+        if !n.is_leaf() {
+            let a = n.axis();
+            let l = n.left();
+            let (lb, rb) = KdView::child_boxes(n, &bx);
+            let (near, far, nb, fb) = if neg[a] {
+                (l + 1, l, rb, lb)
+            } else {
+                (l, l + 1, lb, rb)
+            };
+            // frustumIntersectsAABB on both children first: a culled
+            // child needs no interval work.
+            let (mut use_near, mut use_far) = (true, true);
+            if let Some(f) = frustum {
+                if f.cull_box(&nb.min.to_array(), &nb.max.to_array()) {
+                    count!(ctr.culled_nodes += 1);
+                    use_near = false;
+                }
+                if f.cull_box(&fb.min.to_array(), &fb.max.to_array()) {
+                    count!(ctr.culled_nodes += 1);
+                    use_far = false;
+                }
+            }
+            depth += 1;
+            if use_near || use_far {
+                ctr.aabb_at(depth - 1, na as u64);
+                let s = F4::splat(n.split());
+                let (oa, ra) = (&org[a], &rcp[a]);
+                let mut need_near = M4::FALSE;
+                let mut need_far = M4::FALSE;
+                let mut far_q = [0u64; MAX_QUADS / 64];
+                for (i, &qi) in act[..na].iter().enumerate() {
+                    let q = qi as usize & (Q - 1);
+                    // `split_interval`, lane by lane (NaN t_s: no change).
+                    let ts = (s - oa[q]) * ra[q];
+                    tsb[i] = ts;
+                    let (a0, a1, lv) = (t0[q], t1[q], live[q]);
+                    let near_hi = F4::select(ts.cmplt(a1), ts, a1);
+                    let far_lo = F4::select(ts.cmpgt(a0), ts, a0);
+                    need_near |= lv & a0.cmple(near_hi);
+                    let nf = lv & far_lo.cmple(a1);
+                    need_far |= nf;
+                    far_q[(q >> 6) & (MAX_QUADS / 64 - 1)] |= (nf.any() as u64) << (q & 63);
+                }
+                let go_near = use_near && need_near.any();
+                let go_far = use_far && need_far.any();
+                if go_near {
+                    if go_far {
+                        st[sp] = Entry {
+                            node: far as u32,
+                            depth: depth as u32,
+                            bx: fb,
+                            quads: far_q,
+                        };
+                        sp += 1;
+                    }
+                    // Near child: [t0, min(t1, t_s)]; keep the quads inside.
+                    let mut j = 0;
+                    for i in 0..na {
+                        let qi = act[i];
+                        let q = qi as usize & (Q - 1);
+                        let (ts, a1) = (tsb[i], t1[q]);
+                        let near_hi = F4::select(ts.cmplt(a1), ts, a1);
+                        t1[q] = near_hi;
+                        act[j] = qi;
+                        j += (live[q] & t0[q].cmple(near_hi)).any() as usize;
+                    }
+                    na = j;
+                    node = near;
+                    bx = nb;
+                    continue;
+                }
+                if go_far {
+                    // Far child: [max(t0, t_s), t1].
+                    let mut j = 0;
+                    for i in 0..na {
+                        let qi = act[i];
+                        let q = qi as usize & (Q - 1);
+                        let (ts, a0) = (tsb[i], t0[q]);
+                        let far_lo = F4::select(ts.cmpgt(a0), ts, a0);
+                        t0[q] = far_lo;
+                        act[j] = qi;
+                        j += (live[q] & far_lo.cmple(t1[q])).any() as usize;
+                    }
+                    na = j;
+                    node = far;
+                    bx = fb;
+                    continue;
+                }
+            }
+        } else {
+            // The lanes inside this leaf; the others never visit it.
+            for (m, &qi) in lm[..na].iter_mut().zip(&act[..na]) {
+                let q = qi as usize & (Q - 1);
+                *m = live[q] & t0[q].cmple(t1[q]);
+            }
+            for &s in k.leaf_refs(n) {
+                let s = s as usize;
+                if let Some(f) = frustum {
+                    if f.cull_triangle(&k.tris[s]) {
+                        count!(ctr.culled += 1);
+                        continue;
+                    }
+                }
+                let prim = T::prim(k, s);
+                let id = k.tri_ids[s];
+                for (m, &qi) in lm[..na].iter_mut().zip(&act[..na]) {
+                    if ANY && !m.any() {
+                        continue;
+                    }
+                    let q = qi as usize & (Q - 1);
+                    ctr.tri_at(depth, m.bitmask().count_ones() as u64);
+                    let h = T::intersect(&RayLanes::from_ray4(&rays[q]), &pre[q], prim);
+                    let hm = h.mask & *m;
+                    if !hm.any() {
+                        continue;
+                    }
+                    if ANY {
+                        // Occlusion: a lane with a hit is done.
+                        occ[q] |= hm;
+                        live[q] &= !hm;
+                        *m &= !hm;
+                        n_live -= hm.bitmask().count_ones();
+                        if n_live == 0 {
+                            return;
+                        }
+                    } else {
+                        let hq = &mut hits[q];
+                        let take = hm & closer4(h.t, id, hq);
+                        if take.any() {
+                            hq.t = F4::select(take, h.t, hq.t);
+                            hq.u = F4::select(take, h.u, hq.u);
+                            hq.v = F4::select(take, h.v, hq.v);
+                            for i in 0..4 {
+                                if take.test(i) {
+                                    hq.prim[i] = id;
+                                }
+                            }
+                        }
+                    }
+                }
+            }
+            // Early termination, per lane: nothing beyond this leaf can be
+            // nearer (the single ray's rule, a miss's t = inf included).
+            for (m, &qi) in lm[..na].iter().zip(&act[..na]) {
+                let q = qi as usize & (Q - 1);
+                let bt = if ANY { F4::INFINITY } else { hits[q].t };
+                let done = *m & bt.cmple(t1[q]);
+                if done.any() {
+                    live[q] &= !done;
+                    n_live -= done.bitmask().count_ones();
+                }
+            }
+            if n_live == 0 {
+                return;
+            }
+        }
+        // Pop the next far child some live lane still enters; its
+        // intervals are the slab test of its box.
+        loop {
+            if sp == 0 {
+                return;
+            }
+            sp -= 1;
+            let e = &st[sp];
+            na = 0;
+            for (w, &bits) in e.quads[..words].iter().enumerate() {
+                let mut b = bits;
+                while b != 0 {
+                    let q = (w * 64 + b.trailing_zeros() as usize) & (Q - 1);
+                    b &= b - 1;
+                    let lv = live[q];
+                    if !lv.any() {
+                        continue;
+                    }
+                    let (a0, a1) = slab(q, &e.bx);
+                    if (lv & a0.cmple(a1)).any() {
+                        (t0[q], t1[q]) = (a0, a1);
+                        act[na] = q as u16;
+                        na += 1;
+                    }
+                }
+            }
+            if na > 0 {
+                (node, depth, bx) = (e.node as usize, e.depth as usize, e.bx);
+                break;
+            }
+        }
+    }
+}
+
+/// Packet exactness: every packet side, frustum kind and start (root,
+/// entry point) against `traverse_single`, lane by lane, bitwise.
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::accel::bvh::traverse_masked::tests::{RaySet, lattice, packets, ray_sets};
+    use crate::accel::bvh::{BvhTest, BvhView, RayKind};
+    use crate::accel::kd::traverse_simd::tests::{deep_rays, ties, with_trees};
+    use crate::accel::kd::traverse_single::{self, tests::same};
+    use crate::geom::{Mt, Pt, Ray, Wt};
+    use glam::Vec3;
+
+    const SENTINEL: Hit = Hit {
+        t: -7.0,
+        prim: 0xdead,
+        u: 3.0,
+        v: 4.0,
+    };
+
+    /// Parent, depth and box of every node of a kd-tree, and the leaves
+    /// holding each stored triangle.
+    struct Tree {
+        parent: Vec<usize>,
+        depth: Vec<u32>,
+        bx: Vec<Aabb>,
+        leaves_of: Vec<Vec<usize>>,
+        deepest_leaf: usize,
+    }
+
+    fn tree(k: &KdView<'_>) -> Tree {
+        let n = k.nodes.len();
+        let mut t = Tree {
+            parent: vec![usize::MAX; n],
+            depth: vec![0; n],
+            bx: vec![Aabb::EMPTY; n],
+            leaves_of: vec![Vec::new(); k.tris.len()],
+            deepest_leaf: 0,
+        };
+        if n == 0 {
+            return t;
+        }
+        t.bx[0] = k.info.root;
+        let mut stack = vec![0usize];
+        while let Some(i) = stack.pop() {
+            let nd = k.nodes[i];
+            if nd.is_leaf() {
+                for &s in k.leaf_refs(&nd) {
+                    t.leaves_of[s as usize].push(i);
+                }
+                if t.depth[i] > t.depth[t.deepest_leaf] || !k.nodes[t.deepest_leaf].is_leaf() {
+                    t.deepest_leaf = i;
+                }
+            } else {
+                let (lb, rb) = KdView::child_boxes(&nd, &t.bx[i]);
+                for (c, b) in [(nd.left(), lb), (nd.left() + 1, rb)] {
+                    t.parent[c] = i;
+                    t.depth[c] = t.depth[i] + 1;
+                    t.bx[c] = b;
+                    stack.push(c);
+                }
+            }
+        }
+        t
+    }
+
+    impl Tree {
+        fn lca(&self, mut a: usize, mut b: usize) -> usize {
+            while self.depth[a] > self.depth[b] {
+                a = self.parent[a];
+            }
+            while self.depth[b] > self.depth[a] {
+                b = self.parent[b];
+            }
+            while a != b {
+                a = self.parent[a];
+                b = self.parent[b];
+            }
+            a
+        }
+        /// The deepest node whose subtree holds every leaf of the stored
+        /// triangles `slots` (the deepest leaf when there are none: every
+        /// node is then valid).
+        fn entry(&self, slots: impl Iterator<Item = usize>) -> EntryPoint {
+            let mut node: Option<usize> = None;
+            for s in slots {
+                for &l in &self.leaves_of[s] {
+                    node = Some(node.map_or(l, |n| self.lca(n, l)));
+                }
+            }
+            let n = node.unwrap_or(self.deepest_leaf);
+            EntryPoint {
+                node: n as u32,
+                depth: self.depth[n],
+                aabb: self.bx[n],
+            }
+        }
+    }
+
+    /// The entry point of frustum `f` by brute force: every stored triangle
+    /// through `cull_triangle`.
+    fn entry_brute(k: &KdView<'_>, t: &Tree, f: &Frustum) -> EntryPoint {
+        t.entry((0..k.tris.len()).filter(|&s| !f.cull_triangle(&k.tris[s])))
+    }
+
+    /// `entry_brute`, faster: the BVH over the same mesh skips the
+    /// triangles inside boxes `f` culls (all their vertices lie beyond one
+    /// plane, so `cull_triangle` culls them too); the rest go through
+    /// `cull_triangle`. `entry_helper_matches_brute_force` checks the two
+    /// agree.
+    fn entry_of(k: &KdView<'_>, t: &Tree, b: &BvhView<'_>, f: &Frustum) -> EntryPoint {
+        let mut slots = Vec::new();
+        let mut stack = if b.nodes.is_empty() { vec![] } else { vec![0] };
+        while let Some(i) = stack.pop() {
+            let n = &b.nodes[i];
+            if f.cull_box(&n.min, &n.max) {
+                continue;
+            }
+            let first = n.first as usize;
+            if n.is_leaf() {
+                for j in first..first + n.count() as usize {
+                    if !f.cull_triangle(&b.tris[j]) {
+                        let s = k.slot_of[b.tri_ids[j] as usize];
+                        if s != INVALID_ID {
+                            slots.push(s as usize);
+                        }
+                    }
+                }
+            } else {
+                stack.extend([first, first + 1]);
+            }
+        }
+        t.entry(slots.into_iter())
+    }
+
+    fn live_of(quads: &[Ray4], active: &[M4]) -> Vec<M4> {
+        quads
+            .iter()
+            .zip(active)
+            .map(|(r, m)| {
+                let v = |i| m.test(i) && r.lane(i).is_valid();
+                M4::new(v(0), v(1), v(2), v(3))
+            })
+            .collect()
+    }
+
+    /// One input through `intersect` and `occluded`, every lane compared
+    /// with the single-ray results `near` and `occl` (by quad and lane).
+    #[allow(clippy::too_many_arguments)]
+    fn check_packet<T: KdTest>(
+        k: &KdView<'_>,
+        quads: &[Ray4],
+        active: &[M4],
+        f: Option<&Frustum>,
+        e: Option<&EntryPoint>,
+        near: &dyn Fn(usize, usize) -> Hit,
+        occl: &dyn Fn(usize, usize) -> bool,
+        what: &dyn Fn() -> String,
+    ) -> Counters {
+        let mut fill = Hit4::MISS;
+        for i in 0..4 {
+            fill.set_lane(i, SENTINEL);
+        }
+        let mut hits = vec![fill; quads.len()];
+        let mut occ = vec![M4::TRUE; quads.len()];
+        let mut ctr = Counters::default();
+        intersect::<T>(k, quads, active, &mut hits, f, e, &mut ctr);
+        occluded::<T>(k, quads, active, &mut occ, f, e, &mut ctr);
+        let mut valid = 0;
+        for (q, (h, m)) in hits.iter().zip(active).enumerate() {
+            for i in 0..4 {
+                let got = h.lane(i);
+                if !m.test(i) {
+                    assert!(
+                        same(&got, &SENTINEL),
+                        "{}: inactive {q}.{i} written",
+                        what()
+                    );
+                    assert!(!occ[q].test(i), "{}: inactive {q}.{i} occluded", what());
+                    continue;
+                }
+                let ray = quads[q].lane(i);
+                valid += ray.is_valid() as u64;
+                let want = near(q, i);
+                assert!(
+                    same(&got, &want),
+                    "{} ({:?}): quad {q} lane {i} {ray:?}: packet {got:?} single {want:?}",
+                    what(),
+                    T::KIND
+                );
+                assert_eq!(
+                    occ[q].test(i),
+                    occl(q, i),
+                    "{} ({:?}): quad {q} lane {i} {ray:?} occluded",
+                    what(),
+                    T::KIND
+                );
+            }
+        }
+        assert_eq!(ctr.rays, 2 * valid, "{}", what());
+        assert_eq!(
+            ctr.packets,
+            2 * quads.len().div_ceil(MAX_QUADS) as u64,
+            "{}",
+            what()
+        );
+        ctr
+    }
+
+    /// Every set at every packet side: no frustum from the root and from
+    /// the root as an entry point; per frustum kind of the set the frustum
+    /// from the root, the frustum with its entry point, and the entry
+    /// point alone. Then the whole image as one input (packets of 256
+    /// quads) and a 3-quad input. Returns the counters.
+    fn check_sets<T: KdTest>(
+        name: &str,
+        k: &KdView<'_>,
+        b: &BvhView<'_>,
+        sets: &[RaySet],
+    ) -> Counters {
+        let t = tree(k);
+        let mut total = Counters::default();
+        let root = EntryPoint {
+            node: 0,
+            depth: 0,
+            aabb: k.info.root,
+        };
+        for set in sets {
+            let mut c1 = Counters::default();
+            let single: Vec<(Hit, bool)> = set
+                .rays
+                .iter()
+                .map(|r| {
+                    r.map_or((Hit::MISS, false), |r| {
+                        (
+                            traverse_single::intersect::<T>(k, &r, &mut c1),
+                            traverse_single::occluded::<T>(k, &r, &mut c1),
+                        )
+                    })
+                })
+                .collect();
+            let mut run = |quads: &[Ray4], active: &[M4], pix: &[[Option<usize>; 4]], n: u32| {
+                let near = |q: usize, i: usize| single[pix[q][i].unwrap()].0;
+                let occl = |q: usize, i: usize| single[pix[q][i].unwrap()].1;
+                let live = live_of(quads, active);
+                let mut configs: Vec<(Option<Frustum>, Option<EntryPoint>, String)> = vec![
+                    (None, None, "no frustum, root".into()),
+                    (None, Some(root), "no frustum, root entry".into()),
+                ];
+                for &kind in set.kinds {
+                    if let Some(f) = Frustum::new(kind, quads, &live, &k.info.root) {
+                        let e = entry_of(k, &t, b, &f);
+                        configs.push((Some(f), None, format!("{kind:?} frustum, root")));
+                        configs.push((Some(f), Some(e), format!("{kind:?} frustum, {e:?}")));
+                        configs.push((None, Some(e), format!("{kind:?} entry only, {e:?}")));
+                    }
+                }
+                for (f, e, c) in &configs {
+                    let what = || format!("{name} {} n={n} {c}", set.name);
+                    let ctr = check_packet::<T>(
+                        k,
+                        quads,
+                        active,
+                        f.as_ref(),
+                        e.as_ref(),
+                        &near,
+                        &occl,
+                        &what,
+                    );
+                    total.add(&ctr);
+                }
+            };
+            for n in [2u32, 4, 8, 16, 32] {
+                for (quads, active, pix) in packets(set, n) {
+                    run(&quads, &active, &pix, n);
+                }
+            }
+            let (mut quads, mut active, mut pix) = (vec![], vec![], vec![]);
+            for (q, a, p) in packets(set, 2) {
+                quads.extend(q);
+                active.extend(a);
+                pix.extend(p);
+            }
+            run(&quads, &active, &pix, 0);
+            run(&quads[5..8], &active[5..8], &pix[5..8], 0);
+        }
+        total
+    }
+
+    /// `check_sets` over the ray sets of `traverse_masked::tests` (primary,
+    /// shadow, reflection, mixed, random, bundle) for the first view.
+    fn check_scene<T: KdTest + BvhTest>(name: &str, side: u32) -> Counters {
+        let s = crate::scenes::builtin(name).unwrap();
+        let mut total = Counters::default();
+        with_trees::<T>(&s.mesh.vertices, &s.mesh.indices, 0, |k, b| {
+            let sets = ray_sets::<T>(
+                b,
+                &s.views[0],
+                s.light,
+                side,
+                side,
+                0x7a3 ^ name.len() as u64,
+            );
+            total = check_sets::<T>(name, k, b, &sets);
+        });
+        total
+    }
+
+    fn check_builtin(names: &[&str]) {
+        for &name in names {
+            let c = check_scene::<Mt>(name, 48);
+            assert!(c.stray_lanes > 0, "{name}: {c:?}");
+            if cfg!(feature = "counters") {
+                assert!(
+                    c.culled_nodes > 0 && c.culled > 0 && c.tri_tests > 0 && c.aabb_tests > 0,
+                    "{name}: {c:?}"
+                );
+            }
+            check_scene::<Wt>(name, 48);
+            check_scene::<Pt>(name, 40);
+        }
+    }
+
+    #[test]
+    fn packet_matches_single_tetra_gears() {
+        check_builtin(&["tetra", "gears"]);
+    }
+
+    #[test]
+    fn packet_matches_single_balls_animated() {
+        check_builtin(&["balls", "animated"]);
+    }
+
+    /// The lattice of `traverse_masked::tests`: frustum planes through
+    /// vertices and edges, watertight rays through shared vertices.
+    #[test]
+    fn packet_matches_single_lattice() {
+        let (v, ix, sets) = lattice();
+        fn run<T: KdTest + BvhTest>(v: &[f32], ix: &[u32], sets: &[RaySet]) -> Counters {
+            let mut c = Counters::default();
+            with_trees::<T>(v, ix, 0, |k, b| c = check_sets::<T>("lattice", k, b, sets));
+            c
+        }
+        let c = run::<Wt>(&v, &ix, &sets);
+        if cfg!(feature = "counters") {
+            assert!(c.culled_nodes > 0 && c.culled > 0, "{c:?}");
+        }
+        run::<Mt>(&v, &ix, &sets);
+        run::<Pt>(&v, &ix, &sets);
+    }
+
+    /// Coincident triangles (every hit a tie), an empty scene, a tree at
+    /// the depth limit (full stacks), and an entry point outside the tree.
+    #[test]
+    fn packet_edge_cases() {
+        fn run<T: KdTest + BvhTest>(
+            name: &str,
+            v: &[f32],
+            ix: &[u32],
+            max_depth: u32,
+            sets: &dyn Fn(&BvhView<'_>) -> Vec<RaySet>,
+        ) -> Counters {
+            let mut c = Counters::default();
+            with_trees::<T>(v, ix, max_depth, |k, b| {
+                c = check_sets::<T>(name, k, b, &sets(b))
+            });
+            c
+        }
+        let view = crate::scenes::View {
+            eye: Vec3::new(0.3, 0.2, 3.0),
+            look_at: Vec3::new(0.3, 0.2, 0.0),
+            up: Vec3::Y,
+            fov_y_deg: 40.0,
+        };
+        let light = Vec3::new(0.2, 0.2, 4.0);
+        let (v, ix) = ties();
+        run::<Mt>("ties", &v, &ix, 0, &|b| {
+            ray_sets::<Mt>(b, &view, light, 36, 36, 3)
+        });
+        run::<Wt>("ties", &v, &ix, 0, &|b| {
+            ray_sets::<Wt>(b, &view, light, 36, 36, 4)
+        });
+        run::<Pt>("ties", &v, &ix, 0, &|b| {
+            ray_sets::<Pt>(b, &view, light, 36, 36, 5)
+        });
+        run::<Mt>("empty", &[], &[], 0, &|b| {
+            ray_sets::<Mt>(b, &view, light, 8, 8, 6)
+        });
+        let (v, ix) = crate::accel::bvh::build::testutil::soup(
+            &crate::accel::bvh::build::testutil::deep_tris(),
+        );
+        let deep = |_: &BvhView<'_>| {
+            vec![RaySet {
+                name: "deep",
+                w: 32,
+                h: 32,
+                rays: deep_rays(32).into_iter().map(Some).collect(),
+                kinds: &[RayKind::Primary, RayKind::Shadow, RayKind::Secondary],
+            }]
+        };
+        let c = run::<Wt>("deep", &v, &ix, MAX_DEPTH as u32, &deep);
+        if cfg!(feature = "counters") {
+            assert!(c.tri_tests > 0, "{c:?}");
+        }
+        run::<Mt>("deep", &v, &ix, MAX_DEPTH as u32, &deep);
+        // An entry point naming no node: the packet starts at the root.
+        let s = crate::scenes::builtin("tetra").unwrap();
+        with_trees::<Mt>(&s.mesh.vertices, &s.mesh.indices, 0, |k, b| {
+            let sets = ray_sets::<Mt>(b, &s.views[0], s.light, 16, 16, 9);
+            let bad = EntryPoint {
+                node: u32::MAX,
+                depth: 0,
+                aabb: Aabb::EMPTY,
+            };
+            let mut c1 = Counters::default();
+            for (quads, active, pix) in packets(&sets[0], 16) {
+                let rays: Vec<Option<Ray>> = sets[0].rays.clone();
+                let near = |q: usize, i: usize| {
+                    traverse_single::intersect::<Mt>(
+                        k,
+                        &rays[pix[q][i].unwrap()].unwrap(),
+                        &mut Counters::default(),
+                    )
+                };
+                let occl = |q: usize, i: usize| {
+                    traverse_single::occluded::<Mt>(
+                        k,
+                        &rays[pix[q][i].unwrap()].unwrap(),
+                        &mut Counters::default(),
+                    )
+                };
+                c1.add(&check_packet::<Mt>(
+                    k,
+                    &quads,
+                    &active,
+                    None,
+                    Some(&bad),
+                    &near,
+                    &occl,
+                    &|| "bad entry".into(),
+                ));
+            }
+            assert!(c1.rays > 0);
+        });
+    }
+
+    /// The BVH-pruned entry helper equals the plain brute force.
+    #[test]
+    fn entry_helper_matches_brute_force() {
+        let mut checked = 0;
+        let mut below_root = 0;
+        for name in ["tetra", "gears"] {
+            let s = crate::scenes::builtin(name).unwrap();
+            with_trees::<Mt>(&s.mesh.vertices, &s.mesh.indices, 0, |k, b| {
+                let t = tree(k);
+                for set in ray_sets::<Mt>(b, &s.views[0], s.light, 32, 32, 11) {
+                    for n in [2u32, 8, 32] {
+                        for (quads, active, _) in packets(&set, n).iter().step_by(7) {
+                            let live = live_of(quads, active);
+                            for &kind in set.kinds {
+                                if let Some(f) = Frustum::new(kind, quads, &live, &k.info.root) {
+                                    let e = entry_of(k, &t, b, &f);
+                                    assert_eq!(
+                                        e,
+                                        entry_brute(k, &t, &f),
+                                        "{name} {} n={n}",
+                                        set.name
+                                    );
+                                    checked += 1;
+                                    below_root += (e.node != 0) as u32;
+                                }
+                            }
+                        }
+                    }
+                }
+            });
+        }
+        assert!(checked > 100 && below_root > 50, "{checked} {below_root}");
+    }
+}

@@ -1,0 +1,131 @@
+//! `sheaf_kd_params`, `sheaf_entry_search` and `sheaf_context_build_kd`:
+//! the kd-tree (AEPSA paper section 5.1) and the entry-point searches its
+//! and the BVH's packets may run first.
+
+use super::context::{sheaf_context, with_mut};
+use super::grid::sheaf_tri_test;
+use super::{check_non_null, guard_free, raw, read_in, sheaf_status, write_out};
+use crate::accel::entry::EntrySearch;
+use crate::accel::kd::KdParams;
+use crate::error::{Error, Result};
+
+/// Tunables of the kd-tree (an O(N log N) SAH build with perfect splits).
+/// Start from `sheaf_kd_params_default`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct sheaf_kd_params {
+    /// Depth limit (1..=48); 0: `8 + 1.3 log2 N` capped at 48.
+    pub max_depth: u32,
+    /// SAH cost of a traversal step relative to a triangle test (> 0, default 2).
+    pub traversal_cost: f32,
+    /// Cost discount of splits with an empty side, in [0, 1) (default 0.2).
+    pub empty_bonus: f32,
+    /// Ray-triangle test of every traversal of this tree (a `sheaf_tri_test`).
+    pub test: raw::sheaf_tri_test,
+}
+
+impl sheaf_kd_params {
+    pub fn of(p: &KdParams) -> sheaf_kd_params {
+        sheaf_kd_params {
+            max_depth: p.max_depth,
+            traversal_cost: p.traversal_cost,
+            empty_bonus: p.empty_bonus,
+            test: sheaf_tri_test::of(p.test) as u32,
+        }
+    }
+    /// The checked crate value.
+    pub fn to_core(&self) -> Result<KdParams> {
+        let p = KdParams {
+            max_depth: self.max_depth,
+            traversal_cost: self.traversal_cost,
+            empty_bonus: self.empty_bonus,
+            test: sheaf_tri_test::to_core(self.test)?,
+        };
+        p.validate()?;
+        Ok(p)
+    }
+}
+
+/// Entry-point search before each tree packet (the crate's `EntrySearch`).
+#[repr(u32)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum sheaf_entry_search {
+    /// Packets start at the root.
+    None = 0,
+    /// MLRTA (Reshetov et al. 2005; AEPSA paper section 2.2).
+    Mlrta = 1,
+    /// AEPSA (AEPSA paper sections 3.1-3.3).
+    Aepsa = 2,
+}
+
+impl sheaf_entry_search {
+    pub const fn of(e: EntrySearch) -> sheaf_entry_search {
+        match e {
+            EntrySearch::None => sheaf_entry_search::None,
+            EntrySearch::Mlrta => sheaf_entry_search::Mlrta,
+            EntrySearch::Aepsa => sheaf_entry_search::Aepsa,
+        }
+    }
+    pub fn to_core(raw: u32) -> Result<EntrySearch> {
+        EntrySearch::ALL
+            .iter()
+            .copied()
+            .find(|&e| sheaf_entry_search::of(e) as u32 == raw)
+            .ok_or(Error::InvalidArgument("unknown sheaf_entry_search"))
+    }
+}
+
+/// Write the default kd-tree parameters (automatic depth limit, traversal
+/// cost 2, empty bonus 0.2, Moller-Trumbore) to `*out`.
+///
+/// `out` must not be NULL. Thread-safe.
+#[unsafe(no_mangle)]
+pub extern "C" fn sheaf_kd_params_default(out: *mut sheaf_kd_params) -> sheaf_status {
+    guard_free(|| {
+        check_non_null!(out);
+        write_out(out, sheaf_kd_params::of(&KdParams::default()));
+        Ok(())
+    })
+}
+
+/// Rebuild the kd-tree from the geometry with `*params` (copied; NULL: the
+/// defaults of `sheaf_kd_params_default`). The grid and the BVH, if built,
+/// are untouched.
+///
+/// Reads the geometry buffers (see `sheaf_context_set_geometry`); never
+/// allocates. On error the previous kd-tree stays valid and traces exactly
+/// as before.
+///
+/// Errors: `SHEAF_STATUS_NO_GEOMETRY`, `SHEAF_STATUS_INVALID_ARGUMENT`
+/// (params, or no kd pools in `sheaf_limits.structures`),
+/// `SHEAF_STATUS_INDEX_OUT_OF_RANGE`, `SHEAF_STATUS_CAPACITY_TRIANGLES`.
+///
+/// Not thread-safe: needs exclusive access to `ctx`.
+#[unsafe(no_mangle)]
+pub extern "C" fn sheaf_context_build_kd(ctx: *mut sheaf_context, params: *const sheaf_kd_params) -> sheaf_status {
+    with_mut(ctx, |h| {
+        let params = if params.is_null() { KdParams::default() } else { read_in(params)?.to_core()? };
+        let g = h.geometry.as_ref().ok_or(Error::NoGeometry)?;
+        h.ctx.build_kd(&g.scene()?, &params)?;
+        Ok(())
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geom::TriTest;
+
+    #[test]
+    fn params_and_entry_round_trip() {
+        let p = KdParams { max_depth: 20, traversal_cost: 1.5, empty_bonus: 0.1, test: TriTest::Watertight };
+        assert_eq!(sheaf_kd_params::of(&p).to_core(), Ok(p));
+        assert!(sheaf_kd_params { test: 9, ..sheaf_kd_params::of(&p) }.to_core().is_err());
+        assert!(sheaf_kd_params { max_depth: 49, ..sheaf_kd_params::of(&p) }.to_core().is_err());
+        assert!(sheaf_kd_params { empty_bonus: 1.0, ..sheaf_kd_params::of(&p) }.to_core().is_err());
+        for &e in EntrySearch::ALL {
+            assert_eq!(sheaf_entry_search::to_core(sheaf_entry_search::of(e) as u32), Ok(e));
+        }
+        assert!(sheaf_entry_search::to_core(3).is_err());
+    }
+}
