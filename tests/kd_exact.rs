@@ -1,0 +1,394 @@
+//! kd-tree packet traversals are exact: the 2x2 SIMD ray and the n x n
+//! frustum packets at every packet side, from the root and from the entry
+//! points MLRTA and AEPSA find, with and without frustum culling, return the
+//! same triangle and bitwise the same t (the same occlusion answer) as the
+//! single-ray kd traversal, lane by lane, for primary, shadow, reflection and
+//! refraction rays on every scene and view (DESIGN.md "Correctness"; AEPSA
+//! paper sections 2-3). The BVH packets with entry points are checked the
+//! same way against the BVH single ray.
+
+mod common;
+
+use common::{TestScene, builtin_scenes, obj_scenes, par_map, view_rays};
+use glam::Vec3;
+use sheaf::accel::bvh::BvhParams;
+use sheaf::accel::kd::KdParams;
+use sheaf::trace::EntrySearch;
+use sheaf::accel::grid::traverse_cgt::Mailbox;
+
+use sheaf::geom::{Hit4, M4, Ray4};
+use sheaf::render::{SHADOW_OFFSET, Tracer, demorton};
+use sheaf::trace::{BvhOptions, RayKind};
+use sheaf::{Counters, Hit, Limits, Method, OwnedContext, Ray, TraceParams, TriTest};
+
+const RES: usize = 64;
+
+/// Row-major rays of a `RES x RES` image as n x n packets of 2x2 quads, quads
+/// in Morton order (the renderer's layout, which the primary frustum reads):
+/// (quads, ray index of every lane).
+fn packets(rays: &[Ray], n: usize) -> Vec<(Vec<Ray4>, Vec<usize>)> {
+    let mut out = Vec::new();
+    for ty in (0..RES).step_by(n) {
+        for tx in (0..RES).step_by(n) {
+            let (mut quads, mut idx) = (Vec::new(), Vec::new());
+            for q in 0..(n / 2) * (n / 2) {
+                let (qx, qy) = demorton(q);
+                let (x, y) = (tx + 2 * qx as usize, ty + 2 * qy as usize);
+                let ids = [
+                    y * RES + x,
+                    y * RES + x + 1,
+                    (y + 1) * RES + x,
+                    (y + 1) * RES + x + 1,
+                ];
+                quads.push(Ray4::from_rays(&ids.map(|i| rays[i])));
+                idx.extend(ids);
+            }
+            out.push((quads, idx));
+        }
+    }
+    out
+}
+
+/// Rays of one class with the kind their frustum is built for and the
+/// active lanes (inactive rays are not compared).
+struct Class {
+    name: &'static str,
+    rays: Vec<Ray>,
+    active: Vec<bool>,
+    kind: RayKind,
+    any: bool,
+}
+
+fn reference(tr: &impl Tracer, c: &Class) -> Vec<Hit> {
+    let mut ctr = Counters::default();
+    c.rays
+        .iter()
+        .map(|r| {
+            if c.any {
+                if tr.occluded(r, &mut ctr) {
+                    Hit {
+                        t: 0.0,
+                        prim: 0,
+                        u: 0.0,
+                        v: 0.0,
+                    }
+                } else {
+                    Hit::MISS
+                }
+            } else {
+                tr.intersect(r, &mut ctr)
+            }
+        })
+        .collect()
+}
+
+/// Every method x packet side x culling x kind against the single ray.
+fn check_class(tr: &impl Tracer, cases: &[(Method, usize, EntrySearch)], what: &str, c: &Class) -> Counters {
+    let want = reference(tr, c);
+    let (mut stamps, mut stamp) = ([0u32; 0], 0u32);
+    let mut mb = Mailbox::new(&mut stamps, &mut stamp);
+    let mut total = Counters::default();
+    for &(method, n, entry) in cases {
+        for culling in [true, false] {
+            for kind in [c.kind, RayKind::Auto] {
+                let p = TraceParams {
+                    method,
+                    packet: n as u32,
+                    bvh: BvhOptions { culling, kind },
+                    entry,
+                    ..TraceParams::default()
+                };
+                for (quads, idx) in packets(&c.rays, n) {
+                    let active: Vec<M4> = idx
+                        .chunks(4)
+                        .map(|k| {
+                            M4::new(
+                                c.active[k[0]],
+                                c.active[k[1]],
+                                c.active[k[2]],
+                                c.active[k[3]],
+                            )
+                        })
+                        .collect();
+                    let mut hits = vec![Hit4::MISS; quads.len()];
+                    if c.any {
+                        tr.occluded_packet(&p, &quads, &active, &mut hits, &mut mb, &mut total);
+                    } else {
+                        tr.intersect_packet(&p, &quads, &active, &mut hits, &mut mb, &mut total);
+                    }
+                    for (k, &ri) in idx.iter().enumerate() {
+                        if !c.active[ri] {
+                            continue;
+                        }
+                        let got = hits[k / 4].lane(k % 4);
+                        let exp = want[ri];
+                        let ok = if c.any {
+                            got.is_hit() == exp.is_hit()
+                        } else {
+                            got.prim == exp.prim && got.t.to_bits() == exp.t.to_bits()
+                        };
+                        assert!(
+                            ok,
+                            "{what} {}: {} {n}x{n} {entry:?} culling {culling} {kind:?}: ray {ri} {:?}\n  packet {got:?}\n  single {exp:?}",
+                            c.name,
+                            method.name(),
+                            c.rays[ri]
+                        );
+                    }
+                }
+            }
+        }
+    }
+    total
+}
+
+/// Reflection and refraction rays of the primary hits (every hit reflects
+/// and refracts with index 1.5; total internal reflection gives no ray).
+fn secondary(tr: &impl Tracer, rays: &[Ray], hits: &[Hit], eps: f32) -> (Class, Class) {
+    let pad = Ray::new(Vec3::ZERO, Vec3::X, 0.0, 0.0);
+    let mut refl = Class {
+        name: "reflection",
+        rays: vec![pad; rays.len()],
+        active: vec![false; rays.len()],
+        kind: RayKind::Secondary,
+        any: false,
+    };
+    let mut refr = Class {
+        name: "refraction",
+        rays: vec![pad; rays.len()],
+        active: vec![false; rays.len()],
+        kind: RayKind::Secondary,
+        any: false,
+    };
+    for (i, (r, h)) in rays.iter().zip(hits).enumerate() {
+        let Some(tri) = h.is_hit().then(|| tr.triangle(h.prim)).flatten() else {
+            continue;
+        };
+        let d = Vec3::from(r.dir).normalize();
+        let mut n = tri.normal().normalize_or_zero();
+        let entering = n.dot(d) < 0.0;
+        if !entering {
+            n = -n;
+        }
+        let p = Vec3::from(r.org) + Vec3::from(r.dir) * h.t;
+        let rd = d - 2.0 * d.dot(n) * n;
+        refl.rays[i] = Ray::new(p + n * eps, rd, 0.0, f32::INFINITY);
+        refl.active[i] = true;
+        let eta = if entering { 1.0 / 1.5 } else { 1.5 };
+        let cos_i = -d.dot(n);
+        let k = 1.0 - eta * eta * (1.0 - cos_i * cos_i);
+        if k > 0.0 {
+            let td = eta * d + (eta * cos_i - k.sqrt()) * n;
+            refr.rays[i] = Ray::new(p - n * eps, td, 0.0, f32::INFINITY);
+            refr.active[i] = true;
+        }
+    }
+    (refl, refr)
+}
+
+/// The kd methods: SIMD, and packets of every side with every entry search.
+fn kd_cases() -> Vec<(Method, usize, EntrySearch)> {
+    let mut cases = vec![(Method::KdSimd, 2, EntrySearch::None)];
+    for n in [4, 8, 16, 32] {
+        for &e in EntrySearch::ALL {
+            cases.push((Method::KdPacket, n, e));
+        }
+    }
+    cases
+}
+
+/// The BVH packet traversals from entry points (root starts: bvh_exact.rs).
+fn bvh_entry_cases() -> Vec<(Method, usize, EntrySearch)> {
+    let mut cases = Vec::new();
+    for m in [Method::BvhMasked, Method::BvhRanged, Method::BvhPartition] {
+        for n in [8, 16] {
+            cases.push((m, n, EntrySearch::Mlrta));
+            cases.push((m, n, EntrySearch::Aepsa));
+        }
+    }
+    cases
+}
+
+fn check_scene(s: &TestScene) {
+    for test in [TriTest::MollerTrumbore, TriTest::Watertight] {
+        let mut l = Limits::for_triangles(s.triangles());
+        l.max_vertices = (s.vertices.len() / 3) as u32;
+        l.structures = Limits::KD | Limits::BVH;
+        let mut ctx = OwnedContext::new(&l).unwrap();
+        let info = ctx.build_kd(&s.scene(), &KdParams { test, ..KdParams::default() }).unwrap();
+        ctx.build_bvh(&s.scene(), &BvhParams { test, ..BvhParams::default() }).unwrap();
+        let all = ctx.tracer().unwrap();
+        let (tr, bvh) = (all.kd().unwrap(), all.bvh().unwrap());
+        let (kd_cases, bvh_cases) = (kd_cases(), bvh_entry_cases());
+        let eps = SHADOW_OFFSET * info.bounds.diagonal().length();
+        let mut sum = Counters::default();
+        for (vname, view) in &s.views {
+            let what = format!("{} {vname} {test:?}", s.name);
+            let rays = view_rays(view, RES as u32, RES as u32);
+            let all = vec![true; rays.len()];
+            let primary = Class {
+                name: "primary",
+                rays: rays.clone(),
+                active: all,
+                kind: RayKind::Primary,
+                any: false,
+            };
+            sum.add(&check_class(&tr, &kd_cases, &what, &primary));
+            check_class(&bvh, &bvh_cases, &what, &primary);
+            let hits = reference(&tr, &primary);
+            // Shadow rays from the light to just off the hit surfaces.
+            let mut shadow = Class {
+                name: "shadow",
+                rays: rays.clone(),
+                active: vec![false; rays.len()],
+                kind: RayKind::Shadow,
+                any: true,
+            };
+            for (i, (r, h)) in rays.iter().zip(&hits).enumerate() {
+                if let Some(tri) = h.is_hit().then(|| tr.triangle(h.prim)).flatten() {
+                    let mut n = tri.normal().normalize_or_zero();
+                    if n.dot(Vec3::from(r.dir)) > 0.0 {
+                        n = -n;
+                    }
+                    let end = Vec3::from(r.org) + Vec3::from(r.dir) * h.t + n * eps;
+                    shadow.rays[i] = Ray::new(s.light, end - s.light, 0.0, 1.0);
+                    shadow.active[i] = true;
+                }
+            }
+            sum.add(&check_class(&tr, &kd_cases, &what, &shadow));
+            check_class(&bvh, &bvh_cases, &what, &shadow);
+            let (refl, refr) = secondary(&tr, &rays, &hits, eps);
+            sum.add(&check_class(&tr, &kd_cases, &what, &refl));
+            sum.add(&check_class(&tr, &kd_cases, &what, &refr));
+        }
+        println!(
+            "{:>10} {test:?}: {} nodes, depth {}: {} packets, {} rays, {} split steps, {} triangle tests, {} nodes and {} triangles culled, {} entry searches (mean depth {:.1}, {} misses)",
+            s.name,
+            info.nodes,
+            info.depth,
+            sum.packets,
+            sum.rays,
+            sum.aabb_tests,
+            sum.tri_tests,
+            sum.culled_nodes,
+            sum.culled,
+            sum.entry_searches,
+            sum.entry_depth_sum as f64 / sum.entry_searches.max(1) as f64,
+            sum.entry_misses
+        );
+        if cfg!(feature = "counters") && info.triangles > 100 {
+            assert!(
+                sum.culled_nodes > 0 && sum.culled > 0 && sum.entry_searches > 0 && sum.entry_depth_sum > 0,
+                "{}: frustum culling must be exercised",
+                s.name
+            );
+        }
+    }
+}
+
+#[test]
+fn builtin_scenes_every_packet_method_equals_the_single_ray() {
+    par_map(&builtin_scenes(), check_scene);
+}
+
+#[test]
+fn obj_scenes_every_packet_method_equals_the_single_ray() {
+    let scenes = obj_scenes();
+    if scenes.is_empty() {
+        eprintln!("note: no OBJ scenes: skipped");
+    }
+    par_map(&scenes, check_scene);
+}
+
+/// Incoherent packets: random directions (mixed signs), scattered origins,
+/// some lanes inactive, some invalid (NaN, zero direction).
+#[test]
+fn random_packets_equal_the_single_ray() {
+    let s = &builtin_scenes()[1];
+    let mut l = Limits::for_triangles(s.triangles());
+    l.structures = Limits::KD;
+    let mut ctx = OwnedContext::new(&l).unwrap();
+    let info = ctx.build_kd(&s.scene(), &KdParams::default()).unwrap();
+    let tr = ctx.tracer().unwrap().kd().unwrap();
+    let (c, r) = (
+        info.bounds.min.lerp(info.bounds.max, 0.5),
+        info.bounds.diagonal().length(),
+    );
+    let mut seed = 0x9e3779b9u32;
+    let mut rnd = move || {
+        seed ^= seed << 13;
+        seed ^= seed >> 17;
+        seed ^= seed << 5;
+        seed as f32 / u32::MAX as f32 * 2.0 - 1.0
+    };
+    for common_origin in [true, false] {
+        let mut rays = Vec::new();
+        let mut active = Vec::new();
+        for i in 0..RES * RES {
+            let o = if common_origin {
+                c + Vec3::new(0.1, 0.2, 0.3) * r
+            } else {
+                c + Vec3::new(rnd(), rnd(), rnd()) * r
+            };
+            let mut d = Vec3::new(rnd(), rnd(), rnd());
+            if i % 97 == 0 {
+                d = Vec3::ZERO;
+            }
+            let mut ray = Ray::new(o, d, 0.0, f32::INFINITY);
+            if i % 89 == 0 {
+                ray.org[1] = f32::NAN;
+            }
+            rays.push(ray);
+            active.push(i % 7 != 0);
+        }
+        for any in [false, true] {
+            let class = Class {
+                name: if any { "random occlusion" } else { "random" },
+                rays: rays.clone(),
+                active: active.clone(),
+                kind: RayKind::Auto,
+                any,
+            };
+            check_class(&tr, &kd_cases(), &format!("{} common origin {common_origin}", s.name), &class);
+        }
+    }
+}
+
+/// The context's calls: `trace_with` gives the single ray's answers for
+/// every kd method and entry search, `occluded_with` the single ray's
+/// occlusion, and a capacity error leaves the kd-tree as it was.
+#[test]
+fn context_calls_and_failed_builds() {
+    let s = &builtin_scenes()[2];
+    let mut l = Limits::for_triangles(s.triangles());
+    l.max_vertices = (s.vertices.len() / 3) as u32;
+    l.structures = Limits::KD;
+    let mut ctx = OwnedContext::new(&l).unwrap();
+    assert_eq!(ctx.trace(Method::KdSingle, &[], &mut []).unwrap_err(), sheaf::Error::NotBuilt);
+    let info = ctx.build_kd(&s.scene(), &KdParams::default()).unwrap();
+    assert!(ctx.build_bvh(&s.scene(), &BvhParams::default()).is_err(), "no BVH pools");
+    let rays = view_rays(&s.views[0].1, 32, 32);
+    let mut hits = vec![Hit::MISS; rays.len()];
+    let mut want = vec![Hit::MISS; rays.len()];
+    ctx.trace(Method::KdSingle, &rays, &mut want).unwrap();
+    assert!(want.iter().any(|h| h.is_hit()));
+    let mut occ_want = vec![false; rays.len()];
+    let shadow: Vec<Ray> = rays.iter().map(|r| Ray { tmax: 0.9, ..*r }).collect();
+    ctx.occluded(Method::KdSingle, &shadow, &mut occ_want).unwrap();
+    for (m, n, e) in kd_cases() {
+        let p = TraceParams { method: m, packet: n as u32, entry: e, ..TraceParams::default() };
+        ctx.trace_with(&p, &rays, &mut hits).unwrap();
+        assert_eq!(hits, want, "{} {n} {e:?}", m.name());
+        let mut occ = vec![false; rays.len()];
+        ctx.occluded_with(&p, &shadow, &mut occ).unwrap();
+        assert_eq!(occ, occ_want, "{} {n} {e:?} occluded", m.name());
+    }
+    // Too many triangles: the previous kd-tree stays and traces the same.
+    let big: Vec<u32> = (0..(l.max_triangles + 1) * 3).map(|i| i % 3).collect();
+    let verts = [0.0f32, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0];
+    let too_big = sheaf::Scene::from_f32(&verts, &big).unwrap();
+    assert!(ctx.build_kd(&too_big, &KdParams::default()).is_err());
+    assert_eq!(ctx.stats().kd, info);
+    ctx.trace(Method::KdSingle, &rays, &mut hits).unwrap();
+    assert_eq!(hits, want);
+}
