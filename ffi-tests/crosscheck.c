@@ -4,7 +4,7 @@
  * ABI with two grid configurations, and prints everything as exact bit
  * patterns on lines starting with '@':
  *
- *   @limits <10 x u32>                     sheaf_limits used (projection_test as 0/1, structures)
+ *   @limits <12 x u32>                     sheaf_limits used (projection_test as 0/1, structures, kd pools)
  *   @vertex <i> <x> <y> <z>                float bits (hex)
  *   @tri <i> <a> <b> <c>
  *   @ray <i> <org x y z> <tmin> <dir x y z> <tmax>   float bits (hex)
@@ -247,9 +247,9 @@ static bool test_emit_scene_and_rays(void) {
     sheaf_limits l;
     uint32_t i;
     CHECK_OK(sheaf_limits_default(g_scene->nt, &l));
-    printf("@limits %u %u %u %u %u %u %u %u %u %u\n", l.max_triangles, l.max_vertices, l.max_image_width,
+    printf("@limits %u %u %u %u %u %u %u %u %u %u %u %u\n", l.max_triangles, l.max_vertices, l.max_image_width,
            l.max_image_height, l.max_tile, l.max_threads, l.max_grid_cells, l.max_grid_refs,
-           (unsigned)l.projection_test, l.structures);
+           (unsigned)l.projection_test, l.structures, l.max_kd_nodes, l.max_kd_refs);
     for (i = 0; i < g_scene->nv; ++i)
         printf("@vertex %u %08x %08x %08x\n", i, float_bits(g_scene->v[i][0]), float_bits(g_scene->v[i][1]),
                float_bits(g_scene->v[i][2]));

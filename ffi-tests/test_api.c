@@ -778,6 +778,63 @@ static bool test_bvh_methods(void) {
     return true;
 }
 
+static bool test_kd_methods(void) {
+    /* The kd-tree next to the grid and the BVH: kd SIMD and kd packets of
+       every side, from the root and from MLRTA and AEPSA entry points, give
+       the kd single ray's hits bit for bit and its occlusion; so do BVH
+       packets from entry points; bad kd parameters and entry values are
+       rejected. */
+    scene *s = ground_and_box();
+    sheaf_context *ctx = built_context(s, s->nt);
+    sheaf_ray rays[N_PROBE];
+    sheaf_hit want[N_PROBE], got[N_PROBE];
+    uint8_t occ_want[N_PROBE], occ_got[N_PROBE];
+    sheaf_trace_params p;
+    sheaf_kd_params kp, bad_kp;
+    sheaf_stats st;
+    uint32_t sides[4] = {4, 8, 16, 32};
+    sheaf_entry_search entries[3] = {SHEAF_ENTRY_SEARCH_NONE, SHEAF_ENTRY_SEARCH_MLRTA, SHEAF_ENTRY_SEARCH_AEPSA};
+    int i, k, e;
+    CHECK(ctx != NULL);
+    probe_rays(rays);
+    CHECK_STATUS(sheaf_context_trace(ctx, SHEAF_METHOD_KD_SINGLE, rays, got, N_PROBE), SHEAF_STATUS_NOT_BUILT);
+    CHECK_OK(sheaf_kd_params_default(&kp));
+    CHECK(kp.max_depth == 0 && kp.test == SHEAF_TRI_TEST_MOLLER_TRUMBORE);
+    bad_kp = kp;
+    bad_kp.empty_bonus = 1.0f;
+    CHECK_STATUS(sheaf_context_build_kd(ctx, &bad_kp), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_OK(sheaf_context_build_kd(ctx, &kp));
+    CHECK_OK(sheaf_context_build_bvh(ctx, NULL));
+    CHECK_OK(sheaf_context_stats(ctx, &st));
+    CHECK(st.kd_triangles == s->nt && st.kd_leaves >= 1 && st.kd_nodes == 2 * st.kd_leaves - 1 && st.kd_build_ns > 0);
+    CHECK_OK(sheaf_context_trace(ctx, SHEAF_METHOD_KD_SINGLE, rays, want, N_PROBE));
+    CHECK_OK(sheaf_context_occluded(ctx, SHEAF_METHOD_KD_SINGLE, rays, occ_want, N_PROBE));
+    CHECK_OK(sheaf_context_trace(ctx, SHEAF_METHOD_KD_SIMD, rays, got, N_PROBE));
+    CHECK(hits_equal(got, want, N_PROBE));
+    for (e = 0; e < 3; e++) {
+        for (k = 0; k < 4; k++) {
+            CHECK_OK(sheaf_trace_params_default(&p));
+            p.method = (k == 3 && e > 0) ? SHEAF_METHOD_BVH_RANGED : SHEAF_METHOD_KD_PACKET;
+            p.packet = sides[k];
+            p.entry = entries[e];
+            p.culling = (k % 2) == 0;
+            CHECK_OK(sheaf_context_trace_with(ctx, &p, rays, got, N_PROBE));
+            for (i = 0; i < N_PROBE; i++) {
+                CHECK(got[i].prim == want[i].prim && memcmp(&got[i].t, &want[i].t, sizeof(float)) == 0);
+            }
+            CHECK_OK(sheaf_context_occluded(ctx, p.method, rays, occ_got, N_PROBE));
+            CHECK(memcmp(occ_got, occ_want, N_PROBE) == 0);
+        }
+    }
+    p.entry = 3;
+    CHECK_STATUS(sheaf_context_trace_with(ctx, &p, rays, got, N_PROBE), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_kd_params_default(NULL), SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS(sheaf_context_build_kd(NULL, &kp), SHEAF_STATUS_NULL_POINTER);
+    sheaf_context_destroy(ctx);
+    free(s);
+    return true;
+}
+
 static bool test_whitted(void) {
     /* A mirror ground and a glass box: the Whitted image is the same for the
        grid's single ray, CGT packets, and every BVH method; bad materials
@@ -1016,6 +1073,7 @@ int main(void) {
     run_test("test_trace_leaves_stats", test_trace_leaves_stats, &passed, &failed);
     run_test("test_render", test_render, &passed, &failed);
     run_test("test_bvh_methods", test_bvh_methods, &passed, &failed);
+    run_test("test_kd_methods", test_kd_methods, &passed, &failed);
     run_test("test_whitted", test_whitted, &passed, &failed);
     run_test("test_trace_params", test_trace_params, &passed, &failed);
     run_test("test_render_bad_arguments", test_render_bad_arguments, &passed, &failed);

@@ -33,6 +33,7 @@
 /** sheaf_limits.structures bits: which structures get pools. */
 #define SHEAF_STRUCTURE_GRID 1u
 #define SHEAF_STRUCTURE_BVH 2u
+#define SHEAF_STRUCTURE_KD 4u
 
 /** Entries of sheaf_counters.aabb_by_depth and tri_by_depth (deeper nodes add to the last). */
 #define SHEAF_DEPTH_BINS 32
@@ -207,6 +208,19 @@ enum sheaf_method
      * BVH, n x n packets, Partition traversal (section 3.3).
      */
     SHEAF_METHOD_BVH_PARTITION = 6,
+    /**
+     * kd-tree, single-ray front-to-back traversal (the kd reference; AEPSA paper).
+     */
+    SHEAF_METHOD_KD_SINGLE = 7,
+    /**
+     * kd-tree, 2x2 SIMD rays: every 4 consecutive rays one `Ray4`.
+     */
+    SHEAF_METHOD_KD_SIMD = 8,
+    /**
+     * kd-tree, n x n packets driven by their frustum, from the root or from
+     * the entry point of `sheaf_trace_params.entry` (MLRTA, AEPSA).
+     */
+    SHEAF_METHOD_KD_PACKET = 9,
 };
 #ifndef __cplusplus
 #if __STDC_VERSION__ >= 202311L
@@ -248,6 +262,35 @@ enum sheaf_ray_kind
 typedef enum sheaf_ray_kind sheaf_ray_kind;
 #else
 typedef uint32_t sheaf_ray_kind;
+#endif // __STDC_VERSION__ >= 202311L
+#endif // __cplusplus
+
+/**
+ * Entry-point search before each tree packet (the crate's `EntrySearch`).
+ */
+enum sheaf_entry_search
+#if defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+  : uint32_t
+#endif // defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+ {
+    /**
+     * Packets start at the root.
+     */
+    SHEAF_ENTRY_SEARCH_NONE = 0,
+    /**
+     * MLRTA (Reshetov et al. 2005; AEPSA paper section 2.2).
+     */
+    SHEAF_ENTRY_SEARCH_MLRTA = 1,
+    /**
+     * AEPSA (AEPSA paper sections 3.1-3.3).
+     */
+    SHEAF_ENTRY_SEARCH_AEPSA = 2,
+};
+#ifndef __cplusplus
+#if __STDC_VERSION__ >= 202311L
+typedef enum sheaf_entry_search sheaf_entry_search;
+#else
+typedef uint32_t sheaf_entry_search;
 #endif // __STDC_VERSION__ >= 202311L
 #endif // __cplusplus
 
@@ -334,12 +377,24 @@ typedef struct sheaf_limits {
     bool projection_test;
     /**
      * Which structures get pools, a bit set of `SHEAF_STRUCTURE_GRID` (169
-     * bytes per triangle with the default grid rules and 8 threads) and
-     * `SHEAF_STRUCTURE_BVH` (140 bytes per triangle), at least one. A
-     * structure without pools cannot be built; model no more than the
-     * scene needs.
+     * bytes per triangle with the default grid rules and 8 threads),
+     * `SHEAF_STRUCTURE_BVH` (140 bytes per triangle) and
+     * `SHEAF_STRUCTURE_KD` (237 bytes per triangle with the default kd
+     * rules, 112 of them build scratch), at least one. A structure without
+     * pools cannot be built; model no more than the scene needs.
      */
     uint32_t structures;
+    /**
+     * Most kd-tree nodes. 0: `4 * max_triangles + 1024` (the OBJ scenes
+     * need 0.6 to 3.7 per triangle with the default `KdParams`).
+     */
+    uint32_t max_kd_nodes;
+    /**
+     * Most triangle references in kd-tree leaves. 0: `12 * max_triangles +
+     * 1024` (the OBJ scenes need 3.4 to 6.1 per triangle, the gears scene
+     * 20). A build that runs out makes leaves early (`KdInfo::forced_leaves`).
+     */
+    uint32_t max_kd_refs;
 } sheaf_limits;
 
 /**
@@ -438,9 +493,14 @@ typedef struct sheaf_trace_params {
      */
     bool culling;
     /**
-     * BVH packets: which frustum they get (a `sheaf_ray_kind`).
+     * BVH and kd-tree packets: which frustum they get (a `sheaf_ray_kind`).
      */
     sheaf_ray_kind ray_kind;
+    /**
+     * Tree packets (`KD_PACKET`, `BVH_MASKED`, `BVH_RANGED`,
+     * `BVH_PARTITION`): entry-point search first (a `sheaf_entry_search`).
+     */
+    sheaf_entry_search entry;
     /**
      * Split shadow packets whose hit points' distances from the light
      * differ by more than this ratio (section 4.7); 0 disables splitting.
@@ -559,8 +619,8 @@ typedef struct sheaf_counters {
      */
     uint64_t packets_split;
     /**
-     * Ray-box tests of tree traversals (one per single ray or per 2x2
-     * SIMD ray tested against a node's box).
+     * Ray-box tests of BVH traversals and split-plane steps of kd-tree
+     * traversals (one per single ray or per 2x2 SIMD ray at a node).
      */
     uint64_t aabb_tests;
     /**
@@ -577,6 +637,25 @@ typedef struct sheaf_counters {
      * `tri_tests` of tree traversals by leaf depth.
      */
     uint64_t tri_by_depth[32];
+    /**
+     * Entry-point searches run (one per packet with MLRTA or AEPSA).
+     */
+    uint64_t entry_searches;
+    /**
+     * Sum of the entry points' depths (root 0); searches that found no
+     * leaf count the tree's average leaf depth, as the AEPSA paper's
+     * section 5 does, rounded down.
+     */
+    uint64_t entry_depth_sum;
+    /**
+     * Nodes the searches visited (phase 1 and phase 2).
+     */
+    uint64_t entry_nodes;
+    /**
+     * Searches whose frustum overlaps no triangle: the packet is a miss
+     * without traversal.
+     */
+    uint64_t entry_misses;
 } sheaf_counters;
 
 /**
@@ -663,7 +742,52 @@ typedef struct sheaf_stats {
      * Wall time of the last BVH build in nanoseconds.
      */
     uint64_t bvh_build_ns;
+    /**
+     * kd-tree of the last kd build (the AEPSA paper's Table 1): nodes,
+     * leaves, empty leaves, deepest leaf, stored triangles, leaf references.
+     */
+    uint32_t kd_nodes;
+    uint32_t kd_leaves;
+    uint32_t kd_empty_leaves;
+    uint32_t kd_depth;
+    uint32_t kd_triangles;
+    uint32_t kd_refs;
+    /**
+     * Mean depth of the kd-tree's leaves.
+     */
+    float kd_avg_leaf_depth;
+    /**
+     * Triangle test of the kd-tree (a `sheaf_tri_test`).
+     */
+    sheaf_tri_test kd_test;
+    /**
+     * Wall time of the last kd build in nanoseconds.
+     */
+    uint64_t kd_build_ns;
 } sheaf_stats;
+
+/**
+ * Tunables of the kd-tree (an O(N log N) SAH build with perfect splits).
+ * Start from `sheaf_kd_params_default`.
+ */
+typedef struct sheaf_kd_params {
+    /**
+     * Depth limit (1..=48); 0: `8 + 1.3 log2 N` capped at 48.
+     */
+    uint32_t max_depth;
+    /**
+     * SAH cost of a traversal step relative to a triangle test (> 0, default 2).
+     */
+    float traversal_cost;
+    /**
+     * Cost discount of splits with an empty side, in [0, 1) (default 0.2).
+     */
+    float empty_bonus;
+    /**
+     * Ray-triangle test of every traversal of this tree (a `sheaf_tri_test`).
+     */
+    sheaf_tri_test test;
+} sheaf_kd_params;
 
 /**
  * Bounce limits (C: `sheaf_whitted_params`).
@@ -1027,6 +1151,32 @@ sheaf_status sheaf_shading_default(struct sheaf_shading *out);
  * `out` must not be NULL. Thread-safe.
  */
 sheaf_status sheaf_grid_params_default(struct sheaf_grid_params *out);
+
+/**
+ * Write the default kd-tree parameters (automatic depth limit, traversal
+ * cost 2, empty bonus 0.2, Moller-Trumbore) to `*out`.
+ *
+ * `out` must not be NULL. Thread-safe.
+ */
+sheaf_status sheaf_kd_params_default(struct sheaf_kd_params *out);
+
+/**
+ * Rebuild the kd-tree from the geometry with `*params` (copied; NULL: the
+ * defaults of `sheaf_kd_params_default`). The grid and the BVH, if built,
+ * are untouched.
+ *
+ * Reads the geometry buffers (see `sheaf_context_set_geometry`); never
+ * allocates. On error the previous kd-tree stays valid and traces exactly
+ * as before.
+ *
+ * Errors: `SHEAF_STATUS_NO_GEOMETRY`, `SHEAF_STATUS_INVALID_ARGUMENT`
+ * (params, or no kd pools in `sheaf_limits.structures`),
+ * `SHEAF_STATUS_INDEX_OUT_OF_RANGE`, `SHEAF_STATUS_CAPACITY_TRIANGLES`.
+ *
+ * Not thread-safe: needs exclusive access to `ctx`.
+ */
+sheaf_status sheaf_context_build_kd(struct sheaf_context *ctx,
+                                    const struct sheaf_kd_params *params);
 
 /**
  * Write limits for scenes of up to `max_triangles` triangles to `*out`:

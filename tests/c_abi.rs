@@ -362,7 +362,7 @@ fn parse(stdout: &str) -> Emitted {
         let v3 = |at: usize| [hex_f32(f[at]), hex_f32(f[at + 1]), hex_f32(f[at + 2])];
         match f[0] {
             "@limits" => {
-                let n: Vec<u32> = f[1..11].iter().map(|s| num(s)).collect();
+                let n: Vec<u32> = f[1..13].iter().map(|s| num(s)).collect();
                 e.limits = Some(Limits {
                     max_triangles: n[0],
                     max_vertices: n[1],
@@ -374,6 +374,8 @@ fn parse(stdout: &str) -> Emitted {
                     max_grid_refs: n[7],
                     projection_test: n[8] != 0,
                     structures: n[9],
+                    max_kd_nodes: n[10],
+                    max_kd_refs: n[11],
                 });
             }
             "@vertex" => {

@@ -20,6 +20,8 @@
 mod bench;
 #[path = "sheaf/cmd.rs"]
 mod cmd;
+#[path = "sheaf/entry_bench.rs"]
+mod entry_bench;
 #[path = "sheaf/load.rs"]
 mod load;
 #[path = "sheaf/run.rs"]
@@ -65,7 +67,7 @@ impl<T, E: fmt::Display> OrFail<T> for Result<T, E> {
 #[command(
     name = "sheaf",
     version,
-    about = "Ray-trace triangle scenes with sheaf's per-frame uniform grid (3DDDA or coherent grid traversal)"
+    about = "Ray-trace triangle scenes with sheaf's per-frame acceleration structures (uniform grid, BVH, kd-tree)"
 )]
 struct Cli {
     #[command(subcommand)]
@@ -142,6 +144,12 @@ pub enum MethodArg {
     BvhRanged,
     /// BVH, n x n packets, Partition traversal.
     BvhPartition,
+    /// kd-tree, single-ray traversal (the kd baseline).
+    KdSingle,
+    /// kd-tree, 2x2 SIMD rays.
+    KdSimd,
+    /// kd-tree, n x n packets driven by their frustum (with --entry: from an entry point).
+    KdPacket,
 }
 
 impl MethodArg {
@@ -154,6 +162,30 @@ impl MethodArg {
             MethodArg::BvhMasked => sheaf::Method::BvhMasked,
             MethodArg::BvhRanged => sheaf::Method::BvhRanged,
             MethodArg::BvhPartition => sheaf::Method::BvhPartition,
+            MethodArg::KdSingle => sheaf::Method::KdSingle,
+            MethodArg::KdSimd => sheaf::Method::KdSimd,
+            MethodArg::KdPacket => sheaf::Method::KdPacket,
+        }
+    }
+}
+
+/// Entry-point search before each packet of a tree method (`EntrySearch`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum EntryArg {
+    /// Packets start at the root (plain packet tracing).
+    None,
+    /// MLRTA (Reshetov et al. 2005).
+    Mlrta,
+    /// AEPSA (the accelerated entry-point search).
+    Aepsa,
+}
+
+impl EntryArg {
+    pub fn search(self) -> sheaf::trace::EntrySearch {
+        match self {
+            EntryArg::None => sheaf::trace::EntrySearch::None,
+            EntryArg::Mlrta => sheaf::trace::EntrySearch::Mlrta,
+            EntryArg::Aepsa => sheaf::trace::EntrySearch::Aepsa,
         }
     }
 }
@@ -163,6 +195,7 @@ impl MethodArg {
 pub enum StructureArg {
     Grid,
     Bvh,
+    Kd,
 }
 
 /// How primary and shadow rays are traced (`TraceParams`).
@@ -180,6 +213,10 @@ pub struct TraceOpts {
     /// Packet side for shadow rays (default: as --packet).
     #[arg(long)]
     pub shadow_packet: Option<u32>,
+    /// Entry-point search before each packet of kd-packet and bvh-masked/ranged/partition
+    /// (primary and shadow rays); other methods ignore it.
+    #[arg(long, value_enum, default_value = "none")]
+    pub entry: EntryArg,
     /// Split shadow packets whose hit points' distances to the light differ by more than this
     /// ratio (CGT section 4.7); 0 disables splitting.
     #[arg(long, default_value_t = 2.0)]
@@ -210,7 +247,7 @@ impl TraceOpts {
             packet: self.packet,
             cgt,
             bvh,
-            entry: sheaf::trace::EntrySearch::None,
+            entry: self.entry.search(),
             split: self.split,
         };
         let shadow = sheaf::TraceParams {
@@ -218,19 +255,25 @@ impl TraceOpts {
             packet: self.shadow_packet.unwrap_or(self.packet),
             ..primary
         };
-        primary.validate()?;
-        shadow.validate()?;
+        run::validate(&primary)?;
+        run::validate(&shadow)?;
         Ok((primary, shadow))
     }
-    /// `grid-cgt 8x8 / shadows grid-cgt 8x8`.
+    /// `grid-cgt 8x8 / shadows grid-cgt 8x8`, `kd-packet 8x8 aepsa / shadows kd-packet 8x8 aepsa`.
     pub fn label(&self) -> String {
+        let entry = self.entry.search();
         let name = |m: MethodArg, n: u32| {
             let m = m.method();
-            if m.is_packet() {
+            let mut s = if run::is_packet(m) {
                 format!("{} {n}x{n}", m.name())
             } else {
                 m.name().to_string()
+            };
+            if run::uses_entry(m) && entry != sheaf::trace::EntrySearch::None {
+                s.push(' ');
+                s.push_str(entry.name());
             }
+            s
         };
         let sp = self.shadow_packet.unwrap_or(self.packet);
         format!(
@@ -377,11 +420,17 @@ pub struct BenchArgs {
     /// default (256x256 with --quick).
     #[arg(long)]
     pub whitted: bool,
-    /// Structures whose methods are measured.
+    /// Instead of the ray table: the entry-point study of the kd-tree (AEPSA paper
+    /// section 5: Table 1, entry depths MLRTA vs AEPSA, search times, nodes visited,
+    /// frames per second), 512x512 by default; with --quick the built-in scenes at 256x256.
+    #[arg(long, conflicts_with = "whitted")]
+    pub entry: bool,
+    /// Structures whose methods are measured (grid, bvh, kd).
     #[arg(long, value_enum, value_delimiter = ',', default_value = "grid,bvh")]
     pub structures: Vec<StructureArg>,
-    /// Thread counts to time, comma-separated.
-    #[arg(long, value_delimiter = ',', default_value = "1,2")]
+    /// Thread counts to time, comma-separated [default: 1,2; with --entry: 1 and the machine's
+    /// hardware threads].
+    #[arg(long, value_delimiter = ',')]
     pub threads: Vec<u32>,
     /// Also run CGT 8x8 with macrocells, mailbox, culling, and mailbox + culling switched off.
     #[arg(long)]
@@ -399,9 +448,21 @@ pub struct BenchArgs {
     /// Macrocell side in cells (CGT paper, section 2.4: 6); 0 or 1 disables macrocells.
     #[arg(long, default_value_t = 6)]
     pub macrocell: u32,
-    /// Directory for bench.csv, bench.md, speed_accuracy.svg and speed_accuracy.png.
-    #[arg(long, default_value = "out/bench")]
-    pub out_dir: PathBuf,
+    /// Directory for bench.csv, bench.md, speed_accuracy.svg and speed_accuracy.png (or the
+    /// study's files) [default: out/bench; with --entry: docs/bench-kd].
+    #[arg(long)]
+    pub out_dir: Option<PathBuf>,
+}
+
+impl BenchArgs {
+    /// `--out-dir`, or the default of the chosen study.
+    pub fn out_dir(&self) -> PathBuf {
+        match &self.out_dir {
+            Some(d) => d.clone(),
+            None if self.entry => PathBuf::from("docs/bench-kd"),
+            None => PathBuf::from("out/bench"),
+        }
+    }
 }
 
 /// `WIDTHxHEIGHT`, each in 1..=16384.

@@ -51,6 +51,20 @@ pub struct sheaf_stats {
     pub bvh_test: super::raw::sheaf_tri_test,
     /// Wall time of the last BVH build in nanoseconds.
     pub bvh_build_ns: u64,
+    /// kd-tree of the last kd build (the AEPSA paper's Table 1): nodes,
+    /// leaves, empty leaves, deepest leaf, stored triangles, leaf references.
+    pub kd_nodes: u32,
+    pub kd_leaves: u32,
+    pub kd_empty_leaves: u32,
+    pub kd_depth: u32,
+    pub kd_triangles: u32,
+    pub kd_refs: u32,
+    /// Mean depth of the kd-tree's leaves.
+    pub kd_avg_leaf_depth: f32,
+    /// Triangle test of the kd-tree (a `sheaf_tri_test`).
+    pub kd_test: super::raw::sheaf_tri_test,
+    /// Wall time of the last kd build in nanoseconds.
+    pub kd_build_ns: u64,
 }
 
 impl sheaf_stats {
@@ -78,6 +92,15 @@ impl sheaf_stats {
             bvh_sah_cost: s.bvh.sah_cost,
             bvh_test: super::sheaf_tri_test::of(s.bvh.test) as u32,
             bvh_build_ns: s.bvh_build_ns,
+            kd_nodes: s.kd.nodes,
+            kd_leaves: s.kd.leaves,
+            kd_empty_leaves: s.kd.empty_leaves,
+            kd_depth: s.kd.depth,
+            kd_triangles: s.kd.triangles,
+            kd_refs: s.kd.refs,
+            kd_avg_leaf_depth: s.kd.avg_leaf_depth,
+            kd_test: super::sheaf_tri_test::of(s.kd.test) as u32,
+            kd_build_ns: s.kd_build_ns,
         }
     }
 }
@@ -89,5 +112,6 @@ const _: () = {
     assert!(offset_of!(sheaf_stats, build_ns) == 64);
     assert!(size_of::<Counters>() % 8 == 0);
     assert!(offset_of!(sheaf_stats, bvh_nodes) == offset_of!(sheaf_stats, trace_ns) + 8);
-    assert!(size_of::<sheaf_stats>() == offset_of!(sheaf_stats, bvh_build_ns) + 8);
+    assert!(offset_of!(sheaf_stats, kd_nodes) == offset_of!(sheaf_stats, bvh_build_ns) + 8);
+    assert!(size_of::<sheaf_stats>() == offset_of!(sheaf_stats, kd_build_ns) + 8);
 };

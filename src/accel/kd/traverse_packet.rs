@@ -345,12 +345,24 @@ fn walk<T: KdTest, const ANY: bool, const Q: usize>(
                 }
             }
             depth += 1;
-            if use_near || use_far {
+            if use_near != use_far {
+                // One child culled: no lane passes within the margin of
+                // it, so every lane's split t_s lies beyond its interval
+                // (near: t_s >= t1, far: t_s <= t0) and `split_interval`
+                // leaves the intervals as they are. No per-quad work.
+                (node, bx) = if use_near { (near, nb) } else { (far, fb) };
+                continue;
+            }
+            if use_near {
                 ctr.aabb_at(depth - 1, na as u64);
                 let s = F4::splat(n.split());
                 let (oa, ra) = (&org[a], &rcp[a]);
                 let mut need_near = M4::FALSE;
                 let mut need_far = M4::FALSE;
+                // Live lanes whose near / far interval is shorter than the
+                // node's (none: the child keeps the intervals as they are).
+                let mut cut_near = M4::FALSE;
+                let mut cut_far = M4::FALSE;
                 let mut far_q = [0u64; MAX_QUADS / 64];
                 for (i, &qi) in act[..na].iter().enumerate() {
                     let q = qi as usize & (Q - 1);
@@ -358,15 +370,18 @@ fn walk<T: KdTest, const ANY: bool, const Q: usize>(
                     let ts = (s - oa[q]) * ra[q];
                     tsb[i] = ts;
                     let (a0, a1, lv) = (t0[q], t1[q], live[q]);
-                    let near_hi = F4::select(ts.cmplt(a1), ts, a1);
-                    let far_lo = F4::select(ts.cmpgt(a0), ts, a0);
+                    let (lt, gt) = (ts.cmplt(a1), ts.cmpgt(a0));
+                    let near_hi = F4::select(lt, ts, a1);
+                    let far_lo = F4::select(gt, ts, a0);
                     need_near |= lv & a0.cmple(near_hi);
                     let nf = lv & far_lo.cmple(a1);
                     need_far |= nf;
+                    cut_near |= lv & lt;
+                    cut_far |= lv & gt;
                     far_q[(q >> 6) & (MAX_QUADS / 64 - 1)] |= (nf.any() as u64) << (q & 63);
                 }
-                let go_near = use_near && need_near.any();
-                let go_far = use_far && need_far.any();
+                let go_near = need_near.any();
+                let go_far = need_far.any();
                 if go_near {
                     if go_far {
                         st[sp] = Entry {
@@ -377,37 +392,41 @@ fn walk<T: KdTest, const ANY: bool, const Q: usize>(
                         };
                         sp += 1;
                     }
-                    // Near child: [t0, min(t1, t_s)]; keep the quads inside.
-                    let mut j = 0;
-                    for i in 0..na {
-                        let qi = act[i];
-                        let q = qi as usize & (Q - 1);
-                        let (ts, a1) = (tsb[i], t1[q]);
-                        let near_hi = F4::select(ts.cmplt(a1), ts, a1);
-                        t1[q] = near_hi;
-                        act[j] = qi;
-                        j += (live[q] & t0[q].cmple(near_hi)).any() as usize;
-                    }
-                    na = j;
                     node = near;
                     bx = nb;
+                    if cut_near.any() {
+                        // Near child: [t0, min(t1, t_s)]; keep the quads inside.
+                        let mut j = 0;
+                        for i in 0..na {
+                            let qi = act[i];
+                            let q = qi as usize & (Q - 1);
+                            let (ts, a1) = (tsb[i], t1[q]);
+                            let near_hi = F4::select(ts.cmplt(a1), ts, a1);
+                            t1[q] = near_hi;
+                            act[j] = qi;
+                            j += (live[q] & t0[q].cmple(near_hi)).any() as usize;
+                        }
+                        na = j;
+                    }
                     continue;
                 }
                 if go_far {
-                    // Far child: [max(t0, t_s), t1].
-                    let mut j = 0;
-                    for i in 0..na {
-                        let qi = act[i];
-                        let q = qi as usize & (Q - 1);
-                        let (ts, a0) = (tsb[i], t0[q]);
-                        let far_lo = F4::select(ts.cmpgt(a0), ts, a0);
-                        t0[q] = far_lo;
-                        act[j] = qi;
-                        j += (live[q] & far_lo.cmple(t1[q])).any() as usize;
-                    }
-                    na = j;
                     node = far;
                     bx = fb;
+                    if cut_far.any() {
+                        // Far child: [max(t0, t_s), t1].
+                        let mut j = 0;
+                        for i in 0..na {
+                            let qi = act[i];
+                            let q = qi as usize & (Q - 1);
+                            let (ts, a0) = (tsb[i], t0[q]);
+                            let far_lo = F4::select(ts.cmpgt(a0), ts, a0);
+                            t0[q] = far_lo;
+                            act[j] = qi;
+                            j += (live[q] & far_lo.cmple(t1[q])).any() as usize;
+                        }
+                        na = j;
+                    }
                     continue;
                 }
             }
@@ -517,7 +536,7 @@ fn walk<T: KdTest, const ANY: bool, const Q: usize>(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::accel::bvh::traverse_masked::tests::{RaySet, lattice, packets, ray_sets};
+    use crate::accel::bvh::traverse_masked::tests::{Packed, RaySet, lattice, packets, ray_sets};
     use crate::accel::bvh::{BvhTest, BvhView, RayKind};
     use crate::accel::kd::traverse_simd::tests::{deep_rays, ties, with_trees};
     use crate::accel::kd::traverse_single::{self, tests::same};
@@ -531,12 +550,15 @@ mod tests {
         v: 4.0,
     };
 
-    /// Parent, depth and box of every node of a kd-tree, and the leaves
-    /// holding each stored triangle.
+    /// Parent, depth, box and pre-order range of every node of a kd-tree,
+    /// and the leaves holding each stored triangle.
     struct Tree {
         parent: Vec<usize>,
         depth: Vec<u32>,
         bx: Vec<Aabb>,
+        /// Pre-order index of each node; its subtree is `pre..end`.
+        pre: Vec<usize>,
+        end: Vec<usize>,
         leaves_of: Vec<Vec<usize>>,
         deepest_leaf: usize,
     }
@@ -547,6 +569,8 @@ mod tests {
             parent: vec![usize::MAX; n],
             depth: vec![0; n],
             bx: vec![Aabb::EMPTY; n],
+            pre: vec![0; n],
+            end: vec![0; n],
             leaves_of: vec![Vec::new(); k.tris.len()],
             deepest_leaf: 0,
         };
@@ -554,8 +578,11 @@ mod tests {
             return t;
         }
         t.bx[0] = k.info.root;
+        let mut order = Vec::new();
         let mut stack = vec![0usize];
         while let Some(i) = stack.pop() {
+            t.pre[i] = order.len();
+            order.push(i);
             let nd = k.nodes[i];
             if nd.is_leaf() {
                 for &s in k.leaf_refs(&nd) {
@@ -566,7 +593,7 @@ mod tests {
                 }
             } else {
                 let (lb, rb) = KdView::child_boxes(&nd, &t.bx[i]);
-                for (c, b) in [(nd.left(), lb), (nd.left() + 1, rb)] {
+                for (c, b) in [(nd.left() + 1, rb), (nd.left(), lb)] {
                     t.parent[c] = i;
                     t.depth[c] = t.depth[i] + 1;
                     t.bx[c] = b;
@@ -574,46 +601,59 @@ mod tests {
                 }
             }
         }
+        for &i in order.iter().rev() {
+            let nd = k.nodes[i];
+            t.end[i] = if nd.is_leaf() {
+                t.pre[i] + 1
+            } else {
+                t.end[nd.left()].max(t.end[nd.left() + 1])
+            };
+        }
         t
     }
 
-    impl Tree {
-        fn lca(&self, mut a: usize, mut b: usize) -> usize {
-            while self.depth[a] > self.depth[b] {
-                a = self.parent[a];
-            }
-            while self.depth[b] > self.depth[a] {
-                b = self.parent[b];
-            }
-            while a != b {
-                a = self.parent[a];
-                b = self.parent[b];
-            }
-            a
-        }
-        /// The deepest node whose subtree holds every leaf of the stored
-        /// triangles `slots` (the deepest leaf when there are none: every
-        /// node is then valid).
-        fn entry(&self, slots: impl Iterator<Item = usize>) -> EntryPoint {
-            let mut node: Option<usize> = None;
-            for s in slots {
-                for &l in &self.leaves_of[s] {
-                    node = Some(node.map_or(l, |n| self.lca(n, l)));
+    /// The deepest node whose subtree holds all the leaves given to `add`.
+    struct Lca<'t> {
+        t: &'t Tree,
+        node: Option<usize>,
+    }
+
+    impl Lca<'_> {
+        /// Add the leaves of stored triangle `s`; `false` once the answer
+        /// is the root (nothing can change it).
+        fn add(&mut self, s: usize) -> bool {
+            let t = self.t;
+            for &l in &t.leaves_of[s] {
+                let mut n = self.node.unwrap_or(l);
+                while !(t.pre[n] <= t.pre[l] && t.pre[l] < t.end[n]) {
+                    n = t.parent[n];
                 }
+                self.node = Some(n);
             }
-            let n = node.unwrap_or(self.deepest_leaf);
+            self.node != Some(0)
+        }
+        /// The entry point (the deepest leaf when no leaf was added: every
+        /// node is then valid).
+        fn entry(&self) -> EntryPoint {
+            let n = self.node.unwrap_or(self.t.deepest_leaf);
             EntryPoint {
                 node: n as u32,
-                depth: self.depth[n],
-                aabb: self.bx[n],
+                depth: self.t.depth[n],
+                aabb: self.t.bx[n],
             }
         }
     }
 
-    /// The entry point of frustum `f` by brute force: every stored triangle
-    /// through `cull_triangle`.
+    /// The entry point of frustum `f` by brute force: the deepest node
+    /// holding every leaf with a stored triangle `cull_triangle` keeps.
     fn entry_brute(k: &KdView<'_>, t: &Tree, f: &Frustum) -> EntryPoint {
-        t.entry((0..k.tris.len()).filter(|&s| !f.cull_triangle(&k.tris[s])))
+        let mut lca = Lca { t, node: None };
+        for s in 0..k.tris.len() {
+            if !f.cull_triangle(&k.tris[s]) && !lca.add(s) {
+                break;
+            }
+        }
+        lca.entry()
     }
 
     /// `entry_brute`, faster: the BVH over the same mesh skips the
@@ -622,7 +662,7 @@ mod tests {
     /// `cull_triangle`. `entry_helper_matches_brute_force` checks the two
     /// agree.
     fn entry_of(k: &KdView<'_>, t: &Tree, b: &BvhView<'_>, f: &Frustum) -> EntryPoint {
-        let mut slots = Vec::new();
+        let mut lca = Lca { t, node: None };
         let mut stack = if b.nodes.is_empty() { vec![] } else { vec![0] };
         while let Some(i) = stack.pop() {
             let n = &b.nodes[i];
@@ -632,18 +672,16 @@ mod tests {
             let first = n.first as usize;
             if n.is_leaf() {
                 for j in first..first + n.count() as usize {
-                    if !f.cull_triangle(&b.tris[j]) {
-                        let s = k.slot_of[b.tri_ids[j] as usize];
-                        if s != INVALID_ID {
-                            slots.push(s as usize);
-                        }
+                    let s = k.slot_of[b.tri_ids[j] as usize];
+                    if s != INVALID_ID && !f.cull_triangle(&b.tris[j]) && !lca.add(s as usize) {
+                        return lca.entry();
                     }
                 }
             } else {
                 stack.extend([first, first + 1]);
             }
         }
-        t.entry(slots.into_iter())
+        lca.entry()
     }
 
     fn live_of(quads: &[Ray4], active: &[M4]) -> Vec<M4> {
@@ -989,5 +1027,198 @@ mod tests {
             });
         }
         assert!(checked > 100 && below_root > 50, "{checked} {below_root}");
+    }
+
+    /// Release-mode throughput of camera rays on `balls` (SPD view, 512 x
+    /// 512, Moller-Trumbore, one thread): kd single, 2x2 SIMD and packets
+    /// of side 4..32 with and without the primary frustum (built inside
+    /// the timed loop), against the BVH's single, 2x2 SIMD and Masked 16 x
+    /// 16 traversals. `cargo test --release --lib
+    /// kd::traverse_packet::tests::packet_speed -- --ignored --nocapture`
+    /// (add `--no-default-features --features std` to time without
+    /// counters).
+    #[test]
+    #[ignore]
+    fn packet_speed() {
+        use crate::accel::bvh::traverse_masked::tests::camera;
+        use crate::accel::bvh::{BvhOptions, traverse_masked, traverse_simd as bvh_simd};
+        use crate::accel::kd::traverse_simd;
+        use std::time::Instant;
+        let s = crate::scenes::builtin("balls").unwrap();
+        let (w, h) = (512u32, 512u32);
+        with_trees::<Mt>(&s.mesh.vertices, &s.mesh.indices, 0, |k, b| {
+            let pr = camera(&s.views[0], w, h);
+            let set = RaySet {
+                name: "primary",
+                w,
+                h,
+                rays: (0..h)
+                    .flat_map(|y| (0..w).map(move |x| (x, y)))
+                    .map(|(x, y)| Some(pr.ray(x, y)))
+                    .collect(),
+                kinds: &[RayKind::Primary],
+            };
+            println!(
+                "balls ({} triangles, kd {} nodes, depth {}), {w}x{h} primary rays, Moller-Trumbore, one thread",
+                k.info.triangles, k.info.nodes, k.info.depth
+            );
+            let sides = [2u32, 4, 8, 16, 32];
+            let pk: Vec<Vec<Packed>> = sides.iter().map(|&n| packets(&set, n)).collect();
+            let by_side = |n: u32| &pk[sides.iter().position(|&x| x == n).unwrap()];
+            type Run<'t> = Box<dyn FnMut(&mut Counters) -> u64 + 't>;
+            // Sum of hit ids (equal for every kd method: exactness).
+            let sum = |hs: &[Hit4]| -> u64 {
+                hs.iter()
+                    .flat_map(|h| h.prim)
+                    .map(|p| p as u64)
+                    .sum::<u64>()
+            };
+            let mut runs: Vec<(String, bool, Run<'_>)> = Vec::new();
+            let p2 = by_side(2);
+            runs.push((
+                "kd single".into(),
+                true,
+                Box::new(move |c| {
+                    let mut x = 0;
+                    for (q, a, _) in p2 {
+                        for i in 0..4 {
+                            if a[0].test(i) {
+                                x += traverse_single::intersect::<Mt>(k, &q[0].lane(i), c).prim
+                                    as u64;
+                            }
+                        }
+                    }
+                    x
+                }),
+            ));
+            runs.push((
+                "kd simd (2x2)".into(),
+                true,
+                Box::new(move |c| {
+                    let mut x = 0;
+                    for (q, a, _) in p2 {
+                        let hh = traverse_simd::intersect::<Mt>(k, &q[0], a[0], c);
+                        x += sum(&[hh]);
+                    }
+                    x
+                }),
+            ));
+            for n in [4u32, 8, 16, 32] {
+                for cull in [false, true] {
+                    let pn = by_side(n);
+                    let mut hits = vec![Hit4::MISS; pn[0].0.len()];
+                    runs.push((
+                        format!(
+                            "kd packet {n}x{n} frustum {}",
+                            if cull { "on" } else { "off" }
+                        ),
+                        true,
+                        Box::new(move |c| {
+                            let mut x = 0;
+                            for (q, a, _) in pn {
+                                let f = if cull {
+                                    Frustum::new(RayKind::Primary, q, a, &k.info.root)
+                                } else {
+                                    None
+                                };
+                                intersect::<Mt>(k, q, a, &mut hits, f.as_ref(), None, c);
+                                x += sum(&hits);
+                            }
+                            x
+                        }),
+                    ));
+                }
+            }
+            runs.push((
+                "bvh single".into(),
+                false,
+                Box::new(move |c| {
+                    let mut x = 0;
+                    for (q, a, _) in p2 {
+                        for i in 0..4 {
+                            if a[0].test(i) {
+                                x += crate::accel::bvh::traverse_single::intersect::<Mt>(
+                                    b,
+                                    &q[0].lane(i),
+                                    c,
+                                )
+                                .prim as u64;
+                            }
+                        }
+                    }
+                    x
+                }),
+            ));
+            let mut h1 = [Hit4::MISS];
+            runs.push((
+                "bvh simd (2x2)".into(),
+                false,
+                Box::new(move |c| {
+                    let mut x = 0;
+                    for (q, a, _) in p2 {
+                        bvh_simd::intersect::<Mt>(b, q, a, &mut h1, c);
+                        x += sum(&h1);
+                    }
+                    x
+                }),
+            ));
+            let p16 = by_side(16);
+            let mut h16 = vec![Hit4::MISS; p16[0].0.len()];
+            let opt = BvhOptions {
+                culling: true,
+                kind: RayKind::Primary,
+            };
+            runs.push((
+                "bvh masked 16x16 culling on".into(),
+                false,
+                Box::new(move |c| {
+                    let mut x = 0;
+                    for (q, a, _) in p16 {
+                        traverse_masked::intersect::<Mt>(b, q, a, &mut h16, &opt, None, c);
+                        x += sum(&h16);
+                    }
+                    x
+                }),
+            ));
+            // Best of 3 passes of 3 runs, passes interleaved over methods.
+            let mut best = vec![f64::INFINITY; runs.len()];
+            let mut ctrs = vec![Counters::default(); runs.len()];
+            let mut sums = vec![0u64; runs.len()];
+            for pass in 0..3 {
+                for (j, (_, _, f)) in runs.iter_mut().enumerate() {
+                    for rep in 0..3 {
+                        let mut c = Counters::default();
+                        let t0 = Instant::now();
+                        let x = f(&mut c);
+                        best[j] = best[j].min(t0.elapsed().as_secs_f64());
+                        if pass == 0 && rep == 0 {
+                            (ctrs[j], sums[j]) = (c, x);
+                        }
+                    }
+                }
+            }
+            let rays = (w * h) as f64;
+            println!(
+                "| method | Mrays/s | split steps/ray | tri tests/ray | culled nodes/pkt | culled tris/pkt |"
+            );
+            println!("|---|---|---|---|---|---|");
+            for (j, (name, _, _)) in runs.iter().enumerate() {
+                let c = &ctrs[j];
+                let np = c.packets.max(1) as f64;
+                println!(
+                    "| {name} | {:.2} | {:.2} | {:.2} | {:.1} | {:.1} |",
+                    rays / best[j] / 1e6,
+                    c.aabb_tests as f64 / rays,
+                    c.tri_tests as f64 / rays,
+                    c.culled_nodes as f64 / np,
+                    c.culled as f64 / np
+                );
+            }
+            for (j, (name, kd, _)) in runs.iter().enumerate() {
+                if *kd {
+                    assert_eq!(sums[j], sums[0], "{name}");
+                }
+            }
+        });
     }
 }

@@ -43,7 +43,7 @@ use sheaf::context::SceneTracer as GridTracer;
 use sheaf::geom::{F4, Hit4, INVALID_ID, M4, Ray4};
 use sheaf::reference::{self, RefHit};
 use sheaf::render::{PrimaryRays, SHADOW_OFFSET, Tracer, demorton, shadow_packet};
-use sheaf::trace::{BvhOptions, RayKind};
+use sheaf::trace::{BvhOptions, EntrySearch, RayKind, Structure};
 use sheaf::{Camera, CgtOptions, Counters, Hit, Method, Ray, Scene, TraceParams};
 use std::collections::HashMap;
 use std::fmt::Write as _;
@@ -83,6 +83,8 @@ struct Config {
     method: Method,
     packet: u32,
     cgt: CgtOptions,
+    /// Entry-point search of tree packet methods (kd-packet here).
+    entry: EntrySearch,
 }
 
 impl Config {
@@ -96,15 +98,31 @@ impl Config {
             packet: self.packet,
             cgt: self.cgt,
             bvh,
+            entry: self.entry,
             ..TraceParams::default()
         }
     }
+    fn structure(&self) -> Structure {
+        self.method.structure()
+    }
     /// Chart colour: the 3DDDA 0, CGT n x n by n, the ablations after them;
     /// the BVH from 10: single 10, SIMD 11, then Ranged, Partition, Masked
-    /// by packet side 4..32, then the BVH without culling.
+    /// by packet side 4..32, then the BVH without culling; the kd-tree from
+    /// 25: single 25, SIMD 26, packets 27.. by side (8, 16, other) and entry
+    /// search (none, MLRTA, AEPSA).
     fn colour(&self) -> usize {
         let side = (self.packet.max(4).trailing_zeros() as usize).min(5) - 2;
         match self.method {
+            Method::KdSingle => return 25,
+            Method::KdSimd => return 26,
+            Method::KdPacket => {
+                let s = match self.packet {
+                    8 => 0,
+                    16 => 1,
+                    _ => 2,
+                };
+                return 27 + 3 * s + self.entry as usize;
+            }
             Method::BvhSingle => return 10,
             Method::BvhSimd => return 11,
             _ if self.method.structure() == sheaf::trace::Structure::Bvh && !self.cgt.culling => {
@@ -148,13 +166,16 @@ impl Config {
             _ => 9,
         }
     }
-    /// `grid-dda`, `grid-cgt 8x8`, `grid-cgt 8x8 no-mailbox`.
+    /// `grid-dda`, `grid-cgt 8x8`, `grid-cgt 8x8 no-mailbox`, `kd-packet 16x16 aepsa`.
     fn label(&self) -> String {
-        if !self.method.is_packet() {
+        if !run::is_packet(self.method) {
             return self.method.name().to_string();
         }
         let mut s = format!("{} {}x{}", self.method.name(), self.packet, self.packet);
-        let bvh = self.method.structure() == sheaf::trace::Structure::Bvh;
+        if self.entry != EntrySearch::None {
+            let _ = write!(s, " {}", self.entry.name());
+        }
+        let bvh = self.structure() != Structure::Grid;
         let off: Vec<&str> = [
             (self.cgt.macrocells || bvh, "macrocells"),
             (self.cgt.mailbox || bvh, "mailbox"),
@@ -171,46 +192,53 @@ impl Config {
     }
 }
 
+/// Packet sides of the kd-tree's packet configurations.
+const KD_PACKETS: [u32; 2] = [8, 16];
+
 /// The configurations to run, the 3DDDA first (the others are compared with
 /// it), then (with `bvh`) the BVH's: single ray, 2x2 SIMD ray, and the three
-/// large-packet traversals at every packet side from 4.
-fn configs(packets: &[u32], ablation: bool, grid: bool, bvh: bool) -> Vec<Config> {
+/// large-packet traversals at every packet side from 4; then (with `kd`)
+/// the kd-tree's: single ray, 2x2 SIMD ray, and packets of `KD_PACKETS`
+/// without and with AEPSA entry points; then the grid's CGT.
+fn configs(packets: &[u32], ablation: bool, grid: bool, bvh: bool, kd: bool) -> Vec<Config> {
     let on = CgtOptions::default();
-    let mut v = vec![Config {
-        method: Method::GridDda,
-        packet: 0,
-        cgt: on,
-    }];
+    let cfg = |method: Method, packet: u32, cgt: CgtOptions| Config {
+        method,
+        packet,
+        cgt,
+        entry: EntrySearch::None,
+    };
+    let mut v = vec![cfg(Method::GridDda, 0, on)];
     if !grid {
         v.clear();
     }
     if bvh {
-        v.push(Config {
-            method: Method::BvhSingle,
-            packet: 0,
-            cgt: on,
-        });
-        v.push(Config {
-            method: Method::BvhSimd,
-            packet: 0,
-            cgt: on,
-        });
+        v.push(cfg(Method::BvhSingle, 0, on));
+        v.push(cfg(Method::BvhSimd, 0, on));
         for m in [Method::BvhRanged, Method::BvhPartition, Method::BvhMasked] {
-            v.extend(packets.iter().filter(|&&n| n >= 4).map(|&n| Config {
-                method: m,
-                packet: n,
-                cgt: on,
-            }));
+            v.extend(packets.iter().filter(|&&n| n >= 4).map(|&n| cfg(m, n, on)));
         }
         if ablation {
             for m in [Method::BvhRanged, Method::BvhPartition] {
-                v.push(Config {
-                    method: m,
-                    packet: 16,
-                    cgt: CgtOptions {
+                v.push(cfg(
+                    m,
+                    16,
+                    CgtOptions {
                         culling: false,
                         ..on
                     },
+                ));
+            }
+        }
+    }
+    if kd {
+        v.push(cfg(Method::KdSingle, 0, on));
+        v.push(cfg(Method::KdSimd, 0, on));
+        for n in KD_PACKETS {
+            for entry in [EntrySearch::None, EntrySearch::Aepsa] {
+                v.push(Config {
+                    entry,
+                    ..cfg(Method::KdPacket, n, on)
                 });
             }
         }
@@ -218,11 +246,7 @@ fn configs(packets: &[u32], ablation: bool, grid: bool, bvh: bool) -> Vec<Config
     if !grid {
         return v;
     }
-    v.extend(packets.iter().map(|&n| Config {
-        method: Method::GridCgt,
-        packet: n,
-        cgt: on,
-    }));
+    v.extend(packets.iter().map(|&n| cfg(Method::GridCgt, n, on)));
     if ablation {
         for cgt in [
             CgtOptions {
@@ -243,11 +267,7 @@ fn configs(packets: &[u32], ablation: bool, grid: bool, bvh: bool) -> Vec<Config
                 ..on
             },
         ] {
-            v.push(Config {
-                method: Method::GridCgt,
-                packet: 8,
-                cgt,
-            });
+            v.push(cfg(Method::GridCgt, 8, cgt));
         }
     }
     v
@@ -574,7 +594,7 @@ fn trace_config(
     let mut occluded = vec![false; n];
     let mut timings = Vec::new();
     let (prim_ctr, shadow_ctr, shadow_rays);
-    if p.tile_side() == 0 {
+    if run::tile_side(&p) == 0 {
         let band = BAND_ROWS * vr.w as usize;
         // Untimed first runs (warm caches, counters, results).
         prim_ctr = trace_single(tr, &vr.rays, band, &mut hits, &mut mbs[..1]);
@@ -597,7 +617,7 @@ fn trace_config(
             });
         }
     } else {
-        let (tiling, quads, active) = &vr.packed[&p.tile_side()];
+        let (tiling, quads, active) = &vr.packed[&run::tile_side(&p)];
         let mut h4 = vec![Hit4::MISS; quads.len()];
         prim_ctr = trace_packets(tr, &p, tiling, quads, active, &mut h4, &mut mbs[..1]);
         tiling.unpack(&mut hits, &h4, |h, i| h.lane(i));
@@ -774,7 +794,7 @@ fn occlusion_of(
     mb: &mut Mailbox<'_>,
 ) -> Vec<bool> {
     let mut ctr = Counters::default();
-    if !cfg.method.is_packet() {
+    if !run::is_packet(cfg.method) {
         return rays.iter().map(|r| tr.occluded(r, &mut ctr)).collect();
     }
     let p = cfg.params();
@@ -1229,6 +1249,10 @@ pub fn bench(a: &BenchArgs) -> Result<(), Failure> {
     if a.whitted {
         return crate::whitted_bench::run(a);
     }
+    if a.entry {
+        return crate::entry_bench::run(a);
+    }
+    let out_dir = a.out_dir();
     let start = Instant::now();
     let (w, h) = a
         .size
@@ -1245,7 +1269,11 @@ pub fn bench(a: &BenchArgs) -> Result<(), Failure> {
             .validate()
             .or_fail(|| format!("--packets {n}"))?;
     }
-    let mut threads = a.threads.clone();
+    let mut threads = if a.threads.is_empty() {
+        vec![1, 2]
+    } else {
+        a.threads.clone()
+    };
     threads.dedup();
     if threads.is_empty() || threads.iter().any(|&t| !(1..=64).contains(&t)) {
         return Err(Failure("--threads: each must be in 1..=64".into()));
@@ -1262,17 +1290,17 @@ pub fn bench(a: &BenchArgs) -> Result<(), Failure> {
         a.ablation,
         with(crate::StructureArg::Grid),
         with(crate::StructureArg::Bvh),
+        with(crate::StructureArg::Kd),
     );
     if cfgs.is_empty() {
         return Err(Failure(
-            "--structures: name at least one of grid, bvh".into(),
+            "--structures: name at least one of grid, bvh, kd".into(),
         ));
     }
     let mut tests = a.tests.clone();
     tests.dedup_by_key(|t| test_name(*t));
     let specs = scene_specs(a)?;
-    std::fs::create_dir_all(&a.out_dir)
-        .or_fail(|| format!("cannot create {}", a.out_dir.display()))?;
+    std::fs::create_dir_all(&out_dir).or_fail(|| format!("cannot create {}", out_dir.display()))?;
     let machine = machine_line();
 
     println!(
@@ -1349,6 +1377,19 @@ pub fn bench(a: &BenchArgs) -> Result<(), Failure> {
             } else {
                 median(bvh_builds)
             };
+            let kd_params = sheaf::accel::kd::KdParams {
+                test: params.test,
+                ..Default::default()
+            };
+            let mut kd_builds = Vec::new();
+            let mut kd_info = None;
+            if cfgs.iter().any(|c| c.structure() == Structure::Kd) {
+                for _ in 0..BUILD_REPS {
+                    kd_info = Some(ctx.build_kd(&scene, &kd_params)?);
+                    kd_builds.push(ctx.stats().kd_build_ns);
+                }
+            }
+            let kd_build_ns = median(kd_builds);
             if prepared.is_none() {
                 let tr = ctx.tracer()?;
                 let (v, light, how) = view_for(&loaded, &tr, &info.bounds, w, h);
@@ -1367,7 +1408,7 @@ pub fn bench(a: &BenchArgs) -> Result<(), Failure> {
                 // Every packet side a configuration uses (the ablations' 8 too).
                 let mut sides: Vec<u32> = cfgs
                     .iter()
-                    .map(|c| c.params().tile_side())
+                    .map(|c| run::tile_side(&c.params()))
                     .filter(|&n| n > 0)
                     .collect();
                 sides.sort_unstable();
@@ -1429,6 +1470,25 @@ pub fn bench(a: &BenchArgs) -> Result<(), Failure> {
                     b.triangles as f64 / (bvh_build_ns.max(1) as f64 * 1e-3)
                 );
             }
+            let kd_line = kd_info
+                .map(|k| {
+                    format!(
+                        "kd {} nodes {} leaves {:.1}% empty avg depth {:.2}",
+                        k.nodes,
+                        k.leaves,
+                        100.0 * k.empty_leaves as f64 / k.leaves.max(1) as f64,
+                        k.avg_leaf_depth
+                    )
+                })
+                .unwrap_or_default();
+            if let Some(k) = kd_info {
+                println!(
+                    "[{}] {}: kd-tree {} (median of {BUILD_REPS} builds)",
+                    spec.name,
+                    test_name(test),
+                    crate::cmd::kd_line(&k, kd_build_ns)
+                );
+            }
             let (tr, mbs) = ctx.parts()?;
             let mut mbs: Vec<Mailbox<'_>> = mbs.take(max_threads as usize).collect();
             let mut dda: Option<(Vec<u32>, Vec<bool>)> = None;
@@ -1464,20 +1524,20 @@ pub fn bench(a: &BenchArgs) -> Result<(), Failure> {
                     size: (w, h),
                     cfg: *cfg,
                     test: test_name(test),
-                    build_ns: if cfg.method.structure() == sheaf::trace::Structure::Bvh {
-                        bvh_build_ns
-                    } else {
-                        build_ns
+                    build_ns: match cfg.structure() {
+                        Structure::Grid => build_ns,
+                        Structure::Bvh => bvh_build_ns,
+                        Structure::Kd => kd_build_ns,
                     },
-                    grid: if cfg.method.structure() == sheaf::trace::Structure::Bvh {
-                        bvh_line.clone()
-                    } else {
-                        grid_res.clone()
+                    grid: match cfg.structure() {
+                        Structure::Grid => grid_res.clone(),
+                        Structure::Bvh => bvh_line.clone(),
+                        Structure::Kd => kd_line.clone(),
                     },
-                    refs: if cfg.method.structure() == sheaf::trace::Structure::Bvh {
-                        0
-                    } else {
-                        info.refs
+                    refs: match cfg.structure() {
+                        Structure::Grid => info.refs,
+                        Structure::Bvh => 0,
+                        Structure::Kd => kd_info.map_or(0, |k| k.refs),
                     },
                     prim_rays: t.prim_rays,
                     shadow_rays: t.shadow_rays,
@@ -1523,12 +1583,12 @@ pub fn bench(a: &BenchArgs) -> Result<(), Failure> {
         start.elapsed().as_secs_f64()
     );
     let md = markdown(&rows, &notes, &header, &threads);
-    let csv_path = a.out_dir.join("bench.csv");
-    let md_path = a.out_dir.join("bench.md");
+    let csv_path = out_dir.join("bench.csv");
+    let md_path = out_dir.join("bench.md");
     std::fs::write(&csv_path, csv(&rows, &threads))
         .or_fail(|| format!("cannot write {}", csv_path.display()))?;
     std::fs::write(&md_path, &md).or_fail(|| format!("cannot write {}", md_path.display()))?;
-    let log_path = a.out_dir.join("mismatches.txt");
+    let log_path = out_dir.join("mismatches.txt");
     std::fs::write(&log_path, &mismatch_log)
         .or_fail(|| format!("cannot write {}", log_path.display()))?;
     println!("\n{md}");
@@ -1539,8 +1599,8 @@ pub fn bench(a: &BenchArgs) -> Result<(), Failure> {
         );
     }
     let (svg, png) = (
-        a.out_dir.join("speed_accuracy.svg"),
-        a.out_dir.join("speed_accuracy.png"),
+        out_dir.join("speed_accuracy.svg"),
+        out_dir.join("speed_accuracy.png"),
     );
     chart::write(&rows, &notes, (w, h), &svg, &png)?;
     println!(
@@ -1647,6 +1707,19 @@ pub(crate) mod chart {
         RGBColor(0, 109, 44),
         RGBColor(0, 68, 27),
         RGBColor(255, 200, 0),
+        // kd-tree: single, SIMD; packets 8x8 (none, MLRTA, AEPSA: purples),
+        // 16x16 (browns/oranges), other sides (teals).
+        RGBColor(60, 60, 110),
+        RGBColor(130, 130, 190),
+        RGBColor(188, 189, 220),
+        RGBColor(158, 154, 200),
+        RGBColor(84, 39, 143),
+        RGBColor(253, 208, 162),
+        RGBColor(253, 141, 60),
+        RGBColor(166, 54, 3),
+        RGBColor(153, 216, 201),
+        RGBColor(65, 174, 118),
+        RGBColor(0, 88, 36),
     ];
 
     pub(super) struct Point {
@@ -2002,7 +2075,7 @@ mod tests {
 
     #[test]
     fn labels_and_colours() {
-        let c = configs(&[2, 8, 32], true, true, false);
+        let c = configs(&[2, 8, 32], true, true, false, false);
         let labels: Vec<String> = c.iter().map(Config::label).collect();
         assert_eq!(labels[0], "grid-dda");
         assert_eq!(labels[2], "grid-cgt 8x8");
@@ -2030,8 +2103,9 @@ mod tests {
             oracle_budget: Some(1e7),
             lambda: 5.0,
             macrocell: 6,
-            out_dir: dir.clone(),
+            out_dir: Some(dir.clone()),
             whitted: false,
+            entry: false,
             structures: vec![crate::StructureArg::Grid, crate::StructureArg::Bvh],
         };
         bench(&a).unwrap();
@@ -2065,7 +2139,7 @@ mod tests {
             size: Some((32, 32)),
             packets: vec![4, 16],
             threads: vec![2],
-            out_dir: dir.join("whitted"),
+            out_dir: Some(dir.join("whitted")),
             ..a
         };
         bench(&w).unwrap();

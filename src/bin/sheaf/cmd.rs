@@ -45,6 +45,29 @@ fn grid_line(info: &GridInfo, g: &GridOpts) -> String {
     )
 }
 
+/// The kd-tree's AEPSA Table 1 line and more: triangles, nodes, leaves,
+/// % empty, average leaf depth, references per triangle, build time.
+pub(crate) fn kd_line(k: &sheaf::accel::kd::KdInfo, build_ns: u64) -> String {
+    let mut s = format!(
+        "{} triangles, {} nodes, {} leaves ({:.2} % empty), avg leaf depth {:.2} (max {}, limit {}), {} refs ({:.2} per triangle), SAH cost {:.1}, build {:.2} ms",
+        k.triangles,
+        k.nodes,
+        k.leaves,
+        100.0 * k.empty_leaves as f64 / k.leaves.max(1) as f64,
+        k.avg_leaf_depth,
+        k.depth,
+        k.max_depth,
+        k.refs,
+        k.refs as f64 / k.triangles.max(1) as f64,
+        k.sah_cost,
+        ms(build_ns)
+    );
+    if k.forced_leaves > 0 {
+        let _ = write!(s, ", {} leaves forced by full pools", k.forced_leaves);
+    }
+    s
+}
+
 fn excluded_line(l: &Loaded, info: &GridInfo) -> String {
     let mut s = format!(
         "{} ({} excluded: {} non-finite, {} zero-area)",
@@ -122,9 +145,15 @@ pub fn demo(a: &DemoArgs) -> Result<(), Failure> {
             .build_grid(&scene, &params)
             .or_fail(|| format!("frame {f}: building the grid"))?;
         let bvh = run::build_bvh_if_used(&mut ctx, &scene, params.test, &[primary, shadow])?;
+        let kd = run::build_kd_if_used(&mut ctx, &scene, params.test, &[primary, shadow])?;
         let b = ctx.stats().build_ns
             + if bvh.is_some() {
                 ctx.stats().bvh_build_ns
+            } else {
+                0
+            }
+            + if kd.is_some() {
+                ctx.stats().kd_build_ns
             } else {
                 0
             };
@@ -203,6 +232,7 @@ pub fn render(a: &RenderArgs) -> Result<(), Failure> {
         None => primary,
     };
     let bvh = run::build_bvh_if_used(&mut ctx, &scene, params.test, &[primary, shadow, secondary])?;
+    let kd = run::build_kd_if_used(&mut ctx, &scene, params.test, &[primary, shadow, secondary])?;
 
     // Camera: the builtin's view or an automatic one, then the user's overrides.
     let (lo, hi) = (info.bounds.min, info.bounds.max);
@@ -362,6 +392,9 @@ pub fn render(a: &RenderArgs) -> Result<(), Failure> {
             b.triangles as f64 / (st.bvh_build_ns.max(1) as f64 * 1e-3)
         );
     }
+    if let Some(k) = kd {
+        println!("kd-tree    {}", kd_line(&k, st.kd_build_ns));
+    }
     println!("method     {}", a.trace.label());
     if whitted {
         println!(
@@ -369,7 +402,7 @@ pub fn render(a: &RenderArgs) -> Result<(), Failure> {
             a.reflect,
             a.refract,
             a.materials,
-            if secondary.method.is_packet() {
+            if run::is_packet(secondary.method) {
                 format!(
                     "{} {}x{}",
                     secondary.method.name(),
@@ -486,6 +519,30 @@ pub fn info(a: &InfoArgs) -> Result<(), Failure> {
             required_bytes(&bvh_only)?,
             mib(required_bytes(&bvh_only)?),
             required_bytes(&bvh_only)? as f64 / n as f64
+        );
+        let k = ctx.build_kd(
+            &scene,
+            &sheaf::accel::kd::KdParams {
+                test: info.test,
+                ..Default::default()
+            },
+        )?;
+        println!("kd-tree    {}", kd_line(&k, ctx.stats().kd_build_ns));
+        let kd_only = Limits {
+            structures: Limits::KD,
+            ..*ctx.limits()
+        };
+        let kd_bytes = required_bytes(&kd_only)?;
+        println!(
+            "kd only    {kd_bytes} bytes ({:.2} MiB, {:.1} bytes/triangle) with Limits::structures = KD (pools: {} nodes, {} refs, {} build events; this tree uses {} nodes, {} refs, {} events)",
+            mib(kd_bytes),
+            kd_bytes as f64 / n as f64,
+            kd_only.kd_nodes(),
+            kd_only.kd_refs(),
+            kd_only.kd_events(),
+            k.nodes,
+            k.refs,
+            k.events_peak
         );
     }
     Ok(())

@@ -6,7 +6,8 @@ use sheaf::accel::grid::traverse_cgt::Mailbox;
 use sheaf::render::whitted::{WhittedJob, render_whitted_rows, render_whitted_tiles};
 use sheaf::render::{PrimaryRays, Tracer, render_rows, render_tiles};
 use sheaf::{
-    Counters, Error, Frame, GridInfo, GridParams, Limits, OwnedContext, Pool, Scene, TraceParams,
+    Counters, Error, Frame, GridInfo, GridParams, Limits, Method, OwnedContext, Pool, Scene,
+    TraceParams,
 };
 use std::path::Path;
 use std::sync::Mutex;
@@ -108,6 +109,106 @@ pub fn build_bvh_if_used(
         .or_fail(|| "building the BVH".into())
 }
 
+/// Build the kd-tree (default `KdParams`, triangle test `test`) when one of
+/// `params` traces it; returns its info then.
+pub fn build_kd_if_used(
+    ctx: &mut OwnedContext,
+    scene: &Scene<'_>,
+    test: sheaf::TriTest,
+    params: &[TraceParams],
+) -> Result<Option<sheaf::accel::kd::KdInfo>, Failure> {
+    if !params
+        .iter()
+        .any(|p| p.method.structure() == sheaf::trace::Structure::Kd)
+    {
+        return Ok(None);
+    }
+    let p = sheaf::accel::kd::KdParams {
+        test,
+        ..Default::default()
+    };
+    ctx.build_kd(scene, &p)
+        .map(Some)
+        .or_fail(|| "building the kd-tree".into())
+}
+
+/// `limits` with kd-tree pools that hold `scene`'s tree (parameters `p`)
+/// without leaves forced by full pools: a probe context with only the
+/// kd-tree's pools is built; while the build forces leaves, its node and
+/// reference pools are doubled (at most 3 times). Returns the limits (only
+/// `max_kd_nodes` and `max_kd_refs` changed) and the probe's last build.
+/// The build's event scratch has no knob: leaves it forces stay.
+pub fn kd_limits(
+    scene: &Scene<'_>,
+    limits: Limits,
+    p: &sheaf::accel::kd::KdParams,
+) -> Result<(Limits, sheaf::accel::kd::KdInfo), Failure> {
+    let mut probe = Limits {
+        structures: Limits::KD,
+        ..limits
+    };
+    probe.projection_test = p.test == sheaf::TriTest::Projection;
+    let mut info;
+    let mut tries = 0;
+    loop {
+        let mut ctx =
+            OwnedContext::new(&probe).or_fail(|| "creating the kd-tree context".into())?;
+        info = ctx
+            .build_kd(scene, p)
+            .or_fail(|| "building the kd-tree".into())?;
+        if info.forced_leaves == 0 || tries == 3 {
+            break;
+        }
+        tries += 1;
+        let grow = |x: u64| u32::try_from(2 * x).unwrap_or(u32::MAX);
+        probe.max_kd_nodes = grow(probe.kd_nodes());
+        probe.max_kd_refs = grow(probe.kd_refs());
+    }
+    Ok((
+        Limits {
+            max_kd_nodes: probe.max_kd_nodes,
+            max_kd_refs: probe.max_kd_refs,
+            ..limits
+        },
+        info,
+    ))
+}
+
+/// Whether `m` traces n x n packets. `Method::is_packet` does not (yet)
+/// count `KdPacket`, which takes `TraceParams::packet` all the same.
+pub fn is_packet(m: Method) -> bool {
+    m.is_packet() || m == Method::KdPacket
+}
+
+/// Whether `m` runs `TraceParams::entry` before its packets.
+pub fn uses_entry(m: Method) -> bool {
+    matches!(
+        m,
+        Method::KdPacket | Method::BvhMasked | Method::BvhRanged | Method::BvhPartition
+    )
+}
+
+/// `TraceParams::tile_side`, with `KdPacket` tracing `packet` x `packet`
+/// tiles (see `is_packet`).
+pub fn tile_side(p: &TraceParams) -> u32 {
+    if p.method == Method::KdPacket {
+        p.packet
+    } else {
+        p.tile_side()
+    }
+}
+
+/// `TraceParams::validate`, plus the packet side of `KdPacket`.
+pub fn validate(p: &TraceParams) -> Result<(), Error> {
+    p.validate()?;
+    if is_packet(p.method) && !matches!(p.packet, 2 | 4 | 8 | 16 | 32) {
+        return Err(Error::InvalidArgument(
+            "packet side must be 2, 4, 8, 16 or 32",
+        ));
+    }
+    Ok(())
+}
+
 /// Render `frame` into `pixels` (RGBA8, stride `4 * width`) on `threads`
 /// threads, each with its own mailbox slot of the context, and record the
 /// counters and the wall time in the context's stats.
@@ -148,7 +249,7 @@ fn render_bands<T: Tracer>(
     stride: usize,
     mailboxes: Vec<Mailbox<'_>>,
 ) -> Counters {
-    let side = primary.tile_side().max(shadow.tile_side());
+    let side = tile_side(primary).max(tile_side(shadow));
     let tile = TraceParams {
         packet: side,
         ..*primary
@@ -249,11 +350,9 @@ pub fn render_whitted_frame(
     tracer.with_single(job.secondary.method)?;
     let tracer = tracer.with_single(job.primary.method)?;
     let mailboxes: Vec<Mailbox<'_>> = mailboxes.take(threads as usize).collect();
-    let side = job
-        .primary
-        .tile_side()
-        .max(job.shadow.tile_side())
-        .max(job.secondary.tile_side());
+    let side = tile_side(&job.primary)
+        .max(tile_side(&job.shadow))
+        .max(tile_side(&job.secondary));
     let tiled = WhittedJob {
         primary: TraceParams {
             packet: side,

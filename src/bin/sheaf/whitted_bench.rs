@@ -229,7 +229,8 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
     let (w, h) = a
         .size
         .unwrap_or(if a.quick { (256, 256) } else { (1024, 1024) });
-    let threads = *a.threads.iter().max().unwrap_or(&1);
+    let threads = *a.threads.iter().max().unwrap_or(&2);
+    let out_dir = a.out_dir();
     if !(1..=64).contains(&threads) {
         return Err(Failure("--threads: each must be in 1..=64".into()));
     }
@@ -252,8 +253,7 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
         _ => sheaf::TriTest::MollerTrumbore,
     };
     let specs: Vec<SceneSpec> = scene_specs(a)?;
-    std::fs::create_dir_all(&a.out_dir)
-        .or_fail(|| format!("cannot create {}", a.out_dir.display()))?;
+    std::fs::create_dir_all(&out_dir).or_fail(|| format!("cannot create {}", out_dir.display()))?;
     let machine = machine_line();
     let mut cfgs = vec![Config {
         primary: Method::BvhSimd,
@@ -443,7 +443,7 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
                 );
                 if lv.name == WHITTED.name {
                     if k == 2 {
-                        let png = a.out_dir.join(format!("whitted_{}.png", spec.name));
+                        let png = out_dir.join(format!("whitted_{}.png", spec.name));
                         run::write_png(&png, &pixels, w, h)?;
                     }
                     t2.push(row);
@@ -463,12 +463,12 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
         reps,
         start.elapsed().as_secs_f64(),
     );
-    let md_path = a.out_dir.join("whitted.md");
+    let md_path = out_dir.join("whitted.md");
     std::fs::write(&md_path, &md).or_fail(|| format!("cannot write {}", md_path.display()))?;
-    let csv_path = a.out_dir.join("whitted.csv");
+    let csv_path = out_dir.join("whitted.csv");
     std::fs::write(&csv_path, csv(&rows, &t2))
         .or_fail(|| format!("cannot write {}", csv_path.display()))?;
-    let (svg, png) = (a.out_dir.join("figure5.svg"), a.out_dir.join("figure5.png"));
+    let (svg, png) = (out_dir.join("figure5.svg"), out_dir.join("figure5.png"));
     figure5::write(&rows, &packets, &svg, &png)?;
     println!("\n{md}");
     let differ: usize = rows.iter().chain(&t2).map(|r| r.diff).sum();

@@ -1,0 +1,1668 @@
+//! `sheaf bench --entry`: the AEPSA paper's section 5 on our scenes
+//! (papers/entry-point-search-aepsa.txt).
+//!
+//! Per scene (the built-in scenes and the OBJ scenes of `--scenes-dir`),
+//! the scene's reference view (`bench::view_for`) at 512x512 with one point
+//! light at the eye, as the paper's section 5.1:
+//! - Table 1: triangles, leaves, % empty leaves, average leaf depth (and
+//!   nodes, references per triangle, build ms: median of `BUILD_REPS`).
+//! - Figure 5: the average depth of the entry points MLRTA and AEPSA find
+//!   for the primary packets' ray proxy frusta (a search that finds no leaf
+//!   counts at the tree's average leaf depth, as the paper does), and
+//!   AEPSA's extra depth in per cent.
+//! - Search time per packet of both full searches (phase 1 + phase 2) and
+//!   Figure 6's phase-2 comparison: MLRTA's phase 1 once per packet, then
+//!   MLRTA's phase 2 against AEPSA's (`traverse_aepsa::phase2_with`) on the
+//!   same candidates with MLRTA's leaf test, so both return the same entry
+//!   point (checked); also AEPSA's phase 2 with its own triangle test.
+//!   Nodes visited per search.
+//! - Nodes visited from the entry point: split-plane steps (`aabb_tests`,
+//!   one per 2x2 quad and node) and triangle tests (per lane) of the kd
+//!   packet traversal after the search, per packet, for no search, MLRTA
+//!   and AEPSA; every hit is checked against the single-ray kd traversal.
+//! - Frames per second of the whole frame (ray generation, traversal,
+//!   shadow rays to the light at the eye, shading) on 1 thread and on the
+//!   machine's hardware threads, median of `--reps` (default 5) runs after
+//!   an untimed one: kd packets without search, with MLRTA, with AEPSA;
+//!   the kd 2x2 SIMD ray and single ray; the BVH's Ranged 16x16 packets
+//!   without search and with AEPSA. Every frame is compared pixel for
+//!   pixel with the kd single-ray frame.
+//!
+//! Packet sides 8x8 and 16x16 (`--packets` to change); the headline (the
+//! summary ratios and the chart) is 16x16, the side of the BVH row.
+//!
+//! Search and phase times are measured over every packet of the frame in
+//! a loop (one frustum per packet built beforehand, so frustum building is
+//! not in them), repeated until a sample takes `SAMPLE_NS`, MLRTA and AEPSA
+//! samples interleaved, median of `SAMPLES`; single thread.
+#![forbid(unsafe_code)]
+
+use crate::bench::{SceneSpec, chart, command_line, machine_line, median, scene_specs, view_for};
+use crate::load;
+use crate::run::{self, ms};
+use crate::{BenchArgs, Failure, OrFail, TestArg};
+use glam::Vec3;
+use sheaf::accel::entry::{CandidateQueue, EntryResult, LeafGoal, dir_signs, live_mask};
+use sheaf::accel::grid::traverse_cgt::Mailbox;
+use sheaf::accel::kd::{KdInfo, KdParams, KdView, traverse_aepsa, traverse_mlrta};
+use sheaf::geom::frustum::Frustum;
+use sheaf::geom::{Hit4, M4, Ray4};
+use sheaf::render::{PrimaryRays, Tracer, demorton};
+use sheaf::trace::{BvhOptions, EntrySearch, RayKind};
+use sheaf::{
+    BvhParams, Camera, Counters, Frame, Hit, Limits, Method, OwnedContext, PointLight, Ray,
+    Shading, TraceParams,
+};
+use std::fmt::Write as _;
+use std::hint::black_box;
+use std::time::Instant;
+
+/// kd-tree builds per scene; the median is reported.
+const BUILD_REPS: usize = 5;
+/// Timed samples of each search measurement (the median is reported).
+const SAMPLES: usize = 7;
+/// A search sample repeats its pass over every packet until it took this long.
+const SAMPLE_NS: u64 = 15_000_000;
+const QUICK_SAMPLE_NS: u64 = 4_000_000;
+/// The packet side of the summary ratios and the chart (when measured).
+const HEADLINE: u32 = 16;
+/// The BVH rows: Ranged traversal at this side.
+const BVH_SIDE: u32 = 16;
+/// Pixel of a lane that is not in the image.
+const NO_PIXEL: u32 = u32::MAX;
+
+const SEARCHES: [EntrySearch; 3] = [EntrySearch::None, EntrySearch::Mlrta, EntrySearch::Aepsa];
+
+/// The primary rays of a frame as n x n packets: `q` quads each, quads in
+/// Morton order within a tile (as `render::render_tiles` packs them), tiles
+/// row by row.
+struct Packets {
+    q: usize,
+    quads: Vec<Ray4>,
+    active: Vec<M4>,
+    /// Pixel of lane `4 * quad + lane`, or `NO_PIXEL`.
+    pix: Vec<u32>,
+}
+
+impl Packets {
+    fn new(rays: &PrimaryRays, w: u32, h: u32, side: u32, pad: Ray) -> Packets {
+        let q = (side as usize / 2).pow(2);
+        let (tx_n, ty_n) = (w.div_ceil(side), h.div_ceil(side));
+        let n = (tx_n * ty_n) as usize * q;
+        let mut p = Packets {
+            q,
+            quads: Vec::with_capacity(n),
+            active: Vec::with_capacity(n),
+            pix: Vec::with_capacity(4 * n),
+        };
+        for ty in 0..ty_n {
+            for tx in 0..tx_n {
+                for k in 0..q {
+                    let (qx, qy) = demorton(k);
+                    let mut lanes = [pad; 4];
+                    let mut on = [false; 4];
+                    for (i, (dx, dy)) in [(0, 0), (1, 0), (0, 1), (1, 1)].into_iter().enumerate() {
+                        let (x, y) = (tx * side + 2 * qx + dx, ty * side + 2 * qy + dy);
+                        if x < w && y < h {
+                            lanes[i] = rays.ray(x, y);
+                            on[i] = true;
+                            p.pix.push(y * w + x);
+                        } else {
+                            p.pix.push(NO_PIXEL);
+                        }
+                    }
+                    p.quads.push(Ray4::from_rays(&lanes));
+                    p.active.push(M4::new(on[0], on[1], on[2], on[3]));
+                }
+            }
+        }
+        p
+    }
+    fn count(&self) -> usize {
+        self.quads.len() / self.q
+    }
+    /// Packet `i`: its quads and active masks.
+    fn packet(&self, i: usize) -> (&[Ray4], &[M4]) {
+        let r = i * self.q..(i + 1) * self.q;
+        (&self.quads[r.clone()], &self.active[r])
+    }
+}
+
+/// A packet's ray proxy frustum and direction signs, as the kd packets
+/// build them (`RayKind::Primary`, the tree's root box).
+struct Proxy {
+    f: Frustum,
+    neg: [bool; 3],
+}
+
+fn proxies(p: &Packets, root: &sheaf::geom::Aabb) -> (Vec<Proxy>, u64) {
+    let mut out = Vec::with_capacity(p.count());
+    let mut none = 0;
+    for i in 0..p.count() {
+        let (quads, active) = p.packet(i);
+        let live: Vec<M4> = quads
+            .iter()
+            .zip(active)
+            .map(|(r, m)| live_mask(r, *m))
+            .collect();
+        match Frustum::new(RayKind::Primary, quads, &live, root) {
+            Some(f) => out.push(Proxy {
+                f,
+                neg: dir_signs(quads, &live),
+            }),
+            None => none += 1,
+        }
+    }
+    (out, none)
+}
+
+/// One search's results summed over the packets.
+#[derive(Clone, Copy, Debug, Default)]
+struct SearchStats {
+    /// Entry depths, misses at the tree's (unrounded) average leaf depth.
+    depth_sum: f64,
+    /// Entry depths of the searches that found an entry point.
+    found_depth_sum: u64,
+    found: u64,
+    misses: u64,
+    phase1_nodes: u64,
+    phase2_nodes: u64,
+    candidates: u64,
+    tested: u64,
+}
+
+impl SearchStats {
+    fn add(&mut self, r: &EntryResult, miss_depth: f64) {
+        match &r.entry {
+            Some(e) => {
+                self.depth_sum += e.depth as f64;
+                self.found_depth_sum += e.depth as u64;
+                self.found += 1;
+            }
+            None => {
+                self.depth_sum += miss_depth;
+                self.misses += 1;
+            }
+        }
+        self.phase1_nodes += r.phase1_nodes as u64;
+        self.phase2_nodes += r.phase2_nodes as u64;
+        self.candidates += r.candidates as u64;
+        self.tested += r.tested as u64;
+    }
+    fn searches(&self) -> u64 {
+        self.found + self.misses
+    }
+    fn avg_depth(&self) -> f64 {
+        ratio_f(self.depth_sum, self.searches() as f64)
+    }
+    fn avg_found_depth(&self) -> f64 {
+        ratio_f(self.found_depth_sum as f64, self.found as f64)
+    }
+    fn nodes(&self) -> u64 {
+        self.phase1_nodes + self.phase2_nodes
+    }
+}
+
+/// The kd packet traversal of every primary packet with one search.
+#[derive(Clone, Copy, Debug, Default)]
+struct Traversal {
+    ctr: Counters,
+    /// Single thread, primary rays only, median of `reps`.
+    ns: u64,
+    /// Lanes whose hit (triangle or t) differs from the kd single ray's.
+    diff: u64,
+}
+
+/// Everything measured on one scene at one packet side.
+#[derive(Clone, Debug, Default)]
+struct EntryRow {
+    scene: String,
+    obj: bool,
+    side: u32,
+    packets: u64,
+    /// Packets without a frustum (no valid lane): never searched.
+    no_frustum: u64,
+    miss_depth: f64,
+    m: SearchStats,
+    a: SearchStats,
+    /// Packets whose AEPSA entry point is deeper / as deep / shallower
+    /// (misses at the average leaf depth).
+    deeper: u64,
+    same: u64,
+    shallower: u64,
+    /// Full searches and phase 1 alone, ns per packet.
+    m_search_ns: f64,
+    a_search_ns: f64,
+    m_phase1_ns: f64,
+    a_phase1_ns: f64,
+    /// Figure 6, on MLRTA's phase-1 candidates of the packets with a leaf.
+    fig6_packets: u64,
+    m_p2_ns: f64,
+    a_p2_ns: f64,
+    a_p2_tri_ns: f64,
+    m_p2_nodes: u64,
+    a_p2_nodes: u64,
+    a_p2_tri_nodes: u64,
+    m_p2_tested: u64,
+    a_p2_tested: u64,
+    /// Packets where `phase2_with(.., Occupied)` returned another entry
+    /// point than MLRTA's phase 2 (must be 0).
+    fig6_entry_diff: u64,
+    /// Per `SEARCHES`.
+    trav: [Traversal; 3],
+}
+
+impl EntryRow {
+    fn extra_depth_pct(&self) -> f64 {
+        let (m, a) = (self.m.avg_depth(), self.a.avg_depth());
+        if m > 0.0 { (a - m) / m * 100.0 } else { 0.0 }
+    }
+    fn search_speedup(&self) -> f64 {
+        ratio_f(self.m_search_ns, self.a_search_ns)
+    }
+    fn phase2_speedup(&self) -> f64 {
+        ratio_f(self.m_p2_ns, self.a_p2_ns)
+    }
+    /// Traversal steps + triangle tests per packet after the search.
+    fn visited(&self, s: usize) -> f64 {
+        let c = &self.trav[s].ctr;
+        ratio_f((c.aabb_tests + c.tri_tests) as f64, self.packets as f64)
+    }
+}
+
+/// One end-to-end configuration.
+#[derive(Clone, Copy, Debug)]
+struct FpsConfig {
+    method: Method,
+    side: u32,
+    entry: EntrySearch,
+}
+
+impl FpsConfig {
+    fn label(&self) -> String {
+        match self.method {
+            Method::KdSingle | Method::KdSimd => self.method.name().to_string(),
+            _ => format!(
+                "{} {}x{} {}",
+                self.method.name(),
+                self.side,
+                self.side,
+                self.entry.name()
+            ),
+        }
+    }
+    fn params(&self) -> TraceParams {
+        TraceParams {
+            method: self.method,
+            packet: self.side.max(2),
+            bvh: BvhOptions {
+                culling: true,
+                kind: RayKind::Auto,
+            },
+            entry: self.entry,
+            ..TraceParams::default()
+        }
+    }
+}
+
+/// One frame rate measured.
+#[derive(Clone, Debug)]
+struct FpsRow {
+    scene: String,
+    obj: bool,
+    cfg: FpsConfig,
+    threads: u32,
+    ns: u64,
+    /// Counters of the untimed run (all threads).
+    ctr: Counters,
+    /// Pixels differing from the kd single-ray frame.
+    diff: usize,
+}
+
+impl FpsRow {
+    fn fps(&self) -> f64 {
+        ratio_f(1e9, self.ns as f64)
+    }
+}
+
+struct Table1Row {
+    scene: String,
+    info: KdInfo,
+    build_ns: u64,
+    bvh_build_ns: u64,
+    view: String,
+}
+
+fn ratio_f(a: f64, b: f64) -> f64 {
+    if b == 0.0 { 0.0 } else { a / b }
+}
+
+/// ns per call of each pass in `passes` (each calls its work `n` times):
+/// calibrated so a sample takes about `sample_ns`, samples of the passes
+/// interleaved, median of `SAMPLES`.
+fn time_passes(n: usize, sample_ns: u64, passes: &mut [&mut dyn FnMut()]) -> Vec<f64> {
+    if n == 0 {
+        return vec![0.0; passes.len()];
+    }
+    let reps: Vec<u64> = passes
+        .iter_mut()
+        .map(|f| {
+            let t = Instant::now();
+            f();
+            let ns = (t.elapsed().as_nanos() as u64).max(1);
+            sample_ns.div_ceil(ns).max(1)
+        })
+        .collect();
+    let mut samples = vec![Vec::with_capacity(SAMPLES); passes.len()];
+    for _ in 0..SAMPLES {
+        for (k, f) in passes.iter_mut().enumerate() {
+            let t = Instant::now();
+            for _ in 0..reps[k] {
+                f();
+            }
+            samples[k].push(t.elapsed().as_nanos() as u64);
+        }
+    }
+    samples
+        .into_iter()
+        .zip(&reps)
+        .map(|(s, &r)| median(s) as f64 / (r as f64 * n as f64))
+        .collect()
+}
+
+/// The entry-point measurements of one packet side (Figure 5, search
+/// times, Figure 6), over the frusta of `pk`.
+fn searches(row: &mut EntryRow, kv: &KdView<'_>, px: &[Proxy], sample_ns: u64) {
+    let miss_depth = kv.info.avg_leaf_depth as f64;
+    row.miss_depth = miss_depth;
+    for p in px {
+        let m = traverse_mlrta::search(kv, &p.f, p.neg);
+        let a = traverse_aepsa::search(kv, &p.f, p.neg);
+        row.m.add(&m, miss_depth);
+        row.a.add(&a, miss_depth);
+        let depth = |r: &EntryResult| r.entry.map_or(miss_depth, |e| e.depth as f64);
+        let (dm, da) = (depth(&m), depth(&a));
+        if da > dm {
+            row.deeper += 1;
+        } else if da < dm {
+            row.shallower += 1;
+        } else {
+            row.same += 1;
+        }
+    }
+    // Full searches and phase 1.
+    let n = px.len();
+    let t = time_passes(
+        n,
+        sample_ns,
+        &mut [
+            &mut || {
+                for p in px {
+                    black_box(traverse_mlrta::search(black_box(kv), &p.f, p.neg));
+                }
+            },
+            &mut || {
+                for p in px {
+                    black_box(traverse_aepsa::search(black_box(kv), &p.f, p.neg));
+                }
+            },
+            &mut || {
+                for p in px {
+                    black_box(traverse_mlrta::phase1(black_box(kv), &p.f, p.neg));
+                }
+            },
+            &mut || {
+                for p in px {
+                    black_box(traverse_aepsa::phase1(black_box(kv), &p.f, p.neg));
+                }
+            },
+        ],
+    );
+    (
+        row.m_search_ns,
+        row.a_search_ns,
+        row.m_phase1_ns,
+        row.a_phase1_ns,
+    ) = (t[0], t[1], t[2], t[3]);
+    // Figure 6: MLRTA's phase 1 once, then both phase 2s on its candidates.
+    let fig: Vec<(&Proxy, CandidateQueue)> = px
+        .iter()
+        .map(|p| (p, traverse_mlrta::phase1(kv, &p.f, p.neg)))
+        .filter(|(_, q)| !q.is_empty())
+        .collect();
+    row.fig6_packets = fig.len() as u64;
+    for (p, q) in &fig {
+        let (Some(m), Some(a), Some(at)) = (
+            traverse_mlrta::phase2(kv, &p.f, p.neg, q),
+            traverse_aepsa::phase2_with(kv, &p.f, p.neg, q, LeafGoal::Occupied),
+            traverse_aepsa::phase2_with(kv, &p.f, p.neg, q, LeafGoal::Overlapped),
+        ) else {
+            continue;
+        };
+        row.m_p2_nodes += m.visited as u64;
+        row.a_p2_nodes += a.visited as u64;
+        row.a_p2_tri_nodes += at.visited as u64;
+        row.m_p2_tested += m.tested as u64;
+        row.a_p2_tested += a.tested as u64;
+        row.fig6_entry_diff += (m.entry.node != a.entry.node) as u64;
+    }
+    let t = time_passes(
+        fig.len(),
+        sample_ns,
+        &mut [
+            &mut || {
+                for (p, q) in &fig {
+                    black_box(traverse_mlrta::phase2(black_box(kv), &p.f, p.neg, q));
+                }
+            },
+            &mut || {
+                for (p, q) in &fig {
+                    black_box(traverse_aepsa::phase2_with(
+                        black_box(kv),
+                        &p.f,
+                        p.neg,
+                        q,
+                        LeafGoal::Occupied,
+                    ));
+                }
+            },
+            &mut || {
+                for (p, q) in &fig {
+                    black_box(traverse_aepsa::phase2_with(
+                        black_box(kv),
+                        &p.f,
+                        p.neg,
+                        q,
+                        LeafGoal::Overlapped,
+                    ));
+                }
+            },
+        ],
+    );
+    (row.m_p2_ns, row.a_p2_ns, row.a_p2_tri_ns) = (t[0], t[1], t[2]);
+}
+
+pub fn run(a: &BenchArgs) -> Result<(), Failure> {
+    let start = Instant::now();
+    let (w, h) = a
+        .size
+        .unwrap_or(if a.quick { (256, 256) } else { (512, 512) });
+    let hw = std::thread::available_parallelism().map_or(1, |n| n.get() as u32);
+    let mut threads = if a.threads.is_empty() {
+        vec![1, hw]
+    } else {
+        a.threads.clone()
+    };
+    threads.sort_unstable();
+    threads.dedup();
+    if threads.iter().any(|&t| !(1..=64).contains(&t)) {
+        return Err(Failure("--threads: each must be in 1..=64".into()));
+    }
+    let max_threads = *threads.last().unwrap_or(&1);
+    let reps = a.reps.unwrap_or(5).max(1);
+    let sample_ns = if a.quick { QUICK_SAMPLE_NS } else { SAMPLE_NS };
+    let mut sides: Vec<u32> = if a.packets.is_empty() {
+        vec![8, 16]
+    } else {
+        a.packets.clone()
+    };
+    sides.sort_unstable();
+    sides.dedup();
+    for &n in &sides {
+        if !matches!(n, 4 | 8 | 16 | 32) {
+            return Err(Failure(format!("--packets {n}: must be 4, 8, 16 or 32")));
+        }
+    }
+    let headline = if sides.contains(&HEADLINE) {
+        HEADLINE
+    } else {
+        *sides.last().unwrap_or(&8)
+    };
+    let test = match a.tests.first() {
+        Some(TestArg::Watertight) => sheaf::TriTest::Watertight,
+        Some(TestArg::Projection) => sheaf::TriTest::Projection,
+        _ => sheaf::TriTest::MollerTrumbore,
+    };
+    let specs: Vec<SceneSpec> = if a.quick && a.scenes.is_empty() {
+        sheaf::scenes::BUILTIN_NAMES
+            .iter()
+            .map(|n| SceneSpec {
+                name: n.to_string(),
+                load: format!("builtin:{n}"),
+            })
+            .collect()
+    } else {
+        scene_specs(a)?
+    };
+    let out_dir = a.out_dir();
+    std::fs::create_dir_all(&out_dir).or_fail(|| format!("cannot create {}", out_dir.display()))?;
+    let machine = machine_line();
+    let mut fps_cfgs = vec![
+        FpsConfig {
+            method: Method::KdSingle,
+            side: 0,
+            entry: EntrySearch::None,
+        },
+        FpsConfig {
+            method: Method::KdSimd,
+            side: 2,
+            entry: EntrySearch::None,
+        },
+    ];
+    for &n in &sides {
+        for e in SEARCHES {
+            fps_cfgs.push(FpsConfig {
+                method: Method::KdPacket,
+                side: n,
+                entry: e,
+            });
+        }
+    }
+    for e in [EntrySearch::None, EntrySearch::Aepsa] {
+        fps_cfgs.push(FpsConfig {
+            method: Method::BvhRanged,
+            side: BVH_SIDE,
+            entry: e,
+        });
+    }
+    println!(
+        "sheaf bench --entry: {} scenes, {w}x{h}, packets {:?} (headline {headline}x{headline}), threads {threads:?}, {} frame configurations, median of {reps} frames, {test:?}, machine: {machine}",
+        specs.len(),
+        sides,
+        fps_cfgs.len()
+    );
+
+    let mut table1: Vec<Table1Row> = Vec::new();
+    let mut rows: Vec<EntryRow> = Vec::new();
+    let mut fps: Vec<FpsRow> = Vec::new();
+    for spec in &specs {
+        let obj = !spec.load.starts_with("builtin:");
+        let loaded = match load::load(&spec.load) {
+            Ok(l) => l,
+            Err(e) => {
+                println!("note: {}: {e}, skipped", spec.name);
+                continue;
+            }
+        };
+        let scene = loaded.scene()?;
+        if scene.triangle_count() == 0 {
+            println!("note: {}: no triangles, skipped", spec.name);
+            continue;
+        }
+        let mut limits: Limits = run::limits(&scene, (w, h), max_threads);
+        limits.structures = Limits::KD | Limits::BVH;
+        limits.projection_test = test == sheaf::TriTest::Projection;
+        let kp = KdParams {
+            test,
+            ..KdParams::default()
+        };
+        // kd pools large enough that no leaf is forced (gears needs more
+        // references than the default rule gives).
+        let (limits, probe) = run::kd_limits(&scene, limits, &kp)?;
+        if limits.max_kd_refs != 0 {
+            println!(
+                "[{}] kd pools grown to {} nodes, {} references so the build forces no leaf{}",
+                spec.name,
+                limits.kd_nodes(),
+                limits.kd_refs(),
+                if probe.forced_leaves > 0 {
+                    format!(" (still {} forced: event scratch)", probe.forced_leaves)
+                } else {
+                    String::new()
+                }
+            );
+        }
+        let mut ctx = OwnedContext::new(&limits).or_fail(|| "creating the context".into())?;
+
+        // Table 1.
+        let mut builds = Vec::new();
+        let mut info = KdInfo::default();
+        for _ in 0..BUILD_REPS {
+            info = ctx
+                .build_kd(&scene, &kp)
+                .or_fail(|| format!("{}: building the kd-tree", spec.name))?;
+            builds.push(ctx.stats().kd_build_ns);
+        }
+        if info.triangles == 0 {
+            println!(
+                "note: {}: every triangle is degenerate or non-finite, skipped",
+                spec.name
+            );
+            continue;
+        }
+        let build_ns = median(builds);
+        ctx.build_bvh(
+            &scene,
+            &BvhParams {
+                test,
+                ..BvhParams::default()
+            },
+        )
+        .or_fail(|| format!("{}: building the BVH", spec.name))?;
+        let bvh_build_ns = ctx.stats().bvh_build_ns;
+        let (v, _, how) = view_for(&loaded, &ctx.tracer()?, &info.bounds, w, h);
+        println!(
+            "[{}] kd-tree {} (median of {BUILD_REPS}); BVH build {:.1} ms; view {how}",
+            spec.name,
+            crate::cmd::kd_line(&info, build_ns),
+            ms(bvh_build_ns)
+        );
+        table1.push(Table1Row {
+            scene: spec.name.clone(),
+            info,
+            build_ns,
+            bvh_build_ns,
+            view: how,
+        });
+        let cam = Camera {
+            eye: v.eye.to_array(),
+            look_at: v.look_at.to_array(),
+            up: v.up.to_array(),
+            fov_y_deg: v.fov_y_deg,
+        };
+        let frame = Frame {
+            camera: cam,
+            // The paper's setup: one light at the eye point.
+            light: PointLight {
+                position: cam.eye,
+                color: [1.0; 3],
+            },
+            shading: Shading {
+                shadows: true,
+                ..Shading::default()
+            },
+            width: w,
+            height: h,
+        };
+        let prim = PrimaryRays::new(&cam, w, h)?;
+        let pad = Ray::new(v.eye, Vec3::X, 0.0, 0.0);
+
+        // Entry points, search times, traversal from the entry point.
+        {
+            let (tr, mut mbs) = ctx.parts()?;
+            let mut mb = mbs.next().ok_or_else(|| Failure("no thread slot".into()))?;
+            let kt = tr.kd().ok_or_else(|| Failure("kd-tree not built".into()))?;
+            let kv = kt.view;
+            // Reference: the kd single ray per pixel.
+            let mut c0 = Counters::default();
+            let reference: Vec<Hit> = (0..h)
+                .flat_map(|y| (0..w).map(move |x| (x, y)))
+                .map(|(x, y)| kt.intersect(&prim.ray(x, y), &mut c0))
+                .collect();
+            for &side in &sides {
+                let pk = Packets::new(&prim, w, h, side, pad);
+                let (px, no_frustum) = proxies(&pk, &info.root);
+                let mut row = EntryRow {
+                    scene: spec.name.clone(),
+                    obj,
+                    side,
+                    packets: pk.count() as u64,
+                    no_frustum,
+                    ..EntryRow::default()
+                };
+                searches(&mut row, &kv, &px, sample_ns);
+                println!(
+                    "[{}] {side}x{side}: {} packets; entry depth MLRTA {:.2} AEPSA {:.2} ({:+.2} %), misses {} / {}; search {:.0} / {:.0} ns per packet ({:.2}x), nodes {:.1} / {:.1}; Figure 6 phase 2 {:.0} / {:.0} ns ({:.2}x), nodes {:.1} / {:.1}",
+                    spec.name,
+                    row.packets,
+                    row.m.avg_depth(),
+                    row.a.avg_depth(),
+                    row.extra_depth_pct(),
+                    row.m.misses,
+                    row.a.misses,
+                    row.m_search_ns,
+                    row.a_search_ns,
+                    row.search_speedup(),
+                    ratio_f(row.m.nodes() as f64, row.m.searches() as f64),
+                    ratio_f(row.a.nodes() as f64, row.a.searches() as f64),
+                    row.m_p2_ns,
+                    row.a_p2_ns,
+                    row.phase2_speedup(),
+                    ratio_f(row.m_p2_nodes as f64, row.fig6_packets as f64),
+                    ratio_f(row.a_p2_nodes as f64, row.fig6_packets as f64),
+                );
+                if row.fig6_entry_diff > 0 {
+                    println!(
+                        "[{}] WARNING: Figure 6: AEPSA's phase 2 with MLRTA's leaf test returned another entry point than MLRTA's on {} packets",
+                        spec.name, row.fig6_entry_diff
+                    );
+                }
+                // Each search's packets once untimed (counters, hits
+                // checked), then `reps` rounds timing each in turn.
+                let mut hits = vec![Hit4::MISS; pk.quads.len()];
+                let ps = SEARCHES.map(|e| {
+                    TraceParams {
+                        method: Method::KdPacket,
+                        packet: side,
+                        entry: e,
+                        ..TraceParams::default()
+                    }
+                    .with_kind(RayKind::Primary)
+                });
+                let pass = |p: &TraceParams,
+                            mb: &mut Mailbox<'_>,
+                            ctr: &mut Counters,
+                            hits: &mut [Hit4]| {
+                    for i in 0..pk.count() {
+                        let (r, m) = pk.packet(i);
+                        let hq = &mut hits[i * pk.q..(i + 1) * pk.q];
+                        hq.fill(Hit4::MISS);
+                        kt.intersect_packet(p, r, m, hq, mb, ctr);
+                    }
+                };
+                for (k, p) in ps.iter().enumerate() {
+                    let mut ctr = Counters::default();
+                    pass(p, &mut mb, &mut ctr, &mut hits);
+                    let diff = pk
+                        .pix
+                        .iter()
+                        .enumerate()
+                        .filter(|&(_, &px)| px != NO_PIXEL)
+                        .filter(|&(l, &px)| {
+                            let (got, want) = (hits[l / 4].lane(l % 4), reference[px as usize]);
+                            got.prim != want.prim || got.t.to_bits() != want.t.to_bits()
+                        })
+                        .count() as u64;
+                    row.trav[k] = Traversal { ctr, ns: 0, diff };
+                }
+                let mut times = [(); 3].map(|_| Vec::with_capacity(reps as usize));
+                let mut scratch = Counters::default();
+                for _ in 0..reps {
+                    for (k, p) in ps.iter().enumerate() {
+                        let t0 = Instant::now();
+                        pass(p, &mut mb, &mut scratch, &mut hits);
+                        times[k].push(t0.elapsed().as_nanos() as u64);
+                    }
+                }
+                for (k, ts) in times.into_iter().enumerate() {
+                    let tr = &mut row.trav[k];
+                    tr.ns = median(ts);
+                    let ctr = tr.ctr;
+                    println!(
+                        "[{}] {side}x{side} kd-packet {:<5}: {:>7.1} node steps + {:>7.1} triangle tests per packet after the search, {} searches, primary rays {:.2} ms (1 thread){}",
+                        spec.name,
+                        SEARCHES[k].name(),
+                        ratio_f(ctr.aabb_tests as f64, row.packets as f64),
+                        ratio_f(ctr.tri_tests as f64, row.packets as f64),
+                        ctr.entry_searches,
+                        ms(tr.ns),
+                        if tr.diff > 0 {
+                            format!("  DIFFERS FROM kd-single on {} rays", tr.diff)
+                        } else {
+                            String::new()
+                        }
+                    );
+                }
+                rows.push(row);
+            }
+        }
+
+        // Frames per second.
+        // Per thread count: an untimed frame of every configuration
+        // (counters, image check), then `reps` rounds timing one frame of
+        // each configuration in turn, so a busy spell of the machine falls
+        // on every configuration alike.
+        let mut pixels = vec![0u8; w as usize * h as usize * 4];
+        let mut base: Vec<u8> = Vec::new();
+        let params: Vec<(TraceParams, TraceParams)> = fps_cfgs
+            .iter()
+            .map(|c| {
+                let p = c.params();
+                (p.with_kind(RayKind::Primary), p.with_kind(RayKind::Shadow))
+            })
+            .collect();
+        for &t in &threads {
+            let mut first = Vec::new();
+            for (pp, ps) in &params {
+                let ctr = run::render_frame(&mut ctx, pp, ps, &frame, &mut pixels, t)?;
+                if base.is_empty() {
+                    base = pixels.clone();
+                }
+                let diff = pixels
+                    .chunks_exact(4)
+                    .zip(base.chunks_exact(4))
+                    .filter(|(x, y)| x != y)
+                    .count();
+                first.push((ctr, diff));
+            }
+            let mut times = vec![Vec::with_capacity(reps as usize); params.len()];
+            for _ in 0..reps {
+                for (k, (pp, ps)) in params.iter().enumerate() {
+                    let t0 = Instant::now();
+                    run::render_frame(&mut ctx, pp, ps, &frame, &mut pixels, t)?;
+                    times[k].push(t0.elapsed().as_nanos() as u64);
+                }
+            }
+            for ((cfg, (ctr, diff)), ts) in fps_cfgs.iter().zip(first).zip(times) {
+                let r = FpsRow {
+                    scene: spec.name.clone(),
+                    obj,
+                    cfg: *cfg,
+                    threads: t,
+                    ns: median(ts),
+                    ctr,
+                    diff,
+                };
+                println!(
+                    "[{}] frame {:<26} {t} thread(s): {:>8.2} ms = {:>7.2} fps{}",
+                    spec.name,
+                    cfg.label(),
+                    ms(r.ns),
+                    r.fps(),
+                    if diff > 0 {
+                        format!("  IMAGE DIFFERS from kd-single: {diff} pixels")
+                    } else {
+                        String::new()
+                    }
+                );
+                fps.push(r);
+            }
+        }
+        {
+            // One frame to look at (AEPSA, headline side).
+            let cfg = FpsConfig {
+                method: Method::KdPacket,
+                side: headline,
+                entry: EntrySearch::Aepsa,
+            };
+            let p = cfg.params();
+            run::render_frame(
+                &mut ctx,
+                &p.with_kind(RayKind::Primary),
+                &p.with_kind(RayKind::Shadow),
+                &frame,
+                &mut pixels,
+                max_threads,
+            )?;
+            run::write_png(
+                &out_dir.join(format!("entry_{}.png", spec.name)),
+                &pixels,
+                w,
+                h,
+            )?;
+        }
+    }
+
+    let secs = start.elapsed().as_secs_f64();
+    let s = Summary::new(&rows, &fps, headline, max_threads);
+    let md = markdown(
+        &table1,
+        &rows,
+        &fps,
+        &s,
+        &Setup {
+            w,
+            h,
+            threads: &threads,
+            reps,
+            sides: &sides,
+            headline,
+            test,
+            machine: &machine,
+            secs,
+        },
+    );
+    let md_path = out_dir.join("entry.md");
+    std::fs::write(&md_path, &md).or_fail(|| format!("cannot write {}", md_path.display()))?;
+    let paths = [
+        out_dir.join("entry_table1.csv"),
+        out_dir.join("entry_search.csv"),
+        out_dir.join("entry_fps.csv"),
+    ];
+    for (p, text) in paths
+        .iter()
+        .zip([csv_table1(&table1), csv_search(&rows), csv_fps(&fps)])
+    {
+        std::fs::write(p, text).or_fail(|| format!("cannot write {}", p.display()))?;
+    }
+    let (svg, png) = (out_dir.join("entry.svg"), out_dir.join("entry.png"));
+    figure::write(&rows, &fps, headline, max_threads, &svg, &png)?;
+    println!("\n{md}");
+    let bad_rays: u64 = rows
+        .iter()
+        .flat_map(|r| r.trav.iter())
+        .map(|t| t.diff)
+        .sum();
+    let bad_px: usize = fps
+        .iter()
+        .filter(|r| r.cfg.method != Method::BvhRanged)
+        .map(|r| r.diff)
+        .sum();
+    if bad_rays > 0 || bad_px > 0 {
+        println!(
+            "warning: kd packets differ from the kd single ray ({bad_rays} rays, {bad_px} pixels of frames): see the diff columns"
+        );
+    }
+    println!(
+        "wrote {}, {}, {}, {}, {}, {}",
+        md_path.display(),
+        paths[0].display(),
+        paths[1].display(),
+        paths[2].display(),
+        svg.display(),
+        png.display()
+    );
+    Ok(())
+}
+
+// ---------------------------------------------------------------------------
+// Summary ratios
+
+/// Per scene, at the headline side: the ratios the study is judged by.
+struct SceneRatios {
+    scene: String,
+    obj: bool,
+    search: f64,
+    phase2: f64,
+    extra_depth: f64,
+    /// fps ratios on 1 thread and on `max_threads`: AEPSA / plain,
+    /// MLRTA / plain, AEPSA / MLRTA, BVH AEPSA / BVH plain.
+    a_plain: [f64; 2],
+    m_plain: [f64; 2],
+    a_m: [f64; 2],
+    bvh: [f64; 2],
+}
+
+struct Summary {
+    scenes: Vec<SceneRatios>,
+}
+
+fn mean(v: impl Iterator<Item = f64>) -> f64 {
+    let (mut s, mut n) = (0.0, 0);
+    for x in v {
+        s += x;
+        n += 1;
+    }
+    if n == 0 { 0.0 } else { s / n as f64 }
+}
+
+fn min_of(v: impl Iterator<Item = f64>) -> f64 {
+    v.fold(f64::INFINITY, f64::min)
+}
+
+impl Summary {
+    fn new(rows: &[EntryRow], fps: &[FpsRow], headline: u32, max_threads: u32) -> Summary {
+        let mut scenes = Vec::new();
+        for r in rows.iter().filter(|r| r.side == headline) {
+            let f = |m: Method, side: u32, e: EntrySearch, t: u32| {
+                fps.iter()
+                    .find(|x| {
+                        x.scene == r.scene
+                            && x.cfg.method == m
+                            && x.cfg.side == side
+                            && x.cfg.entry == e
+                            && x.threads == t
+                    })
+                    .map_or(0.0, |x| x.fps())
+            };
+            let ts = [1, max_threads];
+            let kd = |e: EntrySearch| ts.map(|t| f(Method::KdPacket, headline, e, t));
+            let (none, m, a) = (
+                kd(EntrySearch::None),
+                kd(EntrySearch::Mlrta),
+                kd(EntrySearch::Aepsa),
+            );
+            let bn = ts.map(|t| f(Method::BvhRanged, BVH_SIDE, EntrySearch::None, t));
+            let ba = ts.map(|t| f(Method::BvhRanged, BVH_SIDE, EntrySearch::Aepsa, t));
+            let div = |x: [f64; 2], y: [f64; 2]| [ratio_f(x[0], y[0]), ratio_f(x[1], y[1])];
+            scenes.push(SceneRatios {
+                scene: r.scene.clone(),
+                obj: r.obj,
+                search: r.search_speedup(),
+                phase2: r.phase2_speedup(),
+                extra_depth: r.extra_depth_pct(),
+                a_plain: div(a, none),
+                m_plain: div(m, none),
+                a_m: div(a, m),
+                bvh: div(ba, bn),
+            });
+        }
+        Summary { scenes }
+    }
+}
+
+// ---------------------------------------------------------------------------
+// Outputs
+
+struct Setup<'a> {
+    w: u32,
+    h: u32,
+    threads: &'a [u32],
+    reps: u32,
+    sides: &'a [u32],
+    headline: u32,
+    test: sheaf::TriTest,
+    machine: &'a str,
+    secs: f64,
+}
+
+fn pct(a: u64, b: u64) -> f64 {
+    ratio_f(100.0 * a as f64, b as f64)
+}
+
+fn markdown(
+    t1: &[Table1Row],
+    rows: &[EntryRow],
+    fps: &[FpsRow],
+    s: &Summary,
+    st: &Setup<'_>,
+) -> String {
+    let (w, h, hl) = (st.w, st.h, st.headline);
+    let tmax = *st.threads.last().unwrap_or(&1);
+    let mut o = String::from(
+        "# sheaf bench --entry: kd-tree entry-point search, MLRTA vs AEPSA (AEPSA paper, section 5)\n\n",
+    );
+    let _ = writeln!(o, "- command: `{}`", command_line());
+    let _ = writeln!(o, "- machine (at the start): {}", st.machine);
+    let _ = writeln!(
+        o,
+        "- setup (paper section 5.1): {w}x{h} primary rays of each scene's reference view (built-in scenes: view 0; OBJ scenes: the view `sheaf render` picks), \
+         one point light at the eye; frames are rendered **with shadow rays** (one per lit primary hit, traced from the light, which sits at the eye) and Lambert shading"
+    );
+    let _ = writeln!(
+        o,
+        "- kd-tree: default `KdParams` (SAH, traversal cost 2, empty-space bonus 0.2, depth limit 8 + 1.3 log2 N), triangle test {:?}; build = median of {BUILD_REPS}",
+        st.test
+    );
+    let _ = writeln!(
+        o,
+        "- packets: {} (n x n rays, one ray proxy frustum each: the corner-ray frustum of the primary packet); **headline: {hl}x{hl}** (the summary and the chart), the side of the BVH rows (bvh-ranged {BVH_SIDE}x{BVH_SIDE})",
+        st.sides
+            .iter()
+            .map(|n| format!("{n}x{n}"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+    let _ = writeln!(
+        o,
+        "- entry-point statistics, search times and nodes visited are over the **primary** packets of the frame; a search that finds no leaf (a miss: every ray of the packet misses) counts at the tree's average leaf depth, as the paper does"
+    );
+    let _ = writeln!(
+        o,
+        "- search times: one pass over every packet's frustum (built beforehand), repeated to {:.0} ms per sample, MLRTA and AEPSA samples interleaved, median of {SAMPLES}, 1 thread; Figure 6: MLRTA's phase 1 once per packet, then MLRTA's phase 2 vs AEPSA's phase 2 (`phase2_with`) on the same candidates with MLRTA's leaf test (same entry point, checked), and AEPSA's phase 2 with its own triangle test as a further column",
+        SAMPLE_NS as f64 * 1e-6
+    );
+    let _ = writeln!(
+        o,
+        "- frames per second: the whole frame (ray generation, traversal, shadow rays, shading), median of {} runs after an untimed one, on threads {:?}; every frame is compared pixel for pixel with the kd single-ray frame (`diff`)",
+        st.reps, st.threads
+    );
+    let _ = writeln!(o, "- total time: {:.0} s\n", st.secs);
+
+    // Summary first.
+    o.push_str("## Summary (headline packets)\n\n");
+    let _ = writeln!(
+        o,
+        "| scene | AEPSA vs MLRTA search | Figure 6 phase 2 | extra depth | fps AEPSA / plain 1T | fps AEPSA / plain {tmax}T | fps MLRTA / plain 1T | fps MLRTA / plain {tmax}T | fps AEPSA / MLRTA 1T | fps AEPSA / MLRTA {tmax}T | BVH fps AEPSA / plain 1T | BVH fps AEPSA / plain {tmax}T |"
+    );
+    o.push_str("|---|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|\n");
+    for r in &s.scenes {
+        let _ = writeln!(
+            o,
+            "| {}{} | {:.2}x | {:.2}x | {:+.2} % | {:.2}x | {:.2}x | {:.2}x | {:.2}x | {:.2}x | {:.2}x | {:.2}x | {:.2}x |",
+            r.scene,
+            if r.obj { "" } else { " (built-in)" },
+            r.search,
+            r.phase2,
+            r.extra_depth,
+            r.a_plain[0],
+            r.a_plain[1],
+            r.m_plain[0],
+            r.m_plain[1],
+            r.a_m[0],
+            r.a_m[1],
+            r.bvh[0],
+            r.bvh[1]
+        );
+    }
+    let all = || s.scenes.iter();
+    let objs = || s.scenes.iter().filter(|r| r.obj);
+    let search_mean = mean(all().map(|r| r.search));
+    let search_min = min_of(all().map(|r| r.search));
+    let _ = writeln!(
+        o,
+        "\n- AEPSA vs MLRTA full search time ({hl}x{hl}): mean {search_mean:.2}x, min {search_min:.2}x over {} scenes (target: mean >= 1.5x, none < 1): **{}**",
+        s.scenes.len(),
+        if search_mean >= 1.5 && search_min >= 1.0 {
+            "met"
+        } else {
+            "not met"
+        }
+    );
+    let p2_mean = mean(all().map(|r| r.phase2));
+    let _ = writeln!(
+        o,
+        "- Figure 6 phase-2 speedup ({hl}x{hl}): mean {p2_mean:.2}x, min {:.2}x (paper: mean 1.58x, no slowdown)",
+        min_of(all().map(|r| r.phase2))
+    );
+    let _ = writeln!(
+        o,
+        "- extra entry depth AEPSA over MLRTA (Figure 5): mean {:+.2} % (paper: mean 2.54 %, max 6.24 %)",
+        mean(all().map(|r| r.extra_depth))
+    );
+    if objs().next().is_some() {
+        for (i, t) in [1, tmax].into_iter().enumerate() {
+            let m = mean(objs().map(|r| r.a_plain[i]));
+            let lo = min_of(objs().map(|r| r.a_plain[i]));
+            let _ = writeln!(
+                o,
+                "- fps AEPSA / plain kd packets on the OBJ scenes, {t} thread(s): mean {m:.2}x, min {lo:.2}x (target >= 1.2x on the OBJ scenes): **{}**; AEPSA / MLRTA mean {:.2}x (paper: up to 1.36x over plain, up to 1.18x over MLRTA)",
+                if lo >= 1.2 {
+                    "met on every OBJ scene"
+                } else if m >= 1.2 {
+                    "met on average, not on every scene"
+                } else {
+                    "not met"
+                },
+                mean(objs().map(|r| r.a_m[i]))
+            );
+        }
+    } else {
+        let _ = writeln!(
+            o,
+            "- fps AEPSA / plain kd packets (built-in scenes only): mean {:.2}x on 1 thread, {:.2}x on {tmax}",
+            mean(all().map(|r| r.a_plain[0])),
+            mean(all().map(|r| r.a_plain[1]))
+        );
+    }
+
+    // Table 1.
+    o.push_str("\n## Table 1: kd-tree statistics\n\n");
+    o.push_str("| scene | tris | nodes | leaves | % empty | avg leaf depth | max depth | refs / tri | SAH cost | build ms | BVH build ms | view |\n|---|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|---|\n");
+    for r in t1 {
+        let k = &r.info;
+        let _ = writeln!(
+            o,
+            "| {} | {} | {} | {} | {:.2} | {:.2} | {} | {:.2} | {:.1} | {:.1} | {:.1} | {} |",
+            r.scene,
+            k.triangles,
+            k.nodes,
+            k.leaves,
+            pct(k.empty_leaves as u64, k.leaves as u64),
+            k.avg_leaf_depth,
+            k.depth,
+            ratio_f(k.refs as f64, k.triangles as f64),
+            k.sah_cost,
+            ms(r.build_ns),
+            ms(r.bvh_build_ns),
+            r.view
+        );
+    }
+
+    // Figure 5.
+    o.push_str("\n## Entry points (Figure 5): average depth MLRTA vs AEPSA\n\n");
+    o.push_str("Misses count at the average leaf depth; \"found\" averages only the searches that found an entry point.\n\n");
+    o.push_str("| scene | packet | packets | avg leaf depth | MLRTA depth | AEPSA depth | extra depth | AEPSA deeper / same / shallower (% of packets) | misses MLRTA / AEPSA | found depth MLRTA / AEPSA |\n|---|---|--:|--:|--:|--:|--:|---|---|---|\n");
+    for r in rows {
+        let n = r.m.searches();
+        let _ = writeln!(
+            o,
+            "| {} | {}x{} | {} | {:.2} | {:.2} | {:.2} | {:+.2} % | {:.1} / {:.1} / {:.1} | {} / {} | {:.2} / {:.2} |",
+            r.scene,
+            r.side,
+            r.side,
+            r.packets,
+            r.miss_depth,
+            r.m.avg_depth(),
+            r.a.avg_depth(),
+            r.extra_depth_pct(),
+            pct(r.deeper, n),
+            pct(r.same, n),
+            pct(r.shallower, n),
+            r.m.misses,
+            r.a.misses,
+            r.m.avg_found_depth(),
+            r.a.avg_found_depth()
+        );
+    }
+
+    // Search times.
+    o.push_str(
+        "\n## Entry-point search time per packet (Figure 6) and nodes visited per search\n\n",
+    );
+    o.push_str("Full search = phase 1 + phase 2 of each algorithm. Figure 6 = phase 2 alone on MLRTA's phase-1 candidates (packets with a leaf). ns per packet, 1 thread.\n\n");
+    o.push_str("| scene | packet | MLRTA search ns | AEPSA search ns | speedup | MLRTA nodes / search | AEPSA nodes / search | phase 1 ns MLRTA / AEPSA | Fig. 6 MLRTA phase 2 ns | Fig. 6 AEPSA phase 2 ns | Fig. 6 speedup | Fig. 6 nodes MLRTA / AEPSA | Fig. 6 candidates tested MLRTA / AEPSA | AEPSA phase 2 with triangle test ns (nodes) | entry differs |\n|---|---|--:|--:|--:|--:|--:|---|--:|--:|--:|---|---|---|--:|\n");
+    for r in rows {
+        let f6 = r.fig6_packets as f64;
+        let _ = writeln!(
+            o,
+            "| {} | {}x{} | {:.0} | {:.0} | {:.2}x | {:.1} | {:.1} | {:.0} / {:.0} | {:.0} | {:.0} | {:.2}x | {:.1} / {:.1} | {:.2} / {:.2} | {:.0} ({:.1}) | {} |",
+            r.scene,
+            r.side,
+            r.side,
+            r.m_search_ns,
+            r.a_search_ns,
+            r.search_speedup(),
+            ratio_f(r.m.nodes() as f64, r.m.searches() as f64),
+            ratio_f(r.a.nodes() as f64, r.a.searches() as f64),
+            r.m_phase1_ns,
+            r.a_phase1_ns,
+            r.m_p2_ns,
+            r.a_p2_ns,
+            r.phase2_speedup(),
+            ratio_f(r.m_p2_nodes as f64, f6),
+            ratio_f(r.a_p2_nodes as f64, f6),
+            ratio_f(r.m_p2_tested as f64, f6),
+            ratio_f(r.a_p2_tested as f64, f6),
+            r.a_p2_tri_ns,
+            ratio_f(r.a_p2_tri_nodes as f64, f6),
+            r.fig6_entry_diff
+        );
+    }
+
+    // Traversal from the entry point.
+    o.push_str(
+        "\n## Nodes visited from the entry point, per packet (primary rays, kd packets)\n\n",
+    );
+    o.push_str("Node steps = split-plane steps of 2x2 quads (`aabb_tests`), tests = ray-triangle tests per lane (`tri_tests`); the search's own nodes are not included. Primary ms: every primary packet traced once (search included), 1 thread. diff: rays whose hit differs from the kd single ray (must be 0).\n\n");
+    o.push_str("| scene | packet | none: steps + tests | MLRTA: steps + tests | AEPSA: steps + tests | visited vs none MLRTA / AEPSA | primary ms none / MLRTA / AEPSA | diff |\n|---|---|---|---|---|---|---|--:|\n");
+    for r in rows {
+        let p = r.packets as f64;
+        let cell = |k: usize| {
+            let c = &r.trav[k].ctr;
+            format!(
+                "{:.1} + {:.1} = {:.1}",
+                ratio_f(c.aabb_tests as f64, p),
+                ratio_f(c.tri_tests as f64, p),
+                r.visited(k)
+            )
+        };
+        let _ = writeln!(
+            o,
+            "| {} | {}x{} | {} | {} | {} | {:+.1} % / {:+.1} % | {:.2} / {:.2} / {:.2} | {} |",
+            r.scene,
+            r.side,
+            r.side,
+            cell(0),
+            cell(1),
+            cell(2),
+            100.0 * (ratio_f(r.visited(1), r.visited(0)) - 1.0),
+            100.0 * (ratio_f(r.visited(2), r.visited(0)) - 1.0),
+            ms(r.trav[0].ns),
+            ms(r.trav[1].ns),
+            ms(r.trav[2].ns),
+            r.trav.iter().map(|t| t.diff).sum::<u64>()
+        );
+    }
+
+    // Frames per second.
+    o.push_str("\n## Frames per second (whole frame with shadows)\n\n");
+    let labels: Vec<String> = {
+        let mut v: Vec<String> = Vec::new();
+        for r in fps {
+            let l = r.cfg.label();
+            if !v.contains(&l) {
+                v.push(l);
+            }
+        }
+        v
+    };
+    o.push_str("| scene | threads |");
+    for l in &labels {
+        let _ = write!(o, " {l} |");
+    }
+    o.push_str(" diff |\n|---|--:|");
+    for _ in &labels {
+        o.push_str("--:|");
+    }
+    o.push_str("--:|\n");
+    let mut scenes: Vec<&str> = fps.iter().map(|r| r.scene.as_str()).collect();
+    scenes.dedup();
+    for sc in &scenes {
+        for &t in st.threads {
+            let _ = write!(o, "| {sc} | {t} |");
+            let mut diff = 0;
+            for l in &labels {
+                match fps
+                    .iter()
+                    .find(|r| r.scene == *sc && r.threads == t && r.cfg.label() == *l)
+                {
+                    Some(r) => {
+                        diff += r.diff;
+                        let _ = write!(o, " {:.2} |", r.fps());
+                    }
+                    None => o.push_str(" |"),
+                }
+            }
+            let _ = writeln!(o, " {diff} |");
+        }
+    }
+    o.push_str("\ndiff: pixels differing from the kd single-ray frame, summed over the row's configurations.\n");
+    o
+}
+
+fn csv_table1(t1: &[Table1Row]) -> String {
+    let mut s = String::from(
+        "scene,triangles_in,triangles,nodes,leaves,empty_leaves,empty_pct,avg_leaf_depth,max_depth,depth_limit,refs,refs_per_tri,sah_cost,forced_leaves,events_peak,build_ms,bvh_build_ms,view\n",
+    );
+    for r in t1 {
+        let k = &r.info;
+        let _ = writeln!(
+            s,
+            "{},{},{},{},{},{},{:.3},{:.3},{},{},{},{:.3},{:.2},{},{},{:.3},{:.3},{}",
+            r.scene,
+            k.triangles_in,
+            k.triangles,
+            k.nodes,
+            k.leaves,
+            k.empty_leaves,
+            pct(k.empty_leaves as u64, k.leaves as u64),
+            k.avg_leaf_depth,
+            k.depth,
+            k.max_depth,
+            k.refs,
+            ratio_f(k.refs as f64, k.triangles as f64),
+            k.sah_cost,
+            k.forced_leaves,
+            k.events_peak,
+            ms(r.build_ns),
+            ms(r.bvh_build_ns),
+            r.view.replace(',', ";")
+        );
+    }
+    s
+}
+
+fn csv_search(rows: &[EntryRow]) -> String {
+    let mut s = String::from(
+        "scene,obj,packet,packets,no_frustum,avg_leaf_depth,\
+         mlrta_avg_depth,aepsa_avg_depth,extra_depth_pct,mlrta_found_depth,aepsa_found_depth,mlrta_misses,aepsa_misses,aepsa_deeper,same_depth,aepsa_shallower,\
+         mlrta_search_ns,aepsa_search_ns,search_speedup,mlrta_phase1_ns,aepsa_phase1_ns,\
+         mlrta_nodes_per_search,aepsa_nodes_per_search,mlrta_phase1_nodes,aepsa_phase1_nodes,mlrta_phase2_nodes,aepsa_phase2_nodes,mlrta_candidates,aepsa_candidates,mlrta_tested,aepsa_tested,\
+         fig6_packets,fig6_mlrta_phase2_ns,fig6_aepsa_phase2_ns,fig6_speedup,fig6_aepsa_tri_phase2_ns,fig6_mlrta_nodes,fig6_aepsa_nodes,fig6_aepsa_tri_nodes,fig6_mlrta_tested,fig6_aepsa_tested,fig6_entry_differs",
+    );
+    for e in SEARCHES {
+        let n = e.name();
+        let _ = write!(
+            s,
+            ",{n}_node_steps,{n}_tri_tests,{n}_visited_per_packet,{n}_rays,{n}_packets,{n}_stray_lanes,{n}_culled_nodes,{n}_culled_tris,{n}_entry_searches,{n}_entry_depth_sum,{n}_entry_nodes,{n}_entry_misses,{n}_primary_ms,{n}_diff_vs_single"
+        );
+    }
+    s.push('\n');
+    for r in rows {
+        let _ = write!(
+            s,
+            "{},{},{},{},{},{:.3},{:.4},{:.4},{:.3},{:.4},{:.4},{},{},{},{},{},{:.1},{:.1},{:.3},{:.1},{:.1},{:.2},{:.2},{},{},{},{},{},{},{},{},{},{:.1},{:.1},{:.3},{:.1},{},{},{},{},{},{}",
+            r.scene,
+            r.obj,
+            r.side,
+            r.packets,
+            r.no_frustum,
+            r.miss_depth,
+            r.m.avg_depth(),
+            r.a.avg_depth(),
+            r.extra_depth_pct(),
+            r.m.avg_found_depth(),
+            r.a.avg_found_depth(),
+            r.m.misses,
+            r.a.misses,
+            r.deeper,
+            r.same,
+            r.shallower,
+            r.m_search_ns,
+            r.a_search_ns,
+            r.search_speedup(),
+            r.m_phase1_ns,
+            r.a_phase1_ns,
+            ratio_f(r.m.nodes() as f64, r.m.searches() as f64),
+            ratio_f(r.a.nodes() as f64, r.a.searches() as f64),
+            r.m.phase1_nodes,
+            r.a.phase1_nodes,
+            r.m.phase2_nodes,
+            r.a.phase2_nodes,
+            r.m.candidates,
+            r.a.candidates,
+            r.m.tested,
+            r.a.tested,
+            r.fig6_packets,
+            r.m_p2_ns,
+            r.a_p2_ns,
+            r.phase2_speedup(),
+            r.a_p2_tri_ns,
+            r.m_p2_nodes,
+            r.a_p2_nodes,
+            r.a_p2_tri_nodes,
+            r.m_p2_tested,
+            r.a_p2_tested,
+            r.fig6_entry_diff
+        );
+        for (k, t) in r.trav.iter().enumerate() {
+            let c = &t.ctr;
+            let _ = write!(
+                s,
+                ",{},{},{:.2},{},{},{},{},{},{},{},{},{},{:.3},{}",
+                c.aabb_tests,
+                c.tri_tests,
+                r.visited(k),
+                c.rays,
+                c.packets,
+                c.stray_lanes,
+                c.culled_nodes,
+                c.culled,
+                c.entry_searches,
+                c.entry_depth_sum,
+                c.entry_nodes,
+                c.entry_misses,
+                ms(t.ns),
+                t.diff
+            );
+        }
+        s.push('\n');
+    }
+    s
+}
+
+fn csv_fps(fps: &[FpsRow]) -> String {
+    let mut s = String::from(
+        "scene,obj,config,method,packet,entry,threads,frame_ms,fps,rays_traced,aabb_tests,tri_tests,entry_searches,entry_depth_sum,entry_nodes,entry_misses,pixels_differing\n",
+    );
+    for r in fps {
+        let c = &r.ctr;
+        let _ = writeln!(
+            s,
+            "{},{},{},{},{},{},{},{:.3},{:.3},{},{},{},{},{},{},{},{}",
+            r.scene,
+            r.obj,
+            r.cfg.label(),
+            r.cfg.method.name(),
+            r.cfg.side,
+            r.cfg.entry.name(),
+            r.threads,
+            ms(r.ns),
+            r.fps(),
+            c.rays,
+            c.aabb_tests,
+            c.tri_tests,
+            c.entry_searches,
+            c.entry_depth_sum,
+            c.entry_nodes,
+            c.entry_misses,
+            r.diff
+        );
+    }
+    s
+}
+
+/// The chart: per scene, bars of the headline side's fps speedup over
+/// plain kd packets (MLRTA, AEPSA; the BVH's AEPSA over its plain packets)
+/// on the machine's threads, and of AEPSA's search-time speedup over MLRTA
+/// (full search and Figure 6's phase 2).
+mod figure {
+    use super::{EntryRow, FpsRow, Summary, chart};
+    use crate::{Failure, OrFail};
+    use plotters::prelude::*;
+    use std::path::Path;
+
+    const W: u32 = 1200;
+    const PANEL_H: u32 = 380;
+    const TITLE_H: u32 = 40;
+
+    struct Series {
+        label: String,
+        colour: RGBColor,
+        values: Vec<f64>,
+    }
+
+    fn panel<DB: DrawingBackend>(
+        area: &DrawingArea<DB, plotters::coord::Shift>,
+        title: &str,
+        scenes: &[String],
+        series: &[Series],
+    ) -> Result<(), String>
+    where
+        DB::ErrorType: 'static,
+    {
+        let e = |x: &dyn std::fmt::Display| x.to_string();
+        let top = series
+            .iter()
+            .flat_map(|s| s.values.iter().copied())
+            .fold(1.0f64, f64::max)
+            * 1.15;
+        let n = scenes.len().max(1);
+        let mut c = ChartBuilder::on(area)
+            .caption(title, (chart::FONT, 16))
+            .margin(12)
+            .x_label_area_size(34)
+            .y_label_area_size(52)
+            .build_cartesian_2d(0.0..n as f64, 0.0..top)
+            .map_err(|x| e(&x))?;
+        c.configure_mesh()
+            .disable_x_mesh()
+            .x_labels(n * 2 + 1)
+            .x_label_formatter(&|x| {
+                let i = x.floor() as usize;
+                if (x - i as f64 - 0.5).abs() < 0.01 {
+                    scenes.get(i).cloned().unwrap_or_default()
+                } else {
+                    String::new()
+                }
+            })
+            .y_desc("speedup (x)")
+            .label_style((chart::FONT, 12))
+            .axis_desc_style((chart::FONT, 13))
+            .draw()
+            .map_err(|x| e(&x))?;
+        let k = series.len().max(1) as f64;
+        let bw = 0.8 / k;
+        for (j, s) in series.iter().enumerate() {
+            c.draw_series(s.values.iter().enumerate().map(|(i, &v)| {
+                let x0 = i as f64 + 0.1 + j as f64 * bw;
+                Rectangle::new([(x0, 0.0), (x0 + bw * 0.92, v)], s.colour.filled())
+            }))
+            .map_err(|x| e(&x))?
+            .label(s.label.clone())
+            .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 14, y + 5)], s.colour.filled()));
+        }
+        c.draw_series(DashedLineSeries::new(
+            [(0.0, 1.0), (n as f64, 1.0)],
+            6,
+            4,
+            BLACK.mix(0.6).stroke_width(1),
+        ))
+        .map_err(|x| e(&x))?;
+        c.configure_series_labels()
+            .position(SeriesLabelPosition::UpperRight)
+            .background_style(WHITE.mix(0.85))
+            .border_style(BLACK.mix(0.4))
+            .label_font((chart::FONT, 12))
+            .draw()
+            .map_err(|x| e(&x))?;
+        Ok(())
+    }
+
+    fn draw<DB: DrawingBackend>(
+        root: DrawingArea<DB, plotters::coord::Shift>,
+        s: &Summary,
+        title: &str,
+        tmax: u32,
+    ) -> Result<(), String>
+    where
+        DB::ErrorType: 'static,
+    {
+        let e = |x: &dyn std::fmt::Display| x.to_string();
+        root.fill(&WHITE).map_err(|x| e(&x))?;
+        let (head, body) = root.split_vertically(TITLE_H);
+        head.draw(&Text::new(
+            title.to_string(),
+            (12, 10),
+            (chart::FONT, 18).into_font(),
+        ))
+        .map_err(|x| e(&x))?;
+        let (p1, p2) = body.split_vertically(PANEL_H);
+        let scenes: Vec<String> = s.scenes.iter().map(|r| r.scene.clone()).collect();
+        let i = if tmax > 1 { 1 } else { 0 };
+        panel(
+            &p1,
+            &format!("frames per second over plain packets ({tmax} thread(s), with shadows)"),
+            &scenes,
+            &[
+                Series {
+                    label: "kd MLRTA / plain".into(),
+                    colour: RGBColor(253, 141, 60),
+                    values: s.scenes.iter().map(|r| r.m_plain[i]).collect(),
+                },
+                Series {
+                    label: "kd AEPSA / plain".into(),
+                    colour: RGBColor(84, 39, 143),
+                    values: s.scenes.iter().map(|r| r.a_plain[i]).collect(),
+                },
+                Series {
+                    label: "BVH Ranged 16x16 AEPSA / plain".into(),
+                    colour: RGBColor(107, 174, 214),
+                    values: s.scenes.iter().map(|r| r.bvh[i]).collect(),
+                },
+            ],
+        )?;
+        panel(
+            &p2,
+            "entry-point search time: MLRTA / AEPSA (1 thread)",
+            &scenes,
+            &[
+                Series {
+                    label: "full search (phase 1 + 2)".into(),
+                    colour: RGBColor(44, 160, 44),
+                    values: s.scenes.iter().map(|r| r.search).collect(),
+                },
+                Series {
+                    label: "Figure 6: phase 2 on MLRTA's candidates".into(),
+                    colour: RGBColor(214, 39, 40),
+                    values: s.scenes.iter().map(|r| r.phase2).collect(),
+                },
+            ],
+        )?;
+        root.present().map_err(|x| e(&x))
+    }
+
+    pub(super) fn write(
+        rows: &[EntryRow],
+        fps: &[FpsRow],
+        headline: u32,
+        tmax: u32,
+        svg: &Path,
+        png: &Path,
+    ) -> Result<(), Failure> {
+        chart::register_font()?;
+        let s = Summary::new(rows, fps, headline, tmax);
+        let size = (W.max(140 * s.scenes.len() as u32), TITLE_H + 2 * PANEL_H);
+        let title = format!(
+            "sheaf kd-tree entry-point search, {headline}x{headline} packets: AEPSA vs MLRTA vs plain packets"
+        );
+        draw(
+            SVGBackend::new(svg, size).into_drawing_area(),
+            &s,
+            &title,
+            tmax,
+        )
+        .map_err(|x| Failure(format!("chart {}: {x}", svg.display())))?;
+        let mut buf = vec![0u8; size.0 as usize * size.1 as usize * 3];
+        draw(
+            BitMapBackend::with_buffer(&mut buf, size).into_drawing_area(),
+            &s,
+            &title,
+            tmax,
+        )
+        .map_err(|x| Failure(format!("chart: {x}")))?;
+        image::save_buffer(png, &buf, size.0, size.1, image::ExtendedColorType::Rgb8)
+            .or_fail(|| format!("cannot write {}", png.display()))
+    }
+}
