@@ -5,6 +5,8 @@
 //! Its own test binary, so no other test's allocations are counted.
 
 use sheaf::accel::bvh::BvhParams;
+use sheaf::accel::kd::KdParams;
+use sheaf::trace::EntrySearch;
 use sheaf::render::{Camera, Frame, PointLight, Shading};
 use sheaf::scenes::animated::Animated;
 use sheaf::{
@@ -142,7 +144,7 @@ fn ten_animated_frames_allocate_nothing() {
     let during = allocs() - start;
     assert_eq!(
         during, 0,
-        "10 frames of grid and BVH builds + trace + occluded + render allocated {during} times"
+        "10 frames of grid, BVH and kd-tree builds + trace + occluded + render allocated {during} times"
     );
     assert!(hit_total > 0, "the frames must trace something");
     assert!(pixels.iter().any(|&p| p != 0));
@@ -185,6 +187,19 @@ macro_rules! impl_frames {
                     self.trace_with(&bp, r, h).unwrap();
                     self.occluded_with(&bp, r, o).unwrap();
                     self.render_with(&bp, &bp, f, px, stride).unwrap();
+                }
+                // BVH packets from AEPSA entry points.
+                let bp = TraceParams::bvh(Method::BvhRanged, 16).with_entry(EntrySearch::Aepsa);
+                self.trace_with(&bp, r, h).unwrap();
+                // The kd-tree beside both: build, every kd method and entry search.
+                self.build_kd(s, &KdParams { test: p.test, ..KdParams::default() }).unwrap();
+                for m in [Method::KdSingle, Method::KdSimd, Method::KdPacket] {
+                    for &e in EntrySearch::ALL {
+                        let kp = TraceParams::bvh(m, 16).with_entry(e);
+                        self.trace_with(&kp, r, h).unwrap();
+                        self.occluded_with(&kp, r, o).unwrap();
+                        self.render_with(&kp, &kp, f, px, stride).unwrap();
+                    }
                 }
             }
         }
