@@ -667,8 +667,10 @@ mod tests {
             let sc = crate::scenes::builtin(name).unwrap();
             let scene = Scene::from_f32(&sc.mesh.vertices, &sc.mesh.indices).unwrap();
             let mut st = Store::new(scene.triangle_count() as usize, false);
-            // Roomy pools: gears' fan triangles need 20 references each.
+            // Roomy pools: gears' fan triangles need 20 references and 6
+            // nodes each (the default limits make forced leaves there).
             st.refs.resize(32 * scene.triangle_count() as usize, 0);
+            st.nodes.resize(16 * scene.triangle_count() as usize, KdNode::default());
             let mut kd = st.kd();
             let info = build(&mut kd, &scene, &KdParams::default()).unwrap();
             check_invariants(&kd.view().unwrap());
