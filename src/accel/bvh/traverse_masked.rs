@@ -21,7 +21,9 @@
 //! triangle lies in boxes that test alive for it whatever has been found
 //! before, frusta cull only what no ray hits (see `frustum`), and every lane
 //! keeps its nearest hit by the tie rule, so the result equals
-//! `traverse_single` bitwise, whatever the visiting order.
+//! `traverse_single` bitwise, whatever the visiting order. The same holds
+//! from an entry point (`entry`, an MLRTA or AEPSA search's node, see
+//! `bvh::entry`): every triangle a live lane hits lies in its subtree.
 //!
 //! # Deviations
 //! - Lanes, not only quads: an active but invalid ray (`Ray::is_valid`) is a
@@ -1290,12 +1292,16 @@ pub(crate) mod tests {
                 runs.push((
                     "masked",
                     cs,
-                    Box::new(move |q, a, hs, c| dispatch::<Masked, Mt, false>(b, q, a, hs, &o, None, c)),
+                    Box::new(move |q, a, hs, c| {
+                        dispatch::<Masked, Mt, false>(b, q, a, hs, &o, None, c)
+                    }),
                 ));
                 runs.push((
                     "ranged",
                     cs,
-                    Box::new(move |q, a, hs, c| dispatch::<Ranged, Mt, false>(b, q, a, hs, &o, None, c)),
+                    Box::new(move |q, a, hs, c| {
+                        dispatch::<Ranged, Mt, false>(b, q, a, hs, &o, None, c)
+                    }),
                 ));
                 runs.push((
                     "partition",

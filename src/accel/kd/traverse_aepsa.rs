@@ -105,17 +105,17 @@ pub fn phase2_with<E: EntryTree + ?Sized>(
 mod tests {
     use super::*;
     use crate::accel::bvh::traverse_masked::tests::built;
+    use crate::accel::entry::EntryPoint;
     use crate::accel::entry::tests::{Reach, scene_packets};
     use crate::accel::entry::{EntryTree, dir_signs};
     use crate::accel::kd::build::build;
     use crate::accel::kd::build::testutil::Store;
+    use crate::accel::kd::traverse_mlrta;
     use crate::accel::kd::traverse_mlrta::tests::{
         Figure, Logged, figure2, figure3, figure4, run_mlrta,
     };
     use crate::accel::kd::traverse_single::{self, KdRay};
-    use crate::accel::kd::traverse_mlrta;
     use crate::accel::kd::{KdParams, KdView, clip};
-    use crate::accel::entry::EntryPoint;
     use crate::geom::{Hit, M4, Mt, Ray4, Scene};
 
     /// AEPSA on a figure, as `run_mlrta`.
@@ -209,7 +209,8 @@ mod tests {
         // Above the band of leaf 9's triangles: y in [2.65, 2.95], only
         // through leaves 4, 5 (triangles above y = 3.1) and 9 (triangles
         // below 2.5).
-        let c = [[2.65, 0.2], [2.95, 0.2], [2.95, 0.8], [2.65, 0.8]].map(|[y, z]| Vec3::new(4.0, y, z));
+        let c =
+            [[2.65, 0.2], [2.95, 0.2], [2.95, 0.8], [2.65, 0.8]].map(|[y, z]| Vec3::new(4.0, y, z));
         let (f, _) = corner_frustum(Vec3::new(-200.0, 2.8, 0.5), c, &root);
         let mut ctr = Counters::default();
         assert_eq!(aepsa(&v, &f, fig.neg, &mut ctr), None);
@@ -233,13 +234,19 @@ mod tests {
         // Beside the scene: the root box is culled, nothing is visited.
         let c = [[5.0, 0.2], [6.0, 0.2], [6.0, 0.8], [5.0, 0.8]].map(|[y, z]| Vec3::new(4.0, y, z));
         let (f, _) = corner_frustum(Vec3::new(-200.0, 5.5, 0.5), c, &root);
-        for r in [search(&v, &f, fig.neg), traverse_mlrta::search(&v, &f, fig.neg)] {
+        for r in [
+            search(&v, &f, fig.neg),
+            traverse_mlrta::search(&v, &f, fig.neg),
+        ] {
             assert_eq!(r, crate::accel::entry::EntryResult::default());
         }
         // Figure 2 counted: 10 + 0 nodes, depth 3.
         let mut ctr = Counters::default();
         aepsa(&v, &fig.f, fig.neg, &mut ctr);
-        assert_eq!((ctr.entry_nodes, ctr.entry_depth_sum, ctr.entry_misses), (10, 3, 0));
+        assert_eq!(
+            (ctr.entry_nodes, ctr.entry_depth_sum, ctr.entry_misses),
+            (10, 3, 0)
+        );
     }
 
     /// A chain deeper than `MAX_ENTRY_DEPTH` (no build makes one), met in
@@ -276,7 +283,8 @@ mod tests {
             spec.push(Spec::Leaf(vec![far_tri]));
             let t = HandTree::new(root, &spec);
             let v = t.view();
-            let c = [[-1.0, -1.0], [2.0, -1.0], [2.0, 2.0], [-1.0, 2.0]].map(|[x, y]| Vec3::new(x, y, 0.5));
+            let c = [[-1.0, -1.0], [2.0, -1.0], [2.0, 2.0], [-1.0, 2.0]]
+                .map(|[x, y]| Vec3::new(x, y, 0.5));
             let (f, _) = corner_frustum(Vec3::new(0.5, 0.5, 20.0), c, &root);
             let neg = [false, false, true];
             for r in [search(&v, &f, neg), traverse_mlrta::search(&v, &f, neg)] {
@@ -303,7 +311,6 @@ mod tests {
         for name in crate::scenes::BUILTIN_NAMES {
             let s = crate::scenes::builtin(name).unwrap();
             let scene = Scene::from_f32(&s.mesh.vertices, &s.mesh.indices).unwrap();
-            let t0 = std::time::Instant::now();
             let mut st = Store::new(scene.triangle_count() as usize, false);
             let mut kd = st.kd();
             build(&mut kd, &scene, &KdParams::default()).unwrap();
@@ -311,12 +318,8 @@ mod tests {
             let mut bst = crate::accel::bvh::build::testutil::Store::new(0, false);
             let bvh = built::<Mt>(&mut bst, &s.mesh.vertices, &s.mesh.indices, 4);
             let b = bvh.view().unwrap();
-            eprintln!("TIMING {name} builds {:?}", t0.elapsed());
             for view in &s.views[..s.views.len().min(2)] {
-                let t1 = std::time::Instant::now();
-                let pks = scene_packets(&b, view, s.light, (48, 48), &[8, 16]);
-                eprintln!("TIMING {name} packets {:?}", t1.elapsed());
-                for pk in pks {
+                for pk in scene_packets(&b, view, s.light, (48, 48), &[4, 8, 16]) {
                     let Some(f) = Frustum::new(pk.kind, &pk.quads, &pk.live, &k.info.root) else {
                         continue;
                     };
@@ -324,15 +327,26 @@ mod tests {
                     let neg = dir_signs(&pk.quads, &pk.live);
                     check_packet(&k, &f, neg, &pk.quads, &pk.live, &what, &mut tally);
                 }
-                eprintln!("TIMING {name} checks {:?}", t1.elapsed());
             }
         }
-        let [packets, misses, deeper, non_root, more_nodes, mnodes, anodes, fewer] = tally;
+        let [
+            packets,
+            misses,
+            deeper,
+            non_root,
+            more_nodes,
+            mnodes,
+            anodes,
+            fewer,
+        ] = tally;
         println!(
             "entry searches on the built-in scenes: {packets} packets, {misses} misses, AEPSA deeper than MLRTA {deeper}, AEPSA below the root {non_root}; \
              Figure 6 (MLRTA's candidates): phase-2 nodes MLRTA {mnodes}, AEPSA {anodes}, AEPSA fewer {fewer}, more {more_nodes}"
         );
-        assert!(misses > 0 && deeper > 0 && non_root > packets / 10, "{tally:?}");
+        assert!(
+            misses > 0 && deeper > 0 && non_root > packets / 10,
+            "{tally:?}"
+        );
     }
 
     fn check_packet(
@@ -357,13 +371,19 @@ mod tests {
         for r in [&m, &a] {
             if let Some(e) = &r.entry {
                 assert_eq!(e.depth, reach.depth(e.node), "{what}");
-                assert!(r.candidates >= 1 && r.tested < r.candidates, "{what}: {r:?}");
+                assert!(
+                    r.candidates >= 1 && r.tested < r.candidates,
+                    "{what}: {r:?}"
+                );
                 for &l in &reach.leaves {
                     if reach.covers(e.node, l) {
                         continue;
                     }
                     let n = &k.nodes[l as usize];
-                    let keeps = k.leaf_refs(n).iter().any(|&s| !f.cull_triangle(&k.tris[s as usize]));
+                    let keeps = k
+                        .leaf_refs(n)
+                        .iter()
+                        .any(|&s| !f.cull_triangle(&k.tris[s as usize]));
                     assert!(!keeps, "{what}: leaf {l} not below {e:?}");
                 }
             }
@@ -387,14 +407,20 @@ mod tests {
         let pm = traverse_mlrta::phase2(k, f, neg, &q).unwrap();
         let po = phase2_with(k, f, neg, &q, LeafGoal::Occupied).unwrap();
         assert_eq!(po.entry, pm.entry, "{what}");
-        assert!(po.visited <= pm.visited && po.tested <= pm.tested, "{what}: {po:?} {pm:?}");
+        assert!(
+            po.visited <= pm.visited && po.tested <= pm.tested,
+            "{what}: {po:?} {pm:?}"
+        );
         tally[7] += (po.visited < pm.visited) as u64;
         let pa = phase2_with(k, f, neg, &q, LeafGoal::Overlapped).unwrap();
         assert!(pa.entry.depth >= pm.entry.depth, "{what}: {pa:?} {pm:?}");
         assert!(reach.covers(pm.entry.node, pa.entry.node), "{what}");
         if let Some(ae) = &a.entry {
             // Never below the common ancestor of the overlapped leaves.
-            assert!(reach.covers(pa.entry.node, ae.node), "{what}: {pa:?} {ae:?}");
+            assert!(
+                reach.covers(pa.entry.node, ae.node),
+                "{what}: {pa:?} {ae:?}"
+            );
         }
         tally[4] += (pa.visited > pm.visited) as u64;
         tally[5] += pm.visited as u64;

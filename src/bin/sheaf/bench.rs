@@ -1330,7 +1330,16 @@ pub fn bench(a: &BenchArgs) -> Result<(), Failure> {
             continue;
         }
         let load_ms = t_load.elapsed().as_secs_f64() * 1e3;
-        let limits = run::limits(&scene, (w, h), max_threads);
+        let mut limits = run::limits(&scene, (w, h), max_threads);
+        if cfgs.iter().any(|c| c.structure() == Structure::Kd) {
+            // kd pools that force no leaf (gears needs more references
+            // than the default rule gives); the tree is the same for every
+            // triangle test.
+            let kp = sheaf::accel::kd::KdParams::default();
+            limits = run::kd_limits(&scene, limits, &kp)
+                .or_fail(|| spec.name.clone())?
+                .0;
+        }
         // Set on the first triangle test's build: view, light, rays, oracle.
         let mut prepared: Option<(ViewRays, Vec3, f32, Oracle)> = None;
         let mut scene_line = String::new();

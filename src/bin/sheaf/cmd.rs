@@ -544,6 +544,25 @@ pub fn info(a: &InfoArgs) -> Result<(), Failure> {
             k.refs,
             k.events_peak
         );
+        if k.forced_leaves > 0 {
+            let (grown, g) = run::kd_limits(
+                &scene,
+                kd_only,
+                &sheaf::accel::kd::KdParams {
+                    test: info.test,
+                    ..Default::default()
+                },
+            )?;
+            let b = required_bytes(&grown)?;
+            println!(
+                "kd grown   {b} bytes ({:.2} MiB, {:.1} bytes/triangle) with max_kd_nodes {} and max_kd_refs {}: {}",
+                mib(b),
+                b as f64 / n as f64,
+                grown.kd_nodes(),
+                grown.kd_refs(),
+                kd_line(&g, 0).split(", build").next().unwrap_or_default()
+            );
+        }
     }
     Ok(())
 }

@@ -35,7 +35,9 @@
 //! Search and phase times are measured over every packet of the frame in
 //! a loop (one frustum per packet built beforehand, so frustum building is
 //! not in them), repeated until a sample takes `SAMPLE_NS`, MLRTA and AEPSA
-//! samples interleaved, median of `SAMPLES`; single thread.
+//! samples interleaved, the fastest of `SAMPLES` (the machine may be
+//! shared: preemption only adds time; the medians go to the CSV); single
+//! thread.
 #![forbid(unsafe_code)]
 
 use crate::bench::{SceneSpec, chart, command_line, machine_line, median, scene_specs, view_for};
@@ -61,10 +63,10 @@ use std::time::Instant;
 /// kd-tree builds per scene; the median is reported.
 const BUILD_REPS: usize = 5;
 /// Timed samples of each search measurement (the median is reported).
-const SAMPLES: usize = 7;
+const SAMPLES: usize = 21;
 /// A search sample repeats its pass over every packet until it took this long.
-const SAMPLE_NS: u64 = 15_000_000;
-const QUICK_SAMPLE_NS: u64 = 4_000_000;
+const SAMPLE_NS: u64 = 2_000_000;
+const QUICK_SAMPLE_NS: u64 = 1_000_000;
 /// The packet side of the summary ratios and the chart (when measured).
 const HEADLINE: u32 = 16;
 /// The BVH rows: Ranged traversal at this side.
@@ -249,6 +251,9 @@ struct EntryRow {
     /// Packets where `phase2_with(.., Occupied)` returned another entry
     /// point than MLRTA's phase 2 (must be 0).
     fig6_entry_diff: u64,
+    /// Median samples of the MLRTA and AEPSA full searches and of
+    /// Figure 6's two phase 2s (the fields above are the fastest).
+    medians: [f64; 4],
     /// Per `SEARCHES`.
     trav: [Traversal; 3],
 }
@@ -343,12 +348,12 @@ fn ratio_f(a: f64, b: f64) -> f64 {
     if b == 0.0 { 0.0 } else { a / b }
 }
 
-/// ns per call of each pass in `passes` (each calls its work `n` times):
+/// ns per work item of each pass in `passes` (each does `n` items):
 /// calibrated so a sample takes about `sample_ns`, samples of the passes
-/// interleaved, median of `SAMPLES`.
-fn time_passes(n: usize, sample_ns: u64, passes: &mut [&mut dyn FnMut()]) -> Vec<f64> {
+/// interleaved; the fastest and the median of `SAMPLES`.
+fn time_passes(n: usize, sample_ns: u64, passes: &mut [&mut dyn FnMut()]) -> Vec<Timed> {
     if n == 0 {
-        return vec![0.0; passes.len()];
+        return vec![Timed::default(); passes.len()];
     }
     let reps: Vec<u64> = passes
         .iter_mut()
@@ -372,8 +377,21 @@ fn time_passes(n: usize, sample_ns: u64, passes: &mut [&mut dyn FnMut()]) -> Vec
     samples
         .into_iter()
         .zip(&reps)
-        .map(|(s, &r)| median(s) as f64 / (r as f64 * n as f64))
+        .map(|(s, &r)| {
+            let per = r as f64 * n as f64;
+            Timed {
+                best: s.iter().copied().min().unwrap_or(0) as f64 / per,
+                median: median(s) as f64 / per,
+            }
+        })
         .collect()
+}
+
+/// A search time, ns per packet: the fastest sample and the median.
+#[derive(Clone, Copy, Debug, Default)]
+struct Timed {
+    best: f64,
+    median: f64,
 }
 
 /// The entry-point measurements of one packet side (Figure 5, search
@@ -429,7 +447,8 @@ fn searches(row: &mut EntryRow, kv: &KdView<'_>, px: &[Proxy], sample_ns: u64) {
         row.a_search_ns,
         row.m_phase1_ns,
         row.a_phase1_ns,
-    ) = (t[0], t[1], t[2], t[3]);
+    ) = (t[0].best, t[1].best, t[2].best, t[3].best);
+    row.medians[..2].copy_from_slice(&[t[0].median, t[1].median]);
     // Figure 6: MLRTA's phase 1 once, then both phase 2s on its candidates.
     let fig: Vec<(&Proxy, CandidateQueue)> = px
         .iter()
@@ -485,7 +504,8 @@ fn searches(row: &mut EntryRow, kv: &KdView<'_>, px: &[Proxy], sample_ns: u64) {
             },
         ],
     );
-    (row.m_p2_ns, row.a_p2_ns, row.a_p2_tri_ns) = (t[0], t[1], t[2]);
+    (row.m_p2_ns, row.a_p2_ns, row.a_p2_tri_ns) = (t[0].best, t[1].best, t[2].best);
+    row.medians[2..].copy_from_slice(&[t[0].median, t[1].median]);
 }
 
 pub fn run(a: &BenchArgs) -> Result<(), Failure> {
@@ -968,6 +988,9 @@ struct SceneRatios {
     obj: bool,
     search: f64,
     phase2: f64,
+    /// The same from the median samples.
+    search_med: f64,
+    phase2_med: f64,
     extra_depth: f64,
     /// fps ratios on 1 thread and on `max_threads`: AEPSA / plain,
     /// MLRTA / plain, AEPSA / MLRTA, BVH AEPSA / BVH plain.
@@ -1028,6 +1051,8 @@ impl Summary {
                 obj: r.obj,
                 search: r.search_speedup(),
                 phase2: r.phase2_speedup(),
+                search_med: ratio_f(r.medians[0], r.medians[1]),
+                phase2_med: ratio_f(r.medians[2], r.medians[3]),
                 extra_depth: r.extra_depth_pct(),
                 a_plain: div(a, none),
                 m_plain: div(m, none),
@@ -1100,7 +1125,7 @@ fn markdown(
     );
     let _ = writeln!(
         o,
-        "- search times: one pass over every packet's frustum (built beforehand), repeated to {:.0} ms per sample, MLRTA and AEPSA samples interleaved, median of {SAMPLES}, 1 thread; Figure 6: MLRTA's phase 1 once per packet, then MLRTA's phase 2 vs AEPSA's phase 2 (`phase2_with`) on the same candidates with MLRTA's leaf test (same entry point, checked), and AEPSA's phase 2 with its own triangle test as a further column",
+        "- search times: one pass over every packet's frustum (built beforehand), repeated to {:.0} ms per sample, MLRTA and AEPSA samples interleaved, the **fastest** of {SAMPLES} samples (the machine is shared: preemption only adds time; medians in entry_search.csv), 1 thread; Figure 6: MLRTA's phase 1 once per packet, then MLRTA's phase 2 vs AEPSA's phase 2 (`phase2_with`) on the same candidates with MLRTA's leaf test (same entry point, checked), and AEPSA's phase 2 with its own triangle test as a further column",
         st.sample_ns as f64 * 1e-6
     );
     let _ = writeln!(
@@ -1150,6 +1175,26 @@ fn markdown(
             "not met"
         }
     );
+    let _ = writeln!(
+        o,
+        "- the same from the median samples: full search mean {:.2}x, min {:.2}x; Figure 6 phase 2 mean {:.2}x, min {:.2}x",
+        mean(all().map(|r| r.search_med)),
+        min_of(all().map(|r| r.search_med)),
+        mean(all().map(|r| r.phase2_med)),
+        min_of(all().map(|r| r.phase2_med))
+    );
+    for &side in st.sides.iter().filter(|&&n| n != hl) {
+        let rs = || rows.iter().filter(move |r| r.side == side);
+        let _ = writeln!(
+            o,
+            "- at {side}x{side}: full search mean {:.2}x (min {:.2}x), Figure 6 phase 2 mean {:.2}x (min {:.2}x), extra depth mean {:+.2} %",
+            mean(rs().map(|r| r.search_speedup())),
+            min_of(rs().map(|r| r.search_speedup())),
+            mean(rs().map(|r| r.phase2_speedup())),
+            min_of(rs().map(|r| r.phase2_speedup())),
+            mean(rs().map(|r| r.extra_depth_pct()))
+        );
+    }
     let p2_mean = mean(all().map(|r| r.phase2));
     let _ = writeln!(
         o,
@@ -1396,7 +1441,8 @@ fn csv_search(rows: &[EntryRow]) -> String {
          mlrta_avg_depth,aepsa_avg_depth,extra_depth_pct,mlrta_found_depth,aepsa_found_depth,mlrta_misses,aepsa_misses,aepsa_deeper,same_depth,aepsa_shallower,\
          mlrta_search_ns,aepsa_search_ns,search_speedup,mlrta_phase1_ns,aepsa_phase1_ns,\
          mlrta_nodes_per_search,aepsa_nodes_per_search,mlrta_phase1_nodes,aepsa_phase1_nodes,mlrta_phase2_nodes,aepsa_phase2_nodes,mlrta_candidates,aepsa_candidates,mlrta_tested,aepsa_tested,\
-         fig6_packets,fig6_mlrta_phase2_ns,fig6_aepsa_phase2_ns,fig6_speedup,fig6_aepsa_tri_phase2_ns,fig6_mlrta_nodes,fig6_aepsa_nodes,fig6_aepsa_tri_nodes,fig6_mlrta_tested,fig6_aepsa_tested,fig6_entry_differs",
+         fig6_packets,fig6_mlrta_phase2_ns,fig6_aepsa_phase2_ns,fig6_speedup,fig6_aepsa_tri_phase2_ns,fig6_mlrta_nodes,fig6_aepsa_nodes,fig6_aepsa_tri_nodes,fig6_mlrta_tested,fig6_aepsa_tested,fig6_entry_differs,\
+         median_mlrta_search_ns,median_aepsa_search_ns,median_search_speedup,median_fig6_mlrta_phase2_ns,median_fig6_aepsa_phase2_ns,median_fig6_speedup",
     );
     for e in SEARCHES {
         let n = e.name();
@@ -1452,6 +1498,17 @@ fn csv_search(rows: &[EntryRow]) -> String {
             r.m_p2_tested,
             r.a_p2_tested,
             r.fig6_entry_diff
+        );
+        let md = &r.medians;
+        let _ = write!(
+            s,
+            ",{:.1},{:.1},{:.3},{:.1},{:.1},{:.3}",
+            md[0],
+            md[1],
+            ratio_f(md[0], md[1]),
+            md[2],
+            md[3],
+            ratio_f(md[2], md[3])
         );
         for (k, t) in r.trav.iter().enumerate() {
             let c = &t.ctr;
@@ -1521,7 +1578,9 @@ mod figure {
     use plotters::prelude::*;
     use std::path::Path;
 
-    const W: u32 = 1200;
+    /// Width per scene, and for the axis and the legend (about 2 scenes' room).
+    const W_SCENE: u32 = 170;
+    const W_EXTRA: u32 = 420;
     const PANEL_H: u32 = 380;
     const TITLE_H: u32 = 40;
 
@@ -1547,16 +1606,18 @@ mod figure {
             .fold(1.0f64, f64::max)
             * 1.15;
         let n = scenes.len().max(1);
+        // Room on the right for the legend.
+        let xmax = (n + 2) as f64;
         let mut c = ChartBuilder::on(area)
             .caption(title, (chart::FONT, 16))
             .margin(12)
             .x_label_area_size(34)
             .y_label_area_size(52)
-            .build_cartesian_2d(0.0..n as f64, 0.0..top)
+            .build_cartesian_2d(0.0..xmax, 0.0..top)
             .map_err(|x| e(&x))?;
         c.configure_mesh()
             .disable_x_mesh()
-            .x_labels(n * 2 + 1)
+            .x_labels(2 * xmax.ceil() as usize + 1)
             .x_label_formatter(&|x| {
                 let i = x.floor() as usize;
                 if (x - i as f64 - 0.5).abs() < 0.01 {
@@ -1580,6 +1641,16 @@ mod figure {
             .map_err(|x| e(&x))?
             .label(s.label.clone())
             .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 14, y + 5)], s.colour.filled()));
+            // The value above each bar.
+            c.draw_series(s.values.iter().enumerate().map(|(i, &v)| {
+                let x0 = i as f64 + 0.1 + j as f64 * bw;
+                Text::new(
+                    format!("{v:.2}"),
+                    (x0, v + top * 0.012),
+                    (chart::FONT, 10).into_font(),
+                )
+            }))
+            .map_err(|x| e(&x))?;
         }
         c.draw_series(DashedLineSeries::new(
             [(0.0, 1.0), (n as f64, 1.0)],
@@ -1618,28 +1689,43 @@ mod figure {
         .map_err(|x| e(&x))?;
         let (p1, p2) = body.split_vertically(PANEL_H);
         let scenes: Vec<String> = s.scenes.iter().map(|r| r.scene.clone()).collect();
-        let i = if tmax > 1 { 1 } else { 0 };
+        let mut fps_series = Vec::new();
+        for (i, t, light) in [(0, 1, false), (1, tmax, true)] {
+            if i == 1 && tmax == 1 {
+                break;
+            }
+            let shade = |c: RGBColor| {
+                if light {
+                    RGBColor(c.0 / 2 + 128, c.1 / 2 + 128, c.2 / 2 + 128)
+                } else {
+                    c
+                }
+            };
+            fps_series.push(Series {
+                label: format!("kd MLRTA / plain, {t}T"),
+                colour: shade(RGBColor(230, 85, 13)),
+                values: s.scenes.iter().map(|r| r.m_plain[i]).collect(),
+            });
+            fps_series.push(Series {
+                label: format!("kd AEPSA / plain, {t}T"),
+                colour: shade(RGBColor(84, 39, 143)),
+                values: s.scenes.iter().map(|r| r.a_plain[i]).collect(),
+            });
+        }
+        fps_series.push(Series {
+            label: format!("BVH Ranged 16x16 AEPSA / plain, {tmax}T"),
+            colour: RGBColor(49, 130, 189),
+            values: s
+                .scenes
+                .iter()
+                .map(|r| r.bvh[if tmax > 1 { 1 } else { 0 }])
+                .collect(),
+        });
         panel(
             &p1,
-            &format!("frames per second over plain packets ({tmax} thread(s), with shadows)"),
+            "frames per second over plain kd packets (whole frame with shadows)",
             &scenes,
-            &[
-                Series {
-                    label: "kd MLRTA / plain".into(),
-                    colour: RGBColor(253, 141, 60),
-                    values: s.scenes.iter().map(|r| r.m_plain[i]).collect(),
-                },
-                Series {
-                    label: "kd AEPSA / plain".into(),
-                    colour: RGBColor(84, 39, 143),
-                    values: s.scenes.iter().map(|r| r.a_plain[i]).collect(),
-                },
-                Series {
-                    label: "BVH Ranged 16x16 AEPSA / plain".into(),
-                    colour: RGBColor(107, 174, 214),
-                    values: s.scenes.iter().map(|r| r.bvh[i]).collect(),
-                },
-            ],
+            &fps_series,
         )?;
         panel(
             &p2,
@@ -1671,7 +1757,10 @@ mod figure {
     ) -> Result<(), Failure> {
         chart::register_font()?;
         let s = Summary::new(rows, fps, headline, tmax);
-        let size = (W.max(140 * s.scenes.len() as u32), TITLE_H + 2 * PANEL_H);
+        let size = (
+            W_SCENE * s.scenes.len() as u32 + W_EXTRA,
+            TITLE_H + 2 * PANEL_H,
+        );
         let title = format!(
             "sheaf kd-tree entry-point search, {headline}x{headline} packets: AEPSA vs MLRTA vs plain packets"
         );
@@ -1692,5 +1781,82 @@ mod figure {
         .map_err(|x| Failure(format!("chart: {x}")))?;
         image::save_buffer(png, &buf, size.0, size.1, image::ExtendedColorType::Rgb8)
             .or_fail(|| format!("cannot write {}", png.display()))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A tiny run end to end: every file is written, kd packets with every
+    /// search agree with the kd single ray on every ray and pixel, and
+    /// Figure 6's two phase 2s return the same entry points.
+    #[test]
+    fn tiny_run_writes_every_output() {
+        let dir = std::env::temp_dir().join(format!("sheaf-entry-test-{}", std::process::id()));
+        let a = BenchArgs {
+            scenes: vec!["tetra".into(), "animated".into()],
+            scenes_dir: None,
+            size: Some((48, 32)),
+            quick: true,
+            packets: vec![8, 16],
+            tests: vec![TestArg::Mt],
+            threads: vec![1, 2],
+            ablation: false,
+            reps: Some(1),
+            oracle_budget: None,
+            lambda: 5.0,
+            macrocell: 6,
+            out_dir: Some(dir.clone()),
+            whitted: false,
+            entry: true,
+            structures: vec![crate::StructureArg::Kd],
+        };
+        crate::bench::bench(&a).unwrap();
+        let search = std::fs::read_to_string(dir.join("entry_search.csv")).unwrap();
+        let lines: Vec<&str> = search.lines().collect();
+        assert_eq!(lines.len(), 1 + 2 * 2, "header + 2 scenes x 2 sides");
+        let head: Vec<&str> = lines[0].split(',').collect();
+        let col = |n: &str| head.iter().position(|h| *h == n).unwrap();
+        for l in &lines[1..] {
+            let f: Vec<&str> = l.split(',').collect();
+            assert_eq!(f.len(), head.len(), "{l}");
+            for c in [
+                "none_diff_vs_single",
+                "mlrta_diff_vs_single",
+                "aepsa_diff_vs_single",
+                "fig6_entry_differs",
+            ] {
+                assert_eq!(f[col(c)], "0", "{c}: {l}");
+            }
+            assert!(f[col("aepsa_entry_searches")].parse::<u64>().unwrap() > 0);
+        }
+        let fps = std::fs::read_to_string(dir.join("entry_fps.csv")).unwrap();
+        let lines: Vec<&str> = fps.lines().collect();
+        assert_eq!(
+            lines.len(),
+            1 + 2 * 2 * (2 + 2 * 3 + 2),
+            "header + scenes x threads x configurations"
+        );
+        let head: Vec<&str> = lines[0].split(',').collect();
+        let diff = head.iter().position(|h| *h == "pixels_differing").unwrap();
+        let method = head.iter().position(|h| *h == "method").unwrap();
+        for l in &lines[1..] {
+            let f: Vec<&str> = l.split(',').collect();
+            if f[method] != "bvh-ranged" {
+                assert_eq!(f[diff], "0", "{l}");
+            }
+        }
+        let md = std::fs::read_to_string(dir.join("entry.md")).unwrap();
+        assert!(md.contains("## Table 1") && md.contains("| tetra | 16x16 |"));
+        for f in [
+            "entry_table1.csv",
+            "entry.svg",
+            "entry.png",
+            "entry_tetra.png",
+        ] {
+            assert!(std::fs::metadata(dir.join(f)).unwrap().len() > 0, "{f}");
+        }
+        std::fs::remove_dir_all(&dir).ok();
     }
 }
