@@ -751,6 +751,23 @@ macro_rules! by_test {
     };
 }
 
+impl BvhTracer<'_> {
+    /// Where a BVH packet starts: `Some(None)` at the root, `Some(Some(e))`
+    /// at the entry point `p.entry` finds, `None` when its frustum overlaps
+    /// no triangle (every ray misses).
+    fn start(&self, p: &TraceParams, rays: &[Ray4], active: &[M4], ctr: &mut Counters) -> Option<Option<EntryPoint>> {
+        if !matches!(p.method, Method::BvhMasked | Method::BvhRanged | Method::BvhPartition) || p.entry == EntrySearch::None {
+            return Some(None);
+        }
+        let bounds = self.view.nodes.first().map_or(crate::geom::Aabb::EMPTY, |n| n.aabb());
+        match search_entry(&self.view, p, rays, active, &bounds, ctr).1 {
+            Start::Root => Some(None),
+            Start::At(e) => Some(Some(e)),
+            Start::Miss => None,
+        }
+    }
+}
+
 impl Tracer for BvhTracer<'_> {
     #[inline]
     fn intersect(&self, ray: &Ray, ctr: &mut Counters) -> Hit {
@@ -772,17 +789,8 @@ impl Tracer for BvhTracer<'_> {
         ctr: &mut Counters,
     ) {
         let (v, o, test) = (&self.view, &p.bvh, self.view.info.test);
-        let start = match p.method {
-            Method::BvhMasked | Method::BvhRanged | Method::BvhPartition => {
-                let bounds = v.nodes.first().map_or(crate::geom::Aabb::EMPTY, |n| n.aabb());
-                search_entry(v, p, rays, active, &bounds, ctr).1
-            }
-            _ => Start::Root,
-        };
-        let e = match start {
-            Start::Root => None,
-            Start::At(e) => Some(e),
-            Start::Miss => return lane_by_lane(rays, active, hits, |_, _| Hit::MISS, ctr),
+        let Some(e) = self.start(p, rays, active, ctr) else {
+            return lane_by_lane(rays, active, hits, |_, _| Hit::MISS, ctr);
         };
         let e = e.as_ref();
         match p.method {
@@ -815,17 +823,8 @@ impl Tracer for BvhTracer<'_> {
         ctr: &mut Counters,
     ) {
         let (v, o, test) = (&self.view, &p.bvh, self.view.info.test);
-        let start = match p.method {
-            Method::BvhMasked | Method::BvhRanged | Method::BvhPartition => {
-                let bounds = v.nodes.first().map_or(crate::geom::Aabb::EMPTY, |n| n.aabb());
-                search_entry(v, p, rays, active, &bounds, ctr).1
-            }
-            _ => Start::Root,
-        };
-        let e = match start {
-            Start::Root => None,
-            Start::At(e) => Some(e),
-            Start::Miss => return lane_by_lane(rays, active, hits, |_, _| Hit::MISS, ctr),
+        let Some(e) = self.start(p, rays, active, ctr) else {
+            return lane_by_lane(rays, active, hits, |_, _| Hit::MISS, ctr);
         };
         let e = e.as_ref();
         match p.method {
