@@ -398,11 +398,11 @@ fn projection_test_needs_its_pool() {
     ));
     let mut l = Limits::for_triangles(4);
     l.projection_test = true;
-    // One projection pool per structure with pools (grid and BVH by default).
+    // One projection pool per structure with pools (grid, BVH and kd-tree by default).
     let extra = sheaf::mem::pool_bytes::<sheaf::geom::ProjTri>(4);
     assert_eq!(
         required_bytes(&l).unwrap(),
-        required_bytes(&Limits::for_triangles(4)).unwrap() + 2 * extra
+        required_bytes(&Limits::for_triangles(4)).unwrap() + 3 * extra
     );
     let grid_only = |mut l: Limits| {
         l.structures = Limits::GRID;
