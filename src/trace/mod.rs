@@ -174,7 +174,11 @@ impl Method {
     pub fn is_packet(self) -> bool {
         matches!(
             self,
-            Method::GridCgt | Method::BvhMasked | Method::BvhRanged | Method::BvhPartition
+            Method::GridCgt
+                | Method::BvhMasked
+                | Method::BvhRanged
+                | Method::BvhPartition
+                | Method::KdPacket
         )
     }
     /// Which structure the method traverses.
