@@ -27,7 +27,10 @@
 //! the rays' hits are on such triangles. Culled boxes lie beyond a frustum
 //! plane by more than the rounding of any ray's slab test, and culled
 //! triangles are hit by no ray, so culling removes nothing a lane would
-//! have visited or hit.
+//! have visited or hit. For the same reason, when one child of a node is
+//! culled, every lane's split `t_s` lies beyond its interval there, and
+//! the other child is entered with the intervals unchanged (what
+//! `split_interval` gives) without per-quad work.
 //!
 //! # Memory
 //! Fixed scratch sized by the packet's class (1, 4, 16, 64 or 256 quads,
@@ -46,12 +49,16 @@
 //!   with the same frustum and entry point (both stay valid for a subset).
 //! - An entry point whose node lies outside the tree is ignored (the
 //!   packet starts at the root).
+//! - Leaves with fewer than `CORNER_TEST_QUADS` quads inside cull their
+//!   triangles by the frustum's four planes only, without the corner-ray
+//!   test of `Frustum::cull_triangle` (NOTE(perf) in `walk`'s leaf loop).
 //!
 //! # Counters
 //! `rays` (valid active lanes), `packets` (per packet of at most 256
-//! quads), `stray_lanes`, `aabb_at` one per quad and split step (the slab
-//! tests of popped boxes are not counted), `tri_at` the live lanes of each
-//! quad-triangle test, `culled_nodes` / `culled` for frustum rejections.
+//! quads), `stray_lanes`, `aabb_at` one per quad and split step (steps
+//! past a culled sibling and the slab tests of popped boxes are not
+//! counted), `tri_at` the live lanes of each quad-triangle test,
+//! `culled_nodes` / `culled` for frustum rejections.
 
 use super::traverse_simd::{clip4, closer4, lane_from, lane_signs, stray_bits, valid4};
 use super::{KdTest, KdView, MAX_DEPTH};
@@ -61,11 +68,13 @@ use crate::geom::lane::mask_from_bits;
 use crate::geom::{Aabb, F4, Hit, Hit4, INVALID_ID, M4, Ray4, RayLanes};
 use crate::trace::{Counters, count};
 
-pub static XSTAT: [core::sync::atomic::AtomicU64; 4] = [const { core::sync::atomic::AtomicU64::new(0) }; 4];
-pub static XBOX: core::sync::atomic::AtomicU32 = core::sync::atomic::AtomicU32::new(0);
-pub static XMODE: core::sync::atomic::AtomicU32 = core::sync::atomic::AtomicU32::new(0);
 /// Most quads traced as one packet (32 x 32 rays).
 pub const MAX_QUADS: usize = 256;
+
+/// Quads in a leaf from which triangles are culled with the full
+/// `Frustum::cull_triangle` (planes and corner rays); fewer: the planes
+/// only (`Frustum::cull_triangle_planes`).
+const CORNER_TEST_QUADS: usize = 8;
 
 /// Nearest hits of the active lanes of `rays` (one packet of `(n/2)^2`
 /// quads; `rays`, `active` and `hits` are read up to the shortest length)
@@ -337,7 +346,7 @@ fn walk<T: KdTest, const ANY: bool, const Q: usize>(
             // frustumIntersectsAABB on both children first: a culled
             // child needs no interval work.
             let (mut use_near, mut use_far) = (true, true);
-            if let Some(f) = frustum.filter(|_| na >= XBOX.load(core::sync::atomic::Ordering::Relaxed) as usize) {
+            if let Some(f) = frustum {
                 if f.cull_box(&nb.min.to_array(), &nb.max.to_array()) {
                     count!(ctr.culled_nodes += 1);
                     use_near = false;
@@ -385,15 +394,6 @@ fn walk<T: KdTest, const ANY: bool, const Q: usize>(
                 }
                 let go_near = need_near.any();
                 let go_far = need_far.any();
-                {
-                    use core::sync::atomic::Ordering::Relaxed;
-                    XSTAT[0].fetch_add(1, Relaxed);
-                    XSTAT[1].fetch_add(na as u64, Relaxed);
-                    if (go_near && !go_far && !cut_near.any()) || (go_far && !go_near && !cut_far.any()) {
-                        XSTAT[2].fetch_add(1, Relaxed);
-                        XSTAT[3].fetch_add(na as u64, Relaxed);
-                    }
-                }
                 if go_near {
                     if go_far {
                         st[sp] = Entry {
@@ -451,14 +451,18 @@ fn walk<T: KdTest, const ANY: bool, const Q: usize>(
             for &s in k.leaf_refs(n) {
                 let s = s as usize;
                 if let Some(f) = frustum {
-                    let mode = XMODE.load(core::sync::atomic::Ordering::Relaxed);
-                    let c = match mode {
-                        0 => f.cull_triangle(&k.tris[s]),
-                        1 => false,
-                        2 => f.cull_triangle_planes(&k.tris[s]),
-                        m => if na >= m as usize { f.cull_triangle(&k.tris[s]) } else { f.cull_triangle_planes(&k.tris[s]) },
+                    // NOTE(perf): the corner-ray part of `cull_triangle`
+                    // (f64) costs more than the 4-wide tests it saves
+                    // unless many quads are in the leaf: below
+                    // `CORNER_TEST_QUADS` only the four planes cull
+                    // (balls, 512 x 512 camera rays: 4 x 4 packets 5.0 ->
+                    // 5.7 Mrays/s, 16 x 16 6.7 -> 7.2; `packet_speed`).
+                    let culled = if na >= CORNER_TEST_QUADS {
+                        f.cull_triangle(&k.tris[s])
+                    } else {
+                        f.cull_triangle_planes(&k.tris[s])
                     };
-                    if c {
+                    if culled {
                         count!(ctr.culled += 1);
                         continue;
                     }
@@ -1124,21 +1128,18 @@ mod tests {
             ));
             for n in [4u32, 8, 16, 32] {
                 for cull in [false, true] {
-                  for mode in if cull { vec![8u32] } else { vec![0] } {
                     let pn = by_side(n);
                     let mut hits = vec![Hit4::MISS; pn[0].0.len()];
                     runs.push((
                         format!(
-                            "kd packet {n}x{n} frustum {} mode {mode}",
+                            "kd packet {n}x{n} frustum {}",
                             if cull { "on" } else { "off" }
                         ),
                         true,
                         Box::new(move |c| {
-                            XMODE.store(mode % 100, core::sync::atomic::Ordering::Relaxed);
-                            XBOX.store(mode / 100, core::sync::atomic::Ordering::Relaxed);
                             let mut x = 0;
                             for (q, a, _) in pn {
-                                let f = if cull && mode != 10000 {
+                                let f = if cull {
                                     Frustum::new(RayKind::Primary, q, a, &k.info.root)
                                 } else {
                                     None
@@ -1149,7 +1150,6 @@ mod tests {
                             x
                         }),
                     ));
-                  }
                 }
             }
             runs.push((
@@ -1238,12 +1238,6 @@ mod tests {
                 "| method | Mrays/s | split steps/ray | tri tests/ray | culled nodes/pkt | culled tris/pkt |"
             );
             println!("|---|---|---|---|---|---|");
-            for (j, (name, _, f)) in runs.iter_mut().enumerate() {
-                for x in &XSTAT { x.store(0, core::sync::atomic::Ordering::Relaxed); }
-                f(&mut Counters::default());
-                let st: Vec<u64> = XSTAT.iter().map(|x| x.load(core::sync::atomic::Ordering::Relaxed)).collect();
-                println!("{name}: nodes {} quad-steps {} unchanged nodes {} unchanged quad-steps {}", st[0], st[1], st[2], st[3]);
-            }
             for (j, (name, _, _)) in runs.iter().enumerate() {
                 let c = &ctrs[j];
                 let np = c.packets.max(1) as f64;
@@ -1261,33 +1255,6 @@ mod tests {
                     assert_eq!(sums[j], sums[0], "{name}");
                 }
             }
-        });
-    }
-
-    #[test]
-    #[ignore]
-    fn xprof() {
-        use crate::accel::bvh::traverse_masked::tests::camera;
-        let s = crate::scenes::builtin("balls").unwrap();
-        let (w, h) = (512u32, 512u32);
-        let side: u32 = std::env::var("XSIDE").ok().and_then(|x| x.parse().ok()).unwrap_or(16);
-        let cull = std::env::var("XCULL").is_ok();
-        with_trees::<Mt>(&s.mesh.vertices, &s.mesh.indices, 0, |k, _b| {
-            let pr = camera(&s.views[0], w, h);
-            let set = RaySet { name: "p", w, h, rays: (0..h).flat_map(|y| (0..w).map(move |x| (x, y))).map(|(x, y)| Some(pr.ray(x, y))).collect(), kinds: &[RayKind::Primary] };
-            let pk = packets(&set, side);
-            let fr: Vec<Option<Frustum>> = pk.iter().map(|(q, a, _)| if cull { Frustum::new(RayKind::Primary, q, a, &k.info.root) } else { None }).collect();
-            let mut hits = vec![Hit4::MISS; pk[0].0.len()];
-            let t = std::time::Instant::now();
-            let mut c = Counters::default();
-            let mut x = 0u64;
-            for _ in 0..40 {
-                for ((q, a, _), f) in pk.iter().zip(&fr) {
-                    intersect::<Mt>(k, q, a, &mut hits, f.as_ref(), None, &mut c);
-                    x += hits[0].prim[0] as u64;
-                }
-            }
-            println!("{x} {:.2} Mrays/s", 40.0 * (w * h) as f64 / t.elapsed().as_secs_f64() / 1e6);
         });
     }
 }

@@ -469,7 +469,7 @@ pub(crate) mod tests {
     #[test]
     fn simd_matches_single_lattice_and_edge_cases() {
         let (v, ix, sets) = crate::accel::bvh::traverse_masked::tests::lattice();
-        for_tests(&v, &ix, 0, &|k: &dyn Fn(&[Ray4], &[M4], &str)| {
+        for_tests(&v, &ix, 0, &|k: Check<'_>| {
             for set in &sets {
                 let (mut quads, mut active) = (Vec::new(), Vec::new());
                 for (q, a, _) in packets(set, 2) {
@@ -492,11 +492,7 @@ pub(crate) mod tests {
             &crate::accel::bvh::build::testutil::deep_tris(),
         );
         let rays = deep_rays(32);
-        for_tests(&v, &ix, MAX_DEPTH as u32, &|k: &dyn Fn(
-            &[Ray4],
-            &[M4],
-            &str,
-        )| {
+        for_tests(&v, &ix, MAX_DEPTH as u32, &|k: Check<'_>| {
             let quads: Vec<Ray4> = rays
                 .chunks_exact(4)
                 .map(|c| Ray4::from_rays(&[c[0], c[1], c[2], c[3]]))
@@ -505,14 +501,12 @@ pub(crate) mod tests {
         });
     }
 
+    /// A quad checker: quads, active masks, what they are.
+    type Check<'c> = &'c dyn Fn(&[Ray4], &[M4], &str);
+
     /// Run `body` with a quad checker for a kd-tree over `v`, `ix` with
     /// each of the three triangle tests.
-    fn for_tests(
-        v: &[f32],
-        ix: &[u32],
-        max_depth: u32,
-        body: &dyn Fn(&dyn Fn(&[Ray4], &[M4], &str)),
-    ) {
+    fn for_tests(v: &[f32], ix: &[u32], max_depth: u32, body: &dyn Fn(Check<'_>)) {
         with_trees::<Mt>(v, ix, max_depth, |k, _| {
             body(&|q, a, w| {
                 check_quads::<Mt>(k, q, a, w);
