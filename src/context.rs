@@ -790,7 +790,7 @@ impl Tracer for BvhTracer<'_> {
     ) {
         let (v, o, test) = (&self.view, &p.bvh, self.view.info.test);
         let Some(e) = self.start(p, rays, active, ctr) else {
-            return lane_by_lane(rays, active, hits, |_, _| Hit::MISS, ctr);
+            return all_miss(active, hits, ctr);
         };
         let e = e.as_ref();
         match p.method {
@@ -824,7 +824,7 @@ impl Tracer for BvhTracer<'_> {
     ) {
         let (v, o, test) = (&self.view, &p.bvh, self.view.info.test);
         let Some(e) = self.start(p, rays, active, ctr) else {
-            return lane_by_lane(rays, active, hits, |_, _| Hit::MISS, ctr);
+            return all_miss(active, hits, ctr);
         };
         let e = e.as_ref();
         match p.method {
@@ -861,6 +861,32 @@ impl Tracer for BvhTracer<'_> {
     }
     fn scene_scale(&self) -> f32 {
         scale_of(&self.view.info.bounds)
+    }
+}
+
+/// Occlusion masks as `Tracer` hits: active lanes get `Hit::OCCLUDED` (kd
+/// packets know no occluder id) or `Hit::MISS`; inactive lanes are untouched.
+fn mark_occluded(occ: &[M4], active: &[M4], hits: &mut [Hit4]) {
+    for ((o, m), h) in occ.iter().zip(active).zip(hits.iter_mut()) {
+        for i in (0..4).filter(|&i| m.test(i)) {
+            h.set_lane(i, if o.test(i) { Hit::OCCLUDED } else { Hit::MISS });
+        }
+    }
+}
+
+/// Count the active lanes of a packet whose rays were answered without
+/// traversal (an entry search found that every ray misses).
+fn count_rays(active: &[M4], ctr: &mut Counters) {
+    ctr.rays += active.iter().map(|m| m.bitmask().count_ones() as u64).sum::<u64>();
+}
+
+/// A packet every active ray of which misses (entry search found no leaf).
+fn all_miss(active: &[M4], hits: &mut [Hit4], ctr: &mut Counters) {
+    count_rays(active, ctr);
+    for (m, h) in active.iter().zip(hits.iter_mut()) {
+        for i in (0..4).filter(|&i| m.test(i)) {
+            h.set_lane(i, Hit::MISS);
+        }
     }
 }
 
@@ -955,7 +981,7 @@ impl Tracer for KdTracer<'_> {
                 use kd::traverse_packet::intersect;
                 let (f, start) = self.packet_start(p, rays, active, ctr);
                 match start {
-                    Start::Miss => lane_by_lane(rays, active, hits, |_, _| Hit::MISS, ctr),
+                    Start::Miss => all_miss(active, hits, ctr),
                     Start::Root => by_test!(test, intersect(v, rays, active, hits, f.as_ref(), None, ctr)),
                     Start::At(e) => by_test!(test, intersect(v, rays, active, hits, f.as_ref(), Some(&e), ctr)),
                 }
@@ -973,35 +999,25 @@ impl Tracer for KdTracer<'_> {
         ctr: &mut Counters,
     ) {
         let (v, test) = (&self.view, self.view.info.test);
-        // Occluded lanes get `Hit::OCCLUDED` (the kd packets know no occluder id).
-        let mut occ = [M4::FALSE; kd::traverse_packet::MAX_QUADS];
-        let mark = |occ: &[M4], hits: &mut [Hit4]| {
-            for ((o, m), h) in occ.iter().zip(active).zip(hits.iter_mut()) {
-                for i in 0..4 {
-                    if m.test(i) {
-                        h.set_lane(i, if o.test(i) { Hit::OCCLUDED } else { Hit::MISS });
-                    }
-                }
-            }
-        };
         match p.method {
             Method::KdSimd => {
                 use kd::traverse_simd::occluded;
-                for (q, (r, m)) in rays.iter().zip(active).enumerate() {
-                    occ[q % kd::traverse_packet::MAX_QUADS] = by_test!(test, occluded(v, r, *m, ctr));
-                    mark(&occ[q % kd::traverse_packet::MAX_QUADS..][..1], &mut hits[q..q + 1]);
+                for ((r, m), h) in rays.iter().zip(active).zip(hits.iter_mut()) {
+                    let o = by_test!(test, occluded(v, r, *m, ctr));
+                    mark_occluded(&[o], core::slice::from_ref(m), core::slice::from_mut(h));
                 }
             }
             Method::KdPacket => {
                 use kd::traverse_packet::occluded;
                 let (f, start) = self.packet_start(p, rays, active, ctr);
                 let n = rays.len().min(active.len()).min(hits.len()).min(kd::traverse_packet::MAX_QUADS);
+                let mut occ = [M4::FALSE; kd::traverse_packet::MAX_QUADS];
                 match start {
-                    Start::Miss => {}
+                    Start::Miss => count_rays(&active[..n], ctr),
                     Start::Root => by_test!(test, occluded(v, &rays[..n], &active[..n], &mut occ[..n], f.as_ref(), None, ctr)),
                     Start::At(e) => by_test!(test, occluded(v, &rays[..n], &active[..n], &mut occ[..n], f.as_ref(), Some(&e), ctr)),
                 }
-                mark(&occ[..n], &mut hits[..n]);
+                mark_occluded(&occ[..n], &active[..n], &mut hits[..n]);
             }
             _ => {
                 use kd::traverse_single::any_hit;

@@ -392,3 +392,48 @@ fn context_calls_and_failed_builds() {
     ctx.trace(Method::KdSingle, &rays, &mut hits).unwrap();
     assert_eq!(hits, want);
 }
+
+/// Occlusion packets write exactly their active lanes, quad by quad: lanes
+/// of a later quad follow that quad's mask, not the first one's, and
+/// inactive lanes keep what the caller had there.
+#[test]
+fn occluded_packets_write_only_active_lanes() {
+    let s = &builtin_scenes()[0];
+    let mut l = Limits::for_triangles(s.triangles());
+    l.max_vertices = (s.vertices.len() / 3) as u32;
+    l.structures = Limits::KD;
+    let mut ctx = OwnedContext::new(&l).unwrap();
+    ctx.build_kd(&s.scene(), &KdParams::default()).unwrap();
+    let tr = ctx.tracer().unwrap().kd().unwrap();
+    let rays = view_rays(&s.views[0].1, 8, 8);
+    let quads: Vec<Ray4> = rays.chunks(4).map(|c| Ray4::from_rays(&[c[0], c[1], c[2], c[3]])).collect();
+    // Quad 0 has one active lane; the others alternate patterns.
+    let active: Vec<M4> = (0..quads.len())
+        .map(|q| if q == 0 { M4::new(true, false, false, false) } else { M4::new(q % 2 == 0, true, q % 3 == 0, true) })
+        .collect();
+    let sentinel = Hit { t: -1.0, prim: 7, u: 0.0, v: 0.0 };
+    let (mut stamps, mut stamp) = ([0u32; 0], 0u32);
+    let mut mb = Mailbox::new(&mut stamps, &mut stamp);
+    let mut ctr = Counters::default();
+    for (m, e) in [(Method::KdSimd, EntrySearch::None), (Method::KdPacket, EntrySearch::None), (Method::KdPacket, EntrySearch::Aepsa)] {
+        let p = TraceParams { method: m, packet: 8, entry: e, ..TraceParams::default() };
+        let mut hits = vec![Hit4::MISS; quads.len()];
+        for h in &mut hits {
+            for i in 0..4 {
+                h.set_lane(i, sentinel);
+            }
+        }
+        tr.occluded_packet(&p, &quads, &active, &mut hits, &mut mb, &mut ctr);
+        for (q, (r, a)) in quads.iter().zip(&active).enumerate() {
+            for i in 0..4 {
+                let got = hits[q].lane(i);
+                if a.test(i) {
+                    assert_eq!(got.is_hit(), tr.occluded(&r.lane(i), &mut ctr), "{} quad {q} lane {i}", m.name());
+                    assert_ne!(got, sentinel);
+                } else {
+                    assert_eq!(got, sentinel, "{} quad {q} lane {i}: inactive lane written", m.name());
+                }
+            }
+        }
+    }
+}
