@@ -4,11 +4,11 @@
 
 use crate::accel::bvh::{self, Bvh, BvhInfo, BvhNode, BvhParams, BvhPools, BvhView, PrimRef};
 use crate::accel::entry::{self, EntryPoint, EntrySearch, EntryTree};
-use crate::geom::frustum::Frustum;
 use crate::accel::grid::traverse_cgt::{self, Mailbox};
 use crate::accel::grid::{self, Grid, GridInfo, GridParams, GridPools, GridView};
 use crate::accel::kd::{self, KdInfo, KdNode, KdParams, KdPools, KdTree, KdView};
 use crate::error::{Error, Pool, Result};
+use crate::geom::frustum::Frustum;
 use crate::geom::{Hit, Hit4, M4, Mt, Pt, Ray, Ray4, Scene, TriTest, TriVerts, TriangleTest, Wt};
 use crate::mem::{Arena, Limits, pool_bytes};
 use crate::render::whitted::{self, WhittedJob};
@@ -267,7 +267,9 @@ impl<'a> Context<'a> {
     /// valid.
     pub fn build_kd(&mut self, scene: &Scene<'_>, params: &KdParams) -> Result<KdInfo> {
         if !self.limits.has(Limits::KD) {
-            return Err(Error::InvalidArgument("no kd-tree pools: Limits::structures lacks KD"));
+            return Err(Error::InvalidArgument(
+                "no kd-tree pools: Limits::structures lacks KD",
+            ));
         }
         self.check_scene(scene)?;
         let t = now();
@@ -280,7 +282,12 @@ impl<'a> Context<'a> {
     /// The built structures with single-ray calls going to the first built
     /// of grid, BVH, kd-tree.
     fn scene_tracer(&self) -> Result<SceneTracer<'_>> {
-        let t = SceneTracer { grid: self.grid.view(), bvh: self.bvh.view(), kd: self.kd.view(), single: Method::GridDda };
+        let t = SceneTracer {
+            grid: self.grid.view(),
+            bvh: self.bvh.view(),
+            kd: self.kd.view(),
+            single: Method::GridDda,
+        };
         let single = if t.grid.is_some() {
             Method::GridDda
         } else if t.bvh.is_some() {
@@ -303,8 +310,16 @@ impl<'a> Context<'a> {
     /// The built structures and one mailbox per thread slot, for tracing
     /// and rendering from several threads (each thread takes one mailbox).
     pub fn parts(&mut self) -> Result<(SceneTracer<'_>, impl Iterator<Item = Mailbox<'_>>)> {
-        let t = SceneTracer { grid: self.grid.view(), bvh: self.bvh.view(), kd: self.kd.view(), single: Method::GridDda };
-        let t = SceneTracer { single: self.scene_tracer()?.single, ..t };
+        let t = SceneTracer {
+            grid: self.grid.view(),
+            bvh: self.bvh.view(),
+            kd: self.kd.view(),
+            single: Method::GridDda,
+        };
+        let t = SceneTracer {
+            single: self.scene_tracer()?.single,
+            ..t
+        };
         // One mailbox per thread slot; without grid pools (no stamps) the
         // mailboxes are empty, which only the grid's CGT would use.
         let n = self.limits.max_triangles.max(1) as usize;
@@ -755,11 +770,25 @@ impl BvhTracer<'_> {
     /// Where a BVH packet starts: `Some(None)` at the root, `Some(Some(e))`
     /// at the entry point `p.entry` finds, `None` when its frustum overlaps
     /// no triangle (every ray misses).
-    fn start(&self, p: &TraceParams, rays: &[Ray4], active: &[M4], ctr: &mut Counters) -> Option<Option<EntryPoint>> {
-        if !matches!(p.method, Method::BvhMasked | Method::BvhRanged | Method::BvhPartition) || p.entry == EntrySearch::None {
+    fn start(
+        &self,
+        p: &TraceParams,
+        rays: &[Ray4],
+        active: &[M4],
+        ctr: &mut Counters,
+    ) -> Option<Option<EntryPoint>> {
+        if !matches!(
+            p.method,
+            Method::BvhMasked | Method::BvhRanged | Method::BvhPartition
+        ) || p.entry == EntrySearch::None
+        {
             return Some(None);
         }
-        let bounds = self.view.nodes.first().map_or(crate::geom::Aabb::EMPTY, |n| n.aabb());
+        let bounds = self
+            .view
+            .nodes
+            .first()
+            .map_or(crate::geom::Aabb::EMPTY, |n| n.aabb());
         match search_entry(&self.view, p, rays, active, &bounds, ctr).1 {
             Start::Root => Some(None),
             Start::At(e) => Some(Some(e)),
@@ -877,7 +906,10 @@ fn mark_occluded(occ: &[M4], active: &[M4], hits: &mut [Hit4]) {
 /// Count the active lanes of a packet whose rays were answered without
 /// traversal (an entry search found that every ray misses).
 fn count_rays(active: &[M4], ctr: &mut Counters) {
-    ctr.rays += active.iter().map(|m| m.bitmask().count_ones() as u64).sum::<u64>();
+    ctr.rays += active
+        .iter()
+        .map(|m| m.bitmask().count_ones() as u64)
+        .sum::<u64>();
 }
 
 /// A packet every active ray of which misses (entry search found no leaf).
@@ -909,7 +941,10 @@ fn search_entry<E: EntryTree + ?Sized>(
     bounds: &crate::geom::Aabb,
     ctr: &mut Counters,
 ) -> (Option<Frustum>, Start) {
-    let nq = rays.len().min(active.len()).min(kd::traverse_packet::MAX_QUADS);
+    let nq = rays
+        .len()
+        .min(active.len())
+        .min(kd::traverse_packet::MAX_QUADS);
     let mut live = [M4::FALSE; kd::traverse_packet::MAX_QUADS];
     for q in 0..nq {
         live[q] = entry::live_mask(&rays[q], active[q]);
@@ -935,7 +970,13 @@ pub struct KdTracer<'r> {
 impl KdTracer<'_> {
     /// Frustum and start of a `KdPacket` packet; the frustum only when
     /// culling is on.
-    fn packet_start(&self, p: &TraceParams, rays: &[Ray4], active: &[M4], ctr: &mut Counters) -> (Option<Frustum>, Start) {
+    fn packet_start(
+        &self,
+        p: &TraceParams,
+        rays: &[Ray4],
+        active: &[M4],
+        ctr: &mut Counters,
+    ) -> (Option<Frustum>, Start) {
         if !p.bvh.culling && p.entry == EntrySearch::None {
             return (None, Start::Root);
         }
@@ -982,8 +1023,14 @@ impl Tracer for KdTracer<'_> {
                 let (f, start) = self.packet_start(p, rays, active, ctr);
                 match start {
                     Start::Miss => all_miss(active, hits, ctr),
-                    Start::Root => by_test!(test, intersect(v, rays, active, hits, f.as_ref(), None, ctr)),
-                    Start::At(e) => by_test!(test, intersect(v, rays, active, hits, f.as_ref(), Some(&e), ctr)),
+                    Start::Root => by_test!(
+                        test,
+                        intersect(v, rays, active, hits, f.as_ref(), None, ctr)
+                    ),
+                    Start::At(e) => by_test!(
+                        test,
+                        intersect(v, rays, active, hits, f.as_ref(), Some(&e), ctr)
+                    ),
                 }
             }
             _ => lane_by_lane(rays, active, hits, |r, c| self.intersect(r, c), ctr),
@@ -1010,18 +1057,50 @@ impl Tracer for KdTracer<'_> {
             Method::KdPacket => {
                 use kd::traverse_packet::occluded;
                 let (f, start) = self.packet_start(p, rays, active, ctr);
-                let n = rays.len().min(active.len()).min(hits.len()).min(kd::traverse_packet::MAX_QUADS);
+                let n = rays
+                    .len()
+                    .min(active.len())
+                    .min(hits.len())
+                    .min(kd::traverse_packet::MAX_QUADS);
                 let mut occ = [M4::FALSE; kd::traverse_packet::MAX_QUADS];
                 match start {
                     Start::Miss => count_rays(&active[..n], ctr),
-                    Start::Root => by_test!(test, occluded(v, &rays[..n], &active[..n], &mut occ[..n], f.as_ref(), None, ctr)),
-                    Start::At(e) => by_test!(test, occluded(v, &rays[..n], &active[..n], &mut occ[..n], f.as_ref(), Some(&e), ctr)),
+                    Start::Root => by_test!(
+                        test,
+                        occluded(
+                            v,
+                            &rays[..n],
+                            &active[..n],
+                            &mut occ[..n],
+                            f.as_ref(),
+                            None,
+                            ctr
+                        )
+                    ),
+                    Start::At(e) => by_test!(
+                        test,
+                        occluded(
+                            v,
+                            &rays[..n],
+                            &active[..n],
+                            &mut occ[..n],
+                            f.as_ref(),
+                            Some(&e),
+                            ctr
+                        )
+                    ),
                 }
                 mark_occluded(&occ[..n], &active[..n], &mut hits[..n]);
             }
             _ => {
                 use kd::traverse_single::any_hit;
-                lane_by_lane(rays, active, hits, |r, c| by_test!(test, any_hit(v, r, c)), ctr)
+                lane_by_lane(
+                    rays,
+                    active,
+                    hits,
+                    |r, c| by_test!(test, any_hit(v, r, c)),
+                    ctr,
+                )
             }
         }
     }

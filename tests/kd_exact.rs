@@ -12,9 +12,9 @@ mod common;
 use common::{TestScene, builtin_scenes, obj_scenes, par_map, view_rays};
 use glam::Vec3;
 use sheaf::accel::bvh::BvhParams;
+use sheaf::accel::grid::traverse_cgt::Mailbox;
 use sheaf::accel::kd::KdParams;
 use sheaf::trace::EntrySearch;
-use sheaf::accel::grid::traverse_cgt::Mailbox;
 
 use sheaf::geom::{Hit4, M4, Ray4};
 use sheaf::render::{SHADOW_OFFSET, Tracer, demorton};
@@ -83,7 +83,12 @@ fn reference(tr: &impl Tracer, c: &Class) -> Vec<Hit> {
 }
 
 /// Every method x packet side x culling x kind against the single ray.
-fn check_class(tr: &impl Tracer, cases: &[(Method, usize, EntrySearch)], what: &str, c: &Class) -> Counters {
+fn check_class(
+    tr: &impl Tracer,
+    cases: &[(Method, usize, EntrySearch)],
+    what: &str,
+    c: &Class,
+) -> Counters {
     let want = reference(tr, c);
     let (mut stamps, mut stamp) = ([0u32; 0], 0u32);
     let mut mb = Mailbox::new(&mut stamps, &mut stamp);
@@ -215,8 +220,23 @@ fn check_scene(s: &TestScene) {
         l.max_vertices = (s.vertices.len() / 3) as u32;
         l.structures = Limits::KD | Limits::BVH;
         let mut ctx = OwnedContext::new(&l).unwrap();
-        let info = ctx.build_kd(&s.scene(), &KdParams { test, ..KdParams::default() }).unwrap();
-        ctx.build_bvh(&s.scene(), &BvhParams { test, ..BvhParams::default() }).unwrap();
+        let info = ctx
+            .build_kd(
+                &s.scene(),
+                &KdParams {
+                    test,
+                    ..KdParams::default()
+                },
+            )
+            .unwrap();
+        ctx.build_bvh(
+            &s.scene(),
+            &BvhParams {
+                test,
+                ..BvhParams::default()
+            },
+        )
+        .unwrap();
         let all = ctx.tracer().unwrap();
         let (tr, bvh) = (all.kd().unwrap(), all.bvh().unwrap());
         let (kd_cases, bvh_cases) = (kd_cases(), bvh_entry_cases());
@@ -278,7 +298,10 @@ fn check_scene(s: &TestScene) {
         );
         if cfg!(feature = "counters") && info.triangles > 100 {
             assert!(
-                sum.culled_nodes > 0 && sum.culled > 0 && sum.entry_searches > 0 && sum.entry_depth_sum > 0,
+                sum.culled_nodes > 0
+                    && sum.culled > 0
+                    && sum.entry_searches > 0
+                    && sum.entry_depth_sum > 0,
                 "{}: frustum culling must be exercised",
                 s.name
             );
@@ -349,7 +372,12 @@ fn random_packets_equal_the_single_ray() {
                 kind: RayKind::Auto,
                 any,
             };
-            check_class(&tr, &kd_cases(), &format!("{} common origin {common_origin}", s.name), &class);
+            check_class(
+                &tr,
+                &kd_cases(),
+                &format!("{} common origin {common_origin}", s.name),
+                &class,
+            );
         }
     }
 }
@@ -364,9 +392,15 @@ fn context_calls_and_failed_builds() {
     l.max_vertices = (s.vertices.len() / 3) as u32;
     l.structures = Limits::KD;
     let mut ctx = OwnedContext::new(&l).unwrap();
-    assert_eq!(ctx.trace(Method::KdSingle, &[], &mut []).unwrap_err(), sheaf::Error::NotBuilt);
+    assert_eq!(
+        ctx.trace(Method::KdSingle, &[], &mut []).unwrap_err(),
+        sheaf::Error::NotBuilt
+    );
     let info = ctx.build_kd(&s.scene(), &KdParams::default()).unwrap();
-    assert!(ctx.build_bvh(&s.scene(), &BvhParams::default()).is_err(), "no BVH pools");
+    assert!(
+        ctx.build_bvh(&s.scene(), &BvhParams::default()).is_err(),
+        "no BVH pools"
+    );
     let rays = view_rays(&s.views[0].1, 32, 32);
     let mut hits = vec![Hit::MISS; rays.len()];
     let mut want = vec![Hit::MISS; rays.len()];
@@ -374,9 +408,15 @@ fn context_calls_and_failed_builds() {
     assert!(want.iter().any(|h| h.is_hit()));
     let mut occ_want = vec![false; rays.len()];
     let shadow: Vec<Ray> = rays.iter().map(|r| Ray { tmax: 0.9, ..*r }).collect();
-    ctx.occluded(Method::KdSingle, &shadow, &mut occ_want).unwrap();
+    ctx.occluded(Method::KdSingle, &shadow, &mut occ_want)
+        .unwrap();
     for (m, n, e) in kd_cases() {
-        let p = TraceParams { method: m, packet: n as u32, entry: e, ..TraceParams::default() };
+        let p = TraceParams {
+            method: m,
+            packet: n as u32,
+            entry: e,
+            ..TraceParams::default()
+        };
         ctx.trace_with(&p, &rays, &mut hits).unwrap();
         assert_eq!(hits, want, "{} {n} {e:?}", m.name());
         let mut occ = vec![false; rays.len()];
@@ -406,17 +446,40 @@ fn occluded_packets_write_only_active_lanes() {
     ctx.build_kd(&s.scene(), &KdParams::default()).unwrap();
     let tr = ctx.tracer().unwrap().kd().unwrap();
     let rays = view_rays(&s.views[0].1, 8, 8);
-    let quads: Vec<Ray4> = rays.chunks(4).map(|c| Ray4::from_rays(&[c[0], c[1], c[2], c[3]])).collect();
+    let quads: Vec<Ray4> = rays
+        .chunks(4)
+        .map(|c| Ray4::from_rays(&[c[0], c[1], c[2], c[3]]))
+        .collect();
     // Quad 0 has one active lane; the others alternate patterns.
     let active: Vec<M4> = (0..quads.len())
-        .map(|q| if q == 0 { M4::new(true, false, false, false) } else { M4::new(q % 2 == 0, true, q % 3 == 0, true) })
+        .map(|q| {
+            if q == 0 {
+                M4::new(true, false, false, false)
+            } else {
+                M4::new(q % 2 == 0, true, q % 3 == 0, true)
+            }
+        })
         .collect();
-    let sentinel = Hit { t: -1.0, prim: 7, u: 0.0, v: 0.0 };
+    let sentinel = Hit {
+        t: -1.0,
+        prim: 7,
+        u: 0.0,
+        v: 0.0,
+    };
     let (mut stamps, mut stamp) = ([0u32; 0], 0u32);
     let mut mb = Mailbox::new(&mut stamps, &mut stamp);
     let mut ctr = Counters::default();
-    for (m, e) in [(Method::KdSimd, EntrySearch::None), (Method::KdPacket, EntrySearch::None), (Method::KdPacket, EntrySearch::Aepsa)] {
-        let p = TraceParams { method: m, packet: 8, entry: e, ..TraceParams::default() };
+    for (m, e) in [
+        (Method::KdSimd, EntrySearch::None),
+        (Method::KdPacket, EntrySearch::None),
+        (Method::KdPacket, EntrySearch::Aepsa),
+    ] {
+        let p = TraceParams {
+            method: m,
+            packet: 8,
+            entry: e,
+            ..TraceParams::default()
+        };
         let mut hits = vec![Hit4::MISS; quads.len()];
         for h in &mut hits {
             for i in 0..4 {
@@ -428,10 +491,20 @@ fn occluded_packets_write_only_active_lanes() {
             for i in 0..4 {
                 let got = hits[q].lane(i);
                 if a.test(i) {
-                    assert_eq!(got.is_hit(), tr.occluded(&r.lane(i), &mut ctr), "{} quad {q} lane {i}", m.name());
+                    assert_eq!(
+                        got.is_hit(),
+                        tr.occluded(&r.lane(i), &mut ctr),
+                        "{} quad {q} lane {i}",
+                        m.name()
+                    );
                     assert_ne!(got, sentinel);
                 } else {
-                    assert_eq!(got, sentinel, "{} quad {q} lane {i}: inactive lane written", m.name());
+                    assert_eq!(
+                        got,
+                        sentinel,
+                        "{} quad {q} lane {i}: inactive lane written",
+                        m.name()
+                    );
                 }
             }
         }
