@@ -10,179 +10,20 @@ mod common;
 use common::{TestScene, builtin_scenes, obj_scenes, par_map, view_rays};
 use glam::Vec3;
 use sheaf::accel::bvh::BvhParams;
-use sheaf::accel::grid::traverse_cgt::Mailbox;
-use sheaf::context::BvhTracer;
-use sheaf::geom::{Hit4, M4, Ray4};
-use sheaf::render::{SHADOW_OFFSET, Tracer, demorton};
-use sheaf::trace::{BvhOptions, RayKind};
+use sheaf::render::{SHADOW_OFFSET, Tracer};
+use sheaf::trace::{EntrySearch, RayKind};
 use sheaf::{Counters, Hit, Limits, Method, OwnedContext, Ray, TraceParams, TriTest};
 
-const RES: usize = 64;
+use common::exact::{Class, RES, check_class, reference, secondary};
 
-/// Row-major rays of a `RES x RES` image as n x n packets of 2x2 quads, quads
-/// in Morton order (the renderer's layout, which the primary frustum reads):
-/// (quads, ray index of every lane).
-fn packets(rays: &[Ray], n: usize) -> Vec<(Vec<Ray4>, Vec<usize>)> {
-    let mut out = Vec::new();
-    for ty in (0..RES).step_by(n) {
-        for tx in (0..RES).step_by(n) {
-            let (mut quads, mut idx) = (Vec::new(), Vec::new());
-            for q in 0..(n / 2) * (n / 2) {
-                let (qx, qy) = demorton(q);
-                let (x, y) = (tx + 2 * qx as usize, ty + 2 * qy as usize);
-                let ids = [
-                    y * RES + x,
-                    y * RES + x + 1,
-                    (y + 1) * RES + x,
-                    (y + 1) * RES + x + 1,
-                ];
-                quads.push(Ray4::from_rays(&ids.map(|i| rays[i])));
-                idx.extend(ids);
-            }
-            out.push((quads, idx));
-        }
-    }
-    out
-}
-
-/// Rays of one class with the kind their frustum is built for and the
-/// active lanes (inactive rays are not compared).
-struct Class {
-    name: &'static str,
-    rays: Vec<Ray>,
-    active: Vec<bool>,
-    kind: RayKind,
-    any: bool,
-}
-
-fn reference(tr: &BvhTracer<'_>, c: &Class) -> Vec<Hit> {
-    let mut ctr = Counters::default();
-    c.rays
-        .iter()
-        .map(|r| {
-            if c.any {
-                if tr.occluded(r, &mut ctr) {
-                    Hit {
-                        t: 0.0,
-                        prim: 0,
-                        u: 0.0,
-                        v: 0.0,
-                    }
-                } else {
-                    Hit::MISS
-                }
-            } else {
-                tr.intersect(r, &mut ctr)
-            }
-        })
-        .collect()
-}
-
-/// Every method x packet side x culling x kind against the single ray.
-fn check_class(tr: &BvhTracer<'_>, what: &str, c: &Class) -> Counters {
-    let want = reference(tr, c);
-    let (mut stamps, mut stamp) = ([0u32; 0], 0u32);
-    let mut mb = Mailbox::new(&mut stamps, &mut stamp);
-    let mut total = Counters::default();
-    let mut cases: Vec<(Method, usize)> = vec![(Method::BvhSimd, 2)];
+/// The BVH packet methods from the root: SIMD, Masked, Ranged, Partition at
+/// every side (entry points: kd_exact.rs).
+fn bvh_cases() -> Vec<(Method, usize, EntrySearch)> {
+    let mut cases = vec![(Method::BvhSimd, 2, EntrySearch::None)];
     for m in [Method::BvhMasked, Method::BvhRanged, Method::BvhPartition] {
-        cases.extend([4, 8, 16, 32].map(|n| (m, n)));
+        cases.extend([4, 8, 16, 32].map(|n| (m, n, EntrySearch::None)));
     }
-    for (method, n) in cases {
-        for culling in [true, false] {
-            for kind in [c.kind, RayKind::Auto] {
-                let p = TraceParams {
-                    method,
-                    packet: n as u32,
-                    bvh: BvhOptions { culling, kind },
-                    ..TraceParams::default()
-                };
-                for (quads, idx) in packets(&c.rays, n) {
-                    let active: Vec<M4> = idx
-                        .chunks(4)
-                        .map(|k| {
-                            M4::new(
-                                c.active[k[0]],
-                                c.active[k[1]],
-                                c.active[k[2]],
-                                c.active[k[3]],
-                            )
-                        })
-                        .collect();
-                    let mut hits = vec![Hit4::MISS; quads.len()];
-                    if c.any {
-                        tr.occluded_packet(&p, &quads, &active, &mut hits, &mut mb, &mut total);
-                    } else {
-                        tr.intersect_packet(&p, &quads, &active, &mut hits, &mut mb, &mut total);
-                    }
-                    for (k, &ri) in idx.iter().enumerate() {
-                        if !c.active[ri] {
-                            continue;
-                        }
-                        let got = hits[k / 4].lane(k % 4);
-                        let exp = want[ri];
-                        let ok = if c.any {
-                            got.is_hit() == exp.is_hit()
-                        } else {
-                            got.prim == exp.prim && got.t.to_bits() == exp.t.to_bits()
-                        };
-                        assert!(
-                            ok,
-                            "{what} {}: {} {n}x{n} culling {culling} {kind:?}: ray {ri} {:?}\n  packet {got:?}\n  single {exp:?}",
-                            c.name,
-                            method.name(),
-                            c.rays[ri]
-                        );
-                    }
-                }
-            }
-        }
-    }
-    total
-}
-
-/// Reflection and refraction rays of the primary hits (every hit reflects
-/// and refracts with index 1.5; total internal reflection gives no ray).
-fn secondary(tr: &BvhTracer<'_>, rays: &[Ray], hits: &[Hit], eps: f32) -> (Class, Class) {
-    let pad = Ray::new(Vec3::ZERO, Vec3::X, 0.0, 0.0);
-    let mut refl = Class {
-        name: "reflection",
-        rays: vec![pad; rays.len()],
-        active: vec![false; rays.len()],
-        kind: RayKind::Secondary,
-        any: false,
-    };
-    let mut refr = Class {
-        name: "refraction",
-        rays: vec![pad; rays.len()],
-        active: vec![false; rays.len()],
-        kind: RayKind::Secondary,
-        any: false,
-    };
-    for (i, (r, h)) in rays.iter().zip(hits).enumerate() {
-        let Some(tri) = h.is_hit().then(|| tr.triangle(h.prim)).flatten() else {
-            continue;
-        };
-        let d = Vec3::from(r.dir).normalize();
-        let mut n = tri.normal().normalize_or_zero();
-        let entering = n.dot(d) < 0.0;
-        if !entering {
-            n = -n;
-        }
-        let p = Vec3::from(r.org) + Vec3::from(r.dir) * h.t;
-        let rd = d - 2.0 * d.dot(n) * n;
-        refl.rays[i] = Ray::new(p + n * eps, rd, 0.0, f32::INFINITY);
-        refl.active[i] = true;
-        let eta = if entering { 1.0 / 1.5 } else { 1.5 };
-        let cos_i = -d.dot(n);
-        let k = 1.0 - eta * eta * (1.0 - cos_i * cos_i);
-        if k > 0.0 {
-            let td = eta * d + (eta * cos_i - k.sqrt()) * n;
-            refr.rays[i] = Ray::new(p - n * eps, td, 0.0, f32::INFINITY);
-            refr.active[i] = true;
-        }
-    }
-    (refl, refr)
+    cases
 }
 
 fn check_scene(s: &TestScene) {
@@ -214,7 +55,7 @@ fn check_scene(s: &TestScene) {
                 kind: RayKind::Primary,
                 any: false,
             };
-            sum.add(&check_class(&tr, &what, &primary));
+            sum.add(&check_class(&tr, &bvh_cases(), &what, &primary));
             let hits = reference(&tr, &primary);
             // Shadow rays from the light to just off the hit surfaces.
             let mut shadow = Class {
@@ -235,10 +76,10 @@ fn check_scene(s: &TestScene) {
                     shadow.active[i] = true;
                 }
             }
-            sum.add(&check_class(&tr, &what, &shadow));
+            sum.add(&check_class(&tr, &bvh_cases(), &what, &shadow));
             let (refl, refr) = secondary(&tr, &rays, &hits, eps);
-            sum.add(&check_class(&tr, &what, &refl));
-            sum.add(&check_class(&tr, &what, &refr));
+            sum.add(&check_class(&tr, &bvh_cases(), &what, &refl));
+            sum.add(&check_class(&tr, &bvh_cases(), &what, &refr));
         }
         println!(
             "{:>10} {test:?}: {} nodes, depth {}: {} packets, {} rays, {} box tests, {} triangle tests, {} nodes and {} triangles culled, {} packets without frustum",
@@ -328,6 +169,7 @@ fn random_packets_equal_the_single_ray() {
             };
             check_class(
                 &tr,
+                &bvh_cases(),
                 &format!("{} common origin {common_origin}", s.name),
                 &class,
             );

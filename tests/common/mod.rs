@@ -2,6 +2,8 @@
 //! scenes of ../shared/scenes with fixed views, and primary rays for a view.
 #![allow(dead_code)]
 
+pub mod exact;
+
 use glam::Vec3;
 use sheaf::Ray;
 use sheaf::scenes::{self, View};
