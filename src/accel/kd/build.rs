@@ -573,7 +573,6 @@ pub fn build(kd: &mut KdTree<'_>, scene: &Scene<'_>, p: &KdParams) -> Result<KdI
 pub(crate) mod testutil {
     //! Owned pools for tests.
     use super::super::{KdNode, KdPools, KdTree};
-    use super::EVENTS_PER_TRI;
     use crate::geom::{ProjTri, TriVerts};
 
     pub struct Store {
