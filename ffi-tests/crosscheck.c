@@ -247,9 +247,10 @@ static bool test_emit_scene_and_rays(void) {
     sheaf_limits l;
     uint32_t i;
     CHECK_OK(sheaf_limits_default(g_scene->nt, &l));
-    printf("@limits %u %u %u %u %u %u %u %u %u %u %u %u\n", l.max_triangles, l.max_vertices, l.max_image_width,
+    printf("@limits %u %u %u %u %u %u %u %u %u %u %u %u %u %u\n", l.max_triangles, l.max_vertices, l.max_image_width,
            l.max_image_height, l.max_tile, l.max_threads, l.max_grid_cells, l.max_grid_refs,
-           (unsigned)l.projection_test, l.structures, l.max_kd_nodes, l.max_kd_refs);
+           (unsigned)l.projection_test, l.structures, l.max_kd_nodes, l.max_kd_refs, l.max_pgrid_cells,
+           l.max_pgrid_refs);
     for (i = 0; i < g_scene->nv; ++i)
         printf("@vertex %u %08x %08x %08x\n", i, float_bits(g_scene->v[i][0]), float_bits(g_scene->v[i][1]),
                float_bits(g_scene->v[i][2]));

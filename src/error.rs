@@ -17,6 +17,12 @@ pub enum Pool {
     Image,
     /// Per-thread slots (`Limits::max_threads`).
     Threads,
+    /// Cells of a perspective or light grid (`Limits::max_pgrid_cells`):
+    /// tiles x depth slices.
+    PgridCells,
+    /// (triangle, cell) pairs of a perspective or light grid
+    /// (`Limits::max_pgrid_refs`).
+    PgridRefs,
 }
 
 impl Pool {
@@ -29,6 +35,8 @@ impl Pool {
             Pool::GridRefs => "grid_refs",
             Pool::Image => "image",
             Pool::Threads => "threads",
+            Pool::PgridCells => "pgrid_cells",
+            Pool::PgridRefs => "pgrid_refs",
         }
     }
 }

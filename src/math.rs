@@ -42,6 +42,18 @@ mod imp {
         x.powf(y)
     }
     #[inline(always)]
+    pub fn atan2(y: f32, x: f32) -> f32 {
+        y.atan2(x)
+    }
+    #[inline(always)]
+    pub fn ln(x: f32) -> f32 {
+        x.ln()
+    }
+    #[inline(always)]
+    pub fn exp(x: f32) -> f32 {
+        x.exp()
+    }
+    #[inline(always)]
     pub fn sqrt64(x: f64) -> f64 {
         x.sqrt()
     }
@@ -84,6 +96,18 @@ mod imp {
     #[inline(always)]
     pub fn powf(x: f32, y: f32) -> f32 {
         libm::powf(x, y)
+    }
+    #[inline(always)]
+    pub fn atan2(y: f32, x: f32) -> f32 {
+        libm::atan2f(y, x)
+    }
+    #[inline(always)]
+    pub fn ln(x: f32) -> f32 {
+        libm::logf(x)
+    }
+    #[inline(always)]
+    pub fn exp(x: f32) -> f32 {
+        libm::expf(x)
     }
     #[inline(always)]
     pub fn sqrt64(x: f64) -> f64 {

@@ -265,6 +265,7 @@ fn stale_structures_do_not_shade_new_frames() {
         light: sheaf::PointLight {
             position: b.light.to_array(),
             color: [1.0; 3],
+            ..Default::default()
         },
         shading: sheaf::Shading::default(),
         width: 48,

@@ -362,7 +362,7 @@ fn parse(stdout: &str) -> Emitted {
         let v3 = |at: usize| [hex_f32(f[at]), hex_f32(f[at + 1]), hex_f32(f[at + 2])];
         match f[0] {
             "@limits" => {
-                let n: Vec<u32> = f[1..13].iter().map(|s| num(s)).collect();
+                let n: Vec<u32> = f[1..15].iter().map(|s| num(s)).collect();
                 e.limits = Some(Limits {
                     max_triangles: n[0],
                     max_vertices: n[1],
@@ -376,6 +376,8 @@ fn parse(stdout: &str) -> Emitted {
                     structures: n[9],
                     max_kd_nodes: n[10],
                     max_kd_refs: n[11],
+                    max_pgrid_cells: n[12],
+                    max_pgrid_refs: n[13],
                 });
             }
             "@vertex" => {
@@ -444,6 +446,7 @@ fn parse(stdout: &str) -> Emitted {
                     light: PointLight {
                         position: v3(15),
                         color: v3(18),
+                        ..Default::default()
                     },
                     shading: Shading {
                         albedo: v3(21),
@@ -715,6 +718,7 @@ fn inputs() -> Inputs {
         light: PointLight {
             position: [4.0, -3.0, 8.0],
             color: [1.0; 3],
+            ..Default::default()
         },
         shading: Shading::default(),
         width: 32,

@@ -377,6 +377,7 @@ fn context_trace_with_cgt_matches_dda_and_renders_identical_images() {
                 light: PointLight {
                     position: s.light.to_array(),
                     color: [1.0; 3],
+                    ..Default::default()
                 },
                 shading: Shading::default(),
                 width: 70,

@@ -56,6 +56,7 @@ fn frame_of(anim: &Animated) -> Frame {
         light: PointLight {
             position: anim.light().to_array(),
             color: [1.0; 3],
+            ..Default::default()
         },
         shading: Shading::default(),
         width: 96,

@@ -47,6 +47,7 @@ fn frame(v: &View, light: Vec3, w: u32, h: u32) -> Frame {
         light: PointLight {
             position: light.to_array(),
             color: [1.0; 3],
+            ..Default::default()
         },
         shading: Shading::default(),
         width: w,
@@ -151,10 +152,12 @@ fn check_scene(s: &TestScene) {
         PointLight {
             position: s.light.to_array(),
             color: [0.7, 0.7, 0.6],
+            ..Default::default()
         },
         PointLight {
             position: (s.light * Vec3::new(-1.0, 1.0, 1.0) + Vec3::Z).to_array(),
             color: [0.2, 0.3, 0.4],
+            ..Default::default()
         },
     ];
     let params = WhittedParams {
@@ -650,6 +653,7 @@ fn invalid_materials_and_limits_are_rejected() {
     let nan_light = [PointLight {
         position: [f32::NAN, 0.0, 0.0],
         color: [1.0; 3],
+        ..Default::default()
     }];
     assert!(invalid(WhittedJob {
         lights: &nan_light,

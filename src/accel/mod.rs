@@ -6,3 +6,4 @@ pub mod bvh;
 pub mod entry;
 pub mod grid;
 pub mod kd;
+pub mod pgrid;

@@ -48,6 +48,12 @@ pub enum sheaf_status {
     CapacityImage = 204,
     /// More threads than `sheaf_limits.max_threads`.
     CapacityThreads = 205,
+    /// A perspective or light grid needs more cells than
+    /// `sheaf_limits.max_pgrid_cells` (fewer tiles or depth slices).
+    CapacityPgridCells = 206,
+    /// A perspective or light grid needs more (triangle, cell) pairs than
+    /// `sheaf_limits.max_pgrid_refs`.
+    CapacityPgridRefs = 207,
     /// `sheaf_context_create` could not allocate its memory.
     OutOfMemory = 299,
     /// `sheaf_context_build_grid` before any successful `sheaf_context_set_geometry`.
@@ -73,6 +79,8 @@ impl sheaf_status {
         sheaf_status::CapacityGridRefs,
         sheaf_status::CapacityImage,
         sheaf_status::CapacityThreads,
+        sheaf_status::CapacityPgridCells,
+        sheaf_status::CapacityPgridRefs,
         sheaf_status::OutOfMemory,
         sheaf_status::NoGeometry,
         sheaf_status::NotBuilt,
@@ -92,6 +100,8 @@ impl sheaf_status {
                 Pool::GridRefs => sheaf_status::CapacityGridRefs,
                 Pool::Image => sheaf_status::CapacityImage,
                 Pool::Threads => sheaf_status::CapacityThreads,
+                Pool::PgridCells => sheaf_status::CapacityPgridCells,
+                Pool::PgridRefs => sheaf_status::CapacityPgridRefs,
             },
             Error::BufferTooSmall { .. } => sheaf_status::BufferTooSmall,
             Error::Misaligned { .. } => sheaf_status::Misaligned,
@@ -132,6 +142,12 @@ impl sheaf_status {
             }
             sheaf_status::CapacityThreads => {
                 c"capacity exceeded: threads (sheaf_limits.max_threads)"
+            }
+            sheaf_status::CapacityPgridCells => {
+                c"capacity exceeded: perspective/light grid cells (sheaf_limits.max_pgrid_cells)"
+            }
+            sheaf_status::CapacityPgridRefs => {
+                c"capacity exceeded: perspective/light grid pairs (sheaf_limits.max_pgrid_refs)"
             }
             sheaf_status::OutOfMemory => c"out of memory",
             sheaf_status::NoGeometry => c"no geometry set",
@@ -181,6 +197,8 @@ mod tests {
                 | sheaf_status::CapacityGridRefs
                 | sheaf_status::CapacityImage
                 | sheaf_status::CapacityThreads
+                | sheaf_status::CapacityPgridCells
+                | sheaf_status::CapacityPgridRefs
                 | sheaf_status::OutOfMemory => 200..300,
                 sheaf_status::NoGeometry | sheaf_status::NotBuilt => 300..400,
                 sheaf_status::Panic => 900..1000,

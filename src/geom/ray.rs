@@ -138,6 +138,19 @@ impl Hit4 {
         self.u[i] = h.u;
         self.v[i] = h.v;
     }
+    /// Lanes where a hit at `t` on triangle `prim` beats the current one:
+    /// nearer, or as near with a smaller triangle id (the tie rule of every
+    /// nearest-hit traversal, so results do not depend on visiting order).
+    #[inline(always)]
+    pub fn closer(&self, t: F4, prim: u32) -> M4 {
+        let lt = t.cmplt(self.t);
+        let eq = t.cmpeq(self.t);
+        if !eq.any() {
+            return lt;
+        }
+        let b = self.prim;
+        lt | (eq & M4::new(prim < b[0], prim < b[1], prim < b[2], prim < b[3]))
+    }
     /// Lanes that hit something.
     #[inline]
     pub fn hit_mask(&self) -> M4 {

@@ -42,6 +42,15 @@ pub struct Limits {
     /// 1024` (the OBJ scenes need 3.4 to 6.1 per triangle, the gears scene
     /// 20). A build that runs out makes leaves early (`KdInfo::forced_leaves`).
     pub max_kd_refs: u32,
+    /// Most cells of the perspective grid and, separately, of each light
+    /// grid (tiles x depth slices). 0: `max(ceil(w / 8) * ceil(h / 8), 64 *
+    /// 64) * 32` for the largest image, room for the default `PgridParams`.
+    pub max_pgrid_cells: u32,
+    /// Most (triangle, cell) pairs of the perspective grid and, separately,
+    /// of each light grid. 0: `8 * max_triangles + 262144` (a triangle
+    /// spans every cell its projection and depth range touch: large ones
+    /// near the eye span thousands).
+    pub max_pgrid_refs: u32,
 }
 
 impl Limits {
@@ -54,9 +63,16 @@ impl Limits {
     /// `structures` bit: the kd-tree (C: `SHEAF_STRUCTURE_KD`).
     /// cbindgen:ignore
     pub const KD: u32 = 4;
+    /// `structures` bit: the perspective grid for camera rays and the
+    /// spherical light grids for shadow rays, with the per-pixel frame
+    /// buffers their deferred frames need (C: `SHEAF_STRUCTURE_PGRID`).
+    /// Its pools scale with the largest image (about 45 bytes per pixel),
+    /// so `for_triangles` leaves it out.
+    /// cbindgen:ignore
+    pub const PGRID: u32 = 8;
     /// Every structure bit this version knows.
     /// cbindgen:ignore
-    pub const ALL_STRUCTURES: u32 = Self::GRID | Self::BVH | Self::KD;
+    pub const ALL_STRUCTURES: u32 = Self::GRID | Self::BVH | Self::KD | Self::PGRID;
 
     /// Whether `structure` (a `Limits::GRID`-style bit) has pools.
     pub const fn has(&self, structure: u32) -> bool {
@@ -75,9 +91,11 @@ impl Limits {
             max_grid_cells: 0,
             max_grid_refs: 0,
             projection_test: false,
-            structures: Self::ALL_STRUCTURES,
+            structures: Self::GRID | Self::BVH | Self::KD,
             max_kd_nodes: 0,
             max_kd_refs: 0,
+            max_pgrid_cells: 0,
+            max_pgrid_refs: 0,
         }
     }
 
@@ -96,6 +114,31 @@ impl Limits {
     /// scenes); a build short of events makes leaves early.
     pub fn kd_events(&self) -> u64 {
         14 * self.max_triangles as u64 + 1024
+    }
+
+    /// Perspective/light grid cell capacity (each grid) after the default rule.
+    pub fn pgrid_cells(&self) -> u64 {
+        if self.max_pgrid_cells != 0 {
+            return self.max_pgrid_cells as u64;
+        }
+        let tiles = (self.max_image_width.div_ceil(8) as u64 * self.max_image_height.div_ceil(8) as u64)
+            .max(64 * 64);
+        tiles * 32
+    }
+
+    /// Perspective/light grid pair capacity (each grid) after the default rule.
+    pub fn pgrid_refs(&self) -> u64 {
+        if self.max_pgrid_refs != 0 {
+            self.max_pgrid_refs as u64
+        } else {
+            8 * self.max_triangles as u64 + 262_144
+        }
+    }
+
+    /// Pixels of the deferred frame buffers: the largest image padded to
+    /// whole tiles of up to `max_tile` pixels.
+    pub fn frame_pixels(&self) -> u64 {
+        (self.max_image_width as u64 + self.max_tile as u64) * (self.max_image_height as u64 + self.max_tile as u64)
     }
 
     /// Grid cell capacity after applying the default rule.
@@ -134,6 +177,15 @@ impl Limits {
         if self.structures & !Self::ALL_STRUCTURES != 0 || self.structures == 0 {
             return Err(Error::InvalidArgument(
                 "structures must name at least one structure and no unknown bits",
+            ));
+        }
+        if self.has(Self::PGRID)
+            && (self.pgrid_cells() > u32::MAX as u64 - 1
+                || self.pgrid_refs() > u32::MAX as u64
+                || self.frame_pixels() > u32::MAX as u64)
+        {
+            return Err(Error::InvalidArgument(
+                "perspective grid pools and frame pixels must stay below 2^32 entries",
             ));
         }
         if self.grid_cells() > u32::MAX as u64 - 1 || self.grid_refs() > u32::MAX as u64 {

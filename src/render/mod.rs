@@ -35,13 +35,114 @@ pub struct Camera {
     pub fov_y_deg: f32,
 }
 
-/// Point light (C: `sheaf_light`).
+/// Point light, optionally a spot light (C: `sheaf_light`; a zeroed spot
+/// part is a point light shining everywhere).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PointLight {
     pub position: [f32; 3],
     /// Linear RGB intensity (no distance falloff).
     pub color: [f32; 3],
+    /// Axis of a spot light (any length; used when `spot_angle_deg > 0`).
+    pub spot_direction: [f32; 3],
+    /// Half-angle of the spot's cone in degrees, in [0, 90); 0: a point
+    /// light. Surfaces outside the cone get no light and no shadow ray.
+    pub spot_angle_deg: f32,
+    /// Width in degrees of the soft edge inside the cone, where the light
+    /// falls off smoothly to 0 at the cone (0: a hard edge).
+    pub spot_soft_deg: f32,
+}
+
+impl Default for PointLight {
+    fn default() -> Self {
+        PointLight {
+            position: [0.0; 3],
+            color: [1.0; 3],
+            spot_direction: [0.0, 0.0, -1.0],
+            spot_angle_deg: 0.0,
+            spot_soft_deg: 0.0,
+        }
+    }
+}
+
+impl PointLight {
+    /// A point light at `position` with `color`.
+    pub fn new(position: [f32; 3], color: [f32; 3]) -> PointLight {
+        PointLight {
+            position,
+            color,
+            ..PointLight::default()
+        }
+    }
+
+    /// Whether this is a spot light.
+    pub fn is_spot(&self) -> bool {
+        self.spot_angle_deg > 0.0
+    }
+
+    /// Finite position and colour; a spot's angle in (0, 90), a non-zero
+    /// finite axis and a soft edge in [0, angle].
+    pub fn validate(&self) -> Result<()> {
+        let ok = Vec3::from(self.position).is_finite() && Vec3::from(self.color).is_finite();
+        if !ok {
+            return Err(Error::InvalidArgument(
+                "light position and color must be finite",
+            ));
+        }
+        if self.spot_angle_deg == 0.0 {
+            return Ok(());
+        }
+        let axis = Vec3::from(self.spot_direction);
+        if !(self.spot_angle_deg > 0.0 && self.spot_angle_deg < 90.0)
+            || !axis.is_finite()
+            || !(axis.length_squared() > 0.0)
+            || !(self.spot_soft_deg >= 0.0 && self.spot_soft_deg <= self.spot_angle_deg)
+        {
+            return Err(Error::InvalidArgument(
+                "spot light: angle in [0, 90), finite non-zero direction, soft edge in [0, angle]",
+            ));
+        }
+        Ok(())
+    }
+
+    /// Light reaching direction `d` (unit, from the light): 1 for a point
+    /// light; for a spot 1 inside the soft edge, 0 outside the cone, a
+    /// smoothstep between.
+    #[inline]
+    pub fn spot(&self, d: Vec3) -> f32 {
+        if !self.is_spot() {
+            return 1.0;
+        }
+        let c = Vec3::from(self.spot_direction).normalize_or_zero().dot(d);
+        let outer = math::cos(self.spot_angle_deg.to_radians());
+        let inner = math::cos((self.spot_angle_deg - self.spot_soft_deg).to_radians());
+        if c <= outer {
+            0.0
+        } else if c >= inner {
+            1.0
+        } else {
+            let x = (c - outer) / (inner - outer);
+            x * x * (3.0 - 2.0 * x)
+        }
+    }
+
+    /// Light at surface point `p` with facing normal `n`: the cosine times
+    /// the spot factor and, when that is positive and `shadows` is on, the
+    /// shadow ray from the light to `p + n * eps` (`tmax = 1`, exclusive,
+    /// so the surface itself is never reported). Every renderer shoots
+    /// exactly these rays.
+    #[inline]
+    pub fn at(&self, p: Vec3, n: Vec3, shadows: bool, eps: f32) -> (f32, Option<Ray>) {
+        let light = Vec3::from(self.position);
+        let to = (light - p).normalize_or_zero();
+        let lit = n.dot(to) * self.spot(-to);
+        if lit > 0.0 && shadows {
+            let end = p + n * eps;
+            (lit, Some(Ray::new(light, end - light, 0.0, 1.0)))
+        } else {
+            (lit.max(0.0), None)
+        }
+    }
 }
 
 /// Shading constants (C: `sheaf_shading`).
@@ -183,14 +284,8 @@ fn surface(
         n = -n; // two-sided: face the viewer
     }
     let p = Vec3::from(ray.org) + d * hit.t;
-    let light = Vec3::from(frame.light.position);
-    let cos = n.dot((light - p).normalize_or_zero());
-    if cos > 0.0 && frame.shading.shadows {
-        let end = p + n * eps;
-        (n, cos, Some(Ray::new(light, end - light, 0.0, 1.0)))
-    } else {
-        (n, cos.max(0.0), None)
-    }
+    let (lit, sray) = frame.light.at(p, n, frame.shading.shadows, eps);
+    (n, lit, sray)
 }
 
 #[inline]

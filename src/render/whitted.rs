@@ -198,15 +198,8 @@ impl<'a> WhittedJob<'a> {
         self.primary.validate()?;
         self.shadow.validate()?;
         self.secondary.validate()?;
-        let finite = |v: &[f32; 3]| v.iter().all(|x| x.is_finite());
-        if !self
-            .lights()
-            .iter()
-            .all(|l| finite(&l.position) && finite(&l.color))
-        {
-            return Err(Error::InvalidArgument(
-                "light position and color must be finite",
-            ));
+        for l in self.lights() {
+            l.validate()?;
         }
         Ok(())
     }
@@ -264,14 +257,7 @@ fn surface_at<T: Tracer + ?Sized>(
 /// arithmetic of `render::surface`.
 #[inline]
 fn light_ray(light: &PointLight, s: &Surface, shadows: bool, eps: f32) -> (f32, Option<Ray>) {
-    let l = Vec3::from(light.position);
-    let cos = s.n.dot((l - s.p).normalize_or_zero());
-    if cos > 0.0 && shadows {
-        let end = s.p + s.n * eps;
-        (cos, Some(Ray::new(l, end - l, 0.0, 1.0)))
-    } else {
-        (cos.max(0.0), None)
-    }
+    light.at(s.p, s.n, shadows, eps)
 }
 
 /// Light sum after one more light (`lit`: the cosine, or 0 when shadowed).

@@ -120,6 +120,7 @@ pub fn demo(a: &DemoArgs) -> Result<(), Failure> {
         light: PointLight {
             position: anim.light().to_array(),
             color: [1.0; 3],
+            ..Default::default()
         },
         shading: Shading::default(),
         width: w,
@@ -300,10 +301,12 @@ pub fn render(a: &RenderArgs) -> Result<(), Failure> {
         (Some(p), _) => PointLight {
             position: p,
             color: [1.0; 3],
+            ..Default::default()
         },
         (None, Some((_, l))) => PointLight {
             position: l.to_array(),
             color: [1.0; 3],
+            ..Default::default()
         },
         (None, None) => {
             let tracer = ctx.tracer()?;

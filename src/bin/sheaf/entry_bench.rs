@@ -755,6 +755,7 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
             light: PointLight {
                 position: cam.eye,
                 color: [1.0; 3],
+                ..Default::default()
             },
             shading: Shading {
                 shadows: true,

@@ -149,5 +149,6 @@ pub fn light_for<T: Tracer>(t: &T, v: &View, interior: bool, scale: f32) -> Poin
     PointLight {
         position: position.to_array(),
         color: [1.0; 3],
+        ..Default::default()
     }
 }

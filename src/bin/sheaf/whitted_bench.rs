@@ -377,6 +377,7 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
             light: PointLight {
                 position: light.to_array(),
                 color: [1.0; 3],
+                ..Default::default()
             },
             shading: Shading::default(),
             width: w,

@@ -1,0 +1,515 @@
+//! Per-frame builds of the perspective grid (section 3) and of a light's
+//! spherical grid (section 4.1).
+//!
+//! Both builds follow the paper: every triangle emits one (cell, triangle)
+//! pair per cell it spans into the pair pool, the pairs are radix sorted by
+//! cell id (`sort.rs`), and a scan over the sorted keys gives each cell's
+//! range. Cells are `tiles x depth slices`; for the camera a tile is a
+//! square of pixels, for a light a rectangle of (a, b) space.
+//!
+//! When the pairs outgrow `Limits::max_pgrid_refs` the build keeps counting,
+//! reports the number needed, and leaves that grid unbuilt (these grids
+//! live for one frame: the render call that needed it fails).
+
+use super::sort::{bits_for, radix_sort};
+use super::{CellsInfo, LightFrame, Pgrid, PgridParams, Pinhole, SceneInfo, Slices, tile_coord};
+use crate::error::{Error, Pool, Result};
+use crate::geom::{Aabb, ProjTri, Scene, TriTest, TriVerts};
+use crate::math;
+use core::f32::consts::PI;
+use glam::Vec3;
+
+/// Padding of projected bounds, in pixels (rounding of the projection is
+/// about 1e-6 of the image width; this is far more).
+const PIXEL_PAD: f32 = 0.05;
+/// Padding of angular spans, in radians (atan2 is exact to an ulp).
+const ANGLE_PAD: f32 = 1e-5;
+
+/// Load `scene`'s triangles (and projection data when `params.test` needs
+/// it) and remember `params` for the grids of the next frames.
+pub fn load(g: &mut Pgrid<'_>, scene: &Scene<'_>, params: &PgridParams) -> Result<SceneInfo> {
+    params.validate()?;
+    let n = scene.triangle_count() as usize;
+    if n > g.pools.tris.len() {
+        return Err(Error::Capacity {
+            pool: Pool::Triangles,
+            needed: n as u64,
+            available: g.pools.tris.len() as u64,
+        });
+    }
+    let proj = params.test == TriTest::Projection;
+    if proj && g.pools.proj.len() < n {
+        return Err(Error::InvalidArgument(
+            "the projection test needs Limits::projection_test",
+        ));
+    }
+    let mut info = SceneInfo {
+        triangles: n as u32,
+        excluded: 0,
+        bounds: Aabb::EMPTY,
+        params: Some(*params),
+    };
+    for i in 0..n {
+        let t = scene.triangle(i as u32);
+        let ok = Scene::classify(&t).is_none();
+        g.pools.tris[i] = t;
+        g.pools.ok[i] = ok as u8;
+        if ok {
+            for v in [t.v0, t.v1, t.v2] {
+                info.bounds.grow(Vec3::from(v));
+            }
+            if proj {
+                g.pools.proj[i] = ProjTri::new(&t);
+            }
+        } else {
+            info.excluded += 1;
+        }
+    }
+    g.scene = info;
+    g.cam_built = false;
+    g.light_built = false;
+    Ok(info)
+}
+
+/// Inclusive cell box of one triangle: tiles x0..=x1, y0..=y1, slices
+/// s0..=s1.
+#[derive(Clone, Copy, Debug)]
+struct CellBox {
+    x: [u32; 2],
+    y: [u32; 2],
+    s: [u32; 2],
+}
+
+/// Emits pairs into the pools, counting past the capacity.
+struct Pairs<'p> {
+    keys: &'p mut [u32],
+    vals: &'p mut [u32],
+    n: u64,
+}
+
+impl Pairs<'_> {
+    #[inline]
+    fn emit(&mut self, b: &CellBox, tiles_x: u32, slices: u32, tri: u32) {
+        for ty in b.y[0]..=b.y[1] {
+            for tx in b.x[0]..=b.x[1] {
+                let base = (ty * tiles_x + tx) * slices;
+                for s in b.s[0]..=b.s[1] {
+                    let i = self.n as usize;
+                    if i < self.keys.len() {
+                        self.keys[i] = base + s;
+                        self.vals[i] = tri;
+                    }
+                    self.n += 1;
+                }
+            }
+        }
+    }
+}
+
+/// Sort the pairs and scan them into `start` (cells + 1 entries).
+fn finish(
+    keys: &mut [u32],
+    vals: &mut [u32],
+    tmp_keys: &mut [u32],
+    tmp_vals: &mut [u32],
+    start: &mut [u32],
+    cells: u32,
+) {
+    radix_sort(keys, vals, tmp_keys, tmp_vals, bits_for(cells));
+    let start = &mut start[..cells as usize + 1];
+    start.fill(0);
+    for &k in keys.iter() {
+        start[k as usize + 1] += 1;
+    }
+    for c in 1..start.len() {
+        start[c] += start[c - 1];
+    }
+}
+
+fn check_cells(cells: u64, available: usize) -> Result<()> {
+    if cells + 1 > available as u64 {
+        return Err(Error::Capacity {
+            pool: Pool::PgridCells,
+            needed: cells,
+            available: available.saturating_sub(1) as u64,
+        });
+    }
+    Ok(())
+}
+
+/// Build the perspective grid of camera `cam` (section 3): tiles of
+/// `params.tile` pixels, `params.slices` depth slices between the scene's
+/// nearest and farthest depth.
+pub fn build_camera(g: &mut Pgrid<'_>, cam: &Pinhole) -> Result<CellsInfo> {
+    let params = g.scene.params.ok_or(Error::NotBuilt)?;
+    g.cam_built = false;
+    let t = params.tile;
+    let tiles = [cam.width.div_ceil(t), cam.height.div_ceil(t)];
+    let cells = tiles[0] as u64 * tiles[1] as u64 * params.slices as u64;
+    check_cells(cells, g.pools.cam_start.len())?;
+    // Depth range: the scene box's corners.
+    let b = g.scene.bounds;
+    let (mut near, mut far) = (f32::INFINITY, 0.0f32);
+    if !b.is_empty() {
+        for i in 0..8 {
+            let c = Vec3::new(
+                if i & 1 == 0 { b.min.x } else { b.max.x },
+                if i & 2 == 0 { b.min.y } else { b.max.y },
+                if i & 4 == 0 { b.min.z } else { b.max.z },
+            );
+            let z = (c - cam.eye).dot(cam.fwd);
+            near = near.min(z);
+            far = far.max(z);
+        }
+    }
+    let depth = Slices::new(near, far, params.slices);
+    let mut info = CellsInfo {
+        tiles,
+        depth,
+        ..CellsInfo::default()
+    };
+    // Geometry closer than z_eps is not projected: a triangle reaching
+    // there within tip_r of the eye is put in every tile of slice 0.
+    let z_eps = far.max(1e-30) * 1e-6;
+    let tip_r = z_eps * math::sqrt(1.0 + cam.half_w * cam.half_w + cam.half_h * cam.half_h) * 2.0;
+    let pad = PIXEL_PAD + 1e-5 * cam.width.max(cam.height) as f32;
+    let inv_t = 1.0 / t as f32;
+    let n = g.scene.triangles as usize;
+    let p = &mut g.pools;
+    let mut pairs = Pairs {
+        keys: &mut *p.keys,
+        vals: &mut *p.cam_tris,
+        n: 0,
+    };
+    for i in 0..n {
+        if p.ok[i] == 0 || far <= 0.0 {
+            continue;
+        }
+        let tri = &p.tris[i];
+        if params.cull_backfaces {
+            let v0 = Vec3::from(tri.v0);
+            let nrm = (Vec3::from(tri.v1) - v0).cross(Vec3::from(tri.v2) - v0);
+            if nrm.dot(v0 - cam.eye) > 0.0 {
+                info.backfaces += 1;
+                continue;
+            }
+        }
+        if let Some(cb) = camera_box(cam, &depth, tiles, inv_t, pad, z_eps, tip_r, tri) {
+            info.mapped += 1;
+            pairs.emit(&cb, tiles[0], params.slices, i as u32);
+        }
+    }
+    let needed = pairs.n;
+    if needed > p.cam_tris.len() as u64 {
+        return Err(Error::Capacity {
+            pool: Pool::PgridRefs,
+            needed,
+            available: p.cam_tris.len() as u64,
+        });
+    }
+    let m = needed as usize;
+    finish(
+        &mut p.keys[..m],
+        &mut p.cam_tris[..m],
+        p.tmp_keys,
+        p.tmp_vals,
+        p.cam_start,
+        cells as u32,
+    );
+    info.refs = needed as u32;
+    g.cam = info;
+    g.pinhole = *cam;
+    g.cam_built = true;
+    Ok(info)
+}
+
+/// Cells of one triangle in the camera grid, `None` when it cannot be seen.
+#[allow(clippy::too_many_arguments)]
+fn camera_box(
+    cam: &Pinhole,
+    depth: &Slices,
+    tiles: [u32; 2],
+    inv_t: f32,
+    pad: f32,
+    z_eps: f32,
+    tip_r: f32,
+    tri: &TriVerts,
+) -> Option<CellBox> {
+    let q = [
+        Vec3::from(tri.v0) - cam.eye,
+        Vec3::from(tri.v1) - cam.eye,
+        Vec3::from(tri.v2) - cam.eye,
+    ];
+    let z = [q[0].dot(cam.fwd), q[1].dot(cam.fwd), q[2].dot(cam.fwd)];
+    if z.iter().all(|&z| z <= 0.0) {
+        return None; // behind the eye: camera rays have t > 0 and depth > 0
+    }
+    // Clip against depth >= z_eps (Sutherland-Hodgman, at most 4 points).
+    let mut poly = [Vec3::ZERO; 4];
+    let mut pz = [0.0f32; 4];
+    let mut m = 0;
+    for k in 0..3 {
+        let (a, b) = (k, (k + 1) % 3);
+        if z[a] >= z_eps {
+            poly[m] = q[a];
+            pz[m] = z[a];
+            m += 1;
+        }
+        if (z[a] >= z_eps) != (z[b] >= z_eps) {
+            let s = (z_eps - z[a]) / (z[b] - z[a]);
+            poly[m] = q[a] + (q[b] - q[a]) * s;
+            pz[m] = z_eps;
+            m += 1;
+        }
+    }
+    let mut xr = [f32::INFINITY, f32::NEG_INFINITY];
+    let mut yr = xr;
+    let mut zr = xr;
+    for k in 0..m {
+        let (x, y) = cam.pixel(poly[k], pz[k]);
+        xr = [xr[0].min(x), xr[1].max(x)];
+        yr = [yr[0].min(y), yr[1].max(y)];
+        zr = [zr[0].min(pz[k]), zr[1].max(pz[k])];
+    }
+    let tip = z.iter().any(|&z| z < z_eps) && closest_distance(Vec3::ZERO, &q) <= tip_r;
+    if tip {
+        let top = zr[1].max(z_eps);
+        return Some(CellBox {
+            x: [0, tiles[0] - 1],
+            y: [0, tiles[1] - 1],
+            s: [0, depth.hi(top)],
+        });
+    }
+    if m == 0
+        || xr[1] + pad < 0.0
+        || yr[1] + pad < 0.0
+        || xr[0] - pad > cam.width as f32
+        || yr[0] - pad > cam.height as f32
+    {
+        return None;
+    }
+    Some(CellBox {
+        x: [
+            tile_coord((xr[0] - pad) * inv_t, tiles[0]),
+            tile_coord((xr[1] + pad) * inv_t, tiles[0]),
+        ],
+        y: [
+            tile_coord((yr[0] - pad) * inv_t, tiles[1]),
+            tile_coord((yr[1] + pad) * inv_t, tiles[1]),
+        ],
+        s: [depth.lo(zr[0]), depth.hi(zr[1])],
+    })
+}
+
+/// Build the grid of light `frame` (section 4.1): its (a, b) rectangle in
+/// `frame.tiles`, `slices` distance slices between `near` and `far` (the
+/// shadow rays' lengths). Triangles outside the rectangle or beyond `far`
+/// cannot block any of this frame's shadow rays and are left out.
+pub fn build_light(
+    g: &mut Pgrid<'_>,
+    frame: &LightFrame,
+    near: f32,
+    far: f32,
+    slices: u32,
+) -> Result<CellsInfo> {
+    g.scene.params.ok_or(Error::NotBuilt)?;
+    g.light_built = false;
+    let tiles = frame.tiles;
+    let cells = tiles[0] as u64 * tiles[1] as u64 * slices as u64;
+    check_cells(cells, g.pools.light_start.len())?;
+    let depth = Slices::new(near, far, slices);
+    let mut info = CellsInfo {
+        tiles,
+        depth,
+        ..CellsInfo::default()
+    };
+    let scale = g.scene.bounds.diagonal().length().max(far).max(1e-30);
+    let reach = far * (1.0 + 2.0 * super::DEPTH_PAD) + depth.z0 * super::DEPTH_PAD;
+    let a1 = frame.a0 + tiles[0] as f32 / frame.inv_da;
+    let b1 = frame.b0 + tiles[1] as f32 / frame.inv_db;
+    let n = g.scene.triangles as usize;
+    let p = &mut g.pools;
+    let mut pairs = Pairs {
+        keys: &mut *p.keys,
+        vals: &mut *p.light_tris,
+        n: 0,
+    };
+    for i in 0..n {
+        if p.ok[i] == 0 {
+            continue;
+        }
+        let tri = &p.tris[i];
+        let q = [
+            Vec3::from(tri.v0) - frame.pos,
+            Vec3::from(tri.v1) - frame.pos,
+            Vec3::from(tri.v2) - frame.pos,
+        ];
+        let dmin = closest_distance(Vec3::ZERO, &q);
+        if dmin > reach {
+            continue;
+        }
+        let dmax = q[0].length().max(q[1].length()).max(q[2].length());
+        let z = [q[0].dot(frame.fwd), q[1].dot(frame.fwd), q[2].dot(frame.fwd)];
+        let x = [q[0].dot(frame.right), q[1].dot(frame.right), q[2].dot(frame.right)];
+        let y = [q[0].dot(frame.up), q[1].dot(frame.up), q[2].dot(frame.up)];
+        let eps = scale * 1e-6;
+        let (alo, ahi) = angle_span(x, z, eps);
+        let (blo, bhi) = angle_span(y, z, eps);
+        if ahi < frame.a0 || alo > a1 || bhi < frame.b0 || blo > b1 {
+            continue;
+        }
+        let cb = CellBox {
+            x: [
+                tile_coord((alo - frame.a0) * frame.inv_da, tiles[0]),
+                tile_coord((ahi - frame.a0) * frame.inv_da, tiles[0]),
+            ],
+            y: [
+                tile_coord((blo - frame.b0) * frame.inv_db, tiles[1]),
+                tile_coord((bhi - frame.b0) * frame.inv_db, tiles[1]),
+            ],
+            s: [depth.lo(dmin), depth.hi(dmax)],
+        };
+        info.mapped += 1;
+        pairs.emit(&cb, tiles[0], slices, i as u32);
+    }
+    let needed = pairs.n;
+    if needed > p.light_tris.len() as u64 {
+        return Err(Error::Capacity {
+            pool: Pool::PgridRefs,
+            needed,
+            available: p.light_tris.len() as u64,
+        });
+    }
+    let m = needed as usize;
+    finish(
+        &mut p.keys[..m],
+        &mut p.light_tris[..m],
+        p.tmp_keys,
+        p.tmp_vals,
+        p.light_start,
+        cells as u32,
+    );
+    info.refs = needed as u32;
+    g.light = info;
+    g.light_frame = *frame;
+    g.light_built = true;
+    Ok(info)
+}
+
+/// Padded range of `atan2(x, z)` over the triangle whose projection onto
+/// the (x, z) plane has these vertices: the arc the three vertex angles
+/// span when they fit in a half plane through the origin (then every point
+/// of the triangle is inside it), else the whole circle `[-pi, pi]`. Arcs
+/// across the `+-pi` cut, and vertices within `eps` of the axis, also give
+/// the whole circle.
+pub fn angle_span(x: [f32; 3], z: [f32; 3], eps: f32) -> (f32, f32) {
+    const FULL: (f32, f32) = (-PI, PI);
+    let mut t = [0.0f32; 3];
+    for k in 0..3 {
+        if x[k] * x[k] + z[k] * z[k] <= eps * eps {
+            return FULL;
+        }
+        t[k] = math::atan2(x[k], z[k]);
+    }
+    // Sort three values.
+    if t[0] > t[1] {
+        t.swap(0, 1);
+    }
+    if t[1] > t[2] {
+        t.swap(1, 2);
+    }
+    if t[0] > t[1] {
+        t.swap(0, 1);
+    }
+    // The arc is the complement of the largest gap; only the gap across the
+    // cut (from t[2] round to t[0]) leaves an arc that does not wrap.
+    let wrap_gap = t[0] + 2.0 * PI - t[2];
+    if wrap_gap < t[1] - t[0] || wrap_gap < t[2] - t[1] || wrap_gap < PI + 1e-4 {
+        return FULL;
+    }
+    let (lo, hi) = (t[0] - ANGLE_PAD, t[2] + ANGLE_PAD);
+    if lo < -PI + 1e-4 || hi > PI - 1e-4 {
+        return FULL;
+    }
+    (lo, hi)
+}
+
+/// Distance from `p` to the triangle `q` (Ericson, Real-Time Collision
+/// Detection, 5.1.5: the closest point by Voronoi regions).
+pub fn closest_distance(p: Vec3, q: &[Vec3; 3]) -> f32 {
+    let (a, b, c) = (q[0], q[1], q[2]);
+    let ab = b - a;
+    let ac = c - a;
+    let ap = p - a;
+    let d1 = ab.dot(ap);
+    let d2 = ac.dot(ap);
+    if d1 <= 0.0 && d2 <= 0.0 {
+        return ap.length();
+    }
+    let bp = p - b;
+    let d3 = ab.dot(bp);
+    let d4 = ac.dot(bp);
+    if d3 >= 0.0 && d4 <= d3 {
+        return bp.length();
+    }
+    let vc = d1 * d4 - d3 * d2;
+    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
+        let v = d1 / (d1 - d3);
+        return (p - (a + ab * v)).length();
+    }
+    let cp = p - c;
+    let d5 = ab.dot(cp);
+    let d6 = ac.dot(cp);
+    if d6 >= 0.0 && d5 <= d6 {
+        return cp.length();
+    }
+    let vb = d5 * d2 - d1 * d6;
+    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
+        let w = d2 / (d2 - d6);
+        return (p - (a + ac * w)).length();
+    }
+    let va = d3 * d6 - d5 * d4;
+    if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
+        let w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
+        return (p - (b + (c - b) * w)).length();
+    }
+    let denom = 1.0 / (va + vb + vc);
+    let v = vb * denom;
+    let w = vc * denom;
+    let d = (p - (a + ab * v + ac * w)).length();
+    // Rounding near the plane can overshoot; never report more than the
+    // nearest vertex, and give the closest point a relative margin.
+    d.min(ap.length()).min(bp.length()).min(cp.length()) * (1.0 - 1e-4)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn angle_span_of_a_triangle_ahead_and_across_the_cut() {
+        let (lo, hi) = angle_span([-1.0, 1.0, 0.0], [1.0, 1.0, 2.0], 1e-9);
+        assert!((lo + PI / 4.0).abs() < 1e-4 && (hi - PI / 4.0).abs() < 1e-4);
+        // Behind the light, straddling the cut: the whole circle.
+        assert_eq!(angle_span([-1.0, 1.0, 0.0], [-1.0, -1.0, -2.0], 1e-9), (-PI, PI));
+        // Around the origin: the whole circle.
+        assert_eq!(angle_span([-1.0, 1.0, 0.0], [-1.0, -1.0, 2.0], 1e-9), (-PI, PI));
+    }
+
+    #[test]
+    fn closest_distance_matches_sampling() {
+        let q = [Vec3::new(1.0, 0.0, 0.0), Vec3::new(0.0, 2.0, 0.5), Vec3::new(-1.0, -1.0, 1.0)];
+        for p in [Vec3::ZERO, Vec3::new(3.0, 1.0, -2.0), Vec3::new(0.0, 0.2, 5.0), Vec3::new(-4.0, 0.0, 0.0)] {
+            let d = closest_distance(p, &q);
+            let mut best = f32::INFINITY;
+            for i in 0..=200 {
+                for j in 0..=(200 - i) {
+                    let (u, v) = (i as f32 / 200.0, j as f32 / 200.0);
+                    let x = q[0] + (q[1] - q[0]) * u + (q[2] - q[0]) * v;
+                    best = best.min((x - p).length());
+                }
+            }
+            assert!(d <= best + 1e-5 && d >= best - 0.05, "{p}: {d} vs {best}");
+        }
+    }
+}

@@ -1,0 +1,107 @@
+//! Shadow rays of one chunk through their light tile's cells (section 4.4).
+//!
+//! Every ray of a chunk starts at the light and lies in the chunk's light
+//! tile, so the chunk reads the tile's cells front to back from the light
+//! side, each triangle once for all its rays. A ray leaves when it is
+//! occluded or when the slices pass its end point (`tmax = 1` at the
+//! surface it shadows); the chunk stops when no ray is left.
+
+use super::{LightView, PgTest};
+use crate::geom::{M4, Mt, Pt, RayLanes, Ray4, TriTest, Wt};
+use crate::math;
+use crate::trace::{Counters, count};
+
+/// Most 2x2 rays traced together (larger chunks go in batches of these).
+pub const MAX_QUADS: usize = 64;
+
+/// Occlusion of the shadow rays `rays` (from the light, `tmax` at their end
+/// points) in light tile `tile`: `occluded[q]` gets the lanes of `active[q]`
+/// that hit a triangle in `[tmin, tmax)`.
+pub fn trace_chunk(
+    g: &LightView<'_>,
+    tile: u32,
+    rays: &[Ray4],
+    active: &[M4],
+    occluded: &mut [M4],
+    ctr: &mut Counters,
+) {
+    for s in (0..rays.len()).step_by(MAX_QUADS) {
+        let e = (s + MAX_QUADS).min(rays.len());
+        let (r, a, o) = (&rays[s..e], &active[s..e], &mut occluded[s..e]);
+        match g.test {
+            TriTest::MollerTrumbore => walk::<Mt>(g, tile, r, a, o, ctr),
+            TriTest::Watertight => walk::<Wt>(g, tile, r, a, o, ctr),
+            TriTest::Projection => walk::<Pt>(g, tile, r, a, o, ctr),
+        }
+    }
+}
+
+fn walk<T: PgTest>(
+    g: &LightView<'_>,
+    tile: u32,
+    rays: &[Ray4],
+    active: &[M4],
+    occluded: &mut [M4],
+    ctr: &mut Counters,
+) {
+    let nq = rays.len();
+    let d = g.cells.info.depth;
+    let mut live = [M4::FALSE; MAX_QUADS];
+    let mut last = [[0u32; 4]; MAX_QUADS];
+    let mut pre = [T::prepare(&RayLanes::from_ray4(&rays[0])); MAX_QUADS];
+    let mut end = 0;
+    ctr.packets += 1;
+    for q in 0..nq {
+        live[q] = active[q];
+        occluded[q] = M4::FALSE;
+        ctr.rays += live[q].bitmask().count_ones() as u64;
+        let r = &rays[q];
+        pre[q] = T::prepare(&RayLanes::from_ray4(r));
+        // The ray covers distances [tmin |dir|, tmax |dir|) from the light.
+        let len2 = r.dir[0] * r.dir[0] + r.dir[1] * r.dir[1] + r.dir[2] * r.dir[2];
+        for i in 0..4 {
+            if live[q].test(i) {
+                last[q][i] = d.hi(math::sqrt(len2[i]) * r.tmax[i]);
+                end = end.max(last[q][i]);
+            }
+        }
+    }
+    for s in 0..=end {
+        let cell = g.cells.cell(tile, s);
+        count!(ctr.cells += 1);
+        for &tri in cell {
+            let prim = T::prim(&g.tris, tri as usize);
+            let mut left = false;
+            for q in 0..nq {
+                let lm = live[q];
+                if !lm.any() {
+                    continue;
+                }
+                left = true;
+                count!(ctr.tri_tests += lm.bitmask().count_ones() as u64);
+                let h = T::intersect(&RayLanes::from_ray4(&rays[q]), &pre[q], prim);
+                let hm = h.mask & lm;
+                if hm.any() {
+                    occluded[q] |= hm;
+                    live[q] &= !hm;
+                }
+            }
+            if !left {
+                return;
+            }
+        }
+        // Rays that end in this slice are done.
+        let mut any = false;
+        for q in 0..nq {
+            if live[q].any() {
+                let l = last[q];
+                live[q] &= !M4::new(l[0] <= s, l[1] <= s, l[2] <= s, l[3] <= s);
+                any |= live[q].any();
+            }
+        }
+        if !any {
+            return;
+        }
+    }
+}
+
