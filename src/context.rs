@@ -7,6 +7,8 @@ use crate::accel::entry::{self, EntryPoint, EntrySearch, EntryTree};
 use crate::accel::grid::traverse_cgt::{self, Mailbox};
 use crate::accel::grid::{self, Grid, GridInfo, GridParams, GridPools, GridView};
 use crate::accel::kd::{self, KdInfo, KdNode, KdParams, KdPools, KdTree, KdView};
+use crate::accel::pgrid::{self, Chunk, Pgrid, PgridParams, PgridPools, SceneInfo};
+use crate::render::deferred::{self, DeferredInfo, DeferredJob, FrameBuffers, PrimaryPass, ShadowPass, TileLayout, Workers};
 use crate::error::{Error, Pool, Result};
 use crate::geom::frustum::Frustum;
 use crate::geom::{Hit, Hit4, M4, Mt, Pt, Ray, Ray4, Scene, TriTest, TriVerts, TriangleTest, Wt};
@@ -34,6 +36,15 @@ struct Layout {
     kd_nodes: usize,
     kd_refs: usize,
     kd_events: usize,
+    /// Perspective/light grids (0 without `Limits::PGRID`): triangles,
+    /// cells + 1 and pairs of each grid, sort scratch, frame pixels, chunks.
+    pg_tris: usize,
+    pg_proj: usize,
+    pg_cells: usize,
+    pg_refs: usize,
+    pg_scratch: usize,
+    px: usize,
+    chunks: usize,
 }
 
 impl Layout {
@@ -45,6 +56,8 @@ impl Layout {
         let bvh_tris = if l.has(Limits::BVH) { n } else { 0 };
         let kd = l.has(Limits::KD);
         let kd_tris = if kd { n } else { 0 };
+        let pg = l.has(Limits::PGRID);
+        let px = if pg { l.frame_pixels() as usize } else { 0 };
         Ok(Layout {
             tris: if grid { n } else { 0 },
             proj: if grid && l.projection_test { n } else { 0 },
@@ -59,6 +72,13 @@ impl Layout {
             kd_nodes: if kd { l.kd_nodes() as usize } else { 0 },
             kd_refs: if kd { l.kd_refs() as usize } else { 0 },
             kd_events: if kd { l.kd_events() as usize } else { 0 },
+            pg_tris: if pg { n } else { 0 },
+            pg_proj: if pg && l.projection_test { n } else { 0 },
+            pg_cells: if pg { l.pgrid_cells() as usize + 1 } else { 0 },
+            pg_refs: if pg { l.pgrid_refs() as usize } else { 0 },
+            pg_scratch: if pg { (l.pgrid_refs().max(l.frame_pixels())) as usize } else { 0 },
+            px,
+            chunks: if pg { px / pgrid::MIN_CHUNK as usize + px.min(pgrid::MAX_LIGHT_TILES) } else { 0 },
         })
     }
     fn bytes(&self) -> usize {
@@ -84,6 +104,19 @@ impl Layout {
             + pool_bytes::<u32>(self.kd_tris)
             + pool_bytes::<u64>(self.kd_events)
             + pool_bytes::<u8>(self.kd_tris)
+            + pool_bytes::<TriVerts>(self.pg_tris)
+            + pool_bytes::<crate::geom::ProjTri>(self.pg_proj)
+            + pool_bytes::<u8>(self.pg_tris)
+            + 2 * (pool_bytes::<u32>(self.pg_cells) + pool_bytes::<u32>(self.pg_refs))
+            + pool_bytes::<u32>(self.pg_refs)
+            + 2 * pool_bytes::<u32>(self.pg_scratch)
+            + pool_bytes::<u32>(self.px)
+            + pool_bytes::<f32>(self.px)
+            + pool_bytes::<[f32; 3]>(self.px)
+            + pool_bytes::<u8>(self.px)
+            + 2 * pool_bytes::<u32>(self.px)
+            + pool_bytes::<u8>(self.px)
+            + pool_bytes::<Chunk>(self.chunks)
     }
 }
 
@@ -105,6 +138,10 @@ pub struct Stats {
     pub kd: KdInfo,
     /// Wall time of the last kd-tree build in nanoseconds (0 without `std`).
     pub kd_build_ns: u64,
+    /// Triangles loaded for the perspective/light grids (`build_pgrid`).
+    pub pgrid: SceneInfo,
+    /// Phases of the last deferred frame (`render_deferred`).
+    pub deferred: DeferredInfo,
     /// Counters of the last trace, occluded or render call.
     pub counters: Counters,
     /// Wall time of the last trace, occluded or render call (0 without `std`).
@@ -120,6 +157,8 @@ pub struct Context<'a> {
     grid: Grid<'a>,
     bvh: Bvh<'a>,
     kd: KdTree<'a>,
+    pgrid: Pgrid<'a>,
+    frame: FrameBuffers<'a>,
     /// Per-thread mailboxes (CGT section 2.3): `max_triangles` stamps and
     /// one packet counter per thread slot.
     stamps: &'a mut [u32],
@@ -185,12 +224,36 @@ impl<'a> Context<'a> {
             events: arena.take(layout.kd_events)?,
             side: arena.take(layout.kd_tris)?,
         };
+        let pg = PgridPools {
+            tris: arena.take(layout.pg_tris)?,
+            proj: arena.take(layout.pg_proj)?,
+            ok: arena.take(layout.pg_tris)?,
+            cam_start: arena.take(layout.pg_cells)?,
+            cam_tris: arena.take(layout.pg_refs)?,
+            light_start: arena.take(layout.pg_cells)?,
+            light_tris: arena.take(layout.pg_refs)?,
+            keys: arena.take(layout.pg_refs)?,
+            tmp_keys: arena.take(layout.pg_scratch)?,
+            tmp_vals: arena.take(layout.pg_scratch)?,
+        };
+        let frame = FrameBuffers {
+            prim: arena.take(layout.px)?,
+            t: arena.take(layout.px)?,
+            dirs: arena.take(layout.px)?,
+            shadow: arena.take(layout.px)?,
+            ray_tiles: arena.take(layout.px)?,
+            ray_ids: arena.take(layout.px)?,
+            occ: arena.take(layout.px)?,
+            chunks: arena.take(layout.chunks)?,
+        };
         debug_assert_eq!(arena.used(), need);
         Ok(Context {
             limits: *limits,
             grid: Grid::new(pools),
             bvh: Bvh::new(bvh),
             kd: KdTree::new(kd),
+            pgrid: Pgrid::new(pg),
+            frame,
             stamps,
             mail_packets,
             stats: Stats::default(),
@@ -276,6 +339,224 @@ impl<'a> Context<'a> {
         let info = kd::build::build(&mut self.kd, scene, params)?;
         self.stats.kd_build_ns = elapsed_ns(t);
         self.stats.kd = info;
+        Ok(info)
+    }
+
+    /// Load `scene` for perspective grids and light grids with `params`
+    /// (section 3 and 4 of the perspective/light grid paper). The grids
+    /// themselves depend on the camera and the lights and are built by
+    /// every `render_deferred` call that uses them.
+    pub fn build_pgrid(&mut self, scene: &Scene<'_>, params: &PgridParams) -> Result<SceneInfo> {
+        if !self.limits.has(Limits::PGRID) {
+            return Err(Error::InvalidArgument(
+                "no perspective grid pools: Limits::structures lacks PGRID",
+            ));
+        }
+        self.check_scene(scene)?;
+        params.validate()?;
+        if params.test == crate::geom::TriTest::Projection && !self.limits.projection_test {
+            return Err(Error::InvalidArgument(
+                "the projection test needs Limits::projection_test",
+            ));
+        }
+        let info = pgrid::build::load(&mut self.pgrid, scene, params)?;
+        self.stats.pgrid = info;
+        Ok(info)
+    }
+
+    /// Render a deferred frame (`render::deferred`): camera rays, then per
+    /// light every shadow ray, then shading, each phase's work items run
+    /// by `workers` (`OnCaller`: the calling thread, slot 0's mailbox).
+    /// The perspective grid and the light grids are built here, per frame;
+    /// the phase times land in `stats().deferred`.
+    pub fn render_deferred<W: Workers>(
+        &mut self,
+        job: &DeferredJob<'_>,
+        pixels: &mut [u8],
+        stride: usize,
+        workers: &mut W,
+    ) -> Result<DeferredInfo> {
+        job.validate()?;
+        let rays = self.check_frame(job.frame, pixels.len(), stride)?;
+        if !self.limits.has(Limits::PGRID) {
+            return Err(Error::InvalidArgument(
+                "deferred frames need Limits::PGRID (their per-pixel buffers)",
+            ));
+        }
+        let grids = job.primary == PrimaryPass::Pgrid || job.shadow == ShadowPass::LightGrid;
+        let pp = match self.pgrid.scene.params {
+            Some(p) => p,
+            None if grids => return Err(Error::NotBuilt),
+            None => PgridParams::default(),
+        };
+        let side = deferred::tile_side(&job.primary, pp.tile, pp.group);
+        if side > self.limits.max_tile {
+            return Err(Error::InvalidArgument(
+                "the tracing tile (pgrid tile * group, or the packet side) exceeds Limits::max_tile",
+            ));
+        }
+        let lay = TileLayout::new(side, job.frame.width, job.frame.height);
+        let t_all = now();
+        let tr = SceneTracer {
+            grid: self.grid.view(),
+            bvh: self.bvh.view(),
+            kd: self.kd.view(),
+            single: Method::GridDda,
+        };
+        let tr = match (&job.primary, &job.shadow) {
+            (PrimaryPass::Traced(p), ShadowPass::Traced(s)) => {
+                tr.with_single(s.method)?;
+                tr.with_single(p.method)?
+            }
+            (PrimaryPass::Traced(p), _) => tr.with_single(p.method)?,
+            (_, ShadowPass::Traced(s)) => tr.with_single(s.method)?,
+            _ => tr,
+        };
+        let mut info = DeferredInfo::default();
+        let mut ctr = Counters::default();
+        // Phase 1: the perspective grid.
+        if job.primary == PrimaryPass::Pgrid {
+            let t = now();
+            info.camera = pgrid::build::build_camera(&mut self.pgrid, &rays.pinhole())?;
+            info.times.primary_build = elapsed_ns(t);
+        }
+        let Context {
+            limits,
+            pgrid: pg,
+            frame: buf,
+            stamps,
+            mail_packets,
+            ..
+        } = self;
+        let n = limits.max_triangles.max(1) as usize;
+        macro_rules! mailboxes {
+            () => {{
+                let mut st = stamps.chunks_mut(n);
+                mail_packets
+                    .iter_mut()
+                    .map(move |p| Mailbox::new(st.next().unwrap_or(&mut []), p))
+            }};
+        }
+        // Phase 2: camera rays.
+        let t = now();
+        let cam = pg.camera();
+        ctr.add(&deferred::primary_pass(
+            &tr,
+            cam.as_ref(),
+            &job.primary,
+            &rays,
+            &lay,
+            pp.tile,
+            buf.prim,
+            buf.t,
+            workers,
+            &mut mailboxes!(),
+        ));
+        info.times.primary_trace = elapsed_ns(t);
+        let from_pgrid = job.primary == PrimaryPass::Pgrid;
+        // Hits are looked up where the primary pass found them.
+        macro_rules! tri_of {
+            () => {{
+                let pg_tris = pg.triangles();
+                let pg_ok = &*pg.pools.ok;
+                move |id: u32| -> Option<TriVerts> {
+                    if from_pgrid {
+                        let t = pg_tris?;
+                        (pg_ok.get(id as usize) == Some(&1)).then(|| t.tris[id as usize])
+                    } else {
+                        tr.triangle(id)
+                    }
+                }
+            }};
+        }
+        let scale = if from_pgrid {
+            scale_of(&pg.scene.bounds)
+        } else {
+            tr.scene_scale()
+        };
+        let eps = deferred::shadow_eps(scale);
+        info.hits = buf.prim[..lay.len()].iter().filter(|&&p| p != crate::geom::INVALID_ID).count() as u64;
+        let lights = job.lights();
+        buf.shadow[..lay.len()].fill(0);
+        if job.frame.shading.shadows {
+            for (l, light) in lights.iter().enumerate() {
+                // Phase 3: shadow rays, mapped and sorted into light tiles.
+                let t = now();
+                let s = deferred::make_shadow_rays(&tri_of!(), light, &rays, &lay, eps, buf.prim, buf.t, buf.dirs);
+                info.shadow_rays += s.count as u64;
+                match job.shadow {
+                    ShadowPass::Traced(p) => {
+                        info.times.rearrange += elapsed_ns(t);
+                        let t = now();
+                        ctr.add(&deferred::traced_shadow_pass(
+                            &tr,
+                            &p,
+                            light,
+                            &lay,
+                            buf.dirs,
+                            buf.shadow,
+                            l as u8,
+                            workers,
+                            &mut mailboxes!(),
+                        ));
+                        info.times.shadow_trace += elapsed_ns(t);
+                    }
+                    ShadowPass::LightGrid => {
+                        let f = deferred::light_frame(light, &s, deferred::light_tiles(pp.light_tiles, s.count), &lay, buf.dirs, buf.ray_tiles, buf.ray_ids);
+                        let mapped = now();
+                        info.times.rearrange += elapsed_ns(t);
+                        // Phase 4: the light grid.
+                        let t = now();
+                        info.light = pgrid::build::build_light(pg, &f, s.near, s.far, pp.light_slices)?;
+                        info.times.shadow_build += elapsed_ns(t);
+                        let _ = mapped;
+                        let t = now();
+                        let k = deferred::map_to_tiles(&f, &lay, buf.dirs, buf.ray_tiles, buf.ray_ids);
+                        let r = deferred::rearrange(&f, k, buf, pg.pools.tmp_keys, pg.pools.tmp_vals, pp.chunk);
+                        info.reorder.rays += r.rays;
+                        info.reorder.tiles_used += r.tiles_used;
+                        info.reorder.chunks += r.chunks;
+                        info.reorder.max_tile_rays = info.reorder.max_tile_rays.max(r.max_tile_rays);
+                        info.times.rearrange += elapsed_ns(t);
+                        // Phase 5: chunks.
+                        let t = now();
+                        let g = pg.light_view().ok_or(Error::NotBuilt)?;
+                        ctr.add(&deferred::light_grid_pass(
+                            &g,
+                            &buf.chunks[..r.chunks as usize],
+                            buf.ray_ids,
+                            buf.dirs,
+                            buf.occ,
+                            buf.shadow,
+                            l as u8,
+                            workers,
+                            &mut mailboxes!(),
+                        ));
+                        info.times.shadow_trace += elapsed_ns(t);
+                    }
+                }
+            }
+        }
+        // Phase 6: shading.
+        let t = now();
+        deferred::shade(
+            &tri_of!(),
+            job.frame,
+            lights,
+            &rays,
+            &lay,
+            eps,
+            buf.prim,
+            buf.t,
+            buf.shadow,
+            pixels,
+            stride,
+        );
+        info.times.shade = elapsed_ns(t);
+        let _ = t_all;
+        self.stats.counters = ctr;
+        self.stats.trace_ns = info.times.total();
+        self.stats.deferred = info;
         Ok(info)
     }
 
@@ -1309,6 +1590,18 @@ impl OwnedContext {
     }
     pub fn build_bvh(&mut self, scene: &Scene<'_>, params: &BvhParams) -> Result<BvhInfo> {
         self.inner.get_mut().build_bvh(scene, params)
+    }
+    pub fn build_pgrid(&mut self, scene: &Scene<'_>, params: &PgridParams) -> Result<SceneInfo> {
+        self.inner.get_mut().build_pgrid(scene, params)
+    }
+    pub fn render_deferred<W: Workers>(
+        &mut self,
+        job: &DeferredJob<'_>,
+        pixels: &mut [u8],
+        stride: usize,
+        workers: &mut W,
+    ) -> Result<DeferredInfo> {
+        self.inner.get_mut().render_deferred(job, pixels, stride, workers)
     }
     pub fn build_kd(&mut self, scene: &Scene<'_>, params: &KdParams) -> Result<KdInfo> {
         self.inner.get_mut().build_kd(scene, params)

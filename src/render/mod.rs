@@ -14,6 +14,7 @@
 //! Both paths shoot the same shadow rays, so they produce the same image.
 #![forbid(unsafe_code)]
 
+pub mod deferred;
 pub mod material;
 pub mod whitted;
 
@@ -177,6 +178,7 @@ pub struct PrimaryRays {
     corner: Vec3,
     du: Vec3,
     dv: Vec3,
+    pinhole: crate::accel::pgrid::Pinhole,
 }
 
 impl PrimaryRays {
@@ -209,7 +211,22 @@ impl PrimaryRays {
             corner,
             du,
             dv,
+            pinhole: crate::accel::pgrid::Pinhole {
+                eye,
+                right: u,
+                down: -v,
+                fwd: w,
+                half_w,
+                half_h,
+                width,
+                height,
+            },
         })
+    }
+
+    /// The camera as the perspective grid maps it.
+    pub fn pinhole(&self) -> crate::accel::pgrid::Pinhole {
+        self.pinhole
     }
 
     /// Ray through the centre of pixel (x, y); y grows downwards.

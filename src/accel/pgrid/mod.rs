@@ -63,7 +63,7 @@ pub struct PgridParams {
     pub group: u32,
     /// Depth slices of the camera frustum.
     pub slices: u32,
-    /// Light tiles per side of the light frustum's (a, b) rectangle.
+    /// Light tiles per side of the light frustum's (a, b) rectangle (at most 256).
     pub light_tiles: u32,
     /// Depth slices of a light grid (constant distance from the light).
     pub light_slices: u32,
@@ -91,6 +91,9 @@ impl Default for PgridParams {
     }
 }
 
+/// Most light tiles (256 per side).
+pub const MAX_LIGHT_TILES: usize = 256 * 256;
+
 /// Smallest chunk size r: bounds the chunk pool (`Limits::frame_pixels`
 /// / 16 plus one per light tile).
 pub const MIN_CHUNK: u32 = 16;
@@ -111,8 +114,8 @@ impl PgridParams {
         if !(1..=1024).contains(&self.slices) || !(1..=1024).contains(&self.light_slices) {
             return Err(InvalidArgument("pgrid slices must be in 1..=1024"));
         }
-        if !(1..=1024).contains(&self.light_tiles) {
-            return Err(InvalidArgument("light_tiles must be in 1..=1024"));
+        if !(1..=256).contains(&self.light_tiles) {
+            return Err(InvalidArgument("light_tiles must be in 1..=256"));
         }
         if !(MIN_CHUNK..=4096).contains(&self.chunk) {
             return Err(InvalidArgument("chunk (rays per chunk) must be in 16..=4096"));

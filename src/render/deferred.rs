@@ -1,0 +1,754 @@
+//! Deferred frames: camera rays first into a per-pixel hit buffer, then per
+//! light all shadow rays at once, then shading. This is the frame of the
+//! perspective/light grid paper (sections 3 and 4), whose light grids need
+//! every hit point of the frame before any shadow ray is traced, and whose
+//! timing breakdown (Figure 10) splits a frame into these phases:
+//!
+//! 1. primary structure build (the perspective grid, `PrimaryPass::Pgrid`);
+//! 2. primary traversal: tracing tiles of `tile * group` pixels, each a work
+//!    item; with `PrimaryPass::Traced` any other method traces the tiles;
+//! 3. per light, data rearrangement: shadow rays made and mapped to light
+//!    tiles, sorted, counted, chunked, compacted (`accel::pgrid::reorder`);
+//! 4. per light, shadow structure build (the light grid);
+//! 5. per light, shadow traversal: chunks as work items, shadow bits in
+//!    pixel space; with `ShadowPass::Traced` any other method traces shadow
+//!    packets from the light per pixel tile, as `render_tiles` does;
+//! 6. shading (Lambert, every light, spot factors).
+//!
+//! Work items run through a `Workers`: on the calling thread (`OnCaller`)
+//! or on a caller's thread pool (the CLI's). Each item owns a disjoint
+//! range of the output buffers, so no item waits for another.
+//!
+//! The rays are exactly those of `render_rows` (camera rays through pixel
+//! centres; shadow rays from the light to `p + n * eps`, `PointLight::at`),
+//! so with one light the image equals `render_rows`' with the same triangle
+//! test.
+
+use super::{Frame, PointLight, PrimaryRays, SHADOW_OFFSET, Tracer, demorton, encode, shadow_packet};
+use crate::accel::grid::traverse_cgt::Mailbox;
+use crate::accel::pgrid::{
+    CamView, CellsInfo, Chunk, LightFrame, LightView, ReorderInfo, reorder, traverse_primary,
+    traverse_shadow,
+};
+use crate::error::{Error, Result};
+use crate::geom::{F4, Hit4, INVALID_ID, M4, Ray, Ray4, TriVerts};
+use crate::trace::{Counters, TraceParams};
+use glam::Vec3;
+
+/// How camera rays are traced.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum PrimaryPass {
+    /// The perspective grid (built by the render call).
+    Pgrid,
+    /// A method of the built grid, BVH or kd-tree.
+    Traced(TraceParams),
+}
+
+/// How shadow rays are traced.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum ShadowPass {
+    /// A spherical light grid per light, rays sorted into light tiles.
+    LightGrid,
+    /// A method of the built grid, BVH or kd-tree, in packets from the
+    /// light per pixel tile (or ray by ray for single-ray methods).
+    Traced(TraceParams),
+}
+
+/// Most lights of a deferred frame (one shadow bit each).
+pub const MAX_LIGHTS: usize = 8;
+
+/// A deferred frame.
+#[derive(Clone, Copy, Debug)]
+pub struct DeferredJob<'a> {
+    pub frame: &'a Frame,
+    /// Lights (at most `MAX_LIGHTS`); empty: `frame.light` alone.
+    pub lights: &'a [PointLight],
+    pub primary: PrimaryPass,
+    pub shadow: ShadowPass,
+}
+
+impl<'a> DeferredJob<'a> {
+    pub fn lights(&self) -> &'a [PointLight] {
+        if self.lights.is_empty() {
+            core::slice::from_ref(&self.frame.light)
+        } else {
+            self.lights
+        }
+    }
+
+    pub fn validate(&self) -> Result<()> {
+        if self.lights.len() > MAX_LIGHTS {
+            return Err(Error::InvalidArgument("a deferred frame takes at most 8 lights"));
+        }
+        for l in self.lights() {
+            l.validate()?;
+        }
+        if let PrimaryPass::Traced(p) = &self.primary {
+            p.validate()?;
+        }
+        if let ShadowPass::Traced(p) = &self.shadow {
+            p.validate()?;
+        }
+        Ok(())
+    }
+}
+
+/// Wall time of each phase of the last deferred frame, in nanoseconds
+/// (the paper's Figure 10; 0 without `std`), summed over lights.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct PhaseTimes {
+    pub primary_build: u64,
+    pub primary_trace: u64,
+    pub rearrange: u64,
+    pub shadow_build: u64,
+    pub shadow_trace: u64,
+    pub shade: u64,
+}
+
+impl PhaseTimes {
+    pub fn total(&self) -> u64 {
+        self.primary_build
+            + self.primary_trace
+            + self.rearrange
+            + self.shadow_build
+            + self.shadow_trace
+            + self.shade
+    }
+}
+
+/// What the last deferred frame did.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct DeferredInfo {
+    pub times: PhaseTimes,
+    /// The perspective grid (zeros with a traced primary pass).
+    pub camera: CellsInfo,
+    /// The last light's grid (zeros with traced shadows).
+    pub light: CellsInfo,
+    /// Reordering summed over lights (`max_tile_rays`: the maximum).
+    pub reorder: ReorderInfo,
+    /// Shadow rays over all lights.
+    pub shadow_rays: u64,
+    /// Camera rays that hit.
+    pub hits: u64,
+}
+
+/// Runs work items, each with a mailbox and counters of the thread that
+/// runs it. Implementations may run items concurrently (the items own
+/// disjoint outputs); the returned counters are the sum.
+pub trait Workers {
+    fn run<'m, I, F>(
+        &mut self,
+        mailboxes: &mut dyn Iterator<Item = Mailbox<'m>>,
+        items: &mut (dyn Iterator<Item = I> + Send),
+        work: &F,
+    ) -> Counters
+    where
+        I: Send,
+        F: Fn(I, &mut Mailbox<'_>, &mut Counters) + Sync;
+}
+
+/// Runs every item on the calling thread with the first mailbox.
+pub struct OnCaller;
+
+impl Workers for OnCaller {
+    fn run<'m, I, F>(
+        &mut self,
+        mailboxes: &mut dyn Iterator<Item = Mailbox<'m>>,
+        items: &mut (dyn Iterator<Item = I> + Send),
+        work: &F,
+    ) -> Counters
+    where
+        I: Send,
+        F: Fn(I, &mut Mailbox<'_>, &mut Counters) + Sync,
+    {
+        let mut ctr = Counters::default();
+        let mut none = [0u32; 0];
+        let mut p = 0u32;
+        let mut mb = mailboxes.next().unwrap_or_else(|| Mailbox::new(&mut none, &mut p));
+        for it in items {
+            work(it, &mut mb, &mut ctr);
+        }
+        ctr
+    }
+}
+
+/// Per-pixel buffers of deferred frames, carved at context creation
+/// (`Limits::frame_pixels` entries each, laid out tile by tile).
+pub struct FrameBuffers<'a> {
+    /// Nearest triangle per pixel (`INVALID_ID`: miss) and its t.
+    pub prim: &'a mut [u32],
+    pub t: &'a mut [f32],
+    /// The current light's shadow ray direction per pixel (x NaN: none).
+    pub dirs: &'a mut [[f32; 3]],
+    /// Shadow bits, one per light.
+    pub shadow: &'a mut [u8],
+    /// Light tile and pixel of every shadow ray, sorted by tile.
+    pub ray_tiles: &'a mut [u32],
+    pub ray_ids: &'a mut [u32],
+    /// Occlusion of the sorted shadow rays.
+    pub occ: &'a mut [u8],
+    pub chunks: &'a mut [Chunk],
+}
+
+/// Tile-major layout of the frame buffers: tile `(tx, ty)` of `side`
+/// pixels owns `side^2` consecutive entries, row by row.
+#[derive(Clone, Copy, Debug)]
+pub struct TileLayout {
+    pub side: u32,
+    pub tiles_x: u32,
+    pub tiles_y: u32,
+    pub width: u32,
+    pub height: u32,
+}
+
+impl TileLayout {
+    pub fn new(side: u32, width: u32, height: u32) -> TileLayout {
+        TileLayout {
+            side,
+            tiles_x: width.div_ceil(side),
+            tiles_y: height.div_ceil(side),
+            width,
+            height,
+        }
+    }
+    pub fn len(&self) -> usize {
+        (self.tiles_x * self.tiles_y * self.side * self.side) as usize
+    }
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+    #[inline]
+    pub fn index(&self, x: u32, y: u32) -> usize {
+        let (tx, ty) = (x / self.side, y / self.side);
+        let tile = (ty * self.tiles_x + tx) as usize;
+        tile * (self.side * self.side) as usize + ((y % self.side) * self.side + x % self.side) as usize
+    }
+    /// Pixel of entry `i` (may lie outside the image in edge tiles).
+    #[inline]
+    pub fn pixel(&self, i: usize) -> (u32, u32) {
+        let ss = (self.side * self.side) as usize;
+        let tile = (i / ss) as u32;
+        let local = (i % ss) as u32;
+        (
+            (tile % self.tiles_x) * self.side + local % self.side,
+            (tile / self.tiles_x) * self.side + local / self.side,
+        )
+    }
+}
+
+/// Side of the tracing tiles of a pass.
+pub fn tile_side(primary: &PrimaryPass, tile: u32, group: u32) -> u32 {
+    match primary {
+        PrimaryPass::Pgrid => tile * group,
+        PrimaryPass::Traced(p) if p.tile_side() > 0 => p.tile_side(),
+        PrimaryPass::Traced(_) => 8,
+    }
+}
+
+const DUMMY: Ray = Ray {
+    org: [0.0; 3],
+    dir: [1.0, 0.0, 0.0],
+    tmin: 0.0,
+    tmax: 0.0,
+};
+
+/// Phase 2: nearest hits of every camera ray into `prim`/`t` (layout
+/// `lay`). `cam` is the perspective grid when `primary` is `Pgrid`, whose
+/// sorting tiles are `lay.side / group` pixels.
+#[allow(clippy::too_many_arguments)]
+pub fn primary_pass<'m, T: Tracer + ?Sized, W: Workers>(
+    tracer: &T,
+    cam: Option<&CamView<'_>>,
+    primary: &PrimaryPass,
+    rays: &PrimaryRays,
+    lay: &TileLayout,
+    sort: u32,
+    prim: &mut [u32],
+    t: &mut [f32],
+    workers: &mut W,
+    mailboxes: &mut dyn Iterator<Item = Mailbox<'m>>,
+) -> Counters {
+    let ss = (lay.side * lay.side) as usize;
+    let n = lay.len();
+    let mut items = prim[..n]
+        .chunks_mut(ss)
+        .zip(t[..n].chunks_mut(ss))
+        .enumerate();
+    let work = |(tile, (p, tt)): (usize, (&mut [u32], &mut [f32])), mb: &mut Mailbox<'_>, ctr: &mut Counters| {
+        let (x0, y0) = lay.pixel(tile * ss);
+        match (primary, cam) {
+            (PrimaryPass::Pgrid, Some(cam)) => pgrid_tile(cam, rays, lay, sort, x0, y0, p, tt, ctr),
+            (PrimaryPass::Traced(params), _) => traced_tile(tracer, params, rays, lay, x0, y0, p, tt, mb, ctr),
+            _ => p.fill(INVALID_ID),
+        }
+    };
+    workers.run(mailboxes, &mut items, &work)
+}
+
+/// One tracing tile through the perspective grid: its k x k sorting tiles,
+/// each with its own cells (indirect mapping).
+#[allow(clippy::too_many_arguments)]
+fn pgrid_tile(
+    cam: &CamView<'_>,
+    rays: &PrimaryRays,
+    lay: &TileLayout,
+    sort: u32,
+    x0: u32,
+    y0: u32,
+    prim: &mut [u32],
+    t: &mut [f32],
+    ctr: &mut Counters,
+) {
+    let st = cam.cells.info.tiles;
+    let side = lay.side;
+    let ts = side / sort;
+    let half = sort / 2;
+    let nq = (half * half) as usize;
+    let mut quads = [Ray4::from_rays(&[DUMMY; 4]); traverse_primary::MAX_QUADS];
+    let mut active = [M4::FALSE; traverse_primary::MAX_QUADS];
+    let mut hits = [Hit4::MISS; traverse_primary::MAX_QUADS];
+    prim.fill(INVALID_ID);
+    for sy in 0..ts {
+        for sx in 0..ts {
+            let (px, py) = (x0 + sx * sort, y0 + sy * sort);
+            if px >= lay.width || py >= lay.height {
+                continue;
+            }
+            for q in 0..nq {
+                let (qx, qy) = (q as u32 % half, q as u32 / half);
+                let mut lanes = [DUMMY; 4];
+                let mut m = [false; 4];
+                for (i, (dx, dy)) in LANES.iter().enumerate() {
+                    let (x, y) = (px + 2 * qx + dx, py + 2 * qy + dy);
+                    if x < lay.width && y < lay.height {
+                        lanes[i] = rays.ray(x, y);
+                        m[i] = true;
+                    }
+                }
+                quads[q] = Ray4::from_rays(&lanes);
+                active[q] = M4::new(m[0], m[1], m[2], m[3]);
+                hits[q] = Hit4::MISS;
+            }
+            let tile = (py / sort) * st[0] + px / sort;
+            traverse_primary::trace_tile(cam, tile, &quads[..nq], &active[..nq], &mut hits[..nq], ctr);
+            for q in 0..nq {
+                let (qx, qy) = (q as u32 % half, q as u32 / half);
+                for (i, (dx, dy)) in LANES.iter().enumerate() {
+                    if active[q].test(i) {
+                        let local = ((sy * sort + 2 * qy + dy) * side + sx * sort + 2 * qx + dx) as usize;
+                        prim[local] = hits[q].prim[i];
+                        t[local] = hits[q].t[i];
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Lane (dx, dy) of a 2x2 quad, in `Ray4` lane order.
+const LANES: [(u32, u32); 4] = [(0, 0), (1, 0), (0, 1), (1, 1)];
+
+/// One tile traced with a packet method (Morton quads, as `render_tiles`)
+/// or ray by ray.
+#[allow(clippy::too_many_arguments)]
+fn traced_tile<T: Tracer + ?Sized>(
+    tracer: &T,
+    params: &TraceParams,
+    rays: &PrimaryRays,
+    lay: &TileLayout,
+    x0: u32,
+    y0: u32,
+    prim: &mut [u32],
+    t: &mut [f32],
+    mb: &mut Mailbox<'_>,
+    ctr: &mut Counters,
+) {
+    let side = lay.side;
+    prim.fill(INVALID_ID);
+    if params.tile_side() == 0 {
+        for ly in 0..side {
+            for lx in 0..side {
+                let (x, y) = (x0 + lx, y0 + ly);
+                if x < lay.width && y < lay.height {
+                    let h = tracer.intersect(&rays.ray(x, y), ctr);
+                    prim[(ly * side + lx) as usize] = h.prim;
+                    t[(ly * side + lx) as usize] = h.t;
+                }
+            }
+        }
+        return;
+    }
+    let nq = ((side / 2) * (side / 2)) as usize;
+    let mut quads = [Ray4::from_rays(&[DUMMY; 4]); 256];
+    let mut active = [M4::FALSE; 256];
+    let mut hits = [Hit4::MISS; 256];
+    for q in 0..nq {
+        let (qx, qy) = demorton(q);
+        let mut lanes = [DUMMY; 4];
+        let mut m = [false; 4];
+        for (i, (dx, dy)) in LANES.iter().enumerate() {
+            let (x, y) = (x0 + 2 * qx + dx, y0 + 2 * qy + dy);
+            if x < lay.width && y < lay.height {
+                lanes[i] = rays.ray(x, y);
+                m[i] = true;
+            }
+        }
+        quads[q] = Ray4::from_rays(&lanes);
+        active[q] = M4::new(m[0], m[1], m[2], m[3]);
+        hits[q] = Hit4::MISS;
+    }
+    let p = TraceParams {
+        packet: side,
+        ..*params
+    };
+    tracer.intersect_packet(&p, &quads[..nq], &active[..nq], &mut hits[..nq], mb, ctr);
+    for q in 0..nq {
+        let (qx, qy) = demorton(q);
+        for (i, (dx, dy)) in LANES.iter().enumerate() {
+            if active[q].test(i) {
+                let local = ((2 * qy + dy) * side + 2 * qx + dx) as usize;
+                prim[local] = hits[q].prim[i];
+                t[local] = hits[q].t[i];
+            }
+        }
+    }
+}
+
+/// The facing normal and hit point of pixel (x, y)'s hit.
+#[inline]
+fn surface_of(ray: &Ray, t: f32, tri: &TriVerts) -> (Vec3, Vec3) {
+    let d = Vec3::from(ray.dir);
+    let mut n = tri.normal().normalize_or_zero();
+    if n.dot(d) > 0.0 {
+        n = -n;
+    }
+    (Vec3::from(ray.org) + d * t, n)
+}
+
+/// Shadow rays of one light: how many, their length range, and the mean
+/// of their unit directions (for the light frustum's forward axis).
+#[derive(Clone, Copy, Debug)]
+pub struct ShadowRays {
+    pub count: u32,
+    pub near: f32,
+    pub far: f32,
+    pub mean_dir: Vec3,
+}
+
+/// Phase 3a: the shadow ray of every pixel for `light` into `dirs` (x NaN
+/// where there is none: miss, facing away, outside a spot's cone).
+#[allow(clippy::too_many_arguments)]
+pub fn make_shadow_rays(
+    tri_of: &dyn Fn(u32) -> Option<TriVerts>,
+    light: &PointLight,
+    rays: &PrimaryRays,
+    lay: &TileLayout,
+    eps: f32,
+    prim: &[u32],
+    t: &[f32],
+    dirs: &mut [[f32; 3]],
+) -> ShadowRays {
+    let mut s = ShadowRays {
+        count: 0,
+        near: f32::INFINITY,
+        far: 0.0,
+        mean_dir: Vec3::ZERO,
+    };
+    for i in 0..lay.len() {
+        dirs[i][0] = f32::NAN;
+        if prim[i] == INVALID_ID {
+            continue;
+        }
+        let (x, y) = lay.pixel(i);
+        let Some(tri) = tri_of(prim[i]) else { continue };
+        let (p, n) = surface_of(&rays.ray(x, y), t[i], &tri);
+        if let (_, Some(r)) = light.at(p, n, true, eps) {
+            let d = Vec3::from(r.dir);
+            let len = d.length();
+            dirs[i] = r.dir;
+            s.count += 1;
+            s.near = s.near.min(len);
+            s.far = s.far.max(len);
+            s.mean_dir += d / len;
+        }
+    }
+    s
+}
+
+/// Light tiles per side for `rays` shadow rays: `max` (the parameter), or
+/// fewer when there are not 8 rays per tile on average: a small frame gets
+/// a coarse light grid (fewer pairs to build, no emptier tiles).
+pub fn light_tiles(max: u32, rays: u32) -> u32 {
+    let side = libm::ceilf(libm::sqrtf(rays as f32 / 8.0)) as u32;
+    side.clamp(1, max)
+}
+
+/// Phase 3b: the light's frustum, `tiles` per side, over the (a, b)
+/// rectangle of this frame's shadow rays (and a spot's cone), and each
+/// ray's (a, b) into `ab_a`/`ab_b` (as bits) for `map_to_tiles`.
+#[allow(clippy::too_many_arguments)]
+pub fn light_frame(
+    light: &PointLight,
+    s: &ShadowRays,
+    tiles: u32,
+    lay: &TileLayout,
+    dirs: &[[f32; 3]],
+    ab_a: &mut [u32],
+    ab_b: &mut [u32],
+) -> LightFrame {
+    let fwd = if light.is_spot() {
+        Vec3::from(light.spot_direction).normalize()
+    } else if s.mean_dir.length() > 1e-3 * s.count as f32 {
+        s.mean_dir.normalize()
+    } else {
+        Vec3::Z
+    };
+    let helper = if fwd.x.abs() < 0.9 { Vec3::X } else { Vec3::Y };
+    let right = fwd.cross(helper).normalize();
+    let up = right.cross(fwd).normalize();
+    let mut f = LightFrame {
+        pos: Vec3::from(light.position),
+        fwd,
+        right,
+        up,
+        tiles: [tiles, tiles],
+        ..LightFrame::default()
+    };
+    let (mut a_lo, mut a_hi, mut b_lo, mut b_hi) = (f32::INFINITY, f32::NEG_INFINITY, f32::INFINITY, f32::NEG_INFINITY);
+    for i in 0..lay.len() {
+        if dirs[i][0].is_nan() {
+            continue;
+        }
+        let (a, b) = f.angles(Vec3::from(dirs[i]));
+        ab_a[i] = a.to_bits();
+        ab_b[i] = b.to_bits();
+        a_lo = a_lo.min(a);
+        a_hi = a_hi.max(a);
+        b_lo = b_lo.min(b);
+        b_hi = b_hi.max(b);
+    }
+    if light.is_spot() {
+        // The cone's rectangle (section 4.1, Figure 6); rays are inside it.
+        let c = light.spot_angle_deg.to_radians();
+        a_lo = a_lo.max(-c);
+        a_hi = a_hi.min(c);
+        b_lo = b_lo.max(-c);
+        b_hi = b_hi.min(c);
+    }
+    if s.count == 0 {
+        (a_lo, a_hi, b_lo, b_hi) = (0.0, 0.0, 0.0, 0.0);
+    }
+    let pad = 1e-4;
+    f.a0 = a_lo - pad;
+    f.b0 = b_lo - pad;
+    f.inv_da = tiles as f32 / (a_hi - a_lo + 2.0 * pad);
+    f.inv_db = tiles as f32 / (b_hi - b_lo + 2.0 * pad);
+    f
+}
+
+/// Phase 3c (the map step): compact the shadow rays into (light tile,
+/// pixel) pairs in `ray_tiles`/`ray_ids`, reading the (a, b) bits
+/// `light_frame` left there. Returns the number of rays.
+pub fn map_to_tiles(f: &LightFrame, lay: &TileLayout, dirs: &[[f32; 3]], ray_tiles: &mut [u32], ray_ids: &mut [u32]) -> usize {
+    let mut k = 0;
+    for i in 0..lay.len() {
+        if dirs[i][0].is_nan() {
+            continue;
+        }
+        let a = f32::from_bits(ray_tiles[i]);
+        let b = f32::from_bits(ray_ids[i]);
+        let tx = crate::accel::pgrid::tile_coord((a - f.a0) * f.inv_da, f.tiles[0]);
+        let ty = crate::accel::pgrid::tile_coord((b - f.b0) * f.inv_db, f.tiles[1]);
+        ray_tiles[k] = ty * f.tiles[0] + tx;
+        ray_ids[k] = i as u32;
+        k += 1;
+    }
+    k
+}
+
+/// Phase 3d: sort and chunk `n` mapped rays (`accel::pgrid::reorder`).
+pub fn rearrange(f: &LightFrame, n: usize, buf: &mut FrameBuffers<'_>, tmp_keys: &mut [u32], tmp_vals: &mut [u32], r: u32) -> ReorderInfo {
+    reorder::reorder(
+        &mut buf.ray_tiles[..n],
+        &mut buf.ray_ids[..n],
+        tmp_keys,
+        tmp_vals,
+        f.tiles[0] * f.tiles[1],
+        r,
+        buf.chunks,
+    )
+}
+
+/// Phase 5 with the light grid: every chunk traced as one work item, its
+/// occlusion written to its range of `occ`; then the shadow bit `bit` of
+/// every occluded ray's pixel is set.
+#[allow(clippy::too_many_arguments)]
+pub fn light_grid_pass<'m, W: Workers>(
+    g: &LightView<'_>,
+    chunks: &[Chunk],
+    ray_ids: &[u32],
+    dirs: &[[f32; 3]],
+    occ: &mut [u8],
+    shadow: &mut [u8],
+    bit: u8,
+    workers: &mut W,
+    mailboxes: &mut dyn Iterator<Item = Mailbox<'m>>,
+) -> Counters {
+    let light = g.frame.pos;
+    let mut rest = &mut occ[..];
+    let mut items = chunks.iter().map(move |c| {
+        let (mine, tail) = core::mem::take(&mut rest).split_at_mut(c.count as usize);
+        rest = tail;
+        (c, mine)
+    });
+    let work = |(c, out): (&Chunk, &mut [u8]), _: &mut Mailbox<'_>, ctr: &mut Counters| {
+        let mut quads = [Ray4::from_rays(&[DUMMY; 4]); traverse_shadow::MAX_QUADS];
+        let mut active = [M4::FALSE; traverse_shadow::MAX_QUADS];
+        let mut occluded = [M4::FALSE; traverse_shadow::MAX_QUADS];
+        let ids = &ray_ids[c.start as usize..(c.start + c.count) as usize];
+        for (b, batch) in ids.chunks(4 * traverse_shadow::MAX_QUADS).enumerate() {
+            let nq = batch.len().div_ceil(4);
+            for q in 0..nq {
+                let mut lanes = [DUMMY; 4];
+                let mut m = [false; 4];
+                for i in 0..4 {
+                    if let Some(&id) = batch.get(4 * q + i) {
+                        lanes[i] = Ray::new(light, Vec3::from(dirs[id as usize]), 0.0, 1.0);
+                        m[i] = true;
+                    }
+                }
+                quads[q] = Ray4::from_rays(&lanes);
+                active[q] = M4::new(m[0], m[1], m[2], m[3]);
+            }
+            traverse_shadow::trace_chunk(g, c.tile, &quads[..nq], &active[..nq], &mut occluded[..nq], ctr);
+            let base = b * 4 * traverse_shadow::MAX_QUADS;
+            for k in 0..batch.len() {
+                out[base + k] = occluded[k / 4].test(k % 4) as u8;
+            }
+        }
+    };
+    let ctr = workers.run(mailboxes, &mut items, &work);
+    let n: usize = chunks.iter().map(|c| c.count as usize).sum();
+    for k in 0..n {
+        if occ[k] != 0 {
+            shadow[ray_ids[k] as usize] |= 1 << bit;
+        }
+    }
+    ctr
+}
+
+/// Phase 5 with another method: shadow packets from the light per tile of
+/// the layout (split in depth as `render_tiles` does), or ray by ray.
+#[allow(clippy::too_many_arguments)]
+pub fn traced_shadow_pass<'m, T: Tracer + ?Sized, W: Workers>(
+    tracer: &T,
+    params: &TraceParams,
+    light: &PointLight,
+    lay: &TileLayout,
+    dirs: &[[f32; 3]],
+    shadow: &mut [u8],
+    bit: u8,
+    workers: &mut W,
+    mailboxes: &mut dyn Iterator<Item = Mailbox<'m>>,
+) -> Counters {
+    let org = Vec3::from(light.position);
+    let ss = (lay.side * lay.side) as usize;
+    let n = lay.len();
+    let mut items = shadow[..n].chunks_mut(ss).zip(dirs[..n].chunks(ss));
+    let side = lay.side;
+    let packet = params.tile_side() > 0;
+    let work = |(sh, d): (&mut [u8], &[[f32; 3]]), mb: &mut Mailbox<'_>, ctr: &mut Counters| {
+        if !packet {
+            for k in 0..ss {
+                if !d[k][0].is_nan() && tracer.occluded(&Ray::new(org, Vec3::from(d[k]), 0.0, 1.0), ctr) {
+                    sh[k] |= 1 << bit;
+                }
+            }
+            return;
+        }
+        // Packets of the tile in Morton order, so quarters are sub-packets.
+        let nq = ss / 4;
+        let mut quads = [Ray4::from_rays(&[DUMMY; 4]); 256];
+        let mut active = [M4::FALSE; 256];
+        let mut hits = [Hit4::MISS; 256];
+        let mut dist = [F4::ZERO; 256];
+        for q in 0..nq {
+            let (qx, qy) = demorton(q);
+            let mut lanes = [DUMMY; 4];
+            let mut m = [false; 4];
+            for (i, (dx, dy)) in LANES.iter().enumerate() {
+                let local = ((2 * qy + dy) * side + 2 * qx + dx) as usize;
+                if !d[local][0].is_nan() {
+                    let dir = Vec3::from(d[local]);
+                    lanes[i] = Ray::new(org, dir, 0.0, 1.0);
+                    dist[q][i] = dir.length();
+                    m[i] = true;
+                }
+            }
+            quads[q] = Ray4::from_rays(&lanes);
+            active[q] = M4::new(m[0], m[1], m[2], m[3]);
+            hits[q] = Hit4::MISS;
+        }
+        let p = TraceParams {
+            packet: side,
+            ..*params
+        };
+        shadow_packet(tracer, &p, &quads[..nq], &active[..nq], &dist[..nq], &mut hits[..nq], mb, ctr);
+        for q in 0..nq {
+            let (qx, qy) = demorton(q);
+            for (i, (dx, dy)) in LANES.iter().enumerate() {
+                if active[q].test(i) && hits[q].prim[i] != INVALID_ID {
+                    let local = ((2 * qy + dy) * side + 2 * qx + dx) as usize;
+                    sh[local] |= 1 << bit;
+                }
+            }
+        }
+    };
+    workers.run(mailboxes, &mut items, &work)
+}
+
+/// Phase 6: Lambert shading of every pixel with every light, a light whose
+/// shadow bit is set contributing nothing; RGBA8 into `pixels` (`stride`
+/// bytes per row).
+#[allow(clippy::too_many_arguments)]
+pub fn shade(
+    tri_of: &dyn Fn(u32) -> Option<TriVerts>,
+    frame: &Frame,
+    lights: &[PointLight],
+    rays: &PrimaryRays,
+    lay: &TileLayout,
+    eps: f32,
+    prim: &[u32],
+    t: &[f32],
+    shadow: &[u8],
+    pixels: &mut [u8],
+    stride: usize,
+) {
+    let sh = &frame.shading;
+    for y in 0..frame.height {
+        for x in 0..frame.width {
+            let i = lay.index(x, y);
+            let tri = if prim[i] == INVALID_ID { None } else { tri_of(prim[i]) };
+            let c = match tri {
+                Some(tri) => {
+                    let (p, n) = surface_of(&rays.ray(x, y), t[i], &tri);
+                    let mut sum = Vec3::ZERO;
+                    for (l, light) in lights.iter().enumerate() {
+                        let (lit, _) = light.at(p, n, false, eps);
+                        let lit = if sh.shadows && shadow[i] & (1 << l) != 0 { 0.0 } else { lit };
+                        sum += Vec3::from(light.color) * lit;
+                    }
+                    Vec3::from(sh.albedo) * (Vec3::splat(sh.ambient) + sum)
+                }
+                None => Vec3::from(sh.background),
+            };
+            let at = y as usize * stride + x as usize * 4;
+            pixels[at..at + 4].copy_from_slice(&[encode(c.x), encode(c.y), encode(c.z), 255]);
+        }
+    }
+}
+
+/// Shadow-ray end point offset for a scene of `scale`.
+pub fn shadow_eps(scale: f32) -> f32 {
+    SHADOW_OFFSET * scale
+}
