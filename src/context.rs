@@ -14,7 +14,7 @@ use crate::geom::frustum::Frustum;
 use crate::geom::{Hit, Hit4, M4, Mt, Pt, Ray, Ray4, Scene, TriTest, TriVerts, TriangleTest, Wt};
 use crate::mem::{Arena, Limits, pool_bytes};
 use crate::render::whitted::{self, WhittedJob};
-use crate::render::{self, Frame, PrimaryRays, Tracer};
+use crate::render::{self, Frame, PointLight, PrimaryRays, Tracer};
 use crate::trace::{Counters, Method, TraceParams};
 
 /// Pool sizes derived from `Limits`, in the order they are carved. A
@@ -159,6 +159,10 @@ pub struct Context<'a> {
     kd: KdTree<'a>,
     pgrid: Pgrid<'a>,
     frame: FrameBuffers<'a>,
+    /// Layout of the frame buffers in the last deferred frame, its
+    /// camera rays and shadow-ray offset.
+    frame_layout: Option<TileLayout>,
+    frame_rays: Option<(PrimaryRays, f32)>,
     /// Per-thread mailboxes (CGT section 2.3): `max_triangles` stamps and
     /// one packet counter per thread slot.
     stamps: &'a mut [u32],
@@ -254,6 +258,8 @@ impl<'a> Context<'a> {
             kd: KdTree::new(kd),
             pgrid: Pgrid::new(pg),
             frame,
+            frame_layout: None,
+            frame_rays: None,
             stamps,
             mail_packets,
             stats: Stats::default(),
@@ -396,6 +402,7 @@ impl<'a> Context<'a> {
             ));
         }
         let lay = TileLayout::new(side, job.frame.width, job.frame.height);
+        self.frame_layout = None;
         let t_all = now();
         let tr = SceneTracer {
             grid: self.grid.view(),
@@ -557,7 +564,45 @@ impl<'a> Context<'a> {
         self.stats.counters = ctr;
         self.stats.trace_ns = info.times.total();
         self.stats.deferred = info;
+        self.frame_layout = Some(lay);
+        self.frame_rays = Some((rays, eps));
         Ok(info)
+    }
+
+    /// Pixel (x, y) of the last deferred frame: the camera ray's nearest
+    /// triangle and t (`INVALID_ID`, infinity: a miss) and the shadow bits
+    /// (bit l: light l's shadow ray was occluded). None outside the frame
+    /// or before the first successful `render_deferred`.
+    pub fn deferred_pixel(&self, x: u32, y: u32) -> Option<(Hit, u8)> {
+        let lay = self.frame_layout?;
+        if x >= lay.width || y >= lay.height {
+            return None;
+        }
+        let i = lay.index(x, y);
+        let prim = self.frame.prim[i];
+        let hit = Hit {
+            t: if prim == crate::geom::INVALID_ID { f32::INFINITY } else { self.frame.t[i] },
+            prim,
+            u: 0.0,
+            v: 0.0,
+        };
+        Some((hit, self.frame.shadow[i]))
+    }
+
+    /// The shadow ray towards `light` of pixel (x, y) of the last deferred
+    /// frame (None: a miss, or no shadow ray), bit for bit the ray the
+    /// frame traced, for checking its shadow bits against a reference.
+    pub fn deferred_shadow_ray(&self, x: u32, y: u32, light: &PointLight) -> Option<Ray> {
+        let (hit, _) = self.deferred_pixel(x, y)?;
+        let (rays, eps) = self.frame_rays?;
+        if !hit.is_hit() {
+            return None;
+        }
+        let tri = match self.pgrid.triangles() {
+            Some(t) => *t.tris.get(hit.prim as usize)?,
+            None => self.scene_tracer().ok()?.triangle(hit.prim)?,
+        };
+        deferred::shadow_ray(&rays.ray(x, y), hit.t, &tri, light, eps)
     }
 
     /// The built structures with single-ray calls going to the first built
@@ -1593,6 +1638,12 @@ impl OwnedContext {
     }
     pub fn build_pgrid(&mut self, scene: &Scene<'_>, params: &PgridParams) -> Result<SceneInfo> {
         self.inner.get_mut().build_pgrid(scene, params)
+    }
+    pub fn deferred_pixel(&self, x: u32, y: u32) -> Option<(Hit, u8)> {
+        self.inner.get().deferred_pixel(x, y)
+    }
+    pub fn deferred_shadow_ray(&self, x: u32, y: u32, light: &PointLight) -> Option<Ray> {
+        self.inner.get().deferred_shadow_ray(x, y, light)
     }
     pub fn render_deferred<W: Workers>(
         &mut self,

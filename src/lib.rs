@@ -27,12 +27,14 @@ pub mod scenes;
 
 pub use accel::bvh::{BvhInfo, BvhParams};
 pub use accel::grid::{GridInfo, GridParams};
+pub use accel::pgrid::PgridParams;
 #[cfg(feature = "std")]
 pub use context::OwnedContext;
 pub use context::{Context, Stats, required_bytes};
 pub use error::{Error, Pool, Result};
 pub use geom::{Hit, Ray, Scene, TriTest};
 pub use mem::Limits;
+pub use render::deferred::{DeferredInfo, DeferredJob, OnCaller, PrimaryPass, ShadowPass};
 pub use render::{Camera, Frame, PointLight, Shading};
 pub use trace::{CgtOptions, Counters, Method, TraceParams};
 

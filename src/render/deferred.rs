@@ -425,6 +425,15 @@ fn surface_of(ray: &Ray, t: f32, tri: &TriVerts) -> (Vec3, Vec3) {
     (Vec3::from(ray.org) + d * t, n)
 }
 
+/// The shadow ray towards `light` of the surface camera ray `ray` hits at
+/// `t` on `tri` (None: the surface faces away or is outside a spot's
+/// cone): the ray every renderer shoots, `PointLight::at`.
+#[inline]
+pub fn shadow_ray(ray: &Ray, t: f32, tri: &TriVerts, light: &PointLight, eps: f32) -> Option<Ray> {
+    let (p, n) = surface_of(ray, t, tri);
+    light.at(p, n, true, eps).1
+}
+
 /// Shadow rays of one light: how many, their length range, and the mean
 /// of their unit directions (for the light frustum's forward axis).
 #[derive(Clone, Copy, Debug)]
@@ -461,8 +470,7 @@ pub fn make_shadow_rays(
         }
         let (x, y) = lay.pixel(i);
         let Some(tri) = tri_of(prim[i]) else { continue };
-        let (p, n) = surface_of(&rays.ray(x, y), t[i], &tri);
-        if let (_, Some(r)) = light.at(p, n, true, eps) {
+        if let Some(r) = shadow_ray(&rays.ray(x, y), t[i], &tri, light, eps) {
             let d = Vec3::from(r.dir);
             let len = d.length();
             dirs[i] = r.dir;
