@@ -34,6 +34,10 @@
 #define SHEAF_STRUCTURE_GRID 1u
 #define SHEAF_STRUCTURE_BVH 2u
 #define SHEAF_STRUCTURE_KD 4u
+#define SHEAF_STRUCTURE_PGRID 8u
+
+/** Most lights of a sheaf_deferred_job (one shadow bit each). */
+#define SHEAF_DEFERRED_MAX_LIGHTS 8
 
 /** Entries of sheaf_counters.aabb_by_depth and tri_by_depth (deeper nodes add to the last). */
 #define SHEAF_DEPTH_BINS 32
@@ -111,6 +115,16 @@ enum sheaf_status
      * More threads than `sheaf_limits.max_threads`.
      */
     SHEAF_STATUS_CAPACITY_THREADS = 205,
+    /**
+     * A perspective or light grid needs more cells than
+     * `sheaf_limits.max_pgrid_cells` (fewer tiles or depth slices).
+     */
+    SHEAF_STATUS_CAPACITY_PGRID_CELLS = 206,
+    /**
+     * A perspective or light grid needs more (triangle, cell) pairs than
+     * `sheaf_limits.max_pgrid_refs`.
+     */
+    SHEAF_STATUS_CAPACITY_PGRID_REFS = 207,
     /**
      * `sheaf_context_create` could not allocate its memory.
      */
@@ -302,11 +316,13 @@ typedef uint32_t sheaf_entry_search;
  * `sheaf_context_destroy`.
  *
  * Thread safety: `sheaf_context_trace`, `sheaf_context_occluded`,
- * `sheaf_context_stats` and `sheaf_context_last_error` (the calls taking a
- * `const sheaf_context *`) may run concurrently from any number of threads
- * on one context. Every other call on a context (set_geometry, build_grid,
- * render, destroy) needs exclusive access: no other call on the same
- * context may run at the same time. Different contexts are independent.
+ * `sheaf_context_stats`, `sheaf_context_last_error`,
+ * `sheaf_context_deferred_pixel` and `sheaf_context_deferred_shadow_ray`
+ * (the calls taking a `const sheaf_context *`) may run concurrently from
+ * any number of threads on one context. Every other call on a context
+ * (set_geometry, the builds, the renders, destroy) needs exclusive access:
+ * no other call on the same context may run at the same time. Different
+ * contexts are independent.
  */
 typedef struct sheaf_context sheaf_context;
 
@@ -395,6 +411,19 @@ typedef struct sheaf_limits {
      * 20). A build that runs out makes leaves early (`KdInfo::forced_leaves`).
      */
     uint32_t max_kd_refs;
+    /**
+     * Most cells of the perspective grid and, separately, of each light
+     * grid (tiles x depth slices). 0: `max(ceil(w / 8) * ceil(h / 8), 64 *
+     * 64) * 32` for the largest image, room for the default `PgridParams`.
+     */
+    uint32_t max_pgrid_cells;
+    /**
+     * Most (triangle, cell) pairs of the perspective grid and, separately,
+     * of each light grid. 0: `8 * max_triangles + 262144` (a triangle
+     * spans every cell its projection and depth range touch: large ones
+     * near the eye span thousands).
+     */
+    uint32_t max_pgrid_refs;
 } sheaf_limits;
 
 /**
@@ -522,7 +551,8 @@ typedef struct sheaf_camera {
 } sheaf_camera;
 
 /**
- * Point light (C: `sheaf_light`).
+ * Point light, optionally a spot light (C: `sheaf_light`; a zeroed spot
+ * part is a point light shining everywhere).
  */
 typedef struct sheaf_light {
     float position[3];
@@ -530,6 +560,20 @@ typedef struct sheaf_light {
      * Linear RGB intensity (no distance falloff).
      */
     float color[3];
+    /**
+     * Axis of a spot light (any length; used when `spot_angle_deg > 0`).
+     */
+    float spot_direction[3];
+    /**
+     * Half-angle of the spot's cone in degrees, in [0, 90); 0: a point
+     * light. Surfaces outside the cone get no light and no shadow ray.
+     */
+    float spot_angle_deg;
+    /**
+     * Width in degrees of the soft edge inside the cone, where the light
+     * falls off smoothly to 0 at the cone (0: a hard edge).
+     */
+    float spot_soft_deg;
 } sheaf_light;
 
 /**
@@ -659,12 +703,14 @@ typedef struct sheaf_counters {
 } sheaf_counters;
 
 /**
- * Statistics of a context: the last successful grid and BVH builds and the last
- * render (`sheaf_context_stats`). All zero before the first build.
+ * Statistics of a context: the last successful build of each structure,
+ * the last render, and the last deferred frame (`sheaf_context_stats`).
+ * All zero before the first build.
  *
  * `sheaf_context_trace` and `sheaf_context_occluded` do not update the
  * counters (they may run concurrently); `counters` and `trace_ns` describe
- * the last `sheaf_context_render`.
+ * the last render call of any kind (`sheaf_context_render`,
+ * `_render_with`, `_render_whitted`, `_render_deferred`).
  */
 typedef struct sheaf_stats {
     /**
@@ -764,6 +810,70 @@ typedef struct sheaf_stats {
      * Wall time of the last kd build in nanoseconds.
      */
     uint64_t kd_build_ns;
+    /**
+     * Triangles loaded by the last `sheaf_context_build_pgrid`, and how
+     * many of them the grids leave out (NaN/infinite vertex or zero area).
+     */
+    uint32_t pgrid_triangles;
+    uint32_t pgrid_excluded;
+    /**
+     * Triangle test of the perspective and light grids (a `sheaf_tri_test`).
+     */
+    sheaf_tri_test pgrid_test;
+    /**
+     * The perspective grid of the last deferred frame (zeros when its
+     * camera rays were traced otherwise): sorting tiles per side, depth
+     * slices, cells (tiles x slices), (triangle, cell) pairs, triangles
+     * listed in a cell, triangles left out as back faces.
+     */
+    uint32_t camera_tiles[2];
+    uint32_t camera_slices;
+    uint32_t camera_cells;
+    uint32_t camera_refs;
+    uint32_t camera_mapped;
+    uint32_t camera_backfaces;
+    /**
+     * The light grid of the last light of that frame (zeros when its
+     * shadow rays were traced otherwise): light tiles per side, depth
+     * slices, cells, (triangle, cell) pairs, triangles listed in a cell.
+     */
+    uint32_t light_tiles[2];
+    uint32_t light_slices;
+    uint32_t light_cells;
+    uint32_t light_refs;
+    uint32_t light_mapped;
+    /**
+     * Shadow ray reordering of that frame (paper section 4.3, Algorithm
+     * 1), summed over lights: rays sorted into light tiles, light tiles
+     * with at least one ray, chunks made (at least `reorder_tiles_used`);
+     * `reorder_max_tile_rays`: the rays of the most crowded light tile of
+     * any light.
+     */
+    uint32_t reorder_rays;
+    uint32_t reorder_tiles_used;
+    uint32_t reorder_chunks;
+    uint32_t reorder_max_tile_rays;
+    /**
+     * Wall time of each phase of the last deferred frame in nanoseconds
+     * (the paper's Figure 10), summed over lights: perspective grid build,
+     * camera rays, shadow ray rearrangement (making, mapping, sorting,
+     * chunking), light grid builds, shadow rays, shading. Their sum is
+     * that frame's `trace_ns`.
+     */
+    uint64_t primary_build_ns;
+    uint64_t primary_trace_ns;
+    uint64_t rearrange_ns;
+    uint64_t shadow_build_ns;
+    uint64_t shadow_trace_ns;
+    uint64_t shade_ns;
+    /**
+     * Shadow rays of that frame over all lights.
+     */
+    uint64_t shadow_rays;
+    /**
+     * Camera rays of that frame that hit a triangle.
+     */
+    uint64_t hits;
 } sheaf_stats;
 
 /**
@@ -788,6 +898,103 @@ typedef struct sheaf_kd_params {
      */
     sheaf_tri_test test;
 } sheaf_kd_params;
+
+/**
+ * Tunables of the perspective grid (camera rays, section 3 of the
+ * perspective/light grid paper) and of the spherical light grids (shadow
+ * rays, section 4), the crate's `PgridParams`. Start from
+ * `sheaf_pgrid_params_default`.
+ */
+typedef struct sheaf_pgrid_params {
+    /**
+     * Side of a sorting tile in pixels: 2, 4, 8, 16 or 32 (default 8).
+     */
+    uint32_t tile;
+    /**
+     * Sorting tiles per side of a tracing tile (indirect mapping): 1, 2
+     * or 4, with `tile * group` at most 64 and at most
+     * `sheaf_limits.max_tile` (default 2).
+     */
+    uint32_t group;
+    /**
+     * Depth slices of the camera frustum, 1..=1024 (default 32).
+     */
+    uint32_t slices;
+    /**
+     * Most light tiles per side of a light grid, 1..=256 (default 64;
+     * small frames get fewer).
+     */
+    uint32_t light_tiles;
+    /**
+     * Depth slices of a light grid, 1..=1024 (default 32).
+     */
+    uint32_t light_slices;
+    /**
+     * Most shadow rays per chunk, r (section 4.3, load balancing),
+     * 16..=4096 (default 256).
+     */
+    uint32_t chunk;
+    /**
+     * Ray-triangle test of both grids (a `sheaf_tri_test`; the projection
+     * test needs `sheaf_limits.projection_test`).
+     */
+    sheaf_tri_test test;
+    /**
+     * Leave out triangles facing away from the eye (default false). Changes
+     * results on open models: every other structure is two-sided.
+     */
+    bool cull_backfaces;
+} sheaf_pgrid_params;
+
+/**
+ * A deferred frame (the crate's `DeferredJob`).
+ *
+ * Camera rays go through the perspective grid (`primary_pgrid`) or are
+ * traced with `primary`; shadow rays go through one spherical light grid
+ * per light, sorted into light tiles and chunks (`shadow_light_grid`), or
+ * are traced with `shadow` in packets from the light. With the grids, the
+ * triangles are those of the last `sheaf_context_build_pgrid`; the other
+ * methods need their structure built. The image does not depend on these
+ * choices (with the same triangle test), and with one light it equals
+ * `sheaf_context_render`'s.
+ */
+typedef struct sheaf_deferred_job {
+    /**
+     * Camera, shading and image size (`frame.light` is the light when
+     * `light_count` is 0).
+     */
+    struct sheaf_frame frame;
+    /**
+     * `light_count` lights (point or spot lights), each with its own
+     * shadow rays; NULL only when `light_count` is 0.
+     */
+    const struct sheaf_light *lights;
+    /**
+     * At most `SHEAF_DEFERRED_MAX_LIGHTS` (8); 0: `frame.light` alone.
+     */
+    size_t light_count;
+    /**
+     * Camera rays through the perspective grid (built per frame); false:
+     * traced with `primary`.
+     */
+    bool primary_pgrid;
+    /**
+     * Shadow rays through light grids (built per frame and light); false:
+     * traced with `shadow`.
+     */
+    bool shadow_light_grid;
+    /**
+     * Method of camera rays when `primary_pgrid` is false (ignored, not
+     * checked, otherwise). Packet methods trace tiles of `primary.packet`
+     * pixels; single-ray methods tiles of 8.
+     */
+    struct sheaf_trace_params primary;
+    /**
+     * Method of shadow rays when `shadow_light_grid` is false (ignored,
+     * not checked, otherwise).
+     */
+    struct sheaf_trace_params shadow;
+} sheaf_deferred_job;
 
 /**
  * Bounce limits (C: `sheaf_whitted_params`).
@@ -1145,6 +1352,23 @@ sheaf_status sheaf_context_last_error(const struct sheaf_context *ctx,
 sheaf_status sheaf_shading_default(struct sheaf_shading *out);
 
 /**
+ * The camera ray every render call shoots through the centre of pixel
+ * (x, y) of `*frame` (x to the right, y downwards), bit for bit, written
+ * to `*out`: from the eye, `tmin = 0`, `tmax = INFINITY`, the direction
+ * not normalised. Tracing it with `sheaf_context_trace` gives the hit the
+ * frame's pixel shows (`sheaf_context_deferred_pixel`).
+ *
+ * Thread-safe.
+ *
+ * Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_INVALID_ARGUMENT`
+ * (camera, zero width or height, pixel outside the image).
+ */
+sheaf_status sheaf_frame_camera_ray(const struct sheaf_frame *frame,
+                                    uint32_t x,
+                                    uint32_t y,
+                                    struct sheaf_ray *out);
+
+/**
  * Write the default grid parameters (lambda 5, macrocells of 6, Moller-
  * Trumbore, no fit) to `*out`.
  *
@@ -1188,6 +1412,126 @@ sheaf_status sheaf_context_build_kd(struct sheaf_context *ctx,
  */
 sheaf_status sheaf_limits_default(uint32_t max_triangles,
                                   struct sheaf_limits *out);
+
+/**
+ * Write the default perspective/light grid parameters (8-pixel sorting
+ * tiles traced in 2 x 2 groups, 32 depth slices, up to 64 x 64 light tiles
+ * of 32 slices, chunks of 256 shadow rays, no back-face culling,
+ * Moller-Trumbore) to `*out`.
+ *
+ * `out` must not be NULL. Thread-safe.
+ */
+sheaf_status sheaf_pgrid_params_default(struct sheaf_pgrid_params *out);
+
+/**
+ * Load the geometry for perspective and light grids with `*params`
+ * (copied; NULL: the defaults of `sheaf_pgrid_params_default`). The grids
+ * themselves depend on the camera and the lights: every
+ * `sheaf_context_render_deferred` that uses them builds them for its
+ * frame, so call this once per change of the geometry (or the
+ * parameters). The grid, BVH and kd-tree, if built, are untouched.
+ *
+ * Reads the geometry buffers (see `sheaf_context_set_geometry`) and keeps
+ * a copy of the triangles; never allocates. On error the previous load
+ * stays valid.
+ *
+ * Errors: `SHEAF_STATUS_NO_GEOMETRY`, `SHEAF_STATUS_INVALID_ARGUMENT`
+ * (params, or no pools: `SHEAF_STRUCTURE_PGRID` missing from
+ * `sheaf_limits.structures`), `SHEAF_STATUS_INDEX_OUT_OF_RANGE`,
+ * `SHEAF_STATUS_CAPACITY_TRIANGLES`.
+ *
+ * Not thread-safe: needs exclusive access to `ctx`.
+ */
+sheaf_status sheaf_context_build_pgrid(struct sheaf_context *ctx,
+                                       const struct sheaf_pgrid_params *params);
+
+/**
+ * Render a deferred frame into the caller's RGBA8 framebuffer (same
+ * framebuffer rules as `sheaf_context_render`: row `y` at `rgba + y *
+ * stride_bytes`, `rgba_len >= (height - 1) * stride_bytes + 4 * width`,
+ * written only on success, bytes between rows untouched), on the calling
+ * thread:
+ *
+ * 1. the perspective grid is built for the frame's camera
+ *    (`job->primary_pgrid`);
+ * 2. every camera ray is traced into a per-pixel hit buffer;
+ * 3. per light, the shadow rays of all hit points are made, mapped to
+ *    light tiles, sorted and split into chunks (`job->shadow_light_grid`);
+ * 4. per light, the light grid is built over those rays' (azimuth,
+ *    elevation) rectangle;
+ * 5. per light, the shadow rays are traced, chunk by chunk;
+ * 6. every pixel is shaded (Lambert, each light, spot cones).
+ *
+ * `*job` is copied and its lights only read (naturally aligned). The
+ * frame's per-pixel results stay in the context until the next
+ * `sheaf_context_render_deferred` (`sheaf_context_deferred_pixel`).
+ * Updates `sheaf_stats`: the phase times (paper Figure 10) and grid sizes,
+ * the counters, and `trace_ns` (the sum of the phases).
+ *
+ * Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_INVALID_ARGUMENT`
+ * (more than 8 lights, a light, a method, the camera, sizes, stride, a
+ * tracing tile above `sheaf_limits.max_tile`, or no pools:
+ * `SHEAF_STRUCTURE_PGRID` missing from `sheaf_limits.structures`),
+ * `SHEAF_STATUS_MISALIGNED` (lights), `SHEAF_STATUS_CAPACITY_IMAGE`,
+ * `SHEAF_STATUS_CAPACITY_PGRID_CELLS`, `SHEAF_STATUS_CAPACITY_PGRID_REFS`,
+ * `SHEAF_STATUS_NOT_BUILT` (a grid pass before `sheaf_context_build_pgrid`,
+ * or a traced pass whose structure is not built). After an error the
+ * framebuffer and `sheaf_stats` are unchanged; the previous frame's
+ * per-pixel results may be gone (`sheaf_context_deferred_pixel` then
+ * returns `SHEAF_STATUS_NOT_BUILT`).
+ *
+ * Not thread-safe: needs exclusive access to `ctx` (no other call on the
+ * same context may run at the same time; it writes the per-pixel buffers
+ * and the stats).
+ */
+sheaf_status sheaf_context_render_deferred(struct sheaf_context *ctx,
+                                           const struct sheaf_deferred_job *job,
+                                           uint8_t *rgba,
+                                           size_t stride_bytes,
+                                           size_t rgba_len);
+
+/**
+ * Pixel (x, y) of the last successful `sheaf_context_render_deferred`
+ * (x to the right, y downwards): `*hit` the camera ray's nearest hit
+ * (`prim`, and `t` along the camera ray of `sheaf_frame_camera_ray`; a
+ * miss has `prim == SHEAF_INVALID_ID`, `t = INFINITY`; `u` and `v` are 0,
+ * the frame does not keep them), and `*shadow_bits` bit `l` set when
+ * light `l`'s shadow ray was occluded (0 for a miss, surfaces facing away
+ * from a light or outside its spot cone, and frames with shadows off).
+ *
+ * Thread-safe like `sheaf_context_trace` (shared access; not during a
+ * call needing exclusive access).
+ *
+ * Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_INVALID_ARGUMENT`
+ * (pixel outside the frame), `SHEAF_STATUS_NOT_BUILT` (no deferred frame
+ * yet, or the last one failed).
+ */
+sheaf_status sheaf_context_deferred_pixel(const struct sheaf_context *ctx,
+                                          uint32_t x,
+                                          uint32_t y,
+                                          struct sheaf_hit *hit,
+                                          uint8_t *shadow_bits);
+
+/**
+ * The shadow ray towards `*light` of pixel (x, y) of the last successful
+ * `sheaf_context_render_deferred`, bit for bit the ray that frame traced
+ * for a light equal to `*light` (from the light's position, `tmax = 1`):
+ * `*ray` and `*has_ray = true`, or `*has_ray = false` (`*ray` untouched)
+ * when the pixel has no shadow ray (a miss, a surface facing away, outside
+ * a spot cone). Tracing it with `sheaf_context_occluded` reproduces the
+ * pixel's shadow bit (with the same triangles and triangle test).
+ *
+ * Thread-safe like `sheaf_context_deferred_pixel`.
+ *
+ * Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_INVALID_ARGUMENT`
+ * (pixel outside the frame, a bad light), `SHEAF_STATUS_NOT_BUILT`.
+ */
+sheaf_status sheaf_context_deferred_shadow_ray(const struct sheaf_context *ctx,
+                                               uint32_t x,
+                                               uint32_t y,
+                                               const struct sheaf_light *light,
+                                               struct sheaf_ray *ray,
+                                               bool *has_ray);
 
 /**
  * Fixed, NUL-terminated English text for `status`.

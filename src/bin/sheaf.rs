@@ -3,13 +3,17 @@
 //! ```text
 //! sheaf demo   [--frames 8] [--size 640x480] [--out-dir out/demo] ...
 //! sheaf render <scene.obj | builtin:NAME> --out image.png [--size 800x600] ...
+//! sheaf render <scene> --out image.png --primary pgrid --shadows light-grid [--chunk 256] ...
 //! sheaf info   <scene.obj | builtin:NAME>
 //! ```
 //!
 //! Every sheaf call goes through one `OwnedContext` per command, created once
 //! (one allocation) with `Limits` sized for the scene; building, tracing and
 //! rendering then allocate nothing inside sheaf. Frames are rendered in row
-//! bands by `render::render_rows` on several threads sharing `ctx.tracer()`.
+//! bands by `render::render_rows` on several threads sharing `ctx.tracer()`;
+//! with `--primary` or `--shadows` they are deferred frames
+//! (`render::deferred`: perspective grid, light grids) whose work items run
+//! on the same threads (`run::Threads`).
 //!
 //! Errors print one line (`error: ...`, sheaf's `Display` where sheaf failed)
 //! and exit with status 1; bad command-line arguments exit with clap's 2.
@@ -24,6 +28,8 @@ mod cmd;
 mod entry_bench;
 #[path = "sheaf/load.rs"]
 mod load;
+#[path = "sheaf/pgrid_bench.rs"]
+mod pgrid_bench;
 #[path = "sheaf/run.rs"]
 mod run;
 #[path = "sheaf/view.rs"]
@@ -284,6 +290,106 @@ impl TraceOpts {
     }
 }
 
+/// How camera rays are traced in a deferred frame (`PrimaryPass`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PrimaryArg {
+    /// The perspective grid, built per frame.
+    Pgrid,
+    /// A traversal method (as --method).
+    Method(MethodArg),
+}
+
+/// How shadow rays are traced in a deferred frame (`ShadowPass`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ShadowsArg {
+    /// A spherical light grid per light, rays sorted into light tiles.
+    LightGrid,
+    /// A traversal method (as --shadow-method).
+    Method(MethodArg),
+}
+
+/// `pgrid` or a --method name.
+fn parse_primary(s: &str) -> Result<PrimaryArg, String> {
+    if s.eq_ignore_ascii_case("pgrid") {
+        return Ok(PrimaryArg::Pgrid);
+    }
+    MethodArg::from_str(s, true)
+        .map(PrimaryArg::Method)
+        .map_err(|_| format!("'{s}' is not pgrid or a method ({})", method_names()))
+}
+
+/// `light-grid` or a --method name.
+fn parse_shadows(s: &str) -> Result<ShadowsArg, String> {
+    if s.eq_ignore_ascii_case("light-grid") {
+        return Ok(ShadowsArg::LightGrid);
+    }
+    MethodArg::from_str(s, true)
+        .map(ShadowsArg::Method)
+        .map_err(|_| format!("'{s}' is not light-grid or a method ({})", method_names()))
+}
+
+fn method_names() -> String {
+    MethodArg::value_variants()
+        .iter()
+        .filter_map(|m| m.to_possible_value())
+        .map(|v| v.get_name().to_string())
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// Perspective/light grid parameters (`PgridParams`); unset: the defaults
+/// of `PgridParams::default()`.
+#[derive(Args, Clone, Copy, Debug, Default)]
+pub struct PgridOpts {
+    /// Side of a perspective grid sorting tile in pixels: 2, 4, 8, 16 or 32 [default: 8].
+    #[arg(long)]
+    pub pgrid_tile: Option<u32>,
+    /// Sorting tiles per side of a tracing tile (indirect mapping; paper section 3: 2): 1, 2 or 4
+    /// [default: 2].
+    #[arg(long)]
+    pub pgrid_group: Option<u32>,
+    /// Depth slices of the perspective grid [default: 32].
+    #[arg(long)]
+    pub slices: Option<u32>,
+    /// Light tiles per side of a light grid, at most 256 [default: 64; fewer for small frames].
+    #[arg(long)]
+    pub light_tiles: Option<u32>,
+    /// Depth slices of a light grid [default: 32].
+    #[arg(long)]
+    pub light_slices: Option<u32>,
+    /// Most shadow rays per chunk, r (paper section 4.3, load balance): 16..=4096 [default: 256].
+    #[arg(long)]
+    pub chunk: Option<u32>,
+}
+
+impl PgridOpts {
+    /// The parameters with triangle test `test`, checked.
+    pub fn params(&self, test: sheaf::TriTest) -> Result<sheaf::PgridParams, sheaf::Error> {
+        let d = sheaf::PgridParams::default();
+        let p = sheaf::PgridParams {
+            tile: self.pgrid_tile.unwrap_or(d.tile),
+            group: self.pgrid_group.unwrap_or(d.group),
+            slices: self.slices.unwrap_or(d.slices),
+            light_tiles: self.light_tiles.unwrap_or(d.light_tiles),
+            light_slices: self.light_slices.unwrap_or(d.light_slices),
+            chunk: self.chunk.unwrap_or(d.chunk),
+            test,
+            ..d
+        };
+        p.validate()?;
+        Ok(p)
+    }
+    /// Whether any knob was given.
+    pub fn any(&self) -> bool {
+        self.pgrid_tile.is_some()
+            || self.pgrid_group.is_some()
+            || self.slices.is_some()
+            || self.light_tiles.is_some()
+            || self.light_slices.is_some()
+            || self.chunk.is_some()
+    }
+}
+
 #[derive(Args)]
 pub struct DemoArgs {
     /// Number of frames.
@@ -360,6 +466,18 @@ pub struct RenderArgs {
     /// the primary method).
     #[arg(long, value_enum)]
     pub secondary_method: Option<MethodArg>,
+    /// Camera rays of a deferred frame: pgrid (a perspective grid built per frame) or a method
+    /// name (as --method). With --primary or --shadows the frame is deferred (camera rays, then
+    /// all shadow rays, then shading) and its phase times are printed (paper Figure 10).
+    #[arg(long, value_parser = parse_primary, conflicts_with = "method")]
+    pub primary: Option<PrimaryArg>,
+    /// Shadow rays of a deferred frame: light-grid (a spherical light grid per light, rays sorted
+    /// into light tiles and chunks) or a method name (as --shadow-method; packets take the
+    /// primary pass's tile side).
+    #[arg(long, value_parser = parse_shadows, conflicts_with = "shadow_method")]
+    pub shadows: Option<ShadowsArg>,
+    #[command(flatten)]
+    pub pgrid: PgridOpts,
     #[command(flatten)]
     pub grid: GridOpts,
     #[command(flatten)]
@@ -383,6 +501,9 @@ pub enum MaterialsArg {
 pub struct InfoArgs {
     /// An OBJ file, or builtin:NAME (tetra, balls, gears, animated).
     pub scene: String,
+    /// Image size the perspective/light grid pools are shown for, WIDTHxHEIGHT.
+    #[arg(long, default_value = "1024x1024", value_parser = parse_size)]
+    pub size: (u32, u32),
     #[command(flatten)]
     pub grid: GridOpts,
 }
@@ -425,11 +546,20 @@ pub struct BenchArgs {
     /// frames per second), 512x512 by default; with --quick the built-in scenes at 256x256.
     #[arg(long, conflicts_with = "whitted")]
     pub entry: bool,
+    /// Instead of the ray table: the perspective/light grid study (its paper's section 5:
+    /// Figure 10 phase times, Figure 11 shadow time vs light distance per chunk size, light-grid
+    /// vs packet shadows and load balance, primary pass vs packets), 1024x1024 by default;
+    /// written to docs/bench-pgrid.
+    #[arg(long, conflicts_with_all = ["whitted", "entry"])]
+    pub pgrid: bool,
+    /// Perspective/light grid parameters of `--pgrid` (the Figure 11 sweep varies --chunk).
+    #[command(flatten)]
+    pub pgrid_opts: PgridOpts,
     /// Structures whose methods are measured (grid, bvh, kd).
     #[arg(long, value_enum, value_delimiter = ',', default_value = "grid,bvh")]
     pub structures: Vec<StructureArg>,
     /// Thread counts to time, comma-separated [default: 1,2; with --entry: 1 and the machine's
-    /// hardware threads].
+    /// hardware threads; with --pgrid: the machine's hardware threads (the largest given is used)].
     #[arg(long, value_delimiter = ',')]
     pub threads: Vec<u32>,
     /// Also run CGT 8x8 with macrocells, mailbox, culling, and mailbox + culling switched off.
@@ -449,7 +579,8 @@ pub struct BenchArgs {
     #[arg(long, default_value_t = 6)]
     pub macrocell: u32,
     /// Directory for bench.csv, bench.md, speed_accuracy.svg and speed_accuracy.png (or the
-    /// study's files) [default: out/bench; with --entry: docs/bench-kd].
+    /// study's files) [default: out/bench; with --entry: docs/bench-kd; with --pgrid:
+    /// docs/bench-pgrid].
     #[arg(long)]
     pub out_dir: Option<PathBuf>,
 }
@@ -460,6 +591,7 @@ impl BenchArgs {
         match &self.out_dir {
             Some(d) => d.clone(),
             None if self.entry => PathBuf::from("docs/bench-kd"),
+            None if self.pgrid => PathBuf::from("docs/bench-pgrid"),
             None => PathBuf::from("out/bench"),
         }
     }

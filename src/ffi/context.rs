@@ -37,11 +37,13 @@ use std::sync::{Mutex, PoisonError};
 /// `sheaf_context_destroy`.
 ///
 /// Thread safety: `sheaf_context_trace`, `sheaf_context_occluded`,
-/// `sheaf_context_stats` and `sheaf_context_last_error` (the calls taking a
-/// `const sheaf_context *`) may run concurrently from any number of threads
-/// on one context. Every other call on a context (set_geometry, build_grid,
-/// render, destroy) needs exclusive access: no other call on the same
-/// context may run at the same time. Different contexts are independent.
+/// `sheaf_context_stats`, `sheaf_context_last_error`,
+/// `sheaf_context_deferred_pixel` and `sheaf_context_deferred_shadow_ray`
+/// (the calls taking a `const sheaf_context *`) may run concurrently from
+/// any number of threads on one context. Every other call on a context
+/// (set_geometry, the builds, the renders, destroy) needs exclusive access:
+/// no other call on the same context may run at the same time. Different
+/// contexts are independent.
 pub struct sheaf_context {
     _private: [u8; 0],
 }
@@ -142,7 +144,7 @@ fn record(h: *mut Handle, e: Error) {
 
 /// Run `f` on a shared handle (calls that may run concurrently), behind
 /// the panic boundary, recording a failure in the handle.
-fn with_ref(ctx: *const sheaf_context, f: impl FnOnce(&Handle) -> Result<()>) -> sheaf_status {
+pub(super) fn with_ref(ctx: *const sheaf_context, f: impl FnOnce(&Handle) -> Result<()>) -> sheaf_status {
     let seen: Cell<Option<*mut Handle>> = Cell::new(None);
     guard(
         || {
@@ -730,6 +732,21 @@ pub(super) fn framebuffer<'p>(
     stride_bytes: usize,
     rgba_len: usize,
 ) -> Result<&'p mut [u8]> {
+    let p = pixels(h, frame, rgba, stride_bytes, rgba_len)?;
+    h.ctx.tracer()?;
+    Ok(p)
+}
+
+/// The caller's framebuffer for `frame`, checked (sizes, limits, camera)
+/// before anything is written; no structure needs to be built (deferred
+/// frames may use only the perspective and light grids).
+pub(super) fn pixels<'p>(
+    h: &Handle,
+    frame: &crate::render::Frame,
+    rgba: *mut u8,
+    stride_bytes: usize,
+    rgba_len: usize,
+) -> Result<&'p mut [u8]> {
     check_non_null!(rgba);
     if rgba_len > isize::MAX as usize {
         return Err(Error::InvalidArgument("framebuffer length too large"));
@@ -743,7 +760,6 @@ pub(super) fn framebuffer<'p>(
             .ok_or(Error::InvalidArgument("framebuffer size overflows"))?;
     }
     h.ctx.check_frame(frame, rgba_len, stride_bytes)?;
-    h.ctx.tracer()?;
     // SAFETY: non-NULL, `rgba_len` bytes (<= isize::MAX) of writable
     // memory not accessed by others during the call (C contract). The
     // core only writes through it.

@@ -2,8 +2,9 @@
 //! the pixels. `sheaf_camera`, `sheaf_light` and `sheaf_shading` are the
 //! crate's `Camera`, `PointLight` and `Shading` under their C names.
 
-use super::{check_non_null, guard_free, write_out};
-use crate::render::{Camera, Frame, PointLight, Shading};
+use super::{check_non_null, guard_free, read_in, sheaf_ray, write_out};
+use crate::error::Error;
+use crate::render::{Camera, Frame, PointLight, PrimaryRays, Shading};
 
 /// One frame to render: pinhole camera, one point light with hard shadows,
 /// Lambert shading, image size in pixels.
@@ -40,6 +41,35 @@ pub extern "C" fn sheaf_shading_default(out: *mut Shading) -> super::sheaf_statu
     guard_free(|| {
         check_non_null!(out);
         write_out(out, Shading::default());
+        Ok(())
+    })
+}
+
+/// The camera ray every render call shoots through the centre of pixel
+/// (x, y) of `*frame` (x to the right, y downwards), bit for bit, written
+/// to `*out`: from the eye, `tmin = 0`, `tmax = INFINITY`, the direction
+/// not normalised. Tracing it with `sheaf_context_trace` gives the hit the
+/// frame's pixel shows (`sheaf_context_deferred_pixel`).
+///
+/// Thread-safe.
+///
+/// Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_INVALID_ARGUMENT`
+/// (camera, zero width or height, pixel outside the image).
+#[unsafe(no_mangle)]
+pub extern "C" fn sheaf_frame_camera_ray(
+    frame: *const sheaf_frame,
+    x: u32,
+    y: u32,
+    out: *mut sheaf_ray,
+) -> super::sheaf_status {
+    guard_free(|| {
+        let f = read_in(frame)?;
+        check_non_null!(out);
+        if x >= f.width || y >= f.height {
+            return Err(Error::InvalidArgument("pixel outside the image"));
+        }
+        let r = PrimaryRays::new(&f.camera, f.width, f.height)?.ray(x, y);
+        write_out(out, sheaf_ray::from(r));
         Ok(())
     })
 }

@@ -13,7 +13,8 @@
 //! | `kd.rs` | `sheaf_kd_params`, `sheaf_entry_search`, `sheaf_kd_params_default`, `sheaf_context_build_kd` |
 //! | `method.rs` | `sheaf_method` |
 //! | `ray.rs` | `sheaf_ray`, `sheaf_hit` (the C twins of `Ray`, `Hit`) |
-//! | `frame.rs` | `sheaf_frame` (camera, light, shading, size), `sheaf_shading_default` |
+//! | `pgrid.rs` | `sheaf_pgrid_params`, `sheaf_pgrid_params_default`, `sheaf_context_build_pgrid`, `sheaf_deferred_job`, `sheaf_context_render_deferred`, `sheaf_context_deferred_pixel`, `sheaf_context_deferred_shadow_ray` |
+//! | `frame.rs` | `sheaf_frame` (camera, light, shading, size), `sheaf_shading_default`, `sheaf_frame_camera_ray` |
 //! | `stats.rs` | `sheaf_stats` |
 //! | `version.rs` | `sheaf_version_string` |
 //! | `whitted.rs` | `sheaf_material`, `sheaf_material_range`, `sheaf_whitted_params`, `sheaf_context_render_whitted` |
@@ -53,6 +54,7 @@ pub mod grid;
 pub mod kd;
 pub mod limits;
 pub mod method;
+pub mod pgrid;
 pub mod ray;
 pub mod stats;
 pub mod status;
@@ -67,11 +69,15 @@ pub use context::{
     sheaf_context_occluded, sheaf_context_render, sheaf_context_set_geometry, sheaf_context_stats,
     sheaf_context_trace, sheaf_required_bytes,
 };
-pub use frame::{sheaf_frame, sheaf_shading_default};
+pub use frame::{sheaf_frame, sheaf_frame_camera_ray, sheaf_shading_default};
 pub use grid::{sheaf_grid_params, sheaf_grid_params_default, sheaf_tri_test};
 pub use kd::{sheaf_context_build_kd, sheaf_entry_search, sheaf_kd_params, sheaf_kd_params_default};
 pub use limits::sheaf_limits_default;
 pub use method::sheaf_method;
+pub use pgrid::{
+    sheaf_context_build_pgrid, sheaf_context_deferred_pixel, sheaf_context_deferred_shadow_ray,
+    sheaf_context_render_deferred, sheaf_deferred_job, sheaf_pgrid_params, sheaf_pgrid_params_default,
+};
 pub use ray::{sheaf_hit, sheaf_ray};
 pub use stats::sheaf_stats;
 pub use status::{sheaf_status, sheaf_status_string};
@@ -85,6 +91,8 @@ use core::panic::AssertUnwindSafe;
 /// Alignment `sheaf_context_create_in` requires of its buffer
 /// (C: `SHEAF_CONTEXT_ALIGN`).
 pub const SHEAF_CONTEXT_ALIGN: usize = crate::mem::ARENA_ALIGN;
+/// Most lights of a deferred frame (C: `SHEAF_DEFERRED_MAX_LIGHTS`).
+pub const SHEAF_DEFERRED_MAX_LIGHTS: usize = crate::render::deferred::MAX_LIGHTS;
 /// `sheaf_hit.prim` of a miss (C: `SHEAF_INVALID_ID`).
 pub const SHEAF_INVALID_ID: u32 = crate::geom::INVALID_ID;
 /// A `sheaf_context_last_error` buffer of this many bytes always holds the

@@ -49,6 +49,18 @@ impl From<sheaf_ray> for Ray {
     }
 }
 
+impl From<Ray> for sheaf_ray {
+    #[inline]
+    fn from(r: Ray) -> sheaf_ray {
+        sheaf_ray {
+            org: r.org,
+            tmin: r.tmin,
+            dir: r.dir,
+            tmax: r.tmax,
+        }
+    }
+}
+
 impl From<Hit> for sheaf_hit {
     #[inline]
     fn from(h: Hit) -> sheaf_hit {

@@ -3,12 +3,14 @@
 use crate::context::Stats;
 use crate::trace::Counters;
 
-/// Statistics of a context: the last successful grid and BVH builds and the last
-/// render (`sheaf_context_stats`). All zero before the first build.
+/// Statistics of a context: the last successful build of each structure,
+/// the last render, and the last deferred frame (`sheaf_context_stats`).
+/// All zero before the first build.
 ///
 /// `sheaf_context_trace` and `sheaf_context_occluded` do not update the
 /// counters (they may run concurrently); `counters` and `trace_ns` describe
-/// the last `sheaf_context_render`.
+/// the last render call of any kind (`sheaf_context_render`,
+/// `_render_with`, `_render_whitted`, `_render_deferred`).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct sheaf_stats {
@@ -65,11 +67,60 @@ pub struct sheaf_stats {
     pub kd_test: super::raw::sheaf_tri_test,
     /// Wall time of the last kd build in nanoseconds.
     pub kd_build_ns: u64,
+    /// Triangles loaded by the last `sheaf_context_build_pgrid`, and how
+    /// many of them the grids leave out (NaN/infinite vertex or zero area).
+    pub pgrid_triangles: u32,
+    pub pgrid_excluded: u32,
+    /// Triangle test of the perspective and light grids (a `sheaf_tri_test`).
+    pub pgrid_test: super::raw::sheaf_tri_test,
+    /// The perspective grid of the last deferred frame (zeros when its
+    /// camera rays were traced otherwise): sorting tiles per side, depth
+    /// slices, cells (tiles x slices), (triangle, cell) pairs, triangles
+    /// listed in a cell, triangles left out as back faces.
+    pub camera_tiles: [u32; 2],
+    pub camera_slices: u32,
+    pub camera_cells: u32,
+    pub camera_refs: u32,
+    pub camera_mapped: u32,
+    pub camera_backfaces: u32,
+    /// The light grid of the last light of that frame (zeros when its
+    /// shadow rays were traced otherwise): light tiles per side, depth
+    /// slices, cells, (triangle, cell) pairs, triangles listed in a cell.
+    pub light_tiles: [u32; 2],
+    pub light_slices: u32,
+    pub light_cells: u32,
+    pub light_refs: u32,
+    pub light_mapped: u32,
+    /// Shadow ray reordering of that frame (paper section 4.3, Algorithm
+    /// 1), summed over lights: rays sorted into light tiles, light tiles
+    /// with at least one ray, chunks made (at least `reorder_tiles_used`);
+    /// `reorder_max_tile_rays`: the rays of the most crowded light tile of
+    /// any light.
+    pub reorder_rays: u32,
+    pub reorder_tiles_used: u32,
+    pub reorder_chunks: u32,
+    pub reorder_max_tile_rays: u32,
+    /// Wall time of each phase of the last deferred frame in nanoseconds
+    /// (the paper's Figure 10), summed over lights: perspective grid build,
+    /// camera rays, shadow ray rearrangement (making, mapping, sorting,
+    /// chunking), light grid builds, shadow rays, shading. Their sum is
+    /// that frame's `trace_ns`.
+    pub primary_build_ns: u64,
+    pub primary_trace_ns: u64,
+    pub rearrange_ns: u64,
+    pub shadow_build_ns: u64,
+    pub shadow_trace_ns: u64,
+    pub shade_ns: u64,
+    /// Shadow rays of that frame over all lights.
+    pub shadow_rays: u64,
+    /// Camera rays of that frame that hit a triangle.
+    pub hits: u64,
 }
 
 impl sheaf_stats {
     pub fn of(s: &Stats) -> sheaf_stats {
         let g = &s.grid;
+        let d = &s.deferred;
         sheaf_stats {
             triangles_in: g.triangles_in,
             triangles: g.triangles,
@@ -101,6 +152,35 @@ impl sheaf_stats {
             kd_avg_leaf_depth: s.kd.avg_leaf_depth,
             kd_test: super::sheaf_tri_test::of(s.kd.test) as u32,
             kd_build_ns: s.kd_build_ns,
+            pgrid_triangles: s.pgrid.triangles,
+            pgrid_excluded: s.pgrid.excluded,
+            pgrid_test: s
+                .pgrid
+                .params
+                .map_or(0, |p| super::sheaf_tri_test::of(p.test) as u32),
+            camera_tiles: d.camera.tiles,
+            camera_slices: d.camera.depth.count,
+            camera_cells: d.camera.cells(),
+            camera_refs: d.camera.refs,
+            camera_mapped: d.camera.mapped,
+            camera_backfaces: d.camera.backfaces,
+            light_tiles: d.light.tiles,
+            light_slices: d.light.depth.count,
+            light_cells: d.light.cells(),
+            light_refs: d.light.refs,
+            light_mapped: d.light.mapped,
+            reorder_rays: d.reorder.rays,
+            reorder_tiles_used: d.reorder.tiles_used,
+            reorder_chunks: d.reorder.chunks,
+            reorder_max_tile_rays: d.reorder.max_tile_rays,
+            primary_build_ns: d.times.primary_build,
+            primary_trace_ns: d.times.primary_trace,
+            rearrange_ns: d.times.rearrange,
+            shadow_build_ns: d.times.shadow_build,
+            shadow_trace_ns: d.times.shadow_trace,
+            shade_ns: d.times.shade,
+            shadow_rays: d.shadow_rays,
+            hits: d.hits,
         }
     }
 }
@@ -113,5 +193,8 @@ const _: () = {
     assert!(size_of::<Counters>() % 8 == 0);
     assert!(offset_of!(sheaf_stats, bvh_nodes) == offset_of!(sheaf_stats, trace_ns) + 8);
     assert!(offset_of!(sheaf_stats, kd_nodes) == offset_of!(sheaf_stats, bvh_build_ns) + 8);
-    assert!(size_of::<sheaf_stats>() == offset_of!(sheaf_stats, kd_build_ns) + 8);
+    assert!(offset_of!(sheaf_stats, pgrid_triangles) == offset_of!(sheaf_stats, kd_build_ns) + 8);
+    // 20 u32 (an even number) from pgrid_triangles, then the u64s.
+    assert!(offset_of!(sheaf_stats, primary_build_ns) == offset_of!(sheaf_stats, pgrid_triangles) + 80);
+    assert!(size_of::<sheaf_stats>() == offset_of!(sheaf_stats, hits) + 8);
 };

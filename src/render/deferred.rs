@@ -537,7 +537,7 @@ pub fn light_frame(
     }
     if light.is_spot() {
         // The cone's rectangle (section 4.1, Figure 6); rays are inside it.
-        let c = light.spot_angle_deg.to_radians();
+        let c = crate::accel::pgrid::pseudo_of_angle(light.spot_angle_deg.to_radians());
         a_lo = a_lo.max(-c);
         a_hi = a_hi.min(c);
         b_lo = b_lo.max(-c);

@@ -16,13 +16,13 @@ use super::{CellsInfo, LightFrame, Pgrid, PgridParams, Pinhole, SceneInfo, Slice
 use crate::error::{Error, Pool, Result};
 use crate::geom::{Aabb, ProjTri, Scene, TriTest, TriVerts};
 use crate::math;
-use core::f32::consts::PI;
 use glam::Vec3;
 
 /// Padding of projected bounds, in pixels (rounding of the projection is
 /// about 1e-6 of the image width; this is far more).
 const PIXEL_PAD: f32 = 0.05;
-/// Padding of angular spans, in radians (atan2 is exact to an ulp).
+/// Padding of angular spans, in pseudo-angle units (rounding of the
+/// pseudo-angle's division and dot products is about 1e-7).
 const ANGLE_PAD: f32 = 1e-5;
 
 /// Load `scene`'s triangles (and projection data when `params.test` needs
@@ -396,42 +396,37 @@ pub fn build_light(
     Ok(info)
 }
 
-/// Padded range of `atan2(x, z)` over the triangle whose projection onto
-/// the (x, z) plane has these vertices: the arc the three vertex angles
-/// span when they fit in a half plane through the origin (then every point
-/// of the triangle is inside it), else the whole circle `[-pi, pi]`. Arcs
-/// across the `+-pi` cut, and vertices within `eps` of the axis, also give
-/// the whole circle.
+/// Padded range of `pseudo_angle(x, z)` over the triangle whose
+/// projection onto the (x, z) plane has these vertices: the arc between the
+/// two vertices that bound the third when all three fit in an open half
+/// plane through the origin (then every point of the triangle is inside
+/// the arc, the cone of a convex set), else the whole circle `[-2, 2]`.
+/// Arcs across the cut at +-2, and vertices within `eps` of the axis, also
+/// give the whole circle.
 pub fn angle_span(x: [f32; 3], z: [f32; 3], eps: f32) -> (f32, f32) {
-    const FULL: (f32, f32) = (-PI, PI);
-    let mut t = [0.0f32; 3];
+    const FULL: (f32, f32) = (-2.0, 2.0);
     for k in 0..3 {
         if x[k] * x[k] + z[k] * z[k] <= eps * eps {
             return FULL;
         }
-        t[k] = math::atan2(x[k], z[k]);
     }
-    // Sort three values.
-    if t[0] > t[1] {
-        t.swap(0, 1);
+    // cross(i, j) > 0: j lies counter-clockwise of i (growing angle).
+    let cross = |i: usize, j: usize| z[i] * x[j] - x[i] * z[j];
+    for i in 0..3 {
+        for j in 0..3 {
+            let k = 3 - i - j;
+            if i == j || cross(i, j) <= 0.0 || cross(i, k) < 0.0 || cross(k, j) < 0.0 {
+                continue;
+            }
+            let lo = super::pseudo_angle(x[i], z[i]) - ANGLE_PAD;
+            let hi = super::pseudo_angle(x[j], z[j]) + ANGLE_PAD;
+            if lo < -2.0 + ANGLE_PAD || hi > 2.0 - ANGLE_PAD || lo > hi {
+                return FULL;
+            }
+            return (lo, hi);
+        }
     }
-    if t[1] > t[2] {
-        t.swap(1, 2);
-    }
-    if t[0] > t[1] {
-        t.swap(0, 1);
-    }
-    // The arc is the complement of the largest gap; only the gap across the
-    // cut (from t[2] round to t[0]) leaves an arc that does not wrap.
-    let wrap_gap = t[0] + 2.0 * PI - t[2];
-    if wrap_gap < t[1] - t[0] || wrap_gap < t[2] - t[1] || wrap_gap < PI + 1e-4 {
-        return FULL;
-    }
-    let (lo, hi) = (t[0] - ANGLE_PAD, t[2] + ANGLE_PAD);
-    if lo < -PI + 1e-4 || hi > PI - 1e-4 {
-        return FULL;
-    }
-    (lo, hi)
+    FULL
 }
 
 /// Distance from `p` to the triangle `q` (Ericson, Real-Time Collision
@@ -489,11 +484,28 @@ mod tests {
     #[test]
     fn angle_span_of_a_triangle_ahead_and_across_the_cut() {
         let (lo, hi) = angle_span([-1.0, 1.0, 0.0], [1.0, 1.0, 2.0], 1e-9);
-        assert!((lo + PI / 4.0).abs() < 1e-4 && (hi - PI / 4.0).abs() < 1e-4);
+        assert!((lo + 0.5).abs() < 1e-4 && (hi - 0.5).abs() < 1e-4, "{lo} {hi}");
+        // The vertex order does not matter.
+        assert_eq!(angle_span([0.0, 1.0, -1.0], [2.0, 1.0, 1.0], 1e-9), (lo, hi));
         // Behind the light, straddling the cut: the whole circle.
-        assert_eq!(angle_span([-1.0, 1.0, 0.0], [-1.0, -1.0, -2.0], 1e-9), (-PI, PI));
+        assert_eq!(angle_span([-1.0, 1.0, 0.0], [-1.0, -1.0, -2.0], 1e-9), (-2.0, 2.0));
         // Around the origin: the whole circle.
-        assert_eq!(angle_span([-1.0, 1.0, 0.0], [-1.0, -1.0, 2.0], 1e-9), (-PI, PI));
+        assert_eq!(angle_span([-1.0, 1.0, 0.0], [-1.0, -1.0, 2.0], 1e-9), (-2.0, 2.0));
+        // Beside the light (to +x, behind and ahead): an arc through +1.
+        let (lo, hi) = angle_span([1.0, 1.0, 2.0], [1.0, -1.0, 0.0], 1e-9);
+        assert!(lo < 0.5 && hi > 1.5 && hi < 2.0, "{lo} {hi}");
+    }
+
+    #[test]
+    fn pseudo_angle_is_monotone_in_the_angle() {
+        let mut last = -3.0;
+        // Strictly between the cut at -pi and pi (sin(+-pi) rounds to +-8.7e-8).
+        for i in 1..4000 {
+            let a = -core::f32::consts::PI + i as f32 * (2.0 * core::f32::consts::PI / 4000.0);
+            let p = super::super::pseudo_angle(math::sin(a), math::cos(a));
+            assert!(p >= last - 1e-6, "{a}: {p} < {last}");
+            last = p;
+        }
     }
 
     #[test]

@@ -204,6 +204,9 @@ impl Pinhole {
 /// A light's frustum in (a, b) space (section 4.1): `a` the azimuth from
 /// `fwd` in the forward-right plane, `b` the elevation in the forward-up
 /// plane, and the rectangle `[a0, a0 + tiles[0] / inv_da] x [b0, ...]`.
+/// Angles are measured as pseudo-angles (`pseudo_angle`): monotone in the
+/// true angle, so the grid is the paper's with tiles spaced slightly
+/// unevenly, for a division instead of an `atan2`.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct LightFrame {
     pub pos: Vec3,
@@ -219,11 +222,11 @@ pub struct LightFrame {
 }
 
 impl LightFrame {
-    /// (a, b) of direction `q` from the light.
+    /// (a, b) of direction `q` from the light, as pseudo-angles.
     #[inline]
     pub fn angles(&self, q: Vec3) -> (f32, f32) {
         let z = q.dot(self.fwd);
-        (math::atan2(q.dot(self.right), z), math::atan2(q.dot(self.up), z))
+        (pseudo_angle(q.dot(self.right), z), pseudo_angle(q.dot(self.up), z))
     }
 
     /// Light tile of direction `q` (clamped into the rectangle).
@@ -234,6 +237,31 @@ impl LightFrame {
         let ty = tile_coord((b - self.b0) * self.inv_db, self.tiles[1]);
         ty * self.tiles[0] + tx
     }
+}
+
+/// A monotone stand-in for `atan2(x, z)` (the angle from +z towards +x)
+/// on `[-2, 2]`: `x / (|x| + |z|)` ahead (`z >= 0`), continued behind so
+/// that -2 and 2 are the cut at angle +-pi and 0 is straight ahead. Exact
+/// in ordering, one division, no transcendental.
+#[inline]
+pub fn pseudo_angle(x: f32, z: f32) -> f32 {
+    let s = x.abs() + z.abs();
+    if !(s > 0.0) {
+        return 0.0;
+    }
+    let p = x / s;
+    if z >= 0.0 {
+        p
+    } else if x >= 0.0 {
+        2.0 - p
+    } else {
+        -2.0 - p
+    }
+}
+
+/// The pseudo-angle of a true angle in `[0, pi / 2]`.
+pub fn pseudo_of_angle(rad: f32) -> f32 {
+    pseudo_angle(math::sin(rad), math::cos(rad))
 }
 
 /// Tile index of a continuous tile coordinate, clamped to `0..n`.

@@ -1252,6 +1252,9 @@ pub fn bench(a: &BenchArgs) -> Result<(), Failure> {
     if a.entry {
         return crate::entry_bench::run(a);
     }
+    if a.pgrid {
+        return crate::pgrid_bench::run(a);
+    }
     let out_dir = a.out_dir();
     let start = Instant::now();
     let (w, h) = a

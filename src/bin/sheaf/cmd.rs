@@ -3,14 +3,20 @@
 use crate::load::{self, Loaded};
 use crate::run::{self, mrays, ms, res};
 use crate::view::{self, INSIDE_FOV, OUTSIDE_FOV};
-use crate::{DemoArgs, Failure, GridOpts, InfoArgs, MaterialsArg, OrFail, RenderArgs};
+use crate::{
+    DemoArgs, Failure, GridOpts, InfoArgs, MaterialsArg, OrFail, PrimaryArg, RenderArgs,
+    ShadowsArg,
+};
 use glam::Vec3;
 use sheaf::render::material::{Material, Materials};
 use sheaf::render::whitted::{WhittedJob, WhittedParams};
 use sheaf::scenes::animated::Animated;
 use sheaf::scenes::{ANIMATED_DETAIL, View};
 use sheaf::trace::RayKind;
-use sheaf::{Camera, Frame, GridInfo, Limits, PointLight, Scene, Shading, required_bytes};
+use sheaf::{
+    Camera, DeferredInfo, DeferredJob, Frame, GridInfo, Limits, PointLight, PrimaryPass, Scene,
+    ShadowPass, Shading, TraceParams, required_bytes,
+};
 use std::fmt::Write as _;
 use std::time::Instant;
 
@@ -207,8 +213,46 @@ pub fn render(a: &RenderArgs) -> Result<(), Failure> {
     }
     let params = a.grid.params();
     let (primary, shadow) = a.trace.params()?;
-    let (mut ctx, info) =
-        run::context_for(&scene, run::limits(&scene, a.size, threads), &params, 1.0)?;
+    // Deferred frames: --primary / --shadows.
+    let deferred = a.primary.is_some() || a.shadows.is_some();
+    if deferred && (a.reflect > 0 || a.refract > 0) {
+        return Err(Failure(
+            "--primary/--shadows render deferred frames, which have no reflections or refractions"
+                .into(),
+        ));
+    }
+    if !deferred && a.pgrid.any() {
+        return Err(Failure(
+            "--pgrid-tile, --pgrid-group, --slices, --light-tiles, --light-slices and --chunk apply to deferred frames: add --primary pgrid or --shadows light-grid".into(),
+        ));
+    }
+    let (primary_pass, shadow_pass) = passes(a, &primary, &shadow)?;
+    let traced: Vec<TraceParams> = [
+        match primary_pass {
+            PrimaryPass::Traced(p) => Some(p),
+            PrimaryPass::Pgrid => None,
+        },
+        match shadow_pass {
+            ShadowPass::Traced(p) => Some(p),
+            ShadowPass::LightGrid => None,
+        },
+    ]
+    .into_iter()
+    .flatten()
+    .collect();
+    let uses = |s: sheaf::trace::Structure| traced.iter().any(|p| p.method.structure() == s);
+    let setup = run::DeferredSetup {
+        scene: &scene,
+        grid: params,
+        bvh: uses(sheaf::trace::Structure::Bvh),
+        kd: uses(sheaf::trace::Structure::Kd),
+        pgrid: a.pgrid.params(params.test)?,
+    };
+    let (mut ctx, info) = if deferred {
+        setup.context(run::limits(&scene, a.size, threads))?
+    } else {
+        run::context_for(&scene, run::limits(&scene, a.size, threads), &params, 1.0)?
+    };
     if info.triangles == 0 {
         return Err(Failure(format!(
             "{}: every triangle is degenerate or non-finite",
@@ -232,8 +276,17 @@ pub fn render(a: &RenderArgs) -> Result<(), Failure> {
         }
         None => primary,
     };
-    let bvh = run::build_bvh_if_used(&mut ctx, &scene, params.test, &[primary, shadow, secondary])?;
-    let kd = run::build_kd_if_used(&mut ctx, &scene, params.test, &[primary, shadow, secondary])?;
+    let (bvh, kd) = if deferred {
+        (
+            setup.bvh.then(|| ctx.stats().bvh),
+            setup.kd.then(|| ctx.stats().kd),
+        )
+    } else {
+        (
+            run::build_bvh_if_used(&mut ctx, &scene, params.test, &[primary, shadow, secondary])?,
+            run::build_kd_if_used(&mut ctx, &scene, params.test, &[primary, shadow, secondary])?,
+        )
+    };
 
     // Camera: the builtin's view or an automatic one, then the user's overrides.
     let (lo, hi) = (info.bounds.min, info.bounds.max);
@@ -342,7 +395,19 @@ pub fn render(a: &RenderArgs) -> Result<(), Failure> {
             ..Material::diffuse(frame.shading.albedo)
         }),
     };
-    let ctr = if whitted {
+    let mut dfr: Option<(DeferredInfo, run::Threads, bool)> = None;
+    let ctr = if deferred {
+        let job = DeferredJob {
+            frame: &frame,
+            lights: &[],
+            primary: primary_pass,
+            shadow: shadow_pass,
+        };
+        let mut workers = run::Threads::new(threads);
+        let (di, grown) = setup.render(&mut ctx, &job, &mut pixels, &mut workers)?;
+        dfr = Some((di, workers, grown));
+        ctx.stats().counters
+    } else if whitted {
         let materials = match &forced {
             Some(m) => Materials::uniform(m),
             None => loaded.materials(),
@@ -398,7 +463,14 @@ pub fn render(a: &RenderArgs) -> Result<(), Failure> {
     if let Some(k) = kd {
         println!("kd-tree    {}", kd_line(&k, st.kd_build_ns));
     }
-    println!("method     {}", a.trace.label());
+    match &dfr {
+        Some(_) => println!(
+            "method     deferred: camera rays {} / shadows {}",
+            primary_label(&primary_pass),
+            shadow_label(&shadow_pass)
+        ),
+        None => println!("method     {}", a.trace.label()),
+    }
     if whitted {
         println!(
             "whitted    up to {} reflections and {} refractions per path, materials {:?}, reflection/refraction rays {}",
@@ -417,13 +489,25 @@ pub fn render(a: &RenderArgs) -> Result<(), Failure> {
             }
         );
     }
-    println!(
-        "trace      {:.2} ms on {threads} threads, {:.2} Mrays/s: {primary} primary + {} shadow and secondary = {} rays",
-        ms(st.trace_ns),
-        mrays(ctr.rays, st.trace_ns),
-        ctr.rays.saturating_sub(primary),
-        ctr.rays
-    );
+    if let Some((di, workers, grown)) = &dfr {
+        let rays = primary + di.shadow_rays;
+        println!(
+            "frame      {:.2} ms on {threads} threads, {:.2} Mrays/s: {primary} camera + {} shadow rays = {rays} rays, {} hits",
+            ms(di.times.total()),
+            mrays(rays, di.times.total()),
+            di.shadow_rays,
+            di.hits
+        );
+        deferred_lines(di, workers, &setup.pgrid, &shadow_pass, *grown, ctx.limits());
+    } else {
+        println!(
+            "trace      {:.2} ms on {threads} threads, {:.2} Mrays/s: {primary} primary + {} shadow and secondary = {} rays",
+            ms(st.trace_ns),
+            mrays(ctr.rays, st.trace_ns),
+            ctr.rays.saturating_sub(primary),
+            ctr.rays
+        );
+    }
     println!(
         "camera     --eye {} --look-at {} --up {} --fov {}  [{how}{}]",
         v3(frame.camera.eye),
@@ -439,6 +523,148 @@ pub fn render(a: &RenderArgs) -> Result<(), Failure> {
     );
     println!("wrote      {} ({w}x{h})", a.out.display());
     Ok(())
+}
+
+/// The deferred passes of `sheaf render`: --primary / --shadows, else the
+/// traced methods of --method / --shadow-method.
+fn passes(
+    a: &RenderArgs,
+    primary: &TraceParams,
+    shadow: &TraceParams,
+) -> Result<(PrimaryPass, ShadowPass), Failure> {
+    let p = match a.primary {
+        Some(PrimaryArg::Pgrid) => PrimaryPass::Pgrid,
+        Some(PrimaryArg::Method(m)) => PrimaryPass::Traced(TraceParams {
+            method: m.method(),
+            ..*primary
+        }),
+        None => PrimaryPass::Traced(*primary),
+    };
+    let s = match a.shadows {
+        Some(ShadowsArg::LightGrid) => ShadowPass::LightGrid,
+        Some(ShadowsArg::Method(m)) => ShadowPass::Traced(TraceParams {
+            method: m.method(),
+            ..*shadow
+        }),
+        None => ShadowPass::Traced(*shadow),
+    };
+    if let PrimaryPass::Traced(t) = &p {
+        run::validate(t).or_fail(|| "--primary".into())?;
+    }
+    if let ShadowPass::Traced(t) = &s {
+        run::validate(t).or_fail(|| "--shadows".into())?;
+    }
+    Ok((p, s))
+}
+
+fn traced_label(p: &TraceParams) -> String {
+    if run::is_packet(p.method) {
+        format!("{} {}x{}", p.method.name(), p.packet, p.packet)
+    } else {
+        p.method.name().to_string()
+    }
+}
+
+pub(crate) fn primary_label(p: &PrimaryPass) -> String {
+    match p {
+        PrimaryPass::Pgrid => "pgrid".into(),
+        PrimaryPass::Traced(t) => traced_label(t),
+    }
+}
+
+pub(crate) fn shadow_label(s: &ShadowPass) -> String {
+    match s {
+        ShadowPass::LightGrid => "light-grid".into(),
+        ShadowPass::Traced(t) => traced_label(t),
+    }
+}
+
+/// The Figure 10 phases of a deferred frame: (name, ns).
+pub(crate) fn phases(t: &sheaf::render::deferred::PhaseTimes) -> [(&'static str, u64); 6] {
+    [
+        ("primary build", t.primary_build),
+        ("primary traversal", t.primary_trace),
+        ("data rearrangement", t.rearrange),
+        ("shadow build", t.shadow_build),
+        ("shadow traversal", t.shadow_trace),
+        ("shade", t.shade),
+    ]
+}
+
+/// `sheaf render`'s report of a deferred frame: the phase table (paper
+/// Figure 10), the grids, the reordering and the chunks' load balance.
+fn deferred_lines(
+    di: &DeferredInfo,
+    workers: &run::Threads,
+    pp: &sheaf::PgridParams,
+    shadow: &ShadowPass,
+    grown: bool,
+    limits: &Limits,
+) {
+    let total = di.times.total();
+    println!();
+    println!("| phase | ms | % of frame |");
+    println!("|---|--:|--:|");
+    for (name, ns) in phases(&di.times) {
+        println!(
+            "| {name} | {:.2} | {:.1} |",
+            ms(ns),
+            100.0 * ns as f64 / total.max(1) as f64
+        );
+    }
+    println!("| **frame** | **{:.2}** | 100.0 |", ms(total));
+    println!();
+    let c = &di.camera;
+    if c.cells() > 0 {
+        println!(
+            "pgrid      {}x{} tiles of {} px x {} slices = {} cells, {} pairs ({:.2} per mapped triangle), {} triangles mapped, tracing tiles {}x{} px",
+            c.tiles[0],
+            c.tiles[1],
+            pp.tile,
+            c.depth.count,
+            c.cells(),
+            c.refs,
+            c.refs as f64 / c.mapped.max(1) as f64,
+            c.mapped,
+            pp.tile * pp.group,
+            pp.tile * pp.group
+        );
+    }
+    if *shadow == ShadowPass::LightGrid {
+        let l = &di.light;
+        let r = &di.reorder;
+        println!(
+            "light grid {}x{} tiles x {} slices = {} cells, {} pairs, {} triangles mapped",
+            l.tiles[0],
+            l.tiles[1],
+            l.depth.count,
+            l.cells(),
+            l.refs,
+            l.mapped
+        );
+        println!(
+            "reorder    {} shadow rays in {} light tiles, {} chunks of at most {} rays, {} rays in the most crowded tile",
+            r.rays, r.tiles_used, r.chunks, pp.chunk, r.max_tile_rays
+        );
+        if let Some(t) = workers.runs.last() {
+            println!(
+                "chunks     {} work items on {} threads: mean {:.3} ms, slowest {:.3} ms = {:.2}x the mean; threads busy {:.0} % of the pass",
+                t.count,
+                t.threads,
+                t.mean_ns() * 1e-6,
+                ms(t.max_ns),
+                t.imbalance(),
+                100.0 * t.efficiency()
+            );
+        }
+    }
+    if grown {
+        println!(
+            "pools      grown after a capacity error: max_pgrid_cells {}, max_pgrid_refs {}",
+            limits.pgrid_cells(),
+            limits.pgrid_refs()
+        );
+    }
 }
 
 /// `sheaf info`: sizes, bounds and memory.
@@ -567,5 +793,23 @@ pub fn info(a: &InfoArgs) -> Result<(), Failure> {
             );
         }
     }
+    // Perspective/light grid pools: they scale with the image.
+    let (w, h) = a.size;
+    let pg = Limits {
+        structures: Limits::PGRID,
+        max_image_width: w,
+        max_image_height: h,
+        ..limits
+    };
+    let pg_bytes = required_bytes(&pg)?;
+    println!(
+        "pgrid only {pg_bytes} bytes ({:.2} MiB, {:.1} bytes/pixel) with Limits::structures = PGRID at {w}x{h} (pools: {} cells and {} pairs per grid, {} frame pixels with {}-pixel tile padding)",
+        mib(pg_bytes),
+        pg_bytes as f64 / (w as f64 * h as f64),
+        pg.pgrid_cells(),
+        pg.pgrid_refs(),
+        pg.frame_pixels(),
+        pg.max_tile
+    );
     Ok(())
 }

@@ -411,3 +411,233 @@ pub fn ms(ns: u64) -> f64 {
 pub fn res(info: &GridInfo) -> String {
     format!("{}x{}x{}", info.res[0], info.res[1], info.res[2])
 }
+
+// ---------------------------------------------------------------------------
+// Deferred frames (`render::deferred`): work items on threads, pools grown
+
+/// Wall time of the work items of one `Workers::run` call.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct ItemTimes {
+    /// Items run, the sum and the maximum of their wall times.
+    pub count: u64,
+    pub sum_ns: u64,
+    pub max_ns: u64,
+    /// Wall time of the whole call (first item taken to last finished).
+    pub wall_ns: u64,
+    /// Threads that ran items.
+    pub threads: u32,
+}
+
+impl ItemTimes {
+    fn add(&mut self, ns: u64) {
+        self.count += 1;
+        self.sum_ns += ns;
+        self.max_ns = self.max_ns.max(ns);
+    }
+    fn merge(&mut self, o: &ItemTimes) {
+        self.count += o.count;
+        self.sum_ns += o.sum_ns;
+        self.max_ns = self.max_ns.max(o.max_ns);
+    }
+    pub fn mean_ns(&self) -> f64 {
+        if self.count == 0 {
+            0.0
+        } else {
+            self.sum_ns as f64 / self.count as f64
+        }
+    }
+    /// Slowest item over the mean item (1: perfectly even; 0: no items).
+    pub fn imbalance(&self) -> f64 {
+        let m = self.mean_ns();
+        if m > 0.0 { self.max_ns as f64 / m } else { 0.0 }
+    }
+    /// Busy time of all threads over `threads x wall` (1: no thread idle).
+    pub fn efficiency(&self) -> f64 {
+        let cap = self.wall_ns as f64 * self.threads.max(1) as f64;
+        if cap > 0.0 {
+            (self.sum_ns as f64 / cap).min(1.0)
+        } else {
+            0.0
+        }
+    }
+}
+
+/// `Workers` on scoped threads: one per mailbox taken (at most `threads`),
+/// each pulling items from a shared `Mutex`'d iterator (as `bands` takes
+/// bands), counters summed. Every call's item times are appended to `runs`
+/// (callers clear it per frame): a deferred frame's light-grid pass is its
+/// last call, one item per chunk.
+pub struct Threads {
+    threads: usize,
+    pub runs: Vec<ItemTimes>,
+}
+
+impl Threads {
+    pub fn new(threads: u32) -> Threads {
+        Threads {
+            threads: threads.max(1) as usize,
+            runs: Vec::new(),
+        }
+    }
+}
+
+impl sheaf::render::deferred::Workers for Threads {
+    fn run<'m, I, F>(
+        &mut self,
+        mailboxes: &mut dyn Iterator<Item = Mailbox<'m>>,
+        items: &mut (dyn Iterator<Item = I> + Send),
+        work: &F,
+    ) -> Counters
+    where
+        I: Send,
+        F: Fn(I, &mut Mailbox<'_>, &mut Counters) + Sync,
+    {
+        let mut mbs: Vec<Mailbox<'m>> = mailboxes.take(self.threads).collect();
+        // A context without mailbox slots still runs (as `OnCaller` does).
+        let (mut none, mut p) = ([0u32; 0], 0u32);
+        let spare = mbs.is_empty().then(|| Mailbox::new(&mut none, &mut p));
+        let queue = Mutex::new(items);
+        let run = |mut mb: Mailbox<'_>| {
+            let mut ctr = Counters::default();
+            let mut times = ItemTimes::default();
+            loop {
+                let next = queue.lock().unwrap_or_else(|p| p.into_inner()).next();
+                let Some(it) = next else { break };
+                let t = Instant::now();
+                work(it, &mut mb, &mut ctr);
+                times.add(t.elapsed().as_nanos() as u64);
+            }
+            (ctr, times)
+        };
+        let start = Instant::now();
+        let first = match spare {
+            Some(mb) => mb,
+            None => mbs.remove(0),
+        };
+        let threads = 1 + mbs.len() as u32;
+        let (ctr, mut times) = std::thread::scope(|s| {
+            let helpers: Vec<_> = mbs
+                .into_iter()
+                .map(|mb| {
+                    std::thread::Builder::new()
+                        .stack_size(THREAD_STACK)
+                        .spawn_scoped(s, || run(mb))
+                        .expect("spawn a render thread")
+                })
+                .collect();
+            let (mut ctr, mut times) = run(first);
+            for h in helpers {
+                match h.join() {
+                    Ok((c, t)) => {
+                        ctr.add(&c);
+                        times.merge(&t);
+                    }
+                    Err(p) => std::panic::resume_unwind(p),
+                }
+            }
+            (ctr, times)
+        });
+        times.wall_ns = start.elapsed().as_nanos() as u64;
+        times.threads = threads;
+        self.runs.push(times);
+        ctr
+    }
+}
+
+/// What a deferred frame's context is rebuilt with when its perspective or
+/// light grid outgrows the pools: the scene, the grid's parameters, which
+/// other structures the traced passes need, and the pgrid parameters.
+pub struct DeferredSetup<'s> {
+    pub scene: &'s Scene<'s>,
+    pub grid: GridParams,
+    pub bvh: bool,
+    pub kd: bool,
+    pub pgrid: sheaf::PgridParams,
+}
+
+impl DeferredSetup<'_> {
+    /// A context for `limits` (with `Limits::PGRID` added) holding the
+    /// grid (its pools grown as `context_for` does), the BVH and kd-tree
+    /// when asked for, and the scene loaded for the perspective grids.
+    pub fn context(&self, mut limits: Limits) -> Result<(OwnedContext, GridInfo), Failure> {
+        limits.structures |= Limits::PGRID;
+        if self.bvh {
+            limits.structures |= Limits::BVH;
+        }
+        if self.kd {
+            limits.structures |= Limits::KD;
+        }
+        let (mut ctx, info) = context_for(self.scene, limits, &self.grid, 1.0)?;
+        let test = self.grid.test;
+        if self.bvh {
+            let p = sheaf::accel::bvh::BvhParams {
+                test,
+                ..Default::default()
+            };
+            ctx.build_bvh(self.scene, &p)
+                .or_fail(|| "building the BVH".into())?;
+        }
+        if self.kd {
+            let p = sheaf::accel::kd::KdParams {
+                test,
+                ..Default::default()
+            };
+            ctx.build_kd(self.scene, &p)
+                .or_fail(|| "building the kd-tree".into())?;
+        }
+        let pp = sheaf::PgridParams {
+            test,
+            ..self.pgrid
+        };
+        ctx.build_pgrid(self.scene, &pp)
+            .or_fail(|| "loading the scene for the perspective grids".into())?;
+        Ok((ctx, info))
+    }
+
+    /// `render_deferred`; when a perspective or light grid needs more
+    /// cells or pairs than the context has, the pool is grown to what the
+    /// build reported times 1.25 (later frames' grids differ), the context
+    /// made again by `context` and the frame rendered again. Returns the
+    /// frame's info and whether the context was replaced.
+    pub fn render(
+        &self,
+        ctx: &mut OwnedContext,
+        job: &sheaf::DeferredJob<'_>,
+        pixels: &mut [u8],
+        workers: &mut Threads,
+    ) -> Result<(sheaf::DeferredInfo, bool), Failure> {
+        let stride = job.frame.width as usize * 4;
+        let mut grown = false;
+        for _ in 0..4 {
+            workers.runs.clear();
+            match ctx.render_deferred(job, pixels, stride, workers) {
+                Ok(info) => return Ok((info, grown)),
+                Err(Error::Capacity {
+                    pool: pool @ (Pool::PgridCells | Pool::PgridRefs),
+                    needed,
+                    ..
+                }) => {
+                    let mut l = *ctx.limits();
+                    let more = u32::try_from(((needed as f64 * 1.25).ceil() as u64).max(needed))
+                        .map_err(|_| {
+                            Failure(format!(
+                                "the perspective grids need {needed} {}: more than 2^32",
+                                pool.name()
+                            ))
+                        })?;
+                    if pool == Pool::PgridCells {
+                        l.max_pgrid_cells = more;
+                    } else {
+                        l.max_pgrid_refs = more;
+                    }
+                    *ctx = self.context(l)?.0;
+                    grown = true;
+                }
+                Err(e) => return Err(Failure(format!("deferred frame: {e}"))),
+            }
+        }
+        Err(Failure(
+            "deferred frame: perspective grid pools still too small after growing them".into(),
+        ))
+    }
+}
