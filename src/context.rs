@@ -26,6 +26,9 @@ struct Layout {
     refs: usize,
     macro_words: usize,
     slots: usize,
+    /// Mailbox stamps per thread slot: one per triangle with a grid or
+    /// perspective grids (the structures that meet triangles repeatedly).
+    stamps: usize,
     /// BVH: triangles (0 without `Limits::BVH`) and their projection data.
     bvh_tris: usize,
     bvh_proj: usize,
@@ -65,6 +68,7 @@ impl Layout {
             refs: if grid { l.grid_refs() as usize } else { 0 },
             macro_words: if grid { cells.div_ceil(32) + 1 } else { 0 },
             slots: l.max_threads as usize,
+            stamps: if grid || pg { n } else { 0 },
             bvh_tris,
             bvh_proj: if l.projection_test { bvh_tris } else { 0 },
             kd_tris,
@@ -88,7 +92,7 @@ impl Layout {
             + pool_bytes::<u32>(self.cells + 1)
             + pool_bytes::<u32>(self.refs)
             + pool_bytes::<u32>(self.macro_words)
-            + pool_bytes::<u32>(self.tris * self.slots)
+            + pool_bytes::<u32>(self.stamps * self.slots)
             + pool_bytes::<u32>(self.slots)
             + pool_bytes::<BvhNode>(2 * self.bvh_tris)
             + pool_bytes::<TriVerts>(self.bvh_tris)
@@ -107,6 +111,7 @@ impl Layout {
             + pool_bytes::<TriVerts>(self.pg_tris)
             + pool_bytes::<crate::geom::ProjTri>(self.pg_proj)
             + pool_bytes::<u8>(self.pg_tris)
+            + pool_bytes::<[f32; 4]>(self.pg_tris)
             + 2 * (pool_bytes::<u32>(self.pg_cells) + pool_bytes::<u32>(self.pg_refs))
             + pool_bytes::<u32>(self.pg_refs)
             + 2 * pool_bytes::<u32>(self.pg_scratch)
@@ -117,6 +122,7 @@ impl Layout {
             + 2 * pool_bytes::<u32>(self.px)
             + pool_bytes::<u8>(self.px)
             + pool_bytes::<Chunk>(self.chunks)
+            + pool_bytes::<u32>(if self.px > 0 { pgrid::MAX_LIGHT_TILES } else { 0 })
     }
 }
 
@@ -208,7 +214,7 @@ impl<'a> Context<'a> {
             refs: arena.take(layout.refs)?,
             macro_bits: arena.take(layout.macro_words)?,
         };
-        let stamps = arena.take(layout.tris * layout.slots)?;
+        let stamps = arena.take(layout.stamps * layout.slots)?;
         let mail_packets = arena.take(layout.slots)?;
         let bvh = BvhPools {
             nodes: arena.take(2 * layout.bvh_tris)?,
@@ -232,6 +238,7 @@ impl<'a> Context<'a> {
             tris: arena.take(layout.pg_tris)?,
             proj: arena.take(layout.pg_proj)?,
             ok: arena.take(layout.pg_tris)?,
+            px_box: arena.take(layout.pg_tris)?,
             cam_start: arena.take(layout.pg_cells)?,
             cam_tris: arena.take(layout.pg_refs)?,
             light_start: arena.take(layout.pg_cells)?,
@@ -249,6 +256,7 @@ impl<'a> Context<'a> {
             ray_ids: arena.take(layout.px)?,
             occ: arena.take(layout.px)?,
             chunks: arena.take(layout.chunks)?,
+            reach: arena.take(if layout.px > 0 { pgrid::MAX_LIGHT_TILES } else { 0 })?,
         };
         debug_assert_eq!(arena.used(), need);
         Ok(Context {
@@ -510,15 +518,15 @@ impl<'a> Context<'a> {
                     }
                     ShadowPass::LightGrid => {
                         let f = deferred::light_frame(light, &s, deferred::light_tiles(pp.light_tiles, s.count), &lay, buf.dirs, buf.ray_tiles, buf.ray_ids);
-                        let mapped = now();
+                        let depth = pgrid::Slices::new(s.near, s.far, pp.light_slices);
+                        let k = deferred::map_to_tiles(&f, &depth, &lay, buf.dirs, buf.ray_tiles, buf.ray_ids, buf.reach);
                         info.times.rearrange += elapsed_ns(t);
-                        // Phase 4: the light grid.
+                        // Phase 4: the light grid, over the tiles and
+                        // slices the rays reach.
                         let t = now();
-                        info.light = pgrid::build::build_light(pg, &f, s.near, s.far, pp.light_slices)?;
+                        info.light = pgrid::build::build_light(pg, &f, s.near, s.far, pp.light_slices, buf.reach)?;
                         info.times.shadow_build += elapsed_ns(t);
-                        let _ = mapped;
                         let t = now();
-                        let k = deferred::map_to_tiles(&f, &lay, buf.dirs, buf.ray_tiles, buf.ray_ids);
                         let r = deferred::rearrange(&f, k, buf, pg.pools.tmp_keys, pg.pools.tmp_vals, pp.chunk);
                         info.reorder.rays += r.rays;
                         info.reorder.tiles_used += r.tiles_used;

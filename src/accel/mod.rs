@@ -6,4 +6,5 @@ pub mod bvh;
 pub mod entry;
 pub mod grid;
 pub mod kd;
+pub mod mailbox;
 pub mod pgrid;

@@ -188,6 +188,9 @@ pub struct FrameBuffers<'a> {
     /// Occlusion of the sorted shadow rays.
     pub occ: &'a mut [u8],
     pub chunks: &'a mut [Chunk],
+    /// Per light tile: 0 without rays, else 1 + the last slice its rays
+    /// reach (`accel::pgrid::build::build_light`), `MAX_LIGHT_TILES`.
+    pub reach: &'a mut [u32],
 }
 
 /// Tile-major layout of the frame buffers: tile `(tx, ty)` of `side`
@@ -277,7 +280,7 @@ pub fn primary_pass<'m, T: Tracer + ?Sized, W: Workers>(
     let work = |(tile, (p, tt)): (usize, (&mut [u32], &mut [f32])), mb: &mut Mailbox<'_>, ctr: &mut Counters| {
         let (x0, y0) = lay.pixel(tile * ss);
         match (primary, cam) {
-            (PrimaryPass::Pgrid, Some(cam)) => pgrid_tile(cam, rays, lay, sort, x0, y0, p, tt, ctr),
+            (PrimaryPass::Pgrid, Some(cam)) => pgrid_tile(cam, rays, lay, sort, x0, y0, p, tt, mb, ctr),
             (PrimaryPass::Traced(params), _) => traced_tile(tracer, params, rays, lay, x0, y0, p, tt, mb, ctr),
             _ => p.fill(INVALID_ID),
         }
@@ -297,6 +300,7 @@ fn pgrid_tile(
     y0: u32,
     prim: &mut [u32],
     t: &mut [f32],
+    mb: &mut Mailbox<'_>,
     ctr: &mut Counters,
 ) {
     let st = cam.cells.info.tiles;
@@ -330,7 +334,7 @@ fn pgrid_tile(
                 hits[q] = Hit4::MISS;
             }
             let tile = (py / sort) * st[0] + px / sort;
-            traverse_primary::trace_tile(cam, tile, &quads[..nq], &active[..nq], &mut hits[..nq], ctr);
+            traverse_primary::trace_tile(cam, tile, &quads[..nq], &active[..nq], &mut hits[..nq], mb, ctr);
             for q in 0..nq {
                 let (qx, qy) = (q as u32 % half, q as u32 / half);
                 for (i, (dx, dy)) in LANES.iter().enumerate() {
@@ -556,8 +560,19 @@ pub fn light_frame(
 
 /// Phase 3c (the map step): compact the shadow rays into (light tile,
 /// pixel) pairs in `ray_tiles`/`ray_ids`, reading the (a, b) bits
-/// `light_frame` left there. Returns the number of rays.
-pub fn map_to_tiles(f: &LightFrame, lay: &TileLayout, dirs: &[[f32; 3]], ray_tiles: &mut [u32], ray_ids: &mut [u32]) -> usize {
+/// `light_frame` left there, and fill `reach` (per tile, 1 + the last
+/// slice of `depth` its rays reach; 0: no ray). Returns the number of rays.
+#[allow(clippy::too_many_arguments)]
+pub fn map_to_tiles(
+    f: &LightFrame,
+    depth: &crate::accel::pgrid::Slices,
+    lay: &TileLayout,
+    dirs: &[[f32; 3]],
+    ray_tiles: &mut [u32],
+    ray_ids: &mut [u32],
+    reach: &mut [u32],
+) -> usize {
+    reach[..(f.tiles[0] * f.tiles[1]) as usize].fill(0);
     let mut k = 0;
     for i in 0..lay.len() {
         if dirs[i][0].is_nan() {
@@ -567,7 +582,10 @@ pub fn map_to_tiles(f: &LightFrame, lay: &TileLayout, dirs: &[[f32; 3]], ray_til
         let b = f32::from_bits(ray_ids[i]);
         let tx = crate::accel::pgrid::tile_coord((a - f.a0) * f.inv_da, f.tiles[0]);
         let ty = crate::accel::pgrid::tile_coord((b - f.b0) * f.inv_db, f.tiles[1]);
-        ray_tiles[k] = ty * f.tiles[0] + tx;
+        let tile = ty * f.tiles[0] + tx;
+        let last = depth.hi(Vec3::from(dirs[i]).length()) + 1;
+        reach[tile as usize] = reach[tile as usize].max(last);
+        ray_tiles[k] = tile;
         ray_ids[k] = i as u32;
         k += 1;
     }
@@ -609,7 +627,7 @@ pub fn light_grid_pass<'m, W: Workers>(
         rest = tail;
         (c, mine)
     });
-    let work = |(c, out): (&Chunk, &mut [u8]), _: &mut Mailbox<'_>, ctr: &mut Counters| {
+    let work = |(c, out): (&Chunk, &mut [u8]), mb: &mut Mailbox<'_>, ctr: &mut Counters| {
         let mut quads = [Ray4::from_rays(&[DUMMY; 4]); traverse_shadow::MAX_QUADS];
         let mut active = [M4::FALSE; traverse_shadow::MAX_QUADS];
         let mut occluded = [M4::FALSE; traverse_shadow::MAX_QUADS];
@@ -628,7 +646,7 @@ pub fn light_grid_pass<'m, W: Workers>(
                 quads[q] = Ray4::from_rays(&lanes);
                 active[q] = M4::new(m[0], m[1], m[2], m[3]);
             }
-            traverse_shadow::trace_chunk(g, c.tile, &quads[..nq], &active[..nq], &mut occluded[..nq], ctr);
+            traverse_shadow::trace_chunk(g, c.tile, &quads[..nq], &active[..nq], &mut occluded[..nq], mb, ctr);
             let base = b * 4 * traverse_shadow::MAX_QUADS;
             for k in 0..batch.len() {
                 out[base + k] = occluded[k / 4].test(k % 4) as u8;

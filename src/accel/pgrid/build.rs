@@ -106,6 +106,31 @@ impl Pairs<'_> {
     }
 }
 
+impl Pairs<'_> {
+    /// `emit`, skipping tiles without rays and slices beyond their rays'
+    /// reach; whether any pair was emitted.
+    #[inline]
+    fn emit_reached(&mut self, b: &CellBox, tiles_x: u32, slices: u32, tri: u32, reach: &[u32]) -> bool {
+        let before = self.n;
+        for ty in b.y[0]..=b.y[1] {
+            for tx in b.x[0]..=b.x[1] {
+                let tile = ty * tiles_x + tx;
+                let end = reach[tile as usize].min(b.s[1] + 1);
+                let base = tile * slices;
+                for s in b.s[0]..end {
+                    let i = self.n as usize;
+                    if i < self.keys.len() {
+                        self.keys[i] = base + s;
+                        self.vals[i] = tri;
+                    }
+                    self.n += 1;
+                }
+            }
+        }
+        self.n > before
+    }
+}
+
 /// Sort the pairs and scan them into `start` (cells + 1 entries).
 fn finish(
     keys: &mut [u32],
@@ -194,7 +219,8 @@ pub fn build_camera(g: &mut Pgrid<'_>, cam: &Pinhole) -> Result<CellsInfo> {
                 continue;
             }
         }
-        if let Some(cb) = camera_box(cam, &depth, tiles, inv_t, pad, z_eps, tip_r, tri) {
+        if let Some((cb, pb)) = camera_box(cam, &depth, tiles, inv_t, pad, z_eps, tip_r, tri) {
+            p.px_box[i] = pb;
             info.mapped += 1;
             pairs.emit(&cb, tiles[0], params.slices, i as u32);
         }
@@ -234,7 +260,7 @@ fn camera_box(
     z_eps: f32,
     tip_r: f32,
     tri: &TriVerts,
-) -> Option<CellBox> {
+) -> Option<(CellBox, [f32; 4])> {
     let q = [
         Vec3::from(tri.v0) - cam.eye,
         Vec3::from(tri.v1) - cam.eye,
@@ -274,11 +300,15 @@ fn camera_box(
     let tip = z.iter().any(|&z| z < z_eps) && closest_distance(Vec3::ZERO, &q) <= tip_r;
     if tip {
         let top = zr[1].max(z_eps);
-        return Some(CellBox {
-            x: [0, tiles[0] - 1],
-            y: [0, tiles[1] - 1],
-            s: [0, depth.hi(top)],
-        });
+        let all = [f32::NEG_INFINITY, f32::NEG_INFINITY, f32::INFINITY, f32::INFINITY];
+        return Some((
+            CellBox {
+                x: [0, tiles[0] - 1],
+                y: [0, tiles[1] - 1],
+                s: [0, depth.hi(top)],
+            },
+            all,
+        ));
     }
     if m == 0
         || xr[1] + pad < 0.0
@@ -288,29 +318,36 @@ fn camera_box(
     {
         return None;
     }
-    Some(CellBox {
-        x: [
-            tile_coord((xr[0] - pad) * inv_t, tiles[0]),
-            tile_coord((xr[1] + pad) * inv_t, tiles[0]),
-        ],
-        y: [
-            tile_coord((yr[0] - pad) * inv_t, tiles[1]),
-            tile_coord((yr[1] + pad) * inv_t, tiles[1]),
-        ],
-        s: [depth.lo(zr[0]), depth.hi(zr[1])],
-    })
+    Some((
+        CellBox {
+            x: [
+                tile_coord((xr[0] - pad) * inv_t, tiles[0]),
+                tile_coord((xr[1] + pad) * inv_t, tiles[0]),
+            ],
+            y: [
+                tile_coord((yr[0] - pad) * inv_t, tiles[1]),
+                tile_coord((yr[1] + pad) * inv_t, tiles[1]),
+            ],
+            s: [depth.lo(zr[0]), depth.hi(zr[1])],
+        },
+        [xr[0] - pad, yr[0] - pad, xr[1] + pad, yr[1] + pad],
+    ))
 }
 
 /// Build the grid of light `frame` (section 4.1): its (a, b) rectangle in
 /// `frame.tiles`, `slices` distance slices between `near` and `far` (the
 /// shadow rays' lengths). Triangles outside the rectangle or beyond `far`
-/// cannot block any of this frame's shadow rays and are left out.
+/// cannot block any of this frame's shadow rays and are left out; so are
+/// cells no ray reaches: `reach[tile]` is 0 for a tile without rays, else
+/// one more than the last slice its rays reach (`Slices::hi` of their
+/// lengths), and a tile's pairs stop there.
 pub fn build_light(
     g: &mut Pgrid<'_>,
     frame: &LightFrame,
     near: f32,
     far: f32,
     slices: u32,
+    reach: &[u32],
 ) -> Result<CellsInfo> {
     g.scene.params.ok_or(Error::NotBuilt)?;
     g.light_built = false;
@@ -324,7 +361,7 @@ pub fn build_light(
         ..CellsInfo::default()
     };
     let scale = g.scene.bounds.diagonal().length().max(far).max(1e-30);
-    let reach = far * (1.0 + 2.0 * super::DEPTH_PAD) + depth.z0 * super::DEPTH_PAD;
+    let far_reach = far * (1.0 + 2.0 * super::DEPTH_PAD) + depth.z0 * super::DEPTH_PAD;
     let a1 = frame.a0 + tiles[0] as f32 / frame.inv_da;
     let b1 = frame.b0 + tiles[1] as f32 / frame.inv_db;
     let n = g.scene.triangles as usize;
@@ -344,20 +381,23 @@ pub fn build_light(
             Vec3::from(tri.v1) - frame.pos,
             Vec3::from(tri.v2) - frame.pos,
         ];
-        let dmin = closest_distance(Vec3::ZERO, &q);
-        if dmin > reach {
-            continue;
-        }
-        let dmax = q[0].length().max(q[1].length()).max(q[2].length());
         let z = [q[0].dot(frame.fwd), q[1].dot(frame.fwd), q[2].dot(frame.fwd)];
         let x = [q[0].dot(frame.right), q[1].dot(frame.right), q[2].dot(frame.right)];
         let y = [q[0].dot(frame.up), q[1].dot(frame.up), q[2].dot(frame.up)];
         let eps = scale * 1e-6;
         let (alo, ahi) = angle_span(x, z, eps);
-        let (blo, bhi) = angle_span(y, z, eps);
-        if ahi < frame.a0 || alo > a1 || bhi < frame.b0 || blo > b1 {
+        if ahi < frame.a0 || alo > a1 {
             continue;
         }
+        let (blo, bhi) = angle_span(y, z, eps);
+        if bhi < frame.b0 || blo > b1 {
+            continue;
+        }
+        let dmin = closest_distance(Vec3::ZERO, &q);
+        if dmin > far_reach {
+            continue;
+        }
+        let dmax = q[0].length().max(q[1].length()).max(q[2].length());
         let cb = CellBox {
             x: [
                 tile_coord((alo - frame.a0) * frame.inv_da, tiles[0]),
@@ -369,8 +409,9 @@ pub fn build_light(
             ],
             s: [depth.lo(dmin), depth.hi(dmax)],
         };
-        info.mapped += 1;
-        pairs.emit(&cb, tiles[0], slices, i as u32);
+        if pairs.emit_reached(&cb, tiles[0], slices, i as u32, reach) {
+            info.mapped += 1;
+        }
     }
     let needed = pairs.n;
     if needed > p.light_tris.len() as u64 {

@@ -11,23 +11,27 @@
 //! tracing tile is the unit of work, the sorting tile the unit of culling.
 
 use super::{CamView, PgTest};
+use crate::accel::mailbox::Mailbox;
 use crate::geom::{F4, Hit4, M4, Mt, Pt, RayLanes, Ray4, TriTest, Wt};
+use crate::math;
 use crate::trace::{Counters, count};
 
-/// Nearest hits of the camera rays of sorting tile `tile` (`rays`, `active`
-/// lanes; `hits` start as misses or as earlier results).
+/// Nearest hits of the camera rays of sorting tile `tile`: `rays` are its
+/// `(side / 2)^2` 2x2 quads row by row (pixel quads, lanes as `Ray4`),
+/// `active` lanes; `hits` start as misses or as earlier results.
 pub fn trace_tile(
     g: &CamView<'_>,
     tile: u32,
     rays: &[Ray4],
     active: &[M4],
     hits: &mut [Hit4],
+    mb: &mut Mailbox<'_>,
     ctr: &mut Counters,
 ) {
     match g.test {
-        TriTest::MollerTrumbore => walk::<Mt>(g, tile, rays, active, hits, ctr),
-        TriTest::Watertight => walk::<Wt>(g, tile, rays, active, hits, ctr),
-        TriTest::Projection => walk::<Pt>(g, tile, rays, active, hits, ctr),
+        TriTest::MollerTrumbore => walk::<Mt>(g, tile, rays, active, hits, mb, ctr),
+        TriTest::Watertight => walk::<Wt>(g, tile, rays, active, hits, mb, ctr),
+        TriTest::Projection => walk::<Pt>(g, tile, rays, active, hits, mb, ctr),
     }
 }
 
@@ -40,9 +44,16 @@ fn walk<T: PgTest>(
     rays: &[Ray4],
     active: &[M4],
     hits: &mut [Hit4],
+    mb: &mut Mailbox<'_>,
     ctr: &mut Counters,
 ) {
     let nq = rays.len().min(MAX_QUADS);
+    // A triangle spanning several slices is tested once per tile: its
+    // hits for the tile's live rays cannot change in a later slice.
+    let mail = mb.covers(g.tris.tris.len());
+    if mail {
+        mb.next_packet(g.tris.tris.len());
+    }
     let d = g.cells.info.depth;
     let fwd = g.pinhole.fwd;
     let mut live = [M4::FALSE; MAX_QUADS];
@@ -57,12 +68,34 @@ fn walk<T: PgTest>(
         depth_of[q] = r.dir[0] * F4::splat(fwd.x) + r.dir[1] * F4::splat(fwd.y) + r.dir[2] * F4::splat(fwd.z);
         pre[q] = T::prepare(&RayLanes::from_ray4(r));
     }
+    // Quads are a half x half grid over the tile's pixels from (x0, y0).
+    let half = (g.tile / 2) as i32;
+    let tx = tile % g.cells.info.tiles[0];
+    let (x0, y0) = ((tx * g.tile) as f32, ((tile / g.cells.info.tiles[0]) * g.tile) as f32);
+    let quad_range = |lo: f32, hi: f32, o: f32| -> (i32, i32) {
+        // Pixel centres c + 0.5 in [lo, hi], as quad columns from o.
+        let a = math::ceil(lo - 0.5 - o).max(-2.0);
+        let b = math::floor(hi - 0.5 - o).min(2.0 * half as f32);
+        ((a as i32).div_euclid(2).max(0), (b as i32).div_euclid(2).min(half - 1))
+    };
     for s in 0..d.count {
         let cell = g.cells.cell(tile, s);
         count!(ctr.cells += 1);
         for &tri in cell {
+            if mail && !mb.first_visit(tri as usize) {
+                count!(ctr.mailbox_skips += 1);
+                continue;
+            }
             let prim = T::prim(&g.tris, tri as usize);
-            for q in 0..nq {
+            // Only the quads whose pixel centres the triangle's padded
+            // pixel bounds cover can hit it.
+            let b = g.px_box[tri as usize];
+            let (qx0, qx1) = quad_range(b[0], b[2], x0);
+            let (qy0, qy1) = quad_range(b[1], b[3], y0);
+            for q in (qy0..=qy1).flat_map(|qy| (qx0..=qx1).map(move |qx| (qy * half + qx) as usize)) {
+                if q >= nq {
+                    continue;
+                }
                 let lm = live[q];
                 if !lm.any() {
                     continue;

@@ -7,6 +7,7 @@
 //! surface it shadows); the chunk stops when no ray is left.
 
 use super::{LightView, PgTest};
+use crate::accel::mailbox::Mailbox;
 use crate::geom::{M4, Mt, Pt, RayLanes, Ray4, TriTest, Wt};
 use crate::math;
 use crate::trace::{Counters, count};
@@ -23,15 +24,16 @@ pub fn trace_chunk(
     rays: &[Ray4],
     active: &[M4],
     occluded: &mut [M4],
+    mb: &mut Mailbox<'_>,
     ctr: &mut Counters,
 ) {
     for s in (0..rays.len()).step_by(MAX_QUADS) {
         let e = (s + MAX_QUADS).min(rays.len());
         let (r, a, o) = (&rays[s..e], &active[s..e], &mut occluded[s..e]);
         match g.test {
-            TriTest::MollerTrumbore => walk::<Mt>(g, tile, r, a, o, ctr),
-            TriTest::Watertight => walk::<Wt>(g, tile, r, a, o, ctr),
-            TriTest::Projection => walk::<Pt>(g, tile, r, a, o, ctr),
+            TriTest::MollerTrumbore => walk::<Mt>(g, tile, r, a, o, mb, ctr),
+            TriTest::Watertight => walk::<Wt>(g, tile, r, a, o, mb, ctr),
+            TriTest::Projection => walk::<Pt>(g, tile, r, a, o, mb, ctr),
         }
     }
 }
@@ -42,9 +44,15 @@ fn walk<T: PgTest>(
     rays: &[Ray4],
     active: &[M4],
     occluded: &mut [M4],
+    mb: &mut Mailbox<'_>,
     ctr: &mut Counters,
 ) {
     let nq = rays.len();
+    // Triangles spanning several slices are tested once per batch.
+    let mail = mb.covers(g.tris.tris.len());
+    if mail {
+        mb.next_packet(g.tris.tris.len());
+    }
     let d = g.cells.info.depth;
     let mut live = [M4::FALSE; MAX_QUADS];
     let mut last = [[0u32; 4]; MAX_QUADS];
@@ -70,6 +78,10 @@ fn walk<T: PgTest>(
         let cell = g.cells.cell(tile, s);
         count!(ctr.cells += 1);
         for &tri in cell {
+            if mail && !mb.first_visit(tri as usize) {
+                count!(ctr.mailbox_skips += 1);
+                continue;
+            }
             let prim = T::prim(&g.tris, tri as usize);
             let mut left = false;
             for q in 0..nq {
