@@ -11,10 +11,15 @@
  * lights, 16x16 packets (Ranged for camera and shadow rays, Partition for
  * reflection and refraction rays).
  *
+ * With `deferred` it reserves only the perspective/light grid pools and
+ * renders a deferred frame: camera rays through a perspective grid, then
+ * per light every shadow ray through a spherical light grid (a point light
+ * and a spot light), then shading; it prints the phase times.
+ *
  * Build and run from the repository root (the Makefile first runs
  * `cargo build --release --lib`, then links target/release/libsheaf.a):
  *   make -C examples-c            (static; `make -C examples-c shared` for the .so)
- *   examples-c/render [out.ppm] [width] [height] [whitted]
+ *   examples-c/render [out.ppm] [width] [height] [whitted|deferred]
  */
 #include "sheaf.h"
 
@@ -94,6 +99,7 @@ int main(int argc, char **argv) {
     uint32_t width = argc > 2 ? (uint32_t)atoi(argv[2]) : 640;
     uint32_t height = argc > 3 ? (uint32_t)atoi(argv[3]) : 480;
     int whitted = argc > 4 && strcmp(argv[4], "whitted") == 0;
+    int deferred = argc > 4 && strcmp(argv[4], "deferred") == 0;
     uint32_t pyramid_first = 0;
     sheaf_limits limits;
     sheaf_context *ctx = NULL;
@@ -106,7 +112,7 @@ int main(int argc, char **argv) {
     FILE *out;
 
     if (width == 0 || height == 0) {
-        fprintf(stderr, "usage: %s [out.ppm] [width] [height] [whitted]\n", argv[0]);
+        fprintf(stderr, "usage: %s [out.ppm] [width] [height] [whitted|deferred]\n", argv[0]);
         return 2;
     }
     build_scene();
@@ -115,6 +121,12 @@ int main(int argc, char **argv) {
     /* 1. All the memory the context will ever use, allocated here, 64-byte aligned. */
     if ((s = sheaf_limits_default(n_triangles, &limits)) != SHEAF_STATUS_OK) return fail("sheaf_limits_default", s, NULL);
     if (whitted) limits.structures = SHEAF_STRUCTURE_BVH; /* pools for the BVH only */
+    if (deferred) {
+        /* Only the perspective/light grid pools; they scale with the image. */
+        limits.structures = SHEAF_STRUCTURE_PGRID;
+        limits.max_image_width = width;
+        limits.max_image_height = height;
+    }
     if ((s = sheaf_required_bytes(&limits, &need)) != SHEAF_STATUS_OK) return fail("sheaf_required_bytes", s, NULL);
     memory = malloc(need + SHEAF_CONTEXT_ALIGN);
     if (memory == NULL) return 1;
@@ -128,6 +140,10 @@ int main(int argc, char **argv) {
         return fail("sheaf_context_set_geometry", s, ctx);
     if (whitted) {
         if ((s = sheaf_context_build_bvh(ctx, NULL)) != SHEAF_STATUS_OK) return fail("sheaf_context_build_bvh", s, ctx);
+    } else if (deferred) {
+        /* Loads the triangles; the grids are built per frame for its camera and lights. */
+        if ((s = sheaf_context_build_pgrid(ctx, NULL)) != SHEAF_STATUS_OK)
+            return fail("sheaf_context_build_pgrid", s, ctx);
     } else if ((s = sheaf_context_build_grid(ctx, NULL)) != SHEAF_STATUS_OK) {
         return fail("sheaf_context_build_grid", s, ctx);
     }
@@ -173,6 +189,31 @@ int main(int argc, char **argv) {
         if ((s = sheaf_context_render_whitted(ctx, &camera, &camera, &secondary, NULL, &frame, lights, 2, mats, 3,
                                               ranges, 4, rgba, stride, stride * height)) != SHEAF_STATUS_OK)
             return fail("sheaf_context_render_whitted", s, ctx);
+    } else if (deferred) {
+        /* The frame's light and a warm spot light on the pyramid. */
+        sheaf_deferred_job job;
+        sheaf_light lights[2];
+        lights[0] = frame.light;
+        memset(&lights[1], 0, sizeof lights[1]);
+        lights[1].position[0] = 8.0f;
+        lights[1].position[1] = -2.0f;
+        lights[1].position[2] = 9.0f;
+        lights[1].color[0] = 0.6f;
+        lights[1].color[1] = 0.45f;
+        lights[1].color[2] = 0.25f;
+        lights[1].spot_direction[0] = 3.5f - 8.0f;
+        lights[1].spot_direction[1] = 3.0f + 2.0f;
+        lights[1].spot_direction[2] = -9.0f;
+        lights[1].spot_angle_deg = 20.0f;
+        lights[1].spot_soft_deg = 6.0f;
+        memset(&job, 0, sizeof job);
+        job.frame = frame;
+        job.lights = lights;
+        job.light_count = 2;
+        job.primary_pgrid = true;
+        job.shadow_light_grid = true;
+        if ((s = sheaf_context_render_deferred(ctx, &job, rgba, stride, stride * height)) != SHEAF_STATUS_OK)
+            return fail("sheaf_context_render_deferred", s, ctx);
     } else if ((s = sheaf_context_render(ctx, SHEAF_METHOD_GRID_DDA, &frame, rgba, stride, stride * height)) !=
                SHEAF_STATUS_OK) {
         return fail("sheaf_context_render", s, ctx);
@@ -195,6 +236,15 @@ int main(int argc, char **argv) {
                sheaf_version_string(), stats.bvh_triangles, stats.bvh_nodes, stats.bvh_depth,
                (double)stats.bvh_build_ns * 1e-6, (unsigned long long)stats.counters.rays,
                (double)stats.trace_ns * 1e-6, path);
+    else if (deferred)
+        printf("sheaf %s: %u triangles, deferred frame, 2 lights: perspective grid %ux%ux%u (%u refs), %llu shadow rays "
+               "in %u chunks; ms: primary build %.3f, trace %.3f, rearrange %.3f, shadow build %.3f, trace %.3f, "
+               "shade %.3f -> %s\n",
+               sheaf_version_string(), stats.pgrid_triangles, stats.camera_tiles[0], stats.camera_tiles[1],
+               stats.camera_slices, stats.camera_refs, (unsigned long long)stats.shadow_rays, stats.reorder_chunks,
+               (double)stats.primary_build_ns * 1e-6, (double)stats.primary_trace_ns * 1e-6,
+               (double)stats.rearrange_ns * 1e-6, (double)stats.shadow_build_ns * 1e-6,
+               (double)stats.shadow_trace_ns * 1e-6, (double)stats.shade_ns * 1e-6, path);
     else
         printf("sheaf %s: %u triangles, grid %ux%ux%u (%u refs), build %.3f ms, %llu rays in %.3f ms -> %s\n",
                sheaf_version_string(), stats.triangles, stats.grid_res[0], stats.grid_res[1], stats.grid_res[2],

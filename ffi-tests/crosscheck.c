@@ -4,7 +4,7 @@
  * ABI with two grid configurations, and prints everything as exact bit
  * patterns on lines starting with '@':
  *
- *   @limits <12 x u32>                     sheaf_limits used (projection_test as 0/1, structures, kd pools)
+ *   @limits <14 x u32>                     sheaf_limits used (projection_test as 0/1, structures, kd and pgrid pools)
  *   @vertex <i> <x> <y> <z>                float bits (hex)
  *   @tri <i> <a> <b> <c>
  *   @ray <i> <org x y z> <tmin> <dir x y z> <tmax>   float bits (hex)

@@ -84,6 +84,8 @@ static bool test_status_codes_and_strings(void) {
         {SHEAF_STATUS_CAPACITY_GRID_REFS, 203},
         {SHEAF_STATUS_CAPACITY_IMAGE, 204},
         {SHEAF_STATUS_CAPACITY_THREADS, 205},
+        {SHEAF_STATUS_CAPACITY_PGRID_CELLS, 206},
+        {SHEAF_STATUS_CAPACITY_PGRID_REFS, 207},
         {SHEAF_STATUS_OUT_OF_MEMORY, 299},
         {SHEAF_STATUS_NO_GEOMETRY, 300},
         {SHEAF_STATUS_NOT_BUILT, 301},
@@ -1009,6 +1011,377 @@ static bool test_render_bad_arguments(void) {
     return true;
 }
 
+/* ---- perspective and light grids, deferred frames ------------------------------- */
+
+/* A context over `s` with pools for `structures` and images up to RW x RH
+   (the perspective grid's pools scale with the image), geometry set. */
+static sheaf_context *pgrid_context(const scene *s, uint32_t structures, uint32_t max_pgrid_cells,
+                                    uint32_t max_pgrid_refs) {
+    sheaf_limits l;
+    sheaf_context *ctx = NULL;
+    if (sheaf_limits_default(s->nt, &l) != SHEAF_STATUS_OK) return NULL;
+    l.max_image_width = RW;
+    l.max_image_height = RH;
+    l.structures = structures;
+    l.max_pgrid_cells = max_pgrid_cells;
+    l.max_pgrid_refs = max_pgrid_refs;
+    if (sheaf_context_create(&l, &ctx) != SHEAF_STATUS_OK) return NULL;
+    if (scene_set(ctx, s) != SHEAF_STATUS_OK) {
+        sheaf_context_destroy(ctx);
+        return NULL;
+    }
+    return ctx;
+}
+
+/* The pixels (not the padding) of two RW x RH images are equal. */
+static bool same_pixels(const uint8_t *a, const uint8_t *b) {
+    uint32_t y;
+    for (y = 0; y < RH; ++y) {
+        if (memcmp(a + y * RSTRIDE, b + y * RSTRIDE, RW * 4) != 0) return false;
+    }
+    return true;
+}
+
+/* Every pixel of the last deferred frame against single rays through the
+   BVH: the camera ray's hit (sheaf_frame_camera_ray, sheaf_context_trace)
+   bit for bit, and each light's shadow bit against its shadow ray
+   (sheaf_context_deferred_shadow_ray, sheaf_context_occluded). Counts hit
+   pixels and shadowed (pixel, light) pairs. */
+static bool deferred_pixels_match(const sheaf_context *ctx, const sheaf_frame *f, const sheaf_light *lights,
+                                  size_t n_lights, uint32_t *hits, uint32_t *shadowed) {
+    uint32_t x, y;
+    size_t l;
+    *hits = 0;
+    *shadowed = 0;
+    for (y = 0; y < f->height; ++y) {
+        for (x = 0; x < f->width; ++x) {
+            sheaf_ray ray, sray;
+            sheaf_hit want, got;
+            uint8_t bits = 0xEE, occ = 0;
+            CHECK_OK(sheaf_frame_camera_ray(f, x, y, &ray));
+            CHECK_OK(sheaf_context_trace(ctx, SHEAF_METHOD_BVH_SINGLE, &ray, &want, 1));
+            CHECK_OK(sheaf_context_deferred_pixel(ctx, x, y, &got, &bits));
+            CHECK(got.prim == want.prim && float_bits(got.t) == float_bits(want.t));
+            CHECK(got.u == 0.0f && got.v == 0.0f);
+            if (got.prim == SHEAF_INVALID_ID) {
+                CHECK(bits == 0 && isinf(got.t));
+                continue;
+            }
+            ++*hits;
+            CHECK((bits >> n_lights) == 0);
+            for (l = 0; l < n_lights; ++l) {
+                bool has = false;
+                CHECK_OK(sheaf_context_deferred_shadow_ray(ctx, x, y, &lights[l], &sray, &has));
+                if (!has) {
+                    CHECK(((bits >> l) & 1) == 0);
+                    continue;
+                }
+                CHECK(sray.tmax == 1.0f && memcmp(sray.org, lights[l].position, sizeof sray.org) == 0);
+                CHECK_OK(sheaf_context_occluded(ctx, SHEAF_METHOD_BVH_SINGLE, &sray, &occ, 1));
+                CHECK(occ == ((bits >> l) & 1));
+                *shadowed += occ;
+            }
+        }
+    }
+    return true;
+}
+
+static bool test_pgrid(void) {
+    /* Deferred frames with the perspective grid and light grids: with one
+       point light the image equals sheaf_context_render's with BVH single
+       rays byte for byte; every pixel's hit and shadow bits equal single
+       rays'; the stats hold the phase times and consistent reordering
+       counts; two lights (one a spot) give the same image through the grids
+       and through traced passes. */
+    scene *s = ground_and_box();
+    sheaf_context *ctx = pgrid_context(s, SHEAF_STRUCTURE_BVH | SHEAF_STRUCTURE_PGRID, 0, 0);
+    sheaf_pgrid_params pp;
+    sheaf_deferred_job job, traced;
+    sheaf_trace_params single;
+    sheaf_stats st;
+    sheaf_light lights[2];
+    sheaf_frame f = default_frame(RW, RH);
+    static uint8_t base[RLEN], img[RLEN], two[RLEN], two_traced[RLEN];
+    uint32_t hits = 0, shadowed = 0;
+    uint64_t one_light_rays;
+    CHECK(ctx != NULL);
+    CHECK_OK(sheaf_pgrid_params_default(&pp));
+    CHECK(pp.tile == 8 && pp.group == 2 && pp.slices == 32 && pp.light_tiles == 64 && pp.light_slices == 32);
+    CHECK(pp.chunk == 256 && !pp.cull_backfaces && pp.test == SHEAF_TRI_TEST_MOLLER_TRUMBORE);
+    CHECK_OK(sheaf_context_build_pgrid(ctx, &pp));
+    CHECK_OK(sheaf_context_build_bvh(ctx, NULL));
+    CHECK_OK(sheaf_context_stats(ctx, &st));
+    CHECK(st.pgrid_triangles == s->nt && st.pgrid_excluded == 0 && st.pgrid_test == SHEAF_TRI_TEST_MOLLER_TRUMBORE);
+    CHECK(st.primary_build_ns == 0 && st.shade_ns == 0 && st.camera_cells == 0); /* no deferred frame yet */
+
+    /* One point light (frame.light): the forward renderer's image. */
+    memset(&job, 0, sizeof job);
+    job.frame = f;
+    job.primary_pgrid = true;
+    job.shadow_light_grid = true;
+    memset(img, 0x5A, sizeof img);
+    CHECK_OK(sheaf_context_render_deferred(ctx, &job, img, RSTRIDE, RLEN));
+    CHECK(img[RW * 4] == 0x5A); /* padding untouched */
+    CHECK_OK(sheaf_context_stats(ctx, &st)); /* before render_with replaces counters and trace_ns */
+    CHECK_OK(sheaf_trace_params_default(&single));
+    single.method = SHEAF_METHOD_BVH_SINGLE;
+    CHECK_OK(sheaf_context_render_with(ctx, &single, &single, &f, base, RSTRIDE, RLEN));
+    CHECK(same_pixels(img, base));
+    CHECK(deferred_pixels_match(ctx, &f, &f.light, 1, &hits, &shadowed));
+    CHECK(hits > RW * RH / 4 && shadowed > 0 && shadowed < hits); /* the box shadows part of the ground */
+
+    /* Stats: Figure 10's phases, the grids, the reordering. */
+    CHECK(st.primary_build_ns > 0 && st.primary_trace_ns > 0 && st.rearrange_ns > 0 && st.shadow_build_ns > 0 &&
+          st.shadow_trace_ns > 0 && st.shade_ns > 0);
+    CHECK(st.trace_ns == st.primary_build_ns + st.primary_trace_ns + st.rearrange_ns + st.shadow_build_ns +
+                             st.shadow_trace_ns + st.shade_ns);
+    CHECK(st.hits == hits && st.shadow_rays > 0 && st.shadow_rays <= st.hits);
+    CHECK(st.camera_tiles[0] == RW / 8 && st.camera_tiles[1] == RH / 8 && st.camera_slices == 32);
+    CHECK(st.camera_cells == st.camera_tiles[0] * st.camera_tiles[1] * st.camera_slices);
+    CHECK(st.camera_mapped > 0 && st.camera_mapped <= s->nt && st.camera_refs >= st.camera_mapped);
+    CHECK(st.camera_backfaces == 0);
+    CHECK(st.light_tiles[0] >= 1 && st.light_tiles[0] <= 64 && st.light_slices == 32);
+    CHECK(st.light_cells == st.light_tiles[0] * st.light_tiles[1] * st.light_slices);
+    CHECK(st.light_mapped > 0 && st.light_refs >= st.light_mapped);
+    CHECK(st.reorder_rays == st.shadow_rays); /* one light */
+    CHECK(st.reorder_tiles_used >= 1 && st.reorder_tiles_used <= st.light_tiles[0] * st.light_tiles[1]);
+    CHECK(st.reorder_chunks >= st.reorder_tiles_used &&
+          st.reorder_chunks <= st.reorder_tiles_used + st.reorder_rays / pp.chunk);
+    CHECK(st.reorder_max_tile_rays >= (st.reorder_rays + st.reorder_tiles_used - 1) / st.reorder_tiles_used &&
+          st.reorder_max_tile_rays <= st.reorder_rays);
+    CHECK(st.counters.rays > 0);
+    one_light_rays = st.shadow_rays;
+
+    /* Small chunks: more chunks, the same image. */
+    pp.chunk = 16;
+    CHECK_OK(sheaf_context_build_pgrid(ctx, &pp));
+    CHECK_OK(sheaf_context_render_deferred(ctx, &job, img, RSTRIDE, RLEN));
+    CHECK(same_pixels(img, base));
+    CHECK_OK(sheaf_context_stats(ctx, &st));
+    CHECK(st.reorder_chunks >= (st.reorder_rays + 15) / 16 &&
+          st.reorder_chunks <= st.reorder_tiles_used + st.reorder_rays / 16);
+
+    /* Two lights, the second a soft-edged spot: grids and traced passes agree. */
+    lights[0] = f.light;
+    memset(&lights[1], 0, sizeof lights[1]);
+    lights[1].position[0] = -3.0f;
+    lights[1].position[1] = -2.0f;
+    lights[1].position[2] = 6.0f;
+    lights[1].color[0] = 0.6f;
+    lights[1].color[1] = 0.5f;
+    lights[1].color[2] = 0.3f;
+    lights[1].spot_direction[0] = 3.0f;
+    lights[1].spot_direction[1] = 2.0f;
+    lights[1].spot_direction[2] = -6.0f;
+    lights[1].spot_angle_deg = 25.0f;
+    lights[1].spot_soft_deg = 5.0f;
+    job.lights = lights;
+    job.light_count = 2;
+    CHECK_OK(sheaf_context_render_deferred(ctx, &job, two, RSTRIDE, RLEN));
+    CHECK(!same_pixels(two, base)); /* the spot adds light */
+    CHECK(deferred_pixels_match(ctx, &f, lights, 2, &hits, &shadowed));
+    CHECK_OK(sheaf_context_stats(ctx, &st));
+    CHECK(st.reorder_rays == st.shadow_rays && st.shadow_rays > one_light_rays); /* the spot adds shadow rays */
+    traced = job;
+    traced.primary_pgrid = false;
+    traced.shadow_light_grid = false;
+    traced.primary = single;
+    traced.shadow = single;
+    traced.shadow.method = SHEAF_METHOD_BVH_PARTITION;
+    traced.shadow.packet = 8;
+    CHECK_OK(sheaf_context_render_deferred(ctx, &traced, two_traced, RSTRIDE, RLEN));
+    CHECK(same_pixels(two, two_traced));
+    CHECK_OK(sheaf_context_stats(ctx, &st));
+    CHECK(st.primary_build_ns == 0 && st.shadow_build_ns == 0 && st.camera_cells == 0 && st.light_cells == 0 &&
+          st.reorder_rays == 0 && st.shade_ns > 0);
+    /* and the Whitted renderer without materials: the same two lights */
+    memset(two_traced, 0, sizeof two_traced);
+    CHECK_OK(sheaf_context_render_whitted(ctx, &single, &single, &single, NULL, &f, lights, 2, NULL, 0, NULL, 0,
+                                          two_traced, RSTRIDE, RLEN));
+    CHECK(same_pixels(two, two_traced));
+    /* the camera ray through the grid and traced: mixed passes too */
+    traced.primary_pgrid = true;
+    CHECK_OK(sheaf_context_render_deferred(ctx, &traced, img, RSTRIDE, RLEN));
+    CHECK(same_pixels(img, two));
+    sheaf_context_destroy(ctx);
+    free(s);
+    return true;
+}
+
+static bool test_pgrid_bad_arguments(void) {
+    /* Every error leaves the framebuffer, the stats and the last frame's
+       pixels as they were. */
+    scene *s = ground_and_box();
+    sheaf_context *ctx = pgrid_context(s, SHEAF_STRUCTURE_BVH | SHEAF_STRUCTURE_PGRID, 0, 0);
+    sheaf_context *plain = built_context(s, s->nt); /* default limits: no SHEAF_STRUCTURE_PGRID */
+    sheaf_pgrid_params pp, bad;
+    sheaf_deferred_job job, j;
+    sheaf_stats st, st2;
+    sheaf_light lights[SHEAF_DEFERRED_MAX_LIGHTS + 1];
+    sheaf_frame f = default_frame(RW, RH);
+    sheaf_hit hit, hit2;
+    sheaf_ray ray;
+    uint8_t bits = 0, bits2 = 0;
+    bool has = true;
+    static uint8_t img[RLEN], copy[RLEN];
+    size_t i;
+    CHECK(ctx != NULL && plain != NULL);
+    memset(&job, 0, sizeof job);
+    job.frame = f;
+    job.primary_pgrid = true;
+    job.shadow_light_grid = true;
+    for (i = 0; i < SHEAF_DEFERRED_MAX_LIGHTS + 1; ++i) {
+        lights[i] = f.light;
+        lights[i].position[0] += (float)i;
+    }
+    memset(img, 0xAB, sizeof img);
+    memcpy(copy, img, sizeof img);
+
+    /* Before sheaf_context_build_pgrid: nothing to render or read. */
+    CHECK_STATUS(sheaf_context_render_deferred(ctx, &job, img, RSTRIDE, RLEN), SHEAF_STATUS_NOT_BUILT);
+    CHECK_STATUS(sheaf_context_deferred_pixel(ctx, 0, 0, &hit, &bits), SHEAF_STATUS_NOT_BUILT);
+    CHECK_STATUS(sheaf_context_deferred_shadow_ray(ctx, 0, 0, &f.light, &ray, &has), SHEAF_STATUS_NOT_BUILT);
+    /* a traced pass needs its structure */
+    j = job;
+    j.primary_pgrid = false;
+    j.shadow_light_grid = false;
+    CHECK_OK(sheaf_trace_params_default(&j.primary));
+    j.primary.method = SHEAF_METHOD_BVH_SINGLE;
+    j.shadow = j.primary;
+    CHECK_STATUS(sheaf_context_render_deferred(ctx, &j, img, RSTRIDE, RLEN), SHEAF_STATUS_NOT_BUILT);
+    CHECK(memcmp(img, copy, sizeof img) == 0);
+
+    /* Parameters. */
+    CHECK_STATUS(sheaf_pgrid_params_default(NULL), SHEAF_STATUS_NULL_POINTER);
+    CHECK_OK(sheaf_pgrid_params_default(&pp));
+    bad = pp;
+    bad.tile = 6;
+    CHECK_STATUS(sheaf_context_build_pgrid(ctx, &bad), SHEAF_STATUS_INVALID_ARGUMENT);
+    bad = pp;
+    bad.chunk = 8;
+    CHECK_STATUS(sheaf_context_build_pgrid(ctx, &bad), SHEAF_STATUS_INVALID_ARGUMENT);
+    bad = pp;
+    bad.light_tiles = 257;
+    CHECK_STATUS(sheaf_context_build_pgrid(ctx, &bad), SHEAF_STATUS_INVALID_ARGUMENT);
+    bad = pp;
+    bad.test = (sheaf_tri_test)9;
+    CHECK_STATUS(sheaf_context_build_pgrid(ctx, &bad), SHEAF_STATUS_INVALID_ARGUMENT);
+    bad = pp;
+    bad.test = SHEAF_TRI_TEST_PROJECTION; /* no projection_test in the limits */
+    CHECK_STATUS(sheaf_context_build_pgrid(ctx, &bad), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_build_pgrid(NULL, &pp), SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS(sheaf_context_render_deferred(ctx, &job, img, RSTRIDE, RLEN), SHEAF_STATUS_NOT_BUILT);
+
+    /* No pools: a context without SHEAF_STRUCTURE_PGRID. */
+    CHECK_STATUS(sheaf_context_build_pgrid(plain, NULL), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK(last_error_contains(plain, "PGRID"));
+    j.primary.method = SHEAF_METHOD_GRID_DDA; /* built in `plain` */
+    j.shadow = j.primary;
+    CHECK_STATUS(sheaf_context_render_deferred(plain, &j, img, RSTRIDE, RLEN), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK(last_error_contains(plain, "PGRID"));
+
+    /* A good frame, then errors that must not change it. */
+    CHECK_OK(sheaf_context_build_pgrid(ctx, NULL)); /* NULL: the defaults */
+    CHECK_OK(sheaf_context_render_deferred(ctx, &job, img, RSTRIDE, RLEN));
+    memcpy(copy, img, sizeof img);
+    CHECK_OK(sheaf_context_stats(ctx, &st));
+    CHECK_OK(sheaf_context_deferred_pixel(ctx, RW / 2, RH / 2, &hit, &bits));
+    CHECK(hit.prim != SHEAF_INVALID_ID);
+    CHECK_STATUS(sheaf_context_render_deferred(ctx, NULL, img, RSTRIDE, RLEN), SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS(sheaf_context_render_deferred(NULL, &job, img, RSTRIDE, RLEN), SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS(sheaf_context_render_deferred(ctx, &job, NULL, RSTRIDE, RLEN), SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS(sheaf_context_render_deferred(ctx, &job, img, RSTRIDE, RLEN - 1), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_render_deferred(ctx, &job, img, RW * 4 - 1, RLEN), SHEAF_STATUS_INVALID_ARGUMENT);
+    j = job;
+    j.lights = lights;
+    j.light_count = SHEAF_DEFERRED_MAX_LIGHTS + 1; /* 9 lights */
+    CHECK_STATUS(sheaf_context_render_deferred(ctx, &j, img, RSTRIDE, RLEN), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK(last_error_contains(ctx, "8 lights"));
+    j.light_count = (size_t)-1;
+    CHECK_STATUS(sheaf_context_render_deferred(ctx, &j, img, RSTRIDE, RLEN), SHEAF_STATUS_INVALID_ARGUMENT);
+    j.lights = NULL;
+    j.light_count = 2;
+    CHECK_STATUS(sheaf_context_render_deferred(ctx, &j, img, RSTRIDE, RLEN), SHEAF_STATUS_NULL_POINTER);
+    j.lights = lights;
+    lights[1].spot_angle_deg = 95.0f; /* a spot's cone is below 90 degrees */
+    CHECK_STATUS(sheaf_context_render_deferred(ctx, &j, img, RSTRIDE, RLEN), SHEAF_STATUS_INVALID_ARGUMENT);
+    lights[1].spot_angle_deg = 20.0f;
+    lights[1].spot_soft_deg = 30.0f; /* soft edge wider than the cone */
+    CHECK_STATUS(sheaf_context_render_deferred(ctx, &j, img, RSTRIDE, RLEN), SHEAF_STATUS_INVALID_ARGUMENT);
+    lights[1].spot_soft_deg = 0.0f;
+    lights[1].position[2] = NAN;
+    CHECK_STATUS(sheaf_context_render_deferred(ctx, &j, img, RSTRIDE, RLEN), SHEAF_STATUS_INVALID_ARGUMENT);
+    lights[1].position[2] = f.light.position[2];
+    j = job;
+    j.primary_pgrid = false;
+    j.primary.method = (sheaf_method)77; /* checked once used */
+    CHECK_STATUS(sheaf_context_render_deferred(ctx, &j, img, RSTRIDE, RLEN), SHEAF_STATUS_INVALID_ARGUMENT);
+    j = job;
+    j.frame.width = RW + 1; /* beyond the limits */
+    CHECK_STATUS(sheaf_context_render_deferred(ctx, &j, img, RSTRIDE, RLEN), SHEAF_STATUS_CAPACITY_IMAGE);
+    j = job;
+    memcpy(j.frame.camera.look_at, j.frame.camera.eye, sizeof j.frame.camera.eye);
+    CHECK_STATUS(sheaf_context_render_deferred(ctx, &j, img, RSTRIDE, RLEN), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK(memcmp(img, copy, sizeof img) == 0); /* nothing written on error */
+    CHECK_OK(sheaf_context_stats(ctx, &st2));
+    CHECK(memcmp(&st, &st2, sizeof st) == 0); /* stats unchanged */
+    CHECK_OK(sheaf_context_deferred_pixel(ctx, RW / 2, RH / 2, &hit2, &bits2));
+    CHECK(memcmp(&hit, &hit2, sizeof hit) == 0 && bits == bits2); /* the frame's pixels too */
+
+    /* Pixel queries. */
+    hit2.prim = 4242;
+    CHECK_STATUS(sheaf_context_deferred_pixel(ctx, RW, 0, &hit2, &bits2), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_deferred_pixel(ctx, 0, RH, &hit2, &bits2), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_deferred_pixel(ctx, 0, 0, NULL, &bits2), SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS(sheaf_context_deferred_pixel(ctx, 0, 0, &hit2, NULL), SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS(sheaf_context_deferred_pixel(NULL, 0, 0, &hit2, &bits2), SHEAF_STATUS_NULL_POINTER);
+    CHECK(hit2.prim == 4242);
+    CHECK_STATUS(sheaf_context_deferred_shadow_ray(ctx, RW, 0, &f.light, &ray, &has), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_deferred_shadow_ray(ctx, 0, 0, NULL, &ray, &has), SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS(sheaf_context_deferred_shadow_ray(ctx, 0, 0, &f.light, NULL, &has), SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS(sheaf_context_deferred_shadow_ray(ctx, 0, 0, &f.light, &ray, NULL), SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS(sheaf_frame_camera_ray(&f, RW, 0, &ray), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_frame_camera_ray(NULL, 0, 0, &ray), SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS(sheaf_frame_camera_ray(&f, 0, 0, NULL), SHEAF_STATUS_NULL_POINTER);
+
+    /* A failed frame (after the arguments were checked) leaves no pixels. */
+    j = job;
+    j.primary_pgrid = false;
+    j.primary.method = SHEAF_METHOD_KD_SINGLE; /* no kd-tree */
+    j.primary.packet = 8;
+    CHECK_STATUS(sheaf_context_render_deferred(ctx, &j, img, RSTRIDE, RLEN), SHEAF_STATUS_NOT_BUILT);
+    CHECK(memcmp(img, copy, sizeof img) == 0);
+    sheaf_context_destroy(ctx);
+    sheaf_context_destroy(plain);
+    free(s);
+    return true;
+}
+
+static bool test_pgrid_capacity(void) {
+    /* Too few perspective grid cells or (triangle, cell) pairs: the
+       capacity statuses, with the pool named in the last error. */
+    scene *s = ground_and_box();
+    sheaf_context *cells = pgrid_context(s, SHEAF_STRUCTURE_PGRID, 100, 0);
+    sheaf_context *refs = pgrid_context(s, SHEAF_STRUCTURE_PGRID, 0, 16);
+    sheaf_deferred_job job;
+    static uint8_t img[RLEN];
+    CHECK(cells != NULL && refs != NULL);
+    memset(&job, 0, sizeof job);
+    job.frame = default_frame(RW, RH);
+    job.primary_pgrid = true;
+    job.shadow_light_grid = true;
+    CHECK_OK(sheaf_context_build_pgrid(cells, NULL));
+    CHECK_OK(sheaf_context_build_pgrid(refs, NULL));
+    CHECK_STATUS(sheaf_context_render_deferred(cells, &job, img, RSTRIDE, RLEN), SHEAF_STATUS_CAPACITY_PGRID_CELLS);
+    CHECK(last_error_contains(cells, "pgrid_cells"));
+    CHECK_STATUS(sheaf_context_render_deferred(refs, &job, img, RSTRIDE, RLEN), SHEAF_STATUS_CAPACITY_PGRID_REFS);
+    CHECK(last_error_contains(refs, "pgrid_refs"));
+    sheaf_context_destroy(cells);
+    sheaf_context_destroy(refs);
+    free(s);
+    return true;
+}
+
 /* ---- last error ---------------------------------------------------------------- */
 
 static bool test_last_error_buffer_rules(void) {
@@ -1075,6 +1448,9 @@ int main(void) {
     run_test("test_bvh_methods", test_bvh_methods, &passed, &failed);
     run_test("test_kd_methods", test_kd_methods, &passed, &failed);
     run_test("test_whitted", test_whitted, &passed, &failed);
+    run_test("test_pgrid", test_pgrid, &passed, &failed);
+    run_test("test_pgrid_bad_arguments", test_pgrid_bad_arguments, &passed, &failed);
+    run_test("test_pgrid_capacity", test_pgrid_capacity, &passed, &failed);
     run_test("test_trace_params", test_trace_params, &passed, &failed);
     run_test("test_render_bad_arguments", test_render_bad_arguments, &passed, &failed);
     run_test("test_last_error_buffer_rules", test_last_error_buffer_rules, &passed, &failed);

@@ -966,7 +966,8 @@ typedef struct sheaf_deferred_job {
     struct sheaf_frame frame;
     /**
      * `light_count` lights (point or spot lights), each with its own
-     * shadow rays; NULL only when `light_count` is 0.
+     * shadow rays (light `l` sets shadow bit `l`); NULL only when
+     * `light_count` is 0. Any alignment.
      */
     const struct sheaf_light *lights;
     /**
@@ -1462,7 +1463,7 @@ sheaf_status sheaf_context_build_pgrid(struct sheaf_context *ctx,
  * 5. per light, the shadow rays are traced, chunk by chunk;
  * 6. every pixel is shaded (Lambert, each light, spot cones).
  *
- * `*job` is copied and its lights only read (naturally aligned). The
+ * `*job` and its lights are copied (any alignment). The
  * frame's per-pixel results stay in the context until the next
  * `sheaf_context_render_deferred` (`sheaf_context_deferred_pixel`).
  * Updates `sheaf_stats`: the phase times (paper Figure 10) and grid sizes,
@@ -1472,8 +1473,8 @@ sheaf_status sheaf_context_build_pgrid(struct sheaf_context *ctx,
  * (more than 8 lights, a light, a method, the camera, sizes, stride, a
  * tracing tile above `sheaf_limits.max_tile`, or no pools:
  * `SHEAF_STRUCTURE_PGRID` missing from `sheaf_limits.structures`),
- * `SHEAF_STATUS_MISALIGNED` (lights), `SHEAF_STATUS_CAPACITY_IMAGE`,
- * `SHEAF_STATUS_CAPACITY_PGRID_CELLS`, `SHEAF_STATUS_CAPACITY_PGRID_REFS`,
+ * `SHEAF_STATUS_CAPACITY_IMAGE`, `SHEAF_STATUS_CAPACITY_PGRID_CELLS`,
+ * `SHEAF_STATUS_CAPACITY_PGRID_REFS`,
  * `SHEAF_STATUS_NOT_BUILT` (a grid pass before `sheaf_context_build_pgrid`,
  * or a traced pass whose structure is not built). After an error the
  * framebuffer and `sheaf_stats` are unchanged; the previous frame's
@@ -1518,8 +1519,9 @@ sheaf_status sheaf_context_deferred_pixel(const struct sheaf_context *ctx,
  * for a light equal to `*light` (from the light's position, `tmax = 1`):
  * `*ray` and `*has_ray = true`, or `*has_ray = false` (`*ray` untouched)
  * when the pixel has no shadow ray (a miss, a surface facing away, outside
- * a spot cone). Tracing it with `sheaf_context_occluded` reproduces the
- * pixel's shadow bit (with the same triangles and triangle test).
+ * a spot cone). In a frame with shadows on, tracing it with
+ * `sheaf_context_occluded` reproduces the pixel's shadow bit for that
+ * light (with the same triangles and triangle test).
  *
  * Thread-safe like `sheaf_context_deferred_pixel`.
  *

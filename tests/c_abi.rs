@@ -219,12 +219,25 @@ fn check_layouts() {
             ("sheaf_counters", size_of::<sheaf::Counters>(), align_of::<sheaf::Counters>()),
             ("sheaf_stats", size_of::<sheaf_stats>(), align_of::<sheaf_stats>()),
             ("sheaf_status", size_of::<sheaf_status>(), align_of::<sheaf_status>()),
+            ("sheaf_trace_params", size_of::<ffi::sheaf_trace_params>(), align_of::<ffi::sheaf_trace_params>()),
+            ("sheaf_pgrid_params", size_of::<ffi::sheaf_pgrid_params>(), align_of::<ffi::sheaf_pgrid_params>()),
+            ("sheaf_deferred_job", size_of::<ffi::sheaf_deferred_job>(), align_of::<ffi::sheaf_deferred_job>()),
+        ];
+        // Macros written by hand in cbindgen.toml that tests/header.rs does
+        // not check, against the Rust values (printed after the layouts).
+        let macros: &[(&str, u64)] = &[
+            ("SHEAF_STRUCTURE_KD", Limits::KD as u64),
+            ("SHEAF_STRUCTURE_PGRID", Limits::PGRID as u64),
+            ("SHEAF_DEFERRED_MAX_LIGHTS", ffi::SHEAF_DEFERRED_MAX_LIGHTS as u64),
         ];
         let mut c = String::from("#include \"sheaf.h\"\n#include <stdio.h>\n#include <stddef.h>\n");
         c += "#define SHOW(T) printf(\"%s %u %u\\n\", #T, (unsigned)sizeof(T), (unsigned)offsetof(struct { char c; T t; }, t))\n";
         c += "int main(void) {\n";
         for (name, _, _) in rust {
             c += &format!("    SHOW({name});\n");
+        }
+        for (name, _) in macros {
+            c += &format!("    printf(\"%s %llu\\n\", \"{name}\", (unsigned long long)({name}));\n");
         }
         c += "    return 0;\n}\n";
         let src = out_dir().join("layout.c");
@@ -249,7 +262,12 @@ fn check_layouts() {
                 errors.push(format!("  {name}: C sizeof {cs} align {ca}, Rust {size} align {align}"));
             }
         }
-        if errors.is_empty() && text.lines().count() == rust.len() {
+        for ((name, value), line) in macros.iter().zip(text.lines().skip(rust.len())) {
+            if line != format!("{name} {value}") {
+                errors.push(format!("  {line:?}: the crate's value of {name} is {value}"));
+            }
+        }
+        if errors.is_empty() && text.lines().count() == rust.len() + macros.len() {
             Ok(())
         } else {
             Err(format!(
@@ -983,4 +1001,170 @@ fn ffi_trace_equals_rust_trace_in_process() {
             );
         }
     }
+}
+
+/// Deferred frames through the C ABI (perspective grid, light grids, two
+/// lights one of them a spot): byte for byte the Rust API's
+/// `render_deferred`, the same per-pixel hits and shadow bits, and no call
+/// allocates, error paths included.
+#[test]
+fn deferred_frames_equal_rust_and_never_allocate() {
+    use sheaf::{DeferredJob, OnCaller, PgridParams, PrimaryPass, ShadowPass, TraceParams};
+    let x = inputs();
+    let (w, h) = (x.frame.width, x.frame.height);
+    let nt = (x.idx.len() / 3) as u32;
+    let mut limits = Limits::for_triangles(nt);
+    limits.max_image_width = w;
+    limits.max_image_height = h;
+    limits.structures = Limits::BVH | Limits::PGRID;
+    let spot = PointLight {
+        position: [-3.0, -2.0, 6.0],
+        color: [0.6, 0.5, 0.3],
+        spot_direction: [3.0, 2.0, -6.0],
+        spot_angle_deg: 25.0,
+        spot_soft_deg: 5.0,
+    };
+    let lights = [x.frame.light, spot];
+    let nine = [x.frame.light; 9];
+    let tp = ffi::sheaf_trace_params::of(&TraceParams::default());
+    let job = ffi::sheaf_deferred_job {
+        frame: x.frame,
+        lights: lights.as_ptr(),
+        light_count: lights.len(),
+        primary_pgrid: true,
+        shadow_light_grid: true,
+        primary: tp,
+        shadow: tp,
+    };
+    let too_many = ffi::sheaf_deferred_job {
+        lights: nine.as_ptr(),
+        light_count: nine.len(),
+        ..job
+    };
+    let stride = w as usize * 4;
+    let mut rgba = vec![0u8; stride * h as usize];
+    let len = rgba.len();
+    let mut pixels = vec![
+        (
+            sheaf_hit {
+                t: 0.0,
+                prim: 0,
+                u: 0.0,
+                v: 0.0
+            },
+            0u8
+        );
+        (w * h) as usize
+    ];
+    let mut st = sheaf_stats::default();
+    let mut ctx: *mut ffi::sheaf_context = std::ptr::null_mut();
+    assert_eq!(ffi::sheaf_context_create(&limits, &mut ctx), OK);
+    let (n, ()) = allocations(|| {
+        let nv = (x.v.len() / 3) as u32;
+        assert_eq!(
+            ffi::sheaf_context_render_deferred(ctx, &job, rgba.as_mut_ptr(), stride, len),
+            sheaf_status::NotBuilt
+        );
+        assert_eq!(
+            ffi::sheaf_context_set_geometry(ctx, x.v.as_ptr(), 12, nv, x.idx.as_ptr(), nt),
+            OK
+        );
+        assert_eq!(ffi::sheaf_context_build_pgrid(ctx, std::ptr::null()), OK);
+        assert_eq!(
+            ffi::sheaf_context_render_deferred(ctx, &job, rgba.as_mut_ptr(), stride, len),
+            OK
+        );
+        for y in 0..h {
+            for xx in 0..w {
+                let p = &mut pixels[(y * w + xx) as usize];
+                assert_eq!(
+                    ffi::sheaf_context_deferred_pixel(ctx, xx, y, &mut p.0, &mut p.1),
+                    OK
+                );
+            }
+        }
+        assert_eq!(ffi::sheaf_context_stats(ctx, &mut st), OK);
+        let mut ray = x.rays[0];
+        let mut has = false;
+        assert_eq!(
+            ffi::sheaf_context_deferred_shadow_ray(ctx, w / 2, h / 2, &spot, &mut ray, &mut has),
+            OK
+        );
+        assert_eq!(ffi::sheaf_frame_camera_ray(&x.frame, 1, 2, &mut ray), OK);
+        assert_eq!(
+            ffi::sheaf_context_render_deferred(ctx, &too_many, rgba.as_mut_ptr(), stride, len),
+            sheaf_status::InvalidArgument
+        );
+        assert_eq!(
+            ffi::sheaf_context_render_deferred(
+                ctx,
+                std::ptr::null(),
+                rgba.as_mut_ptr(),
+                stride,
+                len
+            ),
+            sheaf_status::NullPointer
+        );
+        assert_eq!(
+            ffi::sheaf_context_deferred_pixel(ctx, w, 0, &mut pixels[0].0, &mut pixels[0].1),
+            sheaf_status::InvalidArgument
+        );
+        let mut msg = [0 as core::ffi::c_char; ffi::SHEAF_ERROR_MESSAGE_MAX];
+        let mut written = 0usize;
+        assert_eq!(
+            ffi::sheaf_context_last_error(ctx, msg.as_mut_ptr(), msg.len(), &mut written),
+            OK
+        );
+    });
+    ffi::sheaf_context_destroy(ctx);
+    assert_eq!(n, 0, "a deferred call through the C ABI allocated");
+
+    // The same frame through the Rust API.
+    let scene = Scene::from_f32(&x.v, &x.idx).unwrap();
+    let mut rust = OwnedContext::new(&limits).unwrap();
+    rust.build_pgrid(&scene, &PgridParams::default()).unwrap();
+    let frame = x.frame.to_core();
+    let rjob = DeferredJob {
+        frame: &frame,
+        lights: &lights,
+        primary: PrimaryPass::Pgrid,
+        shadow: ShadowPass::LightGrid,
+    };
+    let mut want = vec![0u8; len];
+    let info = rust
+        .render_deferred(&rjob, &mut want, stride, &mut OnCaller)
+        .unwrap();
+    assert!(
+        rgba == want,
+        "deferred image through C differs from the Rust API's"
+    );
+    assert_eq!(
+        (
+            st.hits,
+            st.shadow_rays,
+            st.reorder_chunks,
+            st.camera_refs,
+            st.light_refs
+        ),
+        (
+            info.hits,
+            info.shadow_rays,
+            info.reorder.chunks,
+            info.camera.refs,
+            info.light.refs
+        )
+    );
+    let mut shadowed = 0;
+    for y in 0..h {
+        for xx in 0..w {
+            let (hit, bits) = rust.deferred_pixel(xx, y).unwrap();
+            let (got, got_bits) = pixels[(y * w + xx) as usize];
+            assert!(
+                got.prim == hit.prim && got.t.to_bits() == hit.t.to_bits() && got_bits == bits,
+                "pixel ({xx}, {y}): C {got:?} {got_bits:#x} vs Rust {hit:?} {bits:#x}"
+            );
+            shadowed += (bits != 0) as u32;
+        }
+    }
+    assert!(st.hits > 100 && shadowed > 0, "not a meaningful comparison");
 }

@@ -144,7 +144,10 @@ fn record(h: *mut Handle, e: Error) {
 
 /// Run `f` on a shared handle (calls that may run concurrently), behind
 /// the panic boundary, recording a failure in the handle.
-pub(super) fn with_ref(ctx: *const sheaf_context, f: impl FnOnce(&Handle) -> Result<()>) -> sheaf_status {
+pub(super) fn with_ref(
+    ctx: *const sheaf_context,
+    f: impl FnOnce(&Handle) -> Result<()>,
+) -> sheaf_status {
     let seen: Cell<Option<*mut Handle>> = Cell::new(None);
     guard(
         || {

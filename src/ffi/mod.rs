@@ -71,12 +71,15 @@ pub use context::{
 };
 pub use frame::{sheaf_frame, sheaf_frame_camera_ray, sheaf_shading_default};
 pub use grid::{sheaf_grid_params, sheaf_grid_params_default, sheaf_tri_test};
-pub use kd::{sheaf_context_build_kd, sheaf_entry_search, sheaf_kd_params, sheaf_kd_params_default};
+pub use kd::{
+    sheaf_context_build_kd, sheaf_entry_search, sheaf_kd_params, sheaf_kd_params_default,
+};
 pub use limits::sheaf_limits_default;
 pub use method::sheaf_method;
 pub use pgrid::{
     sheaf_context_build_pgrid, sheaf_context_deferred_pixel, sheaf_context_deferred_shadow_ray,
-    sheaf_context_render_deferred, sheaf_deferred_job, sheaf_pgrid_params, sheaf_pgrid_params_default,
+    sheaf_context_render_deferred, sheaf_deferred_job, sheaf_pgrid_params,
+    sheaf_pgrid_params_default,
 };
 pub use ray::{sheaf_hit, sheaf_ray};
 pub use stats::sheaf_stats;

@@ -10,8 +10,10 @@ use super::context::{Handle, sheaf_context, with_mut, with_ref};
 use super::frame::sheaf_frame;
 use super::grid::sheaf_tri_test;
 use super::trace_params::sheaf_trace_params;
-use super::whitted::borrow;
-use super::{check_non_null, guard_free, raw, read_in, sheaf_hit, sheaf_ray, sheaf_status, write_out};
+use super::{
+    check_array, check_non_null, guard_free, raw, read_in, sheaf_hit, sheaf_ray, sheaf_status,
+    write_out,
+};
 use crate::accel::pgrid::PgridParams;
 use crate::error::{Error, Result};
 use crate::geom::Hit;
@@ -112,9 +114,16 @@ pub extern "C" fn sheaf_pgrid_params_default(out: *mut sheaf_pgrid_params) -> sh
 ///
 /// Not thread-safe: needs exclusive access to `ctx`.
 #[unsafe(no_mangle)]
-pub extern "C" fn sheaf_context_build_pgrid(ctx: *mut sheaf_context, params: *const sheaf_pgrid_params) -> sheaf_status {
+pub extern "C" fn sheaf_context_build_pgrid(
+    ctx: *mut sheaf_context,
+    params: *const sheaf_pgrid_params,
+) -> sheaf_status {
     with_mut(ctx, |h| {
-        let params = if params.is_null() { PgridParams::default() } else { read_in(params)?.to_core()? };
+        let params = if params.is_null() {
+            PgridParams::default()
+        } else {
+            read_in(params)?.to_core()?
+        };
         let g = h.geometry.as_ref().ok_or(Error::NoGeometry)?;
         h.ctx.build_pgrid(&g.scene()?, &params)?;
         Ok(())
@@ -138,7 +147,8 @@ pub struct sheaf_deferred_job {
     /// `light_count` is 0).
     pub frame: sheaf_frame,
     /// `light_count` lights (point or spot lights), each with its own
-    /// shadow rays; NULL only when `light_count` is 0.
+    /// shadow rays (light `l` sets shadow bit `l`); NULL only when
+    /// `light_count` is 0. Any alignment.
     pub lights: *const PointLight,
     /// At most `SHEAF_DEFERRED_MAX_LIGHTS` (8); 0: `frame.light` alone.
     pub light_count: usize,
@@ -173,7 +183,7 @@ pub struct sheaf_deferred_job {
 /// 5. per light, the shadow rays are traced, chunk by chunk;
 /// 6. every pixel is shaded (Lambert, each light, spot cones).
 ///
-/// `*job` is copied and its lights only read (naturally aligned). The
+/// `*job` and its lights are copied (any alignment). The
 /// frame's per-pixel results stay in the context until the next
 /// `sheaf_context_render_deferred` (`sheaf_context_deferred_pixel`).
 /// Updates `sheaf_stats`: the phase times (paper Figure 10) and grid sizes,
@@ -183,8 +193,8 @@ pub struct sheaf_deferred_job {
 /// (more than 8 lights, a light, a method, the camera, sizes, stride, a
 /// tracing tile above `sheaf_limits.max_tile`, or no pools:
 /// `SHEAF_STRUCTURE_PGRID` missing from `sheaf_limits.structures`),
-/// `SHEAF_STATUS_MISALIGNED` (lights), `SHEAF_STATUS_CAPACITY_IMAGE`,
-/// `SHEAF_STATUS_CAPACITY_PGRID_CELLS`, `SHEAF_STATUS_CAPACITY_PGRID_REFS`,
+/// `SHEAF_STATUS_CAPACITY_IMAGE`, `SHEAF_STATUS_CAPACITY_PGRID_CELLS`,
+/// `SHEAF_STATUS_CAPACITY_PGRID_REFS`,
 /// `SHEAF_STATUS_NOT_BUILT` (a grid pass before `sheaf_context_build_pgrid`,
 /// or a traced pass whose structure is not built). After an error the
 /// framebuffer and `sheaf_stats` are unchanged; the previous frame's
@@ -205,13 +215,28 @@ pub extern "C" fn sheaf_context_render_deferred(
     with_mut(ctx, |h: &mut Handle| {
         let j = read_in(job)?;
         if j.light_count > MAX_LIGHTS {
-            return Err(Error::InvalidArgument("a deferred frame takes at most 8 lights"));
+            return Err(Error::InvalidArgument(
+                "a deferred frame takes at most 8 lights",
+            ));
+        }
+        // Copied: any alignment, and no aliasing with the framebuffer.
+        check_array(j.lights, j.light_count, "light count too large")?;
+        let mut lights = [PointLight::default(); MAX_LIGHTS];
+        for (i, l) in lights.iter_mut().enumerate().take(j.light_count) {
+            // SAFETY: i < light_count <= MAX_LIGHTS; `lights` is non-NULL
+            // when light_count > 0 (checked), and the C contract is that it
+            // points to light_count readable values. Unaligned reads.
+            *l = unsafe { j.lights.add(i).read_unaligned() };
         }
         let frame = j.frame.to_core();
         let job = DeferredJob {
             frame: &frame,
-            lights: borrow(j.lights, j.light_count, "light count too large")?,
-            primary: if j.primary_pgrid { PrimaryPass::Pgrid } else { PrimaryPass::Traced(j.primary.to_core()?) },
+            lights: &lights[..j.light_count],
+            primary: if j.primary_pgrid {
+                PrimaryPass::Pgrid
+            } else {
+                PrimaryPass::Traced(j.primary.to_core()?)
+            },
             shadow: if j.shadow_light_grid {
                 ShadowPass::LightGrid
             } else {
@@ -220,7 +245,8 @@ pub extern "C" fn sheaf_context_render_deferred(
         };
         job.validate()?;
         let pixels = super::context::pixels(h, &frame, rgba, stride_bytes, rgba_len)?;
-        h.ctx.render_deferred(&job, pixels, stride_bytes, &mut OnCaller)?;
+        h.ctx
+            .render_deferred(&job, pixels, stride_bytes, &mut OnCaller)?;
         Ok(())
     })
 }
@@ -230,9 +256,9 @@ pub extern "C" fn sheaf_context_render_deferred(
 fn deferred_pixel(h: &Handle, x: u32, y: u32) -> Result<(Hit, u8)> {
     // Every frame has pixel (0, 0): None there means no frame.
     h.ctx.deferred_pixel(0, 0).ok_or(Error::NotBuilt)?;
-    h.ctx
-        .deferred_pixel(x, y)
-        .ok_or(Error::InvalidArgument("pixel outside the last deferred frame"))
+    h.ctx.deferred_pixel(x, y).ok_or(Error::InvalidArgument(
+        "pixel outside the last deferred frame",
+    ))
 }
 
 /// Pixel (x, y) of the last successful `sheaf_context_render_deferred`
@@ -271,8 +297,9 @@ pub extern "C" fn sheaf_context_deferred_pixel(
 /// for a light equal to `*light` (from the light's position, `tmax = 1`):
 /// `*ray` and `*has_ray = true`, or `*has_ray = false` (`*ray` untouched)
 /// when the pixel has no shadow ray (a miss, a surface facing away, outside
-/// a spot cone). Tracing it with `sheaf_context_occluded` reproduces the
-/// pixel's shadow bit (with the same triangles and triangle test).
+/// a spot cone). In a frame with shadows on, tracing it with
+/// `sheaf_context_occluded` reproduces the pixel's shadow bit for that
+/// light (with the same triangles and triangle test).
 ///
 /// Thread-safe like `sheaf_context_deferred_pixel`.
 ///
@@ -325,11 +352,21 @@ mod tests {
             test: TriTest::Watertight,
         };
         assert_eq!(sheaf_pgrid_params::of(&p).to_core(), Ok(p));
-        assert_eq!(sheaf_pgrid_params::of(&PgridParams::default()).to_core(), Ok(PgridParams::default()));
+        assert_eq!(
+            sheaf_pgrid_params::of(&PgridParams::default()).to_core(),
+            Ok(PgridParams::default())
+        );
         let c = sheaf_pgrid_params::of(&p);
         assert!(sheaf_pgrid_params { test: 9, ..c }.to_core().is_err());
         assert!(sheaf_pgrid_params { tile: 6, ..c }.to_core().is_err());
         assert!(sheaf_pgrid_params { chunk: 8, ..c }.to_core().is_err());
-        assert!(sheaf_pgrid_params { light_tiles: 0, ..c }.to_core().is_err());
+        assert!(
+            sheaf_pgrid_params {
+                light_tiles: 0,
+                ..c
+            }
+            .to_core()
+            .is_err()
+        );
     }
 }

@@ -195,6 +195,8 @@ const _: () = {
     assert!(offset_of!(sheaf_stats, kd_nodes) == offset_of!(sheaf_stats, bvh_build_ns) + 8);
     assert!(offset_of!(sheaf_stats, pgrid_triangles) == offset_of!(sheaf_stats, kd_build_ns) + 8);
     // 20 u32 (an even number) from pgrid_triangles, then the u64s.
-    assert!(offset_of!(sheaf_stats, primary_build_ns) == offset_of!(sheaf_stats, pgrid_triangles) + 80);
+    assert!(
+        offset_of!(sheaf_stats, primary_build_ns) == offset_of!(sheaf_stats, pgrid_triangles) + 80
+    );
     assert!(size_of::<sheaf_stats>() == offset_of!(sheaf_stats, hits) + 8);
 };

@@ -24,7 +24,7 @@ pub extern "C" fn sheaf_whitted_params_default(out: *mut WhittedParams) -> super
 }
 
 /// Borrow a C array as a slice: NULL only when `n == 0`, naturally aligned.
-pub(super) fn borrow<'a, T>(p: *const T, n: usize, what: &'static str) -> Result<&'a [T]> {
+fn borrow<'a, T>(p: *const T, n: usize, what: &'static str) -> Result<&'a [T]> {
     check_array(p, n, what)?;
     if n == 0 {
         return Ok(&[]);
