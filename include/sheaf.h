@@ -396,8 +396,11 @@ typedef struct sheaf_limits {
      * bytes per triangle with the default grid rules and 8 threads),
      * `SHEAF_STRUCTURE_BVH` (140 bytes per triangle) and
      * `SHEAF_STRUCTURE_KD` (237 bytes per triangle with the default kd
-     * rules, 112 of them build scratch), at least one. A structure without
-     * pools cannot be built; model no more than the scene needs.
+     * rules, 112 of them build scratch) and `SHEAF_STRUCTURE_PGRID`
+     * (perspective and light grids: about 190 bytes per triangle with the
+     * default pair pools, plus about 45 bytes per pixel of the largest
+     * image for the deferred frame buffers), at least one. A structure
+     * without pools cannot be built; model no more than the scene needs.
      */
     uint32_t structures;
     /**

@@ -410,7 +410,6 @@ impl<'a> Context<'a> {
             ));
         }
         let lay = TileLayout::new(side, job.frame.width, job.frame.height);
-        self.frame_layout = None;
         let t_all = now();
         let tr = SceneTracer {
             grid: self.grid.view(),
@@ -429,6 +428,9 @@ impl<'a> Context<'a> {
         };
         let mut info = DeferredInfo::default();
         let mut ctr = Counters::default();
+        // From here on the frame buffers are overwritten: the last frame's
+        // pixels are gone, even if a grid build below fails.
+        self.frame_layout = None;
         // Phase 1: the perspective grid.
         if job.primary == PrimaryPass::Pgrid {
             let t = now();

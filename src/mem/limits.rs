@@ -32,8 +32,11 @@ pub struct Limits {
     /// bytes per triangle with the default grid rules and 8 threads),
     /// `SHEAF_STRUCTURE_BVH` (140 bytes per triangle) and
     /// `SHEAF_STRUCTURE_KD` (237 bytes per triangle with the default kd
-    /// rules, 112 of them build scratch), at least one. A structure without
-    /// pools cannot be built; model no more than the scene needs.
+    /// rules, 112 of them build scratch) and `SHEAF_STRUCTURE_PGRID`
+    /// (perspective and light grids: about 190 bytes per triangle with the
+    /// default pair pools, plus about 45 bytes per pixel of the largest
+    /// image for the deferred frame buffers), at least one. A structure
+    /// without pools cannot be built; model no more than the scene needs.
     pub structures: u32,
     /// Most kd-tree nodes. 0: `4 * max_triangles + 1024` (the OBJ scenes
     /// need 0.6 to 3.7 per triangle with the default `KdParams`).
