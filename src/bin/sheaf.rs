@@ -134,7 +134,7 @@ impl GridOpts {
 }
 
 /// Traversal method (`Method`).
-#[derive(Clone, Copy, Debug, ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
 pub enum MethodArg {
     /// Single-ray 3DDDA (the grid baseline).
     GridDda,
@@ -668,6 +668,31 @@ mod tests {
         assert!(parse_vec3("1,2").is_err());
         assert!(parse_vec3("1,2,nan").is_err());
         assert!(parse_vec3("1,2,x").is_err());
+    }
+
+    #[test]
+    fn deferred_passes() {
+        assert_eq!(parse_primary("pgrid"), Ok(PrimaryArg::Pgrid));
+        assert_eq!(
+            parse_primary("bvh-ranged"),
+            Ok(PrimaryArg::Method(MethodArg::BvhRanged))
+        );
+        assert_eq!(parse_shadows("light-grid"), Ok(ShadowsArg::LightGrid));
+        assert_eq!(
+            parse_shadows("grid-cgt"),
+            Ok(ShadowsArg::Method(MethodArg::GridCgt))
+        );
+        assert!(parse_primary("light-grid").is_err());
+        assert!(parse_shadows("pgrid").is_err());
+        let d = sheaf::PgridParams::default();
+        let o = PgridOpts::default();
+        assert!(!o.any());
+        assert_eq!(o.params(d.test), Ok(d));
+        let o = PgridOpts {
+            chunk: Some(8),
+            ..Default::default()
+        };
+        assert!(o.any() && o.params(d.test).is_err());
     }
 
     #[test]

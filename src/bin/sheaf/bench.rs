@@ -2118,6 +2118,8 @@ mod tests {
             out_dir: Some(dir.clone()),
             whitted: false,
             entry: false,
+            pgrid: false,
+            pgrid_opts: Default::default(),
             structures: vec![crate::StructureArg::Grid, crate::StructureArg::Bvh],
         };
         bench(&a).unwrap();

@@ -4,8 +4,7 @@ use crate::load::{self, Loaded};
 use crate::run::{self, mrays, ms, res};
 use crate::view::{self, INSIDE_FOV, OUTSIDE_FOV};
 use crate::{
-    DemoArgs, Failure, GridOpts, InfoArgs, MaterialsArg, OrFail, PrimaryArg, RenderArgs,
-    ShadowsArg,
+    DemoArgs, Failure, GridOpts, InfoArgs, MaterialsArg, OrFail, PrimaryArg, RenderArgs, ShadowsArg,
 };
 use glam::Vec3;
 use sheaf::render::material::{Material, Materials};
@@ -15,7 +14,7 @@ use sheaf::scenes::{ANIMATED_DETAIL, View};
 use sheaf::trace::RayKind;
 use sheaf::{
     Camera, DeferredInfo, DeferredJob, Frame, GridInfo, Limits, PointLight, PrimaryPass, Scene,
-    ShadowPass, Shading, TraceParams, required_bytes,
+    Shading, ShadowPass, TraceParams, required_bytes,
 };
 use std::fmt::Write as _;
 use std::time::Instant;
@@ -226,7 +225,11 @@ pub fn render(a: &RenderArgs) -> Result<(), Failure> {
             "--pgrid-tile, --pgrid-group, --slices, --light-tiles, --light-slices and --chunk apply to deferred frames: add --primary pgrid or --shadows light-grid".into(),
         ));
     }
-    let (primary_pass, shadow_pass) = passes(a, &primary, &shadow)?;
+    let pgrid = a
+        .pgrid
+        .params(params.test)
+        .or_fail(|| "pgrid parameters".into())?;
+    let (primary_pass, shadow_pass) = passes(a, &primary, &shadow, &pgrid)?;
     let traced: Vec<TraceParams> = [
         match primary_pass {
             PrimaryPass::Traced(p) => Some(p),
@@ -246,7 +249,7 @@ pub fn render(a: &RenderArgs) -> Result<(), Failure> {
         grid: params,
         bvh: uses(sheaf::trace::Structure::Bvh),
         kd: uses(sheaf::trace::Structure::Kd),
-        pgrid: a.pgrid.params(params.test)?,
+        pgrid,
     };
     let (mut ctx, info) = if deferred {
         setup.context(run::limits(&scene, a.size, threads))?
@@ -404,6 +407,7 @@ pub fn render(a: &RenderArgs) -> Result<(), Failure> {
             shadow: shadow_pass,
         };
         let mut workers = run::Threads::new(threads);
+        workers.keep_items = true;
         let (di, grown) = setup.render(&mut ctx, &job, &mut pixels, &mut workers)?;
         dfr = Some((di, workers, grown));
         ctx.stats().counters
@@ -498,7 +502,15 @@ pub fn render(a: &RenderArgs) -> Result<(), Failure> {
             di.shadow_rays,
             di.hits
         );
-        deferred_lines(di, workers, &setup.pgrid, &shadow_pass, *grown, ctx.limits());
+        deferred_lines(
+            di,
+            workers,
+            &setup.pgrid,
+            &shadow_pass,
+            frame.shading.shadows,
+            *grown,
+            ctx.limits(),
+        );
     } else {
         println!(
             "trace      {:.2} ms on {threads} threads, {:.2} Mrays/s: {primary} primary + {} shadow and secondary = {} rays",
@@ -526,11 +538,13 @@ pub fn render(a: &RenderArgs) -> Result<(), Failure> {
 }
 
 /// The deferred passes of `sheaf render`: --primary / --shadows, else the
-/// traced methods of --method / --shadow-method.
+/// traced methods of --method / --shadow-method. Shadow packets take the
+/// side of the primary pass's tracing tiles (`deferred::tile_side`).
 fn passes(
     a: &RenderArgs,
     primary: &TraceParams,
     shadow: &TraceParams,
+    pgrid: &sheaf::PgridParams,
 ) -> Result<(PrimaryPass, ShadowPass), Failure> {
     let p = match a.primary {
         Some(PrimaryArg::Pgrid) => PrimaryPass::Pgrid,
@@ -540,6 +554,10 @@ fn passes(
         }),
         None => PrimaryPass::Traced(*primary),
     };
+    if let PrimaryPass::Traced(t) = &p {
+        run::validate(t).or_fail(|| "--primary".into())?;
+    }
+    let side = sheaf::render::deferred::tile_side(&p, pgrid.tile, pgrid.group);
     let s = match a.shadows {
         Some(ShadowsArg::LightGrid) => ShadowPass::LightGrid,
         Some(ShadowsArg::Method(m)) => ShadowPass::Traced(TraceParams {
@@ -548,12 +566,18 @@ fn passes(
         }),
         None => ShadowPass::Traced(*shadow),
     };
-    if let PrimaryPass::Traced(t) = &p {
-        run::validate(t).or_fail(|| "--primary".into())?;
-    }
-    if let ShadowPass::Traced(t) = &s {
-        run::validate(t).or_fail(|| "--shadows".into())?;
-    }
+    let s = match s {
+        ShadowPass::Traced(t) if run::is_packet(t.method) => {
+            let t = TraceParams { packet: side, ..t };
+            run::validate(&t).or_fail(|| {
+                format!(
+                    "shadow packets of a deferred frame take the tracing tile's side ({side}x{side})"
+                )
+            })?;
+            ShadowPass::Traced(t)
+        }
+        s => s,
+    };
     Ok((p, s))
 }
 
@@ -598,6 +622,7 @@ fn deferred_lines(
     workers: &run::Threads,
     pp: &sheaf::PgridParams,
     shadow: &ShadowPass,
+    shadows: bool,
     grown: bool,
     limits: &Limits,
 ) {
@@ -630,7 +655,7 @@ fn deferred_lines(
             pp.tile * pp.group
         );
     }
-    if *shadow == ShadowPass::LightGrid {
+    if shadows && *shadow == ShadowPass::LightGrid {
         let l = &di.light;
         let r = &di.reorder;
         println!(
@@ -648,10 +673,11 @@ fn deferred_lines(
         );
         if let Some(t) = workers.runs.last() {
             println!(
-                "chunks     {} work items on {} threads: mean {:.3} ms, slowest {:.3} ms = {:.2}x the mean; threads busy {:.0} % of the pass",
+                "chunks     {} work items on {} threads: mean {:.3} ms, 99th percentile {:.3} ms, slowest {:.3} ms = {:.2}x the mean; threads busy {:.0} % of the pass",
                 t.count,
                 t.threads,
                 t.mean_ns() * 1e-6,
+                ms(t.p99_ns),
                 ms(t.max_ns),
                 t.imbalance(),
                 100.0 * t.efficiency()

@@ -1942,6 +1942,8 @@ mod tests {
             out_dir: Some(dir.clone()),
             whitted: false,
             entry: true,
+            pgrid: false,
+            pgrid_opts: Default::default(),
             structures: vec![crate::StructureArg::Kd],
         };
         crate::bench::bench(&a).unwrap();
@@ -2045,6 +2047,8 @@ mod diagnose {
                 out_dir: None,
                 whitted: false,
                 entry: true,
+                pgrid: false,
+                pgrid_opts: Default::default(),
                 structures: vec![],
             };
             let Some(spec) = scene_specs(&a).unwrap().pop() else {

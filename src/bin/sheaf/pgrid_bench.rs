@@ -9,7 +9,7 @@
 //! - Figure 10: ms per phase of a frame with perspective-grid camera rays
 //!   and light-grid shadows (primary build, primary traversal, data
 //!   rearrangement, shadow build, shadow traversal, shade), each phase the
-//!   median over `--reps` frames; Mrays/s of camera plus shadow rays.
+//!   median over the rounds; Mrays/s of camera plus shadow rays.
 //! - Light-grid shadows against shadow packets on the same frames (same
 //!   perspective-grid camera pass, same light): CGT and the BVH's Ranged
 //!   and Partition packets (`ShadowPass::Traced`, packets of the tracing
@@ -23,21 +23,24 @@
 //!   pass.
 //! - The camera pass: perspective-grid traversal (and its per-frame build)
 //!   against the BVH's Ranged and Partition 16x16 packets and CGT 16x16
-//!   packets on prebuilt structures (their build times listed apart).
+//!   packets on prebuilt structures (their build times listed apart), in
+//!   frames without shadows; nearest triangles compared per pixel.
 //! - Figure 11: shadow time (rearrange + shadow build + shadow traversal)
 //!   against the light's distance from the model's centre, 0.25 to 8 scene
 //!   diagonals in 8 geometric steps, along a fixed direction (mostly up),
 //!   for chunk sizes r = 32, 64, 256, 1024, 4096, on conference and sponza
-//!   (or the two largest scenes run).
+//!   (or the two largest scenes run), at half the image size with the
+//!   BVH's camera pass (same hits, same shadow rays): 48 frames per scene.
 //!
 //! Frames are timed in rounds, one frame per configuration per round after
-//! an untimed round, so load spells on a shared machine hit all alike;
-//! every configuration's first image is compared pixel for pixel with the
-//! pgrid + light-grid frame's.
+//! an untimed frame, so load spells on a shared machine hit all alike; up
+//! to `--reps` rounds (default 3), fewer once a scene's rounds took
+//! `SCENE_CAP_S`. Every configuration's first image is compared pixel for
+//! pixel with the pgrid + light-grid frame's.
 #![forbid(unsafe_code)]
 
-use crate::bench::{SceneSpec, command_line, machine_line, median, scene_specs, view_for};
-use crate::cmd::{phases, primary_label, shadow_label};
+use crate::bench::{SceneSpec, command_line, machine_line, scene_specs, view_for};
+use crate::cmd::{primary_label, shadow_label};
 use crate::load;
 use crate::run::{self, DeferredSetup, ItemTimes, Threads, ms};
 use crate::{BenchArgs, Failure, OrFail, TestArg};
@@ -46,7 +49,7 @@ use sheaf::render::deferred::{PhaseTimes, tile_side};
 use sheaf::trace::RayKind;
 use sheaf::{
     Camera, DeferredInfo, DeferredJob, Frame, GridParams, Method, OwnedContext, PgridParams,
-    PointLight, PrimaryPass, ShadowPass, Shading, TraceParams,
+    PointLight, PrimaryPass, Shading, ShadowPass, TraceParams,
 };
 use std::fmt::Write as _;
 use std::path::Path;
@@ -61,6 +64,20 @@ const FIG11_R: [u32; 5] = [32, 64, 256, 1024, 4096];
 const FIG11_STEPS: usize = 8;
 const FIG11_NEAR: f64 = 0.25;
 const FIG11_FAR: f64 = 8.0;
+/// Rounds per Figure 11 point: 2 more than `--reps` (short frames, noisy).
+fn fig11_reps(reps: u32) -> u32 {
+    reps + 2
+}
+
+/// Rounds of a scene stop once they took this long (at least one round).
+const SCENE_CAP_S: f64 = 30.0;
+
+/// Figure 11's image size for `--size` (half of it: its 40 frames per
+/// distance step would take minutes at 1024x1024).
+fn fig11_size((w, h): (u32, u32)) -> (u32, u32) {
+    ((w / 2).max(16), (h / 2).max(16))
+}
+
 /// The chunk size with little splitting, for the load-balance comparison.
 const WIDE_R: u32 = 4096;
 /// Packet side of the traced camera passes.
@@ -68,9 +85,7 @@ const PACKET: u32 = 16;
 
 fn fig11_distances() -> Vec<f64> {
     (0..FIG11_STEPS)
-        .map(|i| {
-            FIG11_NEAR * (FIG11_FAR / FIG11_NEAR).powf(i as f64 / (FIG11_STEPS - 1) as f64)
-        })
+        .map(|i| FIG11_NEAR * (FIG11_FAR / FIG11_NEAR).powf(i as f64 / (FIG11_STEPS - 1) as f64))
         .collect()
 }
 
@@ -93,10 +108,15 @@ struct Config {
     primary: PrimaryPass,
     shadow: ShadowPass,
     chunk: u32,
+    /// Shadow rays traced (off for the camera-pass comparison).
+    shadows: bool,
 }
 
 impl Config {
     fn label(&self) -> String {
+        if !self.shadows {
+            return format!("{} / no shadows", primary_label(&self.primary));
+        }
         let mut s = format!(
             "{} / {}",
             primary_label(&self.primary),
@@ -110,11 +130,13 @@ impl Config {
 }
 
 /// One frame.
-#[derive(Clone, Copy, Debug, Default)]
+#[derive(Clone, Debug, Default)]
 struct Sample {
     info: DeferredInfo,
     /// Item times of the shadow pass (its chunks with the light grid).
     chunks: ItemTimes,
+    /// Each chunk's time, in chunk order (light-grid frames).
+    items: Vec<u64>,
 }
 
 impl Sample {
@@ -141,14 +163,40 @@ struct CfgResult {
     chunk_max_ns: u64,
     chunk_mean_ns: f64,
     imbalance: f64,
+    /// The 99th-percentile chunk over the mean chunk (median).
+    tail: f64,
+    /// Each chunk's fastest time over the rounds (the same chunks every
+    /// round): its slowest over its mean, free of most preemptions.
+    steady_max_ns: u64,
+    steady_mean_ns: f64,
+    steady_imbalance: f64,
     efficiency: f64,
-    /// Pixels that differ from the pgrid + light-grid frame's.
+    /// Pixels that differ from the pgrid + light-grid frame's (camera
+    /// configurations: pixels whose nearest triangle differs).
     diff: u64,
+    /// Frames timed.
+    frames: usize,
+}
+
+/// Median (the mean of the middle two for an even count; 0 when empty).
+fn median(mut v: Vec<u64>) -> u64 {
+    v.sort_unstable();
+    let n = v.len();
+    match n {
+        0 => 0,
+        _ if n % 2 == 1 => v[n / 2],
+        _ => (v[n / 2 - 1] + v[n / 2]) / 2,
+    }
 }
 
 fn med_f(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
-    v.get(v.len() / 2).copied().unwrap_or(0.0)
+    let n = v.len();
+    match n {
+        0 => 0.0,
+        _ if n % 2 == 1 => v[n / 2],
+        _ => 0.5 * (v[n / 2 - 1] + v[n / 2]),
+    }
 }
 
 impl CfgResult {
@@ -162,7 +210,18 @@ impl CfgResult {
             shadow_trace: m(&|x| x.info.times.shadow_trace),
             shade: m(&|x| x.info.times.shade),
         };
-        let last = s.last().copied().unwrap_or_default();
+        let last = s.last().cloned().unwrap_or_default();
+        // Per chunk, the fastest of the rounds.
+        let n = s.first().map_or(0, |x| x.items.len());
+        let steady: Vec<u64> = if n > 0 && s.iter().all(|x| x.items.len() == n) {
+            (0..n)
+                .map(|i| s.iter().map(|x| x.items[i]).min().unwrap_or(0))
+                .collect()
+        } else {
+            Vec::new()
+        };
+        let steady_max_ns = steady.iter().copied().max().unwrap_or(0);
+        let steady_mean = steady.iter().sum::<u64>() as f64 / steady.len().max(1) as f64;
         CfgResult {
             cfg,
             times,
@@ -175,8 +234,17 @@ impl CfgResult {
             chunk_max_ns: m(&|x| x.chunks.max_ns),
             chunk_mean_ns: med_f(s.iter().map(|x| x.chunks.mean_ns()).collect()),
             imbalance: med_f(s.iter().map(|x| x.chunks.imbalance()).collect()),
+            tail: med_f(s.iter().map(|x| x.chunks.tail()).collect()),
+            steady_max_ns,
+            steady_mean_ns: steady_mean,
+            steady_imbalance: if steady_mean > 0.0 {
+                steady_max_ns as f64 / steady_mean
+            } else {
+                0.0
+            },
             efficiency: med_f(s.iter().map(|x| x.chunks.efficiency()).collect()),
             diff,
+            frames: s.len(),
         }
     }
 }
@@ -189,7 +257,8 @@ struct Fig11Row {
     /// Shadow rays, and the share occluded (at the chosen r).
     shadow_rays: u64,
     occluded: u64,
-    /// Median shadow ms per r of `FIG11_R`, and the chunk counts.
+    /// Median shadow ms per r of `FIG11_R`, the chunk counts and the
+    /// 99th-percentile chunk over the mean chunk.
     shadow_ns: Vec<u64>,
     chunks: Vec<u64>,
     imbalance: Vec<f64>,
@@ -251,22 +320,46 @@ impl Bench<'_> {
                 .build_pgrid(self.setup.scene, &self.setup.pgrid)
                 .or_fail(|| "loading the scene for the perspective grids".into())?;
         }
+        self.frame.shading.shadows = cfg.shadows;
         let job = DeferredJob {
             frame: &self.frame,
             lights: &[],
             primary: cfg.primary,
             shadow: cfg.shadow,
         };
-        let (info, grown) = self
-            .setup
-            .render(&mut self.ctx, &job, &mut self.pixels, &mut self.workers)?;
+        let (info, grown) =
+            self.setup
+                .render(&mut self.ctx, &job, &mut self.pixels, &mut self.workers)?;
         self.grown |= grown;
-        let chunks = if self.frame.shading.shadows && self.workers.runs.len() >= 2 {
+        let shadows = self.frame.shading.shadows && self.workers.runs.len() >= 2;
+        let chunks = if shadows {
             self.workers.runs.last().copied().unwrap_or_default()
         } else {
             ItemTimes::default()
         };
-        Ok(Sample { info, chunks })
+        let items = if shadows && cfg.shadow == ShadowPass::LightGrid {
+            std::mem::take(&mut self.workers.items)
+        } else {
+            Vec::new()
+        };
+        Ok(Sample {
+            info,
+            chunks,
+            items,
+        })
+    }
+
+    /// Nearest triangle of every pixel of the last frame.
+    fn prims(&self) -> Vec<u32> {
+        let (w, h) = (self.frame.width, self.frame.height);
+        (0..h)
+            .flat_map(|y| (0..w).map(move |x| (x, y)))
+            .map(|(x, y)| {
+                self.ctx
+                    .deferred_pixel(x, y)
+                    .map_or(u32::MAX, |(hit, _)| hit.prim)
+            })
+            .collect()
     }
 
     /// Pixels whose shadow bit is set in the last frame.
@@ -285,10 +378,7 @@ impl Bench<'_> {
 }
 
 fn diff_pixels(a: &[u8], b: &[u8]) -> u64 {
-    a.chunks(4)
-        .zip(b.chunks(4))
-        .filter(|(p, q)| p != q)
-        .count() as u64
+    a.chunks(4).zip(b.chunks(4)).filter(|(p, q)| p != q).count() as u64
 }
 
 /// `sheaf bench --pgrid`.
@@ -334,9 +424,16 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
         }
     };
     println!(
-        "sheaf bench --pgrid: {} scenes, {w}x{h}, {threads} threads, {} configurations per scene, median of {reps} frames after an untimed one, PgridParams {{ tile {}, group {}, slices {}, light tiles {}, light slices {}, chunk r {} }}, {test:?}, machine: {machine}",
+        "sheaf bench --pgrid: {} scenes, {w}x{h}, {threads} threads, {} configurations per scene, median of up to {reps} rounds (fewer after {SCENE_CAP_S:.0} s per scene), Figure 11 at {}x{} on {}, PgridParams {{ tile {}, group {}, slices {}, light tiles {}, light slices {}, chunk r {} }}, {test:?}, machine: {machine}",
         specs.len(),
         cfgs.len(),
+        fig11_size((w, h)).0,
+        fig11_size((w, h)).1,
+        if fig11_names.is_empty() {
+            "the two largest scenes".to_string()
+        } else {
+            fig11_names.join(", ")
+        },
         pp.tile,
         pp.group,
         pp.slices,
@@ -350,13 +447,26 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
     let mut deferred_fig11: Vec<(usize, SceneSpec)> = Vec::new();
     for spec in &specs {
         let fig11 = fig11_names.contains(&spec.name);
-        match scene(spec, (w, h), threads, reps, &grid, &pp, &cfgs, fig11, &out_dir)? {
+        match scene(
+            spec,
+            (w, h),
+            threads,
+            reps,
+            &grid,
+            &pp,
+            &cfgs,
+            fig11,
+            &out_dir,
+        )? {
             Some(r) => {
                 if fig11_names.is_empty() {
-                    deferred_fig11.push((r.triangles as usize, SceneSpec {
-                        name: spec.name.clone(),
-                        load: spec.load.clone(),
-                    }));
+                    deferred_fig11.push((
+                        r.triangles as usize,
+                        SceneSpec {
+                            name: spec.name.clone(),
+                            load: spec.load.clone(),
+                        },
+                    ));
                 }
                 results.push(r);
             }
@@ -404,18 +514,39 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
     let md_path = out_dir.join("README.md");
     std::fs::write(&md_path, &md).or_fail(|| format!("cannot write {}", md_path.display()))?;
     let csv_path = out_dir.join("pgrid.csv");
-    std::fs::write(&csv_path, csv(&results)).or_fail(|| format!("cannot write {}", csv_path.display()))?;
+    std::fs::write(&csv_path, csv(&results))
+        .or_fail(|| format!("cannot write {}", csv_path.display()))?;
     let csv11 = out_dir.join("figure11.csv");
-    std::fs::write(&csv11, csv_fig11(&results)).or_fail(|| format!("cannot write {}", csv11.display()))?;
-    charts::figure10(&results, &setup, &out_dir.join("figure10.svg"), &out_dir.join("figure10.png"))?;
-    charts::shadows(&results, &setup, &out_dir.join("shadows.svg"), &out_dir.join("shadows.png"))?;
+    std::fs::write(&csv11, csv_fig11(&results))
+        .or_fail(|| format!("cannot write {}", csv11.display()))?;
+    charts::figure10(
+        &results,
+        &setup,
+        &out_dir.join("figure10.svg"),
+        &out_dir.join("figure10.png"),
+    )?;
+    charts::shadows(
+        &results,
+        &setup,
+        &out_dir.join("shadows.svg"),
+        &out_dir.join("shadows.png"),
+    )?;
     if results.iter().any(|r| !r.fig11.is_empty()) {
-        charts::figure11(&results, &setup, &out_dir.join("figure11.svg"), &out_dir.join("figure11.png"))?;
+        charts::figure11(
+            &results,
+            &setup,
+            &out_dir.join("figure11.svg"),
+            &out_dir.join("figure11.png"),
+        )?;
     }
     println!(
         "wrote {}, pgrid.csv, figure11.csv, figure10.svg/png, shadows.svg/png{} in {} ({:.0} s)",
         md_path.display(),
-        if results.iter().any(|r| !r.fig11.is_empty()) { ", figure11.svg/png" } else { "" },
+        if results.iter().any(|r| !r.fig11.is_empty()) {
+            ", figure11.svg/png"
+        } else {
+            ""
+        },
         out_dir.display(),
         start.elapsed().as_secs_f64()
     );
@@ -424,17 +555,16 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
 
 /// The configurations of a scene, the baseline first.
 fn configs(pp: &PgridParams, side: u32) -> Vec<Config> {
-    let shadow = |m: Method| {
-        ShadowPass::Traced(TraceParams::bvh(m, side).with_kind(RayKind::Shadow))
-    };
-    let camera = |m: Method| {
-        PrimaryPass::Traced(TraceParams::bvh(m, PACKET).with_kind(RayKind::Primary))
-    };
+    let shadow =
+        |m: Method| ShadowPass::Traced(TraceParams::bvh(m, side).with_kind(RayKind::Shadow));
+    let camera =
+        |m: Method| PrimaryPass::Traced(TraceParams::bvh(m, PACKET).with_kind(RayKind::Primary));
     let mut v = vec![Config {
         role: Role::Main,
         primary: PrimaryPass::Pgrid,
         shadow: ShadowPass::LightGrid,
         chunk: pp.chunk,
+        shadows: true,
     }];
     if pp.chunk != WIDE_R {
         v.push(Config {
@@ -449,6 +579,7 @@ fn configs(pp: &PgridParams, side: u32) -> Vec<Config> {
             primary: PrimaryPass::Pgrid,
             shadow: shadow(m),
             chunk: pp.chunk,
+            shadows: true,
         });
     }
     for m in [Method::BvhRanged, Method::BvhPartition, Method::GridCgt] {
@@ -457,6 +588,7 @@ fn configs(pp: &PgridParams, side: u32) -> Vec<Config> {
             primary: camera(m),
             shadow: ShadowPass::LightGrid,
             chunk: pp.chunk,
+            shadows: false,
         });
     }
     v
@@ -540,7 +672,11 @@ fn scene(
     let mut b = Bench {
         setup,
         ctx,
-        workers: Threads::new(threads),
+        workers: {
+            let mut t = Threads::new(threads);
+            t.keep_items = true;
+            t
+        },
         pixels: vec![0u8; w as usize * h as usize * 4],
         frame,
         grown: false,
@@ -557,26 +693,47 @@ fn scene(
         diagonal: (info.bounds.max - info.bounds.min).length(),
     };
 
-    // The configurations: an untimed round (images compared), then `reps`
-    // timed rounds.
+    // The configurations: one untimed frame, then up to `reps` rounds of
+    // one frame each (fewer once the scene's rounds took `SCENE_CAP`); the
+    // first round's images are compared with the baseline's.
     if !cfgs.is_empty() {
+        b.frame(&cfgs[0])?;
         let mut reference: Vec<u8> = Vec::new();
+        let mut ref_prims: Vec<u32> = Vec::new();
         let mut diffs = vec![0u64; cfgs.len()];
-        for (i, c) in cfgs.iter().enumerate() {
-            b.frame(c)?;
-            if i == 0 {
-                reference = b.pixels.clone();
-                let path = out_dir.join(format!("frame_{}.png", spec.name));
-                run::write_png(&path, &b.pixels, w, h)?;
-            } else {
-                diffs[i] = diff_pixels(&reference, &b.pixels);
-            }
-        }
         let mut samples: Vec<Vec<Sample>> = vec![Vec::new(); cfgs.len()];
-        for _ in 0..reps {
+        let t0 = Instant::now();
+        let mut round = 0;
+        while round < reps && (round == 0 || t0.elapsed().as_secs_f64() < SCENE_CAP_S) {
+            let tr = Instant::now();
             for (i, c) in cfgs.iter().enumerate() {
                 samples[i].push(b.frame(c)?);
+                if round > 0 {
+                    continue;
+                }
+                if i == 0 {
+                    reference = b.pixels.clone();
+                    ref_prims = b.prims();
+                    let path = out_dir.join(format!("frame_{}.png", spec.name));
+                    run::write_png(&path, &b.pixels, w, h)?;
+                } else if c.shadows {
+                    diffs[i] = diff_pixels(&reference, &b.pixels);
+                } else {
+                    diffs[i] = b
+                        .prims()
+                        .iter()
+                        .zip(&ref_prims)
+                        .filter(|(p, q)| p != q)
+                        .count() as u64;
+                }
             }
+            round += 1;
+            println!(
+                "[{}] round {round}/{reps}: {} frames in {:.1} s",
+                spec.name,
+                cfgs.len(),
+                tr.elapsed().as_secs_f64()
+            );
         }
         for (i, c) in cfgs.iter().enumerate() {
             let r = CfgResult::new(*c, &samples[i], diffs[i]);
@@ -594,12 +751,22 @@ fn scene(
         let right = (-back).cross(up).normalize_or_zero();
         let dir = (up + right * 0.3 + back * 0.2).normalize_or(Vec3::Y);
         res.fig11_dir = dir;
+        // The camera pass is the BVH's (the shadow rays, made from the
+        // same hits, are the same as after the perspective grid's; this
+        // only saves time), at half the size.
         let base = Config {
             role: Role::Main,
-            primary: PrimaryPass::Pgrid,
+            primary: PrimaryPass::Traced(
+                TraceParams::bvh(Method::BvhRanged, PACKET).with_kind(RayKind::Primary),
+            ),
             shadow: ShadowPass::LightGrid,
             chunk: pp.chunk,
+            shadows: true,
         };
+        let (fw, fh) = fig11_size((w, h));
+        b.frame.width = fw;
+        b.frame.height = fh;
+        b.pixels.truncate(fw as usize * fh as usize * 4);
         for k in fig11_distances() {
             let d = diag * k as f32;
             b.frame.light.position = (c + dir * d).to_array();
@@ -607,7 +774,7 @@ fn scene(
             let s0 = b.frame(&base)?;
             let occluded = b.occluded();
             let mut samples: Vec<Vec<Sample>> = vec![Vec::new(); FIG11_R.len()];
-            for _ in 0..reps {
+            for _ in 0..fig11_reps(reps) {
                 for (j, &r) in FIG11_R.iter().enumerate() {
                     samples[j].push(b.frame(&Config { chunk: r, ..base })?);
                 }
@@ -627,7 +794,7 @@ fn scene(
                     .collect(),
                 imbalance: samples
                     .iter()
-                    .map(|s| med_f(s.iter().map(|x| x.chunks.imbalance()).collect()))
+                    .map(|s| med_f(s.iter().map(|x| x.chunks.tail()).collect()))
                     .collect(),
             };
             let mut line = format!(
@@ -643,10 +810,13 @@ fn scene(
             res.fig11.push(row);
         }
         b.frame.light.position = light.to_array();
+        b.frame.width = w;
+        b.frame.height = h;
+        b.pixels.resize(w as usize * h as usize * 4, 0);
     }
     if b.grown {
         println!(
-            "[{}] note: perspective grid pools grown to {} cells, {} pairs",
+            "[{}] note: a perspective or light grid outgrew the pools: grown to {} cells, {} pairs per grid",
             spec.name,
             b.ctx.limits().pgrid_cells(),
             b.ctx.limits().pgrid_refs()
@@ -670,17 +840,23 @@ fn progress(r: &CfgResult, w: u32, h: u32) -> String {
         ms(r.shadow_ns),
         run::mrays(w as u64 * h as u64 + r.shadow_rays, r.frame_ns)
     );
-    if r.cfg.shadow == ShadowPass::LightGrid {
+    if r.cfg.shadows && r.cfg.shadow == ShadowPass::LightGrid {
         let _ = write!(
             s,
-            "; {} chunks, slowest/mean {:.2}, busy {:.0} %",
+            "; {} chunks, slowest/mean {:.1} (raw {:.1}), p99/mean {:.1}, busy {:.0} %",
             r.chunk_count,
+            r.steady_imbalance,
             r.imbalance,
+            r.tail,
             100.0 * r.efficiency
         );
     }
     if r.diff > 0 {
-        let _ = write!(s, "; {} pixels differ from the pgrid/light-grid frame", r.diff);
+        let _ = write!(
+            s,
+            "; {} pixels differ from the pgrid/light-grid frame",
+            r.diff
+        );
     }
     s
 }
@@ -728,11 +904,20 @@ fn markdown(results: &[SceneResult], s: &Setup<'_>) -> String {
     let _ = writeln!(
         m,
         "- PgridParams: sorting tile {} px, group {} (tracing tiles {}x{} px), {} depth slices; light grids of up to {} x {} tiles, {} slices; chunk r = {}; triangle test {:?}",
-        pp.tile, pp.group, s.side, s.side, pp.slices, pp.light_tiles, pp.light_tiles, pp.light_slices, pp.chunk, s.test
+        pp.tile,
+        pp.group,
+        s.side,
+        s.side,
+        pp.slices,
+        pp.light_tiles,
+        pp.light_tiles,
+        pp.light_slices,
+        pp.chunk,
+        s.test
     );
     let _ = writeln!(
         m,
-        "- timing: rounds of one frame per configuration (so load spells on the shared machine hit all alike) after an untimed round; each number is the median over {} rounds (Figure 10: each phase's own median, so the stacked phases add up to about the median frame)",
+        "- timing: after one untimed frame, rounds of one frame per configuration (so load spells on the shared machine hit all alike), up to {} rounds, fewer once a scene's rounds took {SCENE_CAP_S:.0} s (at least one; \"frames\" in the Figure 10 table); each number is the median over the rounds (Figure 10: each phase's own median, so the stacked phases add up to about the median frame)",
         s.reps
     );
     let _ = writeln!(
@@ -744,6 +929,7 @@ fn markdown(results: &[SceneResult], s: &Setup<'_>) -> String {
         "- single-threaded phases in this version of `render_deferred`: primary build, data rearrangement, shadow build and shade; the two traversals run on the threads"
     );
     let _ = writeln!(m, "- total time: {:.0} s\n", s.total_s);
+    summary(&mut m, results, s);
 
     // Figure 10.
     let _ = writeln!(m, "## Figure 10: time per phase (ms)\n");
@@ -754,15 +940,15 @@ fn markdown(results: &[SceneResult], s: &Setup<'_>) -> String {
     let _ = writeln!(m, "![Figure 10](figure10.svg)\n");
     let _ = writeln!(
         m,
-        "| scene | tris | primary build | primary traversal | data rearrangement | shadow build | shadow traversal | shade | frame | shadow rays | Mrays/s | camera Mrays/s (traversal) |"
+        "| scene | tris | primary build | primary traversal | data rearrangement | shadow build | shadow traversal | shade | frame | frames | shadow rays | Mrays/s | camera Mrays/s (traversal) |"
     );
-    let _ = writeln!(m, "|---|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|");
+    let _ = writeln!(m, "|---|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|");
     for r in results {
         let Some(c) = r.main() else { continue };
         let t = &c.times;
         let _ = writeln!(
             m,
-            "| {} | {} | {} | {} | {} | {} | {} | {} | **{}** | {} | {:.1} | {:.1} |",
+            "| {} | {} | {} | {} | {} | {} | {} | {} | **{}** | {} | {} | {:.1} | {:.1} |",
             r.name,
             r.triangles,
             f2(t.primary_build),
@@ -772,6 +958,7 @@ fn markdown(results: &[SceneResult], s: &Setup<'_>) -> String {
             f2(t.shadow_trace),
             f2(t.shade),
             f2(c.frame_ns),
+            c.frames,
             c.shadow_rays,
             run::mrays(w as u64 * h as u64 + c.shadow_rays, c.frame_ns),
             run::mrays(w as u64 * h as u64, t.primary_trace)
@@ -829,7 +1016,10 @@ fn markdown(results: &[SceneResult], s: &Setup<'_>) -> String {
         if best.is_some() {
             ratios.push(ratio_v);
         }
-        let diff = |mm: Method| r.shadow_packets(mm).map_or("-".to_string(), |x| x.diff.to_string());
+        let diff = |mm: Method| {
+            r.shadow_packets(mm)
+                .map_or("-".to_string(), |x| x.diff.to_string())
+        };
         let _ = writeln!(
             m,
             "| {} | {} | {} | {} | {} | {} | {} | {:.2} | {} / {} / {} |",
@@ -890,25 +1080,27 @@ fn markdown(results: &[SceneResult], s: &Setup<'_>) -> String {
     let _ = writeln!(m, "\n## Load balance of the light-grid pass\n");
     let _ = writeln!(
         m,
-        "Work items of the shadow traversal are chunks of at most r rays of one light tile (paper section 4.3). Slowest / mean: the slowest chunk's time over the mean chunk time (`run::Threads` item timing). Busy: the threads' summed chunk time over threads x the pass's wall time (1 = no thread idle). r = {WIDE_R} barely splits tiles: a crowded tile is one long item.\n"
+        "Work items of the shadow traversal are chunks of at most r rays of one light tile (paper section 4.3), timed one by one by `run::Threads`. The chunks are the same in every round, so each chunk's time here is its fastest over the rounds: a chunk preempted in one round (a scheduler slice is about 4 ms on this shared machine) is not counted slow. Slowest / mean: the slowest chunk over the mean chunk; raw: the same from single frames (median over the rounds), preemptions included; p99 / mean: the 99th-percentile chunk over the mean (median over the rounds). Busy: the threads' summed chunk time over threads x the pass's wall time (100 = no thread idle). r = {WIDE_R} barely splits tiles: a crowded tile is one long item.\n"
     );
     let _ = writeln!(
         m,
-        "| scene | r | light tiles used | chunks | most rays in a tile | mean chunk ms | slowest chunk ms | slowest / mean | busy % | shadow traversal ms |"
+        "| scene | r | light tiles used | chunks | most rays in a tile | mean chunk ms | slowest chunk ms | slowest / mean | p99 / mean | raw slowest / mean | busy % | shadow traversal ms |"
     );
-    let _ = writeln!(m, "|---|--:|--:|--:|--:|--:|--:|--:|--:|--:|");
+    let _ = writeln!(m, "|---|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|");
     for r in results {
         for c in [r.main(), r.wide()].into_iter().flatten() {
             let _ = writeln!(
                 m,
-                "| {} | {} | {} | {} | {} | {:.3} | {:.3} | {:.1} | {:.0} | {} |",
+                "| {} | {} | {} | {} | {} | {:.3} | {:.3} | **{:.1}** | {:.1} | {:.1} | {:.0} | {} |",
                 r.name,
                 c.cfg.chunk,
                 c.info.reorder.tiles_used,
                 c.chunk_count,
                 c.info.reorder.max_tile_rays,
-                c.chunk_mean_ns * 1e-6,
-                ms(c.chunk_max_ns),
+                c.steady_mean_ns * 1e-6,
+                ms(c.steady_max_ns),
+                c.steady_imbalance,
+                c.tail,
                 c.imbalance,
                 100.0 * c.efficiency,
                 f2(c.times.shadow_trace)
@@ -920,7 +1112,7 @@ fn markdown(results: &[SceneResult], s: &Setup<'_>) -> String {
     let _ = writeln!(m, "\n## Camera rays: perspective grid vs packets\n");
     let _ = writeln!(
         m,
-        "Same frames (light-grid shadows in all). Perspective grid: built in every frame; traversal Mrays/s counts the traversal only, \"with build\" adds the per-frame build. The packets ({PACKET}x{PACKET}, Morton-ordered 2x2 quads) trace the prebuilt BVH (Ranged, Partition) and uniform grid (CGT); their builds, once per scene, are listed apart. \"differ\": pixels that differ from the perspective-grid image.\n"
+        "Same camera, same rounds. Perspective grid: the baseline frames above, the grid built in every frame; traversal Mrays/s counts the traversal only, \"with build\" adds the per-frame build. The packets ({PACKET}x{PACKET}, Morton-ordered 2x2 quads, `PrimaryPass::Traced`) trace the prebuilt BVH (Ranged, Partition) and uniform grid (CGT) in frames without shadow rays (only the camera pass is compared); their builds, once per scene, are listed apart. \"differ\": pixels whose nearest triangle differs from the perspective grid's.\n"
     );
     let _ = writeln!(
         m,
@@ -931,13 +1123,14 @@ fn markdown(results: &[SceneResult], s: &Setup<'_>) -> String {
     for r in results {
         let Some(c) = r.main() else { continue };
         let cam = |mm: Method| -> (String, String, String) {
-            r.camera(mm).map_or(("-".into(), "-".into(), "-".into()), |x| {
-                (
-                    f2(x.times.primary_trace),
-                    format!("{:.1}", run::mrays(px, x.times.primary_trace)),
-                    x.diff.to_string(),
-                )
-            })
+            r.camera(mm)
+                .map_or(("-".into(), "-".into(), "-".into()), |x| {
+                    (
+                        f2(x.times.primary_trace),
+                        format!("{:.1}", run::mrays(px, x.times.primary_trace)),
+                        x.diff.to_string(),
+                    )
+                })
         };
         let (rt, rm, rd) = cam(Method::BvhRanged);
         let (pt, pm, pd) = cam(Method::BvhPartition);
@@ -958,11 +1151,17 @@ fn markdown(results: &[SceneResult], s: &Setup<'_>) -> String {
     // Figure 11.
     let f11: Vec<&SceneResult> = results.iter().filter(|r| !r.fig11.is_empty()).collect();
     if !f11.is_empty() {
-        let _ = writeln!(m, "\n## Figure 11: shadow time vs light distance, per chunk size r\n");
         let _ = writeln!(
             m,
-            "Shadow time = data rearrangement + shadow build + shadow traversal (ms, median of {}). The light moves from the model's bounding-box centre along a fixed direction (the view's up, tilted 0.3 to the right and 0.2 back), 0.25 to 8 bounding-box diagonals; \"occluded\": the share of shadow rays blocked (at r = {}); the camera and its pass stay fixed. Beyond about half a diagonal the light is outside the model: for a closed room (conference) its roof then blocks every shadow ray.\n",
-            s.reps, pp.chunk
+            "\n## Figure 11: shadow time vs light distance, per chunk size r\n"
+        );
+        let _ = writeln!(
+            m,
+            "Shadow time = data rearrangement + shadow build + shadow traversal (ms, median of {} frames per point; each round runs every r in turn). {}x{} (half the size above, to keep the run short), the camera pass by BVH Ranged {PACKET}x{PACKET} packets (same hits, so the same shadow rays as after the perspective grid; it only saves time). The light moves from the model's bounding-box centre along a fixed direction (the view's up, tilted 0.3 to the right and 0.2 back), 0.25 to 8 bounding-box diagonals; \"occluded\": the share of shadow rays blocked (at r = {}). Beyond about half a diagonal the light is outside the model: for a closed room (conference) its roof then blocks every shadow ray.\n",
+            fig11_reps(s.reps),
+            fig11_size((w, h)).0,
+            fig11_size((w, h)).1,
+            pp.chunk
         );
         let _ = writeln!(m, "![Figure 11](figure11.svg)\n");
         for r in f11 {
@@ -977,7 +1176,7 @@ fn markdown(results: &[SceneResult], s: &Setup<'_>) -> String {
                 let _ = write!(head, " r={rr} |");
                 rule.push_str("--:|");
             }
-            head.push_str(" chunks (r=32 .. 4096) | slowest / mean chunk (r=32 .. 4096) |");
+            head.push_str(" chunks (r=32 .. 4096) | p99 / mean chunk (r=32 .. 4096) |");
             rule.push_str("---|---|");
             let _ = writeln!(m, "{head}\n{rule}");
             for row in &r.fig11 {
@@ -1044,23 +1243,216 @@ fn markdown(results: &[SceneResult], s: &Setup<'_>) -> String {
     m
 }
 
+fn geo_mean(v: &[f64]) -> f64 {
+    let v: Vec<f64> = v.iter().copied().filter(|x| *x > 0.0).collect();
+    if v.is_empty() {
+        0.0
+    } else {
+        (v.iter().map(|x| x.ln()).sum::<f64>() / v.len() as f64).exp()
+    }
+}
+
+/// `same` when no configuration of `role` differs from the baseline's
+/// image, else the count of differing pixels and `differ`.
+fn agree(results: &[SceneResult], role: Role, same: &str, differ: &str) -> String {
+    let n: u64 = results
+        .iter()
+        .flat_map(|r| r.cfgs.iter())
+        .filter(|c| c.cfg.role == role)
+        .map(|c| c.diff)
+        .sum();
+    if n == 0 {
+        same.to_string()
+    } else {
+        format!("{n} {differ} (summed over scenes and methods)")
+    }
+}
+
+/// The headline numbers, computed from the tables below.
+fn summary(m: &mut String, results: &[SceneResult], s: &Setup<'_>) {
+    let mains: Vec<(&SceneResult, &CfgResult)> = results
+        .iter()
+        .filter_map(|r| r.main().map(|c| (r, c)))
+        .collect();
+    if mains.is_empty() {
+        return;
+    }
+    let _ = writeln!(m, "## Summary\n");
+    // Phase shares.
+    let names = crate::cmd::phases(&PhaseTimes::default()).map(|(n, _)| n);
+    let mut share = [0.0f64; 6];
+    for (_, c) in &mains {
+        let tot = c.times.total().max(1) as f64;
+        for (k, (_, ns)) in crate::cmd::phases(&c.times).iter().enumerate() {
+            share[k] += *ns as f64 / tot / mains.len() as f64;
+        }
+    }
+    let (lo, hi) = mains.iter().fold((u64::MAX, 0), |(lo, hi), (_, c)| {
+        (lo.min(c.frame_ns), hi.max(c.frame_ns))
+    });
+    let _ = writeln!(
+        m,
+        "- Figure 10: a {}x{} frame with perspective-grid camera rays and light-grid shadows takes {:.0} to {:.0} ms on {} threads; mean share of the frame: {}",
+        s.w,
+        s.h,
+        ms(lo),
+        ms(hi),
+        s.threads,
+        names
+            .iter()
+            .zip(share)
+            .map(|(n, x)| format!("{n} {:.0} %", 100.0 * x))
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+    // Shadows.
+    let lg: Vec<f64> = mains
+        .iter()
+        .filter_map(|(r, c)| r.best_packets().map(|b| ratio(c.shadow_ns, b.shadow_ns)))
+        .collect();
+    if !lg.is_empty() {
+        let wins = lg.iter().filter(|&&x| x < 1.0).count();
+        let trav: Vec<f64> = mains
+            .iter()
+            .filter_map(|(r, c)| {
+                r.best_packets()
+                    .map(|b| ratio(c.times.shadow_trace, b.times.shadow_trace))
+            })
+            .collect();
+        let _ = writeln!(
+            m,
+            "- shadows: light grid (rearrangement + build + traversal) / the best shadow packets (BVH Ranged or Partition {0}x{0}): geometric mean {1:.2}, the light grid faster on {2} of {3} scenes; traversal alone: {4:.2}; {5}",
+            s.side,
+            geo_mean(&lg),
+            wins,
+            lg.len(),
+            geo_mean(&trav),
+            agree(
+                results,
+                Role::Packets,
+                "every shadow-packet image equals the light-grid image",
+                "pixels differ between the shadow-packet and light-grid images"
+            )
+        );
+    }
+    // Camera pass.
+    let cam: Vec<(f64, f64)> = mains
+        .iter()
+        .filter_map(|(r, c)| {
+            let best = [Method::BvhRanged, Method::BvhPartition, Method::GridCgt]
+                .iter()
+                .filter_map(|&mm| r.camera(mm))
+                .min_by_key(|x| x.times.primary_trace)?;
+            Some((
+                ratio(c.times.primary_trace, best.times.primary_trace),
+                ratio(
+                    c.times.primary_trace + c.times.primary_build,
+                    best.times.primary_trace,
+                ),
+            ))
+        })
+        .collect();
+    if !cam.is_empty() {
+        let a: Vec<f64> = cam.iter().map(|x| x.0).collect();
+        let b: Vec<f64> = cam.iter().map(|x| x.1).collect();
+        let _ = writeln!(
+            m,
+            "- camera rays: perspective-grid traversal / the best {PACKET}x{PACKET} packets on a prebuilt structure: geometric mean {:.2} ({:.2} with the per-frame build); {}",
+            geo_mean(&a),
+            geo_mean(&b),
+            agree(
+                results,
+                Role::Camera,
+                "the packets find the perspective grid's nearest triangle on every pixel",
+                "pixels' nearest triangles differ between the packets and the perspective grid"
+            )
+        );
+    }
+    // Chunking.
+    let pairs: Vec<(&CfgResult, &CfgResult)> = results
+        .iter()
+        .filter_map(|r| Some((r.main()?, r.wide()?)))
+        .collect();
+    if !pairs.is_empty() {
+        let t: Vec<f64> = pairs
+            .iter()
+            .map(|(a, b)| ratio(a.times.shadow_trace, b.times.shadow_trace))
+            .collect();
+        let means = |f: &dyn Fn(&CfgResult) -> f64| {
+            let a: Vec<f64> = pairs.iter().map(|(a, _)| f(a)).collect();
+            let b: Vec<f64> = pairs.iter().map(|(_, b)| f(b)).collect();
+            (geo_mean(&a), geo_mean(&b))
+        };
+        let (sa, sb) = means(&|c| c.steady_imbalance);
+        let (pa, pb) = means(&|c| c.tail);
+        let busy = |f: &dyn Fn(&(&CfgResult, &CfgResult)) -> f64| {
+            pairs.iter().map(f).fold(f64::INFINITY, f64::min) * 100.0
+        };
+        let _ = writeln!(
+            m,
+            "- load balance (geometric means over the scenes): with r = {} the slowest chunk takes {:.1}x the mean chunk and the 99th-percentile chunk {:.1}x, against {:.1}x and {:.1}x with r = {WIDE_R}; shadow traversal time r = {} / r = {WIDE_R}: {:.2} on {} threads, threads busy at least {:.0} % of the pass (r = {WIDE_R}: {:.0} %)",
+            s.pp.chunk,
+            sa,
+            pa,
+            sb,
+            pb,
+            s.pp.chunk,
+            geo_mean(&t),
+            s.threads,
+            busy(&|p| p.0.efficiency),
+            busy(&|p| p.1.efficiency)
+        );
+    }
+    // Figure 11.
+    for r in results.iter().filter(|r| !r.fig11.is_empty()) {
+        let n = FIG11_R.len();
+        let small: Vec<f64> = r
+            .fig11
+            .iter()
+            .map(|row| ratio(row.shadow_ns[0], row.shadow_ns[n - 1]))
+            .collect();
+        let first = r.fig11.first().map_or(0, |x| x.shadow_ns[n - 1]);
+        let last = r.fig11.last().map_or(0, |x| x.shadow_ns[n - 1]);
+        let _ = writeln!(
+            m,
+            "- Figure 11, {}: shadow time at r = {} / r = {}: geometric mean {:.2} over the {} light distances; from {:.2} to {:.2} diagonals the shadow time (r = {}) goes from {:.1} to {:.1} ms",
+            r.name,
+            FIG11_R[0],
+            FIG11_R[n - 1],
+            geo_mean(&small),
+            r.fig11.len(),
+            r.fig11.first().map_or(0.0, |x| x.diagonals),
+            r.fig11.last().map_or(0.0, |x| x.diagonals),
+            FIG11_R[n - 1],
+            ms(first),
+            ms(last)
+        );
+    }
+    let _ = writeln!(m);
+}
+
 fn csv(results: &[SceneResult]) -> String {
     let mut s = String::from(
-        "scene,triangles,view,config,primary,shadows,chunk,primary_build_ms,primary_trace_ms,rearrange_ms,shadow_build_ms,shadow_trace_ms,shade_ms,frame_ms,shadow_ms,shadow_rays,hits,camera_refs,light_refs,light_tiles_used,chunks,max_tile_rays,chunk_mean_ms,chunk_max_ms,chunk_slowest_over_mean,threads_busy,pixels_differ\n",
+        "scene,triangles,view,config,primary,shadows,chunk,frames,primary_build_ms,primary_trace_ms,rearrange_ms,shadow_build_ms,shadow_trace_ms,shade_ms,frame_ms,shadow_ms,shadow_rays,hits,camera_refs,light_refs,light_tiles_used,chunks,max_tile_rays,chunk_mean_ms,chunk_max_ms,chunk_slowest_over_mean,chunk_p99_over_mean,chunk_slowest_steady_ms,chunk_slowest_over_mean_steady,threads_busy,pixels_differ\n",
     );
     for r in results {
         for c in &r.cfgs {
             let t = &c.times;
             let _ = writeln!(
                 s,
-                "{},{},{},{},{},{},{},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{},{},{},{},{},{},{},{:.5},{:.5},{:.3},{:.3},{}",
+                "{},{},{},{},{},{},{},{},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{},{},{},{},{},{},{},{:.5},{:.5},{:.3},{:.3},{:.5},{:.3},{:.3},{}",
                 r.name,
                 r.triangles,
                 r.view,
                 c.cfg.label(),
                 primary_label(&c.cfg.primary),
-                shadow_label(&c.cfg.shadow),
+                if c.cfg.shadows {
+                    shadow_label(&c.cfg.shadow)
+                } else {
+                    "none".into()
+                },
                 c.cfg.chunk,
+                c.frames,
                 ms(t.primary_build),
                 ms(t.primary_trace),
                 ms(t.rearrange),
@@ -1079,6 +1471,9 @@ fn csv(results: &[SceneResult]) -> String {
                 c.chunk_mean_ns * 1e-6,
                 ms(c.chunk_max_ns),
                 c.imbalance,
+                c.tail,
+                ms(c.steady_max_ns),
+                c.steady_imbalance,
                 c.efficiency,
                 c.diff
             );
@@ -1088,7 +1483,9 @@ fn csv(results: &[SceneResult]) -> String {
 }
 
 fn csv_fig11(results: &[SceneResult]) -> String {
-    let mut s = String::from("scene,diagonals,distance,shadow_rays,occluded,chunk,shadow_ms,chunks,chunk_slowest_over_mean\n");
+    let mut s = String::from(
+        "scene,diagonals,distance,shadow_rays,occluded,chunk,shadow_ms,chunks,chunk_p99_over_mean\n",
+    );
     for r in results {
         for row in &r.fig11 {
             for (j, rr) in FIG11_R.iter().enumerate() {
@@ -1156,8 +1553,12 @@ mod charts {
     {
         root.fill(&WHITE).map_err(|x| e(&x))?;
         let (head, body) = root.split_vertically(TITLE_H);
-        head.draw(&Text::new(t.to_string(), (12, 10), (chart::FONT, 18).into_font()))
-            .map_err(|x| e(&x))?;
+        head.draw(&Text::new(
+            t.to_string(),
+            (12, 10),
+            (chart::FONT, 18).into_font(),
+        ))
+        .map_err(|x| e(&x))?;
         Ok(body)
     }
 
@@ -1200,7 +1601,7 @@ mod charts {
             .fold(1e-3, f64::max)
             * 1.15;
         // Room on the right for the legend.
-        let xmax = n as f64 + 1.6;
+        let xmax = n as f64 + 1.3;
         let mut c = ChartBuilder::on(area)
             .caption(caption, (chart::FONT, 15))
             .margin(12)
@@ -1257,7 +1658,11 @@ mod charts {
                     let val = v.get(j).copied().unwrap_or(0.0);
                     let x0 = i as f64 + 0.1 + j as f64 * bw;
                     Text::new(
-                        format!("{val:.0}"),
+                        if val < 10.0 {
+                            format!("{val:.1}")
+                        } else {
+                            format!("{val:.0}")
+                        },
                         (x0, val + top * 0.012),
                         (chart::FONT, 9).into_font(),
                     )
@@ -1315,7 +1720,7 @@ mod charts {
             s.w, s.h, s.threads
         );
         let size = (150 * scenes.len() as u32 + 420, 560);
-        let cap = "ms per frame (stacked phases; frame total above each bar)";
+        let cap = "ms per frame: each phase's median, stacked (their sum above each bar)";
         save(
             size,
             svg,
@@ -1355,7 +1760,10 @@ mod charts {
         }
         let n = s.side;
         let series = vec![
-            (format!("light grid r={}", s.pp.chunk), RGBColor(214, 39, 40)),
+            (
+                format!("light grid r={}", s.pp.chunk),
+                RGBColor(214, 39, 40),
+            ),
             (format!("light grid r={WIDE_R}"), RGBColor(252, 146, 114)),
             (format!("CGT {n}x{n} packets"), RGBColor(44, 160, 44)),
             (format!("BVH Ranged {n}x{n}"), RGBColor(33, 113, 181)),
@@ -1405,8 +1813,9 @@ mod charts {
             .flat_map(|row| row.shadow_ns.iter().map(|&ns| ms(ns)))
             .fold(1e-3, f64::max)
             * 1.1;
-        let lo = r.fig11.first().map_or(0.25, |x| x.diagonals) * 0.9;
-        let hi = r.fig11.last().map_or(8.0, |x| x.diagonals) * 1.1;
+        // x: log2 of the distance, labelled in diagonals.
+        let lo = r.fig11.first().map_or(0.25, |x| x.diagonals).log2() - 0.25;
+        let hi = r.fig11.last().map_or(8.0, |x| x.diagonals).log2() + 0.25;
         let mut c = ChartBuilder::on(area)
             .caption(
                 format!("{} ({} triangles)", r.name, r.triangles),
@@ -1415,12 +1824,21 @@ mod charts {
             .margin(12)
             .x_label_area_size(40)
             .y_label_area_size(56)
-            .build_cartesian_2d((lo..hi).log_scale(), 0.0..top)
+            .build_cartesian_2d(lo..hi, 0.0..top)
             .map_err(|x| e(&x))?;
         c.configure_mesh()
             .x_desc("light distance from the model centre (scene diagonals, log scale)")
             .y_desc("shadow ms")
-            .x_label_formatter(&|x| format!("{x:.2}"))
+            .x_labels(((hi - lo).ceil() as usize) + 1)
+            .x_label_formatter(&|x| {
+                let v = 2f64.powf(*x);
+                if v < 1.0 {
+                    format!("{v:.2}")
+                } else {
+                    format!("{v:.0}")
+                }
+            })
+            .light_line_style(RGBColor(236, 236, 236))
             .label_style((chart::FONT, 12))
             .axis_desc_style((chart::FONT, 13))
             .draw()
@@ -1430,7 +1848,7 @@ mod charts {
             let pts: Vec<(f64, f64)> = r
                 .fig11
                 .iter()
-                .map(|row| (row.diagonals, ms(row.shadow_ns[j])))
+                .map(|row| (row.diagonals.log2(), ms(row.shadow_ns[j])))
                 .collect();
             c.draw_series(LineSeries::new(pts.clone(), colour.stroke_width(2)))
                 .map_err(|x| e(&x))?
@@ -1476,7 +1894,9 @@ mod charts {
         let rs: Vec<&SceneResult> = results.iter().filter(|r| !r.fig11.is_empty()).collect();
         let t = format!(
             "sheaf Figure 11: shadow time vs light distance per chunk size r, {}x{}, {} threads",
-            s.w, s.h, s.threads
+            super::fig11_size((s.w, s.h)).0,
+            super::fig11_size((s.w, s.h)).1,
+            s.threads
         );
         let size = (620 * rs.len().max(1) as u32, 520);
         save(
@@ -1486,5 +1906,81 @@ mod charts {
             |root| fig11_draw(root, &rs, &t),
             |root| fig11_draw(root, &rs, &t),
         )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A tiny run end to end: every file is written, every configuration
+    /// ran on every scene, the images and hits agree with the baseline,
+    /// Figure 11 falls back to the scenes run.
+    #[test]
+    fn tiny_run_writes_every_output() {
+        let dir = std::env::temp_dir().join(format!("sheaf-pgrid-test-{}", std::process::id()));
+        let a = BenchArgs {
+            scenes: vec!["tetra".into(), "animated".into()],
+            scenes_dir: None,
+            size: Some((48, 32)),
+            quick: true,
+            packets: vec![],
+            tests: vec![TestArg::Mt],
+            threads: vec![2],
+            ablation: false,
+            reps: Some(1),
+            oracle_budget: None,
+            lambda: 5.0,
+            macrocell: 6,
+            out_dir: Some(dir.clone()),
+            whitted: false,
+            entry: false,
+            pgrid: true,
+            pgrid_opts: Default::default(),
+            structures: vec![],
+        };
+        crate::bench::bench(&a).unwrap();
+        let csv = std::fs::read_to_string(dir.join("pgrid.csv")).unwrap();
+        let lines: Vec<&str> = csv.lines().collect();
+        let n = configs(&PgridParams::default(), 16).len();
+        assert_eq!(
+            lines.len(),
+            1 + 2 * n,
+            "header + 2 scenes x {n} configurations"
+        );
+        let differ = lines[0]
+            .split(',')
+            .position(|c| c == "pixels_differ")
+            .unwrap();
+        for l in &lines[1..] {
+            assert_eq!(l.split(',').nth(differ), Some("0"), "{l}");
+        }
+        let f11 = std::fs::read_to_string(dir.join("figure11.csv")).unwrap();
+        assert_eq!(f11.lines().count(), 1 + 2 * FIG11_STEPS * FIG11_R.len());
+        for f in [
+            "README.md",
+            "figure10.svg",
+            "figure10.png",
+            "shadows.svg",
+            "shadows.png",
+            "figure11.svg",
+            "figure11.png",
+            "frame_tetra.png",
+            "frame_animated.png",
+        ] {
+            assert!(dir.join(f).is_file(), "{f} missing");
+        }
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn distances_and_medians() {
+        let d = fig11_distances();
+        assert_eq!(d.len(), FIG11_STEPS);
+        assert!((d[0] - FIG11_NEAR).abs() < 1e-9 && (d[FIG11_STEPS - 1] - FIG11_FAR).abs() < 1e-9);
+        assert_eq!(median(vec![3, 1, 2]), 2);
+        assert_eq!(median(vec![4, 1, 2, 3]), 2);
+        assert_eq!(median(vec![]), 0);
+        assert_eq!(med_f(vec![1.0, 3.0]), 2.0);
     }
 }

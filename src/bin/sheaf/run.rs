@@ -426,6 +426,8 @@ pub struct ItemTimes {
     pub wall_ns: u64,
     /// Threads that ran items.
     pub threads: u32,
+    /// The 99th percentile of the item times (0 unless `Threads::keep_items`).
+    pub p99_ns: u64,
 }
 
 impl ItemTimes {
@@ -451,6 +453,11 @@ impl ItemTimes {
         let m = self.mean_ns();
         if m > 0.0 { self.max_ns as f64 / m } else { 0.0 }
     }
+    /// The 99th percentile item over the mean item (0 without `p99_ns`).
+    pub fn tail(&self) -> f64 {
+        let m = self.mean_ns();
+        if m > 0.0 { self.p99_ns as f64 / m } else { 0.0 }
+    }
     /// Busy time of all threads over `threads x wall` (1: no thread idle).
     pub fn efficiency(&self) -> f64 {
         let cap = self.wall_ns as f64 * self.threads.max(1) as f64;
@@ -470,6 +477,10 @@ impl ItemTimes {
 pub struct Threads {
     threads: usize,
     pub runs: Vec<ItemTimes>,
+    /// Keep every item's time of the last call in `items`, in the order
+    /// the iterator gave the items, and fill `ItemTimes::p99_ns`.
+    pub keep_items: bool,
+    pub items: Vec<u64>,
 }
 
 impl Threads {
@@ -477,6 +488,8 @@ impl Threads {
         Threads {
             threads: threads.max(1) as usize,
             runs: Vec::new(),
+            keep_items: false,
+            items: Vec::new(),
         }
     }
 }
@@ -496,18 +509,30 @@ impl sheaf::render::deferred::Workers for Threads {
         // A context without mailbox slots still runs (as `OnCaller` does).
         let (mut none, mut p) = ([0u32; 0], 0u32);
         let spare = mbs.is_empty().then(|| Mailbox::new(&mut none, &mut p));
-        let queue = Mutex::new(items);
+        // The items with the index of the next one.
+        let queue = Mutex::new((items, 0usize));
+        let keep = self.keep_items;
         let run = |mut mb: Mailbox<'_>| {
             let mut ctr = Counters::default();
             let mut times = ItemTimes::default();
+            let mut all = Vec::new();
             loop {
-                let next = queue.lock().unwrap_or_else(|p| p.into_inner()).next();
-                let Some(it) = next else { break };
+                let next = {
+                    let mut q = queue.lock().unwrap_or_else(|p| p.into_inner());
+                    let i = q.1;
+                    q.1 += 1;
+                    q.0.next().map(|it| (i, it))
+                };
+                let Some((i, it)) = next else { break };
                 let t = Instant::now();
                 work(it, &mut mb, &mut ctr);
-                times.add(t.elapsed().as_nanos() as u64);
+                let ns = t.elapsed().as_nanos() as u64;
+                times.add(ns);
+                if keep {
+                    all.push((i, ns));
+                }
             }
-            (ctr, times)
+            (ctr, times, all)
         };
         let start = Instant::now();
         let first = match spare {
@@ -515,7 +540,7 @@ impl sheaf::render::deferred::Workers for Threads {
             None => mbs.remove(0),
         };
         let threads = 1 + mbs.len() as u32;
-        let (ctr, mut times) = std::thread::scope(|s| {
+        let (ctr, mut times, mut all) = std::thread::scope(|s| {
             let helpers: Vec<_> = mbs
                 .into_iter()
                 .map(|mb| {
@@ -525,20 +550,30 @@ impl sheaf::render::deferred::Workers for Threads {
                         .expect("spawn a render thread")
                 })
                 .collect();
-            let (mut ctr, mut times) = run(first);
+            let (mut ctr, mut times, mut all) = run(first);
             for h in helpers {
                 match h.join() {
-                    Ok((c, t)) => {
+                    Ok((c, t, a)) => {
                         ctr.add(&c);
                         times.merge(&t);
+                        all.extend(a);
                     }
                     Err(p) => std::panic::resume_unwind(p),
                 }
             }
-            (ctr, times)
+            (ctr, times, all)
         });
         times.wall_ns = start.elapsed().as_nanos() as u64;
         times.threads = threads;
+        if keep {
+            all.sort_unstable();
+            self.items = all.iter().map(|&(_, ns)| ns).collect();
+            let mut sorted = self.items.clone();
+            sorted.sort_unstable();
+            if let Some(last) = sorted.len().checked_sub(1) {
+                times.p99_ns = sorted[(last * 99).div_ceil(100)];
+            }
+        }
         self.runs.push(times);
         ctr
     }
@@ -585,10 +620,7 @@ impl DeferredSetup<'_> {
             ctx.build_kd(self.scene, &p)
                 .or_fail(|| "building the kd-tree".into())?;
         }
-        let pp = sheaf::PgridParams {
-            test,
-            ..self.pgrid
-        };
+        let pp = sheaf::PgridParams { test, ..self.pgrid };
         ctx.build_pgrid(self.scene, &pp)
             .or_fail(|| "loading the scene for the perspective grids".into())?;
         Ok((ctx, info))
@@ -639,5 +671,51 @@ impl DeferredSetup<'_> {
         Err(Failure(
             "deferred frame: perspective grid pools still too small after growing them".into(),
         ))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use sheaf::render::deferred::Workers;
+
+    #[test]
+    fn threads_run_every_item_once_and_time_each() {
+        let mut stamps = vec![0u32; 8];
+        let mut packets = [0u32; 3];
+        let mut st = stamps.chunks_mut(2);
+        let mut mbs = packets
+            .iter_mut()
+            .map(move |p| Mailbox::new(st.next().unwrap_or(&mut []), p));
+        let mut w = Threads::new(2);
+        w.keep_items = true;
+        let mut items = 0..100u64;
+        let ctr = w.run(&mut mbs, &mut items, &|i, _mb, c: &mut Counters| {
+            c.rays += i;
+            if i == 7 {
+                std::thread::sleep(std::time::Duration::from_millis(5));
+            }
+        });
+        assert_eq!(ctr.rays, 4950);
+        let t = w.runs[0];
+        assert_eq!(t.count, 100);
+        assert!(t.threads <= 2 && t.threads >= 1);
+        assert!(t.max_ns >= 5_000_000 && t.max_ns <= t.sum_ns && t.sum_ns <= t.wall_ns * 2);
+        assert!(t.imbalance() > 1.0 && t.p99_ns > 0);
+        // Item times in item order: item 7 is the slow one.
+        assert_eq!(w.items.len(), 100);
+        assert_eq!(w.items[7], t.max_ns);
+    }
+
+    #[test]
+    fn threads_without_mailboxes_still_run() {
+        let mut w = Threads::new(4);
+        let mut none = std::iter::empty();
+        let mut items = 0..10u64;
+        let ctr = w.run(&mut none, &mut items, &|i, _mb, c: &mut Counters| {
+            c.rays += i
+        });
+        assert_eq!(ctr.rays, 45);
+        assert_eq!(w.runs[0].threads, 1);
     }
 }
