@@ -499,7 +499,18 @@ impl<'a> Context<'a> {
             for (l, light) in lights.iter().enumerate() {
                 // Phase 3: shadow rays, mapped and sorted into light tiles.
                 let t = now();
-                let s = deferred::make_shadow_rays(&tri_of!(), light, &rays, &lay, eps, buf.prim, buf.t, buf.dirs);
+                let s = deferred::make_shadow_rays(
+                    &tri_of!(),
+                    light,
+                    &rays,
+                    &lay,
+                    eps,
+                    buf.prim,
+                    buf.t,
+                    buf.dirs,
+                    workers,
+                    &mut mailboxes!(),
+                );
                 info.shadow_rays += s.count as u64;
                 match job.shadow {
                     ShadowPass::Traced(p) => {
@@ -568,6 +579,8 @@ impl<'a> Context<'a> {
             buf.shadow,
             pixels,
             stride,
+            workers,
+            &mut mailboxes!(),
         );
         info.times.shade = elapsed_ns(t);
         let _ = t_all;

@@ -448,11 +448,15 @@ pub struct ShadowRays {
     pub mean_dir: Vec3,
 }
 
+/// A triangle by id, from the structure that found the hits.
+pub type TriOf<'a> = &'a (dyn Fn(u32) -> Option<TriVerts> + Sync);
+
 /// Phase 3a: the shadow ray of every pixel for `light` into `dirs` (x NaN
-/// where there is none: miss, facing away, outside a spot's cone).
+/// where there is none: miss, facing away, outside a spot's cone), tiles
+/// as work items; then their count, length range and mean direction.
 #[allow(clippy::too_many_arguments)]
-pub fn make_shadow_rays(
-    tri_of: &dyn Fn(u32) -> Option<TriVerts>,
+pub fn make_shadow_rays<'m, W: Workers>(
+    tri_of: TriOf<'_>,
     light: &PointLight,
     rays: &PrimaryRays,
     lay: &TileLayout,
@@ -460,29 +464,43 @@ pub fn make_shadow_rays(
     prim: &[u32],
     t: &[f32],
     dirs: &mut [[f32; 3]],
+    workers: &mut W,
+    mailboxes: &mut dyn Iterator<Item = Mailbox<'m>>,
 ) -> ShadowRays {
+    let ss = (lay.side * lay.side) as usize;
+    let n = lay.len();
+    let mut items = dirs[..n].chunks_mut(ss).enumerate();
+    let work = |(tile, d): (usize, &mut [[f32; 3]]), _: &mut Mailbox<'_>, _: &mut Counters| {
+        for (k, dk) in d.iter_mut().enumerate() {
+            let i = tile * ss + k;
+            dk[0] = f32::NAN;
+            if prim[i] == INVALID_ID {
+                continue;
+            }
+            let (x, y) = lay.pixel(i);
+            let Some(tri) = tri_of(prim[i]) else { continue };
+            if let Some(r) = shadow_ray(&rays.ray(x, y), t[i], &tri, light, eps) {
+                *dk = r.dir;
+            }
+        }
+    };
+    workers.run(mailboxes, &mut items, &work);
     let mut s = ShadowRays {
         count: 0,
         near: f32::INFINITY,
         far: 0.0,
         mean_dir: Vec3::ZERO,
     };
-    for i in 0..lay.len() {
-        dirs[i][0] = f32::NAN;
-        if prim[i] == INVALID_ID {
+    for d in &dirs[..n] {
+        if d[0].is_nan() {
             continue;
         }
-        let (x, y) = lay.pixel(i);
-        let Some(tri) = tri_of(prim[i]) else { continue };
-        if let Some(r) = shadow_ray(&rays.ray(x, y), t[i], &tri, light, eps) {
-            let d = Vec3::from(r.dir);
-            let len = d.length();
-            dirs[i] = r.dir;
-            s.count += 1;
-            s.near = s.near.min(len);
-            s.far = s.far.max(len);
-            s.mean_dir += d / len;
-        }
+        let d = Vec3::from(*d);
+        let len = d.length();
+        s.count += 1;
+        s.near = s.near.min(len);
+        s.far = s.far.max(len);
+        s.mean_dir += d / len;
     }
     s
 }
@@ -735,10 +753,10 @@ pub fn traced_shadow_pass<'m, T: Tracer + ?Sized, W: Workers>(
 
 /// Phase 6: Lambert shading of every pixel with every light, a light whose
 /// shadow bit is set contributing nothing; RGBA8 into `pixels` (`stride`
-/// bytes per row).
+/// bytes per row), bands of rows as work items.
 #[allow(clippy::too_many_arguments)]
-pub fn shade(
-    tri_of: &dyn Fn(u32) -> Option<TriVerts>,
+pub fn shade<'m, W: Workers>(
+    tri_of: TriOf<'_>,
     frame: &Frame,
     lights: &[PointLight],
     rays: &PrimaryRays,
@@ -749,29 +767,42 @@ pub fn shade(
     shadow: &[u8],
     pixels: &mut [u8],
     stride: usize,
+    workers: &mut W,
+    mailboxes: &mut dyn Iterator<Item = Mailbox<'m>>,
 ) {
+    const BAND: usize = 8;
     let sh = &frame.shading;
-    for y in 0..frame.height {
-        for x in 0..frame.width {
-            let i = lay.index(x, y);
-            let tri = if prim[i] == INVALID_ID { None } else { tri_of(prim[i]) };
-            let c = match tri {
-                Some(tri) => {
-                    let (p, n) = surface_of(&rays.ray(x, y), t[i], &tri);
-                    let mut sum = Vec3::ZERO;
-                    for (l, light) in lights.iter().enumerate() {
-                        let (lit, _) = light.at(p, n, false, eps);
-                        let lit = if sh.shadows && shadow[i] & (1 << l) != 0 { 0.0 } else { lit };
-                        sum += Vec3::from(light.color) * lit;
+    let h = frame.height as usize;
+    let len = pixels.len().min(h * stride);
+    let mut items = pixels[..len].chunks_mut(BAND * stride).enumerate();
+    let work = |(b, rows): (usize, &mut [u8]), _: &mut Mailbox<'_>, _: &mut Counters| {
+        for ry in 0..BAND {
+            let y = (b * BAND + ry) as u32;
+            if y >= frame.height {
+                break;
+            }
+            for x in 0..frame.width {
+                let i = lay.index(x, y);
+                let tri = if prim[i] == INVALID_ID { None } else { tri_of(prim[i]) };
+                let c = match tri {
+                    Some(tri) => {
+                        let (p, n) = surface_of(&rays.ray(x, y), t[i], &tri);
+                        let mut sum = Vec3::ZERO;
+                        for (l, light) in lights.iter().enumerate() {
+                            let (lit, _) = light.at(p, n, false, eps);
+                            let lit = if sh.shadows && shadow[i] & (1 << l) != 0 { 0.0 } else { lit };
+                            sum += Vec3::from(light.color) * lit;
+                        }
+                        Vec3::from(sh.albedo) * (Vec3::splat(sh.ambient) + sum)
                     }
-                    Vec3::from(sh.albedo) * (Vec3::splat(sh.ambient) + sum)
-                }
-                None => Vec3::from(sh.background),
-            };
-            let at = y as usize * stride + x as usize * 4;
-            pixels[at..at + 4].copy_from_slice(&[encode(c.x), encode(c.y), encode(c.z), 255]);
+                    None => Vec3::from(sh.background),
+                };
+                let at = ry * stride + x as usize * 4;
+                rows[at..at + 4].copy_from_slice(&[encode(c.x), encode(c.y), encode(c.z), 255]);
+            }
         }
-    }
+    };
+    workers.run(mailboxes, &mut items, &work);
 }
 
 /// Shadow-ray end point offset for a scene of `scale`.

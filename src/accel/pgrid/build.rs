@@ -351,6 +351,9 @@ pub fn build_light(
 ) -> Result<CellsInfo> {
     g.scene.params.ok_or(Error::NotBuilt)?;
     g.light_built = false;
+    // The triangle bounds pool now holds (a, b) bounds: the camera grid's
+    // pixel bounds are gone.
+    g.cam_built = false;
     let tiles = frame.tiles;
     let cells = tiles[0] as u64 * tiles[1] as u64 * slices as u64;
     check_cells(cells, g.pools.light_start.len())?;
@@ -410,6 +413,7 @@ pub fn build_light(
             s: [depth.lo(dmin), depth.hi(dmax)],
         };
         if pairs.emit_reached(&cb, tiles[0], slices, i as u32, reach) {
+            p.px_box[i] = [alo, blo, ahi, bhi];
             info.mapped += 1;
         }
     }

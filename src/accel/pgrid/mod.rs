@@ -362,8 +362,11 @@ pub struct PgridPools<'a> {
     pub tris: &'a mut [TriVerts],
     pub proj: &'a mut [ProjTri],
     pub ok: &'a mut [u8],
-    /// Padded pixel bounds `[x0, y0, x1, y1]` of every triangle in the
-    /// camera grid (per-quad culling in `traverse_primary`).
+    /// Per triangle, the camera grid's padded pixel bounds `[x0, y0, x1,
+    /// y1]` (per-quad culling in `traverse_primary`); after a light grid
+    /// build, that grid's padded (a, b) bounds `[a0, b0, a1, b1]` instead
+    /// (per-quad culling in `traverse_shadow`). One pool: a frame traces
+    /// its camera rays before any shadow ray.
     pub px_box: &'a mut [[f32; 4]],
     /// Camera grid: cell starts (cells + 1) and sorted triangle ids (refs).
     pub cam_start: &'a mut [u32],
@@ -460,6 +463,7 @@ impl<'a> Pgrid<'a> {
             },
             frame: self.light_frame,
             test: self.scene.params?.test,
+            ab_box: &self.pools.px_box[..self.scene.triangles as usize],
         })
     }
 }
@@ -484,4 +488,6 @@ pub struct LightView<'r> {
     pub cells: CellsView<'r>,
     pub frame: LightFrame,
     pub test: TriTest,
+    /// Padded (a, b) bounds of every triangle listed in the grid.
+    pub ab_box: &'r [[f32; 4]],
 }

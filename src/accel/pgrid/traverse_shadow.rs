@@ -58,7 +58,21 @@ fn walk<T: PgTest>(
     let mut last = [[0u32; 4]; MAX_QUADS];
     let mut pre = [T::prepare(&RayLanes::from_ray4(&rays[0])); MAX_QUADS];
     let mut end = 0;
+    // (a, b) bounds of each quad's rays: a triangle whose (a, b) bounds
+    // miss them cannot block any of them.
+    let mut qbox = [[0.0f32; 4]; MAX_QUADS];
     ctr.packets += 1;
+    for q in 0..nq {
+        let mut b = [f32::INFINITY, f32::INFINITY, f32::NEG_INFINITY, f32::NEG_INFINITY];
+        for i in 0..4 {
+            if active[q].test(i) {
+                let r = rays[q].lane(i);
+                let (a, bb) = g.frame.angles(glam::Vec3::from(r.dir));
+                b = [b[0].min(a), b[1].min(bb), b[2].max(a), b[3].max(bb)];
+            }
+        }
+        qbox[q] = b;
+    }
     for q in 0..nq {
         live[q] = active[q];
         occluded[q] = M4::FALSE;
@@ -83,6 +97,7 @@ fn walk<T: PgTest>(
                 continue;
             }
             let prim = T::prim(&g.tris, tri as usize);
+            let tb = g.ab_box[tri as usize];
             let mut left = false;
             for q in 0..nq {
                 let lm = live[q];
@@ -90,6 +105,11 @@ fn walk<T: PgTest>(
                     continue;
                 }
                 left = true;
+                let b = &qbox[q];
+                if tb[0] > b[2] || tb[2] < b[0] || tb[1] > b[3] || tb[3] < b[1] {
+                    count!(ctr.culled += 1);
+                    continue;
+                }
                 count!(ctr.tri_tests += lm.bitmask().count_ones() as u64);
                 let h = T::intersect(&RayLanes::from_ray4(&rays[q]), &pre[q], prim);
                 let hm = h.mask & lm;
