@@ -557,6 +557,7 @@ impl<'a> Context<'a> {
                             buf.occ,
                             buf.shadow,
                             l as u8,
+                            pp.chunk,
                             workers,
                             &mut mailboxes!(),
                         ));

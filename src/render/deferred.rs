@@ -635,17 +635,63 @@ pub fn light_grid_pass<'m, W: Workers>(
     occ: &mut [u8],
     shadow: &mut [u8],
     bit: u8,
+    r: u32,
     workers: &mut W,
     mailboxes: &mut dyn Iterator<Item = Mailbox<'m>>,
 ) -> Counters {
     let light = g.frame.pos;
+    // Work items: runs of consecutive chunks of at most r rays together. A
+    // CUDA block loads one tile's triangles, so the paper cannot merge
+    // sparse tiles; a CPU thread can, and then items are about r rays each
+    // instead of a few rays for every sparse tile.
     let mut rest = &mut occ[..];
-    let mut items = chunks.iter().map(move |c| {
-        let (mine, tail) = core::mem::take(&mut rest).split_at_mut(c.count as usize);
+    let mut left = chunks;
+    let mut items = core::iter::from_fn(move || {
+        if left.is_empty() {
+            return None;
+        }
+        let (mut k, mut n) = (0usize, 0u32);
+        while k < left.len() && (k == 0 || n + left[k].count <= r) {
+            n += left[k].count;
+            k += 1;
+        }
+        let (group, tail) = left.split_at(k);
+        left = tail;
+        let (mine, tail) = core::mem::take(&mut rest).split_at_mut(n as usize);
         rest = tail;
-        (c, mine)
+        Some((group, mine))
     });
-    let work = |(c, out): (&Chunk, &mut [u8]), mb: &mut Mailbox<'_>, ctr: &mut Counters| {
+    let work = |(group, out): (&[Chunk], &mut [u8]), mb: &mut Mailbox<'_>, ctr: &mut Counters| {
+        let mut at = 0usize;
+        for c in group {
+            let n = c.count as usize;
+            trace_one_chunk(g, c, ray_ids, dirs, light, &mut out[at..at + n], mb, ctr);
+            at += n;
+        }
+    };
+    let ctr = workers.run(mailboxes, &mut items, &work);
+    let n: usize = chunks.iter().map(|c| c.count as usize).sum();
+    for k in 0..n {
+        if occ[k] != 0 {
+            shadow[ray_ids[k] as usize] |= 1 << bit;
+        }
+    }
+    ctr
+}
+
+/// One chunk: its rays as 2x2 rays in sorted order, traced in batches.
+#[allow(clippy::too_many_arguments)]
+fn trace_one_chunk(
+    g: &LightView<'_>,
+    c: &Chunk,
+    ray_ids: &[u32],
+    dirs: &[[f32; 3]],
+    light: Vec3,
+    out: &mut [u8],
+    mb: &mut Mailbox<'_>,
+    ctr: &mut Counters,
+) {
+    {
         let mut quads = [Ray4::from_rays(&[DUMMY; 4]); traverse_shadow::MAX_QUADS];
         let mut active = [M4::FALSE; traverse_shadow::MAX_QUADS];
         let mut occluded = [M4::FALSE; traverse_shadow::MAX_QUADS];
@@ -670,16 +716,9 @@ pub fn light_grid_pass<'m, W: Workers>(
                 out[base + k] = occluded[k / 4].test(k % 4) as u8;
             }
         }
-    };
-    let ctr = workers.run(mailboxes, &mut items, &work);
-    let n: usize = chunks.iter().map(|c| c.count as usize).sum();
-    for k in 0..n {
-        if occ[k] != 0 {
-            shadow[ray_ids[k] as usize] |= 1 << bit;
-        }
     }
-    ctr
 }
+
 
 /// Phase 5 with another method: shadow packets from the light per tile of
 /// the layout (split in depth as `render_tiles` does), or ray by ray.

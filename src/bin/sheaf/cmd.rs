@@ -671,7 +671,7 @@ fn deferred_lines(
             "reorder    {} shadow rays in {} light tiles, {} chunks of at most {} rays, {} rays in the most crowded tile",
             r.rays, r.tiles_used, r.chunks, pp.chunk, r.max_tile_rays
         );
-        if let Some(t) = workers.runs.last() {
+        if let Some((t, _)) = workers.shadow_pass() {
             println!(
                 "chunks     {} work items on {} threads: mean {:.3} ms, 99th percentile {:.3} ms, slowest {:.3} ms = {:.2}x the mean; threads busy {:.0} % of the pass",
                 t.count,

@@ -331,16 +331,14 @@ impl Bench<'_> {
             self.setup
                 .render(&mut self.ctx, &job, &mut self.pixels, &mut self.workers)?;
         self.grown |= grown;
-        let shadows = self.frame.shading.shadows && self.workers.runs.len() >= 2;
-        let chunks = if shadows {
-            self.workers.runs.last().copied().unwrap_or_default()
-        } else {
-            ItemTimes::default()
-        };
-        let items = if shadows && cfg.shadow == ShadowPass::LightGrid {
-            std::mem::take(&mut self.workers.items)
-        } else {
-            Vec::new()
+        let pass = self
+            .workers
+            .shadow_pass()
+            .filter(|_| self.frame.shading.shadows);
+        let chunks = pass.map_or(ItemTimes::default(), |(t, _)| t);
+        let items = match pass {
+            Some((_, items)) if cfg.shadow == ShadowPass::LightGrid => items.to_vec(),
+            _ => Vec::new(),
         };
         Ok(Sample {
             info,
@@ -926,7 +924,7 @@ fn markdown(results: &[SceneResult], s: &Setup<'_>) -> String {
     );
     let _ = writeln!(
         m,
-        "- single-threaded phases in this version of `render_deferred`: primary build, data rearrangement, shadow build and shade; the two traversals run on the threads"
+        "- on the threads: the two traversals, the making of the shadow rays (part of data rearrangement) and shading; on one thread: both grid builds and the rest of data rearrangement (light frustum, map, sort, chunking)"
     );
     let _ = writeln!(m, "- total time: {:.0} s\n", s.total_s);
     summary(&mut m, results, s);

@@ -472,15 +472,37 @@ impl ItemTimes {
 /// `Workers` on scoped threads: one per mailbox taken (at most `threads`),
 /// each pulling items from a shared `Mutex`'d iterator (as `bands` takes
 /// bands), counters summed. Every call's item times are appended to `runs`
-/// (callers clear it per frame): a deferred frame's light-grid pass is its
-/// last call, one item per chunk.
+/// (callers clear it per frame): a deferred frame with one light and
+/// shadows makes four calls, camera rays, shadow-ray making, the shadow
+/// pass (one item per chunk with the light grid) and shading
+/// (`shadow_pass`).
 pub struct Threads {
     threads: usize,
     pub runs: Vec<ItemTimes>,
-    /// Keep every item's time of the last call in `items`, in the order
-    /// the iterator gave the items, and fill `ItemTimes::p99_ns`.
+    /// Keep every item's time of every call in `item_runs` (one list per
+    /// entry of `runs`), in the order the iterator gave the items, and
+    /// fill `ItemTimes::p99_ns`; `items` is the last call's list.
     pub keep_items: bool,
     pub items: Vec<u64>,
+    pub item_runs: Vec<Vec<u64>>,
+}
+
+/// Calls a one-light deferred frame with shadows makes through `Workers`.
+pub const DEFERRED_RUNS: usize = 4;
+
+impl Threads {
+    /// The shadow pass of the last one-light deferred frame with shadows
+    /// (the third of its `DEFERRED_RUNS` calls) and its item times (empty
+    /// unless `keep_items`).
+    pub fn shadow_pass(&self) -> Option<(ItemTimes, &[u64])> {
+        let n = self.runs.len();
+        if n < DEFERRED_RUNS {
+            return None;
+        }
+        let k = n - 2;
+        let items = self.item_runs.get(k).map_or(&[][..], |v| &v[..]);
+        Some((self.runs[k], items))
+    }
 }
 
 impl Threads {
@@ -490,6 +512,7 @@ impl Threads {
             runs: Vec::new(),
             keep_items: false,
             items: Vec::new(),
+            item_runs: Vec::new(),
         }
     }
 }
@@ -574,6 +597,10 @@ impl sheaf::render::deferred::Workers for Threads {
                 times.p99_ns = sorted[(last * 99).div_ceil(100)];
             }
         }
+        // Item lists are kept per call (empty when `keep_items` is off).
+        self.item_runs.truncate(self.runs.len());
+        self.item_runs.resize(self.runs.len(), Vec::new());
+        self.item_runs.push(if keep { self.items.clone() } else { Vec::new() });
         self.runs.push(times);
         ctr
     }
@@ -642,6 +669,7 @@ impl DeferredSetup<'_> {
         let mut grown = false;
         for _ in 0..4 {
             workers.runs.clear();
+            workers.item_runs.clear();
             match ctx.render_deferred(job, pixels, stride, workers) {
                 Ok(info) => return Ok((info, grown)),
                 Err(Error::Capacity {
