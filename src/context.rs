@@ -409,6 +409,11 @@ impl<'a> Context<'a> {
                 "the tracing tile (pgrid tile * group, or the packet side) exceeds Limits::max_tile",
             ));
         }
+        if matches!(job.shadow, ShadowPass::Traced(p) if p.tile_side() > 0) && side > 32 {
+            return Err(Error::InvalidArgument(
+                "traced shadow packets take the tracing tile's side, at most 32 (pgrid tile * group)",
+            ));
+        }
         let lay = TileLayout::new(side, job.frame.width, job.frame.height);
         let t_all = now();
         let tr = SceneTracer {
@@ -531,7 +536,7 @@ impl<'a> Context<'a> {
                     }
                     ShadowPass::LightGrid => {
                         let f = deferred::light_frame(light, &s, deferred::light_tiles(pp.light_tiles, s.count), &lay, buf.dirs, buf.ray_tiles, buf.ray_ids);
-                        let depth = pgrid::Slices::new(s.near, s.far, pp.light_slices);
+                        let depth = pgrid::Slices::new(s.near, s.far, pp.light_slices, pgrid::LIGHT_DEPTH_PAD);
                         let k = deferred::map_to_tiles(&f, &depth, &lay, buf.dirs, buf.ray_tiles, buf.ray_ids, buf.reach);
                         info.times.rearrange += elapsed_ns(t);
                         // Phase 4: the light grid, over the tiles and

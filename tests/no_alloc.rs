@@ -1,17 +1,21 @@
 //! No allocation after setup (DESIGN.md "Memory: fixed at setup"), proved
 //! with a counting global allocator over 10 frames of the animated scene:
 //! set geometry, rebuild the grid, trace, occlude and render every frame,
-//! with the 3DDDA and with coherent grid traversal.
-//! Its own test binary, so no other test's allocations are counted.
+//! with the 3DDDA and with coherent grid traversal, the BVH and kd-tree
+//! methods, and deferred frames (perspective grid and light grids, loaded
+//! by `build_pgrid` every frame, with traced passes mixed in, two lights
+//! one of them a spot).
+//! Its own test binary with one test, so no other test's allocations are
+//! counted.
 
 use sheaf::accel::bvh::BvhParams;
 use sheaf::accel::kd::KdParams;
-use sheaf::trace::EntrySearch;
 use sheaf::render::{Camera, Frame, PointLight, Shading};
 use sheaf::scenes::animated::Animated;
+use sheaf::trace::EntrySearch;
 use sheaf::{
-    Context, GridParams, Hit, Limits, Method, OwnedContext, Ray, Scene, TraceParams, TriTest,
-    required_bytes,
+    Context, DeferredJob, GridParams, Hit, Limits, Method, OnCaller, OwnedContext, PgridParams,
+    PrimaryPass, Ray, Scene, ShadowPass, TraceParams, TriTest, required_bytes,
 };
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -71,6 +75,10 @@ fn ten_animated_frames_allocate_nothing() {
     let tris = anim.mesh.triangle_count() as u32;
     let mut limits = Limits::for_triangles(tris);
     limits.max_vertices = anim.mesh.vertex_count() as u32;
+    // The perspective and light grids' pools scale with the image.
+    limits.structures |= Limits::PGRID;
+    limits.max_image_width = frame.width;
+    limits.max_image_height = frame.height;
 
     // Creation: exactly one allocation for the owned context...
     let a0 = allocs();
@@ -111,6 +119,11 @@ fn ten_animated_frames_allocate_nothing() {
     let stride = frame.width as usize * 4;
     let mut pixels = vec![0u8; stride * frame.height as usize];
     let mut hit_total = 0usize;
+    let mut deferred = Deferred::default();
+    // Two lights: the scene's, and a spot from above the camera aimed at
+    // what it looks at.
+    let view = anim.views()[0];
+    let (spot_at, spot_from) = (view.look_at, view.eye + glam::Vec3::new(0.0, 0.0, 3.0));
 
     let start = allocs();
     for f in 0..10 {
@@ -125,6 +138,20 @@ fn ten_animated_frames_allocate_nothing() {
             test,
             ..GridParams::default()
         };
+        let lights = [
+            PointLight {
+                position: anim.light().to_array(),
+                color: [0.7; 3],
+                ..Default::default()
+            },
+            PointLight {
+                position: spot_from.to_array(),
+                color: [0.5; 3],
+                spot_direction: (spot_at - spot_from).to_array(),
+                spot_angle_deg: 25.0,
+                spot_soft_deg: 5.0,
+            },
+        ];
         for ctx in [
             &mut owned as &mut dyn Frames,
             &mut borrowed as &mut dyn Frames,
@@ -136,8 +163,10 @@ fn ten_animated_frames_allocate_nothing() {
                 &mut hits,
                 &mut occ,
                 &frame,
+                &lights,
                 &mut pixels,
                 stride,
+                &mut deferred,
             );
             hit_total += hits.iter().filter(|h| h.is_hit()).count();
         }
@@ -145,10 +174,28 @@ fn ten_animated_frames_allocate_nothing() {
     let during = allocs() - start;
     assert_eq!(
         during, 0,
-        "10 frames of grid, BVH and kd-tree builds + trace + occluded + render allocated {during} times"
+        "10 frames of grid, BVH and kd-tree builds + trace + occluded + render + deferred frames allocated {during} times"
     );
     assert!(hit_total > 0, "the frames must trace something");
     assert!(pixels.iter().any(|&p| p != 0));
+    assert_eq!(
+        deferred.frames,
+        10 * 2 * 4,
+        "every deferred frame must render"
+    );
+    assert!(
+        deferred.hits > 0 && deferred.shadow_rays > 0 && deferred.chunks > 0,
+        "the deferred frames must trace camera and shadow rays: {deferred:?}"
+    );
+}
+
+/// What the deferred frames did (summed), so the test knows they ran.
+#[derive(Debug, Default)]
+struct Deferred {
+    frames: u32,
+    hits: u64,
+    shadow_rays: u64,
+    chunks: u64,
 }
 
 /// One frame on either kind of context.
@@ -162,14 +209,16 @@ trait Frames {
         h: &mut [Hit],
         o: &mut [bool],
         f: &Frame,
+        lights: &[PointLight],
         px: &mut [u8],
         stride: usize,
+        d: &mut Deferred,
     );
 }
 macro_rules! impl_frames {
     ($($t:ty),*) => {$(
         impl Frames for $t {
-            fn frame(&mut self, s: &Scene, p: &GridParams, r: &[Ray], h: &mut [Hit], o: &mut [bool], f: &Frame, px: &mut [u8], stride: usize) {
+            fn frame(&mut self, s: &Scene, p: &GridParams, r: &[Ray], h: &mut [Hit], o: &mut [bool], f: &Frame, lights: &[PointLight], px: &mut [u8], stride: usize, d: &mut Deferred) {
                 self.build_grid(s, p).unwrap();
                 self.trace(Method::GridDda, r, h).unwrap();
                 self.occluded(Method::GridDda, r, o).unwrap();
@@ -201,6 +250,27 @@ macro_rules! impl_frames {
                         self.occluded_with(&kp, r, o).unwrap();
                         self.render_with(&kp, &kp, f, px, stride).unwrap();
                     }
+                }
+                // Deferred frames: the scene loaded for the perspective and
+                // light grids (rebuilt inside every frame), then the grid
+                // passes and traced passes mixed, with both lights and with
+                // the frame's light alone.
+                self.build_pgrid(s, &PgridParams { test: p.test, chunk: 64, ..PgridParams::default() }).unwrap();
+                let bvh16 = TraceParams::bvh(Method::BvhRanged, 16);
+                for (primary, shadow, ls) in [
+                    (PrimaryPass::Pgrid, ShadowPass::LightGrid, lights),
+                    (PrimaryPass::Traced(bvh16), ShadowPass::LightGrid, lights),
+                    (PrimaryPass::Pgrid, ShadowPass::Traced(TraceParams::cgt(8)), lights),
+                    (PrimaryPass::Pgrid, ShadowPass::LightGrid, &[][..]),
+                ] {
+                    let job = DeferredJob { frame: f, lights: ls, primary, shadow };
+                    let info = self.render_deferred(&job, px, stride, &mut OnCaller).unwrap();
+                    d.frames += 1;
+                    d.hits += info.hits;
+                    d.shadow_rays += info.shadow_rays;
+                    d.chunks += info.reorder.chunks as u64;
+                    let _ = self.deferred_pixel(f.width / 2, f.height / 2);
+                    let _ = self.deferred_shadow_ray(f.width / 2, f.height / 2, &f.light);
                 }
             }
         }

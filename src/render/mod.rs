@@ -129,16 +129,21 @@ impl PointLight {
 
     /// Light at surface point `p` with facing normal `n`: the cosine times
     /// the spot factor and, when that is positive and `shadows` is on, the
-    /// shadow ray from the light to `p + n * eps` (`tmax = 1`, exclusive,
-    /// so the surface itself is never reported). Every renderer shoots
+    /// shadow ray from the light to `p + n * eps'` (`tmax = 1`, exclusive,
+    /// so the surface itself is never reported), `eps'` the larger of `eps`
+    /// and `SHADOW_OFFSET_REL` of the ray's length: a far light's ray
+    /// carries rounding relative to its length, and its own surface must
+    /// stay beyond t = 1 for every triangle test. Every renderer shoots
     /// exactly these rays.
     #[inline]
     pub fn at(&self, p: Vec3, n: Vec3, shadows: bool, eps: f32) -> (f32, Option<Ray>) {
         let light = Vec3::from(self.position);
-        let to = (light - p).normalize_or_zero();
+        let to = light - p;
+        let len = to.length();
+        let to = to.normalize_or_zero();
         let lit = n.dot(to) * self.spot(-to);
         if lit > 0.0 && shadows {
-            let end = p + n * eps;
+            let end = p + n * eps.max(SHADOW_OFFSET_REL * len);
             (lit, Some(Ray::new(light, end - light, 0.0, 1.0)))
         } else {
             (lit.max(0.0), None)
@@ -283,6 +288,10 @@ pub struct Frame {
 /// scale: large enough to leave the surface's own rounding error, small
 /// enough not to skip contact shadows.
 pub const SHADOW_OFFSET: f32 = 1e-4;
+
+/// Shadow-ray end point offset relative to the ray's length (see
+/// `PointLight::at`): only lights farther than 10 scene sizes reach it.
+pub const SHADOW_OFFSET_REL: f32 = 1e-5;
 
 /// The facing normal of a hit and, when the surface faces the light, the
 /// shadow ray from the light to a point just off the surface (t = 1 there;

@@ -187,7 +187,7 @@ pub fn build_camera(g: &mut Pgrid<'_>, cam: &Pinhole) -> Result<CellsInfo> {
             far = far.max(z);
         }
     }
-    let depth = Slices::new(near, far, params.slices);
+    let depth = Slices::new(near, far, params.slices, super::DEPTH_PAD);
     let mut info = CellsInfo {
         tiles,
         depth,
@@ -195,7 +195,7 @@ pub fn build_camera(g: &mut Pgrid<'_>, cam: &Pinhole) -> Result<CellsInfo> {
     };
     // Geometry closer than z_eps is not projected: a triangle reaching
     // there within tip_r of the eye is put in every tile of slice 0.
-    let z_eps = far.max(1e-30) * 1e-6;
+    let z_eps = b.diagonal().length().max(far).max(1e-30) * 1e-6;
     let tip_r = z_eps * math::sqrt(1.0 + cam.half_w * cam.half_w + cam.half_h * cam.half_h) * 2.0;
     let pad = PIXEL_PAD + 1e-5 * cam.width.max(cam.height) as f32;
     let inv_t = 1.0 / t as f32;
@@ -207,7 +207,7 @@ pub fn build_camera(g: &mut Pgrid<'_>, cam: &Pinhole) -> Result<CellsInfo> {
         n: 0,
     };
     for i in 0..n {
-        if p.ok[i] == 0 || far <= 0.0 {
+        if p.ok[i] == 0 {
             continue;
         }
         let tri = &p.tris[i];
@@ -267,8 +267,11 @@ fn camera_box(
         Vec3::from(tri.v2) - cam.eye,
     ];
     let z = [q[0].dot(cam.fwd), q[1].dot(cam.fwd), q[2].dot(cam.fwd)];
-    if z.iter().all(|&z| z <= 0.0) {
-        return None; // behind the eye: camera rays have t > 0 and depth > 0
+    // Near the eye (camera rays start there, t >= 0, so a triangle through
+    // the eye is hit at t = 0 whatever its depths): every tile, slice 0 on.
+    let tip = z.iter().any(|&z| z < z_eps) && closest_distance(Vec3::ZERO, &q) <= tip_r;
+    if !tip && z.iter().all(|&z| z <= 0.0) {
+        return None; // behind the eye: camera rays have depth > 0
     }
     // Clip against depth >= z_eps (Sutherland-Hodgman, at most 4 points).
     let mut poly = [Vec3::ZERO; 4];
@@ -297,7 +300,6 @@ fn camera_box(
         yr = [yr[0].min(y), yr[1].max(y)];
         zr = [zr[0].min(pz[k]), zr[1].max(pz[k])];
     }
-    let tip = z.iter().any(|&z| z < z_eps) && closest_distance(Vec3::ZERO, &q) <= tip_r;
     if tip {
         let top = zr[1].max(z_eps);
         let all = [f32::NEG_INFINITY, f32::NEG_INFINITY, f32::INFINITY, f32::INFINITY];
@@ -357,14 +359,14 @@ pub fn build_light(
     let tiles = frame.tiles;
     let cells = tiles[0] as u64 * tiles[1] as u64 * slices as u64;
     check_cells(cells, g.pools.light_start.len())?;
-    let depth = Slices::new(near, far, slices);
+    let depth = Slices::new(near, far, slices, super::LIGHT_DEPTH_PAD);
     let mut info = CellsInfo {
         tiles,
         depth,
         ..CellsInfo::default()
     };
     let scale = g.scene.bounds.diagonal().length().max(far).max(1e-30);
-    let far_reach = far * (1.0 + 2.0 * super::DEPTH_PAD) + depth.z0 * super::DEPTH_PAD;
+    let far_reach = far * (1.0 + 2.0 * depth.pad) + depth.z0 * depth.pad;
     let a1 = frame.a0 + tiles[0] as f32 / frame.inv_da;
     let b1 = frame.b0 + tiles[1] as f32 / frame.inv_db;
     let n = g.scene.triangles as usize;

@@ -124,8 +124,14 @@ impl PgridParams {
     }
 }
 
-/// Relative padding of depths and distances when slices are assigned.
+/// Relative padding of camera depths when slices are assigned: a depth
+/// `q . fwd` carries rounding relative to `|q|`, up to `sqrt(1 + tan^2)`
+/// times the depth at the image's corners for wide fields of view.
 pub const DEPTH_PAD: f32 = 1e-3;
+/// Relative padding of distances from a light (a length's rounding is
+/// relative to itself; a light far away makes thin slices, which a wide
+/// pad would smear every triangle across).
+pub const LIGHT_DEPTH_PAD: f32 = 2e-5;
 
 /// Depth slices spaced (nearly) geometrically: slice `s` spans
 /// `[z0 r^s, z0 r^(s+1))` with `log2_approx` for the logarithm, slice 0
@@ -133,14 +139,17 @@ pub const DEPTH_PAD: f32 = 1e-3;
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Slices {
     pub z0: f32,
+    /// Relative padding of `lo` and `hi`.
+    pub pad: f32,
     /// `1 / ln r` (0: one slice for everything).
     pub inv_log: f32,
     pub count: u32,
 }
 
 impl Slices {
-    /// `count` slices between `near` and `far` (near raised to `far * 1e-4`).
-    pub fn new(near: f32, far: f32, count: u32) -> Slices {
+    /// `count` slices between `near` and `far` (near raised to `far * 1e-4`),
+    /// depths padded by `pad` (relative) when slices are looked up.
+    pub fn new(near: f32, far: f32, count: u32, pad: f32) -> Slices {
         let far = if far.is_finite() && far > 0.0 { far } else { 1.0 };
         let z0 = near.max(far * 1e-4).min(far);
         let span = log2_approx(far) - log2_approx(z0);
@@ -149,7 +158,12 @@ impl Slices {
         } else {
             0.0
         };
-        Slices { z0, inv_log, count: count.max(1) }
+        Slices {
+            z0,
+            pad,
+            inv_log,
+            count: count.max(1),
+        }
     }
 
     /// Slice of depth `z`, clamped.
@@ -165,13 +179,13 @@ impl Slices {
     /// First slice that may hold depth `z` (padded down).
     #[inline]
     pub fn lo(&self, z: f32) -> u32 {
-        self.of(z * (1.0 - DEPTH_PAD) - self.z0 * DEPTH_PAD)
+        self.of(z * (1.0 - self.pad) - self.z0 * self.pad)
     }
 
     /// Last slice that may hold depth `z` (padded up).
     #[inline]
     pub fn hi(&self, z: f32) -> u32 {
-        self.of(z * (1.0 + DEPTH_PAD) + self.z0 * DEPTH_PAD)
+        self.of(z * (1.0 + self.pad) + self.z0 * self.pad)
     }
 }
 
