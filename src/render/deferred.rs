@@ -27,7 +27,7 @@
 use super::{Frame, PointLight, PrimaryRays, SHADOW_OFFSET, Tracer, demorton, encode, shadow_packet};
 use crate::accel::grid::traverse_cgt::Mailbox;
 use crate::accel::pgrid::{
-    CamView, CellsInfo, Chunk, LightFrame, LightView, ReorderInfo, reorder, traverse_primary,
+    self as pgrid, CamView, CellsInfo, Chunk, LightFrame, LightView, ReorderInfo, reorder, traverse_primary,
     traverse_shadow,
 };
 use crate::error::{Error, Result};
@@ -640,33 +640,71 @@ pub fn light_grid_pass<'m, W: Workers>(
     mailboxes: &mut dyn Iterator<Item = Mailbox<'m>>,
 ) -> Counters {
     let light = g.frame.pos;
-    // Work items: runs of consecutive chunks of at most r rays together. A
-    // CUDA block loads one tile's triangles, so the paper cannot merge
-    // sparse tiles; a CPU thread can, and then items are about r rays each
-    // instead of a few rays for every sparse tile.
+    // Work items by estimated cost, a ray costing its light tile's pairs:
+    // each item about the cost of r average rays. Crowded, dense tiles are
+    // cut finer than their chunks (down to 16 rays), sparse ones bundled
+    // (a CUDA block loads one tile's triangles, so the paper cannot merge
+    // sparse tiles; a CPU thread can). Items are contiguous sorted rays.
+    let cells = g.cells;
+    let slices = cells.info.depth.count;
+    let cost = move |c: &Chunk| -> u64 {
+        let (a, b) = (c.tile * slices, (c.tile + 1) * slices);
+        (cells.start[b as usize] - cells.start[a as usize]) as u64 + 1
+    };
+    let rays: u64 = chunks.iter().map(|c| c.count as u64).sum();
+    let total: u64 = chunks.iter().map(|c| c.count as u64 * cost(c)).sum();
+    let budget = (total * r as u64 / rays.max(1)).max(1);
     let mut rest = &mut occ[..];
-    let mut left = chunks;
+    let (mut k, mut o) = (0usize, 0u32);
     let mut items = core::iter::from_fn(move || {
-        if left.is_empty() {
+        if k >= chunks.len() {
             return None;
         }
-        let (mut k, mut n) = (0usize, 0u32);
-        while k < left.len() && (k == 0 || n + left[k].count <= r) {
-            n += left[k].count;
-            k += 1;
+        let (k0, o0) = (k, o);
+        let (mut spent, mut n) = (0u64, 0u32);
+        while k < chunks.len() {
+            let c = &chunks[k];
+            let per = cost(c);
+            let left = c.count - o;
+            let can = if spent == 0 {
+                ((budget / per) as u32).max(pgrid::MIN_CHUNK)
+            } else {
+                ((budget - spent) / per) as u32
+            };
+            let take = can.min(left);
+            if take == 0 {
+                break;
+            }
+            spent += take as u64 * per;
+            n += take;
+            o += take;
+            if o == c.count {
+                k += 1;
+                o = 0;
+            }
+            if spent >= budget {
+                break;
+            }
         }
-        let (group, tail) = left.split_at(k);
-        left = tail;
         let (mine, tail) = core::mem::take(&mut rest).split_at_mut(n as usize);
         rest = tail;
-        Some((group, mine))
+        Some(((k0, o0), mine))
     });
-    let work = |(group, out): (&[Chunk], &mut [u8]), mb: &mut Mailbox<'_>, ctr: &mut Counters| {
-        let mut at = 0usize;
-        for c in group {
-            let n = c.count as usize;
-            trace_one_chunk(g, c, ray_ids, dirs, light, &mut out[at..at + n], mb, ctr);
-            at += n;
+    let work = |((k0, o0), out): ((usize, u32), &mut [u8]), mb: &mut Mailbox<'_>, ctr: &mut Counters| {
+        // Walk the chunk pieces of this item.
+        let (mut k, mut o, mut at) = (k0, o0, 0usize);
+        while at < out.len() {
+            let c = &chunks[k];
+            let take = ((c.count - o) as usize).min(out.len() - at);
+            let piece = Chunk {
+                tile: c.tile,
+                start: c.start + o,
+                count: take as u32,
+            };
+            trace_one_chunk(g, &piece, ray_ids, dirs, light, &mut out[at..at + take], mb, ctr);
+            at += take;
+            k += 1;
+            o = 0;
         }
     };
     let ctr = workers.run(mailboxes, &mut items, &work);
