@@ -623,8 +623,9 @@ pub fn rearrange(f: &LightFrame, n: usize, buf: &mut FrameBuffers<'_>, tmp_keys:
     )
 }
 
-/// Phase 5 with the light grid: every chunk traced as one work item, its
-/// occlusion written to its range of `occ`; then the shadow bit `bit` of
+/// Phase 5 with the light grid: the chunks' rays traced in work items cut
+/// by estimated cost (see below), each writing the occlusion of its rays
+/// to its range of `occ`; then the shadow bit `bit` of
 /// every occluded ray's pixel is set.
 #[allow(clippy::too_many_arguments)]
 pub fn light_grid_pass<'m, W: Workers>(
