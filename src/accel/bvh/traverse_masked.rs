@@ -44,7 +44,7 @@
 //! `packets_no_cull` when culling is on but no frustum could be built.
 
 use super::frustum::Frustum;
-use super::traverse_simd::{QuadBox, closer4};
+use super::traverse_simd::QuadBox;
 use super::{BvhNode, BvhOptions, BvhTest, BvhView, MAX_DEPTH};
 use crate::accel::entry::EntryPoint;
 use crate::geom::{F4, Hit4, INVALID_ID, M4, Ray4, RayLanes};
@@ -352,7 +352,7 @@ impl<T: BvhTest, const Q: usize> Packet<T, Q> {
             return;
         }
         let hq = &mut hits[q];
-        let take = if ANY { hm } else { hm & closer4(h.t, id, hq) };
+        let take = if ANY { hm } else { hm & hq.closer(h.t, id) };
         if !take.any() {
             return;
         }

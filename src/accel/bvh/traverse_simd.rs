@@ -56,18 +56,6 @@ pub fn occluded<T: BvhTest>(
     }
 }
 
-/// The tie rule of `traverse_single::closer`, lane by lane.
-#[inline(always)]
-pub(crate) fn closer4(t: F4, prim: u32, best: &Hit4) -> M4 {
-    let lt = t.cmplt(best.t);
-    let eq = t.cmpeq(best.t);
-    if !eq.any() {
-        return lt;
-    }
-    let b = best.prim;
-    lt | (eq & M4::new(prim < b[0], prim < b[1], prim < b[2], prim < b[3]))
-}
-
 /// Per-quad data of the 4-wide slab test (the same arithmetic as
 /// `traverse_single::RayBox`, lane by lane).
 #[derive(Clone, Copy, Debug)]
@@ -224,7 +212,7 @@ fn walk<T: BvhTest, const ANY: bool>(
                 let hm = h.mask & live;
                 if hm.any() {
                     let id = b.tri_ids[i];
-                    let take = if ANY { hm } else { hm & closer4(h.t, id, best) };
+                    let take = if ANY { hm } else { hm & best.closer(h.t, id) };
                     if take.any() {
                         best.t = F4::select(take, h.t, best.t);
                         best.u = F4::select(take, h.u, best.u);

@@ -124,18 +124,6 @@ fn dispatch<T: GridTest, const ANY: bool>(
     }
 }
 
-/// The tie rule of `traverse_single::closer`, lane by lane.
-#[inline(always)]
-fn closer4(t: F4, prim: u32, best: &Hit4) -> M4 {
-    let lt = t.cmplt(best.t);
-    let eq = t.cmpeq(best.t);
-    if !eq.any() {
-        return lt;
-    }
-    let b = best.prim;
-    lt | (eq & M4::new(prim < b[0], prim < b[1], prim < b[2], prim < b[3]))
-}
-
 #[inline(always)]
 fn lane_mask(m: M4) -> u32 {
     m.bitmask()
@@ -444,7 +432,7 @@ fn packet<T: GridTest, const ANY: bool, const Q: usize>(
                             let take = if ANY {
                                 hm
                             } else {
-                                hm & closer4(h.t, id, &hits[q])
+                                hm & hits[q].closer(h.t, id)
                             };
                             if take.any() {
                                 let hq = &mut hits[q];

@@ -60,7 +60,7 @@
 //! counted), `tri_at` the live lanes of each quad-triangle test,
 //! `culled_nodes` / `culled` for frustum rejections.
 
-use super::traverse_simd::{clip4, closer4, lane_from, lane_signs, stray_bits, valid4};
+use super::traverse_simd::{clip4, lane_from, lane_signs, stray_bits, valid4};
 use super::{KdTest, KdView, MAX_DEPTH};
 use crate::accel::entry::EntryPoint;
 use crate::geom::frustum::Frustum;
@@ -491,7 +491,7 @@ fn walk<T: KdTest, const ANY: bool, const Q: usize>(
                         }
                     } else {
                         let hq = &mut hits[q];
-                        let take = hm & closer4(h.t, id, hq);
+                        let take = hm & hq.closer(h.t, id);
                         if take.any() {
                             hq.t = F4::select(take, h.t, hq.t);
                             hq.u = F4::select(take, h.u, hq.u);

@@ -51,19 +51,6 @@ pub fn occluded<T: KdTest>(k: &KdView<'_>, r: &Ray4, active: M4, ctr: &mut Count
     best.hit_mask() & active
 }
 
-/// The tie rule of `geom::ray` (nearer, or as near with a lower id), lane
-/// by lane.
-#[inline(always)]
-pub(crate) fn closer4(t: F4, prim: u32, best: &Hit4) -> M4 {
-    let lt = t.cmplt(best.t);
-    let eq = t.cmpeq(best.t);
-    if !eq.any() {
-        return lt;
-    }
-    let b = best.prim;
-    lt | (eq & M4::new(prim < b[0], prim < b[1], prim < b[2], prim < b[3]))
-}
-
 /// `Ray::is_valid`, 4-wide: finite origin and direction, a non-zero
 /// direction, `0 <= tmin <= tmax` (NaN fails every part).
 #[inline(always)]
@@ -261,7 +248,7 @@ fn walk<T: KdTest, const ANY: bool>(
                 let hm = h.mask & m;
                 if hm.any() {
                     let id = k.tri_ids[s];
-                    let take = if ANY { hm } else { hm & closer4(h.t, id, best) };
+                    let take = if ANY { hm } else { hm & best.closer(h.t, id) };
                     if take.any() {
                         best.t = F4::select(take, h.t, best.t);
                         best.u = F4::select(take, h.u, best.u);
