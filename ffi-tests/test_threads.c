@@ -3,7 +3,10 @@
  * last_error may run concurrently on one built context. Eight threads trace
  * and test occlusion of the same rays (and provoke errors, which record the
  * last error concurrently); every thread must get exactly the single-thread
- * results.
+ * results. Two threads with their own slots render bands of a frame and
+ * trace CGT packets with mailboxes concurrently (the `_slot` / `_rows`
+ * calls), and a slot shared by mistake gives SHEAF_STATUS_SLOT_BUSY, never
+ * wrong results.
  */
 #define _POSIX_C_SOURCE 200112L
 #include <pthread.h>
@@ -153,10 +156,140 @@ static bool test_independent_contexts_on_threads(void) {
     return true;
 }
 
+/* Two threads, one built context, per-thread slots. */
+#define SLOT_W 96
+#define SLOT_H 64
+#define SLOT_ROUNDS 12
+static sheaf_frame g_frame;
+static sheaf_trace_params g_cgt, g_shadow;
+static uint8_t g_want_img[SLOT_H][SLOT_W * 4];
+static sheaf_ray g_cam[SLOT_W * SLOT_H];
+static sheaf_hit g_want_cam[SLOT_W * SLOT_H];
+static uint8_t g_want_cam_occ[SLOT_W * SLOT_H];
+static uint8_t g_img[SLOT_H][SLOT_W * 4];
+
+static void *slot_worker(void *arg) {
+    static sheaf_hit hits[2][SLOT_W * SLOT_H];
+    static uint8_t occ[2][SLOT_W * SLOT_H];
+    uint32_t slot = (uint32_t)(size_t)arg, y0 = slot * (SLOT_H / 2), y, n = SLOT_W * SLOT_H;
+    int round;
+    for (round = 0; round < SLOT_ROUNDS; ++round) {
+        /* Bands of 5 rows (not a multiple of the 8x8 tiles) through this thread's half. */
+        for (y = y0; y < y0 + SLOT_H / 2; y += 5) {
+            uint32_t y1 = y + 5 < y0 + SLOT_H / 2 ? y + 5 : y0 + SLOT_H / 2;
+            if (sheaf_context_render_rows(g_ctx, slot, &g_cgt, &g_shadow, &g_frame, y, y1, g_img[y], SLOT_W * 4,
+                                          (size_t)(y1 - y) * SLOT_W * 4) != SHEAF_STATUS_OK)
+                return arg;
+        }
+        if (sheaf_context_trace_slot(g_ctx, slot, &g_cgt, g_cam, hits[slot], n) != SHEAF_STATUS_OK) return arg;
+        if (sheaf_context_occluded_slot(g_ctx, slot, &g_cgt, g_cam, occ[slot], n) != SHEAF_STATUS_OK) return arg;
+        if (memcmp(hits[slot], g_want_cam, sizeof g_want_cam) != 0 ||
+            memcmp(occ[slot], g_want_cam_occ, sizeof g_want_cam_occ) != 0) {
+            fprintf(stderr, "    slot %u round %d: trace results differ\n", (unsigned)slot, round);
+            return arg;
+        }
+    }
+    return NULL;
+}
+
+/* Both threads on slot 0: every call either succeeds with the right hits or says the slot is busy. */
+static int g_busy[2];
+static void *shared_slot_worker(void *arg) {
+    static sheaf_hit hits[2][SLOT_W * SLOT_H];
+    size_t id = (size_t)arg;
+    int round;
+    for (round = 0; round < 4 * SLOT_ROUNDS; ++round) {
+        sheaf_status s = sheaf_context_trace_slot(g_ctx, 0, &g_cgt, g_cam, hits[id], SLOT_W * SLOT_H);
+        if (s == SHEAF_STATUS_SLOT_BUSY) {
+            ++g_busy[id];
+            continue;
+        }
+        if (s != SHEAF_STATUS_OK || memcmp(hits[id], g_want_cam, sizeof g_want_cam) != 0) return arg;
+    }
+    return NULL;
+}
+
+static bool test_two_threads_with_slots(void) {
+    scene *s = box_field();
+    sheaf_limits l;
+    pthread_t th[2];
+    size_t t;
+    uint32_t x, y;
+    int hits = 0, i;
+    sheaf_hit h;
+    CHECK_OK(sheaf_limits_default(s->nt, &l));
+    l.max_threads = 2;
+    CHECK_OK(sheaf_context_create(&l, &g_ctx));
+    CHECK_OK(scene_set(g_ctx, s));
+    CHECK_OK(sheaf_context_build_grid(g_ctx, NULL));
+    g_frame = default_frame(SLOT_W, SLOT_H);
+    g_frame.camera.eye[0] = 9.0f;
+    g_frame.camera.eye[1] = -11.0f;
+    g_frame.camera.eye[2] = 7.0f;
+    CHECK_OK(sheaf_trace_params_default(&g_cgt));
+    g_cgt.method = SHEAF_METHOD_GRID_CGT;
+    g_cgt.packet = 8;
+    g_cgt.mailbox = true;
+    g_shadow = g_cgt;
+    /* The single-thread answers: a whole-frame render and packets without slots. */
+    CHECK_OK(sheaf_context_render_with(g_ctx, &g_cgt, &g_shadow, &g_frame, &g_want_img[0][0], SLOT_W * 4,
+                                       sizeof g_want_img));
+    for (y = 0; y < SLOT_H; ++y)
+        for (x = 0; x < SLOT_W; ++x) CHECK_OK(sheaf_frame_camera_ray(&g_frame, x, y, &g_cam[y * SLOT_W + x]));
+    CHECK_OK(sheaf_context_trace_with(g_ctx, &g_cgt, g_cam, g_want_cam, SLOT_W * SLOT_H));
+    CHECK_OK(sheaf_context_occluded(g_ctx, SHEAF_METHOD_GRID_DDA, g_cam, g_want_cam_occ, SLOT_W * SLOT_H));
+    for (i = 0; i < SLOT_W * SLOT_H; ++i) {
+        CHECK_OK(sheaf_context_trace(g_ctx, SHEAF_METHOD_GRID_DDA, &g_cam[i], &h, 1));
+        CHECK(h.prim == g_want_cam[i].prim && float_bits(h.t) == float_bits(g_want_cam[i].t));
+        hits += h.prim != SHEAF_INVALID_ID;
+    }
+    CHECK(hits > SLOT_W * SLOT_H / 2); /* the camera sees the boxes */
+    /* Two threads, slots 0 and 1, concurrently. */
+    memset(g_img, 0, sizeof g_img);
+    for (t = 0; t < 2; ++t) CHECK(pthread_create(&th[t], NULL, slot_worker, (void *)t) == 0);
+    for (t = 0; t < 2; ++t) {
+        void *ret = NULL;
+        CHECK(pthread_join(th[t], &ret) == 0);
+        CHECK(ret == NULL);
+    }
+    CHECK(memcmp(g_img, g_want_img, sizeof g_img) == 0);
+    /* Slot 0 shared by mistake: busy or right, never wrong. */
+    for (t = 0; t < 2; ++t) CHECK(pthread_create(&th[t], NULL, shared_slot_worker, (void *)t) == 0);
+    for (t = 0; t < 2; ++t) {
+        void *ret = NULL;
+        CHECK(pthread_join(th[t], &ret) == 0);
+        CHECK(ret == NULL);
+    }
+    printf("    slot 0 shared by two threads: %d + %d calls found it busy\n", g_busy[0], g_busy[1]);
+    /* Both slots are free again once the calls return. */
+    {
+        static sheaf_hit again[SLOT_W * SLOT_H];
+        CHECK_OK(sheaf_context_trace_slot(g_ctx, 0, &g_cgt, g_cam, again, SLOT_W * SLOT_H));
+        CHECK_OK(sheaf_context_trace_slot(g_ctx, 1, &g_cgt, g_cam, again, SLOT_W * SLOT_H));
+        CHECK(memcmp(again, g_want_cam, sizeof again) == 0);
+    }
+    /* Bad slots and rows change nothing. */
+    memcpy(g_img, g_want_img, sizeof g_img);
+    CHECK(sheaf_context_render_rows(g_ctx, 2, &g_cgt, &g_shadow, &g_frame, 0, 1, g_img[0], SLOT_W * 4, SLOT_W * 4) ==
+          SHEAF_STATUS_CAPACITY_THREADS);
+    CHECK(sheaf_context_render_rows(g_ctx, 0, &g_cgt, &g_shadow, &g_frame, 3, 3, g_img[3], SLOT_W * 4, SLOT_W * 4) ==
+          SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK(sheaf_context_render_rows(g_ctx, 0, &g_cgt, &g_shadow, &g_frame, 60, 65, g_img[60], SLOT_W * 4,
+                                    5 * SLOT_W * 4) == SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK(sheaf_context_render_rows(g_ctx, 0, &g_cgt, &g_shadow, &g_frame, 0, 2, g_img[0], SLOT_W * 4,
+                                    SLOT_W * 4) == SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK(sheaf_context_trace_slot(g_ctx, 7, &g_cgt, g_cam, (sheaf_hit *)g_img, 1) == SHEAF_STATUS_CAPACITY_THREADS);
+    CHECK(memcmp(g_img, g_want_img, sizeof g_img) == 0);
+    sheaf_context_destroy(g_ctx);
+    free(s);
+    return true;
+}
+
 int main(void) {
     int passed = 0, failed = 0;
     run_test("test_concurrent_trace_matches_single_thread", test_concurrent_trace_matches_single_thread, &passed,
              &failed);
     run_test("test_independent_contexts_on_threads", test_independent_contexts_on_threads, &passed, &failed);
+    run_test("test_two_threads_with_slots", test_two_threads_with_slots, &passed, &failed);
     return report(passed, failed);
 }

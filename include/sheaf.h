@@ -138,6 +138,11 @@ enum sheaf_status
      */
     SHEAF_STATUS_NOT_BUILT = 301,
     /**
+     * The thread slot passed to a `_slot` / `_rows` call is in use by
+     * another call right now (give each concurrent thread its own slot).
+     */
+    SHEAF_STATUS_SLOT_BUSY = 302,
+    /**
      * A panic was caught at the C boundary (a bug in sheaf: please report).
      */
     SHEAF_STATUS_PANIC = 900,
@@ -315,11 +320,15 @@ typedef uint32_t sheaf_entry_search;
  * Made by `sheaf_context_create` or `sheaf_context_create_in`, released by
  * `sheaf_context_destroy`.
  *
- * Thread safety: `sheaf_context_trace`, `sheaf_context_occluded`,
- * `sheaf_context_stats`, `sheaf_context_last_error`,
- * `sheaf_context_deferred_pixel` and `sheaf_context_deferred_shadow_ray`
- * (the calls taking a `const sheaf_context *`) may run concurrently from
- * any number of threads on one context. Every other call on a context
+ * Thread safety: `sheaf_context_trace`, `sheaf_context_trace_with`,
+ * `sheaf_context_occluded`, `sheaf_context_stats`,
+ * `sheaf_context_last_error`, `sheaf_context_deferred_pixel` and
+ * `sheaf_context_deferred_shadow_ray` (the calls taking a `const
+ * sheaf_context *`) may run concurrently from any number of threads on one
+ * context, and so may `sheaf_context_trace_slot`,
+ * `sheaf_context_occluded_slot` and `sheaf_context_render_rows`, each
+ * thread with its own slot (`0 <= slot < sheaf_limits.max_threads`: the
+ * slot holds the thread's mailbox). Every other call on a context
  * (set_geometry, the builds, the renders, destroy) needs exclusive access:
  * no other call on the same context may run at the same time. Different
  * contexts are independent.
@@ -1259,6 +1268,43 @@ sheaf_status sheaf_context_trace_with(const struct sheaf_context *ctx,
                                       size_t count);
 
 /**
+ * `sheaf_context_trace_with` on thread slot `slot` (`0 <= slot <
+ * sheaf_limits.max_threads`): packet methods also use the slot's mailbox
+ * (`params->mailbox`, CGT section 2.3), so CGT packets test each triangle
+ * once per packet. Results equal `sheaf_context_trace_with`'s bit for bit.
+ *
+ * Thread-safe: threads may call it concurrently on one built context, each
+ * with its own slot (and alongside trace, occluded, stats and last_error).
+ * A slot in use by another call gives `SHEAF_STATUS_SLOT_BUSY` and leaves
+ * that call alone. Does not update `sheaf_stats`.
+ *
+ * Errors: those of `sheaf_context_trace_with`, `SHEAF_STATUS_CAPACITY_THREADS`
+ * (`slot >= max_threads`), `SHEAF_STATUS_SLOT_BUSY`. `hits` is written only
+ * on success.
+ */
+sheaf_status sheaf_context_trace_slot(const struct sheaf_context *ctx,
+                                      uint32_t slot,
+                                      const struct sheaf_trace_params *params,
+                                      const struct sheaf_ray *rays,
+                                      struct sheaf_hit *hits,
+                                      size_t count);
+
+/**
+ * Occlusion of `count` rays (as `sheaf_context_occluded`) with the method
+ * and packet settings of `*params`, on thread slot `slot`: the same slot
+ * rules and thread safety as `sheaf_context_trace_slot`.
+ *
+ * Errors: those of `sheaf_context_trace_slot`. `occluded` is written only
+ * on success.
+ */
+sheaf_status sheaf_context_occluded_slot(const struct sheaf_context *ctx,
+                                         uint32_t slot,
+                                         const struct sheaf_trace_params *params,
+                                         const struct sheaf_ray *rays,
+                                         uint8_t *occluded,
+                                         size_t count);
+
+/**
  * Occlusion of `count` rays: `occluded[i]` = 1 when `rays[i]` hits any
  * triangle with `tmin <= t < tmax`, else 0 (shadow rays: `dir = light - p`,
  * `tmax = 1`). Same pointer rules as `sheaf_context_trace`.
@@ -1309,6 +1355,35 @@ sheaf_status sheaf_context_render_with(struct sheaf_context *ctx,
                                        const struct sheaf_trace_params *primary,
                                        const struct sheaf_trace_params *shadow,
                                        const struct sheaf_frame *frame,
+                                       uint8_t *rgba,
+                                       size_t stride_bytes,
+                                       size_t rgba_len);
+
+/**
+ * Render rows `[y0, y1)` of `*frame` on thread slot `slot` (`0 <= slot <
+ * sheaf_limits.max_threads`), with `*primary` and `*shadow` as in
+ * `sheaf_context_render_with`. `rgba` points at the first pixel of row
+ * `y0`; rows are `stride_bytes` apart and the band holds `rgba_len >=
+ * (y1 - y0 - 1) * stride_bytes + 4 * width` bytes. Needs `0 <= y0 < y1 <=
+ * height`. Threads rendering disjoint bands of one frame with distinct
+ * slots produce exactly the image of `sheaf_context_render_with`.
+ *
+ * Thread-safe: threads may call it concurrently on one built context, each
+ * with its own slot and its own rows (and alongside trace, occluded, the
+ * `_slot` calls, stats and last_error). A slot in use by another call gives
+ * `SHEAF_STATUS_SLOT_BUSY`. Does not update `sheaf_stats`.
+ *
+ * Errors: those of `sheaf_context_render_with` (`SHEAF_STATUS_INVALID_ARGUMENT`
+ * also for bad rows), `SHEAF_STATUS_CAPACITY_THREADS`, `SHEAF_STATUS_SLOT_BUSY`.
+ * The band is written only on success.
+ */
+sheaf_status sheaf_context_render_rows(const struct sheaf_context *ctx,
+                                       uint32_t slot,
+                                       const struct sheaf_trace_params *primary,
+                                       const struct sheaf_trace_params *shadow,
+                                       const struct sheaf_frame *frame,
+                                       uint32_t y0,
+                                       uint32_t y1,
                                        uint8_t *rgba,
                                        size_t stride_bytes,
                                        size_t rgba_len);

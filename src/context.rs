@@ -12,7 +12,7 @@ use crate::render::deferred::{self, DeferredInfo, DeferredJob, FrameBuffers, Pri
 use crate::error::{Error, Pool, Result};
 use crate::geom::frustum::Frustum;
 use crate::geom::{Hit, Hit4, M4, Mt, Pt, Ray, Ray4, Scene, TriTest, TriVerts, TriangleTest, Wt};
-use crate::mem::{Arena, Limits, pool_bytes};
+use crate::mem::{Arena, Limits, Slots, pool_bytes};
 use crate::render::whitted::{self, WhittedJob};
 use crate::render::{self, Frame, PointLight, PrimaryRays, Tracer};
 use crate::trace::{Counters, Method, TraceParams};
@@ -93,7 +93,7 @@ impl Layout {
             + pool_bytes::<u32>(self.refs)
             + pool_bytes::<u32>(self.macro_words)
             + pool_bytes::<u32>(self.stamps * self.slots)
-            + pool_bytes::<u32>(self.slots)
+            + 2 * pool_bytes::<u32>(self.slots)
             + pool_bytes::<BvhNode>(2 * self.bvh_tris)
             + pool_bytes::<TriVerts>(self.bvh_tris)
             + pool_bytes::<crate::geom::ProjTri>(self.bvh_proj)
@@ -169,10 +169,9 @@ pub struct Context<'a> {
     /// camera rays and shadow-ray offset.
     frame_layout: Option<TileLayout>,
     frame_rays: Option<(PrimaryRays, f32)>,
-    /// Per-thread mailboxes (CGT section 2.3): `max_triangles` stamps and
-    /// one packet counter per thread slot.
-    stamps: &'a mut [u32],
-    mail_packets: &'a mut [u32],
+    /// Per-thread slots, each a mailbox (CGT section 2.3): `max_triangles`
+    /// stamps and a packet counter, claimed by `*_in_slot` calls.
+    slots: Slots<'a>,
     stats: Stats,
 }
 
@@ -214,8 +213,11 @@ impl<'a> Context<'a> {
             refs: arena.take(layout.refs)?,
             macro_bits: arena.take(layout.macro_words)?,
         };
-        let stamps = arena.take(layout.stamps * layout.slots)?;
-        let mail_packets = arena.take(layout.slots)?;
+        let slots = Slots::new(
+            arena.take(layout.stamps * layout.slots)?,
+            arena.take(layout.slots)?,
+            arena.take(layout.slots)?,
+        );
         let bvh = BvhPools {
             nodes: arena.take(2 * layout.bvh_tris)?,
             tris: arena.take(layout.bvh_tris)?,
@@ -268,8 +270,7 @@ impl<'a> Context<'a> {
             frame,
             frame_layout: None,
             frame_rays: None,
-            stamps,
-            mail_packets,
+            slots,
             stats: Stats::default(),
         })
     }
@@ -443,21 +444,13 @@ impl<'a> Context<'a> {
             info.times.primary_build = elapsed_ns(t);
         }
         let Context {
-            limits,
             pgrid: pg,
             frame: buf,
-            stamps,
-            mail_packets,
+            slots,
             ..
         } = self;
-        let n = limits.max_triangles.max(1) as usize;
         macro_rules! mailboxes {
-            () => {{
-                let mut st = stamps.chunks_mut(n);
-                mail_packets
-                    .iter_mut()
-                    .map(move |p| Mailbox::new(st.next().unwrap_or(&mut []), p))
-            }};
+            () => {{ slots.all().map(|(st, p)| Mailbox::new(st, p)) }};
         }
         // Phase 2: camera rays.
         let t = now();
@@ -677,12 +670,7 @@ impl<'a> Context<'a> {
         };
         // One mailbox per thread slot; without grid pools (no stamps) the
         // mailboxes are empty, which only the grid's CGT would use.
-        let n = self.limits.max_triangles.max(1) as usize;
-        let mut stamps = self.stamps.chunks_mut(n);
-        let mbs = self
-            .mail_packets
-            .iter_mut()
-            .map(move |p| Mailbox::new(stamps.next().unwrap_or(&mut []), p));
+        let mbs = self.slots.all().map(|(st, p)| Mailbox::new(st, p));
         Ok((t, mbs))
     }
 
@@ -771,8 +759,7 @@ impl<'a> Context<'a> {
     ) -> Result<Counters> {
         p.validate()?;
         let t = now();
-        let mut ctr = Counters::default();
-        {
+        let ctr = {
             let (tr, mut mbs) = self.parts()?;
             let tr = tr.with_single(p.method)?;
             let mut mb = mbs.next().ok_or(Error::Capacity {
@@ -780,58 +767,101 @@ impl<'a> Context<'a> {
                 needed: 1,
                 available: 0,
             })?;
-            let per = if p.method.is_packet() {
-                (p.packet * p.packet) as usize
-            } else {
-                4
-            };
-            let mut quads = [Ray4::from_rays(
-                &[rays.first().copied().unwrap_or(Ray::new(
-                    glam::Vec3::ZERO,
-                    glam::Vec3::X,
-                    0.0,
-                    0.0,
-                )); 4],
-            ); 256];
-            let mut active = [M4::FALSE; 256];
-            let mut hits = [Hit4::MISS; 256];
-            for (c, chunk) in rays.chunks(per).enumerate() {
-                let nq =
-                    crate::trace::pack_quads(chunk.len(), |k| chunk[k], &mut quads, &mut active);
-                hits[..nq].fill(Hit4::MISS);
-                if any {
-                    tr.occluded_packet(
-                        p,
-                        &quads[..nq],
-                        &active[..nq],
-                        &mut hits[..nq],
-                        &mut mb,
-                        &mut ctr,
-                    );
-                } else {
-                    tr.intersect_packet(
-                        p,
-                        &quads[..nq],
-                        &active[..nq],
-                        &mut hits[..nq],
-                        &mut mb,
-                        &mut ctr,
-                    );
-                }
-                for k in 0..chunk.len() {
-                    out(c * per + k, &hits[k / 4], k % 4);
-                }
-            }
-        }
+            batch_on(&tr, &mut mb, p, rays.len(), &|i| rays[i], out, any)
+        };
         self.stats.trace_ns = elapsed_ns(t);
         self.stats.counters = ctr;
         Ok(ctr)
+    }
+
+    /// `trace_with` from any thread sharing `&self`, with thread slot
+    /// `slot`'s mailbox (claimed for the call: `Error::SlotBusy` while
+    /// another call holds it). Does not update `stats`.
+    pub fn trace_in_slot(
+        &self,
+        slot: u32,
+        p: &TraceParams,
+        rays: &[Ray],
+        hits: &mut [Hit],
+    ) -> Result<Counters> {
+        if rays.len() != hits.len() {
+            return Err(Error::InvalidArgument(
+                "rays and hits must have the same length",
+            ));
+        }
+        self.batch_in_slot(
+            slot,
+            p,
+            rays,
+            &mut |i, h: &Hit4, lane| hits[i] = h.lane(lane),
+            false,
+        )
+    }
+
+    /// `occluded_with` from any thread sharing `&self`, with thread slot
+    /// `slot`'s mailbox (see `trace_in_slot`).
+    pub fn occluded_in_slot(
+        &self,
+        slot: u32,
+        p: &TraceParams,
+        rays: &[Ray],
+        occluded: &mut [bool],
+    ) -> Result<Counters> {
+        if rays.len() != occluded.len() {
+            return Err(Error::InvalidArgument(
+                "rays and results must have the same length",
+            ));
+        }
+        self.batch_in_slot(
+            slot,
+            p,
+            rays,
+            &mut |i, h: &Hit4, lane| occluded[i] = h.prim[lane] != crate::geom::INVALID_ID,
+            true,
+        )
+    }
+
+    fn batch_in_slot(
+        &self,
+        slot: u32,
+        p: &TraceParams,
+        rays: &[Ray],
+        out: &mut dyn FnMut(usize, &Hit4, usize),
+        any: bool,
+    ) -> Result<Counters> {
+        p.validate()?;
+        let tr = self.scene_tracer()?.with_single(p.method)?;
+        self.with_slot(slot, |mb| {
+            batch_on(&tr, mb, p, rays.len(), &|i| rays[i], out, any)
+        })
+    }
+
+    /// Run `f` with thread slot `slot`'s mailbox, claimed for the call
+    /// (`Error::SlotBusy` while another call holds it; `Capacity(Threads)`
+    /// when `slot >= max_threads`).
+    pub fn with_slot<R>(&self, slot: u32, f: impl FnOnce(&mut Mailbox<'_>) -> R) -> Result<R> {
+        let mut guard = self.slots.claim(slot)?;
+        let (st, pk) = guard.parts();
+        Ok(f(&mut Mailbox::new(st, pk)))
     }
 
     /// Check a frame against the limits and the framebuffer size.
     pub fn check_frame(
         &self,
         frame: &Frame,
+        pixels_len: usize,
+        stride: usize,
+    ) -> Result<PrimaryRays> {
+        self.check_rows(frame, 0, frame.height, pixels_len, stride)
+    }
+
+    /// Check a frame against the limits, and a band of its rows
+    /// `[y0, y1)` against the band's buffer (row `y0` first).
+    pub fn check_rows(
+        &self,
+        frame: &Frame,
+        y0: u32,
+        y1: u32,
         pixels_len: usize,
         stride: usize,
     ) -> Result<PrimaryRays> {
@@ -851,7 +881,15 @@ impl<'a> Context<'a> {
                 "framebuffer stride must be >= 4 * width",
             ));
         }
-        if pixels_len < (h as usize - 1) * stride + w as usize * 4 {
+        if y0 >= y1 || y1 > h {
+            return Err(Error::InvalidArgument(
+                "rows must satisfy y0 < y1 <= height",
+            ));
+        }
+        let need = ((y1 - y0 - 1) as usize)
+            .checked_mul(stride)
+            .and_then(|b| b.checked_add(w as usize * 4));
+        if need.is_none_or(|n| pixels_len < n) {
             return Err(Error::InvalidArgument(
                 "framebuffer smaller than height * stride",
             ));
@@ -899,32 +937,44 @@ impl<'a> Context<'a> {
                 needed: 1,
                 available: 0,
             })?;
-            if primary.tile_side().max(shadow.tile_side()) > 0 {
-                let side = primary.tile_side().max(shadow.tile_side());
-                let tile = TraceParams {
-                    packet: side,
-                    ..*primary
-                };
-                render::render_tiles(
-                    &tr,
-                    &tile,
-                    shadow,
-                    frame,
-                    &rays,
-                    0,
-                    frame.height,
-                    pixels,
-                    stride,
-                    &mut mb,
-                    &mut ctr,
-                );
-            } else {
-                render::render_rows(&tr, frame, &rays, 0, frame.height, pixels, stride, &mut ctr);
-            }
+            let band = Band { frame, rays: &rays, y0: 0, y1: frame.height, stride };
+            band.render(&tr, primary, shadow, pixels, &mut mb, &mut ctr);
         }
         self.stats.trace_ns = elapsed_ns(t);
         self.stats.counters = ctr;
         Ok(ctr)
+    }
+
+    /// Render rows `[y0, y1)` of `*frame` from any thread sharing `&self`,
+    /// with thread slot `slot`'s mailbox (claimed for the call:
+    /// `Error::SlotBusy` while another call holds it). `band` holds only
+    /// those rows, row `y0` first, `stride` bytes apart. Threads rendering
+    /// disjoint bands with distinct slots make the image `render_with`
+    /// makes, byte for byte. Does not update `stats`.
+    #[allow(clippy::too_many_arguments)]
+    pub fn render_rows_in_slot(
+        &self,
+        slot: u32,
+        primary: &TraceParams,
+        shadow: &TraceParams,
+        frame: &Frame,
+        y0: u32,
+        y1: u32,
+        band: &mut [u8],
+        stride: usize,
+    ) -> Result<Counters> {
+        primary.validate()?;
+        shadow.validate()?;
+        let rays = self.check_rows(frame, y0, y1, band.len(), stride)?;
+        let tr = self.scene_tracer()?;
+        tr.with_single(shadow.method)?;
+        let tr = tr.with_single(primary.method)?;
+        let rows = Band { frame, rays: &rays, y0, y1, stride };
+        self.with_slot(slot, |mb| {
+            let mut ctr = Counters::default();
+            rows.render(&tr, primary, shadow, band, mb, &mut ctr);
+            ctr
+        })
     }
 
     /// Render a Whitted frame (shadows, reflections, refractions; BVH paper
@@ -1003,6 +1053,83 @@ impl<'a> Context<'a> {
     pub fn record(&mut self, ctr: Counters, trace_ns: u64) {
         self.stats.counters = ctr;
         self.stats.trace_ns = trace_ns;
+    }
+}
+
+/// Trace `count` rays, ray `i` being `read(i)`, as packets of
+/// `p.packet`^2 rays (or 2x2 batches for single-ray methods) with mailbox
+/// `mb`, handing each result to `out(ray index, hits, lane)`. Shared by the
+/// Rust calls and the C ABI's, so both form the same packets.
+pub(crate) fn batch_on(
+    tr: &SceneTracer<'_>,
+    mb: &mut Mailbox<'_>,
+    p: &TraceParams,
+    count: usize,
+    read: &dyn Fn(usize) -> Ray,
+    out: &mut dyn FnMut(usize, &Hit4, usize),
+    any: bool,
+) -> Counters {
+    // 256 quads: the largest packet, 32 x 32 rays.
+    const QUADS: usize = 256;
+    let mut ctr = Counters::default();
+    let per = if p.method.is_packet() {
+        (p.packet * p.packet) as usize
+    } else {
+        4
+    };
+    let mut quads = [Ray4::from_rays(&[Ray::new(glam::Vec3::ZERO, glam::Vec3::X, 0.0, 0.0); 4]); QUADS];
+    let mut active = [M4::FALSE; QUADS];
+    let mut hits = [Hit4::MISS; QUADS];
+    let mut start = 0;
+    while start < count {
+        let n = (count - start).min(per);
+        let nq = crate::trace::pack_quads(n, |k| read(start + k), &mut quads, &mut active);
+        hits[..nq].fill(Hit4::MISS);
+        if any {
+            tr.occluded_packet(p, &quads[..nq], &active[..nq], &mut hits[..nq], mb, &mut ctr);
+        } else {
+            tr.intersect_packet(p, &quads[..nq], &active[..nq], &mut hits[..nq], mb, &mut ctr);
+        }
+        for k in 0..n {
+            out(start + k, &hits[k / 4], k % 4);
+        }
+        start += n;
+    }
+    ctr
+}
+
+/// Rows `[y0, y1)` of a frame; the buffer given to `render` starts at row `y0`.
+struct Band<'f> {
+    frame: &'f Frame,
+    rays: &'f PrimaryRays,
+    y0: u32,
+    y1: u32,
+    stride: usize,
+}
+
+impl Band<'_> {
+    /// Packet methods render n x n tiles (n the larger tile side of the two
+    /// classes), single-ray methods row by row.
+    fn render(
+        &self,
+        tr: &SceneTracer<'_>,
+        primary: &TraceParams,
+        shadow: &TraceParams,
+        pixels: &mut [u8],
+        mb: &mut Mailbox<'_>,
+        ctr: &mut Counters,
+    ) {
+        let (frame, rays, y0, y1, stride) = (self.frame, self.rays, self.y0, self.y1, self.stride);
+        match primary.tile_side().max(shadow.tile_side()) {
+            0 => render::render_rows(tr, frame, rays, y0, y1, pixels, stride, ctr),
+            side => {
+                let tile = TraceParams {
+                    packet: side,
+                    ..*primary
+                };
+                render::render_tiles(tr, &tile, shadow, frame, rays, y0, y1, pixels, stride, mb, ctr);
+            }
+        }
     }
 }
 
@@ -1670,6 +1797,40 @@ impl OwnedContext {
     }
     pub fn deferred_pixel(&self, x: u32, y: u32) -> Option<(Hit, u8)> {
         self.inner.get().deferred_pixel(x, y)
+    }
+    pub fn trace_in_slot(
+        &self,
+        slot: u32,
+        p: &TraceParams,
+        rays: &[Ray],
+        hits: &mut [Hit],
+    ) -> Result<Counters> {
+        self.inner.get().trace_in_slot(slot, p, rays, hits)
+    }
+    pub fn occluded_in_slot(
+        &self,
+        slot: u32,
+        p: &TraceParams,
+        rays: &[Ray],
+        occluded: &mut [bool],
+    ) -> Result<Counters> {
+        self.inner.get().occluded_in_slot(slot, p, rays, occluded)
+    }
+    #[allow(clippy::too_many_arguments)]
+    pub fn render_rows_in_slot(
+        &self,
+        slot: u32,
+        primary: &TraceParams,
+        shadow: &TraceParams,
+        frame: &Frame,
+        y0: u32,
+        y1: u32,
+        band: &mut [u8],
+        stride: usize,
+    ) -> Result<Counters> {
+        self.inner
+            .get()
+            .render_rows_in_slot(slot, primary, shadow, frame, y0, y1, band, stride)
     }
     pub fn deferred_shadow_ray(&self, x: u32, y: u32, light: &PointLight) -> Option<Ray> {
         self.inner.get().deferred_shadow_ray(x, y, light)

@@ -69,6 +69,9 @@ pub enum Error {
     NoGeometry,
     /// A trace or render call came before the first successful `build`.
     NotBuilt,
+    /// Thread slot `slot` is in use by another call (each thread that
+    /// traces or renders concurrently on one context needs its own slot).
+    SlotBusy { slot: u32 },
     /// A panic was caught at the C boundary (a bug in sheaf: please report).
     Panic,
 }
@@ -106,6 +109,9 @@ impl fmt::Display for Error {
             }
             Error::NoGeometry => write!(f, "no geometry set"),
             Error::NotBuilt => write!(f, "no acceleration structure built yet"),
+            Error::SlotBusy { slot } => {
+                write!(f, "thread slot {slot} is in use by another call")
+            }
             Error::Panic => write!(f, "internal error (panic caught at the C boundary)"),
         }
     }

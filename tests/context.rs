@@ -423,3 +423,104 @@ fn projection_test_needs_its_pool() {
         "{hits:?}"
     );
 }
+
+/// Threads sharing `&OwnedContext`, each with its own slot, render bands of
+/// a frame (CGT packets with mailboxes, BVH packets) and trace packets: the
+/// image equals the one-call render byte for byte, the hits the exclusive
+/// `trace_with`'s. A slot out of range or held by another call is refused.
+#[test]
+fn threads_with_their_own_slots_render_the_same_frame() {
+    use sheaf::scenes::builtin;
+    use sheaf::{Camera, Frame, PointLight, Shading, TraceParams};
+    let sc = builtin("gears").unwrap();
+    let scene = Scene::from_f32(&sc.mesh.vertices, &sc.mesh.indices).unwrap();
+    let mut limits = Limits::for_triangles(sc.mesh.triangle_count() as u32);
+    limits.max_threads = 3;
+    let mut ctx = OwnedContext::new(&limits).unwrap();
+    ctx.build_grid(&scene, &GridParams::default()).unwrap();
+    ctx.build_bvh(&scene, &Default::default()).unwrap();
+    let v = sc.views[0];
+    let frame = Frame {
+        camera: Camera {
+            eye: v.eye.to_array(),
+            look_at: v.look_at.to_array(),
+            up: v.up.to_array(),
+            fov_y_deg: v.fov_y_deg,
+        },
+        light: PointLight {
+            position: sc.light.to_array(),
+            color: [1.0; 3],
+            ..Default::default()
+        },
+        shading: Shading::default(),
+        width: 80,
+        height: 72,
+    };
+    let stride = 4 * 80 + 12;
+    for method in [Method::GridCgt, Method::BvhRanged] {
+        let p = TraceParams {
+            method,
+            packet: 8,
+            ..TraceParams::default()
+        };
+        let mut want = vec![0u8; stride * 72];
+        ctx.render_with(&p, &p, &frame, &mut want, stride).unwrap();
+        let rays: Vec<Ray> = (0..72 * 80)
+            .map(|k| {
+                let (x, y) = (k % 80, k / 80);
+                let d = (x as f32 - 40.0, y as f32 - 36.0);
+                Ray {
+                    org: v.eye.to_array(),
+                    tmin: 0.0,
+                    dir: (v.look_at - v.eye + glam::Vec3::new(d.0, d.1, 0.0) * 0.05).to_array(),
+                    tmax: f32::INFINITY,
+                }
+            })
+            .collect();
+        let mut want_hits = vec![Hit::MISS; rays.len()];
+        ctx.trace_with(&p, &rays, &mut want_hits).unwrap();
+        assert!(want_hits.iter().filter(|h| h.is_hit()).count() > rays.len() / 4);
+        let mut got = vec![0u8; stride * 72];
+        let shared = &ctx;
+        std::thread::scope(|s| {
+            // Bands of 13 rows (not a multiple of the tile side), three threads.
+            let bands: Vec<(u32, &mut [u8])> = got
+                .chunks_mut(13 * stride)
+                .enumerate()
+                .map(|(i, b)| (13 * i as u32, b))
+                .collect();
+            let mut per_slot: [Vec<(u32, &mut [u8])>; 3] = Default::default();
+            for (i, b) in bands.into_iter().enumerate() {
+                per_slot[i % 3].push(b);
+            }
+            for (slot, bands) in per_slot.into_iter().enumerate() {
+                let (rays, want_hits) = (&rays, &want_hits);
+                s.spawn(move || {
+                    for (y0, band) in bands {
+                        let y1 = (y0 + 13).min(72);
+                        let len = band.len().min((y1 - y0) as usize * stride);
+                        shared
+                            .render_rows_in_slot(slot as u32, &p, &p, &frame, y0, y1, &mut band[..len], stride)
+                            .unwrap();
+                    }
+                    let mut hits = vec![Hit::MISS; rays.len()];
+                    shared.trace_in_slot(slot as u32, &p, rays, &mut hits).unwrap();
+                    assert_eq!(&hits, want_hits);
+                });
+            }
+        });
+        assert!(got == want, "{method:?}: banded render differs");
+    }
+    // Refusals change nothing.
+    let p = TraceParams::default();
+    let mut band = vec![7u8; 4 * 80];
+    assert!(matches!(
+        ctx.render_rows_in_slot(3, &p, &p, &frame, 0, 1, &mut band, 320),
+        Err(Error::Capacity { pool: Pool::Threads, .. })
+    ));
+    assert!(matches!(
+        ctx.render_rows_in_slot(0, &p, &p, &frame, 5, 5, &mut band, 320),
+        Err(Error::InvalidArgument(_))
+    ));
+    assert!(band.iter().all(|&b| b == 7));
+}

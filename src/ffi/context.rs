@@ -17,7 +17,7 @@ use super::{
 use super::{sheaf_hit, sheaf_ray};
 use crate::accel::bvh::BvhParams;
 use crate::accel::grid::GridParams;
-use crate::context::{Context, required_bytes};
+use crate::context::{Context, batch_on, required_bytes};
 use crate::error::{Error, Result};
 use crate::geom::{Ray, Scene};
 use crate::mem::Limits;
@@ -36,11 +36,15 @@ use std::sync::{Mutex, PoisonError};
 /// Made by `sheaf_context_create` or `sheaf_context_create_in`, released by
 /// `sheaf_context_destroy`.
 ///
-/// Thread safety: `sheaf_context_trace`, `sheaf_context_occluded`,
-/// `sheaf_context_stats`, `sheaf_context_last_error`,
-/// `sheaf_context_deferred_pixel` and `sheaf_context_deferred_shadow_ray`
-/// (the calls taking a `const sheaf_context *`) may run concurrently from
-/// any number of threads on one context. Every other call on a context
+/// Thread safety: `sheaf_context_trace`, `sheaf_context_trace_with`,
+/// `sheaf_context_occluded`, `sheaf_context_stats`,
+/// `sheaf_context_last_error`, `sheaf_context_deferred_pixel` and
+/// `sheaf_context_deferred_shadow_ray` (the calls taking a `const
+/// sheaf_context *`) may run concurrently from any number of threads on one
+/// context, and so may `sheaf_context_trace_slot`,
+/// `sheaf_context_occluded_slot` and `sheaf_context_render_rows`, each
+/// thread with its own slot (`0 <= slot < sheaf_limits.max_threads`: the
+/// slot holds the thread's mailbox). Every other call on a context
 /// (set_geometry, the builds, the renders, destroy) needs exclusive access:
 /// no other call on the same context may run at the same time. Different
 /// contexts are independent.
@@ -543,7 +547,7 @@ pub extern "C" fn sheaf_context_trace(
             method: sheaf_method::to_core(method)?,
             ..TraceParams::default()
         };
-        trace_impl(h, &p, rays, hits, count)
+        trace_impl(h, None, &p, rays, hits, count)
     })
 }
 
@@ -566,46 +570,153 @@ pub extern "C" fn sheaf_context_trace_with(
 ) -> sheaf_status {
     with_ref(ctx, |h| {
         let p = read_in(params)?.to_core()?;
-        trace_impl(h, &p, rays, hits, count)
+        trace_impl(h, None, &p, rays, hits, count)
     })
 }
 
 fn trace_impl(
     h: &Handle,
+    slot: Option<u32>,
     p: &TraceParams,
     rays: *const sheaf_ray,
     hits: *mut sheaf_hit,
     count: usize,
 ) -> Result<()> {
-    {
-        let method = p.method;
-        let rb = check_array(rays, count, "ray count too large")?;
-        let hb = check_array(hits.cast_const(), count, "ray count too large")?;
-        if overlaps(rays.cast(), rb, hits.cast_const().cast(), hb) {
-            return Err(Error::InvalidArgument("rays and hits overlap"));
-        }
-        let tr = h.ctx.tracer()?.with_single(method)?;
-        let mut ctr = Counters::default();
-        if p.tile_side() == 0 {
-            for i in 0..count {
-                // SAFETY: i < count, and both arrays were checked to be
-                // non-NULL (count > 0) and to span count elements in
-                // memory (C contract: readable / writable). Unaligned
-                // access is allowed; the arrays do not overlap.
-                unsafe {
-                    let ray = Ray::from(rays.add(i).read_unaligned());
-                    hits.add(i)
-                        .write_unaligned(tr.intersect(&ray, &mut ctr).into());
-                }
-            }
-        } else {
-            packets(&tr, p, rays, count, false, &mut |i, h| {
-                // SAFETY: i < count (packets), hits checked as above.
-                unsafe { hits.add(i).write_unaligned(h.into()) }
-            });
-        }
-        Ok(())
+    let rb = check_array(rays, count, "ray count too large")?;
+    let hb = check_array(hits.cast_const(), count, "ray count too large")?;
+    if overlaps(rays.cast(), rb, hits.cast_const().cast(), hb) {
+        return Err(Error::InvalidArgument("rays and hits overlap"));
     }
+    trace_rays(h, slot, p, rays, count, false, &mut |i, hit| {
+        // SAFETY: i < count, and `hits` was checked to be non-NULL (count
+        // > 0) and to span count writable elements (C contract); unaligned
+        // writes are allowed and it does not overlap the rays.
+        unsafe { hits.add(i).write_unaligned(hit.into()) }
+    })
+}
+
+fn occluded_impl(
+    h: &Handle,
+    slot: Option<u32>,
+    p: &TraceParams,
+    rays: *const sheaf_ray,
+    occluded: *mut u8,
+    count: usize,
+) -> Result<()> {
+    let rb = check_array(rays, count, "ray count too large")?;
+    check_array(occluded.cast_const(), count, "ray count too large")?;
+    if overlaps(rays.cast(), rb, occluded.cast_const(), count) {
+        return Err(Error::InvalidArgument("rays and results overlap"));
+    }
+    trace_rays(h, slot, p, rays, count, true, &mut |i, hit| {
+        // SAFETY: i < count, `occluded` checked as `hits` in trace_impl.
+        unsafe { occluded.add(i).write(u8::from(hit.is_hit())) }
+    })
+}
+
+/// Trace (or, `any`, test occlusion of) `count` rays read from C, handing
+/// each result to `out(i, hit)`. With a thread slot the core's packets use
+/// its mailbox; without one (trace and occluded share one context across
+/// threads with no slot) single-ray methods go ray by ray and packets run
+/// without a mailbox. The packets are the Rust API's (`batch_on`).
+fn trace_rays(
+    h: &Handle,
+    slot: Option<u32>,
+    p: &TraceParams,
+    rays: *const sheaf_ray,
+    count: usize,
+    any: bool,
+    out: &mut dyn FnMut(usize, crate::geom::Hit),
+) -> Result<()> {
+    p.validate()?;
+    let tr = h.ctx.tracer()?.with_single(p.method)?;
+    // SAFETY: i < count for every call (batch_on and the loop below read
+    // rays 0..count only); the caller checked `rays` spans count readable
+    // elements (unaligned allowed).
+    let read = |i: usize| Ray::from(unsafe { rays.add(i).read_unaligned() });
+    let mut emit = |i: usize, h4: &crate::geom::Hit4, lane: usize| out(i, h4.lane(lane));
+    if let Some(slot) = slot {
+        h.ctx
+            .with_slot(slot, |mb| batch_on(&tr, mb, p, count, &read, &mut emit, any))?;
+        return Ok(());
+    }
+    let mut ctr = Counters::default();
+    if p.tile_side() == 0 {
+        for i in 0..count {
+            let ray = read(i);
+            let hit = if any {
+                if tr.occluded(&ray, &mut ctr) {
+                    crate::geom::Hit::OCCLUDED
+                } else {
+                    crate::geom::Hit::MISS
+                }
+            } else {
+                tr.intersect(&ray, &mut ctr)
+            };
+            out(i, hit);
+        }
+    } else {
+        let p = TraceParams {
+            cgt: crate::trace::CgtOptions {
+                mailbox: false,
+                ..p.cgt
+            },
+            ..*p
+        };
+        let (mut stamps, mut packet) = ([0u32; 0], 0u32);
+        let mut mb = crate::accel::grid::traverse_cgt::Mailbox::new(&mut stamps, &mut packet);
+        batch_on(&tr, &mut mb, &p, count, &read, &mut emit, any);
+    }
+    Ok(())
+}
+
+/// `sheaf_context_trace_with` on thread slot `slot` (`0 <= slot <
+/// sheaf_limits.max_threads`): packet methods also use the slot's mailbox
+/// (`params->mailbox`, CGT section 2.3), so CGT packets test each triangle
+/// once per packet. Results equal `sheaf_context_trace_with`'s bit for bit.
+///
+/// Thread-safe: threads may call it concurrently on one built context, each
+/// with its own slot (and alongside trace, occluded, stats and last_error).
+/// A slot in use by another call gives `SHEAF_STATUS_SLOT_BUSY` and leaves
+/// that call alone. Does not update `sheaf_stats`.
+///
+/// Errors: those of `sheaf_context_trace_with`, `SHEAF_STATUS_CAPACITY_THREADS`
+/// (`slot >= max_threads`), `SHEAF_STATUS_SLOT_BUSY`. `hits` is written only
+/// on success.
+#[unsafe(no_mangle)]
+pub extern "C" fn sheaf_context_trace_slot(
+    ctx: *const sheaf_context,
+    slot: u32,
+    params: *const sheaf_trace_params,
+    rays: *const sheaf_ray,
+    hits: *mut sheaf_hit,
+    count: usize,
+) -> sheaf_status {
+    with_ref(ctx, |h| {
+        let p = read_in(params)?.to_core()?;
+        trace_impl(h, Some(slot), &p, rays, hits, count)
+    })
+}
+
+/// Occlusion of `count` rays (as `sheaf_context_occluded`) with the method
+/// and packet settings of `*params`, on thread slot `slot`: the same slot
+/// rules and thread safety as `sheaf_context_trace_slot`.
+///
+/// Errors: those of `sheaf_context_trace_slot`. `occluded` is written only
+/// on success.
+#[unsafe(no_mangle)]
+pub extern "C" fn sheaf_context_occluded_slot(
+    ctx: *const sheaf_context,
+    slot: u32,
+    params: *const sheaf_trace_params,
+    rays: *const sheaf_ray,
+    occluded: *mut u8,
+    count: usize,
+) -> sheaf_status {
+    with_ref(ctx, |h| {
+        let p = read_in(params)?.to_core()?;
+        occluded_impl(h, Some(slot), &p, rays, occluded, count)
+    })
 }
 
 /// Occlusion of `count` rays: `occluded[i]` = 1 when `rays[i]` hits any
@@ -625,33 +736,11 @@ pub extern "C" fn sheaf_context_occluded(
     count: usize,
 ) -> sheaf_status {
     with_ref(ctx, |h| {
-        let method = sheaf_method::to_core(method)?;
-        let rb = check_array(rays, count, "ray count too large")?;
-        check_array(occluded.cast_const(), count, "ray count too large")?;
-        if overlaps(rays.cast(), rb, occluded.cast_const(), count) {
-            return Err(Error::InvalidArgument("rays and results overlap"));
-        }
         let p = TraceParams {
-            method,
+            method: sheaf_method::to_core(method)?,
             ..TraceParams::default()
         };
-        let tr = h.ctx.tracer()?.with_single(method)?;
-        let mut ctr = Counters::default();
-        if p.tile_side() == 0 {
-            for i in 0..count {
-                // SAFETY: as in sheaf_context_trace.
-                unsafe {
-                    let ray = Ray::from(rays.add(i).read_unaligned());
-                    occluded.add(i).write(u8::from(tr.occluded(&ray, &mut ctr)));
-                }
-            }
-        } else {
-            packets(&tr, &p, rays, count, true, &mut |i, h| {
-                // SAFETY: i < count (packets), occluded checked as above.
-                unsafe { occluded.add(i).write(u8::from(h.is_hit())) }
-            });
-        }
-        Ok(())
+        occluded_impl(h, None, &p, rays, occluded, count)
     })
 }
 
@@ -707,6 +796,54 @@ pub extern "C" fn sheaf_context_render_with(
         let p = read_in(primary)?.to_core()?;
         let s = read_in(shadow)?.to_core()?;
         render_impl(h, &p, &s, frame, rgba, stride_bytes, rgba_len)
+    })
+}
+
+/// Render rows `[y0, y1)` of `*frame` on thread slot `slot` (`0 <= slot <
+/// sheaf_limits.max_threads`), with `*primary` and `*shadow` as in
+/// `sheaf_context_render_with`. `rgba` points at the first pixel of row
+/// `y0`; rows are `stride_bytes` apart and the band holds `rgba_len >=
+/// (y1 - y0 - 1) * stride_bytes + 4 * width` bytes. Needs `0 <= y0 < y1 <=
+/// height`. Threads rendering disjoint bands of one frame with distinct
+/// slots produce exactly the image of `sheaf_context_render_with`.
+///
+/// Thread-safe: threads may call it concurrently on one built context, each
+/// with its own slot and its own rows (and alongside trace, occluded, the
+/// `_slot` calls, stats and last_error). A slot in use by another call gives
+/// `SHEAF_STATUS_SLOT_BUSY`. Does not update `sheaf_stats`.
+///
+/// Errors: those of `sheaf_context_render_with` (`SHEAF_STATUS_INVALID_ARGUMENT`
+/// also for bad rows), `SHEAF_STATUS_CAPACITY_THREADS`, `SHEAF_STATUS_SLOT_BUSY`.
+/// The band is written only on success.
+#[unsafe(no_mangle)]
+pub extern "C" fn sheaf_context_render_rows(
+    ctx: *const sheaf_context,
+    slot: u32,
+    primary: *const sheaf_trace_params,
+    shadow: *const sheaf_trace_params,
+    frame: *const sheaf_frame,
+    y0: u32,
+    y1: u32,
+    rgba: *mut u8,
+    stride_bytes: usize,
+    rgba_len: usize,
+) -> sheaf_status {
+    with_ref(ctx, |h| {
+        let p = read_in(primary)?.to_core()?;
+        let s = read_in(shadow)?.to_core()?;
+        let frame = read_in(frame)?.to_core();
+        check_non_null!(rgba);
+        if rgba_len > isize::MAX as usize {
+            return Err(Error::InvalidArgument("framebuffer length too large"));
+        }
+        h.ctx.check_rows(&frame, y0, y1, rgba_len, stride_bytes)?;
+        // SAFETY: non-NULL, `rgba_len` bytes (<= isize::MAX) of writable
+        // memory that no one else accesses during the call (C contract: each
+        // thread passes its own rows). The core only writes through it.
+        let band = unsafe { core::slice::from_raw_parts_mut(rgba, rgba_len) };
+        h.ctx
+            .render_rows_in_slot(slot, &p, &s, &frame, y0, y1, band, stride_bytes)?;
+        Ok(())
     })
 }
 
@@ -934,72 +1071,5 @@ mod tests {
         }
         assert!(m.len < SHEAF_ERROR_MESSAGE_MAX && m.len + 2 >= SHEAF_ERROR_MESSAGE_MAX - 1);
         assert!(core::str::from_utf8(&m.bytes[..m.len]).is_ok());
-    }
-}
-
-/// Consecutive rays as packets of `params` (n x n for packet methods, 2x2
-/// quads for the SIMD ray), CGT without a mailbox (trace and occluded share
-/// one context across threads, so there is no per-thread slot):
-/// `out(i, hit)` for every ray `i < count`.
-fn packets(
-    tr: &crate::context::SceneTracer<'_>,
-    params: &TraceParams,
-    rays: *const sheaf_ray,
-    count: usize,
-    any: bool,
-    out: &mut dyn FnMut(usize, crate::geom::Hit),
-) {
-    use crate::geom::{Hit4, M4, Ray4};
-    use crate::render::Tracer;
-    const MAX: usize = 32 * 32;
-    let per = if params.method.is_packet() {
-        (params.packet * params.packet) as usize
-    } else {
-        4
-    };
-    let p = TraceParams {
-        cgt: crate::trace::CgtOptions {
-            mailbox: false,
-            ..params.cgt
-        },
-        ..*params
-    };
-    let (mut stamps, mut packet) = ([0u32; 0], 0u32);
-    let mut mb = crate::accel::grid::traverse_cgt::Mailbox::new(&mut stamps, &mut packet);
-    let mut ctr = Counters::default();
-    let mut start = 0;
-    let mut quads =
-        [Ray4::from_rays(&[Ray::new(glam::Vec3::ZERO, glam::Vec3::X, 0.0, 0.0); 4]); MAX / 4];
-    let mut active = [M4::FALSE; MAX / 4];
-    let mut hits = [Hit4::MISS; MAX / 4];
-    while start < count {
-        let n = (count - start).min(per);
-        // SAFETY: start + k < count (k < n); the caller checked `rays` spans
-        // count readable elements (unaligned allowed).
-        let read = |k: usize| Ray::from(unsafe { rays.add(start + k).read_unaligned() });
-        let nq = crate::trace::pack_quads(n, read, &mut quads, &mut active);
-        if any {
-            tr.occluded_packet(
-                &p,
-                &quads[..nq],
-                &active[..nq],
-                &mut hits[..nq],
-                &mut mb,
-                &mut ctr,
-            );
-        } else {
-            tr.intersect_packet(
-                &p,
-                &quads[..nq],
-                &active[..nq],
-                &mut hits[..nq],
-                &mut mb,
-                &mut ctr,
-            );
-        }
-        for k in 0..n {
-            out(start + k, hits[k / 4].lane(k % 4));
-        }
-        start += n;
     }
 }

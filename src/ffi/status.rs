@@ -60,6 +60,9 @@ pub enum sheaf_status {
     NoGeometry = 300,
     /// A trace, occluded or render call before the first successful build.
     NotBuilt = 301,
+    /// The thread slot passed to a `_slot` / `_rows` call is in use by
+    /// another call right now (give each concurrent thread its own slot).
+    SlotBusy = 302,
     /// A panic was caught at the C boundary (a bug in sheaf: please report).
     Panic = 900,
 }
@@ -84,6 +87,7 @@ impl sheaf_status {
         sheaf_status::OutOfMemory,
         sheaf_status::NoGeometry,
         sheaf_status::NotBuilt,
+        sheaf_status::SlotBusy,
         sheaf_status::Panic,
     ];
 
@@ -107,6 +111,7 @@ impl sheaf_status {
             Error::Misaligned { .. } => sheaf_status::Misaligned,
             Error::NoGeometry => sheaf_status::NoGeometry,
             Error::NotBuilt => sheaf_status::NotBuilt,
+            Error::SlotBusy { .. } => sheaf_status::SlotBusy,
             Error::Panic => sheaf_status::Panic,
         }
     }
@@ -152,6 +157,7 @@ impl sheaf_status {
             sheaf_status::OutOfMemory => c"out of memory",
             sheaf_status::NoGeometry => c"no geometry set",
             sheaf_status::NotBuilt => c"no acceleration structure built yet",
+            sheaf_status::SlotBusy => c"thread slot in use by another call",
             sheaf_status::Panic => c"internal error (panic caught at the C boundary)",
         }
     }
@@ -200,7 +206,9 @@ mod tests {
                 | sheaf_status::CapacityPgridCells
                 | sheaf_status::CapacityPgridRefs
                 | sheaf_status::OutOfMemory => 200..300,
-                sheaf_status::NoGeometry | sheaf_status::NotBuilt => 300..400,
+                sheaf_status::NoGeometry | sheaf_status::NotBuilt | sheaf_status::SlotBusy => {
+                    300..400
+                }
                 sheaf_status::Panic => 900..1000,
             };
             assert!(range.contains(&c), "{s:?} = {c}");

@@ -1,0 +1,198 @@
+//! Per-thread slots: each slot owns one mailbox (CGT paper section 2.3: a
+//! stamp per triangle and a packet counter) and a claim flag, so threads that
+//! share a built context (`&Context`, or a `const sheaf_context *` in C) can
+//! each trace with their own mailbox without locks.
+//!
+//! A slot is claimed with an atomic compare-and-swap and released when its
+//! [`SlotGuard`] drops, so two threads asking for the same slot get
+//! [`Error::SlotBusy`] instead of sharing stamps. With `&mut Slots` (the
+//! context's exclusive calls) every slot is handed out at once, no flags.
+
+use core::marker::PhantomData;
+use core::ptr::NonNull;
+use core::sync::atomic::{AtomicU32, Ordering};
+
+use crate::error::{Error, Pool, Result};
+
+// `AtomicU32::from_ptr` needs the u32 pool's alignment to suit the atomic.
+const _: () = assert!(core::mem::align_of::<AtomicU32>() == core::mem::align_of::<u32>());
+
+/// The slots' memory, carved from the context's arena: `count` runs of
+/// `per_slot` stamps, `count` packet counters and `count` claim flags.
+pub struct Slots<'a> {
+    stamps: NonNull<u32>,
+    per_slot: usize,
+    packets: NonNull<u32>,
+    busy: NonNull<u32>,
+    count: usize,
+    _pools: PhantomData<&'a mut [u32]>,
+}
+
+// SAFETY: the pools are plain u32s owned by this value for 'a. Shared access
+// (`&Slots` on several threads) touches only the claim flags, atomically,
+// and a slot's stamps and counter only while its flag is held (`claim`), so
+// no two threads ever reach the same non-atomic memory.
+unsafe impl Send for Slots<'_> {}
+// SAFETY: as for Send.
+unsafe impl Sync for Slots<'_> {}
+
+impl<'a> Slots<'a> {
+    /// Slots over `stamps` (`per_slot` stamps per slot, `packets.len()`
+    /// slots) with their claim flags `busy` (one per slot, all released).
+    pub fn new(stamps: &'a mut [u32], packets: &'a mut [u32], busy: &'a mut [u32]) -> Self {
+        let count = packets.len();
+        assert_eq!(busy.len(), count, "one claim flag per slot");
+        let per_slot = stamps.len().checked_div(count).unwrap_or(0);
+        assert_eq!(per_slot * count, stamps.len(), "equal stamp runs per slot");
+        busy.fill(0);
+        Slots {
+            stamps: NonNull::from(stamps).cast(),
+            per_slot,
+            packets: NonNull::from(packets).cast(),
+            busy: NonNull::from(busy).cast(),
+            count,
+            _pools: PhantomData,
+        }
+    }
+
+    /// Number of slots (`Limits::max_threads`).
+    pub fn count(&self) -> usize {
+        self.count
+    }
+
+    /// Slot `i`'s stamps and packet counter.
+    ///
+    /// # Safety
+    /// `i < count`, and nothing else uses slot `i` for the returned lifetime.
+    unsafe fn parts(&self, i: usize) -> (&mut [u32], &mut u32) {
+        // SAFETY: `i < count`, so the run `[i * per_slot, (i + 1) * per_slot)`
+        // and counter `i` lie inside the pools borrowed for 'a; the caller
+        // guarantees no other reference to them exists meanwhile.
+        unsafe {
+            (
+                core::slice::from_raw_parts_mut(
+                    self.stamps.as_ptr().add(i * self.per_slot),
+                    self.per_slot,
+                ),
+                &mut *self.packets.as_ptr().add(i),
+            )
+        }
+    }
+
+    /// The claim flag of slot `i < count`.
+    fn flag(&self, i: usize) -> &AtomicU32 {
+        debug_assert!(i < self.count);
+        // SAFETY: in bounds (`i < count`), aligned (const assert above), and
+        // the flags are only ever accessed atomically after `new`.
+        unsafe { AtomicU32::from_ptr(self.busy.as_ptr().add(i)) }
+    }
+
+    /// Claim slot `slot` for the calling thread until the guard drops.
+    ///
+    /// Errors: `Capacity { pool: Threads }` when `slot >= count`,
+    /// `SlotBusy` while another guard holds it.
+    pub fn claim(&self, slot: u32) -> Result<SlotGuard<'_, 'a>> {
+        let i = slot as usize;
+        if i >= self.count {
+            return Err(Error::Capacity {
+                pool: Pool::Threads,
+                needed: u64::from(slot) + 1,
+                available: self.count as u64,
+            });
+        }
+        self.flag(i)
+            .compare_exchange(0, 1, Ordering::Acquire, Ordering::Relaxed)
+            .map_err(|_| Error::SlotBusy { slot })?;
+        Ok(SlotGuard { slots: self, i })
+    }
+
+    /// Every slot's stamps and counter at once (exclusive access: no guard
+    /// can be alive while `self` is mutably borrowed).
+    pub fn all(&mut self) -> impl Iterator<Item = (&mut [u32], &mut u32)> + '_ {
+        let this = &*self;
+        // SAFETY: `i < count`, each slot is yielded once, and the `&mut self`
+        // borrow, held by the iterator, rules out guards and other callers.
+        (0..self.count).map(move |i| unsafe { this.parts(i) })
+    }
+}
+
+/// A claimed slot; released on drop.
+pub struct SlotGuard<'s, 'a> {
+    slots: &'s Slots<'a>,
+    i: usize,
+}
+
+impl SlotGuard<'_, '_> {
+    /// The slot's stamps and packet counter.
+    pub fn parts(&mut self) -> (&mut [u32], &mut u32) {
+        // SAFETY: `i < count` (checked in `claim`), and this guard holds the
+        // slot's flag, so no other thread or guard uses the slot; the
+        // `&mut self` borrow stops a second call from overlapping.
+        unsafe { self.slots.parts(self.i) }
+    }
+}
+
+impl Drop for SlotGuard<'_, '_> {
+    fn drop(&mut self) {
+        self.slots.flag(self.i).store(0, Ordering::Release);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_slot_is_claimed_once_at_a_time() {
+        let (mut st, mut pk, mut busy) = ([0u32; 6], [0u32; 3], [7u32; 3]);
+        let slots = Slots::new(&mut st, &mut pk, &mut busy);
+        let mut a = slots.claim(1).unwrap();
+        assert_eq!(slots.claim(1).err(), Some(Error::SlotBusy { slot: 1 }));
+        let mut b = slots.claim(2).unwrap();
+        a.parts().0.fill(5);
+        *b.parts().1 = 9;
+        drop(a);
+        assert!(slots.claim(1).is_ok());
+        assert!(matches!(
+            slots.claim(3),
+            Err(Error::Capacity {
+                pool: Pool::Threads,
+                ..
+            })
+        ));
+        drop(b);
+        assert_eq!(st, [0, 0, 5, 5, 0, 0]);
+        assert_eq!(pk, [0, 0, 9]);
+    }
+
+    #[cfg(feature = "std")]
+    #[test]
+    fn threads_with_their_own_slots_do_not_interfere() {
+        let (mut st, mut pk, mut busy) = ([0u32; 4 * 64], [0u32; 4], [0u32; 4]);
+        let slots = Slots::new(&mut st, &mut pk, &mut busy);
+        std::thread::scope(|s| {
+            for t in 0..4u32 {
+                let slots = &slots;
+                s.spawn(move || {
+                    for round in 0..200u32 {
+                        let mut g = slots.claim(t).unwrap();
+                        let (stamps, packet) = g.parts();
+                        stamps.fill(t * 1000 + round);
+                        *packet = round;
+                        assert!(stamps.iter().all(|&v| v == t * 1000 + round));
+                    }
+                });
+            }
+        });
+        for (t, run) in st.chunks(64).enumerate() {
+            assert!(run.iter().all(|&v| v == t as u32 * 1000 + 199));
+        }
+    }
+
+    #[test]
+    fn no_slots() {
+        let slots = Slots::new(&mut [], &mut [], &mut []);
+        assert_eq!(slots.count(), 0);
+        assert!(slots.claim(0).is_err());
+    }
+}
