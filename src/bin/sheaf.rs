@@ -26,12 +26,16 @@ mod bench;
 mod cmd;
 #[path = "sheaf/entry_bench.rs"]
 mod entry_bench;
+#[path = "sheaf/export.rs"]
+mod export;
 #[path = "sheaf/load.rs"]
 mod load;
 #[path = "sheaf/pgrid_bench.rs"]
 mod pgrid_bench;
 #[path = "sheaf/run.rs"]
 mod run;
+#[path = "sheaf/stress_bench.rs"]
+mod stress_bench;
 #[path = "sheaf/view.rs"]
 mod view;
 #[path = "sheaf/whitted_bench.rs"]
@@ -91,6 +95,9 @@ enum Cmd {
     /// Benchmark every scene x method x packet size x triangle test: build and trace speed,
     /// counters, accuracy against the f64 reference; CSV, Markdown and a speed-vs-accuracy chart.
     Bench(BenchArgs),
+    /// Write a scene, a named view and its light to a binary file for C programs (the Embree
+    /// comparison in benches/embree reads it, so both libraries trace the same triangles and rays).
+    Export(export::ExportArgs),
 }
 
 /// Ray-triangle test of the grid.
@@ -552,6 +559,11 @@ pub struct BenchArgs {
     /// written to docs/bench-pgrid.
     #[arg(long, conflicts_with_all = ["whitted", "entry"])]
     pub pgrid: bool,
+    /// Instead of the ray table: stability where methods fail. Adversarial rays and scenes
+    /// through every method, checked against the single-ray reference, with each packet
+    /// method's slowdown against its structure's single-ray baseline; written to docs/bench-stress.
+    #[arg(long, conflicts_with_all = ["whitted", "entry", "pgrid"])]
+    pub stress: bool,
     /// Perspective/light grid parameters of `--pgrid` (the Figure 11 sweep varies --chunk).
     #[command(flatten)]
     pub pgrid_opts: PgridOpts,
@@ -592,6 +604,7 @@ impl BenchArgs {
             Some(d) => d.clone(),
             None if self.entry => PathBuf::from("docs/bench-kd"),
             None if self.pgrid => PathBuf::from("docs/bench-pgrid"),
+            None if self.stress => PathBuf::from("docs/bench-stress"),
             None => PathBuf::from("out/bench"),
         }
     }
@@ -644,6 +657,7 @@ fn main() -> ExitCode {
         Cmd::Render(a) => cmd::render(&a),
         Cmd::Info(a) => cmd::info(&a),
         Cmd::Bench(a) => bench::bench(&a),
+        Cmd::Export(a) => export::export(&a),
     };
     match res {
         Ok(()) => ExitCode::SUCCESS,

@@ -1255,6 +1255,9 @@ pub fn bench(a: &BenchArgs) -> Result<(), Failure> {
     if a.pgrid {
         return crate::pgrid_bench::run(a);
     }
+    if a.stress {
+        return crate::stress_bench::run(a);
+    }
     let out_dir = a.out_dir();
     let start = Instant::now();
     let (w, h) = a
@@ -2119,6 +2122,7 @@ mod tests {
             whitted: false,
             entry: false,
             pgrid: false,
+            stress: false,
             pgrid_opts: Default::default(),
             structures: vec![crate::StructureArg::Grid, crate::StructureArg::Bvh],
         };

@@ -1943,6 +1943,7 @@ mod tests {
             whitted: false,
             entry: true,
             pgrid: false,
+            stress: false,
             pgrid_opts: Default::default(),
             structures: vec![crate::StructureArg::Kd],
         };
@@ -2048,6 +2049,7 @@ mod diagnose {
                 whitted: false,
                 entry: true,
                 pgrid: false,
+                stress: false,
                 pgrid_opts: Default::default(),
                 structures: vec![],
             };

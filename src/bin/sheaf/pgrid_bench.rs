@@ -1934,6 +1934,7 @@ mod tests {
             whitted: false,
             entry: false,
             pgrid: true,
+            stress: false,
             pgrid_opts: Default::default(),
             structures: vec![],
         };

@@ -1,0 +1,1788 @@
+/*
+ * embree_bench: sheaf against Embree 3 on the same triangles and the same
+ * rays, from one C program (issue 7, part 1).
+ *
+ *   embree_bench [options] SCENE.scene...
+ *
+ * Each SCENE.scene is written by `sheaf export` (src/bin/sheaf/export.rs
+ * documents the format): triangles, one named view, the point light and
+ * the renderers' shadow offset. For each scene the program
+ *
+ *  1. makes the camera rays of every pixel with sheaf_frame_camera_ray
+ *     (bit for bit the rays sheaf's renderers shoot), in packet order:
+ *     32x32 pixel tiles row by row, inside a tile 2x2 quads in Morton order
+ *     (lanes (x,y), (x+1,y), (x,y+1), (x+1,y+1)), so every run of 4, 16,
+ *     64 or 256 rays is a 2x2, 4x4, 8x8 or 16x16 pixel packet; Embree's
+ *     4/8/16-wide packets take the same rays in the same order;
+ *  2. builds sheaf's grid, BVH and kd-tree (median build time) and traces
+ *     the camera rays with the BVH single ray: the reference hits;
+ *  3. makes the shadow ray of every lit reference hit exactly as sheaf's
+ *     renderers do (PointLight::at: from the light to the hit point moved
+ *     off the surface along its facing normal by max(eps, 1e-5 |light - p|),
+ *     tmin 0, tmax 1), one slot per camera ray in the same packet order
+ *     (inactive slots, tmin > tmax / valid = 0, for misses and unlit
+ *     points; --compact-shadows packs them), traced by both libraries;
+ *  4. checks those rays against sheaf's own renderer (a deferred frame:
+ *     sheaf_context_deferred_pixel / _deferred_shadow_ray, bit for bit);
+ *  5. times every sheaf traversal on 1 thread (sheaf_context_trace_with for
+ *     camera rays; sheaf_context_occluded, whose packets are 8x8, and
+ *     trace_with at 16x16 for shadow rays), checks each against the
+ *     reference, and times the fastest method of each structure (a packet
+ *     method unless the single ray is faster) on every thread count;
+ *  6. builds Embree scenes at RTC_BUILD_QUALITY_LOW (with
+ *     RTC_SCENE_FLAG_DYNAMIC), MEDIUM and HIGH on devices "threads=N"
+ *     (first commit, and rebuilds: rtcUpdateGeometryBuffer + commits), one
+ *     triangle geometry sharing sheaf's vertex and index buffers (vertex
+ *     buffer padded for Embree's 16-byte loads), and times rtcIntersect1/4/
+ *     8/16 and rtcOccluded1/4/8/16 on the same rays, split across threads;
+ *  7. compares hits: primary rays whose triangle id differs between the
+ *     sheaf reference and rtcIntersect1 (each quality), shadow rays whose
+ *     occlusion differs, each explained in f64 as a tie (two hits within
+ *     TIE_REL), an edge (the ray within EDGE_BARY of a triangle's edge in
+ *     barycentric terms, or its line within EDGE_REL of the edge relative to
+ *     the coordinates), an end (an occluder within END_REL of the ray's end
+ *     or start) or else "other" (--explain prints those);
+ *  8. times a dynamic frame: rebuild + camera rays + shadow-ray generation +
+ *     shadow rays (each sheaf structure with its best methods; Embree LOW
+ *     dynamic with its best widths).
+ *
+ * Threads: sheaf's trace/occluded calls are thread-safe on a built context;
+ * rays go out in chunks of 1024 (a 32x32 tile) from an atomic counter to N
+ * threads (the caller and N-1 pthreads). Embree's builds run on its device
+ * threads ("threads=N"); its ray queries on the same N threads as sheaf's,
+ * with FTZ/DAZ set in MXCSR as Embree asks (restored afterwards: sheaf
+ * does not need them). Times: clock_gettime(CLOCK_MONOTONIC), median of
+ * --reps runs; the Embree ray conversions (sheaf_ray to RTCRay SoA) are
+ * inside Embree's times, as an application would pay them.
+ *
+ * Output: progress on stderr, Markdown tables on stdout; --summary FILE
+ * writes key=value lines (the test reads them); --check exits 2 when the
+ * agreement is outside the named bounds below.
+ */
+#define _POSIX_C_SOURCE 200809L
+
+#include <embree3/rtcore.h>
+#include <errno.h>
+#include <math.h>
+#include <pmmintrin.h>
+#include <pthread.h>
+#include <stdarg.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/utsname.h>
+#include <time.h>
+#include <unistd.h>
+#include <xmmintrin.h>
+
+#include "sheaf.h"
+
+/* ---- named bounds and constants ------------------------------------------ */
+
+/* Relative t gap under which two hits are a tie (as `sheaf bench`). */
+#define TIE_REL 1e-5
+/* A ray grazes an edge when its barycentric distance to it is under
+ * EDGE_BARY (as `sheaf bench`), or when the ray's line passes within
+ * EDGE_REL of the edge relative to the largest coordinate magnitude
+ * involved (16 f32 ulps: f32 triangle tests err by a few ulps of the
+ * coordinates, more for rays at a grazing angle to the triangle). */
+#define EDGE_BARY 1e-5
+#define EDGE_REL 1e-6
+/* Relative distance of an occluder to the shadow ray's end (or start). */
+#define END_REL 1e-5
+/* --check: most disagreeing rays (primary or shadow) with no tie, edge or
+ * end explanation, per scene and quality. */
+#define MAX_UNEXPLAINED 0
+/* --check: most disagreeing rays of any kind, as a fraction of the rays
+ * (ties and edges included): 1 in 10,000. */
+#define MAX_DIFF_FRACTION 1e-4
+/* Rays per work item handed to a thread: one 32x32 pixel tile. */
+#define CHUNK 1024
+/* The renderers' shadow offset relative to the ray's length (SHADOW_OFFSET_REL). */
+#define SHADOW_OFFSET_REL 1e-5f
+#define MAX_THREADS 16
+#define MAX_REPS 31
+
+/* ---- small utilities ----------------------------------------------------- */
+
+static void die(const char *fmt, ...)
+{
+    va_list ap;
+    va_start(ap, fmt);
+    fprintf(stderr, "embree_bench: error: ");
+    vfprintf(stderr, fmt, ap);
+    fprintf(stderr, "\n");
+    va_end(ap);
+    exit(1);
+}
+
+static void progress(const char *fmt, ...)
+{
+    va_list ap;
+    va_start(ap, fmt);
+    vfprintf(stderr, fmt, ap);
+    va_end(ap);
+    fflush(stderr);
+}
+
+static double now_s(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+static int cmp_double(const void *a, const void *b)
+{
+    double x = *(const double *)a, y = *(const double *)b;
+    return (x > y) - (x < y);
+}
+
+static double median(double *v, int n)
+{
+    qsort(v, (size_t)n, sizeof *v, cmp_double);
+    return (n % 2) ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+}
+
+static void *xmalloc(size_t n)
+{
+    void *p = NULL;
+    if (posix_memalign(&p, 64, n ? n : 64) != 0)
+        die("out of memory (%zu bytes)", n);
+    return p;
+}
+
+static void check_sheaf(const sheaf_context *ctx, sheaf_status st, const char *what)
+{
+    if (st != SHEAF_STATUS_OK) {
+        char msg[SHEAF_ERROR_MESSAGE_MAX] = "";
+        size_t w = 0;
+        if (ctx)
+            sheaf_context_last_error(ctx, msg, sizeof msg, &w);
+        die("%s: %s (%s)", what, sheaf_status_string(st), msg);
+    }
+}
+
+static double load_average(void)
+{
+    double l = -1.0;
+    FILE *f = fopen("/proc/loadavg", "r");
+    if (f) {
+        if (fscanf(f, "%lf", &l) != 1)
+            l = -1.0;
+        fclose(f);
+    }
+    return l;
+}
+
+/* ---- the scene file (sheaf export) --------------------------------------- */
+
+typedef struct {
+    char label[512];
+    char view[512];
+    uint32_t nv, nt, width, height, excluded;
+    float eye[3], look_at[3], up[3], fov, light[3], eps;
+    float *verts;   /* 3 nv floats and one more: Embree reads 16 bytes at a time */
+    uint32_t *idx;  /* 3 nt */
+} Scene;
+
+static uint32_t rd_u32(const unsigned char *p)
+{
+    return (uint32_t)p[0] | (uint32_t)p[1] << 8 | (uint32_t)p[2] << 16 | (uint32_t)p[3] << 24;
+}
+
+static float rd_f32(const unsigned char *p)
+{
+    uint32_t u = rd_u32(p);
+    float f;
+    memcpy(&f, &u, 4);
+    return f;
+}
+
+static void read_scene(const char *path, Scene *s)
+{
+    FILE *f = fopen(path, "rb");
+    if (!f)
+        die("cannot open %s: %s", path, strerror(errno));
+    fseek(f, 0, SEEK_END);
+    long len = ftell(f);
+    fseek(f, 0, SEEK_SET);
+    if (len < 88)
+        die("%s: too short for a sheaf export", path);
+    unsigned char *buf = malloc((size_t)len);
+    if (!buf || fread(buf, 1, (size_t)len, f) != (size_t)len)
+        die("cannot read %s", path);
+    fclose(f);
+    if (memcmp(buf, "SHEAFSC1", 8) != 0 || rd_u32(buf + 8) != 1)
+        die("%s: not a version 1 sheaf export (run `sheaf export`)", path);
+    memset(s, 0, sizeof *s);
+    s->nv = rd_u32(buf + 12);
+    s->nt = rd_u32(buf + 16);
+    s->width = rd_u32(buf + 20);
+    s->height = rd_u32(buf + 24);
+    const unsigned char *p = buf + 28;
+    for (int i = 0; i < 3; i++) s->eye[i] = rd_f32(p + 4 * i);
+    for (int i = 0; i < 3; i++) s->look_at[i] = rd_f32(p + 12 + 4 * i);
+    for (int i = 0; i < 3; i++) s->up[i] = rd_f32(p + 24 + 4 * i);
+    s->fov = rd_f32(p + 36);
+    for (int i = 0; i < 3; i++) s->light[i] = rd_f32(p + 40 + 4 * i);
+    s->eps = rd_f32(p + 52);
+    s->excluded = rd_u32(p + 56);
+    size_t off = 88;
+    char *strs[2] = {s->label, s->view};
+    for (int k = 0; k < 2; k++) {
+        if (off + 4 > (size_t)len)
+            die("%s: truncated", path);
+        uint32_t n = rd_u32(buf + off);
+        off += 4;
+        if (off + n > (size_t)len)
+            die("%s: truncated", path);
+        size_t c = n < 511 ? n : 511;
+        memcpy(strs[k], buf + off, c);
+        strs[k][c] = 0;
+        off += n;
+    }
+    size_t need = off + 12 * (size_t)s->nv + 12 * (size_t)s->nt;
+    if ((size_t)len != need)
+        die("%s: %ld bytes, expected %zu", path, len, need);
+    s->verts = xmalloc(4 * (3 * (size_t)s->nv + 1));
+    s->idx = xmalloc(12 * (size_t)s->nt + 4);
+    for (size_t i = 0; i < 3 * (size_t)s->nv; i++) s->verts[i] = rd_f32(buf + off + 4 * i);
+    s->verts[3 * (size_t)s->nv] = 0.0f;
+    off += 12 * (size_t)s->nv;
+    for (size_t i = 0; i < 3 * (size_t)s->nt; i++) {
+        s->idx[i] = rd_u32(buf + off + 4 * i);
+        if (s->idx[i] >= s->nv)
+            die("%s: index %u out of range", path, s->idx[i]);
+    }
+    free(buf);
+}
+
+/* ---- rays ------------------------------------------------------------------ */
+
+/* Quad (x, y) of Morton index i (x in the even bits), as sheaf's renderer. */
+static void demorton(uint32_t i, uint32_t *x, uint32_t *y)
+{
+    *x = *y = 0;
+    for (int b = 0; b < 5; b++) {
+        *x |= ((i >> (2 * b)) & 1u) << b;
+        *y |= ((i >> (2 * b + 1)) & 1u) << b;
+    }
+}
+
+typedef struct { float x, y, z; } V3;
+static V3 v3(const float *p) { V3 r = {p[0], p[1], p[2]}; return r; }
+static V3 sub(V3 a, V3 b) { V3 r = {a.x - b.x, a.y - b.y, a.z - b.z}; return r; }
+static V3 add(V3 a, V3 b) { V3 r = {a.x + b.x, a.y + b.y, a.z + b.z}; return r; }
+static V3 mul(V3 a, float s) { V3 r = {a.x * s, a.y * s, a.z * s}; return r; }
+/* glam's Vec3::dot and Vec3::cross, term for term. */
+static float dot(V3 a, V3 b) { return (a.x * b.x) + (a.y * b.y) + (a.z * b.z); }
+static V3 cross(V3 a, V3 b)
+{
+    V3 r = {a.y * b.z - b.y * a.z, a.z * b.x - b.z * a.x, a.x * b.y - b.x * a.y};
+    return r;
+}
+static float length(V3 a) { return sqrtf(dot(a, a)); }
+/* glam's normalize_or_zero: times 1/length when that is finite and positive. */
+static V3 normalize_or_zero(V3 a)
+{
+    float rcp = 1.0f / length(a);
+    if (isfinite(rcp) && rcp > 0.0f)
+        return mul(a, rcp);
+    V3 z = {0, 0, 0};
+    return z;
+}
+
+/* The shadow ray sheaf's renderers shoot for the camera ray `r` hitting
+ * triangle `prim` at `t` (render::deferred::shadow_ray, PointLight::at for a
+ * point light): 1 and *out when the surface faces the light, else 0. */
+static int shadow_ray(const Scene *s, const sheaf_ray *r, float t, uint32_t prim, sheaf_ray *out)
+{
+    const uint32_t *i = s->idx + 3 * (size_t)prim;
+    V3 a = v3(s->verts + 3 * (size_t)i[0]);
+    V3 b = v3(s->verts + 3 * (size_t)i[1]);
+    V3 c = v3(s->verts + 3 * (size_t)i[2]);
+    V3 n = normalize_or_zero(cross(sub(b, a), sub(c, a)));
+    V3 d = v3(r->dir);
+    if (dot(n, d) > 0.0f)
+        n = mul(n, -1.0f);
+    V3 p = add(v3(r->org), mul(d, t));
+    V3 light = v3(s->light);
+    V3 to = sub(light, p);
+    float len = length(to);
+    to = normalize_or_zero(to);
+    float lit = dot(n, to) * 1.0f; /* a point light's spot factor is 1 */
+    if (!(lit > 0.0f))
+        return 0;
+    float rel = SHADOW_OFFSET_REL * len;
+    float off = s->eps > rel ? s->eps : rel; /* f32::max */
+    if (isnan(s->eps)) off = rel;
+    V3 end = add(p, mul(n, off));
+    V3 dir = sub(end, light);
+    out->org[0] = light.x; out->org[1] = light.y; out->org[2] = light.z;
+    out->tmin = 0.0f;
+    out->dir[0] = dir.x; out->dir[1] = dir.y; out->dir[2] = dir.z;
+    out->tmax = 1.0f;
+    return 1;
+}
+
+/* A slot without a shadow ray (a miss, or a surface facing away from the
+ * light): tmin > tmax, which sheaf reports as a miss without tracing it and
+ * Embree gets as an invalid lane (valid = 0) or skips. */
+static void inactive_ray(const Scene *s, sheaf_ray *out)
+{
+    memcpy(out->org, s->light, sizeof out->org);
+    out->tmin = 0.0f;
+    out->dir[0] = 1.0f;
+    out->dir[1] = out->dir[2] = 0.0f;
+    out->tmax = -1.0f;
+}
+
+static int is_active(const sheaf_ray *r) { return r->tmax >= r->tmin; }
+
+/* ---- work split across threads --------------------------------------------- */
+
+enum Lib { LIB_SHEAF, LIB_EMBREE };
+enum Kind { K_TRACE, K_OCCLUDED, K_TRACE_OCC, K_FRAME_SHADOW };
+
+typedef struct Job Job;
+struct Job {
+    size_t n;          /* rays (or pixels for K_FRAME_SHADOW) */
+    size_t next;       /* next unclaimed ray, atomic */
+    int lib, kind;
+    /* sheaf */
+    const sheaf_context *ctx;
+    sheaf_trace_params params; /* K_TRACE, K_TRACE_OCC, K_FRAME_SHADOW (trace_with shadows) */
+    sheaf_method occ_method;   /* K_OCCLUDED and K_FRAME_SHADOW with occ_via_trace == 0 */
+    int occ_via_trace;
+    int compact;       /* K_FRAME_SHADOW: shadow rays packed, else one slot per pixel */
+    /* Embree */
+    RTCScene scene;
+    int width;         /* 1, 4, 8, 16 */
+    /* data */
+    const Scene *s;
+    const sheaf_ray *rays;
+    sheaf_hit *hits;       /* sheaf K_TRACE output; K_FRAME_SHADOW input (sheaf) */
+    uint32_t *prim;        /* Embree K_TRACE output; K_FRAME_SHADOW input (Embree) */
+    float *t;              /* Embree K_TRACE output; K_FRAME_SHADOW input (Embree) */
+    uint8_t *occ;          /* K_OCCLUDED / K_TRACE_OCC output */
+    size_t shadow_rays, occluded; /* K_FRAME_SHADOW counts, atomic */
+    int status;            /* first sheaf error */
+};
+
+static void embree_trace(Job *j, size_t b, size_t e);
+static void embree_occluded(Job *j, const sheaf_ray *rays, uint8_t *occ, size_t n);
+
+static void sheaf_occluded_n(Job *j, const sheaf_ray *rays, uint8_t *occ, size_t n)
+{
+    sheaf_status st;
+    if (j->occ_via_trace) {
+        sheaf_hit h[CHUNK];
+        st = sheaf_context_trace_with(j->ctx, &j->params, rays, h, n);
+        for (size_t k = 0; k < n && st == SHEAF_STATUS_OK; k++)
+            occ[k] = h[k].prim != SHEAF_INVALID_ID;
+    } else {
+        st = sheaf_context_occluded(j->ctx, j->occ_method, rays, occ, n);
+    }
+    if (st != SHEAF_STATUS_OK)
+        j->status = (int)st;
+}
+
+static void frame_shadows(Job *j, size_t b, size_t e)
+{
+    sheaf_ray sr[CHUNK];
+    uint8_t occ[CHUNK];
+    size_t m = 0;
+    for (size_t k = b; k < e; k++) {
+        uint32_t prim;
+        float t;
+        if (j->lib == LIB_SHEAF) {
+            prim = j->hits[k].prim;
+            t = j->hits[k].t;
+        } else {
+            prim = j->prim[k];
+            t = j->t[k];
+        }
+        if (prim != SHEAF_INVALID_ID && shadow_ray(j->s, &j->rays[k], t, prim, &sr[m]))
+            m++;
+        else if (!j->compact)
+            inactive_ray(j->s, &sr[m++]);
+    }
+    if (m == 0)
+        return;
+    if (j->lib == LIB_SHEAF)
+        sheaf_occluded_n(j, sr, occ, m);
+    else
+        embree_occluded(j, sr, occ, m);
+    size_t o = 0, a = 0;
+    for (size_t k = 0; k < m; k++) {
+        o += occ[k];
+        a += is_active(&sr[k]);
+    }
+    __atomic_fetch_add(&j->shadow_rays, a, __ATOMIC_RELAXED);
+    __atomic_fetch_add(&j->occluded, o, __ATOMIC_RELAXED);
+}
+
+static void run_chunk(Job *j, size_t b, size_t e)
+{
+    if (j->kind == K_FRAME_SHADOW) {
+        frame_shadows(j, b, e);
+        return;
+    }
+    if (j->lib == LIB_SHEAF) {
+        sheaf_status st = SHEAF_STATUS_OK;
+        if (j->kind == K_TRACE)
+            st = sheaf_context_trace_with(j->ctx, &j->params, j->rays + b, j->hits + b, e - b);
+        else
+            sheaf_occluded_n(j, j->rays + b, j->occ + b, e - b);
+        if (st != SHEAF_STATUS_OK)
+            j->status = (int)st;
+    } else if (j->kind == K_TRACE) {
+        embree_trace(j, b, e);
+    } else {
+        embree_occluded(j, j->rays + b, j->occ + b, e - b);
+    }
+}
+
+static void *worker(void *arg)
+{
+    Job *j = arg;
+    unsigned csr = _mm_getcsr();
+    if (j->lib == LIB_EMBREE) {
+        _MM_SET_FLUSH_ZERO_MODE(_MM_FLUSH_ZERO_ON);
+        _MM_SET_DENORMALS_ZERO_MODE(_MM_DENORMALS_ZERO_ON);
+    }
+    for (;;) {
+        size_t b = __atomic_fetch_add(&j->next, (size_t)CHUNK, __ATOMIC_RELAXED);
+        if (b >= j->n)
+            break;
+        size_t e = b + CHUNK < j->n ? b + CHUNK : j->n;
+        run_chunk(j, b, e);
+    }
+    _mm_setcsr(csr);
+    return NULL;
+}
+
+/* Run `j` on `threads` threads (the caller and threads - 1 pthreads); seconds. */
+static double run_job(Job *j, int threads)
+{
+    pthread_t th[MAX_THREADS];
+    j->next = 0;
+    j->shadow_rays = j->occluded = 0;
+    double t0 = now_s();
+    for (int i = 1; i < threads; i++)
+        if (pthread_create(&th[i], NULL, worker, j) != 0)
+            die("pthread_create failed");
+    worker(j);
+    for (int i = 1; i < threads; i++) pthread_join(th[i], NULL);
+    double t1 = now_s();
+    if (j->status != 0)
+        die("sheaf trace failed: %s", sheaf_status_string((sheaf_status)j->status));
+    return t1 - t0;
+}
+
+/* ---- Embree ray queries ------------------------------------------------------ */
+
+#define FILL_LANE(R, l, src)                                      \
+    do {                                                          \
+        (R).org_x[l] = (src)->org[0];                             \
+        (R).org_y[l] = (src)->org[1];                             \
+        (R).org_z[l] = (src)->org[2];                             \
+        (R).tnear[l] = (src)->tmin;                               \
+        (R).dir_x[l] = (src)->dir[0];                             \
+        (R).dir_y[l] = (src)->dir[1];                             \
+        (R).dir_z[l] = (src)->dir[2];                             \
+        (R).time[l] = 0.0f;                                       \
+        (R).tfar[l] = (src)->tmax;                                \
+        (R).mask[l] = 0xFFFFFFFFu;                                \
+        (R).id[l] = 0;                                            \
+        (R).flags[l] = 0;                                         \
+    } while (0)
+
+#define TRACE_N(W, RH, FN)                                                           \
+    for (size_t k = b; k < e; k += W) {                                               \
+        RH rh;                                                                        \
+        int valid[W];                                                                 \
+        for (int l = 0; l < W; l++) {                                                 \
+            size_t r = k + (size_t)l < e ? k + (size_t)l : e - 1;                     \
+            valid[l] = k + (size_t)l < e ? -1 : 0;                                    \
+            FILL_LANE(rh.ray, l, &j->rays[r]);                                        \
+            rh.hit.geomID[l] = RTC_INVALID_GEOMETRY_ID;                               \
+            rh.hit.instID[0][l] = RTC_INVALID_GEOMETRY_ID;                            \
+        }                                                                             \
+        FN(valid, j->scene, &ctx, &rh);                                               \
+        for (int l = 0; l < W && k + (size_t)l < e; l++) {                            \
+            int hit = rh.hit.geomID[l] != RTC_INVALID_GEOMETRY_ID;                    \
+            j->prim[k + l] = hit ? rh.hit.primID[l] : SHEAF_INVALID_ID;               \
+            j->t[k + l] = hit ? rh.ray.tfar[l] : INFINITY;                            \
+        }                                                                             \
+    }
+
+#define OCCLUDED_N(W, RT, FN)                                                        \
+    for (size_t k = 0; k < n; k += W) {                                               \
+        RT ray;                                                                       \
+        int valid[W];                                                                 \
+        for (int l = 0; l < W; l++) {                                                 \
+            size_t r = k + (size_t)l < n ? k + (size_t)l : n - 1;                     \
+            valid[l] = k + (size_t)l < n && is_active(&rays[r]) ? -1 : 0;              \
+            FILL_LANE(ray, l, &rays[r]);                                              \
+        }                                                                             \
+        FN(valid, j->scene, &ctx, &ray);                                              \
+        for (int l = 0; l < W && k + (size_t)l < n; l++)                              \
+            occ[k + l] = valid[l] && ray.tfar[l] < 0.0f;                              \
+    }
+
+static void embree_trace(Job *j, size_t b, size_t e)
+{
+    struct RTCIntersectContext ctx;
+    rtcInitIntersectContext(&ctx);
+    ctx.flags = RTC_INTERSECT_CONTEXT_FLAG_COHERENT;
+    switch (j->width) {
+    case 1:
+        for (size_t k = b; k < e; k++) {
+            struct RTCRayHit rh;
+            const sheaf_ray *r = &j->rays[k];
+            rh.ray.org_x = r->org[0];
+            rh.ray.org_y = r->org[1];
+            rh.ray.org_z = r->org[2];
+            rh.ray.tnear = r->tmin;
+            rh.ray.dir_x = r->dir[0];
+            rh.ray.dir_y = r->dir[1];
+            rh.ray.dir_z = r->dir[2];
+            rh.ray.time = 0.0f;
+            rh.ray.tfar = r->tmax;
+            rh.ray.mask = 0xFFFFFFFFu;
+            rh.ray.id = 0;
+            rh.ray.flags = 0;
+            rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+            rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+            rtcIntersect1(j->scene, &ctx, &rh);
+            int hit = rh.hit.geomID != RTC_INVALID_GEOMETRY_ID;
+            j->prim[k] = hit ? rh.hit.primID : SHEAF_INVALID_ID;
+            j->t[k] = hit ? rh.ray.tfar : INFINITY;
+        }
+        break;
+    case 4: TRACE_N(4, struct RTCRayHit4, rtcIntersect4) break;
+    case 8: TRACE_N(8, struct RTCRayHit8, rtcIntersect8) break;
+    default: TRACE_N(16, struct RTCRayHit16, rtcIntersect16) break;
+    }
+}
+
+static void embree_occluded(Job *j, const sheaf_ray *rays, uint8_t *occ, size_t n)
+{
+    struct RTCIntersectContext ctx;
+    rtcInitIntersectContext(&ctx);
+    ctx.flags = RTC_INTERSECT_CONTEXT_FLAG_COHERENT;
+    switch (j->width) {
+    case 1:
+        for (size_t k = 0; k < n; k++) {
+            struct RTCRay ray;
+            const sheaf_ray *r = &rays[k];
+            if (!is_active(r)) {
+                occ[k] = 0;
+                continue;
+            }
+            ray.org_x = r->org[0];
+            ray.org_y = r->org[1];
+            ray.org_z = r->org[2];
+            ray.tnear = r->tmin;
+            ray.dir_x = r->dir[0];
+            ray.dir_y = r->dir[1];
+            ray.dir_z = r->dir[2];
+            ray.time = 0.0f;
+            ray.tfar = r->tmax;
+            ray.mask = 0xFFFFFFFFu;
+            ray.id = 0;
+            ray.flags = 0;
+            rtcOccluded1(j->scene, &ctx, &ray);
+            occ[k] = ray.tfar < 0.0f;
+        }
+        break;
+    case 4: OCCLUDED_N(4, struct RTCRay4, rtcOccluded4) break;
+    case 8: OCCLUDED_N(8, struct RTCRay8, rtcOccluded8) break;
+    default: OCCLUDED_N(16, struct RTCRay16, rtcOccluded16) break;
+    }
+}
+
+/* Embree's nearest hit of one ray (the occluder of a shadow ray). */
+static uint32_t embree_nearest(RTCScene scene, const sheaf_ray *r)
+{
+    struct RTCIntersectContext ctx;
+    struct RTCRayHit rh;
+    rtcInitIntersectContext(&ctx);
+    rh.ray.org_x = r->org[0];
+    rh.ray.org_y = r->org[1];
+    rh.ray.org_z = r->org[2];
+    rh.ray.tnear = r->tmin;
+    rh.ray.dir_x = r->dir[0];
+    rh.ray.dir_y = r->dir[1];
+    rh.ray.dir_z = r->dir[2];
+    rh.ray.time = 0.0f;
+    rh.ray.tfar = r->tmax;
+    rh.ray.mask = 0xFFFFFFFFu;
+    rh.ray.id = 0;
+    rh.ray.flags = 0;
+    rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+    rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+    rtcIntersect1(scene, &ctx, &rh);
+    return rh.hit.geomID != RTC_INVALID_GEOMETRY_ID ? rh.hit.primID : SHEAF_INVALID_ID;
+}
+
+static void embree_error(void *user, enum RTCError code, const char *msg)
+{
+    (void)user;
+    fprintf(stderr, "embree_bench: Embree error %d: %s\n", (int)code, msg ? msg : "");
+}
+
+typedef struct {
+    RTCScene scene;
+    RTCGeometry geom;
+} EScene;
+
+static const char *QUALITY_NAME[3] = {"LOW", "MEDIUM", "HIGH"};
+
+/* A new Embree scene of `s` at quality q (LOW: with RTC_SCENE_FLAG_DYNAMIC),
+ * one triangle geometry sharing the scene's buffers; seconds to first commit. */
+static double embree_build(RTCDevice dev, const Scene *s, int q, EScene *out)
+{
+    enum RTCBuildQuality quality = q == 0 ? RTC_BUILD_QUALITY_LOW
+                                 : q == 1 ? RTC_BUILD_QUALITY_MEDIUM
+                                          : RTC_BUILD_QUALITY_HIGH;
+    double t0 = now_s();
+    RTCScene sc = rtcNewScene(dev);
+    rtcSetSceneFlags(sc, q == 0 ? RTC_SCENE_FLAG_DYNAMIC : RTC_SCENE_FLAG_NONE);
+    rtcSetSceneBuildQuality(sc, quality);
+    RTCGeometry g = rtcNewGeometry(dev, RTC_GEOMETRY_TYPE_TRIANGLE);
+    rtcSetGeometryBuildQuality(g, quality);
+    rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, s->verts, 0,
+                               3 * sizeof(float), s->nv);
+    rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, s->idx, 0,
+                               3 * sizeof(uint32_t), s->nt);
+    rtcCommitGeometry(g);
+    rtcAttachGeometryByID(sc, g, 0);
+    rtcCommitScene(sc);
+    double t1 = now_s();
+    if (rtcGetDeviceError(dev) != RTC_ERROR_NONE)
+        die("Embree build failed");
+    out->scene = sc;
+    out->geom = g;
+    return t1 - t0;
+}
+
+/* A per-frame rebuild: the vertices changed (in place), commit again. */
+static double embree_rebuild(EScene *e)
+{
+    double t0 = now_s();
+    rtcUpdateGeometryBuffer(e->geom, RTC_BUFFER_TYPE_VERTEX, 0);
+    rtcCommitGeometry(e->geom);
+    rtcCommitScene(e->scene);
+    return now_s() - t0;
+}
+
+static void embree_release(EScene *e)
+{
+    rtcReleaseGeometry(e->geom);
+    rtcReleaseScene(e->scene);
+}
+
+/* ---- f64 explanations of disagreements ----------------------------------------- */
+
+typedef struct {
+    double t, u, v;
+    int ok; /* a non-degenerate triangle */
+} Hit64;
+
+/* Moller-Trumbore in f64 without range checks: t and the barycentrics. */
+static Hit64 isect64(const Scene *s, const sheaf_ray *r, uint32_t prim)
+{
+    Hit64 h = {0, 0, 0, 0};
+    const uint32_t *i = s->idx + 3 * (size_t)prim;
+    double a[3], b[3], c[3], o[3], d[3];
+    for (int k = 0; k < 3; k++) {
+        a[k] = s->verts[3 * (size_t)i[0] + k];
+        b[k] = s->verts[3 * (size_t)i[1] + k];
+        c[k] = s->verts[3 * (size_t)i[2] + k];
+        o[k] = r->org[k];
+        d[k] = r->dir[k];
+    }
+    double e1[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]};
+    double e2[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
+    double p[3] = {d[1] * e2[2] - d[2] * e2[1], d[2] * e2[0] - d[0] * e2[2], d[0] * e2[1] - d[1] * e2[0]};
+    double det = e1[0] * p[0] + e1[1] * p[1] + e1[2] * p[2];
+    if (det == 0.0 || !isfinite(det))
+        return h;
+    double inv = 1.0 / det;
+    double tv[3] = {o[0] - a[0], o[1] - a[1], o[2] - a[2]};
+    h.u = (tv[0] * p[0] + tv[1] * p[1] + tv[2] * p[2]) * inv;
+    double q[3] = {tv[1] * e1[2] - tv[2] * e1[1], tv[2] * e1[0] - tv[0] * e1[2], tv[0] * e1[1] - tv[1] * e1[0]};
+    h.v = (d[0] * q[0] + d[1] * q[1] + d[2] * q[2]) * inv;
+    h.t = (e2[0] * q[0] + e2[1] * q[1] + e2[2] * q[2]) * inv;
+    h.ok = 1;
+    return h;
+}
+
+/* How close the ray passes to an edge of `prim` (|smallest barycentric|). */
+static double edge_gap(Hit64 h)
+{
+    if (!h.ok)
+        return 0.0; /* degenerate: every ray grazes it */
+    double w = 1.0 - h.u - h.v;
+    double m = fabs(h.u);
+    if (fabs(h.v) < m) m = fabs(h.v);
+    if (fabs(w) < m) m = fabs(w);
+    return m;
+}
+
+static int g_explain; /* --explain: print each unexplained disagreement */
+
+/* Distance from the ray's line to the nearest edge of `prim`, relative to
+ * the largest coordinate magnitude of the triangle and the ray's origin
+ * (f32 triangle tests err by some ulps of that magnitude; a grazing ray
+ * passes close to the edges even where it crosses the plane far from them). */
+static double edge_distance_rel(const Scene *s, const sheaf_ray *r, uint32_t prim)
+{
+    const uint32_t *ix = s->idx + 3 * (size_t)prim;
+    double v[3][3], o[3], d[3], mag = 0.0, best = INFINITY;
+    for (int k = 0; k < 3; k++) {
+        o[k] = r->org[k];
+        d[k] = r->dir[k];
+        if (fabs(o[k]) > mag) mag = fabs(o[k]);
+        for (int c = 0; c < 3; c++) {
+            v[c][k] = s->verts[3 * (size_t)ix[c] + k];
+            if (fabs(v[c][k]) > mag) mag = fabs(v[c][k]);
+        }
+    }
+    for (int c = 0; c < 3; c++) {
+        const double *a = v[c], *b = v[(c + 1) % 3];
+        double e[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]};
+        double w[3] = {o[0] - a[0], o[1] - a[1], o[2] - a[2]};
+        double A = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+        double B = d[0] * e[0] + d[1] * e[1] + d[2] * e[2];
+        double C = e[0] * e[0] + e[1] * e[1] + e[2] * e[2];
+        double D = d[0] * w[0] + d[1] * w[1] + d[2] * w[2];
+        double E = e[0] * w[0] + e[1] * w[1] + e[2] * w[2];
+        double den = A * C - B * B, rr;
+        /* Closest point of the segment (parameter rr in [0, 1]) to the line. */
+        if (C == 0.0)
+            rr = 0.0;
+        else if (den <= 1e-15 * A * C)
+            rr = 0.0; /* parallel: any point; the endpoints are checked below too */
+        else
+            rr = (A * E - B * D) / den;
+        double cand[3] = {rr < 0 ? 0 : rr > 1 ? 1 : rr, 0.0, 1.0};
+        for (int i = 0; i < 3; i++) {
+            double q[3] = {a[0] + cand[i] * e[0] - o[0], a[1] + cand[i] * e[1] - o[1], a[2] + cand[i] * e[2] - o[2]};
+            double sq = (q[0] * d[0] + q[1] * d[1] + q[2] * d[2]) / A; /* closest point of the line */
+            double x[3] = {q[0] - sq * d[0], q[1] - sq * d[1], q[2] - sq * d[2]};
+            double dist = sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2]);
+            if (dist < best) best = dist;
+        }
+    }
+    return mag > 0 ? best / mag : best;
+}
+
+static int grazes(const Scene *s, const sheaf_ray *r, uint32_t prim, Hit64 h)
+{
+    return edge_gap(h) <= EDGE_BARY || edge_distance_rel(s, r, prim) <= EDGE_REL;
+}
+
+typedef struct {
+    size_t rays, hits_sheaf, hits_embree, differ, ties, edges, ends, other;
+    size_t width_differ; /* Embree 4/8/16-wide answers that differ from rtcIntersect1's */
+} Agreement;
+
+/* Camera rays: sheaf's reference against Embree's rtcIntersect1. */
+static void agree_primary(const Scene *s, const sheaf_ray *rays, const sheaf_hit *ref,
+                          const uint32_t *eprim, const float *et, size_t n, Agreement *a)
+{
+    for (size_t k = 0; k < n; k++) {
+        uint32_t A = ref[k].prim, B = eprim[k];
+        a->hits_sheaf += A != SHEAF_INVALID_ID;
+        a->hits_embree += B != SHEAF_INVALID_ID;
+        if (A == B)
+            continue;
+        a->differ++;
+        Hit64 ha = {0, 0, 0, 0}, hb = {0, 0, 0, 0};
+        if (A != SHEAF_INVALID_ID) ha = isect64(s, &rays[k], A);
+        if (B != SHEAF_INVALID_ID) hb = isect64(s, &rays[k], B);
+        if (A != SHEAF_INVALID_ID && B != SHEAF_INVALID_ID && ha.ok && hb.ok) {
+            double m = fabs(ha.t) > fabs(hb.t) ? fabs(ha.t) : fabs(hb.t);
+            if (fabs(ha.t - hb.t) <= TIE_REL * m) {
+                a->ties++;
+                continue;
+            }
+        }
+        if ((A != SHEAF_INVALID_ID && grazes(s, &rays[k], A, ha)) ||
+            (B != SHEAF_INVALID_ID && grazes(s, &rays[k], B, hb))) {
+            a->edges++;
+            continue;
+        }
+        a->other++;
+        if (g_explain)
+            fprintf(stderr,
+                    "  unexplained camera ray %zu: org (%a %a %a) dir (%a %a %a): sheaf %u t %.9g "
+                    "(f64 t %.12g, bary %.3g %.3g %.3g, edge distance %.3g), Embree %u t %.9g (f64 t %.12g, bary %.3g %.3g %.3g, edge distance %.3g)\n",
+                    k, rays[k].org[0], rays[k].org[1], rays[k].org[2], rays[k].dir[0], rays[k].dir[1],
+                    rays[k].dir[2], A, ref[k].t, ha.t, ha.u, ha.v, 1 - ha.u - ha.v,
+                    A != SHEAF_INVALID_ID ? edge_distance_rel(s, &rays[k], A) : NAN, B, et[k], hb.t, hb.u, hb.v,
+                    1 - hb.u - hb.v, B != SHEAF_INVALID_ID ? edge_distance_rel(s, &rays[k], B) : NAN);
+    }
+}
+
+/* Shadow rays: sheaf's occlusion against Embree's; each disagreement's
+ * occluders (sheaf's BVH single nearest hit, Embree's rtcIntersect1) are
+ * checked for an edge or the ray's end. */
+static void agree_shadow(const Scene *s, const sheaf_context *ctx, RTCScene scene,
+                         const sheaf_ray *rays, const uint8_t *ref, const uint8_t *eocc,
+                         size_t n, Agreement *a)
+{
+    sheaf_trace_params p;
+    sheaf_trace_params_default(&p);
+    p.method = SHEAF_METHOD_BVH_SINGLE;
+    for (size_t k = 0; k < n; k++) {
+        a->hits_sheaf += ref[k];
+        a->hits_embree += eocc[k];
+        if (ref[k] == eocc[k])
+            continue;
+        a->differ++;
+        sheaf_hit h;
+        check_sheaf(ctx, sheaf_context_trace_with(ctx, &p, &rays[k], &h, 1), "trace");
+        uint32_t occl[2] = {h.prim, embree_nearest(scene, &rays[k])};
+        int edge = 0, end = 0;
+        for (int i = 0; i < 2; i++) {
+            if (occl[i] == SHEAF_INVALID_ID)
+                continue;
+            Hit64 x = isect64(s, &rays[k], occl[i]);
+            if (grazes(s, &rays[k], occl[i], x))
+                edge = 1;
+            if (x.ok && (fabs(1.0 - x.t) <= END_REL || fabs(x.t) <= END_REL))
+                end = 1;
+        }
+        if (end)
+            a->ends++;
+        else if (edge)
+            a->edges++;
+        else {
+            a->other++;
+            if (g_explain)
+                fprintf(stderr, "  unexplained shadow ray %zu: sheaf %s (occluder %u), Embree %s (occluder %u)\n", k,
+                        ref[k] ? "occluded" : "lit", occl[0], eocc[k] ? "occluded" : "lit", occl[1]);
+        }
+    }
+}
+
+/* ---- sheaf configurations ---------------------------------------------------------- */
+
+enum { S_GRID, S_BVH, S_KD, NSTRUCT };
+static const char *STRUCT_NAME[NSTRUCT] = {"grid", "BVH", "kd"};
+
+typedef struct {
+    const char *name;
+    int structure;
+    sheaf_method method;
+    uint32_t packet;
+    sheaf_entry_search entry;
+    int packet_method; /* SIMD rays and n x n packets (else a single-ray method) */
+    int occ_via_trace; /* shadows: nearest hit through trace_with (16x16), not occluded */
+} Cfg;
+
+static const Cfg PRIMARY_CFGS[] = {
+    {"grid-dda", S_GRID, SHEAF_METHOD_GRID_DDA, 8, SHEAF_ENTRY_SEARCH_NONE, 0, 0},
+    {"grid-cgt 4x4", S_GRID, SHEAF_METHOD_GRID_CGT, 4, SHEAF_ENTRY_SEARCH_NONE, 1, 0},
+    {"grid-cgt 8x8", S_GRID, SHEAF_METHOD_GRID_CGT, 8, SHEAF_ENTRY_SEARCH_NONE, 1, 0},
+    {"grid-cgt 16x16", S_GRID, SHEAF_METHOD_GRID_CGT, 16, SHEAF_ENTRY_SEARCH_NONE, 1, 0},
+    {"bvh-single", S_BVH, SHEAF_METHOD_BVH_SINGLE, 8, SHEAF_ENTRY_SEARCH_NONE, 0, 0},
+    {"bvh-simd", S_BVH, SHEAF_METHOD_BVH_SIMD, 8, SHEAF_ENTRY_SEARCH_NONE, 1, 0},
+    {"bvh-masked 8x8", S_BVH, SHEAF_METHOD_BVH_MASKED, 8, SHEAF_ENTRY_SEARCH_NONE, 1, 0},
+    {"bvh-masked 16x16", S_BVH, SHEAF_METHOD_BVH_MASKED, 16, SHEAF_ENTRY_SEARCH_NONE, 1, 0},
+    {"bvh-ranged 8x8", S_BVH, SHEAF_METHOD_BVH_RANGED, 8, SHEAF_ENTRY_SEARCH_NONE, 1, 0},
+    {"bvh-ranged 16x16", S_BVH, SHEAF_METHOD_BVH_RANGED, 16, SHEAF_ENTRY_SEARCH_NONE, 1, 0},
+    {"bvh-partition 8x8", S_BVH, SHEAF_METHOD_BVH_PARTITION, 8, SHEAF_ENTRY_SEARCH_NONE, 1, 0},
+    {"bvh-partition 16x16", S_BVH, SHEAF_METHOD_BVH_PARTITION, 16, SHEAF_ENTRY_SEARCH_NONE, 1, 0},
+    {"kd-single", S_KD, SHEAF_METHOD_KD_SINGLE, 8, SHEAF_ENTRY_SEARCH_NONE, 0, 0},
+    {"kd-simd", S_KD, SHEAF_METHOD_KD_SIMD, 8, SHEAF_ENTRY_SEARCH_NONE, 1, 0},
+    {"kd-packet 8x8", S_KD, SHEAF_METHOD_KD_PACKET, 8, SHEAF_ENTRY_SEARCH_NONE, 1, 0},
+    {"kd-packet 16x16", S_KD, SHEAF_METHOD_KD_PACKET, 16, SHEAF_ENTRY_SEARCH_NONE, 1, 0},
+    {"kd-packet 16x16 aepsa", S_KD, SHEAF_METHOD_KD_PACKET, 16, SHEAF_ENTRY_SEARCH_AEPSA, 1, 0},
+};
+#define N_PRIMARY_CFGS (sizeof PRIMARY_CFGS / sizeof PRIMARY_CFGS[0])
+
+static const Cfg SHADOW_CFGS[] = {
+    {"grid-dda", S_GRID, SHEAF_METHOD_GRID_DDA, 8, SHEAF_ENTRY_SEARCH_NONE, 0, 0},
+    {"grid-cgt 8x8", S_GRID, SHEAF_METHOD_GRID_CGT, 8, SHEAF_ENTRY_SEARCH_NONE, 1, 0},
+    {"grid-cgt 16x16 nearest", S_GRID, SHEAF_METHOD_GRID_CGT, 16, SHEAF_ENTRY_SEARCH_NONE, 1, 1},
+    {"bvh-single", S_BVH, SHEAF_METHOD_BVH_SINGLE, 8, SHEAF_ENTRY_SEARCH_NONE, 0, 0},
+    {"bvh-simd", S_BVH, SHEAF_METHOD_BVH_SIMD, 8, SHEAF_ENTRY_SEARCH_NONE, 1, 0},
+    {"bvh-masked 8x8", S_BVH, SHEAF_METHOD_BVH_MASKED, 8, SHEAF_ENTRY_SEARCH_NONE, 1, 0},
+    {"bvh-ranged 8x8", S_BVH, SHEAF_METHOD_BVH_RANGED, 8, SHEAF_ENTRY_SEARCH_NONE, 1, 0},
+    {"bvh-partition 8x8", S_BVH, SHEAF_METHOD_BVH_PARTITION, 8, SHEAF_ENTRY_SEARCH_NONE, 1, 0},
+    {"bvh-ranged 16x16 nearest", S_BVH, SHEAF_METHOD_BVH_RANGED, 16, SHEAF_ENTRY_SEARCH_NONE, 1, 1},
+    {"bvh-partition 16x16 nearest", S_BVH, SHEAF_METHOD_BVH_PARTITION, 16, SHEAF_ENTRY_SEARCH_NONE, 1, 1},
+    {"kd-single", S_KD, SHEAF_METHOD_KD_SINGLE, 8, SHEAF_ENTRY_SEARCH_NONE, 0, 0},
+    {"kd-simd", S_KD, SHEAF_METHOD_KD_SIMD, 8, SHEAF_ENTRY_SEARCH_NONE, 1, 0},
+    {"kd-packet 8x8", S_KD, SHEAF_METHOD_KD_PACKET, 8, SHEAF_ENTRY_SEARCH_NONE, 1, 0},
+    {"kd-packet 16x16 nearest", S_KD, SHEAF_METHOD_KD_PACKET, 16, SHEAF_ENTRY_SEARCH_NONE, 1, 1},
+};
+#define N_SHADOW_CFGS (sizeof SHADOW_CFGS / sizeof SHADOW_CFGS[0])
+
+static sheaf_trace_params cfg_params(const Cfg *c, sheaf_ray_kind kind)
+{
+    sheaf_trace_params p;
+    sheaf_trace_params_default(&p);
+    p.method = c->method;
+    p.packet = c->packet;
+    p.culling = true;
+    p.macrocells = true;
+    p.ray_kind = kind;
+    p.entry = c->entry;
+    return p;
+}
+
+/* ---- options ----------------------------------------------------------------------- */
+
+typedef struct {
+    int reps;
+    int threads[4];
+    int nthreads;
+    uint32_t width, height; /* 0: the file's */
+    int check;
+    int check_rays;
+    int compact_shadows;
+    const char *summary;
+} Options;
+
+/* ---- per-scene run --------------------------------------------------------------------- */
+
+typedef struct {
+    double mrays;     /* median */
+    size_t mismatch;  /* rays whose answer differs from the reference */
+} Speed;
+
+static double mrays(size_t n, double s) { return s > 0 ? (double)n / s * 1e-6 : 0.0; }
+
+static double time_job(Job *j, int threads, int reps)
+{
+    double t[MAX_REPS];
+    for (int r = 0; r < reps; r++) t[r] = run_job(j, threads);
+    return median(t, reps);
+}
+
+static FILE *g_summary;
+
+static void summary(const char *scene, const char *key, double value)
+{
+    if (g_summary)
+        fprintf(g_summary, "%s %s=%.17g\n", scene, key, value);
+}
+
+/* A short scene name for tables and summary keys. */
+static void short_name(const char *label, char *out, size_t n)
+{
+    const char *b = strrchr(label, '/');
+    b = b ? b + 1 : label;
+    if (strncmp(b, "builtin:", 8) == 0)
+        b += 8;
+    snprintf(out, n, "%s", b);
+    char *dot = strrchr(out, '.');
+    if (dot && strcmp(dot, ".obj") == 0)
+        *dot = 0;
+}
+
+static int g_fail; /* --check failures */
+
+/* One line of the closing summary table per scene. */
+typedef struct {
+    char name[64];
+    uint32_t triangles;
+    double ratio_p[4], ratio_s[4], ratio_f[4]; /* sheaf / Embree per thread count */
+    const char *frame_struct[4];
+    size_t p_differ, p_ties, p_edges, s_differ, s_edges, s_ends, unexplained; /* MEDIUM; unexplained: all qualities */
+} SceneResult;
+static SceneResult g_results[64];
+static int g_nresults;
+
+static const int WIDTHS[4] = {1, 4, 8, 16};
+
+/* Everything one scene's run measures ([4]: per thread count, [3]: per Embree quality). */
+typedef struct {
+    const Options *o;
+    Scene s;
+    char name[512];
+    uint32_t W, H;
+    size_t N; /* camera rays */
+    int reps;
+    double load0, load1;
+    sheaf_frame frame;
+    sheaf_ray *rays;  /* camera rays in packet order */
+    uint32_t *pix;    /* pixel index of each camera ray */
+    sheaf_context *ctx;
+    double build_ms[NSTRUCT];
+    sheaf_hit *ref, *hits; /* reference hits; scratch */
+    Job job;               /* sheaf camera-ray job template */
+    size_t nhits, NS, NSL, nocc, internal; /* hits, shadow rays, shadow slots, occluded, self-check mismatches */
+    sheaf_ray *srays;
+    size_t *slot_of;       /* shadow slot of each camera ray, or SIZE_MAX */
+    uint8_t *sref, *socc, *socc1; /* reference occlusion; scratch; rtcOccluded1's */
+    long ray_check;
+    Speed pspeed[N_PRIMARY_CFGS], sspeed[N_SHADOW_CFGS];
+    int pbest[NSTRUCT], sbest[NSTRUCT];
+    double pbest_mr[NSTRUCT][4], sbest_mr[NSTRUCT][4];
+    double e_first[4][3], e_rebuild[4][3], e_prim[4][3][4], e_shad[4][3][4]; /* [threads][quality][width] */
+    Agreement ap[3], as[3];
+    uint32_t *eprim, *eprim1;
+    float *et;
+    double frame_e[4], frame_e_parts[4][3];
+    int frame_e_pw[4], frame_e_sw[4];
+    double frame_s[NSTRUCT][4], frame_s_parts[NSTRUCT][4][3];
+    double sheaf_best_p[4], sheaf_best_s[4], emb_best_p[4], emb_best_s[4], best_frame[4];
+    int best_st[4];
+} Bench;
+
+/* Read the scene, make the camera rays in packet order, create the sheaf context. */
+static void setup_scene(Bench *b, const char *path)
+{
+    read_scene(path, &b->s);
+    short_name(b->s.label, b->name, sizeof b->name);
+    b->W = b->o->width ? b->o->width : b->s.width;
+    b->H = b->o->height ? b->o->height : b->s.height;
+    if (b->W % 32 || b->H % 32 || b->W == 0 || b->H == 0)
+        die("%s: image %ux%u: width and height must be multiples of 32 (32x32 tiles)", b->name, b->W, b->H);
+    b->N = (size_t)b->W * b->H;
+    b->reps = b->o->reps;
+    b->load0 = load_average();
+    progress("== %s: %u triangles, %u vertices, %ux%u, %s\n", b->name, b->s.nt, b->s.nv, b->W, b->H, b->s.view);
+
+    /* Camera rays in packet order. */
+    memset(&b->frame, 0, sizeof b->frame);
+    memcpy(b->frame.camera.eye, b->s.eye, sizeof b->s.eye);
+    memcpy(b->frame.camera.look_at, b->s.look_at, sizeof b->s.look_at);
+    memcpy(b->frame.camera.up, b->s.up, sizeof b->s.up);
+    b->frame.camera.fov_y_deg = b->s.fov;
+    memcpy(b->frame.light.position, b->s.light, sizeof b->s.light);
+    b->frame.light.color[0] = b->frame.light.color[1] = b->frame.light.color[2] = 1.0f;
+    b->frame.light.spot_direction[2] = -1.0f;
+    sheaf_shading_default(&b->frame.shading);
+    b->frame.shading.shadows = true;
+    b->frame.width = b->W;
+    b->frame.height = b->H;
+    b->rays = xmalloc(b->N * sizeof *b->rays);
+    b->pix = xmalloc(b->N * sizeof *b->pix);
+    {
+        size_t k = 0;
+        for (uint32_t ty = 0; ty < b->H; ty += 32)
+            for (uint32_t tx = 0; tx < b->W; tx += 32)
+                for (uint32_t q = 0; q < 256; q++) {
+                    uint32_t qx, qy;
+                    demorton(q, &qx, &qy);
+                    for (uint32_t l = 0; l < 4; l++) {
+                        uint32_t x = tx + 2 * qx + (l & 1), y = ty + 2 * qy + (l >> 1);
+                        check_sheaf(NULL, sheaf_frame_camera_ray(&b->frame, x, y, &b->rays[k]), "camera ray");
+                        b->pix[k++] = y * b->W + x;
+                    }
+                }
+    }
+
+    /* The sheaf context: grid, BVH, kd-tree (and the deferred frame's pools). */
+    sheaf_limits lim;
+    sheaf_limits_default(b->s.nt, &lim);
+    lim.max_vertices = b->s.nv;
+    lim.max_image_width = b->W;
+    lim.max_image_height = b->H;
+    lim.max_threads = MAX_THREADS;
+    lim.structures = SHEAF_STRUCTURE_GRID | SHEAF_STRUCTURE_BVH | SHEAF_STRUCTURE_KD |
+                     (b->o->check_rays ? SHEAF_STRUCTURE_PGRID : 0);
+    b->ctx = NULL;
+    for (int attempt = 0;; attempt++) {
+        size_t bytes = 0;
+        check_sheaf(NULL, sheaf_required_bytes(&lim, &bytes), "limits");
+        check_sheaf(NULL, sheaf_context_create(&lim, &b->ctx), "sheaf_context_create");
+        check_sheaf(b->ctx, sheaf_context_set_geometry(b->ctx, b->s.verts, 12, b->s.nv, b->s.idx, b->s.nt), "set_geometry");
+        sheaf_status st = sheaf_context_build_grid(b->ctx, NULL);
+        if (st == SHEAF_STATUS_OK)
+            break;
+        if ((st == SHEAF_STATUS_CAPACITY_GRID_CELLS || st == SHEAF_STATUS_CAPACITY_GRID_REFS) && attempt < 4) {
+            /* Grow the grid pools as `sheaf render` does, and start again. */
+            if (lim.max_grid_cells == 0) lim.max_grid_cells = 8 * b->s.nt + 64;
+            if (lim.max_grid_refs == 0) lim.max_grid_refs = 16 * b->s.nt + 1024;
+            if (st == SHEAF_STATUS_CAPACITY_GRID_CELLS) lim.max_grid_cells *= 2;
+            else lim.max_grid_refs *= 2;
+            sheaf_context_destroy(b->ctx);
+            b->ctx = NULL;
+            continue;
+        }
+        check_sheaf(b->ctx, st, "build_grid");
+    }
+}
+
+/* sheaf's builds, median of reps, on the calling thread. */
+static void time_sheaf_builds(Bench *b)
+{
+    /* Builds, median of reps (sheaf builds on the calling thread). */
+    for (int st = 0; st < NSTRUCT; st++) {
+        double t[MAX_REPS];
+        for (int r = 0; r < b->reps; r++) {
+            double t0 = now_s();
+            sheaf_status e = st == S_GRID ? sheaf_context_build_grid(b->ctx, NULL)
+                           : st == S_BVH  ? sheaf_context_build_bvh(b->ctx, NULL)
+                                          : sheaf_context_build_kd(b->ctx, NULL);
+            t[r] = now_s() - t0;
+            check_sheaf(b->ctx, e, "build");
+        }
+        b->build_ms[st] = 1e3 * median(t, b->reps);
+        progress("  sheaf %s build %.1f ms\n", STRUCT_NAME[st], b->build_ms[st]);
+    }
+}
+
+/* The reference (BVH single ray) camera hits, the shadow rays and their occlusion. */
+static void make_reference(Bench *b)
+{
+    /* Reference: BVH single ray. */
+    b->ref = xmalloc(b->N * sizeof *b->ref);
+    b->hits = xmalloc(b->N * sizeof *b->hits);
+    memset(&b->job, 0, sizeof b->job);
+    b->job.lib = LIB_SHEAF;
+    b->job.kind = K_TRACE;
+    b->job.ctx = b->ctx;
+    b->job.s = &b->s;
+    b->job.rays = b->rays;
+    b->job.n = b->N;
+    b->job.hits = b->ref;
+    b->job.params = cfg_params(&PRIMARY_CFGS[4], SHEAF_RAY_KIND_PRIMARY);
+    run_job(&b->job, 1);
+    b->nhits = 0;
+    for (size_t k = 0; k < b->N; k++) b->nhits += b->ref[k].prim != SHEAF_INVALID_ID;
+
+    /* Shadow rays of the reference hits: one slot per camera ray in the
+     * same packet order (inactive slots for misses and unlit surfaces), as
+     * the renderer's shadow packets; or packed (--compact-shadows). */
+    b->srays = xmalloc((b->N + 1) * sizeof *b->srays);
+    b->slot_of = xmalloc((b->N + 1) * sizeof *b->slot_of);
+    b->NS = b->NSL = 0; /* shadow rays, slots */
+    for (size_t k = 0; k < b->N; k++) {
+        sheaf_ray r;
+        int lit = b->ref[k].prim != SHEAF_INVALID_ID && shadow_ray(&b->s, &b->rays[k], b->ref[k].t, b->ref[k].prim, &r);
+        b->NS += lit;
+        b->slot_of[k] = lit ? b->NSL : SIZE_MAX;
+        if (lit)
+            b->srays[b->NSL++] = r;
+        else if (!b->o->compact_shadows)
+            inactive_ray(&b->s, &b->srays[b->NSL++]);
+    }
+    b->sref = xmalloc(b->NSL + 1);
+    b->socc = xmalloc(b->NSL + 1);
+    b->socc1 = xmalloc(b->NSL + 1);
+    {
+        Job sj = b->job;
+        sj.kind = K_OCCLUDED;
+        sj.occ_method = SHEAF_METHOD_BVH_SINGLE;
+        sj.occ_via_trace = 0;
+        sj.rays = b->srays;
+        sj.n = b->NSL;
+        sj.occ = b->sref;
+        run_job(&sj, 1);
+    }
+    b->nocc = 0;
+    for (size_t k = 0; k < b->NSL; k++) b->nocc += b->sref[k];
+    progress("  %zu camera rays, %zu hits, %zu shadow rays, %zu occluded\n", b->N, b->nhits, b->NS, b->nocc);
+}
+
+/* The rays against a sheaf deferred frame, bit for bit. */
+static void check_rays(Bench *b)
+{
+    /* Are these the rays sheaf's renderer shoots? A deferred frame, bit for bit. */
+    b->ray_check = -1;
+    if (b->o->check_rays) {
+        sheaf_deferred_job dj;
+        memset(&dj, 0, sizeof dj);
+        dj.frame = b->frame;
+        dj.primary = cfg_params(&PRIMARY_CFGS[9], SHEAF_RAY_KIND_PRIMARY);
+        dj.shadow = cfg_params(&PRIMARY_CFGS[9], SHEAF_RAY_KIND_SHADOW);
+        uint8_t *rgba = xmalloc(4 * b->N);
+        check_sheaf(b->ctx, sheaf_context_render_deferred(b->ctx, &dj, rgba, 4 * (size_t)b->W, 4 * b->N), "render_deferred");
+        free(rgba);
+        b->ray_check = 0;
+        for (size_t k = 0; k < b->N; k++) {
+            uint32_t x = b->pix[k] % b->W, y = b->pix[k] / b->W;
+            sheaf_hit h;
+            uint8_t bits;
+            sheaf_ray dr;
+            bool has = false;
+            check_sheaf(b->ctx, sheaf_context_deferred_pixel(b->ctx, x, y, &h, &bits), "deferred_pixel");
+            check_sheaf(b->ctx, sheaf_context_deferred_shadow_ray(b->ctx, x, y, &b->frame.light, &dr, &has), "deferred_shadow_ray");
+            size_t si = b->slot_of[k];
+            int mine = si != SIZE_MAX;
+            if (h.prim != b->ref[k].prim || memcmp(&h.t, &b->ref[k].t, 4) != 0 || (int)has != mine ||
+                (mine && (memcmp(&dr, &b->srays[si], sizeof dr) != 0 || (bits & 1) != b->sref[si])))
+                b->ray_check++;
+        }
+        progress("  rays against sheaf's deferred frame: %ld of %zu pixels differ\n", b->ray_check, b->N);
+    }
+}
+
+/* Every sheaf method on 1 thread, the fastest per structure on every thread count. */
+static void time_sheaf_methods(Bench *b)
+{
+    /* Every sheaf traversal on one thread; the reference's answers must come back. */
+    for (size_t c = 0; c < N_PRIMARY_CFGS; c++) {
+        Job j = b->job;
+        j.hits = b->hits;
+        j.params = cfg_params(&PRIMARY_CFGS[c], SHEAF_RAY_KIND_PRIMARY);
+        double t = time_job(&j, 1, b->reps);
+        size_t mm = 0;
+        for (size_t k = 0; k < b->N; k++)
+            mm += b->hits[k].prim != b->ref[k].prim || memcmp(&b->hits[k].t, &b->ref[k].t, 4) != 0;
+        b->pspeed[c].mrays = mrays(b->N, t);
+        b->pspeed[c].mismatch = mm;
+        b->internal += mm;
+        progress("  primary %-24s %7.2f Mrays/s%s\n", PRIMARY_CFGS[c].name, b->pspeed[c].mrays, mm ? " MISMATCH" : "");
+    }
+    for (size_t c = 0; c < N_SHADOW_CFGS; c++) {
+        Job j = b->job;
+        j.kind = SHADOW_CFGS[c].occ_via_trace ? K_TRACE_OCC : K_OCCLUDED;
+        j.occ_method = SHADOW_CFGS[c].method;
+        j.occ_via_trace = SHADOW_CFGS[c].occ_via_trace;
+        j.params = cfg_params(&SHADOW_CFGS[c], SHEAF_RAY_KIND_SHADOW);
+        j.rays = b->srays;
+        j.n = b->NSL;
+        j.occ = b->socc;
+        double t = time_job(&j, 1, b->reps);
+        size_t mm = 0;
+        for (size_t k = 0; k < b->NSL; k++) mm += b->socc[k] != b->sref[k];
+        b->sspeed[c].mrays = mrays(b->NS, t);
+        b->sspeed[c].mismatch = mm;
+        b->internal += mm;
+        progress("  shadow  %-24s %7.2f Mrays/s%s\n", SHADOW_CFGS[c].name, b->sspeed[c].mrays, mm ? " MISMATCH" : "");
+    }
+
+    /* Fastest method per structure on 1 thread: the fastest packet method (SIMD
+     * rays or n x n packets), or the single ray when that is faster still
+     * (named so in the tables); then that method on every thread count. */
+    for (int st = 0; st < NSTRUCT; st++) {
+        b->pbest[st] = b->sbest[st] = -1;
+        for (size_t c = 0; c < N_PRIMARY_CFGS; c++)
+            if (PRIMARY_CFGS[c].structure == st && (b->pbest[st] < 0 || b->pspeed[c].mrays > b->pspeed[b->pbest[st]].mrays))
+                b->pbest[st] = (int)c;
+        for (size_t c = 0; c < N_SHADOW_CFGS; c++)
+            if (SHADOW_CFGS[c].structure == st && (b->sbest[st] < 0 || b->sspeed[c].mrays > b->sspeed[b->sbest[st]].mrays))
+                b->sbest[st] = (int)c;
+        for (int ti = 0; ti < b->o->nthreads; ti++) {
+            int T = b->o->threads[ti];
+            if (T == 1) {
+                b->pbest_mr[st][ti] = b->pspeed[b->pbest[st]].mrays;
+                b->sbest_mr[st][ti] = b->sspeed[b->sbest[st]].mrays;
+                continue;
+            }
+            Job j = b->job;
+            j.hits = b->hits;
+            j.params = cfg_params(&PRIMARY_CFGS[b->pbest[st]], SHEAF_RAY_KIND_PRIMARY);
+            b->pbest_mr[st][ti] = mrays(b->N, time_job(&j, T, b->reps));
+            for (size_t k = 0; k < b->N; k++) b->internal += b->hits[k].prim != b->ref[k].prim;
+            const Cfg *sc = &SHADOW_CFGS[b->sbest[st]];
+            j.kind = sc->occ_via_trace ? K_TRACE_OCC : K_OCCLUDED;
+            j.occ_method = sc->method;
+            j.occ_via_trace = sc->occ_via_trace;
+            j.params = cfg_params(sc, SHEAF_RAY_KIND_SHADOW);
+            j.rays = b->srays;
+            j.n = b->NSL;
+            j.occ = b->socc;
+            b->sbest_mr[st][ti] = mrays(b->NS, time_job(&j, T, b->reps));
+            for (size_t k = 0; k < b->NSL; k++) b->internal += b->socc[k] != b->sref[k];
+            progress("  sheaf %s best on %d threads: primary %.2f, shadow %.2f Mrays/s\n",
+                     STRUCT_NAME[st], T, b->pbest_mr[st][ti], b->sbest_mr[st][ti]);
+        }
+    }
+}
+
+/* Embree builds, rays, agreement and its dynamic frame, per thread count and quality. */
+static void time_embree(Bench *b)
+{
+    /* Embree: per thread count a device; per quality a scene. */
+    b->eprim = xmalloc(b->N * sizeof *b->eprim);
+    b->eprim1 = xmalloc(b->N * sizeof *b->eprim1);
+    b->et = xmalloc(b->N * sizeof *b->et);
+    for (int ti = 0; ti < b->o->nthreads; ti++) {
+        int T = b->o->threads[ti];
+        char cfg[64];
+        snprintf(cfg, sizeof cfg, "threads=%d", T);
+        RTCDevice dev = rtcNewDevice(cfg);
+        if (!dev)
+            die("rtcNewDevice(\"%s\") failed (error %d)", cfg, (int)rtcGetDeviceError(NULL));
+        rtcSetDeviceErrorFunction(dev, embree_error, NULL);
+        for (int q = 0; q < 3; q++) {
+            EScene es;
+            b->e_first[ti][q] = 1e3 * embree_build(dev, &b->s, q, &es);
+            double t[MAX_REPS];
+            for (int r = 0; r < b->reps; r++) t[r] = embree_rebuild(&es);
+            b->e_rebuild[ti][q] = 1e3 * median(t, b->reps);
+            progress("  Embree %s, %d threads: first build %.1f ms, rebuild %.1f ms\n", QUALITY_NAME[q], T,
+                     b->e_first[ti][q], b->e_rebuild[ti][q]);
+            Job j;
+            memset(&j, 0, sizeof j);
+            j.lib = LIB_EMBREE;
+            j.s = &b->s;
+            j.scene = es.scene;
+            for (int w = 0; w < 4; w++) {
+                j.kind = K_TRACE;
+                j.width = WIDTHS[w];
+                j.rays = b->rays;
+                j.n = b->N;
+                j.prim = w == 0 ? b->eprim1 : b->eprim;
+                j.t = b->et;
+                b->e_prim[ti][q][w] = mrays(b->N, time_job(&j, T, b->reps));
+                if (ti == 0 && w == 0)
+                    agree_primary(&b->s, b->rays, b->ref, b->eprim1, b->et, b->N, &b->ap[q]);
+                if (ti == 0 && w > 0)
+                    for (size_t k = 0; k < b->N; k++) b->ap[q].width_differ += b->eprim[k] != b->eprim1[k];
+                j.kind = K_OCCLUDED;
+                j.rays = b->srays;
+                j.n = b->NSL;
+                j.occ = b->socc;
+                b->e_shad[ti][q][w] = mrays(b->NS, time_job(&j, T, b->reps));
+                if (ti == 0 && w == 0) {
+                    memcpy(b->socc1, b->socc, b->NSL); /* rtcOccluded1's answers */
+                    agree_shadow(&b->s, b->ctx, es.scene, b->srays, b->sref, b->socc, b->NSL, &b->as[q]);
+                }
+                if (ti == 0 && w > 0)
+                    for (size_t k = 0; k < b->NSL; k++) b->as[q].width_differ += b->socc[k] != b->socc1[k];
+                progress("    rtcIntersect%d %.2f, rtcOccluded%d %.2f Mrays/s\n", WIDTHS[w], b->e_prim[ti][q][w],
+                         WIDTHS[w], b->e_shad[ti][q][w]);
+            }
+            if (q == 0) {
+                /* Dynamic frame: rebuild + camera rays + shadow rays, LOW dynamic, best widths. */
+                int pw = 0, sw = 0;
+                for (int w = 1; w < 4; w++) {
+                    if (b->e_prim[ti][0][w] > b->e_prim[ti][0][pw]) pw = w;
+                    if (b->e_shad[ti][0][w] > b->e_shad[ti][0][sw]) sw = w;
+                }
+                double tf[MAX_REPS], tb[MAX_REPS], tp[MAX_REPS], ts[MAX_REPS];
+                for (int r = 0; r < b->reps; r++) {
+                    tb[r] = embree_rebuild(&es);
+                    j.kind = K_TRACE;
+                    j.width = WIDTHS[pw];
+                    j.rays = b->rays;
+                    j.n = b->N;
+                    j.prim = b->eprim;
+                    j.t = b->et;
+                    tp[r] = run_job(&j, T);
+                    j.kind = K_FRAME_SHADOW;
+                    j.compact = b->o->compact_shadows;
+                    j.width = WIDTHS[sw];
+                    ts[r] = run_job(&j, T);
+                    tf[r] = tb[r] + tp[r] + ts[r];
+                }
+                b->frame_e[ti] = 1e3 * median(tf, b->reps);
+                b->frame_e_parts[ti][0] = 1e3 * median(tb, b->reps);
+                b->frame_e_parts[ti][1] = 1e3 * median(tp, b->reps);
+                b->frame_e_parts[ti][2] = 1e3 * median(ts, b->reps);
+                b->frame_e_pw[ti] = WIDTHS[pw];
+                b->frame_e_sw[ti] = WIDTHS[sw];
+                progress("  Embree LOW dynamic frame, %d threads: %.1f ms\n", T, b->frame_e[ti]);
+            }
+            embree_release(&es);
+        }
+        rtcReleaseDevice(dev);
+    }
+}
+
+/* sheaf's dynamic frames, each structure with its fastest methods. */
+static void time_sheaf_frames(Bench *b)
+{
+    /* sheaf dynamic frames: each structure with its best methods. */
+    for (int st = 0; st < NSTRUCT; st++)
+        for (int ti = 0; ti < b->o->nthreads; ti++) {
+            int T = b->o->threads[ti];
+            double tf[MAX_REPS], tb[MAX_REPS], tp[MAX_REPS], ts[MAX_REPS];
+            for (int r = 0; r < b->reps; r++) {
+                double t0 = now_s();
+                sheaf_status e = st == S_GRID ? sheaf_context_build_grid(b->ctx, NULL)
+                               : st == S_BVH  ? sheaf_context_build_bvh(b->ctx, NULL)
+                                              : sheaf_context_build_kd(b->ctx, NULL);
+                tb[r] = now_s() - t0;
+                check_sheaf(b->ctx, e, "build");
+                Job j = b->job;
+                j.hits = b->hits;
+                j.params = cfg_params(&PRIMARY_CFGS[b->pbest[st]], SHEAF_RAY_KIND_PRIMARY);
+                tp[r] = run_job(&j, T);
+                const Cfg *sc = &SHADOW_CFGS[b->sbest[st]];
+                j.kind = K_FRAME_SHADOW;
+                j.compact = b->o->compact_shadows;
+                j.occ_method = sc->method;
+                j.occ_via_trace = sc->occ_via_trace;
+                j.params = cfg_params(sc, SHEAF_RAY_KIND_SHADOW);
+                ts[r] = run_job(&j, T);
+                if (j.shadow_rays != b->NS || j.occluded != b->nocc)
+                    b->internal++;
+                tf[r] = tb[r] + tp[r] + ts[r];
+            }
+            b->frame_s[st][ti] = 1e3 * median(tf, b->reps);
+            b->frame_s_parts[st][ti][0] = 1e3 * median(tb, b->reps);
+            b->frame_s_parts[st][ti][1] = 1e3 * median(tp, b->reps);
+            b->frame_s_parts[st][ti][2] = 1e3 * median(ts, b->reps);
+            progress("  sheaf %s dynamic frame, %d threads: %.1f ms\n", STRUCT_NAME[st], T, b->frame_s[st][ti]);
+        }
+    b->load1 = load_average();
+}
+
+/* The Markdown tables of one scene. */
+static void print_tables(Bench *b)
+{
+    /* ---- tables ---- */
+    printf("\n### %s\n\n", b->name);
+    printf("%u triangles (%u excluded by sheaf: non-finite or zero area), %ux%u, %s; "
+           "%zu camera rays (%zu hit), %zu shadow rays (%zu occluded); load average %.2f before, %.2f after.\n\n",
+           b->s.nt, b->s.excluded, b->W, b->H, b->s.view, b->N, b->nhits, b->NS, b->nocc, b->load0, b->load1);
+    printf("**Builds**, ms (median of %d; sheaf's builds run on the calling thread, Embree's on its "
+           "device threads):\n\n", b->reps);
+    printf("| structure |");
+    for (int ti = 0; ti < b->o->nthreads; ti++) printf(" %d thread%s |", b->o->threads[ti], b->o->threads[ti] > 1 ? "s" : "");
+    printf("\n|---|");
+    for (int ti = 0; ti < b->o->nthreads; ti++) printf("--:|");
+    printf("\n");
+    for (int st = 0; st < NSTRUCT; st++) {
+        printf("| sheaf %s |", STRUCT_NAME[st]);
+        for (int ti = 0; ti < b->o->nthreads; ti++) printf(" %.1f |", b->build_ms[st]);
+        printf("\n");
+    }
+    for (int q = 0; q < 3; q++) {
+        printf("| Embree %s%s: rebuild (first commit) |", QUALITY_NAME[q], q == 0 ? " + DYNAMIC" : "");
+        for (int ti = 0; ti < b->o->nthreads; ti++) printf(" %.1f (%.1f) |", b->e_rebuild[ti][q], b->e_first[ti][q]);
+        printf("\n");
+    }
+    printf("\n**Rays**, Mrays/s (median of %d; sheaf: the fastest method of each structure on 1 thread, "
+           "camera rays / shadow rays; Embree: LOW / MEDIUM / HIGH):\n\n", b->reps);
+    printf("| configuration |");
+    for (int ti = 0; ti < b->o->nthreads; ti++) printf(" primary, %dT |", b->o->threads[ti]);
+    for (int ti = 0; ti < b->o->nthreads; ti++) printf(" shadow, %dT |", b->o->threads[ti]);
+    printf("\n|---|");
+    for (int ti = 0; ti < 2 * b->o->nthreads; ti++) printf("--:|");
+    printf("\n");
+    for (int st = 0; st < NSTRUCT; st++) {
+        printf("| sheaf %s: %s / %s |", STRUCT_NAME[st], PRIMARY_CFGS[b->pbest[st]].name, SHADOW_CFGS[b->sbest[st]].name);
+        for (int ti = 0; ti < b->o->nthreads; ti++) {
+            printf(" %.2f |", b->pbest_mr[st][ti]);
+            if (b->pbest_mr[st][ti] > b->sheaf_best_p[ti]) b->sheaf_best_p[ti] = b->pbest_mr[st][ti];
+        }
+        for (int ti = 0; ti < b->o->nthreads; ti++) {
+            printf(" %.2f |", b->sbest_mr[st][ti]);
+            if (b->sbest_mr[st][ti] > b->sheaf_best_s[ti]) b->sheaf_best_s[ti] = b->sbest_mr[st][ti];
+        }
+        printf("\n");
+    }
+    for (int w = 0; w < 4; w++) {
+        printf("| Embree rtcIntersect%d / rtcOccluded%d |", WIDTHS[w], WIDTHS[w]);
+        for (int ti = 0; ti < b->o->nthreads; ti++) {
+            printf(" %.1f / %.1f / %.1f |", b->e_prim[ti][0][w], b->e_prim[ti][1][w], b->e_prim[ti][2][w]);
+            for (int q = 0; q < 3; q++)
+                if (b->e_prim[ti][q][w] > b->emb_best_p[ti]) b->emb_best_p[ti] = b->e_prim[ti][q][w];
+        }
+        for (int ti = 0; ti < b->o->nthreads; ti++) {
+            printf(" %.1f / %.1f / %.1f |", b->e_shad[ti][0][w], b->e_shad[ti][1][w], b->e_shad[ti][2][w]);
+            for (int q = 0; q < 3; q++)
+                if (b->e_shad[ti][q][w] > b->emb_best_s[ti]) b->emb_best_s[ti] = b->e_shad[ti][q][w];
+        }
+        printf("\n");
+    }
+    printf("| **sheaf best / Embree best** |");
+    for (int ti = 0; ti < b->o->nthreads; ti++) printf(" **%.2f** |", b->sheaf_best_p[ti] / b->emb_best_p[ti]);
+    for (int ti = 0; ti < b->o->nthreads; ti++) printf(" **%.2f** |", b->sheaf_best_s[ti] / b->emb_best_s[ti]);
+    printf("\n\n**Dynamic frame**, ms (median of %d): rebuild + camera rays + shadow-ray making + shadow rays "
+           "(sheaf: each structure with its best methods; Embree: LOW + DYNAMIC, rtcUpdateGeometryBuffer + "
+           "commits, its fastest widths):\n\n", b->reps);
+    printf("| |");
+    for (int ti = 0; ti < b->o->nthreads; ti++) printf(" %d thread%s: frame (rebuild + primary + shadows) |", b->o->threads[ti], b->o->threads[ti] > 1 ? "s" : "");
+    printf("\n|---|");
+    for (int ti = 0; ti < b->o->nthreads; ti++) printf("--:|");
+    printf("\n");
+    for (int ti = 0; ti < b->o->nthreads; ti++) {
+        b->best_st[ti] = 0;
+        for (int st = 1; st < NSTRUCT; st++)
+            if (b->frame_s[st][ti] < b->frame_s[b->best_st[ti]][ti]) b->best_st[ti] = st;
+        b->best_frame[ti] = b->frame_s[b->best_st[ti]][ti];
+    }
+    for (int st = 0; st < NSTRUCT; st++) {
+        printf("| sheaf %s |", STRUCT_NAME[st]);
+        for (int ti = 0; ti < b->o->nthreads; ti++)
+            printf(" %s%.1f%s (%.1f + %.1f + %.1f) |", b->best_st[ti] == st ? "**" : "", b->frame_s[st][ti],
+                   b->best_st[ti] == st ? "**" : "", b->frame_s_parts[st][ti][0], b->frame_s_parts[st][ti][1],
+                   b->frame_s_parts[st][ti][2]);
+        printf("\n");
+    }
+    printf("| Embree LOW + DYNAMIC |");
+    for (int ti = 0; ti < b->o->nthreads; ti++)
+        printf(" %.1f (%.1f + %.1f + %.1f; rtcIntersect%d, rtcOccluded%d) |", b->frame_e[ti], b->frame_e_parts[ti][0],
+               b->frame_e_parts[ti][1], b->frame_e_parts[ti][2], b->frame_e_pw[ti], b->frame_e_sw[ti]);
+    printf("\n| **sheaf best / Embree (time ratio)** |");
+    for (int ti = 0; ti < b->o->nthreads; ti++) printf(" **%.2f** (%s) |", b->best_frame[ti] / b->frame_e[ti], STRUCT_NAME[b->best_st[ti]]);
+    printf("\n\n**Agreement** (sheaf's BVH single ray, which every sheaf method matched, against Embree's "
+           "rtcIntersect1 / rtcOccluded1 on the same rays; explained in f64: tie = hits within %g of each "
+           "other, edge = within %g of a triangle's edge in barycentrics or the ray's line within %g of it relative to the coordinates, end = occluder within %g of the "
+           "ray's end):\n\n", TIE_REL, EDGE_BARY, EDGE_REL, END_REL);
+    printf("| rays | Embree quality | rays | hits sheaf / Embree | differ | ties | edges | ends | other | Embree 4/8/16-wide vs its 1-wide (sum) |\n");
+    printf("|---|---|--:|--:|--:|--:|--:|--:|--:|--:|\n");
+    for (int q = 0; q < 3; q++)
+        printf("| primary | %s | %zu | %zu / %zu | %zu | %zu | %zu | – | %zu | %zu |\n", QUALITY_NAME[q], b->N,
+               b->ap[q].hits_sheaf, b->ap[q].hits_embree, b->ap[q].differ, b->ap[q].ties, b->ap[q].edges, b->ap[q].other,
+               b->ap[q].width_differ);
+    for (int q = 0; q < 3; q++)
+        printf("| shadow | %s | %zu | %zu / %zu occluded | %zu | – | %zu | %zu | %zu | %zu |\n", QUALITY_NAME[q], b->NS,
+               b->as[q].hits_sheaf, b->as[q].hits_embree, b->as[q].differ, b->as[q].edges, b->as[q].ends, b->as[q].other,
+               b->as[q].width_differ);
+    printf("\nsheaf self-check: %zu answers of %zu timed sheaf runs differ from the reference", b->internal,
+           N_PRIMARY_CFGS + N_SHADOW_CFGS);
+    if (b->ray_check >= 0)
+        printf("; camera and shadow rays equal to sheaf's deferred frame on %zu of %zu pixels", b->N - (size_t)b->ray_check, b->N);
+    printf(".\n\n<details><summary>every sheaf method, 1 thread (Mrays/s)</summary>\n\n");
+    printf("| method | primary | | method | shadow |\n|---|--:|---|---|--:|\n");
+    for (size_t r = 0; r < N_PRIMARY_CFGS || r < N_SHADOW_CFGS; r++) {
+        if (r < N_PRIMARY_CFGS) printf("| %s | %.2f |", PRIMARY_CFGS[r].name, b->pspeed[r].mrays);
+        else printf("| | |");
+        if (r < N_SHADOW_CFGS) printf(" | %s%s | %.2f |\n", SHADOW_CFGS[r].name,
+                                      SHADOW_CFGS[r].occ_via_trace ? " (trace_with)" : "", b->sspeed[r].mrays);
+        else printf(" | | |\n");
+    }
+    printf("\n</details>\n");
+    fflush(stdout);
+}
+
+/* Summary lines, --check, the closing table's line; frees the scene. */
+static void finish_scene(Bench *b)
+{
+    /* ---- summary and checks ---- */
+    summary(b->name, "triangles", b->s.nt);
+    summary(b->name, "primary_rays", (double)b->N);
+    summary(b->name, "shadow_rays", (double)b->NS);
+    summary(b->name, "sheaf_hits", (double)b->nhits);
+    summary(b->name, "sheaf_occluded", (double)b->nocc);
+    summary(b->name, "sheaf_internal_mismatch", (double)b->internal);
+    summary(b->name, "ray_check_mismatch", (double)b->ray_check);
+    for (int q = 0; q < 3; q++) {
+        char k[64];
+#define SUM(field, prefix, agr)                              \
+        snprintf(k, sizeof k, "%s_%s_%s", prefix, QUALITY_NAME[q], #field); \
+        summary(b->name, k, (double)agr[q].field);
+        SUM(hits_embree, "primary", b->ap) SUM(differ, "primary", b->ap) SUM(ties, "primary", b->ap)
+        SUM(edges, "primary", b->ap) SUM(other, "primary", b->ap) SUM(width_differ, "primary", b->ap)
+        SUM(hits_embree, "shadow", b->as) SUM(differ, "shadow", b->as) SUM(edges, "shadow", b->as)
+        SUM(ends, "shadow", b->as) SUM(other, "shadow", b->as) SUM(width_differ, "shadow", b->as)
+#undef SUM
+    }
+    for (int ti = 0; ti < b->o->nthreads; ti++) {
+        char k[64];
+        snprintf(k, sizeof k, "ratio_primary_%dT", b->o->threads[ti]);
+        summary(b->name, k, b->sheaf_best_p[ti] / b->emb_best_p[ti]);
+        snprintf(k, sizeof k, "ratio_shadow_%dT", b->o->threads[ti]);
+        summary(b->name, k, b->sheaf_best_s[ti] / b->emb_best_s[ti]);
+        snprintf(k, sizeof k, "ratio_frame_%dT", b->o->threads[ti]);
+        summary(b->name, k, b->best_frame[ti] / b->frame_e[ti]);
+    }
+    if (g_nresults < (int)(sizeof g_results / sizeof g_results[0])) {
+        SceneResult *r = &g_results[g_nresults++];
+        snprintf(r->name, sizeof r->name, "%.63s", b->name);
+        r->triangles = b->s.nt;
+        for (int ti = 0; ti < b->o->nthreads; ti++) {
+            r->ratio_p[ti] = b->sheaf_best_p[ti] / b->emb_best_p[ti];
+            r->ratio_s[ti] = b->sheaf_best_s[ti] / b->emb_best_s[ti];
+            r->ratio_f[ti] = b->best_frame[ti] / b->frame_e[ti];
+            r->frame_struct[ti] = STRUCT_NAME[b->best_st[ti]];
+        }
+        r->p_differ = b->ap[1].differ;
+        r->p_ties = b->ap[1].ties;
+        r->p_edges = b->ap[1].edges;
+        r->s_differ = b->as[1].differ;
+        r->s_edges = b->as[1].edges;
+        r->s_ends = b->as[1].ends;
+        for (int q = 0; q < 3; q++) r->unexplained += b->ap[q].other + b->as[q].other;
+    }
+    if (b->o->check) {
+        int bad = b->internal > 0 || b->ray_check > 0;
+        for (int q = 0; q < 3; q++) {
+            bad |= b->ap[q].other > MAX_UNEXPLAINED || b->as[q].other > MAX_UNEXPLAINED;
+            bad |= (double)b->ap[q].differ > MAX_DIFF_FRACTION * (double)b->N;
+            bad |= (double)b->as[q].differ > MAX_DIFF_FRACTION * (double)(b->NS ? b->NS : 1);
+        }
+        if (bad) {
+            fprintf(stderr, "embree_bench: %s: agreement outside the bounds (MAX_UNEXPLAINED %d, MAX_DIFF_FRACTION %g, "
+                            "sheaf self-check %zu, ray check %ld)\n", b->name, MAX_UNEXPLAINED, MAX_DIFF_FRACTION, b->internal, b->ray_check);
+            g_fail = 1;
+        }
+    }
+
+    free(b->rays); free(b->pix); free(b->ref); free(b->hits); free(b->srays); free(b->slot_of); free(b->sref); free(b->socc); free(b->socc1);
+    free(b->eprim); free(b->eprim1); free(b->et);
+    free(b->s.verts); free(b->s.idx);
+    sheaf_context_destroy(b->ctx);
+}
+
+static void run_scene(const char *path, const Options *o)
+{
+    Bench *b = calloc(1, sizeof *b);
+    if (!b)
+        die("out of memory");
+    b->o = o;
+    setup_scene(b, path);
+    time_sheaf_builds(b);
+    make_reference(b);
+    check_rays(b);
+    time_sheaf_methods(b);
+    time_embree(b);
+    time_sheaf_frames(b);
+    print_tables(b);
+    finish_scene(b);
+    free(b);
+}
+
+/* ---- main ---------------------------------------------------------------------------- */
+
+static void usage(void)
+{
+    fprintf(stderr,
+            "usage: embree_bench [--reps N] [--threads 1,2] [--size WxH] [--check] [--no-ray-check]\n"
+            "                    [--summary FILE] SCENE.scene...\n"
+            "  SCENE.scene  written by `sheaf export` (one named view, its light)\n"
+            "  --reps N     median of N timed runs (default 3)\n"
+            "  --threads L  thread counts, comma-separated (default 1,2)\n"
+            "  --size WxH   image size, multiples of 32 (default: the one the file was framed for)\n"
+            "  --check      exit 2 when sheaf and Embree disagree beyond the named bounds\n"
+            "  --no-ray-check  skip checking the rays against sheaf's deferred frame\n"
+            "  --compact-shadows  pack the shadow rays (default: one slot per camera ray, the\n"
+            "               renderer's packets, inactive slots for misses and unlit points)\n"
+            "  --summary F  key=value agreement and ratio lines to F\n"
+            "  --explain    print every disagreement no tie, edge or end explains\n");
+    exit(1);
+}
+
+int main(int argc, char **argv)
+{
+    Options o;
+    memset(&o, 0, sizeof o);
+    o.reps = 3;
+    o.threads[0] = 1;
+    o.threads[1] = 2;
+    o.nthreads = 2;
+    o.check_rays = 1;
+    int first = 0;
+    {
+        uint32_t probe = 1;
+        unsigned char b;
+        memcpy(&b, &probe, 1);
+        if (b != 1)
+            die("this program reads little-endian files on a little-endian host only");
+    }
+    for (int i = 1; i < argc; i++) {
+        const char *a = argv[i];
+        if (!strcmp(a, "--reps") && i + 1 < argc) {
+            o.reps = atoi(argv[++i]);
+            if (o.reps < 1 || o.reps > MAX_REPS) die("--reps: 1..%d", MAX_REPS);
+        } else if (!strcmp(a, "--threads") && i + 1 < argc) {
+            o.nthreads = 0;
+            for (char *p = argv[++i]; *p;) {
+                long t = strtol(p, &p, 10);
+                if (t < 1 || t > MAX_THREADS || o.nthreads == 4) die("--threads: up to 4 counts in 1..%d", MAX_THREADS);
+                o.threads[o.nthreads++] = (int)t;
+                if (*p == ',') p++;
+                else if (*p) die("--threads: comma-separated numbers");
+            }
+            if (o.nthreads == 0) die("--threads: at least one count");
+        } else if (!strcmp(a, "--size") && i + 1 < argc) {
+            if (sscanf(argv[++i], "%ux%u", &o.width, &o.height) != 2) die("--size WxH");
+        } else if (!strcmp(a, "--check")) {
+            o.check = 1;
+        } else if (!strcmp(a, "--explain")) {
+            g_explain = 1;
+        } else if (!strcmp(a, "--compact-shadows")) {
+            o.compact_shadows = 1;
+        } else if (!strcmp(a, "--no-ray-check")) {
+            o.check_rays = 0;
+        } else if (!strcmp(a, "--summary") && i + 1 < argc) {
+            o.summary = argv[++i];
+        } else if (a[0] == '-') {
+            usage();
+        } else {
+            if (!first) first = i;
+        }
+    }
+    if (!first)
+        usage();
+    if (o.summary) {
+        g_summary = fopen(o.summary, "w");
+        if (!g_summary) die("cannot write %s", o.summary);
+    }
+
+    /* Machine and library facts. */
+    RTCDevice dev = rtcNewDevice("threads=1");
+    if (!dev)
+        die("rtcNewDevice failed (error %d)", (int)rtcGetDeviceError(NULL));
+    struct utsname un;
+    uname(&un);
+    char cpu[256] = "unknown CPU";
+    FILE *f = fopen("/proc/cpuinfo", "r");
+    if (f) {
+        char line[512];
+        while (fgets(line, sizeof line, f))
+            if (!strncmp(line, "model name", 10)) {
+                char *c = strchr(line, ':');
+                if (c) {
+                    snprintf(cpu, sizeof cpu, "%s", c + 2);
+                    cpu[strcspn(cpu, "\n")] = 0;
+                }
+                break;
+            }
+        fclose(f);
+    }
+    __builtin_cpu_init();
+    printf("Machine: %s, %ld online cores, %s %s; ISA: %s%s%s%s.\n", cpu, sysconf(_SC_NPROCESSORS_ONLN), un.sysname,
+           un.release, __builtin_cpu_supports("avx512f") ? "AVX-512F " : "", __builtin_cpu_supports("avx2") ? "AVX2 " : "",
+           __builtin_cpu_supports("avx") ? "AVX " : "", "SSE4.2");
+    printf("sheaf %s (C ABI, static library; 4-wide SSE), Embree %s (Debian's libembree3; tasking: %s; native "
+           "rtcIntersect4/8/16: %s/%s/%s, which on this CPU run %s kernels).\n",
+           sheaf_version_string(), RTC_VERSION_STRING,
+           rtcGetDeviceProperty(dev, RTC_DEVICE_PROPERTY_TASKING_SYSTEM) == 1 ? "TBB" : "internal",
+           rtcGetDeviceProperty(dev, RTC_DEVICE_PROPERTY_NATIVE_RAY4_SUPPORTED) ? "yes" : "no",
+           rtcGetDeviceProperty(dev, RTC_DEVICE_PROPERTY_NATIVE_RAY8_SUPPORTED) ? "yes" : "no",
+           rtcGetDeviceProperty(dev, RTC_DEVICE_PROPERTY_NATIVE_RAY16_SUPPORTED) ? "yes" : "no",
+           __builtin_cpu_supports("avx512f") ? "AVX-512 (16-wide native)"
+           : __builtin_cpu_supports("avx2") ? "AVX2 (16-wide emulated with two 8-wide)"
+                                              : "SSE (8/16-wide emulated)");
+    rtcReleaseDevice(dev);
+    printf("Threads:");
+    for (int t = 0; t < o.nthreads; t++) printf(" %d", o.threads[t]);
+    printf("; median of %d runs; load average at start %.2f.\n", o.reps, load_average());
+    fflush(stdout);
+
+    for (int i = first; i < argc; i++) {
+        const char *a = argv[i];
+        if (!strcmp(a, "--reps") || !strcmp(a, "--threads") || !strcmp(a, "--size") || !strcmp(a, "--summary")) {
+            i++;
+            continue;
+        }
+        if (a[0] == '-')
+            continue;
+        run_scene(a, &o);
+    }
+    if (g_nresults > 0) {
+        printf("\n### Summary: sheaf / Embree\n\n"
+               "Rays: sheaf's fastest method over Embree's fastest width and quality, Mrays/s ratio (below 1: "
+               "sheaf slower). Dynamic frame: sheaf's fastest structure over Embree LOW + DYNAMIC, time ratio "
+               "(above 1: sheaf slower). Differing rays: against Embree MEDIUM (ties + edges, and shadow-ray "
+               "ends); unexplained: every quality.\n\n| scene | triangles |");
+        for (int ti = 0; ti < o.nthreads; ti++) printf(" primary %dT |", o.threads[ti]);
+        for (int ti = 0; ti < o.nthreads; ti++) printf(" shadow %dT |", o.threads[ti]);
+        for (int ti = 0; ti < o.nthreads; ti++) printf(" frame %dT |", o.threads[ti]);
+        printf(" camera rays differing | shadow rays differing | unexplained |\n|---|--:|");
+        for (int ti = 0; ti < 3 * o.nthreads; ti++) printf("--:|");
+        printf("--:|--:|--:|\n");
+        for (int i = 0; i < g_nresults; i++) {
+            SceneResult *r = &g_results[i];
+            printf("| %s | %u |", r->name, r->triangles);
+            for (int ti = 0; ti < o.nthreads; ti++) printf(" %.2f |", r->ratio_p[ti]);
+            for (int ti = 0; ti < o.nthreads; ti++) printf(" %.2f |", r->ratio_s[ti]);
+            for (int ti = 0; ti < o.nthreads; ti++) printf(" %.2f (%s) |", r->ratio_f[ti], r->frame_struct[ti]);
+            printf(" %zu (%zu + %zu) | %zu (%zu + %zu) | %zu |\n", r->p_differ, r->p_ties, r->p_edges, r->s_differ,
+                   r->s_edges, r->s_ends, r->unexplained);
+        }
+    }
+    if (g_summary)
+        fclose(g_summary);
+    return g_fail ? 2 : 0;
+}

@@ -1,0 +1,152 @@
+#!/usr/bin/env bash
+# sheaf against Embree 3 on the same triangles and the same rays (issue 7).
+#
+#   benches/embree/run.sh            # the full run: 1024x1024, OBJ scenes + built-ins, 1 and 2 threads
+#   benches/embree/run.sh --quick    # smoke test: builtin:tetra at 256x256, one timed run
+#
+# Options: --quick, --reps N (default 3), --size WxH (default 1024x1024),
+# --scenes a,b,... (legocar, bunny, sibenik, sponza, conference, builtin names,
+# or .obj paths), --threads 1,2, --counters (link sheaf with its default
+# `counters` feature; default: without, as an engine would ship it),
+# --no-install (never apt-get).
+#
+# 1. Installs Debian's libembree-dev with apt-get when it is missing and this
+#    runs as root; otherwise prints "Embree 3 not installed: skipped" and exits 0.
+# 2. Builds sheaf's static library into target/embree-bench/ (its own target
+#    directory, so the default build's features are left alone) and the
+#    `sheaf` CLI (cargo build --release --features cli).
+# 3. Exports each scene with its view and light (`sheaf export`), builds
+#    benches/embree/embree_bench.c and runs it: progress on stderr, Markdown
+#    on stdout. The full run also writes docs/bench-embree/README.md.
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+ROOT=$PWD
+export CARGO_TERM_COLOR=never
+
+quick=0 reps=3 size=1024x1024 scenes="" threads=1,2 counters=0 install=1
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --quick) quick=1 ;;
+    --reps) reps=$2; shift ;;
+    --size) size=$2; shift ;;
+    --scenes) scenes=$2; shift ;;
+    --threads) threads=$2; shift ;;
+    --counters) counters=1 ;;
+    --no-install) install=0 ;;
+    -h|--help) sed -n '2,22p' "$0"; exit 0 ;;
+    *) echo "run.sh: unknown option $1 (see --help)" >&2; exit 1 ;;
+  esac
+  shift
+done
+if [ $quick = 1 ]; then
+  reps=1 size=256x256
+  [ -n "$scenes" ] || scenes=tetra
+fi
+[ -n "$scenes" ] || scenes=legocar,bunny,sibenik,sponza,conference,animated,balls
+
+# ---- Embree 3 ---------------------------------------------------------------
+have_embree() {
+  [ -f /usr/include/embree3/rtcore.h ] && ldconfig -p 2>/dev/null | grep -q 'libembree3\.so'
+}
+if ! have_embree && [ $install = 1 ] && [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
+  echo "== installing libembree-dev (Debian's Embree 3) with apt-get" >&2
+  { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends libembree-dev; } >&2 \
+    || echo "run.sh: apt-get install libembree-dev failed" >&2
+fi
+if ! have_embree; then
+  echo "Embree 3 not installed: skipped (install Debian's libembree-dev, as root: apt-get install libembree-dev)"
+  exit 0
+fi
+for tool in gcc make cargo; do
+  command -v "$tool" >/dev/null 2>&1 || { echo "run.sh: $tool is needed" >&2; exit 1; }
+done
+
+# ---- sheaf ----------------------------------------------------------------------
+out=$ROOT/target/embree-bench
+mkdir -p "$out/scenes"
+if [ $counters = 1 ]; then
+  features=(--features std,counters) feat_note="default features (std, counters)"
+else
+  features=(--no-default-features --features std) feat_note="--no-default-features --features std (no counters)"
+fi
+echo "== cargo build --release --lib ${features[*]} (target/embree-bench)" >&2
+CARGO_TARGET_DIR=$out cargo build --release --lib "${features[@]}" >&2
+echo "== cargo build --release --features cli" >&2
+cargo build --release --features cli >&2
+sheaf=$ROOT/target/release/sheaf
+
+# ---- scenes ---------------------------------------------------------------------
+shared=$ROOT/../shared/scenes
+files=()
+IFS=, read -r -a names <<< "$scenes"
+for n in "${names[@]}"; do
+  case "$n" in
+    legocar) src=$shared/legocar/legocar.obj ;;
+    bunny) src=$shared/bunny/bunny_tinybvh.obj ;;
+    sibenik) src=$shared/sibenik/sibenik.obj ;;
+    sponza) src=$shared/crytek_sponza/crytek_sponza.obj ;;
+    conference) src=$shared/conference/conference.obj ;;
+    tetra|balls|gears|animated) src=builtin:$n ;;
+    *.obj) src=$n ;;
+    *) echo "run.sh: unknown scene $n" >&2; exit 1 ;;
+  esac
+  if [ "${src#builtin:}" = "$src" ] && [ ! -f "$src" ]; then
+    echo "note: $n: $src not found, skipped" >&2
+    continue
+  fi
+  f=$out/scenes/$(basename "${src#builtin:}" .obj)-$size.scene
+  echo "== sheaf export $src --size $size" >&2
+  "$sheaf" export "$src" --size "$size" --out "$f" >&2
+  files+=("$f")
+done
+[ ${#files[@]} -gt 0 ] || { echo "run.sh: no scene to run" >&2; exit 1; }
+
+# ---- the program ------------------------------------------------------------------
+echo "== make -C benches/embree" >&2
+make -s -C benches/embree SHEAF_LIBDIR="$out/release" OUT="$out/embree_bench" >&2
+cmd=(benches/embree/run.sh)
+[ $quick = 1 ] && cmd+=(--quick)
+[ "$reps" != 3 ] && [ $quick = 0 ] && cmd+=(--reps "$reps")
+[ "$size" != 1024x1024 ] && [ $quick = 0 ] && cmd+=(--size "$size")
+[ "$threads" != 1,2 ] && cmd+=(--threads "$threads")
+[ $counters = 1 ] && cmd+=(--counters)
+load_before=$(cut -d' ' -f1-3 /proc/loadavg)
+started=$(date -u '+%Y-%m-%d %H:%M UTC')
+t0=$(date +%s)
+tables=$out/tables.md
+set +e
+"$out/embree_bench" --reps "$reps" --threads "$threads" --summary "$out/summary.txt" "${files[@]}" | tee "$tables"
+status=${PIPESTATUS[0]}
+set -e
+[ "$status" = 0 ] || { echo "run.sh: embree_bench failed ($status)" >&2; exit "$status"; }
+secs=$(( $(date +%s) - t0 ))
+load_after=$(cut -d' ' -f1-3 /proc/loadavg)
+
+if [ $quick = 0 ]; then
+  doc=$ROOT/docs/bench-embree/README.md
+  mkdir -p "$(dirname "$doc")"
+  rev=$(git rev-parse --short HEAD 2>/dev/null || echo unknown)
+  git diff --quiet HEAD 2>/dev/null || rev="$rev (with uncommitted changes)"
+  {
+    echo "# sheaf against Embree 3"
+    echo
+    echo "Generated by \`${cmd[*]}\` on $started in ${secs} s (sheaf $rev;"
+    echo "$(rustc --version 2>/dev/null || echo rustc); $(gcc --version | head -1); sheaf built with $feat_note)."
+    echo "Load average (1, 5, 15 min) before: $load_before; after: $load_after. The machine is"
+    echo "shared with other work: 2-thread figures in particular vary from run to run."
+    echo
+    echo "Every scene is exported by \`sheaf export\` (\`src/bin/sheaf/export.rs\`) with the view and light"
+    echo "\`sheaf render\` picks, and traced by \`benches/embree/embree_bench.c\` with sheaf through its C ABI"
+    echo "and with Embree 3 on the same triangles (one Embree geometry with sheaf's index buffer, so"
+    echo "Embree's primID is sheaf's triangle index) and bit-identical rays: camera rays from"
+    echo "\`sheaf_frame_camera_ray\`, shadow rays made as sheaf's renderers make them, checked bit for bit"
+    echo "against a sheaf deferred frame. Ratios are sheaf / Embree: above 1 sheaf is faster for"
+    echo "Mrays/s, slower for frame times. See benches/embree/README.md for what is measured."
+    if [ -f "$(dirname "$doc")/earlier-run.md" ]; then
+      echo "An earlier run, to show the run-to-run spread: [earlier-run.md](earlier-run.md)."
+    fi
+    echo
+    cat "$tables"
+  } > "$doc"
+  echo "== wrote ${doc#"$ROOT"/}" >&2
+fi
