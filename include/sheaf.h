@@ -20,6 +20,9 @@
 #define SHEAF_VERSION_MAJOR 0
 #define SHEAF_VERSION_MINOR 1
 #define SHEAF_VERSION_PATCH 0
+/** The same as one number, MAJOR * 10000 + MINOR * 100 + PATCH (as Embree's
+ * RTC_VERSION); sheaf_version() returns the loaded library's. */
+#define SHEAF_VERSION 100
 
 /** Alignment in bytes sheaf_context_create_in requires of its buffer. */
 #define SHEAF_CONTEXT_ALIGN 64
@@ -1636,6 +1639,21 @@ sheaf_status sheaf_trace_params_default(struct sheaf_trace_params *out);
  * Static string, never NULL, never free it. Thread-safe.
  */
 const char *sheaf_version_string(void);
+
+/**
+ * The library's numeric version, `MAJOR * 10000 + MINOR * 100 + PATCH`
+ * (100 for 0.1.0): equal to the header's `SHEAF_VERSION` when the program
+ * runs with the library it was compiled against. A program can refuse to
+ * run with an older library:
+ *
+ * ```c
+ * if (sheaf_version() < SHEAF_VERSION) return 1; // libsheaf older than sheaf.h
+ * ```
+ *
+ * The shared library's soname carries the major version
+ * (`libsheaf.so.0` for 0.x). Never fails. Thread-safe.
+ */
+uint32_t sheaf_version(void);
 
 /**
  * Write the default bounce limits (2 reflections, 2 refractions) to `*out`.

@@ -1,0 +1,59 @@
+//! Build script: gives the shared library (cdylib) an ELF soname on Linux,
+//! `libsheaf.so.<MAJOR>` (`libsheaf.so.0` for every 0.x release).
+//!
+//! Rust's cdylib has no soname (rust-lang/cargo#5045), so a program linked
+//! with `-lsheaf` would record the bare file path it was linked against.
+//! With the soname it records `libsheaf.so.0`, which `scripts/install.sh`
+//! installs as a symlink to the real file `libsheaf.so.MAJOR.MINOR.PATCH`.
+//!
+//! So that programs linked against the build tree still run (README's
+//! `-Ltarget/release -lsheaf -Wl,-rpath,...`, `make -C examples-c shared`,
+//! the shared-library C tests), this script also puts the symlink
+//! `libsheaf.so.<MAJOR> -> libsheaf.so` next to the library in
+//! `target/<profile>/` and `target/<profile>/deps/` (dangling until the
+//! library is linked). These are the only files it writes outside OUT_DIR.
+//!
+//! Versioning (pkg/README.md): the soname carries the package's major
+//! version. sheaf's C ABI only grows (new functions, new status codes,
+//! never renumbered); a release that breaks it must raise the major
+//! version, which changes the soname. The static library and the no_std
+//! build are unaffected (the argument applies to cdylib links only).
+
+fn main() {
+    println!("cargo:rerun-if-changed=build.rs");
+    let os = std::env::var("CARGO_CFG_TARGET_OS").unwrap_or_default();
+    let major =
+        std::env::var("CARGO_PKG_VERSION_MAJOR").expect("cargo sets CARGO_PKG_VERSION_MAJOR");
+    if os != "linux" {
+        return;
+    }
+    let soname = format!("libsheaf.so.{major}");
+    println!("cargo:rustc-cdylib-link-arg=-Wl,-soname,{soname}");
+    soname_links(&soname);
+}
+
+/// `<profile dir>/{,deps/}libsheaf.so.<MAJOR> -> libsheaf.so`, best effort.
+#[cfg(unix)]
+fn soname_links(soname: &str) {
+    // OUT_DIR is <target>/<profile>/build/sheaf-<hash>/out.
+    let Some(out) = std::env::var_os("OUT_DIR") else {
+        return;
+    };
+    let Some(profile) = std::path::Path::new(&out).ancestors().nth(3) else {
+        return;
+    };
+    for dir in [profile.to_path_buf(), profile.join("deps")] {
+        let link = dir.join(soname);
+        if std::fs::read_link(&link).is_ok_and(|t| t == std::path::Path::new("libsheaf.so")) {
+            continue;
+        }
+        let _ = std::fs::create_dir_all(&dir);
+        let _ = std::fs::remove_file(&link);
+        if let Err(e) = std::os::unix::fs::symlink("libsheaf.so", &link) {
+            println!("cargo:warning=cannot create {}: {e}", link.display());
+        }
+    }
+}
+
+#[cfg(not(unix))]
+fn soname_links(_soname: &str) {}
