@@ -1168,3 +1168,198 @@ fn deferred_frames_equal_rust_and_never_allocate() {
     }
     assert!(st.hits > 100 && shadowed > 0, "not a meaningful comparison");
 }
+
+// ---- test_capacity.c: capacity errors keep the previous frame --------------------------
+
+#[test]
+fn c_capacity_static() {
+    run(&compile_c("test_capacity.c", Link::Static));
+}
+
+#[test]
+fn c_capacity_shared() {
+    run(&compile_c("test_capacity.c", Link::Shared));
+}
+
+// ---- sheaf_version() from C equals the header's SHEAF_VERSION ----------------------------
+
+#[test]
+fn version_from_c_matches_header_and_crate() {
+    let src = out_dir().join("version.c");
+    std::fs::write(
+        &src,
+        "#include \"sheaf.h\"\n#include <stdio.h>\n#include <string.h>\n\
+         int main(void) {\n\
+         printf(\"%u %u %s\\n\", (unsigned)SHEAF_VERSION, (unsigned)sheaf_version(), sheaf_version_string());\n\
+         return SHEAF_VERSION == sheaf_version() &&\n\
+         SHEAF_VERSION == SHEAF_VERSION_MAJOR * 10000 + SHEAF_VERSION_MINOR * 100 + SHEAF_VERSION_PATCH ? 0 : 1;\n}\n",
+    )
+    .unwrap();
+    let want = format!(
+        "{v} {v} {}",
+        env!("CARGO_PKG_VERSION"),
+        v = sheaf::ffi::version::SHEAF_VERSION
+    );
+    for link in [Link::Static, Link::Shared] {
+        let exe = compile_generated(&src, link, &[], "plain");
+        let out = Command::new(&exe)
+            .env_remove("LD_LIBRARY_PATH")
+            .output()
+            .unwrap();
+        let text = String::from_utf8_lossy(&out.stdout);
+        assert!(out.status.success(), "{}: {text}", exe.display());
+        assert_eq!(
+            text.trim(),
+            want,
+            "{link:?}: SHEAF_VERSION / sheaf_version() / string"
+        );
+    }
+}
+
+// ---- the C programs under AddressSanitizer + UBSan and valgrind -------------------------
+
+/// Every C test program of ffi-tests/ (new ones are covered automatically).
+fn c_programs() -> Vec<String> {
+    let mut v: Vec<String> = std::fs::read_dir(root().join("ffi-tests"))
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| n.ends_with(".c"))
+        .collect();
+    v.sort();
+    assert!(v.len() >= 3, "ffi-tests/*.c: {v:?}");
+    v
+}
+
+/// Compile `src` (a path) like `compile`, with `extra` flags, into an exe
+/// named after `tag`.
+fn compile_generated(src: &Path, link: Link, extra: &[&str], tag: &str) -> PathBuf {
+    require("gcc");
+    let lib = lib_dir();
+    let stem = src.file_stem().unwrap().to_string_lossy().into_owned();
+    let exe = out_dir().join(format!(
+        "{stem}-{}-{tag}",
+        format!("{link:?}").to_lowercase()
+    ));
+    let mut cmd = Command::new("gcc");
+    cmd.args(["-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-g"])
+        .args(extra)
+        .arg("-I")
+        .arg(root().join("include"))
+        .arg(src)
+        .arg("-o")
+        .arg(&exe)
+        .arg("-L")
+        .arg(&lib);
+    match link {
+        Link::Static => cmd.args(["-l:libsheaf.a", "-lm", "-lpthread", "-ldl"]),
+        Link::Shared => cmd
+            .arg("-lsheaf")
+            .arg(format!("-Wl,-rpath,{}", lib.display()))
+            .args(["-Wl,--disable-new-dtags", "-lm", "-lpthread"]),
+    };
+    run_tool(&mut cmd);
+    exe
+}
+
+/// Run `cmd` (a test program, possibly under a tool): exit 0 and a final
+/// "N passed, 0 failed" line.
+fn run_checked(mut cmd: Command, what: &str) {
+    let out = cmd
+        .env_remove("LD_LIBRARY_PATH")
+        .output()
+        .unwrap_or_else(|e| panic!("cannot run {what}: {e}"));
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    let report: Vec<&str> = stdout.lines().filter(|l| !l.starts_with('@')).collect();
+    let last = report.last().copied().unwrap_or("");
+    assert!(
+        out.status.success() && last.ends_with(" passed, 0 failed"),
+        "{what} failed ({}):\n{}\n{stderr}",
+        out.status,
+        report.join("\n")
+    );
+    println!("{what}: {last}");
+}
+
+const SANITIZE: &[&str] = &[
+    "-fsanitize=address,undefined",
+    "-fno-omit-frame-pointer",
+    "-fno-sanitize-recover=all",
+];
+
+/// Whether gcc links a program with `flags` (libasan/libubsan installed).
+fn gcc_supports(flags: &[&str]) -> bool {
+    require("gcc");
+    let src = out_dir().join("probe-sanitizer.c");
+    std::fs::write(&src, "int main(void) { return 0; }\n").unwrap();
+    Command::new("gcc")
+        .args(flags)
+        .arg(&src)
+        .arg("-o")
+        .arg(out_dir().join("probe-sanitizer"))
+        .output()
+        .map(|o| o.status.success())
+        .unwrap_or(false)
+}
+
+/// Every C test program, built with `-fsanitize=address,undefined` against
+/// the static and the shared library (Rust code is not instrumented; ASan
+/// sees the C side's accesses, every allocation and leak, UBSan the C
+/// side's undefined behaviour). Any report fails the run.
+#[test]
+fn c_tests_under_asan_and_ubsan() {
+    if !gcc_supports(SANITIZE) {
+        println!("SKIPPED: gcc cannot link with {SANITIZE:?} (apt-get install libasan8 libubsan1)");
+        return;
+    }
+    check_layouts();
+    for src in c_programs() {
+        for link in [Link::Static, Link::Shared] {
+            let exe =
+                compile_generated(&root().join("ffi-tests").join(&src), link, SANITIZE, "asan");
+            let mut cmd = Command::new(&exe);
+            cmd.env(
+                "ASAN_OPTIONS",
+                "detect_leaks=1:halt_on_error=1:detect_stack_use_after_return=1:strict_string_checks=1",
+            )
+            .env("UBSAN_OPTIONS", "print_stacktrace=1:halt_on_error=1");
+            run_checked(cmd, &format!("{src} ({link:?}, ASan+UBSan)"));
+        }
+    }
+}
+
+/// Every C test program under valgrind's memcheck (uninitialised reads,
+/// invalid accesses, leaks: `--error-exitcode=99 --leak-check=full`), static
+/// and shared, except `test_threads.c`: valgrind runs threads one at a time,
+/// which takes that program about a minute per link (it runs under ASan
+/// above). Skipped with a message when valgrind is not installed (CI
+/// installs it).
+#[test]
+fn c_tests_under_valgrind() {
+    let ok = Command::new("valgrind")
+        .arg("--version")
+        .output()
+        .map(|o| o.status.success())
+        .unwrap_or(false);
+    if !ok {
+        println!("SKIPPED: valgrind not found (apt-get install valgrind)");
+        return;
+    }
+    check_layouts();
+    for src in c_programs().into_iter().filter(|s| s != "test_threads.c") {
+        for link in [Link::Static, Link::Shared] {
+            let exe =
+                compile_generated(&root().join("ffi-tests").join(&src), link, &[], "valgrind");
+            let mut cmd = Command::new("valgrind");
+            cmd.args([
+                "--error-exitcode=99",
+                "--leak-check=full",
+                "--errors-for-leak-kinds=definite,indirect",
+                "--quiet",
+            ])
+            .arg(&exe);
+            run_checked(cmd, &format!("{src} ({link:?}, valgrind)"));
+        }
+    }
+}

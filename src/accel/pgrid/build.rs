@@ -461,8 +461,11 @@ pub fn angle_span(x: [f32; 3], z: [f32; 3], eps: f32) -> (f32, f32) {
     let cross = |i: usize, j: usize| z[i] * x[j] - x[i] * z[j];
     for i in 0..3 {
         for j in 0..3 {
+            if i == j {
+                continue; // (3 - i - j would underflow for i = j = 2)
+            }
             let k = 3 - i - j;
-            if i == j || cross(i, j) <= 0.0 || cross(i, k) < 0.0 || cross(k, j) < 0.0 {
+            if cross(i, j) <= 0.0 || cross(i, k) < 0.0 || cross(k, j) < 0.0 {
                 continue;
             }
             let lo = super::pseudo_angle(x[i], z[i]) - ANGLE_PAD;

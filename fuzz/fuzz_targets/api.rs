@@ -1,0 +1,1634 @@
+//! Fuzz the C ABI exactly as a C program calls it: raw pointers, sizes and
+//! counts, enum values as plain integers, on one context per input.
+//!
+//! An input is a context (arbitrary `sheaf_limits`, owned or in a caller
+//! buffer that may be short or misaligned) and a sequence of calls:
+//! set_geometry (arbitrary vertex and index buffers, strides, counts that
+//! lie within the real buffers, NULL and misaligned pointers, NaN/Inf and
+//! huge vertices, out-of-range indices), in-place edits of the borrowed
+//! buffers, the four builds with arbitrary parameters, trace / trace_with /
+//! occluded (unaligned, overlapping, NULL arrays), render / render_with /
+//! render_whitted / render_deferred (arbitrary frames, strides, lengths,
+//! lights, materials), the per-pixel queries, stats and last_error.
+//!
+//! The contract checked after every call (a violation panics, which
+//! libFuzzer reports as a crash; a panic inside sheaf aborts through
+//! libFuzzer's panic hook even though sheaf's boundary would catch it):
+//! - the status is one of the documented codes, never `SHEAF_STATUS_PANIC`;
+//! - on an error status no output byte changed (every output buffer is
+//!   filled with a sentinel first), `sheaf_stats` did not change, and
+//!   `sheaf_context_last_error` describes a failure;
+//! - after a failed call, the last successful trace and render (since the
+//!   last successful build) give exactly the same bytes again;
+//! - a successful render writes alpha 255 and never the bytes between rows
+//!   or past the last row; last_error always NUL-terminates inside `len`;
+//! - with finite, moderate inputs every method of a structure returns its
+//!   reference method's triangle and bitwise t (and occlusion answer), as
+//!   the README promises.
+#![no_main]
+
+use arbitrary::Arbitrary;
+use core::ffi::c_void;
+use libfuzzer_sys::fuzz_target;
+use sheaf::ffi::{
+    self, sheaf_bvh_params, sheaf_context, sheaf_deferred_job, sheaf_frame, sheaf_grid_params,
+    sheaf_hit, sheaf_kd_params, sheaf_pgrid_params, sheaf_ray, sheaf_stats, sheaf_status,
+    sheaf_trace_params,
+};
+use sheaf::render::material::{Material, MaterialRange};
+use sheaf::render::whitted::WhittedParams;
+use sheaf::{Camera, Limits, PointLight, Shading};
+
+const OK: sheaf_status = sheaf_status::Ok;
+/// Contexts needing more bytes than this are only asked for their size and
+/// given a short caller buffer (libFuzzer reports mallocs over its limit).
+const MAX_CONTEXT_BYTES: usize = 48 << 20;
+/// Sentinels for output buffers.
+const S_HIT: u8 = 0xA5;
+const S_PIX: u8 = 0x5A;
+
+// ---- inputs --------------------------------------------------------------------
+
+/// A float: mostly small values that make real scenes, sometimes any bits.
+#[derive(Arbitrary, Debug, Clone, Copy)]
+enum F {
+    Small(i8),
+    Fine(i16),
+    Special(u8),
+    Bits(u32),
+}
+
+impl F {
+    fn get(self) -> f32 {
+        match self {
+            F::Small(v) => v as f32 / 8.0,
+            F::Fine(v) => v as f32 / 1024.0,
+            F::Special(k) => [
+                f32::NAN,
+                f32::INFINITY,
+                f32::NEG_INFINITY,
+                0.0,
+                -0.0,
+                f32::MAX,
+                f32::MIN,
+                f32::MIN_POSITIVE,
+                1e-40,
+                1e18,
+                -1e18,
+                1e30,
+                1.0,
+                -1.0,
+                0.5,
+                1e-7,
+            ][k as usize % 16],
+            F::Bits(b) => f32::from_bits(b),
+        }
+    }
+}
+
+/// A parameter: `Small` values mapped into (mostly) the valid range, `Any` raw.
+fn small(n: N, f: impl Fn(u32) -> u32) -> u32 {
+    match n {
+        N::Small(v) => f(v as u32),
+        N::Any(v) => v,
+    }
+}
+
+/// A cost: `Small` values positive, others raw.
+fn positive(x: F) -> f32 {
+    match x {
+        F::Small(v) => (v as f32).abs() / 16.0 + 0.125,
+        x => x.get(),
+    }
+}
+
+fn v3(a: [F; 3]) -> [f32; 3] {
+    [a[0].get(), a[1].get(), a[2].get()]
+}
+
+/// A count or size: small, or any value.
+#[derive(Arbitrary, Debug, Clone, Copy)]
+enum N {
+    Small(u8),
+    Any(u32),
+}
+
+impl N {
+    fn get(self) -> u32 {
+        match self {
+            N::Small(v) => v as u32,
+            N::Any(v) => v,
+        }
+    }
+}
+
+#[derive(Arbitrary, Debug)]
+struct LimitsIn {
+    wild: bool,
+    max_triangles: u32,
+    max_vertices: u32,
+    max_image_width: u32,
+    max_image_height: u32,
+    max_tile: u32,
+    max_threads: u32,
+    max_grid_cells: u32,
+    max_grid_refs: u32,
+    projection_test: bool,
+    structures: u32,
+    max_kd_nodes: u32,
+    max_kd_refs: u32,
+    max_pgrid_cells: u32,
+    max_pgrid_refs: u32,
+}
+
+impl LimitsIn {
+    fn get(&self) -> Limits {
+        if self.wild {
+            return Limits {
+                max_triangles: self.max_triangles,
+                max_vertices: self.max_vertices,
+                max_image_width: self.max_image_width,
+                max_image_height: self.max_image_height,
+                max_tile: self.max_tile,
+                max_threads: self.max_threads,
+                max_grid_cells: self.max_grid_cells,
+                max_grid_refs: self.max_grid_refs,
+                projection_test: self.projection_test,
+                structures: self.structures,
+                max_kd_nodes: self.max_kd_nodes,
+                max_kd_refs: self.max_kd_refs,
+                max_pgrid_cells: self.max_pgrid_cells,
+                max_pgrid_refs: self.max_pgrid_refs,
+            };
+        }
+        // Usable limits: small pools, every structure likely.
+        Limits {
+            max_triangles: self.max_triangles % 160,
+            max_vertices: self.max_vertices % 480,
+            max_image_width: 1 + self.max_image_width % 40,
+            max_image_height: 1 + self.max_image_height % 40,
+            max_tile: [2, 4, 8, 16, 32, 64, 3, 0][self.max_tile as usize % 8],
+            max_threads: 1 + self.max_threads % 3,
+            max_grid_cells: if self.max_grid_cells % 3 == 0 { 0 } else { self.max_grid_cells % 3000 },
+            max_grid_refs: if self.max_grid_refs % 3 == 0 { 0 } else { self.max_grid_refs % 4000 },
+            projection_test: self.projection_test,
+            structures: if self.structures % 4 == 0 { 15 } else { self.structures % 17 },
+            max_kd_nodes: if self.max_kd_nodes % 3 == 0 { 0 } else { self.max_kd_nodes % 1000 },
+            max_kd_refs: if self.max_kd_refs % 3 == 0 { 0 } else { self.max_kd_refs % 2000 },
+            max_pgrid_cells: if self.max_pgrid_cells % 3 == 0 { 0 } else { self.max_pgrid_cells % 50000 },
+            max_pgrid_refs: if self.max_pgrid_refs % 3 == 0 { 0 } else { self.max_pgrid_refs % 50000 },
+        }
+    }
+}
+
+#[derive(Arbitrary, Debug)]
+enum Placement {
+    Owned,
+    /// `sheaf_context_create_in`: a buffer `short` bytes short of the need
+    /// (0: exact, plus `slack`), starting `misalign` bytes past 64.
+    In { short: u16, slack: u8, misalign: u8 },
+}
+
+#[derive(Arbitrary, Debug, Clone, Copy)]
+enum IndexIn {
+    Vertex(u8),
+    Any(u32),
+}
+
+#[derive(Arbitrary, Debug)]
+struct GeomIn {
+    verts: Vec<[F; 3]>,
+    /// Extra floats per vertex (interleaved buffer).
+    pad: u8,
+    /// Offset of the first vertex in floats.
+    offset: u8,
+    /// None: the natural stride; else any stride (bytes).
+    stride: Option<u16>,
+    /// None: the real vertex count; else this, clamped so the claimed span
+    /// stays inside the real buffer.
+    claim_vertices: Option<N>,
+    tris: Vec<[IndexIn; 3]>,
+    claim_triangles: Option<N>,
+    /// Byte offset of the index array (non-zero: misaligned).
+    index_misalign: u8,
+    null_vertices: bool,
+    null_indices: bool,
+}
+
+#[derive(Arbitrary, Debug)]
+struct GridIn {
+    lambda: F,
+    macrocell: N,
+    test: N,
+    fit: bool,
+}
+
+#[derive(Arbitrary, Debug)]
+struct BvhIn {
+    leaf_size: N,
+    bins: N,
+    traversal_cost: F,
+    test: N,
+}
+
+#[derive(Arbitrary, Debug)]
+struct KdIn {
+    max_depth: N,
+    traversal_cost: F,
+    empty_bonus: F,
+    test: N,
+}
+
+#[derive(Arbitrary, Debug)]
+struct PgridIn {
+    tile: N,
+    group: N,
+    slices: N,
+    light_tiles: N,
+    light_slices: N,
+    chunk: u16,
+    test: N,
+    cull_backfaces: bool,
+}
+
+#[derive(Arbitrary, Debug, Clone, Copy)]
+struct TraceIn {
+    method: N,
+    packet: N,
+    macrocells: bool,
+    mailbox: bool,
+    culling: bool,
+    ray_kind: N,
+    entry: N,
+    split: F,
+}
+
+impl TraceIn {
+    fn get(&self) -> sheaf_trace_params {
+        sheaf_trace_params {
+            method: match self.method {
+                N::Small(v) => v as u32 % 11,
+                N::Any(v) => v,
+            },
+            packet: match self.packet {
+                N::Small(v) => [2, 4, 8, 16, 32, 0, 3, 64][v as usize % 8],
+                N::Any(v) => v,
+            },
+            macrocells: self.macrocells,
+            mailbox: self.mailbox,
+            culling: self.culling,
+            ray_kind: self.ray_kind.get() % 5,
+            entry: self.entry.get() % 4,
+            split: match self.split {
+                F::Small(v) => (v as f32 / 8.0).abs().max(1.0),
+                s => s.get(),
+            },
+        }
+    }
+}
+
+#[derive(Arbitrary, Debug, Clone, Copy)]
+struct RayIn {
+    org: [F; 3],
+    tmin: F,
+    dir: [F; 3],
+    tmax: F,
+}
+
+#[derive(Arbitrary, Debug)]
+enum RayTmax {
+    Inf,
+    Given,
+}
+
+#[derive(Arbitrary, Debug)]
+struct RaysIn {
+    rays: Vec<RayIn>,
+    /// Rays from one origin towards a grid of directions (packet-like).
+    fan: Option<([F; 3], [F; 3], u8)>,
+    tmax: RayTmax,
+    /// Claimed count: None the real one, else at most the real one.
+    claim: Option<u16>,
+    /// Byte offsets of the ray and hit arrays (any alignment is allowed).
+    ray_offset: u8,
+    hit_offset: u8,
+    /// Results written over the rays themselves (an overlap error).
+    overlap: bool,
+    null_rays: bool,
+    null_hits: bool,
+}
+
+#[derive(Arbitrary, Debug, Clone, Copy)]
+struct LightIn {
+    position: [F; 3],
+    color: [F; 3],
+    spot_direction: [F; 3],
+    spot_angle_deg: F,
+    spot_soft_deg: F,
+    /// Use the fields above as they are; else a plausible light chosen by
+    /// `view`: a point light above the scene, or a spot aimed at the origin.
+    raw: bool,
+    view: u8,
+}
+
+impl LightIn {
+    fn get(&self) -> PointLight {
+        if !self.raw {
+            let k = self.view;
+            let a = k as f32 * 0.9;
+            let position = [5.0 * a.cos(), 5.0 * a.sin(), 3.0 + (k % 7) as f32];
+            return PointLight {
+                position,
+                color: [1.0, 0.9, 0.8],
+                spot_direction: position.map(|x| -x),
+                spot_angle_deg: if k % 2 == 0 { 0.0 } else { 10.0 + (k % 70) as f32 },
+                spot_soft_deg: (k % 5) as f32,
+            };
+        }
+        PointLight {
+            position: v3(self.position),
+            color: v3(self.color),
+            spot_direction: v3(self.spot_direction),
+            spot_angle_deg: self.spot_angle_deg.get(),
+            spot_soft_deg: self.spot_soft_deg.get(),
+        }
+    }
+}
+
+#[derive(Arbitrary, Debug, Clone, Copy)]
+struct FrameIn {
+    eye: [F; 3],
+    look_at: [F; 3],
+    up: [F; 3],
+    fov: F,
+    light: LightIn,
+    albedo: [F; 3],
+    ambient: F,
+    background: [F; 3],
+    shadows: bool,
+    width: N,
+    height: N,
+    /// Use the camera and shading above as they are; else a plausible
+    /// camera chosen by `view` (looking at the origin from outside).
+    raw_camera: bool,
+    view: u8,
+}
+
+impl FrameIn {
+    fn get(&self) -> sheaf_frame {
+        let mut f = sheaf_frame {
+            camera: Camera {
+                eye: v3(self.eye),
+                look_at: v3(self.look_at),
+                up: v3(self.up),
+                fov_y_deg: self.fov.get(),
+            },
+            light: self.light.get(),
+            shading: Shading {
+                albedo: v3(self.albedo),
+                ambient: self.ambient.get(),
+                background: v3(self.background),
+                shadows: self.shadows,
+            },
+            width: match self.width {
+                N::Small(v) => 1 + v as u32 % 32,
+                N::Any(v) => v,
+            },
+            height: match self.height {
+                N::Small(v) => 1 + v as u32 % 32,
+                N::Any(v) => v,
+            },
+        };
+        if !self.raw_camera {
+            let k = self.view;
+            let a = k as f32 * 0.7;
+            f.camera = Camera {
+                eye: [4.0 * a.cos(), 4.0 * a.sin(), 2.0 + (k % 5) as f32],
+                look_at: [0.0, 0.0, 0.0],
+                up: [0.0, 0.0, 1.0],
+                fov_y_deg: 30.0 + (k % 60) as f32,
+            };
+            f.shading = Shading::default();
+            f.shading.shadows = self.shadows;
+            if self.light.raw {
+                f.light = PointLight {
+                    position: [4.0, -3.0, 8.0],
+                    color: [1.0; 3],
+                    ..PointLight::default()
+                };
+            }
+        }
+        f
+    }
+}
+
+#[derive(Arbitrary, Debug)]
+struct FbIn {
+    /// Extra bytes per row (unless `any_stride`).
+    row_pad: u8,
+    any_stride: Option<u64>,
+    /// Length: exactly the need plus `slack`, or `short` bytes less.
+    short: u16,
+    slack: u8,
+    null: bool,
+}
+
+#[derive(Arbitrary, Debug)]
+struct MaterialIn {
+    diffuse: [F; 3],
+    reflect: F,
+    transmit: F,
+    ior: F,
+}
+
+#[derive(Arbitrary, Debug)]
+struct WhittedIn {
+    primary: TraceIn,
+    shadow: TraceIn,
+    secondary: TraceIn,
+    bounces: Option<(u8, u8)>,
+    lights: Vec<LightIn>,
+    materials: Vec<MaterialIn>,
+    ranges: Vec<(u16, u16)>,
+    misalign_lights: bool,
+}
+
+#[derive(Arbitrary, Debug)]
+struct DeferredIn {
+    lights: Vec<LightIn>,
+    primary_pgrid: bool,
+    shadow_light_grid: bool,
+    primary: TraceIn,
+    shadow: TraceIn,
+    null_lights: bool,
+}
+
+#[derive(Arbitrary, Debug)]
+enum Op {
+    SetGeometry(GeomIn),
+    /// A ground quad and a box (18 triangles), moved and scaled.
+    Canned(u8, [F; 3]),
+    /// A shortcut to deep states: the canned scene, every build with
+    /// default parameters, then a render, a deferred frame and a trace of
+    /// camera rays with methods chosen by the byte (later ops go on from
+    /// there).
+    Warmup(u8),
+    PokeIndex(u16, IndexIn),
+    PokeVertex(u16, F),
+    BuildGrid(Option<GridIn>),
+    BuildBvh(Option<BvhIn>),
+    BuildKd(Option<KdIn>),
+    BuildPgrid(Option<PgridIn>),
+    Trace(N, RaysIn),
+    TraceWith(TraceIn, RaysIn),
+    Occluded(N, RaysIn),
+    Render(N, FrameIn, FbIn),
+    RenderWith(TraceIn, TraceIn, FrameIn, FbIn),
+    Whitted(WhittedIn, FrameIn, FbIn),
+    Deferred(DeferredIn, FrameIn, FbIn),
+    DeferredPixel(u8, u8),
+    DeferredShadowRay(u8, u8, LightIn),
+    CameraRay(FrameIn, u8, u8),
+    Stats,
+    LastError(u16),
+    StatusString(u32),
+}
+
+#[derive(Arbitrary, Debug)]
+struct Input {
+    limits: LimitsIn,
+    placement: Placement,
+    ops: Vec<Op>,
+    destroy_twice: bool,
+}
+
+// ---- buffers the context borrows -----------------------------------------------
+
+/// Vertex and index buffers handed to a successful set_geometry: they must
+/// stay alive (and may be edited in place) until the next one succeeds.
+struct Geometry {
+    vertices: Vec<f32>,
+    /// Where vertex `i`'s x is, in floats (for in-place edits).
+    vertex_at: Vec<usize>,
+    /// One u32 more than the indices, so a misaligned view stays inside.
+    index_words: Vec<u32>,
+    index_count: usize,
+    vertex_count: u32,
+}
+
+/// A successful trace to repeat after failures.
+struct TraceRecord {
+    params: sheaf_trace_params,
+    occluded: bool,
+    rays: Vec<sheaf_ray>,
+    out: Vec<u8>,
+}
+
+/// A successful render to repeat after failures.
+struct RenderRecord {
+    primary: sheaf_trace_params,
+    shadow: sheaf_trace_params,
+    frame: sheaf_frame,
+    stride: usize,
+    image: Vec<u8>,
+}
+
+struct State {
+    ctx: *mut sheaf_context,
+    limits: Limits,
+    geometry: Option<Geometry>,
+    trace: Option<TraceRecord>,
+    render: Option<RenderRecord>,
+    /// Any vertex or ray field outside +-1e4 or non-finite since the last
+    /// successful builds: the exactness comparisons are skipped.
+    wild_scene: bool,
+}
+
+// ---- contract helpers ----------------------------------------------------------
+
+fn valid_status(s: sheaf_status, what: &str) {
+    if std::env::var_os("SHEAF_FUZZ_LOG").is_some() {
+        eprintln!("@call {what} {s:?}");
+    }
+    let raw = s as u32;
+    assert!(
+        sheaf_status::from_raw(raw).is_some(),
+        "{what}: undocumented status {raw}"
+    );
+    assert_ne!(s, sheaf_status::Panic, "{what}: panic caught at the boundary");
+}
+
+fn stats_of(ctx: *const sheaf_context) -> String {
+    let mut st = sheaf_stats::default();
+    assert_eq!(ffi::sheaf_context_stats(ctx, &mut st), OK);
+    // Debug text: NaN-safe equality of every field.
+    format!("{st:?}")
+}
+
+fn last_error(ctx: *const sheaf_context) -> String {
+    let mut buf = [0x7f as core::ffi::c_char; ffi::SHEAF_ERROR_MESSAGE_MAX];
+    let mut written = usize::MAX;
+    assert_eq!(
+        ffi::sheaf_context_last_error(ctx, buf.as_mut_ptr(), buf.len(), &mut written),
+        OK
+    );
+    assert!(written < buf.len() && buf[written] == 0, "last_error not terminated");
+    let bytes: Vec<u8> = buf[..written].iter().map(|&c| c as u8).collect();
+    String::from_utf8(bytes).expect("last_error is not UTF-8")
+}
+
+impl State {
+    /// The checks after an exclusive call that returned `s`: on failure the
+    /// stats are unchanged, the last error is set, and earlier results are
+    /// reproduced.
+    fn after(&mut self, s: sheaf_status, stats_before: &str, what: &str) {
+        valid_status(s, what);
+        if s == OK {
+            return;
+        }
+        if std::env::var_os("SHEAF_FUZZ_LOG").is_some() {
+            eprintln!("@error {what} {}", last_error(self.ctx));
+        }
+        assert_eq!(
+            stats_of(self.ctx),
+            stats_before,
+            "{what} failed with {s:?} but changed sheaf_stats"
+        );
+        let msg = last_error(self.ctx);
+        assert!(
+            !msg.is_empty() && msg != "no error",
+            "{what} failed with {s:?}, last_error is {msg:?}"
+        );
+        self.recheck(what, s);
+    }
+
+    /// Repeat the last successful trace and render: the same bytes.
+    fn recheck(&mut self, what: &str, s: sheaf_status) {
+        if let Some(t) = &self.trace {
+            let out = run_trace(self.ctx, &t.params, t.occluded, &t.rays);
+            assert_eq!(
+                out.as_ref(),
+                Some(&t.out),
+                "after {what} failed with {s:?}: the previous trace ({:?}) changed",
+                t.params
+            );
+        }
+        if let Some(r) = &self.render {
+            let mut img = vec![S_PIX; r.image.len()];
+            let st = ffi::context::sheaf_context_render_with(
+                self.ctx,
+                &r.primary,
+                &r.shadow,
+                &r.frame,
+                img.as_mut_ptr(),
+                r.stride,
+                img.len(),
+            );
+            assert_eq!(st, OK, "after {what} failed with {s:?}: the previous render fails");
+            assert!(
+                img == r.image,
+                "after {what} failed with {s:?}: the previous render ({:?}) changed",
+                r.primary
+            );
+        }
+    }
+}
+
+/// Trace (or occluded) `rays` with `p` into fresh memory; None on error.
+fn run_trace(
+    ctx: *const sheaf_context,
+    p: &sheaf_trace_params,
+    occluded: bool,
+    rays: &[sheaf_ray],
+) -> Option<Vec<u8>> {
+    if occluded {
+        let mut o = vec![S_HIT; rays.len()];
+        let s = ffi::sheaf_context_occluded(ctx, p.method, rays.as_ptr(), o.as_mut_ptr(), rays.len());
+        (s == OK).then_some(o)
+    } else {
+        let mut h = vec![
+            sheaf_hit {
+                t: 0.0,
+                prim: 0,
+                u: 0.0,
+                v: 0.0
+            };
+            rays.len()
+        ];
+        let s = ffi::context::sheaf_context_trace_with(ctx, p, rays.as_ptr(), h.as_mut_ptr(), rays.len());
+        (s == OK).then(|| hit_bytes(&h))
+    }
+}
+
+fn hit_bytes(h: &[sheaf_hit]) -> Vec<u8> {
+    let mut b = Vec::with_capacity(h.len() * 16);
+    for x in h {
+        b.extend_from_slice(&x.t.to_bits().to_le_bytes());
+        b.extend_from_slice(&x.prim.to_le_bytes());
+        b.extend_from_slice(&x.u.to_bits().to_le_bytes());
+        b.extend_from_slice(&x.v.to_bits().to_le_bytes());
+    }
+    b
+}
+
+fn moderate(x: f32) -> bool {
+    x.is_finite() && x.abs() <= 1e4
+}
+
+/// The reference method of `method`'s structure.
+fn reference_of(method: u32) -> Option<u32> {
+    match method {
+        0 | 1 => Some(0),
+        2..=6 => Some(2),
+        7..=9 => Some(7),
+        _ => None,
+    }
+}
+
+// ---- calls ---------------------------------------------------------------------
+
+fn make_rays(r: &RaysIn) -> Vec<sheaf_ray> {
+    let tmax = |x: F| match r.tmax {
+        RayTmax::Inf => f32::INFINITY,
+        RayTmax::Given => x.get(),
+    };
+    let mut rays: Vec<sheaf_ray> = r
+        .rays
+        .iter()
+        .take(96)
+        .map(|x| sheaf_ray {
+            org: v3(x.org),
+            tmin: x.tmin.get(),
+            dir: v3(x.dir),
+            tmax: tmax(x.tmax),
+        })
+        .collect();
+    if let Some((org, at, n)) = r.fan {
+        let n = 1 + n as usize % 16;
+        let (o, c) = (v3(org), v3(at));
+        for y in 0..n {
+            for x in 0..n {
+                let d = [
+                    c[0] - o[0] + (x as f32 - n as f32 / 2.0) * 0.1,
+                    c[1] - o[1] + (y as f32 - n as f32 / 2.0) * 0.1,
+                    c[2] - o[2],
+                ];
+                rays.push(sheaf_ray {
+                    org: o,
+                    tmin: 0.0,
+                    dir: d,
+                    tmax: f32::INFINITY,
+                });
+            }
+        }
+    }
+    rays
+}
+
+/// trace / trace_with / occluded through raw, possibly unaligned memory.
+fn trace_call(st: &mut State, params: Option<sheaf_trace_params>, method: u32, occ: bool, r: &RaysIn) {
+    let rays = make_rays(r);
+    let real = rays.len();
+    let count = r.claim.map_or(real, |c| (c as usize).min(real));
+    let rsz = core::mem::size_of::<sheaf_ray>();
+    let out_sz = if occ { 1 } else { core::mem::size_of::<sheaf_hit>() };
+    // Rays copied byte-wise at an offset; results in their own buffer.
+    let roff = r.ray_offset as usize % 8;
+    let mut rbuf = vec![0u8; roff + real * rsz];
+    for (i, ray) in rays.iter().enumerate() {
+        // SAFETY: in bounds; unaligned write of a plain struct.
+        unsafe { rbuf.as_mut_ptr().add(roff + i * rsz).cast::<sheaf_ray>().write_unaligned(*ray) };
+    }
+    let hoff = r.hit_offset as usize % 8;
+    let mut hbuf = vec![S_HIT; hoff + real * out_sz];
+    let rays_before = rbuf.clone();
+    let rp: *const sheaf_ray = if r.null_rays {
+        core::ptr::null()
+    } else {
+        // SAFETY: in bounds.
+        unsafe { rbuf.as_ptr().add(roff).cast() }
+    };
+    let overlap = r.overlap && !r.null_rays;
+    let hp: *mut u8 = if r.null_hits {
+        core::ptr::null_mut()
+    } else if overlap {
+        // Results over the rays themselves (count * out_sz <= count * 32).
+        // SAFETY: in bounds.
+        unsafe { rbuf.as_mut_ptr().add(roff) }
+    } else {
+        // SAFETY: in bounds.
+        unsafe { hbuf.as_mut_ptr().add(hoff) }
+    };
+    let p = params.unwrap_or(sheaf_trace_params {
+        method,
+        ..default_trace()
+    });
+    let s = if occ {
+        ffi::sheaf_context_occluded(st.ctx, method, rp, hp, count)
+    } else if let Some(p) = params {
+        ffi::context::sheaf_context_trace_with(st.ctx, &p, rp, hp.cast(), count)
+    } else {
+        ffi::sheaf_context_trace(st.ctx, method, rp, hp.cast(), count)
+    };
+    valid_status(s, "trace");
+    if count > 0 && (r.null_rays || r.null_hits) {
+        assert_ne!(s, OK, "NULL array with count {count} accepted");
+    }
+    if s == OK && overlap && count > 0 {
+        panic!("results over their own rays accepted");
+    }
+    if s != OK {
+        assert!(rbuf == rays_before, "a failed trace wrote over its rays");
+        assert!(hbuf.iter().all(|&b| b == S_HIT), "a failed trace ({s:?}) wrote results");
+        let msg = last_error(st.ctx);
+        assert!(msg != "no error", "trace failed with {s:?}, no last error");
+        // A failed trace changes nothing: the previous results stand.
+        st.recheck("trace", s);
+        return;
+    }
+    assert!(rbuf == rays_before, "a trace wrote over its rays");
+    if count == 0 {
+        return;
+    }
+    let out = hbuf[hoff..hoff + count * out_sz].to_vec();
+    assert!(hbuf[hoff + count * out_sz..].iter().all(|&b| b == S_HIT), "wrote past count");
+    assert!(hbuf[..hoff].iter().all(|&b| b == S_HIT), "wrote before the results");
+    if occ {
+        assert!(out.iter().all(|&b| b <= 1), "occluded wrote {out:?}");
+    } else {
+        for k in 0..count {
+            let h = &out[k * 16..k * 16 + 16];
+            let t = f32::from_bits(u32::from_le_bytes(h[0..4].try_into().unwrap()));
+            let prim = u32::from_le_bytes(h[4..8].try_into().unwrap());
+            if prim == ffi::SHEAF_INVALID_ID {
+                assert!(t == f32::INFINITY, "a miss with t = {t}");
+            } else {
+                let ray = rays[k];
+                assert!(
+                    t >= ray.tmin && t < ray.tmax,
+                    "hit t = {t} outside [{}, {}) of ray {k}",
+                    ray.tmin,
+                    ray.tmax
+                );
+            }
+        }
+    }
+    // Same results again, and through the structure's reference method.
+    let sane = !st.wild_scene
+        && rays[..count]
+            .iter()
+            .all(|r| r.org.iter().chain(&r.dir).all(|&x| moderate(x)) && moderate(r.tmin));
+    let rays = rays[..count].to_vec();
+    let again = run_trace(st.ctx, &p, occ, &rays).expect("the same trace fails the second time");
+    assert!(again == out, "the same trace gave other results");
+    if sane {
+        if let Some(m) = reference_of(p.method) {
+            let rp = sheaf_trace_params {
+                method: m,
+                ..default_trace()
+            };
+            if let Some(want) = run_trace(st.ctx, &rp, occ, &rays) {
+                compare(&rays, &out, &want, occ, &p);
+            }
+        }
+    }
+    st.trace = Some(TraceRecord {
+        params: p,
+        occluded: occ,
+        rays,
+        out,
+    });
+}
+
+fn compare(rays: &[sheaf_ray], got: &[u8], want: &[u8], occ: bool, p: &sheaf_trace_params) {
+    if occ {
+        for (k, (a, b)) in got.iter().zip(want).enumerate() {
+            assert_eq!(a, b, "occluded ray {k} {:?}: method {p:?} vs its reference", rays[k]);
+        }
+        return;
+    }
+    for k in 0..rays.len() {
+        let (a, b) = (&got[k * 16..k * 16 + 8], &want[k * 16..k * 16 + 8]);
+        assert!(
+            a == b,
+            "ray {k} {:?}: method {p:?} gives (t, prim) {:?}, its reference {:?}",
+            rays[k],
+            decode(a),
+            decode(b)
+        );
+    }
+}
+
+fn decode(h: &[u8]) -> (f32, u32) {
+    (
+        f32::from_bits(u32::from_le_bytes(h[0..4].try_into().unwrap())),
+        u32::from_le_bytes(h[4..8].try_into().unwrap()),
+    )
+}
+
+fn default_trace() -> sheaf_trace_params {
+    let mut p = sheaf_trace_params {
+        method: 0,
+        packet: 0,
+        macrocells: false,
+        mailbox: false,
+        culling: false,
+        ray_kind: 0,
+        entry: 0,
+        split: 0.0,
+    };
+    assert_eq!(ffi::sheaf_trace_params_default(&mut p), OK);
+    p
+}
+
+/// The framebuffer of `fb` for `frame`: (buffer, stride, len, need or None
+/// when the need overflows).
+fn framebuffer(frame: &sheaf_frame, fb: &FbIn) -> (Vec<u8>, usize, usize, Option<usize>) {
+    let w = frame.width as usize;
+    let h = frame.height as usize;
+    let stride = match fb.any_stride {
+        None => 4 * w.min(64) + fb.row_pad as usize % 24,
+        Some(s) => s as usize,
+    };
+    let need = (h.max(1) - 1).checked_mul(stride).and_then(|b| b.checked_add(4 * w));
+    let len = match need {
+        Some(n) if n <= 1 << 20 => {
+            if fb.short > 0 {
+                n.saturating_sub(fb.short as usize)
+            } else {
+                n + fb.slack as usize
+            }
+        }
+        _ => fb.slack as usize * 16,
+    };
+    (vec![S_PIX; len], stride, len, need)
+}
+
+/// Checks common to every render call; returns whether it succeeded.
+fn check_render(
+    st: &mut State,
+    s: sheaf_status,
+    frame: &sheaf_frame,
+    buf: &[u8],
+    stride: usize,
+    null: bool,
+    stats_before: &str,
+    what: &str,
+) -> bool {
+    if null {
+        assert_ne!(s, OK, "{what} into a NULL framebuffer");
+    }
+    if s != OK {
+        assert!(buf.iter().all(|&b| b == S_PIX), "{what} failed ({s:?}) but wrote pixels");
+        st.after(s, stats_before, what);
+        return false;
+    }
+    valid_status(s, what);
+    let (w, h) = (frame.width as usize, frame.height as usize);
+    assert!(w > 0 && h > 0 && w as u32 <= st.limits.max_image_width && h as u32 <= st.limits.max_image_height);
+    let end = (h - 1) * stride + 4 * w;
+    for y in 0..h {
+        let row = &buf[y * stride..y * stride + 4 * w];
+        assert!(row.chunks(4).all(|p| p[3] == 255), "{what}: alpha not 255 in row {y}");
+        if y + 1 < h {
+            assert!(
+                buf[y * stride + 4 * w..(y + 1) * stride].iter().all(|&b| b == S_PIX),
+                "{what}: wrote between rows {y} and {}",
+                y + 1
+            );
+        }
+    }
+    assert!(buf[end..].iter().all(|&b| b == S_PIX), "{what}: wrote past the last row");
+    true
+}
+
+/// The ground-and-box scene of tests/c_abi.rs as a `GeomIn`, scaled by
+/// `k` and moved by `shift` (in 1/8 units).
+fn canned(k: u8, shift: [F; 3]) -> GeomIn {
+    let mut v: Vec<[f32; 3]> = vec![[-4.0, -4.0, 0.0], [4.0, -4.0, 0.0], [4.0, 4.0, 0.0], [-4.0, 4.0, 0.0]];
+    let mut idx = vec![[0u8, 1, 2], [0, 2, 3]];
+    for i in 0..8u32 {
+        let c = |bit: u32, lo: f32, hi: f32| if i & bit != 0 { hi } else { lo };
+        v.push([c(1, -0.5, 0.5), c(2, -0.5, 0.5), c(4, 0.0, 1.0)]);
+    }
+    for t in [
+        [0, 2, 3], [0, 3, 1], [4, 5, 7], [4, 7, 6], [0, 1, 5], [0, 5, 4],
+        [2, 6, 7], [2, 7, 3], [0, 4, 6], [0, 6, 2], [1, 3, 7], [1, 7, 5],
+    ] {
+        idx.push([t[0] + 4, t[1] + 4, t[2] + 4]);
+    }
+    let scale = 1.0 + (k % 8) as f32;
+    let sh = shift.map(|s| match s {
+        F::Small(x) => x as f32 / 8.0,
+        _ => 0.0,
+    });
+    let f = |x: f32| {
+        // Exactly representable at 1/1024 steps: F::Fine.
+        F::Fine((x * 1024.0).clamp(-32768.0, 32767.0) as i16)
+    };
+    GeomIn {
+        verts: v
+            .iter()
+            .map(|p| [f(p[0] * scale + sh[0]), f(p[1] * scale + sh[1]), f(p[2] * scale + sh[2])])
+            .collect(),
+        pad: k / 8,
+        offset: k / 32,
+        stride: None,
+        claim_vertices: None,
+        tris: idx
+            .iter()
+            .map(|t| [IndexIn::Vertex(t[0]), IndexIn::Vertex(t[1]), IndexIn::Vertex(t[2])])
+            .collect(),
+        claim_triangles: None,
+        index_misalign: 0,
+        null_vertices: false,
+        null_indices: false,
+    }
+}
+
+fn set_geometry(st: &mut State, g: &GeomIn) {
+    let nv_real = g.verts.len().min(400);
+    let per = 3 + g.pad as usize % 4;
+    let off = g.offset as usize % 4;
+    let mut vertices = vec![-7777.0f32; off + nv_real * per];
+    let mut vertex_at = Vec::with_capacity(nv_real);
+    for (i, v) in g.verts.iter().take(nv_real).enumerate() {
+        let at = off + i * per;
+        vertices[at..at + 3].copy_from_slice(&v3(*v));
+        vertex_at.push(at);
+    }
+    let real_bytes = (vertices.len() - off) * 4;
+    let stride = match g.stride {
+        None => per * 4,
+        Some(s) => s as usize,
+    };
+    // Claimed vertex count: its span (count - 1) * stride + 12 stays inside.
+    let fits = |n: usize| n == 0 || (n - 1).saturating_mul(stride).saturating_add(12) <= real_bytes;
+    let mut nv = match g.claim_vertices {
+        None => nv_real as u32,
+        Some(c) => c.get(),
+    };
+    if !fits(nv as usize) {
+        nv = if stride == 0 {
+            if real_bytes >= 12 { nv } else { 0 }
+        } else if real_bytes >= 12 {
+            ((real_bytes - 12) / stride + 1).min(nv as usize) as u32
+        } else {
+            0
+        };
+    }
+    let nt_real = g.tris.len().min(200);
+    let mut index_words = vec![0u32; 3 * nt_real + 1];
+    for (t, tri) in g.tris.iter().take(nt_real).enumerate() {
+        for k in 0..3 {
+            index_words[3 * t + k] = match tri[k] {
+                IndexIn::Vertex(i) => i as u32 % (nv_real.max(1) as u32),
+                IndexIn::Any(i) => i,
+            };
+        }
+    }
+    let mis = g.index_misalign as usize % 4;
+    let nt = match g.claim_triangles {
+        None => nt_real as u32,
+        // The claimed triangles stay inside the real buffer (its extra word
+        // covers a misaligned start).
+        Some(c) => c.get().min(nt_real as u32),
+    };
+    let vp: *const f32 = if g.null_vertices {
+        core::ptr::null()
+    } else {
+        // SAFETY: in bounds (off <= len).
+        unsafe { vertices.as_ptr().add(off) }
+    };
+    let ip: *const u32 = if g.null_indices {
+        core::ptr::null()
+    } else {
+        // SAFETY: in bounds (the extra word).
+        unsafe { index_words.as_ptr().cast::<u8>().add(mis).cast() }
+    };
+    let before = stats_of(st.ctx);
+    let s = ffi::sheaf_context_set_geometry(st.ctx, vp, stride, nv, ip, nt);
+    if nv > 0 && g.null_vertices || nt > 0 && g.null_indices {
+        assert_eq!(s, sheaf_status::NullPointer);
+    }
+    if nt > 0 && mis != 0 && !g.null_indices && s == OK {
+        panic!("misaligned indices accepted");
+    }
+    if s == OK {
+        if nv > st.limits.max_vertices || nt > st.limits.max_triangles {
+            panic!("set_geometry accepted {nv} vertices / {nt} triangles over the limits");
+        }
+        for i in 0..3 * nt as usize {
+            // SAFETY: accepted, so aligned and inside (checked above).
+            let x = unsafe { ip.add(i).read() };
+            assert!(x < nv, "set_geometry accepted index {x} >= {nv}");
+        }
+        if !(stride >= 12 && stride % 4 == 0) && nv > 1 {
+            panic!("set_geometry accepted stride {stride}");
+        }
+        let moderate_scene = (0..nv as usize).all(|i| {
+            let at = off + i * stride / 4;
+            vertices.get(at..at + 3).is_some_and(|v| v.iter().all(|&x| moderate(x)))
+        });
+        if !moderate_scene || stride % 4 != 0 {
+            st.wild_scene = true;
+        }
+        // The index view is shifted when misaligned; keep both buffers alive.
+        st.geometry = Some(Geometry {
+            vertices,
+            vertex_at,
+            index_words,
+            index_count: 3 * nt as usize,
+            vertex_count: nv,
+        });
+    }
+    st.after(s, &before, "set_geometry");
+}
+
+fn build(st: &mut State, what: &str, f: impl FnOnce(*mut sheaf_context) -> sheaf_status) {
+    let before = stats_of(st.ctx);
+    let had_geometry = st.geometry.is_some();
+    let s = f(st.ctx);
+    if !had_geometry {
+        assert_ne!(s, OK, "{what} without geometry succeeded");
+    }
+    if s == OK {
+        // New structure: earlier results may legitimately change.
+        st.trace = None;
+        st.render = None;
+    }
+    st.after(s, &before, what);
+}
+
+fn run(input: &Input) {
+    let limits = input.limits.get();
+    let mut need = usize::MAX;
+    let s = ffi::sheaf_required_bytes(&limits, &mut need);
+    valid_status(s, "required_bytes");
+    if s != OK {
+        assert_eq!(need, usize::MAX, "required_bytes wrote on failure");
+        // create and create_in must fail the same way, leaving *out alone.
+        let mut out = 0x1234 as *mut sheaf_context;
+        assert_eq!(ffi::sheaf_context_create(&limits, &mut out), s);
+        assert_eq!(out as usize, 0x1234);
+        let mut buf = vec![0u64; 64];
+        let s2 = ffi::sheaf_context_create_in(buf.as_mut_ptr().cast(), 512, &limits, &mut out);
+        assert_ne!(s2, OK);
+        assert_eq!(out as usize, 0x1234);
+        return;
+    }
+    let mut storage: Vec<u64> = Vec::new();
+    let mut ctx: *mut sheaf_context = core::ptr::null_mut();
+    let mut created_in = false;
+    match input.placement {
+        Placement::Owned if need <= MAX_CONTEXT_BYTES => {
+            let s = ffi::sheaf_context_create(&limits, &mut ctx);
+            valid_status(s, "create");
+            assert_eq!(s, OK, "create with valid limits ({need} bytes)");
+        }
+        Placement::Owned => return,
+        Placement::In { short, slack, misalign } => {
+            let short = short as usize;
+            let have = if short > 0 { need.saturating_sub(short) } else { need + slack as usize };
+            let mis = misalign as usize % 3 * 8; // 0, 8, 16 bytes past 64
+            if have > MAX_CONTEXT_BYTES {
+                // Too big to place here: a short buffer must be refused.
+                let mut small = vec![0u64; 128];
+                let base = small.as_mut_ptr().cast::<u8>();
+                let a = base.align_offset(64);
+                let mut out = 0x40 as *mut sheaf_context;
+                // SAFETY: a..a+512 lies inside the 1024 bytes.
+                let s = ffi::sheaf_context_create_in(unsafe { base.add(a) }.cast(), 512, &limits, &mut out);
+                assert_eq!(s, sheaf_status::BufferTooSmall);
+                assert_eq!(out as usize, 0x40);
+                return;
+            }
+            storage = vec![0u64; (have + mis + 64) / 8 + 1];
+            let base = storage.as_mut_ptr().cast::<u8>();
+            // SAFETY: align_offset + mis + have fits in the allocation.
+            let p = unsafe { base.add(base.align_offset(64) + mis) };
+            let s = ffi::sheaf_context_create_in(p.cast::<c_void>(), have, &limits, &mut ctx);
+            valid_status(s, "create_in");
+            let want = if mis != 0 {
+                sheaf_status::Misaligned
+            } else if have < need {
+                sheaf_status::BufferTooSmall
+            } else {
+                OK
+            };
+            assert_eq!(s, want, "create_in: {have} of {need} bytes, {mis} past 64");
+            if s != OK {
+                assert!(ctx.is_null(), "create_in wrote *out on failure");
+                return;
+            }
+            created_in = true;
+        }
+    }
+    let mut st = State {
+        ctx,
+        limits,
+        geometry: None,
+        trace: None,
+        render: None,
+        wild_scene: false,
+    };
+    assert_eq!(last_error(st.ctx), "no error");
+    for op in input.ops.iter().take(24) {
+        step(&mut st, op);
+    }
+    ffi::sheaf_context_destroy(st.ctx);
+    if created_in && input.destroy_twice {
+        // The buffer is still ours: a second destroy and any call are refused.
+        ffi::sheaf_context_destroy(st.ctx);
+        let mut s0 = sheaf_stats::default();
+        assert_eq!(
+            ffi::sheaf_context_stats(st.ctx, &mut s0),
+            sheaf_status::InvalidArgument
+        );
+        assert_eq!(
+            ffi::sheaf_context_build_grid(st.ctx, core::ptr::null()),
+            sheaf_status::InvalidArgument
+        );
+    }
+    drop(st.geometry.take());
+    drop(storage);
+}
+
+fn step(st: &mut State, op: &Op) {
+    match op {
+        Op::SetGeometry(g) => set_geometry(st, g),
+        Op::Canned(k, shift) => set_geometry(st, &canned(*k, *shift)),
+        Op::Warmup(k) => warmup(st, *k),
+        Op::PokeIndex(at, v) => {
+            if let Some(g) = &mut st.geometry {
+                if g.index_count > 0 {
+                    let i = *at as usize % g.index_count;
+                    let nv = g.vertex_count.max(1);
+                    // Edit the word the context reads (the view may be shifted
+                    // when misaligned; then the context refused it anyway).
+                    g.index_words[i] = match v {
+                        IndexIn::Vertex(x) => *x as u32 % nv,
+                        IndexIn::Any(x) => *x,
+                    };
+                }
+            }
+        }
+        Op::PokeVertex(at, x) => {
+            if let Some(g) = &mut st.geometry {
+                if !g.vertex_at.is_empty() {
+                    let k = *at as usize % (3 * g.vertex_at.len());
+                    let i = g.vertex_at[k / 3] + k % 3;
+                    g.vertices[i] = x.get();
+                    if !moderate(g.vertices[i]) {
+                        st.wild_scene = true;
+                    }
+                }
+            }
+        }
+        Op::BuildGrid(p) => {
+            let p = p.as_ref().map(|p| sheaf_grid_params {
+                lambda: match p.lambda {
+                    F::Small(v) => (v as f32 / 8.0).abs() + 0.25,
+                    x => x.get(),
+                },
+                macrocell: small(p.macrocell, |v| v % 9),
+                test: small(p.test, |v| v % 3),
+                fit: p.fit,
+            });
+            build(st, "build_grid", |c| {
+                ffi::sheaf_context_build_grid(c, p.as_ref().map_or(core::ptr::null(), |p| p))
+            });
+        }
+        Op::BuildBvh(p) => {
+            let p = p.as_ref().map(|p| sheaf_bvh_params {
+                leaf_size: small(p.leaf_size, |v| 1 + v % 8),
+                bins: small(p.bins, |v| 2 + v % 31),
+                traversal_cost: positive(p.traversal_cost),
+                test: small(p.test, |v| v % 3),
+            });
+            build(st, "build_bvh", |c| {
+                ffi::sheaf_context_build_bvh(c, p.as_ref().map_or(core::ptr::null(), |p| p))
+            });
+        }
+        Op::BuildKd(p) => {
+            let p = p.as_ref().map(|p| sheaf_kd_params {
+                max_depth: small(p.max_depth, |v| v % 49),
+                traversal_cost: positive(p.traversal_cost),
+                empty_bonus: match p.empty_bonus {
+                    F::Small(v) => (v as f32).abs() / 130.0,
+                    x => x.get(),
+                },
+                test: small(p.test, |v| v % 3),
+            });
+            build(st, "build_kd", |c| {
+                ffi::sheaf_context_build_kd(c, p.as_ref().map_or(core::ptr::null(), |p| p))
+            });
+        }
+        Op::BuildPgrid(p) => {
+            let p = p.as_ref().map(|p| sheaf_pgrid_params {
+                tile: small(p.tile, |v| [2, 4, 8, 16, 32][v as usize % 5]),
+                group: small(p.group, |v| [1, 2, 4][v as usize % 3]),
+                slices: small(p.slices, |v| 1 + v),
+                light_tiles: small(p.light_tiles, |v| 1 + v),
+                light_slices: small(p.light_slices, |v| 1 + v),
+                chunk: p.chunk as u32,
+                test: small(p.test, |v| v % 3),
+                cull_backfaces: p.cull_backfaces,
+            });
+            // Loads triangles for the grids only: traces and renders stand.
+            let before = stats_of(st.ctx);
+            let s = ffi::sheaf_context_build_pgrid(st.ctx, p.as_ref().map_or(core::ptr::null(), |p| p));
+            st.after(s, &before, "build_pgrid");
+        }
+        Op::Trace(m, r) => trace_call(st, None, m.get() % 11, false, r),
+        Op::TraceWith(p, r) => trace_call(st, Some(p.get()), 0, false, r),
+        Op::Occluded(m, r) => trace_call(st, None, m.get() % 11, true, r),
+        Op::Render(m, f, fb) => {
+            let p = sheaf_trace_params {
+                method: m.get() % 11,
+                ..default_trace()
+            };
+            render(st, p, p, None, f, fb);
+        }
+        Op::RenderWith(p, s, f, fb) => render(st, p.get(), s.get(), Some(()), f, fb),
+        Op::Whitted(w, f, fb) => whitted(st, w, f, fb),
+        Op::Deferred(d, f, fb) => deferred(st, d, f, fb),
+        Op::DeferredPixel(x, y) => {
+            let mut hit = sheaf_hit {
+                t: 1.5,
+                prim: 77,
+                u: 2.5,
+                v: 3.5,
+            };
+            let mut bits = 0xEEu8;
+            let s = ffi::sheaf_context_deferred_pixel(st.ctx, *x as u32, *y as u32, &mut hit, &mut bits);
+            valid_status(s, "deferred_pixel");
+            if s != OK {
+                assert!(hit.prim == 77 && hit.t == 1.5 && bits == 0xEE, "deferred_pixel wrote on failure");
+            } else if hit.prim == ffi::SHEAF_INVALID_ID {
+                assert!(hit.t == f32::INFINITY);
+            }
+        }
+        Op::DeferredShadowRay(x, y, l) => {
+            let light = l.get();
+            let mut ray = sheaf_ray {
+                org: [9.0; 3],
+                tmin: 9.0,
+                dir: [9.0; 3],
+                tmax: 9.0,
+            };
+            let mut has = true;
+            let s = ffi::sheaf_context_deferred_shadow_ray(st.ctx, *x as u32, *y as u32, &light, &mut ray, &mut has);
+            valid_status(s, "deferred_shadow_ray");
+            if s != OK || !has {
+                assert!(ray.org == [9.0; 3] && ray.tmax == 9.0, "shadow ray written without one");
+            }
+            if s != OK {
+                assert!(has, "has_ray written on failure");
+            }
+        }
+        Op::CameraRay(f, x, y) => {
+            let frame = f.get();
+            let mut ray = sheaf_ray {
+                org: [9.0; 3],
+                tmin: 9.0,
+                dir: [9.0; 3],
+                tmax: 9.0,
+            };
+            let s = ffi::sheaf_frame_camera_ray(&frame, *x as u32, *y as u32, &mut ray);
+            valid_status(s, "frame_camera_ray");
+            if s != OK {
+                assert!(ray.org == [9.0; 3] && ray.dir == [9.0; 3], "camera ray written on failure");
+            } else {
+                assert!(ray.tmin == 0.0 && ray.tmax == f32::INFINITY);
+            }
+        }
+        Op::Stats => {
+            let _ = stats_of(st.ctx);
+            assert_eq!(
+                ffi::sheaf_context_stats(st.ctx, core::ptr::null_mut()),
+                sheaf_status::NullPointer
+            );
+        }
+        Op::LastError(len) => {
+            let len = *len as usize % 300;
+            let mut buf = vec![0x7f as core::ffi::c_char; len.max(1)];
+            let mut written = 12345usize;
+            let s = ffi::sheaf_context_last_error(st.ctx, buf.as_mut_ptr(), len, &mut written);
+            valid_status(s, "last_error");
+            if len == 0 {
+                assert_eq!(s, sheaf_status::InvalidArgument);
+                assert!(written == 12345 && buf[0] == 0x7f);
+            } else {
+                assert_eq!(s, OK);
+                assert!(written < len && buf[written] == 0);
+                assert!(buf[written + 1..].iter().all(|&c| c == 0x7f), "wrote past the NUL");
+                let full = last_error(st.ctx);
+                let got: Vec<u8> = buf[..written].iter().map(|&c| c as u8).collect();
+                assert!(full.as_bytes().starts_with(&got), "truncated message is not a prefix");
+                assert!(core::str::from_utf8(&got).is_ok(), "cut inside a character");
+            }
+        }
+        Op::StatusString(code) => {
+            let p = ffi::sheaf_status_string(*code);
+            assert!(!p.is_null());
+            // SAFETY: documented as a static NUL-terminated string.
+            let text = unsafe { core::ffi::CStr::from_ptr(p) };
+            assert!(!text.to_bytes().is_empty());
+        }
+    }
+}
+
+fn warmup(st: &mut State, k: u8) {
+    set_geometry(st, &canned(k, [F::Small(0); 3]));
+    use core::ptr::null;
+    build(st, "build_grid", |c| ffi::sheaf_context_build_grid(c, null()));
+    build(st, "build_bvh", |c| ffi::sheaf_context_build_bvh(c, null()));
+    build(st, "build_kd", |c| ffi::sheaf_context_build_kd(c, null()));
+    let before = stats_of(st.ctx);
+    let s = ffi::sheaf_context_build_pgrid(st.ctx, null());
+    st.after(s, &before, "build_pgrid");
+    let zero = F::Small(0);
+    let light = LightIn {
+        position: [zero; 3],
+        color: [zero; 3],
+        spot_direction: [zero; 3],
+        spot_angle_deg: zero,
+        spot_soft_deg: zero,
+        raw: false,
+        view: k / 3,
+    };
+    let frame = FrameIn {
+        eye: [zero; 3],
+        look_at: [zero; 3],
+        up: [zero; 3],
+        fov: zero,
+        light,
+        albedo: [zero; 3],
+        ambient: zero,
+        background: [zero; 3],
+        shadows: k % 2 == 0,
+        width: N::Small(k),
+        height: N::Small(k / 2),
+        raw_camera: false,
+        view: k,
+    };
+    let fb = FbIn {
+        row_pad: k,
+        any_stride: None,
+        short: 0,
+        slack: k % 7,
+        null: false,
+    };
+    let tp = |m: u8| TraceIn {
+        method: N::Small(m),
+        packet: N::Small(k / 11),
+        macrocells: k % 3 == 0,
+        mailbox: k % 5 == 0,
+        culling: k % 7 != 0,
+        ray_kind: N::Small(k % 4),
+        entry: N::Small(k / 4 % 3),
+        split: F::Small(k as i8),
+    };
+    let m = k % 10;
+    render(st, tp(m).get(), tp(m / 2).get(), Some(()), &frame, &fb);
+    let d = DeferredIn {
+        lights: vec![light; 1 + k as usize % 3],
+        primary_pgrid: k % 3 != 1,
+        shadow_light_grid: k % 3 != 2,
+        primary: tp(m),
+        shadow: tp(9 - m),
+        null_lights: false,
+    };
+    deferred(st, &d, &frame, &fb);
+    // Camera rays of the frame, traced with the method.
+    let f = frame.get();
+    let mut rays = Vec::new();
+    for y in 0..f.height.min(8) {
+        for x in 0..f.width.min(8) {
+            let mut r = sheaf_ray {
+                org: [0.0; 3],
+                tmin: 0.0,
+                dir: [0.0; 3],
+                tmax: 0.0,
+            };
+            if ffi::sheaf_frame_camera_ray(&f, x, y, &mut r) == OK {
+                rays.push(RayIn {
+                    org: r.org.map(|x| F::Bits(x.to_bits())),
+                    tmin: F::Bits(r.tmin.to_bits()),
+                    dir: r.dir.map(|x| F::Bits(x.to_bits())),
+                    tmax: F::Bits(r.tmax.to_bits()),
+                });
+            }
+        }
+    }
+    let r = RaysIn {
+        rays,
+        fan: None,
+        tmax: RayTmax::Inf,
+        claim: None,
+        ray_offset: k,
+        hit_offset: k / 8,
+        overlap: false,
+        null_rays: false,
+        null_hits: false,
+    };
+    trace_call(st, Some(tp(m).get()), 0, false, &r);
+    trace_call(st, None, m as u32, true, &r);
+}
+
+fn render(st: &mut State, p: sheaf_trace_params, s: sheaf_trace_params, with: Option<()>, f: &FrameIn, fb: &FbIn) {
+    let frame = f.get();
+    let (mut buf, stride, len, _) = framebuffer(&frame, fb);
+    let ptr = if fb.null { core::ptr::null_mut() } else { buf.as_mut_ptr() };
+    let before = stats_of(st.ctx);
+    let status = if with.is_some() {
+        ffi::context::sheaf_context_render_with(st.ctx, &p, &s, &frame, ptr, stride, len)
+    } else {
+        ffi::sheaf_context_render(st.ctx, p.method, &frame, ptr, stride, len)
+    };
+    if check_render(st, status, &frame, &buf, stride, fb.null, &before, "render") {
+        // Rendering is deterministic: the same bytes again.
+        let mut again = vec![S_PIX; len];
+        assert_eq!(
+            ffi::context::sheaf_context_render_with(st.ctx, &p, &s, &frame, again.as_mut_ptr(), stride, len),
+            OK
+        );
+        assert!(again == buf, "the same render gave other pixels");
+        st.render = Some(RenderRecord {
+            primary: p,
+            shadow: s,
+            frame,
+            stride,
+            image: buf,
+        });
+    }
+}
+
+fn whitted(st: &mut State, w: &WhittedIn, f: &FrameIn, fb: &FbIn) {
+    let frame = f.get();
+    let (mut buf, stride, len, _) = framebuffer(&frame, fb);
+    let ptr = if fb.null { core::ptr::null_mut() } else { buf.as_mut_ptr() };
+    let lights: Vec<PointLight> = w.lights.iter().take(4).map(LightIn::get).collect();
+    let mats: Vec<Material> = w
+        .materials
+        .iter()
+        .take(4)
+        .map(|m| {
+            // Small values map into the valid ranges; others stay raw.
+            let unit = |x: F, d: f32| match x {
+                F::Small(v) => (v as f32).abs() / d,
+                x => x.get(),
+            };
+            Material {
+                diffuse: m.diffuse.map(|c| unit(c, 128.0)),
+                reflect: unit(m.reflect, 256.0),
+                transmit: unit(m.transmit, 256.0),
+                ior: match m.ior {
+                    F::Small(v) => 1.0 + (v as f32).abs() / 64.0,
+                    x => x.get(),
+                },
+            }
+        })
+        .collect();
+    let ranges: Vec<MaterialRange> = w
+        .ranges
+        .iter()
+        .take(4)
+        .map(|&(first, material)| MaterialRange {
+            first: first as u32,
+            material: if material == u16::MAX { u32::MAX } else { material as u32 % 6 },
+        })
+        .collect();
+    let params = w.bounces.map(|(r, t)| WhittedParams {
+        max_reflect: r as u32 % 10,
+        max_refract: t as u32 % 10,
+    });
+    // A misaligned copy of the lights (SHEAF_STATUS_MISALIGNED expected).
+    let mut lbytes = vec![0u8; 4 + lights.len() * core::mem::size_of::<PointLight>()];
+    for (i, l) in lights.iter().enumerate() {
+        // SAFETY: in bounds; unaligned write.
+        unsafe {
+            lbytes
+                .as_mut_ptr()
+                .add(1 + i * core::mem::size_of::<PointLight>())
+                .cast::<PointLight>()
+                .write_unaligned(*l)
+        };
+    }
+    let lp: *const PointLight = if w.misalign_lights && !lights.is_empty() {
+        // SAFETY: in bounds.
+        unsafe { lbytes.as_ptr().add(1).cast() }
+    } else {
+        lights.as_ptr()
+    };
+    let (pp, sp, xp) = (w.primary.get(), w.shadow.get(), w.secondary.get());
+    let before = stats_of(st.ctx);
+    let s = ffi::sheaf_context_render_whitted(
+        st.ctx,
+        &pp,
+        &sp,
+        &xp,
+        params.as_ref().map_or(core::ptr::null(), |p| p),
+        &frame,
+        lp,
+        lights.len(),
+        mats.as_ptr(),
+        mats.len(),
+        ranges.as_ptr(),
+        ranges.len(),
+        ptr,
+        stride,
+        len,
+    );
+    if w.misalign_lights && !lights.is_empty() && s == OK {
+        panic!("misaligned lights accepted");
+    }
+    check_render(st, s, &frame, &buf, stride, fb.null, &before, "render_whitted");
+}
+
+fn deferred(st: &mut State, d: &DeferredIn, f: &FrameIn, fb: &FbIn) {
+    let frame = f.get();
+    let (mut buf, stride, len, _) = framebuffer(&frame, fb);
+    let ptr = if fb.null { core::ptr::null_mut() } else { buf.as_mut_ptr() };
+    let lights: Vec<PointLight> = d.lights.iter().take(10).map(LightIn::get).collect();
+    let job = sheaf_deferred_job {
+        frame,
+        lights: if d.null_lights { core::ptr::null() } else { lights.as_ptr() },
+        light_count: lights.len(),
+        primary_pgrid: d.primary_pgrid,
+        shadow_light_grid: d.shadow_light_grid,
+        primary: d.primary.get(),
+        shadow: d.shadow.get(),
+    };
+    let before = stats_of(st.ctx);
+    let s = ffi::sheaf_context_render_deferred(st.ctx, &job, ptr, stride, len);
+    if lights.len() > 8 {
+        assert_eq!(s, sheaf_status::InvalidArgument, "more than 8 lights");
+    }
+    if d.null_lights && !lights.is_empty() && lights.len() <= 8 && !fb.null {
+        assert_ne!(s, OK, "NULL lights accepted");
+    }
+    if check_render(st, s, &frame, &buf, stride, fb.null, &before, "render_deferred") {
+        // Every pixel of the frame answers; one past it does not.
+        let mut hit = sheaf_hit {
+            t: 0.0,
+            prim: 0,
+            u: 0.0,
+            v: 0.0,
+        };
+        let mut bits = 0u8;
+        let (w, h) = (frame.width, frame.height);
+        assert_eq!(ffi::sheaf_context_deferred_pixel(st.ctx, w - 1, h - 1, &mut hit, &mut bits), OK);
+        assert_eq!(
+            ffi::sheaf_context_deferred_pixel(st.ctx, w, 0, &mut hit, &mut bits),
+            sheaf_status::InvalidArgument
+        );
+        let n = lights.len().max(1);
+        assert!(n == 8 || bits >> n == 0, "shadow bits {bits:#x} for {n} lights");
+    }
+}
+
+fuzz_target!(|input: Input| {
+    run(&input);
+});
