@@ -169,14 +169,42 @@ impl LimitsIn {
             max_image_height: 1 + self.max_image_height % 40,
             max_tile: [2, 4, 8, 16, 32, 64, 3, 0][self.max_tile as usize % 8],
             max_threads: 1 + self.max_threads % 3,
-            max_grid_cells: if self.max_grid_cells % 3 == 0 { 0 } else { self.max_grid_cells % 3000 },
-            max_grid_refs: if self.max_grid_refs % 3 == 0 { 0 } else { self.max_grid_refs % 4000 },
+            max_grid_cells: if self.max_grid_cells % 3 == 0 {
+                0
+            } else {
+                self.max_grid_cells % 3000
+            },
+            max_grid_refs: if self.max_grid_refs % 3 == 0 {
+                0
+            } else {
+                self.max_grid_refs % 4000
+            },
             projection_test: self.projection_test,
-            structures: if self.structures % 4 == 0 { 15 } else { self.structures % 17 },
-            max_kd_nodes: if self.max_kd_nodes % 3 == 0 { 0 } else { self.max_kd_nodes % 1000 },
-            max_kd_refs: if self.max_kd_refs % 3 == 0 { 0 } else { self.max_kd_refs % 2000 },
-            max_pgrid_cells: if self.max_pgrid_cells % 3 == 0 { 0 } else { self.max_pgrid_cells % 50000 },
-            max_pgrid_refs: if self.max_pgrid_refs % 3 == 0 { 0 } else { self.max_pgrid_refs % 50000 },
+            structures: if self.structures % 4 == 0 {
+                15
+            } else {
+                self.structures % 17
+            },
+            max_kd_nodes: if self.max_kd_nodes % 3 == 0 {
+                0
+            } else {
+                self.max_kd_nodes % 1000
+            },
+            max_kd_refs: if self.max_kd_refs % 3 == 0 {
+                0
+            } else {
+                self.max_kd_refs % 2000
+            },
+            max_pgrid_cells: if self.max_pgrid_cells % 3 == 0 {
+                0
+            } else {
+                self.max_pgrid_cells % 50000
+            },
+            max_pgrid_refs: if self.max_pgrid_refs % 3 == 0 {
+                0
+            } else {
+                self.max_pgrid_refs % 50000
+            },
         }
     }
 }
@@ -186,7 +214,11 @@ enum Placement {
     Owned,
     /// `sheaf_context_create_in`: a buffer `short` bytes short of the need
     /// (0: exact, plus `slack`), starting `misalign` bytes past 64.
-    In { short: u16, slack: u8, misalign: u8 },
+    In {
+        short: u16,
+        slack: u8,
+        misalign: u8,
+    },
 }
 
 #[derive(Arbitrary, Debug, Clone, Copy)]
@@ -341,7 +373,11 @@ impl LightIn {
                 position,
                 color: [1.0, 0.9, 0.8],
                 spot_direction: position.map(|x| -x),
-                spot_angle_deg: if k % 2 == 0 { 0.0 } else { 10.0 + (k % 70) as f32 },
+                spot_angle_deg: if k % 2 == 0 {
+                    0.0
+                } else {
+                    10.0 + (k % 70) as f32
+                },
                 spot_soft_deg: (k % 5) as f32,
             };
         }
@@ -555,7 +591,11 @@ fn valid_status(s: sheaf_status, what: &str) {
         sheaf_status::from_raw(raw).is_some(),
         "{what}: undocumented status {raw}"
     );
-    assert_ne!(s, sheaf_status::Panic, "{what}: panic caught at the boundary");
+    assert_ne!(
+        s,
+        sheaf_status::Panic,
+        "{what}: panic caught at the boundary"
+    );
 }
 
 fn stats_of(ctx: *const sheaf_context) -> String {
@@ -572,7 +612,10 @@ fn last_error(ctx: *const sheaf_context) -> String {
         ffi::sheaf_context_last_error(ctx, buf.as_mut_ptr(), buf.len(), &mut written),
         OK
     );
-    assert!(written < buf.len() && buf[written] == 0, "last_error not terminated");
+    assert!(
+        written < buf.len() && buf[written] == 0,
+        "last_error not terminated"
+    );
     let bytes: Vec<u8> = buf[..written].iter().map(|&c| c as u8).collect();
     String::from_utf8(bytes).expect("last_error is not UTF-8")
 }
@@ -624,7 +667,10 @@ impl State {
                 r.stride,
                 img.len(),
             );
-            assert_eq!(st, OK, "after {what} failed with {s:?}: the previous render fails");
+            assert_eq!(
+                st, OK,
+                "after {what} failed with {s:?}: the previous render fails"
+            );
             assert!(
                 img == r.image,
                 "after {what} failed with {s:?}: the previous render ({:?}) changed",
@@ -643,7 +689,8 @@ fn run_trace(
 ) -> Option<Vec<u8>> {
     if occluded {
         let mut o = vec![S_HIT; rays.len()];
-        let s = ffi::sheaf_context_occluded(ctx, p.method, rays.as_ptr(), o.as_mut_ptr(), rays.len());
+        let s =
+            ffi::sheaf_context_occluded(ctx, p.method, rays.as_ptr(), o.as_mut_ptr(), rays.len());
         (s == OK).then_some(o)
     } else {
         let mut h = vec![
@@ -655,7 +702,13 @@ fn run_trace(
             };
             rays.len()
         ];
-        let s = ffi::context::sheaf_context_trace_with(ctx, p, rays.as_ptr(), h.as_mut_ptr(), rays.len());
+        let s = ffi::context::sheaf_context_trace_with(
+            ctx,
+            p,
+            rays.as_ptr(),
+            h.as_mut_ptr(),
+            rays.len(),
+        );
         (s == OK).then(|| hit_bytes(&h))
     }
 }
@@ -726,18 +779,33 @@ fn make_rays(r: &RaysIn) -> Vec<sheaf_ray> {
 }
 
 /// trace / trace_with / occluded through raw, possibly unaligned memory.
-fn trace_call(st: &mut State, params: Option<sheaf_trace_params>, method: u32, occ: bool, r: &RaysIn) {
+fn trace_call(
+    st: &mut State,
+    params: Option<sheaf_trace_params>,
+    method: u32,
+    occ: bool,
+    r: &RaysIn,
+) {
     let rays = make_rays(r);
     let real = rays.len();
     let count = r.claim.map_or(real, |c| (c as usize).min(real));
     let rsz = core::mem::size_of::<sheaf_ray>();
-    let out_sz = if occ { 1 } else { core::mem::size_of::<sheaf_hit>() };
+    let out_sz = if occ {
+        1
+    } else {
+        core::mem::size_of::<sheaf_hit>()
+    };
     // Rays copied byte-wise at an offset; results in their own buffer.
     let roff = r.ray_offset as usize % 8;
     let mut rbuf = vec![0u8; roff + real * rsz];
     for (i, ray) in rays.iter().enumerate() {
         // SAFETY: in bounds; unaligned write of a plain struct.
-        unsafe { rbuf.as_mut_ptr().add(roff + i * rsz).cast::<sheaf_ray>().write_unaligned(*ray) };
+        unsafe {
+            rbuf.as_mut_ptr()
+                .add(roff + i * rsz)
+                .cast::<sheaf_ray>()
+                .write_unaligned(*ray)
+        };
     }
     let hoff = r.hit_offset as usize % 8;
     let mut hbuf = vec![S_HIT; hoff + real * out_sz];
@@ -779,7 +847,10 @@ fn trace_call(st: &mut State, params: Option<sheaf_trace_params>, method: u32, o
     }
     if s != OK {
         assert!(rbuf == rays_before, "a failed trace wrote over its rays");
-        assert!(hbuf.iter().all(|&b| b == S_HIT), "a failed trace ({s:?}) wrote results");
+        assert!(
+            hbuf.iter().all(|&b| b == S_HIT),
+            "a failed trace ({s:?}) wrote results"
+        );
         let msg = last_error(st.ctx);
         assert!(msg != "no error", "trace failed with {s:?}, no last error");
         // A failed trace changes nothing: the previous results stand.
@@ -791,8 +862,14 @@ fn trace_call(st: &mut State, params: Option<sheaf_trace_params>, method: u32, o
         return;
     }
     let out = hbuf[hoff..hoff + count * out_sz].to_vec();
-    assert!(hbuf[hoff + count * out_sz..].iter().all(|&b| b == S_HIT), "wrote past count");
-    assert!(hbuf[..hoff].iter().all(|&b| b == S_HIT), "wrote before the results");
+    assert!(
+        hbuf[hoff + count * out_sz..].iter().all(|&b| b == S_HIT),
+        "wrote past count"
+    );
+    assert!(
+        hbuf[..hoff].iter().all(|&b| b == S_HIT),
+        "wrote before the results"
+    );
     if occ {
         assert!(out.iter().all(|&b| b <= 1), "occluded wrote {out:?}");
     } else {
@@ -843,7 +920,11 @@ fn trace_call(st: &mut State, params: Option<sheaf_trace_params>, method: u32, o
 fn compare(rays: &[sheaf_ray], got: &[u8], want: &[u8], occ: bool, p: &sheaf_trace_params) {
     if occ {
         for (k, (a, b)) in got.iter().zip(want).enumerate() {
-            assert_eq!(a, b, "occluded ray {k} {:?}: method {p:?} vs its reference", rays[k]);
+            assert_eq!(
+                a, b,
+                "occluded ray {k} {:?}: method {p:?} vs its reference",
+                rays[k]
+            );
         }
         return;
     }
@@ -890,7 +971,9 @@ fn framebuffer(frame: &sheaf_frame, fb: &FbIn) -> (Vec<u8>, usize, usize, Option
         None => 4 * w.min(64) + fb.row_pad as usize % 24,
         Some(s) => s as usize,
     };
-    let need = (h.max(1) - 1).checked_mul(stride).and_then(|b| b.checked_add(4 * w));
+    let need = (h.max(1) - 1)
+        .checked_mul(stride)
+        .and_then(|b| b.checked_add(4 * w));
     let len = match need {
         Some(n) if n <= 1 << 20 => {
             if fb.short > 0 {
@@ -919,41 +1002,72 @@ fn check_render(
         assert_ne!(s, OK, "{what} into a NULL framebuffer");
     }
     if s != OK {
-        assert!(buf.iter().all(|&b| b == S_PIX), "{what} failed ({s:?}) but wrote pixels");
+        assert!(
+            buf.iter().all(|&b| b == S_PIX),
+            "{what} failed ({s:?}) but wrote pixels"
+        );
         st.after(s, stats_before, what);
         return false;
     }
     valid_status(s, what);
     let (w, h) = (frame.width as usize, frame.height as usize);
-    assert!(w > 0 && h > 0 && w as u32 <= st.limits.max_image_width && h as u32 <= st.limits.max_image_height);
+    assert!(
+        w > 0
+            && h > 0
+            && w as u32 <= st.limits.max_image_width
+            && h as u32 <= st.limits.max_image_height
+    );
     let end = (h - 1) * stride + 4 * w;
     for y in 0..h {
         let row = &buf[y * stride..y * stride + 4 * w];
-        assert!(row.chunks(4).all(|p| p[3] == 255), "{what}: alpha not 255 in row {y}");
+        assert!(
+            row.chunks(4).all(|p| p[3] == 255),
+            "{what}: alpha not 255 in row {y}"
+        );
         if y + 1 < h {
             assert!(
-                buf[y * stride + 4 * w..(y + 1) * stride].iter().all(|&b| b == S_PIX),
+                buf[y * stride + 4 * w..(y + 1) * stride]
+                    .iter()
+                    .all(|&b| b == S_PIX),
                 "{what}: wrote between rows {y} and {}",
                 y + 1
             );
         }
     }
-    assert!(buf[end..].iter().all(|&b| b == S_PIX), "{what}: wrote past the last row");
+    assert!(
+        buf[end..].iter().all(|&b| b == S_PIX),
+        "{what}: wrote past the last row"
+    );
     true
 }
 
 /// The ground-and-box scene of tests/c_abi.rs as a `GeomIn`, scaled by
 /// `k` and moved by `shift` (in 1/8 units).
 fn canned(k: u8, shift: [F; 3]) -> GeomIn {
-    let mut v: Vec<[f32; 3]> = vec![[-4.0, -4.0, 0.0], [4.0, -4.0, 0.0], [4.0, 4.0, 0.0], [-4.0, 4.0, 0.0]];
+    let mut v: Vec<[f32; 3]> = vec![
+        [-4.0, -4.0, 0.0],
+        [4.0, -4.0, 0.0],
+        [4.0, 4.0, 0.0],
+        [-4.0, 4.0, 0.0],
+    ];
     let mut idx = vec![[0u8, 1, 2], [0, 2, 3]];
     for i in 0..8u32 {
         let c = |bit: u32, lo: f32, hi: f32| if i & bit != 0 { hi } else { lo };
         v.push([c(1, -0.5, 0.5), c(2, -0.5, 0.5), c(4, 0.0, 1.0)]);
     }
     for t in [
-        [0, 2, 3], [0, 3, 1], [4, 5, 7], [4, 7, 6], [0, 1, 5], [0, 5, 4],
-        [2, 6, 7], [2, 7, 3], [0, 4, 6], [0, 6, 2], [1, 3, 7], [1, 7, 5],
+        [0, 2, 3],
+        [0, 3, 1],
+        [4, 5, 7],
+        [4, 7, 6],
+        [0, 1, 5],
+        [0, 5, 4],
+        [2, 6, 7],
+        [2, 7, 3],
+        [0, 4, 6],
+        [0, 6, 2],
+        [1, 3, 7],
+        [1, 7, 5],
     ] {
         idx.push([t[0] + 4, t[1] + 4, t[2] + 4]);
     }
@@ -969,7 +1083,13 @@ fn canned(k: u8, shift: [F; 3]) -> GeomIn {
     GeomIn {
         verts: v
             .iter()
-            .map(|p| [f(p[0] * scale + sh[0]), f(p[1] * scale + sh[1]), f(p[2] * scale + sh[2])])
+            .map(|p| {
+                [
+                    f(p[0] * scale + sh[0]),
+                    f(p[1] * scale + sh[1]),
+                    f(p[2] * scale + sh[2]),
+                ]
+            })
             .collect(),
         pad: k / 8,
         offset: k / 32,
@@ -977,7 +1097,13 @@ fn canned(k: u8, shift: [F; 3]) -> GeomIn {
         claim_vertices: None,
         tris: idx
             .iter()
-            .map(|t| [IndexIn::Vertex(t[0]), IndexIn::Vertex(t[1]), IndexIn::Vertex(t[2])])
+            .map(|t| {
+                [
+                    IndexIn::Vertex(t[0]),
+                    IndexIn::Vertex(t[1]),
+                    IndexIn::Vertex(t[2]),
+                ]
+            })
             .collect(),
         claim_triangles: None,
         index_misalign: 0,
@@ -1068,7 +1194,9 @@ fn set_geometry(st: &mut State, g: &GeomIn) {
         }
         let moderate_scene = (0..nv as usize).all(|i| {
             let at = off + i * stride / 4;
-            vertices.get(at..at + 3).is_some_and(|v| v.iter().all(|&x| moderate(x)))
+            vertices
+                .get(at..at + 3)
+                .is_some_and(|v| v.iter().all(|&x| moderate(x)))
         });
         if !moderate_scene || stride % 4 != 0 {
             st.wild_scene = true;
@@ -1127,9 +1255,17 @@ fn run(input: &Input) {
             assert_eq!(s, OK, "create with valid limits ({need} bytes)");
         }
         Placement::Owned => return,
-        Placement::In { short, slack, misalign } => {
+        Placement::In {
+            short,
+            slack,
+            misalign,
+        } => {
             let short = short as usize;
-            let have = if short > 0 { need.saturating_sub(short) } else { need + slack as usize };
+            let have = if short > 0 {
+                need.saturating_sub(short)
+            } else {
+                need + slack as usize
+            };
             let mis = misalign as usize % 3 * 8; // 0, 8, 16 bytes past 64
             if have > MAX_CONTEXT_BYTES {
                 // Too big to place here: a short buffer must be refused.
@@ -1138,7 +1274,12 @@ fn run(input: &Input) {
                 let a = base.align_offset(64);
                 let mut out = 0x40 as *mut sheaf_context;
                 // SAFETY: a..a+512 lies inside the 1024 bytes.
-                let s = ffi::sheaf_context_create_in(unsafe { base.add(a) }.cast(), 512, &limits, &mut out);
+                let s = ffi::sheaf_context_create_in(
+                    unsafe { base.add(a) }.cast(),
+                    512,
+                    &limits,
+                    &mut out,
+                );
                 assert_eq!(s, sheaf_status::BufferTooSmall);
                 assert_eq!(out as usize, 0x40);
                 return;
@@ -1277,7 +1418,8 @@ fn step(st: &mut State, op: &Op) {
             });
             // Loads triangles for the grids only: traces and renders stand.
             let before = stats_of(st.ctx);
-            let s = ffi::sheaf_context_build_pgrid(st.ctx, p.as_ref().map_or(core::ptr::null(), |p| p));
+            let s =
+                ffi::sheaf_context_build_pgrid(st.ctx, p.as_ref().map_or(core::ptr::null(), |p| p));
             st.after(s, &before, "build_pgrid");
         }
         Op::Trace(m, r) => trace_call(st, None, m.get() % 11, false, r),
@@ -1301,10 +1443,15 @@ fn step(st: &mut State, op: &Op) {
                 v: 3.5,
             };
             let mut bits = 0xEEu8;
-            let s = ffi::sheaf_context_deferred_pixel(st.ctx, *x as u32, *y as u32, &mut hit, &mut bits);
+            let s = ffi::sheaf_context_deferred_pixel(
+                st.ctx, *x as u32, *y as u32, &mut hit, &mut bits,
+            );
             valid_status(s, "deferred_pixel");
             if s != OK {
-                assert!(hit.prim == 77 && hit.t == 1.5 && bits == 0xEE, "deferred_pixel wrote on failure");
+                assert!(
+                    hit.prim == 77 && hit.t == 1.5 && bits == 0xEE,
+                    "deferred_pixel wrote on failure"
+                );
             } else if hit.prim == ffi::SHEAF_INVALID_ID {
                 assert!(hit.t == f32::INFINITY);
             }
@@ -1318,10 +1465,15 @@ fn step(st: &mut State, op: &Op) {
                 tmax: 9.0,
             };
             let mut has = true;
-            let s = ffi::sheaf_context_deferred_shadow_ray(st.ctx, *x as u32, *y as u32, &light, &mut ray, &mut has);
+            let s = ffi::sheaf_context_deferred_shadow_ray(
+                st.ctx, *x as u32, *y as u32, &light, &mut ray, &mut has,
+            );
             valid_status(s, "deferred_shadow_ray");
             if s != OK || !has {
-                assert!(ray.org == [9.0; 3] && ray.tmax == 9.0, "shadow ray written without one");
+                assert!(
+                    ray.org == [9.0; 3] && ray.tmax == 9.0,
+                    "shadow ray written without one"
+                );
             }
             if s != OK {
                 assert!(has, "has_ray written on failure");
@@ -1338,7 +1490,10 @@ fn step(st: &mut State, op: &Op) {
             let s = ffi::sheaf_frame_camera_ray(&frame, *x as u32, *y as u32, &mut ray);
             valid_status(s, "frame_camera_ray");
             if s != OK {
-                assert!(ray.org == [9.0; 3] && ray.dir == [9.0; 3], "camera ray written on failure");
+                assert!(
+                    ray.org == [9.0; 3] && ray.dir == [9.0; 3],
+                    "camera ray written on failure"
+                );
             } else {
                 assert!(ray.tmin == 0.0 && ray.tmax == f32::INFINITY);
             }
@@ -1362,10 +1517,16 @@ fn step(st: &mut State, op: &Op) {
             } else {
                 assert_eq!(s, OK);
                 assert!(written < len && buf[written] == 0);
-                assert!(buf[written + 1..].iter().all(|&c| c == 0x7f), "wrote past the NUL");
+                assert!(
+                    buf[written + 1..].iter().all(|&c| c == 0x7f),
+                    "wrote past the NUL"
+                );
                 let full = last_error(st.ctx);
                 let got: Vec<u8> = buf[..written].iter().map(|&c| c as u8).collect();
-                assert!(full.as_bytes().starts_with(&got), "truncated message is not a prefix");
+                assert!(
+                    full.as_bytes().starts_with(&got),
+                    "truncated message is not a prefix"
+                );
                 assert!(core::str::from_utf8(&got).is_ok(), "cut inside a character");
             }
         }
@@ -1382,7 +1543,9 @@ fn step(st: &mut State, op: &Op) {
 fn warmup(st: &mut State, k: u8) {
     set_geometry(st, &canned(k, [F::Small(0); 3]));
     use core::ptr::null;
-    build(st, "build_grid", |c| ffi::sheaf_context_build_grid(c, null()));
+    build(st, "build_grid", |c| {
+        ffi::sheaf_context_build_grid(c, null())
+    });
     build(st, "build_bvh", |c| ffi::sheaf_context_build_bvh(c, null()));
     build(st, "build_kd", |c| ffi::sheaf_context_build_kd(c, null()));
     let before = stats_of(st.ctx);
@@ -1477,10 +1640,21 @@ fn warmup(st: &mut State, k: u8) {
     trace_call(st, None, m as u32, true, &r);
 }
 
-fn render(st: &mut State, p: sheaf_trace_params, s: sheaf_trace_params, with: Option<()>, f: &FrameIn, fb: &FbIn) {
+fn render(
+    st: &mut State,
+    p: sheaf_trace_params,
+    s: sheaf_trace_params,
+    with: Option<()>,
+    f: &FrameIn,
+    fb: &FbIn,
+) {
     let frame = f.get();
     let (mut buf, stride, len, _) = framebuffer(&frame, fb);
-    let ptr = if fb.null { core::ptr::null_mut() } else { buf.as_mut_ptr() };
+    let ptr = if fb.null {
+        core::ptr::null_mut()
+    } else {
+        buf.as_mut_ptr()
+    };
     let before = stats_of(st.ctx);
     let status = if with.is_some() {
         ffi::context::sheaf_context_render_with(st.ctx, &p, &s, &frame, ptr, stride, len)
@@ -1491,7 +1665,15 @@ fn render(st: &mut State, p: sheaf_trace_params, s: sheaf_trace_params, with: Op
         // Rendering is deterministic: the same bytes again.
         let mut again = vec![S_PIX; len];
         assert_eq!(
-            ffi::context::sheaf_context_render_with(st.ctx, &p, &s, &frame, again.as_mut_ptr(), stride, len),
+            ffi::context::sheaf_context_render_with(
+                st.ctx,
+                &p,
+                &s,
+                &frame,
+                again.as_mut_ptr(),
+                stride,
+                len
+            ),
             OK
         );
         assert!(again == buf, "the same render gave other pixels");
@@ -1508,7 +1690,11 @@ fn render(st: &mut State, p: sheaf_trace_params, s: sheaf_trace_params, with: Op
 fn whitted(st: &mut State, w: &WhittedIn, f: &FrameIn, fb: &FbIn) {
     let frame = f.get();
     let (mut buf, stride, len, _) = framebuffer(&frame, fb);
-    let ptr = if fb.null { core::ptr::null_mut() } else { buf.as_mut_ptr() };
+    let ptr = if fb.null {
+        core::ptr::null_mut()
+    } else {
+        buf.as_mut_ptr()
+    };
     let lights: Vec<PointLight> = w.lights.iter().take(4).map(LightIn::get).collect();
     let mats: Vec<Material> = w
         .materials
@@ -1537,7 +1723,11 @@ fn whitted(st: &mut State, w: &WhittedIn, f: &FrameIn, fb: &FbIn) {
         .take(4)
         .map(|&(first, material)| MaterialRange {
             first: first as u32,
-            material: if material == u16::MAX { u32::MAX } else { material as u32 % 6 },
+            material: if material == u16::MAX {
+                u32::MAX
+            } else {
+                material as u32 % 6
+            },
         })
         .collect();
     let params = w.bounces.map(|(r, t)| WhittedParams {
@@ -1584,17 +1774,34 @@ fn whitted(st: &mut State, w: &WhittedIn, f: &FrameIn, fb: &FbIn) {
     if w.misalign_lights && !lights.is_empty() && s == OK {
         panic!("misaligned lights accepted");
     }
-    check_render(st, s, &frame, &buf, stride, fb.null, &before, "render_whitted");
+    check_render(
+        st,
+        s,
+        &frame,
+        &buf,
+        stride,
+        fb.null,
+        &before,
+        "render_whitted",
+    );
 }
 
 fn deferred(st: &mut State, d: &DeferredIn, f: &FrameIn, fb: &FbIn) {
     let frame = f.get();
     let (mut buf, stride, len, _) = framebuffer(&frame, fb);
-    let ptr = if fb.null { core::ptr::null_mut() } else { buf.as_mut_ptr() };
+    let ptr = if fb.null {
+        core::ptr::null_mut()
+    } else {
+        buf.as_mut_ptr()
+    };
     let lights: Vec<PointLight> = d.lights.iter().take(10).map(LightIn::get).collect();
     let job = sheaf_deferred_job {
         frame,
-        lights: if d.null_lights { core::ptr::null() } else { lights.as_ptr() },
+        lights: if d.null_lights {
+            core::ptr::null()
+        } else {
+            lights.as_ptr()
+        },
         light_count: lights.len(),
         primary_pgrid: d.primary_pgrid,
         shadow_light_grid: d.shadow_light_grid,
@@ -1609,7 +1816,16 @@ fn deferred(st: &mut State, d: &DeferredIn, f: &FrameIn, fb: &FbIn) {
     if d.null_lights && !lights.is_empty() && lights.len() <= 8 && !fb.null {
         assert_ne!(s, OK, "NULL lights accepted");
     }
-    if check_render(st, s, &frame, &buf, stride, fb.null, &before, "render_deferred") {
+    if check_render(
+        st,
+        s,
+        &frame,
+        &buf,
+        stride,
+        fb.null,
+        &before,
+        "render_deferred",
+    ) {
         // Every pixel of the frame answers; one past it does not.
         let mut hit = sheaf_hit {
             t: 0.0,
@@ -1619,13 +1835,19 @@ fn deferred(st: &mut State, d: &DeferredIn, f: &FrameIn, fb: &FbIn) {
         };
         let mut bits = 0u8;
         let (w, h) = (frame.width, frame.height);
-        assert_eq!(ffi::sheaf_context_deferred_pixel(st.ctx, w - 1, h - 1, &mut hit, &mut bits), OK);
+        assert_eq!(
+            ffi::sheaf_context_deferred_pixel(st.ctx, w - 1, h - 1, &mut hit, &mut bits),
+            OK
+        );
         assert_eq!(
             ffi::sheaf_context_deferred_pixel(st.ctx, w, 0, &mut hit, &mut bits),
             sheaf_status::InvalidArgument
         );
         let n = lights.len().max(1);
-        assert!(n == 8 || bits >> n == 0, "shadow bits {bits:#x} for {n} lights");
+        assert!(
+            n == 8 || bits >> n == 0,
+            "shadow bits {bits:#x} for {n} lights"
+        );
     }
 }
 
