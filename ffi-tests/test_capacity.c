@@ -389,6 +389,32 @@ static bool test_kd_pools_run_out_gracefully(void) {
     return true;
 }
 
+/* Fewer kd references than triangles can never build (every triangle needs
+ * a leaf reference): sheaf_context_create refuses such limits with
+ * INVALID_ARGUMENT and writes no context. Found by fuzzing: the limits were
+ * accepted and every kd build then failed with CAPACITY_TRIANGLES, naming a
+ * pool that was large enough. 0 (the default) and exactly max_triangles
+ * are accepted; without the kd-tree's pools the field is not read. */
+static bool test_kd_refs_below_triangles_are_invalid(void) {
+    sheaf_limits l = limits_for(14);
+    sheaf_context *ctx = (sheaf_context *)&l; /* a sentinel: must stay */
+    l.max_kd_refs = 1;
+    CHECK(sheaf_context_create(&l, &ctx) == SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK(ctx == (sheaf_context *)&l);
+    l.max_kd_refs = 13;
+    CHECK(sheaf_context_create(&l, &ctx) == SHEAF_STATUS_INVALID_ARGUMENT);
+    l.max_kd_refs = 14;
+    ctx = NULL;
+    CHECK_OK(sheaf_context_create(&l, &ctx));
+    sheaf_context_destroy(ctx);
+    l.max_kd_refs = 1;
+    l.structures = SHEAF_STRUCTURE_BVH;
+    ctx = NULL;
+    CHECK_OK(sheaf_context_create(&l, &ctx));
+    sheaf_context_destroy(ctx);
+    return true;
+}
+
 /* ---- deferred frames that overflow ------------------------------------------ */
 
 /* camera_refs / light_refs / camera_cells of a deferred frame of `job`. */
@@ -485,6 +511,7 @@ int main(void) {
              &passed, &failed);
     run_test("test_failed_builds_keep_every_structure", test_failed_builds_keep_every_structure, &passed, &failed);
     run_test("test_kd_pools_run_out_gracefully", test_kd_pools_run_out_gracefully, &passed, &failed);
+    run_test("test_kd_refs_below_triangles_are_invalid", test_kd_refs_below_triangles_are_invalid, &passed, &failed);
     run_test("test_deferred_overflow_keeps_the_frame", test_deferred_overflow_keeps_the_frame, &passed, &failed);
     return report(passed, failed);
 }

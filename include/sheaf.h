@@ -423,7 +423,9 @@ typedef struct sheaf_limits {
     /**
      * Most triangle references in kd-tree leaves. 0: `12 * max_triangles +
      * 1024` (the OBJ scenes need 3.4 to 6.1 per triangle, the gears scene
-     * 20). A build that runs out makes leaves early (`KdInfo::forced_leaves`).
+     * 20). At least `max_triangles` (every triangle needs a reference;
+     * fewer is `InvalidArgument`). A build that runs out makes leaves
+     * early (`KdInfo::forced_leaves`).
      */
     uint32_t max_kd_refs;
     /**

@@ -43,7 +43,9 @@ pub struct Limits {
     pub max_kd_nodes: u32,
     /// Most triangle references in kd-tree leaves. 0: `12 * max_triangles +
     /// 1024` (the OBJ scenes need 3.4 to 6.1 per triangle, the gears scene
-    /// 20). A build that runs out makes leaves early (`KdInfo::forced_leaves`).
+    /// 20). At least `max_triangles` (every triangle needs a reference;
+    /// fewer is `InvalidArgument`). A build that runs out makes leaves
+    /// early (`KdInfo::forced_leaves`).
     pub max_kd_refs: u32,
     /// Most cells of the perspective grid and, separately, of each light
     /// grid (tiles x depth slices). 0: `max(ceil(w / 8) * ceil(h / 8), 64 *
@@ -189,6 +191,14 @@ impl Limits {
         {
             return Err(Error::InvalidArgument(
                 "perspective grid pools and frame pixels must stay below 2^32 entries",
+            ));
+        }
+        // Every triangle of a kd-tree sits in at least one leaf, so fewer
+        // references than triangles can never build (fuzzing found the
+        // build refusing with a `triangles` capacity error instead).
+        if self.has(Self::KD) && self.max_kd_refs != 0 && self.max_kd_refs < self.max_triangles {
+            return Err(Error::InvalidArgument(
+                "max_kd_refs must be 0 or at least max_triangles (every triangle needs a leaf reference)",
             ));
         }
         if self.grid_cells() > u32::MAX as u64 - 1 || self.grid_refs() > u32::MAX as u64 {
