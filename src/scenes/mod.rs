@@ -22,6 +22,7 @@
 
 pub mod animated;
 pub mod spd;
+pub mod stress;
 
 use glam::Vec3;
 

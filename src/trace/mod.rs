@@ -1,8 +1,11 @@
 //! Tracing front end: which method traces which rays, and the counters every
 //! method fills. Structures know nothing of each other; this layer picks one.
+//! `fallback` holds what every packet traversal does with incoherent packets.
 #![forbid(unsafe_code)]
 
 use bytemuck::{Pod, Zeroable};
+
+pub mod fallback;
 
 /// A hot-loop counter update (`count!(ctr.cells += 1)`), compiled out
 /// without the `counters` feature: the cheap switch of CGT's statistics.

@@ -10,7 +10,7 @@
 //! | `traverse_single.rs` | the single-ray reference: stack traversal, near child first |
 //! | `traverse_simd.rs` | section 2.1: the 2x2 SIMD ray (`Ray4`) traversal, the "2x2 SIMD ray packets" of Table 2 |
 //! | `frustum.rs` | section 4: frusta for primary (4.1), point-light shadow (4.2), reflection and refraction (4.3) packets; plane test (Eq. 1-3) and corner-ray test |
-//! | `traverse_masked.rs` | section 3.1, Figure 2: Masked traversal |
+//! | `traverse_masked.rs` | section 3.1, Figure 2: Masked traversal; the packet setup the three share, with the incoherence fallbacks (section 5.2.1; `trace::fallback`): incoherent packets lane by lane, Masked and Ranged switching to Partition |
 //! | `traverse_ranged.rs` | section 3.2, Appendix A.1: Ranged traversal (first alive ray `i_a` on the stack, `getFirstHit`/`getLastHit`) |
 //! | `traverse_partition.rs` | section 3.3, Appendix A.2: Partition traversal (index list `I` partitioned in place by `partRays`) |
 //! | `entry.rs` | the BVH as an `accel::entry::EntryTree`: MLRTA/AEPSA entry points (AEPSA paper, section 8), where the three packet traversals can start |

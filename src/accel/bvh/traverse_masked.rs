@@ -37,6 +37,23 @@
 //!   the lane itself missed the leaf's box (it is a true hit, and the
 //!   nearest of a superset is the same).
 //!
+//! # Fallbacks (`trace::fallback`)
+//! - Lanes with tiny directions (`fallback::tiny`) are traced alone by
+//!   `traverse_single` and the packet on quads where they are replaced
+//!   (`quieted`; their subnormal arithmetic slows every quad holding one).
+//! - Every packet of the three traversals is checked by
+//!   `fallback::coherent` after its setup; an incoherent one (directions
+//!   over more than a 30 degree cone, origins over a quarter of the scene)
+//!   is traced lane by lane by `traverse_single` (`alone`).
+//! - Masked traversal counts its box tests of quads with live lanes that
+//!   find them dead and alive (`fallback::Waste`); after a leaf, once more
+//!   than `fallback::MAX_DEAD_PER_ALIVE` tests per alive one were wasted,
+//!   the subtrees left on its stack are walked by Partition traversal
+//!   (`to_partition`; section 5.2.1: Masked and Ranged traversal reach a
+//!   breaking point as coherence degrades, Partition traversal is robust to
+//!   it; "Masked traversal is superseded"). Ranged traversal does not
+//!   switch (see `traverse_ranged`).
+//!
 //! # Counters
 //! `rays` (valid active lanes), `packets` (per packet of at most 256
 //! quads), `aabb_at` one per quad-box test, `tri_at` the live lanes of each
@@ -44,11 +61,13 @@
 //! `packets_no_cull` when culling is on but no frustum could be built.
 
 use super::frustum::Frustum;
+use super::traverse_partition::Partition;
 use super::traverse_simd::QuadBox;
+use super::traverse_single;
 use super::{BvhNode, BvhOptions, BvhTest, BvhView, MAX_DEPTH};
 use crate::accel::entry::EntryPoint;
 use crate::geom::{F4, Hit4, INVALID_ID, M4, Ray4, RayLanes};
-use crate::trace::{Counters, count};
+use crate::trace::{Counters, count, fallback};
 
 /// Most quads traced as one packet (32 x 32 rays).
 pub const MAX_QUADS: usize = 256;
@@ -155,9 +174,75 @@ fn packet<W: Walk, T: BvhTest, const ANY: bool, const Q: usize>(
     start: (usize, usize),
     ctr: &mut Counters,
 ) {
+    let nq = rays.len().min(active.len()).min(hits.len()).min(Q);
+    if rays[..nq]
+        .iter()
+        .zip(active)
+        .any(|(r, m)| fallback::tiny(r, *m).any())
+    {
+        return quieted::<W, T, ANY, Q>(b, &rays[..nq], &active[..nq], hits, opt, start, ctr);
+    }
     if let Some(mut p) = Packet::<T, Q>::new(b, rays, active, hits, opt, ctr) {
+        if !p.coherent {
+            return alone::<T, ANY>(b, rays, &p.live[..p.nq], hits, ctr);
+        }
         W::walk::<T, ANY, Q>(&mut p, b, rays, hits, start, ctr);
     }
+}
+
+/// The packet with its tiny lanes (`trace::fallback::tiny`) traced by
+/// `traverse_single`, and the rest traced on quads where those lanes are
+/// replaced by others (so no SIMD operation meets their subnormal numbers)
+/// and inactive.
+#[inline(never)]
+fn quieted<W: Walk, T: BvhTest, const ANY: bool, const Q: usize>(
+    b: &BvhView<'_>,
+    rays: &[Ray4],
+    active: &[M4],
+    hits: &mut [Hit4],
+    opt: &BvhOptions,
+    start: (usize, usize),
+    ctr: &mut Counters,
+) {
+    let nq = rays.len();
+    let mut quiet: [Ray4; Q] = core::array::from_fn(|q| rays[q.min(nq - 1)]);
+    let mut act = [M4::FALSE; Q];
+    let mut tiny = [M4::FALSE; Q];
+    for q in 0..nq {
+        tiny[q] = fallback::tiny(&rays[q], active[q]);
+        quiet[q] = fallback::quieted(&rays[q], tiny[q]);
+        act[q] = active[q] & !tiny[q];
+    }
+    packet::<W, T, ANY, Q>(b, &quiet[..nq], &act[..nq], hits, opt, start, ctr);
+    // The single ray counts its rays: count them out of the packet's.
+    ctr.rays += tiny[..nq]
+        .iter()
+        .map(|m| m.bitmask().count_ones() as u64)
+        .sum::<u64>();
+    alone::<T, ANY>(b, rays, &tiny[..nq], hits, ctr);
+}
+
+/// The coherence fallback (`trace::fallback`): every live lane traced by
+/// `traverse_single` (from the root: the same hit as from any entry point).
+#[inline(never)]
+pub(crate) fn alone<T: BvhTest, const ANY: bool>(
+    b: &BvhView<'_>,
+    rays: &[Ray4],
+    live: &[M4],
+    hits: &mut [Hit4],
+    ctr: &mut Counters,
+) {
+    let n = fallback::each_lane(live, |q, i| {
+        let ray = rays[q].lane(i);
+        let h = if ANY {
+            traverse_single::any_hit::<T>(b, &ray, ctr)
+        } else {
+            traverse_single::intersect::<T>(b, &ray, ctr)
+        };
+        hits[q].set_lane(i, h);
+    });
+    // The single ray counted these rays again.
+    ctr.rays -= n;
 }
 
 /// One packet of `nq <= Q` quads during traversal.
@@ -178,6 +263,9 @@ pub(crate) struct Packet<T: BvhTest, const Q: usize> {
     /// split axis.
     neg: [bool; 3],
     pub frustum: Option<Frustum>,
+    /// Whether the live lanes pass `fallback::coherent` (else the packet
+    /// is traced lane by lane, and gets no frustum).
+    pub coherent: bool,
 }
 
 impl<T: BvhTest, const Q: usize> Packet<T, Q> {
@@ -233,7 +321,9 @@ impl<T: BvhTest, const Q: usize> Packet<T, Q> {
         if n_live == 0 || b.nodes.is_empty() {
             return None;
         }
-        let frustum = if opt.culling {
+        let coherent =
+            fallback::coherent(&rays[..nq], &live[..nq], b.info.bounds.diagonal().length());
+        let frustum = if opt.culling && coherent {
             let f = Frustum::new(opt.kind, &rays[..nq], &live[..nq], &b.nodes[0].aabb());
             if f.is_none() {
                 ctr.packets_no_cull += 1;
@@ -272,6 +362,7 @@ impl<T: BvhTest, const Q: usize> Packet<T, Q> {
             n_live,
             neg,
             frustum,
+            coherent,
         })
     }
 
@@ -379,6 +470,29 @@ impl<T: BvhTest, const Q: usize> Packet<T, Q> {
     }
 }
 
+/// The switch of Masked traversal to Partition traversal
+/// (`trace::fallback`): the subtrees still on the stack (`pending`, next
+/// first: node, depth, first quad that may be alive there), each walked by
+/// Partition with the live quads from that first one. Every pending node
+/// is one the packet would have visited, and Partition is exact from any
+/// node, so the result is the same.
+pub(crate) fn to_partition<T: BvhTest, const ANY: bool, const Q: usize>(
+    p: &mut Packet<T, Q>,
+    b: &BvhView<'_>,
+    rays: &[Ray4],
+    hits: &mut [Hit4],
+    pending: impl Iterator<Item = (usize, usize, usize)>,
+    ctr: &mut Counters,
+) {
+    fallback::record(0);
+    for (node, depth, first) in pending {
+        Partition::walk_from::<T, ANY, Q>(p, b, rays, hits, (node, depth), first, ctr);
+        if ANY && p.done() {
+            return;
+        }
+    }
+}
+
 /// Figure 2.
 pub(crate) struct Masked;
 
@@ -399,6 +513,9 @@ impl Walk for Masked {
         let mut st_depth = [0u8; MAX_DEPTH + 1];
         let mut sp = 0usize;
         let (mut node, mut depth) = start;
+        // Box tests of quads with live lanes, and how many found them alive
+        // (the switch to Partition, `fallback::Waste`).
+        let mut waste = fallback::Waste::new(nq);
         loop {
             let n = &nodes[node];
             let leaf = n.is_leaf();
@@ -407,6 +524,7 @@ impl Walk for Masked {
                 for (q, mq) in masks[..nq].iter_mut().enumerate() {
                     let m = p.alive(q, n, depth, ctr).any();
                     *mq = m;
+                    waste.tested(p.live[q].any(), m);
                     if m {
                         any_hit = true;
                         if !leaf {
@@ -437,6 +555,12 @@ impl Walk for Masked {
                 }
                 if ANY && p.done() {
                     return;
+                }
+                if waste.too_high() {
+                    let pending = (0..sp)
+                        .rev()
+                        .map(|k| (st_node[k] as usize, st_depth[k] as usize, 0));
+                    return to_partition::<T, ANY, Q>(p, b, rays, hits, pending, ctr);
                 }
             }
             if sp == 0 {

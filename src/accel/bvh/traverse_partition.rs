@@ -21,6 +21,8 @@
 //! - `I` starts with the quads that have live lanes (others can never be
 //!   alive), so `i_a` starts at their number.
 //! - See `traverse_masked` for child order and occlusion.
+//! - `walk_from` starts `I` at a given quad: Masked traversal hands its
+//!   stacked subtrees to it when it switches (`traverse_masked::to_partition`).
 
 use super::traverse_masked::{Packet, Walk, dispatch};
 use super::{BvhNode, BvhOptions, BvhTest, BvhView, MAX_DEPTH};
@@ -92,11 +94,28 @@ impl Walk for Partition {
         start: (usize, usize),
         ctr: &mut Counters,
     ) {
+        Self::walk_from::<T, ANY, Q>(p, b, rays, hits, start, 0, ctr)
+    }
+}
+
+impl Partition {
+    /// `walk` with `I` holding the live quads from `first` on (quads
+    /// before it known dead below `start`, as Ranged's `i_a`; Masked
+    /// passes 0).
+    pub(crate) fn walk_from<T: BvhTest, const ANY: bool, const Q: usize>(
+        p: &mut Packet<T, Q>,
+        b: &BvhView<'_>,
+        rays: &[Ray4],
+        hits: &mut [Hit4],
+        start: (usize, usize),
+        first: usize,
+        ctr: &mut Counters,
+    ) {
         let nodes = b.nodes;
         // I: the quads with live lanes.
         let mut idx = [0u16; Q];
         let mut ia = 0usize;
-        for q in 0..p.nq {
+        for q in first..p.nq {
             if p.live[q].any() {
                 idx[ia] = q as u16;
                 ia += 1;

@@ -17,7 +17,14 @@
 //!   alive and are skipped, uncounted, in the triangle loop; dead quads in
 //!   `[i_a, i_e)` with live lanes are tested and counted (the cost the paper
 //!   attributes to Ranged traversal).
-//! - See `traverse_masked` for child order and occlusion.
+//! - See `traverse_masked` for child order and occlusion, and for the
+//!   fallbacks every packet gets at its setup (`trace::fallback`: tiny
+//!   directions and incoherent packets lane by lane). Ranged traversal
+//!   does not switch to Partition traversal as Masked traversal does:
+//!   measured on coherent camera packets whose quads it scans past dead
+//!   (long needles, sliver triangles), the switch made it up to 2x slower,
+//!   and without it no stress class left Ranged above its single ray's
+//!   time once the coherence test is in (`sheaf bench --stress`).
 
 use super::traverse_masked::{Packet, Walk, dispatch};
 use super::{BvhNode, BvhOptions, BvhTest, BvhView, MAX_DEPTH};

@@ -19,11 +19,16 @@
 //! - The near child is chosen by the sign of the first live lane's
 //!   direction on the node's split axis; lanes going the other way still
 //!   visit both children, only in a worse order.
+//! - Lanes with tiny directions (`trace::fallback::tiny`) are traced alone
+//!   by `traverse_single` and replaced in the quad (`quieted`).
+//! - A quad failing `trace::fallback::coherent` (its four directions over
+//!   more than a 30 degree cone, or origins far apart) is traced lane by
+//!   lane by `traverse_single`.
 
 use super::{BvhNode, BvhTest, BvhView, MAX_DEPTH};
 use crate::geom::lane::mask_from_bits;
 use crate::geom::{F4, Hit, Hit4, INVALID_ID, M4, Ray4, RayLanes};
-use crate::trace::Counters;
+use crate::trace::{Counters, fallback};
 
 /// Nearest hits of the active lanes of `rays` into `hits` (one quad at a
 /// time; `rays`, `active` and `hits` are read up to the shortest length).
@@ -119,8 +124,41 @@ fn quad<T: BvhTest, const ANY: bool>(
     }
     ctr.rays += live.bitmask().count_ones() as u64;
     let mut best = Hit4::MISS;
+    let quiet;
+    let mut r = r;
     if live.any() && !b.nodes.is_empty() {
-        walk::<T, ANY>(b, r, live, &mut best, ctr);
+        // Lanes with tiny directions alone (`trace::fallback::tiny`), and
+        // out of the quad's arithmetic.
+        let tiny = fallback::tiny(r, live);
+        if tiny.any() {
+            super::traverse_masked::alone::<T, ANY>(
+                b,
+                core::slice::from_ref(r),
+                &[tiny],
+                core::slice::from_mut(&mut best),
+                ctr,
+            );
+            live &= !tiny;
+            quiet = fallback::quieted(r, tiny);
+            r = &quiet;
+        }
+    }
+    if live.any() && !b.nodes.is_empty() {
+        if fallback::coherent(
+            core::slice::from_ref(r),
+            &[live],
+            b.info.bounds.diagonal().length(),
+        ) {
+            walk::<T, ANY>(b, r, live, &mut best, ctr);
+        } else {
+            super::traverse_masked::alone::<T, ANY>(
+                b,
+                core::slice::from_ref(r),
+                &[live],
+                core::slice::from_mut(&mut best),
+                ctr,
+            );
+        }
     }
     for i in 0..4 {
         if active.test(i) {

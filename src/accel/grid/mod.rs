@@ -6,7 +6,7 @@
 //! | file | implements |
 //! |---|---|
 //! | `build.rs` | section 3: resolution from lambda x N, bounding-box insertion with a counting sort into preallocated pools; section 2.4: macrocell occupancy flags |
-//! | `traverse_cgt.rs` | sections 2.2-2.4: coherent grid traversal of n x n packets: slices, frustum, macrocells, mailboxing, SIMD frustum culling |
+//! | `traverse_cgt.rs` | sections 2.2-2.4: coherent grid traversal of n x n packets: slices, frustum, macrocells, mailboxing, SIMD frustum culling; incoherent and over-wide packets fall back to the 3DDDA (sections 2.2, 4.7; `trace::fallback`) |
 //! | `traverse_single.rs` | the single-ray baseline: 3DDDA (Amanatides and Woo 1987) with macrocell skipping, nearest hit and occlusion |
 //!
 //! # Deviations

@@ -29,10 +29,31 @@
 //!   in u or v cost one comparison each.
 //! - Frustum culling needs a common origin (primary rays, shadow rays traced
 //!   from the light); other packets skip culling (counted).
+//!
+//! # Fallbacks (`trace::fallback`)
+//! Section 2.2 asks every ray of a packet to move the same way along K, and
+//! section 4.7 notes that a wide frustum "breaks down" (it intersects every
+//! triangle inside it) and splits shadow packets by hit distance. Beyond
+//! the stray lanes above, three checks keep CGT within about twice the
+//! 3DDDA:
+//! - lanes with tiny directions (`fallback::tiny`) go to the 3DDDA first,
+//!   and the packet is traced on quads where they are replaced (`quieted`:
+//!   their subnormal arithmetic would slow every quad holding one);
+//! - after the stray lanes leave, a packet failing `fallback::coherent`
+//!   (directions spread over more than a 30 degree cone, or origins over a
+//!   quarter of the scene) is traced lane by lane by the 3DDDA;
+//! - the budget (`fallback::CGT_BUDGET`): after each slice, the work the
+//!   packet did there (quad-triangle tests, triangles met first, cells) is
+//!   added to what it spent, and what the 3DDDA would have done for its
+//!   live lanes (each crosses `1 + |du| + |dv|` cells of the slice, slopes
+//!   capped at the grid's size, each cell a step plus the slice's mean
+//!   references per cell) to what it may spend; a packet over budget hands
+//!   its live lanes to the 3DDDA (`alone`). Lanes no longer live have their
+//!   exact hits.
 
 use super::{GridTest, GridView};
 use crate::geom::{F4, Hit, Hit4, M4, Ray4, RayLanes, TriVerts};
-use crate::trace::{Counters, count};
+use crate::trace::{Counters, count, fallback};
 use glam::Vec3;
 
 use super::traverse_single;
@@ -141,6 +162,13 @@ fn packet<T: GridTest, const ANY: bool, const Q: usize>(
 ) {
     let info = g.info;
     let nq = rays.len();
+    if rays
+        .iter()
+        .zip(active)
+        .any(|(r, m)| fallback::tiny(r, *m).any())
+    {
+        return quieted::<T, ANY, Q>(g, rays, active, hits, opt, mb, ctr);
+    }
     ctr.packets += 1;
     let mut live = [M4::FALSE; Q];
     let mut any_live = false;
@@ -201,14 +229,24 @@ fn packet<T: GridTest, const ANY: bool, const Q: usize>(
     let mut ou = [zero; Q];
     let mut ov = [zero; Q];
     let mut stray = 0u64;
+    // Cells the live rays cross per slice alone, summed (the budget's unit).
+    let mut cross = F4::ZERO;
     for q in 0..nq {
         let r = &rays[q];
         let dk = r.dir[k] * F4::splat(inv[k]);
         let dk = if flip { -dk } else { dk };
         let okw = (r.org[k] - F4::splat(gmin[k])) * F4::splat(inv[k]);
         ok[q] = if flip { F4::splat(nk) - okw } else { okw };
-        // Lanes not moving forward along K leave the packet for the 3DDDA.
-        let fwd = dk.cmpgt(zero);
+        rk[q] = F4::ONE / dk;
+        du[q] = r.dir[u] * F4::splat(inv[u]) * rk[q];
+        dv[q] = r.dir[v] * F4::splat(inv[v]) * rk[q];
+        // Lanes not moving forward along K, or whose 1 / dK or slopes
+        // overflow (subnormal direction components), leave the packet for
+        // the 3DDDA: an infinite slope would make every slice's box NaN.
+        let fwd = dk.cmpgt(zero)
+            & rk[q].is_finite_mask()
+            & du[q].is_finite_mask()
+            & dv[q].is_finite_mask();
         let strays = live[q] & !fwd;
         if strays.any() {
             for i in 0..4 {
@@ -225,11 +263,13 @@ fn packet<T: GridTest, const ANY: bool, const Q: usize>(
             }
             live[q] &= fwd;
         }
-        rk[q] = F4::ONE / dk;
-        du[q] = r.dir[u] * F4::splat(inv[u]) * rk[q];
-        dv[q] = r.dir[v] * F4::splat(inv[v]) * rk[q];
         ou[q] = (r.org[u] - F4::splat(gmin[u])) * F4::splat(inv[u]);
         ov[q] = (r.org[v] - F4::splat(gmin[v])) * F4::splat(inv[v]);
+        // A ray crosses at most res_u + res_v cells sideways in a slice.
+        let k1 = F4::ONE
+            + du[q].abs().min(F4::splat(res[u] as f32))
+            + dv[q].abs().min(F4::splat(res[v] as f32));
+        cross += F4::select(live[q] & k1.cmplt(F4::INFINITY), k1, F4::ZERO);
         for i in 0..4 {
             if live[q].test(i) {
                 hits[q].set_lane(i, Hit::MISS);
@@ -238,6 +278,20 @@ fn packet<T: GridTest, const ANY: bool, const Q: usize>(
     }
     ctr.stray_lanes += stray;
     ctr.rays -= stray;
+    // Incoherent packets (`trace::fallback`): every lane still live (all
+    // move forward along K) by the 3DDDA.
+    if !fallback::coherent(rays, &live[..nq], info.bounds.diagonal().length()) {
+        return alone::<T, ANY>(g, rays, &live[..nq], hits, ctr);
+    }
+    // The budget (`fallback::CGT_BUDGET`): quad-cells spent and allowed.
+    let budget = fallback::enabled();
+    let mut nl = live_lanes(&live[..nq]);
+    let per_lane = if nl > 0 {
+        cross.element_sum() / nl as f32
+    } else {
+        1.0
+    };
+    let (mut spent, mut allowed) = (0.0f32, 0.0f32);
 
     // Slices to visit: from the earliest start to the latest end of any ray.
     let mut kin = f32::INFINITY;
@@ -260,6 +314,11 @@ fn packet<T: GridTest, const ANY: bool, const Q: usize>(
         smin[1] = smin[1].min(F4::select(m, dv[q], F4::INFINITY).min_element());
         smax[1] = smax[1].max(F4::select(m, dv[q], F4::NEG_INFINITY).max_element());
     }
+    // Widened like the overlap box: the f32 triangle test may put a hit
+    // just inside [tmin, tmax) a rounding error beyond the slice its t maps
+    // to (a ray ending on the grid's face). NaN when no lane is live.
+    kin -= BOX_EPS + SLOPE_EPS * kin.abs();
+    kout += BOX_EPS + SLOPE_EPS * kout.abs();
     if !(kin < nk) || !(kout > 0.0) {
         return;
     }
@@ -393,6 +452,9 @@ fn packet<T: GridTest, const ANY: bool, const Q: usize>(
             }
         }
         if let Some(r) = range(box_at(s)) {
+            // The budget's tally of this slice: references in its cells,
+            // triangles met first (mailbox) and quad tests run.
+            let (mut refs, mut work, lanes) = (0u32, 0u32, nl);
             for cv in r[2]..=r[3] {
                 for cu in r[0]..=r[1] {
                     let mut c = [0i32; 3];
@@ -400,12 +462,15 @@ fn packet<T: GridTest, const ANY: bool, const Q: usize>(
                     c[u] = cu;
                     c[v] = cv;
                     count!(ctr.cells += 1);
-                    for &tri in g.cell(g.cell_index(c)) {
+                    let cell = g.cell(g.cell_index(c));
+                    refs += cell.len() as u32;
+                    for &tri in cell {
                         let tri = tri as usize;
                         if opt.mailbox && !mb.first_visit(tri) {
                             count!(ctr.mailbox_skips += 1);
                             continue;
                         }
+                        work += 1;
                         let tv = &g.tris[tri];
                         if cull && culled(tv, origin, &corners) {
                             count!(ctr.culled += 1);
@@ -419,6 +484,7 @@ fn packet<T: GridTest, const ANY: bool, const Q: usize>(
                                 continue;
                             }
                             left = true;
+                            work += 1;
                             count!(ctr.tri_tests += lane_mask(lm).count_ones() as u64);
                             let h = T::intersect(
                                 &RayLanes::from_ray4(&rays[q]),
@@ -455,6 +521,17 @@ fn packet<T: GridTest, const ANY: bool, const Q: usize>(
                     }
                 }
             }
+            if budget {
+                let cells = ((r[1] - r[0] + 1) * (r[3] - r[2] + 1)) as f32;
+                spent += work as f32 + fallback::CGT_CELL * cells;
+                allowed += fallback::CGT_BUDGET
+                    * per_lane
+                    * lanes as f32
+                    * (fallback::CGT_STEP + refs as f32 / cells);
+                if spent > allowed {
+                    return alone::<T, ANY>(g, rays, &live[..nq], hits, ctr);
+                }
+            }
         }
         // Early termination: rays with a hit before the next slice plane
         // (or whose tmax ends before it) are done.
@@ -464,8 +541,70 @@ fn packet<T: GridTest, const ANY: bool, const Q: usize>(
         if ANY && !live[..nq].iter().any(|m| m.any()) {
             return;
         }
+        if budget {
+            nl = live_lanes(&live[..nq]);
+        }
         s += 1;
     }
+}
+
+/// The packet with its tiny lanes (`trace::fallback::tiny`) traced by the
+/// 3DDDA, and the rest traced on quads where those lanes are replaced by
+/// others (so no SIMD operation of the packet meets their subnormal
+/// numbers) and inactive.
+#[inline(never)]
+fn quieted<T: GridTest, const ANY: bool, const Q: usize>(
+    g: &GridView<'_>,
+    rays: &[Ray4],
+    active: &[M4],
+    hits: &mut [Hit4],
+    opt: &CgtOptions,
+    mb: &mut Mailbox<'_>,
+    ctr: &mut Counters,
+) {
+    let nq = rays.len();
+    let mut quiet: [Ray4; Q] = core::array::from_fn(|q| rays[q.min(nq - 1)]);
+    let mut act = [M4::FALSE; Q];
+    let mut tiny = [M4::FALSE; Q];
+    for q in 0..nq {
+        tiny[q] = fallback::tiny(&rays[q], active[q]);
+        quiet[q] = fallback::quieted(&rays[q], tiny[q]);
+        act[q] = active[q] & !tiny[q];
+    }
+    // The 3DDDA counts the tiny lanes: `alone` counts them out again.
+    ctr.rays += live_lanes(&tiny[..nq]) as u64;
+    alone::<T, ANY>(g, rays, &tiny[..nq], hits, ctr);
+    packet::<T, ANY, Q>(g, &quiet[..nq], &act[..nq], hits, opt, mb, ctr);
+}
+
+/// Live lanes of a packet.
+#[inline]
+fn live_lanes(live: &[M4]) -> u32 {
+    live.iter().map(|m| m.bitmask().count_ones()).sum()
+}
+
+/// The budget fallback: every live lane traced alone by the 3DDDA (its
+/// result replaces what the packet found so far); lanes no longer live are
+/// done and exact.
+#[inline(never)]
+fn alone<T: GridTest, const ANY: bool>(
+    g: &GridView<'_>,
+    rays: &[Ray4],
+    live: &[M4],
+    hits: &mut [Hit4],
+    ctr: &mut Counters,
+) {
+    let n = fallback::each_lane(live, |q, i| {
+        let ray = rays[q].lane(i);
+        let h = if ANY {
+            traverse_single::any_hit::<T>(g, &ray, ctr)
+        } else {
+            traverse_single::intersect::<T>(g, &ray, ctr)
+        };
+        hits[q].set_lane(i, h);
+    });
+    // The 3DDDA counted these rays again.
+    ctr.rays -= n;
 }
 
 /// After the slab ending at travel-frame plane `next`: drop lanes whose hit
@@ -541,19 +680,39 @@ fn culled(t: &TriVerts, o: Vec3, corners: &[F4; 3]) -> bool {
     let c = Vec3::from(t.v2) - o;
     let n = [a.cross(b), b.cross(c), c.cross(a)];
     // Inside the triangle all three edge functions share the sign of the
-    // triple product; one edge with every corner strictly on the other side
+    // triple product; one edge with every corner beyond the other side
     // separates the cone from the triangle.
+    // "Beyond" by a margin: an edge whose line passes within rounding of the
+    // apex (a packet starting on the edge) has a plane normal of rounding
+    // noise, of order eps |x| |y| for `x.cross(y)`, and the triangle tests
+    // accept lines a few ulps outside an edge. `SLOPE_EPS` of |x| |y| |corner|
+    // (max norms, times 3 for the Euclidean ones) covers both. Likewise the
+    // triple product's sign is noise when the apex lies within rounding of
+    // the triangle's plane (a packet starting on the triangle): its f32
+    // error is of order eps (|a| |b| |c| + |n| (|a| + |o|)), n = a x b +
+    // b x c + c x a the triangle's normal; then no culling.
+    let inf = |p: Vec3| p.abs().max_element();
+    let (la, lb, lc) = (inf(a), inf(b), inf(c));
     let sigma = a.dot(n[1]);
-    if sigma == 0.0 || !sigma.is_finite() {
+    let big = la.max(lb).max(lc) + inf(o);
+    let noise = 64.0 * f32::EPSILON * (la * lb * lc + inf(n[0] + n[1] + n[2]) * big);
+    if !(sigma.abs() > noise) || !sigma.is_finite() {
         return false;
     }
-    for e in &n {
+    let cm = corners[0]
+        .abs()
+        .max(corners[1].abs())
+        .max(corners[2].abs())
+        .max_element();
+    let m = 3.0 * SLOPE_EPS * cm;
+    for (e, len) in n.iter().zip([la * lb, lb * lc, lc * la]) {
         let s =
             corners[0] * F4::splat(e.x) + corners[1] * F4::splat(e.y) + corners[2] * F4::splat(e.z);
+        let margin = F4::splat(m * len);
         let out = if sigma > 0.0 {
-            s.cmplt(F4::ZERO)
+            s.cmplt(-margin)
         } else {
-            s.cmpgt(F4::ZERO)
+            s.cmpgt(margin)
         };
         if out.all() {
             return true;

@@ -12,7 +12,7 @@
 //! (`build::INSERT_EPS`), so the remaining rounding never loses a hit.
 
 use super::{GridTest, GridView};
-use crate::geom::{Hit, INVALID_ID, Ray, RayLanes};
+use crate::geom::{Aabb, Hit, INVALID_ID, Ray, RayLanes};
 use crate::trace::{Counters, count};
 use glam::Vec3;
 
@@ -51,7 +51,16 @@ fn walk<T: GridTest, const ANY: bool>(g: &GridView<'_>, ray: &Ray, ctr: &mut Cou
     let o = Vec3::from(ray.org);
     let d = Vec3::from(ray.dir);
     let rcp = Vec3::ONE / d;
-    let Some((t0, t1)) = info.bounds.clip_ray(o, d, rcp, ray.tmin, ray.tmax) else {
+    // Clip to the grid widened as the triangles' cell ranges are
+    // (`build::INSERT_EPS` cells): a hit the triangle test puts just inside
+    // [tmin, tmax) may lie a rounding error outside the grid's faces (a ray
+    // ending on a triangle in a face).
+    let pad = info.cell_size * super::build::INSERT_EPS;
+    let clip = Aabb {
+        min: info.bounds.min - pad,
+        max: info.bounds.max + pad,
+    };
+    let Some((t0, t1)) = clip.clip_ray(o, d, rcp, ray.tmin, ray.tmax) else {
         return best;
     };
     let gmin = info.bounds.min;

@@ -45,6 +45,14 @@
 //! - Lanes whose direction sign bits differ from the packet's first live
 //!   lane on some axis (`Counters::stray_lanes`) are traced one by one with
 //!   `traverse_single::from_node` from the packet's start node and box.
+//! - Lanes with tiny directions (`trace::fallback::tiny`) are traced alone
+//!   by `traverse_single` and the packet on quads where they are replaced
+//!   (`quieted`; their subnormal arithmetic slows every quad holding one).
+//! - After the stray lanes, a packet failing `trace::fallback::coherent`
+//!   (directions over more than a 30 degree cone, or origins over a quarter
+//!   of the scene) is traced lane by lane the same way (the AEPSA paper's
+//!   system traces incoherent packets with another algorithm, section 5.1,
+//!   Reshetov 2006's omni-directional traversal; here the single ray).
 //! - Inputs longer than 256 quads are traced as consecutive packets of 256
 //!   with the same frustum and entry point (both stay valid for a subset).
 //! - An entry point whose node lies outside the tree is ignored (the
@@ -66,7 +74,7 @@ use crate::accel::entry::EntryPoint;
 use crate::geom::frustum::Frustum;
 use crate::geom::lane::mask_from_bits;
 use crate::geom::{Aabb, F4, Hit, Hit4, INVALID_ID, M4, Ray4, RayLanes};
-use crate::trace::{Counters, count};
+use crate::trace::{Counters, count, fallback};
 
 /// Most quads traced as one packet (32 x 32 rays).
 pub const MAX_QUADS: usize = 256;
@@ -190,6 +198,13 @@ fn packet<T: KdTest, const ANY: bool, const Q: usize>(
     ctr: &mut Counters,
 ) {
     let nq = rays.len().min(Q);
+    if rays[..nq]
+        .iter()
+        .zip(active)
+        .any(|(r, m)| fallback::tiny(r, *m).any())
+    {
+        return quieted::<T, ANY, Q>(k, rays, active, hits, occ, frustum, entry, ctr);
+    }
     ctr.packets += 1;
     // Outputs of the active lanes, and the live ones: active and valid.
     let mut live = [M4::FALSE; Q];
@@ -252,6 +267,19 @@ fn packet<T: KdTest, const ANY: bool, const Q: usize>(
     if n_live == 0 {
         return;
     }
+    // Incoherent packets (`trace::fallback`): every lane still live (all
+    // with the first lane's direction signs) alone.
+    if !fallback::coherent(rays, &live[..nq], k.info.bounds.diagonal().length()) {
+        fallback::each_lane(&live[..nq], |q, i| {
+            let h: Hit = lane_from::<T, ANY>(k, &rays[q], i, node0, depth0, &bx0, ctr);
+            if ANY {
+                occ[q].set(i, h.is_hit());
+            } else {
+                hits[q].set_lane(i, h);
+            }
+        });
+        return;
+    }
     walk::<T, ANY, Q>(
         k,
         rays,
@@ -264,6 +292,50 @@ fn packet<T: KdTest, const ANY: bool, const Q: usize>(
         (node0, depth0, bx0),
         ctr,
     );
+}
+
+/// The packet with its tiny lanes (`trace::fallback::tiny`) traced by
+/// `traverse_single`, and the rest traced on quads where those lanes are
+/// replaced by others (so no SIMD operation meets their subnormal numbers)
+/// and inactive. The frustum and the entry point stay valid for them.
+#[allow(clippy::too_many_arguments)]
+#[inline(never)]
+fn quieted<T: KdTest, const ANY: bool, const Q: usize>(
+    k: &KdView<'_>,
+    rays: &[Ray4],
+    active: &[M4],
+    hits: &mut [Hit4],
+    occ: &mut [M4],
+    frustum: Option<&Frustum>,
+    entry: Option<&EntryPoint>,
+    ctr: &mut Counters,
+) {
+    let nq = rays.len().min(Q);
+    let mut quiet: [Ray4; Q] = core::array::from_fn(|q| rays[q.min(nq - 1)]);
+    let mut act = [M4::FALSE; Q];
+    for q in 0..nq {
+        let t = fallback::tiny(&rays[q], active[q]);
+        quiet[q] = fallback::quieted(&rays[q], t);
+        act[q] = active[q] & !t;
+    }
+    packet::<T, ANY, Q>(k, &quiet[..nq], &act[..nq], hits, occ, frustum, entry, ctr);
+    // After the packet, which writes every quad's occlusion mask.
+    let tiny: [M4; Q] = core::array::from_fn(|q| {
+        if q < nq {
+            active[q] & !act[q]
+        } else {
+            M4::FALSE
+        }
+    });
+    fallback::each_lane(&tiny[..nq], |q, i| {
+        let ray = rays[q].lane(i);
+        if ANY {
+            let o = super::traverse_single::occluded::<T>(k, &ray, ctr);
+            occ[q].set(i, o);
+        } else {
+            hits[q].set_lane(i, super::traverse_single::intersect::<T>(k, &ray, ctr));
+        }
+    });
 }
 
 #[allow(clippy::too_many_arguments)]

@@ -21,6 +21,11 @@
 //! - Lanes whose direction sign bits differ from the first live lane's on
 //!   some axis ("stray lanes", `Counters::stray_lanes`) are traced one by
 //!   one with the single-ray traversal; Wald's packets assume equal signs.
+//! - Before them, lanes with tiny directions (`trace::fallback::tiny`) are
+//!   traced alone the same way and replaced in the quad (`quieted`).
+//! - After them, a quad failing `trace::fallback::coherent` (directions
+//!   over more than a 30 degree cone, or origins far apart) is traced lane
+//!   by lane the same way.
 //! - The reciprocal directions are recomputed from `dir` (as
 //!   `traverse_single::KdRay` does) rather than read from `Ray4::rcp`.
 //!
@@ -32,7 +37,7 @@
 use super::traverse_single::{KdRay, from_node};
 use super::{KdTest, KdView, MAX_DEPTH};
 use crate::geom::{Aabb, F4, Hit, Hit4, M4, Ray4, RayLanes};
-use crate::trace::Counters;
+use crate::trace::{Counters, fallback};
 
 /// Nearest hits of the active lanes of `r` (inactive and invalid lanes,
 /// see `Ray::is_valid`: `Hit::MISS`).
@@ -156,6 +161,23 @@ fn quad<T: KdTest, const ANY: bool>(
         return;
     }
     let root = &k.info.root;
+    // Lanes with tiny directions alone (`trace::fallback::tiny`), and out
+    // of the quad's arithmetic.
+    let tiny = fallback::tiny(r, live);
+    let quiet;
+    let r = if tiny.any() {
+        fallback::each_lane(&[tiny], |_, i| {
+            best.set_lane(i, lane_from::<T, ANY>(k, r, i, 0, 0, root, ctr));
+        });
+        live &= !tiny;
+        if !live.any() {
+            return;
+        }
+        quiet = fallback::quieted(r, tiny);
+        &quiet
+    } else {
+        r
+    };
     let neg = lane_signs(r, live.bitmask().trailing_zeros() as usize);
     let stray = stray_bits(r, neg) & live.bitmask();
     if stray != 0 {
@@ -170,6 +192,18 @@ fn quad<T: KdTest, const ANY: bool>(
         if !live.any() {
             return;
         }
+    }
+    // An incoherent quad (`trace::fallback`): every lane still live
+    // (all with the first lane's direction signs) alone.
+    if !fallback::coherent(
+        core::slice::from_ref(r),
+        &[live],
+        k.info.bounds.diagonal().length(),
+    ) {
+        fallback::each_lane(&[live], |_, i| {
+            best.set_lane(i, lane_from::<T, ANY>(k, r, i, 0, 0, root, ctr));
+        });
+        return;
     }
     walk::<T, ANY>(k, r, live, neg, best, ctr);
 }

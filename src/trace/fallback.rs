@@ -1,0 +1,310 @@
+//! Fallbacks for incoherent packets (DESIGN.md, "Where methods fail":
+//! "incoherent packets: frustum gets wide: fall back (partition traversal,
+//! packet splitting); never slower than 2x the single-ray baseline").
+//!
+//! Packet methods pay per packet what single rays pay per ray: when the
+//! rays of a packet go different ways, a packet visits the union of their
+//! cells or nodes and tests every ray at each. Each traversal therefore
+//! checks its packets and falls back where they are incoherent:
+//!
+//! - Grid, CGT (`accel::grid::traverse_cgt`): Wald et al. 2006, section 2.2,
+//!   requires every ray to move the same way along the major axis (lanes
+//!   that do not are traced by the 3DDDA) and section 4.7 splits shadow
+//!   packets whose frustum gets wide. After those stray lanes, packets
+//!   failing the coherence test below go lane by lane to the 3DDDA, and the
+//!   others keep a budget: the work they do per slice against what the
+//!   3DDDA would do for their live lanes (`CGT_BUDGET`). Once over it, the
+//!   remaining live lanes are traced by the 3DDDA.
+//! - BVH (`accel::bvh`): Overbeck et al. 2008, section 5.2.1: Masked and
+//!   Ranged traversal lose when the quads after the first alive one are not
+//!   truly alive; Partition traversal "is robust to degrading coherence".
+//!   Masked traversal counts the quads it tests that are dead and switches
+//!   to Partition for the rest of the packet once that share is too high
+//!   (`MAX_DEAD_PER_ALIVE`; the same switch for Ranged traversal slowed
+//!   coherent camera packets up to 2x and is left out); packets (and 2x2
+//!   SIMD rays) of every method that fail the coherence test below are
+//!   traced lane by lane with the single ray (what every method degrades
+//!   to).
+//! - kd-tree (`accel::kd`): Wald 2004 packets need one direction sign per
+//!   axis; lanes with other signs already go alone. A packet (or 2x2 SIMD
+//!   ray) whose remaining lanes fail the coherence test below goes alone
+//!   lane by lane too.
+//!
+//! - Every packet method, and the 2x2 SIMD rays: lanes with tiny
+//!   directions (`TINY_DIR`, valid but subnormal in the arithmetic, which
+//!   x86 cores run hundreds of times slower) are traced alone, and the
+//!   rest of the packet on quads where those lanes are replaced
+//!   (`quieted`): masked lanes are computed all the same.
+//!
+//! Every fallback traces a lane with its structure's single-ray traversal
+//! or with a packet traversal that is itself exact, so results stay the
+//! single ray's triangle and bitwise t.
+//!
+//! # The coherence test
+//! `coherent` reads the packet's live lanes once: the angle between each
+//! direction and the first live lane's (a cone), and the box of the
+//! origins against the scene's diagonal. A packet is incoherent when some
+//! direction is more than `MAX_CONE_DEG` from the first, or the origins
+//! spread over more than `MAX_ORIGIN_SPREAD` of the scene's diagonal.
+//! Camera packets pass unless one spans more than 30 degrees of the view
+//! (a 32 x 32 packet of a 256-pixel-wide image with a 45 degree field of
+//! view spans about 8 degrees corner to corner), and so do shadow packets
+//! traced from a point light to nearby hit points; uniformly random
+//! directions, mixed signs and parallel rays scattered over the scene do
+//! not. Section 2.1 of the CGT paper explains why the fallback is whole
+//! lanes rather than smaller packets: split packets "quickly deteriorate
+//! to single-ray traversal".
+//!
+//! # Switch
+//! `set_enabled(false)` turns every fallback off, process-wide, so benches
+//! and tests can compare (`sheaf bench --stress`, tests/fallback.rs). It is
+//! not part of the C ABI; the fallbacks are always on there.
+//!
+//! # Counters
+//! With the `counters` feature, `stats` gives the packets that fell back
+//! and the lanes traced singly by a fallback since the process started
+//! (all threads; relaxed atomics, touched only by packets that fall back).
+//! They live here, not in `Counters`, whose layout is the C ABI's.
+
+use crate::geom::{F4, M4, Ray4};
+// usize counters: every target with atomics has them (not all have 64-bit
+// atomics); they are statistics, a wrap on 32-bit targets is harmless.
+use core::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+
+/// Largest angle between a live direction and the first live lane's.
+pub const MAX_CONE_DEG: f32 = 30.0;
+/// `cos(MAX_CONE_DEG)` (checked against the degrees in a test).
+const MIN_COS: f32 = 0.866_025_4;
+/// Largest diagonal of the live origins' box, relative to the scene's.
+pub const MAX_ORIGIN_SPREAD: f32 = 0.25;
+
+static ENABLED: AtomicBool = AtomicBool::new(true);
+static PACKETS: AtomicUsize = AtomicUsize::new(0);
+static LANES: AtomicUsize = AtomicUsize::new(0);
+
+/// Turn the fallbacks on (the default) or off, for every thread.
+pub fn set_enabled(on: bool) {
+    ENABLED.store(on, Ordering::Relaxed);
+}
+
+/// Whether the fallbacks are on.
+#[inline(always)]
+pub fn enabled() -> bool {
+    ENABLED.load(Ordering::Relaxed)
+}
+
+/// What fell back since the process started (zeros without the `counters`
+/// feature).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct FallbackStats {
+    /// Packets (or quads, for the 2x2 SIMD ray) that fell back, wholly or
+    /// for the rest of their traversal.
+    pub packets: u64,
+    /// Of their lanes, those traced singly by the fallback.
+    pub lanes: u64,
+}
+
+pub fn stats() -> FallbackStats {
+    FallbackStats {
+        packets: PACKETS.load(Ordering::Relaxed) as u64,
+        lanes: LANES.load(Ordering::Relaxed) as u64,
+    }
+}
+
+/// Calls `alone(quad, lane)` for every lane set in `lanes` (quad by quad),
+/// and records them as one packet that fell back: every fallback that
+/// traces lanes alone goes through here. Returns how many lanes.
+#[inline]
+pub(crate) fn each_lane(lanes: &[M4], mut alone: impl FnMut(usize, usize)) -> u64 {
+    let mut n = 0u64;
+    for (q, m) in lanes.iter().enumerate() {
+        for i in 0..4 {
+            if m.test(i) {
+                alone(q, i);
+                n += 1;
+            }
+        }
+    }
+    if n > 0 {
+        record(n);
+    }
+    n
+}
+
+/// Record one packet that fell back, `lanes` of whose lanes went alone.
+#[inline(never)]
+pub(crate) fn record(lanes: u64) {
+    let _ = lanes;
+    #[cfg(feature = "counters")]
+    {
+        PACKETS.fetch_add(1, Ordering::Relaxed);
+        LANES.fetch_add(lanes as usize, Ordering::Relaxed);
+    }
+}
+
+/// The coherence test (module docs): true when the live lanes of `rays`
+/// are coherent enough to trace as a packet. `scene_diag`: the diagonal of
+/// the structure's bounds. Lanes whose squared direction length is zero,
+/// infinite or NaN in f32 (zero, tiny or huge directions) are left out of
+/// the cone, and non-finite origins out of the box; they are still traced.
+/// Always true while the fallbacks are off.
+pub fn coherent(rays: &[Ray4], live: &[M4], scene_diag: f32) -> bool {
+    if !enabled() {
+        return true;
+    }
+    // Reference direction: the first live lane with a usable direction.
+    let mut r0 = None;
+    'find: for (r, m) in rays.iter().zip(live) {
+        for i in 0..4 {
+            if m.test(i) {
+                let d = glam::Vec3::new(r.dir[0][i], r.dir[1][i], r.dir[2][i]);
+                let l = d.length();
+                if l.is_finite() && l > 0.0 {
+                    r0 = Some(d / l);
+                    break 'find;
+                }
+            }
+        }
+    }
+    let Some(d0) = r0 else {
+        return true;
+    };
+    let (x0, y0, z0) = (F4::splat(d0.x), F4::splat(d0.y), F4::splat(d0.z));
+    let mut lo = [F4::INFINITY; 3];
+    let mut hi = [F4::NEG_INFINITY; 3];
+    let min_cos2 = F4::splat(MIN_COS * MIN_COS);
+    for (r, m) in rays.iter().zip(live) {
+        if !m.any() {
+            continue;
+        }
+        let [dx, dy, dz] = r.dir;
+        let len2 = dx * dx + dy * dy + dz * dz;
+        let dot = dx * x0 + dy * y0 + dz * z0;
+        // cos < MIN_COS  <=>  dot < MIN_COS |d|  <=>  dot < 0 or
+        // dot^2 < MIN_COS^2 |d|^2; NaN, zero and overflowing directions
+        // are ignored.
+        let usable = len2.cmpgt(F4::ZERO) & len2.cmplt(F4::INFINITY);
+        let wide = (dot.cmplt(F4::ZERO) | (dot * dot).cmplt(min_cos2 * len2)) & usable & *m;
+        if wide.any() {
+            return false;
+        }
+        for a in 0..3 {
+            let o = r.org[a];
+            let ok = *m & o.abs().cmplt(F4::INFINITY);
+            lo[a] = F4::select(ok, lo[a].min(o), lo[a]);
+            hi[a] = F4::select(ok, hi[a].max(o), hi[a]);
+        }
+    }
+    let ext = glam::Vec3::new(
+        hi[0].max_element() - lo[0].min_element(),
+        hi[1].max_element() - lo[1].min_element(),
+        hi[2].max_element() - lo[2].min_element(),
+    );
+    // No finite origin: nothing to compare (ext is -inf or NaN).
+    let limit = MAX_ORIGIN_SPREAD * scene_diag;
+    ext.length().partial_cmp(&limit) != Some(core::cmp::Ordering::Greater)
+}
+
+/// Directions whose largest component is below this are "tiny": they are
+/// valid (`Ray::is_valid`), but the SIMD arithmetic of a quad holding one
+/// runs into subnormal numbers (products of its components, or the
+/// components themselves), which x86 cores compute hundreds of times
+/// slower, for all four lanes and every step of the quad's traversal.
+pub const TINY_DIR: f32 = 1e-18;
+
+/// Lanes of `r` in `live` whose direction is tiny (`TINY_DIR`, not zero);
+/// none while the fallbacks are off. Packet methods trace these lanes
+/// alone and the rest of the packet on quads with those lanes replaced
+/// (`quieted`), so only the tiny rays pay for their subnormal arithmetic,
+/// as they do as single rays.
+#[inline(always)]
+pub fn tiny(r: &Ray4, live: M4) -> M4 {
+    if !enabled() {
+        return M4::FALSE;
+    }
+    let m = r.dir[0].abs().max(r.dir[1].abs()).max(r.dir[2].abs());
+    live & m.cmpgt(F4::ZERO) & m.cmplt(F4::splat(TINY_DIR))
+}
+
+/// `r` with the lanes of `quiet` replaced by another of its lanes (or, when
+/// all four are, by an empty ray along +x): a quad whose tiny lanes went
+/// alone keeps its other lanes' bits, and its SIMD arithmetic no longer
+/// meets the tiny lanes' subnormal numbers (masked lanes are computed all
+/// the same). The replaced lanes must not be live.
+pub fn quieted(r: &Ray4, quiet: M4) -> Ray4 {
+    let keep = (!quiet).bitmask();
+    let donor = if keep != 0 {
+        r.lane(keep.trailing_zeros() as usize)
+    } else {
+        crate::geom::Ray::new(glam::Vec3::ZERO, glam::Vec3::X, 0.0, 0.0)
+    };
+    let lanes = [0, 1, 2, 3].map(|i| if quiet.test(i) { donor } else { r.lane(i) });
+    Ray4::from_rays(&lanes)
+}
+
+/// Budget of a CGT packet (`accel::grid::traverse_cgt`), in units of one
+/// triangle test: per slice, the packet's work (one per quad-triangle test,
+/// one per triangle met first in the packet (the mailbox and culling
+/// checks), `CGT_CELL` per cell of the overlap box) against what the 3DDDA
+/// would do for the live lanes (each crossing `1 + |du| + |dv|` cells of
+/// the slice, each cell `CGT_STEP` for the step plus the slice's mean
+/// references per cell in tests). The packet goes on while its work so far
+/// is at most `CGT_BUDGET` times the 3DDDA's. A SIMD quad test costs about
+/// one single-ray test, so a packet at its budget runs at about the
+/// 3DDDA's speed, and the work spent before falling back is at most what
+/// the 3DDDA spends on those slices.
+pub const CGT_BUDGET: f32 = 1.0;
+/// Cost of a cell of the overlap box (index, reference range) in triangle
+/// tests.
+pub const CGT_CELL: f32 = 0.25;
+/// Cost of a 3DDDA step in triangle tests.
+pub const CGT_STEP: f32 = 0.5;
+
+/// Masked traversal switches to Partition traversal once more than this
+/// many of its box tests per test that finds a quad alive found it dead
+/// (section 5.2.1; Masked traversal tests every quad at every leaf it
+/// visits, and "is superseded by Ranged and Partition traversal").
+pub const MAX_DEAD_PER_ALIVE: u32 = 2;
+
+/// The tally behind `MAX_DEAD_PER_ALIVE` for one packet of `nq` quads: no
+/// decision before `2 nq` tests.
+pub(crate) struct Waste {
+    alive: u32,
+    dead: u32,
+    min: u32,
+    on: bool,
+}
+
+impl Waste {
+    #[inline(always)]
+    pub(crate) fn new(nq: usize) -> Waste {
+        Waste {
+            alive: 0,
+            dead: 0,
+            min: 2 * nq as u32,
+            on: enabled(),
+        }
+    }
+    /// One box test of a quad (`live`: it had live lanes, so it was tested).
+    #[inline(always)]
+    pub(crate) fn tested(&mut self, live: bool, alive: bool) {
+        self.alive += (live & alive) as u32;
+        self.dead += (live & !alive) as u32;
+    }
+    /// Whether to switch now.
+    #[inline(always)]
+    pub(crate) fn too_high(&self) -> bool {
+        self.on && self.alive + self.dead >= self.min && self.dead > MAX_DEAD_PER_ALIVE * self.alive
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn min_cos_is_the_cone() {
+        let c = libm::cosf(MAX_CONE_DEG.to_radians());
+        assert!((c - MIN_COS).abs() < 1e-6, "{c}");
+    }
+}
