@@ -1445,7 +1445,10 @@ fn subnormal_directions_packets_equal_the_single_ray() {
 /// the answer: the 3DDDA visits it with its cell, the BVH culls the box the
 /// hit point lies outside of, packets cull it with their frustum. The
 /// watertight test has no such hits: the main test compares these rays
-/// with it. Ignored until the two tests reject hits whose determinant is
+/// with it. Measured (990,000 ill-conditioned lanes): 228 differ with the
+/// fallbacks off; with them on (set_enabled(true) here) 30, all of them
+/// between the three single rays, none between a packet and its single
+/// ray. Ignored until the two tests reject hits whose determinant is
 /// below its rounding error (which makes such rays misses everywhere).
 #[test]
 #[ignore = "known difference: Moller-Trumbore and projection-test noise on ill-conditioned rays"]
