@@ -68,7 +68,7 @@ const END_REL: f64 = 1e-5;
 const RATE_FLOOR: f64 = 1e-6;
 
 /// The OBJ scenes of ../shared/scenes: bench name and file.
-const OBJ_SCENES: &[(&str, &str)] = &[
+pub(crate) const OBJ_SCENES: &[(&str, &str)] = &[
     ("legocar", "legocar/legocar.obj"),
     ("bunny", "bunny/bunny_tinybvh.obj"),
     ("sibenik", "sibenik/sibenik.obj"),
@@ -683,7 +683,7 @@ fn trace_config(
 // The f64 oracle
 
 /// Run `f` over `items` on every core, keeping order.
-fn par_map<T: Sync, R: Send>(items: &[T], f: impl Fn(&T) -> R + Sync) -> Vec<R> {
+pub(crate) fn par_map<T: Sync, R: Send>(items: &[T], f: impl Fn(&T) -> R + Sync) -> Vec<R> {
     let n = std::thread::available_parallelism()
         .map_or(1, |n| n.get())
         .max(1);
@@ -904,7 +904,7 @@ pub(crate) struct SceneSpec {
     pub(crate) load: String,
 }
 
-fn scenes_dir(a: &BenchArgs) -> PathBuf {
+pub(crate) fn scenes_dir(a: &BenchArgs) -> PathBuf {
     if let Some(d) = &a.scenes_dir {
         return d.clone();
     }
@@ -915,15 +915,11 @@ fn scenes_dir(a: &BenchArgs) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/scenes")
 }
 
-/// The scenes asked for, absent OBJ files skipped with a message.
+/// The scenes asked for (`--scenes`, else the quick set or the built-in
+/// and OBJ scenes), absent OBJ files skipped with a message.
 pub(crate) fn scene_specs(a: &BenchArgs) -> Result<Vec<SceneSpec>, Failure> {
-    let dir = scenes_dir(a);
     let names: Vec<String> = if !a.scenes.is_empty() {
-        a.scenes
-            .iter()
-            .map(|s| s.trim().to_string())
-            .filter(|s| !s.is_empty())
-            .collect()
+        a.scenes.clone()
     } else if a.quick {
         QUICK_SCENES.iter().map(|s| s.to_string()).collect()
     } else {
@@ -933,9 +929,23 @@ pub(crate) fn scene_specs(a: &BenchArgs) -> Result<Vec<SceneSpec>, Failure> {
             .map(|s| s.to_string())
             .collect()
     };
+    specs_of(&names, &scenes_dir(a))
+}
+
+/// `names` as scenes to load: stress and built-in scene names, OBJ scene
+/// names (in `dir`) and OBJ paths; absent OBJ files skipped with a message.
+pub(crate) fn specs_of(names: &[String], dir: &Path) -> Result<Vec<SceneSpec>, Failure> {
+    use sheaf::scenes::stress::STRESS_SCENE_NAMES;
     let mut out = Vec::new();
-    for name in names {
-        let (label, path) = if sheaf::scenes::BUILTIN_NAMES.contains(&name.as_str()) {
+    for name in names.iter().map(|s| s.trim()).filter(|s| !s.is_empty()) {
+        let name = name.to_string();
+        let (label, path) = if STRESS_SCENE_NAMES.contains(&name.as_str()) {
+            out.push(SceneSpec {
+                load: format!("stress:{name}"),
+                name,
+            });
+            continue;
+        } else if sheaf::scenes::BUILTIN_NAMES.contains(&name.as_str()) {
             out.push(SceneSpec {
                 load: format!("builtin:{name}"),
                 name,
@@ -954,8 +964,9 @@ pub(crate) fn scene_specs(a: &BenchArgs) -> Result<Vec<SceneSpec>, Failure> {
                 p,
             )
         } else {
-            let known: Vec<&str> = sheaf::scenes::BUILTIN_NAMES
+            let known: Vec<&str> = STRESS_SCENE_NAMES
                 .iter()
+                .chain(sheaf::scenes::BUILTIN_NAMES)
                 .copied()
                 .chain(OBJ_SCENES.iter().map(|(n, _)| *n))
                 .collect();

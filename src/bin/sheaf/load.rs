@@ -57,8 +57,18 @@ impl Loaded {
     }
 }
 
-/// Load `spec`: `builtin:NAME` or the path of an OBJ file.
+/// Load `spec`: `builtin:NAME`, `stress:NAME` (the adversarial scenes of
+/// `sheaf::scenes::stress`) or the path of an OBJ file.
 pub fn load(spec: &str) -> Result<Loaded, Failure> {
+    if let Some(name) = spec.strip_prefix("stress:") {
+        let s = scenes::stress::stress_scene(name).ok_or_else(|| {
+            Failure(format!(
+                "unknown stress scene '{name}' (known: {})",
+                scenes::stress::STRESS_SCENE_NAMES.join(", ")
+            ))
+        })?;
+        return Ok(Loaded::from_builtin(spec, s));
+    }
     if let Some(name) = spec.strip_prefix("builtin:") {
         let s = scenes::builtin(name).ok_or_else(|| {
             Failure(format!(
@@ -66,17 +76,24 @@ pub fn load(spec: &str) -> Result<Loaded, Failure> {
                 scenes::BUILTIN_NAMES.join(", ")
             ))
         })?;
-        return Ok(Loaded {
-            label: spec.to_string(),
+        return Ok(Loaded::from_builtin(spec, s));
+    }
+    load_obj(Path::new(spec))
+}
+
+impl Loaded {
+    /// A generated scene (built-in or stress) with its views and light.
+    pub fn from_builtin(label: &str, s: scenes::BuiltinScene) -> Loaded {
+        Loaded {
+            label: label.to_string(),
             vertices: s.mesh.vertices,
             indices: s.mesh.indices,
             builtin: Some((s.views, s.light)),
             skipped: 0,
             materials: Vec::new(),
             ranges: Vec::new(),
-        });
+        }
     }
-    load_obj(Path::new(spec))
 }
 
 /// Triangles the `f` lines of an OBJ text describe (sum of arity - 2).

@@ -41,7 +41,9 @@
 //! off and on, with the 2x line) in `--out-dir` (default docs/bench-stress).
 #![forbid(unsafe_code)]
 
-use crate::bench::{command_line, machine_line, scene_specs, view_for};
+use crate::bench::{
+    OBJ_SCENES, SceneSpec, command_line, machine_line, par_map, scenes_dir, specs_of, view_for,
+};
 use crate::load::{self, Loaded};
 use crate::run::{self, ms};
 use crate::{BenchArgs, Failure, OrFail, TestArg};
@@ -52,7 +54,6 @@ use sheaf::scenes::{Mesh, View};
 use sheaf::trace::{EntrySearch, Structure, fallback};
 use sheaf::{Camera, GridParams, Hit, Limits, Method, OwnedContext, Ray, Scene, TraceParams};
 use std::fmt::Write as _;
-use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 /// Rays per adversarial class (8 blocks of 32 x 32: every packet full) on
@@ -78,14 +79,6 @@ const EDGE_BARY: f64 = 1e-5;
 /// The slowdown the fallbacks must stay under (DESIGN.md).
 const LIMIT: f64 = 2.0;
 
-/// The OBJ scenes of ../shared/scenes (as `sheaf bench` names them).
-const OBJ_SCENES: &[(&str, &str)] = &[
-    ("legocar", "legocar/legocar.obj"),
-    ("bunny", "bunny/bunny_tinybvh.obj"),
-    ("sibenik", "sibenik/sibenik.obj"),
-    ("sponza", "crytek_sponza/crytek_sponza.obj"),
-    ("conference", "conference/conference.obj"),
-];
 const QUICK_SCENES: &[&str] = &["closed-box", "huge-triangles", "tetra"];
 /// Classes of the scenes that are not stress scenes.
 const OTHER_CLASSES: &[RayClass] = &[RayClass::RandomInPacket, RayClass::MixedSigns];
@@ -195,89 +188,23 @@ struct SceneIn {
     stress: bool,
 }
 
-fn scenes_dir(a: &BenchArgs) -> PathBuf {
-    if let Some(d) = &a.scenes_dir {
-        return d.clone();
-    }
-    let here = PathBuf::from("../shared/scenes");
-    if here.is_dir() {
-        return here;
-    }
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/scenes")
-}
-
-fn stress_loaded(name: &str) -> Option<Loaded> {
-    let s = stress::stress_scene(name)?;
-    Some(Loaded {
-        label: name.to_string(),
-        vertices: s.mesh.vertices,
-        indices: s.mesh.indices,
-        builtin: Some((s.views, s.light)),
-        skipped: 0,
-        materials: Vec::new(),
-        ranges: Vec::new(),
-    })
-}
-
 /// The scenes asked for (`--scenes`: stress, built-in or OBJ names, or OBJ
-/// paths), absent OBJ files skipped with a note.
-fn scene_list(a: &BenchArgs) -> Result<Vec<(String, bool, String)>, Failure> {
-    // (name, stress, what load::load takes)
-    let mut out = Vec::new();
+/// paths; by default the stress scenes, then the built-in and OBJ scenes),
+/// absent OBJ files skipped with a note.
+fn scene_list(a: &BenchArgs) -> Result<Vec<SceneSpec>, Failure> {
     let names: Vec<String> = if !a.scenes.is_empty() {
-        a.scenes.iter().map(|s| s.trim().to_string()).collect()
+        a.scenes.clone()
     } else if a.quick {
         QUICK_SCENES.iter().map(|s| s.to_string()).collect()
     } else {
-        let mut v: Vec<String> = stress::STRESS_SCENE_NAMES
+        stress::STRESS_SCENE_NAMES
             .iter()
+            .chain(sheaf::scenes::BUILTIN_NAMES)
+            .chain(OBJ_SCENES.iter().map(|(n, _)| n))
             .map(|s| s.to_string())
-            .collect();
-        for s in scene_specs(a)? {
-            v.push(s.name);
-        }
-        v
+            .collect()
     };
-    let dir = scenes_dir(a);
-    for name in names {
-        if name.is_empty() {
-            continue;
-        }
-        if stress::STRESS_SCENE_NAMES.contains(&name.as_str()) {
-            out.push((name.clone(), true, name));
-        } else if sheaf::scenes::BUILTIN_NAMES.contains(&name.as_str()) {
-            out.push((name.clone(), false, format!("builtin:{name}")));
-        } else if let Some((n, f)) = OBJ_SCENES.iter().find(|(n, _)| *n == name) {
-            let p = dir.join(f);
-            if p.is_file() {
-                out.push((n.to_string(), false, p.to_string_lossy().into_owned()));
-            } else {
-                eprintln!("note: {n}: {} not found, skipped", p.display());
-            }
-        } else if name.ends_with(".obj") {
-            let p = PathBuf::from(&name);
-            if p.is_file() {
-                let label = p
-                    .file_stem()
-                    .map_or(name.clone(), |s| s.to_string_lossy().into_owned());
-                out.push((label, false, name));
-            } else {
-                eprintln!("note: {name} not found, skipped");
-            }
-        } else {
-            let known: Vec<&str> = stress::STRESS_SCENE_NAMES
-                .iter()
-                .chain(sheaf::scenes::BUILTIN_NAMES)
-                .copied()
-                .chain(OBJ_SCENES.iter().map(|(n, _)| *n))
-                .collect();
-            return Err(Failure(format!(
-                "--scenes: unknown scene '{name}' (known: {}, or a path ending in .obj)",
-                known.join(", ")
-            )));
-        }
-    }
-    Ok(out)
+    specs_of(&names, &scenes_dir(a))
 }
 
 /// One configuration on one class.
@@ -407,22 +334,18 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
     );
     let mut results: Vec<ClassResult> = Vec::new();
     let mut infos: Vec<SceneInfo> = Vec::new();
-    for (name, is_stress, spec) in &list {
-        let loaded = if *is_stress {
-            stress_loaded(spec).ok_or_else(|| Failure(format!("no stress scene {spec}")))?
-        } else {
-            match load::load(spec) {
-                Ok(l) => l,
-                Err(e) => {
-                    eprintln!("note: {name}: {e}, skipped");
-                    continue;
-                }
+    for spec in &list {
+        let loaded = match load::load(&spec.load) {
+            Ok(l) => l,
+            Err(e) => {
+                eprintln!("note: {}: {e}, skipped", spec.name);
+                continue;
             }
         };
         let s = SceneIn {
-            name: name.clone(),
+            name: spec.name.clone(),
             loaded,
-            stress: *is_stress,
+            stress: spec.load.starts_with("stress:"),
         };
         if let Some((info, mut r)) = scene(&s, a, test, (nrays, ncam), reps, &cfgs, budget)? {
             infos.push(info);
@@ -753,25 +676,6 @@ fn class_run(
         oracle_step: step,
         outside,
     }
-}
-
-fn par_map<T: Sync, R: Send>(items: &[T], f: impl Fn(&T) -> R + Sync) -> Vec<R> {
-    let n = std::thread::available_parallelism()
-        .map_or(1, |n| n.get())
-        .max(1);
-    let chunk = items.len().div_ceil(n).max(1);
-    std::thread::scope(|s| {
-        let hs: Vec<_> = items
-            .chunks(chunk)
-            .map(|c| s.spawn(|| c.iter().map(&f).collect::<Vec<_>>()))
-            .collect();
-        hs.into_iter()
-            .flat_map(|h| match h.join() {
-                Ok(v) => v,
-                Err(p) => std::panic::resume_unwind(p),
-            })
-            .collect()
-    })
 }
 
 /// One stderr line per class: the worst ratio per structure off and on.
