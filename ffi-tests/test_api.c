@@ -670,11 +670,13 @@ static bool test_trace_leaves_stats(void) {
 
 static bool test_trace_params(void) {
     /* Every packet side and switch of sheaf_trace_params gives the 3DDDA's
-       hits bit for bit, and the same image; bad params are rejected. */
+       hits bit for bit, its occlusion, and the same image; bad params are
+       rejected and write nothing. */
     scene *s = ground_and_box();
     sheaf_context *ctx = built_context(s, s->nt);
     sheaf_ray rays[N_PROBE];
     sheaf_hit want[N_PROBE], got[N_PROBE];
+    uint8_t occ_want[N_PROBE], occ_got[N_PROBE];
     sheaf_trace_params dda, cgt, bad;
     sheaf_frame f = default_frame(RW, RH);
     static uint8_t base[RLEN], img[RLEN];
@@ -688,6 +690,7 @@ static bool test_trace_params(void) {
     probe_rays(rays);
     CHECK_OK(sheaf_context_trace_with(ctx, &dda, rays, want, N_PROBE));
     CHECK_OK(sheaf_context_render_with(ctx, &dda, &dda, &f, base, RSTRIDE, RLEN));
+    CHECK_OK(sheaf_context_occluded(ctx, SHEAF_METHOD_GRID_DDA, rays, occ_want, N_PROBE));
     for (k = 0; k < 5; k++) {
         cgt.packet = sides[k];
         cgt.culling = (k % 2) == 0;
@@ -695,6 +698,9 @@ static bool test_trace_params(void) {
         for (i = 0; i < N_PROBE; i++) {
             CHECK(got[i].prim == want[i].prim && memcmp(&got[i].t, &want[i].t, sizeof(float)) == 0);
         }
+        memset(occ_got, 7, sizeof occ_got);
+        CHECK_OK(sheaf_context_occluded_with(ctx, &cgt, rays, occ_got, N_PROBE));
+        CHECK(memcmp(occ_got, occ_want, sizeof occ_want) == 0);
         memset(img, 0, sizeof img);
         CHECK_OK(sheaf_context_render_with(ctx, &cgt, &cgt, &f, img, RSTRIDE, RLEN));
         CHECK(memcmp(img, base, RLEN) == 0);
@@ -702,6 +708,10 @@ static bool test_trace_params(void) {
     bad = cgt;
     bad.packet = 3;
     CHECK_STATUS(sheaf_context_trace_with(ctx, &bad, rays, got, N_PROBE), SHEAF_STATUS_INVALID_ARGUMENT);
+    memset(occ_got, 7, sizeof occ_got);
+    CHECK_STATUS(sheaf_context_occluded_with(ctx, &bad, rays, occ_got, N_PROBE), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_occluded_with(ctx, NULL, rays, occ_got, N_PROBE), SHEAF_STATUS_NULL_POINTER);
+    for (i = 0; i < N_PROBE; i++) CHECK(occ_got[i] == 7);
     CHECK_STATUS(sheaf_context_render_with(ctx, &cgt, &bad, &f, img, RSTRIDE, RLEN), SHEAF_STATUS_INVALID_ARGUMENT);
     bad = cgt;
     bad.method = (sheaf_method)77;

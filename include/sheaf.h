@@ -1326,6 +1326,21 @@ sheaf_status sheaf_context_occluded(const struct sheaf_context *ctx,
                                     size_t count);
 
 /**
+ * `sheaf_context_occluded` with the method, packet side and CGT switches
+ * of `*params` (copied; the packets as `sheaf_context_trace_with` forms
+ * them, the frustum of `params->ray_kind`). No mailbox (no thread
+ * slot). Thread-safe like `sheaf_context_trace`.
+ *
+ * Errors: those of `sheaf_context_trace_with`. `occluded` is written only
+ * on success.
+ */
+sheaf_status sheaf_context_occluded_with(const struct sheaf_context *ctx,
+                                         const struct sheaf_trace_params *params,
+                                         const struct sheaf_ray *rays,
+                                         uint8_t *occluded,
+                                         size_t count);
+
+/**
  * Render `*frame` into the caller's RGBA8 framebuffer (sRGB-encoded, alpha
  * 255) on the calling thread: row `y` starts at `rgba + y * stride_bytes`
  * (`stride_bytes >= 4 * width`), and the buffer holds `rgba_len >=

@@ -744,6 +744,27 @@ pub extern "C" fn sheaf_context_occluded(
     })
 }
 
+/// `sheaf_context_occluded` with the method, packet side and CGT switches
+/// of `*params` (copied; the packets as `sheaf_context_trace_with` forms
+/// them, the frustum of `params->ray_kind`). No mailbox (no thread
+/// slot). Thread-safe like `sheaf_context_trace`.
+///
+/// Errors: those of `sheaf_context_trace_with`. `occluded` is written only
+/// on success.
+#[unsafe(no_mangle)]
+pub extern "C" fn sheaf_context_occluded_with(
+    ctx: *const sheaf_context,
+    params: *const sheaf_trace_params,
+    rays: *const sheaf_ray,
+    occluded: *mut u8,
+    count: usize,
+) -> sheaf_status {
+    with_ref(ctx, |h| {
+        let p = read_in(params)?.to_core()?;
+        occluded_impl(h, None, &p, rays, occluded, count)
+    })
+}
+
 /// Render `*frame` into the caller's RGBA8 framebuffer (sRGB-encoded, alpha
 /// 255) on the calling thread: row `y` starts at `rgba + y * stride_bytes`
 /// (`stride_bytes >= 4 * width`), and the buffer holds `rgba_len >=

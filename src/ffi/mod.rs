@@ -6,7 +6,7 @@
 //! | file | C objects |
 //! |---|---|
 //! | `status.rs` | `sheaf_status` (numbered ranges, never renumbered), `sheaf_status_string` |
-//! | `context.rs` | `sheaf_context` (opaque handle): required bytes, create / create_in / destroy, geometry, build, trace, occluded, render, the per-thread-slot calls (trace_slot, occluded_slot, render_rows), stats, last error |
+//! | `context.rs` | `sheaf_context` (opaque handle): required bytes, create / create_in / destroy, geometry, build, trace, occluded (method only or with trace params), render, the per-thread-slot calls (trace_slot, occluded_slot, render_rows), stats, last error |
 //! | `limits.rs` | `sheaf_limits` (the crate's `Limits`), `sheaf_limits_default` |
 //! | `grid.rs` | `sheaf_grid_params`, `sheaf_tri_test`, `sheaf_grid_params_default` |
 //! | `bvh.rs` | `sheaf_bvh_params`, `sheaf_ray_kind`, `sheaf_bvh_params_default` |
@@ -67,8 +67,9 @@ pub use context::{
     HEADER_BYTES, sheaf_context, sheaf_context_build_bvh, sheaf_context_build_grid,
     sheaf_context_create, sheaf_context_create_in, sheaf_context_destroy, sheaf_context_last_error,
     sheaf_context_occluded, sheaf_context_render, sheaf_context_set_geometry, sheaf_context_stats,
-    sheaf_context_occluded_slot, sheaf_context_render_rows, sheaf_context_trace,
-    sheaf_context_trace_slot, sheaf_required_bytes,
+    sheaf_context_occluded_slot, sheaf_context_occluded_with, sheaf_context_render_rows,
+    sheaf_context_trace,
+    sheaf_context_trace_slot, sheaf_context_trace_with, sheaf_required_bytes,
 };
 pub use frame::{sheaf_frame, sheaf_frame_camera_ray, sheaf_shading_default};
 pub use grid::{sheaf_grid_params, sheaf_grid_params_default, sheaf_tri_test};
