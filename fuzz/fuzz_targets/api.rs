@@ -778,7 +778,8 @@ fn make_rays(r: &RaysIn) -> Vec<sheaf_ray> {
     rays
 }
 
-/// trace / trace_with / occluded through raw, possibly unaligned memory.
+/// trace / trace_with / occluded / occluded_with through raw, possibly
+/// unaligned memory.
 fn trace_call(
     st: &mut State,
     params: Option<sheaf_trace_params>,
@@ -832,7 +833,10 @@ fn trace_call(
         ..default_trace()
     });
     let s = if occ {
-        ffi::sheaf_context_occluded(st.ctx, method, rp, hp, count)
+        match params {
+            Some(p) => ffi::sheaf_context_occluded_with(st.ctx, &p, rp, hp, count),
+            None => ffi::sheaf_context_occluded(st.ctx, method, rp, hp, count),
+        }
     } else if let Some(p) = params {
         ffi::context::sheaf_context_trace_with(st.ctx, &p, rp, hp.cast(), count)
     } else {
@@ -1423,7 +1427,9 @@ fn step(st: &mut State, op: &Op) {
             st.after(s, &before, "build_pgrid");
         }
         Op::Trace(m, r) => trace_call(st, None, m.get() % 11, false, r),
-        Op::TraceWith(p, r) => trace_call(st, Some(p.get()), 0, false, r),
+        // Bit 3 of the hit offset (which uses bits 0-2) picks occluded_with,
+        // so the corpus of earlier runs decodes as before.
+        Op::TraceWith(p, r) => trace_call(st, Some(p.get()), 0, r.hit_offset & 8 != 0, r),
         Op::Occluded(m, r) => trace_call(st, None, m.get() % 11, true, r),
         Op::Render(m, f, fb) => {
             let p = sheaf_trace_params {
@@ -1638,6 +1644,7 @@ fn warmup(st: &mut State, k: u8) {
     };
     trace_call(st, Some(tp(m).get()), 0, false, &r);
     trace_call(st, None, m as u32, true, &r);
+    trace_call(st, Some(tp(m).get()), 0, true, &r);
 }
 
 fn render(
