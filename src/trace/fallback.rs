@@ -242,6 +242,33 @@ pub fn quieted(r: &Ray4, quiet: M4) -> Ray4 {
     Ray4::from_rays(&lanes)
 }
 
+/// A packet split for the tiny-direction fallback (`tiny`, `quieted`).
+pub(crate) struct TinySplit<const Q: usize> {
+    /// The quads with their tiny lanes replaced (`quieted`).
+    pub rays: [Ray4; Q],
+    /// The active lanes that are not tiny: the packet traces these.
+    pub active: [M4; Q],
+    /// The tiny lanes: each traced alone.
+    pub tiny: [M4; Q],
+}
+
+/// Split the `rays.len()` quads (1 to `Q`) of a packet with active lanes
+/// `active` for the tiny-direction fallback; quads past them are inactive.
+pub(crate) fn split_tiny<const Q: usize>(rays: &[Ray4], active: &[M4]) -> TinySplit<Q> {
+    let nq = rays.len();
+    let mut s = TinySplit {
+        rays: core::array::from_fn(|q| rays[q.min(nq - 1)]),
+        active: [M4::FALSE; Q],
+        tiny: [M4::FALSE; Q],
+    };
+    for q in 0..nq {
+        s.tiny[q] = tiny(&rays[q], active[q]);
+        s.rays[q] = quieted(&rays[q], s.tiny[q]);
+        s.active[q] = active[q] & !s.tiny[q];
+    }
+    s
+}
+
 /// Budget of a CGT packet (`accel::grid::traverse_cgt`), in units of one
 /// triangle test: per slice, the packet's work (one per quad-triangle test,
 /// one per triangle met first in the packet (the mailbox and culling

@@ -205,21 +205,14 @@ fn quieted<W: Walk, T: BvhTest, const ANY: bool, const Q: usize>(
     ctr: &mut Counters,
 ) {
     let nq = rays.len();
-    let mut quiet: [Ray4; Q] = core::array::from_fn(|q| rays[q.min(nq - 1)]);
-    let mut act = [M4::FALSE; Q];
-    let mut tiny = [M4::FALSE; Q];
-    for q in 0..nq {
-        tiny[q] = fallback::tiny(&rays[q], active[q]);
-        quiet[q] = fallback::quieted(&rays[q], tiny[q]);
-        act[q] = active[q] & !tiny[q];
-    }
-    packet::<W, T, ANY, Q>(b, &quiet[..nq], &act[..nq], hits, opt, start, ctr);
+    let s = fallback::split_tiny::<Q>(rays, active);
+    packet::<W, T, ANY, Q>(b, &s.rays[..nq], &s.active[..nq], hits, opt, start, ctr);
     // The single ray counts its rays: count them out of the packet's.
-    ctr.rays += tiny[..nq]
+    ctr.rays += s.tiny[..nq]
         .iter()
         .map(|m| m.bitmask().count_ones() as u64)
         .sum::<u64>();
-    alone::<T, ANY>(b, rays, &tiny[..nq], hits, ctr);
+    alone::<T, ANY>(b, rays, &s.tiny[..nq], hits, ctr);
 }
 
 /// The coherence fallback (`trace::fallback`): every live lane traced by

@@ -563,18 +563,11 @@ fn quieted<T: GridTest, const ANY: bool, const Q: usize>(
     ctr: &mut Counters,
 ) {
     let nq = rays.len();
-    let mut quiet: [Ray4; Q] = core::array::from_fn(|q| rays[q.min(nq - 1)]);
-    let mut act = [M4::FALSE; Q];
-    let mut tiny = [M4::FALSE; Q];
-    for q in 0..nq {
-        tiny[q] = fallback::tiny(&rays[q], active[q]);
-        quiet[q] = fallback::quieted(&rays[q], tiny[q]);
-        act[q] = active[q] & !tiny[q];
-    }
+    let s = fallback::split_tiny::<Q>(rays, active);
     // The 3DDDA counts the tiny lanes: `alone` counts them out again.
-    ctr.rays += live_lanes(&tiny[..nq]) as u64;
-    alone::<T, ANY>(g, rays, &tiny[..nq], hits, ctr);
-    packet::<T, ANY, Q>(g, &quiet[..nq], &act[..nq], hits, opt, mb, ctr);
+    ctr.rays += live_lanes(&s.tiny[..nq]) as u64;
+    alone::<T, ANY>(g, rays, &s.tiny[..nq], hits, ctr);
+    packet::<T, ANY, Q>(g, &s.rays[..nq], &s.active[..nq], hits, opt, mb, ctr);
 }
 
 /// Live lanes of a packet.

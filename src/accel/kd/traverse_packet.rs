@@ -311,23 +311,19 @@ fn quieted<T: KdTest, const ANY: bool, const Q: usize>(
     ctr: &mut Counters,
 ) {
     let nq = rays.len().min(Q);
-    let mut quiet: [Ray4; Q] = core::array::from_fn(|q| rays[q.min(nq - 1)]);
-    let mut act = [M4::FALSE; Q];
-    for q in 0..nq {
-        let t = fallback::tiny(&rays[q], active[q]);
-        quiet[q] = fallback::quieted(&rays[q], t);
-        act[q] = active[q] & !t;
-    }
-    packet::<T, ANY, Q>(k, &quiet[..nq], &act[..nq], hits, occ, frustum, entry, ctr);
+    let s = fallback::split_tiny::<Q>(&rays[..nq], active);
+    packet::<T, ANY, Q>(
+        k,
+        &s.rays[..nq],
+        &s.active[..nq],
+        hits,
+        occ,
+        frustum,
+        entry,
+        ctr,
+    );
     // After the packet, which writes every quad's occlusion mask.
-    let tiny: [M4; Q] = core::array::from_fn(|q| {
-        if q < nq {
-            active[q] & !act[q]
-        } else {
-            M4::FALSE
-        }
-    });
-    fallback::each_lane(&tiny[..nq], |q, i| {
+    fallback::each_lane(&s.tiny[..nq], |q, i| {
         let ray = rays[q].lane(i);
         if ANY {
             let o = super::traverse_single::occluded::<T>(k, &ray, ctr);
