@@ -169,44 +169,26 @@ impl LimitsIn {
             max_image_height: 1 + self.max_image_height % 40,
             max_tile: [2, 4, 8, 16, 32, 64, 3, 0][self.max_tile as usize % 8],
             max_threads: 1 + self.max_threads % 3,
-            max_grid_cells: if self.max_grid_cells % 3 == 0 {
-                0
-            } else {
-                self.max_grid_cells % 3000
-            },
-            max_grid_refs: if self.max_grid_refs % 3 == 0 {
-                0
-            } else {
-                self.max_grid_refs % 4000
-            },
+            max_grid_cells: default_or(self.max_grid_cells, 3000),
+            max_grid_refs: default_or(self.max_grid_refs, 4000),
             projection_test: self.projection_test,
             structures: if self.structures % 4 == 0 {
                 15
             } else {
                 self.structures % 17
             },
-            max_kd_nodes: if self.max_kd_nodes % 3 == 0 {
-                0
-            } else {
-                self.max_kd_nodes % 1000
-            },
-            max_kd_refs: if self.max_kd_refs % 3 == 0 {
-                0
-            } else {
-                self.max_kd_refs % 2000
-            },
-            max_pgrid_cells: if self.max_pgrid_cells % 3 == 0 {
-                0
-            } else {
-                self.max_pgrid_cells % 50000
-            },
-            max_pgrid_refs: if self.max_pgrid_refs % 3 == 0 {
-                0
-            } else {
-                self.max_pgrid_refs % 50000
-            },
+            max_kd_nodes: default_or(self.max_kd_nodes, 1000),
+            max_kd_refs: default_or(self.max_kd_refs, 2000),
+            max_pgrid_cells: default_or(self.max_pgrid_cells, 50000),
+            max_pgrid_refs: default_or(self.max_pgrid_refs, 50000),
         }
     }
+}
+
+/// A usable pool size: 0 (sheaf's default) for a third of the values, else
+/// `v % below`.
+fn default_or(v: u32, below: u32) -> u32 {
+    if v % 3 == 0 { 0 } else { v % below }
 }
 
 #[derive(Arbitrary, Debug)]
