@@ -6,16 +6,23 @@
  * results. Two threads with their own slots render bands of a frame and
  * trace CGT packets with mailboxes concurrently (the `_slot` / `_rows`
  * calls), and a slot shared by mistake gives SHEAF_STATUS_SLOT_BUSY, never
- * wrong results.
+ * wrong results. Exclusive calls (builds, set_geometry, render, destroy)
+ * racing traces on another thread get SHEAF_STATUS_CONTEXT_BUSY, as do the
+ * traces racing them; the test runs until both sides have seen it, and no
+ * trace that returns OK ever has a wrong hit.
+ *
+ * Runs under helgrind in tests/c_abi.rs (SHEAF_TEST_QUICK=1 shortens it).
  */
 #define _POSIX_C_SOURCE 200112L
 #include <pthread.h>
+#include <time.h>
 
 #include "common.h"
 
 #define THREADS 8
-#define ROUNDS 20
 #define NRAYS 2000
+/* Rounds per test; SHEAF_TEST_QUICK=1 (the helgrind run) takes fewer. */
+static int g_rounds = 20, g_slot_rounds = 12;
 
 static sheaf_context *g_ctx;
 static sheaf_ray g_rays[NRAYS];
@@ -63,7 +70,7 @@ static void *worker(void *arg) {
     char msg[SHEAF_ERROR_MESSAGE_MAX];
     size_t n;
     sheaf_stats st;
-    for (round = 0; round < ROUNDS; ++round) {
+    for (round = 0; round < g_rounds; ++round) {
         if (sheaf_context_trace(g_ctx, SHEAF_METHOD_GRID_DDA, g_rays, hits[id], NRAYS) != SHEAF_STATUS_OK) return arg;
         if (sheaf_context_occluded(g_ctx, SHEAF_METHOD_GRID_DDA, g_rays, occ[id], NRAYS) != SHEAF_STATUS_OK) return arg;
         for (i = 0; i < NRAYS; ++i) {
@@ -159,7 +166,6 @@ static bool test_independent_contexts_on_threads(void) {
 /* Two threads, one built context, per-thread slots. */
 #define SLOT_W 96
 #define SLOT_H 64
-#define SLOT_ROUNDS 12
 static sheaf_frame g_frame;
 static sheaf_trace_params g_cgt, g_shadow;
 static uint8_t g_want_img[SLOT_H][SLOT_W * 4];
@@ -173,7 +179,7 @@ static void *slot_worker(void *arg) {
     static uint8_t occ[2][SLOT_W * SLOT_H];
     uint32_t slot = (uint32_t)(size_t)arg, y0 = slot * (SLOT_H / 2), y, n = SLOT_W * SLOT_H;
     int round;
-    for (round = 0; round < SLOT_ROUNDS; ++round) {
+    for (round = 0; round < g_slot_rounds; ++round) {
         /* Bands of 5 rows (not a multiple of the 8x8 tiles) through this thread's half. */
         for (y = y0; y < y0 + SLOT_H / 2; y += 5) {
             uint32_t y1 = y + 5 < y0 + SLOT_H / 2 ? y + 5 : y0 + SLOT_H / 2;
@@ -198,7 +204,7 @@ static void *shared_slot_worker(void *arg) {
     static sheaf_hit hits[2][SLOT_W * SLOT_H];
     size_t id = (size_t)arg;
     int round;
-    for (round = 0; round < 4 * SLOT_ROUNDS; ++round) {
+    for (round = 0; round < 4 * g_slot_rounds; ++round) {
         sheaf_status s = sheaf_context_trace_slot(g_ctx, 0, &g_cgt, g_cam, hits[id], SLOT_W * SLOT_H);
         if (s == SHEAF_STATUS_SLOT_BUSY) {
             ++g_busy[id];
@@ -285,11 +291,189 @@ static bool test_two_threads_with_slots(void) {
     return true;
 }
 
+/* One thread traces in a loop while the main thread rebuilds, resets the
+ * geometry and renders: the state word must turn every overlap into
+ * SHEAF_STATUS_CONTEXT_BUSY on one side. */
+#define BUSY_RAYS 2000
+static pthread_mutex_t g_stop_lock = PTHREAD_MUTEX_INITIALIZER;
+static int g_stop;
+static sheaf_trace_params g_bvh8;
+static long g_trace_ok, g_trace_busy, g_trace_bad;
+
+/* The tracer's counters and the stop flag, shared under g_stop_lock. */
+static int stop_requested(long *busy) {
+    int v;
+    pthread_mutex_lock(&g_stop_lock);
+    v = g_stop;
+    if (busy) *busy = g_trace_busy;
+    pthread_mutex_unlock(&g_stop_lock);
+    return v;
+}
+
+static void *racing_tracer(void *arg) {
+    static sheaf_hit hits[BUSY_RAYS];
+    (void)arg;
+    while (!stop_requested(NULL)) {
+        sheaf_status st = sheaf_context_trace_slot(g_ctx, 0, &g_bvh8, g_rays, hits, BUSY_RAYS);
+        struct timespec pause = {0, 20000}; /* leave gaps for the exclusive calls */
+        if (st == SHEAF_STATUS_CONTEXT_BUSY) {
+            pthread_mutex_lock(&g_stop_lock);
+            ++g_trace_busy;
+            pthread_mutex_unlock(&g_stop_lock);
+        } else if (st != SHEAF_STATUS_OK) {
+            fprintf(stderr, "    racing trace returned %d\n", (int)st);
+            ++g_trace_bad;
+        } else {
+            int i;
+            ++g_trace_ok;
+            for (i = 0; i < BUSY_RAYS; ++i)
+                if (hits[i].prim != g_want_hits[i].prim || float_bits(hits[i].t) != float_bits(g_want_hits[i].t)) {
+                    fprintf(stderr, "    racing trace: ray %d wrong\n", i);
+                    ++g_trace_bad;
+                    break;
+                }
+        }
+        nanosleep(&pause, NULL);
+    }
+    return NULL;
+}
+
+static bool test_exclusive_calls_racing_traces_get_busy(void) {
+    scene *s = box_field();
+    sheaf_limits l;
+    pthread_t th;
+    long build_ok = 0, build_busy = 0, other_busy = 0, rounds = 0, trace_busy = 0;
+    time_t start;
+    static uint8_t img[64][96 * 4];
+    char msg[SHEAF_ERROR_MESSAGE_MAX];
+    size_t n;
+    sheaf_frame f = default_frame(96, 64);
+    CHECK_OK(sheaf_limits_default(s->nt, &l));
+    l.max_threads = 2;
+    CHECK_OK(sheaf_context_create(&l, &g_ctx));
+    CHECK_OK(scene_set(g_ctx, s));
+    CHECK_OK(sheaf_context_build_bvh(g_ctx, NULL));
+    make_rays();
+    CHECK_OK(sheaf_trace_params_default(&g_bvh8));
+    /* Single rays: each call long enough (under valgrind, several of its
+       scheduling quanta) for the other thread to run into it. */
+    g_bvh8.method = SHEAF_METHOD_BVH_SINGLE;
+    CHECK_OK(sheaf_context_trace(g_ctx, SHEAF_METHOD_BVH_SINGLE, g_rays, g_want_hits, BUSY_RAYS));
+    g_stop = 0;
+    CHECK(pthread_create(&th, NULL, racing_tracer, NULL) == 0);
+    /* Until both sides have seen the other, each kind of exclusive call
+       included (or 120 s, ample even under helgrind: then fail). */
+    start = time(NULL);
+    while (time(NULL) - start < 120 && (build_busy == 0 || trace_busy == 0 || other_busy == 0 || build_ok == 0)) {
+        sheaf_status st;
+        ++rounds;
+        stop_requested(&trace_busy);
+        switch (rounds % 4) {
+        case 0: st = scene_set(g_ctx, s); break;
+        case 1: st = sheaf_context_render(g_ctx, SHEAF_METHOD_BVH_SINGLE, &f, &img[0][0], 96 * 4, sizeof img); break;
+        default: st = sheaf_context_build_bvh(g_ctx, NULL); break;
+        }
+        {
+            struct timespec pause = {0, 5000}; /* leave gaps for the traces */
+            nanosleep(&pause, NULL);
+        }
+        if (st == SHEAF_STATUS_CONTEXT_BUSY) {
+            if (rounds % 4 >= 2) ++build_busy; else ++other_busy;
+        } else if (st == SHEAF_STATUS_OK) {
+            build_ok += rounds % 4 >= 2;
+        } else {
+            fprintf(stderr, "    exclusive call returned %d\n", (int)st);
+            break;
+        }
+    }
+    pthread_mutex_lock(&g_stop_lock);
+    g_stop = 1;
+    pthread_mutex_unlock(&g_stop_lock);
+    CHECK(pthread_join(th, NULL) == 0);
+    printf("    %ld exclusive calls: %ld builds OK, %ld builds + %ld others found the context busy; "
+           "racing traces: %ld OK (all right), %ld busy\n",
+           rounds, build_ok, build_busy, other_busy, g_trace_ok, g_trace_busy);
+    CHECK(g_trace_bad == 0);
+    CHECK(build_busy > 0 && other_busy > 0 && g_trace_busy > 0); /* contention really happened */
+    CHECK(build_ok > 0 && g_trace_ok > 0);
+    /* A busy refusal is not recorded as the last error. */
+    CHECK_OK(sheaf_context_last_error(g_ctx, msg, sizeof msg, &n));
+    CHECK(strcmp(msg, "no error") == 0);
+    /* Nothing is left held: exclusive calls and destroy succeed again. */
+    CHECK_OK(sheaf_context_build_bvh(g_ctx, NULL));
+    sheaf_context_destroy(g_ctx);
+    free(s);
+    return true;
+}
+
+/* destroy while another thread traces (a create_in context, whose memory
+ * stays valid afterwards, so the late calls are defined): destroy waits
+ * for the trace inside, later calls are refused (INVALID_ARGUMENT: not a
+ * live context), no trace is wrong. */
+static sheaf_context *g_dying;
+static long g_dying_ok, g_dying_busy, g_dying_gone, g_dying_bad;
+
+static void *tracer_until_gone(void *arg) {
+    static sheaf_hit hits[BUSY_RAYS];
+    (void)arg;
+    for (;;) {
+        sheaf_status st = sheaf_context_trace(g_dying, SHEAF_METHOD_BVH_SINGLE, g_rays, hits, BUSY_RAYS);
+        if (st == SHEAF_STATUS_OK) {
+            ++g_dying_ok;
+            if (memcmp(hits, g_want_hits, sizeof hits) != 0) ++g_dying_bad;
+        } else if (st == SHEAF_STATUS_CONTEXT_BUSY) {
+            ++g_dying_busy;
+        } else if (st == SHEAF_STATUS_INVALID_ARGUMENT) {
+            ++g_dying_gone;
+            return NULL;
+        } else {
+            ++g_dying_bad;
+            return NULL;
+        }
+    }
+}
+
+static bool test_destroy_waits_for_calls_inside(void) {
+    scene *s = box_field();
+    sheaf_limits l;
+    size_t need = 0;
+    void *raw;
+    pthread_t th;
+    struct timespec pause = {0, 2000000};
+    CHECK_OK(sheaf_limits_default(s->nt, &l));
+    l.structures = SHEAF_STRUCTURE_BVH;
+    CHECK_OK(sheaf_required_bytes(&l, &need));
+    raw = malloc(need + SHEAF_CONTEXT_ALIGN);
+    CHECK(raw != NULL);
+    CHECK_OK(sheaf_context_create_in(align_up(raw, SHEAF_CONTEXT_ALIGN), need, &l, &g_dying));
+    CHECK_OK(scene_set(g_dying, s));
+    CHECK_OK(sheaf_context_build_bvh(g_dying, NULL));
+    make_rays();
+    CHECK_OK(sheaf_context_trace(g_dying, SHEAF_METHOD_BVH_SINGLE, g_rays, g_want_hits, BUSY_RAYS));
+    CHECK(pthread_create(&th, NULL, tracer_until_gone, NULL) == 0);
+    nanosleep(&pause, NULL);
+    sheaf_context_destroy(g_dying);
+    CHECK(pthread_join(th, NULL) == 0);
+    printf("    traces racing destroy: %ld OK (all right), then refused as destroyed\n", g_dying_ok);
+    CHECK(g_dying_bad == 0 && g_dying_busy == 0 && g_dying_gone == 1 && g_dying_ok > 0);
+    free(raw);
+    free(s);
+    return true;
+}
+
 int main(void) {
     int passed = 0, failed = 0;
+    const char *quick = getenv("SHEAF_TEST_QUICK");
+    if (quick && *quick == '1') {
+        g_rounds = 2;
+        g_slot_rounds = 2;
+    }
     run_test("test_concurrent_trace_matches_single_thread", test_concurrent_trace_matches_single_thread, &passed,
              &failed);
     run_test("test_independent_contexts_on_threads", test_independent_contexts_on_threads, &passed, &failed);
     run_test("test_two_threads_with_slots", test_two_threads_with_slots, &passed, &failed);
+    run_test("test_exclusive_calls_racing_traces_get_busy", test_exclusive_calls_racing_traces_get_busy, &passed,
+             &failed);
+    run_test("test_destroy_waits_for_calls_inside", test_destroy_waits_for_calls_inside, &passed, &failed);
     return report(passed, failed);
 }

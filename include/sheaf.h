@@ -9,7 +9,12 @@
  * Conventions: every call returns a sheaf_status and writes outputs through
  * pointers, only on SHEAF_STATUS_OK. NULL pointers, zero or overflowing
  * sizes, misaligned or too small buffers give an error status, never a
- * crash. Thread safety is stated on each function and on sheaf_context.
+ * crash; a refused call changes nothing. Thread safety is stated on each
+ * function and on sheaf_context: besides its listed errors, every call on a
+ * context may return SHEAF_STATUS_CONTEXT_BUSY (another thread is inside it
+ * in a way this call may not join) and SHEAF_STATUS_POISONED (an earlier
+ * call caught a panic). Boolean fields are uint8_t: 0 or 1, anything else is
+ * SHEAF_STATUS_INVALID_ARGUMENT.
  * Link: -l:libsheaf.a -lm -lpthread -ldl (static) or -lsheaf (shared).
  */
 
@@ -145,6 +150,21 @@ enum sheaf_status
      * another call right now (give each concurrent thread its own slot).
      */
     SHEAF_STATUS_SLOT_BUSY = 302,
+    /**
+     * Another call on the context is running and this call cannot run
+     * beside it (an exclusive call while any other call is inside, or any
+     * call while an exclusive one runs; see `sheaf_context`). Nothing was
+     * changed and the last error is not touched: retry after the other
+     * call returns. Seeing it means the threads are not coordinated.
+     */
+    SHEAF_STATUS_CONTEXT_BUSY = 303,
+    /**
+     * An earlier call on this context caught a panic (returned
+     * `SHEAF_STATUS_PANIC`), so its structures may be half-built: every
+     * call but `sheaf_context_last_error` and `sheaf_context_destroy`
+     * returns this until the context is destroyed.
+     */
+    SHEAF_STATUS_POISONED = 304,
     /**
      * A panic was caught at the C boundary (a bug in sheaf: please report).
      */
@@ -317,24 +337,44 @@ typedef uint32_t sheaf_entry_search;
 #endif // __cplusplus
 
 /**
+ * Where a fault can be injected.
+ */
+typedef struct Point Point;
+
+/**
  * A sheaf context (opaque): fixed memory, the borrowed geometry, the
  * current acceleration structure, the last error.
  *
  * Made by `sheaf_context_create` or `sheaf_context_create_in`, released by
  * `sheaf_context_destroy`.
  *
- * Thread safety: `sheaf_context_trace`, `sheaf_context_trace_with`,
- * `sheaf_context_occluded`, `sheaf_context_stats`,
- * `sheaf_context_last_error`, `sheaf_context_deferred_pixel` and
- * `sheaf_context_deferred_shadow_ray` (the calls taking a `const
- * sheaf_context *`) may run concurrently from any number of threads on one
- * context, and so may `sheaf_context_trace_slot`,
- * `sheaf_context_occluded_slot` and `sheaf_context_render_rows`, each
- * thread with its own slot (`0 <= slot < sheaf_limits.max_threads`: the
- * slot holds the thread's mailbox). Every other call on a context
- * (set_geometry, the builds, the renders, destroy) needs exclusive access:
- * no other call on the same context may run at the same time. Different
- * contexts are independent.
+ * Thread safety: the calls taking a `const sheaf_context *` are shared
+ * calls (`sheaf_context_trace`, `_trace_with`, `_occluded`,
+ * `_occluded_with`, `_stats`, `_deferred_pixel`, `_deferred_shadow_ray`,
+ * and `_trace_slot`, `_occluded_slot`, `_render_rows`, each thread with
+ * its own slot, `0 <= slot < sheaf_limits.max_threads`, which holds the
+ * thread's mailbox): any number may run at once on one context. Every
+ * other call on a context (set_geometry, clear_geometry, the builds,
+ * render, render_with, render_whitted, render_deferred, destroy) is
+ * exclusive: no other call on the same context may run at the same time.
+ * `sheaf_context_last_error` may run at any time. Different contexts are
+ * independent.
+ *
+ * Misuse is detected, not raced: each context has a state word that
+ * every call updates once on entry and once on exit (one atomic
+ * operation each, not per ray). An exclusive call made while any other
+ * call is inside, and any call made while an exclusive call runs, returns
+ * `SHEAF_STATUS_CONTEXT_BUSY` at once and changes nothing; destroy
+ * refuses new calls (as on a destroyed context) and waits for the ones
+ * inside. What
+ * cannot be detected: a call on a context whose memory was already freed
+ * by `sheaf_context_destroy` (join threads before destroying), and caller
+ * buffers (geometry, rays, framebuffers) freed or written by other
+ * threads during a call.
+ *
+ * After a caught panic (`SHEAF_STATUS_PANIC`, a bug in sheaf) the context
+ * is poisoned: every later call but `sheaf_context_last_error` and
+ * `sheaf_context_destroy` returns `SHEAF_STATUS_POISONED`.
  */
 typedef struct sheaf_context sheaf_context;
 
@@ -362,10 +402,9 @@ typedef struct sheaf_bvh_params {
 } sheaf_bvh_params;
 
 /**
- * Capacities fixed at context creation (C: `sheaf_limits`).
- *
- * A zero in a `max_grid_*` knob means "derive from `max_triangles`"; see
- * the field docs for the rule.
+ * Capacities fixed at context creation: the crate's `Limits` field by
+ * field (see its docs in `src/mem/limits.rs` for each default rule).
+ * Start from `sheaf_limits_default`.
  */
 typedef struct sheaf_limits {
     /**
@@ -382,16 +421,16 @@ typedef struct sheaf_limits {
     uint32_t max_image_width;
     uint32_t max_image_height;
     /**
-     * Largest square tile (pixels per side) a render call works on at once.
+     * Largest square tile (pixels per side) a render call works on at
+     * once: even, 2..=1024.
      */
     uint32_t max_tile;
     /**
-     * Most threads that render or trace concurrently (one scratch slot each).
+     * Most threads that render or trace concurrently (one slot each), 1..=1024.
      */
     uint32_t max_threads;
     /**
-     * Most grid cells. 0: `8 * max_triangles + 64`, room for lambda up to 8
-     * (CGT paper section 3 uses lambda = 5).
+     * Most grid cells. 0: `8 * max_triangles + 64`.
      */
     uint32_t max_grid_cells;
     /**
@@ -399,46 +438,33 @@ typedef struct sheaf_limits {
      */
     uint32_t max_grid_refs;
     /**
-     * Reserve 48 bytes per triangle for the precomputed projection test
-     * (`TriTest::Projection`); without it that test cannot be selected.
+     * 1: reserve 48 bytes per triangle for the precomputed projection test
+     * (`SHEAF_TRI_TEST_PROJECTION`); 0: that test cannot be selected.
+     * Other values: `SHEAF_STATUS_INVALID_ARGUMENT`.
      */
-    bool projection_test;
+    uint8_t projection_test;
     /**
-     * Which structures get pools, a bit set of `SHEAF_STRUCTURE_GRID` (169
-     * bytes per triangle with the default grid rules and 8 threads),
-     * `SHEAF_STRUCTURE_BVH` (140 bytes per triangle) and
-     * `SHEAF_STRUCTURE_KD` (237 bytes per triangle with the default kd
-     * rules, 112 of them build scratch) and `SHEAF_STRUCTURE_PGRID`
-     * (perspective and light grids: about 190 bytes per triangle with the
-     * default pair pools, plus about 45 bytes per pixel of the largest
-     * image for the deferred frame buffers), at least one. A structure
-     * without pools cannot be built; model no more than the scene needs.
+     * Which structures get pools: `SHEAF_STRUCTURE_GRID`, `_BVH`, `_KD`,
+     * `_PGRID` bits, at least one.
      */
     uint32_t structures;
     /**
-     * Most kd-tree nodes. 0: `4 * max_triangles + 1024` (the OBJ scenes
-     * need 0.6 to 3.7 per triangle with the default `KdParams`).
+     * Most kd-tree nodes. 0: `4 * max_triangles + 1024`.
      */
     uint32_t max_kd_nodes;
     /**
-     * Most triangle references in kd-tree leaves. 0: `12 * max_triangles +
-     * 1024` (the OBJ scenes need 3.4 to 6.1 per triangle, the gears scene
-     * 20). At least `max_triangles` (every triangle needs a reference;
-     * fewer is `InvalidArgument`). A build that runs out makes leaves
-     * early (`KdInfo::forced_leaves`).
+     * Most kd-tree leaf references. 0: `12 * max_triangles + 1024`; else
+     * at least `max_triangles`.
      */
     uint32_t max_kd_refs;
     /**
-     * Most cells of the perspective grid and, separately, of each light
-     * grid (tiles x depth slices). 0: `max(ceil(w / 8) * ceil(h / 8), 64 *
-     * 64) * 32` for the largest image, room for the default `PgridParams`.
+     * Most cells of the perspective grid and of each light grid. 0: derived
+     * from the largest image.
      */
     uint32_t max_pgrid_cells;
     /**
-     * Most (triangle, cell) pairs of the perspective grid and, separately,
-     * of each light grid. 0: `8 * max_triangles + 262144` (a triangle
-     * spans every cell its projection and depth range touch: large ones
-     * near the eye span thousands).
+     * Most (triangle, cell) pairs of each perspective or light grid. 0:
+     * `8 * max_triangles + 262144`.
      */
     uint32_t max_pgrid_refs;
 } sheaf_limits;
@@ -466,9 +492,9 @@ typedef struct sheaf_grid_params {
     sheaf_tri_test test;
     /**
      * When the cells for `lambda` exceed `sheaf_limits.max_grid_cells`,
-     * lower lambda to fit instead of failing (default false).
+     * lower lambda to fit instead of failing (0 or 1; default 0).
      */
-    bool fit;
+    uint8_t fit;
 } sheaf_grid_params;
 
 /**
@@ -525,19 +551,21 @@ typedef struct sheaf_trace_params {
      */
     uint32_t packet;
     /**
-     * CGT: skip slices of empty macrocells (paper section 2.4).
+     * CGT: skip slices of empty macrocells (paper section 2.4). 0 or 1.
      */
-    bool macrocells;
+    uint8_t macrocells;
     /**
      * CGT: test each triangle once per packet (section 2.3). Trace and
-     * occluded calls have no thread slot and ignore it; render uses it.
+     * occluded calls have no thread slot and ignore it (still 0 or 1);
+     * render uses it.
      */
-    bool mailbox;
+    uint8_t mailbox;
     /**
      * Frustum culling: CGT's SIMD corner-ray culling (CGT section 2.3) and
      * the BVH packets' box and triangle culling (BVH paper section 4).
+     * 0 or 1.
      */
-    bool culling;
+    uint8_t culling;
     /**
      * BVH and kd-tree packets: which frustum they get (a `sheaf_ray_kind`).
      */
@@ -594,7 +622,7 @@ typedef struct sheaf_light {
 } sheaf_light;
 
 /**
- * Shading constants (C: `sheaf_shading`).
+ * Lambert shading of a frame (the crate's `Shading`).
  */
 typedef struct sheaf_shading {
     /**
@@ -610,9 +638,10 @@ typedef struct sheaf_shading {
      */
     float background[3];
     /**
-     * Trace shadow rays (false: every surface facing the light is lit).
+     * 1: trace shadow rays; 0: every surface facing the light is lit.
+     * Other values: `SHEAF_STATUS_INVALID_ARGUMENT`.
      */
-    bool shadows;
+    uint8_t shadows;
 } sheaf_shading;
 
 /**
@@ -958,9 +987,9 @@ typedef struct sheaf_pgrid_params {
     sheaf_tri_test test;
     /**
      * Leave out triangles facing away from the eye (default false). Changes
-     * results on open models: every other structure is two-sided.
+     * results on open models: every other structure is two-sided. 0 or 1.
      */
-    bool cull_backfaces;
+    uint8_t cull_backfaces;
 } sheaf_pgrid_params;
 
 /**
@@ -993,14 +1022,14 @@ typedef struct sheaf_deferred_job {
     size_t light_count;
     /**
      * Camera rays through the perspective grid (built per frame); false:
-     * traced with `primary`.
+     * traced with `primary`. 0 or 1.
      */
-    bool primary_pgrid;
+    uint8_t primary_pgrid;
     /**
      * Shadow rays through light grids (built per frame and light); false:
-     * traced with `shadow`.
+     * traced with `shadow`. 0 or 1.
      */
-    bool shadow_light_grid;
+    uint8_t shadow_light_grid;
     /**
      * Method of camera rays when `primary_pgrid` is false (ignored, not
      * checked, otherwise). Packet methods trace tiles of `primary.packet`
@@ -1114,7 +1143,8 @@ sheaf_status sheaf_required_bytes(const struct sheaf_limits *limits,
  *
  * On success `*out` is the new context; on failure `*out` is unchanged.
  * Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_INVALID_ARGUMENT`
- * (limits), `SHEAF_STATUS_MISALIGNED`, `SHEAF_STATUS_BUFFER_TOO_SMALL`.
+ * (limits, or `out` inside the buffer's first `sheaf_required_bytes`
+ * bytes), `SHEAF_STATUS_MISALIGNED`, `SHEAF_STATUS_BUFFER_TOO_SMALL`.
  *
  * Thread-safe (for distinct buffers).
  */
@@ -1135,6 +1165,9 @@ sheaf_status sheaf_context_create_in(void *buf,
  * (limits), `SHEAF_STATUS_OUT_OF_MEMORY`.
  *
  * Thread-safe.
+ *
+ * Only in builds with the `std` feature (the no_std library has no
+ * allocator: use `sheaf_context_create_in`).
  */
 sheaf_status sheaf_context_create(const struct sheaf_limits *limits,
                                   struct sheaf_context **out);
@@ -1145,11 +1178,37 @@ sheaf_status sheaf_context_create(const struct sheaf_limits *limits,
  * After `sheaf_context_create` this frees its one allocation; after
  * `sheaf_context_create_in` the caller's buffer may be freed or reused
  * afterwards. The borrowed geometry buffers are not touched. `ctx` must
- * not be used again.
+ * not be used again. A poisoned context (`SHEAF_STATUS_POISONED`) can be
+ * destroyed.
  *
- * Not thread-safe: no other call on `ctx` may run at the same time.
+ * Not thread-safe, but guarded: from the moment destroy starts, every call
+ * on `ctx` is refused (`SHEAF_STATUS_INVALID_ARGUMENT`, not a live
+ * context), and destroy waits
+ * for the calls already inside to return before it frees anything, so it
+ * never frees memory a running call uses. What cannot be detected: a call
+ * *starting* after destroy freed a `sheaf_context_create` context reads
+ * freed memory (join the threads first). A second destroy of a
+ * `create_in` context (whose memory stays valid) does nothing.
  */
 void sheaf_context_destroy(struct sheaf_context *ctx);
+
+/**
+ * Drop the borrowed geometry: from the successful return on, sheaf never
+ * reads the buffers of the last successful `sheaf_context_set_geometry`
+ * again, so they may be freed. Built structures keep their own copy of
+ * the triangles and still trace and render; builds return
+ * `SHEAF_STATUS_NO_GEOMETRY` until the next successful
+ * `sheaf_context_set_geometry`. Clearing a context without geometry is
+ * not an error.
+ *
+ * Not thread-safe: needs exclusive access to `ctx`
+ * (`SHEAF_STATUS_CONTEXT_BUSY` while another call runs on it).
+ *
+ * Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_INVALID_ARGUMENT`
+ * (not a live context), `SHEAF_STATUS_CONTEXT_BUSY`,
+ * `SHEAF_STATUS_POISONED`.
+ */
+sheaf_status sheaf_context_clear_geometry(struct sheaf_context *ctx);
 
 /**
  * Set the scene's triangles, borrowing the caller's buffers (zero copy).
@@ -1163,21 +1222,24 @@ void sheaf_context_destroy(struct sheaf_context *ctx);
  * Validates every index and the counts against the limits. Triangles with
  * NaN/infinite vertices or zero area are not errors: builds skip them and
  * count them in `sheaf_stats`. On error nothing changes: the previous
- * geometry stays set and the built structure stays valid.
+ * geometry stays set (and borrowed) and the built structure stays valid.
  *
  * Lifetime: the buffers are borrowed, not copied. They must stay alive
- * and unchanged until the next `sheaf_context_set_geometry` or
- * `sheaf_context_destroy`, except that the caller may update them in
- * place between calls (to animate: write new positions, then call
+ * and unchanged until the next *successful* `sheaf_context_set_geometry`,
+ * `sheaf_context_clear_geometry` or `sheaf_context_destroy` (a failed
+ * call keeps the previous buffers borrowed: free them only after
+ * clear_geometry), except that the caller may update them in place
+ * between calls (to animate: write new positions, then call
  * `sheaf_context_build_grid` again; every build re-reads them and
  * re-validates the indices). They must not be written while a build runs.
  * Trace, occluded and render never read them (they use the copy made by
  * the last build).
  *
  * Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_INVALID_ARGUMENT`
- * (stride, sizes), `SHEAF_STATUS_MISALIGNED` (indices),
- * `SHEAF_STATUS_INDEX_OUT_OF_RANGE`, `SHEAF_STATUS_CAPACITY_TRIANGLES`,
- * `SHEAF_STATUS_CAPACITY_VERTICES`.
+ * (stride below 12 or not a multiple of 4, sizes), `SHEAF_STATUS_MISALIGNED`
+ * (indices), `SHEAF_STATUS_INDEX_OUT_OF_RANGE`,
+ * `SHEAF_STATUS_CAPACITY_TRIANGLES`, `SHEAF_STATUS_CAPACITY_VERTICES`,
+ * `SHEAF_STATUS_CONTEXT_BUSY`, `SHEAF_STATUS_POISONED`.
  *
  * Not thread-safe: needs exclusive access to `ctx`.
  */
@@ -1425,17 +1487,19 @@ sheaf_status sheaf_context_stats(const struct sheaf_context *ctx,
  * needed and what is available for capacity errors, the triangle and the
  * index for out-of-range indices...). "no error" before any failure; a
  * successful call does not clear it. Failures of this call itself are not
- * recorded.
+ * recorded, nor are `SHEAF_STATUS_CONTEXT_BUSY` and
+ * `SHEAF_STATUS_POISONED` refusals (the failure that poisoned a context
+ * stays readable here).
  *
  * Writes at most `len - 1` bytes of the message plus a NUL terminator to
  * `buf` (truncating at a character boundary; `SHEAF_ERROR_MESSAGE_MAX`
  * bytes always suffice) and the number of bytes before the NUL to
  * `*written`. Never allocates.
  *
- * Thread-safe.
+ * Thread-safe, also beside exclusive calls and on a poisoned context.
  *
  * Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_INVALID_ARGUMENT`
- * (`len == 0`).
+ * (`len == 0`, not a live context).
  */
 sheaf_status sheaf_context_last_error(const struct sheaf_context *ctx,
                                       char *buf,
@@ -1511,6 +1575,16 @@ sheaf_status sheaf_context_build_kd(struct sheaf_context *ctx,
  */
 sheaf_status sheaf_limits_default(uint32_t max_triangles,
                                   struct sheaf_limits *out);
+
+/**
+ * The precompiled `core` the no_std library links was built to unwind and
+ * refers to this symbol from its unwind tables; with `panic = "abort"`
+ * (the `release-nostd` profile) nothing ever unwinds, so it is never
+ * called. Defined here so the staticlib links into C programs without a
+ * Rust std (the usual no_std workaround; the real one needs a nightly
+ * `-Z build-std`).
+ */
+void rust_eh_personality(void);
 
 /**
  * Write the default perspective/light grid parameters (8-pixel sorting
@@ -1708,7 +1782,7 @@ sheaf_status sheaf_whitted_params_default(struct sheaf_whitted_params *out);
  *
  * Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_INVALID_ARGUMENT`
  * (methods, bounce limits above 8 in total, materials, ranges, lights,
- * camera, sizes), `SHEAF_STATUS_MISALIGNED`, `SHEAF_STATUS_CAPACITY_IMAGE`,
+ * camera, sizes, a framebuffer overlapping an input array), `SHEAF_STATUS_MISALIGNED`, `SHEAF_STATUS_CAPACITY_IMAGE`,
  * `SHEAF_STATUS_NOT_BUILT`.
  *
  * Not thread-safe: needs exclusive access to `ctx`.

@@ -12,7 +12,7 @@ use crate::render::deferred::{self, DeferredInfo, DeferredJob, FrameBuffers, Pri
 use crate::error::{Error, Pool, Result};
 use crate::geom::frustum::Frustum;
 use crate::geom::{Hit, Hit4, M4, Mt, Pt, Ray, Ray4, Scene, TriTest, TriVerts, TriangleTest, Wt};
-use crate::mem::{Arena, Limits, Slots, pool_bytes};
+use crate::mem::{Arena, Limits, Slots};
 use crate::render::whitted::{self, WhittedJob};
 use crate::render::{self, Frame, PointLight, PrimaryRays, Tracer};
 use crate::trace::{Counters, Method, TraceParams};
@@ -50,86 +50,119 @@ struct Layout {
     chunks: usize,
 }
 
+/// A pool size from a u64 rule, refused when it does not fit a `usize`
+/// (32-bit targets).
+fn entries(v: u64) -> Result<usize> {
+    usize::try_from(v).map_err(|_| Error::InvalidArgument("limits need more memory than can be addressed"))
+}
+
+/// Sizes and byte sums of the layout: every operation checked (the lints
+/// make an unchecked one a build error), so no `Limits`, on 32 or 64 bits,
+/// can wrap a size into a small buffer.
+#[deny(clippy::arithmetic_side_effects, clippy::cast_possible_truncation)]
 impl Layout {
     fn of(l: &Limits) -> Result<Layout> {
         l.validate()?;
         let n = l.max_triangles as usize;
         let grid = l.has(Limits::GRID);
-        let cells = if grid { l.grid_cells() as usize } else { 0 };
+        let cells = if grid { entries(l.grid_cells())? } else { 0 };
         let bvh_tris = if l.has(Limits::BVH) { n } else { 0 };
         let kd = l.has(Limits::KD);
         let kd_tris = if kd { n } else { 0 };
         let pg = l.has(Limits::PGRID);
-        let px = if pg { l.frame_pixels() as usize } else { 0 };
+        let px = if pg { entries(l.frame_pixels())? } else { 0 };
+        let big = Error::InvalidArgument("limits need more memory than can be addressed");
         Ok(Layout {
             tris: if grid { n } else { 0 },
             proj: if grid && l.projection_test { n } else { 0 },
             cells,
-            refs: if grid { l.grid_refs() as usize } else { 0 },
-            macro_words: if grid { cells.div_ceil(32) + 1 } else { 0 },
+            refs: if grid { entries(l.grid_refs())? } else { 0 },
+            macro_words: if grid { cells.div_ceil(32).checked_add(1).ok_or(big)? } else { 0 },
             slots: l.max_threads as usize,
             stamps: if grid || pg { n } else { 0 },
             bvh_tris,
             bvh_proj: if l.projection_test { bvh_tris } else { 0 },
             kd_tris,
             kd_proj: if l.projection_test { kd_tris } else { 0 },
-            kd_nodes: if kd { l.kd_nodes() as usize } else { 0 },
-            kd_refs: if kd { l.kd_refs() as usize } else { 0 },
-            kd_events: if kd { l.kd_events() as usize } else { 0 },
+            kd_nodes: if kd { entries(l.kd_nodes())? } else { 0 },
+            kd_refs: if kd { entries(l.kd_refs())? } else { 0 },
+            kd_events: if kd { entries(l.kd_events())? } else { 0 },
             pg_tris: if pg { n } else { 0 },
             pg_proj: if pg && l.projection_test { n } else { 0 },
-            pg_cells: if pg { l.pgrid_cells() as usize + 1 } else { 0 },
-            pg_refs: if pg { l.pgrid_refs() as usize } else { 0 },
-            pg_scratch: if pg { (l.pgrid_refs().max(l.frame_pixels())) as usize } else { 0 },
+            pg_cells: if pg { entries(l.pgrid_cells())?.checked_add(1).ok_or(big)? } else { 0 },
+            pg_refs: if pg { entries(l.pgrid_refs())? } else { 0 },
+            pg_scratch: if pg { entries(l.pgrid_refs().max(l.frame_pixels()))? } else { 0 },
             px,
-            chunks: if pg { px / pgrid::MIN_CHUNK as usize + px.min(pgrid::MAX_LIGHT_TILES) } else { 0 },
+            chunks: if pg {
+                px.checked_div(pgrid::MIN_CHUNK as usize)
+                    .and_then(|c| c.checked_add(px.min(pgrid::MAX_LIGHT_TILES)))
+                    .ok_or(big)?
+            } else {
+                0
+            },
         })
     }
-    fn bytes(&self) -> usize {
-        pool_bytes::<TriVerts>(self.tris)
-            + pool_bytes::<crate::geom::ProjTri>(self.proj)
-            + pool_bytes::<u32>(self.tris)
-            + pool_bytes::<u32>(self.cells + 1)
-            + pool_bytes::<u32>(self.refs)
-            + pool_bytes::<u32>(self.macro_words)
-            + pool_bytes::<u32>(self.stamps * self.slots)
-            + 2 * pool_bytes::<u32>(self.slots)
-            + pool_bytes::<BvhNode>(2 * self.bvh_tris)
-            + pool_bytes::<TriVerts>(self.bvh_tris)
-            + pool_bytes::<crate::geom::ProjTri>(self.bvh_proj)
-            + pool_bytes::<u32>(self.bvh_tris)
-            + pool_bytes::<u32>(self.bvh_tris)
-            + pool_bytes::<PrimRef>(self.bvh_tris)
-            + pool_bytes::<KdNode>(self.kd_nodes)
-            + pool_bytes::<u32>(self.kd_refs)
-            + pool_bytes::<TriVerts>(self.kd_tris)
-            + pool_bytes::<crate::geom::ProjTri>(self.kd_proj)
-            + pool_bytes::<u32>(self.kd_tris)
-            + pool_bytes::<u32>(self.kd_tris)
-            + pool_bytes::<u64>(self.kd_events)
-            + pool_bytes::<u8>(self.kd_tris)
-            + pool_bytes::<TriVerts>(self.pg_tris)
-            + pool_bytes::<crate::geom::ProjTri>(self.pg_proj)
-            + pool_bytes::<u8>(self.pg_tris)
-            + pool_bytes::<[f32; 4]>(self.pg_tris)
-            + 2 * (pool_bytes::<u32>(self.pg_cells) + pool_bytes::<u32>(self.pg_refs))
-            + pool_bytes::<u32>(self.pg_refs)
-            + 2 * pool_bytes::<u32>(self.pg_scratch)
-            + pool_bytes::<u32>(self.px)
-            + pool_bytes::<f32>(self.px)
-            + pool_bytes::<[f32; 3]>(self.px)
-            + pool_bytes::<u8>(self.px)
-            + 2 * pool_bytes::<u32>(self.px)
-            + pool_bytes::<u8>(self.px)
-            + pool_bytes::<Chunk>(self.chunks)
-            + pool_bytes::<u32>(if self.px > 0 { pgrid::MAX_LIGHT_TILES } else { 0 })
+
+    /// Total bytes, `InvalidArgument` when the sum does not fit a `usize`.
+    fn bytes(&self) -> Result<usize> {
+        let twice = |n: usize| n.checked_mul(2);
+        let pools = [
+            pool::<TriVerts>(self.tris),
+            pool::<crate::geom::ProjTri>(self.proj),
+            pool::<u32>(self.tris),
+            self.cells.checked_add(1).and_then(pool::<u32>),
+            pool::<u32>(self.refs),
+            pool::<u32>(self.macro_words),
+            self.stamps.checked_mul(self.slots).and_then(pool::<u32>),
+            pool::<u32>(self.slots).and_then(twice),
+            twice(self.bvh_tris).and_then(pool::<BvhNode>),
+            pool::<TriVerts>(self.bvh_tris),
+            pool::<crate::geom::ProjTri>(self.bvh_proj),
+            pool::<u32>(self.bvh_tris),
+            pool::<u32>(self.bvh_tris),
+            pool::<PrimRef>(self.bvh_tris),
+            pool::<KdNode>(self.kd_nodes),
+            pool::<u32>(self.kd_refs),
+            pool::<TriVerts>(self.kd_tris),
+            pool::<crate::geom::ProjTri>(self.kd_proj),
+            pool::<u32>(self.kd_tris),
+            pool::<u32>(self.kd_tris),
+            pool::<u64>(self.kd_events),
+            pool::<u8>(self.kd_tris),
+            pool::<TriVerts>(self.pg_tris),
+            pool::<crate::geom::ProjTri>(self.pg_proj),
+            pool::<u8>(self.pg_tris),
+            pool::<[f32; 4]>(self.pg_tris),
+            pool::<u32>(self.pg_cells).and_then(twice),
+            pool::<u32>(self.pg_refs).and_then(twice),
+            pool::<u32>(self.pg_refs),
+            pool::<u32>(self.pg_scratch).and_then(twice),
+            pool::<u32>(self.px),
+            pool::<f32>(self.px),
+            pool::<[f32; 3]>(self.px),
+            pool::<u8>(self.px),
+            pool::<u32>(self.px).and_then(twice),
+            pool::<u8>(self.px),
+            pool::<Chunk>(self.chunks),
+            pool::<u32>(if self.px > 0 { pgrid::MAX_LIGHT_TILES } else { 0 }),
+        ];
+        pools
+            .into_iter()
+            .try_fold(0usize, |sum, b| sum.checked_add(b?))
+            .filter(|&b| b <= isize::MAX as usize)
+            .ok_or(Error::InvalidArgument("limits need more memory than can be addressed"))
     }
+}
+
+/// `pool_bytes`, checked.
+fn pool<T>(n: usize) -> Option<usize> {
+    crate::mem::pool_bytes_checked::<T>(n)
 }
 
 /// Exact number of bytes `Context::new_in` needs for `limits` (the buffer
 /// must also start on a 64-byte boundary).
 pub fn required_bytes(limits: &Limits) -> Result<usize> {
-    Ok(Layout::of(limits)?.bytes())
+    Layout::of(limits)?.bytes()
 }
 
 /// Statistics of the last build and the last trace/render call.
@@ -197,7 +230,7 @@ impl<'a> Context<'a> {
     /// 64-byte aligned). Never allocates.
     pub fn new_in(buf: &'a mut [u8], limits: &Limits) -> Result<Context<'a>> {
         let layout = Layout::of(limits)?;
-        let need = layout.bytes();
+        let need = layout.bytes()?;
         if buf.len() < need {
             return Err(Error::BufferTooSmall {
                 needed: need as u64,
@@ -925,6 +958,9 @@ impl<'a> Context<'a> {
     ) -> Result<Counters> {
         primary.validate()?;
         shadow.validate()?;
+        // The one light check of every render call (Whitted and deferred
+        // frames check theirs in their job's validate).
+        frame.light.validate()?;
         let rays = self.check_frame(frame, pixels.len(), stride)?;
         let t = now();
         let mut ctr = Counters::default();
@@ -939,6 +975,7 @@ impl<'a> Context<'a> {
             })?;
             let band = Band { frame, rays: &rays, y0: 0, y1: frame.height, stride };
             band.render(&tr, primary, shadow, pixels, &mut mb, &mut ctr);
+            crate::fault_point!(Render);
         }
         self.stats.trace_ns = elapsed_ns(t);
         self.stats.counters = ctr;
@@ -965,6 +1002,7 @@ impl<'a> Context<'a> {
     ) -> Result<Counters> {
         primary.validate()?;
         shadow.validate()?;
+        frame.light.validate()?;
         let rays = self.check_rows(frame, y0, y1, band.len(), stride)?;
         let tr = self.scene_tracer()?;
         tr.with_single(shadow.method)?;
@@ -1043,6 +1081,7 @@ impl<'a> Context<'a> {
                 }
             }
         }
+        crate::fault_point!(Whitted);
         self.stats.trace_ns = elapsed_ns(t);
         self.stats.counters = ctr;
         Ok(ctr)

@@ -72,6 +72,14 @@ pub enum Error {
     /// Thread slot `slot` is in use by another call (each thread that
     /// traces or renders concurrently on one context needs its own slot).
     SlotBusy { slot: u32 },
+    /// Another call is inside the context in a way this call may not join
+    /// (C ABI: an exclusive call while others run, or any call during an
+    /// exclusive one). Nothing was changed; retry when the other call is done.
+    ContextBusy,
+    /// A panic was caught inside an earlier call on this context (C ABI):
+    /// its structures may be half-built, so every call but last_error and
+    /// destroy is refused until destroy.
+    Poisoned,
     /// A panic was caught at the C boundary (a bug in sheaf: please report).
     Panic,
 }
@@ -112,6 +120,14 @@ impl fmt::Display for Error {
             Error::SlotBusy { slot } => {
                 write!(f, "thread slot {slot} is in use by another call")
             }
+            Error::ContextBusy => write!(
+                f,
+                "context busy: another call on this context is running (exclusive calls need the context alone)"
+            ),
+            Error::Poisoned => write!(
+                f,
+                "context poisoned by an earlier internal error (panic): destroy it and create a new one"
+            ),
             Error::Panic => write!(f, "internal error (panic caught at the C boundary)"),
         }
     }

@@ -10,10 +10,23 @@
 #![cfg_attr(not(feature = "std"), no_std)]
 #![deny(unsafe_code)]
 
+/// A fault-injection point (feature `fault-injection`, tests only): panics
+/// when a test armed it on this thread (`fault::arm`); compiles to nothing
+/// otherwise.
+macro_rules! fault_point {
+    ($p:ident) => {
+        #[cfg(feature = "fault-injection")]
+        $crate::fault::point($crate::fault::Point::$p);
+    };
+}
+pub(crate) use fault_point;
+
 pub mod accel;
 pub mod context;
 pub mod error;
-#[cfg(feature = "std")]
+#[cfg(feature = "fault-injection")]
+#[doc(hidden)]
+pub mod fault;
 pub mod ffi;
 pub mod geom;
 pub mod math;
@@ -38,12 +51,3 @@ pub use render::deferred::{DeferredInfo, DeferredJob, OnCaller, PrimaryPass, Sha
 pub use render::{Camera, Frame, PointLight, Shading};
 pub use trace::{CgtOptions, Counters, Method, TraceParams};
 
-/// Without std a staticlib/cdylib needs a panic handler; sheaf's spins (no
-/// panic is reachable from caller input, see STYLE.md rule 8).
-#[cfg(all(not(feature = "std"), not(feature = "no-panic-handler"), not(test)))]
-#[panic_handler]
-fn panic(_: &core::panic::PanicInfo<'_>) -> ! {
-    loop {
-        core::hint::spin_loop();
-    }
-}

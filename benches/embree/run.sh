@@ -46,7 +46,7 @@ fi
 
 # ---- Embree 3 ---------------------------------------------------------------
 have_embree() {
-  [ -f /usr/include/embree3/rtcore.h ] && ldconfig -p 2>/dev/null | grep -q 'libembree3\.so'
+  [ -f /usr/include/embree3/rtcore.h ] && ldconfig -p 2>/dev/null | grep 'libembree3\.so' >/dev/null
 }
 if ! have_embree && [ $install = 1 ] && [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
   echo "== installing libembree-dev (Debian's Embree 3) with apt-get" >&2

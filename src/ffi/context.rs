@@ -8,9 +8,11 @@
 //! `sheaf_context_destroy`.
 
 use super::bvh::sheaf_bvh_params;
+use super::limits::sheaf_limits;
+use super::sync::{Slot, State};
 use super::trace_params::sheaf_trace_params;
 use super::{
-    SHEAF_CONTEXT_ALIGN, SHEAF_ERROR_MESSAGE_MAX, array_bytes, check_array, check_non_null, guard,
+    SHEAF_CONTEXT_ALIGN, SHEAF_ERROR_MESSAGE_MAX, array_bytes, check_array, check_non_null,
     guard_free, overlaps, raw, read_in, sheaf_frame, sheaf_grid_params, sheaf_method, sheaf_stats,
     sheaf_status, write_out,
 };
@@ -23,12 +25,11 @@ use crate::geom::{Ray, Scene};
 use crate::mem::Limits;
 use crate::render::Tracer;
 use crate::trace::{Counters, TraceParams};
-use core::cell::Cell;
+use core::cell::UnsafeCell;
 use core::ffi::{c_char, c_void};
 use core::fmt::Write as _;
-use core::panic::AssertUnwindSafe;
 use core::ptr;
-use std::sync::{Mutex, PoisonError};
+use core::sync::atomic::{AtomicU64, Ordering};
 
 /// A sheaf context (opaque): fixed memory, the borrowed geometry, the
 /// current acceleration structure, the last error.
@@ -36,18 +37,33 @@ use std::sync::{Mutex, PoisonError};
 /// Made by `sheaf_context_create` or `sheaf_context_create_in`, released by
 /// `sheaf_context_destroy`.
 ///
-/// Thread safety: `sheaf_context_trace`, `sheaf_context_trace_with`,
-/// `sheaf_context_occluded`, `sheaf_context_stats`,
-/// `sheaf_context_last_error`, `sheaf_context_deferred_pixel` and
-/// `sheaf_context_deferred_shadow_ray` (the calls taking a `const
-/// sheaf_context *`) may run concurrently from any number of threads on one
-/// context, and so may `sheaf_context_trace_slot`,
-/// `sheaf_context_occluded_slot` and `sheaf_context_render_rows`, each
-/// thread with its own slot (`0 <= slot < sheaf_limits.max_threads`: the
-/// slot holds the thread's mailbox). Every other call on a context
-/// (set_geometry, the builds, the renders, destroy) needs exclusive access:
-/// no other call on the same context may run at the same time. Different
-/// contexts are independent.
+/// Thread safety: the calls taking a `const sheaf_context *` are shared
+/// calls (`sheaf_context_trace`, `_trace_with`, `_occluded`,
+/// `_occluded_with`, `_stats`, `_deferred_pixel`, `_deferred_shadow_ray`,
+/// and `_trace_slot`, `_occluded_slot`, `_render_rows`, each thread with
+/// its own slot, `0 <= slot < sheaf_limits.max_threads`, which holds the
+/// thread's mailbox): any number may run at once on one context. Every
+/// other call on a context (set_geometry, clear_geometry, the builds,
+/// render, render_with, render_whitted, render_deferred, destroy) is
+/// exclusive: no other call on the same context may run at the same time.
+/// `sheaf_context_last_error` may run at any time. Different contexts are
+/// independent.
+///
+/// Misuse is detected, not raced: each context has a state word that
+/// every call updates once on entry and once on exit (one atomic
+/// operation each, not per ray). An exclusive call made while any other
+/// call is inside, and any call made while an exclusive call runs, returns
+/// `SHEAF_STATUS_CONTEXT_BUSY` at once and changes nothing; destroy
+/// refuses new calls (as on a destroyed context) and waits for the ones
+/// inside. What
+/// cannot be detected: a call on a context whose memory was already freed
+/// by `sheaf_context_destroy` (join threads before destroying), and caller
+/// buffers (geometry, rays, framebuffers) freed or written by other
+/// threads during a call.
+///
+/// After a caught panic (`SHEAF_STATUS_PANIC`, a bug in sheaf) the context
+/// is poisoned: every later call but `sheaf_context_last_error` and
+/// `sheaf_context_destroy` returns `SHEAF_STATUS_POISONED`.
 pub struct sheaf_context {
     _private: [u8; 0],
 }
@@ -89,26 +105,36 @@ impl Geometry {
     }
 }
 
-/// What a `sheaf_context *` points to.
-pub(super) struct Handle {
-    /// `MAGIC` while alive, 0 after destroy (catches a second destroy of a
-    /// `create_in` context, whose memory stays valid).
-    magic: u64,
-    pub(super) ctx: Context<'static>,
-    pub(super) geometry: Option<Geometry>,
+/// What a `sheaf_context *` points to: the words calls from any thread
+/// read (magic, state, last error) and, in an `UnsafeCell`, the part only
+/// a registered call touches (`Handle`), shared or exclusive as the state
+/// word says.
+struct Header {
+    /// `MAGIC` from creation on (catches pointers that never were a
+    /// context); destroy marks the state word instead, which also catches
+    /// calls on a destroyed `create_in` context, whose memory stays valid.
+    magic: AtomicU64,
+    /// Shared calls inside, an exclusive call, poisoned, destroyed (`sync.rs`).
+    state: State,
     /// The last failure of a call on this context (never cleared by a
-    /// success). A mutex because trace/occluded run concurrently; locked
-    /// only on failure and by `sheaf_context_last_error`.
-    last_error: Mutex<Option<Error>>,
+    /// success; busy refusals are not recorded).
+    last_error: Slot<Option<Error>>,
     /// Size of the allocation made by `sheaf_context_create` (None: the
     /// caller's buffer).
     alloc_bytes: Option<usize>,
+    handle: UnsafeCell<Handle>,
+}
+
+/// The context proper: the core `Context` and the borrowed geometry.
+pub(super) struct Handle {
+    pub(super) ctx: Context<'static>,
+    pub(super) geometry: Option<Geometry>,
 }
 
 /// Bytes of the handle header in front of the arena (a multiple of 64).
 pub const HEADER_BYTES: usize =
-    core::mem::size_of::<Handle>().next_multiple_of(SHEAF_CONTEXT_ALIGN);
-const _: () = assert!(core::mem::align_of::<Handle>() <= SHEAF_CONTEXT_ALIGN);
+    core::mem::size_of::<Header>().next_multiple_of(SHEAF_CONTEXT_ALIGN);
+const _: () = assert!(core::mem::align_of::<Header>() <= SHEAF_CONTEXT_ALIGN);
 
 /// Total bytes of a context: header plus the core's pools.
 fn total_bytes(limits: &Limits) -> Result<usize> {
@@ -121,76 +147,72 @@ fn total_bytes(limits: &Limits) -> Result<usize> {
 }
 
 /// Check a handle pointer: non-NULL, aligned, alive.
-fn handle(ctx: *const sheaf_context) -> Result<*mut Handle> {
+fn header<'h>(ctx: *const sheaf_context) -> Result<&'h Header> {
     check_non_null!(ctx);
-    let h = ctx.cast::<Handle>().cast_mut();
+    let h = ctx.cast::<Header>();
     if !h.is_aligned() {
         return Err(Error::InvalidArgument("not a sheaf_context"));
     }
     // SAFETY: a non-NULL handle comes from sheaf_context_create(_in) (C
-    // contract), so the header is readable; only the magic word is read.
-    let magic = unsafe { ptr::addr_of!((*h).magic).read() };
+    // contract), so the header is readable; only the atomic magic word is
+    // read before it is known to be alive.
+    let magic = unsafe { &(*h).magic }.load(Ordering::Acquire);
     if magic != MAGIC {
         return Err(Error::InvalidArgument(
             "not a live sheaf_context (destroyed?)",
         ));
     }
-    Ok(h)
+    // SAFETY: alive; every field other calls may touch concurrently is an
+    // atomic, the last-error lock, or behind the UnsafeCell.
+    Ok(unsafe { &*h })
 }
 
-/// Store `e` as the handle's last error.
-fn record(h: *mut Handle, e: Error) {
-    // SAFETY: `h` passed `handle()`; only the mutex field is borrowed, and a
-    // Mutex may be shared by concurrent callers.
-    let m = unsafe { &(*h).last_error };
-    *m.lock().unwrap_or_else(PoisonError::into_inner) = Some(e);
+/// Finish a registered call: a failure becomes the last error (a panic
+/// also poisons the context), recorded while the call is still registered
+/// so a concurrent destroy cannot free the header under it.
+fn settle(hd: &Header, r: Result<()>) -> Result<()> {
+    if let Err(e) = r {
+        if e == Error::Panic {
+            hd.state.poison();
+        }
+        hd.last_error.set(Some(e));
+    }
+    r
 }
 
 /// Run `f` on a shared handle (calls that may run concurrently), behind
-/// the panic boundary, recording a failure in the handle.
+/// the panic boundary, recording a failure in the handle. Refused with
+/// `Error::ContextBusy` (not recorded) while an exclusive call runs.
 pub(super) fn with_ref(
     ctx: *const sheaf_context,
     f: impl FnOnce(&Handle) -> Result<()>,
 ) -> sheaf_status {
-    let seen: Cell<Option<*mut Handle>> = Cell::new(None);
-    guard(
-        || {
-            let h = handle(ctx)?;
-            seen.set(Some(h));
-            // SAFETY: a live handle; the C contract allows only other
-            // shared-access calls concurrently, so no `&mut` exists.
-            f(unsafe { &*h })
-        },
-        |e| {
-            if let Some(h) = seen.get() {
-                record(h, e)
-            }
-        },
-    )
+    guard_free(|| {
+        let hd = header(ctx)?;
+        let _in = hd.state.enter_shared()?;
+        // SAFETY: registered as a shared call: no exclusive call (the only
+        // ones making a `&mut Handle`) can start until `_in` drops.
+        let r = super::catch(|| f(unsafe { &*hd.handle.get() }));
+        settle(hd, r)
+    })
 }
 
 /// Run `f` on the exclusively borrowed handle (calls that need exclusive
 /// access), behind the panic boundary, recording a failure in the handle.
+/// Refused with `Error::ContextBusy` (not recorded) while any other call
+/// is inside.
 pub(super) fn with_mut(
     ctx: *mut sheaf_context,
     f: impl FnOnce(&mut Handle) -> Result<()>,
 ) -> sheaf_status {
-    let seen: Cell<Option<*mut Handle>> = Cell::new(None);
-    guard(
-        || {
-            let h = handle(ctx)?;
-            seen.set(Some(h));
-            // SAFETY: a live handle; the C contract gives this call
-            // exclusive access to the context. The borrow ends before
-            // `record` runs.
-            f(unsafe { &mut *h })
-        },
-        |e| {
-            if let Some(h) = seen.get() {
-                record(h, e)
-            }
-        },
-    )
+    guard_free(|| {
+        let hd = header(ctx)?;
+        let _in = hd.state.enter_exclusive()?;
+        // SAFETY: the state word gives this call the context alone until
+        // `_in` drops: no other reference to the Handle exists.
+        let r = super::catch(|| f(unsafe { &mut *hd.handle.get() }));
+        settle(hd, r)
+    })
 }
 
 /// Build a context in `base[..need]`.
@@ -214,16 +236,19 @@ unsafe fn place(
     let arena: &'static mut [u8] =
         unsafe { core::slice::from_raw_parts_mut(base.add(HEADER_BYTES), need - HEADER_BYTES) };
     let ctx = Context::new_in(arena, limits)?;
-    let h = base.cast::<Handle>();
-    // SAFETY: aligned (64 >= align_of::<Handle>()), in bounds (HEADER_BYTES
-    // >= size_of::<Handle>()), disjoint from the arena.
+    let h = base.cast::<Header>();
+    // SAFETY: aligned (64 >= align_of::<Header>()), in bounds (HEADER_BYTES
+    // >= size_of::<Header>()), disjoint from the arena.
     unsafe {
-        h.write(Handle {
-            magic: MAGIC,
-            ctx,
-            geometry: None,
-            last_error: Mutex::new(None),
+        h.write(Header {
+            magic: AtomicU64::new(MAGIC),
+            state: State::new(),
+            last_error: Slot::new(None),
             alloc_bytes,
+            handle: UnsafeCell::new(Handle {
+                ctx,
+                geometry: None,
+            }),
         });
     }
     Ok(h.cast())
@@ -240,9 +265,12 @@ unsafe fn place(
 ///
 /// Thread-safe.
 #[unsafe(no_mangle)]
-pub extern "C" fn sheaf_required_bytes(limits: *const Limits, out: *mut usize) -> sheaf_status {
+pub extern "C" fn sheaf_required_bytes(
+    limits: *const sheaf_limits,
+    out: *mut usize,
+) -> sheaf_status {
     guard_free(|| {
-        let limits = read_in(limits)?;
+        let limits = read_in(limits)?.to_core()?;
         check_non_null!(out);
         let need = total_bytes(&limits)?;
         write_out(out, need);
@@ -261,19 +289,20 @@ pub extern "C" fn sheaf_required_bytes(limits: *const Limits, out: *mut usize) -
 ///
 /// On success `*out` is the new context; on failure `*out` is unchanged.
 /// Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_INVALID_ARGUMENT`
-/// (limits), `SHEAF_STATUS_MISALIGNED`, `SHEAF_STATUS_BUFFER_TOO_SMALL`.
+/// (limits, or `out` inside the buffer's first `sheaf_required_bytes`
+/// bytes), `SHEAF_STATUS_MISALIGNED`, `SHEAF_STATUS_BUFFER_TOO_SMALL`.
 ///
 /// Thread-safe (for distinct buffers).
 #[unsafe(no_mangle)]
 pub extern "C" fn sheaf_context_create_in(
     buf: *mut c_void,
     len: usize,
-    limits: *const Limits,
+    limits: *const sheaf_limits,
     out: *mut *mut sheaf_context,
 ) -> sheaf_status {
     guard_free(|| {
         check_non_null!(buf);
-        let limits = read_in(limits)?;
+        let limits = read_in(limits)?.to_core()?;
         check_non_null!(out);
         let need = total_bytes(&limits)?;
         if (buf as usize) % SHEAF_CONTEXT_ALIGN != 0 {
@@ -286,6 +315,16 @@ pub extern "C" fn sheaf_context_create_in(
                 needed: need as u64,
                 available: len as u64,
             });
+        }
+        // `*out` is written after the context is placed: inside the buffer
+        // it would overwrite the new context's header.
+        if overlaps(
+            out.cast_const().cast(),
+            core::mem::size_of::<*mut sheaf_context>(),
+            buf.cast_const().cast(),
+            need,
+        ) {
+            return Err(Error::InvalidArgument("out points into the context buffer"));
         }
         // SAFETY: aligned and at least `need` bytes (checked above); the C
         // contract hands the buffer to the context until destroy.
@@ -306,14 +345,18 @@ pub extern "C" fn sheaf_context_create_in(
 /// (limits), `SHEAF_STATUS_OUT_OF_MEMORY`.
 ///
 /// Thread-safe.
+///
+/// Only in builds with the `std` feature (the no_std library has no
+/// allocator: use `sheaf_context_create_in`).
+#[cfg(feature = "std")]
 #[unsafe(no_mangle)]
 pub extern "C" fn sheaf_context_create(
-    limits: *const Limits,
+    limits: *const sheaf_limits,
     out: *mut *mut sheaf_context,
 ) -> sheaf_status {
     let mut oom = false;
     let s = guard_free(|| {
-        let limits = read_in(limits)?;
+        let limits = read_in(limits)?.to_core()?;
         check_non_null!(out);
         let need = total_bytes(&limits)?;
         let layout = std::alloc::Layout::from_size_align(need, SHEAF_CONTEXT_ALIGN)
@@ -348,23 +391,37 @@ pub extern "C" fn sheaf_context_create(
 /// After `sheaf_context_create` this frees its one allocation; after
 /// `sheaf_context_create_in` the caller's buffer may be freed or reused
 /// afterwards. The borrowed geometry buffers are not touched. `ctx` must
-/// not be used again.
+/// not be used again. A poisoned context (`SHEAF_STATUS_POISONED`) can be
+/// destroyed.
 ///
-/// Not thread-safe: no other call on `ctx` may run at the same time.
+/// Not thread-safe, but guarded: from the moment destroy starts, every call
+/// on `ctx` is refused (`SHEAF_STATUS_INVALID_ARGUMENT`, not a live
+/// context), and destroy waits
+/// for the calls already inside to return before it frees anything, so it
+/// never frees memory a running call uses. What cannot be detected: a call
+/// *starting* after destroy freed a `sheaf_context_create` context reads
+/// freed memory (join the threads first). A second destroy of a
+/// `create_in` context (whose memory stays valid) does nothing.
 #[unsafe(no_mangle)]
 pub extern "C" fn sheaf_context_destroy(ctx: *mut sheaf_context) {
     if ctx.is_null() {
         return;
     }
-    let _ = std::panic::catch_unwind(AssertUnwindSafe(|| {
-        let Ok(h) = handle(ctx) else { return };
-        // SAFETY: a live handle with exclusive access (C contract). The
-        // magic is cleared first, the handle moved out and dropped (the
-        // context before the memory it lives in), then the allocation, if
-        // any, is freed with the layout it was made with.
+    let _ = guard_free(|| {
+        let hd = header(ctx)?;
+        if !hd.state.enter_destroy() {
+            return Ok(()); // another destroy is doing it
+        }
+        let alloc_bytes = hd.alloc_bytes;
+        let h = ctx.cast::<Header>();
+        // SAFETY: a live header taken for destroy (no call inside, none can
+        // enter: the dying bit stays set). The header is
+        // dropped in place (the context before the memory it lives in),
+        // then the allocation, if any, is freed with the layout it was made
+        // with.
         unsafe {
-            ptr::addr_of_mut!((*h).magic).write(0);
-            let alloc_bytes = h.read().alloc_bytes; // the moved-out handle is dropped here
+            ptr::drop_in_place(h);
+            #[cfg(feature = "std")]
             if let Some(bytes) = alloc_bytes {
                 std::alloc::dealloc(
                     h.cast(),
@@ -372,7 +429,32 @@ pub extern "C" fn sheaf_context_destroy(ctx: *mut sheaf_context) {
                 );
             }
         }
-    }));
+        #[cfg(not(feature = "std"))]
+        let _ = alloc_bytes; // always None: no_std has no sheaf_context_create
+        Ok(())
+    });
+}
+
+/// Drop the borrowed geometry: from the successful return on, sheaf never
+/// reads the buffers of the last successful `sheaf_context_set_geometry`
+/// again, so they may be freed. Built structures keep their own copy of
+/// the triangles and still trace and render; builds return
+/// `SHEAF_STATUS_NO_GEOMETRY` until the next successful
+/// `sheaf_context_set_geometry`. Clearing a context without geometry is
+/// not an error.
+///
+/// Not thread-safe: needs exclusive access to `ctx`
+/// (`SHEAF_STATUS_CONTEXT_BUSY` while another call runs on it).
+///
+/// Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_INVALID_ARGUMENT`
+/// (not a live context), `SHEAF_STATUS_CONTEXT_BUSY`,
+/// `SHEAF_STATUS_POISONED`.
+#[unsafe(no_mangle)]
+pub extern "C" fn sheaf_context_clear_geometry(ctx: *mut sheaf_context) -> sheaf_status {
+    with_mut(ctx, |h| {
+        h.geometry = None;
+        Ok(())
+    })
 }
 
 /// Set the scene's triangles, borrowing the caller's buffers (zero copy).
@@ -386,21 +468,24 @@ pub extern "C" fn sheaf_context_destroy(ctx: *mut sheaf_context) {
 /// Validates every index and the counts against the limits. Triangles with
 /// NaN/infinite vertices or zero area are not errors: builds skip them and
 /// count them in `sheaf_stats`. On error nothing changes: the previous
-/// geometry stays set and the built structure stays valid.
+/// geometry stays set (and borrowed) and the built structure stays valid.
 ///
 /// Lifetime: the buffers are borrowed, not copied. They must stay alive
-/// and unchanged until the next `sheaf_context_set_geometry` or
-/// `sheaf_context_destroy`, except that the caller may update them in
-/// place between calls (to animate: write new positions, then call
+/// and unchanged until the next *successful* `sheaf_context_set_geometry`,
+/// `sheaf_context_clear_geometry` or `sheaf_context_destroy` (a failed
+/// call keeps the previous buffers borrowed: free them only after
+/// clear_geometry), except that the caller may update them in place
+/// between calls (to animate: write new positions, then call
 /// `sheaf_context_build_grid` again; every build re-reads them and
 /// re-validates the indices). They must not be written while a build runs.
 /// Trace, occluded and render never read them (they use the copy made by
 /// the last build).
 ///
 /// Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_INVALID_ARGUMENT`
-/// (stride, sizes), `SHEAF_STATUS_MISALIGNED` (indices),
-/// `SHEAF_STATUS_INDEX_OUT_OF_RANGE`, `SHEAF_STATUS_CAPACITY_TRIANGLES`,
-/// `SHEAF_STATUS_CAPACITY_VERTICES`.
+/// (stride below 12 or not a multiple of 4, sizes), `SHEAF_STATUS_MISALIGNED`
+/// (indices), `SHEAF_STATUS_INDEX_OUT_OF_RANGE`,
+/// `SHEAF_STATUS_CAPACITY_TRIANGLES`, `SHEAF_STATUS_CAPACITY_VERTICES`,
+/// `SHEAF_STATUS_CONTEXT_BUSY`, `SHEAF_STATUS_POISONED`.
 ///
 /// Not thread-safe: needs exclusive access to `ctx`.
 #[unsafe(no_mangle)]
@@ -418,6 +503,12 @@ pub extern "C" fn sheaf_context_set_geometry(
         }
         if triangle_count > 0 {
             check_non_null!(indices);
+        }
+        // The stride is checked before any slice is formed over the buffer.
+        if vertex_stride_bytes < 12 || vertex_stride_bytes % 4 != 0 {
+            return Err(Error::InvalidArgument(
+                "vertex stride must be >= 12 and a multiple of 4",
+            ));
         }
         let vertices_len = if vertex_count == 0 {
             0
@@ -446,6 +537,7 @@ pub extern "C" fn sheaf_context_set_geometry(
             index_count,
         };
         h.ctx.check_scene(&g.scene()?)?;
+        crate::fault_point!(SetGeometry);
         h.geometry = Some(g);
         Ok(())
     })
@@ -636,8 +728,9 @@ fn trace_rays(
     let read = |i: usize| Ray::from(unsafe { rays.add(i).read_unaligned() });
     let mut emit = |i: usize, h4: &crate::geom::Hit4, lane: usize| out(i, h4.lane(lane));
     if let Some(slot) = slot {
-        h.ctx
-            .with_slot(slot, |mb| batch_on(&tr, mb, p, count, &read, &mut emit, any))?;
+        h.ctx.with_slot(slot, |mb| {
+            batch_on(&tr, mb, p, count, &read, &mut emit, any)
+        })?;
         return Ok(());
     }
     let mut ctr = Counters::default();
@@ -852,16 +945,21 @@ pub extern "C" fn sheaf_context_render_rows(
     with_ref(ctx, |h| {
         let p = read_in(primary)?.to_core()?;
         let s = read_in(shadow)?.to_core()?;
-        let frame = read_in(frame)?.to_core();
+        let frame = read_in(frame)?.to_core()?;
         check_non_null!(rgba);
         if rgba_len > isize::MAX as usize {
             return Err(Error::InvalidArgument("framebuffer length too large"));
         }
         h.ctx.check_rows(&frame, y0, y1, rgba_len, stride_bytes)?;
-        // SAFETY: non-NULL, `rgba_len` bytes (<= isize::MAX) of writable
-        // memory that no one else accesses during the call (C contract: each
-        // thread passes its own rows). The core only writes through it.
-        let band = unsafe { core::slice::from_raw_parts_mut(rgba, rgba_len) };
+        // Only the band's own bytes, (rows - 1) * stride + 4 * width (checked
+        // by check_rows): threads given adjacent bands with a generous
+        // `rgba_len` still borrow disjoint memory.
+        let band_len = band_bytes(y1 - y0, frame.width, stride_bytes)?;
+        // SAFETY: non-NULL, `band_len <= rgba_len` bytes (<= isize::MAX) of
+        // writable memory that no one else accesses during the call (C
+        // contract: each thread passes its own rows). The core only writes
+        // through it.
+        let band = unsafe { core::slice::from_raw_parts_mut(rgba, band_len) };
         h.ctx
             .render_rows_in_slot(slot, &p, &s, &frame, y0, y1, band, stride_bytes)?;
         Ok(())
@@ -877,7 +975,7 @@ fn render_impl(
     stride_bytes: usize,
     rgba_len: usize,
 ) -> Result<()> {
-    let frame = read_in(frame)?.to_core();
+    let frame = read_in(frame)?.to_core()?;
     let pixels = framebuffer(h, &frame, rgba, stride_bytes, rgba_len)?;
     h.ctx
         .render_with(primary, shadow, &frame, pixels, stride_bytes)?;
@@ -912,19 +1010,28 @@ pub(super) fn pixels<'p>(
     if rgba_len > isize::MAX as usize {
         return Err(Error::InvalidArgument("framebuffer length too large"));
     }
-    // The core checks sizes, limits and camera (Context::check_frame);
+    // The core checks sizes, limits, camera and light (Context::check_frame);
     // its `(height - 1) * stride + 4 * width` must not overflow first.
     if frame.width > 0 && frame.height > 0 {
-        (frame.height as usize - 1)
-            .checked_mul(stride_bytes)
-            .and_then(|b| b.checked_add(frame.width as usize * 4))
-            .ok_or(Error::InvalidArgument("framebuffer size overflows"))?;
+        band_bytes(frame.height, frame.width, stride_bytes)?;
     }
     h.ctx.check_frame(frame, rgba_len, stride_bytes)?;
-    // SAFETY: non-NULL, `rgba_len` bytes (<= isize::MAX) of writable
-    // memory not accessed by others during the call (C contract). The
-    // core only writes through it.
-    Ok(unsafe { core::slice::from_raw_parts_mut(rgba, rgba_len) })
+    let len = band_bytes(frame.height, frame.width, stride_bytes)?;
+    // SAFETY: non-NULL, `len <= rgba_len` bytes (<= isize::MAX) of
+    // writable memory not accessed by others during the call (C contract).
+    // The core only writes through it.
+    Ok(unsafe { core::slice::from_raw_parts_mut(rgba, len) })
+}
+
+/// Bytes of `rows` rows of `width` RGBA8 pixels, `stride` apart: `(rows -
+/// 1) * stride + 4 * width`, checked (`rows >= 1`).
+pub(super) fn band_bytes(rows: u32, width: u32, stride: usize) -> Result<usize> {
+    (rows as usize)
+        .checked_sub(1)
+        .and_then(|r| r.checked_mul(stride))
+        .and_then(|b| b.checked_add((width as usize).checked_mul(4)?))
+        .filter(|&b| b <= isize::MAX as usize)
+        .ok_or(Error::InvalidArgument("framebuffer size overflows"))
 }
 
 /// Statistics of the last build and the last render, written to `*out`
@@ -992,17 +1099,19 @@ fn message(e: Option<Error>) -> MessageBuf {
 /// needed and what is available for capacity errors, the triangle and the
 /// index for out-of-range indices...). "no error" before any failure; a
 /// successful call does not clear it. Failures of this call itself are not
-/// recorded.
+/// recorded, nor are `SHEAF_STATUS_CONTEXT_BUSY` and
+/// `SHEAF_STATUS_POISONED` refusals (the failure that poisoned a context
+/// stays readable here).
 ///
 /// Writes at most `len - 1` bytes of the message plus a NUL terminator to
 /// `buf` (truncating at a character boundary; `SHEAF_ERROR_MESSAGE_MAX`
 /// bytes always suffice) and the number of bytes before the NUL to
 /// `*written`. Never allocates.
 ///
-/// Thread-safe.
+/// Thread-safe, also beside exclusive calls and on a poisoned context.
 ///
 /// Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_INVALID_ARGUMENT`
-/// (`len == 0`).
+/// (`len == 0`, not a live context).
 #[unsafe(no_mangle)]
 pub extern "C" fn sheaf_context_last_error(
     ctx: *const sheaf_context,
@@ -1011,16 +1120,17 @@ pub extern "C" fn sheaf_context_last_error(
     written: *mut usize,
 ) -> sheaf_status {
     guard_free(|| {
-        let h = handle(ctx)?;
+        let hd = header(ctx)?;
+        if hd.state.dead() {
+            return Err(Error::InvalidArgument(
+                "not a live sheaf_context (destroyed?)",
+            ));
+        }
         check_non_null!(buf, written);
         if len == 0 {
             return Err(Error::InvalidArgument("len must be >= 1"));
         }
-        // SAFETY: a live handle; only the mutex is borrowed (shared).
-        let last = *unsafe { &(*h).last_error }
-            .lock()
-            .unwrap_or_else(PoisonError::into_inner);
-        let m = message(last);
+        let m = message(hd.last_error.get());
         let mut n = m.len.min(len - 1);
         while n > 0 && n < m.len && (m.bytes[n] & 0xC0) == 0x80 {
             n -= 1; // do not cut a UTF-8 sequence

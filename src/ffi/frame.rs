@@ -2,8 +2,8 @@
 //! the pixels. `sheaf_camera`, `sheaf_light` and `sheaf_shading` are the
 //! crate's `Camera`, `PointLight` and `Shading` under their C names.
 
-use super::{check_non_null, guard_free, read_in, sheaf_ray, write_out};
-use crate::error::Error;
+use super::{check_non_null, flag, guard_free, read_in, sheaf_ray, write_out};
+use crate::error::{Error, Result};
 use crate::render::{Camera, Frame, PointLight, PrimaryRays, Shading};
 
 /// One frame to render: pinhole camera, one point light with hard shadows,
@@ -13,7 +13,7 @@ use crate::render::{Camera, Frame, PointLight, PrimaryRays, Shading};
 pub struct sheaf_frame {
     pub camera: Camera,
     pub light: PointLight,
-    pub shading: Shading,
+    pub shading: sheaf_shading,
     /// Image width in pixels (> 0, at most `sheaf_limits.max_image_width`).
     pub width: u32,
     /// Image height in pixels (> 0, at most `sheaf_limits.max_image_height`).
@@ -21,14 +21,49 @@ pub struct sheaf_frame {
 }
 
 impl sheaf_frame {
-    pub fn to_core(&self) -> Frame {
-        Frame {
+    pub fn to_core(&self) -> Result<Frame> {
+        Ok(Frame {
             camera: self.camera,
             light: self.light,
-            shading: self.shading,
+            shading: self.shading.to_core()?,
             width: self.width,
             height: self.height,
+        })
+    }
+}
+
+/// Lambert shading of a frame (the crate's `Shading`).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct sheaf_shading {
+    /// Linear RGB diffuse albedo of every surface.
+    pub albedo: [f32; 3],
+    /// Ambient fraction lighting every visible surface.
+    pub ambient: f32,
+    /// Linear RGB of pixels whose primary ray misses.
+    pub background: [f32; 3],
+    /// 1: trace shadow rays; 0: every surface facing the light is lit.
+    /// Other values: `SHEAF_STATUS_INVALID_ARGUMENT`.
+    pub shadows: u8,
+}
+
+impl sheaf_shading {
+    pub fn of(s: &Shading) -> sheaf_shading {
+        sheaf_shading {
+            albedo: s.albedo,
+            ambient: s.ambient,
+            background: s.background,
+            shadows: s.shadows.into(),
         }
+    }
+
+    pub fn to_core(&self) -> Result<Shading> {
+        Ok(Shading {
+            albedo: self.albedo,
+            ambient: self.ambient,
+            background: self.background,
+            shadows: flag(self.shadows, "sheaf_shading.shadows must be 0 or 1")?,
+        })
     }
 }
 
@@ -37,10 +72,10 @@ impl sheaf_frame {
 ///
 /// `out` must not be NULL. Thread-safe.
 #[unsafe(no_mangle)]
-pub extern "C" fn sheaf_shading_default(out: *mut Shading) -> super::sheaf_status {
+pub extern "C" fn sheaf_shading_default(out: *mut sheaf_shading) -> super::sheaf_status {
     guard_free(|| {
         check_non_null!(out);
-        write_out(out, Shading::default());
+        write_out(out, sheaf_shading::of(&Shading::default()));
         Ok(())
     })
 }

@@ -1,6 +1,6 @@
 //! `sheaf_grid_params` and `sheaf_tri_test`: the tunables of the uniform grid.
 
-use super::{check_non_null, guard_free, raw, write_out};
+use super::{check_non_null, flag, guard_free, raw, write_out};
 use crate::accel::grid::GridParams;
 use crate::error::{Error, Result};
 use crate::geom::TriTest;
@@ -58,8 +58,8 @@ pub struct sheaf_grid_params {
     /// default Moller-Trumbore).
     pub test: raw::sheaf_tri_test,
     /// When the cells for `lambda` exceed `sheaf_limits.max_grid_cells`,
-    /// lower lambda to fit instead of failing (default false).
-    pub fit: bool,
+    /// lower lambda to fit instead of failing (0 or 1; default 0).
+    pub fit: u8,
 }
 
 impl sheaf_grid_params {
@@ -68,7 +68,7 @@ impl sheaf_grid_params {
             lambda: p.lambda,
             macrocell: p.macrocell,
             test: sheaf_tri_test::of(p.test) as u32,
-            fit: p.fit,
+            fit: p.fit.into(),
         }
     }
     /// The crate's parameters (the enum checked; the numbers are checked by the build).
@@ -77,7 +77,7 @@ impl sheaf_grid_params {
             lambda: self.lambda,
             macrocell: self.macrocell,
             test: sheaf_tri_test::to_core(self.test)?,
-            fit: self.fit,
+            fit: flag(self.fit, "sheaf_grid_params.fit must be 0 or 1")?,
         })
     }
 }

@@ -102,9 +102,16 @@ pub extern "C" fn sheaf_kd_params_default(out: *mut sheaf_kd_params) -> sheaf_st
 ///
 /// Not thread-safe: needs exclusive access to `ctx`.
 #[unsafe(no_mangle)]
-pub extern "C" fn sheaf_context_build_kd(ctx: *mut sheaf_context, params: *const sheaf_kd_params) -> sheaf_status {
+pub extern "C" fn sheaf_context_build_kd(
+    ctx: *mut sheaf_context,
+    params: *const sheaf_kd_params,
+) -> sheaf_status {
     with_mut(ctx, |h| {
-        let params = if params.is_null() { KdParams::default() } else { read_in(params)?.to_core()? };
+        let params = if params.is_null() {
+            KdParams::default()
+        } else {
+            read_in(params)?.to_core()?
+        };
         let g = h.geometry.as_ref().ok_or(Error::NoGeometry)?;
         h.ctx.build_kd(&g.scene()?, &params)?;
         Ok(())
@@ -118,13 +125,42 @@ mod tests {
 
     #[test]
     fn params_and_entry_round_trip() {
-        let p = KdParams { max_depth: 20, traversal_cost: 1.5, empty_bonus: 0.1, test: TriTest::Watertight };
+        let p = KdParams {
+            max_depth: 20,
+            traversal_cost: 1.5,
+            empty_bonus: 0.1,
+            test: TriTest::Watertight,
+        };
         assert_eq!(sheaf_kd_params::of(&p).to_core(), Ok(p));
-        assert!(sheaf_kd_params { test: 9, ..sheaf_kd_params::of(&p) }.to_core().is_err());
-        assert!(sheaf_kd_params { max_depth: 49, ..sheaf_kd_params::of(&p) }.to_core().is_err());
-        assert!(sheaf_kd_params { empty_bonus: 1.0, ..sheaf_kd_params::of(&p) }.to_core().is_err());
+        assert!(
+            sheaf_kd_params {
+                test: 9,
+                ..sheaf_kd_params::of(&p)
+            }
+            .to_core()
+            .is_err()
+        );
+        assert!(
+            sheaf_kd_params {
+                max_depth: 49,
+                ..sheaf_kd_params::of(&p)
+            }
+            .to_core()
+            .is_err()
+        );
+        assert!(
+            sheaf_kd_params {
+                empty_bonus: 1.0,
+                ..sheaf_kd_params::of(&p)
+            }
+            .to_core()
+            .is_err()
+        );
         for &e in EntrySearch::ALL {
-            assert_eq!(sheaf_entry_search::to_core(sheaf_entry_search::of(e) as u32), Ok(e));
+            assert_eq!(
+                sheaf_entry_search::to_core(sheaf_entry_search::of(e) as u32),
+                Ok(e)
+            );
         }
         assert!(sheaf_entry_search::to_core(3).is_err());
     }

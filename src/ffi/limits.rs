@@ -1,9 +1,95 @@
-//! `sheaf_limits` (the crate's `Limits`, `#[repr(C)]`): every pool size of a
-//! context. The struct itself is exported from `mem/limits.rs` under its C
-//! name (cbindgen.toml `[export.rename]`).
+//! `sheaf_limits`: every pool size of a context (the crate's `Limits`, whose
+//! field docs are the reference), with its one boolean received as a byte.
 
-use super::{check_non_null, guard_free, write_out};
+use super::{check_non_null, flag, guard_free, write_out};
+use crate::error::Result;
 use crate::mem::Limits;
+
+/// Capacities fixed at context creation: the crate's `Limits` field by
+/// field (see its docs in `src/mem/limits.rs` for each default rule).
+/// Start from `sheaf_limits_default`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct sheaf_limits {
+    /// Most triangles a scene may have (including ones excluded at build).
+    pub max_triangles: u32,
+    /// Most vertices a scene may have.
+    pub max_vertices: u32,
+    /// Largest image a render call accepts.
+    pub max_image_width: u32,
+    pub max_image_height: u32,
+    /// Largest square tile (pixels per side) a render call works on at
+    /// once: even, 2..=1024.
+    pub max_tile: u32,
+    /// Most threads that render or trace concurrently (one slot each), 1..=1024.
+    pub max_threads: u32,
+    /// Most grid cells. 0: `8 * max_triangles + 64`.
+    pub max_grid_cells: u32,
+    /// Most triangle references in grid cells. 0: `16 * max_triangles + 1024`.
+    pub max_grid_refs: u32,
+    /// 1: reserve 48 bytes per triangle for the precomputed projection test
+    /// (`SHEAF_TRI_TEST_PROJECTION`); 0: that test cannot be selected.
+    /// Other values: `SHEAF_STATUS_INVALID_ARGUMENT`.
+    pub projection_test: u8,
+    /// Which structures get pools: `SHEAF_STRUCTURE_GRID`, `_BVH`, `_KD`,
+    /// `_PGRID` bits, at least one.
+    pub structures: u32,
+    /// Most kd-tree nodes. 0: `4 * max_triangles + 1024`.
+    pub max_kd_nodes: u32,
+    /// Most kd-tree leaf references. 0: `12 * max_triangles + 1024`; else
+    /// at least `max_triangles`.
+    pub max_kd_refs: u32,
+    /// Most cells of the perspective grid and of each light grid. 0: derived
+    /// from the largest image.
+    pub max_pgrid_cells: u32,
+    /// Most (triangle, cell) pairs of each perspective or light grid. 0:
+    /// `8 * max_triangles + 262144`.
+    pub max_pgrid_refs: u32,
+}
+
+impl sheaf_limits {
+    pub fn of(l: &Limits) -> sheaf_limits {
+        sheaf_limits {
+            max_triangles: l.max_triangles,
+            max_vertices: l.max_vertices,
+            max_image_width: l.max_image_width,
+            max_image_height: l.max_image_height,
+            max_tile: l.max_tile,
+            max_threads: l.max_threads,
+            max_grid_cells: l.max_grid_cells,
+            max_grid_refs: l.max_grid_refs,
+            projection_test: l.projection_test.into(),
+            structures: l.structures,
+            max_kd_nodes: l.max_kd_nodes,
+            max_kd_refs: l.max_kd_refs,
+            max_pgrid_cells: l.max_pgrid_cells,
+            max_pgrid_refs: l.max_pgrid_refs,
+        }
+    }
+
+    /// The crate's limits (the byte checked; the rest by `Limits::validate`).
+    pub fn to_core(&self) -> Result<Limits> {
+        Ok(Limits {
+            max_triangles: self.max_triangles,
+            max_vertices: self.max_vertices,
+            max_image_width: self.max_image_width,
+            max_image_height: self.max_image_height,
+            max_tile: self.max_tile,
+            max_threads: self.max_threads,
+            max_grid_cells: self.max_grid_cells,
+            max_grid_refs: self.max_grid_refs,
+            projection_test: flag(
+                self.projection_test,
+                "sheaf_limits.projection_test must be 0 or 1",
+            )?,
+            structures: self.structures,
+            max_kd_nodes: self.max_kd_nodes,
+            max_kd_refs: self.max_kd_refs,
+            max_pgrid_cells: self.max_pgrid_cells,
+            max_pgrid_refs: self.max_pgrid_refs,
+        })
+    }
+}
 
 /// Write limits for scenes of up to `max_triangles` triangles to `*out`:
 /// `3 * max_triangles` vertices, 4096 x 4096 images, 64-pixel tiles, 8
@@ -14,11 +100,11 @@ use crate::mem::Limits;
 #[unsafe(no_mangle)]
 pub extern "C" fn sheaf_limits_default(
     max_triangles: u32,
-    out: *mut Limits,
+    out: *mut sheaf_limits,
 ) -> super::sheaf_status {
     guard_free(|| {
         check_non_null!(out);
-        write_out(out, Limits::for_triangles(max_triangles));
+        write_out(out, sheaf_limits::of(&Limits::for_triangles(max_triangles)));
         Ok(())
     })
 }

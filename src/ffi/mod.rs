@@ -54,29 +54,34 @@ pub mod grid;
 pub mod kd;
 pub mod limits;
 pub mod method;
+#[cfg(all(not(feature = "std"), feature = "panic-handler", not(test)))]
+mod panic_handler;
 pub mod pgrid;
 pub mod ray;
 pub mod stats;
 pub mod status;
+mod sync;
 pub mod trace_params;
 pub mod version;
 pub mod whitted;
 
 pub use bvh::{sheaf_bvh_params, sheaf_bvh_params_default, sheaf_ray_kind};
+#[cfg(feature = "std")]
+pub use context::sheaf_context_create;
 pub use context::{
     HEADER_BYTES, sheaf_context, sheaf_context_build_bvh, sheaf_context_build_grid,
-    sheaf_context_create, sheaf_context_create_in, sheaf_context_destroy, sheaf_context_last_error,
-    sheaf_context_occluded, sheaf_context_render, sheaf_context_set_geometry, sheaf_context_stats,
-    sheaf_context_occluded_slot, sheaf_context_occluded_with, sheaf_context_render_rows,
-    sheaf_context_trace,
-    sheaf_context_trace_slot, sheaf_context_trace_with, sheaf_required_bytes,
+    sheaf_context_clear_geometry, sheaf_context_create_in, sheaf_context_destroy,
+    sheaf_context_last_error, sheaf_context_occluded, sheaf_context_occluded_slot,
+    sheaf_context_occluded_with, sheaf_context_render, sheaf_context_render_rows,
+    sheaf_context_set_geometry, sheaf_context_stats, sheaf_context_trace, sheaf_context_trace_slot,
+    sheaf_context_trace_with, sheaf_required_bytes,
 };
-pub use frame::{sheaf_frame, sheaf_frame_camera_ray, sheaf_shading_default};
+pub use frame::{sheaf_frame, sheaf_frame_camera_ray, sheaf_shading, sheaf_shading_default};
 pub use grid::{sheaf_grid_params, sheaf_grid_params_default, sheaf_tri_test};
 pub use kd::{
     sheaf_context_build_kd, sheaf_entry_search, sheaf_kd_params, sheaf_kd_params_default,
 };
-pub use limits::sheaf_limits_default;
+pub use limits::{sheaf_limits, sheaf_limits_default};
 pub use method::sheaf_method;
 pub use pgrid::{
     sheaf_context_build_pgrid, sheaf_context_deferred_pixel, sheaf_context_deferred_shadow_ray,
@@ -91,6 +96,7 @@ pub use version::sheaf_version_string;
 pub use whitted::{sheaf_context_render_whitted, sheaf_whitted_params_default};
 
 use crate::error::{Error, Result};
+#[cfg(feature = "std")]
 use core::panic::AssertUnwindSafe;
 
 /// Alignment `sheaf_context_create_in` requires of its buffer
@@ -136,12 +142,26 @@ macro_rules! check_non_null {
 }
 pub(crate) use check_non_null;
 
+/// Run `f`, turning a panic into `Err(Error::Panic)`. With std (and the
+/// unwinding release profile C users link) the panic is caught here; the
+/// no_std build has no unwinding (`panic = "abort"`, see Cargo.toml), so a
+/// panic ends in the panic handler instead and never returns.
+pub(crate) fn catch(f: impl FnOnce() -> Result<()>) -> Result<()> {
+    #[cfg(feature = "std")]
+    {
+        std::panic::catch_unwind(AssertUnwindSafe(f)).unwrap_or(Err(Error::Panic))
+    }
+    #[cfg(not(feature = "std"))]
+    {
+        f()
+    }
+}
+
 /// Run `f` behind the panic boundary and map its result to a status.
 /// `on_error` sees every error (including a caught panic) before it is
 /// mapped, to record it in a handle.
 pub(crate) fn guard(f: impl FnOnce() -> Result<()>, on_error: impl FnOnce(Error)) -> sheaf_status {
-    let r = std::panic::catch_unwind(AssertUnwindSafe(f)).unwrap_or(Err(Error::Panic));
-    match r {
+    match catch(f) {
         Ok(()) => sheaf_status::Ok,
         Err(e) => {
             on_error(e);
@@ -170,6 +190,18 @@ pub(crate) fn write_out<T: Copy>(p: *mut T, v: T) {
     // SAFETY: the caller checked `p` for NULL; the C contract is that a
     // non-NULL output points to writable memory for one `T`.
     unsafe { p.write_unaligned(v) }
+}
+
+/// A boolean field of a C struct, received as its byte (a Rust `bool` read
+/// from C memory holding 2 would be undefined behaviour): 0 is false, 1 is
+/// true, anything else is `InvalidArgument` naming the field. The header
+/// shows these fields as `uint8_t`; C's `true` and `false` convert to 1 and 0.
+pub(crate) fn flag(b: u8, what: &'static str) -> Result<bool> {
+    match b {
+        0 => Ok(false),
+        1 => Ok(true),
+        _ => Err(Error::InvalidArgument(what)),
+    }
 }
 
 /// Byte length of `n` values of `T`, checked against `isize::MAX` (the

@@ -11,8 +11,8 @@ use super::frame::sheaf_frame;
 use super::grid::sheaf_tri_test;
 use super::trace_params::sheaf_trace_params;
 use super::{
-    check_array, check_non_null, guard_free, raw, read_in, sheaf_hit, sheaf_ray, sheaf_status,
-    write_out,
+    check_array, check_non_null, flag, guard_free, raw, read_in, sheaf_hit, sheaf_ray,
+    sheaf_status, write_out,
 };
 use crate::accel::pgrid::PgridParams;
 use crate::error::{Error, Result};
@@ -47,8 +47,8 @@ pub struct sheaf_pgrid_params {
     /// test needs `sheaf_limits.projection_test`).
     pub test: raw::sheaf_tri_test,
     /// Leave out triangles facing away from the eye (default false). Changes
-    /// results on open models: every other structure is two-sided.
-    pub cull_backfaces: bool,
+    /// results on open models: every other structure is two-sided. 0 or 1.
+    pub cull_backfaces: u8,
 }
 
 impl sheaf_pgrid_params {
@@ -61,7 +61,7 @@ impl sheaf_pgrid_params {
             light_slices: p.light_slices,
             chunk: p.chunk,
             test: sheaf_tri_test::of(p.test) as u32,
-            cull_backfaces: p.cull_backfaces,
+            cull_backfaces: p.cull_backfaces.into(),
         }
     }
     /// The checked crate value.
@@ -73,7 +73,10 @@ impl sheaf_pgrid_params {
             light_tiles: self.light_tiles,
             light_slices: self.light_slices,
             chunk: self.chunk,
-            cull_backfaces: self.cull_backfaces,
+            cull_backfaces: flag(
+                self.cull_backfaces,
+                "sheaf_pgrid_params.cull_backfaces must be 0 or 1",
+            )?,
             test: sheaf_tri_test::to_core(self.test)?,
         };
         p.validate()?;
@@ -153,11 +156,11 @@ pub struct sheaf_deferred_job {
     /// At most `SHEAF_DEFERRED_MAX_LIGHTS` (8); 0: `frame.light` alone.
     pub light_count: usize,
     /// Camera rays through the perspective grid (built per frame); false:
-    /// traced with `primary`.
-    pub primary_pgrid: bool,
+    /// traced with `primary`. 0 or 1.
+    pub primary_pgrid: u8,
     /// Shadow rays through light grids (built per frame and light); false:
-    /// traced with `shadow`.
-    pub shadow_light_grid: bool,
+    /// traced with `shadow`. 0 or 1.
+    pub shadow_light_grid: u8,
     /// Method of camera rays when `primary_pgrid` is false (ignored, not
     /// checked, otherwise). Packet methods trace tiles of `primary.packet`
     /// pixels; single-ray methods tiles of 8.
@@ -228,16 +231,22 @@ pub extern "C" fn sheaf_context_render_deferred(
             // points to light_count readable values. Unaligned reads.
             *l = unsafe { j.lights.add(i).read_unaligned() };
         }
-        let frame = j.frame.to_core();
+        let frame = j.frame.to_core()?;
         let job = DeferredJob {
             frame: &frame,
             lights: &lights[..j.light_count],
-            primary: if j.primary_pgrid {
+            primary: if flag(
+                j.primary_pgrid,
+                "sheaf_deferred_job.primary_pgrid must be 0 or 1",
+            )? {
                 PrimaryPass::Pgrid
             } else {
                 PrimaryPass::Traced(j.primary.to_core()?)
             },
-            shadow: if j.shadow_light_grid {
+            shadow: if flag(
+                j.shadow_light_grid,
+                "sheaf_deferred_job.shadow_light_grid must be 0 or 1",
+            )? {
                 ShadowPass::LightGrid
             } else {
                 ShadowPass::Traced(j.shadow.to_core()?)
@@ -330,7 +339,7 @@ pub extern "C" fn sheaf_context_deferred_shadow_ray(
     })
 }
 
-// Seven u32 and a bool: 32 bytes on every ABI (tests/c_abi.rs compares
+// Seven u32 and a byte: 32 bytes on every ABI (tests/c_abi.rs compares
 // every header struct's size and alignment with C's).
 const _: () = assert!(core::mem::size_of::<sheaf_pgrid_params>() == 32);
 

@@ -63,6 +63,17 @@ pub enum sheaf_status {
     /// The thread slot passed to a `_slot` / `_rows` call is in use by
     /// another call right now (give each concurrent thread its own slot).
     SlotBusy = 302,
+    /// Another call on the context is running and this call cannot run
+    /// beside it (an exclusive call while any other call is inside, or any
+    /// call while an exclusive one runs; see `sheaf_context`). Nothing was
+    /// changed and the last error is not touched: retry after the other
+    /// call returns. Seeing it means the threads are not coordinated.
+    ContextBusy = 303,
+    /// An earlier call on this context caught a panic (returned
+    /// `SHEAF_STATUS_PANIC`), so its structures may be half-built: every
+    /// call but `sheaf_context_last_error` and `sheaf_context_destroy`
+    /// returns this until the context is destroyed.
+    Poisoned = 304,
     /// A panic was caught at the C boundary (a bug in sheaf: please report).
     Panic = 900,
 }
@@ -88,6 +99,8 @@ impl sheaf_status {
         sheaf_status::NoGeometry,
         sheaf_status::NotBuilt,
         sheaf_status::SlotBusy,
+        sheaf_status::ContextBusy,
+        sheaf_status::Poisoned,
         sheaf_status::Panic,
     ];
 
@@ -112,6 +125,8 @@ impl sheaf_status {
             Error::NoGeometry => sheaf_status::NoGeometry,
             Error::NotBuilt => sheaf_status::NotBuilt,
             Error::SlotBusy { .. } => sheaf_status::SlotBusy,
+            Error::ContextBusy => sheaf_status::ContextBusy,
+            Error::Poisoned => sheaf_status::Poisoned,
             Error::Panic => sheaf_status::Panic,
         }
     }
@@ -158,6 +173,8 @@ impl sheaf_status {
             sheaf_status::NoGeometry => c"no geometry set",
             sheaf_status::NotBuilt => c"no acceleration structure built yet",
             sheaf_status::SlotBusy => c"thread slot in use by another call",
+            sheaf_status::ContextBusy => c"context busy: another call on it is running",
+            sheaf_status::Poisoned => c"context poisoned by an earlier panic: destroy it",
             sheaf_status::Panic => c"internal error (panic caught at the C boundary)",
         }
     }
@@ -177,8 +194,9 @@ const UNKNOWN: &CStr = c"unknown sheaf_status code";
 /// string is static (never free it). Thread-safe.
 #[unsafe(no_mangle)]
 pub extern "C" fn sheaf_status_string(status: super::raw::sheaf_status) -> *const c_char {
-    std::panic::catch_unwind(|| sheaf_status::from_raw(status).map_or(UNKNOWN, sheaf_status::text))
-        .unwrap_or(UNKNOWN)
+    // Cannot panic (a search in a constant table): no unwind guard needed.
+    sheaf_status::from_raw(status)
+        .map_or(UNKNOWN, sheaf_status::text)
         .as_ptr()
 }
 
@@ -206,9 +224,11 @@ mod tests {
                 | sheaf_status::CapacityPgridCells
                 | sheaf_status::CapacityPgridRefs
                 | sheaf_status::OutOfMemory => 200..300,
-                sheaf_status::NoGeometry | sheaf_status::NotBuilt | sheaf_status::SlotBusy => {
-                    300..400
-                }
+                sheaf_status::NoGeometry
+                | sheaf_status::NotBuilt
+                | sheaf_status::SlotBusy
+                | sheaf_status::ContextBusy
+                | sheaf_status::Poisoned => 300..400,
                 sheaf_status::Panic => 900..1000,
             };
             assert!(range.contains(&c), "{s:?} = {c}");

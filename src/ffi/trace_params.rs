@@ -2,7 +2,7 @@
 //! `TraceParams`, with the method received as a raw integer and checked).
 
 use super::method::sheaf_method;
-use super::{check_non_null, guard_free, raw, write_out};
+use super::{check_non_null, flag, guard_free, raw, write_out};
 use crate::error::Result;
 use crate::trace::{CgtOptions, TraceParams};
 
@@ -15,14 +15,16 @@ pub struct sheaf_trace_params {
     pub method: raw::sheaf_method,
     /// Packet side n (n x n rays) for packet methods: 2, 4, 8, 16 or 32.
     pub packet: u32,
-    /// CGT: skip slices of empty macrocells (paper section 2.4).
-    pub macrocells: bool,
+    /// CGT: skip slices of empty macrocells (paper section 2.4). 0 or 1.
+    pub macrocells: u8,
     /// CGT: test each triangle once per packet (section 2.3). Trace and
-    /// occluded calls have no thread slot and ignore it; render uses it.
-    pub mailbox: bool,
+    /// occluded calls have no thread slot and ignore it (still 0 or 1);
+    /// render uses it.
+    pub mailbox: u8,
     /// Frustum culling: CGT's SIMD corner-ray culling (CGT section 2.3) and
     /// the BVH packets' box and triangle culling (BVH paper section 4).
-    pub culling: bool,
+    /// 0 or 1.
+    pub culling: u8,
     /// BVH and kd-tree packets: which frustum they get (a `sheaf_ray_kind`).
     pub ray_kind: raw::sheaf_ray_kind,
     /// Tree packets (`KD_PACKET`, `BVH_MASKED`, `BVH_RANGED`,
@@ -38,9 +40,9 @@ impl sheaf_trace_params {
         sheaf_trace_params {
             method: sheaf_method::of(p.method) as u32,
             packet: p.packet,
-            macrocells: p.cgt.macrocells,
-            mailbox: p.cgt.mailbox,
-            culling: p.cgt.culling,
+            macrocells: p.cgt.macrocells.into(),
+            mailbox: p.cgt.mailbox.into(),
+            culling: p.cgt.culling.into(),
             ray_kind: super::bvh::sheaf_ray_kind::of(p.bvh.kind) as u32,
             entry: super::kd::sheaf_entry_search::of(p.entry) as u32,
             split: p.split,
@@ -48,16 +50,20 @@ impl sheaf_trace_params {
     }
     /// The checked crate value.
     pub fn to_core(&self) -> Result<TraceParams> {
+        let culling = flag(self.culling, "sheaf_trace_params.culling must be 0 or 1")?;
         let p = TraceParams {
             method: sheaf_method::to_core(self.method)?,
             packet: self.packet,
             cgt: CgtOptions {
-                macrocells: self.macrocells,
-                mailbox: self.mailbox,
-                culling: self.culling,
+                macrocells: flag(
+                    self.macrocells,
+                    "sheaf_trace_params.macrocells must be 0 or 1",
+                )?,
+                mailbox: flag(self.mailbox, "sheaf_trace_params.mailbox must be 0 or 1")?,
+                culling,
             },
             bvh: crate::trace::BvhOptions {
-                culling: self.culling,
+                culling,
                 kind: super::bvh::sheaf_ray_kind::to_core(self.ray_kind)?,
             },
             entry: super::kd::sheaf_entry_search::to_core(self.entry)?,

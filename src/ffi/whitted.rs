@@ -5,7 +5,7 @@
 use super::context::{Handle, sheaf_context, with_mut};
 use super::frame::sheaf_frame;
 use super::trace_params::sheaf_trace_params;
-use super::{check_array, check_non_null, guard_free, read_in, write_out};
+use super::{check_array, check_non_null, guard_free, overlaps, read_in, write_out};
 use crate::error::{Error, Result};
 use crate::render::PointLight;
 use crate::render::material::{Material, MaterialRange, Materials};
@@ -68,7 +68,7 @@ fn borrow<'a, T>(p: *const T, n: usize, what: &'static str) -> Result<&'a [T]> {
 ///
 /// Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_INVALID_ARGUMENT`
 /// (methods, bounce limits above 8 in total, materials, ranges, lights,
-/// camera, sizes), `SHEAF_STATUS_MISALIGNED`, `SHEAF_STATUS_CAPACITY_IMAGE`,
+/// camera, sizes, a framebuffer overlapping an input array), `SHEAF_STATUS_MISALIGNED`, `SHEAF_STATUS_CAPACITY_IMAGE`,
 /// `SHEAF_STATUS_NOT_BUILT`.
 ///
 /// Not thread-safe: needs exclusive access to `ctx`.
@@ -92,7 +92,7 @@ pub extern "C" fn sheaf_context_render_whitted(
     rgba_len: usize,
 ) -> super::sheaf_status {
     with_mut(ctx, |h: &mut Handle| {
-        let frame = read_in(frame)?.to_core();
+        let frame = read_in(frame)?.to_core()?;
         let params = if params.is_null() {
             WhittedParams::default()
         } else {
@@ -110,6 +110,29 @@ pub extern "C" fn sheaf_context_render_whitted(
             shadow: read_in(shadow)?.to_core()?,
             secondary: read_in(secondary)?.to_core()?,
         };
+        // The framebuffer is written while the arrays are read: they must
+        // not share a byte (checked before the framebuffer is borrowed).
+        let fb_len = super::context::band_bytes(frame.height.max(1), frame.width, stride_bytes)?
+            .min(rgba_len);
+        let arrays = [
+            (lights.cast::<u8>(), core::mem::size_of_val(job.lights)),
+            (
+                materials.cast::<u8>(),
+                core::mem::size_of_val(job.materials.materials),
+            ),
+            (
+                ranges.cast::<u8>(),
+                core::mem::size_of_val(job.materials.ranges),
+            ),
+        ];
+        if arrays
+            .iter()
+            .any(|&(p, n)| overlaps(p, n, rgba.cast_const(), fb_len))
+        {
+            return Err(Error::InvalidArgument(
+                "the framebuffer overlaps the lights, materials or ranges",
+            ));
+        }
         let pixels = super::context::framebuffer(h, &frame, rgba, stride_bytes, rgba_len)?;
         h.ctx.render_whitted(&job, pixels, stride_bytes)?;
         Ok(())

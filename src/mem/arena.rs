@@ -13,8 +13,20 @@ pub const ARENA_ALIGN: usize = 64;
 
 /// Bytes a pool of `n` values of `T` occupies in an arena.
 pub const fn pool_bytes<T>(n: usize) -> usize {
-    let b = n * core::mem::size_of::<T>();
-    (b + ARENA_ALIGN - 1) / ARENA_ALIGN * ARENA_ALIGN
+    (n * core::mem::size_of::<T>()).div_ceil(ARENA_ALIGN) * ARENA_ALIGN
+}
+
+/// [`pool_bytes`] with every operation checked: None when the bytes of `n`
+/// values, rounded up to 64, do not fit a `usize`.
+#[deny(clippy::arithmetic_side_effects)]
+pub const fn pool_bytes_checked<T>(n: usize) -> Option<usize> {
+    match n.checked_mul(core::mem::size_of::<T>()) {
+        Some(b) => match b.checked_next_multiple_of(ARENA_ALIGN) {
+            Some(r) => Some(r),
+            None => None,
+        },
+        None => None,
+    }
 }
 
 /// Hands out disjoint, aligned, zeroed pools from one buffer.
@@ -47,10 +59,10 @@ impl<'a> Arena<'a> {
     /// A zeroed pool of `n` values. Fails (changing nothing) when the buffer
     /// is too small; `needed` counts this pool only.
     pub fn take<T: Pod>(&mut self, n: usize) -> Result<&'a mut [T]> {
-        let bytes = pool_bytes::<T>(n);
+        let bytes = pool_bytes_checked::<T>(n).unwrap_or(usize::MAX);
         if bytes > self.rest.len() {
             return Err(Error::BufferTooSmall {
-                needed: (self.used + bytes) as u64,
+                needed: (self.used as u64).saturating_add(bytes as u64),
                 available: (self.used + self.rest.len()) as u64,
             });
         }

@@ -2,6 +2,13 @@
 
 use crate::error::{Error, Result};
 
+/// `a * n + b` for the default pool rules; below 2^64 for any u32 `n` and
+/// the small constants used here, saturating rather than wrapping anyway.
+#[deny(clippy::arithmetic_side_effects)]
+const fn lin(a: u64, n: u32, b: u64) -> u64 {
+    a.saturating_mul(n as u64).saturating_add(b)
+}
+
 /// Capacities fixed at context creation (C: `sheaf_limits`).
 ///
 /// A zero in a `max_grid_*` knob means "derive from `max_triangles`"; see
@@ -104,63 +111,88 @@ impl Limits {
         }
     }
 
+    // Every pool size below is computed in u64 from u32 fields and stays
+    // below 2^64 (the largest, `frame_pixels`, saturates instead of
+    // wrapping); the lints make any unchecked operation a build error.
+
     /// kd-tree node capacity after applying the default rule.
-    pub fn kd_nodes(&self) -> u64 {
-        if self.max_kd_nodes != 0 { self.max_kd_nodes as u64 } else { 4 * self.max_triangles as u64 + 1024 }
+    #[deny(clippy::arithmetic_side_effects)]
+    pub const fn kd_nodes(&self) -> u64 {
+        if self.max_kd_nodes != 0 {
+            self.max_kd_nodes as u64
+        } else {
+            lin(4, self.max_triangles, 1024)
+        }
     }
 
     /// kd-tree reference capacity after applying the default rule.
-    pub fn kd_refs(&self) -> u64 {
-        if self.max_kd_refs != 0 { self.max_kd_refs as u64 } else { 12 * self.max_triangles as u64 + 1024 }
+    #[deny(clippy::arithmetic_side_effects)]
+    pub const fn kd_refs(&self) -> u64 {
+        if self.max_kd_refs != 0 {
+            self.max_kd_refs as u64
+        } else {
+            lin(12, self.max_triangles, 1024)
+        }
     }
 
     /// kd-tree build events (scratch): the root's list and its children's
     /// (`KdInfo::events_peak` is 12.0 to 12.2 per triangle on the test
     /// scenes); a build short of events makes leaves early.
-    pub fn kd_events(&self) -> u64 {
-        14 * self.max_triangles as u64 + 1024
+    #[deny(clippy::arithmetic_side_effects)]
+    pub const fn kd_events(&self) -> u64 {
+        lin(14, self.max_triangles, 1024)
     }
 
     /// Perspective/light grid cell capacity (each grid) after the default rule.
-    pub fn pgrid_cells(&self) -> u64 {
+    #[deny(clippy::arithmetic_side_effects)]
+    pub const fn pgrid_cells(&self) -> u64 {
         if self.max_pgrid_cells != 0 {
             return self.max_pgrid_cells as u64;
         }
-        let tiles = (self.max_image_width.div_ceil(8) as u64 * self.max_image_height.div_ceil(8) as u64)
-            .max(64 * 64);
-        tiles * 32
+        // < 2^29 * 2^29 * 2^5 = 2^63.
+        let tiles = (self.max_image_width.div_ceil(8) as u64)
+            .saturating_mul(self.max_image_height.div_ceil(8) as u64);
+        let tiles = if tiles > 64 * 64 { tiles } else { 64 * 64 };
+        tiles.saturating_mul(32)
     }
 
     /// Perspective/light grid pair capacity (each grid) after the default rule.
-    pub fn pgrid_refs(&self) -> u64 {
+    #[deny(clippy::arithmetic_side_effects)]
+    pub const fn pgrid_refs(&self) -> u64 {
         if self.max_pgrid_refs != 0 {
             self.max_pgrid_refs as u64
         } else {
-            8 * self.max_triangles as u64 + 262_144
+            lin(8, self.max_triangles, 262_144)
         }
     }
 
     /// Pixels of the deferred frame buffers: the largest image padded to
-    /// whole tiles of up to `max_tile` pixels.
-    pub fn frame_pixels(&self) -> u64 {
-        (self.max_image_width as u64 + self.max_tile as u64) * (self.max_image_height as u64 + self.max_tile as u64)
+    /// whole tiles of up to `max_tile` pixels. Saturates at `u64::MAX`
+    /// (which `validate` refuses): `(2^32 - 16 + 16)^2` would wrap to 0.
+    #[deny(clippy::arithmetic_side_effects)]
+    pub const fn frame_pixels(&self) -> u64 {
+        let w = (self.max_image_width as u64).saturating_add(self.max_tile as u64);
+        let h = (self.max_image_height as u64).saturating_add(self.max_tile as u64);
+        w.saturating_mul(h)
     }
 
     /// Grid cell capacity after applying the default rule.
-    pub fn grid_cells(&self) -> u64 {
+    #[deny(clippy::arithmetic_side_effects)]
+    pub const fn grid_cells(&self) -> u64 {
         if self.max_grid_cells != 0 {
             self.max_grid_cells as u64
         } else {
-            8 * self.max_triangles as u64 + 64
+            lin(8, self.max_triangles, 64)
         }
     }
 
     /// Grid reference capacity after applying the default rule.
-    pub fn grid_refs(&self) -> u64 {
+    #[deny(clippy::arithmetic_side_effects)]
+    pub const fn grid_refs(&self) -> u64 {
         if self.max_grid_refs != 0 {
             self.max_grid_refs as u64
         } else {
-            16 * self.max_triangles as u64 + 1024
+            lin(16, self.max_triangles, 1024)
         }
     }
 
@@ -207,5 +239,56 @@ impl Limits {
             ));
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pool_rules_saturate_instead_of_wrapping() {
+        let mut l = Limits::for_triangles(u32::MAX);
+        l.max_image_width = 0xFFFF_FFF0;
+        l.max_image_height = 0xFFFF_FFF0;
+        l.max_tile = 16;
+        // (2^32)^2 wrapped to 0 before: a 5 MB context that then panicked.
+        assert_eq!(l.frame_pixels(), u64::MAX);
+        l.structures = Limits::PGRID;
+        assert!(l.validate().is_err());
+        assert_eq!(l.kd_events(), 14 * u32::MAX as u64 + 1024);
+        assert!(l.pgrid_cells() < u64::MAX && l.pgrid_cells() > 1 << 50);
+    }
+
+    #[test]
+    fn required_bytes_never_wraps_to_a_small_size() {
+        // Every field at or near its u32 maximum, in combinations: either
+        // refused or at least as large as the triangle pool alone.
+        for n in [0u32, 1, 1 << 20, u32::MAX / 64, u32::MAX / 2, u32::MAX] {
+            for structures in [
+                Limits::GRID,
+                Limits::BVH,
+                Limits::KD,
+                Limits::PGRID,
+                Limits::ALL_STRUCTURES,
+            ] {
+                for big in [0u32, u32::MAX - 1, u32::MAX] {
+                    let mut l = Limits::for_triangles(n);
+                    l.structures = structures;
+                    l.max_vertices = big;
+                    l.max_grid_cells = big.min(u32::MAX - 1);
+                    l.max_grid_refs = big;
+                    l.max_kd_nodes = big;
+                    l.max_kd_refs = if big == 0 { 0 } else { big.max(n) };
+                    l.max_pgrid_refs = big;
+                    l.max_image_width = big.max(1);
+                    l.max_threads = 1024;
+                    l.projection_test = true;
+                    if let Ok(b) = crate::context::required_bytes(&l) {
+                        assert!(b as u64 >= 36 * n as u64, "{l:?}: {b} bytes");
+                    }
+                }
+            }
+        }
     }
 }

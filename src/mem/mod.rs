@@ -3,14 +3,16 @@
 //!
 //! Nothing in sheaf allocates after a context is created: the pools carved
 //! here are all the memory that build, trace and render ever touch.
-#![allow(unsafe_code)] // only owned.rs and slots.rs, each block with a SAFETY comment
+#![allow(unsafe_code)] // only owned.rs, slots.rs and hg.rs, each block with a SAFETY comment
 
 pub mod arena;
+#[doc(hidden)]
+pub mod hg;
 pub mod limits;
 #[cfg(feature = "std")]
 pub mod owned;
 pub mod slots;
 
-pub use arena::{ARENA_ALIGN, Arena, pool_bytes};
+pub use arena::{ARENA_ALIGN, Arena, pool_bytes, pool_bytes_checked};
 pub use limits::Limits;
 pub use slots::{SlotGuard, Slots};

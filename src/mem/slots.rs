@@ -103,6 +103,7 @@ impl<'a> Slots<'a> {
         self.flag(i)
             .compare_exchange(0, 1, Ordering::Acquire, Ordering::Relaxed)
             .map_err(|_| Error::SlotBusy { slot })?;
+        super::hg::acquired(self.flag(i).as_ptr() as usize);
         Ok(SlotGuard { slots: self, i })
     }
 
@@ -134,7 +135,10 @@ impl SlotGuard<'_, '_> {
 
 impl Drop for SlotGuard<'_, '_> {
     fn drop(&mut self) {
-        self.slots.flag(self.i).store(0, Ordering::Release);
+        let flag = self.slots.flag(self.i);
+        super::hg::released(flag.as_ptr() as usize);
+        // A locked swap, not a plain store: see `mem::hg`.
+        flag.swap(0, Ordering::Release);
     }
 }
 

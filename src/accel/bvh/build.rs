@@ -607,6 +607,7 @@ pub fn build(bvh: &mut Bvh<'_>, scene: &Scene<'_>, p: &BvhParams) -> Result<BvhI
     // 2. Top-down binned SAH with an explicit stack.
     let refs = &mut pools.refs[..n];
     let nodes = &mut *pools.nodes;
+    crate::fault_point!(BvhBuild);
     let leaf_size = p.leaf_size as usize;
     let mut binner = Binner::new(p.bins as usize);
     let root_area = bounds.half_area();

@@ -232,6 +232,7 @@ pub fn build(
     let (rx, ry) = (info.res[0] as usize, info.res[1] as usize);
     let cell_start = &mut pools.cell_start[..cells + 1];
     cell_start.fill(0);
+    crate::fault_point!(GridBuild);
     let mut c = 0usize;
     for t in 0..n_in {
         let tri = scene.triangle(t);

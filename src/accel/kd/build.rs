@@ -323,6 +323,7 @@ pub fn build(kd: &mut KdTree<'_>, scene: &Scene<'_>, p: &KdParams) -> Result<KdI
     }
 
     // From here on nothing fails.
+    crate::fault_point!(KdBuild);
     let max_depth = p.depth_for(n as u32);
     let mut info = KdInfo {
         triangles_in: n_in,

@@ -65,6 +65,7 @@ pub fn load(g: &mut Pgrid<'_>, scene: &Scene<'_>, params: &PgridParams) -> Resul
             info.excluded += 1;
         }
     }
+    crate::fault_point!(PgridLoad);
     g.scene = info;
     g.cam_built = false;
     g.light_built = false;
@@ -245,6 +246,7 @@ pub fn build_camera(g: &mut Pgrid<'_>, cam: &Pinhole) -> Result<CellsInfo> {
     info.refs = needed as u32;
     g.cam = info;
     g.pinhole = *cam;
+    crate::fault_point!(PgridCamera);
     g.cam_built = true;
     Ok(info)
 }
