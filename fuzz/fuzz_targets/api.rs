@@ -288,9 +288,9 @@ impl TraceIn {
                 N::Small(v) => [2, 4, 8, 16, 32, 0, 3, 64][v as usize % 8],
                 N::Any(v) => v,
             },
-            macrocells: self.macrocells,
-            mailbox: self.mailbox,
-            culling: self.culling,
+            macrocells: self.macrocells.into(),
+            mailbox: self.mailbox.into(),
+            culling: self.culling.into(),
             ray_kind: self.ray_kind.get() % 5,
             entry: self.entry.get() % 4,
             split: match self.split {
@@ -402,11 +402,11 @@ impl FrameIn {
                 fov_y_deg: self.fov.get(),
             },
             light: self.light.get(),
-            shading: Shading {
+            shading: ffi::sheaf_shading {
                 albedo: v3(self.albedo),
                 ambient: self.ambient.get(),
                 background: v3(self.background),
-                shadows: self.shadows,
+                shadows: self.shadows.into(),
             },
             width: match self.width {
                 N::Small(v) => 1 + v as u32 % 32,
@@ -426,8 +426,8 @@ impl FrameIn {
                 up: [0.0, 0.0, 1.0],
                 fov_y_deg: 30.0 + (k % 60) as f32,
             };
-            f.shading = Shading::default();
-            f.shading.shadows = self.shadows;
+            f.shading = ffi::sheaf_shading::of(&Shading::default());
+            f.shading.shadows = self.shadows.into();
             if self.light.raw {
                 f.light = PointLight {
                     position: [4.0, -3.0, 8.0],
@@ -510,6 +510,19 @@ enum Op {
     Stats,
     LastError(u16),
     StatusString(u32),
+    /// trace_slot / occluded_slot on any slot (bit 0 of the flag: occluded).
+    TraceSlot(u8, u8, TraceIn, RaysIn),
+    /// render_rows on any slot and row band.
+    RenderRows(u8, u8, u8, TraceIn, FrameIn, FbIn),
+    /// clear_geometry, then the borrowed buffers are freed.
+    ClearGeometry,
+    /// One bad argument in one call: NULL pointer, a count at the overflow
+    /// boundary, or outputs partly over inputs.
+    BadArg(u8, u8, u8),
+    /// Two threads on the context at once: traces on slot 0 against
+    /// another call (trace on slot 1, render_rows, a build, set_geometry,
+    /// a render); compared with the serial results.
+    Concurrent(u8, TraceIn, RaysIn),
 }
 
 #[derive(Arbitrary, Debug)]
@@ -937,9 +950,9 @@ fn default_trace() -> sheaf_trace_params {
     let mut p = sheaf_trace_params {
         method: 0,
         packet: 0,
-        macrocells: false,
-        mailbox: false,
-        culling: false,
+        macrocells: 0,
+        mailbox: 0,
+        culling: 0,
         ray_kind: 0,
         entry: 0,
         split: 0.0,
@@ -1215,7 +1228,8 @@ fn build(st: &mut State, what: &str, f: impl FnOnce(*mut sheaf_context) -> sheaf
 }
 
 fn run(input: &Input) {
-    let limits = input.limits.get();
+    let core_limits = input.limits.get();
+    let limits = ffi::sheaf_limits::of(&core_limits);
     let mut need = usize::MAX;
     let s = ffi::sheaf_required_bytes(&limits, &mut need);
     valid_status(s, "required_bytes");
@@ -1293,7 +1307,7 @@ fn run(input: &Input) {
     }
     let mut st = State {
         ctx,
-        limits,
+        limits: core_limits,
         geometry: None,
         trace: None,
         render: None,
@@ -1360,7 +1374,7 @@ fn step(st: &mut State, op: &Op) {
                 },
                 macrocell: small(p.macrocell, |v| v % 9),
                 test: small(p.test, |v| v % 3),
-                fit: p.fit,
+                fit: p.fit.into(),
             });
             build(st, "build_grid", |c| {
                 ffi::sheaf_context_build_grid(c, p.as_ref().map_or(core::ptr::null(), |p| p))
@@ -1400,7 +1414,7 @@ fn step(st: &mut State, op: &Op) {
                 light_slices: small(p.light_slices, |v| 1 + v),
                 chunk: p.chunk as u32,
                 test: small(p.test, |v| v % 3),
-                cull_backfaces: p.cull_backfaces,
+                cull_backfaces: p.cull_backfaces.into(),
             });
             // Loads triangles for the grids only: traces and renders stand.
             let before = stats_of(st.ctx);
@@ -1423,6 +1437,25 @@ fn step(st: &mut State, op: &Op) {
         Op::RenderWith(p, s, f, fb) => render(st, p.get(), s.get(), Some(()), f, fb),
         Op::Whitted(w, f, fb) => whitted(st, w, f, fb),
         Op::Deferred(d, f, fb) => deferred(st, d, f, fb),
+        Op::TraceSlot(slot, flag, p, r) => trace_slot(st, *slot, flag & 1 != 0, &p.get(), r),
+        Op::RenderRows(slot, y0, y1, p, f, fb) => render_rows(st, *slot, *y0, *y1, &p.get(), f, fb),
+        Op::ClearGeometry => {
+            let before = stats_of(st.ctx);
+            let s = ffi::sheaf_context_clear_geometry(st.ctx);
+            valid_status(s, "clear_geometry");
+            assert_eq!(s, OK, "clear_geometry on a live context");
+            assert_eq!(stats_of(st.ctx), before, "clear_geometry changed the stats");
+            // The borrow has ended: free the buffers (ASan catches any later read).
+            st.geometry = None;
+            // Builds now need geometry; traces and renders still stand.
+            assert_eq!(
+                ffi::sheaf_context_build_bvh(st.ctx, core::ptr::null()),
+                sheaf_status::NoGeometry
+            );
+            st.recheck("clear_geometry", sheaf_status::NoGeometry);
+        }
+        Op::BadArg(call, which, kind) => bad_arg(st, *call, *which, *kind),
+        Op::Concurrent(other, p, r) => concurrent(st, *other, &p.get(), r),
         Op::DeferredPixel(x, y) => {
             let mut hit = sheaf_hit {
                 t: 1.5,
@@ -1792,8 +1825,8 @@ fn deferred(st: &mut State, d: &DeferredIn, f: &FrameIn, fb: &FbIn) {
             lights.as_ptr()
         },
         light_count: lights.len(),
-        primary_pgrid: d.primary_pgrid,
-        shadow_light_grid: d.shadow_light_grid,
+        primary_pgrid: d.primary_pgrid.into(),
+        shadow_light_grid: d.shadow_light_grid.into(),
         primary: d.primary.get(),
         shadow: d.shadow.get(),
     };
@@ -1838,6 +1871,225 @@ fn deferred(st: &mut State, d: &DeferredIn, f: &FrameIn, fb: &FbIn) {
             "shadow bits {bits:#x} for {n} lights"
         );
     }
+}
+
+// ---- slots, bad arguments, two threads (issue 15) -----------------------------------------
+
+/// trace_slot / occluded_slot: the same bytes as trace_with / occluded_with,
+/// or a refusal that writes nothing (slots past max_threads:
+/// CAPACITY_THREADS).
+fn trace_slot(st: &mut State, slot: u8, occ: bool, p: &sheaf_trace_params, r: &RaysIn) {
+    let rays = make_rays(r);
+    let n = rays.len();
+    let slot = slot as u32 % (st.limits.max_threads + 2);
+    let mut out = vec![S_HIT; n * if occ { 1 } else { 16 }];
+    let s = if occ {
+        ffi::sheaf_context_occluded_slot(st.ctx, slot, p, rays.as_ptr(), out.as_mut_ptr(), n)
+    } else {
+        ffi::sheaf_context_trace_slot(st.ctx, slot, p, rays.as_ptr(), out.as_mut_ptr().cast(), n)
+    };
+    valid_status(s, "trace_slot");
+    if slot >= st.limits.max_threads {
+        assert_ne!(s, OK, "slot {slot} of {} accepted", st.limits.max_threads);
+    }
+    if s != OK {
+        assert!(out.iter().all(|&b| b == S_HIT), "a failed slot trace wrote results");
+        st.recheck("trace_slot", s);
+        return;
+    }
+    let want = if occ {
+        let mut o = vec![S_HIT; n];
+        assert_eq!(ffi::sheaf_context_occluded_with(st.ctx, p, rays.as_ptr(), o.as_mut_ptr(), n), OK);
+        o
+    } else {
+        run_trace(st.ctx, p, false, &rays).expect("trace_with fails where trace_slot succeeded")
+    };
+    if occ {
+        assert!(out == want, "occluded_slot differs from occluded_with");
+    } else {
+        // Bytes 0..8 of each hit (t, prim) and u, v: all of it.
+        assert!(out == want, "trace_slot differs from trace_with");
+    }
+}
+
+/// render_rows: the band equals the same rows of render_with, nothing
+/// outside the band is written, refusals write nothing.
+fn render_rows(st: &mut State, slot: u8, y0: u8, y1: u8, p: &sheaf_trace_params, f: &FrameIn, fb: &FbIn) {
+    let frame = f.get();
+    let (mut buf, stride, len, _) = framebuffer(&frame, fb);
+    let slot = slot as u32 % (st.limits.max_threads + 2);
+    let (y0, y1) = (y0 as u32 % 40, y1 as u32 % 40);
+    let off = (y0 as usize).saturating_mul(stride).min(len);
+    let ptr = if fb.null {
+        core::ptr::null_mut()
+    } else {
+        // SAFETY: off <= len.
+        unsafe { buf.as_mut_ptr().add(off) }
+    };
+    let s = ffi::sheaf_context_render_rows(st.ctx, slot, p, p, &frame, y0, y1, ptr, stride, len - off);
+    valid_status(s, "render_rows");
+    if s != OK {
+        assert!(buf.iter().all(|&b| b == S_PIX), "a failed render_rows wrote pixels");
+        st.recheck("render_rows", s);
+        return;
+    }
+    assert!(slot < st.limits.max_threads && y0 < y1 && y1 <= frame.height && !fb.null);
+    let mut whole = vec![S_PIX; len];
+    let sw = ffi::context::sheaf_context_render_with(st.ctx, p, p, &frame, whole.as_mut_ptr(), stride, len);
+    let w4 = frame.width as usize * 4;
+    for y in 0..frame.height as usize {
+        let row = y * stride;
+        let inside = y >= y0 as usize && y < y1 as usize;
+        for x in 0..w4.min(len.saturating_sub(row)) {
+            if inside {
+                if sw == OK {
+                    assert_eq!(buf[row + x], whole[row + x], "render_rows pixel ({}, {y}) differs", x / 4);
+                }
+            } else {
+                assert_eq!(buf[row + x], S_PIX, "render_rows wrote row {y} outside [{y0}, {y1})");
+            }
+        }
+    }
+}
+
+/// One bad argument: `kind` 0 NULL, 1 a count at the overflow boundary, 2
+/// outputs partly over the inputs; `which` picks the argument. Every such
+/// call is refused and writes nothing.
+fn bad_arg(st: &mut State, call: u8, which: u8, kind: u8) {
+    let rays: Vec<sheaf_ray> = (0..8)
+        .map(|i| sheaf_ray {
+            org: [i as f32, -5.0, 1.0],
+            tmin: 0.0,
+            dir: [0.0, 1.0, 0.0],
+            tmax: f32::INFINITY,
+        })
+        .collect();
+    let p = default_trace();
+    // A buffer holding rays then room for results, so outputs can overlap.
+    let rsz = core::mem::size_of::<sheaf_ray>();
+    let mut bytes = vec![S_HIT; 8 * rsz + 8 * 16 + 64];
+    for (i, r) in rays.iter().enumerate() {
+        // SAFETY: in bounds; unaligned write of a plain struct.
+        unsafe { bytes.as_mut_ptr().add(i * rsz).cast::<sheaf_ray>().write_unaligned(*r) };
+    }
+    let before = bytes.clone();
+    let base = bytes.as_mut_ptr();
+    let kind = kind % 3;
+    let huge = [usize::MAX, usize::MAX / 16 + 1, isize::MAX as usize / 32 + 1, (u32::MAX as usize) + 1][which as usize % 4];
+    let shift = 1 + which as usize % (8 * rsz - 1); // results start inside the rays
+    let (rp, count): (*const sheaf_ray, usize) = match kind {
+        0 if which % 2 == 0 => (core::ptr::null(), 8),
+        1 => (base.cast_const().cast(), huge),
+        _ => (base.cast_const().cast(), 8),
+    };
+    // SAFETY: offsets inside `bytes`.
+    let out: *mut u8 = match kind {
+        0 if which % 2 == 1 => core::ptr::null_mut(),
+        2 => unsafe { base.add(shift) },
+        _ => unsafe { base.add(8 * rsz) },
+    };
+    let slot = 0;
+    let s = match call % 6 {
+        0 => ffi::sheaf_context_trace(st.ctx, p.method, rp, out.cast(), count),
+        1 => ffi::context::sheaf_context_trace_with(st.ctx, &p, rp, out.cast(), count),
+        2 => ffi::sheaf_context_occluded(st.ctx, p.method, rp, out, count),
+        3 => ffi::sheaf_context_occluded_with(st.ctx, &p, rp, out, count),
+        4 => ffi::sheaf_context_trace_slot(st.ctx, slot, &p, rp, out.cast(), count),
+        _ => ffi::sheaf_context_occluded_slot(st.ctx, slot, &p, rp, out, count),
+    };
+    valid_status(s, "bad_arg");
+    // A partial overlap is refused only when the output really reaches the
+    // rays: occluded's one byte per ray from `shift` may end before... it
+    // always starts inside them here, so every kind is refused.
+    assert_ne!(s, OK, "call {} with bad argument kind {kind} ({which}) accepted", call % 6);
+    let want = match kind {
+        0 => sheaf_status::NullPointer,
+        1 => sheaf_status::InvalidArgument,
+        _ => sheaf_status::InvalidArgument,
+    };
+    if s != sheaf_status::NotBuilt && s != sheaf_status::CapacityThreads {
+        assert_eq!(s, want, "call {} kind {kind}", call % 6);
+    }
+    assert!(bytes == before, "a refused call wrote memory");
+    st.recheck("bad_arg", s);
+}
+
+/// Two threads on one context: thread A traces on slot 0 (when there are
+/// two slots) while thread B runs another call; every status is OK or a
+/// busy refusal, and every OK trace equals the serial answer.
+fn concurrent(st: &mut State, other: u8, p: &sheaf_trace_params, r: &RaysIn) {
+    let rays = make_rays(r);
+    let Some(want) = run_trace(st.ctx, p, false, &rays) else {
+        return; // nothing traceable: no serial answer to compare with
+    };
+    let two = st.limits.max_threads >= 2;
+    let ctx = st.ctx as usize;
+    let stats_before = stats_of(st.ctx);
+    let (a, b) = std::thread::scope(|sc| {
+        let ta = sc.spawn(|| {
+            let ctx = ctx as *mut sheaf_context;
+            let mut h = vec![sheaf_hit { t: 0.0, prim: 0, u: 0.0, v: 0.0 }; rays.len()];
+            let s = if two {
+                ffi::sheaf_context_trace_slot(ctx, 0, p, rays.as_ptr(), h.as_mut_ptr(), rays.len())
+            } else {
+                ffi::context::sheaf_context_trace_with(ctx, p, rays.as_ptr(), h.as_mut_ptr(), rays.len())
+            };
+            (s, hit_bytes(&h))
+        });
+        let tb = sc.spawn(|| {
+            let ctx = ctx as *mut sheaf_context;
+            let mut h = vec![sheaf_hit { t: 0.0, prim: 0, u: 0.0, v: 0.0 }; rays.len()];
+            let mut img = vec![0u8; 16 * 16 * 4];
+            let frame = sheaf_frame {
+                camera: Camera { eye: [3.0, -4.0, 2.0], look_at: [0.0; 3], up: [0.0, 0.0, 1.0], fov_y_deg: 50.0 },
+                light: PointLight::default(),
+                shading: ffi::sheaf_shading::of(&Shading::default()),
+                width: 16,
+                height: 16,
+            };
+            let s = match other % 6 {
+                0 if two => ffi::sheaf_context_trace_slot(ctx, 1, p, rays.as_ptr(), h.as_mut_ptr(), rays.len()),
+                0 | 1 => ffi::context::sheaf_context_trace_with(ctx, p, rays.as_ptr(), h.as_mut_ptr(), rays.len()),
+                2 => ffi::sheaf_context_render_rows(ctx, if two { 1 } else { 0 }, p, p, &frame, 0, 16, img.as_mut_ptr(), 64, img.len()),
+                3 => ffi::sheaf_context_build_bvh(ctx, core::ptr::null()),
+                4 => ffi::sheaf_context_build_grid(ctx, core::ptr::null()),
+                _ => ffi::sheaf_context_render(ctx, p.method, &frame, img.as_mut_ptr(), 64, img.len()),
+            };
+            let traced = matches!(other % 6, 0 | 1);
+            (s, traced.then(|| hit_bytes(&h)))
+        });
+        (ta.join().unwrap(), tb.join().unwrap())
+    });
+    let busy = |s: sheaf_status| {
+        matches!(s, sheaf_status::ContextBusy | sheaf_status::SlotBusy)
+    };
+    valid_status(a.0, "concurrent trace");
+    valid_status(b.0, "concurrent other");
+    assert!(a.0 == OK || busy(a.0), "concurrent trace: {:?}", a.0);
+    if let (OK, Some(h)) = (b.0, &b.1) {
+        assert!(*h == want, "a second concurrent trace gave other hits");
+    }
+    // A successful rebuild may change answers (buffers edited in place
+    // since the last build): the racing trace then equals the answer from
+    // before or after it, and earlier records are dropped, as `build` does.
+    let after = run_trace(st.ctx, p, false, &rays);
+    let rebuilt = matches!(other % 6, 3 | 4) && b.0 == OK;
+    if a.0 == OK {
+        assert!(
+            a.1 == want || (rebuilt && after.as_ref() == Some(&a.1)),
+            "a trace racing another call gave other hits"
+        );
+    }
+    if rebuilt {
+        st.trace = None;
+        st.render = None;
+    } else {
+        assert!(after.as_ref() == Some(&want), "the serial answer changed after a concurrent pair");
+    }
+    if matches!(other % 6, 0 | 1 | 2) {
+        assert_eq!(stats_of(st.ctx), stats_before, "shared calls changed the stats");
+    }
+    st.recheck("concurrent", b.0);
 }
 
 fuzz_target!(|input: Input| {
