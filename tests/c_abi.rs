@@ -333,13 +333,7 @@ fn c_hardening_shared() {
 /// valgrind is not installed (CI installs it).
 #[test]
 fn c_threads_under_helgrind() {
-    let ok = Command::new("valgrind")
-        .arg("--version")
-        .output()
-        .map(|o| o.status.success())
-        .unwrap_or(false);
-    if !ok {
-        println!("SKIPPED: valgrind not found (apt-get install valgrind)");
+    if !have_valgrind() {
         return;
     }
     check_layouts();
@@ -1419,6 +1413,20 @@ fn c_tests_under_asan_and_ubsan() {
     }
 }
 
+/// Whether valgrind runs here; prints the skip message when not (CI
+/// installs it).
+fn have_valgrind() -> bool {
+    let ok = Command::new("valgrind")
+        .arg("--version")
+        .output()
+        .map(|o| o.status.success())
+        .unwrap_or(false);
+    if !ok {
+        println!("SKIPPED: valgrind not found (apt-get install valgrind)");
+    }
+    ok
+}
+
 /// Every C test program under valgrind's memcheck (uninitialised reads,
 /// invalid accesses, leaks: `--error-exitcode=99 --leak-check=full`), static
 /// and shared, except `test_threads.c`: valgrind runs threads one at a time,
@@ -1427,13 +1435,7 @@ fn c_tests_under_asan_and_ubsan() {
 /// installs it).
 #[test]
 fn c_tests_under_valgrind() {
-    let ok = Command::new("valgrind")
-        .arg("--version")
-        .output()
-        .map(|o| o.status.success())
-        .unwrap_or(false);
-    if !ok {
-        println!("SKIPPED: valgrind not found (apt-get install valgrind)");
+    if !have_valgrind() {
         return;
     }
     check_layouts();
