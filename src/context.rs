@@ -8,11 +8,13 @@ use crate::accel::grid::traverse_cgt::{self, Mailbox};
 use crate::accel::grid::{self, Grid, GridInfo, GridParams, GridPools, GridView};
 use crate::accel::kd::{self, KdInfo, KdNode, KdParams, KdPools, KdTree, KdView};
 use crate::accel::pgrid::{self, Chunk, Pgrid, PgridParams, PgridPools, SceneInfo};
-use crate::render::deferred::{self, DeferredInfo, DeferredJob, FrameBuffers, PrimaryPass, ShadowPass, TileLayout, Workers};
 use crate::error::{Error, Pool, Result};
 use crate::geom::frustum::Frustum;
 use crate::geom::{Hit, Hit4, M4, Mt, Pt, Ray, Ray4, Scene, TriTest, TriVerts, TriangleTest, Wt};
 use crate::mem::{Arena, Limits, Slots};
+use crate::render::deferred::{
+    self, DeferredInfo, DeferredJob, FrameBuffers, PrimaryPass, ShadowPass, TileLayout, Workers,
+};
 use crate::render::whitted::{self, WhittedJob};
 use crate::render::{self, Frame, PointLight, PrimaryRays, Tracer};
 use crate::trace::{Counters, Method, TraceParams};
@@ -53,7 +55,8 @@ struct Layout {
 /// A pool size from a u64 rule, refused when it does not fit a `usize`
 /// (32-bit targets).
 fn entries(v: u64) -> Result<usize> {
-    usize::try_from(v).map_err(|_| Error::InvalidArgument("limits need more memory than can be addressed"))
+    usize::try_from(v)
+        .map_err(|_| Error::InvalidArgument("limits need more memory than can be addressed"))
 }
 
 /// Sizes and byte sums of the layout: every operation checked (the lints
@@ -77,7 +80,11 @@ impl Layout {
             proj: if grid && l.projection_test { n } else { 0 },
             cells,
             refs: if grid { entries(l.grid_refs())? } else { 0 },
-            macro_words: if grid { cells.div_ceil(32).checked_add(1).ok_or(big)? } else { 0 },
+            macro_words: if grid {
+                cells.div_ceil(32).checked_add(1).ok_or(big)?
+            } else {
+                0
+            },
             slots: l.max_threads as usize,
             stamps: if grid || pg { n } else { 0 },
             bvh_tris,
@@ -89,9 +96,17 @@ impl Layout {
             kd_events: if kd { entries(l.kd_events())? } else { 0 },
             pg_tris: if pg { n } else { 0 },
             pg_proj: if pg && l.projection_test { n } else { 0 },
-            pg_cells: if pg { entries(l.pgrid_cells())?.checked_add(1).ok_or(big)? } else { 0 },
+            pg_cells: if pg {
+                entries(l.pgrid_cells())?.checked_add(1).ok_or(big)?
+            } else {
+                0
+            },
             pg_refs: if pg { entries(l.pgrid_refs())? } else { 0 },
-            pg_scratch: if pg { entries(l.pgrid_refs().max(l.frame_pixels()))? } else { 0 },
+            pg_scratch: if pg {
+                entries(l.pgrid_refs().max(l.frame_pixels()))?
+            } else {
+                0
+            },
             px,
             chunks: if pg {
                 px.checked_div(pgrid::MIN_CHUNK as usize)
@@ -144,13 +159,19 @@ impl Layout {
             pool::<u32>(self.px).and_then(twice),
             pool::<u8>(self.px),
             pool::<Chunk>(self.chunks),
-            pool::<u32>(if self.px > 0 { pgrid::MAX_LIGHT_TILES } else { 0 }),
+            pool::<u32>(if self.px > 0 {
+                pgrid::MAX_LIGHT_TILES
+            } else {
+                0
+            }),
         ];
         pools
             .into_iter()
             .try_fold(0usize, |sum, b| sum.checked_add(b?))
             .filter(|&b| b <= isize::MAX as usize)
-            .ok_or(Error::InvalidArgument("limits need more memory than can be addressed"))
+            .ok_or(Error::InvalidArgument(
+                "limits need more memory than can be addressed",
+            ))
     }
 }
 
@@ -291,7 +312,11 @@ impl<'a> Context<'a> {
             ray_ids: arena.take(layout.px)?,
             occ: arena.take(layout.px)?,
             chunks: arena.take(layout.chunks)?,
-            reach: arena.take(if layout.px > 0 { pgrid::MAX_LIGHT_TILES } else { 0 })?,
+            reach: arena.take(if layout.px > 0 {
+                pgrid::MAX_LIGHT_TILES
+            } else {
+                0
+            })?,
         };
         debug_assert_eq!(arena.used(), need);
         Ok(Context {
@@ -523,7 +548,10 @@ impl<'a> Context<'a> {
             tr.scene_scale()
         };
         let eps = deferred::shadow_eps(scale);
-        info.hits = buf.prim[..lay.len()].iter().filter(|&&p| p != crate::geom::INVALID_ID).count() as u64;
+        info.hits = buf.prim[..lay.len()]
+            .iter()
+            .filter(|&&p| p != crate::geom::INVALID_ID)
+            .count() as u64;
         let lights = job.lights();
         buf.shadow[..lay.len()].fill(0);
         if job.frame.shading.shadows {
@@ -561,21 +589,57 @@ impl<'a> Context<'a> {
                         info.times.shadow_trace += elapsed_ns(t);
                     }
                     ShadowPass::LightGrid => {
-                        let f = deferred::light_frame(light, &s, deferred::light_tiles(pp.light_tiles, s.count), &lay, buf.dirs, buf.ray_tiles, buf.ray_ids);
-                        let depth = pgrid::Slices::new(s.near, s.far, pp.light_slices, pgrid::LIGHT_DEPTH_PAD);
-                        let k = deferred::map_to_tiles(&f, &depth, &lay, buf.dirs, buf.ray_tiles, buf.ray_ids, buf.reach);
+                        let f = deferred::light_frame(
+                            light,
+                            &s,
+                            deferred::light_tiles(pp.light_tiles, s.count),
+                            &lay,
+                            buf.dirs,
+                            buf.ray_tiles,
+                            buf.ray_ids,
+                        );
+                        let depth = pgrid::Slices::new(
+                            s.near,
+                            s.far,
+                            pp.light_slices,
+                            pgrid::LIGHT_DEPTH_PAD,
+                        );
+                        let k = deferred::map_to_tiles(
+                            &f,
+                            &depth,
+                            &lay,
+                            buf.dirs,
+                            buf.ray_tiles,
+                            buf.ray_ids,
+                            buf.reach,
+                        );
                         info.times.rearrange += elapsed_ns(t);
                         // Phase 4: the light grid, over the tiles and
                         // slices the rays reach.
                         let t = now();
-                        info.light = pgrid::build::build_light(pg, &f, s.near, s.far, pp.light_slices, buf.reach)?;
+                        info.light = pgrid::build::build_light(
+                            pg,
+                            &f,
+                            s.near,
+                            s.far,
+                            pp.light_slices,
+                            buf.reach,
+                        )?;
                         info.times.shadow_build += elapsed_ns(t);
                         let t = now();
-                        let r = deferred::rearrange(&f, k, buf, pg.pools.tmp_keys, pg.pools.tmp_vals, pp.chunk);
+                        let r = deferred::rearrange(
+                            &f,
+                            k,
+                            buf,
+                            pg.pools.tmp_keys,
+                            pg.pools.tmp_vals,
+                            pp.chunk,
+                        );
                         info.reorder.rays += r.rays;
                         info.reorder.tiles_used += r.tiles_used;
                         info.reorder.chunks += r.chunks;
-                        info.reorder.max_tile_rays = info.reorder.max_tile_rays.max(r.max_tile_rays);
+                        info.reorder.max_tile_rays =
+                            info.reorder.max_tile_rays.max(r.max_tile_rays);
                         info.times.rearrange += elapsed_ns(t);
                         // Phase 5: chunks.
                         let t = now();
@@ -636,7 +700,11 @@ impl<'a> Context<'a> {
         let i = lay.index(x, y);
         let prim = self.frame.prim[i];
         let hit = Hit {
-            t: if prim == crate::geom::INVALID_ID { f32::INFINITY } else { self.frame.t[i] },
+            t: if prim == crate::geom::INVALID_ID {
+                f32::INFINITY
+            } else {
+                self.frame.t[i]
+            },
             prim,
             u: 0.0,
             v: 0.0,
@@ -973,7 +1041,13 @@ impl<'a> Context<'a> {
                 needed: 1,
                 available: 0,
             })?;
-            let band = Band { frame, rays: &rays, y0: 0, y1: frame.height, stride };
+            let band = Band {
+                frame,
+                rays: &rays,
+                y0: 0,
+                y1: frame.height,
+                stride,
+            };
             band.render(&tr, primary, shadow, pixels, &mut mb, &mut ctr);
             crate::fault_point!(Render);
         }
@@ -1007,7 +1081,13 @@ impl<'a> Context<'a> {
         let tr = self.scene_tracer()?;
         tr.with_single(shadow.method)?;
         let tr = tr.with_single(primary.method)?;
-        let rows = Band { frame, rays: &rays, y0, y1, stride };
+        let rows = Band {
+            frame,
+            rays: &rays,
+            y0,
+            y1,
+            stride,
+        };
         self.with_slot(slot, |mb| {
             let mut ctr = Counters::default();
             rows.render(&tr, primary, shadow, band, mb, &mut ctr);
@@ -1116,7 +1196,8 @@ pub(crate) fn batch_on(
     } else {
         4
     };
-    let mut quads = [Ray4::from_rays(&[Ray::new(glam::Vec3::ZERO, glam::Vec3::X, 0.0, 0.0); 4]); QUADS];
+    let mut quads =
+        [Ray4::from_rays(&[Ray::new(glam::Vec3::ZERO, glam::Vec3::X, 0.0, 0.0); 4]); QUADS];
     let mut active = [M4::FALSE; QUADS];
     let mut hits = [Hit4::MISS; QUADS];
     let mut start = 0;
@@ -1125,9 +1206,23 @@ pub(crate) fn batch_on(
         let nq = crate::trace::pack_quads(n, |k| read(start + k), &mut quads, &mut active);
         hits[..nq].fill(Hit4::MISS);
         if any {
-            tr.occluded_packet(p, &quads[..nq], &active[..nq], &mut hits[..nq], mb, &mut ctr);
+            tr.occluded_packet(
+                p,
+                &quads[..nq],
+                &active[..nq],
+                &mut hits[..nq],
+                mb,
+                &mut ctr,
+            );
         } else {
-            tr.intersect_packet(p, &quads[..nq], &active[..nq], &mut hits[..nq], mb, &mut ctr);
+            tr.intersect_packet(
+                p,
+                &quads[..nq],
+                &active[..nq],
+                &mut hits[..nq],
+                mb,
+                &mut ctr,
+            );
         }
         for k in 0..n {
             out(start + k, &hits[k / 4], k % 4);
@@ -1166,7 +1261,9 @@ impl Band<'_> {
                     packet: side,
                     ..*primary
                 };
-                render::render_tiles(tr, &tile, shadow, frame, rays, y0, y1, pixels, stride, mb, ctr);
+                render::render_tiles(
+                    tr, &tile, shadow, frame, rays, y0, y1, pixels, stride, mb, ctr,
+                );
             }
         }
     }
@@ -1881,7 +1978,9 @@ impl OwnedContext {
         stride: usize,
         workers: &mut W,
     ) -> Result<DeferredInfo> {
-        self.inner.get_mut().render_deferred(job, pixels, stride, workers)
+        self.inner
+            .get_mut()
+            .render_deferred(job, pixels, stride, workers)
     }
     pub fn build_kd(&mut self, scene: &Scene<'_>, params: &KdParams) -> Result<KdInfo> {
         self.inner.get_mut().build_kd(scene, params)

@@ -50,4 +50,3 @@ pub use mem::Limits;
 pub use render::deferred::{DeferredInfo, DeferredJob, OnCaller, PrimaryPass, ShadowPass};
 pub use render::{Camera, Frame, PointLight, Shading};
 pub use trace::{CgtOptions, Counters, Method, TraceParams};
-

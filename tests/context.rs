@@ -500,11 +500,22 @@ fn threads_with_their_own_slots_render_the_same_frame() {
                         let y1 = (y0 + 13).min(72);
                         let len = band.len().min((y1 - y0) as usize * stride);
                         shared
-                            .render_rows_in_slot(slot as u32, &p, &p, &frame, y0, y1, &mut band[..len], stride)
+                            .render_rows_in_slot(
+                                slot as u32,
+                                &p,
+                                &p,
+                                &frame,
+                                y0,
+                                y1,
+                                &mut band[..len],
+                                stride,
+                            )
                             .unwrap();
                     }
                     let mut hits = vec![Hit::MISS; rays.len()];
-                    shared.trace_in_slot(slot as u32, &p, rays, &mut hits).unwrap();
+                    shared
+                        .trace_in_slot(slot as u32, &p, rays, &mut hits)
+                        .unwrap();
                     assert_eq!(&hits, want_hits);
                 });
             }
@@ -516,7 +527,10 @@ fn threads_with_their_own_slots_render_the_same_frame() {
     let mut band = vec![7u8; 4 * 80];
     assert!(matches!(
         ctx.render_rows_in_slot(3, &p, &p, &frame, 0, 1, &mut band, 320),
-        Err(Error::Capacity { pool: Pool::Threads, .. })
+        Err(Error::Capacity {
+            pool: Pool::Threads,
+            ..
+        })
     ));
     assert!(matches!(
         ctx.render_rows_in_slot(0, &p, &p, &frame, 5, 5, &mut band, 320),

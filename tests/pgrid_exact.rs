@@ -965,9 +965,10 @@ fn pgrid_tracing_tile_of_64_with_traced_shadow_packets() {
             let packets = matches!(shadow, ShadowPass::Traced(p) if p.tile_side() > 0);
             match r {
                 Ok(Err(Error::InvalidArgument(_))) if packets && tile * group > 32 => {}
-                Ok(Ok(_)) if packets && tile * group > 32 => {
-                    failed.push(format!("{what}: traced packets of side {} accepted", tile * group))
-                }
+                Ok(Ok(_)) if packets && tile * group > 32 => failed.push(format!(
+                    "{what}: traced packets of side {} accepted",
+                    tile * group
+                )),
                 Ok(Ok((_, img))) if img == want => {}
                 Ok(Ok(_)) => failed.push(format!("{what}: image differs from render's")),
                 Ok(Err(e)) => failed.push(format!("{what}: error {e}")),

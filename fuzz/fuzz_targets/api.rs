@@ -1893,13 +1893,19 @@ fn trace_slot(st: &mut State, slot: u8, occ: bool, p: &sheaf_trace_params, r: &R
         assert_ne!(s, OK, "slot {slot} of {} accepted", st.limits.max_threads);
     }
     if s != OK {
-        assert!(out.iter().all(|&b| b == S_HIT), "a failed slot trace wrote results");
+        assert!(
+            out.iter().all(|&b| b == S_HIT),
+            "a failed slot trace wrote results"
+        );
         st.recheck("trace_slot", s);
         return;
     }
     let want = if occ {
         let mut o = vec![S_HIT; n];
-        assert_eq!(ffi::sheaf_context_occluded_with(st.ctx, p, rays.as_ptr(), o.as_mut_ptr(), n), OK);
+        assert_eq!(
+            ffi::sheaf_context_occluded_with(st.ctx, p, rays.as_ptr(), o.as_mut_ptr(), n),
+            OK
+        );
         o
     } else {
         run_trace(st.ctx, p, false, &rays).expect("trace_with fails where trace_slot succeeded")
@@ -1914,7 +1920,15 @@ fn trace_slot(st: &mut State, slot: u8, occ: bool, p: &sheaf_trace_params, r: &R
 
 /// render_rows: the band equals the same rows of render_with, nothing
 /// outside the band is written, refusals write nothing.
-fn render_rows(st: &mut State, slot: u8, y0: u8, y1: u8, p: &sheaf_trace_params, f: &FrameIn, fb: &FbIn) {
+fn render_rows(
+    st: &mut State,
+    slot: u8,
+    y0: u8,
+    y1: u8,
+    p: &sheaf_trace_params,
+    f: &FrameIn,
+    fb: &FbIn,
+) {
     let frame = f.get();
     let (mut buf, stride, len, _) = framebuffer(&frame, fb);
     let slot = slot as u32 % (st.limits.max_threads + 2);
@@ -1926,16 +1940,28 @@ fn render_rows(st: &mut State, slot: u8, y0: u8, y1: u8, p: &sheaf_trace_params,
         // SAFETY: off <= len.
         unsafe { buf.as_mut_ptr().add(off) }
     };
-    let s = ffi::sheaf_context_render_rows(st.ctx, slot, p, p, &frame, y0, y1, ptr, stride, len - off);
+    let s =
+        ffi::sheaf_context_render_rows(st.ctx, slot, p, p, &frame, y0, y1, ptr, stride, len - off);
     valid_status(s, "render_rows");
     if s != OK {
-        assert!(buf.iter().all(|&b| b == S_PIX), "a failed render_rows wrote pixels");
+        assert!(
+            buf.iter().all(|&b| b == S_PIX),
+            "a failed render_rows wrote pixels"
+        );
         st.recheck("render_rows", s);
         return;
     }
     assert!(slot < st.limits.max_threads && y0 < y1 && y1 <= frame.height && !fb.null);
     let mut whole = vec![S_PIX; len];
-    let sw = ffi::context::sheaf_context_render_with(st.ctx, p, p, &frame, whole.as_mut_ptr(), stride, len);
+    let sw = ffi::context::sheaf_context_render_with(
+        st.ctx,
+        p,
+        p,
+        &frame,
+        whole.as_mut_ptr(),
+        stride,
+        len,
+    );
     let w4 = frame.width as usize * 4;
     for y in 0..frame.height as usize {
         let row = y * stride;
@@ -1943,10 +1969,19 @@ fn render_rows(st: &mut State, slot: u8, y0: u8, y1: u8, p: &sheaf_trace_params,
         for x in 0..w4.min(len.saturating_sub(row)) {
             if inside {
                 if sw == OK {
-                    assert_eq!(buf[row + x], whole[row + x], "render_rows pixel ({}, {y}) differs", x / 4);
+                    assert_eq!(
+                        buf[row + x],
+                        whole[row + x],
+                        "render_rows pixel ({}, {y}) differs",
+                        x / 4
+                    );
                 }
             } else {
-                assert_eq!(buf[row + x], S_PIX, "render_rows wrote row {y} outside [{y0}, {y1})");
+                assert_eq!(
+                    buf[row + x],
+                    S_PIX,
+                    "render_rows wrote row {y} outside [{y0}, {y1})"
+                );
             }
         }
     }
@@ -1970,12 +2005,23 @@ fn bad_arg(st: &mut State, call: u8, which: u8, kind: u8) {
     let mut bytes = vec![S_HIT; 8 * rsz + 8 * 16 + 64];
     for (i, r) in rays.iter().enumerate() {
         // SAFETY: in bounds; unaligned write of a plain struct.
-        unsafe { bytes.as_mut_ptr().add(i * rsz).cast::<sheaf_ray>().write_unaligned(*r) };
+        unsafe {
+            bytes
+                .as_mut_ptr()
+                .add(i * rsz)
+                .cast::<sheaf_ray>()
+                .write_unaligned(*r)
+        };
     }
     let before = bytes.clone();
     let base = bytes.as_mut_ptr();
     let kind = kind % 3;
-    let huge = [usize::MAX, usize::MAX / 16 + 1, isize::MAX as usize / 32 + 1, (u32::MAX as usize) + 1][which as usize % 4];
+    let huge = [
+        usize::MAX,
+        usize::MAX / 16 + 1,
+        isize::MAX as usize / 32 + 1,
+        (u32::MAX as usize) + 1,
+    ][which as usize % 4];
     let shift = 1 + which as usize % (8 * rsz - 1); // results start inside the rays
     let (rp, count): (*const sheaf_ray, usize) = match kind {
         0 if which % 2 == 0 => (core::ptr::null(), 8),
@@ -2001,7 +2047,12 @@ fn bad_arg(st: &mut State, call: u8, which: u8, kind: u8) {
     // A partial overlap is refused only when the output really reaches the
     // rays: occluded's one byte per ray from `shift` may end before... it
     // always starts inside them here, so every kind is refused.
-    assert_ne!(s, OK, "call {} with bad argument kind {kind} ({which}) accepted", call % 6);
+    assert_ne!(
+        s,
+        OK,
+        "call {} with bad argument kind {kind} ({which}) accepted",
+        call % 6
+    );
     let want = match kind {
         0 => sheaf_status::NullPointer,
         1 => sheaf_status::InvalidArgument,
@@ -2028,41 +2079,97 @@ fn concurrent(st: &mut State, other: u8, p: &sheaf_trace_params, r: &RaysIn) {
     let (a, b) = std::thread::scope(|sc| {
         let ta = sc.spawn(|| {
             let ctx = ctx as *mut sheaf_context;
-            let mut h = vec![sheaf_hit { t: 0.0, prim: 0, u: 0.0, v: 0.0 }; rays.len()];
+            let mut h = vec![
+                sheaf_hit {
+                    t: 0.0,
+                    prim: 0,
+                    u: 0.0,
+                    v: 0.0
+                };
+                rays.len()
+            ];
             let s = if two {
                 ffi::sheaf_context_trace_slot(ctx, 0, p, rays.as_ptr(), h.as_mut_ptr(), rays.len())
             } else {
-                ffi::context::sheaf_context_trace_with(ctx, p, rays.as_ptr(), h.as_mut_ptr(), rays.len())
+                ffi::context::sheaf_context_trace_with(
+                    ctx,
+                    p,
+                    rays.as_ptr(),
+                    h.as_mut_ptr(),
+                    rays.len(),
+                )
             };
             (s, hit_bytes(&h))
         });
         let tb = sc.spawn(|| {
             let ctx = ctx as *mut sheaf_context;
-            let mut h = vec![sheaf_hit { t: 0.0, prim: 0, u: 0.0, v: 0.0 }; rays.len()];
+            let mut h = vec![
+                sheaf_hit {
+                    t: 0.0,
+                    prim: 0,
+                    u: 0.0,
+                    v: 0.0
+                };
+                rays.len()
+            ];
             let mut img = vec![0u8; 16 * 16 * 4];
             let frame = sheaf_frame {
-                camera: Camera { eye: [3.0, -4.0, 2.0], look_at: [0.0; 3], up: [0.0, 0.0, 1.0], fov_y_deg: 50.0 },
+                camera: Camera {
+                    eye: [3.0, -4.0, 2.0],
+                    look_at: [0.0; 3],
+                    up: [0.0, 0.0, 1.0],
+                    fov_y_deg: 50.0,
+                },
                 light: PointLight::default(),
                 shading: ffi::sheaf_shading::of(&Shading::default()),
                 width: 16,
                 height: 16,
             };
             let s = match other % 6 {
-                0 if two => ffi::sheaf_context_trace_slot(ctx, 1, p, rays.as_ptr(), h.as_mut_ptr(), rays.len()),
-                0 | 1 => ffi::context::sheaf_context_trace_with(ctx, p, rays.as_ptr(), h.as_mut_ptr(), rays.len()),
-                2 => ffi::sheaf_context_render_rows(ctx, if two { 1 } else { 0 }, p, p, &frame, 0, 16, img.as_mut_ptr(), 64, img.len()),
+                0 if two => ffi::sheaf_context_trace_slot(
+                    ctx,
+                    1,
+                    p,
+                    rays.as_ptr(),
+                    h.as_mut_ptr(),
+                    rays.len(),
+                ),
+                0 | 1 => ffi::context::sheaf_context_trace_with(
+                    ctx,
+                    p,
+                    rays.as_ptr(),
+                    h.as_mut_ptr(),
+                    rays.len(),
+                ),
+                2 => ffi::sheaf_context_render_rows(
+                    ctx,
+                    if two { 1 } else { 0 },
+                    p,
+                    p,
+                    &frame,
+                    0,
+                    16,
+                    img.as_mut_ptr(),
+                    64,
+                    img.len(),
+                ),
                 3 => ffi::sheaf_context_build_bvh(ctx, core::ptr::null()),
                 4 => ffi::sheaf_context_build_grid(ctx, core::ptr::null()),
-                _ => ffi::sheaf_context_render(ctx, p.method, &frame, img.as_mut_ptr(), 64, img.len()),
+                _ => ffi::sheaf_context_render(
+                    ctx,
+                    p.method,
+                    &frame,
+                    img.as_mut_ptr(),
+                    64,
+                    img.len(),
+                ),
             };
             let traced = matches!(other % 6, 0 | 1);
             (s, traced.then(|| hit_bytes(&h)))
         });
         (ta.join().unwrap(), tb.join().unwrap())
     });
-    let busy = |s: sheaf_status| {
-        matches!(s, sheaf_status::ContextBusy | sheaf_status::SlotBusy)
-    };
+    let busy = |s: sheaf_status| matches!(s, sheaf_status::ContextBusy | sheaf_status::SlotBusy);
     valid_status(a.0, "concurrent trace");
     valid_status(b.0, "concurrent other");
     assert!(a.0 == OK || busy(a.0), "concurrent trace: {:?}", a.0);
@@ -2084,10 +2191,17 @@ fn concurrent(st: &mut State, other: u8, p: &sheaf_trace_params, r: &RaysIn) {
         st.trace = None;
         st.render = None;
     } else {
-        assert!(after.as_ref() == Some(&want), "the serial answer changed after a concurrent pair");
+        assert!(
+            after.as_ref() == Some(&want),
+            "the serial answer changed after a concurrent pair"
+        );
     }
     if matches!(other % 6, 0 | 1 | 2) {
-        assert_eq!(stats_of(st.ctx), stats_before, "shared calls changed the stats");
+        assert_eq!(
+            stats_of(st.ctx),
+            stats_before,
+            "shared calls changed the stats"
+        );
     }
     st.recheck("concurrent", b.0);
 }

@@ -47,4 +47,3 @@ impl<'m> Mailbox<'m> {
         first
     }
 }
-

@@ -50,7 +50,12 @@ impl Hit {
     };
     /// An occluded lane of a packet method that knows no occluder's id
     /// (`prim` = `INVALID_ID - 1`, never a triangle's).
-    pub const OCCLUDED: Hit = Hit { t: 0.0, prim: INVALID_ID - 1, u: 0.0, v: 0.0 };
+    pub const OCCLUDED: Hit = Hit {
+        t: 0.0,
+        prim: INVALID_ID - 1,
+        u: 0.0,
+        v: 0.0,
+    };
     #[inline]
     pub fn is_hit(&self) -> bool {
         self.prim != INVALID_ID

@@ -24,11 +24,13 @@
 //! so with one light the image equals `render_rows`' with the same triangle
 //! test.
 
-use super::{Frame, PointLight, PrimaryRays, SHADOW_OFFSET, Tracer, demorton, encode, shadow_packet};
+use super::{
+    Frame, PointLight, PrimaryRays, SHADOW_OFFSET, Tracer, demorton, encode, shadow_packet,
+};
 use crate::accel::grid::traverse_cgt::Mailbox;
 use crate::accel::pgrid::{
-    self as pgrid, CamView, CellsInfo, Chunk, LightFrame, LightView, ReorderInfo, reorder, traverse_primary,
-    traverse_shadow,
+    self as pgrid, CamView, CellsInfo, Chunk, LightFrame, LightView, ReorderInfo, reorder,
+    traverse_primary, traverse_shadow,
 };
 use crate::error::{Error, Result};
 use crate::geom::{F4, Hit4, INVALID_ID, M4, Ray, Ray4, TriVerts};
@@ -78,7 +80,9 @@ impl<'a> DeferredJob<'a> {
 
     pub fn validate(&self) -> Result<()> {
         if self.lights.len() > MAX_LIGHTS {
-            return Err(Error::InvalidArgument("a deferred frame takes at most 8 lights"));
+            return Err(Error::InvalidArgument(
+                "a deferred frame takes at most 8 lights",
+            ));
         }
         for l in self.lights() {
             l.validate()?;
@@ -164,7 +168,9 @@ impl Workers for OnCaller {
         let mut ctr = Counters::default();
         let mut none = [0u32; 0];
         let mut p = 0u32;
-        let mut mb = mailboxes.next().unwrap_or_else(|| Mailbox::new(&mut none, &mut p));
+        let mut mb = mailboxes
+            .next()
+            .unwrap_or_else(|| Mailbox::new(&mut none, &mut p));
         for it in items {
             work(it, &mut mb, &mut ctr);
         }
@@ -224,7 +230,8 @@ impl TileLayout {
     pub fn index(&self, x: u32, y: u32) -> usize {
         let (tx, ty) = (x / self.side, y / self.side);
         let tile = (ty * self.tiles_x + tx) as usize;
-        tile * (self.side * self.side) as usize + ((y % self.side) * self.side + x % self.side) as usize
+        tile * (self.side * self.side) as usize
+            + ((y % self.side) * self.side + x % self.side) as usize
     }
     /// Pixel of entry `i` (may lie outside the image in edge tiles).
     #[inline]
@@ -277,11 +284,17 @@ pub fn primary_pass<'m, T: Tracer + ?Sized, W: Workers>(
         .chunks_mut(ss)
         .zip(t[..n].chunks_mut(ss))
         .enumerate();
-    let work = |(tile, (p, tt)): (usize, (&mut [u32], &mut [f32])), mb: &mut Mailbox<'_>, ctr: &mut Counters| {
+    let work = |(tile, (p, tt)): (usize, (&mut [u32], &mut [f32])),
+                mb: &mut Mailbox<'_>,
+                ctr: &mut Counters| {
         let (x0, y0) = lay.pixel(tile * ss);
         match (primary, cam) {
-            (PrimaryPass::Pgrid, Some(cam)) => pgrid_tile(cam, rays, lay, sort, x0, y0, p, tt, mb, ctr),
-            (PrimaryPass::Traced(params), _) => traced_tile(tracer, params, rays, lay, x0, y0, p, tt, mb, ctr),
+            (PrimaryPass::Pgrid, Some(cam)) => {
+                pgrid_tile(cam, rays, lay, sort, x0, y0, p, tt, mb, ctr)
+            }
+            (PrimaryPass::Traced(params), _) => {
+                traced_tile(tracer, params, rays, lay, x0, y0, p, tt, mb, ctr)
+            }
             _ => p.fill(INVALID_ID),
         }
     };
@@ -334,12 +347,21 @@ fn pgrid_tile(
                 hits[q] = Hit4::MISS;
             }
             let tile = (py / sort) * st[0] + px / sort;
-            traverse_primary::trace_tile(cam, tile, &quads[..nq], &active[..nq], &mut hits[..nq], mb, ctr);
+            traverse_primary::trace_tile(
+                cam,
+                tile,
+                &quads[..nq],
+                &active[..nq],
+                &mut hits[..nq],
+                mb,
+                ctr,
+            );
             for q in 0..nq {
                 let (qx, qy) = (q as u32 % half, q as u32 / half);
                 for (i, (dx, dy)) in LANES.iter().enumerate() {
                     if active[q].test(i) {
-                        let local = ((sy * sort + 2 * qy + dy) * side + sx * sort + 2 * qx + dx) as usize;
+                        let local =
+                            ((sy * sort + 2 * qy + dy) * side + sx * sort + 2 * qx + dx) as usize;
                         prim[local] = hits[q].prim[i];
                         t[local] = hits[q].t[i];
                     }
@@ -544,7 +566,12 @@ pub fn light_frame(
         tiles: [tiles, tiles],
         ..LightFrame::default()
     };
-    let (mut a_lo, mut a_hi, mut b_lo, mut b_hi) = (f32::INFINITY, f32::NEG_INFINITY, f32::INFINITY, f32::NEG_INFINITY);
+    let (mut a_lo, mut a_hi, mut b_lo, mut b_hi) = (
+        f32::INFINITY,
+        f32::NEG_INFINITY,
+        f32::INFINITY,
+        f32::NEG_INFINITY,
+    );
     for i in 0..lay.len() {
         if dirs[i][0].is_nan() {
             continue;
@@ -611,7 +638,14 @@ pub fn map_to_tiles(
 }
 
 /// Phase 3d: sort and chunk `n` mapped rays (`accel::pgrid::reorder`).
-pub fn rearrange(f: &LightFrame, n: usize, buf: &mut FrameBuffers<'_>, tmp_keys: &mut [u32], tmp_vals: &mut [u32], r: u32) -> ReorderInfo {
+pub fn rearrange(
+    f: &LightFrame,
+    n: usize,
+    buf: &mut FrameBuffers<'_>,
+    tmp_keys: &mut [u32],
+    tmp_vals: &mut [u32],
+    r: u32,
+) -> ReorderInfo {
     reorder::reorder(
         &mut buf.ray_tiles[..n],
         &mut buf.ray_ids[..n],
@@ -691,23 +725,33 @@ pub fn light_grid_pass<'m, W: Workers>(
         rest = tail;
         Some(((k0, o0), mine))
     });
-    let work = |((k0, o0), out): ((usize, u32), &mut [u8]), mb: &mut Mailbox<'_>, ctr: &mut Counters| {
-        // Walk the chunk pieces of this item.
-        let (mut k, mut o, mut at) = (k0, o0, 0usize);
-        while at < out.len() {
-            let c = &chunks[k];
-            let take = ((c.count - o) as usize).min(out.len() - at);
-            let piece = Chunk {
-                tile: c.tile,
-                start: c.start + o,
-                count: take as u32,
-            };
-            trace_one_chunk(g, &piece, ray_ids, dirs, light, &mut out[at..at + take], mb, ctr);
-            at += take;
-            k += 1;
-            o = 0;
-        }
-    };
+    let work =
+        |((k0, o0), out): ((usize, u32), &mut [u8]), mb: &mut Mailbox<'_>, ctr: &mut Counters| {
+            // Walk the chunk pieces of this item.
+            let (mut k, mut o, mut at) = (k0, o0, 0usize);
+            while at < out.len() {
+                let c = &chunks[k];
+                let take = ((c.count - o) as usize).min(out.len() - at);
+                let piece = Chunk {
+                    tile: c.tile,
+                    start: c.start + o,
+                    count: take as u32,
+                };
+                trace_one_chunk(
+                    g,
+                    &piece,
+                    ray_ids,
+                    dirs,
+                    light,
+                    &mut out[at..at + take],
+                    mb,
+                    ctr,
+                );
+                at += take;
+                k += 1;
+                o = 0;
+            }
+        };
     let ctr = workers.run(mailboxes, &mut items, &work);
     let n: usize = chunks.iter().map(|c| c.count as usize).sum();
     for k in 0..n {
@@ -749,7 +793,15 @@ fn trace_one_chunk(
                 quads[q] = Ray4::from_rays(&lanes);
                 active[q] = M4::new(m[0], m[1], m[2], m[3]);
             }
-            traverse_shadow::trace_chunk(g, c.tile, &quads[..nq], &active[..nq], &mut occluded[..nq], mb, ctr);
+            traverse_shadow::trace_chunk(
+                g,
+                c.tile,
+                &quads[..nq],
+                &active[..nq],
+                &mut occluded[..nq],
+                mb,
+                ctr,
+            );
             let base = b * 4 * traverse_shadow::MAX_QUADS;
             for k in 0..batch.len() {
                 out[base + k] = occluded[k / 4].test(k % 4) as u8;
@@ -757,7 +809,6 @@ fn trace_one_chunk(
         }
     }
 }
-
 
 /// Phase 5 with another method: shadow packets from the light per tile of
 /// the layout (split in depth as `render_tiles` does), or ray by ray.
@@ -782,7 +833,9 @@ pub fn traced_shadow_pass<'m, T: Tracer + ?Sized, W: Workers>(
     let work = |(sh, d): (&mut [u8], &[[f32; 3]]), mb: &mut Mailbox<'_>, ctr: &mut Counters| {
         if !packet {
             for k in 0..ss {
-                if !d[k][0].is_nan() && tracer.occluded(&Ray::new(org, Vec3::from(d[k]), 0.0, 1.0), ctr) {
+                if !d[k][0].is_nan()
+                    && tracer.occluded(&Ray::new(org, Vec3::from(d[k]), 0.0, 1.0), ctr)
+                {
                     sh[k] |= 1 << bit;
                 }
             }
@@ -815,7 +868,16 @@ pub fn traced_shadow_pass<'m, T: Tracer + ?Sized, W: Workers>(
             packet: side,
             ..*params
         };
-        shadow_packet(tracer, &p, &quads[..nq], &active[..nq], &dist[..nq], &mut hits[..nq], mb, ctr);
+        shadow_packet(
+            tracer,
+            &p,
+            &quads[..nq],
+            &active[..nq],
+            &dist[..nq],
+            &mut hits[..nq],
+            mb,
+            ctr,
+        );
         for q in 0..nq {
             let (qx, qy) = demorton(q);
             for (i, (dx, dy)) in LANES.iter().enumerate() {
@@ -861,14 +923,22 @@ pub fn shade<'m, W: Workers>(
             }
             for x in 0..frame.width {
                 let i = lay.index(x, y);
-                let tri = if prim[i] == INVALID_ID { None } else { tri_of(prim[i]) };
+                let tri = if prim[i] == INVALID_ID {
+                    None
+                } else {
+                    tri_of(prim[i])
+                };
                 let c = match tri {
                     Some(tri) => {
                         let (p, n) = surface_of(&rays.ray(x, y), t[i], &tri);
                         let mut sum = Vec3::ZERO;
                         for (l, light) in lights.iter().enumerate() {
                             let (lit, _) = light.at(p, n, false, eps);
-                            let lit = if sh.shadows && shadow[i] & (1 << l) != 0 { 0.0 } else { lit };
+                            let lit = if sh.shadows && shadow[i] & (1 << l) != 0 {
+                                0.0
+                            } else {
+                                lit
+                            };
                             sum += Vec3::from(light.color) * lit;
                         }
                         Vec3::from(sh.albedo) * (Vec3::splat(sh.ambient) + sum)

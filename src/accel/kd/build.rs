@@ -670,7 +670,8 @@ mod tests {
             // Roomy pools: gears' fan triangles need 20 references and 6
             // nodes each (the default limits make forced leaves there).
             st.refs.resize(32 * scene.triangle_count() as usize, 0);
-            st.nodes.resize(16 * scene.triangle_count() as usize, KdNode::default());
+            st.nodes
+                .resize(16 * scene.triangle_count() as usize, KdNode::default());
             let mut kd = st.kd();
             let info = build(&mut kd, &scene, &KdParams::default()).unwrap();
             check_invariants(&kd.view().unwrap());

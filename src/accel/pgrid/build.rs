@@ -111,7 +111,14 @@ impl Pairs<'_> {
     /// `emit`, skipping tiles without rays and slices beyond their rays'
     /// reach; whether any pair was emitted.
     #[inline]
-    fn emit_reached(&mut self, b: &CellBox, tiles_x: u32, slices: u32, tri: u32, reach: &[u32]) -> bool {
+    fn emit_reached(
+        &mut self,
+        b: &CellBox,
+        tiles_x: u32,
+        slices: u32,
+        tri: u32,
+        reach: &[u32],
+    ) -> bool {
         let before = self.n;
         for ty in b.y[0]..=b.y[1] {
             for tx in b.x[0]..=b.x[1] {
@@ -304,7 +311,12 @@ fn camera_box(
     }
     if tip {
         let top = zr[1].max(z_eps);
-        let all = [f32::NEG_INFINITY, f32::NEG_INFINITY, f32::INFINITY, f32::INFINITY];
+        let all = [
+            f32::NEG_INFINITY,
+            f32::NEG_INFINITY,
+            f32::INFINITY,
+            f32::INFINITY,
+        ];
         return Some((
             CellBox {
                 x: [0, tiles[0] - 1],
@@ -388,8 +400,16 @@ pub fn build_light(
             Vec3::from(tri.v1) - frame.pos,
             Vec3::from(tri.v2) - frame.pos,
         ];
-        let z = [q[0].dot(frame.fwd), q[1].dot(frame.fwd), q[2].dot(frame.fwd)];
-        let x = [q[0].dot(frame.right), q[1].dot(frame.right), q[2].dot(frame.right)];
+        let z = [
+            q[0].dot(frame.fwd),
+            q[1].dot(frame.fwd),
+            q[2].dot(frame.fwd),
+        ];
+        let x = [
+            q[0].dot(frame.right),
+            q[1].dot(frame.right),
+            q[2].dot(frame.right),
+        ];
         let y = [q[0].dot(frame.up), q[1].dot(frame.up), q[2].dot(frame.up)];
         let eps = scale * 1e-6;
         let (alo, ahi) = angle_span(x, z, eps);
@@ -536,13 +556,25 @@ mod tests {
     #[test]
     fn angle_span_of_a_triangle_ahead_and_across_the_cut() {
         let (lo, hi) = angle_span([-1.0, 1.0, 0.0], [1.0, 1.0, 2.0], 1e-9);
-        assert!((lo + 0.5).abs() < 1e-4 && (hi - 0.5).abs() < 1e-4, "{lo} {hi}");
+        assert!(
+            (lo + 0.5).abs() < 1e-4 && (hi - 0.5).abs() < 1e-4,
+            "{lo} {hi}"
+        );
         // The vertex order does not matter.
-        assert_eq!(angle_span([0.0, 1.0, -1.0], [2.0, 1.0, 1.0], 1e-9), (lo, hi));
+        assert_eq!(
+            angle_span([0.0, 1.0, -1.0], [2.0, 1.0, 1.0], 1e-9),
+            (lo, hi)
+        );
         // Behind the light, straddling the cut: the whole circle.
-        assert_eq!(angle_span([-1.0, 1.0, 0.0], [-1.0, -1.0, -2.0], 1e-9), (-2.0, 2.0));
+        assert_eq!(
+            angle_span([-1.0, 1.0, 0.0], [-1.0, -1.0, -2.0], 1e-9),
+            (-2.0, 2.0)
+        );
         // Around the origin: the whole circle.
-        assert_eq!(angle_span([-1.0, 1.0, 0.0], [-1.0, -1.0, 2.0], 1e-9), (-2.0, 2.0));
+        assert_eq!(
+            angle_span([-1.0, 1.0, 0.0], [-1.0, -1.0, 2.0], 1e-9),
+            (-2.0, 2.0)
+        );
         // Beside the light (to +x, behind and ahead): an arc through +1.
         let (lo, hi) = angle_span([1.0, 1.0, 2.0], [1.0, -1.0, 0.0], 1e-9);
         assert!(lo < 0.5 && hi > 1.5 && hi < 2.0, "{lo} {hi}");
@@ -562,8 +594,17 @@ mod tests {
 
     #[test]
     fn closest_distance_matches_sampling() {
-        let q = [Vec3::new(1.0, 0.0, 0.0), Vec3::new(0.0, 2.0, 0.5), Vec3::new(-1.0, -1.0, 1.0)];
-        for p in [Vec3::ZERO, Vec3::new(3.0, 1.0, -2.0), Vec3::new(0.0, 0.2, 5.0), Vec3::new(-4.0, 0.0, 0.0)] {
+        let q = [
+            Vec3::new(1.0, 0.0, 0.0),
+            Vec3::new(0.0, 2.0, 0.5),
+            Vec3::new(-1.0, -1.0, 1.0),
+        ];
+        for p in [
+            Vec3::ZERO,
+            Vec3::new(3.0, 1.0, -2.0),
+            Vec3::new(0.0, 0.2, 5.0),
+            Vec3::new(-4.0, 0.0, 0.0),
+        ] {
             let d = closest_distance(p, &q);
             let mut best = f32::INFINITY;
             for i in 0..=200 {

@@ -118,7 +118,9 @@ impl PgridParams {
             return Err(InvalidArgument("light_tiles must be in 1..=256"));
         }
         if !(MIN_CHUNK..=4096).contains(&self.chunk) {
-            return Err(InvalidArgument("chunk (rays per chunk) must be in 16..=4096"));
+            return Err(InvalidArgument(
+                "chunk (rays per chunk) must be in 16..=4096",
+            ));
         }
         Ok(())
     }
@@ -150,7 +152,11 @@ impl Slices {
     /// `count` slices between `near` and `far` (near raised to `far * 1e-4`),
     /// depths padded by `pad` (relative) when slices are looked up.
     pub fn new(near: f32, far: f32, count: u32, pad: f32) -> Slices {
-        let far = if far.is_finite() && far > 0.0 { far } else { 1.0 };
+        let far = if far.is_finite() && far > 0.0 {
+            far
+        } else {
+            1.0
+        };
         let z0 = near.max(far * 1e-4).min(far);
         let span = log2_approx(far) - log2_approx(z0);
         let inv_log = if count > 1 && span > 0.0 {
@@ -249,7 +255,10 @@ impl LightFrame {
     #[inline]
     pub fn angles(&self, q: Vec3) -> (f32, f32) {
         let z = q.dot(self.fwd);
-        (pseudo_angle(q.dot(self.right), z), pseudo_angle(q.dot(self.up), z))
+        (
+            pseudo_angle(q.dot(self.right), z),
+            pseudo_angle(q.dot(self.up), z),
+        )
     }
 
     /// Light tile of direction `q` (clamped into the rectangle).

@@ -12,7 +12,7 @@
 
 use super::{CamView, PgTest};
 use crate::accel::mailbox::Mailbox;
-use crate::geom::{F4, Hit4, M4, Mt, Pt, RayLanes, Ray4, TriTest, Wt};
+use crate::geom::{F4, Hit4, M4, Mt, Pt, Ray4, RayLanes, TriTest, Wt};
 use crate::math;
 use crate::trace::{Counters, count};
 
@@ -65,18 +65,25 @@ fn walk<T: PgTest>(
         ctr.rays += live[q].bitmask().count_ones() as u64;
         let r = &rays[q];
         // Depth along the view axis per unit t.
-        depth_of[q] = r.dir[0] * F4::splat(fwd.x) + r.dir[1] * F4::splat(fwd.y) + r.dir[2] * F4::splat(fwd.z);
+        depth_of[q] =
+            r.dir[0] * F4::splat(fwd.x) + r.dir[1] * F4::splat(fwd.y) + r.dir[2] * F4::splat(fwd.z);
         pre[q] = T::prepare(&RayLanes::from_ray4(r));
     }
     // Quads are a half x half grid over the tile's pixels from (x0, y0).
     let half = (g.tile / 2) as i32;
     let tx = tile % g.cells.info.tiles[0];
-    let (x0, y0) = ((tx * g.tile) as f32, ((tile / g.cells.info.tiles[0]) * g.tile) as f32);
+    let (x0, y0) = (
+        (tx * g.tile) as f32,
+        ((tile / g.cells.info.tiles[0]) * g.tile) as f32,
+    );
     let quad_range = |lo: f32, hi: f32, o: f32| -> (i32, i32) {
         // Pixel centres c + 0.5 in [lo, hi], as quad columns from o.
         let a = math::ceil(lo - 0.5 - o).max(-2.0);
         let b = math::floor(hi - 0.5 - o).min(2.0 * half as f32);
-        ((a as i32).div_euclid(2).max(0), (b as i32).div_euclid(2).min(half - 1))
+        (
+            (a as i32).div_euclid(2).max(0),
+            (b as i32).div_euclid(2).min(half - 1),
+        )
     };
     for s in 0..d.count {
         let cell = g.cells.cell(tile, s);
@@ -92,7 +99,8 @@ fn walk<T: PgTest>(
             let b = g.px_box[tri as usize];
             let (qx0, qx1) = quad_range(b[0], b[2], x0);
             let (qy0, qy1) = quad_range(b[1], b[3], y0);
-            for q in (qy0..=qy1).flat_map(|qy| (qx0..=qx1).map(move |qx| (qy * half + qx) as usize)) {
+            for q in (qy0..=qy1).flat_map(|qy| (qx0..=qx1).map(move |qx| (qy * half + qx) as usize))
+            {
                 if q >= nq {
                     continue;
                 }

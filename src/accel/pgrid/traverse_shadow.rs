@@ -8,7 +8,7 @@
 
 use super::{LightView, PgTest};
 use crate::accel::mailbox::Mailbox;
-use crate::geom::{M4, Mt, Pt, RayLanes, Ray4, TriTest, Wt};
+use crate::geom::{M4, Mt, Pt, Ray4, RayLanes, TriTest, Wt};
 use crate::math;
 use crate::trace::{Counters, count};
 
@@ -63,7 +63,12 @@ fn walk<T: PgTest>(
     let mut qbox = [[0.0f32; 4]; MAX_QUADS];
     ctr.packets += 1;
     for q in 0..nq {
-        let mut b = [f32::INFINITY, f32::INFINITY, f32::NEG_INFINITY, f32::NEG_INFINITY];
+        let mut b = [
+            f32::INFINITY,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            f32::NEG_INFINITY,
+        ];
         for i in 0..4 {
             if active[q].test(i) {
                 let r = rays[q].lane(i);
@@ -136,4 +141,3 @@ fn walk<T: PgTest>(
         }
     }
 }
-

@@ -600,7 +600,8 @@ impl sheaf::render::deferred::Workers for Threads {
         // Item lists are kept per call (empty when `keep_items` is off).
         self.item_runs.truncate(self.runs.len());
         self.item_runs.resize(self.runs.len(), Vec::new());
-        self.item_runs.push(if keep { self.items.clone() } else { Vec::new() });
+        self.item_runs
+            .push(if keep { self.items.clone() } else { Vec::new() });
         self.runs.push(times);
         ctr
     }
