@@ -2044,19 +2044,19 @@ fn bad_arg(st: &mut State, call: u8, which: u8, kind: u8) {
         _ => ffi::sheaf_context_occluded_slot(st.ctx, slot, &p, rp, out, count),
     };
     valid_status(s, "bad_arg");
-    // A partial overlap is refused only when the output really reaches the
-    // rays: occluded's one byte per ray from `shift` may end before... it
-    // always starts inside them here, so every kind is refused.
+    // Results start inside the rays (kind 2), so every kind is refused:
+    // NULL before anything else, then sizes and overlaps (InvalidArgument);
+    // only a context that cannot trace at all may answer first.
     assert_ne!(
         s,
         OK,
         "call {} with bad argument kind {kind} ({which}) accepted",
         call % 6
     );
-    let want = match kind {
-        0 => sheaf_status::NullPointer,
-        1 => sheaf_status::InvalidArgument,
-        _ => sheaf_status::InvalidArgument,
+    let want = if kind == 0 {
+        sheaf_status::NullPointer
+    } else {
+        sheaf_status::InvalidArgument
     };
     if s != sheaf_status::NotBuilt && s != sheaf_status::CapacityThreads {
         assert_eq!(s, want, "call {} kind {kind}", call % 6);
