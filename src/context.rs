@@ -1573,8 +1573,8 @@ fn search_entry<E: EntryTree + ?Sized>(
     };
     let neg = entry::dir_signs(&rays[..nq], &live[..nq]);
     let e = match p.entry {
-        EntrySearch::Mlrta => kd::traverse_mlrta::mlrta(tree, &fr, neg, ctr),
-        _ => kd::traverse_aepsa::aepsa(tree, &fr, neg, ctr),
+        EntrySearch::Mlrta => entry::mlrta::mlrta(tree, &fr, neg, ctr),
+        _ => entry::aepsa::aepsa(tree, &fr, neg, ctr),
     };
     (f, e.map_or(Start::Miss, Start::At))
 }

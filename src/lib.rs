@@ -23,6 +23,7 @@ pub(crate) use fault_point;
 
 pub mod accel;
 pub mod context;
+pub mod counters;
 pub mod error;
 #[cfg(feature = "fault-injection")]
 #[doc(hidden)]

@@ -8,7 +8,8 @@ mod common;
 use common::{TestScene, builtin_scenes, obj_scenes, view_rays};
 use glam::Vec3;
 use sheaf::accel::grid::traverse_cgt::{self, CgtOptions, Mailbox};
-use sheaf::accel::grid::{GridTest, GridView, traverse_single};
+use sheaf::accel::grid::{GridView, traverse_single};
+use sheaf::geom::TriangleTest;
 use sheaf::geom::{F4, Hit4, M4, Mt, Pt, Ray4, Wt};
 use sheaf::{Counters, GridParams, Hit, Limits, OwnedContext, Ray, TriTest};
 
@@ -37,7 +38,7 @@ fn packets(rays: &[Ray], w: usize, h: usize, n: usize) -> Vec<(Vec<Ray4>, Vec<us
     out
 }
 
-fn single<T: GridTest>(g: &GridView, rays: &[Ray], any: bool) -> Vec<Hit> {
+fn single<T: TriangleTest>(g: &GridView, rays: &[Ray], any: bool) -> Vec<Hit> {
     let mut c = Counters::default();
     rays.iter()
         .map(|r| {
@@ -57,7 +58,7 @@ struct Run<'a> {
 }
 
 impl Run<'_> {
-    fn check<T: GridTest>(
+    fn check<T: TriangleTest>(
         &mut self,
         what: &str,
         rays: &[Ray],

@@ -4,6 +4,7 @@
 
 pub mod bvh;
 pub mod entry;
+pub mod fallback;
 pub mod grid;
 pub mod kd;
 pub mod mailbox;

@@ -11,6 +11,6 @@ pub mod triangle;
 
 pub use aabb::Aabb;
 pub use lane::{F4, Lane, M4};
-pub use ray::{Hit, Hit4, INVALID_ID, Ray, Ray4};
+pub use ray::{Hit, Hit4, INVALID_ID, Ray, Ray4, closer};
 pub use scene::{Excluded, Scene};
-pub use triangle::{Mt, ProjTri, Pt, RayLanes, TriTest, TriVerts, TriangleTest, Wt};
+pub use triangle::{Mt, ProjTri, Pt, RayLanes, TriStore, TriTest, TriVerts, TriangleTest, Wt};

@@ -195,3 +195,9 @@ impl Ray4 {
         }
     }
 }
+
+/// The tie rule shared by every traversal: nearer t wins; equal t, lower id.
+#[inline(always)]
+pub fn closer(t: f32, prim: u32, best: &Hit) -> bool {
+    t < best.t || (t == best.t && prim < best.prim)
+}

@@ -332,6 +332,15 @@ pub fn projection<L: Lane>(r: &RayLanes<L>, w: &ProjTri) -> TriHit<L> {
     }
 }
 
+/// The stored triangles of a built structure (every family keeps the same
+/// two arrays, indexed by the same slot): vertices, and the projection
+/// test's precomputed data (empty unless that test was built for).
+#[derive(Clone, Copy, Debug)]
+pub struct TriStore<'r> {
+    pub tris: &'r [TriVerts],
+    pub proj: &'r [ProjTri],
+}
+
 /// A triangle test with its per-ray precomputation and its per-triangle
 /// data, so traversals are monomorphised per test (no per-triangle branch on
 /// the test kind).
@@ -341,6 +350,8 @@ pub trait TriangleTest: Copy + Default + Send + Sync + 'static {
     /// Per-triangle data the test reads (`TriVerts`, or precomputed data).
     type Prim: Copy;
     const KIND: TriTest;
+    /// Where the test finds triangle `i`'s data in a family's store.
+    fn prim<'r>(s: TriStore<'r>, i: usize) -> &'r Self::Prim;
     fn prepare<L: Lane>(r: &RayLanes<L>) -> Self::Pre<L>;
     fn intersect<L: Lane>(r: &RayLanes<L>, pre: &Self::Pre<L>, tri: &Self::Prim) -> TriHit<L>;
 }
@@ -360,6 +371,10 @@ impl TriangleTest for Mt {
     type Prim = TriVerts;
     const KIND: TriTest = TriTest::MollerTrumbore;
     #[inline(always)]
+    fn prim<'r>(s: TriStore<'r>, i: usize) -> &'r TriVerts {
+        &s.tris[i]
+    }
+    #[inline(always)]
     fn prepare<L: Lane>(_: &RayLanes<L>) {}
     #[inline(always)]
     fn intersect<L: Lane>(r: &RayLanes<L>, _: &(), tri: &TriVerts) -> TriHit<L> {
@@ -371,6 +386,10 @@ impl TriangleTest for Wt {
     type Pre<L: Lane> = Shear<L>;
     type Prim = TriVerts;
     const KIND: TriTest = TriTest::Watertight;
+    #[inline(always)]
+    fn prim<'r>(s: TriStore<'r>, i: usize) -> &'r TriVerts {
+        &s.tris[i]
+    }
     #[inline(always)]
     fn prepare<L: Lane>(r: &RayLanes<L>) -> Shear<L> {
         Shear::new(r.dir)
@@ -385,6 +404,10 @@ impl TriangleTest for Pt {
     type Pre<L: Lane> = ();
     type Prim = ProjTri;
     const KIND: TriTest = TriTest::Projection;
+    #[inline(always)]
+    fn prim<'r>(s: TriStore<'r>, i: usize) -> &'r ProjTri {
+        &s.proj[i]
+    }
     #[inline(always)]
     fn prepare<L: Lane>(_: &RayLanes<L>) {}
     #[inline(always)]

@@ -1083,8 +1083,8 @@ mod perf {
     use super::testutil::Store;
     use super::*;
     use crate::accel::bvh::{traverse_simd, traverse_single};
+    use crate::counters::Counters;
     use crate::geom::{Hit4, M4, Mt, Ray, Ray4};
-    use crate::trace::Counters;
     use glam::Vec3;
 
     /// CPU time of this thread in seconds (Linux; wall time elsewhere would

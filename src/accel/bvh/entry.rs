@@ -1,7 +1,7 @@
 //! The BVH as an `EntryTree`, so the entry-point searches (the AEPSA
 //! paper's further work, section 8: "the use of AEPSA with bounding volume
 //! hierarchies") can start BVH packets below the root. The searches live
-//! in `kd::traverse_mlrta` and `kd::traverse_aepsa`; the trace layer calls
+//! in `entry::mlrta` and `entry::aepsa`; the trace layer calls
 //! them with a `BvhView` (one family never calls another).
 //!
 //! A BVH node's box is its stored box; every leaf is occupied. Packets of

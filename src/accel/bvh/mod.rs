@@ -42,13 +42,14 @@ pub mod traverse_single;
 /// packets use them too.
 pub use crate::geom::frustum;
 pub use crate::geom::frustum::RayKind;
-use crate::geom::{Aabb, Mt, ProjTri, Pt, TriTest, TriVerts, TriangleTest, Wt};
+use crate::geom::{Aabb, ProjTri, TriTest, TriVerts, TriangleTest};
 use bytemuck::{Pod, Zeroable};
 
 /// Deepest level a build creates (root = depth 0). Nodes at this depth
 /// become leaves whatever their size, so every traversal stack of
 /// `MAX_DEPTH + 1` entries suffices.
 pub const MAX_DEPTH: usize = 48;
+const _: () = assert!(MAX_DEPTH <= crate::accel::entry::MAX_ENTRY_DEPTH);
 
 /// Relative padding of stored boxes (see the module docs, Exactness).
 pub const BOX_PAD: f32 = 1e-5;
@@ -261,38 +262,23 @@ impl<'a> Bvh<'a> {
     }
 }
 
+impl<'r> BvhView<'r> {
+    /// The stored triangles, as every triangle test reads them.
+    #[inline(always)]
+    pub fn store(&self) -> crate::geom::TriStore<'r> {
+        crate::geom::TriStore {
+            tris: self.tris,
+            proj: self.proj,
+        }
+    }
+}
+
 impl BvhView<'_> {
     /// The stored triangle with caller id `prim`, if it was stored.
     #[inline]
     pub fn triangle(&self, prim: u32) -> Option<TriVerts> {
         let s = *self.slot_of.get(prim as usize)?;
         self.tris.get(s as usize).copied()
-    }
-}
-
-/// Where a triangle test finds its per-triangle data in a built BVH.
-pub trait BvhTest: TriangleTest {
-    fn prim<'b>(b: &BvhView<'b>, i: usize) -> &'b Self::Prim;
-}
-
-impl BvhTest for Mt {
-    #[inline(always)]
-    fn prim<'b>(b: &BvhView<'b>, i: usize) -> &'b TriVerts {
-        &b.tris[i]
-    }
-}
-
-impl BvhTest for Wt {
-    #[inline(always)]
-    fn prim<'b>(b: &BvhView<'b>, i: usize) -> &'b TriVerts {
-        &b.tris[i]
-    }
-}
-
-impl BvhTest for Pt {
-    #[inline(always)]
-    fn prim<'b>(b: &BvhView<'b>, i: usize) -> &'b ProjTri {
-        &b.proj[i]
     }
 }
 

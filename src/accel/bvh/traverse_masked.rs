@@ -64,10 +64,11 @@ use super::frustum::Frustum;
 use super::traverse_partition::Partition;
 use super::traverse_simd::QuadBox;
 use super::traverse_single;
-use super::{BvhNode, BvhOptions, BvhTest, BvhView, MAX_DEPTH};
+use super::{BvhNode, BvhOptions, BvhView, MAX_DEPTH, TriangleTest};
 use crate::accel::entry::EntryPoint;
+use crate::accel::fallback;
+use crate::counters::{Counters, count};
 use crate::geom::{F4, Hit4, INVALID_ID, M4, Ray4, RayLanes};
-use crate::trace::{Counters, count, fallback};
 
 /// Most quads traced as one packet (32 x 32 rays).
 pub const MAX_QUADS: usize = 256;
@@ -79,7 +80,7 @@ pub const MAX_QUADS: usize = 256;
 /// invalid rays); inactive lanes are left untouched. `entry`: start at this
 /// node instead of the root (an MLRTA or AEPSA entry point of a frustum
 /// bounding every live ray of `rays`; see `bvh::entry`).
-pub fn intersect<T: BvhTest>(
+pub fn intersect<T: TriangleTest>(
     b: &BvhView<'_>,
     rays: &[Ray4],
     active: &[M4],
@@ -95,7 +96,7 @@ pub fn intersect<T: BvhTest>(
 /// INVALID_ID` marks an occluded lane (t and id of some occluder in `[tmin,
 /// tmax)`, not the nearest); other active lanes get `Hit::MISS`, inactive
 /// ones are untouched. `entry` as for `intersect`.
-pub fn occluded<T: BvhTest>(
+pub fn occluded<T: TriangleTest>(
     b: &BvhView<'_>,
     rays: &[Ray4],
     active: &[M4],
@@ -110,7 +111,7 @@ pub fn occluded<T: BvhTest>(
 /// A large-packet traversal: walks one prepared packet through the tree.
 pub(crate) trait Walk {
     /// `start`: the node to start at and its depth (the root: `(0, 0)`).
-    fn walk<T: BvhTest, const ANY: bool, const Q: usize>(
+    fn walk<T: TriangleTest, const ANY: bool, const Q: usize>(
         p: &mut Packet<T, Q>,
         b: &BvhView<'_>,
         rays: &[Ray4],
@@ -125,7 +126,7 @@ pub(crate) trait Walk {
 /// from `entry` (every packet of the input) or the root. An entry node
 /// outside the tree starts at the root.
 #[allow(clippy::too_many_arguments)]
-pub(crate) fn dispatch<W: Walk, T: BvhTest, const ANY: bool>(
+pub(crate) fn dispatch<W: Walk, T: TriangleTest, const ANY: bool>(
     b: &BvhView<'_>,
     rays: &[Ray4],
     active: &[M4],
@@ -165,7 +166,7 @@ pub(crate) fn dispatch<W: Walk, T: BvhTest, const ANY: bool>(
     }
 }
 
-fn packet<W: Walk, T: BvhTest, const ANY: bool, const Q: usize>(
+fn packet<W: Walk, T: TriangleTest, const ANY: bool, const Q: usize>(
     b: &BvhView<'_>,
     rays: &[Ray4],
     active: &[M4],
@@ -190,12 +191,12 @@ fn packet<W: Walk, T: BvhTest, const ANY: bool, const Q: usize>(
     }
 }
 
-/// The packet with its tiny lanes (`trace::fallback::tiny`) traced by
+/// The packet with its tiny lanes (`accel::fallback::tiny`) traced by
 /// `traverse_single`, and the rest traced on quads where those lanes are
 /// replaced by others (so no SIMD operation meets their subnormal numbers)
 /// and inactive.
 #[inline(never)]
-fn quieted<W: Walk, T: BvhTest, const ANY: bool, const Q: usize>(
+fn quieted<W: Walk, T: TriangleTest, const ANY: bool, const Q: usize>(
     b: &BvhView<'_>,
     rays: &[Ray4],
     active: &[M4],
@@ -218,7 +219,7 @@ fn quieted<W: Walk, T: BvhTest, const ANY: bool, const Q: usize>(
 /// The coherence fallback (`trace::fallback`): every live lane traced by
 /// `traverse_single` (from the root: the same hit as from any entry point).
 #[inline(never)]
-pub(crate) fn alone<T: BvhTest, const ANY: bool>(
+pub(crate) fn alone<T: TriangleTest, const ANY: bool>(
     b: &BvhView<'_>,
     rays: &[Ray4],
     live: &[M4],
@@ -239,7 +240,7 @@ pub(crate) fn alone<T: BvhTest, const ANY: bool>(
 }
 
 /// One packet of `nq <= Q` quads during traversal.
-pub(crate) struct Packet<T: BvhTest, const Q: usize> {
+pub(crate) struct Packet<T: TriangleTest, const Q: usize> {
     pub nq: usize,
     /// Slab-test data per quad (reciprocals, direction signs).
     qb: [QuadBox; Q],
@@ -261,7 +262,7 @@ pub(crate) struct Packet<T: BvhTest, const Q: usize> {
     pub coherent: bool,
 }
 
-impl<T: BvhTest, const Q: usize> Packet<T, Q> {
+impl<T: TriangleTest, const Q: usize> Packet<T, Q> {
     /// Write `Hit::MISS` to every active lane, count the packet and its
     /// rays, and prepare the live lanes; `None` when nothing is to be traced.
     pub(crate) fn new(
@@ -430,7 +431,11 @@ impl<T: BvhTest, const Q: usize> Packet<T, Q> {
             return;
         }
         ctr.tri_at(depth, lm.bitmask().count_ones() as u64);
-        let h = T::intersect(&RayLanes::from_ray4(&rays[q]), &self.pre[q], T::prim(b, i));
+        let h = T::intersect(
+            &RayLanes::from_ray4(&rays[q]),
+            &self.pre[q],
+            T::prim(b.store(), i),
+        );
         let hm = h.mask & lm;
         if !hm.any() {
             return;
@@ -469,7 +474,7 @@ impl<T: BvhTest, const Q: usize> Packet<T, Q> {
 /// Partition with the live quads from that first one. Every pending node
 /// is one the packet would have visited, and Partition is exact from any
 /// node, so the result is the same.
-pub(crate) fn to_partition<T: BvhTest, const ANY: bool, const Q: usize>(
+pub(crate) fn to_partition<T: TriangleTest, const ANY: bool, const Q: usize>(
     p: &mut Packet<T, Q>,
     b: &BvhView<'_>,
     rays: &[Ray4],
@@ -490,7 +495,7 @@ pub(crate) fn to_partition<T: BvhTest, const ANY: bool, const Q: usize>(
 pub(crate) struct Masked;
 
 impl Walk for Masked {
-    fn walk<T: BvhTest, const ANY: bool, const Q: usize>(
+    fn walk<T: TriangleTest, const ANY: bool, const Q: usize>(
         p: &mut Packet<T, Q>,
         b: &BvhView<'_>,
         rays: &[Ray4],
@@ -575,9 +580,9 @@ pub(crate) mod tests {
     use crate::accel::bvh::build::testutil::Store;
     use crate::accel::bvh::traverse_single::{self, tests::Rng};
     use crate::accel::bvh::{BvhParams, RayKind};
+    use crate::counters::DEPTH_BINS;
     use crate::geom::{Aabb, Hit, INVALID_ID, Mt, Pt, Ray, Scene, TriTest, Wt};
     use crate::render::{PrimaryRays, demorton};
-    use crate::trace::DEPTH_BINS;
     use glam::Vec3;
 
     /// A w x h "image" of rays (`None`: inactive lane) and the frustum
@@ -604,7 +609,7 @@ pub(crate) mod tests {
     /// (as the renderer shoots them); reflection rays at their hits; the
     /// primary rays with inactive and invalid lanes sprinkled in; random
     /// rays with scattered origins and mixed direction signs.
-    pub fn ray_sets<T: BvhTest>(
+    pub fn ray_sets<T: TriangleTest>(
         b: &BvhView<'_>,
         view: &crate::scenes::View,
         light: Vec3,
@@ -844,7 +849,7 @@ pub(crate) mod tests {
     /// from `start` and compare every lane with `traverse_single`; returns
     /// the counters.
     #[allow(clippy::too_many_arguments)]
-    pub fn check_packet<W: Walk, T: BvhTest>(
+    pub fn check_packet<W: Walk, T: TriangleTest>(
         b: &BvhView<'_>,
         quads: &[Ray4],
         active: &[M4],
@@ -935,7 +940,7 @@ pub(crate) mod tests {
     }
 
     /// Build a BVH over `v`, `ix` with test `T` into `st`.
-    pub fn built<'s, T: BvhTest>(
+    pub fn built<'s, T: TriangleTest>(
         st: &'s mut Store,
         v: &[f32],
         ix: &[u32],
@@ -959,7 +964,7 @@ pub(crate) mod tests {
     /// Every set at every packet side, culling on and off, every kind of
     /// the set, nearest hit and occlusion; then the whole image as one input
     /// (chunks of 256 quads) and a 3-quad packet.
-    pub fn check_sets<W: Walk, T: BvhTest>(
+    pub fn check_sets<W: Walk, T: TriangleTest>(
         name: &str,
         b: &BvhView<'_>,
         sets: &[RaySet],
@@ -969,7 +974,7 @@ pub(crate) mod tests {
 
     /// `check_sets` with every packet (and every whole input) started
     /// where `search` says.
-    pub fn check_sets_from<W: Walk, T: BvhTest>(
+    pub fn check_sets_from<W: Walk, T: TriangleTest>(
         name: &str,
         b: &BvhView<'_>,
         sets: &[RaySet],
@@ -1076,7 +1081,7 @@ pub(crate) mod tests {
     }
 
     /// `check_sets` over the ray sets of every view of a scene.
-    pub fn check_scene<W: Walk, T: BvhTest>(
+    pub fn check_scene<W: Walk, T: TriangleTest>(
         name: &str,
         v: &[f32],
         ix: &[u32],

@@ -25,14 +25,14 @@
 //!   stacked subtrees to it when it switches (`traverse_masked::to_partition`).
 
 use super::traverse_masked::{Packet, Walk, dispatch};
-use super::{BvhNode, BvhOptions, BvhTest, BvhView, MAX_DEPTH};
+use super::{BvhNode, BvhOptions, BvhView, MAX_DEPTH, TriangleTest};
 use crate::accel::entry::EntryPoint;
+use crate::counters::Counters;
 use crate::geom::{Hit4, M4, Ray4};
-use crate::trace::Counters;
 
 /// Nearest hits of the active lanes of `rays` into `hits`, Partition
 /// traversal (contract of `traverse_masked::intersect`, `entry` included).
-pub fn intersect<T: BvhTest>(
+pub fn intersect<T: TriangleTest>(
     b: &BvhView<'_>,
     rays: &[Ray4],
     active: &[M4],
@@ -46,7 +46,7 @@ pub fn intersect<T: BvhTest>(
 
 /// Occlusion of the active lanes, Partition traversal (contract of
 /// `traverse_masked::occluded`, `entry` included).
-pub fn occluded<T: BvhTest>(
+pub fn occluded<T: TriangleTest>(
     b: &BvhView<'_>,
     rays: &[Ray4],
     active: &[M4],
@@ -61,7 +61,7 @@ pub fn occluded<T: BvhTest>(
 /// `partRays`: move the quads of `idx[..ia]` alive in `n`'s box to the
 /// front (in place) and return how many there are.
 #[inline(always)]
-fn part_rays<T: BvhTest, const Q: usize>(
+fn part_rays<T: TriangleTest, const Q: usize>(
     p: &Packet<T, Q>,
     n: &BvhNode,
     idx: &mut [u16; Q],
@@ -86,7 +86,7 @@ fn part_rays<T: BvhTest, const Q: usize>(
 pub(crate) struct Partition;
 
 impl Walk for Partition {
-    fn walk<T: BvhTest, const ANY: bool, const Q: usize>(
+    fn walk<T: TriangleTest, const ANY: bool, const Q: usize>(
         p: &mut Packet<T, Q>,
         b: &BvhView<'_>,
         rays: &[Ray4],
@@ -102,7 +102,7 @@ impl Partition {
     /// `walk` with `I` holding the live quads from `first` on (quads
     /// before it known dead below `start`, as Ranged's `i_a`; Masked
     /// passes 0).
-    pub(crate) fn walk_from<T: BvhTest, const ANY: bool, const Q: usize>(
+    pub(crate) fn walk_from<T: TriangleTest, const ANY: bool, const Q: usize>(
         p: &mut Packet<T, Q>,
         b: &BvhView<'_>,
         rays: &[Ray4],

@@ -27,14 +27,14 @@
 //!   time once the coherence test is in (`sheaf bench --stress`).
 
 use super::traverse_masked::{Packet, Walk, dispatch};
-use super::{BvhNode, BvhOptions, BvhTest, BvhView, MAX_DEPTH};
+use super::{BvhNode, BvhOptions, BvhView, MAX_DEPTH, TriangleTest};
 use crate::accel::entry::EntryPoint;
+use crate::counters::Counters;
 use crate::geom::{Hit4, M4, Ray4};
-use crate::trace::Counters;
 
 /// Nearest hits of the active lanes of `rays` into `hits`, Ranged
 /// traversal (contract of `traverse_masked::intersect`, `entry` included).
-pub fn intersect<T: BvhTest>(
+pub fn intersect<T: TriangleTest>(
     b: &BvhView<'_>,
     rays: &[Ray4],
     active: &[M4],
@@ -48,7 +48,7 @@ pub fn intersect<T: BvhTest>(
 
 /// Occlusion of the active lanes, Ranged traversal (contract of
 /// `traverse_masked::occluded`, `entry` included).
-pub fn occluded<T: BvhTest>(
+pub fn occluded<T: TriangleTest>(
     b: &BvhView<'_>,
     rays: &[Ray4],
     active: &[M4],
@@ -62,7 +62,7 @@ pub fn occluded<T: BvhTest>(
 
 /// `getFirstHit`: the first quad from `ia` on alive in `n`'s box, or `nq`.
 #[inline(always)]
-fn first_hit<T: BvhTest, const Q: usize>(
+fn first_hit<T: TriangleTest, const Q: usize>(
     p: &Packet<T, Q>,
     n: &BvhNode,
     ia: usize,
@@ -87,7 +87,7 @@ fn first_hit<T: BvhTest, const Q: usize>(
 /// `getLastHit`: one past the last quad after `ia` alive in `n`'s box, or
 /// `ia + 1`.
 #[inline(always)]
-fn last_hit<T: BvhTest, const Q: usize>(
+fn last_hit<T: TriangleTest, const Q: usize>(
     p: &Packet<T, Q>,
     n: &BvhNode,
     ia: usize,
@@ -108,7 +108,7 @@ fn last_hit<T: BvhTest, const Q: usize>(
 pub(crate) struct Ranged;
 
 impl Walk for Ranged {
-    fn walk<T: BvhTest, const ANY: bool, const Q: usize>(
+    fn walk<T: TriangleTest, const ANY: bool, const Q: usize>(
         p: &mut Packet<T, Q>,
         b: &BvhView<'_>,
         rays: &[Ray4],

@@ -19,22 +19,23 @@
 //! - The near child is chosen by the sign of the first live lane's
 //!   direction on the node's split axis; lanes going the other way still
 //!   visit both children, only in a worse order.
-//! - Lanes with tiny directions (`trace::fallback::tiny`) are traced alone
+//! - Lanes with tiny directions (`accel::fallback::tiny`) are traced alone
 //!   by `traverse_single` and replaced in the quad (`quieted`).
-//! - A quad failing `trace::fallback::coherent` (its four directions over
+//! - A quad failing `accel::fallback::coherent` (its four directions over
 //!   more than a 30 degree cone, or origins far apart) is traced lane by
 //!   lane by `traverse_single`.
 
-use super::{BvhNode, BvhTest, BvhView, MAX_DEPTH};
+use super::{BvhNode, BvhView, MAX_DEPTH, TriangleTest};
+use crate::accel::fallback;
+use crate::counters::Counters;
 use crate::geom::lane::mask_from_bits;
 use crate::geom::{F4, Hit, Hit4, INVALID_ID, M4, Ray4, RayLanes};
-use crate::trace::{Counters, fallback};
 
 /// Nearest hits of the active lanes of `rays` into `hits` (one quad at a
 /// time; `rays`, `active` and `hits` are read up to the shortest length).
 /// Active lanes are written (`Hit::MISS` when nothing is hit, and for
 /// invalid rays); inactive lanes are left untouched.
-pub fn intersect<T: BvhTest>(
+pub fn intersect<T: TriangleTest>(
     b: &BvhView<'_>,
     rays: &[Ray4],
     active: &[M4],
@@ -49,7 +50,7 @@ pub fn intersect<T: BvhTest>(
 /// Occlusion of the active lanes: `hits[q].prim[i] != INVALID_ID` marks an
 /// occluded lane (t and id of some occluder in `[tmin, tmax)`, not the
 /// nearest); other active lanes get `Hit::MISS`, inactive ones are untouched.
-pub fn occluded<T: BvhTest>(
+pub fn occluded<T: TriangleTest>(
     b: &BvhView<'_>,
     rays: &[Ray4],
     active: &[M4],
@@ -107,7 +108,7 @@ impl QuadBox {
     }
 }
 
-fn quad<T: BvhTest, const ANY: bool>(
+fn quad<T: TriangleTest, const ANY: bool>(
     b: &BvhView<'_>,
     r: &Ray4,
     active: M4,
@@ -127,7 +128,7 @@ fn quad<T: BvhTest, const ANY: bool>(
     let quiet;
     let mut r = r;
     if live.any() && !b.nodes.is_empty() {
-        // Lanes with tiny directions alone (`trace::fallback::tiny`), and
+        // Lanes with tiny directions alone (`accel::fallback::tiny`), and
         // out of the quad's arithmetic.
         let tiny = fallback::tiny(r, live);
         if tiny.any() {
@@ -175,7 +176,7 @@ fn quad<T: BvhTest, const ANY: bool>(
 }
 
 #[inline(always)]
-fn walk<T: BvhTest, const ANY: bool>(
+fn walk<T: TriangleTest, const ANY: bool>(
     b: &BvhView<'_>,
     r: &Ray4,
     mut live: M4,
@@ -246,7 +247,7 @@ fn walk<T: BvhTest, const ANY: bool>(
             let mut live_n = live.bitmask().count_ones() as u64;
             for i in first..first + n.count() as usize {
                 ctr.tri_at(depth, live_n);
-                let h = T::intersect(&lanes, &pre, T::prim(b, i));
+                let h = T::intersect(&lanes, &pre, T::prim(b.store(), i));
                 let hm = h.mask & live;
                 if hm.any() {
                     let id = b.tri_ids[i];
@@ -305,7 +306,7 @@ mod tests {
             && a.v.to_bits() == b.v.to_bits()
     }
 
-    fn check<T: BvhTest>(v: &[f32], ix: &[u32], views: &[crate::scenes::View], p: &BvhParams) {
+    fn check<T: TriangleTest>(v: &[f32], ix: &[u32], views: &[crate::scenes::View], p: &BvhParams) {
         let scene = Scene::from_f32(v, ix).unwrap();
         let mut st = Store::new(scene.triangle_count() as usize, true);
         let mut bvh = st.bvh();

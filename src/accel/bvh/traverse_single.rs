@@ -12,10 +12,10 @@
 //! `[tmin, min(tmax, best.t)]` (inclusive) misses it, so a triangle at
 //! exactly `best.t` with a lower id is still found.
 
-use super::{BvhNode, BvhTest, BvhView, MAX_DEPTH};
-use crate::accel::grid::traverse_single::closer;
+use super::{BvhNode, BvhView, MAX_DEPTH, TriangleTest};
+use crate::counters::Counters;
+use crate::geom::closer;
 use crate::geom::{Hit, Ray, RayLanes};
-use crate::trace::Counters;
 
 /// Per-ray data of the slab test (Kay and Kajiya 1986; the near plane chosen
 /// by the sign of the direction, as in Williams et al. 2005, "An efficient
@@ -74,24 +74,24 @@ impl RayBox {
 
 /// Nearest hit of `ray` (a miss for invalid rays: see `Ray::is_valid`).
 #[inline]
-pub fn intersect<T: BvhTest>(b: &BvhView<'_>, ray: &Ray, ctr: &mut Counters) -> Hit {
+pub fn intersect<T: TriangleTest>(b: &BvhView<'_>, ray: &Ray, ctr: &mut Counters) -> Hit {
     walk::<T, false>(b, ray, ctr)
 }
 
 /// Whether anything lies on `ray` in `[tmin, tmax)`.
 #[inline]
-pub fn occluded<T: BvhTest>(b: &BvhView<'_>, ray: &Ray, ctr: &mut Counters) -> bool {
+pub fn occluded<T: TriangleTest>(b: &BvhView<'_>, ray: &Ray, ctr: &mut Counters) -> bool {
     walk::<T, true>(b, ray, ctr).is_hit()
 }
 
 /// Some hit on `ray` in `[tmin, tmax)` (the first found, not the nearest),
 /// or a miss: occlusion that also names an occluder.
 #[inline]
-pub fn any_hit<T: BvhTest>(b: &BvhView<'_>, ray: &Ray, ctr: &mut Counters) -> Hit {
+pub fn any_hit<T: TriangleTest>(b: &BvhView<'_>, ray: &Ray, ctr: &mut Counters) -> Hit {
     walk::<T, true>(b, ray, ctr)
 }
 
-fn walk<T: BvhTest, const ANY: bool>(b: &BvhView<'_>, ray: &Ray, ctr: &mut Counters) -> Hit {
+fn walk<T: TriangleTest, const ANY: bool>(b: &BvhView<'_>, ray: &Ray, ctr: &mut Counters) -> Hit {
     ctr.rays += 1;
     let mut best = Hit::MISS;
     let nodes = b.nodes;
@@ -154,7 +154,7 @@ fn walk<T: BvhTest, const ANY: bool>(b: &BvhView<'_>, ray: &Ray, ctr: &mut Count
             let first = n.first as usize;
             for i in first..first + n.count() as usize {
                 ctr.tri_at(depth, 1);
-                let h = T::intersect(&lanes, &pre, T::prim(b, i));
+                let h = T::intersect(&lanes, &pre, T::prim(b.store(), i));
                 if h.mask {
                     let id = b.tri_ids[i];
                     if closer(h.t, id, &best) {
@@ -213,7 +213,7 @@ pub(crate) mod tests {
     }
 
     /// Nearest (or, with `any`, some) hit by testing every stored triangle.
-    pub fn brute<T: BvhTest>(b: &BvhView<'_>, ray: &Ray) -> Hit {
+    pub fn brute<T: TriangleTest>(b: &BvhView<'_>, ray: &Ray) -> Hit {
         let mut best = Hit::MISS;
         if !ray.is_valid() {
             return best;
@@ -221,7 +221,7 @@ pub(crate) mod tests {
         let lanes = RayLanes::from_ray(ray);
         let pre = T::prepare(&lanes);
         for i in 0..b.tris.len() {
-            let h = T::intersect(&lanes, &pre, T::prim(b, i));
+            let h = T::intersect(&lanes, &pre, T::prim(b.store(), i));
             if h.mask && closer(h.t, b.tri_ids[i], &best) {
                 best = Hit {
                     t: h.t,
@@ -337,7 +337,7 @@ pub(crate) mod tests {
             && a.v.to_bits() == b.v.to_bits()
     }
 
-    fn check_scene<T: BvhTest>(
+    fn check_scene<T: TriangleTest>(
         v: &[f32],
         ix: &[u32],
         views: &[crate::scenes::View],

@@ -21,7 +21,7 @@ pub mod build;
 pub mod traverse_cgt;
 pub mod traverse_single;
 
-use crate::geom::{Aabb, Mt, ProjTri, Pt, TriTest, TriVerts, TriangleTest, Wt};
+use crate::geom::{Aabb, ProjTri, TriTest, TriVerts, TriangleTest};
 use glam::Vec3;
 
 /// Tunables of the grid (C: `sheaf_grid_params`).
@@ -151,6 +151,17 @@ impl<'a> Grid<'a> {
     }
 }
 
+impl<'r> GridView<'r> {
+    /// The stored triangles, as every triangle test reads them.
+    #[inline(always)]
+    pub fn store(&self) -> crate::geom::TriStore<'r> {
+        crate::geom::TriStore {
+            tris: self.tris,
+            proj: self.proj,
+        }
+    }
+}
+
 impl GridView<'_> {
     /// Linear index of cell (x, y, z).
     #[inline(always)]
@@ -169,31 +180,5 @@ impl GridView<'_> {
         let r = &self.info.macro_res;
         let i = (m[0] as usize) + r[0] as usize * ((m[1] as usize) + r[1] as usize * m[2] as usize);
         self.macro_bits[i >> 5] & (1 << (i & 31)) != 0
-    }
-}
-
-/// Where a triangle test finds its per-triangle data in a built grid.
-pub trait GridTest: TriangleTest {
-    fn prim<'g>(g: &GridView<'g>, i: usize) -> &'g Self::Prim;
-}
-
-impl GridTest for Mt {
-    #[inline(always)]
-    fn prim<'g>(g: &GridView<'g>, i: usize) -> &'g TriVerts {
-        &g.tris[i]
-    }
-}
-
-impl GridTest for Wt {
-    #[inline(always)]
-    fn prim<'g>(g: &GridView<'g>, i: usize) -> &'g TriVerts {
-        &g.tris[i]
-    }
-}
-
-impl GridTest for Pt {
-    #[inline(always)]
-    fn prim<'g>(g: &GridView<'g>, i: usize) -> &'g ProjTri {
-        &g.proj[i]
     }
 }

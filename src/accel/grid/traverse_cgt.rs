@@ -51,9 +51,10 @@
 //!   its live lanes to the 3DDDA (`alone`). Lanes no longer live have their
 //!   exact hits.
 
-use super::{GridTest, GridView};
+use super::{GridView, TriangleTest};
+use crate::accel::fallback;
+use crate::counters::{Counters, count};
 use crate::geom::{F4, Hit, Hit4, M4, Ray4, RayLanes, TriVerts};
-use crate::trace::{Counters, count, fallback};
 use glam::Vec3;
 
 use super::traverse_single;
@@ -92,7 +93,7 @@ pub use crate::accel::mailbox::Mailbox;
 
 /// Nearest hits of the active lanes of `rays` (a packet of `rays.len()`
 /// quads, at most 256) into `hits`; inactive lanes are left untouched.
-pub fn intersect<T: GridTest>(
+pub fn intersect<T: TriangleTest>(
     g: &GridView<'_>,
     rays: &[Ray4],
     active: &[M4],
@@ -106,7 +107,7 @@ pub fn intersect<T: GridTest>(
 
 /// Occlusion of the active lanes: `hits[q].prim[i] != INVALID_ID` marks an
 /// occluded lane (t and the id of some occluder, not the nearest).
-pub fn occluded<T: GridTest>(
+pub fn occluded<T: TriangleTest>(
     g: &GridView<'_>,
     rays: &[Ray4],
     active: &[M4],
@@ -118,7 +119,7 @@ pub fn occluded<T: GridTest>(
     dispatch::<T, true>(g, rays, active, hits, opt, mailbox, ctr)
 }
 
-fn dispatch<T: GridTest, const ANY: bool>(
+fn dispatch<T: TriangleTest, const ANY: bool>(
     g: &GridView<'_>,
     rays: &[Ray4],
     active: &[M4],
@@ -151,7 +152,7 @@ fn lane_mask(m: M4) -> u32 {
 }
 
 /// One packet of `rays.len() <= Q` quads.
-fn packet<T: GridTest, const ANY: bool, const Q: usize>(
+fn packet<T: TriangleTest, const ANY: bool, const Q: usize>(
     g: &GridView<'_>,
     rays: &[Ray4],
     active: &[M4],
@@ -489,7 +490,7 @@ fn packet<T: GridTest, const ANY: bool, const Q: usize>(
                             let h = T::intersect(
                                 &RayLanes::from_ray4(&rays[q]),
                                 &pre[q],
-                                T::prim(g, tri),
+                                T::prim(g.store(), tri),
                             );
                             let hm = h.mask & lm;
                             if !hm.any() {
@@ -548,12 +549,12 @@ fn packet<T: GridTest, const ANY: bool, const Q: usize>(
     }
 }
 
-/// The packet with its tiny lanes (`trace::fallback::tiny`) traced by the
+/// The packet with its tiny lanes (`accel::fallback::tiny`) traced by the
 /// 3DDDA, and the rest traced on quads where those lanes are replaced by
 /// others (so no SIMD operation of the packet meets their subnormal
 /// numbers) and inactive.
 #[inline(never)]
-fn quieted<T: GridTest, const ANY: bool, const Q: usize>(
+fn quieted<T: TriangleTest, const ANY: bool, const Q: usize>(
     g: &GridView<'_>,
     rays: &[Ray4],
     active: &[M4],
@@ -580,7 +581,7 @@ fn live_lanes(live: &[M4]) -> u32 {
 /// result replaces what the packet found so far); lanes no longer live are
 /// done and exact.
 #[inline(never)]
-fn alone<T: GridTest, const ANY: bool>(
+fn alone<T: TriangleTest, const ANY: bool>(
     g: &GridView<'_>,
     rays: &[Ray4],
     live: &[M4],

@@ -11,37 +11,31 @@
 //! does not grow along the ray; triangles are inserted with a widened box
 //! (`build::INSERT_EPS`), so the remaining rounding never loses a hit.
 
-use super::{GridTest, GridView};
-use crate::geom::{Aabb, Hit, INVALID_ID, Ray, RayLanes};
-use crate::trace::{Counters, count};
+use super::{GridView, TriangleTest};
+use crate::counters::{Counters, count};
+use crate::geom::{Aabb, Hit, INVALID_ID, Ray, RayLanes, closer};
 use glam::Vec3;
 
 /// Nearest hit of `ray` (a miss for invalid rays: see `Ray::is_valid`).
 #[inline]
-pub fn intersect<T: GridTest>(g: &GridView<'_>, ray: &Ray, ctr: &mut Counters) -> Hit {
+pub fn intersect<T: TriangleTest>(g: &GridView<'_>, ray: &Ray, ctr: &mut Counters) -> Hit {
     walk::<T, false>(g, ray, ctr)
 }
 
 /// Whether anything lies on `ray` in `[tmin, tmax)`.
 #[inline]
-pub fn occluded<T: GridTest>(g: &GridView<'_>, ray: &Ray, ctr: &mut Counters) -> bool {
+pub fn occluded<T: TriangleTest>(g: &GridView<'_>, ray: &Ray, ctr: &mut Counters) -> bool {
     walk::<T, true>(g, ray, ctr).is_hit()
 }
 
 /// Some hit on `ray` in `[tmin, tmax)` (the first found, not the nearest),
 /// or a miss: occlusion that also names an occluder.
 #[inline]
-pub fn any_hit<T: GridTest>(g: &GridView<'_>, ray: &Ray, ctr: &mut Counters) -> Hit {
+pub fn any_hit<T: TriangleTest>(g: &GridView<'_>, ray: &Ray, ctr: &mut Counters) -> Hit {
     walk::<T, true>(g, ray, ctr)
 }
 
-/// The tie rule shared by every traversal: nearer t wins; equal t, lower id.
-#[inline(always)]
-pub fn closer(t: f32, prim: u32, best: &Hit) -> bool {
-    t < best.t || (t == best.t && prim < best.prim)
-}
-
-fn walk<T: GridTest, const ANY: bool>(g: &GridView<'_>, ray: &Ray, ctr: &mut Counters) -> Hit {
+fn walk<T: TriangleTest, const ANY: bool>(g: &GridView<'_>, ray: &Ray, ctr: &mut Counters) -> Hit {
     ctr.rays += 1;
     let mut best = Hit::MISS;
     if !ray.is_valid() || g.info.triangles == 0 {
@@ -154,7 +148,7 @@ fn walk<T: GridTest, const ANY: bool>(g: &GridView<'_>, ray: &Ray, ctr: &mut Cou
         count!(ctr.cells += 1);
         for &r in g.cell(g.cell_index(c)) {
             count!(ctr.tri_tests += 1);
-            let h = T::intersect(&lanes, &pre, T::prim(g, r as usize));
+            let h = T::intersect(&lanes, &pre, T::prim(g.store(), r as usize));
             if h.mask {
                 let id = g.tri_ids[r as usize];
                 if closer(h.t, id, &best) {

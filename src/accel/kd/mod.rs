@@ -1,5 +1,6 @@
 //! kd-tree rebuilt from scratch every frame, traversed by single rays, 2x2
-//! SIMD rays and n x n packets, with MLRTA and AEPSA entry-point search.
+//! SIMD rays and n x n packets, from the root or from an entry point
+//! (`accel::entry`: MLRTA, AEPSA).
 //!
 //! Source: "Accelerated Entry Point Search Algorithm for Real-Time
 //! Ray-Tracing" (papers/entry-point-search-aepsa.txt), on Reshetov,
@@ -11,8 +12,9 @@
 //! | `traverse_single.rs` | the single-ray reference: front-to-back stack traversal with early termination |
 //! | `traverse_simd.rs` | the 2x2 SIMD ray (`Ray4`) traversal (Wald 2004) |
 //! | `traverse_packet.rs` | n x n packets driven by the packet's frustum, from the root or from an entry point and its AABB |
-//! | `traverse_mlrta.rs` | section 2.2: MLRTA entry-point search (bifurcation stack, bottom-up check) |
-//! | `traverse_aepsa.rs` | sections 3.1-3.3 and the appendix: AEPSA (candidate queue frozen at the first leaf with frustum-overlapped triangles, top-down check with early exit) |
+//!
+//! MLRTA (section 2.2) and AEPSA (sections 3.1-3.3) live in `accel/entry/`:
+//! they search this tree and the BVH alike.
 //!
 //! # Node layout
 //! 8-byte nodes (`KdNode`), children of a node adjacent (left, right = left
@@ -37,18 +39,18 @@
 //! lie below the entry point.
 
 pub mod build;
-pub mod traverse_aepsa;
-pub mod traverse_mlrta;
+mod entry;
 pub mod traverse_packet;
 pub mod traverse_simd;
 pub mod traverse_single;
 
-use crate::geom::{Aabb, Mt, ProjTri, Pt, TriTest, TriVerts, TriangleTest, Wt};
+use crate::geom::{Aabb, ProjTri, TriTest, TriVerts, TriangleTest};
 use bytemuck::{Pod, Zeroable};
 
 /// Deepest level a build creates (root = depth 0); every traversal stack of
 /// `MAX_DEPTH + 1` entries suffices.
 pub const MAX_DEPTH: usize = 48;
+const _: () = assert!(MAX_DEPTH <= crate::accel::entry::MAX_ENTRY_DEPTH);
 
 /// Relative padding of the root box (as the BVH's `BOX_PAD`): rays grazing
 /// the scene's bounds still enter the tree.
@@ -273,6 +275,17 @@ impl<'a> KdTree<'a> {
     }
 }
 
+impl<'r> KdView<'r> {
+    /// The stored triangles, as every triangle test reads them.
+    #[inline(always)]
+    pub fn store(&self) -> crate::geom::TriStore<'r> {
+        crate::geom::TriStore {
+            tris: self.tris,
+            proj: self.proj,
+        }
+    }
+}
+
 impl KdView<'_> {
     /// The stored triangle with caller id `prim`, if it was stored.
     #[inline]
@@ -293,33 +306,6 @@ impl KdView<'_> {
         l.max[a] = s;
         r.min[a] = s;
         (l, r)
-    }
-}
-
-/// Where a triangle test finds its per-triangle data in a built kd-tree
-/// (`slot`: a stored triangle slot, as `refs` holds).
-pub trait KdTest: TriangleTest {
-    fn prim<'b>(k: &KdView<'b>, slot: usize) -> &'b Self::Prim;
-}
-
-impl KdTest for Mt {
-    #[inline(always)]
-    fn prim<'b>(k: &KdView<'b>, slot: usize) -> &'b TriVerts {
-        &k.tris[slot]
-    }
-}
-
-impl KdTest for Wt {
-    #[inline(always)]
-    fn prim<'b>(k: &KdView<'b>, slot: usize) -> &'b TriVerts {
-        &k.tris[slot]
-    }
-}
-
-impl KdTest for Pt {
-    #[inline(always)]
-    fn prim<'b>(k: &KdView<'b>, slot: usize) -> &'b ProjTri {
-        &k.proj[slot]
     }
 }
 

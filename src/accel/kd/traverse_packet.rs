@@ -45,10 +45,10 @@
 //! - Lanes whose direction sign bits differ from the packet's first live
 //!   lane on some axis (`Counters::stray_lanes`) are traced one by one with
 //!   `traverse_single::from_node` from the packet's start node and box.
-//! - Lanes with tiny directions (`trace::fallback::tiny`) are traced alone
+//! - Lanes with tiny directions (`accel::fallback::tiny`) are traced alone
 //!   by `traverse_single` and the packet on quads where they are replaced
 //!   (`quieted`; their subnormal arithmetic slows every quad holding one).
-//! - After the stray lanes, a packet failing `trace::fallback::coherent`
+//! - After the stray lanes, a packet failing `accel::fallback::coherent`
 //!   (directions over more than a 30 degree cone, or origins over a quarter
 //!   of the scene) is traced lane by lane the same way (the AEPSA paper's
 //!   system traces incoherent packets with another algorithm, section 5.1,
@@ -69,12 +69,13 @@
 //! `culled_nodes` / `culled` for frustum rejections.
 
 use super::traverse_simd::{clip4, lane_from, lane_signs, stray_bits, valid4};
-use super::{KdTest, KdView, MAX_DEPTH};
+use super::{KdView, MAX_DEPTH, TriangleTest};
 use crate::accel::entry::EntryPoint;
+use crate::accel::fallback;
+use crate::counters::{Counters, count};
 use crate::geom::frustum::Frustum;
 use crate::geom::lane::mask_from_bits;
 use crate::geom::{Aabb, F4, Hit, Hit4, INVALID_ID, M4, Ray4, RayLanes};
-use crate::trace::{Counters, count, fallback};
 
 /// Most quads traced as one packet (32 x 32 rays).
 pub const MAX_QUADS: usize = 256;
@@ -92,7 +93,7 @@ const CORNER_TEST_QUADS: usize = 8;
 /// `Frustum::new` builds it), `entry` must hold every leaf with a triangle
 /// that frustum does not cull (see the module docs); either may be `None`.
 #[allow(clippy::too_many_arguments)]
-pub fn intersect<T: KdTest>(
+pub fn intersect<T: TriangleTest>(
     k: &KdView<'_>,
     rays: &[Ray4],
     active: &[M4],
@@ -118,7 +119,7 @@ pub fn intersect<T: KdTest>(
 /// `occluded[q]` is set when it is active and occluded, cleared otherwise
 /// (every quad read is written). Arguments as `intersect`.
 #[allow(clippy::too_many_arguments)]
-pub fn occluded<T: KdTest>(
+pub fn occluded<T: TriangleTest>(
     k: &KdView<'_>,
     rays: &[Ray4],
     active: &[M4],
@@ -143,7 +144,7 @@ pub fn occluded<T: KdTest>(
 /// Packets of at most 256 quads, each traced with scratch sized by its
 /// class. `hits` (nearest) or `occ` (ANY) has the length of `rays`.
 #[allow(clippy::too_many_arguments)]
-fn dispatch<T: KdTest, const ANY: bool>(
+fn dispatch<T: TriangleTest, const ANY: bool>(
     k: &KdView<'_>,
     rays: &[Ray4],
     active: &[M4],
@@ -187,7 +188,7 @@ struct Entry {
 
 /// One packet of `rays.len() <= Q` quads (`Q` a power of two).
 #[allow(clippy::too_many_arguments)]
-fn packet<T: KdTest, const ANY: bool, const Q: usize>(
+fn packet<T: TriangleTest, const ANY: bool, const Q: usize>(
     k: &KdView<'_>,
     rays: &[Ray4],
     active: &[M4],
@@ -294,13 +295,13 @@ fn packet<T: KdTest, const ANY: bool, const Q: usize>(
     );
 }
 
-/// The packet with its tiny lanes (`trace::fallback::tiny`) traced by
+/// The packet with its tiny lanes (`accel::fallback::tiny`) traced by
 /// `traverse_single`, and the rest traced on quads where those lanes are
 /// replaced by others (so no SIMD operation meets their subnormal numbers)
 /// and inactive. The frustum and the entry point stay valid for them.
 #[allow(clippy::too_many_arguments)]
 #[inline(never)]
-fn quieted<T: KdTest, const ANY: bool, const Q: usize>(
+fn quieted<T: TriangleTest, const ANY: bool, const Q: usize>(
     k: &KdView<'_>,
     rays: &[Ray4],
     active: &[M4],
@@ -336,7 +337,7 @@ fn quieted<T: KdTest, const ANY: bool, const Q: usize>(
 
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn walk<T: KdTest, const ANY: bool, const Q: usize>(
+fn walk<T: TriangleTest, const ANY: bool, const Q: usize>(
     k: &KdView<'_>,
     rays: &[Ray4],
     hits: &mut [Hit4],
@@ -535,7 +536,7 @@ fn walk<T: KdTest, const ANY: bool, const Q: usize>(
                         continue;
                     }
                 }
-                let prim = T::prim(k, s);
+                let prim = T::prim(k.store(), s);
                 let id = k.tri_ids[s];
                 for (m, &qi) in lm[..na].iter_mut().zip(&act[..na]) {
                     if ANY && !m.any() {
@@ -628,9 +629,10 @@ fn walk<T: KdTest, const ANY: bool, const Q: usize>(
 mod tests {
     use super::*;
     use crate::accel::bvh::traverse_masked::tests::{Packed, RaySet, lattice, packets, ray_sets};
-    use crate::accel::bvh::{BvhTest, BvhView, RayKind};
+    use crate::accel::bvh::{BvhView, RayKind};
     use crate::accel::kd::traverse_simd::tests::{deep_rays, ties, with_trees};
     use crate::accel::kd::traverse_single::{self, tests::same};
+    use crate::geom::TriangleTest;
     use crate::geom::{Mt, Pt, Ray, Wt};
     use glam::Vec3;
 
@@ -789,7 +791,7 @@ mod tests {
     /// One input through `intersect` and `occluded`, every lane compared
     /// with the single-ray results `near` and `occl` (by quad and lane).
     #[allow(clippy::too_many_arguments)]
-    fn check_packet<T: KdTest>(
+    fn check_packet<T: TriangleTest>(
         k: &KdView<'_>,
         quads: &[Ray4],
         active: &[M4],
@@ -854,7 +856,7 @@ mod tests {
     /// from the root, the frustum with its entry point, and the entry
     /// point alone. Then the whole image as one input (packets of 256
     /// quads) and a 3-quad input. Returns the counters.
-    fn check_sets<T: KdTest>(
+    fn check_sets<T: TriangleTest>(
         name: &str,
         k: &KdView<'_>,
         b: &BvhView<'_>,
@@ -931,7 +933,7 @@ mod tests {
 
     /// `check_sets` over the ray sets of `traverse_masked::tests` (primary,
     /// shadow, reflection, mixed, random, bundle) for the first view.
-    fn check_scene<T: KdTest + BvhTest>(name: &str, side: u32) -> Counters {
+    fn check_scene<T: TriangleTest + TriangleTest>(name: &str, side: u32) -> Counters {
         let s = crate::scenes::builtin(name).unwrap();
         let mut total = Counters::default();
         with_trees::<T>(&s.mesh.vertices, &s.mesh.indices, 0, |k, b| {
@@ -978,7 +980,7 @@ mod tests {
     #[test]
     fn packet_matches_single_lattice() {
         let (v, ix, sets) = lattice();
-        fn run<T: KdTest + BvhTest>(v: &[f32], ix: &[u32], sets: &[RaySet]) -> Counters {
+        fn run<T: TriangleTest + TriangleTest>(v: &[f32], ix: &[u32], sets: &[RaySet]) -> Counters {
             let mut c = Counters::default();
             with_trees::<T>(v, ix, 0, |k, b| c = check_sets::<T>("lattice", k, b, sets));
             c
@@ -995,7 +997,7 @@ mod tests {
     /// the depth limit (full stacks), and an entry point outside the tree.
     #[test]
     fn packet_edge_cases() {
-        fn run<T: KdTest + BvhTest>(
+        fn run<T: TriangleTest + TriangleTest>(
             name: &str,
             v: &[f32],
             ix: &[u32],

@@ -21,9 +21,9 @@
 //! - Lanes whose direction sign bits differ from the first live lane's on
 //!   some axis ("stray lanes", `Counters::stray_lanes`) are traced one by
 //!   one with the single-ray traversal; Wald's packets assume equal signs.
-//! - Before them, lanes with tiny directions (`trace::fallback::tiny`) are
+//! - Before them, lanes with tiny directions (`accel::fallback::tiny`) are
 //!   traced alone the same way and replaced in the quad (`quieted`).
-//! - After them, a quad failing `trace::fallback::coherent` (directions
+//! - After them, a quad failing `accel::fallback::coherent` (directions
 //!   over more than a 30 degree cone, or origins far apart) is traced lane
 //!   by lane the same way.
 //! - The reciprocal directions are recomputed from `dir` (as
@@ -35,14 +35,20 @@
 //! 4-wide triangle test.
 
 use super::traverse_single::{KdRay, from_node};
-use super::{KdTest, KdView, MAX_DEPTH};
+use super::{KdView, MAX_DEPTH, TriangleTest};
+use crate::accel::fallback;
+use crate::counters::Counters;
 use crate::geom::{Aabb, F4, Hit, Hit4, M4, Ray4, RayLanes};
-use crate::trace::{Counters, fallback};
 
 /// Nearest hits of the active lanes of `r` (inactive and invalid lanes,
 /// see `Ray::is_valid`: `Hit::MISS`).
 #[inline]
-pub fn intersect<T: KdTest>(k: &KdView<'_>, r: &Ray4, active: M4, ctr: &mut Counters) -> Hit4 {
+pub fn intersect<T: TriangleTest>(
+    k: &KdView<'_>,
+    r: &Ray4,
+    active: M4,
+    ctr: &mut Counters,
+) -> Hit4 {
     let mut best = Hit4::MISS;
     quad::<T, false>(k, r, active, &mut best, ctr);
     best
@@ -50,7 +56,7 @@ pub fn intersect<T: KdTest>(k: &KdView<'_>, r: &Ray4, active: M4, ctr: &mut Coun
 
 /// Lanes of `r` that are active and hit something in `[tmin, tmax)`.
 #[inline]
-pub fn occluded<T: KdTest>(k: &KdView<'_>, r: &Ray4, active: M4, ctr: &mut Counters) -> M4 {
+pub fn occluded<T: TriangleTest>(k: &KdView<'_>, r: &Ray4, active: M4, ctr: &mut Counters) -> M4 {
     let mut best = Hit4::MISS;
     quad::<T, true>(k, r, active, &mut best, ctr);
     best.hit_mask() & active
@@ -120,7 +126,7 @@ pub(crate) fn clip4(
 /// the interval the single ray has there (see `mod.rs`, Exactness).
 #[allow(clippy::too_many_arguments)]
 #[inline(never)]
-pub(crate) fn lane_from<T: KdTest, const ANY: bool>(
+pub(crate) fn lane_from<T: TriangleTest, const ANY: bool>(
     k: &KdView<'_>,
     r: &Ray4,
     i: usize,
@@ -147,7 +153,7 @@ pub(crate) fn lane_from<T: KdTest, const ANY: bool>(
     best
 }
 
-fn quad<T: KdTest, const ANY: bool>(
+fn quad<T: TriangleTest, const ANY: bool>(
     k: &KdView<'_>,
     r: &Ray4,
     active: M4,
@@ -161,7 +167,7 @@ fn quad<T: KdTest, const ANY: bool>(
         return;
     }
     let root = &k.info.root;
-    // Lanes with tiny directions alone (`trace::fallback::tiny`), and out
+    // Lanes with tiny directions alone (`accel::fallback::tiny`), and out
     // of the quad's arithmetic.
     let tiny = fallback::tiny(r, live);
     let quiet;
@@ -209,7 +215,7 @@ fn quad<T: KdTest, const ANY: bool>(
 }
 
 #[inline(always)]
-fn walk<T: KdTest, const ANY: bool>(
+fn walk<T: TriangleTest, const ANY: bool>(
     k: &KdView<'_>,
     r: &Ray4,
     mut live: M4,
@@ -278,7 +284,7 @@ fn walk<T: KdTest, const ANY: bool>(
             for &s in k.leaf_refs(n) {
                 ctr.tri_at(depth, m.bitmask().count_ones() as u64);
                 let s = s as usize;
-                let h = T::intersect(&lanes, &pre, T::prim(k, s));
+                let h = T::intersect(&lanes, &pre, T::prim(k.store(), s));
                 let hm = h.mask & m;
                 if hm.any() {
                     let id = k.tri_ids[s];
@@ -331,14 +337,15 @@ fn walk<T: KdTest, const ANY: bool>(
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;
+    use crate::accel::bvh::BvhView;
     use crate::accel::bvh::build::testutil::Store as BvhStore;
     use crate::accel::bvh::traverse_masked::tests::{built as bvh_built, packets, ray_sets};
     use crate::accel::bvh::traverse_single::tests::{Rng, test_rays, tris_of};
-    use crate::accel::bvh::{BvhTest, BvhView};
     use crate::accel::kd::KdParams;
     use crate::accel::kd::build::build;
     use crate::accel::kd::build::testutil::Store;
     use crate::accel::kd::traverse_single::{self, tests::same};
+    use crate::geom::TriangleTest;
     use crate::geom::lane::mask_from_bits;
     use crate::geom::{Mt, Pt, Ray, Scene, TriTest, Wt};
     use glam::Vec3;
@@ -346,7 +353,7 @@ pub(crate) mod tests {
     /// A kd-tree (depth limit `max_depth`, 0: the default rule) with test
     /// `T` over `v`, `ix`, and a BVH over the same mesh (for the ray sets
     /// of `traverse_masked::tests` and the entry-point helper).
-    pub(crate) fn with_trees<T: KdTest + BvhTest>(
+    pub(crate) fn with_trees<T: TriangleTest + TriangleTest>(
         v: &[f32],
         ix: &[u32],
         max_depth: u32,
@@ -370,7 +377,7 @@ pub(crate) mod tests {
     /// Every quad through `intersect` and `occluded`, every lane compared
     /// with `traverse_single` (bitwise hits, equal occlusion; inactive
     /// lanes a miss and not occluded). Returns the SIMD counters.
-    pub(crate) fn check_quads<T: KdTest>(
+    pub(crate) fn check_quads<T: TriangleTest>(
         k: &KdView<'_>,
         quads: &[Ray4],
         active: &[M4],
@@ -414,7 +421,7 @@ pub(crate) mod tests {
     /// bounded, invalid) four by four with mixed masks, then the ray sets
     /// of `traverse_masked::tests` (primary, shadow, reflection, mixed,
     /// random, bundle) as 2x2 quads of the first view.
-    fn check_scene<T: KdTest + BvhTest>(
+    fn check_scene<T: TriangleTest + TriangleTest>(
         name: &str,
         v: &[f32],
         ix: &[u32],

@@ -9,26 +9,26 @@
 //! ray stops after the leaf whose interval ends at or beyond its nearest
 //! hit (the classic early termination; Havran 2000, TA_B^rec).
 
-use super::{KdTest, KdView, MAX_DEPTH, clip, split_interval};
-use crate::accel::grid::traverse_single::closer;
+use super::{KdView, MAX_DEPTH, TriangleTest, clip, split_interval};
+use crate::counters::Counters;
+use crate::geom::closer;
 use crate::geom::{Hit, Ray, RayLanes};
-use crate::trace::Counters;
 
 /// Nearest hit of `ray` (a miss for invalid rays: see `Ray::is_valid`).
 #[inline]
-pub fn intersect<T: KdTest>(k: &KdView<'_>, ray: &Ray, ctr: &mut Counters) -> Hit {
+pub fn intersect<T: TriangleTest>(k: &KdView<'_>, ray: &Ray, ctr: &mut Counters) -> Hit {
     walk::<T, false>(k, ray, ctr)
 }
 
 /// Whether anything lies on `ray` in `[tmin, tmax)`.
 #[inline]
-pub fn occluded<T: KdTest>(k: &KdView<'_>, ray: &Ray, ctr: &mut Counters) -> bool {
+pub fn occluded<T: TriangleTest>(k: &KdView<'_>, ray: &Ray, ctr: &mut Counters) -> bool {
     walk::<T, true>(k, ray, ctr).is_hit()
 }
 
 /// Some hit on `ray` in `[tmin, tmax)` (the first found), or a miss.
 #[inline]
-pub fn any_hit<T: KdTest>(k: &KdView<'_>, ray: &Ray, ctr: &mut Counters) -> Hit {
+pub fn any_hit<T: TriangleTest>(k: &KdView<'_>, ray: &Ray, ctr: &mut Counters) -> Hit {
     walk::<T, true>(k, ray, ctr)
 }
 
@@ -57,7 +57,7 @@ impl KdRay {
     }
 }
 
-fn walk<T: KdTest, const ANY: bool>(k: &KdView<'_>, ray: &Ray, ctr: &mut Counters) -> Hit {
+fn walk<T: TriangleTest, const ANY: bool>(k: &KdView<'_>, ray: &Ray, ctr: &mut Counters) -> Hit {
     ctr.rays += 1;
     let mut best = Hit::MISS;
     if !ray.is_valid() || k.nodes.is_empty() || k.info.triangles == 0 {
@@ -86,7 +86,7 @@ fn walk<T: KdTest, const ANY: bool>(k: &KdView<'_>, ray: &Ray, ctr: &mut Counter
 /// points (packets whose lanes fall back to single rays).
 #[allow(clippy::too_many_arguments)]
 #[inline]
-pub(crate) fn from_node<T: KdTest, const ANY: bool>(
+pub(crate) fn from_node<T: TriangleTest, const ANY: bool>(
     k: &KdView<'_>,
     ray: &Ray,
     kr: &KdRay,
@@ -134,7 +134,7 @@ pub(crate) fn from_node<T: KdTest, const ANY: bool>(
             for &s in k.leaf_refs(n) {
                 ctr.tri_at(depth, 1);
                 let s = s as usize;
-                let h = T::intersect(&lanes, &pre, T::prim(k, s));
+                let h = T::intersect(&lanes, &pre, T::prim(k.store(), s));
                 if h.mask {
                     let id = k.tri_ids[s];
                     if closer(h.t, id, best) {
@@ -177,7 +177,7 @@ pub(crate) mod tests {
     use crate::geom::{Mt, Pt, Scene, TriTest, Wt};
 
     /// Nearest (tie rule) hit by testing every stored triangle.
-    pub fn brute<T: KdTest>(k: &KdView<'_>, ray: &Ray) -> Hit {
+    pub fn brute<T: TriangleTest>(k: &KdView<'_>, ray: &Ray) -> Hit {
         let mut best = Hit::MISS;
         if !ray.is_valid() {
             return best;
@@ -185,7 +185,7 @@ pub(crate) mod tests {
         let lanes = RayLanes::from_ray(ray);
         let pre = T::prepare(&lanes);
         for s in 0..k.tris.len() {
-            let h = T::intersect(&lanes, &pre, T::prim(k, s));
+            let h = T::intersect(&lanes, &pre, T::prim(k.store(), s));
             if h.mask && closer(h.t, k.tri_ids[s], &best) {
                 best = Hit {
                     t: h.t,
@@ -205,7 +205,11 @@ pub(crate) mod tests {
             && a.v.to_bits() == b.v.to_bits()
     }
 
-    fn check_scene<T: KdTest>(scene: &Scene<'_>, views: &[crate::scenes::View], p: &KdParams) {
+    fn check_scene<T: TriangleTest>(
+        scene: &Scene<'_>,
+        views: &[crate::scenes::View],
+        p: &KdParams,
+    ) {
         let mut st = Store::new(scene.triangle_count() as usize, true);
         let mut kd = st.kd();
         build(&mut kd, scene, p).unwrap();

@@ -45,7 +45,7 @@ pub mod sort;
 pub mod traverse_primary;
 pub mod traverse_shadow;
 
-use crate::geom::{Aabb, Mt, ProjTri, Pt, TriTest, TriVerts, TriangleTest, Wt};
+use crate::geom::{Aabb, ProjTri, TriTest, TriVerts, TriangleTest};
 use crate::math;
 use glam::Vec3;
 
@@ -346,38 +346,8 @@ impl<'r> CellsView<'r> {
     }
 }
 
-/// The triangles both grids index (by scene triangle id).
-#[derive(Clone, Copy, Debug)]
-pub struct Triangles<'r> {
-    pub tris: &'r [TriVerts],
-    pub proj: &'r [ProjTri],
-}
-
-/// A triangle test and where its per-triangle data lives.
-pub trait PgTest: TriangleTest {
-    fn prim<'r>(t: &Triangles<'r>, i: usize) -> &'r Self::Prim;
-}
-
-impl PgTest for Mt {
-    #[inline(always)]
-    fn prim<'r>(t: &Triangles<'r>, i: usize) -> &'r TriVerts {
-        &t.tris[i]
-    }
-}
-
-impl PgTest for Wt {
-    #[inline(always)]
-    fn prim<'r>(t: &Triangles<'r>, i: usize) -> &'r TriVerts {
-        &t.tris[i]
-    }
-}
-
-impl PgTest for Pt {
-    #[inline(always)]
-    fn prim<'r>(t: &Triangles<'r>, i: usize) -> &'r ProjTri {
-        &t.proj[i]
-    }
-}
+/// The scene's triangles by id (the pgrid's store).
+pub use crate::geom::TriStore as Triangles;
 
 /// Pools of the perspective and light grids, carved at context creation.
 pub struct PgridPools<'a> {

@@ -10,11 +10,11 @@
 //! own cells) is the caller's loop over `trace_tile`: on CPU threads the
 //! tracing tile is the unit of work, the sorting tile the unit of culling.
 
-use super::{CamView, PgTest};
+use super::{CamView, TriangleTest};
 use crate::accel::mailbox::Mailbox;
+use crate::counters::{Counters, count};
 use crate::geom::{F4, Hit4, M4, Mt, Pt, Ray4, RayLanes, TriTest, Wt};
 use crate::math;
-use crate::trace::{Counters, count};
 
 /// Nearest hits of the camera rays of sorting tile `tile`: `rays` are its
 /// `(side / 2)^2` 2x2 quads row by row (pixel quads, lanes as `Ray4`),
@@ -38,7 +38,7 @@ pub fn trace_tile(
 /// Most 2x2 rays of one sorting tile (32 x 32 pixels).
 pub const MAX_QUADS: usize = 256;
 
-fn walk<T: PgTest>(
+fn walk<T: TriangleTest>(
     g: &CamView<'_>,
     tile: u32,
     rays: &[Ray4],
@@ -93,7 +93,7 @@ fn walk<T: PgTest>(
                 count!(ctr.mailbox_skips += 1);
                 continue;
             }
-            let prim = T::prim(&g.tris, tri as usize);
+            let prim = T::prim(g.tris, tri as usize);
             // Only the quads whose pixel centres the triangle's padded
             // pixel bounds cover can hit it.
             let b = g.px_box[tri as usize];

@@ -6,11 +6,11 @@
 //! occluded or when the slices pass its end point (`tmax = 1` at the
 //! surface it shadows); the chunk stops when no ray is left.
 
-use super::{LightView, PgTest};
+use super::{LightView, TriangleTest};
 use crate::accel::mailbox::Mailbox;
+use crate::counters::{Counters, count};
 use crate::geom::{M4, Mt, Pt, Ray4, RayLanes, TriTest, Wt};
 use crate::math;
-use crate::trace::{Counters, count};
 
 /// Most 2x2 rays traced together (larger chunks go in batches of these).
 pub const MAX_QUADS: usize = 64;
@@ -38,7 +38,7 @@ pub fn trace_chunk(
     }
 }
 
-fn walk<T: PgTest>(
+fn walk<T: TriangleTest>(
     g: &LightView<'_>,
     tile: u32,
     rays: &[Ray4],
@@ -101,7 +101,7 @@ fn walk<T: PgTest>(
                 count!(ctr.mailbox_skips += 1);
                 continue;
             }
-            let prim = T::prim(&g.tris, tri as usize);
+            let prim = T::prim(g.tris, tri as usize);
             let tb = g.ab_box[tri as usize];
             let mut left = false;
             for q in 0..nq {

@@ -1,7 +1,7 @@
 //! Entry points into trees (AEPSA paper section 2.1): "the common ancestor
 //! node in the tree of all leaves that contain objects overlapped fully or
 //! partially by the ray proxy frustum". Shared vocabulary of the searches
-//! (`kd::traverse_mlrta`, `kd::traverse_aepsa`) and the trees they search
+//! (`entry::mlrta`, `entry::aepsa`) and the trees they search
 //! (the kd-tree, and the BVH as the paper's further work, section 8):
 //! `EntryTree`, the `CandidateQueue` both searches fill in phase 1, the
 //! phase-1 descent (`find_candidates`) and phase 2's branch test
@@ -11,7 +11,7 @@
 //! Sections 2.2, 3.1-3.3 and the appendix leave the traversal order and the
 //! fate of candidates on backtracking open; this reading agrees with the
 //! three worked examples (Figures 2, 3 and 4, reproduced as tests in
-//! `kd::traverse_mlrta` and `kd::traverse_aepsa`):
+//! `entry::mlrta` and `entry::aepsa`):
 //! - Phase 1 (both searches) is a front-to-back depth-first descent of the
 //!   ray proxy frustum: children near/far by the sign of the packet's
 //!   direction sum on the split axis (`dir_signs`), a child skipped when the
@@ -47,17 +47,19 @@
 //! - The appendix's phase 2 tests each candidate's branch for "an occupied
 //!   leaf overlapped by the ray proxy frustum" as MLRTA does; AEPSA here
 //!   asks for an overlapped triangle (the four-plane test) by default, and
-//!   `kd::traverse_aepsa::phase2_with` takes MLRTA's test for the paper's
+//!   `entry::aepsa::phase2_with` takes MLRTA's test for the paper's
 //!   Figure 6 comparison (same candidates, same entry point, never more
 //!   nodes).
 //! - A tree deeper than `MAX_ENTRY_DEPTH` (no build here makes one) is not
 //!   searched past that depth: the search answers the root, or a shallower
 //!   candidate, which stays correct.
 
-use crate::accel::{bvh, kd};
+pub mod aepsa;
+pub mod mlrta;
+
+use crate::counters::Counters;
 use crate::geom::frustum::Frustum;
 use crate::geom::{Aabb, F4, M4, Ray4};
-use crate::trace::Counters;
 
 /// Which entry-point search a packet method runs before traversal (C:
 /// `sheaf_entry_search`).
@@ -100,14 +102,10 @@ pub struct EntryPoint {
 // ---------------------------------------------------------------------------
 // The searches' shared machinery.
 
-/// Deepest level any tree the searches walk reaches (root 0): the larger of
-/// the kd-tree's and the BVH's build bounds. Every fixed array below has
-/// `MAX_ENTRY_DEPTH + 1` entries.
-pub const MAX_ENTRY_DEPTH: usize = if kd::MAX_DEPTH > bvh::MAX_DEPTH {
-    kd::MAX_DEPTH
-} else {
-    bvh::MAX_DEPTH
-};
+/// Deepest level any tree the searches walk reaches (root 0): at least the
+/// kd-tree's and the BVH's build bounds (each family asserts it at compile
+/// time). Every fixed array below has `MAX_ENTRY_DEPTH + 1` entries.
+pub const MAX_ENTRY_DEPTH: usize = 48;
 
 /// Most entries of a candidate queue: one bifurcation per level above the
 /// leaf, plus the leaf.
@@ -504,6 +502,7 @@ pub fn live_mask(r: &Ray4, active: M4) -> M4 {
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;
+    use crate::accel::bvh;
     use crate::accel::bvh::build::testutil::Store;
     use crate::accel::bvh::traverse_masked::tests::{
         Start, built, check_sets_from, lattice, packets, ray_sets,
@@ -673,8 +672,8 @@ pub(crate) mod tests {
             };
             let neg = dir_signs(quads, &live);
             let r = match alg {
-                EntrySearch::Mlrta => kd::traverse_mlrta::search(b, &f, neg),
-                _ => kd::traverse_aepsa::search(b, &f, neg),
+                EntrySearch::Mlrta => mlrta::search(b, &f, neg),
+                _ => aepsa::search(b, &f, neg),
             };
             match r.entry {
                 Some(e) => {
@@ -832,8 +831,8 @@ pub(crate) mod tests {
                     let what = format!("{name} {}", pk.what);
                     let neg = dir_signs(&pk.quads, &pk.live);
                     let reach = Reach::new(&b, &f, b.nodes.len());
-                    let m = kd::traverse_mlrta::search(&b, &f, neg);
-                    let a = kd::traverse_aepsa::search(&b, &f, neg);
+                    let m = mlrta::search(&b, &f, neg);
+                    let a = aepsa::search(&b, &f, neg);
                     let me = reach.entry(&b, &f, LeafGoal::Occupied);
                     let ae = reach.entry(&b, &f, LeafGoal::Overlapped);
                     assert_eq!(m.entry.map(|e| e.node), me, "{what}: {m:?}");

@@ -21,14 +21,12 @@
 //! and `phase2` count nothing (for benchmarks), `EntryResult::record` does
 //! it for them.
 
-use super::KdView;
 use crate::accel::entry::{
     CandidateQueue, EntryPoint, EntryResult, EntryTree, LeafGoal, Phase2, branch_holds,
     find_candidates,
 };
-use crate::geom::Aabb;
+use crate::counters::Counters;
 use crate::geom::frustum::Frustum;
-use crate::trace::Counters;
 
 /// MLRTA's entry point for the rays `f` bounds (`None`: all miss), counted
 /// in `ctr`. `neg`: the packet's direction signs (`entry::dir_signs`).
@@ -84,50 +82,13 @@ pub fn phase2<E: EntryTree + ?Sized>(
     Some(p)
 }
 
-/// The kd-tree as the searches see it: boxes carved by the splits from
-/// `KdInfo::root`; a leaf's triangles are its references.
-impl EntryTree for KdView<'_> {
-    #[inline]
-    fn root(&self) -> Option<(u32, Aabb)> {
-        (!self.nodes.is_empty()).then_some((0, self.info.root))
-    }
-    #[inline]
-    fn children(&self, node: u32, aabb: &Aabb) -> Option<[(u32, Aabb); 2]> {
-        let n = &self.nodes[node as usize];
-        if n.is_leaf() {
-            return None;
-        }
-        let (l, r) = KdView::child_boxes(n, aabb);
-        let left = n.left() as u32;
-        Some([(left, l), (left + 1, r)])
-    }
-    #[inline]
-    fn split_axis(&self, node: u32) -> usize {
-        self.nodes[node as usize].axis()
-    }
-    #[inline]
-    fn leaf_count(&self, node: u32) -> usize {
-        self.nodes[node as usize].count()
-    }
-    #[inline]
-    fn leaf_overlapped(&self, node: u32, f: &Frustum) -> bool {
-        let n = &self.nodes[node as usize];
-        self.leaf_refs(n)
-            .iter()
-            .any(|&s| !f.cull_triangle_planes(&self.tris[s as usize]))
-    }
-    #[inline]
-    fn miss_depth(&self) -> u32 {
-        self.info.avg_leaf_depth as u32
-    }
-}
-
 #[cfg(test)]
 pub(crate) mod tests {
     //! Hand-made kd-trees of the AEPSA paper's worked examples (Figures 2,
-    //! 3 and 4), shared with `traverse_aepsa`'s tests.
+    //! 3 and 4), shared with `aepsa`'s tests.
     use super::*;
-    use crate::accel::kd::{KdInfo, KdNode};
+    use crate::accel::kd::{KdInfo, KdNode, KdView};
+    use crate::geom::Aabb;
     use crate::geom::frustum::{FrustumKind, RayKind};
     use crate::geom::{M4, Ray, Ray4, TriVerts};
     use glam::Vec3;

@@ -24,14 +24,14 @@
 //!   search may go on past occupied leaves MLRTA would stop at.
 //!
 //! # Counters
-//! As `traverse_mlrta`: `aepsa` counts, `search` and the phases do not.
+//! As `mlrta`: `aepsa` counts, `search` and the phases do not.
 
 use crate::accel::entry::{
     CandidateQueue, EntryPoint, EntryResult, EntryTree, LeafGoal, Phase2, branch_holds,
     find_candidates,
 };
+use crate::counters::Counters;
 use crate::geom::frustum::Frustum;
-use crate::trace::Counters;
 
 /// AEPSA's entry point for the rays `f` bounds (`None`: all miss), counted
 /// in `ctr`. `neg`: the packet's direction signs (`entry::dir_signs`).
@@ -106,14 +106,12 @@ mod tests {
     use super::*;
     use crate::accel::bvh::traverse_masked::tests::built;
     use crate::accel::entry::EntryPoint;
+    use crate::accel::entry::mlrta;
+    use crate::accel::entry::mlrta::tests::{Figure, Logged, figure2, figure3, figure4, run_mlrta};
     use crate::accel::entry::tests::{Reach, scene_packets};
     use crate::accel::entry::{EntryTree, dir_signs};
     use crate::accel::kd::build::build;
     use crate::accel::kd::build::testutil::Store;
-    use crate::accel::kd::traverse_mlrta;
-    use crate::accel::kd::traverse_mlrta::tests::{
-        Figure, Logged, figure2, figure3, figure4, run_mlrta,
-    };
     use crate::accel::kd::traverse_single::{self, KdRay};
     use crate::accel::kd::{KdParams, KdView, clip};
     use crate::geom::{Hit, M4, Mt, Ray4, Scene};
@@ -155,7 +153,7 @@ mod tests {
         // stops at 0 (same entry), after 0's branch only.
         let v = fig.tree.view();
         let lg = Logged::new(&v);
-        let q = traverse_mlrta::phase1(&v, &fig.f, fig.neg);
+        let q = mlrta::phase1(&v, &fig.f, fig.neg);
         for goal in [LeafGoal::Overlapped, LeafGoal::Occupied] {
             let p = phase2_with(&lg, &fig.f, fig.neg, &q, goal).unwrap();
             assert_eq!(fig.fig(&lg.take()), [6, 7, 8, 9]);
@@ -201,7 +199,7 @@ mod tests {
     /// at the tree's average leaf depth.
     #[test]
     fn misses_and_counters() {
-        use crate::accel::kd::traverse_mlrta::tests::corner_frustum;
+        use crate::accel::entry::mlrta::tests::corner_frustum;
         use glam::Vec3;
         let fig = figure2();
         let v = fig.tree.view();
@@ -223,9 +221,9 @@ mod tests {
         assert_eq!(ctr.entry_depth_sum, v.miss_depth() as u64);
         // MLRTA freezes at occupied leaf 5 (candidates [0, 5]), and 0's
         // untaken branch holds occupied leaf 9, whose box the band crosses.
-        let e = traverse_mlrta::mlrta(&v, &f, fig.neg, &mut ctr).unwrap();
+        let e = mlrta::mlrta(&v, &f, fig.neg, &mut ctr).unwrap();
         assert_eq!((fig.fig(&[e.node]), e.depth), (vec![0], 0));
-        let q = traverse_mlrta::phase1(&v, &f, fig.neg);
+        let q = mlrta::phase1(&v, &f, fig.neg);
         let c: Vec<u32> = q.as_slice().iter().map(|c| c.node).collect();
         assert_eq!(fig.fig(&c), [0, 5]);
         assert_eq!(ctr.entry_searches, 2);
@@ -234,10 +232,7 @@ mod tests {
         // Beside the scene: the root box is culled, nothing is visited.
         let c = [[5.0, 0.2], [6.0, 0.2], [6.0, 0.8], [5.0, 0.8]].map(|[y, z]| Vec3::new(4.0, y, z));
         let (f, _) = corner_frustum(Vec3::new(-200.0, 5.5, 0.5), c, &root);
-        for r in [
-            search(&v, &f, fig.neg),
-            traverse_mlrta::search(&v, &f, fig.neg),
-        ] {
+        for r in [search(&v, &f, fig.neg), mlrta::search(&v, &f, fig.neg)] {
             assert_eq!(r, crate::accel::entry::EntryResult::default());
         }
         // Figure 2 counted: 10 + 0 nodes, depth 3.
@@ -255,7 +250,7 @@ mod tests {
     #[test]
     fn deeper_than_the_bound_answers_the_root() {
         use crate::accel::entry::MAX_ENTRY_DEPTH;
-        use crate::accel::kd::traverse_mlrta::tests::{HandTree, Spec, corner_frustum};
+        use crate::accel::entry::mlrta::tests::{HandTree, Spec, corner_frustum};
         use crate::geom::Aabb;
         use glam::Vec3;
         let tri = [[0.1, 0.1, 0.5], [0.2, 0.1, 0.5], [0.1, 0.2, 0.5]];
@@ -287,7 +282,7 @@ mod tests {
                 .map(|[x, y]| Vec3::new(x, y, 0.5));
             let (f, _) = corner_frustum(Vec3::new(0.5, 0.5, 20.0), c, &root);
             let neg = [false, false, true];
-            for r in [search(&v, &f, neg), traverse_mlrta::search(&v, &f, neg)] {
+            for r in [search(&v, &f, neg), mlrta::search(&v, &f, neg)] {
                 let e = r.entry.unwrap();
                 assert_eq!((e.node, e.depth), (0, 0), "front {front}: {r:?}");
                 assert!(r.nodes() as usize <= 4 * MAX_ENTRY_DEPTH, "{r:?}");
@@ -360,7 +355,7 @@ mod tests {
     ) {
         tally[0] += 1;
         let reach = Reach::new(k, f, k.nodes.len());
-        let m = traverse_mlrta::search(k, f, neg);
+        let m = mlrta::search(k, f, neg);
         let a = search(k, f, neg);
         let me = reach.entry(k, f, LeafGoal::Occupied);
         let ae = reach.entry(k, f, LeafGoal::Overlapped);
@@ -403,8 +398,8 @@ mod tests {
             }
         }
         // Figure 6: AEPSA's phase 2 on MLRTA's candidates.
-        let q = traverse_mlrta::phase1(k, f, neg);
-        let pm = traverse_mlrta::phase2(k, f, neg, &q).unwrap();
+        let q = mlrta::phase1(k, f, neg);
+        let pm = mlrta::phase2(k, f, neg, &q).unwrap();
         let po = phase2_with(k, f, neg, &q, LeafGoal::Occupied).unwrap();
         assert_eq!(po.entry, pm.entry, "{what}");
         assert!(
