@@ -2,22 +2,23 @@
 //! every frame. After `Context::new_in` nothing here allocates.
 #![forbid(unsafe_code)]
 
-use crate::accel::bvh::{self, Bvh, BvhInfo, BvhNode, BvhParams, BvhPools, BvhView, PrimRef};
-use crate::accel::entry::{self, EntryPoint, EntrySearch, EntryTree};
-use crate::accel::grid::traverse_cgt::{self, Mailbox};
-use crate::accel::grid::{self, Grid, GridInfo, GridParams, GridPools, GridView};
-use crate::accel::kd::{self, KdInfo, KdNode, KdParams, KdPools, KdTree, KdView};
-use crate::accel::pgrid::{self, Chunk, Pgrid, PgridParams, PgridPools, SceneInfo};
+use crate::accel::bvh::{self, Bvh, BvhInfo, BvhParams, BvhPools};
+use crate::accel::grid::traverse_cgt::Mailbox;
+use crate::accel::grid::{self, Grid, GridInfo, GridParams, GridPools};
+use crate::accel::kd::{self, KdInfo, KdParams, KdPools, KdTree};
+use crate::accel::pgrid::{self, Pgrid, PgridParams, PgridPools, SceneInfo};
+use crate::counters::{elapsed_ns, now};
 use crate::error::{Error, Pool, Result};
-use crate::geom::frustum::Frustum;
-use crate::geom::{Hit, Hit4, M4, Mt, Pt, Ray, Ray4, Scene, TriTest, TriVerts, TriangleTest, Wt};
-use crate::mem::{Arena, Limits, Slots};
+use crate::geom::{Hit, Hit4, Ray, Scene};
+use crate::mem::{Arena, Carve, Limits, Sizer, Slots};
 use crate::render::deferred::{
     self, DeferredInfo, DeferredJob, FrameBuffers, PrimaryPass, ShadowPass, TileLayout, Workers,
 };
 use crate::render::whitted::{self, WhittedJob};
 use crate::render::{self, Frame, PointLight, PrimaryRays, Tracer};
-use crate::trace::{Counters, Method, TraceParams};
+pub use crate::trace::SceneTracer;
+pub use crate::trace::scene::{BvhTracer, GridTracer, KdTracer};
+use crate::trace::{Counters, Method, TraceParams, batch_on};
 
 /// Pool sizes derived from `Limits`, in the order they are carved. A
 /// structure left out of `Limits::structures` gets empty pools.
@@ -117,73 +118,91 @@ impl Layout {
             },
         })
     }
-
-    /// Total bytes, `InvalidArgument` when the sum does not fit a `usize`.
-    fn bytes(&self) -> Result<usize> {
-        let twice = |n: usize| n.checked_mul(2);
-        let pools = [
-            pool::<TriVerts>(self.tris),
-            pool::<crate::geom::ProjTri>(self.proj),
-            pool::<u32>(self.tris),
-            self.cells.checked_add(1).and_then(pool::<u32>),
-            pool::<u32>(self.refs),
-            pool::<u32>(self.macro_words),
-            self.stamps.checked_mul(self.slots).and_then(pool::<u32>),
-            pool::<u32>(self.slots).and_then(twice),
-            twice(self.bvh_tris).and_then(pool::<BvhNode>),
-            pool::<TriVerts>(self.bvh_tris),
-            pool::<crate::geom::ProjTri>(self.bvh_proj),
-            pool::<u32>(self.bvh_tris),
-            pool::<u32>(self.bvh_tris),
-            pool::<PrimRef>(self.bvh_tris),
-            pool::<KdNode>(self.kd_nodes),
-            pool::<u32>(self.kd_refs),
-            pool::<TriVerts>(self.kd_tris),
-            pool::<crate::geom::ProjTri>(self.kd_proj),
-            pool::<u32>(self.kd_tris),
-            pool::<u32>(self.kd_tris),
-            pool::<u64>(self.kd_events),
-            pool::<u8>(self.kd_tris),
-            pool::<TriVerts>(self.pg_tris),
-            pool::<crate::geom::ProjTri>(self.pg_proj),
-            pool::<u8>(self.pg_tris),
-            pool::<[f32; 4]>(self.pg_tris),
-            pool::<u32>(self.pg_cells).and_then(twice),
-            pool::<u32>(self.pg_refs).and_then(twice),
-            pool::<u32>(self.pg_refs),
-            pool::<u32>(self.pg_scratch).and_then(twice),
-            pool::<u32>(self.px),
-            pool::<f32>(self.px),
-            pool::<[f32; 3]>(self.px),
-            pool::<u8>(self.px),
-            pool::<u32>(self.px).and_then(twice),
-            pool::<u8>(self.px),
-            pool::<Chunk>(self.chunks),
-            pool::<u32>(if self.px > 0 {
-                pgrid::MAX_LIGHT_TILES
-            } else {
-                0
-            }),
-        ];
-        pools
-            .into_iter()
-            .try_fold(0usize, |sum, b| sum.checked_add(b?))
-            .filter(|&b| b <= isize::MAX as usize)
-            .ok_or(Error::InvalidArgument(
-                "limits need more memory than can be addressed",
-            ))
-    }
 }
 
-/// `pool_bytes`, checked.
-fn pool<T>(n: usize) -> Option<usize> {
-    crate::mem::pool_bytes_checked::<T>(n)
+/// Every pool of a context, as `carve` takes them.
+struct Pools<'a> {
+    grid: GridPools<'a>,
+    /// Mailbox stamps, packet counters and claim flags of the thread slots.
+    slots: (&'a mut [u32], &'a mut [u32], &'a mut [u32]),
+    bvh: BvhPools<'a>,
+    kd: KdPools<'a>,
+    pg: PgridPools<'a>,
+    frame: FrameBuffers<'a>,
+}
+
+/// The one list of a context's pools: `required_bytes` runs it over a
+/// `Sizer`, `Context::new_in` over the caller's buffer, so the two agree
+/// by construction. Sizes derived here are checked, as in `Layout::of`.
+#[deny(clippy::arithmetic_side_effects)]
+fn carve<'a>(a: &mut impl Carve<'a>, l: &Layout) -> Result<Pools<'a>> {
+    let big = Error::InvalidArgument("limits need more memory than can be addressed");
+    let twice = |n: usize| n.checked_mul(2).ok_or(big);
+    Ok(Pools {
+        grid: GridPools {
+            tris: a.take(l.tris)?,
+            proj: a.take(l.proj)?,
+            tri_ids: a.take(l.tris)?,
+            cell_start: a.take(l.cells.checked_add(1).ok_or(big)?)?,
+            refs: a.take(l.refs)?,
+            macro_bits: a.take(l.macro_words)?,
+        },
+        slots: (
+            a.take(l.stamps.checked_mul(l.slots).ok_or(big)?)?,
+            a.take(l.slots)?,
+            a.take(l.slots)?,
+        ),
+        bvh: BvhPools {
+            nodes: a.take(twice(l.bvh_tris)?)?,
+            tris: a.take(l.bvh_tris)?,
+            proj: a.take(l.bvh_proj)?,
+            tri_ids: a.take(l.bvh_tris)?,
+            slot_of: a.take(l.bvh_tris)?,
+            refs: a.take(l.bvh_tris)?,
+        },
+        kd: KdPools {
+            nodes: a.take(l.kd_nodes)?,
+            refs: a.take(l.kd_refs)?,
+            tris: a.take(l.kd_tris)?,
+            proj: a.take(l.kd_proj)?,
+            tri_ids: a.take(l.kd_tris)?,
+            slot_of: a.take(l.kd_tris)?,
+            events: a.take(l.kd_events)?,
+            side: a.take(l.kd_tris)?,
+        },
+        pg: PgridPools {
+            tris: a.take(l.pg_tris)?,
+            proj: a.take(l.pg_proj)?,
+            ok: a.take(l.pg_tris)?,
+            px_box: a.take(l.pg_tris)?,
+            cam_start: a.take(l.pg_cells)?,
+            cam_tris: a.take(l.pg_refs)?,
+            light_start: a.take(l.pg_cells)?,
+            light_tris: a.take(l.pg_refs)?,
+            keys: a.take(l.pg_refs)?,
+            tmp_keys: a.take(l.pg_scratch)?,
+            tmp_vals: a.take(l.pg_scratch)?,
+        },
+        frame: FrameBuffers {
+            prim: a.take(l.px)?,
+            t: a.take(l.px)?,
+            dirs: a.take(l.px)?,
+            shadow: a.take(l.px)?,
+            ray_tiles: a.take(l.px)?,
+            ray_ids: a.take(l.px)?,
+            occ: a.take(l.px)?,
+            chunks: a.take(l.chunks)?,
+            reach: a.take(if l.px > 0 { pgrid::MAX_LIGHT_TILES } else { 0 })?,
+        },
+    })
 }
 
 /// Exact number of bytes `Context::new_in` needs for `limits` (the buffer
 /// must also start on a 64-byte boundary).
 pub fn required_bytes(limits: &Limits) -> Result<usize> {
-    Layout::of(limits)?.bytes()
+    let mut sizer = Sizer::default();
+    carve(&mut sizer, &Layout::of(limits)?)?;
+    Ok(sizer.bytes())
 }
 
 /// Statistics of the last build and the last trace/render call.
@@ -227,31 +246,17 @@ pub struct Context<'a> {
     /// stamps and a packet counter, claimed by `*_in_slot` calls.
     slots: Slots<'a>,
     stats: Stats,
-}
-
-#[cfg(feature = "std")]
-fn now() -> Option<std::time::Instant> {
-    Some(std::time::Instant::now())
-}
-#[cfg(not(feature = "std"))]
-fn now() -> Option<()> {
-    None
-}
-#[cfg(feature = "std")]
-fn elapsed_ns(t: Option<std::time::Instant>) -> u64 {
-    t.map_or(0, |t| t.elapsed().as_nanos() as u64)
-}
-#[cfg(not(feature = "std"))]
-fn elapsed_ns(_: Option<()>) -> u64 {
-    0
+    /// The allocation the pools above borrow, for a context made by
+    /// `Context::new` (`OwnedContext`): last, so it is freed after them.
+    #[cfg(feature = "std")]
+    owned: Option<crate::mem::owned::OwnedBuffer>,
 }
 
 impl<'a> Context<'a> {
     /// Create a context over `buf` (at least `required_bytes(limits)` bytes,
     /// 64-byte aligned). Never allocates.
     pub fn new_in(buf: &'a mut [u8], limits: &Limits) -> Result<Context<'a>> {
-        let layout = Layout::of(limits)?;
-        let need = layout.bytes()?;
+        let need = required_bytes(limits)?;
         if buf.len() < need {
             return Err(Error::BufferTooSmall {
                 needed: need as u64,
@@ -259,65 +264,15 @@ impl<'a> Context<'a> {
             });
         }
         let mut arena = Arena::new(buf)?;
-        let pools = GridPools {
-            tris: arena.take(layout.tris)?,
-            proj: arena.take(layout.proj)?,
-            tri_ids: arena.take(layout.tris)?,
-            cell_start: arena.take(layout.cells + 1)?,
-            refs: arena.take(layout.refs)?,
-            macro_bits: arena.take(layout.macro_words)?,
-        };
-        let slots = Slots::new(
-            arena.take(layout.stamps * layout.slots)?,
-            arena.take(layout.slots)?,
-            arena.take(layout.slots)?,
-        );
-        let bvh = BvhPools {
-            nodes: arena.take(2 * layout.bvh_tris)?,
-            tris: arena.take(layout.bvh_tris)?,
-            proj: arena.take(layout.bvh_proj)?,
-            tri_ids: arena.take(layout.bvh_tris)?,
-            slot_of: arena.take(layout.bvh_tris)?,
-            refs: arena.take(layout.bvh_tris)?,
-        };
-        let kd = KdPools {
-            nodes: arena.take(layout.kd_nodes)?,
-            refs: arena.take(layout.kd_refs)?,
-            tris: arena.take(layout.kd_tris)?,
-            proj: arena.take(layout.kd_proj)?,
-            tri_ids: arena.take(layout.kd_tris)?,
-            slot_of: arena.take(layout.kd_tris)?,
-            events: arena.take(layout.kd_events)?,
-            side: arena.take(layout.kd_tris)?,
-        };
-        let pg = PgridPools {
-            tris: arena.take(layout.pg_tris)?,
-            proj: arena.take(layout.pg_proj)?,
-            ok: arena.take(layout.pg_tris)?,
-            px_box: arena.take(layout.pg_tris)?,
-            cam_start: arena.take(layout.pg_cells)?,
-            cam_tris: arena.take(layout.pg_refs)?,
-            light_start: arena.take(layout.pg_cells)?,
-            light_tris: arena.take(layout.pg_refs)?,
-            keys: arena.take(layout.pg_refs)?,
-            tmp_keys: arena.take(layout.pg_scratch)?,
-            tmp_vals: arena.take(layout.pg_scratch)?,
-        };
-        let frame = FrameBuffers {
-            prim: arena.take(layout.px)?,
-            t: arena.take(layout.px)?,
-            dirs: arena.take(layout.px)?,
-            shadow: arena.take(layout.px)?,
-            ray_tiles: arena.take(layout.px)?,
-            ray_ids: arena.take(layout.px)?,
-            occ: arena.take(layout.px)?,
-            chunks: arena.take(layout.chunks)?,
-            reach: arena.take(if layout.px > 0 {
-                pgrid::MAX_LIGHT_TILES
-            } else {
-                0
-            })?,
-        };
+        let Pools {
+            grid: pools,
+            slots: (stamps, packets, busy),
+            bvh,
+            kd,
+            pg,
+            frame,
+        } = carve(&mut arena, &Layout::of(limits)?)?;
+        let slots = Slots::new(stamps, packets, busy);
         debug_assert_eq!(arena.used(), need);
         Ok(Context {
             limits: *limits,
@@ -330,6 +285,8 @@ impl<'a> Context<'a> {
             frame_rays: None,
             slots,
             stats: Stats::default(),
+            #[cfg(feature = "std")]
+            owned: None,
         })
     }
 
@@ -490,195 +447,16 @@ impl<'a> Context<'a> {
             (_, ShadowPass::Traced(s)) => tr.with_single(s.method)?,
             _ => tr,
         };
-        let mut info = DeferredInfo::default();
-        let mut ctr = Counters::default();
         // From here on the frame buffers are overwritten: the last frame's
         // pixels are gone, even if a grid build below fails.
         self.frame_layout = None;
-        // Phase 1: the perspective grid.
-        if job.primary == PrimaryPass::Pgrid {
-            let t = now();
-            info.camera = pgrid::build::build_camera(&mut self.pgrid, &rays.pinhole())?;
-            info.times.primary_build = elapsed_ns(t);
-        }
-        let Context {
-            pgrid: pg,
-            frame: buf,
-            slots,
-            ..
-        } = self;
-        macro_rules! mailboxes {
-            () => {{ slots.all().map(|(st, p)| Mailbox::new(st, p)) }};
-        }
-        // Phase 2: camera rays.
-        let t = now();
-        let cam = pg.camera();
-        ctr.add(&deferred::primary_pass(
-            &tr,
-            cam.as_ref(),
-            &job.primary,
-            &rays,
-            &lay,
-            pp.tile,
-            buf.prim,
-            buf.t,
-            workers,
-            &mut mailboxes!(),
-        ));
-        info.times.primary_trace = elapsed_ns(t);
-        let from_pgrid = job.primary == PrimaryPass::Pgrid;
-        // Hits are looked up where the primary pass found them.
-        macro_rules! tri_of {
-            () => {{
-                let pg_tris = pg.triangles();
-                let pg_ok = &*pg.pools.ok;
-                move |id: u32| -> Option<TriVerts> {
-                    if from_pgrid {
-                        let t = pg_tris?;
-                        (pg_ok.get(id as usize) == Some(&1)).then(|| t.tris[id as usize])
-                    } else {
-                        tr.triangle(id)
-                    }
-                }
-            }};
-        }
-        let scale = if from_pgrid {
-            scale_of(&pg.scene.bounds)
-        } else {
-            tr.scene_scale()
+        let parts = deferred::frame::Parts {
+            pg: &mut self.pgrid,
+            buf: &mut self.frame,
+            slots: &mut self.slots,
         };
-        let eps = deferred::shadow_eps(scale);
-        info.hits = buf.prim[..lay.len()]
-            .iter()
-            .filter(|&&p| p != crate::geom::INVALID_ID)
-            .count() as u64;
-        let lights = job.lights();
-        buf.shadow[..lay.len()].fill(0);
-        if job.frame.shading.shadows {
-            for (l, light) in lights.iter().enumerate() {
-                // Phase 3: shadow rays, mapped and sorted into light tiles.
-                let t = now();
-                let s = deferred::make_shadow_rays(
-                    &tri_of!(),
-                    light,
-                    &rays,
-                    &lay,
-                    eps,
-                    buf.prim,
-                    buf.t,
-                    buf.dirs,
-                    workers,
-                    &mut mailboxes!(),
-                );
-                info.shadow_rays += s.count as u64;
-                match job.shadow {
-                    ShadowPass::Traced(p) => {
-                        info.times.rearrange += elapsed_ns(t);
-                        let t = now();
-                        ctr.add(&deferred::traced_shadow_pass(
-                            &tr,
-                            &p,
-                            light,
-                            &lay,
-                            buf.dirs,
-                            buf.shadow,
-                            l as u8,
-                            workers,
-                            &mut mailboxes!(),
-                        ));
-                        info.times.shadow_trace += elapsed_ns(t);
-                    }
-                    ShadowPass::LightGrid => {
-                        let f = deferred::light_frame(
-                            light,
-                            &s,
-                            deferred::light_tiles(pp.light_tiles, s.count),
-                            &lay,
-                            buf.dirs,
-                            buf.ray_tiles,
-                            buf.ray_ids,
-                        );
-                        let depth = pgrid::Slices::new(
-                            s.near,
-                            s.far,
-                            pp.light_slices,
-                            pgrid::LIGHT_DEPTH_PAD,
-                        );
-                        let k = deferred::map_to_tiles(
-                            &f,
-                            &depth,
-                            &lay,
-                            buf.dirs,
-                            buf.ray_tiles,
-                            buf.ray_ids,
-                            buf.reach,
-                        );
-                        info.times.rearrange += elapsed_ns(t);
-                        // Phase 4: the light grid, over the tiles and
-                        // slices the rays reach.
-                        let t = now();
-                        info.light = pgrid::build::build_light(
-                            pg,
-                            &f,
-                            s.near,
-                            s.far,
-                            pp.light_slices,
-                            buf.reach,
-                        )?;
-                        info.times.shadow_build += elapsed_ns(t);
-                        let t = now();
-                        let r = deferred::rearrange(
-                            &f,
-                            k,
-                            buf,
-                            pg.pools.tmp_keys,
-                            pg.pools.tmp_vals,
-                            pp.chunk,
-                        );
-                        info.reorder.rays += r.rays;
-                        info.reorder.tiles_used += r.tiles_used;
-                        info.reorder.chunks += r.chunks;
-                        info.reorder.max_tile_rays =
-                            info.reorder.max_tile_rays.max(r.max_tile_rays);
-                        info.times.rearrange += elapsed_ns(t);
-                        // Phase 5: chunks.
-                        let t = now();
-                        let g = pg.light_view().ok_or(Error::NotBuilt)?;
-                        ctr.add(&deferred::light_grid_pass(
-                            &g,
-                            &buf.chunks[..r.chunks as usize],
-                            buf.ray_ids,
-                            buf.dirs,
-                            buf.occ,
-                            buf.shadow,
-                            l as u8,
-                            pp.chunk,
-                            workers,
-                            &mut mailboxes!(),
-                        ));
-                        info.times.shadow_trace += elapsed_ns(t);
-                    }
-                }
-            }
-        }
-        // Phase 6: shading.
-        let t = now();
-        deferred::shade(
-            &tri_of!(),
-            job.frame,
-            lights,
-            &rays,
-            &lay,
-            eps,
-            buf.prim,
-            buf.t,
-            buf.shadow,
-            pixels,
-            stride,
-            workers,
-            &mut mailboxes!(),
-        );
-        info.times.shade = elapsed_ns(t);
+        let (info, ctr, eps) =
+            deferred::frame::run(parts, &tr, job, &rays, &lay, &pp, pixels, stride, workers)?;
         let _ = t_all;
         self.stats.counters = ctr;
         self.stats.trace_ns = info.times.total();
@@ -1175,63 +953,6 @@ impl<'a> Context<'a> {
     }
 }
 
-/// Trace `count` rays, ray `i` being `read(i)`, as packets of
-/// `p.packet`^2 rays (or 2x2 batches for single-ray methods) with mailbox
-/// `mb`, handing each result to `out(ray index, hits, lane)`. Shared by the
-/// Rust calls and the C ABI's, so both form the same packets.
-pub(crate) fn batch_on(
-    tr: &SceneTracer<'_>,
-    mb: &mut Mailbox<'_>,
-    p: &TraceParams,
-    count: usize,
-    read: &dyn Fn(usize) -> Ray,
-    out: &mut dyn FnMut(usize, &Hit4, usize),
-    any: bool,
-) -> Counters {
-    // 256 quads: the largest packet, 32 x 32 rays.
-    const QUADS: usize = 256;
-    let mut ctr = Counters::default();
-    let per = if p.method.is_packet() {
-        (p.packet * p.packet) as usize
-    } else {
-        4
-    };
-    let mut quads =
-        [Ray4::from_rays(&[Ray::new(glam::Vec3::ZERO, glam::Vec3::X, 0.0, 0.0); 4]); QUADS];
-    let mut active = [M4::FALSE; QUADS];
-    let mut hits = [Hit4::MISS; QUADS];
-    let mut start = 0;
-    while start < count {
-        let n = (count - start).min(per);
-        let nq = crate::trace::pack_quads(n, |k| read(start + k), &mut quads, &mut active);
-        hits[..nq].fill(Hit4::MISS);
-        if any {
-            tr.occluded_packet(
-                p,
-                &quads[..nq],
-                &active[..nq],
-                &mut hits[..nq],
-                mb,
-                &mut ctr,
-            );
-        } else {
-            tr.intersect_packet(
-                p,
-                &quads[..nq],
-                &active[..nq],
-                &mut hits[..nq],
-                mb,
-                &mut ctr,
-            );
-        }
-        for k in 0..n {
-            out(start + k, &hits[k / 4], k % 4);
-        }
-        start += n;
-    }
-    ctr
-}
-
 /// Rows `[y0, y1)` of a frame; the buffer given to `render` starts at row `y0`.
 struct Band<'f> {
     frame: &'f Frame,
@@ -1269,793 +990,24 @@ impl Band<'_> {
     }
 }
 
-/// A built grid ready to trace, shared across threads.
-#[derive(Clone, Copy)]
-pub struct GridTracer<'r> {
-    pub view: GridView<'r>,
-}
-
-impl Tracer for GridTracer<'_> {
-    #[inline]
-    fn intersect(&self, ray: &Ray, ctr: &mut Counters) -> Hit {
-        match self.view.info.test {
-            TriTest::MollerTrumbore => grid::traverse_single::intersect::<Mt>(&self.view, ray, ctr),
-            TriTest::Watertight => grid::traverse_single::intersect::<Wt>(&self.view, ray, ctr),
-            TriTest::Projection => grid::traverse_single::intersect::<Pt>(&self.view, ray, ctr),
-        }
-    }
-    #[inline]
-    fn occluded(&self, ray: &Ray, ctr: &mut Counters) -> bool {
-        match self.view.info.test {
-            TriTest::MollerTrumbore => grid::traverse_single::occluded::<Mt>(&self.view, ray, ctr),
-            TriTest::Watertight => grid::traverse_single::occluded::<Wt>(&self.view, ray, ctr),
-            TriTest::Projection => grid::traverse_single::occluded::<Pt>(&self.view, ray, ctr),
-        }
-    }
-    fn intersect_packet(
-        &self,
-        p: &TraceParams,
-        rays: &[Ray4],
-        active: &[M4],
-        hits: &mut [Hit4],
-        mb: &mut Mailbox<'_>,
-        ctr: &mut Counters,
-    ) {
-        match (p.method, self.view.info.test) {
-            (Method::GridCgt, TriTest::MollerTrumbore) => {
-                traverse_cgt::intersect::<Mt>(&self.view, rays, active, hits, &p.cgt, mb, ctr)
-            }
-            (Method::GridCgt, TriTest::Watertight) => {
-                traverse_cgt::intersect::<Wt>(&self.view, rays, active, hits, &p.cgt, mb, ctr)
-            }
-            (Method::GridCgt, TriTest::Projection) => {
-                traverse_cgt::intersect::<Pt>(&self.view, rays, active, hits, &p.cgt, mb, ctr)
-            }
-            _ => lane_by_lane(rays, active, hits, |r, c| self.intersect(r, c), ctr),
-        }
-    }
-    fn occluded_packet(
-        &self,
-        p: &TraceParams,
-        rays: &[Ray4],
-        active: &[M4],
-        hits: &mut [Hit4],
-        mb: &mut Mailbox<'_>,
-        ctr: &mut Counters,
-    ) {
-        match (p.method, self.view.info.test) {
-            (Method::GridCgt, TriTest::MollerTrumbore) => {
-                traverse_cgt::occluded::<Mt>(&self.view, rays, active, hits, &p.cgt, mb, ctr)
-            }
-            (Method::GridCgt, TriTest::Watertight) => {
-                traverse_cgt::occluded::<Wt>(&self.view, rays, active, hits, &p.cgt, mb, ctr)
-            }
-            (Method::GridCgt, TriTest::Projection) => {
-                traverse_cgt::occluded::<Pt>(&self.view, rays, active, hits, &p.cgt, mb, ctr)
-            }
-            (_, TriTest::MollerTrumbore) => lane_by_lane(
-                rays,
-                active,
-                hits,
-                |r, c| grid::traverse_single::any_hit::<Mt>(&self.view, r, c),
-                ctr,
-            ),
-            (_, TriTest::Watertight) => lane_by_lane(
-                rays,
-                active,
-                hits,
-                |r, c| grid::traverse_single::any_hit::<Wt>(&self.view, r, c),
-                ctr,
-            ),
-            (_, TriTest::Projection) => lane_by_lane(
-                rays,
-                active,
-                hits,
-                |r, c| grid::traverse_single::any_hit::<Pt>(&self.view, r, c),
-                ctr,
-            ),
-        }
-    }
-    fn triangle(&self, prim: u32) -> Option<TriVerts> {
-        // Stored triangles are in the caller's order minus exclusions, so a
-        // binary search over the ids finds the slot.
-        let i = self.view.tri_ids.binary_search(&prim).ok()?;
-        Some(self.view.tris[i])
-    }
-    fn scene_scale(&self) -> f32 {
-        scale_of(&self.view.info.scene_bounds)
-    }
-}
-
-/// A built BVH ready to trace, shared across threads.
-#[derive(Clone, Copy)]
-pub struct BvhTracer<'r> {
-    pub view: BvhView<'r>,
-}
-
-/// Dispatch on the BVH's triangle test: `$f::<T>($args)` with T = Mt, Wt or Pt.
-macro_rules! by_test {
-    ($test:expr, $f:ident ( $($a:expr),* )) => {
-        match $test {
-            TriTest::MollerTrumbore => $f::<Mt>($($a),*),
-            TriTest::Watertight => $f::<Wt>($($a),*),
-            TriTest::Projection => $f::<Pt>($($a),*),
-        }
-    };
-}
-
-impl BvhTracer<'_> {
-    /// Where a BVH packet starts: `Some(None)` at the root, `Some(Some(e))`
-    /// at the entry point `p.entry` finds, `None` when its frustum overlaps
-    /// no triangle (every ray misses).
-    fn start(
-        &self,
-        p: &TraceParams,
-        rays: &[Ray4],
-        active: &[M4],
-        ctr: &mut Counters,
-    ) -> Option<Option<EntryPoint>> {
-        if !matches!(
-            p.method,
-            Method::BvhMasked | Method::BvhRanged | Method::BvhPartition
-        ) || p.entry == EntrySearch::None
-        {
-            return Some(None);
-        }
-        let bounds = self
-            .view
-            .nodes
-            .first()
-            .map_or(crate::geom::Aabb::EMPTY, |n| n.aabb());
-        match search_entry(&self.view, p, rays, active, &bounds, ctr).1 {
-            Start::Root => Some(None),
-            Start::At(e) => Some(Some(e)),
-            Start::Miss => None,
-        }
-    }
-}
-
-impl Tracer for BvhTracer<'_> {
-    #[inline]
-    fn intersect(&self, ray: &Ray, ctr: &mut Counters) -> Hit {
-        use bvh::traverse_single::intersect;
-        by_test!(self.view.info.test, intersect(&self.view, ray, ctr))
-    }
-    #[inline]
-    fn occluded(&self, ray: &Ray, ctr: &mut Counters) -> bool {
-        use bvh::traverse_single::occluded;
-        by_test!(self.view.info.test, occluded(&self.view, ray, ctr))
-    }
-    fn intersect_packet(
-        &self,
-        p: &TraceParams,
-        rays: &[Ray4],
-        active: &[M4],
-        hits: &mut [Hit4],
-        _: &mut Mailbox<'_>,
-        ctr: &mut Counters,
-    ) {
-        let (v, o, test) = (&self.view, &p.bvh, self.view.info.test);
-        let Some(e) = self.start(p, rays, active, ctr) else {
-            return all_miss(active, hits, ctr);
-        };
-        let e = e.as_ref();
-        match p.method {
-            Method::BvhSimd => {
-                use bvh::traverse_simd::intersect;
-                by_test!(test, intersect(v, rays, active, hits, ctr))
-            }
-            Method::BvhMasked => {
-                use bvh::traverse_masked::intersect;
-                by_test!(test, intersect(v, rays, active, hits, o, e, ctr))
-            }
-            Method::BvhRanged => {
-                use bvh::traverse_ranged::intersect;
-                by_test!(test, intersect(v, rays, active, hits, o, e, ctr))
-            }
-            Method::BvhPartition => {
-                use bvh::traverse_partition::intersect;
-                by_test!(test, intersect(v, rays, active, hits, o, e, ctr))
-            }
-            _ => lane_by_lane(rays, active, hits, |r, c| self.intersect(r, c), ctr),
-        }
-    }
-    fn occluded_packet(
-        &self,
-        p: &TraceParams,
-        rays: &[Ray4],
-        active: &[M4],
-        hits: &mut [Hit4],
-        _: &mut Mailbox<'_>,
-        ctr: &mut Counters,
-    ) {
-        let (v, o, test) = (&self.view, &p.bvh, self.view.info.test);
-        let Some(e) = self.start(p, rays, active, ctr) else {
-            return all_miss(active, hits, ctr);
-        };
-        let e = e.as_ref();
-        match p.method {
-            Method::BvhSimd => {
-                use bvh::traverse_simd::occluded;
-                by_test!(test, occluded(v, rays, active, hits, ctr))
-            }
-            Method::BvhMasked => {
-                use bvh::traverse_masked::occluded;
-                by_test!(test, occluded(v, rays, active, hits, o, e, ctr))
-            }
-            Method::BvhRanged => {
-                use bvh::traverse_ranged::occluded;
-                by_test!(test, occluded(v, rays, active, hits, o, e, ctr))
-            }
-            Method::BvhPartition => {
-                use bvh::traverse_partition::occluded;
-                by_test!(test, occluded(v, rays, active, hits, o, e, ctr))
-            }
-            _ => {
-                use bvh::traverse_single::any_hit;
-                lane_by_lane(
-                    rays,
-                    active,
-                    hits,
-                    |r, c| by_test!(test, any_hit(v, r, c)),
-                    ctr,
-                )
-            }
-        }
-    }
-    fn triangle(&self, prim: u32) -> Option<TriVerts> {
-        self.view.triangle(prim)
-    }
-    fn scene_scale(&self) -> f32 {
-        scale_of(&self.view.info.bounds)
-    }
-}
-
-/// Occlusion masks as `Tracer` hits: active lanes get `Hit::OCCLUDED` (kd
-/// packets know no occluder id) or `Hit::MISS`; inactive lanes are untouched.
-fn mark_occluded(occ: &[M4], active: &[M4], hits: &mut [Hit4]) {
-    for ((o, m), h) in occ.iter().zip(active).zip(hits.iter_mut()) {
-        for i in (0..4).filter(|&i| m.test(i)) {
-            h.set_lane(i, if o.test(i) { Hit::OCCLUDED } else { Hit::MISS });
-        }
-    }
-}
-
-/// Count the active lanes of a packet whose rays were answered without
-/// traversal (an entry search found that every ray misses).
-fn count_rays(active: &[M4], ctr: &mut Counters) {
-    ctr.rays += active
-        .iter()
-        .map(|m| m.bitmask().count_ones() as u64)
-        .sum::<u64>();
-}
-
-/// A packet every active ray of which misses (entry search found no leaf).
-fn all_miss(active: &[M4], hits: &mut [Hit4], ctr: &mut Counters) {
-    count_rays(active, ctr);
-    for (m, h) in active.iter().zip(hits.iter_mut()) {
-        for i in (0..4).filter(|&i| m.test(i)) {
-            h.set_lane(i, Hit::MISS);
-        }
-    }
-}
-
-/// Where a tree packet starts (`search_entry`).
-enum Start {
-    Root,
-    At(EntryPoint),
-    /// The frustum overlaps no triangle: every ray misses.
-    Miss,
-}
-
-/// The packet's frustum (of `p.bvh.kind`; `None` without live lanes or when
-/// none can be built) and, with `p.entry`, the entry point MLRTA or AEPSA
-/// finds for it in `tree` (counted in `ctr`).
-fn search_entry<E: EntryTree + ?Sized>(
-    tree: &E,
-    p: &TraceParams,
-    rays: &[Ray4],
-    active: &[M4],
-    bounds: &crate::geom::Aabb,
-    ctr: &mut Counters,
-) -> (Option<Frustum>, Start) {
-    let nq = rays
-        .len()
-        .min(active.len())
-        .min(kd::traverse_packet::MAX_QUADS);
-    let mut live = [M4::FALSE; kd::traverse_packet::MAX_QUADS];
-    for q in 0..nq {
-        live[q] = entry::live_mask(&rays[q], active[q]);
-    }
-    let f = Frustum::new(p.bvh.kind, &rays[..nq], &live[..nq], bounds);
-    let (Some(fr), false) = (f, p.entry == EntrySearch::None) else {
-        return (f, Start::Root);
-    };
-    let neg = entry::dir_signs(&rays[..nq], &live[..nq]);
-    let e = match p.entry {
-        EntrySearch::Mlrta => entry::mlrta::mlrta(tree, &fr, neg, ctr),
-        _ => entry::aepsa::aepsa(tree, &fr, neg, ctr),
-    };
-    (f, e.map_or(Start::Miss, Start::At))
-}
-
-/// A built kd-tree as a `Tracer`.
-#[derive(Clone, Copy)]
-pub struct KdTracer<'r> {
-    pub view: KdView<'r>,
-}
-
-impl KdTracer<'_> {
-    /// Frustum and start of a `KdPacket` packet; the frustum only when
-    /// culling is on.
-    fn packet_start(
-        &self,
-        p: &TraceParams,
-        rays: &[Ray4],
-        active: &[M4],
-        ctr: &mut Counters,
-    ) -> (Option<Frustum>, Start) {
-        if !p.bvh.culling && p.entry == EntrySearch::None {
-            return (None, Start::Root);
-        }
-        let (f, start) = search_entry(&self.view, p, rays, active, &self.view.info.root, ctr);
-        (if p.bvh.culling { f } else { None }, start)
-    }
-}
-
-impl Tracer for KdTracer<'_> {
-    #[inline]
-    fn intersect(&self, ray: &Ray, ctr: &mut Counters) -> Hit {
-        use kd::traverse_single::intersect;
-        by_test!(self.view.info.test, intersect(&self.view, ray, ctr))
-    }
-    #[inline]
-    fn occluded(&self, ray: &Ray, ctr: &mut Counters) -> bool {
-        use kd::traverse_single::occluded;
-        by_test!(self.view.info.test, occluded(&self.view, ray, ctr))
-    }
-    fn intersect_packet(
-        &self,
-        p: &TraceParams,
-        rays: &[Ray4],
-        active: &[M4],
-        hits: &mut [Hit4],
-        _: &mut Mailbox<'_>,
-        ctr: &mut Counters,
-    ) {
-        let (v, test) = (&self.view, self.view.info.test);
-        match p.method {
-            Method::KdSimd => {
-                use kd::traverse_simd::intersect;
-                for ((r, m), h) in rays.iter().zip(active).zip(hits.iter_mut()) {
-                    let got = by_test!(test, intersect(v, r, *m, ctr));
-                    for i in 0..4 {
-                        if m.test(i) {
-                            h.set_lane(i, got.lane(i));
-                        }
-                    }
-                }
-            }
-            Method::KdPacket => {
-                use kd::traverse_packet::intersect;
-                let (f, start) = self.packet_start(p, rays, active, ctr);
-                match start {
-                    Start::Miss => all_miss(active, hits, ctr),
-                    Start::Root => by_test!(
-                        test,
-                        intersect(v, rays, active, hits, f.as_ref(), None, ctr)
-                    ),
-                    Start::At(e) => by_test!(
-                        test,
-                        intersect(v, rays, active, hits, f.as_ref(), Some(&e), ctr)
-                    ),
-                }
-            }
-            _ => lane_by_lane(rays, active, hits, |r, c| self.intersect(r, c), ctr),
-        }
-    }
-    fn occluded_packet(
-        &self,
-        p: &TraceParams,
-        rays: &[Ray4],
-        active: &[M4],
-        hits: &mut [Hit4],
-        _: &mut Mailbox<'_>,
-        ctr: &mut Counters,
-    ) {
-        let (v, test) = (&self.view, self.view.info.test);
-        match p.method {
-            Method::KdSimd => {
-                use kd::traverse_simd::occluded;
-                for ((r, m), h) in rays.iter().zip(active).zip(hits.iter_mut()) {
-                    let o = by_test!(test, occluded(v, r, *m, ctr));
-                    mark_occluded(&[o], core::slice::from_ref(m), core::slice::from_mut(h));
-                }
-            }
-            Method::KdPacket => {
-                use kd::traverse_packet::occluded;
-                let (f, start) = self.packet_start(p, rays, active, ctr);
-                let n = rays
-                    .len()
-                    .min(active.len())
-                    .min(hits.len())
-                    .min(kd::traverse_packet::MAX_QUADS);
-                let mut occ = [M4::FALSE; kd::traverse_packet::MAX_QUADS];
-                match start {
-                    Start::Miss => count_rays(&active[..n], ctr),
-                    Start::Root => by_test!(
-                        test,
-                        occluded(
-                            v,
-                            &rays[..n],
-                            &active[..n],
-                            &mut occ[..n],
-                            f.as_ref(),
-                            None,
-                            ctr
-                        )
-                    ),
-                    Start::At(e) => by_test!(
-                        test,
-                        occluded(
-                            v,
-                            &rays[..n],
-                            &active[..n],
-                            &mut occ[..n],
-                            f.as_ref(),
-                            Some(&e),
-                            ctr
-                        )
-                    ),
-                }
-                mark_occluded(&occ[..n], &active[..n], &mut hits[..n]);
-            }
-            _ => {
-                use kd::traverse_single::any_hit;
-                lane_by_lane(
-                    rays,
-                    active,
-                    hits,
-                    |r, c| by_test!(test, any_hit(v, r, c)),
-                    ctr,
-                )
-            }
-        }
-    }
-    fn triangle(&self, prim: u32) -> Option<TriVerts> {
-        self.view.triangle(prim)
-    }
-    fn scene_scale(&self) -> f32 {
-        scale_of(&self.view.info.bounds)
-    }
-}
-
-/// Scene scale of the stored triangles' (unpadded) bounds, the same for
-/// every structure built from one scene, so shading offsets (and images) do
-/// not depend on the structure.
-fn scale_of(b: &crate::geom::Aabb) -> f32 {
-    if b.is_empty() {
-        1.0
-    } else {
-        b.diagonal().length()
-    }
-}
-
-/// A packet traced one active lane at a time by a single-ray method.
-fn lane_by_lane(
-    rays: &[Ray4],
-    active: &[M4],
-    hits: &mut [Hit4],
-    f: impl Fn(&Ray, &mut Counters) -> Hit,
-    ctr: &mut Counters,
-) {
-    for ((r, m), h) in rays.iter().zip(active).zip(hits.iter_mut()) {
-        for i in 0..4 {
-            if m.test(i) {
-                h.set_lane(i, f(&r.lane(i), ctr));
-            }
-        }
-    }
-}
-
-/// Every structure a context has built, shared across threads: packet
-/// calls go to the structure of `TraceParams::method`, single-ray calls
-/// (`Tracer::intersect`, `occluded`) to the single-ray method `single`.
-#[derive(Clone, Copy)]
-pub struct SceneTracer<'r> {
-    pub grid: Option<GridView<'r>>,
-    pub bvh: Option<BvhView<'r>>,
-    pub kd: Option<KdView<'r>>,
-    /// `Method::GridDda`, `Method::BvhSingle` or `Method::KdSingle`.
-    pub single: Method,
-}
-
-impl<'r> SceneTracer<'r> {
-    /// The same structures with single-ray calls going to `method`'s
-    /// structure; `NotBuilt` when that structure has not been built.
-    pub fn with_single(&self, method: Method) -> Result<SceneTracer<'r>> {
-        let built = match method.structure() {
-            crate::trace::Structure::Grid => self.grid.is_some(),
-            crate::trace::Structure::Bvh => self.bvh.is_some(),
-            crate::trace::Structure::Kd => self.kd.is_some(),
-        };
-        if !built {
-            return Err(Error::NotBuilt);
-        }
-        Ok(SceneTracer {
-            single: method.single(),
-            ..*self
-        })
-    }
-    /// The grid part (None when no grid is built).
-    pub fn grid(&self) -> Option<GridTracer<'r>> {
-        self.grid.map(|view| GridTracer { view })
-    }
-    /// The BVH part (None when no BVH is built).
-    pub fn bvh(&self) -> Option<BvhTracer<'r>> {
-        self.bvh.map(|view| BvhTracer { view })
-    }
-    /// The kd-tree part (None when no kd-tree is built).
-    pub fn kd(&self) -> Option<KdTracer<'r>> {
-        self.kd.map(|view| KdTracer { view })
-    }
-    /// The tracer of `method`'s structure, as a trait object.
-    #[inline]
-    fn of(&self, method: Method) -> Option<AnyTracer<'r>> {
-        match method.structure() {
-            crate::trace::Structure::Grid => self.grid().map(AnyTracer::Grid),
-            crate::trace::Structure::Bvh => self.bvh().map(AnyTracer::Bvh),
-            crate::trace::Structure::Kd => self.kd().map(AnyTracer::Kd),
-        }
-    }
-}
-
-/// One structure's tracer (static dispatch by match).
-enum AnyTracer<'r> {
-    Grid(GridTracer<'r>),
-    Bvh(BvhTracer<'r>),
-    Kd(KdTracer<'r>),
-}
-
-impl Tracer for SceneTracer<'_> {
-    #[inline]
-    fn intersect(&self, ray: &Ray, ctr: &mut Counters) -> Hit {
-        match self.of(self.single) {
-            Some(AnyTracer::Grid(g)) => g.intersect(ray, ctr),
-            Some(AnyTracer::Bvh(b)) => b.intersect(ray, ctr),
-            Some(AnyTracer::Kd(k)) => k.intersect(ray, ctr),
-            None => Hit::MISS,
-        }
-    }
-    #[inline]
-    fn occluded(&self, ray: &Ray, ctr: &mut Counters) -> bool {
-        match self.of(self.single) {
-            Some(AnyTracer::Grid(g)) => g.occluded(ray, ctr),
-            Some(AnyTracer::Bvh(b)) => b.occluded(ray, ctr),
-            Some(AnyTracer::Kd(k)) => k.occluded(ray, ctr),
-            None => false,
-        }
-    }
-    fn intersect_packet(
-        &self,
-        p: &TraceParams,
-        rays: &[Ray4],
-        active: &[M4],
-        hits: &mut [Hit4],
-        mb: &mut Mailbox<'_>,
-        ctr: &mut Counters,
-    ) {
-        match self.of(p.method) {
-            Some(AnyTracer::Grid(g)) => g.intersect_packet(p, rays, active, hits, mb, ctr),
-            Some(AnyTracer::Bvh(b)) => b.intersect_packet(p, rays, active, hits, mb, ctr),
-            Some(AnyTracer::Kd(k)) => k.intersect_packet(p, rays, active, hits, mb, ctr),
-            None => lane_by_lane(rays, active, hits, |_, _| Hit::MISS, ctr),
-        }
-    }
-    fn occluded_packet(
-        &self,
-        p: &TraceParams,
-        rays: &[Ray4],
-        active: &[M4],
-        hits: &mut [Hit4],
-        mb: &mut Mailbox<'_>,
-        ctr: &mut Counters,
-    ) {
-        match self.of(p.method) {
-            Some(AnyTracer::Grid(g)) => g.occluded_packet(p, rays, active, hits, mb, ctr),
-            Some(AnyTracer::Bvh(b)) => b.occluded_packet(p, rays, active, hits, mb, ctr),
-            Some(AnyTracer::Kd(k)) => k.occluded_packet(p, rays, active, hits, mb, ctr),
-            None => lane_by_lane(rays, active, hits, |_, _| Hit::MISS, ctr),
-        }
-    }
-    /// The triangle from the structure of `single` (the primary method's):
-    /// a structure left over from an older frame is never consulted.
-    /// NOTE(perf): the BVH finds a triangle by id in O(1) (`slot_of`), the
-    /// grid by binary search (23 % of a Whitted frame on conference, perf).
-    fn triangle(&self, prim: u32) -> Option<TriVerts> {
-        match self.of(self.single) {
-            Some(AnyTracer::Grid(g)) => g.triangle(prim),
-            Some(AnyTracer::Bvh(b)) => b.triangle(prim),
-            Some(AnyTracer::Kd(k)) => k.triangle(prim),
-            None => None,
-        }
-    }
-    fn scene_scale(&self) -> f32 {
-        match self.of(self.single) {
-            Some(AnyTracer::Grid(g)) => g.scene_scale(),
-            Some(AnyTracer::Bvh(b)) => b.scene_scale(),
-            Some(AnyTracer::Kd(k)) => k.scene_scale(),
-            None => 1.0,
-        }
-    }
-}
-
-#[allow(dead_code)]
-fn _assert_sync() {
-    fn is_sync<T: Sync>() {}
-    is_sync::<GridTracer<'_>>();
-    is_sync::<SceneTracer<'_>>();
-    let _ = <Mt as TriangleTest>::KIND;
-}
-
 /// A context that owns its memory: exactly one allocation, made at creation
-/// (std only). Offers the same calls as `Context`.
+/// (std only; `Context::new`). It is a `Context` in every other way: the
+/// allocation travels with it and is freed when it drops.
 #[cfg(feature = "std")]
-pub struct OwnedContext {
-    inner: crate::mem::owned::Lent<Context<'static>>,
+pub type OwnedContext = Context<'static>;
+
+#[cfg(feature = "std")]
+impl Context<'static> {
+    /// Allocate `required_bytes(limits)` once and create the context in it.
+    pub fn new(limits: &Limits) -> Result<Context<'static>> {
+        let bytes = required_bytes(limits)?;
+        crate::mem::owned::build_over(bytes, |buf| Context::new_in(buf, limits))
+    }
 }
 
 #[cfg(feature = "std")]
-impl OwnedContext {
-    /// Allocate `required_bytes(limits)` once and create the context in it.
-    pub fn new(limits: &Limits) -> Result<OwnedContext> {
-        let bytes = required_bytes(limits)?;
-        let inner = crate::mem::owned::Lent::new(bytes, |buf| Context::new_in(buf, limits))?;
-        Ok(OwnedContext { inner })
-    }
-    pub fn limits(&self) -> &Limits {
-        self.inner.get().limits()
-    }
-    pub fn stats(&self) -> &Stats {
-        self.inner.get().stats()
-    }
-    pub fn check_scene(&self, scene: &Scene<'_>) -> Result<()> {
-        self.inner.get().check_scene(scene)
-    }
-    pub fn build_grid(&mut self, scene: &Scene<'_>, params: &GridParams) -> Result<GridInfo> {
-        self.inner.get_mut().build_grid(scene, params)
-    }
-    pub fn build_bvh(&mut self, scene: &Scene<'_>, params: &BvhParams) -> Result<BvhInfo> {
-        self.inner.get_mut().build_bvh(scene, params)
-    }
-    pub fn build_pgrid(&mut self, scene: &Scene<'_>, params: &PgridParams) -> Result<SceneInfo> {
-        self.inner.get_mut().build_pgrid(scene, params)
-    }
-    pub fn deferred_pixel(&self, x: u32, y: u32) -> Option<(Hit, u8)> {
-        self.inner.get().deferred_pixel(x, y)
-    }
-    pub fn trace_in_slot(
-        &self,
-        slot: u32,
-        p: &TraceParams,
-        rays: &[Ray],
-        hits: &mut [Hit],
-    ) -> Result<Counters> {
-        self.inner.get().trace_in_slot(slot, p, rays, hits)
-    }
-    pub fn occluded_in_slot(
-        &self,
-        slot: u32,
-        p: &TraceParams,
-        rays: &[Ray],
-        occluded: &mut [bool],
-    ) -> Result<Counters> {
-        self.inner.get().occluded_in_slot(slot, p, rays, occluded)
-    }
-    #[allow(clippy::too_many_arguments)]
-    pub fn render_rows_in_slot(
-        &self,
-        slot: u32,
-        primary: &TraceParams,
-        shadow: &TraceParams,
-        frame: &Frame,
-        y0: u32,
-        y1: u32,
-        band: &mut [u8],
-        stride: usize,
-    ) -> Result<Counters> {
-        self.inner
-            .get()
-            .render_rows_in_slot(slot, primary, shadow, frame, y0, y1, band, stride)
-    }
-    pub fn deferred_shadow_ray(&self, x: u32, y: u32, light: &PointLight) -> Option<Ray> {
-        self.inner.get().deferred_shadow_ray(x, y, light)
-    }
-    pub fn render_deferred<W: Workers>(
-        &mut self,
-        job: &DeferredJob<'_>,
-        pixels: &mut [u8],
-        stride: usize,
-        workers: &mut W,
-    ) -> Result<DeferredInfo> {
-        self.inner
-            .get_mut()
-            .render_deferred(job, pixels, stride, workers)
-    }
-    pub fn build_kd(&mut self, scene: &Scene<'_>, params: &KdParams) -> Result<KdInfo> {
-        self.inner.get_mut().build_kd(scene, params)
-    }
-    pub fn tracer(&self) -> Result<SceneTracer<'_>> {
-        self.inner.get().tracer()
-    }
-    pub fn trace(&mut self, method: Method, rays: &[Ray], hits: &mut [Hit]) -> Result<Counters> {
-        self.inner.get_mut().trace(method, rays, hits)
-    }
-    pub fn occluded(
-        &mut self,
-        method: Method,
-        rays: &[Ray],
-        occluded: &mut [bool],
-    ) -> Result<Counters> {
-        self.inner.get_mut().occluded(method, rays, occluded)
-    }
-    pub fn check_frame(
-        &self,
-        frame: &Frame,
-        pixels_len: usize,
-        stride: usize,
-    ) -> Result<PrimaryRays> {
-        self.inner.get().check_frame(frame, pixels_len, stride)
-    }
-    pub fn render(
-        &mut self,
-        method: Method,
-        frame: &Frame,
-        pixels: &mut [u8],
-        stride: usize,
-    ) -> Result<Counters> {
-        self.inner.get_mut().render(method, frame, pixels, stride)
-    }
-    pub fn render_with(
-        &mut self,
-        primary: &TraceParams,
-        shadow: &TraceParams,
-        frame: &Frame,
-        pixels: &mut [u8],
-        stride: usize,
-    ) -> Result<Counters> {
-        self.inner
-            .get_mut()
-            .render_with(primary, shadow, frame, pixels, stride)
-    }
-    pub fn trace_with(
-        &mut self,
-        p: &TraceParams,
-        rays: &[Ray],
-        hits: &mut [Hit],
-    ) -> Result<Counters> {
-        self.inner.get_mut().trace_with(p, rays, hits)
-    }
-    pub fn occluded_with(
-        &mut self,
-        p: &TraceParams,
-        rays: &[Ray],
-        occluded: &mut [bool],
-    ) -> Result<Counters> {
-        self.inner.get_mut().occluded_with(p, rays, occluded)
-    }
-    pub fn parts(&mut self) -> Result<(SceneTracer<'_>, impl Iterator<Item = Mailbox<'_>>)> {
-        self.inner.get_mut().parts()
-    }
-    pub fn record(&mut self, ctr: Counters, trace_ns: u64) {
-        self.inner.get_mut().record(ctr, trace_ns)
-    }
-    pub fn render_whitted(
-        &mut self,
-        job: &WhittedJob<'_>,
-        pixels: &mut [u8],
-        stride: usize,
-    ) -> Result<Counters> {
-        self.inner.get_mut().render_whitted(job, pixels, stride)
+impl crate::mem::owned::Keeps for Context<'static> {
+    fn keep(&mut self, buf: crate::mem::owned::OwnedBuffer) {
+        self.owned = Some(buf);
     }
 }

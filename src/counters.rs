@@ -114,3 +114,23 @@ impl Counters {
         count!(self.tri_by_depth[depth.min(DEPTH_BINS - 1)] += n);
     }
 }
+
+/// A clock reading for the wall times in `Stats` (None without `std`: the
+/// times read 0).
+#[cfg(feature = "std")]
+pub(crate) fn now() -> Option<std::time::Instant> {
+    Some(std::time::Instant::now())
+}
+#[cfg(not(feature = "std"))]
+pub(crate) fn now() -> Option<()> {
+    None
+}
+/// Nanoseconds since `now()` (0 without `std`).
+#[cfg(feature = "std")]
+pub(crate) fn elapsed_ns(t: Option<std::time::Instant>) -> u64 {
+    t.map_or(0, |t| t.elapsed().as_nanos() as u64)
+}
+#[cfg(not(feature = "std"))]
+pub(crate) fn elapsed_ns(_: Option<()>) -> u64 {
+    0
+}

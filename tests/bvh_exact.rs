@@ -10,7 +10,7 @@ mod common;
 use common::{TestScene, builtin_scenes, obj_scenes, par_map, view_rays};
 use glam::Vec3;
 use sheaf::accel::bvh::BvhParams;
-use sheaf::render::{SHADOW_OFFSET, Tracer};
+use sheaf::render::SHADOW_OFFSET;
 use sheaf::trace::{EntrySearch, RayKind};
 use sheaf::{Counters, Hit, Limits, Method, OwnedContext, Ray, TraceParams, TriTest};
 

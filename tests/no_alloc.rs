@@ -276,4 +276,5 @@ macro_rules! impl_frames {
         }
     )*};
 }
-impl_frames!(OwnedContext, Context<'_>);
+// `OwnedContext` is `Context<'static>`: one impl covers both.
+impl_frames!(Context<'_>);

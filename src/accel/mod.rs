@@ -1,5 +1,23 @@
-//! Acceleration structures, one folder per family. A family never calls
-//! another; `render` and `context` compose them.
+//! Acceleration structures, one folder per family, and the contract every
+//! family implements (`Accel`). A family never calls another; the trace
+//! layer picks one by `Method` and the triangle test once (`trace::scene`).
+//!
+//! | family | paper | build | single ray | 2x2 SIMD ray | n x n packets |
+//! |---|---|---|---|---|---|
+//! | `grid/` | Wald, Ize, Kensler, Knoll, Parker 2006, "Ray Tracing Animated Scenes using Coherent Grid Traversal" | `build.rs` (section 3) | `traverse_single.rs` (3DDDA) | lane by lane | `traverse_cgt.rs` (section 2) |
+//! | `bvh/` | Overbeck, Ramamoorthi, Mark 2008, "Large Ray Packets for Real-time Whitted Ray Tracing" | `build.rs` | `traverse_single.rs` | `traverse_simd.rs` | `traverse_masked.rs`, `traverse_ranged.rs`, `traverse_partition.rs` (section 3) |
+//! | `kd/` | the AEPSA paper, on Wald 2004 | `build.rs` (section 5.1) | `traverse_single.rs` | `traverse_simd.rs` | `traverse_packet.rs`, from `entry/` (MLRTA, AEPSA) |
+//! | `pgrid/` | "Fast ray tracing of dynamic scenes with primary and shadow rays on grids" (2010) | `build.rs`, `sort.rs` | through a grid, BVH or kd-tree | - | `traverse_primary.rs`, `traverse_shadow.rs` (a deferred frame, `render::deferred`) |
+//!
+//! The perspective and light grids answer camera rays and shadow rays of
+//! a deferred frame, tile by tile, not arbitrary rays: they are driven by
+//! `render::deferred` and do not implement `Accel`.
+//!
+//! Shared by the families: `packet` (the generic packet driver: lane-by-lane
+//! fallbacks, all-miss packets, the packet size classes), `fallback` (the
+//! coherence test and the tiny-direction lanes), `entry` (entry-point
+//! search for both trees), `mailbox` (CGT section 2.3), `method` (what a
+//! trace call asks for).
 #![forbid(unsafe_code)]
 
 pub mod bvh;
@@ -8,4 +26,49 @@ pub mod fallback;
 pub mod grid;
 pub mod kd;
 pub mod mailbox;
+pub mod method;
+pub mod packet;
 pub mod pgrid;
+
+use crate::counters::Counters;
+use crate::geom::{Aabb, Hit, Hit4, M4, Ray, Ray4, TriTest, TriVerts, TriangleTest};
+use mailbox::Mailbox;
+use method::TraceParams;
+
+/// The family contract: a built structure, shared across threads, as the
+/// trace layer sees it. Every query is generic over the triangle test the
+/// structure was built for (`test`), so traversals are monomorphised per
+/// test; `trace::scene` matches on `test` once per call.
+///
+/// # Exactness
+/// Every packet traversal returns, lane by lane, the single ray's
+/// (`intersect`) triangle and bitwise t; occlusion agrees with `occluded`.
+pub trait Accel: Sync {
+    /// The triangle test the structure was built for.
+    fn test(&self) -> TriTest;
+    /// Bounds of the stored (unpadded) triangles: the scene's scale.
+    fn bounds(&self) -> Aabb;
+    /// Vertices of the triangle with caller id `prim`, if stored.
+    fn triangle(&self, prim: u32) -> Option<TriVerts>;
+    /// The single ray: nearest hit in `[tmin, tmax)`.
+    fn intersect<T: TriangleTest>(&self, ray: &Ray, ctr: &mut Counters) -> Hit;
+    /// The single ray: whether anything is hit in `[tmin, tmax)`.
+    fn occluded<T: TriangleTest>(&self, ray: &Ray, ctr: &mut Counters) -> bool;
+    /// The single ray: some hit (the first found) or a miss.
+    fn any_hit<T: TriangleTest>(&self, ray: &Ray, ctr: &mut Counters) -> Hit;
+    /// The family's 2x2 SIMD ray and n x n packet traversals: trace the
+    /// active lanes of `rays` with `p.method` (nearest hits, or with `ANY`
+    /// occlusion: some hit marks an occluded lane) and return true; false
+    /// when `p.method` is none of them (the driver then traces lane by
+    /// lane). Inactive lanes of `hits` are left untouched.
+    #[allow(clippy::too_many_arguments)]
+    fn packet<T: TriangleTest, const ANY: bool>(
+        &self,
+        p: &TraceParams,
+        rays: &[Ray4],
+        active: &[M4],
+        hits: &mut [Hit4],
+        mb: &mut Mailbox<'_>,
+        ctr: &mut Counters,
+    ) -> bool;
+}

@@ -19,11 +19,12 @@ use super::{
 use super::{sheaf_hit, sheaf_ray};
 use crate::accel::bvh::BvhParams;
 use crate::accel::grid::GridParams;
-use crate::context::{Context, batch_on, required_bytes};
+use crate::context::{Context, required_bytes};
 use crate::error::{Error, Result};
 use crate::geom::{Ray, Scene};
 use crate::mem::Limits;
 use crate::render::Tracer;
+use crate::trace::batch_on;
 use crate::trace::{Counters, TraceParams};
 use core::cell::UnsafeCell;
 use core::ffi::{c_char, c_void};

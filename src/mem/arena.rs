@@ -79,3 +79,48 @@ impl<'a> Arena<'a> {
         })
     }
 }
+
+/// Something pools are carved from: the `Arena` over a real buffer, or a
+/// `Sizer` that only adds up their bytes. A context's layout is one
+/// function over `Carve`, so the bytes it asks for (`required_bytes`) and
+/// the pools it gets can never disagree.
+pub trait Carve<'a> {
+    /// A zeroed pool of `n` values (empty from a `Sizer`).
+    fn take<T: Pod>(&mut self, n: usize) -> Result<&'a mut [T]>;
+}
+
+impl<'a> Carve<'a> for Arena<'a> {
+    #[inline]
+    fn take<T: Pod>(&mut self, n: usize) -> Result<&'a mut [T]> {
+        Arena::take(self, n)
+    }
+}
+
+/// Adds up the bytes of the pools a layout takes, with checked arithmetic:
+/// `InvalidArgument` once the sum leaves `isize::MAX` (32-bit targets,
+/// absurd limits).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Sizer {
+    bytes: usize,
+}
+
+impl Sizer {
+    /// Bytes of the pools taken so far (each rounded up to 64).
+    pub fn bytes(&self) -> usize {
+        self.bytes
+    }
+}
+
+impl<'a> Carve<'a> for Sizer {
+    #[deny(clippy::arithmetic_side_effects)]
+    fn take<T: Pod>(&mut self, n: usize) -> Result<&'a mut [T]> {
+        pool_bytes_checked::<T>(n)
+            .and_then(|b| self.bytes.checked_add(b))
+            .filter(|&b| b <= isize::MAX as usize)
+            .map(|b| self.bytes = b)
+            .ok_or(Error::InvalidArgument(
+                "limits need more memory than can be addressed",
+            ))?;
+        Ok(&mut [])
+    }
+}

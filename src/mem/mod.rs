@@ -13,6 +13,6 @@ pub mod limits;
 pub mod owned;
 pub mod slots;
 
-pub use arena::{ARENA_ALIGN, Arena, pool_bytes, pool_bytes_checked};
+pub use arena::{ARENA_ALIGN, Arena, Carve, Sizer, pool_bytes, pool_bytes_checked};
 pub use limits::Limits;
 pub use slots::{SlotGuard, Slots};

@@ -59,42 +59,30 @@ impl Drop for OwnedBuffer {
     }
 }
 
-/// A value that borrows an `OwnedBuffer` for `'static`, stored next to it and
-/// dropped before it (crate-internal: callers must never hand out
-/// `&mut T` where `T` could be swapped out, see `context::OwnedContext`).
-pub(crate) struct Lent<T> {
-    value: core::mem::ManuallyDrop<T>,
-    // Dropped after `value` (see Drop).
-    _buf: OwnedBuffer,
+/// A value that stores the buffer it was built over (`build_over`).
+///
+/// Implementors promise: the value keeps `buf` until it drops, drops it
+/// after everything borrowing it (a last field), and never hands out a
+/// borrow of the buffer longer than a borrow of itself. `Context<'static>`
+/// is the one implementor: its pools are private, every accessor returns
+/// data tied to `&self`, and moving or swapping it moves the buffer along.
+pub(crate) trait Keeps {
+    fn keep(&mut self, buf: OwnedBuffer);
 }
 
-impl<T> Lent<T> {
-    /// Allocate `bytes` once and build the value over them.
-    pub(crate) fn new<E>(
-        bytes: usize,
-        f: impl FnOnce(&'static mut [u8]) -> Result<T, E>,
-    ) -> Result<Self, E> {
-        let mut buf = OwnedBuffer::new(bytes);
-        // SAFETY: lent once; the only borrow goes into `value`, which Drop
-        // destroys before `_buf` frees the memory.
-        let bytes = unsafe { buf.lend() };
-        let value = f(bytes)?;
-        Ok(Lent {
-            value: core::mem::ManuallyDrop::new(value),
-            _buf: buf,
-        })
-    }
-    pub(crate) fn get(&self) -> &T {
-        &self.value
-    }
-    pub(crate) fn get_mut(&mut self) -> &mut T {
-        &mut self.value
-    }
-}
-
-impl<T> Drop for Lent<T> {
-    fn drop(&mut self) {
-        // SAFETY: `value` is dropped exactly once, here, before `_buf`.
-        unsafe { core::mem::ManuallyDrop::drop(&mut self.value) }
-    }
+/// Allocate `bytes` once, build a value over them, and hand it the buffer
+/// to keep (`Keeps`). On error the buffer is freed with nothing borrowing
+/// it.
+pub(crate) fn build_over<T: Keeps, E>(
+    bytes: usize,
+    f: impl FnOnce(&'static mut [u8]) -> Result<T, E>,
+) -> Result<T, E> {
+    let mut buf = OwnedBuffer::new(bytes);
+    // SAFETY: lent once; the only borrow goes into the value, which keeps
+    // the buffer and drops it after that borrow (`Keeps`). When `f` fails,
+    // the borrow is gone before `buf` drops at the end of this function.
+    let bytes = unsafe { buf.lend() };
+    let mut value = f(bytes)?;
+    value.keep(buf);
+    Ok(value)
 }

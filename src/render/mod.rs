@@ -22,6 +22,7 @@ use crate::accel::grid::traverse_cgt::Mailbox;
 use crate::error::{Error, Result};
 use crate::geom::{F4, Hit, Hit4, M4, Ray, Ray4, TriVerts};
 use crate::math;
+pub use crate::trace::Tracer;
 use crate::trace::{Counters, TraceParams};
 use glam::Vec3;
 
@@ -240,38 +241,6 @@ impl PrimaryRays {
         let d = self.corner + self.du * (x as f32 + 0.5) + self.dv * (y as f32 + 0.5);
         Ray::new(self.eye, d, 0.0, f32::INFINITY)
     }
-}
-
-/// What a structure offers the renderer: nearest hits and occlusion for
-/// single rays and for packets of 2x2 quads, and the triangle a hit refers
-/// to (for its normal).
-pub trait Tracer: Sync {
-    fn intersect(&self, ray: &Ray, ctr: &mut Counters) -> Hit;
-    fn occluded(&self, ray: &Ray, ctr: &mut Counters) -> bool;
-    /// Nearest hits of the active lanes of a packet (`p.method` decides how;
-    /// single-ray methods trace lane by lane). `mb` is the calling thread's.
-    fn intersect_packet(
-        &self,
-        p: &TraceParams,
-        rays: &[Ray4],
-        active: &[M4],
-        hits: &mut [Hit4],
-        mb: &mut Mailbox<'_>,
-        ctr: &mut Counters,
-    );
-    /// Occlusion of the active lanes: a hit (`prim != INVALID_ID`) marks an occluded lane.
-    fn occluded_packet(
-        &self,
-        p: &TraceParams,
-        rays: &[Ray4],
-        active: &[M4],
-        hits: &mut [Hit4],
-        mb: &mut Mailbox<'_>,
-        ctr: &mut Counters,
-    );
-    fn triangle(&self, prim: u32) -> Option<TriVerts>;
-    /// Scale of the scene, for the shadow-ray origin offset.
-    fn scene_scale(&self) -> f32;
 }
 
 /// Everything a frame needs besides the structure and the pixels.

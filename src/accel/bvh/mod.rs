@@ -38,11 +38,15 @@ pub mod traverse_ranged;
 pub mod traverse_simd;
 pub mod traverse_single;
 
+use crate::accel::entry::EntrySearch;
+use crate::accel::mailbox::Mailbox;
+use crate::accel::method::{Method, TraceParams};
+use crate::counters::Counters;
 /// The packet frusta (section 4) live in `geom` because the kd-tree
 /// packets use them too.
 pub use crate::geom::frustum;
 pub use crate::geom::frustum::RayKind;
-use crate::geom::{Aabb, ProjTri, TriTest, TriVerts, TriangleTest};
+use crate::geom::{Aabb, Hit, Hit4, M4, ProjTri, Ray, Ray4, TriTest, TriVerts, TriangleTest};
 use bytemuck::{Pod, Zeroable};
 
 /// Deepest level a build creates (root = depth 0). Nodes at this depth
@@ -298,5 +302,87 @@ impl Default for BvhOptions {
             culling: true,
             kind: RayKind::Auto,
         }
+    }
+}
+
+/// The BVH under the family contract: the single-ray stack traversal, the
+/// 2x2 SIMD ray (`Method::BvhSimd`) and the three large-packet traversals
+/// (Masked, Ranged, Partition), those from an entry point when `p.entry`
+/// asks for one.
+impl crate::accel::Accel for BvhView<'_> {
+    #[inline]
+    fn test(&self) -> TriTest {
+        self.info.test
+    }
+    #[inline]
+    fn bounds(&self) -> Aabb {
+        self.info.bounds
+    }
+    fn triangle(&self, prim: u32) -> Option<TriVerts> {
+        BvhView::triangle(self, prim)
+    }
+    #[inline]
+    fn intersect<T: TriangleTest>(&self, ray: &Ray, ctr: &mut Counters) -> Hit {
+        traverse_single::intersect::<T>(self, ray, ctr)
+    }
+    #[inline]
+    fn occluded<T: TriangleTest>(&self, ray: &Ray, ctr: &mut Counters) -> bool {
+        traverse_single::occluded::<T>(self, ray, ctr)
+    }
+    #[inline]
+    fn any_hit<T: TriangleTest>(&self, ray: &Ray, ctr: &mut Counters) -> Hit {
+        traverse_single::any_hit::<T>(self, ray, ctr)
+    }
+    fn packet<T: TriangleTest, const ANY: bool>(
+        &self,
+        p: &TraceParams,
+        rays: &[Ray4],
+        active: &[M4],
+        hits: &mut [Hit4],
+        _: &mut Mailbox<'_>,
+        ctr: &mut Counters,
+    ) -> bool {
+        use crate::accel::packet::{self, Start};
+        let large = matches!(
+            p.method,
+            Method::BvhMasked | Method::BvhRanged | Method::BvhPartition
+        );
+        if !large && p.method != Method::BvhSimd {
+            return false;
+        }
+        let mut entry = None;
+        if large && p.entry != EntrySearch::None {
+            let root = self.nodes.first().map_or(Aabb::EMPTY, |n| n.aabb());
+            match packet::start(self, p, rays, active, &root, ctr).1 {
+                Start::Root => {}
+                Start::At(e) => entry = Some(e),
+                Start::Miss => {
+                    packet::all_miss(active, hits, ctr);
+                    return true;
+                }
+            }
+        }
+        let (o, e) = (&p.bvh, entry.as_ref());
+        match (p.method, ANY) {
+            (Method::BvhSimd, false) => {
+                traverse_simd::intersect::<T>(self, rays, active, hits, ctr)
+            }
+            (Method::BvhSimd, true) => traverse_simd::occluded::<T>(self, rays, active, hits, ctr),
+            (Method::BvhMasked, false) => {
+                traverse_masked::intersect::<T>(self, rays, active, hits, o, e, ctr)
+            }
+            (Method::BvhMasked, true) => {
+                traverse_masked::occluded::<T>(self, rays, active, hits, o, e, ctr)
+            }
+            (Method::BvhRanged, false) => {
+                traverse_ranged::intersect::<T>(self, rays, active, hits, o, e, ctr)
+            }
+            (Method::BvhRanged, true) => {
+                traverse_ranged::occluded::<T>(self, rays, active, hits, o, e, ctr)
+            }
+            (_, false) => traverse_partition::intersect::<T>(self, rays, active, hits, o, e, ctr),
+            (_, true) => traverse_partition::occluded::<T>(self, rays, active, hits, o, e, ctr),
+        }
+        true
     }
 }

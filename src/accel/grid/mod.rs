@@ -21,7 +21,10 @@ pub mod build;
 pub mod traverse_cgt;
 pub mod traverse_single;
 
-use crate::geom::{Aabb, ProjTri, TriTest, TriVerts, TriangleTest};
+use crate::accel::mailbox::Mailbox;
+use crate::accel::method::{Method, TraceParams};
+use crate::counters::Counters;
+use crate::geom::{Aabb, Hit, Hit4, M4, ProjTri, Ray, Ray4, TriTest, TriVerts, TriangleTest};
 use glam::Vec3;
 
 /// Tunables of the grid (C: `sheaf_grid_params`).
@@ -180,5 +183,55 @@ impl GridView<'_> {
         let r = &self.info.macro_res;
         let i = (m[0] as usize) + r[0] as usize * ((m[1] as usize) + r[1] as usize * m[2] as usize);
         self.macro_bits[i >> 5] & (1 << (i & 31)) != 0
+    }
+}
+
+/// The grid under the family contract: the 3DDDA for single rays, CGT for
+/// `Method::GridCgt` packets (the 2x2 SIMD ray goes lane by lane).
+impl crate::accel::Accel for GridView<'_> {
+    #[inline]
+    fn test(&self) -> TriTest {
+        self.info.test
+    }
+    #[inline]
+    fn bounds(&self) -> Aabb {
+        self.info.scene_bounds
+    }
+    fn triangle(&self, prim: u32) -> Option<TriVerts> {
+        // Stored triangles are in the caller's order minus exclusions, so a
+        // binary search over the ids finds the slot.
+        let i = self.tri_ids.binary_search(&prim).ok()?;
+        Some(self.tris[i])
+    }
+    #[inline]
+    fn intersect<T: TriangleTest>(&self, ray: &Ray, ctr: &mut Counters) -> Hit {
+        traverse_single::intersect::<T>(self, ray, ctr)
+    }
+    #[inline]
+    fn occluded<T: TriangleTest>(&self, ray: &Ray, ctr: &mut Counters) -> bool {
+        traverse_single::occluded::<T>(self, ray, ctr)
+    }
+    #[inline]
+    fn any_hit<T: TriangleTest>(&self, ray: &Ray, ctr: &mut Counters) -> Hit {
+        traverse_single::any_hit::<T>(self, ray, ctr)
+    }
+    fn packet<T: TriangleTest, const ANY: bool>(
+        &self,
+        p: &TraceParams,
+        rays: &[Ray4],
+        active: &[M4],
+        hits: &mut [Hit4],
+        mb: &mut Mailbox<'_>,
+        ctr: &mut Counters,
+    ) -> bool {
+        if p.method != Method::GridCgt {
+            return false;
+        }
+        if ANY {
+            traverse_cgt::occluded::<T>(self, rays, active, hits, &p.cgt, mb, ctr);
+        } else {
+            traverse_cgt::intersect::<T>(self, rays, active, hits, &p.cgt, mb, ctr);
+        }
+        true
     }
 }

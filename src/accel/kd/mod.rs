@@ -44,7 +44,11 @@ pub mod traverse_packet;
 pub mod traverse_simd;
 pub mod traverse_single;
 
-use crate::geom::{Aabb, ProjTri, TriTest, TriVerts, TriangleTest};
+use crate::accel::entry::EntrySearch;
+use crate::accel::mailbox::Mailbox;
+use crate::accel::method::{Method, TraceParams};
+use crate::counters::Counters;
+use crate::geom::{Aabb, Hit, Hit4, M4, ProjTri, Ray, Ray4, TriTest, TriVerts, TriangleTest};
 use bytemuck::{Pod, Zeroable};
 
 /// Deepest level a build creates (root = depth 0); every traversal stack of
@@ -340,4 +344,96 @@ pub fn clip(
 #[inline(always)]
 pub fn split_interval(ts: f32, t0: f32, t1: f32) -> (f32, f32) {
     (if ts < t1 { ts } else { t1 }, if ts > t0 { ts } else { t0 })
+}
+
+/// The kd-tree under the family contract: the single-ray traversal, the
+/// 2x2 SIMD ray (`Method::KdSimd`) and frustum-driven n x n packets
+/// (`Method::KdPacket`), from an entry point when `p.entry` asks for one.
+impl crate::accel::Accel for KdView<'_> {
+    #[inline]
+    fn test(&self) -> TriTest {
+        self.info.test
+    }
+    #[inline]
+    fn bounds(&self) -> Aabb {
+        self.info.bounds
+    }
+    fn triangle(&self, prim: u32) -> Option<TriVerts> {
+        KdView::triangle(self, prim)
+    }
+    #[inline]
+    fn intersect<T: TriangleTest>(&self, ray: &Ray, ctr: &mut Counters) -> Hit {
+        traverse_single::intersect::<T>(self, ray, ctr)
+    }
+    #[inline]
+    fn occluded<T: TriangleTest>(&self, ray: &Ray, ctr: &mut Counters) -> bool {
+        traverse_single::occluded::<T>(self, ray, ctr)
+    }
+    #[inline]
+    fn any_hit<T: TriangleTest>(&self, ray: &Ray, ctr: &mut Counters) -> Hit {
+        traverse_single::any_hit::<T>(self, ray, ctr)
+    }
+    fn packet<T: TriangleTest, const ANY: bool>(
+        &self,
+        p: &TraceParams,
+        rays: &[Ray4],
+        active: &[M4],
+        hits: &mut [Hit4],
+        _: &mut Mailbox<'_>,
+        ctr: &mut Counters,
+    ) -> bool {
+        use crate::accel::packet::{self, MAX_QUADS, Start};
+        match p.method {
+            Method::KdSimd => {
+                for ((r, m), h) in rays.iter().zip(active).zip(hits.iter_mut()) {
+                    if ANY {
+                        let o = traverse_simd::occluded::<T>(self, r, *m, ctr);
+                        let (m, h) = (core::slice::from_ref(m), core::slice::from_mut(h));
+                        packet::mark_occluded(&[o], m, h);
+                    } else {
+                        let got = traverse_simd::intersect::<T>(self, r, *m, ctr);
+                        for i in (0..4).filter(|&i| m.test(i)) {
+                            h.set_lane(i, got.lane(i));
+                        }
+                    }
+                }
+                true
+            }
+            Method::KdPacket => {
+                // The frustum only when culling is on.
+                let (f, start) = if !p.bvh.culling && p.entry == EntrySearch::None {
+                    (None, Start::Root)
+                } else {
+                    let (f, s) = packet::start(self, p, rays, active, &self.info.root, ctr);
+                    (if p.bvh.culling { f } else { None }, s)
+                };
+                let e = match start {
+                    Start::Miss if ANY => {
+                        let n = rays.len().min(active.len()).min(hits.len()).min(MAX_QUADS);
+                        packet::count_rays(&active[..n], ctr);
+                        packet::mark_occluded(&[M4::FALSE; MAX_QUADS][..n], &active[..n], hits);
+                        return true;
+                    }
+                    Start::Miss => {
+                        packet::all_miss(active, hits, ctr);
+                        return true;
+                    }
+                    Start::Root => None,
+                    Start::At(e) => Some(e),
+                };
+                let (f, e) = (f.as_ref(), e.as_ref());
+                if ANY {
+                    let n = rays.len().min(active.len()).min(hits.len()).min(MAX_QUADS);
+                    let mut occ = [M4::FALSE; MAX_QUADS];
+                    let (r, a) = (&rays[..n], &active[..n]);
+                    traverse_packet::occluded::<T>(self, r, a, &mut occ[..n], f, e, ctr);
+                    packet::mark_occluded(&occ[..n], a, &mut hits[..n]);
+                } else {
+                    traverse_packet::intersect::<T>(self, rays, active, hits, f, e, ctr);
+                }
+                true
+            }
+            _ => false,
+        }
+    }
 }

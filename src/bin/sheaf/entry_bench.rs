@@ -773,7 +773,7 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
             let (tr, mut mbs) = ctx.parts()?;
             let mut mb = mbs.next().ok_or_else(|| Failure("no thread slot".into()))?;
             let kt = tr.kd().ok_or_else(|| Failure("kd-tree not built".into()))?;
-            let kv = kt.view;
+            let kv = kt;
             // Reference: the kd single ray per pixel.
             let mut c0 = Counters::default();
             let reference: Vec<Hit> = (0..h)

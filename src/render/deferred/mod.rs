@@ -24,6 +24,8 @@
 //! so with one light the image equals `render_rows`' with the same triangle
 //! test.
 
+pub(crate) mod frame;
+
 use super::{
     Frame, PointLight, PrimaryRays, SHADOW_OFFSET, Tracer, demorton, encode, shadow_packet,
 };

@@ -1,0 +1,201 @@
+//! What a trace call asks for: the method (which family, which traversal),
+//! the packet side and each family's switches (C: `sheaf_method`,
+//! `sheaf_trace_params`). It sits in `accel` so the families and the
+//! packet driver read it without importing from the trace layer above.
+#![forbid(unsafe_code)]
+
+/// Traversal method (C: `sheaf_method`). Codes are stable; later methods get
+/// new numbers.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Method {
+    /// Uniform grid, single-ray 3DDDA with macrocell skipping (the baseline).
+    #[default]
+    GridDda = 0,
+    /// Uniform grid, coherent grid traversal of n x n packets (CGT).
+    GridCgt = 1,
+    /// BVH, single-ray stack traversal (the BVH baseline and reference).
+    BvhSingle = 2,
+    /// BVH, 2x2 SIMD rays traversed one `Ray4` at a time (Table 2's baseline).
+    BvhSimd = 3,
+    /// BVH, n x n packets, Masked traversal (section 3.1).
+    BvhMasked = 4,
+    /// BVH, n x n packets, Ranged traversal (section 3.2).
+    BvhRanged = 5,
+    /// BVH, n x n packets, Partition traversal (section 3.3).
+    BvhPartition = 6,
+    /// kd-tree, single-ray front-to-back traversal (the kd reference).
+    KdSingle = 7,
+    /// kd-tree, 2x2 SIMD rays one `Ray4` at a time (Wald 2004).
+    KdSimd = 8,
+    /// kd-tree, n x n packets driven by their frustum, from the root or
+    /// from the entry point `TraceParams::entry` finds (MLRTA, AEPSA).
+    KdPacket = 9,
+}
+
+impl Method {
+    pub const ALL: &'static [Method] = &[
+        Method::GridDda,
+        Method::GridCgt,
+        Method::BvhSingle,
+        Method::BvhSimd,
+        Method::BvhMasked,
+        Method::BvhRanged,
+        Method::BvhPartition,
+        Method::KdSingle,
+        Method::KdSimd,
+        Method::KdPacket,
+    ];
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::GridDda => "grid-dda",
+            Method::GridCgt => "grid-cgt",
+            Method::BvhSingle => "bvh-single",
+            Method::BvhSimd => "bvh-simd",
+            Method::BvhMasked => "bvh-masked",
+            Method::BvhRanged => "bvh-ranged",
+            Method::BvhPartition => "bvh-partition",
+            Method::KdSingle => "kd-single",
+            Method::KdSimd => "kd-simd",
+            Method::KdPacket => "kd-packet",
+        }
+    }
+    /// Whether the method traces n x n packets (and so uses `TraceParams::packet`).
+    pub fn is_packet(self) -> bool {
+        matches!(
+            self,
+            Method::GridCgt
+                | Method::BvhMasked
+                | Method::BvhRanged
+                | Method::BvhPartition
+                | Method::KdPacket
+        )
+    }
+    /// Which structure the method traverses.
+    pub fn structure(self) -> Structure {
+        match self {
+            Method::GridDda | Method::GridCgt => Structure::Grid,
+            Method::KdSingle | Method::KdSimd | Method::KdPacket => Structure::Kd,
+            _ => Structure::Bvh,
+        }
+    }
+    /// The single-ray method of the same structure (the reference).
+    pub fn single(self) -> Method {
+        match self.structure() {
+            Structure::Grid => Method::GridDda,
+            Structure::Bvh => Method::BvhSingle,
+            Structure::Kd => Method::KdSingle,
+        }
+    }
+    pub fn from_name(s: &str) -> Option<Method> {
+        Method::ALL.iter().copied().find(|m| m.name() == s)
+    }
+}
+
+use crate::accel::bvh::{BvhOptions, RayKind};
+use crate::accel::entry::EntrySearch;
+use crate::accel::grid::traverse_cgt::CgtOptions;
+
+/// Acceleration structure families of a context.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Structure {
+    Grid,
+    Bvh,
+    Kd,
+}
+
+/// How one class of rays is traced (C: `sheaf_trace_params`).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TraceParams {
+    pub method: Method,
+    /// Packet side n (n x n rays) for packet methods: 2, 4, 8, 16 or 32.
+    pub packet: u32,
+    /// CGT switches (macrocells, mailbox, frustum culling).
+    pub cgt: CgtOptions,
+    /// Tree packet switches (frustum culling, ray kind), for the BVH's and
+    /// the kd-tree's n x n packets.
+    pub bvh: BvhOptions,
+    /// Entry-point search before each n x n packet of a tree method
+    /// (`KdPacket`, `BvhMasked`, `BvhRanged`, `BvhPartition`); ignored by
+    /// the other methods.
+    pub entry: EntrySearch,
+    /// Shadow packets whose farthest hit point is more than `split` times as
+    /// far from the light as the nearest are split into four (CGT section
+    /// 4.7); 0 disables splitting.
+    pub split: f32,
+}
+
+impl Default for TraceParams {
+    fn default() -> Self {
+        TraceParams {
+            method: Method::GridCgt,
+            packet: 8,
+            cgt: CgtOptions::default(),
+            bvh: BvhOptions::default(),
+            entry: EntrySearch::None,
+            split: 2.0,
+        }
+    }
+}
+
+impl TraceParams {
+    /// The single-ray baseline.
+    pub fn dda() -> Self {
+        TraceParams {
+            method: Method::GridDda,
+            ..TraceParams::default()
+        }
+    }
+    pub fn cgt(packet: u32) -> Self {
+        TraceParams {
+            method: Method::GridCgt,
+            packet,
+            ..TraceParams::default()
+        }
+    }
+    /// A BVH method with packet side `packet` (ignored by single and SIMD).
+    pub fn bvh(method: Method, packet: u32) -> Self {
+        TraceParams {
+            method,
+            packet,
+            ..TraceParams::default()
+        }
+    }
+    /// The same parameters with entry-point search `entry`.
+    pub fn with_entry(&self, entry: EntrySearch) -> Self {
+        TraceParams { entry, ..*self }
+    }
+    /// The same parameters with the BVH ray kind set (which frustum packets get).
+    pub fn with_kind(&self, kind: RayKind) -> Self {
+        TraceParams {
+            bvh: BvhOptions { kind, ..self.bvh },
+            ..*self
+        }
+    }
+    /// Side of the square pixel tile this method traces at once: the packet
+    /// side for n x n methods, 2 for the 2x2 SIMD ray, 0 for single rays.
+    pub fn tile_side(&self) -> u32 {
+        if self.method.is_packet() {
+            self.packet
+        } else if matches!(self.method, Method::BvhSimd | Method::KdSimd) {
+            2
+        } else {
+            0
+        }
+    }
+    /// Checks the packet side and the split ratio.
+    pub fn validate(&self) -> crate::Result<()> {
+        if self.method.is_packet() && !matches!(self.packet, 2 | 4 | 8 | 16 | 32) {
+            return Err(crate::Error::InvalidArgument(
+                "packet side must be 2, 4, 8, 16 or 32",
+            ));
+        }
+        if !(self.split == 0.0 || (self.split.is_finite() && self.split >= 1.0)) {
+            return Err(crate::Error::InvalidArgument(
+                "split must be 0 or a finite ratio >= 1",
+            ));
+        }
+        Ok(())
+    }
+}

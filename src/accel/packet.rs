@@ -1,0 +1,158 @@
+//! The generic packet driver: what every family's packet query shares,
+//! written once. A trace call reaches a family through `trace` (one
+//! dispatch on `Method` and the triangle test), which calls `trace` here;
+//! the family's `Accel::packet` runs its traversal, and whatever it does
+//! not trace as a packet goes lane by lane through its single ray.
+//!
+//! - `MAX_QUADS`: the largest packet, 32 x 32 rays in 256 quads of 2x2.
+//! - `by_class`: the packet size classes (1, 4, 16, 64, 256 quads) that
+//!   size each traversal's per-quad scratch; longer inputs are consecutive
+//!   packets of 256 quads.
+//! - `lane_by_lane`: the single ray for each active lane (single-ray
+//!   methods, and methods a family lacks).
+//! - `all_miss`: a packet an entry-point search proved to miss.
+//! - `start`: where a tree packet starts (`accel::entry`).
+//!
+//! # Exactness
+//! Everything here either calls the family's exact traversals or writes
+//! misses that an entry search proved (see `accel::entry`).
+#![forbid(unsafe_code)]
+
+use super::Accel;
+use super::entry::{self, EntryPoint, EntrySearch, EntryTree};
+use super::mailbox::Mailbox;
+use super::method::TraceParams;
+use crate::counters::Counters;
+use crate::geom::frustum::Frustum;
+use crate::geom::{Aabb, Hit, Hit4, M4, Ray, Ray4, TriangleTest};
+
+/// Quads in the largest packet: 32 x 32 rays.
+pub const MAX_QUADS: usize = 256;
+
+/// Trace the active lanes of `rays` (one packet, or consecutive packets)
+/// with `p.method` on `a`: nearest hits, or with `ANY` occlusion (some hit
+/// marks an occluded lane). Inactive lanes of `hits` are left untouched.
+#[inline]
+pub fn trace<A: Accel, T: TriangleTest, const ANY: bool>(
+    a: &A,
+    p: &TraceParams,
+    rays: &[Ray4],
+    active: &[M4],
+    hits: &mut [Hit4],
+    mb: &mut Mailbox<'_>,
+    ctr: &mut Counters,
+) {
+    if !a.packet::<T, ANY>(p, rays, active, hits, mb, ctr) {
+        if ANY {
+            lane_by_lane(rays, active, hits, |r, c| a.any_hit::<T>(r, c), ctr)
+        } else {
+            lane_by_lane(rays, active, hits, |r, c| a.intersect::<T>(r, c), ctr)
+        }
+    }
+}
+
+/// A traversal sized by its packet class: `packet::<Q>(range)` traces the
+/// quads `range` (at most `Q`) as one packet.
+pub trait SizeClass {
+    fn packet<const Q: usize>(&mut self, range: core::ops::Range<usize>);
+}
+
+/// Run `k` over `n` quads: one packet of the smallest class holding them,
+/// or consecutive packets of `MAX_QUADS`.
+#[inline]
+pub fn by_class(n: usize, k: &mut impl SizeClass) {
+    match n {
+        0 => {}
+        1 => k.packet::<1>(0..n),
+        2..=4 => k.packet::<4>(0..n),
+        5..=16 => k.packet::<16>(0..n),
+        17..=64 => k.packet::<64>(0..n),
+        _ => {
+            for s in (0..n).step_by(MAX_QUADS) {
+                k.packet::<MAX_QUADS>(s..(s + MAX_QUADS).min(n));
+            }
+        }
+    }
+}
+
+/// A packet traced one active lane at a time by a single-ray method.
+pub fn lane_by_lane(
+    rays: &[Ray4],
+    active: &[M4],
+    hits: &mut [Hit4],
+    f: impl Fn(&Ray, &mut Counters) -> Hit,
+    ctr: &mut Counters,
+) {
+    for ((r, m), h) in rays.iter().zip(active).zip(hits.iter_mut()) {
+        for i in 0..4 {
+            if m.test(i) {
+                h.set_lane(i, f(&r.lane(i), ctr));
+            }
+        }
+    }
+}
+
+/// Occlusion masks as hits: active lanes get `Hit::OCCLUDED` (kd packets
+/// know no occluder id) or `Hit::MISS`; inactive lanes are untouched.
+pub fn mark_occluded(occ: &[M4], active: &[M4], hits: &mut [Hit4]) {
+    for ((o, m), h) in occ.iter().zip(active).zip(hits.iter_mut()) {
+        for i in (0..4).filter(|&i| m.test(i)) {
+            h.set_lane(i, if o.test(i) { Hit::OCCLUDED } else { Hit::MISS });
+        }
+    }
+}
+
+/// Count the active lanes of a packet answered without traversal (an
+/// entry search found that every ray misses).
+pub fn count_rays(active: &[M4], ctr: &mut Counters) {
+    ctr.rays += active
+        .iter()
+        .map(|m| m.bitmask().count_ones() as u64)
+        .sum::<u64>();
+}
+
+/// A packet every active ray of which misses (entry search found no leaf).
+pub fn all_miss(active: &[M4], hits: &mut [Hit4], ctr: &mut Counters) {
+    count_rays(active, ctr);
+    for (m, h) in active.iter().zip(hits.iter_mut()) {
+        for i in (0..4).filter(|&i| m.test(i)) {
+            h.set_lane(i, Hit::MISS);
+        }
+    }
+}
+
+/// Where a tree packet starts (`start`).
+pub enum Start {
+    Root,
+    At(EntryPoint),
+    /// The frustum overlaps no triangle: every ray misses.
+    Miss,
+}
+
+/// The packet's frustum (of `p.bvh.kind`; `None` without live lanes or when
+/// none can be built) and, with `p.entry`, the entry point MLRTA or AEPSA
+/// finds for it in `tree` (counted in `ctr`).
+pub fn start<E: EntryTree + ?Sized>(
+    tree: &E,
+    p: &TraceParams,
+    rays: &[Ray4],
+    active: &[M4],
+    bounds: &Aabb,
+    ctr: &mut Counters,
+) -> (Option<Frustum>, Start) {
+    let nq = rays.len().min(active.len()).min(MAX_QUADS);
+    let mut live = [M4::FALSE; MAX_QUADS];
+    for q in 0..nq {
+        live[q] = entry::live_mask(&rays[q], active[q]);
+    }
+    let f = Frustum::new(p.bvh.kind, &rays[..nq], &live[..nq], bounds);
+    let (Some(fr), false) = (f, p.entry == EntrySearch::None) else {
+        return (f, Start::Root);
+    };
+    let neg = entry::dir_signs(&rays[..nq], &live[..nq]);
+    let e = match p.entry {
+        EntrySearch::Mlrta => entry::mlrta::mlrta(tree, &fr, neg, ctr),
+        _ => entry::aepsa::aepsa(tree, &fr, neg, ctr),
+    };
+    (f, e.map_or(Start::Miss, Start::At))
+}

@@ -1,0 +1,221 @@
+//! The deferred frame of the perspective/light grid paper, its Figure 10:
+//! (1) the perspective grid, (2) camera rays, (3) shadow rays mapped and
+//! sorted into light tiles, (4) the light grid over the tiles and slices
+//! they reach, (5) chunks of shadow rays through the light grid, (6)
+//! shading. The context checks the job and keeps the frame; this file runs
+//! the phases in order over the context's pools.
+#![forbid(unsafe_code)]
+
+use super as deferred;
+use super::{
+    DeferredInfo, DeferredJob, FrameBuffers, PrimaryPass, ShadowPass, TileLayout, Workers,
+};
+use crate::accel::mailbox::Mailbox;
+use crate::accel::pgrid::{self, Pgrid, PgridParams};
+use crate::counters::{Counters, elapsed_ns, now};
+use crate::error::{Error, Result};
+use crate::geom::TriVerts;
+use crate::mem::Slots;
+use crate::render::{PrimaryRays, Tracer};
+use crate::trace::SceneTracer;
+
+/// The context's pools a deferred frame writes.
+pub(crate) struct Parts<'c, 'a> {
+    pub pg: &'c mut Pgrid<'a>,
+    pub buf: &'c mut FrameBuffers<'a>,
+    pub slots: &'c mut Slots<'a>,
+}
+
+/// Run the six phases of `job` (checked by the caller) into `pixels`:
+/// the frame's statistics, its counters and the shadow-ray offset used.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn run<W: Workers>(
+    parts: Parts<'_, '_>,
+    tr: &SceneTracer<'_>,
+    job: &DeferredJob<'_>,
+    rays: &PrimaryRays,
+    lay: &TileLayout,
+    pp: &PgridParams,
+    pixels: &mut [u8],
+    stride: usize,
+    workers: &mut W,
+) -> Result<(DeferredInfo, Counters, f32)> {
+    let (lay, pp, rays, tr) = (*lay, *pp, *rays, *tr);
+    let mut info = DeferredInfo::default();
+    let mut ctr = Counters::default();
+    // Phase 1: the perspective grid.
+    if job.primary == PrimaryPass::Pgrid {
+        let t = now();
+        info.camera = pgrid::build::build_camera(parts.pg, &rays.pinhole())?;
+        info.times.primary_build = elapsed_ns(t);
+    }
+    let Parts { pg, buf, slots } = parts;
+    macro_rules! mailboxes {
+        () => {{ slots.all().map(|(st, p)| Mailbox::new(st, p)) }};
+    }
+    // Phase 2: camera rays.
+    let t = now();
+    let cam = pg.camera();
+    ctr.add(&deferred::primary_pass(
+        &tr,
+        cam.as_ref(),
+        &job.primary,
+        &rays,
+        &lay,
+        pp.tile,
+        buf.prim,
+        buf.t,
+        workers,
+        &mut mailboxes!(),
+    ));
+    info.times.primary_trace = elapsed_ns(t);
+    let from_pgrid = job.primary == PrimaryPass::Pgrid;
+    // Hits are looked up where the primary pass found them.
+    macro_rules! tri_of {
+        () => {{
+            let pg_tris = pg.triangles();
+            let pg_ok = &*pg.pools.ok;
+            move |id: u32| -> Option<TriVerts> {
+                if from_pgrid {
+                    let t = pg_tris?;
+                    (pg_ok.get(id as usize) == Some(&1)).then(|| t.tris[id as usize])
+                } else {
+                    tr.triangle(id)
+                }
+            }
+        }};
+    }
+    let scale = if from_pgrid {
+        crate::trace::scene::scale_of(&pg.scene.bounds)
+    } else {
+        tr.scene_scale()
+    };
+    let eps = deferred::shadow_eps(scale);
+    info.hits = buf.prim[..lay.len()]
+        .iter()
+        .filter(|&&p| p != crate::geom::INVALID_ID)
+        .count() as u64;
+    let lights = job.lights();
+    buf.shadow[..lay.len()].fill(0);
+    if job.frame.shading.shadows {
+        for (l, light) in lights.iter().enumerate() {
+            // Phase 3: shadow rays, mapped and sorted into light tiles.
+            let t = now();
+            let s = deferred::make_shadow_rays(
+                &tri_of!(),
+                light,
+                &rays,
+                &lay,
+                eps,
+                buf.prim,
+                buf.t,
+                buf.dirs,
+                workers,
+                &mut mailboxes!(),
+            );
+            info.shadow_rays += s.count as u64;
+            match job.shadow {
+                ShadowPass::Traced(p) => {
+                    info.times.rearrange += elapsed_ns(t);
+                    let t = now();
+                    ctr.add(&deferred::traced_shadow_pass(
+                        &tr,
+                        &p,
+                        light,
+                        &lay,
+                        buf.dirs,
+                        buf.shadow,
+                        l as u8,
+                        workers,
+                        &mut mailboxes!(),
+                    ));
+                    info.times.shadow_trace += elapsed_ns(t);
+                }
+                ShadowPass::LightGrid => {
+                    let f = deferred::light_frame(
+                        light,
+                        &s,
+                        deferred::light_tiles(pp.light_tiles, s.count),
+                        &lay,
+                        buf.dirs,
+                        buf.ray_tiles,
+                        buf.ray_ids,
+                    );
+                    let depth =
+                        pgrid::Slices::new(s.near, s.far, pp.light_slices, pgrid::LIGHT_DEPTH_PAD);
+                    let k = deferred::map_to_tiles(
+                        &f,
+                        &depth,
+                        &lay,
+                        buf.dirs,
+                        buf.ray_tiles,
+                        buf.ray_ids,
+                        buf.reach,
+                    );
+                    info.times.rearrange += elapsed_ns(t);
+                    // Phase 4: the light grid, over the tiles and
+                    // slices the rays reach.
+                    let t = now();
+                    info.light = pgrid::build::build_light(
+                        pg,
+                        &f,
+                        s.near,
+                        s.far,
+                        pp.light_slices,
+                        buf.reach,
+                    )?;
+                    info.times.shadow_build += elapsed_ns(t);
+                    let t = now();
+                    let r = deferred::rearrange(
+                        &f,
+                        k,
+                        buf,
+                        pg.pools.tmp_keys,
+                        pg.pools.tmp_vals,
+                        pp.chunk,
+                    );
+                    info.reorder.rays += r.rays;
+                    info.reorder.tiles_used += r.tiles_used;
+                    info.reorder.chunks += r.chunks;
+                    info.reorder.max_tile_rays = info.reorder.max_tile_rays.max(r.max_tile_rays);
+                    info.times.rearrange += elapsed_ns(t);
+                    // Phase 5: chunks.
+                    let t = now();
+                    let g = pg.light_view().ok_or(Error::NotBuilt)?;
+                    ctr.add(&deferred::light_grid_pass(
+                        &g,
+                        &buf.chunks[..r.chunks as usize],
+                        buf.ray_ids,
+                        buf.dirs,
+                        buf.occ,
+                        buf.shadow,
+                        l as u8,
+                        pp.chunk,
+                        workers,
+                        &mut mailboxes!(),
+                    ));
+                    info.times.shadow_trace += elapsed_ns(t);
+                }
+            }
+        }
+    }
+    // Phase 6: shading.
+    let t = now();
+    deferred::shade(
+        &tri_of!(),
+        job.frame,
+        lights,
+        &rays,
+        &lay,
+        eps,
+        buf.prim,
+        buf.t,
+        buf.shadow,
+        pixels,
+        stride,
+        workers,
+        &mut mailboxes!(),
+    );
+    info.times.shade = elapsed_ns(t);
+    Ok((info, ctr, eps))
+}

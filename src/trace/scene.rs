@@ -1,0 +1,316 @@
+//! The one dispatch of a trace call: `Method` picks the family
+//! (`Method::structure`), the structure's triangle test picks the
+//! monomorphised traversals (`by_test!`), and the generic packet driver
+//! (`accel::packet`) runs the family's packet query or its single ray lane
+//! by lane. The renderer and the C ABI see every structure as a `Tracer`.
+#![forbid(unsafe_code)]
+
+use crate::accel::bvh::BvhView;
+use crate::accel::grid::GridView;
+use crate::accel::kd::KdView;
+use crate::accel::mailbox::Mailbox;
+use crate::accel::packet::{self, MAX_QUADS};
+use crate::accel::{Accel, method::Method, method::Structure, method::TraceParams};
+use crate::counters::Counters;
+use crate::error::{Error, Result};
+use crate::geom::{Hit, Hit4, M4, Mt, Pt, Ray, Ray4, TriTest, TriVerts, Wt};
+
+/// What a structure offers the renderer: nearest hits and occlusion for
+/// single rays and for packets of 2x2 quads, and the triangle a hit refers
+/// to (for its normal).
+pub trait Tracer: Sync {
+    fn intersect(&self, ray: &Ray, ctr: &mut Counters) -> Hit;
+    fn occluded(&self, ray: &Ray, ctr: &mut Counters) -> bool;
+    /// Nearest hits of the active lanes of a packet (`p.method` decides how;
+    /// single-ray methods trace lane by lane). `mb` is the calling thread's.
+    fn intersect_packet(
+        &self,
+        p: &TraceParams,
+        rays: &[Ray4],
+        active: &[M4],
+        hits: &mut [Hit4],
+        mb: &mut Mailbox<'_>,
+        ctr: &mut Counters,
+    );
+    /// Occlusion of the active lanes: a hit (`prim != INVALID_ID`) marks an occluded lane.
+    fn occluded_packet(
+        &self,
+        p: &TraceParams,
+        rays: &[Ray4],
+        active: &[M4],
+        hits: &mut [Hit4],
+        mb: &mut Mailbox<'_>,
+        ctr: &mut Counters,
+    );
+    fn triangle(&self, prim: u32) -> Option<TriVerts>;
+    /// Scale of the scene, for the shadow-ray origin offset.
+    fn scene_scale(&self) -> f32;
+}
+
+/// Run `$f::<T>` with T the triangle-test type of `$test` (Mt, Wt or Pt):
+/// the only match on the triangle test between a call and a traversal.
+macro_rules! by_test {
+    ($test:expr, $f:ident :: <$($g:ty),*> ( $($a:expr),* )) => {
+        match $test {
+            TriTest::MollerTrumbore => $f::<$($g,)* Mt>($($a),*),
+            TriTest::Watertight => $f::<$($g,)* Wt>($($a),*),
+            TriTest::Projection => $f::<$($g,)* Pt>($($a),*),
+        }
+    };
+}
+
+/// Every family is a `Tracer` through the contract and the driver.
+impl<A: Accel> Tracer for A {
+    #[inline]
+    fn intersect(&self, ray: &Ray, ctr: &mut Counters) -> Hit {
+        by_test!(self.test(), single::<A>(self, ray, ctr))
+    }
+    #[inline]
+    fn occluded(&self, ray: &Ray, ctr: &mut Counters) -> bool {
+        by_test!(self.test(), occluded::<A>(self, ray, ctr))
+    }
+    fn intersect_packet(
+        &self,
+        p: &TraceParams,
+        rays: &[Ray4],
+        active: &[M4],
+        hits: &mut [Hit4],
+        mb: &mut Mailbox<'_>,
+        ctr: &mut Counters,
+    ) {
+        use packet::trace;
+        match self.test() {
+            TriTest::MollerTrumbore => trace::<A, Mt, false>(self, p, rays, active, hits, mb, ctr),
+            TriTest::Watertight => trace::<A, Wt, false>(self, p, rays, active, hits, mb, ctr),
+            TriTest::Projection => trace::<A, Pt, false>(self, p, rays, active, hits, mb, ctr),
+        }
+    }
+    fn occluded_packet(
+        &self,
+        p: &TraceParams,
+        rays: &[Ray4],
+        active: &[M4],
+        hits: &mut [Hit4],
+        mb: &mut Mailbox<'_>,
+        ctr: &mut Counters,
+    ) {
+        use packet::trace;
+        match self.test() {
+            TriTest::MollerTrumbore => trace::<A, Mt, true>(self, p, rays, active, hits, mb, ctr),
+            TriTest::Watertight => trace::<A, Wt, true>(self, p, rays, active, hits, mb, ctr),
+            TriTest::Projection => trace::<A, Pt, true>(self, p, rays, active, hits, mb, ctr),
+        }
+    }
+    fn triangle(&self, prim: u32) -> Option<TriVerts> {
+        Accel::triangle(self, prim)
+    }
+    fn scene_scale(&self) -> f32 {
+        scale_of(&self.bounds())
+    }
+}
+
+#[inline(always)]
+fn single<A: Accel, T: crate::geom::TriangleTest>(a: &A, ray: &Ray, ctr: &mut Counters) -> Hit {
+    a.intersect::<T>(ray, ctr)
+}
+
+#[inline(always)]
+fn occluded<A: Accel, T: crate::geom::TriangleTest>(a: &A, ray: &Ray, ctr: &mut Counters) -> bool {
+    a.occluded::<T>(ray, ctr)
+}
+
+/// Scene scale of the stored triangles' (unpadded) bounds, the same for
+/// every structure built from one scene, so shading offsets (and images) do
+/// not depend on the structure.
+pub fn scale_of(b: &crate::geom::Aabb) -> f32 {
+    if b.is_empty() {
+        1.0
+    } else {
+        b.diagonal().length()
+    }
+}
+
+/// A built grid ready to trace (the family contract's `GridView`).
+pub type GridTracer<'r> = GridView<'r>;
+/// A built BVH ready to trace.
+pub type BvhTracer<'r> = BvhView<'r>;
+/// A built kd-tree ready to trace.
+pub type KdTracer<'r> = KdView<'r>;
+
+/// Every structure a context has built, shared across threads: packet
+/// calls go to the structure of `TraceParams::method`, single-ray calls
+/// (`Tracer::intersect`, `occluded`) to the single-ray method `single`.
+#[derive(Clone, Copy)]
+pub struct SceneTracer<'r> {
+    pub grid: Option<GridView<'r>>,
+    pub bvh: Option<BvhView<'r>>,
+    pub kd: Option<KdView<'r>>,
+    /// `Method::GridDda`, `Method::BvhSingle` or `Method::KdSingle`.
+    pub single: Method,
+}
+
+impl<'r> SceneTracer<'r> {
+    /// The same structures with single-ray calls going to `method`'s
+    /// structure; `NotBuilt` when that structure has not been built.
+    pub fn with_single(&self, method: Method) -> Result<SceneTracer<'r>> {
+        let built = match method.structure() {
+            Structure::Grid => self.grid.is_some(),
+            Structure::Bvh => self.bvh.is_some(),
+            Structure::Kd => self.kd.is_some(),
+        };
+        if !built {
+            return Err(Error::NotBuilt);
+        }
+        Ok(SceneTracer {
+            single: method.single(),
+            ..*self
+        })
+    }
+    /// The grid part (None when no grid is built).
+    pub fn grid(&self) -> Option<GridTracer<'r>> {
+        self.grid
+    }
+    /// The BVH part (None when no BVH is built).
+    pub fn bvh(&self) -> Option<BvhTracer<'r>> {
+        self.bvh
+    }
+    /// The kd-tree part (None when no kd-tree is built).
+    pub fn kd(&self) -> Option<KdTracer<'r>> {
+        self.kd
+    }
+}
+
+/// `$e` on the structure of `$method` bound to `$t` (any `Accel`), or
+/// `$none` when that structure is not built.
+macro_rules! on_family {
+    ($s:expr, $method:expr, |$t:ident| $e:expr, $none:expr) => {
+        match $method.structure() {
+            Structure::Grid => match &$s.grid {
+                Some($t) => $e,
+                None => $none,
+            },
+            Structure::Bvh => match &$s.bvh {
+                Some($t) => $e,
+                None => $none,
+            },
+            Structure::Kd => match &$s.kd {
+                Some($t) => $e,
+                None => $none,
+            },
+        }
+    };
+}
+
+impl Tracer for SceneTracer<'_> {
+    #[inline]
+    fn intersect(&self, ray: &Ray, ctr: &mut Counters) -> Hit {
+        on_family!(
+            self,
+            self.single,
+            |t| Tracer::intersect(t, ray, ctr),
+            Hit::MISS
+        )
+    }
+    #[inline]
+    fn occluded(&self, ray: &Ray, ctr: &mut Counters) -> bool {
+        on_family!(self, self.single, |t| Tracer::occluded(t, ray, ctr), false)
+    }
+    fn intersect_packet(
+        &self,
+        p: &TraceParams,
+        rays: &[Ray4],
+        active: &[M4],
+        hits: &mut [Hit4],
+        mb: &mut Mailbox<'_>,
+        ctr: &mut Counters,
+    ) {
+        on_family!(
+            self,
+            p.method,
+            |t| Tracer::intersect_packet(t, p, rays, active, hits, mb, ctr),
+            packet::lane_by_lane(rays, active, hits, |_, _| Hit::MISS, ctr)
+        )
+    }
+    fn occluded_packet(
+        &self,
+        p: &TraceParams,
+        rays: &[Ray4],
+        active: &[M4],
+        hits: &mut [Hit4],
+        mb: &mut Mailbox<'_>,
+        ctr: &mut Counters,
+    ) {
+        on_family!(
+            self,
+            p.method,
+            |t| Tracer::occluded_packet(t, p, rays, active, hits, mb, ctr),
+            packet::lane_by_lane(rays, active, hits, |_, _| Hit::MISS, ctr)
+        )
+    }
+    /// The triangle from the structure of `single` (the primary method's):
+    /// a structure left over from an older frame is never consulted.
+    /// NOTE(perf): the BVH finds a triangle by id in O(1) (`slot_of`), the
+    /// grid by binary search (23 % of a Whitted frame on conference, perf).
+    fn triangle(&self, prim: u32) -> Option<TriVerts> {
+        on_family!(self, self.single, |t| Accel::triangle(t, prim), None)
+    }
+    fn scene_scale(&self) -> f32 {
+        on_family!(self, self.single, |t| scale_of(&t.bounds()), 1.0)
+    }
+}
+
+/// Trace `count` rays, ray `i` being `read(i)`, as packets of
+/// `p.packet`^2 rays (or 2x2 batches for single-ray methods) with mailbox
+/// `mb`, handing each result to `out(ray index, hits, lane)`. Shared by the
+/// Rust calls and the C ABI's, so both form the same packets.
+pub fn batch_on(
+    tr: &SceneTracer<'_>,
+    mb: &mut Mailbox<'_>,
+    p: &TraceParams,
+    count: usize,
+    read: &dyn Fn(usize) -> Ray,
+    out: &mut dyn FnMut(usize, &Hit4, usize),
+    any: bool,
+) -> Counters {
+    const QUADS: usize = MAX_QUADS;
+    let mut ctr = Counters::default();
+    let per = if p.method.is_packet() {
+        (p.packet * p.packet) as usize
+    } else {
+        4
+    };
+    let mut quads =
+        [Ray4::from_rays(&[Ray::new(glam::Vec3::ZERO, glam::Vec3::X, 0.0, 0.0); 4]); QUADS];
+    let mut active = [M4::FALSE; QUADS];
+    let mut hits = [Hit4::MISS; QUADS];
+    let mut start = 0;
+    while start < count {
+        let n = (count - start).min(per);
+        let nq = crate::trace::pack_quads(n, |k| read(start + k), &mut quads, &mut active);
+        hits[..nq].fill(Hit4::MISS);
+        if any {
+            tr.occluded_packet(
+                p,
+                &quads[..nq],
+                &active[..nq],
+                &mut hits[..nq],
+                mb,
+                &mut ctr,
+            );
+        } else {
+            tr.intersect_packet(
+                p,
+                &quads[..nq],
+                &active[..nq],
+                &mut hits[..nq],
+                mb,
+                &mut ctr,
+            );
+        }
+        for k in 0..n {
+            out(start + k, &hits[k / 4], k % 4);
+        }
+        start += n;
+    }
+    ctr
+}
