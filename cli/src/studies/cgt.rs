@@ -32,8 +32,9 @@
 #![forbid(unsafe_code)]
 
 use super::common::{
-    MEASURE_NS, Progress, check_threads, command_line, create_dir, load_or_skip, machine_line,
-    median, par_map, ratio, scene_specs, test_name, timed, view_for, write_csv, write_text,
+    BAND_ROWS, MEASURE_NS, NO_PIXEL, Progress, Tiling, check_threads, command_line, create_dir,
+    load_or_skip, machine_line, median, par_map, ratio, scene_specs, test_name, timed, view_for,
+    write_csv, write_text,
 };
 use crate::run::{self, ms, res};
 use crate::{BenchArgs, GridOpts};
@@ -45,7 +46,7 @@ use sheaf::accel::grid::traverse_cgt::Mailbox;
 use sheaf::context::SceneTracer as GridTracer;
 use sheaf::geom::{F4, Hit4, INVALID_ID, M4, Ray4};
 use sheaf::reference::{self, RefHit};
-use sheaf::render::{PrimaryRays, SHADOW_OFFSET, Tracer, demorton, shadow_packet};
+use sheaf::render::{PrimaryRays, SHADOW_OFFSET, Tracer, shadow_packet};
 use sheaf::trace::{BvhOptions, EntrySearch, RayKind, Structure};
 use sheaf::{CgtOptions, Counters, Hit, Method, Ray, Scene, TraceParams};
 use std::collections::HashMap;
@@ -54,9 +55,6 @@ use std::time::Instant;
 
 /// Builds per triangle test; the median is reported.
 const BUILD_REPS: usize = 3;
-/// Rows per band of the single-ray method (packet methods: whole tile rows
-/// covering at least this many rows), as in `run::render_frame`.
-const BAND_ROWS: usize = 8;
 /// Tolerances (see the module doc): relative t gap of a tie, barycentric
 /// distance to an edge, relative distance of an occluder to the ray's end.
 const TIE_REL: f64 = 1e-5;
@@ -266,65 +264,7 @@ fn mrays(rays: u64, ns: u64) -> f64 {
 }
 
 // ---------------------------------------------------------------------------
-// Ray layouts
-
-/// Pixel of a lane that is not in the image.
-const NO_PIXEL: u32 = u32::MAX;
-
-/// The image in n x n tiles of 2x2 quads (lane order of `Ray4`), quads in
-/// Morton order within a tile, tiles row by row: the pixel of every lane.
-struct Tiling {
-    /// Quads per packet, `(n / 2)^2`.
-    q: usize,
-    /// Quads per band of whole tile rows.
-    band: usize,
-    /// Pixel (`y * w + x`) of lane `4 * quad + lane`, or `NO_PIXEL`.
-    pix: Vec<u32>,
-}
-
-impl Tiling {
-    fn new(w: u32, h: u32, n: u32) -> Tiling {
-        let q = (n as usize / 2).pow(2);
-        let (tiles_x, tiles_y) = (w.div_ceil(n), h.div_ceil(n));
-        let band = BAND_ROWS.div_ceil(n as usize) * tiles_x as usize * q;
-        let mut pix = Vec::with_capacity((tiles_x * tiles_y) as usize * q * 4);
-        for ty in 0..tiles_y {
-            for tx in 0..tiles_x {
-                for k in 0..q {
-                    let (qx, qy) = demorton(k);
-                    for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
-                        let (x, y) = (tx * n + 2 * qx + dx, ty * n + 2 * qy + dy);
-                        pix.push(if x < w && y < h { y * w + x } else { NO_PIXEL });
-                    }
-                }
-            }
-        }
-        Tiling { q, band, pix }
-    }
-
-    /// Pack per-pixel `rays` (lanes whose pixel is not `active` get `pad`,
-    /// inactive) into quads and masks.
-    fn pack(&self, rays: &[Ray], active: impl Fn(usize) -> bool, pad: Ray) -> (Vec<Ray4>, Vec<M4>) {
-        self.pix
-            .chunks_exact(4)
-            .map(|p| {
-                let p = [p[0], p[1], p[2], p[3]];
-                let on = p.map(|i| i != NO_PIXEL && active(i as usize));
-                let lanes = [0, 1, 2, 3].map(|k| if on[k] { rays[p[k] as usize] } else { pad });
-                (Ray4::from_rays(&lanes), M4::new(on[0], on[1], on[2], on[3]))
-            })
-            .unzip()
-    }
-
-    /// Scatter packet results back to pixels.
-    fn unpack<T: Copy>(&self, out: &mut [T], lanes: &[Hit4], f: impl Fn(&Hit4, usize) -> T) {
-        for (k, &p) in self.pix.iter().enumerate() {
-            if p != NO_PIXEL {
-                out[p as usize] = f(&lanes[k / 4], k % 4);
-            }
-        }
-    }
-}
+// Ray layouts (the packed primary rays: `common::Tiling`)
 
 /// A view's primary rays: row-major (the 3DDDA's order) and packed per packet side.
 struct ViewRays {

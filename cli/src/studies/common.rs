@@ -14,7 +14,10 @@ use plotters::coord::Shift;
 use plotters::prelude::{BitMapBackend, DrawingArea, IntoDrawingArea, SVGBackend};
 use plotters::style::FontStyle;
 use rayon::prelude::*;
+use sheaf::Ray;
 use sheaf::context::SceneTracer as GridTracer;
+use sheaf::geom::{Hit4, M4, Ray4};
+use sheaf::render::demorton;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -85,6 +88,76 @@ pub fn timed(reps: u32, mut f: impl FnMut()) -> u64 {
 /// Run `f` over `items` on every core (rayon's global pool), keeping order.
 pub fn par_map<T: Sync, R: Send>(items: &[T], f: impl Fn(&T) -> R + Sync + Send) -> Vec<R> {
     items.par_iter().map(f).collect()
+}
+
+// ---------------------------------------------------------------------------
+// Packed primary rays
+
+/// Rows per band of the single-ray method (packet methods: whole tile rows
+/// covering at least this many rows), as in `run::render_frame`.
+pub const BAND_ROWS: usize = 8;
+
+/// Pixel of a lane that is not in the image.
+pub const NO_PIXEL: u32 = u32::MAX;
+
+/// The image in n x n tiles of 2x2 quads (lane order of `Ray4`), quads in
+/// Morton order within a tile, tiles row by row: the pixel of every lane.
+pub struct Tiling {
+    /// Quads per packet, `(n / 2)^2`.
+    pub q: usize,
+    /// Quads per band of whole tile rows.
+    pub band: usize,
+    /// Pixel (`y * w + x`) of lane `4 * quad + lane`, or `NO_PIXEL`.
+    pub pix: Vec<u32>,
+}
+
+impl Tiling {
+    pub fn new(w: u32, h: u32, n: u32) -> Tiling {
+        let q = (n as usize / 2).pow(2);
+        let (tiles_x, tiles_y) = (w.div_ceil(n), h.div_ceil(n));
+        let band = BAND_ROWS.div_ceil(n as usize) * tiles_x as usize * q;
+        let mut pix = Vec::with_capacity((tiles_x * tiles_y) as usize * q * 4);
+        for ty in 0..tiles_y {
+            for tx in 0..tiles_x {
+                for k in 0..q {
+                    let (qx, qy) = demorton(k);
+                    for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                        let (x, y) = (tx * n + 2 * qx + dx, ty * n + 2 * qy + dy);
+                        pix.push(if x < w && y < h { y * w + x } else { NO_PIXEL });
+                    }
+                }
+            }
+        }
+        Tiling { q, band, pix }
+    }
+
+    /// Pack per-pixel `rays` (lanes whose pixel is not `active` get `pad`,
+    /// inactive) into quads and masks.
+    pub fn pack(
+        &self,
+        rays: &[Ray],
+        active: impl Fn(usize) -> bool,
+        pad: Ray,
+    ) -> (Vec<Ray4>, Vec<M4>) {
+        self.pix
+            .chunks_exact(4)
+            .map(|p| {
+                let p = [p[0], p[1], p[2], p[3]];
+                let on = p.map(|i| i != NO_PIXEL && active(i as usize));
+                let lanes = [0, 1, 2, 3].map(|k| if on[k] { rays[p[k] as usize] } else { pad });
+                (Ray4::from_rays(&lanes), M4::new(on[0], on[1], on[2], on[3]))
+            })
+            .unzip()
+    }
+
+    /// Scatter packet results back to pixels.
+    pub fn unpack<T: Copy>(&self, out: &mut [T], lanes: &[Hit4], f: impl Fn(&Hit4, usize) -> T) {
+        for (k, &p) in self.pix.iter().enumerate() {
+            if p != NO_PIXEL {
+                out[p as usize] = f(&lanes[k / 4], k % 4);
+            }
+        }
+    }
 }
 
 // ---------------------------------------------------------------------------

@@ -41,8 +41,9 @@
 #![forbid(unsafe_code)]
 
 use super::common::{
-    FONT, Progress, SceneSpec, check_threads, command_line, create_dir, load_or_skip, machine_line,
-    median, save_chart, scene_specs, tri_test, view_for, write_csv, write_text,
+    FONT, NO_PIXEL, Progress, SceneSpec, Tiling, check_threads, command_line, create_dir,
+    load_or_skip, machine_line, median, save_chart, scene_specs, tri_test, view_for, write_csv,
+    write_text,
 };
 use crate::BenchArgs;
 use crate::run::{self, ms};
@@ -54,7 +55,7 @@ use sheaf::accel::grid::traverse_cgt::Mailbox;
 use sheaf::accel::kd::{KdInfo, KdParams, KdView};
 use sheaf::geom::frustum::Frustum;
 use sheaf::geom::{Hit4, M4, Ray4};
-use sheaf::render::{PrimaryRays, Tracer, demorton};
+use sheaf::render::{PrimaryRays, Tracer};
 use sheaf::trace::{BvhOptions, EntrySearch, RayKind};
 use sheaf::{
     BvhParams, Counters, Frame, Hit, Limits, Method, OwnedContext, PointLight, Ray, Shading,
@@ -75,14 +76,12 @@ const QUICK_SAMPLE_NS: u64 = 1_000_000;
 const HEADLINE: u32 = 16;
 /// The BVH rows: Ranged traversal at this side.
 const BVH_SIDE: u32 = 16;
-/// Pixel of a lane that is not in the image.
-const NO_PIXEL: u32 = u32::MAX;
 
 const SEARCHES: [EntrySearch; 3] = [EntrySearch::None, EntrySearch::Mlrta, EntrySearch::Aepsa];
 
 /// The primary rays of a frame as n x n packets: `q` quads each, quads in
 /// Morton order within a tile (as `render::render_tiles` packs them), tiles
-/// row by row.
+/// row by row (`common::Tiling`).
 struct Packets {
     q: usize,
     quads: Vec<Ray4>,
@@ -93,37 +92,18 @@ struct Packets {
 
 impl Packets {
     fn new(rays: &PrimaryRays, w: u32, h: u32, side: u32, pad: Ray) -> Packets {
-        let q = (side as usize / 2).pow(2);
-        let (tx_n, ty_n) = (w.div_ceil(side), h.div_ceil(side));
-        let n = (tx_n * ty_n) as usize * q;
-        let mut p = Packets {
-            q,
-            quads: Vec::with_capacity(n),
-            active: Vec::with_capacity(n),
-            pix: Vec::with_capacity(4 * n),
-        };
-        for ty in 0..ty_n {
-            for tx in 0..tx_n {
-                for k in 0..q {
-                    let (qx, qy) = demorton(k);
-                    let mut lanes = [pad; 4];
-                    let mut on = [false; 4];
-                    for (i, (dx, dy)) in [(0, 0), (1, 0), (0, 1), (1, 1)].into_iter().enumerate() {
-                        let (x, y) = (tx * side + 2 * qx + dx, ty * side + 2 * qy + dy);
-                        if x < w && y < h {
-                            lanes[i] = rays.ray(x, y);
-                            on[i] = true;
-                            p.pix.push(y * w + x);
-                        } else {
-                            p.pix.push(NO_PIXEL);
-                        }
-                    }
-                    p.quads.push(Ray4::from_rays(&lanes));
-                    p.active.push(M4::new(on[0], on[1], on[2], on[3]));
-                }
-            }
+        let t = Tiling::new(w, h, side);
+        let row_major: Vec<Ray> = (0..h)
+            .flat_map(|y| (0..w).map(move |x| (x, y)))
+            .map(|(x, y)| rays.ray(x, y))
+            .collect();
+        let (quads, active) = t.pack(&row_major, |_| true, pad);
+        Packets {
+            q: t.q,
+            quads,
+            active,
+            pix: t.pix,
         }
-        p
     }
     fn count(&self) -> usize {
         self.quads.len() / self.q

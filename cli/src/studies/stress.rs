@@ -43,7 +43,7 @@
 
 use super::common::{
     FONT, OBJ_SCENES, Progress, SceneSpec, command_line, create_dir, load_or_skip, machine_line,
-    par_map, save_chart, scenes_dir, specs_of, tri_test, view_for, write_csv, write_text,
+    median, par_map, save_chart, scenes_dir, specs_of, tri_test, view_for, write_csv, write_text,
 };
 use crate::BenchArgs;
 use crate::load::Loaded;
@@ -270,11 +270,6 @@ fn structure_index(s: Structure) -> usize {
         Structure::Bvh => 1,
         Structure::Kd => 2,
     }
-}
-
-fn median(v: &mut [u64]) -> u64 {
-    v.sort_unstable();
-    v[v.len() / 2]
 }
 
 /// Trace `rays` with `cfg`, fallbacks switched as it says; None on a panic.
@@ -598,7 +593,7 @@ fn class_run(
         if !cells[i].panicked && !samples[i].is_empty() {
             cells[i].samples = samples[i].len();
             cells[i].min_ns = samples[i].iter().copied().min();
-            cells[i].ns = Some(median(&mut samples[i]));
+            cells[i].ns = Some(median(std::mem::take(&mut samples[i])));
         }
     }
     for i in 0..cfgs.len() {
