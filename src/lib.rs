@@ -7,6 +7,21 @@
 //!
 //! Layers, data flowing down only: `ffi` / CLI -> `render` -> `trace` ->
 //! `accel::*` -> `geom` -> `mem`. See `DESIGN.md` in the project notes.
+//!
+//! # The API
+//!
+//! The items at the crate root are the API: a [`Context`] (or an
+//! [`OwnedContext`]) sized by [`Limits`], a [`Scene`] borrowed from the
+//! caller's buffers, per-frame builds ([`GridParams`], [`BvhParams`],
+//! [`KdParams`], [`PgridParams`]), traces ([`TraceParams`], [`Ray`], [`Hit`])
+//! and frames ([`Frame`], deferred frames run by your [`Workers`]). C and
+//! C++ callers use the C ABI of `include/sheaf.h` instead.
+//!
+//! The modules behind it (`accel`, `geom`, `trace`, `render`, `context`,
+//! `mem`, ...) stay public for the `sheaf` CLI's paper studies and the
+//! integration tests, which measure the algorithms one by one; they are
+//! hidden from these docs unless the internal `study` feature is on, and
+//! carry no stability promise.
 #![cfg_attr(not(feature = "std"), no_std)]
 #![deny(unsafe_code)]
 
@@ -21,19 +36,33 @@ macro_rules! fault_point {
 }
 pub(crate) use fault_point;
 
+// Internal layers: public for the CLI's studies and the tests, documented
+// only with the `study` feature (the curated API is the re-exports below).
+#[cfg_attr(not(feature = "study"), doc(hidden))]
 pub mod accel;
+#[cfg_attr(not(feature = "study"), doc(hidden))]
 pub mod context;
+#[cfg_attr(not(feature = "study"), doc(hidden))]
 pub mod counters;
+#[cfg_attr(not(feature = "study"), doc(hidden))]
 pub mod error;
 #[cfg(feature = "fault-injection")]
 #[doc(hidden)]
 pub mod fault;
+// The C ABI (`sheaf_*` functions): `include/sheaf.h` documents it.
+#[cfg_attr(not(feature = "study"), doc(hidden))]
 pub mod ffi;
+#[cfg_attr(not(feature = "study"), doc(hidden))]
 pub mod geom;
+#[cfg_attr(not(feature = "study"), doc(hidden))]
 pub mod math;
+#[cfg_attr(not(feature = "study"), doc(hidden))]
 pub mod mem;
+#[cfg_attr(not(feature = "study"), doc(hidden))]
 pub mod reference;
+#[cfg_attr(not(feature = "study"), doc(hidden))]
 pub mod render;
+#[cfg_attr(not(feature = "study"), doc(hidden))]
 pub mod trace;
 
 #[cfg(feature = "std")]
@@ -41,6 +70,8 @@ pub mod scenes;
 
 pub use accel::bvh::{BvhInfo, BvhParams};
 pub use accel::grid::{GridInfo, GridParams};
+pub use accel::kd::{KdInfo, KdParams};
+pub use accel::mailbox::Mailbox;
 pub use accel::pgrid::PgridParams;
 #[cfg(feature = "std")]
 pub use context::OwnedContext;
@@ -48,6 +79,10 @@ pub use context::{Context, Stats, required_bytes};
 pub use error::{Error, Pool, Result};
 pub use geom::{Hit, Ray, Scene, TriTest};
 pub use mem::Limits;
-pub use render::deferred::{DeferredInfo, DeferredJob, OnCaller, PrimaryPass, ShadowPass};
+pub use render::deferred::{
+    DeferredInfo, DeferredJob, OnCaller, PhaseTimes, PrimaryPass, ShadowPass, Workers,
+};
+pub use render::material::{Material, MaterialRange, Materials};
+pub use render::whitted::{WhittedJob, WhittedParams};
 pub use render::{Camera, Frame, PointLight, Shading};
-pub use trace::{CgtOptions, Counters, Method, TraceParams};
+pub use trace::{BvhOptions, CgtOptions, Counters, EntrySearch, Method, RayKind, TraceParams};

@@ -4,7 +4,7 @@
  *
  *   embree_bench [options] SCENE.scene...
  *
- * Each SCENE.scene is written by `sheaf export` (src/bin/sheaf/export.rs
+ * Each SCENE.scene is written by `sheaf export` (cli/src/cmd/export.rs
  * documents the format): triangles, one named view, the point light and
  * the renderers' shadow offset. For each scene the program
  *

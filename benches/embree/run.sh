@@ -14,7 +14,7 @@
 #    runs as root; otherwise prints "Embree 3 not installed: skipped" and exits 0.
 # 2. Builds sheaf's static library into target/embree-bench/ (its own target
 #    directory, so the default build's features are left alone) and the
-#    `sheaf` CLI (cargo build --release --features cli).
+#    `sheaf` CLI (cargo build --release -p sheaf-cli).
 # 3. Exports each scene with its view and light (`sheaf export`), builds
 #    benches/embree/embree_bench.c and runs it: progress on stderr, Markdown
 #    on stdout. The full run also writes docs/bench-embree/README.md.
@@ -71,8 +71,8 @@ else
 fi
 echo "== cargo build --release --lib ${features[*]} (target/embree-bench)" >&2
 CARGO_TARGET_DIR=$out cargo build --release --lib "${features[@]}" >&2
-echo "== cargo build --release --features cli" >&2
-cargo build --release --features cli >&2
+echo "== cargo build --release -p sheaf-cli" >&2
+cargo build --release -p sheaf-cli >&2
 sheaf=$ROOT/target/release/sheaf
 
 # ---- scenes ---------------------------------------------------------------------
@@ -135,7 +135,7 @@ if [ $quick = 0 ]; then
     echo "Load average (1, 5, 15 min) before: $load_before; after: $load_after. The machine is"
     echo "shared with other work: 2-thread figures in particular vary from run to run."
     echo
-    echo "Every scene is exported by \`sheaf export\` (\`src/bin/sheaf/export.rs\`) with the view and light"
+    echo "Every scene is exported by \`sheaf export\` (\`cli/src/cmd/export.rs\`) with the view and light"
     echo "\`sheaf render\` picks, and traced by \`benches/embree/embree_bench.c\` with sheaf through its C ABI"
     echo "and with Embree 3 on the same triangles (one Embree geometry with sheaf's index buffer, so"
     echo "Embree's primID is sheaf's triangle index) and bit-identical rays: camera rays from"

@@ -4,7 +4,7 @@
  * over a small scene and traces rays single and in packets, checking every
  * packet hit against the single ray bit for bit.
  *
- *   cargo build --profile release-nostd --no-default-features --features panic-handler --lib
+ *   cargo build -p sheaf --profile release-nostd --no-default-features --features panic-handler --lib
  *   gcc -std=c99 -Wall -Wextra -Werror -pedantic -Iinclude ffi-tests/nostd/create_in.c \
  *       target/release-nostd/libsheaf.a -lm -o target/nostd-create-in && target/nostd-create-in
  *

@@ -14,7 +14,7 @@
 use glam::{Quat, Vec3};
 use sheaf::render::Tracer;
 use sheaf::scenes::View;
-use sheaf::{Counters, PointLight, Ray};
+use sheaf::{Camera, Counters, PointLight, Ray};
 
 /// Default vertical field of view of the outside view (degrees).
 pub const OUTSIDE_FOV: f32 = 45.0;
@@ -150,5 +150,15 @@ pub fn light_for<T: Tracer>(t: &T, v: &View, interior: bool, scale: f32) -> Poin
         position: position.to_array(),
         color: [1.0; 3],
         ..Default::default()
+    }
+}
+
+/// The kernel's `Camera` for a view.
+pub fn camera(v: &View) -> Camera {
+    Camera {
+        eye: v.eye.to_array(),
+        look_at: v.look_at.to_array(),
+        up: v.up.to_array(),
+        fov_y_deg: v.fov_y_deg,
     }
 }

@@ -41,18 +41,20 @@
 //! off and on, with the 2x line) in `--out-dir` (default docs/bench-stress).
 #![forbid(unsafe_code)]
 
-use crate::bench::{
-    OBJ_SCENES, SceneSpec, command_line, machine_line, par_map, scenes_dir, specs_of, view_for,
+use super::common::{
+    FONT, OBJ_SCENES, Progress, SceneSpec, command_line, create_dir, load_or_skip, machine_line,
+    median, par_map, save_chart, scenes_dir, specs_of, tri_test, view_for, write_csv, write_text,
 };
-use crate::load::{self, Loaded};
+use crate::BenchArgs;
+use crate::load::Loaded;
 use crate::run::{self, ms};
-use crate::{BenchArgs, Failure, OrFail, TestArg};
+use anyhow::{Context as _, Result, bail};
 use sheaf::reference::{self, RefHit};
 use sheaf::render::PrimaryRays;
 use sheaf::scenes::stress::{self, RayClass};
 use sheaf::scenes::{Mesh, View};
 use sheaf::trace::{EntrySearch, Structure, fallback};
-use sheaf::{Camera, GridParams, Hit, Limits, Method, OwnedContext, Ray, Scene, TraceParams};
+use sheaf::{GridParams, Hit, Limits, Method, OwnedContext, Ray, Scene, TraceParams};
 use std::fmt::Write as _;
 use std::time::Instant;
 
@@ -191,7 +193,7 @@ struct SceneIn {
 /// The scenes asked for (`--scenes`: stress, built-in or OBJ names, or OBJ
 /// paths; by default the stress scenes, then the built-in and OBJ scenes),
 /// absent OBJ files skipped with a note.
-fn scene_list(a: &BenchArgs) -> Result<Vec<SceneSpec>, Failure> {
+fn scene_list(a: &BenchArgs) -> Result<Vec<SceneSpec>> {
     let names: Vec<String> = if !a.scenes.is_empty() {
         a.scenes.clone()
     } else if a.quick {
@@ -270,11 +272,6 @@ fn structure_index(s: Structure) -> usize {
     }
 }
 
-fn median(v: &mut [u64]) -> u64 {
-    v.sort_unstable();
-    v[v.len() / 2]
-}
-
 /// Trace `rays` with `cfg`, fallbacks switched as it says; None on a panic.
 fn trace(ctx: &mut OwnedContext, cfg: &Cfg, rays: &[Ray], hits: &mut [Hit]) -> Option<u64> {
     fallback::set_enabled(cfg.fallback || cfg.is_baseline());
@@ -291,7 +288,7 @@ fn trace(ctx: &mut OwnedContext, cfg: &Cfg, rays: &[Ray], hits: &mut [Hit]) -> O
     }
 }
 
-pub fn run(a: &BenchArgs) -> Result<(), Failure> {
+pub fn run(a: &BenchArgs) -> Result<()> {
     let start = Instant::now();
     let (nrays, ncam) = match a.size {
         Some((w, h)) => {
@@ -310,13 +307,9 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
         vec![4, 8, 16]
     };
     if let Some(&n) = sides.iter().find(|n| !matches!(n, 2 | 4 | 8 | 16 | 32)) {
-        return Err(Failure(format!("--packets: {n} is not 2, 4, 8, 16 or 32")));
+        bail!("--packets: {n} is not 2, 4, 8, 16 or 32");
     }
-    let test = match a.tests.first() {
-        Some(TestArg::Watertight) => sheaf::TriTest::Watertight,
-        Some(TestArg::Projection) => sheaf::TriTest::Projection,
-        _ => sheaf::TriTest::MollerTrumbore,
-    };
+    let test = tri_test(a);
     let budget = if a.quick {
         QUICK_ORACLE_BUDGET
     } else {
@@ -325,35 +318,41 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
     let cfgs = configs(&sides);
     let list = scene_list(a)?;
     let out_dir = a.out_dir();
-    std::fs::create_dir_all(&out_dir).or_fail(|| format!("cannot create {}", out_dir.display()))?;
+    create_dir(&out_dir)?;
     let machine = machine_line();
-    eprintln!(
+    // One step per scene and ray class; progress on stderr, as the report lines.
+    let steps = list
+        .iter()
+        .map(|s| classes_of(a.quick, s.load.starts_with("stress:")).len() as u64)
+        .sum();
+    let prog = Progress::new("sheaf bench --stress", steps).on_stderr();
+    prog.say(format_args!(
         "sheaf bench --stress: {} scenes, {ncam} camera rays and {nrays} rays per adversarial class, {} configurations, median of up to {reps} rounds, {test:?}, machine: {machine}",
         list.len(),
         cfgs.len()
-    );
+    ));
     let mut results: Vec<ClassResult> = Vec::new();
     let mut infos: Vec<SceneInfo> = Vec::new();
     for spec in &list {
-        let loaded = match load::load(&spec.load) {
-            Ok(l) => l,
-            Err(e) => {
-                eprintln!("note: {}: {e}, skipped", spec.name);
-                continue;
-            }
+        prog.doing(spec.name.clone());
+        let stress = spec.load.starts_with("stress:");
+        let Some(loaded) = load_or_skip(spec, &prog) else {
+            prog.inc(classes_of(a.quick, stress).len() as u64);
+            continue;
         };
         let s = SceneIn {
             name: spec.name.clone(),
             loaded,
-            stress: spec.load.starts_with("stress:"),
+            stress,
         };
-        if let Some((info, mut r)) = scene(&s, a, test, (nrays, ncam), reps, &cfgs, budget)? {
+        let found = scene(&s, a, test, (nrays, ncam), reps, &cfgs, budget, &prog)?;
+        if let Some((info, mut r)) = found {
             infos.push(info);
             results.append(&mut r);
         }
     }
     if results.is_empty() {
-        return Err(Failure("no scene ran".into()));
+        bail!("no scene ran");
     }
     let total_s = start.elapsed().as_secs_f64();
     let setup = Setup {
@@ -368,43 +367,30 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
         quick: a.quick,
     };
     let md_path = out_dir.join("README.md");
-    std::fs::write(&md_path, markdown(&results, &infos, &setup))
-        .or_fail(|| format!("cannot write {}", md_path.display()))?;
-    let csv_path = out_dir.join("stress.csv");
-    std::fs::write(&csv_path, csv(&results))
-        .or_fail(|| format!("cannot write {}", csv_path.display()))?;
+    write_text(&md_path, &markdown(&results, &infos, &setup))?;
+    let (head, records) = csv(&results);
+    write_csv(&out_dir.join("stress.csv"), &head, records)?;
     chart::slowdown(
         &results,
         &setup,
         &out_dir.join("stress.svg"),
         &out_dir.join("stress.png"),
     )?;
-    eprintln!(
+    prog.say(format_args!(
         "wrote {}, stress.csv, stress.svg, stress.png in {} ({total_s:.0} s)",
         md_path.display(),
         out_dir.display()
-    );
+    ));
     Ok(())
 }
 
 /// The rays of `class` (None: the camera's) for `mesh` seen from `view`.
-fn rays_of(
-    class: Option<RayClass>,
-    mesh: &Mesh,
-    view: &View,
-    n: usize,
-) -> Result<Vec<Ray>, Failure> {
+fn rays_of(class: Option<RayClass>, mesh: &Mesh, view: &View, n: usize) -> Result<Vec<Ray>> {
     match class {
         Some(c) => Ok(stress::stress_rays(c, mesh, view, n, 0x5eaf_0007)),
         None => {
             let (w, h) = stress::stress_image_size(n);
-            let cam = Camera {
-                eye: view.eye.to_array(),
-                look_at: view.look_at.to_array(),
-                up: view.up.to_array(),
-                fov_y_deg: view.fov_y_deg,
-            };
-            let pr = PrimaryRays::new(&cam, w, h).or_fail(|| "the camera".into())?;
+            let pr = PrimaryRays::new(&crate::view::camera(view), w, h).context("the camera")?;
             Ok((0..n)
                 .map(|k| {
                     let (x, y) = stress::stress_pixel(k, n);
@@ -413,6 +399,34 @@ fn rays_of(
                 .collect())
         }
     }
+}
+
+/// The ray classes of a scene (None: the camera's rays): every
+/// adversarial class on the stress scenes, `OTHER_CLASSES` on the others,
+/// `QUICK_CLASSES` with `--quick`. `SHEAF_STRESS_CLASSES=camera,grazing`:
+/// only these (for studies, e.g. the camera rays alone at --size 512x512).
+fn classes_of(quick: bool, stress: bool) -> Vec<Option<RayClass>> {
+    let classes: Vec<Option<RayClass>> = std::iter::once(None)
+        .chain(
+            if quick {
+                QUICK_CLASSES
+            } else if stress {
+                &RayClass::ALL[..]
+            } else {
+                OTHER_CLASSES
+            }
+            .iter()
+            .copied()
+            .map(Some),
+        )
+        .collect();
+    let only: Vec<String> = std::env::var("SHEAF_STRESS_CLASSES")
+        .map(|v| v.split(',').map(|s| s.trim().to_string()).collect())
+        .unwrap_or_default();
+    classes
+        .into_iter()
+        .filter(|c| only.is_empty() || only.iter().any(|o| o == c.map_or("camera", |c| c.name())))
+        .collect()
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -424,13 +438,11 @@ fn scene(
     reps: usize,
     cfgs: &[Cfg],
     budget: f64,
-) -> Result<Option<(SceneInfo, Vec<ClassResult>)>, Failure> {
+    prog: &Progress,
+) -> Result<Option<(SceneInfo, Vec<ClassResult>)>> {
     let t0 = Instant::now();
+    let classes = classes_of(a.quick, s.stress);
     let scene = s.loaded.scene()?;
-    if scene.triangle_count() == 0 {
-        eprintln!("note: {}: no triangles, skipped", s.name);
-        return Ok(None);
-    }
     let mut limits = run::limits(&scene, (64, 64), 1);
     limits.structures = Limits::GRID | Limits::BVH | Limits::KD;
     limits.projection_test = test == sheaf::TriTest::Projection;
@@ -454,12 +466,15 @@ fn scene(
                 ..Default::default()
             },
         )
-        .or_fail(|| format!("{}: building the BVH", s.name))?;
+        .with_context(|| format!("{}: building the BVH", s.name))?;
     let kinfo = ctx
         .build_kd(&scene, &kp)
-        .or_fail(|| format!("{}: building the kd-tree", s.name))?;
+        .with_context(|| format!("{}: building the kd-tree", s.name))?;
     if ginfo.triangles == 0 {
-        eprintln!("note: {}: every triangle excluded, skipped", s.name);
+        prog.say(format_args!(
+            "note: {}: every triangle excluded, skipped",
+            s.name
+        ));
         return Ok(None);
     }
     let (view, _, how) = view_for(&s.loaded, &ctx.tracer()?, &ginfo.scene_bounds, 512, 512);
@@ -476,7 +491,7 @@ fn scene(
             ginfo.res[0], ginfo.res[1], ginfo.res[2], binfo.nodes, binfo.depth, kinfo.nodes
         ),
     };
-    eprintln!(
+    prog.say(format_args!(
         "[{}] {} triangles ({} excluded), {}; view {}; built in {:.1} s",
         s.name,
         ginfo.triangles,
@@ -484,32 +499,10 @@ fn scene(
         info.build,
         info.view,
         t0.elapsed().as_secs_f64()
-    );
-    let classes: Vec<Option<RayClass>> = std::iter::once(None)
-        .chain(
-            if a.quick {
-                QUICK_CLASSES
-            } else if s.stress {
-                &RayClass::ALL[..]
-            } else {
-                OTHER_CLASSES
-            }
-            .iter()
-            .copied()
-            .map(Some),
-        )
-        .collect();
-    // `SHEAF_STRESS_CLASSES=camera,grazing`: only these classes (for
-    // studies, e.g. the camera rays alone at --size 512x512).
-    let only: Vec<String> = std::env::var("SHEAF_STRESS_CLASSES")
-        .map(|v| v.split(',').map(|s| s.trim().to_string()).collect())
-        .unwrap_or_default();
+    ));
     let mut out = Vec::new();
     for class in classes {
         let cname = class.map_or("camera", |c| c.name()).to_string();
-        if !only.is_empty() && !only.contains(&cname) {
-            continue;
-        }
         let n = match class {
             None => ncam,
             Some(_) if s.stress || a.size.is_some() => nrays,
@@ -517,7 +510,8 @@ fn scene(
         };
         let rays = rays_of(class, &mesh, &view, n)?;
         let r = class_run(&mut ctx, &scene, &s.name, &cname, &rays, cfgs, reps, budget);
-        progress(&r);
+        prog.say(progress(&r));
+        prog.step();
         out.push(r);
     }
     Ok(Some((info, out)))
@@ -599,7 +593,7 @@ fn class_run(
         if !cells[i].panicked && !samples[i].is_empty() {
             cells[i].samples = samples[i].len();
             cells[i].min_ns = samples[i].iter().copied().min();
-            cells[i].ns = Some(median(&mut samples[i]));
+            cells[i].ns = Some(median(std::mem::take(&mut samples[i])));
         }
     }
     for i in 0..cfgs.len() {
@@ -678,8 +672,8 @@ fn class_run(
     }
 }
 
-/// One stderr line per class: the worst ratio per structure off and on.
-fn progress(r: &ClassResult) {
+/// One report line per class: the worst ratio per structure off and on.
+fn progress(r: &ClassResult) -> String {
     let mut s = format!("  {:<18}", r.class);
     for st in [Structure::Grid, Structure::Bvh, Structure::Kd] {
         let worst = |fb: bool| {
@@ -711,7 +705,7 @@ fn progress(r: &ClassResult) {
     if panics > 0 {
         let _ = write!(s, " | {panics} PANICKED");
     }
-    eprintln!("{s}");
+    s
 }
 
 struct Setup<'a> {
@@ -1162,63 +1156,69 @@ checks that packets which trigger each fallback return the single ray's
 triangle and bitwise t, and that the fallbacks trigger (their counters).
 ";
 
-fn csv(results: &[ClassResult]) -> String {
-    let mut s = String::from(
-        "scene,rays,count,structure,method,packet,entry,fallback,ms,ratio,min_ms,ratio_min,samples,diff_vs_baseline,fallback_packets,fallback_lanes,panicked,slowest_ms,oracle_checked,oracle_tie,oracle_edge,oracle_outside\n",
-    );
+/// stress.csv: the header, then one record per scene, class and configuration.
+fn csv(results: &[ClassResult]) -> (Vec<String>, Vec<Vec<String>>) {
+    let head = "scene,rays,count,structure,method,packet,entry,fallback,ms,ratio,min_ms,ratio_min,samples,diff_vs_baseline,fallback_packets,fallback_lanes,panicked,slowest_ms,oracle_checked,oracle_tie,oracle_edge,oracle_outside"
+        .split(',')
+        .map(String::from)
+        .collect();
+    let mut records = Vec::new();
     for r in results {
         for c in &r.cells {
             let o = r.oracle[structure_index(c.cfg.method.structure())];
-            let _ = writeln!(
-                s,
-                "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{:.3},{},{},{},{}",
-                r.scene,
-                r.class,
-                r.rays,
-                structure_name(c.cfg.method.structure()),
-                c.cfg.method.name(),
-                if c.cfg.method.is_packet() {
-                    c.cfg.packet
-                } else {
-                    0
-                },
-                match c.cfg.entry {
-                    EntrySearch::None => "none",
-                    EntrySearch::Mlrta => "mlrta",
-                    EntrySearch::Aepsa => "aepsa",
-                },
-                if c.cfg.is_baseline() {
-                    "-"
-                } else if c.cfg.fallback {
-                    "on"
-                } else {
-                    "off"
-                },
+            let packet = if c.cfg.method.is_packet() {
+                c.cfg.packet
+            } else {
+                0
+            };
+            let entry = match c.cfg.entry {
+                EntrySearch::None => "none",
+                EntrySearch::Mlrta => "mlrta",
+                EntrySearch::Aepsa => "aepsa",
+            };
+            let fallback = if c.cfg.is_baseline() {
+                "-"
+            } else if c.cfg.fallback {
+                "on"
+            } else {
+                "off"
+            };
+            records.push(vec![
+                r.scene.clone(),
+                r.class.clone(),
+                r.rays.to_string(),
+                structure_name(c.cfg.method.structure()).to_string(),
+                c.cfg.method.name().to_string(),
+                packet.to_string(),
+                entry.to_string(),
+                fallback.to_string(),
                 c.ns.map_or(String::new(), |ns| format!("{:.4}", ms(ns))),
                 c.ratio.map_or(String::new(), |x| format!("{x:.4}")),
                 c.min_ns
                     .map_or(String::new(), |ns| format!("{:.4}", ms(ns))),
                 c.ratio_min.map_or(String::new(), |x| format!("{x:.4}")),
-                c.samples,
-                c.diff,
-                c.fb_packets,
-                c.fb_lanes,
-                c.panicked,
-                ms(c.slowest),
-                o.checked,
-                o.tie,
-                o.edge,
-                o.outside
-            );
+                c.samples.to_string(),
+                c.diff.to_string(),
+                c.fb_packets.to_string(),
+                c.fb_lanes.to_string(),
+                c.panicked.to_string(),
+                format!("{:.3}", ms(c.slowest)),
+                o.checked.to_string(),
+                o.tie.to_string(),
+                o.edge.to_string(),
+                o.outside.to_string(),
+            ]);
         }
     }
-    s
+    (head, records)
 }
 
 mod chart {
-    use super::{Cell, ClassResult, LIMIT, Setup, Structure, find, method_names, structure_name};
-    use crate::bench::chart::{FONT, register_font};
-    use crate::{Failure, OrFail};
+    use super::{
+        Cell, ClassResult, FONT, LIMIT, Setup, Structure, find, method_names, save_chart,
+        structure_name,
+    };
+    use anyhow::Result;
     use plotters::coord::Shift;
     use plotters::prelude::*;
     use std::path::Path;
@@ -1226,10 +1226,6 @@ mod chart {
     const SIZE: (u32, u32) = (1600, 760);
     const OFF: RGBColor = RGBColor(214, 39, 40);
     const ON: RGBColor = RGBColor(44, 160, 44);
-
-    fn e(x: &dyn std::fmt::Display) -> String {
-        x.to_string()
-    }
 
     /// Axis label of a method: `cgt 8`, `M8` (Masked), `R8`, `P8`, `simd`,
     /// `8`, `8 mlrta` (kd packets).
@@ -1254,30 +1250,25 @@ mod chart {
         s: &Setup<'_>,
         svg: &Path,
         png: &Path,
-    ) -> Result<(), Failure> {
-        register_font()?;
-        draw(SVGBackend::new(svg, SIZE).into_drawing_area(), results, s)
-            .map_err(|x| Failure(format!("chart {}: {x}", svg.display())))?;
-        let mut buf = vec![0u8; SIZE.0 as usize * SIZE.1 as usize * 3];
-        draw(
-            BitMapBackend::with_buffer(&mut buf, SIZE).into_drawing_area(),
-            results,
-            s,
+    ) -> Result<()> {
+        save_chart(
+            SIZE,
+            svg,
+            png,
+            |root| draw(root, results, s),
+            |root| draw(root, results, s),
         )
-        .map_err(|x| Failure(format!("chart {}: {x}", png.display())))?;
-        image::save_buffer(png, &buf, SIZE.0, SIZE.1, image::ExtendedColorType::Rgb8)
-            .or_fail(|| format!("cannot write {}", png.display()))
     }
 
     fn draw<DB: DrawingBackend>(
         root: DrawingArea<DB, Shift>,
         results: &[ClassResult],
         s: &Setup<'_>,
-    ) -> Result<(), String>
+    ) -> Result<()>
     where
         DB::ErrorType: 'static,
     {
-        root.fill(&WHITE).map_err(|x| e(&x))?;
+        root.fill(&WHITE)?;
         let mut labels: Vec<(Structure, String)> = Vec::new();
         for st in [Structure::Grid, Structure::Bvh, Structure::Kd] {
             for n in method_names(results, st) {
@@ -1313,8 +1304,7 @@ mod chart {
             .margin(14)
             .x_label_area_size(40)
             .y_label_area_size(70)
-            .build_cartesian_2d(0.0..nx, (bottom..top).log_scale())
-            .map_err(|x| e(&x))?;
+            .build_cartesian_2d(0.0..nx, (bottom..top).log_scale())?;
         c.configure_mesh()
             .disable_x_mesh()
             .x_labels(2 * labels.len() + 1)
@@ -1331,18 +1321,15 @@ mod chart {
             .y_label_formatter(&|y| format!("{y}"))
             .label_style((FONT, 12))
             .axis_desc_style((FONT, 13))
-            .draw()
-            .map_err(|x| e(&x))?;
+            .draw()?;
         // The limit.
         c.draw_series(LineSeries::new(
             [(0.0, LIMIT), (nx, LIMIT)],
             BLACK.stroke_width(2),
-        ))
-        .map_err(|x| e(&x))?
+        ))?
         .label(format!("{LIMIT}x: the limit"))
         .legend(|(x, y)| PathElement::new([(x, y), (x + 18, y)], BLACK.stroke_width(2)));
-        c.draw_series(LineSeries::new([(0.0, 1.0), (nx, 1.0)], BLACK.mix(0.3)))
-            .map_err(|x| e(&x))?;
+        c.draw_series(LineSeries::new([(0.0, 1.0), (nx, 1.0)], BLACK.mix(0.3)))?;
         for (fb, colour, dx, label) in [
             (false, OFF, 0.3, "fallbacks off"),
             (true, ON, 0.7, "fallbacks on"),
@@ -1361,8 +1348,7 @@ mod chart {
             c.draw_series(
                 pts.iter()
                     .map(|p| Circle::new(*p, 3, colour.mix(0.45).filled())),
-            )
-            .map_err(|x| e(&x))?
+            )?
             .label(label)
             .legend(move |(x, y)| Circle::new((x + 9, y), 4, colour.filled()));
             c.draw_series(worst.iter().map(|p| {
@@ -1370,8 +1356,7 @@ mod chart {
                     [(p.0 - 0.12, p.1 / 1.04), (p.0 + 0.12, p.1 * 1.04)],
                     colour.filled(),
                 )
-            }))
-            .map_err(|x| e(&x))?;
+            }))?;
         }
         // Structure names over their groups, and lines between the groups.
         let mut i0 = 0usize;
@@ -1389,14 +1374,12 @@ mod chart {
                 title.to_string(),
                 (i0 as f64 + 0.1, top / 1.12),
                 (FONT, 14).into_font(),
-            )))
-            .map_err(|x| e(&x))?;
+            )))?;
             if i0 > 0 {
                 c.draw_series(LineSeries::new(
                     [(i0 as f64, bottom), (i0 as f64, top)],
                     BLACK.mix(0.5),
-                ))
-                .map_err(|x| e(&x))?;
+                ))?;
             }
             i0 += k;
         }
@@ -1406,8 +1389,7 @@ mod chart {
             .background_style(WHITE.mix(0.85))
             .border_style(BLACK.mix(0.4))
             .label_font((FONT, 13))
-            .draw()
-            .map_err(|x| e(&x))?;
+            .draw()?;
         Ok(())
     }
 }

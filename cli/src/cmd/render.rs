@@ -1,77 +1,23 @@
-//! The three commands: `demo`, `render`, `info`.
+//! `sheaf render`: one image of an OBJ file or a built-in scene: plain
+//! frames (Lambert, shadow rays), Whitted frames (reflections, refractions)
+//! or deferred frames (perspective grid, light grids; their phase times).
 
+use super::{grid_line, kd_line, mib, phases, primary_label, shadow_label, v3};
 use crate::load::{self, Loaded};
-use crate::run::{self, mrays, ms, res};
+use crate::run::{self, mrays, ms};
 use crate::view::{self, INSIDE_FOV, OUTSIDE_FOV};
-use crate::{
-    DemoArgs, Failure, GridOpts, InfoArgs, MaterialsArg, OrFail, PrimaryArg, RenderArgs, ShadowsArg,
-};
+use crate::{MaterialsArg, PrimaryArg, RenderArgs, ShadowsArg};
+use anyhow::{Context as _, Result, anyhow, bail};
 use glam::Vec3;
 use sheaf::render::material::{Material, Materials};
 use sheaf::render::whitted::{WhittedJob, WhittedParams};
-use sheaf::scenes::animated::Animated;
-use sheaf::scenes::{ANIMATED_DETAIL, View};
 use sheaf::trace::RayKind;
 use sheaf::{
-    Camera, DeferredInfo, DeferredJob, Frame, GridInfo, Limits, PointLight, PrimaryPass, Scene,
-    Shading, ShadowPass, TraceParams, required_bytes,
+    DeferredInfo, DeferredJob, Frame, GridInfo, Limits, PointLight, PrimaryPass, Shading,
+    ShadowPass, TraceParams, required_bytes,
 };
 use std::fmt::Write as _;
 use std::time::Instant;
-
-fn camera(v: &View) -> Camera {
-    Camera {
-        eye: v.eye.to_array(),
-        look_at: v.look_at.to_array(),
-        up: v.up.to_array(),
-        fov_y_deg: v.fov_y_deg,
-    }
-}
-
-fn v3(v: [f32; 3]) -> String {
-    format!("{},{},{}", v[0], v[1], v[2])
-}
-
-fn mib(bytes: usize) -> f64 {
-    bytes as f64 / (1024.0 * 1024.0)
-}
-
-fn grid_line(info: &GridInfo, g: &GridOpts) -> String {
-    format!(
-        "{} = {} cells (lambda {} asked, {:.2} used), {} refs ({:.2} per triangle), macrocell {}, {:?}",
-        res(info),
-        info.cells(),
-        g.lambda,
-        info.lambda,
-        info.refs,
-        info.refs as f64 / info.triangles.max(1) as f64,
-        info.macrocell,
-        info.test,
-    )
-}
-
-/// The kd-tree's AEPSA Table 1 line and more: triangles, nodes, leaves,
-/// % empty, average leaf depth, references per triangle, build time.
-pub(crate) fn kd_line(k: &sheaf::accel::kd::KdInfo, build_ns: u64) -> String {
-    let mut s = format!(
-        "{} triangles, {} nodes, {} leaves ({:.2} % empty), avg leaf depth {:.2} (max {}, limit {}), {} refs ({:.2} per triangle), SAH cost {:.1}, build {:.2} ms",
-        k.triangles,
-        k.nodes,
-        k.leaves,
-        100.0 * k.empty_leaves as f64 / k.leaves.max(1) as f64,
-        k.avg_leaf_depth,
-        k.depth,
-        k.max_depth,
-        k.refs,
-        k.refs as f64 / k.triangles.max(1) as f64,
-        k.sah_cost,
-        ms(build_ns)
-    );
-    if k.forced_leaves > 0 {
-        let _ = write!(s, ", {} leaves forced by full pools", k.forced_leaves);
-    }
-    s
-}
 
 fn excluded_line(l: &Loaded, info: &GridInfo) -> String {
     let mut s = format!(
@@ -91,144 +37,38 @@ fn excluded_line(l: &Loaded, info: &GridInfo) -> String {
     s
 }
 
-/// `sheaf demo`: the animated scene, one rebuild and one render per frame.
-pub fn demo(a: &DemoArgs) -> Result<(), Failure> {
-    let threads = run::threads(a.threads)?;
-    let (w, h) = a.size;
-    let dt = a.dt;
-    if !dt.is_finite() {
-        return Err(Failure(format!("--dt {dt}: must be finite")));
-    }
-    let mut anim = Animated::new(ANIMATED_DETAIL);
-    let views = anim.views();
-    let view = *views.get(a.view).ok_or_else(|| {
-        Failure(format!(
-            "--view {}: the demo has views 0..={}",
-            a.view,
-            views.len() - 1
-        ))
-    })?;
-    let params = a.grid.params();
-    let (primary, shadow) = a.trace.params()?;
-
-    // The one context: sized on frame 0, grid pools with 25 % headroom if the
-    // default rule is too small, so later frames fit too.
-    let (mut ctx, _) = {
-        let scene = Scene::from_f32(&anim.mesh.vertices, &anim.mesh.indices)?;
-        run::context_for(&scene, run::limits(&scene, a.size, threads), &params, 1.25)?
-    };
-    let bytes = required_bytes(ctx.limits())?;
-    std::fs::create_dir_all(&a.out_dir)
-        .or_fail(|| format!("cannot create {}", a.out_dir.display()))?;
-    let frame = Frame {
-        camera: camera(&view),
-        light: PointLight {
-            position: anim.light().to_array(),
-            color: [1.0; 3],
-            ..Default::default()
-        },
-        shading: Shading::default(),
-        width: w,
-        height: h,
-    };
-    let mut pixels = vec![0u8; w as usize * h as usize * 4];
-    println!(
-        "sheaf demo: animated scene, {} triangles, {w}x{h}, {}, {threads} threads, dt {dt} s, context {:.2} MiB, frames in {}",
-        anim.mesh.triangle_count(),
-        a.trace.label(),
-        mib(bytes),
-        a.out_dir.display()
-    );
-    println!(
-        "{:>5} {:>9} {:>12} {:>9} {:>9} {:>9} {:>9} {:>8}",
-        "frame", "triangles", "grid", "refs", "build ms", "trace ms", "rays", "Mrays/s"
-    );
-    let (mut build_ns, mut trace_ns, mut rays) = (0u64, 0u64, 0u64);
-    for f in 0..a.frames {
-        anim.set_time(f as f32 * dt);
-        let scene = Scene::from_f32(&anim.mesh.vertices, &anim.mesh.indices)?;
-        let info = ctx
-            .build_grid(&scene, &params)
-            .or_fail(|| format!("frame {f}: building the grid"))?;
-        let bvh = run::build_bvh_if_used(&mut ctx, &scene, params.test, &[primary, shadow])?;
-        let kd = run::build_kd_if_used(&mut ctx, &scene, params.test, &[primary, shadow])?;
-        let b = ctx.stats().build_ns
-            + if bvh.is_some() {
-                ctx.stats().bvh_build_ns
-            } else {
-                0
-            }
-            + if kd.is_some() {
-                ctx.stats().kd_build_ns
-            } else {
-                0
-            };
-        let ctr = run::render_frame(&mut ctx, &primary, &shadow, &frame, &mut pixels, threads)?;
-        let t = ctx.stats().trace_ns;
-        run::write_png(&a.out_dir.join(format!("frame_{f:03}.png")), &pixels, w, h)?;
-        println!(
-            "{f:>5} {:>9} {:>12} {:>9} {:>9.2} {:>9.2} {:>9} {:>8.2}",
-            info.triangles,
-            res(&info),
-            info.refs,
-            ms(b),
-            ms(t),
-            ctr.rays,
-            mrays(ctr.rays, t)
-        );
-        build_ns += b;
-        trace_ns += t;
-        rays += ctr.rays;
-    }
-    let n = a.frames as u64;
-    println!(
-        "mean over {n} frames: build {:.2} ms, trace {:.2} ms, {:.2} Mrays/s (lambda {}, macrocell {}, {:?})",
-        ms(build_ns / n),
-        ms(trace_ns / n),
-        mrays(rays, trace_ns),
-        a.grid.lambda,
-        a.grid.macrocell,
-        params.test
-    );
-    Ok(())
-}
-
 /// `sheaf render`: one image of an OBJ file or a built-in scene.
-pub fn render(a: &RenderArgs) -> Result<(), Failure> {
+pub fn render(a: &RenderArgs) -> Result<()> {
     let threads = run::threads(a.threads)?;
     let (w, h) = a.size;
     if let Some(f) = a.fov.filter(|f| !(*f > 0.0 && *f < 180.0)) {
-        return Err(Failure(format!("--fov {f}: must be in (0, 180)")));
+        bail!("--fov {f}: must be in (0, 180)");
     }
     if a.up == Some([0.0; 3]) {
-        return Err(Failure("--up must not be zero".into()));
+        bail!("--up must not be zero");
     }
     let t_load = Instant::now();
     let loaded = load::load(&a.scene)?;
     let load_ns = t_load.elapsed().as_nanos() as u64;
     let scene = loaded.scene()?;
     if scene.triangle_count() == 0 {
-        return Err(Failure(format!("{}: no triangles", loaded.label)));
+        bail!("{}: no triangles", loaded.label);
     }
     let params = a.grid.params();
     let (primary, shadow) = a.trace.params()?;
     // Deferred frames: --primary / --shadows.
     let deferred = a.primary.is_some() || a.shadows.is_some();
     if deferred && (a.reflect > 0 || a.refract > 0) {
-        return Err(Failure(
+        bail!(
             "--primary/--shadows render deferred frames, which have no reflections or refractions"
-                .into(),
-        ));
+        );
     }
     if !deferred && a.pgrid.any() {
-        return Err(Failure(
-            "--pgrid-tile, --pgrid-group, --slices, --light-tiles, --light-slices and --chunk apply to deferred frames: add --primary pgrid or --shadows light-grid".into(),
-        ));
+        bail!(
+            "--pgrid-tile, --pgrid-group, --slices, --light-tiles, --light-slices and --chunk apply to deferred frames: add --primary pgrid or --shadows light-grid"
+        );
     }
-    let pgrid = a
-        .pgrid
-        .params(params.test)
-        .or_fail(|| "pgrid parameters".into())?;
+    let pgrid = a.pgrid.params(params.test).context("pgrid parameters")?;
     let (primary_pass, shadow_pass) = passes(a, &primary, &shadow, &pgrid)?;
     let traced: Vec<TraceParams> = [
         match primary_pass {
@@ -257,10 +97,10 @@ pub fn render(a: &RenderArgs) -> Result<(), Failure> {
         run::context_for(&scene, run::limits(&scene, a.size, threads), &params, 1.0)?
     };
     if info.triangles == 0 {
-        return Err(Failure(format!(
+        bail!(
             "{}: every triangle is degenerate or non-finite",
             loaded.label
-        )));
+        );
     }
     let whitted = a.reflect > 0 || a.refract > 0;
     let secondary = match a.secondary_method {
@@ -298,11 +138,11 @@ pub fn render(a: &RenderArgs) -> Result<(), Failure> {
         Some((views, _)) => {
             let i = a.view.unwrap_or(0);
             let v = *views.get(i).ok_or_else(|| {
-                Failure(format!(
+                anyhow!(
                     "--view {i}: {} has views 0..={}",
                     loaded.label,
                     views.len() - 1
-                ))
+                )
             })?;
             (v, format!("builtin view {i}"))
         }
@@ -322,9 +162,7 @@ pub fn render(a: &RenderArgs) -> Result<(), Failure> {
                 ),
                 1 => inside,
                 _ => {
-                    return Err(Failure(format!(
-                        "--view {i}: OBJ scenes have views 0 (outside) and 1 (inside)"
-                    )));
+                    bail!("--view {i}: OBJ scenes have views 0 (outside) and 1 (inside)");
                 }
             };
             let what = if i == 0 { "outside" } else { "inside" };
@@ -370,7 +208,7 @@ pub fn render(a: &RenderArgs) -> Result<(), Failure> {
         }
     };
     let frame = Frame {
-        camera: camera(&v),
+        camera: view::camera(&v),
         light,
         shading: Shading {
             shadows: !a.no_shadows,
@@ -545,7 +383,7 @@ fn passes(
     primary: &TraceParams,
     shadow: &TraceParams,
     pgrid: &sheaf::PgridParams,
-) -> Result<(PrimaryPass, ShadowPass), Failure> {
+) -> Result<(PrimaryPass, ShadowPass)> {
     let p = match a.primary {
         Some(PrimaryArg::Pgrid) => PrimaryPass::Pgrid,
         Some(PrimaryArg::Method(m)) => PrimaryPass::Traced(TraceParams {
@@ -555,7 +393,7 @@ fn passes(
         None => PrimaryPass::Traced(*primary),
     };
     if let PrimaryPass::Traced(t) = &p {
-        run::validate(t).or_fail(|| "--primary".into())?;
+        run::validate(t).context("--primary")?;
     }
     let side = sheaf::render::deferred::tile_side(&p, pgrid.tile, pgrid.group);
     let s = match a.shadows {
@@ -569,7 +407,7 @@ fn passes(
     let s = match s {
         ShadowPass::Traced(t) if run::is_packet(t.method) => {
             let t = TraceParams { packet: side, ..t };
-            run::validate(&t).or_fail(|| {
+            run::validate(&t).with_context(|| {
                 format!(
                     "shadow packets of a deferred frame take the tracing tile's side ({side}x{side})"
                 )
@@ -579,40 +417,6 @@ fn passes(
         s => s,
     };
     Ok((p, s))
-}
-
-fn traced_label(p: &TraceParams) -> String {
-    if run::is_packet(p.method) {
-        format!("{} {}x{}", p.method.name(), p.packet, p.packet)
-    } else {
-        p.method.name().to_string()
-    }
-}
-
-pub(crate) fn primary_label(p: &PrimaryPass) -> String {
-    match p {
-        PrimaryPass::Pgrid => "pgrid".into(),
-        PrimaryPass::Traced(t) => traced_label(t),
-    }
-}
-
-pub(crate) fn shadow_label(s: &ShadowPass) -> String {
-    match s {
-        ShadowPass::LightGrid => "light-grid".into(),
-        ShadowPass::Traced(t) => traced_label(t),
-    }
-}
-
-/// The Figure 10 phases of a deferred frame: (name, ns).
-pub(crate) fn phases(t: &sheaf::render::deferred::PhaseTimes) -> [(&'static str, u64); 6] {
-    [
-        ("primary build", t.primary_build),
-        ("primary traversal", t.primary_trace),
-        ("data rearrangement", t.rearrange),
-        ("shadow build", t.shadow_build),
-        ("shadow traversal", t.shadow_trace),
-        ("shade", t.shade),
-    ]
 }
 
 /// `sheaf render`'s report of a deferred frame: the phase table (paper
@@ -691,151 +495,4 @@ fn deferred_lines(
             limits.pgrid_refs()
         );
     }
-}
-
-/// `sheaf info`: sizes, bounds and memory.
-pub fn info(a: &InfoArgs) -> Result<(), Failure> {
-    let loaded = load::load(&a.scene)?;
-    let scene = loaded.scene()?;
-    let n = scene.triangle_count();
-    println!("scene      {}", loaded.label);
-    let mut tri = format!("{n}");
-    if loaded.skipped > 0 {
-        let _ = write!(
-            tri,
-            " ({} triangles of the file's faces skipped by the OBJ loader)",
-            loaded.skipped
-        );
-    }
-    println!("triangles  {tri}");
-    println!("vertices   {}", loaded.vertex_count());
-    match loaded.bounds() {
-        Some((lo, hi)) => println!(
-            "bounds     min ({}) max ({}) extent ({})",
-            v3(lo.to_array()),
-            v3(hi.to_array()),
-            v3((hi - lo).to_array())
-        ),
-        None => println!("bounds     none (no finite vertex in a triangle)"),
-    }
-    let mut limits = Limits::for_triangles(n);
-    limits.max_vertices = scene.vertex_count();
-    let bytes = required_bytes(&limits)?;
-    let per_tri = if n > 0 {
-        format!(", {:.1} bytes/triangle", bytes as f64 / n as f64)
-    } else {
-        String::new()
-    };
-    println!(
-        "memory     {bytes} bytes ({:.2} MiB{per_tri}) for Limits::for_triangles({n}) (grid pools: {} cells, {} refs)",
-        mib(bytes),
-        limits.grid_cells(),
-        limits.grid_refs()
-    );
-    if n > 0 {
-        let (mut ctx, info) = run::context_for(&scene, limits, &a.grid.params(), 1.0)?;
-        let mut tight = *ctx.limits();
-        tight.max_grid_cells = info.cells().max(1) as u32;
-        tight.max_grid_refs = info.refs.max(1);
-        let tight_bytes = required_bytes(&tight)?;
-        println!("grid       {}", grid_line(&info, &a.grid));
-        println!(
-            "excluded   {} non-finite, {} zero-area",
-            info.excluded_non_finite, info.excluded_zero_area
-        );
-        println!("build      {:.2} ms", ms(ctx.stats().build_ns));
-        println!(
-            "tight      {tight_bytes} bytes ({:.2} MiB, {:.1} bytes/triangle) with the grid pools cut to this grid's cells and refs",
-            mib(tight_bytes),
-            tight_bytes as f64 / n as f64
-        );
-        let b = ctx.build_bvh(
-            &scene,
-            &sheaf::BvhParams {
-                test: info.test,
-                ..Default::default()
-            },
-        )?;
-        let bvh_only = Limits {
-            structures: Limits::BVH,
-            ..limits
-        };
-        println!(
-            "bvh        {} nodes, {} leaves, depth {}, SAH cost {:.1} (leaves of up to 4, 16 bins), build {:.2} ms = {:.2} M triangles/s",
-            b.nodes,
-            b.leaves,
-            b.depth,
-            b.sah_cost,
-            ms(ctx.stats().bvh_build_ns),
-            b.triangles as f64 / (ctx.stats().bvh_build_ns.max(1) as f64 * 1e-3)
-        );
-        println!(
-            "bvh only   {} bytes ({:.2} MiB, {:.1} bytes/triangle) with Limits::structures = BVH",
-            required_bytes(&bvh_only)?,
-            mib(required_bytes(&bvh_only)?),
-            required_bytes(&bvh_only)? as f64 / n as f64
-        );
-        let k = ctx.build_kd(
-            &scene,
-            &sheaf::accel::kd::KdParams {
-                test: info.test,
-                ..Default::default()
-            },
-        )?;
-        println!("kd-tree    {}", kd_line(&k, ctx.stats().kd_build_ns));
-        let kd_only = Limits {
-            structures: Limits::KD,
-            ..*ctx.limits()
-        };
-        let kd_bytes = required_bytes(&kd_only)?;
-        println!(
-            "kd only    {kd_bytes} bytes ({:.2} MiB, {:.1} bytes/triangle) with Limits::structures = KD (pools: {} nodes, {} refs, {} build events; this tree uses {} nodes, {} refs, {} events)",
-            mib(kd_bytes),
-            kd_bytes as f64 / n as f64,
-            kd_only.kd_nodes(),
-            kd_only.kd_refs(),
-            kd_only.kd_events(),
-            k.nodes,
-            k.refs,
-            k.events_peak
-        );
-        if k.forced_leaves > 0 {
-            let (grown, g) = run::kd_limits(
-                &scene,
-                kd_only,
-                &sheaf::accel::kd::KdParams {
-                    test: info.test,
-                    ..Default::default()
-                },
-            )?;
-            let b = required_bytes(&grown)?;
-            println!(
-                "kd grown   {b} bytes ({:.2} MiB, {:.1} bytes/triangle) with max_kd_nodes {} and max_kd_refs {}: {}",
-                mib(b),
-                b as f64 / n as f64,
-                grown.kd_nodes(),
-                grown.kd_refs(),
-                kd_line(&g, 0).split(", build").next().unwrap_or_default()
-            );
-        }
-    }
-    // Perspective/light grid pools: they scale with the image.
-    let (w, h) = a.size;
-    let pg = Limits {
-        structures: Limits::PGRID,
-        max_image_width: w,
-        max_image_height: h,
-        ..limits
-    };
-    let pg_bytes = required_bytes(&pg)?;
-    println!(
-        "pgrid only {pg_bytes} bytes ({:.2} MiB, {:.1} bytes/pixel) with Limits::structures = PGRID at {w}x{h} (pools: {} cells and {} pairs per grid, {} frame pixels with {}-pixel tile padding)",
-        mib(pg_bytes),
-        pg_bytes as f64 / (w as f64 * h as f64),
-        pg.pgrid_cells(),
-        pg.pgrid_refs(),
-        pg.frame_pixels(),
-        pg.max_tile
-    );
-    Ok(())
 }

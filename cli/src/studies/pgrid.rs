@@ -39,17 +39,20 @@
 //! pixel with the pgrid + light-grid frame's.
 #![forbid(unsafe_code)]
 
-use crate::bench::{SceneSpec, command_line, machine_line, scene_specs, view_for};
+use super::common::{
+    FONT, Progress, SceneSpec, check_threads, command_line, create_dir, load_or_skip, machine_line,
+    ratio, scene_specs, tri_test, view_for, write_csv, write_text,
+};
+use crate::BenchArgs;
 use crate::cmd::{primary_label, shadow_label};
-use crate::load;
 use crate::run::{self, DeferredSetup, ItemTimes, Threads, ms};
-use crate::{BenchArgs, Failure, OrFail, TestArg};
+use anyhow::{Context as _, Result, bail};
 use glam::Vec3;
 use sheaf::render::deferred::{PhaseTimes, tile_side};
 use sheaf::trace::RayKind;
 use sheaf::{
-    Camera, DeferredInfo, DeferredJob, Frame, GridParams, Method, OwnedContext, PgridParams,
-    PointLight, PrimaryPass, Shading, ShadowPass, TraceParams,
+    DeferredInfo, DeferredJob, Frame, GridParams, Method, OwnedContext, PgridParams, PointLight,
+    PrimaryPass, Shading, ShadowPass, TraceParams,
 };
 use std::fmt::Write as _;
 use std::path::Path;
@@ -313,12 +316,12 @@ struct Bench<'s> {
 }
 
 impl Bench<'_> {
-    fn frame(&mut self, cfg: &Config) -> Result<Sample, Failure> {
+    fn frame(&mut self, cfg: &Config) -> Result<Sample> {
         if self.setup.pgrid.chunk != cfg.chunk {
             self.setup.pgrid.chunk = cfg.chunk;
             self.ctx
                 .build_pgrid(self.setup.scene, &self.setup.pgrid)
-                .or_fail(|| "loading the scene for the perspective grids".into())?;
+                .context("loading the scene for the perspective grids")?;
         }
         self.frame.shading.shadows = cfg.shadows;
         let job = DeferredJob {
@@ -380,22 +383,16 @@ fn diff_pixels(a: &[u8], b: &[u8]) -> u64 {
 }
 
 /// `sheaf bench --pgrid`.
-pub fn run(a: &BenchArgs) -> Result<(), Failure> {
+pub fn run(a: &BenchArgs) -> Result<()> {
     let start = Instant::now();
     let (w, h) = a
         .size
         .unwrap_or(if a.quick { (256, 256) } else { (1024, 1024) });
     let hw = std::thread::available_parallelism().map_or(1, |n| n.get() as u32);
     let threads = a.threads.iter().copied().max().unwrap_or(hw);
-    if !(1..=64).contains(&threads) {
-        return Err(Failure("--threads: each must be in 1..=64".into()));
-    }
+    check_threads(&[threads])?;
     let reps = a.reps.unwrap_or(if a.quick { 1 } else { 3 }).max(1);
-    let test = match a.tests.first() {
-        Some(TestArg::Watertight) => sheaf::TriTest::Watertight,
-        Some(TestArg::Projection) => sheaf::TriTest::Projection,
-        _ => sheaf::TriTest::MollerTrumbore,
-    };
+    let test = tri_test(a);
     let grid = GridParams {
         lambda: a.lambda,
         macrocell: a.macrocell,
@@ -406,7 +403,7 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
     let side = tile_side(&PrimaryPass::Pgrid, pp.tile, pp.group);
     let specs: Vec<SceneSpec> = scene_specs(a)?;
     let out_dir = a.out_dir();
-    std::fs::create_dir_all(&out_dir).or_fail(|| format!("cannot create {}", out_dir.display()))?;
+    create_dir(&out_dir)?;
     let machine = machine_line();
     let cfgs = configs(&pp, side);
     let fig11_names: Vec<String> = {
@@ -421,7 +418,13 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
             present.iter().map(|s| s.to_string()).collect()
         }
     };
-    println!(
+    // Steps: each round of a scene's configurations, each light distance of Figure 11.
+    let fig11_steps = FIG11_STEPS as u64;
+    let prog = Progress::new(
+        "sheaf bench --pgrid",
+        specs.len() as u64 * reps as u64 + fig11_names.len() as u64 * fig11_steps,
+    );
+    prog.say(format_args!(
         "sheaf bench --pgrid: {} scenes, {w}x{h}, {threads} threads, {} configurations per scene, median of up to {reps} rounds (fewer after {SCENE_CAP_S:.0} s per scene), Figure 11 at {}x{} on {}, PgridParams {{ tile {}, group {}, slices {}, light tiles {}, light slices {}, chunk r {} }}, {test:?}, machine: {machine}",
         specs.len(),
         cfgs.len(),
@@ -438,13 +441,14 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
         pp.light_tiles,
         pp.light_slices,
         pp.chunk
-    );
+    ));
     let mut results: Vec<SceneResult> = Vec::new();
     // Scenes for Figure 11 when neither named one runs: after the others,
     // the two largest (re-run then).
     let mut deferred_fig11: Vec<(usize, SceneSpec)> = Vec::new();
     for spec in &specs {
         let fig11 = fig11_names.contains(&spec.name);
+        prog.doing(spec.name.clone());
         match scene(
             spec,
             (w, h),
@@ -455,6 +459,7 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
             &cfgs,
             fig11,
             &out_dir,
+            &prog,
         )? {
             Some(r) => {
                 if fig11_names.is_empty() {
@@ -474,16 +479,29 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
     if fig11_names.is_empty() && !deferred_fig11.is_empty() {
         deferred_fig11.sort_by_key(|(n, _)| std::cmp::Reverse(*n));
         deferred_fig11.truncate(2);
-        println!(
+        prog.say(format_args!(
             "note: conference and sponza did not run: Figure 11 on {}",
             deferred_fig11
                 .iter()
                 .map(|(_, s)| s.name.as_str())
                 .collect::<Vec<_>>()
                 .join(", ")
-        );
+        ));
+        prog.add(deferred_fig11.len() as u64 * fig11_steps);
         for (_, spec) in &deferred_fig11 {
-            if let Some(r) = scene(spec, (w, h), threads, reps, &grid, &pp, &[], true, &out_dir)? {
+            prog.doing(format!("{}: Figure 11", spec.name));
+            if let Some(r) = scene(
+                spec,
+                (w, h),
+                threads,
+                reps,
+                &grid,
+                &pp,
+                &[],
+                true,
+                &out_dir,
+                &prog,
+            )? {
                 if let Some(x) = results.iter_mut().find(|x| x.name == r.name) {
                     x.fig11 = r.fig11;
                     x.fig11_dir = r.fig11_dir;
@@ -493,7 +511,7 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
         }
     }
     if results.is_empty() {
-        return Err(Failure("no scene ran".into()));
+        bail!("no scene ran");
     }
     let total_s = start.elapsed().as_secs_f64();
     let setup = Setup {
@@ -510,13 +528,11 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
     };
     let md = markdown(&results, &setup);
     let md_path = out_dir.join("README.md");
-    std::fs::write(&md_path, &md).or_fail(|| format!("cannot write {}", md_path.display()))?;
-    let csv_path = out_dir.join("pgrid.csv");
-    std::fs::write(&csv_path, csv(&results))
-        .or_fail(|| format!("cannot write {}", csv_path.display()))?;
-    let csv11 = out_dir.join("figure11.csv");
-    std::fs::write(&csv11, csv_fig11(&results))
-        .or_fail(|| format!("cannot write {}", csv11.display()))?;
+    write_text(&md_path, &md)?;
+    let (head, records) = csv(&results);
+    write_csv(&out_dir.join("pgrid.csv"), &head, records)?;
+    let (head, records) = csv_fig11(&results);
+    write_csv(&out_dir.join("figure11.csv"), &head, records)?;
     charts::figure10(
         &results,
         &setup,
@@ -537,7 +553,7 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
             &out_dir.join("figure11.png"),
         )?;
     }
-    println!(
+    prog.say(format_args!(
         "wrote {}, pgrid.csv, figure11.csv, figure10.svg/png, shadows.svg/png{} in {} ({:.0} s)",
         md_path.display(),
         if results.iter().any(|r| !r.fig11.is_empty()) {
@@ -547,7 +563,7 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
         },
         out_dir.display(),
         start.elapsed().as_secs_f64()
-    );
+    ));
     Ok(())
 }
 
@@ -605,20 +621,17 @@ fn scene(
     cfgs: &[Config],
     fig11: bool,
     out_dir: &Path,
-) -> Result<Option<SceneResult>, Failure> {
+    prog: &Progress,
+) -> Result<Option<SceneResult>> {
+    // The steps this scene stands for, done when it is skipped.
+    let steps =
+        if cfgs.is_empty() { 0 } else { reps as u64 } + if fig11 { FIG11_STEPS as u64 } else { 0 };
     let t_load = Instant::now();
-    let loaded = match load::load(&spec.load) {
-        Ok(l) => l,
-        Err(e) => {
-            println!("note: {}: {e}, skipped", spec.name);
-            return Ok(None);
-        }
+    let Some(loaded) = load_or_skip(spec, prog) else {
+        prog.inc(steps);
+        return Ok(None);
     };
     let scene = loaded.scene()?;
-    if scene.triangle_count() == 0 {
-        println!("note: {}: no triangles, skipped", spec.name);
-        return Ok(None);
-    }
     let load_s = t_load.elapsed().as_secs_f64();
     let setup = DeferredSetup {
         scene: &scene,
@@ -631,22 +644,18 @@ fn scene(
     limits.structures = sheaf::Limits::GRID | sheaf::Limits::BVH | sheaf::Limits::PGRID;
     let (ctx, info) = setup.context(limits)?;
     if info.triangles == 0 {
-        println!(
+        prog.say(format_args!(
             "note: {}: every triangle is degenerate or non-finite, skipped",
             spec.name
-        );
+        ));
+        prog.inc(steps);
         return Ok(None);
     }
     let grid_build_ns = ctx.stats().build_ns;
     let bvh_build_ns = ctx.stats().bvh_build_ns;
     let (v, light, how) = view_for(&loaded, &ctx.tracer()?, &info.bounds, w, h);
     let frame = Frame {
-        camera: Camera {
-            eye: v.eye.to_array(),
-            look_at: v.look_at.to_array(),
-            up: v.up.to_array(),
-            fov_y_deg: v.fov_y_deg,
-        },
+        camera: crate::view::camera(&v),
         light: PointLight {
             position: light.to_array(),
             color: [1.0; 3],
@@ -659,14 +668,14 @@ fn scene(
         width: w,
         height: h,
     };
-    println!(
+    prog.say(format_args!(
         "[{}] {} triangles, loaded in {load_s:.1} s; grid {} build {:.0} ms, BVH build {:.0} ms; view {how}",
         spec.name,
         info.triangles,
         run::res(&info),
         ms(grid_build_ns),
         ms(bvh_build_ns)
-    );
+    ));
     let mut b = Bench {
         setup,
         ctx,
@@ -726,16 +735,18 @@ fn scene(
                 }
             }
             round += 1;
-            println!(
+            prog.step();
+            prog.say(format_args!(
                 "[{}] round {round}/{reps}: {} frames in {:.1} s",
                 spec.name,
                 cfgs.len(),
                 tr.elapsed().as_secs_f64()
-            );
+            ));
         }
+        prog.inc((reps - round) as u64);
         for (i, c) in cfgs.iter().enumerate() {
             let r = CfgResult::new(*c, &samples[i], diffs[i]);
-            println!("[{}] {}", spec.name, progress(&r, w, h));
+            prog.say(format_args!("[{}] {}", spec.name, progress(&r, w, h)));
             res.cfgs.push(r);
         }
     }
@@ -804,7 +815,8 @@ fn scene(
             for (j, r) in FIG11_R.iter().enumerate() {
                 let _ = write!(line, " r={r} {:.2}", ms(row.shadow_ns[j]));
             }
-            println!("{line}");
+            prog.say(line);
+            prog.step();
             res.fig11.push(row);
         }
         b.frame.light.position = light.to_array();
@@ -813,12 +825,12 @@ fn scene(
         b.pixels.resize(w as usize * h as usize * 4, 0);
     }
     if b.grown {
-        println!(
+        prog.say(format_args!(
             "[{}] note: a perspective or light grid outgrew the pools: grown to {} cells, {} pairs per grid",
             spec.name,
             b.ctx.limits().pgrid_cells(),
             b.ctx.limits().pgrid_refs()
-        );
+        ));
     }
     Ok(Some(res))
 }
@@ -873,10 +885,6 @@ struct Setup<'a> {
     machine_start: String,
     machine_end: String,
     total_s: f64,
-}
-
-fn ratio(a: u64, b: u64) -> f64 {
-    if b == 0 { 0.0 } else { a as f64 / b as f64 }
 }
 
 fn f2(ns: u64) -> String {
@@ -1429,19 +1437,23 @@ fn summary(m: &mut String, results: &[SceneResult], s: &Setup<'_>) {
     let _ = writeln!(m);
 }
 
-fn csv(results: &[SceneResult]) -> String {
-    let mut s = String::from(
-        "scene,triangles,view,config,primary,shadows,chunk,frames,primary_build_ms,primary_trace_ms,rearrange_ms,shadow_build_ms,shadow_trace_ms,shade_ms,frame_ms,shadow_ms,shadow_rays,hits,camera_refs,light_refs,light_tiles_used,chunks,max_tile_rays,chunk_mean_ms,chunk_max_ms,chunk_slowest_over_mean,chunk_p99_over_mean,chunk_slowest_steady_ms,chunk_slowest_over_mean_steady,threads_busy,pixels_differ\n",
-    );
+/// A CSV table: its header and records.
+type Table = (Vec<String>, Vec<Vec<String>>);
+
+/// pgrid.csv: every configuration of every scene, medians per phase.
+fn csv(results: &[SceneResult]) -> Table {
+    let head = "scene,triangles,view,config,primary,shadows,chunk,frames,primary_build_ms,primary_trace_ms,rearrange_ms,shadow_build_ms,shadow_trace_ms,shade_ms,frame_ms,shadow_ms,shadow_rays,hits,camera_refs,light_refs,light_tiles_used,chunks,max_tile_rays,chunk_mean_ms,chunk_max_ms,chunk_slowest_over_mean,chunk_p99_over_mean,chunk_slowest_steady_ms,chunk_slowest_over_mean_steady,threads_busy,pixels_differ"
+        .split(',')
+        .map(String::from)
+        .collect();
+    let mut records = Vec::new();
     for r in results {
         for c in &r.cfgs {
             let t = &c.times;
-            let _ = writeln!(
-                s,
-                "{},{},{},{},{},{},{},{},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{},{},{},{},{},{},{},{:.5},{:.5},{:.3},{:.3},{:.5},{:.3},{:.3},{}",
-                r.name,
-                r.triangles,
-                r.view,
+            records.push(vec![
+                r.name.clone(),
+                r.triangles.to_string(),
+                r.view.clone(),
                 c.cfg.label(),
                 primary_label(&c.cfg.primary),
                 if c.cfg.shadows {
@@ -1449,114 +1461,90 @@ fn csv(results: &[SceneResult]) -> String {
                 } else {
                     "none".into()
                 },
-                c.cfg.chunk,
-                c.frames,
-                ms(t.primary_build),
-                ms(t.primary_trace),
-                ms(t.rearrange),
-                ms(t.shadow_build),
-                ms(t.shadow_trace),
-                ms(t.shade),
-                ms(c.frame_ns),
-                ms(c.shadow_ns),
-                c.shadow_rays,
-                c.hits,
-                c.info.camera.refs,
-                c.info.light.refs,
-                c.info.reorder.tiles_used,
-                c.chunk_count,
-                c.info.reorder.max_tile_rays,
-                c.chunk_mean_ns * 1e-6,
-                ms(c.chunk_max_ns),
-                c.imbalance,
-                c.tail,
-                ms(c.steady_max_ns),
-                c.steady_imbalance,
-                c.efficiency,
-                c.diff
-            );
+                c.cfg.chunk.to_string(),
+                c.frames.to_string(),
+                format!("{:.4}", ms(t.primary_build)),
+                format!("{:.4}", ms(t.primary_trace)),
+                format!("{:.4}", ms(t.rearrange)),
+                format!("{:.4}", ms(t.shadow_build)),
+                format!("{:.4}", ms(t.shadow_trace)),
+                format!("{:.4}", ms(t.shade)),
+                format!("{:.4}", ms(c.frame_ns)),
+                format!("{:.4}", ms(c.shadow_ns)),
+                c.shadow_rays.to_string(),
+                c.hits.to_string(),
+                c.info.camera.refs.to_string(),
+                c.info.light.refs.to_string(),
+                c.info.reorder.tiles_used.to_string(),
+                c.chunk_count.to_string(),
+                c.info.reorder.max_tile_rays.to_string(),
+                format!("{:.5}", c.chunk_mean_ns * 1e-6),
+                format!("{:.5}", ms(c.chunk_max_ns)),
+                format!("{:.3}", c.imbalance),
+                format!("{:.3}", c.tail),
+                format!("{:.5}", ms(c.steady_max_ns)),
+                format!("{:.3}", c.steady_imbalance),
+                format!("{:.3}", c.efficiency),
+                c.diff.to_string(),
+            ]);
         }
     }
-    s
+    (head, records)
 }
 
-fn csv_fig11(results: &[SceneResult]) -> String {
-    let mut s = String::from(
-        "scene,diagonals,distance,shadow_rays,occluded,chunk,shadow_ms,chunks,chunk_p99_over_mean\n",
-    );
+/// figure11.csv: shadow time per light distance and chunk size r.
+fn csv_fig11(results: &[SceneResult]) -> Table {
+    let head =
+        "scene,diagonals,distance,shadow_rays,occluded,chunk,shadow_ms,chunks,chunk_p99_over_mean"
+            .split(',')
+            .map(String::from)
+            .collect();
+    let mut records = Vec::new();
     for r in results {
         for row in &r.fig11 {
             for (j, rr) in FIG11_R.iter().enumerate() {
-                let _ = writeln!(
-                    s,
-                    "{},{:.3},{:.3},{},{},{rr},{:.4},{},{:.3}",
-                    r.name,
-                    row.diagonals,
-                    row.distance,
-                    row.shadow_rays,
-                    row.occluded,
-                    ms(row.shadow_ns[j]),
-                    row.chunks[j],
-                    row.imbalance[j]
-                );
+                records.push(vec![
+                    r.name.clone(),
+                    format!("{:.3}", row.diagonals),
+                    format!("{:.3}", row.distance),
+                    row.shadow_rays.to_string(),
+                    row.occluded.to_string(),
+                    rr.to_string(),
+                    format!("{:.4}", ms(row.shadow_ns[j])),
+                    row.chunks[j].to_string(),
+                    format!("{:.3}", row.imbalance[j]),
+                ]);
             }
         }
     }
-    s
+    (head, records)
 }
 
 // ---------------------------------------------------------------------------
 // Charts
 
 mod charts {
-    use super::{FIG11_R, Method, SceneResult, Setup, WIDE_R};
-    use crate::bench::chart;
+    use super::{FIG11_R, FONT, Method, SceneResult, Setup, WIDE_R};
     use crate::cmd::phases;
     use crate::run::ms;
-    use crate::{Failure, OrFail};
+    use crate::studies::common::save_chart as save;
+    use anyhow::Result;
     use plotters::coord::Shift;
     use plotters::prelude::*;
     use std::path::Path;
 
     const TITLE_H: u32 = 40;
 
-    fn e(x: &dyn std::fmt::Display) -> String {
-        x.to_string()
-    }
-
-    /// Draw with `draw` into an SVG and a PNG of `size`.
-    fn save(
-        size: (u32, u32),
-        svg: &Path,
-        png: &Path,
-        draw_svg: impl FnOnce(DrawingArea<SVGBackend<'_>, Shift>) -> Result<(), String>,
-        draw_png: impl FnOnce(DrawingArea<BitMapBackend<'_>, Shift>) -> Result<(), String>,
-    ) -> Result<(), Failure> {
-        chart::register_font()?;
-        draw_svg(SVGBackend::new(svg, size).into_drawing_area())
-            .map_err(|x| Failure(format!("chart {}: {x}", svg.display())))?;
-        let mut buf = vec![0u8; size.0 as usize * size.1 as usize * 3];
-        draw_png(BitMapBackend::with_buffer(&mut buf, size).into_drawing_area())
-            .map_err(|x| Failure(format!("chart {}: {x}", png.display())))?;
-        image::save_buffer(png, &buf, size.0, size.1, image::ExtendedColorType::Rgb8)
-            .or_fail(|| format!("cannot write {}", png.display()))
-    }
-
     fn title<DB: DrawingBackend>(
         root: &DrawingArea<DB, Shift>,
         t: &str,
-    ) -> Result<DrawingArea<DB, Shift>, String>
+    ) -> Result<DrawingArea<DB, Shift>>
     where
         DB::ErrorType: 'static,
     {
-        root.fill(&WHITE).map_err(|x| e(&x))?;
+        root.fill(&WHITE)?;
         let (head, body) = root.split_vertically(TITLE_H);
-        head.draw(&Text::new(
-            t.to_string(),
-            (12, 10),
-            (chart::FONT, 18).into_font(),
-        ))
-        .map_err(|x| e(&x))?;
+        head.draw(&Text::new(t.to_string(), (12, 10), (FONT, 18).into_font()))?;
         Ok(body)
     }
 
@@ -1582,7 +1570,7 @@ mod charts {
         stacked: bool,
         ylabel: &str,
         totals: bool,
-    ) -> Result<(), String>
+    ) -> Result<()>
     where
         DB::ErrorType: 'static,
     {
@@ -1601,12 +1589,11 @@ mod charts {
         // Room on the right for the legend.
         let xmax = n as f64 + 1.3;
         let mut c = ChartBuilder::on(area)
-            .caption(caption, (chart::FONT, 15))
+            .caption(caption, (FONT, 15))
             .margin(12)
             .x_label_area_size(34)
             .y_label_area_size(60)
-            .build_cartesian_2d(0.0..xmax, 0.0..top)
-            .map_err(|x| e(&x))?;
+            .build_cartesian_2d(0.0..xmax, 0.0..top)?;
         c.configure_mesh()
             .disable_x_mesh()
             .x_labels(2 * xmax.ceil() as usize + 1)
@@ -1619,10 +1606,9 @@ mod charts {
                 }
             })
             .y_desc(ylabel)
-            .label_style((chart::FONT, 12))
-            .axis_desc_style((chart::FONT, 13))
-            .draw()
-            .map_err(|x| e(&x))?;
+            .label_style((FONT, 12))
+            .axis_desc_style((FONT, 13))
+            .draw()?;
         let k = series.len().max(1) as f64;
         for (j, (label, colour)) in series.iter().enumerate() {
             let colour = *colour;
@@ -1644,8 +1630,7 @@ mod charts {
                     }
                 })
                 .collect();
-            c.draw_series(rects)
-                .map_err(|x| e(&x))?
+            c.draw_series(rects)?
                 .label(label.clone())
                 .legend(move |(x, y)| {
                     Rectangle::new([(x, y - 5), (x + 14, y + 5)], colour.filled())
@@ -1662,10 +1647,9 @@ mod charts {
                             format!("{val:.0}")
                         },
                         (x0, val + top * 0.012),
-                        (chart::FONT, 9).into_font(),
+                        (FONT, 9).into_font(),
                     )
-                }))
-                .map_err(|x| e(&x))?;
+                }))?;
             }
         }
         if stacked && totals {
@@ -1674,18 +1658,16 @@ mod charts {
                 Text::new(
                     format!("{t:.1}"),
                     (i as f64 + 0.3, t + top * 0.015),
-                    (chart::FONT, 11).into_font(),
+                    (FONT, 11).into_font(),
                 )
-            }))
-            .map_err(|x| e(&x))?;
+            }))?;
         }
         c.configure_series_labels()
             .position(SeriesLabelPosition::UpperRight)
             .background_style(WHITE.mix(0.85))
             .border_style(BLACK.mix(0.4))
-            .label_font((chart::FONT, 12))
-            .draw()
-            .map_err(|x| e(&x))?;
+            .label_font((FONT, 12))
+            .draw()?;
         Ok(())
     }
 
@@ -1706,7 +1688,7 @@ mod charts {
         s: &Setup<'_>,
         svg: &Path,
         png: &Path,
-    ) -> Result<(), Failure> {
+    ) -> Result<()> {
         let (scenes, values) = fig10_data(results);
         let series: Vec<(String, RGBColor)> = phases(&Default::default())
             .iter()
@@ -1726,12 +1708,12 @@ mod charts {
             |root| {
                 let body = title(&root, &t)?;
                 bars(&body, cap, &scenes, &series, &values, true, "ms", true)?;
-                root.present().map_err(|x| e(&x))
+                Ok(root.present()?)
             },
             |root| {
                 let body = title(&root, &t)?;
                 bars(&body, cap, &scenes, &series, &values, true, "ms", true)?;
-                root.present().map_err(|x| e(&x))
+                Ok(root.present()?)
             },
         )
     }
@@ -1741,7 +1723,7 @@ mod charts {
         s: &Setup<'_>,
         svg: &Path,
         png: &Path,
-    ) -> Result<(), Failure> {
+    ) -> Result<()> {
         let mut scenes = Vec::new();
         let mut values = Vec::new();
         for r in results {
@@ -1780,12 +1762,12 @@ mod charts {
             |root| {
                 let body = title(&root, &t)?;
                 bars(&body, cap, &scenes, &series, &values, false, "ms", false)?;
-                root.present().map_err(|x| e(&x))
+                Ok(root.present()?)
             },
             |root| {
                 let body = title(&root, &t)?;
                 bars(&body, cap, &scenes, &series, &values, false, "ms", false)?;
-                root.present().map_err(|x| e(&x))
+                Ok(root.present()?)
             },
         )
     }
@@ -1798,10 +1780,7 @@ mod charts {
         RGBColor(31, 119, 180),
     ];
 
-    fn fig11_panel<DB: DrawingBackend>(
-        area: &DrawingArea<DB, Shift>,
-        r: &SceneResult,
-    ) -> Result<(), String>
+    fn fig11_panel<DB: DrawingBackend>(area: &DrawingArea<DB, Shift>, r: &SceneResult) -> Result<()>
     where
         DB::ErrorType: 'static,
     {
@@ -1817,13 +1796,12 @@ mod charts {
         let mut c = ChartBuilder::on(area)
             .caption(
                 format!("{} ({} triangles)", r.name, r.triangles),
-                (chart::FONT, 15),
+                (FONT, 15),
             )
             .margin(12)
             .x_label_area_size(40)
             .y_label_area_size(56)
-            .build_cartesian_2d(lo..hi, 0.0..top)
-            .map_err(|x| e(&x))?;
+            .build_cartesian_2d(lo..hi, 0.0..top)?;
         c.configure_mesh()
             .x_desc("light distance from the model centre (scene diagonals, log scale)")
             .y_desc("shadow ms")
@@ -1837,10 +1815,9 @@ mod charts {
                 }
             })
             .light_line_style(RGBColor(236, 236, 236))
-            .label_style((chart::FONT, 12))
-            .axis_desc_style((chart::FONT, 13))
-            .draw()
-            .map_err(|x| e(&x))?;
+            .label_style((FONT, 12))
+            .axis_desc_style((FONT, 13))
+            .draw()?;
         for (j, rr) in FIG11_R.iter().enumerate() {
             let colour = R_COLOURS[j % R_COLOURS.len()];
             let pts: Vec<(f64, f64)> = r
@@ -1848,22 +1825,19 @@ mod charts {
                 .iter()
                 .map(|row| (row.diagonals.log2(), ms(row.shadow_ns[j])))
                 .collect();
-            c.draw_series(LineSeries::new(pts.clone(), colour.stroke_width(2)))
-                .map_err(|x| e(&x))?
+            c.draw_series(LineSeries::new(pts.clone(), colour.stroke_width(2)))?
                 .label(format!("r = {rr}"))
                 .legend(move |(x, y)| {
                     PathElement::new(vec![(x, y), (x + 16, y)], colour.stroke_width(2))
                 });
-            c.draw_series(pts.iter().map(|&p| Circle::new(p, 3, colour.filled())))
-                .map_err(|x| e(&x))?;
+            c.draw_series(pts.iter().map(|&p| Circle::new(p, 3, colour.filled())))?;
         }
         c.configure_series_labels()
             .position(SeriesLabelPosition::UpperRight)
             .background_style(WHITE.mix(0.85))
             .border_style(BLACK.mix(0.4))
-            .label_font((chart::FONT, 12))
-            .draw()
-            .map_err(|x| e(&x))?;
+            .label_font((FONT, 12))
+            .draw()?;
         Ok(())
     }
 
@@ -1871,7 +1845,7 @@ mod charts {
         root: DrawingArea<DB, Shift>,
         rs: &[&SceneResult],
         t: &str,
-    ) -> Result<(), String>
+    ) -> Result<()>
     where
         DB::ErrorType: 'static,
     {
@@ -1880,7 +1854,7 @@ mod charts {
         for (p, r) in panels.iter().zip(rs) {
             fig11_panel(p, r)?;
         }
-        root.present().map_err(|x| e(&x))
+        Ok(root.present()?)
     }
 
     pub(super) fn figure11(
@@ -1888,7 +1862,7 @@ mod charts {
         s: &Setup<'_>,
         svg: &Path,
         png: &Path,
-    ) -> Result<(), Failure> {
+    ) -> Result<()> {
         let rs: Vec<&SceneResult> = results.iter().filter(|r| !r.fig11.is_empty()).collect();
         let t = format!(
             "sheaf Figure 11: shadow time vs light distance per chunk size r, {}x{}, {} threads",
@@ -1910,6 +1884,7 @@ mod charts {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::TestArg;
 
     /// A tiny run end to end: every file is written, every configuration
     /// ran on every scene, the images and hits agree with the baseline,
@@ -1938,7 +1913,7 @@ mod tests {
             pgrid_opts: Default::default(),
             structures: vec![],
         };
-        crate::bench::bench(&a).unwrap();
+        crate::studies::bench(&a).unwrap();
         let csv = std::fs::read_to_string(dir.join("pgrid.csv")).unwrap();
         let lines: Vec<&str> = csv.lines().collect();
         let n = configs(&PgridParams::default(), 16).len();

@@ -2,7 +2,7 @@
 //! vertex and one index buffer, materials from the .mtl files the OBJ
 //! names) and the built-in scenes (`builtin:NAME`).
 
-use crate::{Failure, OrFail};
+use anyhow::{Context as _, Result, anyhow, bail};
 use glam::Vec3;
 use sheaf::render::material::{DEFAULT_MATERIAL, Material, MaterialRange, Materials};
 use sheaf::scenes::{self, View};
@@ -30,9 +30,9 @@ impl Loaded {
     pub fn vertex_count(&self) -> u32 {
         (self.vertices.len() / 3) as u32
     }
-    pub fn scene(&self) -> Result<sheaf::Scene<'_>, Failure> {
+    pub fn scene(&self) -> Result<sheaf::Scene<'_>> {
         sheaf::Scene::from_f32(&self.vertices, &self.indices)
-            .or_fail(|| format!("scene {}", self.label))
+            .with_context(|| format!("scene {}", self.label))
     }
     /// The materials as the Whitted renderer borrows them.
     #[allow(dead_code)] // for commands rendering OBJ materials
@@ -59,22 +59,22 @@ impl Loaded {
 
 /// Load `spec`: `builtin:NAME`, `stress:NAME` (the adversarial scenes of
 /// `sheaf::scenes::stress`) or the path of an OBJ file.
-pub fn load(spec: &str) -> Result<Loaded, Failure> {
+pub fn load(spec: &str) -> Result<Loaded> {
     if let Some(name) = spec.strip_prefix("stress:") {
         let s = scenes::stress::stress_scene(name).ok_or_else(|| {
-            Failure(format!(
+            anyhow!(
                 "unknown stress scene '{name}' (known: {})",
                 scenes::stress::STRESS_SCENE_NAMES.join(", ")
-            ))
+            )
         })?;
         return Ok(Loaded::from_builtin(spec, s));
     }
     if let Some(name) = spec.strip_prefix("builtin:") {
         let s = scenes::builtin(name).ok_or_else(|| {
-            Failure(format!(
+            anyhow!(
                 "unknown built-in scene '{name}' (known: {})",
                 scenes::BUILTIN_NAMES.join(", ")
-            ))
+            )
         })?;
         return Ok(Loaded::from_builtin(spec, s));
     }
@@ -110,8 +110,8 @@ fn face_triangles(text: &[u8]) -> u64 {
         .sum()
 }
 
-fn load_obj(path: &Path) -> Result<Loaded, Failure> {
-    let text = std::fs::read(path).or_fail(|| format!("cannot read {}", path.display()))?;
+fn load_obj(path: &Path) -> Result<Loaded> {
+    let text = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
     // tobj's `merging` and `reordering` features add fields: keep the update.
     #[allow(clippy::needless_update)]
     let opts = tobj::LoadOptions {
@@ -124,7 +124,7 @@ fn load_obj(path: &Path) -> Result<Loaded, Failure> {
     // .mtl files are named relative to the OBJ's folder.
     let dir = path.parent().unwrap_or(Path::new(""));
     let (models, mtl) = tobj::load_obj_buf(&mut &text[..], &opts, |m| tobj::load_mtl(dir.join(m)))
-        .or_fail(|| format!("cannot parse {} as OBJ", path.display()))?;
+        .with_context(|| format!("cannot parse {} as OBJ", path.display()))?;
     let mtl = mtl.unwrap_or_else(|e| {
         eprintln!("warning: {}: cannot load its materials ({e}): every surface diffuse with the default albedo", path.display());
         Vec::new()
@@ -133,10 +133,7 @@ fn load_obj(path: &Path) -> Result<Loaded, Failure> {
         (v + m.mesh.positions.len(), i + m.mesh.indices.len())
     });
     if nv / 3 > u32::MAX as usize || ni / 3 > u32::MAX as usize {
-        return Err(Failure(format!(
-            "{}: more than 2^32 vertices or triangles",
-            path.display()
-        )));
+        bail!("{}: more than 2^32 vertices or triangles", path.display());
     }
     let (mut vertices, mut indices) = (Vec::with_capacity(nv), Vec::with_capacity(ni));
     let mut ranges: Vec<MaterialRange> = Vec::new();

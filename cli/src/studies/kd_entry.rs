@@ -40,10 +40,14 @@
 //! thread.
 #![forbid(unsafe_code)]
 
-use crate::bench::{SceneSpec, chart, command_line, machine_line, median, scene_specs, view_for};
-use crate::load;
+use super::common::{
+    FONT, NO_PIXEL, Progress, SceneSpec, Tiling, check_threads, command_line, create_dir,
+    load_or_skip, machine_line, median, save_chart, scene_specs, tri_test, view_for, write_csv,
+    write_text,
+};
+use crate::BenchArgs;
 use crate::run::{self, ms};
-use crate::{BenchArgs, Failure, OrFail, TestArg};
+use anyhow::{Context as _, Result, anyhow, bail};
 use glam::Vec3;
 use sheaf::accel::entry::{CandidateQueue, EntryResult, LeafGoal, dir_signs, live_mask};
 use sheaf::accel::entry::{aepsa as traverse_aepsa, mlrta as traverse_mlrta};
@@ -51,11 +55,11 @@ use sheaf::accel::grid::traverse_cgt::Mailbox;
 use sheaf::accel::kd::{KdInfo, KdParams, KdView};
 use sheaf::geom::frustum::Frustum;
 use sheaf::geom::{Hit4, M4, Ray4};
-use sheaf::render::{PrimaryRays, Tracer, demorton};
+use sheaf::render::{PrimaryRays, Tracer};
 use sheaf::trace::{BvhOptions, EntrySearch, RayKind};
 use sheaf::{
-    BvhParams, Camera, Counters, Frame, Hit, Limits, Method, OwnedContext, PointLight, Ray,
-    Shading, TraceParams,
+    BvhParams, Counters, Frame, Hit, Limits, Method, OwnedContext, PointLight, Ray, Shading,
+    TraceParams,
 };
 use std::fmt::Write as _;
 use std::hint::black_box;
@@ -72,14 +76,12 @@ const QUICK_SAMPLE_NS: u64 = 1_000_000;
 const HEADLINE: u32 = 16;
 /// The BVH rows: Ranged traversal at this side.
 const BVH_SIDE: u32 = 16;
-/// Pixel of a lane that is not in the image.
-const NO_PIXEL: u32 = u32::MAX;
 
 const SEARCHES: [EntrySearch; 3] = [EntrySearch::None, EntrySearch::Mlrta, EntrySearch::Aepsa];
 
 /// The primary rays of a frame as n x n packets: `q` quads each, quads in
 /// Morton order within a tile (as `render::render_tiles` packs them), tiles
-/// row by row.
+/// row by row (`common::Tiling`).
 struct Packets {
     q: usize,
     quads: Vec<Ray4>,
@@ -90,37 +92,18 @@ struct Packets {
 
 impl Packets {
     fn new(rays: &PrimaryRays, w: u32, h: u32, side: u32, pad: Ray) -> Packets {
-        let q = (side as usize / 2).pow(2);
-        let (tx_n, ty_n) = (w.div_ceil(side), h.div_ceil(side));
-        let n = (tx_n * ty_n) as usize * q;
-        let mut p = Packets {
-            q,
-            quads: Vec::with_capacity(n),
-            active: Vec::with_capacity(n),
-            pix: Vec::with_capacity(4 * n),
-        };
-        for ty in 0..ty_n {
-            for tx in 0..tx_n {
-                for k in 0..q {
-                    let (qx, qy) = demorton(k);
-                    let mut lanes = [pad; 4];
-                    let mut on = [false; 4];
-                    for (i, (dx, dy)) in [(0, 0), (1, 0), (0, 1), (1, 1)].into_iter().enumerate() {
-                        let (x, y) = (tx * side + 2 * qx + dx, ty * side + 2 * qy + dy);
-                        if x < w && y < h {
-                            lanes[i] = rays.ray(x, y);
-                            on[i] = true;
-                            p.pix.push(y * w + x);
-                        } else {
-                            p.pix.push(NO_PIXEL);
-                        }
-                    }
-                    p.quads.push(Ray4::from_rays(&lanes));
-                    p.active.push(M4::new(on[0], on[1], on[2], on[3]));
-                }
-            }
+        let t = Tiling::new(w, h, side);
+        let row_major: Vec<Ray> = (0..h)
+            .flat_map(|y| (0..w).map(move |x| (x, y)))
+            .map(|(x, y)| rays.ray(x, y))
+            .collect();
+        let (quads, active) = t.pack(&row_major, |_| true, pad);
+        Packets {
+            q: t.q,
+            quads,
+            active,
+            pix: t.pix,
         }
-        p
     }
     fn count(&self) -> usize {
         self.quads.len() / self.q
@@ -571,7 +554,7 @@ fn searches(row: &mut EntryRow, kv: &KdView<'_>, px: &[Proxy], sample_ns: u64) {
     row.medians[2..].copy_from_slice(&[t[0].median, t[1].median]);
 }
 
-pub fn run(a: &BenchArgs) -> Result<(), Failure> {
+pub fn run(a: &BenchArgs) -> Result<()> {
     let start = Instant::now();
     let (w, h) = a
         .size
@@ -584,9 +567,7 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
     };
     threads.sort_unstable();
     threads.dedup();
-    if threads.iter().any(|&t| !(1..=64).contains(&t)) {
-        return Err(Failure("--threads: each must be in 1..=64".into()));
-    }
+    check_threads(&threads)?;
     let max_threads = *threads.last().unwrap_or(&1);
     let reps = a.reps.unwrap_or(if a.quick { 5 } else { 11 }).max(1);
     let sample_ns = if a.quick { QUICK_SAMPLE_NS } else { SAMPLE_NS };
@@ -599,7 +580,7 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
     sides.dedup();
     for &n in &sides {
         if !matches!(n, 4 | 8 | 16 | 32) {
-            return Err(Failure(format!("--packets {n}: must be 4, 8, 16 or 32")));
+            bail!("--packets {n}: must be 4, 8, 16 or 32");
         }
     }
     let headline = if sides.contains(&HEADLINE) {
@@ -607,11 +588,7 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
     } else {
         *sides.last().unwrap_or(&8)
     };
-    let test = match a.tests.first() {
-        Some(TestArg::Watertight) => sheaf::TriTest::Watertight,
-        Some(TestArg::Projection) => sheaf::TriTest::Projection,
-        _ => sheaf::TriTest::MollerTrumbore,
-    };
+    let test = tri_test(a);
     let specs: Vec<SceneSpec> = if a.quick && a.scenes.is_empty() {
         sheaf::scenes::BUILTIN_NAMES
             .iter()
@@ -624,7 +601,7 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
         scene_specs(a)?
     };
     let out_dir = a.out_dir();
-    std::fs::create_dir_all(&out_dir).or_fail(|| format!("cannot create {}", out_dir.display()))?;
+    create_dir(&out_dir)?;
     let machine = machine_line();
     let mut fps_cfgs = vec![
         FpsConfig {
@@ -654,31 +631,28 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
             entry: e,
         });
     }
-    println!(
+    // Steps per scene: the searches of each packet side, the frames of each thread count.
+    let per_scene = (sides.len() + threads.len()) as u64;
+    let prog = Progress::new("sheaf bench --entry", specs.len() as u64 * per_scene);
+    prog.say(format_args!(
         "sheaf bench --entry: {} scenes, {w}x{h}, packets {:?} (headline {headline}x{headline}), threads {threads:?}, {} frame configurations, median of {reps} frames, {test:?}, machine: {machine}",
         specs.len(),
         sides,
         fps_cfgs.len()
-    );
+    ));
 
     let mut table1: Vec<Table1Row> = Vec::new();
     let mut rows: Vec<EntryRow> = Vec::new();
     let mut nests: Vec<Nesting> = Vec::new();
     let mut fps: Vec<FpsRow> = Vec::new();
     for spec in &specs {
+        prog.doing(spec.name.clone());
         let obj = !spec.load.starts_with("builtin:");
-        let loaded = match load::load(&spec.load) {
-            Ok(l) => l,
-            Err(e) => {
-                println!("note: {}: {e}, skipped", spec.name);
-                continue;
-            }
+        let Some(loaded) = load_or_skip(spec, &prog) else {
+            prog.inc(per_scene);
+            continue;
         };
         let scene = loaded.scene()?;
-        if scene.triangle_count() == 0 {
-            println!("note: {}: no triangles, skipped", spec.name);
-            continue;
-        }
         let mut limits: Limits = run::limits(&scene, (w, h), max_threads);
         limits.structures = Limits::KD | Limits::BVH;
         limits.projection_test = test == sheaf::TriTest::Projection;
@@ -690,7 +664,7 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
         // references than the default rule gives).
         let (limits, probe) = run::kd_limits(&scene, limits, &kp)?;
         if limits.max_kd_refs != 0 {
-            println!(
+            prog.say(format_args!(
                 "[{}] kd pools grown to {} nodes, {} references so the build forces no leaf{}",
                 spec.name,
                 limits.kd_nodes(),
@@ -700,9 +674,9 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
                 } else {
                     String::new()
                 }
-            );
+            ));
         }
-        let mut ctx = OwnedContext::new(&limits).or_fail(|| "creating the context".into())?;
+        let mut ctx = OwnedContext::new(&limits).context("creating the context")?;
 
         // Table 1.
         let mut builds = Vec::new();
@@ -710,14 +684,15 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
         for _ in 0..BUILD_REPS {
             info = ctx
                 .build_kd(&scene, &kp)
-                .or_fail(|| format!("{}: building the kd-tree", spec.name))?;
+                .with_context(|| format!("{}: building the kd-tree", spec.name))?;
             builds.push(ctx.stats().kd_build_ns);
         }
         if info.triangles == 0 {
-            println!(
+            prog.say(format_args!(
                 "note: {}: every triangle is degenerate or non-finite, skipped",
                 spec.name
-            );
+            ));
+            prog.inc(per_scene);
             continue;
         }
         let build_ns = median(builds);
@@ -728,15 +703,15 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
                 ..BvhParams::default()
             },
         )
-        .or_fail(|| format!("{}: building the BVH", spec.name))?;
+        .with_context(|| format!("{}: building the BVH", spec.name))?;
         let bvh_build_ns = ctx.stats().bvh_build_ns;
         let (v, _, how) = view_for(&loaded, &ctx.tracer()?, &info.bounds, w, h);
-        println!(
+        prog.say(format_args!(
             "[{}] kd-tree {} (median of {BUILD_REPS}); BVH build {:.1} ms; view {how}",
             spec.name,
             crate::cmd::kd_line(&info, build_ns),
             ms(bvh_build_ns)
-        );
+        ));
         table1.push(Table1Row {
             scene: spec.name.clone(),
             info,
@@ -744,12 +719,7 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
             bvh_build_ns,
             view: how,
         });
-        let cam = Camera {
-            eye: v.eye.to_array(),
-            look_at: v.look_at.to_array(),
-            up: v.up.to_array(),
-            fov_y_deg: v.fov_y_deg,
-        };
+        let cam = crate::view::camera(&v);
         let frame = Frame {
             camera: cam,
             // The paper's setup: one light at the eye point.
@@ -771,8 +741,8 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
         // Entry points, search times, traversal from the entry point.
         {
             let (tr, mut mbs) = ctx.parts()?;
-            let mut mb = mbs.next().ok_or_else(|| Failure("no thread slot".into()))?;
-            let kt = tr.kd().ok_or_else(|| Failure("kd-tree not built".into()))?;
+            let mut mb = mbs.next().ok_or_else(|| anyhow!("no thread slot"))?;
+            let kt = tr.kd().ok_or_else(|| anyhow!("kd-tree not built"))?;
             let kv = kt;
             // Reference: the kd single ray per pixel.
             let mut c0 = Counters::default();
@@ -792,7 +762,7 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
                     ..EntryRow::default()
                 };
                 searches(&mut row, &kv, &px, sample_ns);
-                println!(
+                prog.say(format_args!(
                     "[{}] {side}x{side}: {} packets; entry depth MLRTA {:.2} AEPSA {:.2} ({:+.2} %), misses {} / {}; search {:.0} / {:.0} ns per packet ({:.2}x), nodes {:.1} / {:.1}; Figure 6 phase 2 {:.0} / {:.0} ns ({:.2}x), nodes {:.1} / {:.1}",
                     spec.name,
                     row.packets,
@@ -811,12 +781,12 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
                     row.phase2_speedup(),
                     ratio_f(row.m_p2_nodes as f64, row.fig6_packets as f64),
                     ratio_f(row.a_p2_nodes as f64, row.fig6_packets as f64),
-                );
+                ));
                 if row.fig6_entry_diff > 0 {
-                    println!(
+                    prog.say(format_args!(
                         "[{}] WARNING: Figure 6: AEPSA's phase 2 with MLRTA's leaf test returned another entry point than MLRTA's on {} packets",
                         spec.name, row.fig6_entry_diff
-                    );
+                    ));
                 }
                 // Each search's packets once untimed (counters, hits
                 // checked), then `reps` rounds timing each in turn.
@@ -869,7 +839,7 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
                     let tr = &mut row.trav[k];
                     tr.ns = median(ts);
                     let ctr = tr.ctr;
-                    println!(
+                    prog.say(format_args!(
                         "[{}] {side}x{side} kd-packet {:<5}: {:>7.1} node steps + {:>7.1} triangle tests per packet after the search, {} searches, primary rays {:.2} ms (1 thread){}",
                         spec.name,
                         SEARCHES[k].name(),
@@ -882,9 +852,10 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
                         } else {
                             String::new()
                         }
-                    );
+                    ));
                 }
                 rows.push(row);
+                prog.step();
             }
         }
         {
@@ -895,7 +866,7 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
                     .filter(|l| l.side > sm.side && l.side % sm.side == 0)
                 {
                     let n = nesting(sm, lg, w);
-                    println!(
+                    prog.say(format_args!(
                         "[{}] nesting check: of {} {}x{} packets, {} (MLRTA) and {} (AEPSA) get an entry point shallower than the {}x{} packet containing them",
                         spec.name,
                         n.compared,
@@ -905,7 +876,7 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
                         n.shallower[1],
                         n.large,
                         n.large
-                    );
+                    ));
                     nests.push(n);
                 }
             }
@@ -939,11 +910,11 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
                     .count();
                 first.push((ctr, diff));
             }
-            println!(
+            prog.say(format_args!(
                 "[{}] frames on {t} thread(s): {} configurations once untimed, then {reps} timed rounds of one frame each",
                 spec.name,
                 params.len()
-            );
+            ));
             let mut times = vec![Vec::with_capacity(reps as usize); params.len()];
             for _ in 0..reps {
                 for (k, (pp, ps)) in params.iter().enumerate() {
@@ -964,7 +935,7 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
                     ctr,
                     diff,
                 };
-                println!(
+                prog.say(format_args!(
                     "[{}] frame {:<26} {t} thread(s): {:>8.2} ms = {:>7.2} fps (fastest run {:.2} ms){}",
                     spec.name,
                     cfg.label(),
@@ -976,9 +947,10 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
                     } else {
                         String::new()
                     }
-                );
+                ));
                 fps.push(r);
             }
+            prog.step();
         }
         {
             // One frame to look at (AEPSA, headline side).
@@ -1027,21 +999,22 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
         },
     );
     let md_path = out_dir.join("entry.md");
-    std::fs::write(&md_path, &md).or_fail(|| format!("cannot write {}", md_path.display()))?;
+    write_text(&md_path, &md)?;
     let paths = [
         out_dir.join("entry_table1.csv"),
         out_dir.join("entry_search.csv"),
         out_dir.join("entry_fps.csv"),
     ];
-    for (p, text) in paths
-        .iter()
-        .zip([csv_table1(&table1), csv_search(&rows), csv_fps(&fps)])
+    for (p, (head, records)) in
+        paths
+            .iter()
+            .zip([csv_table1(&table1), csv_search(&rows), csv_fps(&fps)])
     {
-        std::fs::write(p, text).or_fail(|| format!("cannot write {}", p.display()))?;
+        write_csv(p, &head, records)?;
     }
     let (svg, png) = (out_dir.join("entry.svg"), out_dir.join("entry.png"));
     figure::write(&rows, &fps, headline, max_threads, &svg, &png)?;
-    println!("\n{md}");
+    prog.say(format_args!("\n{md}"));
     let bad_rays: u64 = rows
         .iter()
         .flat_map(|r| r.trav.iter())
@@ -1053,11 +1026,11 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
         .map(|r| r.diff)
         .sum();
     if bad_rays > 0 || bad_px > 0 {
-        println!(
+        prog.say(format_args!(
             "warning: kd packets differ from the kd single ray ({bad_rays} rays, {bad_px} pixels of frames): see the diff columns"
-        );
+        ));
     }
-    println!(
+    prog.say(format_args!(
         "wrote {}, {}, {}, {}, {}, {}",
         md_path.display(),
         paths[0].display(),
@@ -1065,7 +1038,7 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
         paths[2].display(),
         svg.display(),
         png.display()
-    );
+    ));
     Ok(())
 }
 
@@ -1536,40 +1509,48 @@ fn markdown(
     o
 }
 
-fn csv_table1(t1: &[Table1Row]) -> String {
-    let mut s = String::from(
-        "scene,triangles_in,triangles,nodes,leaves,empty_leaves,empty_pct,avg_leaf_depth,max_depth,depth_limit,refs,refs_per_tri,sah_cost,forced_leaves,events_peak,build_ms,bvh_build_ms,view\n",
-    );
-    for r in t1 {
-        let k = &r.info;
-        let _ = writeln!(
-            s,
-            "{},{},{},{},{},{},{:.3},{:.3},{},{},{},{:.3},{:.2},{},{},{:.3},{:.3},{}",
-            r.scene,
-            k.triangles_in,
-            k.triangles,
-            k.nodes,
-            k.leaves,
-            k.empty_leaves,
-            pct(k.empty_leaves as u64, k.leaves as u64),
-            k.avg_leaf_depth,
-            k.depth,
-            k.max_depth,
-            k.refs,
-            ratio_f(k.refs as f64, k.triangles as f64),
-            k.sah_cost,
-            k.forced_leaves,
-            k.events_peak,
-            ms(r.build_ns),
-            ms(r.bvh_build_ns),
-            r.view.replace(',', ";")
-        );
-    }
-    s
+/// A CSV table: its header and records.
+type Table = (Vec<String>, Vec<Vec<String>>);
+
+fn header(names: &str) -> Vec<String> {
+    names.split(',').map(String::from).collect()
 }
 
-fn csv_search(rows: &[EntryRow]) -> String {
-    let mut s = String::from(
+fn csv_table1(t1: &[Table1Row]) -> Table {
+    let head = header(
+        "scene,triangles_in,triangles,nodes,leaves,empty_leaves,empty_pct,avg_leaf_depth,max_depth,depth_limit,refs,refs_per_tri,sah_cost,forced_leaves,events_peak,build_ms,bvh_build_ms,view",
+    );
+    let records = t1
+        .iter()
+        .map(|r| {
+            let k = &r.info;
+            vec![
+                r.scene.clone(),
+                k.triangles_in.to_string(),
+                k.triangles.to_string(),
+                k.nodes.to_string(),
+                k.leaves.to_string(),
+                k.empty_leaves.to_string(),
+                format!("{:.3}", pct(k.empty_leaves as u64, k.leaves as u64)),
+                format!("{:.3}", k.avg_leaf_depth),
+                k.depth.to_string(),
+                k.max_depth.to_string(),
+                k.refs.to_string(),
+                format!("{:.3}", ratio_f(k.refs as f64, k.triangles as f64)),
+                format!("{:.2}", k.sah_cost),
+                k.forced_leaves.to_string(),
+                k.events_peak.to_string(),
+                format!("{:.3}", ms(r.build_ns)),
+                format!("{:.3}", ms(r.bvh_build_ns)),
+                r.view.clone(),
+            ]
+        })
+        .collect();
+    (head, records)
+}
+
+fn csv_search(rows: &[EntryRow]) -> Table {
+    let mut head = header(
         "scene,obj,packet,packets,no_frustum,avg_leaf_depth,\
          mlrta_avg_depth,aepsa_avg_depth,extra_depth_pct,mlrta_found_depth,aepsa_found_depth,mlrta_misses,aepsa_misses,aepsa_deeper,same_depth,aepsa_shallower,\
          mlrta_search_ns,aepsa_search_ns,search_speedup,mlrta_phase1_ns,aepsa_phase1_ns,\
@@ -1579,126 +1560,137 @@ fn csv_search(rows: &[EntryRow]) -> String {
     );
     for e in SEARCHES {
         let n = e.name();
-        let _ = write!(
-            s,
-            ",{n}_node_steps,{n}_tri_tests,{n}_visited_per_packet,{n}_rays,{n}_packets,{n}_stray_lanes,{n}_culled_nodes,{n}_culled_tris,{n}_entry_searches,{n}_entry_depth_sum,{n}_entry_nodes,{n}_entry_misses,{n}_primary_ms,{n}_diff_vs_single"
-        );
-    }
-    s.push('\n');
-    for r in rows {
-        let _ = write!(
-            s,
-            "{},{},{},{},{},{:.3},{:.4},{:.4},{:.3},{:.4},{:.4},{},{},{},{},{},{:.1},{:.1},{:.3},{:.1},{:.1},{:.2},{:.2},{},{},{},{},{},{},{},{},{},{:.1},{:.1},{:.3},{:.1},{},{},{},{},{},{}",
-            r.scene,
-            r.obj,
-            r.side,
-            r.packets,
-            r.no_frustum,
-            r.miss_depth,
-            r.m.avg_depth(),
-            r.a.avg_depth(),
-            r.extra_depth_pct(),
-            r.m.avg_found_depth(),
-            r.a.avg_found_depth(),
-            r.m.misses,
-            r.a.misses,
-            r.deeper,
-            r.same,
-            r.shallower,
-            r.m_search_ns,
-            r.a_search_ns,
-            r.search_speedup(),
-            r.m_phase1_ns,
-            r.a_phase1_ns,
-            ratio_f(r.m.nodes() as f64, r.m.searches() as f64),
-            ratio_f(r.a.nodes() as f64, r.a.searches() as f64),
-            r.m.phase1_nodes,
-            r.a.phase1_nodes,
-            r.m.phase2_nodes,
-            r.a.phase2_nodes,
-            r.m.candidates,
-            r.a.candidates,
-            r.m.tested,
-            r.a.tested,
-            r.fig6_packets,
-            r.m_p2_ns,
-            r.a_p2_ns,
-            r.phase2_speedup(),
-            r.a_p2_tri_ns,
-            r.m_p2_nodes,
-            r.a_p2_nodes,
-            r.a_p2_tri_nodes,
-            r.m_p2_tested,
-            r.a_p2_tested,
-            r.fig6_entry_diff
-        );
-        let md = &r.medians;
-        let _ = write!(
-            s,
-            ",{:.1},{:.1},{:.3},{:.1},{:.1},{:.3}",
-            md[0],
-            md[1],
-            ratio_f(md[0], md[1]),
-            md[2],
-            md[3],
-            ratio_f(md[2], md[3])
-        );
-        for (k, t) in r.trav.iter().enumerate() {
-            let c = &t.ctr;
-            let _ = write!(
-                s,
-                ",{},{},{:.2},{},{},{},{},{},{},{},{},{},{:.3},{}",
-                c.aabb_tests,
-                c.tri_tests,
-                r.visited(k),
-                c.rays,
-                c.packets,
-                c.stray_lanes,
-                c.culled_nodes,
-                c.culled,
-                c.entry_searches,
-                c.entry_depth_sum,
-                c.entry_nodes,
-                c.entry_misses,
-                ms(t.ns),
-                t.diff
-            );
+        for c in [
+            "node_steps",
+            "tri_tests",
+            "visited_per_packet",
+            "rays",
+            "packets",
+            "stray_lanes",
+            "culled_nodes",
+            "culled_tris",
+            "entry_searches",
+            "entry_depth_sum",
+            "entry_nodes",
+            "entry_misses",
+            "primary_ms",
+            "diff_vs_single",
+        ] {
+            head.push(format!("{n}_{c}"));
         }
-        s.push('\n');
     }
-    s
+    let records = rows
+        .iter()
+        .map(|r| {
+            let mut f = vec![
+                r.scene.clone(),
+                r.obj.to_string(),
+                r.side.to_string(),
+                r.packets.to_string(),
+                r.no_frustum.to_string(),
+                format!("{:.3}", r.miss_depth),
+                format!("{:.4}", r.m.avg_depth()),
+                format!("{:.4}", r.a.avg_depth()),
+                format!("{:.3}", r.extra_depth_pct()),
+                format!("{:.4}", r.m.avg_found_depth()),
+                format!("{:.4}", r.a.avg_found_depth()),
+                r.m.misses.to_string(),
+                r.a.misses.to_string(),
+                r.deeper.to_string(),
+                r.same.to_string(),
+                r.shallower.to_string(),
+                format!("{:.1}", r.m_search_ns),
+                format!("{:.1}", r.a_search_ns),
+                format!("{:.3}", r.search_speedup()),
+                format!("{:.1}", r.m_phase1_ns),
+                format!("{:.1}", r.a_phase1_ns),
+                format!("{:.2}", ratio_f(r.m.nodes() as f64, r.m.searches() as f64)),
+                format!("{:.2}", ratio_f(r.a.nodes() as f64, r.a.searches() as f64)),
+                r.m.phase1_nodes.to_string(),
+                r.a.phase1_nodes.to_string(),
+                r.m.phase2_nodes.to_string(),
+                r.a.phase2_nodes.to_string(),
+                r.m.candidates.to_string(),
+                r.a.candidates.to_string(),
+                r.m.tested.to_string(),
+                r.a.tested.to_string(),
+                r.fig6_packets.to_string(),
+                format!("{:.1}", r.m_p2_ns),
+                format!("{:.1}", r.a_p2_ns),
+                format!("{:.3}", r.phase2_speedup()),
+                format!("{:.1}", r.a_p2_tri_ns),
+                r.m_p2_nodes.to_string(),
+                r.a_p2_nodes.to_string(),
+                r.a_p2_tri_nodes.to_string(),
+                r.m_p2_tested.to_string(),
+                r.a_p2_tested.to_string(),
+                r.fig6_entry_diff.to_string(),
+            ];
+            let md = &r.medians;
+            f.extend([
+                format!("{:.1}", md[0]),
+                format!("{:.1}", md[1]),
+                format!("{:.3}", ratio_f(md[0], md[1])),
+                format!("{:.1}", md[2]),
+                format!("{:.1}", md[3]),
+                format!("{:.3}", ratio_f(md[2], md[3])),
+            ]);
+            for (k, t) in r.trav.iter().enumerate() {
+                let c = &t.ctr;
+                f.extend([
+                    c.aabb_tests.to_string(),
+                    c.tri_tests.to_string(),
+                    format!("{:.2}", r.visited(k)),
+                    c.rays.to_string(),
+                    c.packets.to_string(),
+                    c.stray_lanes.to_string(),
+                    c.culled_nodes.to_string(),
+                    c.culled.to_string(),
+                    c.entry_searches.to_string(),
+                    c.entry_depth_sum.to_string(),
+                    c.entry_nodes.to_string(),
+                    c.entry_misses.to_string(),
+                    format!("{:.3}", ms(t.ns)),
+                    t.diff.to_string(),
+                ]);
+            }
+            f
+        })
+        .collect();
+    (head, records)
 }
 
-fn csv_fps(fps: &[FpsRow]) -> String {
-    let mut s = String::from(
-        "scene,obj,config,method,packet,entry,threads,frame_ms,fps,fastest_ms,rays_traced,aabb_tests,tri_tests,entry_searches,entry_depth_sum,entry_nodes,entry_misses,pixels_differing\n",
+fn csv_fps(fps: &[FpsRow]) -> Table {
+    let head = header(
+        "scene,obj,config,method,packet,entry,threads,frame_ms,fps,fastest_ms,rays_traced,aabb_tests,tri_tests,entry_searches,entry_depth_sum,entry_nodes,entry_misses,pixels_differing",
     );
-    for r in fps {
-        let c = &r.ctr;
-        let _ = writeln!(
-            s,
-            "{},{},{},{},{},{},{},{:.3},{:.3},{:.3},{},{},{},{},{},{},{},{}",
-            r.scene,
-            r.obj,
-            r.cfg.label(),
-            r.cfg.method.name(),
-            r.cfg.side,
-            r.cfg.entry.name(),
-            r.threads,
-            ms(r.ns),
-            r.fps(),
-            ms(r.min_ns),
-            c.rays,
-            c.aabb_tests,
-            c.tri_tests,
-            c.entry_searches,
-            c.entry_depth_sum,
-            c.entry_nodes,
-            c.entry_misses,
-            r.diff
-        );
-    }
-    s
+    let records = fps
+        .iter()
+        .map(|r| {
+            let c = &r.ctr;
+            vec![
+                r.scene.clone(),
+                r.obj.to_string(),
+                r.cfg.label(),
+                r.cfg.method.name().to_string(),
+                r.cfg.side.to_string(),
+                r.cfg.entry.name().to_string(),
+                r.threads.to_string(),
+                format!("{:.3}", ms(r.ns)),
+                format!("{:.3}", r.fps()),
+                format!("{:.3}", ms(r.min_ns)),
+                c.rays.to_string(),
+                c.aabb_tests.to_string(),
+                c.tri_tests.to_string(),
+                c.entry_searches.to_string(),
+                c.entry_depth_sum.to_string(),
+                c.entry_nodes.to_string(),
+                c.entry_misses.to_string(),
+                r.diff.to_string(),
+            ]
+        })
+        .collect();
+    (head, records)
 }
 
 /// The chart: per scene, bars of the headline side's fps speedup over
@@ -1706,8 +1698,8 @@ fn csv_fps(fps: &[FpsRow]) -> String {
 /// on the machine's threads, and of AEPSA's search-time speedup over MLRTA
 /// (full search and Figure 6's phase 2).
 mod figure {
-    use super::{EntryRow, FpsRow, Summary, chart};
-    use crate::{Failure, OrFail};
+    use super::{EntryRow, FONT, FpsRow, Summary, save_chart};
+    use anyhow::Result;
     use plotters::prelude::*;
     use std::path::Path;
 
@@ -1728,11 +1720,10 @@ mod figure {
         title: &str,
         scenes: &[String],
         series: &[Series],
-    ) -> Result<(), String>
+    ) -> Result<()>
     where
         DB::ErrorType: 'static,
     {
-        let e = |x: &dyn std::fmt::Display| x.to_string();
         let top = series
             .iter()
             .flat_map(|s| s.values.iter().copied())
@@ -1742,12 +1733,11 @@ mod figure {
         // Room on the right for the legend.
         let xmax = (n + 2) as f64;
         let mut c = ChartBuilder::on(area)
-            .caption(title, (chart::FONT, 16))
+            .caption(title, (FONT, 16))
             .margin(12)
             .x_label_area_size(34)
             .y_label_area_size(52)
-            .build_cartesian_2d(0.0..xmax, 0.0..top)
-            .map_err(|x| e(&x))?;
+            .build_cartesian_2d(0.0..xmax, 0.0..top)?;
         c.configure_mesh()
             .disable_x_mesh()
             .x_labels(2 * xmax.ceil() as usize + 1)
@@ -1760,18 +1750,16 @@ mod figure {
                 }
             })
             .y_desc("speedup (x)")
-            .label_style((chart::FONT, 12))
-            .axis_desc_style((chart::FONT, 13))
-            .draw()
-            .map_err(|x| e(&x))?;
+            .label_style((FONT, 12))
+            .axis_desc_style((FONT, 13))
+            .draw()?;
         let k = series.len().max(1) as f64;
         let bw = 0.8 / k;
         for (j, s) in series.iter().enumerate() {
             c.draw_series(s.values.iter().enumerate().map(|(i, &v)| {
                 let x0 = i as f64 + 0.1 + j as f64 * bw;
                 Rectangle::new([(x0, 0.0), (x0 + bw * 0.92, v)], s.colour.filled())
-            }))
-            .map_err(|x| e(&x))?
+            }))?
             .label(s.label.clone())
             .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 14, y + 5)], s.colour.filled()));
             // The value above each bar.
@@ -1780,25 +1768,22 @@ mod figure {
                 Text::new(
                     format!("{v:.2}"),
                     (x0, v + top * 0.012),
-                    (chart::FONT, 10).into_font(),
+                    (FONT, 10).into_font(),
                 )
-            }))
-            .map_err(|x| e(&x))?;
+            }))?;
         }
         c.draw_series(DashedLineSeries::new(
             [(0.0, 1.0), (n as f64, 1.0)],
             6,
             4,
             BLACK.mix(0.6).stroke_width(1),
-        ))
-        .map_err(|x| e(&x))?;
+        ))?;
         c.configure_series_labels()
             .position(SeriesLabelPosition::UpperRight)
             .background_style(WHITE.mix(0.85))
             .border_style(BLACK.mix(0.4))
-            .label_font((chart::FONT, 12))
-            .draw()
-            .map_err(|x| e(&x))?;
+            .label_font((FONT, 12))
+            .draw()?;
         Ok(())
     }
 
@@ -1807,19 +1792,17 @@ mod figure {
         s: &Summary,
         title: &str,
         tmax: u32,
-    ) -> Result<(), String>
+    ) -> Result<()>
     where
         DB::ErrorType: 'static,
     {
-        let e = |x: &dyn std::fmt::Display| x.to_string();
-        root.fill(&WHITE).map_err(|x| e(&x))?;
+        root.fill(&WHITE)?;
         let (head, body) = root.split_vertically(TITLE_H);
         head.draw(&Text::new(
             title.to_string(),
             (12, 10),
-            (chart::FONT, 18).into_font(),
-        ))
-        .map_err(|x| e(&x))?;
+            (FONT, 18).into_font(),
+        ))?;
         let (p1, p2) = body.split_vertically(PANEL_H);
         let scenes: Vec<String> = s.scenes.iter().map(|r| r.scene.clone()).collect();
         let mut fps_series = Vec::new();
@@ -1877,7 +1860,7 @@ mod figure {
                 },
             ],
         )?;
-        root.present().map_err(|x| e(&x))
+        Ok(root.present()?)
     }
 
     pub(super) fn write(
@@ -1887,8 +1870,7 @@ mod figure {
         tmax: u32,
         svg: &Path,
         png: &Path,
-    ) -> Result<(), Failure> {
-        chart::register_font()?;
+    ) -> Result<()> {
         let s = Summary::new(rows, fps, headline, tmax);
         let size = (
             W_SCENE * s.scenes.len() as u32 + W_EXTRA,
@@ -1897,29 +1879,20 @@ mod figure {
         let title = format!(
             "sheaf kd-tree entry-point search, {headline}x{headline} packets: AEPSA vs MLRTA vs plain packets"
         );
-        draw(
-            SVGBackend::new(svg, size).into_drawing_area(),
-            &s,
-            &title,
-            tmax,
+        save_chart(
+            size,
+            svg,
+            png,
+            |root| draw(root, &s, &title, tmax),
+            |root| draw(root, &s, &title, tmax),
         )
-        .map_err(|x| Failure(format!("chart {}: {x}", svg.display())))?;
-        let mut buf = vec![0u8; size.0 as usize * size.1 as usize * 3];
-        draw(
-            BitMapBackend::with_buffer(&mut buf, size).into_drawing_area(),
-            &s,
-            &title,
-            tmax,
-        )
-        .map_err(|x| Failure(format!("chart: {x}")))?;
-        image::save_buffer(png, &buf, size.0, size.1, image::ExtendedColorType::Rgb8)
-            .or_fail(|| format!("cannot write {}", png.display()))
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::TestArg;
 
     /// A tiny run end to end: every file is written, kd packets with every
     /// search agree with the kd single ray on every ray and pixel, and
@@ -1948,7 +1921,7 @@ mod tests {
             pgrid_opts: Default::default(),
             structures: vec![crate::StructureArg::Kd],
         };
-        crate::bench::bench(&a).unwrap();
+        crate::studies::bench(&a).unwrap();
         let search = std::fs::read_to_string(dir.join("entry_search.csv")).unwrap();
         let lines: Vec<&str> = search.lines().collect();
         assert_eq!(lines.len(), 1 + 2 * 2, "header + 2 scenes x 2 sides");
@@ -2000,6 +1973,8 @@ mod tests {
 #[cfg(test)]
 mod diagnose {
     use super::*;
+    use crate::TestArg;
+    use crate::load;
     use sheaf::geom::Aabb;
 
     /// Occupied leaves whose box and every ancestor's box the frustum does
@@ -2068,13 +2043,7 @@ mod diagnose {
             let tr = ctx.tracer().unwrap();
             let (v, _, _) = view_for(&loaded, &tr, &info.bounds, w, h);
             let kv = tr.kd.unwrap();
-            let cam = Camera {
-                eye: v.eye.to_array(),
-                look_at: v.look_at.to_array(),
-                up: v.up.to_array(),
-                fov_y_deg: v.fov_y_deg,
-            };
-            let prim = PrimaryRays::new(&cam, w, h).unwrap();
+            let prim = PrimaryRays::new(&crate::view::camera(&v), w, h).unwrap();
             let pad = Ray::new(v.eye, Vec3::X, 0.0, 0.0);
             let small = Packets::new(&prim, w, h, 8, pad);
             let large = Packets::new(&prim, w, h, 16, pad);

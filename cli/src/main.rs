@@ -1,77 +1,43 @@
-//! `sheaf`: render, animate and inspect scenes with the sheaf kernel.
+//! `sheaf`: render, animate, inspect and export scenes with the sheaf
+//! kernel, and measure it against its papers.
 //!
 //! ```text
 //! sheaf demo   [--frames 8] [--size 640x480] [--out-dir out/demo] ...
 //! sheaf render <scene.obj | builtin:NAME> --out image.png [--size 800x600] ...
 //! sheaf render <scene> --out image.png --primary pgrid --shadows light-grid [--chunk 256] ...
 //! sheaf info   <scene.obj | builtin:NAME>
+//! sheaf export <scene> --out scene.bin [--size 1024x1024]
+//! sheaf bench  [--whitted | --entry | --pgrid | --stress] [--quick] ...
 //! ```
+//!
+//! This file holds the command line (clap); `cmd/` the commands, one file
+//! each; `studies/` the paper studies of `sheaf bench`; `load` the scenes
+//! (OBJ files, built-in and stress scenes), `view` the automatic views and
+//! lights, `run` contexts sized for a scene and frames on threads.
 //!
 //! Every sheaf call goes through one `OwnedContext` per command, created once
 //! (one allocation) with `Limits` sized for the scene; building, tracing and
 //! rendering then allocate nothing inside sheaf. Frames are rendered in row
-//! bands by `render::render_rows` on several threads sharing `ctx.tracer()`;
-//! with `--primary` or `--shadows` they are deferred frames
-//! (`render::deferred`: perspective grid, light grids) whose work items run
-//! on the same threads (`run::Threads`).
+//! bands by `render::render_rows` on a rayon pool sharing `ctx.tracer()`, one
+//! thread per mailbox slot of the context; with `--primary` or `--shadows`
+//! they are deferred frames (`render::deferred`: perspective grid, light
+//! grids) whose work items run on the same pools (`run::Threads`).
 //!
-//! Errors print one line (`error: ...`, sheaf's `Display` where sheaf failed)
-//! and exit with status 1; bad command-line arguments exit with clap's 2.
+//! Errors print one line (`error: what failed: why`, sheaf's `Display` where
+//! sheaf failed) and exit with status 1; bad command-line arguments exit
+//! with clap's 2.
 #![forbid(unsafe_code)]
 
-// A binary root's modules resolve next to it: keep them in src/bin/sheaf/.
-#[path = "sheaf/bench.rs"]
-mod bench;
-#[path = "sheaf/cmd.rs"]
 mod cmd;
-#[path = "sheaf/entry_bench.rs"]
-mod entry_bench;
-#[path = "sheaf/export.rs"]
-mod export;
-#[path = "sheaf/load.rs"]
 mod load;
-#[path = "sheaf/pgrid_bench.rs"]
-mod pgrid_bench;
-#[path = "sheaf/run.rs"]
+mod progress;
 mod run;
-#[path = "sheaf/stress_bench.rs"]
-mod stress_bench;
-#[path = "sheaf/view.rs"]
+mod studies;
 mod view;
-#[path = "sheaf/whitted_bench.rs"]
-mod whitted_bench;
 
 use clap::{Args, Parser, Subcommand, ValueEnum};
-use std::fmt;
 use std::path::PathBuf;
 use std::process::ExitCode;
-
-/// A failure of a command: one line for the user.
-#[derive(Debug)]
-pub struct Failure(String);
-
-impl fmt::Display for Failure {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(&self.0)
-    }
-}
-
-impl From<sheaf::Error> for Failure {
-    fn from(e: sheaf::Error) -> Self {
-        Failure(e.to_string())
-    }
-}
-
-/// `Result::or_fail(what)`: prefix an error with what was being done.
-pub trait OrFail<T> {
-    fn or_fail(self, what: impl FnOnce() -> String) -> Result<T, Failure>;
-}
-
-impl<T, E: fmt::Display> OrFail<T> for Result<T, E> {
-    fn or_fail(self, what: impl FnOnce() -> String) -> Result<T, Failure> {
-        self.map_err(|e| Failure(format!("{}: {e}", what())))
-    }
-}
 
 #[derive(Parser)]
 #[command(
@@ -97,7 +63,7 @@ enum Cmd {
     Bench(BenchArgs),
     /// Write a scene, a named view and its light to a binary file for C programs (the Embree
     /// comparison in benches/embree reads it, so both libraries trace the same triangles and rays).
-    Export(export::ExportArgs),
+    Export(cmd::export::ExportArgs),
 }
 
 /// Ray-triangle test of the grid.
@@ -125,16 +91,22 @@ pub struct GridOpts {
     pub macrocell: u32,
 }
 
+impl TestArg {
+    pub fn tri_test(self) -> sheaf::TriTest {
+        match self {
+            TestArg::Mt => sheaf::TriTest::MollerTrumbore,
+            TestArg::Watertight => sheaf::TriTest::Watertight,
+            TestArg::Projection => sheaf::TriTest::Projection,
+        }
+    }
+}
+
 impl GridOpts {
     pub fn params(&self) -> sheaf::GridParams {
         sheaf::GridParams {
             lambda: self.lambda,
             macrocell: self.macrocell,
-            test: match self.test {
-                TestArg::Mt => sheaf::TriTest::MollerTrumbore,
-                TestArg::Watertight => sheaf::TriTest::Watertight,
-                TestArg::Projection => sheaf::TriTest::Projection,
-            },
+            test: self.test.tri_test(),
             fit: false,
         }
     }
@@ -653,16 +625,17 @@ fn parse_vec3(s: &str) -> Result<[f32; 3], String> {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let res = match cli.cmd {
-        Cmd::Demo(a) => cmd::demo(&a),
-        Cmd::Render(a) => cmd::render(&a),
-        Cmd::Info(a) => cmd::info(&a),
-        Cmd::Bench(a) => bench::bench(&a),
-        Cmd::Export(a) => export::export(&a),
+        Cmd::Demo(a) => cmd::demo::demo(&a),
+        Cmd::Render(a) => cmd::render::render(&a),
+        Cmd::Info(a) => cmd::info::info(&a),
+        Cmd::Bench(a) => studies::bench(&a),
+        Cmd::Export(a) => cmd::export::export(&a),
     };
     match res {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("error: {e}");
+            // `{:#}`: every context with its cause, `what: why`, on one line.
+            eprintln!("error: {e:#}");
             ExitCode::FAILURE
         }
     }

@@ -22,18 +22,18 @@
 //! median of `--reps` timed runs after an untimed one.
 #![forbid(unsafe_code)]
 
-use crate::bench::{
-    SceneSpec, chart, command_line, machine_line, median, scene_specs, timed, view_for,
+use super::common::{
+    FONT, Progress, check_threads, command_line, create_dir, load_or_skip, machine_line, median,
+    ratio, save_chart, scene_specs, timed, tri_test, view_for, write_csv, write_text,
 };
-use crate::load;
+use crate::BenchArgs;
 use crate::run::{self, ms};
-use crate::{BenchArgs, Failure, OrFail, TestArg};
+use anyhow::{Context as _, Result};
 use sheaf::render::material::{Material, Materials};
 use sheaf::render::whitted::{WhittedJob, WhittedParams};
 use sheaf::trace::{BvhOptions, DEPTH_BINS, RayKind};
 use sheaf::{
-    BvhParams, Camera, Counters, Frame, Limits, Method, OwnedContext, PointLight, Shading,
-    TraceParams,
+    BvhParams, Counters, Frame, Limits, Method, OwnedContext, PointLight, Shading, TraceParams,
 };
 use std::fmt::Write as _;
 use std::time::Instant;
@@ -181,7 +181,7 @@ impl Setup<'_> {
         level: &Level,
         cfg: &Config,
         pixels: &mut Vec<u8>,
-    ) -> Result<(u64, Counters), Failure> {
+    ) -> Result<(u64, Counters)> {
         let frame = Frame {
             shading: Shading {
                 shadows: level.shadows,
@@ -224,16 +224,14 @@ impl Setup<'_> {
     }
 }
 
-pub fn run(a: &BenchArgs) -> Result<(), Failure> {
+pub fn run(a: &BenchArgs) -> Result<()> {
     let start = Instant::now();
     let (w, h) = a
         .size
         .unwrap_or(if a.quick { (256, 256) } else { (1024, 1024) });
     let threads = *a.threads.iter().max().unwrap_or(&2);
     let out_dir = a.out_dir();
-    if !(1..=64).contains(&threads) {
-        return Err(Failure("--threads: each must be in 1..=64".into()));
-    }
+    check_threads(&[threads])?;
     let reps = a.reps.unwrap_or(if a.quick { 1 } else { 3 }).max(1);
     let mut packets: Vec<u32> = if a.packets.is_empty() {
         vec![4, 8, 16, 32]
@@ -245,15 +243,11 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
     for &n in &packets {
         TraceParams::bvh(Method::BvhRanged, n)
             .validate()
-            .or_fail(|| format!("--packets {n}"))?;
+            .with_context(|| format!("--packets {n}"))?;
     }
-    let test = match a.tests.first() {
-        Some(TestArg::Watertight) => sheaf::TriTest::Watertight,
-        Some(TestArg::Projection) => sheaf::TriTest::Projection,
-        _ => sheaf::TriTest::MollerTrumbore,
-    };
-    let specs: Vec<SceneSpec> = scene_specs(a)?;
-    std::fs::create_dir_all(&out_dir).or_fail(|| format!("cannot create {}", out_dir.display()))?;
+    let test = tri_test(a);
+    let specs = scene_specs(a)?;
+    create_dir(&out_dir)?;
     let machine = machine_line();
     let mut cfgs = vec![Config {
         primary: Method::BvhSimd,
@@ -314,36 +308,33 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
             culling: true,
         },
     ];
-    println!(
+    // One step per frame measured.
+    let per_scene = (LEVELS.len() * cfgs.len() + table2.len()) as u64;
+    let prog = Progress::new("sheaf bench --whitted", specs.len() as u64 * per_scene);
+    prog.say(format_args!(
         "sheaf bench --whitted: {} scenes x {} levels x {} configurations (+ Table 2: {}), {w}x{h}, {threads} threads, {:?}, median of up to {reps} timed runs, machine: {machine}",
         specs.len(),
         LEVELS.len(),
         cfgs.len(),
         table2.len(),
         test
-    );
+    ));
     let mut rows: Vec<Row> = Vec::new();
     let mut t2: Vec<Row> = Vec::new();
     let mut notes: Vec<String> = Vec::new();
     let mut pixels = Vec::new();
     let mut base = Vec::new();
     for spec in &specs {
-        let loaded = match load::load(&spec.load) {
-            Ok(l) => l,
-            Err(e) => {
-                println!("note: {}: {e}, skipped", spec.name);
-                continue;
-            }
+        prog.doing(spec.name.clone());
+        let Some(loaded) = load_or_skip(spec, &prog) else {
+            prog.inc(per_scene);
+            continue;
         };
         let scene = loaded.scene()?;
-        if scene.triangle_count() == 0 {
-            println!("note: {}: no triangles, skipped", spec.name);
-            continue;
-        }
         let mut limits: Limits = run::limits(&scene, (w, h), threads);
         limits.structures = Limits::BVH;
         limits.projection_test = test == sheaf::TriTest::Projection;
-        let mut ctx = OwnedContext::new(&limits).or_fail(|| "creating the context".into())?;
+        let mut ctx = OwnedContext::new(&limits).context("creating the context")?;
         let bp = BvhParams {
             test,
             ..BvhParams::default()
@@ -353,27 +344,23 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
         for _ in 0..BUILD_REPS {
             info = Some(
                 ctx.build_bvh(&scene, &bp)
-                    .or_fail(|| format!("{}: building the BVH", spec.name))?,
+                    .with_context(|| format!("{}: building the BVH", spec.name))?,
             );
             builds.push(ctx.stats().bvh_build_ns);
         }
         let info = info.expect("BUILD_REPS > 0");
         if info.triangles == 0 {
-            println!(
+            prog.say(format_args!(
                 "note: {}: every triangle is degenerate or non-finite, skipped",
                 spec.name
-            );
+            ));
+            prog.inc(per_scene);
             continue;
         }
         let build_ns = median(builds);
         let (v, light, how) = view_for(&loaded, &ctx.tracer()?, &info.bounds, w, h);
         let frame = Frame {
-            camera: Camera {
-                eye: v.eye.to_array(),
-                look_at: v.look_at.to_array(),
-                up: v.up.to_array(),
-                fov_y_deg: v.fov_y_deg,
-            },
+            camera: crate::view::camera(&v),
             light: PointLight {
                 position: light.to_array(),
                 color: [1.0; 3],
@@ -394,7 +381,7 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
             ms(build_ns),
             info.triangles as f64 / (build_ns.max(1) as f64 * 1e-3)
         );
-        println!("[{}] {note}", spec.name);
+        prog.say(format_args!("[{}] {note}", spec.name));
         notes.push(note);
         let mut setup = Setup {
             frame,
@@ -427,7 +414,7 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
                     ctr,
                     diff,
                 };
-                println!(
+                prog.say(format_args!(
                     "[{}] {:<46} {:<32} {:>9.1} ms {:>7.2} Mrays/s {:>6.1} box {:>6.1} tri tests/ray{}",
                     spec.name,
                     lv.name,
@@ -441,7 +428,8 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
                     } else {
                         String::new()
                     }
-                );
+                ));
+                prog.step();
                 if lv.name == WHITTED.name {
                     if k == 2 {
                         let png = out_dir.join(format!("whitted_{}.png", spec.name));
@@ -465,72 +453,70 @@ pub fn run(a: &BenchArgs) -> Result<(), Failure> {
         start.elapsed().as_secs_f64(),
     );
     let md_path = out_dir.join("whitted.md");
-    std::fs::write(&md_path, &md).or_fail(|| format!("cannot write {}", md_path.display()))?;
+    write_text(&md_path, &md)?;
     let csv_path = out_dir.join("whitted.csv");
-    std::fs::write(&csv_path, csv(&rows, &t2))
-        .or_fail(|| format!("cannot write {}", csv_path.display()))?;
+    let (head, records) = csv(&rows, &t2);
+    write_csv(&csv_path, &head, records)?;
     let (svg, png) = (out_dir.join("figure5.svg"), out_dir.join("figure5.png"));
     figure5::write(&rows, &packets, &svg, &png)?;
-    println!("\n{md}");
+    prog.say(format_args!("\n{md}"));
     let differ: usize = rows.iter().chain(&t2).map(|r| r.diff).sum();
     if differ > 0 {
-        println!("warning: some frames differ from their level's SIMD frame (see the diff column)");
+        prog.say(format_args!(
+            "warning: some frames differ from their level's SIMD frame (see the diff column)"
+        ));
     }
-    println!(
+    prog.say(format_args!(
         "wrote {}, {}, {}, {}",
         md_path.display(),
         csv_path.display(),
         svg.display(),
         png.display()
-    );
+    ));
     Ok(())
 }
 
-fn csv(rows: &[Row], t2: &[Row]) -> String {
-    let mut s = String::from(
-        "table,scene,level,config,primary,secondary,packet,culling,frame_ms,rays,aabb_tests,tri_tests,culled_nodes,culled_tris,pixels_differing",
-    );
-    for d in 0..DEPTH_BINS {
-        let _ = write!(s, ",aabb_d{d}");
-    }
-    for d in 0..DEPTH_BINS {
-        let _ = write!(s, ",tri_d{d}");
-    }
-    s.push('\n');
-    for (table, r) in rows
+/// whitted.csv: the header, then one record per frame (Figure 5's, then Table 2's).
+fn csv(rows: &[Row], t2: &[Row]) -> (Vec<String>, Vec<Vec<String>>) {
+    let mut head: Vec<String> = "table,scene,level,config,primary,secondary,packet,culling,frame_ms,rays,aabb_tests,tri_tests,culled_nodes,culled_tris,pixels_differing"
+        .split(',')
+        .map(String::from)
+        .collect();
+    head.extend((0..DEPTH_BINS).map(|d| format!("aabb_d{d}")));
+    head.extend((0..DEPTH_BINS).map(|d| format!("tri_d{d}")));
+    let records = rows
         .iter()
         .map(|r| ("figure5", r))
         .chain(t2.iter().map(|r| ("table2", r)))
-    {
-        let c = &r.ctr;
-        let _ = write!(
-            s,
-            "{table},{},{},{},{},{},{},{},{:.3},{},{},{},{},{},{}",
-            r.scene,
-            r.level,
-            r.cfg.label(),
-            r.cfg.primary.name(),
-            r.cfg.secondary.name(),
-            r.cfg.packet,
-            r.cfg.culling,
-            ms(r.ns),
-            c.rays,
-            c.aabb_tests,
-            c.tri_tests,
-            c.culled_nodes,
-            c.culled,
-            r.diff
-        );
-        for x in c.aabb_by_depth.iter().chain(&c.tri_by_depth) {
-            let _ = write!(s, ",{x}");
-        }
-        s.push('\n');
-    }
-    s
-}
-
-fn ratio(a: u64, b: u64) -> f64 {
-    if b == 0 { 0.0 } else { a as f64 / b as f64 }
+        .map(|(table, r)| {
+            let c = &r.ctr;
+            let mut f = vec![
+                table.to_string(),
+                r.scene.clone(),
+                r.level.to_string(),
+                r.cfg.label(),
+                r.cfg.primary.name().to_string(),
+                r.cfg.secondary.name().to_string(),
+                r.cfg.packet.to_string(),
+                r.cfg.culling.to_string(),
+                format!("{:.3}", ms(r.ns)),
+                c.rays.to_string(),
+                c.aabb_tests.to_string(),
+                c.tri_tests.to_string(),
+                c.culled_nodes.to_string(),
+                c.culled.to_string(),
+                r.diff.to_string(),
+            ];
+            f.extend(
+                c.aabb_by_depth
+                    .iter()
+                    .chain(&c.tri_by_depth)
+                    .map(|x| x.to_string()),
+            );
+            f
+        })
+        .collect();
+    (head, records)
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -711,8 +697,8 @@ fn markdown(
 /// The Figure 5 chart: one panel per (level, scene), frame ms against packet
 /// side, one line per traversal, the 2x2 SIMD ray as a dashed line.
 mod figure5 {
-    use super::{LEVELS, Row, TRAVERSALS, chart};
-    use crate::{Failure, OrFail};
+    use super::{FONT, LEVELS, Row, TRAVERSALS, save_chart};
+    use anyhow::Result;
     use plotters::prelude::*;
     use sheaf::Method;
     use std::path::Path;
@@ -732,22 +718,19 @@ mod figure5 {
         root: DrawingArea<DB, plotters::coord::Shift>,
         rows: &[Row],
         packets: &[u32],
-    ) -> Result<(), String>
+    ) -> Result<()>
     where
         DB::ErrorType: 'static,
     {
-        let e = |x: &dyn std::fmt::Display| x.to_string();
-        root.fill(&WHITE).map_err(|x| e(&x))?;
+        root.fill(&WHITE)?;
         let mut scenes: Vec<&str> = rows.iter().map(|r| r.scene.as_str()).collect();
         scenes.dedup();
         let (title, body) = root.split_vertically(TITLE_H);
-        title
-            .draw(&Text::new(
-                "Frame ms vs packet side (BVH paper Figure 5)",
-                (10, 8),
-                (chart::FONT, 16).into_font(),
-            ))
-            .map_err(|x| e(&x))?;
+        title.draw(&Text::new(
+            "Frame ms vs packet side (BVH paper Figure 5)",
+            (10, 8),
+            (FONT, 16).into_font(),
+        ))?;
         let mut x = 10;
         for (label, c) in [
             ("Masked", colour(Method::BvhMasked)),
@@ -755,16 +738,8 @@ mod figure5 {
             ("Partition", colour(Method::BvhPartition)),
             ("2x2 SIMD", RGBColor(120, 120, 120)),
         ] {
-            title
-                .draw(&Rectangle::new([(x, 34), (x + 18, 40)], c.filled()))
-                .map_err(|x| e(&x))?;
-            title
-                .draw(&Text::new(
-                    label,
-                    (x + 24, 30),
-                    (chart::FONT, 13).into_font(),
-                ))
-                .map_err(|x| e(&x))?;
+            title.draw(&Rectangle::new([(x, 34), (x + 18, 40)], c.filled()))?;
+            title.draw(&Text::new(label, (x + 24, 30), (FONT, 13).into_font()))?;
             x += 110;
         }
         let panels = body.split_evenly((LEVELS.len(), scenes.len().max(1)));
@@ -784,19 +759,17 @@ mod figure5 {
             let lo = packets.first().map_or(2.0, |&n| (n as f64).log2()) - 0.3;
             let hi = packets.last().map_or(5.0, |&n| (n as f64).log2()) + 0.3;
             let mut c = ChartBuilder::on(p)
-                .caption(format!("{sc}: {}", lv.name), (chart::FONT, 13))
+                .caption(format!("{sc}: {}", lv.name), (FONT, 13))
                 .margin(6)
                 .x_label_area_size(22)
                 .y_label_area_size(44)
-                .build_cartesian_2d(lo..hi, 0.0..top.max(1e-3))
-                .map_err(|x| e(&x))?;
+                .build_cartesian_2d(lo..hi, 0.0..top.max(1e-3))?;
             c.configure_mesh()
                 .x_labels(packets.len())
                 .x_label_formatter(&|x| format!("{0}x{0}", 2f64.powf(x.round()) as u32))
                 .y_desc("ms")
-                .label_style((chart::FONT, 11))
-                .draw()
-                .map_err(|x| e(&x))?;
+                .label_style((FONT, 11))
+                .draw()?;
             if let Some(simd) = here.iter().find(|r| r.cfg.primary == Method::BvhSimd) {
                 let y = simd.ns as f64 * 1e-6;
                 c.draw_series(DashedLineSeries::new(
@@ -804,8 +777,7 @@ mod figure5 {
                     6,
                     4,
                     RGBColor(120, 120, 120).stroke_width(2),
-                ))
-                .map_err(|x| e(&x))?;
+                ))?;
             }
             for m in TRAVERSALS {
                 let pts: Vec<(f64, f64)> = here
@@ -813,42 +785,26 @@ mod figure5 {
                     .filter(|r| r.cfg.primary == m)
                     .map(|r| ((r.cfg.packet as f64).log2(), r.ns as f64 * 1e-6))
                     .collect();
-                c.draw_series(LineSeries::new(pts.clone(), colour(m).stroke_width(2)))
-                    .map_err(|x| e(&x))?;
-                c.draw_series(pts.iter().map(|&p| Circle::new(p, 3, colour(m).filled())))
-                    .map_err(|x| e(&x))?;
+                c.draw_series(LineSeries::new(pts.clone(), colour(m).stroke_width(2)))?;
+                c.draw_series(pts.iter().map(|&p| Circle::new(p, 3, colour(m).filled())))?;
             }
         }
-        root.present().map_err(|x| e(&x))
+        Ok(root.present()?)
     }
 
-    pub(super) fn write(
-        rows: &[Row],
-        packets: &[u32],
-        svg: &Path,
-        png: &Path,
-    ) -> Result<(), Failure> {
-        chart::register_font()?;
+    pub(super) fn write(rows: &[Row], packets: &[u32], svg: &Path, png: &Path) -> Result<()> {
         let mut scenes: Vec<&str> = rows.iter().map(|r| r.scene.as_str()).collect();
         scenes.dedup();
         let size = (
             PANEL.0 * scenes.len().max(2) as u32,
             PANEL.1 * LEVELS.len() as u32 + TITLE_H,
         );
-        draw(
-            SVGBackend::new(svg, size).into_drawing_area(),
-            rows,
-            packets,
+        save_chart(
+            size,
+            svg,
+            png,
+            |root| draw(root, rows, packets),
+            |root| draw(root, rows, packets),
         )
-        .map_err(|x| Failure(format!("chart {}: {x}", svg.display())))?;
-        let mut buf = vec![0u8; size.0 as usize * size.1 as usize * 3];
-        draw(
-            BitMapBackend::with_buffer(&mut buf, size).into_drawing_area(),
-            rows,
-            packets,
-        )
-        .map_err(|x| Failure(format!("chart: {x}")))?;
-        image::save_buffer(png, &buf, size.0, size.1, image::ExtendedColorType::Rgb8)
-            .or_fail(|| format!("cannot write {}", png.display()))
     }
 }

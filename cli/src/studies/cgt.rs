@@ -31,34 +31,30 @@
 //! an edge or when the occluder lies within `END_REL` of the ray's end.
 #![forbid(unsafe_code)]
 
-use crate::load::{self, Loaded};
+use super::common::{
+    BAND_ROWS, MEASURE_NS, NO_PIXEL, Progress, Tiling, check_threads, command_line, create_dir,
+    load_or_skip, machine_line, median, par_map, ratio, scene_specs, test_name, timed, view_for,
+    write_csv, write_text,
+};
 use crate::run::{self, ms, res};
-use crate::view::{self, INSIDE_FOV, OUTSIDE_FOV};
-use crate::{BenchArgs, Failure, GridOpts, OrFail, TestArg};
-use clap::ValueEnum;
+use crate::{BenchArgs, GridOpts};
+use anyhow::{Context as _, Result, bail};
 use glam::Vec3;
+use rayon::prelude::*;
 use sheaf::accel::bvh::BvhParams;
 use sheaf::accel::grid::traverse_cgt::Mailbox;
 use sheaf::context::SceneTracer as GridTracer;
 use sheaf::geom::{F4, Hit4, INVALID_ID, M4, Ray4};
 use sheaf::reference::{self, RefHit};
-use sheaf::render::{PrimaryRays, SHADOW_OFFSET, Tracer, demorton, shadow_packet};
+use sheaf::render::{PrimaryRays, SHADOW_OFFSET, Tracer, shadow_packet};
 use sheaf::trace::{BvhOptions, EntrySearch, RayKind, Structure};
-use sheaf::{Camera, CgtOptions, Counters, Hit, Method, Ray, Scene, TraceParams};
+use sheaf::{CgtOptions, Counters, Hit, Method, Ray, Scene, TraceParams};
 use std::collections::HashMap;
 use std::fmt::Write as _;
-use std::path::{Path, PathBuf};
-use std::sync::Mutex;
 use std::time::Instant;
 
 /// Builds per triangle test; the median is reported.
 const BUILD_REPS: usize = 3;
-/// A measurement stops repeating once its runs took this long (slow
-/// configurations get fewer runs; their runs are long enough to be stable).
-const MEASURE_NS: u64 = 300_000_000;
-/// Rows per band of the single-ray method (packet methods: whole tile rows
-/// covering at least this many rows), as in `run::render_frame`.
-const BAND_ROWS: usize = 8;
 /// Tolerances (see the module doc): relative t gap of a tie, barycentric
 /// distance to an edge, relative distance of an occluder to the ray's end.
 const TIE_REL: f64 = 1e-5;
@@ -66,16 +62,6 @@ const EDGE_BARY: f64 = 1e-5;
 const END_REL: f64 = 1e-5;
 /// Added to every mismatch rate on the chart's log axis, so zeros show.
 const RATE_FLOOR: f64 = 1e-6;
-
-/// The OBJ scenes of ../shared/scenes: bench name and file.
-pub(crate) const OBJ_SCENES: &[(&str, &str)] = &[
-    ("legocar", "legocar/legocar.obj"),
-    ("bunny", "bunny/bunny_tinybvh.obj"),
-    ("sibenik", "sibenik/sibenik.obj"),
-    ("sponza", "crytek_sponza/crytek_sponza.obj"),
-    ("conference", "conference/conference.obj"),
-];
-const QUICK_SCENES: &[&str] = &["tetra", "gears", "legocar"];
 
 /// One traversal configuration (the triangle test is the grid's).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -273,85 +259,12 @@ fn configs(packets: &[u32], ablation: bool, grid: bool, bvh: bool, kd: bool) -> 
     v
 }
 
-fn test_name(t: TestArg) -> String {
-    t.to_possible_value()
-        .map_or_else(|| format!("{t:?}"), |v| v.get_name().to_string())
-}
-
-/// Median of `v` (0 when empty).
-pub(crate) fn median(mut v: Vec<u64>) -> u64 {
-    v.sort_unstable();
-    v.get(v.len() / 2).copied().unwrap_or(0)
-}
-
 fn mrays(rays: u64, ns: u64) -> f64 {
     run::mrays(rays, ns)
 }
 
-fn per(x: u64, n: u64) -> f64 {
-    if n == 0 { 0.0 } else { x as f64 / n as f64 }
-}
-
 // ---------------------------------------------------------------------------
-// Ray layouts
-
-/// Pixel of a lane that is not in the image.
-const NO_PIXEL: u32 = u32::MAX;
-
-/// The image in n x n tiles of 2x2 quads (lane order of `Ray4`), quads in
-/// Morton order within a tile, tiles row by row: the pixel of every lane.
-struct Tiling {
-    /// Quads per packet, `(n / 2)^2`.
-    q: usize,
-    /// Quads per band of whole tile rows.
-    band: usize,
-    /// Pixel (`y * w + x`) of lane `4 * quad + lane`, or `NO_PIXEL`.
-    pix: Vec<u32>,
-}
-
-impl Tiling {
-    fn new(w: u32, h: u32, n: u32) -> Tiling {
-        let q = (n as usize / 2).pow(2);
-        let (tiles_x, tiles_y) = (w.div_ceil(n), h.div_ceil(n));
-        let band = BAND_ROWS.div_ceil(n as usize) * tiles_x as usize * q;
-        let mut pix = Vec::with_capacity((tiles_x * tiles_y) as usize * q * 4);
-        for ty in 0..tiles_y {
-            for tx in 0..tiles_x {
-                for k in 0..q {
-                    let (qx, qy) = demorton(k);
-                    for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
-                        let (x, y) = (tx * n + 2 * qx + dx, ty * n + 2 * qy + dy);
-                        pix.push(if x < w && y < h { y * w + x } else { NO_PIXEL });
-                    }
-                }
-            }
-        }
-        Tiling { q, band, pix }
-    }
-
-    /// Pack per-pixel `rays` (lanes whose pixel is not `active` get `pad`,
-    /// inactive) into quads and masks.
-    fn pack(&self, rays: &[Ray], active: impl Fn(usize) -> bool, pad: Ray) -> (Vec<Ray4>, Vec<M4>) {
-        self.pix
-            .chunks_exact(4)
-            .map(|p| {
-                let p = [p[0], p[1], p[2], p[3]];
-                let on = p.map(|i| i != NO_PIXEL && active(i as usize));
-                let lanes = [0, 1, 2, 3].map(|k| if on[k] { rays[p[k] as usize] } else { pad });
-                (Ray4::from_rays(&lanes), M4::new(on[0], on[1], on[2], on[3]))
-            })
-            .unzip()
-    }
-
-    /// Scatter packet results back to pixels.
-    fn unpack<T: Copy>(&self, out: &mut [T], lanes: &[Hit4], f: impl Fn(&Hit4, usize) -> T) {
-        for (k, &p) in self.pix.iter().enumerate() {
-            if p != NO_PIXEL {
-                out[p as usize] = f(&lanes[k / 4], k % 4);
-            }
-        }
-    }
-}
+// Ray layouts (the packed primary rays: `common::Tiling`)
 
 /// A view's primary rays: row-major (the 3DDDA's order) and packed per packet side.
 struct ViewRays {
@@ -412,38 +325,17 @@ fn shadows(tr: &GridTracer<'_>, rays: &[Ray], hits: &[Hit], light: Vec3, eps: f3
 // ---------------------------------------------------------------------------
 // Timed tracing on one or more threads
 
-/// Hand `bands` out in order to one thread per mailbox; returns the summed counters.
-fn par_bands<B: Send>(
-    bands: impl Iterator<Item = B> + Send,
-    mbs: &mut [Mailbox<'_>],
-    work: impl Fn(B, &mut Mailbox<'_>, &mut Counters) + Sync,
+/// Run `work` on `bands` on a pool of one thread per mailbox (`run::par_mailboxes`);
+/// returns the summed counters.
+fn par_bands<'m, I: ParallelIterator>(
+    bands: I,
+    mbs: &mut [Mailbox<'m>],
+    work: impl Fn(I::Item, &mut Mailbox<'m>, &mut Counters) + Sync,
 ) -> Counters {
-    let queue = Mutex::new(bands);
-    let run = |mb: &mut Mailbox<'_>| {
-        let mut ctr = Counters::default();
-        loop {
-            let next = queue.lock().unwrap_or_else(|p| p.into_inner()).next();
-            let Some(b) = next else { break };
-            work(b, mb, &mut ctr);
-        }
-        ctr
-    };
-    let run = &run;
-    match mbs.split_first_mut() {
-        None => Counters::default(),
-        Some((first, [])) => run(first),
-        Some((first, rest)) => std::thread::scope(|s| {
-            let helpers: Vec<_> = rest.iter_mut().map(|mb| s.spawn(move || run(mb))).collect();
-            let mut total = run(first);
-            for h in helpers {
-                match h.join() {
-                    Ok(c) => total.add(&c),
-                    Err(p) => std::panic::resume_unwind(p),
-                }
-            }
-            total
-        }),
+    if mbs.is_empty() {
+        return Counters::default();
     }
+    run::par_mailboxes(mbs.iter_mut().collect(), bands, work)
 }
 
 /// Nearest hits of row-major `rays`, one ray at a time.
@@ -455,7 +347,7 @@ fn trace_single(
     mbs: &mut [Mailbox<'_>],
 ) -> Counters {
     par_bands(
-        rays.chunks(band).zip(hits.chunks_mut(band)),
+        rays.par_chunks(band).zip(hits.par_chunks_mut(band)),
         mbs,
         |(r, h), _, ctr| {
             for (r, h) in r.iter().zip(h) {
@@ -475,9 +367,9 @@ fn occlude_single(
 ) -> Counters {
     let bands = s
         .rays
-        .chunks(band)
-        .zip(s.active.chunks(band))
-        .zip(out.chunks_mut(band));
+        .par_chunks(band)
+        .zip(s.active.par_chunks(band))
+        .zip(out.par_chunks_mut(band));
     par_bands(bands, mbs, |((r, a), o), _, ctr| {
         for ((r, a), o) in r.iter().zip(a).zip(o) {
             *o = *a && tr.occluded(r, ctr);
@@ -496,9 +388,9 @@ fn trace_packets(
     mbs: &mut [Mailbox<'_>],
 ) -> Counters {
     let bands = rays
-        .chunks(t.band)
-        .zip(active.chunks(t.band))
-        .zip(hits.chunks_mut(t.band));
+        .par_chunks(t.band)
+        .zip(active.par_chunks(t.band))
+        .zip(hits.par_chunks_mut(t.band));
     par_bands(bands, mbs, |((r, a), h), mb, ctr| {
         for ((r, a), h) in r.chunks(t.q).zip(a.chunks(t.q)).zip(h.chunks_mut(t.q)) {
             tr.intersect_packet(p, r, a, h, mb, ctr);
@@ -519,10 +411,10 @@ fn occlude_packets(
     mbs: &mut [Mailbox<'_>],
 ) -> Counters {
     let bands = rays
-        .chunks(t.band)
-        .zip(active.chunks(t.band))
-        .zip(dist.chunks(t.band))
-        .zip(hits.chunks_mut(t.band));
+        .par_chunks(t.band)
+        .zip(active.par_chunks(t.band))
+        .zip(dist.par_chunks(t.band))
+        .zip(hits.par_chunks_mut(t.band));
     par_bands(bands, mbs, |(((r, a), d), h), mb, ctr| {
         for (((r, a), d), h) in r
             .chunks(t.q)
@@ -556,21 +448,6 @@ struct Traced {
     prim_ctr: Counters,
     shadow_ctr: Counters,
     timings: Vec<Timing>,
-}
-
-/// Time `f`: the median of up to `reps` runs, fewer once they took
-/// `MEASURE_NS` together (at least one).
-pub(crate) fn timed(reps: u32, mut f: impl FnMut()) -> u64 {
-    let mut runs = Vec::new();
-    let mut total = 0;
-    while runs.len() < reps.max(1) as usize && (runs.is_empty() || total < MEASURE_NS) {
-        let t = Instant::now();
-        f();
-        let ns = t.elapsed().as_nanos() as u64;
-        runs.push(ns);
-        total += ns;
-    }
-    median(runs)
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -682,26 +559,6 @@ fn trace_config(
 // ---------------------------------------------------------------------------
 // The f64 oracle
 
-/// Run `f` over `items` on every core, keeping order.
-pub(crate) fn par_map<T: Sync, R: Send>(items: &[T], f: impl Fn(&T) -> R + Sync) -> Vec<R> {
-    let n = std::thread::available_parallelism()
-        .map_or(1, |n| n.get())
-        .max(1);
-    let chunk = items.len().div_ceil(n).max(1);
-    std::thread::scope(|s| {
-        let hs: Vec<_> = items
-            .chunks(chunk)
-            .map(|c| s.spawn(|| c.iter().map(&f).collect::<Vec<_>>()))
-            .collect();
-        hs.into_iter()
-            .flat_map(|h| match h.join() {
-                Ok(v) => v,
-                Err(p) => std::panic::resume_unwind(p),
-            })
-            .collect()
-    })
-}
-
 fn gcd(a: usize, b: usize) -> usize {
     if b == 0 { a } else { gcd(b, a % b) }
 }
@@ -778,7 +635,7 @@ impl Accuracy {
         self.prim_mismatch + self.shadow_mismatch
     }
     fn rate(&self) -> f64 {
-        per(self.mismatch(), self.checked())
+        ratio(self.mismatch(), self.checked())
     }
     fn outside(&self) -> u64 {
         self.prim_outside + self.shadow_outside
@@ -896,132 +753,6 @@ fn accuracy(
 }
 
 // ---------------------------------------------------------------------------
-// Scenes
-
-/// A scene to run: its bench name and what `load::load` takes.
-pub(crate) struct SceneSpec {
-    pub(crate) name: String,
-    pub(crate) load: String,
-}
-
-pub(crate) fn scenes_dir(a: &BenchArgs) -> PathBuf {
-    if let Some(d) = &a.scenes_dir {
-        return d.clone();
-    }
-    let here = PathBuf::from("../shared/scenes");
-    if here.is_dir() {
-        return here;
-    }
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/scenes")
-}
-
-/// The scenes asked for (`--scenes`, else the quick set or the built-in
-/// and OBJ scenes), absent OBJ files skipped with a message.
-pub(crate) fn scene_specs(a: &BenchArgs) -> Result<Vec<SceneSpec>, Failure> {
-    let names: Vec<String> = if !a.scenes.is_empty() {
-        a.scenes.clone()
-    } else if a.quick {
-        QUICK_SCENES.iter().map(|s| s.to_string()).collect()
-    } else {
-        sheaf::scenes::BUILTIN_NAMES
-            .iter()
-            .chain(OBJ_SCENES.iter().map(|(n, _)| n))
-            .map(|s| s.to_string())
-            .collect()
-    };
-    specs_of(&names, &scenes_dir(a))
-}
-
-/// `names` as scenes to load: stress and built-in scene names, OBJ scene
-/// names (in `dir`) and OBJ paths; absent OBJ files skipped with a message.
-pub(crate) fn specs_of(names: &[String], dir: &Path) -> Result<Vec<SceneSpec>, Failure> {
-    use sheaf::scenes::stress::STRESS_SCENE_NAMES;
-    let mut out = Vec::new();
-    for name in names.iter().map(|s| s.trim()).filter(|s| !s.is_empty()) {
-        let name = name.to_string();
-        let (label, path) = if STRESS_SCENE_NAMES.contains(&name.as_str()) {
-            out.push(SceneSpec {
-                load: format!("stress:{name}"),
-                name,
-            });
-            continue;
-        } else if sheaf::scenes::BUILTIN_NAMES.contains(&name.as_str()) {
-            out.push(SceneSpec {
-                load: format!("builtin:{name}"),
-                name,
-            });
-            continue;
-        } else if let Some((n, f)) = OBJ_SCENES
-            .iter()
-            .find(|(n, f)| *n == name || f.starts_with(&format!("{name}/")))
-        {
-            (n.to_string(), dir.join(f))
-        } else if name.ends_with(".obj") {
-            let p = PathBuf::from(&name);
-            (
-                p.file_stem()
-                    .map_or(name.clone(), |s| s.to_string_lossy().into_owned()),
-                p,
-            )
-        } else {
-            let known: Vec<&str> = STRESS_SCENE_NAMES
-                .iter()
-                .chain(sheaf::scenes::BUILTIN_NAMES)
-                .copied()
-                .chain(OBJ_SCENES.iter().map(|(n, _)| *n))
-                .collect();
-            return Err(Failure(format!(
-                "--scenes: unknown scene '{name}' (known: {}, or a path ending in .obj)",
-                known.join(", ")
-            )));
-        };
-        if path.is_file() {
-            out.push(SceneSpec {
-                name: label,
-                load: path.to_string_lossy().into_owned(),
-            });
-        } else {
-            println!("note: {label}: {} not found, skipped", path.display());
-        }
-    }
-    Ok(out)
-}
-
-/// The scene's view and light: a builtin's first view and light, or for an
-/// OBJ file what `sheaf render` picks by default (inside when the scene
-/// encloses the inside view's eye, else outside; the light placed for it).
-pub(crate) fn view_for(
-    loaded: &Loaded,
-    tr: &GridTracer<'_>,
-    bounds: &sheaf::geom::Aabb,
-    w: u32,
-    h: u32,
-) -> (sheaf::scenes::View, Vec3, String) {
-    if let Some((views, light)) = &loaded.builtin {
-        return (views[0], *light, "builtin view 0".into());
-    }
-    let (lo, hi) = (bounds.min, bounds.max);
-    let inside = view::inside(tr, lo, hi, Vec3::Y, INSIDE_FOV);
-    let interior = view::is_interior(tr, inside.eye);
-    let v = if interior {
-        inside
-    } else {
-        view::outside(lo, hi, Vec3::Y, OUTSIDE_FOV, w as f32 / h as f32)
-    };
-    let light = view::light_for(tr, &v, interior, (hi - lo).length());
-    (
-        v,
-        Vec3::from(light.position),
-        if interior {
-            "inside (auto)"
-        } else {
-            "outside (auto)"
-        }
-        .into(),
-    )
-}
-
-// ---------------------------------------------------------------------------
 // Results
 
 /// One configuration on one scene: everything the CSV holds.
@@ -1060,31 +791,37 @@ impl Row {
     }
 }
 
-fn counters_csv(s: &mut String, c: &Counters, rays: u64) {
-    let _ = write!(
-        s,
-        ",{:.3},{:.3},{:.3},{:.3},{:.3},{},{},{},{}",
-        per(c.cells, rays),
-        per(c.macro_skips, rays),
-        per(c.tri_tests, rays),
-        per(c.mailbox_skips, rays),
-        per(c.culled, rays),
-        c.packets,
-        c.stray_lanes,
-        c.packets_no_cull,
-        c.packets_split
-    );
+fn counters_csv(f: &mut Vec<String>, c: &Counters, rays: u64) {
+    for x in [
+        c.cells,
+        c.macro_skips,
+        c.tri_tests,
+        c.mailbox_skips,
+        c.culled,
+    ] {
+        f.push(format!("{:.3}", ratio(x, rays)));
+    }
+    for x in [c.packets, c.stray_lanes, c.packets_no_cull, c.packets_split] {
+        f.push(x.to_string());
+    }
 }
 
-fn csv(rows: &[Row], threads: &[u32]) -> String {
-    let mut s = String::from(
-        "scene,triangles,view,width,height,config,method,packet,macrocells,mailbox,culling,test,build_ms,grid_res,grid_refs,primary_rays,shadow_rays",
-    );
+/// bench.csv: the header, then one record per row.
+fn csv(rows: &[Row], threads: &[u32]) -> (Vec<String>, Vec<Vec<String>>) {
+    let mut head: Vec<String> = "scene,triangles,view,width,height,config,method,packet,macrocells,mailbox,culling,test,build_ms,grid_res,grid_refs,primary_rays,shadow_rays"
+        .split(',')
+        .map(String::from)
+        .collect();
     for t in threads {
-        let _ = write!(
-            s,
-            ",primary_ms_{t}t,primary_mrays_{t}t,shadow_ms_{t}t,shadow_mrays_{t}t,total_mrays_{t}t"
-        );
+        for c in [
+            "primary_ms",
+            "primary_mrays",
+            "shadow_ms",
+            "shadow_mrays",
+            "total_mrays",
+        ] {
+            head.push(format!("{c}_{t}t"));
+        }
     }
     for k in ["primary", "shadow"] {
         for c in [
@@ -1094,68 +831,69 @@ fn csv(rows: &[Row], threads: &[u32]) -> String {
             "mailbox_skips",
             "culled",
         ] {
-            let _ = write!(s, ",{k}_{c}_per_ray");
+            head.push(format!("{k}_{c}_per_ray"));
         }
         for c in ["packets", "stray_lanes", "packets_no_cull", "packets_split"] {
-            let _ = write!(s, ",{k}_{c}");
+            head.push(format!("{k}_{c}"));
         }
     }
-    s.push_str(",oracle_step,primary_checked,primary_mismatch,primary_mismatch_tie,primary_mismatch_edge,primary_mismatch_outside_tol,shadow_checked,shadow_mismatch,shadow_mismatch_outside_tol,mismatch_rate,mismatch_outside_tol_rate,primary_diff_vs_dda,shadow_diff_vs_dda\n");
-    for r in rows {
-        let a = &r.acc;
-        let _ = write!(
-            s,
-            "{},{},{},{},{},{},{},{},{},{},{},{},{:.3},{},{},{},{}",
-            r.scene,
-            r.triangles,
-            r.view,
-            r.size.0,
-            r.size.1,
-            r.cfg.label(),
-            r.cfg.method.name(),
-            r.cfg.packet,
-            r.cfg.cgt.macrocells,
-            r.cfg.cgt.mailbox,
-            r.cfg.cgt.culling,
-            r.test,
-            ms(r.build_ns),
-            r.grid,
-            r.refs,
-            r.prim_rays,
-            r.shadow_rays
-        );
-        for (i, t) in r.timings.iter().enumerate() {
-            let _ = write!(
-                s,
-                ",{:.3},{:.3},{:.3},{:.3},{:.3}",
-                ms(t.prim_ns),
-                r.prim_mrays(i),
-                ms(t.shadow_ns),
-                r.shadow_mrays(i),
-                mrays(r.prim_rays + r.shadow_rays, t.prim_ns + t.shadow_ns)
-            );
-        }
-        counters_csv(&mut s, &r.prim_ctr, r.prim_rays);
-        counters_csv(&mut s, &r.shadow_ctr, r.shadow_rays);
-        let _ = writeln!(
-            s,
-            ",{},{},{},{},{},{},{},{},{},{:.3e},{:.3e},{},{}",
-            r.oracle_step,
-            a.prim_checked,
-            a.prim_mismatch,
-            a.prim_tie,
-            a.prim_edge,
-            a.prim_outside,
-            a.shadow_checked,
-            a.shadow_mismatch,
-            a.shadow_outside,
-            a.rate(),
-            per(a.outside(), a.checked()),
-            r.diff_dda.0,
-            r.diff_dda.1
-        );
-    }
-    s
+    head.extend("oracle_step,primary_checked,primary_mismatch,primary_mismatch_tie,primary_mismatch_edge,primary_mismatch_outside_tol,shadow_checked,shadow_mismatch,shadow_mismatch_outside_tol,mismatch_rate,mismatch_outside_tol_rate,primary_diff_vs_dda,shadow_diff_vs_dda".split(',').map(String::from));
+    let records = rows
+        .iter()
+        .map(|r| {
+            let a = &r.acc;
+            let mut f = vec![
+                r.scene.clone(),
+                r.triangles.to_string(),
+                r.view.clone(),
+                r.size.0.to_string(),
+                r.size.1.to_string(),
+                r.cfg.label(),
+                r.cfg.method.name().to_string(),
+                r.cfg.packet.to_string(),
+                r.cfg.cgt.macrocells.to_string(),
+                r.cfg.cgt.mailbox.to_string(),
+                r.cfg.cgt.culling.to_string(),
+                r.test.clone(),
+                format!("{:.3}", ms(r.build_ns)),
+                r.grid.clone(),
+                r.refs.to_string(),
+                r.prim_rays.to_string(),
+                r.shadow_rays.to_string(),
+            ];
+            for (i, t) in r.timings.iter().enumerate() {
+                f.extend([
+                    format!("{:.3}", ms(t.prim_ns)),
+                    format!("{:.3}", r.prim_mrays(i)),
+                    format!("{:.3}", ms(t.shadow_ns)),
+                    format!("{:.3}", r.shadow_mrays(i)),
+                    format!(
+                        "{:.3}",
+                        mrays(r.prim_rays + r.shadow_rays, t.prim_ns + t.shadow_ns)
+                    ),
+                ]);
+            }
+            counters_csv(&mut f, &r.prim_ctr, r.prim_rays);
+            counters_csv(&mut f, &r.shadow_ctr, r.shadow_rays);
+            f.extend([
+                r.oracle_step.to_string(),
+                a.prim_checked.to_string(),
+                a.prim_mismatch.to_string(),
+                a.prim_tie.to_string(),
+                a.prim_edge.to_string(),
+                a.prim_outside.to_string(),
+                a.shadow_checked.to_string(),
+                a.shadow_mismatch.to_string(),
+                a.shadow_outside.to_string(),
+                format!("{:.3e}", a.rate()),
+                format!("{:.3e}", ratio(a.outside(), a.checked())),
+                r.diff_dda.0.to_string(),
+                r.diff_dda.1.to_string(),
+            ]);
+            f
+        })
+        .collect();
+    (head, records)
 }
 
 /// What the Markdown header says about each scene.
@@ -1199,10 +937,10 @@ fn markdown(rows: &[Row], notes: &[SceneNote], header: &str, threads: &[u32]) ->
             let _ = writeln!(
                 s,
                 " {:.2} | {:.2} | {:.2} | {:.2} | {} | {} | {} ({}) | {} ({}) | {:.2e} |",
-                per(c.cells, r.prim_rays),
-                per(c.tri_tests, r.prim_rays),
-                per(c.mailbox_skips, r.prim_rays),
-                per(c.culled, r.prim_rays),
+                ratio(c.cells, r.prim_rays),
+                ratio(c.tri_tests, r.prim_rays),
+                ratio(c.mailbox_skips, r.prim_rays),
+                ratio(c.culled, r.prim_rays),
                 c.stray_lanes,
                 r.shadow_ctr.packets_split,
                 a.prim_mismatch,
@@ -1216,59 +954,11 @@ fn markdown(rows: &[Row], notes: &[SceneNote], header: &str, threads: &[u32]) ->
     s
 }
 
-/// Hardware threads, CPU model and load average (Linux), so a reader can
-/// tell a busy machine's numbers.
-pub(crate) fn machine_line() -> String {
-    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
-    let mut s = format!("{cores} hardware threads");
-    let cpu = std::fs::read_to_string("/proc/cpuinfo").ok().and_then(|t| {
-        t.lines()
-            .find(|l| l.starts_with("model name"))
-            .and_then(|l| l.split_once(':'))
-            .map(|(_, v)| v.trim().to_string())
-    });
-    if let Some(c) = cpu {
-        let _ = write!(s, " ({c})");
-    }
-    if let Some(l) = std::fs::read_to_string("/proc/loadavg")
-        .ok()
-        .map(|l| l.split_whitespace().take(3).collect::<Vec<_>>().join(" "))
-    {
-        let _ = write!(s, ", load average {l}");
-    }
-    s
-}
-
-pub(crate) fn command_line() -> String {
-    std::env::args()
-        .map(|a| {
-            if a.contains(char::is_whitespace) || a.is_empty() {
-                format!("'{a}'")
-            } else {
-                a
-            }
-        })
-        .collect::<Vec<_>>()
-        .join(" ")
-}
-
 // ---------------------------------------------------------------------------
 // The command
 
-/// `sheaf bench`.
-pub fn bench(a: &BenchArgs) -> Result<(), Failure> {
-    if a.whitted {
-        return crate::whitted_bench::run(a);
-    }
-    if a.entry {
-        return crate::entry_bench::run(a);
-    }
-    if a.pgrid {
-        return crate::pgrid_bench::run(a);
-    }
-    if a.stress {
-        return crate::stress_bench::run(a);
-    }
+/// `sheaf bench` without a study flag: speed against accuracy.
+pub fn run(a: &BenchArgs) -> Result<()> {
     let out_dir = a.out_dir();
     let start = Instant::now();
     let (w, h) = a
@@ -1284,7 +974,7 @@ pub fn bench(a: &BenchArgs) -> Result<(), Failure> {
     for &n in &packets {
         TraceParams::cgt(n)
             .validate()
-            .or_fail(|| format!("--packets {n}"))?;
+            .with_context(|| format!("--packets {n}"))?;
     }
     let mut threads = if a.threads.is_empty() {
         vec![1, 2]
@@ -1292,14 +982,12 @@ pub fn bench(a: &BenchArgs) -> Result<(), Failure> {
         a.threads.clone()
     };
     threads.dedup();
-    if threads.is_empty() || threads.iter().any(|&t| !(1..=64).contains(&t)) {
-        return Err(Failure("--threads: each must be in 1..=64".into()));
-    }
+    check_threads(&threads)?;
     let max_threads = *threads.iter().max().unwrap_or(&1);
     let reps = a.reps.unwrap_or(if a.quick { 1 } else { 3 }).max(1);
     let budget = a.oracle_budget.unwrap_or(if a.quick { 2e8 } else { 1e9 });
     if budget.is_nan() || budget < 1.0 {
-        return Err(Failure("--oracle-budget must be >= 1".into()));
+        bail!("--oracle-budget must be >= 1");
     }
     let with = |s: crate::StructureArg| a.structures.contains(&s);
     let cfgs = configs(
@@ -1310,42 +998,36 @@ pub fn bench(a: &BenchArgs) -> Result<(), Failure> {
         with(crate::StructureArg::Kd),
     );
     if cfgs.is_empty() {
-        return Err(Failure(
-            "--structures: name at least one of grid, bvh, kd".into(),
-        ));
+        bail!("--structures: name at least one of grid, bvh, kd");
     }
     let mut tests = a.tests.clone();
     tests.dedup_by_key(|t| test_name(*t));
     let specs = scene_specs(a)?;
-    std::fs::create_dir_all(&out_dir).or_fail(|| format!("cannot create {}", out_dir.display()))?;
+    create_dir(&out_dir)?;
     let machine = machine_line();
-
-    println!(
+    // One step per configuration, triangle test and scene.
+    let per_scene = (tests.len() * cfgs.len()) as u64;
+    let prog = Progress::new("sheaf bench", specs.len() as u64 * per_scene);
+    prog.say(format_args!(
         "sheaf bench: {} scenes x {} configurations x {} triangle tests, {w}x{h}, threads {:?}, median of up to {reps} timed runs, machine: {machine}",
         specs.len(),
         cfgs.len(),
         tests.len(),
         threads,
-    );
+    ));
     let mut rows: Vec<Row> = Vec::new();
     let mut notes: Vec<SceneNote> = Vec::new();
     let mut mismatch_log = String::from(
         "# Mismatches with the f64 oracle outside the tolerances (scene, configuration, test: ray, both answers)\n",
     );
     for spec in &specs {
+        prog.doing(spec.name.clone());
         let t_load = Instant::now();
-        let loaded = match load::load(&spec.load) {
-            Ok(l) => l,
-            Err(e) => {
-                println!("note: {}: {e}, skipped", spec.name);
-                continue;
-            }
+        let Some(loaded) = load_or_skip(spec, &prog) else {
+            prog.inc(per_scene);
+            continue;
         };
         let scene = loaded.scene()?;
-        if scene.triangle_count() == 0 {
-            println!("note: {}: no triangles, skipped", spec.name);
-            continue;
-        }
         let load_ms = t_load.elapsed().as_secs_f64() * 1e3;
         let mut limits = run::limits(&scene, (w, h), max_threads);
         if cfgs.iter().any(|c| c.structure() == Structure::Kd) {
@@ -1354,7 +1036,7 @@ pub fn bench(a: &BenchArgs) -> Result<(), Failure> {
             // triangle test.
             let kp = sheaf::accel::kd::KdParams::default();
             limits = run::kd_limits(&scene, limits, &kp)
-                .or_fail(|| spec.name.clone())?
+                .with_context(|| spec.name.clone())?
                 .0;
         }
         // Set on the first triangle test's build: view, light, rays, oracle.
@@ -1368,13 +1050,14 @@ pub fn bench(a: &BenchArgs) -> Result<(), Failure> {
                 macrocell: a.macrocell,
             };
             let params = grid.params();
-            let (mut ctx, info) =
-                run::context_for(&scene, limits, &params, 1.0).or_fail(|| spec.name.clone())?;
+            let (mut ctx, info) = run::context_for(&scene, limits, &params, 1.0)
+                .with_context(|| spec.name.clone())?;
             if info.triangles == 0 {
-                println!(
+                prog.say(format_args!(
                     "note: {}: every triangle is degenerate or non-finite, skipped",
                     spec.name
-                );
+                ));
+                prog.inc(per_scene - rows.iter().filter(|r| r.scene == spec.name).count() as u64);
                 break;
             }
             let mut builds = vec![ctx.stats().build_ns];
@@ -1419,13 +1102,7 @@ pub fn bench(a: &BenchArgs) -> Result<(), Failure> {
             if prepared.is_none() {
                 let tr = ctx.tracer()?;
                 let (v, light, how) = view_for(&loaded, &tr, &info.bounds, w, h);
-                let cam = Camera {
-                    eye: v.eye.to_array(),
-                    look_at: v.look_at.to_array(),
-                    up: v.up.to_array(),
-                    fov_y_deg: v.fov_y_deg,
-                };
-                let pr = PrimaryRays::new(&cam, w, h)?;
+                let pr = PrimaryRays::new(&crate::view::camera(&v), w, h)?;
                 let rays: Vec<Ray> = (0..h)
                     .flat_map(|y| (0..w).map(move |x| (x, y)))
                     .map(|(x, y)| pr.ray(x, y))
@@ -1463,7 +1140,7 @@ pub fn bench(a: &BenchArgs) -> Result<(), Failure> {
                     oracle.shadow_rays.len(),
                     oracle.ns as f64 * 1e-9
                 );
-                println!("[{}] {scene_line}", spec.name);
+                prog.say(format_args!("[{}] {scene_line}", spec.name));
                 view_how = how;
                 prepared = Some((ViewRays { w, rays, packed }, light, eps, oracle));
             }
@@ -1471,13 +1148,13 @@ pub fn bench(a: &BenchArgs) -> Result<(), Failure> {
                 unreachable!()
             };
             let grid_res = res(&info);
-            println!(
+            prog.say(format_args!(
                 "[{}] {}: grid {grid_res}, {} refs, build {:.2} ms (median of {BUILD_REPS})",
                 spec.name,
                 test_name(test),
                 info.refs,
                 ms(build_ns)
-            );
+            ));
             let bvh_line = bvh_info
                 .map(|b| {
                     format!(
@@ -1487,14 +1164,14 @@ pub fn bench(a: &BenchArgs) -> Result<(), Failure> {
                 })
                 .unwrap_or_default();
             if let Some(b) = bvh_info {
-                println!(
+                prog.say(format_args!(
                     "[{}] {}: {bvh_line}, SAH cost {:.1}, build {:.2} ms (median of {BUILD_REPS}) = {:.2} M triangles/s",
                     spec.name,
                     test_name(test),
                     b.sah_cost,
                     ms(bvh_build_ns),
                     b.triangles as f64 / (bvh_build_ns.max(1) as f64 * 1e-3)
-                );
+                ));
             }
             let kd_line = kd_info
                 .map(|k| {
@@ -1508,12 +1185,12 @@ pub fn bench(a: &BenchArgs) -> Result<(), Failure> {
                 })
                 .unwrap_or_default();
             if let Some(k) = kd_info {
-                println!(
+                prog.say(format_args!(
                     "[{}] {}: kd-tree {} (median of {BUILD_REPS} builds)",
                     spec.name,
                     test_name(test),
                     crate::cmd::kd_line(&k, kd_build_ns)
-                );
+                ));
             }
             let (tr, mbs) = ctx.parts()?;
             let mut mbs: Vec<Mailbox<'_>> = mbs.take(max_threads as usize).collect();
@@ -1574,7 +1251,8 @@ pub fn bench(a: &BenchArgs) -> Result<(), Failure> {
                     acc,
                     diff_dda,
                 };
-                println!("{}", progress(&row));
+                prog.say(progress(&row));
+                prog.step();
                 rows.push(row);
             }
         }
@@ -1611,32 +1289,31 @@ pub fn bench(a: &BenchArgs) -> Result<(), Failure> {
     let md = markdown(&rows, &notes, &header, &threads);
     let csv_path = out_dir.join("bench.csv");
     let md_path = out_dir.join("bench.md");
-    std::fs::write(&csv_path, csv(&rows, &threads))
-        .or_fail(|| format!("cannot write {}", csv_path.display()))?;
-    std::fs::write(&md_path, &md).or_fail(|| format!("cannot write {}", md_path.display()))?;
+    let (head, records) = csv(&rows, &threads);
+    write_csv(&csv_path, &head, records)?;
+    write_text(&md_path, &md)?;
     let log_path = out_dir.join("mismatches.txt");
-    std::fs::write(&log_path, &mismatch_log)
-        .or_fail(|| format!("cannot write {}", log_path.display()))?;
-    println!("\n{md}");
+    write_text(&log_path, &mismatch_log)?;
+    prog.say(format_args!("\n{md}"));
     let inconsistent: u64 = rows.iter().map(|r| r.diff_dda.0 + r.diff_dda.1).sum();
     if inconsistent > 0 {
-        println!(
+        prog.say(format_args!(
             "warning: some packet configurations differ from the 3DDDA with the same triangle test (see primary_diff_vs_dda in bench.csv)"
-        );
+        ));
     }
     let (svg, png) = (
         out_dir.join("speed_accuracy.svg"),
         out_dir.join("speed_accuracy.png"),
     );
     chart::write(&rows, &notes, (w, h), &svg, &png)?;
-    println!(
+    prog.say(format_args!(
         "wrote {}, {}, {}, {}, {}",
         csv_path.display(),
         md_path.display(),
         log_path.display(),
         svg.display(),
         png.display()
-    );
+    ));
     Ok(())
 }
 
@@ -1669,7 +1346,7 @@ fn progress(r: &Row) -> String {
     let _ = write!(
         s,
         "  tests/ray {:>6.2}  mismatch {}/{} + {}/{} shadow ({} outside tol)",
-        per(r.prim_ctr.tri_tests, r.prim_rays),
+        ratio(r.prim_ctr.tri_tests, r.prim_rays),
         a.prim_mismatch,
         a.prim_checked,
         a.shadow_mismatch,
@@ -1689,15 +1366,14 @@ fn progress(r: &Row) -> String {
 // ---------------------------------------------------------------------------
 // The chart
 
-pub(crate) mod chart {
-    use super::{RATE_FLOOR, Row, SceneNote, per};
-    use crate::{Failure, OrFail};
+mod chart {
+    use super::super::common::{FONT, save_chart};
+    use super::{RATE_FLOOR, Row, SceneNote, ratio};
+    use anyhow::Result;
     use plotters::coord::Shift;
     use plotters::prelude::*;
-    use plotters::style::FontStyle;
     use std::path::Path;
 
-    pub(crate) const FONT: &str = "sans-serif";
     const PANEL: (u32, u32) = (560, 420);
     const LEGEND_W: u32 = 260;
     const COLS: u32 = 3;
@@ -1781,20 +1457,6 @@ pub(crate) mod chart {
         out
     }
 
-    pub(crate) fn register_font() -> Result<(), Failure> {
-        static ONCE: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-        let ok = *ONCE.get_or_init(|| {
-            plotters::style::register_font(FONT, FontStyle::Normal, dejavu::sans::regular()).is_ok()
-        });
-        if ok {
-            Ok(())
-        } else {
-            Err(Failure(
-                "chart: the embedded DejaVu Sans font did not load".into(),
-            ))
-        }
-    }
-
     /// Panels: all scenes, then one per scene. `labels` are (colour, configuration label).
     fn panels(
         rows: &[Row],
@@ -1829,7 +1491,7 @@ pub(crate) mod chart {
                 let checked: u64 = rs.iter().map(|r| r.acc.checked()).sum();
                 all.points.push(Point {
                     x: super::mrays(rays, ns),
-                    rate: per(mism, checked),
+                    rate: ratio(mism, checked),
                     colour: ci,
                     marker: ti,
                 });
@@ -1885,7 +1547,10 @@ pub(crate) mod chart {
         labels: &[(usize, String)],
         tests: &[String],
         title: &str,
-    ) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
+    ) -> Result<()>
+    where
+        DB::ErrorType: 'static,
+    {
         root.fill(&WHITE)?;
         let (top, body) = root.split_vertically(TITLE_H);
         top.draw(&Text::new(
@@ -1992,7 +1657,8 @@ pub(crate) mod chart {
             ))?;
             y += 18;
         }
-        root.present()
+        root.present()?;
+        Ok(())
     }
 
     /// Write the chart as SVG and PNG.
@@ -2002,8 +1668,7 @@ pub(crate) mod chart {
         size: (u32, u32),
         svg: &Path,
         png: &Path,
-    ) -> Result<(), Failure> {
-        register_font()?;
+    ) -> Result<()> {
         let mut labels: Vec<(usize, String)> = Vec::new();
         let mut tests: Vec<String> = Vec::new();
         for r in rows {
@@ -2022,38 +1687,21 @@ pub(crate) mod chart {
             "sheaf bench: speed vs accuracy, {}x{} primary rays per scene",
             size.0, size.1
         );
-        draw(
-            SVGBackend::new(svg, dim).into_drawing_area(),
-            &ps,
-            &labels,
-            &tests,
-            &title,
-        )
-        .or_fail(|| format!("chart {}", svg.display()))?;
-        let mut buf = vec![0u8; dim.0 as usize * dim.1 as usize * 3];
-        draw(
-            BitMapBackend::with_buffer(&mut buf, dim).into_drawing_area(),
-            &ps,
-            &labels,
-            &tests,
-            &title,
-        )
-        .or_fail(|| format!("chart {}", png.display()))?;
-        image::save_buffer_with_format(
+        save_chart(
+            dim,
+            svg,
             png,
-            &buf,
-            dim.0,
-            dim.1,
-            image::ExtendedColorType::Rgb8,
-            image::ImageFormat::Png,
+            |root| draw(root, &ps, &labels, &tests, &title),
+            |root| draw(root, &ps, &labels, &tests, &title),
         )
-        .or_fail(|| format!("cannot write {}", png.display()))
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::TestArg;
+    use crate::studies::bench;
 
     #[test]
     fn tiling_covers_every_pixel_once() {

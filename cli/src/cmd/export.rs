@@ -47,7 +47,7 @@ use sheaf::render::Tracer as _;
 use crate::load;
 use crate::run;
 use crate::view::{self, INSIDE_FOV, OUTSIDE_FOV};
-use crate::{Failure, OrFail};
+use anyhow::{Context as _, Result, anyhow, bail};
 
 /// File magic and version of the export format.
 pub const MAGIC: &[u8; 8] = b"SHEAFSC1";
@@ -72,21 +72,21 @@ pub struct ExportArgs {
 }
 
 /// `sheaf export`.
-pub fn export(a: &ExportArgs) -> Result<(), Failure> {
+pub fn export(a: &ExportArgs) -> Result<()> {
     let (w, h) = a.size;
     let loaded = load::load(&a.scene)?;
     let scene = loaded.scene()?;
     if scene.triangle_count() == 0 {
-        return Err(Failure(format!("{}: no triangles", loaded.label)));
+        bail!("{}: no triangles", loaded.label);
     }
     // The grid `sheaf render` builds (one thread slot: only probes trace).
     let params = sheaf::GridParams::default();
     let (ctx, info) = run::context_for(&scene, run::limits(&scene, a.size, 1), &params, 1.0)?;
     if info.triangles == 0 {
-        return Err(Failure(format!(
+        bail!(
             "{}: every triangle is degenerate or non-finite",
             loaded.label
-        )));
+        );
     }
     let tracer = ctx.tracer()?;
     let (lo, hi) = (info.bounds.min, info.bounds.max);
@@ -95,11 +95,11 @@ pub fn export(a: &ExportArgs) -> Result<(), Failure> {
         Some((views, light)) => {
             let i = a.view.unwrap_or(0);
             let v = *views.get(i).ok_or_else(|| {
-                Failure(format!(
+                anyhow!(
                     "--view {i}: {} has views 0..={}",
                     loaded.label,
                     views.len() - 1
-                ))
+                )
             })?;
             (v, *light, format!("builtin view {i}"))
         }
@@ -111,9 +111,7 @@ pub fn export(a: &ExportArgs) -> Result<(), Failure> {
                 0 => view::outside(lo, hi, Vec3::Y, OUTSIDE_FOV, w as f32 / h as f32),
                 1 => inside,
                 _ => {
-                    return Err(Failure(format!(
-                        "--view {i}: OBJ scenes have views 0 (outside) and 1 (inside)"
-                    )));
+                    bail!("--view {i}: OBJ scenes have views 0 (outside) and 1 (inside)");
                 }
             };
             let why = if a.view.is_some() {
@@ -165,11 +163,11 @@ pub fn export(a: &ExportArgs) -> Result<(), Failure> {
         u(&mut out, i);
     }
     if let Some(dir) = a.out.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir).or_fail(|| format!("cannot create {}", dir.display()))?;
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     }
     std::fs::File::create(&a.out)
         .and_then(|mut file| file.write_all(&out))
-        .or_fail(|| format!("cannot write {}", a.out.display()))?;
+        .with_context(|| format!("cannot write {}", a.out.display()))?;
     let v3 = |p: Vec3| format!("{},{},{}", p.x, p.y, p.z);
     println!(
         "{}: {} triangles ({excluded} excluded), {} vertices; {how}: eye ({}), look at ({}), up ({}), fov {}; light ({}); shadow eps {eps:e}; {} bytes to {}",

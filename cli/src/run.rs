@@ -1,7 +1,9 @@
 //! Contexts sized for a scene, frames rendered in row bands on several
 //! threads, PNG output.
 
-use crate::{Failure, OrFail};
+use anyhow::{Context as _, Result, anyhow, bail};
+use rayon::prelude::*;
+use rayon::{ThreadPool, ThreadPoolBuilder};
 use sheaf::accel::grid::traverse_cgt::Mailbox;
 use sheaf::render::whitted::{WhittedJob, render_whitted_rows, render_whitted_tiles};
 use sheaf::render::{PrimaryRays, Tracer, render_rows, render_tiles};
@@ -9,8 +11,9 @@ use sheaf::{
     Counters, Error, Frame, GridInfo, GridParams, Limits, Method, OwnedContext, Pool, Scene,
     TraceParams,
 };
+use std::borrow::BorrowMut;
 use std::path::Path;
-use std::sync::Mutex;
+use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
 /// Rows per band handed to a thread at a time: small enough to balance
@@ -20,10 +23,10 @@ const BAND_ROWS: usize = 8;
 
 /// Threads to render with: `requested` (1..=1024) or the available cores,
 /// at most `Limits::for_triangles`' default of 8.
-pub fn threads(requested: Option<u32>) -> Result<u32, Failure> {
+pub fn threads(requested: Option<u32>) -> Result<u32> {
     match requested {
         Some(n) if (1..=1024).contains(&n) => Ok(n),
-        Some(n) => Err(Failure(format!("--threads {n}: must be in 1..=1024"))),
+        Some(n) => Err(anyhow!("--threads {n}: must be in 1..=1024")),
         None => {
             let cap = Limits::for_triangles(0).max_threads;
             Ok(std::thread::available_parallelism()
@@ -54,11 +57,11 @@ pub fn context_for(
     mut limits: Limits,
     params: &GridParams,
     headroom: f64,
-) -> Result<(OwnedContext, GridInfo), Failure> {
+) -> Result<(OwnedContext, GridInfo)> {
     // The projection test's 48 bytes per triangle only when it is chosen.
     limits.projection_test = params.test == sheaf::TriTest::Projection;
     for _ in 0..3 {
-        let mut ctx = OwnedContext::new(&limits).or_fail(|| "creating the context".into())?;
+        let mut ctx = OwnedContext::new(&limits).context("creating the context")?;
         match ctx.build_grid(scene, params) {
             Ok(info) => return Ok((ctx, info)),
             Err(Error::Capacity {
@@ -68,21 +71,18 @@ pub fn context_for(
             }) => {
                 let grown = ((needed as f64 * headroom).ceil() as u64).max(needed);
                 let grown = u32::try_from(grown).map_err(|_| {
-                    Failure(format!(
-                        "the grid needs {needed} {}: more than 2^32",
-                        pool.name()
-                    ))
+                    anyhow!("the grid needs {needed} {}: more than 2^32", pool.name())
                 })?;
                 match pool {
                     Pool::GridCells => limits.max_grid_cells = grown,
                     _ => limits.max_grid_refs = grown,
                 }
             }
-            Err(e) => return Err(Failure(format!("building the grid: {e}"))),
+            Err(e) => bail!("building the grid: {e}"),
         }
     }
-    Err(Failure(
-        "building the grid: pools still too small after growing them".into(),
+    Err(anyhow!(
+        "building the grid: pools still too small after growing them"
     ))
 }
 
@@ -93,7 +93,7 @@ pub fn build_bvh_if_used(
     scene: &Scene<'_>,
     test: sheaf::TriTest,
     params: &[TraceParams],
-) -> Result<Option<sheaf::accel::bvh::BvhInfo>, Failure> {
+) -> Result<Option<sheaf::accel::bvh::BvhInfo>> {
     if !params
         .iter()
         .any(|p| p.method.structure() == sheaf::trace::Structure::Bvh)
@@ -106,7 +106,7 @@ pub fn build_bvh_if_used(
     };
     ctx.build_bvh(scene, &p)
         .map(Some)
-        .or_fail(|| "building the BVH".into())
+        .context("building the BVH")
 }
 
 /// Build the kd-tree (default `KdParams`, triangle test `test`) when one of
@@ -116,7 +116,7 @@ pub fn build_kd_if_used(
     scene: &Scene<'_>,
     test: sheaf::TriTest,
     params: &[TraceParams],
-) -> Result<Option<sheaf::accel::kd::KdInfo>, Failure> {
+) -> Result<Option<sheaf::accel::kd::KdInfo>> {
     if !params
         .iter()
         .any(|p| p.method.structure() == sheaf::trace::Structure::Kd)
@@ -129,7 +129,7 @@ pub fn build_kd_if_used(
     };
     ctx.build_kd(scene, &p)
         .map(Some)
-        .or_fail(|| "building the kd-tree".into())
+        .context("building the kd-tree")
 }
 
 /// `limits` with kd-tree pools that hold `scene`'s tree (parameters `p`)
@@ -142,7 +142,7 @@ pub fn kd_limits(
     scene: &Scene<'_>,
     limits: Limits,
     p: &sheaf::accel::kd::KdParams,
-) -> Result<(Limits, sheaf::accel::kd::KdInfo), Failure> {
+) -> Result<(Limits, sheaf::accel::kd::KdInfo)> {
     let mut probe = Limits {
         structures: Limits::KD,
         ..limits
@@ -151,11 +151,8 @@ pub fn kd_limits(
     let mut info;
     let mut tries = 0;
     loop {
-        let mut ctx =
-            OwnedContext::new(&probe).or_fail(|| "creating the kd-tree context".into())?;
-        info = ctx
-            .build_kd(scene, p)
-            .or_fail(|| "building the kd-tree".into())?;
+        let mut ctx = OwnedContext::new(&probe).context("creating the kd-tree context")?;
+        info = ctx.build_kd(scene, p).context("building the kd-tree")?;
         if info.forced_leaves == 0 || tries == 3 {
             break;
         }
@@ -219,11 +216,11 @@ pub fn render_frame(
     frame: &Frame,
     pixels: &mut [u8],
     threads: u32,
-) -> Result<Counters, Failure> {
+) -> Result<Counters> {
     let stride = frame.width as usize * 4;
     let rays = ctx
         .check_frame(frame, pixels.len(), stride)
-        .or_fail(|| "frame".into())?;
+        .context("frame")?;
     let start = Instant::now();
     let (tracer, mailboxes) = ctx.parts()?;
     tracer.with_single(shadow.method)?;
@@ -273,10 +270,9 @@ fn render_bands<T: Tracer>(
 }
 
 /// Split `height` rows of `pixels` into bands of whole tile rows (tiles of
-/// `side` pixels; 0: single rays), hand them in order to one thread per
-/// mailbox, run `work(y0, y1, band pixels, mailbox, counters)` on each, and
-/// return the summed counters. Threads get `THREAD_STACK` bytes of stack
-/// (Whitted 32x32 tiles keep their packets there).
+/// `side` pixels; 0: single rays), run `work(y0, y1, band pixels, mailbox,
+/// counters)` on each on a pool of one thread per mailbox, and return the
+/// summed counters.
 fn bands(
     side: u32,
     height: u32,
@@ -292,43 +288,117 @@ fn bands(
         BAND_ROWS
     };
     let pixels = &mut pixels[..height as usize * stride];
-    let queue = Mutex::new(pixels.chunks_mut(band_rows * stride).enumerate());
-    let run = |mut mb: Mailbox<'_>| {
-        let mut ctr = Counters::default();
-        loop {
-            let next = queue.lock().unwrap_or_else(|p| p.into_inner()).next();
-            let Some((i, band)) = next else { break };
-            let y0 = (i * band_rows) as u32;
-            let y1 = (y0 + band_rows as u32).min(height);
-            work(y0, y1, band, &mut mb, &mut ctr);
-        }
-        ctr
-    };
-    let mut mbs = mailboxes.into_iter();
-    let first = mbs.next().expect("at least one thread slot");
-    std::thread::scope(|s| {
-        let helpers: Vec<_> = mbs
-            .map(|mb| {
-                std::thread::Builder::new()
-                    .stack_size(THREAD_STACK)
-                    .spawn_scoped(s, || run(mb))
-                    .expect("spawn a render thread")
-            })
-            .collect();
-        let mut total = run(first);
-        for h in helpers {
-            match h.join() {
-                Ok(c) => total.add(&c),
-                Err(p) => std::panic::resume_unwind(p),
-            }
-        }
-        total
+    let bands = pixels.par_chunks_mut(band_rows * stride).enumerate();
+    par_mailboxes(mailboxes, bands, |(i, band), mb, ctr| {
+        let y0 = (i * band_rows) as u32;
+        let y1 = (y0 + band_rows as u32).min(height);
+        work(y0, y1, band, mb, ctr);
     })
 }
 
 /// Stack of each render thread: the Whitted packet path needs about 850 KB
 /// at 32x32 with 8 bounces (`sheaf::render::whitted`, Memory).
 const THREAD_STACK: usize = 4 << 20;
+
+/// The rayon pool of `threads` threads (stacks of `THREAD_STACK` bytes),
+/// made on first use and kept: frames and studies call this per frame, and
+/// a frame should not pay for starting threads.
+pub fn pool(threads: usize) -> Arc<ThreadPool> {
+    static POOLS: Mutex<Vec<Arc<ThreadPool>>> = Mutex::new(Vec::new());
+    let threads = threads.max(1);
+    let mut pools = POOLS.lock().unwrap_or_else(|p| p.into_inner());
+    if let Some(p) = pools.iter().find(|p| p.current_num_threads() == threads) {
+        return Arc::clone(p);
+    }
+    let p = Arc::new(
+        ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .stack_size(THREAD_STACK)
+            .thread_name(|i| format!("sheaf-render-{i}"))
+            .build()
+            .expect("start the render threads"),
+    );
+    pools.push(Arc::clone(&p));
+    p
+}
+
+/// Mailboxes (owned, or borrowed: `M` is `Mailbox` or `&mut Mailbox`) lent
+/// to the jobs of a pool, one at a time each: a job takes one when it
+/// starts folding its items and gives it back when it ends. A pool of as
+/// many threads as mailboxes never runs more jobs at once, and a job never
+/// waits for another inside (the work never calls into rayon), so one is
+/// always free.
+struct Slots<M>(Mutex<Vec<M>>);
+
+/// A mailbox lent by `Slots`, given back on drop.
+struct Slot<'s, M> {
+    slots: &'s Slots<M>,
+    mailbox: Option<M>,
+}
+
+impl<M> Slots<M> {
+    fn take(&self) -> Slot<'_, M> {
+        let mailbox = self.0.lock().unwrap_or_else(|p| p.into_inner()).pop();
+        assert!(mailbox.is_some(), "a mailbox per pool thread");
+        Slot {
+            slots: self,
+            mailbox,
+        }
+    }
+}
+
+impl<M> Slot<'_, M> {
+    fn get<'m>(&mut self) -> &mut Mailbox<'m>
+    where
+        M: BorrowMut<Mailbox<'m>>,
+    {
+        self.mailbox
+            .as_mut()
+            .expect("a lent mailbox until dropped")
+            .borrow_mut()
+    }
+}
+
+impl<M> Drop for Slot<'_, M> {
+    fn drop(&mut self) {
+        if let Some(m) = self.mailbox.take() {
+            self.slots
+                .0
+                .lock()
+                .unwrap_or_else(|p| p.into_inner())
+                .push(m);
+        }
+    }
+}
+
+/// Run `work(item, mailbox, counters)` over `items` on a pool of one thread
+/// per mailbox (at least one), each job with a mailbox of its own; returns
+/// the summed counters.
+pub fn par_mailboxes<'m, M, I, F>(mailboxes: Vec<M>, items: I, work: F) -> Counters
+where
+    M: BorrowMut<Mailbox<'m>> + Send,
+    I: ParallelIterator,
+    F: Fn(I::Item, &mut Mailbox<'m>, &mut Counters) + Sync,
+{
+    assert!(!mailboxes.is_empty(), "at least one thread slot");
+    let pool = pool(mailboxes.len());
+    let slots = Slots(Mutex::new(mailboxes));
+    pool.install(|| {
+        items
+            .fold(
+                || (slots.take(), Counters::default()),
+                |(mut slot, mut ctr), item| {
+                    work(item, slot.get(), &mut ctr);
+                    (slot, ctr)
+                },
+            )
+            .map(|(_, ctr)| ctr)
+            .reduce(Counters::default, |mut a, b| {
+                a.add(&b);
+                a
+            })
+    })
+}
 
 /// Render a Whitted frame (`job`) into `pixels` (RGBA8, stride `4 * width`)
 /// on `threads` threads, as `render_frame` does for plain frames.
@@ -337,13 +407,13 @@ pub fn render_whitted_frame(
     job: &WhittedJob<'_>,
     pixels: &mut [u8],
     threads: u32,
-) -> Result<Counters, Failure> {
-    job.validate().or_fail(|| "Whitted parameters".into())?;
+) -> Result<Counters> {
+    job.validate().context("Whitted parameters")?;
     let frame = job.frame;
     let stride = frame.width as usize * 4;
     let rays = ctx
         .check_frame(frame, pixels.len(), stride)
-        .or_fail(|| "frame".into())?;
+        .context("frame")?;
     let start = Instant::now();
     let (tracer, mailboxes) = ctx.parts()?;
     tracer.with_single(job.shadow.method)?;
@@ -379,9 +449,9 @@ pub fn render_whitted_frame(
 }
 
 /// Write RGBA8 `pixels` (`width x height`, tightly packed) as a PNG.
-pub fn write_png(path: &Path, pixels: &[u8], width: u32, height: u32) -> Result<(), Failure> {
+pub fn write_png(path: &Path, pixels: &[u8], width: u32, height: u32) -> Result<()> {
     if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir).or_fail(|| format!("cannot create {}", dir.display()))?;
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     }
     image::save_buffer_with_format(
         path,
@@ -391,7 +461,7 @@ pub fn write_png(path: &Path, pixels: &[u8], width: u32, height: u32) -> Result<
         image::ExtendedColorType::Rgba8,
         image::ImageFormat::Png,
     )
-    .or_fail(|| format!("cannot write {}", path.display()))
+    .with_context(|| format!("cannot write {}", path.display()))
 }
 
 /// `rays / ns` in millions per second (0 for no time).
@@ -469,9 +539,9 @@ impl ItemTimes {
     }
 }
 
-/// `Workers` on scoped threads: one per mailbox taken (at most `threads`),
-/// each pulling items from a shared `Mutex`'d iterator (as `bands` takes
-/// bands), counters summed. Every call's item times are appended to `runs`
+/// `Workers` on a rayon pool: one thread per mailbox taken (at most
+/// `threads`), items pulled in order by whichever thread is free (rayon's
+/// `par_bridge`), counters summed. Every call's item times are appended to `runs`
 /// (callers clear it per frame): a deferred frame with one light and
 /// shadows makes four calls, camera rays, shadow-ray making, the shadow
 /// pass (one item per chunk with the light grid) and shading
@@ -528,63 +598,44 @@ impl sheaf::render::deferred::Workers for Threads {
         I: Send,
         F: Fn(I, &mut Mailbox<'_>, &mut Counters) + Sync,
     {
-        let mut mbs: Vec<Mailbox<'m>> = mailboxes.take(self.threads).collect();
+        let mut mbs: Vec<Mailbox<'_>> = mailboxes.take(self.threads).collect();
         // A context without mailbox slots still runs (as `OnCaller` does).
         let (mut none, mut p) = ([0u32; 0], 0u32);
-        let spare = mbs.is_empty().then(|| Mailbox::new(&mut none, &mut p));
-        // The items with the index of the next one.
-        let queue = Mutex::new((items, 0usize));
+        if mbs.is_empty() {
+            mbs.push(Mailbox::new(&mut none, &mut p));
+        }
+        let threads = mbs.len() as u32;
+        let pool = pool(mbs.len());
+        let slots = Slots(Mutex::new(mbs));
         let keep = self.keep_items;
-        let run = |mut mb: Mailbox<'_>| {
-            let mut ctr = Counters::default();
-            let mut times = ItemTimes::default();
-            let mut all = Vec::new();
-            loop {
-                let next = {
-                    let mut q = queue.lock().unwrap_or_else(|p| p.into_inner());
-                    let i = q.1;
-                    q.1 += 1;
-                    q.0.next().map(|it| (i, it))
-                };
-                let Some((i, it)) = next else { break };
-                let t = Instant::now();
-                work(it, &mut mb, &mut ctr);
-                let ns = t.elapsed().as_nanos() as u64;
-                times.add(ns);
-                if keep {
-                    all.push((i, ns));
-                }
-            }
-            (ctr, times, all)
-        };
+        /// What the jobs sum: counters, item times, (index, ns) per item.
+        type Acc = (Counters, ItemTimes, Vec<(usize, u64)>);
         let start = Instant::now();
-        let first = match spare {
-            Some(mb) => mb,
-            None => mbs.remove(0),
-        };
-        let threads = 1 + mbs.len() as u32;
-        let (ctr, mut times, mut all) = std::thread::scope(|s| {
-            let helpers: Vec<_> = mbs
-                .into_iter()
-                .map(|mb| {
-                    std::thread::Builder::new()
-                        .stack_size(THREAD_STACK)
-                        .spawn_scoped(s, || run(mb))
-                        .expect("spawn a render thread")
+        let (ctr, mut times, mut all): Acc = pool.install(|| {
+            // Items in the iterator's order, pulled by whichever thread is free.
+            items
+                .enumerate()
+                .par_bridge()
+                .fold(
+                    || (slots.take(), Acc::default()),
+                    |(mut slot, (mut ctr, mut times, mut all)), (i, it)| {
+                        let t = Instant::now();
+                        work(it, slot.get(), &mut ctr);
+                        let ns = t.elapsed().as_nanos() as u64;
+                        times.add(ns);
+                        if keep {
+                            all.push((i, ns));
+                        }
+                        (slot, (ctr, times, all))
+                    },
+                )
+                .map(|(_, acc)| acc)
+                .reduce(Acc::default, |(mut c, mut t, mut a), (c2, t2, a2)| {
+                    c.add(&c2);
+                    t.merge(&t2);
+                    a.extend(a2);
+                    (c, t, a)
                 })
-                .collect();
-            let (mut ctr, mut times, mut all) = run(first);
-            for h in helpers {
-                match h.join() {
-                    Ok((c, t, a)) => {
-                        ctr.add(&c);
-                        times.merge(&t);
-                        all.extend(a);
-                    }
-                    Err(p) => std::panic::resume_unwind(p),
-                }
-            }
-            (ctr, times, all)
         });
         times.wall_ns = start.elapsed().as_nanos() as u64;
         times.threads = threads;
@@ -622,7 +673,7 @@ impl DeferredSetup<'_> {
     /// A context for `limits` (with `Limits::PGRID` added) holding the
     /// grid (its pools grown as `context_for` does), the BVH and kd-tree
     /// when asked for, and the scene loaded for the perspective grids.
-    pub fn context(&self, mut limits: Limits) -> Result<(OwnedContext, GridInfo), Failure> {
+    pub fn context(&self, mut limits: Limits) -> Result<(OwnedContext, GridInfo)> {
         limits.structures |= Limits::PGRID;
         if self.bvh {
             limits.structures |= Limits::BVH;
@@ -637,8 +688,7 @@ impl DeferredSetup<'_> {
                 test,
                 ..Default::default()
             };
-            ctx.build_bvh(self.scene, &p)
-                .or_fail(|| "building the BVH".into())?;
+            ctx.build_bvh(self.scene, &p).context("building the BVH")?;
         }
         if self.kd {
             let p = sheaf::accel::kd::KdParams {
@@ -646,11 +696,11 @@ impl DeferredSetup<'_> {
                 ..Default::default()
             };
             ctx.build_kd(self.scene, &p)
-                .or_fail(|| "building the kd-tree".into())?;
+                .context("building the kd-tree")?;
         }
         let pp = sheaf::PgridParams { test, ..self.pgrid };
         ctx.build_pgrid(self.scene, &pp)
-            .or_fail(|| "loading the scene for the perspective grids".into())?;
+            .context("loading the scene for the perspective grids")?;
         Ok((ctx, info))
     }
 
@@ -665,7 +715,7 @@ impl DeferredSetup<'_> {
         job: &sheaf::DeferredJob<'_>,
         pixels: &mut [u8],
         workers: &mut Threads,
-    ) -> Result<(sheaf::DeferredInfo, bool), Failure> {
+    ) -> Result<(sheaf::DeferredInfo, bool)> {
         let stride = job.frame.width as usize * 4;
         let mut grown = false;
         for _ in 0..4 {
@@ -681,10 +731,10 @@ impl DeferredSetup<'_> {
                     let mut l = *ctx.limits();
                     let more = u32::try_from(((needed as f64 * 1.25).ceil() as u64).max(needed))
                         .map_err(|_| {
-                            Failure(format!(
+                            anyhow!(
                                 "the perspective grids need {needed} {}: more than 2^32",
                                 pool.name()
-                            ))
+                            )
                         })?;
                     if pool == Pool::PgridCells {
                         l.max_pgrid_cells = more;
@@ -694,11 +744,11 @@ impl DeferredSetup<'_> {
                     *ctx = self.context(l)?.0;
                     grown = true;
                 }
-                Err(e) => return Err(Failure(format!("deferred frame: {e}"))),
+                Err(e) => bail!("deferred frame: {e}"),
             }
         }
-        Err(Failure(
-            "deferred frame: perspective grid pools still too small after growing them".into(),
+        Err(anyhow!(
+            "deferred frame: perspective grid pools still too small after growing them"
         ))
     }
 }
@@ -710,7 +760,7 @@ mod tests {
 
     #[test]
     fn threads_run_every_item_once_and_time_each() {
-        let mut stamps = vec![0u32; 8];
+        let mut stamps = [0u32; 8];
         let mut packets = [0u32; 3];
         let mut st = stamps.chunks_mut(2);
         let mut mbs = packets
