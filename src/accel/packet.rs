@@ -10,6 +10,8 @@
 //!   packets of 256 quads.
 //! - `lane_by_lane`: the single ray for each active lane (single-ray
 //!   methods, and methods a family lacks).
+//! - `quieted`: lanes with tiny directions (`fallback::tiny`) of every
+//!   n x n packet method go alone, the rest of the packet without them.
 //! - `all_miss`: a packet an entry-point search proved to miss.
 //! - `start`: where a tree packet starts (`accel::entry`).
 //!
@@ -20,6 +22,7 @@
 
 use super::Accel;
 use super::entry::{self, EntryPoint, EntrySearch, EntryTree};
+use super::fallback;
 use super::mailbox::Mailbox;
 use super::method::TraceParams;
 use crate::counters::Counters;
@@ -42,12 +45,60 @@ pub fn trace<A: Accel, T: TriangleTest, const ANY: bool>(
     mb: &mut Mailbox<'_>,
     ctr: &mut Counters,
 ) {
+    let n = rays.len().min(active.len()).min(hits.len());
+    let (rays, active, hits) = (&rays[..n], &active[..n], &mut hits[..n]);
+    if p.method.is_packet() && any_tiny(rays, active) {
+        return quieted::<A, T, ANY>(a, p, rays, active, hits, mb, ctr);
+    }
     if !a.packet::<T, ANY>(p, rays, active, hits, mb, ctr) {
-        if ANY {
-            lane_by_lane(rays, active, hits, |r, c| a.any_hit::<T>(r, c), ctr)
-        } else {
-            lane_by_lane(rays, active, hits, |r, c| a.intersect::<T>(r, c), ctr)
+        lane_by_lane(rays, active, hits, |r, c| single::<A, T, ANY>(a, r, c), ctr)
+    }
+}
+
+/// Whether some active lane has a tiny direction (`fallback::tiny`).
+#[inline]
+fn any_tiny(rays: &[Ray4], active: &[M4]) -> bool {
+    rays.iter()
+        .zip(active)
+        .any(|(r, m)| fallback::tiny(r, *m).any())
+}
+
+/// The tiny-direction fallback of every n x n packet method: each packet
+/// (at most `MAX_QUADS` quads, as the families split them) is traced on
+/// quads whose tiny lanes are replaced and inactive (`fallback::quieted`:
+/// no SIMD operation meets their subnormal numbers), then each tiny lane
+/// by the family's single ray. The single ray counts its own rays.
+#[inline(never)]
+fn quieted<A: Accel, T: TriangleTest, const ANY: bool>(
+    a: &A,
+    p: &TraceParams,
+    rays: &[Ray4],
+    active: &[M4],
+    hits: &mut [Hit4],
+    mb: &mut Mailbox<'_>,
+    ctr: &mut Counters,
+) {
+    for s in (0..rays.len()).step_by(MAX_QUADS) {
+        let e = (s + MAX_QUADS).min(rays.len());
+        let (r, h) = (&rays[s..e], &mut hits[s..e]);
+        let split = fallback::split_tiny::<MAX_QUADS>(r, &active[s..e]);
+        let (qr, qa) = (&split.rays[..e - s], &split.active[..e - s]);
+        if !a.packet::<T, ANY>(p, qr, qa, h, mb, ctr) {
+            lane_by_lane(qr, qa, h, |r, c| single::<A, T, ANY>(a, r, c), ctr);
         }
+        fallback::each_lane(&split.tiny[..e - s], |q, i| {
+            h[q].set_lane(i, single::<A, T, ANY>(a, &r[q].lane(i), ctr));
+        });
+    }
+}
+
+/// The family's single ray: nearest hit, or with `ANY` some hit.
+#[inline(always)]
+fn single<A: Accel, T: TriangleTest, const ANY: bool>(a: &A, r: &Ray, c: &mut Counters) -> Hit {
+    if ANY {
+        a.any_hit::<T>(r, c)
+    } else {
+        a.intersect::<T>(r, c)
     }
 }
 

@@ -376,7 +376,7 @@ pub fn render_tiles<T: Tracer + ?Sized>(
         16 => tiles::<T, 64>(
             tracer, primary, shadow, frame, rays, y0, y1, pixels, stride, mb, ctr,
         ),
-        _ => tiles::<T, 256>(
+        _ => tiles::<T, { crate::accel::packet::MAX_QUADS }>(
             tracer, primary, shadow, frame, rays, y0, y1, pixels, stride, mb, ctr,
         ),
     }

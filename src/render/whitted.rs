@@ -511,7 +511,9 @@ pub fn render_whitted_tiles<T: Tracer + ?Sized>(
         4 => tiles::<T, 4>(tracer, job, rays, y0, y1, pixels, stride, mb, ctr),
         8 => tiles::<T, 16>(tracer, job, rays, y0, y1, pixels, stride, mb, ctr),
         16 => tiles::<T, 64>(tracer, job, rays, y0, y1, pixels, stride, mb, ctr),
-        _ => tiles::<T, 256>(tracer, job, rays, y0, y1, pixels, stride, mb, ctr),
+        _ => tiles::<T, { crate::accel::packet::MAX_QUADS }>(
+            tracer, job, rays, y0, y1, pixels, stride, mb, ctr,
+        ),
     }
 }
 

@@ -37,10 +37,11 @@
 //!   the lane itself missed the leaf's box (it is a true hit, and the
 //!   nearest of a superset is the same).
 //!
-//! # Fallbacks (`trace::fallback`)
-//! - Lanes with tiny directions (`fallback::tiny`) are traced alone by
+//! # Fallbacks (`accel::fallback`)
+//! - Lanes with tiny directions (`fallback::tiny`) never reach these
+//!   traversals: the packet driver (`accel::packet`) traces them with
 //!   `traverse_single` and the packet on quads where they are replaced
-//!   (`quieted`; their subnormal arithmetic slows every quad holding one).
+//!   (their subnormal arithmetic slows every quad holding one).
 //! - Every packet of the three traversals is checked by
 //!   `fallback::coherent` after its setup; an incoherent one (directions
 //!   over more than a 30 degree cone, origins over a quarter of the scene)
@@ -67,11 +68,12 @@ use super::traverse_single;
 use super::{BvhNode, BvhOptions, BvhView, MAX_DEPTH, TriangleTest};
 use crate::accel::entry::EntryPoint;
 use crate::accel::fallback;
+use crate::accel::packet::{SizeClass, by_class};
 use crate::counters::{Counters, count};
 use crate::geom::{F4, Hit4, INVALID_ID, M4, Ray4, RayLanes};
 
-/// Most quads traced as one packet (32 x 32 rays).
-pub const MAX_QUADS: usize = 256;
+/// Most quads traced as one packet (32 x 32 rays), for every family.
+pub use crate::accel::packet::MAX_QUADS;
 
 /// Nearest hits of the active lanes of `rays` into `hits`, Masked traversal.
 /// `rays.len()` quads form one packet (longer inputs: consecutive packets
@@ -142,27 +144,37 @@ pub(crate) fn dispatch<W: Walk, T: TriangleTest, const ANY: bool>(
         _ => (0, 0),
     };
     let n = rays.len().min(active.len()).min(hits.len());
-    let (r, a, h) = (&rays[..n], &active[..n], &mut hits[..n]);
-    match n {
-        0 => {}
-        1 => packet::<W, T, ANY, 1>(b, r, a, h, opt, start, ctr),
-        2..=4 => packet::<W, T, ANY, 4>(b, r, a, h, opt, start, ctr),
-        5..=16 => packet::<W, T, ANY, 16>(b, r, a, h, opt, start, ctr),
-        17..=64 => packet::<W, T, ANY, 64>(b, r, a, h, opt, start, ctr),
-        _ => {
-            for s in (0..n).step_by(MAX_QUADS) {
-                let e = (s + MAX_QUADS).min(n);
-                packet::<W, T, ANY, MAX_QUADS>(
-                    b,
-                    &r[s..e],
-                    &a[s..e],
-                    &mut h[s..e],
-                    opt,
-                    start,
-                    ctr,
-                );
-            }
-        }
+    let mut run = Run::<W, T, ANY> {
+        b,
+        rays: &rays[..n],
+        active: &active[..n],
+        hits: &mut hits[..n],
+        opt,
+        start,
+        ctr,
+        _w: core::marker::PhantomData,
+    };
+    by_class(n, &mut run);
+}
+
+/// A large-packet call as the packet driver's size classes see it.
+struct Run<'x, 'b, W, T, const ANY: bool> {
+    b: &'x BvhView<'b>,
+    rays: &'x [Ray4],
+    active: &'x [M4],
+    hits: &'x mut [Hit4],
+    opt: &'x BvhOptions,
+    start: (usize, usize),
+    ctr: &'x mut Counters,
+    _w: core::marker::PhantomData<(W, T)>,
+}
+
+impl<W: Walk, T: TriangleTest, const ANY: bool> SizeClass for Run<'_, '_, W, T, ANY> {
+    #[inline]
+    fn packet<const Q: usize>(&mut self, r: core::ops::Range<usize>) {
+        let (rays, active) = (&self.rays[r.clone()], &self.active[r.clone()]);
+        let hits = &mut self.hits[r];
+        packet::<W, T, ANY, Q>(self.b, rays, active, hits, self.opt, self.start, self.ctr);
     }
 }
 
@@ -175,45 +187,12 @@ fn packet<W: Walk, T: TriangleTest, const ANY: bool, const Q: usize>(
     start: (usize, usize),
     ctr: &mut Counters,
 ) {
-    let nq = rays.len().min(active.len()).min(hits.len()).min(Q);
-    if rays[..nq]
-        .iter()
-        .zip(active)
-        .any(|(r, m)| fallback::tiny(r, *m).any())
-    {
-        return quieted::<W, T, ANY, Q>(b, &rays[..nq], &active[..nq], hits, opt, start, ctr);
-    }
     if let Some(mut p) = Packet::<T, Q>::new(b, rays, active, hits, opt, ctr) {
         if !p.coherent {
             return alone::<T, ANY>(b, rays, &p.live[..p.nq], hits, ctr);
         }
         W::walk::<T, ANY, Q>(&mut p, b, rays, hits, start, ctr);
     }
-}
-
-/// The packet with its tiny lanes (`accel::fallback::tiny`) traced by
-/// `traverse_single`, and the rest traced on quads where those lanes are
-/// replaced by others (so no SIMD operation meets their subnormal numbers)
-/// and inactive.
-#[inline(never)]
-fn quieted<W: Walk, T: TriangleTest, const ANY: bool, const Q: usize>(
-    b: &BvhView<'_>,
-    rays: &[Ray4],
-    active: &[M4],
-    hits: &mut [Hit4],
-    opt: &BvhOptions,
-    start: (usize, usize),
-    ctr: &mut Counters,
-) {
-    let nq = rays.len();
-    let s = fallback::split_tiny::<Q>(rays, active);
-    packet::<W, T, ANY, Q>(b, &s.rays[..nq], &s.active[..nq], hits, opt, start, ctr);
-    // The single ray counts its rays: count them out of the packet's.
-    ctr.rays += s.tiny[..nq]
-        .iter()
-        .map(|m| m.bitmask().count_ones() as u64)
-        .sum::<u64>();
-    alone::<T, ANY>(b, rays, &s.tiny[..nq], hits, ctr);
 }
 
 /// The coherence fallback (`trace::fallback`): every live lane traced by

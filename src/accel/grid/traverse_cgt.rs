@@ -36,9 +36,10 @@
 //! triangle inside it) and splits shadow packets by hit distance. Beyond
 //! the stray lanes above, three checks keep CGT within about twice the
 //! 3DDDA:
-//! - lanes with tiny directions (`fallback::tiny`) go to the 3DDDA first,
-//!   and the packet is traced on quads where they are replaced (`quieted`:
-//!   their subnormal arithmetic would slow every quad holding one);
+//! - lanes with tiny directions (`fallback::tiny`) never reach CGT: the
+//!   packet driver (`accel::packet`) sends them to the 3DDDA and the packet
+//!   here on quads where they are replaced (their subnormal arithmetic
+//!   would slow every quad holding one);
 //! - after the stray lanes leave, a packet failing `fallback::coherent`
 //!   (directions spread over more than a 30 degree cone, or origins over a
 //!   quarter of the scene) is traced lane by lane by the 3DDDA;
@@ -53,6 +54,7 @@
 
 use super::{GridView, TriangleTest};
 use crate::accel::fallback;
+use crate::accel::packet::{SizeClass, by_class};
 use crate::counters::{Counters, count};
 use crate::geom::{F4, Hit, Hit4, M4, Ray4, RayLanes, TriVerts};
 use glam::Vec3;
@@ -130,19 +132,44 @@ fn dispatch<T: TriangleTest, const ANY: bool>(
 ) {
     let n = rays.len().min(active.len()).min(hits.len());
     // Per-quad scratch lives on the stack, sized by the packet class.
-    match n {
-        0 => {}
-        1 => packet::<T, ANY, 1>(g, &rays[..n], &active[..n], &mut hits[..n], opt, mb, ctr),
-        2..=4 => packet::<T, ANY, 4>(g, &rays[..n], &active[..n], &mut hits[..n], opt, mb, ctr),
-        5..=16 => packet::<T, ANY, 16>(g, &rays[..n], &active[..n], &mut hits[..n], opt, mb, ctr),
-        17..=64 => packet::<T, ANY, 64>(g, &rays[..n], &active[..n], &mut hits[..n], opt, mb, ctr),
-        _ => {
-            // Larger inputs are traced as consecutive 256-quad packets.
-            for s in (0..n).step_by(256) {
-                let e = (s + 256).min(n);
-                packet::<T, ANY, 256>(g, &rays[s..e], &active[s..e], &mut hits[s..e], opt, mb, ctr);
-            }
-        }
+    let mut run = Run::<T, ANY> {
+        g,
+        rays: &rays[..n],
+        active: &active[..n],
+        hits: &mut hits[..n],
+        opt,
+        mb,
+        ctr,
+        _t: core::marker::PhantomData,
+    };
+    by_class(n, &mut run);
+}
+
+/// A CGT call as the packet driver's size classes see it.
+struct Run<'x, 'g, 'm, T, const ANY: bool> {
+    g: &'x GridView<'g>,
+    rays: &'x [Ray4],
+    active: &'x [M4],
+    hits: &'x mut [Hit4],
+    opt: &'x CgtOptions,
+    mb: &'x mut Mailbox<'m>,
+    ctr: &'x mut Counters,
+    _t: core::marker::PhantomData<T>,
+}
+
+impl<T: TriangleTest, const ANY: bool> SizeClass for Run<'_, '_, '_, T, ANY> {
+    #[inline]
+    fn packet<const Q: usize>(&mut self, r: core::ops::Range<usize>) {
+        let (rays, active) = (&self.rays[r.clone()], &self.active[r.clone()]);
+        packet::<T, ANY, Q>(
+            self.g,
+            rays,
+            active,
+            &mut self.hits[r],
+            self.opt,
+            self.mb,
+            self.ctr,
+        );
     }
 }
 
@@ -163,13 +190,6 @@ fn packet<T: TriangleTest, const ANY: bool, const Q: usize>(
 ) {
     let info = g.info;
     let nq = rays.len();
-    if rays
-        .iter()
-        .zip(active)
-        .any(|(r, m)| fallback::tiny(r, *m).any())
-    {
-        return quieted::<T, ANY, Q>(g, rays, active, hits, opt, mb, ctr);
-    }
     ctr.packets += 1;
     let mut live = [M4::FALSE; Q];
     let mut any_live = false;
@@ -547,28 +567,6 @@ fn packet<T: TriangleTest, const ANY: bool, const Q: usize>(
         }
         s += 1;
     }
-}
-
-/// The packet with its tiny lanes (`accel::fallback::tiny`) traced by the
-/// 3DDDA, and the rest traced on quads where those lanes are replaced by
-/// others (so no SIMD operation of the packet meets their subnormal
-/// numbers) and inactive.
-#[inline(never)]
-fn quieted<T: TriangleTest, const ANY: bool, const Q: usize>(
-    g: &GridView<'_>,
-    rays: &[Ray4],
-    active: &[M4],
-    hits: &mut [Hit4],
-    opt: &CgtOptions,
-    mb: &mut Mailbox<'_>,
-    ctr: &mut Counters,
-) {
-    let nq = rays.len();
-    let s = fallback::split_tiny::<Q>(rays, active);
-    // The 3DDDA counts the tiny lanes: `alone` counts them out again.
-    ctr.rays += live_lanes(&s.tiny[..nq]) as u64;
-    alone::<T, ANY>(g, rays, &s.tiny[..nq], hits, ctr);
-    packet::<T, ANY, Q>(g, &s.rays[..nq], &s.active[..nq], hits, opt, mb, ctr);
 }
 
 /// Live lanes of a packet.

@@ -45,9 +45,10 @@
 //! - Lanes whose direction sign bits differ from the packet's first live
 //!   lane on some axis (`Counters::stray_lanes`) are traced one by one with
 //!   `traverse_single::from_node` from the packet's start node and box.
-//! - Lanes with tiny directions (`accel::fallback::tiny`) are traced alone
-//!   by `traverse_single` and the packet on quads where they are replaced
-//!   (`quieted`; their subnormal arithmetic slows every quad holding one).
+//! - Lanes with tiny directions (`accel::fallback::tiny`) never reach this
+//!   traversal: the packet driver (`accel::packet`) traces them with
+//!   `traverse_single` and the packet on quads where they are replaced
+//!   (their subnormal arithmetic slows every quad holding one).
 //! - After the stray lanes, a packet failing `accel::fallback::coherent`
 //!   (directions over more than a 30 degree cone, or origins over a quarter
 //!   of the scene) is traced lane by lane the same way (the AEPSA paper's
@@ -72,13 +73,14 @@ use super::traverse_simd::{clip4, lane_from, lane_signs, stray_bits, valid4};
 use super::{KdView, MAX_DEPTH, TriangleTest};
 use crate::accel::entry::EntryPoint;
 use crate::accel::fallback;
+use crate::accel::packet::{SizeClass, by_class};
 use crate::counters::{Counters, count};
 use crate::geom::frustum::Frustum;
 use crate::geom::lane::mask_from_bits;
 use crate::geom::{Aabb, F4, Hit, Hit4, INVALID_ID, M4, Ray4, RayLanes};
 
-/// Most quads traced as one packet (32 x 32 rays).
-pub const MAX_QUADS: usize = 256;
+/// Most quads traced as one packet (32 x 32 rays), for every family.
+pub use crate::accel::packet::MAX_QUADS;
 
 /// Quads in a leaf from which triangles are culled with the full
 /// `Frustum::cull_triangle` (planes and corner rays); fewer: the planes
@@ -155,24 +157,45 @@ fn dispatch<T: TriangleTest, const ANY: bool>(
     ctr: &mut Counters,
 ) {
     let n = rays.len();
-    let (f, e) = (frustum, entry);
-    match n {
-        0 => {}
-        1 => packet::<T, ANY, 1>(k, rays, active, hits, occ, f, e, ctr),
-        2..=4 => packet::<T, ANY, 4>(k, rays, active, hits, occ, f, e, ctr),
-        5..=16 => packet::<T, ANY, 16>(k, rays, active, hits, occ, f, e, ctr),
-        17..=64 => packet::<T, ANY, 64>(k, rays, active, hits, occ, f, e, ctr),
-        _ => {
-            for s in (0..n).step_by(MAX_QUADS) {
-                let e2 = (s + MAX_QUADS).min(n);
-                let (h, o) = if ANY {
-                    (&mut [][..], &mut occ[s..e2])
-                } else {
-                    (&mut hits[s..e2], &mut [][..])
-                };
-                packet::<T, ANY, MAX_QUADS>(k, &rays[s..e2], &active[s..e2], h, o, f, e, ctr);
-            }
-        }
+    let mut run = Run::<T, ANY> {
+        k,
+        rays,
+        active,
+        hits,
+        occ,
+        frustum,
+        entry,
+        ctr,
+        _t: core::marker::PhantomData,
+    };
+    by_class(n, &mut run);
+}
+
+/// A kd packet call as the packet driver's size classes see it: `hits`
+/// (nearest) or `occ` (ANY) has the length of `rays`, the other is empty.
+struct Run<'x, 'k, T, const ANY: bool> {
+    k: &'x KdView<'k>,
+    rays: &'x [Ray4],
+    active: &'x [M4],
+    hits: &'x mut [Hit4],
+    occ: &'x mut [M4],
+    frustum: Option<&'x Frustum>,
+    entry: Option<&'x EntryPoint>,
+    ctr: &'x mut Counters,
+    _t: core::marker::PhantomData<T>,
+}
+
+impl<T: TriangleTest, const ANY: bool> SizeClass for Run<'_, '_, T, ANY> {
+    #[inline]
+    fn packet<const Q: usize>(&mut self, r: core::ops::Range<usize>) {
+        let (rays, active) = (&self.rays[r.clone()], &self.active[r.clone()]);
+        let (h, o) = if ANY {
+            (&mut [][..], &mut self.occ[r])
+        } else {
+            (&mut self.hits[r], &mut [][..])
+        };
+        let (f, e) = (self.frustum, self.entry);
+        packet::<T, ANY, Q>(self.k, rays, active, h, o, f, e, self.ctr);
     }
 }
 
@@ -199,13 +222,6 @@ fn packet<T: TriangleTest, const ANY: bool, const Q: usize>(
     ctr: &mut Counters,
 ) {
     let nq = rays.len().min(Q);
-    if rays[..nq]
-        .iter()
-        .zip(active)
-        .any(|(r, m)| fallback::tiny(r, *m).any())
-    {
-        return quieted::<T, ANY, Q>(k, rays, active, hits, occ, frustum, entry, ctr);
-    }
     ctr.packets += 1;
     // Outputs of the active lanes, and the live ones: active and valid.
     let mut live = [M4::FALSE; Q];
@@ -293,46 +309,6 @@ fn packet<T: TriangleTest, const ANY: bool, const Q: usize>(
         (node0, depth0, bx0),
         ctr,
     );
-}
-
-/// The packet with its tiny lanes (`accel::fallback::tiny`) traced by
-/// `traverse_single`, and the rest traced on quads where those lanes are
-/// replaced by others (so no SIMD operation meets their subnormal numbers)
-/// and inactive. The frustum and the entry point stay valid for them.
-#[allow(clippy::too_many_arguments)]
-#[inline(never)]
-fn quieted<T: TriangleTest, const ANY: bool, const Q: usize>(
-    k: &KdView<'_>,
-    rays: &[Ray4],
-    active: &[M4],
-    hits: &mut [Hit4],
-    occ: &mut [M4],
-    frustum: Option<&Frustum>,
-    entry: Option<&EntryPoint>,
-    ctr: &mut Counters,
-) {
-    let nq = rays.len().min(Q);
-    let s = fallback::split_tiny::<Q>(&rays[..nq], active);
-    packet::<T, ANY, Q>(
-        k,
-        &s.rays[..nq],
-        &s.active[..nq],
-        hits,
-        occ,
-        frustum,
-        entry,
-        ctr,
-    );
-    // After the packet, which writes every quad's occlusion mask.
-    fallback::each_lane(&s.tiny[..nq], |q, i| {
-        let ray = rays[q].lane(i);
-        if ANY {
-            let o = super::traverse_single::occluded::<T>(k, &ray, ctr);
-            occ[q].set(i, o);
-        } else {
-            hits[q].set_lane(i, super::traverse_single::intersect::<T>(k, &ray, ctr));
-        }
-    });
 }
 
 #[allow(clippy::too_many_arguments)]

@@ -35,8 +35,8 @@ pub fn trace_tile(
     }
 }
 
-/// Most 2x2 rays of one sorting tile (32 x 32 pixels).
-pub const MAX_QUADS: usize = 256;
+/// Most quads traced as one packet (32 x 32 rays), for every family.
+pub use crate::accel::packet::MAX_QUADS;
 
 fn walk<T: TriangleTest>(
     g: &CamView<'_>,

@@ -30,6 +30,7 @@ use super::{
     Frame, PointLight, PrimaryRays, SHADOW_OFFSET, Tracer, demorton, encode, shadow_packet,
 };
 use crate::accel::grid::traverse_cgt::Mailbox;
+use crate::accel::packet::MAX_QUADS;
 use crate::accel::pgrid::{
     self as pgrid, CamView, CellsInfo, Chunk, LightFrame, LightView, ReorderInfo, reorder,
     traverse_primary, traverse_shadow,
@@ -407,9 +408,9 @@ fn traced_tile<T: Tracer + ?Sized>(
         return;
     }
     let nq = ((side / 2) * (side / 2)) as usize;
-    let mut quads = [Ray4::from_rays(&[DUMMY; 4]); 256];
-    let mut active = [M4::FALSE; 256];
-    let mut hits = [Hit4::MISS; 256];
+    let mut quads = [Ray4::from_rays(&[DUMMY; 4]); MAX_QUADS];
+    let mut active = [M4::FALSE; MAX_QUADS];
+    let mut hits = [Hit4::MISS; MAX_QUADS];
     for q in 0..nq {
         let (qx, qy) = demorton(q);
         let mut lanes = [DUMMY; 4];
@@ -845,10 +846,10 @@ pub fn traced_shadow_pass<'m, T: Tracer + ?Sized, W: Workers>(
         }
         // Packets of the tile in Morton order, so quarters are sub-packets.
         let nq = ss / 4;
-        let mut quads = [Ray4::from_rays(&[DUMMY; 4]); 256];
-        let mut active = [M4::FALSE; 256];
-        let mut hits = [Hit4::MISS; 256];
-        let mut dist = [F4::ZERO; 256];
+        let mut quads = [Ray4::from_rays(&[DUMMY; 4]); MAX_QUADS];
+        let mut active = [M4::FALSE; MAX_QUADS];
+        let mut hits = [Hit4::MISS; MAX_QUADS];
+        let mut dist = [F4::ZERO; MAX_QUADS];
         for q in 0..nq {
             let (qx, qy) = demorton(q);
             let mut lanes = [DUMMY; 4];
