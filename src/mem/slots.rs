@@ -60,21 +60,24 @@ impl<'a> Slots<'a> {
         self.count
     }
 
-    /// Slot `i`'s stamps and packet counter.
+    /// Slot `i`'s stamps and packet counter, as raw pointers: no reference
+    /// is made here, so `&self` hands out nothing mutable. The references
+    /// are made by whoever holds exclusive use of the slot (a
+    /// [`SlotGuard`] through its `&mut self`, or [`Slots::all`] through
+    /// `&mut Slots`), and borrow from that.
     ///
     /// # Safety
-    /// `i < count`, and nothing else uses slot `i` for the returned lifetime.
-    unsafe fn parts(&self, i: usize) -> (&mut [u32], &mut u32) {
+    /// `i < count`.
+    unsafe fn raw_parts(&self, i: usize) -> (NonNull<[u32]>, NonNull<u32>) {
+        debug_assert!(i < self.count);
         // SAFETY: `i < count`, so the run `[i * per_slot, (i + 1) * per_slot)`
-        // and counter `i` lie inside the pools borrowed for 'a; the caller
-        // guarantees no other reference to them exists meanwhile.
+        // and counter `i` lie inside the pools borrowed for 'a (offsets in
+        // bounds of one allocation); only pointers are formed, nothing is
+        // read or written.
         unsafe {
             (
-                core::slice::from_raw_parts_mut(
-                    self.stamps.as_ptr().add(i * self.per_slot),
-                    self.per_slot,
-                ),
-                &mut *self.packets.as_ptr().add(i),
+                NonNull::slice_from_raw_parts(self.stamps.add(i * self.per_slot), self.per_slot),
+                self.packets.add(i),
             )
         }
     }
@@ -111,9 +114,17 @@ impl<'a> Slots<'a> {
     /// can be alive while `self` is mutably borrowed).
     pub fn all(&mut self) -> impl Iterator<Item = (&mut [u32], &mut u32)> + '_ {
         let this = &*self;
-        // SAFETY: `i < count`, each slot is yielded once, and the `&mut self`
-        // borrow, held by the iterator, rules out guards and other callers.
-        (0..self.count).map(move |i| unsafe { this.parts(i) })
+        (0..self.count).map(move |i| {
+            // SAFETY: `i < count`, so the pointers are in bounds and valid
+            // for 'a; each slot is yielded once, so the references never
+            // alias one another, and the `&mut self` borrow, held by the
+            // iterator, rules out guards and other callers for as long as
+            // the references live.
+            unsafe {
+                let (stamps, packet) = this.raw_parts(i);
+                (&mut *stamps.as_ptr(), &mut *packet.as_ptr())
+            }
+        })
     }
 }
 
@@ -126,10 +137,15 @@ pub struct SlotGuard<'s, 'a> {
 impl SlotGuard<'_, '_> {
     /// The slot's stamps and packet counter.
     pub fn parts(&mut self) -> (&mut [u32], &mut u32) {
-        // SAFETY: `i < count` (checked in `claim`), and this guard holds the
-        // slot's flag, so no other thread or guard uses the slot; the
-        // `&mut self` borrow stops a second call from overlapping.
-        unsafe { self.slots.parts(self.i) }
+        // SAFETY: `i < count` (checked in `claim`), so the pointers are in
+        // bounds and valid for 'a; this guard holds the slot's flag, so no
+        // other thread or guard uses the slot; the references borrow from
+        // `&mut self`, so a second call cannot overlap them and they end
+        // before the guard drops and releases the flag.
+        unsafe {
+            let (stamps, packet) = self.slots.raw_parts(self.i);
+            (&mut *stamps.as_ptr(), &mut *packet.as_ptr())
+        }
     }
 }
 
