@@ -125,8 +125,7 @@ fn projection_test_agrees_with_moller_trumbore_away_from_edges() {
         let m = Mt::intersect(&l, &(), &tri);
         let p = Pt::intersect(&l, &(), &ProjTri::new(&tri));
         let (u, v) = (m.u, m.v);
-        let clear =
-            u > 1e-3 && v > 1e-3 && u + v < 1.0 - 1e-3 || (m.mask == false && p.mask == false);
+        let clear = u > 1e-3 && v > 1e-3 && u + v < 1.0 - 1e-3 || (!m.mask && !p.mask);
         if m.mask && clear {
             assert!(p.mask, "projection misses an interior hit");
             assert!(

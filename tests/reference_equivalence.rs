@@ -9,6 +9,7 @@
 //!   this barycentric distance of an edge (an f32 test may decide either way);
 //! - `T_REL`: on agreement, the f32 t must be within this relative distance
 //!   of the f64 t.
+//!
 //! Anything else fails the test with the ray, both hits and the difference.
 
 mod common;

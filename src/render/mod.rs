@@ -95,11 +95,14 @@ impl PointLight {
             return Ok(());
         }
         let axis = Vec3::from(self.spot_direction);
-        if !(self.spot_angle_deg > 0.0 && self.spot_angle_deg < 90.0)
-            || !axis.is_finite()
-            || !(axis.length_squared() > 0.0)
-            || !(self.spot_soft_deg >= 0.0 && self.spot_soft_deg <= self.spot_angle_deg)
-        {
+        // Stated as what is valid, so that NaN fails.
+        let valid = self.spot_angle_deg > 0.0
+            && self.spot_angle_deg < 90.0
+            && axis.is_finite()
+            && axis.length_squared() > 0.0
+            && self.spot_soft_deg >= 0.0
+            && self.spot_soft_deg <= self.spot_angle_deg;
+        if !valid {
             return Err(Error::InvalidArgument(
                 "spot light: angle in [0, 90), finite non-zero direction, soft edge in [0, angle]",
             ));
@@ -192,15 +195,22 @@ impl PrimaryRays {
         let eye = Vec3::from(cam.eye);
         let fwd = Vec3::from(cam.look_at) - eye;
         let up = Vec3::from(cam.up);
-        let ok = eye.is_finite() && fwd.is_finite() && up.is_finite() && fwd.length_squared() > 0.0;
-        if !ok || !(cam.fov_y_deg > 0.0 && cam.fov_y_deg < 180.0) {
+        // Stated as what is valid, so that NaN fails.
+        let valid = eye.is_finite()
+            && fwd.is_finite()
+            && up.is_finite()
+            && fwd.length_squared() > 0.0
+            && cam.fov_y_deg > 0.0
+            && cam.fov_y_deg < 180.0;
+        if !valid {
             return Err(Error::InvalidArgument(
                 "camera: finite eye/look_at/up, eye != look_at, fov in (0, 180)",
             ));
         }
         let w = fwd.normalize();
         let u = w.cross(up);
-        if !(u.length_squared() > 0.0) {
+        let u2 = u.length_squared();
+        if u2.is_nan() || u2 <= 0.0 {
             return Err(Error::InvalidArgument(
                 "camera: up must not be parallel to the view direction",
             ));

@@ -1336,7 +1336,7 @@ mod tests {
         }
         // The table is mirror symmetric in y, and rim, body, lid and
         // bottom are symmetric under a quarter turn about z: catches typos.
-        let has = |p: [f64; 3]| TEAPOT_POINTS.iter().any(|q| *q == p);
+        let has = |p: [f64; 3]| TEAPOT_POINTS.contains(&p);
         for (i, p) in TEAPOT_POINTS.iter().enumerate() {
             let mirror = [p[0], if p[1] == 0.0 { 0.0 } else { -p[1] }, p[2]];
             assert!(has(mirror), "point {i} {p:?} has no mirror image");

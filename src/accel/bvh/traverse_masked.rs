@@ -366,26 +366,28 @@ impl<T: TriangleTest, const Q: usize> Packet<T, Q> {
     #[inline(always)]
     pub(crate) fn frustum_admits(&self, n: &BvhNode, ctr: &mut Counters) -> bool {
         let _ = &ctr;
-        match &self.frustum {
-            Some(f) if f.cull_box(&n.min, &n.max) => {
-                count!(ctr.culled_nodes += 1);
-                false
-            }
-            _ => true,
+        let culled = self
+            .frustum
+            .as_ref()
+            .is_some_and(|f| f.cull_box(&n.min, &n.max));
+        if culled {
+            count!(ctr.culled_nodes += 1);
         }
+        !culled
     }
 
     /// `!frustumIntersectsTriangle(F, T[j])` for stored triangle `i`.
     #[inline(always)]
     pub(crate) fn frustum_culls(&self, b: &BvhView<'_>, i: usize, ctr: &mut Counters) -> bool {
         let _ = &ctr;
-        match &self.frustum {
-            Some(f) if f.cull_triangle(&b.tris[i]) => {
-                count!(ctr.culled += 1);
-                true
-            }
-            _ => false,
+        let culled = self
+            .frustum
+            .as_ref()
+            .is_some_and(|f| f.cull_triangle(&b.tris[i]));
+        if culled {
+            count!(ctr.culled += 1);
         }
+        culled
     }
 
     /// `rayIntersectTriangle(R[q], T[i])`: the live lanes of quad `q`

@@ -193,6 +193,9 @@ impl crate::accel::Accel for GridView<'_> {
     fn test(&self) -> TriTest {
         self.info.test
     }
+    // The contract's bounds are the stored triangles' (unpadded), which the
+    // grid keeps in `scene_bounds`; its `bounds` field is the padded grid box.
+    #[allow(clippy::misnamed_getters)]
     #[inline]
     fn bounds(&self) -> Aabb {
         self.info.scene_bounds

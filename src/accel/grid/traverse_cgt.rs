@@ -340,7 +340,8 @@ fn packet<T: TriangleTest, const ANY: bool, const Q: usize>(
     // to (a ray ending on the grid's face). NaN when no lane is live.
     kin -= BOX_EPS + SLOPE_EPS * kin.abs();
     kout += BOX_EPS + SLOPE_EPS * kout.abs();
-    if !(kin < nk) || !(kout > 0.0) {
+    // Unless both hold (false for NaN).
+    if !(kin < nk && kout > 0.0) {
         return;
     }
     let s0 = (kin.max(0.0) as i32).min(res[k] - 1);
@@ -688,7 +689,7 @@ fn culled(t: &TriVerts, o: Vec3, corners: &[F4; 3]) -> bool {
     let sigma = a.dot(n[1]);
     let big = la.max(lb).max(lc) + inf(o);
     let noise = 64.0 * f32::EPSILON * (la * lb * lc + inf(n[0] + n[1] + n[2]) * big);
-    if !(sigma.abs() > noise) || !sigma.is_finite() {
+    if !(sigma.abs() > noise && sigma.is_finite()) {
         return false;
     }
     let cm = corners[0]

@@ -11,6 +11,8 @@
 //! does not grow along the ray; triangles are inserted with a widened box
 //! (`build::INSERT_EPS`), so the remaining rounding never loses a hit.
 
+use core::cmp::Ordering;
+
 use super::{GridView, TriangleTest};
 use crate::counters::{Counters, count};
 use crate::geom::{Aabb, Hit, INVALID_ID, Ray, RayLanes, closer};
@@ -75,7 +77,7 @@ fn walk<T: TriangleTest, const ANY: bool>(g: &GridView<'_>, ray: &Ray, ctr: &mut
     let m = info.macrocell as i32;
     // x / m as a multiply and shift (exact for x < 2^16, m <= 64): the
     // macrocell lookup runs at every empty cell.
-    let magic = ((1u64 << 32) + m as u64 - 1) / m as u64;
+    let magic = (1u64 << 32).div_ceil(m as u64);
     let div_m = |x: i32| ((x as u64 * magic) >> 32) as i32;
 
     // t at which the ray leaves the slab [lo, hi) of cells along axis a.
@@ -102,7 +104,8 @@ fn walk<T: TriangleTest, const ANY: bool>(g: &GridView<'_>, ray: &Ray, ctr: &mut
                         axis = a;
                     }
                 }
-                if !(t_exit < t1) {
+                // Not `t_exit >= t1`: a NaN must stop the walk too.
+                if t_exit.partial_cmp(&t1) != Some(Ordering::Less) {
                     break;
                 }
                 let next = if step[axis] > 0 {
@@ -165,8 +168,8 @@ fn walk<T: TriangleTest, const ANY: bool>(g: &GridView<'_>, ray: &Ray, ctr: &mut
             }
         }
         // Strict: a hit exactly on the exit plane may tie with a lower id in
-        // the next cell.
-        if best.t < t_exit || !(t_exit < t1) {
+        // the next cell. A NaN stops the walk.
+        if best.t < t_exit || t_exit.partial_cmp(&t1) != Some(Ordering::Less) {
             break;
         }
         c[axis] += step[axis];

@@ -202,10 +202,8 @@ struct Split {
 /// Step 3's sweep: the cheapest event plane strictly inside the node's box.
 fn find_split(ev: &[u64], n: usize, b: &Aabb, p: &KdParams) -> Option<Split> {
     let area = half_area(b);
-    if !(area > 0.0) {
-        return None;
-    }
-    let inv = 1.0 / area;
+    // A flat or NaN box has no split.
+    let inv = if area > 0.0 { 1.0 / area } else { return None };
     let d = b.max - b.min;
     let mut best: Option<Split> = None;
     for axis in 0..3 {

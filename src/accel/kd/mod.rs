@@ -17,9 +17,9 @@
 //! they search this tree and the BVH alike.
 //!
 //! # Node layout
-//! 8-byte nodes (`KdNode`), children of a node adjacent (left, right = left
-//! + 1). Node 0 is the root; its box is `KdInfo::root`, every other node's
-//! box follows from the splits above it. Leaves hold a range of `refs`
+//! 8-byte nodes (`KdNode`), children of a node adjacent (left, and right
+//! = left + 1). Node 0 is the root; its box is `KdInfo::root`, every other
+//! node's box follows from the splits above it. Leaves hold a range of `refs`
 //! (stored triangle slots; a triangle may sit in several leaves).
 //!
 //! # Exactness

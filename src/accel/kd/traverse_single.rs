@@ -74,10 +74,10 @@ fn walk<T: TriangleTest, const ANY: bool>(k: &KdView<'_>, ray: &Ray, ctr: &mut C
         ray.tmin,
         ray.tmax,
     );
-    if !(t0 <= t1) {
-        return best;
+    // A NaN bound misses as an empty interval does.
+    if t0 <= t1 {
+        from_node::<T, ANY>(k, ray, &kr, 0, 0, t0, t1, &mut best, ctr);
     }
-    from_node::<T, ANY>(k, ray, &kr, 0, 0, t0, t1, &mut best, ctr);
     best
 }
 

@@ -45,6 +45,8 @@ pub mod sort;
 pub mod traverse_primary;
 pub mod traverse_shadow;
 
+use core::cmp::Ordering;
+
 use crate::geom::{Aabb, ProjTri, TriTest, TriVerts, TriangleTest};
 use crate::math;
 use glam::Vec3;
@@ -175,7 +177,8 @@ impl Slices {
     /// Slice of depth `z`, clamped.
     #[inline]
     pub fn of(&self, z: f32) -> u32 {
-        if !(z > self.z0) || self.inv_log == 0.0 {
+        // Unless `z > z0`; NaN goes to slice 0 too.
+        if z.partial_cmp(&self.z0) != Some(Ordering::Greater) || self.inv_log == 0.0 {
             return 0;
         }
         let s = (log2_approx(z) - log2_approx(self.z0)) * self.inv_log;
@@ -278,7 +281,7 @@ impl LightFrame {
 #[inline]
 pub fn pseudo_angle(x: f32, z: f32) -> f32 {
     let s = x.abs() + z.abs();
-    if !(s > 0.0) {
+    if s.is_nan() || s <= 0.0 {
         return 0.0;
     }
     let p = x / s;
@@ -299,7 +302,7 @@ pub fn pseudo_of_angle(rad: f32) -> f32 {
 /// Tile index of a continuous tile coordinate, clamped to `0..n`.
 #[inline]
 pub fn tile_coord(x: f32, n: u32) -> u32 {
-    if !(x > 0.0) {
+    if x.is_nan() || x <= 0.0 {
         return 0;
     }
     (x as u32).min(n - 1)
