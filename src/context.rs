@@ -15,7 +15,7 @@ use crate::render::deferred::{
     self, DeferredInfo, DeferredJob, FrameBuffers, PrimaryPass, ShadowPass, TileLayout, Workers,
 };
 use crate::render::whitted::{self, WhittedJob};
-use crate::render::{self, Frame, PointLight, PrimaryRays, Tracer};
+use crate::render::{self, Band, Frame, PointLight, PrimaryRays, TileParams, Tracer};
 pub use crate::trace::SceneTracer;
 pub use crate::trace::scene::{BvhTracer, GridTracer, KdTracer};
 use crate::trace::{Counters, Method, TraceParams, batch_on};
@@ -819,14 +819,14 @@ impl<'a> Context<'a> {
                 needed: 1,
                 available: 0,
             })?;
+            let shot = Shot { frame, rays: &rays };
             let band = Band {
-                frame,
-                rays: &rays,
                 y0: 0,
                 y1: frame.height,
+                pixels,
                 stride,
             };
-            band.render(&tr, primary, shadow, pixels, &mut mb, &mut ctr);
+            shot.render(&tr, primary, shadow, band, &mut mb, &mut ctr);
             crate::fault_point!(Render);
         }
         self.stats.trace_ns = elapsed_ns(t);
@@ -834,41 +834,31 @@ impl<'a> Context<'a> {
         Ok(ctr)
     }
 
-    /// Render rows `[y0, y1)` of `*frame` from any thread sharing `&self`,
-    /// with thread slot `slot`'s mailbox (claimed for the call:
-    /// `Error::SlotBusy` while another call holds it). `band` holds only
-    /// those rows, row `y0` first, `stride` bytes apart. Threads rendering
-    /// disjoint bands with distinct slots make the image `render_with`
-    /// makes, byte for byte. Does not update `stats`.
-    #[allow(clippy::too_many_arguments)]
+    /// Render rows `[band.y0, band.y1)` of `*frame` from any thread sharing
+    /// `&self`, with thread slot `slot`'s mailbox (claimed for the call:
+    /// `Error::SlotBusy` while another call holds it). `band.pixels` holds
+    /// only those rows, row `y0` first, `band.stride` bytes apart. Threads
+    /// rendering disjoint bands with distinct slots make the image
+    /// `render_with` makes, byte for byte. Does not update `stats`.
     pub fn render_rows_in_slot(
         &self,
         slot: u32,
         primary: &TraceParams,
         shadow: &TraceParams,
         frame: &Frame,
-        y0: u32,
-        y1: u32,
-        band: &mut [u8],
-        stride: usize,
+        band: Band<'_>,
     ) -> Result<Counters> {
         primary.validate()?;
         shadow.validate()?;
         frame.light.validate()?;
-        let rays = self.check_rows(frame, y0, y1, band.len(), stride)?;
+        let rays = self.check_rows(frame, band.y0, band.y1, band.pixels.len(), band.stride)?;
         let tr = self.scene_tracer()?;
         tr.with_single(shadow.method)?;
         let tr = tr.with_single(primary.method)?;
-        let rows = Band {
-            frame,
-            rays: &rays,
-            y0,
-            y1,
-            stride,
-        };
+        let shot = Shot { frame, rays: &rays };
         self.with_slot(slot, |mb| {
             let mut ctr = Counters::default();
-            rows.render(&tr, primary, shadow, band, mb, &mut ctr);
+            shot.render(&tr, primary, shadow, band, mb, &mut ctr);
             ctr
         })
     }
@@ -901,22 +891,19 @@ impl<'a> Context<'a> {
                 needed: 1,
                 available: 0,
             })?;
+            let band = Band {
+                y0: 0,
+                y1: job.frame.height,
+                pixels,
+                stride,
+            };
             match job
                 .primary
                 .tile_side()
                 .max(job.shadow.tile_side())
                 .max(job.secondary.tile_side())
             {
-                0 => whitted::render_whitted_rows(
-                    &tr,
-                    job,
-                    &rays,
-                    0,
-                    job.frame.height,
-                    pixels,
-                    stride,
-                    &mut ctr,
-                ),
+                0 => whitted::render_whitted_rows(&tr, job, &rays, band, &mut ctr),
                 side => {
                     let job = WhittedJob {
                         primary: TraceParams {
@@ -925,17 +912,7 @@ impl<'a> Context<'a> {
                         },
                         ..*job
                     };
-                    whitted::render_whitted_tiles(
-                        &tr,
-                        &job,
-                        &rays,
-                        0,
-                        job.frame.height,
-                        pixels,
-                        stride,
-                        &mut mb,
-                        &mut ctr,
-                    )
+                    whitted::render_whitted_tiles(&tr, &job, &rays, band, &mut mb, &mut ctr)
                 }
             }
         }
@@ -953,16 +930,13 @@ impl<'a> Context<'a> {
     }
 }
 
-/// Rows `[y0, y1)` of a frame; the buffer given to `render` starts at row `y0`.
-struct Band<'f> {
+/// A frame and its camera rays, rendered band by band.
+struct Shot<'f> {
     frame: &'f Frame,
     rays: &'f PrimaryRays,
-    y0: u32,
-    y1: u32,
-    stride: usize,
 }
 
-impl Band<'_> {
+impl Shot<'_> {
     /// Packet methods render n x n tiles (n the larger tile side of the two
     /// classes), single-ray methods row by row.
     fn render(
@@ -970,21 +944,22 @@ impl Band<'_> {
         tr: &SceneTracer<'_>,
         primary: &TraceParams,
         shadow: &TraceParams,
-        pixels: &mut [u8],
+        band: Band<'_>,
         mb: &mut Mailbox<'_>,
         ctr: &mut Counters,
     ) {
-        let (frame, rays, y0, y1, stride) = (self.frame, self.rays, self.y0, self.y1, self.stride);
+        let (frame, rays) = (self.frame, self.rays);
         match primary.tile_side().max(shadow.tile_side()) {
-            0 => render::render_rows(tr, frame, rays, y0, y1, pixels, stride, ctr),
+            0 => render::render_rows(tr, frame, rays, band, ctr),
             side => {
-                let tile = TraceParams {
-                    packet: side,
-                    ..*primary
+                let params = TileParams {
+                    primary: TraceParams {
+                        packet: side,
+                        ..*primary
+                    },
+                    shadow: *shadow,
                 };
-                render::render_tiles(
-                    tr, &tile, shadow, frame, rays, y0, y1, pixels, stride, mb, ctr,
-                );
+                render::render_tiles(tr, &params, frame, rays, band, mb, ctr);
             }
         }
     }

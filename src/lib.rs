@@ -84,5 +84,5 @@ pub use render::deferred::{
 };
 pub use render::material::{Material, MaterialRange, Materials};
 pub use render::whitted::{WhittedJob, WhittedParams};
-pub use render::{Camera, Frame, PointLight, Shading};
+pub use render::{Band, Camera, Frame, PointLight, Shading};
 pub use trace::{BvhOptions, CgtOptions, Counters, EntrySearch, Method, RayKind, TraceParams};

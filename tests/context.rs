@@ -5,7 +5,8 @@ mod common;
 
 use sheaf::geom::INVALID_ID;
 use sheaf::{
-    Context, Error, GridParams, Hit, Limits, Method, OwnedContext, Pool, Ray, Scene, required_bytes,
+    Band, Context, Error, GridParams, Hit, Limits, Method, OwnedContext, Pool, Ray, Scene,
+    required_bytes,
 };
 
 /// 64-byte aligned scratch buffer for `Context::new_in`.
@@ -505,10 +506,12 @@ fn threads_with_their_own_slots_render_the_same_frame() {
                                 &p,
                                 &p,
                                 &frame,
-                                y0,
-                                y1,
-                                &mut band[..len],
-                                stride,
+                                Band {
+                                    y0,
+                                    y1,
+                                    pixels: &mut band[..len],
+                                    stride,
+                                },
                             )
                             .unwrap();
                     }
@@ -526,14 +529,36 @@ fn threads_with_their_own_slots_render_the_same_frame() {
     let p = TraceParams::default();
     let mut band = vec![7u8; 4 * 80];
     assert!(matches!(
-        ctx.render_rows_in_slot(3, &p, &p, &frame, 0, 1, &mut band, 320),
+        ctx.render_rows_in_slot(
+            3,
+            &p,
+            &p,
+            &frame,
+            Band {
+                y0: 0,
+                y1: 1,
+                pixels: &mut band,
+                stride: 320
+            }
+        ),
         Err(Error::Capacity {
             pool: Pool::Threads,
             ..
         })
     ));
     assert!(matches!(
-        ctx.render_rows_in_slot(0, &p, &p, &frame, 5, 5, &mut band, 320),
+        ctx.render_rows_in_slot(
+            0,
+            &p,
+            &p,
+            &frame,
+            Band {
+                y0: 5,
+                y1: 5,
+                pixels: &mut band,
+                stride: 320
+            }
+        ),
         Err(Error::InvalidArgument(_))
     ));
     assert!(band.iter().all(|&b| b == 7));

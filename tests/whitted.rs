@@ -13,7 +13,7 @@ use sheaf::render::material::{DEFAULT_MATERIAL, Material, MaterialRange, Materia
 use sheaf::render::whitted::{
     self, WhittedJob, WhittedParams, render_whitted_rows, render_whitted_tiles,
 };
-use sheaf::render::{PointLight, render_rows};
+use sheaf::render::{Band, PointLight, render_rows};
 use sheaf::scenes::View;
 use sheaf::{
     Camera, Counters, Error, Frame, GridParams, Limits, Method, OwnedContext, Ray, Scene, Shading,
@@ -73,10 +73,22 @@ fn render(ctx: &mut OwnedContext, job: &WhittedJob<'_>, packets: bool, band: u32
         for (k, chunk) in px.chunks_mut(rows * stride).enumerate() {
             let y0 = (k * rows) as u32;
             let y1 = (y0 + rows as u32).min(h);
-            render_whitted_tiles(&tr, job, &rays, y0, y1, chunk, stride, &mut mb, &mut ctr);
+            let band = Band {
+                y0,
+                y1,
+                pixels: chunk,
+                stride,
+            };
+            render_whitted_tiles(&tr, job, &rays, band, &mut mb, &mut ctr);
         }
     } else {
-        render_whitted_rows(&tr, job, &rays, 0, h, &mut px, stride, &mut ctr);
+        let band = Band {
+            y0: 0,
+            y1: h,
+            pixels: &mut px,
+            stride,
+        };
+        render_whitted_rows(&tr, job, &rays, band, &mut ctr);
     }
     px
 }
@@ -356,16 +368,13 @@ fn diffuse_frames_equal_plain_frames() {
         {
             let rays = ctx.check_frame(&fr, plain.len(), stride).unwrap();
             let tr = ctx.tracer().unwrap();
-            render_rows(
-                &tr,
-                &fr,
-                &rays,
-                0,
-                H,
-                &mut plain,
+            let band = Band {
+                y0: 0,
+                y1: H,
+                pixels: &mut plain,
                 stride,
-                &mut Counters::default(),
-            );
+            };
+            render_rows(&tr, &fr, &rays, band, &mut Counters::default());
         }
         let diffuse = Material::diffuse([0.3, 0.6, 0.9]);
         let single = WhittedJob::new(

@@ -6,7 +6,7 @@ use rayon::prelude::*;
 use rayon::{ThreadPool, ThreadPoolBuilder};
 use sheaf::accel::grid::traverse_cgt::Mailbox;
 use sheaf::render::whitted::{WhittedJob, render_whitted_rows, render_whitted_tiles};
-use sheaf::render::{PrimaryRays, Tracer, render_rows, render_tiles};
+use sheaf::render::{Band, PrimaryRays, TileParams, Tracer, render_rows, render_tiles};
 use sheaf::{
     Counters, Error, Frame, GridInfo, GridParams, Limits, Method, OwnedContext, Pool, Scene,
     TraceParams,
@@ -226,44 +226,54 @@ pub fn render_frame(
     tracer.with_single(shadow.method)?;
     let tracer = tracer.with_single(primary.method)?;
     let mailboxes: Vec<Mailbox<'_>> = mailboxes.take(threads as usize).collect();
-    let ctr = render_bands(
-        &tracer, primary, shadow, frame, &rays, pixels, stride, mailboxes,
-    );
+    let whole = Band {
+        y0: 0,
+        y1: frame.height,
+        pixels,
+        stride,
+    };
+    let ctr = render_bands(&tracer, primary, shadow, frame, &rays, whole, mailboxes);
     ctx.record(ctr, start.elapsed().as_nanos() as u64);
     Ok(ctr)
 }
 
-/// Bands of rows (a multiple of the packet side), taken in order by whichever
-/// thread is free; one thread per mailbox.
-#[allow(clippy::too_many_arguments)]
+/// `whole` (the frame's rows) in bands of rows (a multiple of the packet
+/// side), taken in order by whichever thread is free; one thread per mailbox.
 fn render_bands<T: Tracer>(
     tracer: &T,
     primary: &TraceParams,
     shadow: &TraceParams,
     frame: &Frame,
     rays: &PrimaryRays,
-    pixels: &mut [u8],
-    stride: usize,
+    whole: Band<'_>,
     mailboxes: Vec<Mailbox<'_>>,
 ) -> Counters {
     let side = tile_side(primary).max(tile_side(shadow));
-    let tile = TraceParams {
-        packet: side,
-        ..*primary
+    let params = TileParams {
+        primary: TraceParams {
+            packet: side,
+            ..*primary
+        },
+        shadow: *shadow,
     };
+    let stride = whole.stride;
     bands(
         side,
         frame.height,
-        pixels,
+        whole.pixels,
         stride,
         mailboxes,
-        |y0, y1, band, mb, ctr| {
+        |y0, y1, pixels, mb, ctr| {
+            let band = Band {
+                y0,
+                y1,
+                pixels,
+                stride,
+            };
             if side > 0 {
-                render_tiles(
-                    tracer, &tile, shadow, frame, rays, y0, y1, band, stride, mb, ctr,
-                );
+                render_tiles(tracer, &params, frame, rays, band, mb, ctr);
             } else {
-                render_rows(tracer, frame, rays, y0, y1, band, stride, ctr);
+                render_rows(tracer, frame, rays, band, ctr);
             }
         },
     )
@@ -436,11 +446,17 @@ pub fn render_whitted_frame(
         pixels,
         stride,
         mailboxes,
-        |y0, y1, band, mb, ctr| {
+        |y0, y1, pixels, mb, ctr| {
+            let band = Band {
+                y0,
+                y1,
+                pixels,
+                stride,
+            };
             if side > 0 {
-                render_whitted_tiles(&tracer, &tiled, &rays, y0, y1, band, stride, mb, ctr);
+                render_whitted_tiles(&tracer, &tiled, &rays, band, mb, ctr);
             } else {
-                render_whitted_rows(&tracer, job, &rays, y0, y1, band, stride, ctr);
+                render_whitted_rows(&tracer, job, &rays, band, ctr);
             }
         },
     );

@@ -23,7 +23,7 @@ use crate::context::{Context, required_bytes};
 use crate::error::{Error, Result};
 use crate::geom::{Ray, Scene};
 use crate::mem::Limits;
-use crate::render::Tracer;
+use crate::render::{Band, Tracer};
 use crate::trace::batch_on;
 use crate::trace::{Counters, TraceParams};
 use core::cell::UnsafeCell;
@@ -961,8 +961,18 @@ pub extern "C" fn sheaf_context_render_rows(
         // contract: each thread passes its own rows). The core only writes
         // through it.
         let band = unsafe { core::slice::from_raw_parts_mut(rgba, band_len) };
-        h.ctx
-            .render_rows_in_slot(slot, &p, &s, &frame, y0, y1, band, stride_bytes)?;
+        h.ctx.render_rows_in_slot(
+            slot,
+            &p,
+            &s,
+            &frame,
+            Band {
+                y0,
+                y1,
+                pixels: band,
+                stride: stride_bytes,
+            },
+        )?;
         Ok(())
     })
 }

@@ -304,20 +304,52 @@ fn shade(frame: &Frame, hit: bool, lit: f32) -> [u8; 4] {
     [encode(c.x), encode(c.y), encode(c.z), 255]
 }
 
-/// Render rows `y0..y1` of `frame` into `pixels`, whose row `y` starts at
-/// byte `(y - y0) * stride`, one ray at a time. RGBA8, sRGB-encoded (gamma
+/// The rows a renderer writes: rows `y0..y1` of the frame into `pixels`,
+/// whose row `y` starts at byte `(y - y0) * stride` (RGBA8, so `stride >=
+/// 4 * width`). A whole frame is the band `0..height`; threads rendering
+/// disjoint bands of one frame make its image, byte for byte.
+#[derive(Debug)]
+pub struct Band<'p> {
+    pub y0: u32,
+    pub y1: u32,
+    pub pixels: &'p mut [u8],
+    pub stride: usize,
+}
+
+/// How `render_tiles` traces a frame: `primary` for camera rays (its
+/// `packet` is the tile side), `shadow` for shadow rays.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TileParams {
+    pub primary: TraceParams,
+    pub shadow: TraceParams,
+}
+
+/// A shadow packet traced from the light (`shadow_packet`): its quads, their
+/// active lanes and each lane's distance from the light to its end point
+/// (what `TraceParams::split` compares). The three slices have one entry
+/// per quad.
+#[derive(Clone, Copy, Debug)]
+pub struct ShadowPacket<'a> {
+    pub rays: &'a [Ray4],
+    pub active: &'a [M4],
+    pub dist: &'a [F4],
+}
+
+/// Render `band` of `frame` one ray at a time. RGBA8, sRGB-encoded (gamma
 /// 2.2), alpha 255.
-#[allow(clippy::too_many_arguments)]
 pub fn render_rows<T: Tracer + ?Sized>(
     tracer: &T,
     frame: &Frame,
     rays: &PrimaryRays,
-    y0: u32,
-    y1: u32,
-    pixels: &mut [u8],
-    stride: usize,
+    band: Band<'_>,
     ctr: &mut Counters,
 ) {
+    let Band {
+        y0,
+        y1,
+        pixels,
+        stride,
+    } = band;
     let eps = SHADOW_OFFSET * tracer.scene_scale();
     for y in y0..y1 {
         let row = &mut pixels[(y - y0) as usize * stride..];
@@ -356,56 +388,46 @@ pub fn demorton(i: usize) -> (u32, u32) {
     (x, y)
 }
 
-/// Render rows `y0..y1` (`y0` a multiple of the packet side) in n x n tiles
-/// with packet methods: `primary.method` for camera rays, `shadow.method`
-/// for shadow rays. Same output as `render_rows` with the same structure.
-#[allow(clippy::too_many_arguments)]
+/// Render `band` (`y0` a multiple of the packet side) in n x n tiles with
+/// packet methods: `params.primary.method` for camera rays,
+/// `params.shadow.method` for shadow rays. Same output as `render_rows`
+/// with the same structure.
 pub fn render_tiles<T: Tracer + ?Sized>(
     tracer: &T,
-    primary: &TraceParams,
-    shadow: &TraceParams,
+    params: &TileParams,
     frame: &Frame,
     rays: &PrimaryRays,
-    y0: u32,
-    y1: u32,
-    pixels: &mut [u8],
-    stride: usize,
+    band: Band<'_>,
     mb: &mut Mailbox<'_>,
     ctr: &mut Counters,
 ) {
-    match primary.packet {
-        2 => tiles::<T, 1>(
-            tracer, primary, shadow, frame, rays, y0, y1, pixels, stride, mb, ctr,
-        ),
-        4 => tiles::<T, 4>(
-            tracer, primary, shadow, frame, rays, y0, y1, pixels, stride, mb, ctr,
-        ),
-        8 => tiles::<T, 16>(
-            tracer, primary, shadow, frame, rays, y0, y1, pixels, stride, mb, ctr,
-        ),
-        16 => tiles::<T, 64>(
-            tracer, primary, shadow, frame, rays, y0, y1, pixels, stride, mb, ctr,
-        ),
+    match params.primary.packet {
+        2 => tiles::<T, 1>(tracer, params, frame, rays, band, mb, ctr),
+        4 => tiles::<T, 4>(tracer, params, frame, rays, band, mb, ctr),
+        8 => tiles::<T, 16>(tracer, params, frame, rays, band, mb, ctr),
+        16 => tiles::<T, 64>(tracer, params, frame, rays, band, mb, ctr),
         _ => tiles::<T, { crate::accel::packet::MAX_QUADS }>(
-            tracer, primary, shadow, frame, rays, y0, y1, pixels, stride, mb, ctr,
+            tracer, params, frame, rays, band, mb, ctr,
         ),
     }
 }
 
-#[allow(clippy::too_many_arguments)]
 fn tiles<T: Tracer + ?Sized, const Q: usize>(
     tracer: &T,
-    primary: &TraceParams,
-    shadow: &TraceParams,
+    params: &TileParams,
     frame: &Frame,
     rays: &PrimaryRays,
-    y0: u32,
-    y1: u32,
-    pixels: &mut [u8],
-    stride: usize,
+    band: Band<'_>,
     mb: &mut Mailbox<'_>,
     ctr: &mut Counters,
 ) {
+    let TileParams { primary, shadow } = params;
+    let Band {
+        y0,
+        y1,
+        pixels,
+        stride,
+    } = band;
     let n = 2 * (Q as u32).isqrt();
     let eps = SHADOW_OFFSET * tracer.scene_scale();
     let light = Vec3::from(frame.light.position);
@@ -463,9 +485,12 @@ fn tiles<T: Tracer + ?Sized, const Q: usize>(
                 sactive[q] = M4::new(m[0], m[1], m[2], m[3]);
                 shits[q] = Hit4::MISS;
             }
-            shadow_packet(
-                tracer, shadow, &squads, &sactive, &sdist, &mut shits, mb, ctr,
-            );
+            let packet = ShadowPacket {
+                rays: &squads,
+                active: &sactive,
+                dist: &sdist,
+            };
+            shadow_packet(tracer, shadow, packet, &mut shits, mb, ctr);
             // Shade and store.
             for q in 0..Q {
                 let (qx, qy) = demorton(q);
@@ -492,17 +517,15 @@ fn tiles<T: Tracer + ?Sized, const Q: usize>(
 
 /// Trace a shadow packet, splitting it into its four Morton quarters while
 /// its hit points' distances from the light spread by more than `p.split`.
-#[allow(clippy::too_many_arguments)]
 pub fn shadow_packet<T: Tracer + ?Sized>(
     tracer: &T,
     p: &TraceParams,
-    rays: &[Ray4],
-    active: &[M4],
-    dist: &[F4],
+    packet: ShadowPacket<'_>,
     hits: &mut [Hit4],
     mb: &mut Mailbox<'_>,
     ctr: &mut Counters,
 ) {
+    let ShadowPacket { rays, active, dist } = packet;
     if !active.iter().any(|m| m.any()) {
         return;
     }
@@ -517,16 +540,12 @@ pub fn shadow_packet<T: Tracer + ?Sized>(
             let k = rays.len() / 4;
             for s in 0..4 {
                 let r = s * k..(s + 1) * k;
-                shadow_packet(
-                    tracer,
-                    p,
-                    &rays[r.clone()],
-                    &active[r.clone()],
-                    &dist[r.clone()],
-                    &mut hits[r],
-                    mb,
-                    ctr,
-                );
+                let quarter = ShadowPacket {
+                    rays: &rays[r.clone()],
+                    active: &active[r.clone()],
+                    dist: &dist[r.clone()],
+                };
+                shadow_packet(tracer, p, quarter, &mut hits[r], mb, ctr);
             }
             return;
         }

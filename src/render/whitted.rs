@@ -92,7 +92,8 @@
 
 use super::material::{Material, Materials};
 use super::{
-    Frame, PointLight, PrimaryRays, SHADOW_OFFSET, Tracer, demorton, encode, shadow_packet,
+    Band, Frame, PointLight, PrimaryRays, SHADOW_OFFSET, ShadowPacket, Tracer, demorton, encode,
+    shadow_packet,
 };
 use crate::accel::grid::traverse_cgt::Mailbox;
 use crate::error::{Error, Result};
@@ -356,20 +357,58 @@ fn pixel(c: Vec3) -> [u8; 4] {
 // ---------------------------------------------------------------------------
 // Single rays.
 
-/// Add the colour of `ray`'s tree, weighted by `w`, to `acc`: depth first,
-/// local shading, then the reflected subtree, then the refracted one.
-#[allow(clippy::too_many_arguments)]
-fn trace_ray<T: Tracer + ?Sized>(
-    tracer: &T,
-    job: &WhittedJob<'_>,
-    ray: &Ray,
-    w: f32,
+/// What every node of a frame's ray trees shares: the tracer, the job and
+/// the offset of shadow and secondary rays off surfaces.
+struct Trees<'a, T: ?Sized> {
+    tracer: &'a T,
+    job: &'a WhittedJob<'a>,
+    eps: f32,
+}
+
+impl<'a, T: Tracer + ?Sized> Trees<'a, T> {
+    fn new(tracer: &'a T, job: &'a WhittedJob<'a>) -> Self {
+        Trees {
+            tracer,
+            job,
+            eps: SHADOW_OFFSET * tracer.scene_scale(),
+        }
+    }
+}
+
+/// How deep a node of the ray tree is: the reflections and refractions on
+/// the path from the camera (what `WhittedParams` bounds).
+#[derive(Clone, Copy, Debug, Default)]
+struct Depth {
     reflections: u32,
     refractions: u32,
-    eps: f32,
+}
+
+impl Depth {
+    fn reflected(self) -> Self {
+        Depth {
+            reflections: self.reflections + 1,
+            ..self
+        }
+    }
+    fn refracted(self) -> Self {
+        Depth {
+            refractions: self.refractions + 1,
+            ..self
+        }
+    }
+}
+
+/// Add the colour of `ray`'s tree, weighted by `w`, to `acc`: depth first,
+/// local shading, then the reflected subtree, then the refracted one.
+fn trace_ray<T: Tracer + ?Sized>(
+    f: &Trees<'_, T>,
+    ray: &Ray,
+    w: f32,
+    depth: Depth,
     acc: &mut Vec3,
     ctr: &mut Counters,
 ) {
+    let (tracer, job, eps) = (f.tracer, f.job, f.eps);
     let sh = &job.frame.shading;
     let hit = tracer.intersect(ray, ctr);
     let Some(s) = surface_at(tracer, job, ray, &hit) else {
@@ -385,33 +424,15 @@ fn trace_ray<T: Tracer + ?Sized>(
         };
         sum = add_light(sum, light, lit);
     }
-    let k = split(&s.mat, &job.params, reflections, refractions);
+    let k = split(&s.mat, &job.params, depth.reflections, depth.refractions);
     *acc = accumulate(*acc, local(&s, k.kd, sum), w);
     if k.kr > 0.0 {
-        trace_ray(
-            tracer,
-            job,
-            &reflect_ray(&s, eps),
-            w * k.kr,
-            reflections + 1,
-            refractions,
-            eps,
-            acc,
-            ctr,
-        );
+        let ray = reflect_ray(&s, eps);
+        trace_ray(f, &ray, w * k.kr, depth.reflected(), acc, ctr);
     }
     if k.kt > 0.0 {
-        trace_ray(
-            tracer,
-            job,
-            &refract_ray(&s, eps),
-            w * k.kt,
-            reflections,
-            refractions + 1,
-            eps,
-            acc,
-            ctr,
-        );
+        let ray = refract_ray(&s, eps);
+        trace_ray(f, &ray, w * k.kt, depth.refracted(), acc, ctr);
     }
 }
 
@@ -425,40 +446,38 @@ pub fn radiance<T: Tracer + ?Sized>(
 ) -> [f32; 3] {
     let mut acc = Vec3::ZERO;
     trace_ray(
-        tracer,
-        job,
+        &Trees::new(tracer, job),
         ray,
         1.0,
-        0,
-        0,
-        SHADOW_OFFSET * tracer.scene_scale(),
+        Depth::default(),
         &mut acc,
         ctr,
     );
     acc.to_array()
 }
 
-/// Render rows `y0..y1` of `job.frame` into `pixels` (row `y` at byte
-/// `(y - y0) * stride`), one ray tree at a time with `Tracer::intersect`
-/// and `occluded`. RGBA8 as `render_rows`. The reference of
-/// `render_whitted_tiles`.
-#[allow(clippy::too_many_arguments)]
+/// Render `band` of `job.frame` one ray tree at a time with
+/// `Tracer::intersect` and `occluded`. RGBA8 as `render_rows`. The
+/// reference of `render_whitted_tiles`.
 pub fn render_whitted_rows<T: Tracer + ?Sized>(
     tracer: &T,
     job: &WhittedJob<'_>,
     rays: &PrimaryRays,
-    y0: u32,
-    y1: u32,
-    pixels: &mut [u8],
-    stride: usize,
+    band: Band<'_>,
     ctr: &mut Counters,
 ) {
-    let eps = SHADOW_OFFSET * tracer.scene_scale();
+    let Band {
+        y0,
+        y1,
+        pixels,
+        stride,
+    } = band;
+    let f = Trees::new(tracer, job);
     for y in y0..y1 {
         let row = &mut pixels[(y - y0) as usize * stride..];
         for x in 0..job.frame.width {
             let mut acc = Vec3::ZERO;
-            trace_ray(tracer, job, &rays.ray(x, y), 1.0, 0, 0, eps, &mut acc, ctr);
+            trace_ray(&f, &rays.ray(x, y), 1.0, Depth::default(), &mut acc, ctr);
             row[x as usize * 4..x as usize * 4 + 4].copy_from_slice(&pixel(acc));
         }
     }
@@ -489,52 +508,66 @@ fn pack(lanes: &mut [Ray; 4], m: &[bool; 4]) -> (Ray4, M4) {
     (Ray4::from_rays(lanes), M4::new(m[0], m[1], m[2], m[3]))
 }
 
-/// Render rows `y0..y1` (`y0` a multiple of the packet side) in n x n tiles,
+/// Render `band` (`y0` a multiple of the packet side) in n x n tiles,
 /// n = `job.primary.packet`: primary packets with `job.primary`, shadow
 /// packets with `job.shadow`, reflection and refraction packets with
 /// `job.secondary`. Same bytes as `render_whitted_rows` with the same
 /// structure. `mb` is the calling thread's mailbox.
-#[allow(clippy::too_many_arguments)]
 pub fn render_whitted_tiles<T: Tracer + ?Sized>(
     tracer: &T,
     job: &WhittedJob<'_>,
     rays: &PrimaryRays,
-    y0: u32,
-    y1: u32,
-    pixels: &mut [u8],
-    stride: usize,
+    band: Band<'_>,
     mb: &mut Mailbox<'_>,
     ctr: &mut Counters,
 ) {
     match job.primary.packet {
-        2 => tiles::<T, 1>(tracer, job, rays, y0, y1, pixels, stride, mb, ctr),
-        4 => tiles::<T, 4>(tracer, job, rays, y0, y1, pixels, stride, mb, ctr),
-        8 => tiles::<T, 16>(tracer, job, rays, y0, y1, pixels, stride, mb, ctr),
-        16 => tiles::<T, 64>(tracer, job, rays, y0, y1, pixels, stride, mb, ctr),
-        _ => tiles::<T, { crate::accel::packet::MAX_QUADS }>(
-            tracer, job, rays, y0, y1, pixels, stride, mb, ctr,
-        ),
+        2 => tiles::<T, 1>(tracer, job, rays, band, mb, ctr),
+        4 => tiles::<T, 4>(tracer, job, rays, band, mb, ctr),
+        8 => tiles::<T, 16>(tracer, job, rays, band, mb, ctr),
+        16 => tiles::<T, 64>(tracer, job, rays, band, mb, ctr),
+        _ => tiles::<T, { crate::accel::packet::MAX_QUADS }>(tracer, job, rays, band, mb, ctr),
     }
 }
 
-#[allow(clippy::too_many_arguments)]
+/// A packet of one level of the ray trees: its quads, their active lanes
+/// and each lane's throughput (the weight its colour is added with).
+struct Packet<const Q: usize> {
+    rays: [Ray4; Q],
+    active: [M4; Q],
+    w: [F4; Q],
+}
+
+impl<const Q: usize> Packet<Q> {
+    fn idle(w: F4) -> Self {
+        Packet {
+            rays: [Ray4::from_rays(&[idle_ray(); 4]); Q],
+            active: [M4::FALSE; Q],
+            w: [w; Q],
+        }
+    }
+}
+
 fn tiles<T: Tracer + ?Sized, const Q: usize>(
     tracer: &T,
     job: &WhittedJob<'_>,
     rays: &PrimaryRays,
-    y0: u32,
-    y1: u32,
-    pixels: &mut [u8],
-    stride: usize,
+    band: Band<'_>,
     mb: &mut Mailbox<'_>,
     ctr: &mut Counters,
 ) {
+    let Band {
+        y0,
+        y1,
+        pixels,
+        stride,
+    } = band;
     let n = 2 * (Q as u32).isqrt();
-    let eps = SHADOW_OFFSET * tracer.scene_scale();
+    let f = Trees::new(tracer, job);
     let primary = job.primary.with_kind(RayKind::Primary);
-    let (width, ones) = (job.frame.width, [F4::ONE; Q]);
-    let mut quads = [Ray4::from_rays(&[idle_ray(); 4]); Q];
-    let mut active = [M4::FALSE; Q];
+    let width = job.frame.width;
+    // Camera rays have throughput 1.
+    let mut pk = Packet::<Q>::idle(F4::ONE);
     let mut ty = y0;
     while ty < y1 {
         let mut tx = 0;
@@ -550,19 +583,17 @@ fn tiles<T: Tracer + ?Sized, const Q: usize>(
                         m[i] = true;
                     }
                 }
-                (quads[q], active[q]) = pack(&mut lanes, &m);
+                (pk.rays[q], pk.active[q]) = pack(&mut lanes, &m);
             }
             let mut acc = [[Vec3::ZERO; 4]; Q];
-            level::<T, Q>(
-                tracer, job, &primary, &quads, &active, &ones, 0, 0, eps, &mut acc, mb, ctr,
-            );
-            for q in 0..Q {
+            level::<T, Q>(&f, &primary, &pk, Depth::default(), &mut acc, mb, ctr);
+            for (q, (quad, m)) in acc.iter().zip(&pk.active).enumerate() {
                 let (qx, qy) = demorton(q);
                 for (i, (dx, dy)) in LANE_XY.iter().enumerate() {
-                    if active[q].test(i) {
+                    if m.test(i) {
                         let (x, y) = (tx + 2 * qx + dx, ty + 2 * qy + dy);
                         let at = (y - y0) as usize * stride + x as usize * 4;
-                        pixels[at..at + 4].copy_from_slice(&pixel(acc[q][i]));
+                        pixels[at..at + 4].copy_from_slice(&pixel(quad[i]));
                     }
                 }
             }
@@ -589,21 +620,17 @@ fn packets(p: &TraceParams, q: usize) -> impl Iterator<Item = core::ops::Range<u
 /// included), then recurse into its reflection packet and its refraction
 /// packet. Lane (q, i) of every level belongs to pixel lane (q, i) of the tile.
 #[inline(never)]
-#[allow(clippy::too_many_arguments)]
 fn level<T: Tracer + ?Sized, const Q: usize>(
-    tracer: &T,
-    job: &WhittedJob<'_>,
+    f: &Trees<'_, T>,
     p: &TraceParams,
-    rays: &[Ray4; Q],
-    active: &[M4; Q],
-    w: &[F4; Q],
-    reflections: u32,
-    refractions: u32,
-    eps: f32,
+    pk: &Packet<Q>,
+    depth: Depth,
     acc: &mut [[Vec3; 4]; Q],
     mb: &mut Mailbox<'_>,
     ctr: &mut Counters,
 ) {
+    let (tracer, job) = (f.tracer, f.job);
+    let (rays, active) = (&pk.rays, &pk.active);
     let mut hits = [Hit4::MISS; Q];
     for r in packets(p, Q) {
         if active[r.clone()].iter().any(|m| m.any()) {
@@ -617,89 +644,17 @@ fn level<T: Tracer + ?Sized, const Q: usize>(
             );
         }
     }
-    let (want_r, want_t) = shade_packet::<T, Q>(
-        tracer,
-        job,
-        rays,
-        active,
-        &hits,
-        w,
-        reflections,
-        refractions,
-        eps,
-        acc,
-        mb,
-        ctr,
-    );
+    let (want_r, want_t) = shade_packet::<T, Q>(f, pk, &hits, depth, acc, mb, ctr);
     if !(want_r || want_t) {
         return;
     }
     let secondary = job.secondary.with_kind(RayKind::Secondary);
-    let mut crays = [Ray4::from_rays(&[idle_ray(); 4]); Q];
-    let mut cactive = [M4::FALSE; Q];
-    let mut cw = [F4::ZERO; Q];
-    let levels = (reflections, refractions);
-    if want_r
-        && child::<T, Q>(
-            tracer,
-            job,
-            true,
-            rays,
-            active,
-            &hits,
-            w,
-            levels,
-            eps,
-            &mut crays,
-            &mut cactive,
-            &mut cw,
-        )
-    {
-        level::<T, Q>(
-            tracer,
-            job,
-            &secondary,
-            &crays,
-            &cactive,
-            &cw,
-            reflections + 1,
-            refractions,
-            eps,
-            acc,
-            mb,
-            ctr,
-        );
+    let mut cpk = Packet::<Q>::idle(F4::ZERO);
+    if want_r && child::<T, Q>(f, true, pk, &hits, depth, &mut cpk) {
+        level::<T, Q>(f, &secondary, &cpk, depth.reflected(), acc, mb, ctr);
     }
-    if want_t
-        && child::<T, Q>(
-            tracer,
-            job,
-            false,
-            rays,
-            active,
-            &hits,
-            w,
-            levels,
-            eps,
-            &mut crays,
-            &mut cactive,
-            &mut cw,
-        )
-    {
-        level::<T, Q>(
-            tracer,
-            job,
-            &secondary,
-            &crays,
-            &cactive,
-            &cw,
-            reflections,
-            refractions + 1,
-            eps,
-            acc,
-            mb,
-            ctr,
-        );
+    if want_t && child::<T, Q>(f, false, pk, &hits, depth, &mut cpk) {
+        level::<T, Q>(f, &secondary, &cpk, depth.refracted(), acc, mb, ctr);
     }
 }
 
@@ -707,21 +662,21 @@ fn level<T: Tracer + ?Sized, const Q: usize>(
 /// light, then `acc += w * local` per active lane (background for misses).
 /// Returns whether any lane reflects and whether any transmits.
 #[inline(never)]
-#[allow(clippy::too_many_arguments)]
 fn shade_packet<T: Tracer + ?Sized, const Q: usize>(
-    tracer: &T,
-    job: &WhittedJob<'_>,
-    rays: &[Ray4; Q],
-    active: &[M4; Q],
+    f: &Trees<'_, T>,
+    pk: &Packet<Q>,
     hits: &[Hit4; Q],
-    w: &[F4; Q],
-    reflections: u32,
-    refractions: u32,
-    eps: f32,
+    depth: Depth,
     acc: &mut [[Vec3; 4]; Q],
     mb: &mut Mailbox<'_>,
     ctr: &mut Counters,
 ) -> (bool, bool) {
+    let (tracer, job, eps) = (f.tracer, f.job, f.eps);
+    let (rays, active, w) = (&pk.rays, &pk.active, &pk.w);
+    let Depth {
+        reflections,
+        refractions,
+    } = depth;
     let sh = &job.frame.shading;
     let mut surf = [[None::<Surface>; 4]; Q];
     let mut sum = [[Vec3::splat(sh.ambient); 4]; Q];
@@ -766,16 +721,12 @@ fn shade_packet<T: Tracer + ?Sized, const Q: usize>(
                 shits[q] = Hit4::MISS;
             }
             for r in packets(&shadow, Q) {
-                shadow_packet(
-                    tracer,
-                    &shadow,
-                    &squads[r.clone()],
-                    &sactive[r.clone()],
-                    &sdist[r.clone()],
-                    &mut shits[r],
-                    mb,
-                    ctr,
-                );
+                let packet = ShadowPacket {
+                    rays: &squads[r.clone()],
+                    active: &sactive[r.clone()],
+                    dist: &sdist[r.clone()],
+                };
+                shadow_packet(tracer, &shadow, packet, &mut shits[r], mb, ctr);
             }
             for q in 0..Q {
                 for i in 0..4 {
@@ -814,21 +765,20 @@ fn shade_packet<T: Tracer + ?Sized, const Q: usize>(
 /// Build the reflection (`reflected`) or refraction packet of a traced
 /// packet into `out`: the lanes whose split gives that direction a weight,
 /// with throughput `w * kr` (or `w * kt`). Returns whether any lane is active.
-#[allow(clippy::too_many_arguments)]
 fn child<T: Tracer + ?Sized, const Q: usize>(
-    tracer: &T,
-    job: &WhittedJob<'_>,
+    f: &Trees<'_, T>,
     reflected: bool,
-    rays: &[Ray4; Q],
-    active: &[M4; Q],
+    pk: &Packet<Q>,
     hits: &[Hit4; Q],
-    w: &[F4; Q],
-    (reflections, refractions): (u32, u32),
-    eps: f32,
-    out: &mut [Ray4; Q],
-    out_active: &mut [M4; Q],
-    out_w: &mut [F4; Q],
+    depth: Depth,
+    out: &mut Packet<Q>,
 ) -> bool {
+    let (tracer, job, eps) = (f.tracer, f.job, f.eps);
+    let (rays, active, w) = (&pk.rays, &pk.active, &pk.w);
+    let Depth {
+        reflections,
+        refractions,
+    } = depth;
     let mut any = false;
     for q in 0..Q {
         let mut lanes = [idle_ray(); 4];
@@ -848,12 +798,12 @@ fn child<T: Tracer + ?Sized, const Q: usize>(
                 } else {
                     refract_ray(&s, eps)
                 };
-                out_w[q][i] = w[q][i] * kk;
+                out.w[q][i] = w[q][i] * kk;
                 m[i] = true;
             }
         }
         any |= m.iter().any(|&b| b);
-        (out[q], out_active[q]) = pack(&mut lanes, &m);
+        (out.rays[q], out.active[q]) = pack(&mut lanes, &m);
     }
     any
 }

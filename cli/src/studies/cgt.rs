@@ -46,7 +46,7 @@ use sheaf::accel::grid::traverse_cgt::Mailbox;
 use sheaf::context::SceneTracer as GridTracer;
 use sheaf::geom::{F4, Hit4, INVALID_ID, M4, Ray4};
 use sheaf::reference::{self, RefHit};
-use sheaf::render::{PrimaryRays, SHADOW_OFFSET, Tracer, shadow_packet};
+use sheaf::render::{PrimaryRays, SHADOW_OFFSET, ShadowPacket, Tracer, shadow_packet};
 use sheaf::trace::{BvhOptions, EntrySearch, RayKind, Structure};
 use sheaf::{CgtOptions, Counters, Hit, Method, Ray, Scene, TraceParams};
 use std::collections::HashMap;
@@ -399,17 +399,15 @@ fn trace_packets(
 }
 
 /// Shadow packets with the primary tiling, split like the renderer's.
-#[allow(clippy::too_many_arguments)]
 fn occlude_packets(
     tr: &GridTracer<'_>,
     p: &TraceParams,
     t: &Tiling,
-    rays: &[Ray4],
-    active: &[M4],
-    dist: &[F4],
+    shadow: ShadowPacket<'_>,
     hits: &mut [Hit4],
     mbs: &mut [Mailbox<'_>],
 ) -> Counters {
+    let ShadowPacket { rays, active, dist } = shadow;
     let bands = rays
         .par_chunks(t.band)
         .zip(active.par_chunks(t.band))
@@ -425,7 +423,12 @@ fn occlude_packets(
             for x in h.iter_mut() {
                 *x = Hit4::MISS;
             }
-            shadow_packet(tr, p, r, a, d, h, mb, ctr);
+            let packet = ShadowPacket {
+                rays: r,
+                active: a,
+                dist: d,
+            };
+            shadow_packet(tr, p, packet, h, mb, ctr);
         }
     })
 }
@@ -450,6 +453,7 @@ struct Traced {
     timings: Vec<Timing>,
 }
 
+// One study configuration: its inputs as the study's loop holds them.
 #[allow(clippy::too_many_arguments)]
 fn trace_config(
     tr: &GridTracer<'_>,
@@ -515,16 +519,12 @@ fn trace_config(
             })
             .collect();
         let mut s4 = vec![Hit4::MISS; squads.len()];
-        shadow_ctr = occlude_packets(
-            tr,
-            &ps,
-            tiling,
-            &squads,
-            &sactive,
-            &sdist,
-            &mut s4,
-            &mut mbs[..1],
-        );
+        let packet = ShadowPacket {
+            rays: &squads,
+            active: &sactive,
+            dist: &sdist,
+        };
+        shadow_ctr = occlude_packets(tr, &ps, tiling, packet, &mut s4, &mut mbs[..1]);
         tiling.unpack(&mut occluded, &s4, |h, i| h.prim[i] != INVALID_ID);
         for (o, a) in occluded.iter_mut().zip(&s.active) {
             *o &= *a;
@@ -536,7 +536,7 @@ fn trace_config(
                 trace_packets(tr, &p, tiling, quads, active, &mut h4, mbs);
             });
             let shadow_ns = timed(reps, || {
-                occlude_packets(tr, &ps, tiling, &squads, &sactive, &sdist, &mut s4, mbs);
+                occlude_packets(tr, &ps, tiling, packet, &mut s4, mbs);
             });
             timings.push(Timing {
                 threads: t,

@@ -28,6 +28,7 @@ pub(crate) struct Parts<'c, 'a> {
 
 /// Run the six phases of `job` (checked by the caller) into `pixels`:
 /// the frame's statistics, its counters and the shadow-ray offset used.
+// The six phases' inputs: the context's pools, the checked job and its layout.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn run<W: Workers>(
     parts: Parts<'_, '_>,

@@ -27,7 +27,8 @@
 pub(crate) mod frame;
 
 use super::{
-    Frame, PointLight, PrimaryRays, SHADOW_OFFSET, Tracer, demorton, encode, shadow_packet,
+    Frame, PointLight, PrimaryRays, SHADOW_OFFSET, ShadowPacket, Tracer, demorton, encode,
+    shadow_packet,
 };
 use crate::accel::grid::traverse_cgt::Mailbox;
 use crate::accel::packet::MAX_QUADS;
@@ -268,6 +269,7 @@ const DUMMY: Ray = Ray {
 /// Phase 2: nearest hits of every camera ray into `prim`/`t` (layout
 /// `lay`). `cam` is the perspective grid when `primary` is `Pgrid`, whose
 /// sorting tiles are `lay.side / group` pixels.
+// One argument per frame-buffer pool: `frame::run` lends `FrameBuffers` field by field.
 #[allow(clippy::too_many_arguments)]
 pub fn primary_pass<'m, T: Tracer + ?Sized, W: Workers>(
     tracer: &T,
@@ -306,6 +308,7 @@ pub fn primary_pass<'m, T: Tracer + ?Sized, W: Workers>(
 
 /// One tracing tile through the perspective grid: its k x k sorting tiles,
 /// each with its own cells (indirect mapping).
+// One argument per frame-buffer pool: `frame::run` lends `FrameBuffers` field by field.
 #[allow(clippy::too_many_arguments)]
 fn pgrid_tile(
     cam: &CamView<'_>,
@@ -379,6 +382,7 @@ const LANES: [(u32, u32); 4] = [(0, 0), (1, 0), (0, 1), (1, 1)];
 
 /// One tile traced with a packet method (Morton quads, as `render_tiles`)
 /// or ray by ray.
+// One argument per frame-buffer pool: `frame::run` lends `FrameBuffers` field by field.
 #[allow(clippy::too_many_arguments)]
 fn traced_tile<T: Tracer + ?Sized>(
     tracer: &T,
@@ -479,6 +483,7 @@ pub type TriOf<'a> = &'a (dyn Fn(u32) -> Option<TriVerts> + Sync);
 /// Phase 3a: the shadow ray of every pixel for `light` into `dirs` (x NaN
 /// where there is none: miss, facing away, outside a spot's cone), tiles
 /// as work items; then their count, length range and mean direction.
+// One argument per frame-buffer pool: `frame::run` lends `FrameBuffers` field by field.
 #[allow(clippy::too_many_arguments)]
 pub fn make_shadow_rays<'m, W: Workers>(
     tri_of: TriOf<'_>,
@@ -541,7 +546,6 @@ pub fn light_tiles(max: u32, rays: u32) -> u32 {
 /// Phase 3b: the light's frustum, `tiles` per side, over the (a, b)
 /// rectangle of this frame's shadow rays (and a spot's cone), and each
 /// ray's (a, b) into `ab_a`/`ab_b` (as bits) for `map_to_tiles`.
-#[allow(clippy::too_many_arguments)]
 pub fn light_frame(
     light: &PointLight,
     s: &ShadowRays,
@@ -610,7 +614,6 @@ pub fn light_frame(
 /// pixel) pairs in `ray_tiles`/`ray_ids`, reading the (a, b) bits
 /// `light_frame` left there, and fill `reach` (per tile, 1 + the last
 /// slice of `depth` its rays reach; 0: no ray). Returns the number of rays.
-#[allow(clippy::too_many_arguments)]
 pub fn map_to_tiles(
     f: &LightFrame,
     depth: &crate::accel::pgrid::Slices,
@@ -664,6 +667,7 @@ pub fn rearrange(
 /// by estimated cost (see below), each writing the occlusion of its rays
 /// to its range of `occ`; then the shadow bit `bit` of
 /// every occluded ray's pixel is set.
+// One argument per frame-buffer pool: `frame::run` lends `FrameBuffers` field by field.
 #[allow(clippy::too_many_arguments)]
 pub fn light_grid_pass<'m, W: Workers>(
     g: &LightView<'_>,
@@ -766,6 +770,7 @@ pub fn light_grid_pass<'m, W: Workers>(
 }
 
 /// One chunk: its rays as 2x2 rays in sorted order, traced in batches.
+// One argument per frame-buffer pool: `frame::run` lends `FrameBuffers` field by field.
 #[allow(clippy::too_many_arguments)]
 fn trace_one_chunk(
     g: &LightView<'_>,
@@ -815,6 +820,7 @@ fn trace_one_chunk(
 
 /// Phase 5 with another method: shadow packets from the light per tile of
 /// the layout (split in depth as `render_tiles` does), or ray by ray.
+// One argument per frame-buffer pool: `frame::run` lends `FrameBuffers` field by field.
 #[allow(clippy::too_many_arguments)]
 pub fn traced_shadow_pass<'m, T: Tracer + ?Sized, W: Workers>(
     tracer: &T,
@@ -871,16 +877,12 @@ pub fn traced_shadow_pass<'m, T: Tracer + ?Sized, W: Workers>(
             packet: side,
             ..*params
         };
-        shadow_packet(
-            tracer,
-            &p,
-            &quads[..nq],
-            &active[..nq],
-            &dist[..nq],
-            &mut hits[..nq],
-            mb,
-            ctr,
-        );
+        let packet = ShadowPacket {
+            rays: &quads[..nq],
+            active: &active[..nq],
+            dist: &dist[..nq],
+        };
+        shadow_packet(tracer, &p, packet, &mut hits[..nq], mb, ctr);
         for q in 0..nq {
             let (qx, qy) = demorton(q);
             for (i, (dx, dy)) in LANES.iter().enumerate() {
@@ -897,6 +899,7 @@ pub fn traced_shadow_pass<'m, T: Tracer + ?Sized, W: Workers>(
 /// Phase 6: Lambert shading of every pixel with every light, a light whose
 /// shadow bit is set contributing nothing; RGBA8 into `pixels` (`stride`
 /// bytes per row), bands of rows as work items.
+// One argument per frame-buffer pool: `frame::run` lends `FrameBuffers` field by field.
 #[allow(clippy::too_many_arguments)]
 pub fn shade<'m, W: Workers>(
     tri_of: TriOf<'_>,
