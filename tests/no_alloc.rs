@@ -200,6 +200,7 @@ struct Deferred {
 
 /// One frame on either kind of context.
 trait Frames {
+    // One argument per input of a frame, as the context's own calls take them.
     #[allow(clippy::too_many_arguments)]
     fn frame(
         &mut self,

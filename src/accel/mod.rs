@@ -61,7 +61,6 @@ pub trait Accel: Sync {
     /// occlusion: some hit marks an occluded lane) and return true; false
     /// when `p.method` is none of them (the driver then traces lane by
     /// lane). Inactive lanes of `hits` are left untouched.
-    #[allow(clippy::too_many_arguments)]
     fn packet<T: TriangleTest, const ANY: bool>(
         &self,
         p: &TraceParams,

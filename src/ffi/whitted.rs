@@ -73,7 +73,6 @@ fn borrow<'a, T>(p: *const T, n: usize, what: &'static str) -> Result<&'a [T]> {
 ///
 /// Not thread-safe: needs exclusive access to `ctx`.
 #[unsafe(no_mangle)]
-#[allow(clippy::too_many_arguments)]
 pub extern "C" fn sheaf_context_render_whitted(
     ctx: *mut sheaf_context,
     primary: *const sheaf_trace_params,

@@ -127,7 +127,6 @@ pub(crate) trait Walk {
 /// scratch sized by its class (1, 4, 16, 64 or 256 quads) on the stack,
 /// from `entry` (every packet of the input) or the root. An entry node
 /// outside the tree starts at the root.
-#[allow(clippy::too_many_arguments)]
 pub(crate) fn dispatch<W: Walk, T: TriangleTest, const ANY: bool>(
     b: &BvhView<'_>,
     rays: &[Ray4],
@@ -395,6 +394,7 @@ impl<T: TriangleTest, const Q: usize> Packet<T, Q> {
     /// nearest hit (tie rule of `geom::ray`); for occlusion, lanes that hit
     /// are done.
     #[inline(always)]
+    // Inner-loop leaf test (per quad and triangle): a struct would be rebuilt per call.
     #[allow(clippy::too_many_arguments)]
     pub(crate) fn test<const ANY: bool>(
         &mut self,
@@ -829,6 +829,7 @@ pub(crate) mod tests {
     /// Trace `quads` (a packet, or several concatenated) with traversal `W`
     /// from `start` and compare every lane with `traverse_single`; returns
     /// the counters.
+    // Test harness: one argument per traversal input and reference.
     #[allow(clippy::too_many_arguments)]
     pub fn check_packet<W: Walk, T: TriangleTest>(
         b: &BvhView<'_>,

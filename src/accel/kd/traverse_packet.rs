@@ -94,7 +94,6 @@ const CORNER_TEST_QUADS: usize = 8;
 /// untouched. `frustum` must bound every active valid ray (as
 /// `Frustum::new` builds it), `entry` must hold every leaf with a triangle
 /// that frustum does not cull (see the module docs); either may be `None`.
-#[allow(clippy::too_many_arguments)]
 pub fn intersect<T: TriangleTest>(
     k: &KdView<'_>,
     rays: &[Ray4],
@@ -120,7 +119,6 @@ pub fn intersect<T: TriangleTest>(
 /// Occlusion of the active lanes (anything in `[tmin, tmax)`): lane `i` of
 /// `occluded[q]` is set when it is active and occluded, cleared otherwise
 /// (every quad read is written). Arguments as `intersect`.
-#[allow(clippy::too_many_arguments)]
 pub fn occluded<T: TriangleTest>(
     k: &KdView<'_>,
     rays: &[Ray4],
@@ -145,6 +143,7 @@ pub fn occluded<T: TriangleTest>(
 
 /// Packets of at most 256 quads, each traced with scratch sized by its
 /// class. `hits` (nearest) or `occ` (ANY) has the length of `rays`.
+// Monomorphised hot path: a struct would be rebuilt per packet.
 #[allow(clippy::too_many_arguments)]
 fn dispatch<T: TriangleTest, const ANY: bool>(
     k: &KdView<'_>,
@@ -210,6 +209,7 @@ struct Entry {
 }
 
 /// One packet of `rays.len() <= Q` quads (`Q` a power of two).
+// Monomorphised hot path: a struct would be rebuilt per packet.
 #[allow(clippy::too_many_arguments)]
 fn packet<T: TriangleTest, const ANY: bool, const Q: usize>(
     k: &KdView<'_>,
@@ -311,8 +311,9 @@ fn packet<T: TriangleTest, const ANY: bool, const Q: usize>(
     );
 }
 
-#[allow(clippy::too_many_arguments)]
 #[inline(always)]
+// Monomorphised hot path: a struct would be rebuilt per packet.
+#[allow(clippy::too_many_arguments)]
 fn walk<T: TriangleTest, const ANY: bool, const Q: usize>(
     k: &KdView<'_>,
     rays: &[Ray4],
@@ -766,6 +767,7 @@ mod tests {
 
     /// One input through `intersect` and `occluded`, every lane compared
     /// with the single-ray results `near` and `occl` (by quad and lane).
+    // Test harness: one argument per traversal input and reference.
     #[allow(clippy::too_many_arguments)]
     fn check_packet<T: TriangleTest>(
         k: &KdView<'_>,

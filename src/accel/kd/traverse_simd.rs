@@ -124,7 +124,6 @@ pub(crate) fn clip4(
 /// Lane `i` of `r` traced alone with the single-ray traversal from `node`
 /// (at `depth`, box `bx`): its interval is the slab test of `bx`, which is
 /// the interval the single ray has there (see `mod.rs`, Exactness).
-#[allow(clippy::too_many_arguments)]
 #[inline(never)]
 pub(crate) fn lane_from<T: TriangleTest, const ANY: bool>(
     k: &KdView<'_>,

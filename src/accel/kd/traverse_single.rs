@@ -84,8 +84,9 @@ fn walk<T: TriangleTest, const ANY: bool>(k: &KdView<'_>, ray: &Ray, ctr: &mut C
 /// Traverse the subtree of `node` (at `depth`) with the ray's interval
 /// `[t0, t1]` in it, updating `best`. Used from the root and from entry
 /// points (packets whose lanes fall back to single rays).
-#[allow(clippy::too_many_arguments)]
 #[inline]
+// Recursive hot path (per node): a struct would be rebuilt per call.
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn from_node<T: TriangleTest, const ANY: bool>(
     k: &KdView<'_>,
     ray: &Ray,

@@ -207,6 +207,15 @@ pub fn build_camera(g: &mut Pgrid<'_>, cam: &Pinhole) -> Result<CellsInfo> {
     let tip_r = z_eps * math::sqrt(1.0 + cam.half_w * cam.half_w + cam.half_h * cam.half_h) * 2.0;
     let pad = PIXEL_PAD + 1e-5 * cam.width.max(cam.height) as f32;
     let inv_t = 1.0 / t as f32;
+    let map = CameraMap {
+        cam,
+        depth: &depth,
+        tiles,
+        inv_t,
+        pad,
+        z_eps,
+        tip_r,
+    };
     let n = g.scene.triangles as usize;
     let p = &mut g.pools;
     let mut pairs = Pairs {
@@ -227,7 +236,7 @@ pub fn build_camera(g: &mut Pgrid<'_>, cam: &Pinhole) -> Result<CellsInfo> {
                 continue;
             }
         }
-        if let Some((cb, pb)) = camera_box(cam, &depth, tiles, inv_t, pad, z_eps, tip_r, tri) {
+        if let Some((cb, pb)) = map.camera_box(tri) {
             p.px_box[i] = pb;
             info.mapped += 1;
             pairs.emit(&cb, tiles[0], params.slices, i as u32);
@@ -258,96 +267,111 @@ pub fn build_camera(g: &mut Pgrid<'_>, cam: &Pinhole) -> Result<CellsInfo> {
     Ok(info)
 }
 
-/// Cells of one triangle in the camera grid, `None` when it cannot be seen.
-#[allow(clippy::too_many_arguments)]
-fn camera_box(
-    cam: &Pinhole,
-    depth: &Slices,
+/// How one camera-grid build maps triangles to cells: the camera, its depth
+/// slices and tiles (`inv_t`: tiles per pixel), the pixel padding, and the
+/// near-eye limits (`z_eps`, `tip_r`) of `build_camera`.
+struct CameraMap<'a> {
+    cam: &'a Pinhole,
+    depth: &'a Slices,
     tiles: [u32; 2],
     inv_t: f32,
     pad: f32,
     z_eps: f32,
     tip_r: f32,
-    tri: &TriVerts,
-) -> Option<(CellBox, [f32; 4])> {
-    let q = [
-        Vec3::from(tri.v0) - cam.eye,
-        Vec3::from(tri.v1) - cam.eye,
-        Vec3::from(tri.v2) - cam.eye,
-    ];
-    let z = [q[0].dot(cam.fwd), q[1].dot(cam.fwd), q[2].dot(cam.fwd)];
-    // Near the eye (camera rays start there, t >= 0, so a triangle through
-    // the eye is hit at t = 0 whatever its depths): every tile, slice 0 on.
-    let tip = z.iter().any(|&z| z < z_eps) && closest_distance(Vec3::ZERO, &q) <= tip_r;
-    if !tip && z.iter().all(|&z| z <= 0.0) {
-        return None; // behind the eye: camera rays have depth > 0
-    }
-    // Clip against depth >= z_eps (Sutherland-Hodgman, at most 4 points).
-    let mut poly = [Vec3::ZERO; 4];
-    let mut pz = [0.0f32; 4];
-    let mut m = 0;
-    for k in 0..3 {
-        let (a, b) = (k, (k + 1) % 3);
-        if z[a] >= z_eps {
-            poly[m] = q[a];
-            pz[m] = z[a];
-            m += 1;
-        }
-        if (z[a] >= z_eps) != (z[b] >= z_eps) {
-            let s = (z_eps - z[a]) / (z[b] - z[a]);
-            poly[m] = q[a] + (q[b] - q[a]) * s;
-            pz[m] = z_eps;
-            m += 1;
-        }
-    }
-    let mut xr = [f32::INFINITY, f32::NEG_INFINITY];
-    let mut yr = xr;
-    let mut zr = xr;
-    for k in 0..m {
-        let (x, y) = cam.pixel(poly[k], pz[k]);
-        xr = [xr[0].min(x), xr[1].max(x)];
-        yr = [yr[0].min(y), yr[1].max(y)];
-        zr = [zr[0].min(pz[k]), zr[1].max(pz[k])];
-    }
-    if tip {
-        let top = zr[1].max(z_eps);
-        let all = [
-            f32::NEG_INFINITY,
-            f32::NEG_INFINITY,
-            f32::INFINITY,
-            f32::INFINITY,
+}
+
+impl CameraMap<'_> {
+    /// Cells of one triangle in the camera grid, `None` when it cannot be
+    /// seen.
+    fn camera_box(&self, tri: &TriVerts) -> Option<(CellBox, [f32; 4])> {
+        let CameraMap {
+            cam,
+            depth,
+            tiles,
+            inv_t,
+            pad,
+            z_eps,
+            tip_r,
+        } = *self;
+        let q = [
+            Vec3::from(tri.v0) - cam.eye,
+            Vec3::from(tri.v1) - cam.eye,
+            Vec3::from(tri.v2) - cam.eye,
         ];
-        return Some((
+        let z = [q[0].dot(cam.fwd), q[1].dot(cam.fwd), q[2].dot(cam.fwd)];
+        // Near the eye (camera rays start there, t >= 0, so a triangle through
+        // the eye is hit at t = 0 whatever its depths): every tile, slice 0 on.
+        let tip = z.iter().any(|&z| z < z_eps) && closest_distance(Vec3::ZERO, &q) <= tip_r;
+        if !tip && z.iter().all(|&z| z <= 0.0) {
+            return None; // behind the eye: camera rays have depth > 0
+        }
+        // Clip against depth >= z_eps (Sutherland-Hodgman, at most 4 points).
+        let mut poly = [Vec3::ZERO; 4];
+        let mut pz = [0.0f32; 4];
+        let mut m = 0;
+        for k in 0..3 {
+            let (a, b) = (k, (k + 1) % 3);
+            if z[a] >= z_eps {
+                poly[m] = q[a];
+                pz[m] = z[a];
+                m += 1;
+            }
+            if (z[a] >= z_eps) != (z[b] >= z_eps) {
+                let s = (z_eps - z[a]) / (z[b] - z[a]);
+                poly[m] = q[a] + (q[b] - q[a]) * s;
+                pz[m] = z_eps;
+                m += 1;
+            }
+        }
+        let mut xr = [f32::INFINITY, f32::NEG_INFINITY];
+        let mut yr = xr;
+        let mut zr = xr;
+        for k in 0..m {
+            let (x, y) = cam.pixel(poly[k], pz[k]);
+            xr = [xr[0].min(x), xr[1].max(x)];
+            yr = [yr[0].min(y), yr[1].max(y)];
+            zr = [zr[0].min(pz[k]), zr[1].max(pz[k])];
+        }
+        if tip {
+            let top = zr[1].max(z_eps);
+            let all = [
+                f32::NEG_INFINITY,
+                f32::NEG_INFINITY,
+                f32::INFINITY,
+                f32::INFINITY,
+            ];
+            return Some((
+                CellBox {
+                    x: [0, tiles[0] - 1],
+                    y: [0, tiles[1] - 1],
+                    s: [0, depth.hi(top)],
+                },
+                all,
+            ));
+        }
+        if m == 0
+            || xr[1] + pad < 0.0
+            || yr[1] + pad < 0.0
+            || xr[0] - pad > cam.width as f32
+            || yr[0] - pad > cam.height as f32
+        {
+            return None;
+        }
+        Some((
             CellBox {
-                x: [0, tiles[0] - 1],
-                y: [0, tiles[1] - 1],
-                s: [0, depth.hi(top)],
+                x: [
+                    tile_coord((xr[0] - pad) * inv_t, tiles[0]),
+                    tile_coord((xr[1] + pad) * inv_t, tiles[0]),
+                ],
+                y: [
+                    tile_coord((yr[0] - pad) * inv_t, tiles[1]),
+                    tile_coord((yr[1] + pad) * inv_t, tiles[1]),
+                ],
+                s: [depth.lo(zr[0]), depth.hi(zr[1])],
             },
-            all,
-        ));
+            [xr[0] - pad, yr[0] - pad, xr[1] + pad, yr[1] + pad],
+        ))
     }
-    if m == 0
-        || xr[1] + pad < 0.0
-        || yr[1] + pad < 0.0
-        || xr[0] - pad > cam.width as f32
-        || yr[0] - pad > cam.height as f32
-    {
-        return None;
-    }
-    Some((
-        CellBox {
-            x: [
-                tile_coord((xr[0] - pad) * inv_t, tiles[0]),
-                tile_coord((xr[1] + pad) * inv_t, tiles[0]),
-            ],
-            y: [
-                tile_coord((yr[0] - pad) * inv_t, tiles[1]),
-                tile_coord((yr[1] + pad) * inv_t, tiles[1]),
-            ],
-            s: [depth.lo(zr[0]), depth.hi(zr[1])],
-        },
-        [xr[0] - pad, yr[0] - pad, xr[1] + pad, yr[1] + pad],
-    ))
 }
 
 /// Build the grid of light `frame` (section 4.1): its (a, b) rectangle in
