@@ -519,6 +519,7 @@ fn csv(rows: &[Row], t2: &[Row]) -> (Vec<String>, Vec<Vec<String>>) {
     (head, records)
 }
 
+// Report writer: one argument per section of the report.
 #[allow(clippy::too_many_arguments)]
 fn markdown(
     rows: &[Row],

@@ -610,6 +610,7 @@ fn configs(pp: &PgridParams, side: u32) -> Vec<Config> {
 
 /// One scene: load, build, the configurations in rounds, Figure 11 when
 /// `fig11`. None: skipped (with a note).
+// Study driver: the run's settings as the command line gives them.
 #[allow(clippy::too_many_arguments)]
 fn scene(
     spec: &SceneSpec,
@@ -1560,6 +1561,7 @@ mod charts {
 
     /// A bar chart over scenes: `stacks` per scene of (value per series),
     /// stacked when `stacked`, else side by side.
+    // Chart helper: one argument per chart option.
     #[allow(clippy::too_many_arguments)]
     fn bars<DB: DrawingBackend>(
         area: &DrawingArea<DB, Shift>,

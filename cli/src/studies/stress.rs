@@ -429,6 +429,7 @@ fn classes_of(quick: bool, stress: bool) -> Vec<Option<RayClass>> {
         .collect()
 }
 
+// Study driver: the run's settings as the command line gives them.
 #[allow(clippy::too_many_arguments)]
 fn scene(
     s: &SceneIn,
@@ -517,6 +518,7 @@ fn scene(
     Ok(Some((info, out)))
 }
 
+// Study driver: the run's settings as the command line gives them.
 #[allow(clippy::too_many_arguments)]
 fn class_run(
     ctx: &mut OwnedContext,

@@ -269,7 +269,9 @@ const DUMMY: Ray = Ray {
 /// Phase 2: nearest hits of every camera ray into `prim`/`t` (layout
 /// `lay`). `cam` is the perspective grid when `primary` is `Pgrid`, whose
 /// sorting tiles are `lay.side / group` pixels.
-// One argument per frame-buffer pool: `frame::run` lends `FrameBuffers` field by field.
+// A phase of `frame::run`: one argument per `FrameBuffers` pool it reads or
+// writes (lent field by field, so phases can share the frame buffers) plus
+// the threads it runs on.
 #[allow(clippy::too_many_arguments)]
 pub fn primary_pass<'m, T: Tracer + ?Sized, W: Workers>(
     tracer: &T,
@@ -308,7 +310,8 @@ pub fn primary_pass<'m, T: Tracer + ?Sized, W: Workers>(
 
 /// One tracing tile through the perspective grid: its k x k sorting tiles,
 /// each with its own cells (indirect mapping).
-// One argument per frame-buffer pool: `frame::run` lends `FrameBuffers` field by field.
+// Per-item worker of a phase, called from its closure: the phase's
+// inputs plus the item's own slices of the pools.
 #[allow(clippy::too_many_arguments)]
 fn pgrid_tile(
     cam: &CamView<'_>,
@@ -382,7 +385,8 @@ const LANES: [(u32, u32); 4] = [(0, 0), (1, 0), (0, 1), (1, 1)];
 
 /// One tile traced with a packet method (Morton quads, as `render_tiles`)
 /// or ray by ray.
-// One argument per frame-buffer pool: `frame::run` lends `FrameBuffers` field by field.
+// Per-item worker of a phase, called from its closure: the phase's
+// inputs plus the item's own slices of the pools.
 #[allow(clippy::too_many_arguments)]
 fn traced_tile<T: Tracer + ?Sized>(
     tracer: &T,
@@ -483,7 +487,9 @@ pub type TriOf<'a> = &'a (dyn Fn(u32) -> Option<TriVerts> + Sync);
 /// Phase 3a: the shadow ray of every pixel for `light` into `dirs` (x NaN
 /// where there is none: miss, facing away, outside a spot's cone), tiles
 /// as work items; then their count, length range and mean direction.
-// One argument per frame-buffer pool: `frame::run` lends `FrameBuffers` field by field.
+// A phase of `frame::run`: one argument per `FrameBuffers` pool it reads or
+// writes (lent field by field, so phases can share the frame buffers) plus
+// the threads it runs on.
 #[allow(clippy::too_many_arguments)]
 pub fn make_shadow_rays<'m, W: Workers>(
     tri_of: TriOf<'_>,
@@ -667,7 +673,9 @@ pub fn rearrange(
 /// by estimated cost (see below), each writing the occlusion of its rays
 /// to its range of `occ`; then the shadow bit `bit` of
 /// every occluded ray's pixel is set.
-// One argument per frame-buffer pool: `frame::run` lends `FrameBuffers` field by field.
+// A phase of `frame::run`: one argument per `FrameBuffers` pool it reads or
+// writes (lent field by field, so phases can share the frame buffers) plus
+// the threads it runs on.
 #[allow(clippy::too_many_arguments)]
 pub fn light_grid_pass<'m, W: Workers>(
     g: &LightView<'_>,
@@ -770,7 +778,8 @@ pub fn light_grid_pass<'m, W: Workers>(
 }
 
 /// One chunk: its rays as 2x2 rays in sorted order, traced in batches.
-// One argument per frame-buffer pool: `frame::run` lends `FrameBuffers` field by field.
+// Per-item worker of a phase, called from its closure: the phase's
+// inputs plus the item's own slices of the pools.
 #[allow(clippy::too_many_arguments)]
 fn trace_one_chunk(
     g: &LightView<'_>,
@@ -820,7 +829,9 @@ fn trace_one_chunk(
 
 /// Phase 5 with another method: shadow packets from the light per tile of
 /// the layout (split in depth as `render_tiles` does), or ray by ray.
-// One argument per frame-buffer pool: `frame::run` lends `FrameBuffers` field by field.
+// A phase of `frame::run`: one argument per `FrameBuffers` pool it reads or
+// writes (lent field by field, so phases can share the frame buffers) plus
+// the threads it runs on.
 #[allow(clippy::too_many_arguments)]
 pub fn traced_shadow_pass<'m, T: Tracer + ?Sized, W: Workers>(
     tracer: &T,
@@ -899,7 +910,9 @@ pub fn traced_shadow_pass<'m, T: Tracer + ?Sized, W: Workers>(
 /// Phase 6: Lambert shading of every pixel with every light, a light whose
 /// shadow bit is set contributing nothing; RGBA8 into `pixels` (`stride`
 /// bytes per row), bands of rows as work items.
-// One argument per frame-buffer pool: `frame::run` lends `FrameBuffers` field by field.
+// A phase of `frame::run`: one argument per `FrameBuffers` pool it reads or
+// writes (lent field by field, so phases can share the frame buffers) plus
+// the threads it runs on.
 #[allow(clippy::too_many_arguments)]
 pub fn shade<'m, W: Workers>(
     tri_of: TriOf<'_>,
