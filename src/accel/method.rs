@@ -4,6 +4,8 @@
 //! packet driver read it without importing from the trace layer above.
 #![forbid(unsafe_code)]
 
+use crate::geom::frustum::RayKind;
+
 /// Traversal method (C: `sheaf_method`). Codes are stable; later methods get
 /// new numbers.
 #[repr(C)]
@@ -91,10 +93,6 @@ impl Method {
         Method::ALL.iter().copied().find(|m| m.name() == s)
     }
 }
-
-use crate::accel::bvh::{BvhOptions, RayKind};
-use crate::accel::entry::EntrySearch;
-use crate::accel::grid::traverse_cgt::CgtOptions;
 
 /// Acceleration structure families of a context.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -197,5 +195,75 @@ impl TraceParams {
             ));
         }
         Ok(())
+    }
+}
+
+/// Switches of the packet traversal (all on by default), for comparison runs.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct CgtOptions {
+    /// Skip M slices when the frustum's macrocells are all empty (section 2.4).
+    pub macrocells: bool,
+    /// Test each triangle once per packet (section 2.3).
+    pub mailbox: bool,
+    /// SIMD frustum culling with the four corner rays (section 2.3).
+    pub culling: bool,
+}
+
+impl Default for CgtOptions {
+    fn default() -> Self {
+        CgtOptions {
+            macrocells: true,
+            mailbox: true,
+            culling: true,
+        }
+    }
+}
+
+/// Large-packet switches (C: `sheaf_bvh_options`).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct BvhOptions {
+    /// Frustum culling of boxes and triangles (section 4); off for comparison.
+    pub culling: bool,
+    /// What the rays are, which decides the frustum.
+    pub kind: RayKind,
+}
+
+impl Default for BvhOptions {
+    fn default() -> Self {
+        BvhOptions {
+            culling: true,
+            kind: RayKind::Auto,
+        }
+    }
+}
+
+/// Which entry-point search a packet method runs before traversal (C:
+/// `sheaf_entry_search`).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum EntrySearch {
+    /// Packets start at the root ("plain packet tracing").
+    #[default]
+    None = 0,
+    /// MLRTA (Reshetov et al. 2005, as the AEPSA paper's section 2.2).
+    Mlrta = 1,
+    /// AEPSA (the AEPSA paper's sections 3.1-3.3).
+    Aepsa = 2,
+}
+
+impl EntrySearch {
+    pub const ALL: &'static [EntrySearch] =
+        &[EntrySearch::None, EntrySearch::Mlrta, EntrySearch::Aepsa];
+    pub fn name(self) -> &'static str {
+        match self {
+            EntrySearch::None => "none",
+            EntrySearch::Mlrta => "mlrta",
+            EntrySearch::Aepsa => "aepsa",
+        }
+    }
+    pub fn from_name(s: &str) -> Option<EntrySearch> {
+        Self::ALL.iter().copied().find(|e| e.name() == s)
     }
 }

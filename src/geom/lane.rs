@@ -96,7 +96,7 @@ impl Lane for f32 {
     }
     #[inline]
     fn shear_axes(d: [f32; 3]) -> ([usize; 3], [f32; 3]) {
-        crate::geom::triangle::shear1(d)
+        shear1(d)
     }
     const WIDTH: usize = 1;
 }
@@ -167,7 +167,7 @@ impl Lane for F4 {
         let mut k = [[0usize; 3]; 4];
         let mut s = [F4::ZERO; 3];
         for i in 0..4 {
-            let (ki, si) = crate::geom::triangle::shear1([d[0][i], d[1][i], d[2][i]]);
+            let (ki, si) = shear1([d[0][i], d[1][i], d[2][i]]);
             k[i] = ki;
             for a in 0..3 {
                 s[a][i] = si[a];
@@ -183,4 +183,23 @@ impl Lane for F4 {
 #[inline]
 pub fn mask_from_bits(bits: u32) -> M4 {
     M4::new(bits & 1 != 0, bits & 2 != 0, bits & 4 != 0, bits & 8 != 0)
+}
+
+/// Scalar shear of one direction: ([kx, ky, kz], [sx, sy, sz]).
+#[inline]
+pub(crate) fn shear1(d: [f32; 3]) -> ([usize; 3], [f32; 3]) {
+    let a = [d[0].abs(), d[1].abs(), d[2].abs()];
+    let kz = if a[0] >= a[1] && a[0] >= a[2] {
+        0
+    } else if a[1] >= a[2] {
+        1
+    } else {
+        2
+    };
+    let mut kx = (kz + 1) % 3;
+    let mut ky = (kx + 1) % 3;
+    if d[kz] < 0.0 {
+        core::mem::swap(&mut kx, &mut ky);
+    }
+    ([kx, ky, kz], [d[kx] / d[kz], d[ky] / d[kz], 1.0 / d[kz]])
 }

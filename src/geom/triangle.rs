@@ -120,25 +120,6 @@ pub struct Shear<L: Lane> {
     pub s: [L; 3],
 }
 
-/// Scalar shear of one direction: ([kx, ky, kz], [sx, sy, sz]).
-#[inline]
-pub(crate) fn shear1(d: [f32; 3]) -> ([usize; 3], [f32; 3]) {
-    let a = [d[0].abs(), d[1].abs(), d[2].abs()];
-    let kz = if a[0] >= a[1] && a[0] >= a[2] {
-        0
-    } else if a[1] >= a[2] {
-        1
-    } else {
-        2
-    };
-    let mut kx = (kz + 1) % 3;
-    let mut ky = (kx + 1) % 3;
-    if d[kz] < 0.0 {
-        core::mem::swap(&mut kx, &mut ky);
-    }
-    ([kx, ky, kz], [d[kx] / d[kz], d[ky] / d[kz], 1.0 / d[kz]])
-}
-
 impl<L: Lane> Shear<L> {
     #[inline]
     pub fn new(d: [L; 3]) -> Self {

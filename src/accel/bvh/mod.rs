@@ -10,7 +10,8 @@
 //! | `traverse_single.rs` | the single-ray reference: stack traversal, near child first |
 //! | `traverse_simd.rs` | section 2.1: the 2x2 SIMD ray (`Ray4`) traversal, the "2x2 SIMD ray packets" of Table 2 |
 //! | `frustum.rs` | section 4: frusta for primary (4.1), point-light shadow (4.2), reflection and refraction (4.3) packets; plane test (Eq. 1-3) and corner-ray test |
-//! | `traverse_masked.rs` | section 3.1, Figure 2: Masked traversal; the packet setup the three share, with the incoherence fallbacks (section 5.2.1; `trace::fallback`): incoherent packets lane by lane, Masked and Ranged switching to Partition |
+//! | `packet.rs` | what the three large-packet traversals share: the prepared packet (`Packet`, `QuadBox`), the `Walk` each implements, the lane-by-lane coherence fallback (section 5.2.1; `accel::fallback`) |
+//! | `traverse_masked.rs` | section 3.1, Figure 2: Masked traversal, and its switch to Partition when too many box tests find quads dead |
 //! | `traverse_ranged.rs` | section 3.2, Appendix A.1: Ranged traversal (first alive ray `i_a` on the stack, `getFirstHit`/`getLastHit`) |
 //! | `traverse_partition.rs` | section 3.3, Appendix A.2: Partition traversal (index list `I` partitioned in place by `partRays`) |
 //! | `entry.rs` | the BVH as an `accel::entry::EntryTree`: MLRTA/AEPSA entry points (AEPSA paper, section 8), where the three packet traversals can start |
@@ -32,6 +33,7 @@
 
 pub mod build;
 pub mod entry;
+pub mod packet;
 pub mod traverse_masked;
 pub mod traverse_partition;
 pub mod traverse_ranged;
@@ -40,6 +42,7 @@ pub mod traverse_single;
 
 use crate::accel::entry::EntrySearch;
 use crate::accel::mailbox::Mailbox;
+pub use crate::accel::method::BvhOptions;
 use crate::accel::method::{Method, TraceParams};
 use crate::counters::Counters;
 /// The packet frusta (section 4) live in `geom` because the kd-tree
@@ -283,25 +286,6 @@ impl BvhView<'_> {
     pub fn triangle(&self, prim: u32) -> Option<TriVerts> {
         let s = *self.slot_of.get(prim as usize)?;
         self.tris.get(s as usize).copied()
-    }
-}
-
-/// Large-packet switches (C: `sheaf_bvh_options`).
-#[repr(C)]
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct BvhOptions {
-    /// Frustum culling of boxes and triangles (section 4); off for comparison.
-    pub culling: bool,
-    /// What the rays are, which decides the frustum.
-    pub kind: RayKind,
-}
-
-impl Default for BvhOptions {
-    fn default() -> Self {
-        BvhOptions {
-            culling: true,
-            kind: RayKind::Auto,
-        }
     }
 }
 

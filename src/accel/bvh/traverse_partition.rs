@@ -24,7 +24,7 @@
 //! - `walk_from` starts `I` at a given quad: Masked traversal hands its
 //!   stacked subtrees to it when it switches (`traverse_masked::to_partition`).
 
-use super::traverse_masked::{Packet, Walk, dispatch};
+use super::packet::{Packet, Walk, dispatch};
 use super::{BvhNode, BvhOptions, BvhView, MAX_DEPTH, TriangleTest};
 use crate::accel::entry::EntryPoint;
 use crate::counters::Counters;

@@ -26,7 +26,7 @@
 //!   and without it no stress class left Ranged above its single ray's
 //!   time once the coherence test is in (`sheaf bench --stress`).
 
-use super::traverse_masked::{Packet, Walk, dispatch};
+use super::packet::{Packet, Walk, dispatch};
 use super::{BvhNode, BvhOptions, BvhView, MAX_DEPTH, TriangleTest};
 use crate::accel::entry::EntryPoint;
 use crate::counters::Counters;

@@ -25,10 +25,10 @@
 //!   more than a 30 degree cone, or origins far apart) is traced lane by
 //!   lane by `traverse_single`.
 
-use super::{BvhNode, BvhView, MAX_DEPTH, TriangleTest};
+use super::packet::QuadBox;
+use super::{BvhView, MAX_DEPTH, TriangleTest};
 use crate::accel::fallback;
 use crate::counters::Counters;
-use crate::geom::lane::mask_from_bits;
 use crate::geom::{F4, Hit, Hit4, INVALID_ID, M4, Ray4, RayLanes};
 
 /// Nearest hits of the active lanes of `rays` into `hits` (one quad at a
@@ -62,52 +62,6 @@ pub fn occluded<T: TriangleTest>(
     }
 }
 
-/// Per-quad data of the 4-wide slab test (the same arithmetic as
-/// `traverse_single::RayBox`, lane by lane).
-#[derive(Clone, Copy, Debug)]
-pub(crate) struct QuadBox {
-    org: [F4; 3],
-    rcp: [F4; 3],
-    /// Lanes whose direction has the sign bit set on each axis.
-    neg: [M4; 3],
-    tmin: F4,
-}
-
-impl QuadBox {
-    #[inline(always)]
-    pub(crate) fn new(r: &Ray4) -> QuadBox {
-        let one = F4::ONE;
-        QuadBox {
-            org: r.org,
-            rcp: [one / r.dir[0], one / r.dir[1], one / r.dir[2]],
-            neg: [
-                mask_from_bits(r.dir[0].is_negative_bitmask()),
-                mask_from_bits(r.dir[1].is_negative_bitmask()),
-                mask_from_bits(r.dir[2].is_negative_bitmask()),
-            ],
-            tmin: r.tmin,
-        }
-    }
-
-    /// Lanes whose `[tmin, tmax]` overlaps `n`'s box, and their entry t.
-    /// NaN slab terms (zero direction, origin on a plane) never replace the
-    /// running interval, as in the single-ray test.
-    #[inline(always)]
-    pub(crate) fn entry(&self, n: &BvhNode, tmax: F4) -> (M4, F4) {
-        let mut t0 = self.tmin;
-        let mut t1 = tmax;
-        for a in 0..3 {
-            let lo = (F4::splat(n.min[a]) - self.org[a]) * self.rcp[a];
-            let hi = (F4::splat(n.max[a]) - self.org[a]) * self.rcp[a];
-            let near = F4::select(self.neg[a], hi, lo);
-            let far = F4::select(self.neg[a], lo, hi);
-            t0 = F4::select(near.cmpgt(t0), near, t0);
-            t1 = F4::select(far.cmplt(t1), far, t1);
-        }
-        (t0.cmple(t1), t0)
-    }
-}
-
 fn quad<T: TriangleTest, const ANY: bool>(
     b: &BvhView<'_>,
     r: &Ray4,
@@ -132,7 +86,7 @@ fn quad<T: TriangleTest, const ANY: bool>(
         // out of the quad's arithmetic.
         let tiny = fallback::tiny(r, live);
         if tiny.any() {
-            super::traverse_masked::alone::<T, ANY>(
+            super::packet::alone::<T, ANY>(
                 b,
                 core::slice::from_ref(r),
                 &[tiny],
@@ -152,7 +106,7 @@ fn quad<T: TriangleTest, const ANY: bool>(
         ) {
             walk::<T, ANY>(b, r, live, &mut best, ctr);
         } else {
-            super::traverse_masked::alone::<T, ANY>(
+            super::packet::alone::<T, ANY>(
                 b,
                 core::slice::from_ref(r),
                 &[live],
@@ -297,6 +251,7 @@ mod tests {
         self,
         tests::{Rng, test_rays, tris_of},
     };
+    use crate::geom::lane::mask_from_bits;
     use crate::geom::{Mt, Pt, Ray, Scene, TriTest, Wt};
 
     fn same(a: &Hit, b: &Hit) -> bool {

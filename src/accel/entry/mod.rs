@@ -57,38 +57,10 @@
 pub mod aepsa;
 pub mod mlrta;
 
+pub use crate::accel::method::EntrySearch;
 use crate::counters::Counters;
 use crate::geom::frustum::Frustum;
 use crate::geom::{Aabb, F4, M4, Ray4};
-
-/// Which entry-point search a packet method runs before traversal (C:
-/// `sheaf_entry_search`).
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub enum EntrySearch {
-    /// Packets start at the root ("plain packet tracing").
-    #[default]
-    None = 0,
-    /// MLRTA (Reshetov et al. 2005, as the AEPSA paper's section 2.2).
-    Mlrta = 1,
-    /// AEPSA (the AEPSA paper's sections 3.1-3.3).
-    Aepsa = 2,
-}
-
-impl EntrySearch {
-    pub const ALL: &'static [EntrySearch] =
-        &[EntrySearch::None, EntrySearch::Mlrta, EntrySearch::Aepsa];
-    pub fn name(self) -> &'static str {
-        match self {
-            EntrySearch::None => "none",
-            EntrySearch::Mlrta => "mlrta",
-            EntrySearch::Aepsa => "aepsa",
-        }
-    }
-    pub fn from_name(s: &str) -> Option<EntrySearch> {
-        Self::ALL.iter().copied().find(|e| e.name() == s)
-    }
-}
 
 /// Where the rays of a frustum enter a tree: a node, its depth (root 0) and
 /// its box (for a kd-tree the box the splits above it carve out).
@@ -504,10 +476,11 @@ pub(crate) mod tests {
     use super::*;
     use crate::accel::bvh;
     use crate::accel::bvh::build::testutil::Store;
+    use crate::accel::bvh::packet::Walk;
+    use crate::accel::bvh::traverse_masked::Masked;
     use crate::accel::bvh::traverse_masked::tests::{
         Start, built, check_sets_from, lattice, packets, ray_sets,
     };
-    use crate::accel::bvh::traverse_masked::{Masked, Walk};
     use crate::accel::bvh::traverse_partition::Partition;
     use crate::accel::bvh::traverse_ranged::Ranged;
     use crate::accel::bvh::{BvhOptions, BvhView};

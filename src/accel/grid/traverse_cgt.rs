@@ -69,29 +69,8 @@ const SLOPE_EPS: f32 = 1e-4;
 /// Absolute widening of the overlap box, in cells.
 const BOX_EPS: f32 = 1e-3;
 
-/// Switches of the packet traversal (all on by default), for comparison runs.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct CgtOptions {
-    /// Skip M slices when the frustum's macrocells are all empty (section 2.4).
-    pub macrocells: bool,
-    /// Test each triangle once per packet (section 2.3).
-    pub mailbox: bool,
-    /// SIMD frustum culling with the four corner rays (section 2.3).
-    pub culling: bool,
-}
-
-impl Default for CgtOptions {
-    fn default() -> Self {
-        CgtOptions {
-            macrocells: true,
-            mailbox: true,
-            culling: true,
-        }
-    }
-}
-
 pub use crate::accel::mailbox::Mailbox;
+pub use crate::accel::method::CgtOptions;
 
 /// Nearest hits of the active lanes of `rays` (a packet of `rays.len()`
 /// quads, at most 256) into `hits`; inactive lanes are left untouched.

@@ -3,8 +3,8 @@
 use super::*;
 use crate::accel::bvh::BvhView;
 use crate::accel::bvh::build::testutil::Store;
+use crate::accel::bvh::packet::QuadBox;
 use crate::accel::bvh::traverse_masked::tests::{RaySet, built, lattice, packets, ray_sets};
-use crate::accel::bvh::traverse_simd::QuadBox;
 use crate::geom::{Mt, RayLanes, TriangleTest, Wt};
 use glam::Vec3;
 
