@@ -412,6 +412,10 @@ static bool test_exclusive_calls_racing_traces_get_busy(void) {
  * live context), no trace is wrong. */
 static sheaf_context *g_dying;
 static long g_dying_ok, g_dying_busy, g_dying_gone, g_dying_bad;
+/* Set (under the mutex) after the tracer's first successful call, so
+ * destroy races calls in flight however busy the machine is. */
+static pthread_mutex_t g_dying_mu = PTHREAD_MUTEX_INITIALIZER;
+static int g_dying_started;
 
 static void *tracer_until_gone(void *arg) {
     static sheaf_hit hits[BUSY_RAYS];
@@ -421,6 +425,9 @@ static void *tracer_until_gone(void *arg) {
         if (st == SHEAF_STATUS_OK) {
             ++g_dying_ok;
             if (memcmp(hits, g_want_hits, sizeof hits) != 0) ++g_dying_bad;
+            pthread_mutex_lock(&g_dying_mu);
+            g_dying_started = 1;
+            pthread_mutex_unlock(&g_dying_mu);
         } else if (st == SHEAF_STATUS_CONTEXT_BUSY) {
             ++g_dying_busy;
         } else if (st == SHEAF_STATUS_INVALID_ARGUMENT) {
@@ -451,7 +458,16 @@ static bool test_destroy_waits_for_calls_inside(void) {
     make_rays();
     CHECK_OK(sheaf_context_trace(g_dying, SHEAF_METHOD_BVH_SINGLE, g_rays, g_want_hits, BUSY_RAYS));
     CHECK(pthread_create(&th, NULL, tracer_until_gone, NULL) == 0);
-    nanosleep(&pause, NULL);
+    /* Wait for one finished call (a fixed sleep was not enough on a loaded
+     * machine), then destroy while the tracer keeps calling. */
+    for (;;) {
+        int started;
+        pthread_mutex_lock(&g_dying_mu);
+        started = g_dying_started;
+        pthread_mutex_unlock(&g_dying_mu);
+        if (started) break;
+        nanosleep(&pause, NULL);
+    }
     sheaf_context_destroy(g_dying);
     CHECK(pthread_join(th, NULL) == 0);
     printf("    traces racing destroy: %ld OK (all right), then refused as destroyed\n", g_dying_ok);
