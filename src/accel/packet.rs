@@ -155,7 +155,7 @@ pub fn mark_occluded(occ: &[M4], active: &[M4], hits: &mut [Hit4]) {
 
 /// Count the active lanes of a packet answered without traversal (an
 /// entry search found that every ray misses).
-pub fn count_rays(active: &[M4], ctr: &mut Counters) {
+fn count_rays(active: &[M4], ctr: &mut Counters) {
     ctr.rays += active
         .iter()
         .map(|m| m.bitmask().count_ones() as u64)

@@ -408,12 +408,7 @@ impl crate::accel::Accel for KdView<'_> {
                     (if p.bvh.culling { f } else { None }, s)
                 };
                 let e = match start {
-                    Start::Miss if ANY => {
-                        let n = rays.len().min(active.len()).min(hits.len()).min(MAX_QUADS);
-                        packet::count_rays(&active[..n], ctr);
-                        packet::mark_occluded(&[M4::FALSE; MAX_QUADS][..n], &active[..n], hits);
-                        return true;
-                    }
+                    // Every ray misses: for occlusion too, a miss is `Hit::MISS`.
                     Start::Miss => {
                         packet::all_miss(active, hits, ctr);
                         return true;
