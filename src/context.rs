@@ -3,10 +3,10 @@
 #![forbid(unsafe_code)]
 
 use crate::accel::bvh::{self, Bvh, BvhInfo, BvhParams, BvhPools};
-use crate::accel::grid::traverse_cgt::Mailbox;
 use crate::accel::grid::{self, Grid, GridInfo, GridParams, GridPools};
 use crate::accel::kd::{self, KdInfo, KdParams, KdPools, KdTree};
 use crate::accel::pgrid::{self, Pgrid, PgridParams, PgridPools, SceneInfo};
+use crate::accel::slot::{SLOT_SCRATCH_BYTES, Slot};
 use crate::counters::{elapsed_ns, now};
 use crate::error::{Error, Pool, Result};
 use crate::geom::{Hit, Hit4, Ray, Scene};
@@ -123,8 +123,9 @@ impl Layout {
 /// Every pool of a context, as `carve` takes them.
 struct Pools<'a> {
     grid: GridPools<'a>,
-    /// Mailbox stamps, packet counters and claim flags of the thread slots.
-    slots: (&'a mut [u32], &'a mut [u32], &'a mut [u32]),
+    /// Mailbox stamps, packet counters, scratch and claim flags of the
+    /// thread slots.
+    slots: (&'a mut [u32], &'a mut [u32], &'a mut [u8], &'a mut [u32]),
     bvh: BvhPools<'a>,
     kd: KdPools<'a>,
     pg: PgridPools<'a>,
@@ -150,6 +151,7 @@ fn carve<'a>(a: &mut impl Carve<'a>, l: &Layout) -> Result<Pools<'a>> {
         slots: (
             a.take(l.stamps.checked_mul(l.slots).ok_or(big)?)?,
             a.take(l.slots)?,
+            a.take(SLOT_SCRATCH_BYTES.checked_mul(l.slots).ok_or(big)?)?,
             a.take(l.slots)?,
         ),
         bvh: BvhPools {
@@ -242,8 +244,9 @@ pub struct Context<'a> {
     /// camera rays and shadow-ray offset.
     frame_layout: Option<TileLayout>,
     frame_rays: Option<(PrimaryRays, f32)>,
-    /// Per-thread slots, each a mailbox (CGT section 2.3): `max_triangles`
-    /// stamps and a packet counter, claimed by `*_in_slot` calls.
+    /// Per-thread slots, each a mailbox (CGT section 2.3: `max_triangles`
+    /// stamps and a packet counter) and `SLOT_SCRATCH_BYTES` of scratch
+    /// (packets, traversal state), claimed by `*_in_slot` calls.
     slots: Slots<'a>,
     stats: Stats,
     /// The allocation the pools above borrow, for a context made by
@@ -266,13 +269,13 @@ impl<'a> Context<'a> {
         let mut arena = Arena::new(buf)?;
         let Pools {
             grid: pools,
-            slots: (stamps, packets, busy),
+            slots: (stamps, packets, scratch, busy),
             bvh,
             kd,
             pg,
             frame,
         } = carve(&mut arena, &Layout::of(limits)?)?;
-        let slots = Slots::new(stamps, packets, busy);
+        let slots = Slots::new(stamps, packets, scratch, busy);
         debug_assert_eq!(arena.used(), need);
         Ok(Context {
             limits: *limits,
@@ -536,7 +539,7 @@ impl<'a> Context<'a> {
 
     /// The built structures and one mailbox per thread slot, for tracing
     /// and rendering from several threads (each thread takes one mailbox).
-    pub fn parts(&mut self) -> Result<(SceneTracer<'_>, impl Iterator<Item = Mailbox<'_>>)> {
+    pub fn parts(&mut self) -> Result<(SceneTracer<'_>, impl Iterator<Item = Slot<'_>>)> {
         let t = SceneTracer {
             grid: self.grid.view(),
             bvh: self.bvh.view(),
@@ -547,9 +550,9 @@ impl<'a> Context<'a> {
             single: self.scene_tracer()?.single,
             ..t
         };
-        // One mailbox per thread slot; without grid pools (no stamps) the
-        // mailboxes are empty, which only the grid's CGT would use.
-        let mbs = self.slots.all().map(|(st, p)| Mailbox::new(st, p));
+        // One mailbox and scratch per thread slot; without grid pools (no
+        // stamps) the mailboxes are empty, which only the grid's CGT uses.
+        let mbs = self.slots.all().map(Slot::of);
         Ok((t, mbs))
     }
 
@@ -641,12 +644,12 @@ impl<'a> Context<'a> {
         let ctr = {
             let (tr, mut mbs) = self.parts()?;
             let tr = tr.with_single(p.method)?;
-            let mut mb = mbs.next().ok_or(Error::Capacity {
+            let mut slot = mbs.next().ok_or(Error::Capacity {
                 pool: Pool::Threads,
                 needed: 1,
                 available: 0,
             })?;
-            batch_on(&tr, &mut mb, p, rays.len(), &|i| rays[i], out, any)
+            batch_on(&tr, &mut slot, p, rays.len(), &|i| rays[i], out, any)
         };
         self.stats.trace_ns = elapsed_ns(t);
         self.stats.counters = ctr;
@@ -708,20 +711,39 @@ impl<'a> Context<'a> {
         out: &mut dyn FnMut(usize, &Hit4, usize),
         any: bool,
     ) -> Result<Counters> {
-        p.validate()?;
-        let tr = self.scene_tracer()?.with_single(p.method)?;
-        self.with_slot(slot, |mb| {
-            batch_on(&tr, mb, p, rays.len(), &|i| rays[i], out, any)
-        })
+        self.trace_each(Some(slot), p, rays.len(), &|i| rays[i], out, any)
     }
 
-    /// Run `f` with thread slot `slot`'s mailbox, claimed for the call
-    /// (`Error::SlotBusy` while another call holds it; `Capacity(Threads)`
-    /// when `slot >= max_threads`).
-    pub fn with_slot<R>(&self, slot: u32, f: impl FnOnce(&mut Mailbox<'_>) -> R) -> Result<R> {
-        let mut guard = self.slots.claim(slot)?;
-        let (st, pk) = guard.parts();
-        Ok(f(&mut Mailbox::new(st, pk)))
+    /// Trace (`any`: test occlusion of) `count` rays, ray `i` being
+    /// `read(i)`, from any thread sharing `&self`, handing each result to
+    /// `out(i, hits, lane)`: packets as `trace_with` forms them, on thread
+    /// slot `slot` (see `with_slot`; `None` takes the highest free slot).
+    /// The calls of the C ABI come here. Does not update `stats`.
+    pub fn trace_each(
+        &self,
+        slot: Option<u32>,
+        p: &TraceParams,
+        count: usize,
+        read: &dyn Fn(usize) -> Ray,
+        out: &mut dyn FnMut(usize, &Hit4, usize),
+        any: bool,
+    ) -> Result<Counters> {
+        p.validate()?;
+        let tr = self.scene_tracer()?.with_single(p.method)?;
+        self.with_slot(slot, |slot| batch_on(&tr, slot, p, count, read, out, any))
+    }
+
+    /// Run `f` with thread slot `slot` (its mailbox and scratch), claimed
+    /// for the call (`Error::SlotBusy` while another call holds it;
+    /// `Capacity(Threads)` when `slot >= max_threads`). `None`: the highest
+    /// free slot (`Capacity(Threads)` while every slot is held), which a
+    /// concurrent call naming that slot then finds busy.
+    pub fn with_slot<R>(&self, slot: Option<u32>, f: impl FnOnce(&mut Slot<'_>) -> R) -> Result<R> {
+        let mut guard = match slot {
+            Some(s) => self.slots.claim(s)?,
+            None => self.slots.claim_free()?,
+        };
+        Ok(f(&mut Slot::of(guard.parts())))
     }
 
     /// Check a frame against the limits and the framebuffer size.
@@ -814,7 +836,7 @@ impl<'a> Context<'a> {
             let (tr, mut mbs) = self.parts()?;
             tr.with_single(shadow.method)?;
             let tr = tr.with_single(primary.method)?;
-            let mut mb = mbs.next().ok_or(Error::Capacity {
+            let mut slot = mbs.next().ok_or(Error::Capacity {
                 pool: Pool::Threads,
                 needed: 1,
                 available: 0,
@@ -826,7 +848,7 @@ impl<'a> Context<'a> {
                 pixels,
                 stride,
             };
-            shot.render(&tr, primary, shadow, band, &mut mb, &mut ctr);
+            shot.render(&tr, primary, shadow, band, &mut slot, &mut ctr);
             crate::fault_point!(Render);
         }
         self.stats.trace_ns = elapsed_ns(t);
@@ -856,9 +878,9 @@ impl<'a> Context<'a> {
         tr.with_single(shadow.method)?;
         let tr = tr.with_single(primary.method)?;
         let shot = Shot { frame, rays: &rays };
-        self.with_slot(slot, |mb| {
+        self.with_slot(Some(slot), |slot| {
             let mut ctr = Counters::default();
-            shot.render(&tr, primary, shadow, band, mb, &mut ctr);
+            shot.render(&tr, primary, shadow, band, slot, &mut ctr);
             ctr
         })
     }
@@ -886,7 +908,7 @@ impl<'a> Context<'a> {
             tr.with_single(job.shadow.method)?;
             tr.with_single(job.secondary.method)?;
             let tr = tr.with_single(job.primary.method)?;
-            let mut mb = mbs.next().ok_or(Error::Capacity {
+            let mut slot = mbs.next().ok_or(Error::Capacity {
                 pool: Pool::Threads,
                 needed: 1,
                 available: 0,
@@ -912,7 +934,7 @@ impl<'a> Context<'a> {
                         },
                         ..*job
                     };
-                    whitted::render_whitted_tiles(&tr, &job, &rays, band, &mut mb, &mut ctr)
+                    whitted::render_whitted_tiles(&tr, &job, &rays, band, &mut slot, &mut ctr)
                 }
             }
         }
@@ -945,7 +967,7 @@ impl Shot<'_> {
         primary: &TraceParams,
         shadow: &TraceParams,
         band: Band<'_>,
-        mb: &mut Mailbox<'_>,
+        slot: &mut Slot<'_>,
         ctr: &mut Counters,
     ) {
         let (frame, rays) = (self.frame, self.rays);
@@ -959,7 +981,7 @@ impl Shot<'_> {
                     },
                     shadow: *shadow,
                 };
-                render::render_tiles(tr, &params, frame, rays, band, mb, ctr);
+                render::render_tiles(tr, &params, frame, rays, band, slot, ctr);
             }
         }
     }

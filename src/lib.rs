@@ -73,6 +73,7 @@ pub use accel::grid::{GridInfo, GridParams};
 pub use accel::kd::{KdInfo, KdParams};
 pub use accel::mailbox::Mailbox;
 pub use accel::pgrid::PgridParams;
+pub use accel::slot::Slot;
 #[cfg(feature = "std")]
 pub use context::OwnedContext;
 pub use context::{Context, Stats, required_bytes};

@@ -1430,8 +1430,9 @@ fn have_valgrind() -> bool {
 /// Every C test program under valgrind's memcheck (uninitialised reads,
 /// invalid accesses, leaks: `--error-exitcode=99 --leak-check=full`), static
 /// and shared, except `test_threads.c`: valgrind runs threads one at a time,
-/// which takes that program about a minute per link (it runs under ASan
-/// above). Skipped with a message when valgrind is not installed (CI
+/// which takes that program about a minute per link, and `test_stack.c`,
+/// which paints the stack below the stack pointer to measure it (both run
+/// under ASan above). Skipped with a message when valgrind is not installed (CI
 /// installs it).
 #[test]
 fn c_tests_under_valgrind() {
@@ -1439,7 +1440,11 @@ fn c_tests_under_valgrind() {
         return;
     }
     check_layouts();
-    for src in c_programs().into_iter().filter(|s| s != "test_threads.c") {
+    let skip = ["test_threads.c", "test_stack.c"];
+    for src in c_programs()
+        .into_iter()
+        .filter(|s| !skip.contains(&s.as_str()))
+    {
         for link in [Link::Static, Link::Shared] {
             let exe =
                 compile_generated(&root().join("ffi-tests").join(&src), link, &[], "valgrind");

@@ -72,7 +72,7 @@ impl Run<'_> {
             if w % n != 0 || h % n != 0 {
                 continue;
             }
-            for (mc, mb, cull) in [
+            for (mc, slot, cull) in [
                 (true, true, true),
                 (false, true, true),
                 (true, false, true),
@@ -81,7 +81,7 @@ impl Run<'_> {
             ] {
                 let opt = CgtOptions {
                     macrocells: mc,
-                    mailbox: mb,
+                    mailbox: slot,
                     culling: cull,
                 };
                 let mut mailbox = Mailbox::new(&mut self.stamps, &mut self.packet);
@@ -292,7 +292,7 @@ fn adversarial_packets_stay_exact() {
         v: F4::ZERO,
     };
     let mut hits = vec![sentinel; quads.len()];
-    let mut mb = Mailbox::new(&mut run.stamps, &mut run.packet);
+    let mut slot = Mailbox::new(&mut run.stamps, &mut run.packet);
     let all = vec![M4::TRUE; quads.len()];
     traverse_cgt::intersect::<Mt>(
         &g,
@@ -300,7 +300,7 @@ fn adversarial_packets_stay_exact() {
         &all,
         &mut hits,
         &CgtOptions::default(),
-        &mut mb,
+        &mut slot,
         &mut Counters::default(),
     );
     assert!(
@@ -318,14 +318,14 @@ fn adversarial_packets_stay_exact() {
         v: F4::ZERO,
     };
     let mut hits = vec![sentinel; quads.len()];
-    let mut mb = Mailbox::new(&mut run.stamps, &mut run.packet);
+    let mut slot = Mailbox::new(&mut run.stamps, &mut run.packet);
     traverse_cgt::intersect::<Mt>(
         &g,
         &quads,
         &active,
         &mut hits,
         &CgtOptions::default(),
-        &mut mb,
+        &mut slot,
         &mut Counters::default(),
     );
     for h in &hits {

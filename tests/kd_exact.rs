@@ -12,8 +12,8 @@ mod common;
 use common::{TestScene, builtin_scenes, obj_scenes, par_map, view_rays};
 use glam::Vec3;
 use sheaf::accel::bvh::BvhParams;
-use sheaf::accel::grid::traverse_cgt::Mailbox;
 use sheaf::accel::kd::KdParams;
+use sheaf::accel::slot::SlotBuf;
 use sheaf::trace::EntrySearch;
 
 use sheaf::geom::{Hit4, M4, Ray4};
@@ -298,8 +298,8 @@ fn occluded_packets_write_only_active_lanes() {
         u: 0.0,
         v: 0.0,
     };
-    let (mut stamps, mut stamp) = ([0u32; 0], 0u32);
-    let mut mb = Mailbox::new(&mut stamps, &mut stamp);
+    let mut own = SlotBuf::new(0);
+    let mut slot = own.slot();
     let mut ctr = Counters::default();
     for (m, e) in [
         (Method::KdSimd, EntrySearch::None),
@@ -318,7 +318,7 @@ fn occluded_packets_write_only_active_lanes() {
                 h.set_lane(i, sentinel);
             }
         }
-        tr.occluded_packet(&p, &quads, &active, &mut hits, &mut mb, &mut ctr);
+        tr.occluded_packet(&p, &quads, &active, &mut hits, &mut slot, &mut ctr);
         for (q, (r, a)) in quads.iter().zip(&active).enumerate() {
             for i in 0..4 {
                 let got = hits[q].lane(i);

@@ -66,7 +66,7 @@ fn render(ctx: &mut OwnedContext, job: &WhittedJob<'_>, packets: bool, band: u32
     let rays = ctx.check_frame(job.frame, px.len(), stride).unwrap();
     let (tr, mut mbs) = ctx.parts().unwrap();
     let tr = tr.with_single(job.primary.method).unwrap();
-    let mut mb = mbs.next().unwrap();
+    let mut slot = mbs.next().unwrap();
     let mut ctr = Counters::default();
     if packets {
         let rows = (band * job.primary.packet) as usize;
@@ -79,7 +79,7 @@ fn render(ctx: &mut OwnedContext, job: &WhittedJob<'_>, packets: bool, band: u32
                 pixels: chunk,
                 stride,
             };
-            render_whitted_tiles(&tr, job, &rays, band, &mut mb, &mut ctr);
+            render_whitted_tiles(&tr, job, &rays, band, &mut slot, &mut ctr);
         }
     } else {
         let band = Band {

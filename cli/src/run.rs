@@ -4,7 +4,9 @@
 use anyhow::{Context as _, Result, anyhow, bail};
 use rayon::prelude::*;
 use rayon::{ThreadPool, ThreadPoolBuilder};
+use sheaf::Slot;
 use sheaf::accel::grid::traverse_cgt::Mailbox;
+use sheaf::mem::Scratch;
 use sheaf::render::whitted::{WhittedJob, render_whitted_rows, render_whitted_tiles};
 use sheaf::render::{Band, PrimaryRays, TileParams, Tracer, render_rows, render_tiles};
 use sheaf::{
@@ -222,17 +224,17 @@ pub fn render_frame(
         .check_frame(frame, pixels.len(), stride)
         .context("frame")?;
     let start = Instant::now();
-    let (tracer, mailboxes) = ctx.parts()?;
+    let (tracer, slots) = ctx.parts()?;
     tracer.with_single(shadow.method)?;
     let tracer = tracer.with_single(primary.method)?;
-    let mailboxes: Vec<Mailbox<'_>> = mailboxes.take(threads as usize).collect();
+    let slots: Vec<Slot<'_>> = slots.take(threads as usize).collect();
     let whole = Band {
         y0: 0,
         y1: frame.height,
         pixels,
         stride,
     };
-    let ctr = render_bands(&tracer, primary, shadow, frame, &rays, whole, mailboxes);
+    let ctr = render_bands(&tracer, primary, shadow, frame, &rays, whole, slots);
     ctx.record(ctr, start.elapsed().as_nanos() as u64);
     Ok(ctr)
 }
@@ -246,7 +248,7 @@ fn render_bands<T: Tracer>(
     frame: &Frame,
     rays: &PrimaryRays,
     whole: Band<'_>,
-    mailboxes: Vec<Mailbox<'_>>,
+    slots: Vec<Slot<'_>>,
 ) -> Counters {
     let side = tile_side(primary).max(tile_side(shadow));
     let params = TileParams {
@@ -262,8 +264,8 @@ fn render_bands<T: Tracer>(
         frame.height,
         whole.pixels,
         stride,
-        mailboxes,
-        |y0, y1, pixels, mb, ctr| {
+        slots,
+        |y0, y1, pixels, slot, ctr| {
             let band = Band {
                 y0,
                 y1,
@@ -271,7 +273,7 @@ fn render_bands<T: Tracer>(
                 stride,
             };
             if side > 0 {
-                render_tiles(tracer, &params, frame, rays, band, mb, ctr);
+                render_tiles(tracer, &params, frame, rays, band, slot, ctr);
             } else {
                 render_rows(tracer, frame, rays, band, ctr);
             }
@@ -288,8 +290,8 @@ fn bands(
     height: u32,
     pixels: &mut [u8],
     stride: usize,
-    mailboxes: Vec<Mailbox<'_>>,
-    work: impl Fn(u32, u32, &mut [u8], &mut Mailbox<'_>, &mut Counters) + Sync,
+    slots: Vec<Slot<'_>>,
+    work: impl Fn(u32, u32, &mut [u8], &mut Slot<'_>, &mut Counters) + Sync,
 ) -> Counters {
     let side = side as usize;
     let band_rows = if side > 0 {
@@ -299,10 +301,10 @@ fn bands(
     };
     let pixels = &mut pixels[..height as usize * stride];
     let bands = pixels.par_chunks_mut(band_rows * stride).enumerate();
-    par_mailboxes(mailboxes, bands, |(i, band), mb, ctr| {
+    par_mailboxes(slots, bands, |(i, band), slot, ctr| {
         let y0 = (i * band_rows) as u32;
         let y1 = (y0 + band_rows as u32).min(height);
-        work(y0, y1, band, mb, ctr);
+        work(y0, y1, band, slot, ctr);
     })
 }
 
@@ -332,35 +334,35 @@ pub fn pool(threads: usize) -> Arc<ThreadPool> {
     p
 }
 
-/// Mailboxes (owned, or borrowed: `M` is `Mailbox` or `&mut Mailbox`) lent
+/// Thread slots (owned, or borrowed: `M` is `Slot` or `&mut Slot`) lent
 /// to the jobs of a pool, one at a time each: a job takes one when it
 /// starts folding its items and gives it back when it ends. A pool of as
-/// many threads as mailboxes never runs more jobs at once, and a job never
+/// many threads as slots never runs more jobs at once, and a job never
 /// waits for another inside (the work never calls into rayon), so one is
 /// always free.
-struct Slots<M>(Mutex<Vec<M>>);
+struct Lender<M>(Mutex<Vec<M>>);
 
-/// A mailbox lent by `Slots`, given back on drop.
-struct Slot<'s, M> {
-    slots: &'s Slots<M>,
+/// A slot lent by `Lender`, given back on drop.
+struct Lent<'s, M> {
+    slots: &'s Lender<M>,
     mailbox: Option<M>,
 }
 
-impl<M> Slots<M> {
-    fn take(&self) -> Slot<'_, M> {
+impl<M> Lender<M> {
+    fn take(&self) -> Lent<'_, M> {
         let mailbox = self.0.lock().unwrap_or_else(|p| p.into_inner()).pop();
         assert!(mailbox.is_some(), "a mailbox per pool thread");
-        Slot {
+        Lent {
             slots: self,
             mailbox,
         }
     }
 }
 
-impl<M> Slot<'_, M> {
-    fn get<'m>(&mut self) -> &mut Mailbox<'m>
+impl<M> Lent<'_, M> {
+    fn get<'m>(&mut self) -> &mut Slot<'m>
     where
-        M: BorrowMut<Mailbox<'m>>,
+        M: BorrowMut<Slot<'m>>,
     {
         self.mailbox
             .as_mut()
@@ -369,7 +371,7 @@ impl<M> Slot<'_, M> {
     }
 }
 
-impl<M> Drop for Slot<'_, M> {
+impl<M> Drop for Lent<'_, M> {
     fn drop(&mut self) {
         if let Some(m) = self.mailbox.take() {
             self.slots
@@ -384,15 +386,15 @@ impl<M> Drop for Slot<'_, M> {
 /// Run `work(item, mailbox, counters)` over `items` on a pool of one thread
 /// per mailbox (at least one), each job with a mailbox of its own; returns
 /// the summed counters.
-pub fn par_mailboxes<'m, M, I, F>(mailboxes: Vec<M>, items: I, work: F) -> Counters
+pub fn par_mailboxes<'m, M, I, F>(slots: Vec<M>, items: I, work: F) -> Counters
 where
-    M: BorrowMut<Mailbox<'m>> + Send,
+    M: BorrowMut<Slot<'m>> + Send,
     I: ParallelIterator,
-    F: Fn(I::Item, &mut Mailbox<'m>, &mut Counters) + Sync,
+    F: Fn(I::Item, &mut Slot<'m>, &mut Counters) + Sync,
 {
-    assert!(!mailboxes.is_empty(), "at least one thread slot");
-    let pool = pool(mailboxes.len());
-    let slots = Slots(Mutex::new(mailboxes));
+    assert!(!slots.is_empty(), "at least one thread slot");
+    let pool = pool(slots.len());
+    let slots = Lender(Mutex::new(slots));
     pool.install(|| {
         items
             .fold(
@@ -425,11 +427,11 @@ pub fn render_whitted_frame(
         .check_frame(frame, pixels.len(), stride)
         .context("frame")?;
     let start = Instant::now();
-    let (tracer, mailboxes) = ctx.parts()?;
+    let (tracer, slots) = ctx.parts()?;
     tracer.with_single(job.shadow.method)?;
     tracer.with_single(job.secondary.method)?;
     let tracer = tracer.with_single(job.primary.method)?;
-    let mailboxes: Vec<Mailbox<'_>> = mailboxes.take(threads as usize).collect();
+    let slots: Vec<Slot<'_>> = slots.take(threads as usize).collect();
     let side = tile_side(&job.primary)
         .max(tile_side(&job.shadow))
         .max(tile_side(&job.secondary));
@@ -445,8 +447,8 @@ pub fn render_whitted_frame(
         frame.height,
         pixels,
         stride,
-        mailboxes,
-        |y0, y1, pixels, mb, ctr| {
+        slots,
+        |y0, y1, pixels, slot, ctr| {
             let band = Band {
                 y0,
                 y1,
@@ -454,7 +456,7 @@ pub fn render_whitted_frame(
                 stride,
             };
             if side > 0 {
-                render_whitted_tiles(&tracer, &tiled, &rays, band, mb, ctr);
+                render_whitted_tiles(&tracer, &tiled, &rays, band, slot, ctr);
             } else {
                 render_whitted_rows(&tracer, job, &rays, band, ctr);
             }
@@ -606,23 +608,23 @@ impl Threads {
 impl sheaf::render::deferred::Workers for Threads {
     fn run<'m, I, F>(
         &mut self,
-        mailboxes: &mut dyn Iterator<Item = Mailbox<'m>>,
+        slots: &mut dyn Iterator<Item = Slot<'m>>,
         items: &mut (dyn Iterator<Item = I> + Send),
         work: &F,
     ) -> Counters
     where
         I: Send,
-        F: Fn(I, &mut Mailbox<'_>, &mut Counters) + Sync,
+        F: Fn(I, &mut Slot<'_>, &mut Counters) + Sync,
     {
-        let mut mbs: Vec<Mailbox<'_>> = mailboxes.take(self.threads).collect();
+        let mut mbs: Vec<Slot<'_>> = slots.take(self.threads).collect();
         // A context without mailbox slots still runs (as `OnCaller` does).
         let (mut none, mut p) = ([0u32; 0], 0u32);
         if mbs.is_empty() {
-            mbs.push(Mailbox::new(&mut none, &mut p));
+            mbs.push(Slot::new(Mailbox::new(&mut none, &mut p), Scratch::empty()));
         }
         let threads = mbs.len() as u32;
         let pool = pool(mbs.len());
-        let slots = Slots(Mutex::new(mbs));
+        let slots = Lender(Mutex::new(mbs));
         let keep = self.keep_items;
         /// What the jobs sum: counters, item times, (index, ns) per item.
         type Acc = (Counters, ItemTimes, Vec<(usize, u64)>);
@@ -779,9 +781,12 @@ mod tests {
         let mut stamps = [0u32; 8];
         let mut packets = [0u32; 3];
         let mut st = stamps.chunks_mut(2);
-        let mut mbs = packets
-            .iter_mut()
-            .map(move |p| Mailbox::new(st.next().unwrap_or(&mut []), p));
+        let mut mbs = packets.iter_mut().map(move |p| {
+            Slot::new(
+                Mailbox::new(st.next().unwrap_or(&mut []), p),
+                Scratch::empty(),
+            )
+        });
         let mut w = Threads::new(2);
         w.keep_items = true;
         let mut items = 0..100u64;

@@ -21,6 +21,14 @@ impl<'m> Mailbox<'m> {
     pub fn new(stamps: &'m mut [u32], packet: &'m mut u32) -> Self {
         Mailbox { stamps, packet }
     }
+    /// The same mailbox, borrowed for a shorter time.
+    #[inline]
+    pub fn reborrow(&mut self) -> Mailbox<'_> {
+        Mailbox {
+            stamps: self.stamps,
+            packet: self.packet,
+        }
+    }
     /// Whether there is a stamp for every one of `n` triangles (a context
     /// without grid or perspective grid pools has empty mailboxes).
     #[inline]

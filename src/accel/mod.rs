@@ -29,11 +29,12 @@ pub mod mailbox;
 pub mod method;
 pub mod packet;
 pub mod pgrid;
+pub mod slot;
 
 use crate::counters::Counters;
 use crate::geom::{Aabb, Hit, Hit4, M4, Ray, Ray4, TriTest, TriVerts, TriangleTest};
-use mailbox::Mailbox;
 use method::TraceParams;
+use slot::Slot;
 
 /// The family contract: a built structure, shared across threads, as the
 /// trace layer sees it. Every query is generic over the triangle test the
@@ -67,7 +68,7 @@ pub trait Accel: Sync {
         rays: &[Ray4],
         active: &[M4],
         hits: &mut [Hit4],
-        mb: &mut Mailbox<'_>,
+        slot: &mut Slot<'_>,
         ctr: &mut Counters,
     ) -> bool;
 }

@@ -23,14 +23,18 @@
 use super::Accel;
 use super::entry::{self, EntryPoint, EntrySearch, EntryTree};
 use super::fallback;
-use super::mailbox::Mailbox;
 use super::method::TraceParams;
+use super::slot::Slot;
 use crate::counters::Counters;
 use crate::geom::frustum::Frustum;
 use crate::geom::{Aabb, Hit, Hit4, M4, Ray, Ray4, TriangleTest};
 
 /// Quads in the largest packet: 32 x 32 rays.
 pub const MAX_QUADS: usize = 256;
+
+/// Slot scratch the driver holds while a family traces (the tiny-lane
+/// split, the entry search's live lanes).
+pub const SCRATCH: usize = 0;
 
 /// Trace the active lanes of `rays` (one packet, or consecutive packets)
 /// with `p.method` on `a`: nearest hits, or with `ANY` occlusion (some hit
@@ -42,15 +46,15 @@ pub fn trace<A: Accel, T: TriangleTest, const ANY: bool>(
     rays: &[Ray4],
     active: &[M4],
     hits: &mut [Hit4],
-    mb: &mut Mailbox<'_>,
+    slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
     let n = rays.len().min(active.len()).min(hits.len());
     let (rays, active, hits) = (&rays[..n], &active[..n], &mut hits[..n]);
     if p.method.is_packet() && any_tiny(rays, active) {
-        return quieted::<A, T, ANY>(a, p, rays, active, hits, mb, ctr);
+        return quieted::<A, T, ANY>(a, p, rays, active, hits, slot, ctr);
     }
-    if !a.packet::<T, ANY>(p, rays, active, hits, mb, ctr) {
+    if !a.packet::<T, ANY>(p, rays, active, hits, slot, ctr) {
         lane_by_lane(rays, active, hits, |r, c| single::<A, T, ANY>(a, r, c), ctr)
     }
 }
@@ -75,7 +79,7 @@ fn quieted<A: Accel, T: TriangleTest, const ANY: bool>(
     rays: &[Ray4],
     active: &[M4],
     hits: &mut [Hit4],
-    mb: &mut Mailbox<'_>,
+    slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
     for s in (0..rays.len()).step_by(MAX_QUADS) {
@@ -83,7 +87,7 @@ fn quieted<A: Accel, T: TriangleTest, const ANY: bool>(
         let (r, h) = (&rays[s..e], &mut hits[s..e]);
         let split = fallback::split_tiny::<MAX_QUADS>(r, &active[s..e]);
         let (qr, qa) = (&split.rays[..e - s], &split.active[..e - s]);
-        if !a.packet::<T, ANY>(p, qr, qa, h, mb, ctr) {
+        if !a.packet::<T, ANY>(p, qr, qa, h, slot, ctr) {
             lane_by_lane(qr, qa, h, |r, c| single::<A, T, ANY>(a, r, c), ctr);
         }
         fallback::each_lane(&split.tiny[..e - s], |q, i| {

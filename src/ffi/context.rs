@@ -23,9 +23,8 @@ use crate::context::{Context, required_bytes};
 use crate::error::{Error, Result};
 use crate::geom::{Ray, Scene};
 use crate::mem::Limits;
-use crate::render::{Band, Tracer};
-use crate::trace::batch_on;
-use crate::trace::{Counters, TraceParams};
+use crate::render::Band;
+use crate::trace::TraceParams;
 use core::cell::UnsafeCell;
 use core::ffi::{c_char, c_void};
 use core::fmt::Write as _;
@@ -708,10 +707,9 @@ fn occluded_impl(
 }
 
 /// Trace (or, `any`, test occlusion of) `count` rays read from C, handing
-/// each result to `out(i, hit)`. With a thread slot the core's packets use
-/// its mailbox; without one (trace and occluded share one context across
-/// threads with no slot) single-ray methods go ray by ray and packets run
-/// without a mailbox. The packets are the Rust API's (`batch_on`).
+/// each result to `out(i, hit)`, through the Rust API
+/// (`Context::trace_each`): on thread slot `slot`, or without one on the
+/// highest free slot.
 fn trace_rays(
     h: &Handle,
     slot: Option<u32>,
@@ -721,46 +719,12 @@ fn trace_rays(
     any: bool,
     out: &mut dyn FnMut(usize, crate::geom::Hit),
 ) -> Result<()> {
-    p.validate()?;
-    let tr = h.ctx.tracer()?.with_single(p.method)?;
-    // SAFETY: i < count for every call (batch_on and the loop below read
-    // rays 0..count only); the caller checked `rays` spans count readable
-    // elements (unaligned allowed).
+    // SAFETY: i < count for every call (trace_each reads rays 0..count
+    // only); the caller checked `rays` spans count readable elements
+    // (unaligned allowed).
     let read = |i: usize| Ray::from(unsafe { rays.add(i).read_unaligned() });
     let mut emit = |i: usize, h4: &crate::geom::Hit4, lane: usize| out(i, h4.lane(lane));
-    if let Some(slot) = slot {
-        h.ctx.with_slot(slot, |mb| {
-            batch_on(&tr, mb, p, count, &read, &mut emit, any)
-        })?;
-        return Ok(());
-    }
-    let mut ctr = Counters::default();
-    if p.tile_side() == 0 {
-        for i in 0..count {
-            let ray = read(i);
-            let hit = if any {
-                if tr.occluded(&ray, &mut ctr) {
-                    crate::geom::Hit::OCCLUDED
-                } else {
-                    crate::geom::Hit::MISS
-                }
-            } else {
-                tr.intersect(&ray, &mut ctr)
-            };
-            out(i, hit);
-        }
-    } else {
-        let p = TraceParams {
-            cgt: crate::trace::CgtOptions {
-                mailbox: false,
-                ..p.cgt
-            },
-            ..*p
-        };
-        let (mut stamps, mut packet) = ([0u32; 0], 0u32);
-        let mut mb = crate::accel::grid::traverse_cgt::Mailbox::new(&mut stamps, &mut packet);
-        batch_on(&tr, &mut mb, &p, count, &read, &mut emit, any);
-    }
+    h.ctx.trace_each(slot, p, count, &read, &mut emit, any)?;
     Ok(())
 }
 

@@ -3,7 +3,7 @@
 //!
 //! Nothing in sheaf allocates after a context is created: the pools carved
 //! here are all the memory that build, trace and render ever touch.
-#![allow(unsafe_code)] // only owned.rs, slots.rs and hg.rs, each block with a SAFETY comment
+#![allow(unsafe_code)] // only owned.rs, slots.rs, scratch.rs and hg.rs, each block with a SAFETY comment
 
 pub mod arena;
 #[doc(hidden)]
@@ -11,8 +11,10 @@ pub mod hg;
 pub mod limits;
 #[cfg(feature = "std")]
 pub mod owned;
+pub mod scratch;
 pub mod slots;
 
 pub use arena::{ARENA_ALIGN, Arena, Carve, Sizer, pool_bytes, pool_bytes_checked};
 pub use limits::Limits;
-pub use slots::{SlotGuard, Slots};
+pub use scratch::Scratch;
+pub use slots::{SlotGuard, SlotParts, Slots};

@@ -1,5 +1,6 @@
 //! Per-thread slots: each slot owns one mailbox (CGT paper section 2.3: a
-//! stamp per triangle and a packet counter) and a claim flag, so threads that
+//! stamp per triangle and a packet counter), its scratch bytes (packets,
+//! traversal state: `mem::scratch`) and a claim flag, so threads that
 //! share a built context (`&Context`, or a `const sheaf_context *` in C) can
 //! each trace with their own mailbox without locks.
 //!
@@ -18,19 +19,22 @@ use crate::error::{Error, Pool, Result};
 const _: () = assert!(core::mem::align_of::<AtomicU32>() == core::mem::align_of::<u32>());
 
 /// The slots' memory, carved from the context's arena: `count` runs of
-/// `per_slot` stamps, `count` packet counters and `count` claim flags.
+/// `per_slot` stamps, `count` packet counters, `count` runs of
+/// `scratch_per_slot` scratch bytes and `count` claim flags.
 pub struct Slots<'a> {
     stamps: NonNull<u32>,
     per_slot: usize,
     packets: NonNull<u32>,
+    scratch: NonNull<u8>,
+    scratch_per_slot: usize,
     busy: NonNull<u32>,
     count: usize,
     _pools: PhantomData<&'a mut [u32]>,
 }
 
-// SAFETY: the pools are plain u32s owned by this value for 'a. Shared access
+// SAFETY: the pools are plain u32s and bytes owned by this value for 'a. Shared access
 // (`&Slots` on several threads) touches only the claim flags, atomically,
-// and a slot's stamps and counter only while its flag is held (`claim`), so
+// and a slot's stamps, counter and scratch only while its flag is held (`claim`), so
 // no two threads ever reach the same non-atomic memory.
 unsafe impl Send for Slots<'_> {}
 // SAFETY: as for Send.
@@ -38,17 +42,31 @@ unsafe impl Sync for Slots<'_> {}
 
 impl<'a> Slots<'a> {
     /// Slots over `stamps` (`per_slot` stamps per slot, `packets.len()`
-    /// slots) with their claim flags `busy` (one per slot, all released).
-    pub fn new(stamps: &'a mut [u32], packets: &'a mut [u32], busy: &'a mut [u32]) -> Self {
+    /// slots) and `scratch` (equal runs per slot) with their claim flags
+    /// `busy` (one per slot, all released).
+    pub fn new(
+        stamps: &'a mut [u32],
+        packets: &'a mut [u32],
+        scratch: &'a mut [u8],
+        busy: &'a mut [u32],
+    ) -> Self {
         let count = packets.len();
         assert_eq!(busy.len(), count, "one claim flag per slot");
         let per_slot = stamps.len().checked_div(count).unwrap_or(0);
         assert_eq!(per_slot * count, stamps.len(), "equal stamp runs per slot");
+        let scratch_per_slot = scratch.len().checked_div(count).unwrap_or(0);
+        assert_eq!(
+            scratch_per_slot * count,
+            scratch.len(),
+            "equal scratch runs per slot"
+        );
         busy.fill(0);
         Slots {
             stamps: NonNull::from(stamps).cast(),
             per_slot,
             packets: NonNull::from(packets).cast(),
+            scratch: NonNull::from(scratch).cast(),
+            scratch_per_slot,
             busy: NonNull::from(busy).cast(),
             count,
             _pools: PhantomData,
@@ -60,7 +78,7 @@ impl<'a> Slots<'a> {
         self.count
     }
 
-    /// Slot `i`'s stamps and packet counter, as raw pointers: no reference
+    /// Slot `i`'s stamps, packet counter and scratch, as raw pointers: no reference
     /// is made here, so `&self` hands out nothing mutable. The references
     /// are made by whoever holds exclusive use of the slot (a
     /// [`SlotGuard`] through its `&mut self`, or [`Slots::all`] through
@@ -68,16 +86,18 @@ impl<'a> Slots<'a> {
     ///
     /// # Safety
     /// `i < count`.
-    unsafe fn raw_parts(&self, i: usize) -> (NonNull<[u32]>, NonNull<u32>) {
+    unsafe fn raw_parts(&self, i: usize) -> (NonNull<[u32]>, NonNull<u32>, NonNull<[u8]>) {
         debug_assert!(i < self.count);
-        // SAFETY: `i < count`, so the run `[i * per_slot, (i + 1) * per_slot)`
-        // and counter `i` lie inside the pools borrowed for 'a (offsets in
-        // bounds of one allocation); only pointers are formed, nothing is
-        // read or written.
+        let sc = self.scratch_per_slot;
+        // SAFETY: `i < count`, so the runs `[i * per_slot, (i + 1) * per_slot)`
+        // of stamps and scratch and counter `i` lie inside the pools borrowed
+        // for 'a (offsets in bounds of one allocation); only pointers are
+        // formed, nothing is read or written.
         unsafe {
             (
                 NonNull::slice_from_raw_parts(self.stamps.add(i * self.per_slot), self.per_slot),
                 self.packets.add(i),
+                NonNull::slice_from_raw_parts(self.scratch.add(i * sc), sc),
             )
         }
     }
@@ -110,9 +130,9 @@ impl<'a> Slots<'a> {
         Ok(SlotGuard { slots: self, i })
     }
 
-    /// Every slot's stamps and counter at once (exclusive access: no guard
-    /// can be alive while `self` is mutably borrowed).
-    pub fn all(&mut self) -> impl Iterator<Item = (&mut [u32], &mut u32)> + '_ {
+    /// Every slot's stamps, counter and scratch at once (exclusive access:
+    /// no guard can be alive while `self` is mutably borrowed).
+    pub fn all(&mut self) -> impl Iterator<Item = SlotParts<'_>> + '_ {
         let this = &*self;
         (0..self.count).map(move |i| {
             // SAFETY: `i < count`, so the pointers are in bounds and valid
@@ -121,12 +141,34 @@ impl<'a> Slots<'a> {
             // iterator, rules out guards and other callers for as long as
             // the references live.
             unsafe {
-                let (stamps, packet) = this.raw_parts(i);
-                (&mut *stamps.as_ptr(), &mut *packet.as_ptr())
+                let (stamps, packet, scratch) = this.raw_parts(i);
+                (
+                    &mut *stamps.as_ptr(),
+                    &mut *packet.as_ptr(),
+                    &mut *scratch.as_ptr(),
+                )
             }
         })
     }
+
+    /// Claim the highest free slot (for calls without a slot argument:
+    /// callers naming slots usually start at 0).
+    ///
+    /// Errors: `Capacity { pool: Threads }` while every slot is claimed.
+    pub fn claim_free(&self) -> Result<SlotGuard<'_, 'a>> {
+        (0..self.count as u32)
+            .rev()
+            .find_map(|s| self.claim(s).ok())
+            .ok_or(Error::Capacity {
+                pool: Pool::Threads,
+                needed: self.count as u64 + 1,
+                available: self.count as u64,
+            })
+    }
 }
+
+/// A slot's stamps, packet counter and scratch bytes.
+pub type SlotParts<'s> = (&'s mut [u32], &'s mut u32, &'s mut [u8]);
 
 /// A claimed slot; released on drop.
 pub struct SlotGuard<'s, 'a> {
@@ -135,16 +177,20 @@ pub struct SlotGuard<'s, 'a> {
 }
 
 impl SlotGuard<'_, '_> {
-    /// The slot's stamps and packet counter.
-    pub fn parts(&mut self) -> (&mut [u32], &mut u32) {
+    /// The slot's stamps, packet counter and scratch.
+    pub fn parts(&mut self) -> SlotParts<'_> {
         // SAFETY: `i < count` (checked in `claim`), so the pointers are in
         // bounds and valid for 'a; this guard holds the slot's flag, so no
         // other thread or guard uses the slot; the references borrow from
         // `&mut self`, so a second call cannot overlap them and they end
         // before the guard drops and releases the flag.
         unsafe {
-            let (stamps, packet) = self.slots.raw_parts(self.i);
-            (&mut *stamps.as_ptr(), &mut *packet.as_ptr())
+            let (stamps, packet, scratch) = self.slots.raw_parts(self.i);
+            (
+                &mut *stamps.as_ptr(),
+                &mut *packet.as_ptr(),
+                &mut *scratch.as_ptr(),
+            )
         }
     }
 }
@@ -165,12 +211,18 @@ mod tests {
     #[test]
     fn a_slot_is_claimed_once_at_a_time() {
         let (mut st, mut pk, mut busy) = ([0u32; 6], [0u32; 3], [7u32; 3]);
-        let slots = Slots::new(&mut st, &mut pk, &mut busy);
+        let mut sc = [0u8; 3 * 8];
+        let slots = Slots::new(&mut st, &mut pk, &mut sc, &mut busy);
         let mut a = slots.claim(1).unwrap();
         assert_eq!(slots.claim(1).err(), Some(Error::SlotBusy { slot: 1 }));
         let mut b = slots.claim(2).unwrap();
         a.parts().0.fill(5);
         *b.parts().1 = 9;
+        b.parts().2.fill(4);
+        assert_eq!(slots.claim_free().map(|g| g.i).ok(), Some(0));
+        let c = slots.claim(0).unwrap();
+        assert!(slots.claim_free().is_err());
+        drop(c);
         drop(a);
         assert!(slots.claim(1).is_ok());
         assert!(matches!(
@@ -183,20 +235,21 @@ mod tests {
         drop(b);
         assert_eq!(st, [0, 0, 5, 5, 0, 0]);
         assert_eq!(pk, [0, 0, 9]);
+        assert!(sc[..16].iter().all(|&b| b == 0) && sc[16..].iter().all(|&b| b == 4));
     }
 
     #[cfg(feature = "std")]
     #[test]
     fn threads_with_their_own_slots_do_not_interfere() {
         let (mut st, mut pk, mut busy) = ([0u32; 4 * 64], [0u32; 4], [0u32; 4]);
-        let slots = Slots::new(&mut st, &mut pk, &mut busy);
+        let slots = Slots::new(&mut st, &mut pk, &mut [], &mut busy);
         std::thread::scope(|s| {
             for t in 0..4u32 {
                 let slots = &slots;
                 s.spawn(move || {
                     for round in 0..200u32 {
                         let mut g = slots.claim(t).unwrap();
-                        let (stamps, packet) = g.parts();
+                        let (stamps, packet, _) = g.parts();
                         stamps.fill(t * 1000 + round);
                         *packet = round;
                         assert!(stamps.iter().all(|&v| v == t * 1000 + round));
@@ -211,7 +264,7 @@ mod tests {
 
     #[test]
     fn no_slots() {
-        let slots = Slots::new(&mut [], &mut [], &mut []);
+        let slots = Slots::new(&mut [], &mut [], &mut [], &mut []);
         assert_eq!(slots.count(), 0);
         assert!(slots.claim(0).is_err());
     }

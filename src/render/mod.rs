@@ -18,13 +18,16 @@ pub mod deferred;
 pub mod material;
 pub mod whitted;
 
-use crate::accel::grid::traverse_cgt::Mailbox;
+use crate::accel::slot::Slot;
 use crate::error::{Error, Result};
 use crate::geom::{F4, Hit, Hit4, M4, Ray, Ray4, TriVerts};
 use crate::math;
 pub use crate::trace::Tracer;
 use crate::trace::{Counters, TraceParams};
 use glam::Vec3;
+
+/// Slot scratch this module's packet code takes (`accel::slot`).
+pub const SCRATCH: usize = 0;
 
 /// Pinhole camera (C: `sheaf_camera`).
 #[repr(C)]
@@ -398,16 +401,16 @@ pub fn render_tiles<T: Tracer + ?Sized>(
     frame: &Frame,
     rays: &PrimaryRays,
     band: Band<'_>,
-    mb: &mut Mailbox<'_>,
+    slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
     match params.primary.packet {
-        2 => tiles::<T, 1>(tracer, params, frame, rays, band, mb, ctr),
-        4 => tiles::<T, 4>(tracer, params, frame, rays, band, mb, ctr),
-        8 => tiles::<T, 16>(tracer, params, frame, rays, band, mb, ctr),
-        16 => tiles::<T, 64>(tracer, params, frame, rays, band, mb, ctr),
+        2 => tiles::<T, 1>(tracer, params, frame, rays, band, slot, ctr),
+        4 => tiles::<T, 4>(tracer, params, frame, rays, band, slot, ctr),
+        8 => tiles::<T, 16>(tracer, params, frame, rays, band, slot, ctr),
+        16 => tiles::<T, 64>(tracer, params, frame, rays, band, slot, ctr),
         _ => tiles::<T, { crate::accel::packet::MAX_QUADS }>(
-            tracer, params, frame, rays, band, mb, ctr,
+            tracer, params, frame, rays, band, slot, ctr,
         ),
     }
 }
@@ -418,7 +421,7 @@ fn tiles<T: Tracer + ?Sized, const Q: usize>(
     frame: &Frame,
     rays: &PrimaryRays,
     band: Band<'_>,
-    mb: &mut Mailbox<'_>,
+    slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
     let TileParams { primary, shadow } = params;
@@ -460,7 +463,7 @@ fn tiles<T: Tracer + ?Sized, const Q: usize>(
                 active[q] = M4::new(m[0], m[1], m[2], m[3]);
                 hits[q] = Hit4::MISS;
             }
-            tracer.intersect_packet(primary, &quads, &active, &mut hits, mb, ctr);
+            tracer.intersect_packet(primary, &quads, &active, &mut hits, slot, ctr);
             // Shadow packet from the light towards the lit hit points.
             for q in 0..Q {
                 let mut lanes = [Ray::new(light, Vec3::X, 0.0, 0.0); 4];
@@ -490,7 +493,7 @@ fn tiles<T: Tracer + ?Sized, const Q: usize>(
                 active: &sactive,
                 dist: &sdist,
             };
-            shadow_packet(tracer, shadow, packet, &mut shits, mb, ctr);
+            shadow_packet(tracer, shadow, packet, &mut shits, slot, ctr);
             // Shade and store.
             for q in 0..Q {
                 let (qx, qy) = demorton(q);
@@ -522,7 +525,7 @@ pub fn shadow_packet<T: Tracer + ?Sized>(
     p: &TraceParams,
     packet: ShadowPacket<'_>,
     hits: &mut [Hit4],
-    mb: &mut Mailbox<'_>,
+    slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
     let ShadowPacket { rays, active, dist } = packet;
@@ -545,12 +548,12 @@ pub fn shadow_packet<T: Tracer + ?Sized>(
                     active: &active[r.clone()],
                     dist: &dist[r.clone()],
                 };
-                shadow_packet(tracer, p, quarter, &mut hits[r], mb, ctr);
+                shadow_packet(tracer, p, quarter, &mut hits[r], slot, ctr);
             }
             return;
         }
     }
-    tracer.occluded_packet(p, rays, active, hits, mb, ctr);
+    tracer.occluded_packet(p, rays, active, hits, slot, ctr);
 }
 
 #[inline]

@@ -95,12 +95,15 @@ use super::{
     Band, Frame, PointLight, PrimaryRays, SHADOW_OFFSET, ShadowPacket, Tracer, demorton, encode,
     shadow_packet,
 };
-use crate::accel::grid::traverse_cgt::Mailbox;
+use crate::accel::slot::Slot;
 use crate::error::{Error, Result};
 use crate::geom::{F4, Hit, Hit4, INVALID_ID, M4, Ray, Ray4};
 use crate::math;
 use crate::trace::{Counters, RayKind, TraceParams};
 use glam::Vec3;
+
+/// Slot scratch this module's packet code takes (`accel::slot`).
+pub const SCRATCH: usize = 0;
 
 /// Most bounces (reflections plus refractions) on one path: bounds the
 /// recursion depth and the stack (see the module docs, Memory).
@@ -512,21 +515,21 @@ fn pack(lanes: &mut [Ray; 4], m: &[bool; 4]) -> (Ray4, M4) {
 /// n = `job.primary.packet`: primary packets with `job.primary`, shadow
 /// packets with `job.shadow`, reflection and refraction packets with
 /// `job.secondary`. Same bytes as `render_whitted_rows` with the same
-/// structure. `mb` is the calling thread's mailbox.
+/// structure. `slot` is the calling thread's mailbox.
 pub fn render_whitted_tiles<T: Tracer + ?Sized>(
     tracer: &T,
     job: &WhittedJob<'_>,
     rays: &PrimaryRays,
     band: Band<'_>,
-    mb: &mut Mailbox<'_>,
+    slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
     match job.primary.packet {
-        2 => tiles::<T, 1>(tracer, job, rays, band, mb, ctr),
-        4 => tiles::<T, 4>(tracer, job, rays, band, mb, ctr),
-        8 => tiles::<T, 16>(tracer, job, rays, band, mb, ctr),
-        16 => tiles::<T, 64>(tracer, job, rays, band, mb, ctr),
-        _ => tiles::<T, { crate::accel::packet::MAX_QUADS }>(tracer, job, rays, band, mb, ctr),
+        2 => tiles::<T, 1>(tracer, job, rays, band, slot, ctr),
+        4 => tiles::<T, 4>(tracer, job, rays, band, slot, ctr),
+        8 => tiles::<T, 16>(tracer, job, rays, band, slot, ctr),
+        16 => tiles::<T, 64>(tracer, job, rays, band, slot, ctr),
+        _ => tiles::<T, { crate::accel::packet::MAX_QUADS }>(tracer, job, rays, band, slot, ctr),
     }
 }
 
@@ -553,7 +556,7 @@ fn tiles<T: Tracer + ?Sized, const Q: usize>(
     job: &WhittedJob<'_>,
     rays: &PrimaryRays,
     band: Band<'_>,
-    mb: &mut Mailbox<'_>,
+    slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
     let Band {
@@ -586,7 +589,7 @@ fn tiles<T: Tracer + ?Sized, const Q: usize>(
                 (pk.rays[q], pk.active[q]) = pack(&mut lanes, &m);
             }
             let mut acc = [[Vec3::ZERO; 4]; Q];
-            level::<T, Q>(&f, &primary, &pk, Depth::default(), &mut acc, mb, ctr);
+            level::<T, Q>(&f, &primary, &pk, Depth::default(), &mut acc, slot, ctr);
             for (q, (quad, m)) in acc.iter().zip(&pk.active).enumerate() {
                 let (qx, qy) = demorton(q);
                 for (i, (dx, dy)) in LANE_XY.iter().enumerate() {
@@ -626,7 +629,7 @@ fn level<T: Tracer + ?Sized, const Q: usize>(
     pk: &Packet<Q>,
     depth: Depth,
     acc: &mut [[Vec3; 4]; Q],
-    mb: &mut Mailbox<'_>,
+    slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
     let (tracer, job) = (f.tracer, f.job);
@@ -639,22 +642,22 @@ fn level<T: Tracer + ?Sized, const Q: usize>(
                 &rays[r.clone()],
                 &active[r.clone()],
                 &mut hits[r],
-                mb,
+                slot,
                 ctr,
             );
         }
     }
-    let (want_r, want_t) = shade_packet::<T, Q>(f, pk, &hits, depth, acc, mb, ctr);
+    let (want_r, want_t) = shade_packet::<T, Q>(f, pk, &hits, depth, acc, slot, ctr);
     if !(want_r || want_t) {
         return;
     }
     let secondary = job.secondary.with_kind(RayKind::Secondary);
     let mut cpk = Packet::<Q>::idle(F4::ZERO);
     if want_r && child::<T, Q>(f, true, pk, &hits, depth, &mut cpk) {
-        level::<T, Q>(f, &secondary, &cpk, depth.reflected(), acc, mb, ctr);
+        level::<T, Q>(f, &secondary, &cpk, depth.reflected(), acc, slot, ctr);
     }
     if want_t && child::<T, Q>(f, false, pk, &hits, depth, &mut cpk) {
-        level::<T, Q>(f, &secondary, &cpk, depth.refracted(), acc, mb, ctr);
+        level::<T, Q>(f, &secondary, &cpk, depth.refracted(), acc, slot, ctr);
     }
 }
 
@@ -668,7 +671,7 @@ fn shade_packet<T: Tracer + ?Sized, const Q: usize>(
     hits: &[Hit4; Q],
     depth: Depth,
     acc: &mut [[Vec3; 4]; Q],
-    mb: &mut Mailbox<'_>,
+    slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) -> (bool, bool) {
     let (tracer, job, eps) = (f.tracer, f.job, f.eps);
@@ -726,7 +729,7 @@ fn shade_packet<T: Tracer + ?Sized, const Q: usize>(
                     active: &sactive[r.clone()],
                     dist: &sdist[r.clone()],
                 };
-                shadow_packet(tracer, &shadow, packet, &mut shits[r], mb, ctr);
+                shadow_packet(tracer, &shadow, packet, &mut shits[r], slot, ctr);
             }
             for q in 0..Q {
                 for i in 0..4 {

@@ -8,12 +8,18 @@
 use crate::accel::bvh::BvhView;
 use crate::accel::grid::GridView;
 use crate::accel::kd::KdView;
-use crate::accel::mailbox::Mailbox;
 use crate::accel::packet::{self, MAX_QUADS};
+use crate::accel::slot::Slot;
 use crate::accel::{Accel, method::Method, method::Structure, method::TraceParams};
 use crate::counters::Counters;
 use crate::error::{Error, Result};
 use crate::geom::{Hit, Hit4, M4, Mt, Pt, Ray, Ray4, TriTest, TriVerts, Wt};
+
+/// Slot scratch `batch_on` holds while the driver runs: one packet's
+/// quads, lane masks and hits.
+pub const SCRATCH: usize = crate::mem::scratch::bytes::<Ray4>(MAX_QUADS)
+    + crate::mem::scratch::bytes::<M4>(MAX_QUADS)
+    + crate::mem::scratch::bytes::<Hit4>(MAX_QUADS);
 
 /// What a structure offers the renderer: nearest hits and occlusion for
 /// single rays and for packets of 2x2 quads, and the triangle a hit refers
@@ -22,14 +28,14 @@ pub trait Tracer: Sync {
     fn intersect(&self, ray: &Ray, ctr: &mut Counters) -> Hit;
     fn occluded(&self, ray: &Ray, ctr: &mut Counters) -> bool;
     /// Nearest hits of the active lanes of a packet (`p.method` decides how;
-    /// single-ray methods trace lane by lane). `mb` is the calling thread's.
+    /// single-ray methods trace lane by lane). `slot` is the calling thread's.
     fn intersect_packet(
         &self,
         p: &TraceParams,
         rays: &[Ray4],
         active: &[M4],
         hits: &mut [Hit4],
-        mb: &mut Mailbox<'_>,
+        slot: &mut Slot<'_>,
         ctr: &mut Counters,
     );
     /// Occlusion of the active lanes: a hit (`prim != INVALID_ID`) marks an occluded lane.
@@ -39,7 +45,7 @@ pub trait Tracer: Sync {
         rays: &[Ray4],
         active: &[M4],
         hits: &mut [Hit4],
-        mb: &mut Mailbox<'_>,
+        slot: &mut Slot<'_>,
         ctr: &mut Counters,
     );
     fn triangle(&self, prim: u32) -> Option<TriVerts>;
@@ -75,14 +81,16 @@ impl<A: Accel> Tracer for A {
         rays: &[Ray4],
         active: &[M4],
         hits: &mut [Hit4],
-        mb: &mut Mailbox<'_>,
+        slot: &mut Slot<'_>,
         ctr: &mut Counters,
     ) {
         use packet::trace;
         match self.test() {
-            TriTest::MollerTrumbore => trace::<A, Mt, false>(self, p, rays, active, hits, mb, ctr),
-            TriTest::Watertight => trace::<A, Wt, false>(self, p, rays, active, hits, mb, ctr),
-            TriTest::Projection => trace::<A, Pt, false>(self, p, rays, active, hits, mb, ctr),
+            TriTest::MollerTrumbore => {
+                trace::<A, Mt, false>(self, p, rays, active, hits, slot, ctr)
+            }
+            TriTest::Watertight => trace::<A, Wt, false>(self, p, rays, active, hits, slot, ctr),
+            TriTest::Projection => trace::<A, Pt, false>(self, p, rays, active, hits, slot, ctr),
         }
     }
     fn occluded_packet(
@@ -91,14 +99,14 @@ impl<A: Accel> Tracer for A {
         rays: &[Ray4],
         active: &[M4],
         hits: &mut [Hit4],
-        mb: &mut Mailbox<'_>,
+        slot: &mut Slot<'_>,
         ctr: &mut Counters,
     ) {
         use packet::trace;
         match self.test() {
-            TriTest::MollerTrumbore => trace::<A, Mt, true>(self, p, rays, active, hits, mb, ctr),
-            TriTest::Watertight => trace::<A, Wt, true>(self, p, rays, active, hits, mb, ctr),
-            TriTest::Projection => trace::<A, Pt, true>(self, p, rays, active, hits, mb, ctr),
+            TriTest::MollerTrumbore => trace::<A, Mt, true>(self, p, rays, active, hits, slot, ctr),
+            TriTest::Watertight => trace::<A, Wt, true>(self, p, rays, active, hits, slot, ctr),
+            TriTest::Projection => trace::<A, Pt, true>(self, p, rays, active, hits, slot, ctr),
         }
     }
     fn triangle(&self, prim: u32) -> Option<TriVerts> {
@@ -221,13 +229,13 @@ impl Tracer for SceneTracer<'_> {
         rays: &[Ray4],
         active: &[M4],
         hits: &mut [Hit4],
-        mb: &mut Mailbox<'_>,
+        slot: &mut Slot<'_>,
         ctr: &mut Counters,
     ) {
         on_family!(
             self,
             p.method,
-            |t| Tracer::intersect_packet(t, p, rays, active, hits, mb, ctr),
+            |t| Tracer::intersect_packet(t, p, rays, active, hits, slot, ctr),
             packet::lane_by_lane(rays, active, hits, |_, _| Hit::MISS, ctr)
         )
     }
@@ -237,13 +245,13 @@ impl Tracer for SceneTracer<'_> {
         rays: &[Ray4],
         active: &[M4],
         hits: &mut [Hit4],
-        mb: &mut Mailbox<'_>,
+        slot: &mut Slot<'_>,
         ctr: &mut Counters,
     ) {
         on_family!(
             self,
             p.method,
-            |t| Tracer::occluded_packet(t, p, rays, active, hits, mb, ctr),
+            |t| Tracer::occluded_packet(t, p, rays, active, hits, slot, ctr),
             packet::lane_by_lane(rays, active, hits, |_, _| Hit::MISS, ctr)
         )
     }
@@ -261,11 +269,11 @@ impl Tracer for SceneTracer<'_> {
 
 /// Trace `count` rays, ray `i` being `read(i)`, as packets of
 /// `p.packet`^2 rays (or 2x2 batches for single-ray methods) with mailbox
-/// `mb`, handing each result to `out(ray index, hits, lane)`. Shared by the
+/// `slot`, handing each result to `out(ray index, hits, lane)`. Shared by the
 /// Rust calls and the C ABI's, so both form the same packets.
 pub fn batch_on(
     tr: &SceneTracer<'_>,
-    mb: &mut Mailbox<'_>,
+    slot: &mut Slot<'_>,
     p: &TraceParams,
     count: usize,
     read: &dyn Fn(usize) -> Ray,
@@ -294,7 +302,7 @@ pub fn batch_on(
                 &quads[..nq],
                 &active[..nq],
                 &mut hits[..nq],
-                mb,
+                slot,
                 &mut ctr,
             );
         } else {
@@ -303,7 +311,7 @@ pub fn batch_on(
                 &quads[..nq],
                 &active[..nq],
                 &mut hits[..nq],
-                mb,
+                slot,
                 &mut ctr,
             );
         }

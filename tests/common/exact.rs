@@ -4,7 +4,7 @@
 //! list returns the single ray's triangle and bitwise t, lane by lane.
 
 use glam::Vec3;
-use sheaf::accel::grid::traverse_cgt::Mailbox;
+use sheaf::accel::slot::SlotBuf;
 use sheaf::geom::{Hit4, M4, Ray4};
 use sheaf::render::{Tracer, demorton};
 use sheaf::trace::{BvhOptions, EntrySearch, RayKind};
@@ -79,8 +79,8 @@ pub fn check_class(
     c: &Class,
 ) -> Counters {
     let want = reference(tr, c);
-    let (mut stamps, mut stamp) = ([0u32; 0], 0u32);
-    let mut mb = Mailbox::new(&mut stamps, &mut stamp);
+    let mut own = SlotBuf::new(0);
+    let mut slot = own.slot();
     let mut total = Counters::default();
     for &(method, n, entry) in cases {
         for culling in [true, false] {
@@ -106,9 +106,9 @@ pub fn check_class(
                         .collect();
                     let mut hits = vec![Hit4::MISS; quads.len()];
                     if c.any {
-                        tr.occluded_packet(&p, &quads, &active, &mut hits, &mut mb, &mut total);
+                        tr.occluded_packet(&p, &quads, &active, &mut hits, &mut slot, &mut total);
                     } else {
-                        tr.intersect_packet(&p, &quads, &active, &mut hits, &mut mb, &mut total);
+                        tr.intersect_packet(&p, &quads, &active, &mut hits, &mut slot, &mut total);
                     }
                     for (k, &ri) in idx.iter().enumerate() {
                         if !c.active[ri] {

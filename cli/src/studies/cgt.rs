@@ -41,8 +41,8 @@ use crate::{BenchArgs, GridOpts};
 use anyhow::{Context as _, Result, bail};
 use glam::Vec3;
 use rayon::prelude::*;
+use sheaf::Slot;
 use sheaf::accel::bvh::BvhParams;
-use sheaf::accel::grid::traverse_cgt::Mailbox;
 use sheaf::context::SceneTracer as GridTracer;
 use sheaf::geom::{F4, Hit4, INVALID_ID, M4, Ray4};
 use sheaf::reference::{self, RefHit};
@@ -329,8 +329,8 @@ fn shadows(tr: &GridTracer<'_>, rays: &[Ray], hits: &[Hit], light: Vec3, eps: f3
 /// returns the summed counters.
 fn par_bands<'m, I: ParallelIterator>(
     bands: I,
-    mbs: &mut [Mailbox<'m>],
-    work: impl Fn(I::Item, &mut Mailbox<'m>, &mut Counters) + Sync,
+    mbs: &mut [Slot<'m>],
+    work: impl Fn(I::Item, &mut Slot<'m>, &mut Counters) + Sync,
 ) -> Counters {
     if mbs.is_empty() {
         return Counters::default();
@@ -344,7 +344,7 @@ fn trace_single(
     rays: &[Ray],
     band: usize,
     hits: &mut [Hit],
-    mbs: &mut [Mailbox<'_>],
+    mbs: &mut [Slot<'_>],
 ) -> Counters {
     par_bands(
         rays.par_chunks(band).zip(hits.par_chunks_mut(band)),
@@ -363,7 +363,7 @@ fn occlude_single(
     s: &Shadows,
     band: usize,
     out: &mut [bool],
-    mbs: &mut [Mailbox<'_>],
+    mbs: &mut [Slot<'_>],
 ) -> Counters {
     let bands = s
         .rays
@@ -385,15 +385,15 @@ fn trace_packets(
     rays: &[Ray4],
     active: &[M4],
     hits: &mut [Hit4],
-    mbs: &mut [Mailbox<'_>],
+    mbs: &mut [Slot<'_>],
 ) -> Counters {
     let bands = rays
         .par_chunks(t.band)
         .zip(active.par_chunks(t.band))
         .zip(hits.par_chunks_mut(t.band));
-    par_bands(bands, mbs, |((r, a), h), mb, ctr| {
+    par_bands(bands, mbs, |((r, a), h), slot, ctr| {
         for ((r, a), h) in r.chunks(t.q).zip(a.chunks(t.q)).zip(h.chunks_mut(t.q)) {
-            tr.intersect_packet(p, r, a, h, mb, ctr);
+            tr.intersect_packet(p, r, a, h, slot, ctr);
         }
     })
 }
@@ -405,7 +405,7 @@ fn occlude_packets(
     t: &Tiling,
     shadow: ShadowPacket<'_>,
     hits: &mut [Hit4],
-    mbs: &mut [Mailbox<'_>],
+    mbs: &mut [Slot<'_>],
 ) -> Counters {
     let ShadowPacket { rays, active, dist } = shadow;
     let bands = rays
@@ -413,7 +413,7 @@ fn occlude_packets(
         .zip(active.par_chunks(t.band))
         .zip(dist.par_chunks(t.band))
         .zip(hits.par_chunks_mut(t.band));
-    par_bands(bands, mbs, |(((r, a), d), h), mb, ctr| {
+    par_bands(bands, mbs, |(((r, a), d), h), slot, ctr| {
         for (((r, a), d), h) in r
             .chunks(t.q)
             .zip(a.chunks(t.q))
@@ -428,7 +428,7 @@ fn occlude_packets(
                 active: a,
                 dist: d,
             };
-            shadow_packet(tr, p, packet, h, mb, ctr);
+            shadow_packet(tr, p, packet, h, slot, ctr);
         }
     })
 }
@@ -457,7 +457,7 @@ struct Traced {
 #[allow(clippy::too_many_arguments)]
 fn trace_config(
     tr: &GridTracer<'_>,
-    mbs: &mut [Mailbox<'_>],
+    mbs: &mut [Slot<'_>],
     cfg: &Config,
     vr: &ViewRays,
     light: Vec3,
@@ -644,12 +644,7 @@ impl Accuracy {
 
 /// Occlusion of the oracle's shadow rays by `cfg` (packets of consecutive
 /// rays for packet methods: incoherent, but the answers are what counts).
-fn occlusion_of(
-    tr: &GridTracer<'_>,
-    cfg: &Config,
-    rays: &[Ray],
-    mb: &mut Mailbox<'_>,
-) -> Vec<bool> {
+fn occlusion_of(tr: &GridTracer<'_>, cfg: &Config, rays: &[Ray], slot: &mut Slot<'_>) -> Vec<bool> {
     let mut ctr = Counters::default();
     if !run::is_packet(cfg.method) {
         return rays.iter().map(|r| tr.occluded(r, &mut ctr)).collect();
@@ -669,7 +664,7 @@ fn occlusion_of(
             })
             .unzip();
         let mut hits = vec![Hit4::MISS; quads.len()];
-        tr.occluded_packet(&p, &quads, &active, &mut hits, mb, &mut ctr);
+        tr.occluded_packet(&p, &quads, &active, &mut hits, slot, &mut ctr);
         out.extend((0..chunk.len()).map(|k| hits[k / 4].prim[k % 4] != INVALID_ID));
     }
     out
@@ -1193,7 +1188,7 @@ pub fn run(a: &BenchArgs) -> Result<()> {
                 ));
             }
             let (tr, mbs) = ctx.parts()?;
-            let mut mbs: Vec<Mailbox<'_>> = mbs.take(max_threads as usize).collect();
+            let mut mbs: Vec<Slot<'_>> = mbs.take(max_threads as usize).collect();
             let mut dda: Option<(Vec<u32>, Vec<bool>)> = None;
             for cfg in &cfgs {
                 let t = trace_config(&tr, &mut mbs, cfg, vr, *light, *eps, &threads, reps);

@@ -49,9 +49,9 @@ use crate::BenchArgs;
 use crate::run::{self, ms};
 use anyhow::{Context as _, Result, anyhow, bail};
 use glam::Vec3;
+use sheaf::Slot;
 use sheaf::accel::entry::{CandidateQueue, EntryResult, LeafGoal, dir_signs, live_mask};
 use sheaf::accel::entry::{aepsa as traverse_aepsa, mlrta as traverse_mlrta};
-use sheaf::accel::grid::traverse_cgt::Mailbox;
 use sheaf::accel::kd::{KdInfo, KdParams, KdView};
 use sheaf::geom::frustum::Frustum;
 use sheaf::geom::{Hit4, M4, Ray4};
@@ -741,7 +741,7 @@ pub fn run(a: &BenchArgs) -> Result<()> {
         // Entry points, search times, traversal from the entry point.
         {
             let (tr, mut mbs) = ctx.parts()?;
-            let mut mb = mbs.next().ok_or_else(|| anyhow!("no thread slot"))?;
+            let mut slot = mbs.next().ok_or_else(|| anyhow!("no thread slot"))?;
             let kt = tr.kd().ok_or_else(|| anyhow!("kd-tree not built"))?;
             let kv = kt;
             // Reference: the kd single ray per pixel.
@@ -801,19 +801,19 @@ pub fn run(a: &BenchArgs) -> Result<()> {
                     .with_kind(RayKind::Primary)
                 });
                 let pass = |p: &TraceParams,
-                            mb: &mut Mailbox<'_>,
+                            slot: &mut Slot<'_>,
                             ctr: &mut Counters,
                             hits: &mut [Hit4]| {
                     for i in 0..pk.count() {
                         let (r, m) = pk.packet(i);
                         let hq = &mut hits[i * pk.q..(i + 1) * pk.q];
                         hq.fill(Hit4::MISS);
-                        kt.intersect_packet(p, r, m, hq, mb, ctr);
+                        kt.intersect_packet(p, r, m, hq, slot, ctr);
                     }
                 };
                 for (k, p) in ps.iter().enumerate() {
                     let mut ctr = Counters::default();
-                    pass(p, &mut mb, &mut ctr, &mut hits);
+                    pass(p, &mut slot, &mut ctr, &mut hits);
                     let diff = pk
                         .pix
                         .iter()
@@ -831,7 +831,7 @@ pub fn run(a: &BenchArgs) -> Result<()> {
                 for _ in 0..reps {
                     for (k, p) in ps.iter().enumerate() {
                         let t0 = Instant::now();
-                        pass(p, &mut mb, &mut scratch, &mut hits);
+                        pass(p, &mut slot, &mut scratch, &mut hits);
                         times[k].push(t0.elapsed().as_nanos() as u64);
                     }
                 }

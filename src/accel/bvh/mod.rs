@@ -41,9 +41,9 @@ pub mod traverse_simd;
 pub mod traverse_single;
 
 use crate::accel::entry::EntrySearch;
-use crate::accel::mailbox::Mailbox;
 pub use crate::accel::method::BvhOptions;
 use crate::accel::method::{Method, TraceParams};
+use crate::accel::slot::Slot;
 use crate::counters::Counters;
 /// The packet frusta (section 4) live in `geom` because the kd-tree
 /// packets use them too.
@@ -51,6 +51,9 @@ pub use crate::geom::frustum;
 pub use crate::geom::frustum::RayKind;
 use crate::geom::{Aabb, Hit, Hit4, M4, ProjTri, Ray, Ray4, TriTest, TriVerts, TriangleTest};
 use bytemuck::{Pod, Zeroable};
+
+/// Slot scratch this module's packet code takes (`accel::slot`).
+pub const SCRATCH: usize = 0;
 
 /// Deepest level a build creates (root = depth 0). Nodes at this depth
 /// become leaves whatever their size, so every traversal stack of
@@ -323,7 +326,7 @@ impl crate::accel::Accel for BvhView<'_> {
         rays: &[Ray4],
         active: &[M4],
         hits: &mut [Hit4],
-        _: &mut Mailbox<'_>,
+        _: &mut Slot<'_>,
         ctr: &mut Counters,
     ) -> bool {
         use crate::accel::packet::{self, Start};

@@ -21,11 +21,14 @@ pub mod build;
 pub mod traverse_cgt;
 pub mod traverse_single;
 
-use crate::accel::mailbox::Mailbox;
 use crate::accel::method::{Method, TraceParams};
+use crate::accel::slot::Slot;
 use crate::counters::Counters;
 use crate::geom::{Aabb, Hit, Hit4, M4, ProjTri, Ray, Ray4, TriTest, TriVerts, TriangleTest};
 use glam::Vec3;
+
+/// Slot scratch this module's packet code takes (`accel::slot`).
+pub const SCRATCH: usize = 0;
 
 /// Tunables of the grid (C: `sheaf_grid_params`).
 #[repr(C)]
@@ -224,16 +227,16 @@ impl crate::accel::Accel for GridView<'_> {
         rays: &[Ray4],
         active: &[M4],
         hits: &mut [Hit4],
-        mb: &mut Mailbox<'_>,
+        slot: &mut Slot<'_>,
         ctr: &mut Counters,
     ) -> bool {
         if p.method != Method::GridCgt {
             return false;
         }
         if ANY {
-            traverse_cgt::occluded::<T>(self, rays, active, hits, &p.cgt, mb, ctr);
+            traverse_cgt::occluded::<T>(self, rays, active, hits, &p.cgt, &mut slot.mailbox, ctr);
         } else {
-            traverse_cgt::intersect::<T>(self, rays, active, hits, &p.cgt, mb, ctr);
+            traverse_cgt::intersect::<T>(self, rays, active, hits, &p.cgt, &mut slot.mailbox, ctr);
         }
         true
     }

@@ -45,11 +45,14 @@ pub mod traverse_simd;
 pub mod traverse_single;
 
 use crate::accel::entry::EntrySearch;
-use crate::accel::mailbox::Mailbox;
 use crate::accel::method::{Method, TraceParams};
+use crate::accel::slot::Slot;
 use crate::counters::Counters;
 use crate::geom::{Aabb, Hit, Hit4, M4, ProjTri, Ray, Ray4, TriTest, TriVerts, TriangleTest};
 use bytemuck::{Pod, Zeroable};
+
+/// Slot scratch this module's packet code takes (`accel::slot`).
+pub const SCRATCH: usize = 0;
 
 /// Deepest level a build creates (root = depth 0); every traversal stack of
 /// `MAX_DEPTH + 1` entries suffices.
@@ -379,7 +382,7 @@ impl crate::accel::Accel for KdView<'_> {
         rays: &[Ray4],
         active: &[M4],
         hits: &mut [Hit4],
-        _: &mut Mailbox<'_>,
+        _: &mut Slot<'_>,
         ctr: &mut Counters,
     ) -> bool {
         use crate::accel::packet::{self, MAX_QUADS, Start};

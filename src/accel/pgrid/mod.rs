@@ -352,6 +352,9 @@ impl<'r> CellsView<'r> {
 /// The scene's triangles by id (the pgrid's store).
 pub use crate::geom::TriStore as Triangles;
 
+/// Slot scratch this module's packet code takes (`accel::slot`).
+pub const SCRATCH: usize = 0;
+
 /// Pools of the perspective and light grids, carved at context creation.
 pub struct PgridPools<'a> {
     /// Scene triangles by id, their projection data, and 1 for traceable.

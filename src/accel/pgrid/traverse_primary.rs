@@ -11,7 +11,7 @@
 //! tracing tile is the unit of work, the sorting tile the unit of culling.
 
 use super::{CamView, TriangleTest};
-use crate::accel::mailbox::Mailbox;
+use crate::accel::slot::Slot;
 use crate::counters::{Counters, count};
 use crate::geom::{F4, Hit4, M4, Mt, Pt, Ray4, RayLanes, TriTest, Wt};
 use crate::math;
@@ -25,13 +25,13 @@ pub fn trace_tile(
     rays: &[Ray4],
     active: &[M4],
     hits: &mut [Hit4],
-    mb: &mut Mailbox<'_>,
+    slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
     match g.test {
-        TriTest::MollerTrumbore => walk::<Mt>(g, tile, rays, active, hits, mb, ctr),
-        TriTest::Watertight => walk::<Wt>(g, tile, rays, active, hits, mb, ctr),
-        TriTest::Projection => walk::<Pt>(g, tile, rays, active, hits, mb, ctr),
+        TriTest::MollerTrumbore => walk::<Mt>(g, tile, rays, active, hits, slot, ctr),
+        TriTest::Watertight => walk::<Wt>(g, tile, rays, active, hits, slot, ctr),
+        TriTest::Projection => walk::<Pt>(g, tile, rays, active, hits, slot, ctr),
     }
 }
 
@@ -44,15 +44,15 @@ fn walk<T: TriangleTest>(
     rays: &[Ray4],
     active: &[M4],
     hits: &mut [Hit4],
-    mb: &mut Mailbox<'_>,
+    slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
     let nq = rays.len().min(MAX_QUADS);
     // A triangle spanning several slices is tested once per tile: its
     // hits for the tile's live rays cannot change in a later slice.
-    let mail = mb.covers(g.tris.tris.len());
+    let mail = slot.mailbox.covers(g.tris.tris.len());
     if mail {
-        mb.next_packet(g.tris.tris.len());
+        slot.mailbox.next_packet(g.tris.tris.len());
     }
     let d = g.cells.info.depth;
     let fwd = g.pinhole.fwd;
@@ -89,7 +89,7 @@ fn walk<T: TriangleTest>(
         let cell = g.cells.cell(tile, s);
         count!(ctr.cells += 1);
         for &tri in cell {
-            if mail && !mb.first_visit(tri as usize) {
+            if mail && !slot.mailbox.first_visit(tri as usize) {
                 count!(ctr.mailbox_skips += 1);
                 continue;
             }

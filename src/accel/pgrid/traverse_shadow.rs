@@ -7,7 +7,7 @@
 //! surface it shadows); the chunk stops when no ray is left.
 
 use super::{LightView, TriangleTest};
-use crate::accel::mailbox::Mailbox;
+use crate::accel::slot::Slot;
 use crate::counters::{Counters, count};
 use crate::geom::{M4, Mt, Pt, Ray4, RayLanes, TriTest, Wt};
 use crate::math;
@@ -24,16 +24,16 @@ pub fn trace_chunk(
     rays: &[Ray4],
     active: &[M4],
     occluded: &mut [M4],
-    mb: &mut Mailbox<'_>,
+    slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
     for s in (0..rays.len()).step_by(MAX_QUADS) {
         let e = (s + MAX_QUADS).min(rays.len());
         let (r, a, o) = (&rays[s..e], &active[s..e], &mut occluded[s..e]);
         match g.test {
-            TriTest::MollerTrumbore => walk::<Mt>(g, tile, r, a, o, mb, ctr),
-            TriTest::Watertight => walk::<Wt>(g, tile, r, a, o, mb, ctr),
-            TriTest::Projection => walk::<Pt>(g, tile, r, a, o, mb, ctr),
+            TriTest::MollerTrumbore => walk::<Mt>(g, tile, r, a, o, slot, ctr),
+            TriTest::Watertight => walk::<Wt>(g, tile, r, a, o, slot, ctr),
+            TriTest::Projection => walk::<Pt>(g, tile, r, a, o, slot, ctr),
         }
     }
 }
@@ -44,14 +44,14 @@ fn walk<T: TriangleTest>(
     rays: &[Ray4],
     active: &[M4],
     occluded: &mut [M4],
-    mb: &mut Mailbox<'_>,
+    slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
     let nq = rays.len();
     // Triangles spanning several slices are tested once per batch.
-    let mail = mb.covers(g.tris.tris.len());
+    let mail = slot.mailbox.covers(g.tris.tris.len());
     if mail {
-        mb.next_packet(g.tris.tris.len());
+        slot.mailbox.next_packet(g.tris.tris.len());
     }
     let d = g.cells.info.depth;
     let mut live = [M4::FALSE; MAX_QUADS];
@@ -97,7 +97,7 @@ fn walk<T: TriangleTest>(
         let cell = g.cells.cell(tile, s);
         count!(ctr.cells += 1);
         for &tri in cell {
-            if mail && !mb.first_visit(tri as usize) {
+            if mail && !slot.mailbox.first_visit(tri as usize) {
                 count!(ctr.mailbox_skips += 1);
                 continue;
             }

@@ -10,8 +10,8 @@ use super as deferred;
 use super::{
     DeferredInfo, DeferredJob, FrameBuffers, PrimaryPass, ShadowPass, TileLayout, Workers,
 };
-use crate::accel::mailbox::Mailbox;
 use crate::accel::pgrid::{self, Pgrid, PgridParams};
+use crate::accel::slot::Slot;
 use crate::counters::{Counters, elapsed_ns, now};
 use crate::error::{Error, Result};
 use crate::geom::TriVerts;
@@ -51,8 +51,8 @@ pub(crate) fn run<W: Workers>(
         info.times.primary_build = elapsed_ns(t);
     }
     let Parts { pg, buf, slots } = parts;
-    macro_rules! mailboxes {
-        () => {{ slots.all().map(|(st, p)| Mailbox::new(st, p)) }};
+    macro_rules! slots {
+        () => {{ slots.all().map(Slot::of) }};
     }
     // Phase 2: camera rays.
     let t = now();
@@ -67,7 +67,7 @@ pub(crate) fn run<W: Workers>(
         buf.prim,
         buf.t,
         workers,
-        &mut mailboxes!(),
+        &mut slots!(),
     ));
     info.times.primary_trace = elapsed_ns(t);
     let from_pgrid = job.primary == PrimaryPass::Pgrid;
@@ -112,7 +112,7 @@ pub(crate) fn run<W: Workers>(
                 buf.t,
                 buf.dirs,
                 workers,
-                &mut mailboxes!(),
+                &mut slots!(),
             );
             info.shadow_rays += s.count as u64;
             match job.shadow {
@@ -128,7 +128,7 @@ pub(crate) fn run<W: Workers>(
                         buf.shadow,
                         l as u8,
                         workers,
-                        &mut mailboxes!(),
+                        &mut slots!(),
                     ));
                     info.times.shadow_trace += elapsed_ns(t);
                 }
@@ -193,7 +193,7 @@ pub(crate) fn run<W: Workers>(
                         l as u8,
                         pp.chunk,
                         workers,
-                        &mut mailboxes!(),
+                        &mut slots!(),
                     ));
                     info.times.shadow_trace += elapsed_ns(t);
                 }
@@ -215,7 +215,7 @@ pub(crate) fn run<W: Workers>(
         pixels,
         stride,
         workers,
-        &mut mailboxes!(),
+        &mut slots!(),
     );
     info.times.shade = elapsed_ns(t);
     Ok((info, ctr, eps))

@@ -30,16 +30,19 @@ use super::{
     Frame, PointLight, PrimaryRays, SHADOW_OFFSET, ShadowPacket, Tracer, demorton, encode,
     shadow_packet,
 };
-use crate::accel::grid::traverse_cgt::Mailbox;
 use crate::accel::packet::MAX_QUADS;
 use crate::accel::pgrid::{
     self as pgrid, CamView, CellsInfo, Chunk, LightFrame, LightView, ReorderInfo, reorder,
     traverse_primary, traverse_shadow,
 };
+use crate::accel::slot::Slot;
 use crate::error::{Error, Result};
 use crate::geom::{F4, Hit4, INVALID_ID, M4, Ray, Ray4, TriVerts};
 use crate::trace::{Counters, TraceParams};
 use glam::Vec3;
+
+/// Slot scratch this module's packet code takes (`accel::slot`).
+pub const SCRATCH: usize = 0;
 
 /// How camera rays are traced.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -146,13 +149,13 @@ pub struct DeferredInfo {
 pub trait Workers {
     fn run<'m, I, F>(
         &mut self,
-        mailboxes: &mut dyn Iterator<Item = Mailbox<'m>>,
+        slots: &mut dyn Iterator<Item = Slot<'m>>,
         items: &mut (dyn Iterator<Item = I> + Send),
         work: &F,
     ) -> Counters
     where
         I: Send,
-        F: Fn(I, &mut Mailbox<'_>, &mut Counters) + Sync;
+        F: Fn(I, &mut Slot<'_>, &mut Counters) + Sync;
 }
 
 /// Runs every item on the calling thread with the first mailbox.
@@ -161,22 +164,24 @@ pub struct OnCaller;
 impl Workers for OnCaller {
     fn run<'m, I, F>(
         &mut self,
-        mailboxes: &mut dyn Iterator<Item = Mailbox<'m>>,
+        slots: &mut dyn Iterator<Item = Slot<'m>>,
         items: &mut (dyn Iterator<Item = I> + Send),
         work: &F,
     ) -> Counters
     where
         I: Send,
-        F: Fn(I, &mut Mailbox<'_>, &mut Counters) + Sync,
+        F: Fn(I, &mut Slot<'_>, &mut Counters) + Sync,
     {
         let mut ctr = Counters::default();
-        let mut none = [0u32; 0];
-        let mut p = 0u32;
-        let mut mb = mailboxes
-            .next()
-            .unwrap_or_else(|| Mailbox::new(&mut none, &mut p));
+        let (mut none, mut p) = ([0u32; 0], 0u32);
+        let mut slot = slots.next().unwrap_or_else(|| {
+            Slot::new(
+                crate::accel::mailbox::Mailbox::new(&mut none, &mut p),
+                crate::mem::Scratch::empty(),
+            )
+        });
         for it in items {
-            work(it, &mut mb, &mut ctr);
+            work(it, &mut slot, &mut ctr);
         }
         ctr
     }
@@ -283,7 +288,7 @@ pub fn primary_pass<'m, T: Tracer + ?Sized, W: Workers>(
     prim: &mut [u32],
     t: &mut [f32],
     workers: &mut W,
-    mailboxes: &mut dyn Iterator<Item = Mailbox<'m>>,
+    slots: &mut dyn Iterator<Item = Slot<'m>>,
 ) -> Counters {
     let ss = (lay.side * lay.side) as usize;
     let n = lay.len();
@@ -292,20 +297,20 @@ pub fn primary_pass<'m, T: Tracer + ?Sized, W: Workers>(
         .zip(t[..n].chunks_mut(ss))
         .enumerate();
     let work = |(tile, (p, tt)): (usize, (&mut [u32], &mut [f32])),
-                mb: &mut Mailbox<'_>,
+                slot: &mut Slot<'_>,
                 ctr: &mut Counters| {
         let (x0, y0) = lay.pixel(tile * ss);
         match (primary, cam) {
             (PrimaryPass::Pgrid, Some(cam)) => {
-                pgrid_tile(cam, rays, lay, sort, x0, y0, p, tt, mb, ctr)
+                pgrid_tile(cam, rays, lay, sort, x0, y0, p, tt, slot, ctr)
             }
             (PrimaryPass::Traced(params), _) => {
-                traced_tile(tracer, params, rays, lay, x0, y0, p, tt, mb, ctr)
+                traced_tile(tracer, params, rays, lay, x0, y0, p, tt, slot, ctr)
             }
             _ => p.fill(INVALID_ID),
         }
     };
-    workers.run(mailboxes, &mut items, &work)
+    workers.run(slots, &mut items, &work)
 }
 
 /// One tracing tile through the perspective grid: its k x k sorting tiles,
@@ -322,7 +327,7 @@ fn pgrid_tile(
     y0: u32,
     prim: &mut [u32],
     t: &mut [f32],
-    mb: &mut Mailbox<'_>,
+    slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
     let st = cam.cells.info.tiles;
@@ -362,7 +367,7 @@ fn pgrid_tile(
                 &quads[..nq],
                 &active[..nq],
                 &mut hits[..nq],
-                mb,
+                slot,
                 ctr,
             );
             for q in 0..nq {
@@ -397,7 +402,7 @@ fn traced_tile<T: Tracer + ?Sized>(
     y0: u32,
     prim: &mut [u32],
     t: &mut [f32],
-    mb: &mut Mailbox<'_>,
+    slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
     let side = lay.side;
@@ -438,7 +443,7 @@ fn traced_tile<T: Tracer + ?Sized>(
         packet: side,
         ..*params
     };
-    tracer.intersect_packet(&p, &quads[..nq], &active[..nq], &mut hits[..nq], mb, ctr);
+    tracer.intersect_packet(&p, &quads[..nq], &active[..nq], &mut hits[..nq], slot, ctr);
     for q in 0..nq {
         let (qx, qy) = demorton(q);
         for (i, (dx, dy)) in LANES.iter().enumerate() {
@@ -501,12 +506,12 @@ pub fn make_shadow_rays<'m, W: Workers>(
     t: &[f32],
     dirs: &mut [[f32; 3]],
     workers: &mut W,
-    mailboxes: &mut dyn Iterator<Item = Mailbox<'m>>,
+    slots: &mut dyn Iterator<Item = Slot<'m>>,
 ) -> ShadowRays {
     let ss = (lay.side * lay.side) as usize;
     let n = lay.len();
     let mut items = dirs[..n].chunks_mut(ss).enumerate();
-    let work = |(tile, d): (usize, &mut [[f32; 3]]), _: &mut Mailbox<'_>, _: &mut Counters| {
+    let work = |(tile, d): (usize, &mut [[f32; 3]]), _: &mut Slot<'_>, _: &mut Counters| {
         for (k, dk) in d.iter_mut().enumerate() {
             let i = tile * ss + k;
             dk[0] = f32::NAN;
@@ -520,7 +525,7 @@ pub fn make_shadow_rays<'m, W: Workers>(
             }
         }
     };
-    workers.run(mailboxes, &mut items, &work);
+    workers.run(slots, &mut items, &work);
     let mut s = ShadowRays {
         count: 0,
         near: f32::INFINITY,
@@ -687,7 +692,7 @@ pub fn light_grid_pass<'m, W: Workers>(
     bit: u8,
     r: u32,
     workers: &mut W,
-    mailboxes: &mut dyn Iterator<Item = Mailbox<'m>>,
+    slots: &mut dyn Iterator<Item = Slot<'m>>,
 ) -> Counters {
     let light = g.frame.pos;
     // Work items by estimated cost, a ray costing its light tile's pairs:
@@ -741,7 +746,7 @@ pub fn light_grid_pass<'m, W: Workers>(
         Some(((k0, o0), mine))
     });
     let work =
-        |((k0, o0), out): ((usize, u32), &mut [u8]), mb: &mut Mailbox<'_>, ctr: &mut Counters| {
+        |((k0, o0), out): ((usize, u32), &mut [u8]), slot: &mut Slot<'_>, ctr: &mut Counters| {
             // Walk the chunk pieces of this item.
             let (mut k, mut o, mut at) = (k0, o0, 0usize);
             while at < out.len() {
@@ -759,7 +764,7 @@ pub fn light_grid_pass<'m, W: Workers>(
                     dirs,
                     light,
                     &mut out[at..at + take],
-                    mb,
+                    slot,
                     ctr,
                 );
                 at += take;
@@ -767,7 +772,7 @@ pub fn light_grid_pass<'m, W: Workers>(
                 o = 0;
             }
         };
-    let ctr = workers.run(mailboxes, &mut items, &work);
+    let ctr = workers.run(slots, &mut items, &work);
     let n: usize = chunks.iter().map(|c| c.count as usize).sum();
     for k in 0..n {
         if occ[k] != 0 {
@@ -788,7 +793,7 @@ fn trace_one_chunk(
     dirs: &[[f32; 3]],
     light: Vec3,
     out: &mut [u8],
-    mb: &mut Mailbox<'_>,
+    slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
     {
@@ -816,7 +821,7 @@ fn trace_one_chunk(
                 &quads[..nq],
                 &active[..nq],
                 &mut occluded[..nq],
-                mb,
+                slot,
                 ctr,
             );
             let base = b * 4 * traverse_shadow::MAX_QUADS;
@@ -842,7 +847,7 @@ pub fn traced_shadow_pass<'m, T: Tracer + ?Sized, W: Workers>(
     shadow: &mut [u8],
     bit: u8,
     workers: &mut W,
-    mailboxes: &mut dyn Iterator<Item = Mailbox<'m>>,
+    slots: &mut dyn Iterator<Item = Slot<'m>>,
 ) -> Counters {
     let org = Vec3::from(light.position);
     let ss = (lay.side * lay.side) as usize;
@@ -850,7 +855,7 @@ pub fn traced_shadow_pass<'m, T: Tracer + ?Sized, W: Workers>(
     let mut items = shadow[..n].chunks_mut(ss).zip(dirs[..n].chunks(ss));
     let side = lay.side;
     let packet = params.tile_side() > 0;
-    let work = |(sh, d): (&mut [u8], &[[f32; 3]]), mb: &mut Mailbox<'_>, ctr: &mut Counters| {
+    let work = |(sh, d): (&mut [u8], &[[f32; 3]]), slot: &mut Slot<'_>, ctr: &mut Counters| {
         if !packet {
             for k in 0..ss {
                 if !d[k][0].is_nan()
@@ -893,7 +898,7 @@ pub fn traced_shadow_pass<'m, T: Tracer + ?Sized, W: Workers>(
             active: &active[..nq],
             dist: &dist[..nq],
         };
-        shadow_packet(tracer, &p, packet, &mut hits[..nq], mb, ctr);
+        shadow_packet(tracer, &p, packet, &mut hits[..nq], slot, ctr);
         for q in 0..nq {
             let (qx, qy) = demorton(q);
             for (i, (dx, dy)) in LANES.iter().enumerate() {
@@ -904,7 +909,7 @@ pub fn traced_shadow_pass<'m, T: Tracer + ?Sized, W: Workers>(
             }
         }
     };
-    workers.run(mailboxes, &mut items, &work)
+    workers.run(slots, &mut items, &work)
 }
 
 /// Phase 6: Lambert shading of every pixel with every light, a light whose
@@ -927,14 +932,14 @@ pub fn shade<'m, W: Workers>(
     pixels: &mut [u8],
     stride: usize,
     workers: &mut W,
-    mailboxes: &mut dyn Iterator<Item = Mailbox<'m>>,
+    slots: &mut dyn Iterator<Item = Slot<'m>>,
 ) {
     const BAND: usize = 8;
     let sh = &frame.shading;
     let h = frame.height as usize;
     let len = pixels.len().min(h * stride);
     let mut items = pixels[..len].chunks_mut(BAND * stride).enumerate();
-    let work = |(b, rows): (usize, &mut [u8]), _: &mut Mailbox<'_>, _: &mut Counters| {
+    let work = |(b, rows): (usize, &mut [u8]), _: &mut Slot<'_>, _: &mut Counters| {
         for ry in 0..BAND {
             let y = (b * BAND + ry) as u32;
             if y >= frame.height {
@@ -969,7 +974,7 @@ pub fn shade<'m, W: Workers>(
             }
         }
     };
-    workers.run(mailboxes, &mut items, &work);
+    workers.run(slots, &mut items, &work);
 }
 
 /// Shadow-ray end point offset for a scene of `scale`.
