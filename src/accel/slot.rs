@@ -65,14 +65,21 @@ impl<'s> Slot<'s> {
     }
 
     /// `n` values of `T`, each `fill`, from the scratch, and the slot with
-    /// the rest of it (`Scratch::split`).
+    /// the rest of it, both borrowed from `self` (`Scratch::split`).
     #[inline]
     pub fn split<T: Copy>(&mut self, n: usize, fill: T) -> (&mut [T], Slot<'_>) {
-        let (vals, scratch) = self.scratch.split(n, fill);
+        self.reborrow().take(n, fill)
+    }
+
+    /// `split` for all of `'s` (`Scratch::take`): a function can carve
+    /// several arrays and hand them and the rest back to its caller.
+    #[inline]
+    pub fn take<T: Copy>(self, n: usize, fill: T) -> (&'s mut [T], Slot<'s>) {
+        let (vals, scratch) = self.scratch.take(n, fill);
         (
             vals,
             Slot {
-                mailbox: self.mailbox.reborrow(),
+                mailbox: self.mailbox,
                 scratch,
             },
         )

@@ -49,14 +49,22 @@ impl<'a> Scratch<'a> {
         Scratch { buf: self.buf }
     }
 
-    /// `n` values of `T`, each `fill`, from the front, and the rest.
+    /// `n` values of `T`, each `fill`, from the front, and the rest, both
+    /// borrowed from `self` (`take` on a reborrow).
+    #[inline]
+    pub fn split<T: Copy>(&mut self, n: usize, fill: T) -> (&mut [T], Scratch<'_>) {
+        self.reborrow().take(n, fill)
+    }
+
+    /// `n` values of `T`, each `fill`, from the front, and the rest, for
+    /// all of `'a` (so a function can hand both back to its caller).
     ///
     /// # Panics
     /// When fewer than `bytes::<T>(n)` bytes are left: the slot constant
     /// does not cover some call path, a sheaf bug (the C ABI reports it as
     /// `SHEAF_STATUS_PANIC`).
     #[inline]
-    pub fn split<T: Copy>(&mut self, n: usize, fill: T) -> (&mut [T], Scratch<'_>) {
+    pub fn take<T: Copy>(self, n: usize, fill: T) -> (&'a mut [T], Scratch<'a>) {
         let pad = self.buf.as_ptr().align_offset(align_of::<T>());
         let need = n
             .checked_mul(size_of::<T>())
@@ -79,7 +87,7 @@ impl<'a> Scratch<'a> {
             unsafe { p.add(i).write(fill) };
         }
         // SAFETY: the `n` values were all written just above; the slice
-        // borrows `head`, exclusively ours for the lifetime of `&mut self`.
+        // borrows `head`, exclusively ours for 'a.
         let vals = unsafe { core::slice::from_raw_parts_mut(p, n) };
         (vals, Scratch { buf: rest })
     }
