@@ -26,8 +26,13 @@ pub use crate::trace::Tracer;
 use crate::trace::{Counters, TraceParams};
 use glam::Vec3;
 
-/// Slot scratch this module's packet code takes (`accel::slot`).
-pub const SCRATCH: usize = 0;
+/// Slot scratch a packet tile of `render_tiles` holds while it traces:
+/// camera and shadow quads, masks and hits, shadow distances, cosines.
+pub const SCRATCH: usize = {
+    use crate::mem::scratch::bytes;
+    const Q: usize = crate::accel::packet::MAX_QUADS;
+    2 * (bytes::<Ray4>(Q) + bytes::<M4>(Q) + bytes::<Hit4>(Q)) + 2 * bytes::<F4>(Q)
+};
 
 /// Pinhole camera (C: `sheaf_camera`).
 #[repr(C)]
@@ -435,14 +440,16 @@ fn tiles<T: Tracer + ?Sized, const Q: usize>(
     let eps = SHADOW_OFFSET * tracer.scene_scale();
     let light = Vec3::from(frame.light.position);
     let lane_xy = [(0u32, 0u32), (1, 0), (0, 1), (1, 1)];
-    let mut quads = [Ray4::from_rays(&[Ray::new(Vec3::ZERO, Vec3::X, 0.0, 0.0); 4]); Q];
-    let mut active = [M4::FALSE; Q];
-    let mut hits = [Hit4::MISS; Q];
-    let mut squads = quads;
-    let mut sactive = [M4::FALSE; Q];
-    let mut shits = [Hit4::MISS; Q];
-    let mut sdist = [F4::ZERO; Q];
-    let mut cosines = [F4::ZERO; Q];
+    // The tile's packets live in the slot's scratch (`SCRATCH`).
+    let blank = Ray4::from_rays(&[Ray::new(Vec3::ZERO, Vec3::X, 0.0, 0.0); 4]);
+    let (quads, s) = slot.reborrow().take(Q, blank);
+    let (active, s) = s.take(Q, M4::FALSE);
+    let (hits, s) = s.take(Q, Hit4::MISS);
+    let (squads, s) = s.take(Q, blank);
+    let (sactive, s) = s.take(Q, M4::FALSE);
+    let (shits, s) = s.take(Q, Hit4::MISS);
+    let (sdist, s) = s.take(Q, F4::ZERO);
+    let (cosines, mut slot) = s.take(Q, F4::ZERO);
     let mut ty = y0;
     while ty < y1 {
         let mut tx = 0;
@@ -463,7 +470,7 @@ fn tiles<T: Tracer + ?Sized, const Q: usize>(
                 active[q] = M4::new(m[0], m[1], m[2], m[3]);
                 hits[q] = Hit4::MISS;
             }
-            tracer.intersect_packet(primary, &quads, &active, &mut hits, slot, ctr);
+            tracer.intersect_packet(primary, quads, active, hits, &mut slot, ctr);
             // Shadow packet from the light towards the lit hit points.
             for q in 0..Q {
                 let mut lanes = [Ray::new(light, Vec3::X, 0.0, 0.0); 4];
@@ -489,11 +496,11 @@ fn tiles<T: Tracer + ?Sized, const Q: usize>(
                 shits[q] = Hit4::MISS;
             }
             let packet = ShadowPacket {
-                rays: &squads,
-                active: &sactive,
-                dist: &sdist,
+                rays: squads,
+                active: sactive,
+                dist: sdist,
             };
-            shadow_packet(tracer, shadow, packet, &mut shits, slot, ctr);
+            shadow_packet(tracer, shadow, packet, shits, &mut slot, ctr);
             // Shade and store.
             for q in 0..Q {
                 let (qx, qy) = demorton(q);

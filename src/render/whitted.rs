@@ -72,16 +72,12 @@
 //! Partition traversal is the paper's answer (section 5.4).
 //!
 //! # Memory
-//! No allocation. The packet path keeps per recursion level (one per
-//! bounce, at most `1 + MAX_BOUNCES` levels) about 270 bytes per quad on
-//! the stack (the level's hits and its child packet); the tile, the
-//! shading of one level (surfaces, one shadow packet) and the traversal
-//! below it add about 900 bytes per quad, once. Measured (release, x86-64,
-//! grid CGT, one light): 16 x 16 tiles need about 170 KB of stack plus
-//! 17 KB per bounce (300 KB with 8 bounces), 32 x 32 tiles about 335 KB
-//! plus 68 KB per bounce (875 KB with 8). Give rendering threads a stack
-//! of 1 MB or more for 32 x 32 Whitted tiles (Rust's default for spawned
-//! threads is 2 MB).
+//! No allocation, and the packet path keeps its packets in the calling
+//! thread slot's scratch, not on the stack: per recursion level (one per
+//! bounce, at most `1 + MAX_BOUNCES` levels) the level's hits and its child
+//! packet, once the tile, the shading of one level (surfaces, one shadow
+//! packet) and the traversal below it (`SCRATCH`, counted in
+//! `required_bytes`).
 //!
 //! # Deviations
 //! - The paper does not define its shading; the model above is the classic
@@ -101,9 +97,6 @@ use crate::geom::{F4, Hit, Hit4, INVALID_ID, M4, Ray, Ray4};
 use crate::math;
 use crate::trace::{Counters, RayKind, TraceParams};
 use glam::Vec3;
-
-/// Slot scratch this module's packet code takes (`accel::slot`).
-pub const SCRATCH: usize = 0;
 
 /// Most bounces (reflections plus refractions) on one path: bounds the
 /// recursion depth and the stack (see the module docs, Memory).
@@ -534,22 +527,43 @@ pub fn render_whitted_tiles<T: Tracer + ?Sized>(
 }
 
 /// A packet of one level of the ray trees: its quads, their active lanes
-/// and each lane's throughput (the weight its colour is added with).
-struct Packet<const Q: usize> {
-    rays: [Ray4; Q],
-    active: [M4; Q],
-    w: [F4; Q],
+/// and each lane's throughput (the weight its colour is added with), in
+/// the slot's scratch.
+struct Packet<'s> {
+    rays: &'s mut [Ray4],
+    active: &'s mut [M4],
+    w: &'s mut [F4],
 }
 
-impl<const Q: usize> Packet<Q> {
-    fn idle(w: F4) -> Self {
-        Packet {
-            rays: [Ray4::from_rays(&[idle_ray(); 4]); Q],
-            active: [M4::FALSE; Q],
-            w: [w; Q],
-        }
+impl<'s> Packet<'s> {
+    /// An idle packet of `q` quads with throughput `w` from `slot`, and the
+    /// rest of the slot.
+    fn idle(slot: Slot<'s>, q: usize, w: F4) -> (Packet<'s>, Slot<'s>) {
+        let (rays, slot) = slot.take(q, Ray4::from_rays(&[idle_ray(); 4]));
+        let (active, slot) = slot.take(q, M4::FALSE);
+        let (w, slot) = slot.take(q, w);
+        (Packet { rays, active, w }, slot)
     }
 }
+
+/// Slot scratch of a Whitted tile at the deepest level: the tile (camera
+/// packet, colours), per level a packet of hits and its child packet, and
+/// the largest shading scratch (`shade_packet`).
+pub const SCRATCH: usize = {
+    use crate::mem::scratch::bytes;
+    const Q: usize = crate::accel::packet::MAX_QUADS;
+    const PACKET: usize = bytes::<Ray4>(Q) + bytes::<M4>(Q) + bytes::<F4>(Q);
+    const LEVEL: usize = bytes::<Hit4>(Q) + PACKET;
+    const SHADE: usize = bytes::<[Option<Surface>; 4]>(Q)
+        + bytes::<[Vec3; 4]>(Q)
+        + bytes::<Ray4>(Q)
+        + bytes::<M4>(Q)
+        + bytes::<Hit4>(Q)
+        + 2 * bytes::<F4>(Q);
+    // One level per bounce plus the camera level.
+    const LEVELS: usize = MAX_BOUNCES as usize + 1;
+    PACKET + bytes::<[Vec3; 4]>(Q) + LEVELS * LEVEL + SHADE
+};
 
 fn tiles<T: Tracer + ?Sized, const Q: usize>(
     tracer: &T,
@@ -570,7 +584,8 @@ fn tiles<T: Tracer + ?Sized, const Q: usize>(
     let primary = job.primary.with_kind(RayKind::Primary);
     let width = job.frame.width;
     // Camera rays have throughput 1.
-    let mut pk = Packet::<Q>::idle(F4::ONE);
+    let (pk, s) = Packet::idle(slot.reborrow(), Q, F4::ONE);
+    let (acc, mut slot) = s.take(Q, [Vec3::ZERO; 4]);
     let mut ty = y0;
     while ty < y1 {
         let mut tx = 0;
@@ -588,9 +603,9 @@ fn tiles<T: Tracer + ?Sized, const Q: usize>(
                 }
                 (pk.rays[q], pk.active[q]) = pack(&mut lanes, &m);
             }
-            let mut acc = [[Vec3::ZERO; 4]; Q];
-            level::<T, Q>(&f, &primary, &pk, Depth::default(), &mut acc, slot, ctr);
-            for (q, (quad, m)) in acc.iter().zip(&pk.active).enumerate() {
+            acc.fill([Vec3::ZERO; 4]);
+            level::<T, Q>(&f, &primary, &pk, Depth::default(), acc, &mut slot, ctr);
+            for (q, (quad, m)) in acc.iter().zip(pk.active.iter()).enumerate() {
                 let (qx, qy) = demorton(q);
                 for (i, (dx, dy)) in LANE_XY.iter().enumerate() {
                     if m.test(i) {
@@ -626,15 +641,17 @@ fn packets(p: &TraceParams, q: usize) -> impl Iterator<Item = core::ops::Range<u
 fn level<T: Tracer + ?Sized, const Q: usize>(
     f: &Trees<'_, T>,
     p: &TraceParams,
-    pk: &Packet<Q>,
+    pk: &Packet<'_>,
     depth: Depth,
-    acc: &mut [[Vec3; 4]; Q],
+    acc: &mut [[Vec3; 4]],
     slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
     let (tracer, job) = (f.tracer, f.job);
     let (rays, active) = (&pk.rays, &pk.active);
-    let mut hits = [Hit4::MISS; Q];
+    // This level's hits and child packet stay in the slot's scratch while
+    // the deeper levels use the rest of it.
+    let (hits, mut slot) = slot.split(Q, Hit4::MISS);
     for r in packets(p, Q) {
         if active[r.clone()].iter().any(|m| m.any()) {
             tracer.intersect_packet(
@@ -642,22 +659,22 @@ fn level<T: Tracer + ?Sized, const Q: usize>(
                 &rays[r.clone()],
                 &active[r.clone()],
                 &mut hits[r],
-                slot,
+                &mut slot,
                 ctr,
             );
         }
     }
-    let (want_r, want_t) = shade_packet::<T, Q>(f, pk, &hits, depth, acc, slot, ctr);
+    let (want_r, want_t) = shade_packet::<T, Q>(f, pk, hits, depth, acc, &mut slot, ctr);
     if !(want_r || want_t) {
         return;
     }
     let secondary = job.secondary.with_kind(RayKind::Secondary);
-    let mut cpk = Packet::<Q>::idle(F4::ZERO);
-    if want_r && child::<T, Q>(f, true, pk, &hits, depth, &mut cpk) {
-        level::<T, Q>(f, &secondary, &cpk, depth.reflected(), acc, slot, ctr);
+    let (mut cpk, mut slot) = Packet::idle(slot, Q, F4::ZERO);
+    if want_r && child::<T, Q>(f, true, pk, hits, depth, &mut cpk) {
+        level::<T, Q>(f, &secondary, &cpk, depth.reflected(), acc, &mut slot, ctr);
     }
-    if want_t && child::<T, Q>(f, false, pk, &hits, depth, &mut cpk) {
-        level::<T, Q>(f, &secondary, &cpk, depth.refracted(), acc, slot, ctr);
+    if want_t && child::<T, Q>(f, false, pk, hits, depth, &mut cpk) {
+        level::<T, Q>(f, &secondary, &cpk, depth.refracted(), acc, &mut slot, ctr);
     }
 }
 
@@ -667,10 +684,10 @@ fn level<T: Tracer + ?Sized, const Q: usize>(
 #[inline(never)]
 fn shade_packet<T: Tracer + ?Sized, const Q: usize>(
     f: &Trees<'_, T>,
-    pk: &Packet<Q>,
-    hits: &[Hit4; Q],
+    pk: &Packet<'_>,
+    hits: &[Hit4],
     depth: Depth,
-    acc: &mut [[Vec3; 4]; Q],
+    acc: &mut [[Vec3; 4]],
     slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) -> (bool, bool) {
@@ -681,8 +698,8 @@ fn shade_packet<T: Tracer + ?Sized, const Q: usize>(
         refractions,
     } = depth;
     let sh = &job.frame.shading;
-    let mut surf = [[None::<Surface>; 4]; Q];
-    let mut sum = [[Vec3::splat(sh.ambient); 4]; Q];
+    let (surf, s) = slot.reborrow().take(Q, [None::<Surface>; 4]);
+    let (sum, s) = s.take(Q, [Vec3::splat(sh.ambient); 4]);
     let mut any_hit = false;
     for (q, lanes) in surf.iter_mut().enumerate() {
         for (i, s) in lanes.iter_mut().enumerate() {
@@ -699,11 +716,11 @@ fn shade_packet<T: Tracer + ?Sized, const Q: usize>(
             job.secondary
         };
         let shadow = shadow.with_kind(RayKind::Shadow);
-        let mut squads = [Ray4::from_rays(&[idle_ray(); 4]); Q];
-        let mut sactive = [M4::FALSE; Q];
-        let mut shits = [Hit4::MISS; Q];
-        let mut sdist = [F4::ZERO; Q];
-        let mut cosines = [F4::ZERO; Q];
+        let (squads, s) = s.take(Q, Ray4::from_rays(&[idle_ray(); 4]));
+        let (sactive, s) = s.take(Q, M4::FALSE);
+        let (shits, s) = s.take(Q, Hit4::MISS);
+        let (sdist, s) = s.take(Q, F4::ZERO);
+        let (cosines, mut slot) = s.take(Q, F4::ZERO);
         for light in job.lights() {
             for q in 0..Q {
                 let mut lanes = [idle_ray(); 4];
@@ -729,7 +746,7 @@ fn shade_packet<T: Tracer + ?Sized, const Q: usize>(
                     active: &sactive[r.clone()],
                     dist: &sdist[r.clone()],
                 };
-                shadow_packet(tracer, &shadow, packet, &mut shits[r], slot, ctr);
+                shadow_packet(tracer, &shadow, packet, &mut shits[r], &mut slot, ctr);
             }
             for q in 0..Q {
                 for i in 0..4 {
@@ -771,10 +788,10 @@ fn shade_packet<T: Tracer + ?Sized, const Q: usize>(
 fn child<T: Tracer + ?Sized, const Q: usize>(
     f: &Trees<'_, T>,
     reflected: bool,
-    pk: &Packet<Q>,
-    hits: &[Hit4; Q],
+    pk: &Packet<'_>,
+    hits: &[Hit4],
     depth: Depth,
-    out: &mut Packet<Q>,
+    out: &mut Packet<'_>,
 ) -> bool {
     let (tracer, job, eps) = (f.tracer, f.job, f.eps);
     let (rays, active, w) = (&pk.rays, &pk.active, &pk.w);

@@ -280,21 +280,21 @@ pub fn batch_on(
     out: &mut dyn FnMut(usize, &Hit4, usize),
     any: bool,
 ) -> Counters {
-    const QUADS: usize = MAX_QUADS;
     let mut ctr = Counters::default();
     let per = if p.method.is_packet() {
         (p.packet * p.packet) as usize
     } else {
         4
     };
-    let mut quads =
-        [Ray4::from_rays(&[Ray::new(glam::Vec3::ZERO, glam::Vec3::X, 0.0, 0.0); 4]); QUADS];
-    let mut active = [M4::FALSE; QUADS];
-    let mut hits = [Hit4::MISS; QUADS];
+    let nq_max = per.div_ceil(4).min(MAX_QUADS);
+    let blank = Ray4::from_rays(&[Ray::new(glam::Vec3::ZERO, glam::Vec3::X, 0.0, 0.0); 4]);
+    let (quads, s) = slot.reborrow().take(nq_max, blank);
+    let (active, s) = s.take(nq_max, M4::FALSE);
+    let (hits, mut s) = s.take(nq_max, Hit4::MISS);
     let mut start = 0;
     while start < count {
         let n = (count - start).min(per);
-        let nq = crate::trace::pack_quads(n, |k| read(start + k), &mut quads, &mut active);
+        let nq = crate::trace::pack_quads(n, |k| read(start + k), quads, active);
         hits[..nq].fill(Hit4::MISS);
         if any {
             tr.occluded_packet(
@@ -302,7 +302,7 @@ pub fn batch_on(
                 &quads[..nq],
                 &active[..nq],
                 &mut hits[..nq],
-                slot,
+                &mut s,
                 &mut ctr,
             );
         } else {
@@ -311,7 +311,7 @@ pub fn batch_on(
                 &quads[..nq],
                 &active[..nq],
                 &mut hits[..nq],
-                slot,
+                &mut s,
                 &mut ctr,
             );
         }

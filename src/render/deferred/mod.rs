@@ -41,8 +41,13 @@ use crate::geom::{F4, Hit4, INVALID_ID, M4, Ray, Ray4, TriVerts};
 use crate::trace::{Counters, TraceParams};
 use glam::Vec3;
 
-/// Slot scratch this module's packet code takes (`accel::slot`).
-pub const SCRATCH: usize = 0;
+/// Slot scratch a deferred tile holds while it traces: quads, masks, hits
+/// and shadow distances of one tile of at most 32 x 32 pixels.
+pub const SCRATCH: usize = {
+    use crate::mem::scratch::bytes;
+    const Q: usize = MAX_QUADS;
+    bytes::<Ray4>(Q) + bytes::<M4>(Q) + bytes::<Hit4>(Q) + bytes::<F4>(Q)
+};
 
 /// How camera rays are traced.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -335,9 +340,9 @@ fn pgrid_tile(
     let ts = side / sort;
     let half = sort / 2;
     let nq = (half * half) as usize;
-    let mut quads = [Ray4::from_rays(&[DUMMY; 4]); traverse_primary::MAX_QUADS];
-    let mut active = [M4::FALSE; traverse_primary::MAX_QUADS];
-    let mut hits = [Hit4::MISS; traverse_primary::MAX_QUADS];
+    let (quads, s) = slot.reborrow().take(nq, Ray4::from_rays(&[DUMMY; 4]));
+    let (active, s) = s.take(nq, M4::FALSE);
+    let (hits, mut slot) = s.take(nq, Hit4::MISS);
     prim.fill(INVALID_ID);
     for sy in 0..ts {
         for sx in 0..ts {
@@ -361,15 +366,7 @@ fn pgrid_tile(
                 hits[q] = Hit4::MISS;
             }
             let tile = (py / sort) * st[0] + px / sort;
-            traverse_primary::trace_tile(
-                cam,
-                tile,
-                &quads[..nq],
-                &active[..nq],
-                &mut hits[..nq],
-                slot,
-                ctr,
-            );
+            traverse_primary::trace_tile(cam, tile, quads, active, hits, &mut slot, ctr);
             for q in 0..nq {
                 let (qx, qy) = (q as u32 % half, q as u32 / half);
                 for (i, (dx, dy)) in LANES.iter().enumerate() {
@@ -421,9 +418,9 @@ fn traced_tile<T: Tracer + ?Sized>(
         return;
     }
     let nq = ((side / 2) * (side / 2)) as usize;
-    let mut quads = [Ray4::from_rays(&[DUMMY; 4]); MAX_QUADS];
-    let mut active = [M4::FALSE; MAX_QUADS];
-    let mut hits = [Hit4::MISS; MAX_QUADS];
+    let (quads, s) = slot.reborrow().take(nq, Ray4::from_rays(&[DUMMY; 4]));
+    let (active, s) = s.take(nq, M4::FALSE);
+    let (hits, mut slot) = s.take(nq, Hit4::MISS);
     for q in 0..nq {
         let (qx, qy) = demorton(q);
         let mut lanes = [DUMMY; 4];
@@ -443,7 +440,7 @@ fn traced_tile<T: Tracer + ?Sized>(
         packet: side,
         ..*params
     };
-    tracer.intersect_packet(&p, &quads[..nq], &active[..nq], &mut hits[..nq], slot, ctr);
+    tracer.intersect_packet(&p, quads, active, hits, &mut slot, ctr);
     for q in 0..nq {
         let (qx, qy) = demorton(q);
         for (i, (dx, dy)) in LANES.iter().enumerate() {
@@ -868,10 +865,10 @@ pub fn traced_shadow_pass<'m, T: Tracer + ?Sized, W: Workers>(
         }
         // Packets of the tile in Morton order, so quarters are sub-packets.
         let nq = ss / 4;
-        let mut quads = [Ray4::from_rays(&[DUMMY; 4]); MAX_QUADS];
-        let mut active = [M4::FALSE; MAX_QUADS];
-        let mut hits = [Hit4::MISS; MAX_QUADS];
-        let mut dist = [F4::ZERO; MAX_QUADS];
+        let (quads, s) = slot.reborrow().take(nq, Ray4::from_rays(&[DUMMY; 4]));
+        let (active, s) = s.take(nq, M4::FALSE);
+        let (hits, s) = s.take(nq, Hit4::MISS);
+        let (dist, mut slot) = s.take(nq, F4::ZERO);
         for q in 0..nq {
             let (qx, qy) = demorton(q);
             let mut lanes = [DUMMY; 4];
@@ -894,11 +891,11 @@ pub fn traced_shadow_pass<'m, T: Tracer + ?Sized, W: Workers>(
             ..*params
         };
         let packet = ShadowPacket {
-            rays: &quads[..nq],
-            active: &active[..nq],
-            dist: &dist[..nq],
+            rays: quads,
+            active,
+            dist,
         };
-        shadow_packet(tracer, &p, packet, &mut hits[..nq], slot, ctr);
+        shadow_packet(tracer, &p, packet, hits, &mut slot, ctr);
         for q in 0..nq {
             let (qx, qy) = demorton(q);
             for (i, (dx, dy)) in LANES.iter().enumerate() {
