@@ -1,11 +1,10 @@
-//! `sheaf_kd_params`, `sheaf_entry_search` and `sheaf_context_build_kd`:
+//! `sheaf_kd_params` and `sheaf_context_build_kd`:
 //! the kd-tree (AEPSA paper section 5.1) and the entry-point searches its
 //! and the BVH's packets may run first.
 
 use super::context::{sheaf_context, with_mut};
 use super::grid::sheaf_tri_test;
 use super::{check_non_null, guard_free, raw, read_in, sheaf_status, write_out};
-use crate::accel::entry::EntrySearch;
 use crate::accel::kd::KdParams;
 use crate::error::{Error, Result};
 
@@ -43,35 +42,6 @@ impl sheaf_kd_params {
         };
         p.validate()?;
         Ok(p)
-    }
-}
-
-/// Entry-point search before each tree packet (the crate's `EntrySearch`).
-#[repr(u32)]
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum sheaf_entry_search {
-    /// Packets start at the root.
-    None = 0,
-    /// MLRTA (Reshetov et al. 2005; AEPSA paper section 2.2).
-    Mlrta = 1,
-    /// AEPSA (AEPSA paper sections 3.1-3.3).
-    Aepsa = 2,
-}
-
-impl sheaf_entry_search {
-    pub const fn of(e: EntrySearch) -> sheaf_entry_search {
-        match e {
-            EntrySearch::None => sheaf_entry_search::None,
-            EntrySearch::Mlrta => sheaf_entry_search::Mlrta,
-            EntrySearch::Aepsa => sheaf_entry_search::Aepsa,
-        }
-    }
-    pub fn to_core(raw: u32) -> Result<EntrySearch> {
-        EntrySearch::ALL
-            .iter()
-            .copied()
-            .find(|&e| sheaf_entry_search::of(e) as u32 == raw)
-            .ok_or(Error::InvalidArgument("unknown sheaf_entry_search"))
     }
 }
 
@@ -156,12 +126,5 @@ mod tests {
             .to_core()
             .is_err()
         );
-        for &e in EntrySearch::ALL {
-            assert_eq!(
-                sheaf_entry_search::to_core(sheaf_entry_search::of(e) as u32),
-                Ok(e)
-            );
-        }
-        assert!(sheaf_entry_search::to_core(3).is_err());
     }
 }

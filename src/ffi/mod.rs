@@ -10,8 +10,9 @@
 //! | `limits.rs` | `sheaf_limits` (the crate's `Limits`), `sheaf_limits_default` |
 //! | `grid.rs` | `sheaf_grid_params`, `sheaf_tri_test`, `sheaf_grid_params_default` |
 //! | `bvh.rs` | `sheaf_bvh_params`, `sheaf_ray_kind`, `sheaf_bvh_params_default` |
-//! | `kd.rs` | `sheaf_kd_params`, `sheaf_entry_search`, `sheaf_kd_params_default`, `sheaf_context_build_kd` |
+//! | `kd.rs` | `sheaf_kd_params`, `sheaf_kd_params_default`, `sheaf_context_build_kd` |
 //! | `method.rs` | `sheaf_method` |
+//! | `trace_params.rs` | `sheaf_trace_params`, `sheaf_entry_search`, `sheaf_trace_params_default` |
 //! | `ray.rs` | `sheaf_ray`, `sheaf_hit` (the C twins of `Ray`, `Hit`) |
 //! | `pgrid.rs` | `sheaf_pgrid_params`, `sheaf_pgrid_params_default`, `sheaf_context_build_pgrid`, `sheaf_deferred_job`, `sheaf_context_render_deferred`, `sheaf_context_deferred_pixel`, `sheaf_context_deferred_shadow_ray` |
 //! | `frame.rs` | `sheaf_frame` (camera, light, shading, size), `sheaf_shading_default`, `sheaf_frame_camera_ray` |
@@ -78,9 +79,7 @@ pub use context::{
 };
 pub use frame::{sheaf_frame, sheaf_frame_camera_ray, sheaf_shading, sheaf_shading_default};
 pub use grid::{sheaf_grid_params, sheaf_grid_params_default, sheaf_tri_test};
-pub use kd::{
-    sheaf_context_build_kd, sheaf_entry_search, sheaf_kd_params, sheaf_kd_params_default,
-};
+pub use kd::{sheaf_context_build_kd, sheaf_kd_params, sheaf_kd_params_default};
 pub use limits::{sheaf_limits, sheaf_limits_default};
 pub use method::sheaf_method;
 pub use pgrid::{
@@ -91,7 +90,7 @@ pub use pgrid::{
 pub use ray::{sheaf_hit, sheaf_ray};
 pub use stats::sheaf_stats;
 pub use status::{sheaf_status, sheaf_status_string};
-pub use trace_params::{sheaf_trace_params, sheaf_trace_params_default};
+pub use trace_params::{sheaf_entry_search, sheaf_trace_params, sheaf_trace_params_default};
 pub use version::sheaf_version_string;
 pub use whitted::{sheaf_context_render_whitted, sheaf_whitted_params_default};
 

@@ -3,8 +3,38 @@
 
 use super::method::sheaf_method;
 use super::{check_non_null, flag, guard_free, raw, write_out};
-use crate::error::Result;
+use crate::accel::entry::EntrySearch;
+use crate::error::{Error, Result};
 use crate::trace::{CgtOptions, TraceParams};
+
+/// Entry-point search before each tree packet (the crate's `EntrySearch`).
+#[repr(u32)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum sheaf_entry_search {
+    /// Packets start at the root.
+    None = 0,
+    /// MLRTA (Reshetov et al. 2005; AEPSA paper section 2.2).
+    Mlrta = 1,
+    /// AEPSA (AEPSA paper sections 3.1-3.3).
+    Aepsa = 2,
+}
+
+impl sheaf_entry_search {
+    pub const fn of(e: EntrySearch) -> sheaf_entry_search {
+        match e {
+            EntrySearch::None => sheaf_entry_search::None,
+            EntrySearch::Mlrta => sheaf_entry_search::Mlrta,
+            EntrySearch::Aepsa => sheaf_entry_search::Aepsa,
+        }
+    }
+    pub fn to_core(raw: u32) -> Result<EntrySearch> {
+        EntrySearch::ALL
+            .iter()
+            .copied()
+            .find(|&e| sheaf_entry_search::of(e) as u32 == raw)
+            .ok_or(Error::InvalidArgument("unknown sheaf_entry_search"))
+    }
+}
 
 /// Method, packet side, CGT switches and BVH frustum settings for one class
 /// of rays (camera, shadow, or reflection and refraction). Start from `sheaf_trace_params_default`.
@@ -44,7 +74,7 @@ impl sheaf_trace_params {
             mailbox: p.cgt.mailbox.into(),
             culling: p.cgt.culling.into(),
             ray_kind: super::bvh::sheaf_ray_kind::of(p.bvh.kind) as u32,
-            entry: super::kd::sheaf_entry_search::of(p.entry) as u32,
+            entry: sheaf_entry_search::of(p.entry) as u32,
             split: p.split,
         }
     }
@@ -66,7 +96,7 @@ impl sheaf_trace_params {
                 culling,
                 kind: super::bvh::sheaf_ray_kind::to_core(self.ray_kind)?,
             },
-            entry: super::kd::sheaf_entry_search::to_core(self.entry)?,
+            entry: sheaf_entry_search::to_core(self.entry)?,
             split: self.split,
         };
         p.validate()?;
@@ -85,4 +115,20 @@ pub extern "C" fn sheaf_trace_params_default(out: *mut sheaf_trace_params) -> su
         write_out(out, sheaf_trace_params::of(&TraceParams::default()));
         Ok(())
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn entry_search_round_trips() {
+        for &e in EntrySearch::ALL {
+            assert_eq!(
+                sheaf_entry_search::to_core(sheaf_entry_search::of(e) as u32),
+                Ok(e)
+            );
+        }
+        assert!(sheaf_entry_search::to_core(3).is_err());
+    }
 }
