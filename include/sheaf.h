@@ -226,8 +226,8 @@ enum sheaf_method
     /**
      * Uniform grid, coherent grid traversal of packets (CGT paper sections
      * 2.2-2.4). Trace and occluded calls form 8x8 packets from consecutive
-     * rays (every 4 rays a 2x2 quad) and, having no thread slot, run without
-     * mailboxing; render uses 8x8 tiles and the context's mailbox.
+     * rays (every 4 rays a 2x2 quad); render uses 8x8 tiles; both use the
+     * thread slot's mailbox.
      */
     SHEAF_METHOD_GRID_CGT = 1,
     /**
@@ -555,9 +555,8 @@ typedef struct sheaf_trace_params {
      */
     uint8_t macrocells;
     /**
-     * CGT: test each triangle once per packet (section 2.3). Trace and
-     * occluded calls have no thread slot and ignore it (still 0 or 1);
-     * render uses it.
+     * CGT: test each triangle once per packet (section 2.3), with the
+     * thread slot's mailbox. 0 or 1.
      */
     uint8_t mailbox;
     /**
@@ -1300,12 +1299,16 @@ sheaf_status sheaf_context_build_bvh(struct sheaf_context *ctx,
  * `tmin < 0` or `tmin > tmax` are misses. Results are those of the Rust
  * API (`Context::trace`), bit for bit.
  *
- * Packet methods keep a packet's rays and scratch on the calling thread's
- * stack (up to about 160 KB at 32x32).
+ * The call takes the highest free thread slot for its packets' scratch and
+ * mailbox (and gives it back): no call uses more than 16 KiB of the
+ * caller's stack. A `_slot` call naming the slot meanwhile gets
+ * `SHEAF_STATUS_SLOT_BUSY`; give threads that use `_slot` calls slots
+ * from 0 up and leave the top ones to slot-less calls.
  *
- * Thread-safe: several threads may trace (and call occluded, stats,
- * last_error) on one built context at the same time. Does not update
- * `sheaf_stats` (whose counters describe the last render).
+ * Thread-safe: up to `sheaf_limits.max_threads` threads may trace (and
+ * call occluded, stats, last_error) on one built context at the same time;
+ * one more finds no free slot and gets `SHEAF_STATUS_CAPACITY_THREADS`.
+ * Does not update `sheaf_stats` (whose counters describe the last render).
  *
  * Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_INVALID_ARGUMENT`
  * (method, count, overlap), `SHEAF_STATUS_NOT_BUILT`. `hits` is written
@@ -1322,8 +1325,9 @@ sheaf_status sheaf_context_trace(const struct sheaf_context *ctx,
  * (copied). Packet methods take the rays in order as packets of
  * `packet * packet` rays, every 4 consecutive rays one 2x2 quad (lane order
  * (x, y), (x+1, y), (x, y+1), (x+1, y+1)); results do not depend on the
- * grouping. No mailbox (no thread slot). Thread-safe like
- * `sheaf_context_trace`.
+ * grouping. Takes a free thread slot (its mailbox too, with
+ * `params->mailbox`) as `sheaf_context_trace` does, and is thread-safe
+ * like it.
  *
  * Errors: those of `sheaf_context_trace`, and `SHEAF_STATUS_INVALID_ARGUMENT`
  * for a bad packet side or split ratio.
@@ -1390,8 +1394,8 @@ sheaf_status sheaf_context_occluded(const struct sheaf_context *ctx,
 /**
  * `sheaf_context_occluded` with the method, packet side and CGT switches
  * of `*params` (copied; the packets as `sheaf_context_trace_with` forms
- * them, the frustum of `params->ray_kind`). No mailbox (no thread
- * slot). Thread-safe like `sheaf_context_trace`.
+ * them, the frustum of `params->ray_kind`). Takes a free thread slot as
+ * `sheaf_context_trace` does, and is thread-safe like it.
  *
  * Errors: those of `sheaf_context_trace_with`. `occluded` is written only
  * on success.
@@ -1773,9 +1777,9 @@ sheaf_status sheaf_whitted_params_default(struct sheaf_whitted_params *out);
  * (camera packets take that side). The image does not depend on these
  * choices.
  *
- * Stack: packets live on the calling thread's stack, about 300 KB for
- * 16x16 tiles and 900 KB for 32x32 tiles at 8 bounces; call it from a
- * thread with at least 1 MB of stack for 32x32.
+ * Stack: packets and bounce levels live in thread slot 0's scratch (sized
+ * at creation for 32x32 tiles and 8 bounces); the call uses at most 16 KiB
+ * of the caller's stack.
  *
  * Updates `sheaf_stats` (counters, trace time). All arrays are only read
  * and must be naturally aligned.

@@ -616,12 +616,16 @@ pub extern "C" fn sheaf_context_build_bvh(
 /// `tmin < 0` or `tmin > tmax` are misses. Results are those of the Rust
 /// API (`Context::trace`), bit for bit.
 ///
-/// Packet methods keep a packet's rays and scratch on the calling thread's
-/// stack (up to about 160 KB at 32x32).
+/// The call takes the highest free thread slot for its packets' scratch and
+/// mailbox (and gives it back): no call uses more than 16 KiB of the
+/// caller's stack. A `_slot` call naming the slot meanwhile gets
+/// `SHEAF_STATUS_SLOT_BUSY`; give threads that use `_slot` calls slots
+/// from 0 up and leave the top ones to slot-less calls.
 ///
-/// Thread-safe: several threads may trace (and call occluded, stats,
-/// last_error) on one built context at the same time. Does not update
-/// `sheaf_stats` (whose counters describe the last render).
+/// Thread-safe: up to `sheaf_limits.max_threads` threads may trace (and
+/// call occluded, stats, last_error) on one built context at the same time;
+/// one more finds no free slot and gets `SHEAF_STATUS_CAPACITY_THREADS`.
+/// Does not update `sheaf_stats` (whose counters describe the last render).
 ///
 /// Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_INVALID_ARGUMENT`
 /// (method, count, overlap), `SHEAF_STATUS_NOT_BUILT`. `hits` is written
@@ -647,8 +651,9 @@ pub extern "C" fn sheaf_context_trace(
 /// (copied). Packet methods take the rays in order as packets of
 /// `packet * packet` rays, every 4 consecutive rays one 2x2 quad (lane order
 /// (x, y), (x+1, y), (x, y+1), (x+1, y+1)); results do not depend on the
-/// grouping. No mailbox (no thread slot). Thread-safe like
-/// `sheaf_context_trace`.
+/// grouping. Takes a free thread slot (its mailbox too, with
+/// `params->mailbox`) as `sheaf_context_trace` does, and is thread-safe
+/// like it.
 ///
 /// Errors: those of `sheaf_context_trace`, and `SHEAF_STATUS_INVALID_ARGUMENT`
 /// for a bad packet side or split ratio.
@@ -804,8 +809,8 @@ pub extern "C" fn sheaf_context_occluded(
 
 /// `sheaf_context_occluded` with the method, packet side and CGT switches
 /// of `*params` (copied; the packets as `sheaf_context_trace_with` forms
-/// them, the frustum of `params->ray_kind`). No mailbox (no thread
-/// slot). Thread-safe like `sheaf_context_trace`.
+/// them, the frustum of `params->ray_kind`). Takes a free thread slot as
+/// `sheaf_context_trace` does, and is thread-safe like it.
 ///
 /// Errors: those of `sheaf_context_trace_with`. `occluded` is written only
 /// on success.

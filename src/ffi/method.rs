@@ -13,8 +13,8 @@ pub enum sheaf_method {
     GridDda = 0,
     /// Uniform grid, coherent grid traversal of packets (CGT paper sections
     /// 2.2-2.4). Trace and occluded calls form 8x8 packets from consecutive
-    /// rays (every 4 rays a 2x2 quad) and, having no thread slot, run without
-    /// mailboxing; render uses 8x8 tiles and the context's mailbox.
+    /// rays (every 4 rays a 2x2 quad); render uses 8x8 tiles; both use the
+    /// thread slot's mailbox.
     GridCgt = 1,
     /// BVH, single-ray stack traversal (the BVH reference; BVH paper).
     BvhSingle = 2,

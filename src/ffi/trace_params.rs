@@ -47,9 +47,8 @@ pub struct sheaf_trace_params {
     pub packet: u32,
     /// CGT: skip slices of empty macrocells (paper section 2.4). 0 or 1.
     pub macrocells: u8,
-    /// CGT: test each triangle once per packet (section 2.3). Trace and
-    /// occluded calls have no thread slot and ignore it (still 0 or 1);
-    /// render uses it.
+    /// CGT: test each triangle once per packet (section 2.3), with the
+    /// thread slot's mailbox. 0 or 1.
     pub mailbox: u8,
     /// Frustum culling: CGT's SIMD corner-ray culling (CGT section 2.3) and
     /// the BVH packets' box and triangle culling (BVH paper section 4).

@@ -59,9 +59,9 @@ fn borrow<'a, T>(p: *const T, n: usize, what: &'static str) -> Result<&'a [T]> {
 /// (camera packets take that side). The image does not depend on these
 /// choices.
 ///
-/// Stack: packets live on the calling thread's stack, about 300 KB for
-/// 16x16 tiles and 900 KB for 32x32 tiles at 8 bounces; call it from a
-/// thread with at least 1 MB of stack for 32x32.
+/// Stack: packets and bounce levels live in thread slot 0's scratch (sized
+/// at creation for 32x32 tiles and 8 bounces); the call uses at most 16 KiB
+/// of the caller's stack.
 ///
 /// Updates `sheaf_stats` (counters, trace time). All arrays are only read
 /// and must be naturally aligned.
