@@ -84,14 +84,10 @@ impl<A: Accel> Tracer for A {
         slot: &mut Slot<'_>,
         ctr: &mut Counters,
     ) {
-        use packet::trace;
-        match self.test() {
-            TriTest::MollerTrumbore => {
-                trace::<A, Mt, false>(self, p, rays, active, hits, slot, ctr)
-            }
-            TriTest::Watertight => trace::<A, Wt, false>(self, p, rays, active, hits, slot, ctr),
-            TriTest::Projection => trace::<A, Pt, false>(self, p, rays, active, hits, slot, ctr),
-        }
+        by_test!(
+            self.test(),
+            nearest::<A>(self, p, rays, active, hits, slot, ctr)
+        )
     }
     fn occluded_packet(
         &self,
@@ -102,12 +98,10 @@ impl<A: Accel> Tracer for A {
         slot: &mut Slot<'_>,
         ctr: &mut Counters,
     ) {
-        use packet::trace;
-        match self.test() {
-            TriTest::MollerTrumbore => trace::<A, Mt, true>(self, p, rays, active, hits, slot, ctr),
-            TriTest::Watertight => trace::<A, Wt, true>(self, p, rays, active, hits, slot, ctr),
-            TriTest::Projection => trace::<A, Pt, true>(self, p, rays, active, hits, slot, ctr),
-        }
+        by_test!(
+            self.test(),
+            any::<A>(self, p, rays, active, hits, slot, ctr)
+        )
     }
     fn triangle(&self, prim: u32) -> Option<TriVerts> {
         Accel::triangle(self, prim)
@@ -115,6 +109,34 @@ impl<A: Accel> Tracer for A {
     fn scene_scale(&self) -> f32 {
         scale_of(&self.bounds())
     }
+}
+
+/// The driver for nearest hits (`by_test!` passes types only).
+#[inline(always)]
+fn nearest<A: Accel, T: crate::geom::TriangleTest>(
+    a: &A,
+    p: &TraceParams,
+    rays: &[Ray4],
+    active: &[M4],
+    hits: &mut [Hit4],
+    slot: &mut Slot<'_>,
+    ctr: &mut Counters,
+) {
+    packet::trace::<A, T, false>(a, p, rays, active, hits, slot, ctr)
+}
+
+/// The driver for occlusion.
+#[inline(always)]
+fn any<A: Accel, T: crate::geom::TriangleTest>(
+    a: &A,
+    p: &TraceParams,
+    rays: &[Ray4],
+    active: &[M4],
+    hits: &mut [Hit4],
+    slot: &mut Slot<'_>,
+    ctr: &mut Counters,
+) {
+    packet::trace::<A, T, true>(a, p, rays, active, hits, slot, ctr)
 }
 
 #[inline(always)]
