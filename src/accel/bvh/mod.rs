@@ -326,7 +326,7 @@ impl crate::accel::Accel for BvhView<'_> {
         rays: &[Ray4],
         active: &[M4],
         hits: &mut [Hit4],
-        _: &mut Slot<'_>,
+        slot: &mut Slot<'_>,
         ctr: &mut Counters,
     ) -> bool {
         use crate::accel::packet::{self, Start};
@@ -340,7 +340,7 @@ impl crate::accel::Accel for BvhView<'_> {
         let mut entry = None;
         if large && p.entry != EntrySearch::None {
             let root = self.nodes.first().map_or(Aabb::EMPTY, |n| n.aabb());
-            match packet::start(self, p, rays, active, &root, ctr).1 {
+            match packet::start(self, p, rays, active, &root, slot, ctr).1 {
                 Start::Root => {}
                 Start::At(e) => entry = Some(e),
                 Start::Miss => {
