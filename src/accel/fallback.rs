@@ -244,31 +244,24 @@ pub fn quieted(r: &Ray4, quiet: M4) -> Ray4 {
     Ray4::from_rays(&lanes)
 }
 
-/// A packet split for the tiny-direction fallback (`tiny`, `quieted`).
-pub(crate) struct TinySplit<const Q: usize> {
-    /// The quads with their tiny lanes replaced (`quieted`).
-    pub rays: [Ray4; Q],
-    /// The active lanes that are not tiny: the packet traces these.
-    pub active: [M4; Q],
-    /// The tiny lanes: each traced alone.
-    pub tiny: [M4; Q],
-}
-
-/// Split the `rays.len()` quads (1 to `Q`) of a packet with active lanes
-/// `active` for the tiny-direction fallback; quads past them are inactive.
-pub(crate) fn split_tiny<const Q: usize>(rays: &[Ray4], active: &[M4]) -> TinySplit<Q> {
-    let nq = rays.len();
-    let mut s = TinySplit {
-        rays: core::array::from_fn(|q| rays[q.min(nq - 1)]),
-        active: [M4::FALSE; Q],
-        tiny: [M4::FALSE; Q],
-    };
-    for q in 0..nq {
-        s.tiny[q] = tiny(&rays[q], active[q]);
-        s.rays[q] = quieted(&rays[q], s.tiny[q]);
-        s.active[q] = active[q] & !s.tiny[q];
+/// Split the quads of a packet with active lanes `active` for the
+/// tiny-direction fallback (`tiny`, `quieted`) into the caller's slices
+/// (slot scratch, at least `rays.len()` long): `quiet`, the quads with
+/// their tiny lanes replaced; `rest`, the active lanes that are not tiny
+/// (the packet traces these); `tiny`, the tiny lanes (each traced alone).
+pub(crate) fn split_tiny(
+    rays: &[Ray4],
+    active: &[M4],
+    quiet: &mut [Ray4],
+    rest: &mut [M4],
+    tiny_lanes: &mut [M4],
+) {
+    for (q, r) in rays.iter().enumerate() {
+        let t = tiny(r, active[q]);
+        tiny_lanes[q] = t;
+        quiet[q] = quieted(r, t);
+        rest[q] = active[q] & !t;
     }
-    s
 }
 
 /// Budget of a CGT packet (`accel::grid::traverse_cgt`), in units of one
@@ -330,6 +323,31 @@ impl Waste {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn split_tiny_fills_only_the_packet() {
+        use crate::geom::Ray;
+        use glam::Vec3;
+        let ray = |d: Vec3| Ray::new(Vec3::ONE, d, 0.0, 1.0);
+        let (big, small) = (Vec3::new(0.0, 0.0, -1.0), Vec3::new(1e-20, 0.0, 0.0));
+        let rays = [
+            Ray4::from_rays(&[ray(big), ray(small), ray(big), ray(small)]),
+            Ray4::from_rays(&[ray(big); 4]),
+        ];
+        let active = [crate::geom::lane::mask_from_bits(0b0111), M4::TRUE];
+        // One quad more than the packet: it must stay as it was.
+        let mut quiet = [rays[1]; 3];
+        let (mut rest, mut lanes) = ([M4::TRUE; 3], [M4::TRUE; 3]);
+        split_tiny(&rays, &active, &mut quiet, &mut rest, &mut lanes);
+        let bits = |m: [M4; 3]| m.map(|m| m.bitmask());
+        // Lane 3 is tiny but inactive: it stays in the quad, off.
+        assert_eq!(bits(lanes), [0b0010, 0, 0b1111]);
+        assert_eq!(bits(rest), [0b0101, 0b1111, 0b1111]);
+        assert_eq!(quiet[0].lane(1).dir, quiet[0].lane(0).dir);
+        assert_eq!(quiet[0].lane(3).dir, small.to_array());
+        assert_eq!(quiet[1].lane(2).dir, big.to_array());
+        assert_eq!(quiet[2].lane(0).dir, rays[1].lane(0).dir);
+    }
 
     #[test]
     fn min_cos_is_the_cone() {

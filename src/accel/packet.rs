@@ -28,13 +28,19 @@ use super::slot::Slot;
 use crate::counters::Counters;
 use crate::geom::frustum::Frustum;
 use crate::geom::{Aabb, Hit, Hit4, M4, Ray, Ray4, TriangleTest};
+use crate::mem::scratch::bytes;
 
 /// Quads in the largest packet: 32 x 32 rays.
 pub const MAX_QUADS: usize = 256;
 
-/// Slot scratch the driver holds while a family traces (the tiny-lane
-/// split, the entry search's live lanes).
-pub const SCRATCH: usize = 0;
+/// Slot scratch the driver holds while a family traces: the tiny-lane
+/// split of `quieted` (quieted quads, the packet's lanes, the tiny lanes).
+pub const SCRATCH: usize =
+    bytes::<Ray4>(MAX_QUADS) + bytes::<M4>(MAX_QUADS) + bytes::<M4>(MAX_QUADS);
+
+/// Slot scratch `start` takes (the live lanes), given back before the
+/// family's traversal: a family's `SCRATCH` covers the larger of the two.
+pub const START_SCRATCH: usize = bytes::<M4>(MAX_QUADS);
 
 /// Trace the active lanes of `rays` (one packet, or consecutive packets)
 /// with `p.method` on `a`: nearest hits, or with `ANY` occlusion (some hit
@@ -71,7 +77,8 @@ fn any_tiny(rays: &[Ray4], active: &[M4]) -> bool {
 /// (at most `MAX_QUADS` quads, as the families split them) is traced on
 /// quads whose tiny lanes are replaced and inactive (`fallback::quieted`:
 /// no SIMD operation meets their subnormal numbers), then each tiny lane
-/// by the family's single ray. The single ray counts its own rays.
+/// by the family's single ray. The single ray counts its own rays. The
+/// split lives in the slot's scratch (`SCRATCH`), the family gets the rest.
 #[inline(never)]
 fn quieted<A: Accel, T: TriangleTest, const ANY: bool>(
     a: &A,
@@ -85,12 +92,15 @@ fn quieted<A: Accel, T: TriangleTest, const ANY: bool>(
     for s in (0..rays.len()).step_by(MAX_QUADS) {
         let e = (s + MAX_QUADS).min(rays.len());
         let (r, h) = (&rays[s..e], &mut hits[s..e]);
-        let split = fallback::split_tiny::<MAX_QUADS>(r, &active[s..e]);
-        let (qr, qa) = (&split.rays[..e - s], &split.active[..e - s]);
-        if !a.packet::<T, ANY>(p, qr, qa, h, slot, ctr) {
+        let (qr, mut slot) = slot.split(e - s, r[0]);
+        let (qa, mut slot) = slot.split(e - s, M4::FALSE);
+        let (tiny, mut slot) = slot.split(e - s, M4::FALSE);
+        fallback::split_tiny(r, &active[s..e], qr, qa, tiny);
+        let (qr, qa) = (&*qr, &*qa);
+        if !a.packet::<T, ANY>(p, qr, qa, h, &mut slot, ctr) {
             lane_by_lane(qr, qa, h, |r, c| single::<A, T, ANY>(a, r, c), ctr);
         }
-        fallback::each_lane(&split.tiny[..e - s], |q, i| {
+        fallback::each_lane(tiny, |q, i| {
             h[q].set_lane(i, single::<A, T, ANY>(a, &r[q].lane(i), ctr));
         });
     }
@@ -186,25 +196,28 @@ pub enum Start {
 
 /// The packet's frustum (of `p.bvh.kind`; `None` without live lanes or when
 /// none can be built) and, with `p.entry`, the entry point MLRTA or AEPSA
-/// finds for it in `tree` (counted in `ctr`).
+/// finds for it in `tree` (counted in `ctr`). The live lanes borrow the
+/// slot's scratch (`START_SCRATCH`) for the call.
 pub fn start<E: EntryTree + ?Sized>(
     tree: &E,
     p: &TraceParams,
     rays: &[Ray4],
     active: &[M4],
     bounds: &Aabb,
+    slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) -> (Option<Frustum>, Start) {
     let nq = rays.len().min(active.len()).min(MAX_QUADS);
-    let mut live = [M4::FALSE; MAX_QUADS];
-    for q in 0..nq {
-        live[q] = entry::live_mask(&rays[q], active[q]);
+    let (live, _) = slot.split(nq, M4::FALSE);
+    for (l, (r, m)) in live.iter_mut().zip(rays.iter().zip(active)) {
+        *l = entry::live_mask(r, *m);
     }
-    let f = Frustum::new(p.bvh.kind, &rays[..nq], &live[..nq], bounds);
+    let live = &*live;
+    let f = Frustum::new(p.bvh.kind, &rays[..nq], live, bounds);
     let (Some(fr), false) = (f, p.entry == EntrySearch::None) else {
         return (f, Start::Root);
     };
-    let neg = entry::dir_signs(&rays[..nq], &live[..nq]);
+    let neg = entry::dir_signs(&rays[..nq], live);
     let e = match p.entry {
         EntrySearch::Mlrta => entry::mlrta::mlrta(tree, &fr, neg, ctr),
         _ => entry::aepsa::aepsa(tree, &fr, neg, ctr),

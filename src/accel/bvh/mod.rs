@@ -52,8 +52,14 @@ pub use crate::geom::frustum::RayKind;
 use crate::geom::{Aabb, Hit, Hit4, M4, ProjTri, Ray, Ray4, TriTest, TriVerts, TriangleTest};
 use bytemuck::{Pod, Zeroable};
 
-/// Slot scratch this module's packet code takes (`accel::slot`).
-pub const SCRATCH: usize = 0;
+/// Slot scratch this module's packet code takes (`accel::slot`): the
+/// entry search's live lanes (`accel::packet::start`), then, given back,
+/// one large packet (`packet::SCRATCH`); the 2x2 SIMD ray takes none.
+pub const SCRATCH: usize = if packet::SCRATCH > crate::accel::packet::START_SCRATCH {
+    packet::SCRATCH
+} else {
+    crate::accel::packet::START_SCRATCH
+};
 
 /// Deepest level a build creates (root = depth 0). Nodes at this depth
 /// become leaves whatever their size, so every traversal stack of
@@ -326,7 +332,7 @@ impl crate::accel::Accel for BvhView<'_> {
         rays: &[Ray4],
         active: &[M4],
         hits: &mut [Hit4],
-        _: &mut Slot<'_>,
+        slot: &mut Slot<'_>,
         ctr: &mut Counters,
     ) -> bool {
         use crate::accel::packet::{self, Start};
@@ -340,7 +346,7 @@ impl crate::accel::Accel for BvhView<'_> {
         let mut entry = None;
         if large && p.entry != EntrySearch::None {
             let root = self.nodes.first().map_or(Aabb::EMPTY, |n| n.aabb());
-            match packet::start(self, p, rays, active, &root, ctr).1 {
+            match packet::start(self, p, rays, active, &root, slot, ctr).1 {
                 Start::Root => {}
                 Start::At(e) => entry = Some(e),
                 Start::Miss => {
@@ -356,19 +362,23 @@ impl crate::accel::Accel for BvhView<'_> {
             }
             (Method::BvhSimd, true) => traverse_simd::occluded::<T>(self, rays, active, hits, ctr),
             (Method::BvhMasked, false) => {
-                traverse_masked::intersect::<T>(self, rays, active, hits, o, e, ctr)
+                traverse_masked::intersect::<T>(self, rays, active, hits, o, e, slot, ctr)
             }
             (Method::BvhMasked, true) => {
-                traverse_masked::occluded::<T>(self, rays, active, hits, o, e, ctr)
+                traverse_masked::occluded::<T>(self, rays, active, hits, o, e, slot, ctr)
             }
             (Method::BvhRanged, false) => {
-                traverse_ranged::intersect::<T>(self, rays, active, hits, o, e, ctr)
+                traverse_ranged::intersect::<T>(self, rays, active, hits, o, e, slot, ctr)
             }
             (Method::BvhRanged, true) => {
-                traverse_ranged::occluded::<T>(self, rays, active, hits, o, e, ctr)
+                traverse_ranged::occluded::<T>(self, rays, active, hits, o, e, slot, ctr)
             }
-            (_, false) => traverse_partition::intersect::<T>(self, rays, active, hits, o, e, ctr),
-            (_, true) => traverse_partition::occluded::<T>(self, rays, active, hits, o, e, ctr),
+            (_, false) => {
+                traverse_partition::intersect::<T>(self, rays, active, hits, o, e, slot, ctr)
+            }
+            (_, true) => {
+                traverse_partition::occluded::<T>(self, rays, active, hits, o, e, slot, ctr)
+            }
         }
         true
     }

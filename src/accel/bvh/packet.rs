@@ -6,6 +6,13 @@
 //! `accel::packet::by_class`) and the lane-by-lane coherence fallback
 //! (`alone`). The 2x2 SIMD ray (`traverse_simd`) uses the same `QuadBox`.
 //!
+//! # Scratch
+//! A packet's per-quad arrays (up to 256 quads: tens of KiB) are slices of
+//! the calling thread slot's scratch (`accel::slot`), `nq` long, not
+//! arrays on the stack; what a `Walk` needs per quad (Masked's masks,
+//! Partition's index list) comes from the rest. `SCRATCH` is the most
+//! this takes for one packet.
+//!
 //! # Exactness
 //! `QuadBox::entry` is the single ray's slab test lane by lane (same
 //! operations, same NaN handling), and the leaf test is the single ray's
@@ -18,10 +25,33 @@ use super::traverse_single;
 use super::{BvhNode, BvhOptions, BvhView, MAX_DEPTH, TriangleTest};
 use crate::accel::entry::EntryPoint;
 use crate::accel::fallback;
-use crate::accel::packet::{SizeClass, by_class};
+use crate::accel::packet::{MAX_QUADS, SizeClass, by_class};
+use crate::accel::slot::Slot;
 use crate::counters::{Counters, count};
 use crate::geom::lane::mask_from_bits;
-use crate::geom::{F4, Hit4, INVALID_ID, M4, Ray4, RayLanes};
+use crate::geom::{F4, Hit4, INVALID_ID, M4, Mt, Pt, Ray4, RayLanes, Wt};
+use crate::mem::scratch::bytes;
+
+/// Slot scratch one packet of the largest class takes, for the triangle
+/// test whose precomputation is largest: the per-quad arrays of `Packet`
+/// (live lanes, `QuadBox`, precomputation, far ends), then the larger of
+/// what a walk takes (Masked's masks are given back before its switch to
+/// Partition takes the index list).
+pub(crate) const SCRATCH: usize = bytes::<M4>(MAX_QUADS)
+    + bytes::<QuadBox>(MAX_QUADS)
+    + max(
+        max(bytes::<Pre<Mt>>(MAX_QUADS), bytes::<Pre<Wt>>(MAX_QUADS)),
+        bytes::<Pre<Pt>>(MAX_QUADS),
+    )
+    + bytes::<F4>(MAX_QUADS)
+    + max(bytes::<bool>(MAX_QUADS), bytes::<u16>(MAX_QUADS));
+
+/// A triangle test's per-quad precomputation.
+type Pre<T> = <T as TriangleTest>::Pre<F4>;
+
+const fn max(a: usize, b: usize) -> usize {
+    if a > b { a } else { b }
+}
 
 /// Per-quad data of the 4-wide slab test (the same arithmetic as
 /// `traverse_single::RayBox`, lane by lane).
@@ -35,6 +65,14 @@ pub(crate) struct QuadBox {
 }
 
 impl QuadBox {
+    /// What a packet's scratch holds before its quads are prepared.
+    const ZERO: QuadBox = QuadBox {
+        org: [F4::ZERO; 3],
+        rcp: [F4::ZERO; 3],
+        neg: [M4::FALSE; 3],
+        tmin: F4::ZERO,
+    };
+
     #[inline(always)]
     pub(crate) fn new(r: &Ray4) -> QuadBox {
         let one = F4::ONE;
@@ -71,21 +109,25 @@ impl QuadBox {
 
 /// A large-packet traversal: walks one prepared packet through the tree.
 pub(crate) trait Walk {
-    /// `start`: the node to start at and its depth (the root: `(0, 0)`).
+    /// `start`: the node to start at and its depth (the root: `(0, 0)`);
+    /// `slot`: the scratch left after the packet's (for per-quad state).
     fn walk<T: TriangleTest, const ANY: bool, const Q: usize>(
-        p: &mut Packet<T, Q>,
+        p: &mut Packet<'_, T, Q>,
         b: &BvhView<'_>,
         rays: &[Ray4],
         hits: &mut [Hit4],
         start: (usize, usize),
+        slot: &mut Slot<'_>,
         ctr: &mut Counters,
     );
 }
 
-/// Split the input into packets of at most 256 quads, each traced with
-/// scratch sized by its class (1, 4, 16, 64 or 256 quads) on the stack,
+/// Split the input into packets of at most 256 quads (classes of 1, 4,
+/// 16, 64 or 256 quads), each traced with per-quad scratch from `slot`,
 /// from `entry` (every packet of the input) or the root. An entry node
 /// outside the tree starts at the root.
+// The public traversals' arguments, and the slot.
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn dispatch<W: Walk, T: TriangleTest, const ANY: bool>(
     b: &BvhView<'_>,
     rays: &[Ray4],
@@ -93,6 +135,7 @@ pub(crate) fn dispatch<W: Walk, T: TriangleTest, const ANY: bool>(
     hits: &mut [Hit4],
     opt: &BvhOptions,
     entry: Option<&EntryPoint>,
+    slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
     let start = match entry {
@@ -109,6 +152,7 @@ pub(crate) fn dispatch<W: Walk, T: TriangleTest, const ANY: bool>(
         hits: &mut hits[..n],
         opt,
         start,
+        slot,
         ctr,
         _w: core::marker::PhantomData,
     };
@@ -116,26 +160,32 @@ pub(crate) fn dispatch<W: Walk, T: TriangleTest, const ANY: bool>(
 }
 
 /// A large-packet call as the packet driver's size classes see it.
-struct Run<'x, 'b, W, T, const ANY: bool> {
+struct Run<'x, 'b, 's, W, T, const ANY: bool> {
     b: &'x BvhView<'b>,
     rays: &'x [Ray4],
     active: &'x [M4],
     hits: &'x mut [Hit4],
     opt: &'x BvhOptions,
     start: (usize, usize),
+    slot: &'x mut Slot<'s>,
     ctr: &'x mut Counters,
     _w: core::marker::PhantomData<(W, T)>,
 }
 
-impl<W: Walk, T: TriangleTest, const ANY: bool> SizeClass for Run<'_, '_, W, T, ANY> {
+impl<W: Walk, T: TriangleTest, const ANY: bool> SizeClass for Run<'_, '_, '_, W, T, ANY> {
     #[inline]
     fn packet<const Q: usize>(&mut self, r: core::ops::Range<usize>) {
         let (rays, active) = (&self.rays[r.clone()], &self.active[r.clone()]);
         let hits = &mut self.hits[r];
-        packet::<W, T, ANY, Q>(self.b, rays, active, hits, self.opt, self.start, self.ctr);
+        let (b, opt, start) = (self.b, self.opt, self.start);
+        packet::<W, T, ANY, Q>(b, rays, active, hits, opt, start, self.slot, self.ctr);
     }
 }
 
+/// One packet: its lanes first (a packet with none live, or incoherent,
+/// takes no more scratch), then its per-quad arrays, then the walk.
+// `Run`'s fields, one packet's worth.
+#[allow(clippy::too_many_arguments)]
 fn packet<W: Walk, T: TriangleTest, const ANY: bool, const Q: usize>(
     b: &BvhView<'_>,
     rays: &[Ray4],
@@ -143,14 +193,30 @@ fn packet<W: Walk, T: TriangleTest, const ANY: bool, const Q: usize>(
     hits: &mut [Hit4],
     opt: &BvhOptions,
     start: (usize, usize),
+    slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
-    if let Some(mut p) = Packet::<T, Q>::new(b, rays, active, hits, opt, ctr) {
-        if !p.coherent {
-            return alone::<T, ANY>(b, rays, &p.live[..p.nq], hits, ctr);
-        }
-        W::walk::<T, ANY, Q>(&mut p, b, rays, hits, start, ctr);
+    let nq = rays.len().min(active.len()).min(hits.len()).min(Q);
+    let (live, mut slot) = slot.split(nq, M4::FALSE);
+    let Some(lanes) = Lanes::new(b, rays, active, hits, live, ctr) else {
+        return;
+    };
+    if !lanes.coherent {
+        return alone::<T, ANY>(b, rays, live, hits, ctr);
     }
+    // Filled with anything cheap: `Packet::new` writes every quad.
+    let (qb, mut slot) = slot.split(nq, QuadBox::ZERO);
+    let pre0 = T::prepare(&RayLanes::from_ray4(&rays[0]));
+    let (pre, mut slot) = slot.split(nq, pre0);
+    let (tfar, mut slot) = slot.split(nq, F4::ZERO);
+    let quads = Quads {
+        live,
+        qb,
+        pre,
+        tfar,
+    };
+    let mut p = Packet::<T, Q>::new(b, rays, opt, lanes, quads, ctr);
+    W::walk::<T, ANY, Q>(&mut p, b, rays, hits, start, &mut slot, ctr);
 }
 
 /// The coherence fallback (`trace::fallback`): every live lane traced by
@@ -176,43 +242,29 @@ pub(crate) fn alone<T: TriangleTest, const ANY: bool>(
     ctr.rays -= n;
 }
 
-/// One packet of `nq <= Q` quads during traversal.
-pub(crate) struct Packet<T: TriangleTest, const Q: usize> {
-    pub nq: usize,
-    /// Slab-test data per quad (reciprocals, direction signs).
-    qb: [QuadBox; Q],
-    /// Triangle-test precomputation per quad.
-    pre: [T::Pre<F4>; Q],
-    /// Lanes still traced: active, valid and (occlusion) not yet occluded.
-    pub live: [M4; Q],
-    /// Per quad and lane: `min(tmax, best.t)`, the end of the interval a
-    /// box must overlap.
-    tfar: [F4; Q],
-    /// Live lanes in the packet.
+/// A packet's live lanes, before its other per-quad arrays exist.
+struct Lanes {
     n_live: u32,
-    /// Near child first when the packet's direction sum is negative on the
-    /// split axis.
     neg: [bool; 3],
-    pub frustum: Option<Frustum>,
     /// Whether the live lanes pass `fallback::coherent` (else the packet
-    /// is traced lane by lane, and gets no frustum).
-    pub coherent: bool,
+    /// is traced lane by lane, and gets no `Packet`).
+    coherent: bool,
 }
 
-impl<T: TriangleTest, const Q: usize> Packet<T, Q> {
+impl Lanes {
     /// Write `Hit::MISS` to every active lane, count the packet and its
-    /// rays, and prepare the live lanes; `None` when nothing is to be traced.
-    pub(crate) fn new(
+    /// rays, and write the live lanes of its `live.len()` quads to `live`;
+    /// `None` when nothing is to be traced.
+    fn new(
         b: &BvhView<'_>,
         rays: &[Ray4],
         active: &[M4],
         hits: &mut [Hit4],
-        opt: &BvhOptions,
+        live: &mut [M4],
         ctr: &mut Counters,
-    ) -> Option<Self> {
-        let nq = rays.len().min(active.len()).min(hits.len()).min(Q);
+    ) -> Option<Lanes> {
+        let nq = live.len();
         ctr.packets += 1;
-        let mut live = [M4::FALSE; Q];
         let mut n_live = 0;
         let mut sum = [F4::ZERO; 3];
         for q in 0..nq {
@@ -252,25 +304,9 @@ impl<T: TriangleTest, const Q: usize> Packet<T, Q> {
         if n_live == 0 || b.nodes.is_empty() {
             return None;
         }
-        let coherent =
-            fallback::coherent(&rays[..nq], &live[..nq], b.info.bounds.diagonal().length());
-        let frustum = if opt.culling && coherent {
-            let f = Frustum::new(opt.kind, &rays[..nq], &live[..nq], &b.nodes[0].aabb());
-            if f.is_none() {
-                ctr.packets_no_cull += 1;
-            }
-            f
-        } else {
-            None
-        };
-        // Scratch of quads past nq repeats the last quad (never read).
-        let at = |q: usize| &rays[q.min(nq - 1)];
-        let qb: [QuadBox; Q] = core::array::from_fn(|q| QuadBox::new(at(q)));
-        let pre: [T::Pre<F4>; Q] =
-            core::array::from_fn(|q| T::prepare(&RayLanes::from_ray4(at(q))));
-        let tfar: [F4; Q] = core::array::from_fn(|q| at(q).tmax);
+        let coherent = fallback::coherent(&rays[..nq], live, b.info.bounds.diagonal().length());
         // A zero sum on an axis: the first live lane decides.
-        let q0 = live[..nq].iter().position(|m| m.any()).unwrap_or(0);
+        let q0 = live.iter().position(|m| m.any()).unwrap_or(0);
         let f = live[q0].bitmask().trailing_zeros() as usize;
         let sum = [
             sum[0].element_sum(),
@@ -284,17 +320,87 @@ impl<T: TriangleTest, const Q: usize> Packet<T, Q> {
                 rays[q0].dir[a][f].is_sign_negative()
             }
         });
-        Some(Packet {
+        Some(Lanes {
+            n_live,
+            neg,
+            coherent,
+        })
+    }
+}
+
+/// A packet's per-quad arrays, `nq` long each, in the slot's scratch.
+struct Quads<'s, T: TriangleTest> {
+    live: &'s mut [M4],
+    qb: &'s mut [QuadBox],
+    pre: &'s mut [T::Pre<F4>],
+    tfar: &'s mut [F4],
+}
+
+/// One packet of `nq <= Q` quads during traversal (its per-quad arrays
+/// borrowed from the slot's scratch for `'s`).
+pub(crate) struct Packet<'s, T: TriangleTest, const Q: usize> {
+    pub nq: usize,
+    /// Slab-test data per quad (reciprocals, direction signs).
+    qb: &'s [QuadBox],
+    /// Triangle-test precomputation per quad.
+    pre: &'s [T::Pre<F4>],
+    /// Lanes still traced: active, valid and (occlusion) not yet occluded.
+    pub live: &'s mut [M4],
+    /// Per quad and lane: `min(tmax, best.t)`, the end of the interval a
+    /// box must overlap.
+    tfar: &'s mut [F4],
+    /// Live lanes in the packet.
+    n_live: u32,
+    /// Near child first when the packet's direction sum is negative on the
+    /// split axis.
+    neg: [bool; 3],
+    pub frustum: Option<Frustum>,
+}
+
+impl<'s, T: TriangleTest, const Q: usize> Packet<'s, T, Q> {
+    /// The packet of coherent `lanes` (`Lanes::new`): every quad's slab
+    /// data, precomputation and far ends written to `quads`, and with
+    /// `opt.culling` its frustum.
+    fn new(
+        b: &BvhView<'_>,
+        rays: &[Ray4],
+        opt: &BvhOptions,
+        lanes: Lanes,
+        quads: Quads<'s, T>,
+        ctr: &mut Counters,
+    ) -> Self {
+        let Quads {
+            live,
+            qb,
+            pre,
+            tfar,
+        } = quads;
+        let nq = live.len();
+        let frustum = if opt.culling {
+            let f = Frustum::new(opt.kind, &rays[..nq], live, &b.nodes[0].aabb());
+            if f.is_none() {
+                ctr.packets_no_cull += 1;
+            }
+            f
+        } else {
+            None
+        };
+        let per_quad = qb.iter_mut().zip(pre.iter_mut()).zip(tfar.iter_mut());
+        for (((qb, pre), tfar), r) in per_quad.zip(rays) {
+            *qb = QuadBox::new(r);
+            *pre = T::prepare(&RayLanes::from_ray4(r));
+            *tfar = r.tmax;
+        }
+        Packet {
             nq,
             qb,
             pre,
             live,
             tfar,
-            n_live,
-            neg,
+            n_live: lanes.n_live,
+            neg: lanes.neg,
             frustum,
-            coherent,
-        })
+        }
     }
 
     /// Near and far child of inner node `n`, by the packet's direction.

@@ -9,10 +9,11 @@
 //! quads are tested and the mask `rayMasks[i]` decides which quads are
 //! tested against the leaf's (unculled) triangles.
 //!
-//! This file also holds what the three large-packet traversals share (the
-//! paper presents Ranged and Partition as changes to Figure 2): `Packet`
-//! (per-quad slab data, triangle-test precomputation, live lanes, frustum)
-//! and the dispatch of inputs to stack-sized packet classes.
+//! What the three large-packet traversals share (the paper presents Ranged
+//! and Partition as changes to Figure 2) is in `packet.rs`: `Packet`
+//! (per-quad slab data, triangle-test precomputation, live lanes, frustum,
+//! in the thread slot's scratch) and the dispatch of inputs to packet
+//! classes; this file holds their exactness harness (`tests`).
 //!
 //! # Exactness
 //! A quad is *alive* in a box when one of its live lanes overlaps the box
@@ -66,6 +67,7 @@ use super::traverse_partition::Partition;
 use super::{BvhOptions, BvhView, MAX_DEPTH, TriangleTest};
 use crate::accel::entry::EntryPoint;
 use crate::accel::fallback;
+use crate::accel::slot::Slot;
 use crate::counters::Counters;
 use crate::geom::{Hit4, M4, Ray4};
 
@@ -79,6 +81,10 @@ pub use crate::accel::packet::MAX_QUADS;
 /// invalid rays); inactive lanes are left untouched. `entry`: start at this
 /// node instead of the root (an MLRTA or AEPSA entry point of a frustum
 /// bounding every live ray of `rays`; see `bvh::entry`).
+/// `slot`: the calling thread's slot, whose scratch holds the packet's
+/// per-quad arrays (at most `bvh::SCRATCH` bytes of it).
+// The packet, its options and where it starts, and the slot's scratch.
+#[allow(clippy::too_many_arguments)]
 pub fn intersect<T: TriangleTest>(
     b: &BvhView<'_>,
     rays: &[Ray4],
@@ -86,15 +92,18 @@ pub fn intersect<T: TriangleTest>(
     hits: &mut [Hit4],
     opt: &BvhOptions,
     entry: Option<&EntryPoint>,
+    slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
-    dispatch::<Masked, T, false>(b, rays, active, hits, opt, entry, ctr)
+    dispatch::<Masked, T, false>(b, rays, active, hits, opt, entry, slot, ctr)
 }
 
 /// Occlusion of the active lanes, Masked traversal: `hits[q].prim[i] !=
 /// INVALID_ID` marks an occluded lane (t and id of some occluder in `[tmin,
 /// tmax)`, not the nearest); other active lanes get `Hit::MISS`, inactive
 /// ones are untouched. `entry` as for `intersect`.
+// The packet, its options and where it starts, and the slot's scratch.
+#[allow(clippy::too_many_arguments)]
 pub fn occluded<T: TriangleTest>(
     b: &BvhView<'_>,
     rays: &[Ray4],
@@ -102,9 +111,10 @@ pub fn occluded<T: TriangleTest>(
     hits: &mut [Hit4],
     opt: &BvhOptions,
     entry: Option<&EntryPoint>,
+    slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
-    dispatch::<Masked, T, true>(b, rays, active, hits, opt, entry, ctr)
+    dispatch::<Masked, T, true>(b, rays, active, hits, opt, entry, slot, ctr)
 }
 
 /// The switch of Masked traversal to Partition traversal
@@ -114,16 +124,19 @@ pub fn occluded<T: TriangleTest>(
 /// is one the packet would have visited, and Partition is exact from any
 /// node, so the result is the same.
 pub(crate) fn to_partition<T: TriangleTest, const ANY: bool, const Q: usize>(
-    p: &mut Packet<T, Q>,
+    p: &mut Packet<'_, T, Q>,
     b: &BvhView<'_>,
     rays: &[Ray4],
     hits: &mut [Hit4],
     pending: impl Iterator<Item = (usize, usize, usize)>,
+    slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
     fallback::record(0);
+    // One index list for every subtree: each walk refills it.
+    let (idx, _) = slot.split(p.nq, 0u16);
     for (node, depth, first) in pending {
-        Partition::walk_from::<T, ANY, Q>(p, b, rays, hits, (node, depth), first, ctr);
+        Partition::walk_from::<T, ANY, Q>(p, b, rays, hits, (node, depth), first, idx, ctr);
         if ANY && p.done() {
             return;
         }
@@ -135,17 +148,19 @@ pub(crate) struct Masked;
 
 impl Walk for Masked {
     fn walk<T: TriangleTest, const ANY: bool, const Q: usize>(
-        p: &mut Packet<T, Q>,
+        p: &mut Packet<'_, T, Q>,
         b: &BvhView<'_>,
         rays: &[Ray4],
         hits: &mut [Hit4],
         start: (usize, usize),
+        slot: &mut Slot<'_>,
         ctr: &mut Counters,
     ) {
         let nodes = b.nodes;
         let nq = p.nq;
-        // rayMasks: which quads are alive in the current leaf.
-        let mut masks = [false; Q];
+        // rayMasks: which quads are alive in the current leaf (given back
+        // to the slot before a switch to Partition).
+        let (masks, _) = slot.split(nq, false);
         let mut st_node = [0u32; MAX_DEPTH + 1];
         let mut st_depth = [0u8; MAX_DEPTH + 1];
         let mut sp = 0usize;
@@ -158,7 +173,7 @@ impl Walk for Masked {
             let leaf = n.is_leaf();
             let mut any_hit = false;
             if p.frustum_admits(n, ctr) {
-                for (q, mq) in masks[..nq].iter_mut().enumerate() {
+                for (q, mq) in masks.iter_mut().enumerate() {
                     let m = p.alive(q, n, depth, ctr).any();
                     *mq = m;
                     waste.tested(p.live[q].any(), m);
@@ -186,7 +201,7 @@ impl Walk for Masked {
                         continue;
                     }
                     let id = b.tri_ids[i];
-                    for (q, _) in masks[..nq].iter().enumerate().filter(|(_, m)| **m) {
+                    for (q, _) in masks.iter().enumerate().filter(|(_, m)| **m) {
                         p.test::<ANY>(b, rays, hits, q, i, id, depth, ctr);
                     }
                 }
@@ -197,7 +212,7 @@ impl Walk for Masked {
                     let pending = (0..sp)
                         .rev()
                         .map(|k| (st_node[k] as usize, st_depth[k] as usize, 0));
-                    return to_partition::<T, ANY, Q>(p, b, rays, hits, pending, ctr);
+                    return to_partition::<T, ANY, Q>(p, b, rays, hits, pending, slot, ctr);
                 }
             }
             if sp == 0 {
@@ -219,8 +234,11 @@ pub(crate) mod tests {
     use crate::accel::bvh::build::testutil::Store;
     use crate::accel::bvh::traverse_single::{self, tests::Rng};
     use crate::accel::bvh::{BvhParams, RayKind};
+    use crate::accel::mailbox::Mailbox;
+    use crate::accel::slot::Slot;
     use crate::counters::DEPTH_BINS;
     use crate::geom::{Aabb, Hit, INVALID_ID, Mt, Pt, Ray, Scene, TriTest, Wt};
+    use crate::mem::Scratch;
     use crate::render::{PrimaryRays, demorton};
     use glam::Vec3;
 
@@ -521,10 +539,16 @@ pub(crate) mod tests {
             }
         };
         let traced = !matches!(start, Start::Miss);
+        // Exactly the scratch `bvh::SCRATCH` promises, misaligned: a
+        // packet taking more panics.
+        let mut raw = vec![0u8; crate::accel::bvh::SCRATCH + 1];
+        let mut pk = 0;
+        let mut slot = Slot::new(Mailbox::new(&mut [], &mut pk), Scratch::new(&mut raw[1..]));
+        let s = &mut slot;
         if traced && any {
-            dispatch::<W, T, true>(b, quads, active, &mut hits, opt, entry, &mut ctr);
+            dispatch::<W, T, true>(b, quads, active, &mut hits, opt, entry, s, &mut ctr);
         } else if traced {
-            dispatch::<W, T, false>(b, quads, active, &mut hits, opt, entry, &mut ctr);
+            dispatch::<W, T, false>(b, quads, active, &mut hits, opt, entry, s, &mut ctr);
         }
         let mut valid = 0;
         for (q, (h, m)) in hits.iter().zip(active).enumerate() {
@@ -950,6 +974,7 @@ pub(crate) mod tests {
         use crate::accel::bvh::traverse_partition::Partition;
         use crate::accel::bvh::traverse_ranged::Ranged;
         use crate::accel::bvh::traverse_simd;
+        use crate::accel::slot::SlotBuf;
         use std::time::Instant;
         let mut scenes: Vec<(String, Vec<f32>, Vec<u32>, crate::scenes::View)> = Vec::new();
         let s = crate::scenes::builtin("balls").unwrap();
@@ -1054,22 +1079,40 @@ pub(crate) mod tests {
                 runs.push((
                     "masked",
                     cs,
-                    Box::new(move |q, a, hs, c| {
-                        dispatch::<Masked, Mt, false>(b, q, a, hs, &o, None, c)
+                    Box::new({
+                        let mut own = SlotBuf::new(0);
+                        move |q, a, hs, c| {
+                            dispatch::<Masked, Mt, false>(b, q, a, hs, &o, None, &mut own.slot(), c)
+                        }
                     }),
                 ));
                 runs.push((
                     "ranged",
                     cs,
-                    Box::new(move |q, a, hs, c| {
-                        dispatch::<Ranged, Mt, false>(b, q, a, hs, &o, None, c)
+                    Box::new({
+                        let mut own = SlotBuf::new(0);
+                        move |q, a, hs, c| {
+                            dispatch::<Ranged, Mt, false>(b, q, a, hs, &o, None, &mut own.slot(), c)
+                        }
                     }),
                 ));
                 runs.push((
                     "partition",
                     cs,
-                    Box::new(move |q, a, hs, c| {
-                        dispatch::<Partition, Mt, false>(b, q, a, hs, &o, None, c)
+                    Box::new({
+                        let mut own = SlotBuf::new(0);
+                        move |q, a, hs, c| {
+                            dispatch::<Partition, Mt, false>(
+                                b,
+                                q,
+                                a,
+                                hs,
+                                &o,
+                                None,
+                                &mut own.slot(),
+                                c,
+                            )
+                        }
                     }),
                 ));
             }

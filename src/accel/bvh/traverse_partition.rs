@@ -27,11 +27,14 @@
 use super::packet::{Packet, Walk, dispatch};
 use super::{BvhNode, BvhOptions, BvhView, MAX_DEPTH, TriangleTest};
 use crate::accel::entry::EntryPoint;
+use crate::accel::slot::Slot;
 use crate::counters::Counters;
 use crate::geom::{Hit4, M4, Ray4};
 
 /// Nearest hits of the active lanes of `rays` into `hits`, Partition
 /// traversal (contract of `traverse_masked::intersect`, `entry` included).
+// The packet, its options and where it starts, and the slot's scratch.
+#[allow(clippy::too_many_arguments)]
 pub fn intersect<T: TriangleTest>(
     b: &BvhView<'_>,
     rays: &[Ray4],
@@ -39,13 +42,16 @@ pub fn intersect<T: TriangleTest>(
     hits: &mut [Hit4],
     opt: &BvhOptions,
     entry: Option<&EntryPoint>,
+    slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
-    dispatch::<Partition, T, false>(b, rays, active, hits, opt, entry, ctr)
+    dispatch::<Partition, T, false>(b, rays, active, hits, opt, entry, slot, ctr)
 }
 
 /// Occlusion of the active lanes, Partition traversal (contract of
 /// `traverse_masked::occluded`, `entry` included).
+// The packet, its options and where it starts, and the slot's scratch.
+#[allow(clippy::too_many_arguments)]
 pub fn occluded<T: TriangleTest>(
     b: &BvhView<'_>,
     rays: &[Ray4],
@@ -53,18 +59,19 @@ pub fn occluded<T: TriangleTest>(
     hits: &mut [Hit4],
     opt: &BvhOptions,
     entry: Option<&EntryPoint>,
+    slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
-    dispatch::<Partition, T, true>(b, rays, active, hits, opt, entry, ctr)
+    dispatch::<Partition, T, true>(b, rays, active, hits, opt, entry, slot, ctr)
 }
 
 /// `partRays`: move the quads of `idx[..ia]` alive in `n`'s box to the
 /// front (in place) and return how many there are.
 #[inline(always)]
 fn part_rays<T: TriangleTest, const Q: usize>(
-    p: &Packet<T, Q>,
+    p: &Packet<'_, T, Q>,
     n: &BvhNode,
-    idx: &mut [u16; Q],
+    idx: &mut [u16],
     ia: usize,
     depth: usize,
     ctr: &mut Counters,
@@ -87,33 +94,38 @@ pub(crate) struct Partition;
 
 impl Walk for Partition {
     fn walk<T: TriangleTest, const ANY: bool, const Q: usize>(
-        p: &mut Packet<T, Q>,
+        p: &mut Packet<'_, T, Q>,
         b: &BvhView<'_>,
         rays: &[Ray4],
         hits: &mut [Hit4],
         start: (usize, usize),
+        slot: &mut Slot<'_>,
         ctr: &mut Counters,
     ) {
-        Self::walk_from::<T, ANY, Q>(p, b, rays, hits, start, 0, ctr)
+        let (idx, _) = slot.split(p.nq, 0u16);
+        Self::walk_from::<T, ANY, Q>(p, b, rays, hits, start, 0, idx, ctr)
     }
 }
 
 impl Partition {
     /// `walk` with `I` holding the live quads from `first` on (quads
     /// before it known dead below `start`, as Ranged's `i_a`; Masked
-    /// passes 0).
+    /// passes 0). `idx`: room for `I` (`p.nq` entries, from the slot's
+    /// scratch; its contents are not read).
+    // `walk`'s arguments, and where `I` starts and lives.
+    #[allow(clippy::too_many_arguments)]
     pub(crate) fn walk_from<T: TriangleTest, const ANY: bool, const Q: usize>(
-        p: &mut Packet<T, Q>,
+        p: &mut Packet<'_, T, Q>,
         b: &BvhView<'_>,
         rays: &[Ray4],
         hits: &mut [Hit4],
         start: (usize, usize),
         first: usize,
+        idx: &mut [u16],
         ctr: &mut Counters,
     ) {
         let nodes = b.nodes;
         // I: the quads with live lanes.
-        let mut idx = [0u16; Q];
         let mut ia = 0usize;
         for q in first..p.nq {
             if p.live[q].any() {
@@ -128,7 +140,7 @@ impl Partition {
         let (mut node, mut depth) = start;
         loop {
             let n = &nodes[node];
-            ia = part_rays(p, n, &mut idx, ia, depth, ctr);
+            ia = part_rays(p, n, idx, ia, depth, ctr);
             if ia > 0 {
                 if !n.is_leaf() {
                     let (near, far) = p.children(n);

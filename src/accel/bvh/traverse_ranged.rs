@@ -29,11 +29,14 @@
 use super::packet::{Packet, Walk, dispatch};
 use super::{BvhNode, BvhOptions, BvhView, MAX_DEPTH, TriangleTest};
 use crate::accel::entry::EntryPoint;
+use crate::accel::slot::Slot;
 use crate::counters::Counters;
 use crate::geom::{Hit4, M4, Ray4};
 
 /// Nearest hits of the active lanes of `rays` into `hits`, Ranged
 /// traversal (contract of `traverse_masked::intersect`, `entry` included).
+// The packet, its options and where it starts, and the slot's scratch.
+#[allow(clippy::too_many_arguments)]
 pub fn intersect<T: TriangleTest>(
     b: &BvhView<'_>,
     rays: &[Ray4],
@@ -41,13 +44,16 @@ pub fn intersect<T: TriangleTest>(
     hits: &mut [Hit4],
     opt: &BvhOptions,
     entry: Option<&EntryPoint>,
+    slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
-    dispatch::<Ranged, T, false>(b, rays, active, hits, opt, entry, ctr)
+    dispatch::<Ranged, T, false>(b, rays, active, hits, opt, entry, slot, ctr)
 }
 
 /// Occlusion of the active lanes, Ranged traversal (contract of
 /// `traverse_masked::occluded`, `entry` included).
+// The packet, its options and where it starts, and the slot's scratch.
+#[allow(clippy::too_many_arguments)]
 pub fn occluded<T: TriangleTest>(
     b: &BvhView<'_>,
     rays: &[Ray4],
@@ -55,15 +61,16 @@ pub fn occluded<T: TriangleTest>(
     hits: &mut [Hit4],
     opt: &BvhOptions,
     entry: Option<&EntryPoint>,
+    slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
-    dispatch::<Ranged, T, true>(b, rays, active, hits, opt, entry, ctr)
+    dispatch::<Ranged, T, true>(b, rays, active, hits, opt, entry, slot, ctr)
 }
 
 /// `getFirstHit`: the first quad from `ia` on alive in `n`'s box, or `nq`.
 #[inline(always)]
 fn first_hit<T: TriangleTest, const Q: usize>(
-    p: &Packet<T, Q>,
+    p: &Packet<'_, T, Q>,
     n: &BvhNode,
     ia: usize,
     depth: usize,
@@ -88,7 +95,7 @@ fn first_hit<T: TriangleTest, const Q: usize>(
 /// `ia + 1`.
 #[inline(always)]
 fn last_hit<T: TriangleTest, const Q: usize>(
-    p: &Packet<T, Q>,
+    p: &Packet<'_, T, Q>,
     n: &BvhNode,
     ia: usize,
     depth: usize,
@@ -109,11 +116,12 @@ pub(crate) struct Ranged;
 
 impl Walk for Ranged {
     fn walk<T: TriangleTest, const ANY: bool, const Q: usize>(
-        p: &mut Packet<T, Q>,
+        p: &mut Packet<'_, T, Q>,
         b: &BvhView<'_>,
         rays: &[Ray4],
         hits: &mut [Hit4],
         start: (usize, usize),
+        _: &mut Slot<'_>,
         ctr: &mut Counters,
     ) {
         let nodes = b.nodes;

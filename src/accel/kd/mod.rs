@@ -382,7 +382,7 @@ impl crate::accel::Accel for KdView<'_> {
         rays: &[Ray4],
         active: &[M4],
         hits: &mut [Hit4],
-        _: &mut Slot<'_>,
+        slot: &mut Slot<'_>,
         ctr: &mut Counters,
     ) -> bool {
         use crate::accel::packet::{self, MAX_QUADS, Start};
@@ -407,7 +407,7 @@ impl crate::accel::Accel for KdView<'_> {
                 let (f, start) = if !p.bvh.culling && p.entry == EntrySearch::None {
                     (None, Start::Root)
                 } else {
-                    let (f, s) = packet::start(self, p, rays, active, &self.info.root, ctr);
+                    let (f, s) = packet::start(self, p, rays, active, &self.info.root, slot, ctr);
                     (if p.bvh.culling { f } else { None }, s)
                 };
                 let e = match start {

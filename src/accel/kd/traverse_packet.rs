@@ -1235,6 +1235,7 @@ mod tests {
             ));
             let p16 = by_side(16);
             let mut h16 = vec![Hit4::MISS; p16[0].0.len()];
+            let mut own = crate::accel::slot::SlotBuf::new(0);
             let opt = BvhOptions {
                 culling: true,
                 kind: RayKind::Primary,
@@ -1245,7 +1246,8 @@ mod tests {
                 Box::new(move |c| {
                     let mut x = 0;
                     for (q, a, _) in p16 {
-                        traverse_masked::intersect::<Mt>(b, q, a, &mut h16, &opt, None, c);
+                        let s = &mut own.slot();
+                        traverse_masked::intersect::<Mt>(b, q, a, &mut h16, &opt, None, s, c);
                         x += sum(&h16);
                     }
                     x
