@@ -794,9 +794,11 @@ fn trace_one_chunk(
     ctr: &mut Counters,
 ) {
     {
-        let mut quads = [Ray4::from_rays(&[DUMMY; 4]); traverse_shadow::MAX_QUADS];
-        let mut active = [M4::FALSE; traverse_shadow::MAX_QUADS];
-        let mut occluded = [M4::FALSE; traverse_shadow::MAX_QUADS];
+        // A batch's quads in the slot's scratch (`SCRATCH` covers it).
+        const Q: usize = traverse_shadow::MAX_QUADS;
+        let (quads, s) = slot.reborrow().take(Q, Ray4::from_rays(&[DUMMY; 4]));
+        let (active, s) = s.take(Q, M4::FALSE);
+        let (occluded, mut slot) = s.take(Q, M4::FALSE);
         let ids = &ray_ids[c.start as usize..(c.start + c.count) as usize];
         for (b, batch) in ids.chunks(4 * traverse_shadow::MAX_QUADS).enumerate() {
             let nq = batch.len().div_ceil(4);
@@ -818,7 +820,7 @@ fn trace_one_chunk(
                 &quads[..nq],
                 &active[..nq],
                 &mut occluded[..nq],
-                slot,
+                &mut slot,
                 ctr,
             );
             let base = b * 4 * traverse_shadow::MAX_QUADS;
