@@ -7,8 +7,9 @@ mod common;
 
 use common::{TestScene, builtin_scenes, obj_scenes, view_rays};
 use glam::Vec3;
-use sheaf::accel::grid::traverse_cgt::{self, CgtOptions, Mailbox};
+use sheaf::accel::grid::traverse_cgt::{self, CgtOptions};
 use sheaf::accel::grid::{GridView, traverse_single};
+use sheaf::accel::slot::SlotBuf;
 use sheaf::geom::TriangleTest;
 use sheaf::geom::{F4, Hit4, M4, Mt, Pt, Ray4, Wt};
 use sheaf::{Counters, GridParams, Hit, Limits, OwnedContext, Ray, TriTest};
@@ -53,8 +54,9 @@ fn single<T: TriangleTest>(g: &GridView, rays: &[Ray], any: bool) -> Vec<Hit> {
 
 struct Run<'a> {
     g: GridView<'a>,
-    stamps: Vec<u32>,
-    packet: u32,
+    /// A thread slot: the mailbox (one stamp per stored triangle) and the
+    /// packets' scratch.
+    own: SlotBuf,
 }
 
 impl Run<'_> {
@@ -84,30 +86,18 @@ impl Run<'_> {
                     mailbox: slot,
                     culling: cull,
                 };
-                let mut mailbox = Mailbox::new(&mut self.stamps, &mut self.packet);
+                let mut slot = self.own.slot();
                 let mut ctr = Counters::default();
                 for (quads, idx) in packets(rays, w, h, n) {
                     let active = vec![M4::TRUE; quads.len()];
                     let mut hits = vec![Hit4::MISS; quads.len()];
                     if any {
                         traverse_cgt::occluded::<T>(
-                            &self.g,
-                            &quads,
-                            &active,
-                            &mut hits,
-                            &opt,
-                            &mut mailbox,
-                            &mut ctr,
+                            &self.g, &quads, &active, &mut hits, &opt, &mut slot, &mut ctr,
                         );
                     } else {
                         traverse_cgt::intersect::<T>(
-                            &self.g,
-                            &quads,
-                            &active,
-                            &mut hits,
-                            &opt,
-                            &mut mailbox,
-                            &mut ctr,
+                            &self.g, &quads, &active, &mut hits, &opt, &mut slot, &mut ctr,
                         );
                     }
                     for (k, &ri) in idx.iter().enumerate() {
@@ -159,8 +149,7 @@ fn check_scene(s: &TestScene, res: usize) {
         let g = ctx.tracer().unwrap().grid.unwrap();
         let mut run = Run {
             g,
-            stamps: vec![0; g.tris.len()],
-            packet: 0,
+            own: SlotBuf::new(g.tris.len()),
         };
         let mut sum = Counters::default();
         for (vname, view) in &s.views {
@@ -245,8 +234,7 @@ fn adversarial_packets_stay_exact() {
     let g = ctx.tracer().unwrap().grid.unwrap();
     let mut run = Run {
         g,
-        stamps: vec![0; g.tris.len()],
-        packet: 0,
+        own: SlotBuf::new(g.tris.len()),
     };
     let (lo, hi) = (g.info.bounds.min, g.info.bounds.max);
     let mut x = 0x2545f4914f6cdd1du64;
@@ -292,7 +280,7 @@ fn adversarial_packets_stay_exact() {
         v: F4::ZERO,
     };
     let mut hits = vec![sentinel; quads.len()];
-    let mut slot = Mailbox::new(&mut run.stamps, &mut run.packet);
+    let mut slot = run.own.slot();
     let all = vec![M4::TRUE; quads.len()];
     traverse_cgt::intersect::<Mt>(
         &g,
@@ -318,7 +306,7 @@ fn adversarial_packets_stay_exact() {
         v: F4::ZERO,
     };
     let mut hits = vec![sentinel; quads.len()];
-    let mut slot = Mailbox::new(&mut run.stamps, &mut run.packet);
+    let mut slot = run.own.slot();
     traverse_cgt::intersect::<Mt>(
         &g,
         &quads,

@@ -27,8 +27,9 @@ use crate::counters::Counters;
 use crate::geom::{Aabb, Hit, Hit4, M4, ProjTri, Ray, Ray4, TriTest, TriVerts, TriangleTest};
 use glam::Vec3;
 
-/// Slot scratch this module's packet code takes (`accel::slot`).
-pub const SCRATCH: usize = 0;
+/// Slot scratch this module's packet code takes (`accel::slot`): a CGT
+/// packet's per-quad state.
+pub const SCRATCH: usize = traverse_cgt::SCRATCH;
 
 /// Tunables of the grid (C: `sheaf_grid_params`).
 #[repr(C)]
@@ -234,9 +235,9 @@ impl crate::accel::Accel for GridView<'_> {
             return false;
         }
         if ANY {
-            traverse_cgt::occluded::<T>(self, rays, active, hits, &p.cgt, &mut slot.mailbox, ctr);
+            traverse_cgt::occluded::<T>(self, rays, active, hits, &p.cgt, slot, ctr);
         } else {
-            traverse_cgt::intersect::<T>(self, rays, active, hits, &p.cgt, &mut slot.mailbox, ctr);
+            traverse_cgt::intersect::<T>(self, rays, active, hits, &p.cgt, slot, ctr);
         }
         true
     }

@@ -19,6 +19,11 @@
 //! test and tie rule as `traverse_single`, so packets return the same
 //! triangle and bitwise the same t as the 3DDDA.
 //!
+//! # Memory
+//! Per quad, the live lanes, the slice coordinates and the triangle test's
+//! precomputation come from the thread slot's scratch (`SCRATCH` bytes for
+//! the largest packet, `MAX_QUADS` quads), not the caller's stack.
+//!
 //! # Deviations
 //! - `B(s)` is computed as `B(s0) + (s - s0) * dB` rather than accumulated,
 //!   so rounding does not grow with the number of slices, and the box and the
@@ -54,9 +59,11 @@
 
 use super::{GridView, TriangleTest};
 use crate::accel::fallback;
-use crate::accel::packet::{SizeClass, by_class};
+use crate::accel::packet::MAX_QUADS;
+use crate::accel::slot::Slot;
 use crate::counters::{Counters, count};
-use crate::geom::{F4, Hit, Hit4, M4, Ray4, RayLanes, TriVerts};
+use crate::geom::{F4, Hit, Hit4, M4, Mt, Pt, Ray4, RayLanes, TriVerts, Wt};
+use crate::mem::scratch::bytes;
 use glam::Vec3;
 
 use super::traverse_single;
@@ -72,18 +79,35 @@ const BOX_EPS: f32 = 1e-3;
 pub use crate::accel::mailbox::Mailbox;
 pub use crate::accel::method::CgtOptions;
 
+/// Slot scratch a packet takes: per quad the live lanes, six slice
+/// coordinates and the triangle test's precomputation (the largest kind),
+/// for `MAX_QUADS` quads.
+pub const SCRATCH: usize =
+    bytes::<M4>(MAX_QUADS) + 6 * bytes::<F4>(MAX_QUADS) + pre_bytes(MAX_QUADS);
+
+/// Scratch bytes of `n` precomputations of the largest triangle test.
+const fn pre_bytes(n: usize) -> usize {
+    let mt = bytes::<<Mt as TriangleTest>::Pre<F4>>(n);
+    let wt = bytes::<<Wt as TriangleTest>::Pre<F4>>(n);
+    let pt = bytes::<<Pt as TriangleTest>::Pre<F4>>(n);
+    let m = if mt > wt { mt } else { wt };
+    if m > pt { m } else { pt }
+}
+
 /// Nearest hits of the active lanes of `rays` (a packet of `rays.len()`
-/// quads, at most 256) into `hits`; inactive lanes are left untouched.
+/// quads; longer inputs are consecutive packets of `MAX_QUADS`) into
+/// `hits`; inactive lanes are left untouched. The slot lends the mailbox
+/// and the per-quad scratch (`SCRATCH` bytes).
 pub fn intersect<T: TriangleTest>(
     g: &GridView<'_>,
     rays: &[Ray4],
     active: &[M4],
     hits: &mut [Hit4],
     opt: &CgtOptions,
-    mailbox: &mut Mailbox<'_>,
+    slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
-    dispatch::<T, false>(g, rays, active, hits, opt, mailbox, ctr)
+    dispatch::<T, false>(g, rays, active, hits, opt, slot, ctr)
 }
 
 /// Occlusion of the active lanes: `hits[q].prim[i] != INVALID_ID` marks an
@@ -94,10 +118,10 @@ pub fn occluded<T: TriangleTest>(
     active: &[M4],
     hits: &mut [Hit4],
     opt: &CgtOptions,
-    mailbox: &mut Mailbox<'_>,
+    slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
-    dispatch::<T, true>(g, rays, active, hits, opt, mailbox, ctr)
+    dispatch::<T, true>(g, rays, active, hits, opt, slot, ctr)
 }
 
 fn dispatch<T: TriangleTest, const ANY: bool>(
@@ -106,49 +130,16 @@ fn dispatch<T: TriangleTest, const ANY: bool>(
     active: &[M4],
     hits: &mut [Hit4],
     opt: &CgtOptions,
-    mb: &mut Mailbox<'_>,
+    slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
     let n = rays.len().min(active.len()).min(hits.len());
-    // Per-quad scratch lives on the stack, sized by the packet class.
-    let mut run = Run::<T, ANY> {
-        g,
-        rays: &rays[..n],
-        active: &active[..n],
-        hits: &mut hits[..n],
-        opt,
-        mb,
-        ctr,
-        _t: core::marker::PhantomData,
-    };
-    by_class(n, &mut run);
-}
-
-/// A CGT call as the packet driver's size classes see it.
-struct Run<'x, 'g, 'm, T, const ANY: bool> {
-    g: &'x GridView<'g>,
-    rays: &'x [Ray4],
-    active: &'x [M4],
-    hits: &'x mut [Hit4],
-    opt: &'x CgtOptions,
-    mb: &'x mut Mailbox<'m>,
-    ctr: &'x mut Counters,
-    _t: core::marker::PhantomData<T>,
-}
-
-impl<T: TriangleTest, const ANY: bool> SizeClass for Run<'_, '_, '_, T, ANY> {
-    #[inline]
-    fn packet<const Q: usize>(&mut self, r: core::ops::Range<usize>) {
-        let (rays, active) = (&self.rays[r.clone()], &self.active[r.clone()]);
-        packet::<T, ANY, Q>(
-            self.g,
-            rays,
-            active,
-            &mut self.hits[r],
-            self.opt,
-            self.mb,
-            self.ctr,
-        );
+    // Per-quad scratch comes from the slot, `nq` values per packet, so no
+    // size classes are needed.
+    for s in (0..n).step_by(MAX_QUADS) {
+        let r = s..(s + MAX_QUADS).min(n);
+        let (rays, active) = (&rays[r.clone()], &active[r.clone()]);
+        packet::<T, ANY>(g, rays, active, &mut hits[r], opt, slot, ctr);
     }
 }
 
@@ -157,20 +148,20 @@ fn lane_mask(m: M4) -> u32 {
     m.bitmask()
 }
 
-/// One packet of `rays.len() <= Q` quads.
-fn packet<T: TriangleTest, const ANY: bool, const Q: usize>(
+/// One packet of `rays.len() <= MAX_QUADS` quads.
+fn packet<T: TriangleTest, const ANY: bool>(
     g: &GridView<'_>,
     rays: &[Ray4],
     active: &[M4],
     hits: &mut [Hit4],
     opt: &CgtOptions,
-    mb: &mut Mailbox<'_>,
+    slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
     let info = g.info;
     let nq = rays.len();
     ctr.packets += 1;
-    let mut live = [M4::FALSE; Q];
+    let (live, mut slot) = slot.split(nq, M4::FALSE);
     let mut any_live = false;
     for q in 0..nq {
         // Invalid rays are misses (Ray::is_valid), as in the 3DDDA.
@@ -188,7 +179,7 @@ fn packet<T: TriangleTest, const ANY: bool, const Q: usize>(
     }
     // Rays: every valid active lane once (stray lanes are counted by the
     // 3DDDA that traces them, so they are subtracted below).
-    let lanes_in = live[..nq]
+    let lanes_in = live
         .iter()
         .map(|m| lane_mask(*m).count_ones() as u64)
         .sum::<u64>();
@@ -201,7 +192,7 @@ fn packet<T: TriangleTest, const ANY: bool, const Q: usize>(
     let res = [info.res[0] as i32, info.res[1] as i32, info.res[2] as i32];
 
     // Major axis K: the dominant grid-space axis of the first live ray.
-    let (q0, i0) = first_lane(&live[..nq]);
+    let (q0, i0) = first_lane(live);
     let d0 = Vec3::new(
         rays[q0].dir[0][i0] * inv.x,
         rays[q0].dir[1][i0] * inv.y,
@@ -222,12 +213,12 @@ fn packet<T: TriangleTest, const ANY: bool, const Q: usize>(
     // Per quad: position along K in the travel frame (K flipped so that
     // travel is +K), 1 / dK, and u, v slopes.
     let zero = F4::ZERO;
-    let mut ok = [zero; Q];
-    let mut rk = [zero; Q];
-    let mut du = [zero; Q];
-    let mut dv = [zero; Q];
-    let mut ou = [zero; Q];
-    let mut ov = [zero; Q];
+    let (ok, mut slot) = slot.split(nq, zero);
+    let (rk, mut slot) = slot.split(nq, zero);
+    let (du, mut slot) = slot.split(nq, zero);
+    let (dv, mut slot) = slot.split(nq, zero);
+    let (ou, mut slot) = slot.split(nq, zero);
+    let (ov, mut slot) = slot.split(nq, zero);
     let mut stray = 0u64;
     // Cells the live rays cross per slice alone, summed (the budget's unit).
     let mut cross = F4::ZERO;
@@ -280,12 +271,12 @@ fn packet<T: TriangleTest, const ANY: bool, const Q: usize>(
     ctr.rays -= stray;
     // Incoherent packets (`trace::fallback`): every lane still live (all
     // move forward along K) by the 3DDDA.
-    if !fallback::coherent(rays, &live[..nq], info.bounds.diagonal().length()) {
-        return alone::<T, ANY>(g, rays, &live[..nq], hits, ctr);
+    if !fallback::coherent(rays, live, info.bounds.diagonal().length()) {
+        return alone::<T, ANY>(g, rays, live, hits, ctr);
     }
     // The budget (`fallback::CGT_BUDGET`): quad-cells spent and allowed.
     let budget = fallback::enabled();
-    let mut nl = live_lanes(&live[..nq]);
+    let mut nl = live_lanes(live);
     let per_lane = if nl > 0 {
         cross.element_sum() / nl as f32
     } else {
@@ -386,17 +377,18 @@ fn packet<T: TriangleTest, const ANY: bool, const Q: usize>(
         rays[q0].org[1][i0],
         rays[q0].org[2][i0],
     );
-    let cull = opt.culling && common_origin(rays, &live[..nq], origin);
+    let cull = opt.culling && common_origin(rays, live, origin);
     if opt.culling && !cull {
         ctr.packets_no_cull += 1;
     }
     let corners = corner_dirs(k, u, v, flip, info.cell_size, smin, smax);
 
     // Per-ray precomputation of the triangle test.
-    let mut pre = [T::prepare(&RayLanes::from_ray4(&rays[q0])); Q];
+    let (pre, mut slot) = slot.split(nq, T::prepare(&RayLanes::from_ray4(&rays[q0])));
     for q in 0..nq {
         pre[q] = T::prepare(&RayLanes::from_ray4(&rays[q]));
     }
+    let mb = &mut slot.mailbox;
     if opt.mailbox {
         mb.next_packet(info.triangles as usize);
     }
@@ -446,7 +438,7 @@ fn packet<T: TriangleTest, const ANY: bool, const Q: usize>(
             if empty {
                 count!(ctr.macro_skips += 1);
                 s = end + 1;
-                if !ANY && !still_live(&mut live[..nq], hits, &ok[..nq], &rk[..nq], rays, end + 1) {
+                if !ANY && !still_live(live, hits, ok, rk, rays, end + 1) {
                     return;
                 }
                 continue;
@@ -530,20 +522,20 @@ fn packet<T: TriangleTest, const ANY: bool, const Q: usize>(
                     * lanes as f32
                     * (fallback::CGT_STEP + refs as f32 / cells);
                 if spent > allowed {
-                    return alone::<T, ANY>(g, rays, &live[..nq], hits, ctr);
+                    return alone::<T, ANY>(g, rays, live, hits, ctr);
                 }
             }
         }
         // Early termination: rays with a hit before the next slice plane
         // (or whose tmax ends before it) are done.
-        if !ANY && !still_live(&mut live[..nq], hits, &ok[..nq], &rk[..nq], rays, s + 1) {
+        if !ANY && !still_live(live, hits, ok, rk, rays, s + 1) {
             return;
         }
-        if ANY && !live[..nq].iter().any(|m| m.any()) {
+        if ANY && !live.iter().any(|m| m.any()) {
             return;
         }
         if budget {
-            nl = live_lanes(&live[..nq]);
+            nl = live_lanes(live);
         }
         s += 1;
     }

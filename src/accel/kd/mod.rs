@@ -51,8 +51,10 @@ use crate::counters::Counters;
 use crate::geom::{Aabb, Hit, Hit4, M4, ProjTri, Ray, Ray4, TriTest, TriVerts, TriangleTest};
 use bytemuck::{Pod, Zeroable};
 
-/// Slot scratch this module's packet code takes (`accel::slot`).
-pub const SCRATCH: usize = 0;
+/// Slot scratch this module's packet code takes (`accel::slot`): the
+/// occlusion masks of a packet and the packet traversal's scratch.
+pub const SCRATCH: usize =
+    crate::mem::scratch::bytes::<M4>(crate::accel::packet::MAX_QUADS) + traverse_packet::SCRATCH;
 
 /// Deepest level a build creates (root = depth 0); every traversal stack of
 /// `MAX_DEPTH + 1` entries suffices.
@@ -422,12 +424,12 @@ impl crate::accel::Accel for KdView<'_> {
                 let (f, e) = (f.as_ref(), e.as_ref());
                 if ANY {
                     let n = rays.len().min(active.len()).min(hits.len()).min(MAX_QUADS);
-                    let mut occ = [M4::FALSE; MAX_QUADS];
+                    let (occ, mut slot) = slot.split(n, M4::FALSE);
                     let (r, a) = (&rays[..n], &active[..n]);
-                    traverse_packet::occluded::<T>(self, r, a, &mut occ[..n], f, e, ctr);
-                    packet::mark_occluded(&occ[..n], a, &mut hits[..n]);
+                    traverse_packet::occluded::<T>(self, r, a, occ, f, e, &mut slot, ctr);
+                    packet::mark_occluded(occ, a, &mut hits[..n]);
                 } else {
-                    traverse_packet::intersect::<T>(self, rays, active, hits, f, e, ctr);
+                    traverse_packet::intersect::<T>(self, rays, active, hits, f, e, slot, ctr);
                 }
                 true
             }

@@ -33,13 +33,14 @@
 //! `split_interval` gives) without per-quad work.
 //!
 //! # Memory
-//! Fixed scratch sized by the packet's class (1, 4, 16, 64 or 256 quads,
-//! as the BVH packets): per quad the reciprocal directions, the triangle
-//! test's precomputation, the live lanes and the current interval; a stack
-//! of `MAX_DEPTH + 1` entries `(node, depth, box, quads)` (64 bytes each),
-//! where `quads` marks the quads with some lane in the far child when it
-//! was pushed (the only ones to recompute when it is popped). No
-//! allocation, no recursion.
+//! Scratch from the thread slot (`SCRATCH` bytes), sized by the packet's
+//! class (1, 4, 16, 64 or 256 quads, as the BVH packets; a power of two,
+//! so quad indices masked with `Q - 1` need no bounds checks): per quad
+//! the reciprocal directions, the triangle test's precomputation, the live
+//! lanes and the current interval; a stack of `MAX_DEPTH + 1` entries
+//! `(node, depth, box, quads)` (64 bytes each), where `quads` marks the
+//! quads with some lane in the far child when it was pushed (the only ones
+//! to recompute when it is popped). No allocation, no recursion.
 //!
 //! # Deviations
 //! - Lanes whose direction sign bits differ from the packet's first live
@@ -74,13 +75,45 @@ use super::{KdView, MAX_DEPTH, TriangleTest};
 use crate::accel::entry::EntryPoint;
 use crate::accel::fallback;
 use crate::accel::packet::{SizeClass, by_class};
+use crate::accel::slot::Slot;
 use crate::counters::{Counters, count};
 use crate::geom::frustum::Frustum;
 use crate::geom::lane::mask_from_bits;
-use crate::geom::{Aabb, F4, Hit, Hit4, INVALID_ID, M4, Ray4, RayLanes};
+use crate::geom::{Aabb, F4, Hit, Hit4, INVALID_ID, M4, Mt, Pt, Ray4, RayLanes, Wt};
+use crate::mem::scratch::bytes;
 
 /// Most quads traced as one packet (32 x 32 rays), for every family.
 pub use crate::accel::packet::MAX_QUADS;
+
+/// Slot scratch a packet of the largest class takes: per quad the live
+/// lanes, origins and reciprocal directions (3 each), tmin, tmax, the
+/// interval (2), the split's t_s, the active list, the leaf's lanes and
+/// the triangle test's precomputation (the largest kind); and the stack.
+pub const SCRATCH: usize = 2 * bytes::<M4>(MAX_QUADS)
+    + 11 * bytes::<F4>(MAX_QUADS)
+    + bytes::<u16>(MAX_QUADS)
+    + pre_bytes(MAX_QUADS)
+    + bytes::<Entry>(MAX_DEPTH + 1);
+
+/// Scratch bytes of `n` precomputations of the largest triangle test.
+const fn pre_bytes(n: usize) -> usize {
+    let mt = bytes::<<Mt as TriangleTest>::Pre<F4>>(n);
+    let wt = bytes::<<Wt as TriangleTest>::Pre<F4>>(n);
+    let pt = bytes::<<Pt as TriangleTest>::Pre<F4>>(n);
+    let m = if mt > wt { mt } else { wt };
+    if m > pt { m } else { pt }
+}
+
+/// `Q` values, each `fill`, from the slot's scratch as an array (indices
+/// masked with `Q - 1` need no bounds check), and the rest of the slot.
+#[inline(always)]
+fn carve<'s, T: Copy, const Q: usize>(
+    slot: &'s mut Slot<'_>,
+    fill: T,
+) -> (&'s mut [T; Q], Slot<'s>) {
+    let (v, rest) = slot.split(Q, fill);
+    (v.try_into().expect("split returns Q values"), rest)
+}
 
 /// Quads in a leaf from which triangles are culled with the full
 /// `Frustum::cull_triangle` (planes and corner rays); fewer: the planes
@@ -94,6 +127,9 @@ const CORNER_TEST_QUADS: usize = 8;
 /// untouched. `frustum` must bound every active valid ray (as
 /// `Frustum::new` builds it), `entry` must hold every leaf with a triangle
 /// that frustum does not cull (see the module docs); either may be `None`.
+/// The slot lends the scratch (`SCRATCH` bytes).
+// One argument per traversal input, as the other packet traversals.
+#[allow(clippy::too_many_arguments)]
 pub fn intersect<T: TriangleTest>(
     k: &KdView<'_>,
     rays: &[Ray4],
@@ -101,6 +137,7 @@ pub fn intersect<T: TriangleTest>(
     hits: &mut [Hit4],
     frustum: Option<&Frustum>,
     entry: Option<&EntryPoint>,
+    slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
     let n = rays.len().min(active.len()).min(hits.len());
@@ -112,6 +149,7 @@ pub fn intersect<T: TriangleTest>(
         &mut [],
         frustum,
         entry,
+        slot,
         ctr,
     );
 }
@@ -119,6 +157,7 @@ pub fn intersect<T: TriangleTest>(
 /// Occlusion of the active lanes (anything in `[tmin, tmax)`): lane `i` of
 /// `occluded[q]` is set when it is active and occluded, cleared otherwise
 /// (every quad read is written). Arguments as `intersect`.
+#[allow(clippy::too_many_arguments)]
 pub fn occluded<T: TriangleTest>(
     k: &KdView<'_>,
     rays: &[Ray4],
@@ -126,6 +165,7 @@ pub fn occluded<T: TriangleTest>(
     occluded: &mut [M4],
     frustum: Option<&Frustum>,
     entry: Option<&EntryPoint>,
+    slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
     let n = rays.len().min(active.len()).min(occluded.len());
@@ -137,6 +177,7 @@ pub fn occluded<T: TriangleTest>(
         &mut occluded[..n],
         frustum,
         entry,
+        slot,
         ctr,
     );
 }
@@ -153,6 +194,7 @@ fn dispatch<T: TriangleTest, const ANY: bool>(
     occ: &mut [M4],
     frustum: Option<&Frustum>,
     entry: Option<&EntryPoint>,
+    slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
     let n = rays.len();
@@ -164,6 +206,7 @@ fn dispatch<T: TriangleTest, const ANY: bool>(
         occ,
         frustum,
         entry,
+        slot,
         ctr,
         _t: core::marker::PhantomData,
     };
@@ -172,7 +215,7 @@ fn dispatch<T: TriangleTest, const ANY: bool>(
 
 /// A kd packet call as the packet driver's size classes see it: `hits`
 /// (nearest) or `occ` (ANY) has the length of `rays`, the other is empty.
-struct Run<'x, 'k, T, const ANY: bool> {
+struct Run<'x, 'k, 's, T, const ANY: bool> {
     k: &'x KdView<'k>,
     rays: &'x [Ray4],
     active: &'x [M4],
@@ -180,11 +223,12 @@ struct Run<'x, 'k, T, const ANY: bool> {
     occ: &'x mut [M4],
     frustum: Option<&'x Frustum>,
     entry: Option<&'x EntryPoint>,
+    slot: &'x mut Slot<'s>,
     ctr: &'x mut Counters,
     _t: core::marker::PhantomData<T>,
 }
 
-impl<T: TriangleTest, const ANY: bool> SizeClass for Run<'_, '_, T, ANY> {
+impl<T: TriangleTest, const ANY: bool> SizeClass for Run<'_, '_, '_, T, ANY> {
     #[inline]
     fn packet<const Q: usize>(&mut self, r: core::ops::Range<usize>) {
         let (rays, active) = (&self.rays[r.clone()], &self.active[r.clone()]);
@@ -194,7 +238,7 @@ impl<T: TriangleTest, const ANY: bool> SizeClass for Run<'_, '_, T, ANY> {
             (&mut self.hits[r], &mut [][..])
         };
         let (f, e) = (self.frustum, self.entry);
-        packet::<T, ANY, Q>(self.k, rays, active, h, o, f, e, self.ctr);
+        packet::<T, ANY, Q>(self.k, rays, active, h, o, f, e, self.slot, self.ctr);
     }
 }
 
@@ -219,12 +263,13 @@ fn packet<T: TriangleTest, const ANY: bool, const Q: usize>(
     occ: &mut [M4],
     frustum: Option<&Frustum>,
     entry: Option<&EntryPoint>,
+    slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
     let nq = rays.len().min(Q);
     ctr.packets += 1;
     // Outputs of the active lanes, and the live ones: active and valid.
-    let mut live = [M4::FALSE; Q];
+    let (live, mut slot) = carve::<M4, Q>(slot, M4::FALSE);
     let mut n_live = 0u32;
     for q in 0..nq {
         let m = active[q];
@@ -303,10 +348,11 @@ fn packet<T: TriangleTest, const ANY: bool, const Q: usize>(
         hits,
         occ,
         frustum,
-        &mut live,
+        live,
         n_live,
         neg,
         (node0, depth0, bx0),
+        &mut slot,
         ctr,
     );
 }
@@ -324,25 +370,41 @@ fn walk<T: TriangleTest, const ANY: bool, const Q: usize>(
     mut n_live: u32,
     neg: [bool; 3],
     start: (usize, usize, Aabb),
+    slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
     let nq = rays.len().min(Q);
-    // Per-quad constants; scratch past nq repeats the last quad (never read).
-    let at = |q: usize| &rays[q.min(nq - 1)];
-    let org: [[F4; Q]; 3] = core::array::from_fn(|a| core::array::from_fn(|q| at(q).org[a]));
-    let rcp: [[F4; Q]; 3] =
-        core::array::from_fn(|a| core::array::from_fn(|q| F4::ONE / at(q).dir[a]));
-    let tmin: [F4; Q] = core::array::from_fn(|q| at(q).tmin);
-    let tmax: [F4; Q] = core::array::from_fn(|q| at(q).tmax);
-    let pre: [T::Pre<F4>; Q] = core::array::from_fn(|q| T::prepare(&RayLanes::from_ray4(at(q))));
+    // Per-quad constants from the slot's scratch; past nq they stay as
+    // filled (never read: only quads below nq enter `act`).
+    let z = F4::ZERO;
+    let (ox, mut slot) = carve::<F4, Q>(slot, z);
+    let (oy, mut slot) = carve::<F4, Q>(&mut slot, z);
+    let (oz, mut slot) = carve::<F4, Q>(&mut slot, z);
+    let (rx, mut slot) = carve::<F4, Q>(&mut slot, z);
+    let (ry, mut slot) = carve::<F4, Q>(&mut slot, z);
+    let (rz, mut slot) = carve::<F4, Q>(&mut slot, z);
+    let (tmin, mut slot) = carve::<F4, Q>(&mut slot, z);
+    let (tmax, mut slot) = carve::<F4, Q>(&mut slot, z);
+    let (pre, mut slot) =
+        carve::<T::Pre<F4>, Q>(&mut slot, T::prepare(&RayLanes::from_ray4(&rays[0])));
+    for (q, r) in rays[..nq].iter().enumerate() {
+        (ox[q], oy[q], oz[q]) = (r.org[0], r.org[1], r.org[2]);
+        rx[q] = F4::ONE / r.dir[0];
+        ry[q] = F4::ONE / r.dir[1];
+        rz[q] = F4::ONE / r.dir[2];
+        (tmin[q], tmax[q]) = (r.tmin, r.tmax);
+        pre[q] = T::prepare(&RayLanes::from_ray4(r));
+    }
+    let (org, rcp) = ([&*ox, &*oy, &*oz], [&*rx, &*ry, &*rz]);
+    let (tmin, tmax, pre) = (&*tmin, &*tmax, &*pre);
     // Current intervals (valid for the quads in `act`).
-    let mut t0 = [F4::ZERO; Q];
-    let mut t1 = [F4::ZERO; Q];
+    let (t0, mut slot) = carve::<F4, Q>(&mut slot, z);
+    let (t1, mut slot) = carve::<F4, Q>(&mut slot, z);
     // Quads with a live lane inside the current node, and per entry of
     // `act` the split's t_s (inner node) or the lanes inside (leaf).
-    let mut act = [0u16; Q];
-    let mut tsb = [F4::ZERO; Q];
-    let mut lm = [M4::FALSE; Q];
+    let (act, mut slot) = carve::<u16, Q>(&mut slot, 0);
+    let (tsb, mut slot) = carve::<F4, Q>(&mut slot, z);
+    let (lm, mut slot) = carve::<M4, Q>(&mut slot, M4::FALSE);
     let slab = |q: usize, bx: &Aabb| {
         clip4(
             &bx.min.to_array(),
@@ -370,12 +432,13 @@ fn walk<T: TriangleTest, const ANY: bool, const Q: usize>(
         return;
     }
     let nodes = k.nodes;
-    let mut st = [Entry {
+    let empty = Entry {
         node: 0,
         depth: 0,
         bx: Aabb::EMPTY,
         quads: [0; MAX_QUADS / 64],
-    }; MAX_DEPTH + 1];
+    };
+    let (st, _) = carve::<Entry, { MAX_DEPTH + 1 }>(&mut slot, empty);
     let mut sp = 0usize;
     let words = Q.div_ceil(64);
     loop {
@@ -609,6 +672,7 @@ mod tests {
     use crate::accel::bvh::{BvhView, RayKind};
     use crate::accel::kd::traverse_simd::tests::{deep_rays, ties, with_trees};
     use crate::accel::kd::traverse_single::{self, tests::same};
+    use crate::accel::slot::SlotBuf;
     use crate::geom::TriangleTest;
     use crate::geom::{Mt, Pt, Ray, Wt};
     use glam::Vec3;
@@ -778,6 +842,7 @@ mod tests {
         near: &dyn Fn(usize, usize) -> Hit,
         occl: &dyn Fn(usize, usize) -> bool,
         what: &dyn Fn() -> String,
+        slot: &mut Slot<'_>,
     ) -> Counters {
         let mut fill = Hit4::MISS;
         for i in 0..4 {
@@ -786,8 +851,8 @@ mod tests {
         let mut hits = vec![fill; quads.len()];
         let mut occ = vec![M4::TRUE; quads.len()];
         let mut ctr = Counters::default();
-        intersect::<T>(k, quads, active, &mut hits, f, e, &mut ctr);
-        occluded::<T>(k, quads, active, &mut occ, f, e, &mut ctr);
+        intersect::<T>(k, quads, active, &mut hits, f, e, slot, &mut ctr);
+        occluded::<T>(k, quads, active, &mut occ, f, e, slot, &mut ctr);
         let mut valid = 0;
         for (q, (h, m)) in hits.iter().zip(active).enumerate() {
             for i in 0..4 {
@@ -861,6 +926,7 @@ mod tests {
                     })
                 })
                 .collect();
+            let mut own = SlotBuf::new(0);
             let mut run = |quads: &[Ray4], active: &[M4], pix: &[[Option<usize>; 4]], n: u32| {
                 let near = |q: usize, i: usize| single[pix[q][i].unwrap()].0;
                 let occl = |q: usize, i: usize| single[pix[q][i].unwrap()].1;
@@ -888,6 +954,7 @@ mod tests {
                         &near,
                         &occl,
                         &what,
+                        &mut own.slot(),
                     );
                     total.add(&ctr);
                 }
@@ -1060,6 +1127,7 @@ mod tests {
                     &near,
                     &occl,
                     &|| "bad entry".into(),
+                    &mut SlotBuf::new(0).slot(),
                 ));
             }
             assert!(c1.rays > 0);
@@ -1178,6 +1246,7 @@ mod tests {
                 for cull in [false, true] {
                     let pn = by_side(n);
                     let mut hits = vec![Hit4::MISS; pn[0].0.len()];
+                    let mut own = SlotBuf::new(0);
                     runs.push((
                         format!(
                             "kd packet {n}x{n} frustum {}",
@@ -1192,7 +1261,16 @@ mod tests {
                                 } else {
                                     None
                                 };
-                                intersect::<Mt>(k, q, a, &mut hits, f.as_ref(), None, c);
+                                intersect::<Mt>(
+                                    k,
+                                    q,
+                                    a,
+                                    &mut hits,
+                                    f.as_ref(),
+                                    None,
+                                    &mut own.slot(),
+                                    c,
+                                );
                                 x += sum(&hits);
                             }
                             x

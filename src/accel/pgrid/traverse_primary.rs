@@ -15,6 +15,7 @@ use crate::accel::slot::Slot;
 use crate::counters::{Counters, count};
 use crate::geom::{F4, Hit4, M4, Mt, Pt, Ray4, RayLanes, TriTest, Wt};
 use crate::math;
+use crate::mem::scratch::bytes;
 
 /// Nearest hits of the camera rays of sorting tile `tile`: `rays` are its
 /// `(side / 2)^2` 2x2 quads row by row (pixel quads, lanes as `Ray4`),
@@ -38,6 +39,19 @@ pub fn trace_tile(
 /// Most quads traced as one packet (32 x 32 rays), for every family.
 pub use crate::accel::packet::MAX_QUADS;
 
+/// Slot scratch a tile takes: per quad the live lanes, the depth per unit
+/// t and the triangle test's precomputation (the largest kind).
+pub const SCRATCH: usize = bytes::<M4>(MAX_QUADS) + bytes::<F4>(MAX_QUADS) + pre_bytes(MAX_QUADS);
+
+/// Scratch bytes of `n` precomputations of the largest triangle test.
+pub(super) const fn pre_bytes(n: usize) -> usize {
+    let mt = bytes::<<Mt as TriangleTest>::Pre<F4>>(n);
+    let wt = bytes::<<Wt as TriangleTest>::Pre<F4>>(n);
+    let pt = bytes::<<Pt as TriangleTest>::Pre<F4>>(n);
+    let m = if mt > wt { mt } else { wt };
+    if m > pt { m } else { pt }
+}
+
 fn walk<T: TriangleTest>(
     g: &CamView<'_>,
     tile: u32,
@@ -56,9 +70,10 @@ fn walk<T: TriangleTest>(
     }
     let d = g.cells.info.depth;
     let fwd = g.pinhole.fwd;
-    let mut live = [M4::FALSE; MAX_QUADS];
-    let mut depth_of = [F4::ZERO; MAX_QUADS];
-    let mut pre = [T::prepare(&RayLanes::from_ray4(&rays[0])); MAX_QUADS];
+    // Per-quad state from the slot's scratch (all written below).
+    let (live, mut slot) = slot.split(nq, M4::FALSE);
+    let (depth_of, mut slot) = slot.split(nq, F4::ZERO);
+    let (pre, mut slot) = slot.split(nq, T::prepare(&RayLanes::from_ray4(&rays[0])));
     ctr.packets += 1;
     for q in 0..nq {
         live[q] = active[q];

@@ -11,9 +11,18 @@ use crate::accel::slot::Slot;
 use crate::counters::{Counters, count};
 use crate::geom::{M4, Mt, Pt, Ray4, RayLanes, TriTest, Wt};
 use crate::math;
+use crate::mem::scratch::bytes;
 
 /// Most 2x2 rays traced together (larger chunks go in batches of these).
 pub const MAX_QUADS: usize = 64;
+
+/// Slot scratch a batch takes: per quad the live lanes, each lane's last
+/// slice, the (a, b) bounds and the triangle test's precomputation (the
+/// largest kind).
+pub const SCRATCH: usize = bytes::<M4>(MAX_QUADS)
+    + bytes::<[u32; 4]>(MAX_QUADS)
+    + bytes::<[f32; 4]>(MAX_QUADS)
+    + super::traverse_primary::pre_bytes(MAX_QUADS);
 
 /// Occlusion of the shadow rays `rays` (from the light, `tmax` at their end
 /// points) in light tile `tile`: `occluded[q]` gets the lanes of `active[q]`
@@ -54,13 +63,14 @@ fn walk<T: TriangleTest>(
         slot.mailbox.next_packet(g.tris.tris.len());
     }
     let d = g.cells.info.depth;
-    let mut live = [M4::FALSE; MAX_QUADS];
-    let mut last = [[0u32; 4]; MAX_QUADS];
-    let mut pre = [T::prepare(&RayLanes::from_ray4(&rays[0])); MAX_QUADS];
+    // Per-quad state from the slot's scratch.
+    let (live, mut slot) = slot.split(nq, M4::FALSE);
+    let (last, mut slot) = slot.split(nq, [0u32; 4]);
+    let (pre, mut slot) = slot.split(nq, T::prepare(&RayLanes::from_ray4(&rays[0])));
     let mut end = 0;
     // (a, b) bounds of each quad's rays: a triangle whose (a, b) bounds
     // miss them cannot block any of them.
-    let mut qbox = [[0.0f32; 4]; MAX_QUADS];
+    let (qbox, mut slot) = slot.split(nq, [0.0f32; 4]);
     ctr.packets += 1;
     for q in 0..nq {
         let mut b = [
