@@ -161,6 +161,11 @@ fn carve<'a>(a: &mut impl Carve<'a>, l: &Layout) -> Result<Pools<'a>> {
             tri_ids: a.take(l.bvh_tris)?,
             slot_of: a.take(l.bvh_tris)?,
             refs: a.take(l.bvh_tris)?,
+            scratch: a.take(if l.bvh_tris > 0 {
+                bvh::build::SCRATCH
+            } else {
+                0
+            })?,
         },
         kd: KdPools {
             nodes: a.take(l.kd_nodes)?,
@@ -443,7 +448,7 @@ impl<'a> Context<'a> {
         };
         let tr = match (&job.primary, &job.shadow) {
             (PrimaryPass::Traced(p), ShadowPass::Traced(s)) => {
-                tr.with_single(s.method)?;
+                tr.check(s.method)?;
                 tr.with_single(p.method)?
             }
             (PrimaryPass::Traced(p), _) => tr.with_single(p.method)?,
@@ -834,7 +839,7 @@ impl<'a> Context<'a> {
         let mut ctr = Counters::default();
         {
             let (tr, mut mbs) = self.parts()?;
-            tr.with_single(shadow.method)?;
+            tr.check(shadow.method)?;
             let tr = tr.with_single(primary.method)?;
             let mut slot = mbs.next().ok_or(Error::Capacity {
                 pool: Pool::Threads,
@@ -875,7 +880,7 @@ impl<'a> Context<'a> {
         frame.light.validate()?;
         let rays = self.check_rows(frame, band.y0, band.y1, band.pixels.len(), band.stride)?;
         let tr = self.scene_tracer()?;
-        tr.with_single(shadow.method)?;
+        tr.check(shadow.method)?;
         let tr = tr.with_single(primary.method)?;
         let shot = Shot { frame, rays: &rays };
         self.with_slot(Some(slot), |slot| {
@@ -905,8 +910,8 @@ impl<'a> Context<'a> {
         let mut ctr = Counters::default();
         {
             let (tr, mut mbs) = self.parts()?;
-            tr.with_single(job.shadow.method)?;
-            tr.with_single(job.secondary.method)?;
+            tr.check(job.shadow.method)?;
+            tr.check(job.secondary.method)?;
             let tr = tr.with_single(job.primary.method)?;
             let mut slot = mbs.next().ok_or(Error::Capacity {
                 pool: Pool::Threads,

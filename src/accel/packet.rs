@@ -38,9 +38,10 @@ pub const MAX_QUADS: usize = 256;
 pub const SCRATCH: usize =
     bytes::<Ray4>(MAX_QUADS) + bytes::<M4>(MAX_QUADS) + bytes::<M4>(MAX_QUADS);
 
-/// Slot scratch `start` takes (the live lanes), given back before the
-/// family's traversal: a family's `SCRATCH` covers the larger of the two.
-pub const START_SCRATCH: usize = bytes::<M4>(MAX_QUADS);
+/// Slot scratch `start` takes (the live lanes, the entry search's
+/// candidate queue), given back before the family's traversal: a family's
+/// `SCRATCH` covers the larger of the two.
+pub const START_SCRATCH: usize = bytes::<M4>(MAX_QUADS) + bytes::<entry::CandidateQueue>(1);
 
 /// Trace the active lanes of `rays` (one packet, or consecutive packets)
 /// with `p.method` on `a`: nearest hits, or with `ANY` occlusion (some hit
@@ -208,7 +209,7 @@ pub fn start<E: EntryTree + ?Sized>(
     ctr: &mut Counters,
 ) -> (Option<Frustum>, Start) {
     let nq = rays.len().min(active.len()).min(MAX_QUADS);
-    let (live, _) = slot.split(nq, M4::FALSE);
+    let (live, mut rest) = slot.split(nq, M4::FALSE);
     for (l, (r, m)) in live.iter_mut().zip(rays.iter().zip(active)) {
         *l = entry::live_mask(r, *m);
     }
@@ -218,9 +219,12 @@ pub fn start<E: EntryTree + ?Sized>(
         return (f, Start::Root);
     };
     let neg = entry::dir_signs(&rays[..nq], live);
+    // Phase 1's candidate queue in the scratch too (`START_SCRATCH`).
+    const EMPTY: entry::CandidateQueue = entry::CandidateQueue::new();
+    let (q, _) = rest.scratch.reborrow().take_copies(1, &EMPTY);
     let e = match p.entry {
-        EntrySearch::Mlrta => entry::mlrta::mlrta(tree, &fr, neg, ctr),
-        _ => entry::aepsa::aepsa(tree, &fr, neg, ctr),
+        EntrySearch::Mlrta => entry::mlrta::mlrta_in(tree, &fr, neg, &mut q[0], ctr),
+        _ => entry::aepsa::aepsa_in(tree, &fr, neg, &mut q[0], ctr),
     };
     (f, e.map_or(Start::Miss, Start::At))
 }

@@ -65,6 +65,13 @@ impl<'a> Scratch<'a> {
     /// `SHEAF_STATUS_PANIC`).
     #[inline]
     pub fn take<T: Copy>(self, n: usize, fill: T) -> (&'a mut [T], Scratch<'a>) {
+        self.take_copies(n, &fill)
+    }
+
+    /// `take` with `fill` read through a reference: for large `T` (pass a
+    /// `const`'s address) no copy of it is made on the caller's stack.
+    #[inline]
+    pub fn take_copies<T: Copy>(self, n: usize, fill: &T) -> (&'a mut [T], Scratch<'a>) {
         let pad = self.buf.as_ptr().align_offset(align_of::<T>());
         let need = n
             .checked_mul(size_of::<T>())
@@ -84,7 +91,7 @@ impl<'a> Scratch<'a> {
             // holds `n * size_of::<T>()` bytes borrowed exclusively here, so
             // every `p.add(i)`, i < n, is in bounds and writable. T is Copy:
             // overwriting earlier contents drops nothing.
-            unsafe { p.add(i).write(fill) };
+            unsafe { p.add(i).write(*fill) };
         }
         // SAFETY: the `n` values were all written just above; the slice
         // borrows `head`, exclusively ours for 'a.

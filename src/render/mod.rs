@@ -345,6 +345,7 @@ pub struct ShadowPacket<'a> {
 
 /// Render `band` of `frame` one ray at a time. RGBA8, sRGB-encoded (gamma
 /// 2.2), alpha 255.
+#[inline(never)]
 pub fn render_rows<T: Tracer + ?Sized>(
     tracer: &T,
     frame: &Frame,
@@ -420,6 +421,8 @@ pub fn render_tiles<T: Tracer + ?Sized>(
     }
 }
 
+// Not inlined: the five size classes would share one caller frame.
+#[inline(never)]
 fn tiles<T: Tracer + ?Sized, const Q: usize>(
     tracer: &T,
     params: &TileParams,

@@ -455,6 +455,7 @@ pub fn radiance<T: Tracer + ?Sized>(
 /// Render `band` of `job.frame` one ray tree at a time with
 /// `Tracer::intersect` and `occluded`. RGBA8 as `render_rows`. The
 /// reference of `render_whitted_tiles`.
+#[inline(never)]
 pub fn render_whitted_rows<T: Tracer + ?Sized>(
     tracer: &T,
     job: &WhittedJob<'_>,
@@ -565,6 +566,8 @@ pub const SCRATCH: usize = {
     PACKET + bytes::<[Vec3; 4]>(Q) + LEVELS * LEVEL + SHADE
 };
 
+// Not inlined: the five size classes would share one caller frame.
+#[inline(never)]
 fn tiles<T: Tracer + ?Sized, const Q: usize>(
     tracer: &T,
     job: &WhittedJob<'_>,

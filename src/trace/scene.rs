@@ -183,18 +183,20 @@ impl<'r> SceneTracer<'r> {
     /// The same structures with single-ray calls going to `method`'s
     /// structure; `NotBuilt` when that structure has not been built.
     pub fn with_single(&self, method: Method) -> Result<SceneTracer<'r>> {
+        self.check(method)?;
+        Ok(SceneTracer {
+            single: method.single(),
+            ..*self
+        })
+    }
+    /// `NotBuilt` when `method`'s structure has not been built.
+    pub fn check(&self, method: Method) -> Result<()> {
         let built = match method.structure() {
             Structure::Grid => self.grid.is_some(),
             Structure::Bvh => self.bvh.is_some(),
             Structure::Kd => self.kd.is_some(),
         };
-        if !built {
-            return Err(Error::NotBuilt);
-        }
-        Ok(SceneTracer {
-            single: method.single(),
-            ..*self
-        })
+        if built { Ok(()) } else { Err(Error::NotBuilt) }
     }
     /// The grid part (None when no grid is built).
     pub fn grid(&self) -> Option<GridTracer<'r>> {

@@ -155,11 +155,37 @@ struct Task {
 /// NOTE(perf): references in mesh order are spatially coherent, so
 /// consecutive ones mostly fall into the same bins; with one set each bin
 /// update waits for the previous one's store.
-struct Binner {
+struct Binner<'s> {
     bins: usize,
+    m: &'s mut Bins,
+}
+
+/// The bins of a `Binner`: two sets of three axes (in the build scratch,
+/// not on the caller's stack).
+#[derive(Clone, Copy)]
+struct Bins {
     boxes: [[[Box3; MAX_BINS as usize]; 3]; 2],
     counts: [[[u32; MAX_BINS as usize]; 3]; 2],
 }
+
+const EMPTY_BINS: Bins = Bins {
+    boxes: [[[Box3::EMPTY; MAX_BINS as usize]; 3]; 2],
+    counts: [[[0; MAX_BINS as usize]; 3]; 2],
+};
+
+const NO_TASK: Task = Task {
+    node: 0,
+    begin: 0,
+    end: 0,
+    depth: 0,
+    bounds: Box3::EMPTY,
+    cent: Box3::EMPTY,
+};
+
+/// Bytes of `BvhPools::scratch`: the bins and the work stack of a build.
+pub const SCRATCH: usize = (crate::mem::scratch::bytes::<Bins>(1)
+    + crate::mem::scratch::bytes::<Task>(MAX_DEPTH + 1))
+.next_multiple_of(64);
 
 /// The best bin plane of a node: references with bin `< pos` on `axis` go left.
 #[derive(Clone, Copy, Debug)]
@@ -232,15 +258,7 @@ impl BinMap {
 /// Nodes of at least this many references bin into two sets.
 const TWO_SETS: usize = 64;
 
-impl Binner {
-    fn new(bins: usize) -> Binner {
-        Binner {
-            bins,
-            boxes: [[[Box3::EMPTY; MAX_BINS as usize]; 3]; 2],
-            counts: [[[0; MAX_BINS as usize]; 3]; 2],
-        }
-    }
-
+impl Binner<'_> {
     #[inline(always)]
     fn add(&mut self, set: usize, r: &PrimRef, map: &BinMap) {
         let bx = Box3::of(r);
@@ -248,8 +266,8 @@ impl Binner {
         for (a, &ia) in i.iter().enumerate() {
             // `& 63`: in range already; lets the compiler drop the checks.
             let b = ia & (MAX_BINS as usize - 1);
-            self.boxes[set][a][b].grow(&bx);
-            self.counts[set][a][b] += 1;
+            self.m.boxes[set][a][b].grow(&bx);
+            self.m.counts[set][a][b] += 1;
         }
     }
 
@@ -260,8 +278,8 @@ impl Binner {
         let sets = if refs.len() >= TWO_SETS { 2 } else { 1 };
         for set in 0..sets {
             for a in 0..3 {
-                self.boxes[set][a][..nb].fill(Box3::EMPTY);
-                self.counts[set][a][..nb].fill(0);
+                self.m.boxes[set][a][..nb].fill(Box3::EMPTY);
+                self.m.counts[set][a][..nb].fill(0);
             }
         }
         if sets == 2 {
@@ -281,14 +299,14 @@ impl Binner {
         if sets == 2 {
             for a in 0..3 {
                 for i in 0..nb {
-                    let (b1, n1) = (self.boxes[1][a][i], self.counts[1][a][i]);
-                    self.boxes[0][a][i].grow(&b1);
-                    self.counts[0][a][i] += n1;
+                    let (b1, n1) = (self.m.boxes[1][a][i], self.m.counts[1][a][i]);
+                    self.m.boxes[0][a][i].grow(&b1);
+                    self.m.counts[0][a][i] += n1;
                 }
             }
         }
         // The three axes' sweeps run side by side, one per lane.
-        let (counts, boxes) = (&self.counts[0], &self.boxes[0]);
+        let (counts, boxes) = (&self.m.counts[0], &self.m.boxes[0]);
         let count3 = |i: usize| {
             Vec3A::new(
                 counts[0][i] as f32,
@@ -331,7 +349,7 @@ impl Binner {
             left: Box3::EMPTY,
             right: Box3::EMPTY,
         };
-        for (i, b) in self.boxes[0][s.axis][..nb].iter().enumerate() {
+        for (i, b) in self.m.boxes[0][s.axis][..nb].iter().enumerate() {
             if i < s.pos {
                 s.left.grow(b);
             } else {
@@ -609,18 +627,16 @@ pub fn build(bvh: &mut Bvh<'_>, scene: &Scene<'_>, p: &BvhParams) -> Result<BvhI
     let nodes = &mut *pools.nodes;
     crate::fault_point!(BvhBuild);
     let leaf_size = p.leaf_size as usize;
-    let mut binner = Binner::new(p.bins as usize);
+    let scratch = crate::mem::Scratch::new(&mut *pools.scratch);
+    let (bins, scratch) = scratch.take_copies(1, &EMPTY_BINS);
+    let (stack, _) = scratch.take_copies(MAX_DEPTH + 1, &NO_TASK);
+    let mut binner = Binner {
+        bins: p.bins as usize,
+        m: &mut bins[0],
+    };
     let root_area = bounds.half_area();
     let (mut sah_inner, mut sah_leaf) = (0.0f64, 0.0f64);
     let mut next = 1u32;
-    let mut stack = [Task {
-        node: 0,
-        begin: 0,
-        end: 0,
-        depth: 0,
-        bounds: Box3::EMPTY,
-        cent: Box3::EMPTY,
-    }; MAX_DEPTH + 1];
     let mut sp = 0usize;
     let mut task = Task {
         node: 0,
@@ -738,6 +754,7 @@ pub(crate) mod testutil {
         pub ids: Vec<u32>,
         pub slot: Vec<u32>,
         pub refs: Vec<PrimRef>,
+        pub scratch: Vec<u8>,
     }
 
     impl Store {
@@ -750,6 +767,7 @@ pub(crate) mod testutil {
                 ids: vec![0; n],
                 slot: vec![0; n],
                 refs: vec![PrimRef::default(); n],
+                scratch: vec![0; crate::accel::bvh::build::SCRATCH],
             }
         }
         pub fn bvh(&mut self) -> Bvh<'_> {
@@ -760,6 +778,7 @@ pub(crate) mod testutil {
                 tri_ids: &mut self.ids,
                 slot_of: &mut self.slot,
                 refs: &mut self.refs,
+                scratch: &mut self.scratch,
             })
         }
     }

@@ -227,6 +227,9 @@ pub struct BvhPools<'a> {
     pub slot_of: &'a mut [u32],
     /// Build scratch.
     pub refs: &'a mut [PrimRef],
+    /// The build's bins and work stack (`build::SCRATCH` bytes), so a build
+    /// uses little of the caller's stack.
+    pub scratch: &'a mut [u8],
 }
 
 /// A per-frame BVH: pools plus what the last successful build wrote.

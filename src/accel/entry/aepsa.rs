@@ -28,7 +28,7 @@
 
 use crate::accel::entry::{
     CandidateQueue, EntryPoint, EntryResult, EntryTree, LeafGoal, Phase2, branch_holds,
-    find_candidates,
+    find_candidates, find_candidates_into,
 };
 use crate::counters::Counters;
 use crate::geom::frustum::Frustum;
@@ -42,6 +42,21 @@ pub fn aepsa<E: EntryTree + ?Sized>(
     ctr: &mut Counters,
 ) -> Option<EntryPoint> {
     let r = search(tree, f, neg);
+    r.record(tree, ctr);
+    r.entry
+}
+
+/// `aepsa` with phase 1's queue in `q` (the packet driver's, in the
+/// slot's scratch).
+pub fn aepsa_in<E: EntryTree + ?Sized>(
+    tree: &E,
+    f: &Frustum,
+    neg: [bool; 3],
+    q: &mut CandidateQueue,
+    ctr: &mut Counters,
+) -> Option<EntryPoint> {
+    find_candidates_into(tree, f, neg, LeafGoal::Overlapped, q);
+    let r = EntryResult::from_phases(q, phase2(tree, f, neg, q));
     r.record(tree, ctr);
     r.entry
 }

@@ -181,6 +181,12 @@ impl CandidateQueue {
             visited: 0,
         }
     }
+    /// Empty, nothing visited (the items are left as they are).
+    #[inline]
+    pub fn clear(&mut self) {
+        self.len = 0;
+        self.visited = 0;
+    }
     #[inline]
     pub fn as_slice(&self) -> &[Candidate] {
         &self.items[..self.len]
@@ -307,11 +313,26 @@ pub fn find_candidates<E: EntryTree + ?Sized>(
     goal: LeafGoal,
 ) -> CandidateQueue {
     let mut q = CandidateQueue::new();
+    find_candidates_into(tree, f, neg, goal, &mut q);
+    q
+}
+
+/// `find_candidates` into `q` (emptied first): the packet driver keeps the
+/// queue (about 3 KiB) in the slot's scratch, not on the caller's stack.
+#[inline(never)]
+pub fn find_candidates_into<E: EntryTree + ?Sized>(
+    tree: &E,
+    f: &Frustum,
+    neg: [bool; 3],
+    goal: LeafGoal,
+    q: &mut CandidateQueue,
+) {
+    q.clear();
     let Some((root, root_box)) = tree.root() else {
-        return q;
+        return;
     };
     if !admits(f, &root_box) {
-        return q;
+        return;
     }
     let (mut node, mut aabb, mut depth) = (root, root_box, 0u32);
     loop {
@@ -328,13 +349,13 @@ pub fn find_candidates<E: EntryTree + ?Sized>(
                     if !q.push(c) {
                         q.bail(root, root_box);
                     }
-                    return q;
+                    return;
                 }
             }
             Some(ch) => {
                 if depth as usize >= MAX_ENTRY_DEPTH {
                     q.bail(root, root_box);
-                    return q;
+                    return;
                 }
                 let [near, far] = near_far(ch, tree.split_axis(node), &neg);
                 let (go_near, go_far) = (admits(f, &near.1), admits(f, &far.1));
@@ -347,7 +368,7 @@ pub fn find_candidates<E: EntryTree + ?Sized>(
                     };
                     if !q.push(c) {
                         q.bail(root, root_box);
-                        return q;
+                        return;
                     }
                 }
                 if go_near || go_far {
@@ -361,10 +382,10 @@ pub fn find_candidates<E: EntryTree + ?Sized>(
         // bifurcation leaves the queue: its near subtree failed, so it is
         // no ancestor-with-a-pending-branch of the leaf to come.
         let Some(c) = q.pop() else {
-            return q;
+            return;
         };
         let Some((n, b)) = c.untaken else {
-            return q;
+            return;
         };
         (node, aabb, depth) = (n, b, c.depth + 1);
     }

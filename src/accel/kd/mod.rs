@@ -53,8 +53,16 @@ use bytemuck::{Pod, Zeroable};
 
 /// Slot scratch this module's packet code takes (`accel::slot`): the
 /// occlusion masks of a packet and the packet traversal's scratch.
-pub const SCRATCH: usize =
-    crate::mem::scratch::bytes::<M4>(crate::accel::packet::MAX_QUADS) + traverse_packet::SCRATCH;
+pub const SCRATCH: usize = {
+    let walk = crate::mem::scratch::bytes::<M4>(crate::accel::packet::MAX_QUADS)
+        + traverse_packet::SCRATCH;
+    // `packet::start` runs first and gives its scratch back.
+    if walk > crate::accel::packet::START_SCRATCH {
+        walk
+    } else {
+        crate::accel::packet::START_SCRATCH
+    }
+};
 
 /// Deepest level a build creates (root = depth 0); every traversal stack of
 /// `MAX_DEPTH + 1` entries suffices.
