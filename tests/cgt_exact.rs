@@ -12,7 +12,7 @@ use sheaf::accel::grid::{GridView, traverse_single};
 use sheaf::accel::slot::SlotBuf;
 use sheaf::geom::TriangleTest;
 use sheaf::geom::{F4, Hit4, M4, Mt, Pt, Ray4, Wt};
-use sheaf::{Counters, GridParams, Hit, Limits, OwnedContext, Ray, TriTest};
+use sheaf::{Counters, GridParams, Hit, Limits, OwnedContext, Ray, TraceParams, TriTest};
 
 /// Group row-major rays of a `w x h` image into n x n packets of 2x2 quads.
 fn packets(rays: &[Ray], w: usize, h: usize, n: usize) -> Vec<(Vec<Ray4>, Vec<usize>)> {
@@ -81,10 +81,13 @@ impl Run<'_> {
                 (true, true, false),
                 (false, false, false),
             ] {
-                let opt = CgtOptions {
-                    macrocells: mc,
-                    mailbox: slot,
-                    culling: cull,
+                let p = TraceParams {
+                    cgt: CgtOptions {
+                        macrocells: mc,
+                        mailbox: slot,
+                        culling: cull,
+                    },
+                    ..TraceParams::default()
                 };
                 let mut slot = self.own.slot();
                 let mut ctr = Counters::default();
@@ -93,11 +96,11 @@ impl Run<'_> {
                     let mut hits = vec![Hit4::MISS; quads.len()];
                     if any {
                         traverse_cgt::occluded::<T>(
-                            &self.g, &quads, &active, &mut hits, &opt, &mut slot, &mut ctr,
+                            &self.g, &quads, &active, &mut hits, &p, &mut slot, &mut ctr,
                         );
                     } else {
                         traverse_cgt::intersect::<T>(
-                            &self.g, &quads, &active, &mut hits, &opt, &mut slot, &mut ctr,
+                            &self.g, &quads, &active, &mut hits, &p, &mut slot, &mut ctr,
                         );
                     }
                     for (k, &ri) in idx.iter().enumerate() {
@@ -110,8 +113,9 @@ impl Run<'_> {
                         };
                         assert!(
                             ok,
-                            "{what} {:?} n={n} {opt:?} any={any}: ray {ri} {:?}\n  cgt  {got:?}\n  3dda {exp:?}",
+                            "{what} {:?} n={n} {:?} any={any}: ray {ri} {:?}\n  cgt  {got:?}\n  3dda {exp:?}",
                             T::KIND,
+                            p.cgt,
                             rays[ri]
                         );
                     }
@@ -287,7 +291,7 @@ fn adversarial_packets_stay_exact() {
         &quads,
         &all,
         &mut hits,
-        &CgtOptions::default(),
+        &TraceParams::default(),
         &mut slot,
         &mut Counters::default(),
     );
@@ -312,7 +316,7 @@ fn adversarial_packets_stay_exact() {
         &quads,
         &active,
         &mut hits,
-        &CgtOptions::default(),
+        &TraceParams::default(),
         &mut slot,
         &mut Counters::default(),
     );

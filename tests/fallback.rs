@@ -57,11 +57,9 @@ fn allocs() -> u64 {
 
 static LOCK: Mutex<()> = Mutex::new(());
 
-/// The lock, and the fallbacks on (a failed test may have left them off).
+/// The lock: the tests read the process-wide fallback statistics.
 fn lock() -> MutexGuard<'static, ()> {
-    let g = LOCK.lock().unwrap_or_else(|e| e.into_inner());
-    fallback::set_enabled(true);
-    g
+    LOCK.lock().unwrap_or_else(|e| e.into_inner())
 }
 
 /// Rays per class: 8 blocks of 32 x 32 (every packet full).
@@ -382,14 +380,15 @@ fn the_switch_turns_every_fallback_off() {
     let mut b = built("closed-box", TriTest::MollerTrumbore);
     let rays = stress::stress_rays(RayClass::RandomInPacket, &b.mesh, &b.view, N, 3);
     let mut hits = vec![Hit::MISS; rays.len()];
-    fallback::set_enabled(false);
-    assert!(!fallback::enabled());
     let fb = fell_back(|| {
         for p in methods(&[4, 16]) {
-            b.ctx.trace_with(&p, &rays, &mut hits).unwrap();
+            let off = TraceParams {
+                fallbacks: false,
+                ..p
+            };
+            b.ctx.trace_with(&off, &rays, &mut hits).unwrap();
         }
     });
-    fallback::set_enabled(true);
     assert_eq!(fb, fallback::FallbackStats::default());
     if cfg!(feature = "counters") {
         let fb = fell_back(|| {
@@ -422,9 +421,12 @@ fn tracing_with_and_without_fallbacks_allocates_nothing() {
     let mut hits = vec![Hit::MISS; N];
     let mut occ = vec![false; N];
     for on in [true, false] {
-        fallback::set_enabled(on);
         for rays in &classes {
             for p in &ps {
+                let p = &TraceParams {
+                    fallbacks: on,
+                    ..*p
+                };
                 let before = allocs();
                 b.ctx.trace_with(p, rays, &mut hits).unwrap();
                 b.ctx.occluded_with(p, rays, &mut occ).unwrap();
@@ -433,7 +435,6 @@ fn tracing_with_and_without_fallbacks_allocates_nothing() {
             }
         }
     }
-    fallback::set_enabled(true);
 }
 
 #[test]

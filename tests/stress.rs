@@ -182,7 +182,15 @@ fn kinds(m: Method, n: u32, kinds: &[RayKind]) -> Vec<TraceParams> {
 /// and watertight (every packet side, every entry search at side 8, every
 /// frustum kind and culling off), a sample of each method for the
 /// projection test.
-fn cases(single: Method, full: bool) -> Vec<TraceParams> {
+/// `cases_on` with the packet fallbacks on or off (`TraceParams::fallbacks`).
+fn cases(single: Method, full: bool, fallbacks: bool) -> Vec<TraceParams> {
+    cases_on(single, full)
+        .into_iter()
+        .map(|p| TraceParams { fallbacks, ..p })
+        .collect()
+}
+
+fn cases_on(single: Method, full: bool) -> Vec<TraceParams> {
     let e = |m: Method, n: u32, e: EntrySearch| TraceParams::bvh(m, n).with_entry(e);
     let mut v = Vec::new();
     match single {
@@ -1009,7 +1017,7 @@ fn check_scene(name: &str, progress: &Mutex<String>) -> SceneResult {
                 }
                 // Every packet method against this baseline, bit for bit.
                 let mut got = Answers::new(n);
-                for p in cases(single, test != TriTest::Projection) {
+                for p in cases(single, test != TriTest::Projection, false) {
                     let desc = describe(&p);
                     *progress.lock().unwrap() = what(&desc);
                     got.trace(&mut ctx, &p, set, &|| what(&desc));
@@ -1085,7 +1093,7 @@ fn check_with_fallbacks(name: &str, progress: &Mutex<String>) -> Fails {
                 };
                 base.trace(&mut ctx, &sp, set, &|| what(single.name()));
                 let mut got = Answers::new(n);
-                for p in cases(single, false) {
+                for p in cases(single, false, true) {
                     let desc = describe(&p);
                     *progress.lock().unwrap() = what(&desc);
                     got.trace(&mut ctx, &p, set, &|| what(&desc));
@@ -1168,18 +1176,16 @@ fn on_every_scene<R: Send>(f: impl Fn(&str, &Mutex<String>) -> R + Sync) -> Vec<
     })
 }
 
-/// Held by the tests that switch the process-wide fallbacks.
+/// Held by the tests that read the process-wide fallback statistics.
 static FALLBACK_SWITCH: Mutex<()> = Mutex::new(());
 
 #[test]
 fn stress_scenes_every_method_is_exact_and_agrees_with_the_oracle() {
     let _switch = FALLBACK_SWITCH.lock().unwrap_or_else(|e| e.into_inner());
-    // Pass 1: the fallbacks for incoherent packets off, so every packet
-    // takes its method's own path (process-wide; the other tests here do
-    // not depend on it). Pass 2 below: the default, fallbacks on.
-    sheaf::trace::fallback::set_enabled(false);
+    // Pass 1: the fallbacks for incoherent packets off
+    // (`TraceParams::fallbacks`), so every packet takes its method's own
+    // path. Pass 2 below: the default, fallbacks on.
     let results = on_every_scene(check_scene);
-    sheaf::trace::fallback::set_enabled(true);
     let before = sheaf::trace::fallback::stats();
     let with_fallbacks = on_every_scene(check_with_fallbacks);
     let fell = sheaf::trace::fallback::stats();
@@ -1354,7 +1360,6 @@ fn limits(name: &str, class: RayClass, t: &Tally, failures: &mut Vec<String>) {
 #[test]
 fn subnormal_directions_packets_equal_the_single_ray() {
     let _switch = FALLBACK_SWITCH.lock().unwrap_or_else(|e| e.into_inner());
-    sheaf::trace::fallback::set_enabled(true);
     let results = on_every_scene(|name, progress| {
         let s = stress::stress_scene(name).unwrap();
         let mut fails = Fails::default();
@@ -1391,7 +1396,7 @@ fn subnormal_directions_packets_equal_the_single_ray() {
                         &|| what(single.name()),
                     );
                     let mut got = Answers::new(set.rays.len());
-                    for p in cases(single, true) {
+                    for p in cases(single, true, true) {
                         let desc = describe(&p);
                         got.trace(&mut ctx, &p, &set, &|| what(&desc));
                         for &i in &which {
@@ -1448,7 +1453,7 @@ fn subnormal_directions_packets_equal_the_single_ray() {
 /// hit point lies outside of, packets cull it with their frustum. The
 /// watertight test has no such hits: the main test compares these rays
 /// with it. Measured (990,000 ill-conditioned lanes): 228 differ with the
-/// fallbacks off; with them on (set_enabled(true) here) 30, all of them
+/// fallbacks off; with them on 30, all of them
 /// between the three single rays, none between a packet and its single
 /// ray. Ignored until the two tests reject hits whose determinant is
 /// below its rounding error (which makes such rays misses everywhere).
@@ -1456,7 +1461,6 @@ fn subnormal_directions_packets_equal_the_single_ray() {
 #[ignore = "known difference: Moller-Trumbore and projection-test noise on ill-conditioned rays"]
 fn ill_conditioned_rays_packets_equal_the_single_ray() {
     let _switch = FALLBACK_SWITCH.lock().unwrap_or_else(|e| e.into_inner());
-    sheaf::trace::fallback::set_enabled(false);
     let results = on_every_scene(|name, progress| {
         let s = stress::stress_scene(name).unwrap();
         let scene = Scene::from_f32(&s.mesh.vertices, &s.mesh.indices).unwrap();
@@ -1484,7 +1488,7 @@ fn ill_conditioned_rays_packets_equal_the_single_ray() {
                     };
                     base.trace(&mut ctx, &sp, set, &|| what(single.name()));
                     let mut got = Answers::new(set.rays.len());
-                    for p in cases(single, true) {
+                    for p in cases(single, true, false) {
                         let desc = describe(&p);
                         got.trace(&mut ctx, &p, set, &|| what(&desc));
                         for &i in &which {
@@ -1520,7 +1524,6 @@ fn ill_conditioned_rays_packets_equal_the_single_ray() {
         }
         (fails, lanes)
     });
-    sheaf::trace::fallback::set_enabled(true);
     let mut failures = Vec::new();
     for (k, r) in results.into_iter().enumerate() {
         let name = STRESS_SCENE_NAMES[k];

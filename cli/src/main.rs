@@ -234,6 +234,7 @@ impl TraceOpts {
             bvh,
             entry: self.entry.search(),
             split: self.split,
+            fallbacks: true,
         };
         let shadow = sheaf::TraceParams {
             method: self.shadow_method.unwrap_or(self.method).method(),

@@ -58,9 +58,10 @@
 //! to single-ray traversal".
 //!
 //! # Switch
-//! `set_enabled(false)` turns every fallback off, process-wide, so benches
-//! and tests can compare (`sheaf bench --stress`, tests/fallback.rs). It is
-//! not part of the C ABI; the fallbacks are always on there.
+//! `TraceParams::fallbacks` (on by default) turns every fallback off for
+//! one call, so benches and tests can compare (`sheaf bench --stress`,
+//! tests/fallback.rs); the callers of `coherent`, `tiny` and `Waste` pass
+//! it on. It is not part of the C ABI; the fallbacks are always on there.
 //!
 //! # Counters
 //! With the `counters` feature, `stats` gives the packets that fell back
@@ -71,7 +72,7 @@
 use crate::geom::{F4, M4, Ray4};
 // usize counters: every target with atomics has them (not all have 64-bit
 // atomics); they are statistics, a wrap on 32-bit targets is harmless.
-use core::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use core::sync::atomic::{AtomicUsize, Ordering};
 
 /// Largest angle between a live direction and the first live lane's.
 pub const MAX_CONE_DEG: f32 = 30.0;
@@ -80,20 +81,8 @@ const MIN_COS: f32 = 0.866_025_4;
 /// Largest diagonal of the live origins' box, relative to the scene's.
 pub const MAX_ORIGIN_SPREAD: f32 = 0.25;
 
-static ENABLED: AtomicBool = AtomicBool::new(true);
 static PACKETS: AtomicUsize = AtomicUsize::new(0);
 static LANES: AtomicUsize = AtomicUsize::new(0);
-
-/// Turn the fallbacks on (the default) or off, for every thread.
-pub fn set_enabled(on: bool) {
-    ENABLED.store(on, Ordering::Relaxed);
-}
-
-/// Whether the fallbacks are on.
-#[inline(always)]
-pub fn enabled() -> bool {
-    ENABLED.load(Ordering::Relaxed)
-}
 
 /// What fell back since the process started (zeros without the `counters`
 /// feature).
@@ -149,9 +138,9 @@ pub(crate) fn record(lanes: u64) {
 /// the structure's bounds. Lanes whose squared direction length is zero,
 /// infinite or NaN in f32 (zero, tiny or huge directions) are left out of
 /// the cone, and non-finite origins out of the box; they are still traced.
-/// Always true while the fallbacks are off.
-pub fn coherent(rays: &[Ray4], live: &[M4], scene_diag: f32) -> bool {
-    if !enabled() {
+/// Always true with the fallbacks off (`on == false`).
+pub fn coherent(on: bool, rays: &[Ray4], live: &[M4], scene_diag: f32) -> bool {
+    if !on {
         return true;
     }
     // Reference direction: the first live lane with a usable direction.
@@ -215,13 +204,13 @@ pub fn coherent(rays: &[Ray4], live: &[M4], scene_diag: f32) -> bool {
 pub const TINY_DIR: f32 = 1e-18;
 
 /// Lanes of `r` in `live` whose direction is tiny (`TINY_DIR`, not zero);
-/// none while the fallbacks are off. Packet methods trace these lanes
+/// none with the fallbacks off (`on == false`). Packet methods trace these lanes
 /// alone and the rest of the packet on quads with those lanes replaced
 /// (`quieted`), so only the tiny rays pay for their subnormal arithmetic,
 /// as they do as single rays.
 #[inline(always)]
-pub fn tiny(r: &Ray4, live: M4) -> M4 {
-    if !enabled() {
+pub fn tiny(on: bool, r: &Ray4, live: M4) -> M4 {
+    if !on {
         return M4::FALSE;
     }
     let m = r.dir[0].abs().max(r.dir[1].abs()).max(r.dir[2].abs());
@@ -257,7 +246,7 @@ pub(crate) fn split_tiny(
     tiny_lanes: &mut [M4],
 ) {
     for (q, r) in rays.iter().enumerate() {
-        let t = tiny(r, active[q]);
+        let t = tiny(true, r, active[q]);
         tiny_lanes[q] = t;
         quiet[q] = quieted(r, t);
         rest[q] = active[q] & !t;
@@ -299,12 +288,12 @@ pub(crate) struct Waste {
 
 impl Waste {
     #[inline(always)]
-    pub(crate) fn new(nq: usize) -> Waste {
+    pub(crate) fn new(nq: usize, on: bool) -> Waste {
         Waste {
             alive: 0,
             dead: 0,
             min: 2 * nq as u32,
-            on: enabled(),
+            on,
         }
     }
     /// One box test of a quad (`live`: it had live lanes, so it was tested).

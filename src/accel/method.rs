@@ -122,6 +122,11 @@ pub struct TraceParams {
     /// far from the light as the nearest are split into four (CGT section
     /// 4.7); 0 disables splitting.
     pub split: f32,
+    /// The packet fallbacks (`accel::fallback`: incoherent packets, tiny
+    /// directions, wasted box tests) on (the default) or off, so studies
+    /// can measure what they save. Results are the same either way. The C
+    /// ABI keeps them on.
+    pub fallbacks: bool,
 }
 
 impl Default for TraceParams {
@@ -133,11 +138,19 @@ impl Default for TraceParams {
             bvh: BvhOptions::default(),
             entry: EntrySearch::None,
             split: 2.0,
+            fallbacks: true,
         }
     }
 }
 
 impl TraceParams {
+    /// The defaults with the tree packet switches `bvh`.
+    pub fn with_bvh(bvh: BvhOptions) -> Self {
+        TraceParams {
+            bvh,
+            ..TraceParams::default()
+        }
+    }
     /// The single-ray baseline.
     pub fn dda() -> Self {
         TraceParams {

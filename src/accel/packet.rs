@@ -58,7 +58,7 @@ pub fn trace<A: Accel, T: TriangleTest, const ANY: bool>(
 ) {
     let n = rays.len().min(active.len()).min(hits.len());
     let (rays, active, hits) = (&rays[..n], &active[..n], &mut hits[..n]);
-    if p.method.is_packet() && any_tiny(rays, active) {
+    if p.fallbacks && p.method.is_packet() && any_tiny(rays, active) {
         return quieted::<A, T, ANY>(a, p, rays, active, hits, slot, ctr);
     }
     if !a.packet::<T, ANY>(p, rays, active, hits, slot, ctr) {
@@ -71,7 +71,7 @@ pub fn trace<A: Accel, T: TriangleTest, const ANY: bool>(
 fn any_tiny(rays: &[Ray4], active: &[M4]) -> bool {
     rays.iter()
         .zip(active)
-        .any(|(r, m)| fallback::tiny(r, *m).any())
+        .any(|(r, m)| fallback::tiny(true, r, *m).any())
 }
 
 /// The tiny-direction fallback of every n x n packet method: each packet

@@ -97,6 +97,8 @@ impl sheaf_trace_params {
             },
             entry: sheaf_entry_search::to_core(self.entry)?,
             split: self.split,
+            // Always on in C (module `accel::fallback`).
+            fallbacks: true,
         };
         p.validate()?;
         Ok(p)

@@ -103,6 +103,7 @@ impl Cfg {
     fn params(&self) -> TraceParams {
         TraceParams {
             entry: self.entry,
+            fallbacks: self.fallback || self.is_baseline(),
             ..TraceParams::bvh(self.method, self.packet.max(2))
         }
     }
@@ -272,16 +273,15 @@ fn structure_index(s: Structure) -> usize {
     }
 }
 
-/// Trace `rays` with `cfg`, fallbacks switched as it says; None on a panic.
+/// Trace `rays` with `cfg` (its fallbacks on or off: `TraceParams::fallbacks`);
+/// None on a panic.
 fn trace(ctx: &mut OwnedContext, cfg: &Cfg, rays: &[Ray], hits: &mut [Hit]) -> Option<u64> {
-    fallback::set_enabled(cfg.fallback || cfg.is_baseline());
     let p = cfg.params();
     let t = Instant::now();
     let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
         ctx.trace_with(&p, rays, hits)
     }));
     let ns = t.elapsed().as_nanos() as u64;
-    fallback::set_enabled(true);
     match r {
         Ok(Ok(_)) => Some(ns),
         _ => None,
@@ -799,7 +799,7 @@ fn markdown(results: &[ClassResult], infos: &[SceneInfo], s: &Setup<'_>) -> Stri
     }
     let _ = writeln!(
         m,
-        "Ratios are time per call over the time of the same structure's single-ray baseline on the same rays in the same rounds (grid: the 3DDDA; BVH and kd-tree: their single-ray traversals), written `fallbacks off → on` (`sheaf::trace::fallback::set_enabled`); above {LIMIT}x in bold. What each fallback does and where it lives: see \"The fallbacks\" at the end.\n"
+        "Ratios are time per call over the time of the same structure's single-ray baseline on the same rays in the same rounds (grid: the 3DDDA; BVH and kd-tree: their single-ray traversals), written `fallbacks off → on` (`TraceParams::fallbacks`); above {LIMIT}x in bold. What each fallback does and where it lives: see \"The fallbacks\" at the end.\n"
     );
 
     // Summary.

@@ -1214,7 +1214,7 @@ mod perf {
             let mut out = vec![Hit4::MISS; quads.len()];
             let mut c4 = Counters::default();
             let t = cpu();
-            traverse_simd::intersect::<Mt>(&view, &quads, &active, &mut out, &mut c4);
+            traverse_simd::intersect::<Mt>(&view, &quads, &active, &mut out, true, &mut c4);
             let tq = cpu() - t;
             println!(
                 "    1024^2 outside view, MT: single {:.2} Mrays/s ({:.1} box + {:.1} tri tests/ray, {:.0}% hit), 2x2 SIMD {:.2} Mrays/s ({:.1} box tests/quad)",

@@ -358,12 +358,14 @@ impl crate::accel::Accel for BvhView<'_> {
                 }
             }
         }
-        let (o, e) = (&p.bvh, entry.as_ref());
+        let (o, e) = (p, entry.as_ref());
         match (p.method, ANY) {
             (Method::BvhSimd, false) => {
-                traverse_simd::intersect::<T>(self, rays, active, hits, ctr)
+                traverse_simd::intersect::<T>(self, rays, active, hits, p.fallbacks, ctr)
             }
-            (Method::BvhSimd, true) => traverse_simd::occluded::<T>(self, rays, active, hits, ctr),
+            (Method::BvhSimd, true) => {
+                traverse_simd::occluded::<T>(self, rays, active, hits, p.fallbacks, ctr)
+            }
             (Method::BvhMasked, false) => {
                 traverse_masked::intersect::<T>(self, rays, active, hits, o, e, slot, ctr)
             }

@@ -22,9 +22,10 @@
 
 use super::frustum::Frustum;
 use super::traverse_single;
-use super::{BvhNode, BvhOptions, BvhView, MAX_DEPTH, TriangleTest};
+use super::{BvhNode, BvhView, MAX_DEPTH, TriangleTest};
 use crate::accel::entry::EntryPoint;
 use crate::accel::fallback;
+use crate::accel::method::TraceParams;
 use crate::accel::packet::{MAX_QUADS, SizeClass, by_class};
 use crate::accel::slot::Slot;
 use crate::counters::{Counters, count};
@@ -133,7 +134,7 @@ pub(crate) fn dispatch<W: Walk, T: TriangleTest, const ANY: bool>(
     rays: &[Ray4],
     active: &[M4],
     hits: &mut [Hit4],
-    opt: &BvhOptions,
+    opt: &TraceParams,
     entry: Option<&EntryPoint>,
     slot: &mut Slot<'_>,
     ctr: &mut Counters,
@@ -165,7 +166,7 @@ struct Run<'x, 'b, 's, W, T, const ANY: bool> {
     rays: &'x [Ray4],
     active: &'x [M4],
     hits: &'x mut [Hit4],
-    opt: &'x BvhOptions,
+    opt: &'x TraceParams,
     start: (usize, usize),
     slot: &'x mut Slot<'s>,
     ctr: &'x mut Counters,
@@ -191,14 +192,14 @@ fn packet<W: Walk, T: TriangleTest, const ANY: bool, const Q: usize>(
     rays: &[Ray4],
     active: &[M4],
     hits: &mut [Hit4],
-    opt: &BvhOptions,
+    opt: &TraceParams,
     start: (usize, usize),
     slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
     let nq = rays.len().min(active.len()).min(hits.len()).min(Q);
     let (live, mut slot) = slot.split(nq, M4::FALSE);
-    let Some(lanes) = Lanes::new(b, rays, active, hits, live, ctr) else {
+    let Some(lanes) = Lanes::new(b, rays, active, hits, live, opt.fallbacks, ctr) else {
         return;
     };
     if !lanes.coherent {
@@ -261,6 +262,7 @@ impl Lanes {
         active: &[M4],
         hits: &mut [Hit4],
         live: &mut [M4],
+        fallbacks: bool,
         ctr: &mut Counters,
     ) -> Option<Lanes> {
         let nq = live.len();
@@ -304,7 +306,8 @@ impl Lanes {
         if n_live == 0 || b.nodes.is_empty() {
             return None;
         }
-        let coherent = fallback::coherent(&rays[..nq], live, b.info.bounds.diagonal().length());
+        let diag = b.info.bounds.diagonal().length();
+        let coherent = fallback::coherent(fallbacks, &rays[..nq], live, diag);
         // A zero sum on an axis: the first live lane decides.
         let q0 = live.iter().position(|m| m.any()).unwrap_or(0);
         let f = live[q0].bitmask().trailing_zeros() as usize;
@@ -355,16 +358,18 @@ pub(crate) struct Packet<'s, T: TriangleTest, const Q: usize> {
     /// split axis.
     neg: [bool; 3],
     pub frustum: Option<Frustum>,
+    /// `TraceParams::fallbacks` (Masked's switch to Partition).
+    pub fallbacks: bool,
 }
 
 impl<'s, T: TriangleTest, const Q: usize> Packet<'s, T, Q> {
     /// The packet of coherent `lanes` (`Lanes::new`): every quad's slab
     /// data, precomputation and far ends written to `quads`, and with
-    /// `opt.culling` its frustum.
+    /// `opt.bvh.culling` its frustum.
     fn new(
         b: &BvhView<'_>,
         rays: &[Ray4],
-        opt: &BvhOptions,
+        opt: &TraceParams,
         lanes: Lanes,
         quads: Quads<'s, T>,
         ctr: &mut Counters,
@@ -376,8 +381,8 @@ impl<'s, T: TriangleTest, const Q: usize> Packet<'s, T, Q> {
             tfar,
         } = quads;
         let nq = live.len();
-        let frustum = if opt.culling {
-            let f = Frustum::new(opt.kind, &rays[..nq], live, &b.nodes[0].aabb());
+        let frustum = if opt.bvh.culling {
+            let f = Frustum::new(opt.bvh.kind, &rays[..nq], live, &b.nodes[0].aabb());
             if f.is_none() {
                 ctr.packets_no_cull += 1;
             }
@@ -400,6 +405,7 @@ impl<'s, T: TriangleTest, const Q: usize> Packet<'s, T, Q> {
             n_live: lanes.n_live,
             neg: lanes.neg,
             frustum,
+            fallbacks: opt.fallbacks,
         }
     }
 

@@ -64,9 +64,10 @@
 
 use super::packet::{Packet, Walk, dispatch};
 use super::traverse_partition::Partition;
-use super::{BvhOptions, BvhView, MAX_DEPTH, TriangleTest};
+use super::{BvhView, MAX_DEPTH, TriangleTest};
 use crate::accel::entry::EntryPoint;
 use crate::accel::fallback;
+use crate::accel::method::TraceParams;
 use crate::accel::slot::Slot;
 use crate::counters::Counters;
 use crate::geom::{Hit4, M4, Ray4};
@@ -90,7 +91,7 @@ pub fn intersect<T: TriangleTest>(
     rays: &[Ray4],
     active: &[M4],
     hits: &mut [Hit4],
-    opt: &BvhOptions,
+    opt: &TraceParams,
     entry: Option<&EntryPoint>,
     slot: &mut Slot<'_>,
     ctr: &mut Counters,
@@ -109,7 +110,7 @@ pub fn occluded<T: TriangleTest>(
     rays: &[Ray4],
     active: &[M4],
     hits: &mut [Hit4],
-    opt: &BvhOptions,
+    opt: &TraceParams,
     entry: Option<&EntryPoint>,
     slot: &mut Slot<'_>,
     ctr: &mut Counters,
@@ -167,7 +168,7 @@ impl Walk for Masked {
         let (mut node, mut depth) = start;
         // Box tests of quads with live lanes, and how many found them alive
         // (the switch to Partition, `fallback::Waste`).
-        let mut waste = fallback::Waste::new(nq);
+        let mut waste = fallback::Waste::new(nq, p.fallbacks);
         loop {
             let n = &nodes[node];
             let leaf = n.is_leaf();
@@ -235,6 +236,7 @@ pub(crate) mod tests {
     use crate::accel::bvh::traverse_single::{self, tests::Rng};
     use crate::accel::bvh::{BvhParams, RayKind};
     use crate::accel::mailbox::Mailbox;
+    use crate::accel::method::BvhOptions;
     use crate::accel::slot::Slot;
     use crate::counters::DEPTH_BINS;
     use crate::geom::{Aabb, Hit, INVALID_ID, Mt, Pt, Ray, Scene, TriTest, Wt};
@@ -500,7 +502,7 @@ pub(crate) mod tests {
     }
 
     /// An entry-point search per packet: `(tree, quads, active, options)`.
-    pub type Search<'s> = &'s dyn Fn(&BvhView<'_>, &[Ray4], &[M4], &BvhOptions) -> Start;
+    pub type Search<'s> = &'s dyn Fn(&BvhView<'_>, &[Ray4], &[M4], &TraceParams) -> Start;
 
     /// Trace `quads` (a packet, or several concatenated) with traversal `W`
     /// from `start` and compare every lane with `traverse_single`; returns
@@ -511,7 +513,7 @@ pub(crate) mod tests {
         b: &BvhView<'_>,
         quads: &[Ray4],
         active: &[M4],
-        opt: &BvhOptions,
+        opt: &TraceParams,
         start: Start,
         any: bool,
         reference: &dyn Fn(usize, usize) -> Hit,
@@ -683,7 +685,7 @@ pub(crate) mod tests {
                     for any in [false, true] {
                         for culling in [true, false] {
                             for &kind in set.kinds {
-                                let opt = BvhOptions { culling, kind };
+                                let opt = TraceParams::with_bvh(BvhOptions { culling, kind });
                                 let start = search(b, &quads, &active, &opt);
                                 let what = || {
                                     format!(
@@ -716,10 +718,10 @@ pub(crate) mod tests {
             }
             for (s, e) in [(0, quads.len()), (5, 8)] {
                 for any in [false, true] {
-                    let opt = BvhOptions {
+                    let opt = TraceParams::with_bvh(BvhOptions {
                         culling: true,
                         kind: set.kinds[0],
-                    };
+                    });
                     let start = search(b, &quads[s..e], &active[s..e], &opt);
                     let what = || {
                         format!(
@@ -1047,9 +1049,11 @@ pub(crate) mod tests {
             let rays = (w * h) as f64;
             type Trace<'t> = Box<dyn FnMut(&[Ray4], &[M4], &mut [Hit4], &mut Counters) + 't>;
             let (b, pk) = (&b, &pk);
-            let opt = |culling| BvhOptions {
-                culling,
-                kind: RayKind::Primary,
+            let opt = |culling| {
+                TraceParams::with_bvh(BvhOptions {
+                    culling,
+                    kind: RayKind::Primary,
+                })
             };
             let mut runs: Vec<(&str, &str, Trace<'_>)> = vec![
                 (
@@ -1071,7 +1075,9 @@ pub(crate) mod tests {
                 (
                     "bvh-simd (2x2)",
                     "-",
-                    Box::new(move |q, a, hs, c| traverse_simd::intersect::<Mt>(b, q, a, hs, c)),
+                    Box::new(move |q, a, hs, c| {
+                        traverse_simd::intersect::<Mt>(b, q, a, hs, true, c)
+                    }),
                 ),
             ];
             for (culling, cs) in [(false, "off"), (true, "on")] {

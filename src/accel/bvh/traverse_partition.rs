@@ -25,8 +25,9 @@
 //!   stacked subtrees to it when it switches (`traverse_masked::to_partition`).
 
 use super::packet::{Packet, Walk, dispatch};
-use super::{BvhNode, BvhOptions, BvhView, MAX_DEPTH, TriangleTest};
+use super::{BvhNode, BvhView, MAX_DEPTH, TriangleTest};
 use crate::accel::entry::EntryPoint;
+use crate::accel::method::TraceParams;
 use crate::accel::slot::Slot;
 use crate::counters::Counters;
 use crate::geom::{Hit4, M4, Ray4};
@@ -40,7 +41,7 @@ pub fn intersect<T: TriangleTest>(
     rays: &[Ray4],
     active: &[M4],
     hits: &mut [Hit4],
-    opt: &BvhOptions,
+    opt: &TraceParams,
     entry: Option<&EntryPoint>,
     slot: &mut Slot<'_>,
     ctr: &mut Counters,
@@ -57,7 +58,7 @@ pub fn occluded<T: TriangleTest>(
     rays: &[Ray4],
     active: &[M4],
     hits: &mut [Hit4],
-    opt: &BvhOptions,
+    opt: &TraceParams,
     entry: Option<&EntryPoint>,
     slot: &mut Slot<'_>,
     ctr: &mut Counters,

@@ -27,8 +27,9 @@
 //!   time once the coherence test is in (`sheaf bench --stress`).
 
 use super::packet::{Packet, Walk, dispatch};
-use super::{BvhNode, BvhOptions, BvhView, MAX_DEPTH, TriangleTest};
+use super::{BvhNode, BvhView, MAX_DEPTH, TriangleTest};
 use crate::accel::entry::EntryPoint;
+use crate::accel::method::TraceParams;
 use crate::accel::slot::Slot;
 use crate::counters::Counters;
 use crate::geom::{Hit4, M4, Ray4};
@@ -42,7 +43,7 @@ pub fn intersect<T: TriangleTest>(
     rays: &[Ray4],
     active: &[M4],
     hits: &mut [Hit4],
-    opt: &BvhOptions,
+    opt: &TraceParams,
     entry: Option<&EntryPoint>,
     slot: &mut Slot<'_>,
     ctr: &mut Counters,
@@ -59,7 +60,7 @@ pub fn occluded<T: TriangleTest>(
     rays: &[Ray4],
     active: &[M4],
     hits: &mut [Hit4],
-    opt: &BvhOptions,
+    opt: &TraceParams,
     entry: Option<&EntryPoint>,
     slot: &mut Slot<'_>,
     ctr: &mut Counters,

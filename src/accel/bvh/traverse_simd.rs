@@ -40,10 +40,11 @@ pub fn intersect<T: TriangleTest>(
     rays: &[Ray4],
     active: &[M4],
     hits: &mut [Hit4],
+    fallbacks: bool,
     ctr: &mut Counters,
 ) {
     for ((r, m), h) in rays.iter().zip(active).zip(hits.iter_mut()) {
-        quad::<T, false>(b, r, *m, h, ctr);
+        quad::<T, false>(b, r, *m, h, fallbacks, ctr);
     }
 }
 
@@ -55,10 +56,11 @@ pub fn occluded<T: TriangleTest>(
     rays: &[Ray4],
     active: &[M4],
     hits: &mut [Hit4],
+    fallbacks: bool,
     ctr: &mut Counters,
 ) {
     for ((r, m), h) in rays.iter().zip(active).zip(hits.iter_mut()) {
-        quad::<T, true>(b, r, *m, h, ctr);
+        quad::<T, true>(b, r, *m, h, fallbacks, ctr);
     }
 }
 
@@ -67,6 +69,7 @@ fn quad<T: TriangleTest, const ANY: bool>(
     r: &Ray4,
     active: M4,
     out: &mut Hit4,
+    fallbacks: bool,
     ctr: &mut Counters,
 ) {
     ctr.packets += 1;
@@ -84,7 +87,7 @@ fn quad<T: TriangleTest, const ANY: bool>(
     if live.any() && !b.nodes.is_empty() {
         // Lanes with tiny directions alone (`accel::fallback::tiny`), and
         // out of the quad's arithmetic.
-        let tiny = fallback::tiny(r, live);
+        let tiny = fallback::tiny(fallbacks, r, live);
         if tiny.any() {
             super::packet::alone::<T, ANY>(
                 b,
@@ -100,6 +103,7 @@ fn quad<T: TriangleTest, const ANY: bool>(
     }
     if live.any() && !b.nodes.is_empty() {
         if fallback::coherent(
+            fallbacks,
             core::slice::from_ref(r),
             &[live],
             b.info.bounds.diagonal().length(),
@@ -303,9 +307,9 @@ mod tests {
             let mut hits = vec![fill; quads.len()];
             let mut ctr = Counters::default();
             if any {
-                occluded::<T>(&view, &quads, &active, &mut hits, &mut ctr);
+                occluded::<T>(&view, &quads, &active, &mut hits, true, &mut ctr);
             } else {
-                intersect::<T>(&view, &quads, &active, &mut hits, &mut ctr);
+                intersect::<T>(&view, &quads, &active, &mut hits, true, &mut ctr);
             }
             let mut valid = 0;
             let mut c1 = Counters::default();

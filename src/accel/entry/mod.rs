@@ -496,6 +496,7 @@ pub fn live_mask(r: &Ray4, active: M4) -> M4 {
 pub(crate) mod tests {
     use super::*;
     use crate::accel::bvh;
+    use crate::accel::bvh::BvhView;
     use crate::accel::bvh::build::testutil::Store;
     use crate::accel::bvh::packet::Walk;
     use crate::accel::bvh::traverse_masked::Masked;
@@ -504,7 +505,7 @@ pub(crate) mod tests {
     };
     use crate::accel::bvh::traverse_partition::Partition;
     use crate::accel::bvh::traverse_ranged::Ranged;
-    use crate::accel::bvh::{BvhOptions, BvhView};
+    use crate::accel::method::TraceParams;
     use crate::geom::frustum::RayKind;
     use crate::geom::{Mt, Wt};
     use std::cell::Cell;
@@ -644,7 +645,7 @@ pub(crate) mod tests {
     fn searcher<'c>(
         alg: EntrySearch,
         seen: &'c Cell<[u64; 3]>,
-    ) -> impl Fn(&BvhView<'_>, &[Ray4], &[M4], &BvhOptions) -> Start + 'c {
+    ) -> impl Fn(&BvhView<'_>, &[Ray4], &[M4], &TraceParams) -> Start + 'c {
         move |b, quads, active, opt| {
             let live: Vec<M4> = quads
                 .iter()
@@ -660,7 +661,7 @@ pub(crate) mod tests {
                 bump(1);
                 return Start::Root;
             };
-            let Some(f) = Frustum::new(opt.kind, quads, &live, &root.aabb()) else {
+            let Some(f) = Frustum::new(opt.bvh.kind, quads, &live, &root.aabb()) else {
                 bump(1);
                 return Start::Root;
             };

@@ -235,9 +235,9 @@ impl crate::accel::Accel for GridView<'_> {
             return false;
         }
         if ANY {
-            traverse_cgt::occluded::<T>(self, rays, active, hits, &p.cgt, slot, ctr);
+            traverse_cgt::occluded::<T>(self, rays, active, hits, p, slot, ctr);
         } else {
-            traverse_cgt::intersect::<T>(self, rays, active, hits, &p.cgt, slot, ctr);
+            traverse_cgt::intersect::<T>(self, rays, active, hits, p, slot, ctr);
         }
         true
     }

@@ -59,6 +59,7 @@
 
 use super::{GridView, TriangleTest};
 use crate::accel::fallback;
+use crate::accel::method::TraceParams;
 use crate::accel::packet::MAX_QUADS;
 use crate::accel::slot::Slot;
 use crate::counters::{Counters, count};
@@ -103,7 +104,7 @@ pub fn intersect<T: TriangleTest>(
     rays: &[Ray4],
     active: &[M4],
     hits: &mut [Hit4],
-    opt: &CgtOptions,
+    opt: &TraceParams,
     slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
@@ -117,7 +118,7 @@ pub fn occluded<T: TriangleTest>(
     rays: &[Ray4],
     active: &[M4],
     hits: &mut [Hit4],
-    opt: &CgtOptions,
+    opt: &TraceParams,
     slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
@@ -129,7 +130,7 @@ fn dispatch<T: TriangleTest, const ANY: bool>(
     rays: &[Ray4],
     active: &[M4],
     hits: &mut [Hit4],
-    opt: &CgtOptions,
+    opt: &TraceParams,
     slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
@@ -154,7 +155,7 @@ fn packet<T: TriangleTest, const ANY: bool>(
     rays: &[Ray4],
     active: &[M4],
     hits: &mut [Hit4],
-    opt: &CgtOptions,
+    opt: &TraceParams,
     slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
@@ -271,11 +272,11 @@ fn packet<T: TriangleTest, const ANY: bool>(
     ctr.rays -= stray;
     // Incoherent packets (`trace::fallback`): every lane still live (all
     // move forward along K) by the 3DDDA.
-    if !fallback::coherent(rays, live, info.bounds.diagonal().length()) {
+    if !fallback::coherent(opt.fallbacks, rays, live, info.bounds.diagonal().length()) {
         return alone::<T, ANY>(g, rays, live, hits, ctr);
     }
     // The budget (`fallback::CGT_BUDGET`): quad-cells spent and allowed.
-    let budget = fallback::enabled();
+    let budget = opt.fallbacks;
     let mut nl = live_lanes(live);
     let per_lane = if nl > 0 {
         cross.element_sum() / nl as f32
@@ -377,8 +378,8 @@ fn packet<T: TriangleTest, const ANY: bool>(
         rays[q0].org[1][i0],
         rays[q0].org[2][i0],
     );
-    let cull = opt.culling && common_origin(rays, live, origin);
-    if opt.culling && !cull {
+    let cull = opt.cgt.culling && common_origin(rays, live, origin);
+    if opt.cgt.culling && !cull {
         ctr.packets_no_cull += 1;
     }
     let corners = corner_dirs(k, u, v, flip, info.cell_size, smin, smax);
@@ -389,12 +390,12 @@ fn packet<T: TriangleTest, const ANY: bool>(
         pre[q] = T::prepare(&RayLanes::from_ray4(&rays[q]));
     }
     let mb = &mut slot.mailbox;
-    if opt.mailbox {
+    if opt.cgt.mailbox {
         mb.next_packet(info.triangles as usize);
     }
 
     let m = info.macrocell as i32;
-    let use_macro = opt.macrocells && m > 1;
+    let use_macro = opt.cgt.macrocells && m > 1;
     let mut s = s0;
     let mut macro_end = i32::MIN; // last slice of the macrocell slab already checked
     while s <= s1 {
@@ -459,7 +460,7 @@ fn packet<T: TriangleTest, const ANY: bool>(
                     refs += cell.len() as u32;
                     for &tri in cell {
                         let tri = tri as usize;
-                        if opt.mailbox && !mb.first_visit(tri) {
+                        if opt.cgt.mailbox && !mb.first_visit(tri) {
                             count!(ctr.mailbox_skips += 1);
                             continue;
                         }

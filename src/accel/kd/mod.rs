@@ -400,11 +400,11 @@ impl crate::accel::Accel for KdView<'_> {
             Method::KdSimd => {
                 for ((r, m), h) in rays.iter().zip(active).zip(hits.iter_mut()) {
                     if ANY {
-                        let o = traverse_simd::occluded::<T>(self, r, *m, ctr);
+                        let o = traverse_simd::occluded::<T>(self, r, *m, p.fallbacks, ctr);
                         let (m, h) = (core::slice::from_ref(m), core::slice::from_mut(h));
                         packet::mark_occluded(&[o], m, h);
                     } else {
-                        let got = traverse_simd::intersect::<T>(self, r, *m, ctr);
+                        let got = traverse_simd::intersect::<T>(self, r, *m, p.fallbacks, ctr);
                         for i in (0..4).filter(|&i| m.test(i)) {
                             h.set_lane(i, got.lane(i));
                         }
@@ -434,10 +434,30 @@ impl crate::accel::Accel for KdView<'_> {
                     let n = rays.len().min(active.len()).min(hits.len()).min(MAX_QUADS);
                     let (occ, mut slot) = slot.split(n, M4::FALSE);
                     let (r, a) = (&rays[..n], &active[..n]);
-                    traverse_packet::occluded::<T>(self, r, a, occ, f, e, &mut slot, ctr);
+                    traverse_packet::occluded::<T>(
+                        self,
+                        r,
+                        a,
+                        occ,
+                        f,
+                        e,
+                        p.fallbacks,
+                        &mut slot,
+                        ctr,
+                    );
                     packet::mark_occluded(occ, a, &mut hits[..n]);
                 } else {
-                    traverse_packet::intersect::<T>(self, rays, active, hits, f, e, slot, ctr);
+                    traverse_packet::intersect::<T>(
+                        self,
+                        rays,
+                        active,
+                        hits,
+                        f,
+                        e,
+                        p.fallbacks,
+                        slot,
+                        ctr,
+                    );
                 }
                 true
             }

@@ -137,6 +137,7 @@ pub fn intersect<T: TriangleTest>(
     hits: &mut [Hit4],
     frustum: Option<&Frustum>,
     entry: Option<&EntryPoint>,
+    fallbacks: bool,
     slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
@@ -149,6 +150,7 @@ pub fn intersect<T: TriangleTest>(
         &mut [],
         frustum,
         entry,
+        fallbacks,
         slot,
         ctr,
     );
@@ -165,6 +167,7 @@ pub fn occluded<T: TriangleTest>(
     occluded: &mut [M4],
     frustum: Option<&Frustum>,
     entry: Option<&EntryPoint>,
+    fallbacks: bool,
     slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
@@ -177,6 +180,7 @@ pub fn occluded<T: TriangleTest>(
         &mut occluded[..n],
         frustum,
         entry,
+        fallbacks,
         slot,
         ctr,
     );
@@ -194,6 +198,7 @@ fn dispatch<T: TriangleTest, const ANY: bool>(
     occ: &mut [M4],
     frustum: Option<&Frustum>,
     entry: Option<&EntryPoint>,
+    fallbacks: bool,
     slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
@@ -206,6 +211,7 @@ fn dispatch<T: TriangleTest, const ANY: bool>(
         occ,
         frustum,
         entry,
+        fallbacks,
         slot,
         ctr,
         _t: core::marker::PhantomData,
@@ -223,6 +229,7 @@ struct Run<'x, 'k, 's, T, const ANY: bool> {
     occ: &'x mut [M4],
     frustum: Option<&'x Frustum>,
     entry: Option<&'x EntryPoint>,
+    fallbacks: bool,
     slot: &'x mut Slot<'s>,
     ctr: &'x mut Counters,
     _t: core::marker::PhantomData<T>,
@@ -238,7 +245,8 @@ impl<T: TriangleTest, const ANY: bool> SizeClass for Run<'_, '_, '_, T, ANY> {
             (&mut self.hits[r], &mut [][..])
         };
         let (f, e) = (self.frustum, self.entry);
-        packet::<T, ANY, Q>(self.k, rays, active, h, o, f, e, self.slot, self.ctr);
+        let on = self.fallbacks;
+        packet::<T, ANY, Q>(self.k, rays, active, h, o, f, e, on, self.slot, self.ctr);
     }
 }
 
@@ -263,6 +271,7 @@ fn packet<T: TriangleTest, const ANY: bool, const Q: usize>(
     occ: &mut [M4],
     frustum: Option<&Frustum>,
     entry: Option<&EntryPoint>,
+    fallbacks: bool,
     slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
@@ -331,7 +340,12 @@ fn packet<T: TriangleTest, const ANY: bool, const Q: usize>(
     }
     // Incoherent packets (`trace::fallback`): every lane still live (all
     // with the first lane's direction signs) alone.
-    if !fallback::coherent(rays, &live[..nq], k.info.bounds.diagonal().length()) {
+    if !fallback::coherent(
+        fallbacks,
+        rays,
+        &live[..nq],
+        k.info.bounds.diagonal().length(),
+    ) {
         fallback::each_lane(&live[..nq], |q, i| {
             let h: Hit = lane_from::<T, ANY>(k, &rays[q], i, node0, depth0, &bx0, ctr);
             if ANY {
@@ -851,8 +865,8 @@ mod tests {
         let mut hits = vec![fill; quads.len()];
         let mut occ = vec![M4::TRUE; quads.len()];
         let mut ctr = Counters::default();
-        intersect::<T>(k, quads, active, &mut hits, f, e, slot, &mut ctr);
-        occluded::<T>(k, quads, active, &mut occ, f, e, slot, &mut ctr);
+        intersect::<T>(k, quads, active, &mut hits, f, e, true, slot, &mut ctr);
+        occluded::<T>(k, quads, active, &mut occ, f, e, true, slot, &mut ctr);
         let mut valid = 0;
         for (q, (h, m)) in hits.iter().zip(active).enumerate() {
             for i in 0..4 {
@@ -1236,7 +1250,7 @@ mod tests {
                 Box::new(move |c| {
                     let mut x = 0;
                     for (q, a, _) in p2 {
-                        let hh = traverse_simd::intersect::<Mt>(k, &q[0], a[0], c);
+                        let hh = traverse_simd::intersect::<Mt>(k, &q[0], a[0], true, c);
                         x += sum(&[hh]);
                     }
                     x
@@ -1268,6 +1282,7 @@ mod tests {
                                     &mut hits,
                                     f.as_ref(),
                                     None,
+                                    true,
                                     &mut own.slot(),
                                     c,
                                 );
@@ -1305,7 +1320,7 @@ mod tests {
                 Box::new(move |c| {
                     let mut x = 0;
                     for (q, a, _) in p2 {
-                        bvh_simd::intersect::<Mt>(b, q, a, &mut h1, c);
+                        bvh_simd::intersect::<Mt>(b, q, a, &mut h1, true, c);
                         x += sum(&h1);
                     }
                     x
@@ -1314,10 +1329,10 @@ mod tests {
             let p16 = by_side(16);
             let mut h16 = vec![Hit4::MISS; p16[0].0.len()];
             let mut own = crate::accel::slot::SlotBuf::new(0);
-            let opt = BvhOptions {
+            let opt = crate::accel::method::TraceParams::with_bvh(BvhOptions {
                 culling: true,
                 kind: RayKind::Primary,
-            };
+            });
             runs.push((
                 "bvh masked 16x16 culling on".into(),
                 false,

@@ -47,18 +47,25 @@ pub fn intersect<T: TriangleTest>(
     k: &KdView<'_>,
     r: &Ray4,
     active: M4,
+    fallbacks: bool,
     ctr: &mut Counters,
 ) -> Hit4 {
     let mut best = Hit4::MISS;
-    quad::<T, false>(k, r, active, &mut best, ctr);
+    quad::<T, false>(k, r, active, &mut best, fallbacks, ctr);
     best
 }
 
 /// Lanes of `r` that are active and hit something in `[tmin, tmax)`.
 #[inline]
-pub fn occluded<T: TriangleTest>(k: &KdView<'_>, r: &Ray4, active: M4, ctr: &mut Counters) -> M4 {
+pub fn occluded<T: TriangleTest>(
+    k: &KdView<'_>,
+    r: &Ray4,
+    active: M4,
+    fallbacks: bool,
+    ctr: &mut Counters,
+) -> M4 {
     let mut best = Hit4::MISS;
-    quad::<T, true>(k, r, active, &mut best, ctr);
+    quad::<T, true>(k, r, active, &mut best, fallbacks, ctr);
     best.hit_mask() & active
 }
 
@@ -157,6 +164,7 @@ fn quad<T: TriangleTest, const ANY: bool>(
     r: &Ray4,
     active: M4,
     best: &mut Hit4,
+    fallbacks: bool,
     ctr: &mut Counters,
 ) {
     ctr.packets += 1;
@@ -168,7 +176,7 @@ fn quad<T: TriangleTest, const ANY: bool>(
     let root = &k.info.root;
     // Lanes with tiny directions alone (`accel::fallback::tiny`), and out
     // of the quad's arithmetic.
-    let tiny = fallback::tiny(r, live);
+    let tiny = fallback::tiny(fallbacks, r, live);
     let quiet;
     let r = if tiny.any() {
         fallback::each_lane(&[tiny], |_, i| {
@@ -201,6 +209,7 @@ fn quad<T: TriangleTest, const ANY: bool>(
     // An incoherent quad (`trace::fallback`): every lane still live
     // (all with the first lane's direction signs) alone.
     if !fallback::coherent(
+        fallbacks,
         core::slice::from_ref(r),
         &[live],
         k.info.bounds.diagonal().length(),
@@ -386,8 +395,8 @@ pub(crate) mod tests {
         let mut c1 = Counters::default();
         let mut valid = 0u64;
         for (q, (r, m)) in quads.iter().zip(active).enumerate() {
-            let h = intersect::<T>(k, r, *m, &mut ctr);
-            let o = occluded::<T>(k, r, *m, &mut ctr);
+            let h = intersect::<T>(k, r, *m, true, &mut ctr);
+            let o = occluded::<T>(k, r, *m, true, &mut ctr);
             for i in 0..4 {
                 let ray: Ray = r.lane(i);
                 if !m.test(i) {
