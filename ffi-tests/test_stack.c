@@ -12,8 +12,9 @@
  * guard page under the stack, so an overflow faults instead of passing.
  *
  * Not run under valgrind (tests/c_abi.rs): painting memory below the stack
- * pointer is what memcheck rightly reports. It runs plain and under ASan
- * (the painting and scanning are not instrumented).
+ * pointer is what memcheck rightly reports. Under AddressSanitizer (whose
+ * runtime uses the bottom of thread stacks) the calls still run on the
+ * 64 KiB stack, unmeasured.
  *
  * Set STACK_REPORT=1 to print the table of figures.
  */
@@ -39,6 +40,12 @@
 #define NO_ASAN __attribute__((no_sanitize_address, noinline))
 #else
 #define NO_ASAN
+#endif
+
+#if defined(__SANITIZE_ADDRESS__)
+#define MEASURE 0
+#else
+#define MEASURE 1
 #endif
 
 typedef struct job job;
@@ -158,6 +165,10 @@ static void *on_small_stack(void *arg) {
     }
     pthread_attr_destroy(&a);
     bottom = (volatile uint8_t *)base + 64; /* the painting must not touch the guard */
+    if (!MEASURE) {
+        j->status = j->run(j);
+        return NULL;
+    }
     paint(bottom, top);
     j->status = j->run(j);
     low = lowest_touched(bottom, top);
@@ -284,7 +295,11 @@ static bool test_every_call_fits_16k_of_a_64k_stack(void) {
         }
         printf("    %-16s at most %6zu bytes of stack\n", CALLS[c].call, call_worst);
     }
-    printf("    worst: %s, %zu bytes (budget %d, thread stack %d)\n", worst_call, worst, BUDGET, STACK_BYTES);
+    if (MEASURE) {
+        printf("    worst: %s, %zu bytes (budget %d, thread stack %d)\n", worst_call, worst, BUDGET, STACK_BYTES);
+    } else {
+        printf("    every call ran on a %d-byte stack (AddressSanitizer: not measured)\n", STACK_BYTES);
+    }
     CHECK(worst <= BUDGET);
     sheaf_context_destroy(g_ctx);
     free(g_scene);
