@@ -30,6 +30,8 @@ pub mod method;
 pub mod packet;
 pub mod pgrid;
 pub mod slot;
+#[cfg(test)]
+pub(crate) mod testkit;
 
 use crate::counters::Counters;
 use crate::geom::{Aabb, Hit, Hit4, M4, Ray, Ray4, TriTest, TriVerts, TriangleTest};

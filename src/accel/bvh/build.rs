@@ -742,72 +742,7 @@ pub fn build(bvh: &mut Bvh<'_>, scene: &Scene<'_>, p: &BvhParams) -> Result<BvhI
 }
 
 #[cfg(test)]
-pub(crate) mod testutil {
-    //! Owned pools for tests.
-    use super::super::{Bvh, BvhNode, BvhPools, PrimRef};
-    use crate::geom::{ProjTri, TriVerts};
-
-    pub struct Store {
-        pub nodes: Vec<BvhNode>,
-        pub tris: Vec<TriVerts>,
-        pub proj: Vec<ProjTri>,
-        pub ids: Vec<u32>,
-        pub slot: Vec<u32>,
-        pub refs: Vec<PrimRef>,
-        pub scratch: Vec<u8>,
-    }
-
-    impl Store {
-        /// Pools for `n` triangles (with projection data when `proj`).
-        pub fn new(n: usize, proj: bool) -> Store {
-            Store {
-                nodes: vec![BvhNode::default(); 2 * n],
-                tris: vec![TriVerts::default(); n],
-                proj: vec![ProjTri::default(); if proj { n } else { 0 }],
-                ids: vec![0; n],
-                slot: vec![0; n],
-                refs: vec![PrimRef::default(); n],
-                scratch: vec![0; crate::accel::bvh::build::SCRATCH],
-            }
-        }
-        pub fn bvh(&mut self) -> Bvh<'_> {
-            Bvh::new(BvhPools {
-                nodes: &mut self.nodes,
-                tris: &mut self.tris,
-                proj: &mut self.proj,
-                tri_ids: &mut self.ids,
-                slot_of: &mut self.slot,
-                refs: &mut self.refs,
-                scratch: &mut self.scratch,
-            })
-        }
-    }
-
-    /// Small triangles in the planes x = 1e-9 * 2.2^i: built with two bins
-    /// and leaf size 1, every plane can only peel off the farthest one, so
-    /// the tree would be 53 levels deep and MAX_DEPTH caps it with a forced
-    /// leaf. (Coordinates from 2e-9 to 7e9 keep the triangle tests and the
-    /// SAH areas far from overflow and underflow.)
-    pub fn deep_tris() -> Vec<[[f32; 3]; 3]> {
-        (1..55)
-            .map(|i| {
-                let x = 1e-9 * 2.2f32.powi(i);
-                let s = 0.01 * x;
-                [[x, 0.0, 0.0], [x, s, 0.0], [x, 0.0, s]]
-            })
-            .collect()
-    }
-
-    /// A scene's buffers as packed f32 vertices and indices.
-    pub fn soup(tris: &[[[f32; 3]; 3]]) -> (Vec<f32>, Vec<u32>) {
-        let v: Vec<f32> = tris
-            .iter()
-            .flat_map(|t| t.iter().flatten().copied())
-            .collect();
-        let ix: Vec<u32> = (0..3 * tris.len() as u32).collect();
-        (v, ix)
-    }
-}
+pub(crate) use crate::accel::testkit as testutil;
 
 #[cfg(test)]
 mod tests {

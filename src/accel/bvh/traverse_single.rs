@@ -192,25 +192,8 @@ pub(crate) mod tests {
     use crate::accel::bvh::BvhParams;
     use crate::accel::bvh::build::build;
     use crate::accel::bvh::build::testutil::{Store, deep_tris, soup};
-    use crate::geom::{Aabb, INVALID_ID, Mt, Pt, Scene, TriTest, Wt};
-    use glam::Vec3;
-
-    /// Small deterministic generator (xorshift).
-    pub struct Rng(pub u64);
-    impl Rng {
-        pub fn next(&mut self) -> u64 {
-            self.0 ^= self.0 << 13;
-            self.0 ^= self.0 >> 7;
-            self.0 ^= self.0 << 17;
-            self.0
-        }
-        pub fn f(&mut self) -> f32 {
-            (self.next() >> 40) as f32 / (1u64 << 24) as f32
-        }
-        pub fn range(&mut self, lo: f32, hi: f32) -> f32 {
-            lo + (hi - lo) * self.f()
-        }
-    }
+    pub use crate::accel::testkit::{Rng, test_rays, tris_of};
+    use crate::geom::{INVALID_ID, Mt, Pt, Scene, TriTest, Wt};
 
     /// Nearest (or, with `any`, some) hit by testing every stored triangle.
     pub fn brute<T: TriangleTest>(b: &BvhView<'_>, ray: &Ray) -> Hit {
@@ -232,102 +215,6 @@ pub(crate) mod tests {
             }
         }
         best
-    }
-
-    /// Test rays for a scene: camera rays of every view, random rays through
-    /// the bounds (some from inside), axis-parallel rays with zero direction
-    /// components, rays along triangle edges and through vertices, bounded
-    /// and shadow-like rays, and invalid rays.
-    pub fn test_rays(tris: &[[[f32; 3]; 3]], views: &[crate::scenes::View], seed: u64) -> Vec<Ray> {
-        let mut rays = Vec::new();
-        for v in views {
-            let cam = crate::Camera {
-                eye: v.eye.to_array(),
-                look_at: v.look_at.to_array(),
-                up: v.up.to_array(),
-                fov_y_deg: v.fov_y_deg,
-            };
-            let pr = crate::render::PrimaryRays::new(&cam, 24, 24).unwrap();
-            for y in 0..24 {
-                for x in 0..24 {
-                    rays.push(pr.ray(x, y));
-                }
-            }
-        }
-        let mut bb = Aabb::EMPTY;
-        for t in tris {
-            for p in t {
-                bb.grow(Vec3::from(*p));
-            }
-        }
-        if bb.is_empty() {
-            bb = Aabb {
-                min: Vec3::ZERO,
-                max: Vec3::ONE,
-            };
-        }
-        let (c, d) = (0.5 * (bb.min + bb.max), bb.diagonal());
-        let mut r = Rng(seed | 1);
-        let pt =
-            |r: &mut Rng, s: f32| c + Vec3::new(r.range(-s, s), r.range(-s, s), r.range(-s, s)) * d;
-        for i in 0..1500 {
-            let o = pt(&mut r, if i % 3 == 0 { 0.4 } else { 1.5 });
-            let to = pt(&mut r, 0.4);
-            let mut dir = to - o;
-            if i % 5 == 0 {
-                // Axis-parallel or in an axis plane: exact zero components.
-                let keep = (r.next() % 3) as usize;
-                for a in 0..3 {
-                    if a != keep && (i % 2 == 0 || a == (keep + 1) % 3) {
-                        dir[a] = if r.next() % 2 == 0 { 0.0 } else { -0.0 };
-                    }
-                }
-            }
-            let tmax = if i % 7 == 0 {
-                r.range(0.2, 1.2)
-            } else {
-                f32::INFINITY
-            };
-            let tmin = if i % 11 == 0 { r.range(0.0, 0.5) } else { 0.0 };
-            rays.push(Ray::new(o, dir, tmin, tmax));
-        }
-        // Through vertices and along/through edges of triangles.
-        for k in 0..300usize.min(tris.len() * 2) {
-            let t = tris[(r.next() as usize) % tris.len()];
-            let v = Vec3::from(t[k % 3]);
-            let w = Vec3::from(t[(k + 1) % 3]);
-            let target = if k % 2 == 0 { v } else { 0.5 * (v + w) };
-            let o = pt(&mut r, 1.5);
-            rays.push(Ray::new(o, target - o, 0.0, f32::INFINITY));
-            // Shadow-like: stop exactly at the target.
-            rays.push(Ray::new(o, target - o, 0.0, 1.0));
-        }
-        // Invalid rays.
-        let o = c;
-        rays.push(Ray::new(o, Vec3::ZERO, 0.0, f32::INFINITY));
-        rays.push(Ray::new(
-            o,
-            Vec3::new(f32::NAN, 1.0, 0.0),
-            0.0,
-            f32::INFINITY,
-        ));
-        rays.push(Ray::new(
-            Vec3::new(f32::INFINITY, 0.0, 0.0),
-            Vec3::X,
-            0.0,
-            f32::INFINITY,
-        ));
-        rays.push(Ray::new(o, Vec3::X, -1.0, f32::INFINITY));
-        rays.push(Ray::new(o, Vec3::X, 2.0, 1.0));
-        rays.push(Ray::new(o, Vec3::X, f32::NAN, 1.0));
-        rays
-    }
-
-    pub fn tris_of(scene: &Scene<'_>) -> Vec<[[f32; 3]; 3]> {
-        (0..scene.triangle_count())
-            .map(|t| scene.triangle(t))
-            .map(|t| [t.v0, t.v1, t.v2])
-            .collect()
     }
 
     fn same(a: &Hit, b: &Hit) -> bool {

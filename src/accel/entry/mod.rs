@@ -497,15 +497,14 @@ pub(crate) mod tests {
     use super::*;
     use crate::accel::bvh;
     use crate::accel::bvh::BvhView;
-    use crate::accel::bvh::build::testutil::Store;
     use crate::accel::bvh::packet::Walk;
     use crate::accel::bvh::traverse_masked::Masked;
-    use crate::accel::bvh::traverse_masked::tests::{
-        Start, built, check_sets_from, lattice, packets, ray_sets,
-    };
+    use crate::accel::bvh::traverse_masked::tests::{Start, check_sets_from};
     use crate::accel::bvh::traverse_partition::Partition;
     use crate::accel::bvh::traverse_ranged::Ranged;
     use crate::accel::method::TraceParams;
+    use crate::accel::testkit::Store;
+    use crate::accel::testkit::{built, lattice, packets, ray_sets};
     use crate::geom::frustum::RayKind;
     use crate::geom::{Mt, Wt};
     use std::cell::Cell;
@@ -774,9 +773,7 @@ pub(crate) mod tests {
                 light: s.light,
             });
         }
-        let (v, ix) = crate::accel::bvh::build::testutil::soup(
-            &crate::accel::bvh::build::testutil::deep_tris(),
-        );
+        let (v, ix) = crate::accel::testkit::soup(&crate::accel::testkit::deep_tris());
         let deep_view = crate::scenes::View {
             eye: glam::Vec3::ZERO,
             look_at: glam::Vec3::new(1.0, 0.005, 0.005),

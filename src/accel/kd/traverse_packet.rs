@@ -682,11 +682,11 @@ fn walk<T: TriangleTest, const ANY: bool, const Q: usize>(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::accel::bvh::traverse_masked::tests::{Packed, RaySet, lattice, packets, ray_sets};
     use crate::accel::bvh::{BvhView, RayKind};
     use crate::accel::kd::traverse_simd::tests::{deep_rays, ties, with_trees};
     use crate::accel::kd::traverse_single::{self, tests::same};
     use crate::accel::slot::SlotBuf;
+    use crate::accel::testkit::{Packed, RaySet, lattice, packets, ray_sets};
     use crate::geom::TriangleTest;
     use crate::geom::{Mt, Pt, Ray, Wt};
     use glam::Vec3;
@@ -1089,9 +1089,7 @@ mod tests {
         run::<Mt>("empty", &[], &[], 0, &|b| {
             ray_sets::<Mt>(b, &view, light, 8, 8, 6)
         });
-        let (v, ix) = crate::accel::bvh::build::testutil::soup(
-            &crate::accel::bvh::build::testutil::deep_tris(),
-        );
+        let (v, ix) = crate::accel::testkit::soup(&crate::accel::testkit::deep_tris());
         let deep = |_: &BvhView<'_>| {
             vec![RaySet {
                 name: "deep",
@@ -1193,9 +1191,9 @@ mod tests {
     #[test]
     #[ignore]
     fn packet_speed() {
-        use crate::accel::bvh::traverse_masked::tests::camera;
         use crate::accel::bvh::{BvhOptions, traverse_masked, traverse_simd as bvh_simd};
         use crate::accel::kd::traverse_simd;
+        use crate::accel::testkit::camera;
         use std::time::Instant;
         let s = crate::scenes::builtin("balls").unwrap();
         let (w, h) = (512u32, 512u32);

@@ -346,13 +346,13 @@ fn walk<T: TriangleTest, const ANY: bool>(
 pub(crate) mod tests {
     use super::*;
     use crate::accel::bvh::BvhView;
-    use crate::accel::bvh::build::testutil::Store as BvhStore;
-    use crate::accel::bvh::traverse_masked::tests::{built as bvh_built, packets, ray_sets};
-    use crate::accel::bvh::traverse_single::tests::{Rng, test_rays, tris_of};
     use crate::accel::kd::KdParams;
     use crate::accel::kd::build::build;
     use crate::accel::kd::build::testutil::Store;
     use crate::accel::kd::traverse_single::{self, tests::same};
+    use crate::accel::testkit::Store as BvhStore;
+    use crate::accel::testkit::{Rng, test_rays, tris_of};
+    use crate::accel::testkit::{built as bvh_built, packets, ray_sets};
     use crate::geom::TriangleTest;
     use crate::geom::lane::mask_from_bits;
     use crate::geom::{Mt, Pt, Ray, Scene, TriTest, Wt};
@@ -504,7 +504,7 @@ pub(crate) mod tests {
     /// and a tree at the depth limit.
     #[test]
     fn simd_matches_single_lattice_and_edge_cases() {
-        let (v, ix, sets) = crate::accel::bvh::traverse_masked::tests::lattice();
+        let (v, ix, sets) = crate::accel::testkit::lattice();
         for_tests(&v, &ix, 0, &|k: Check<'_>| {
             for set in &sets {
                 let (mut quads, mut active) = (Vec::new(), Vec::new());
@@ -524,9 +524,7 @@ pub(crate) mod tests {
         let (v, ix) = ties();
         check_all("ties", &v, &ix, &[view], Vec3::new(0.2, 0.2, 4.0));
         check_all("empty", &[], &[], &[view], Vec3::ONE);
-        let (v, ix) = crate::accel::bvh::build::testutil::soup(
-            &crate::accel::bvh::build::testutil::deep_tris(),
-        );
+        let (v, ix) = crate::accel::testkit::soup(&crate::accel::testkit::deep_tris());
         let rays = deep_rays(32);
         for_tests(&v, &ix, MAX_DEPTH as u32, &|k: Check<'_>| {
             let quads: Vec<Ray4> = rays
@@ -570,7 +568,7 @@ pub(crate) mod tests {
             30
         ]);
         tris.reverse();
-        crate::accel::bvh::build::testutil::soup(&tris)
+        crate::accel::testkit::soup(&tris)
     }
 
     /// `side` x `side` rays from the origin down the chain of `deep_tris`

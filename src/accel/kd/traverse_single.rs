@@ -171,10 +171,10 @@ pub(crate) fn from_node<T: TriangleTest, const ANY: bool>(
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;
-    use crate::accel::bvh::traverse_single::tests::{test_rays, tris_of};
     use crate::accel::kd::KdParams;
     use crate::accel::kd::build::build;
     use crate::accel::kd::build::testutil::Store;
+    use crate::accel::testkit::{test_rays, tris_of};
     use crate::geom::{Mt, Pt, Scene, TriTest, Wt};
 
     /// Nearest (tie rule) hit by testing every stored triangle.
