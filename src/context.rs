@@ -6,7 +6,7 @@ use crate::accel::bvh::{self, Bvh, BvhInfo, BvhParams, BvhPools};
 use crate::accel::grid::{self, Grid, GridInfo, GridParams, GridPools};
 use crate::accel::kd::{self, KdInfo, KdParams, KdPools, KdTree};
 use crate::accel::pgrid::{self, Pgrid, PgridParams, PgridPools, SceneInfo};
-use crate::accel::slot::{SLOT_SCRATCH_BYTES, Slot};
+use crate::accel::slot::{ACCEL_SCRATCH_BYTES, Slot, max};
 use crate::counters::{elapsed_ns, now};
 use crate::error::{Error, Pool, Result};
 use crate::geom::{Hit, Hit4, Ray, Scene};
@@ -19,6 +19,16 @@ use crate::render::{self, Band, Frame, PointLight, PrimaryRays, TileParams, Trac
 pub use crate::trace::SceneTracer;
 pub use crate::trace::scene::{BvhTracer, GridTracer, KdTracer};
 use crate::trace::{Counters, Method, TraceParams, batch_on};
+
+/// Scratch bytes of one thread slot: the most a caller of the packet
+/// driver holds (`trace::batch_on`'s packet, a render tile, a Whitted
+/// tile's bounce levels, a deferred tile) plus what the driver and a
+/// family take under it (`accel::slot::ACCEL_SCRATCH_BYTES`).
+pub const SLOT_SCRATCH_BYTES: usize = (max(
+    max(crate::trace::scene::SCRATCH, render::SCRATCH),
+    max(whitted::SCRATCH, deferred::SCRATCH),
+) + ACCEL_SCRATCH_BYTES)
+    .next_multiple_of(crate::mem::arena::ARENA_ALIGN);
 
 /// Pool sizes derived from `Limits`, in the order they are carved. A
 /// structure left out of `Limits::structures` gets empty pools.

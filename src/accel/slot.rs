@@ -2,32 +2,24 @@
 //! its scratch (`mem::scratch`), where packets, hits, masks, traversal
 //! state and bounce levels live instead of on the caller's stack.
 //!
-//! `SLOT_SCRATCH_BYTES` is the scratch of one slot: the deepest chain of
-//! scratch a call can take (a caller's packets, the driver's tiny-lane
-//! split, a family's traversal), each part a constant of the module that
-//! takes it. `required_bytes` counts it once per slot.
+//! `ACCEL_SCRATCH_BYTES` is what the packet driver and a family's
+//! traversal take at most (the driver's tiny-lane split, then the family's
+//! arrays), each part a constant of the module that takes it. A context's
+//! slot adds what its callers (`trace::batch_on`, the renderers) hold on
+//! top: `context::SLOT_SCRATCH_BYTES`, counted once per slot in
+//! `required_bytes`.
 #![forbid(unsafe_code)]
 
 use super::mailbox::Mailbox;
 use crate::mem::Scratch;
 
-/// Scratch bytes of one thread slot.
-pub const SLOT_SCRATCH_BYTES: usize = (caller_max() + super::packet::SCRATCH + family_max())
-    .next_multiple_of(crate::mem::arena::ARENA_ALIGN);
+/// Scratch bytes the packet driver and any family's packet traversal take
+/// at most (a call from outside the renderers needs no more).
+pub const ACCEL_SCRATCH_BYTES: usize = super::packet::SCRATCH + family_max();
 
-const fn max(a: usize, b: usize) -> usize {
+/// The larger of two sizes (const).
+pub const fn max(a: usize, b: usize) -> usize {
     if a > b { a } else { b }
-}
-
-/// The most any caller of the packet driver holds while it runs.
-const fn caller_max() -> usize {
-    max(
-        max(crate::trace::scene::SCRATCH, crate::render::SCRATCH),
-        max(
-            crate::render::whitted::SCRATCH,
-            crate::render::deferred::SCRATCH,
-        ),
-    )
 }
 
 /// The most any family's packet traversal takes.
@@ -98,13 +90,13 @@ pub struct SlotBuf {
 #[cfg(feature = "std")]
 impl SlotBuf {
     /// A mailbox of `stamps` stamps (one per triangle of the structure a
-    /// CGT packet with the mailbox traces; 0 for none) and a full slot's
-    /// scratch.
+    /// CGT packet with the mailbox traces; 0 for none) and the scratch of
+    /// the packet driver and a traversal (`ACCEL_SCRATCH_BYTES`).
     pub fn new(stamps: usize) -> SlotBuf {
         SlotBuf {
             stamps: std::vec![0; stamps],
             packet: 0,
-            scratch: std::vec![0; SLOT_SCRATCH_BYTES],
+            scratch: std::vec![0; ACCEL_SCRATCH_BYTES],
         }
     }
 

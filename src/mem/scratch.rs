@@ -7,7 +7,7 @@
 //! borrowed from the parent, so a callee can only use what its caller left
 //! and everything is given back when the borrows end. Nothing is freed and
 //! nothing allocates; how many bytes a slot needs is a constant of the code
-//! (`accel::slot::SLOT_SCRATCH_BYTES`), counted in `required_bytes`.
+//! (`context::SLOT_SCRATCH_BYTES`), counted in `required_bytes`.
 
 use core::mem::{MaybeUninit, align_of, size_of};
 
