@@ -107,6 +107,25 @@ fn quieted<A: Accel, T: TriangleTest, const ANY: bool>(
     }
 }
 
+/// The coherence and budget fallbacks of every family's packets: each
+/// live lane traced by the family's single ray (its result replaces the
+/// lane's hit; from the root, the same hit as from any entry point). The
+/// packet counted these rays already, the single ray counts them again, so
+/// they are taken off once here.
+#[inline(never)]
+pub fn alone<A: Accel, T: TriangleTest, const ANY: bool>(
+    a: &A,
+    rays: &[Ray4],
+    live: &[M4],
+    hits: &mut [Hit4],
+    ctr: &mut Counters,
+) {
+    let n = fallback::each_lane(live, |q, i| {
+        hits[q].set_lane(i, single::<A, T, ANY>(a, &rays[q].lane(i), ctr));
+    });
+    ctr.rays -= n;
+}
+
 /// The family's single ray: nearest hit, or with `ANY` some hit.
 #[inline(always)]
 fn single<A: Accel, T: TriangleTest, const ANY: bool>(a: &A, r: &Ray, c: &mut Counters) -> Hit {

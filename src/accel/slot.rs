@@ -63,6 +63,24 @@ impl<'s> Slot<'s> {
         self.reborrow().take(n, fill)
     }
 
+    /// `split` with value `i` being `value(i)` (`Scratch::take_from`).
+    #[inline]
+    pub fn split_from<T: Copy>(
+        &mut self,
+        n: usize,
+        value: impl FnMut(usize) -> T,
+    ) -> (&mut [T], Slot<'_>) {
+        let s = self.reborrow();
+        let (vals, scratch) = s.scratch.take_from(n, value);
+        (
+            vals,
+            Slot {
+                mailbox: s.mailbox,
+                scratch,
+            },
+        )
+    }
+
     /// `split` for all of `'s` (`Scratch::take`): a function can carve
     /// several arrays and hand them and the rest back to its caller.
     #[inline]

@@ -72,6 +72,20 @@ impl<'a> Scratch<'a> {
     /// `const`'s address) no copy of it is made on the caller's stack.
     #[inline]
     pub fn take_copies<T: Copy>(self, n: usize, fill: &T) -> (&'a mut [T], Scratch<'a>) {
+        self.take_from(n, |_| *fill)
+    }
+
+    /// `n` values, value `i` being `value(i)` (each written once: no fill
+    /// before the real values), from the front, and the rest.
+    ///
+    /// # Panics
+    /// As `take`.
+    #[inline]
+    pub fn take_from<T: Copy>(
+        self,
+        n: usize,
+        mut value: impl FnMut(usize) -> T,
+    ) -> (&'a mut [T], Scratch<'a>) {
         let pad = self.buf.as_ptr().align_offset(align_of::<T>());
         let need = n
             .checked_mul(size_of::<T>())
@@ -91,7 +105,7 @@ impl<'a> Scratch<'a> {
             // holds `n * size_of::<T>()` bytes borrowed exclusively here, so
             // every `p.add(i)`, i < n, is in bounds and writable. T is Copy:
             // overwriting earlier contents drops nothing.
-            unsafe { p.add(i).write(*fill) };
+            unsafe { p.add(i).write(value(i)) };
         }
         // SAFETY: the `n` values were all written just above; the slice
         // borrows `head`, exclusively ours for 'a.

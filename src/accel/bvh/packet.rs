@@ -21,7 +21,6 @@
 #![forbid(unsafe_code)]
 
 use super::frustum::Frustum;
-use super::traverse_single;
 use super::{BvhNode, BvhView, MAX_DEPTH, TriangleTest};
 use crate::accel::entry::EntryPoint;
 use crate::accel::fallback;
@@ -66,14 +65,6 @@ pub(crate) struct QuadBox {
 }
 
 impl QuadBox {
-    /// What a packet's scratch holds before its quads are prepared.
-    const ZERO: QuadBox = QuadBox {
-        org: [F4::ZERO; 3],
-        rcp: [F4::ZERO; 3],
-        neg: [M4::FALSE; 3],
-        tmin: F4::ZERO,
-    };
-
     #[inline(always)]
     pub(crate) fn new(r: &Ray4) -> QuadBox {
         let one = F4::ONE;
@@ -203,13 +194,13 @@ fn packet<W: Walk, T: TriangleTest, const ANY: bool, const Q: usize>(
         return;
     };
     if !lanes.coherent {
-        return alone::<T, ANY>(b, rays, live, hits, ctr);
+        return crate::accel::packet::alone::<BvhView, T, ANY>(b, rays, live, hits, ctr);
     }
-    // Filled with anything cheap: `Packet::new` writes every quad.
-    let (qb, mut slot) = slot.split(nq, QuadBox::ZERO);
-    let pre0 = T::prepare(&RayLanes::from_ray4(&rays[0]));
-    let (pre, mut slot) = slot.split(nq, pre0);
-    let (tfar, mut slot) = slot.split(nq, F4::ZERO);
+    // Per quad: slab data, triangle-test precomputation, far ends, each
+    // written once.
+    let (qb, mut slot) = slot.split_from(nq, |q| QuadBox::new(&rays[q]));
+    let (pre, mut slot) = slot.split_from(nq, |q| T::prepare(&RayLanes::from_ray4(&rays[q])));
+    let (tfar, mut slot) = slot.split_from(nq, |q| rays[q].tmax);
     let quads = Quads {
         live,
         qb,
@@ -218,29 +209,6 @@ fn packet<W: Walk, T: TriangleTest, const ANY: bool, const Q: usize>(
     };
     let mut p = Packet::<T, Q>::new(b, rays, opt, lanes, quads, ctr);
     W::walk::<T, ANY, Q>(&mut p, b, rays, hits, start, &mut slot, ctr);
-}
-
-/// The coherence fallback (`trace::fallback`): every live lane traced by
-/// `traverse_single` (from the root: the same hit as from any entry point).
-#[inline(never)]
-pub(crate) fn alone<T: TriangleTest, const ANY: bool>(
-    b: &BvhView<'_>,
-    rays: &[Ray4],
-    live: &[M4],
-    hits: &mut [Hit4],
-    ctr: &mut Counters,
-) {
-    let n = fallback::each_lane(live, |q, i| {
-        let ray = rays[q].lane(i);
-        let h = if ANY {
-            traverse_single::any_hit::<T>(b, &ray, ctr)
-        } else {
-            traverse_single::intersect::<T>(b, &ray, ctr)
-        };
-        hits[q].set_lane(i, h);
-    });
-    // The single ray counted these rays again.
-    ctr.rays -= n;
 }
 
 /// A packet's live lanes, before its other per-quad arrays exist.
@@ -363,9 +331,8 @@ pub(crate) struct Packet<'s, T: TriangleTest, const Q: usize> {
 }
 
 impl<'s, T: TriangleTest, const Q: usize> Packet<'s, T, Q> {
-    /// The packet of coherent `lanes` (`Lanes::new`): every quad's slab
-    /// data, precomputation and far ends written to `quads`, and with
-    /// `opt.bvh.culling` its frustum.
+    /// The packet of coherent `lanes` (`Lanes::new`) over its prepared
+    /// `quads`, and with `opt.bvh.culling` its frustum.
     fn new(
         b: &BvhView<'_>,
         rays: &[Ray4],
@@ -390,12 +357,6 @@ impl<'s, T: TriangleTest, const Q: usize> Packet<'s, T, Q> {
         } else {
             None
         };
-        let per_quad = qb.iter_mut().zip(pre.iter_mut()).zip(tfar.iter_mut());
-        for (((qb, pre), tfar), r) in per_quad.zip(rays) {
-            *qb = QuadBox::new(r);
-            *pre = T::prepare(&RayLanes::from_ray4(r));
-            *tfar = r.tmax;
-        }
         Packet {
             nq,
             qb,

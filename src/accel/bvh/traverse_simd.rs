@@ -89,7 +89,7 @@ fn quad<T: TriangleTest, const ANY: bool>(
         // out of the quad's arithmetic.
         let tiny = fallback::tiny(fallbacks, r, live);
         if tiny.any() {
-            super::packet::alone::<T, ANY>(
+            crate::accel::packet::alone::<BvhView, T, ANY>(
                 b,
                 core::slice::from_ref(r),
                 &[tiny],
@@ -110,7 +110,7 @@ fn quad<T: TriangleTest, const ANY: bool>(
         ) {
             walk::<T, ANY>(b, r, live, &mut best, ctr);
         } else {
-            super::packet::alone::<T, ANY>(
+            crate::accel::packet::alone::<BvhView, T, ANY>(
                 b,
                 core::slice::from_ref(r),
                 &[live],

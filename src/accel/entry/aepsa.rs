@@ -41,9 +41,7 @@ pub fn aepsa<E: EntryTree + ?Sized>(
     neg: [bool; 3],
     ctr: &mut Counters,
 ) -> Option<EntryPoint> {
-    let r = search(tree, f, neg);
-    r.record(tree, ctr);
-    r.entry
+    aepsa_in(tree, f, neg, &mut CandidateQueue::new(), ctr)
 }
 
 /// `aepsa` with phase 1's queue in `q` (the packet driver's, in the

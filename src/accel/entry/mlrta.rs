@@ -36,9 +36,7 @@ pub fn mlrta<E: EntryTree + ?Sized>(
     neg: [bool; 3],
     ctr: &mut Counters,
 ) -> Option<EntryPoint> {
-    let r = search(tree, f, neg);
-    r.record(tree, ctr);
-    r.entry
+    mlrta_in(tree, f, neg, &mut CandidateQueue::new(), ctr)
 }
 
 /// `mlrta` with phase 1's queue in `q` (the packet driver's, in the

@@ -273,7 +273,7 @@ fn packet<T: TriangleTest, const ANY: bool>(
     // Incoherent packets (`trace::fallback`): every lane still live (all
     // move forward along K) by the 3DDDA.
     if !fallback::coherent(opt.fallbacks, rays, live, info.bounds.diagonal().length()) {
-        return alone::<T, ANY>(g, rays, live, hits, ctr);
+        return crate::accel::packet::alone::<GridView, T, ANY>(g, rays, live, hits, ctr);
     }
     // The budget (`fallback::CGT_BUDGET`): quad-cells spent and allowed.
     let budget = opt.fallbacks;
@@ -523,7 +523,9 @@ fn packet<T: TriangleTest, const ANY: bool>(
                     * lanes as f32
                     * (fallback::CGT_STEP + refs as f32 / cells);
                 if spent > allowed {
-                    return alone::<T, ANY>(g, rays, live, hits, ctr);
+                    return crate::accel::packet::alone::<GridView, T, ANY>(
+                        g, rays, live, hits, ctr,
+                    );
                 }
             }
         }
@@ -546,30 +548,6 @@ fn packet<T: TriangleTest, const ANY: bool>(
 #[inline]
 fn live_lanes(live: &[M4]) -> u32 {
     live.iter().map(|m| m.bitmask().count_ones()).sum()
-}
-
-/// The budget fallback: every live lane traced alone by the 3DDDA (its
-/// result replaces what the packet found so far); lanes no longer live are
-/// done and exact.
-#[inline(never)]
-fn alone<T: TriangleTest, const ANY: bool>(
-    g: &GridView<'_>,
-    rays: &[Ray4],
-    live: &[M4],
-    hits: &mut [Hit4],
-    ctr: &mut Counters,
-) {
-    let n = fallback::each_lane(live, |q, i| {
-        let ray = rays[q].lane(i);
-        let h = if ANY {
-            traverse_single::any_hit::<T>(g, &ray, ctr)
-        } else {
-            traverse_single::intersect::<T>(g, &ray, ctr)
-        };
-        hits[q].set_lane(i, h);
-    });
-    // The 3DDDA counted these rays again.
-    ctr.rays -= n;
 }
 
 /// After the slab ending at travel-frame plane `next`: drop lanes whose hit
