@@ -950,6 +950,8 @@ typedef struct {
     int check_rays;
     int compact_shadows;
     const char *summary;
+    const char *profile; /* --profile NAME: time one configuration only (for perf) */
+    int profile_shadow;  /* --profile-shadow: its shadow rays, not camera rays */
 } Options;
 
 /* ---- per-scene run --------------------------------------------------------------------- */
@@ -1121,7 +1123,12 @@ static void time_sheaf_builds(Bench *b)
     /* Builds, median of reps (sheaf builds on the calling thread). */
     for (int st = 0; st < NSTRUCT; st++) {
         double t[MAX_REPS];
-        for (int r = 0; r < b->reps; r++) {
+        /* --profile: each structure once, the kd-tree only when profiled
+         * (its build would dominate the profile). */
+        int reps = b->o->profile ? 1 : b->reps;
+        if (b->o->profile && st == S_KD && strncmp(b->o->profile, "kd-", 3))
+            continue;
+        for (int r = 0; r < reps; r++) {
             double t0 = now_s();
             sheaf_status e = st == S_GRID ? sheaf_context_build_grid(b->ctx, NULL)
                            : st == S_BVH  ? sheaf_context_build_bvh(b->ctx, NULL)
@@ -1129,7 +1136,7 @@ static void time_sheaf_builds(Bench *b)
             t[r] = now_s() - t0;
             check_sheaf(b->ctx, e, "build");
         }
-        b->build_ms[st] = 1e3 * median(t, b->reps);
+        b->build_ms[st] = 1e3 * median(t, reps);
         progress("  sheaf %s build %.1f ms\n", STRUCT_NAME[st], b->build_ms[st]);
     }
 }
@@ -1614,6 +1621,62 @@ static void finish_scene(Bench *b)
     sheaf_context_destroy(b->ctx);
 }
 
+/* --profile NAME: one configuration alone on one thread, reps times, so
+ * `perf stat` / `perf record` see nothing else: a sheaf method by its table
+ * name ("bvh-ranged 8x8") or "embree-N" (Embree LOW, rtcIntersectN /
+ * rtcOccludedN). Camera rays, or the shadow rays with --profile-shadow. */
+static void profile_one(Bench *b)
+{
+    const Options *o = b->o;
+    Job j = b->job;
+    j.hits = b->hits;
+    size_t n = b->N;
+    EScene es;
+    RTCDevice dev = NULL;
+    int w = 0;
+    if (!strncmp(o->profile, "embree-", 7)) {
+        w = atoi(o->profile + 7);
+        if (w != 1 && w != 4 && w != 8 && w != 16) die("--profile embree-N: N is 1, 4, 8 or 16");
+        dev = rtcNewDevice("threads=1");
+        if (!dev) die("rtcNewDevice failed");
+        embree_build(dev, &b->s, 0, &es);
+        memset(&j, 0, sizeof j);
+        j.lib = LIB_EMBREE;
+        j.s = &b->s;
+        j.scene = es.scene;
+        j.width = w;
+        j.kind = o->profile_shadow ? K_OCCLUDED : K_TRACE;
+        j.rays = o->profile_shadow ? b->srays : b->rays;
+        j.n = o->profile_shadow ? b->NSL : b->N;
+        j.prim = b->eprim = xmalloc(b->N * sizeof *b->eprim);
+        j.t = b->et = xmalloc(b->N * sizeof *b->et);
+        j.occ = b->socc;
+        n = o->profile_shadow ? b->NS : b->N;
+    } else {
+        const Cfg *cfgs = o->profile_shadow ? SHADOW_CFGS : PRIMARY_CFGS;
+        size_t nc = o->profile_shadow ? N_SHADOW_CFGS : N_PRIMARY_CFGS, c = 0;
+        while (c < nc && strcmp(cfgs[c].name, o->profile)) c++;
+        if (c == nc) die("--profile: no configuration named \"%s\" (see the tables' names)", o->profile);
+        j.params = cfg_params(&cfgs[c], o->profile_shadow ? SHEAF_RAY_KIND_SHADOW : SHEAF_RAY_KIND_PRIMARY);
+        if (o->profile_shadow) {
+            j.kind = cfgs[c].occ_via_trace ? K_TRACE_OCC : K_OCCLUDED;
+            j.occ_method = cfgs[c].method;
+            j.occ_via_trace = cfgs[c].occ_via_trace;
+            j.rays = b->srays;
+            j.n = b->NSL;
+            j.occ = b->socc;
+            n = b->NS;
+        }
+    }
+    double t = time_job(&j, 1, b->reps);
+    printf("profile %s, %s rays: %.2f Mrays/s (median of %d; load average %.2f)\n", o->profile,
+           o->profile_shadow ? "shadow" : "camera", mrays(n, t), b->reps, load_average());
+    if (dev) {
+        embree_release(&es);
+        rtcReleaseDevice(dev);
+    }
+}
+
 static void run_scene(const char *path, const Options *o)
 {
     Bench *b = calloc(1, sizeof *b);
@@ -1623,6 +1686,11 @@ static void run_scene(const char *path, const Options *o)
     setup_scene(b, path);
     time_sheaf_builds(b);
     make_reference(b);
+    if (o->profile) {
+        profile_one(b);
+        free(b);
+        return;
+    }
     check_rays(b);
     time_sheaf_methods(b);
     time_embree(b);
@@ -1648,6 +1716,9 @@ static void usage(void)
             "  --compact-shadows  pack the shadow rays (default: one slot per camera ray, the\n"
             "               renderer's packets, inactive slots for misses and unlit points)\n"
             "  --summary F  key=value agreement and ratio lines to F\n"
+            "  --profile NAME  time one configuration alone on 1 thread (for perf): a sheaf\n"
+            "               method by its table name, or embree-1/4/8/16 (Embree LOW)\n"
+            "  --profile-shadow  with --profile: the shadow rays instead of camera rays\n"
             "  --explain    print every disagreement no tie, edge or end explains\n");
     exit(1);
 }
@@ -1696,6 +1767,10 @@ int main(int argc, char **argv)
             o.check_rays = 0;
         } else if (!strcmp(a, "--summary") && i + 1 < argc) {
             o.summary = argv[++i];
+        } else if (!strcmp(a, "--profile") && i + 1 < argc) {
+            o.profile = argv[++i];
+        } else if (!strcmp(a, "--profile-shadow")) {
+            o.profile_shadow = 1;
         } else if (a[0] == '-') {
             usage();
         } else {
@@ -1752,7 +1827,8 @@ int main(int argc, char **argv)
 
     for (int i = first; i < argc; i++) {
         const char *a = argv[i];
-        if (!strcmp(a, "--reps") || !strcmp(a, "--threads") || !strcmp(a, "--size") || !strcmp(a, "--summary")) {
+        if (!strcmp(a, "--reps") || !strcmp(a, "--threads") || !strcmp(a, "--size") || !strcmp(a, "--summary") ||
+            !strcmp(a, "--profile")) {
             i++;
             continue;
         }
