@@ -337,6 +337,43 @@ typedef uint32_t sheaf_entry_search;
 #endif // __cplusplus
 
 /**
+ * Lane width of packet traversals (the crate's `Isa`; Embree's `isa=`).
+ * Results are bitwise equal at every level.
+ */
+enum sheaf_isa
+#if defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+  : uint32_t
+#endif // defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+ {
+    /**
+     * The CPU's widest level, capped by the `SHEAF_ISA` environment
+     * variable (`sse2`, `avx2` or `avx512`; read when the first context is
+     * created).
+     */
+    SHEAF_ISA_AUTO = 0,
+    /**
+     * 4 lanes (one 2x2 quad per operation): SSE2 on x86-64, NEON or
+     * scalar elsewhere.
+     */
+    SHEAF_ISA_SSE2 = 1,
+    /**
+     * 8 lanes (two quads), x86 with AVX2.
+     */
+    SHEAF_ISA_AVX2 = 2,
+    /**
+     * 16 lanes (four quads), x86 with AVX-512F.
+     */
+    SHEAF_ISA_AVX512 = 3,
+};
+#ifndef __cplusplus
+#if __STDC_VERSION__ >= 202311L
+typedef enum sheaf_isa sheaf_isa;
+#else
+typedef uint32_t sheaf_isa;
+#endif // __STDC_VERSION__ >= 202311L
+#endif // __cplusplus
+
+/**
  * Where a fault can be injected.
  */
 typedef struct Point Point;
@@ -579,6 +616,12 @@ typedef struct sheaf_trace_params {
      * differ by more than this ratio (section 4.7); 0 disables splitting.
      */
     float split;
+    /**
+     * Lane width of packet traversals (a `sheaf_isa`): `AUTO` (0, the
+     * default) or a forced level, which the CPU must support
+     * (`SHEAF_STATUS_INVALID_ARGUMENT` otherwise).
+     */
+    sheaf_isa isa;
 } sheaf_trace_params;
 
 /**

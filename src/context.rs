@@ -272,8 +272,11 @@ pub struct Context<'a> {
 
 impl<'a> Context<'a> {
     /// Create a context over `buf` (at least `required_bytes(limits)` bytes,
-    /// 64-byte aligned). Never allocates.
+    /// 64-byte aligned). Never allocates (but the process's first context
+    /// copies `SHEAF_ISA` when that is set: `crate::isa`).
     pub fn new_in(buf: &'a mut [u8], limits: &Limits) -> Result<Context<'a>> {
+        // SHEAF_ISA, once per process (allocates only when it is set).
+        crate::isa::read_env();
         let need = required_bytes(limits)?;
         if buf.len() < need {
             return Err(Error::BufferTooSmall {
@@ -664,7 +667,7 @@ impl<'a> Context<'a> {
                 needed: 1,
                 available: 0,
             })?;
-            batch_on(&tr, &mut slot, p, rays.len(), &|i| rays[i], out, any)
+            batch_on(&tr, &mut slot, p, rays.len(), |i| rays[i], out, any)
         };
         self.stats.trace_ns = elapsed_ns(t);
         self.stats.counters = ctr;
@@ -726,7 +729,7 @@ impl<'a> Context<'a> {
         out: &mut dyn FnMut(usize, &Hit4, usize),
         any: bool,
     ) -> Result<Counters> {
-        self.trace_each(Some(slot), p, rays.len(), &|i| rays[i], out, any)
+        self.trace_each(Some(slot), p, rays.len(), |i| rays[i], out, any)
     }
 
     /// Trace (`any`: test occlusion of) `count` rays, ray `i` being
@@ -739,8 +742,8 @@ impl<'a> Context<'a> {
         slot: Option<u32>,
         p: &TraceParams,
         count: usize,
-        read: &dyn Fn(usize) -> Ray,
-        out: &mut dyn FnMut(usize, &Hit4, usize),
+        read: impl Fn(usize) -> Ray,
+        out: impl FnMut(usize, &Hit4, usize),
         any: bool,
     ) -> Result<Counters> {
         p.validate()?;

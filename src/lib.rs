@@ -55,6 +55,8 @@ pub mod ffi;
 #[cfg_attr(not(feature = "study"), doc(hidden))]
 pub mod geom;
 #[cfg_attr(not(feature = "study"), doc(hidden))]
+pub mod isa;
+#[cfg_attr(not(feature = "study"), doc(hidden))]
 pub mod math;
 #[cfg_attr(not(feature = "study"), doc(hidden))]
 pub mod mem;
@@ -79,6 +81,7 @@ pub use context::OwnedContext;
 pub use context::{Context, Stats, required_bytes};
 pub use error::{Error, Pool, Result};
 pub use geom::{Hit, Ray, Scene, TriTest};
+pub use isa::Isa;
 pub use mem::Limits;
 pub use render::deferred::{
     DeferredInfo, DeferredJob, OnCaller, PhaseTimes, PrimaryPass, ShadowPass, Workers,

@@ -71,7 +71,7 @@ impl Run<'_> {
         let want = single::<T>(&self.g, rays, any);
         let mut total = Counters::default();
         for n in [2usize, 4, 8, 16, 32] {
-            if w % n != 0 || h % n != 0 {
+            if !w.is_multiple_of(n) || !h.is_multiple_of(n) {
                 continue;
             }
             for (mc, slot, cull) in [

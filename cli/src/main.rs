@@ -235,6 +235,7 @@ impl TraceOpts {
             entry: self.entry.search(),
             split: self.split,
             fallbacks: true,
+            isa: sheaf::Isa::Auto,
         };
         let shadow = sheaf::TraceParams {
             method: self.shadow_method.unwrap_or(self.method).method(),

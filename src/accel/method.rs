@@ -127,6 +127,10 @@ pub struct TraceParams {
     /// can measure what they save. Results are the same either way. The C
     /// ABI keeps them on.
     pub fallbacks: bool,
+    /// Lane width of the packet traversals (`crate::isa`): `Auto` (the
+    /// CPU's widest, capped by `SHEAF_ISA`) or a forced level. Results are
+    /// bitwise equal at every level.
+    pub isa: crate::isa::Isa,
 }
 
 impl Default for TraceParams {
@@ -139,6 +143,7 @@ impl Default for TraceParams {
             entry: EntrySearch::None,
             split: 2.0,
             fallbacks: true,
+            isa: crate::isa::Isa::Auto,
         }
     }
 }
@@ -207,6 +212,7 @@ impl TraceParams {
                 "split must be 0 or a finite ratio >= 1",
             ));
         }
+        crate::isa::resolve(self.isa)?;
         Ok(())
     }
 }

@@ -474,7 +474,11 @@ pub fn test_rays(tris: &[[[f32; 3]; 3]], views: &[crate::scenes::View], seed: u6
             let keep = (r.next() % 3) as usize;
             for a in 0..3 {
                 if a != keep && (i % 2 == 0 || a == (keep + 1) % 3) {
-                    dir[a] = if r.next() % 2 == 0 { 0.0 } else { -0.0 };
+                    dir[a] = if r.next().is_multiple_of(2) {
+                        0.0
+                    } else {
+                        -0.0
+                    };
                 }
             }
         }

@@ -305,7 +305,7 @@ pub extern "C" fn sheaf_context_create_in(
         let limits = read_in(limits)?.to_core()?;
         check_non_null!(out);
         let need = total_bytes(&limits)?;
-        if (buf as usize) % SHEAF_CONTEXT_ALIGN != 0 {
+        if !(buf as usize).is_multiple_of(SHEAF_CONTEXT_ALIGN) {
             return Err(Error::Misaligned {
                 required: SHEAF_CONTEXT_ALIGN as u32,
             });
@@ -505,7 +505,7 @@ pub extern "C" fn sheaf_context_set_geometry(
             check_non_null!(indices);
         }
         // The stride is checked before any slice is formed over the buffer.
-        if vertex_stride_bytes < 12 || vertex_stride_bytes % 4 != 0 {
+        if vertex_stride_bytes < 12 || !vertex_stride_bytes.is_multiple_of(4) {
             return Err(Error::InvalidArgument(
                 "vertex stride must be >= 12 and a multiple of 4",
             ));
@@ -684,7 +684,7 @@ fn trace_impl(
     if overlaps(rays.cast(), rb, hits.cast_const().cast(), hb) {
         return Err(Error::InvalidArgument("rays and hits overlap"));
     }
-    trace_rays(h, slot, p, rays, count, false, &mut |i, hit| {
+    trace_rays(h, slot, p, rays, count, false, |i, hit| {
         // SAFETY: i < count, and `hits` was checked to be non-NULL (count
         // > 0) and to span count writable elements (C contract); unaligned
         // writes are allowed and it does not overlap the rays.
@@ -705,7 +705,7 @@ fn occluded_impl(
     if overlaps(rays.cast(), rb, occluded.cast_const(), count) {
         return Err(Error::InvalidArgument("rays and results overlap"));
     }
-    trace_rays(h, slot, p, rays, count, true, &mut |i, hit| {
+    trace_rays(h, slot, p, rays, count, true, |i, hit| {
         // SAFETY: i < count, `occluded` checked as `hits` in trace_impl.
         unsafe { occluded.add(i).write(u8::from(hit.is_hit())) }
     })
@@ -722,14 +722,14 @@ fn trace_rays(
     rays: *const sheaf_ray,
     count: usize,
     any: bool,
-    out: &mut dyn FnMut(usize, crate::geom::Hit),
+    mut out: impl FnMut(usize, crate::geom::Hit),
 ) -> Result<()> {
     // SAFETY: i < count for every call (trace_each reads rays 0..count
     // only); the caller checked `rays` spans count readable elements
     // (unaligned allowed).
     let read = |i: usize| Ray::from(unsafe { rays.add(i).read_unaligned() });
-    let mut emit = |i: usize, h4: &crate::geom::Hit4, lane: usize| out(i, h4.lane(lane));
-    h.ctx.trace_each(slot, p, count, &read, &mut emit, any)?;
+    let emit = |i: usize, h4: &crate::geom::Hit4, lane: usize| out(i, h4.lane(lane));
+    h.ctx.trace_each(slot, p, count, read, emit, any)?;
     Ok(())
 }
 

@@ -126,6 +126,8 @@ pub mod raw {
     pub type sheaf_ray_kind = u32;
     /// cbindgen:ignore
     pub type sheaf_entry_search = u32;
+    /// cbindgen:ignore
+    pub type sheaf_isa = u32;
 }
 
 /// Return `Err(Error::NullPointer)` from the enclosing function when any

@@ -190,7 +190,7 @@ impl sheaf_stats {
 const _: () = {
     use core::mem::{offset_of, size_of};
     assert!(offset_of!(sheaf_stats, build_ns) == 64);
-    assert!(size_of::<Counters>() % 8 == 0);
+    assert!(size_of::<Counters>().is_multiple_of(8));
     assert!(offset_of!(sheaf_stats, bvh_nodes) == offset_of!(sheaf_stats, trace_ns) + 8);
     assert!(offset_of!(sheaf_stats, kd_nodes) == offset_of!(sheaf_stats, bvh_build_ns) + 8);
     assert!(offset_of!(sheaf_stats, pgrid_triangles) == offset_of!(sheaf_stats, kd_build_ns) + 8);

@@ -5,6 +5,7 @@ use super::method::sheaf_method;
 use super::{check_non_null, flag, guard_free, raw, write_out};
 use crate::accel::entry::EntrySearch;
 use crate::error::{Error, Result};
+use crate::isa::Isa;
 use crate::trace::{CgtOptions, TraceParams};
 
 /// Entry-point search before each tree packet (the crate's `EntrySearch`).
@@ -36,6 +37,42 @@ impl sheaf_entry_search {
     }
 }
 
+/// Lane width of packet traversals (the crate's `Isa`; Embree's `isa=`).
+/// Results are bitwise equal at every level.
+#[repr(u32)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum sheaf_isa {
+    /// The CPU's widest level, capped by the `SHEAF_ISA` environment
+    /// variable (`sse2`, `avx2` or `avx512`; read when the first context is
+    /// created).
+    Auto = 0,
+    /// 4 lanes (one 2x2 quad per operation): SSE2 on x86-64, NEON or
+    /// scalar elsewhere.
+    Sse2 = 1,
+    /// 8 lanes (two quads), x86 with AVX2.
+    Avx2 = 2,
+    /// 16 lanes (four quads), x86 with AVX-512F.
+    Avx512 = 3,
+}
+
+impl sheaf_isa {
+    pub const fn of(i: Isa) -> sheaf_isa {
+        match i {
+            Isa::Auto => sheaf_isa::Auto,
+            Isa::Sse2 => sheaf_isa::Sse2,
+            Isa::Avx2 => sheaf_isa::Avx2,
+            Isa::Avx512 => sheaf_isa::Avx512,
+        }
+    }
+    pub fn to_core(raw: u32) -> Result<Isa> {
+        Isa::ALL
+            .iter()
+            .copied()
+            .find(|&i| sheaf_isa::of(i) as u32 == raw)
+            .ok_or(Error::InvalidArgument("unknown sheaf_isa"))
+    }
+}
+
 /// Method, packet side, CGT switches and BVH frustum settings for one class
 /// of rays (camera, shadow, or reflection and refraction). Start from `sheaf_trace_params_default`.
 #[repr(C)]
@@ -62,6 +99,10 @@ pub struct sheaf_trace_params {
     /// Split shadow packets whose hit points' distances from the light
     /// differ by more than this ratio (section 4.7); 0 disables splitting.
     pub split: f32,
+    /// Lane width of packet traversals (a `sheaf_isa`): `AUTO` (0, the
+    /// default) or a forced level, which the CPU must support
+    /// (`SHEAF_STATUS_INVALID_ARGUMENT` otherwise).
+    pub isa: raw::sheaf_isa,
 }
 
 impl sheaf_trace_params {
@@ -75,6 +116,7 @@ impl sheaf_trace_params {
             ray_kind: super::bvh::sheaf_ray_kind::of(p.bvh.kind) as u32,
             entry: sheaf_entry_search::of(p.entry) as u32,
             split: p.split,
+            isa: sheaf_isa::of(p.isa) as u32,
         }
     }
     /// The checked crate value.
@@ -99,6 +141,7 @@ impl sheaf_trace_params {
             split: self.split,
             // Always on in C (module `accel::fallback`).
             fallbacks: true,
+            isa: sheaf_isa::to_core(self.isa)?,
         };
         p.validate()?;
         Ok(p)

@@ -29,7 +29,7 @@ fn borrow<'a, T>(p: *const T, n: usize, what: &'static str) -> Result<&'a [T]> {
     if n == 0 {
         return Ok(&[]);
     }
-    if (p as usize) % core::mem::align_of::<T>() != 0 {
+    if !(p as usize).is_multiple_of(core::mem::align_of::<T>()) {
         return Err(Error::Misaligned {
             required: core::mem::align_of::<T>() as u32,
         });

@@ -195,6 +195,13 @@ pub fn common_origin(rays: &[Ray4], live: &[M4]) -> Option<[f32; 3]> {
     same.then_some(o)
 }
 
+/// `scale` when every live origin is `o`.
+fn scale_of(bounds: &Aabb, o: [f32; 3]) -> f64 {
+    let s = bounds.min.abs().max(bounds.max.abs()).max_element();
+    let a = o[0].abs().max(o[1].abs()).max(o[2].abs());
+    (s.max(a) as f64).max(f32::MIN_POSITIVE as f64)
+}
+
 /// Largest coordinate magnitude of the scene box and the live origins.
 fn scale(bounds: &Aabb, rays: &[Ray4], live: &[M4]) -> f64 {
     let mut s = bounds.min.abs().max(bounds.max.abs()).max_element();
@@ -333,7 +340,8 @@ impl Frustum {
             n[i] = ni;
             b[i] = dot(o, ni);
         }
-        let sc = scale(bounds, &rays[..nq], &live[..nq]);
+        // `scale` of the live origins, which all equal `o32`.
+        let sc = scale_of(bounds, o32);
         let eps = CULL_EPS * sc;
         // Farthest scene point from the apex: rays may stray outside the
         // cone by an angle `slack` only as far as that costs less than a
@@ -347,30 +355,35 @@ impl Frustum {
         }
         let far = math::sqrt64(far2);
         let tol = 0.1 * eps / far.max(eps);
-        // Every live ray inside, 4-wide: n_i . d <= 0 in f32, which may err
-        // by F32_ERR |d|; lanes outside are measured in f64.
-        let mut slack = 0.0f64;
+        // Every live ray inside, 4-wide in f32: x = max_i n_i . d / |d|, the
+        // sine of the largest angle by which a ray leaves a plane (squared
+        // here, its root taken once). With unit n_i the f32 value errs by
+        // less than F32_ERR (~10 ulps: the rounding of n_i, the dot product,
+        // the norm and the quotient), so `x + F32_ERR` bounds the true
+        // angle; rays beyond `tol`, and norms that overflow or vanish, give
+        // no frustum.
+        let nf = n.map(|ni| ni.map(|x| F4::splat(x as f32)));
+        let tol2 = F4::splat((tol * tol) as f32);
+        let mut worst2 = F4::ZERO;
         for (r, m) in rays[..nq].iter().zip(&live[..nq]) {
-            for ni in &n {
-                let d = r.dir[0] * F4::splat(ni[0] as f32)
-                    + r.dir[1] * F4::splat(ni[1] as f32)
-                    + r.dir[2] * F4::splat(ni[2] as f32);
-                let out = d.cmpgt(F4::ZERO) & *m;
-                if out.any() {
-                    for l in 0..4 {
-                        if out.test(l) {
-                            let dl = [r.dir[0][l] as f64, r.dir[1][l] as f64, r.dir[2][l] as f64];
-                            let x = dot(*ni, dl) / norm(dl);
-                            if !(x <= tol) {
-                                return None;
-                            }
-                            slack = slack.max(x);
-                        }
-                    }
+            let d = &r.dir;
+            let dot = |ni: &[F4; 3]| d[0] * ni[0] + d[1] * ni[1] + d[2] * ni[2];
+            let x = dot(&nf[0])
+                .max(dot(&nf[1]))
+                .max(dot(&nf[2]).max(dot(&nf[3])));
+            let out = (x.cmpgt(F4::ZERO) | x.is_nan_mask()) & *m;
+            if out.any() {
+                let len2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+                let xs2 = x * x / len2;
+                let ok = xs2.cmple(tol2) & len2.cmplt(F4::INFINITY) & len2.cmpgt(F4::ZERO);
+                if (out & !ok).any() {
+                    return None;
                 }
+                worst2 = F4::select(out, worst2.max(xs2), worst2);
             }
         }
-        let slack = slack + F32_ERR;
+        // One F32_ERR for the f32 angle, one for the f32 plane tests.
+        let slack = math::sqrt64(worst2.max_element() as f64) + 2.0 * F32_ERR;
         // Rays outside the planes by at most `slack` lie within about
         // `4 slack` of the corner cone (its corners are far from flat).
         Some(Self::finish(
@@ -437,7 +450,7 @@ impl Frustum {
             corner(ext[1], ext[3])?,
             corner(ext[0], ext[3])?,
         ];
-        let sc = scale(bounds, rays, live);
+        let sc = scale_of(bounds, o32);
         Some(Self::finish(
             FrustumKind::CommonOrigin,
             n,

@@ -172,16 +172,18 @@ impl Ray4 {
     /// Pack four rays (reciprocals computed here).
     #[inline]
     pub fn from_rays(r: &[Ray; 4]) -> Ray4 {
-        let c = |f: &dyn Fn(&Ray) -> f32| F4::new(f(&r[0]), f(&r[1]), f(&r[2]), f(&r[3]));
-        let org = [c(&|r| r.org[0]), c(&|r| r.org[1]), c(&|r| r.org[2])];
-        let dir = [c(&|r| r.dir[0]), c(&|r| r.dir[1]), c(&|r| r.dir[2])];
+        // Plain loads per lane (a 4x8 transpose the compiler can schedule).
+        let org =
+            core::array::from_fn(|a| F4::new(r[0].org[a], r[1].org[a], r[2].org[a], r[3].org[a]));
+        let dir: [F4; 3] =
+            core::array::from_fn(|a| F4::new(r[0].dir[a], r[1].dir[a], r[2].dir[a], r[3].dir[a]));
         let one = F4::ONE;
         Ray4 {
             org,
             dir,
             rcp: [one / dir[0], one / dir[1], one / dir[2]],
-            tmin: c(&|r| r.tmin),
-            tmax: c(&|r| r.tmax),
+            tmin: F4::new(r[0].tmin, r[1].tmin, r[2].tmin, r[3].tmin),
+            tmax: F4::new(r[0].tmax, r[1].tmax, r[2].tmax, r[3].tmax),
         }
     }
     /// Lane `i` as a `Ray`.

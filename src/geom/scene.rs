@@ -40,7 +40,7 @@ impl<'g> Scene<'g> {
         vertex_count: u32,
         indices: &'g [u32],
     ) -> Result<Self> {
-        if stride < 12 || stride % 4 != 0 {
+        if stride < 12 || !stride.is_multiple_of(4) {
             return Err(Error::InvalidArgument(
                 "vertex stride must be >= 12 and a multiple of 4",
             ));
@@ -56,7 +56,7 @@ impl<'g> Scene<'g> {
                 ));
             }
         }
-        if indices.len() % 3 != 0 {
+        if !indices.len().is_multiple_of(3) {
             return Err(Error::InvalidArgument(
                 "index count must be a multiple of 3",
             ));

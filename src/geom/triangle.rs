@@ -19,6 +19,7 @@
 //! barycentric weights `u` (second vertex) and `v` (third vertex).
 
 use crate::geom::lane::{F4, Lane};
+use crate::geom::wide::Wide;
 use bytemuck::{Pod, Zeroable};
 
 /// A triangle's three vertices, copied out of the caller's buffers at build.
@@ -335,6 +336,9 @@ pub trait TriangleTest: Copy + Default + Send + Sync + 'static {
     fn prim<'r>(s: TriStore<'r>, i: usize) -> &'r Self::Prim;
     fn prepare<L: Lane>(r: &RayLanes<L>) -> Self::Pre<L>;
     fn intersect<L: Lane>(r: &RayLanes<L>, pre: &Self::Pre<L>, tri: &Self::Prim) -> TriHit<L>;
+    /// The precomputation of a group of quads (`Wide::join`) from each
+    /// quad's: the same values, lane for lane.
+    fn join_pre<W: Wide>(pre: impl Fn(usize) -> Self::Pre<F4>) -> Self::Pre<W>;
 }
 
 /// Moller-Trumbore as a `TriangleTest`.
@@ -361,6 +365,8 @@ impl TriangleTest for Mt {
     fn intersect<L: Lane>(r: &RayLanes<L>, _: &(), tri: &TriVerts) -> TriHit<L> {
         moller_trumbore(r, tri)
     }
+    #[inline(always)]
+    fn join_pre<W: Wide>(_: impl Fn(usize)) {}
 }
 
 impl TriangleTest for Wt {
@@ -379,6 +385,15 @@ impl TriangleTest for Wt {
     fn intersect<L: Lane>(r: &RayLanes<L>, pre: &Shear<L>, tri: &TriVerts) -> TriHit<L> {
         watertight(r, pre, tri)
     }
+    #[inline(always)]
+    fn join_pre<W: Wide>(pre: impl Fn(usize) -> Shear<F4>) -> Shear<W> {
+        Shear {
+            kx: W::join_axis(|k| pre(k).kx),
+            ky: W::join_axis(|k| pre(k).ky),
+            kz: W::join_axis(|k| pre(k).kz),
+            s: core::array::from_fn(|a| W::join(|k| pre(k).s[a])),
+        }
+    }
 }
 
 impl TriangleTest for Pt {
@@ -395,6 +410,8 @@ impl TriangleTest for Pt {
     fn intersect<L: Lane>(r: &RayLanes<L>, _: &(), tri: &ProjTri) -> TriHit<L> {
         projection(r, tri)
     }
+    #[inline(always)]
+    fn join_pre<W: Wide>(_: impl Fn(usize)) {}
 }
 
 impl RayLanes<f32> {
@@ -417,6 +434,19 @@ impl RayLanes<F4> {
             dir: r.dir,
             tmin: r.tmin,
             tmax: r.tmax,
+        }
+    }
+}
+
+impl<W: Wide> RayLanes<W> {
+    /// The group of quads `r(0) .. r(G - 1)` (`Wide::join`).
+    #[inline(always)]
+    pub fn join<'a>(r: impl Fn(usize) -> &'a crate::geom::ray::Ray4) -> Self {
+        RayLanes {
+            org: core::array::from_fn(|a| W::join(|k| r(k).org[a])),
+            dir: core::array::from_fn(|a| W::join(|k| r(k).dir[a])),
+            tmin: W::join(|k| r(k).tmin),
+            tmax: W::join(|k| r(k).tmax),
         }
     }
 }

@@ -38,7 +38,7 @@ pub struct Arena<'a> {
 impl<'a> Arena<'a> {
     /// Wrap `buf`, which must start on a 64-byte boundary.
     pub fn new(buf: &'a mut [u8]) -> Result<Self> {
-        if (buf.as_ptr() as usize) % ARENA_ALIGN != 0 {
+        if !(buf.as_ptr() as usize).is_multiple_of(ARENA_ALIGN) {
             return Err(Error::Misaligned {
                 required: ARENA_ALIGN as u32,
             });

@@ -201,7 +201,7 @@ impl Limits {
         if self.max_threads == 0 || self.max_threads > 1024 {
             return Err(Error::InvalidArgument("max_threads must be in 1..=1024"));
         }
-        if self.max_tile < 2 || self.max_tile % 2 != 0 || self.max_tile > 1024 {
+        if self.max_tile < 2 || !self.max_tile.is_multiple_of(2) || self.max_tile > 1024 {
             return Err(Error::InvalidArgument(
                 "max_tile must be even and in 2..=1024",
             ));

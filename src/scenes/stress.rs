@@ -1139,7 +1139,7 @@ impl Gen {
         let inf = f32::INFINITY;
         match class {
             RayClass::RandomInPacket => {
-                let o = if tile % 2 == 0 {
+                let o = if tile.is_multiple_of(2) {
                     self.eye
                 } else {
                     self.rng.in_box(self.lo, self.hi)
@@ -1150,7 +1150,7 @@ impl Gen {
             RayClass::MixedSigns => {
                 let mut r = self.camera_ray(k);
                 let (x, y) = stress_pixel(k, self.n);
-                let flips = if tile % 2 == 0 {
+                let flips = if tile.is_multiple_of(2) {
                     self.rng.below(8)
                 } else if (x ^ y) & 1 == 1 {
                     1 << self.major
@@ -1173,9 +1173,9 @@ impl Gen {
                 let kinds = if class == RayClass::ZeroLength { 6 } else { 12 };
                 let replace = match tile % 4 {
                     0 => Some(k % kinds),
-                    1 => (k % 3 == 0).then(|| (k / 3) % kinds),
-                    2 => (k % 4 == 0).then(|| (k / 4) % kinds),
-                    _ => (k / 16 % 2 == 0).then(|| (k / 32) % kinds),
+                    1 => k.is_multiple_of(3).then(|| (k / 3) % kinds),
+                    2 => k.is_multiple_of(4).then(|| (k / 4) % kinds),
+                    _ => (k / 16).is_multiple_of(2).then(|| (k / 32) % kinds),
                 };
                 match (replace, class) {
                     (None, _) => r,
@@ -1189,7 +1189,7 @@ impl Gen {
     fn axis_parallel(&mut self, k: usize, tile: usize) -> Ray {
         let c = 0.5 * (self.lo + self.hi);
         let r = self.radius();
-        if tile % 2 == 0 {
+        if tile.is_multiple_of(2) {
             let d = Vec3::from(AXIAL[(tile / 2) % AXIAL.len()]);
             // Lattice axes across d: a zero axis of d and the rest.
             let zero = (0..3).find(|&a| d[a] == 0.0).unwrap_or(0);
@@ -1227,7 +1227,7 @@ impl Gen {
     }
 
     fn grazing(&mut self, k: usize, tile: usize) -> Ray {
-        if tile % 2 == 0 {
+        if tile.is_multiple_of(2) {
             if self.grazing.map(|(b, _)| b) != Some(tile) {
                 // The largest of 16 random triangles.
                 let mut best = self.triangle();
@@ -1415,7 +1415,7 @@ mod tests {
             for p in 0..(4096 / (side * side)) {
                 let k0 = p * side * side;
                 let (x0, y0) = stress_pixel(k0, 4096);
-                assert!(x0 as usize % side == 0 && y0 as usize % side == 0);
+                assert!((x0 as usize).is_multiple_of(side) && (y0 as usize).is_multiple_of(side));
                 for k in k0..k0 + side * side {
                     let (x, y) = stress_pixel(k, 4096);
                     let q = (k - k0) / 4;

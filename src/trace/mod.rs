@@ -29,14 +29,18 @@ pub fn pack_quads(
 ) -> usize {
     let nq = n.div_ceil(4);
     for q in 0..nq {
-        let last = ray((q * 4 + 3).min(n - 1));
+        let b = q * 4;
+        if b + 4 <= n {
+            quads[q] = Ray4::from_rays(&[ray(b), ray(b + 1), ray(b + 2), ray(b + 3)]);
+            active[q] = M4::TRUE;
+            continue;
+        }
+        let last = ray(n - 1);
         let mut lanes = [last; 4];
         let mut m = [false; 4];
-        for i in 0..4 {
-            if q * 4 + i < n {
-                lanes[i] = ray(q * 4 + i);
-                m[i] = true;
-            }
+        for i in 0..n - b {
+            lanes[i] = ray(b + i);
+            m[i] = true;
         }
         quads[q] = Ray4::from_rays(&lanes);
         active[q] = M4::new(m[0], m[1], m[2], m[3]);

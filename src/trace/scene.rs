@@ -294,14 +294,16 @@ impl Tracer for SceneTracer<'_> {
 /// Trace `count` rays, ray `i` being `read(i)`, as packets of
 /// `p.packet`^2 rays (or 2x2 batches for single-ray methods) with mailbox
 /// `slot`, handing each result to `out(ray index, hits, lane)`. Shared by the
-/// Rust calls and the C ABI's, so both form the same packets.
+/// Rust calls and the C ABI's, so both form the same packets. Generic over
+/// `read` and `out` so each caller's conversions inline into the packing
+/// loop (no indirect call per ray).
 pub fn batch_on(
     tr: &SceneTracer<'_>,
     slot: &mut Slot<'_>,
     p: &TraceParams,
     count: usize,
-    read: &dyn Fn(usize) -> Ray,
-    out: &mut dyn FnMut(usize, &Hit4, usize),
+    read: impl Fn(usize) -> Ray,
+    mut out: impl FnMut(usize, &Hit4, usize),
     any: bool,
 ) -> Counters {
     let mut ctr = Counters::default();

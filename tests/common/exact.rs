@@ -8,7 +8,7 @@ use sheaf::accel::slot::SlotBuf;
 use sheaf::geom::{Hit4, M4, Ray4};
 use sheaf::render::{Tracer, demorton};
 use sheaf::trace::{BvhOptions, EntrySearch, RayKind};
-use sheaf::{Counters, Hit, Method, Ray, TraceParams};
+use sheaf::{Counters, Hit, Isa, Method, Ray, TraceParams};
 
 pub const RES: usize = 64;
 
@@ -82,14 +82,30 @@ pub fn check_class(
     let mut own = SlotBuf::new(0);
     let mut slot = own.slot();
     let mut total = Counters::default();
+    // Every lane width (`sheaf::isa`): the CPU's own with every option,
+    // the others (run in baseline code where the CPU lacks them) with the
+    // class's frustum.
+    sheaf::isa::set_emulation(true);
+    let mut combos = Vec::new();
+    for culling in [true, false] {
+        for kind in [c.kind, RayKind::Auto] {
+            combos.push((culling, kind, Isa::Auto));
+        }
+    }
+    for isa in [Isa::Sse2, Isa::Avx2, Isa::Avx512] {
+        if isa != sheaf::isa::effective(Isa::Auto) {
+            combos.push((true, c.kind, isa));
+        }
+    }
     for &(method, n, entry) in cases {
-        for culling in [true, false] {
-            for kind in [c.kind, RayKind::Auto] {
+        for &(culling, kind, isa) in &combos {
+            {
                 let p = TraceParams {
                     method,
                     packet: n as u32,
                     bvh: BvhOptions { culling, kind },
                     entry,
+                    isa,
                     ..TraceParams::default()
                 };
                 for (quads, idx) in packets(&c.rays, n) {
@@ -123,7 +139,7 @@ pub fn check_class(
                         };
                         assert!(
                             ok,
-                            "{what} {}: {} {n}x{n} {entry:?} culling {culling} {kind:?}: ray {ri} {:?}\n  packet {got:?}\n  single {exp:?}",
+                            "{what} {}: {} {n}x{n} {entry:?} culling {culling} {kind:?} {isa:?}: ray {ri} {:?}\n  packet {got:?}\n  single {exp:?}",
                             c.name,
                             method.name(),
                             c.rays[ri]

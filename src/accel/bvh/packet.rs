@@ -29,7 +29,8 @@ use crate::accel::packet::{MAX_QUADS, SizeClass, by_class};
 use crate::accel::slot::Slot;
 use crate::counters::{Counters, count};
 use crate::geom::lane::mask_from_bits;
-use crate::geom::{F4, Hit4, INVALID_ID, M4, Mt, Pt, Ray4, RayLanes, Wt};
+use crate::geom::{F4, F8, F16, Hit4, INVALID_ID, M4, Mt, Pt, Ray4, RayLanes, Wide, Wt};
+use crate::isa;
 use crate::mem::scratch::bytes;
 
 /// Slot scratch one packet of the largest class takes, for the triangle
@@ -44,6 +45,13 @@ pub(crate) const SCRATCH: usize = bytes::<M4>(MAX_QUADS)
         bytes::<Pre<Pt>>(MAX_QUADS),
     )
     + bytes::<F4>(MAX_QUADS)
+    + max(
+        max(
+            bytes::<Group<F4, Wt>>(MAX_QUADS),
+            bytes::<Group<F8, Wt>>(MAX_QUADS / 2),
+        ),
+        bytes::<Group<F16, Wt>>(MAX_QUADS / 4),
+    )
     + max(bytes::<bool>(MAX_QUADS), bytes::<u16>(MAX_QUADS));
 
 /// A triangle test's per-quad precomputation.
@@ -99,11 +107,19 @@ impl QuadBox {
     }
 }
 
+/// `L::G` consecutive quads joined into `L`-wide lanes, with their
+/// triangle-test precomputation (`Packet::groups`).
+#[derive(Clone, Copy)]
+pub(crate) struct Group<L: Wide, T: TriangleTest> {
+    r: RayLanes<L>,
+    pre: T::Pre<L>,
+}
+
 /// A large-packet traversal: walks one prepared packet through the tree.
 pub(crate) trait Walk {
     /// `start`: the node to start at and its depth (the root: `(0, 0)`);
     /// `slot`: the scratch left after the packet's (for per-quad state).
-    fn walk<T: TriangleTest, const ANY: bool, const Q: usize>(
+    fn walk<L: Wide, T: TriangleTest, const ANY: bool, const Q: usize>(
         p: &mut Packet<'_, T, Q>,
         b: &BvhView<'_>,
         rays: &[Ray4],
@@ -208,7 +224,41 @@ fn packet<W: Walk, T: TriangleTest, const ANY: bool, const Q: usize>(
         tfar,
     };
     let mut p = Packet::<T, Q>::new(b, rays, opt, lanes, quads, ctr);
-    W::walk::<T, ANY, Q>(&mut p, b, rays, hits, start, &mut slot, ctr);
+    let k = WalkAt::<W, T, ANY, Q> {
+        p: &mut p,
+        b,
+        rays,
+        hits,
+        start,
+        slot: &mut slot,
+        ctr,
+        _w: core::marker::PhantomData,
+    };
+    isa::run(opt.isa, k);
+}
+
+/// A walk as an `isa::Kernel`: compiled at each lane width.
+struct WalkAt<'x, 'b, 's, 't, W, T: TriangleTest, const ANY: bool, const Q: usize> {
+    p: &'x mut Packet<'s, T, Q>,
+    b: &'x BvhView<'b>,
+    rays: &'x [Ray4],
+    hits: &'x mut [Hit4],
+    start: (usize, usize),
+    slot: &'x mut Slot<'t>,
+    ctr: &'x mut Counters,
+    _w: core::marker::PhantomData<W>,
+}
+
+impl<W: Walk, T: TriangleTest, const ANY: bool, const Q: usize> isa::Kernel
+    for WalkAt<'_, '_, '_, '_, W, T, ANY, Q>
+{
+    type Out = ();
+    #[inline(always)]
+    fn run<L: Wide>(self) {
+        W::walk::<L, T, ANY, Q>(
+            self.p, self.b, self.rays, self.hits, self.start, self.slot, self.ctr,
+        )
+    }
 }
 
 /// A packet's live lanes, before its other per-quad arrays exist.
@@ -421,53 +471,142 @@ impl<'s, T: TriangleTest, const Q: usize> Packet<'s, T, Q> {
         culled
     }
 
-    /// `rayIntersectTriangle(R[q], T[i])`: the live lanes of quad `q`
-    /// against stored triangle `i` (caller id `id`), each lane keeping its
-    /// nearest hit (tie rule of `geom::ray`); for occlusion, lanes that hit
-    /// are done.
+    /// `rayIntersectTriangle(R[q], T[i])` for the quads `qs[..n]` (`n <=
+    /// L::G`) at once, joined into one `L`-wide lane group (`geom::wide`):
+    /// the live lanes of each against stored triangle `i` (caller id `id`),
+    /// each lane keeping its nearest hit (tie rule of `geom::ray`); for
+    /// occlusion, lanes that hit are done. Lanes of quads `qs[n..]` are off.
     #[inline(always)]
-    // Inner-loop leaf test (per quad and triangle): a struct would be rebuilt per call.
+    // Inner-loop leaf test (per quad group and triangle): a struct would be rebuilt per call.
     #[allow(clippy::too_many_arguments)]
-    pub(crate) fn test<const ANY: bool>(
+    pub(crate) fn test<L: Wide, const ANY: bool>(
         &mut self,
         b: &BvhView<'_>,
         rays: &[Ray4],
         hits: &mut [Hit4],
-        q: usize,
+        qs: [usize; 4],
+        n: usize,
         i: usize,
         id: u32,
         depth: usize,
         ctr: &mut Counters,
     ) {
-        let lm = self.live[q];
-        if !lm.any() {
+        let mut bits = 0u32;
+        for (k, &q) in qs.iter().enumerate().take(n.min(L::G)) {
+            bits |= self.live[q].bitmask() << (4 * k);
+        }
+        if bits == 0 {
             return;
         }
-        ctr.tri_at(depth, lm.bitmask().count_ones() as u64);
+        ctr.tri_at(depth, bits.count_ones() as u64);
+        // Lanes past `n` repeat quad `qs[n - 1]` (finite data, masked off).
+        let q = |k: usize| qs[k.min(n - 1)];
         let h = T::intersect(
-            &RayLanes::from_ray4(&rays[q]),
-            &self.pre[q],
+            &RayLanes::<L>::join(|k| &rays[q(k)]),
+            &T::join_pre::<L>(|k| self.pre[q(k)]),
             T::prim(b.store(), i),
         );
-        let hm = h.mask & lm;
-        if !hm.any() {
+        let hb = L::mask_bits(h.mask) & bits;
+        if hb == 0 {
             return;
         }
+        for k in 0..n.min(L::G) {
+            let m = (hb >> (4 * k)) & 15;
+            if m != 0 {
+                let hit = (h.t.quad(k), h.u.quad(k), h.v.quad(k));
+                self.take::<ANY>(hits, q(k), mask_from_bits(m), hit, id);
+            }
+        }
+    }
+
+    /// `test` for the quads `g0 + k` of one aligned group (`Group`) whose
+    /// bit `k` is set in `sel`: the group's lanes were joined once per
+    /// packet, not per test.
+    #[inline(always)]
+    // Inner-loop leaf test (per quad group and triangle).
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn test_group<L: Wide, const ANY: bool>(
+        &mut self,
+        b: &BvhView<'_>,
+        hits: &mut [Hit4],
+        grp: &Group<L, T>,
+        g0: usize,
+        sel: u32,
+        i: usize,
+        id: u32,
+        depth: usize,
+        ctr: &mut Counters,
+    ) {
+        let mut bits = 0u32;
+        for k in 0..L::G {
+            if sel >> k & 1 != 0 {
+                bits |= self.live[g0 + k].bitmask() << (4 * k);
+            }
+        }
+        if bits == 0 {
+            return;
+        }
+        ctr.tri_at(depth, bits.count_ones() as u64);
+        let h = T::intersect(&grp.r, &grp.pre, T::prim(b.store(), i));
+        let hb = L::mask_bits(h.mask) & bits;
+        if hb == 0 {
+            return;
+        }
+        for k in 0..L::G {
+            let m = (hb >> (4 * k)) & 15;
+            if m != 0 {
+                let hit = (h.t.quad(k), h.u.quad(k), h.v.quad(k));
+                self.take::<ANY>(hits, g0 + k, mask_from_bits(m), hit, id);
+            }
+        }
+    }
+
+    /// The packet's quads in aligned groups of `L::G` (quads `g L::G ..`;
+    /// past the last quad the group repeats it), carved from `slot`.
+    #[inline(always)]
+    pub(crate) fn groups<'a, L: Wide>(
+        &self,
+        rays: &[Ray4],
+        slot: &'a mut Slot<'_>,
+    ) -> (&'a mut [Group<L, T>], Slot<'a>) {
+        let nq = self.nq;
+        let pre = self.pre;
+        slot.split_from(nq.div_ceil(L::G), |g| {
+            let q = |k: usize| (g * L::G + k).min(nq - 1);
+            Group {
+                r: RayLanes::<L>::join(|k| &rays[q(k)]),
+                pre: T::join_pre::<L>(|k| pre[q(k)]),
+            }
+        })
+    }
+
+    /// Lanes `hm` of quad `q` hit triangle `id` at `(t, u, v)`: those
+    /// nearer than their best so far (any, for occlusion) take it.
+    #[inline(always)]
+    fn take<const ANY: bool>(
+        &mut self,
+        hits: &mut [Hit4],
+        q: usize,
+        hm: M4,
+        hit: (F4, F4, F4),
+        id: u32,
+    ) {
+        let (t, u, v) = hit;
         let hq = &mut hits[q];
-        let take = if ANY { hm } else { hm & hq.closer(h.t, id) };
+        let take = if ANY { hm } else { hm & hq.closer(t, id) };
         if !take.any() {
             return;
         }
-        hq.t = F4::select(take, h.t, hq.t);
-        hq.u = F4::select(take, h.u, hq.u);
-        hq.v = F4::select(take, h.v, hq.v);
+        hq.t = F4::select(take, t, hq.t);
+        hq.u = F4::select(take, u, hq.u);
+        hq.v = F4::select(take, v, hq.v);
         for k in 0..4 {
             if take.test(k) {
                 hq.prim[k] = id;
             }
         }
         // A taken hit lies in [tmin, tmax) and not beyond best.t.
-        self.tfar[q] = F4::select(take, h.t, self.tfar[q]);
+        self.tfar[q] = F4::select(take, t, self.tfar[q]);
         if ANY {
             self.live[q] &= !take;
             self.n_live -= take.bitmask().count_ones();

@@ -70,7 +70,7 @@ use crate::accel::fallback;
 use crate::accel::method::TraceParams;
 use crate::accel::slot::Slot;
 use crate::counters::Counters;
-use crate::geom::{Hit4, M4, Ray4};
+use crate::geom::{Hit4, M4, Ray4, Wide};
 
 /// Most quads traced as one packet (32 x 32 rays), for every family.
 pub use crate::accel::packet::MAX_QUADS;
@@ -124,7 +124,7 @@ pub fn occluded<T: TriangleTest>(
 /// Partition with the live quads from that first one. Every pending node
 /// is one the packet would have visited, and Partition is exact from any
 /// node, so the result is the same.
-pub(crate) fn to_partition<T: TriangleTest, const ANY: bool, const Q: usize>(
+pub(crate) fn to_partition<L: Wide, T: TriangleTest, const ANY: bool, const Q: usize>(
     p: &mut Packet<'_, T, Q>,
     b: &BvhView<'_>,
     rays: &[Ray4],
@@ -137,7 +137,7 @@ pub(crate) fn to_partition<T: TriangleTest, const ANY: bool, const Q: usize>(
     // One index list for every subtree: each walk refills it.
     let (idx, _) = slot.split(p.nq, 0u16);
     for (node, depth, first) in pending {
-        Partition::walk_from::<T, ANY, Q>(p, b, rays, hits, (node, depth), first, idx, ctr);
+        Partition::walk_from::<L, T, ANY, Q>(p, b, rays, hits, (node, depth), first, idx, ctr);
         if ANY && p.done() {
             return;
         }
@@ -148,7 +148,8 @@ pub(crate) fn to_partition<T: TriangleTest, const ANY: bool, const Q: usize>(
 pub(crate) struct Masked;
 
 impl Walk for Masked {
-    fn walk<T: TriangleTest, const ANY: bool, const Q: usize>(
+    #[inline(always)]
+    fn walk<L: Wide, T: TriangleTest, const ANY: bool, const Q: usize>(
         p: &mut Packet<'_, T, Q>,
         b: &BvhView<'_>,
         rays: &[Ray4],
@@ -161,6 +162,7 @@ impl Walk for Masked {
         let nq = p.nq;
         // rayMasks: which quads are alive in the current leaf (given back
         // to the slot before a switch to Partition).
+        let (grp, mut slot) = p.groups::<L>(rays, slot);
         let (masks, _) = slot.split(nq, false);
         let mut st_node = [0u32; MAX_DEPTH + 1];
         let mut st_depth = [0u8; MAX_DEPTH + 1];
@@ -202,8 +204,16 @@ impl Walk for Masked {
                         continue;
                     }
                     let id = b.tri_ids[i];
-                    for (q, _) in masks.iter().enumerate().filter(|(_, m)| **m) {
-                        p.test::<ANY>(b, rays, hits, q, i, id, depth, ctr);
+                    // Aligned groups of `L::G` quads, those with masks set.
+                    for (g, ms) in masks.chunks(L::G).enumerate() {
+                        let mut sel = 0u32;
+                        for (k, &m) in ms.iter().enumerate() {
+                            sel |= u32::from(m) << k;
+                        }
+                        if sel != 0 {
+                            let g0 = g * L::G;
+                            p.test_group::<L, ANY>(b, hits, &grp[g], g0, sel, i, id, depth, ctr);
+                        }
                     }
                 }
                 if ANY && p.done() {
@@ -213,7 +223,7 @@ impl Walk for Masked {
                     let pending = (0..sp)
                         .rev()
                         .map(|k| (st_node[k] as usize, st_depth[k] as usize, 0));
-                    return to_partition::<T, ANY, Q>(p, b, rays, hits, pending, slot, ctr);
+                    return to_partition::<L, T, ANY, Q>(p, b, rays, hits, pending, &mut slot, ctr);
                 }
             }
             if sp == 0 {

@@ -30,7 +30,7 @@ use crate::accel::entry::EntryPoint;
 use crate::accel::method::TraceParams;
 use crate::accel::slot::Slot;
 use crate::counters::Counters;
-use crate::geom::{Hit4, M4, Ray4};
+use crate::geom::{Hit4, M4, Ray4, Wide};
 
 /// Nearest hits of the active lanes of `rays` into `hits`, Partition
 /// traversal (contract of `traverse_masked::intersect`, `entry` included).
@@ -94,7 +94,8 @@ fn part_rays<T: TriangleTest, const Q: usize>(
 pub(crate) struct Partition;
 
 impl Walk for Partition {
-    fn walk<T: TriangleTest, const ANY: bool, const Q: usize>(
+    #[inline(always)]
+    fn walk<L: Wide, T: TriangleTest, const ANY: bool, const Q: usize>(
         p: &mut Packet<'_, T, Q>,
         b: &BvhView<'_>,
         rays: &[Ray4],
@@ -104,7 +105,7 @@ impl Walk for Partition {
         ctr: &mut Counters,
     ) {
         let (idx, _) = slot.split(p.nq, 0u16);
-        Self::walk_from::<T, ANY, Q>(p, b, rays, hits, start, 0, idx, ctr)
+        Self::walk_from::<L, T, ANY, Q>(p, b, rays, hits, start, 0, idx, ctr)
     }
 }
 
@@ -115,7 +116,8 @@ impl Partition {
     /// scratch; its contents are not read).
     // `walk`'s arguments, and where `I` starts and lives.
     #[allow(clippy::too_many_arguments)]
-    pub(crate) fn walk_from<T: TriangleTest, const ANY: bool, const Q: usize>(
+    #[inline(always)]
+    pub(crate) fn walk_from<L: Wide, T: TriangleTest, const ANY: bool, const Q: usize>(
         p: &mut Packet<'_, T, Q>,
         b: &BvhView<'_>,
         rays: &[Ray4],
@@ -159,8 +161,13 @@ impl Partition {
                         continue;
                     }
                     let id = b.tri_ids[j];
-                    for &q in &idx[..ia] {
-                        p.test::<ANY>(b, rays, hits, q as usize, j, id, depth, ctr);
+                    // `L::G` listed quads per test.
+                    for g in idx[..ia].chunks(L::G) {
+                        let mut qs = [0usize; 4];
+                        for (k, &q) in g.iter().enumerate() {
+                            qs[k] = q as usize;
+                        }
+                        p.test::<L, ANY>(b, rays, hits, qs, g.len(), j, id, depth, ctr);
                     }
                 }
                 if ANY && p.done() {

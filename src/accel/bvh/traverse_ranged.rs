@@ -32,7 +32,7 @@ use crate::accel::entry::EntryPoint;
 use crate::accel::method::TraceParams;
 use crate::accel::slot::Slot;
 use crate::counters::Counters;
-use crate::geom::{Hit4, M4, Ray4};
+use crate::geom::{Hit4, M4, Ray4, Wide};
 
 /// Nearest hits of the active lanes of `rays` into `hits`, Ranged
 /// traversal (contract of `traverse_masked::intersect`, `entry` included).
@@ -116,17 +116,19 @@ fn last_hit<T: TriangleTest, const Q: usize>(
 pub(crate) struct Ranged;
 
 impl Walk for Ranged {
-    fn walk<T: TriangleTest, const ANY: bool, const Q: usize>(
+    #[inline(always)]
+    fn walk<L: Wide, T: TriangleTest, const ANY: bool, const Q: usize>(
         p: &mut Packet<'_, T, Q>,
         b: &BvhView<'_>,
         rays: &[Ray4],
         hits: &mut [Hit4],
         start: (usize, usize),
-        _: &mut Slot<'_>,
+        slot: &mut Slot<'_>,
         ctr: &mut Counters,
     ) {
         let nodes = b.nodes;
         let nq = p.nq;
+        let (grp, _) = p.groups::<L>(rays, slot);
         let mut st_node = [0u32; MAX_DEPTH + 1];
         let mut st_ia = [0u16; MAX_DEPTH + 1];
         let mut st_depth = [0u8; MAX_DEPTH + 1];
@@ -154,8 +156,15 @@ impl Walk for Ranged {
                         continue;
                     }
                     let id = b.tri_ids[j];
-                    for q in ia..ie {
-                        p.test::<ANY>(b, rays, hits, q, j, id, depth, ctr);
+                    // The aligned groups of `L::G` quads overlapping [ia, ie).
+                    let groups = ia / L::G..ie.div_ceil(L::G);
+                    for (g, gr) in grp[groups.clone()].iter().enumerate() {
+                        let g0 = (groups.start + g) * L::G;
+                        let mut sel = 0u32;
+                        for k in 0..L::G {
+                            sel |= u32::from((ia..ie).contains(&(g0 + k))) << k;
+                        }
+                        p.test_group::<L, ANY>(b, hits, gr, g0, sel, j, id, depth, ctr);
                     }
                 }
                 if ANY && p.done() {

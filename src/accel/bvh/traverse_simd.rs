@@ -272,7 +272,7 @@ mod tests {
         build(&mut bvh, &scene, p).unwrap();
         let view = bvh.view().unwrap();
         let mut rays = test_rays(&tris_of(&scene), views, 0x51ed_270b ^ ix.len() as u64);
-        while rays.len() % 4 != 0 {
+        while !rays.len().is_multiple_of(4) {
             rays.push(rays[rays.len() % 7]);
         }
         let quads: Vec<Ray4> = rays

@@ -409,10 +409,10 @@ pub fn build(kd: &mut KdTree<'_>, scene: &Scene<'_>, p: &KdParams) -> Result<KdI
         let mut split = None;
         if nn > 0 && task.depth < max_depth {
             let ev = &events[base..base + EVENTS_PER_TRI * nn];
-            if let Some(sp_) = find_split(ev, nn, &task.bounds, p) {
-                if sp_.cost < nn as f32 {
-                    split = Some(sp_);
-                }
+            if let Some(sp_) = find_split(ev, nn, &task.bounds, p)
+                && sp_.cost < nn as f32
+            {
+                split = Some(sp_);
             }
         }
         if let Some(sx) = split {

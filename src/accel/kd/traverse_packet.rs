@@ -307,11 +307,11 @@ fn packet<T: TriangleTest, const ANY: bool, const Q: usize>(
         Some(e) if (e.node as usize) < k.nodes.len() => (e.node as usize, e.depth as usize, e.aabb),
         _ => (0, 0, k.info.root),
     };
-    if let Some(f) = frustum {
-        if f.cull_box(&bx0.min.to_array(), &bx0.max.to_array()) {
-            count!(ctr.culled_nodes += 1);
-            return;
-        }
+    if let Some(f) = frustum
+        && f.cull_box(&bx0.min.to_array(), &bx0.max.to_array())
+    {
+        count!(ctr.culled_nodes += 1);
+        return;
     }
     // Near sides from the first live lane; lanes going another way alone.
     let q0 = live[..nq].iter().position(|m| m.any()).unwrap_or(0);

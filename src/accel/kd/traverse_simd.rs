@@ -440,7 +440,7 @@ pub(crate) mod tests {
         with_trees::<T>(v, ix, 0, |k, b| {
             let scene = Scene::from_f32(v, ix).unwrap();
             let mut rays = test_rays(&tris_of(&scene), views, 0x9e37 ^ ix.len() as u64);
-            while rays.len() % 4 != 0 {
+            while !rays.len().is_multiple_of(4) {
                 rays.push(rays[rays.len() % 7]);
             }
             let quads: Vec<Ray4> = rays

@@ -1,0 +1,254 @@
+//! Instruction-set levels and runtime dispatch: which lane width a packet
+//! traversal runs at (`F4`: one 2x2 quad per operation, SSE2 on x86-64;
+//! `F8`: two quads, AVX2; `F16`: four quads, AVX-512), chosen once per
+//! call from what the CPU supports (CPUID and XGETBV through the
+//! `cpufeatures` crate, which works without std), what the caller asks for
+//! (`TraceParams::isa`, as Embree's `isa=` device setting) and, for
+//! `Isa::Auto`, the `SHEAF_ISA` environment variable (std builds; read once,
+//! when the first context is created, like Embree's `max_isa=`).
+//!
+//! A packet traversal implements `Kernel` (generic over the lane type,
+//! `#[inline(always)]`); `run` calls it inside a function compiled with
+//! `avx2` or `avx512f` enabled, so the whole traversal is compiled for that
+//! level and each wide-lane loop becomes one instruction. `fma` is never
+//! enabled: results are bitwise equal at every level (`geom::wide`).
+//!
+//! This is one of the crate's small unsafe modules: calling a
+//! `#[target_feature]` function needs `unsafe`, and the one obligation (the
+//! CPU has the feature) is checked right before each call.
+#![allow(unsafe_code)] // only the two calls in `run`, each with a SAFETY comment
+
+use crate::error::{Error, Result};
+use crate::geom::F4;
+use crate::geom::wide::Wide;
+use core::sync::atomic::{AtomicBool, AtomicU8, Ordering};
+
+/// Lane width of packet traversals (C: `sheaf_isa`). Ordered: a higher
+/// level is wider.
+#[repr(u32)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum Isa {
+    /// The widest level the CPU supports, capped by `SHEAF_ISA` when set.
+    #[default]
+    Auto = 0,
+    /// 4 lanes (one 2x2 quad): SSE2 on x86-64; glam's backend (NEON,
+    /// scalar) on other architectures.
+    Sse2 = 1,
+    /// 8 lanes (two quads), x86 with AVX2.
+    Avx2 = 2,
+    /// 16 lanes (four quads), x86 with AVX-512F.
+    Avx512 = 3,
+}
+
+impl Isa {
+    pub const ALL: &'static [Isa] = &[Isa::Auto, Isa::Sse2, Isa::Avx2, Isa::Avx512];
+
+    /// The name `SHEAF_ISA` and the CLI use.
+    pub const fn name(self) -> &'static str {
+        match self {
+            Isa::Auto => "auto",
+            Isa::Sse2 => "sse2",
+            Isa::Avx2 => "avx2",
+            Isa::Avx512 => "avx512",
+        }
+    }
+
+    /// Parse a name (`auto`, `sse2`, `avx2`, `avx512`; case-insensitive).
+    pub fn parse(s: &str) -> Option<Isa> {
+        Isa::ALL
+            .iter()
+            .copied()
+            .find(|i| s.trim().eq_ignore_ascii_case(i.name()))
+            .or_else(|| {
+                s.trim()
+                    .eq_ignore_ascii_case("avx512f")
+                    .then_some(Isa::Avx512)
+            })
+    }
+
+    /// Lanes per operation of packet traversals at this level (`Auto`: the
+    /// level `resolve` picks).
+    pub fn lanes(self) -> usize {
+        match effective(self) {
+            Isa::Avx512 => 16,
+            Isa::Avx2 => 8,
+            _ => 4,
+        }
+    }
+}
+
+#[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+cpufeatures::new!(cpu_avx2, "avx2");
+#[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+cpufeatures::new!(cpu_avx512, "avx512f");
+
+/// The widest level this CPU (and its OS) supports.
+pub fn detected() -> Isa {
+    #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+    {
+        if cpu_avx512::get() {
+            return Isa::Avx512;
+        }
+        if cpu_avx2::get() {
+            return Isa::Avx2;
+        }
+    }
+    Isa::Sse2
+}
+
+/// `SHEAF_ISA`'s cap on `Auto` (0: not read yet).
+static ENV_CAP: AtomicU8 = AtomicU8::new(0);
+
+/// Read `SHEAF_ISA` (once per process; std builds). Contexts call this at
+/// creation, so no trace call pays for reading the environment (which
+/// allocates the value's copy when the variable is set). An unset, empty,
+/// `auto` or unknown value leaves `Auto` at the CPU's widest level.
+pub fn read_env() {
+    if ENV_CAP.load(Ordering::Relaxed) != 0 {
+        return;
+    }
+    #[cfg(feature = "std")]
+    let cap = std::env::var("SHEAF_ISA")
+        .ok()
+        .and_then(|v| Isa::parse(&v))
+        .filter(|&i| i != Isa::Auto)
+        .unwrap_or(Isa::Avx512);
+    #[cfg(not(feature = "std"))]
+    let cap = Isa::Avx512;
+    ENV_CAP.store(cap as u8, Ordering::Relaxed);
+}
+
+/// `SHEAF_ISA`'s cap (the widest level when unset; without std, always).
+/// Read here when no context has read it yet (callers of the traversals
+/// that never create a context: tests, studies).
+pub fn env_cap() -> Isa {
+    read_env();
+    match ENV_CAP.load(Ordering::Relaxed) {
+        1 => Isa::Sse2,
+        2 => Isa::Avx2,
+        _ => Isa::Avx512,
+    }
+}
+
+/// The level a call asking for `req` runs at: `Auto` is the CPU's widest
+/// capped by `SHEAF_ISA`; a forced level must be supported
+/// (`Error::InvalidArgument` otherwise).
+pub fn resolve(req: Isa) -> Result<Isa> {
+    match req {
+        Isa::Auto => Ok(detected().min(env_cap())),
+        r if r <= detected() || EMULATE.load(Ordering::Relaxed) => Ok(r),
+        _ => Err(Error::InvalidArgument(
+            "TraceParams::isa: this CPU does not support that instruction set",
+        )),
+    }
+}
+
+/// `resolve` without the error, for the traversals: never above what the
+/// CPU supports.
+#[inline]
+pub fn effective(req: Isa) -> Isa {
+    match req {
+        Isa::Auto => detected().min(env_cap()),
+        r => r.min(detected()),
+    }
+}
+
+/// Tests only: forced levels above the CPU's run their lane width in
+/// baseline code (each wide operation as 4-wide ones) instead of being
+/// rejected, so the exactness suites run every width's traversal logic on
+/// any machine. Process-wide.
+#[doc(hidden)]
+pub fn set_emulation(on: bool) {
+    EMULATE.store(on, Ordering::Relaxed);
+}
+
+static EMULATE: AtomicBool = AtomicBool::new(false);
+
+/// A packet traversal at a lane width: `run::<W>` is its body (mark the
+/// impl `#[inline(always)]` so it is compiled inside the level's function).
+pub trait Kernel {
+    type Out;
+    fn run<W: Wide>(self) -> Self::Out;
+}
+
+/// Run `k` at level `effective(isa)`: with `F16` lanes in a function
+/// compiled for AVX-512F, `F8` in one for AVX2, else `F4`.
+#[inline]
+pub fn run<K: Kernel>(isa: Isa, k: K) -> K::Out {
+    if isa > detected() && EMULATE.load(Ordering::Relaxed) {
+        return match isa {
+            Isa::Avx512 => k.run::<crate::geom::F16>(),
+            _ => k.run::<crate::geom::F8>(),
+        };
+    }
+    #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+    match effective(isa) {
+        // SAFETY: `effective` returns Avx512 only when `detected()` does,
+        // i.e. when CPUID and XGETBV report AVX-512F usable.
+        Isa::Avx512 => return unsafe { x86::avx512(k) },
+        // SAFETY: as above, for AVX2.
+        Isa::Avx2 => return unsafe { x86::avx2(k) },
+        _ => {}
+    }
+    #[cfg(not(any(target_arch = "x86", target_arch = "x86_64")))]
+    let _ = isa;
+    k.run::<F4>()
+}
+
+#[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+mod x86 {
+    use super::Kernel;
+    use crate::geom::{F8, F16};
+
+    #[target_feature(enable = "avx2")]
+    pub(super) fn avx2<K: Kernel>(k: K) -> K::Out {
+        k.run::<F8>()
+    }
+
+    #[target_feature(enable = "avx512f")]
+    pub(super) fn avx512<K: Kernel>(k: K) -> K::Out {
+        k.run::<F16>()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_round_trip() {
+        for &i in Isa::ALL {
+            assert_eq!(Isa::parse(i.name()), Some(i));
+        }
+        assert_eq!(Isa::parse(" AVX512F "), Some(Isa::Avx512));
+        assert_eq!(Isa::parse("neon"), None);
+    }
+
+    #[test]
+    fn forced_levels_are_checked() {
+        assert_eq!(resolve(Isa::Sse2), Ok(Isa::Sse2));
+        assert!(resolve(Isa::Auto).unwrap() <= detected());
+        for &i in &Isa::ALL[1..] {
+            assert_eq!(resolve(i).is_ok(), i <= detected());
+            assert!(effective(i) <= detected());
+        }
+    }
+
+    struct Width;
+    impl Kernel for Width {
+        type Out = usize;
+        #[inline(always)]
+        fn run<W: Wide>(self) -> usize {
+            W::WIDTH
+        }
+    }
+
+    #[test]
+    fn run_picks_the_width() {
+        assert_eq!(run(Isa::Sse2, Width), 4);
+        assert_eq!(run(Isa::Auto, Width), Isa::Auto.lanes());
+        if detected() >= Isa::Avx2 {
+            assert_eq!(run(Isa::Avx2, Width), 8);
+        }
+    }
+}
