@@ -98,7 +98,15 @@ pub fn check_class(
         }
     }
     for &(method, n, entry) in cases {
+        // Only the BVH's large packets run wide lanes so far.
+        let wide = matches!(
+            method,
+            Method::BvhMasked | Method::BvhRanged | Method::BvhPartition
+        );
         for &(culling, kind, isa) in &combos {
+            if isa != Isa::Auto && !wide {
+                continue;
+            }
             {
                 let p = TraceParams {
                     method,
