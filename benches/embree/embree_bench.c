@@ -1809,9 +1809,11 @@ int main(int argc, char **argv)
     printf("Machine: %s, %ld online cores, %s %s; ISA: %s%s%s%s.\n", cpu, sysconf(_SC_NPROCESSORS_ONLN), un.sysname,
            un.release, __builtin_cpu_supports("avx512f") ? "AVX-512F " : "", __builtin_cpu_supports("avx2") ? "AVX2 " : "",
            __builtin_cpu_supports("avx") ? "AVX " : "", "SSE4.2");
-    printf("sheaf %s (C ABI, static library; 4-wide SSE), Embree %s (Debian's libembree3; tasking: %s; native "
-           "rtcIntersect4/8/16: %s/%s/%s, which on this CPU run %s kernels).\n",
-           sheaf_version_string(), RTC_VERSION_STRING,
+    const char *isa_env = getenv("SHEAF_ISA");
+    printf("sheaf %s (C ABI, static library; packet lanes: the CPU's widest%s%s%s), Embree %s (Debian's libembree3; "
+           "tasking: %s; native rtcIntersect4/8/16: %s/%s/%s, which on this CPU run %s kernels).\n",
+           sheaf_version_string(), isa_env ? ", capped by SHEAF_ISA=" : "", isa_env ? isa_env : "",
+           isa_env ? "" : " (SHEAF_ISA unset)", RTC_VERSION_STRING,
            rtcGetDeviceProperty(dev, RTC_DEVICE_PROPERTY_TASKING_SYSTEM) == 1 ? "TBB" : "internal",
            rtcGetDeviceProperty(dev, RTC_DEVICE_PROPERTY_NATIVE_RAY4_SUPPORTED) ? "yes" : "no",
            rtcGetDeviceProperty(dev, RTC_DEVICE_PROPERTY_NATIVE_RAY8_SUPPORTED) ? "yes" : "no",
