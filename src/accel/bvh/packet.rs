@@ -491,32 +491,19 @@ impl<'s, T: TriangleTest, const Q: usize> Packet<'s, T, Q> {
         depth: usize,
         ctr: &mut Counters,
     ) {
-        let mut bits = 0u32;
-        for (k, &q) in qs.iter().enumerate().take(n.min(L::G)) {
-            bits |= self.live[q].bitmask() << (4 * k);
-        }
+        // Lanes past `n` repeat quad `qs[n - 1]` (finite data, masked off).
+        let q = |k: usize| qs[k.min(n - 1)];
+        let bits = self.live_bits::<L>(|k| (k < n).then(|| q(k)));
         if bits == 0 {
             return;
         }
         ctr.tri_at(depth, bits.count_ones() as u64);
-        // Lanes past `n` repeat quad `qs[n - 1]` (finite data, masked off).
-        let q = |k: usize| qs[k.min(n - 1)];
         let h = T::intersect(
             &RayLanes::<L>::join(|k| &rays[q(k)]),
             &T::join_pre::<L>(|k| self.pre[q(k)]),
             T::prim(b.store(), i),
         );
-        let hb = L::mask_bits(h.mask) & bits;
-        if hb == 0 {
-            return;
-        }
-        for k in 0..n.min(L::G) {
-            let m = (hb >> (4 * k)) & 15;
-            if m != 0 {
-                let hit = (h.t.quad(k), h.u.quad(k), h.v.quad(k));
-                self.take::<ANY>(hits, q(k), mask_from_bits(m), hit, id);
-            }
-        }
+        self.take_all::<L, ANY>(hits, &h, bits, q, id);
     }
 
     /// `test` for the quads `g0 + k` of one aligned group (`Group`) whose
@@ -537,17 +524,38 @@ impl<'s, T: TriangleTest, const Q: usize> Packet<'s, T, Q> {
         depth: usize,
         ctr: &mut Counters,
     ) {
-        let mut bits = 0u32;
-        for k in 0..L::G {
-            if sel >> k & 1 != 0 {
-                bits |= self.live[g0 + k].bitmask() << (4 * k);
-            }
-        }
+        let bits = self.live_bits::<L>(|k| (sel >> k & 1 != 0).then_some(g0 + k));
         if bits == 0 {
             return;
         }
         ctr.tri_at(depth, bits.count_ones() as u64);
         let h = T::intersect(&grp.r, &grp.pre, T::prim(b.store(), i));
+        self.take_all::<L, ANY>(hits, &h, bits, |k| g0 + k, id);
+    }
+
+    /// Live lanes of the group's quads `quad(k)` (`None`: off) as mask bits.
+    #[inline(always)]
+    fn live_bits<L: Wide>(&self, quad: impl Fn(usize) -> Option<usize>) -> u32 {
+        let mut bits = 0u32;
+        for k in 0..L::G {
+            if let Some(q) = quad(k) {
+                bits |= self.live[q].bitmask() << (4 * k);
+            }
+        }
+        bits
+    }
+
+    /// A group's test result `h` for its lanes `bits`, quad `k` being
+    /// `quad(k)`: each quad's hit lanes go through `take`.
+    #[inline(always)]
+    fn take_all<L: Wide, const ANY: bool>(
+        &mut self,
+        hits: &mut [Hit4],
+        h: &crate::geom::triangle::TriHit<L>,
+        bits: u32,
+        quad: impl Fn(usize) -> usize,
+        id: u32,
+    ) {
         let hb = L::mask_bits(h.mask) & bits;
         if hb == 0 {
             return;
@@ -556,7 +564,7 @@ impl<'s, T: TriangleTest, const Q: usize> Packet<'s, T, Q> {
             let m = (hb >> (4 * k)) & 15;
             if m != 0 {
                 let hit = (h.t.quad(k), h.u.quad(k), h.v.quad(k));
-                self.take::<ANY>(hits, g0 + k, mask_from_bits(m), hit, id);
+                self.take::<ANY>(hits, quad(k), mask_from_bits(m), hit, id);
             }
         }
     }
