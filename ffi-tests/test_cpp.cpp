@@ -17,7 +17,7 @@ static_assert(sizeof(sheaf_method) == 4, "sheaf_method is a uint32_t");
 static_assert(SHEAF_STATUS_OK == 0 && SHEAF_STATUS_PANIC == 900, "status codes are never renumbered");
 static_assert(SHEAF_STATUS_CAPACITY_PGRID_CELLS == 206 && SHEAF_STATUS_CAPACITY_PGRID_REFS == 207,
               "status codes are never renumbered");
-static_assert(sizeof(sheaf_pgrid_params) == 32, "sheaf_pgrid_params is 32 bytes");
+static_assert(sizeof(sheaf_pgrid_params) == 36, "sheaf_pgrid_params is 36 bytes");
 
 #define CHECK(cond)                                                                 \
     do {                                                                            \

@@ -706,7 +706,11 @@ typedef struct sheaf_frame {
 
 /**
  * Counters of one trace or render call (C: `sheaf_counters`). Each thread
- * fills its own and the caller adds them up.
+ * fills its own and the caller adds them up. Only `rays`, `packets`,
+ * `stray_lanes`, `packets_no_cull`, `packets_split` and the entry-search
+ * counters are kept in every build; the per-cell, per-node and
+ * per-triangle ones need the `counters` feature (off by default, on in
+ * the CLI) and read 0 without it.
  */
 typedef struct sheaf_counters {
     /**
@@ -1032,6 +1036,12 @@ typedef struct sheaf_pgrid_params {
      * results on open models: every other structure is two-sided. 0 or 1.
      */
     uint8_t cull_backfaces;
+    /**
+     * Lane width of both grids' triangle tests (a `sheaf_isa`, as
+     * `sheaf_trace_params.isa`): `AUTO` (0, default) or a forced level,
+     * `SHEAF_STATUS_INVALID_ARGUMENT` when the CPU lacks it.
+     */
+    sheaf_isa isa;
 } sheaf_pgrid_params;
 
 /**

@@ -18,7 +18,11 @@ macro_rules! count {
 pub(crate) use count;
 
 /// Counters of one trace or render call (C: `sheaf_counters`). Each thread
-/// fills its own and the caller adds them up.
+/// fills its own and the caller adds them up. Only `rays`, `packets`,
+/// `stray_lanes`, `packets_no_cull`, `packets_split` and the entry-search
+/// counters are kept in every build; the per-cell, per-node and
+/// per-triangle ones need the `counters` feature (off by default, on in
+/// the CLI) and read 0 without it.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Pod, Zeroable)]
 pub struct Counters {

@@ -12,7 +12,7 @@ use sheaf::accel::grid::{GridView, traverse_single};
 use sheaf::accel::slot::SlotBuf;
 use sheaf::geom::TriangleTest;
 use sheaf::geom::{F4, Hit4, M4, Mt, Pt, Ray4, Wt};
-use sheaf::{Counters, GridParams, Hit, Limits, OwnedContext, Ray, TraceParams, TriTest};
+use sheaf::{Counters, GridParams, Hit, Isa, Limits, OwnedContext, Ray, TraceParams, TriTest};
 
 /// Group row-major rays of a `w x h` image into n x n packets of 2x2 quads.
 fn packets(rays: &[Ray], w: usize, h: usize, n: usize) -> Vec<(Vec<Ray4>, Vec<usize>)> {
@@ -74,19 +74,31 @@ impl Run<'_> {
             if !w.is_multiple_of(n) || !h.is_multiple_of(n) {
                 continue;
             }
-            for (mc, slot, cull) in [
-                (true, true, true),
-                (false, true, true),
-                (true, false, true),
-                (true, true, false),
-                (false, false, false),
-            ] {
+            // Every option set at the CPU's lane width; all options on at
+            // the other widths too (`sheaf::isa`, emulated where the CPU
+            // lacks them).
+            sheaf::isa::set_emulation(true);
+            let own = sheaf::isa::effective(Isa::Auto);
+            let mut combos = vec![
+                (true, true, true, Isa::Auto),
+                (false, true, true, Isa::Auto),
+                (true, false, true, Isa::Auto),
+                (true, true, false, Isa::Auto),
+                (false, false, false, Isa::Auto),
+            ];
+            for isa in [Isa::Sse2, Isa::Avx2, Isa::Avx512] {
+                if isa != own {
+                    combos.push((true, true, true, isa));
+                }
+            }
+            for (mc, slot, cull, isa) in combos {
                 let p = TraceParams {
                     cgt: CgtOptions {
                         macrocells: mc,
                         mailbox: slot,
                         culling: cull,
                     },
+                    isa,
                     ..TraceParams::default()
                 };
                 let mut slot = self.own.slot();
@@ -113,7 +125,7 @@ impl Run<'_> {
                         };
                         assert!(
                             ok,
-                            "{what} {:?} n={n} {:?} any={any}: ray {ri} {:?}\n  cgt  {got:?}\n  3dda {exp:?}",
+                            "{what} {:?} n={n} {:?} {isa:?} any={any}: ray {ri} {:?}\n  cgt  {got:?}\n  3dda {exp:?}",
                             T::KIND,
                             p.cgt,
                             rays[ri]

@@ -24,9 +24,9 @@ use glam::Vec3;
 use sheaf::accel::bvh::BvhParams;
 use sheaf::scenes::View;
 use sheaf::{
-    Camera, DeferredInfo, DeferredJob, Error, Frame, GridParams, Hit, Limits, Method, OnCaller,
-    OwnedContext, PgridParams, PointLight, PrimaryPass, Ray, Shading, ShadowPass, TraceParams,
-    TriTest,
+    Camera, DeferredInfo, DeferredJob, Error, Frame, GridParams, Hit, Isa, Limits, Method,
+    OnCaller, OwnedContext, PgridParams, PointLight, PrimaryPass, Ray, Shading, ShadowPass,
+    TraceParams, TriTest,
 };
 
 /// Image sizes: no side a multiple of 16 (edge tiles are partial), odd
@@ -75,6 +75,23 @@ fn frame(v: &View, light: Vec3, wh: (u32, u32), shadows: bool) -> Frame {
         width: wh.0,
         height: wh.1,
     }
+}
+
+/// The lane widths a configuration is checked at: the CPU's own, and with
+/// `extra` every other level (`sheaf::isa`; run in baseline code where the
+/// CPU lacks them).
+fn levels(extra: bool) -> Vec<Isa> {
+    sheaf::isa::set_emulation(true);
+    let mut v = vec![Isa::Auto];
+    if extra {
+        let own = sheaf::isa::effective(Isa::Auto);
+        v.extend(
+            [Isa::Sse2, Isa::Avx2, Isa::Avx512]
+                .into_iter()
+                .filter(|&i| i != own),
+        );
+    }
+    v
 }
 
 fn pgrid_params(test: TriTest) -> PgridParams {
@@ -365,16 +382,24 @@ fn check_primary(
         for (vname, v) in &s.views {
             let want = reference_hits(&mut ctx, v, wh);
             let f = frame(v, s.light, wh, false);
-            for &(tile, group, slices) in params {
+            // Every third configuration (tiles 8, 16 and 2: lane groups
+            // within a row of quads and across rows) at every lane width.
+            let configs = params.iter().enumerate().flat_map(|(i, &c)| {
+                levels(i % 3 == 0 && test == tests[0])
+                    .into_iter()
+                    .map(move |isa| (c, isa))
+            });
+            for ((tile, group, slices), isa) in configs {
                 let p = PgridParams {
                     tile,
                     group,
                     slices,
+                    isa,
                     ..pgrid_params(test)
                 };
                 ctx.build_pgrid(&s.scene(), &p).unwrap();
                 let what = format!(
-                    "{} {vname} {test:?} tile {tile} group {group} slices {slices}",
+                    "{} {vname} {test:?} tile {tile} group {group} slices {slices} {isa:?}",
                     s.name
                 );
                 let (info, _) =
@@ -461,20 +486,29 @@ fn check_shadows(
                 *n = l.0;
             }
             let f = frame(v, s.light, wh, true);
-            for (k, &(chunk, light_tiles)) in params.iter().enumerate() {
+            // The first configuration of the first test also at every
+            // lane width, with the eight lights.
+            let configs = params.iter().enumerate().flat_map(|(k, &c)| {
+                levels(k == 0 && test == tests[0])
+                    .into_iter()
+                    .map(move |isa| (k, c, isa))
+            });
+            for (k, (chunk, light_tiles), isa) in configs {
                 if k > 0 && test != tests[0] {
                     continue;
                 }
                 let p = PgridParams {
                     chunk,
                     light_tiles,
+                    isa,
                     ..pgrid_params(test)
                 };
                 ctx.build_pgrid(&s.scene(), &p).unwrap();
                 let sets = [("8 lights", &lights[..]), ("frame light", &[][..])];
-                for &(set, ls) in &sets[..if k == 0 { 2 } else { 1 }] {
+                let n_sets = if k == 0 && isa == Isa::Auto { 2 } else { 1 };
+                for &(set, ls) in &sets[..n_sets] {
                     let what = format!(
-                        "{} {vname} {test:?} chunk {chunk} light tiles {light_tiles} {set}",
+                        "{} {vname} {test:?} chunk {chunk} light tiles {light_tiles} {set} {isa:?}",
                         s.name
                     );
                     let (info, _) =

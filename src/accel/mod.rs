@@ -24,6 +24,7 @@ pub mod bvh;
 pub mod entry;
 pub mod fallback;
 pub mod grid;
+pub(crate) mod group;
 pub mod kd;
 pub mod mailbox;
 pub mod method;

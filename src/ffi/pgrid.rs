@@ -9,7 +9,7 @@
 use super::context::{Handle, sheaf_context, with_mut, with_ref};
 use super::frame::sheaf_frame;
 use super::grid::sheaf_tri_test;
-use super::trace_params::sheaf_trace_params;
+use super::trace_params::{sheaf_isa, sheaf_trace_params};
 use super::{
     check_array, check_non_null, flag, guard_free, raw, read_in, sheaf_hit, sheaf_ray,
     sheaf_status, write_out,
@@ -49,6 +49,10 @@ pub struct sheaf_pgrid_params {
     /// Leave out triangles facing away from the eye (default false). Changes
     /// results on open models: every other structure is two-sided. 0 or 1.
     pub cull_backfaces: u8,
+    /// Lane width of both grids' triangle tests (a `sheaf_isa`, as
+    /// `sheaf_trace_params.isa`): `AUTO` (0, default) or a forced level,
+    /// `SHEAF_STATUS_INVALID_ARGUMENT` when the CPU lacks it.
+    pub isa: raw::sheaf_isa,
 }
 
 impl sheaf_pgrid_params {
@@ -62,6 +66,7 @@ impl sheaf_pgrid_params {
             chunk: p.chunk,
             test: sheaf_tri_test::of(p.test) as u32,
             cull_backfaces: p.cull_backfaces.into(),
+            isa: sheaf_isa::of(p.isa) as u32,
         }
     }
     /// The checked crate value.
@@ -78,6 +83,7 @@ impl sheaf_pgrid_params {
                 "sheaf_pgrid_params.cull_backfaces must be 0 or 1",
             )?,
             test: sheaf_tri_test::to_core(self.test)?,
+            isa: sheaf_isa::to_core(self.isa)?,
         };
         p.validate()?;
         Ok(p)
@@ -339,9 +345,9 @@ pub extern "C" fn sheaf_context_deferred_shadow_ray(
     })
 }
 
-// Seven u32 and a byte: 32 bytes on every ABI (tests/c_abi.rs compares
-// every header struct's size and alignment with C's).
-const _: () = assert!(core::mem::size_of::<sheaf_pgrid_params>() == 32);
+// Seven u32, a byte (padded to four) and a u32: 36 bytes on every ABI
+// (tests/c_abi.rs compares every header struct's size and alignment with C's).
+const _: () = assert!(core::mem::size_of::<sheaf_pgrid_params>() == 36);
 
 #[cfg(test)]
 mod tests {
@@ -359,6 +365,7 @@ mod tests {
             chunk: 64,
             cull_backfaces: true,
             test: TriTest::Watertight,
+            isa: crate::isa::Isa::Sse2,
         };
         assert_eq!(sheaf_pgrid_params::of(&p).to_core(), Ok(p));
         assert_eq!(

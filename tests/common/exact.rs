@@ -98,13 +98,16 @@ pub fn check_class(
         }
     }
     for &(method, n, entry) in cases {
-        // Only the BVH's large packets run wide lanes so far.
+        // The large packets run wide lanes (the 2x2 SIMD rays and single
+        // rays are 4-wide or scalar at every level).
         let wide = matches!(
             method,
-            Method::BvhMasked | Method::BvhRanged | Method::BvhPartition
+            Method::BvhMasked | Method::BvhRanged | Method::BvhPartition | Method::KdPacket
         );
         for &(culling, kind, isa) in &combos {
-            if isa != Isa::Auto && !wide {
+            // Lane widths are checked from the root (entry points start
+            // the same walks: kd_exact.rs covers them at the CPU's width).
+            if isa != Isa::Auto && (!wide || entry != EntrySearch::None) {
                 continue;
             }
             {

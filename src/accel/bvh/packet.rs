@@ -24,12 +24,13 @@ use super::frustum::Frustum;
 use super::{BvhNode, BvhView, MAX_DEPTH, TriangleTest};
 use crate::accel::entry::EntryPoint;
 use crate::accel::fallback;
+use crate::accel::group::{self, Group};
 use crate::accel::method::TraceParams;
 use crate::accel::packet::{MAX_QUADS, SizeClass, by_class};
 use crate::accel::slot::Slot;
 use crate::counters::{Counters, count};
 use crate::geom::lane::mask_from_bits;
-use crate::geom::{F4, F8, F16, Hit4, INVALID_ID, M4, Mt, Pt, Ray4, RayLanes, Wide, Wt};
+use crate::geom::{F4, Hit4, INVALID_ID, M4, Mt, Pt, Ray4, RayLanes, Wide, Wt};
 use crate::isa;
 use crate::mem::scratch::bytes;
 
@@ -45,13 +46,7 @@ pub(crate) const SCRATCH: usize = bytes::<M4>(MAX_QUADS)
         bytes::<Pre<Pt>>(MAX_QUADS),
     )
     + bytes::<F4>(MAX_QUADS)
-    + max(
-        max(
-            bytes::<Group<F4, Wt>>(MAX_QUADS),
-            bytes::<Group<F8, Wt>>(MAX_QUADS / 2),
-        ),
-        bytes::<Group<F16, Wt>>(MAX_QUADS / 4),
-    )
+    + group::max_bytes(MAX_QUADS)
     + max(bytes::<bool>(MAX_QUADS), bytes::<u16>(MAX_QUADS));
 
 /// A triangle test's per-quad precomputation.
@@ -107,20 +102,12 @@ impl QuadBox {
     }
 }
 
-/// `L::G` consecutive quads joined into `L`-wide lanes, with their
-/// triangle-test precomputation (`Packet::groups`).
-#[derive(Clone, Copy)]
-pub(crate) struct Group<L: Wide, T: TriangleTest> {
-    r: RayLanes<L>,
-    pre: T::Pre<L>,
-}
-
 /// A large-packet traversal: walks one prepared packet through the tree.
 pub(crate) trait Walk {
     /// `start`: the node to start at and its depth (the root: `(0, 0)`);
     /// `slot`: the scratch left after the packet's (for per-quad state).
-    fn walk<L: Wide, T: TriangleTest, const ANY: bool, const Q: usize>(
-        p: &mut Packet<'_, T, Q>,
+    fn walk<L: Wide, T: TriangleTest, const ANY: bool>(
+        p: &mut Packet<'_, T>,
         b: &BvhView<'_>,
         rays: &[Ray4],
         hits: &mut [Hit4],
@@ -186,7 +173,7 @@ impl<W: Walk, T: TriangleTest, const ANY: bool> SizeClass for Run<'_, '_, '_, W,
         let (rays, active) = (&self.rays[r.clone()], &self.active[r.clone()]);
         let hits = &mut self.hits[r];
         let (b, opt, start) = (self.b, self.opt, self.start);
-        packet::<W, T, ANY, Q>(b, rays, active, hits, opt, start, self.slot, self.ctr);
+        packet::<W, T, ANY>(b, rays, active, hits, opt, start, self.slot, self.ctr);
     }
 }
 
@@ -194,7 +181,7 @@ impl<W: Walk, T: TriangleTest, const ANY: bool> SizeClass for Run<'_, '_, '_, W,
 /// takes no more scratch), then its per-quad arrays, then the walk.
 // `Run`'s fields, one packet's worth.
 #[allow(clippy::too_many_arguments)]
-fn packet<W: Walk, T: TriangleTest, const ANY: bool, const Q: usize>(
+fn packet<W: Walk, T: TriangleTest, const ANY: bool>(
     b: &BvhView<'_>,
     rays: &[Ray4],
     active: &[M4],
@@ -204,7 +191,7 @@ fn packet<W: Walk, T: TriangleTest, const ANY: bool, const Q: usize>(
     slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
-    let nq = rays.len().min(active.len()).min(hits.len()).min(Q);
+    let nq = rays.len().min(active.len()).min(hits.len());
     let (live, mut slot) = slot.split(nq, M4::FALSE);
     let Some(lanes) = Lanes::new(b, rays, active, hits, live, opt.fallbacks, ctr) else {
         return;
@@ -223,8 +210,8 @@ fn packet<W: Walk, T: TriangleTest, const ANY: bool, const Q: usize>(
         pre,
         tfar,
     };
-    let mut p = Packet::<T, Q>::new(b, rays, opt, lanes, quads, ctr);
-    let k = WalkAt::<W, T, ANY, Q> {
+    let mut p = Packet::<T>::new(b, rays, opt, lanes, quads, ctr);
+    let k = WalkAt::<W, T, ANY> {
         p: &mut p,
         b,
         rays,
@@ -238,8 +225,8 @@ fn packet<W: Walk, T: TriangleTest, const ANY: bool, const Q: usize>(
 }
 
 /// A walk as an `isa::Kernel`: compiled at each lane width.
-struct WalkAt<'x, 'b, 's, 't, W, T: TriangleTest, const ANY: bool, const Q: usize> {
-    p: &'x mut Packet<'s, T, Q>,
+struct WalkAt<'x, 'b, 's, 't, W, T: TriangleTest, const ANY: bool> {
+    p: &'x mut Packet<'s, T>,
     b: &'x BvhView<'b>,
     rays: &'x [Ray4],
     hits: &'x mut [Hit4],
@@ -249,13 +236,11 @@ struct WalkAt<'x, 'b, 's, 't, W, T: TriangleTest, const ANY: bool, const Q: usiz
     _w: core::marker::PhantomData<W>,
 }
 
-impl<W: Walk, T: TriangleTest, const ANY: bool, const Q: usize> isa::Kernel
-    for WalkAt<'_, '_, '_, '_, W, T, ANY, Q>
-{
+impl<W: Walk, T: TriangleTest, const ANY: bool> isa::Kernel for WalkAt<'_, '_, '_, '_, W, T, ANY> {
     type Out = ();
     #[inline(always)]
     fn run<L: Wide>(self) {
-        W::walk::<L, T, ANY, Q>(
+        W::walk::<L, T, ANY>(
             self.p, self.b, self.rays, self.hits, self.start, self.slot, self.ctr,
         )
     }
@@ -357,9 +342,9 @@ struct Quads<'s, T: TriangleTest> {
     tfar: &'s mut [F4],
 }
 
-/// One packet of `nq <= Q` quads during traversal (its per-quad arrays
+/// One packet of `nq <= MAX_QUADS` quads during traversal (its per-quad arrays
 /// borrowed from the slot's scratch for `'s`).
-pub(crate) struct Packet<'s, T: TriangleTest, const Q: usize> {
+pub(crate) struct Packet<'s, T: TriangleTest> {
     pub nq: usize,
     /// Slab-test data per quad (reciprocals, direction signs).
     qb: &'s [QuadBox],
@@ -380,7 +365,7 @@ pub(crate) struct Packet<'s, T: TriangleTest, const Q: usize> {
     pub fallbacks: bool,
 }
 
-impl<'s, T: TriangleTest, const Q: usize> Packet<'s, T, Q> {
+impl<'s, T: TriangleTest> Packet<'s, T> {
     /// The packet of coherent `lanes` (`Lanes::new`) over its prepared
     /// `quads`, and with `opt.bvh.culling` its frustum.
     fn new(
@@ -493,22 +478,23 @@ impl<'s, T: TriangleTest, const Q: usize> Packet<'s, T, Q> {
     ) {
         // Lanes past `n` repeat quad `qs[n - 1]` (finite data, masked off).
         let q = |k: usize| qs[k.min(n - 1)];
-        let bits = self.live_bits::<L>(|k| (k < n).then(|| q(k)));
+        let live = &*self.live;
+        let bits = group::lane_bits::<L>(0, (1 << n) - 1, |k| live[q(k)]);
         if bits == 0 {
             return;
         }
         ctr.tri_at(depth, bits.count_ones() as u64);
-        let h = T::intersect(
-            &RayLanes::<L>::join(|k| &rays[q(k)]),
-            &T::join_pre::<L>(|k| self.pre[q(k)]),
-            T::prim(b.store(), i),
-        );
-        self.take_all::<L, ANY>(hits, &h, bits, q, id);
+        let grp = Group::<L, T> {
+            r: RayLanes::<L>::join(|k| &rays[q(k)]),
+            pre: T::join_pre::<L>(|k| self.pre[q(k)]),
+        };
+        let (h, hb) = group::test(&grp, T::prim(b.store(), i), bits);
+        group::each_hit(&h, hb, |k, m, hit| self.take::<ANY>(hits, q(k), m, hit, id));
     }
 
-    /// `test` for the quads `g0 + k` of one aligned group (`Group`) whose
-    /// bit `k` is set in `sel`: the group's lanes were joined once per
-    /// packet, not per test.
+    /// `test` for the quads `g L::G + k` of aligned group `g` (`group`)
+    /// whose bit `k` is set in `sel`: the group's lanes were joined once
+    /// per packet, not per test.
     #[inline(always)]
     // Inner-loop leaf test (per quad group and triangle).
     #[allow(clippy::too_many_arguments)]
@@ -517,75 +503,35 @@ impl<'s, T: TriangleTest, const Q: usize> Packet<'s, T, Q> {
         b: &BvhView<'_>,
         hits: &mut [Hit4],
         grp: &Group<L, T>,
-        g0: usize,
+        g: usize,
         sel: u32,
         i: usize,
         id: u32,
         depth: usize,
         ctr: &mut Counters,
     ) {
-        let bits = self.live_bits::<L>(|k| (sel >> k & 1 != 0).then_some(g0 + k));
+        let live = &*self.live;
+        let bits = group::lane_bits::<L>(g, sel, |q| live[q]);
         if bits == 0 {
             return;
         }
         ctr.tri_at(depth, bits.count_ones() as u64);
-        let h = T::intersect(&grp.r, &grp.pre, T::prim(b.store(), i));
-        self.take_all::<L, ANY>(hits, &h, bits, |k| g0 + k, id);
+        let (h, hb) = group::test(grp, T::prim(b.store(), i), bits);
+        let g0 = g * L::G;
+        group::each_hit(&h, hb, |k, m, hit| {
+            self.take::<ANY>(hits, g0 + k, m, hit, id)
+        });
     }
 
-    /// Live lanes of the group's quads `quad(k)` (`None`: off) as mask bits.
-    #[inline(always)]
-    fn live_bits<L: Wide>(&self, quad: impl Fn(usize) -> Option<usize>) -> u32 {
-        let mut bits = 0u32;
-        for k in 0..L::G {
-            if let Some(q) = quad(k) {
-                bits |= self.live[q].bitmask() << (4 * k);
-            }
-        }
-        bits
-    }
-
-    /// A group's test result `h` for its lanes `bits`, quad `k` being
-    /// `quad(k)`: each quad's hit lanes go through `take`.
-    #[inline(always)]
-    fn take_all<L: Wide, const ANY: bool>(
-        &mut self,
-        hits: &mut [Hit4],
-        h: &crate::geom::triangle::TriHit<L>,
-        bits: u32,
-        quad: impl Fn(usize) -> usize,
-        id: u32,
-    ) {
-        let hb = L::mask_bits(h.mask) & bits;
-        if hb == 0 {
-            return;
-        }
-        for k in 0..L::G {
-            let m = (hb >> (4 * k)) & 15;
-            if m != 0 {
-                let hit = (h.t.quad(k), h.u.quad(k), h.v.quad(k));
-                self.take::<ANY>(hits, quad(k), mask_from_bits(m), hit, id);
-            }
-        }
-    }
-
-    /// The packet's quads in aligned groups of `L::G` (quads `g L::G ..`;
-    /// past the last quad the group repeats it), carved from `slot`.
+    /// The packet's quads in aligned groups of `L::G` (`group::join`),
+    /// carved from `slot`.
     #[inline(always)]
     pub(crate) fn groups<'a, L: Wide>(
         &self,
         rays: &[Ray4],
         slot: &'a mut Slot<'_>,
     ) -> (&'a mut [Group<L, T>], Slot<'a>) {
-        let nq = self.nq;
-        let pre = self.pre;
-        slot.split_from(nq.div_ceil(L::G), |g| {
-            let q = |k: usize| (g * L::G + k).min(nq - 1);
-            Group {
-                r: RayLanes::<L>::join(|k| &rays[q(k)]),
-                pre: T::join_pre::<L>(|k| pre[q(k)]),
-            }
-        })
+        group::join::<L, T>(&rays[..self.nq], slot)
     }
 
     /// Lanes `hm` of quad `q` hit triangle `id` at `(t, u, v)`: those
@@ -599,22 +545,12 @@ impl<'s, T: TriangleTest, const Q: usize> Packet<'s, T, Q> {
         hit: (F4, F4, F4),
         id: u32,
     ) {
-        let (t, u, v) = hit;
-        let hq = &mut hits[q];
-        let take = if ANY { hm } else { hm & hq.closer(t, id) };
+        let take = group::take::<ANY>(&mut hits[q], hm, hit, id);
         if !take.any() {
             return;
         }
-        hq.t = F4::select(take, t, hq.t);
-        hq.u = F4::select(take, u, hq.u);
-        hq.v = F4::select(take, v, hq.v);
-        for k in 0..4 {
-            if take.test(k) {
-                hq.prim[k] = id;
-            }
-        }
         // A taken hit lies in [tmin, tmax) and not beyond best.t.
-        self.tfar[q] = F4::select(take, t, self.tfar[q]);
+        self.tfar[q] = F4::select(take, hit.0, self.tfar[q]);
         if ANY {
             self.live[q] &= !take;
             self.n_live -= take.bitmask().count_ones();

@@ -124,8 +124,8 @@ pub fn occluded<T: TriangleTest>(
 /// Partition with the live quads from that first one. Every pending node
 /// is one the packet would have visited, and Partition is exact from any
 /// node, so the result is the same.
-pub(crate) fn to_partition<L: Wide, T: TriangleTest, const ANY: bool, const Q: usize>(
-    p: &mut Packet<'_, T, Q>,
+pub(crate) fn to_partition<L: Wide, T: TriangleTest, const ANY: bool>(
+    p: &mut Packet<'_, T>,
     b: &BvhView<'_>,
     rays: &[Ray4],
     hits: &mut [Hit4],
@@ -137,7 +137,7 @@ pub(crate) fn to_partition<L: Wide, T: TriangleTest, const ANY: bool, const Q: u
     // One index list for every subtree: each walk refills it.
     let (idx, _) = slot.split(p.nq, 0u16);
     for (node, depth, first) in pending {
-        Partition::walk_from::<L, T, ANY, Q>(p, b, rays, hits, (node, depth), first, idx, ctr);
+        Partition::walk_from::<L, T, ANY>(p, b, rays, hits, (node, depth), first, idx, ctr);
         if ANY && p.done() {
             return;
         }
@@ -149,8 +149,8 @@ pub(crate) struct Masked;
 
 impl Walk for Masked {
     #[inline(always)]
-    fn walk<L: Wide, T: TriangleTest, const ANY: bool, const Q: usize>(
-        p: &mut Packet<'_, T, Q>,
+    fn walk<L: Wide, T: TriangleTest, const ANY: bool>(
+        p: &mut Packet<'_, T>,
         b: &BvhView<'_>,
         rays: &[Ray4],
         hits: &mut [Hit4],
@@ -211,8 +211,7 @@ impl Walk for Masked {
                             sel |= u32::from(m) << k;
                         }
                         if sel != 0 {
-                            let g0 = g * L::G;
-                            p.test_group::<L, ANY>(b, hits, &grp[g], g0, sel, i, id, depth, ctr);
+                            p.test_group::<L, ANY>(b, hits, &grp[g], g, sel, i, id, depth, ctr);
                         }
                     }
                 }
@@ -223,7 +222,7 @@ impl Walk for Masked {
                     let pending = (0..sp)
                         .rev()
                         .map(|k| (st_node[k] as usize, st_depth[k] as usize, 0));
-                    return to_partition::<L, T, ANY, Q>(p, b, rays, hits, pending, &mut slot, ctr);
+                    return to_partition::<L, T, ANY>(p, b, rays, hits, pending, &mut slot, ctr);
                 }
             }
             if sp == 0 {

@@ -69,8 +69,8 @@ pub fn occluded<T: TriangleTest>(
 /// `partRays`: move the quads of `idx[..ia]` alive in `n`'s box to the
 /// front (in place) and return how many there are.
 #[inline(always)]
-fn part_rays<T: TriangleTest, const Q: usize>(
-    p: &Packet<'_, T, Q>,
+fn part_rays<T: TriangleTest>(
+    p: &Packet<'_, T>,
     n: &BvhNode,
     idx: &mut [u16],
     ia: usize,
@@ -95,8 +95,8 @@ pub(crate) struct Partition;
 
 impl Walk for Partition {
     #[inline(always)]
-    fn walk<L: Wide, T: TriangleTest, const ANY: bool, const Q: usize>(
-        p: &mut Packet<'_, T, Q>,
+    fn walk<L: Wide, T: TriangleTest, const ANY: bool>(
+        p: &mut Packet<'_, T>,
         b: &BvhView<'_>,
         rays: &[Ray4],
         hits: &mut [Hit4],
@@ -105,7 +105,7 @@ impl Walk for Partition {
         ctr: &mut Counters,
     ) {
         let (idx, _) = slot.split(p.nq, 0u16);
-        Self::walk_from::<L, T, ANY, Q>(p, b, rays, hits, start, 0, idx, ctr)
+        Self::walk_from::<L, T, ANY>(p, b, rays, hits, start, 0, idx, ctr)
     }
 }
 
@@ -117,8 +117,8 @@ impl Partition {
     // `walk`'s arguments, and where `I` starts and lives.
     #[allow(clippy::too_many_arguments)]
     #[inline(always)]
-    pub(crate) fn walk_from<L: Wide, T: TriangleTest, const ANY: bool, const Q: usize>(
-        p: &mut Packet<'_, T, Q>,
+    pub(crate) fn walk_from<L: Wide, T: TriangleTest, const ANY: bool>(
+        p: &mut Packet<'_, T>,
         b: &BvhView<'_>,
         rays: &[Ray4],
         hits: &mut [Hit4],

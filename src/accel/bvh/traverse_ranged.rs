@@ -70,8 +70,8 @@ pub fn occluded<T: TriangleTest>(
 
 /// `getFirstHit`: the first quad from `ia` on alive in `n`'s box, or `nq`.
 #[inline(always)]
-fn first_hit<T: TriangleTest, const Q: usize>(
-    p: &Packet<'_, T, Q>,
+fn first_hit<T: TriangleTest>(
+    p: &Packet<'_, T>,
     n: &BvhNode,
     ia: usize,
     depth: usize,
@@ -95,8 +95,8 @@ fn first_hit<T: TriangleTest, const Q: usize>(
 /// `getLastHit`: one past the last quad after `ia` alive in `n`'s box, or
 /// `ia + 1`.
 #[inline(always)]
-fn last_hit<T: TriangleTest, const Q: usize>(
-    p: &Packet<'_, T, Q>,
+fn last_hit<T: TriangleTest>(
+    p: &Packet<'_, T>,
     n: &BvhNode,
     ia: usize,
     depth: usize,
@@ -117,8 +117,8 @@ pub(crate) struct Ranged;
 
 impl Walk for Ranged {
     #[inline(always)]
-    fn walk<L: Wide, T: TriangleTest, const ANY: bool, const Q: usize>(
-        p: &mut Packet<'_, T, Q>,
+    fn walk<L: Wide, T: TriangleTest, const ANY: bool>(
+        p: &mut Packet<'_, T>,
         b: &BvhView<'_>,
         rays: &[Ray4],
         hits: &mut [Hit4],
@@ -158,13 +158,13 @@ impl Walk for Ranged {
                     let id = b.tri_ids[j];
                     // The aligned groups of `L::G` quads overlapping [ia, ie).
                     let groups = ia / L::G..ie.div_ceil(L::G);
-                    for (g, gr) in grp[groups.clone()].iter().enumerate() {
-                        let g0 = (groups.start + g) * L::G;
+                    for g in groups {
+                        let g0 = g * L::G;
                         let mut sel = 0u32;
                         for k in 0..L::G {
                             sel |= u32::from((ia..ie).contains(&(g0 + k))) << k;
                         }
-                        p.test_group::<L, ANY>(b, hits, gr, g0, sel, j, id, depth, ctr);
+                        p.test_group::<L, ANY>(b, hits, &grp[g], g, sel, j, id, depth, ctr);
                     }
                 }
                 if ANY && p.done() {

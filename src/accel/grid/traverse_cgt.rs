@@ -59,11 +59,13 @@
 
 use super::{GridView, TriangleTest};
 use crate::accel::fallback;
+use crate::accel::group;
 use crate::accel::method::TraceParams;
 use crate::accel::packet::MAX_QUADS;
 use crate::accel::slot::Slot;
 use crate::counters::{Counters, count};
-use crate::geom::{F4, Hit, Hit4, M4, Mt, Pt, Ray4, RayLanes, TriVerts, Wt};
+use crate::geom::{F4, Hit, Hit4, M4, Ray4, TriVerts, Wide};
+use crate::isa;
 use crate::mem::scratch::bytes;
 use glam::Vec3;
 
@@ -80,20 +82,12 @@ const BOX_EPS: f32 = 1e-3;
 pub use crate::accel::mailbox::Mailbox;
 pub use crate::accel::method::CgtOptions;
 
-/// Slot scratch a packet takes: per quad the live lanes, six slice
-/// coordinates and the triangle test's precomputation (the largest kind),
-/// for `MAX_QUADS` quads.
+/// Slot scratch a packet takes: per quad the live lanes and six slice
+/// coordinates, and the quads' lane groups with the triangle test's
+/// precomputation (`accel::group`, the largest kind and width), for
+/// `MAX_QUADS` quads.
 pub const SCRATCH: usize =
-    bytes::<M4>(MAX_QUADS) + 6 * bytes::<F4>(MAX_QUADS) + pre_bytes(MAX_QUADS);
-
-/// Scratch bytes of `n` precomputations of the largest triangle test.
-const fn pre_bytes(n: usize) -> usize {
-    let mt = bytes::<<Mt as TriangleTest>::Pre<F4>>(n);
-    let wt = bytes::<<Wt as TriangleTest>::Pre<F4>>(n);
-    let pt = bytes::<<Pt as TriangleTest>::Pre<F4>>(n);
-    let m = if mt > wt { mt } else { wt };
-    if m > pt { m } else { pt }
-}
+    bytes::<M4>(MAX_QUADS) + 6 * bytes::<F4>(MAX_QUADS) + group::max_bytes(MAX_QUADS);
 
 /// Nearest hits of the active lanes of `rays` (a packet of `rays.len()`
 /// quads; longer inputs are consecutive packets of `MAX_QUADS`) into
@@ -140,7 +134,48 @@ fn dispatch<T: TriangleTest, const ANY: bool>(
     for s in (0..n).step_by(MAX_QUADS) {
         let r = s..(s + MAX_QUADS).min(n);
         let (rays, active) = (&rays[r.clone()], &active[r.clone()]);
-        packet::<T, ANY>(g, rays, active, &mut hits[r], opt, slot, ctr);
+        let hits = &mut hits[r];
+        let k = PacketAt::<T, ANY> {
+            g,
+            rays,
+            active,
+            hits,
+            opt,
+            slot: &mut *slot,
+            ctr: &mut *ctr,
+            _t: core::marker::PhantomData,
+        };
+        isa::run(opt.isa, k);
+    }
+}
+
+/// One packet as an `isa::Kernel`: compiled at each lane width.
+struct PacketAt<'x, 'g, 's, T, const ANY: bool> {
+    g: &'x GridView<'g>,
+    rays: &'x [Ray4],
+    active: &'x [M4],
+    hits: &'x mut [Hit4],
+    opt: &'x TraceParams,
+    slot: &'x mut Slot<'s>,
+    ctr: &'x mut Counters,
+    _t: core::marker::PhantomData<T>,
+}
+
+impl<T: TriangleTest, const ANY: bool> isa::Kernel for PacketAt<'_, '_, '_, T, ANY> {
+    type Out = ();
+    #[inline(always)]
+    fn run<L: Wide>(self) {
+        let PacketAt {
+            g,
+            rays,
+            active,
+            hits,
+            opt,
+            slot,
+            ctr,
+            ..
+        } = self;
+        packet::<L, T, ANY>(g, rays, active, hits, opt, slot, ctr)
     }
 }
 
@@ -149,8 +184,10 @@ fn lane_mask(m: M4) -> u32 {
     m.bitmask()
 }
 
-/// One packet of `rays.len() <= MAX_QUADS` quads.
-fn packet<T: TriangleTest, const ANY: bool>(
+/// One packet of `rays.len() <= MAX_QUADS` quads, its triangle tests on
+/// `L`-wide lanes (`accel::group`).
+#[inline(always)]
+fn packet<L: Wide, T: TriangleTest, const ANY: bool>(
     g: &GridView<'_>,
     rays: &[Ray4],
     active: &[M4],
@@ -384,11 +421,9 @@ fn packet<T: TriangleTest, const ANY: bool>(
     }
     let corners = corner_dirs(k, u, v, flip, info.cell_size, smin, smax);
 
-    // Per-ray precomputation of the triangle test.
-    let (pre, mut slot) = slot.split(nq, T::prepare(&RayLanes::from_ray4(&rays[q0])));
-    for q in 0..nq {
-        pre[q] = T::prepare(&RayLanes::from_ray4(&rays[q]));
-    }
+    // The quads in groups of the lane width, with the triangle test's
+    // per-ray precomputation.
+    let (grp, mut slot) = group::join::<L, T>(rays, &mut slot);
     let mb = &mut slot.mailbox;
     if opt.cgt.mailbox {
         mb.next_packet(info.triangles as usize);
@@ -471,43 +506,26 @@ fn packet<T: TriangleTest, const ANY: bool>(
                             continue;
                         }
                         let id = g.tri_ids[tri];
+                        let prim = T::prim(g.store(), tri);
                         let mut left = false;
-                        for q in 0..nq {
-                            let lm = live[q];
-                            if !lm.any() {
+                        for (gi, gr) in grp.iter().enumerate() {
+                            let sel = group::all::<L>(gi, nq);
+                            let bits = group::lane_bits::<L>(gi, sel, |q| live[q]);
+                            if bits == 0 {
                                 continue;
                             }
                             left = true;
-                            work += 1;
-                            count!(ctr.tri_tests += lane_mask(lm).count_ones() as u64);
-                            let h = T::intersect(
-                                &RayLanes::from_ray4(&rays[q]),
-                                &pre[q],
-                                T::prim(g.store(), tri),
-                            );
-                            let hm = h.mask & lm;
-                            if !hm.any() {
-                                continue;
-                            }
-                            let take = if ANY {
-                                hm
-                            } else {
-                                hm & hits[q].closer(h.t, id)
-                            };
-                            if take.any() {
-                                let hq = &mut hits[q];
-                                hq.t = F4::select(take, h.t, hq.t);
-                                hq.u = F4::select(take, h.u, hq.u);
-                                hq.v = F4::select(take, h.v, hq.v);
-                                for i in 0..4 {
-                                    if take.test(i) {
-                                        hq.prim[i] = id;
-                                    }
-                                }
+                            // The budget counts quad tests, at any width.
+                            work += group::quads_in(bits);
+                            count!(ctr.tri_tests += bits.count_ones() as u64);
+                            let (h, hb) = group::test(gr, prim, bits);
+                            group::each_hit(&h, hb, |k, hm, hit| {
+                                let q = gi * L::G + k;
+                                let take = group::take::<ANY>(&mut hits[q], hm, hit, id);
                                 if ANY {
                                     live[q] &= !take;
                                 }
-                            }
+                            });
                         }
                         if !left {
                             return;

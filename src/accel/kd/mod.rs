@@ -434,30 +434,10 @@ impl crate::accel::Accel for KdView<'_> {
                     let n = rays.len().min(active.len()).min(hits.len()).min(MAX_QUADS);
                     let (occ, mut slot) = slot.split(n, M4::FALSE);
                     let (r, a) = (&rays[..n], &active[..n]);
-                    traverse_packet::occluded::<T>(
-                        self,
-                        r,
-                        a,
-                        occ,
-                        f,
-                        e,
-                        p.fallbacks,
-                        &mut slot,
-                        ctr,
-                    );
+                    traverse_packet::occluded::<T>(self, r, a, occ, f, e, p, &mut slot, ctr);
                     packet::mark_occluded(occ, a, &mut hits[..n]);
                 } else {
-                    traverse_packet::intersect::<T>(
-                        self,
-                        rays,
-                        active,
-                        hits,
-                        f,
-                        e,
-                        p.fallbacks,
-                        slot,
-                        ctr,
-                    );
+                    traverse_packet::intersect::<T>(self, rays, active, hits, f, e, p, slot, ctr);
                 }
                 true
             }

@@ -74,12 +74,15 @@ use super::traverse_simd::{clip4, lane_from, lane_signs, stray_bits, valid4};
 use super::{KdView, MAX_DEPTH, TriangleTest};
 use crate::accel::entry::EntryPoint;
 use crate::accel::fallback;
+use crate::accel::group;
+use crate::accel::method::TraceParams;
 use crate::accel::packet::{SizeClass, by_class};
 use crate::accel::slot::Slot;
 use crate::counters::{Counters, count};
 use crate::geom::frustum::Frustum;
 use crate::geom::lane::mask_from_bits;
-use crate::geom::{Aabb, F4, Hit, Hit4, INVALID_ID, M4, Mt, Pt, Ray4, RayLanes, Wt};
+use crate::geom::{Aabb, F4, Hit, Hit4, INVALID_ID, M4, Ray4, Wide};
+use crate::isa::{self, Isa};
 use crate::mem::scratch::bytes;
 
 /// Most quads traced as one packet (32 x 32 rays), for every family.
@@ -87,22 +90,14 @@ pub use crate::accel::packet::MAX_QUADS;
 
 /// Slot scratch a packet of the largest class takes: per quad the live
 /// lanes, origins and reciprocal directions (3 each), tmin, tmax, the
-/// interval (2), the split's t_s, the active list, the leaf's lanes and
-/// the triangle test's precomputation (the largest kind); and the stack.
+/// interval (2), the split's t_s, the active list, the leaf's lanes, the
+/// quads' lane groups with the triangle test's precomputation
+/// (`accel::group`, the largest kind and width); and the stack.
 pub const SCRATCH: usize = 2 * bytes::<M4>(MAX_QUADS)
     + 11 * bytes::<F4>(MAX_QUADS)
     + bytes::<u16>(MAX_QUADS)
-    + pre_bytes(MAX_QUADS)
+    + group::max_bytes(MAX_QUADS)
     + bytes::<Entry>(MAX_DEPTH + 1);
-
-/// Scratch bytes of `n` precomputations of the largest triangle test.
-const fn pre_bytes(n: usize) -> usize {
-    let mt = bytes::<<Mt as TriangleTest>::Pre<F4>>(n);
-    let wt = bytes::<<Wt as TriangleTest>::Pre<F4>>(n);
-    let pt = bytes::<<Pt as TriangleTest>::Pre<F4>>(n);
-    let m = if mt > wt { mt } else { wt };
-    if m > pt { m } else { pt }
-}
 
 /// `Q` values, each `fill`, from the slot's scratch as an array (indices
 /// masked with `Q - 1` need no bounds check), and the rest of the slot.
@@ -137,7 +132,7 @@ pub fn intersect<T: TriangleTest>(
     hits: &mut [Hit4],
     frustum: Option<&Frustum>,
     entry: Option<&EntryPoint>,
-    fallbacks: bool,
+    opt: &TraceParams,
     slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
@@ -150,7 +145,7 @@ pub fn intersect<T: TriangleTest>(
         &mut [],
         frustum,
         entry,
-        fallbacks,
+        opt,
         slot,
         ctr,
     );
@@ -167,7 +162,7 @@ pub fn occluded<T: TriangleTest>(
     occluded: &mut [M4],
     frustum: Option<&Frustum>,
     entry: Option<&EntryPoint>,
-    fallbacks: bool,
+    opt: &TraceParams,
     slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
@@ -180,7 +175,7 @@ pub fn occluded<T: TriangleTest>(
         &mut occluded[..n],
         frustum,
         entry,
-        fallbacks,
+        opt,
         slot,
         ctr,
     );
@@ -198,7 +193,7 @@ fn dispatch<T: TriangleTest, const ANY: bool>(
     occ: &mut [M4],
     frustum: Option<&Frustum>,
     entry: Option<&EntryPoint>,
-    fallbacks: bool,
+    opt: &TraceParams,
     slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
@@ -211,7 +206,8 @@ fn dispatch<T: TriangleTest, const ANY: bool>(
         occ,
         frustum,
         entry,
-        fallbacks,
+        fallbacks: opt.fallbacks,
+        isa: opt.isa,
         slot,
         ctr,
         _t: core::marker::PhantomData,
@@ -230,6 +226,7 @@ struct Run<'x, 'k, 's, T, const ANY: bool> {
     frustum: Option<&'x Frustum>,
     entry: Option<&'x EntryPoint>,
     fallbacks: bool,
+    isa: Isa,
     slot: &'x mut Slot<'s>,
     ctr: &'x mut Counters,
     _t: core::marker::PhantomData<T>,
@@ -245,7 +242,7 @@ impl<T: TriangleTest, const ANY: bool> SizeClass for Run<'_, '_, '_, T, ANY> {
             (&mut self.hits[r], &mut [][..])
         };
         let (f, e) = (self.frustum, self.entry);
-        let on = self.fallbacks;
+        let on = (self.fallbacks, self.isa);
         packet::<T, ANY, Q>(self.k, rays, active, h, o, f, e, on, self.slot, self.ctr);
     }
 }
@@ -271,7 +268,7 @@ fn packet<T: TriangleTest, const ANY: bool, const Q: usize>(
     occ: &mut [M4],
     frustum: Option<&Frustum>,
     entry: Option<&EntryPoint>,
-    fallbacks: bool,
+    (fallbacks, isa): (bool, Isa),
     slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
@@ -356,7 +353,7 @@ fn packet<T: TriangleTest, const ANY: bool, const Q: usize>(
         });
         return;
     }
-    walk::<T, ANY, Q>(
+    let w = WalkAt::<T, ANY, Q> {
         k,
         rays,
         hits,
@@ -365,16 +362,60 @@ fn packet<T: TriangleTest, const ANY: bool, const Q: usize>(
         live,
         n_live,
         neg,
-        (node0, depth0, bx0),
-        &mut slot,
+        start: (node0, depth0, bx0),
+        slot: &mut slot,
         ctr,
-    );
+        _t: core::marker::PhantomData,
+    };
+    isa::run(isa, w);
+}
+
+/// `walk` as an `isa::Kernel`: compiled at each lane width.
+struct WalkAt<'x, 'k, 's, T: TriangleTest, const ANY: bool, const Q: usize> {
+    k: &'x KdView<'k>,
+    rays: &'x [Ray4],
+    hits: &'x mut [Hit4],
+    occ: &'x mut [M4],
+    frustum: Option<&'x Frustum>,
+    live: &'x mut [M4; Q],
+    n_live: u32,
+    neg: [bool; 3],
+    start: (usize, usize, Aabb),
+    slot: &'x mut Slot<'s>,
+    ctr: &'x mut Counters,
+    _t: core::marker::PhantomData<T>,
+}
+
+impl<T: TriangleTest, const ANY: bool, const Q: usize> isa::Kernel
+    for WalkAt<'_, '_, '_, T, ANY, Q>
+{
+    type Out = ();
+    #[inline(always)]
+    fn run<L: Wide>(self) {
+        let WalkAt {
+            k,
+            rays,
+            hits,
+            occ,
+            frustum,
+            live,
+            n_live,
+            neg,
+            start,
+            slot,
+            ctr,
+            ..
+        } = self;
+        walk::<L, T, ANY, Q>(
+            k, rays, hits, occ, frustum, live, n_live, neg, start, slot, ctr,
+        )
+    }
 }
 
 #[inline(always)]
 // Monomorphised hot path: a struct would be rebuilt per packet.
 #[allow(clippy::too_many_arguments)]
-fn walk<T: TriangleTest, const ANY: bool, const Q: usize>(
+fn walk<L: Wide, T: TriangleTest, const ANY: bool, const Q: usize>(
     k: &KdView<'_>,
     rays: &[Ray4],
     hits: &mut [Hit4],
@@ -399,18 +440,18 @@ fn walk<T: TriangleTest, const ANY: bool, const Q: usize>(
     let (rz, mut slot) = carve::<F4, Q>(&mut slot, z);
     let (tmin, mut slot) = carve::<F4, Q>(&mut slot, z);
     let (tmax, mut slot) = carve::<F4, Q>(&mut slot, z);
-    let (pre, mut slot) =
-        carve::<T::Pre<F4>, Q>(&mut slot, T::prepare(&RayLanes::from_ray4(&rays[0])));
     for (q, r) in rays[..nq].iter().enumerate() {
         (ox[q], oy[q], oz[q]) = (r.org[0], r.org[1], r.org[2]);
         rx[q] = F4::ONE / r.dir[0];
         ry[q] = F4::ONE / r.dir[1];
         rz[q] = F4::ONE / r.dir[2];
         (tmin[q], tmax[q]) = (r.tmin, r.tmax);
-        pre[q] = T::prepare(&RayLanes::from_ray4(r));
     }
     let (org, rcp) = ([&*ox, &*oy, &*oz], [&*rx, &*ry, &*rz]);
-    let (tmin, tmax, pre) = (&*tmin, &*tmax, &*pre);
+    let (tmin, tmax) = (&*tmin, &*tmax);
+    // The quads in groups of the lane width, with the triangle test's
+    // per-ray precomputation (`accel::group`).
+    let (grp, mut slot) = group::join::<L, T>(&rays[..nq], &mut slot);
     // Current intervals (valid for the quads in `act`).
     let (t0, mut slot) = carve::<F4, Q>(&mut slot, z);
     let (t1, mut slot) = carve::<F4, Q>(&mut slot, z);
@@ -592,39 +633,38 @@ fn walk<T: TriangleTest, const ANY: bool, const Q: usize>(
                 }
                 let prim = T::prim(k.store(), s);
                 let id = k.tri_ids[s];
-                for (m, &qi) in lm[..na].iter_mut().zip(&act[..na]) {
-                    if ANY && !m.any() {
+                // The quads in `act` (ascending) by lane group.
+                let mut i = 0;
+                while i < na {
+                    let (i0, gi) = (i, act[i] as usize / L::G);
+                    let mut bits = 0u32;
+                    while i < na && act[i] as usize / L::G == gi {
+                        bits |= lm[i].bitmask() << (4 * (act[i] as usize % L::G));
+                        i += 1;
+                    }
+                    if bits == 0 {
                         continue;
                     }
-                    let q = qi as usize & (Q - 1);
-                    ctr.tri_at(depth, m.bitmask().count_ones() as u64);
-                    let h = T::intersect(&RayLanes::from_ray4(&rays[q]), &pre[q], prim);
-                    let hm = h.mask & *m;
-                    if !hm.any() {
-                        continue;
-                    }
-                    if ANY {
-                        // Occlusion: a lane with a hit is done.
-                        occ[q] |= hm;
-                        live[q] &= !hm;
-                        *m &= !hm;
-                        n_live -= hm.bitmask().count_ones();
-                        if n_live == 0 {
-                            return;
-                        }
-                    } else {
-                        let hq = &mut hits[q];
-                        let take = hm & hq.closer(h.t, id);
-                        if take.any() {
-                            hq.t = F4::select(take, h.t, hq.t);
-                            hq.u = F4::select(take, h.u, hq.u);
-                            hq.v = F4::select(take, h.v, hq.v);
-                            for i in 0..4 {
-                                if take.test(i) {
-                                    hq.prim[i] = id;
+                    ctr.tri_at(depth, bits.count_ones() as u64);
+                    let (h, hb) = group::test(&grp[gi], prim, bits);
+                    group::each_hit(&h, hb, |kq, hm, hit| {
+                        let q = (gi * L::G + kq) & (Q - 1);
+                        if ANY {
+                            // Occlusion: a lane with a hit is done.
+                            occ[q] |= hm;
+                            live[q] &= !hm;
+                            n_live -= hm.bitmask().count_ones();
+                            for j in i0..i {
+                                if act[j] as usize == q {
+                                    lm[j] &= !hm;
                                 }
                             }
+                        } else {
+                            group::take::<false>(&mut hits[q], hm, hit, id);
                         }
+                    });
+                    if ANY && n_live == 0 {
+                        return;
                     }
                 }
             }
@@ -865,8 +905,9 @@ mod tests {
         let mut hits = vec![fill; quads.len()];
         let mut occ = vec![M4::TRUE; quads.len()];
         let mut ctr = Counters::default();
-        intersect::<T>(k, quads, active, &mut hits, f, e, true, slot, &mut ctr);
-        occluded::<T>(k, quads, active, &mut occ, f, e, true, slot, &mut ctr);
+        let p = TraceParams::default();
+        intersect::<T>(k, quads, active, &mut hits, f, e, &p, slot, &mut ctr);
+        occluded::<T>(k, quads, active, &mut occ, f, e, &p, slot, &mut ctr);
         let mut valid = 0;
         for (q, (h, m)) in hits.iter().zip(active).enumerate() {
             for i in 0..4 {
@@ -1280,7 +1321,7 @@ mod tests {
                                     &mut hits,
                                     f.as_ref(),
                                     None,
-                                    true,
+                                    &TraceParams::default(),
                                     &mut own.slot(),
                                     c,
                                 );

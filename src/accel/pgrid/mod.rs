@@ -48,6 +48,7 @@ pub mod traverse_shadow;
 use core::cmp::Ordering;
 
 use crate::geom::{Aabb, ProjTri, TriTest, TriVerts, TriangleTest};
+use crate::isa::Isa;
 use crate::math;
 use glam::Vec3;
 
@@ -76,6 +77,10 @@ pub struct PgridParams {
     pub cull_backfaces: bool,
     /// Ray-triangle test of both grids.
     pub test: TriTest,
+    /// Lane width of both grids' triangle tests (`Isa::Auto`: the CPU's
+    /// widest, capped by `SHEAF_ISA`; a forced level the CPU lacks is
+    /// rejected by `validate`, as `TraceParams::isa`).
+    pub isa: Isa,
 }
 
 impl Default for PgridParams {
@@ -89,6 +94,7 @@ impl Default for PgridParams {
             chunk: 256,
             cull_backfaces: false,
             test: TriTest::MollerTrumbore,
+            isa: Isa::Auto,
         }
     }
 }
@@ -124,6 +130,7 @@ impl PgridParams {
                 "chunk (rays per chunk) must be in 16..=4096",
             ));
         }
+        crate::isa::resolve(self.isa)?;
         Ok(())
     }
 }
@@ -448,6 +455,7 @@ impl<'a> Pgrid<'a> {
             },
             pinhole: self.pinhole,
             test: self.scene.params?.test,
+            isa: self.scene.params?.isa,
             tile: self.scene.params?.tile,
             px_box: &self.pools.px_box[..self.scene.triangles as usize],
         })
@@ -467,6 +475,7 @@ impl<'a> Pgrid<'a> {
             },
             frame: self.light_frame,
             test: self.scene.params?.test,
+            isa: self.scene.params?.isa,
             ab_box: &self.pools.px_box[..self.scene.triangles as usize],
         })
     }
@@ -479,6 +488,8 @@ pub struct CamView<'r> {
     pub cells: CellsView<'r>,
     pub pinhole: Pinhole,
     pub test: TriTest,
+    /// Lane width of the triangle tests (`PgridParams::isa`).
+    pub isa: Isa,
     /// Sorting tile side in pixels.
     pub tile: u32,
     /// Padded pixel bounds of every triangle.
@@ -492,6 +503,8 @@ pub struct LightView<'r> {
     pub cells: CellsView<'r>,
     pub frame: LightFrame,
     pub test: TriTest,
+    /// Lane width of the triangle tests, as `CamView::isa`.
+    pub isa: Isa,
     /// Padded (a, b) bounds of every triangle listed in the grid.
     pub ab_box: &'r [[f32; 4]],
 }

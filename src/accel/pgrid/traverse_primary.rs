@@ -11,9 +11,11 @@
 //! tracing tile is the unit of work, the sorting tile the unit of culling.
 
 use super::{CamView, TriangleTest};
+use crate::accel::group;
 use crate::accel::slot::Slot;
 use crate::counters::{Counters, count};
-use crate::geom::{F4, Hit4, M4, Mt, Pt, Ray4, RayLanes, TriTest, Wt};
+use crate::geom::{F4, Hit4, M4, Mt, Pt, Ray4, TriTest, Wide, Wt};
+use crate::isa;
 use crate::math;
 use crate::mem::scratch::bytes;
 
@@ -30,29 +32,74 @@ pub fn trace_tile(
     ctr: &mut Counters,
 ) {
     match g.test {
-        TriTest::MollerTrumbore => walk::<Mt>(g, tile, rays, active, hits, slot, ctr),
-        TriTest::Watertight => walk::<Wt>(g, tile, rays, active, hits, slot, ctr),
-        TriTest::Projection => walk::<Pt>(g, tile, rays, active, hits, slot, ctr),
+        TriTest::MollerTrumbore => tile_at::<Mt>(g, tile, rays, active, hits, slot, ctr),
+        TriTest::Watertight => tile_at::<Wt>(g, tile, rays, active, hits, slot, ctr),
+        TriTest::Projection => tile_at::<Pt>(g, tile, rays, active, hits, slot, ctr),
     }
+}
+
+/// `walk` at the lane width of `g.isa` (`isa::run`).
+fn tile_at<T: TriangleTest>(
+    g: &CamView<'_>,
+    tile: u32,
+    rays: &[Ray4],
+    active: &[M4],
+    hits: &mut [Hit4],
+    slot: &mut Slot<'_>,
+    ctr: &mut Counters,
+) {
+    struct At<'x, 'g, 's, T> {
+        g: &'x CamView<'g>,
+        tile: u32,
+        rays: &'x [Ray4],
+        active: &'x [M4],
+        hits: &'x mut [Hit4],
+        slot: &'x mut Slot<'s>,
+        ctr: &'x mut Counters,
+        _t: core::marker::PhantomData<T>,
+    }
+    impl<T: TriangleTest> isa::Kernel for At<'_, '_, '_, T> {
+        type Out = ();
+        #[inline(always)]
+        fn run<L: Wide>(self) {
+            let At {
+                g,
+                tile,
+                rays,
+                active,
+                hits,
+                slot,
+                ctr,
+                ..
+            } = self;
+            walk::<L, T>(g, tile, rays, active, hits, slot, ctr)
+        }
+    }
+    let k = At::<T> {
+        g,
+        tile,
+        rays,
+        active,
+        hits,
+        slot,
+        ctr,
+        _t: core::marker::PhantomData,
+    };
+    isa::run(g.isa, k)
 }
 
 /// Most quads traced as one packet (32 x 32 rays), for every family.
 pub use crate::accel::packet::MAX_QUADS;
 
-/// Slot scratch a tile takes: per quad the live lanes, the depth per unit
-/// t and the triangle test's precomputation (the largest kind).
-pub const SCRATCH: usize = bytes::<M4>(MAX_QUADS) + bytes::<F4>(MAX_QUADS) + pre_bytes(MAX_QUADS);
+/// Slot scratch a tile takes: per quad the live lanes and the depth per
+/// unit t, and the quads' lane groups with the triangle test's
+/// precomputation (`accel::group`, the largest kind and width).
+pub const SCRATCH: usize =
+    bytes::<M4>(MAX_QUADS) + bytes::<F4>(MAX_QUADS) + group::max_bytes(MAX_QUADS);
 
-/// Scratch bytes of `n` precomputations of the largest triangle test.
-pub(super) const fn pre_bytes(n: usize) -> usize {
-    let mt = bytes::<<Mt as TriangleTest>::Pre<F4>>(n);
-    let wt = bytes::<<Wt as TriangleTest>::Pre<F4>>(n);
-    let pt = bytes::<<Pt as TriangleTest>::Pre<F4>>(n);
-    let m = if mt > wt { mt } else { wt };
-    if m > pt { m } else { pt }
-}
-
-fn walk<T: TriangleTest>(
+/// The tile's walk, its triangle tests on `L`-wide lanes.
+#[inline(always)]
+fn walk<L: Wide, T: TriangleTest>(
     g: &CamView<'_>,
     tile: u32,
     rays: &[Ray4],
@@ -73,7 +120,6 @@ fn walk<T: TriangleTest>(
     // Per-quad state from the slot's scratch (all written below).
     let (live, mut slot) = slot.split(nq, M4::FALSE);
     let (depth_of, mut slot) = slot.split(nq, F4::ZERO);
-    let (pre, mut slot) = slot.split(nq, T::prepare(&RayLanes::from_ray4(&rays[0])));
     ctr.packets += 1;
     for q in 0..nq {
         live[q] = active[q];
@@ -82,8 +128,8 @@ fn walk<T: TriangleTest>(
         // Depth along the view axis per unit t.
         depth_of[q] =
             r.dir[0] * F4::splat(fwd.x) + r.dir[1] * F4::splat(fwd.y) + r.dir[2] * F4::splat(fwd.z);
-        pre[q] = T::prepare(&RayLanes::from_ray4(r));
     }
+    let (grp, mut slot) = group::join::<L, T>(&rays[..nq], &mut slot);
     // Quads are a half x half grid over the tile's pixels from (x0, y0).
     let half = (g.tile / 2) as i32;
     let tx = tile % g.cells.info.tiles[0];
@@ -114,32 +160,27 @@ fn walk<T: TriangleTest>(
             let b = g.px_box[tri as usize];
             let (qx0, qx1) = quad_range(b[0], b[2], x0);
             let (qy0, qy1) = quad_range(b[1], b[3], y0);
-            for q in (qy0..=qy1).flat_map(|qy| (qx0..=qx1).map(move |qx| (qy * half + qx) as usize))
-            {
-                if q >= nq {
+            // Row by row, the lane groups holding the covered quads.
+            for qy in qy0..=qy1 {
+                let a = (qy * half + qx0) as usize;
+                let b = ((qy * half + qx1) as usize).min(nq.saturating_sub(1));
+                if qx0 > qx1 || a >= nq {
                     continue;
                 }
-                let lm = live[q];
-                if !lm.any() {
-                    continue;
-                }
-                count!(ctr.tri_tests += lm.bitmask().count_ones() as u64);
-                let h = T::intersect(&RayLanes::from_ray4(&rays[q]), &pre[q], prim);
-                let hm = h.mask & lm;
-                if !hm.any() {
-                    continue;
-                }
-                let take = hm & hits[q].closer(h.t, tri);
-                if take.any() {
-                    let hq = &mut hits[q];
-                    hq.t = F4::select(take, h.t, hq.t);
-                    hq.u = F4::select(take, h.u, hq.u);
-                    hq.v = F4::select(take, h.v, hq.v);
-                    for i in 0..4 {
-                        if take.test(i) {
-                            hq.prim[i] = tri;
-                        }
+                for gi in a / L::G..=b / L::G {
+                    let mut sel = 0u32;
+                    for k in 0..L::G {
+                        sel |= u32::from((a..=b).contains(&(gi * L::G + k))) << k;
                     }
+                    let bits = group::lane_bits::<L>(gi, sel, |q| live[q]);
+                    if bits == 0 {
+                        continue;
+                    }
+                    count!(ctr.tri_tests += bits.count_ones() as u64);
+                    let (h, hb) = group::test(&grp[gi], prim, bits);
+                    group::each_hit(&h, hb, |k, hm, hit| {
+                        group::take::<false>(&mut hits[gi * L::G + k], hm, hit, tri);
+                    });
                 }
             }
         }

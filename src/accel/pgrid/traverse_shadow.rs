@@ -7,9 +7,11 @@
 //! surface it shadows); the chunk stops when no ray is left.
 
 use super::{LightView, TriangleTest};
+use crate::accel::group;
 use crate::accel::slot::Slot;
 use crate::counters::{Counters, count};
-use crate::geom::{M4, Mt, Pt, Ray4, RayLanes, TriTest, Wt};
+use crate::geom::{M4, Mt, Pt, Ray4, TriTest, Wide, Wt};
+use crate::isa;
 use crate::math;
 use crate::mem::scratch::bytes;
 
@@ -17,12 +19,13 @@ use crate::mem::scratch::bytes;
 pub const MAX_QUADS: usize = 64;
 
 /// Slot scratch a batch takes: per quad the live lanes, each lane's last
-/// slice, the (a, b) bounds and the triangle test's precomputation (the
-/// largest kind).
+/// slice and the (a, b) bounds, and the quads' lane groups with the
+/// triangle test's precomputation (`accel::group`, the largest kind and
+/// width).
 pub const SCRATCH: usize = bytes::<M4>(MAX_QUADS)
     + bytes::<[u32; 4]>(MAX_QUADS)
     + bytes::<[f32; 4]>(MAX_QUADS)
-    + super::traverse_primary::pre_bytes(MAX_QUADS);
+    + group::max_bytes(MAX_QUADS);
 
 /// Occlusion of the shadow rays `rays` (from the light, `tmax` at their end
 /// points) in light tile `tile`: `occluded[q]` gets the lanes of `active[q]`
@@ -40,14 +43,66 @@ pub fn trace_chunk(
         let e = (s + MAX_QUADS).min(rays.len());
         let (r, a, o) = (&rays[s..e], &active[s..e], &mut occluded[s..e]);
         match g.test {
-            TriTest::MollerTrumbore => walk::<Mt>(g, tile, r, a, o, slot, ctr),
-            TriTest::Watertight => walk::<Wt>(g, tile, r, a, o, slot, ctr),
-            TriTest::Projection => walk::<Pt>(g, tile, r, a, o, slot, ctr),
+            TriTest::MollerTrumbore => batch_at::<Mt>(g, tile, r, a, o, slot, ctr),
+            TriTest::Watertight => batch_at::<Wt>(g, tile, r, a, o, slot, ctr),
+            TriTest::Projection => batch_at::<Pt>(g, tile, r, a, o, slot, ctr),
         }
     }
 }
 
-fn walk<T: TriangleTest>(
+/// `walk` at the lane width of `g.isa` (`isa::run`).
+fn batch_at<T: TriangleTest>(
+    g: &LightView<'_>,
+    tile: u32,
+    rays: &[Ray4],
+    active: &[M4],
+    occluded: &mut [M4],
+    slot: &mut Slot<'_>,
+    ctr: &mut Counters,
+) {
+    struct At<'x, 'g, 's, T> {
+        g: &'x LightView<'g>,
+        tile: u32,
+        rays: &'x [Ray4],
+        active: &'x [M4],
+        occluded: &'x mut [M4],
+        slot: &'x mut Slot<'s>,
+        ctr: &'x mut Counters,
+        _t: core::marker::PhantomData<T>,
+    }
+    impl<T: TriangleTest> isa::Kernel for At<'_, '_, '_, T> {
+        type Out = ();
+        #[inline(always)]
+        fn run<L: Wide>(self) {
+            let At {
+                g,
+                tile,
+                rays,
+                active,
+                occluded,
+                slot,
+                ctr,
+                ..
+            } = self;
+            walk::<L, T>(g, tile, rays, active, occluded, slot, ctr)
+        }
+    }
+    let k = At::<T> {
+        g,
+        tile,
+        rays,
+        active,
+        occluded,
+        slot,
+        ctr,
+        _t: core::marker::PhantomData,
+    };
+    isa::run(g.isa, k)
+}
+
+/// One batch, its triangle tests on `L`-wide lanes.
+#[inline(always)]
+fn walk<L: Wide, T: TriangleTest>(
     g: &LightView<'_>,
     tile: u32,
     rays: &[Ray4],
@@ -66,7 +121,6 @@ fn walk<T: TriangleTest>(
     // Per-quad state from the slot's scratch.
     let (live, mut slot) = slot.split(nq, M4::FALSE);
     let (last, mut slot) = slot.split(nq, [0u32; 4]);
-    let (pre, mut slot) = slot.split(nq, T::prepare(&RayLanes::from_ray4(&rays[0])));
     let mut end = 0;
     // (a, b) bounds of each quad's rays: a triangle whose (a, b) bounds
     // miss them cannot block any of them.
@@ -93,7 +147,6 @@ fn walk<T: TriangleTest>(
         occluded[q] = M4::FALSE;
         ctr.rays += live[q].bitmask().count_ones() as u64;
         let r = &rays[q];
-        pre[q] = T::prepare(&RayLanes::from_ray4(r));
         // The ray covers distances [tmin |dir|, tmax |dir|) from the light.
         let len2 = r.dir[0] * r.dir[0] + r.dir[1] * r.dir[1] + r.dir[2] * r.dir[2];
         for i in 0..4 {
@@ -103,6 +156,7 @@ fn walk<T: TriangleTest>(
             }
         }
     }
+    let (grp, mut slot) = group::join::<L, T>(rays, &mut slot);
     for s in 0..=end {
         let cell = g.cells.cell(tile, s);
         count!(ctr.cells += 1);
@@ -114,24 +168,34 @@ fn walk<T: TriangleTest>(
             let prim = T::prim(g.tris, tri as usize);
             let tb = g.ab_box[tri as usize];
             let mut left = false;
-            for q in 0..nq {
-                let lm = live[q];
-                if !lm.any() {
+            for (gi, gr) in grp.iter().enumerate() {
+                // The group's live quads whose (a, b) bounds meet the
+                // triangle's.
+                let mut sel = 0u32;
+                for k in 0..L::G {
+                    let q = gi * L::G + k;
+                    if q >= nq || !live[q].any() {
+                        continue;
+                    }
+                    left = true;
+                    let b = &qbox[q];
+                    if tb[0] > b[2] || tb[2] < b[0] || tb[1] > b[3] || tb[3] < b[1] {
+                        count!(ctr.culled += 1);
+                        continue;
+                    }
+                    sel |= 1 << k;
+                }
+                if sel == 0 {
                     continue;
                 }
-                left = true;
-                let b = &qbox[q];
-                if tb[0] > b[2] || tb[2] < b[0] || tb[1] > b[3] || tb[3] < b[1] {
-                    count!(ctr.culled += 1);
-                    continue;
-                }
-                count!(ctr.tri_tests += lm.bitmask().count_ones() as u64);
-                let h = T::intersect(&RayLanes::from_ray4(&rays[q]), &pre[q], prim);
-                let hm = h.mask & lm;
-                if hm.any() {
+                let bits = group::lane_bits::<L>(gi, sel, |q| live[q]);
+                count!(ctr.tri_tests += bits.count_ones() as u64);
+                let (h, hb) = group::test(gr, prim, bits);
+                group::each_hit(&h, hb, |k, hm, _| {
+                    let q = gi * L::G + k;
                     occluded[q] |= hm;
                     live[q] &= !hm;
-                }
+                });
             }
             if !left {
                 return;
