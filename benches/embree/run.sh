@@ -6,8 +6,8 @@
 #
 # Options: --quick, --reps N (default 3), --size WxH (default 1024x1024),
 # --scenes a,b,... (legocar, bunny, sibenik, sponza, conference, builtin names,
-# or .obj paths), --threads 1,2, --counters (link sheaf with its default
-# `counters` feature; default: without, as an engine would ship it),
+# or .obj paths), --threads 1,2, --counters (link sheaf with its `counters`
+# feature; default: without, as an engine would ship it),
 # --no-install (never apt-get).
 #
 # 1. Installs Debian's libembree-dev with apt-get when it is missing and this
@@ -65,7 +65,7 @@ done
 out=$ROOT/target/embree-bench
 mkdir -p "$out/scenes"
 if [ $counters = 1 ]; then
-  features=(--features std,counters) feat_note="default features (std, counters)"
+  features=(--features std,counters) feat_note="features std, counters"
 else
   features=(--no-default-features --features std) feat_note="--no-default-features --features std (no counters)"
 fi
@@ -110,6 +110,17 @@ cmd=(benches/embree/run.sh)
 [ "$size" != 1024x1024 ] && [ $quick = 0 ] && cmd+=(--size "$size")
 [ "$threads" != 1,2 ] && cmd+=(--threads "$threads")
 [ $counters = 1 ] && cmd+=(--counters)
+# Timings on a busy machine are noise: the full run waits (up to 10
+# minutes) for the 1-minute load average to fall below 0.5 (the builds and
+# exports above raise it).
+if [ $quick = 0 ]; then
+  for _ in $(seq 120); do
+    awk '{exit !($1 >= 0.5)}' /proc/loadavg || break
+    [ "${waited:-0}" = 0 ] && echo "== waiting for the load average to fall below 0.5 ($(cut -d' ' -f1 /proc/loadavg))" >&2
+    waited=1
+    sleep 5
+  done
+fi
 load_before=$(cut -d' ' -f1-3 /proc/loadavg)
 started=$(date -u '+%Y-%m-%d %H:%M UTC')
 t0=$(date +%s)
