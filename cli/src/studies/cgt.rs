@@ -748,6 +748,104 @@ fn accuracy(
 }
 
 // ---------------------------------------------------------------------------
+// Embree 3 reference points
+
+/// Embree 3 on one scene's rays (`studies::embree`, where installed): its
+/// camera-ray speed on one thread and its accuracy against the same oracle
+/// (shadow answers from `rtcOccluded1`).
+struct EmbreeRow {
+    scene: String,
+    /// 0: `rtcIntersect1`, 1: `rtcIntersect8` (the chart's marker).
+    kind: usize,
+    prim_rays: u64,
+    prim_ns: u64,
+    acc: Accuracy,
+}
+
+impl EmbreeRow {
+    const LABELS: [&'static str; 2] = [
+        "Embree 3 rtcIntersect1 (MEDIUM)",
+        "Embree 3 rtcIntersect8, 4x2 (MEDIUM)",
+    ];
+    fn mrays(&self) -> f64 {
+        mrays(self.prim_rays, self.prim_ns)
+    }
+}
+
+/// Embree's rows for one scene: one ray at a time and 4 x 2 pixel
+/// packets, timed like sheaf's configurations (one untimed run, then the
+/// median of up to `reps`) on the calling thread.
+#[cfg(embree)]
+fn embree_rows(
+    name: &str,
+    scene: &Scene<'_>,
+    oracle: &mut Oracle,
+    vr: &ViewRays,
+    h: u32,
+    reps: u32,
+    details: &mut Vec<String>,
+) -> Vec<EmbreeRow> {
+    let Some(e) = super::embree::Embree::new(scene) else {
+        details.push(format!("{name}: Embree's device failed to start"));
+        return Vec::new();
+    };
+    let (w, rays) = (vr.w, &vr.rays);
+    let occl: Vec<bool> = oracle.shadow_rays.iter().map(|r| e.occluded1(r)).collect();
+    let mut out = Vec::new();
+    let mut hits = vec![Hit::MISS; rays.len()];
+    let one = |hits: &mut [Hit]| {
+        for (r, h) in rays.iter().zip(hits.iter_mut()) {
+            *h = e.intersect1(r);
+        }
+    };
+    one(&mut hits);
+    let prim_ns = timed(reps, || one(&mut hits));
+    let acc = accuracy(scene, oracle, w, rays, &hits, &occl, details);
+    out.push(EmbreeRow {
+        scene: name.to_string(),
+        kind: 0,
+        prim_rays: rays.len() as u64,
+        prim_ns,
+        acc,
+    });
+    // 4 x 2 pixel packets, gathered before timing (edge packets partial).
+    let mut packs: Vec<(Vec<usize>, Vec<Ray>)> = Vec::new();
+    for y0 in (0..h).step_by(2) {
+        for x0 in (0..w).step_by(4) {
+            let idx: Vec<usize> = (0..8)
+                .map(|k| (x0 + k % 4, y0 + k / 4))
+                .filter(|&(x, y)| x < w && y < h)
+                .map(|(x, y)| (y * w + x) as usize)
+                .collect();
+            let rs = idx.iter().map(|&i| rays[i]).collect();
+            packs.push((idx, rs));
+        }
+    }
+    let mut out8 = vec![[Hit::MISS; 8]; packs.len()];
+    let eight = |out8: &mut [[Hit; 8]]| {
+        for ((_, rs), o) in packs.iter().zip(out8.iter_mut()) {
+            e.intersect8(rs, o);
+        }
+    };
+    eight(&mut out8);
+    let prim_ns = timed(reps, || eight(&mut out8));
+    for ((idx, _), o) in packs.iter().zip(&out8) {
+        for (&i, h) in idx.iter().zip(o) {
+            hits[i] = *h;
+        }
+    }
+    let acc = accuracy(scene, oracle, w, rays, &hits, &occl, details);
+    out.push(EmbreeRow {
+        scene: name.to_string(),
+        kind: 1,
+        prim_rays: rays.len() as u64,
+        prim_ns,
+        acc,
+    });
+    out
+}
+
+// ---------------------------------------------------------------------------
 // Results
 
 /// One configuration on one scene: everything the CSV holds.
@@ -897,6 +995,38 @@ struct SceneNote {
     line: String,
 }
 
+/// The Embree reference points as a table (empty without them).
+fn embree_markdown(ext: &[EmbreeRow]) -> String {
+    let mut s = String::new();
+    if ext.is_empty() {
+        return s;
+    }
+    s.push_str(
+        "\n### Embree 3 on the same rays (reference points)\n\n\
+         Built with Embree's default quality (MEDIUM) from the scene's triangles; camera rays on 1 thread, \
+         checked against the same oracle as every configuration above (shadow answers: `rtcOccluded1`). \
+         benches/embree compares both libraries at every width, quality and thread count.\n\n\
+         | scene | Embree call | primary Mrays/s 1T | primary mismatch (outside tol) | shadow mismatch (outside tol) | mismatch rate |\n\
+         |---|---|--:|--:|--:|--:|\n",
+    );
+    for r in ext {
+        let a = &r.acc;
+        let _ = writeln!(
+            s,
+            "| {} | {} | {:.2} | {} ({}) | {} ({}) | {:.2e} |",
+            r.scene,
+            EmbreeRow::LABELS[r.kind],
+            r.mrays(),
+            a.prim_mismatch,
+            a.prim_outside,
+            a.shadow_mismatch,
+            a.shadow_outside,
+            a.rate()
+        );
+    }
+    s
+}
+
 fn markdown(rows: &[Row], notes: &[SceneNote], header: &str, threads: &[u32]) -> String {
     let mut s = String::from(header);
     for note in notes {
@@ -1012,6 +1142,9 @@ pub fn run(a: &BenchArgs) -> Result<()> {
     ));
     let mut rows: Vec<Row> = Vec::new();
     let mut notes: Vec<SceneNote> = Vec::new();
+    // Embree's reference points (none unless the CLI was built with it).
+    #[cfg_attr(not(embree), allow(unused_mut))]
+    let mut ext: Vec<EmbreeRow> = Vec::new();
     let mut mismatch_log = String::from(
         "# Mismatches with the f64 oracle outside the tolerances (scene, configuration, test: ray, both answers)\n",
     );
@@ -1138,6 +1271,24 @@ pub fn run(a: &BenchArgs) -> Result<()> {
                 prog.say(format_args!("[{}] {scene_line}", spec.name));
                 view_how = how;
                 prepared = Some((ViewRays { w, rays, packed }, light, eps, oracle));
+                #[cfg(embree)]
+                if let Some((vr, _, _, oracle)) = prepared.as_mut() {
+                    let mut found = Vec::new();
+                    for r in embree_rows(&spec.name, &scene, oracle, vr, h, reps, &mut found) {
+                        prog.say(format_args!(
+                            "[{}] {}: {:.2} Mrays/s (1 thread), {} of {} checked rays differ from the oracle",
+                            spec.name,
+                            EmbreeRow::LABELS[r.kind],
+                            r.mrays(),
+                            r.acc.mismatch(),
+                            r.acc.checked()
+                        ));
+                        ext.push(r);
+                    }
+                    for d in found {
+                        let _ = writeln!(mismatch_log, "{} Embree: {d}", spec.name);
+                    }
+                }
             }
             let Some((vr, light, eps, oracle)) = prepared.as_mut() else {
                 unreachable!()
@@ -1281,7 +1432,7 @@ pub fn run(a: &BenchArgs) -> Result<()> {
         a.macrocell,
         start.elapsed().as_secs_f64()
     );
-    let md = markdown(&rows, &notes, &header, &threads);
+    let md = markdown(&rows, &notes, &header, &threads) + &embree_markdown(&ext);
     let csv_path = out_dir.join("bench.csv");
     let md_path = out_dir.join("bench.md");
     let (head, records) = csv(&rows, &threads);
@@ -1300,7 +1451,7 @@ pub fn run(a: &BenchArgs) -> Result<()> {
         out_dir.join("speed_accuracy.svg"),
         out_dir.join("speed_accuracy.png"),
     );
-    chart::write(&rows, &notes, (w, h), &svg, &png)?;
+    chart::write(&rows, &notes, &ext, (w, h), &svg, &png)?;
     prog.say(format_args!(
         "wrote {}, {}, {}, {}, {}",
         csv_path.display(),
@@ -1363,7 +1514,7 @@ fn progress(r: &Row) -> String {
 
 mod chart {
     use super::super::common::{FONT, save_chart};
-    use super::{RATE_FLOOR, Row, SceneNote, ratio};
+    use super::{EmbreeRow, RATE_FLOOR, Row, SceneNote, ratio};
     use anyhow::Result;
     use plotters::coord::Shift;
     use plotters::prelude::*;
@@ -1429,6 +1580,29 @@ mod chart {
     struct Panel {
         title: String,
         points: Vec<Point>,
+        /// Embree's reference points: (Mrays/s, mismatch rate, kind).
+        refs: Vec<(f64, f64, usize)>,
+    }
+
+    /// Embree's points of `scene` (`None`: every scene, rays over summed
+    /// time as the all-scenes panel does).
+    fn refs(ext: &[EmbreeRow], scene: Option<&str>) -> Vec<(f64, f64, usize)> {
+        (0..EmbreeRow::LABELS.len())
+            .filter_map(|k| {
+                let rs: Vec<&EmbreeRow> = ext
+                    .iter()
+                    .filter(|r| r.kind == k && scene.is_none_or(|s| r.scene == s))
+                    .collect();
+                if rs.is_empty() {
+                    return None;
+                }
+                let rays = rs.iter().map(|r| r.prim_rays).sum();
+                let ns = rs.iter().map(|r| r.prim_ns).sum();
+                let mism = rs.iter().map(|r| r.acc.mismatch()).sum();
+                let checked = rs.iter().map(|r| r.acc.checked()).sum();
+                Some((super::mrays(rays, ns), ratio(mism, checked), k))
+            })
+            .collect()
     }
 
     /// Indices of the Pareto-optimal points (max x, min rate), by x ascending.
@@ -1456,6 +1630,7 @@ mod chart {
     fn panels(
         rows: &[Row],
         notes: &[SceneNote],
+        ext: &[EmbreeRow],
         labels: &[(usize, String)],
         tests: &[String],
     ) -> Vec<Panel> {
@@ -1470,6 +1645,7 @@ mod chart {
         let mut all = Panel {
             title: "all scenes (rays / total time, mismatches / checks)".into(),
             points: Vec::new(),
+            refs: refs(ext, None),
         };
         for &(ci, _) in labels {
             for (ti, _) in tests.iter().enumerate() {
@@ -1514,6 +1690,7 @@ mod chart {
                         }
                     })
                     .collect(),
+                refs: refs(ext, Some(&n.name)),
             });
         }
         out
@@ -1557,9 +1734,18 @@ mod chart {
         let rows = (panels.len() as u32).div_ceil(COLS);
         let cells = grid.split_evenly((rows as usize, COLS as usize));
         for (area, p) in cells.iter().zip(panels) {
-            let xmax = p.points.iter().map(|q| q.x).fold(0.0, f64::max).max(1e-3) * 1.12;
-            let ymax =
-                (p.points.iter().map(|q| q.rate).fold(0.0, f64::max) + RATE_FLOOR).max(1e-4) * 4.0;
+            let xs = p
+                .points
+                .iter()
+                .map(|q| q.x)
+                .chain(p.refs.iter().map(|r| r.0));
+            let xmax = xs.fold(0.0, f64::max).max(1e-3) * 1.12;
+            let rates = p
+                .points
+                .iter()
+                .map(|q| q.rate)
+                .chain(p.refs.iter().map(|r| r.1));
+            let ymax = (rates.fold(0.0, f64::max) + RATE_FLOOR).max(1e-4) * 4.0;
             let mut chart = ChartBuilder::on(area)
                 .caption(&p.title, (FONT, 17))
                 .margin(10)
@@ -1594,6 +1780,21 @@ mod chart {
             chart.draw_series(
                 of(2).map(|q| EmptyElement::at(at(q)) + Rectangle::new([(-5, -5), (5, 5)], col(q))),
             )?;
+            // Embree's reference points: black crosses (1-wide) and
+            // stars (8-wide), off the front (another library).
+            for &(x, rate, k) in &p.refs {
+                let at = (x, rate + RATE_FLOOR);
+                let st = ShapeStyle::from(&BLACK).stroke_width(2);
+                if k == 0 {
+                    chart.draw_series(std::iter::once(Cross::new(at, 7, st)))?;
+                } else {
+                    chart.draw_series(std::iter::once(
+                        EmptyElement::at(at)
+                            + Cross::new((0, 0), 7, st)
+                            + Circle::new((0, 0), 7, st),
+                    ))?;
+                }
+            }
             // Ring the points on the front.
             chart.draw_series(f.iter().map(|&i| {
                 Circle::new(
@@ -1638,6 +1839,23 @@ mod chart {
             (36, y),
             font.clone(),
         ))?;
+        if panels.iter().any(|p| !p.refs.is_empty()) {
+            y += 36;
+            legend.draw(&Text::new("reference (black)", (10, y), font.clone()))?;
+            for (k, l) in EmbreeRow::LABELS.iter().enumerate() {
+                y += 22;
+                let st = ShapeStyle::from(&BLACK).stroke_width(2);
+                legend.draw(&Cross::new((22, y + 7), 7, st))?;
+                if k == 1 {
+                    legend.draw(&Circle::new((22, y + 7), 7, st))?;
+                }
+                legend.draw(&Text::new(
+                    l.replace("Embree 3 ", "Embree "),
+                    (36, y),
+                    (FONT, 12).into_font().color(&BLACK),
+                ))?;
+            }
+        }
         y += 34;
         for line in [
             "y: mismatch rate vs the f64",
@@ -1660,6 +1878,7 @@ mod chart {
     pub(super) fn write(
         rows: &[Row],
         notes: &[SceneNote],
+        ext: &[EmbreeRow],
         size: (u32, u32),
         svg: &Path,
         png: &Path,
@@ -1675,7 +1894,7 @@ mod chart {
             }
         }
         labels.sort();
-        let ps = panels(rows, notes, &labels, &tests);
+        let ps = panels(rows, notes, ext, &labels, &tests);
         let rows_n = (ps.len() as u32).div_ceil(COLS).max(1);
         let dim = (COLS * PANEL.0 + LEGEND_W, TITLE_H + rows_n * PANEL.1);
         let title = format!(
@@ -1805,6 +2024,11 @@ mod tests {
         }
         let svg = std::fs::read_to_string(dir.join("speed_accuracy.svg")).unwrap();
         assert!(svg.contains("Pareto front"));
+        // Built with Embree: its reference points in the report and chart.
+        if cfg!(embree) {
+            assert!(md.contains("| tetra | Embree 3 rtcIntersect1 (MEDIUM) |"), "{md}");
+            assert!(svg.contains("reference (black)"));
+        }
         // The Whitted study: every frame identical to its level's SIMD frame.
         let w = BenchArgs {
             whitted: true,

@@ -10,10 +10,14 @@
 //!
 //! `common` holds what they share. The Embree comparison is a C program
 //! (benches/embree); its input comes from `sheaf export` (`cmd::export`).
+//! Where Embree 3 is installed, `embree` traces the speed-vs-accuracy
+//! study's rays with it too, as reference points on its chart.
 
 mod bvh_whitted;
 mod cgt;
 pub mod common;
+#[cfg(embree)]
+mod embree;
 mod kd_entry;
 mod pgrid;
 mod stress;
