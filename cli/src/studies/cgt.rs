@@ -2026,7 +2026,10 @@ mod tests {
         assert!(svg.contains("Pareto front"));
         // Built with Embree: its reference points in the report and chart.
         if cfg!(embree) {
-            assert!(md.contains("| tetra | Embree 3 rtcIntersect1 (MEDIUM) |"), "{md}");
+            assert!(
+                md.contains("| tetra | Embree 3 rtcIntersect1 (MEDIUM) |"),
+                "{md}"
+            );
             assert!(svg.contains("reference (black)"));
         }
         // The Whitted study: every frame identical to its level's SIMD frame.
