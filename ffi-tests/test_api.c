@@ -746,6 +746,7 @@ static bool test_bvh_methods(void) {
     probe_rays(rays);
     /* not built yet */
     CHECK_STATUS(sheaf_context_trace(ctx, SHEAF_METHOD_BVH_SINGLE, rays, got, N_PROBE), SHEAF_STATUS_NOT_BUILT);
+    CHECK_STATUS(sheaf_context_refit_bvh(ctx, NULL, NULL), SHEAF_STATUS_NOT_BUILT);
     CHECK_OK(sheaf_bvh_params_default(&bp));
     CHECK(bp.leaf_size == 4 && bp.bins == 16 && bp.test == SHEAF_TRI_TEST_MOLLER_TRUMBORE);
     bad_bp = bp;
@@ -758,6 +759,22 @@ static bool test_bvh_methods(void) {
     CHECK_OK(sheaf_context_occluded(ctx, SHEAF_METHOD_BVH_SINGLE, rays, occ_want, N_PROBE));
     CHECK_OK(sheaf_context_trace(ctx, SHEAF_METHOD_GRID_DDA, rays, got, N_PROBE));
     CHECK(hits_equal(got, want, N_PROBE)); /* same triangle test: the grid's answers */
+    {
+        /* Refit to the same vertices: the same answers; bad params refused. */
+        sheaf_refit_params rp;
+        sheaf_refit_info ri;
+        CHECK_OK(sheaf_refit_params_default(&rp));
+        CHECK(rp.rebuild_above == 0.0f);
+        CHECK_OK(sheaf_context_refit_bvh(ctx, &rp, &ri));
+        CHECK(ri.rebuilt == 0 && ri.sah_after > 0.0f && ri.newly_traceable == 0);
+        CHECK_OK(sheaf_context_trace(ctx, SHEAF_METHOD_BVH_SINGLE, rays, got, N_PROBE));
+        CHECK(hits_equal(got, want, N_PROBE));
+        rp.rebuild_above = 0.5f;
+        CHECK_STATUS(sheaf_context_refit_bvh(ctx, &rp, &ri), SHEAF_STATUS_INVALID_ARGUMENT);
+        CHECK_OK(sheaf_context_refit_bvh(ctx, NULL, NULL));
+        CHECK_STATUS(sheaf_context_refit_bvh(NULL, NULL, NULL), SHEAF_STATUS_NULL_POINTER);
+        CHECK_STATUS(sheaf_refit_params_default(NULL), SHEAF_STATUS_NULL_POINTER);
+    }
     CHECK_OK(sheaf_trace_params_default(&single));
     single.method = SHEAF_METHOD_BVH_SINGLE;
     CHECK_OK(sheaf_context_render_with(ctx, &single, &single, &f, base, RSTRIDE, RLEN));

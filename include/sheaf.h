@@ -439,6 +439,19 @@ typedef struct sheaf_bvh_params {
 } sheaf_bvh_params;
 
 /**
+ * When a BVH refit becomes a rebuild (`sheaf_context_refit_bvh`), the
+ * crate's `RefitParams`. Start from `sheaf_refit_params_default`.
+ */
+typedef struct sheaf_refit_params {
+    /**
+     * Rebuild (with the last build's `sheaf_bvh_params`) instead once the
+     * tree's SAH cost has grown past this ratio; 0 (default) never
+     * rebuilds. 0 or a finite value of at least 1.
+     */
+    float rebuild_above;
+} sheaf_refit_params;
+
+/**
  * Capacities fixed at context creation: the crate's `Limits` field by
  * field (see its docs in `src/mem/limits.rs` for each default rule).
  * Start from `sheaf_limits_default`.
@@ -573,6 +586,32 @@ typedef struct sheaf_hit {
      */
     float v;
 } sheaf_hit;
+
+/**
+ * What a BVH refit did, the crate's `RefitInfo`.
+ */
+typedef struct sheaf_refit_info {
+    /**
+     * Wall time of the call, refit and any rebuild, in nanoseconds.
+     */
+    uint64_t ns;
+    /**
+     * The tree's SAH cost before and after (after a rebuild: the new
+     * tree's).
+     */
+    float sah_before;
+    float sah_after;
+    /**
+     * Triangles the build left out (non-finite or zero area then) that a
+     * rebuild would now store: a refit keeps them out.
+     */
+    uint32_t newly_traceable;
+    /**
+     * 1 when the SAH growth passed `rebuild_above` and the tree was
+     * rebuilt instead, else 0.
+     */
+    uint8_t rebuilt;
+} sheaf_refit_info;
 
 /**
  * Method, packet side, CGT switches and BVH frustum settings for one class
@@ -1169,6 +1208,13 @@ extern "C" {
 sheaf_status sheaf_bvh_params_default(struct sheaf_bvh_params *out);
 
 /**
+ * Write the default refit parameters (never rebuild) to `*out`.
+ *
+ * `out` must not be NULL. Thread-safe.
+ */
+sheaf_status sheaf_refit_params_default(struct sheaf_refit_params *out);
+
+/**
  * Bytes `sheaf_context_create_in` needs for `*limits`, written to `*out`.
  *
  * Exact, and includes everything: the handle itself and every pool
@@ -1372,6 +1418,23 @@ sheaf_status sheaf_context_trace(const struct sheaf_context *ctx,
                                  const struct sheaf_ray *rays,
                                  struct sheaf_hit *hits,
                                  size_t count);
+
+/**
+ * Refit the built BVH to the current vertex positions of the context's
+ * geometry (the same index buffer, vertices moved): every box recomputed
+ * bottom-up, the tree's shape kept, so tracing stays exact and gets
+ * slower as the shape loosens. With `params->rebuild_above` > 0 the BVH is
+ * rebuilt instead once its SAH cost grows past that ratio. `params` may be
+ * NULL (never rebuild); `out` may be NULL, else receives what was done.
+ *
+ * `SHEAF_STATUS_NOT_BUILT` without a built BVH; `SHEAF_STATUS_INVALID_ARGUMENT`
+ * for another triangle count than the build's, a stored triangle with a
+ * non-finite vertex, or bad params; on every error the previous BVH is
+ * kept. Not thread-safe with other calls on `ctx`.
+ */
+sheaf_status sheaf_context_refit_bvh(struct sheaf_context *ctx,
+                                     const struct sheaf_refit_params *params,
+                                     struct sheaf_refit_info *out);
 
 /**
  * `sheaf_context_trace` with the packet side and CGT switches of `*params`

@@ -2,6 +2,7 @@
 //! every frame. After `Context::new_in` nothing here allocates.
 #![forbid(unsafe_code)]
 
+use crate::accel::bvh::refit::{RefitInfo, RefitParams};
 use crate::accel::bvh::{self, Bvh, BvhInfo, BvhParams, BvhPools};
 use crate::accel::grid::{self, Grid, GridInfo, GridParams, GridPools};
 use crate::accel::kd::{self, KdInfo, KdParams, KdPools, KdTree};
@@ -374,6 +375,33 @@ impl<'a> Context<'a> {
         self.stats.bvh_build_ns = elapsed_ns(t);
         self.stats.bvh = info;
         Ok(info)
+    }
+
+    /// Refit the built BVH to `scene`'s moved vertices (same triangles):
+    /// its boxes recomputed bottom-up, its shape kept (`bvh::refit`); past
+    /// `params.rebuild_above` SAH growth, rebuilt with the last build's
+    /// parameters instead. On error the previous BVH stays valid.
+    pub fn refit_bvh(&mut self, scene: &Scene<'_>, params: &RefitParams) -> Result<RefitInfo> {
+        if !self.limits.has(Limits::BVH) {
+            return Err(Error::InvalidArgument(
+                "no BVH pools: Limits::structures lacks BVH",
+            ));
+        }
+        params.validate()?;
+        self.check_scene(scene)?;
+        let t = now();
+        let mut r = bvh::refit::refit(&mut self.bvh, scene)?;
+        if params.rebuild_above > 0.0 && r.growth() > params.rebuild_above {
+            let bp = self.bvh.params();
+            let info = bvh::build::build(&mut self.bvh, scene, &bp)?;
+            r.rebuilt = true;
+            r.sah_after = info.sah_cost;
+        }
+        r.ns = elapsed_ns(t);
+        if let Some(info) = self.bvh.info() {
+            self.stats.bvh = *info;
+        }
+        Ok(r)
     }
 
     /// Rebuild the kd-tree from `scene` (O(N log N) SAH with perfect

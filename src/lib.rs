@@ -70,6 +70,7 @@ pub mod trace;
 #[cfg(feature = "std")]
 pub mod scenes;
 
+pub use accel::bvh::refit::{RefitInfo, RefitParams};
 pub use accel::bvh::{BvhInfo, BvhParams};
 pub use accel::grid::{GridInfo, GridParams};
 pub use accel::kd::{KdInfo, KdParams};

@@ -298,3 +298,102 @@ fn stale_structures_do_not_shade_new_frames() {
         Err(sheaf::Error::InvalidArgument(_))
     ));
 }
+
+/// Refit (issue 18): the animated scene built at t = 0 and refit to later
+/// times. The refit tree's single ray equals a fresh build's bitwise (both
+/// equal a brute-force search over the same triangles), every packet
+/// method equals the refit tree's single ray, bad input changes nothing,
+/// and the automatic rebuild fires past its threshold.
+#[test]
+fn refit_keeps_every_method_exact() {
+    use sheaf::RefitParams;
+    use sheaf::scenes::animated::Animated;
+    let mut a = Animated::new(1);
+    let view = a.views()[0];
+    let mut l = Limits::for_triangles((a.mesh.indices.len() / 3) as u32);
+    l.max_vertices = (a.mesh.vertices.len() / 3) as u32;
+    l.structures = Limits::BVH;
+    let (mut ctx, mut fresh) = (
+        OwnedContext::new(&l).unwrap(),
+        OwnedContext::new(&l).unwrap(),
+    );
+    fn scene(a: &Animated) -> sheaf::Scene<'_> {
+        sheaf::Scene::from_f32(&a.mesh.vertices, &a.mesh.indices).unwrap()
+    }
+    ctx.build_bvh(&scene(&a), &BvhParams::default()).unwrap();
+    let rays = view_rays(&view, RES as u32, RES as u32);
+    for t in [0.25f32, 1.0, 3.0] {
+        a.set_time(t);
+        let r = ctx.refit_bvh(&scene(&a), &RefitParams::default()).unwrap();
+        assert!(
+            !r.rebuilt && r.sah_before > 0.0 && r.sah_after > 0.0,
+            "{r:?}"
+        );
+        fresh.build_bvh(&scene(&a), &BvhParams::default()).unwrap();
+        let mut want = vec![Hit::MISS; rays.len()];
+        let mut got = vec![Hit::MISS; rays.len()];
+        fresh.trace(Method::BvhSingle, &rays, &mut want).unwrap();
+        ctx.trace(Method::BvhSingle, &rays, &mut got).unwrap();
+        for (i, (g, w)) in got.iter().zip(&want).enumerate() {
+            assert!(
+                g.prim == w.prim && g.t.to_bits() == w.t.to_bits(),
+                "t {t} ray {i}: refit {g:?}, rebuild {w:?}"
+            );
+        }
+        assert!(want.iter().any(|h| h.is_hit()));
+        let tr = ctx.tracer().unwrap().bvh().unwrap();
+        let primary = Class {
+            name: "primary",
+            rays: rays.clone(),
+            active: vec![true; rays.len()],
+            kind: RayKind::Primary,
+            any: false,
+        };
+        check_class(&tr, &bvh_cases(), &format!("refit t {t}"), &primary);
+    }
+
+    // Bad input: a non-finite vertex, another triangle count: errors, and
+    // the refit tree answers as before.
+    let mut before = vec![Hit::MISS; rays.len()];
+    ctx.trace(Method::BvhSingle, &rays, &mut before).unwrap();
+    let mut v = a.mesh.vertices.clone();
+    v[0] = f32::NAN;
+    let bad = sheaf::Scene::from_f32(&v, &a.mesh.indices).unwrap();
+    assert!(ctx.refit_bvh(&bad, &RefitParams::default()).is_err());
+    let fewer = sheaf::Scene::from_f32(&a.mesh.vertices, &a.mesh.indices[3..]).unwrap();
+    assert!(ctx.refit_bvh(&fewer, &RefitParams::default()).is_err());
+    let bad_params = RefitParams { rebuild_above: 0.5 };
+    assert!(ctx.refit_bvh(&scene(&a), &bad_params).is_err());
+    let mut after = vec![Hit::MISS; rays.len()];
+    ctx.trace(Method::BvhSingle, &rays, &mut after).unwrap();
+    assert!(
+        before
+            .iter()
+            .zip(&after)
+            .all(|(x, y)| x.prim == y.prim && x.t.to_bits() == y.t.to_bits())
+    );
+
+    // Every triangle moved elsewhere (the vertex buffer rotated): the SAH
+    // cost grows past 1.5x; with that threshold the refit becomes a
+    // rebuild, with a fresh build's tree.
+    let n3 = a.mesh.vertices.len();
+    let moved: Vec<f32> = (0..n3)
+        .map(|i| a.mesh.vertices[(i + 3 * 997) % n3])
+        .collect();
+    let far = sheaf::Scene::from_f32(&moved, &a.mesh.indices).unwrap();
+    let r = ctx.refit_bvh(&far, &RefitParams::default()).unwrap();
+    assert!(!r.rebuilt && r.growth() > 1.5, "{r:?}");
+    ctx.build_bvh(&scene(&a), &BvhParams::default()).unwrap();
+    let r = ctx
+        .refit_bvh(&far, &RefitParams { rebuild_above: 1.5 })
+        .unwrap();
+    let fresh_info = fresh.build_bvh(&far, &BvhParams::default()).unwrap();
+    assert!(r.rebuilt && r.sah_after == fresh_info.sah_cost, "{r:?}");
+    // No tree built: NotBuilt.
+    let mut empty = OwnedContext::new(&l).unwrap();
+    assert!(
+        empty
+            .refit_bvh(&scene(&a), &RefitParams::default())
+            .is_err()
+    );
+}

@@ -242,6 +242,10 @@ macro_rules! impl_frames {
                 // BVH packets from AEPSA entry points.
                 let bp = TraceParams::bvh(Method::BvhRanged, 16).with_entry(EntrySearch::Aepsa);
                 self.trace_with(&bp, r, h).unwrap();
+                // A refit (to the same vertices), and one with a rebuild threshold.
+                self.refit_bvh(s, &sheaf::RefitParams::default()).unwrap();
+                self.refit_bvh(s, &sheaf::RefitParams { rebuild_above: 1.0 }).unwrap();
+                self.trace_with(&bp, r, h).unwrap();
                 // The kd-tree beside both: build, every kd method and entry search.
                 self.build_kd(s, &KdParams { test: p.test, ..KdParams::default() }).unwrap();
                 for m in [Method::KdSingle, Method::KdSimd, Method::KdPacket] {

@@ -3,6 +3,7 @@
 
 use super::grid::sheaf_tri_test;
 use super::{check_non_null, guard_free, raw, write_out};
+use crate::accel::bvh::refit::{RefitInfo, RefitParams};
 use crate::accel::bvh::{BvhParams, RayKind};
 use crate::error::{Error, Result};
 
@@ -90,6 +91,74 @@ pub extern "C" fn sheaf_bvh_params_default(out: *mut sheaf_bvh_params) -> super:
     guard_free(|| {
         check_non_null!(out);
         write_out(out, sheaf_bvh_params::of(&BvhParams::default()));
+        Ok(())
+    })
+}
+
+/// When a BVH refit becomes a rebuild (`sheaf_context_refit_bvh`), the
+/// crate's `RefitParams`. Start from `sheaf_refit_params_default`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct sheaf_refit_params {
+    /// Rebuild (with the last build's `sheaf_bvh_params`) instead once the
+    /// tree's SAH cost has grown past this ratio; 0 (default) never
+    /// rebuilds. 0 or a finite value of at least 1.
+    pub rebuild_above: f32,
+}
+
+impl sheaf_refit_params {
+    pub fn of(p: &RefitParams) -> sheaf_refit_params {
+        sheaf_refit_params {
+            rebuild_above: p.rebuild_above,
+        }
+    }
+    pub fn to_core(&self) -> Result<RefitParams> {
+        let p = RefitParams {
+            rebuild_above: self.rebuild_above,
+        };
+        p.validate()?;
+        Ok(p)
+    }
+}
+
+/// What a BVH refit did, the crate's `RefitInfo`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct sheaf_refit_info {
+    /// Wall time of the call, refit and any rebuild, in nanoseconds.
+    pub ns: u64,
+    /// The tree's SAH cost before and after (after a rebuild: the new
+    /// tree's).
+    pub sah_before: f32,
+    pub sah_after: f32,
+    /// Triangles the build left out (non-finite or zero area then) that a
+    /// rebuild would now store: a refit keeps them out.
+    pub newly_traceable: u32,
+    /// 1 when the SAH growth passed `rebuild_above` and the tree was
+    /// rebuilt instead, else 0.
+    pub rebuilt: u8,
+}
+
+impl sheaf_refit_info {
+    pub fn of(r: &RefitInfo) -> sheaf_refit_info {
+        sheaf_refit_info {
+            ns: r.ns,
+            sah_before: r.sah_before,
+            sah_after: r.sah_after,
+            newly_traceable: r.newly_traceable,
+            rebuilt: r.rebuilt.into(),
+        }
+    }
+}
+
+/// Write the default refit parameters (never rebuild) to `*out`.
+///
+/// `out` must not be NULL. Thread-safe.
+#[unsafe(no_mangle)]
+pub extern "C" fn sheaf_refit_params_default(out: *mut sheaf_refit_params) -> super::sheaf_status {
+    guard_free(|| {
+        check_non_null!(out);
+        write_out(out, sheaf_refit_params::of(&RefitParams::default()));
         Ok(())
     })
 }

@@ -7,7 +7,7 @@
 //! allocation of the same size and layout and frees it in
 //! `sheaf_context_destroy`.
 
-use super::bvh::sheaf_bvh_params;
+use super::bvh::{sheaf_bvh_params, sheaf_refit_info, sheaf_refit_params};
 use super::limits::sheaf_limits;
 use super::sync::{Slot, State};
 use super::trace_params::sheaf_trace_params;
@@ -18,6 +18,7 @@ use super::{
 };
 use super::{sheaf_hit, sheaf_ray};
 use crate::accel::bvh::BvhParams;
+use crate::accel::bvh::refit::RefitParams;
 use crate::accel::grid::GridParams;
 use crate::context::{Context, required_bytes};
 use crate::error::{Error, Result};
@@ -644,6 +645,38 @@ pub extern "C" fn sheaf_context_trace(
             ..TraceParams::default()
         };
         trace_impl(h, None, &p, rays, hits, count)
+    })
+}
+
+/// Refit the built BVH to the current vertex positions of the context's
+/// geometry (the same index buffer, vertices moved): every box recomputed
+/// bottom-up, the tree's shape kept, so tracing stays exact and gets
+/// slower as the shape loosens. With `params->rebuild_above` > 0 the BVH is
+/// rebuilt instead once its SAH cost grows past that ratio. `params` may be
+/// NULL (never rebuild); `out` may be NULL, else receives what was done.
+///
+/// `SHEAF_STATUS_NOT_BUILT` without a built BVH; `SHEAF_STATUS_INVALID_ARGUMENT`
+/// for another triangle count than the build's, a stored triangle with a
+/// non-finite vertex, or bad params; on every error the previous BVH is
+/// kept. Not thread-safe with other calls on `ctx`.
+#[unsafe(no_mangle)]
+pub extern "C" fn sheaf_context_refit_bvh(
+    ctx: *mut sheaf_context,
+    params: *const sheaf_refit_params,
+    out: *mut sheaf_refit_info,
+) -> sheaf_status {
+    with_mut(ctx, |h| {
+        let params = if params.is_null() {
+            RefitParams::default()
+        } else {
+            read_in(params)?.to_core()?
+        };
+        let g = h.geometry.as_ref().ok_or(Error::NoGeometry)?;
+        let r = h.ctx.refit_bvh(&g.scene()?, &params)?;
+        if !out.is_null() {
+            write_out(out, sheaf_refit_info::of(&r));
+        }
+        Ok(())
     })
 }
 

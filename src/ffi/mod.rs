@@ -66,16 +66,19 @@ pub mod trace_params;
 pub mod version;
 pub mod whitted;
 
-pub use bvh::{sheaf_bvh_params, sheaf_bvh_params_default, sheaf_ray_kind};
+pub use bvh::{
+    sheaf_bvh_params, sheaf_bvh_params_default, sheaf_ray_kind, sheaf_refit_info,
+    sheaf_refit_params, sheaf_refit_params_default,
+};
 #[cfg(feature = "std")]
 pub use context::sheaf_context_create;
 pub use context::{
     HEADER_BYTES, sheaf_context, sheaf_context_build_bvh, sheaf_context_build_grid,
     sheaf_context_clear_geometry, sheaf_context_create_in, sheaf_context_destroy,
     sheaf_context_last_error, sheaf_context_occluded, sheaf_context_occluded_slot,
-    sheaf_context_occluded_with, sheaf_context_render, sheaf_context_render_rows,
-    sheaf_context_set_geometry, sheaf_context_stats, sheaf_context_trace, sheaf_context_trace_slot,
-    sheaf_context_trace_with, sheaf_required_bytes,
+    sheaf_context_occluded_with, sheaf_context_refit_bvh, sheaf_context_render,
+    sheaf_context_render_rows, sheaf_context_set_geometry, sheaf_context_stats,
+    sheaf_context_trace, sheaf_context_trace_slot, sheaf_context_trace_with, sheaf_required_bytes,
 };
 pub use frame::{sheaf_frame, sheaf_frame_camera_ray, sheaf_shading, sheaf_shading_default};
 pub use grid::{sheaf_grid_params, sheaf_grid_params_default, sheaf_tri_test};

@@ -14,6 +14,7 @@
 //! | `traverse_masked.rs` | section 3.1, Figure 2: Masked traversal, and its switch to Partition when too many box tests find quads dead |
 //! | `traverse_ranged.rs` | section 3.2, Appendix A.1: Ranged traversal (first alive ray `i_a` on the stack, `getFirstHit`/`getLastHit`) |
 //! | `traverse_partition.rs` | section 3.3, Appendix A.2: Partition traversal (index list `I` partitioned in place by `partRays`) |
+//! | `refit.rs` | refit: the built tree's boxes recomputed bottom-up for moved vertices (Embree's REFIT quality; the paper rebuilds every frame) |
 //! | `entry.rs` | the BVH as an `accel::entry::EntryTree`: MLRTA/AEPSA entry points (AEPSA paper, section 8), where the three packet traversals can start |
 //!
 //! # Node layout
@@ -34,6 +35,7 @@
 pub mod build;
 pub mod entry;
 pub mod packet;
+pub mod refit;
 pub mod traverse_masked;
 pub mod traverse_partition;
 pub mod traverse_ranged;
@@ -236,6 +238,9 @@ pub struct BvhPools<'a> {
 pub struct Bvh<'a> {
     pools: BvhPools<'a>,
     info: Option<BvhInfo>,
+    /// The last successful build's parameters (a refit's SAH weights, its
+    /// automatic rebuild).
+    params: BvhParams,
 }
 
 /// Read-only view of a built BVH; `Sync`, shared by all tracing threads.
@@ -251,7 +256,18 @@ pub struct BvhView<'r> {
 
 impl<'a> Bvh<'a> {
     pub fn new(pools: BvhPools<'a>) -> Self {
-        Bvh { pools, info: None }
+        Bvh {
+            pools,
+            info: None,
+            params: BvhParams::default(),
+        }
+    }
+    /// The last successful build's parameters (the defaults before one).
+    pub fn params(&self) -> BvhParams {
+        self.params
+    }
+    pub(crate) fn set_params(&mut self, p: BvhParams) {
+        self.params = p;
     }
     pub(crate) fn pools_mut(&mut self) -> &mut BvhPools<'a> {
         &mut self.pools
