@@ -141,11 +141,18 @@ pub fn refit(bvh: &mut Bvh<'_>, scene: &Scene<'_>) -> Result<RefitInfo> {
             (lo, hi) = (lo.min(v), hi.max(v));
         }
     }
-    let newly_traceable = (0..info.triangles_in)
-        .filter(|&t| {
-            pools.slot_of[t as usize] == INVALID_ID && Scene::classify(&scene.triangle(t)).is_none()
-        })
-        .count() as u32;
+    // Only a build that left triangles out needs this second pass.
+    let left_out = info.excluded_non_finite + info.excluded_zero_area;
+    let newly_traceable = if left_out == 0 {
+        0
+    } else {
+        (0..info.triangles_in)
+            .filter(|&t| {
+                pools.slot_of[t as usize] == INVALID_ID
+                    && Scene::classify(&scene.triangle(t)).is_none()
+            })
+            .count() as u32
+    };
     let mut out = RefitInfo {
         sah_before: info.sah_cost,
         sah_after: info.sah_cost,
