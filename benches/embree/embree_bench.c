@@ -680,6 +680,32 @@ static double embree_rebuild(EScene *e)
     return now_s() - t0;
 }
 
+/* A scene whose geometry is committed with RTC_BUILD_QUALITY_REFIT (scene
+ * LOW + DYNAMIC): later commits after rtcUpdateGeometryBuffer refit its
+ * BVH instead of rebuilding it; seconds to first commit. */
+static double embree_build_refit(RTCDevice dev, const Scene *s, EScene *out)
+{
+    double t0 = now_s();
+    RTCScene sc = rtcNewScene(dev);
+    rtcSetSceneFlags(sc, RTC_SCENE_FLAG_DYNAMIC);
+    rtcSetSceneBuildQuality(sc, RTC_BUILD_QUALITY_LOW);
+    RTCGeometry g = rtcNewGeometry(dev, RTC_GEOMETRY_TYPE_TRIANGLE);
+    rtcSetGeometryBuildQuality(g, RTC_BUILD_QUALITY_REFIT);
+    rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, s->verts, 0,
+                               3 * sizeof(float), s->nv);
+    rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, s->idx, 0,
+                               3 * sizeof(uint32_t), s->nt);
+    rtcCommitGeometry(g);
+    rtcAttachGeometryByID(sc, g, 0);
+    rtcCommitScene(sc);
+    double t1 = now_s();
+    if (rtcGetDeviceError(dev) != RTC_ERROR_NONE)
+        die("Embree refit build failed");
+    out->scene = sc;
+    out->geom = g;
+    return t1 - t0;
+}
+
 static void embree_release(EScene *e)
 {
     rtcReleaseGeometry(e->geom);
@@ -1031,6 +1057,8 @@ typedef struct {
     int pbest[NSTRUCT], sbest[NSTRUCT];
     double pbest_mr[NSTRUCT][4], sbest_mr[NSTRUCT][4];
     double e_first[4][3], e_rebuild[4][3], e_prim[4][3][4], e_shad[4][3][4]; /* [threads][quality][width] */
+    double refit_ms;                 /* sheaf_context_refit_bvh, the same vertices */
+    double e_refit_first[4], e_refit[4]; /* [threads]: Embree LOW + geometry REFIT */
     Agreement ap[3], as[3];
     uint32_t *eprim, *eprim1;
     float *et;
@@ -1138,6 +1166,19 @@ static void time_sheaf_builds(Bench *b)
         }
         b->build_ms[st] = 1e3 * median(t, reps);
         progress("  sheaf %s build %.1f ms\n", STRUCT_NAME[st], b->build_ms[st]);
+    }
+    /* The BVH refit to the same vertices (its cost does not depend on how
+     * far they moved), median of reps. */
+    if (!b->o->profile) {
+        double t[MAX_REPS];
+        for (int r = 0; r < b->reps; r++) {
+            double t0 = now_s();
+            sheaf_status e = sheaf_context_refit_bvh(b->ctx, NULL, NULL);
+            t[r] = now_s() - t0;
+            check_sheaf(b->ctx, e, "refit");
+        }
+        b->refit_ms = 1e3 * median(t, b->reps);
+        progress("  sheaf BVH refit %.1f ms\n", b->refit_ms);
     }
 }
 
@@ -1316,6 +1357,17 @@ static void time_embree(Bench *b)
         if (!dev)
             die("rtcNewDevice(\"%s\") failed (error %d)", cfg, (int)rtcGetDeviceError(NULL));
         rtcSetDeviceErrorFunction(dev, embree_error, NULL);
+        {
+            /* LOW + geometry REFIT: refits after the first commit. */
+            EScene es;
+            double t[MAX_REPS];
+            b->e_refit_first[ti] = 1e3 * embree_build_refit(dev, &b->s, &es);
+            for (int r = 0; r < b->reps; r++) t[r] = embree_rebuild(&es);
+            b->e_refit[ti] = 1e3 * median(t, b->reps);
+            progress("  Embree LOW + REFIT, %d threads: first build %.1f ms, refit %.1f ms\n", T,
+                     b->e_refit_first[ti], b->e_refit[ti]);
+            embree_release(&es);
+        }
         for (int q = 0; q < 3; q++) {
             EScene es;
             b->e_first[ti][q] = 1e3 * embree_build(dev, &b->s, q, &es);
@@ -1456,6 +1508,11 @@ static void print_tables(Bench *b)
         for (int ti = 0; ti < b->o->nthreads; ti++) printf(" %.1f (%.1f) |", b->e_rebuild[ti][q], b->e_first[ti][q]);
         printf("\n");
     }
+    printf("| sheaf BVH refit (calling thread) |");
+    for (int ti = 0; ti < b->o->nthreads; ti++) printf(" %.1f |", b->refit_ms);
+    printf("\n| Embree LOW + geometry REFIT: refit (first commit) |");
+    for (int ti = 0; ti < b->o->nthreads; ti++) printf(" %.1f (%.1f) |", b->e_refit[ti], b->e_refit_first[ti]);
+    printf("\n");
     printf("\n**Rays**, Mrays/s (median of %d; sheaf: the fastest method of each structure on 1 thread, "
            "camera rays / shadow rays; Embree: LOW / MEDIUM / HIGH):\n\n", b->reps);
     printf("| configuration |");
