@@ -642,19 +642,24 @@ typedef struct {
 
 static const char *QUALITY_NAME[3] = {"LOW", "MEDIUM", "HIGH"};
 
-/* A new Embree scene of `s` at quality q (LOW: with RTC_SCENE_FLAG_DYNAMIC),
- * one triangle geometry sharing the scene's buffers; seconds to first commit. */
+/* Quality index of a LOW + DYNAMIC scene whose geometry is committed with
+ * RTC_BUILD_QUALITY_REFIT: later commits refit its BVH. */
+#define Q_REFIT 3
+
+/* A new Embree scene of `s` at quality q (LOW, MEDIUM, HIGH or Q_REFIT; LOW
+ * and Q_REFIT with RTC_SCENE_FLAG_DYNAMIC), one triangle geometry sharing the
+ * scene's buffers; seconds to first commit. */
 static double embree_build(RTCDevice dev, const Scene *s, int q, EScene *out)
 {
-    enum RTCBuildQuality quality = q == 0 ? RTC_BUILD_QUALITY_LOW
-                                 : q == 1 ? RTC_BUILD_QUALITY_MEDIUM
-                                          : RTC_BUILD_QUALITY_HIGH;
+    enum RTCBuildQuality quality = q == 1 ? RTC_BUILD_QUALITY_MEDIUM
+                                 : q == 2 ? RTC_BUILD_QUALITY_HIGH
+                                          : RTC_BUILD_QUALITY_LOW;
     double t0 = now_s();
     RTCScene sc = rtcNewScene(dev);
-    rtcSetSceneFlags(sc, q == 0 ? RTC_SCENE_FLAG_DYNAMIC : RTC_SCENE_FLAG_NONE);
+    rtcSetSceneFlags(sc, q == 0 || q == Q_REFIT ? RTC_SCENE_FLAG_DYNAMIC : RTC_SCENE_FLAG_NONE);
     rtcSetSceneBuildQuality(sc, quality);
     RTCGeometry g = rtcNewGeometry(dev, RTC_GEOMETRY_TYPE_TRIANGLE);
-    rtcSetGeometryBuildQuality(g, quality);
+    rtcSetGeometryBuildQuality(g, q == Q_REFIT ? RTC_BUILD_QUALITY_REFIT : quality);
     rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, s->verts, 0,
                                3 * sizeof(float), s->nv);
     rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, s->idx, 0,
@@ -678,32 +683,6 @@ static double embree_rebuild(EScene *e)
     rtcCommitGeometry(e->geom);
     rtcCommitScene(e->scene);
     return now_s() - t0;
-}
-
-/* A scene whose geometry is committed with RTC_BUILD_QUALITY_REFIT (scene
- * LOW + DYNAMIC): later commits after rtcUpdateGeometryBuffer refit its
- * BVH instead of rebuilding it; seconds to first commit. */
-static double embree_build_refit(RTCDevice dev, const Scene *s, EScene *out)
-{
-    double t0 = now_s();
-    RTCScene sc = rtcNewScene(dev);
-    rtcSetSceneFlags(sc, RTC_SCENE_FLAG_DYNAMIC);
-    rtcSetSceneBuildQuality(sc, RTC_BUILD_QUALITY_LOW);
-    RTCGeometry g = rtcNewGeometry(dev, RTC_GEOMETRY_TYPE_TRIANGLE);
-    rtcSetGeometryBuildQuality(g, RTC_BUILD_QUALITY_REFIT);
-    rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, s->verts, 0,
-                               3 * sizeof(float), s->nv);
-    rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, s->idx, 0,
-                               3 * sizeof(uint32_t), s->nt);
-    rtcCommitGeometry(g);
-    rtcAttachGeometryByID(sc, g, 0);
-    rtcCommitScene(sc);
-    double t1 = now_s();
-    if (rtcGetDeviceError(dev) != RTC_ERROR_NONE)
-        die("Embree refit build failed");
-    out->scene = sc;
-    out->geom = g;
-    return t1 - t0;
 }
 
 static void embree_release(EScene *e)
@@ -1361,7 +1340,7 @@ static void time_embree(Bench *b)
             /* LOW + geometry REFIT: refits after the first commit. */
             EScene es;
             double t[MAX_REPS];
-            b->e_refit_first[ti] = 1e3 * embree_build_refit(dev, &b->s, &es);
+            b->e_refit_first[ti] = 1e3 * embree_build(dev, &b->s, Q_REFIT, &es);
             for (int r = 0; r < b->reps; r++) t[r] = embree_rebuild(&es);
             b->e_refit[ti] = 1e3 * median(t, b->reps);
             progress("  Embree LOW + REFIT, %d threads: first build %.1f ms, refit %.1f ms\n", T,

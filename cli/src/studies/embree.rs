@@ -206,6 +206,19 @@ impl Embree {
         }
     }
 
+    fn ray(r: &Ray) -> RtcRay {
+        RtcRay {
+            org: r.org,
+            tnear: r.tmin,
+            dir: r.dir,
+            time: 0.0,
+            tfar: r.tmax,
+            mask: u32::MAX,
+            id: 0,
+            flags: 0,
+        }
+    }
+
     fn hit_of(prim: u32, geom: u32, t: f32, u: f32, v: f32) -> Hit {
         if geom == INVALID_ID {
             Hit::MISS
@@ -217,16 +230,7 @@ impl Embree {
     /// Nearest hit of `r` (`rtcIntersect1`).
     pub fn intersect1(&self, r: &Ray) -> Hit {
         let mut rh = RayHit {
-            ray: RtcRay {
-                org: r.org,
-                tnear: r.tmin,
-                dir: r.dir,
-                time: 0.0,
-                tfar: r.tmax,
-                mask: u32::MAX,
-                id: 0,
-                flags: 0,
-            },
+            ray: Self::ray(r),
             hit: RtcHit {
                 ng: [0.0; 3],
                 u: 0.0,
@@ -290,16 +294,7 @@ impl Embree {
 
     /// Whether anything blocks `r` in `[tmin, tmax)` (`rtcOccluded1`).
     pub fn occluded1(&self, r: &Ray) -> bool {
-        let mut ray = RtcRay {
-            org: r.org,
-            tnear: r.tmin,
-            dir: r.dir,
-            time: 0.0,
-            tfar: r.tmax,
-            mask: u32::MAX,
-            id: 0,
-            flags: 0,
-        };
+        let mut ray = Self::ray(r);
         let mut ctx = Self::context();
         // SAFETY: as `intersect1`.
         unsafe { rtcOccluded1(self.scene, &mut ctx, &mut ray) };
