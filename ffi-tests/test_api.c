@@ -800,6 +800,23 @@ static bool test_bvh_methods(void) {
     }
     p.ray_kind = 9;
     CHECK_STATUS(sheaf_context_trace_with(ctx, &p, rays, got, N_PROBE), SHEAF_STATUS_INVALID_ARGUMENT);
+    /* The fast (LOW, Morton) build: another tree, the same answers from
+       every method; an unknown quality is refused and keeps the tree. */
+    CHECK(bp.quality == SHEAF_BUILD_QUALITY_MEDIUM);
+    bad_bp = bp;
+    bad_bp.quality = 7;
+    CHECK_STATUS(sheaf_context_build_bvh(ctx, &bad_bp), SHEAF_STATUS_INVALID_ARGUMENT);
+    bp.quality = SHEAF_BUILD_QUALITY_LOW;
+    CHECK_OK(sheaf_context_build_bvh(ctx, &bp));
+    for (m = 0; m < 4; m++) {
+        p = single;
+        p.method = methods[m];
+        p.packet = sides[m];
+        CHECK_OK(sheaf_context_trace_with(ctx, &p, rays, got, N_PROBE));
+        CHECK(hits_equal(got, want, N_PROBE));
+        CHECK_OK(sheaf_context_occluded(ctx, methods[m], rays, occ_got, N_PROBE));
+        CHECK(memcmp(occ_got, occ_want, N_PROBE) == 0);
+    }
     CHECK_STATUS(sheaf_bvh_params_default(NULL), SHEAF_STATUS_NULL_POINTER);
     CHECK_STATUS(sheaf_context_build_bvh(NULL, &bp), SHEAF_STATUS_NULL_POINTER);
     sheaf_context_destroy(ctx);

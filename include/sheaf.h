@@ -210,6 +210,38 @@ typedef uint32_t sheaf_tri_test;
 #endif // __cplusplus
 
 /**
+ * Which BVH build (the crate's `BuildQuality`), numbered as Embree's
+ * `RTCBuildQuality`. Every traversal is exact on every tree; the shape
+ * decides speed only.
+ */
+enum sheaf_build_quality
+#if defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+  : uint32_t
+#endif // defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+ {
+    /**
+     * Morton codes and a radix sort (LBVH): fastest build, slower
+     * traversal. For geometry rebuilt every frame.
+     */
+    SHEAF_BUILD_QUALITY_LOW = 0,
+    /**
+     * Binned SAH (the BVH paper's build; the default).
+     */
+    SHEAF_BUILD_QUALITY_MEDIUM = 1,
+    /**
+     * Binned SAH with 64 bins and full sweeps over small nodes.
+     */
+    SHEAF_BUILD_QUALITY_HIGH = 2,
+};
+#ifndef __cplusplus
+#if __STDC_VERSION__ >= 202311L
+typedef enum sheaf_build_quality sheaf_build_quality;
+#else
+typedef uint32_t sheaf_build_quality;
+#endif // __STDC_VERSION__ >= 202311L
+#endif // __cplusplus
+
+/**
  * Traversal method of a trace, occluded or render call (the crate's
  * `Method`). Codes are stable; later methods get new numbers.
  */
@@ -436,6 +468,11 @@ typedef struct sheaf_bvh_params {
      * Ray-triangle test of every traversal of this BVH (a `sheaf_tri_test`).
      */
     sheaf_tri_test test;
+    /**
+     * Which build (a `sheaf_build_quality`; default MEDIUM, binned SAH).
+     * LOW ignores `bins` and `traversal_cost`.
+     */
+    sheaf_build_quality quality;
 } sheaf_bvh_params;
 
 /**

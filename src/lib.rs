@@ -71,7 +71,7 @@ pub mod trace;
 pub mod scenes;
 
 pub use accel::bvh::refit::{RefitInfo, RefitParams};
-pub use accel::bvh::{BvhInfo, BvhParams};
+pub use accel::bvh::{BuildQuality, BvhInfo, BvhParams};
 pub use accel::grid::{GridInfo, GridParams};
 pub use accel::kd::{KdInfo, KdParams};
 pub use accel::mailbox::Mailbox;

@@ -9,9 +9,9 @@ mod common;
 
 use common::{TestScene, builtin_scenes, obj_scenes, par_map, view_rays};
 use glam::Vec3;
-use sheaf::accel::bvh::BvhParams;
+use sheaf::accel::bvh::{BuildQuality, BvhParams};
 use sheaf::render::SHADOW_OFFSET;
-use sheaf::trace::{EntrySearch, RayKind};
+use sheaf::trace::{EntrySearch, RayKind, Tracer};
 use sheaf::{Counters, Hit, Limits, Method, OwnedContext, Ray, TraceParams, TriTest};
 
 use common::exact::{Class, RES, check_class, reference, secondary};
@@ -26,27 +26,54 @@ fn bvh_cases() -> Vec<(Method, usize, EntrySearch)> {
     cases
 }
 
+/// Every packet method on the binned SAH tree with both triangle tests,
+/// and on the fast (Morton) tree, whose single ray must also answer as the
+/// SAH tree's does: the shape decides speed only.
 fn check_scene(s: &TestScene) {
-    for test in [TriTest::MollerTrumbore, TriTest::Watertight] {
-        let mut l = Limits::for_triangles(s.triangles());
-        l.max_vertices = (s.vertices.len() / 3) as u32;
-        l.structures = Limits::BVH;
+    let mut l = Limits::for_triangles(s.triangles());
+    l.max_vertices = (s.vertices.len() / 3) as u32;
+    l.structures = Limits::BVH;
+    let mut sah_tree = OwnedContext::new(&l).unwrap();
+    for (test, quality) in [
+        (TriTest::MollerTrumbore, BuildQuality::Medium),
+        (TriTest::Watertight, BuildQuality::Medium),
+        (TriTest::Watertight, BuildQuality::Low),
+    ] {
         let mut ctx = OwnedContext::new(&l).unwrap();
-        let info = ctx
-            .build_bvh(
-                &s.scene(),
-                &BvhParams {
-                    test,
-                    ..BvhParams::default()
-                },
-            )
-            .unwrap();
+        let p = BvhParams {
+            test,
+            quality,
+            ..BvhParams::default()
+        };
+        let info = ctx.build_bvh(&s.scene(), &p).unwrap();
+        if quality != BuildQuality::Medium {
+            sah_tree
+                .build_bvh(
+                    &s.scene(),
+                    &BvhParams {
+                        quality: BuildQuality::Medium,
+                        ..p
+                    },
+                )
+                .unwrap();
+        }
         let tr = ctx.tracer().unwrap().bvh().unwrap();
         let eps = SHADOW_OFFSET * info.bounds.diagonal().length();
         let mut sum = Counters::default();
         for (vname, view) in &s.views {
-            let what = format!("{} {vname} {test:?}", s.name);
+            let what = format!("{} {vname} {test:?} {quality:?}", s.name);
             let rays = view_rays(view, RES as u32, RES as u32);
+            if quality != BuildQuality::Medium {
+                let sah = sah_tree.tracer().unwrap().bvh().unwrap();
+                let mut ctr = Counters::default();
+                for (i, r) in rays.iter().enumerate() {
+                    let (a, b) = (tr.intersect(r, &mut ctr), sah.intersect(r, &mut ctr));
+                    assert!(
+                        a.prim == b.prim && a.t.to_bits() == b.t.to_bits(),
+                        "{what}: ray {i}: {a:?} on this tree, {b:?} on the SAH tree"
+                    );
+                }
+            }
             let all = vec![true; rays.len()];
             let primary = Class {
                 name: "primary",
@@ -82,7 +109,7 @@ fn check_scene(s: &TestScene) {
             sum.add(&check_class(&tr, &bvh_cases(), &what, &refr));
         }
         println!(
-            "{:>10} {test:?}: {} nodes, depth {}: {} packets, {} rays, {} box tests, {} triangle tests, {} nodes and {} triangles culled, {} packets without frustum",
+            "{:>10} {test:?} {quality:?}: {} nodes, depth {}: {} packets, {} rays, {} box tests, {} triangle tests, {} nodes and {} triangles culled, {} packets without frustum",
             s.name,
             info.nodes,
             info.depth,

@@ -223,6 +223,8 @@ fn check_layouts() {
             ("sheaf_pgrid_params", size_of::<ffi::sheaf_pgrid_params>(), align_of::<ffi::sheaf_pgrid_params>()),
             ("sheaf_deferred_job", size_of::<ffi::sheaf_deferred_job>(), align_of::<ffi::sheaf_deferred_job>()),
             ("sheaf_refit_params", size_of::<ffi::sheaf_refit_params>(), align_of::<ffi::sheaf_refit_params>()),
+            ("sheaf_bvh_params", size_of::<ffi::sheaf_bvh_params>(), align_of::<ffi::sheaf_bvh_params>()),
+            ("sheaf_kd_params", size_of::<ffi::sheaf_kd_params>(), align_of::<ffi::sheaf_kd_params>()),
             ("sheaf_refit_info", size_of::<ffi::sheaf_refit_info>(), align_of::<ffi::sheaf_refit_info>()),
         ];
         // Macros written by hand in cbindgen.toml that tests/header.rs does

@@ -1,11 +1,42 @@
-//! `sheaf_bvh_params` and `sheaf_ray_kind`: the tunables of the BVH and the
-//! frustum its large packets get.
+//! `sheaf_bvh_params`, `sheaf_build_quality` and `sheaf_ray_kind`: the
+//! tunables of the BVH and the frustum its large packets get.
 
 use super::grid::sheaf_tri_test;
 use super::{check_non_null, guard_free, raw, write_out};
 use crate::accel::bvh::refit::{RefitInfo, RefitParams};
-use crate::accel::bvh::{BvhParams, RayKind};
+use crate::accel::bvh::{BuildQuality, BvhParams, RayKind};
 use crate::error::{Error, Result};
+
+/// Which BVH build (the crate's `BuildQuality`), numbered as Embree's
+/// `RTCBuildQuality`. Every traversal is exact on every tree; the shape
+/// decides speed only.
+#[repr(u32)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum sheaf_build_quality {
+    /// Morton codes and a radix sort (LBVH): fastest build, slower
+    /// traversal. For geometry rebuilt every frame.
+    Low = 0,
+    /// Binned SAH (the BVH paper's build; the default).
+    Medium = 1,
+    /// Binned SAH with 64 bins and full sweeps over small nodes.
+    High = 2,
+}
+
+impl sheaf_build_quality {
+    pub const fn of(q: BuildQuality) -> sheaf_build_quality {
+        match q {
+            BuildQuality::Low => sheaf_build_quality::Low,
+            BuildQuality::Medium => sheaf_build_quality::Medium,
+            BuildQuality::High => sheaf_build_quality::High,
+        }
+    }
+    pub fn to_core(raw: raw::sheaf_build_quality) -> Result<BuildQuality> {
+        [BuildQuality::Low, BuildQuality::Medium, BuildQuality::High]
+            .into_iter()
+            .find(|&q| sheaf_build_quality::of(q) as u32 == raw)
+            .ok_or(Error::InvalidArgument("unknown sheaf_build_quality"))
+    }
+}
 
 /// Tunables of the BVH (Overbeck, Ramamoorthi, Mark 2008, section 5.1: a
 /// binned SAH build). Start from `sheaf_bvh_params_default`.
@@ -20,6 +51,9 @@ pub struct sheaf_bvh_params {
     pub traversal_cost: f32,
     /// Ray-triangle test of every traversal of this BVH (a `sheaf_tri_test`).
     pub test: raw::sheaf_tri_test,
+    /// Which build (a `sheaf_build_quality`; default MEDIUM, binned SAH).
+    /// LOW ignores `bins` and `traversal_cost`.
+    pub quality: raw::sheaf_build_quality,
 }
 
 impl sheaf_bvh_params {
@@ -29,6 +63,7 @@ impl sheaf_bvh_params {
             bins: p.bins,
             traversal_cost: p.traversal_cost,
             test: sheaf_tri_test::of(p.test) as u32,
+            quality: sheaf_build_quality::of(p.quality) as u32,
         }
     }
     /// The checked crate value.
@@ -38,6 +73,7 @@ impl sheaf_bvh_params {
             bins: self.bins,
             traversal_cost: self.traversal_cost,
             test: sheaf_tri_test::to_core(self.test)?,
+            quality: sheaf_build_quality::to_core(self.quality)?,
         };
         p.validate()?;
         Ok(p)
@@ -175,8 +211,17 @@ mod tests {
             bins: 32,
             traversal_cost: 0.5,
             test: TriTest::Watertight,
+            quality: BuildQuality::Low,
         };
         assert_eq!(sheaf_bvh_params::of(&p).to_core(), Ok(p));
+        assert!(
+            sheaf_bvh_params {
+                quality: 3,
+                ..sheaf_bvh_params::of(&p)
+            }
+            .to_core()
+            .is_err()
+        );
         assert!(
             sheaf_bvh_params {
                 test: 9,

@@ -9,7 +9,7 @@
 //! | `context.rs` | `sheaf_context` (opaque handle): required bytes, create / create_in / destroy, geometry, build, trace, occluded (method only or with trace params), render, the per-thread-slot calls (trace_slot, occluded_slot, render_rows), stats, last error |
 //! | `limits.rs` | `sheaf_limits` (the crate's `Limits`), `sheaf_limits_default` |
 //! | `grid.rs` | `sheaf_grid_params`, `sheaf_tri_test`, `sheaf_grid_params_default` |
-//! | `bvh.rs` | `sheaf_bvh_params`, `sheaf_ray_kind`, `sheaf_bvh_params_default` |
+//! | `bvh.rs` | `sheaf_bvh_params`, `sheaf_build_quality`, `sheaf_ray_kind`, `sheaf_bvh_params_default` |
 //! | `kd.rs` | `sheaf_kd_params`, `sheaf_kd_params_default`, `sheaf_context_build_kd` |
 //! | `method.rs` | `sheaf_method` |
 //! | `trace_params.rs` | `sheaf_trace_params`, `sheaf_entry_search`, `sheaf_trace_params_default` |
@@ -67,8 +67,8 @@ pub mod version;
 pub mod whitted;
 
 pub use bvh::{
-    sheaf_bvh_params, sheaf_bvh_params_default, sheaf_ray_kind, sheaf_refit_info,
-    sheaf_refit_params, sheaf_refit_params_default,
+    sheaf_build_quality, sheaf_bvh_params, sheaf_bvh_params_default, sheaf_ray_kind,
+    sheaf_refit_info, sheaf_refit_params, sheaf_refit_params_default,
 };
 #[cfg(feature = "std")]
 pub use context::sheaf_context_create;
@@ -131,6 +131,8 @@ pub mod raw {
     pub type sheaf_entry_search = u32;
     /// cbindgen:ignore
     pub type sheaf_isa = u32;
+    /// cbindgen:ignore
+    pub type sheaf_build_quality = u32;
 }
 
 /// Return `Err(Error::NullPointer)` from the enclosing function when any

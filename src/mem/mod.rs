@@ -13,6 +13,7 @@ pub mod limits;
 pub mod owned;
 pub mod scratch;
 pub mod slots;
+pub mod sort;
 
 pub use arena::{ARENA_ALIGN, Arena, Carve, Sizer, pool_bytes, pool_bytes_checked};
 pub use limits::Limits;

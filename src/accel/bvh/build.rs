@@ -41,17 +41,19 @@
 //! two bin sets, the SIMD bin index and the side-by-side axis sweeps; see
 //! the `perf` test below for times.
 
-use super::{BOX_PAD, Bvh, BvhInfo, BvhNode, BvhParams, MAX_BINS, MAX_DEPTH, PrimRef};
+use super::{
+    BOX_PAD, BuildQuality, Bvh, BvhInfo, BvhNode, BvhParams, BvhPools, MAX_BINS, MAX_DEPTH, PrimRef,
+};
 use crate::error::{Error, Pool, Result};
-use crate::geom::{Aabb, Excluded, F4, INVALID_ID, M4, ProjTri, Scene, TriTest};
+use crate::geom::{Aabb, Excluded, F4, INVALID_ID, M4, ProjTri, Scene, TriTest, TriVerts};
 use crate::math;
 use glam::Vec3A;
 
 /// A box in SIMD registers (build-internal).
 #[derive(Clone, Copy, Debug)]
-struct Box3 {
-    min: Vec3A,
-    max: Vec3A,
+pub(super) struct Box3 {
+    pub min: Vec3A,
+    pub max: Vec3A,
 }
 
 impl Box3 {
@@ -403,16 +405,19 @@ fn partition(refs: &mut [PrimRef], map: &BinMap, s: &Split) -> (usize, Box3, Box
 /// their sorted centroids instead of binning (see the module Deviations).
 const SWEEP_MAX: usize = 12;
 
+/// `SWEEP_MAX` of the `High` build.
+pub const SWEEP_HIGH: usize = 32;
+
 /// A split of a node: axis, left count, `A_L N_L + A_R N_R`, the children's
 /// boxes and centroid boxes.
 type Cut = (usize, usize, f32, Box3, Box3, Box3, Box3);
 
-/// Best split of a small node (2 <= refs.len() <= SWEEP_MAX) by the full
+/// Best split of a small node (2 <= refs.len() <= SWEEP_HIGH) by the full
 /// SAH sweep: references sorted by centroid on each axis, every prefix
 /// evaluated. On return `refs` is ordered for the chosen axis.
 fn sweep_split(refs: &mut [PrimRef]) -> Cut {
     let n = refs.len();
-    debug_assert!((2..=SWEEP_MAX).contains(&n));
+    debug_assert!((2..=SWEEP_HIGH).contains(&n));
     if n == 2 {
         // One possible split; order the pair along the axis where their
         // centroids lie farthest apart.
@@ -439,7 +444,8 @@ fn sweep_split(refs: &mut [PrimRef]) -> Cut {
     match n {
         3..=4 => sweep::<4>(refs),
         5..=8 => sweep::<8>(refs),
-        _ => sweep::<SWEEP_MAX>(refs),
+        9..=SWEEP_MAX => sweep::<SWEEP_MAX>(refs),
+        _ => sweep::<SWEEP_HIGH>(refs),
     }
 }
 
@@ -529,16 +535,28 @@ fn bounds_of(refs: &[PrimRef]) -> (Box3, Box3) {
     (b, c)
 }
 
-/// Rebuild `bvh` from `scene`. On error nothing a traversal reads changes
-/// and the previous build stays valid.
-///
-/// Errors: invalid `p`; `Capacity { pool: Triangles }` when the scene has
-/// more triangles than the pools hold (ids, stored triangles, nodes); the
-/// projection test without its pool.
-pub fn build(bvh: &mut Bvh<'_>, scene: &Scene<'_>, p: &BvhParams) -> Result<BvhInfo> {
-    p.validate()?;
+/// What the first pass over the scene found (`gather`).
+pub(super) struct Gathered {
+    /// Traceable triangles (their `PrimRef`s are `refs[..n]`).
+    pub n: usize,
+    /// Bounds and centroid bounds (doubled centroids) of the references.
+    pub bounds: Box3,
+    pub cent: Box3,
+    /// The stored boxes' padding (module docs of `bvh`, Exactness).
+    pub pad: Vec3A,
+    /// The info of the build before its tree: counts and parameters.
+    pub info: BvhInfo,
+}
+
+/// Pass 1 of every build: read and classify the triangles, write one
+/// `PrimRef` per traceable one (the build scratch only), and check every
+/// pool's capacity. On error nothing a traversal reads has changed.
+pub(super) fn gather(
+    pools: &mut BvhPools<'_>,
+    scene: &Scene<'_>,
+    p: &BvhParams,
+) -> Result<Gathered> {
     let n_in = scene.triangle_count();
-    let pools = bvh.pools_mut();
     let cap = |needed: u64, available: usize| Error::Capacity {
         pool: Pool::Triangles,
         needed,
@@ -547,8 +565,6 @@ pub fn build(bvh: &mut Bvh<'_>, scene: &Scene<'_>, p: &BvhParams) -> Result<BvhI
     if n_in as usize > pools.slot_of.len() {
         return Err(cap(n_in as u64, pools.slot_of.len()));
     }
-
-    // 1. Read and classify; references go to the build scratch only.
     let refs_cap = pools.refs.len();
     let (mut n, mut bad_nf, mut bad_za) = (0usize, 0u32, 0u32);
     let (mut bounds, mut cent) = (Box3::EMPTY, Box3::EMPTY);
@@ -594,15 +610,19 @@ pub fn build(bvh: &mut Bvh<'_>, scene: &Scene<'_>, p: &BvhParams) -> Result<BvhI
             available: (pools.nodes.len() / 2) as u64,
         });
     }
-    let proj = p.test == TriTest::Projection;
-    if proj && pools.proj.len() < n {
+    if p.test == TriTest::Projection && pools.proj.len() < n {
         return Err(Error::InvalidArgument(
             "the projection test needs Limits::projection_test",
         ));
     }
-
-    // From here on nothing fails.
-    let mut info = BvhInfo {
+    let m = bounds.min.abs().max(bounds.max.abs()).max_element();
+    let diag = bounds.max - bounds.min;
+    let info = BvhInfo {
+        bounds: if n > 0 {
+            bounds.aabb()
+        } else {
+            Aabb::default()
+        },
         triangles_in: n_in,
         triangles: n as u32,
         excluded_non_finite: bad_nf,
@@ -610,29 +630,120 @@ pub fn build(bvh: &mut Bvh<'_>, scene: &Scene<'_>, p: &BvhParams) -> Result<BvhI
         leaf_size: p.leaf_size,
         bins: p.bins,
         test: p.test,
+        quality: p.quality,
         ..BvhInfo::default()
     };
-    pools.slot_of[..n_in as usize].fill(INVALID_ID);
-    if n == 0 {
-        bvh.set_info(Some(info));
-        bvh.set_params(*p);
-        return Ok(info);
-    }
-    info.bounds = bounds.aabb();
-    let m = bounds.min.abs().max(bounds.max.abs()).max_element();
-    let diag = bounds.max - bounds.min;
-    let pad = Vec3A::splat(BOX_PAD * (m + math::sqrt(diag.dot(diag))));
+    Ok(Gathered {
+        n,
+        bounds,
+        cent,
+        pad: Vec3A::splat(BOX_PAD * (m + math::sqrt(diag.dot(diag)))),
+        info,
+    })
+}
 
-    // 2. Top-down binned SAH with an explicit stack.
-    let refs = &mut pools.refs[..n];
-    let nodes = &mut *pools.nodes;
-    crate::fault_point!(BvhBuild);
+/// The pools a build stores triangles into, in leaf order.
+pub(super) struct Stored<'p> {
+    pub tris: &'p mut [TriVerts],
+    /// Empty unless the projection test's data is filled.
+    pub proj: &'p mut [ProjTri],
+    pub tri_ids: &'p mut [u32],
+    pub slot_of: &'p mut [u32],
+}
+
+impl Stored<'_> {
+    /// Store the triangle with caller id `id` at slot `s`.
+    #[inline(always)]
+    pub fn put(&mut self, scene: &Scene<'_>, s: usize, id: u32) {
+        let tri = scene.triangle(id);
+        self.tris[s] = tri;
+        if let Some(p) = self.proj.get_mut(s) {
+            *p = ProjTri::new(&tri);
+        }
+        self.tri_ids[s] = id;
+        self.slot_of[id as usize] = s as u32;
+    }
+}
+
+/// The pools split for a build: nodes, the stored triangles, references,
+/// scratch.
+pub(super) fn split<'p>(
+    pools: &'p mut BvhPools<'_>,
+    p: &BvhParams,
+) -> (
+    &'p mut [BvhNode],
+    Stored<'p>,
+    &'p mut [PrimRef],
+    &'p mut [u8],
+) {
+    let BvhPools {
+        nodes,
+        tris,
+        proj,
+        tri_ids,
+        slot_of,
+        refs,
+        scratch,
+    } = pools;
+    let proj: &mut [ProjTri] = if p.test == TriTest::Projection {
+        proj
+    } else {
+        &mut []
+    };
+    let st = Stored {
+        tris,
+        proj,
+        tri_ids,
+        slot_of,
+    };
+    (nodes, st, refs, scratch)
+}
+
+/// Rebuild `bvh` from `scene` with the build `p.quality` names. On error
+/// nothing a traversal reads changes and the previous build stays valid.
+///
+/// Errors: invalid `p`; `Capacity { pool: Triangles }` when the scene has
+/// more triangles than the pools hold (ids, stored triangles, nodes); the
+/// projection test without its pool.
+pub fn build(bvh: &mut Bvh<'_>, scene: &Scene<'_>, p: &BvhParams) -> Result<BvhInfo> {
+    p.validate()?;
+    let pools = bvh.pools_mut();
+    let g = gather(pools, scene, p)?;
+
+    // From here on nothing fails.
+    pools.slot_of[..g.info.triangles_in as usize].fill(INVALID_ID);
+    let info = if g.n == 0 {
+        g.info
+    } else if p.quality == BuildQuality::Low {
+        crate::fault_point!(BvhBuild);
+        super::build_morton::emit(pools, scene, p, &g)
+    } else {
+        crate::fault_point!(BvhBuild);
+        binned_sah(pools, scene, p, &g)
+    };
+    bvh.set_info(Some(info));
+    bvh.set_params(*p);
+    Ok(info)
+}
+
+/// Step 2 of the module docs: the top-down binned SAH over `refs[..g.n]`.
+fn binned_sah(pools: &mut BvhPools<'_>, scene: &Scene<'_>, p: &BvhParams, g: &Gathered) -> BvhInfo {
+    let (n, pad, bounds) = (g.n, g.pad, g.bounds);
+    let mut info = g.info;
+    let (nodes, mut stored, refs, scratch) = split(pools, p);
+    let refs = &mut refs[..n];
+    let high = p.quality == BuildQuality::High;
+    let sweep_max = if high { SWEEP_HIGH } else { SWEEP_MAX };
     let leaf_size = p.leaf_size as usize;
-    let scratch = crate::mem::Scratch::new(&mut *pools.scratch);
+    let scratch = crate::mem::Scratch::new(scratch);
     let (bins, scratch) = scratch.take_copies(1, &EMPTY_BINS);
     let (stack, _) = scratch.take_copies(MAX_DEPTH + 1, &NO_TASK);
     let mut binner = Binner {
-        bins: p.bins as usize,
+        bins: if high {
+            MAX_BINS as usize
+        } else {
+            p.bins as usize
+        },
         m: &mut bins[0],
     };
     let root_area = bounds.half_area();
@@ -645,14 +756,14 @@ pub fn build(bvh: &mut Bvh<'_>, scene: &Scene<'_>, p: &BvhParams) -> Result<BvhI
         end: n as u32,
         depth: 0,
         bounds,
-        cent,
+        cent: g.cent,
     };
     loop {
         let (begin, end) = (task.begin as usize, task.end as usize);
         let count = end - begin;
         // Some((axis, left count, left box, right box, left cent, right cent)).
         let mut split = None;
-        if count > 1 && count <= SWEEP_MAX && (task.depth as usize) < MAX_DEPTH {
+        if count > 1 && count <= sweep_max && (task.depth as usize) < MAX_DEPTH {
             let (axis, nl, cost, bl, br, cl, cr) = sweep_split(&mut refs[begin..end]);
             let split_cost = p.traversal_cost + cost / task.bounds.half_area();
             // NaN costs (overflowing coordinates) split rather than keep a
@@ -719,14 +830,7 @@ pub fn build(bvh: &mut Bvh<'_>, scene: &Scene<'_>, p: &BvhParams) -> Result<BvhI
                 info.leaves += 1;
                 info.depth = info.depth.max(task.depth);
                 for (s, r) in refs.iter().enumerate().take(end).skip(begin) {
-                    let id = r.id;
-                    let tri = scene.triangle(id);
-                    pools.tris[s] = tri;
-                    if proj {
-                        pools.proj[s] = ProjTri::new(&tri);
-                    }
-                    pools.tri_ids[s] = id;
-                    pools.slot_of[id as usize] = s as u32;
+                    stored.put(scene, s, r.id);
                 }
             }
         }
@@ -738,9 +842,7 @@ pub fn build(bvh: &mut Bvh<'_>, scene: &Scene<'_>, p: &BvhParams) -> Result<BvhI
     }
     info.nodes = next;
     info.sah_cost = ((p.traversal_cost as f64 * sah_inner + sah_leaf) / root_area as f64) as f32;
-    bvh.set_info(Some(info));
-    bvh.set_params(*p);
-    Ok(info)
+    info
 }
 
 #[cfg(test)]
@@ -869,17 +971,22 @@ mod tests {
     fn builtin_scenes_invariants() {
         for &name in crate::scenes::BUILTIN_NAMES {
             let s = crate::scenes::builtin(name).unwrap();
-            for (leaf_size, bins, test) in [
+            let qualities = [BuildQuality::Low, BuildQuality::Medium, BuildQuality::High];
+            for ((leaf_size, bins, test), quality) in [
                 (4, 16, TriTest::MollerTrumbore),
                 (1, 2, TriTest::Watertight),
                 (8, 64, TriTest::Projection),
                 (64, 7, TriTest::MollerTrumbore),
-            ] {
+            ]
+            .into_iter()
+            .flat_map(|c| qualities.map(|q| (c, q)))
+            {
                 let p = BvhParams {
                     leaf_size,
                     bins,
                     traversal_cost: 1.0,
                     test,
+                    quality,
                 };
                 let info = build_check(&s.mesh.vertices, &s.mesh.indices, &p);
                 assert_eq!(info.triangles as usize, s.mesh.triangle_count(), "{name}");
@@ -1085,20 +1192,33 @@ mod perf {
             let n = scene.triangle_count() as usize;
             let mut st = Store::new(n, false);
             let mut bvh = st.bvh();
-            let p = BvhParams::default();
+            for quality in [BuildQuality::Low, BuildQuality::Medium, BuildQuality::High] {
+                let p = BvhParams {
+                    quality,
+                    ..BvhParams::default()
+                };
+                perf_one(file, &scene, &mut bvh, &p);
+            }
+        }
+    }
+
+    fn perf_one(file: &str, scene: &Scene<'_>, bvh: &mut Bvh<'_>, p: &BvhParams) {
+        let n = scene.triangle_count() as usize;
+        {
             // Mean thread CPU time over at least 1 s of builds (the clock
             // ticks coarsely on some kernels).
-            let mut info = build(&mut bvh, &scene, &p).unwrap();
+            let mut info = build(bvh, scene, p).unwrap();
             let (t0, mut reps, mut fastest) = (cpu(), 0u32, f64::INFINITY);
             while cpu() - t0 < 1.0 || reps < 5 {
                 let t = std::time::Instant::now();
-                info = build(&mut bvh, &scene, &p).unwrap();
+                info = build(bvh, scene, p).unwrap();
                 fastest = fastest.min(t.elapsed().as_secs_f64());
                 reps += 1;
             }
             let mean = (cpu() - t0) / reps as f64;
             println!(
-                "{file}: {n} tris, build: mean thread CPU time {:.2} ms ({:.2} Mtris/s) over {reps} builds, fastest wall {:.2} ms ({:.2} Mtris/s); nodes {} leaves {} depth {} sah {:.1}",
+                "{file} {:?}: {n} tris, build: mean thread CPU time {:.2} ms ({:.2} Mtris/s) over {reps} builds, fastest wall {:.2} ms ({:.2} Mtris/s); nodes {} leaves {} depth {} sah {:.1}",
+                p.quality,
                 mean * 1e3,
                 n as f64 / mean / 1e6,
                 fastest * 1e3,
@@ -1108,20 +1228,23 @@ mod perf {
                 info.depth,
                 info.sah_cost
             );
-            // Refit to the same vertices (its cost does not depend on how
-            // far they moved): one pass over the triangles, one over the nodes.
-            let (t0, mut reps, mut fastest) = (cpu(), 0u32, f64::INFINITY);
-            while cpu() - t0 < 1.0 || reps < 5 {
-                let t = std::time::Instant::now();
-                crate::accel::bvh::refit::refit(&mut bvh, &scene).unwrap();
-                fastest = fastest.min(t.elapsed().as_secs_f64());
-                reps += 1;
+            if p.quality == BuildQuality::Medium {
+                // Refit to the same vertices (its cost does not depend on
+                // how far they moved).
+                let (t0, mut reps, mut fastest) = (cpu(), 0u32, f64::INFINITY);
+                while cpu() - t0 < 1.0 || reps < 5 {
+                    let t = std::time::Instant::now();
+                    crate::accel::bvh::refit::refit(bvh, scene).unwrap();
+                    fastest = fastest.min(t.elapsed().as_secs_f64());
+                    reps += 1;
+                }
+                println!(
+                    "{file}: refit: mean thread CPU time {:.2} ms over {reps} refits, fastest wall {:.2} ms",
+                    (cpu() - t0) / reps as f64 * 1e3,
+                    fastest * 1e3
+                );
             }
-            println!(
-                "{file}: refit: mean thread CPU time {:.2} ms over {reps} refits, fastest wall {:.2} ms",
-                (cpu() - t0) / reps as f64 * 1e3,
-                fastest * 1e3
-            );
+            let info = *bvh.info().unwrap();
             // Primary rays of the "outside" view of tests/common (1024 x 1024).
             let (lo, hi) = (info.bounds.min, info.bounds.max);
             let c = 0.5 * (lo + hi);

@@ -6,7 +6,8 @@
 //!
 //! | file | implements |
 //! |---|---|
-//! | `build.rs` | section 5.1: single-threaded binned SAH build (Wald 2007), an explicit work stack, into preallocated pools |
+//! | `build.rs` | section 5.1: single-threaded binned SAH build (Wald 2007), an explicit work stack, into preallocated pools (`BuildQuality::Medium` and `High`) |
+//! | `build_morton.rs` | the fast build (`BuildQuality::Low`): centroids' Morton codes, a radix sort, the tree emitted top-down at the codes' highest differing bit (Lauterbach et al. 2009, LBVH) |
 //! | `traverse_single.rs` | the single-ray reference: stack traversal, near child first |
 //! | `traverse_simd.rs` | section 2.1: the 2x2 SIMD ray (`Ray4`) traversal, the "2x2 SIMD ray packets" of Table 2 |
 //! | `frustum.rs` | section 4: frusta for primary (4.1), point-light shadow (4.2), reflection and refraction (4.3) packets; plane test (Eq. 1-3) and corner-ray test |
@@ -33,6 +34,7 @@
 //! same t (the tie rule of `geom::ray`).
 
 pub mod build;
+pub mod build_morton;
 pub mod entry;
 pub mod packet;
 pub mod refit;
@@ -78,6 +80,25 @@ pub const MAX_LEAF: u32 = 64;
 /// Most SAH bins.
 pub const MAX_BINS: u32 = 64;
 
+/// How much time a build spends on the tree's quality (C:
+/// `sheaf_build_quality`), named and numbered as Embree's
+/// `RTCBuildQuality`. The shape decides speed only: every traversal is
+/// exact on every tree.
+#[repr(u32)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum BuildQuality {
+    /// Morton codes and a radix sort (LBVH, `build_morton.rs`): several
+    /// times faster to build, slower to trace. For geometry rebuilt every
+    /// frame.
+    Low = 0,
+    /// Binned SAH (the BVH paper's build, section 5.1) with `bins` bins.
+    #[default]
+    Medium = 1,
+    /// Binned SAH with `MAX_BINS` bins, and the full SAH sweep over every
+    /// object split in nodes of up to `build::SWEEP_HIGH` triangles.
+    High = 2,
+}
+
 /// Tunables of the BVH build (C: `sheaf_bvh_params`).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -91,6 +112,9 @@ pub struct BvhParams {
     pub traversal_cost: f32,
     /// Ray-triangle test used by every traversal of this BVH.
     pub test: TriTest,
+    /// Which build (default `Medium`, binned SAH). `Low` ignores `bins`
+    /// and `traversal_cost` (its leaves hold up to `leaf_size` triangles).
+    pub quality: BuildQuality,
 }
 
 impl Default for BvhParams {
@@ -100,6 +124,7 @@ impl Default for BvhParams {
             bins: 16,
             traversal_cost: 1.0,
             test: TriTest::MollerTrumbore,
+            quality: BuildQuality::Medium,
         }
     }
 }
@@ -138,11 +163,13 @@ pub struct BvhInfo {
     pub excluded_non_finite: u32,
     pub excluded_zero_area: u32,
     /// SAH cost of the tree (traversal_cost per inner node and 1 per
-    /// triangle, weighted by surface area relative to the root).
+    /// triangle, weighted by surface area relative to the root; the `Low`
+    /// build weighs its padded boxes, see `build_morton.rs`).
     pub sah_cost: f32,
     pub leaf_size: u32,
     pub bins: u32,
     pub test: TriTest,
+    pub quality: BuildQuality,
 }
 
 /// One node (32 bytes). `meta`: for a leaf, the triangle count (> 0) in the

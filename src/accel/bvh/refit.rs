@@ -29,7 +29,7 @@
 
 use super::{BOX_PAD, Bvh, BvhNode};
 use crate::error::{Error, Result};
-use crate::geom::{INVALID_ID, ProjTri, Scene, TriTest};
+use crate::geom::{INVALID_ID, ProjTri, Scene, TriTest, TriVerts};
 use crate::math;
 use glam::Vec3A;
 
@@ -94,7 +94,7 @@ fn half_area(n: &BvhNode) -> f64 {
 
 /// The SAH cost of the stored (padded) boxes: traversal cost per inner
 /// node, one per triangle, weighted by half area relative to the root's.
-fn sah(nodes: &[BvhNode], traversal_cost: f32) -> f64 {
+pub(super) fn sah(nodes: &[BvhNode], traversal_cost: f32) -> f64 {
     let sum: f64 = nodes
         .iter()
         .map(|n| {
@@ -107,6 +107,37 @@ fn sah(nodes: &[BvhNode], traversal_cost: f32) -> f64 {
         })
         .sum();
     sum / half_area(&nodes[0]).max(f64::MIN_POSITIVE)
+}
+
+/// Every box of `nodes` recomputed bottom-up from the stored triangles
+/// `tris`: a leaf's box is its triangles' box padded by `pad`, an inner
+/// box the union of its children's. Children follow their parent, so one
+/// reverse pass meets every child first. The union of padded boxes equals
+/// the padded union bitwise (`x - pad` rounds monotonically), so a tree
+/// fitted here has the boxes the binned build would have written.
+pub(super) fn fit_boxes(nodes: &mut [BvhNode], tris: &[TriVerts], pad: Vec3A) {
+    for i in (0..nodes.len()).rev() {
+        let nd = nodes[i];
+        let first = nd.first as usize;
+        let (bmin, bmax) = if nd.is_leaf() {
+            let (mut a, mut b) = (Vec3A::splat(f32::INFINITY), Vec3A::splat(f32::NEG_INFINITY));
+            for t in &tris[first..first + nd.count() as usize] {
+                for v in [t.v0, t.v1, t.v2] {
+                    let v = Vec3A::from(v);
+                    (a, b) = (a.min(v), b.max(v));
+                }
+            }
+            (a - pad, b + pad)
+        } else {
+            let (l, r) = (&nodes[first], &nodes[first + 1]);
+            (
+                Vec3A::from(l.min).min(Vec3A::from(r.min)),
+                Vec3A::from(l.max).max(Vec3A::from(r.max)),
+            )
+        };
+        nodes[i].min = bmin.into();
+        nodes[i].max = bmax.into();
+    }
 }
 
 /// Refit the built tree of `bvh` to `scene`'s current vertex positions.
@@ -179,28 +210,7 @@ pub fn refit(bvh: &mut Bvh<'_>, scene: &Scene<'_>) -> Result<RefitInfo> {
     let diag = hi - lo;
     let pad = Vec3A::splat(BOX_PAD * (m + math::sqrt(diag.dot(diag))));
     let nodes = &mut pools.nodes[..nn];
-    for i in (0..nn).rev() {
-        let nd = nodes[i];
-        let first = nd.first as usize;
-        let (bmin, bmax) = if nd.is_leaf() {
-            let (mut a, mut b) = (Vec3A::splat(f32::INFINITY), Vec3A::splat(f32::NEG_INFINITY));
-            for t in &pools.tris[first..first + nd.count() as usize] {
-                for v in [t.v0, t.v1, t.v2] {
-                    let v = Vec3A::from(v);
-                    (a, b) = (a.min(v), b.max(v));
-                }
-            }
-            (a - pad, b + pad)
-        } else {
-            let (l, r) = (&nodes[first], &nodes[first + 1]);
-            (
-                Vec3A::from(l.min).min(Vec3A::from(r.min)),
-                Vec3A::from(l.max).max(Vec3A::from(r.max)),
-            )
-        };
-        nodes[i].min = bmin.into();
-        nodes[i].max = bmax.into();
-    }
+    fit_boxes(nodes, &pools.tris[..n], pad);
     let after = sah(nodes, traversal_cost);
     if before > 0.0 {
         info.sah_cost = (info.sah_cost as f64 * after / before) as f32;

@@ -592,6 +592,7 @@ pub(crate) mod tests {
                 bins: 2,
                 traversal_cost: 1.0,
                 test: TriTest::Watertight,
+                quality: crate::accel::bvh::BuildQuality::Medium,
             },
         )
         .unwrap();

@@ -248,13 +248,13 @@ fn walk<T: TriangleTest, const ANY: bool>(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::accel::bvh::BvhParams;
     use crate::accel::bvh::build::build;
     use crate::accel::bvh::build::testutil::{Store, deep_tris, soup};
     use crate::accel::bvh::traverse_single::{
         self,
         tests::{Rng, test_rays, tris_of},
     };
+    use crate::accel::bvh::{BuildQuality, BvhParams};
     use crate::geom::lane::mask_from_bits;
     use crate::geom::{Mt, Pt, Ray, Scene, TriTest, Wt};
 
@@ -365,6 +365,12 @@ mod tests {
                 bins,
                 traversal_cost: 1.0,
                 test,
+                // The SAH tree for the first test, the fast one after.
+                quality: if test == TriTest::MollerTrumbore {
+                    BuildQuality::Medium
+                } else {
+                    BuildQuality::Low
+                },
             };
             match test {
                 TriTest::MollerTrumbore => check::<Mt>(v, ix, views, &p),

@@ -189,9 +189,9 @@ fn walk<T: TriangleTest, const ANY: bool>(b: &BvhView<'_>, ray: &Ray, ctr: &mut 
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;
-    use crate::accel::bvh::BvhParams;
     use crate::accel::bvh::build::build;
     use crate::accel::bvh::build::testutil::{Store, deep_tris, soup};
+    use crate::accel::bvh::{BuildQuality, BvhParams};
     pub use crate::accel::testkit::{Rng, test_rays, tris_of};
     use crate::geom::{INVALID_ID, Mt, Pt, Scene, TriTest, Wt};
 
@@ -270,16 +270,18 @@ pub(crate) mod tests {
     }
 
     fn check_all_tests(v: &[f32], ix: &[u32], views: &[crate::scenes::View], leaf_size: u32) {
-        for (test, bins) in [
-            (TriTest::MollerTrumbore, 16),
-            (TriTest::Watertight, 8),
-            (TriTest::Projection, 32),
+        for (test, bins, quality) in [
+            (TriTest::MollerTrumbore, 16, BuildQuality::Medium),
+            (TriTest::MollerTrumbore, 16, BuildQuality::Low),
+            (TriTest::Watertight, 8, BuildQuality::Low),
+            (TriTest::Projection, 32, BuildQuality::High),
         ] {
             let p = BvhParams {
                 leaf_size,
                 bins,
                 traversal_cost: 1.0,
                 test,
+                quality,
             };
             match test {
                 TriTest::MollerTrumbore => check_scene::<Mt>(v, ix, views, &p),
@@ -319,16 +321,17 @@ pub(crate) mod tests {
     #[test]
     fn matches_brute_force_at_max_depth() {
         let (v, ix) = soup(&deep_tris());
-        for test in [
-            TriTest::MollerTrumbore,
-            TriTest::Watertight,
-            TriTest::Projection,
+        for (test, quality) in [
+            (TriTest::MollerTrumbore, BuildQuality::Medium),
+            (TriTest::Watertight, BuildQuality::Low),
+            (TriTest::Projection, BuildQuality::High),
         ] {
             let p = BvhParams {
                 leaf_size: 1,
                 bins: 2,
                 traversal_cost: 1.0,
                 test,
+                quality,
             };
             match test {
                 TriTest::MollerTrumbore => check_scene::<Mt>(&v, &ix, &[], &p),

@@ -806,6 +806,7 @@ pub(crate) mod tests {
                     bins: 2,
                     traversal_cost: 1.0,
                     test: crate::geom::TriTest::Watertight,
+                    quality: crate::accel::bvh::BuildQuality::Medium,
                 };
                 crate::accel::bvh::build::build(&mut bvh, &scene, &p).unwrap();
                 bvh

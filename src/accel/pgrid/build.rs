@@ -11,11 +11,11 @@
 //! reports the number needed, and leaves that grid unbuilt (these grids
 //! live for one frame: the render call that needed it fails).
 
-use super::sort::{bits_for, radix_sort};
 use super::{CellsInfo, LightFrame, Pgrid, PgridParams, Pinhole, SceneInfo, Slices, tile_coord};
 use crate::error::{Error, Pool, Result};
 use crate::geom::{Aabb, ProjTri, Scene, TriTest, TriVerts};
 use crate::math;
+use crate::mem::sort::{bits_for, radix_sort};
 use glam::Vec3;
 
 /// Padding of projected bounds, in pixels (rounding of the projection is

@@ -12,7 +12,6 @@
 //! | file | implements |
 //! |---|---|
 //! | `build.rs` | section 3: (triangle, cell) pairs for every cell a triangle spans, back faces optionally removed, sorted by cell id, a scan giving each cell's range; section 4.1: the same over the light's (a, b) space, clamped to the hit points' rectangle and distance range |
-//! | `sort.rs` | the radix sort of (key, value) pairs both builds and the ray reordering use (the paper's SplitSort) |
 //! | `traverse_primary.rs` | section 3: the rays of a tile visit its cells front to back and stop at the first slice where they all have their nearest hit; indirect mapping (sorting tiles traced in k x k groups) |
 //! | `reorder.rs` | sections 4.2 and 4.3, Algorithm 1: shadow rays mapped to light tiles, sorted, tile boundaries, counts, chunks of at most r rays, empty tiles compacted away |
 //! | `traverse_shadow.rs` | section 4.4: a chunk's shadow rays traced through its light tile's cells front to back from the light, occlusion only |
@@ -28,7 +27,7 @@
 //! occlusion rays traced one by one.
 //!
 //! # Deviations
-//! - The sort is a least-significant-digit radix sort on one CPU thread, 11
+//! - The sort is a least-significant-digit radix sort (`mem::sort`) on one CPU thread, 11
 //!   bits per pass, instead of the GPU SplitSort; the segmented scan, the
 //!   chunking and the stream compaction of Algorithm 1 are one pass over the
 //!   sorted keys.
@@ -41,7 +40,6 @@
 
 pub mod build;
 pub mod reorder;
-pub mod sort;
 pub mod traverse_primary;
 pub mod traverse_shadow;
 

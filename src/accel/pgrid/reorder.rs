@@ -16,7 +16,7 @@
 //! chunk is a contiguous range of the sorted rays, so chunks write their
 //! shadow bits to disjoint ranges without synchronisation.
 
-use super::sort::{bits_for, radix_sort};
+use crate::mem::sort::{bits_for, radix_sort};
 use bytemuck::{Pod, Zeroable};
 
 /// A work item of shadow tracing: `count` rays of light tile `tile`, at

@@ -1,5 +1,7 @@
-//! Radix sort of (key, value) pairs: the sort of sections 3 and 4.2 (the
-//! paper uses the GPU SplitSort; any stable key sort gives the same lists).
+//! Radix sort of (key, value) pairs, without `std`: the perspective and
+//! light grids' sort (GPU paper, sections 3 and 4.2; the paper uses the GPU
+//! SplitSort, any stable key sort gives the same lists) and the Morton
+//! order of the BVH's fast build (`accel::bvh::build_morton`).
 //!
 //! Least significant digit first, 11 bits per pass, only as many passes as
 //! the keys have bits (the paper, too, splits on the 18 bits its cell ids
