@@ -879,8 +879,21 @@ static void agree_shadow(const Scene *s, const sheaf_context *ctx, RTCScene scen
 
 /* ---- sheaf configurations ---------------------------------------------------------- */
 
-enum { S_GRID, S_BVH, S_KD, NSTRUCT };
-static const char *STRUCT_NAME[NSTRUCT] = {"grid", "BVH", "kd"};
+/* S_BVH_LOW: the BVH's fast (Morton, LOW) build, traced with the methods
+ * that were fastest on the SAH (MEDIUM) tree. */
+enum { S_GRID, S_BVH, S_BVH_LOW, S_KD, NSTRUCT };
+static const char *STRUCT_NAME[NSTRUCT] = {"grid", "BVH", "BVH LOW", "kd"};
+
+/* Build structure st into the context (the BVH at MEDIUM or LOW). */
+static sheaf_status sheaf_build(sheaf_context *ctx, int st)
+{
+    sheaf_bvh_params bp;
+    sheaf_bvh_params_default(&bp);
+    bp.quality = st == S_BVH_LOW ? SHEAF_BUILD_QUALITY_LOW : SHEAF_BUILD_QUALITY_MEDIUM;
+    return st == S_GRID ? sheaf_context_build_grid(ctx, NULL)
+         : st == S_KD   ? sheaf_context_build_kd(ctx, NULL)
+                        : sheaf_context_build_bvh(ctx, &bp);
+}
 
 typedef struct {
     const char *name;
@@ -1003,6 +1016,7 @@ typedef struct {
     char name[64];
     uint32_t triangles;
     double ratio_p[4], ratio_s[4], ratio_f[4]; /* sheaf / Embree per thread count */
+    double ratio_b[4], ratio_r[4]; /* sheaf BVH LOW build / Embree LOW rebuild; BVH refit / Embree refit */
     const char *frame_struct[4];
     size_t p_differ, p_ties, p_edges, s_differ, s_edges, s_ends, unexplained; /* MEDIUM; unexplained: all qualities */
 } SceneResult;
@@ -1137,15 +1151,15 @@ static void time_sheaf_builds(Bench *b)
             continue;
         for (int r = 0; r < reps; r++) {
             double t0 = now_s();
-            sheaf_status e = st == S_GRID ? sheaf_context_build_grid(b->ctx, NULL)
-                           : st == S_BVH  ? sheaf_context_build_bvh(b->ctx, NULL)
-                                          : sheaf_context_build_kd(b->ctx, NULL);
+            sheaf_status e = sheaf_build(b->ctx, st);
             t[r] = now_s() - t0;
             check_sheaf(b->ctx, e, "build");
         }
         b->build_ms[st] = 1e3 * median(t, reps);
         progress("  sheaf %s build %.1f ms\n", STRUCT_NAME[st], b->build_ms[st]);
     }
+    /* The reference, the checks and the method tables use the SAH tree. */
+    check_sheaf(b->ctx, sheaf_build(b->ctx, S_BVH), "build");
     /* The BVH refit to the same vertices (its cost does not depend on how
      * far they moved), median of reps. */
     if (!b->o->profile) {
@@ -1287,6 +1301,35 @@ static void time_sheaf_methods(Bench *b)
      * (named so in the tables); then that method on every thread count. */
     for (int st = 0; st < NSTRUCT; st++) {
         b->pbest[st] = b->sbest[st] = -1;
+        if (st == S_BVH_LOW) {
+            /* The SAH tree's fastest methods on the LOW tree, every thread
+             * count: trace speed of the fast build against the SAH build. */
+            b->pbest[st] = b->pbest[S_BVH];
+            b->sbest[st] = b->sbest[S_BVH];
+            check_sheaf(b->ctx, sheaf_build(b->ctx, S_BVH_LOW), "build");
+            for (int ti = 0; ti < b->o->nthreads; ti++) {
+                Job j = b->job;
+                j.hits = b->hits;
+                j.params = cfg_params(&PRIMARY_CFGS[b->pbest[st]], SHEAF_RAY_KIND_PRIMARY);
+                b->pbest_mr[st][ti] = mrays(b->N, time_job(&j, b->o->threads[ti], b->reps));
+                for (size_t k = 0; k < b->N; k++)
+                    b->internal += b->hits[k].prim != b->ref[k].prim || memcmp(&b->hits[k].t, &b->ref[k].t, 4) != 0;
+                const Cfg *sc = &SHADOW_CFGS[b->sbest[st]];
+                j.kind = sc->occ_via_trace ? K_TRACE_OCC : K_OCCLUDED;
+                j.occ_method = sc->method;
+                j.occ_via_trace = sc->occ_via_trace;
+                j.params = cfg_params(sc, SHEAF_RAY_KIND_SHADOW);
+                j.rays = b->srays;
+                j.n = b->NSL;
+                j.occ = b->socc;
+                b->sbest_mr[st][ti] = mrays(b->NS, time_job(&j, b->o->threads[ti], b->reps));
+                for (size_t k = 0; k < b->NSL; k++) b->internal += b->socc[k] != b->sref[k];
+                progress("  sheaf BVH LOW tree, %d threads: primary %.2f, shadow %.2f Mrays/s\n",
+                         b->o->threads[ti], b->pbest_mr[st][ti], b->sbest_mr[st][ti]);
+            }
+            check_sheaf(b->ctx, sheaf_build(b->ctx, S_BVH), "build");
+            continue;
+        }
         for (size_t c = 0; c < N_PRIMARY_CFGS; c++)
             if (PRIMARY_CFGS[c].structure == st && (b->pbest[st] < 0 || b->pspeed[c].mrays > b->pspeed[b->pbest[st]].mrays))
                 b->pbest[st] = (int)c;
@@ -1433,9 +1476,7 @@ static void time_sheaf_frames(Bench *b)
             double tf[MAX_REPS], tb[MAX_REPS], tp[MAX_REPS], ts[MAX_REPS];
             for (int r = 0; r < b->reps; r++) {
                 double t0 = now_s();
-                sheaf_status e = st == S_GRID ? sheaf_context_build_grid(b->ctx, NULL)
-                               : st == S_BVH  ? sheaf_context_build_bvh(b->ctx, NULL)
-                                              : sheaf_context_build_kd(b->ctx, NULL);
+                sheaf_status e = sheaf_build(b->ctx, st);
                 tb[r] = now_s() - t0;
                 check_sheaf(b->ctx, e, "build");
                 Job j = b->job;
@@ -1618,6 +1659,8 @@ static void finish_scene(Bench *b)
         summary(b->name, k, b->sheaf_best_s[ti] / b->emb_best_s[ti]);
         snprintf(k, sizeof k, "ratio_frame_%dT", b->o->threads[ti]);
         summary(b->name, k, b->best_frame[ti] / b->frame_e[ti]);
+        snprintf(k, sizeof k, "ratio_build_low_%dT", b->o->threads[ti]);
+        summary(b->name, k, b->build_ms[S_BVH_LOW] / b->e_rebuild[ti][0]);
     }
     if (g_nresults < (int)(sizeof g_results / sizeof g_results[0])) {
         SceneResult *r = &g_results[g_nresults++];
@@ -1627,6 +1670,8 @@ static void finish_scene(Bench *b)
             r->ratio_p[ti] = b->sheaf_best_p[ti] / b->emb_best_p[ti];
             r->ratio_s[ti] = b->sheaf_best_s[ti] / b->emb_best_s[ti];
             r->ratio_f[ti] = b->best_frame[ti] / b->frame_e[ti];
+            r->ratio_b[ti] = b->build_ms[S_BVH_LOW] / b->e_rebuild[ti][0];
+            r->ratio_r[ti] = b->refit_ms / b->e_refit[ti];
             r->frame_struct[ti] = STRUCT_NAME[b->best_st[ti]];
         }
         r->p_differ = b->ap[1].differ;
@@ -1878,13 +1923,16 @@ int main(int argc, char **argv)
         printf("\n### Summary: sheaf / Embree\n\n"
                "Rays: sheaf's fastest method over Embree's fastest width and quality, Mrays/s ratio (below 1: "
                "sheaf slower). Dynamic frame: sheaf's fastest structure over Embree LOW + DYNAMIC, time ratio "
-               "(above 1: sheaf slower). Differing rays: against Embree MEDIUM (ties + edges, and shadow-ray "
-               "ends); unexplained: every quality.\n\n| scene | triangles |");
+               "(above 1: sheaf slower). Build: sheaf's BVH LOW build (calling thread) over Embree's LOW "
+               "rebuild, refit: sheaf's BVH refit over Embree's, time ratios. Differing rays: against Embree "
+               "MEDIUM (ties + edges, and shadow-ray ends); unexplained: every quality.\n\n| scene | triangles |");
         for (int ti = 0; ti < o.nthreads; ti++) printf(" primary %dT |", o.threads[ti]);
         for (int ti = 0; ti < o.nthreads; ti++) printf(" shadow %dT |", o.threads[ti]);
         for (int ti = 0; ti < o.nthreads; ti++) printf(" frame %dT |", o.threads[ti]);
+        for (int ti = 0; ti < o.nthreads; ti++) printf(" build %dT |", o.threads[ti]);
+        for (int ti = 0; ti < o.nthreads; ti++) printf(" refit %dT |", o.threads[ti]);
         printf(" camera rays differing | shadow rays differing | unexplained |\n|---|--:|");
-        for (int ti = 0; ti < 3 * o.nthreads; ti++) printf("--:|");
+        for (int ti = 0; ti < 5 * o.nthreads; ti++) printf("--:|");
         printf("--:|--:|--:|\n");
         for (int i = 0; i < g_nresults; i++) {
             SceneResult *r = &g_results[i];
@@ -1892,6 +1940,8 @@ int main(int argc, char **argv)
             for (int ti = 0; ti < o.nthreads; ti++) printf(" %.2f |", r->ratio_p[ti]);
             for (int ti = 0; ti < o.nthreads; ti++) printf(" %.2f |", r->ratio_s[ti]);
             for (int ti = 0; ti < o.nthreads; ti++) printf(" %.2f (%s) |", r->ratio_f[ti], r->frame_struct[ti]);
+            for (int ti = 0; ti < o.nthreads; ti++) printf(" %.2f |", r->ratio_b[ti]);
+            for (int ti = 0; ti < o.nthreads; ti++) printf(" %.2f |", r->ratio_r[ti]);
             printf(" %zu (%zu + %zu) | %zu (%zu + %zu) | %zu |\n", r->p_differ, r->p_ties, r->p_edges, r->s_differ,
                    r->s_edges, r->s_ends, r->unexplained);
         }

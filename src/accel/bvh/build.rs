@@ -1192,7 +1192,12 @@ mod perf {
             let n = scene.triangle_count() as usize;
             let mut st = Store::new(n, false);
             let mut bvh = st.bvh();
+            // SHEAF_PERF_QUALITY=low|medium|high: one build alone (for perf).
+            let only = std::env::var("SHEAF_PERF_QUALITY").unwrap_or_default();
             for quality in [BuildQuality::Low, BuildQuality::Medium, BuildQuality::High] {
+                if !only.is_empty() && !format!("{quality:?}").eq_ignore_ascii_case(&only) {
+                    continue;
+                }
                 let p = BvhParams {
                     quality,
                     ..BvhParams::default()
