@@ -185,6 +185,8 @@ typedef struct {
     float eye[3], look_at[3], up[3], fov, light[3], eps;
     float *verts;   /* 3 nv floats and one more: Embree reads 16 bytes at a time */
     uint32_t *idx;  /* 3 nt */
+    uint32_t nframes; /* animation frames (`sheaf export --frames`), else 0 */
+    float *frames;  /* 3 nv floats per frame */
 } Scene;
 
 static uint32_t rd_u32(const unsigned char *p)
@@ -244,7 +246,15 @@ static void read_scene(const char *path, Scene *s)
         off += n;
     }
     size_t need = off + 12 * (size_t)s->nv + 12 * (size_t)s->nt;
-    if ((size_t)len != need)
+    if ((size_t)len >= need + 4) {
+        /* The optional animation: u32 F, then F frames of 3 nv floats. */
+        s->nframes = rd_u32(buf + need);
+        size_t fb = 12 * (size_t)s->nv * s->nframes;
+        if ((size_t)len != need + 4 + fb)
+            die("%s: %ld bytes, expected %zu for %u frames", path, len, need + 4 + fb, s->nframes);
+        s->frames = xmalloc(fb + 4);
+        for (size_t i = 0; i < 3 * (size_t)s->nv * s->nframes; i++) s->frames[i] = rd_f32(buf + need + 4 + 4 * i);
+    } else if ((size_t)len != need)
         die("%s: %ld bytes, expected %zu", path, len, need);
     s->verts = xmalloc(4 * (3 * (size_t)s->nv + 1));
     s->idx = xmalloc(12 * (size_t)s->nt + 4);
@@ -1051,6 +1061,8 @@ typedef struct {
     double pbest_mr[NSTRUCT][4], sbest_mr[NSTRUCT][4];
     double e_first[4][3], e_rebuild[4][3], e_prim[4][3][4], e_shad[4][3][4]; /* [threads][quality][width] */
     double refit_ms;                 /* sheaf_context_refit_bvh, the same vertices */
+    double anim[4][4], anim_parts[4][4][3]; /* [ANIM mode][threads]: mean ms per frame; update, camera, shadows */
+    size_t anim_differ;              /* frames whose sheaf refit-tree hits differ from the rebuilt tree's */
     double e_refit_first[4], e_refit[4]; /* [threads]: Embree LOW + geometry REFIT */
     Agreement ap[3], as[3];
     uint32_t *eprim, *eprim1;
@@ -1503,6 +1515,113 @@ static void time_sheaf_frames(Bench *b)
     b->load1 = load_average();
 }
 
+/* The animation (`sheaf export --frames`). Per frame its vertices are
+ * written in place (untimed: the application's work), then timed: the
+ * update, the camera rays and the shadow rays, each library with its
+ * fastest methods (sheaf: the SAH tree's fastest BVH methods; Embree: the
+ * widths fastest on LOW). sheaf updates by a LOW rebuild or by refitting
+ * the SAH tree of frame 0; Embree by a LOW + DYNAMIC rebuild or LOW +
+ * geometry REFIT. The refit tree's camera hits must equal the rebuilt
+ * tree's on every frame (a hash per frame). */
+enum { A_SHEAF_LOW, A_SHEAF_REFIT, A_EMBREE_LOW, A_EMBREE_REFIT, NANIM };
+static const char *ANIM_NAME[NANIM] = {"sheaf BVH LOW rebuild", "sheaf BVH refit (SAH tree of frame 0)",
+                                       "Embree LOW + DYNAMIC rebuild", "Embree LOW + geometry REFIT"};
+
+static uint64_t hits_hash(const sheaf_hit *h, size_t n)
+{
+    uint64_t x = 1469598103934665603ull; /* FNV-1a */
+    for (size_t k = 0; k < n; k++) {
+        uint32_t t;
+        memcpy(&t, &h[k].t, 4);
+        x = (x ^ h[k].prim) * 1099511628211ull;
+        x = (x ^ t) * 1099511628211ull;
+    }
+    return x;
+}
+
+static void time_animation(Bench *b)
+{
+    Scene *s = &b->s;
+    size_t vb = 12 * (size_t)s->nv;
+    uint64_t *hash = xmalloc(2 * s->nframes * sizeof *hash);
+    for (int ti = 0; ti < b->o->nthreads; ti++) {
+        int T = b->o->threads[ti];
+        char cfg[64];
+        snprintf(cfg, sizeof cfg, "threads=%d", T);
+        RTCDevice dev = rtcNewDevice(cfg);
+        if (!dev)
+            die("rtcNewDevice(\"%s\") failed", cfg);
+        int pw = 0, sw = 0;
+        for (int w = 0; w < 4; w++) {
+            if (WIDTHS[w] == b->frame_e_pw[ti]) pw = w;
+            if (WIDTHS[w] == b->frame_e_sw[ti]) sw = w;
+        }
+        for (int m = 0; m < NANIM; m++) {
+            EScene es;
+            memcpy(s->verts, s->frames, vb);
+            if (m == A_SHEAF_REFIT)
+                check_sheaf(b->ctx, sheaf_build(b->ctx, S_BVH), "build");
+            if (m == A_EMBREE_LOW || m == A_EMBREE_REFIT)
+                embree_build(dev, s, m == A_EMBREE_LOW ? 0 : Q_REFIT, &es);
+            double sum[3] = {0, 0, 0};
+            for (uint32_t f = 0; f < s->nframes; f++) {
+                memcpy(s->verts, s->frames + 3 * (size_t)s->nv * f, vb);
+                double t0 = now_s(), tb;
+                Job j;
+                if (m == A_SHEAF_LOW || m == A_SHEAF_REFIT) {
+                    sheaf_status e = m == A_SHEAF_LOW ? sheaf_build(b->ctx, S_BVH_LOW)
+                                                      : sheaf_context_refit_bvh(b->ctx, NULL, NULL);
+                    tb = now_s() - t0;
+                    check_sheaf(b->ctx, e, "animation update");
+                    j = b->job;
+                    j.hits = b->hits;
+                    j.params = cfg_params(&PRIMARY_CFGS[b->pbest[S_BVH]], SHEAF_RAY_KIND_PRIMARY);
+                    sum[1] += run_job(&j, T);
+                    if (ti == 0)
+                        hash[2 * f + (m == A_SHEAF_REFIT)] = hits_hash(b->hits, b->N);
+                    const Cfg *sc = &SHADOW_CFGS[b->sbest[S_BVH]];
+                    j.kind = K_FRAME_SHADOW;
+                    j.compact = b->o->compact_shadows;
+                    j.occ_method = sc->method;
+                    j.occ_via_trace = sc->occ_via_trace;
+                    j.params = cfg_params(sc, SHEAF_RAY_KIND_SHADOW);
+                    sum[2] += run_job(&j, T);
+                } else {
+                    tb = embree_rebuild(&es);
+                    memset(&j, 0, sizeof j);
+                    j.lib = LIB_EMBREE;
+                    j.s = s;
+                    j.scene = es.scene;
+                    j.kind = K_TRACE;
+                    j.width = WIDTHS[pw];
+                    j.rays = b->rays;
+                    j.n = b->N;
+                    j.prim = b->eprim;
+                    j.t = b->et;
+                    sum[1] += run_job(&j, T);
+                    j.kind = K_FRAME_SHADOW;
+                    j.compact = b->o->compact_shadows;
+                    j.width = WIDTHS[sw];
+                    sum[2] += run_job(&j, T);
+                }
+                sum[0] += tb;
+            }
+            if (m == A_EMBREE_LOW || m == A_EMBREE_REFIT)
+                embree_release(&es);
+            for (int k = 0; k < 3; k++) b->anim_parts[m][ti][k] = 1e3 * sum[k] / s->nframes;
+            b->anim[m][ti] = b->anim_parts[m][ti][0] + b->anim_parts[m][ti][1] + b->anim_parts[m][ti][2];
+            progress("  animation, %s, %d threads: %.1f ms per frame\n", ANIM_NAME[m], T, b->anim[m][ti]);
+        }
+        rtcReleaseDevice(dev);
+    }
+    for (uint32_t f = 0; f < s->nframes; f++) b->anim_differ += hash[2 * f] != hash[2 * f + 1];
+    b->internal += b->anim_differ;
+    free(hash);
+    /* Back to frame 0 (the exported vertices) and the SAH tree. */
+    memcpy(s->verts, s->frames, vb);
+    check_sheaf(b->ctx, sheaf_build(b->ctx, S_BVH), "build");
+}
+
 /* The Markdown tables of one scene. */
 static void print_tables(Bench *b)
 {
@@ -1598,6 +1717,30 @@ static void print_tables(Bench *b)
                b->frame_e_parts[ti][1], b->frame_e_parts[ti][2], b->frame_e_pw[ti], b->frame_e_sw[ti]);
     printf("\n| **sheaf best / Embree (time ratio)** |");
     for (int ti = 0; ti < b->o->nthreads; ti++) printf(" **%.2f** (%s) |", b->best_frame[ti] / b->frame_e[ti], STRUCT_NAME[b->best_st[ti]]);
+    if (b->s.nframes) {
+        printf("\n\n**Animation**, %u frames 1/30 s apart, mean ms per frame: update + camera rays + shadow rays "
+               "(the vertices written in place before each frame, untimed); sheaf's refit tree gave the rebuilt "
+               "tree's camera hits on %u of %u frames:\n\n| |", b->s.nframes,
+               b->s.nframes - (unsigned)b->anim_differ, b->s.nframes);
+        for (int ti = 0; ti < b->o->nthreads; ti++) printf(" %d thread%s |", b->o->threads[ti], b->o->threads[ti] > 1 ? "s" : "");
+        printf("\n|---|");
+        for (int ti = 0; ti < b->o->nthreads; ti++) printf("--:|");
+        printf("\n");
+        for (int m = 0; m < NANIM; m++) {
+            printf("| %s |", ANIM_NAME[m]);
+            for (int ti = 0; ti < b->o->nthreads; ti++)
+                printf(" %.1f (%.1f + %.1f + %.1f) |", b->anim[m][ti], b->anim_parts[m][ti][0], b->anim_parts[m][ti][1],
+                       b->anim_parts[m][ti][2]);
+            printf("\n");
+        }
+        printf("| **sheaf best / Embree best (time ratio)** |");
+        for (int ti = 0; ti < b->o->nthreads; ti++) {
+            double sb = fmin(b->anim[A_SHEAF_LOW][ti], b->anim[A_SHEAF_REFIT][ti]);
+            double eb = fmin(b->anim[A_EMBREE_LOW][ti], b->anim[A_EMBREE_REFIT][ti]);
+            printf(" **%.2f** |", sb / eb);
+        }
+        printf("\n");
+    }
     printf("\n\n**Agreement** (sheaf's BVH single ray, which every sheaf method matched, against Embree's "
            "rtcIntersect1 / rtcOccluded1 on the same rays; explained in f64: tie = hits within %g of each "
            "other, edge = within %g of a triangle's edge in barycentrics or the ray's line within %g of it relative to the coordinates, end = occluder within %g of the "
@@ -1661,6 +1804,11 @@ static void finish_scene(Bench *b)
         summary(b->name, k, b->best_frame[ti] / b->frame_e[ti]);
         snprintf(k, sizeof k, "ratio_build_low_%dT", b->o->threads[ti]);
         summary(b->name, k, b->build_ms[S_BVH_LOW] / b->e_rebuild[ti][0]);
+        if (b->s.nframes) {
+            snprintf(k, sizeof k, "ratio_animation_%dT", b->o->threads[ti]);
+            summary(b->name, k, fmin(b->anim[A_SHEAF_LOW][ti], b->anim[A_SHEAF_REFIT][ti]) /
+                                    fmin(b->anim[A_EMBREE_LOW][ti], b->anim[A_EMBREE_REFIT][ti]));
+        }
     }
     if (g_nresults < (int)(sizeof g_results / sizeof g_results[0])) {
         SceneResult *r = &g_results[g_nresults++];
@@ -1698,7 +1846,7 @@ static void finish_scene(Bench *b)
 
     free(b->rays); free(b->pix); free(b->ref); free(b->hits); free(b->srays); free(b->slot_of); free(b->sref); free(b->socc); free(b->socc1);
     free(b->eprim); free(b->eprim1); free(b->et);
-    free(b->s.verts); free(b->s.idx);
+    free(b->s.verts); free(b->s.idx); free(b->s.frames);
     sheaf_context_destroy(b->ctx);
 }
 
@@ -1776,6 +1924,8 @@ static void run_scene(const char *path, const Options *o)
     time_sheaf_methods(b);
     time_embree(b);
     time_sheaf_frames(b);
+    if (b->s.nframes)
+        time_animation(b);
     print_tables(b);
     finish_scene(b);
     free(b);

@@ -31,6 +31,7 @@
 //! | 4 + n | `u32` n, `u8[n]` | view description (UTF-8, no NUL) |
 //! | 12 V | `f32[3 V]` | vertices x, y, z, packed |
 //! | 12 T | `u32[3 T]` | vertex indices of each triangle |
+//! | 4 + 12 V F | `u32` F, `f32[3 V]` per frame | optional (`--frames F`, `builtin:animated` only): the vertices of F frames of the animation, 1/30 s apart from time 0 (frame 0 = the vertices above) |
 //!
 //! The header before the strings is 88 bytes. A shadow ray of a hit point
 //! `p` with facing normal `n` goes from the light to `p + n * max(eps,
@@ -69,7 +70,14 @@ pub struct ExportArgs {
     /// fits the scene to the aspect ratio).
     #[arg(long, default_value = "1024x1024", value_parser = crate::parse_size)]
     pub size: (u32, u32),
+    /// Append the vertices of this many animation frames, 1/30 s apart (`builtin:animated`
+    /// only): `benches/embree` times a per-frame rebuild and refit over them.
+    #[arg(long, default_value_t = 0)]
+    pub frames: u32,
 }
+
+/// Time between the frames `--frames` writes, seconds.
+const FRAME_DT: f32 = 1.0 / 30.0;
 
 /// `sheaf export`.
 pub fn export(a: &ExportArgs) -> Result<()> {
@@ -161,6 +169,22 @@ pub fn export(a: &ExportArgs) -> Result<()> {
     }
     for &i in &loaded.indices {
         u(&mut out, i);
+    }
+    if a.frames > 0 {
+        if a.scene != "builtin:animated" {
+            bail!("--frames: only builtin:animated has an animation");
+        }
+        let mut anim = sheaf::scenes::animated::Animated::new(sheaf::scenes::ANIMATED_DETAIL);
+        if anim.mesh.vertices != loaded.vertices {
+            bail!("--frames: the animation's frame 0 is not the loaded scene");
+        }
+        u(&mut out, a.frames);
+        for k in 0..a.frames {
+            anim.set_time(k as f32 * FRAME_DT);
+            for &x in &anim.mesh.vertices {
+                f(&mut out, x);
+            }
+        }
     }
     if let Some(dir) = a.out.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
