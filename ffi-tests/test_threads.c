@@ -119,6 +119,86 @@ static bool test_concurrent_trace_matches_single_thread(void) {
     return true;
 }
 
+/* Joined BVH builds: thread i of n calls sheaf_context_build_bvh_joined. */
+typedef struct {
+    sheaf_bvh_params p;
+    uint32_t index, count;
+    sheaf_status status;
+} join_arg;
+
+static void *joiner(void *arg) {
+    join_arg *a = arg;
+    a->status = sheaf_context_build_bvh_joined(g_ctx, &a->p, a->index, a->count);
+    return NULL;
+}
+
+/* Run a joined build on `count` threads (this one leads); every status. */
+static bool joined_build(const sheaf_bvh_params *p, uint32_t count, sheaf_status *status) {
+    pthread_t th[8];
+    join_arg a[8];
+    uint32_t i;
+    for (i = 0; i < count; ++i) {
+        a[i].p = *p;
+        a[i].index = i;
+        a[i].count = count;
+    }
+    for (i = 1; i < count; ++i) CHECK(pthread_create(&th[i], NULL, joiner, &a[i]) == 0);
+    joiner(&a[0]);
+    for (i = 1; i < count; ++i) CHECK(pthread_join(th[i], NULL) == 0);
+    for (i = 0; i < count; ++i) status[i] = a[i].status;
+    return true;
+}
+
+static bool test_joined_builds(void) {
+    /* The caller's threads join one BVH build: LOW on 2 and 3 threads and
+       MEDIUM on 2 give the single-thread build's hits bit for bit, every
+       thread returns the leader's status (a bad parameter: all refused),
+       and bad thread arguments are refused at once. */
+    scene *s = box_field();
+    sheaf_limits l;
+    sheaf_bvh_params p;
+    sheaf_status st[8];
+    sheaf_hit got[NRAYS];
+    uint32_t count, i, q;
+    CHECK_OK(sheaf_limits_default(s->nt, &l));
+    CHECK_OK(sheaf_context_create(&l, &g_ctx));
+    CHECK_OK(scene_set(g_ctx, s));
+    make_rays();
+    CHECK_OK(sheaf_bvh_params_default(&p));
+    CHECK_OK(sheaf_context_build_bvh(g_ctx, &p));
+    CHECK_OK(sheaf_context_trace(g_ctx, SHEAF_METHOD_BVH_SINGLE, g_rays, g_want_hits, NRAYS));
+    for (q = 0; q < 2; ++q) {
+        p.quality = q == 0 ? SHEAF_BUILD_QUALITY_LOW : SHEAF_BUILD_QUALITY_MEDIUM;
+        for (count = 1; count <= (q == 0 ? 3u : 2u); ++count) {
+            int round;
+            for (round = 0; round < g_slot_rounds; ++round) {
+                CHECK(joined_build(&p, count, st));
+                for (i = 0; i < count; ++i) CHECK_OK(st[i]);
+                CHECK_OK(sheaf_context_trace(g_ctx, SHEAF_METHOD_BVH_RANGED, g_rays, got, NRAYS));
+                for (i = 0; i < NRAYS; ++i) {
+                    CHECK(got[i].prim == g_want_hits[i].prim &&
+                          memcmp(&got[i].t, &g_want_hits[i].t, sizeof(float)) == 0);
+                }
+            }
+        }
+    }
+    p.bins = 1; /* invalid: the leader refuses, its helper returns the same */
+    p.quality = SHEAF_BUILD_QUALITY_MEDIUM;
+    CHECK(joined_build(&p, 2, st));
+    CHECK_STATUS(st[0], SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(st[1], SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_OK(sheaf_context_trace(g_ctx, SHEAF_METHOD_BVH_SINGLE, g_rays, got, NRAYS));
+    CHECK(memcmp(got, g_want_hits, sizeof got) == 0);
+    CHECK_OK(sheaf_bvh_params_default(&p));
+    CHECK_STATUS(sheaf_context_build_bvh_joined(g_ctx, &p, 0, 0), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_build_bvh_joined(g_ctx, &p, 2, 2), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_build_bvh_joined(g_ctx, &p, 0, 17), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_build_bvh_joined(NULL, &p, 0, 1), SHEAF_STATUS_NULL_POINTER);
+    sheaf_context_destroy(g_ctx);
+    free(s);
+    return true;
+}
+
 /* Several contexts on several threads: independent. */
 static void *own_context(void *arg) {
     scene *s = (scene *)arg;
@@ -491,5 +571,6 @@ int main(void) {
     run_test("test_exclusive_calls_racing_traces_get_busy", test_exclusive_calls_racing_traces_get_busy, &passed,
              &failed);
     run_test("test_destroy_waits_for_calls_inside", test_destroy_waits_for_calls_inside, &passed, &failed);
+    run_test("test_joined_builds", test_joined_builds, &passed, &failed);
     return report(passed, failed);
 }

@@ -1424,6 +1424,37 @@ sheaf_status sheaf_context_build_bvh(struct sheaf_context *ctx,
                                      const struct sheaf_bvh_params *params);
 
 /**
+ * Build the BVH on `thread_count` of the caller's threads, which join
+ * one build (as Embree's `rtcJoinCommitScene`; sheaf starts no thread):
+ * every one of them calls this at about the same time with the same
+ * `ctx`, `params` and `thread_count` and its own `thread_index` in
+ * `0..thread_count`. Thread 0 leads (it takes the context as
+ * `sheaf_context_build_bvh` does and runs the build's serial steps); the
+ * others run their share of each parallel step and return when the build
+ * ends, with the leader's status. The LOW build (`sheaf_build_quality`)
+ * runs every step on all threads and gives the same tree for any
+ * `thread_count`; MEDIUM and HIGH run on the leader alone (the helpers
+ * wait and return).
+ *
+ * `thread_count` 1 is `sheaf_context_build_bvh`. At most 16 threads.
+ *
+ * Misuse that cannot be detected: a thread of `0..thread_count` that never
+ * calls leaves the others waiting forever; so does destroying the context
+ * while helpers wait for a leader. A second leader gets
+ * `SHEAF_STATUS_CONTEXT_BUSY`; a helper whose `thread_count` is not the
+ * leader's (its index beyond the leader's count) gets
+ * `SHEAF_STATUS_INVALID_ARGUMENT`.
+ *
+ * Errors: as `sheaf_context_build_bvh`; `SHEAF_STATUS_INVALID_ARGUMENT`
+ * for `thread_count` 0 or above 16 or `thread_index >= thread_count`
+ * (returned at once by every thread, none waits).
+ */
+sheaf_status sheaf_context_build_bvh_joined(struct sheaf_context *ctx,
+                                            const struct sheaf_bvh_params *params,
+                                            uint32_t thread_index,
+                                            uint32_t thread_count);
+
+/**
  * Nearest hits of `count` rays: `hits[i]` for `rays[i]` (any count,
  * including 0; `rays` and `hits` may be NULL only when `count` is 0; no
  * alignment required; the arrays must not overlap).

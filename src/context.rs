@@ -364,6 +364,20 @@ impl<'a> Context<'a> {
     /// Rebuild the BVH from `scene` (binned SAH, BVH paper section 5.1).
     /// On error the previous BVH stays valid.
     pub fn build_bvh(&mut self, scene: &Scene<'_>, params: &BvhParams) -> Result<BvhInfo> {
+        self.build_bvh_with(scene, params, &crate::mem::par::Serial)
+    }
+
+    /// `build_bvh` on the caller's workers (`mem::par::Par`: a thread
+    /// pool's broadcast, or threads joined through `mem::par::Join`); sheaf
+    /// starts no thread. The fast build (`BuildQuality::Low`) runs every
+    /// step on them and gives the same tree for any number of workers; the
+    /// SAH builds run on the calling thread.
+    pub fn build_bvh_with(
+        &mut self,
+        scene: &Scene<'_>,
+        params: &BvhParams,
+        par: &dyn crate::mem::par::Par,
+    ) -> Result<BvhInfo> {
         if !self.limits.has(Limits::BVH) {
             return Err(Error::InvalidArgument(
                 "no BVH pools: Limits::structures lacks BVH",
@@ -371,7 +385,7 @@ impl<'a> Context<'a> {
         }
         self.check_scene(scene)?;
         let t = now();
-        let info = bvh::build::build(&mut self.bvh, scene, params)?;
+        let info = bvh::build::build_with(&mut self.bvh, scene, params, par)?;
         self.stats.bvh_build_ns = elapsed_ns(t);
         self.stats.bvh = info;
         Ok(info)

@@ -246,6 +246,22 @@ macro_rules! impl_frames {
                 self.refit_bvh(s, &sheaf::RefitParams::default()).unwrap();
                 self.refit_bvh(s, &sheaf::RefitParams { rebuild_above: 1.0 }).unwrap();
                 self.trace_with(&bp, r, h).unwrap();
+                // The fast (Morton) build, on the calling thread and on a
+                // worker set that runs every task here (as a caller's pool
+                // would on its threads; the threads are the caller's).
+                let low = BvhParams { test: p.test, quality: sheaf::BuildQuality::Low, ..BvhParams::default() };
+                self.build_bvh(s, &low).unwrap();
+                struct Inline(usize);
+                impl sheaf::mem::par::Par for Inline {
+                    fn workers(&self) -> usize {
+                        self.0
+                    }
+                    fn run(&self, task: &(dyn Fn(usize) + Sync)) {
+                        (0..self.0).for_each(task)
+                    }
+                }
+                self.build_bvh_with(s, &low, &Inline(3)).unwrap();
+                self.trace_with(&bp, r, h).unwrap();
                 // The kd-tree beside both: build, every kd method and entry search.
                 self.build_kd(s, &KdParams { test: p.test, ..KdParams::default() }).unwrap();
                 for m in [Method::KdSingle, Method::KdSimd, Method::KdPacket] {

@@ -123,6 +123,8 @@ struct Header {
     /// Size of the allocation made by `sheaf_context_create` (None: the
     /// caller's buffer).
     alloc_bytes: Option<usize>,
+    /// Where the caller's threads join a build (`sheaf_context_build_bvh_joined`).
+    join: crate::mem::par::Join,
     handle: UnsafeCell<Handle>,
 }
 
@@ -246,6 +248,7 @@ unsafe fn place(
             state: State::new(),
             last_error: Slot::new(None),
             alloc_bytes,
+            join: crate::mem::par::Join::new(),
             handle: UnsafeCell::new(Handle {
                 ctx,
                 geometry: None,
@@ -603,6 +606,101 @@ pub extern "C" fn sheaf_context_build_bvh(
         let g = h.geometry.as_ref().ok_or(Error::NoGeometry)?;
         h.ctx.build_bvh(&g.scene()?, &params)?;
         Ok(())
+    })
+}
+
+/// Build the BVH on `thread_count` of the caller's threads, which join
+/// one build (as Embree's `rtcJoinCommitScene`; sheaf starts no thread):
+/// every one of them calls this at about the same time with the same
+/// `ctx`, `params` and `thread_count` and its own `thread_index` in
+/// `0..thread_count`. Thread 0 leads (it takes the context as
+/// `sheaf_context_build_bvh` does and runs the build's serial steps); the
+/// others run their share of each parallel step and return when the build
+/// ends, with the leader's status. The LOW build (`sheaf_build_quality`)
+/// runs every step on all threads and gives the same tree for any
+/// `thread_count`; MEDIUM and HIGH run on the leader alone (the helpers
+/// wait and return).
+///
+/// `thread_count` 1 is `sheaf_context_build_bvh`. At most 16 threads.
+///
+/// Misuse that cannot be detected: a thread of `0..thread_count` that never
+/// calls leaves the others waiting forever; so does destroying the context
+/// while helpers wait for a leader. A second leader gets
+/// `SHEAF_STATUS_CONTEXT_BUSY`; a helper whose `thread_count` is not the
+/// leader's (its index beyond the leader's count) gets
+/// `SHEAF_STATUS_INVALID_ARGUMENT`.
+///
+/// Errors: as `sheaf_context_build_bvh`; `SHEAF_STATUS_INVALID_ARGUMENT`
+/// for `thread_count` 0 or above 16 or `thread_index >= thread_count`
+/// (returned at once by every thread, none waits).
+#[unsafe(no_mangle)]
+pub extern "C" fn sheaf_context_build_bvh_joined(
+    ctx: *mut sheaf_context,
+    params: *const sheaf_bvh_params,
+    thread_index: u32,
+    thread_count: u32,
+) -> sheaf_status {
+    use crate::mem::par::MAX_WORKERS;
+    let (me, count) = (thread_index as usize, thread_count as usize);
+    if count == 0 || me >= count || count > MAX_WORKERS {
+        return guard_free(|| {
+            Err(Error::InvalidArgument(
+                "joined build: thread_count in 1..=16 and thread_index below it",
+            ))
+        });
+    }
+    if me > 0 {
+        let mut outcome = 0u32;
+        let s = guard_free(|| {
+            let hd = header(ctx)?;
+            if !hd.join.help(me) {
+                return Err(Error::InvalidArgument(
+                    "joined build: thread_index beyond the leader's thread_count",
+                ));
+            }
+            outcome = hd.join.outcome();
+            Ok(())
+        });
+        return if s == sheaf_status::Ok {
+            sheaf_status::from_raw(outcome).unwrap_or(sheaf_status::Panic)
+        } else {
+            s
+        };
+    }
+    guard_free(|| {
+        let hd = header(ctx)?;
+        if !hd.join.try_lead() {
+            return Err(Error::ContextBusy);
+        }
+        // The session opens whatever happens next, so the helpers return.
+        let r = hd.join.lead(count, |par| {
+            let r = (|| {
+                let _in = hd.state.enter_exclusive()?;
+                let r = super::catch(|| {
+                    // SAFETY: the state word gives this call the context
+                    // alone until `_in` drops: no other reference to the
+                    // Handle exists (the helpers touch only the join).
+                    let h = unsafe { &mut *hd.handle.get() };
+                    let params = if params.is_null() {
+                        BvhParams::default()
+                    } else {
+                        read_in(params)?.to_core()?
+                    };
+                    let g = h.geometry.as_ref().ok_or(Error::NoGeometry)?;
+                    h.ctx.build_bvh_with(&g.scene()?, &params, par)?;
+                    Ok(())
+                });
+                settle(hd, r)
+            })();
+            let status = match &r {
+                Ok(()) => sheaf_status::Ok,
+                Err(e) => sheaf_status::from_error(e),
+            };
+            hd.join.set_outcome(status as u32);
+            r
+        });
+        hd.join.unlead();
+        r
     })
 }
 

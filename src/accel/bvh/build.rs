@@ -57,14 +57,14 @@ pub(super) struct Box3 {
 }
 
 impl Box3 {
-    const EMPTY: Box3 = Box3 {
+    pub(super) const EMPTY: Box3 = Box3 {
         min: Vec3A::splat(f32::INFINITY),
         max: Vec3A::splat(f32::NEG_INFINITY),
     };
     /// The box of a reference: two 16-byte loads, the fourth lanes (id and
     /// padding) cleared.
     #[inline(always)]
-    fn of(r: &PrimRef) -> Box3 {
+    pub(super) fn of(r: &PrimRef) -> Box3 {
         let f: &[f32; 8] = bytemuck::cast_ref(r);
         let xyz = M4::new(true, true, true, false);
         let lo = F4::select(xyz, F4::from_slice(&f[..4]), F4::ZERO);
@@ -75,30 +75,30 @@ impl Box3 {
         }
     }
     #[inline(always)]
-    fn grow(&mut self, o: &Box3) {
+    pub(super) fn grow(&mut self, o: &Box3) {
         self.min = self.min.min(o.min);
         self.max = self.max.max(o.max);
     }
     #[inline(always)]
-    fn grow_point(&mut self, p: Vec3A) {
+    pub(super) fn grow_point(&mut self, p: Vec3A) {
         self.min = self.min.min(p);
         self.max = self.max.max(p);
     }
     /// Half the surface area (the SAH only uses ratios).
     #[inline(always)]
-    fn half_area(&self) -> f32 {
+    pub(super) fn half_area(&self) -> f32 {
         let d = self.max - self.min;
         d.x * d.y + d.y * d.z + d.z * d.x
     }
     #[inline]
-    fn aabb(&self) -> Aabb {
+    pub(super) fn aabb(&self) -> Aabb {
         Aabb {
             min: self.min.into(),
             max: self.max.into(),
         }
     }
     #[inline]
-    fn padded(&self, pad: Vec3A) -> Aabb {
+    pub(super) fn padded(&self, pad: Vec3A) -> Aabb {
         Aabb {
             min: (self.min - pad).into(),
             max: (self.max + pad).into(),
@@ -184,10 +184,18 @@ const NO_TASK: Task = Task {
     cent: Box3::EMPTY,
 };
 
-/// Bytes of `BvhPools::scratch`: the bins and the work stack of a build.
-pub const SCRATCH: usize = (crate::mem::scratch::bytes::<Bins>(1)
+/// Bytes of the SAH build's scratch: the bins and the work stack.
+const SAH_SCRATCH: usize = (crate::mem::scratch::bytes::<Bins>(1)
     + crate::mem::scratch::bytes::<Task>(MAX_DEPTH + 1))
 .next_multiple_of(64);
+
+/// Bytes of `BvhPools::scratch`: the larger of the SAH build's and the
+/// fast build's (per-worker radix counts, jobs).
+pub const SCRATCH: usize = if SAH_SCRATCH > super::build_morton::SCRATCH {
+    SAH_SCRATCH
+} else {
+    super::build_morton::SCRATCH
+};
 
 /// The best bin plane of a node: references with bin `< pos` on `axis` go left.
 #[derive(Clone, Copy, Debug)]
@@ -706,17 +714,32 @@ pub(super) fn split<'p>(
 /// more triangles than the pools hold (ids, stored triangles, nodes); the
 /// projection test without its pool.
 pub fn build(bvh: &mut Bvh<'_>, scene: &Scene<'_>, p: &BvhParams) -> Result<BvhInfo> {
+    build_with(bvh, scene, p, &crate::mem::par::Serial)
+}
+
+/// `build` on the caller's workers (`mem::par`): the fast build (`Low`)
+/// runs every phase on them and gives the same tree for any number; the
+/// SAH builds run on the calling thread.
+pub fn build_with(
+    bvh: &mut Bvh<'_>,
+    scene: &Scene<'_>,
+    p: &BvhParams,
+    par: &dyn crate::mem::par::Par,
+) -> Result<BvhInfo> {
     p.validate()?;
     let pools = bvh.pools_mut();
+    if p.quality == BuildQuality::Low {
+        let info = super::build_morton::build(pools, scene, p, par)?;
+        bvh.set_info(Some(info));
+        bvh.set_params(*p);
+        return Ok(info);
+    }
     let g = gather(pools, scene, p)?;
 
     // From here on nothing fails.
     pools.slot_of[..g.info.triangles_in as usize].fill(INVALID_ID);
     let info = if g.n == 0 {
         g.info
-    } else if p.quality == BuildQuality::Low {
-        crate::fault_point!(BvhBuild);
-        super::build_morton::emit(pools, scene, p, &g)
     } else {
         crate::fault_point!(BvhBuild);
         binned_sah(pools, scene, p, &g)
@@ -1233,6 +1256,35 @@ mod perf {
                 info.depth,
                 info.sah_cost
             );
+            if p.quality == BuildQuality::Low {
+                // Two joined workers (this thread and one helper): wall time,
+                // median of 21 builds.
+                let join = crate::mem::par::Join::new();
+                let stop = core::sync::atomic::AtomicBool::new(false);
+                let mut walls = std::vec::Vec::new();
+                std::thread::scope(|sc| {
+                    sc.spawn(|| {
+                        while !stop.load(core::sync::atomic::Ordering::Relaxed) {
+                            join.help(1);
+                        }
+                    });
+                    // Every session (the 21 builds and the last, empty one
+                    // after `stop`) takes the helper once.
+                    for _ in 0..21 {
+                        let t = std::time::Instant::now();
+                        join.lead(2, |par| build_with(bvh, scene, p, par).unwrap());
+                        walls.push(t.elapsed().as_secs_f64());
+                    }
+                    stop.store(true, core::sync::atomic::Ordering::Relaxed);
+                    join.lead(2, |_| ());
+                });
+                walls.sort_by(f64::total_cmp);
+                println!(
+                    "{file} Low, 2 joined workers: median wall {:.2} ms over {} builds",
+                    walls[walls.len() / 2] * 1e3,
+                    walls.len()
+                );
+            }
             if p.quality == BuildQuality::Medium {
                 // Refit to the same vertices (its cost does not depend on
                 // how far they moved).

@@ -4,30 +4,40 @@
 //! top-down split at the highest differing bit as in Karras 2012,
 //! "Maximizing Parallelism in the Construction of BVHs, Octrees, and k-d
 //! Trees", section 3). Embree's `RTC_BUILD_QUALITY_LOW` is this kind of
-//! build.
+//! build. Every phase runs on the caller's workers (`mem::par`; one worker
+//! is the plain single-threaded build), and the tree does not depend on
+//! how many there are.
 //!
-//! 1. Pass 1 is every build's (`build::gather`): references and the
-//!    centroid bounds, all capacity checks.
+//! 1. Each worker classifies its share of the triangles and writes their
+//!    references (box and id) in place; the leader merges the bounds and
+//!    counts and checks every pool's capacity (nothing a traversal reads
+//!    is written before).
 //! 2. Each centroid is quantised to 10 bits per axis over the centroid
-//!    bounds and its bits interleaved into a 30-bit Morton code (x in the
-//!    highest bit of each triple).
-//! 3. The (code, triangle id) pairs are radix sorted (`mem::sort`, three
-//!    11-bit passes) in the node pool, which the tree has not reached yet,
-//!    and the triangles are stored in that order.
+//!    bounds and interleaved into a 30-bit Morton code (x in the highest
+//!    bit of each triple); the (code, triangle id) pairs of the traceable
+//!    triangles go to the node pool, which the tree has not reached yet.
+//! 3. The pairs are radix sorted, three 10-bit passes, each worker
+//!    counting and scattering its share (`radix_pass`), and the triangles
+//!    are stored in that order.
 //! 4. The tree is emitted top-down with an explicit stack: a range of
 //!    sorted codes splits where its highest differing bit flips (a binary
 //!    search; the node's axis is that bit's axis, the left child lower on
 //!    it); a range whose codes are all equal splits at its middle; a range
-//!    of at most `leaf_size` triangles, or at `MAX_DEPTH`, is a leaf.
-//! 5. One reverse pass over the nodes fits every box bottom-up (refit's
-//!    `fit_boxes`: children follow their parent).
+//!    of at most `leaf_size` triangles, or at `MAX_DEPTH`, is a leaf. The
+//!    leader emits the top of the tree down to ranges of at most
+//!    `job_size(n)` triangles; those subtrees are the workers' jobs, each
+//!    emitted into a region of the node pool big enough for any subtree of
+//!    its size (`2c - 2` nodes below a root of `c` triangles).
+//! 5. The workers fit each region's boxes bottom-up, the leader closes
+//!    the gaps between the regions and fits the top (children follow their
+//!    parent everywhere, as refit's reverse pass needs).
 //!
 //! # Exactness
 //! The boxes are exactly those the binned build would give the same
 //! shape (padded, `refit::fit_boxes`); every traversal's guarantee holds
 //! whatever the shape, so every method returns on this tree the triangle
 //! and bitwise t it returns on the SAH tree. `tests/bvh_exact.rs` runs every
-//! method on it.
+//! method on it and checks its single ray against the SAH tree's.
 //!
 //! # Deviations
 //! - The codes' 10 bits per axis separate up to 1024 cells per axis of the
@@ -39,17 +49,78 @@
 //!   scene's size).
 //! - The sort scratch (four `u32` per triangle) lives in the node pool and
 //!   the sorted codes in the reference pool, so the fast build needs no
-//!   memory the SAH build does not.
+//!   memory per triangle the SAH build does not; its per-worker counts
+//!   (`SCRATCH`) are fixed.
 
-use super::build::{Gathered, split};
-use super::refit::{fit_boxes, sah};
-use super::{BvhNode, BvhParams, BvhPools, MAX_DEPTH};
-use crate::geom::{Aabb, Scene};
-use crate::mem::sort::radix_sort;
+use super::build::Box3;
+use super::refit::{half_area, sah_sum};
+use super::{BOX_PAD, BvhInfo, BvhNode, BvhParams, BvhPools, MAX_DEPTH, PrimRef};
+use crate::error::{Error, Pool, Result};
+use crate::geom::{Aabb, Excluded, INVALID_ID, ProjTri, Scene, TriTest, TriVerts};
+use crate::math;
+use crate::mem::par::{MAX_WORKERS, Par, Parts, atomic_u32, share};
+use core::sync::atomic::Ordering;
 use glam::Vec3A;
 
 /// Bits per axis of a Morton code.
 const BITS: u32 = 10;
+/// Bits per radix pass (three passes sort the 30-bit codes).
+const DIGIT: u32 = 10;
+const BUCKETS: usize = 1 << DIGIT;
+
+/// Most worker jobs (subtrees) a build hands out; ranges beyond it are
+/// emitted by the leader.
+const MAX_JOBS: usize = 1024;
+
+/// What one worker found in its share of the triangles (step 1).
+#[derive(Clone, Copy)]
+struct Found {
+    valid: u32,
+    non_finite: u32,
+    zero_area: u32,
+    bounds: Box3,
+    cent: Box3,
+}
+
+const NOT_FOUND: Found = Found {
+    valid: 0,
+    non_finite: 0,
+    zero_area: 0,
+    bounds: Box3::EMPTY,
+    cent: Box3::EMPTY,
+};
+
+/// A subtree a worker emits (step 4): its root node (written by the
+/// leader's parent split, in the top), its range, its depth, its region.
+#[derive(Clone, Copy, Default)]
+struct Job {
+    root: u32,
+    begin: u32,
+    /// The root's split (the leader splits the root).
+    mid: u32,
+    end: u32,
+    depth: u32,
+    /// First node of the region, and the nodes the subtree used there.
+    region: u32,
+    used: u32,
+    leaves: u32,
+    max_depth: u32,
+    /// The region's share of the SAH sum (`refit::sah_sum`).
+    sah: f64,
+}
+
+/// Bytes of the build scratch the fast build takes: per-worker findings
+/// and radix counts, and the job list.
+pub const SCRATCH: usize = (crate::mem::scratch::bytes::<Found>(MAX_WORKERS)
+    + crate::mem::scratch::bytes::<[u32; BUCKETS]>(MAX_WORKERS)
+    + crate::mem::scratch::bytes::<Job>(MAX_JOBS))
+.next_multiple_of(64);
+
+/// Triangles of a range below which the leader hands the subtree to a
+/// worker: about 64 jobs per build, never tiny ones.
+fn job_size(n: usize) -> usize {
+    (n / 64).max(256)
+}
 
 /// The 10 low bits of `v` spread to every third bit (bit i to bit 3i).
 #[inline(always)]
@@ -74,8 +145,8 @@ struct Quantizer {
 }
 
 impl Quantizer {
-    fn new(cent_min: Vec3A, cent_max: Vec3A) -> Quantizer {
-        let ext = cent_max - cent_min;
+    fn new(cent: &Box3) -> Quantizer {
+        let ext = cent.max - cent.min;
         let cells = (1u32 << BITS) as f32 * (1.0 - 1e-6);
         // An axis without extent maps everything to cell 0.
         let scale = Vec3A::select(
@@ -84,12 +155,12 @@ impl Quantizer {
             Vec3A::ZERO,
         );
         Quantizer {
-            min: cent_min,
+            min: cent.min,
             scale,
         }
     }
-    /// The Morton code of a doubled centroid (NaN-free: pass 1 stores
-    /// finite triangles only; the clamp keeps rounding at the top in range).
+    /// The Morton code of a doubled centroid (finite: step 1 keeps finite
+    /// triangles only; the clamp keeps rounding at the top in range).
     #[inline(always)]
     fn code(&self, c: Vec3A) -> u32 {
         let top = ((1u32 << BITS) - 1) as f32;
@@ -100,89 +171,545 @@ impl Quantizer {
     }
 }
 
-/// Steps 2-5 of the module docs over `pools.refs[..g.n]` (`g.n > 0`, every
-/// capacity checked by `gather`). Writes the nodes, the stored triangles,
-/// `tri_ids` and `slot_of` (reset by the caller); returns the info.
-pub(super) fn emit(
+/// Build `pools` from `scene` on `par`'s workers (`p.quality` is `Low`,
+/// `p` validated). On error nothing a traversal reads has changed.
+pub(super) fn build(
     pools: &mut BvhPools<'_>,
     scene: &Scene<'_>,
     p: &BvhParams,
-    g: &Gathered,
-) -> crate::accel::bvh::BvhInfo {
-    let n = g.n;
-    let mut info = g.info;
-    let (nodes, mut stored, refs, _) = split(pools, p);
+    par: &dyn Par,
+) -> Result<BvhInfo> {
+    let workers = par.workers().clamp(1, MAX_WORKERS);
+    let n_in = scene.triangle_count() as usize;
+    let cap = |needed: usize, available: usize| Error::Capacity {
+        pool: Pool::Triangles,
+        needed: needed as u64,
+        available: available as u64,
+    };
+    // References are written in place (at the triangle's index).
+    let room = pools.slot_of.len().min(pools.refs.len());
+    if n_in > room {
+        return Err(cap(n_in, room));
+    }
+    let BvhPools {
+        nodes,
+        tris,
+        proj,
+        tri_ids,
+        slot_of,
+        refs,
+        scratch,
+    } = pools;
+    let scratch = crate::mem::Scratch::new(scratch);
+    let (found, scratch) = scratch.take(workers, NOT_FOUND);
+    let (counts, scratch) = scratch.take(workers, [0u32; BUCKETS]);
+    let (jobs, _) = scratch.take(MAX_JOBS, Job::default());
 
-    // 2-3. Codes and ids in the node pool (2n - 1 nodes of 8 words hold the
-    // four arrays of n words), sorted.
+    // 1. References and findings per worker.
+    {
+        let (rs, fs) = (
+            Parts::even(&mut refs[..n_in], workers),
+            Parts::even(&mut *found, workers),
+        );
+        par.run(&|w| fs.get(w)[0] = find(scene, rs.start(w), rs.get(w)));
+    }
+    let mut all = NOT_FOUND;
+    for f in found.iter() {
+        all.valid += f.valid;
+        all.non_finite += f.non_finite;
+        all.zero_area += f.zero_area;
+        all.bounds.grow(&f.bounds);
+        all.cent.grow(&f.cent);
+    }
+    let n = all.valid as usize;
+    for avail in [tris.len(), tri_ids.len()] {
+        if n > avail {
+            return Err(cap(n, avail));
+        }
+    }
+    if (2 * n).saturating_sub(1) > nodes.len() {
+        return Err(cap(n, nodes.len() / 2));
+    }
+    let proj_on = p.test == TriTest::Projection;
+    if proj_on && proj.len() < n {
+        return Err(Error::InvalidArgument(
+            "the projection test needs Limits::projection_test",
+        ));
+    }
+
+    // From here on nothing fails.
+    let mut info = BvhInfo {
+        bounds: if n > 0 {
+            all.bounds.aabb()
+        } else {
+            Aabb::default()
+        },
+        triangles_in: n_in as u32,
+        triangles: n as u32,
+        excluded_non_finite: all.non_finite,
+        excluded_zero_area: all.zero_area,
+        leaf_size: p.leaf_size,
+        bins: p.bins,
+        test: p.test,
+        quality: p.quality,
+        ..BvhInfo::default()
+    };
+    slot_of[..n_in].fill(INVALID_ID);
+    if n == 0 {
+        return Ok(info);
+    }
+    crate::fault_point!(BvhBuild);
+    let (lo, hi) = (all.bounds.min, all.bounds.max);
+    let m = lo.abs().max(hi.abs()).max_element();
+    let diag = hi - lo;
+    let pad = Vec3A::splat(BOX_PAD * (m + math::sqrt(diag.dot(diag))));
+
+    // 2-3. Codes and ids in the node pool (2n - 1 nodes of 8 words hold
+    // the four arrays of n words), sorted; the triangles stored in order.
     {
         let words: &mut [u32] = bytemuck::cast_slice_mut(&mut nodes[..2 * n - 1]);
         let (keys, rest) = words.split_at_mut(n);
         let (vals, rest) = rest.split_at_mut(n);
         let (tmp_keys, rest) = rest.split_at_mut(n);
         let tmp_vals = &mut rest[..n];
-        let qz = Quantizer::new(g.cent.min, g.cent.max);
-        for ((k, v), r) in keys.iter_mut().zip(vals.iter_mut()).zip(&refs[..n]) {
-            let c = Vec3A::from(r.min) + Vec3A::from(r.max);
-            *k = qz.code(c);
-            *v = r.id;
+        let qz = Quantizer::new(&all.cent);
+        // Worker w's pairs start after the traceable triangles before its share.
+        let mut start = [0usize; MAX_WORKERS + 1];
+        for w in 0..workers {
+            start[w + 1] = start[w] + found[w].valid as usize;
         }
-        radix_sort(keys, vals, tmp_keys, tmp_vals, 3 * BITS);
-        for (s, &id) in vals.iter().enumerate() {
-            stored.put(scene, s, id);
+        {
+            let bounds = &start[..workers + 1];
+            let (ks, vs) = (Parts::at(&mut *keys, bounds), Parts::at(&mut *vals, bounds));
+            let refs = &refs[..n_in];
+            par.run(&|w| {
+                let (k, v) = (ks.get(w), vs.get(w));
+                let mine = refs[share(n_in, w, workers)].iter().filter(|r| r._pad == 0);
+                for ((k, v), r) in k.iter_mut().zip(v.iter_mut()).zip(mine) {
+                    *k = qz.code(Vec3A::from(r.min) + Vec3A::from(r.max));
+                    *v = r.id;
+                }
+            });
         }
-        // The sorted codes move to the reference pool (free now), since
-        // the nodes overwrite the sort's arrays.
+        let counts = &mut *counts;
+        radix_pass(keys, vals, tmp_keys, tmp_vals, 0, counts, par);
+        radix_pass(tmp_keys, tmp_vals, keys, vals, DIGIT, counts, par);
+        radix_pass(keys, vals, tmp_keys, tmp_vals, 2 * DIGIT, counts, par);
+        let (keys, vals) = (&*tmp_keys, &*tmp_vals);
         let codes: &mut [u32] = bytemuck::cast_slice_mut(&mut refs[..n]);
-        codes[..n].copy_from_slice(keys);
+        let cs = Parts::even(&mut codes[..n], workers);
+        let ts = Parts::even(&mut tris[..n], workers);
+        let ps = Parts::even(if proj_on { &mut proj[..n] } else { &mut [] }, workers);
+        let is = Parts::even(&mut tri_ids[..n], workers);
+        let slots = atomic_u32(&mut slot_of[..n_in]);
+        par.run(&|w| {
+            let (c, t, pj, ids) = (cs.get(w), ts.get(w), ps.get(w), is.get(w));
+            let at = cs.start(w);
+            c.copy_from_slice(&keys[at..at + c.len()]);
+            for (k, &id) in vals[at..at + c.len()].iter().enumerate() {
+                let tri = scene.triangle(id);
+                t[k] = tri;
+                if let Some(x) = pj.get_mut(k) {
+                    *x = ProjTri::new(&tri);
+                }
+                ids[k] = id;
+                slots[id as usize].store((at + k) as u32, Ordering::Relaxed);
+            }
+        });
     }
 
-    // 4. Top-down emission; boxes come in step 5.
+    // 4. The top on the leader, down to the jobs.
     let codes: &[u32] = &bytemuck::cast_slice::<_, u32>(&refs[..n])[..n];
     let leaf_size = p.leaf_size as usize;
-    // (node, begin, end, depth) of right children still to emit.
-    let mut stack = [(0u32, 0u32, 0u32, 0u32); MAX_DEPTH + 1];
-    let mut sp = 0usize;
-    let (mut node, mut begin, mut end, mut depth) = (0u32, 0usize, n, 0u32);
-    let mut next = 1u32;
-    loop {
-        let count = end - begin;
-        if count > leaf_size && (depth as usize) < MAX_DEPTH {
-            let (a, b) = (codes[begin], codes[end - 1]);
-            let (mid, axis) = if a == b {
-                (begin + count / 2, 0)
+    let traversal_cost = p.traversal_cost;
+    let nodes = &mut nodes[..2 * n - 1];
+    let mut top = Emitted::default();
+    let mut n_jobs = 0usize;
+    let top_next = emit(
+        codes,
+        nodes,
+        0,
+        &[(0, 0, n as u32, 0)],
+        1,
+        leaf_size,
+        job_size(n),
+        &mut top,
+        &mut |j| {
+            if n_jobs < MAX_JOBS {
+                jobs[n_jobs] = j;
+                n_jobs += 1;
+                true
             } else {
-                // Sorted codes share every bit above `h`: the range's
-                // first code with bit `h` set starts the right child.
-                let h = 31 - (a ^ b).leading_zeros();
-                let bit = 1u32 << h;
-                let first = codes[begin..end].partition_point(|&c| c & bit == 0);
-                (begin + first, axis_of_bit(h))
-            };
+                false
+            }
+        },
+    );
+    // Each job's root split here, its region after the top and the
+    // regions before it: `2c - 2` nodes below a root of `c` triangles.
+    let jobs = &mut jobs[..n_jobs];
+    let mut region = top_next;
+    for j in jobs.iter_mut() {
+        let (mid, axis) = split(codes, j.begin as usize, j.end as usize);
+        nodes[j.root as usize] = BvhNode::inner(&Aabb::EMPTY, region, axis);
+        j.mid = mid as u32;
+        j.region = region;
+        region += 2 * (j.end - j.begin) - 2;
+    }
+    // Jobs in runs of about equal triangle counts, one run per worker.
+    let mut jb = [0usize; MAX_WORKERS + 1];
+    let mut nb = [top_next as usize; MAX_WORKERS + 1];
+    {
+        let total: usize = jobs.iter().map(|j| (j.end - j.begin) as usize).sum();
+        let (mut k, mut acc) = (0usize, 0usize);
+        for w in 1..workers {
+            while k < jobs.len() && acc < total * w / workers {
+                acc += (jobs[k].end - jobs[k].begin) as usize;
+                k += 1;
+            }
+            jb[w] = k;
+            nb[w] = jobs.get(k).map_or(region as usize, |j| j.region as usize);
+        }
+        jb[workers] = jobs.len();
+        nb[workers] = region as usize;
+    }
+    {
+        let (js, ns) = (
+            Parts::at(&mut *jobs, &jb[..workers + 1]),
+            Parts::at(&mut *nodes, &nb[..workers + 1]),
+        );
+        let tris = &tris[..n];
+        par.run(&|w| {
+            let (mine, part) = (js.get(w), ns.get(w));
+            let base = ns.start(w);
+            for j in mine.iter_mut() {
+                let mut e = Emitted::default();
+                let d = j.depth + 1;
+                let kids = [
+                    (j.region, j.begin, j.mid, d),
+                    (j.region + 1, j.mid, j.end, d),
+                ];
+                let end = emit(
+                    codes,
+                    part,
+                    base,
+                    &kids,
+                    j.region + 2,
+                    leaf_size,
+                    0,
+                    &mut e,
+                    &mut |_| false,
+                );
+                j.used = end - j.region;
+                j.leaves = e.leaves;
+                j.max_depth = e.depth;
+                // 5. The region's boxes bottom-up (children in the region).
+                let (a, b) = (j.region as usize - base, end as usize - base);
+                fit(&mut part[a..b], j.region as usize, b - a, tris, pad);
+                j.sah = sah_sum(&part[a..b], traversal_cost);
+            }
+        });
+    }
+
+    // 5. Close the gaps (regions moved down, in order) and fit the top.
+    let mut to = top_next as usize;
+    info.leaves = top.leaves;
+    info.depth = top.depth;
+    for j in jobs.iter() {
+        let (from, used) = (j.region as usize, j.used as usize);
+        let shift = (from - to) as u32;
+        if shift > 0 {
+            nodes.copy_within(from..from + used, to);
+            for nd in &mut nodes[to..to + used] {
+                if !nd.is_leaf() {
+                    nd.first -= shift;
+                }
+            }
+        }
+        // The job's root points at its region's first pair.
+        nodes[j.root as usize].first -= shift;
+        to += used;
+        info.leaves += j.leaves;
+        info.depth = info.depth.max(j.max_depth);
+    }
+    let nn = to;
+    // The top last: a job root's children are its (moved) region's first pair.
+    fit(&mut nodes[..nn], 0, top_next as usize, &tris[..n], pad);
+    info.nodes = nn as u32;
+    let sum = sah_sum(&nodes[..top_next as usize], traversal_cost)
+        + jobs.iter().map(|j| j.sah).sum::<f64>();
+    info.sah_cost = (sum / half_area(&nodes[0]).max(f64::MIN_POSITIVE)) as f32;
+    Ok(info)
+}
+
+/// Step 1 for the triangles `first..first + out.len()`: their references
+/// (`_pad` 1: excluded) and what they hold.
+fn find(scene: &Scene<'_>, first: usize, out: &mut [PrimRef]) -> Found {
+    let mut f = NOT_FOUND;
+    for (k, r) in out.iter_mut().enumerate() {
+        let t = (first + k) as u32;
+        let tri = scene.triangle(t);
+        match Scene::classify(&tri) {
+            None => {
+                let (a, b, c) = (
+                    Vec3A::from(tri.v0),
+                    Vec3A::from(tri.v1),
+                    Vec3A::from(tri.v2),
+                );
+                let bx = Box3 {
+                    min: a.min(b).min(c),
+                    max: a.max(b).max(c),
+                };
+                f.bounds.grow(&bx);
+                f.cent.grow_point(bx.min + bx.max);
+                *r = PrimRef {
+                    min: bx.min.into(),
+                    id: t,
+                    max: bx.max.into(),
+                    _pad: 0,
+                };
+                f.valid += 1;
+            }
+            Some(e) => {
+                *r = PrimRef {
+                    id: t,
+                    _pad: 1,
+                    ..PrimRef::default()
+                };
+                match e {
+                    Excluded::NonFinite => f.non_finite += 1,
+                    Excluded::ZeroArea => f.zero_area += 1,
+                }
+            }
+        }
+    }
+    f
+}
+
+/// One stable counting pass on digit `shift..shift + DIGIT`, from `s*`
+/// into `d*`: each worker counts its share, the leader turns the counts
+/// into each worker's first position per digit (digit-major, then worker
+/// order: stable), each worker scatters its share.
+fn radix_pass(
+    sk: &[u32],
+    sv: &[u32],
+    dk: &mut [u32],
+    dv: &mut [u32],
+    shift: u32,
+    counts: &mut [[u32; BUCKETS]],
+    par: &dyn Par,
+) {
+    const MASK: u32 = (1 << DIGIT) - 1;
+    let (n, workers) = (sk.len(), counts.len());
+    {
+        let cs = Parts::even(&mut *counts, workers);
+        par.run(&|w| {
+            let c = &mut cs.get(w)[0];
+            c.fill(0);
+            for &k in &sk[share(n, w, workers)] {
+                c[((k >> shift) & MASK) as usize] += 1;
+            }
+        });
+    }
+    let mut sum = 0u32;
+    for d in 0..BUCKETS {
+        for c in counts.iter_mut() {
+            let x = c[d];
+            c[d] = sum;
+            sum += x;
+        }
+    }
+    // The prefix sums give every (worker, digit) its own positions: each
+    // position is stored once.
+    let (ks, vs) = (atomic_u32(dk), atomic_u32(dv));
+    let cs = Parts::even(counts, workers);
+    par.run(&|w| {
+        let c = &mut cs.get(w)[0];
+        let r = share(n, w, workers);
+        for (&k, &v) in sk[r.clone()].iter().zip(&sv[r]) {
+            let d = ((k >> shift) & MASK) as usize;
+            let at = c[d] as usize;
+            ks[at].store(k, Ordering::Relaxed);
+            vs[at].store(v, Ordering::Relaxed);
+            c[d] += 1;
+        }
+    });
+}
+
+/// Where step 4 splits the sorted `codes[begin..end]`: the first code with
+/// the highest differing bit set, and that bit's axis; the middle (axis 0)
+/// when all codes are equal.
+#[inline]
+fn split(codes: &[u32], begin: usize, end: usize) -> (usize, usize) {
+    let (a, b) = (codes[begin], codes[end - 1]);
+    if a == b {
+        return (begin + (end - begin) / 2, 0);
+    }
+    // Sorted codes share every bit above `h`.
+    let h = 31 - (a ^ b).leading_zeros();
+    let bit = 1u32 << h;
+    let first = codes[begin..end].partition_point(|&c| c & bit == 0);
+    (begin + first, axis_of_bit(h))
+}
+
+/// Leaves and deepest leaf an emission wrote.
+#[derive(Default)]
+struct Emitted {
+    leaves: u32,
+    depth: u32,
+}
+
+/// Step 4 from the ranges `starts` (node, begin, end, depth; emitted in
+/// order), children allocated from `next` on, into `part` (the nodes
+/// `base..`); ranges of more than `leaf_size` and at most `stop` triangles
+/// are offered to `job` (which takes them, or they are emitted here).
+/// Returns the next free node.
+#[allow(clippy::too_many_arguments)]
+fn emit(
+    codes: &[u32],
+    part: &mut [BvhNode],
+    base: usize,
+    starts: &[(u32, u32, u32, u32)],
+    mut next: u32,
+    leaf_size: usize,
+    stop: usize,
+    out: &mut Emitted,
+    job: &mut dyn FnMut(Job) -> bool,
+) -> u32 {
+    // (node, begin, end, depth) of ranges still to emit.
+    let mut stack = [(0u32, 0u32, 0u32, 0u32); MAX_DEPTH + 2];
+    let mut sp = 0usize;
+    for &s in starts.iter().rev() {
+        stack[sp] = s;
+        sp += 1;
+    }
+    while sp > 0 {
+        sp -= 1;
+        let (mut node, b, e, mut depth) = stack[sp];
+        let (begin, mut end) = (b as usize, e as usize);
+        loop {
+            let count = end - begin;
+            let inner = count > leaf_size && (depth as usize) < MAX_DEPTH;
+            let taken = inner
+                && count <= stop
+                && job(Job {
+                    root: node,
+                    begin: begin as u32,
+                    end: end as u32,
+                    depth,
+                    ..Job::default()
+                });
+            if taken {
+                // The job writes this node's subtree.
+                break;
+            }
+            if !inner {
+                part[node as usize - base] =
+                    BvhNode::leaf(&Aabb::EMPTY, begin as u32, count as u32);
+                out.leaves += 1;
+                out.depth = out.depth.max(depth);
+                break;
+            }
+            let (mid, axis) = split(codes, begin, end);
             let left = next;
             next += 2;
-            nodes[node as usize] = BvhNode::inner(&Aabb::EMPTY, left, axis);
+            part[node as usize - base] = BvhNode::inner(&Aabb::EMPTY, left, axis);
             depth += 1;
             stack[sp] = (left + 1, mid as u32, end as u32, depth);
             sp += 1;
             (node, end) = (left, mid);
-            continue;
         }
-        nodes[node as usize] = BvhNode::leaf(&Aabb::EMPTY, begin as u32, count as u32);
-        info.leaves += 1;
-        info.depth = info.depth.max(depth);
-        if sp == 0 {
-            break;
-        }
-        sp -= 1;
-        let (nd, b, e, d) = stack[sp];
-        (node, begin, end, depth) = (nd, b as usize, e as usize, d);
+    }
+    next
+}
+
+/// Boxes of the first `upto` nodes of `part` (the nodes `base..base +
+/// part.len()`) bottom-up: a leaf's box is its stored triangles' padded by
+/// `pad`, an inner box the union of its children's, which lie in `part`
+/// after it (refit's reverse pass, `refit::fit_boxes`, on a part).
+fn fit(part: &mut [BvhNode], base: usize, upto: usize, tris: &[TriVerts], pad: Vec3A) {
+    for i in (0..upto).rev() {
+        let nd = part[i];
+        let first = nd.first as usize;
+        let (bmin, bmax) = if nd.is_leaf() {
+            let (mut a, mut b) = (Vec3A::splat(f32::INFINITY), Vec3A::splat(f32::NEG_INFINITY));
+            for t in &tris[first..first + nd.count() as usize] {
+                for v in [t.v0, t.v1, t.v2] {
+                    let v = Vec3A::from(v);
+                    (a, b) = (a.min(v), b.max(v));
+                }
+            }
+            (a - pad, b + pad)
+        } else {
+            let (l, r) = (&part[first - base], &part[first - base + 1]);
+            (
+                Vec3A::from(l.min).min(Vec3A::from(r.min)),
+                Vec3A::from(l.max).max(Vec3A::from(r.max)),
+            )
+        };
+        part[i].min = bmin.into();
+        part[i].max = bmax.into();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::accel::bvh::BuildQuality;
+    use crate::accel::testkit::Store;
+    use crate::mem::par::{Join, Serial};
+
+    #[test]
+    fn morton_codes_interleave_x_highest() {
+        assert_eq!(spread(0b11), 0b1001);
+        let q = Quantizer {
+            min: Vec3A::ZERO,
+            scale: Vec3A::ONE,
+        };
+        assert_eq!(q.code(Vec3A::new(1.0, 0.0, 0.0)), 0b100);
+        assert_eq!(q.code(Vec3A::new(0.0, 1.0, 0.0)), 0b010);
+        assert_eq!(q.code(Vec3A::new(0.0, 0.0, 1.0)), 0b001);
+        assert_eq!(axis_of_bit(2), 0);
+        assert_eq!(axis_of_bit(1), 1);
+        assert_eq!(axis_of_bit(0), 2);
     }
 
-    // 5. Boxes bottom-up.
-    let nn = next as usize;
-    fit_boxes(&mut nodes[..nn], &stored.tris[..n], g.pad);
-    info.nodes = next;
-    info.sah_cost = sah(&nodes[..nn], p.traversal_cost) as f32;
-    info
+    /// The tree does not depend on the number of workers: 1, 2 and 3
+    /// joined workers build the same nodes and store the same triangles.
+    #[test]
+    fn workers_build_the_same_tree() {
+        for &name in crate::scenes::BUILTIN_NAMES {
+            let s = crate::scenes::builtin(name).unwrap();
+            let scene = Scene::from_f32(&s.mesh.vertices, &s.mesh.indices).unwrap();
+            let p = BvhParams {
+                quality: BuildQuality::Low,
+                ..BvhParams::default()
+            };
+            let mut st = Store::new(scene.triangle_count() as usize, false);
+            let mut bvh = st.bvh();
+            let want = build(bvh.pools_mut(), &scene, &p, &Serial).unwrap();
+            let want_nodes = bvh.pools_mut().nodes[..want.nodes as usize].to_vec();
+            let want_ids = bvh.pools_mut().tri_ids[..want.triangles as usize].to_vec();
+            for workers in [2usize, 3] {
+                let join = Join::new();
+                let got = std::thread::scope(|sc| {
+                    for me in 1..workers {
+                        let j = &join;
+                        sc.spawn(move || assert!(j.help(me)));
+                    }
+                    join.lead(workers, |par| build(bvh.pools_mut(), &scene, &p, par))
+                })
+                .unwrap();
+                assert_eq!(got, want, "{name}, {workers} workers");
+                let pools = bvh.pools_mut();
+                assert!(
+                    pools.nodes[..got.nodes as usize] == want_nodes[..],
+                    "{name}"
+                );
+                assert!(
+                    pools.tri_ids[..got.triangles as usize] == want_ids[..],
+                    "{name}"
+                );
+            }
+        }
+    }
 }

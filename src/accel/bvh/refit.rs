@@ -87,7 +87,7 @@ impl RefitInfo {
 }
 
 /// Half area of a node's stored (padded) box.
-fn half_area(n: &BvhNode) -> f64 {
+pub(super) fn half_area(n: &BvhNode) -> f64 {
     let d = Vec3A::from(n.max) - Vec3A::from(n.min);
     (d.x * d.y + d.y * d.z + d.z * d.x) as f64
 }
@@ -95,7 +95,12 @@ fn half_area(n: &BvhNode) -> f64 {
 /// The SAH cost of the stored (padded) boxes: traversal cost per inner
 /// node, one per triangle, weighted by half area relative to the root's.
 pub(super) fn sah(nodes: &[BvhNode], traversal_cost: f32) -> f64 {
-    let sum: f64 = nodes
+    sah_sum(nodes, traversal_cost) / half_area(&nodes[0]).max(f64::MIN_POSITIVE)
+}
+
+/// `sah` before the division by the root's half area (sums of parts add).
+pub(super) fn sah_sum(nodes: &[BvhNode], traversal_cost: f32) -> f64 {
+    nodes
         .iter()
         .map(|n| {
             let per = if n.is_leaf() {
@@ -105,8 +110,7 @@ pub(super) fn sah(nodes: &[BvhNode], traversal_cost: f32) -> f64 {
             };
             half_area(n) * per
         })
-        .sum();
-    sum / half_area(&nodes[0]).max(f64::MIN_POSITIVE)
+        .sum()
 }
 
 /// Every box of `nodes` recomputed bottom-up from the stored triangles

@@ -1,0 +1,393 @@
+//! Builds on the caller's threads (issue 18, item 4): sheaf never spawns a
+//! thread. A build that can use several threads takes a [`Par`], the
+//! caller's way to run one task on each of its workers (a thread pool's
+//! broadcast, rayon's `broadcast`, or the C ABI's [`Join`], where the
+//! caller's threads join one build as Embree's `rtcJoinCommitScene` lets
+//! them join a commit); [`Serial`] runs everything on the calling thread.
+//!
+//! The phases of a joined build write disjoint parts of one pool from
+//! several workers: [`Parts`] hands each part out once, and [`atomic_u32`]
+//! views a `u32` pool as atomics for scattered writes. Those two and
+//! [`Join`] are the unsafe pieces; the builds themselves are safe code.
+
+use super::hg;
+use core::cell::UnsafeCell;
+use core::marker::PhantomData;
+use core::ops::Range;
+use core::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, AtomicUsize, Ordering};
+
+/// Most workers a joined build uses.
+pub const MAX_WORKERS: usize = 16;
+
+/// Runs a task once on each of `workers()` workers and returns when every
+/// run has returned. Worker 0 may be the calling thread.
+pub trait Par: Sync {
+    /// How many workers `run` uses (1..=`MAX_WORKERS`).
+    fn workers(&self) -> usize;
+    /// `task(w)` for every `w` in `0..workers()`, each exactly once, all
+    /// finished on return.
+    fn run(&self, task: &(dyn Fn(usize) + Sync));
+}
+
+/// Everything on the calling thread.
+pub struct Serial;
+
+impl Par for Serial {
+    fn workers(&self) -> usize {
+        1
+    }
+    fn run(&self, task: &(dyn Fn(usize) + Sync)) {
+        task(0)
+    }
+}
+
+/// The part of `0..n` worker `w` of `workers` takes (contiguous, in order).
+#[inline]
+pub fn share(n: usize, w: usize, workers: usize) -> Range<usize> {
+    let at = |k: usize| (n as u128 * k as u128 / workers as u128) as usize;
+    at(w)..at(w + 1)
+}
+
+/// One slice cut into one part per worker at fixed bounds: each part is
+/// handed out once (a second `get` of the same part panics), so workers of
+/// a `Par::run` write their own parts at once without aliasing.
+pub struct Parts<'a, T> {
+    ptr: *mut T,
+    bounds: [usize; MAX_WORKERS + 1],
+    count: usize,
+    taken: [AtomicBool; MAX_WORKERS],
+    _borrow: PhantomData<&'a mut [T]>,
+}
+
+// SAFETY: `Parts` is a `&mut [T]` split among threads: parts go to one
+// taker each (`taken`), and sending `T`s between threads is what
+// `T: Send` allows.
+unsafe impl<T: Send> Sync for Parts<'_, T> {}
+
+impl<'a, T> Parts<'a, T> {
+    /// `s` cut at `bounds` (part w is `bounds[w]..bounds[w + 1]`;
+    /// nondecreasing, within `s`, at most `MAX_WORKERS` parts; panics
+    /// otherwise).
+    pub fn at(s: &'a mut [T], bounds: &[usize]) -> Self {
+        let count = bounds.len().saturating_sub(1);
+        assert!(count <= MAX_WORKERS, "Parts: too many parts");
+        assert!(
+            bounds.windows(2).all(|b| b[0] <= b[1]) && bounds.last().is_none_or(|&e| e <= s.len()),
+            "Parts: bounds out of order or out of the slice"
+        );
+        let mut b = [0usize; MAX_WORKERS + 1];
+        b[..bounds.len()].copy_from_slice(bounds);
+        Parts {
+            ptr: s.as_mut_ptr(),
+            bounds: b,
+            count,
+            taken: [const { AtomicBool::new(false) }; MAX_WORKERS],
+            _borrow: PhantomData,
+        }
+    }
+    /// `s` in `workers` parts of (nearly) equal length (`share`).
+    pub fn even(s: &'a mut [T], workers: usize) -> Self {
+        let mut b = [0usize; MAX_WORKERS + 1];
+        for (w, x) in b.iter_mut().enumerate().take(workers + 1) {
+            *x = share(s.len(), w.min(workers), workers.max(1)).start;
+        }
+        b[workers] = s.len();
+        Self::at(s, &b[..workers + 1])
+    }
+    /// Where part `w` starts in the slice.
+    pub fn start(&self, w: usize) -> usize {
+        self.bounds[w]
+    }
+    /// Part `w`, for its one taker (panics when `w` is out of range or the
+    /// part was taken before).
+    #[allow(clippy::mut_from_ref)]
+    pub fn get(&self, w: usize) -> &mut [T] {
+        assert!(w < self.count, "Parts: no part {w}");
+        assert!(
+            !self.taken[w].swap(true, Ordering::AcqRel),
+            "Parts: part {w} taken twice"
+        );
+        let (a, b) = (self.bounds[w], self.bounds[w + 1]);
+        // SAFETY: `a..b` lies in the borrowed slice (checked in `at`);
+        // parts are disjoint (nondecreasing bounds) and each is handed out
+        // once (the swap above), so this `&mut` aliases nothing.
+        unsafe { core::slice::from_raw_parts_mut(self.ptr.add(a), b - a) }
+    }
+}
+
+/// `s` as atomics, for scattered writes from several workers (radix sort
+/// scatters, id maps): each position is written by one worker by
+/// construction, and a wrong position is a wrong result, never a data race.
+pub fn atomic_u32(s: &mut [u32]) -> &[AtomicU32] {
+    // SAFETY: `AtomicU32` has the size and alignment of `u32` (asserted
+    // below), and the `&mut` borrow guarantees no other access while the
+    // returned view lives.
+    const _: () =
+        assert!(core::mem::size_of::<AtomicU32>() == 4 && core::mem::align_of::<AtomicU32>() == 4);
+    unsafe { &*(s as *mut [u32] as *const [AtomicU32]) }
+}
+
+/// The C ABI's joined build: thread 0 leads (it holds the context and runs
+/// the build), threads 1.. call [`Join::help`] and run the tasks the
+/// leader publishes until it closes the session.
+///
+/// Protocol: the leader opens a session for `workers` threads; each
+/// `Par::run` publishes a task (the task counter goes up by one), runs it
+/// as worker 0 and waits until the `workers - 1` helpers have run it; at
+/// the end it waits until every helper has arrived and closes the
+/// session. A helper runs every task published after it arrived, in order
+/// (it cannot miss one: no task is published before all helpers finished
+/// the previous), and returns when the session closes. Every helper must
+/// arrive: a missing one leaves the leader waiting (documented at the C
+/// call).
+pub struct Join {
+    /// A leader holds the join (one joined build at a time).
+    leading: AtomicBool,
+    /// What the last session's leader reported (the C ABI's status), for
+    /// its helpers to return.
+    outcome: AtomicU32,
+    open: AtomicBool,
+    workers: AtomicUsize,
+    /// The session number (high half) and the tasks published in it (low
+    /// half), in one word: a helper never runs another session's task.
+    ticket: AtomicU64,
+    /// Helpers that joined this session: the leader closes it only when
+    /// all have, so a session with few or no tasks still takes its helpers.
+    arrived: AtomicUsize,
+    /// Helpers still running the current task.
+    pending: AtomicUsize,
+    /// The current task, valid while `pending > 0` or the leader is in `run`.
+    task: UnsafeCell<Option<TaskPtr>>,
+}
+
+/// A task trait object, as the leader's `run` borrows it.
+#[derive(Clone, Copy)]
+struct TaskPtr(*const (dyn Fn(usize) + Sync));
+
+// SAFETY: the only non-atomic field, `task`, is written by the leader
+// before the release increment of `ticket` that publishes it and read by
+// helpers after their acquire load of `ticket`; the leader does not write
+// it again until every helper has signalled (`pending`, release/acquire)
+// that it is done with it.
+unsafe impl Sync for Join {}
+// SAFETY: as above; the raw task pointer is only dereferenced inside a
+// session, while the leader's borrow lives.
+unsafe impl Send for Join {}
+
+impl Default for Join {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Join {
+    pub const fn new() -> Join {
+        Join {
+            leading: AtomicBool::new(false),
+            outcome: AtomicU32::new(0),
+            open: AtomicBool::new(false),
+            workers: AtomicUsize::new(1),
+            ticket: AtomicU64::new(0),
+            arrived: AtomicUsize::new(0),
+            pending: AtomicUsize::new(0),
+            task: UnsafeCell::new(None),
+        }
+    }
+
+    /// Become the leader; false while another leader holds the join.
+    pub fn try_lead(&self) -> bool {
+        self.leading
+            .compare_exchange(false, true, Ordering::Acquire, Ordering::Relaxed)
+            .is_ok()
+    }
+    /// Give up the leadership `try_lead` took.
+    pub fn unlead(&self) {
+        self.leading.swap(false, Ordering::Release);
+    }
+    /// Record the session's outcome (before `lead`'s body returns).
+    pub fn set_outcome(&self, x: u32) {
+        self.outcome.swap(x, Ordering::Relaxed);
+    }
+    /// Helgrind's name for this join's happens-before edges.
+    fn tag(&self) -> usize {
+        self as *const Join as usize
+    }
+    /// The outcome of the session `help` just returned from.
+    pub fn outcome(&self) -> u32 {
+        self.outcome.load(Ordering::Relaxed)
+    }
+
+    /// Lead a session of `workers` threads (1..=MAX_WORKERS): `body` gets
+    /// the `Par` whose runs the helpers join.
+    pub fn lead<R>(&self, workers: usize, body: impl FnOnce(&dyn Par) -> R) -> R {
+        let workers = workers.clamp(1, MAX_WORKERS);
+        // Read-modify-writes only (helgrind sees no race on them; see `hg`).
+        self.workers.swap(workers, Ordering::Relaxed);
+        self.arrived.swap(0, Ordering::Relaxed);
+        let session = (self.ticket.load(Ordering::Relaxed) >> 32) + 1;
+        self.ticket.swap(session << 32, Ordering::Relaxed);
+        hg::released(self.tag());
+        self.open.swap(true, Ordering::Release);
+        let r = body(&Leader {
+            join: self,
+            workers,
+        });
+        while self.arrived.load(Ordering::Acquire) < workers - 1 {
+            backoff();
+        }
+        hg::acquired(self.tag());
+        self.open.swap(false, Ordering::Release);
+        r
+    }
+
+    /// Help the open (or next) session as worker `me` (1..workers) until it
+    /// closes. Returns false when `me` is not a worker of that session.
+    pub fn help(&self, me: usize) -> bool {
+        // Wait for a session to open.
+        while !self.open.load(Ordering::Acquire) {
+            backoff();
+        }
+        hg::acquired(self.tag());
+        // The leader cannot leave this session before this helper arrived.
+        let session = self.ticket.load(Ordering::Acquire) >> 32;
+        if me == 0 || me >= self.workers.load(Ordering::Relaxed) {
+            return false;
+        }
+        self.arrived.fetch_add(1, Ordering::AcqRel);
+        let mut done = 0u64;
+        loop {
+            let t = self.ticket.load(Ordering::Acquire);
+            if t >> 32 != session {
+                return true;
+            }
+            if t & 0xffff_ffff > done {
+                hg::acquired(self.tag());
+                // SAFETY: published by the leader before its release
+                // increment of `ticket` (acquired above) and kept until
+                // every helper, this one included, has decremented `pending`.
+                let t = unsafe { (*self.task.get()).expect("a published task") };
+                // SAFETY: the leader's `run` borrows the task until
+                // `pending` reaches 0, which needs this helper's decrement.
+                unsafe { (*t.0)(me) };
+                done += 1;
+                hg::released(self.tag());
+                self.pending.fetch_sub(1, Ordering::Release);
+                continue;
+            }
+            if !self.open.load(Ordering::Acquire) {
+                return true;
+            }
+            backoff();
+        }
+    }
+}
+
+/// The leader's side of a session.
+struct Leader<'j> {
+    join: &'j Join,
+    workers: usize,
+}
+
+impl Par for Leader<'_> {
+    fn workers(&self) -> usize {
+        self.workers
+    }
+    fn run(&self, task: &(dyn Fn(usize) + Sync)) {
+        let j = self.join;
+        if self.workers > 1 {
+            j.pending.swap(self.workers - 1, Ordering::Relaxed);
+            // SAFETY: no helper reads `task` now (the previous run waited
+            // for `pending` to reach 0); the release store below publishes it.
+            // The lifetime is erased: `run` does not return before every
+            // helper is done with the task.
+            unsafe {
+                *j.task.get() = Some(TaskPtr(core::mem::transmute::<
+                    *const (dyn Fn(usize) + Sync + '_),
+                    *const (dyn Fn(usize) + Sync + 'static),
+                >(task)))
+            };
+            hg::released(j.tag());
+            j.ticket.fetch_add(1, Ordering::Release);
+        }
+        task(0);
+        while j.pending.load(Ordering::Acquire) != 0 {
+            backoff();
+        }
+        hg::acquired(j.tag());
+    }
+}
+
+/// Wait a little: spin, then give the core away (with `std`).
+#[inline]
+fn backoff() {
+    core::hint::spin_loop();
+    #[cfg(feature = "std")]
+    std::thread::yield_now();
+}
+
+#[cfg(all(test, feature = "std"))]
+mod tests {
+    use super::*;
+    use core::sync::atomic::AtomicU64;
+
+    #[test]
+    fn shares_cover_in_order() {
+        for n in [0usize, 1, 7, 1000] {
+            for w in 1..9 {
+                let mut next = 0;
+                for k in 0..w {
+                    let r = share(n, k, w);
+                    assert_eq!(r.start, next);
+                    next = r.end;
+                }
+                assert_eq!(next, n);
+            }
+        }
+    }
+
+    #[test]
+    fn sessions_without_tasks_take_their_helpers() {
+        let join = Join::new();
+        std::thread::scope(|s| {
+            s.spawn(|| {
+                for _ in 0..100 {
+                    assert!(join.help(1));
+                }
+            });
+            for k in 0..100 {
+                join.lead(2, |par| {
+                    if k % 2 == 0 {
+                        par.run(&|_| {});
+                    }
+                });
+            }
+        });
+    }
+
+    #[test]
+    fn join_runs_every_task_on_every_worker() {
+        let join = Join::new();
+        for workers in [1usize, 2, 3] {
+            let sum = AtomicU64::new(0);
+            std::thread::scope(|s| {
+                for me in 1..workers {
+                    let j = &join;
+                    s.spawn(move || assert!(j.help(me)));
+                }
+                join.lead(workers, |par| {
+                    assert_eq!(par.workers(), workers);
+                    for round in 0..50u64 {
+                        par.run(&|w| {
+                            sum.fetch_add(round * 10 + w as u64 + 1, Ordering::Relaxed);
+                        });
+                    }
+                });
+            });
+            let per_round: u64 = (1..=workers as u64).sum();
+            let want: u64 = (0..50u64)
+                .map(|r| r * 10 * workers as u64 + per_round)
+                .sum();
+            assert_eq!(sum.load(Ordering::Relaxed), want, "{workers} workers");
+        }
+    }
+}
