@@ -28,9 +28,10 @@
 //!    `job_size(n)` triangles; those subtrees are the workers' jobs, each
 //!    emitted into a region of the node pool big enough for any subtree of
 //!    its size (`2c - 2` nodes below a root of `c` triangles).
-//! 5. The workers fit each region's boxes bottom-up, the leader closes
-//!    the gaps between the regions and fits the top (children follow their
-//!    parent everywhere, as refit's reverse pass needs).
+//! 5. The workers fit each region's boxes bottom-up (`refit::fit`), the
+//!    leader closes the gaps between the regions and fits the top
+//!    (children follow their parent everywhere, as refit's reverse pass
+//!    needs).
 //!
 //! # Exactness
 //! The boxes are exactly those the binned build would give the same
@@ -53,10 +54,10 @@
 //!   (`SCRATCH`) are fixed.
 
 use super::build::Box3;
-use super::refit::{half_area, sah_sum};
+use super::refit::{fit, half_area, sah_sum};
 use super::{BOX_PAD, BvhInfo, BvhNode, BvhParams, BvhPools, MAX_DEPTH, PrimRef};
 use crate::error::{Error, Pool, Result};
-use crate::geom::{Aabb, Excluded, INVALID_ID, ProjTri, Scene, TriTest, TriVerts};
+use crate::geom::{Aabb, Excluded, INVALID_ID, ProjTri, Scene, TriTest};
 use crate::math;
 use crate::mem::par::{MAX_WORKERS, Par, Parts, atomic_u32, share};
 use core::sync::atomic::Ordering;
@@ -620,35 +621,6 @@ fn emit(
         }
     }
     next
-}
-
-/// Boxes of the first `upto` nodes of `part` (the nodes `base..base +
-/// part.len()`) bottom-up: a leaf's box is its stored triangles' padded by
-/// `pad`, an inner box the union of its children's, which lie in `part`
-/// after it (refit's reverse pass, `refit::fit_boxes`, on a part).
-fn fit(part: &mut [BvhNode], base: usize, upto: usize, tris: &[TriVerts], pad: Vec3A) {
-    for i in (0..upto).rev() {
-        let nd = part[i];
-        let first = nd.first as usize;
-        let (bmin, bmax) = if nd.is_leaf() {
-            let (mut a, mut b) = (Vec3A::splat(f32::INFINITY), Vec3A::splat(f32::NEG_INFINITY));
-            for t in &tris[first..first + nd.count() as usize] {
-                for v in [t.v0, t.v1, t.v2] {
-                    let v = Vec3A::from(v);
-                    (a, b) = (a.min(v), b.max(v));
-                }
-            }
-            (a - pad, b + pad)
-        } else {
-            let (l, r) = (&part[first - base], &part[first - base + 1]);
-            (
-                Vec3A::from(l.min).min(Vec3A::from(r.min)),
-                Vec3A::from(l.max).max(Vec3A::from(r.max)),
-            )
-        };
-        part[i].min = bmin.into();
-        part[i].max = bmax.into();
-    }
 }
 
 #[cfg(test)]

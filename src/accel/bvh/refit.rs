@@ -120,8 +120,16 @@ pub(super) fn sah_sum(nodes: &[BvhNode], traversal_cost: f32) -> f64 {
 /// the padded union bitwise (`x - pad` rounds monotonically), so a tree
 /// fitted here has the boxes the binned build would have written.
 pub(super) fn fit_boxes(nodes: &mut [BvhNode], tris: &[TriVerts], pad: Vec3A) {
-    for i in (0..nodes.len()).rev() {
-        let nd = nodes[i];
+    let len = nodes.len();
+    fit(nodes, 0, len, tris, pad);
+}
+
+/// `fit_boxes` on the first `upto` nodes of `part`, the nodes `base..base +
+/// part.len()` of a tree whose children of those nodes lie in `part` (the
+/// fast build fits each worker's region and then its top this way).
+pub(super) fn fit(part: &mut [BvhNode], base: usize, upto: usize, tris: &[TriVerts], pad: Vec3A) {
+    for i in (0..upto).rev() {
+        let nd = part[i];
         let first = nd.first as usize;
         let (bmin, bmax) = if nd.is_leaf() {
             let (mut a, mut b) = (Vec3A::splat(f32::INFINITY), Vec3A::splat(f32::NEG_INFINITY));
@@ -133,14 +141,14 @@ pub(super) fn fit_boxes(nodes: &mut [BvhNode], tris: &[TriVerts], pad: Vec3A) {
             }
             (a - pad, b + pad)
         } else {
-            let (l, r) = (&nodes[first], &nodes[first + 1]);
+            let (l, r) = (&part[first - base], &part[first - base + 1]);
             (
                 Vec3A::from(l.min).min(Vec3A::from(r.min)),
                 Vec3A::from(l.max).max(Vec3A::from(r.max)),
             )
         };
-        nodes[i].min = bmin.into();
-        nodes[i].max = bmax.into();
+        part[i].min = bmin.into();
+        part[i].max = bmax.into();
     }
 }
 
