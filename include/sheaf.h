@@ -470,7 +470,8 @@ typedef struct sheaf_bvh_params {
     sheaf_tri_test test;
     /**
      * Which build (a `sheaf_build_quality`; default MEDIUM, binned SAH).
-     * LOW ignores `bins` and `traversal_cost`.
+     * LOW ignores `bins` and uses `traversal_cost` only for the reported
+     * SAH cost.
      */
     sheaf_build_quality quality;
 } sheaf_bvh_params;
@@ -1438,12 +1439,16 @@ sheaf_status sheaf_context_build_bvh(struct sheaf_context *ctx,
  *
  * `thread_count` 1 is `sheaf_context_build_bvh`. At most 16 threads.
  *
- * Misuse that cannot be detected: a thread of `0..thread_count` that never
- * calls leaves the others waiting forever; so does destroying the context
- * while helpers wait for a leader. A second leader gets
- * `SHEAF_STATUS_CONTEXT_BUSY`; a helper whose `thread_count` is not the
- * leader's (its index beyond the leader's count) gets
- * `SHEAF_STATUS_INVALID_ARGUMENT`.
+ * The leader returns only after every helper has left the build, so the
+ * context may be destroyed once thread 0 returned. Misuse that cannot be
+ * detected: a thread of `0..thread_count` that never calls leaves the
+ * others waiting forever; destroying the context while helpers wait for a
+ * leader that has not called yet; two groups of threads joining builds on
+ * one context at once (a second leader waits for the first, but their
+ * helpers may take each other's work: a caught panic, status
+ * `SHEAF_STATUS_PANIC`). A helper whose index is beyond the leader's
+ * `thread_count` gets `SHEAF_STATUS_INVALID_ARGUMENT`. A panic in any
+ * thread's part poisons the context (`SHEAF_STATUS_PANIC` on the leader).
  *
  * Errors: as `sheaf_context_build_bvh`; `SHEAF_STATUS_INVALID_ARGUMENT`
  * for `thread_count` 0 or above 16 or `thread_index >= thread_count`

@@ -927,6 +927,10 @@ static sheaf_status sheaf_build_low_joined(sheaf_context *ctx, int T)
             die("pthread_create failed");
     join_thread(&a[0]);
     for (int i = 1; i < T; i++) pthread_join(th[i], NULL);
+    for (int i = 1; i < T; i++)
+        if (a[i].status != a[0].status)
+            die("joined build: thread %d returned %s, the leader %s", i, sheaf_status_string(a[i].status),
+                sheaf_status_string(a[0].status));
     return a[0].status;
 }
 
@@ -1682,7 +1686,8 @@ static void print_tables(Bench *b)
            "%zu camera rays (%zu hit), %zu shadow rays (%zu occluded); load average %.2f before, %.2f after.\n\n",
            b->s.nt, b->s.excluded, b->W, b->H, b->s.view, b->N, b->nhits, b->NS, b->nocc, b->load0, b->load1);
     printf("**Builds**, ms (median of %d; sheaf's builds run on the calling thread but BVH LOW, which the "
-           "caller's threads join (sheaf_context_build_bvh_joined); Embree's on its device threads):\n\n", b->reps);
+           "caller's threads join (sheaf_context_build_bvh_joined; the bench starts those threads per build, "
+           "inside the timing, as it does for its ray jobs); Embree's on its device threads):\n\n", b->reps);
     printf("| structure |");
     for (int ti = 0; ti < b->o->nthreads; ti++) printf(" %d thread%s |", b->o->threads[ti], b->o->threads[ti] > 1 ? "s" : "");
     printf("\n|---|");

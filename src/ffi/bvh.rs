@@ -52,7 +52,8 @@ pub struct sheaf_bvh_params {
     /// Ray-triangle test of every traversal of this BVH (a `sheaf_tri_test`).
     pub test: raw::sheaf_tri_test,
     /// Which build (a `sheaf_build_quality`; default MEDIUM, binned SAH).
-    /// LOW ignores `bins` and `traversal_cost`.
+    /// LOW ignores `bins` and uses `traversal_cost` only for the reported
+    /// SAH cost.
     pub quality: raw::sheaf_build_quality,
 }
 

@@ -623,12 +623,16 @@ pub extern "C" fn sheaf_context_build_bvh(
 ///
 /// `thread_count` 1 is `sheaf_context_build_bvh`. At most 16 threads.
 ///
-/// Misuse that cannot be detected: a thread of `0..thread_count` that never
-/// calls leaves the others waiting forever; so does destroying the context
-/// while helpers wait for a leader. A second leader gets
-/// `SHEAF_STATUS_CONTEXT_BUSY`; a helper whose `thread_count` is not the
-/// leader's (its index beyond the leader's count) gets
-/// `SHEAF_STATUS_INVALID_ARGUMENT`.
+/// The leader returns only after every helper has left the build, so the
+/// context may be destroyed once thread 0 returned. Misuse that cannot be
+/// detected: a thread of `0..thread_count` that never calls leaves the
+/// others waiting forever; destroying the context while helpers wait for a
+/// leader that has not called yet; two groups of threads joining builds on
+/// one context at once (a second leader waits for the first, but their
+/// helpers may take each other's work: a caught panic, status
+/// `SHEAF_STATUS_PANIC`). A helper whose index is beyond the leader's
+/// `thread_count` gets `SHEAF_STATUS_INVALID_ARGUMENT`. A panic in any
+/// thread's part poisons the context (`SHEAF_STATUS_PANIC` on the leader).
 ///
 /// Errors: as `sheaf_context_build_bvh`; `SHEAF_STATUS_INVALID_ARGUMENT`
 /// for `thread_count` 0 or above 16 or `thread_index >= thread_count`
@@ -653,13 +657,15 @@ pub extern "C" fn sheaf_context_build_bvh_joined(
         let mut outcome = 0u32;
         let s = guard_free(|| {
             let hd = header(ctx)?;
-            if !hd.join.help(me) {
-                return Err(Error::InvalidArgument(
+            match hd.join.help(me) {
+                crate::mem::par::Helped::Done(x) => {
+                    outcome = x;
+                    Ok(())
+                }
+                crate::mem::par::Helped::NotAWorker => Err(Error::InvalidArgument(
                     "joined build: thread_index beyond the leader's thread_count",
-                ));
+                )),
             }
-            outcome = hd.join.outcome();
-            Ok(())
         });
         return if s == sheaf_status::Ok {
             sheaf_status::from_raw(outcome).unwrap_or(sheaf_status::Panic)
@@ -669,11 +675,10 @@ pub extern "C" fn sheaf_context_build_bvh_joined(
     }
     guard_free(|| {
         let hd = header(ctx)?;
-        if !hd.join.try_lead() {
-            return Err(Error::ContextBusy);
-        }
-        // The session opens whatever happens next, so the helpers return.
-        let r = hd.join.lead(count, |par| {
+        // The session opens whatever happens next, so the helpers return;
+        // `lead` returns when they have all left (and waits while another
+        // joined build on this context leads).
+        hd.join.lead(count, |par| {
             let r = (|| {
                 let _in = hd.state.enter_exclusive()?;
                 let r = super::catch(|| {
@@ -698,9 +703,7 @@ pub extern "C" fn sheaf_context_build_bvh_joined(
             };
             hd.join.set_outcome(status as u32);
             r
-        });
-        hd.join.unlead();
-        r
+        })
     })
 }
 

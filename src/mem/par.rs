@@ -131,20 +131,24 @@ pub fn atomic_u32(s: &mut [u32]) -> &[AtomicU32] {
 /// the build), threads 1.. call [`Join::help`] and run the tasks the
 /// leader publishes until it closes the session.
 ///
-/// Protocol: the leader opens a session for `workers` threads; each
-/// `Par::run` publishes a task (the task counter goes up by one), runs it
-/// as worker 0 and waits until the `workers - 1` helpers have run it; at
-/// the end it waits until every helper has arrived and closes the
-/// session. A helper runs every task published after it arrived, in order
-/// (it cannot miss one: no task is published before all helpers finished
-/// the previous), and returns when the session closes. Every helper must
-/// arrive: a missing one leaves the leader waiting (documented at the C
-/// call).
+/// Protocol: the leader takes the join (one leader at a time; a second
+/// waits), opens a session for `workers` threads; each `Par::run`
+/// publishes a task (the ticket's task count goes up by one), runs it as
+/// worker 0 and waits until the `workers - 1` helpers have run it, even
+/// when its own part panics. At the end it waits until every helper has
+/// arrived, closes the session, and waits until every helper has left
+/// (read the outcome and stopped touching the join) before it returns. A
+/// helper runs every task published after it arrived, in order (it cannot
+/// miss one: no task is published before all helpers finished the
+/// previous). A helper's panic is caught (with `std`), counted as done and
+/// re-raised on the leader. Every helper must arrive: a missing one leaves
+/// the leader waiting, and helpers of two groups joining one context at
+/// once may run each other's tasks (a caught panic, not a race).
 pub struct Join {
     /// A leader holds the join (one joined build at a time).
     leading: AtomicBool,
-    /// What the last session's leader reported (the C ABI's status), for
-    /// its helpers to return.
+    /// What the session's leader reported (the C ABI's status), for its
+    /// helpers to return.
     outcome: AtomicU32,
     open: AtomicBool,
     workers: AtomicUsize,
@@ -154,8 +158,15 @@ pub struct Join {
     /// Helpers that joined this session: the leader closes it only when
     /// all have, so a session with few or no tasks still takes its helpers.
     arrived: AtomicUsize,
+    /// Helpers that left this session: the leader returns only when all
+    /// have, so its caller may reuse or free the join afterwards.
+    departed: AtomicUsize,
     /// Helpers still running the current task.
     pending: AtomicUsize,
+    /// A helper's task panicked in this session.
+    failed: AtomicBool,
+    /// The leader is inside `run` (a nested or concurrent run is refused).
+    running: AtomicBool,
     /// The current task, valid while `pending > 0` or the leader is in `run`.
     task: UnsafeCell<Option<TaskPtr>>,
 }
@@ -165,10 +176,11 @@ pub struct Join {
 struct TaskPtr(*const (dyn Fn(usize) + Sync));
 
 // SAFETY: the only non-atomic field, `task`, is written by the leader
-// before the release increment of `ticket` that publishes it and read by
-// helpers after their acquire load of `ticket`; the leader does not write
-// it again until every helper has signalled (`pending`, release/acquire)
-// that it is done with it.
+// (one leader at a time, `leading`; one run at a time, `running`) before
+// the release increment of `ticket` that publishes it and read by helpers
+// after their acquire load of `ticket`; the leader does not write it again
+// until every helper has signalled (`pending`, release/acquire) that it is
+// done with it.
 unsafe impl Sync for Join {}
 // SAFETY: as above; the raw task pointer is only dereferenced inside a
 // session, while the leader's borrow lives.
@@ -180,6 +192,15 @@ impl Default for Join {
     }
 }
 
+/// How a `help` call ended.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Helped {
+    /// The session ended; the leader's outcome.
+    Done(u32),
+    /// `me` is not a helper index of the session that opened.
+    NotAWorker,
+}
+
 impl Join {
     pub const fn new() -> Join {
         Join {
@@ -189,21 +210,14 @@ impl Join {
             workers: AtomicUsize::new(1),
             ticket: AtomicU64::new(0),
             arrived: AtomicUsize::new(0),
+            departed: AtomicUsize::new(0),
             pending: AtomicUsize::new(0),
+            failed: AtomicBool::new(false),
+            running: AtomicBool::new(false),
             task: UnsafeCell::new(None),
         }
     }
 
-    /// Become the leader; false while another leader holds the join.
-    pub fn try_lead(&self) -> bool {
-        self.leading
-            .compare_exchange(false, true, Ordering::Acquire, Ordering::Relaxed)
-            .is_ok()
-    }
-    /// Give up the leadership `try_lead` took.
-    pub fn unlead(&self) {
-        self.leading.swap(false, Ordering::Release);
-    }
     /// Record the session's outcome (before `lead`'s body returns).
     pub fn set_outcome(&self, x: u32) {
         self.outcome.swap(x, Ordering::Relaxed);
@@ -212,37 +226,54 @@ impl Join {
     fn tag(&self) -> usize {
         self as *const Join as usize
     }
-    /// The outcome of the session `help` just returned from.
-    pub fn outcome(&self) -> u32 {
-        self.outcome.load(Ordering::Relaxed)
-    }
 
     /// Lead a session of `workers` threads (1..=MAX_WORKERS): `body` gets
-    /// the `Par` whose runs the helpers join.
+    /// the `Par` whose runs the helpers join. Waits while another leader
+    /// holds the join; returns when every helper has left.
     pub fn lead<R>(&self, workers: usize, body: impl FnOnce(&dyn Par) -> R) -> R {
+        while self
+            .leading
+            .compare_exchange(false, true, Ordering::Acquire, Ordering::Relaxed)
+            .is_err()
+        {
+            backoff();
+        }
         let workers = workers.clamp(1, MAX_WORKERS);
         // Read-modify-writes only (helgrind sees no race on them; see `hg`).
         self.workers.swap(workers, Ordering::Relaxed);
         self.arrived.swap(0, Ordering::Relaxed);
+        self.departed.swap(0, Ordering::Relaxed);
+        self.failed.swap(false, Ordering::Relaxed);
         let session = (self.ticket.load(Ordering::Relaxed) >> 32) + 1;
         self.ticket.swap(session << 32, Ordering::Relaxed);
         hg::released(self.tag());
         self.open.swap(true, Ordering::Release);
-        let r = body(&Leader {
+        // Close and wait for the helpers however `body` ends (a panic too).
+        struct Close<'j>(&'j Join, usize);
+        impl Drop for Close<'_> {
+            fn drop(&mut self) {
+                let (j, helpers) = (self.0, self.1 - 1);
+                while j.arrived.load(Ordering::Acquire) < helpers {
+                    backoff();
+                }
+                j.open.swap(false, Ordering::Release);
+                while j.departed.load(Ordering::Acquire) < helpers {
+                    backoff();
+                }
+                hg::acquired(j.tag());
+                j.leading.swap(false, Ordering::Release);
+            }
+        }
+        let _close = Close(self, workers);
+        body(&Leader {
             join: self,
             workers,
-        });
-        while self.arrived.load(Ordering::Acquire) < workers - 1 {
-            backoff();
-        }
-        hg::acquired(self.tag());
-        self.open.swap(false, Ordering::Release);
-        r
+        })
     }
 
     /// Help the open (or next) session as worker `me` (1..workers) until it
-    /// closes. Returns false when `me` is not a worker of that session.
-    pub fn help(&self, me: usize) -> bool {
+    /// closes.
+    pub fn help(&self, me: usize) -> Helped {
         // Wait for a session to open.
         while !self.open.load(Ordering::Acquire) {
             backoff();
@@ -251,31 +282,44 @@ impl Join {
         // The leader cannot leave this session before this helper arrived.
         let session = self.ticket.load(Ordering::Acquire) >> 32;
         if me == 0 || me >= self.workers.load(Ordering::Relaxed) {
-            return false;
+            return Helped::NotAWorker;
         }
         self.arrived.fetch_add(1, Ordering::AcqRel);
         let mut done = 0u64;
         loop {
             let t = self.ticket.load(Ordering::Acquire);
-            if t >> 32 != session {
-                return true;
-            }
+            debug_assert_eq!(
+                t >> 32,
+                session,
+                "the leader waits for every helper to leave"
+            );
             if t & 0xffff_ffff > done {
                 hg::acquired(self.tag());
                 // SAFETY: published by the leader before its release
                 // increment of `ticket` (acquired above) and kept until
                 // every helper, this one included, has decremented `pending`.
-                let t = unsafe { (*self.task.get()).expect("a published task") };
-                // SAFETY: the leader's `run` borrows the task until
-                // `pending` reaches 0, which needs this helper's decrement.
-                unsafe { (*t.0)(me) };
+                let task = unsafe { (*self.task.get()).expect("a published task") };
+                // SAFETY: the leader's `run` waits (even while unwinding)
+                // until `pending` reaches 0, which needs this helper's
+                // decrement below, so the task outlives this call.
+                let call = || unsafe { (*task.0)(me) };
+                #[cfg(feature = "std")]
+                if std::panic::catch_unwind(std::panic::AssertUnwindSafe(call)).is_err() {
+                    self.failed.swap(true, Ordering::Relaxed);
+                }
+                #[cfg(not(feature = "std"))]
+                call();
                 done += 1;
                 hg::released(self.tag());
                 self.pending.fetch_sub(1, Ordering::Release);
                 continue;
             }
             if !self.open.load(Ordering::Acquire) {
-                return true;
+                let outcome = self.outcome.load(Ordering::Acquire);
+                hg::released(self.tag());
+                // The last touch of the join: the leader may return after it.
+                self.departed.fetch_add(1, Ordering::AcqRel);
+                return Helped::Done(outcome);
             }
             backoff();
         }
@@ -294,12 +338,30 @@ impl Par for Leader<'_> {
     }
     fn run(&self, task: &(dyn Fn(usize) + Sync)) {
         let j = self.join;
+        assert!(
+            !j.running.swap(true, Ordering::Acquire),
+            "Par::run called from a task or from two threads at once"
+        );
+        // Wait for the helpers however this run ends (a panic in task(0)
+        // unwinds through here while they may still run the task).
+        struct Wait<'j>(&'j Join);
+        impl Drop for Wait<'_> {
+            fn drop(&mut self) {
+                let j = self.0;
+                while j.pending.load(Ordering::Acquire) != 0 {
+                    backoff();
+                }
+                hg::acquired(j.tag());
+                j.running.swap(false, Ordering::Release);
+            }
+        }
         if self.workers > 1 {
             j.pending.swap(self.workers - 1, Ordering::Relaxed);
             // SAFETY: no helper reads `task` now (the previous run waited
-            // for `pending` to reach 0); the release store below publishes it.
-            // The lifetime is erased: `run` does not return before every
-            // helper is done with the task.
+            // for `pending` to reach 0); the release increment below
+            // publishes it. The lifetime is erased: `Wait` keeps this call
+            // from returning or unwinding past the caller's frame before
+            // every helper is done with the task.
             unsafe {
                 *j.task.get() = Some(TaskPtr(core::mem::transmute::<
                     *const (dyn Fn(usize) + Sync + '_),
@@ -309,11 +371,14 @@ impl Par for Leader<'_> {
             hg::released(j.tag());
             j.ticket.fetch_add(1, Ordering::Release);
         }
-        task(0);
-        while j.pending.load(Ordering::Acquire) != 0 {
-            backoff();
+        {
+            let _wait = Wait(j);
+            task(0);
         }
-        hg::acquired(j.tag());
+        assert!(
+            !j.failed.load(Ordering::Relaxed),
+            "a helper's part of a joined build panicked"
+        );
     }
 }
 
@@ -345,13 +410,47 @@ mod tests {
         }
     }
 
+    /// A panic in any worker's part reaches the leader after every helper
+    /// is done with the task; the session still closes and takes its
+    /// helpers, and the join works afterwards.
+    #[test]
+    fn panics_wait_for_the_helpers_and_reach_the_leader() {
+        let join = Join::new();
+        for bad in [0usize, 1] {
+            std::thread::scope(|s| {
+                s.spawn(|| assert_eq!(join.help(1), Helped::Done(7)));
+                let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                    join.lead(2, |par| {
+                        join.set_outcome(7);
+                        let v = [1u32, 2];
+                        par.run(&|w| {
+                            if w == bad {
+                                panic!("worker {w}");
+                            }
+                            std::thread::sleep(std::time::Duration::from_millis(20));
+                            assert_eq!(v[w], w as u32 + 1);
+                        });
+                    })
+                }));
+                assert!(r.is_err(), "worker {bad}'s panic reaches the leader");
+            });
+        }
+        std::thread::scope(|s| {
+            s.spawn(|| assert_eq!(join.help(1), Helped::Done(0)));
+            join.lead(2, |par| {
+                join.set_outcome(0);
+                par.run(&|_| {});
+            });
+        });
+    }
+
     #[test]
     fn sessions_without_tasks_take_their_helpers() {
         let join = Join::new();
         std::thread::scope(|s| {
             s.spawn(|| {
                 for _ in 0..100 {
-                    assert!(join.help(1));
+                    assert_eq!(join.help(1), Helped::Done(0));
                 }
             });
             for k in 0..100 {
@@ -372,7 +471,7 @@ mod tests {
             std::thread::scope(|s| {
                 for me in 1..workers {
                     let j = &join;
-                    s.spawn(move || assert!(j.help(me)));
+                    s.spawn(move || assert_eq!(j.help(me), Helped::Done(0)));
                 }
                 join.lead(workers, |par| {
                     assert_eq!(par.workers(), workers);

@@ -636,7 +636,11 @@ pub(super) fn gather(
         excluded_non_finite: bad_nf,
         excluded_zero_area: bad_za,
         leaf_size: p.leaf_size,
-        bins: p.bins,
+        bins: if p.quality == BuildQuality::High {
+            MAX_BINS
+        } else {
+            p.bins
+        },
         test: p.test,
         quality: p.quality,
         ..BvhInfo::default()
@@ -1265,7 +1269,7 @@ mod perf {
                 std::thread::scope(|sc| {
                     sc.spawn(|| {
                         while !stop.load(core::sync::atomic::Ordering::Relaxed) {
-                            join.help(1);
+                            let _ = join.help(1);
                         }
                     });
                     // Every session (the 21 builds and the last, empty one

@@ -118,7 +118,8 @@ pub const SCRATCH: usize = (crate::mem::scratch::bytes::<Found>(MAX_WORKERS)
 .next_multiple_of(64);
 
 /// Triangles of a range below which the leader hands the subtree to a
-/// worker: about 64 jobs per build, never tiny ones.
+/// worker: about 64 jobs per build (a lopsided split may still hand out
+/// smaller ones).
 fn job_size(n: usize) -> usize {
     (n / 64).max(256)
 }
@@ -180,7 +181,12 @@ pub(super) fn build(
     p: &BvhParams,
     par: &dyn Par,
 ) -> Result<BvhInfo> {
-    let workers = par.workers().clamp(1, MAX_WORKERS);
+    let workers = par.workers();
+    if !(1..=MAX_WORKERS).contains(&workers) {
+        return Err(Error::InvalidArgument(
+            "a joined build takes 1..=16 workers (Par::workers)",
+        ));
+    }
     let n_in = scene.triangle_count() as usize;
     let cap = |needed: usize, available: usize| Error::Capacity {
         pool: Pool::Triangles,
@@ -628,7 +634,7 @@ mod tests {
     use super::*;
     use crate::accel::bvh::BuildQuality;
     use crate::accel::testkit::Store;
-    use crate::mem::par::{Join, Serial};
+    use crate::mem::par::{Helped, Join, Serial};
 
     #[test]
     fn morton_codes_interleave_x_highest() {
@@ -666,7 +672,7 @@ mod tests {
                 let got = std::thread::scope(|sc| {
                     for me in 1..workers {
                         let j = &join;
-                        sc.spawn(move || assert!(j.help(me)));
+                        sc.spawn(move || assert_eq!(j.help(me), Helped::Done(0)));
                     }
                     join.lead(workers, |par| build(bvh.pools_mut(), &scene, &p, par))
                 })

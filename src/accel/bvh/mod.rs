@@ -113,7 +113,8 @@ pub struct BvhParams {
     /// Ray-triangle test used by every traversal of this BVH.
     pub test: TriTest,
     /// Which build (default `Medium`, binned SAH). `Low` ignores `bins`
-    /// and `traversal_cost` (its leaves hold up to `leaf_size` triangles).
+    /// and uses `traversal_cost` only for the reported SAH cost (its leaves
+    /// hold up to `leaf_size` triangles).
     pub quality: BuildQuality,
 }
 
