@@ -42,11 +42,10 @@
 //! the `perf` test below for times.
 
 use super::{
-    BOX_PAD, BuildQuality, Bvh, BvhInfo, BvhNode, BvhParams, BvhPools, MAX_BINS, MAX_DEPTH, PrimRef,
+    BuildQuality, Bvh, BvhInfo, BvhNode, BvhParams, BvhPools, MAX_BINS, MAX_DEPTH, PrimRef,
 };
 use crate::error::{Error, Pool, Result};
 use crate::geom::{Aabb, Excluded, F4, INVALID_ID, M4, ProjTri, Scene, TriTest, TriVerts};
-use crate::math;
 use glam::Vec3A;
 
 /// A box in SIMD registers (build-internal).
@@ -72,6 +71,15 @@ impl Box3 {
         Box3 {
             min: Vec3A::from_vec4(lo),
             max: Vec3A::from_vec4(hi),
+        }
+    }
+    /// The box of a triangle's three vertices.
+    #[inline(always)]
+    pub(super) fn of_tri(t: &TriVerts) -> Box3 {
+        let (a, b, c) = (Vec3A::from(t.v0), Vec3A::from(t.v1), Vec3A::from(t.v2));
+        Box3 {
+            min: a.min(b).min(c),
+            max: a.max(b).max(c),
         }
     }
     #[inline(always)]
@@ -580,15 +588,7 @@ pub(super) fn gather(
         let tri = scene.triangle(t);
         match Scene::classify(&tri) {
             None => {
-                let (a, b, c) = (
-                    Vec3A::from(tri.v0),
-                    Vec3A::from(tri.v1),
-                    Vec3A::from(tri.v2),
-                );
-                let bx = Box3 {
-                    min: a.min(b).min(c),
-                    max: a.max(b).max(c),
-                };
+                let bx = Box3::of_tri(&tri);
                 bounds.grow(&bx);
                 cent.grow_point(bx.min + bx.max);
                 if n < refs_cap {
@@ -623,8 +623,6 @@ pub(super) fn gather(
             "the projection test needs Limits::projection_test",
         ));
     }
-    let m = bounds.min.abs().max(bounds.max.abs()).max_element();
-    let diag = bounds.max - bounds.min;
     let info = BvhInfo {
         bounds: if n > 0 {
             bounds.aabb()
@@ -649,7 +647,7 @@ pub(super) fn gather(
         n,
         bounds,
         cent,
-        pad: Vec3A::splat(BOX_PAD * (m + math::sqrt(diag.dot(diag)))),
+        pad: super::box_pad(bounds.min, bounds.max),
         info,
     })
 }

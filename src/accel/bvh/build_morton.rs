@@ -55,10 +55,9 @@
 
 use super::build::Box3;
 use super::refit::{fit, half_area, sah_sum};
-use super::{BOX_PAD, BvhInfo, BvhNode, BvhParams, BvhPools, MAX_DEPTH, PrimRef};
+use super::{BvhInfo, BvhNode, BvhParams, BvhPools, MAX_DEPTH, PrimRef};
 use crate::error::{Error, Pool, Result};
 use crate::geom::{Aabb, Excluded, INVALID_ID, ProjTri, Scene, TriTest};
-use crate::math;
 use crate::mem::par::{MAX_WORKERS, Par, Parts, atomic_u32, share};
 use core::sync::atomic::Ordering;
 use glam::Vec3A;
@@ -266,10 +265,7 @@ pub(super) fn build(
         return Ok(info);
     }
     crate::fault_point!(BvhBuild);
-    let (lo, hi) = (all.bounds.min, all.bounds.max);
-    let m = lo.abs().max(hi.abs()).max_element();
-    let diag = hi - lo;
-    let pad = Vec3A::splat(BOX_PAD * (m + math::sqrt(diag.dot(diag))));
+    let pad = super::box_pad(all.bounds.min, all.bounds.max);
 
     // 2-3. Codes and ids in the node pool (2n - 1 nodes of 8 words hold
     // the four arrays of n words), sorted; the triangles stored in order.
@@ -457,15 +453,7 @@ fn find(scene: &Scene<'_>, first: usize, out: &mut [PrimRef]) -> Found {
         let tri = scene.triangle(t);
         match Scene::classify(&tri) {
             None => {
-                let (a, b, c) = (
-                    Vec3A::from(tri.v0),
-                    Vec3A::from(tri.v1),
-                    Vec3A::from(tri.v2),
-                );
-                let bx = Box3 {
-                    min: a.min(b).min(c),
-                    max: a.max(b).max(c),
-                };
+                let bx = Box3::of_tri(&tri);
                 f.bounds.grow(&bx);
                 f.cent.grow_point(bx.min + bx.max);
                 *r = PrimRef {

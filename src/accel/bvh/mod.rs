@@ -74,6 +74,15 @@ const _: () = assert!(MAX_DEPTH <= crate::accel::entry::MAX_ENTRY_DEPTH);
 /// Relative padding of stored boxes (see the module docs, Exactness).
 pub const BOX_PAD: f32 = 1e-5;
 
+/// The padding of every stored box of a tree over the bounds `lo..hi`:
+/// `BOX_PAD` times (the largest coordinate magnitude + the diagonal). The
+/// builds and refit pad alike through this one function.
+pub(crate) fn box_pad(lo: glam::Vec3A, hi: glam::Vec3A) -> glam::Vec3A {
+    let m = lo.abs().max(hi.abs()).max_element();
+    let diag = hi - lo;
+    glam::Vec3A::splat(BOX_PAD * (m + crate::math::sqrt(diag.dot(diag))))
+}
+
 /// Largest leaf size a build accepts.
 pub const MAX_LEAF: u32 = 64;
 

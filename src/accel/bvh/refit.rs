@@ -27,10 +27,9 @@
 //!   now store.
 #![forbid(unsafe_code)]
 
-use super::{BOX_PAD, Bvh, BvhNode};
+use super::{Bvh, BvhNode};
 use crate::error::{Error, Result};
 use crate::geom::{INVALID_ID, ProjTri, Scene, TriTest, TriVerts};
-use crate::math;
 use glam::Vec3A;
 
 /// When a refit becomes a rebuild (C: `sheaf_refit_params`).
@@ -218,9 +217,7 @@ pub fn refit(bvh: &mut Bvh<'_>, scene: &Scene<'_>) -> Result<RefitInfo> {
             pools.proj[s] = ProjTri::new(&t);
         }
     }
-    let m = lo.abs().max(hi.abs()).max_element();
-    let diag = hi - lo;
-    let pad = Vec3A::splat(BOX_PAD * (m + math::sqrt(diag.dot(diag))));
+    let pad = super::box_pad(lo, hi);
     let nodes = &mut pools.nodes[..nn];
     fit_boxes(nodes, &pools.tris[..n], pad);
     let after = sah(nodes, traversal_cost);
