@@ -1328,6 +1328,30 @@ static void check_rays(Bench *b)
     }
 }
 
+/* Structure st's fastest camera and shadow methods on thread count ti
+ * (the built structure in the context): Mrays/s, every answer checked
+ * against the reference bit for bit. */
+static void time_best(Bench *b, int st, int ti)
+{
+    int T = b->o->threads[ti];
+    Job j = b->job;
+    j.hits = b->hits;
+    j.params = cfg_params(&PRIMARY_CFGS[b->pbest[st]], SHEAF_RAY_KIND_PRIMARY);
+    b->pbest_mr[st][ti] = mrays(b->N, time_job(&j, T, b->reps));
+    for (size_t k = 0; k < b->N; k++)
+        b->internal += b->hits[k].prim != b->ref[k].prim || memcmp(&b->hits[k].t, &b->ref[k].t, 4) != 0;
+    const Cfg *sc = &SHADOW_CFGS[b->sbest[st]];
+    j.kind = sc->occ_via_trace ? K_TRACE_OCC : K_OCCLUDED;
+    j.occ_method = sc->method;
+    j.occ_via_trace = sc->occ_via_trace;
+    j.params = cfg_params(sc, SHEAF_RAY_KIND_SHADOW);
+    j.rays = b->srays;
+    j.n = b->NSL;
+    j.occ = b->socc;
+    b->sbest_mr[st][ti] = mrays(b->NS, time_job(&j, T, b->reps));
+    for (size_t k = 0; k < b->NSL; k++) b->internal += b->socc[k] != b->sref[k];
+}
+
 /* Every sheaf method on 1 thread, the fastest per structure on every thread count. */
 static void time_sheaf_methods(Bench *b)
 {
@@ -1375,22 +1399,7 @@ static void time_sheaf_methods(Bench *b)
             b->sbest[st] = b->sbest[S_BVH];
             check_sheaf(b->ctx, sheaf_build(b->ctx, S_BVH_LOW), "build");
             for (int ti = 0; ti < b->o->nthreads; ti++) {
-                Job j = b->job;
-                j.hits = b->hits;
-                j.params = cfg_params(&PRIMARY_CFGS[b->pbest[st]], SHEAF_RAY_KIND_PRIMARY);
-                b->pbest_mr[st][ti] = mrays(b->N, time_job(&j, b->o->threads[ti], b->reps));
-                for (size_t k = 0; k < b->N; k++)
-                    b->internal += b->hits[k].prim != b->ref[k].prim || memcmp(&b->hits[k].t, &b->ref[k].t, 4) != 0;
-                const Cfg *sc = &SHADOW_CFGS[b->sbest[st]];
-                j.kind = sc->occ_via_trace ? K_TRACE_OCC : K_OCCLUDED;
-                j.occ_method = sc->method;
-                j.occ_via_trace = sc->occ_via_trace;
-                j.params = cfg_params(sc, SHEAF_RAY_KIND_SHADOW);
-                j.rays = b->srays;
-                j.n = b->NSL;
-                j.occ = b->socc;
-                b->sbest_mr[st][ti] = mrays(b->NS, time_job(&j, b->o->threads[ti], b->reps));
-                for (size_t k = 0; k < b->NSL; k++) b->internal += b->socc[k] != b->sref[k];
+                time_best(b, st, ti);
                 progress("  sheaf BVH LOW tree, %d threads: primary %.2f, shadow %.2f Mrays/s\n",
                          b->o->threads[ti], b->pbest_mr[st][ti], b->sbest_mr[st][ti]);
             }
@@ -1410,21 +1419,7 @@ static void time_sheaf_methods(Bench *b)
                 b->sbest_mr[st][ti] = b->sspeed[b->sbest[st]].mrays;
                 continue;
             }
-            Job j = b->job;
-            j.hits = b->hits;
-            j.params = cfg_params(&PRIMARY_CFGS[b->pbest[st]], SHEAF_RAY_KIND_PRIMARY);
-            b->pbest_mr[st][ti] = mrays(b->N, time_job(&j, T, b->reps));
-            for (size_t k = 0; k < b->N; k++) b->internal += b->hits[k].prim != b->ref[k].prim;
-            const Cfg *sc = &SHADOW_CFGS[b->sbest[st]];
-            j.kind = sc->occ_via_trace ? K_TRACE_OCC : K_OCCLUDED;
-            j.occ_method = sc->method;
-            j.occ_via_trace = sc->occ_via_trace;
-            j.params = cfg_params(sc, SHEAF_RAY_KIND_SHADOW);
-            j.rays = b->srays;
-            j.n = b->NSL;
-            j.occ = b->socc;
-            b->sbest_mr[st][ti] = mrays(b->NS, time_job(&j, T, b->reps));
-            for (size_t k = 0; k < b->NSL; k++) b->internal += b->socc[k] != b->sref[k];
+            time_best(b, st, ti);
             progress("  sheaf %s best on %d threads: primary %.2f, shadow %.2f Mrays/s\n",
                      STRUCT_NAME[st], T, b->pbest_mr[st][ti], b->sbest_mr[st][ti]);
         }
