@@ -739,8 +739,8 @@ static bool test_bvh_methods(void) {
     sheaf_frame f = default_frame(RW, RH);
     static uint8_t grid_img[RLEN], base[RLEN], img[RLEN];
     uint32_t sides[4] = {4, 8, 16, 32};
-    sheaf_method methods[4] = {SHEAF_METHOD_BVH_SIMD, SHEAF_METHOD_BVH_MASKED, SHEAF_METHOD_BVH_RANGED,
-                               SHEAF_METHOD_BVH_PARTITION};
+    sheaf_method methods[5] = {SHEAF_METHOD_BVH_SIMD, SHEAF_METHOD_BVH_MASKED, SHEAF_METHOD_BVH_RANGED,
+                               SHEAF_METHOD_BVH_PARTITION, SHEAF_METHOD_BVH_WIDE};
     int i, k, m;
     CHECK(ctx != NULL);
     probe_rays(rays);
@@ -780,7 +780,7 @@ static bool test_bvh_methods(void) {
     CHECK_OK(sheaf_context_render_with(ctx, &single, &single, &f, base, RSTRIDE, RLEN));
     CHECK_OK(sheaf_context_render(ctx, SHEAF_METHOD_GRID_DDA, &f, grid_img, RSTRIDE, RLEN));
     CHECK(memcmp(grid_img, base, RLEN) == 0);
-    for (m = 0; m < 4; m++) {
+    for (m = 0; m < 5; m++) {
         for (k = 0; k < 4; k++) {
             p = single;
             p.method = methods[m];
@@ -808,15 +808,27 @@ static bool test_bvh_methods(void) {
     CHECK_STATUS(sheaf_context_build_bvh(ctx, &bad_bp), SHEAF_STATUS_INVALID_ARGUMENT);
     bp.quality = SHEAF_BUILD_QUALITY_LOW;
     CHECK_OK(sheaf_context_build_bvh(ctx, &bp));
-    for (m = 0; m < 4; m++) {
+    for (m = 0; m < 5; m++) {
         p = single;
         p.method = methods[m];
-        p.packet = sides[m];
+        p.packet = sides[m % 4];
         CHECK_OK(sheaf_context_trace_with(ctx, &p, rays, got, N_PROBE));
         CHECK(hits_equal(got, want, N_PROBE));
         CHECK_OK(sheaf_context_occluded(ctx, methods[m], rays, occ_got, N_PROBE));
         CHECK(memcmp(occ_got, occ_want, N_PROBE) == 0);
     }
+    /* Width: 4 (the default) or 2 (no wide tree: BVH_WIDE walks the binary
+       one, with the same answers); anything else is refused. */
+    CHECK(bp.width == 4);
+    bad_bp = bp;
+    bad_bp.width = 8;
+    CHECK_STATUS(sheaf_context_build_bvh(ctx, &bad_bp), SHEAF_STATUS_INVALID_ARGUMENT);
+    bp.width = 2;
+    CHECK_OK(sheaf_context_build_bvh(ctx, &bp));
+    CHECK_OK(sheaf_context_trace(ctx, SHEAF_METHOD_BVH_WIDE, rays, got, N_PROBE));
+    CHECK(hits_equal(got, want, N_PROBE));
+    CHECK_OK(sheaf_context_occluded(ctx, SHEAF_METHOD_BVH_WIDE, rays, occ_got, N_PROBE));
+    CHECK(memcmp(occ_got, occ_want, N_PROBE) == 0);
     CHECK_STATUS(sheaf_bvh_params_default(NULL), SHEAF_STATUS_NULL_POINTER);
     CHECK_STATUS(sheaf_context_build_bvh(NULL, &bp), SHEAF_STATUS_NULL_POINTER);
     sheaf_context_destroy(ctx);

@@ -295,6 +295,11 @@ enum sheaf_method
      * the entry point of `sheaf_trace_params.entry` (MLRTA, AEPSA).
      */
     SHEAF_METHOD_KD_PACKET = 9,
+    /**
+     * BVH, single rays through the 4-wide tree every BVH build and refit
+     * collapses from its binary tree: four child boxes per SIMD test.
+     */
+    SHEAF_METHOD_BVH_WIDE = 10,
 };
 #ifndef __cplusplus
 #if __STDC_VERSION__ >= 202311L
@@ -474,6 +479,13 @@ typedef struct sheaf_bvh_params {
      * SAH cost.
      */
     sheaf_build_quality quality;
+    /**
+     * Children per node of the tree single rays walk: 4 (default) also
+     * builds the 4-wide tree (`SHEAF_METHOD_BVH_WIDE`, and the packets'
+     * single-ray fallback) after every build and refit; 2 keeps the
+     * binary tree alone (a cheaper build for packet-only tracing).
+     */
+    uint32_t width;
 } sheaf_bvh_params;
 
 /**

@@ -1,7 +1,7 @@
-//! BVH packet traversals are exact: the 2x2 SIMD ray and the Masked, Ranged
-//! and Partition traversals at every packet side, with and without frustum
-//! culling, return the same triangle and bitwise the same t (the same
-//! occlusion answer) as the single-ray BVH traversal, lane by lane, for
+//! BVH packet traversals are exact: the 4-wide single ray, the 2x2 SIMD
+//! ray and the Masked, Ranged and Partition traversals at every packet
+//! side, with and without frustum culling, return the same triangle and
+//! bitwise the same t (the same occlusion answer) as the single-ray BVH traversal, lane by lane, for
 //! primary, shadow, reflection and refraction rays on every scene and view
 //! (DESIGN.md "Correctness"; BVH paper sections 3 and 4).
 
@@ -19,7 +19,10 @@ use common::exact::{Class, RES, check_class, reference, secondary};
 /// The BVH packet methods from the root: SIMD, Masked, Ranged, Partition at
 /// every side (entry points: kd_exact.rs).
 fn bvh_cases() -> Vec<(Method, usize, EntrySearch)> {
-    let mut cases = vec![(Method::BvhSimd, 2, EntrySearch::None)];
+    let mut cases = vec![
+        (Method::BvhSimd, 2, EntrySearch::None),
+        (Method::BvhWide, 2, EntrySearch::None),
+    ];
     for m in [Method::BvhMasked, Method::BvhRanged, Method::BvhPartition] {
         cases.extend([4, 8, 16, 32].map(|n| (m, n, EntrySearch::None)));
     }
@@ -230,6 +233,7 @@ fn context_calls_and_failed_builds() {
     assert!(want.iter().any(|h| h.is_hit()));
     for m in [
         Method::BvhSimd,
+        Method::BvhWide,
         Method::BvhMasked,
         Method::BvhRanged,
         Method::BvhPartition,

@@ -33,6 +33,9 @@ pub enum Method {
     /// kd-tree, n x n packets driven by their frustum, from the root or
     /// from the entry point `TraceParams::entry` finds (MLRTA, AEPSA).
     KdPacket = 9,
+    /// BVH, single rays through the 4-wide tree collapsed from the built
+    /// one (`accel::bvh::traverse_wide`): four child boxes per SIMD test.
+    BvhWide = 10,
 }
 
 impl Method {
@@ -47,6 +50,7 @@ impl Method {
         Method::KdSingle,
         Method::KdSimd,
         Method::KdPacket,
+        Method::BvhWide,
     ];
     pub fn name(self) -> &'static str {
         match self {
@@ -60,6 +64,7 @@ impl Method {
             Method::KdSingle => "kd-single",
             Method::KdSimd => "kd-simd",
             Method::KdPacket => "kd-packet",
+            Method::BvhWide => "bvh-wide",
         }
     }
     /// Whether the method traces n x n packets (and so uses `TraceParams::packet`).

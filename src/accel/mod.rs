@@ -60,6 +60,17 @@ pub trait Accel: Sync {
     fn occluded<T: TriangleTest>(&self, ray: &Ray, ctr: &mut Counters) -> bool;
     /// The single ray: some hit (the first found) or a miss.
     fn any_hit<T: TriangleTest>(&self, ray: &Ray, ctr: &mut Counters) -> Hit;
+    /// The family's fastest single ray, which the packet fallbacks trace
+    /// lanes with (`packet::alone`): nearest hit, or with `ANY` some hit.
+    /// The same answers as `intersect` / `any_hit`, which it defaults to.
+    #[inline(always)]
+    fn fastest<T: TriangleTest, const ANY: bool>(&self, ray: &Ray, ctr: &mut Counters) -> Hit {
+        if ANY {
+            self.any_hit::<T>(ray, ctr)
+        } else {
+            self.intersect::<T>(ray, ctr)
+        }
+    }
     /// The family's 2x2 SIMD ray and n x n packet traversals: trace the
     /// active lanes of `rays` with `p.method` (nearest hits, or with `ANY`
     /// occlusion: some hit marks an occluded lane) and return true; false

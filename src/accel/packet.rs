@@ -102,13 +102,13 @@ fn quieted<A: Accel, T: TriangleTest, const ANY: bool>(
             lane_by_lane(qr, qa, h, |r, c| single::<A, T, ANY>(a, r, c), ctr);
         }
         fallback::each_lane(tiny, |q, i| {
-            h[q].set_lane(i, single::<A, T, ANY>(a, &r[q].lane(i), ctr));
+            h[q].set_lane(i, a.fastest::<T, ANY>(&r[q].lane(i), ctr));
         });
     }
 }
 
 /// The coherence and budget fallbacks of every family's packets: each
-/// live lane traced by the family's single ray (its result replaces the
+/// live lane traced by the family's fastest single ray (`Accel::fastest`; its result replaces the
 /// lane's hit; from the root, the same hit as from any entry point). The
 /// packet counted these rays already, the single ray counts them again, so
 /// they are taken off once here.
@@ -121,7 +121,7 @@ pub fn alone<A: Accel, T: TriangleTest, const ANY: bool>(
     ctr: &mut Counters,
 ) {
     let n = fallback::each_lane(live, |q, i| {
-        hits[q].set_lane(i, single::<A, T, ANY>(a, &rays[q].lane(i), ctr));
+        hits[q].set_lane(i, a.fastest::<T, ANY>(&rays[q].lane(i), ctr));
     });
     ctr.rays -= n;
 }

@@ -55,6 +55,11 @@ pub struct sheaf_bvh_params {
     /// LOW ignores `bins` and uses `traversal_cost` only for the reported
     /// SAH cost.
     pub quality: raw::sheaf_build_quality,
+    /// Children per node of the tree single rays walk: 4 (default) also
+    /// builds the 4-wide tree (`SHEAF_METHOD_BVH_WIDE`, and the packets'
+    /// single-ray fallback) after every build and refit; 2 keeps the
+    /// binary tree alone (a cheaper build for packet-only tracing).
+    pub width: u32,
 }
 
 impl sheaf_bvh_params {
@@ -65,6 +70,7 @@ impl sheaf_bvh_params {
             traversal_cost: p.traversal_cost,
             test: sheaf_tri_test::of(p.test) as u32,
             quality: sheaf_build_quality::of(p.quality) as u32,
+            width: p.width,
         }
     }
     /// The checked crate value.
@@ -75,6 +81,7 @@ impl sheaf_bvh_params {
             traversal_cost: self.traversal_cost,
             test: sheaf_tri_test::to_core(self.test)?,
             quality: sheaf_build_quality::to_core(self.quality)?,
+            width: self.width,
         };
         p.validate()?;
         Ok(p)
@@ -213,6 +220,7 @@ mod tests {
             traversal_cost: 0.5,
             test: TriTest::Watertight,
             quality: BuildQuality::Low,
+            width: 2,
         };
         assert_eq!(sheaf_bvh_params::of(&p).to_core(), Ok(p));
         assert!(

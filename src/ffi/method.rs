@@ -33,6 +33,9 @@ pub enum sheaf_method {
     /// kd-tree, n x n packets driven by their frustum, from the root or from
     /// the entry point of `sheaf_trace_params.entry` (MLRTA, AEPSA).
     KdPacket = 9,
+    /// BVH, single rays through the 4-wide tree every BVH build and refit
+    /// collapses from its binary tree: four child boxes per SIMD test.
+    BvhWide = 10,
 }
 
 impl sheaf_method {
@@ -50,6 +53,7 @@ impl sheaf_method {
             Method::KdSingle => sheaf_method::KdSingle,
             Method::KdSimd => sheaf_method::KdSimd,
             Method::KdPacket => sheaf_method::KdPacket,
+            Method::BvhWide => sheaf_method::BvhWide,
         }
     }
 

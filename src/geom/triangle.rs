@@ -182,10 +182,19 @@ fn splat3<L: Lane>(v: [f32; 3]) -> [L; 3] {
 /// --bench grid`, 3DDDA: sponza 1.52x, bunny 1.32x the rays/s of dividing first).
 #[inline(always)]
 pub fn moller_trumbore<L: Lane>(r: &RayLanes<L>, tri: &TriVerts) -> TriHit<L> {
+    moller_trumbore_lanes(r, [splat3(tri.v0), splat3(tri.v1), splat3(tri.v2)])
+}
+
+/// `moller_trumbore` on vertices given lane by lane: one triangle per lane
+/// against one ray splatted into every lane (`Tri4`), or one triangle
+/// splatted against four rays. The same operations either way, so each
+/// lane's result is bitwise the scalar test's.
+#[inline(always)]
+pub fn moller_trumbore_lanes<L: Lane>(r: &RayLanes<L>, tri: [[L; 3]; 3]) -> TriHit<L> {
     let zero = L::splat(0.0);
-    let v0 = splat3::<L>(tri.v0);
-    let e1 = sub3(splat3::<L>(tri.v1), v0);
-    let e2 = sub3(splat3::<L>(tri.v2), v0);
+    let v0 = tri[0];
+    let e1 = sub3(tri[1], v0);
+    let e2 = sub3(tri[2], v0);
     let p = cross3(r.dir, e2);
     let det = dot3(e1, p);
     let s = sub3(r.org, v0);
@@ -228,10 +237,16 @@ pub fn moller_trumbore<L: Lane>(r: &RayLanes<L>, tri: &TriVerts) -> TriHit<L> {
 /// Woop-Benthin-Wald watertight test, two-sided, with the ray's shear.
 #[inline(always)]
 pub fn watertight<L: Lane>(r: &RayLanes<L>, sh: &Shear<L>, tri: &TriVerts) -> TriHit<L> {
+    watertight_lanes(r, sh, [splat3(tri.v0), splat3(tri.v1), splat3(tri.v2)])
+}
+
+/// `watertight` on vertices given lane by lane (see `moller_trumbore_lanes`).
+#[inline(always)]
+pub fn watertight_lanes<L: Lane>(r: &RayLanes<L>, sh: &Shear<L>, tri: [[L; 3]; 3]) -> TriHit<L> {
     // Vertices relative to the ray origin (WBW Fig. 1, lines "A = v0 - org" ...).
-    let a = sub3(splat3::<L>(tri.v0), r.org);
-    let b = sub3(splat3::<L>(tri.v1), r.org);
-    let c = sub3(splat3::<L>(tri.v2), r.org);
+    let a = sub3(tri[0], r.org);
+    let b = sub3(tri[1], r.org);
+    let c = sub3(tri[2], r.org);
     let (az, bz, cz) = (L::pick(a, sh.kz), L::pick(b, sh.kz), L::pick(c, sh.kz));
     // Shear and scale.
     let ax = L::pick(a, sh.kx) - sh.s[0] * az;
@@ -339,6 +354,48 @@ pub trait TriangleTest: Copy + Default + Send + Sync + 'static {
     /// The precomputation of a group of quads (`Wide::join`) from each
     /// quad's: the same values, lane for lane.
     fn join_pre<W: Wide>(pre: impl Fn(usize) -> Self::Pre<F4>) -> Self::Pre<W>;
+    /// Stored triangles `i[0..4]` against one ray splatted into four lanes
+    /// (`r`, `pre` from `RayLanes::splat`), lane k testing triangle `i[k]`:
+    /// bitwise the scalar test's results. The default tests them one by one.
+    #[inline(always)]
+    fn intersect_tri4(
+        r: &RayLanes<F4>,
+        pre: &Self::Pre<F4>,
+        s: TriStore<'_>,
+        i: [usize; 4],
+    ) -> TriHit<F4> {
+        let _ = pre;
+        let l = RayLanes {
+            org: r.org.map(|x| x.x),
+            dir: r.dir.map(|x| x.x),
+            tmin: r.tmin.x,
+            tmax: r.tmax.x,
+        };
+        let p = Self::prepare(&l);
+        let one = |k: usize| Self::intersect(&l, &p, Self::prim(s, i[k]));
+        let h: [TriHit<f32>; 4] = core::array::from_fn(one);
+        TriHit {
+            mask: crate::geom::lane::mask_from_bits(
+                h.iter()
+                    .enumerate()
+                    .fold(0, |m, (k, h)| m | (h.mask as u32) << k),
+            ),
+            t: F4::from_array(h.map(|h| h.t)),
+            u: F4::from_array(h.map(|h| h.u)),
+            v: F4::from_array(h.map(|h| h.v)),
+        }
+    }
+}
+
+/// Stored triangles `i[0..4]` one per lane.
+#[inline(always)]
+fn gather4(s: TriStore<'_>, i: [usize; 4]) -> [[F4; 3]; 3] {
+    let t = i.map(|k| &s.tris[k]);
+    let at = |v: fn(&TriVerts) -> &[f32; 3], a: usize| {
+        F4::new(v(t[0])[a], v(t[1])[a], v(t[2])[a], v(t[3])[a])
+    };
+    let vert = |v: fn(&TriVerts) -> &[f32; 3]| [at(v, 0), at(v, 1), at(v, 2)];
+    [vert(|t| &t.v0), vert(|t| &t.v1), vert(|t| &t.v2)]
 }
 
 /// Moller-Trumbore as a `TriangleTest`.
@@ -367,6 +424,10 @@ impl TriangleTest for Mt {
     }
     #[inline(always)]
     fn join_pre<W: Wide>(_: impl Fn(usize)) {}
+    #[inline(always)]
+    fn intersect_tri4(r: &RayLanes<F4>, _: &(), s: TriStore<'_>, i: [usize; 4]) -> TriHit<F4> {
+        moller_trumbore_lanes(r, gather4(s, i))
+    }
 }
 
 impl TriangleTest for Wt {
@@ -384,6 +445,15 @@ impl TriangleTest for Wt {
     #[inline(always)]
     fn intersect<L: Lane>(r: &RayLanes<L>, pre: &Shear<L>, tri: &TriVerts) -> TriHit<L> {
         watertight(r, pre, tri)
+    }
+    #[inline(always)]
+    fn intersect_tri4(
+        r: &RayLanes<F4>,
+        pre: &Shear<F4>,
+        s: TriStore<'_>,
+        i: [usize; 4],
+    ) -> TriHit<F4> {
+        watertight_lanes(r, pre, gather4(s, i))
     }
     #[inline(always)]
     fn join_pre<W: Wide>(pre: impl Fn(usize) -> Shear<F4>) -> Shear<W> {
@@ -427,6 +497,16 @@ impl RayLanes<f32> {
 }
 
 impl RayLanes<F4> {
+    /// One ray in all four lanes (for `TriangleTest::intersect_tri4`).
+    #[inline(always)]
+    pub fn splat(r: &RayLanes<f32>) -> Self {
+        RayLanes {
+            org: r.org.map(F4::splat),
+            dir: r.dir.map(F4::splat),
+            tmin: F4::splat(r.tmin),
+            tmax: F4::splat(r.tmax),
+        }
+    }
     #[inline]
     pub fn from_ray4(r: &crate::geom::ray::Ray4) -> Self {
         RayLanes {

@@ -732,9 +732,8 @@ pub fn build_with(
     let pools = bvh.pools_mut();
     if p.quality == BuildQuality::Low {
         let info = super::build_morton::build(pools, scene, p, par)?;
-        bvh.set_info(Some(info));
         bvh.set_params(*p);
-        return Ok(info);
+        return Ok(bvh.commit(info));
     }
     let g = gather(pools, scene, p)?;
 
@@ -746,9 +745,8 @@ pub fn build_with(
         crate::fault_point!(BvhBuild);
         binned_sah(pools, scene, p, &g)
     };
-    bvh.set_info(Some(info));
     bvh.set_params(*p);
-    Ok(info)
+    Ok(bvh.commit(info))
 }
 
 /// Step 2 of the module docs: the top-down binned SAH over `refs[..g.n]`.
@@ -1012,6 +1010,7 @@ mod tests {
                     traversal_cost: 1.0,
                     test,
                     quality,
+                    width: 4,
                 };
                 let info = build_check(&s.mesh.vertices, &s.mesh.indices, &p);
                 assert_eq!(info.triangles as usize, s.mesh.triangle_count(), "{name}");

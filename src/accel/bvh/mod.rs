@@ -15,6 +15,8 @@
 //! | `traverse_masked.rs` | section 3.1, Figure 2: Masked traversal, and its switch to Partition when too many box tests find quads dead |
 //! | `traverse_ranged.rs` | section 3.2, Appendix A.1: Ranged traversal (first alive ray `i_a` on the stack, `getFirstHit`/`getLastHit`) |
 //! | `traverse_partition.rs` | section 3.3, Appendix A.2: Partition traversal (index list `I` partitioned in place by `partRays`) |
+//! | `wide.rs` | the 4-wide tree (`WideNode`): every built or refit binary tree collapsed into nodes of four children with their boxes side by side (Dammertz et al. 2008; Wald et al. 2008), in the reference pool |
+//! | `traverse_wide.rs` | the single ray through the 4-wide tree (`Method::BvhWide`): four boxes per SIMD test; the single-ray fallback of every packet traversal |
 //! | `refit.rs` | refit: the built tree's boxes recomputed bottom-up for moved vertices (Embree's REFIT quality; the paper rebuilds every frame) |
 //! | `entry.rs` | the BVH as an `accel::entry::EntryTree`: MLRTA/AEPSA entry points (AEPSA paper, section 8), where the three packet traversals can start |
 //!
@@ -43,6 +45,8 @@ pub mod traverse_partition;
 pub mod traverse_ranged;
 pub mod traverse_simd;
 pub mod traverse_single;
+pub mod traverse_wide;
+pub mod wide;
 
 use crate::accel::entry::EntrySearch;
 pub use crate::accel::method::BvhOptions;
@@ -125,6 +129,13 @@ pub struct BvhParams {
     /// and uses `traversal_cost` only for the reported SAH cost (its leaves
     /// hold up to `leaf_size` triangles).
     pub quality: BuildQuality,
+    /// Children per node of the tree the single rays walk: 4 (the default)
+    /// collapses every built or refit tree into the 4-wide tree
+    /// (`wide.rs`, `Method::BvhWide`, the packets' single-ray fallback);
+    /// 2 keeps the binary tree alone, which saves the collapse (about 1.3
+    /// ms per 46k binary nodes) on trees rebuilt every frame and traced by
+    /// packets only.
+    pub width: u32,
 }
 
 impl Default for BvhParams {
@@ -135,6 +146,7 @@ impl Default for BvhParams {
             traversal_cost: 1.0,
             test: TriTest::MollerTrumbore,
             quality: BuildQuality::Medium,
+            width: 4,
         }
     }
 }
@@ -148,6 +160,9 @@ impl BvhParams {
         }
         if !(2..=MAX_BINS).contains(&self.bins) {
             return Err(crate::Error::InvalidArgument("bvh bins must be in 2..=64"));
+        }
+        if self.width != 2 && self.width != wide::WIDTH as u32 {
+            return Err(crate::Error::InvalidArgument("bvh width must be 2 or 4"));
         }
         if !(self.traversal_cost.is_finite() && self.traversal_cost > 0.0) {
             return Err(crate::Error::InvalidArgument(
@@ -180,6 +195,10 @@ pub struct BvhInfo {
     pub bins: u32,
     pub test: TriTest,
     pub quality: BuildQuality,
+    /// Nodes of the 4-wide tree collapsed from this one (`wide.rs`; 0:
+    /// `BvhParams::width` 2, or the reference pool could not hold it; the
+    /// wide single ray then walks the binary tree).
+    pub wide_nodes: u32,
 }
 
 /// One node (32 bytes). `meta`: for a leaf, the triangle count (> 0) in the
@@ -289,7 +308,24 @@ pub struct BvhView<'r> {
     pub proj: &'r [ProjTri],
     pub tri_ids: &'r [u32],
     pub slot_of: &'r [u32],
+    /// The 4-wide tree (empty when there is none: see `BvhInfo::wide_nodes`).
+    pub wide: &'r [wide::WideNode],
 }
+
+/// The reference pool as wide nodes (4 references per node; both are
+/// plain `f32`/`u32` arrays, so any `PrimRef` slice casts).
+fn wide_pool(refs: &mut [PrimRef]) -> &mut [wide::WideNode] {
+    let n = wide::capacity(core::mem::size_of_val(refs));
+    bytemuck::cast_slice_mut(&mut refs[..n * 4])
+}
+
+fn wide_view(refs: &[PrimRef]) -> &[wide::WideNode] {
+    let n = wide::capacity(core::mem::size_of_val(refs));
+    bytemuck::cast_slice(&refs[..n * 4])
+}
+
+const _: () =
+    assert!(core::mem::size_of::<wide::WideNode>() == 4 * core::mem::size_of::<PrimRef>());
 
 impl<'a> Bvh<'a> {
     pub fn new(pools: BvhPools<'a>) -> Self {
@@ -309,11 +345,20 @@ impl<'a> Bvh<'a> {
     pub(crate) fn pools_mut(&mut self) -> &mut BvhPools<'a> {
         &mut self.pools
     }
-    pub(crate) fn set_info(&mut self, info: Option<BvhInfo>) {
-        self.info = info;
-    }
     pub fn info(&self) -> Option<&BvhInfo> {
         self.info.as_ref()
+    }
+    /// Record a successful build or refit: its binary tree is collapsed
+    /// into the 4-wide tree (`wide.rs`) in the reference pool, free now.
+    pub(crate) fn commit(&mut self, mut info: BvhInfo) -> BvhInfo {
+        let nodes = &self.pools.nodes[..info.nodes as usize];
+        info.wide_nodes = if self.params.width == wide::WIDTH as u32 {
+            wide::collapse(nodes, wide_pool(self.pools.refs), wide::MERGE)
+        } else {
+            0
+        };
+        self.info = Some(info);
+        info
     }
     /// The last successful build, if any.
     pub fn view(&self) -> Option<BvhView<'_>> {
@@ -330,6 +375,7 @@ impl<'a> Bvh<'a> {
             },
             tri_ids: &self.pools.tri_ids[..n],
             slot_of: &self.pools.slot_of[..info.triangles_in as usize],
+            wide: &wide_view(self.pools.refs)[..info.wide_nodes as usize],
         })
     }
 }
@@ -355,6 +401,7 @@ impl BvhView<'_> {
 }
 
 /// The BVH under the family contract: the single-ray stack traversal, the
+/// 4-wide single ray (`Method::BvhWide`, also the packets' fallback), the
 /// 2x2 SIMD ray (`Method::BvhSimd`) and the three large-packet traversals
 /// (Masked, Ranged, Partition), those from an entry point when `p.entry`
 /// asks for one.
@@ -382,6 +429,11 @@ impl crate::accel::Accel for BvhView<'_> {
     fn any_hit<T: TriangleTest>(&self, ray: &Ray, ctr: &mut Counters) -> Hit {
         traverse_single::any_hit::<T>(self, ray, ctr)
     }
+    /// The 4-wide single ray (`traverse_wide`).
+    #[inline(always)]
+    fn fastest<T: TriangleTest, const ANY: bool>(&self, ray: &Ray, ctr: &mut Counters) -> Hit {
+        traverse_wide::walk::<T, ANY>(self, ray, ctr)
+    }
     fn packet<T: TriangleTest, const ANY: bool>(
         &self,
         p: &TraceParams,
@@ -396,6 +448,11 @@ impl crate::accel::Accel for BvhView<'_> {
             p.method,
             Method::BvhMasked | Method::BvhRanged | Method::BvhPartition
         );
+        if p.method == Method::BvhWide {
+            let wide = |r: &Ray, c: &mut Counters| traverse_wide::walk::<T, ANY>(self, r, c);
+            crate::accel::packet::lane_by_lane(rays, active, hits, wide, ctr);
+            return true;
+        }
         if !large && p.method != Method::BvhSimd {
             return false;
         }

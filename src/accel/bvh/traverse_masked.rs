@@ -593,6 +593,7 @@ pub(crate) mod tests {
                 traversal_cost: 1.0,
                 test: TriTest::Watertight,
                 quality: crate::accel::bvh::BuildQuality::Medium,
+                width: 4,
             },
         )
         .unwrap();

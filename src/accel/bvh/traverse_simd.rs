@@ -371,6 +371,7 @@ mod tests {
                 } else {
                     BuildQuality::Low
                 },
+                width: 4,
             };
             match test {
                 TriTest::MollerTrumbore => check::<Mt>(v, ix, views, &p),

@@ -91,7 +91,11 @@ pub fn any_hit<T: TriangleTest>(b: &BvhView<'_>, ray: &Ray, ctr: &mut Counters) 
     walk::<T, true>(b, ray, ctr)
 }
 
-fn walk<T: TriangleTest, const ANY: bool>(b: &BvhView<'_>, ray: &Ray, ctr: &mut Counters) -> Hit {
+pub(crate) fn walk<T: TriangleTest, const ANY: bool>(
+    b: &BvhView<'_>,
+    ray: &Ray,
+    ctr: &mut Counters,
+) -> Hit {
     ctr.rays += 1;
     let mut best = Hit::MISS;
     let nodes = b.nodes;
@@ -150,26 +154,8 @@ fn walk<T: TriangleTest, const ANY: bool>(b: &BvhView<'_>, ray: &Ray, ctr: &mut 
                 }
                 (None, None) => {}
             }
-        } else {
-            let first = n.first as usize;
-            for i in first..first + n.count() as usize {
-                ctr.tri_at(depth, 1);
-                let h = T::intersect(&lanes, &pre, T::prim(b.store(), i));
-                if h.mask {
-                    let id = b.tri_ids[i];
-                    if closer(h.t, id, &best) {
-                        best = Hit {
-                            t: h.t,
-                            prim: id,
-                            u: h.u,
-                            v: h.v,
-                        };
-                        if ANY {
-                            return best;
-                        }
-                    }
-                }
-            }
+        } else if leaf::<T, ANY>(b, &lanes, &pre, n.first, n.count(), depth, &mut best, ctr) {
+            return best;
         }
         // Pop the next node whose entry is not beyond the nearest hit.
         loop {
@@ -184,6 +170,94 @@ fn walk<T: TriangleTest, const ANY: bool>(b: &BvhView<'_>, ray: &Ray, ctr: &mut 
             }
         }
     }
+}
+
+/// Test the `count` stored triangles from `first` against the ray, keeping
+/// the nearest hit in `best` (the tie rule of `geom::closer`); with `ANY`,
+/// true as soon as one is hit (the walk may stop). The leaf test of both
+/// single-ray walks, binary and wide.
+// The ray's lanes and precomputation, the leaf, the running hit, counters.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+pub(crate) fn leaf<T: TriangleTest, const ANY: bool>(
+    b: &BvhView<'_>,
+    lanes: &RayLanes<f32>,
+    pre: &T::Pre<f32>,
+    first: u32,
+    count: u32,
+    depth: usize,
+    best: &mut Hit,
+    ctr: &mut Counters,
+) -> bool {
+    let first = first as usize;
+    for i in first..first + count as usize {
+        ctr.tri_at(depth, 1);
+        let h = T::intersect(lanes, pre, T::prim(b.store(), i));
+        if h.mask {
+            let id = b.tri_ids[i];
+            if closer(h.t, id, best) {
+                *best = Hit {
+                    t: h.t,
+                    prim: id,
+                    u: h.u,
+                    v: h.v,
+                };
+                if ANY {
+                    return true;
+                }
+            }
+        }
+    }
+    false
+}
+
+/// `leaf` four triangles at a time (`TriangleTest::intersect_tri4`), one
+/// per lane: the last group repeats its last triangle in the unused lanes
+/// (a repeat never beats itself under `closer`). Lanes are taken in order
+/// and `closer` orders hits by (t, id), so the nearest is the scalar
+/// loop's, and each lane's t, u, v are the scalar test's bits.
+// The ray in both forms, the leaf, the running hit, counters.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+pub(crate) fn leaf4<T: TriangleTest, const ANY: bool>(
+    b: &BvhView<'_>,
+    lanes4: &RayLanes<crate::geom::F4>,
+    pre4: &T::Pre<crate::geom::F4>,
+    first: u32,
+    count: u32,
+    depth: usize,
+    best: &mut Hit,
+    ctr: &mut Counters,
+) -> bool {
+    let (first, end) = (first as usize, (first + count) as usize);
+    let mut g = first;
+    while g < end {
+        let idx = core::array::from_fn(|k| (g + k).min(end - 1));
+        ctr.tri_at(depth, (end - g).min(4) as u64);
+        let h = T::intersect_tri4(lanes4, pre4, b.store(), idx);
+        let mut m = h.mask.bitmask();
+        if m != 0 {
+            let (t, u, v) = (h.t.to_array(), h.u.to_array(), h.v.to_array());
+            while m != 0 {
+                let k = m.trailing_zeros() as usize;
+                m &= m - 1;
+                let id = b.tri_ids[idx[k]];
+                if closer(t[k], id, best) {
+                    *best = Hit {
+                        t: t[k],
+                        prim: id,
+                        u: u[k],
+                        v: v[k],
+                    };
+                    if ANY {
+                        return true;
+                    }
+                }
+            }
+        }
+        g += 4;
+    }
+    false
 }
 
 #[cfg(test)]
@@ -282,6 +356,7 @@ pub(crate) mod tests {
                 traversal_cost: 1.0,
                 test,
                 quality,
+                width: 2,
             };
             match test {
                 TriTest::MollerTrumbore => check_scene::<Mt>(v, ix, views, &p),
@@ -332,6 +407,7 @@ pub(crate) mod tests {
                 traversal_cost: 1.0,
                 test,
                 quality,
+                width: 2,
             };
             match test {
                 TriTest::MollerTrumbore => check_scene::<Mt>(&v, &ix, &[], &p),

@@ -807,6 +807,7 @@ pub(crate) mod tests {
                     traversal_cost: 1.0,
                     test: crate::geom::TriTest::Watertight,
                     quality: crate::accel::bvh::BuildQuality::Medium,
+                    width: 4,
                 };
                 crate::accel::bvh::build::build(&mut bvh, &scene, &p).unwrap();
                 bvh

@@ -1,0 +1,238 @@
+//! The single ray through the 4-wide tree (`wide.rs`, `Method::BvhWide`):
+//! one 4-wide SIMD slab test per node gives the entry t of all four
+//! children; the children hit are visited nearest first and the others
+//! pushed with their entry t (Dammertz, Hanika, Keller 2008, section 3;
+//! Wald, Benthin, Boulos 2008, section 3.2). It is also the single ray the
+//! packet traversals fall back to (`Accel::fastest`): incoherent packets
+//! and tiny directions are traced lane by lane through it.
+//!
+//! # Exactness
+//! Each lane of the slab test is `traverse_single::RayBox::entry`'s
+//! arithmetic on the same box (same near plane by the direction's sign
+//! bit, same NaN handling), and the leaf test is the binary walk's
+//! (`traverse_single::leaf`, the tie rule of `geom::closer`). A child is
+//! skipped or a popped entry dropped only when its entry lies strictly
+//! beyond the nearest hit so far, so the nearest triangle is always tested
+//! (module docs of `bvh`): the same triangle and bitwise the same t, u, v
+//! as `traverse_single`.
+//!
+//! # Deviations
+//! - No root box test: the root's four children are tested at once, and a
+//!   ray missing the root misses them all.
+//! - Without a wide tree (`BvhInfo::wide_nodes` 0) the binary walk runs.
+//! - Counters count wide levels as depth, and 4 box tests per wide node.
+
+use super::traverse_single::{leaf4, walk as binary_walk};
+use super::wide::WIDTH;
+use super::{BvhView, TriangleTest};
+use crate::counters::Counters;
+use crate::geom::{Hit, Ray, RayLanes};
+use glam::Vec4;
+
+/// Stack entries. Up to `WIDTH - 1` may be pushed per wide level, so a
+/// stack for the deepest tree (`(WIDTH - 1) * MAX_DEPTH`) would be 145
+/// entries, and zeroing it cost a fifth of a missing camera ray's time
+/// (perf, bunny). A balanced wide tree of 13 levels (4^13 leaves) needs
+/// at most 39; a ray that would push beyond `STACK` in a deeper or
+/// lopsided tree is traced again by the binary walk, which gives the same
+/// answer.
+const STACK: usize = 40;
+const _: () = assert!(STACK >= WIDTH);
+
+/// A stack entry: `child` in the low 32 bits, `count` and the depth above.
+#[inline(always)]
+fn pack(child: u32, count: u32, depth: usize) -> u64 {
+    child as u64 | (count as u64) << 32 | (depth as u64) << 48
+}
+
+/// Nearest hit of `ray` (a miss for invalid rays).
+#[inline]
+pub fn intersect<T: TriangleTest>(b: &BvhView<'_>, ray: &Ray, ctr: &mut Counters) -> Hit {
+    walk::<T, false>(b, ray, ctr)
+}
+
+/// Some hit of `ray` in `[tmin, tmax)` (the first found), or a miss.
+#[inline]
+pub fn any_hit<T: TriangleTest>(b: &BvhView<'_>, ray: &Ray, ctr: &mut Counters) -> Hit {
+    walk::<T, true>(b, ray, ctr)
+}
+
+/// The walk: a child reference is (`child`, `count`) as in `WideNode`
+/// (`count` 0: wide node `child`; else a leaf).
+pub(crate) fn walk<T: TriangleTest, const ANY: bool>(
+    b: &BvhView<'_>,
+    ray: &Ray,
+    ctr: &mut Counters,
+) -> Hit {
+    let wide = b.wide;
+    if wide.is_empty() {
+        return binary_walk::<T, ANY>(b, ray, ctr);
+    }
+    ctr.rays += 1;
+    let mut best = Hit::MISS;
+    if !ray.is_valid() {
+        return best;
+    }
+    let lanes = RayLanes::splat(&RayLanes::from_ray(ray));
+    let pre = T::prepare(&lanes);
+    let org = ray.org.map(Vec4::splat);
+    let rcp = ray.dir.map(|d| Vec4::splat(1.0 / d));
+    // The sign bit, not a comparison: -0 has its near plane at max.
+    let neg = ray.dir.map(f32::is_sign_negative);
+    let tmin = Vec4::splat(ray.tmin);
+
+    let mut st = [0u64; STACK];
+    let mut st_t = [0.0f32; STACK];
+    let mut sp = 0usize;
+    let (mut child, mut count, mut depth) = (0u32, 0u32, 0usize);
+    loop {
+        if count > 0 {
+            if leaf4::<T, ANY>(b, &lanes, &pre, child, count, depth, &mut best, ctr) {
+                return best;
+            }
+        } else {
+            let n = &wide[child as usize];
+            let tmax = if best.t < ray.tmax { best.t } else { ray.tmax };
+            let (mut t0, mut t1) = (tmin, Vec4::splat(tmax));
+            for a in 0..3 {
+                let (lo, hi) = (Vec4::from_array(n.min[a]), Vec4::from_array(n.max[a]));
+                let (np, fp) = if neg[a] { (hi, lo) } else { (lo, hi) };
+                let near = (np - org[a]) * rcp[a];
+                let far = (fp - org[a]) * rcp[a];
+                t0 = Vec4::select(near.cmpgt(t0), near, t0);
+                t1 = Vec4::select(far.cmplt(t1), far, t1);
+            }
+            ctr.aabb_at(depth + 1, WIDTH as u64);
+            let mut hit = t0.cmple(t1).bitmask();
+            depth += 1;
+            if hit != 0 {
+                if hit & (hit - 1) == 0 {
+                    let c = hit.trailing_zeros() as usize;
+                    (child, count) = (n.child[c], n.count[c]);
+                    continue;
+                }
+                // Order the children hit by entry t (insertion, at most 4),
+                // push all but the nearest farthest first.
+                let ts = t0.to_array();
+                let mut order = [0usize; WIDTH];
+                let mut k = 0;
+                while hit != 0 {
+                    let c = hit.trailing_zeros() as usize;
+                    hit &= hit - 1;
+                    let mut j = k;
+                    while j > 0 && ts[order[j - 1]] > ts[c] {
+                        order[j] = order[j - 1];
+                        j -= 1;
+                    }
+                    order[j] = c;
+                    k += 1;
+                }
+                if sp + k > STACK {
+                    ctr.rays -= 1;
+                    return binary_walk::<T, ANY>(b, ray, ctr);
+                }
+                for &c in order[1..k].iter().rev() {
+                    st[sp] = pack(n.child[c], n.count[c], depth);
+                    st_t[sp] = ts[c];
+                    sp += 1;
+                }
+                (child, count) = (n.child[order[0]], n.count[order[0]]);
+                continue;
+            }
+        }
+        // Pop the next child whose entry is not beyond the nearest hit.
+        loop {
+            if sp == 0 {
+                return best;
+            }
+            sp -= 1;
+            if st_t[sp] <= best.t {
+                let e = st[sp];
+                (child, count) = (e as u32, (e >> 32) as u16 as u32);
+                depth = (e >> 48) as usize;
+                break;
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::accel::bvh::build::build;
+    use crate::accel::bvh::build::testutil::{Store, deep_tris, soup};
+    use crate::accel::bvh::traverse_single::tests::{test_rays, tris_of};
+    use crate::accel::bvh::{BuildQuality, BvhParams};
+    use crate::geom::{Mt, Pt, Scene, TriTest, Wt};
+
+    /// The wide walk answers as the binary walk, bitwise, ray by ray, for
+    /// the nearest hit and the any-hit answer (hit or not).
+    fn check<T: TriangleTest>(v: &[f32], ix: &[u32], views: &[crate::scenes::View], p: &BvhParams) {
+        let scene = Scene::from_f32(v, ix).unwrap();
+        let mut st = Store::new(scene.triangle_count() as usize, true);
+        let mut bvh = st.bvh();
+        let info = build(&mut bvh, &scene, p).unwrap();
+        let view = bvh.view().unwrap();
+        assert!(info.triangles == 0 || p.leaf_size == 1 || info.wide_nodes > 0);
+        let rays = test_rays(&tris_of(&scene), views, 0x51ed ^ ix.len() as u64);
+        let mut ctr = Counters::default();
+        for (k, ray) in rays.iter().enumerate() {
+            let want = binary_walk::<T, false>(&view, ray, &mut ctr);
+            let got = intersect::<T>(&view, ray, &mut ctr);
+            assert!(
+                got.prim == want.prim
+                    && got.t.to_bits() == want.t.to_bits()
+                    && got.u.to_bits() == want.u.to_bits()
+                    && got.v.to_bits() == want.v.to_bits(),
+                "ray {k} {ray:?} ({:?} {:?}): wide {got:?} binary {want:?}",
+                T::KIND,
+                p.quality
+            );
+            assert_eq!(any_hit::<T>(&view, ray, &mut ctr).is_hit(), want.is_hit());
+        }
+    }
+
+    fn check_all(v: &[f32], ix: &[u32], views: &[crate::scenes::View], leaf_size: u32) {
+        for (test, quality) in [
+            (TriTest::MollerTrumbore, BuildQuality::Medium),
+            (TriTest::Watertight, BuildQuality::Low),
+            (TriTest::Projection, BuildQuality::High),
+        ] {
+            let p = BvhParams {
+                leaf_size,
+                test,
+                quality,
+                ..BvhParams::default()
+            };
+            match test {
+                TriTest::MollerTrumbore => check::<Mt>(v, ix, views, &p),
+                TriTest::Watertight => check::<Wt>(v, ix, views, &p),
+                TriTest::Projection => check::<Pt>(v, ix, views, &p),
+            }
+        }
+    }
+
+    #[test]
+    fn wide_matches_binary_builtin() {
+        for &name in crate::scenes::BUILTIN_NAMES {
+            let s = crate::scenes::builtin(name).unwrap();
+            check_all(&s.mesh.vertices, &s.mesh.indices, &s.views, 4);
+        }
+    }
+
+    #[test]
+    fn wide_matches_binary_ties_deep_and_small_leaves() {
+        let s = crate::scenes::builtin("tetra").unwrap();
+        check_all(&s.mesh.vertices, &s.mesh.indices, &s.views, 1);
+        let t = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
+        let mut tris = vec![t; 100];
+        tris.push([[0.0, 0.0, 0.5], [1.0, 0.0, 0.5], [0.0, 1.0, 0.5]]);
+        tris.reverse();
+        let (v, ix) = soup(&tris);
+        check_all(&v, &ix, &[], 4);
+        check_all(&v, &ix, &[], 2);
+        let (v, ix) = soup(&deep_tris());
+        check_all(&v, &ix, &[], 1);
+        check_all(&[], &[], &[], 4);
+    }
+}
