@@ -300,6 +300,12 @@ enum sheaf_method
      * collapses from its binary tree: four child boxes per SIMD test.
      */
     SHEAF_METHOD_BVH_WIDE = 10,
+    /**
+     * BVH, n x n packets, Ranged traversal of the 4-wide tree: all four
+     * children of a node tested per quad (from the root; with an entry
+     * point, or `width` 2, the binary Ranged traversal).
+     */
+    SHEAF_METHOD_BVH_WIDE_RANGED = 11,
 };
 #ifndef __cplusplus
 #if __STDC_VERSION__ >= 202311L

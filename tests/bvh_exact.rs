@@ -23,7 +23,12 @@ fn bvh_cases() -> Vec<(Method, usize, EntrySearch)> {
         (Method::BvhSimd, 2, EntrySearch::None),
         (Method::BvhWide, 2, EntrySearch::None),
     ];
-    for m in [Method::BvhMasked, Method::BvhRanged, Method::BvhPartition] {
+    for m in [
+        Method::BvhMasked,
+        Method::BvhRanged,
+        Method::BvhPartition,
+        Method::BvhWideRanged,
+    ] {
         cases.extend([4, 8, 16, 32].map(|n| (m, n, EntrySearch::None)));
     }
     cases
@@ -237,6 +242,7 @@ fn context_calls_and_failed_builds() {
         Method::BvhMasked,
         Method::BvhRanged,
         Method::BvhPartition,
+        Method::BvhWideRanged,
     ] {
         for n in [4, 8, 16, 32] {
             ctx.trace_with(&TraceParams::bvh(m, n), &rays, &mut hits)

@@ -143,7 +143,12 @@ fn methods(sides: &[u32]) -> Vec<TraceParams> {
     let mut v = Vec::new();
     for &n in sides {
         v.push(TraceParams::cgt(n));
-        for m in [Method::BvhMasked, Method::BvhRanged, Method::BvhPartition] {
+        for m in [
+            Method::BvhMasked,
+            Method::BvhRanged,
+            Method::BvhPartition,
+            Method::BvhWideRanged,
+        ] {
             v.push(TraceParams::bvh(m, n));
         }
         for e in [EntrySearch::None, EntrySearch::Mlrta, EntrySearch::Aepsa] {

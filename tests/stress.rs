@@ -213,7 +213,12 @@ fn cases_on(single: Method, full: bool) -> Vec<TraceParams> {
                 v.push(e(Method::BvhPartition, 16, EntrySearch::Aepsa));
                 return v;
             }
-            for m in [Method::BvhMasked, Method::BvhRanged, Method::BvhPartition] {
+            for m in [
+                Method::BvhMasked,
+                Method::BvhRanged,
+                Method::BvhPartition,
+                Method::BvhWideRanged,
+            ] {
                 v.push(e(m, 4, EntrySearch::Aepsa));
                 for &x in EntrySearch::ALL {
                     v.push(e(m, 8, x));

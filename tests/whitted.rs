@@ -792,7 +792,12 @@ fn bvh_traversals_render_the_same_whitted_frames() {
             params,
             TraceParams::bvh(Method::BvhSimd, 2),
         )];
-        for m in [Method::BvhMasked, Method::BvhRanged, Method::BvhPartition] {
+        for m in [
+            Method::BvhMasked,
+            Method::BvhRanged,
+            Method::BvhPartition,
+            Method::BvhWideRanged,
+        ] {
             for n in [4, 16, 32] {
                 for culling in [true, false] {
                     let p = TraceParams {

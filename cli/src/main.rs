@@ -122,6 +122,8 @@ pub enum MethodArg {
     GridCgt,
     /// BVH, single-ray traversal (the BVH baseline).
     BvhSingle,
+    /// BVH, single rays through the 4-wide tree.
+    BvhWide,
     /// BVH, 2x2 SIMD rays.
     BvhSimd,
     /// BVH, n x n packets, Masked traversal.
@@ -130,6 +132,8 @@ pub enum MethodArg {
     BvhRanged,
     /// BVH, n x n packets, Partition traversal.
     BvhPartition,
+    /// BVH, n x n packets, Ranged traversal of the 4-wide tree.
+    BvhWideRanged,
     /// kd-tree, single-ray traversal (the kd baseline).
     KdSingle,
     /// kd-tree, 2x2 SIMD rays.
@@ -144,10 +148,12 @@ impl MethodArg {
             MethodArg::GridDda => sheaf::Method::GridDda,
             MethodArg::GridCgt => sheaf::Method::GridCgt,
             MethodArg::BvhSingle => sheaf::Method::BvhSingle,
+            MethodArg::BvhWide => sheaf::Method::BvhWide,
             MethodArg::BvhSimd => sheaf::Method::BvhSimd,
             MethodArg::BvhMasked => sheaf::Method::BvhMasked,
             MethodArg::BvhRanged => sheaf::Method::BvhRanged,
             MethodArg::BvhPartition => sheaf::Method::BvhPartition,
+            MethodArg::BvhWideRanged => sheaf::Method::BvhWideRanged,
             MethodArg::KdSingle => sheaf::Method::KdSingle,
             MethodArg::KdSimd => sheaf::Method::KdSimd,
             MethodArg::KdPacket => sheaf::Method::KdPacket,

@@ -36,6 +36,10 @@ pub enum Method {
     /// BVH, single rays through the 4-wide tree collapsed from the built
     /// one (`accel::bvh::traverse_wide`): four child boxes per SIMD test.
     BvhWide = 10,
+    /// BVH, n x n packets, Ranged traversal of the 4-wide tree
+    /// (`accel::bvh::traverse_wide_ranged`): all four children tested at
+    /// each node.
+    BvhWideRanged = 11,
 }
 
 impl Method {
@@ -51,6 +55,7 @@ impl Method {
         Method::KdSimd,
         Method::KdPacket,
         Method::BvhWide,
+        Method::BvhWideRanged,
     ];
     pub fn name(self) -> &'static str {
         match self {
@@ -65,6 +70,7 @@ impl Method {
             Method::KdSimd => "kd-simd",
             Method::KdPacket => "kd-packet",
             Method::BvhWide => "bvh-wide",
+            Method::BvhWideRanged => "bvh-wide-ranged",
         }
     }
     /// Whether the method traces n x n packets (and so uses `TraceParams::packet`).
@@ -75,6 +81,7 @@ impl Method {
                 | Method::BvhMasked
                 | Method::BvhRanged
                 | Method::BvhPartition
+                | Method::BvhWideRanged
                 | Method::KdPacket
         )
     }

@@ -36,6 +36,10 @@ pub enum sheaf_method {
     /// BVH, single rays through the 4-wide tree every BVH build and refit
     /// collapses from its binary tree: four child boxes per SIMD test.
     BvhWide = 10,
+    /// BVH, n x n packets, Ranged traversal of the 4-wide tree: all four
+    /// children of a node tested per quad (from the root; with an entry
+    /// point, or `width` 2, the binary Ranged traversal).
+    BvhWideRanged = 11,
 }
 
 impl sheaf_method {
@@ -54,6 +58,7 @@ impl sheaf_method {
             Method::KdSimd => sheaf_method::KdSimd,
             Method::KdPacket => sheaf_method::KdPacket,
             Method::BvhWide => sheaf_method::BvhWide,
+            Method::BvhWideRanged => sheaf_method::BvhWideRanged,
         }
     }
 

@@ -102,7 +102,11 @@ pub fn check_class(
         // rays are 4-wide or scalar at every level).
         let wide = matches!(
             method,
-            Method::BvhMasked | Method::BvhRanged | Method::BvhPartition | Method::KdPacket
+            Method::BvhMasked
+                | Method::BvhRanged
+                | Method::BvhPartition
+                | Method::BvhWideRanged
+                | Method::KdPacket
         );
         for &(culling, kind, isa) in &combos {
             // Lane widths are checked from the root (entry points start

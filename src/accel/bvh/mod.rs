@@ -17,6 +17,7 @@
 //! | `traverse_partition.rs` | section 3.3, Appendix A.2: Partition traversal (index list `I` partitioned in place by `partRays`) |
 //! | `wide.rs` | the 4-wide tree (`WideNode`): every built or refit binary tree collapsed into nodes of four children with their boxes side by side (Dammertz et al. 2008; Wald et al. 2008), in the reference pool |
 //! | `traverse_wide.rs` | the single ray through the 4-wide tree (`Method::BvhWide`): four boxes per SIMD test; the single-ray fallback of every packet traversal |
+//! | `traverse_wide_ranged.rs` | section 3.2's Ranged traversal of n x n packets through the 4-wide tree (`Method::BvhWideRanged`): every child of a node tested per quad, children front to back |
 //! | `refit.rs` | refit: the built tree's boxes recomputed bottom-up for moved vertices (Embree's REFIT quality; the paper rebuilds every frame) |
 //! | `entry.rs` | the BVH as an `accel::entry::EntryTree`: MLRTA/AEPSA entry points (AEPSA paper, section 8), where the three packet traversals can start |
 //!
@@ -46,6 +47,7 @@ pub mod traverse_ranged;
 pub mod traverse_simd;
 pub mod traverse_single;
 pub mod traverse_wide;
+pub mod traverse_wide_ranged;
 pub mod wide;
 
 use crate::accel::entry::EntrySearch;
@@ -402,9 +404,9 @@ impl BvhView<'_> {
 
 /// The BVH under the family contract: the single-ray stack traversal, the
 /// 4-wide single ray (`Method::BvhWide`, also the packets' fallback), the
-/// 2x2 SIMD ray (`Method::BvhSimd`) and the three large-packet traversals
-/// (Masked, Ranged, Partition), those from an entry point when `p.entry`
-/// asks for one.
+/// 2x2 SIMD ray (`Method::BvhSimd`) and the large-packet traversals
+/// (Masked, Ranged, Partition, and Ranged on the 4-wide tree), those from
+/// an entry point when `p.entry` asks for one.
 impl crate::accel::Accel for BvhView<'_> {
     #[inline]
     fn test(&self) -> TriTest {
@@ -446,7 +448,7 @@ impl crate::accel::Accel for BvhView<'_> {
         use crate::accel::packet::{self, Start};
         let large = matches!(
             p.method,
-            Method::BvhMasked | Method::BvhRanged | Method::BvhPartition
+            Method::BvhMasked | Method::BvhRanged | Method::BvhPartition | Method::BvhWideRanged
         );
         if p.method == Method::BvhWide {
             let wide = |r: &Ray, c: &mut Counters| traverse_wide::walk::<T, ANY>(self, r, c);
@@ -481,6 +483,12 @@ impl crate::accel::Accel for BvhView<'_> {
             }
             (Method::BvhMasked, true) => {
                 traverse_masked::occluded::<T>(self, rays, active, hits, o, e, slot, ctr)
+            }
+            (Method::BvhWideRanged, false) => {
+                traverse_wide_ranged::intersect::<T>(self, rays, active, hits, o, e, slot, ctr)
+            }
+            (Method::BvhWideRanged, true) => {
+                traverse_wide_ranged::occluded::<T>(self, rays, active, hits, o, e, slot, ctr)
             }
             (Method::BvhRanged, false) => {
                 traverse_ranged::intersect::<T>(self, rays, active, hits, o, e, slot, ctr)

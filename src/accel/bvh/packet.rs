@@ -416,6 +416,19 @@ impl<'s, T: TriangleTest> Packet<'s, T> {
         }
     }
 
+    /// A key ordering boxes front to back along the packet's direction
+    /// (the sum of the box's min and max, signed by the direction sum's
+    /// sign on each axis): the visiting order of a wide node's children.
+    #[inline(always)]
+    pub(crate) fn near_key(&self, n: &BvhNode) -> f32 {
+        let mut k = 0.0;
+        for a in 0..3 {
+            let c = n.min[a] + n.max[a];
+            k += if self.neg[a] { -c } else { c };
+        }
+        k
+    }
+
     /// `rayIntersectsAABB(R[q], B)`: the lanes of quad `q` alive in `n`'s
     /// box (no test, and none, for a quad without live lanes).
     #[inline(always)]

@@ -70,7 +70,7 @@ pub fn occluded<T: TriangleTest>(
 
 /// `getFirstHit`: the first quad from `ia` on alive in `n`'s box, or `nq`.
 #[inline(always)]
-fn first_hit<T: TriangleTest>(
+pub(crate) fn first_hit<T: TriangleTest>(
     p: &Packet<'_, T>,
     n: &BvhNode,
     ia: usize,
@@ -95,7 +95,7 @@ fn first_hit<T: TriangleTest>(
 /// `getLastHit`: one past the last quad after `ia` alive in `n`'s box, or
 /// `ia + 1`.
 #[inline(always)]
-fn last_hit<T: TriangleTest>(
+pub(crate) fn last_hit<T: TriangleTest>(
     p: &Packet<'_, T>,
     n: &BvhNode,
     ia: usize,
@@ -110,6 +110,42 @@ fn last_hit<T: TriangleTest>(
         ie -= 1;
     }
     ia + 1
+}
+
+/// Appendix A.1's leaf: every quad in `[ia, ie)` against each stored
+/// triangle of `leaf` (first, count) the frustum does not cull. True when
+/// every lane is done (occlusion).
+// The packet and its quad groups, the leaf and its quad range, counters.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+pub(crate) fn test_leaf<L: Wide, T: TriangleTest, const ANY: bool>(
+    p: &mut Packet<'_, T>,
+    b: &BvhView<'_>,
+    hits: &mut [Hit4],
+    grp: &[crate::accel::group::Group<L, T>],
+    leaf: (u32, u32),
+    (ia, ie): (usize, usize),
+    depth: usize,
+    ctr: &mut Counters,
+) -> bool {
+    let first = leaf.0 as usize;
+    for j in first..first + leaf.1 as usize {
+        if p.frustum_culls(b, j, ctr) {
+            continue;
+        }
+        let id = b.tri_ids[j];
+        // The aligned groups of `L::G` quads overlapping [ia, ie).
+        let groups = ia / L::G..ie.div_ceil(L::G);
+        for g in groups {
+            let g0 = g * L::G;
+            let mut sel = 0u32;
+            for k in 0..L::G {
+                sel |= u32::from((ia..ie).contains(&(g0 + k))) << k;
+            }
+            p.test_group::<L, ANY>(b, hits, &grp[g], g, sel, j, id, depth, ctr);
+        }
+    }
+    ANY && p.done()
 }
 
 /// Appendix A.1.
@@ -150,24 +186,8 @@ impl Walk for Ranged {
                     continue;
                 }
                 let ie = last_hit(p, n, ia, depth, ctr);
-                let first = n.first as usize;
-                for j in first..first + n.count() as usize {
-                    if p.frustum_culls(b, j, ctr) {
-                        continue;
-                    }
-                    let id = b.tri_ids[j];
-                    // The aligned groups of `L::G` quads overlapping [ia, ie).
-                    let groups = ia / L::G..ie.div_ceil(L::G);
-                    for g in groups {
-                        let g0 = g * L::G;
-                        let mut sel = 0u32;
-                        for k in 0..L::G {
-                            sel |= u32::from((ia..ie).contains(&(g0 + k))) << k;
-                        }
-                        p.test_group::<L, ANY>(b, hits, &grp[g], g, sel, j, id, depth, ctr);
-                    }
-                }
-                if ANY && p.done() {
+                let leaf = (n.first, n.count());
+                if test_leaf::<L, T, ANY>(p, b, hits, grp, leaf, (ia, ie), depth, ctr) {
                     return;
                 }
             }

@@ -1,0 +1,252 @@
+//! Ranged traversal of large packets through the 4-wide tree
+//! (`Method::BvhWideRanged`): the BVH paper's Ranged traversal (section
+//! 3.2, Appendix A.1; `traverse_ranged`) with each wide node's children
+//! tested at once. At a wide node every child gets `getFirstHit` from the
+//! node's first alive quad `i_a` (the frustum consulted only when `R[i_a]`
+//! misses it); the children some quad enters are visited front to back
+//! along the packet's direction, the far ones pushed with their own `i_a`
+//! and tested again when popped (the hits found meanwhile may cull them).
+//! A leaf child gets `getLastHit` and the Ranged leaf test. The wide tree
+//! is Wald, Benthin, Boulos 2008's (section 3) and Dammertz et al. 2008's
+//! (`wide.rs`); traversing it with large packets is what issue 18 asks of
+//! the packet traversals.
+//!
+//! # Exactness
+//! The per-quad box tests, the frustum tests and the leaf test are
+//! Ranged's (`Packet::alive`, `frustum_admits`, `test_leaf`), on boxes that
+//! are the binary tree's bit for bit: a child is skipped only when no quad
+//! from `i_a` on has a live lane entering it by its nearest hit so far,
+//! so the results equal `traverse_single` lane by lane, bitwise.
+//!
+//! # Deviations
+//! - Packets starting at an entry point (MLRTA, AEPSA: binary nodes), and
+//!   BVHs without a wide tree (`BvhParams::width` 2), run the binary
+//!   Ranged traversal.
+//! - The children's order is by the sum of each box's corners along the
+//!   packet's direction signs (the wide nodes keep no split axis).
+
+use super::packet::{Packet, Walk, dispatch};
+use super::traverse_ranged::{Ranged, first_hit, last_hit, test_leaf};
+use super::wide::{WIDTH, WideNode};
+use super::{BvhNode, BvhView, MAX_DEPTH, TriangleTest};
+use crate::accel::entry::EntryPoint;
+use crate::accel::method::TraceParams;
+use crate::accel::slot::Slot;
+use crate::counters::Counters;
+use crate::geom::{Hit4, M4, Ray4, Wide};
+
+/// Stack entries: at most `WIDTH - 1` pushed per wide level.
+const STACK: usize = (WIDTH - 1) * MAX_DEPTH + 1;
+
+/// Nearest hits of the active lanes of `rays` into `hits`, Ranged traversal
+/// of the 4-wide tree (contract of `traverse_masked::intersect`).
+// The packet, its options and where it starts, and the slot's scratch.
+#[allow(clippy::too_many_arguments)]
+pub fn intersect<T: TriangleTest>(
+    b: &BvhView<'_>,
+    rays: &[Ray4],
+    active: &[M4],
+    hits: &mut [Hit4],
+    opt: &TraceParams,
+    entry: Option<&EntryPoint>,
+    slot: &mut Slot<'_>,
+    ctr: &mut Counters,
+) {
+    dispatch::<WideRanged, T, false>(b, rays, active, hits, opt, entry, slot, ctr)
+}
+
+/// Occlusion of the active lanes, Ranged traversal of the 4-wide tree.
+// The packet, its options and where it starts, and the slot's scratch.
+#[allow(clippy::too_many_arguments)]
+pub fn occluded<T: TriangleTest>(
+    b: &BvhView<'_>,
+    rays: &[Ray4],
+    active: &[M4],
+    hits: &mut [Hit4],
+    opt: &TraceParams,
+    entry: Option<&EntryPoint>,
+    slot: &mut Slot<'_>,
+    ctr: &mut Counters,
+) {
+    dispatch::<WideRanged, T, true>(b, rays, active, hits, opt, entry, slot, ctr)
+}
+
+/// Child `c`'s box as a binary node (what the packet's tests read).
+#[inline(always)]
+fn child_box(n: &WideNode, c: usize) -> BvhNode {
+    BvhNode {
+        min: [n.min[0][c], n.min[1][c], n.min[2][c]],
+        first: 0,
+        max: [n.max[0][c], n.max[1][c], n.max[2][c]],
+        meta: 0,
+    }
+}
+
+/// What the walk does next.
+enum Step {
+    /// Test the children of wide node `w` from quad `ia` (depth of `w`).
+    Expand {
+        w: usize,
+        ia: usize,
+        depth: usize,
+    },
+    /// Visit child `c` of wide node `w` from quad `ia`; `retest`: its
+    /// `getFirstHit` is stale (it was pushed).
+    Child {
+        w: usize,
+        c: usize,
+        ia: usize,
+        depth: usize,
+        retest: bool,
+    },
+    Pop,
+}
+
+pub(crate) struct WideRanged;
+
+impl Walk for WideRanged {
+    #[inline(always)]
+    fn walk<L: Wide, T: TriangleTest, const ANY: bool>(
+        p: &mut Packet<'_, T>,
+        b: &BvhView<'_>,
+        rays: &[Ray4],
+        hits: &mut [Hit4],
+        start: (usize, usize),
+        slot: &mut Slot<'_>,
+        ctr: &mut Counters,
+    ) {
+        if start != (0, 0) || b.wide.is_empty() {
+            return Ranged::walk::<L, T, ANY>(p, b, rays, hits, start, slot, ctr);
+        }
+        let wide = b.wide;
+        let nq = p.nq;
+        let (grp, _) = p.groups::<L>(rays, slot);
+        let mut st_w = [0u32; STACK];
+        let mut st_c = [0u8; STACK];
+        let mut st_ia = [0u16; STACK];
+        let mut st_depth = [0u8; STACK];
+        let mut sp = 0usize;
+        let mut step = Step::Expand {
+            w: 0,
+            ia: 0,
+            depth: 0,
+        };
+        loop {
+            step = match step {
+                Step::Pop => {
+                    if sp == 0 {
+                        return;
+                    }
+                    sp -= 1;
+                    Step::Child {
+                        w: st_w[sp] as usize,
+                        c: st_c[sp] as usize,
+                        ia: st_ia[sp] as usize,
+                        depth: st_depth[sp] as usize,
+                        retest: true,
+                    }
+                }
+                Step::Child {
+                    w,
+                    c,
+                    mut ia,
+                    depth,
+                    retest,
+                } => {
+                    let n = &wide[w];
+                    let cb = child_box(n, c);
+                    if retest {
+                        ia = first_hit(p, &cb, ia, depth, ctr);
+                        if ia >= nq {
+                            step = Step::Pop;
+                            continue;
+                        }
+                    }
+                    if n.count[c] == 0 {
+                        Step::Expand {
+                            w: n.child[c] as usize,
+                            ia,
+                            depth,
+                        }
+                    } else {
+                        let ie = last_hit(p, &cb, ia, depth, ctr);
+                        let leaf = (n.child[c], n.count[c]);
+                        if test_leaf::<L, T, ANY>(p, b, hits, grp, leaf, (ia, ie), depth, ctr) {
+                            return;
+                        }
+                        Step::Pop
+                    }
+                }
+                Step::Expand { w, ia, depth } => {
+                    let n = &wide[w];
+                    // (order key, child, its first alive quad), sorted.
+                    let mut kids = [(0.0f32, 0usize, 0usize); WIDTH];
+                    let mut k = 0;
+                    for c in 0..WIDTH {
+                        if n.child[c] == WideNode::EMPTY {
+                            continue;
+                        }
+                        let cb = child_box(n, c);
+                        let ic = first_hit(p, &cb, ia, depth + 1, ctr);
+                        if ic < nq {
+                            let key = p.near_key(&cb);
+                            let mut j = k;
+                            while j > 0 && kids[j - 1].0 > key {
+                                kids[j] = kids[j - 1];
+                                j -= 1;
+                            }
+                            kids[j] = (key, c, ic);
+                            k += 1;
+                        }
+                    }
+                    if k == 0 {
+                        Step::Pop
+                    } else {
+                        for &(_, c, ic) in kids[1..k].iter().rev() {
+                            st_w[sp] = w as u32;
+                            st_c[sp] = c as u8;
+                            st_ia[sp] = ic as u16;
+                            st_depth[sp] = (depth + 1) as u8;
+                            sp += 1;
+                        }
+                        Step::Child {
+                            w,
+                            c: kids[0].1,
+                            ia: kids[0].2,
+                            depth: depth + 1,
+                            retest: false,
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::WideRanged;
+    use crate::accel::bvh::traverse_masked::tests::{
+        check_builtin, check_edge_cases, check_lattice,
+    };
+
+    #[test]
+    fn wide_ranged_matches_single_tetra_gears() {
+        check_builtin::<WideRanged>(&["tetra", "gears"]);
+    }
+
+    #[test]
+    fn wide_ranged_matches_single_balls_animated() {
+        check_builtin::<WideRanged>(&["balls", "animated"]);
+    }
+
+    #[test]
+    fn wide_ranged_edge_cases() {
+        check_edge_cases::<WideRanged>();
+    }
+
+    #[test]
+    fn wide_ranged_lattice() {
+        check_lattice::<WideRanged>();
+    }
+}
