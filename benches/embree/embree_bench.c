@@ -1248,7 +1248,7 @@ static void time_sheaf_builds(Bench *b)
     if (!b->o->profile) {
         double t[MAX_REPS];
         /* The refit of the binary tree alone (width 2; a refit also
-         * re-collapses the wide tree of a width-4 build), as the animation
+         * refits the wide tree of a width-4 build), as the animation
          * traces it with binary packets; then the SAH tree again. */
         check_sheaf(b->ctx, sheaf_build_width(b->ctx, S_BVH, 2), "build");
         for (int r = 0; r < b->reps; r++) {

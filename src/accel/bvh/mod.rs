@@ -15,7 +15,7 @@
 //! | `traverse_masked.rs` | section 3.1, Figure 2: Masked traversal, and its switch to Partition when too many box tests find quads dead |
 //! | `traverse_ranged.rs` | section 3.2, Appendix A.1: Ranged traversal (first alive ray `i_a` on the stack, `getFirstHit`/`getLastHit`) |
 //! | `traverse_partition.rs` | section 3.3, Appendix A.2: Partition traversal (index list `I` partitioned in place by `partRays`) |
-//! | `wide.rs` | the 4-wide tree (`WideNode`): every built or refit binary tree collapsed into nodes of four children with their boxes side by side (Dammertz et al. 2008; Wald et al. 2008), in the reference pool |
+//! | `wide.rs` | the 4-wide tree (`WideNode`): every built binary tree collapsed (and refit in place) into nodes of four children with their boxes side by side (Dammertz et al. 2008; Wald et al. 2008), in the reference pool |
 //! | `traverse_wide.rs` | the single ray through the 4-wide tree (`Method::BvhWide`): four boxes per SIMD test; the single-ray fallback of every packet traversal |
 //! | `traverse_wide_ranged.rs` | section 3.2's Ranged traversal of n x n packets through the 4-wide tree (`Method::BvhWideRanged`): every child of a node tested per quad, children front to back |
 //! | `refit.rs` | refit: the built tree's boxes recomputed bottom-up for moved vertices (Embree's REFIT quality; the paper rebuilds every frame) |
@@ -132,11 +132,11 @@ pub struct BvhParams {
     /// hold up to `leaf_size` triangles).
     pub quality: BuildQuality,
     /// Children per node of the tree the single rays walk: 4 (the default)
-    /// collapses every built or refit tree into the 4-wide tree
-    /// (`wide.rs`, `Method::BvhWide`, the packets' single-ray fallback);
-    /// 2 keeps the binary tree alone, which saves the collapse (about 1.3
-    /// ms per 46k binary nodes) on trees rebuilt every frame and traced by
-    /// packets only.
+    /// collapses every built tree into the 4-wide tree (`wide.rs`,
+    /// `Method::BvhWide`, `Method::BvhWideRanged`, the packets' single-ray
+    /// fallback), which a refit refits in place; 2 keeps the binary tree
+    /// alone, which saves the collapse (about 1.3 ms per 46k binary nodes)
+    /// on trees rebuilt every frame and traced by binary packets only.
     pub width: u32,
 }
 
@@ -350,8 +350,8 @@ impl<'a> Bvh<'a> {
     pub fn info(&self) -> Option<&BvhInfo> {
         self.info.as_ref()
     }
-    /// Record a successful build or refit: its binary tree is collapsed
-    /// into the 4-wide tree (`wide.rs`) in the reference pool, free now.
+    /// Record a successful build: its binary tree is collapsed into the
+    /// 4-wide tree (`wide.rs`) in the reference pool, free now.
     pub(crate) fn commit(&mut self, mut info: BvhInfo) -> BvhInfo {
         let nodes = &self.pools.nodes[..info.nodes as usize];
         info.wide_nodes = if self.params.width == wide::WIDTH as u32 {
@@ -361,6 +361,17 @@ impl<'a> Bvh<'a> {
         };
         self.info = Some(info);
         info
+    }
+    /// Record a successful refit (`refit.rs`) whose stored triangles and
+    /// binary boxes are written: the wide tree keeps its shape, and its
+    /// boxes are refit too (`wide::refit`), padded by `pad`.
+    pub(crate) fn commit_refit(&mut self, info: BvhInfo, pad: glam::Vec3A) {
+        let n = info.wide_nodes as usize;
+        if n > 0 {
+            let tris = &self.pools.tris[..info.triangles as usize];
+            wide::refit(&mut wide_pool(self.pools.refs)[..n], tris, pad);
+        }
+        self.info = Some(info);
     }
     /// The last successful build, if any.
     pub fn view(&self) -> Option<BvhView<'_>> {

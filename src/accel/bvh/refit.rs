@@ -229,6 +229,6 @@ pub fn refit(bvh: &mut Bvh<'_>, scene: &Scene<'_>) -> Result<RefitInfo> {
         max: hi.into(),
     };
     out.sah_after = info.sah_cost;
-    bvh.commit(info);
+    bvh.commit_refit(info, pad);
     Ok(out)
 }

@@ -5,14 +5,15 @@
 //! Rays", section 2; Wald, Benthin, Boulos 2008, "Getting Rid of Packets",
 //! section 3: the collapse of a binary SAH tree; Embree's BVH4).
 //!
-//! Every build and every refit collapses its binary tree into the BVH's
-//! reference pool (`BvhPools::refs`), which the builds only use as scratch
+//! Every build collapses its binary tree into the BVH's reference pool (`BvhPools::refs`), which the builds only use as scratch
 //! and which is free once a build is done: the 4-wide tree costs no memory
 //! beyond the binary tree's 140 bytes per triangle. Starting from a binary
 //! inner node, the inner child with the largest box surface is replaced by
 //! its two children until there are four (or only leaves are left); the
 //! binary leaves stay the leaves, so the triangles keep their leaf order
-//! and the stored triangles are shared by both trees.
+//! and the stored triangles are shared by both trees. A refit keeps the
+//! wide tree's shape and recomputes its boxes bottom-up (`refit`), as it
+//! does the binary tree's.
 //!
 //! # Exactness
 //! A wide node's child boxes are the binary nodes' boxes, bit for bit
@@ -30,7 +31,9 @@
 //!   the wide single ray walks the binary tree: same answers, binary speed.
 
 use super::{BvhNode, MAX_DEPTH};
+use crate::geom::TriVerts;
 use bytemuck::{Pod, Zeroable};
+use glam::Vec3A;
 
 /// Children of a wide node.
 pub const WIDTH: usize = 4;
@@ -182,6 +185,46 @@ pub(crate) fn collapse(nodes: &[BvhNode], out: &mut [WideNode], merge: u32) -> u
     used as u32
 }
 
+/// Refit the wide tree `wide` (collapsed from a tree since refit, same
+/// shape) to the stored triangles `tris`: a leaf child's box is its
+/// triangles' box padded by `pad`, an inner child's the union of its wide
+/// node's children. Children follow their parent, so one reverse pass
+/// meets them first. Bitwise the boxes a collapse of the refit binary tree
+/// would copy: the union of padded boxes is the padded union (`fit_boxes`).
+pub(crate) fn refit(wide: &mut [WideNode], tris: &[TriVerts], pad: Vec3A) {
+    for i in (0..wide.len()).rev() {
+        for c in 0..WIDTH {
+            let (child, count) = (wide[i].child[c], wide[i].count[c]);
+            if child == WideNode::EMPTY {
+                continue;
+            }
+            let (lo, hi) = if count > 0 {
+                let first = child as usize;
+                let (mut a, mut b) = (Vec3A::splat(f32::INFINITY), Vec3A::splat(f32::NEG_INFINITY));
+                for t in &tris[first..first + count as usize] {
+                    for v in [t.v0, t.v1, t.v2] {
+                        (a, b) = (a.min(Vec3A::from(v)), b.max(Vec3A::from(v)));
+                    }
+                }
+                (a - pad, b + pad)
+            } else {
+                // Empty slots hold +inf / -inf: they leave the union alone.
+                let w = &wide[child as usize];
+                let lo = |a: usize| w.min[a].iter().copied().fold(f32::INFINITY, f32::min);
+                let hi = |a: usize| w.max[a].iter().copied().fold(f32::NEG_INFINITY, f32::max);
+                (
+                    Vec3A::new(lo(0), lo(1), lo(2)),
+                    Vec3A::new(hi(0), hi(1), hi(2)),
+                )
+            };
+            for a in 0..3 {
+                wide[i].min[a][c] = lo[a];
+                wide[i].max[a][c] = hi[a];
+            }
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -267,6 +310,26 @@ mod tests {
                 assert!(info.wide_nodes <= info.nodes / 2 + 1);
             }
         }
+    }
+
+    /// A refit moves every box of the wide tree with the binary tree's:
+    /// every wide child box is still a binary node's box, bit for bit.
+    #[test]
+    fn refit_keeps_the_wide_boxes_the_binary_ones() {
+        let mut a = crate::scenes::animated::Animated::new(1);
+        let n = a.mesh.indices.len() / 3;
+        let mut st = Store::new(n, false);
+        let mut bvh = st.bvh();
+        let scene = Scene::from_f32(&a.mesh.vertices, &a.mesh.indices).unwrap();
+        let before = build(&mut bvh, &scene, &BvhParams::default()).unwrap();
+        let boxes0 = bvh.view().unwrap().wide.to_vec();
+        a.set_time(2.0);
+        let scene = Scene::from_f32(&a.mesh.vertices, &a.mesh.indices).unwrap();
+        crate::accel::bvh::refit::refit(&mut bvh, &scene).unwrap();
+        let v = bvh.view().unwrap();
+        assert_eq!(v.info.wide_nodes, before.wide_nodes);
+        assert_ne!(v.wide, &boxes0[..], "the boxes moved");
+        check(v.nodes, v.wide);
     }
 
     #[test]
