@@ -208,6 +208,7 @@ fn cases_on(single: Method, full: bool) -> Vec<TraceParams> {
         }
         Method::BvhSingle => {
             v.push(TraceParams::bvh(Method::BvhSimd, 2));
+            v.push(TraceParams::bvh(Method::BvhWide, 2));
             if !full {
                 v.push(e(Method::BvhRanged, 8, EntrySearch::None));
                 v.push(e(Method::BvhPartition, 16, EntrySearch::Aepsa));

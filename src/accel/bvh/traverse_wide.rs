@@ -19,7 +19,14 @@
 //! # Deviations
 //! - No root box test: the root's four children are tested at once, and a
 //!   ray missing the root misses them all.
-//! - Without a wide tree (`BvhInfo::wide_nodes` 0) the binary walk runs.
+//! - Without a wide tree (`BvhInfo::wide_nodes` 0) the binary walk runs,
+//!   and so it does for rays whose direction is tiny (`fallback::TINY_DIR`,
+//!   subnormal components): their slab terms overflow to infinity where the
+//!   true entry (~1e40) is beyond f32, so box tests are no longer
+//!   conservative, and the triangle test finds hits at rounding-noise t in
+//!   boxes the binary walk rejects but a merged wide leaf exposes (measured:
+//!   700 lanes on the stress suite's skinny-diagonal scene). The binary
+//!   walk's answer is the reference for them (`tests/stress.rs`).
 //! - Counters count wide levels as depth, and 4 box tests per wide node.
 
 use super::traverse_single::{leaf4, walk as binary_walk};
@@ -65,7 +72,9 @@ pub(crate) fn walk<T: TriangleTest, const ANY: bool>(
     ctr: &mut Counters,
 ) -> Hit {
     let wide = b.wide;
-    if wide.is_empty() {
+    let d = ray.dir.map(f32::abs);
+    let tiny = d[0].max(d[1]).max(d[2]) < crate::accel::fallback::TINY_DIR;
+    if wide.is_empty() || tiny {
         return binary_walk::<T, ANY>(b, ray, ctr);
     }
     ctr.rays += 1;
