@@ -270,6 +270,32 @@ fn context_calls_and_failed_builds() {
     );
     ctx.trace(Method::BvhRanged, &rays, &mut hits).unwrap();
     assert_eq!(hits, want);
+    // A build that fails after writing the reference pool, where the wide
+    // tree lives (the projection test without its pool, at both qualities),
+    // keeps the binary tree and drops the wide one: the wide methods still
+    // answer `want`, and so does a refit of that tree.
+    assert!(!l.projection_test);
+    for quality in [BuildQuality::Medium, BuildQuality::Low] {
+        let p = BvhParams {
+            test: TriTest::Projection,
+            quality,
+            ..BvhParams::default()
+        };
+        assert!(ctx.build_bvh(&s.scene(), &p).is_err());
+        for m in [Method::BvhWide, Method::BvhWideRanged, Method::BvhRanged] {
+            ctx.trace_with(&TraceParams::bvh(m, 8), &rays, &mut hits)
+                .unwrap();
+            assert_eq!(hits, want, "{} after a failed {quality:?} build", m.name());
+        }
+        ctx.refit_bvh(&s.scene(), &sheaf::RefitParams::default())
+            .unwrap();
+        ctx.trace_with(&TraceParams::bvh(Method::BvhWide, 8), &rays, &mut hits)
+            .unwrap();
+        assert_eq!(hits, want);
+    }
+    // A rebuild brings the wide tree back.
+    let info = ctx.build_bvh(&s.scene(), &BvhParams::default()).unwrap();
+    assert!(info.wide_nodes > 0);
     // No BVH pools: a clear error.
     let mut l2 = l;
     l2.structures = Limits::GRID;

@@ -710,7 +710,10 @@ pub(super) fn split<'p>(
 }
 
 /// Rebuild `bvh` from `scene` with the build `p.quality` names. On error
-/// nothing a traversal reads changes and the previous build stays valid.
+/// the previous build stays valid and every traversal answers as before;
+/// an error found after validation drops its 4-wide tree (the builds
+/// write the reference pool it lives in), so its wide walks take the
+/// binary tree until the next build.
 ///
 /// Errors: invalid `p`; `Capacity { pool: Triangles }` when the scene has
 /// more triangles than the pools hold (ids, stored triangles, nodes); the
@@ -729,6 +732,10 @@ pub fn build_with(
     par: &dyn crate::mem::par::Par,
 ) -> Result<BvhInfo> {
     p.validate()?;
+    // Both builds write the reference pool, where the wide tree lives,
+    // before their last checks: a build that fails leaves the previous
+    // binary tree valid and no wide tree (its walks take the binary one).
+    bvh.drop_wide();
     let pools = bvh.pools_mut();
     if p.quality == BuildQuality::Low {
         let info = super::build_morton::build(pools, scene, p, par)?;
@@ -1136,8 +1143,17 @@ mod tests {
                 "{bad:?}"
             );
         }
+        // The binary tree is kept; the wide one is dropped by a build that
+        // got past validation (its pool was overwritten).
         let v = bvh.view().unwrap();
-        assert_eq!(*v.info, first);
+        assert!(first.wide_nodes > 0 && v.info.wide_nodes == 0);
+        assert_eq!(
+            BvhInfo {
+                wide_nodes: first.wide_nodes,
+                ..*v.info
+            },
+            first
+        );
         assert_eq!(v.nodes, &nodes[..]);
         assert_eq!(v.tri_ids, &ids[..]);
         check_invariants(&v, &scene, &p);

@@ -350,6 +350,12 @@ impl<'a> Bvh<'a> {
     pub fn info(&self) -> Option<&BvhInfo> {
         self.info.as_ref()
     }
+    /// Forget the wide tree (a build is about to overwrite its pool).
+    pub(crate) fn drop_wide(&mut self) {
+        if let Some(info) = self.info.as_mut() {
+            info.wide_nodes = 0;
+        }
+    }
     /// Record a successful build: its binary tree is collapsed into the
     /// 4-wide tree (`wide.rs`) in the reference pool, free now.
     pub(crate) fn commit(&mut self, mut info: BvhInfo) -> BvhInfo {
@@ -462,7 +468,7 @@ impl crate::accel::Accel for BvhView<'_> {
             Method::BvhMasked | Method::BvhRanged | Method::BvhPartition | Method::BvhWideRanged
         );
         if p.method == Method::BvhWide {
-            let wide = |r: &Ray, c: &mut Counters| traverse_wide::walk::<T, ANY>(self, r, c);
+            let wide = |r: &Ray, c: &mut Counters| self.fastest::<T, ANY>(r, c);
             crate::accel::packet::lane_by_lane(rays, active, hits, wide, ctr);
             return true;
         }

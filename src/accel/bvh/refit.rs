@@ -123,6 +123,21 @@ pub(super) fn fit_boxes(nodes: &mut [BvhNode], tris: &[TriVerts], pad: Vec3A) {
     fit(nodes, 0, len, tris, pad);
 }
 
+/// The box of the triangles `tris` padded by `pad`: every leaf box of the
+/// binary and the wide tree (the wide tree's boxes equal the binary ones
+/// bitwise because both are computed here).
+#[inline(always)]
+pub(super) fn leaf_box(tris: &[TriVerts], pad: Vec3A) -> (Vec3A, Vec3A) {
+    let (mut a, mut b) = (Vec3A::splat(f32::INFINITY), Vec3A::splat(f32::NEG_INFINITY));
+    for t in tris {
+        for v in [t.v0, t.v1, t.v2] {
+            let v = Vec3A::from(v);
+            (a, b) = (a.min(v), b.max(v));
+        }
+    }
+    (a - pad, b + pad)
+}
+
 /// `fit_boxes` on the first `upto` nodes of `part`, the nodes `base..base +
 /// part.len()` of a tree whose children of those nodes lie in `part` (the
 /// fast build fits each worker's region and then its top this way).
@@ -131,14 +146,7 @@ pub(super) fn fit(part: &mut [BvhNode], base: usize, upto: usize, tris: &[TriVer
         let nd = part[i];
         let first = nd.first as usize;
         let (bmin, bmax) = if nd.is_leaf() {
-            let (mut a, mut b) = (Vec3A::splat(f32::INFINITY), Vec3A::splat(f32::NEG_INFINITY));
-            for t in &tris[first..first + nd.count() as usize] {
-                for v in [t.v0, t.v1, t.v2] {
-                    let v = Vec3A::from(v);
-                    (a, b) = (a.min(v), b.max(v));
-                }
-            }
-            (a - pad, b + pad)
+            leaf_box(&tris[first..first + nd.count() as usize], pad)
         } else {
             let (l, r) = (&part[first - base], &part[first - base + 1]);
             (

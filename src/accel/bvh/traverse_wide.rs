@@ -20,13 +20,15 @@
 //! - No root box test: the root's four children are tested at once, and a
 //!   ray missing the root misses them all.
 //! - Without a wide tree (`BvhInfo::wide_nodes` 0) the binary walk runs,
-//!   and so it does for rays whose direction is tiny (`fallback::TINY_DIR`,
-//!   subnormal components): their slab terms overflow to infinity where the
-//!   true entry (~1e40) is beyond f32, so box tests are no longer
+//!   and so it does for rays whose direction is tiny (largest component
+//!   below `fallback::TINY_DIR`): their slab terms overflow to infinity
+//!   where the true entry is beyond f32, so box tests are no longer
 //!   conservative, and the triangle test finds hits at rounding-noise t in
 //!   boxes the binary walk rejects but a merged wide leaf exposes (measured:
 //!   700 lanes on the stress suite's skinny-diagonal scene). The binary
 //!   walk's answer is the reference for them (`tests/stress.rs`).
+//! - A ray that would overflow the stack restarts on the binary walk; its
+//!   box and triangle tests so far stay in the counters.
 //! - Counters count wide levels as depth, and 4 box tests per wide node.
 
 use super::traverse_single::{leaf4, walk as binary_walk};
@@ -46,10 +48,10 @@ use glam::Vec4;
 const STACK: usize = 40;
 const _: () = assert!(STACK >= WIDTH);
 
-/// A stack entry: `child` in the low 32 bits, `count` and the depth above.
+/// A stack entry: `child` in the low 32 bits, `count` in the high ones.
 #[inline(always)]
-fn pack(child: u32, count: u32, depth: usize) -> u64 {
-    child as u64 | (count as u64) << 32 | (depth as u64) << 48
+fn pack(child: u32, count: u32) -> u64 {
+    child as u64 | (count as u64) << 32
 }
 
 /// Nearest hit of `ray` (a miss for invalid rays).
@@ -92,6 +94,7 @@ pub(crate) fn walk<T: TriangleTest, const ANY: bool>(
 
     let mut st = [0u64; STACK];
     let mut st_t = [0.0f32; STACK];
+    let mut st_depth = [0u8; STACK];
     let mut sp = 0usize;
     let (mut child, mut count, mut depth) = (0u32, 0u32, 0usize);
     loop {
@@ -137,12 +140,15 @@ pub(crate) fn walk<T: TriangleTest, const ANY: bool>(
                     k += 1;
                 }
                 if sp + k > STACK {
+                    // The binary walk counts this ray again (its box and
+                    // triangle tests so far stay counted).
                     ctr.rays -= 1;
                     return binary_walk::<T, ANY>(b, ray, ctr);
                 }
                 for &c in order[1..k].iter().rev() {
-                    st[sp] = pack(n.child[c], n.count[c], depth);
+                    st[sp] = pack(n.child[c], n.count[c]);
                     st_t[sp] = ts[c];
+                    st_depth[sp] = depth as u8;
                     sp += 1;
                 }
                 (child, count) = (n.child[order[0]], n.count[order[0]]);
@@ -157,8 +163,8 @@ pub(crate) fn walk<T: TriangleTest, const ANY: bool>(
             sp -= 1;
             if st_t[sp] <= best.t {
                 let e = st[sp];
-                (child, count) = (e as u32, (e >> 32) as u16 as u32);
-                depth = (e >> 48) as usize;
+                (child, count) = (e as u32, (e >> 32) as u32);
+                depth = st_depth[sp] as usize;
                 break;
             }
         }

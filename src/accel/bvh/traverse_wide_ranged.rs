@@ -19,9 +19,11 @@
 //! so the results equal `traverse_single` lane by lane, bitwise.
 //!
 //! # Deviations
-//! - Packets starting at an entry point (MLRTA, AEPSA: binary nodes), and
-//!   BVHs without a wide tree (`BvhParams::width` 2), run the binary
-//!   Ranged traversal.
+//! - Packets starting at an entry point (MLRTA, AEPSA: binary nodes),
+//!   packets with a live lane of tiny direction (possible with the
+//!   fallbacks off; `traverse_wide`'s deviations), and BVHs without a wide
+//!   tree (`BvhParams::width` 2, or a pool too small for it) run the
+//!   binary Ranged traversal.
 //! - The children's order is by the sum of each box's corners along the
 //!   packet's direction signs (the wide nodes keep no split axis).
 
@@ -30,6 +32,7 @@ use super::traverse_ranged::{Ranged, first_hit, last_hit, test_leaf};
 use super::wide::{WIDTH, WideNode};
 use super::{BvhNode, BvhView, MAX_DEPTH, TriangleTest};
 use crate::accel::entry::EntryPoint;
+use crate::accel::fallback;
 use crate::accel::method::TraceParams;
 use crate::accel::slot::Slot;
 use crate::counters::Counters;
@@ -115,7 +118,10 @@ impl Walk for WideRanged {
         slot: &mut Slot<'_>,
         ctr: &mut Counters,
     ) {
-        if start != (0, 0) || b.wide.is_empty() {
+        // Tiny directions (left in the packet when the fallbacks are off):
+        // see `traverse_wide`'s deviations; the binary walk answers them.
+        let tiny = (0..p.nq).any(|q| fallback::tiny(true, &rays[q], p.live[q]).any());
+        if start != (0, 0) || b.wide.is_empty() || tiny {
             return Ranged::walk::<L, T, ANY>(p, b, rays, hits, start, slot, ctr);
         }
         let wide = b.wide;

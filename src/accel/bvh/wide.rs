@@ -17,17 +17,21 @@
 //!
 //! # Exactness
 //! A wide node's child boxes are the binary nodes' boxes, bit for bit
-//! (padded as the build pads), so the single ray's argument holds as is: a
-//! box is skipped only when its entry lies strictly beyond the nearest hit
-//! so far, whatever the order children are visited in.
+//! (padded as the build pads), and a box is skipped only when its entry
+//! lies strictly beyond the nearest hit so far, whatever the order
+//! children are visited in. A merged leaf also tests triangles whose own
+//! binary leaf box the ray misses; that changes nothing while every hit
+//! lies inside its triangle's padded box, which holds except for rays of
+//! tiny direction (`fallback::TINY_DIR`): the wide walks hand those to the
+//! binary ones.
 //!
 //! # Deviations
 //! - The papers build the 4-wide tree directly with the SAH; sheaf
 //!   collapses whichever binary tree the build quality made, so the two
 //!   trees share their leaves and every build quality gets a wide tree.
-//! - When the reference pool cannot hold the collapsed tree (the bound is
-//!   4 wide nodes per pool's 128 bytes; trees of one-triangle leaves can
-//!   exceed it), the BVH has no wide tree (`BvhInfo::wide_nodes` is 0) and
+//! - When the reference pool cannot hold the collapsed tree (one wide
+//!   node per 4 references, `max_triangles / 4` nodes; trees of small
+//!   leaves can exceed it), the BVH has no wide tree (`BvhInfo::wide_nodes` is 0) and
 //!   the wide single ray walks the binary tree: same answers, binary speed.
 
 use super::{BvhNode, MAX_DEPTH};
@@ -200,13 +204,7 @@ pub(crate) fn refit(wide: &mut [WideNode], tris: &[TriVerts], pad: Vec3A) {
             }
             let (lo, hi) = if count > 0 {
                 let first = child as usize;
-                let (mut a, mut b) = (Vec3A::splat(f32::INFINITY), Vec3A::splat(f32::NEG_INFINITY));
-                for t in &tris[first..first + count as usize] {
-                    for v in [t.v0, t.v1, t.v2] {
-                        (a, b) = (a.min(Vec3A::from(v)), b.max(Vec3A::from(v)));
-                    }
-                }
-                (a - pad, b + pad)
+                super::refit::leaf_box(&tris[first..first + count as usize], pad)
             } else {
                 // Empty slots hold +inf / -inf: they leave the union alone.
                 let w = &wide[child as usize];
