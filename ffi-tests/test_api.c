@@ -823,6 +823,10 @@ static bool test_bvh_methods(void) {
     bad_bp = bp;
     bad_bp.width = 8;
     CHECK_STATUS(sheaf_context_build_bvh(ctx, &bad_bp), SHEAF_STATUS_INVALID_ARGUMENT);
+    bad_bp.width = 0; /* zero-filled: the default */
+    CHECK_OK(sheaf_context_build_bvh(ctx, &bad_bp));
+    CHECK_OK(sheaf_context_trace(ctx, SHEAF_METHOD_BVH_WIDE, rays, got, N_PROBE));
+    CHECK(hits_equal(got, want, N_PROBE));
     bp.width = 2;
     CHECK_OK(sheaf_context_build_bvh(ctx, &bp));
     CHECK_OK(sheaf_context_trace(ctx, SHEAF_METHOD_BVH_WIDE, rays, got, N_PROBE));

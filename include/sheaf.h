@@ -486,10 +486,11 @@ typedef struct sheaf_bvh_params {
      */
     sheaf_build_quality quality;
     /**
-     * Children per node of the tree single rays walk: 4 (default) also
-     * builds the 4-wide tree (`SHEAF_METHOD_BVH_WIDE`, and the packets'
-     * single-ray fallback) after every build and refit; 2 keeps the
-     * binary tree alone (a cheaper build for packet-only tracing).
+     * Children per node of the tree single rays walk: 4 (default; 0 also
+     * means 4, for zero-filled structs) also builds the 4-wide tree
+     * (`SHEAF_METHOD_BVH_WIDE`, `_WIDE_RANGED`, and the packets'
+     * single-ray fallback) after every build; 2 keeps the binary tree
+     * alone (a cheaper build for binary packets only).
      */
     uint32_t width;
 } sheaf_bvh_params;

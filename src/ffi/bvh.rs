@@ -55,10 +55,11 @@ pub struct sheaf_bvh_params {
     /// LOW ignores `bins` and uses `traversal_cost` only for the reported
     /// SAH cost.
     pub quality: raw::sheaf_build_quality,
-    /// Children per node of the tree single rays walk: 4 (default) also
-    /// builds the 4-wide tree (`SHEAF_METHOD_BVH_WIDE`, and the packets'
-    /// single-ray fallback) after every build and refit; 2 keeps the
-    /// binary tree alone (a cheaper build for packet-only tracing).
+    /// Children per node of the tree single rays walk: 4 (default; 0 also
+    /// means 4, for zero-filled structs) also builds the 4-wide tree
+    /// (`SHEAF_METHOD_BVH_WIDE`, `_WIDE_RANGED`, and the packets'
+    /// single-ray fallback) after every build; 2 keeps the binary tree
+    /// alone (a cheaper build for binary packets only).
     pub width: u32,
 }
 
@@ -81,7 +82,7 @@ impl sheaf_bvh_params {
             traversal_cost: self.traversal_cost,
             test: sheaf_tri_test::to_core(self.test)?,
             quality: sheaf_build_quality::to_core(self.quality)?,
-            width: self.width,
+            width: if self.width == 0 { 4 } else { self.width },
         };
         p.validate()?;
         Ok(p)
@@ -223,6 +224,19 @@ mod tests {
             width: 2,
         };
         assert_eq!(sheaf_bvh_params::of(&p).to_core(), Ok(p));
+        let zero_width = sheaf_bvh_params {
+            width: 0,
+            ..sheaf_bvh_params::of(&p)
+        };
+        assert_eq!(zero_width.to_core().map(|c| c.width), Ok(4));
+        assert!(
+            sheaf_bvh_params {
+                width: 3,
+                ..sheaf_bvh_params::of(&p)
+            }
+            .to_core()
+            .is_err()
+        );
         assert!(
             sheaf_bvh_params {
                 quality: 3,
