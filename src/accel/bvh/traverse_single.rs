@@ -193,22 +193,22 @@ pub(crate) fn leaf<T: TriangleTest, const ANY: bool>(
     for i in first..first + count as usize {
         ctr.tri_at(depth, 1);
         let h = T::intersect(lanes, pre, T::prim(b.store(), i));
-        if h.mask {
-            let id = b.tri_ids[i];
-            if closer(h.t, id, best) {
-                *best = Hit {
-                    t: h.t,
-                    prim: id,
-                    u: h.u,
-                    v: h.v,
-                };
-                if ANY {
-                    return true;
-                }
-            }
+        if h.mask && take(best, h.t, b.tri_ids[i], h.u, h.v) && ANY {
+            return true;
         }
     }
     false
+}
+
+/// A hit on triangle `id` at `(t, u, v)` replaces `best` when `closer`;
+/// whether it did. The one update of both leaf tests.
+#[inline(always)]
+fn take(best: &mut Hit, t: f32, id: u32, u: f32, v: f32) -> bool {
+    let c = closer(t, id, best);
+    if c {
+        *best = Hit { t, prim: id, u, v };
+    }
+    c
 }
 
 /// `leaf` four triangles at a time (`TriangleTest::intersect_tri4`), one
@@ -241,17 +241,8 @@ pub(crate) fn leaf4<T: TriangleTest, const ANY: bool>(
             while m != 0 {
                 let k = m.trailing_zeros() as usize;
                 m &= m - 1;
-                let id = b.tri_ids[idx[k]];
-                if closer(t[k], id, best) {
-                    *best = Hit {
-                        t: t[k],
-                        prim: id,
-                        u: u[k],
-                        v: v[k],
-                    };
-                    if ANY {
-                        return true;
-                    }
+                if take(best, t[k], b.tri_ids[idx[k]], u[k], v[k]) && ANY {
+                    return true;
                 }
             }
         }
