@@ -149,6 +149,92 @@ static bool joined_build(const sheaf_bvh_params *p, uint32_t count, sheaf_status
     return true;
 }
 
+/* Joined refits: thread i of n calls sheaf_context_refit_bvh_joined. */
+typedef struct {
+    uint32_t index, count;
+    sheaf_refit_info info;
+    sheaf_status status;
+} refit_arg;
+
+static void *refitter(void *arg) {
+    refit_arg *a = arg;
+    a->status = sheaf_context_refit_bvh_joined(g_ctx, NULL, &a->info, a->index, a->count);
+    return NULL;
+}
+
+/* Run a joined refit on `count` threads (this one leads); every status and
+   the leader's info. */
+static bool joined_refit(uint32_t count, sheaf_status *status, sheaf_refit_info *info) {
+    pthread_t th[8];
+    refit_arg a[8];
+    uint32_t i;
+    memset(a, 0, sizeof a);
+    for (i = 0; i < count; ++i) {
+        a[i].index = i;
+        a[i].count = count;
+    }
+    for (i = 1; i < count; ++i) CHECK(pthread_create(&th[i], NULL, refitter, &a[i]) == 0);
+    refitter(&a[0]);
+    for (i = 1; i < count; ++i) CHECK(pthread_join(th[i], NULL) == 0);
+    for (i = 0; i < count; ++i) status[i] = a[i].status;
+    *info = a[0].info;
+    return true;
+}
+
+static bool test_joined_refits(void) {
+    /* The caller's threads join one refit: on 1, 2 and 3 threads it gives
+       the calling-thread refit's hits bit for bit and the same SAH figures,
+       from the same tree (built before the vertices moved), with the 4-wide
+       tree (bvh-wide) and without (width 2); every thread returns the
+       leader's status, and bad thread arguments are refused at once. */
+    scene *s = box_field();
+    float orig[SCENE_MAX_V][4];
+    sheaf_limits l;
+    sheaf_bvh_params p;
+    sheaf_refit_info want_info, info;
+    sheaf_status st[8];
+    sheaf_hit got[NRAYS];
+    uint32_t count, i, width, hits;
+    CHECK_OK(sheaf_limits_default(s->nt, &l));
+    CHECK_OK(sheaf_context_create(&l, &g_ctx));
+    CHECK_OK(scene_set(g_ctx, s));
+    make_rays();
+    memcpy(orig, s->v, sizeof orig);
+    CHECK_OK(sheaf_bvh_params_default(&p));
+    for (width = 2; width <= 4; width += 2) {
+        sheaf_method m = width == 4 ? SHEAF_METHOD_BVH_WIDE : SHEAF_METHOD_BVH_SINGLE;
+        p.width = width;
+        for (count = 0; count <= 3; ++count) {
+            /* count 0: the calling-thread refit, the reference. */
+            memcpy(s->v, orig, sizeof orig);
+            CHECK_OK(sheaf_context_build_bvh(g_ctx, &p));
+            for (i = 0; i < s->nv; ++i) { /* every vertex moves */
+                s->v[i][0] += 0.25f * s->v[i][1];
+                s->v[i][2] -= 0.125f;
+            }
+            if (count == 0) {
+                CHECK_OK(sheaf_context_refit_bvh(g_ctx, NULL, &want_info));
+                CHECK_OK(sheaf_context_trace(g_ctx, m, g_rays, g_want_hits, NRAYS));
+                for (i = 0, hits = 0; i < NRAYS; ++i) hits += g_want_hits[i].prim != SHEAF_INVALID_ID;
+                CHECK(hits > NRAYS / 8); /* the moved boxes are still hit */
+                continue;
+            }
+            CHECK(joined_refit(count, st, &info));
+            for (i = 0; i < count; ++i) CHECK_OK(st[i]);
+            CHECK(info.sah_before == want_info.sah_before && info.sah_after == want_info.sah_after);
+            CHECK(info.rebuilt == 0 && info.newly_traceable == 0);
+            CHECK_OK(sheaf_context_trace(g_ctx, m, g_rays, got, NRAYS));
+            CHECK(memcmp(got, g_want_hits, sizeof got) == 0);
+        }
+    }
+    CHECK_STATUS(sheaf_context_refit_bvh_joined(g_ctx, NULL, NULL, 0, 0), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_refit_bvh_joined(g_ctx, NULL, NULL, 3, 3), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_refit_bvh_joined(NULL, NULL, NULL, 0, 1), SHEAF_STATUS_NULL_POINTER);
+    sheaf_context_destroy(g_ctx);
+    free(s);
+    return true;
+}
+
 static bool test_joined_builds(void) {
     /* The caller's threads join one BVH build: LOW on 2 and 3 threads and
        MEDIUM on 2 give the single-thread build's hits bit for bit, every
@@ -572,5 +658,6 @@ int main(void) {
              &failed);
     run_test("test_destroy_waits_for_calls_inside", test_destroy_waits_for_calls_inside, &passed, &failed);
     run_test("test_joined_builds", test_joined_builds, &passed, &failed);
+    run_test("test_joined_refits", test_joined_refits, &passed, &failed);
     return report(passed, failed);
 }

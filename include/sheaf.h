@@ -605,6 +605,32 @@ typedef struct sheaf_grid_params {
 } sheaf_grid_params;
 
 /**
+ * What a BVH refit did, the crate's `RefitInfo`.
+ */
+typedef struct sheaf_refit_info {
+    /**
+     * Wall time of the call, refit and any rebuild, in nanoseconds.
+     */
+    uint64_t ns;
+    /**
+     * The tree's SAH cost before and after (after a rebuild: the new
+     * tree's).
+     */
+    float sah_before;
+    float sah_after;
+    /**
+     * Triangles the build left out (non-finite or zero area then) that a
+     * rebuild would now store: a refit keeps them out.
+     */
+    uint32_t newly_traceable;
+    /**
+     * 1 when the SAH growth passed `rebuild_above` and the tree was
+     * rebuilt instead, else 0.
+     */
+    uint8_t rebuilt;
+} sheaf_refit_info;
+
+/**
  * One ray: the points `org + t * dir` for `t` in `[tmin, tmax)` (32 bytes).
  *
  * `dir` need not be normalised (`t` is in units of `dir`); zero components
@@ -643,32 +669,6 @@ typedef struct sheaf_hit {
      */
     float v;
 } sheaf_hit;
-
-/**
- * What a BVH refit did, the crate's `RefitInfo`.
- */
-typedef struct sheaf_refit_info {
-    /**
-     * Wall time of the call, refit and any rebuild, in nanoseconds.
-     */
-    uint64_t ns;
-    /**
-     * The tree's SAH cost before and after (after a rebuild: the new
-     * tree's).
-     */
-    float sah_before;
-    float sah_after;
-    /**
-     * Triangles the build left out (non-finite or zero area then) that a
-     * rebuild would now store: a refit keeps them out.
-     */
-    uint32_t newly_traceable;
-    /**
-     * 1 when the SAH growth passed `rebuild_above` and the tree was
-     * rebuilt instead, else 0.
-     */
-    uint8_t rebuilt;
-} sheaf_refit_info;
 
 /**
  * Method, packet side, CGT switches and BVH frustum settings for one class
@@ -1475,6 +1475,24 @@ sheaf_status sheaf_context_build_bvh(struct sheaf_context *ctx,
  */
 sheaf_status sheaf_context_build_bvh_joined(struct sheaf_context *ctx,
                                             const struct sheaf_bvh_params *params,
+                                            uint32_t thread_index,
+                                            uint32_t thread_count);
+
+/**
+ * `sheaf_context_refit_bvh` on `thread_count` of the caller's threads,
+ * joined as `sheaf_context_build_bvh_joined` joins them (same protocol,
+ * same misuse notes): thread 0 leads and passes `params` and `out` (the
+ * helpers' are not read), the others run their share of the refit's
+ * triangle passes and leaf boxes and return the leader's status. The
+ * refit tree, its boxes and `out` are the same for any `thread_count`.
+ * A rebuild past `params->rebuild_above` runs on the joined threads too.
+ *
+ * Errors: as `sheaf_context_refit_bvh`; `SHEAF_STATUS_INVALID_ARGUMENT`
+ * for `thread_count` 0 or above 16 or `thread_index >= thread_count`.
+ */
+sheaf_status sheaf_context_refit_bvh_joined(struct sheaf_context *ctx,
+                                            const struct sheaf_refit_params *params,
+                                            struct sheaf_refit_info *out,
                                             uint32_t thread_index,
                                             uint32_t thread_count);
 

@@ -396,6 +396,19 @@ impl<'a> Context<'a> {
     /// `params.rebuild_above` SAH growth, rebuilt with the last build's
     /// parameters instead. On error the previous BVH stays valid.
     pub fn refit_bvh(&mut self, scene: &Scene<'_>, params: &RefitParams) -> Result<RefitInfo> {
+        self.refit_bvh_with(scene, params, &crate::mem::par::Serial)
+    }
+
+    /// `refit_bvh` on the caller's workers (as `build_bvh_with`): the
+    /// triangle passes and leaf boxes are split among them, and a rebuild
+    /// past `params.rebuild_above` runs on them too. The refit tree is the
+    /// same for any number of workers.
+    pub fn refit_bvh_with(
+        &mut self,
+        scene: &Scene<'_>,
+        params: &RefitParams,
+        par: &dyn crate::mem::par::Par,
+    ) -> Result<RefitInfo> {
         if !self.limits.has(Limits::BVH) {
             return Err(Error::InvalidArgument(
                 "no BVH pools: Limits::structures lacks BVH",
@@ -404,10 +417,10 @@ impl<'a> Context<'a> {
         params.validate()?;
         self.check_scene(scene)?;
         let t = now();
-        let mut r = bvh::refit::refit(&mut self.bvh, scene)?;
+        let mut r = bvh::refit::refit_with(&mut self.bvh, scene, par)?;
         if params.rebuild_above > 0.0 && r.growth() > params.rebuild_above {
             let bp = self.bvh.params();
-            let info = bvh::build::build(&mut self.bvh, scene, &bp)?;
+            let info = bvh::build::build_with(&mut self.bvh, scene, &bp, par)?;
             r.rebuilt = true;
             r.sah_after = info.sah_cost;
         }

@@ -261,6 +261,7 @@ macro_rules! impl_frames {
                     }
                 }
                 self.build_bvh_with(s, &low, &Inline(3)).unwrap();
+                self.refit_bvh_with(s, &sheaf::RefitParams::default(), &Inline(3)).unwrap();
                 self.trace_with(&bp, r, h).unwrap();
                 // The kd-tree beside both: build, every kd method and entry search.
                 self.build_kd(s, &KdParams { test: p.test, ..KdParams::default() }).unwrap();

@@ -894,10 +894,12 @@ static void agree_shadow(const Scene *s, const sheaf_context *ctx, RTCScene scen
 enum { S_GRID, S_BVH, S_BVH_LOW, S_KD, NSTRUCT };
 static const char *STRUCT_NAME[NSTRUCT] = {"grid", "BVH", "BVH LOW", "kd"};
 
-/* One thread of a joined BVH build (sheaf_context_build_bvh_joined). */
+/* One thread of a joined BVH build or refit (sheaf_context_build_bvh_joined,
+ * sheaf_context_refit_bvh_joined). */
 typedef struct {
     sheaf_context *ctx;
     sheaf_bvh_params p;
+    int refit;
     uint32_t index, count;
     sheaf_status status;
 } JoinArg;
@@ -905,13 +907,14 @@ typedef struct {
 static void *join_thread(void *arg)
 {
     JoinArg *a = arg;
-    a->status = sheaf_context_build_bvh_joined(a->ctx, &a->p, a->index, a->count);
+    a->status = a->refit ? sheaf_context_refit_bvh_joined(a->ctx, NULL, NULL, a->index, a->count)
+                         : sheaf_context_build_bvh_joined(a->ctx, &a->p, a->index, a->count);
     return NULL;
 }
 
-/* The LOW build joined by T threads (this one leads; the others are
- * started here, as run_job starts its tracing threads). */
-static sheaf_status sheaf_build_low_joined(sheaf_context *ctx, int T)
+/* The LOW build (or a refit) joined by T threads (this one leads; the
+ * others are started here, as run_job starts its tracing threads). */
+static sheaf_status sheaf_joined(sheaf_context *ctx, int T, int refit)
 {
     pthread_t th[MAX_THREADS];
     JoinArg a[MAX_THREADS];
@@ -920,6 +923,7 @@ static sheaf_status sheaf_build_low_joined(sheaf_context *ctx, int T)
         sheaf_bvh_params_default(&a[i].p);
         a[i].p.quality = SHEAF_BUILD_QUALITY_LOW;
         a[i].p.width = 2; /* as sheaf_build(S_BVH_LOW) */
+        a[i].refit = refit;
         a[i].index = (uint32_t)i;
         a[i].count = (uint32_t)T;
     }
@@ -930,10 +934,13 @@ static sheaf_status sheaf_build_low_joined(sheaf_context *ctx, int T)
     for (int i = 1; i < T; i++) pthread_join(th[i], NULL);
     for (int i = 1; i < T; i++)
         if (a[i].status != a[0].status)
-            die("joined build: thread %d returned %s, the leader %s", i, sheaf_status_string(a[i].status),
-                sheaf_status_string(a[0].status));
+            die("joined %s: thread %d returned %s, the leader %s", refit ? "refit" : "build", i,
+                sheaf_status_string(a[i].status), sheaf_status_string(a[0].status));
     return a[0].status;
 }
+
+static sheaf_status sheaf_build_low_joined(sheaf_context *ctx, int T) { return sheaf_joined(ctx, T, 0); }
+static sheaf_status sheaf_refit_joined(sheaf_context *ctx, int T) { return sheaf_joined(ctx, T, 1); }
 
 /* Build structure st into the context (the BVH at MEDIUM or LOW), the BVH
  * with `width` children per node for single rays (4: also the wide tree). */
@@ -1116,7 +1123,7 @@ typedef struct {
     int pbest[NSTRUCT], sbest[NSTRUCT];
     double pbest_mr[NSTRUCT][4], sbest_mr[NSTRUCT][4];
     double e_first[4][3], e_rebuild[4][3], e_prim[4][3][4], e_shad[4][3][4]; /* [threads][quality][width] */
-    double refit_ms;                 /* sheaf_context_refit_bvh, the same vertices */
+    double refit_ms[4];              /* [threads]: sheaf_context_refit_bvh_joined, the same vertices */
     double low_ms[4];                /* [threads]: the BVH LOW build joined by that many threads */
     double anim[4][4], anim_parts[4][4][3]; /* [ANIM mode][threads]: mean ms per frame; update, camera, shadows */
     size_t anim_differ;              /* frames whose sheaf refit-tree hits differ from the rebuilt tree's */
@@ -1244,21 +1251,24 @@ static void time_sheaf_builds(Bench *b)
     /* The reference, the checks and the method tables use the SAH tree. */
     check_sheaf(b->ctx, sheaf_build(b->ctx, S_BVH), "build");
     /* The BVH refit to the same vertices (its cost does not depend on how
-     * far they moved), median of reps. */
+     * far they moved), joined by each thread count, median of reps. */
     if (!b->o->profile) {
-        double t[MAX_REPS];
         /* The refit of the binary tree alone (width 2; a refit also
          * refits the wide tree of a width-4 build), as the animation
          * traces it with binary packets; then the SAH tree again. */
         check_sheaf(b->ctx, sheaf_build_width(b->ctx, S_BVH, 2), "build");
-        for (int r = 0; r < b->reps; r++) {
-            double t0 = now_s();
-            sheaf_status e = sheaf_context_refit_bvh(b->ctx, NULL, NULL);
-            t[r] = now_s() - t0;
-            check_sheaf(b->ctx, e, "refit");
+        for (int ti = 0; ti < b->o->nthreads; ti++) {
+            int T = b->o->threads[ti];
+            double t[MAX_REPS];
+            for (int r = 0; r < b->reps; r++) {
+                double t0 = now_s();
+                sheaf_status e = sheaf_refit_joined(b->ctx, T);
+                t[r] = now_s() - t0;
+                check_sheaf(b->ctx, e, "refit");
+            }
+            b->refit_ms[ti] = 1e3 * median(t, b->reps);
+            progress("  sheaf BVH refit joined by %d threads %.1f ms\n", T, b->refit_ms[ti]);
         }
-        b->refit_ms = 1e3 * median(t, b->reps);
-        progress("  sheaf BVH refit %.1f ms\n", b->refit_ms);
         check_sheaf(b->ctx, sheaf_build(b->ctx, S_BVH), "build");
     }
 }
@@ -1641,7 +1651,7 @@ static void time_animation(Bench *b)
                 Job j;
                 if (m == A_SHEAF_LOW || m == A_SHEAF_REFIT) {
                     sheaf_status e = m == A_SHEAF_LOW ? sheaf_build_low_joined(b->ctx, T)
-                                                      : sheaf_context_refit_bvh(b->ctx, NULL, NULL);
+                                                      : sheaf_refit_joined(b->ctx, T);
                     tb = now_s() - t0;
                     check_sheaf(b->ctx, e, "animation update");
                     j = b->job;
@@ -1701,9 +1711,10 @@ static void print_tables(Bench *b)
     printf("%u triangles (%u excluded by sheaf: non-finite or zero area), %ux%u, %s; "
            "%zu camera rays (%zu hit), %zu shadow rays (%zu occluded); load average %.2f before, %.2f after.\n\n",
            b->s.nt, b->s.excluded, b->W, b->H, b->s.view, b->N, b->nhits, b->NS, b->nocc, b->load0, b->load1);
-    printf("**Builds**, ms (median of %d; sheaf's builds run on the calling thread but BVH LOW, which the "
-           "caller's threads join (sheaf_context_build_bvh_joined; the bench starts those threads per build, "
-           "inside the timing, as it does for its ray jobs); Embree's on its device threads):\n\n", b->reps);
+    printf("**Builds**, ms (median of %d; sheaf's builds run on the calling thread but BVH LOW and the refit, "
+           "which the caller's threads join (sheaf_context_build_bvh_joined, sheaf_context_refit_bvh_joined; the "
+           "bench starts those threads per call, inside the timing, as it does for its ray jobs); Embree's on "
+           "its device threads):\n\n", b->reps);
     printf("| structure |");
     for (int ti = 0; ti < b->o->nthreads; ti++) printf(" %d thread%s |", b->o->threads[ti], b->o->threads[ti] > 1 ? "s" : "");
     printf("\n|---|");
@@ -1720,8 +1731,8 @@ static void print_tables(Bench *b)
         for (int ti = 0; ti < b->o->nthreads; ti++) printf(" %.1f (%.1f) |", b->e_rebuild[ti][q], b->e_first[ti][q]);
         printf("\n");
     }
-    printf("| sheaf BVH refit (calling thread) |");
-    for (int ti = 0; ti < b->o->nthreads; ti++) printf(" %.1f |", b->refit_ms);
+    printf("| sheaf BVH refit (joined by the thread count) |");
+    for (int ti = 0; ti < b->o->nthreads; ti++) printf(" %.1f |", b->refit_ms[ti]);
     printf("\n| Embree LOW + geometry REFIT: refit (first commit) |");
     for (int ti = 0; ti < b->o->nthreads; ti++) printf(" %.1f (%.1f) |", b->e_refit[ti], b->e_refit_first[ti]);
     printf("\n");
@@ -1892,7 +1903,7 @@ static void finish_scene(Bench *b)
             r->ratio_s[ti] = b->sheaf_best_s[ti] / b->emb_best_s[ti];
             r->ratio_f[ti] = b->best_frame[ti] / b->frame_e[ti];
             r->ratio_b[ti] = b->low_ms[ti] / b->e_rebuild[ti][0];
-            r->ratio_r[ti] = b->refit_ms / b->e_refit[ti];
+            r->ratio_r[ti] = b->refit_ms[ti] / b->e_refit[ti];
             r->frame_struct[ti] = STRUCT_NAME[b->best_st[ti]];
         }
         r->p_differ = b->ap[1].differ;

@@ -644,12 +644,66 @@ pub extern "C" fn sheaf_context_build_bvh_joined(
     thread_index: u32,
     thread_count: u32,
 ) -> sheaf_status {
+    joined(ctx, thread_index, thread_count, |h, par| {
+        let params = if params.is_null() {
+            BvhParams::default()
+        } else {
+            read_in(params)?.to_core()?
+        };
+        let g = h.geometry.as_ref().ok_or(Error::NoGeometry)?;
+        h.ctx.build_bvh_with(&g.scene()?, &params, par)?;
+        Ok(())
+    })
+}
+
+/// `sheaf_context_refit_bvh` on `thread_count` of the caller's threads,
+/// joined as `sheaf_context_build_bvh_joined` joins them (same protocol,
+/// same misuse notes): thread 0 leads and passes `params` and `out` (the
+/// helpers' are not read), the others run their share of the refit's
+/// triangle passes and leaf boxes and return the leader's status. The
+/// refit tree, its boxes and `out` are the same for any `thread_count`.
+/// A rebuild past `params->rebuild_above` runs on the joined threads too.
+///
+/// Errors: as `sheaf_context_refit_bvh`; `SHEAF_STATUS_INVALID_ARGUMENT`
+/// for `thread_count` 0 or above 16 or `thread_index >= thread_count`.
+#[unsafe(no_mangle)]
+pub extern "C" fn sheaf_context_refit_bvh_joined(
+    ctx: *mut sheaf_context,
+    params: *const sheaf_refit_params,
+    out: *mut sheaf_refit_info,
+    thread_index: u32,
+    thread_count: u32,
+) -> sheaf_status {
+    joined(ctx, thread_index, thread_count, |h, par| {
+        let params = if params.is_null() {
+            RefitParams::default()
+        } else {
+            read_in(params)?.to_core()?
+        };
+        let g = h.geometry.as_ref().ok_or(Error::NoGeometry)?;
+        let r = h.ctx.refit_bvh_with(&g.scene()?, &params, par)?;
+        if !out.is_null() {
+            write_out(out, sheaf_refit_info::of(&r));
+        }
+        Ok(())
+    })
+}
+
+/// The joined calls' protocol: thread 0 leads (takes the context as an
+/// exclusive call does and runs `work` with the session's workers),
+/// threads `1..thread_count` help and return the leader's status.
+fn joined(
+    ctx: *mut sheaf_context,
+    thread_index: u32,
+    thread_count: u32,
+    work: impl FnOnce(&mut Handle, &dyn crate::mem::par::Par) -> Result<()>,
+) -> sheaf_status {
     use crate::mem::par::MAX_WORKERS;
     let (me, count) = (thread_index as usize, thread_count as usize);
     if count == 0 || me >= count || count > MAX_WORKERS {
         return guard_free(|| {
             Err(Error::InvalidArgument(
-                "joined build: thread_count in 1..=16 and thread_index below it",
+                "joined call: thread_count in 1..=16 and thread_index below it",
             ))
         });
     }
@@ -663,7 +717,7 @@ pub extern "C" fn sheaf_context_build_bvh_joined(
                     Ok(())
                 }
                 crate::mem::par::Helped::NotAWorker => Err(Error::InvalidArgument(
-                    "joined build: thread_index beyond the leader's thread_count",
+                    "joined call: thread_index beyond the leader's thread_count",
                 )),
             }
         });
@@ -677,7 +731,7 @@ pub extern "C" fn sheaf_context_build_bvh_joined(
         let hd = header(ctx)?;
         // The session opens whatever happens next, so the helpers return;
         // `lead` returns when they have all left (and waits while another
-        // joined build on this context leads).
+        // joined call on this context leads).
         hd.join.lead(count, |par| {
             let r = (|| {
                 let _in = hd.state.enter_exclusive()?;
@@ -686,14 +740,7 @@ pub extern "C" fn sheaf_context_build_bvh_joined(
                     // alone until `_in` drops: no other reference to the
                     // Handle exists (the helpers touch only the join).
                     let h = unsafe { &mut *hd.handle.get() };
-                    let params = if params.is_null() {
-                        BvhParams::default()
-                    } else {
-                        read_in(params)?.to_core()?
-                    };
-                    let g = h.geometry.as_ref().ok_or(Error::NoGeometry)?;
-                    h.ctx.build_bvh_with(&g.scene()?, &params, par)?;
-                    Ok(())
+                    work(h, par)
                 });
                 settle(hd, r)
             })();

@@ -113,7 +113,7 @@ impl<'g> Scene<'g> {
     }
 
     /// The vertices of triangle `t` (must be `< triangle_count`).
-    #[inline]
+    #[inline(always)]
     pub fn triangle(&self, t: u32) -> TriVerts {
         let k = t as usize * 3;
         TriVerts {

@@ -299,6 +299,10 @@ pub struct Bvh<'a> {
     /// The last successful build's parameters (a refit's SAH weights, its
     /// automatic rebuild).
     params: BvhParams,
+    /// The padded SAH of the stored boxes as the last refit computed it
+    /// (`refit::refit_with`), so the next refit need not sum it again;
+    /// `None` after a build.
+    refit_sah: Option<f64>,
 }
 
 /// Read-only view of a built BVH; `Sync`, shared by all tracing threads.
@@ -335,6 +339,7 @@ impl<'a> Bvh<'a> {
             pools,
             info: None,
             params: BvhParams::default(),
+            refit_sah: None,
         }
     }
     /// The last successful build's parameters (the defaults before one).
@@ -366,18 +371,31 @@ impl<'a> Bvh<'a> {
             0
         };
         self.info = Some(info);
+        self.refit_sah = None;
         info
     }
+    /// The padded SAH the last refit left (`None` after a build).
+    pub(crate) fn refit_sah(&self) -> Option<f64> {
+        self.refit_sah
+    }
     /// Record a successful refit (`refit.rs`) whose stored triangles and
-    /// binary boxes are written: the wide tree keeps its shape, and its
-    /// boxes are refit too (`wide::refit`), padded by `pad`.
-    pub(crate) fn commit_refit(&mut self, info: BvhInfo, pad: glam::Vec3A) {
+    /// binary boxes are written, and whose padded SAH is `sah`: the wide
+    /// tree keeps its shape, and its boxes are refit too (`wide::refit`,
+    /// on `par`'s workers), padded by `pad`.
+    pub(crate) fn commit_refit(
+        &mut self,
+        info: BvhInfo,
+        pad: glam::Vec3A,
+        sah: f64,
+        par: &dyn crate::mem::par::Par,
+    ) {
         let n = info.wide_nodes as usize;
         if n > 0 {
             let tris = &self.pools.tris[..info.triangles as usize];
-            wide::refit(&mut wide_pool(self.pools.refs)[..n], tris, pad);
+            wide::refit(&mut wide_pool(self.pools.refs)[..n], tris, pad, par);
         }
         self.info = Some(info);
+        self.refit_sah = Some(sah);
     }
     /// The last successful build, if any.
     pub fn view(&self) -> Option<BvhView<'_>> {

@@ -1,13 +1,16 @@
 //! Refit (issue 18, item 3): when only vertex positions moved (the same
 //! triangles from the same index buffer), the built tree keeps its shape
-//! and every box is recomputed bottom-up in place, in one pass over the
-//! stored triangles and one over the nodes. Embree's equivalent is a
-//! geometry committed with `RTC_BUILD_QUALITY_REFIT`; the BVH paper
-//! rebuilds every frame (section 5.1).
+//! and every box is recomputed bottom-up in place: a check pass and a
+//! copy pass over the stored triangles, the leaf boxes, then one reverse
+//! pass over the inner nodes. Embree's equivalent is a geometry committed
+//! with `RTC_BUILD_QUALITY_REFIT`; the BVH paper rebuilds every frame
+//! (section 5.1).
 //!
 //! Children are stored after their parent (the build allocates them
 //! later), so visiting the nodes in reverse order meets every child before
-//! its parent: no stack, no recursion.
+//! its parent: no stack, no recursion. The triangle passes and the leaf
+//! boxes split among the caller's workers (`refit_with`, issue 18 item 4);
+//! the inner pass (one union per node) stays on one.
 //!
 //! # Exactness
 //! Leaf boxes are padded exactly as the build pads them (`BOX_PAD` times
@@ -30,6 +33,7 @@
 use super::{Bvh, BvhNode};
 use crate::error::{Error, Result};
 use crate::geom::{INVALID_ID, ProjTri, Scene, TriTest, TriVerts};
+use crate::mem::par::{MAX_WORKERS, Par, Parts, Serial, share};
 use glam::Vec3A;
 
 /// When a refit becomes a rebuild (C: `sheaf_refit_params`).
@@ -91,13 +95,9 @@ pub(super) fn half_area(n: &BvhNode) -> f64 {
     (d.x * d.y + d.y * d.z + d.z * d.x) as f64
 }
 
-/// The SAH cost of the stored (padded) boxes: traversal cost per inner
-/// node, one per triangle, weighted by half area relative to the root's.
-pub(super) fn sah(nodes: &[BvhNode], traversal_cost: f32) -> f64 {
-    sah_sum(nodes, traversal_cost) / half_area(&nodes[0]).max(f64::MIN_POSITIVE)
-}
-
-/// `sah` before the division by the root's half area (sums of parts add).
+/// The SAH of the stored (padded) boxes before the division by the
+/// root's half area: traversal cost per inner node, one per triangle,
+/// weighted by half area (sums of parts add).
 pub(super) fn sah_sum(nodes: &[BvhNode], traversal_cost: f32) -> f64 {
     nodes
         .iter()
@@ -112,20 +112,12 @@ pub(super) fn sah_sum(nodes: &[BvhNode], traversal_cost: f32) -> f64 {
         .sum()
 }
 
-/// Every box of `nodes` recomputed bottom-up from the stored triangles
-/// `tris`: a leaf's box is its triangles' box padded by `pad`, an inner
-/// box the union of its children's. Children follow their parent, so one
-/// reverse pass meets every child first. The union of padded boxes equals
-/// the padded union bitwise (`x - pad` rounds monotonically), so a tree
-/// fitted here has the boxes the binned build would have written.
-pub(super) fn fit_boxes(nodes: &mut [BvhNode], tris: &[TriVerts], pad: Vec3A) {
-    let len = nodes.len();
-    fit(nodes, 0, len, tris, pad);
-}
-
 /// The box of the triangles `tris` padded by `pad`: every leaf box of the
 /// binary and the wide tree (the wide tree's boxes equal the binary ones
-/// bitwise because both are computed here).
+/// bitwise because both are computed here). An inner box is the union of
+/// its children's; the union of padded boxes equals the padded union
+/// bitwise (`x - pad` rounds monotonically), so a refit tree has the boxes
+/// the binned build would have written.
 #[inline(always)]
 pub(super) fn leaf_box(tris: &[TriVerts], pad: Vec3A) -> (Vec3A, Vec3A) {
     let (mut a, mut b) = (Vec3A::splat(f32::INFINITY), Vec3A::splat(f32::NEG_INFINITY));
@@ -138,9 +130,11 @@ pub(super) fn leaf_box(tris: &[TriVerts], pad: Vec3A) -> (Vec3A, Vec3A) {
     (a - pad, b + pad)
 }
 
-/// `fit_boxes` on the first `upto` nodes of `part`, the nodes `base..base +
-/// part.len()` of a tree whose children of those nodes lie in `part` (the
-/// fast build fits each worker's region and then its top this way).
+/// Every box of the first `upto` nodes of `part` recomputed bottom-up
+/// (children follow their parent, so one reverse pass meets them first).
+/// `part` holds the nodes `base..base + part.len()` of a tree, and the
+/// children of those nodes lie in `part` (the fast build fits each
+/// worker's region and then its top this way).
 pub(super) fn fit(part: &mut [BvhNode], base: usize, upto: usize, tris: &[TriVerts], pad: Vec3A) {
     for i in (0..upto).rev() {
         let nd = part[i];
@@ -159,10 +153,78 @@ pub(super) fn fit(part: &mut [BvhNode], base: usize, upto: usize, tris: &[TriVer
     }
 }
 
-/// Refit the built tree of `bvh` to `scene`'s current vertex positions.
+/// Refit the built tree of `bvh` to `scene`'s current vertex positions,
+/// on the calling thread (`refit_with` on `Serial`).
+pub fn refit(bvh: &mut Bvh<'_>, scene: &Scene<'_>) -> Result<RefitInfo> {
+    refit_with(bvh, scene, &Serial)
+}
+
+/// What one worker's check pass found over its share of the stored
+/// triangles.
+#[derive(Clone, Copy)]
+struct Found {
+    lo: Vec3A,
+    hi: Vec3A,
+    non_finite: bool,
+}
+
+impl Default for Found {
+    fn default() -> Self {
+        Found {
+            lo: Vec3A::splat(f32::INFINITY),
+            hi: Vec3A::splat(f32::NEG_INFINITY),
+            non_finite: false,
+        }
+    }
+}
+
+/// The padded SAH of the tree `nodes`, summed in reverse node order, each
+/// leaf with its parent; with `fit`, every inner box is first refitted as
+/// the union of its children's (whose boxes are final), the refit's last
+/// pass. Both ways sum in the same order, whatever the number of workers
+/// fitted the leaves, so a refit to unchanged vertices reports the same
+/// cost.
+fn inner_pass(nodes: &mut [BvhNode], traversal_cost: f32, fit: bool) -> f64 {
+    let leaf = |n: &BvhNode| half_area(n) * n.count() as f64;
+    if nodes[0].is_leaf() {
+        return leaf(&nodes[0]) / half_area(&nodes[0]).max(f64::MIN_POSITIVE);
+    }
+    let mut sum = 0.0f64;
+    for i in (0..nodes.len()).rev() {
+        let nd = nodes[i];
+        if nd.is_leaf() {
+            continue;
+        }
+        let first = nd.first as usize;
+        let (l, r) = (nodes[first], nodes[first + 1]);
+        let (a, b) = if fit {
+            let a = Vec3A::from(l.min).min(Vec3A::from(r.min));
+            let b = Vec3A::from(l.max).max(Vec3A::from(r.max));
+            (nodes[i].min, nodes[i].max) = (a.into(), b.into());
+            (a, b)
+        } else {
+            (Vec3A::from(nd.min), Vec3A::from(nd.max))
+        };
+        for c in [&l, &r] {
+            if c.is_leaf() {
+                sum += leaf(c);
+            }
+        }
+        // From the box in registers: reading the node just written back
+        // would stall on store forwarding.
+        let d = b - a;
+        sum += (d.x * d.y + d.y * d.z + d.z * d.x) as f64 * traversal_cost as f64;
+    }
+    sum / half_area(&nodes[0]).max(f64::MIN_POSITIVE)
+}
+
+/// `refit` on the caller's workers (`mem::par::Par`): the checks, the
+/// stored triangles and the leaf boxes are split among them; the inner
+/// boxes (one union each) are fitted by worker 0. The tree, the boxes and
+/// the reported SAH are the same for any number of workers.
 /// Errors (nothing changed): no tree built, a different triangle count, a
 /// stored triangle with a non-finite vertex.
-pub fn refit(bvh: &mut Bvh<'_>, scene: &Scene<'_>) -> Result<RefitInfo> {
+pub fn refit_with(bvh: &mut Bvh<'_>, scene: &Scene<'_>, par: &dyn Par) -> Result<RefitInfo> {
     let Some(mut info) = bvh.info().copied() else {
         return Err(Error::NotBuilt);
     };
@@ -172,25 +234,48 @@ pub fn refit(bvh: &mut Bvh<'_>, scene: &Scene<'_>) -> Result<RefitInfo> {
         ));
     }
     let traversal_cost = bvh.params().traversal_cost;
+    let cached_sah = bvh.refit_sah();
+    let workers = par.workers().clamp(1, MAX_WORKERS);
     let pools = bvh.pools_mut();
     let n = info.triangles as usize;
     let nn = info.nodes as usize;
 
     // 1. Check, writing nothing: every stored triangle finite; new bounds.
-    let (mut lo, mut hi) = (Vec3A::splat(f32::INFINITY), Vec3A::splat(f32::NEG_INFINITY));
-    for &id in &pools.tri_ids[..n] {
-        let t = scene.triangle(id);
-        let all = t.v0.iter().chain(&t.v1).chain(&t.v2);
-        if !all.clone().all(|x| x.is_finite()) {
-            return Err(Error::InvalidArgument(
-                "refit: a stored triangle has a non-finite vertex (the previous BVH is kept)",
-            ));
-        }
-        for v in [t.v0, t.v1, t.v2] {
-            let v = Vec3A::from(v);
-            (lo, hi) = (lo.min(v), hi.max(v));
-        }
+    // In the caller's triangle order (its vertices are near each other in
+    // most meshes), skipping those the build left out.
+    let mut found = [Found::default(); MAX_WORKERS];
+    {
+        let all = info.triangles_in as usize;
+        let (slots, fs) = (
+            &pools.slot_of[..all],
+            Parts::even(&mut found[..workers], workers),
+        );
+        par.run(&|w| {
+            let mut f = Found::default();
+            let part = share(all, w, workers);
+            for (id, _) in (part.start as u32..)
+                .zip(&slots[part])
+                .filter(|(_, s)| **s != INVALID_ID)
+            {
+                let t = scene.triangle(id);
+                let (a, b, c) = (Vec3A::from(t.v0), Vec3A::from(t.v1), Vec3A::from(t.v2));
+                f.non_finite |= !(a.is_finite() && b.is_finite() && c.is_finite());
+                f.lo = f.lo.min(a).min(b).min(c);
+                f.hi = f.hi.max(a).max(b).max(c);
+            }
+            fs.get(w)[0] = f;
+        });
     }
+    if found[..workers].iter().any(|f| f.non_finite) {
+        return Err(Error::InvalidArgument(
+            "refit: a stored triangle has a non-finite vertex (the previous BVH is kept)",
+        ));
+    }
+    let (lo, hi) = found[..workers]
+        .iter()
+        .fold((found[0].lo, found[0].hi), |(a, b), f| {
+            (a.min(f.lo), b.max(f.hi))
+        });
     // Only a build that left triangles out needs this second pass.
     let left_out = info.excluded_non_finite + info.excluded_zero_area;
     let newly_traceable = if left_out == 0 {
@@ -215,20 +300,47 @@ pub fn refit(bvh: &mut Bvh<'_>, scene: &Scene<'_>) -> Result<RefitInfo> {
     }
     crate::fault_point!(BvhBuild);
 
-    // 2. The stored triangles, then the boxes bottom-up.
-    let before = sah(&pools.nodes[..nn], traversal_cost);
-    let proj = info.test == TriTest::Projection;
-    for s in 0..n {
-        let t = scene.triangle(pools.tri_ids[s]);
-        pools.tris[s] = t;
-        if proj {
-            pools.proj[s] = ProjTri::new(&t);
-        }
+    // 2. The stored triangles, in slot order (scattering them in the
+    // caller's order measured slower).
+    let before =
+        cached_sah.unwrap_or_else(|| inner_pass(&mut pools.nodes[..nn], traversal_cost, false));
+    let proj_on = info.test == TriTest::Projection;
+    {
+        let ids = &pools.tri_ids[..n];
+        let ts = Parts::even(&mut pools.tris[..n], workers);
+        let ps = Parts::even(
+            if proj_on {
+                &mut pools.proj[..n]
+            } else {
+                &mut []
+            },
+            workers,
+        );
+        par.run(&|w| {
+            let (t, p, at) = (ts.get(w), ps.get(w), ts.start(w));
+            for (slot, &id) in t.iter_mut().zip(&ids[at..]) {
+                *slot = scene.triangle(id);
+            }
+            for (slot, t) in p.iter_mut().zip(t.iter()) {
+                *slot = ProjTri::new(t);
+            }
+        });
     }
+
+    // 3. The leaf boxes on every worker, then the inner boxes bottom-up.
     let pad = super::box_pad(lo, hi);
-    let nodes = &mut pools.nodes[..nn];
-    fit_boxes(nodes, &pools.tris[..n], pad);
-    let after = sah(nodes, traversal_cost);
+    {
+        let tris = &pools.tris[..n];
+        let ns = Parts::even(&mut pools.nodes[..nn], workers);
+        par.run(&|w| {
+            for nd in ns.get(w).iter_mut().filter(|nd| nd.is_leaf()) {
+                let first = nd.first as usize;
+                let (a, b) = leaf_box(&tris[first..first + nd.count() as usize], pad);
+                (nd.min, nd.max) = (a.into(), b.into());
+            }
+        });
+    }
+    let after = inner_pass(&mut pools.nodes[..nn], traversal_cost, true);
     if before > 0.0 {
         info.sah_cost = (info.sah_cost as f64 * after / before) as f32;
     }
@@ -237,6 +349,92 @@ pub fn refit(bvh: &mut Bvh<'_>, scene: &Scene<'_>) -> Result<RefitInfo> {
         max: hi.into(),
     };
     out.sah_after = info.sah_cost;
-    bvh.commit_refit(info, pad);
+    bvh.commit_refit(info, pad, after, par);
     Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::accel::bvh::build::build;
+    use crate::accel::bvh::build::testutil::Store;
+    use crate::accel::bvh::{BuildQuality, BvhParams};
+
+    /// Runs every task on the calling thread, the workers in reverse
+    /// order (no part may depend on another's having run first).
+    struct Backwards(usize);
+    impl Par for Backwards {
+        fn workers(&self) -> usize {
+            self.0
+        }
+        fn run(&self, task: &(dyn Fn(usize) + Sync)) {
+            (0..self.0).rev().for_each(task)
+        }
+    }
+
+    /// A refit split among workers writes the calling-thread refit's
+    /// stored triangles, binary and wide boxes, and SAH figures, bit for
+    /// bit, for every worker count, on the SAH and the fast tree.
+    #[test]
+    fn workers_refit_as_the_calling_thread() {
+        let mut a = crate::scenes::animated::Animated::new(1);
+        let n = a.mesh.indices.len() / 3;
+        for quality in [BuildQuality::Medium, BuildQuality::Low] {
+            let p = BvhParams {
+                quality,
+                ..BvhParams::default()
+            };
+            let mut results = Vec::new();
+            for workers in [0, 1, 2, 3, 7] {
+                a.set_time(0.0);
+                let mut st = Store::new(n, false);
+                let mut bvh = st.bvh();
+                let scene = Scene::from_f32(&a.mesh.vertices, &a.mesh.indices).unwrap();
+                build(&mut bvh, &scene, &p).unwrap();
+                a.set_time(1.5);
+                let scene = Scene::from_f32(&a.mesh.vertices, &a.mesh.indices).unwrap();
+                // Twice: the second refit starts from the first's cached SAH.
+                let mut infos = [RefitInfo::default(); 2];
+                for info in &mut infos {
+                    *info = if workers == 0 {
+                        refit(&mut bvh, &scene).unwrap()
+                    } else {
+                        refit_with(&mut bvh, &scene, &Backwards(workers)).unwrap()
+                    };
+                    info.ns = 0;
+                }
+                assert!(infos[0].growth() > 1.0, "{quality:?}: the boxes moved");
+                assert_eq!(
+                    infos[1].growth(),
+                    1.0,
+                    "{quality:?}: the same vertices again"
+                );
+                let v = bvh.view().unwrap();
+                assert!(v.info.wide_nodes > 0);
+                let bits = |x: &[f32]| x.iter().map(|f| f.to_bits()).collect::<Vec<_>>();
+                let nodes: Vec<f32> = v
+                    .nodes
+                    .iter()
+                    .flat_map(|n| n.min.into_iter().chain(n.max))
+                    .collect();
+                let tris: Vec<f32> = v
+                    .tris
+                    .iter()
+                    .flat_map(|t| t.v0.into_iter().chain(t.v1).chain(t.v2))
+                    .collect();
+                let wide: Vec<f32> = v
+                    .wide
+                    .iter()
+                    .flat_map(|w| w.min.into_iter().chain(w.max).flatten())
+                    .collect();
+                results.push((infos, *v.info, bits(&nodes), bits(&tris), bits(&wide)));
+            }
+            for r in &results[1..] {
+                assert!(
+                    r == &results[0],
+                    "{quality:?}: a worker count changed the refit"
+                );
+            }
+        }
+    }
 }

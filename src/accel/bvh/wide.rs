@@ -36,6 +36,7 @@
 
 use super::{BvhNode, MAX_DEPTH};
 use crate::geom::TriVerts;
+use crate::mem::par::{MAX_WORKERS, Par, Parts};
 use bytemuck::{Pod, Zeroable};
 use glam::Vec3A;
 
@@ -76,6 +77,15 @@ impl WideNode {
         }
         self.child[c] = child;
         self.count[c] = count;
+    }
+
+    /// Child `c`'s box (a refit).
+    #[inline(always)]
+    fn set_box(&mut self, c: usize, (lo, hi): (Vec3A, Vec3A)) {
+        for a in 0..3 {
+            self.min[a][c] = lo[a];
+            self.max[a][c] = hi[a];
+        }
     }
 }
 
@@ -194,31 +204,41 @@ pub(crate) fn collapse(nodes: &[BvhNode], out: &mut [WideNode], merge: u32) -> u
 /// triangles' box padded by `pad`, an inner child's the union of its wide
 /// node's children. Children follow their parent, so one reverse pass
 /// meets them first. Bitwise the boxes a collapse of the refit binary tree
-/// would copy: the union of padded boxes is the padded union (`fit_boxes`).
-pub(crate) fn refit(wide: &mut [WideNode], tris: &[TriVerts], pad: Vec3A) {
+/// would copy: the union of padded boxes is the padded union (`leaf_box`).
+pub(crate) fn refit(wide: &mut [WideNode], tris: &[TriVerts], pad: Vec3A, par: &dyn Par) {
+    // Leaf children on every worker (they read only the triangles), then
+    // inner children bottom-up on this one.
+    let workers = par.workers().clamp(1, MAX_WORKERS);
+    {
+        let parts = Parts::even(&mut *wide, workers);
+        par.run(&|w| {
+            for node in parts.get(w).iter_mut() {
+                for c in 0..WIDTH {
+                    let (child, count) = (node.child[c], node.count[c]);
+                    if child != WideNode::EMPTY && count > 0 {
+                        let first = child as usize;
+                        let b = super::refit::leaf_box(&tris[first..first + count as usize], pad);
+                        node.set_box(c, b);
+                    }
+                }
+            }
+        });
+    }
     for i in (0..wide.len()).rev() {
         for c in 0..WIDTH {
             let (child, count) = (wide[i].child[c], wide[i].count[c]);
-            if child == WideNode::EMPTY {
+            if child == WideNode::EMPTY || count > 0 {
                 continue;
             }
-            let (lo, hi) = if count > 0 {
-                let first = child as usize;
-                super::refit::leaf_box(&tris[first..first + count as usize], pad)
-            } else {
-                // Empty slots hold +inf / -inf: they leave the union alone.
-                let w = &wide[child as usize];
-                let lo = |a: usize| w.min[a].iter().copied().fold(f32::INFINITY, f32::min);
-                let hi = |a: usize| w.max[a].iter().copied().fold(f32::NEG_INFINITY, f32::max);
-                (
-                    Vec3A::new(lo(0), lo(1), lo(2)),
-                    Vec3A::new(hi(0), hi(1), hi(2)),
-                )
-            };
-            for a in 0..3 {
-                wide[i].min[a][c] = lo[a];
-                wide[i].max[a][c] = hi[a];
-            }
+            // Empty slots hold +inf / -inf: they leave the union alone.
+            let w = &wide[child as usize];
+            let lo = |a: usize| w.min[a].iter().copied().fold(f32::INFINITY, f32::min);
+            let hi = |a: usize| w.max[a].iter().copied().fold(f32::NEG_INFINITY, f32::max);
+            let b = (
+                Vec3A::new(lo(0), lo(1), lo(2)),
+                Vec3A::new(hi(0), hi(1), hi(2)),
+            );
+            wide[i].set_box(c, b);
         }
     }
 }
