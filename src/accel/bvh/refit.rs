@@ -159,25 +159,6 @@ pub fn refit(bvh: &mut Bvh<'_>, scene: &Scene<'_>) -> Result<RefitInfo> {
     refit_with(bvh, scene, &Serial)
 }
 
-/// What one worker's check pass found over its share of the stored
-/// triangles.
-#[derive(Clone, Copy)]
-struct Found {
-    lo: Vec3A,
-    hi: Vec3A,
-    non_finite: bool,
-}
-
-impl Default for Found {
-    fn default() -> Self {
-        Found {
-            lo: Vec3A::splat(f32::INFINITY),
-            hi: Vec3A::splat(f32::NEG_INFINITY),
-            non_finite: false,
-        }
-    }
-}
-
 /// The padded SAH of the tree `nodes`, summed in reverse node order, each
 /// leaf with its parent; with `fit`, every inner box is first refitted as
 /// the union of its children's (whose boxes are final), the refit's last
@@ -240,42 +221,36 @@ pub fn refit_with(bvh: &mut Bvh<'_>, scene: &Scene<'_>, par: &dyn Par) -> Result
     let n = info.triangles as usize;
     let nn = info.nodes as usize;
 
-    // 1. Check, writing nothing: every stored triangle finite; new bounds.
-    // In the caller's triangle order (its vertices are near each other in
-    // most meshes), skipping those the build left out.
-    let mut found = [Found::default(); MAX_WORKERS];
+    // 1. Check, writing nothing: every stored triangle finite. First one
+    // streaming pass over the vertex buffer; only when it holds a
+    // non-finite vertex (which may belong to triangles the build left out
+    // alone) are the stored triangles checked one by one.
+    let mut finite = [true; MAX_WORKERS];
     {
-        let all = info.triangles_in as usize;
-        let (slots, fs) = (
-            &pools.slot_of[..all],
-            Parts::even(&mut found[..workers], workers),
+        let (vs, fs) = (
+            scene.vertex_count() as usize,
+            Parts::even(&mut finite[..workers], workers),
         );
         par.run(&|w| {
-            let mut f = Found::default();
-            let part = share(all, w, workers);
-            for (id, _) in (part.start as u32..)
-                .zip(&slots[part])
-                .filter(|(_, s)| **s != INVALID_ID)
+            fs.get(w)[0] =
+                share(vs, w, workers).all(|i| Vec3A::from(scene.vertex(i as u32)).is_finite());
+        });
+    }
+    if !finite[..workers].iter().all(|&f| f) {
+        let all = info.triangles_in as usize;
+        let stored = (0..all as u32).filter(|&t| pools.slot_of[t as usize] != INVALID_ID);
+        for t in stored {
+            let t = scene.triangle(t);
+            if ![t.v0, t.v1, t.v2]
+                .iter()
+                .all(|v| Vec3A::from(*v).is_finite())
             {
-                let t = scene.triangle(id);
-                let (a, b, c) = (Vec3A::from(t.v0), Vec3A::from(t.v1), Vec3A::from(t.v2));
-                f.non_finite |= !(a.is_finite() && b.is_finite() && c.is_finite());
-                f.lo = f.lo.min(a).min(b).min(c);
-                f.hi = f.hi.max(a).max(b).max(c);
+                return Err(Error::InvalidArgument(
+                    "refit: a stored triangle has a non-finite vertex (the previous BVH is kept)",
+                ));
             }
-            fs.get(w)[0] = f;
-        });
+        }
     }
-    if found[..workers].iter().any(|f| f.non_finite) {
-        return Err(Error::InvalidArgument(
-            "refit: a stored triangle has a non-finite vertex (the previous BVH is kept)",
-        ));
-    }
-    let (lo, hi) = found[..workers]
-        .iter()
-        .fold((found[0].lo, found[0].hi), |(a, b), f| {
-            (a.min(f.lo), b.max(f.hi))
-        });
     // Only a build that left triangles out needs this second pass.
     let left_out = info.excluded_non_finite + info.excluded_zero_area;
     let newly_traceable = if left_out == 0 {
@@ -301,10 +276,11 @@ pub fn refit_with(bvh: &mut Bvh<'_>, scene: &Scene<'_>, par: &dyn Par) -> Result
     crate::fault_point!(BvhBuild);
 
     // 2. The stored triangles, in slot order (scattering them in the
-    // caller's order measured slower).
+    // caller's order measured slower), and their bounds.
     let before =
         cached_sah.unwrap_or_else(|| inner_pass(&mut pools.nodes[..nn], traversal_cost, false));
     let proj_on = info.test == TriTest::Projection;
+    let mut bounds = [(Vec3A::INFINITY, Vec3A::NEG_INFINITY); MAX_WORKERS];
     {
         let ids = &pools.tri_ids[..n];
         let ts = Parts::even(&mut pools.tris[..n], workers);
@@ -316,16 +292,25 @@ pub fn refit_with(bvh: &mut Bvh<'_>, scene: &Scene<'_>, par: &dyn Par) -> Result
             },
             workers,
         );
+        let bs = Parts::even(&mut bounds[..workers], workers);
         par.run(&|w| {
             let (t, p, at) = (ts.get(w), ps.get(w), ts.start(w));
+            let (mut lo, mut hi) = (Vec3A::INFINITY, Vec3A::NEG_INFINITY);
             for (slot, &id) in t.iter_mut().zip(&ids[at..]) {
                 *slot = scene.triangle(id);
+                for v in [slot.v0, slot.v1, slot.v2] {
+                    (lo, hi) = (lo.min(v.into()), hi.max(v.into()));
+                }
             }
             for (slot, t) in p.iter_mut().zip(t.iter()) {
                 *slot = ProjTri::new(t);
             }
+            bs.get(w)[0] = (lo, hi);
         });
     }
+    let (lo, hi) = bounds[..workers]
+        .iter()
+        .fold(bounds[0], |(a, b), &(l, h)| (a.min(l), b.max(h)));
 
     // 3. The leaf boxes on every worker, then the inner boxes bottom-up.
     let pad = super::box_pad(lo, hi);
@@ -436,5 +421,48 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// The checks: a non-finite vertex of a triangle the build left out
+    /// does not stop a refit (the vertex pass sees it, the per-triangle
+    /// check lets it by); one of a stored triangle is refused with the tree
+    /// unchanged; an excluded triangle that became finite is counted.
+    #[test]
+    fn non_finite_vertices_of_excluded_and_stored_triangles() {
+        let tris: Vec<[[f32; 3]; 3]> = (0..40)
+            .map(|i| {
+                let x = i as f32;
+                [[x, 0.0, 0.0], [x + 1.0, 0.0, 0.0], [x, 1.0, 0.5]]
+            })
+            .collect();
+        let (mut v, ix) = crate::accel::testkit::soup(&tris);
+        v[3 * 3 * 7] = f32::NAN; // triangle 7's first vertex: left out
+        let mut st = Store::new(tris.len(), false);
+        let mut bvh = st.bvh();
+        let built = build(
+            &mut bvh,
+            &Scene::from_f32(&v, &ix).unwrap(),
+            &BvhParams::default(),
+        )
+        .unwrap();
+        assert_eq!(built.excluded_non_finite, 1);
+        for x in v.iter_mut().skip(1).step_by(3) {
+            *x += 0.25; // every y moves (the NaN is an x)
+        }
+        let r = refit(&mut bvh, &Scene::from_f32(&v, &ix).unwrap()).unwrap();
+        assert_eq!((r.newly_traceable, r.rebuilt), (0, false));
+        let nodes = bvh.view().unwrap().nodes.to_vec();
+        let mut bad = v.clone();
+        bad[3 * 3 * 20 + 4] = f32::INFINITY; // a stored triangle's vertex
+        for par in [&Serial as &dyn Par, &Backwards(2)] {
+            assert!(refit_with(&mut bvh, &Scene::from_f32(&bad, &ix).unwrap(), par).is_err());
+            assert!(
+                bvh.view().unwrap().nodes == &nodes[..],
+                "a refused refit wrote boxes"
+            );
+        }
+        v[3 * 3 * 7] = 7.0;
+        let r = refit(&mut bvh, &Scene::from_f32(&v, &ix).unwrap()).unwrap();
+        assert_eq!(r.newly_traceable, 1);
     }
 }
