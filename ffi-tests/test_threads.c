@@ -235,6 +235,62 @@ static bool test_joined_refits(void) {
     return true;
 }
 
+/* Joined grid builds: thread i of n calls sheaf_context_build_grid_joined. */
+typedef struct {
+    uint32_t index, count;
+    sheaf_status status;
+} grid_arg;
+
+static void *grid_joiner(void *arg) {
+    grid_arg *a = arg;
+    a->status = sheaf_context_build_grid_joined(g_ctx, NULL, a->index, a->count);
+    return NULL;
+}
+
+static bool test_joined_grid_builds(void) {
+    /* The caller's threads join one grid build: on 1, 2 and 3 threads the
+       3DDDA and CGT packets give the calling-thread grid's hits bit for
+       bit, every thread returns the leader's status, and bad thread
+       arguments are refused at once. */
+    scene *s = box_field();
+    sheaf_limits l;
+    sheaf_hit want_cgt[NRAYS], got[NRAYS];
+    sheaf_trace_params tp;
+    pthread_t th[8];
+    grid_arg a[8];
+    uint32_t count, i;
+    CHECK_OK(sheaf_limits_default(s->nt, &l));
+    CHECK_OK(sheaf_context_create(&l, &g_ctx));
+    CHECK_OK(scene_set(g_ctx, s));
+    make_rays();
+    CHECK_OK(sheaf_trace_params_default(&tp));
+    tp.method = SHEAF_METHOD_GRID_CGT;
+    CHECK_OK(sheaf_context_build_grid(g_ctx, NULL));
+    CHECK_OK(sheaf_context_trace(g_ctx, SHEAF_METHOD_GRID_DDA, g_rays, g_want_hits, NRAYS));
+    CHECK_OK(sheaf_context_trace_with(g_ctx, &tp, g_rays, want_cgt, NRAYS));
+    for (count = 1; count <= 3; ++count) {
+        CHECK_OK(sheaf_context_build_bvh(g_ctx, NULL)); /* anything between builds */
+        for (i = 0; i < count; ++i) {
+            a[i].index = i;
+            a[i].count = count;
+        }
+        for (i = 1; i < count; ++i) CHECK(pthread_create(&th[i], NULL, grid_joiner, &a[i]) == 0);
+        grid_joiner(&a[0]);
+        for (i = 1; i < count; ++i) CHECK(pthread_join(th[i], NULL) == 0);
+        for (i = 0; i < count; ++i) CHECK_OK(a[i].status);
+        CHECK_OK(sheaf_context_trace(g_ctx, SHEAF_METHOD_GRID_DDA, g_rays, got, NRAYS));
+        CHECK(memcmp(got, g_want_hits, sizeof got) == 0);
+        CHECK_OK(sheaf_context_trace_with(g_ctx, &tp, g_rays, got, NRAYS));
+        CHECK(memcmp(got, want_cgt, sizeof got) == 0);
+    }
+    CHECK_STATUS(sheaf_context_build_grid_joined(g_ctx, NULL, 0, 0), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_build_grid_joined(g_ctx, NULL, 1, 1), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_build_grid_joined(NULL, NULL, 0, 1), SHEAF_STATUS_NULL_POINTER);
+    sheaf_context_destroy(g_ctx);
+    free(s);
+    return true;
+}
+
 static bool test_joined_builds(void) {
     /* The caller's threads join one BVH build: LOW on 2 and 3 threads and
        MEDIUM on 2 give the single-thread build's hits bit for bit, every
@@ -659,5 +715,6 @@ int main(void) {
     run_test("test_destroy_waits_for_calls_inside", test_destroy_waits_for_calls_inside, &passed, &failed);
     run_test("test_joined_builds", test_joined_builds, &passed, &failed);
     run_test("test_joined_refits", test_joined_refits, &passed, &failed);
+    run_test("test_joined_grid_builds", test_joined_grid_builds, &passed, &failed);
     return report(passed, failed);
 }

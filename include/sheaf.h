@@ -1425,6 +1425,22 @@ sheaf_status sheaf_context_build_grid(struct sheaf_context *ctx,
                                       const struct sheaf_grid_params *params);
 
 /**
+ * `sheaf_context_build_grid` on `thread_count` of the caller's threads,
+ * joined as `sheaf_context_build_bvh_joined` joins them (same protocol,
+ * same misuse notes): thread 0 leads and passes `params` (the helpers'
+ * are not read), the others run their share of every step but the
+ * resolution and return the leader's status. The grid is the same for
+ * any `thread_count`.
+ *
+ * Errors: as `sheaf_context_build_grid`; `SHEAF_STATUS_INVALID_ARGUMENT`
+ * for `thread_count` 0 or above 16 or `thread_index >= thread_count`.
+ */
+sheaf_status sheaf_context_build_grid_joined(struct sheaf_context *ctx,
+                                             const struct sheaf_grid_params *params,
+                                             uint32_t thread_index,
+                                             uint32_t thread_count);
+
+/**
  * Rebuild the BVH from the geometry with `*params` (copied; NULL: the
  * defaults of `sheaf_bvh_params_default`): a binned SAH build from scratch
  * (BVH paper section 5.1). The grid, if built, is untouched: a context may

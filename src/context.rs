@@ -342,6 +342,18 @@ impl<'a> Context<'a> {
 
     /// Rebuild the grid from `scene`. On error the previous grid stays valid.
     pub fn build_grid(&mut self, scene: &Scene<'_>, params: &GridParams) -> Result<GridInfo> {
+        self.build_grid_with(scene, params, &crate::mem::par::Serial)
+    }
+
+    /// `build_grid` on the caller's workers (as `build_bvh_with`): every
+    /// step but the resolution split among them; the same grid for any
+    /// number of workers.
+    pub fn build_grid_with(
+        &mut self,
+        scene: &Scene<'_>,
+        params: &GridParams,
+        par: &dyn crate::mem::par::Par,
+    ) -> Result<GridInfo> {
         if !self.limits.has(Limits::GRID) {
             return Err(Error::InvalidArgument(
                 "no grid pools: Limits::structures lacks GRID",
@@ -349,12 +361,13 @@ impl<'a> Context<'a> {
         }
         self.check_scene(scene)?;
         let t = now();
-        let info = grid::build::build(
+        let info = grid::build::build_with(
             &mut self.grid,
             scene,
             params,
             self.limits.grid_cells(),
             self.limits.grid_refs(),
+            par,
         )?;
         self.stats.build_ns = elapsed_ns(t);
         self.stats.grid = info;

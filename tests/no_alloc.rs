@@ -262,6 +262,9 @@ macro_rules! impl_frames {
                 }
                 self.build_bvh_with(s, &low, &Inline(3)).unwrap();
                 self.refit_bvh_with(s, &sheaf::RefitParams::default(), &Inline(3)).unwrap();
+                let gp = GridParams { test: p.test, ..GridParams::default() };
+                self.build_grid_with(s, &gp, &Inline(3)).unwrap();
+                self.trace_with(&TraceParams::cgt(8), r, h).unwrap();
                 self.trace_with(&bp, r, h).unwrap();
                 // The kd-tree beside both: build, every kd method and entry search.
                 self.build_kd(s, &KdParams { test: p.test, ..KdParams::default() }).unwrap();

@@ -894,12 +894,16 @@ static void agree_shadow(const Scene *s, const sheaf_context *ctx, RTCScene scen
 enum { S_GRID, S_BVH, S_BVH_LOW, S_KD, NSTRUCT };
 static const char *STRUCT_NAME[NSTRUCT] = {"grid", "BVH", "BVH LOW", "kd"};
 
-/* One thread of a joined BVH build or refit (sheaf_context_build_bvh_joined,
- * sheaf_context_refit_bvh_joined). */
+/* What the caller's threads join. */
+enum { J_BVH_LOW, J_REFIT, J_GRID };
+static const char *JOIN_NAME[] = {"BVH LOW build", "refit", "grid build"};
+
+/* One thread of a joined call (sheaf_context_build_bvh_joined,
+ * sheaf_context_refit_bvh_joined, sheaf_context_build_grid_joined). */
 typedef struct {
     sheaf_context *ctx;
     sheaf_bvh_params p;
-    int refit;
+    int what;
     uint32_t index, count;
     sheaf_status status;
 } JoinArg;
@@ -907,14 +911,16 @@ typedef struct {
 static void *join_thread(void *arg)
 {
     JoinArg *a = arg;
-    a->status = a->refit ? sheaf_context_refit_bvh_joined(a->ctx, NULL, NULL, a->index, a->count)
-                         : sheaf_context_build_bvh_joined(a->ctx, &a->p, a->index, a->count);
+    a->status = a->what == J_REFIT ? sheaf_context_refit_bvh_joined(a->ctx, NULL, NULL, a->index, a->count)
+              : a->what == J_GRID  ? sheaf_context_build_grid_joined(a->ctx, NULL, a->index, a->count)
+                                   : sheaf_context_build_bvh_joined(a->ctx, &a->p, a->index, a->count);
     return NULL;
 }
 
-/* The LOW build (or a refit) joined by T threads (this one leads; the
- * others are started here, as run_job starts its tracing threads). */
-static sheaf_status sheaf_joined(sheaf_context *ctx, int T, int refit)
+/* The LOW build, a refit or the grid build joined by T threads (this one
+ * leads; the others are started here, as run_job starts its tracing
+ * threads). */
+static sheaf_status sheaf_joined(sheaf_context *ctx, int T, int what)
 {
     pthread_t th[MAX_THREADS];
     JoinArg a[MAX_THREADS];
@@ -923,7 +929,7 @@ static sheaf_status sheaf_joined(sheaf_context *ctx, int T, int refit)
         sheaf_bvh_params_default(&a[i].p);
         a[i].p.quality = SHEAF_BUILD_QUALITY_LOW;
         a[i].p.width = 2; /* as sheaf_build(S_BVH_LOW) */
-        a[i].refit = refit;
+        a[i].what = what;
         a[i].index = (uint32_t)i;
         a[i].count = (uint32_t)T;
     }
@@ -934,13 +940,14 @@ static sheaf_status sheaf_joined(sheaf_context *ctx, int T, int refit)
     for (int i = 1; i < T; i++) pthread_join(th[i], NULL);
     for (int i = 1; i < T; i++)
         if (a[i].status != a[0].status)
-            die("joined %s: thread %d returned %s, the leader %s", refit ? "refit" : "build", i,
+            die("joined %s: thread %d returned %s, the leader %s", JOIN_NAME[what], i,
                 sheaf_status_string(a[i].status), sheaf_status_string(a[0].status));
     return a[0].status;
 }
 
-static sheaf_status sheaf_build_low_joined(sheaf_context *ctx, int T) { return sheaf_joined(ctx, T, 0); }
-static sheaf_status sheaf_refit_joined(sheaf_context *ctx, int T) { return sheaf_joined(ctx, T, 1); }
+static sheaf_status sheaf_build_low_joined(sheaf_context *ctx, int T) { return sheaf_joined(ctx, T, J_BVH_LOW); }
+static sheaf_status sheaf_refit_joined(sheaf_context *ctx, int T) { return sheaf_joined(ctx, T, J_REFIT); }
+static sheaf_status sheaf_grid_joined(sheaf_context *ctx, int T) { return sheaf_joined(ctx, T, J_GRID); }
 
 /* Build structure st into the context (the BVH at MEDIUM or LOW), the BVH
  * with `width` children per node for single rays (4: also the wide tree). */
@@ -1125,6 +1132,7 @@ typedef struct {
     double e_first[4][3], e_rebuild[4][3], e_prim[4][3][4], e_shad[4][3][4]; /* [threads][quality][width] */
     double refit_ms[4];              /* [threads]: sheaf_context_refit_bvh_joined, the same vertices */
     double low_ms[4];                /* [threads]: the BVH LOW build joined by that many threads */
+    double grid_ms[4];               /* [threads]: the grid build joined by that many threads */
     double anim[4][4], anim_parts[4][4][3]; /* [ANIM mode][threads]: mean ms per frame; update, camera, shadows */
     size_t anim_differ;              /* frames whose sheaf refit-tree hits differ from the rebuilt tree's */
     double e_refit_first[4], e_refit[4]; /* [threads]: Embree LOW + geometry REFIT */
@@ -1234,20 +1242,23 @@ static void time_sheaf_builds(Bench *b)
         b->build_ms[st] = 1e3 * median(t, reps);
         progress("  sheaf %s build %.1f ms\n", STRUCT_NAME[st], b->build_ms[st]);
     }
-    /* The LOW build joined by each thread count (1: the calling thread). */
-    for (int ti = 0; ti < b->o->nthreads; ti++) {
-        int T = b->o->threads[ti];
-        double t[MAX_REPS];
-        int reps = b->o->profile ? 1 : b->reps;
-        for (int r = 0; r < reps; r++) {
-            double t0 = now_s();
-            sheaf_status e = sheaf_build_low_joined(b->ctx, T);
-            t[r] = now_s() - t0;
-            check_sheaf(b->ctx, e, "joined build");
+    /* The LOW build and the grid joined by each thread count (1: the
+     * calling thread). */
+    for (int g = 0; g < 2; g++)
+        for (int ti = 0; ti < b->o->nthreads; ti++) {
+            int T = b->o->threads[ti];
+            double t[MAX_REPS];
+            int reps = b->o->profile ? 1 : b->reps;
+            for (int r = 0; r < reps; r++) {
+                double t0 = now_s();
+                sheaf_status e = g ? sheaf_grid_joined(b->ctx, T) : sheaf_build_low_joined(b->ctx, T);
+                t[r] = now_s() - t0;
+                check_sheaf(b->ctx, e, "joined build");
+            }
+            (g ? b->grid_ms : b->low_ms)[ti] = 1e3 * median(t, reps);
+            progress("  sheaf %s joined by %d threads %.1f ms\n", g ? "grid" : "BVH LOW build", T,
+                     (g ? b->grid_ms : b->low_ms)[ti]);
         }
-        b->low_ms[ti] = 1e3 * median(t, reps);
-        progress("  sheaf BVH LOW build joined by %d threads %.1f ms\n", T, b->low_ms[ti]);
-    }
     /* The reference, the checks and the method tables use the SAH tree. */
     check_sheaf(b->ctx, sheaf_build(b->ctx, S_BVH), "build");
     /* The BVH refit to the same vertices (its cost does not depend on how
@@ -1569,7 +1580,9 @@ static void time_sheaf_frames(Bench *b)
             double tf[MAX_REPS], tb[MAX_REPS], tp[MAX_REPS], ts[MAX_REPS];
             for (int r = 0; r < b->reps; r++) {
                 double t0 = now_s();
-                sheaf_status e = st == S_BVH_LOW ? sheaf_build_low_joined(b->ctx, T) : sheaf_build(b->ctx, st);
+                sheaf_status e = st == S_BVH_LOW ? sheaf_build_low_joined(b->ctx, T)
+                               : st == S_GRID    ? sheaf_grid_joined(b->ctx, T)
+                                                 : sheaf_build(b->ctx, st);
                 tb[r] = now_s() - t0;
                 check_sheaf(b->ctx, e, "build");
                 Job j = b->job;
@@ -1711,19 +1724,20 @@ static void print_tables(Bench *b)
     printf("%u triangles (%u excluded by sheaf: non-finite or zero area), %ux%u, %s; "
            "%zu camera rays (%zu hit), %zu shadow rays (%zu occluded); load average %.2f before, %.2f after.\n\n",
            b->s.nt, b->s.excluded, b->W, b->H, b->s.view, b->N, b->nhits, b->NS, b->nocc, b->load0, b->load1);
-    printf("**Builds**, ms (median of %d; sheaf's builds run on the calling thread but BVH LOW and the refit, "
-           "which the caller's threads join (sheaf_context_build_bvh_joined, sheaf_context_refit_bvh_joined; the "
-           "bench starts those threads per call, inside the timing, as it does for its ray jobs); Embree's on "
-           "its device threads):\n\n", b->reps);
+    printf("**Builds**, ms (median of %d; sheaf's grid, BVH LOW build and refit run on the caller's threads, "
+           "which join them (sheaf_context_build_grid_joined, sheaf_context_build_bvh_joined, "
+           "sheaf_context_refit_bvh_joined; the bench starts those threads per call, inside the timing, as it "
+           "does for its ray jobs), its other builds on the calling thread; Embree's on its device threads):\n\n",
+           b->reps);
     printf("| structure |");
     for (int ti = 0; ti < b->o->nthreads; ti++) printf(" %d thread%s |", b->o->threads[ti], b->o->threads[ti] > 1 ? "s" : "");
     printf("\n|---|");
     for (int ti = 0; ti < b->o->nthreads; ti++) printf("--:|");
     printf("\n");
     for (int st = 0; st < NSTRUCT; st++) {
-        printf("| sheaf %s%s |", STRUCT_NAME[st], st == S_BVH_LOW ? " (joined by the thread count)" : "");
+        printf("| sheaf %s%s |", STRUCT_NAME[st], st == S_BVH_LOW || st == S_GRID ? " (joined by the thread count)" : "");
         for (int ti = 0; ti < b->o->nthreads; ti++)
-            printf(" %.1f |", st == S_BVH_LOW ? b->low_ms[ti] : b->build_ms[st]);
+            printf(" %.1f |", st == S_BVH_LOW ? b->low_ms[ti] : st == S_GRID ? b->grid_ms[ti] : b->build_ms[st]);
         printf("\n");
     }
     for (int q = 0; q < 3; q++) {

@@ -578,6 +578,34 @@ pub extern "C" fn sheaf_context_build_grid(
     })
 }
 
+/// `sheaf_context_build_grid` on `thread_count` of the caller's threads,
+/// joined as `sheaf_context_build_bvh_joined` joins them (same protocol,
+/// same misuse notes): thread 0 leads and passes `params` (the helpers'
+/// are not read), the others run their share of every step but the
+/// resolution and return the leader's status. The grid is the same for
+/// any `thread_count`.
+///
+/// Errors: as `sheaf_context_build_grid`; `SHEAF_STATUS_INVALID_ARGUMENT`
+/// for `thread_count` 0 or above 16 or `thread_index >= thread_count`.
+#[unsafe(no_mangle)]
+pub extern "C" fn sheaf_context_build_grid_joined(
+    ctx: *mut sheaf_context,
+    params: *const sheaf_grid_params,
+    thread_index: u32,
+    thread_count: u32,
+) -> sheaf_status {
+    joined(ctx, thread_index, thread_count, |h, par| {
+        let params = if params.is_null() {
+            GridParams::default()
+        } else {
+            read_in(params)?.to_core()?
+        };
+        let g = h.geometry.as_ref().ok_or(Error::NoGeometry)?;
+        h.ctx.build_grid_with(&g.scene()?, &params, par)?;
+        Ok(())
+    })
+}
+
 /// Rebuild the BVH from the geometry with `*params` (copied; NULL: the
 /// defaults of `sheaf_bvh_params_default`): a binned SAH build from scratch
 /// (BVH paper section 5.1). The grid, if built, is untouched: a context may

@@ -7,11 +7,19 @@
 //! 4. Counting sort: per-cell counts, prefix sum, fill. No per-cell allocation:
 //!    one `cell_start` array and one `refs` array, both preallocated.
 //! 5. Macrocell flags: one bit per M x M x M block of cells.
+//!
+//! Every step but the resolution runs on the caller's workers
+//! (`build_with`, issue 18 item 4): the triangles split among them in
+//! order, cell counts and the fill by atomic increments, then each cell's
+//! references sorted back into triangle order, so the grid is the same for
+//! any number of workers.
 
 use super::{Grid, GridInfo, GridParams};
 use crate::error::{Error, Pool, Result};
 use crate::geom::{Aabb, Excluded, Scene, TriVerts};
 use crate::math;
+use crate::mem::par::{MAX_WORKERS, Par, Parts, Serial, atomic_u32, share};
+use core::sync::atomic::Ordering;
 use glam::Vec3;
 
 /// Widening of every triangle box at insertion, in cells (see `mod.rs`,
@@ -91,7 +99,31 @@ fn product(r: [u32; 3]) -> u64 {
     r[0] as u64 * r[1] as u64 * r[2] as u64
 }
 
-/// Rebuild `grid` from `scene`. On error nothing in `grid` changes.
+/// What one worker read of its share of the triangles.
+#[derive(Clone, Copy)]
+struct Read {
+    bounds: Aabb,
+    traceable: u32,
+    non_finite: u32,
+    zero_area: u32,
+}
+
+/// Calls `f(cell)` for every cell `(i, j, k)` of the box `a..=z`, `cell`
+/// its index in x-fastest order (`rx`, `ry`: the resolution's first two).
+#[inline(always)]
+fn for_cells(a: [u32; 3], z: [u32; 3], rx: usize, ry: usize, mut f: impl FnMut(usize)) {
+    for k in a[2]..=z[2] {
+        for j in a[1]..=z[1] {
+            let row = rx * (j as usize + ry * k as usize);
+            for i in a[0]..=z[0] {
+                f(row + i as usize);
+            }
+        }
+    }
+}
+
+/// Rebuild `grid` from `scene` on the calling thread (`build_with` on
+/// `Serial`). On error nothing in `grid` changes.
 pub fn build(
     grid: &mut Grid<'_>,
     scene: &Scene<'_>,
@@ -99,6 +131,20 @@ pub fn build(
     max_cells: u64,
     max_refs: u64,
 ) -> Result<GridInfo> {
+    build_with(grid, scene, p, max_cells, max_refs, &Serial)
+}
+
+/// `build` on the caller's workers (`mem::par::Par`); the same grid for
+/// any number of them. On error nothing in `grid` changes.
+pub fn build_with(
+    grid: &mut Grid<'_>,
+    scene: &Scene<'_>,
+    p: &GridParams,
+    max_cells: u64,
+    max_refs: u64,
+    par: &dyn Par,
+) -> Result<GridInfo> {
+    let workers = par.workers().clamp(1, MAX_WORKERS);
     if !(p.lambda.is_finite() && p.lambda > 0.0 && p.lambda <= 1024.0) {
         return Err(Error::InvalidArgument("lambda must be in (0, 1024]"));
     }
@@ -114,20 +160,36 @@ pub fn build(
         });
     }
 
-    // 1. Bounds and exclusions (read only).
-    let mut bounds = Aabb::EMPTY;
-    let (mut n, mut bad_nf, mut bad_za) = (0u32, 0u32, 0u32);
-    for t in 0..n_in {
-        let tri = scene.triangle(t);
-        match Scene::classify(&tri) {
-            None => {
-                n += 1;
-                bounds = bounds.union(&tri_bounds(&tri));
+    // 1. Bounds and exclusions (read only), each worker a share in order.
+    let nw = n_in as usize;
+    let mut reads = [Read {
+        bounds: Aabb::EMPTY,
+        traceable: 0,
+        non_finite: 0,
+        zero_area: 0,
+    }; MAX_WORKERS];
+    {
+        let rs = Parts::even(&mut reads[..workers], workers);
+        par.run(&|w| {
+            let r = &mut rs.get(w)[0];
+            for t in share(nw, w, workers) {
+                let tri = scene.triangle(t as u32);
+                match Scene::classify(&tri) {
+                    None => {
+                        r.traceable += 1;
+                        r.bounds = r.bounds.union(&tri_bounds(&tri));
+                    }
+                    Some(Excluded::NonFinite) => r.non_finite += 1,
+                    Some(Excluded::ZeroArea) => r.zero_area += 1,
+                }
             }
-            Some(Excluded::NonFinite) => bad_nf += 1,
-            Some(Excluded::ZeroArea) => bad_za += 1,
-        }
+        });
     }
+    let reads = &reads[..workers];
+    let mut bounds = reads.iter().fold(Aabb::EMPTY, |b, r| b.union(&r.bounds));
+    let n: u32 = reads.iter().map(|r| r.traceable).sum();
+    let bad_nf: u32 = reads.iter().map(|r| r.non_finite).sum();
+    let bad_za: u32 = reads.iter().map(|r| r.zero_area).sum();
 
     // 2. Resolution.
     let mut info = GridInfo {
@@ -194,17 +256,25 @@ pub fn build(
     }
 
     // 3. Count references (read only) and check capacity.
-    let mut refs = 0u64;
+    let mut counts = [0u64; MAX_WORKERS];
     if n > 0 {
-        for t in 0..n_in {
-            let tri = scene.triangle(t);
-            if Scene::classify(&tri).is_none() {
-                let (a, z) = cell_range(&info, &tri_bounds(&tri));
-                refs +=
-                    (z[0] - a[0] + 1) as u64 * (z[1] - a[1] + 1) as u64 * (z[2] - a[2] + 1) as u64;
+        let cs = Parts::even(&mut counts[..workers], workers);
+        let info = &info;
+        par.run(&|w| {
+            let mut refs = 0u64;
+            for t in share(nw, w, workers) {
+                let tri = scene.triangle(t as u32);
+                if Scene::classify(&tri).is_none() {
+                    let (a, z) = cell_range(info, &tri_bounds(&tri));
+                    refs += (z[0] - a[0] + 1) as u64
+                        * (z[1] - a[1] + 1) as u64
+                        * (z[2] - a[2] + 1) as u64;
+                }
             }
-        }
+            cs.get(w)[0] = refs;
+        });
     }
+    let refs: u64 = counts[..workers].iter().sum();
     let pools = grid.pools_mut();
     if p.test == crate::geom::TriTest::Projection && pools.proj.len() < n_in as usize {
         return Err(Error::InvalidArgument(
@@ -233,70 +303,244 @@ pub fn build(
     let cell_start = &mut pools.cell_start[..cells + 1];
     cell_start.fill(0);
     crate::fault_point!(GridBuild);
-    let mut c = 0usize;
-    for t in 0..n_in {
-        let tri = scene.triangle(t);
-        if Scene::classify(&tri).is_some() {
-            continue;
-        }
-        pools.tris[c] = tri;
-        if p.test == crate::geom::TriTest::Projection {
-            // Wald 2004 data, rebuilt with the grid (CGT paper section 3).
-            pools.proj[c] = crate::geom::ProjTri::new(&tri);
-        }
-        pools.tri_ids[c] = t;
-        c += 1;
-        let (a, z) = cell_range(&info, &tri_bounds(&tri));
-        for k in a[2]..=z[2] {
-            for j in a[1]..=z[1] {
-                let row = rx * (j as usize + ry * k as usize);
-                for i in a[0]..=z[0] {
-                    cell_start[row + i as usize + 1] += 1;
-                }
-            }
-        }
+    // Worker w stores its traceable triangles from `at[w]` on, in order.
+    let mut at = [0usize; MAX_WORKERS + 1];
+    for w in 0..workers {
+        at[w + 1] = at[w] + reads[w].traceable as usize;
     }
-    for i in 0..cells {
-        cell_start[i + 1] += cell_start[i];
+    let c = n as usize;
+    let proj_on = p.test == crate::geom::TriTest::Projection;
+    {
+        let ts = Parts::at(&mut pools.tris[..c], &at[..=workers]);
+        let ps = Parts::at(
+            if proj_on {
+                &mut pools.proj[..c]
+            } else {
+                &mut []
+            },
+            if proj_on { &at[..=workers] } else { &[] },
+        );
+        let ids = Parts::at(&mut pools.tri_ids[..c], &at[..=workers]);
+        let counts = atomic_u32(cell_start);
+        let info = &info;
+        par.run(&|w| {
+            let (ts, ids) = (ts.get(w), ids.get(w));
+            let ps = if proj_on { ps.get(w) } else { &mut [] };
+            let mut k = 0;
+            for t in share(nw, w, workers) {
+                let tri = scene.triangle(t as u32);
+                if Scene::classify(&tri).is_some() {
+                    continue;
+                }
+                ts[k] = tri;
+                if proj_on {
+                    // Wald 2004 data, rebuilt with the grid (CGT paper section 3).
+                    ps[k] = crate::geom::ProjTri::new(&tri);
+                }
+                ids[k] = t as u32;
+                k += 1;
+                let (a, z) = cell_range(info, &tri_bounds(&tri));
+                for_cells(a, z, rx, ry, |cell| {
+                    counts[cell + 1].fetch_add(1, Ordering::Relaxed);
+                });
+            }
+        });
+    }
+    // Prefix sum: each worker's share of the cells summed, then scanned
+    // from the shares before it.
+    let mut part_sums = [0u32; MAX_WORKERS + 1];
+    {
+        let (counts, sums) = (
+            &cell_start[1..],
+            Parts::even(&mut part_sums[..workers], workers),
+        );
+        par.run(&|w| {
+            let r = share(cells, w, workers);
+            sums.get(w)[0] = counts[r].iter().sum();
+        });
+    }
+    let mut carry = 0u32;
+    for s in &mut part_sums[..workers] {
+        (*s, carry) = (carry, carry + *s);
+    }
+    {
+        let cs = Parts::even(&mut cell_start[1..], workers);
+        par.run(&|w| {
+            let mut acc = part_sums[w];
+            for x in cs.get(w) {
+                acc += *x;
+                *x = acc;
+            }
+        });
     }
     // Fill: cell_start[c] is the write cursor of cell c; afterwards it holds
-    // the end of cell c, and one shift restores the starts.
-    for ci in 0..c {
-        let (a, z) = cell_range(&info, &tri_bounds(&pools.tris[ci]));
-        for k in a[2]..=z[2] {
-            for j in a[1]..=z[1] {
-                let row = rx * (j as usize + ry * k as usize);
-                for i in a[0]..=z[0] {
-                    let cur = &mut cell_start[row + i as usize];
-                    pools.refs[*cur as usize] = ci as u32;
-                    *cur += 1;
-                }
+    // the end of cell c, and one shift restores the starts. Workers fill
+    // at once (cursors taken atomically), so a cell's references come in
+    // any order: each cell is then sorted back into triangle order.
+    {
+        let (cursor, out) = (
+            atomic_u32(cell_start),
+            atomic_u32(&mut pools.refs[..refs as usize]),
+        );
+        let (tris, info) = (&pools.tris[..c], &info);
+        par.run(&|w| {
+            for ci in share(c, w, workers) {
+                let (a, z) = cell_range(info, &tri_bounds(&tris[ci]));
+                for_cells(a, z, rx, ry, |cell| {
+                    let at = cursor[cell].fetch_add(1, Ordering::Relaxed);
+                    out[at as usize].store(ci as u32, Ordering::Relaxed);
+                });
             }
-        }
+        });
     }
     cell_start.copy_within(0..cells, 1);
     cell_start[0] = 0;
+    if workers > 1 {
+        // Cut the references at cell boundaries near the even shares.
+        let mut cut = [0usize; MAX_WORKERS + 1];
+        let mut cell_cut = [0usize; MAX_WORKERS + 1];
+        for w in 1..workers {
+            cell_cut[w] = share(cells, w, workers).start;
+            cut[w] = cell_start[cell_cut[w]] as usize;
+        }
+        (cell_cut[workers], cut[workers]) = (cells, refs as usize);
+        let rs = Parts::at(&mut pools.refs[..refs as usize], &cut[..=workers]);
+        let starts = &*cell_start;
+        par.run(&|w| {
+            let part = rs.get(w);
+            let base = cut[w];
+            for cell in cell_cut[w]..cell_cut[w + 1] {
+                let (a, b) = (
+                    starts[cell] as usize - base,
+                    starts[cell + 1] as usize - base,
+                );
+                part[a..b].sort_unstable();
+            }
+        });
+    }
 
-    // 5. Macrocell occupancy.
+    // 5. Macrocell occupancy, each worker a share of the z slices (a word
+    // may hold bits of two shares: set atomically).
     let m = info.macrocell as usize;
     let mr = info.macro_res;
     let words = (product(mr) as usize).div_ceil(32);
     let bits = &mut pools.macro_bits[..words];
     bits.fill(0);
     let rz = info.res[2] as usize;
-    for k in 0..rz {
-        for j in 0..ry {
-            let row = rx * (j + ry * k);
-            let mrow = mr[0] as usize * (j / m + mr[1] as usize * (k / m));
-            for i in 0..rx {
-                if cell_start[row + i + 1] != cell_start[row + i] {
-                    let mi = mrow + i / m;
-                    bits[mi >> 5] |= 1 << (mi & 31);
+    {
+        let (bits, starts) = (atomic_u32(bits), &*cell_start);
+        par.run(&|w| {
+            for k in share(rz, w, workers) {
+                for j in 0..ry {
+                    let row = rx * (j + ry * k);
+                    let mrow = mr[0] as usize * (j / m + mr[1] as usize * (k / m));
+                    for i in 0..rx {
+                        if starts[row + i + 1] != starts[row + i] {
+                            let mi = mrow + i / m;
+                            bits[mi >> 5].fetch_or(1 << (mi & 31), Ordering::Relaxed);
+                        }
+                    }
                 }
             }
-        }
+        });
     }
 
     grid.set_info(info);
     Ok(info)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::accel::grid::GridPools;
+    use crate::geom::{ProjTri, TriTest};
+
+    /// Runs every task on the calling thread, the workers in reverse
+    /// order (no part may depend on another's having run first).
+    struct Backwards(usize);
+    impl Par for Backwards {
+        fn workers(&self) -> usize {
+            self.0
+        }
+        fn run(&self, task: &(dyn Fn(usize) + Sync)) {
+            (0..self.0).rev().for_each(task)
+        }
+    }
+
+    /// Everything a build wrote, as bits.
+    type Built = (
+        GridInfo,
+        Vec<u32>,
+        Vec<u32>,
+        Vec<u32>,
+        Vec<u32>,
+        Vec<u32>,
+        Vec<u32>,
+    );
+
+    fn built(vertices: &[f32], indices: &[u32], p: &GridParams, par: &dyn Par) -> Built {
+        let scene = Scene::from_f32(vertices, indices).unwrap();
+        let n = scene.triangle_count() as usize;
+        let (cells, refs) = (16 * n + 64, 64 * n + 64);
+        let mut tris = vec![TriVerts::default(); n];
+        let mut proj = vec![ProjTri::default(); n];
+        let mut ids = vec![0; n];
+        let mut starts = vec![0; cells + 1];
+        let mut rs = vec![0; refs];
+        let mut bits = vec![0; cells / 32 + 1];
+        let mut grid = Grid::new(GridPools {
+            tris: &mut tris,
+            proj: &mut proj,
+            tri_ids: &mut ids,
+            cell_start: &mut starts,
+            refs: &mut rs,
+            macro_bits: &mut bits,
+        });
+        let info = build_with(&mut grid, &scene, p, cells as u64, refs as u64, par).unwrap();
+        let v = grid.view().unwrap();
+        let words = |x: &[f32]| x.iter().map(|f| f.to_bits()).collect::<Vec<_>>();
+        let tris: Vec<f32> = v
+            .tris
+            .iter()
+            .flat_map(|t| t.v0.into_iter().chain(t.v1).chain(t.v2))
+            .collect();
+        let proj: Vec<u32> = bytemuck::cast_slice(v.proj).to_vec();
+        (
+            info,
+            words(&tris),
+            proj,
+            v.tri_ids.to_vec(),
+            v.cell_start.to_vec(),
+            v.refs.to_vec(),
+            v.macro_bits.to_vec(),
+        )
+    }
+
+    /// A build split among workers writes the calling thread's grid, bit
+    /// for bit: triangles, ids, cells, references in triangle order and
+    /// macrocell bits, with and without the projection data.
+    #[test]
+    fn workers_build_the_calling_threads_grid() {
+        for name in ["gears", "balls", "animated"] {
+            let s = crate::scenes::builtin(name).unwrap();
+            for test in [TriTest::MollerTrumbore, TriTest::Projection] {
+                let p = GridParams {
+                    test,
+                    ..GridParams::default()
+                };
+                let one = built(&s.mesh.vertices, &s.mesh.indices, &p, &Serial);
+                assert!(
+                    one.0.refs as usize > one.3.len(),
+                    "{name}: triangles span cells"
+                );
+                for workers in [2, 3, 7] {
+                    let got = built(&s.mesh.vertices, &s.mesh.indices, &p, &Backwards(workers));
+                    assert!(
+                        got == one,
+                        "{name} {test:?}: {workers} workers built another grid"
+                    );
+                }
+            }
+        }
+    }
 }
