@@ -1232,14 +1232,17 @@ mod perf {
             let n = scene.triangle_count() as usize;
             let mut st = Store::new(n, false);
             let mut bvh = st.bvh();
-            // SHEAF_PERF_QUALITY=low|medium|high: one build alone (for perf).
+            // SHEAF_PERF_QUALITY=low|medium|high: one build alone (for perf);
+            // SHEAF_PERF_WIDTH=2: without the 4-wide tree (its collapse).
             let only = std::env::var("SHEAF_PERF_QUALITY").unwrap_or_default();
+            let width = std::env::var("SHEAF_PERF_WIDTH").map_or(4, |w| w.parse().unwrap());
             for quality in [BuildQuality::Low, BuildQuality::Medium, BuildQuality::High] {
                 if !only.is_empty() && !format!("{quality:?}").eq_ignore_ascii_case(&only) {
                     continue;
                 }
                 let p = BvhParams {
                     quality,
+                    width,
                     ..BvhParams::default()
                 };
                 perf_one(file, &scene, &mut bvh, &p);

@@ -32,7 +32,7 @@
 //! - Counters count wide levels as depth, and 4 box tests per wide node.
 
 use super::traverse_single::{leaf4, walk as binary_walk};
-use super::wide::WIDTH;
+use super::wide::{WIDTH, insert_by};
 use super::{BvhView, TriangleTest};
 use crate::counters::Counters;
 use crate::geom::{Hit, Ray, RayLanes};
@@ -131,12 +131,7 @@ pub(crate) fn walk<T: TriangleTest, const ANY: bool>(
                 while hit != 0 {
                     let c = hit.trailing_zeros() as usize;
                     hit &= hit - 1;
-                    let mut j = k;
-                    while j > 0 && ts[order[j - 1]] > ts[c] {
-                        order[j] = order[j - 1];
-                        j -= 1;
-                    }
-                    order[j] = c;
+                    insert_by(&mut order, k, c, |&c| ts[c]);
                     k += 1;
                 }
                 if sp + k > STACK {

@@ -29,7 +29,7 @@
 
 use super::packet::{Packet, Walk, dispatch};
 use super::traverse_ranged::{Ranged, first_hit, last_hit, test_leaf};
-use super::wide::{WIDTH, WideNode};
+use super::wide::{WIDTH, WideNode, insert_by};
 use super::{BvhNode, BvhView, MAX_DEPTH, TriangleTest};
 use crate::accel::entry::EntryPoint;
 use crate::accel::fallback;
@@ -195,13 +195,7 @@ impl Walk for WideRanged {
                         let cb = child_box(n, c);
                         let ic = first_hit(p, &cb, ia, depth + 1, ctr);
                         if ic < nq {
-                            let key = p.near_key(&cb);
-                            let mut j = k;
-                            while j > 0 && kids[j - 1].0 > key {
-                                kids[j] = kids[j - 1];
-                                j -= 1;
-                            }
-                            kids[j] = (key, c, ic);
+                            insert_by(&mut kids, k, (p.near_key(&cb), c, ic), |e| e.0);
                             k += 1;
                         }
                     }

@@ -127,6 +127,20 @@ fn range(nodes: &[BvhNode], c: usize, merge: u32) -> Option<(u32, u32)> {
 /// nodes per binary leaf against 0.18-0.30 with it).
 pub const MERGE: u32 = 4;
 
+/// Inserts `x` into `list[..k]`, kept ascending by `key`; equal keys keep
+/// their arrival order. The wide walks order a node's children (at most
+/// `WIDTH`) this way.
+#[inline(always)]
+pub(crate) fn insert_by<T: Copy>(list: &mut [T; WIDTH], k: usize, x: T, key: impl Fn(&T) -> f32) {
+    let kx = key(&x);
+    let mut j = k;
+    while j > 0 && key(&list[j - 1]) > kx {
+        list[j] = list[j - 1];
+        j -= 1;
+    }
+    list[j] = x;
+}
+
 /// Wide nodes a pool of `bytes` holds.
 pub(crate) fn capacity(bytes: usize) -> usize {
     bytes / core::mem::size_of::<WideNode>()
