@@ -256,6 +256,8 @@ static bool test_joined_grid_builds(void) {
     sheaf_limits l;
     sheaf_hit want_cgt[NRAYS], got[NRAYS];
     sheaf_trace_params tp;
+    sheaf_grid_params coarse;
+    sheaf_stats want_st, st;
     pthread_t th[8];
     grid_arg a[8];
     uint32_t count, i;
@@ -265,11 +267,16 @@ static bool test_joined_grid_builds(void) {
     make_rays();
     CHECK_OK(sheaf_trace_params_default(&tp));
     tp.method = SHEAF_METHOD_GRID_CGT;
+    CHECK_OK(sheaf_grid_params_default(&coarse));
+    coarse.lambda = 0.5f; /* another resolution, so each joined build must rewrite the grid */
     CHECK_OK(sheaf_context_build_grid(g_ctx, NULL));
+    CHECK_OK(sheaf_context_stats(g_ctx, &want_st));
     CHECK_OK(sheaf_context_trace(g_ctx, SHEAF_METHOD_GRID_DDA, g_rays, g_want_hits, NRAYS));
     CHECK_OK(sheaf_context_trace_with(g_ctx, &tp, g_rays, want_cgt, NRAYS));
     for (count = 1; count <= 3; ++count) {
-        CHECK_OK(sheaf_context_build_bvh(g_ctx, NULL)); /* anything between builds */
+        CHECK_OK(sheaf_context_build_grid(g_ctx, &coarse));
+        CHECK_OK(sheaf_context_stats(g_ctx, &st));
+        CHECK(st.grid_cells != want_st.grid_cells);
         for (i = 0; i < count; ++i) {
             a[i].index = i;
             a[i].count = count;
@@ -278,6 +285,9 @@ static bool test_joined_grid_builds(void) {
         grid_joiner(&a[0]);
         for (i = 1; i < count; ++i) CHECK(pthread_join(th[i], NULL) == 0);
         for (i = 0; i < count; ++i) CHECK_OK(a[i].status);
+        CHECK_OK(sheaf_context_stats(g_ctx, &st));
+        CHECK(st.grid_cells == want_st.grid_cells && st.grid_refs == want_st.grid_refs &&
+              memcmp(st.grid_res, want_st.grid_res, sizeof st.grid_res) == 0);
         CHECK_OK(sheaf_context_trace(g_ctx, SHEAF_METHOD_GRID_DDA, g_rays, got, NRAYS));
         CHECK(memcmp(got, g_want_hits, sizeof got) == 0);
         CHECK_OK(sheaf_context_trace_with(g_ctx, &tp, g_rays, got, NRAYS));

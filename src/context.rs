@@ -407,7 +407,8 @@ impl<'a> Context<'a> {
     /// Refit the built BVH to `scene`'s moved vertices (same triangles):
     /// its boxes recomputed bottom-up, its shape kept (`bvh::refit`); past
     /// `params.rebuild_above` SAH growth, rebuilt with the last build's
-    /// parameters instead. On error the previous BVH stays valid.
+    /// parameters instead. On error the previous BVH stays valid (when the
+    /// rebuild fails, the refit tree: exact like any tree).
     pub fn refit_bvh(&mut self, scene: &Scene<'_>, params: &RefitParams) -> Result<RefitInfo> {
         self.refit_bvh_with(scene, params, &crate::mem::par::Serial)
     }
@@ -433,6 +434,10 @@ impl<'a> Context<'a> {
         let mut r = bvh::refit::refit_with(&mut self.bvh, scene, par)?;
         if params.rebuild_above > 0.0 && r.growth() > params.rebuild_above {
             let bp = self.bvh.params();
+            // A failed rebuild keeps the refit tree (valid and exact).
+            if let Some(info) = self.bvh.info() {
+                self.stats.bvh = *info;
+            }
             let info = bvh::build::build_with(&mut self.bvh, scene, &bp, par)?;
             r.rebuilt = true;
             r.sah_after = info.sah_cost;

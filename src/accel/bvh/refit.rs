@@ -216,7 +216,10 @@ pub fn refit_with(bvh: &mut Bvh<'_>, scene: &Scene<'_>, par: &dyn Par) -> Result
     }
     let traversal_cost = bvh.params().traversal_cost;
     let cached_sah = bvh.refit_sah();
-    let workers = par.workers().clamp(1, MAX_WORKERS);
+    let workers = par.workers();
+    if !(1..=MAX_WORKERS).contains(&workers) {
+        return Err(Error::InvalidArgument("a refit takes 1 to 16 workers"));
+    }
     let pools = bvh.pools_mut();
     let n = info.triangles as usize;
     let nn = info.nodes as usize;
@@ -464,5 +467,32 @@ mod tests {
         v[3 * 3 * 7] = 7.0;
         let r = refit(&mut bvh, &Scene::from_f32(&v, &ix).unwrap()).unwrap();
         assert_eq!(r.newly_traceable, 1);
+    }
+
+    /// A build forgets the SAH the last refit cached: a refit to the
+    /// vertices a fresh tree was built from reports no growth (a stale
+    /// cache, the previous tree's, would report some), and a `Par` of more
+    /// than 16 workers is refused with the tree unchanged.
+    #[test]
+    fn a_build_clears_the_cached_sah() {
+        let mut a = crate::scenes::animated::Animated::new(1);
+        let n = a.mesh.indices.len() / 3;
+        let mut st = Store::new(n, false);
+        let mut bvh = st.bvh();
+        let p = BvhParams::default();
+        build(
+            &mut bvh,
+            &Scene::from_f32(&a.mesh.vertices, &a.mesh.indices).unwrap(),
+            &p,
+        )
+        .unwrap();
+        a.set_time(1.5);
+        let scene = Scene::from_f32(&a.mesh.vertices, &a.mesh.indices).unwrap();
+        assert!(refit(&mut bvh, &scene).unwrap().growth() > 1.0);
+        build(&mut bvh, &scene, &p).unwrap();
+        assert_eq!(refit(&mut bvh, &scene).unwrap().growth(), 1.0);
+        let nodes = bvh.view().unwrap().nodes.to_vec();
+        assert!(refit_with(&mut bvh, &scene, &Backwards(MAX_WORKERS + 1)).is_err());
+        assert!(bvh.view().unwrap().nodes == &nodes[..]);
     }
 }

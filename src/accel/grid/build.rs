@@ -144,7 +144,10 @@ pub fn build_with(
     max_refs: u64,
     par: &dyn Par,
 ) -> Result<GridInfo> {
-    let workers = par.workers().clamp(1, MAX_WORKERS);
+    let workers = par.workers();
+    if !(1..=MAX_WORKERS).contains(&workers) {
+        return Err(Error::InvalidArgument("a grid build takes 1 to 16 workers"));
+    }
     if !(p.lambda.is_finite() && p.lambda > 0.0 && p.lambda <= 1024.0) {
         return Err(Error::InvalidArgument("lambda must be in (0, 1024]"));
     }
@@ -300,9 +303,9 @@ pub fn build_with(
     // 4. Commit: store triangles, count per cell, prefix sum, fill.
     let cells = cells as usize;
     let (rx, ry) = (info.res[0] as usize, info.res[1] as usize);
+    crate::fault_point!(GridBuild);
     let cell_start = &mut pools.cell_start[..cells + 1];
     cell_start.fill(0);
-    crate::fault_point!(GridBuild);
     // Worker w stores its traceable triangles from `at[w]` on, in order.
     let mut at = [0usize; MAX_WORKERS + 1];
     for w in 0..workers {
