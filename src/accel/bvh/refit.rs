@@ -454,14 +454,16 @@ mod tests {
         }
         let r = refit(&mut bvh, &Scene::from_f32(&v, &ix).unwrap()).unwrap();
         assert_eq!((r.newly_traceable, r.rebuilt), (0, false));
-        let nodes = bvh.view().unwrap().nodes.to_vec();
+        let v0 = bvh.view().unwrap();
+        let (nodes, tris, wide) = (v0.nodes.to_vec(), v0.tris.to_vec(), v0.wide.to_vec());
         let mut bad = v.clone();
         bad[3 * 3 * 20 + 4] = f32::INFINITY; // a stored triangle's vertex
         for par in [&Serial as &dyn Par, &Backwards(2)] {
             assert!(refit_with(&mut bvh, &Scene::from_f32(&bad, &ix).unwrap(), par).is_err());
+            let v1 = bvh.view().unwrap();
             assert!(
-                bvh.view().unwrap().nodes == &nodes[..],
-                "a refused refit wrote boxes"
+                v1.nodes == &nodes[..] && v1.tris == &tris[..] && v1.wide == &wide[..],
+                "a refused refit wrote"
             );
         }
         v[3 * 3 * 7] = 7.0;

@@ -546,4 +546,66 @@ mod tests {
             }
         }
     }
+
+    /// A joined build that fails its capacity check leaves the last grid
+    /// as it was, and an empty scene builds on any number of workers.
+    #[test]
+    fn workers_keep_the_grid_on_error_and_build_empty_scenes() {
+        let s = crate::scenes::builtin("gears").unwrap();
+        let scene = Scene::from_f32(&s.mesh.vertices, &s.mesh.indices).unwrap();
+        let n = scene.triangle_count() as usize;
+        let (cells, refs) = (16 * n + 64, 64 * n + 64);
+        let mut tris = vec![TriVerts::default(); n];
+        let mut proj = vec![ProjTri::default(); n];
+        let mut ids = vec![0; n];
+        let mut starts = vec![0; cells + 1];
+        let mut rs = vec![0; refs];
+        let mut bits = vec![0; cells / 32 + 1];
+        let mut grid = Grid::new(GridPools {
+            tris: &mut tris,
+            proj: &mut proj,
+            tri_ids: &mut ids,
+            cell_start: &mut starts,
+            refs: &mut rs,
+            macro_bits: &mut bits,
+        });
+        let p = GridParams::default();
+        let (c, r) = (cells as u64, refs as u64);
+        let info = build_with(&mut grid, &scene, &p, c, r, &Backwards(2)).unwrap();
+        let snapshot = |g: &Grid<'_>| {
+            let v = g.view().unwrap();
+            (
+                *v.info,
+                v.cell_start.to_vec(),
+                v.refs.to_vec(),
+                v.tri_ids.to_vec(),
+            )
+        };
+        let before = snapshot(&grid);
+        let e = build_with(
+            &mut grid,
+            &scene,
+            &p,
+            c,
+            info.refs as u64 - 1,
+            &Backwards(3),
+        );
+        assert!(
+            matches!(
+                e,
+                Err(Error::Capacity {
+                    pool: Pool::GridRefs,
+                    ..
+                })
+            ),
+            "{e:?}"
+        );
+        assert!(
+            snapshot(&grid) == before,
+            "a refused build changed the grid"
+        );
+        let empty = build_with(&mut grid, &Scene::empty(), &p, c, r, &Backwards(3)).unwrap();
+        assert_eq!((empty.triangles, empty.refs), (0, 0));
+        assert!(build_with(&mut grid, &scene, &p, c, r, &Backwards(MAX_WORKERS + 1)).is_err());
+    }
 }
