@@ -528,3 +528,17 @@ pub fn tris_of(scene: &Scene<'_>) -> Vec<[[f32; 3]; 3]> {
         .map(|t| [t.v0, t.v1, t.v2])
         .collect()
 }
+
+/// A `Par` that runs every task on the calling thread, the workers in
+/// reverse order (no part of a joined build may depend on another's having
+/// run first).
+pub struct Backwards(pub usize);
+
+impl crate::mem::par::Par for Backwards {
+    fn workers(&self) -> usize {
+        self.0
+    }
+    fn run(&self, task: &(dyn Fn(usize) + Sync)) {
+        (0..self.0).rev().for_each(task)
+    }
+}

@@ -347,18 +347,7 @@ mod tests {
     use crate::accel::bvh::build::build;
     use crate::accel::bvh::build::testutil::Store;
     use crate::accel::bvh::{BuildQuality, BvhParams};
-
-    /// Runs every task on the calling thread, the workers in reverse
-    /// order (no part may depend on another's having run first).
-    struct Backwards(usize);
-    impl Par for Backwards {
-        fn workers(&self) -> usize {
-            self.0
-        }
-        fn run(&self, task: &(dyn Fn(usize) + Sync)) {
-            (0..self.0).rev().for_each(task)
-        }
-    }
+    use crate::accel::testkit::Backwards;
 
     /// A refit split among workers writes the calling-thread refit's
     /// stored triangles, binary and wide boxes, and SAH figures, bit for

@@ -456,17 +456,45 @@ pub fn build_with(
 mod tests {
     use super::*;
     use crate::accel::grid::GridPools;
+    use crate::accel::testkit::Backwards;
     use crate::geom::{ProjTri, TriTest};
 
-    /// Runs every task on the calling thread, the workers in reverse
-    /// order (no part may depend on another's having run first).
-    struct Backwards(usize);
-    impl Par for Backwards {
-        fn workers(&self) -> usize {
-            self.0
+    /// Pools for a grid of `n` triangles (16 cells and 64 references per
+    /// triangle).
+    struct Store {
+        tris: Vec<TriVerts>,
+        proj: Vec<ProjTri>,
+        ids: Vec<u32>,
+        starts: Vec<u32>,
+        rs: Vec<u32>,
+        bits: Vec<u32>,
+        cells: usize,
+        refs: usize,
+    }
+
+    impl Store {
+        fn new(n: usize) -> Store {
+            let (cells, refs) = (16 * n + 64, 64 * n + 64);
+            Store {
+                tris: vec![TriVerts::default(); n],
+                proj: vec![ProjTri::default(); n],
+                ids: vec![0; n],
+                starts: vec![0; cells + 1],
+                rs: vec![0; refs],
+                bits: vec![0; cells / 32 + 1],
+                cells,
+                refs,
+            }
         }
-        fn run(&self, task: &(dyn Fn(usize) + Sync)) {
-            (0..self.0).rev().for_each(task)
+        fn grid(&mut self) -> Grid<'_> {
+            Grid::new(GridPools {
+                tris: &mut self.tris,
+                proj: &mut self.proj,
+                tri_ids: &mut self.ids,
+                cell_start: &mut self.starts,
+                refs: &mut self.rs,
+                macro_bits: &mut self.bits,
+            })
         }
     }
 
@@ -484,21 +512,9 @@ mod tests {
     fn built(vertices: &[f32], indices: &[u32], p: &GridParams, par: &dyn Par) -> Built {
         let scene = Scene::from_f32(vertices, indices).unwrap();
         let n = scene.triangle_count() as usize;
-        let (cells, refs) = (16 * n + 64, 64 * n + 64);
-        let mut tris = vec![TriVerts::default(); n];
-        let mut proj = vec![ProjTri::default(); n];
-        let mut ids = vec![0; n];
-        let mut starts = vec![0; cells + 1];
-        let mut rs = vec![0; refs];
-        let mut bits = vec![0; cells / 32 + 1];
-        let mut grid = Grid::new(GridPools {
-            tris: &mut tris,
-            proj: &mut proj,
-            tri_ids: &mut ids,
-            cell_start: &mut starts,
-            refs: &mut rs,
-            macro_bits: &mut bits,
-        });
+        let mut st = Store::new(n);
+        let (cells, refs) = (st.cells, st.refs);
+        let mut grid = st.grid();
         let info = build_with(&mut grid, &scene, p, cells as u64, refs as u64, par).unwrap();
         let v = grid.view().unwrap();
         let words = |x: &[f32]| x.iter().map(|f| f.to_bits()).collect::<Vec<_>>();
@@ -554,21 +570,9 @@ mod tests {
         let s = crate::scenes::builtin("gears").unwrap();
         let scene = Scene::from_f32(&s.mesh.vertices, &s.mesh.indices).unwrap();
         let n = scene.triangle_count() as usize;
-        let (cells, refs) = (16 * n + 64, 64 * n + 64);
-        let mut tris = vec![TriVerts::default(); n];
-        let mut proj = vec![ProjTri::default(); n];
-        let mut ids = vec![0; n];
-        let mut starts = vec![0; cells + 1];
-        let mut rs = vec![0; refs];
-        let mut bits = vec![0; cells / 32 + 1];
-        let mut grid = Grid::new(GridPools {
-            tris: &mut tris,
-            proj: &mut proj,
-            tri_ids: &mut ids,
-            cell_start: &mut starts,
-            refs: &mut rs,
-            macro_bits: &mut bits,
-        });
+        let mut st = Store::new(n);
+        let (cells, refs) = (st.cells, st.refs);
+        let mut grid = st.grid();
         let p = GridParams::default();
         let (c, r) = (cells as u64, refs as u64);
         let info = build_with(&mut grid, &scene, &p, c, r, &Backwards(2)).unwrap();
