@@ -301,6 +301,114 @@ static bool test_joined_grid_builds(void) {
     return true;
 }
 
+/* Joined deferred frames: thread i of n calls sheaf_context_render_deferred_joined. */
+#define DW 67
+#define DH 45
+static sheaf_deferred_job g_djob;
+static uint8_t g_dimg[4][DH][DW * 4];
+
+typedef struct {
+    uint32_t index, count;
+    sheaf_status status;
+} frame_arg;
+
+static void *frame_joiner(void *arg) {
+    frame_arg *a = arg;
+    /* Helpers pass no framebuffer: only the leader's arguments are read. */
+    a->status = sheaf_context_render_deferred_joined(g_ctx, a->index ? NULL : &g_djob,
+                                                     a->index ? NULL : &g_dimg[a->count][0][0], DW * 4,
+                                                     a->index ? 0 : sizeof g_dimg[0], a->index, a->count);
+    return NULL;
+}
+
+static bool test_joined_deferred_frames(void) {
+    /* The caller's threads join deferred frames (perspective grid, two
+       lights through light grids, chunks of 16 rays): on 1, 2 and 3
+       threads the image, every pixel's hit and shadow bits and the grids'
+       and the reordering's statistics equal the calling-thread frame's,
+       every thread returns the leader's status, and bad thread arguments
+       are refused. The context has two thread slots: on 3 threads the third
+       joins the build phases only. */
+    static sheaf_hit want_hit[DH][DW];
+    static uint8_t want_bits[DH][DW];
+    scene *s = box_field();
+    sheaf_limits l;
+    sheaf_pgrid_params pp;
+    sheaf_light lights[2];
+    sheaf_stats want, st;
+    sheaf_hit hit;
+    uint8_t bits;
+    pthread_t th[8];
+    frame_arg a[8];
+    uint32_t count, i, x, y, shadowed = 0;
+    CHECK_OK(sheaf_limits_default(s->nt, &l));
+    l.structures = SHEAF_STRUCTURE_PGRID;
+    l.max_image_width = DW;
+    l.max_image_height = DH;
+    l.max_threads = 2;
+    CHECK_OK(sheaf_context_create(&l, &g_ctx));
+    CHECK_OK(scene_set(g_ctx, s));
+    CHECK_OK(sheaf_pgrid_params_default(&pp));
+    pp.chunk = 16;
+    CHECK_OK(sheaf_context_build_pgrid(g_ctx, &pp));
+    memset(&g_djob, 0, sizeof g_djob);
+    g_djob.frame = default_frame(DW, DH);
+    lights[0] = g_djob.frame.light;
+    lights[1] = g_djob.frame.light;
+    lights[1].position[0] = -5.0f;
+    lights[1].spot_direction[0] = 5.0f;
+    lights[1].spot_direction[1] = 3.0f;
+    lights[1].spot_direction[2] = -8.0f;
+    lights[1].spot_angle_deg = 35.0f;
+    g_djob.lights = lights;
+    g_djob.light_count = 2;
+    g_djob.primary_pgrid = true;
+    g_djob.shadow_light_grid = true;
+    CHECK_OK(sheaf_context_render_deferred(g_ctx, &g_djob, &g_dimg[0][0][0], DW * 4, sizeof g_dimg[0]));
+    CHECK_OK(sheaf_context_stats(g_ctx, &want));
+    CHECK(want.shadow_rays > 0 && want.reorder_chunks > want.reorder_tiles_used);
+    for (y = 0; y < DH; ++y) {
+        for (x = 0; x < DW; ++x) {
+            CHECK_OK(sheaf_context_deferred_pixel(g_ctx, x, y, &want_hit[y][x], &want_bits[y][x]));
+            shadowed += want_bits[y][x] != 0;
+        }
+    }
+    CHECK(shadowed > 0);
+    for (count = 1; count <= 3; ++count) {
+        for (i = 0; i < count; ++i) {
+            a[i].index = i;
+            a[i].count = count;
+        }
+        for (i = 1; i < count; ++i) CHECK(pthread_create(&th[i], NULL, frame_joiner, &a[i]) == 0);
+        frame_joiner(&a[0]);
+        for (i = 1; i < count; ++i) CHECK(pthread_join(th[i], NULL) == 0);
+        for (i = 0; i < count; ++i) CHECK_OK(a[i].status);
+        CHECK(memcmp(g_dimg[count], g_dimg[0], sizeof g_dimg[0]) == 0);
+        CHECK_OK(sheaf_context_stats(g_ctx, &st));
+        CHECK(st.camera_refs == want.camera_refs && st.camera_mapped == want.camera_mapped &&
+              st.light_refs == want.light_refs && st.light_mapped == want.light_mapped &&
+              memcmp(st.light_tiles, want.light_tiles, sizeof st.light_tiles) == 0 &&
+              st.shadow_rays == want.shadow_rays && st.reorder_rays == want.reorder_rays &&
+              st.reorder_chunks == want.reorder_chunks && st.reorder_tiles_used == want.reorder_tiles_used &&
+              st.reorder_max_tile_rays == want.reorder_max_tile_rays && st.hits == want.hits);
+        for (y = 0; y < DH; ++y) {
+            for (x = 0; x < DW; ++x) {
+                CHECK_OK(sheaf_context_deferred_pixel(g_ctx, x, y, &hit, &bits));
+                CHECK(memcmp(&hit, &want_hit[y][x], sizeof hit) == 0 && bits == want_bits[y][x]);
+            }
+        }
+    }
+    CHECK_STATUS(sheaf_context_render_deferred_joined(g_ctx, &g_djob, &g_dimg[0][0][0], DW * 4, sizeof g_dimg[0], 0, 0),
+                 SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_render_deferred_joined(g_ctx, &g_djob, &g_dimg[0][0][0], DW * 4, sizeof g_dimg[0], 1, 1),
+                 SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_render_deferred_joined(NULL, &g_djob, &g_dimg[0][0][0], DW * 4, sizeof g_dimg[0], 0, 1),
+                 SHEAF_STATUS_NULL_POINTER);
+    sheaf_context_destroy(g_ctx);
+    free(s);
+    return true;
+}
+
 static bool test_joined_builds(void) {
     /* The caller's threads join one BVH build: LOW on 2 and 3 threads and
        MEDIUM on 2 give the single-thread build's hits bit for bit, every
@@ -726,5 +834,6 @@ int main(void) {
     run_test("test_joined_builds", test_joined_builds, &passed, &failed);
     run_test("test_joined_refits", test_joined_refits, &passed, &failed);
     run_test("test_joined_grid_builds", test_joined_grid_builds, &passed, &failed);
+    run_test("test_joined_deferred_frames", test_joined_deferred_frames, &passed, &failed);
     return report(passed, failed);
 }

@@ -1910,6 +1910,33 @@ sheaf_status sheaf_context_render_deferred(struct sheaf_context *ctx,
                                            size_t rgba_len);
 
 /**
+ * `sheaf_context_render_deferred` on `thread_count` caller threads that
+ * each make this call with their own `thread_index` (0 to
+ * `thread_count - 1`; at most 16), as in `sheaf_context_build_bvh_joined`:
+ * thread 0 leads and returns the frame's status, the others help and
+ * return the same status. Every phase runs on the joined threads: the
+ * perspective and light grid builds, the light frustum, the map, the sort
+ * and the chunking of the shadow rays split their data among the threads;
+ * the camera rays, the shadow rays and the shading take work items from
+ * one queue, each thread with its own thread slot (threads beyond
+ * `sheaf_limits.max_threads` join the other phases only). The frame is the same as `sheaf_context_render_deferred`'s,
+ * byte for byte, for any thread count.
+ *
+ * Errors: as `sheaf_context_render_deferred`;
+ * `SHEAF_STATUS_INVALID_ARGUMENT` for `thread_count` 0 or above 16 or
+ * `thread_index >= thread_count`. Every thread must make the call; the
+ * helpers' arguments other than `ctx`, `thread_index` and `thread_count`
+ * are not read.
+ */
+sheaf_status sheaf_context_render_deferred_joined(struct sheaf_context *ctx,
+                                                  const struct sheaf_deferred_job *job,
+                                                  uint8_t *rgba,
+                                                  size_t stride_bytes,
+                                                  size_t rgba_len,
+                                                  uint32_t thread_index,
+                                                  uint32_t thread_count);
+
+/**
  * Pixel (x, y) of the last successful `sheaf_context_render_deferred`
  * (x to the right, y downwards): `*hit` the camera ray's nearest hit
  * (`prim`, and `t` along the camera ray of `sheaf_frame_camera_ray`; a

@@ -131,6 +131,9 @@ impl Layout {
     }
 }
 
+/// Radix counts of the perspective grids' joined sorts.
+const PG_COUNTS: usize = crate::mem::par::MAX_WORKERS * crate::mem::sort::BUCKETS;
+
 /// Every pool of a context, as `carve` takes them.
 struct Pools<'a> {
     grid: GridPools<'a>,
@@ -200,6 +203,7 @@ fn carve<'a>(a: &mut impl Carve<'a>, l: &Layout) -> Result<Pools<'a>> {
             keys: a.take(l.pg_refs)?,
             tmp_keys: a.take(l.pg_scratch)?,
             tmp_vals: a.take(l.pg_scratch)?,
+            counts: a.take(if l.pg_tris > 0 { PG_COUNTS } else { 0 })?,
         },
         frame: FrameBuffers {
             prim: a.take(l.px)?,
@@ -501,6 +505,8 @@ impl<'a> Context<'a> {
         workers: &mut W,
     ) -> Result<DeferredInfo> {
         job.validate()?;
+        // The joined phases take 1 to MAX_WORKERS workers.
+        crate::mem::par::workers_of(workers.par())?;
         let rays = self.check_frame(job.frame, pixels.len(), stride)?;
         if !self.limits.has(Limits::PGRID) {
             return Err(Error::InvalidArgument(

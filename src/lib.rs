@@ -85,7 +85,7 @@ pub use geom::{Hit, Ray, Scene, TriTest};
 pub use isa::Isa;
 pub use mem::Limits;
 pub use render::deferred::{
-    DeferredInfo, DeferredJob, OnCaller, PhaseTimes, PrimaryPass, ShadowPass, Workers,
+    DeferredInfo, DeferredJob, OnCaller, OnPar, PhaseTimes, PrimaryPass, ShadowPass, Workers,
 };
 pub use render::material::{Material, MaterialRange, Materials};
 pub use render::whitted::{WhittedJob, WhittedParams};

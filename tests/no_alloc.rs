@@ -290,6 +290,9 @@ macro_rules! impl_frames {
                 ] {
                     let job = DeferredJob { frame: f, lights: ls, primary, shadow };
                     let info = self.render_deferred(&job, px, stride, &mut OnCaller).unwrap();
+                    // The same frame with its phases joined by three workers.
+                    let joined = self.render_deferred(&job, px, stride, &mut sheaf::OnPar(&Inline(3))).unwrap();
+                    assert_eq!(joined.reorder, info.reorder);
                     d.frames += 1;
                     d.hits += info.hits;
                     d.shadow_rays += info.shadow_rays;

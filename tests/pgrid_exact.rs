@@ -1850,3 +1850,143 @@ fn distant_light_shadows_equal_single_ray_occlusion() {
         failed.join("\n  ")
     );
 }
+
+// ---------------------------------------------------------------------------
+// Joined frames (issue 18, item 4).
+
+/// A `Par` of real threads: each run spawns `self.0 - 1` scoped threads and
+/// runs worker 0 on the caller.
+struct Spawn(usize);
+
+impl sheaf::mem::par::Par for Spawn {
+    fn workers(&self) -> usize {
+        self.0
+    }
+    fn run(&self, task: &(dyn Fn(usize) + Sync)) {
+        std::thread::scope(|s| {
+            for w in 1..self.0 {
+                s.spawn(move || task(w));
+            }
+            task(0);
+        });
+    }
+}
+
+/// A `Par` running every worker on the calling thread, backwards.
+struct Backwards(usize);
+
+impl sheaf::mem::par::Par for Backwards {
+    fn workers(&self) -> usize {
+        self.0
+    }
+    fn run(&self, task: &(dyn Fn(usize) + Sync)) {
+        (0..self.0).rev().for_each(task)
+    }
+}
+
+/// A frame's statistics (without times), image, and every pixel's hit and
+/// shadow bits.
+type JoinedFrame = (DeferredInfo, Vec<u8>, Vec<(Hit, u8)>);
+
+/// A frame on `par`'s workers, its image and every pixel's hit and bits.
+fn joined_frame(
+    ctx: &mut OwnedContext,
+    job: &DeferredJob<'_>,
+    par: &dyn sheaf::mem::par::Par,
+) -> sheaf::Result<JoinedFrame> {
+    let f = job.frame;
+    let stride = f.width as usize * 4;
+    let mut px = vec![0u8; stride * f.height as usize];
+    let mut info = ctx.render_deferred(job, &mut px, stride, &mut sheaf::OnPar(par))?;
+    info.times = Default::default();
+    let all = (0..f.height)
+        .flat_map(|y| (0..f.width).map(move |x| (x, y)))
+        .map(|(x, y)| ctx.deferred_pixel(x, y).unwrap())
+        .collect();
+    Ok((info, px, all))
+}
+
+/// Frames on 2, 3 and 7 workers (real threads, and one thread running the
+/// workers backwards) equal the calling thread's: pixels, hits, shadow bits
+/// and the grids' and the reordering's statistics; two lights (one a
+/// spot), small chunks, all light tiles. With the pair pool cut to exactly
+/// the pairs the grids need, the workers' even regions overflow and they
+/// map again at exact offsets: the same frame; one pair fewer fails alike.
+#[test]
+fn joined_frames_equal_the_calling_threads() {
+    for s in builtin_scenes() {
+        let wh = BUILTIN_WH;
+        let mut ctx = context(&s, wh, Limits::BVH);
+        let params = PgridParams {
+            light_tiles: 64,
+            chunk: 16,
+            ..pgrid_params(TriTest::MollerTrumbore)
+        };
+        ctx.build_pgrid(&s.scene(), &params).unwrap();
+        let (_, v) = &s.views[0];
+        let f = frame(v, s.light, wh, true);
+        let (lo, hi) = bounds(&s);
+        let mut spot = PointLight::new(((lo + hi) * 0.5 + (hi - lo) * 0.7).to_array(), [0.5; 3]);
+        spot.spot_direction = ((lo + hi) * 0.5 - Vec3::from(spot.position)).to_array();
+        spot.spot_angle_deg = 40.0;
+        let lights = [f.light, spot];
+        let job = DeferredJob {
+            frame: &f,
+            lights: &lights,
+            primary: PrimaryPass::Pgrid,
+            shadow: ShadowPass::LightGrid,
+        };
+        let want = joined_frame(&mut ctx, &job, &sheaf::mem::par::Serial).unwrap();
+        assert!(want.0.shadow_rays > 0, "{}: no shadow rays", s.name);
+        let check = |ctx: &mut OwnedContext, what: &str| {
+            for (name, par) in [
+                ("2 threads", &Spawn(2) as &dyn sheaf::mem::par::Par),
+                ("3 threads", &Spawn(3)),
+                ("7 backwards", &Backwards(7)),
+            ] {
+                let got = joined_frame(ctx, &job, par).unwrap();
+                assert_eq!(got.0, want.0, "{} {what} {name}: frame statistics", s.name);
+                assert!(got.1 == want.1, "{} {what} {name}: image differs", s.name);
+                assert!(
+                    got.2 == want.2,
+                    "{} {what} {name}: hits or bits differ",
+                    s.name
+                );
+            }
+        };
+        check(&mut ctx, "");
+        // Exactly the pairs of the larger grid: the regions overflow.
+        // (The frame reports the last light's grid: each light alone.)
+        let mut refs = want.0.camera.refs;
+        for l in &lights {
+            let one = DeferredJob {
+                lights: core::slice::from_ref(l),
+                ..job
+            };
+            let (info, ..) = joined_frame(&mut ctx, &one, &sheaf::mem::par::Serial).unwrap();
+            refs = refs.max(info.light.refs);
+        }
+        let mut l = Limits::for_triangles(s.triangles());
+        l.max_vertices = (s.vertices.len() / 3) as u32;
+        l.structures = Limits::BVH | Limits::PGRID;
+        l.max_image_width = wh.0;
+        l.max_image_height = wh.1;
+        l.max_pgrid_refs = refs;
+        let mut tight = OwnedContext::new(&l).unwrap();
+        tight.build_pgrid(&s.scene(), &params).unwrap();
+        check(&mut tight, "exact pool");
+        l.max_pgrid_refs = refs - 1;
+        let mut short = OwnedContext::new(&l).unwrap();
+        short.build_pgrid(&s.scene(), &params).unwrap();
+        let serial = joined_frame(&mut short, &job, &sheaf::mem::par::Serial).map(|_| ());
+        assert!(
+            matches!(serial, Err(Error::Capacity { .. })),
+            "{}: {serial:?}",
+            s.name
+        );
+        for par in [&Spawn(3) as &dyn sheaf::mem::par::Par, &Backwards(7)] {
+            let got = joined_frame(&mut short, &job, par).map(|_| ());
+            assert_eq!(format!("{got:?}"), format!("{serial:?}"), "{}", s.name);
+        }
+    }
+}

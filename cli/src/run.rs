@@ -566,6 +566,8 @@ impl ItemTimes {
 /// (`shadow_pass`).
 pub struct Threads {
     threads: usize,
+    /// The same threads (at most `MAX_WORKERS`) for the frame's joined phases.
+    par: Broadcast,
     pub runs: Vec<ItemTimes>,
     /// Keep every item's time of every call in `item_runs` (one list per
     /// entry of `runs`), in the order the iterator gave the items, and
@@ -595,8 +597,10 @@ impl Threads {
 
 impl Threads {
     pub fn new(threads: u32) -> Threads {
+        let threads = threads.max(1) as usize;
         Threads {
-            threads: threads.max(1) as usize,
+            threads,
+            par: Broadcast(pool(threads.min(sheaf::mem::par::MAX_WORKERS))),
             runs: Vec::new(),
             keep_items: false,
             items: Vec::new(),
@@ -605,7 +609,24 @@ impl Threads {
     }
 }
 
+/// A pool's threads as a `Par`: a joined build's task runs once on every
+/// thread of the pool (rayon's broadcast), the thread's index as worker.
+pub struct Broadcast(pub Arc<ThreadPool>);
+
+impl sheaf::mem::par::Par for Broadcast {
+    fn workers(&self) -> usize {
+        self.0.current_num_threads()
+    }
+    fn run(&self, task: &(dyn Fn(usize) + Sync)) {
+        self.0.broadcast(|c| task(c.index()));
+    }
+}
+
 impl sheaf::render::deferred::Workers for Threads {
+    fn par(&self) -> &dyn sheaf::mem::par::Par {
+        &self.par
+    }
+
     fn run<'m, I, F>(
         &mut self,
         slots: &mut dyn Iterator<Item = Slot<'m>>,

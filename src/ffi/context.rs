@@ -720,7 +720,7 @@ pub extern "C" fn sheaf_context_refit_bvh_joined(
 /// The joined calls' protocol: thread 0 leads (takes the context as an
 /// exclusive call does and runs `work` with the session's workers),
 /// threads `1..thread_count` help and return the leader's status.
-fn joined(
+pub(super) fn joined(
     ctx: *mut sheaf_context,
     thread_index: u32,
     thread_count: u32,

@@ -18,7 +18,9 @@ use crate::accel::pgrid::PgridParams;
 use crate::error::{Error, Result};
 use crate::geom::Hit;
 use crate::render::PointLight;
-use crate::render::deferred::{DeferredJob, MAX_LIGHTS, OnCaller, PrimaryPass, ShadowPass};
+use crate::render::deferred::{
+    DeferredJob, MAX_LIGHTS, OnCaller, OnPar, PrimaryPass, ShadowPass, Workers,
+};
 
 /// Tunables of the perspective grid (camera rays, section 3 of the
 /// perspective/light grid paper) and of the spherical light grids (shadow
@@ -222,48 +224,91 @@ pub extern "C" fn sheaf_context_render_deferred(
     rgba_len: usize,
 ) -> sheaf_status {
     with_mut(ctx, |h: &mut Handle| {
-        let j = read_in(job)?;
-        if j.light_count > MAX_LIGHTS {
-            return Err(Error::InvalidArgument(
-                "a deferred frame takes at most 8 lights",
-            ));
-        }
-        // Copied: any alignment, and no aliasing with the framebuffer.
-        check_array(j.lights, j.light_count, "light count too large")?;
-        let mut lights = [PointLight::default(); MAX_LIGHTS];
-        for (i, l) in lights.iter_mut().enumerate().take(j.light_count) {
-            // SAFETY: i < light_count <= MAX_LIGHTS; `lights` is non-NULL
-            // when light_count > 0 (checked), and the C contract is that it
-            // points to light_count readable values. Unaligned reads.
-            *l = unsafe { j.lights.add(i).read_unaligned() };
-        }
-        let frame = j.frame.to_core()?;
-        let job = DeferredJob {
-            frame: &frame,
-            lights: &lights[..j.light_count],
-            primary: if flag(
-                j.primary_pgrid,
-                "sheaf_deferred_job.primary_pgrid must be 0 or 1",
-            )? {
-                PrimaryPass::Pgrid
-            } else {
-                PrimaryPass::Traced(j.primary.to_core()?)
-            },
-            shadow: if flag(
-                j.shadow_light_grid,
-                "sheaf_deferred_job.shadow_light_grid must be 0 or 1",
-            )? {
-                ShadowPass::LightGrid
-            } else {
-                ShadowPass::Traced(j.shadow.to_core()?)
-            },
-        };
-        job.validate()?;
-        let pixels = super::context::pixels(h, &frame, rgba, stride_bytes, rgba_len)?;
-        h.ctx
-            .render_deferred(&job, pixels, stride_bytes, &mut OnCaller)?;
-        Ok(())
+        render_deferred(h, job, rgba, stride_bytes, rgba_len, &mut OnCaller)
     })
+}
+
+/// `sheaf_context_render_deferred` on `thread_count` caller threads that
+/// each make this call with their own `thread_index` (0 to
+/// `thread_count - 1`; at most 16), as in `sheaf_context_build_bvh_joined`:
+/// thread 0 leads and returns the frame's status, the others help and
+/// return the same status. Every phase runs on the joined threads: the
+/// perspective and light grid builds, the light frustum, the map, the sort
+/// and the chunking of the shadow rays split their data among the threads;
+/// the camera rays, the shadow rays and the shading take work items from
+/// one queue, each thread with its own thread slot (threads beyond
+/// `sheaf_limits.max_threads` join the other phases only). The frame is the same as `sheaf_context_render_deferred`'s,
+/// byte for byte, for any thread count.
+///
+/// Errors: as `sheaf_context_render_deferred`;
+/// `SHEAF_STATUS_INVALID_ARGUMENT` for `thread_count` 0 or above 16 or
+/// `thread_index >= thread_count`. Every thread must make the call; the
+/// helpers' arguments other than `ctx`, `thread_index` and `thread_count`
+/// are not read.
+#[unsafe(no_mangle)]
+pub extern "C" fn sheaf_context_render_deferred_joined(
+    ctx: *mut sheaf_context,
+    job: *const sheaf_deferred_job,
+    rgba: *mut u8,
+    stride_bytes: usize,
+    rgba_len: usize,
+    thread_index: u32,
+    thread_count: u32,
+) -> sheaf_status {
+    super::context::joined(ctx, thread_index, thread_count, |h, par| {
+        render_deferred(h, job, rgba, stride_bytes, rgba_len, &mut OnPar(par))
+    })
+}
+
+/// The deferred frame of `*job` on `workers`: the body of the two calls.
+fn render_deferred(
+    h: &mut Handle,
+    job: *const sheaf_deferred_job,
+    rgba: *mut u8,
+    stride_bytes: usize,
+    rgba_len: usize,
+    workers: &mut impl Workers,
+) -> Result<()> {
+    let j = read_in(job)?;
+    if j.light_count > MAX_LIGHTS {
+        return Err(Error::InvalidArgument(
+            "a deferred frame takes at most 8 lights",
+        ));
+    }
+    // Copied: any alignment, and no aliasing with the framebuffer.
+    check_array(j.lights, j.light_count, "light count too large")?;
+    let mut lights = [PointLight::default(); MAX_LIGHTS];
+    for (i, l) in lights.iter_mut().enumerate().take(j.light_count) {
+        // SAFETY: i < light_count <= MAX_LIGHTS; `lights` is non-NULL
+        // when light_count > 0 (checked), and the C contract is that it
+        // points to light_count readable values. Unaligned reads.
+        *l = unsafe { j.lights.add(i).read_unaligned() };
+    }
+    let frame = j.frame.to_core()?;
+    let job = DeferredJob {
+        frame: &frame,
+        lights: &lights[..j.light_count],
+        primary: if flag(
+            j.primary_pgrid,
+            "sheaf_deferred_job.primary_pgrid must be 0 or 1",
+        )? {
+            PrimaryPass::Pgrid
+        } else {
+            PrimaryPass::Traced(j.primary.to_core()?)
+        },
+        shadow: if flag(
+            j.shadow_light_grid,
+            "sheaf_deferred_job.shadow_light_grid must be 0 or 1",
+        )? {
+            ShadowPass::LightGrid
+        } else {
+            ShadowPass::Traced(j.shadow.to_core()?)
+        },
+    };
+    job.validate()?;
+    let pixels = super::context::pixels(h, &frame, rgba, stride_bytes, rgba_len)?;
+    h.ctx.render_deferred(&job, pixels, stride_bytes, workers)?;
+    Ok(())
 }
 
 /// Check that a deferred frame exists and contains pixel (x, y): its hit

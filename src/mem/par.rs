@@ -29,6 +29,17 @@ pub trait Par: Sync {
     fn run(&self, task: &(dyn Fn(usize) + Sync));
 }
 
+/// `par`'s worker count, refused unless 1..=`MAX_WORKERS` (every joined
+/// build checks it before it writes anything).
+pub fn workers_of(par: &dyn Par) -> crate::error::Result<usize> {
+    match par.workers() {
+        w @ 1..=MAX_WORKERS => Ok(w),
+        _ => Err(crate::error::Error::InvalidArgument(
+            "a joined build takes 1 to 16 workers (Par::workers)",
+        )),
+    }
+}
+
 /// Everything on the calling thread.
 pub struct Serial;
 
@@ -125,6 +136,53 @@ pub fn atomic_u32(s: &mut [u32]) -> &[AtomicU32] {
     const _: () =
         assert!(core::mem::size_of::<AtomicU32>() == 4 && core::mem::align_of::<AtomicU32>() == 4);
     unsafe { &*(s as *mut [u32] as *const [AtomicU32]) }
+}
+
+/// A value several workers take turns at (a spin lock): the shared work
+/// item queue of a joined frame (`render::deferred::OnPar`). Held only
+/// for a short step (taking the next item).
+pub struct Turns<T> {
+    busy: AtomicBool,
+    value: UnsafeCell<T>,
+}
+
+// SAFETY: `value` is only reached inside `with`, one thread at a time
+// (`busy`, acquire/release), so sharing `Turns` moves `T` between threads
+// and nothing more: `T: Send` suffices.
+unsafe impl<T: Send> Sync for Turns<T> {}
+
+impl<T> Turns<T> {
+    pub const fn new(value: T) -> Turns<T> {
+        Turns {
+            busy: AtomicBool::new(false),
+            value: UnsafeCell::new(value),
+        }
+    }
+    /// `f` on the value, alone.
+    pub fn with<R>(&self, f: impl FnOnce(&mut T) -> R) -> R {
+        while self
+            .busy
+            .compare_exchange_weak(false, true, Ordering::Acquire, Ordering::Relaxed)
+            .is_err()
+        {
+            core::hint::spin_loop();
+        }
+        // Let go however `f` ends (a panicking item iterator unwinds).
+        struct Free<'a>(&'a AtomicBool);
+        impl Drop for Free<'_> {
+            fn drop(&mut self) {
+                // A read-modify-write, as helgrind needs (see `hg`).
+                self.0.swap(false, Ordering::Release);
+            }
+        }
+        let _free = Free(&self.busy);
+        hg::acquired(self as *const Self as *const u8 as usize);
+        // SAFETY: `busy` was false and is now ours until `_free` drops:
+        // no other `&mut` to the value exists meanwhile.
+        let r = f(unsafe { &mut *self.value.get() });
+        hg::released(self as *const Self as *const u8 as usize);
+        r
+    }
 }
 
 /// The C ABI's joined build: thread 0 leads (it holds the context and runs

@@ -59,6 +59,7 @@ use super::{BvhInfo, BvhNode, BvhParams, BvhPools, MAX_DEPTH, PrimRef};
 use crate::error::{Error, Pool, Result};
 use crate::geom::{Aabb, Excluded, INVALID_ID, ProjTri, Scene, TriTest};
 use crate::mem::par::{MAX_WORKERS, Par, Parts, atomic_u32, share};
+use crate::mem::sort::{even_parts, radix_pass};
 use core::sync::atomic::Ordering;
 use glam::Vec3A;
 
@@ -180,12 +181,7 @@ pub(super) fn build(
     p: &BvhParams,
     par: &dyn Par,
 ) -> Result<BvhInfo> {
-    let workers = par.workers();
-    if !(1..=MAX_WORKERS).contains(&workers) {
-        return Err(Error::InvalidArgument(
-            "a joined build takes 1..=16 workers (Par::workers)",
-        ));
-    }
+    let workers = crate::mem::par::workers_of(par)?;
     let n_in = scene.triangle_count() as usize;
     let cap = |needed: usize, available: usize| Error::Capacity {
         pool: Pool::Triangles,
@@ -294,10 +290,25 @@ pub(super) fn build(
                 }
             });
         }
-        let counts = &mut *counts;
-        radix_pass(keys, vals, tmp_keys, tmp_vals, 0, counts, par);
-        radix_pass(tmp_keys, tmp_vals, keys, vals, DIGIT, counts, par);
-        radix_pass(keys, vals, tmp_keys, tmp_vals, 2 * DIGIT, counts, par);
+        let (counts, even) = (
+            counts.as_flattened_mut(),
+            &even_parts(n, workers)[..workers],
+        );
+        radix_pass(keys, vals, tmp_keys, tmp_vals, even, 0, DIGIT, counts, par);
+        radix_pass(
+            tmp_keys, tmp_vals, keys, vals, even, DIGIT, DIGIT, counts, par,
+        );
+        radix_pass(
+            keys,
+            vals,
+            tmp_keys,
+            tmp_vals,
+            even,
+            2 * DIGIT,
+            DIGIT,
+            counts,
+            par,
+        );
         let (keys, vals) = (&*tmp_keys, &*tmp_vals);
         let codes: &mut [u32] = bytemuck::cast_slice_mut(&mut refs[..n]);
         let cs = Parts::even(&mut codes[..n], workers);
@@ -478,56 +489,6 @@ fn find(scene: &Scene<'_>, first: usize, out: &mut [PrimRef]) -> Found {
         }
     }
     f
-}
-
-/// One stable counting pass on digit `shift..shift + DIGIT`, from `s*`
-/// into `d*`: each worker counts its share, the leader turns the counts
-/// into each worker's first position per digit (digit-major, then worker
-/// order: stable), each worker scatters its share.
-fn radix_pass(
-    sk: &[u32],
-    sv: &[u32],
-    dk: &mut [u32],
-    dv: &mut [u32],
-    shift: u32,
-    counts: &mut [[u32; BUCKETS]],
-    par: &dyn Par,
-) {
-    const MASK: u32 = (1 << DIGIT) - 1;
-    let (n, workers) = (sk.len(), counts.len());
-    {
-        let cs = Parts::even(&mut *counts, workers);
-        par.run(&|w| {
-            let c = &mut cs.get(w)[0];
-            c.fill(0);
-            for &k in &sk[share(n, w, workers)] {
-                c[((k >> shift) & MASK) as usize] += 1;
-            }
-        });
-    }
-    let mut sum = 0u32;
-    for d in 0..BUCKETS {
-        for c in counts.iter_mut() {
-            let x = c[d];
-            c[d] = sum;
-            sum += x;
-        }
-    }
-    // The prefix sums give every (worker, digit) its own positions: each
-    // position is stored once.
-    let (ks, vs) = (atomic_u32(dk), atomic_u32(dv));
-    let cs = Parts::even(counts, workers);
-    par.run(&|w| {
-        let c = &mut cs.get(w)[0];
-        let r = share(n, w, workers);
-        for (&k, &v) in sk[r.clone()].iter().zip(&sv[r]) {
-            let d = ((k >> shift) & MASK) as usize;
-            let at = c[d] as usize;
-            ks[at].store(k, Ordering::Relaxed);
-            vs[at].store(v, Ordering::Relaxed);
-            c[d] += 1;
-        }
-    });
 }
 
 /// Where step 4 splits the sorted `codes[begin..end]`: the first code with

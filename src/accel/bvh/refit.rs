@@ -216,10 +216,7 @@ pub fn refit_with(bvh: &mut Bvh<'_>, scene: &Scene<'_>, par: &dyn Par) -> Result
     }
     let traversal_cost = bvh.params().traversal_cost;
     let cached_sah = bvh.refit_sah();
-    let workers = par.workers();
-    if !(1..=MAX_WORKERS).contains(&workers) {
-        return Err(Error::InvalidArgument("a refit takes 1 to 16 workers"));
-    }
+    let workers = crate::mem::par::workers_of(par)?;
     let pools = bvh.pools_mut();
     let n = info.triangles as usize;
     let nn = info.nodes as usize;

@@ -144,10 +144,7 @@ pub fn build_with(
     max_refs: u64,
     par: &dyn Par,
 ) -> Result<GridInfo> {
-    let workers = par.workers();
-    if !(1..=MAX_WORKERS).contains(&workers) {
-        return Err(Error::InvalidArgument("a grid build takes 1 to 16 workers"));
-    }
+    let workers = crate::mem::par::workers_of(par)?;
     if !(p.lambda.is_finite() && p.lambda > 0.0 && p.lambda <= 1024.0) {
         return Err(Error::InvalidArgument("lambda must be in (0, 1024]"));
     }

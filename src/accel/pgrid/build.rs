@@ -11,11 +11,16 @@
 //! reports the number needed, and leaves that grid unbuilt (these grids
 //! live for one frame: the render call that needed it fails).
 
-use super::{CellsInfo, LightFrame, Pgrid, PgridParams, Pinhole, SceneInfo, Slices, tile_coord};
+use super::{
+    CellsInfo, LightFrame, Pgrid, PgridParams, PgridPools, Pinhole, SceneInfo, Slices, tile_coord,
+};
 use crate::error::{Error, Pool, Result};
 use crate::geom::{Aabb, ProjTri, Scene, TriTest, TriVerts};
 use crate::math;
-use crate::mem::sort::{bits_for, radix_sort};
+use crate::mem::par::{MAX_WORKERS, Par, Parts, atomic_u32, share};
+use crate::mem::sort::{bits_for, radix_sort_with};
+use core::ops::Range;
+use core::sync::atomic::Ordering;
 use glam::Vec3;
 
 /// Padding of projected bounds, in pixels (rounding of the projection is
@@ -139,24 +144,161 @@ impl Pairs<'_> {
     }
 }
 
-/// Sort the pairs and scan them into `start` (cells + 1 entries).
-fn finish(
-    keys: &mut [u32],
-    vals: &mut [u32],
-    tmp_keys: &mut [u32],
-    tmp_vals: &mut [u32],
-    start: &mut [u32],
+/// What one triangle gave the pair emission.
+enum Mapped {
+    /// Not in the grid (outside it, or no ray reaches its cells).
+    Skip,
+    /// Facing away from the camera (culled).
+    Backface,
+    /// Pairs emitted; its padded bounds for `PgridPools::px_box`.
+    Cells([f32; 4]),
+}
+
+/// Pairs and triangles of one grid build (per worker, then summed).
+#[derive(Clone, Copy, Default)]
+struct Emitted {
+    pairs: u64,
+    mapped: u32,
+    backfaces: u32,
+}
+
+/// Emit the pairs of every traceable triangle with `map`, sort them by cell
+/// and scan them into the start pool, on `par`'s workers: the camera
+/// grid's pools, or the light grid's when `light`.
+///
+/// Each worker maps an even share of the triangles into its own region of
+/// the pair pool (counting past it); the sort's first pass gathers the
+/// regions in worker order, so the pairs come out as one thread emits them
+/// (triangle order within a cell) for any worker count. When a region
+/// overflows while the pool would hold every pair, the workers map their
+/// triangles again into regions cut at the counts of the first round.
+fn emit_sorted(
+    p: &mut PgridPools<'_>,
+    n: usize,
     cells: u32,
-) {
-    radix_sort(keys, vals, tmp_keys, tmp_vals, bits_for(cells));
-    let start = &mut start[..cells as usize + 1];
-    start.fill(0);
-    for &k in keys.iter() {
-        start[k as usize + 1] += 1;
+    light: bool,
+    par: &dyn Par,
+    map: &(dyn Fn(u32, &TriVerts, &mut Pairs<'_>) -> Mapped + Sync),
+) -> Result<Emitted> {
+    let workers = par.workers();
+    let PgridPools {
+        tris,
+        ok,
+        px_box,
+        keys,
+        cam_tris,
+        light_tris,
+        cam_start,
+        light_start,
+        tmp_keys,
+        tmp_vals,
+        counts,
+        ..
+    } = p;
+    let (vals, start) = if light {
+        (light_tris, light_start)
+    } else {
+        (cam_tris, cam_start)
+    };
+    let cap = vals.len().min(keys.len());
+    let (tris, ok) = (&**tris, &**ok);
+    let mut bounds = [cap; MAX_WORKERS + 1];
+    for (w, b) in bounds.iter_mut().enumerate().take(workers) {
+        *b = share(cap, w, workers).start;
     }
-    for c in 1..start.len() {
-        start[c] += start[c - 1];
+    let mut got = [Emitted::default(); MAX_WORKERS];
+    for round in 0..2 {
+        {
+            let b = &bounds[..workers + 1];
+            let (ks, vs) = (
+                Parts::at(&mut keys[..cap], b),
+                Parts::at(&mut vals[..cap], b),
+            );
+            let bs = Parts::even(&mut px_box[..n], workers);
+            let out = Parts::even(&mut got[..workers], workers);
+            par.run(&|w| {
+                let mut pairs = Pairs {
+                    keys: ks.get(w),
+                    vals: vs.get(w),
+                    n: 0,
+                };
+                let (first, mut e) = (bs.start(w), Emitted::default());
+                for (k, px) in bs.get(w).iter_mut().enumerate() {
+                    let i = first + k;
+                    if ok[i] == 0 {
+                        continue;
+                    }
+                    match map(i as u32, &tris[i], &mut pairs) {
+                        Mapped::Skip => {}
+                        Mapped::Backface => e.backfaces += 1,
+                        Mapped::Cells(b) => {
+                            *px = b;
+                            e.mapped += 1;
+                        }
+                    }
+                }
+                e.pairs = pairs.n;
+                out.get(w)[0] = e;
+            });
+        }
+        let needed: u64 = got[..workers].iter().map(|e| e.pairs).sum();
+        if needed > vals.len() as u64 {
+            // The pairs outgrow the pool: report how many it would need.
+            return Err(Error::Capacity {
+                pool: Pool::PgridRefs,
+                needed,
+                available: vals.len() as u64,
+            });
+        }
+        let fits = (0..workers).all(|w| got[w].pairs <= (bounds[w + 1] - bounds[w]) as u64);
+        if fits {
+            break;
+        }
+        debug_assert_eq!(round, 0, "regions cut at the counts hold the pairs");
+        for w in 0..workers {
+            bounds[w + 1] = bounds[w] + got[w].pairs as usize;
+        }
     }
+    let parts: [Range<usize>; MAX_WORKERS] =
+        core::array::from_fn(|w| bounds[w]..bounds[w] + got[w].pairs as usize);
+    let m = radix_sort_with(
+        keys,
+        vals,
+        tmp_keys,
+        tmp_vals,
+        &parts[..workers],
+        bits_for(cells),
+        counts,
+        par,
+    );
+    // start[c]: the first pair of cell c or above. Each entry is written
+    // once, by the worker holding the pair where the cell is passed.
+    let (keys, start) = (&keys[..m], &mut start[..cells as usize + 1]);
+    if m == 0 {
+        start.fill(0);
+    } else {
+        let st = atomic_u32(start);
+        par.run(&|w| {
+            for i in share(m, w, workers) {
+                let lo = if i == 0 { 0 } else { keys[i - 1] + 1 };
+                for c in lo..=keys[i] {
+                    st[c as usize].store(i as u32, Ordering::Relaxed);
+                }
+                if i == m - 1 {
+                    for c in keys[i] + 1..=cells {
+                        st[c as usize].store(m as u32, Ordering::Relaxed);
+                    }
+                }
+            }
+        });
+    }
+    let mut all = Emitted::default();
+    for e in &got[..workers] {
+        all.pairs += e.pairs;
+        all.mapped += e.mapped;
+        all.backfaces += e.backfaces;
+    }
+    Ok(all)
 }
 
 fn check_cells(cells: u64, available: usize) -> Result<()> {
@@ -173,7 +315,8 @@ fn check_cells(cells: u64, available: usize) -> Result<()> {
 /// Build the perspective grid of camera `cam` (section 3): tiles of
 /// `params.tile` pixels, `params.slices` depth slices between the scene's
 /// nearest and farthest depth.
-pub fn build_camera(g: &mut Pgrid<'_>, cam: &Pinhole) -> Result<CellsInfo> {
+pub fn build_camera(g: &mut Pgrid<'_>, cam: &Pinhole, par: &dyn Par) -> Result<CellsInfo> {
+    crate::mem::par::workers_of(par)?;
     let params = g.scene.params.ok_or(Error::NotBuilt)?;
     g.cam_built = false;
     let t = params.tile;
@@ -207,7 +350,7 @@ pub fn build_camera(g: &mut Pgrid<'_>, cam: &Pinhole) -> Result<CellsInfo> {
     let tip_r = z_eps * math::sqrt(1.0 + cam.half_w * cam.half_w + cam.half_h * cam.half_h) * 2.0;
     let pad = PIXEL_PAD + 1e-5 * cam.width.max(cam.height) as f32;
     let inv_t = 1.0 / t as f32;
-    let map = CameraMap {
+    let cm = CameraMap {
         cam,
         depth: &depth,
         tiles,
@@ -217,48 +360,27 @@ pub fn build_camera(g: &mut Pgrid<'_>, cam: &Pinhole) -> Result<CellsInfo> {
         tip_r,
     };
     let n = g.scene.triangles as usize;
-    let p = &mut g.pools;
-    let mut pairs = Pairs {
-        keys: &mut *p.keys,
-        vals: &mut *p.cam_tris,
-        n: 0,
-    };
-    for i in 0..n {
-        if p.ok[i] == 0 {
-            continue;
-        }
-        let tri = &p.tris[i];
-        if params.cull_backfaces {
+    let (cull, slices) = (params.cull_backfaces, params.slices);
+    let map = |i: u32, tri: &TriVerts, pairs: &mut Pairs<'_>| {
+        if cull {
             let v0 = Vec3::from(tri.v0);
             let nrm = (Vec3::from(tri.v1) - v0).cross(Vec3::from(tri.v2) - v0);
             if nrm.dot(v0 - cam.eye) > 0.0 {
-                info.backfaces += 1;
-                continue;
+                return Mapped::Backface;
             }
         }
-        if let Some((cb, pb)) = map.camera_box(tri) {
-            p.px_box[i] = pb;
-            info.mapped += 1;
-            pairs.emit(&cb, tiles[0], params.slices, i as u32);
+        match cm.camera_box(tri) {
+            Some((cb, pb)) => {
+                pairs.emit(&cb, tiles[0], slices, i);
+                Mapped::Cells(pb)
+            }
+            None => Mapped::Skip,
         }
-    }
-    let needed = pairs.n;
-    if needed > p.cam_tris.len() as u64 {
-        return Err(Error::Capacity {
-            pool: Pool::PgridRefs,
-            needed,
-            available: p.cam_tris.len() as u64,
-        });
-    }
-    let m = needed as usize;
-    finish(
-        &mut p.keys[..m],
-        &mut p.cam_tris[..m],
-        p.tmp_keys,
-        p.tmp_vals,
-        p.cam_start,
-        cells as u32,
-    );
+    };
+    let e = emit_sorted(&mut g.pools, n, cells as u32, false, par, &map)?;
+    let needed = e.pairs;
+    info.mapped = e.mapped;
+    info.backfaces = e.backfaces;
     info.refs = needed as u32;
     g.cam = info;
     g.pinhole = *cam;
@@ -388,7 +510,9 @@ pub fn build_light(
     far: f32,
     slices: u32,
     reach: &[u32],
+    par: &dyn Par,
 ) -> Result<CellsInfo> {
+    crate::mem::par::workers_of(par)?;
     g.scene.params.ok_or(Error::NotBuilt)?;
     g.light_built = false;
     // The triangle bounds pool now holds (a, b) bounds: the camera grid's
@@ -408,17 +532,7 @@ pub fn build_light(
     let a1 = frame.a0 + tiles[0] as f32 / frame.inv_da;
     let b1 = frame.b0 + tiles[1] as f32 / frame.inv_db;
     let n = g.scene.triangles as usize;
-    let p = &mut g.pools;
-    let mut pairs = Pairs {
-        keys: &mut *p.keys,
-        vals: &mut *p.light_tris,
-        n: 0,
-    };
-    for i in 0..n {
-        if p.ok[i] == 0 {
-            continue;
-        }
-        let tri = &p.tris[i];
+    let map = |i: u32, tri: &TriVerts, pairs: &mut Pairs<'_>| {
         let q = [
             Vec3::from(tri.v0) - frame.pos,
             Vec3::from(tri.v1) - frame.pos,
@@ -438,15 +552,15 @@ pub fn build_light(
         let eps = scale * 1e-6;
         let (alo, ahi) = angle_span(x, z, eps);
         if ahi < frame.a0 || alo > a1 {
-            continue;
+            return Mapped::Skip;
         }
         let (blo, bhi) = angle_span(y, z, eps);
         if bhi < frame.b0 || blo > b1 {
-            continue;
+            return Mapped::Skip;
         }
         let dmin = closest_distance(Vec3::ZERO, &q);
         if dmin > far_reach {
-            continue;
+            return Mapped::Skip;
         }
         let dmax = q[0].length().max(q[1].length()).max(q[2].length());
         let cb = CellBox {
@@ -460,28 +574,15 @@ pub fn build_light(
             ],
             s: [depth.lo(dmin), depth.hi(dmax)],
         };
-        if pairs.emit_reached(&cb, tiles[0], slices, i as u32, reach) {
-            p.px_box[i] = [alo, blo, ahi, bhi];
-            info.mapped += 1;
+        if pairs.emit_reached(&cb, tiles[0], slices, i, reach) {
+            Mapped::Cells([alo, blo, ahi, bhi])
+        } else {
+            Mapped::Skip
         }
-    }
-    let needed = pairs.n;
-    if needed > p.light_tris.len() as u64 {
-        return Err(Error::Capacity {
-            pool: Pool::PgridRefs,
-            needed,
-            available: p.light_tris.len() as u64,
-        });
-    }
-    let m = needed as usize;
-    finish(
-        &mut p.keys[..m],
-        &mut p.light_tris[..m],
-        p.tmp_keys,
-        p.tmp_vals,
-        p.light_start,
-        cells as u32,
-    );
+    };
+    let e = emit_sorted(&mut g.pools, n, cells as u32, true, par, &map)?;
+    let needed = e.pairs;
+    info.mapped = e.mapped;
     info.refs = needed as u32;
     g.light = info;
     g.light_frame = *frame;

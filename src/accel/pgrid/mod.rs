@@ -388,6 +388,9 @@ pub struct PgridPools<'a> {
     pub keys: &'a mut [u32],
     pub tmp_keys: &'a mut [u32],
     pub tmp_vals: &'a mut [u32],
+    /// Radix counts of the joined sorts: `mem::sort::BUCKETS` per worker,
+    /// `MAX_WORKERS` workers.
+    pub counts: &'a mut [u32],
 }
 
 /// The scene as loaded for the perspective grids.

@@ -12,12 +12,16 @@
 //! 4. keep one chunk record per chunk: empty tiles never make one (the
 //!    stream compaction).
 //!
-//! On one CPU thread steps 2 to 4 are one pass over the sorted keys. Each
-//! chunk is a contiguous range of the sorted rays, so chunks write their
-//! shadow bits to disjoint ranges without synchronisation.
+//! On CPU threads steps 2 to 4 are two passes over the sorted keys (count
+//! the chunks, then write them), each worker taking the tiles that start
+//! in its share. Each chunk is a contiguous range of the sorted rays, so
+//! chunks write their shadow bits to disjoint ranges without
+//! synchronisation.
 
-use crate::mem::sort::{bits_for, radix_sort};
+use crate::mem::par::{MAX_WORKERS, Par, Parts, share};
+use crate::mem::sort::{bits_for, radix_sort_with};
 use bytemuck::{Pod, Zeroable};
+use core::ops::Range;
 
 /// A work item of shadow tracing: `count` rays of light tile `tile`, at
 /// positions `start..start + count` of the sorted ray list.
@@ -42,66 +46,146 @@ pub struct ReorderInfo {
     pub max_tile_rays: u32,
 }
 
-/// Sort `tiles` (light tile per ray, all below `tile_count`) with `ids`
-/// (ray ids), then fill `chunks` with chunks of at most `r` rays. `chunks`
-/// must hold `rays / r + min(rays, tile_count)` records (one per tile plus
-/// one per full r).
+/// Sort the (light tile, ray id) pairs at `parts` of `tiles` and `ids`
+/// (tiles below `tile_count`; one part per worker of `par`, in order) into
+/// `tiles[..rays]` and `ids[..rays]`, then fill `chunks` with chunks of at
+/// most `r` rays. `chunks` must hold `rays / r + min(rays, tile_count)`
+/// records (one per tile plus one per full r); `counts` holds the sort's
+/// radix counts (`mem::sort::BUCKETS` per worker).
+///
+/// On several workers, each takes the tiles whose first ray lies in its
+/// share of the sorted rays, counts their chunks, and writes them after the
+/// chunks of the workers before it: the same chunks as one thread makes.
+// The ray pairs, their parts and scratch, and the chunking's inputs.
+#[allow(clippy::too_many_arguments)]
 pub fn reorder(
     tiles: &mut [u32],
     ids: &mut [u32],
+    parts: &[Range<usize>],
     tmp_keys: &mut [u32],
     tmp_vals: &mut [u32],
+    counts: &mut [u32],
     tile_count: u32,
     r: u32,
     chunks: &mut [Chunk],
+    par: &dyn Par,
 ) -> ReorderInfo {
-    let n = tiles.len();
-    radix_sort(tiles, ids, tmp_keys, tmp_vals, bits_for(tile_count));
+    let workers = parts.len();
+    let n = radix_sort_with(
+        tiles,
+        ids,
+        tmp_keys,
+        tmp_vals,
+        parts,
+        bits_for(tile_count),
+        counts,
+        par,
+    );
+    let tiles = &tiles[..n];
+    // Worker w's tiles: those starting in its share of the rays.
+    let segments = |w: usize, f: &mut dyn FnMut(u32, usize, usize)| {
+        let sh = share(n, w, workers);
+        let mut i = sh.start;
+        while i > 0 && i < sh.end && tiles[i] == tiles[i - 1] {
+            i += 1;
+        }
+        while i < sh.end {
+            let tile = tiles[i];
+            let mut j = i + 1;
+            while j < n && tiles[j] == tile {
+                j += 1;
+            }
+            f(tile, i, j);
+            i = j;
+        }
+    };
+    let chunks_of = |len: usize| len.div_ceil(r as usize);
+    let mut mine = [ReorderInfo::default(); MAX_WORKERS];
+    {
+        let out = Parts::even(&mut mine[..workers], workers);
+        par.run(&|w| {
+            let m = &mut out.get(w)[0];
+            segments(w, &mut |_, i, j| {
+                m.tiles_used += 1;
+                m.chunks += chunks_of(j - i) as u32;
+                m.max_tile_rays = m.max_tile_rays.max((j - i) as u32);
+            });
+        });
+    }
+    let mut bounds = [0usize; MAX_WORKERS + 1];
     let mut info = ReorderInfo {
         rays: n as u32,
         ..ReorderInfo::default()
     };
-    let mut c = 0usize;
-    let mut i = 0usize;
-    while i < n {
-        // Hard boundary at i: the segment of tile tiles[i].
-        let tile = tiles[i];
-        let mut j = i + 1;
-        while j < n && tiles[j] == tile {
-            j += 1;
-        }
-        let count = (j - i) as u32;
-        info.tiles_used += 1;
-        info.max_tile_rays = info.max_tile_rays.max(count);
-        // Soft boundaries every r rays.
-        let mut s = i as u32;
-        while s < j as u32 {
-            let k = r.min(j as u32 - s);
-            chunks[c] = Chunk {
-                tile,
-                start: s,
-                count: k,
-            };
-            c += 1;
-            s += k;
-        }
-        i = j;
+    for (w, m) in mine[..workers].iter().enumerate() {
+        bounds[w + 1] = bounds[w] + m.chunks as usize;
+        info.tiles_used += m.tiles_used;
+        info.chunks += m.chunks;
+        info.max_tile_rays = info.max_tile_rays.max(m.max_tile_rays);
     }
-    info.chunks = c as u32;
+    let cs = Parts::at(&mut chunks[..info.chunks as usize], &bounds[..workers + 1]);
+    par.run(&|w| {
+        let mut out = cs.get(w).iter_mut();
+        segments(w, &mut |tile, i, j| {
+            // Soft boundaries every r rays.
+            let mut s = i as u32;
+            while s < j as u32 {
+                let count = r.min(j as u32 - s);
+                if let Some(c) = out.next() {
+                    *c = Chunk {
+                        tile,
+                        start: s,
+                        count,
+                    };
+                }
+                s += count;
+            }
+        });
+    });
     info
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::accel::testkit::Backwards;
+    use crate::mem::sort::BUCKETS;
+
+    /// `reorder` of all of `tiles` on `workers` workers (run backwards).
+    fn sorted(
+        tiles: &mut [u32],
+        ids: &mut [u32],
+        tile_count: u32,
+        r: u32,
+        chunks: &mut [Chunk],
+        workers: usize,
+    ) -> ReorderInfo {
+        let n = tiles.len();
+        let (mut tk, mut tv) = (vec![0u32; n], vec![0u32; n]);
+        let mut counts = vec![0u32; workers * BUCKETS];
+        let parts: Vec<_> = (0..workers).map(|w| share(n, w, workers)).collect();
+        let info = reorder(
+            tiles,
+            ids,
+            &parts,
+            &mut tk,
+            &mut tv,
+            &mut counts,
+            tile_count,
+            r,
+            chunks,
+            &Backwards(workers),
+        );
+        assert_eq!(info.rays as usize, n);
+        info
+    }
 
     #[test]
     fn one_tile_with_all_rays_splits_into_full_chunks() {
         let mut tiles = [7u32; 1000];
         let mut ids: [u32; 1000] = core::array::from_fn(|i| i as u32);
-        let (mut tk, mut tv) = ([0u32; 1000], [0u32; 1000]);
         let mut chunks = [Chunk::default(); 1000 / 16 + 16];
-        let info = reorder(&mut tiles, &mut ids, &mut tk, &mut tv, 16, 64, &mut chunks);
+        let info = sorted(&mut tiles, &mut ids, 16, 64, &mut chunks, 3);
         assert_eq!(info.tiles_used, 1);
         assert_eq!(info.chunks, 16); // 15 x 64 + 40
         assert_eq!(info.max_tile_rays, 1000);
@@ -122,9 +206,8 @@ mod tests {
         let mut tiles: [u32; 777] = core::array::from_fn(|i| ((i * 37) % 50) as u32 * 2);
         let mut ids: [u32; 777] = core::array::from_fn(|i| i as u32);
         let orig = tiles;
-        let (mut tk, mut tv) = ([0u32; 777], [0u32; 777]);
         let mut chunks = [Chunk::default(); 777 / 16 + 100];
-        let info = reorder(&mut tiles, &mut ids, &mut tk, &mut tv, 100, 16, &mut chunks);
+        let info = sorted(&mut tiles, &mut ids, 100, 16, &mut chunks, 1);
         assert_eq!(info.tiles_used, 50);
         let mut seen = [false; 777];
         let mut next = 0;
@@ -141,5 +224,34 @@ mod tests {
         }
         assert_eq!(next as usize, n);
         assert!(seen.iter().all(|&s| s));
+    }
+
+    #[test]
+    fn workers_make_the_chunks_of_one_thread() {
+        let n = 5000;
+        // Runs of one tile longer than a share, single rays, empty tiles.
+        let make = || -> (Vec<u32>, Vec<u32>) {
+            let tiles = (0..n)
+                .map(|i| {
+                    if i < 2600 {
+                        3
+                    } else {
+                        ((i * 7919) % 97) as u32 * 2
+                    }
+                })
+                .collect();
+            (tiles, (0..n as u32).collect())
+        };
+        let (mut t1, mut i1) = make();
+        let mut c1 = vec![Chunk::default(); n / 8 + 200];
+        let one = sorted(&mut t1, &mut i1, 200, 8, &mut c1, 1);
+        for workers in [2, 3, 7, 16] {
+            let (mut t, mut i) = make();
+            let mut c = vec![Chunk::default(); n / 8 + 200];
+            let got = sorted(&mut t, &mut i, 200, 8, &mut c, workers);
+            assert_eq!(got, one, "{workers} workers");
+            assert_eq!((&t, &i), (&t1, &i1), "{workers} workers");
+            assert_eq!(c[..got.chunks as usize], c1[..one.chunks as usize]);
+        }
     }
 }

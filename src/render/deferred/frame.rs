@@ -47,7 +47,7 @@ pub(crate) fn run<W: Workers>(
     // Phase 1: the perspective grid.
     if job.primary == PrimaryPass::Pgrid {
         let t = now();
-        info.camera = pgrid::build::build_camera(parts.pg, &rays.pinhole())?;
+        info.camera = pgrid::build::build_camera(parts.pg, &rays.pinhole(), workers.par())?;
         info.times.primary_build = elapsed_ns(t);
     }
     let Parts { pg, buf, slots } = parts;
@@ -141,10 +141,11 @@ pub(crate) fn run<W: Workers>(
                         buf.dirs,
                         buf.ray_tiles,
                         buf.ray_ids,
+                        workers.par(),
                     );
                     let depth =
                         pgrid::Slices::new(s.near, s.far, pp.light_slices, pgrid::LIGHT_DEPTH_PAD);
-                    let k = deferred::map_to_tiles(
+                    let mapped = deferred::map_to_tiles(
                         &f,
                         &depth,
                         &lay,
@@ -152,6 +153,7 @@ pub(crate) fn run<W: Workers>(
                         buf.ray_tiles,
                         buf.ray_ids,
                         buf.reach,
+                        workers.par(),
                     );
                     info.times.rearrange += elapsed_ns(t);
                     // Phase 4: the light grid, over the tiles and
@@ -164,16 +166,20 @@ pub(crate) fn run<W: Workers>(
                         s.far,
                         pp.light_slices,
                         buf.reach,
+                        workers.par(),
                     )?;
                     info.times.shadow_build += elapsed_ns(t);
                     let t = now();
+                    let par = workers.par();
                     let r = deferred::rearrange(
                         &f,
-                        k,
+                        &mapped[..par.workers()],
                         buf,
                         pg.pools.tmp_keys,
                         pg.pools.tmp_vals,
+                        pg.pools.counts,
                         pp.chunk,
+                        par,
                     );
                     info.reorder.rays += r.rays;
                     info.reorder.tiles_used += r.tiles_used;

@@ -38,7 +38,10 @@ use crate::accel::pgrid::{
 use crate::accel::slot::Slot;
 use crate::error::{Error, Result};
 use crate::geom::{F4, Hit4, INVALID_ID, M4, Ray, Ray4, TriVerts};
+use crate::mem::par::{MAX_WORKERS, Par, Parts, Serial, atomic_u32, share};
 use crate::trace::{Counters, TraceParams};
+use core::ops::Range;
+use core::sync::atomic::Ordering;
 use glam::Vec3;
 
 /// Slot scratch a deferred tile holds while it traces: quads, masks, hits
@@ -161,6 +164,14 @@ pub trait Workers {
     where
         I: Send,
         F: Fn(I, &mut Slot<'_>, &mut Counters) + Sync;
+
+    /// The same threads as a `Par`, for the phases that are joined builds
+    /// rather than work items (the perspective and light grid builds, the
+    /// light frustum, the map, the sort and the chunking). `Serial` by
+    /// default: those phases then run on the calling thread.
+    fn par(&self) -> &dyn Par {
+        &Serial
+    }
 }
 
 /// Runs every item on the calling thread with the first mailbox.
@@ -189,6 +200,60 @@ impl Workers for OnCaller {
             work(it, &mut slot, &mut ctr);
         }
         ctr
+    }
+}
+
+/// Runs work items on the workers of a `Par` (the C ABI's joined frame):
+/// each worker takes one of the first `workers()` slots and pulls items
+/// from the shared iterator until it runs dry; a worker without a slot
+/// (fewer slots than workers) runs no items, since items need a slot's
+/// scratch. The joined phases (`par()`) use every worker.
+pub struct OnPar<'p>(pub &'p dyn Par);
+
+impl Workers for OnPar<'_> {
+    fn run<'m, I, F>(
+        &mut self,
+        slots: &mut dyn Iterator<Item = Slot<'m>>,
+        items: &mut (dyn Iterator<Item = I> + Send),
+        work: &F,
+    ) -> Counters
+    where
+        I: Send,
+        F: Fn(I, &mut Slot<'_>, &mut Counters) + Sync,
+    {
+        let workers = self.0.workers().min(MAX_WORKERS);
+        let mut mine: [Option<Slot<'m>>; MAX_WORKERS] = core::array::from_fn(|_| None);
+        for (m, s) in mine.iter_mut().zip(slots.take(workers)) {
+            *m = Some(s);
+        }
+        let mut ctrs = [Counters::default(); MAX_WORKERS];
+        {
+            let queue = crate::mem::par::Turns::new(items);
+            let (ss, cs) = (
+                Parts::even(&mut mine[..workers], workers),
+                Parts::even(&mut ctrs[..workers], workers),
+            );
+            self.0.run(&|w| {
+                let ctr = &mut cs.get(w)[0];
+                let mut drain = |slot: &mut Slot<'_>| {
+                    while let Some(it) = queue.with(|q| q.next()) {
+                        work(it, slot, ctr);
+                    }
+                };
+                // Items need a slot's scratch: a worker without one (more
+                // workers than slots) joins the `par()` phases only.
+                if let Some(slot) = &mut ss.get(w)[0] {
+                    drain(slot);
+                }
+            });
+        }
+        let mut sum = Counters::default();
+        ctrs[..workers].iter().for_each(|c| sum.add(c));
+        sum
+    }
+
+    fn par(&self) -> &dyn Par {
+        self.0
     }
 }
 
@@ -523,24 +588,50 @@ pub fn make_shadow_rays<'m, W: Workers>(
         }
     };
     workers.run(slots, &mut items, &work);
-    let mut s = ShadowRays {
+    shadow_stats(&dirs[..n], workers.par())
+}
+
+/// Blocks the shadow rays' statistics are summed in: fixed, so the mean
+/// direction rounds alike on any worker count.
+const STAT_BLOCKS: usize = 64;
+
+/// Count, length range and mean unit direction of the shadow rays in
+/// `dirs` (x NaN: none), blocks of pixels split among `par`'s workers and
+/// summed in block order.
+fn shadow_stats(dirs: &[[f32; 3]], par: &dyn Par) -> ShadowRays {
+    const NONE: ShadowRays = ShadowRays {
         count: 0,
         near: f32::INFINITY,
         far: 0.0,
         mean_dir: Vec3::ZERO,
     };
-    for d in &dirs[..n] {
-        if d[0].is_nan() {
-            continue;
-        }
-        let d = Vec3::from(*d);
-        let len = d.length();
-        s.count += 1;
-        s.near = s.near.min(len);
-        s.far = s.far.max(len);
-        s.mean_dir += d / len;
+    let (n, workers) = (dirs.len(), par.workers());
+    let mut blocks = [NONE; STAT_BLOCKS];
+    {
+        let bs = Parts::even(&mut blocks, workers);
+        par.run(&|w| {
+            let first = bs.start(w);
+            for (k, s) in bs.get(w).iter_mut().enumerate() {
+                for d in &dirs[share(n, first + k, STAT_BLOCKS)] {
+                    if d[0].is_nan() {
+                        continue;
+                    }
+                    let d = Vec3::from(*d);
+                    let len = d.length();
+                    s.count += 1;
+                    s.near = s.near.min(len);
+                    s.far = s.far.max(len);
+                    s.mean_dir += d / len;
+                }
+            }
+        });
     }
-    s
+    blocks.iter().fold(NONE, |a, b| ShadowRays {
+        count: a.count + b.count,
+        near: a.near.min(b.near),
+        far: a.far.max(b.far),
+        mean_dir: a.mean_dir + b.mean_dir,
+    })
 }
 
 /// Light tiles per side for `rays` shadow rays: `max` (the parameter), or
@@ -553,7 +644,11 @@ pub fn light_tiles(max: u32, rays: u32) -> u32 {
 
 /// Phase 3b: the light's frustum, `tiles` per side, over the (a, b)
 /// rectangle of this frame's shadow rays (and a spot's cone), and each
-/// ray's (a, b) into `ab_a`/`ab_b` (as bits) for `map_to_tiles`.
+/// ray's (a, b) into `ab_a`/`ab_b` (as bits) for `map_to_tiles`, the
+/// pixels split among `par`'s workers.
+// A phase of `frame::run`: the light, its rays, the pools it reads and
+// writes, and the threads it runs on.
+#[allow(clippy::too_many_arguments)]
 pub fn light_frame(
     light: &PointLight,
     s: &ShadowRays,
@@ -562,6 +657,7 @@ pub fn light_frame(
     dirs: &[[f32; 3]],
     ab_a: &mut [u32],
     ab_b: &mut [u32],
+    par: &dyn Par,
 ) -> LightFrame {
     let fwd = if light.is_spot() {
         Vec3::from(light.spot_direction).normalize()
@@ -581,24 +677,50 @@ pub fn light_frame(
         tiles: [tiles, tiles],
         ..LightFrame::default()
     };
-    let (mut a_lo, mut a_hi, mut b_lo, mut b_hi) = (
+    // Each worker's share of the pixels: their (a, b), and its range.
+    let (n, workers) = (lay.len(), par.workers());
+    let mut ranges = [[
         f32::INFINITY,
         f32::NEG_INFINITY,
         f32::INFINITY,
         f32::NEG_INFINITY,
-    );
-    for i in 0..lay.len() {
-        if dirs[i][0].is_nan() {
-            continue;
-        }
-        let (a, b) = f.angles(Vec3::from(dirs[i]));
-        ab_a[i] = a.to_bits();
-        ab_b[i] = b.to_bits();
-        a_lo = a_lo.min(a);
-        a_hi = a_hi.max(a);
-        b_lo = b_lo.min(b);
-        b_hi = b_hi.max(b);
+    ]; MAX_WORKERS];
+    {
+        let (aa, bb) = (
+            Parts::even(&mut ab_a[..n], workers),
+            Parts::even(&mut ab_b[..n], workers),
+        );
+        let out = Parts::even(&mut ranges[..workers], workers);
+        par.run(&|w| {
+            let (aa, bb, first) = (aa.get(w), bb.get(w), aa.start(w));
+            let r = &mut out.get(w)[0];
+            for (k, (ak, bk)) in aa.iter_mut().zip(bb.iter_mut()).enumerate() {
+                let d = dirs[first + k];
+                if d[0].is_nan() {
+                    continue;
+                }
+                let (a, b) = f.angles(Vec3::from(d));
+                (*ak, *bk) = (a.to_bits(), b.to_bits());
+                *r = [r[0].min(a), r[1].max(a), r[2].min(b), r[3].max(b)];
+            }
+        });
     }
+    let [mut a_lo, mut a_hi, mut b_lo, mut b_hi] = ranges[..workers].iter().fold(
+        [
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+        ],
+        |x, r| {
+            [
+                x[0].min(r[0]),
+                x[1].max(r[1]),
+                x[2].min(r[2]),
+                x[3].max(r[3]),
+            ]
+        },
+    );
     if light.is_spot() {
         // The cone's rectangle (section 4.1, Figure 6); rays are inside it.
         let c = crate::accel::pgrid::pseudo_of_angle(light.spot_angle_deg.to_radians());
@@ -621,7 +743,12 @@ pub fn light_frame(
 /// Phase 3c (the map step): compact the shadow rays into (light tile,
 /// pixel) pairs in `ray_tiles`/`ray_ids`, reading the (a, b) bits
 /// `light_frame` left there, and fill `reach` (per tile, 1 + the last
-/// slice of `depth` its rays reach; 0: no ray). Returns the number of rays.
+/// slice of `depth` its rays reach; 0: no ray). Each worker of `par`
+/// compacts its share of the pixels to the start of that share: the pairs'
+/// parts of the two pools, one per worker, are returned for `rearrange`.
+// A phase of `frame::run`: the light frame, the pools it reads and writes,
+// and the threads it runs on.
+#[allow(clippy::too_many_arguments)]
 pub fn map_to_tiles(
     f: &LightFrame,
     depth: &crate::accel::pgrid::Slices,
@@ -630,44 +757,72 @@ pub fn map_to_tiles(
     ray_tiles: &mut [u32],
     ray_ids: &mut [u32],
     reach: &mut [u32],
-) -> usize {
-    reach[..(f.tiles[0] * f.tiles[1]) as usize].fill(0);
-    let mut k = 0;
-    for i in 0..lay.len() {
-        if dirs[i][0].is_nan() {
-            continue;
-        }
-        let a = f32::from_bits(ray_tiles[i]);
-        let b = f32::from_bits(ray_ids[i]);
-        let tx = crate::accel::pgrid::tile_coord((a - f.a0) * f.inv_da, f.tiles[0]);
-        let ty = crate::accel::pgrid::tile_coord((b - f.b0) * f.inv_db, f.tiles[1]);
-        let tile = ty * f.tiles[0] + tx;
-        let last = depth.hi(Vec3::from(dirs[i]).length()) + 1;
-        reach[tile as usize] = reach[tile as usize].max(last);
-        ray_tiles[k] = tile;
-        ray_ids[k] = i as u32;
-        k += 1;
+    par: &dyn Par,
+) -> [Range<usize>; MAX_WORKERS] {
+    let (n, workers) = (lay.len(), par.workers());
+    let reach = atomic_u32(&mut reach[..(f.tiles[0] * f.tiles[1]) as usize]);
+    reach.iter().for_each(|r| r.store(0, Ordering::Relaxed));
+    let mut got = [0usize; MAX_WORKERS];
+    {
+        let (ts, is) = (
+            Parts::even(&mut ray_tiles[..n], workers),
+            Parts::even(&mut ray_ids[..n], workers),
+        );
+        let out = Parts::even(&mut got[..workers], workers);
+        par.run(&|w| {
+            let (ts, is, first) = (ts.get(w), is.get(w), share(n, w, workers).start);
+            let mut k = 0;
+            for j in 0..ts.len() {
+                let i = first + j;
+                if dirs[i][0].is_nan() {
+                    continue;
+                }
+                let a = f32::from_bits(ts[j]);
+                let b = f32::from_bits(is[j]);
+                let tx = crate::accel::pgrid::tile_coord((a - f.a0) * f.inv_da, f.tiles[0]);
+                let ty = crate::accel::pgrid::tile_coord((b - f.b0) * f.inv_db, f.tiles[1]);
+                let tile = ty * f.tiles[0] + tx;
+                let last = depth.hi(Vec3::from(dirs[i]).length()) + 1;
+                reach[tile as usize].fetch_max(last, Ordering::Relaxed);
+                ts[k] = tile;
+                is[k] = i as u32;
+                k += 1;
+            }
+            out.get(w)[0] = k;
+        });
     }
-    k
+    core::array::from_fn(|w| {
+        let at = share(n, w.min(workers), workers.max(1)).start;
+        if w < workers { at..at + got[w] } else { n..n }
+    })
 }
 
-/// Phase 3d: sort and chunk `n` mapped rays (`accel::pgrid::reorder`).
+/// Phase 3d: sort and chunk the mapped rays at `parts`
+/// (`accel::pgrid::reorder`), on `par`'s workers.
+// A phase of `frame::run`: the light frame, the rays' parts, the pools it
+// reads and writes, and the threads it runs on.
+#[allow(clippy::too_many_arguments)]
 pub fn rearrange(
     f: &LightFrame,
-    n: usize,
+    parts: &[Range<usize>],
     buf: &mut FrameBuffers<'_>,
     tmp_keys: &mut [u32],
     tmp_vals: &mut [u32],
+    counts: &mut [u32],
     r: u32,
+    par: &dyn Par,
 ) -> ReorderInfo {
     reorder::reorder(
-        &mut buf.ray_tiles[..n],
-        &mut buf.ray_ids[..n],
+        buf.ray_tiles,
+        buf.ray_ids,
+        parts,
         tmp_keys,
         tmp_vals,
+        counts,
         f.tiles[0] * f.tiles[1],
         r,
         buf.chunks,
+        par,
     )
 }
 
