@@ -494,9 +494,13 @@ impl<'a> Context<'a> {
 
     /// Render a deferred frame (`render::deferred`): camera rays, then per
     /// light every shadow ray, then shading, each phase's work items run
-    /// by `workers` (`OnCaller`: the calling thread, slot 0's mailbox).
-    /// The perspective grid and the light grids are built here, per frame;
-    /// the phase times land in `stats().deferred`.
+    /// by `workers` (`OnCaller`: the calling thread, slot 0's mailbox;
+    /// `OnPar`: the workers of a `Par`). The perspective grid and the light
+    /// grids are built here, per frame, on `workers.par()` as joined builds,
+    /// as are the light frustum, the map and the sort of the shadow rays;
+    /// the frame is the same for any worker count. A `par()` of more than
+    /// `MAX_WORKERS` workers is refused before anything is written. The
+    /// phase times land in `stats().deferred`.
     pub fn render_deferred<W: Workers>(
         &mut self,
         job: &DeferredJob<'_>,

@@ -95,6 +95,7 @@ pub fn build_bvh_if_used(
     scene: &Scene<'_>,
     test: sheaf::TriTest,
     params: &[TraceParams],
+    threads: u32,
 ) -> Result<Option<sheaf::accel::bvh::BvhInfo>> {
     if !params
         .iter()
@@ -106,7 +107,7 @@ pub fn build_bvh_if_used(
         test,
         ..Default::default()
     };
-    ctx.build_bvh(scene, &p)
+    ctx.build_bvh_with(scene, &p, &Broadcast::of(threads))
         .map(Some)
         .context("building the BVH")
 }
@@ -600,7 +601,7 @@ impl Threads {
         let threads = threads.max(1) as usize;
         Threads {
             threads,
-            par: Broadcast(pool(threads.min(sheaf::mem::par::MAX_WORKERS))),
+            par: Broadcast::of(threads as u32),
             runs: Vec::new(),
             keep_items: false,
             items: Vec::new(),
@@ -612,6 +613,15 @@ impl Threads {
 /// A pool's threads as a `Par`: a joined build's task runs once on every
 /// thread of the pool (rayon's broadcast), the thread's index as worker.
 pub struct Broadcast(pub Arc<ThreadPool>);
+
+impl Broadcast {
+    /// The pool of `threads` threads (at most `MAX_WORKERS`).
+    pub fn of(threads: u32) -> Broadcast {
+        Broadcast(pool(
+            (threads.max(1) as usize).min(sheaf::mem::par::MAX_WORKERS),
+        ))
+    }
+}
 
 impl sheaf::mem::par::Par for Broadcast {
     fn workers(&self) -> usize {

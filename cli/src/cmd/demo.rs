@@ -69,9 +69,10 @@ pub fn demo(a: &DemoArgs) -> Result<()> {
         anim.set_time(f as f32 * dt);
         let scene = Scene::from_f32(&anim.mesh.vertices, &anim.mesh.indices)?;
         let info = ctx
-            .build_grid(&scene, &params)
+            .build_grid_with(&scene, &params, &run::Broadcast::of(threads))
             .with_context(|| format!("frame {f}: building the grid"))?;
-        let bvh = run::build_bvh_if_used(&mut ctx, &scene, params.test, &[primary, shadow])?;
+        let bvh =
+            run::build_bvh_if_used(&mut ctx, &scene, params.test, &[primary, shadow], threads)?;
         let kd = run::build_kd_if_used(&mut ctx, &scene, params.test, &[primary, shadow])?;
         let b = ctx.stats().build_ns
             + if bvh.is_some() {

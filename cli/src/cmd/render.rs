@@ -126,7 +126,13 @@ pub fn render(a: &RenderArgs) -> Result<()> {
         )
     } else {
         (
-            run::build_bvh_if_used(&mut ctx, &scene, params.test, &[primary, shadow, secondary])?,
+            run::build_bvh_if_used(
+                &mut ctx,
+                &scene,
+                params.test,
+                &[primary, shadow, secondary],
+                threads,
+            )?,
             run::build_kd_if_used(&mut ctx, &scene, params.test, &[primary, shadow, secondary])?,
         )
     };

@@ -933,7 +933,7 @@ fn markdown(results: &[SceneResult], s: &Setup<'_>) -> String {
     );
     let _ = writeln!(
         m,
-        "- on the threads: the two traversals, the making of the shadow rays (part of data rearrangement) and shading; on one thread: both grid builds and the rest of data rearrangement (light frustum, map, sort, chunking)"
+        "- on the threads: every phase. Work items (tiles, chunks) for the two traversals, the making of the shadow rays and shading; the grid builds and the rest of data rearrangement (light frustum, map, sort, chunking) as joined builds (`Workers::par`, rayon's broadcast), each thread taking a share of the triangles or rays"
     );
     let _ = writeln!(m, "- total time: {:.0} s\n", s.total_s);
     summary(&mut m, results, s);

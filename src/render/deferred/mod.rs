@@ -783,7 +783,12 @@ pub fn map_to_tiles(
                 let ty = crate::accel::pgrid::tile_coord((b - f.b0) * f.inv_db, f.tiles[1]);
                 let tile = ty * f.tiles[0] + tx;
                 let last = depth.hi(Vec3::from(dirs[i]).length()) + 1;
-                reach[tile as usize].fetch_max(last, Ordering::Relaxed);
+                // Most rays of a tile reach no further than the last one:
+                // read first, and pay for the atomic max only to raise it.
+                let r = &reach[tile as usize];
+                if r.load(Ordering::Relaxed) < last {
+                    r.fetch_max(last, Ordering::Relaxed);
+                }
                 ts[k] = tile;
                 is[k] = i as u32;
                 k += 1;
