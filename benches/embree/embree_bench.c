@@ -892,11 +892,13 @@ static void agree_shadow(const Scene *s, const sheaf_context *ctx, RTCScene scen
 /* S_BVH_LOW: the BVH's fast (Morton, LOW) build, traced with the methods
  * that were fastest on the SAH (MEDIUM) tree. */
 enum { S_GRID, S_BVH, S_BVH_LOW, S_KD, NSTRUCT };
-static const char *STRUCT_NAME[NSTRUCT] = {"grid", "BVH", "BVH LOW", "kd"};
+static const char *STRUCT_NAME[NSTRUCT + 1] = {"grid", "BVH", "BVH LOW", "kd", "perspective/light grids"};
+/* The dynamic frame's rows: the structures, then the perspective/light grids' deferred frame. */
+enum { F_PGRID = NSTRUCT, NFRAME };
 
 /* What the caller's threads join. */
-enum { J_BVH_LOW, J_REFIT, J_GRID };
-static const char *JOIN_NAME[] = {"BVH LOW build", "refit", "grid build"};
+enum { J_BVH_LOW, J_REFIT, J_GRID, J_DEFERRED };
+static const char *JOIN_NAME[] = {"BVH LOW build", "refit", "grid build", "deferred frame"};
 
 /* One thread of a joined call (sheaf_context_build_bvh_joined,
  * sheaf_context_refit_bvh_joined, sheaf_context_build_grid_joined). */
@@ -904,6 +906,10 @@ typedef struct {
     sheaf_context *ctx;
     sheaf_bvh_params p;
     int what;
+    /* J_DEFERRED: the job and the framebuffer (read by the leader only). */
+    const sheaf_deferred_job *job;
+    uint8_t *rgba;
+    size_t rgba_len;
     uint32_t index, count;
     sheaf_status status;
 } JoinArg;
@@ -913,14 +919,18 @@ static void *join_thread(void *arg)
     JoinArg *a = arg;
     a->status = a->what == J_REFIT ? sheaf_context_refit_bvh_joined(a->ctx, NULL, NULL, a->index, a->count)
               : a->what == J_GRID  ? sheaf_context_build_grid_joined(a->ctx, NULL, a->index, a->count)
-                                   : sheaf_context_build_bvh_joined(a->ctx, &a->p, a->index, a->count);
+              : a->what == J_DEFERRED
+                  ? sheaf_context_render_deferred_joined(a->ctx, a->job, a->rgba, 4 * (size_t)a->job->frame.width,
+                                                         a->rgba_len, a->index, a->count)
+                  : sheaf_context_build_bvh_joined(a->ctx, &a->p, a->index, a->count);
     return NULL;
 }
 
-/* The LOW build, a refit or the grid build joined by T threads (this one
- * leads; the others are started here, as run_job starts its tracing
- * threads). */
-static sheaf_status sheaf_joined(sheaf_context *ctx, int T, int what)
+/* The LOW build, a refit, the grid build or a deferred frame (`job` into
+ * `rgba`, rows of the frame's width) joined by T threads (this one leads;
+ * the others are started here, as run_job starts its tracing threads). */
+static sheaf_status sheaf_joined_call(sheaf_context *ctx, int T, int what, const sheaf_deferred_job *job, uint8_t *rgba,
+                                      size_t rgba_len)
 {
     pthread_t th[MAX_THREADS];
     JoinArg a[MAX_THREADS];
@@ -930,6 +940,9 @@ static sheaf_status sheaf_joined(sheaf_context *ctx, int T, int what)
         a[i].p.quality = SHEAF_BUILD_QUALITY_LOW;
         a[i].p.width = 2; /* as sheaf_build(S_BVH_LOW) */
         a[i].what = what;
+        a[i].job = job;
+        a[i].rgba = rgba;
+        a[i].rgba_len = rgba_len;
         a[i].index = (uint32_t)i;
         a[i].count = (uint32_t)T;
     }
@@ -945,6 +958,7 @@ static sheaf_status sheaf_joined(sheaf_context *ctx, int T, int what)
     return a[0].status;
 }
 
+static sheaf_status sheaf_joined(sheaf_context *ctx, int T, int what) { return sheaf_joined_call(ctx, T, what, NULL, NULL, 0); }
 static sheaf_status sheaf_build_low_joined(sheaf_context *ctx, int T) { return sheaf_joined(ctx, T, J_BVH_LOW); }
 static sheaf_status sheaf_refit_joined(sheaf_context *ctx, int T) { return sheaf_joined(ctx, T, J_REFIT); }
 static sheaf_status sheaf_grid_joined(sheaf_context *ctx, int T) { return sheaf_joined(ctx, T, J_GRID); }
@@ -1141,7 +1155,7 @@ typedef struct {
     float *et;
     double frame_e[4], frame_e_parts[4][3];
     int frame_e_pw[4], frame_e_sw[4];
-    double frame_s[NSTRUCT][4], frame_s_parts[NSTRUCT][4][3];
+    double frame_s[NFRAME][4], frame_s_parts[NFRAME][4][3];
     double sheaf_best_p[4], sheaf_best_s[4], emb_best_p[4], emb_best_s[4], best_frame[4];
     int best_st[4];
 } Bench;
@@ -1609,6 +1623,52 @@ static void time_sheaf_frames(Bench *b)
     b->load1 = load_average();
 }
 
+/* The perspective/light grid paper's dynamic frame: the scene loaded into
+ * the grids' pools again (the vertices changed), then a deferred frame
+ * (perspective grid camera rays, the light's grid and its sorted shadow
+ * rays, every phase joined by the T threads through
+ * sheaf_context_render_deferred_joined), without its shading (the other
+ * frames shade nothing). Parts from sheaf's phase times: rebuild = load +
+ * both grid builds; primary = camera traversal; shadows = rearrangement +
+ * shadow traversal. Needs the PGRID pools (not with --no-ray-check). */
+static void time_sheaf_pgrid_frames(Bench *b)
+{
+    for (int ti = 0; ti < 4; ti++) b->frame_s[F_PGRID][ti] = INFINITY;
+    if (!b->o->check_rays) return;
+    sheaf_pgrid_params pp;
+    sheaf_pgrid_params_default(&pp);
+    sheaf_deferred_job dj;
+    memset(&dj, 0, sizeof dj);
+    dj.frame = b->frame;
+    dj.primary_pgrid = true;
+    dj.shadow_light_grid = true;
+    uint8_t *rgba = xmalloc(4 * b->N);
+    for (int ti = 0; ti < b->o->nthreads; ti++) {
+        int T = b->o->threads[ti];
+        double tf[MAX_REPS], tb[MAX_REPS], tp[MAX_REPS], ts[MAX_REPS];
+        for (int r = 0; r < b->reps; r++) {
+            double t0 = now_s();
+            check_sheaf(b->ctx, sheaf_context_build_pgrid(b->ctx, &pp), "build_pgrid");
+            double tl = now_s() - t0;
+            check_sheaf(b->ctx, sheaf_joined_call(b->ctx, T, J_DEFERRED, &dj, rgba, 4 * b->N), "render_deferred_joined");
+            double tw = now_s() - t0;
+            sheaf_stats st;
+            check_sheaf(b->ctx, sheaf_context_stats(b->ctx, &st), "stats");
+            if (st.shadow_rays != b->NS) b->internal++;
+            tf[r] = tw - 1e-9 * (double)st.shade_ns;
+            tb[r] = tl + 1e-9 * (double)(st.primary_build_ns + st.shadow_build_ns);
+            tp[r] = 1e-9 * (double)st.primary_trace_ns;
+            ts[r] = 1e-9 * (double)(st.rearrange_ns + st.shadow_trace_ns);
+        }
+        b->frame_s[F_PGRID][ti] = 1e3 * median(tf, b->reps);
+        b->frame_s_parts[F_PGRID][ti][0] = 1e3 * median(tb, b->reps);
+        b->frame_s_parts[F_PGRID][ti][1] = 1e3 * median(tp, b->reps);
+        b->frame_s_parts[F_PGRID][ti][2] = 1e3 * median(ts, b->reps);
+        progress("  sheaf perspective/light grid frame, %d threads: %.1f ms\n", T, b->frame_s[F_PGRID][ti]);
+    }
+    free(rgba);
+}
+
 /* The animation (`sheaf export --frames`). Per frame its vertices are
  * written in place (untimed: the application's work), then timed: the
  * update, the camera rays and the shadow rays, each library with its
@@ -1797,12 +1857,13 @@ static void print_tables(Bench *b)
     printf("\n");
     for (int ti = 0; ti < b->o->nthreads; ti++) {
         b->best_st[ti] = 0;
-        for (int st = 1; st < NSTRUCT; st++)
+        for (int st = 1; st < NFRAME; st++)
             if (b->frame_s[st][ti] < b->frame_s[b->best_st[ti]][ti]) b->best_st[ti] = st;
         b->best_frame[ti] = b->frame_s[b->best_st[ti]][ti];
     }
-    for (int st = 0; st < NSTRUCT; st++) {
-        printf("| sheaf %s |", STRUCT_NAME[st]);
+    for (int st = 0; st < NFRAME; st++) {
+        if (st == F_PGRID && !isfinite(b->frame_s[st][0])) continue;
+        printf("| sheaf %s%s |", STRUCT_NAME[st], st == F_PGRID ? " (deferred frame, no shading; every phase joined)" : "");
         for (int ti = 0; ti < b->o->nthreads; ti++)
             printf(" %s%.1f%s (%.1f + %.1f + %.1f) |", b->best_st[ti] == st ? "**" : "", b->frame_s[st][ti],
                    b->best_st[ti] == st ? "**" : "", b->frame_s_parts[st][ti][0], b->frame_s_parts[st][ti][1],
@@ -2022,6 +2083,7 @@ static void run_scene(const char *path, const Options *o)
     time_sheaf_methods(b);
     time_embree(b);
     time_sheaf_frames(b);
+    time_sheaf_pgrid_frames(b);
     if (b->s.nframes)
         time_animation(b);
     print_tables(b);
