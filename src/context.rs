@@ -203,7 +203,7 @@ fn carve<'a>(a: &mut impl Carve<'a>, l: &Layout) -> Result<Pools<'a>> {
             keys: a.take(l.pg_refs)?,
             tmp_keys: a.take(l.pg_scratch)?,
             tmp_vals: a.take(l.pg_scratch)?,
-            counts: a.take(if l.pg_tris > 0 { PG_COUNTS } else { 0 })?,
+            counts: a.take(if l.pg_cells > 0 { PG_COUNTS } else { 0 })?,
         },
         frame: FrameBuffers {
             prim: a.take(l.px)?,

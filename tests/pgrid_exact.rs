@@ -1990,3 +1990,40 @@ fn joined_frames_equal_the_calling_threads() {
         }
     }
 }
+
+/// A context for no triangles and an empty scene: joined deferred frames
+/// (both grid passes, and a traced camera pass with light-grid shadows)
+/// render the sky on any worker count, as the calling thread does.
+#[test]
+fn joined_frames_of_an_empty_scene() {
+    let wh = (37, 23);
+    let mut l = Limits::for_triangles(0);
+    l.structures = Limits::BVH | Limits::PGRID;
+    l.max_image_width = wh.0;
+    l.max_image_height = wh.1;
+    let mut ctx = OwnedContext::new(&l).unwrap();
+    let empty = sheaf::Scene::from_f32(&[], &[]).unwrap();
+    ctx.build_pgrid(&empty, &pgrid_params(TriTest::MollerTrumbore))
+        .unwrap();
+    ctx.build_bvh(&empty, &BvhParams::default()).unwrap();
+    let s = &builtin_scenes()[0];
+    let f = frame(&s.views[0].1, s.light, wh, true);
+    for primary in [
+        PrimaryPass::Pgrid,
+        PrimaryPass::Traced(TraceParams::bvh(Method::BvhRanged, 8)),
+    ] {
+        let job = DeferredJob {
+            frame: &f,
+            lights: &[],
+            primary,
+            shadow: ShadowPass::LightGrid,
+        };
+        let want = joined_frame(&mut ctx, &job, &sheaf::mem::par::Serial).unwrap();
+        assert_eq!(want.0.hits, 0);
+        for par in [&Spawn(3) as &dyn sheaf::mem::par::Par, &Backwards(16)] {
+            let got = joined_frame(&mut ctx, &job, par).unwrap();
+            assert_eq!(got.0, want.0);
+            assert!(got.1 == want.1 && got.2 == want.2);
+        }
+    }
+}

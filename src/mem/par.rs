@@ -165,7 +165,8 @@ impl<T> Turns<T> {
             .compare_exchange_weak(false, true, Ordering::Acquire, Ordering::Relaxed)
             .is_err()
         {
-            core::hint::spin_loop();
+            // A preempted holder: give the core away rather than spin.
+            backoff();
         }
         // Let go however `f` ends (a panicking item iterator unwinds).
         struct Free<'a>(&'a AtomicBool);

@@ -77,8 +77,14 @@ pub fn radix_sort_with(
     par: &dyn Par,
 ) -> usize {
     let workers = parts.len();
-    debug_assert!(workers == par.workers() && counts.len() >= workers * BUCKETS);
+    assert!(
+        workers == par.workers() && counts.len() >= workers * BUCKETS,
+        "radix_sort_with: one part per worker and BUCKETS counts each"
+    );
     let total: usize = parts.iter().map(|r| r.len()).sum();
+    if total == 0 {
+        return 0;
+    }
     let gathered = parts.first().is_none_or(|r| r.start == 0)
         && parts.windows(2).all(|p| p[0].end == p[1].start);
     let passes = match key_bits.div_ceil(DIGIT) {

@@ -17,10 +17,9 @@ use super::{
 use crate::error::{Error, Pool, Result};
 use crate::geom::{Aabb, ProjTri, Scene, TriTest, TriVerts};
 use crate::math;
-use crate::mem::par::{MAX_WORKERS, Par, Parts, atomic_u32, share};
+use crate::mem::par::{MAX_WORKERS, Par, Parts, share};
 use crate::mem::sort::{bits_for, radix_sort_with};
 use core::ops::Range;
-use core::sync::atomic::Ordering;
 use glam::Vec3;
 
 /// Padding of projected bounds, in pixels (rounding of the projection is
@@ -271,27 +270,33 @@ fn emit_sorted(
         counts,
         par,
     );
-    // start[c]: the first pair of cell c or above. Each entry is written
-    // once, by the worker holding the pair where the cell is passed.
+    // start[c]: the first pair of cell c or above. Keys are sorted, so the
+    // cells passed in each worker's share of the pairs are one run of the
+    // start pool: worker w fills cells keys[s_w - 1] + 1 ..= keys[e_w - 1]
+    // (the last worker also the cells after the last key).
     let (keys, start) = (&keys[..m], &mut start[..cells as usize + 1]);
-    if m == 0 {
-        start.fill(0);
-    } else {
-        let st = atomic_u32(start);
-        par.run(&|w| {
-            for i in share(m, w, workers) {
-                let lo = if i == 0 { 0 } else { keys[i - 1] + 1 };
-                for c in lo..=keys[i] {
-                    st[c as usize].store(i as u32, Ordering::Relaxed);
-                }
-                if i == m - 1 {
-                    for c in keys[i] + 1..=cells {
-                        st[c as usize].store(m as u32, Ordering::Relaxed);
-                    }
-                }
-            }
-        });
+    let mut cut = [start.len(); MAX_WORKERS + 1];
+    for (w, c) in cut.iter_mut().enumerate().take(workers) {
+        let s_w = share(m, w, workers).start;
+        *c = if s_w == 0 {
+            0
+        } else {
+            keys[s_w - 1] as usize + 1
+        };
     }
+    let runs = Parts::at(start, &cut[..workers + 1]);
+    par.run(&|w| {
+        let (run, base) = (runs.get(w), runs.start(w));
+        let mut at = 0;
+        for i in share(m, w, workers) {
+            let end = keys[i] as usize + 1 - base;
+            run[at..end].fill(i as u32);
+            at = end;
+        }
+        if w == workers - 1 {
+            run[at..].fill(m as u32);
+        }
+    });
     let mut all = Emitted::default();
     for e in &got[..workers] {
         all.pairs += e.pairs;

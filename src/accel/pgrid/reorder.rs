@@ -56,6 +56,8 @@ pub struct ReorderInfo {
 /// On several workers, each takes the tiles whose first ray lies in its
 /// share of the sorted rays, counts their chunks, and writes them after the
 /// chunks of the workers before it: the same chunks as one thread makes.
+/// Panics unless `parts` holds one range per worker of `par` (at most
+/// `MAX_WORKERS`).
 // The ray pairs, their parts and scratch, and the chunking's inputs.
 #[allow(clippy::too_many_arguments)]
 pub fn reorder(

@@ -649,7 +649,7 @@ pub fn light_tiles(max: u32, rays: u32) -> u32 {
 // A phase of `frame::run`: the light, its rays, the pools it reads and
 // writes, and the threads it runs on.
 #[allow(clippy::too_many_arguments)]
-pub fn light_frame(
+pub(crate) fn light_frame(
     light: &PointLight,
     s: &ShadowRays,
     tiles: u32,
@@ -749,7 +749,7 @@ pub fn light_frame(
 // A phase of `frame::run`: the light frame, the pools it reads and writes,
 // and the threads it runs on.
 #[allow(clippy::too_many_arguments)]
-pub fn map_to_tiles(
+pub(crate) fn map_to_tiles(
     f: &LightFrame,
     depth: &crate::accel::pgrid::Slices,
     lay: &TileLayout,
@@ -807,7 +807,7 @@ pub fn map_to_tiles(
 // A phase of `frame::run`: the light frame, the rays' parts, the pools it
 // reads and writes, and the threads it runs on.
 #[allow(clippy::too_many_arguments)]
-pub fn rearrange(
+pub(crate) fn rearrange(
     f: &LightFrame,
     parts: &[Range<usize>],
     buf: &mut FrameBuffers<'_>,
