@@ -222,7 +222,10 @@ pub(crate) fn collapse(nodes: &[BvhNode], out: &mut [WideNode], merge: u32) -> u
 pub(crate) fn refit(wide: &mut [WideNode], tris: &[TriVerts], pad: Vec3A, par: &dyn Par) {
     // Leaf children on every worker (they read only the triangles), then
     // inner children bottom-up on this one.
-    let workers = par.workers().clamp(1, MAX_WORKERS);
+    // 1..=MAX_WORKERS: checked by the only caller (`refit_with`,
+    // `mem::par::workers_of`) before anything is written.
+    let workers = par.workers();
+    debug_assert!((1..=MAX_WORKERS).contains(&workers));
     {
         let parts = Parts::even(&mut *wide, workers);
         par.run(&|w| {
