@@ -12,7 +12,7 @@
 //! digit in worker order, give every (worker, digit) its own positions, so
 //! the order is the same for any worker count.
 
-use super::par::{MAX_WORKERS, Par, Parts, Serial, atomic_u32, share};
+use super::par::{MAX_WORKERS, Par, Parts, atomic_u32, share};
 use core::ops::Range;
 use core::sync::atomic::Ordering;
 
@@ -20,30 +20,6 @@ use core::sync::atomic::Ordering;
 pub const DIGIT: u32 = 11;
 /// Count entries per worker a pass of [`DIGIT`] bits takes.
 pub const BUCKETS: usize = 1 << DIGIT;
-
-/// Sort `keys` (all below `2^key_bits`) and `vals` by key, in place, with
-/// `tmp_keys` and `tmp_vals` (at least as long) as scratch.
-pub fn radix_sort(
-    keys: &mut [u32],
-    vals: &mut [u32],
-    tmp_keys: &mut [u32],
-    tmp_vals: &mut [u32],
-    key_bits: u32,
-) {
-    let n = keys.len();
-    debug_assert!(vals.len() == n);
-    let mut counts = [0u32; BUCKETS];
-    radix_sort_with(
-        keys,
-        vals,
-        tmp_keys,
-        tmp_vals,
-        core::slice::from_ref(&(0..n)),
-        key_bits,
-        &mut counts,
-        &Serial,
-    );
-}
 
 /// `par.workers()` even shares of `0..n`.
 pub fn even_parts(n: usize, workers: usize) -> [Range<usize>; MAX_WORKERS] {
@@ -56,7 +32,8 @@ pub fn even_parts(n: usize, workers: usize) -> [Range<usize>; MAX_WORKERS] {
     })
 }
 
-/// Sort the pairs at `parts` of `keys` and `vals` (one part per worker of
+/// Sort (stably, least significant digit first) the pairs at `parts` of
+/// `keys` and `vals` (one part per worker of
 /// `par`, in order, disjoint) by key into `keys[..total]` and
 /// `vals[..total]`, `total` the pairs in all parts (returned), keys below
 /// `2^key_bits`, with `tmp_keys`, `tmp_vals` (at least `total` long) and
@@ -180,6 +157,7 @@ pub fn bits_for(n: u32) -> u32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::mem::par::Serial;
 
     #[test]
     fn sorts_stably_for_every_pass_count() {
@@ -199,7 +177,19 @@ mod tests {
             }
             want.sort_by_key(|p| p.0); // stable
             let (mut tk, mut tv) = ([0u32; 1000], [0u32; 1000]);
-            radix_sort(&mut keys, &mut vals, &mut tk, &mut tv, bits);
+            let mut counts = [0u32; BUCKETS];
+            #[allow(clippy::single_range_in_vec_init)]
+            let all = [0..n];
+            radix_sort_with(
+                &mut keys,
+                &mut vals,
+                &mut tk,
+                &mut tv,
+                &all,
+                bits,
+                &mut counts,
+                &Serial,
+            );
             for i in 0..n {
                 assert_eq!((keys[i], vals[i]), want[i], "bits {bits} at {i}");
             }

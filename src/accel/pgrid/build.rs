@@ -171,14 +171,18 @@ struct Emitted {
 /// (triangle order within a cell) for any worker count. When a region
 /// overflows while the pool would hold every pair, the workers map their
 /// triangles again into regions cut at the counts of the first round.
-fn emit_sorted(
+fn emit_sorted<F>(
     p: &mut PgridPools<'_>,
     n: usize,
     cells: u32,
     light: bool,
     par: &dyn Par,
-    map: &(dyn Fn(u32, &TriVerts, &mut Pairs<'_>) -> Mapped + Sync),
-) -> Result<Emitted> {
+    map: &F,
+) -> Result<Emitted>
+where
+    // Generic, not `dyn`: inlined into the per-triangle loop.
+    F: Fn(u32, &TriVerts, &mut Pairs<'_>) -> Mapped + Sync,
+{
     let workers = par.workers();
     let PgridPools {
         tris,

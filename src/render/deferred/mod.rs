@@ -221,7 +221,8 @@ impl Workers for OnPar<'_> {
         I: Send,
         F: Fn(I, &mut Slot<'_>, &mut Counters) + Sync,
     {
-        let workers = self.0.workers().min(MAX_WORKERS);
+        // 1..=MAX_WORKERS: `Context::render_deferred` checks `par()` first.
+        let workers = self.0.workers();
         let mut mine: [Option<Slot<'m>>; MAX_WORKERS] = core::array::from_fn(|_| None);
         for (m, s) in mine.iter_mut().zip(slots.take(workers)) {
             *m = Some(s);
@@ -797,8 +798,12 @@ pub(crate) fn map_to_tiles(
         });
     }
     core::array::from_fn(|w| {
-        let at = share(n, w.min(workers), workers.max(1)).start;
-        if w < workers { at..at + got[w] } else { n..n }
+        if w < workers {
+            let at = share(n, w, workers).start;
+            at..at + got[w]
+        } else {
+            n..n
+        }
     })
 }
 
