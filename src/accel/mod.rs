@@ -33,6 +33,7 @@ pub mod pgrid;
 pub mod slot;
 #[cfg(test)]
 pub(crate) mod testkit;
+pub mod twolevel;
 
 use crate::counters::Counters;
 use crate::geom::{Aabb, Hit, Hit4, M4, Ray, Ray4, TriTest, TriVerts, TriangleTest};

@@ -9,6 +9,7 @@ pub mod ray;
 pub mod scene;
 pub mod triangle;
 pub mod wide;
+pub mod xform;
 
 pub use aabb::Aabb;
 pub use lane::{F4, Lane, M4};
@@ -16,3 +17,4 @@ pub use ray::{Hit, Hit4, INVALID_ID, Ray, Ray4, closer};
 pub use scene::{Excluded, Scene};
 pub use triangle::{Mt, ProjTri, Pt, RayLanes, TriStore, TriTest, TriVerts, TriangleTest, Wt};
 pub use wide::{F8, F16, Wide};
+pub use xform::Affine;

@@ -12,6 +12,7 @@ pub mod limits;
 #[cfg(feature = "std")]
 pub mod owned;
 pub mod par;
+pub mod regions;
 pub mod scratch;
 pub mod slots;
 pub mod sort;

@@ -333,13 +333,42 @@ fn wide_view(refs: &[PrimRef]) -> &[wide::WideNode] {
 const _: () =
     assert!(core::mem::size_of::<wide::WideNode>() == 4 * core::mem::size_of::<PrimRef>());
 
+/// What a `Bvh` keeps besides its pools: a two-level scene keeps one per
+/// geometry (`accel::twolevel`), whose pools are runs of shared ones.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct BvhState {
+    info: Option<BvhInfo>,
+    params: BvhParams,
+    refit_sah: Option<f64>,
+}
+
+impl BvhState {
+    /// The last successful build, if any.
+    pub fn info(&self) -> Option<&BvhInfo> {
+        self.info.as_ref()
+    }
+}
+
 impl<'a> Bvh<'a> {
     pub fn new(pools: BvhPools<'a>) -> Self {
+        Self::with_state(pools, BvhState::default())
+    }
+    /// A BVH over `pools` that last built `state` (`state` of the BVH that
+    /// owned these pools before).
+    pub(crate) fn with_state(pools: BvhPools<'a>, state: BvhState) -> Self {
         Bvh {
             pools,
-            info: None,
-            params: BvhParams::default(),
-            refit_sah: None,
+            info: state.info,
+            params: state.params,
+            refit_sah: state.refit_sah,
+        }
+    }
+    /// What to keep to rebuild this `Bvh` over the same pools later.
+    pub(crate) fn state(&self) -> BvhState {
+        BvhState {
+            info: self.info,
+            params: self.params,
+            refit_sah: self.refit_sah,
         }
     }
     /// The last successful build's parameters (the defaults before one).
@@ -399,25 +428,41 @@ impl<'a> Bvh<'a> {
     }
     /// The last successful build, if any.
     pub fn view(&self) -> Option<BvhView<'_>> {
+        let p = &self.pools;
         let info = self.info.as_ref()?;
-        let n = info.triangles as usize;
-        Some(BvhView {
-            info,
-            nodes: &self.pools.nodes[..info.nodes as usize],
-            tris: &self.pools.tris[..n],
-            proj: if info.test == TriTest::Projection {
-                &self.pools.proj[..n]
-            } else {
-                &[]
-            },
-            tri_ids: &self.pools.tri_ids[..n],
-            slot_of: &self.pools.slot_of[..info.triangles_in as usize],
-            wide: &wide_view(self.pools.refs)[..info.wide_nodes as usize],
-        })
+        Some(BvhView::of(
+            info, p.nodes, p.tris, p.proj, p.tri_ids, p.slot_of, p.refs,
+        ))
     }
 }
 
 impl<'r> BvhView<'r> {
+    /// The view of what `info`'s build wrote into these pools.
+    pub(crate) fn of(
+        info: &'r BvhInfo,
+        nodes: &'r [BvhNode],
+        tris: &'r [TriVerts],
+        proj: &'r [ProjTri],
+        tri_ids: &'r [u32],
+        slot_of: &'r [u32],
+        refs: &'r [PrimRef],
+    ) -> Self {
+        let n = info.triangles as usize;
+        BvhView {
+            info,
+            nodes: &nodes[..info.nodes as usize],
+            tris: &tris[..n],
+            proj: if info.test == TriTest::Projection {
+                &proj[..n]
+            } else {
+                &[]
+            },
+            tri_ids: &tri_ids[..n],
+            slot_of: &slot_of[..info.triangles_in as usize],
+            wide: &wide_view(refs)[..info.wide_nodes as usize],
+        }
+    }
+
     /// The stored triangles, as every triangle test reads them.
     #[inline(always)]
     pub fn store(&self) -> crate::geom::TriStore<'r> {

@@ -1,0 +1,915 @@
+//! Two-level scenes: many geometries, each with its own BVH, placed by
+//! instances, with a small top-level BVH over the instances rebuilt every
+//! frame (Wald, Benthin, Slusallek 2003, "Distributed Interactive Ray
+//! Tracing of Dynamic Scenes", section 3: objects with their own BVHs
+//! under a top-level BVH rebuilt per frame, rays transformed into an
+//! object's space when they enter it; Embree's instances and DXR's
+//! bottom- and top-level acceleration structures follow the same model).
+//!
+//! A geometry borrows its buffers only while it is set or updated (as
+//! every build does) and keeps its BVH in a run of the shared BVH pools
+//! (`mem::regions`, one run of the triangle budget per geometry, 140 bytes
+//! per triangle as a one-mesh BVH). Its update mode says what an update
+//! does: nothing may change (`Static`), the vertices moved (`Refit`, the
+//! same index buffer), or the topology changed (`Rebuild`, up to the
+//! triangles reserved when it was set). Setting, updating or removing one
+//! geometry never touches another's run.
+//!
+//! An instance places a geometry with a 3x4 affine transform; its inverse
+//! is computed once, when the instance is set (`geom::xform`). `commit`
+//! builds the top level over the instances' world boxes; rays enter an
+//! instance by its inverse (`traverse_single.rs`).
+//!
+//! # Exactness
+//! A ray entering an instance is mapped by the same f32 operations
+//! whichever traversal visits it, so each instance sees one object-space
+//! ray, and the geometry's BVH answers for it as a one-mesh BVH does
+//! (bitwise its own single ray). Hits of different instances are ordered
+//! by t, then instance id, then triangle id (`closer`), so the answer does
+//! not depend on the order instances are visited. An instance's world box
+//! is its geometry's padded root box mapped in f64 and rounded outward,
+//! then padded again by `BOX_PAD` times the transform's condition number
+//! (`Affine::condition`), so the f32 rounding of the mapped ray cannot
+//! leave it (checked against testing every instance, `tests`).
+//!
+//! # Deviations
+//! - The top level is split at the median of the instances' centroids
+//!   along the widest axis, one instance per leaf, not with the SAH: it is
+//!   small and rebuilt every frame.
+//! - All geometries of a scene use one triangle test (the first set
+//!   geometry's), so every traversal is compiled once per test.
+//! - Instances of instances (multi-level) are not supported.
+
+pub mod build;
+pub mod traverse_single;
+
+use crate::accel::bvh::{
+    self, Bvh, BvhInfo, BvhNode, BvhParams, BvhPools, BvhState, BvhView, PrimRef,
+};
+use crate::error::{Error, Result};
+use crate::geom::{Aabb, Affine, ProjTri, Scene, TriTest, TriVerts};
+use crate::mem::par::Par;
+use crate::mem::regions::{Regions, Run};
+use bytemuck::{Pod, Zeroable};
+
+/// What `update_geometry` does with a geometry (Embree: a static or
+/// dynamic scene's geometry committed again; DXR: an update of a BLAS
+/// built with ALLOW_UPDATE, or a rebuild).
+#[repr(u32)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum UpdateMode {
+    /// Built once; an update is refused (set the geometry again).
+    #[default]
+    Static = 0,
+    /// The vertices move, the index buffer stays: an update refits
+    /// (`bvh::refit`), and rebuilds past the refit's SAH threshold.
+    Refit = 1,
+    /// The topology changes: an update rebuilds (up to `max_triangles`).
+    Rebuild = 2,
+}
+
+/// How a geometry is built and updated.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GeometryParams {
+    pub mode: UpdateMode,
+    /// Triangles reserved in the shared pools (0: the scene's count). A
+    /// `Rebuild` geometry may grow to it.
+    pub max_triangles: u32,
+    /// The geometry's BVH (its `test` must be the scene's: the first
+    /// geometry's).
+    pub bvh: BvhParams,
+    /// The refit's automatic rebuild (`Refit` geometries).
+    pub refit: bvh::refit::RefitParams,
+}
+
+impl Default for GeometryParams {
+    fn default() -> Self {
+        GeometryParams {
+            mode: UpdateMode::Static,
+            max_triangles: 0,
+            bvh: BvhParams::default(),
+            refit: bvh::refit::RefitParams::default(),
+        }
+    }
+}
+
+/// What `update_geometry` did.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct UpdateInfo {
+    /// The geometry's BVH now.
+    pub info: BvhInfo,
+    /// The refit's figures (`Refit` geometries; `rebuilt` when its SAH
+    /// growth passed `RefitParams::rebuild_above`); `None` for a rebuild.
+    pub refit: Option<bvh::refit::RefitInfo>,
+}
+
+/// One geometry's entry: its run of the shared pools and its BVH's state.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct GeomState {
+    live: bool,
+    run: Run,
+    mode: UpdateMode,
+    refit: bvh::refit::RefitParams,
+    /// Instances that place it (it cannot be removed while any do).
+    instances: u32,
+    bvh: BvhState,
+}
+
+/// An instance: a geometry placed by a transform (C: `sheaf_instance`).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+pub struct Instance {
+    /// Object to world.
+    pub transform: Affine,
+    /// World to object (computed when the instance is set).
+    pub inverse: Affine,
+    pub geometry: u32,
+    /// Rays whose mask shares no bit with it skip the instance.
+    pub mask: u32,
+    live: u32,
+    /// `Affine::condition` of the transform.
+    cond: f32,
+    /// World box (padded) of the last commit.
+    pub(crate) min: [f32; 3],
+    pub(crate) max: [f32; 3],
+}
+
+/// The pools of a two-level scene (carved once).
+pub struct TwoLevelPools<'a> {
+    /// The geometries' BVHs: pools for the whole triangle budget, each
+    /// geometry using a run of them (nodes: twice its run).
+    pub blas: BvhPools<'a>,
+    /// One entry per possible geometry (`Limits::max_geometries`).
+    pub runs: &'a mut [Run],
+    pub geoms: &'a mut [GeomState],
+    /// One entry per possible instance (`Limits::max_instances`).
+    pub insts: &'a mut [Instance],
+    /// The top level: `2 * max_instances` nodes, and the live instances
+    /// in leaf order.
+    pub tlas: &'a mut [BvhNode],
+    pub order: &'a mut [u32],
+}
+
+/// What the last commit built.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct TwoLevelInfo {
+    /// Live geometries and instances, and the instances' triangles.
+    pub geometries: u32,
+    pub instances: u32,
+    pub instanced_triangles: u64,
+    /// Top-level nodes and depth.
+    pub nodes: u32,
+    pub depth: u32,
+    /// World bounds of the instances.
+    pub bounds: Aabb,
+    /// The scene's triangle test.
+    pub test: TriTest,
+}
+
+/// A two-level scene in fixed pools.
+pub struct TwoLevel<'a> {
+    blas: BvhPools<'a>,
+    regions: Regions<'a>,
+    geoms: &'a mut [GeomState],
+    insts: &'a mut [Instance],
+    tlas: &'a mut [BvhNode],
+    order: &'a mut [u32],
+    /// The scene's triangle test (the first geometry's).
+    test: Option<TriTest>,
+    /// The last commit, `None` when something changed since.
+    info: Option<TwoLevelInfo>,
+}
+
+fn bad(what: &'static str) -> Error {
+    Error::InvalidArgument(what)
+}
+
+impl<'a> TwoLevel<'a> {
+    pub fn new(p: TwoLevelPools<'a>) -> Self {
+        let budget = p.blas.tris.len().min(p.blas.nodes.len() / 2) as u32;
+        TwoLevel {
+            regions: Regions::new(p.runs, budget),
+            blas: p.blas,
+            geoms: p.geoms,
+            insts: p.insts,
+            tlas: p.tlas,
+            order: p.order,
+            test: None,
+            info: None,
+        }
+    }
+
+    /// Triangles the geometries may reserve in all, and reserve now.
+    pub fn triangle_budget(&self) -> (u32, u32) {
+        (self.regions.capacity(), self.regions.taken())
+    }
+
+    /// Geometry `id`'s BVH over its run of the shared pools.
+    fn bvh_of<'b>(blas: &'b mut BvhPools<'a>, g: &GeomState) -> Bvh<'b> {
+        let (s, n) = (g.run.start as usize, g.run.len as usize);
+        let pools = BvhPools {
+            nodes: &mut blas.nodes[2 * s..2 * (s + n)],
+            tris: &mut blas.tris[s..s + n],
+            proj: if blas.proj.is_empty() {
+                &mut []
+            } else {
+                &mut blas.proj[s..s + n]
+            },
+            tri_ids: &mut blas.tri_ids[s..s + n],
+            slot_of: &mut blas.slot_of[s..s + n],
+            refs: &mut blas.refs[s..s + n],
+            scratch: &mut *blas.scratch,
+        };
+        Bvh::with_state(pools, g.bvh)
+    }
+
+    fn geom(&self, id: u32) -> Result<&GeomState> {
+        self.geoms
+            .get(id as usize)
+            .filter(|g| g.live)
+            .ok_or(bad("geometry id is not set"))
+    }
+
+    /// Set geometry `id` (replacing it if set) to `scene`, built with `p`
+    /// on `par`'s workers. On error nothing changes. The scene must be
+    /// committed again before it is traced.
+    ///
+    /// Errors: `id >= max_geometries`; a triangle test other than the
+    /// scene's; invalid `p.bvh`; `Capacity { pool: Triangles }` when no run
+    /// of `max_triangles` (or the scene's count) is free; those of
+    /// `bvh::build`.
+    pub fn set_geometry(
+        &mut self,
+        id: u32,
+        scene: &Scene<'_>,
+        p: &GeometryParams,
+        par: &dyn Par,
+    ) -> Result<BvhInfo> {
+        if id as usize >= self.geoms.len() {
+            return Err(bad("geometry id >= max_geometries"));
+        }
+        if self.test.is_some_and(|t| t != p.bvh.test)
+            && self.live_geometries() > u32::from(self.geoms[id as usize].live)
+        {
+            return Err(bad("every geometry of a scene uses one triangle test"));
+        }
+        p.bvh.validate()?;
+        p.refit.validate()?;
+        let n = scene.triangle_count();
+        let cap = if p.max_triangles == 0 {
+            n
+        } else {
+            p.max_triangles
+        };
+        if n > cap {
+            return Err(Error::Capacity {
+                pool: crate::error::Pool::Triangles,
+                needed: n as u64,
+                available: cap as u64,
+            });
+        }
+        let Some(start) = self.regions.take(cap) else {
+            return Err(Error::Capacity {
+                pool: crate::error::Pool::Triangles,
+                needed: cap as u64,
+                available: self.regions.largest_gap() as u64,
+            });
+        };
+        let mut g = GeomState {
+            live: true,
+            run: Run { start, len: cap },
+            mode: p.mode,
+            refit: p.refit,
+            instances: 0,
+            bvh: BvhState::default(),
+        };
+        let mut b = Self::bvh_of(&mut self.blas, &g);
+        let built = bvh::build::build_with(&mut b, scene, &p.bvh, par);
+        g.bvh = b.state();
+        let info = match built {
+            Ok(info) => info,
+            Err(e) => {
+                self.regions.free(start, cap);
+                return Err(e);
+            }
+        };
+        let old = self.geoms[id as usize];
+        if old.live {
+            self.regions.free(old.run.start, old.run.len);
+            g.instances = old.instances;
+        }
+        self.geoms[id as usize] = g;
+        self.test = Some(p.bvh.test);
+        self.info = None;
+        Ok(info)
+    }
+
+    /// Update geometry `id` to `scene` as its mode says: a refit (same
+    /// index buffer) or a rebuild into its run. On error the previous BVH
+    /// stays (see `bvh::refit` for what a failed refit leaves).
+    ///
+    /// Errors: `id` not set; a `Static` geometry; those of `bvh::refit` /
+    /// `bvh::build` (a rebuild beyond the reserved triangles:
+    /// `Capacity { pool: Triangles }`).
+    pub fn update_geometry(
+        &mut self,
+        id: u32,
+        scene: &Scene<'_>,
+        par: &dyn Par,
+    ) -> Result<UpdateInfo> {
+        let g = *self.geom(id)?;
+        let mut b = Self::bvh_of(&mut self.blas, &g);
+        let p = b.params();
+        let out = match g.mode {
+            UpdateMode::Static => Err(bad("a static geometry is not updated: set it again")),
+            UpdateMode::Refit => bvh::refit::refit_with(&mut b, scene, par).and_then(|mut r| {
+                let above = g.refit.rebuild_above;
+                if above > 0.0 && r.growth() > above {
+                    // A failed rebuild keeps the refit tree (exact like any).
+                    let info = bvh::build::build_with(&mut b, scene, &p, par)?;
+                    r.rebuilt = true;
+                    r.sah_after = info.sah_cost;
+                }
+                Ok(Some(r))
+            }),
+            UpdateMode::Rebuild => bvh::build::build_with(&mut b, scene, &p, par).map(|_| None),
+        };
+        let st = b.state();
+        self.geoms[id as usize].bvh = st;
+        if out.is_ok() || st != g.bvh {
+            self.info = None;
+        }
+        let refit = out?;
+        let info = *st.info().ok_or(Error::NotBuilt)?;
+        Ok(UpdateInfo { info, refit })
+    }
+
+    /// Remove geometry `id`, giving its run back.
+    ///
+    /// Errors: `id` not set; an instance still places it.
+    pub fn remove_geometry(&mut self, id: u32) -> Result<()> {
+        let g = *self.geom(id)?;
+        if g.instances > 0 {
+            return Err(bad(
+                "geometry is still instanced: remove its instances first",
+            ));
+        }
+        self.regions.free(g.run.start, g.run.len);
+        self.geoms[id as usize] = GeomState::default();
+        if self.live_geometries() == 0 {
+            self.test = None;
+        }
+        self.info = None;
+        Ok(())
+    }
+
+    fn live_geometries(&self) -> u32 {
+        self.geoms.iter().filter(|g| g.live).count() as u32
+    }
+
+    /// Set instance `id` (replacing it if set): `geometry` placed by
+    /// `transform`, skipped by rays whose mask shares no bit with `mask`.
+    ///
+    /// Errors: `id >= max_instances`; `geometry` not set; a transform
+    /// with a NaN or infinite entry, singular, or whose inverse does not
+    /// fit f32. Nothing changes on error.
+    pub fn set_instance(
+        &mut self,
+        id: u32,
+        geometry: u32,
+        transform: &Affine,
+        mask: u32,
+    ) -> Result<()> {
+        if id as usize >= self.insts.len() {
+            return Err(bad("instance id >= max_instances"));
+        }
+        self.geom(geometry)?;
+        let inverse = transform.inverse()?;
+        let old = self.insts[id as usize];
+        if old.live != 0 {
+            self.geoms[old.geometry as usize].instances -= 1;
+        }
+        self.geoms[geometry as usize].instances += 1;
+        self.insts[id as usize] = Instance {
+            transform: *transform,
+            inverse,
+            geometry,
+            mask,
+            live: 1,
+            cond: transform.condition(&inverse),
+            min: [0.0; 3],
+            max: [0.0; 3],
+        };
+        self.info = None;
+        Ok(())
+    }
+
+    /// Remove instance `id`. Errors: `id` not set.
+    pub fn remove_instance(&mut self, id: u32) -> Result<()> {
+        let Some(i) = self.insts.get(id as usize).filter(|i| i.live != 0) else {
+            return Err(bad("instance id is not set"));
+        };
+        self.geoms[i.geometry as usize].instances -= 1;
+        self.insts[id as usize] = Instance::zeroed();
+        self.info = None;
+        Ok(())
+    }
+
+    /// Build the top level over the instances as they are now (their
+    /// geometries' current boxes): after any change, before tracing.
+    pub fn commit(&mut self) -> TwoLevelInfo {
+        let info = build::build(self);
+        self.info = Some(info);
+        info
+    }
+
+    /// The committed scene, for tracing. Errors: `NotBuilt` when something
+    /// changed since the last commit (or there was none).
+    pub fn view(&self) -> Result<TwoLevelView<'_>> {
+        let info = self.info.as_ref().ok_or(Error::NotBuilt)?;
+        Ok(TwoLevelView {
+            info,
+            tlas: &self.tlas[..info.nodes as usize],
+            order: &self.order[..info.instances as usize],
+            insts: self.insts,
+            geoms: self.geoms,
+            nodes: self.blas.nodes,
+            tris: self.blas.tris,
+            proj: self.blas.proj,
+            tri_ids: self.blas.tri_ids,
+            slot_of: self.blas.slot_of,
+            refs: self.blas.refs,
+        })
+    }
+}
+
+/// A committed two-level scene, read-only and shared by tracing threads.
+#[derive(Clone, Copy)]
+pub struct TwoLevelView<'r> {
+    pub info: &'r TwoLevelInfo,
+    tlas: &'r [BvhNode],
+    order: &'r [u32],
+    insts: &'r [Instance],
+    geoms: &'r [GeomState],
+    nodes: &'r [BvhNode],
+    tris: &'r [TriVerts],
+    proj: &'r [ProjTri],
+    tri_ids: &'r [u32],
+    slot_of: &'r [u32],
+    refs: &'r [PrimRef],
+}
+
+impl<'r> TwoLevelView<'r> {
+    /// Instance `id` (live in this commit or not).
+    pub fn instance(&self, id: u32) -> Option<&'r Instance> {
+        self.insts.get(id as usize).filter(|i| i.live != 0)
+    }
+
+    /// Geometry `id`'s BVH (`None`: not set or never built).
+    pub fn geometry(&self, id: u32) -> Option<BvhView<'r>> {
+        let g = self.geoms.get(id as usize).filter(|g| g.live)?;
+        let info = g.bvh.info()?;
+        let (s, n) = (g.run.start as usize, g.run.len as usize);
+        Some(BvhView::of(
+            info,
+            &self.nodes[2 * s..2 * (s + n)],
+            &self.tris[s..s + n],
+            if self.proj.is_empty() {
+                &[]
+            } else {
+                &self.proj[s..s + n]
+            },
+            &self.tri_ids[s..s + n],
+            &self.slot_of[s..s + n],
+            &self.refs[s..s + n],
+        ))
+    }
+}
+
+#[cfg(test)]
+pub(crate) mod testkit {
+    use super::*;
+    use crate::accel::bvh::PrimRef;
+    use crate::geom::ProjTri;
+
+    /// Heap pools for a two-level scene (tests only).
+    pub struct Store {
+        nodes: Vec<BvhNode>,
+        tris: Vec<TriVerts>,
+        proj: Vec<ProjTri>,
+        ids: Vec<u32>,
+        slot: Vec<u32>,
+        refs: Vec<PrimRef>,
+        scratch: Vec<u8>,
+        runs: Vec<Run>,
+        geoms: Vec<GeomState>,
+        insts: Vec<Instance>,
+        tlas: Vec<BvhNode>,
+        order: Vec<u32>,
+    }
+
+    impl Store {
+        pub fn new(budget: usize, geometries: usize, instances: usize, proj: bool) -> Store {
+            Store {
+                nodes: vec![BvhNode::default(); 2 * budget],
+                tris: vec![TriVerts::default(); budget],
+                proj: vec![ProjTri::default(); if proj { budget } else { 0 }],
+                ids: vec![0; budget],
+                slot: vec![0; budget],
+                refs: vec![PrimRef::default(); budget],
+                scratch: vec![0; bvh::build::SCRATCH],
+                runs: vec![Run::default(); geometries],
+                geoms: vec![GeomState::default(); geometries],
+                insts: vec![Instance::zeroed(); instances],
+                tlas: vec![BvhNode::default(); 2 * instances],
+                order: vec![0; instances],
+            }
+        }
+        pub fn scene(&mut self) -> TwoLevel<'_> {
+            TwoLevel::new(TwoLevelPools {
+                blas: BvhPools {
+                    nodes: &mut self.nodes,
+                    tris: &mut self.tris,
+                    proj: &mut self.proj,
+                    tri_ids: &mut self.ids,
+                    slot_of: &mut self.slot,
+                    refs: &mut self.refs,
+                    scratch: &mut self.scratch,
+                },
+                runs: &mut self.runs,
+                geoms: &mut self.geoms,
+                insts: &mut self.insts,
+                tlas: &mut self.tlas,
+                order: &mut self.order,
+            })
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::testkit::Store;
+    use super::traverse_single::{SceneHit, intersect, object_ray, occluded};
+    use super::*;
+    use crate::accel::bvh::traverse_single;
+    use crate::accel::testkit::{test_rays, tris_of};
+    use crate::counters::Counters;
+    use crate::geom::{Mt, Ray, TriangleTest, Wt};
+    use crate::mem::par::Serial;
+
+    fn rot(deg: f32, axis: usize, s: [f32; 3], t: [f32; 3]) -> Affine {
+        let (sn, cs) = (deg.to_radians().sin(), deg.to_radians().cos());
+        let (a, b) = ((axis + 1) % 3, (axis + 2) % 3);
+        let mut r = [[0.0f32; 3]; 3];
+        r[axis][axis] = 1.0;
+        r[a][a] = cs;
+        r[a][b] = -sn;
+        r[b][a] = sn;
+        r[b][b] = cs;
+        let mut m = Affine::IDENTITY;
+        for i in 0..3 {
+            for k in 0..3 {
+                m.m[i][k] = r[i][k] * s[k];
+            }
+            m.m[i][3] = t[i];
+        }
+        m
+    }
+
+    /// Every instance's geometry traced by its own BVH's single ray, the
+    /// answers ordered by (t, instance, triangle): what the top level must
+    /// give without culling a hit.
+    fn every_instance<T: TriangleTest>(v: &TwoLevelView<'_>, ray: &Ray, mask: u32) -> SceneHit {
+        let mut best = SceneHit::MISS;
+        if !ray.is_valid() {
+            return best;
+        }
+        let mut ctr = Counters::default();
+        for id in 0..v.insts.len() as u32 {
+            let Some(inst) = v.instance(id).filter(|i| i.mask & mask != 0) else {
+                continue;
+            };
+            let Some(g) = v.geometry(inst.geometry) else {
+                continue;
+            };
+            let r = object_ray(&inst.inverse, ray, f32::INFINITY);
+            let h = traverse_single::intersect::<T>(&g, &r, &mut ctr);
+            if h.is_hit() && best.closer(h.t, id, h.prim) {
+                best = SceneHit {
+                    t: h.t,
+                    u: h.u,
+                    v: h.v,
+                    prim: h.prim,
+                    geometry: inst.geometry,
+                    instance: id,
+                };
+            }
+        }
+        best
+    }
+
+    fn same(a: &SceneHit, b: &SceneHit) -> bool {
+        (a.prim, a.geometry, a.instance) == (b.prim, b.geometry, b.instance)
+            && a.t.to_bits() == b.t.to_bits()
+            && a.u.to_bits() == b.u.to_bits()
+            && a.v.to_bits() == b.v.to_bits()
+    }
+
+    /// World-space triangles of every live instance (f64, rounded), for
+    /// test rays through the whole scene.
+    fn world_tris(v: &TwoLevelView<'_>, meshes: &[(Vec<f32>, Vec<u32>)]) -> Vec<[[f32; 3]; 3]> {
+        let mut out = Vec::new();
+        for id in 0..v.insts.len() as u32 {
+            if let Some(i) = v.instance(id) {
+                let (vs, ix) = &meshes[i.geometry as usize];
+                let s = Scene::from_f32(vs, ix).unwrap();
+                for t in tris_of(&s) {
+                    out.push(t.map(|p| i.transform.point(p)));
+                }
+            }
+        }
+        out
+    }
+
+    fn check<T: TriangleTest>(
+        v: &TwoLevelView<'_>,
+        meshes: &[(Vec<f32>, Vec<u32>)],
+        seed: u64,
+    ) -> usize {
+        let rays = test_rays(&world_tris(v, meshes), &[], seed);
+        let mut ctr = Counters::default();
+        let mut hits = 0;
+        for (k, ray) in rays.iter().enumerate() {
+            for mask in [!0u32, 1, 2] {
+                let want = every_instance::<T>(v, ray, mask);
+                let got = intersect::<T>(v, ray, mask, &mut ctr);
+                assert!(
+                    same(&got, &want),
+                    "ray {k} {ray:?} mask {mask}: {got:?} want {want:?}"
+                );
+                assert_eq!(
+                    occluded::<T>(v, ray, mask, &mut ctr),
+                    want.is_hit(),
+                    "ray {k}"
+                );
+                hits += want.is_hit() as usize;
+            }
+        }
+        hits
+    }
+
+    fn meshes() -> Vec<(Vec<f32>, Vec<u32>)> {
+        ["tetra", "gears", "balls"]
+            .iter()
+            .map(|n| {
+                let s = crate::scenes::builtin(n).unwrap();
+                (s.mesh.vertices, s.mesh.indices)
+            })
+            .collect()
+    }
+
+    fn place(s: &mut TwoLevel<'_>) {
+        // Rotated, scaled (also unevenly, also mirrored), translated, and
+        // overlapping instances; instance 5 answers to mask bit 2 only.
+        let xf = [
+            (0, rot(0.0, 0, [1.0; 3], [0.0; 3]), 1),
+            (1, rot(30.0, 1, [0.5, 0.5, 0.5], [0.3, 0.0, -0.2]), 1),
+            (2, rot(-70.0, 2, [1.0, 2.5, 0.25], [-1.0, 0.5, 0.0]), 1),
+            (0, rot(45.0, 0, [-1.0, 1.0, 1.0], [0.2, 0.1, 0.4]), 3),
+            (1, rot(10.0, 2, [3.0, 3.0, 3.0], [0.0, -0.5, 1.5]), 1),
+            (2, rot(0.0, 0, [1.0; 3], [0.05, 0.0, 0.0]), 2),
+        ];
+        for (id, (g, x, mask)) in xf.iter().enumerate() {
+            s.set_instance(id as u32, *g, x, *mask).unwrap();
+        }
+    }
+
+    fn budget(m: &[(Vec<f32>, Vec<u32>)]) -> usize {
+        m.iter().map(|(_, ix)| ix.len() / 3).sum()
+    }
+
+    #[test]
+    fn instances_answer_as_every_instance_traced() {
+        let m = meshes();
+        for (test, quality) in [
+            (TriTest::MollerTrumbore, bvh::BuildQuality::Medium),
+            (TriTest::Watertight, bvh::BuildQuality::Low),
+        ] {
+            let mut st = Store::new(budget(&m), 4, 8, false);
+            let mut s = st.scene();
+            let p = GeometryParams {
+                bvh: BvhParams {
+                    test,
+                    quality,
+                    ..BvhParams::default()
+                },
+                ..GeometryParams::default()
+            };
+            for (g, (v, ix)) in m.iter().enumerate() {
+                s.set_geometry(g as u32, &Scene::from_f32(v, ix).unwrap(), &p, &Serial)
+                    .unwrap();
+            }
+            assert!(s.view().is_err(), "not committed");
+            place(&mut s);
+            let info = s.commit();
+            assert_eq!((info.geometries, info.instances), (3, 6));
+            let v = s.view().unwrap();
+            let hits = match test {
+                TriTest::Watertight => check::<Wt>(&v, &m, 7),
+                _ => check::<Mt>(&v, &m, 7),
+            };
+            assert!(hits > 1000, "{hits} hits");
+        }
+    }
+
+    /// Identity instances of geometries side by side trace as one mesh
+    /// holding all their triangles: the same triangles, the same t.
+    #[test]
+    fn identity_instances_trace_as_one_mesh() {
+        let m = meshes();
+        let mut st = Store::new(budget(&m), 4, 4, false);
+        let mut s = st.scene();
+        let (mut all_v, mut all_ix) = (Vec::new(), Vec::new());
+        for (g, (v, ix)) in m.iter().enumerate() {
+            let base = (all_v.len() / 3) as u32;
+            all_v.extend_from_slice(v);
+            all_ix.extend(ix.iter().map(|i| i + base));
+            s.set_geometry(
+                g as u32,
+                &Scene::from_f32(v, ix).unwrap(),
+                &GeometryParams::default(),
+                &Serial,
+            )
+            .unwrap();
+            s.set_instance(g as u32, g as u32, &Affine::IDENTITY, !0)
+                .unwrap();
+        }
+        s.commit();
+        let v = s.view().unwrap();
+        let flat = Scene::from_f32(&all_v, &all_ix).unwrap();
+        let mut one = crate::accel::testkit::Store::new(flat.triangle_count() as usize, false);
+        let mut b = one.bvh();
+        bvh::build::build(&mut b, &flat, &BvhParams::default()).unwrap();
+        let bv = b.view().unwrap();
+        let offsets: Vec<u32> = m
+            .iter()
+            .scan(0, |o, (_, ix)| {
+                let at = *o;
+                *o += (ix.len() / 3) as u32;
+                Some(at)
+            })
+            .collect();
+        let mut ctr = Counters::default();
+        let mut hits = 0;
+        for ray in test_rays(&tris_of(&flat), &[], 3) {
+            // The identity maps -0 to +0: such rays see a different zero.
+            if ray.org.iter().chain(&ray.dir).any(|x| *x == 0.0) {
+                continue;
+            }
+            let want = traverse_single::intersect::<Mt>(&bv, &ray, &mut ctr);
+            let got = intersect::<Mt>(&v, &ray, !0, &mut ctr);
+            assert_eq!(got.is_hit(), want.is_hit(), "{ray:?}");
+            if want.is_hit() {
+                assert_eq!(
+                    offsets[got.geometry as usize] + got.prim,
+                    want.prim,
+                    "{ray:?}"
+                );
+                assert_eq!(got.t.to_bits(), want.t.to_bits());
+                hits += 1;
+            }
+        }
+        assert!(hits > 500, "{hits}");
+    }
+
+    #[test]
+    fn updates_refit_rebuild_and_keep_the_rest() {
+        let mut a = crate::scenes::animated::Animated::new(1);
+        let m = meshes();
+        let n_anim = a.mesh.indices.len() / 3;
+        let mut st = Store::new(n_anim + budget(&m), 3, 4, false);
+        let mut s = st.scene();
+        let stat = Scene::from_f32(&m[0].0, &m[0].1).unwrap();
+        s.set_geometry(0, &stat, &GeometryParams::default(), &Serial)
+            .unwrap();
+        let refit = GeometryParams {
+            mode: UpdateMode::Refit,
+            ..GeometryParams::default()
+        };
+        let scene = Scene::from_f32(&a.mesh.vertices, &a.mesh.indices).unwrap();
+        s.set_geometry(1, &scene, &refit, &Serial).unwrap();
+        s.set_instance(0, 0, &Affine::IDENTITY, !0).unwrap();
+        s.set_instance(1, 1, &rot(20.0, 1, [1.0; 3], [0.5, 0.0, 0.0]), !0)
+            .unwrap();
+        s.set_instance(2, 1, &rot(-20.0, 1, [0.5; 3], [-0.5, 0.2, 0.0]), !0)
+            .unwrap();
+        s.commit();
+        let before_static: Vec<BvhNode> = s.view().unwrap().geometry(0).unwrap().nodes.to_vec();
+        // A static geometry is not updated.
+        assert!(s.update_geometry(0, &stat, &Serial).is_err());
+        a.set_time(1.5);
+        let moved = Scene::from_f32(&a.mesh.vertices, &a.mesh.indices).unwrap();
+        let u = s.update_geometry(1, &moved, &Serial).unwrap();
+        assert!(u.refit.is_some());
+        assert!(s.view().is_err(), "an update needs a commit");
+        s.commit();
+        let v = s.view().unwrap();
+        assert_eq!(
+            v.geometry(0).unwrap().nodes,
+            &before_static[..],
+            "the static BVH is untouched"
+        );
+        let mesh = |v: &[f32], ix: &[u32]| (v.to_vec(), ix.to_vec());
+        let ms = vec![
+            mesh(&m[0].0, &m[0].1),
+            mesh(&a.mesh.vertices, &a.mesh.indices),
+        ];
+        check::<Mt>(&v, &ms, 11);
+        // The refit tree answers as a fresh build of the moved mesh: same
+        // triangles, same bits (the tree decides speed only).
+        let mut fresh = Store::new(n_anim + budget(&m), 3, 4, false);
+        let mut f = fresh.scene();
+        f.set_geometry(0, &stat, &GeometryParams::default(), &Serial)
+            .unwrap();
+        f.set_geometry(1, &moved, &GeometryParams::default(), &Serial)
+            .unwrap();
+        for id in 0..3 {
+            let i = v.instance(id).unwrap();
+            f.set_instance(id, i.geometry, &i.transform, i.mask)
+                .unwrap();
+        }
+        f.commit();
+        let fv = f.view().unwrap();
+        let mut ctr = Counters::default();
+        for ray in test_rays(&world_tris(&v, &ms), &[], 5) {
+            let (x, y) = (
+                intersect::<Mt>(&v, &ray, !0, &mut ctr),
+                intersect::<Mt>(&fv, &ray, !0, &mut ctr),
+            );
+            assert!(same(&x, &y), "{ray:?}: refit {x:?} fresh {y:?}");
+        }
+    }
+
+    #[test]
+    fn bad_input_changes_nothing() {
+        let m = meshes();
+        let tetra = Scene::from_f32(&m[0].0, &m[0].1).unwrap();
+        let nt = tetra.triangle_count() as usize;
+        let mut st = Store::new(2 * nt + 10, 2, 2, false);
+        let mut s = st.scene();
+        let p = GeometryParams::default();
+        assert!(
+            s.set_geometry(2, &tetra, &p, &Serial).is_err(),
+            "id out of range"
+        );
+        s.set_geometry(0, &tetra, &p, &Serial).unwrap();
+        let wt = GeometryParams {
+            bvh: BvhParams {
+                test: TriTest::Watertight,
+                ..BvhParams::default()
+            },
+            ..p
+        };
+        assert!(
+            s.set_geometry(1, &tetra, &wt, &Serial).is_err(),
+            "one test per scene"
+        );
+        let big = GeometryParams {
+            max_triangles: (nt + 11) as u32,
+            ..p
+        };
+        assert!(matches!(
+            s.set_geometry(1, &tetra, &big, &Serial),
+            Err(Error::Capacity { .. })
+        ));
+        assert_eq!(s.triangle_budget(), ((2 * nt + 10) as u32, nt as u32));
+        s.set_instance(0, 0, &Affine::IDENTITY, !0).unwrap();
+        s.commit();
+        let mut singular = Affine::IDENTITY;
+        singular.m[2] = [0.0, 0.0, 0.0, 1.0];
+        let mut nan = Affine::IDENTITY;
+        nan.m[0][3] = f32::NAN;
+        for x in [singular, nan] {
+            assert!(s.set_instance(1, 0, &x, !0).is_err());
+        }
+        assert!(
+            s.set_instance(2, 0, &Affine::IDENTITY, !0).is_err(),
+            "instance id out of range"
+        );
+        assert!(
+            s.set_instance(1, 1, &Affine::IDENTITY, !0).is_err(),
+            "geometry not set"
+        );
+        assert!(s.remove_geometry(0).is_err(), "still instanced");
+        assert!(s.remove_instance(1).is_err(), "not set");
+        assert!(s.view().is_ok(), "nothing changed: still committed");
+        s.remove_instance(0).unwrap();
+        s.remove_geometry(0).unwrap();
+        assert_eq!(s.triangle_budget().1, 0);
+        let info = s.commit();
+        assert_eq!(info.instances, 0);
+        let mut ctr = Counters::default();
+        let ray = Ray::new(glam::Vec3::ZERO, glam::Vec3::X, 0.0, f32::INFINITY);
+        assert!(!intersect::<Mt>(&s.view().unwrap(), &ray, !0, &mut ctr).is_hit());
+    }
+}
