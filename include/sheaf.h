@@ -574,6 +574,19 @@ typedef struct sheaf_limits {
      * `8 * max_triangles + 262144`.
      */
     uint32_t max_pgrid_refs;
+    /**
+     * Most geometries of the two-level scene. 0: none.
+     */
+    uint32_t max_geometries;
+    /**
+     * Most instances of the two-level scene. 0: `max_geometries`.
+     */
+    uint32_t max_instances;
+    /**
+     * Triangles all geometries may reserve together (140 bytes each). 0:
+     * `max_triangles`.
+     */
+    uint32_t max_scene_triangles;
 } sheaf_limits;
 
 /**

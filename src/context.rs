@@ -8,6 +8,7 @@ use crate::accel::grid::{self, Grid, GridInfo, GridParams, GridPools};
 use crate::accel::kd::{self, KdInfo, KdParams, KdPools, KdTree};
 use crate::accel::pgrid::{self, Pgrid, PgridParams, PgridPools, SceneInfo};
 use crate::accel::slot::{ACCEL_SCRATCH_BYTES, Slot, max};
+use crate::accel::twolevel::{self, TwoLevel};
 use crate::counters::{elapsed_ns, now};
 use crate::error::{Error, Pool, Result};
 use crate::geom::{Hit, Hit4, Ray, Scene};
@@ -17,6 +18,8 @@ use crate::render::deferred::{
 };
 use crate::render::whitted::{self, WhittedJob};
 use crate::render::{self, Band, Frame, PointLight, PrimaryRays, TileParams, Tracer};
+mod scene;
+
 pub use crate::trace::SceneTracer;
 pub use crate::trace::scene::{BvhTracer, GridTracer, KdTracer};
 use crate::trace::{Counters, Method, TraceParams, batch_on};
@@ -62,6 +65,13 @@ struct Layout {
     pg_scratch: usize,
     px: usize,
     chunks: usize,
+    /// Two-level scene (0 without `Limits::max_geometries`): the
+    /// geometries' triangle budget and its projection data, geometries,
+    /// instances.
+    sc_tris: usize,
+    sc_proj: usize,
+    sc_geoms: usize,
+    sc_insts: usize,
 }
 
 /// A pool size from a u64 rule, refused when it does not fit a `usize`
@@ -127,6 +137,14 @@ impl Layout {
             } else {
                 0
             },
+            sc_tris: l.scene_triangles() as usize,
+            sc_proj: if l.projection_test {
+                l.scene_triangles() as usize
+            } else {
+                0
+            },
+            sc_geoms: l.max_geometries as usize,
+            sc_insts: l.scene_instances() as usize,
         })
     }
 }
@@ -144,6 +162,18 @@ struct Pools<'a> {
     kd: KdPools<'a>,
     pg: PgridPools<'a>,
     frame: FrameBuffers<'a>,
+    /// The two-level scene's pools, its geometry table as bytes (a table
+    /// of `GeomState`, made in `new_in`).
+    scene: (SceneBlas<'a>, &'a mut [u8]),
+}
+
+/// The two-level scene's pools but its geometry table.
+struct SceneBlas<'a> {
+    blas: BvhPools<'a>,
+    runs: &'a mut [crate::mem::regions::Run],
+    insts: &'a mut [twolevel::Instance],
+    tlas: &'a mut [bvh::BvhNode],
+    order: &'a mut [u32],
 }
 
 /// The one list of a context's pools: `required_bytes` runs it over a
@@ -216,6 +246,32 @@ fn carve<'a>(a: &mut impl Carve<'a>, l: &Layout) -> Result<Pools<'a>> {
             chunks: a.take(l.chunks)?,
             reach: a.take(if l.px > 0 { pgrid::MAX_LIGHT_TILES } else { 0 })?,
         },
+        scene: (
+            SceneBlas {
+                blas: BvhPools {
+                    nodes: a.take(twice(l.sc_tris)?)?,
+                    tris: a.take(l.sc_tris)?,
+                    proj: a.take(l.sc_proj)?,
+                    tri_ids: a.take(l.sc_tris)?,
+                    slot_of: a.take(l.sc_tris)?,
+                    refs: a.take(l.sc_tris)?,
+                    scratch: a.take(if l.sc_geoms > 0 {
+                        bvh::build::SCRATCH
+                    } else {
+                        0
+                    })?,
+                },
+                runs: a.take(l.sc_geoms)?,
+                insts: a.take(l.sc_insts)?,
+                tlas: a.take(twice(l.sc_insts)?)?,
+                order: a.take(l.sc_insts)?,
+            },
+            a.take(
+                crate::mem::scratch::bytes::<twolevel::GeomState>(1)
+                    .checked_mul(l.sc_geoms)
+                    .ok_or(big)?,
+            )?,
+        ),
     })
 }
 
@@ -259,6 +315,9 @@ pub struct Context<'a> {
     bvh: Bvh<'a>,
     kd: KdTree<'a>,
     pgrid: Pgrid<'a>,
+    /// The two-level scene (`accel::twolevel`; empty pools without
+    /// `Limits::max_geometries`).
+    scene: TwoLevel<'a>,
     frame: FrameBuffers<'a>,
     /// Layout of the frame buffers in the last deferred frame, its
     /// camera rays and shadow-ray offset.
@@ -297,8 +356,20 @@ impl<'a> Context<'a> {
             kd,
             pg,
             frame,
+            scene: (sc, geom_bytes),
         } = carve(&mut arena, &Layout::of(limits)?)?;
         let slots = Slots::new(stamps, packets, scratch, busy);
+        let n_geoms = limits.max_geometries as usize;
+        let (geoms, _) =
+            crate::mem::Scratch::new(geom_bytes).take(n_geoms, twolevel::GeomState::default());
+        let scene = TwoLevel::new(twolevel::TwoLevelPools {
+            blas: sc.blas,
+            runs: sc.runs,
+            geoms,
+            insts: sc.insts,
+            tlas: sc.tlas,
+            order: sc.order,
+        });
         debug_assert_eq!(arena.used(), need);
         Ok(Context {
             limits: *limits,
@@ -306,6 +377,7 @@ impl<'a> Context<'a> {
             bvh: Bvh::new(bvh),
             kd: KdTree::new(kd),
             pgrid: Pgrid::new(pg),
+            scene,
             frame,
             frame_layout: None,
             frame_rays: None,

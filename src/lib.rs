@@ -77,11 +77,13 @@ pub use accel::kd::{KdInfo, KdParams};
 pub use accel::mailbox::Mailbox;
 pub use accel::pgrid::PgridParams;
 pub use accel::slot::Slot;
+pub use accel::twolevel::traverse_single::SceneHit;
+pub use accel::twolevel::{GeometryParams, TwoLevelInfo, UpdateInfo, UpdateMode};
 #[cfg(feature = "std")]
 pub use context::OwnedContext;
 pub use context::{Context, Stats, required_bytes};
 pub use error::{Error, Pool, Result};
-pub use geom::{Hit, Ray, Scene, TriTest};
+pub use geom::{Affine, Hit, Ray, Scene, TriTest};
 pub use isa::Isa;
 pub use mem::Limits;
 pub use render::deferred::{

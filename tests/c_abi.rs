@@ -474,6 +474,7 @@ fn parse(stdout: &str) -> Emitted {
                     max_kd_refs: n[11],
                     max_pgrid_cells: n[12],
                     max_pgrid_refs: n[13],
+                    ..Limits::for_triangles(n[0])
                 });
             }
             "@vertex" => {

@@ -4,7 +4,9 @@
 //! with the 3DDDA and with coherent grid traversal, the BVH and kd-tree
 //! methods, and deferred frames (perspective grid and light grids, loaded
 //! by `build_pgrid` every frame, with traced passes mixed in, two lights
-//! one of them a spot).
+//! one of them a spot), and a two-level scene (a static geometry, a
+//! refit one and a rebuilt one, instances moved, added and removed, the
+//! top level committed and traced every frame).
 //! Its own test binary with one test, so no other test's allocations are
 //! counted.
 
@@ -13,6 +15,7 @@ use sheaf::accel::kd::KdParams;
 use sheaf::render::{Camera, Frame, PointLight, Shading};
 use sheaf::scenes::animated::Animated;
 use sheaf::trace::EntrySearch;
+use sheaf::{Affine, GeometryParams, SceneHit, UpdateMode};
 use sheaf::{
     Context, DeferredJob, GridParams, Hit, Limits, Method, OnCaller, OwnedContext, PgridParams,
     PrimaryPass, Ray, Scene, ShadowPass, TraceParams, TriTest, required_bytes,
@@ -79,6 +82,12 @@ fn ten_animated_frames_allocate_nothing() {
     limits.structures |= Limits::PGRID;
     limits.max_image_width = frame.width;
     limits.max_image_height = frame.height;
+    // The two-level scene: three geometries (the animated mesh twice, one
+    // of them rebuilt, and a static tetra), up to 6 instances.
+    let tetra = sheaf::scenes::builtin("tetra").unwrap();
+    limits.max_geometries = 3;
+    limits.max_instances = 6;
+    limits.max_scene_triangles = 2 * tris + tetra.mesh.triangle_count() as u32;
 
     // Creation: exactly one allocation for the owned context...
     let a0 = allocs();
@@ -125,6 +134,26 @@ fn ten_animated_frames_allocate_nothing() {
     let view = anim.views()[0];
     let (spot_at, spot_from) = (view.look_at, view.eye + glam::Vec3::new(0.0, 0.0, 3.0));
 
+    let tetra_scene = Scene::from_f32(&tetra.mesh.vertices, &tetra.mesh.indices).unwrap();
+    let mut scene_hits = vec![SceneHit::MISS; rays.len()];
+    let mut scene_hit_total = 0usize;
+    for ctx in [&mut owned, &mut borrowed] {
+        let scene = Scene::from_f32(&anim.mesh.vertices, &anim.mesh.indices).unwrap();
+        let at = |mode| GeometryParams {
+            mode,
+            ..GeometryParams::default()
+        };
+        ctx.set_geometry(0, &tetra_scene, &at(UpdateMode::Static))
+            .unwrap();
+        ctx.set_geometry(1, &scene, &at(UpdateMode::Refit)).unwrap();
+        ctx.set_geometry(2, &scene, &at(UpdateMode::Rebuild))
+            .unwrap();
+        for (i, g) in [0u32, 1, 2, 1].iter().enumerate() {
+            let at = Affine::translation([i as f32 * 0.25, 0.0, 0.0]);
+            ctx.set_instance(i as u32, *g, &at, !0).unwrap();
+        }
+    }
+
     let start = allocs();
     for f in 0..10 {
         anim.set_time(f as f32 * 0.37);
@@ -152,6 +181,21 @@ fn ten_animated_frames_allocate_nothing() {
                 spot_soft_deg: 5.0,
             },
         ];
+        for ctx in [&mut owned, &mut borrowed] {
+            ctx.update_geometry(1, &scene).unwrap();
+            ctx.update_geometry(2, &scene).unwrap();
+            let moved = Affine::translation([0.1 * f as f32, 0.0, -0.05 * f as f32]);
+            ctx.set_instance(1, 1, &moved, !0).unwrap();
+            if f % 2 == 0 {
+                ctx.set_instance(4, 2, &moved, 1).unwrap();
+            } else {
+                ctx.remove_instance(4).unwrap();
+            }
+            ctx.commit_scene().unwrap();
+            ctx.trace_scene(&rays, !0, &mut scene_hits).unwrap();
+            ctx.occluded_scene(&rays, 1, &mut occ).unwrap();
+            scene_hit_total += scene_hits.iter().filter(|h| h.is_hit()).count();
+        }
         for ctx in [
             &mut owned as &mut dyn Frames,
             &mut borrowed as &mut dyn Frames,
@@ -177,6 +221,7 @@ fn ten_animated_frames_allocate_nothing() {
         "10 frames of grid, BVH and kd-tree builds + trace + occluded + render + deferred frames allocated {during} times"
     );
     assert!(hit_total > 0, "the frames must trace something");
+    assert!(scene_hit_total > 0, "the two-level scene must be hit");
     assert!(pixels.iter().any(|&p| p != 0));
     assert_eq!(
         deferred.frames,

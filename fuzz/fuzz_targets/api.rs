@@ -139,6 +139,9 @@ struct LimitsIn {
     max_kd_refs: u32,
     max_pgrid_cells: u32,
     max_pgrid_refs: u32,
+    max_geometries: u32,
+    max_instances: u32,
+    max_scene_triangles: u32,
 }
 
 impl LimitsIn {
@@ -159,6 +162,9 @@ impl LimitsIn {
                 max_kd_refs: self.max_kd_refs,
                 max_pgrid_cells: self.max_pgrid_cells,
                 max_pgrid_refs: self.max_pgrid_refs,
+                max_geometries: self.max_geometries,
+                max_instances: self.max_instances,
+                max_scene_triangles: self.max_scene_triangles,
             };
         }
         // Usable limits: small pools, every structure likely.
@@ -181,6 +187,9 @@ impl LimitsIn {
             max_kd_refs: default_or(self.max_kd_refs, 2000),
             max_pgrid_cells: default_or(self.max_pgrid_cells, 50000),
             max_pgrid_refs: default_or(self.max_pgrid_refs, 50000),
+            max_geometries: self.max_geometries % 5,
+            max_instances: self.max_instances % 9,
+            max_scene_triangles: default_or(self.max_scene_triangles, 400),
         }
     }
 }

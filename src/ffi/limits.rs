@@ -45,6 +45,13 @@ pub struct sheaf_limits {
     /// Most (triangle, cell) pairs of each perspective or light grid. 0:
     /// `8 * max_triangles + 262144`.
     pub max_pgrid_refs: u32,
+    /// Most geometries of the two-level scene. 0: none.
+    pub max_geometries: u32,
+    /// Most instances of the two-level scene. 0: `max_geometries`.
+    pub max_instances: u32,
+    /// Triangles all geometries may reserve together (140 bytes each). 0:
+    /// `max_triangles`.
+    pub max_scene_triangles: u32,
 }
 
 impl sheaf_limits {
@@ -64,6 +71,9 @@ impl sheaf_limits {
             max_kd_refs: l.max_kd_refs,
             max_pgrid_cells: l.max_pgrid_cells,
             max_pgrid_refs: l.max_pgrid_refs,
+            max_geometries: l.max_geometries,
+            max_instances: l.max_instances,
+            max_scene_triangles: l.max_scene_triangles,
         }
     }
 
@@ -87,6 +97,9 @@ impl sheaf_limits {
             max_kd_refs: self.max_kd_refs,
             max_pgrid_cells: self.max_pgrid_cells,
             max_pgrid_refs: self.max_pgrid_refs,
+            max_geometries: self.max_geometries,
+            max_instances: self.max_instances,
+            max_scene_triangles: self.max_scene_triangles,
         })
     }
 }

@@ -63,6 +63,14 @@ pub struct Limits {
     /// spans every cell its projection and depth range touch: large ones
     /// near the eye span thousands).
     pub max_pgrid_refs: u32,
+    /// Most geometries of the two-level scene (`accel::twolevel`: each
+    /// geometry its own BVH, placed by instances). 0: no two-level scene.
+    pub max_geometries: u32,
+    /// Most instances of the two-level scene. 0: `max_geometries`.
+    pub max_instances: u32,
+    /// Triangles all geometries may reserve together (140 bytes each, as
+    /// the BVH). 0: `max_triangles`.
+    pub max_scene_triangles: u32,
 }
 
 impl Limits {
@@ -108,6 +116,33 @@ impl Limits {
             max_kd_refs: 0,
             max_pgrid_cells: 0,
             max_pgrid_refs: 0,
+            max_geometries: 0,
+            max_instances: 0,
+            max_scene_triangles: 0,
+        }
+    }
+
+    /// Instance capacity of the two-level scene after the default rule (0
+    /// without one).
+    pub const fn scene_instances(&self) -> u32 {
+        if self.max_geometries == 0 {
+            0
+        } else if self.max_instances != 0 {
+            self.max_instances
+        } else {
+            self.max_geometries
+        }
+    }
+
+    /// Triangle budget of the two-level scene's geometries after the
+    /// default rule (0 without one).
+    pub const fn scene_triangles(&self) -> u32 {
+        if self.max_geometries == 0 {
+            0
+        } else if self.max_scene_triangles != 0 {
+            self.max_scene_triangles
+        } else {
+            self.max_triangles
         }
     }
 

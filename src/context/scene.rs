@@ -1,0 +1,173 @@
+//! The context's two-level scene (`accel::twolevel`): geometries set,
+//! updated and removed between frames, instances placing them, a commit
+//! that builds the top level, and rays traced through it. Its pools are
+//! carved with the context's when `Limits::max_geometries` is not 0.
+
+use super::Context;
+use crate::accel::bvh::BvhInfo;
+use crate::accel::twolevel::traverse_single::{self, SceneHit};
+use crate::accel::twolevel::{GeometryParams, TwoLevelInfo, TwoLevelView, UpdateInfo};
+use crate::counters::{Counters, elapsed_ns, now};
+use crate::error::{Error, Result};
+use crate::geom::{Affine, Mt, Pt, Ray, Scene, TriTest, Wt};
+use crate::mem::par::{Par, Serial};
+
+impl Context<'_> {
+    fn scene_pools(&self) -> Result<()> {
+        if self.limits.max_geometries == 0 {
+            return Err(Error::InvalidArgument(
+                "no two-level scene: Limits::max_geometries is 0",
+            ));
+        }
+        Ok(())
+    }
+
+    /// Set geometry `id` of the two-level scene to `scene` (replacing it
+    /// if set), its BVH built with `p` in a run of the scene's triangle
+    /// budget. On error nothing changes. Call `commit_scene` before
+    /// tracing. See `TwoLevel::set_geometry` for the errors.
+    pub fn set_geometry(
+        &mut self,
+        id: u32,
+        scene: &Scene<'_>,
+        p: &GeometryParams,
+    ) -> Result<BvhInfo> {
+        self.set_geometry_with(id, scene, p, &Serial)
+    }
+
+    /// `set_geometry` on the caller's workers (the LOW build joins them).
+    pub fn set_geometry_with(
+        &mut self,
+        id: u32,
+        scene: &Scene<'_>,
+        p: &GeometryParams,
+        par: &dyn Par,
+    ) -> Result<BvhInfo> {
+        self.scene_pools()?;
+        if p.bvh.test == TriTest::Projection && !self.limits.projection_test {
+            return Err(Error::InvalidArgument(
+                "projection test without its pool: set Limits::projection_test",
+            ));
+        }
+        self.scene.set_geometry(id, scene, p, par)
+    }
+
+    /// Update geometry `id` to `scene`'s moved vertices (`Refit`) or new
+    /// triangles (`Rebuild`), as its mode says. See
+    /// `TwoLevel::update_geometry`.
+    pub fn update_geometry(&mut self, id: u32, scene: &Scene<'_>) -> Result<UpdateInfo> {
+        self.update_geometry_with(id, scene, &Serial)
+    }
+
+    /// `update_geometry` on the caller's workers.
+    pub fn update_geometry_with(
+        &mut self,
+        id: u32,
+        scene: &Scene<'_>,
+        par: &dyn Par,
+    ) -> Result<UpdateInfo> {
+        self.scene_pools()?;
+        self.scene.update_geometry(id, scene, par)
+    }
+
+    /// Remove geometry `id` (refused while an instance places it).
+    pub fn remove_geometry(&mut self, id: u32) -> Result<()> {
+        self.scene_pools()?;
+        self.scene.remove_geometry(id)
+    }
+
+    /// Set instance `id`: geometry `geometry` placed by `transform`
+    /// (object to world), seen by rays whose mask shares a bit with
+    /// `mask`. See `TwoLevel::set_instance`.
+    pub fn set_instance(
+        &mut self,
+        id: u32,
+        geometry: u32,
+        transform: &Affine,
+        mask: u32,
+    ) -> Result<()> {
+        self.scene_pools()?;
+        self.scene.set_instance(id, geometry, transform, mask)
+    }
+
+    /// Remove instance `id`.
+    pub fn remove_instance(&mut self, id: u32) -> Result<()> {
+        self.scene_pools()?;
+        self.scene.remove_instance(id)
+    }
+
+    /// Build the top level over the instances: after any change to the
+    /// scene, before tracing it.
+    pub fn commit_scene(&mut self) -> Result<TwoLevelInfo> {
+        self.scene_pools()?;
+        Ok(self.scene.commit())
+    }
+
+    /// The committed two-level scene (`NotBuilt` when it changed since).
+    pub fn scene_view(&self) -> Result<TwoLevelView<'_>> {
+        self.scene_pools()?;
+        self.scene.view()
+    }
+
+    /// Nearest hits of `rays` in the committed two-level scene, among
+    /// instances whose mask shares a bit with `mask`, into `hits` (same
+    /// length), one single ray each.
+    pub fn trace_scene(
+        &mut self,
+        rays: &[Ray],
+        mask: u32,
+        hits: &mut [SceneHit],
+    ) -> Result<Counters> {
+        if rays.len() != hits.len() {
+            return Err(Error::InvalidArgument(
+                "rays and hits must have the same length",
+            ));
+        }
+        self.scene_rays(rays, |v, i, r, ctr| {
+            hits[i] = match v.info.test {
+                TriTest::MollerTrumbore => traverse_single::intersect::<Mt>(v, r, mask, ctr),
+                TriTest::Watertight => traverse_single::intersect::<Wt>(v, r, mask, ctr),
+                TriTest::Projection => traverse_single::intersect::<Pt>(v, r, mask, ctr),
+            }
+        })
+    }
+
+    /// Whether anything blocks each of `rays` in `[tmin, tmax)` (instances
+    /// as in `trace_scene`), into `occluded` (same length).
+    pub fn occluded_scene(
+        &mut self,
+        rays: &[Ray],
+        mask: u32,
+        occluded: &mut [bool],
+    ) -> Result<Counters> {
+        if rays.len() != occluded.len() {
+            return Err(Error::InvalidArgument(
+                "rays and occluded must have the same length",
+            ));
+        }
+        self.scene_rays(rays, |v, i, r, ctr| {
+            occluded[i] = match v.info.test {
+                TriTest::MollerTrumbore => traverse_single::occluded::<Mt>(v, r, mask, ctr),
+                TriTest::Watertight => traverse_single::occluded::<Wt>(v, r, mask, ctr),
+                TriTest::Projection => traverse_single::occluded::<Pt>(v, r, mask, ctr),
+            }
+        })
+    }
+
+    fn scene_rays(
+        &mut self,
+        rays: &[Ray],
+        mut each: impl FnMut(&TwoLevelView<'_>, usize, &Ray, &mut Counters),
+    ) -> Result<Counters> {
+        self.scene_pools()?;
+        let t = now();
+        let v = self.scene.view()?;
+        let mut ctr = Counters::default();
+        for (i, r) in rays.iter().enumerate() {
+            each(&v, i, r, &mut ctr);
+        }
+        self.stats.trace_ns = elapsed_ns(t);
+        self.stats.counters = ctr;
+        Ok(ctr)
+    }
+}
