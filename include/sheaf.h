@@ -417,6 +417,36 @@ typedef uint32_t sheaf_isa;
 #endif // __cplusplus
 
 /**
+ * What `sheaf_context_update_scene_geometry` does with a geometry.
+ */
+enum sheaf_update_mode
+#if defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+  : uint32_t
+#endif // defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+ {
+    /**
+     * Built once; updates are refused (set it again).
+     */
+    SHEAF_UPDATE_MODE_STATIC = 0,
+    /**
+     * The vertices move, the index buffer stays: an update refits its
+     * BVH (rebuilding past `refit.rebuild_above`).
+     */
+    SHEAF_UPDATE_MODE_REFIT = 1,
+    /**
+     * The topology changes: an update rebuilds (up to `max_triangles`).
+     */
+    SHEAF_UPDATE_MODE_REBUILD = 2,
+};
+#ifndef __cplusplus
+#if __STDC_VERSION__ >= 202311L
+typedef enum sheaf_update_mode sheaf_update_mode;
+#else
+typedef uint32_t sheaf_update_mode;
+#endif // __STDC_VERSION__ >= 202311L
+#endif // __cplusplus
+
+/**
  * Where a fault can be injected.
  */
 typedef struct Point Point;
@@ -1203,6 +1233,83 @@ typedef struct sheaf_deferred_job {
      */
     struct sheaf_trace_params shadow;
 } sheaf_deferred_job;
+
+/**
+ * How a geometry is built and updated (the crate's `GeometryParams`).
+ * Start from `sheaf_geometry_params_default`.
+ */
+typedef struct sheaf_geometry_params {
+    sheaf_update_mode mode;
+    /**
+     * Triangles reserved in the scene's budget (0: the mesh's count). A
+     * REBUILD geometry may grow to it.
+     */
+    uint32_t max_triangles;
+    /**
+     * Its BVH (every geometry of a scene uses the first one's test).
+     */
+    struct sheaf_bvh_params bvh;
+    /**
+     * When a refit becomes a rebuild (REFIT geometries).
+     */
+    struct sheaf_refit_params refit;
+} sheaf_geometry_params;
+
+/**
+ * A mesh as the caller holds it: `vertex_count` vertices of three floats
+ * (x, y, z), `vertex_stride_bytes` apart (>= 12, a multiple of 4), and
+ * `3 * triangle_count` vertex indices (4-byte aligned). A pointer may be
+ * NULL only when its count is 0. Read only during the call it is passed
+ * to (the geometry's BVH keeps its own copy of the triangles).
+ */
+typedef struct sheaf_mesh {
+    const float *vertices;
+    size_t vertex_stride_bytes;
+    uint32_t vertex_count;
+    const uint32_t *indices;
+    uint32_t triangle_count;
+} sheaf_mesh;
+
+/**
+ * What a commit built (the crate's `TwoLevelInfo`).
+ */
+typedef struct sheaf_scene_info {
+    /**
+     * Triangles of every live instance (each instance counts its
+     * geometry's triangles).
+     */
+    uint64_t instanced_triangles;
+    uint32_t geometries;
+    /**
+     * Live instances whose geometry has triangles.
+     */
+    uint32_t instances;
+    /**
+     * Top-level nodes and depth.
+     */
+    uint32_t nodes;
+    uint32_t depth;
+    /**
+     * World bounds of the instances.
+     */
+    float bounds_min[3];
+    float bounds_max[3];
+} sheaf_scene_info;
+
+/**
+ * Nearest hit in a two-level scene (24 bytes): the triangle's index in
+ * its geometry's index buffer, the geometry and the instance. A miss has
+ * `prim == geometry == instance == SHEAF_INVALID_ID` and `t == INFINITY`.
+ * Of two hits at the same `t` the lower instance, then triangle, wins.
+ */
+typedef struct sheaf_scene_hit {
+    float t;
+    float u;
+    float v;
+    uint32_t prim;
+    uint32_t geometry;
+    uint32_t instance;
+} sheaf_scene_hit;
 
 /**
  * Bounce limits (C: `sheaf_whitted_params`).
@@ -1992,6 +2099,136 @@ sheaf_status sheaf_context_deferred_shadow_ray(const struct sheaf_context *ctx,
                                                const struct sheaf_light *light,
                                                struct sheaf_ray *ray,
                                                bool *has_ray);
+
+/**
+ * Write the default geometry parameters (STATIC, the mesh's triangle
+ * count reserved, `sheaf_bvh_params_default`, never rebuild on refit) to
+ * `*out`.
+ *
+ * `out` must not be NULL. Thread-safe.
+ */
+sheaf_status sheaf_geometry_params_default(struct sheaf_geometry_params *out);
+
+/**
+ * Set geometry `id` (`< max_geometries`) of the two-level scene to
+ * `*mesh` (replacing it if set), building its BVH with `*params` (NULL:
+ * the defaults) in a run of the scene's triangle budget. `*mesh` is read
+ * during this call only. On error nothing changes. The scene must be
+ * committed (`sheaf_context_commit_scene`) before it is traced again.
+ *
+ * Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_INVALID_ARGUMENT`
+ * (no two-level scene, id out of range, another triangle test than the
+ * scene's, bad params or mesh), `SHEAF_STATUS_MISALIGNED`,
+ * `SHEAF_STATUS_INDEX_OUT_OF_RANGE`, `SHEAF_STATUS_CAPACITY_TRIANGLES`
+ * (no free run of the reserved triangles), `SHEAF_STATUS_CONTEXT_BUSY`,
+ * `SHEAF_STATUS_POISONED`.
+ *
+ * Not thread-safe: needs exclusive access to `ctx`.
+ */
+sheaf_status sheaf_context_set_scene_geometry(struct sheaf_context *ctx,
+                                              uint32_t id,
+                                              const struct sheaf_mesh *mesh,
+                                              const struct sheaf_geometry_params *params);
+
+/**
+ * Update geometry `id` to `*mesh` as its mode says: REFIT (the same
+ * triangles, vertices moved; `*out`, if not NULL, receives what the refit
+ * did) or REBUILD (new triangles, up to the reserved count; `*out` is
+ * zeroed). On error the previous BVH stays. Commit before tracing.
+ *
+ * Errors: as `sheaf_context_set_scene_geometry`, and
+ * `SHEAF_STATUS_INVALID_ARGUMENT` for a STATIC geometry, an id not set,
+ * or (REFIT) another triangle count than the build's.
+ *
+ * Not thread-safe: needs exclusive access to `ctx`.
+ */
+sheaf_status sheaf_context_update_scene_geometry(struct sheaf_context *ctx,
+                                                 uint32_t id,
+                                                 const struct sheaf_mesh *mesh,
+                                                 struct sheaf_refit_info *out);
+
+/**
+ * Remove geometry `id`, giving its triangles back to the budget.
+ *
+ * Errors: `SHEAF_STATUS_INVALID_ARGUMENT` (not set, or still placed by an
+ * instance), `SHEAF_STATUS_CONTEXT_BUSY`, `SHEAF_STATUS_POISONED`.
+ *
+ * Not thread-safe: needs exclusive access to `ctx`.
+ */
+sheaf_status sheaf_context_remove_scene_geometry(struct sheaf_context *ctx,
+                                                 uint32_t id);
+
+/**
+ * Set instance `id` (`< max_instances`): geometry `geometry` placed by
+ * `transform`, 12 floats of a row-major 3x4 object-to-world matrix (as
+ * Embree's `RTC_FORMAT_FLOAT3X4_ROW_MAJOR`), seen by rays whose mask
+ * shares a bit with `mask`. sheaf stores the inverse.
+ *
+ * Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_INVALID_ARGUMENT`
+ * (id out of range, geometry not set, a NaN or infinite entry, a
+ * singular transform or one whose inverse does not fit f32),
+ * `SHEAF_STATUS_CONTEXT_BUSY`, `SHEAF_STATUS_POISONED`. Nothing changes
+ * on error.
+ *
+ * Not thread-safe: needs exclusive access to `ctx`.
+ */
+sheaf_status sheaf_context_set_instance(struct sheaf_context *ctx,
+                                        uint32_t id,
+                                        uint32_t geometry,
+                                        const float *transform,
+                                        uint32_t mask);
+
+/**
+ * Remove instance `id`.
+ *
+ * Errors: `SHEAF_STATUS_INVALID_ARGUMENT` (not set),
+ * `SHEAF_STATUS_CONTEXT_BUSY`, `SHEAF_STATUS_POISONED`.
+ *
+ * Not thread-safe: needs exclusive access to `ctx`.
+ */
+sheaf_status sheaf_context_remove_instance(struct sheaf_context *ctx,
+                                           uint32_t id);
+
+/**
+ * Build the top level over the instances as they are now: after any
+ * change to geometries or instances, before tracing. `out` may be NULL.
+ *
+ * Errors: `SHEAF_STATUS_INVALID_ARGUMENT` (no two-level scene),
+ * `SHEAF_STATUS_CONTEXT_BUSY`, `SHEAF_STATUS_POISONED`.
+ *
+ * Not thread-safe: needs exclusive access to `ctx`.
+ */
+sheaf_status sheaf_context_commit_scene(struct sheaf_context *ctx,
+                                        struct sheaf_scene_info *out);
+
+/**
+ * Nearest hits of `count` rays in the committed two-level scene, among
+ * instances whose mask shares a bit with `mask`, into `hits` (single
+ * rays; results are the Rust API's `Context::trace_scene`, bit for bit).
+ *
+ * Thread-safe: any number of threads may trace one committed scene at
+ * once (no thread slot is taken).
+ *
+ * Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_INVALID_ARGUMENT`
+ * (no two-level scene, count, overlap), `SHEAF_STATUS_NOT_BUILT` (changed
+ * since the last commit). `hits` is written only on success.
+ */
+sheaf_status sheaf_context_trace_scene(const struct sheaf_context *ctx,
+                                       const struct sheaf_ray *rays,
+                                       struct sheaf_scene_hit *hits,
+                                       size_t count,
+                                       uint32_t mask);
+
+/**
+ * Whether anything blocks each of `count` rays in `[tmin, tmax)`
+ * (instances as in `sheaf_context_trace_scene`): 1 or 0 into
+ * `occluded`. Thread-safe as `sheaf_context_trace_scene`; same errors.
+ */
+sheaf_status sheaf_context_occluded_scene(const struct sheaf_context *ctx,
+                                          const struct sheaf_ray *rays,
+                                          uint8_t *occluded,
+                                          size_t count,
+                                          uint32_t mask);
 
 /**
  * Fixed, NUL-terminated English text for `status`.

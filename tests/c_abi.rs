@@ -226,6 +226,10 @@ fn check_layouts() {
             ("sheaf_bvh_params", size_of::<ffi::sheaf_bvh_params>(), align_of::<ffi::sheaf_bvh_params>()),
             ("sheaf_kd_params", size_of::<ffi::sheaf_kd_params>(), align_of::<ffi::sheaf_kd_params>()),
             ("sheaf_refit_info", size_of::<ffi::sheaf_refit_info>(), align_of::<ffi::sheaf_refit_info>()),
+            ("sheaf_mesh", size_of::<ffi::sheaf_mesh>(), align_of::<ffi::sheaf_mesh>()),
+            ("sheaf_geometry_params", size_of::<ffi::sheaf_geometry_params>(), align_of::<ffi::sheaf_geometry_params>()),
+            ("sheaf_scene_hit", size_of::<ffi::sheaf_scene_hit>(), align_of::<ffi::sheaf_scene_hit>()),
+            ("sheaf_scene_info", size_of::<ffi::sheaf_scene_info>(), align_of::<ffi::sheaf_scene_info>()),
         ];
         // Macros written by hand in cbindgen.toml that tests/header.rs does
         // not check, against the Rust values (printed after the layouts).
@@ -301,6 +305,16 @@ fn c_api_static() {
 #[test]
 fn c_api_shared() {
     run(&compile_c("test_api.c", Link::Shared));
+}
+
+#[test]
+fn c_scene_static() {
+    run(&compile_c("test_scene.c", Link::Static));
+}
+
+#[test]
+fn c_scene_shared() {
+    run(&compile_c("test_scene.c", Link::Shared));
 }
 
 #[test]

@@ -123,12 +123,8 @@ impl Context<'_> {
                 "rays and hits must have the same length",
             ));
         }
-        self.scene_rays(rays, |v, i, r, ctr| {
-            hits[i] = match v.info.test {
-                TriTest::MollerTrumbore => traverse_single::intersect::<Mt>(v, r, mask, ctr),
-                TriTest::Watertight => traverse_single::intersect::<Wt>(v, r, mask, ctr),
-                TriTest::Projection => traverse_single::intersect::<Pt>(v, r, mask, ctr),
-            }
+        self.recorded(|c| {
+            c.trace_scene_each(rays.len(), mask, false, |i| rays[i], |i, h| hits[i] = h)
         })
     }
 
@@ -145,29 +141,65 @@ impl Context<'_> {
                 "rays and occluded must have the same length",
             ));
         }
-        self.scene_rays(rays, |v, i, r, ctr| {
-            occluded[i] = match v.info.test {
-                TriTest::MollerTrumbore => traverse_single::occluded::<Mt>(v, r, mask, ctr),
-                TriTest::Watertight => traverse_single::occluded::<Wt>(v, r, mask, ctr),
-                TriTest::Projection => traverse_single::occluded::<Pt>(v, r, mask, ctr),
-            }
+        self.recorded(|c| {
+            c.trace_scene_each(
+                rays.len(),
+                mask,
+                true,
+                |i| rays[i],
+                |i, h| occluded[i] = h.is_hit(),
+            )
         })
     }
 
-    fn scene_rays(
-        &mut self,
-        rays: &[Ray],
-        mut each: impl FnMut(&TwoLevelView<'_>, usize, &Ray, &mut Counters),
-    ) -> Result<Counters> {
-        self.scene_pools()?;
+    /// `f`'s counters and time as the last call's statistics.
+    fn recorded(&mut self, f: impl FnOnce(&Self) -> Result<Counters>) -> Result<Counters> {
         let t = now();
-        let v = self.scene.view()?;
-        let mut ctr = Counters::default();
-        for (i, r) in rays.iter().enumerate() {
-            each(&v, i, r, &mut ctr);
-        }
+        let ctr = f(self)?;
         self.stats.trace_ns = elapsed_ns(t);
         self.stats.counters = ctr;
+        Ok(ctr)
+    }
+
+    /// The committed two-level scene's answer for `count` rays read by
+    /// `read(i)`, handed to `out(i, hit)`: the nearest hit, or with `any`
+    /// some hit (occlusion). Read-only: many threads may call it at once
+    /// (the C ABI's scene traces do).
+    pub fn trace_scene_each(
+        &self,
+        count: usize,
+        mask: u32,
+        any: bool,
+        read: impl Fn(usize) -> Ray,
+        mut out: impl FnMut(usize, SceneHit),
+    ) -> Result<Counters> {
+        self.scene_pools()?;
+        let v = self.scene.view()?;
+        let mut ctr = Counters::default();
+        for i in 0..count {
+            let r = read(i);
+            let h = match (v.info.test, any) {
+                (TriTest::MollerTrumbore, false) => {
+                    traverse_single::intersect::<Mt>(&v, &r, mask, &mut ctr)
+                }
+                (TriTest::Watertight, false) => {
+                    traverse_single::intersect::<Wt>(&v, &r, mask, &mut ctr)
+                }
+                (TriTest::Projection, false) => {
+                    traverse_single::intersect::<Pt>(&v, &r, mask, &mut ctr)
+                }
+                (TriTest::MollerTrumbore, true) => {
+                    traverse_single::any_hit::<Mt>(&v, &r, mask, &mut ctr)
+                }
+                (TriTest::Watertight, true) => {
+                    traverse_single::any_hit::<Wt>(&v, &r, mask, &mut ctr)
+                }
+                (TriTest::Projection, true) => {
+                    traverse_single::any_hit::<Pt>(&v, &r, mask, &mut ctr)
+                }
+            };
+            out(i, h);
+        }
         Ok(ctr)
     }
 }

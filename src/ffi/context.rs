@@ -82,6 +82,56 @@ pub(super) struct Geometry {
 }
 
 impl Geometry {
+    /// The caller's buffers, checked as `sheaf_context_set_geometry`
+    /// documents (pointers, stride, sizes, alignment) before any slice is
+    /// formed over them; the indices are checked by `scene`.
+    pub(super) fn new(
+        vertices: *const f32,
+        vertex_stride_bytes: usize,
+        vertex_count: u32,
+        indices: *const u32,
+        triangle_count: u32,
+    ) -> Result<Geometry> {
+        if vertex_count > 0 {
+            check_non_null!(vertices);
+        }
+        if triangle_count > 0 {
+            check_non_null!(indices);
+        }
+        // The stride is checked before any slice is formed over the buffer.
+        if vertex_stride_bytes < 12 || !vertex_stride_bytes.is_multiple_of(4) {
+            return Err(Error::InvalidArgument(
+                "vertex stride must be >= 12 and a multiple of 4",
+            ));
+        }
+        let vertices_len = if vertex_count == 0 {
+            0
+        } else {
+            (vertex_count as usize - 1)
+                .checked_mul(vertex_stride_bytes)
+                .and_then(|b| b.checked_add(12))
+                .filter(|&b| b <= isize::MAX as usize)
+                .ok_or(Error::InvalidArgument("vertex buffer size overflows"))?
+        };
+        let index_count = (triangle_count as usize)
+            .checked_mul(3)
+            .ok_or(Error::InvalidArgument("too many triangles"))?;
+        array_bytes::<u32>(index_count, "index buffer size overflows")?;
+        if triangle_count > 0 && !indices.is_aligned() {
+            return Err(Error::Misaligned {
+                required: core::mem::align_of::<u32>() as u32,
+            });
+        }
+        Ok(Geometry {
+            vertices: vertices.cast(),
+            vertices_len,
+            stride: vertex_stride_bytes,
+            vertex_count,
+            indices,
+            index_count,
+        })
+    }
+
     /// The borrowed scene, validated again (indices may have been changed
     /// in place since `set_geometry`).
     pub(super) fn scene(&self) -> Result<Scene<'_>> {
@@ -502,44 +552,13 @@ pub extern "C" fn sheaf_context_set_geometry(
     triangle_count: u32,
 ) -> sheaf_status {
     with_mut(ctx, |h| {
-        if vertex_count > 0 {
-            check_non_null!(vertices);
-        }
-        if triangle_count > 0 {
-            check_non_null!(indices);
-        }
-        // The stride is checked before any slice is formed over the buffer.
-        if vertex_stride_bytes < 12 || !vertex_stride_bytes.is_multiple_of(4) {
-            return Err(Error::InvalidArgument(
-                "vertex stride must be >= 12 and a multiple of 4",
-            ));
-        }
-        let vertices_len = if vertex_count == 0 {
-            0
-        } else {
-            (vertex_count as usize - 1)
-                .checked_mul(vertex_stride_bytes)
-                .and_then(|b| b.checked_add(12))
-                .filter(|&b| b <= isize::MAX as usize)
-                .ok_or(Error::InvalidArgument("vertex buffer size overflows"))?
-        };
-        let index_count = (triangle_count as usize)
-            .checked_mul(3)
-            .ok_or(Error::InvalidArgument("too many triangles"))?;
-        array_bytes::<u32>(index_count, "index buffer size overflows")?;
-        if triangle_count > 0 && !indices.is_aligned() {
-            return Err(Error::Misaligned {
-                required: core::mem::align_of::<u32>() as u32,
-            });
-        }
-        let g = Geometry {
-            vertices: vertices.cast(),
-            vertices_len,
-            stride: vertex_stride_bytes,
+        let g = Geometry::new(
+            vertices,
+            vertex_stride_bytes,
             vertex_count,
             indices,
-            index_count,
-        };
+            triangle_count,
+        )?;
         h.ctx.check_scene(&g.scene()?)?;
         crate::fault_point!(SetGeometry);
         h.geometry = Some(g);

@@ -59,6 +59,7 @@ pub mod method;
 mod panic_handler;
 pub mod pgrid;
 pub mod ray;
+pub mod scene;
 pub mod stats;
 pub mod status;
 mod sync;
@@ -91,6 +92,13 @@ pub use pgrid::{
     sheaf_pgrid_params_default,
 };
 pub use ray::{sheaf_hit, sheaf_ray};
+pub use scene::{
+    sheaf_context_commit_scene, sheaf_context_occluded_scene, sheaf_context_remove_instance,
+    sheaf_context_remove_scene_geometry, sheaf_context_set_instance,
+    sheaf_context_set_scene_geometry, sheaf_context_trace_scene,
+    sheaf_context_update_scene_geometry, sheaf_geometry_params, sheaf_geometry_params_default,
+    sheaf_mesh, sheaf_scene_hit, sheaf_scene_info, sheaf_update_mode,
+};
 pub use stats::sheaf_stats;
 pub use status::{sheaf_status, sheaf_status_string};
 pub use trace_params::{sheaf_entry_search, sheaf_trace_params, sheaf_trace_params_default};
@@ -133,6 +141,8 @@ pub mod raw {
     pub type sheaf_isa = u32;
     /// cbindgen:ignore
     pub type sheaf_build_quality = u32;
+    /// cbindgen:ignore
+    pub type sheaf_update_mode = u32;
 }
 
 /// Return `Err(Error::NullPointer)` from the enclosing function when any

@@ -95,7 +95,17 @@ pub fn occluded<T: TriangleTest>(
     mask: u32,
     ctr: &mut Counters,
 ) -> bool {
-    walk::<T, true>(s, ray, mask, ctr).is_hit()
+    any_hit::<T>(s, ray, mask, ctr).is_hit()
+}
+
+/// Some hit of `ray` in `[tmin, tmax)` (the first found), or a miss.
+pub fn any_hit<T: TriangleTest>(
+    s: &TwoLevelView<'_>,
+    ray: &Ray,
+    mask: u32,
+    ctr: &mut Counters,
+) -> SceneHit {
+    walk::<T, true>(s, ray, mask, ctr)
 }
 
 fn walk<T: TriangleTest, const ANY: bool>(

@@ -1,0 +1,225 @@
+/*
+ * The two-level scene through the C ABI: geometries set, updated (refit and
+ * rebuild) and removed, instances placing them, commits, traces with ids and
+ * masks, and every bad input refused with its status and nothing changed.
+ */
+#include "common.h"
+
+/* A unit square (two triangles) in the plane z = 0, x and y in [0, 1]. */
+static const float SQUARE_V[4][3] = {{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0}};
+static const uint32_t SQUARE_I[6] = {0, 1, 2, 0, 2, 3};
+
+static sheaf_mesh square(void) {
+    sheaf_mesh m;
+    m.vertices = &SQUARE_V[0][0];
+    m.vertex_stride_bytes = 12;
+    m.vertex_count = 4;
+    m.indices = SQUARE_I;
+    m.triangle_count = 2;
+    return m;
+}
+
+static sheaf_context *scene_context(uint32_t geometries, uint32_t instances, uint32_t budget) {
+    sheaf_limits l;
+    sheaf_context *ctx = NULL;
+    if (sheaf_limits_default(16, &l) != SHEAF_STATUS_OK)
+        return NULL;
+    l.structures = SHEAF_STRUCTURE_BVH;
+    l.max_geometries = geometries;
+    l.max_instances = instances;
+    l.max_scene_triangles = budget;
+    if (sheaf_context_create(&l, &ctx) != SHEAF_STATUS_OK)
+        return NULL;
+    return ctx;
+}
+
+/* Row-major 3x4: a translation by (x, y, z), scaled by s. */
+static void placed(float m[12], float s, float x, float y, float z) {
+    int i;
+    for (i = 0; i < 12; ++i)
+        m[i] = 0.0f;
+    m[0] = m[5] = m[10] = s;
+    m[3] = x;
+    m[7] = y;
+    m[11] = z;
+}
+
+static sheaf_ray down_at(float x, float y) {
+    sheaf_ray r;
+    r.org[0] = x;
+    r.org[1] = y;
+    r.org[2] = 10.0f;
+    r.dir[0] = 0.0f;
+    r.dir[1] = 0.0f;
+    r.dir[2] = -1.0f;
+    r.tmin = 0.0f;
+    r.tmax = INFINITY;
+    return r;
+}
+
+static bool test_instances_ids_and_masks(void) {
+    sheaf_context *ctx = scene_context(2, 4, 64);
+    sheaf_mesh m = square();
+    sheaf_geometry_params p;
+    sheaf_scene_info info;
+    sheaf_ray rays[4];
+    sheaf_scene_hit hits[4];
+    uint8_t occ[4];
+    float xf[12];
+    CHECK(ctx != NULL);
+    CHECK_OK(sheaf_geometry_params_default(&p));
+    CHECK(p.mode == SHEAF_UPDATE_MODE_STATIC);
+    CHECK_OK(sheaf_context_set_scene_geometry(ctx, 0, &m, &p));
+    CHECK_OK(sheaf_context_set_scene_geometry(ctx, 1, &m, NULL));
+    /* Instance 0: geometry 0 at z = 1; instance 1: geometry 1 at z = 2,
+     * twice as large, shifted to x in [2, 4]; instance 2: geometry 0 at z = 3
+     * over instance 0, mask 2 only. */
+    placed(xf, 1.0f, 0.0f, 0.0f, 1.0f);
+    CHECK_OK(sheaf_context_set_instance(ctx, 0, 0, xf, 1));
+    placed(xf, 2.0f, 2.0f, 0.0f, 2.0f);
+    CHECK_OK(sheaf_context_set_instance(ctx, 1, 1, xf, 1));
+    placed(xf, 1.0f, 0.0f, 0.0f, 3.0f);
+    CHECK_OK(sheaf_context_set_instance(ctx, 2, 0, xf, 2));
+    rays[0] = down_at(0.25f, 0.5f);
+    rays[1] = down_at(3.0f, 1.5f);
+    rays[2] = down_at(1.5f, 0.5f); /* between the instances: a miss */
+    rays[3] = down_at(0.75f, 0.25f);
+    CHECK_STATUS(sheaf_context_trace_scene(ctx, rays, hits, 4, ~0u), SHEAF_STATUS_NOT_BUILT);
+    CHECK_OK(sheaf_context_commit_scene(ctx, &info));
+    CHECK(info.geometries == 2 && info.instances == 3 && info.instanced_triangles == 6);
+    CHECK(info.bounds_min[0] <= 0.0f && info.bounds_max[0] >= 4.0f && info.bounds_max[2] >= 3.0f);
+    /* Mask 1: instances 0 and 1. */
+    CHECK_OK(sheaf_context_trace_scene(ctx, rays, hits, 4, 1));
+    CHECK(hits[0].instance == 0 && hits[0].geometry == 0 && hits[0].t == 9.0f);
+    CHECK(hits[1].instance == 1 && hits[1].geometry == 1 && hits[1].t == 8.0f);
+    CHECK(hits[2].prim == SHEAF_INVALID_ID && hits[2].instance == SHEAF_INVALID_ID && hits[2].t == INFINITY);
+    CHECK(hits[3].instance == 0 && hits[3].prim == 0); /* below the diagonal: triangle 0 */
+    CHECK(hits[0].prim == 1);
+    /* Every mask: instance 2 (z = 3) is nearer over instance 0. */
+    CHECK_OK(sheaf_context_trace_scene(ctx, rays, hits, 4, ~0u));
+    CHECK(hits[0].instance == 2 && hits[0].t == 7.0f && hits[1].instance == 1);
+    CHECK_OK(sheaf_context_occluded_scene(ctx, rays, occ, 4, 2));
+    CHECK(occ[0] == 1 && occ[1] == 0 && occ[2] == 0 && occ[3] == 1);
+    /* No instance answers mask 4. */
+    CHECK_OK(sheaf_context_trace_scene(ctx, rays, hits, 4, 4));
+    CHECK(hits[0].prim == SHEAF_INVALID_ID && hits[1].prim == SHEAF_INVALID_ID);
+    /* Removing an instance needs a commit, then it is gone. */
+    CHECK_OK(sheaf_context_remove_instance(ctx, 2));
+    CHECK_STATUS(sheaf_context_trace_scene(ctx, rays, hits, 4, ~0u), SHEAF_STATUS_NOT_BUILT);
+    CHECK_OK(sheaf_context_commit_scene(ctx, NULL));
+    CHECK_OK(sheaf_context_trace_scene(ctx, rays, hits, 4, ~0u));
+    CHECK(hits[0].instance == 0 && hits[0].t == 9.0f);
+    sheaf_context_destroy(ctx);
+    return true;
+}
+
+static bool test_refit_and_rebuild_updates(void) {
+    sheaf_context *ctx = scene_context(2, 2, 16);
+    float v[4][3];
+    uint32_t idx[6];
+    sheaf_mesh m = square();
+    sheaf_geometry_params p;
+    sheaf_refit_info ri;
+    sheaf_ray r = down_at(0.25f, 0.5f);
+    sheaf_scene_hit hit;
+    float xf[12];
+    CHECK(ctx != NULL);
+    memcpy(v, SQUARE_V, sizeof v);
+    memcpy(idx, SQUARE_I, sizeof idx);
+    m.vertices = &v[0][0];
+    m.indices = idx;
+    CHECK_OK(sheaf_geometry_params_default(&p));
+    p.mode = SHEAF_UPDATE_MODE_REFIT;
+    CHECK_OK(sheaf_context_set_scene_geometry(ctx, 0, &m, &p));
+    p.mode = SHEAF_UPDATE_MODE_REBUILD;
+    p.max_triangles = 4;
+    CHECK_OK(sheaf_context_set_scene_geometry(ctx, 1, &m, &p));
+    placed(xf, 1.0f, 0.0f, 0.0f, 0.0f);
+    CHECK_OK(sheaf_context_set_instance(ctx, 0, 0, xf, ~0u));
+    placed(xf, 1.0f, 5.0f, 0.0f, 0.0f);
+    CHECK_OK(sheaf_context_set_instance(ctx, 1, 1, xf, ~0u));
+    /* Lift the square to z = 0.5 and refit geometry 0. */
+    v[0][2] = v[1][2] = v[2][2] = v[3][2] = 0.5f;
+    CHECK_OK(sheaf_context_update_scene_geometry(ctx, 0, &m, &ri));
+    CHECK(ri.rebuilt == 0 && ri.sah_after > 0.0f);
+    CHECK_OK(sheaf_context_commit_scene(ctx, NULL));
+    CHECK_OK(sheaf_context_trace_scene(ctx, &r, &hit, 1, ~0u));
+    CHECK(hit.instance == 0 && hit.t == 9.5f);
+    /* A refit needs the same triangle count. */
+    m.triangle_count = 1;
+    CHECK_STATUS(sheaf_context_update_scene_geometry(ctx, 0, &m, NULL), SHEAF_STATUS_INVALID_ARGUMENT);
+    /* Geometry 1 rebuilds with one triangle (within its 4), not with 5. */
+    CHECK_OK(sheaf_context_update_scene_geometry(ctx, 1, &m, &ri));
+    CHECK(ri.sah_after == 0.0f && ri.rebuilt == 0); /* zeroed: not a refit */
+    m.triangle_count = 2;
+    CHECK_OK(sheaf_context_commit_scene(ctx, NULL));
+    r = down_at(5.25f, 0.75f); /* over the second triangle, now gone */
+    CHECK_OK(sheaf_context_trace_scene(ctx, &r, &hit, 1, ~0u));
+    CHECK(hit.prim == SHEAF_INVALID_ID);
+    r = down_at(5.75f, 0.25f);
+    CHECK_OK(sheaf_context_trace_scene(ctx, &r, &hit, 1, ~0u));
+    CHECK(hit.instance == 1 && hit.prim == 0 && hit.t == 9.5f);
+    sheaf_context_destroy(ctx);
+    return true;
+}
+
+static bool test_bad_input_changes_nothing(void) {
+    sheaf_context *ctx = scene_context(2, 2, 3);
+    sheaf_context *plain = scene_context(0, 0, 0);
+    sheaf_mesh m = square();
+    sheaf_geometry_params p;
+    sheaf_ray r = down_at(0.25f, 0.5f);
+    sheaf_scene_hit hit;
+    float xf[12];
+    CHECK(ctx != NULL && plain != NULL);
+    CHECK_OK(sheaf_geometry_params_default(&p));
+    /* No two-level scene in a context without max_geometries. */
+    CHECK_STATUS(sheaf_context_set_scene_geometry(plain, 0, &m, NULL), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_commit_scene(plain, NULL), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_trace_scene(plain, &r, &hit, 1, ~0u), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_set_scene_geometry(ctx, 0, NULL, NULL), SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS(sheaf_context_set_scene_geometry(ctx, 2, &m, NULL), SHEAF_STATUS_INVALID_ARGUMENT);
+    p.mode = 7;
+    CHECK_STATUS(sheaf_context_set_scene_geometry(ctx, 0, &m, &p), SHEAF_STATUS_INVALID_ARGUMENT);
+    p.mode = SHEAF_UPDATE_MODE_STATIC;
+    CHECK_OK(sheaf_context_set_scene_geometry(ctx, 0, &m, &p));
+    /* 3 triangles in the budget: 2 taken, a second square does not fit. */
+    CHECK_STATUS(sheaf_context_set_scene_geometry(ctx, 1, &m, &p), SHEAF_STATUS_CAPACITY_TRIANGLES);
+    p.bvh.test = SHEAF_TRI_TEST_WATERTIGHT;
+    m.triangle_count = 1;
+    CHECK_STATUS(sheaf_context_set_scene_geometry(ctx, 1, &m, &p), SHEAF_STATUS_INVALID_ARGUMENT);
+    m.triangle_count = 2;
+    CHECK_STATUS(sheaf_context_update_scene_geometry(ctx, 0, &m, NULL), SHEAF_STATUS_INVALID_ARGUMENT);
+    placed(xf, 1.0f, 0.0f, 0.0f, 0.0f);
+    CHECK_STATUS(sheaf_context_set_instance(ctx, 0, 1, xf, ~0u), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_set_instance(ctx, 2, 0, xf, ~0u), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_set_instance(ctx, 0, 0, NULL, ~0u), SHEAF_STATUS_NULL_POINTER);
+    CHECK_OK(sheaf_context_set_instance(ctx, 0, 0, xf, ~0u));
+    CHECK_OK(sheaf_context_commit_scene(ctx, NULL));
+    placed(xf, 0.0f, 0.0f, 0.0f, 0.0f); /* singular */
+    CHECK_STATUS(sheaf_context_set_instance(ctx, 1, 0, xf, ~0u), SHEAF_STATUS_INVALID_ARGUMENT);
+    placed(xf, 1.0f, NAN, 0.0f, 0.0f);
+    CHECK_STATUS(sheaf_context_set_instance(ctx, 1, 0, xf, ~0u), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_remove_scene_geometry(ctx, 0), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_remove_instance(ctx, 1), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_trace_scene(ctx, &r, NULL, 1, ~0u), SHEAF_STATUS_NULL_POINTER);
+    /* Nothing changed: still committed, still hit. */
+    CHECK_OK(sheaf_context_trace_scene(ctx, &r, &hit, 1, ~0u));
+    CHECK(hit.instance == 0 && hit.t == 10.0f);
+    CHECK_OK(sheaf_context_remove_instance(ctx, 0));
+    CHECK_OK(sheaf_context_remove_scene_geometry(ctx, 0));
+    CHECK_OK(sheaf_context_commit_scene(ctx, NULL));
+    CHECK_OK(sheaf_context_trace_scene(ctx, &r, &hit, 1, ~0u));
+    CHECK(hit.prim == SHEAF_INVALID_ID);
+    sheaf_context_destroy(ctx);
+    sheaf_context_destroy(plain);
+    return true;
+}
+
+int main(void) {
+    int passed = 0, failed = 0;
+    run_test("test_instances_ids_and_masks", test_instances_ids_and_masks, &passed, &failed);
+    run_test("test_refit_and_rebuild_updates", test_refit_and_rebuild_updates, &passed, &failed);
+    run_test("test_bad_input_changes_nothing", test_bad_input_changes_nothing, &passed, &failed);
+    return report(passed, failed);
+}

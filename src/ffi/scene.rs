@@ -1,0 +1,395 @@
+//! The two-level scene through the C ABI (`accel::twolevel`, the crate's
+//! `Context::set_geometry` and friends): geometries that borrow their
+//! buffers only during the call that builds or updates them, instances
+//! placing them with 3x4 transforms, a commit, and rays traced through it.
+//! Needs `sheaf_limits.max_geometries` > 0.
+
+use super::bvh::{sheaf_bvh_params, sheaf_refit_info, sheaf_refit_params};
+use super::context::{Geometry, sheaf_context, with_mut, with_ref};
+use super::ray::sheaf_ray;
+use super::{check_array, check_non_null, guard_free, overlaps, read_in, write_out};
+use crate::accel::twolevel::traverse_single::SceneHit;
+use crate::accel::twolevel::{GeometryParams, TwoLevelInfo, UpdateMode};
+use crate::error::{Error, Result};
+use crate::geom::{Affine, Ray};
+
+/// A mesh as the caller holds it: `vertex_count` vertices of three floats
+/// (x, y, z), `vertex_stride_bytes` apart (>= 12, a multiple of 4), and
+/// `3 * triangle_count` vertex indices (4-byte aligned). A pointer may be
+/// NULL only when its count is 0. Read only during the call it is passed
+/// to (the geometry's BVH keeps its own copy of the triangles).
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct sheaf_mesh {
+    pub vertices: *const f32,
+    pub vertex_stride_bytes: usize,
+    pub vertex_count: u32,
+    pub indices: *const u32,
+    pub triangle_count: u32,
+}
+
+impl sheaf_mesh {
+    fn geometry(&self) -> Result<Geometry> {
+        Geometry::new(
+            self.vertices,
+            self.vertex_stride_bytes,
+            self.vertex_count,
+            self.indices,
+            self.triangle_count,
+        )
+    }
+}
+
+/// What `sheaf_context_update_scene_geometry` does with a geometry.
+#[repr(u32)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum sheaf_update_mode {
+    /// Built once; updates are refused (set it again).
+    Static = 0,
+    /// The vertices move, the index buffer stays: an update refits its
+    /// BVH (rebuilding past `refit.rebuild_above`).
+    Refit = 1,
+    /// The topology changes: an update rebuilds (up to `max_triangles`).
+    Rebuild = 2,
+}
+
+/// How a geometry is built and updated (the crate's `GeometryParams`).
+/// Start from `sheaf_geometry_params_default`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct sheaf_geometry_params {
+    pub mode: super::raw::sheaf_update_mode,
+    /// Triangles reserved in the scene's budget (0: the mesh's count). A
+    /// REBUILD geometry may grow to it.
+    pub max_triangles: u32,
+    /// Its BVH (every geometry of a scene uses the first one's test).
+    pub bvh: sheaf_bvh_params,
+    /// When a refit becomes a rebuild (REFIT geometries).
+    pub refit: sheaf_refit_params,
+}
+
+impl sheaf_geometry_params {
+    pub fn of(p: &GeometryParams) -> Self {
+        sheaf_geometry_params {
+            mode: p.mode as u32,
+            max_triangles: p.max_triangles,
+            bvh: sheaf_bvh_params::of(&p.bvh),
+            refit: sheaf_refit_params::of(&p.refit),
+        }
+    }
+    pub fn to_core(&self) -> Result<GeometryParams> {
+        let mode = [UpdateMode::Static, UpdateMode::Refit, UpdateMode::Rebuild]
+            .into_iter()
+            .find(|&m| m as u32 == self.mode)
+            .ok_or(Error::InvalidArgument("unknown sheaf_update_mode"))?;
+        Ok(GeometryParams {
+            mode,
+            max_triangles: self.max_triangles,
+            bvh: self.bvh.to_core()?,
+            refit: self.refit.to_core()?,
+        })
+    }
+}
+
+/// Nearest hit in a two-level scene (24 bytes): the triangle's index in
+/// its geometry's index buffer, the geometry and the instance. A miss has
+/// `prim == geometry == instance == SHEAF_INVALID_ID` and `t == INFINITY`.
+/// Of two hits at the same `t` the lower instance, then triangle, wins.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct sheaf_scene_hit {
+    pub t: f32,
+    pub u: f32,
+    pub v: f32,
+    pub prim: u32,
+    pub geometry: u32,
+    pub instance: u32,
+}
+
+impl From<SceneHit> for sheaf_scene_hit {
+    fn from(h: SceneHit) -> Self {
+        sheaf_scene_hit {
+            t: h.t,
+            u: h.u,
+            v: h.v,
+            prim: h.prim,
+            geometry: h.geometry,
+            instance: h.instance,
+        }
+    }
+}
+
+const _: () = assert!(core::mem::size_of::<sheaf_scene_hit>() == 24);
+
+/// What a commit built (the crate's `TwoLevelInfo`).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct sheaf_scene_info {
+    /// Triangles of every live instance (each instance counts its
+    /// geometry's triangles).
+    pub instanced_triangles: u64,
+    pub geometries: u32,
+    /// Live instances whose geometry has triangles.
+    pub instances: u32,
+    /// Top-level nodes and depth.
+    pub nodes: u32,
+    pub depth: u32,
+    /// World bounds of the instances.
+    pub bounds_min: [f32; 3],
+    pub bounds_max: [f32; 3],
+}
+
+impl sheaf_scene_info {
+    fn of(i: &TwoLevelInfo) -> Self {
+        sheaf_scene_info {
+            instanced_triangles: i.instanced_triangles,
+            geometries: i.geometries,
+            instances: i.instances,
+            nodes: i.nodes,
+            depth: i.depth,
+            bounds_min: i.bounds.min.to_array(),
+            bounds_max: i.bounds.max.to_array(),
+        }
+    }
+}
+
+/// Write the default geometry parameters (STATIC, the mesh's triangle
+/// count reserved, `sheaf_bvh_params_default`, never rebuild on refit) to
+/// `*out`.
+///
+/// `out` must not be NULL. Thread-safe.
+#[unsafe(no_mangle)]
+pub extern "C" fn sheaf_geometry_params_default(
+    out: *mut sheaf_geometry_params,
+) -> super::sheaf_status {
+    guard_free(|| {
+        check_non_null!(out);
+        write_out(out, sheaf_geometry_params::of(&GeometryParams::default()));
+        Ok(())
+    })
+}
+
+/// Set geometry `id` (`< max_geometries`) of the two-level scene to
+/// `*mesh` (replacing it if set), building its BVH with `*params` (NULL:
+/// the defaults) in a run of the scene's triangle budget. `*mesh` is read
+/// during this call only. On error nothing changes. The scene must be
+/// committed (`sheaf_context_commit_scene`) before it is traced again.
+///
+/// Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_INVALID_ARGUMENT`
+/// (no two-level scene, id out of range, another triangle test than the
+/// scene's, bad params or mesh), `SHEAF_STATUS_MISALIGNED`,
+/// `SHEAF_STATUS_INDEX_OUT_OF_RANGE`, `SHEAF_STATUS_CAPACITY_TRIANGLES`
+/// (no free run of the reserved triangles), `SHEAF_STATUS_CONTEXT_BUSY`,
+/// `SHEAF_STATUS_POISONED`.
+///
+/// Not thread-safe: needs exclusive access to `ctx`.
+#[unsafe(no_mangle)]
+pub extern "C" fn sheaf_context_set_scene_geometry(
+    ctx: *mut sheaf_context,
+    id: u32,
+    mesh: *const sheaf_mesh,
+    params: *const sheaf_geometry_params,
+) -> super::sheaf_status {
+    with_mut(ctx, |h| {
+        let g = read_in(mesh)?.geometry()?;
+        let p = if params.is_null() {
+            GeometryParams::default()
+        } else {
+            read_in(params)?.to_core()?
+        };
+        h.ctx.set_geometry(id, &g.scene()?, &p)?;
+        Ok(())
+    })
+}
+
+/// Update geometry `id` to `*mesh` as its mode says: REFIT (the same
+/// triangles, vertices moved; `*out`, if not NULL, receives what the refit
+/// did) or REBUILD (new triangles, up to the reserved count; `*out` is
+/// zeroed). On error the previous BVH stays. Commit before tracing.
+///
+/// Errors: as `sheaf_context_set_scene_geometry`, and
+/// `SHEAF_STATUS_INVALID_ARGUMENT` for a STATIC geometry, an id not set,
+/// or (REFIT) another triangle count than the build's.
+///
+/// Not thread-safe: needs exclusive access to `ctx`.
+#[unsafe(no_mangle)]
+pub extern "C" fn sheaf_context_update_scene_geometry(
+    ctx: *mut sheaf_context,
+    id: u32,
+    mesh: *const sheaf_mesh,
+    out: *mut sheaf_refit_info,
+) -> super::sheaf_status {
+    with_mut(ctx, |h| {
+        let g = read_in(mesh)?.geometry()?;
+        let u = h.ctx.update_geometry(id, &g.scene()?)?;
+        if !out.is_null() {
+            write_out(
+                out,
+                u.refit
+                    .map(|r| sheaf_refit_info::of(&r))
+                    .unwrap_or_default(),
+            );
+        }
+        Ok(())
+    })
+}
+
+/// Remove geometry `id`, giving its triangles back to the budget.
+///
+/// Errors: `SHEAF_STATUS_INVALID_ARGUMENT` (not set, or still placed by an
+/// instance), `SHEAF_STATUS_CONTEXT_BUSY`, `SHEAF_STATUS_POISONED`.
+///
+/// Not thread-safe: needs exclusive access to `ctx`.
+#[unsafe(no_mangle)]
+pub extern "C" fn sheaf_context_remove_scene_geometry(
+    ctx: *mut sheaf_context,
+    id: u32,
+) -> super::sheaf_status {
+    with_mut(ctx, |h| h.ctx.remove_geometry(id))
+}
+
+/// Set instance `id` (`< max_instances`): geometry `geometry` placed by
+/// `transform`, 12 floats of a row-major 3x4 object-to-world matrix (as
+/// Embree's `RTC_FORMAT_FLOAT3X4_ROW_MAJOR`), seen by rays whose mask
+/// shares a bit with `mask`. sheaf stores the inverse.
+///
+/// Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_INVALID_ARGUMENT`
+/// (id out of range, geometry not set, a NaN or infinite entry, a
+/// singular transform or one whose inverse does not fit f32),
+/// `SHEAF_STATUS_CONTEXT_BUSY`, `SHEAF_STATUS_POISONED`. Nothing changes
+/// on error.
+///
+/// Not thread-safe: needs exclusive access to `ctx`.
+#[unsafe(no_mangle)]
+pub extern "C" fn sheaf_context_set_instance(
+    ctx: *mut sheaf_context,
+    id: u32,
+    geometry: u32,
+    transform: *const f32,
+    mask: u32,
+) -> super::sheaf_status {
+    with_mut(ctx, |h| {
+        let m = read_in(transform.cast::<[[f32; 4]; 3]>())?;
+        h.ctx.set_instance(id, geometry, &Affine { m }, mask)
+    })
+}
+
+/// Remove instance `id`.
+///
+/// Errors: `SHEAF_STATUS_INVALID_ARGUMENT` (not set),
+/// `SHEAF_STATUS_CONTEXT_BUSY`, `SHEAF_STATUS_POISONED`.
+///
+/// Not thread-safe: needs exclusive access to `ctx`.
+#[unsafe(no_mangle)]
+pub extern "C" fn sheaf_context_remove_instance(
+    ctx: *mut sheaf_context,
+    id: u32,
+) -> super::sheaf_status {
+    with_mut(ctx, |h| h.ctx.remove_instance(id))
+}
+
+/// Build the top level over the instances as they are now: after any
+/// change to geometries or instances, before tracing. `out` may be NULL.
+///
+/// Errors: `SHEAF_STATUS_INVALID_ARGUMENT` (no two-level scene),
+/// `SHEAF_STATUS_CONTEXT_BUSY`, `SHEAF_STATUS_POISONED`.
+///
+/// Not thread-safe: needs exclusive access to `ctx`.
+#[unsafe(no_mangle)]
+pub extern "C" fn sheaf_context_commit_scene(
+    ctx: *mut sheaf_context,
+    out: *mut sheaf_scene_info,
+) -> super::sheaf_status {
+    with_mut(ctx, |h| {
+        let info = h.ctx.commit_scene()?;
+        if !out.is_null() {
+            write_out(out, sheaf_scene_info::of(&info));
+        }
+        Ok(())
+    })
+}
+
+/// Nearest hits of `count` rays in the committed two-level scene, among
+/// instances whose mask shares a bit with `mask`, into `hits` (single
+/// rays; results are the Rust API's `Context::trace_scene`, bit for bit).
+///
+/// Thread-safe: any number of threads may trace one committed scene at
+/// once (no thread slot is taken).
+///
+/// Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_INVALID_ARGUMENT`
+/// (no two-level scene, count, overlap), `SHEAF_STATUS_NOT_BUILT` (changed
+/// since the last commit). `hits` is written only on success.
+#[unsafe(no_mangle)]
+pub extern "C" fn sheaf_context_trace_scene(
+    ctx: *const sheaf_context,
+    rays: *const sheaf_ray,
+    hits: *mut sheaf_scene_hit,
+    count: usize,
+    mask: u32,
+) -> super::sheaf_status {
+    with_ref(ctx, |h| {
+        let rb = check_array(rays, count, "ray count too large")?;
+        let hb = check_array(hits.cast_const(), count, "ray count too large")?;
+        if overlaps(rays.cast(), rb, hits.cast_const().cast(), hb) {
+            return Err(Error::InvalidArgument("rays and hits overlap"));
+        }
+        h.ctx.scene_view()?;
+        // SAFETY: i < count; `rays` checked to span count readable
+        // elements (C contract; unaligned reads allowed).
+        let read = |i: usize| Ray::from(unsafe { rays.add(i).read_unaligned() });
+        h.ctx.trace_scene_each(count, mask, false, read, |i, hit| {
+            // SAFETY: i < count; `hits` checked to span count writable
+            // elements, not overlapping the rays.
+            unsafe { hits.add(i).write_unaligned(hit.into()) }
+        })?;
+        Ok(())
+    })
+}
+
+/// Whether anything blocks each of `count` rays in `[tmin, tmax)`
+/// (instances as in `sheaf_context_trace_scene`): 1 or 0 into
+/// `occluded`. Thread-safe as `sheaf_context_trace_scene`; same errors.
+#[unsafe(no_mangle)]
+pub extern "C" fn sheaf_context_occluded_scene(
+    ctx: *const sheaf_context,
+    rays: *const sheaf_ray,
+    occluded: *mut u8,
+    count: usize,
+    mask: u32,
+) -> super::sheaf_status {
+    with_ref(ctx, |h| {
+        let rb = check_array(rays, count, "ray count too large")?;
+        check_array(occluded.cast_const(), count, "ray count too large")?;
+        if overlaps(rays.cast(), rb, occluded.cast_const(), count) {
+            return Err(Error::InvalidArgument("rays and results overlap"));
+        }
+        h.ctx.scene_view()?;
+        // SAFETY: as in sheaf_context_trace_scene.
+        let read = |i: usize| Ray::from(unsafe { rays.add(i).read_unaligned() });
+        h.ctx.trace_scene_each(count, mask, true, read, |i, hit| {
+            // SAFETY: i < count; `occluded` checked to span count bytes.
+            unsafe { occluded.add(i).write(u8::from(hit.is_hit())) }
+        })?;
+        Ok(())
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn params_round_trip() {
+        let p = GeometryParams {
+            mode: UpdateMode::Rebuild,
+            max_triangles: 77,
+            ..GeometryParams::default()
+        };
+        assert_eq!(sheaf_geometry_params::of(&p).to_core(), Ok(p));
+        let bad = sheaf_geometry_params {
+            mode: 3,
+            ..sheaf_geometry_params::of(&p)
+        };
+        assert!(bad.to_core().is_err());
+    }
+}
