@@ -30,7 +30,7 @@ use crate::trace::{Counters, Method, TraceParams, batch_on};
 /// family take under it (`accel::slot::ACCEL_SCRATCH_BYTES`).
 pub const SLOT_SCRATCH_BYTES: usize = (max(
     max(crate::trace::scene::SCRATCH, render::SCRATCH),
-    max(whitted::SCRATCH, deferred::SCRATCH),
+    max(max(whitted::SCRATCH, deferred::SCRATCH), scene::SCRATCH),
 ) + ACCEL_SCRATCH_BYTES)
     .next_multiple_of(crate::mem::arena::ARENA_ALIGN);
 

@@ -5,12 +5,23 @@
 
 use super::Context;
 use crate::accel::bvh::BvhInfo;
+use crate::accel::packet::MAX_QUADS;
+use crate::accel::twolevel::traverse_packet;
 use crate::accel::twolevel::traverse_single::{self, SceneHit};
 use crate::accel::twolevel::{GeometryParams, TwoLevelInfo, TwoLevelView, UpdateInfo};
 use crate::counters::{Counters, elapsed_ns, now};
 use crate::error::{Error, Result};
-use crate::geom::{Affine, Mt, Pt, Ray, Scene, TriTest, Wt};
+use crate::geom::{Affine, M4, Mt, Pt, Ray, Ray4, Scene, TriTest, Wt};
 use crate::mem::par::{Par, Serial};
+use crate::trace::{Method, TraceParams};
+
+/// Slot scratch a two-level packet batch holds (its quads, their lanes,
+/// their hits) with the top level's (`traverse_packet::SCRATCH`), under
+/// which the geometries' packet traversals run.
+pub(super) const SCRATCH: usize = crate::mem::scratch::bytes::<Ray4>(MAX_QUADS)
+    + crate::mem::scratch::bytes::<M4>(MAX_QUADS)
+    + crate::mem::scratch::bytes::<SceneHit>(4 * MAX_QUADS)
+    + traverse_packet::SCRATCH;
 
 impl Context<'_> {
     fn scene_pools(&self) -> Result<()> {
@@ -111,9 +122,34 @@ impl Context<'_> {
 
     /// Nearest hits of `rays` in the committed two-level scene, among
     /// instances whose mask shares a bit with `mask`, into `hits` (same
-    /// length), one single ray each.
+    /// length), one single ray each (the 4-wide single ray in every
+    /// geometry).
     pub fn trace_scene(
         &mut self,
+        rays: &[Ray],
+        mask: u32,
+        hits: &mut [SceneHit],
+    ) -> Result<Counters> {
+        self.trace_scene_on(None, rays, mask, hits)
+    }
+
+    /// `trace_scene` with a BVH method and its packet settings (`p.method`
+    /// one of the `Bvh*` methods; packet methods take the rays in order as
+    /// packets of `p.packet`^2 rays, as `trace_with` does). Every method
+    /// gives `trace_scene`'s hits, bit for bit.
+    pub fn trace_scene_with(
+        &mut self,
+        p: &TraceParams,
+        rays: &[Ray],
+        mask: u32,
+        hits: &mut [SceneHit],
+    ) -> Result<Counters> {
+        self.trace_scene_on(Some(p), rays, mask, hits)
+    }
+
+    fn trace_scene_on(
+        &mut self,
+        p: Option<&TraceParams>,
         rays: &[Ray],
         mask: u32,
         hits: &mut [SceneHit],
@@ -124,7 +160,15 @@ impl Context<'_> {
             ));
         }
         self.recorded(|c| {
-            c.trace_scene_each(rays.len(), mask, false, |i| rays[i], |i, h| hits[i] = h)
+            c.trace_scene_each(
+                p,
+                None,
+                rays.len(),
+                mask,
+                false,
+                |i| rays[i],
+                |i, h| hits[i] = h,
+            )
         })
     }
 
@@ -136,6 +180,27 @@ impl Context<'_> {
         mask: u32,
         occluded: &mut [bool],
     ) -> Result<Counters> {
+        self.occluded_scene_on(None, rays, mask, occluded)
+    }
+
+    /// `occluded_scene` with a BVH method (as `trace_scene_with`).
+    pub fn occluded_scene_with(
+        &mut self,
+        p: &TraceParams,
+        rays: &[Ray],
+        mask: u32,
+        occluded: &mut [bool],
+    ) -> Result<Counters> {
+        self.occluded_scene_on(Some(p), rays, mask, occluded)
+    }
+
+    fn occluded_scene_on(
+        &mut self,
+        p: Option<&TraceParams>,
+        rays: &[Ray],
+        mask: u32,
+        occluded: &mut [bool],
+    ) -> Result<Counters> {
         if rays.len() != occluded.len() {
             return Err(Error::InvalidArgument(
                 "rays and occluded must have the same length",
@@ -143,6 +208,8 @@ impl Context<'_> {
         }
         self.recorded(|c| {
             c.trace_scene_each(
+                p,
+                None,
                 rays.len(),
                 mask,
                 true,
@@ -163,10 +230,15 @@ impl Context<'_> {
 
     /// The committed two-level scene's answer for `count` rays read by
     /// `read(i)`, handed to `out(i, hit)`: the nearest hit, or with `any`
-    /// some hit (occlusion). Read-only: many threads may call it at once
-    /// (the C ABI's scene traces do).
+    /// some hit (occlusion). Without `p`, one single ray each; with `p`,
+    /// `p.method` (a `Bvh*` method) on thread slot `slot` (or the highest
+    /// free one). Read-only: many threads may call it at once (the C
+    /// ABI's scene traces do), each with its own slot for packets.
+    #[allow(clippy::too_many_arguments)] // the batch's parts, as `batch_on`
     pub fn trace_scene_each(
         &self,
+        p: Option<&TraceParams>,
+        slot: Option<u32>,
         count: usize,
         mask: u32,
         any: bool,
@@ -176,30 +248,91 @@ impl Context<'_> {
         self.scene_pools()?;
         let v = self.scene.view()?;
         let mut ctr = Counters::default();
-        for i in 0..count {
-            let r = read(i);
-            let h = match (v.info.test, any) {
-                (TriTest::MollerTrumbore, false) => {
-                    traverse_single::intersect::<Mt>(&v, &r, mask, &mut ctr)
-                }
-                (TriTest::Watertight, false) => {
-                    traverse_single::intersect::<Wt>(&v, &r, mask, &mut ctr)
-                }
-                (TriTest::Projection, false) => {
-                    traverse_single::intersect::<Pt>(&v, &r, mask, &mut ctr)
-                }
-                (TriTest::MollerTrumbore, true) => {
-                    traverse_single::any_hit::<Mt>(&v, &r, mask, &mut ctr)
-                }
-                (TriTest::Watertight, true) => {
-                    traverse_single::any_hit::<Wt>(&v, &r, mask, &mut ctr)
-                }
-                (TriTest::Projection, true) => {
-                    traverse_single::any_hit::<Pt>(&v, &r, mask, &mut ctr)
-                }
-            };
-            out(i, h);
+        let Some(p) = p else {
+            for i in 0..count {
+                let r = read(i);
+                let h = match (v.info.test, any) {
+                    (TriTest::MollerTrumbore, false) => {
+                        traverse_single::intersect::<Mt>(&v, &r, mask, &mut ctr)
+                    }
+                    (TriTest::Watertight, false) => {
+                        traverse_single::intersect::<Wt>(&v, &r, mask, &mut ctr)
+                    }
+                    (TriTest::Projection, false) => {
+                        traverse_single::intersect::<Pt>(&v, &r, mask, &mut ctr)
+                    }
+                    (TriTest::MollerTrumbore, true) => {
+                        traverse_single::any_hit::<Mt>(&v, &r, mask, &mut ctr)
+                    }
+                    (TriTest::Watertight, true) => {
+                        traverse_single::any_hit::<Wt>(&v, &r, mask, &mut ctr)
+                    }
+                    (TriTest::Projection, true) => {
+                        traverse_single::any_hit::<Pt>(&v, &r, mask, &mut ctr)
+                    }
+                };
+                out(i, h);
+            }
+            return Ok(ctr);
+        };
+        p.validate()?;
+        if !matches!(
+            p.method,
+            Method::BvhSingle
+                | Method::BvhSimd
+                | Method::BvhMasked
+                | Method::BvhRanged
+                | Method::BvhPartition
+                | Method::BvhWide
+                | Method::BvhWideRanged
+        ) {
+            return Err(Error::InvalidArgument(
+                "a two-level scene traces BVH methods (its geometries are BVHs)",
+            ));
         }
+        let per = if p.method.is_packet() {
+            (p.packet * p.packet) as usize
+        } else {
+            4
+        };
+        let nq_max = per.div_ceil(4).min(MAX_QUADS);
+        self.with_slot(slot, |sl| {
+            let blank = Ray4::from_rays(&[Ray::new(glam::Vec3::ZERO, glam::Vec3::X, 0.0, 0.0); 4]);
+            let (quads, mut sl) = sl.split(nq_max, blank);
+            let (active, mut sl) = sl.split(nq_max, M4::FALSE);
+            let (hits, mut sl) = sl.split(4 * nq_max, SceneHit::MISS);
+            let mut start = 0;
+            while start < count {
+                let n = (count - start).min(per);
+                let nq = crate::trace::pack_quads(n, |k| read(start + k), quads, active);
+                hits[..4 * nq].fill(SceneHit::MISS);
+                let (q, a, h) = (&quads[..nq], &active[..nq], &mut hits[..4 * nq]);
+                match (v.info.test, any) {
+                    (TriTest::MollerTrumbore, false) => {
+                        traverse_packet::trace::<Mt, false>(&v, p, q, a, mask, h, &mut sl, &mut ctr)
+                    }
+                    (TriTest::Watertight, false) => {
+                        traverse_packet::trace::<Wt, false>(&v, p, q, a, mask, h, &mut sl, &mut ctr)
+                    }
+                    (TriTest::Projection, false) => {
+                        traverse_packet::trace::<Pt, false>(&v, p, q, a, mask, h, &mut sl, &mut ctr)
+                    }
+                    (TriTest::MollerTrumbore, true) => {
+                        traverse_packet::trace::<Mt, true>(&v, p, q, a, mask, h, &mut sl, &mut ctr)
+                    }
+                    (TriTest::Watertight, true) => {
+                        traverse_packet::trace::<Wt, true>(&v, p, q, a, mask, h, &mut sl, &mut ctr)
+                    }
+                    (TriTest::Projection, true) => {
+                        traverse_packet::trace::<Pt, true>(&v, p, q, a, mask, h, &mut sl, &mut ctr)
+                    }
+                }
+                for (k, hit) in hits[..n].iter().enumerate() {
+                    out(start + k, *hit);
+                }
+                start += n;
+            }
+        })?;
         Ok(ctr)
     }
 }

@@ -337,11 +337,12 @@ pub extern "C" fn sheaf_context_trace_scene(
         // SAFETY: i < count; `rays` checked to span count readable
         // elements (C contract; unaligned reads allowed).
         let read = |i: usize| Ray::from(unsafe { rays.add(i).read_unaligned() });
-        h.ctx.trace_scene_each(count, mask, false, read, |i, hit| {
-            // SAFETY: i < count; `hits` checked to span count writable
-            // elements, not overlapping the rays.
-            unsafe { hits.add(i).write_unaligned(hit.into()) }
-        })?;
+        h.ctx
+            .trace_scene_each(None, None, count, mask, false, read, |i, hit| {
+                // SAFETY: i < count; `hits` checked to span count writable
+                // elements, not overlapping the rays.
+                unsafe { hits.add(i).write_unaligned(hit.into()) }
+            })?;
         Ok(())
     })
 }
@@ -366,10 +367,11 @@ pub extern "C" fn sheaf_context_occluded_scene(
         h.ctx.scene_view()?;
         // SAFETY: as in sheaf_context_trace_scene.
         let read = |i: usize| Ray::from(unsafe { rays.add(i).read_unaligned() });
-        h.ctx.trace_scene_each(count, mask, true, read, |i, hit| {
-            // SAFETY: i < count; `occluded` checked to span count bytes.
-            unsafe { occluded.add(i).write(u8::from(hit.is_hit())) }
-        })?;
+        h.ctx
+            .trace_scene_each(None, None, count, mask, true, read, |i, hit| {
+                // SAFETY: i < count; `occluded` checked to span count bytes.
+                unsafe { occluded.add(i).write(u8::from(hit.is_hit())) }
+            })?;
         Ok(())
     })
 }

@@ -41,6 +41,7 @@
 //! - Instances of instances (multi-level) are not supported.
 
 pub mod build;
+pub mod traverse_packet;
 pub mod traverse_single;
 
 use crate::accel::bvh::{
