@@ -84,30 +84,30 @@ static bool test_instances_ids_and_masks(void) {
     rays[1] = down_at(3.0f, 1.5f);
     rays[2] = down_at(1.5f, 0.5f); /* between the instances: a miss */
     rays[3] = down_at(0.75f, 0.25f);
-    CHECK_STATUS(sheaf_context_trace_scene(ctx, rays, hits, 4, ~0u), SHEAF_STATUS_NOT_BUILT);
+    CHECK_STATUS(sheaf_context_trace_scene(ctx, NULL, rays, hits, 4, ~0u), SHEAF_STATUS_NOT_BUILT);
     CHECK_OK(sheaf_context_commit_scene(ctx, &info));
     CHECK(info.geometries == 2 && info.instances == 3 && info.instanced_triangles == 6);
     CHECK(info.bounds_min[0] <= 0.0f && info.bounds_max[0] >= 4.0f && info.bounds_max[2] >= 3.0f);
     /* Mask 1: instances 0 and 1. */
-    CHECK_OK(sheaf_context_trace_scene(ctx, rays, hits, 4, 1));
+    CHECK_OK(sheaf_context_trace_scene(ctx, NULL, rays, hits, 4, 1));
     CHECK(hits[0].instance == 0 && hits[0].geometry == 0 && hits[0].t == 9.0f);
     CHECK(hits[1].instance == 1 && hits[1].geometry == 1 && hits[1].t == 8.0f);
     CHECK(hits[2].prim == SHEAF_INVALID_ID && hits[2].instance == SHEAF_INVALID_ID && hits[2].t == INFINITY);
     CHECK(hits[3].instance == 0 && hits[3].prim == 0); /* below the diagonal: triangle 0 */
     CHECK(hits[0].prim == 1);
     /* Every mask: instance 2 (z = 3) is nearer over instance 0. */
-    CHECK_OK(sheaf_context_trace_scene(ctx, rays, hits, 4, ~0u));
+    CHECK_OK(sheaf_context_trace_scene(ctx, NULL, rays, hits, 4, ~0u));
     CHECK(hits[0].instance == 2 && hits[0].t == 7.0f && hits[1].instance == 1);
-    CHECK_OK(sheaf_context_occluded_scene(ctx, rays, occ, 4, 2));
+    CHECK_OK(sheaf_context_occluded_scene(ctx, NULL, rays, occ, 4, 2));
     CHECK(occ[0] == 1 && occ[1] == 0 && occ[2] == 0 && occ[3] == 1);
     /* No instance answers mask 4. */
-    CHECK_OK(sheaf_context_trace_scene(ctx, rays, hits, 4, 4));
+    CHECK_OK(sheaf_context_trace_scene(ctx, NULL, rays, hits, 4, 4));
     CHECK(hits[0].prim == SHEAF_INVALID_ID && hits[1].prim == SHEAF_INVALID_ID);
     /* Removing an instance needs a commit, then it is gone. */
     CHECK_OK(sheaf_context_remove_instance(ctx, 2));
-    CHECK_STATUS(sheaf_context_trace_scene(ctx, rays, hits, 4, ~0u), SHEAF_STATUS_NOT_BUILT);
+    CHECK_STATUS(sheaf_context_trace_scene(ctx, NULL, rays, hits, 4, ~0u), SHEAF_STATUS_NOT_BUILT);
     CHECK_OK(sheaf_context_commit_scene(ctx, NULL));
-    CHECK_OK(sheaf_context_trace_scene(ctx, rays, hits, 4, ~0u));
+    CHECK_OK(sheaf_context_trace_scene(ctx, NULL, rays, hits, 4, ~0u));
     CHECK(hits[0].instance == 0 && hits[0].t == 9.0f);
     sheaf_context_destroy(ctx);
     return true;
@@ -143,7 +143,7 @@ static bool test_refit_and_rebuild_updates(void) {
     CHECK_OK(sheaf_context_update_scene_geometry(ctx, 0, &m, &ri));
     CHECK(ri.rebuilt == 0 && ri.sah_after > 0.0f);
     CHECK_OK(sheaf_context_commit_scene(ctx, NULL));
-    CHECK_OK(sheaf_context_trace_scene(ctx, &r, &hit, 1, ~0u));
+    CHECK_OK(sheaf_context_trace_scene(ctx, NULL, &r, &hit, 1, ~0u));
     CHECK(hit.instance == 0 && hit.t == 9.5f);
     /* A refit needs the same triangle count. */
     m.triangle_count = 1;
@@ -154,10 +154,10 @@ static bool test_refit_and_rebuild_updates(void) {
     m.triangle_count = 2;
     CHECK_OK(sheaf_context_commit_scene(ctx, NULL));
     r = down_at(5.25f, 0.75f); /* over the second triangle, now gone */
-    CHECK_OK(sheaf_context_trace_scene(ctx, &r, &hit, 1, ~0u));
+    CHECK_OK(sheaf_context_trace_scene(ctx, NULL, &r, &hit, 1, ~0u));
     CHECK(hit.prim == SHEAF_INVALID_ID);
     r = down_at(5.75f, 0.25f);
-    CHECK_OK(sheaf_context_trace_scene(ctx, &r, &hit, 1, ~0u));
+    CHECK_OK(sheaf_context_trace_scene(ctx, NULL, &r, &hit, 1, ~0u));
     CHECK(hit.instance == 1 && hit.prim == 0 && hit.t == 9.5f);
     sheaf_context_destroy(ctx);
     return true;
@@ -176,7 +176,7 @@ static bool test_bad_input_changes_nothing(void) {
     /* No two-level scene in a context without max_geometries. */
     CHECK_STATUS(sheaf_context_set_scene_geometry(plain, 0, &m, NULL), SHEAF_STATUS_INVALID_ARGUMENT);
     CHECK_STATUS(sheaf_context_commit_scene(plain, NULL), SHEAF_STATUS_INVALID_ARGUMENT);
-    CHECK_STATUS(sheaf_context_trace_scene(plain, &r, &hit, 1, ~0u), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_trace_scene(plain, NULL, &r, &hit, 1, ~0u), SHEAF_STATUS_INVALID_ARGUMENT);
     CHECK_STATUS(sheaf_context_set_scene_geometry(ctx, 0, NULL, NULL), SHEAF_STATUS_NULL_POINTER);
     CHECK_STATUS(sheaf_context_set_scene_geometry(ctx, 2, &m, NULL), SHEAF_STATUS_INVALID_ARGUMENT);
     p.mode = 7;
@@ -202,17 +202,86 @@ static bool test_bad_input_changes_nothing(void) {
     CHECK_STATUS(sheaf_context_set_instance(ctx, 1, 0, xf, ~0u), SHEAF_STATUS_INVALID_ARGUMENT);
     CHECK_STATUS(sheaf_context_remove_scene_geometry(ctx, 0), SHEAF_STATUS_INVALID_ARGUMENT);
     CHECK_STATUS(sheaf_context_remove_instance(ctx, 1), SHEAF_STATUS_INVALID_ARGUMENT);
-    CHECK_STATUS(sheaf_context_trace_scene(ctx, &r, NULL, 1, ~0u), SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS(sheaf_context_trace_scene(ctx, NULL, &r, NULL, 1, ~0u), SHEAF_STATUS_NULL_POINTER);
     /* Nothing changed: still committed, still hit. */
-    CHECK_OK(sheaf_context_trace_scene(ctx, &r, &hit, 1, ~0u));
+    CHECK_OK(sheaf_context_trace_scene(ctx, NULL, &r, &hit, 1, ~0u));
     CHECK(hit.instance == 0 && hit.t == 10.0f);
     CHECK_OK(sheaf_context_remove_instance(ctx, 0));
     CHECK_OK(sheaf_context_remove_scene_geometry(ctx, 0));
     CHECK_OK(sheaf_context_commit_scene(ctx, NULL));
-    CHECK_OK(sheaf_context_trace_scene(ctx, &r, &hit, 1, ~0u));
+    CHECK_OK(sheaf_context_trace_scene(ctx, NULL, &r, &hit, 1, ~0u));
     CHECK(hit.prim == SHEAF_INVALID_ID);
     sheaf_context_destroy(ctx);
     sheaf_context_destroy(plain);
+    return true;
+}
+
+/* Every BVH method through instances gives the single rays' hits, bit for
+ * bit: a 16 x 16 grid of camera rays as 8 x 8 packets over three rotated,
+ * mirrored and overlapping instances of a pyramid. */
+static bool test_packet_methods_equal_single_rays(void) {
+    static const float PYR_V[5][3] = {{-1, 0, -1}, {1, 0, -1}, {1, 0, 1}, {-1, 0, 1}, {0, 1.5f, 0}};
+    static const uint32_t PYR_I[18] = {0, 1, 4, 1, 2, 4, 2, 3, 4, 3, 0, 4, 0, 2, 1, 0, 3, 2};
+    static const sheaf_method METHODS[7] = {SHEAF_METHOD_BVH_SINGLE, SHEAF_METHOD_BVH_WIDE, SHEAF_METHOD_BVH_SIMD,
+                                            SHEAF_METHOD_BVH_MASKED, SHEAF_METHOD_BVH_RANGED,
+                                            SHEAF_METHOD_BVH_PARTITION, SHEAF_METHOD_BVH_WIDE_RANGED};
+    sheaf_context *ctx = scene_context(1, 3, 6);
+    sheaf_mesh m;
+    sheaf_trace_params tp;
+    sheaf_ray rays[256];
+    sheaf_scene_hit want[256], got[256];
+    uint8_t occ_want[256], occ_got[256];
+    float xf[12];
+    int i, k, hits = 0;
+    CHECK(ctx != NULL);
+    m.vertices = &PYR_V[0][0];
+    m.vertex_stride_bytes = 12;
+    m.vertex_count = 5;
+    m.indices = PYR_I;
+    m.triangle_count = 6;
+    CHECK_OK(sheaf_context_set_scene_geometry(ctx, 0, &m, NULL));
+    placed(xf, 1.0f, -1.5f, 0.0f, 0.0f);
+    CHECK_OK(sheaf_context_set_instance(ctx, 0, 0, xf, ~0u));
+    placed(xf, -0.8f, 1.2f, 0.2f, 0.3f); /* mirrored in every axis */
+    CHECK_OK(sheaf_context_set_instance(ctx, 1, 0, xf, ~0u));
+    placed(xf, 0.6f, 0.0f, 0.1f, 0.8f);
+    xf[1] = 0.3f; /* sheared */
+    CHECK_OK(sheaf_context_set_instance(ctx, 2, 0, xf, ~0u));
+    CHECK_OK(sheaf_context_commit_scene(ctx, NULL));
+    /* Packets of 8 x 8 in 2x2 quads: ray k of packet P, quad q, lane l. */
+    for (k = 0; k < 256; ++k) {
+        int packet = k / 64, q = (k % 64) / 4, l = k % 4;
+        int x = (packet % 2) * 8 + (q % 4) * 2 + (l % 2), y = (packet / 2) * 8 + (q / 4) * 2 + (l / 2);
+        rays[k].org[0] = 0.0f;
+        rays[k].org[1] = 0.8f;
+        rays[k].org[2] = 6.0f;
+        rays[k].dir[0] = (x - 7.5f) / 16.0f * 0.8f;
+        rays[k].dir[1] = (y - 7.5f) / 16.0f * 0.6f - 0.1f;
+        rays[k].dir[2] = -1.0f;
+        rays[k].tmin = 0.0f;
+        rays[k].tmax = INFINITY;
+    }
+    CHECK_OK(sheaf_context_trace_scene(ctx, NULL, rays, want, 256, ~0u));
+    CHECK_OK(sheaf_context_occluded_scene(ctx, NULL, rays, occ_want, 256, ~0u));
+    for (k = 0; k < 256; ++k)
+        hits += want[k].prim != SHEAF_INVALID_ID;
+    CHECK(hits > 40);
+    for (i = 0; i < 7; ++i) {
+        CHECK_OK(sheaf_trace_params_default(&tp));
+        tp.method = METHODS[i];
+        tp.packet = 8;
+        CHECK_OK(sheaf_context_trace_scene(ctx, &tp, rays, got, 256, ~0u));
+        CHECK_OK(sheaf_context_occluded_scene(ctx, &tp, rays, occ_got, 256, ~0u));
+        for (k = 0; k < 256; ++k) {
+            CHECK(got[k].prim == want[k].prim && got[k].instance == want[k].instance);
+            CHECK(memcmp(&got[k].t, &want[k].t, sizeof(float)) == 0);
+            CHECK(occ_got[k] == occ_want[k]);
+        }
+    }
+    CHECK_OK(sheaf_trace_params_default(&tp));
+    tp.method = SHEAF_METHOD_GRID_CGT;
+    CHECK_STATUS(sheaf_context_trace_scene(ctx, &tp, rays, got, 256, ~0u), SHEAF_STATUS_INVALID_ARGUMENT);
+    sheaf_context_destroy(ctx);
     return true;
 }
 
@@ -221,5 +290,6 @@ int main(void) {
     run_test("test_instances_ids_and_masks", test_instances_ids_and_masks, &passed, &failed);
     run_test("test_refit_and_rebuild_updates", test_refit_and_rebuild_updates, &passed, &failed);
     run_test("test_bad_input_changes_nothing", test_bad_input_changes_nothing, &passed, &failed);
+    run_test("test_packet_methods_equal_single_rays", test_packet_methods_equal_single_rays, &passed, &failed);
     return report(passed, failed);
 }

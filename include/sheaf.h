@@ -2203,17 +2203,24 @@ sheaf_status sheaf_context_commit_scene(struct sheaf_context *ctx,
 
 /**
  * Nearest hits of `count` rays in the committed two-level scene, among
- * instances whose mask shares a bit with `mask`, into `hits` (single
- * rays; results are the Rust API's `Context::trace_scene`, bit for bit).
+ * instances whose mask shares a bit with `mask`, into `hits`. `params`
+ * NULL: one single ray each (the 4-wide single ray in every geometry);
+ * else `params->method` (a `SHEAF_METHOD_BVH_*` method) with its packet
+ * side, the rays taken in order as packets as `sheaf_context_trace_with`
+ * takes them. Every method gives the same hits, bit for bit (the Rust
+ * API's `Context::trace_scene_with`).
  *
  * Thread-safe: any number of threads may trace one committed scene at
- * once (no thread slot is taken).
+ * once; single rays take no thread slot, packet methods take a free one
+ * (`SHEAF_STATUS_CAPACITY_THREADS` when none is free).
  *
  * Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_INVALID_ARGUMENT`
- * (no two-level scene, count, overlap), `SHEAF_STATUS_NOT_BUILT` (changed
- * since the last commit). `hits` is written only on success.
+ * (no two-level scene, a method other than the BVH's, bad params, count,
+ * overlap), `SHEAF_STATUS_NOT_BUILT` (changed since the last commit).
+ * `hits` is written only on success.
  */
 sheaf_status sheaf_context_trace_scene(const struct sheaf_context *ctx,
+                                       const struct sheaf_trace_params *params,
                                        const struct sheaf_ray *rays,
                                        struct sheaf_scene_hit *hits,
                                        size_t count,
@@ -2221,10 +2228,12 @@ sheaf_status sheaf_context_trace_scene(const struct sheaf_context *ctx,
 
 /**
  * Whether anything blocks each of `count` rays in `[tmin, tmax)`
- * (instances as in `sheaf_context_trace_scene`): 1 or 0 into
- * `occluded`. Thread-safe as `sheaf_context_trace_scene`; same errors.
+ * (instances and `params` as in `sheaf_context_trace_scene`): 1 or 0
+ * into `occluded`. Thread-safe as `sheaf_context_trace_scene`; same
+ * errors.
  */
 sheaf_status sheaf_context_occluded_scene(const struct sheaf_context *ctx,
+                                          const struct sheaf_trace_params *params,
                                           const struct sheaf_ray *rays,
                                           uint8_t *occluded,
                                           size_t count,

@@ -7,11 +7,13 @@
 use super::bvh::{sheaf_bvh_params, sheaf_refit_info, sheaf_refit_params};
 use super::context::{Geometry, sheaf_context, with_mut, with_ref};
 use super::ray::sheaf_ray;
+use super::trace_params::sheaf_trace_params;
 use super::{check_array, check_non_null, guard_free, overlaps, read_in, write_out};
 use crate::accel::twolevel::traverse_single::SceneHit;
 use crate::accel::twolevel::{GeometryParams, TwoLevelInfo, UpdateMode};
 use crate::error::{Error, Result};
 use crate::geom::{Affine, Ray};
+use crate::trace::TraceParams;
 
 /// A mesh as the caller holds it: `vertex_count` vertices of three floats
 /// (x, y, z), `vertex_stride_bytes` apart (>= 12, a multiple of 4), and
@@ -310,18 +312,25 @@ pub extern "C" fn sheaf_context_commit_scene(
 }
 
 /// Nearest hits of `count` rays in the committed two-level scene, among
-/// instances whose mask shares a bit with `mask`, into `hits` (single
-/// rays; results are the Rust API's `Context::trace_scene`, bit for bit).
+/// instances whose mask shares a bit with `mask`, into `hits`. `params`
+/// NULL: one single ray each (the 4-wide single ray in every geometry);
+/// else `params->method` (a `SHEAF_METHOD_BVH_*` method) with its packet
+/// side, the rays taken in order as packets as `sheaf_context_trace_with`
+/// takes them. Every method gives the same hits, bit for bit (the Rust
+/// API's `Context::trace_scene_with`).
 ///
 /// Thread-safe: any number of threads may trace one committed scene at
-/// once (no thread slot is taken).
+/// once; single rays take no thread slot, packet methods take a free one
+/// (`SHEAF_STATUS_CAPACITY_THREADS` when none is free).
 ///
 /// Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_INVALID_ARGUMENT`
-/// (no two-level scene, count, overlap), `SHEAF_STATUS_NOT_BUILT` (changed
-/// since the last commit). `hits` is written only on success.
+/// (no two-level scene, a method other than the BVH's, bad params, count,
+/// overlap), `SHEAF_STATUS_NOT_BUILT` (changed since the last commit).
+/// `hits` is written only on success.
 #[unsafe(no_mangle)]
 pub extern "C" fn sheaf_context_trace_scene(
     ctx: *const sheaf_context,
+    params: *const sheaf_trace_params,
     rays: *const sheaf_ray,
     hits: *mut sheaf_scene_hit,
     count: usize,
@@ -333,12 +342,13 @@ pub extern "C" fn sheaf_context_trace_scene(
         if overlaps(rays.cast(), rb, hits.cast_const().cast(), hb) {
             return Err(Error::InvalidArgument("rays and hits overlap"));
         }
+        let p = params_of(params)?;
         h.ctx.scene_view()?;
         // SAFETY: i < count; `rays` checked to span count readable
         // elements (C contract; unaligned reads allowed).
         let read = |i: usize| Ray::from(unsafe { rays.add(i).read_unaligned() });
         h.ctx
-            .trace_scene_each(None, None, count, mask, false, read, |i, hit| {
+            .trace_scene_each(p.as_ref(), None, count, mask, false, read, |i, hit| {
                 // SAFETY: i < count; `hits` checked to span count writable
                 // elements, not overlapping the rays.
                 unsafe { hits.add(i).write_unaligned(hit.into()) }
@@ -348,11 +358,13 @@ pub extern "C" fn sheaf_context_trace_scene(
 }
 
 /// Whether anything blocks each of `count` rays in `[tmin, tmax)`
-/// (instances as in `sheaf_context_trace_scene`): 1 or 0 into
-/// `occluded`. Thread-safe as `sheaf_context_trace_scene`; same errors.
+/// (instances and `params` as in `sheaf_context_trace_scene`): 1 or 0
+/// into `occluded`. Thread-safe as `sheaf_context_trace_scene`; same
+/// errors.
 #[unsafe(no_mangle)]
 pub extern "C" fn sheaf_context_occluded_scene(
     ctx: *const sheaf_context,
+    params: *const sheaf_trace_params,
     rays: *const sheaf_ray,
     occluded: *mut u8,
     count: usize,
@@ -364,16 +376,25 @@ pub extern "C" fn sheaf_context_occluded_scene(
         if overlaps(rays.cast(), rb, occluded.cast_const(), count) {
             return Err(Error::InvalidArgument("rays and results overlap"));
         }
+        let p = params_of(params)?;
         h.ctx.scene_view()?;
         // SAFETY: as in sheaf_context_trace_scene.
         let read = |i: usize| Ray::from(unsafe { rays.add(i).read_unaligned() });
         h.ctx
-            .trace_scene_each(None, None, count, mask, true, read, |i, hit| {
+            .trace_scene_each(p.as_ref(), None, count, mask, true, read, |i, hit| {
                 // SAFETY: i < count; `occluded` checked to span count bytes.
                 unsafe { occluded.add(i).write(u8::from(hit.is_hit())) }
             })?;
         Ok(())
     })
+}
+
+/// The trace parameters of a scene trace (`None`: single rays).
+fn params_of(params: *const sheaf_trace_params) -> Result<Option<TraceParams>> {
+    if params.is_null() {
+        return Ok(None);
+    }
+    Ok(Some(read_in(params)?.to_core()?))
 }
 
 #[cfg(test)]
