@@ -62,6 +62,10 @@ enum Cmd {
     /// Benchmark every scene x method x packet size x triangle test: build and trace speed,
     /// counters, accuracy against the f64 reference; CSV, Markdown and a speed-vs-accuracy chart.
     Bench(BenchArgs),
+    /// An engine's frame loop on a two-level scene: a static environment, meshes refit and
+    /// rebuilt every frame, many instances, the top level committed per frame; a table per
+    /// frame, PNG frames and an animated PNG, and the flattened alternative's time beside it.
+    Engine(cmd::engine::EngineArgs),
     /// Write a scene, a named view and its light to a binary file for C programs (the Embree
     /// comparison in benches/embree reads it, so both libraries trace the same triangles and rays).
     Export(cmd::export::ExportArgs),
@@ -639,6 +643,7 @@ fn main() -> ExitCode {
         Cmd::Info(a) => cmd::info::info(&a),
         Cmd::Bench(a) => studies::bench(&a),
         Cmd::Export(a) => cmd::export::export(&a),
+        Cmd::Engine(a) => cmd::engine::engine(&a),
     };
     match res {
         Ok(()) => ExitCode::SUCCESS,

@@ -2,6 +2,7 @@
 //! the one-line reports they share with the studies (`crate::studies`).
 
 pub mod demo;
+pub mod engine;
 pub mod export;
 pub mod info;
 pub mod render;
