@@ -286,7 +286,6 @@ pub fn engine(a: &EngineArgs) -> Result<()> {
     let (lo, hi) = env.bounds();
     let d = hi - lo;
     let size = d.x.min(d.z).max(d.y * 0.5);
-    let centre;
     let fit = |m: &Mesh, frac: f32| {
         let (a, b) = m.bounds();
         frac * size / (b - a).max_element().max(1e-12)
@@ -397,7 +396,7 @@ pub fn engine(a: &EngineArgs) -> Result<()> {
     } else {
         lo.y
     };
-    centre = Vec3::new(ahead.x, floor_y + 0.004 * size, ahead.z);
+    let centre = Vec3::new(ahead.x, floor_y + 0.004 * size, ahead.z);
     let pr = PrimaryRays::new(&camera, w, h)?;
     let light = PointLight {
         position: light_at.to_array(),
