@@ -261,7 +261,11 @@ fn carve<'a>(a: &mut impl Carve<'a>, l: &Layout) -> Result<Pools<'a>> {
                         0
                     })?,
                 },
-                runs: a.take(l.sc_geoms)?,
+                runs: a.take(if l.sc_geoms > 0 {
+                    l.sc_geoms.checked_add(1).ok_or(big)?
+                } else {
+                    0
+                })?,
                 insts: a.take(l.sc_insts)?,
                 tlas: a.take(twice(l.sc_insts)?)?,
                 order: a.take(l.sc_insts)?,

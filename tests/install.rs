@@ -286,9 +286,10 @@ fn install_then_build_the_example_against_it() {
 
     // The version file refuses an incompatible request.
     for (request, found) in [
-        ("0.1", true),
-        ("0.1.0", true),
-        ("0.2", false),
+        ("0.2", true),
+        ("0.2.0", true),
+        ("0.1", false),
+        ("0.3", false),
         ("1.0", false),
     ] {
         let dir = work.join(format!("cmake-version-{request}"));

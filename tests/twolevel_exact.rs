@@ -21,22 +21,7 @@ use sheaf::{
 };
 
 fn rot(deg: f32, axis: usize, s: [f32; 3], t: [f32; 3]) -> Affine {
-    let (sn, cs) = (deg.to_radians().sin(), deg.to_radians().cos());
-    let (a, b) = ((axis + 1) % 3, (axis + 2) % 3);
-    let mut r = [[0.0f32; 3]; 3];
-    r[axis][axis] = 1.0;
-    r[a][a] = cs;
-    r[a][b] = -sn;
-    r[b][a] = sn;
-    r[b][b] = cs;
-    let mut m = Affine::IDENTITY;
-    for i in 0..3 {
-        for k in 0..3 {
-            m.m[i][k] = r[i][k] * s[k];
-        }
-        m.m[i][3] = t[i];
-    }
-    m
+    Affine::rotated(deg, axis, s, t)
 }
 
 /// A scene of the built-in meshes, each placed two or three times.

@@ -23,6 +23,27 @@ pub(super) const SCRATCH: usize = crate::mem::scratch::bytes::<Ray4>(MAX_QUADS)
     + crate::mem::scratch::bytes::<SceneHit>(4 * MAX_QUADS)
     + traverse_packet::SCRATCH;
 
+/// `$body` with `$T` the type of triangle test `$test` names (every
+/// traversal is compiled once per test).
+macro_rules! with_test {
+    ($test:expr, |$T:ident| $body:expr) => {
+        match $test {
+            TriTest::MollerTrumbore => {
+                type $T = Mt;
+                $body
+            }
+            TriTest::Watertight => {
+                type $T = Wt;
+                $body
+            }
+            TriTest::Projection => {
+                type $T = Pt;
+                $body
+            }
+        }
+    };
+}
+
 impl Context<'_> {
     fn scene_pools(&self) -> Result<()> {
         if self.limits.max_geometries == 0 {
@@ -154,22 +175,31 @@ impl Context<'_> {
         mask: u32,
         hits: &mut [SceneHit],
     ) -> Result<Counters> {
-        if rays.len() != hits.len() {
+        let n = hits.len();
+        self.scene_rays(p, rays, n, mask, false, |i, h| hits[i] = h)
+    }
+
+    /// Rays `rays` traced (or with `any` tested for occlusion) into `out`
+    /// (`n` results: `rays.len()`), with counters and time recorded.
+    fn scene_rays(
+        &mut self,
+        p: Option<&TraceParams>,
+        rays: &[Ray],
+        n: usize,
+        mask: u32,
+        any: bool,
+        out: impl FnMut(usize, SceneHit),
+    ) -> Result<Counters> {
+        if rays.len() != n {
             return Err(Error::InvalidArgument(
-                "rays and hits must have the same length",
+                "rays and their results must have the same length",
             ));
         }
-        self.recorded(|c| {
-            c.trace_scene_each(
-                p,
-                None,
-                rays.len(),
-                mask,
-                false,
-                |i| rays[i],
-                |i, h| hits[i] = h,
-            )
-        })
+        let t = now();
+        let ctr = self.trace_scene_each(p, None, n, mask, any, |i| rays[i], out)?;
+        self.stats.trace_ns = elapsed_ns(t);
+        self.stats.counters = ctr;
+        Ok(ctr)
     }
 
     /// Whether anything blocks each of `rays` in `[tmin, tmax)` (instances
@@ -201,31 +231,8 @@ impl Context<'_> {
         mask: u32,
         occluded: &mut [bool],
     ) -> Result<Counters> {
-        if rays.len() != occluded.len() {
-            return Err(Error::InvalidArgument(
-                "rays and occluded must have the same length",
-            ));
-        }
-        self.recorded(|c| {
-            c.trace_scene_each(
-                p,
-                None,
-                rays.len(),
-                mask,
-                true,
-                |i| rays[i],
-                |i, h| occluded[i] = h.is_hit(),
-            )
-        })
-    }
-
-    /// `f`'s counters and time as the last call's statistics.
-    fn recorded(&mut self, f: impl FnOnce(&Self) -> Result<Counters>) -> Result<Counters> {
-        let t = now();
-        let ctr = f(self)?;
-        self.stats.trace_ns = elapsed_ns(t);
-        self.stats.counters = ctr;
-        Ok(ctr)
+        let n = occluded.len();
+        self.scene_rays(p, rays, n, mask, true, |i, h| occluded[i] = h.is_hit())
     }
 
     /// The committed two-level scene's answer for `count` rays read by
@@ -249,28 +256,14 @@ impl Context<'_> {
         let v = self.scene.view()?;
         let mut ctr = Counters::default();
         let Some(p) = p else {
+            let test = v.info.test;
             for i in 0..count {
                 let r = read(i);
-                let h = match (v.info.test, any) {
-                    (TriTest::MollerTrumbore, false) => {
-                        traverse_single::intersect::<Mt>(&v, &r, mask, &mut ctr)
-                    }
-                    (TriTest::Watertight, false) => {
-                        traverse_single::intersect::<Wt>(&v, &r, mask, &mut ctr)
-                    }
-                    (TriTest::Projection, false) => {
-                        traverse_single::intersect::<Pt>(&v, &r, mask, &mut ctr)
-                    }
-                    (TriTest::MollerTrumbore, true) => {
-                        traverse_single::any_hit::<Mt>(&v, &r, mask, &mut ctr)
-                    }
-                    (TriTest::Watertight, true) => {
-                        traverse_single::any_hit::<Wt>(&v, &r, mask, &mut ctr)
-                    }
-                    (TriTest::Projection, true) => {
-                        traverse_single::any_hit::<Pt>(&v, &r, mask, &mut ctr)
-                    }
-                };
+                let h = with_test!(test, |T| if any {
+                    traverse_single::any_hit::<T>(&v, &r, mask, &mut ctr)
+                } else {
+                    traverse_single::intersect::<T>(&v, &r, mask, &mut ctr)
+                });
                 out(i, h);
             }
             return Ok(ctr);
@@ -307,26 +300,12 @@ impl Context<'_> {
                 let nq = crate::trace::pack_quads(n, |k| read(start + k), quads, active);
                 hits[..4 * nq].fill(SceneHit::MISS);
                 let (q, a, h) = (&quads[..nq], &active[..nq], &mut hits[..4 * nq]);
-                match (v.info.test, any) {
-                    (TriTest::MollerTrumbore, false) => {
-                        traverse_packet::trace::<Mt, false>(&v, p, q, a, mask, h, &mut sl, &mut ctr)
-                    }
-                    (TriTest::Watertight, false) => {
-                        traverse_packet::trace::<Wt, false>(&v, p, q, a, mask, h, &mut sl, &mut ctr)
-                    }
-                    (TriTest::Projection, false) => {
-                        traverse_packet::trace::<Pt, false>(&v, p, q, a, mask, h, &mut sl, &mut ctr)
-                    }
-                    (TriTest::MollerTrumbore, true) => {
-                        traverse_packet::trace::<Mt, true>(&v, p, q, a, mask, h, &mut sl, &mut ctr)
-                    }
-                    (TriTest::Watertight, true) => {
-                        traverse_packet::trace::<Wt, true>(&v, p, q, a, mask, h, &mut sl, &mut ctr)
-                    }
-                    (TriTest::Projection, true) => {
-                        traverse_packet::trace::<Pt, true>(&v, p, q, a, mask, h, &mut sl, &mut ctr)
-                    }
-                }
+                let (test, c) = (v.info.test, &mut ctr);
+                with_test!(test, |T| if any {
+                    traverse_packet::trace::<T, true>(&v, p, q, a, mask, h, &mut sl, c)
+                } else {
+                    traverse_packet::trace::<T, false>(&v, p, q, a, mask, h, &mut sl, c)
+                });
                 for (k, hit) in hits[..n].iter().enumerate() {
                     out(start + k, *hit);
                 }

@@ -320,13 +320,16 @@ pub extern "C" fn sheaf_context_commit_scene(
 /// API's `Context::trace_scene_with`).
 ///
 /// Thread-safe: any number of threads may trace one committed scene at
-/// once; single rays take no thread slot, packet methods take a free one
-/// (`SHEAF_STATUS_CAPACITY_THREADS` when none is free).
+/// once with `params` NULL (no thread slot is taken); with `params` every
+/// call takes a free thread slot for its packets' scratch, as
+/// `sheaf_context_trace_with` does, so at most `max_threads` at once.
 ///
 /// Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_INVALID_ARGUMENT`
 /// (no two-level scene, a method other than the BVH's, bad params, count,
-/// overlap), `SHEAF_STATUS_NOT_BUILT` (changed since the last commit).
-/// `hits` is written only on success.
+/// overlap), `SHEAF_STATUS_NOT_BUILT` (changed since the last commit),
+/// `SHEAF_STATUS_CAPACITY_THREADS` (with `params`: no free slot),
+/// `SHEAF_STATUS_CONTEXT_BUSY` (an exclusive call is inside),
+/// `SHEAF_STATUS_POISONED`. `hits` is written only on success.
 #[unsafe(no_mangle)]
 pub extern "C" fn sheaf_context_trace_scene(
     ctx: *const sheaf_context,

@@ -30,6 +30,21 @@ impl Affine {
         ],
     };
 
+    /// `m` (column-major, as glam's) followed by a translation by `t`.
+    pub fn from_mat3(m: glam::Mat3, t: Vec3) -> Affine {
+        let r = |k: usize| m.row(k);
+        Affine {
+            m: [0, 1, 2].map(|k| [r(k).x, r(k).y, r(k).z, t[k]]),
+        }
+    }
+
+    /// Rotation by `deg` degrees about axis `axis` (0 x, 1 y, 2 z) of the
+    /// per-axis scale `s`, then a translation by `t` (tests and examples).
+    pub fn rotated(deg: f32, axis: usize, s: [f32; 3], t: [f32; 3]) -> Affine {
+        let r = glam::Mat3::from_axis_angle(Vec3::AXES[axis], deg.to_radians());
+        Affine::from_mat3(r * glam::Mat3::from_diagonal(Vec3::from(s)), Vec3::from(t))
+    }
+
     /// A translation by `t`.
     pub fn translation(t: [f32; 3]) -> Affine {
         let mut a = Affine::IDENTITY;
@@ -106,7 +121,7 @@ impl Affine {
             m: inv.map(|r| r.map(|x| x as f32)),
         };
         if !out.m.iter().flatten().all(|x| x.is_finite())
-            || out.m[..].iter().all(|r| r[..3] == [0.0; 3])
+            || out.m.iter().any(|r| r[..3] == [0.0; 3])
         {
             return Err(Error::InvalidArgument(
                 "instance transform's inverse does not fit f32",
@@ -169,14 +184,7 @@ mod tests {
     use super::*;
 
     fn rot(deg: f32, s: f32) -> Affine {
-        let (sn, cs) = (deg.to_radians().sin(), deg.to_radians().cos());
-        Affine {
-            m: [
-                [cs * s, -sn * s, 0.0, 1.5],
-                [sn * s, cs * s, 0.0, -2.0],
-                [0.0, 0.0, s, 0.25],
-            ],
-        }
+        Affine::rotated(deg, 2, [s; 3], [1.5, -2.0, 0.25])
     }
 
     #[test]

@@ -85,16 +85,8 @@ impl Mesh {
 /// An affine transform: the built-in meshes' z-up turned y-up, a uniform
 /// scale, a rotation about y by `turn` radians, then a translation.
 fn place(turn: f32, scale: f32, at: Vec3) -> Affine {
-    let r =
-        Mat3::from_rotation_y(turn) * Mat3::from_rotation_x(-std::f32::consts::FRAC_PI_2) * scale;
-    let c = |k: usize| r.col(k);
-    Affine {
-        m: [
-            [c(0).x, c(1).x, c(2).x, at.x],
-            [c(0).y, c(1).y, c(2).y, at.y],
-            [c(0).z, c(1).z, c(2).z, at.z],
-        ],
-    }
+    let up = Mat3::from_rotation_x(-std::f32::consts::FRAC_PI_2);
+    Affine::from_mat3(Mat3::from_rotation_y(turn) * up * scale, at)
 }
 
 /// The environment mesh and its name.
@@ -418,7 +410,7 @@ pub fn engine(a: &EngineArgs) -> Result<()> {
         mib(bytes)
     ));
     prog.say(format_args!(
-        "{:>5} {:>8} {:>8} {:>9} {:>8} {:>7} {:>9} {:>9} {:>9} {:>8} {:>10}",
+        "{:>5} {:>8} {:>8} {:>9} {:>8} {:>7} {:>9} {:>9} {:>9} {:>8} {:>24}",
         "frame",
         "refit ms",
         "SAH x",
@@ -429,7 +421,7 @@ pub fn engine(a: &EngineArgs) -> Result<()> {
         "trace ms",
         "frame ms",
         "Mrays/s",
-        "flat ms"
+        "flat ms (build + trace)"
     ));
     let mut sums = (0.0f64, 0.0f64, 0u64);
     for f in 0..a.frames {
@@ -566,6 +558,7 @@ pub fn engine(a: &EngineArgs) -> Result<()> {
                 ..BvhParams::default()
             };
             fc.build_bvh_with(&fs, &bp, &run::Broadcast::of(threads))?;
+            let build_ms = t.elapsed().as_secs_f64() * 1e3;
             let flat_view = &*fc;
             let flat_trace =
                 |slot: usize, rays: &[Ray], any: bool, out: &mut [SceneHit]| -> Result<()> {
@@ -599,7 +592,7 @@ pub fn engine(a: &EngineArgs) -> Result<()> {
             };
             let grey = |_: &SceneHit| Vec3::splat(0.8);
             let mut scratch = vec![0u8; pixels.len()];
-            render(
+            let ft = render(
                 &flat_trace,
                 &flat_tri,
                 &grey,
@@ -610,7 +603,7 @@ pub fn engine(a: &EngineArgs) -> Result<()> {
                 &mut scratch,
                 threads,
             )?;
-            Some(t.elapsed().as_secs_f64() * 1e3)
+            Some((t.elapsed().as_secs_f64() * 1e3, build_ms, ms(ft.ns)))
         } else {
             None
         };
@@ -618,17 +611,17 @@ pub fn engine(a: &EngineArgs) -> Result<()> {
         let moving = 4 * n_anim + 2 * k as u32 + 16 * n_tetra;
         let frame_ms = refit_ms + rebuild_ms + commit_ms + ms(tr.ns);
         prog.say(format_args!(
-            "{f:>5} {refit_ms:>8.2} {:>8.3} {:>9} {rebuild_ms:>8.2} {:>6.1}% {commit_ms:>9.3} {:>9.2} {frame_ms:>9.2} {:>8.2} {:>10}",
+            "{f:>5} {refit_ms:>8.2} {:>8.3} {:>9} {rebuild_ms:>8.2} {:>6.1}% {commit_ms:>9.3} {:>9.2} {frame_ms:>9.2} {:>8.2} {:>24}",
             u1.refit.map_or(1.0, |r| r.growth()),
             k,
             100.0 * moving as f64 / flat_tris as f64,
             ms(tr.ns),
             mrays(tr.rays, tr.ns),
-            flat_ms.map_or("-".into(), |m| format!("{m:.2}"))
+            flat_ms.map_or("-".into(), |(m, b, t)| format!("{m:.2} ({b:.1} + {t:.1})"))
         ));
         prog.step();
         sums.0 += frame_ms;
-        sums.1 += flat_ms.unwrap_or(0.0);
+        sums.1 += flat_ms.map_or(0.0, |m| m.0);
         sums.2 += 1;
     }
     let n = sums.2 as f64;

@@ -140,7 +140,8 @@ pub struct TwoLevelPools<'a> {
     /// The geometries' BVHs: pools for the whole triangle budget, each
     /// geometry using a run of them (nodes: twice its run).
     pub blas: BvhPools<'a>,
-    /// One entry per possible geometry (`Limits::max_geometries`).
+    /// One entry per possible geometry (`Limits::max_geometries`) and one
+    /// more (a replaced geometry's new run before its old one is freed).
     pub runs: &'a mut [Run],
     pub geoms: &'a mut [GeomState],
     /// One entry per possible instance (`Limits::max_instances`).
@@ -232,8 +233,12 @@ impl<'a> TwoLevel<'a> {
     }
 
     /// Set geometry `id` (replacing it if set) to `scene`, built with `p`
-    /// on `par`'s workers. On error nothing changes. The scene must be
-    /// committed again before it is traced.
+    /// on `par`'s workers. A replaced geometry is rebuilt in its own run
+    /// when that holds `max_triangles`, else in a new run taken before the
+    /// old one is given back (both are reserved meanwhile). On error
+    /// nothing changes, except that a failed in-place rebuild may drop the
+    /// previous BVH's 4-wide tree (its walks then take the binary tree).
+    /// The scene must be committed again before it is traced.
     ///
     /// Errors: `id >= max_geometries`; a triangle test other than the
     /// scene's; invalid `p.bvh`; `Capacity { pool: Triangles }` when no run
@@ -269,20 +274,35 @@ impl<'a> TwoLevel<'a> {
                 available: cap as u64,
             });
         }
-        let Some(start) = self.regions.take(cap) else {
-            return Err(Error::Capacity {
-                pool: crate::error::Pool::Triangles,
-                needed: cap as u64,
-                available: self.regions.largest_gap() as u64,
-            });
+        // A replaced geometry whose run holds the new one builds in place
+        // (a failed build keeps its previous BVH, as every build does);
+        // else it takes a new run first, so a failure changes nothing (the
+        // run table has one entry more than geometries for that).
+        let old = self.geoms[id as usize];
+        let in_place = old.live && old.run.len >= cap;
+        let run = if in_place {
+            old.run
+        } else {
+            let Some(start) = self.regions.take(cap) else {
+                return Err(Error::Capacity {
+                    pool: crate::error::Pool::Triangles,
+                    needed: cap as u64,
+                    available: self.regions.largest_gap() as u64,
+                });
+            };
+            Run { start, len: cap }
         };
         let mut g = GeomState {
             live: true,
-            run: Run { start, len: cap },
+            run,
             mode: p.mode,
             refit: p.refit,
-            instances: 0,
-            bvh: BvhState::default(),
+            instances: old.instances,
+            bvh: if in_place {
+                old.bvh
+            } else {
+                BvhState::default()
+            },
         };
         let mut b = Self::bvh_of(&mut self.blas, &g);
         let built = bvh::build::build_with(&mut b, scene, &p.bvh, par);
@@ -290,14 +310,18 @@ impl<'a> TwoLevel<'a> {
         let info = match built {
             Ok(info) => info,
             Err(e) => {
-                self.regions.free(start, cap);
+                if in_place {
+                    // The previous BVH stays (its wide tree may be gone).
+                    self.geoms[id as usize].bvh = g.bvh;
+                    self.info = None;
+                } else {
+                    self.regions.free(run.start, run.len);
+                }
                 return Err(e);
             }
         };
-        let old = self.geoms[id as usize];
-        if old.live {
+        if old.live && !in_place {
             self.regions.free(old.run.start, old.run.len);
-            g.instances = old.instances;
         }
         self.geoms[id as usize] = g;
         self.test = Some(p.bvh.test);
@@ -307,7 +331,10 @@ impl<'a> TwoLevel<'a> {
 
     /// Update geometry `id` to `scene` as its mode says: a refit (same
     /// index buffer) or a rebuild into its run. On error the previous BVH
-    /// stays (see `bvh::refit` for what a failed refit leaves).
+    /// stays, with two exceptions: a refit whose automatic rebuild fails
+    /// keeps the refit tree (exact, as every tree), and a failed rebuild
+    /// may drop the 4-wide tree. Either way the scene must be committed
+    /// again.
     ///
     /// Errors: `id` not set; a `Static` geometry; those of `bvh::refit` /
     /// `bvh::build` (a rebuild beyond the reserved triangles:
@@ -519,7 +546,7 @@ pub(crate) mod testkit {
                 slot: vec![0; budget],
                 refs: vec![PrimRef::default(); budget],
                 scratch: vec![0; bvh::build::SCRATCH],
-                runs: vec![Run::default(); geometries],
+                runs: vec![Run::default(); geometries + 1],
                 geoms: vec![GeomState::default(); geometries],
                 insts: vec![Instance::zeroed(); instances],
                 tlas: vec![BvhNode::default(); 2 * instances],
@@ -559,22 +586,7 @@ mod tests {
     use crate::mem::par::Serial;
 
     fn rot(deg: f32, axis: usize, s: [f32; 3], t: [f32; 3]) -> Affine {
-        let (sn, cs) = (deg.to_radians().sin(), deg.to_radians().cos());
-        let (a, b) = ((axis + 1) % 3, (axis + 2) % 3);
-        let mut r = [[0.0f32; 3]; 3];
-        r[axis][axis] = 1.0;
-        r[a][a] = cs;
-        r[a][b] = -sn;
-        r[b][a] = sn;
-        r[b][b] = cs;
-        let mut m = Affine::IDENTITY;
-        for i in 0..3 {
-            for k in 0..3 {
-                m.m[i][k] = r[i][k] * s[k];
-            }
-            m.m[i][3] = t[i];
-        }
-        m
+        Affine::rotated(deg, axis, s, t)
     }
 
     /// Every instance's geometry traced by its own BVH's single ray, the
@@ -596,14 +608,7 @@ mod tests {
             let r = object_ray(&inst.inverse, ray, f32::INFINITY);
             let h = traverse_single::intersect::<T>(&g, &r, &mut ctr);
             if h.is_hit() && best.closer(h.t, id, h.prim) {
-                best = SceneHit {
-                    t: h.t,
-                    u: h.u,
-                    v: h.v,
-                    prim: h.prim,
-                    geometry: inst.geometry,
-                    instance: id,
-                };
+                best = SceneHit::of(&h, inst.geometry, id);
             }
         }
         best
@@ -849,6 +854,68 @@ mod tests {
             );
             assert!(same(&x, &y), "{ray:?}: refit {x:?} fresh {y:?}");
         }
+    }
+
+    /// Replacing a set geometry: in its own run when that holds it (the
+    /// budget sized to the meshes, every id set), else in a new run taken
+    /// first; a replacement that fits nowhere changes nothing.
+    #[test]
+    fn geometries_are_replaced_in_place_or_in_a_new_run() {
+        let m = meshes();
+        let (a, b) = (
+            Scene::from_f32(&m[0].0, &m[0].1).unwrap(),
+            Scene::from_f32(&m[1].0, &m[1].1).unwrap(),
+        );
+        let (na, nb) = (a.triangle_count() as usize, b.triangle_count() as usize);
+        let mut st = Store::new(na + nb + na + 5, 2, 2, false);
+        let mut s = st.scene();
+        let p = GeometryParams::default();
+        s.set_geometry(0, &a, &p, &Serial).unwrap();
+        s.set_geometry(1, &b, &p, &Serial).unwrap();
+        s.set_instance(0, 0, &Affine::IDENTITY, !0).unwrap();
+        s.set_instance(1, 1, &rot(30.0, 1, [1.0; 3], [2.0, 0.0, 0.0]), !0)
+            .unwrap();
+        // In place: the same mesh, every id set.
+        s.set_geometry(0, &a, &p, &Serial).unwrap();
+        assert_eq!(s.triangle_budget().1, (na + nb) as u32);
+        // A new run: 5 more triangles than geometry 0's run, taken from
+        // the free end before the old run is freed.
+        let more = GeometryParams {
+            max_triangles: (na + 5) as u32,
+            ..p
+        };
+        s.set_geometry(0, &a, &more, &Serial).unwrap();
+        assert_eq!(s.triangle_budget().1, (nb + na + 5) as u32);
+        // No gap holds geometry 1 and one more triangle: refused, and the
+        // committed scene stays.
+        s.commit();
+        let one_more = GeometryParams {
+            max_triangles: (nb + 1) as u32,
+            ..p
+        };
+        assert!(matches!(
+            s.set_geometry(1, &b, &one_more, &Serial),
+            Err(Error::Capacity { .. })
+        ));
+        assert!(s.view().is_ok(), "nothing changed");
+        // A smaller mesh replaces geometry 1 in its run.
+        let t = Scene::from_f32(&m[0].0, &m[0].1[..30]).unwrap();
+        s.set_geometry(1, &t, &p, &Serial).unwrap();
+        assert_eq!(s.triangle_budget().1, (nb + na + 5) as u32);
+        let info = s.commit();
+        assert_eq!((info.geometries, info.instances), (2, 2));
+        assert_eq!(
+            info.instanced_triangles,
+            (na + 10) as u64,
+            "instances follow their replaced geometry"
+        );
+        assert!(
+            check::<Mt>(
+                &s.view().unwrap(),
+                &[m[0].clone(), (m[0].0.clone(), m[0].1[..30].to_vec())],
+                9
+            ) > 100
+        );
     }
 
     #[test]

@@ -151,14 +151,7 @@ pub fn trace<T: TriangleTest, const ANY: bool>(
                 let h = ohits[q].lane(i);
                 let best = &mut hits[4 * q + i];
                 if valid[q] >> i & 1 != 0 && h.is_hit() && best.closer(h.t, id, h.prim) {
-                    *best = SceneHit {
-                        t: h.t,
-                        u: h.u,
-                        v: h.v,
-                        prim: h.prim,
-                        geometry: inst.geometry,
-                        instance: id,
-                    };
+                    *best = SceneHit::of(&h, inst.geometry, id);
                     if ANY {
                         // Occluded: the lane is done.
                         valid[q] &= !(1 << i);

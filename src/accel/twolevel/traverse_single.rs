@@ -52,6 +52,18 @@ impl SceneHit {
     pub fn is_hit(&self) -> bool {
         self.prim != INVALID_ID
     }
+    /// Geometry `geometry`'s hit `h` through instance `instance`.
+    #[inline(always)]
+    pub fn of(h: &Hit, geometry: u32, instance: u32) -> SceneHit {
+        SceneHit {
+            t: h.t,
+            u: h.u,
+            v: h.v,
+            prim: h.prim,
+            geometry,
+            instance,
+        }
+    }
     /// Whether a hit at `t` on `(instance, prim)` comes before this one:
     /// nearer, or as near and of a smaller instance, then triangle.
     #[inline(always)]
@@ -171,14 +183,7 @@ fn walk<T: TriangleTest, const ANY: bool>(
                 let r = object_ray(&inst.inverse, ray, best.t);
                 let h: Hit = traverse_wide::walk::<T, ANY>(&g, &r, ctr);
                 if h.is_hit() && best.closer(h.t, id, h.prim) {
-                    best = SceneHit {
-                        t: h.t,
-                        u: h.u,
-                        v: h.v,
-                        prim: h.prim,
-                        geometry: inst.geometry,
-                        instance: id,
-                    };
+                    best = SceneHit::of(&h, inst.geometry, id);
                     if ANY {
                         return best;
                     }
