@@ -23,11 +23,11 @@
 #include <stdbool.h>
 /** Version of this header (compare with sheaf_version_string()). */
 #define SHEAF_VERSION_MAJOR 0
-#define SHEAF_VERSION_MINOR 1
+#define SHEAF_VERSION_MINOR 2
 #define SHEAF_VERSION_PATCH 0
 /** The same as one number, MAJOR * 10000 + MINOR * 100 + PATCH (as Embree's
  * RTC_VERSION); sheaf_version() returns the loaded library's. */
-#define SHEAF_VERSION 100
+#define SHEAF_VERSION 200
 
 /** Alignment in bytes sheaf_context_create_in requires of its buffer. */
 #define SHEAF_CONTEXT_ALIGN 64
@@ -2211,13 +2211,16 @@ sheaf_status sheaf_context_commit_scene(struct sheaf_context *ctx,
  * API's `Context::trace_scene_with`).
  *
  * Thread-safe: any number of threads may trace one committed scene at
- * once; single rays take no thread slot, packet methods take a free one
- * (`SHEAF_STATUS_CAPACITY_THREADS` when none is free).
+ * once with `params` NULL (no thread slot is taken); with `params` every
+ * call takes a free thread slot for its packets' scratch, as
+ * `sheaf_context_trace_with` does, so at most `max_threads` at once.
  *
  * Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_INVALID_ARGUMENT`
  * (no two-level scene, a method other than the BVH's, bad params, count,
- * overlap), `SHEAF_STATUS_NOT_BUILT` (changed since the last commit).
- * `hits` is written only on success.
+ * overlap), `SHEAF_STATUS_NOT_BUILT` (changed since the last commit),
+ * `SHEAF_STATUS_CAPACITY_THREADS` (with `params`: no free slot),
+ * `SHEAF_STATUS_CONTEXT_BUSY` (an exclusive call is inside),
+ * `SHEAF_STATUS_POISONED`. `hits` is written only on success.
  */
 sheaf_status sheaf_context_trace_scene(const struct sheaf_context *ctx,
                                        const struct sheaf_trace_params *params,
