@@ -68,7 +68,7 @@ static bool test_instances_ids_and_masks(void) {
     float xf[12];
     CHECK(ctx != NULL);
     CHECK_OK(sheaf_geometry_params_default(&p));
-    CHECK(p.mode == SHEAF_UPDATE_MODE_STATIC);
+    CHECK(p.mode == SHEAF_UPDATE_MODE_STATIC && p.mask == ~0u);
     CHECK_OK(sheaf_context_set_scene_geometry(ctx, 0, &m, &p));
     CHECK_OK(sheaf_context_set_scene_geometry(ctx, 1, &m, NULL));
     /* Instance 0: geometry 0 at z = 1; instance 1: geometry 1 at z = 2,
@@ -103,6 +103,16 @@ static bool test_instances_ids_and_masks(void) {
     /* No instance answers mask 4. */
     CHECK_OK(sheaf_context_trace_scene(ctx, NULL, rays, hits, 4, 4));
     CHECK(hits[0].prim == SHEAF_INVALID_ID && hits[1].prim == SHEAF_INVALID_ID);
+    /* A geometry mask hides every instance of the geometry from rays
+     * that share no bit with it. */
+    p.mask = 2;
+    CHECK_OK(sheaf_context_set_scene_geometry(ctx, 1, &m, &p));
+    CHECK_OK(sheaf_context_commit_scene(ctx, NULL));
+    CHECK_OK(sheaf_context_trace_scene(ctx, NULL, rays, hits, 4, 1));
+    CHECK(hits[0].instance == 0 && hits[1].prim == SHEAF_INVALID_ID);
+    CHECK_OK(sheaf_context_trace_scene(ctx, NULL, rays, hits, 4, 3));
+    CHECK(hits[1].instance == 1 && hits[1].t == 8.0f);
+    p.mask = ~0u;
     /* Removing an instance needs a commit, then it is gone. */
     CHECK_OK(sheaf_context_remove_instance(ctx, 2));
     CHECK_STATUS(sheaf_context_trace_scene(ctx, NULL, rays, hits, 4, ~0u), SHEAF_STATUS_NOT_BUILT);

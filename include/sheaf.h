@@ -1253,6 +1253,11 @@ typedef struct sheaf_geometry_params {
      * When a refit becomes a rebuild (REFIT geometries).
      */
     struct sheaf_refit_params refit;
+    /**
+     * Rays whose mask shares no bit with it skip every instance of the
+     * geometry (default all bits).
+     */
+    uint32_t mask;
 } sheaf_geometry_params;
 
 /**
@@ -2102,8 +2107,8 @@ sheaf_status sheaf_context_deferred_shadow_ray(const struct sheaf_context *ctx,
 
 /**
  * Write the default geometry parameters (STATIC, the mesh's triangle
- * count reserved, `sheaf_bvh_params_default`, never rebuild on refit) to
- * `*out`.
+ * count reserved, `sheaf_bvh_params_default`, never rebuild on refit,
+ * every mask bit) to `*out`.
  *
  * `out` must not be NULL. Thread-safe.
  */

@@ -5,7 +5,7 @@
 //! and its occlusion answer, lane by lane: camera rays in the renderer's
 //! packet layout, shadow rays toward a light, and incoherent rays, on
 //! instances rotated, scaled unevenly, mirrored and overlapping, with
-//! instance masks (issue 19; DESIGN.md "Correctness").
+//! instance and geometry masks (issue 19; DESIGN.md "Correctness").
 
 mod common;
 
@@ -51,6 +51,9 @@ fn scene(test: TriTest) -> OwnedContext {
                 },
                 ..BvhParams::default()
             },
+            // Geometry 2 is seen by mask bits 0 and 2 only: mask 2 skips
+            // it in every instance.
+            mask: if g == 2 { 0b101 } else { !0 },
             ..GeometryParams::default()
         };
         let s = sheaf::Scene::from_f32(&m.vertices, &m.indices).unwrap();

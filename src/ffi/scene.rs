@@ -68,6 +68,9 @@ pub struct sheaf_geometry_params {
     pub bvh: sheaf_bvh_params,
     /// When a refit becomes a rebuild (REFIT geometries).
     pub refit: sheaf_refit_params,
+    /// Rays whose mask shares no bit with it skip every instance of the
+    /// geometry (default all bits).
+    pub mask: u32,
 }
 
 impl sheaf_geometry_params {
@@ -77,6 +80,7 @@ impl sheaf_geometry_params {
             max_triangles: p.max_triangles,
             bvh: sheaf_bvh_params::of(&p.bvh),
             refit: sheaf_refit_params::of(&p.refit),
+            mask: p.mask,
         }
     }
     pub fn to_core(&self) -> Result<GeometryParams> {
@@ -89,6 +93,7 @@ impl sheaf_geometry_params {
             max_triangles: self.max_triangles,
             bvh: self.bvh.to_core()?,
             refit: self.refit.to_core()?,
+            mask: self.mask,
         })
     }
 }
@@ -156,8 +161,8 @@ impl sheaf_scene_info {
 }
 
 /// Write the default geometry parameters (STATIC, the mesh's triangle
-/// count reserved, `sheaf_bvh_params_default`, never rebuild on refit) to
-/// `*out`.
+/// count reserved, `sheaf_bvh_params_default`, never rebuild on refit,
+/// every mask bit) to `*out`.
 ///
 /// `out` must not be NULL. Thread-safe.
 #[unsafe(no_mangle)]

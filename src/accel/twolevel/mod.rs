@@ -81,6 +81,10 @@ pub struct GeometryParams {
     pub bvh: BvhParams,
     /// The refit's automatic rebuild (`Refit` geometries).
     pub refit: bvh::refit::RefitParams,
+    /// Rays whose mask shares no bit with it skip every instance of the
+    /// geometry (as they skip an instance by its own mask). Default all
+    /// bits.
+    pub mask: u32,
 }
 
 impl Default for GeometryParams {
@@ -90,6 +94,7 @@ impl Default for GeometryParams {
             max_triangles: 0,
             bvh: BvhParams::default(),
             refit: bvh::refit::RefitParams::default(),
+            mask: !0,
         }
     }
 }
@@ -111,6 +116,7 @@ pub struct GeomState {
     run: Run,
     mode: UpdateMode,
     refit: bvh::refit::RefitParams,
+    mask: u32,
     /// Instances that place it (it cannot be removed while any do).
     instances: u32,
     bvh: BvhState,
@@ -297,6 +303,7 @@ impl<'a> TwoLevel<'a> {
             run,
             mode: p.mode,
             refit: p.refit,
+            mask: p.mask,
             instances: old.instances,
             bvh: if in_place {
                 old.bvh
@@ -491,6 +498,17 @@ impl<'r> TwoLevelView<'r> {
     /// Instance `id` (live in this commit or not).
     pub fn instance(&self, id: u32) -> Option<&'r Instance> {
         self.insts.get(id as usize).filter(|i| i.live != 0)
+    }
+
+    /// The BVH of instance `inst`'s geometry when a ray of `mask` sees
+    /// it: its mask and its geometry's both share a bit with `mask`.
+    #[inline]
+    pub fn visible(&self, inst: &Instance, mask: u32) -> Option<BvhView<'r>> {
+        let g = self.geoms.get(inst.geometry as usize)?;
+        if inst.mask & mask == 0 || g.mask & mask == 0 {
+            return None;
+        }
+        self.geometry(inst.geometry)
     }
 
     /// Geometry `id`'s BVH (`None`: not set or never built).

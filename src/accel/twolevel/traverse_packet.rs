@@ -121,7 +121,7 @@ pub fn trace<T: TriangleTest, const ANY: bool>(
         }
         let id = s.order[n.first as usize];
         let inst = &s.insts[id as usize];
-        let Some(g) = s.geometry(inst.geometry).filter(|_| inst.mask & mask != 0) else {
+        let Some(g) = s.visible(inst, mask) else {
             continue;
         };
         let mut any_live = false;

@@ -88,8 +88,8 @@ pub(crate) fn object_ray(inv: &crate::geom::Affine, ray: &Ray, best: f32) -> Ray
     }
 }
 
-/// The nearest hit of `ray` among instances whose mask shares a bit with
-/// `mask` (a miss for invalid rays).
+/// The nearest hit of `ray` among instances whose mask, and whose
+/// geometry's, shares a bit with `mask` (a miss for invalid rays).
 pub fn intersect<T: TriangleTest>(
     s: &TwoLevelView<'_>,
     ray: &Ray,
@@ -177,9 +177,7 @@ fn walk<T: TriangleTest, const ANY: bool>(
         } else {
             let id = s.order[n.first as usize];
             let inst = &s.insts[id as usize];
-            if inst.mask & mask != 0
-                && let Some(g) = s.geometry(inst.geometry)
-            {
+            if let Some(g) = s.visible(inst, mask) {
                 let r = object_ray(&inst.inverse, ray, best.t);
                 let h: Hit = traverse_wide::walk::<T, ANY>(&g, &r, ctr);
                 if h.is_hit() && best.closer(h.t, id, h.prim) {
