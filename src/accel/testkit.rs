@@ -38,7 +38,11 @@ impl Store {
         }
     }
     pub fn bvh(&mut self) -> Bvh<'_> {
-        Bvh::new(BvhPools {
+        Bvh::new(self.pools())
+    }
+    /// The pools themselves (a two-level scene's shared BVH pools).
+    pub fn pools(&mut self) -> BvhPools<'_> {
+        BvhPools {
             nodes: &mut self.nodes,
             tris: &mut self.tris,
             proj: &mut self.proj,
@@ -46,7 +50,7 @@ impl Store {
             slot_of: &mut self.slot,
             refs: &mut self.refs,
             scratch: &mut self.scratch,
-        })
+        }
     }
 }
 

@@ -535,18 +535,11 @@ impl<'r> TwoLevelView<'r> {
 #[cfg(test)]
 pub(crate) mod testkit {
     use super::*;
-    use crate::accel::bvh::PrimRef;
-    use crate::geom::ProjTri;
 
-    /// Heap pools for a two-level scene (tests only).
+    /// Heap pools for a two-level scene (tests only): the BVH test pools
+    /// for the triangle budget, and the tables.
     pub struct Store {
-        nodes: Vec<BvhNode>,
-        tris: Vec<TriVerts>,
-        proj: Vec<ProjTri>,
-        ids: Vec<u32>,
-        slot: Vec<u32>,
-        refs: Vec<PrimRef>,
-        scratch: Vec<u8>,
+        blas: crate::accel::testkit::Store,
         runs: Vec<Run>,
         geoms: Vec<GeomState>,
         insts: Vec<Instance>,
@@ -557,13 +550,7 @@ pub(crate) mod testkit {
     impl Store {
         pub fn new(budget: usize, geometries: usize, instances: usize, proj: bool) -> Store {
             Store {
-                nodes: vec![BvhNode::default(); 2 * budget],
-                tris: vec![TriVerts::default(); budget],
-                proj: vec![ProjTri::default(); if proj { budget } else { 0 }],
-                ids: vec![0; budget],
-                slot: vec![0; budget],
-                refs: vec![PrimRef::default(); budget],
-                scratch: vec![0; bvh::build::SCRATCH],
+                blas: crate::accel::testkit::Store::new(budget, proj),
                 runs: vec![Run::default(); geometries + 1],
                 geoms: vec![GeomState::default(); geometries],
                 insts: vec![Instance::zeroed(); instances],
@@ -573,15 +560,7 @@ pub(crate) mod testkit {
         }
         pub fn scene(&mut self) -> TwoLevel<'_> {
             TwoLevel::new(TwoLevelPools {
-                blas: BvhPools {
-                    nodes: &mut self.nodes,
-                    tris: &mut self.tris,
-                    proj: &mut self.proj,
-                    tri_ids: &mut self.ids,
-                    slot_of: &mut self.slot,
-                    refs: &mut self.refs,
-                    scratch: &mut self.scratch,
-                },
+                blas: self.blas.pools(),
                 runs: &mut self.runs,
                 geoms: &mut self.geoms,
                 insts: &mut self.insts,
