@@ -317,6 +317,40 @@ fn c_scene_shared() {
     run(&compile_c("test_scene.c", Link::Shared));
 }
 
+/// `examples-c/engine.c`, the two-level frame loop, runs through the C
+/// ABI: three frames, a table line each, the PPM written, every camera
+/// ray of the view a hit on something and some of them lit.
+#[test]
+fn c_engine_example_runs() {
+    check_layouts();
+    let exe = compile_c("../examples-c/engine.c", Link::Static);
+    let ppm = out_dir().join("engine.ppm");
+    let out = Command::new(&exe)
+        .arg(&ppm)
+        .arg("3")
+        .env_remove("LD_LIBRARY_PATH")
+        .output()
+        .expect("run engine");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let rows: Vec<Vec<&str>> = stdout
+        .lines()
+        .map(|l| l.split_whitespace().collect::<Vec<_>>())
+        .filter(|f| f.len() == 7 && f.iter().all(|w| w.parse::<f64>().is_ok()))
+        .collect();
+    assert_eq!(rows.len(), 3, "{stdout}");
+    for f in &rows {
+        let (hits, lit): (u32, u32) = (f[5].parse().unwrap(), f[6].parse().unwrap());
+        assert!(hits > 30_000 && lit > 0 && lit < hits, "{stdout}");
+    }
+    assert!(stdout.contains("18 instances"), "{stdout}");
+    assert!(std::fs::metadata(&ppm).map(|m| m.len()).unwrap_or(0) == 320 * 240 * 3 + 15);
+}
+
 #[test]
 fn c_threads_static() {
     run(&compile_c("test_threads.c", Link::Static));
