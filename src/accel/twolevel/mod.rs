@@ -579,7 +579,7 @@ mod tests {
     use crate::accel::bvh::traverse_single;
     use crate::accel::testkit::{test_rays, tris_of};
     use crate::counters::Counters;
-    use crate::geom::{Mt, Ray, TriangleTest, Wt};
+    use crate::geom::{Mt, Pt, Ray, TriangleTest, Wt};
     use crate::mem::par::Serial;
 
     fn rot(deg: f32, axis: usize, s: [f32; 3], t: [f32; 3]) -> Affine {
@@ -697,8 +697,10 @@ mod tests {
         for (test, quality) in [
             (TriTest::MollerTrumbore, bvh::BuildQuality::Medium),
             (TriTest::Watertight, bvh::BuildQuality::Low),
+            (TriTest::Projection, bvh::BuildQuality::High),
         ] {
-            let mut st = Store::new(budget(&m), 4, 8, false);
+            let proj = test == TriTest::Projection;
+            let mut st = Store::new(budget(&m), 4, 8, proj);
             let mut s = st.scene();
             let p = GeometryParams {
                 bvh: BvhParams {
@@ -718,8 +720,9 @@ mod tests {
             assert_eq!((info.geometries, info.instances), (3, 6));
             let v = s.view().unwrap();
             let hits = match test {
+                TriTest::MollerTrumbore => check::<Mt>(&v, &m, 7),
                 TriTest::Watertight => check::<Wt>(&v, &m, 7),
-                _ => check::<Mt>(&v, &m, 7),
+                TriTest::Projection => check::<Pt>(&v, &m, 7),
             };
             assert!(hits > 1000, "{hits} hits");
         }
