@@ -76,11 +76,6 @@ impl Context<'_> {
         par: &dyn Par,
     ) -> Result<BvhInfo> {
         self.scene_pools()?;
-        if p.bvh.test == TriTest::Projection && !self.limits.projection_test {
-            return Err(Error::InvalidArgument(
-                "projection test without its pool: set Limits::projection_test",
-            ));
-        }
         self.scene.set_geometry(id, scene, p, par)
     }
 

@@ -942,6 +942,18 @@ mod tests {
             s.set_geometry(1, &tetra, &wt, &Serial).is_err(),
             "one test per scene"
         );
+        let pt = GeometryParams {
+            bvh: BvhParams {
+                test: TriTest::Projection,
+                ..BvhParams::default()
+            },
+            ..p
+        };
+        let one = Scene::from_f32(&m[0].0, &m[0].1[..3]).unwrap();
+        assert!(
+            s.set_geometry(0, &one, &pt, &Serial).is_err(),
+            "no projection pools"
+        );
         let big = GeometryParams {
             max_triangles: (nt + 11) as u32,
             ..p

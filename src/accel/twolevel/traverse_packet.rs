@@ -95,11 +95,12 @@ pub fn trace<T: TriangleTest, const ANY: bool>(
         // Some live lane enters the box no later than its nearest hit?
         let enters = (0..4 * nq).any(|k| {
             valid[k / 4] >> (k % 4) & 1 != 0 && {
-                let tmax = lane(k / 4, k % 4).tmax.min(hits[k].t);
+                // The lane's fields read directly: no `Ray` per lane per node.
+                let tmax = rays[k / 4].tmax[k % 4].min(hits[k].t);
                 boxes[k].entry(n, tmax).is_some()
             }
         });
-        ctr.aabb_at(1, 2);
+        ctr.aabb_at(1, 1);
         if !enters {
             continue;
         }
@@ -108,7 +109,7 @@ pub fn trace<T: TriangleTest, const ANY: bool>(
             let k = (0..4 * nq)
                 .find(|&k| valid[k / 4] >> (k % 4) & 1 != 0)
                 .unwrap_or(0);
-            let neg = lane(k / 4, k % 4).dir[n.axis()].is_sign_negative();
+            let neg = rays[k / 4].dir[n.axis()][k % 4].is_sign_negative();
             let (near, far) = if neg {
                 (n.first + 1, n.first)
             } else {
