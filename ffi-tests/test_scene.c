@@ -295,11 +295,99 @@ static bool test_packet_methods_equal_single_rays(void) {
     return true;
 }
 
+/* The grid and the kd-tree over the flattened scene: packets equal their
+ * single rays, both families give the same world hits, ids map back, and
+ * another mask or a new commit is refused until they are rebuilt. */
+static bool test_flattened_scene_for_grid_and_kd(void) {
+    static const float PYR_V[5][3] = {{-1, 0, -1}, {1, 0, -1}, {1, 0, 1}, {-1, 0, 1}, {0, 1.5f, 0}};
+    static const uint32_t PYR_I[18] = {0, 1, 4, 1, 2, 4, 2, 3, 4, 3, 0, 4, 0, 2, 1, 0, 3, 2};
+    sheaf_limits l;
+    sheaf_context *ctx = NULL;
+    sheaf_mesh m;
+    sheaf_trace_params tp;
+    sheaf_ray rays[64];
+    sheaf_scene_hit dda[64], cgt[64], kd[64], two[64], out;
+    sheaf_hit world;
+    float xf[12];
+    int k, hits = 0;
+    CHECK_OK(sheaf_limits_default(64, &l));
+    l.structures = SHEAF_STRUCTURE_BVH | SHEAF_STRUCTURE_GRID | SHEAF_STRUCTURE_KD;
+    l.max_geometries = 1;
+    l.max_instances = 3;
+    l.max_scene_triangles = 6;
+    CHECK_OK(sheaf_context_create(&l, &ctx));
+    m.vertices = &PYR_V[0][0];
+    m.vertex_stride_bytes = 12;
+    m.vertex_count = 5;
+    m.indices = PYR_I;
+    m.triangle_count = 6;
+    CHECK_OK(sheaf_context_set_scene_geometry(ctx, 0, &m, NULL));
+    placed(xf, 1.0f, -1.5f, 0.0f, 0.0f);
+    CHECK_OK(sheaf_context_set_instance(ctx, 0, 0, xf, 1));
+    placed(xf, -0.8f, 1.2f, 0.2f, 0.3f);
+    CHECK_OK(sheaf_context_set_instance(ctx, 1, 0, xf, 1));
+    placed(xf, 0.6f, 0.0f, 0.1f, 0.8f);
+    CHECK_OK(sheaf_context_set_instance(ctx, 2, 0, xf, 2));
+    CHECK_STATUS(sheaf_context_build_scene_grid(ctx, NULL, 3), SHEAF_STATUS_NOT_BUILT);
+    CHECK_OK(sheaf_context_commit_scene(ctx, NULL));
+    CHECK_OK(sheaf_context_build_scene_grid(ctx, NULL, 3));
+    CHECK_OK(sheaf_context_build_scene_kd(ctx, NULL, 3));
+    for (k = 0; k < 64; ++k) {
+        int q = k / 4, x = (q % 4) * 2 + (k % 2), y = (q / 4) * 2 + (k % 4) / 2;
+        rays[k].org[0] = 0.0f;
+        rays[k].org[1] = 0.8f;
+        rays[k].org[2] = 6.0f;
+        rays[k].dir[0] = (x - 3.5f) / 8.0f * 0.8f;
+        rays[k].dir[1] = (y - 3.5f) / 8.0f * 0.6f - 0.1f;
+        rays[k].dir[2] = -1.0f;
+        rays[k].tmin = 0.0f;
+        rays[k].tmax = INFINITY;
+    }
+    CHECK_OK(sheaf_trace_params_default(&tp));
+    tp.packet = 8;
+    tp.method = SHEAF_METHOD_GRID_DDA;
+    CHECK_OK(sheaf_context_trace_scene(ctx, &tp, rays, dda, 64, 3));
+    tp.method = SHEAF_METHOD_GRID_CGT;
+    CHECK_OK(sheaf_context_trace_scene(ctx, &tp, rays, cgt, 64, 3));
+    tp.method = SHEAF_METHOD_KD_PACKET;
+    CHECK_OK(sheaf_context_trace_scene(ctx, &tp, rays, kd, 64, 3));
+    CHECK_OK(sheaf_context_trace_scene(ctx, NULL, rays, two, 64, 3));
+    for (k = 0; k < 64; ++k) {
+        CHECK(cgt[k].prim == dda[k].prim && cgt[k].instance == dda[k].instance);
+        CHECK(memcmp(&cgt[k].t, &dda[k].t, sizeof(float)) == 0);
+        CHECK(kd[k].prim == dda[k].prim && kd[k].instance == dda[k].instance);
+        CHECK(memcmp(&kd[k].t, &dda[k].t, sizeof(float)) == 0);
+        /* The same ids as the two-level BVH on these rays. */
+        CHECK(two[k].prim == dda[k].prim && two[k].instance == dda[k].instance &&
+              two[k].geometry == dda[k].geometry);
+        hits += dda[k].prim != SHEAF_INVALID_ID;
+    }
+    CHECK(hits > 10);
+    /* World triangle 0 is one of instance 0's; past the end is refused. */
+    world.t = 1.0f;
+    world.u = world.v = 0.25f;
+    world.prim = 0;
+    CHECK_OK(sheaf_context_scene_prim(ctx, &world, &out));
+    CHECK(out.instance == 0 && out.geometry == 0 && out.prim < 6 && out.t == 1.0f);
+    world.prim = 18;
+    CHECK_STATUS(sheaf_context_scene_prim(ctx, &world, &out), SHEAF_STATUS_INVALID_ARGUMENT);
+    /* Another mask than the build's, then a new commit. */
+    tp.method = SHEAF_METHOD_GRID_DDA;
+    CHECK_STATUS(sheaf_context_trace_scene(ctx, &tp, rays, dda, 64, 1), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_OK(sheaf_context_commit_scene(ctx, NULL));
+    CHECK_STATUS(sheaf_context_trace_scene(ctx, &tp, rays, dda, 64, 3), SHEAF_STATUS_NOT_BUILT);
+    CHECK_OK(sheaf_context_build_scene_grid(ctx, NULL, 3));
+    CHECK_OK(sheaf_context_trace_scene(ctx, &tp, rays, dda, 64, 3));
+    sheaf_context_destroy(ctx);
+    return true;
+}
+
 int main(void) {
     int passed = 0, failed = 0;
     run_test("test_instances_ids_and_masks", test_instances_ids_and_masks, &passed, &failed);
     run_test("test_refit_and_rebuild_updates", test_refit_and_rebuild_updates, &passed, &failed);
     run_test("test_bad_input_changes_nothing", test_bad_input_changes_nothing, &passed, &failed);
     run_test("test_packet_methods_equal_single_rays", test_packet_methods_equal_single_rays, &passed, &failed);
+    run_test("test_flattened_scene_for_grid_and_kd", test_flattened_scene_for_grid_and_kd, &passed, &failed);
     return report(passed, failed);
 }

@@ -2210,10 +2210,12 @@ sheaf_status sheaf_context_commit_scene(struct sheaf_context *ctx,
  * Nearest hits of `count` rays in the committed two-level scene, among
  * instances whose mask shares a bit with `mask`, into `hits`. `params`
  * NULL: one single ray each (the 4-wide single ray in every geometry);
- * else `params->method` (a `SHEAF_METHOD_BVH_*` method) with its packet
- * side, the rays taken in order as packets as `sheaf_context_trace_with`
- * takes them. Every method gives the same hits, bit for bit (the Rust
- * API's `Context::trace_scene_with`).
+ * else `params->method` with its packet side, the rays taken in order as
+ * packets as `sheaf_context_trace_with` takes them. Every BVH method
+ * gives the same hits, bit for bit. A grid or kd-tree method traces the
+ * flattened scene its `sheaf_context_build_scene_*` built for this
+ * commit and `mask` (each bitwise its own single ray; t, u, v of the
+ * world triangle). The Rust API's `Context::trace_scene_with`.
  *
  * Thread-safe: any number of threads may trace one committed scene at
  * once with `params` NULL (no thread slot is taken); with `params` every
@@ -2221,8 +2223,10 @@ sheaf_status sheaf_context_commit_scene(struct sheaf_context *ctx,
  * `sheaf_context_trace_with` does, so at most `max_threads` at once.
  *
  * Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_INVALID_ARGUMENT`
- * (no two-level scene, a method other than the BVH's, bad params, count,
- * overlap), `SHEAF_STATUS_NOT_BUILT` (changed since the last commit),
+ * (no two-level scene, bad params, count, overlap, a grid or kd method
+ * for another mask than its build's), `SHEAF_STATUS_NOT_BUILT` (changed
+ * since the last commit; a grid or kd method without a
+ * `sheaf_context_build_scene_*` of this commit),
  * `SHEAF_STATUS_CAPACITY_THREADS` (with `params`: no free slot),
  * `SHEAF_STATUS_CONTEXT_BUSY` (an exclusive call is inside),
  * `SHEAF_STATUS_POISONED`. `hits` is written only on success.
@@ -2246,6 +2250,67 @@ sheaf_status sheaf_context_occluded_scene(const struct sheaf_context *ctx,
                                           uint8_t *occluded,
                                           size_t count,
                                           uint32_t mask);
+
+/**
+ * Rebuild the uniform grid over the committed scene's instances that
+ * `mask` sees, flattened into world triangles (`params` NULL: the
+ * defaults). `sheaf_context_trace_scene` then traces it with the grid's
+ * methods for that `mask`. Needs `SHEAF_STRUCTURE_GRID` and a two-level
+ * scene; the flattening takes up to `max_triangles` world triangles.
+ * On error the previous grid stays valid but no longer answers for the
+ * scene.
+ *
+ * Errors: `SHEAF_STATUS_INVALID_ARGUMENT` (no two-level scene or grid
+ * pools, params), `SHEAF_STATUS_NOT_BUILT` (changed since the last
+ * commit), `SHEAF_STATUS_CAPACITY_TRIANGLES` (more world triangles than
+ * `max_triangles`), the grid's capacities, `SHEAF_STATUS_CONTEXT_BUSY`,
+ * `SHEAF_STATUS_POISONED`.
+ *
+ * Not thread-safe: needs exclusive access to `ctx`.
+ */
+sheaf_status sheaf_context_build_scene_grid(struct sheaf_context *ctx,
+                                            const struct sheaf_grid_params *params,
+                                            uint32_t mask);
+
+/**
+ * Rebuild the kd-tree over the committed scene's instances that `mask`
+ * sees (as `sheaf_context_build_scene_grid`; `SHEAF_STRUCTURE_KD`).
+ *
+ * Not thread-safe: needs exclusive access to `ctx`.
+ */
+sheaf_status sheaf_context_build_scene_kd(struct sheaf_context *ctx,
+                                          const struct sheaf_kd_params *params,
+                                          uint32_t mask);
+
+/**
+ * Load the committed scene's instances that `mask` sees for the
+ * perspective and light grids (as `sheaf_context_build_scene_grid`;
+ * `SHEAF_STRUCTURE_PGRID`). A deferred frame's pixel hits are then world
+ * triangles of the flattened scene: `sheaf_context_scene_prim` names
+ * their geometry, instance and triangle.
+ *
+ * Not thread-safe: needs exclusive access to `ctx`.
+ */
+sheaf_status sheaf_context_build_scene_pgrid(struct sheaf_context *ctx,
+                                             const struct sheaf_pgrid_params *params,
+                                             uint32_t mask);
+
+/**
+ * `*hit`, a hit on the flattened scene (a deferred frame's pixel after
+ * `sheaf_context_build_scene_pgrid`), as a scene hit into `*out`: the
+ * same t, u, v with its geometry, instance and the geometry's own
+ * triangle id. A miss maps to a miss.
+ *
+ * Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_NOT_BUILT` (no
+ * flattening of the current commit), `SHEAF_STATUS_INVALID_ARGUMENT`
+ * (`hit->prim` not a world triangle of it), `SHEAF_STATUS_CONTEXT_BUSY`,
+ * `SHEAF_STATUS_POISONED`.
+ *
+ * Thread-safe: reads only.
+ */
+sheaf_status sheaf_context_scene_prim(const struct sheaf_context *ctx,
+                                      const struct sheaf_hit *hit,
+                                      struct sheaf_scene_hit *out);
 
 /**
  * Fixed, NUL-terminated English text for `status`.

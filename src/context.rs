@@ -72,6 +72,10 @@ struct Layout {
     sc_proj: usize,
     sc_geoms: usize,
     sc_insts: usize,
+    /// The two-level scene flattened into world triangles for the grid,
+    /// kd-tree and perspective grids (`twolevel::flatten`): `max_triangles`
+    /// with a two-level scene and one of them, else 0.
+    flat: usize,
 }
 
 /// A pool size from a u64 rule, refused when it does not fit a `usize`
@@ -145,6 +149,11 @@ impl Layout {
             },
             sc_geoms: l.max_geometries as usize,
             sc_insts: l.scene_instances() as usize,
+            flat: if l.max_geometries > 0 && l.has(Limits::GRID | Limits::KD | Limits::PGRID) {
+                n
+            } else {
+                0
+            },
         })
     }
 }
@@ -165,6 +174,7 @@ struct Pools<'a> {
     /// The two-level scene's pools, its geometry table as bytes (a table
     /// of `GeomState`, made in `new_in`).
     scene: (SceneBlas<'a>, &'a mut [u8]),
+    flat: twolevel::flatten::FlatPools<'a>,
 }
 
 /// The two-level scene's pools but its geometry table.
@@ -276,6 +286,11 @@ fn carve<'a>(a: &mut impl Carve<'a>, l: &Layout) -> Result<Pools<'a>> {
                     .ok_or(big)?,
             )?,
         ),
+        flat: twolevel::flatten::FlatPools {
+            tris: a.take(l.flat)?,
+            indices: a.take(l.flat.checked_mul(3).ok_or(big)?)?,
+            ids: a.take(l.flat)?,
+        },
     })
 }
 
@@ -322,6 +337,10 @@ pub struct Context<'a> {
     /// The two-level scene (`accel::twolevel`; empty pools without
     /// `Limits::max_geometries`).
     scene: TwoLevel<'a>,
+    /// The two-level scene in world triangles, and which commit each
+    /// structure was built from (`context::scene`).
+    flat: twolevel::flatten::Flat<'a>,
+    sources: scene::Sources,
     frame: FrameBuffers<'a>,
     /// Layout of the frame buffers in the last deferred frame, its
     /// camera rays and shadow-ray offset.
@@ -361,6 +380,7 @@ impl<'a> Context<'a> {
             pg,
             frame,
             scene: (sc, geom_bytes),
+            flat,
         } = carve(&mut arena, &Layout::of(limits)?)?;
         let slots = Slots::new(stamps, packets, scratch, busy);
         let n_geoms = limits.max_geometries as usize;
@@ -382,6 +402,8 @@ impl<'a> Context<'a> {
             kd: KdTree::new(kd),
             pgrid: Pgrid::new(pg),
             scene,
+            flat: twolevel::flatten::Flat::new(flat),
+            sources: scene::Sources::default(),
             frame,
             frame_layout: None,
             frame_rays: None,
@@ -434,12 +456,25 @@ impl<'a> Context<'a> {
         params: &GridParams,
         par: &dyn crate::mem::par::Par,
     ) -> Result<GridInfo> {
+        self.check_scene(scene)?;
+        let info = self.grid_over(scene, params, par)?;
+        self.sources.grid = None;
+        Ok(info)
+    }
+
+    /// The grid build after the scene's checks (`build_grid_with`, and
+    /// the flattened two-level scene's).
+    fn grid_over(
+        &mut self,
+        scene: &Scene<'_>,
+        params: &GridParams,
+        par: &dyn crate::mem::par::Par,
+    ) -> Result<GridInfo> {
         if !self.limits.has(Limits::GRID) {
             return Err(Error::InvalidArgument(
                 "no grid pools: Limits::structures lacks GRID",
             ));
         }
-        self.check_scene(scene)?;
         let t = now();
         let info = grid::build::build_with(
             &mut self.grid,
@@ -533,12 +568,19 @@ impl<'a> Context<'a> {
     /// splits, AEPSA paper section 5.1). On error the previous tree stays
     /// valid.
     pub fn build_kd(&mut self, scene: &Scene<'_>, params: &KdParams) -> Result<KdInfo> {
+        self.check_scene(scene)?;
+        let info = self.kd_over(scene, params)?;
+        self.sources.kd = None;
+        Ok(info)
+    }
+
+    /// The kd-tree build after the scene's checks.
+    fn kd_over(&mut self, scene: &Scene<'_>, params: &KdParams) -> Result<KdInfo> {
         if !self.limits.has(Limits::KD) {
             return Err(Error::InvalidArgument(
                 "no kd-tree pools: Limits::structures lacks KD",
             ));
         }
-        self.check_scene(scene)?;
         let t = now();
         let info = kd::build::build(&mut self.kd, scene, params)?;
         self.stats.kd_build_ns = elapsed_ns(t);
@@ -551,12 +593,19 @@ impl<'a> Context<'a> {
     /// themselves depend on the camera and the lights and are built by
     /// every `render_deferred` call that uses them.
     pub fn build_pgrid(&mut self, scene: &Scene<'_>, params: &PgridParams) -> Result<SceneInfo> {
+        self.check_scene(scene)?;
+        let info = self.pgrid_over(scene, params)?;
+        self.sources.pgrid = None;
+        Ok(info)
+    }
+
+    /// The perspective grids' scene load after the scene's checks.
+    fn pgrid_over(&mut self, scene: &Scene<'_>, params: &PgridParams) -> Result<SceneInfo> {
         if !self.limits.has(Limits::PGRID) {
             return Err(Error::InvalidArgument(
                 "no perspective grid pools: Limits::structures lacks PGRID",
             ));
         }
-        self.check_scene(scene)?;
         params.validate()?;
         if params.test == crate::geom::TriTest::Projection && !self.limits.projection_test {
             return Err(Error::InvalidArgument(

@@ -76,7 +76,10 @@ fn ten_animated_frames_allocate_nothing() {
     let mut anim = Animated::new(1);
     let frame = frame_of(&anim);
     let tris = anim.mesh.triangle_count() as u32;
-    let mut limits = Limits::for_triangles(tris);
+    let tetra = sheaf::scenes::builtin("tetra").unwrap();
+    // Room for the flattened two-level scene seen by mask 2 (the tetra
+    // and one animated instance) in the grid and kd-tree pools.
+    let mut limits = Limits::for_triangles(tris + tetra.mesh.triangle_count() as u32);
     limits.max_vertices = anim.mesh.vertex_count() as u32;
     // The perspective and light grids' pools scale with the image.
     limits.structures |= Limits::PGRID;
@@ -84,7 +87,6 @@ fn ten_animated_frames_allocate_nothing() {
     limits.max_image_height = frame.height;
     // The two-level scene: three geometries (the animated mesh twice, one
     // of them rebuilt, and a static tetra), up to 6 instances.
-    let tetra = sheaf::scenes::builtin("tetra").unwrap();
     limits.max_geometries = 3;
     limits.max_instances = 6;
     limits.max_scene_triangles = 2 * tris + tetra.mesh.triangle_count() as u32;
@@ -150,7 +152,8 @@ fn ten_animated_frames_allocate_nothing() {
             .unwrap();
         for (i, g) in [0u32, 1, 2, 1].iter().enumerate() {
             let at = Affine::translation([i as f32 * 0.25, 0.0, 0.0]);
-            ctx.set_instance(i as u32, *g, &at, !0).unwrap();
+            let mask = if i < 2 { !0 } else { 1 };
+            ctx.set_instance(i as u32, *g, &at, mask).unwrap();
         }
     }
 
@@ -193,6 +196,17 @@ fn ten_animated_frames_allocate_nothing() {
             }
             ctx.commit_scene().unwrap();
             ctx.trace_scene(&rays, !0, &mut scene_hits).unwrap();
+            // The grid and kd-tree over the flattened scene.
+            ctx.build_grid_scene(&params, 2).unwrap();
+            ctx.build_kd_scene(&sheaf::KdParams::default(), 2).unwrap();
+            for m in [Method::GridCgt, Method::KdPacket] {
+                let p = TraceParams {
+                    method: m,
+                    ..TraceParams::default()
+                };
+                ctx.trace_scene_with(&p, &rays, 2, &mut scene_hits).unwrap();
+                scene_hit_total += scene_hits.iter().filter(|h| h.is_hit()).count();
+            }
             ctx.occluded_scene(&rays, 1, &mut occ).unwrap();
             scene_hit_total += scene_hits.iter().filter(|h| h.is_hit()).count();
         }

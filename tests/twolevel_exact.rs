@@ -5,7 +5,11 @@
 //! and its occlusion answer, lane by lane: camera rays in the renderer's
 //! packet layout, shadow rays toward a light, and incoherent rays, on
 //! instances rotated, scaled unevenly, mirrored and overlapping, with
-//! instance and geometry masks (issue 19; DESIGN.md "Correctness").
+//! instance and geometry masks (issue 19; DESIGN.md "Correctness"). The
+//! grid and the kd-tree trace the same scene flattened into world
+//! triangles, each packet method bitwise its own single ray; every family,
+//! the two-level BVH included, agrees with the f64 oracle on the flattened
+//! scene, and the perspective grid equals the flattened mesh's BVH.
 
 mod common;
 
@@ -24,20 +28,33 @@ fn rot(deg: f32, axis: usize, s: [f32; 3], t: [f32; 3]) -> Affine {
     Affine::rotated(deg, axis, s, t)
 }
 
+const NAMES: [&str; 4] = ["tetra", "gears", "balls", "animated"];
+
+/// Triangles of the built-in meshes the scene places.
+fn mesh_triangles() -> u32 {
+    NAMES
+        .iter()
+        .map(|n| sheaf::scenes::builtin(n).unwrap().mesh.indices.len() as u32 / 3)
+        .sum()
+}
+
 /// A scene of the built-in meshes, each placed two or three times.
 fn scene(test: TriTest) -> OwnedContext {
-    let names = ["tetra", "gears", "balls", "animated"];
-    let meshes: Vec<_> = names
+    let mut l = Limits::for_triangles(16);
+    l.structures = Limits::BVH;
+    scene_in(test, l)
+}
+
+/// The scene in a context of limits `l` (its two-level fields set here).
+fn scene_in(test: TriTest, mut l: Limits) -> OwnedContext {
+    let meshes: Vec<_> = NAMES
         .iter()
         .map(|n| sheaf::scenes::builtin(n).unwrap().mesh)
         .collect();
-    let total: usize = meshes.iter().map(|m| m.indices.len() / 3).sum();
-    let mut l = Limits::for_triangles(16);
-    l.structures = Limits::BVH;
     l.max_threads = 2;
-    l.max_geometries = names.len() as u32;
+    l.max_geometries = NAMES.len() as u32;
     l.max_instances = 12;
-    l.max_scene_triangles = total as u32;
+    l.max_scene_triangles = mesh_triangles();
     let mut ctx = OwnedContext::new(&l).unwrap();
     for (g, m) in meshes.iter().enumerate() {
         let p = GeometryParams {
@@ -249,4 +266,314 @@ fn moved_and_refit_instances_stay_exact() {
         .flat_map(|(_, idx)| idx.iter().map(|&i| camera[i]))
         .collect();
     assert!(check(&mut ctx, "moved", &ordered, 8, RayKind::Primary, &[!0]) > 500);
+}
+
+/// The grid and the kd-tree trace the scene flattened into world
+/// triangles: each packet method equals its own single ray bitwise, with
+/// the same (geometry, instance, triangle) ids; a mask change or a new
+/// commit is refused until they are rebuilt.
+#[test]
+fn grid_and_kd_trace_the_flattened_scene() {
+    let mut l = Limits::for_triangles(2 * mesh_triangles());
+    l.structures = Limits::GRID | Limits::KD;
+    let mut ctx = scene_in(TriTest::MollerTrumbore, l);
+    let info = ctx.commit_scene().unwrap();
+    let (lo, hi) = (info.bounds.min, info.bounds.max);
+    let c = 0.5 * (lo + hi);
+    let view = View {
+        eye: c + Vec3::new(0.7, 0.5, 1.1) * (hi - lo),
+        look_at: c,
+        up: Vec3::Y,
+        fov_y_deg: 45.0,
+    };
+    let camera = view_rays(&view, RES as u32, RES as u32);
+    let ordered: Vec<Ray> = packets(&camera, 8)
+        .iter()
+        .flat_map(|(_, idx)| idx.iter().map(|&i| camera[i]))
+        .collect();
+    let trace = |ctx: &mut OwnedContext, method, packet, mask| {
+        let p = TraceParams {
+            method,
+            packet,
+            ..TraceParams::default()
+        };
+        let mut got = vec![SceneHit::MISS; ordered.len()];
+        ctx.trace_scene_with(&p, &ordered, mask, &mut got)
+            .map(|_| got)
+    };
+    let mut total = 0;
+    for mask in [!0u32, 1, 2] {
+        ctx.build_grid_scene(&sheaf::GridParams::default(), mask)
+            .unwrap();
+        ctx.build_kd_scene(&sheaf::KdParams::default(), mask)
+            .unwrap();
+        let (_, flat) = ctx.flat_scene().unwrap();
+        assert_eq!(flat.mask, mask);
+        for (single, packet) in [
+            (Method::GridDda, Method::GridCgt),
+            (Method::KdSingle, Method::KdSimd),
+            (Method::KdSingle, Method::KdPacket),
+        ] {
+            let want = trace(&mut ctx, single, 2, mask).unwrap();
+            let got = trace(&mut ctx, packet, 8, mask).unwrap();
+            for (k, (g, w)) in got.iter().zip(&want).enumerate() {
+                assert!(
+                    same(g, w),
+                    "{packet:?} mask {mask} ray {k}: {g:?} want {w:?}"
+                );
+            }
+            total += want.iter().filter(|h| h.is_hit()).count();
+            // Ids name a triangle of a placed geometry the mask sees.
+            let bvh = trace(&mut ctx, Method::BvhSingle, 2, mask).unwrap();
+            let agree = want
+                .iter()
+                .zip(&bvh)
+                .filter(|(a, b)| {
+                    (a.prim, a.geometry, a.instance) == (b.prim, b.geometry, b.instance)
+                })
+                .count();
+            assert!(
+                agree * 100 >= want.len() * 99,
+                "{single:?} mask {mask}: {agree} of {} agree with the two-level BVH",
+                want.len()
+            );
+        }
+        // Another mask than the build's is refused, as is any grid method
+        // after a new commit until the grid is rebuilt.
+        assert!(matches!(
+            trace(&mut ctx, Method::GridDda, 2, mask ^ 4),
+            Err(sheaf::Error::InvalidArgument(_))
+        ));
+    }
+    assert!(total > 3000, "{total} hits");
+    ctx.commit_scene().unwrap();
+    assert!(matches!(
+        trace(&mut ctx, Method::KdSingle, 2, 2),
+        Err(sheaf::Error::NotBuilt)
+    ));
+    ctx.build_kd_scene(&sheaf::KdParams::default(), 2).unwrap();
+    assert!(trace(&mut ctx, Method::KdSingle, 2, 2).is_ok());
+    assert!(matches!(
+        trace(&mut ctx, Method::GridDda, 2, 2),
+        Err(sheaf::Error::NotBuilt)
+    ));
+}
+
+/// Named tolerances of the oracle comparison, those of
+/// `tests/reference_equivalence.rs`: a tie of the f64 oracle's two
+/// nearest hits, a ray within a barycentric distance of an edge, and the
+/// relative t on agreement. The two-level BVH, which maps the ray into
+/// object space instead of meeting the flattening's rounded world
+/// triangles, is held to the same ones: no transform tolerance was needed
+/// on these rays (every ray agrees exactly).
+const TIE_REL: f64 = 1e-5;
+const EDGE_BARY: f64 = 1e-5;
+const T_REL: f64 = 1e-4;
+
+/// Counts of one comparison with the oracle.
+#[derive(Debug, Default)]
+struct Tally {
+    exact: usize,
+    ties: usize,
+    edges: usize,
+    errors: Vec<String>,
+}
+
+/// `got` (a world triangle index or `None` for a miss, and its t)
+/// against the oracle's `want`.
+fn classify(
+    s: &sheaf::Scene,
+    ray: &Ray,
+    got: Option<(u32, f32)>,
+    want: sheaf::reference::RefHit,
+    t: &mut Tally,
+) {
+    let miss = sheaf::geom::INVALID_ID;
+    let (prim, gt) = got.unwrap_or((miss, f32::INFINITY));
+    let want = if prim != want.prim {
+        sheaf::reference::with_edge_distance(s, ray, want)
+    } else {
+        want
+    };
+    if prim == want.prim {
+        let rel = (gt as f64 - want.t).abs() / want.t.abs().max(1e-30);
+        if prim == miss || rel <= T_REL {
+            t.exact += 1;
+        } else {
+            t.errors
+                .push(format!("{ray:?}: prim {prim} t {gt} vs f64 {}", want.t));
+        }
+    } else if want.gap <= TIE_REL {
+        t.ties += 1;
+    } else if want.edge <= EDGE_BARY {
+        t.edges += 1;
+    } else {
+        t.errors.push(format!(
+            "{ray:?}: prim {prim} t {gt} / f64 prim {} t {} (gap {:e}, edge {:e})",
+            want.prim, want.t, want.gap, want.edge
+        ));
+    }
+}
+
+/// Every family answers for the same scene: on the flattened scene, the
+/// grid's and the kd-tree's single rays and the two-level BVH agree with
+/// the f64 oracle within the named tolerances (the two-level BVH under
+/// its own, counted, transform tolerance), and a deferred frame's
+/// perspective grid gives the flattened mesh's BVH single ray bitwise.
+#[test]
+fn every_family_agrees_with_the_oracle_on_the_flattened_scene() {
+    let (w, h) = (94u32, 71u32);
+    let n = 2 * mesh_triangles();
+    let mut l = Limits::for_triangles(n);
+    l.structures = Limits::ALL_STRUCTURES;
+    l.max_image_width = w;
+    l.max_image_height = h;
+    l.max_pgrid_refs = 8 * n + (1 << 21);
+    let mut ctx = scene_in(TriTest::MollerTrumbore, l);
+    let info = ctx.commit_scene().unwrap();
+    let (lo, hi) = (info.bounds.min, info.bounds.max);
+    let c = 0.5 * (lo + hi);
+    let view = View {
+        eye: c + Vec3::new(0.6, 0.6, 1.0) * (hi - lo),
+        look_at: c,
+        up: Vec3::Y,
+        fov_y_deg: 45.0,
+    };
+    ctx.build_grid_scene(&sheaf::GridParams::default(), !0)
+        .unwrap();
+    ctx.build_kd_scene(&sheaf::KdParams::default(), !0).unwrap();
+    ctx.build_pgrid_scene(&sheaf::PgridParams::default(), !0)
+        .unwrap();
+    // A copy of the flattened mesh, and each scene hit's world triangle.
+    let (verts, count) = {
+        let (s, f) = ctx.flat_scene().unwrap();
+        let v: Vec<f32> = (0..f.triangles)
+            .flat_map(|i| {
+                let t = s.triangle(i);
+                [t.v0, t.v1, t.v2].into_iter().flatten()
+            })
+            .collect();
+        (v, f.triangles)
+    };
+    let idx: Vec<u32> = (0..3 * count).collect();
+    let flat = sheaf::Scene::from_f32(&verts, &idx).unwrap();
+    let world: std::collections::HashMap<(u32, u32), u32> = (0..count)
+        .map(|i| {
+            let hit = ctx
+                .scene_prim(&sheaf::Hit {
+                    prim: i,
+                    ..sheaf::Hit::MISS
+                })
+                .unwrap();
+            ((hit.instance, hit.prim), i)
+        })
+        .collect();
+    assert_eq!(
+        world.len(),
+        count as usize,
+        "world triangles map one to one"
+    );
+    let camera = view_rays(&view, w, h);
+    // The camera rays and incoherent rays through the scene.
+    let mut seed = 0x2545_f491_4f6c_dd1du64;
+    let mut f = || {
+        seed ^= seed << 13;
+        seed ^= seed >> 7;
+        seed ^= seed << 17;
+        (seed >> 40) as f32 / (1u64 << 24) as f32
+    };
+    let d = hi - lo;
+    let mut pt = |s: f32| c + Vec3::new(f() - 0.5, f() - 0.5, f() - 0.5) * 2.0 * s * d;
+    let rays: Vec<Ray> = camera
+        .iter()
+        .copied()
+        .chain((0..4096).map(|_| {
+            let (o, to) = (pt(0.8), pt(0.3));
+            Ray::new(o, to - o, 0.0, f32::INFINITY)
+        }))
+        .collect();
+    let oracle = common::par_map(&rays, |r| sheaf::reference::nearest(&flat, r));
+    let mut report = Vec::new();
+    for (what, method) in [
+        ("grid", Some(Method::GridDda)),
+        ("kd", Some(Method::KdSingle)),
+        ("two-level BVH", None),
+    ] {
+        let mut got = vec![SceneHit::MISS; rays.len()];
+        match method {
+            Some(m) => ctx.trace_scene_with(
+                &TraceParams {
+                    method: m,
+                    ..TraceParams::default()
+                },
+                &rays,
+                !0,
+                &mut got,
+            ),
+            None => ctx.trace_scene(&rays, !0, &mut got),
+        }
+        .unwrap();
+        let mut t = Tally::default();
+        for ((r, g), o) in rays.iter().zip(&got).zip(&oracle) {
+            let g = g.is_hit().then(|| (world[&(g.instance, g.prim)], g.t));
+            classify(&flat, r, g, *o, &mut t);
+        }
+        report.push(format!("{what}: {t:?}"));
+        assert!(
+            t.errors.is_empty(),
+            "{what}: {} errors, first {:?}",
+            t.errors.len(),
+            &t.errors[..t.errors.len().min(4)]
+        );
+        assert!(t.exact > rays.len() * 9 / 10, "{what}: {t:?}");
+    }
+    println!("{}", report.join("\n"));
+    // The deferred frame against the flattened mesh's BVH single ray.
+    let mut want = vec![sheaf::Hit::MISS; camera.len()];
+    ctx.build_bvh(&flat, &BvhParams::default()).unwrap();
+    ctx.trace(Method::BvhSingle, &camera, &mut want).unwrap();
+    let cam = sheaf::Camera {
+        eye: view.eye.to_array(),
+        look_at: view.look_at.to_array(),
+        up: view.up.to_array(),
+        fov_y_deg: view.fov_y_deg,
+    };
+    let frame = sheaf::Frame {
+        camera: cam,
+        light: sheaf::PointLight::new((c + (hi - lo)).to_array(), [1.0; 3]),
+        shading: sheaf::Shading::default(),
+        width: w,
+        height: h,
+    };
+    let mut px = vec![0u8; (4 * w * h) as usize];
+    ctx.render_deferred(
+        &sheaf::DeferredJob {
+            frame: &frame,
+            lights: &[],
+            primary: sheaf::PrimaryPass::Pgrid,
+            shadow: sheaf::ShadowPass::LightGrid,
+        },
+        &mut px,
+        4 * w as usize,
+        &mut sheaf::OnCaller,
+    )
+    .unwrap();
+    let mut hits = 0;
+    for y in 0..h {
+        for x in 0..w {
+            let (got, _) = ctx.deferred_pixel(x, y).unwrap();
+            let exp = want[(y * w + x) as usize];
+            assert_eq!(
+                (got.prim, got.t.to_bits()),
+                (exp.prim, exp.t.to_bits()),
+                "pixel ({x}, {y})"
+            );
+            hits += got.is_hit() as usize;
+            if got.is_hit() {
+                let s = ctx.scene_prim(&got).unwrap();
+                assert_eq!(world[&(s.instance, s.prim)], got.prim);
+            }
+        }
+    }
+    assert!(hits > camera.len() / 4, "{hits} pixels hit");
 }

@@ -2,10 +2,21 @@
 //! updated and removed between frames, instances placing them, a commit
 //! that builds the top level, and rays traced through it. Its pools are
 //! carved with the context's when `Limits::max_geometries` is not 0.
+//!
+//! The grid, the kd-tree and the perspective grids trace the same scene
+//! flattened into world triangles (`twolevel::flatten`), rebuilt from a
+//! commit with `build_*_scene`; `Sources` remembers which commit and mask
+//! each was built from, so a trace never maps a hit through the ids of
+//! another flattening.
 
 use super::Context;
 use crate::accel::bvh::BvhInfo;
+use crate::accel::grid::{GridInfo, GridParams};
+use crate::accel::kd::{KdInfo, KdParams};
+use crate::accel::method::Structure;
 use crate::accel::packet::MAX_QUADS;
+use crate::accel::pgrid::{PgridParams, SceneInfo};
+use crate::accel::twolevel::flatten::{Flat, FlatInfo};
 use crate::accel::twolevel::traverse_packet;
 use crate::accel::twolevel::traverse_single::{self, SceneHit};
 use crate::accel::twolevel::{GeometryParams, TwoLevelInfo, TwoLevelView, UpdateInfo};
@@ -13,7 +24,7 @@ use crate::counters::{Counters, elapsed_ns, now};
 use crate::error::{Error, Result};
 use crate::geom::{Affine, M4, Mt, Pt, Ray, Ray4, Scene, TriTest, Wt};
 use crate::mem::par::{Par, Serial};
-use crate::trace::{Method, TraceParams};
+use crate::trace::TraceParams;
 
 /// Slot scratch a two-level packet batch holds (its quads, their lanes,
 /// their hits) with the top level's (`traverse_packet::SCRATCH`), under
@@ -44,7 +55,174 @@ macro_rules! with_test {
     };
 }
 
-impl Context<'_> {
+/// A flattening's origin: the commit (counted by `Sources::commits`) and
+/// the mask it expanded.
+type Key = (u64, u32);
+
+/// Which commit of the two-level scene the flattened triangles and each
+/// structure built over them come from (`None`: not built from the scene).
+#[derive(Clone, Copy, Debug, Default)]
+pub(super) struct Sources {
+    commits: u64,
+    flat: Option<Key>,
+    pub(super) grid: Option<Key>,
+    pub(super) kd: Option<Key>,
+    pub(super) pgrid: Option<Key>,
+}
+
+impl<'a> Context<'a> {
+    /// The flattened triangles of the current commit for `mask`,
+    /// flattened now unless they are already.
+    fn flat_for(&mut self, mask: u32, par: &dyn Par) -> Result<Key> {
+        self.scene_pools()?;
+        if self.flat.capacity() == 0 {
+            return Err(Error::InvalidArgument(
+                "no flattened scene: Limits::structures lacks GRID, KD and PGRID",
+            ));
+        }
+        let key = (self.sources.commits, mask);
+        if self.sources.flat != Some(key) {
+            let v = self.scene.view()?;
+            self.sources.flat = None;
+            self.flat.flatten(&v, mask, par)?;
+            self.sources.flat = Some(key);
+        }
+        Ok(key)
+    }
+
+    /// `f` with the flattened scene as a mesh, the pools lent out for the
+    /// call (a structure's build borrows the context mutably).
+    fn over_flat<R>(&mut self, f: impl FnOnce(&mut Self, &Scene<'_>) -> Result<R>) -> Result<R> {
+        let flat = core::mem::replace(&mut self.flat, Flat::empty());
+        let r = match flat.scene() {
+            Some(scene) => f(self, &scene),
+            None => Err(Error::NotBuilt),
+        };
+        self.flat = flat;
+        r
+    }
+
+    /// Rebuild the grid over the committed scene's instances that `mask`
+    /// sees, flattened into world triangles (the grid paper's
+    /// rebuild-everything model). `trace_scene_with` then traces it with
+    /// the grid's methods for that `mask`. On error the previous grid
+    /// stays valid (but no longer answers for the scene).
+    pub fn build_grid_scene(&mut self, params: &GridParams, mask: u32) -> Result<GridInfo> {
+        self.build_grid_scene_with(params, mask, &Serial)
+    }
+
+    /// `build_grid_scene` on the caller's workers (the flattening and
+    /// the grid build join them).
+    pub fn build_grid_scene_with(
+        &mut self,
+        params: &GridParams,
+        mask: u32,
+        par: &dyn Par,
+    ) -> Result<GridInfo> {
+        let key = self.flat_for(mask, par)?;
+        self.sources.grid = None;
+        let info = self.over_flat(|c, s| c.grid_over(s, params, par))?;
+        self.sources.grid = Some(key);
+        Ok(info)
+    }
+
+    /// Rebuild the kd-tree over the committed scene's instances that
+    /// `mask` sees (as `build_grid_scene`).
+    pub fn build_kd_scene(&mut self, params: &KdParams, mask: u32) -> Result<KdInfo> {
+        self.build_kd_scene_with(params, mask, &Serial)
+    }
+
+    /// `build_kd_scene` with the flattening on the caller's workers (the
+    /// kd-tree build itself is serial).
+    pub fn build_kd_scene_with(
+        &mut self,
+        params: &KdParams,
+        mask: u32,
+        par: &dyn Par,
+    ) -> Result<KdInfo> {
+        let key = self.flat_for(mask, par)?;
+        self.sources.kd = None;
+        let info = self.over_flat(|c, s| c.kd_over(s, params))?;
+        self.sources.kd = Some(key);
+        Ok(info)
+    }
+
+    /// Load the committed scene's instances that `mask` sees for the
+    /// perspective and light grids (as `build_grid_scene`); a deferred
+    /// frame's hits are then world triangles of the flattened scene, which
+    /// `scene_prim` maps to (geometry, instance, triangle).
+    pub fn build_pgrid_scene(&mut self, params: &PgridParams, mask: u32) -> Result<SceneInfo> {
+        self.build_pgrid_scene_with(params, mask, &Serial)
+    }
+
+    /// `build_pgrid_scene` with the flattening on the caller's workers.
+    pub fn build_pgrid_scene_with(
+        &mut self,
+        params: &PgridParams,
+        mask: u32,
+        par: &dyn Par,
+    ) -> Result<SceneInfo> {
+        let key = self.flat_for(mask, par)?;
+        self.sources.pgrid = None;
+        let info = self.over_flat(|c, s| c.pgrid_over(s, params))?;
+        self.sources.pgrid = Some(key);
+        Ok(info)
+    }
+
+    /// The last flattened scene as a mesh, with what it holds (`None`
+    /// before any `build_*_scene`): for oracles and shading.
+    pub fn flat_scene(&self) -> Option<(Scene<'_>, FlatInfo)> {
+        Some((self.flat.scene()?, self.flat.info()?))
+    }
+
+    /// Hit `h` on the flattened scene (a hit of a structure built by
+    /// `build_*_scene`) as a scene hit: `h` with its geometry, instance
+    /// and the geometry's own triangle id. Errors: `NotBuilt` without a
+    /// flattening of the current commit, `InvalidArgument` when `h.prim`
+    /// is not one of its triangles.
+    pub fn scene_prim(&self, h: &crate::geom::Hit) -> Result<SceneHit> {
+        let v = self.scene_view()?;
+        match self.sources.flat {
+            Some((c, _)) if c == self.sources.commits => {}
+            _ => return Err(Error::NotBuilt),
+        }
+        self.flat_hit(&v, h).ok_or(Error::InvalidArgument(
+            "not a triangle of the flattened scene",
+        ))
+    }
+
+    fn flat_hit(&self, v: &TwoLevelView<'_>, h: &crate::geom::Hit) -> Option<SceneHit> {
+        let [inst, prim] = self.flat.id(h.prim)?;
+        let geometry = v.instance(inst)?.geometry;
+        Some(SceneHit {
+            prim,
+            ..SceneHit::of(h, geometry, inst)
+        })
+    }
+
+    /// The flattening structure `s` was built from, when it is the
+    /// current commit's for `mask` and still in the pools.
+    fn built_for(&self, s: Structure, mask: u32) -> Result<()> {
+        if self.flat.capacity() == 0 {
+            return Err(Error::InvalidArgument(
+                "no flattened scene for the grid or kd-tree: Limits::structures lacks both",
+            ));
+        }
+        let built = match s {
+            Structure::Grid => self.sources.grid,
+            Structure::Kd => self.sources.kd,
+            Structure::Bvh => None,
+        };
+        let now = Some((self.sources.commits, mask));
+        match built {
+            Some(k) if Some(k) == now && self.sources.flat == now => Ok(()),
+            Some(k) if k.0 == self.sources.commits && k.1 != mask => Err(Error::InvalidArgument(
+                "the structure was built over the scene for another mask",
+            )),
+            _ => Err(Error::NotBuilt),
+        }
+    }
+
     fn scene_pools(&self) -> Result<()> {
         if self.limits.max_geometries == 0 {
             return Err(Error::InvalidArgument(
@@ -127,6 +305,7 @@ impl Context<'_> {
     /// scene, before tracing it.
     pub fn commit_scene(&mut self) -> Result<TwoLevelInfo> {
         self.scene_pools()?;
+        self.sources.commits += 1;
         Ok(self.scene.commit())
     }
 
@@ -149,10 +328,14 @@ impl Context<'_> {
         self.trace_scene_on(None, rays, mask, hits)
     }
 
-    /// `trace_scene` with a BVH method and its packet settings (`p.method`
-    /// one of the `Bvh*` methods; packet methods take the rays in order as
-    /// packets of `p.packet`^2 rays, as `trace_with` does). Every method
-    /// gives `trace_scene`'s hits, bit for bit.
+    /// `trace_scene` with a method and its packet settings (packet
+    /// methods take the rays in order as packets of `p.packet`^2 rays, as
+    /// `trace_with` does). The `Bvh*` methods walk the two-level scene and
+    /// give `trace_scene`'s hits, bit for bit. The grid's and the
+    /// kd-tree's trace the flattened scene their `build_*_scene` built
+    /// for this commit and `mask` (else `NotBuilt`; another mask is
+    /// `InvalidArgument`), each bitwise its own single ray; their t, u, v
+    /// are those of the world triangle.
     pub fn trace_scene_with(
         &mut self,
         p: &TraceParams,
@@ -264,19 +447,22 @@ impl Context<'_> {
             return Ok(ctr);
         };
         p.validate()?;
-        if !matches!(
-            p.method,
-            Method::BvhSingle
-                | Method::BvhSimd
-                | Method::BvhMasked
-                | Method::BvhRanged
-                | Method::BvhPartition
-                | Method::BvhWide
-                | Method::BvhWideRanged
-        ) {
-            return Err(Error::InvalidArgument(
-                "a two-level scene traces BVH methods (its geometries are BVHs)",
-            ));
+        let structure = p.method.structure();
+        if structure != Structure::Bvh {
+            // The grid and the kd-tree trace the flattened scene.
+            self.built_for(structure, mask)?;
+            let (v, mut out) = (&v, out);
+            return self.trace_each(
+                slot,
+                p,
+                count,
+                read,
+                |i, h: &crate::geom::Hit4, lane| {
+                    let h = h.lane(lane);
+                    out(i, self.flat_hit(v, &h).unwrap_or(SceneHit::MISS))
+                },
+                any,
+            );
         }
         let per = if p.method.is_packet() {
             (p.packet * p.packet) as usize

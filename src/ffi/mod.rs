@@ -18,6 +18,7 @@
 //! | `frame.rs` | `sheaf_frame` (camera, light, shading, size), `sheaf_shading_default`, `sheaf_frame_camera_ray` |
 //! | `stats.rs` | `sheaf_stats` |
 //! | `version.rs` | `sheaf_version_string` |
+//! | `scene.rs` | `sheaf_mesh`, `sheaf_geometry_params`, `sheaf_update_mode`, `sheaf_scene_hit`, `sheaf_scene_info`: the two-level scene's geometries, instances, commit, trace and occluded, and its flattening for the grid, kd-tree and perspective grids (`sheaf_context_build_scene_*`, `sheaf_context_scene_prim`) |
 //! | `whitted.rs` | `sheaf_material`, `sheaf_material_range`, `sheaf_whitted_params`, `sheaf_context_render_whitted` |
 //!
 //! # Conventions (STYLE.md rule 9)
@@ -93,8 +94,9 @@ pub use pgrid::{
 };
 pub use ray::{sheaf_hit, sheaf_ray};
 pub use scene::{
+    sheaf_context_build_scene_grid, sheaf_context_build_scene_kd, sheaf_context_build_scene_pgrid,
     sheaf_context_commit_scene, sheaf_context_occluded_scene, sheaf_context_remove_instance,
-    sheaf_context_remove_scene_geometry, sheaf_context_set_instance,
+    sheaf_context_remove_scene_geometry, sheaf_context_scene_prim, sheaf_context_set_instance,
     sheaf_context_set_scene_geometry, sheaf_context_trace_scene,
     sheaf_context_update_scene_geometry, sheaf_geometry_params, sheaf_geometry_params_default,
     sheaf_mesh, sheaf_scene_hit, sheaf_scene_info, sheaf_update_mode,

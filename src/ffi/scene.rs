@@ -6,9 +6,15 @@
 
 use super::bvh::{sheaf_bvh_params, sheaf_refit_info, sheaf_refit_params};
 use super::context::{Geometry, sheaf_context, with_mut, with_ref};
-use super::ray::sheaf_ray;
+use super::grid::sheaf_grid_params;
+use super::kd::sheaf_kd_params;
+use super::pgrid::sheaf_pgrid_params;
+use super::ray::{sheaf_hit, sheaf_ray};
 use super::trace_params::sheaf_trace_params;
 use super::{check_array, check_non_null, guard_free, overlaps, read_in, write_out};
+use crate::accel::grid::GridParams;
+use crate::accel::kd::KdParams;
+use crate::accel::pgrid::PgridParams;
 use crate::accel::twolevel::traverse_single::SceneHit;
 use crate::accel::twolevel::{GeometryParams, TwoLevelInfo, UpdateMode};
 use crate::error::{Error, Result};
@@ -319,10 +325,12 @@ pub extern "C" fn sheaf_context_commit_scene(
 /// Nearest hits of `count` rays in the committed two-level scene, among
 /// instances whose mask shares a bit with `mask`, into `hits`. `params`
 /// NULL: one single ray each (the 4-wide single ray in every geometry);
-/// else `params->method` (a `SHEAF_METHOD_BVH_*` method) with its packet
-/// side, the rays taken in order as packets as `sheaf_context_trace_with`
-/// takes them. Every method gives the same hits, bit for bit (the Rust
-/// API's `Context::trace_scene_with`).
+/// else `params->method` with its packet side, the rays taken in order as
+/// packets as `sheaf_context_trace_with` takes them. Every BVH method
+/// gives the same hits, bit for bit. A grid or kd-tree method traces the
+/// flattened scene its `sheaf_context_build_scene_*` built for this
+/// commit and `mask` (each bitwise its own single ray; t, u, v of the
+/// world triangle). The Rust API's `Context::trace_scene_with`.
 ///
 /// Thread-safe: any number of threads may trace one committed scene at
 /// once with `params` NULL (no thread slot is taken); with `params` every
@@ -330,8 +338,10 @@ pub extern "C" fn sheaf_context_commit_scene(
 /// `sheaf_context_trace_with` does, so at most `max_threads` at once.
 ///
 /// Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_INVALID_ARGUMENT`
-/// (no two-level scene, a method other than the BVH's, bad params, count,
-/// overlap), `SHEAF_STATUS_NOT_BUILT` (changed since the last commit),
+/// (no two-level scene, bad params, count, overlap, a grid or kd method
+/// for another mask than its build's), `SHEAF_STATUS_NOT_BUILT` (changed
+/// since the last commit; a grid or kd method without a
+/// `sheaf_context_build_scene_*` of this commit),
 /// `SHEAF_STATUS_CAPACITY_THREADS` (with `params`: no free slot),
 /// `SHEAF_STATUS_CONTEXT_BUSY` (an exclusive call is inside),
 /// `SHEAF_STATUS_POISONED`. `hits` is written only on success.
@@ -393,6 +403,120 @@ pub extern "C" fn sheaf_context_occluded_scene(
                 // SAFETY: i < count; `occluded` checked to span count bytes.
                 unsafe { occluded.add(i).write(u8::from(hit.is_hit())) }
             })?;
+        Ok(())
+    })
+}
+
+/// Rebuild the uniform grid over the committed scene's instances that
+/// `mask` sees, flattened into world triangles (`params` NULL: the
+/// defaults). `sheaf_context_trace_scene` then traces it with the grid's
+/// methods for that `mask`. Needs `SHEAF_STRUCTURE_GRID` and a two-level
+/// scene; the flattening takes up to `max_triangles` world triangles.
+/// On error the previous grid stays valid but no longer answers for the
+/// scene.
+///
+/// Errors: `SHEAF_STATUS_INVALID_ARGUMENT` (no two-level scene or grid
+/// pools, params), `SHEAF_STATUS_NOT_BUILT` (changed since the last
+/// commit), `SHEAF_STATUS_CAPACITY_TRIANGLES` (more world triangles than
+/// `max_triangles`), the grid's capacities, `SHEAF_STATUS_CONTEXT_BUSY`,
+/// `SHEAF_STATUS_POISONED`.
+///
+/// Not thread-safe: needs exclusive access to `ctx`.
+#[unsafe(no_mangle)]
+pub extern "C" fn sheaf_context_build_scene_grid(
+    ctx: *mut sheaf_context,
+    params: *const sheaf_grid_params,
+    mask: u32,
+) -> super::sheaf_status {
+    with_mut(ctx, |h| {
+        let p = if params.is_null() {
+            GridParams::default()
+        } else {
+            read_in(params)?.to_core()?
+        };
+        h.ctx.build_grid_scene(&p, mask)?;
+        Ok(())
+    })
+}
+
+/// Rebuild the kd-tree over the committed scene's instances that `mask`
+/// sees (as `sheaf_context_build_scene_grid`; `SHEAF_STRUCTURE_KD`).
+///
+/// Not thread-safe: needs exclusive access to `ctx`.
+#[unsafe(no_mangle)]
+pub extern "C" fn sheaf_context_build_scene_kd(
+    ctx: *mut sheaf_context,
+    params: *const sheaf_kd_params,
+    mask: u32,
+) -> super::sheaf_status {
+    with_mut(ctx, |h| {
+        let p = if params.is_null() {
+            KdParams::default()
+        } else {
+            read_in(params)?.to_core()?
+        };
+        h.ctx.build_kd_scene(&p, mask)?;
+        Ok(())
+    })
+}
+
+/// Load the committed scene's instances that `mask` sees for the
+/// perspective and light grids (as `sheaf_context_build_scene_grid`;
+/// `SHEAF_STRUCTURE_PGRID`). A deferred frame's pixel hits are then world
+/// triangles of the flattened scene: `sheaf_context_scene_prim` names
+/// their geometry, instance and triangle.
+///
+/// Not thread-safe: needs exclusive access to `ctx`.
+#[unsafe(no_mangle)]
+pub extern "C" fn sheaf_context_build_scene_pgrid(
+    ctx: *mut sheaf_context,
+    params: *const sheaf_pgrid_params,
+    mask: u32,
+) -> super::sheaf_status {
+    with_mut(ctx, |h| {
+        let p = if params.is_null() {
+            PgridParams::default()
+        } else {
+            read_in(params)?.to_core()?
+        };
+        h.ctx.build_pgrid_scene(&p, mask)?;
+        Ok(())
+    })
+}
+
+/// `*hit`, a hit on the flattened scene (a deferred frame's pixel after
+/// `sheaf_context_build_scene_pgrid`), as a scene hit into `*out`: the
+/// same t, u, v with its geometry, instance and the geometry's own
+/// triangle id. A miss maps to a miss.
+///
+/// Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_NOT_BUILT` (no
+/// flattening of the current commit), `SHEAF_STATUS_INVALID_ARGUMENT`
+/// (`hit->prim` not a world triangle of it), `SHEAF_STATUS_CONTEXT_BUSY`,
+/// `SHEAF_STATUS_POISONED`.
+///
+/// Thread-safe: reads only.
+#[unsafe(no_mangle)]
+pub extern "C" fn sheaf_context_scene_prim(
+    ctx: *const sheaf_context,
+    hit: *const sheaf_hit,
+    out: *mut sheaf_scene_hit,
+) -> super::sheaf_status {
+    with_ref(ctx, |h| {
+        let hit = read_in(hit)?;
+        check_non_null!(out);
+        let got = if hit.prim == crate::geom::INVALID_ID {
+            h.ctx.scene_view()?;
+            SceneHit::MISS
+        } else {
+            let hit = crate::geom::Hit {
+                t: hit.t,
+                prim: hit.prim,
+                u: hit.u,
+                v: hit.v,
+            };
+            h.ctx.scene_prim(&hit)?
+        };
+        write_out(out, got.into());
         Ok(())
     })
 }

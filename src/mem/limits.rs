@@ -65,6 +65,9 @@ pub struct Limits {
     pub max_pgrid_refs: u32,
     /// Most geometries of the two-level scene (`accel::twolevel`: each
     /// geometry its own BVH, placed by instances). 0: no two-level scene.
+    /// With a grid, kd-tree or perspective grid in `structures`, the scene
+    /// can also be flattened into up to `max_triangles` world triangles
+    /// for them (`twolevel::flatten`: 56 bytes per triangle).
     pub max_geometries: u32,
     /// Most instances of the two-level scene. 0: `max_geometries`.
     pub max_instances: u32,

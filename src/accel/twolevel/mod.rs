@@ -41,6 +41,7 @@
 //! - Instances of instances (multi-level) are not supported.
 
 pub mod build;
+pub mod flatten;
 pub mod traverse_packet;
 pub mod traverse_single;
 
@@ -495,6 +496,11 @@ pub struct TwoLevelView<'r> {
 }
 
 impl<'r> TwoLevelView<'r> {
+    /// Instance ids are below this (`Limits::max_instances`).
+    pub fn instance_slots(&self) -> u32 {
+        self.insts.len() as u32
+    }
+
     /// Instance `id` (live in this commit or not).
     pub fn instance(&self, id: u32) -> Option<&'r Instance> {
         self.insts.get(id as usize).filter(|i| i.live != 0)
