@@ -197,7 +197,7 @@ int main(int argc, char **argv) {
         CHECK(sheaf_context_commit_scene(ctx, &si));
         t2 = now_ms();
         /* 2. Camera rays, then shadow rays from their hits to the light. */
-        CHECK(sheaf_context_trace_scene(ctx, &tp, rays, hits, W * H, ~0u));
+        CHECK(sheaf_context_trace_scene(ctx, &tp, rays, hits, W * H, ~0u, 0));
         for (k = 0; k < W * H; ++k) {
             float p[3];
             int a;
@@ -209,7 +209,7 @@ int main(int argc, char **argv) {
             shadow[k].tmin = 0.0f;
             shadow[k].tmax = hits[k].prim == SHEAF_INVALID_ID ? 0.0f : 1.0f; /* misses: empty rays */
         }
-        CHECK(sheaf_context_occluded_scene(ctx, &tp, shadow, occluded, W * H, ~0u));
+        CHECK(sheaf_context_occluded_scene(ctx, &tp, shadow, occluded, W * H, ~0u, 0));
         t3 = now_ms();
         /* 3. Shade: a colour per geometry, darker in shadow. */
         for (k = 0; k < W * H; ++k) {

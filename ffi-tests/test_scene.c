@@ -84,41 +84,56 @@ static bool test_instances_ids_and_masks(void) {
     rays[1] = down_at(3.0f, 1.5f);
     rays[2] = down_at(1.5f, 0.5f); /* between the instances: a miss */
     rays[3] = down_at(0.75f, 0.25f);
-    CHECK_STATUS(sheaf_context_trace_scene(ctx, NULL, rays, hits, 4, ~0u), SHEAF_STATUS_NOT_BUILT);
+    CHECK_STATUS(sheaf_context_trace_scene(ctx, NULL, rays, hits, 4, ~0u, 0), SHEAF_STATUS_NOT_BUILT);
     CHECK_OK(sheaf_context_commit_scene(ctx, &info));
     CHECK(info.geometries == 2 && info.instances == 3 && info.instanced_triangles == 6);
     CHECK(info.bounds_min[0] <= 0.0f && info.bounds_max[0] >= 4.0f && info.bounds_max[2] >= 3.0f);
     /* Mask 1: instances 0 and 1. */
-    CHECK_OK(sheaf_context_trace_scene(ctx, NULL, rays, hits, 4, 1));
+    CHECK_OK(sheaf_context_trace_scene(ctx, NULL, rays, hits, 4, 1, 0));
     CHECK(hits[0].instance == 0 && hits[0].geometry == 0 && hits[0].t == 9.0f);
     CHECK(hits[1].instance == 1 && hits[1].geometry == 1 && hits[1].t == 8.0f);
     CHECK(hits[2].prim == SHEAF_INVALID_ID && hits[2].instance == SHEAF_INVALID_ID && hits[2].t == INFINITY);
     CHECK(hits[3].instance == 0 && hits[3].prim == 0); /* below the diagonal: triangle 0 */
     CHECK(hits[0].prim == 1);
     /* Every mask: instance 2 (z = 3) is nearer over instance 0. */
-    CHECK_OK(sheaf_context_trace_scene(ctx, NULL, rays, hits, 4, ~0u));
+    CHECK_OK(sheaf_context_trace_scene(ctx, NULL, rays, hits, 4, ~0u, 0));
     CHECK(hits[0].instance == 2 && hits[0].t == 7.0f && hits[1].instance == 1);
-    CHECK_OK(sheaf_context_occluded_scene(ctx, NULL, rays, occ, 4, 2));
+    CHECK_OK(sheaf_context_occluded_scene(ctx, NULL, rays, occ, 4, 2, 0));
     CHECK(occ[0] == 1 && occ[1] == 0 && occ[2] == 0 && occ[3] == 1);
     /* No instance answers mask 4. */
-    CHECK_OK(sheaf_context_trace_scene(ctx, NULL, rays, hits, 4, 4));
+    CHECK_OK(sheaf_context_trace_scene(ctx, NULL, rays, hits, 4, 4, 0));
     CHECK(hits[0].prim == SHEAF_INVALID_ID && hits[1].prim == SHEAF_INVALID_ID);
     /* A geometry mask hides every instance of the geometry from rays
      * that share no bit with it. */
     p.mask = 2;
     CHECK_OK(sheaf_context_set_scene_geometry(ctx, 1, &m, &p));
     CHECK_OK(sheaf_context_commit_scene(ctx, NULL));
-    CHECK_OK(sheaf_context_trace_scene(ctx, NULL, rays, hits, 4, 1));
+    CHECK_OK(sheaf_context_trace_scene(ctx, NULL, rays, hits, 4, 1, 0));
     CHECK(hits[0].instance == 0 && hits[1].prim == SHEAF_INVALID_ID);
-    CHECK_OK(sheaf_context_trace_scene(ctx, NULL, rays, hits, 4, 3));
+    CHECK_OK(sheaf_context_trace_scene(ctx, NULL, rays, hits, 4, 3, 0));
     CHECK(hits[1].instance == 1 && hits[1].t == 8.0f);
     p.mask = ~0u;
     /* Removing an instance needs a commit, then it is gone. */
     CHECK_OK(sheaf_context_remove_instance(ctx, 2));
-    CHECK_STATUS(sheaf_context_trace_scene(ctx, NULL, rays, hits, 4, ~0u), SHEAF_STATUS_NOT_BUILT);
+    CHECK_STATUS(sheaf_context_trace_scene(ctx, NULL, rays, hits, 4, ~0u, 0), SHEAF_STATUS_NOT_BUILT);
     CHECK_OK(sheaf_context_commit_scene(ctx, NULL));
-    CHECK_OK(sheaf_context_trace_scene(ctx, NULL, rays, hits, 4, ~0u));
+    CHECK_OK(sheaf_context_trace_scene(ctx, NULL, rays, hits, 4, ~0u, 0));
     CHECK(hits[0].instance == 0 && hits[0].t == 9.0f);
+    /* The squares wind counter-clockwise seen from +z: rays going down meet
+     * their front. Culling back faces keeps them, culling front faces skips
+     * them; both flags, or unknown ones, are refused. */
+    CHECK_OK(sheaf_context_trace_scene(ctx, NULL, rays, hits, 4, ~0u, SHEAF_RAY_FLAG_CULL_BACK_FACING));
+    CHECK(hits[0].instance == 0 && hits[0].t == 9.0f && hits[1].instance == 1);
+    CHECK_OK(sheaf_context_trace_scene(ctx, NULL, rays, hits, 4, ~0u, SHEAF_RAY_FLAG_CULL_FRONT_FACING));
+    CHECK(hits[0].prim == SHEAF_INVALID_ID && hits[1].prim == SHEAF_INVALID_ID);
+    CHECK_OK(sheaf_context_occluded_scene(ctx, NULL, rays, occ, 4, ~0u, SHEAF_RAY_FLAG_CULL_FRONT_FACING));
+    CHECK(occ[0] == 0 && occ[1] == 0);
+    rays[0].dir[2] = 1.0f; /* from below, going up: the back of instance 0 */
+    rays[0].org[2] = -10.0f;
+    CHECK_OK(sheaf_context_trace_scene(ctx, NULL, rays, hits, 1, ~0u, SHEAF_RAY_FLAG_CULL_FRONT_FACING));
+    CHECK(hits[0].instance == 0 && hits[0].t == 11.0f);
+    CHECK_STATUS(sheaf_context_trace_scene(ctx, NULL, rays, hits, 4, ~0u, 3u), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_occluded_scene(ctx, NULL, rays, occ, 4, ~0u, 4u), SHEAF_STATUS_INVALID_ARGUMENT);
     sheaf_context_destroy(ctx);
     return true;
 }
@@ -153,7 +168,7 @@ static bool test_refit_and_rebuild_updates(void) {
     CHECK_OK(sheaf_context_update_scene_geometry(ctx, 0, &m, &ri));
     CHECK(ri.rebuilt == 0 && ri.sah_after > 0.0f);
     CHECK_OK(sheaf_context_commit_scene(ctx, NULL));
-    CHECK_OK(sheaf_context_trace_scene(ctx, NULL, &r, &hit, 1, ~0u));
+    CHECK_OK(sheaf_context_trace_scene(ctx, NULL, &r, &hit, 1, ~0u, 0));
     CHECK(hit.instance == 0 && hit.t == 9.5f);
     /* A refit needs the same triangle count. */
     m.triangle_count = 1;
@@ -164,10 +179,10 @@ static bool test_refit_and_rebuild_updates(void) {
     m.triangle_count = 2;
     CHECK_OK(sheaf_context_commit_scene(ctx, NULL));
     r = down_at(5.25f, 0.75f); /* over the second triangle, now gone */
-    CHECK_OK(sheaf_context_trace_scene(ctx, NULL, &r, &hit, 1, ~0u));
+    CHECK_OK(sheaf_context_trace_scene(ctx, NULL, &r, &hit, 1, ~0u, 0));
     CHECK(hit.prim == SHEAF_INVALID_ID);
     r = down_at(5.75f, 0.25f);
-    CHECK_OK(sheaf_context_trace_scene(ctx, NULL, &r, &hit, 1, ~0u));
+    CHECK_OK(sheaf_context_trace_scene(ctx, NULL, &r, &hit, 1, ~0u, 0));
     CHECK(hit.instance == 1 && hit.prim == 0 && hit.t == 9.5f);
     sheaf_context_destroy(ctx);
     return true;
@@ -186,7 +201,7 @@ static bool test_bad_input_changes_nothing(void) {
     /* No two-level scene in a context without max_geometries. */
     CHECK_STATUS(sheaf_context_set_scene_geometry(plain, 0, &m, NULL), SHEAF_STATUS_INVALID_ARGUMENT);
     CHECK_STATUS(sheaf_context_commit_scene(plain, NULL), SHEAF_STATUS_INVALID_ARGUMENT);
-    CHECK_STATUS(sheaf_context_trace_scene(plain, NULL, &r, &hit, 1, ~0u), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_trace_scene(plain, NULL, &r, &hit, 1, ~0u, 0), SHEAF_STATUS_INVALID_ARGUMENT);
     CHECK_STATUS(sheaf_context_set_scene_geometry(ctx, 0, NULL, NULL), SHEAF_STATUS_NULL_POINTER);
     CHECK_STATUS(sheaf_context_set_scene_geometry(ctx, 2, &m, NULL), SHEAF_STATUS_INVALID_ARGUMENT);
     p.mode = 7;
@@ -212,14 +227,14 @@ static bool test_bad_input_changes_nothing(void) {
     CHECK_STATUS(sheaf_context_set_instance(ctx, 1, 0, xf, ~0u), SHEAF_STATUS_INVALID_ARGUMENT);
     CHECK_STATUS(sheaf_context_remove_scene_geometry(ctx, 0), SHEAF_STATUS_INVALID_ARGUMENT);
     CHECK_STATUS(sheaf_context_remove_instance(ctx, 1), SHEAF_STATUS_INVALID_ARGUMENT);
-    CHECK_STATUS(sheaf_context_trace_scene(ctx, NULL, &r, NULL, 1, ~0u), SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS(sheaf_context_trace_scene(ctx, NULL, &r, NULL, 1, ~0u, 0), SHEAF_STATUS_NULL_POINTER);
     /* Nothing changed: still committed, still hit. */
-    CHECK_OK(sheaf_context_trace_scene(ctx, NULL, &r, &hit, 1, ~0u));
+    CHECK_OK(sheaf_context_trace_scene(ctx, NULL, &r, &hit, 1, ~0u, 0));
     CHECK(hit.instance == 0 && hit.t == 10.0f);
     CHECK_OK(sheaf_context_remove_instance(ctx, 0));
     CHECK_OK(sheaf_context_remove_scene_geometry(ctx, 0));
     CHECK_OK(sheaf_context_commit_scene(ctx, NULL));
-    CHECK_OK(sheaf_context_trace_scene(ctx, NULL, &r, &hit, 1, ~0u));
+    CHECK_OK(sheaf_context_trace_scene(ctx, NULL, &r, &hit, 1, ~0u, 0));
     CHECK(hit.prim == SHEAF_INVALID_ID);
     sheaf_context_destroy(ctx);
     sheaf_context_destroy(plain);
@@ -271,8 +286,8 @@ static bool test_packet_methods_equal_single_rays(void) {
         rays[k].tmin = 0.0f;
         rays[k].tmax = INFINITY;
     }
-    CHECK_OK(sheaf_context_trace_scene(ctx, NULL, rays, want, 256, ~0u));
-    CHECK_OK(sheaf_context_occluded_scene(ctx, NULL, rays, occ_want, 256, ~0u));
+    CHECK_OK(sheaf_context_trace_scene(ctx, NULL, rays, want, 256, ~0u, 0));
+    CHECK_OK(sheaf_context_occluded_scene(ctx, NULL, rays, occ_want, 256, ~0u, 0));
     for (k = 0; k < 256; ++k)
         hits += want[k].prim != SHEAF_INVALID_ID;
     CHECK(hits > 40);
@@ -280,8 +295,8 @@ static bool test_packet_methods_equal_single_rays(void) {
         CHECK_OK(sheaf_trace_params_default(&tp));
         tp.method = METHODS[i];
         tp.packet = 8;
-        CHECK_OK(sheaf_context_trace_scene(ctx, &tp, rays, got, 256, ~0u));
-        CHECK_OK(sheaf_context_occluded_scene(ctx, &tp, rays, occ_got, 256, ~0u));
+        CHECK_OK(sheaf_context_trace_scene(ctx, &tp, rays, got, 256, ~0u, 0));
+        CHECK_OK(sheaf_context_occluded_scene(ctx, &tp, rays, occ_got, 256, ~0u, 0));
         for (k = 0; k < 256; ++k) {
             CHECK(got[k].prim == want[k].prim && got[k].instance == want[k].instance);
             CHECK(memcmp(&got[k].t, &want[k].t, sizeof(float)) == 0);
@@ -290,7 +305,7 @@ static bool test_packet_methods_equal_single_rays(void) {
     }
     CHECK_OK(sheaf_trace_params_default(&tp));
     tp.method = SHEAF_METHOD_GRID_CGT;
-    CHECK_STATUS(sheaf_context_trace_scene(ctx, &tp, rays, got, 256, ~0u), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_trace_scene(ctx, &tp, rays, got, 256, ~0u, 0), SHEAF_STATUS_INVALID_ARGUMENT);
     sheaf_context_destroy(ctx);
     return true;
 }
@@ -346,12 +361,12 @@ static bool test_flattened_scene_for_grid_and_kd(void) {
     CHECK_OK(sheaf_trace_params_default(&tp));
     tp.packet = 8;
     tp.method = SHEAF_METHOD_GRID_DDA;
-    CHECK_OK(sheaf_context_trace_scene(ctx, &tp, rays, dda, 64, 3));
+    CHECK_OK(sheaf_context_trace_scene(ctx, &tp, rays, dda, 64, 3, 0));
     tp.method = SHEAF_METHOD_GRID_CGT;
-    CHECK_OK(sheaf_context_trace_scene(ctx, &tp, rays, cgt, 64, 3));
+    CHECK_OK(sheaf_context_trace_scene(ctx, &tp, rays, cgt, 64, 3, 0));
     tp.method = SHEAF_METHOD_KD_PACKET;
-    CHECK_OK(sheaf_context_trace_scene(ctx, &tp, rays, kd, 64, 3));
-    CHECK_OK(sheaf_context_trace_scene(ctx, NULL, rays, two, 64, 3));
+    CHECK_OK(sheaf_context_trace_scene(ctx, &tp, rays, kd, 64, 3, 0));
+    CHECK_OK(sheaf_context_trace_scene(ctx, NULL, rays, two, 64, 3, 0));
     for (k = 0; k < 64; ++k) {
         CHECK(cgt[k].prim == dda[k].prim && cgt[k].instance == dda[k].instance);
         CHECK(memcmp(&cgt[k].t, &dda[k].t, sizeof(float)) == 0);
@@ -371,13 +386,15 @@ static bool test_flattened_scene_for_grid_and_kd(void) {
     CHECK(out.instance == 0 && out.geometry == 0 && out.prim < 6 && out.t == 1.0f);
     world.prim = 18;
     CHECK_STATUS(sheaf_context_scene_prim(ctx, &world, &out), SHEAF_STATUS_INVALID_ARGUMENT);
-    /* Another mask than the build's, then a new commit. */
+    /* Another mask than the build's, culling, then a new commit. */
     tp.method = SHEAF_METHOD_GRID_DDA;
-    CHECK_STATUS(sheaf_context_trace_scene(ctx, &tp, rays, dda, 64, 1), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_trace_scene(ctx, &tp, rays, dda, 64, 3, SHEAF_RAY_FLAG_CULL_BACK_FACING),
+                 SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_trace_scene(ctx, &tp, rays, dda, 64, 1, 0), SHEAF_STATUS_INVALID_ARGUMENT);
     CHECK_OK(sheaf_context_commit_scene(ctx, NULL));
-    CHECK_STATUS(sheaf_context_trace_scene(ctx, &tp, rays, dda, 64, 3), SHEAF_STATUS_NOT_BUILT);
+    CHECK_STATUS(sheaf_context_trace_scene(ctx, &tp, rays, dda, 64, 3, 0), SHEAF_STATUS_NOT_BUILT);
     CHECK_OK(sheaf_context_build_scene_grid(ctx, NULL, 3));
-    CHECK_OK(sheaf_context_trace_scene(ctx, &tp, rays, dda, 64, 3));
+    CHECK_OK(sheaf_context_trace_scene(ctx, &tp, rays, dda, 64, 3, 0));
     sheaf_context_destroy(ctx);
     return true;
 }

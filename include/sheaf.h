@@ -44,6 +44,13 @@
 #define SHEAF_STRUCTURE_KD 4u
 #define SHEAF_STRUCTURE_PGRID 8u
 
+/** Ray flags of sheaf_context_trace_scene and sheaf_context_occluded_scene
+ * (DXR's culling ray flags): skip back-facing or front-facing triangles, the
+ * front being the side the counter-clockwise winding faces in the geometry's
+ * own space. At most one of them. */
+#define SHEAF_RAY_FLAG_CULL_BACK_FACING 1u
+#define SHEAF_RAY_FLAG_CULL_FRONT_FACING 2u
+
 /** Most lights of a sheaf_deferred_job (one shadow bit each). */
 #define SHEAF_DEFERRED_MAX_LIGHTS 8
 
@@ -2215,7 +2222,10 @@ sheaf_status sheaf_context_commit_scene(struct sheaf_context *ctx,
  * gives the same hits, bit for bit. A grid or kd-tree method traces the
  * flattened scene its `sheaf_context_build_scene_*` built for this
  * commit and `mask` (each bitwise its own single ray; t, u, v of the
- * world triangle). The Rust API's `Context::trace_scene_with`.
+ * world triangle). `flags`: 0, or one of `SHEAF_RAY_FLAG_CULL_*` to skip
+ * back- or front-facing triangles (BVH methods and single rays; every
+ * method gives the same hits with the same flags). The Rust API's
+ * `Context::trace_scene_with` with `RayControls`.
  *
  * Thread-safe: any number of threads may trace one committed scene at
  * once with `params` NULL (no thread slot is taken); with `params` every
@@ -2224,7 +2234,8 @@ sheaf_status sheaf_context_commit_scene(struct sheaf_context *ctx,
  *
  * Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_INVALID_ARGUMENT`
  * (no two-level scene, bad params, count, overlap, a grid or kd method
- * for another mask than its build's), `SHEAF_STATUS_NOT_BUILT` (changed
+ * for another mask than its build's or with culling, unknown or both
+ * culling flags), `SHEAF_STATUS_NOT_BUILT` (changed
  * since the last commit; a grid or kd method without a
  * `sheaf_context_build_scene_*` of this commit),
  * `SHEAF_STATUS_CAPACITY_THREADS` (with `params`: no free slot),
@@ -2236,7 +2247,8 @@ sheaf_status sheaf_context_trace_scene(const struct sheaf_context *ctx,
                                        const struct sheaf_ray *rays,
                                        struct sheaf_scene_hit *hits,
                                        size_t count,
-                                       uint32_t mask);
+                                       uint32_t mask,
+                                       uint32_t flags);
 
 /**
  * Whether anything blocks each of `count` rays in `[tmin, tmax)`
@@ -2249,7 +2261,8 @@ sheaf_status sheaf_context_occluded_scene(const struct sheaf_context *ctx,
                                           const struct sheaf_ray *rays,
                                           uint8_t *occluded,
                                           size_t count,
-                                          uint32_t mask);
+                                          uint32_t mask,
+                                          uint32_t flags);
 
 /**
  * Rebuild the uniform grid over the committed scene's instances that

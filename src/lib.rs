@@ -78,12 +78,12 @@ pub use accel::mailbox::Mailbox;
 pub use accel::pgrid::PgridParams;
 pub use accel::slot::Slot;
 pub use accel::twolevel::traverse_single::SceneHit;
-pub use accel::twolevel::{GeometryParams, TwoLevelInfo, UpdateInfo, UpdateMode};
+pub use accel::twolevel::{GeometryParams, RayControls, TwoLevelInfo, UpdateInfo, UpdateMode};
 #[cfg(feature = "std")]
 pub use context::OwnedContext;
 pub use context::{Context, Stats, required_bytes};
 pub use error::{Error, Pool, Result};
-pub use geom::{Affine, Hit, Ray, Scene, TriTest};
+pub use geom::{Affine, Cull, Hit, Ray, Scene, TriTest};
 pub use isa::Isa;
 pub use mem::Limits;
 pub use render::deferred::{

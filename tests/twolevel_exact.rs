@@ -20,8 +20,8 @@ use sheaf::accel::bvh::{BuildQuality, BvhParams};
 use sheaf::scenes::View;
 use sheaf::trace::RayKind;
 use sheaf::{
-    Affine, GeometryParams, Limits, Method, OwnedContext, Ray, SceneHit, TraceParams, TriTest,
-    UpdateMode,
+    Affine, Cull, GeometryParams, Limits, Method, OwnedContext, Ray, RayControls, SceneHit,
+    TraceParams, TriTest, UpdateMode,
 };
 
 fn rot(deg: f32, axis: usize, s: [f32; 3], t: [f32; 3]) -> Affine {
@@ -42,6 +42,7 @@ fn mesh_triangles() -> u32 {
 fn scene(test: TriTest) -> OwnedContext {
     let mut l = Limits::for_triangles(16);
     l.structures = Limits::BVH;
+    l.projection_test = test == TriTest::Projection;
     scene_in(test, l)
 }
 
@@ -76,7 +77,16 @@ fn scene_in(test: TriTest, mut l: Limits) -> OwnedContext {
         let s = sheaf::Scene::from_f32(&m.vertices, &m.indices).unwrap();
         ctx.set_geometry(g as u32, &s, &p).unwrap();
     }
-    let placements = [
+    for (i, (g, x, mask)) in placements().iter().enumerate() {
+        ctx.set_instance(i as u32, *g, x, *mask).unwrap();
+    }
+    ctx.commit_scene().unwrap();
+    ctx
+}
+
+/// The instances: geometry, transform, mask.
+fn placements() -> [(u32, Affine, u32); 8] {
+    [
         (0, Affine::IDENTITY, !0),
         (1, rot(30.0, 1, [0.5; 3], [0.3, 0.0, -0.2]), !0),
         (2, rot(-70.0, 2, [1.0, 2.5, 0.25], [-1.0, 0.5, 0.0]), !0),
@@ -85,12 +95,7 @@ fn scene_in(test: TriTest, mut l: Limits) -> OwnedContext {
         (2, rot(0.0, 0, [1.0; 3], [0.05, 0.0, 0.0]), 2),
         (3, rot(20.0, 1, [0.3; 3], [1.0, 1.0, 0.0]), !0),
         (3, rot(-20.0, 0, [0.2, 0.3, 0.2], [-0.5, -0.5, 0.5]), 1),
-    ];
-    for (i, (g, x, mask)) in placements.iter().enumerate() {
-        ctx.set_instance(i as u32, *g, x, *mask).unwrap();
-    }
-    ctx.commit_scene().unwrap();
-    ctx
+    ]
 }
 
 fn same(a: &SceneHit, b: &SceneHit) -> bool {
@@ -123,11 +128,20 @@ fn check(
     ] {
         methods.push((m, n));
     }
-    for &mask in masks {
+    // Every mask without culling, and the first mask culling either side.
+    let controls =
+        masks
+            .iter()
+            .map(|&mask| RayControls::from(mask))
+            .chain([Cull::Back, Cull::Front].map(|cull| RayControls {
+                mask: masks[0],
+                cull,
+            }));
+    for ctl in controls {
         let mut want = vec![SceneHit::MISS; rays.len()];
-        ctx.trace_scene(rays, mask, &mut want).unwrap();
+        ctx.trace_scene(rays, ctl, &mut want).unwrap();
         let mut want_occ = vec![false; rays.len()];
-        ctx.occluded_scene(rays, mask, &mut want_occ).unwrap();
+        ctx.occluded_scene(rays, ctl, &mut want_occ).unwrap();
         for (w, o) in want.iter().zip(&want_occ) {
             assert_eq!(w.is_hit(), *o, "{what}: occluded is hit");
         }
@@ -140,19 +154,19 @@ fn check(
             };
             p.bvh.kind = kind;
             let mut got = vec![SceneHit::MISS; rays.len()];
-            ctx.trace_scene_with(&p, rays, mask, &mut got).unwrap();
+            ctx.trace_scene_with(&p, rays, ctl, &mut got).unwrap();
             for (k, (g, w)) in got.iter().zip(&want).enumerate() {
                 assert!(
                     same(g, w),
-                    "{what} {method:?} {packet} mask {mask} ray {k} {:?}: {g:?} want {w:?}",
+                    "{what} {method:?} {packet} {ctl:?} ray {k} {:?}: {g:?} want {w:?}",
                     rays[k]
                 );
             }
             let mut occ = vec![false; rays.len()];
-            ctx.occluded_scene_with(&p, rays, mask, &mut occ).unwrap();
+            ctx.occluded_scene_with(&p, rays, ctl, &mut occ).unwrap();
             assert_eq!(
                 occ, want_occ,
-                "{what} {method:?} {packet} mask {mask}: occlusion"
+                "{what} {method:?} {packet} {ctl:?}: occlusion"
             );
         }
     }
@@ -236,6 +250,11 @@ fn every_method_through_instances_moller_trumbore() {
 #[test]
 fn every_method_through_instances_watertight() {
     check_test(TriTest::Watertight);
+}
+
+#[test]
+fn every_method_through_instances_projection() {
+    check_test(TriTest::Projection);
 }
 
 /// An instance moved or refit between frames: every method follows.
@@ -576,4 +595,123 @@ fn every_family_agrees_with_the_oracle_on_the_flattened_scene() {
         }
     }
     assert!(hits > camera.len() / 4, "{hits} pixels hit");
+}
+
+/// Culling skips exactly one side, in the geometry's own space (instance 3
+/// mirrors): a ray whose nearest hit faces it keeps that hit with back
+/// faces culled, and loses it with front faces culled; every hit kept
+/// faces the kept way (checked in f64 where the f32 sign is clear).
+#[test]
+fn culling_skips_one_side_in_object_space() {
+    for test in [
+        TriTest::MollerTrumbore,
+        TriTest::Watertight,
+        TriTest::Projection,
+    ] {
+        culling_skips_one_side(test);
+    }
+}
+
+fn culling_skips_one_side(test: TriTest) {
+    let mut ctx = scene(test);
+    let info = ctx.commit_scene().unwrap();
+    let (lo, hi) = (info.bounds.min, info.bounds.max);
+    let c = 0.5 * (lo + hi);
+    let view = View {
+        eye: c + Vec3::new(0.7, 0.5, 1.1) * (hi - lo),
+        look_at: c,
+        up: Vec3::Y,
+        fov_y_deg: 45.0,
+    };
+    // Camera rays (mostly front faces) and rays from points inside the
+    // scene's box (also from inside closed meshes: back faces).
+    let mut seed = 0x853c_49e6_748f_ea9bu64;
+    let mut f = || {
+        seed ^= seed << 13;
+        seed ^= seed >> 7;
+        seed ^= seed << 17;
+        (seed >> 40) as f32 / (1u64 << 24) as f32
+    };
+    let d = hi - lo;
+    let mut pt = |s: f32| c + Vec3::new(f() - 0.5, f() - 0.5, f() - 0.5) * 2.0 * s * d;
+    let rays: Vec<Ray> = view_rays(&view, RES as u32, RES as u32)
+        .into_iter()
+        .chain((0..4096).map(|_| {
+            let (o, to) = (pt(0.5), pt(0.5));
+            Ray::new(o, to - o, 0.0, f32::INFINITY)
+        }))
+        .collect();
+    let meshes: Vec<_> = NAMES
+        .iter()
+        .map(|n| sheaf::scenes::builtin(n).unwrap().mesh)
+        .collect();
+    let place = placements();
+    // dir . n of hit `h`'s triangle in its geometry's space, in f64.
+    let facing = |r: &Ray, h: &SceneHit| -> f64 {
+        let m = &meshes[h.geometry as usize];
+        let inv = place[h.instance as usize].1.inverse().unwrap();
+        let d = inv.vector(r.dir).map(f64::from);
+        let v = |k: usize| {
+            let i = m.indices[3 * h.prim as usize + k] as usize;
+            [0, 1, 2].map(|a| m.vertices[3 * i + a] as f64)
+        };
+        let (a, b, cc) = (v(0), v(1), v(2));
+        let (e1, e2) = (
+            [0, 1, 2].map(|i| b[i] - a[i]),
+            [0, 1, 2].map(|i| cc[i] - a[i]),
+        );
+        let n = [
+            e1[1] * e2[2] - e1[2] * e2[1],
+            e1[2] * e2[0] - e1[0] * e2[2],
+            e1[0] * e2[1] - e1[1] * e2[0],
+        ];
+        let dn = d[0] * n[0] + d[1] * n[1] + d[2] * n[2];
+        let scale =
+            (d.iter().map(|x| x * x).sum::<f64>() * n.iter().map(|x| x * x).sum::<f64>()).sqrt();
+        dn / scale.max(f64::MIN_POSITIVE)
+    };
+    let trace = |ctx: &mut OwnedContext, cull| {
+        let mut h = vec![SceneHit::MISS; rays.len()];
+        ctx.trace_scene(&rays, RayControls { mask: !0, cull }, &mut h)
+            .unwrap();
+        h
+    };
+    let (all, back, front) = (
+        trace(&mut ctx, Cull::None),
+        trace(&mut ctx, Cull::Back),
+        trace(&mut ctx, Cull::Front),
+    );
+    let (mut fronts, mut backs, mut mirrored) = (0, 0, 0);
+    for (k, r) in rays.iter().enumerate() {
+        let (a, b, f) = (&all[k], &back[k], &front[k]);
+        if a.is_hit() {
+            let side = facing(r, a);
+            if side < -1e-6 {
+                fronts += 1;
+                assert!(same(a, b), "ray {k}: front hit lost with back faces culled");
+                assert!(
+                    !same(a, f),
+                    "ray {k}: front hit kept with front faces culled"
+                );
+            } else if side > 1e-6 {
+                backs += 1;
+                assert!(same(a, f), "ray {k}: back hit lost with front faces culled");
+                assert!(!same(a, b), "ray {k}: back hit kept with back faces culled");
+            }
+            mirrored += (a.instance == 3) as usize;
+        }
+        assert!(
+            !b.is_hit() || facing(r, b) < 1e-6,
+            "ray {k}: kept a back face"
+        );
+        assert!(
+            !f.is_hit() || facing(r, f) > -1e-6,
+            "ray {k}: kept a front face"
+        );
+    }
+    println!("{test:?}: {fronts} front, {backs} back hits, {mirrored} on the mirrored instance");
+    assert!(
+        fronts > 1000 && backs > 100 && mirrored >= 10,
+        "{fronts} {backs} {mirrored}"
+    );
 }

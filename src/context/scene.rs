@@ -16,13 +16,14 @@ use crate::accel::kd::{KdInfo, KdParams};
 use crate::accel::method::Structure;
 use crate::accel::packet::MAX_QUADS;
 use crate::accel::pgrid::{PgridParams, SceneInfo};
+use crate::accel::twolevel::RayControls;
 use crate::accel::twolevel::flatten::{Flat, FlatInfo};
 use crate::accel::twolevel::traverse_packet;
 use crate::accel::twolevel::traverse_single::{self, SceneHit};
 use crate::accel::twolevel::{GeometryParams, TwoLevelInfo, TwoLevelView, UpdateInfo};
 use crate::counters::{Counters, elapsed_ns, now};
 use crate::error::{Error, Result};
-use crate::geom::{Affine, M4, Mt, Pt, Ray, Ray4, Scene, TriTest, Wt};
+use crate::geom::{Affine, Cull, Culled, M4, Mt, Pt, Ray, Ray4, Scene, TriTest, Wt};
 use crate::mem::par::{Par, Serial};
 use crate::trace::TraceParams;
 
@@ -34,21 +35,32 @@ pub(super) const SCRATCH: usize = crate::mem::scratch::bytes::<Ray4>(MAX_QUADS)
     + crate::mem::scratch::bytes::<SceneHit>(4 * MAX_QUADS)
     + traverse_packet::SCRATCH;
 
-/// `$body` with `$T` the type of triangle test `$test` names (every
-/// traversal is compiled once per test).
+/// `$body` with `$T` the type of triangle test `$test` names, culled as
+/// `$cull` says (every traversal is compiled once per test and culling).
 macro_rules! with_test {
-    ($test:expr, |$T:ident| $body:expr) => {
+    ($test:expr, $cull:expr, |$T:ident| $body:expr) => {
         match $test {
-            TriTest::MollerTrumbore => {
-                type $T = Mt;
+            TriTest::MollerTrumbore => with_cull!($cull, Mt, |$T| $body),
+            TriTest::Watertight => with_cull!($cull, Wt, |$T| $body),
+            TriTest::Projection => with_cull!($cull, Pt, |$T| $body),
+        }
+    };
+}
+
+/// `$body` with `$T` the test `$U`, or `$U` culled as `$cull` says.
+macro_rules! with_cull {
+    ($cull:expr, $U:ty, |$T:ident| $body:expr) => {
+        match $cull {
+            Cull::None => {
+                type $T = $U;
                 $body
             }
-            TriTest::Watertight => {
-                type $T = Wt;
+            Cull::Back => {
+                type $T = Culled<$U, false>;
                 $body
             }
-            TriTest::Projection => {
-                type $T = Pt;
+            Cull::Front => {
+                type $T = Culled<$U, true>;
                 $body
             }
         }
@@ -316,16 +328,16 @@ impl<'a> Context<'a> {
     }
 
     /// Nearest hits of `rays` in the committed two-level scene, among
-    /// instances whose mask shares a bit with `mask`, into `hits` (same
-    /// length), one single ray each (the 4-wide single ray in every
-    /// geometry).
+    /// instances `ctl` sees (a mask, or `RayControls` with culling), into
+    /// `hits` (same length), one single ray each (the 4-wide single ray in
+    /// every geometry).
     pub fn trace_scene(
         &mut self,
         rays: &[Ray],
-        mask: u32,
+        ctl: impl Into<RayControls>,
         hits: &mut [SceneHit],
     ) -> Result<Counters> {
-        self.trace_scene_on(None, rays, mask, hits)
+        self.trace_scene_on(None, rays, ctl.into(), hits)
     }
 
     /// `trace_scene` with a method and its packet settings (packet
@@ -340,21 +352,21 @@ impl<'a> Context<'a> {
         &mut self,
         p: &TraceParams,
         rays: &[Ray],
-        mask: u32,
+        ctl: impl Into<RayControls>,
         hits: &mut [SceneHit],
     ) -> Result<Counters> {
-        self.trace_scene_on(Some(p), rays, mask, hits)
+        self.trace_scene_on(Some(p), rays, ctl.into(), hits)
     }
 
     fn trace_scene_on(
         &mut self,
         p: Option<&TraceParams>,
         rays: &[Ray],
-        mask: u32,
+        ctl: RayControls,
         hits: &mut [SceneHit],
     ) -> Result<Counters> {
         let n = hits.len();
-        self.scene_rays(p, rays, n, mask, false, |i, h| hits[i] = h)
+        self.scene_rays(p, rays, n, ctl, false, |i, h| hits[i] = h)
     }
 
     /// Rays `rays` traced (or with `any` tested for occlusion) into `out`
@@ -364,7 +376,7 @@ impl<'a> Context<'a> {
         p: Option<&TraceParams>,
         rays: &[Ray],
         n: usize,
-        mask: u32,
+        ctl: RayControls,
         any: bool,
         out: impl FnMut(usize, SceneHit),
     ) -> Result<Counters> {
@@ -374,7 +386,7 @@ impl<'a> Context<'a> {
             ));
         }
         let t = now();
-        let ctr = self.trace_scene_each(p, None, n, mask, any, |i| rays[i], out)?;
+        let ctr = self.trace_scene_each(p, None, n, ctl, any, |i| rays[i], out)?;
         self.stats.trace_ns = elapsed_ns(t);
         self.stats.counters = ctr;
         Ok(ctr)
@@ -385,10 +397,10 @@ impl<'a> Context<'a> {
     pub fn occluded_scene(
         &mut self,
         rays: &[Ray],
-        mask: u32,
+        ctl: impl Into<RayControls>,
         occluded: &mut [bool],
     ) -> Result<Counters> {
-        self.occluded_scene_on(None, rays, mask, occluded)
+        self.occluded_scene_on(None, rays, ctl.into(), occluded)
     }
 
     /// `occluded_scene` with a BVH method (as `trace_scene_with`).
@@ -396,48 +408,52 @@ impl<'a> Context<'a> {
         &mut self,
         p: &TraceParams,
         rays: &[Ray],
-        mask: u32,
+        ctl: impl Into<RayControls>,
         occluded: &mut [bool],
     ) -> Result<Counters> {
-        self.occluded_scene_on(Some(p), rays, mask, occluded)
+        self.occluded_scene_on(Some(p), rays, ctl.into(), occluded)
     }
 
     fn occluded_scene_on(
         &mut self,
         p: Option<&TraceParams>,
         rays: &[Ray],
-        mask: u32,
+        ctl: RayControls,
         occluded: &mut [bool],
     ) -> Result<Counters> {
         let n = occluded.len();
-        self.scene_rays(p, rays, n, mask, true, |i, h| occluded[i] = h.is_hit())
+        self.scene_rays(p, rays, n, ctl, true, |i, h| occluded[i] = h.is_hit())
     }
 
     /// The committed two-level scene's answer for `count` rays read by
     /// `read(i)`, handed to `out(i, hit)`: the nearest hit, or with `any`
-    /// some hit (occlusion). Without `p`, one single ray each; with `p`,
-    /// `p.method` (a `Bvh*` method) on thread slot `slot` (or the highest
-    /// free one). Read-only: many threads may call it at once (the C
-    /// ABI's scene traces do), each with its own slot for packets.
+    /// some hit (occlusion), for the instances and triangle sides `ctl`
+    /// lets the rays see (a mask, or `RayControls`). Without `p`, one
+    /// single ray each; with `p`, `p.method` on thread slot `slot` (or the
+    /// highest free one): a BVH method through the two-level scene, or a
+    /// grid or kd-tree method on the flattened scene (`trace_scene_with`;
+    /// without culling). Read-only: many threads may call it at once (the
+    /// C ABI's scene traces do), each with its own slot for packets.
     #[allow(clippy::too_many_arguments)] // the batch's parts, as `batch_on`
     pub fn trace_scene_each(
         &self,
         p: Option<&TraceParams>,
         slot: Option<u32>,
         count: usize,
-        mask: u32,
+        ctl: impl Into<RayControls>,
         any: bool,
         read: impl Fn(usize) -> Ray,
         mut out: impl FnMut(usize, SceneHit),
     ) -> Result<Counters> {
         self.scene_pools()?;
         let v = self.scene.view()?;
+        let RayControls { mask, cull } = ctl.into();
         let mut ctr = Counters::default();
         let Some(p) = p else {
             let test = v.info.test;
             for i in 0..count {
                 let r = read(i);
-                let h = with_test!(test, |T| if any {
+                let h = with_test!(test, cull, |T| if any {
                     traverse_single::any_hit::<T>(&v, &r, mask, &mut ctr)
                 } else {
                     traverse_single::intersect::<T>(&v, &r, mask, &mut ctr)
@@ -451,6 +467,11 @@ impl<'a> Context<'a> {
         if structure != Structure::Bvh {
             // The grid and the kd-tree trace the flattened scene.
             self.built_for(structure, mask)?;
+            if cull != Cull::None {
+                return Err(Error::InvalidArgument(
+                    "culling is a BVH method's control: the grid and the kd-tree trace without it",
+                ));
+            }
             let (v, mut out) = (&v, out);
             return self.trace_each(
                 slot,
@@ -482,7 +503,7 @@ impl<'a> Context<'a> {
                 hits[..4 * nq].fill(SceneHit::MISS);
                 let (q, a, h) = (&quads[..nq], &active[..nq], &mut hits[..4 * nq]);
                 let (test, c) = (v.info.test, &mut ctr);
-                with_test!(test, |T| if any {
+                with_test!(test, cull, |T| if any {
                     traverse_packet::trace::<T, true>(&v, p, q, a, mask, h, &mut sl, c)
                 } else {
                     traverse_packet::trace::<T, false>(&v, p, q, a, mask, h, &mut sl, c)

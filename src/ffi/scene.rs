@@ -16,9 +16,9 @@ use crate::accel::grid::GridParams;
 use crate::accel::kd::KdParams;
 use crate::accel::pgrid::PgridParams;
 use crate::accel::twolevel::traverse_single::SceneHit;
-use crate::accel::twolevel::{GeometryParams, TwoLevelInfo, UpdateMode};
+use crate::accel::twolevel::{GeometryParams, RayControls, TwoLevelInfo, UpdateMode};
 use crate::error::{Error, Result};
-use crate::geom::{Affine, Ray};
+use crate::geom::{Affine, Cull, Ray};
 use crate::trace::TraceParams;
 
 /// A mesh as the caller holds it: `vertex_count` vertices of three floats
@@ -330,7 +330,10 @@ pub extern "C" fn sheaf_context_commit_scene(
 /// gives the same hits, bit for bit. A grid or kd-tree method traces the
 /// flattened scene its `sheaf_context_build_scene_*` built for this
 /// commit and `mask` (each bitwise its own single ray; t, u, v of the
-/// world triangle). The Rust API's `Context::trace_scene_with`.
+/// world triangle). `flags`: 0, or one of `SHEAF_RAY_FLAG_CULL_*` to skip
+/// back- or front-facing triangles (BVH methods and single rays; every
+/// method gives the same hits with the same flags). The Rust API's
+/// `Context::trace_scene_with` with `RayControls`.
 ///
 /// Thread-safe: any number of threads may trace one committed scene at
 /// once with `params` NULL (no thread slot is taken); with `params` every
@@ -339,7 +342,8 @@ pub extern "C" fn sheaf_context_commit_scene(
 ///
 /// Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_INVALID_ARGUMENT`
 /// (no two-level scene, bad params, count, overlap, a grid or kd method
-/// for another mask than its build's), `SHEAF_STATUS_NOT_BUILT` (changed
+/// for another mask than its build's or with culling, unknown or both
+/// culling flags), `SHEAF_STATUS_NOT_BUILT` (changed
 /// since the last commit; a grid or kd method without a
 /// `sheaf_context_build_scene_*` of this commit),
 /// `SHEAF_STATUS_CAPACITY_THREADS` (with `params`: no free slot),
@@ -353,8 +357,10 @@ pub extern "C" fn sheaf_context_trace_scene(
     hits: *mut sheaf_scene_hit,
     count: usize,
     mask: u32,
+    flags: u32,
 ) -> super::sheaf_status {
     with_ref(ctx, |h| {
+        let ctl = controls(mask, flags)?;
         let rb = check_array(rays, count, "ray count too large")?;
         let hb = check_array(hits.cast_const(), count, "ray count too large")?;
         if overlaps(rays.cast(), rb, hits.cast_const().cast(), hb) {
@@ -366,7 +372,7 @@ pub extern "C" fn sheaf_context_trace_scene(
         // elements (C contract; unaligned reads allowed).
         let read = |i: usize| Ray::from(unsafe { rays.add(i).read_unaligned() });
         h.ctx
-            .trace_scene_each(p.as_ref(), None, count, mask, false, read, |i, hit| {
+            .trace_scene_each(p.as_ref(), None, count, ctl, false, read, |i, hit| {
                 // SAFETY: i < count; `hits` checked to span count writable
                 // elements, not overlapping the rays.
                 unsafe { hits.add(i).write_unaligned(hit.into()) }
@@ -387,8 +393,10 @@ pub extern "C" fn sheaf_context_occluded_scene(
     occluded: *mut u8,
     count: usize,
     mask: u32,
+    flags: u32,
 ) -> super::sheaf_status {
     with_ref(ctx, |h| {
+        let ctl = controls(mask, flags)?;
         let rb = check_array(rays, count, "ray count too large")?;
         check_array(occluded.cast_const(), count, "ray count too large")?;
         if overlaps(rays.cast(), rb, occluded.cast_const(), count) {
@@ -399,7 +407,7 @@ pub extern "C" fn sheaf_context_occluded_scene(
         // SAFETY: as in sheaf_context_trace_scene.
         let read = |i: usize| Ray::from(unsafe { rays.add(i).read_unaligned() });
         h.ctx
-            .trace_scene_each(p.as_ref(), None, count, mask, true, read, |i, hit| {
+            .trace_scene_each(p.as_ref(), None, count, ctl, true, read, |i, hit| {
                 // SAFETY: i < count; `occluded` checked to span count bytes.
                 unsafe { occluded.add(i).write(u8::from(hit.is_hit())) }
             })?;
@@ -519,6 +527,22 @@ pub extern "C" fn sheaf_context_scene_prim(
         write_out(out, got.into());
         Ok(())
     })
+}
+
+/// A scene trace's mask and `SHEAF_RAY_FLAG_*` bits as `RayControls`.
+fn controls(mask: u32, flags: u32) -> Result<RayControls> {
+    let cull = match flags {
+        0 => Cull::None,
+        1 => Cull::Back,
+        2 => Cull::Front,
+        3 => {
+            return Err(Error::InvalidArgument(
+                "cull back-facing and front-facing triangles: at most one",
+            ));
+        }
+        _ => return Err(Error::InvalidArgument("unknown SHEAF_RAY_FLAG_* bits")),
+    };
+    Ok(RayControls { mask, cull })
 }
 
 /// The trace parameters of a scene trace (`None`: single rays).

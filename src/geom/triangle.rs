@@ -71,7 +71,11 @@ pub struct ProjTri {
     pub c_nu: f32,
     pub c_nv: f32,
     pub c_d: f32,
-    pub pad: [u32; 2],
+    /// 1 when the normal's `k` component is negative: the plane equation
+    /// above is divided by it, so the winding's side is this sign times
+    /// the equation's (`TriangleTest::facing`).
+    pub neg_k: u32,
+    pub pad: u32,
 }
 
 impl ProjTri {
@@ -103,7 +107,8 @@ impl ProjTri {
             c_nu: -e1[v] / det,
             c_nv: e1[u] / det,
             c_d: (e1[v] * a[u] - e1[u] * a[v]) / det,
-            pad: [0; 2],
+            neg_k: u32::from(n[k] < 0.0),
+            pad: 0,
         }
     }
 }
@@ -351,6 +356,11 @@ pub trait TriangleTest: Copy + Default + Send + Sync + 'static {
     fn prim<'r>(s: TriStore<'r>, i: usize) -> &'r Self::Prim;
     fn prepare<L: Lane>(r: &RayLanes<L>) -> Self::Pre<L>;
     fn intersect<L: Lane>(r: &RayLanes<L>, pre: &Self::Pre<L>, tri: &Self::Prim) -> TriHit<L>;
+    /// `dir` dotted with triangle `tri`'s winding normal, up to a positive
+    /// factor: negative when the ray meets its front (the side its
+    /// counter-clockwise winding `(v1 - v0) x (v2 - v0)` faces), positive
+    /// at its back (`Culled`).
+    fn facing<L: Lane>(dir: &[L; 3], tri: &Self::Prim) -> L;
     /// The precomputation of a group of quads (`Wide::join`) from each
     /// quad's: the same values, lane for lane.
     fn join_pre<W: Wide>(pre: impl Fn(usize) -> Self::Pre<F4>) -> Self::Pre<W>;
@@ -423,6 +433,10 @@ impl TriangleTest for Mt {
         moller_trumbore(r, tri)
     }
     #[inline(always)]
+    fn facing<L: Lane>(dir: &[L; 3], tri: &TriVerts) -> L {
+        winding(dir, tri)
+    }
+    #[inline(always)]
     fn join_pre<W: Wide>(_: impl Fn(usize)) {}
     #[inline(always)]
     fn intersect_tri4(r: &RayLanes<F4>, _: &(), s: TriStore<'_>, i: [usize; 4]) -> TriHit<F4> {
@@ -445,6 +459,10 @@ impl TriangleTest for Wt {
     #[inline(always)]
     fn intersect<L: Lane>(r: &RayLanes<L>, pre: &Shear<L>, tri: &TriVerts) -> TriHit<L> {
         watertight(r, pre, tri)
+    }
+    #[inline(always)]
+    fn facing<L: Lane>(dir: &[L; 3], tri: &TriVerts) -> L {
+        winding(dir, tri)
     }
     #[inline(always)]
     fn intersect_tri4(
@@ -481,7 +499,102 @@ impl TriangleTest for Pt {
         projection(r, tri)
     }
     #[inline(always)]
+    fn facing<L: Lane>(dir: &[L; 3], w: &ProjTri) -> L {
+        let k = w.k as usize;
+        let (u, v) = ((k + 1) % 3, (k + 2) % 3);
+        let f = dir[k] + L::splat(w.n_u) * dir[u] + L::splat(w.n_v) * dir[v];
+        if w.neg_k != 0 { L::splat(0.0) - f } else { f }
+    }
+    #[inline(always)]
     fn join_pre<W: Wide>(_: impl Fn(usize)) {}
+}
+
+/// `dir . ((v1 - v0) x (v2 - v0))`.
+#[inline(always)]
+fn winding<L: Lane>(dir: &[L; 3], tri: &TriVerts) -> L {
+    let v0 = splat3::<L>(tri.v0);
+    let n = cross3(sub3(splat3(tri.v1), v0), sub3(splat3(tri.v2), v0));
+    dot3(*dir, n)
+}
+
+/// Which side of a triangle a ray may hit: a per-call ray control of the
+/// two-level scene (DXR's `RAY_FLAG_CULL_BACK_FACING_TRIANGLES` and
+/// `..._FRONT_FACING_...`). The front is the side the counter-clockwise
+/// winding `(v1 - v0) x (v2 - v0)` faces, in the geometry's own (object)
+/// space, so a mirroring instance does not turn it inside out.
+#[repr(u32)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Cull {
+    /// Both sides hit.
+    #[default]
+    None = 0,
+    /// Back-facing triangles are skipped.
+    Back = 1,
+    /// Front-facing triangles are skipped.
+    Front = 2,
+}
+
+/// Test `T` skipping one side of every triangle: back faces
+/// (`FRONT == false`) or front faces. A lane hits when `T` hits and
+/// `T::facing` is strictly on the kept side, so a ray in the triangle's
+/// plane never hits a culled test. The same operations in every lane
+/// width, so packets stay bitwise their single ray.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Culled<T, const FRONT: bool>(core::marker::PhantomData<T>);
+
+impl<T: TriangleTest, const FRONT: bool> Culled<T, FRONT> {
+    /// Lanes whose facing value is on the kept side.
+    #[inline(always)]
+    fn kept<L: Lane>(f: L) -> L::Mask {
+        let zero = L::splat(0.0);
+        if FRONT { zero.lt(f) } else { f.lt(zero) }
+    }
+}
+
+impl<T: TriangleTest, const FRONT: bool> TriangleTest for Culled<T, FRONT> {
+    type Pre<L: Lane> = T::Pre<L>;
+    type Prim = T::Prim;
+    const KIND: TriTest = T::KIND;
+    #[inline(always)]
+    fn prim<'r>(s: TriStore<'r>, i: usize) -> &'r T::Prim {
+        T::prim(s, i)
+    }
+    #[inline(always)]
+    fn prepare<L: Lane>(r: &RayLanes<L>) -> T::Pre<L> {
+        T::prepare(r)
+    }
+    #[inline(always)]
+    fn intersect<L: Lane>(r: &RayLanes<L>, pre: &T::Pre<L>, tri: &T::Prim) -> TriHit<L> {
+        let mut h = T::intersect(r, pre, tri);
+        if L::any(h.mask) {
+            h.mask = h.mask & Self::kept(T::facing(&r.dir, tri));
+        }
+        h
+    }
+    #[inline(always)]
+    fn facing<L: Lane>(dir: &[L; 3], tri: &T::Prim) -> L {
+        T::facing(dir, tri)
+    }
+    #[inline(always)]
+    fn join_pre<W: Wide>(pre: impl Fn(usize) -> T::Pre<F4>) -> T::Pre<W> {
+        T::join_pre(pre)
+    }
+    #[inline(always)]
+    fn intersect_tri4(
+        r: &RayLanes<F4>,
+        pre: &T::Pre<F4>,
+        s: TriStore<'_>,
+        i: [usize; 4],
+    ) -> TriHit<F4> {
+        let mut h = T::intersect_tri4(r, pre, s, i);
+        if F4::any(h.mask) {
+            // One ray in every lane: each lane's facing is the scalar one.
+            let d = r.dir.map(|x| x.x);
+            let f = F4::from_array(i.map(|k| T::facing::<f32>(&d, T::prim(s, k))));
+            h.mask &= Self::kept(f);
+        }
+        h
+    }
 }
 
 impl RayLanes<f32> {

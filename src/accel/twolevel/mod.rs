@@ -100,6 +100,35 @@ impl Default for GeometryParams {
     }
 }
 
+/// Per-call ray controls of a two-level scene trace (DXR's instance
+/// inclusion mask and culling ray flags): an instance is seen when its
+/// mask and its geometry's both share a bit with `mask`, and `cull` skips
+/// one side of every triangle (`geom::Cull`, in the geometry's space). A
+/// bare `u32` converts to a mask with no culling.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct RayControls {
+    pub mask: u32,
+    pub cull: crate::geom::Cull,
+}
+
+impl Default for RayControls {
+    fn default() -> Self {
+        RayControls {
+            mask: !0,
+            cull: crate::geom::Cull::None,
+        }
+    }
+}
+
+impl From<u32> for RayControls {
+    fn from(mask: u32) -> Self {
+        RayControls {
+            mask,
+            ..RayControls::default()
+        }
+    }
+}
+
 /// What `update_geometry` did.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct UpdateInfo {
