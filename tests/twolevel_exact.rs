@@ -342,6 +342,38 @@ fn grid_and_kd_trace_the_flattened_scene() {
                 );
             }
             total += want.iter().filter(|h| h.is_hit()).count();
+            // Occlusion of shadow rays from the hits toward a light.
+            let light = c + Vec3::new(-0.3, 1.2, 0.4) * (hi - lo);
+            let shadow: Vec<Ray> = ordered
+                .iter()
+                .zip(&want)
+                .map(|(r, h)| {
+                    let t = if h.is_hit() { h.t } else { 1.0 };
+                    let p = Vec3::from(r.org) + (t * 0.999) * Vec3::from(r.dir);
+                    Ray::new(p, light - p, 0.0, 1.0)
+                })
+                .collect();
+            let occ = |ctx: &mut OwnedContext, method| {
+                let p = TraceParams {
+                    method,
+                    packet: 8,
+                    ..TraceParams::default()
+                };
+                let mut o = vec![false; shadow.len()];
+                ctx.occluded_scene_with(&p, &shadow, mask, &mut o).unwrap();
+                o
+            };
+            let (o_single, o_packet) = (occ(&mut ctx, single), occ(&mut ctx, packet));
+            let bad = o_single
+                .iter()
+                .zip(&o_packet)
+                .filter(|(a, b)| a != b)
+                .count();
+            assert_eq!(
+                bad, 0,
+                "{packet:?} mask {mask}: occlusion differs on {bad} rays"
+            );
+            assert!(o_single.iter().any(|&o| o) && o_single.iter().any(|&o| !o));
             // Ids name a triangle of a placed geometry the mask sees.
             let bvh = trace(&mut ctx, Method::BvhSingle, 2, mask).unwrap();
             let agree = want

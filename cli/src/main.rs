@@ -2,7 +2,8 @@
 //! kernel, and measure it against its papers.
 //!
 //! ```text
-//! sheaf demo   [--frames 8] [--size 640x480] [--out-dir out/demo] ...
+//! sheaf demo   [--frames 24] [--size 640x384] [--family bvh|grid|kd] [--out-dir out/demo] ...
+//! sheaf grid-demo [--frames 8] [--size 640x480] [--out-dir out/grid-demo] ...
 //! sheaf render <scene.obj | builtin:NAME> --out image.png [--size 800x600] ...
 //! sheaf render <scene> --out image.png --primary pgrid --shadows light-grid [--chunk 256] ...
 //! sheaf info   <scene.obj | builtin:NAME>
@@ -53,8 +54,14 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Cmd {
+    /// The main job: an engine's frame loop on a two-level scene (a static environment, meshes
+    /// refit and rebuilt every frame, many instances, the top level committed per frame), traced
+    /// by the BVH through instances or by the grid or kd-tree rebuilt over the flattened scene;
+    /// a table per frame, PNG frames and an animated PNG.
+    #[command(alias = "engine")]
+    Demo(cmd::engine::EngineArgs),
     /// Animate the built-in scene: rebuild the grid and render every frame, print a table.
-    Demo(DemoArgs),
+    GridDemo(DemoArgs),
     /// Render one image of an OBJ file or a built-in scene.
     Render(RenderArgs),
     /// Print a scene's size, bounds and the memory a context for it needs.
@@ -62,10 +69,6 @@ enum Cmd {
     /// Benchmark every scene x method x packet size x triangle test: build and trace speed,
     /// counters, accuracy against the f64 reference; CSV, Markdown and a speed-vs-accuracy chart.
     Bench(BenchArgs),
-    /// An engine's frame loop on a two-level scene: a static environment, meshes refit and
-    /// rebuilt every frame, many instances, the top level committed per frame; a table per
-    /// frame, PNG frames and an animated PNG, and the flattened alternative's time beside it.
-    Engine(cmd::engine::EngineArgs),
     /// Write a scene, a named view and its light to a binary file for C programs (the Embree
     /// comparison in benches/embree reads it, so both libraries trace the same triangles and rays).
     Export(cmd::export::ExportArgs),
@@ -391,7 +394,7 @@ pub struct DemoArgs {
     #[arg(long, default_value = "640x480", value_parser = parse_size)]
     pub size: (u32, u32),
     /// Directory for frame_000.png, frame_001.png, ...
-    #[arg(long, default_value = "out/demo")]
+    #[arg(long, default_value = "out/grid-demo")]
     pub out_dir: PathBuf,
     /// Seconds of animation between frames. The animation loops every 12 s; the default 0.4 s
     /// shows smooth motion and never lands the four boxes (a quarter turn apart) on each other's places.
@@ -638,12 +641,12 @@ fn parse_vec3(s: &str) -> Result<[f32; 3], String> {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let res = match cli.cmd {
-        Cmd::Demo(a) => cmd::demo::demo(&a),
+        Cmd::Demo(a) => cmd::engine::engine(&a),
+        Cmd::GridDemo(a) => cmd::demo::demo(&a),
         Cmd::Render(a) => cmd::render::render(&a),
         Cmd::Info(a) => cmd::info::info(&a),
         Cmd::Bench(a) => studies::bench(&a),
         Cmd::Export(a) => cmd::export::export(&a),
-        Cmd::Engine(a) => cmd::engine::engine(&a),
     };
     match res {
         Ok(()) => ExitCode::SUCCESS,

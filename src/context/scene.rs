@@ -480,7 +480,17 @@ impl<'a> Context<'a> {
                 read,
                 |i, h: &crate::geom::Hit4, lane| {
                     let h = h.lane(lane);
-                    out(i, self.flat_hit(v, &h).unwrap_or(SceneHit::MISS))
+                    let sh = match self.flat_hit(v, &h) {
+                        Some(sh) => sh,
+                        // An occluded lane without an occluder's id (kd
+                        // packets: `Hit::OCCLUDED`) stays occluded.
+                        None if any && h.is_hit() => SceneHit {
+                            prim: h.prim,
+                            ..SceneHit::MISS
+                        },
+                        None => SceneHit::MISS,
+                    };
+                    out(i, sh)
                 },
                 any,
             );

@@ -1,14 +1,22 @@
-//! `sheaf engine`: an engine's frame loop on a two-level scene
-//! (`sheaf::accel::twolevel`). A static environment (crytek sponza or
-//! conference from ../shared/scenes when present, else the built-in gears)
-//! is built once; an animated mesh is refit every frame and placed four
-//! times, a mesh whose triangle count changes is rebuilt every frame and
-//! placed twice, and a static tetrahedron is placed 16 times in a turning
-//! ring. Every frame updates what moved, commits the top level and traces
-//! camera and shadow rays as packets on all threads; one table line per
-//! frame, PNG frames and an animated PNG. Each frame is also compared with
-//! the flattened alternative: every instance's world triangles in one
-//! mesh, its BVH rebuilt (LOW) and the same rays traced.
+//! `sheaf demo` (alias `sheaf engine`), the main job: an engine's frame
+//! loop on a two-level scene (`sheaf::accel::twolevel`). A static
+//! environment (crytek sponza or conference from ../shared/scenes when
+//! present, else the built-in gears) is built once; an animated mesh is
+//! refit every frame and placed four times, a mesh whose triangle count
+//! changes is rebuilt every frame and placed twice, and a static
+//! tetrahedron is placed 16 times in a turning ring. Every frame updates
+//! what moved, commits the top level and traces camera and shadow rays as
+//! packets on all threads; one table line per frame, PNG frames and an
+//! animated PNG.
+//!
+//! `--family bvh` (the default, the fastest here) traces through the
+//! instances with Ranged packets, and compares each frame with the
+//! flattened alternative: every instance's world triangles in one mesh,
+//! its BVH rebuilt (LOW) and the same rays traced. `--family grid` and
+//! `--family kd` rebuild the grid (CGT packets) or the kd-tree (its packet
+//! traversal) every frame over the scene flattened into world triangles
+//! (`Context::build_grid_scene`, the grid paper's rebuild-everything
+//! model), and trace the same rays.
 
 use super::mib;
 use crate::progress::Progress;
@@ -36,8 +44,12 @@ pub struct EngineArgs {
     #[arg(long, default_value = "640x384", value_parser = crate::parse_size)]
     pub size: (u32, u32),
     /// Directory for frame_000.png, ... and engine.png (the animated PNG).
-    #[arg(long, default_value = "out/engine")]
+    #[arg(long, default_value = "out/demo")]
     pub out_dir: PathBuf,
+    /// The structure that traces the scene: the two-level BVH, or the grid or kd-tree
+    /// rebuilt every frame over the flattened scene.
+    #[arg(long, value_enum, default_value_t = Family::Bvh)]
+    pub family: Family,
     /// Threads (default: available cores, at most 8).
     #[arg(long)]
     pub threads: Option<u32>,
@@ -54,6 +66,17 @@ pub struct EngineArgs {
     /// Skip the flattened comparison (one BVH over every instance's triangles).
     #[arg(long)]
     pub no_flat: bool,
+}
+
+/// Which family traces the frames.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Family {
+    /// The two-level BVH (Ranged packets through the instances).
+    Bvh,
+    /// The uniform grid rebuilt over the flattened scene (CGT packets).
+    Grid,
+    /// The kd-tree rebuilt over the flattened scene (its packet traversal).
+    Kd,
 }
 
 /// Triangles of the animated scene's ground grid at detail 1 (first).
@@ -297,8 +320,17 @@ pub fn engine(a: &EngineArgs) -> Result<()> {
         tetra.triangles(),
     );
     let budget = n_env + n_anim + n_balls + n_tetra;
-    let mut limits = Limits::for_triangles(16);
-    limits.structures = Limits::BVH;
+    let flat_tris = n_env + 4 * n_anim + 2 * n_balls + 16 * n_tetra;
+    // The grid or kd-tree family: pools for the flattened scene.
+    let mut limits = match a.family {
+        Family::Bvh => Limits::for_triangles(16),
+        Family::Grid | Family::Kd => Limits::for_triangles(flat_tris),
+    };
+    limits.structures = match a.family {
+        Family::Bvh => Limits::BVH,
+        Family::Grid => Limits::BVH | Limits::GRID,
+        Family::Kd => Limits::BVH | Limits::KD,
+    };
     limits.max_threads = threads;
     limits.max_geometries = 4;
     limits.max_instances = 23;
@@ -337,8 +369,7 @@ pub fn engine(a: &EngineArgs) -> Result<()> {
     ctx.set_instance(0, 0, &Affine::IDENTITY, !0)?;
 
     // The flattened alternative's context: one BVH over every instance.
-    let flat_tris = n_env + 4 * n_anim + 2 * n_balls + 16 * n_tetra;
-    let mut flat = if a.no_flat {
+    let mut flat = if a.no_flat || a.family != Family::Bvh {
         None
     } else {
         let mut l = Limits::for_triangles(flat_tris);
@@ -396,21 +427,26 @@ pub fn engine(a: &EngineArgs) -> Result<()> {
         ..Default::default()
     };
     let p = TraceParams {
-        method: Method::BvhRanged,
+        method: match a.family {
+            Family::Bvh => Method::BvhRanged,
+            Family::Grid => Method::GridCgt,
+            Family::Kd => Method::KdPacket,
+        },
         packet: a.packet,
         ..TraceParams::default()
     };
+    let method = p.method.name();
     let mut pixels = vec![0u8; (w * h * 4) as usize];
     let mut frames_rgba = Vec::new();
 
-    let prog = Progress::new("sheaf engine", a.frames as u64);
+    let prog = Progress::new("sheaf demo", a.frames as u64);
     prog.say(format_args!(
-        "sheaf engine: {env_name} ({n_env} triangles, built once in {env_ms:.1} ms) + animated ({n_anim}, refit, 4 instances) + balls (up to {n_balls}, rebuilt, 2) + tetra ({n_tetra}, static, 16); {flat_tris} instanced triangles; {w}x{h}, Ranged {0}x{0} packets, {threads} threads, context {1:.1} MiB",
+        "sheaf demo: {env_name} ({n_env} triangles, built once in {env_ms:.1} ms) + animated ({n_anim}, refit, 4 instances) + balls (up to {n_balls}, rebuilt, 2) + tetra ({n_tetra}, static, 16); {flat_tris} instanced triangles; {w}x{h}, {method} {0}x{0} packets, {threads} threads, context {1:.1} MiB",
         a.packet,
         mib(bytes)
     ));
     prog.say(format_args!(
-        "{:>5} {:>8} {:>8} {:>9} {:>8} {:>7} {:>9} {:>9} {:>9} {:>8} {:>24}",
+        "{:>5} {:>8} {:>8} {:>9} {:>8} {:>7} {:>9} {:>10} {:>9} {:>9} {:>8} {:>24}",
         "frame",
         "refit ms",
         "SAH x",
@@ -418,6 +454,11 @@ pub fn engine(a: &EngineArgs) -> Result<()> {
         "LOW ms",
         "moving",
         "commit ms",
+        match a.family {
+            Family::Bvh => "-",
+            Family::Grid => "grid ms",
+            Family::Kd => "kd ms",
+        },
         "trace ms",
         "frame ms",
         "Mrays/s",
@@ -475,6 +516,21 @@ pub fn engine(a: &EngineArgs) -> Result<()> {
         let t = Instant::now();
         ctx.commit_scene()?;
         let commit_ms = t.elapsed().as_secs_f64() * 1e3;
+        // The grid or kd-tree: rebuilt over the flattened scene.
+        let t = Instant::now();
+        let par = run::Broadcast::of(threads);
+        match a.family {
+            Family::Bvh => {}
+            Family::Grid => {
+                ctx.build_grid_scene_with(&sheaf::GridParams::default(), !0, &par)
+                    .with_context(|| format!("frame {f}: grid"))?;
+            }
+            Family::Kd => {
+                ctx.build_kd_scene_with(&sheaf::KdParams::default(), !0, &par)
+                    .with_context(|| format!("frame {f}: kd-tree"))?;
+            }
+        }
+        let build_ms = t.elapsed().as_secs_f64() * 1e3;
 
         // 3. Camera and shadow rays through the two-level scene.
         let view = &ctx;
@@ -609,12 +665,17 @@ pub fn engine(a: &EngineArgs) -> Result<()> {
         };
 
         let moving = 4 * n_anim + 2 * k as u32 + 16 * n_tetra;
-        let frame_ms = refit_ms + rebuild_ms + commit_ms + ms(tr.ns);
+        let frame_ms = refit_ms + rebuild_ms + commit_ms + build_ms + ms(tr.ns);
         prog.say(format_args!(
-            "{f:>5} {refit_ms:>8.2} {:>8.3} {:>9} {rebuild_ms:>8.2} {:>6.1}% {commit_ms:>9.3} {:>9.2} {frame_ms:>9.2} {:>8.2} {:>24}",
+            "{f:>5} {refit_ms:>8.2} {:>8.3} {:>9} {rebuild_ms:>8.2} {:>6.1}% {commit_ms:>9.3} {:>10} {:>9.2} {frame_ms:>9.2} {:>8.2} {:>24}",
             u1.refit.map_or(1.0, |r| r.growth()),
             k,
             100.0 * moving as f64 / flat_tris as f64,
+            if a.family == Family::Bvh {
+                "-".to_string()
+            } else {
+                format!("{build_ms:.2}")
+            },
             ms(tr.ns),
             mrays(tr.rays, tr.ns),
             flat_ms.map_or("-".into(), |(m, b, t)| format!("{m:.2} ({b:.1} + {t:.1})"))
@@ -625,7 +686,7 @@ pub fn engine(a: &EngineArgs) -> Result<()> {
         sums.2 += 1;
     }
     let n = sums.2 as f64;
-    if a.no_flat {
+    if flat.is_none() {
         prog.say(format_args!("mean frame {:.2} ms", sums.0 / n));
     } else {
         prog.say(format_args!(
