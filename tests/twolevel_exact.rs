@@ -28,6 +28,40 @@ fn rot(deg: f32, axis: usize, s: [f32; 3], t: [f32; 3]) -> Affine {
     Affine::rotated(deg, axis, s, t)
 }
 
+/// A view of the committed scene from its centre plus `dir` times its
+/// extent.
+fn view_of(info: &sheaf::TwoLevelInfo, dir: Vec3) -> View {
+    let (lo, hi) = (info.bounds.min, info.bounds.max);
+    let c = 0.5 * (lo + hi);
+    View {
+        eye: c + dir * (hi - lo),
+        look_at: c,
+        up: Vec3::Y,
+        fov_y_deg: 45.0,
+    }
+}
+
+/// `n` rays from points within `from` of the scene's half extent around
+/// its centre toward points within `to` of it (xorshift from `seed`).
+fn random_rays(info: &sheaf::TwoLevelInfo, seed: u64, n: usize, from: f32, to: f32) -> Vec<Ray> {
+    let (lo, hi) = (info.bounds.min, info.bounds.max);
+    let (c, d) = (0.5 * (lo + hi), hi - lo);
+    let mut seed = seed;
+    let mut f = || {
+        seed ^= seed << 13;
+        seed ^= seed >> 7;
+        seed ^= seed << 17;
+        (seed >> 40) as f32 / (1u64 << 24) as f32
+    };
+    let mut pt = |s: f32| c + Vec3::new(f() - 0.5, f() - 0.5, f() - 0.5) * 2.0 * s * d;
+    (0..n)
+        .map(|_| {
+            let (o, t) = (pt(from), pt(to));
+            Ray::new(o, t - o, 0.0, f32::INFINITY)
+        })
+        .collect()
+}
+
 const NAMES: [&str; 4] = ["tetra", "gears", "balls", "animated"];
 
 /// Triangles of the built-in meshes the scene places.
@@ -178,12 +212,7 @@ fn check_test(test: TriTest) {
     let info = ctx.commit_scene().unwrap();
     let (lo, hi) = (info.bounds.min, info.bounds.max);
     let (c, d) = (0.5 * (lo + hi), hi - lo);
-    let view = View {
-        eye: c + Vec3::new(0.7, 0.5, 1.1) * d,
-        look_at: c,
-        up: Vec3::Y,
-        fov_y_deg: 45.0,
-    };
+    let view = view_of(&info, Vec3::new(0.7, 0.5, 1.1));
     let camera = view_rays(&view, RES as u32, RES as u32);
     let light = c + Vec3::new(-0.3, 1.2, 0.4) * d;
     let mut total = 0;
@@ -223,21 +252,7 @@ fn check_test(test: TriTest) {
         );
     }
     // Incoherent rays through the scene.
-    let mut seed = 0x9e37_79b9_7f4a_7c15u64;
-    let mut f = || {
-        seed ^= seed << 13;
-        seed ^= seed >> 7;
-        seed ^= seed << 17;
-        (seed >> 40) as f32 / (1u64 << 24) as f32
-    };
-    let mut pt = |s: f32| c + Vec3::new(f() - 0.5, f() - 0.5, f() - 0.5) * 2.0 * s * d;
-    let random: Vec<Ray> = (0..1024)
-        .map(|_| {
-            let o = pt(0.8);
-            let to = pt(0.3);
-            Ray::new(o, to - o, 0.0, f32::INFINITY)
-        })
-        .collect();
+    let random = random_rays(&info, 0x9e37_79b9_7f4a_7c15, 1024, 0.8, 0.3);
     total += check(&mut ctx, "random", &random, 8, RayKind::Secondary, &[!0, 2]);
     assert!(total > 4000, "{test:?}: {total} hits");
 }
@@ -271,14 +286,7 @@ fn moved_and_refit_instances_stay_exact() {
     ctx.remove_instance(5).unwrap();
     let info = ctx.commit_scene().unwrap();
     assert_eq!(info.instances, 7);
-    let (lo, hi) = (info.bounds.min, info.bounds.max);
-    let c = 0.5 * (lo + hi);
-    let view = View {
-        eye: c + Vec3::new(-0.8, 0.4, 1.0) * (hi - lo),
-        look_at: c,
-        up: Vec3::Y,
-        fov_y_deg: 45.0,
-    };
+    let view = view_of(&info, Vec3::new(-0.8, 0.4, 1.0));
     let camera = view_rays(&view, RES as u32, RES as u32);
     let ordered: Vec<Ray> = packets(&camera, 8)
         .iter()
@@ -299,12 +307,7 @@ fn grid_and_kd_trace_the_flattened_scene() {
     let info = ctx.commit_scene().unwrap();
     let (lo, hi) = (info.bounds.min, info.bounds.max);
     let c = 0.5 * (lo + hi);
-    let view = View {
-        eye: c + Vec3::new(0.7, 0.5, 1.1) * (hi - lo),
-        look_at: c,
-        up: Vec3::Y,
-        fov_y_deg: 45.0,
-    };
+    let view = view_of(&info, Vec3::new(0.7, 0.5, 1.1));
     let camera = view_rays(&view, RES as u32, RES as u32);
     let ordered: Vec<Ray> = packets(&camera, 8)
         .iter()
@@ -484,12 +487,7 @@ fn every_family_agrees_with_the_oracle_on_the_flattened_scene() {
     let info = ctx.commit_scene().unwrap();
     let (lo, hi) = (info.bounds.min, info.bounds.max);
     let c = 0.5 * (lo + hi);
-    let view = View {
-        eye: c + Vec3::new(0.6, 0.6, 1.0) * (hi - lo),
-        look_at: c,
-        up: Vec3::Y,
-        fov_y_deg: 45.0,
-    };
+    let view = view_of(&info, Vec3::new(0.6, 0.6, 1.0));
     ctx.build_grid_scene(&sheaf::GridParams::default(), !0)
         .unwrap();
     ctx.build_kd_scene(&sheaf::KdParams::default(), !0).unwrap();
@@ -526,23 +524,8 @@ fn every_family_agrees_with_the_oracle_on_the_flattened_scene() {
     );
     let camera = view_rays(&view, w, h);
     // The camera rays and incoherent rays through the scene.
-    let mut seed = 0x2545_f491_4f6c_dd1du64;
-    let mut f = || {
-        seed ^= seed << 13;
-        seed ^= seed >> 7;
-        seed ^= seed << 17;
-        (seed >> 40) as f32 / (1u64 << 24) as f32
-    };
-    let d = hi - lo;
-    let mut pt = |s: f32| c + Vec3::new(f() - 0.5, f() - 0.5, f() - 0.5) * 2.0 * s * d;
-    let rays: Vec<Ray> = camera
-        .iter()
-        .copied()
-        .chain((0..4096).map(|_| {
-            let (o, to) = (pt(0.8), pt(0.3));
-            Ray::new(o, to - o, 0.0, f32::INFINITY)
-        }))
-        .collect();
+    let mut rays = camera.clone();
+    rays.extend(random_rays(&info, 0x2545_f491_4f6c_dd1d, 4096, 0.8, 0.3));
     let oracle = common::par_map(&rays, |r| sheaf::reference::nearest(&flat, r));
     let mut report = Vec::new();
     for (what, method) in [
@@ -647,32 +630,11 @@ fn culling_skips_one_side_in_object_space() {
 fn culling_skips_one_side(test: TriTest) {
     let mut ctx = scene(test);
     let info = ctx.commit_scene().unwrap();
-    let (lo, hi) = (info.bounds.min, info.bounds.max);
-    let c = 0.5 * (lo + hi);
-    let view = View {
-        eye: c + Vec3::new(0.7, 0.5, 1.1) * (hi - lo),
-        look_at: c,
-        up: Vec3::Y,
-        fov_y_deg: 45.0,
-    };
     // Camera rays (mostly front faces) and rays from points inside the
     // scene's box (also from inside closed meshes: back faces).
-    let mut seed = 0x853c_49e6_748f_ea9bu64;
-    let mut f = || {
-        seed ^= seed << 13;
-        seed ^= seed >> 7;
-        seed ^= seed << 17;
-        (seed >> 40) as f32 / (1u64 << 24) as f32
-    };
-    let d = hi - lo;
-    let mut pt = |s: f32| c + Vec3::new(f() - 0.5, f() - 0.5, f() - 0.5) * 2.0 * s * d;
-    let rays: Vec<Ray> = view_rays(&view, RES as u32, RES as u32)
-        .into_iter()
-        .chain((0..4096).map(|_| {
-            let (o, to) = (pt(0.5), pt(0.5));
-            Ray::new(o, to - o, 0.0, f32::INFINITY)
-        }))
-        .collect();
+    let view = view_of(&info, Vec3::new(0.7, 0.5, 1.1));
+    let mut rays = view_rays(&view, RES as u32, RES as u32);
+    rays.extend(random_rays(&info, 0x853c_49e6_748f_ea9b, 4096, 0.5, 0.5));
     let meshes: Vec<_> = NAMES
         .iter()
         .map(|n| sheaf::scenes::builtin(n).unwrap().mesh)
