@@ -58,6 +58,15 @@
  * Output: progress on stderr, Markdown tables on stdout; --summary FILE
  * writes key=value lines (the test reads them); --check exits 2 when the
  * agreement is outside the named bounds below.
+ *
+ *   embree_bench --twolevel ENV.scene ANIM.scene OBJ.scene [--frames N] ...
+ *
+ * instead times an engine's frame over a two-level scene in both libraries
+ * (issue 19 item 7): ENV static, ANIM's vertices refit every frame (4
+ * instances), OBJ static in a ring of 16 instances turning every frame;
+ * per frame update + commit, ENV's camera rays and shadow rays, each
+ * library's median frame per thread count, and the (instance, triangle)
+ * agreement. The section "two-level scene" below describes it.
  */
 #define _POSIX_C_SOURCE 200809L
 
@@ -305,20 +314,18 @@ static V3 normalize_or_zero(V3 a)
 }
 
 /* The shadow ray sheaf's renderers shoot for the camera ray `r` hitting
- * triangle `prim` at `t` (render::deferred::shadow_ray, PointLight::at for a
- * point light): 1 and *out when the surface faces the light, else 0. */
-static int shadow_ray(const Scene *s, const sheaf_ray *r, float t, uint32_t prim, sheaf_ray *out)
+ * the triangle (a, b, c) at `t` toward the point light `light_p` with the
+ * scene's shadow offset `eps` (render::deferred::shadow_ray, PointLight::at
+ * for a point light): 1 and *out when the surface faces the light, else 0. */
+static int shadow_ray_tri(V3 a, V3 b, V3 c, const float *light_p, float eps, const sheaf_ray *r, float t,
+                          sheaf_ray *out)
 {
-    const uint32_t *i = s->idx + 3 * (size_t)prim;
-    V3 a = v3(s->verts + 3 * (size_t)i[0]);
-    V3 b = v3(s->verts + 3 * (size_t)i[1]);
-    V3 c = v3(s->verts + 3 * (size_t)i[2]);
     V3 n = normalize_or_zero(cross(sub(b, a), sub(c, a)));
     V3 d = v3(r->dir);
     if (dot(n, d) > 0.0f)
         n = mul(n, -1.0f);
     V3 p = add(v3(r->org), mul(d, t));
-    V3 light = v3(s->light);
+    V3 light = v3(light_p);
     V3 to = sub(light, p);
     float len = length(to);
     to = normalize_or_zero(to);
@@ -326,8 +333,8 @@ static int shadow_ray(const Scene *s, const sheaf_ray *r, float t, uint32_t prim
     if (!(lit > 0.0f))
         return 0;
     float rel = SHADOW_OFFSET_REL * len;
-    float off = s->eps > rel ? s->eps : rel; /* f32::max */
-    if (isnan(s->eps)) off = rel;
+    float off = eps > rel ? eps : rel; /* f32::max */
+    if (isnan(eps)) off = rel;
     V3 end = add(p, mul(n, off));
     V3 dir = sub(end, light);
     out->org[0] = light.x; out->org[1] = light.y; out->org[2] = light.z;
@@ -335,6 +342,15 @@ static int shadow_ray(const Scene *s, const sheaf_ray *r, float t, uint32_t prim
     out->dir[0] = dir.x; out->dir[1] = dir.y; out->dir[2] = dir.z;
     out->tmax = 1.0f;
     return 1;
+}
+
+/* The shadow ray for the camera ray `r` hitting triangle `prim` of `s` at
+ * `t`, toward the scene's light (shadow_ray_tri). */
+static int shadow_ray(const Scene *s, const sheaf_ray *r, float t, uint32_t prim, sheaf_ray *out)
+{
+    const uint32_t *i = s->idx + 3 * (size_t)prim;
+    return shadow_ray_tri(v3(s->verts + 3 * (size_t)i[0]), v3(s->verts + 3 * (size_t)i[1]),
+                          v3(s->verts + 3 * (size_t)i[2]), s->light, s->eps, r, t, out);
 }
 
 /* A slot without a shadow ray (a miss, or a surface facing away from the
@@ -354,7 +370,9 @@ static int is_active(const sheaf_ray *r) { return r->tmax >= r->tmin; }
 /* ---- work split across threads --------------------------------------------- */
 
 enum Lib { LIB_SHEAF, LIB_EMBREE };
-enum Kind { K_TRACE, K_OCCLUDED, K_TRACE_OCC, K_FRAME_SHADOW };
+/* K_SCENE_TRACE / K_SCENE_OCC: sheaf's two-level scene
+ * (sheaf_context_trace_scene / _occluded_scene with `params`). */
+enum Kind { K_TRACE, K_OCCLUDED, K_TRACE_OCC, K_FRAME_SHADOW, K_SCENE_TRACE, K_SCENE_OCC };
 
 typedef struct Job Job;
 struct Job {
@@ -370,11 +388,14 @@ struct Job {
     /* Embree */
     RTCScene scene;
     int width;         /* 1, 4, 8, 16 */
+    int incoherent;    /* RTC_INTERSECT_CONTEXT_FLAG_INCOHERENT (else COHERENT) */
     /* data */
     const Scene *s;
     const sheaf_ray *rays;
     sheaf_hit *hits;       /* sheaf K_TRACE output; K_FRAME_SHADOW input (sheaf) */
     uint32_t *prim;        /* Embree K_TRACE output; K_FRAME_SHADOW input (Embree) */
+    uint32_t *inst;        /* Embree K_TRACE output when not NULL: instID[0] (two-level scene) */
+    sheaf_scene_hit *shits; /* sheaf K_SCENE_TRACE output */
     float *t;              /* Embree K_TRACE output; K_FRAME_SHADOW input (Embree) */
     uint8_t *occ;          /* K_OCCLUDED / K_TRACE_OCC output */
     size_t shadow_rays, occluded; /* K_FRAME_SHADOW counts, atomic */
@@ -444,6 +465,10 @@ static void run_chunk(Job *j, size_t b, size_t e)
         sheaf_status st = SHEAF_STATUS_OK;
         if (j->kind == K_TRACE)
             st = sheaf_context_trace_with(j->ctx, &j->params, j->rays + b, j->hits + b, e - b);
+        else if (j->kind == K_SCENE_TRACE)
+            st = sheaf_context_trace_scene(j->ctx, &j->params, j->rays + b, j->shits + b, e - b, ~0u, 0);
+        else if (j->kind == K_SCENE_OCC)
+            st = sheaf_context_occluded_scene(j->ctx, &j->params, j->rays + b, j->occ + b, e - b, ~0u, 0);
         else
             sheaf_occluded_n(j, j->rays + b, j->occ + b, e - b);
         if (st != SHEAF_STATUS_OK)
@@ -526,6 +551,8 @@ static double run_job(Job *j, int threads)
             int hit = rh.hit.geomID[l] != RTC_INVALID_GEOMETRY_ID;                    \
             j->prim[k + l] = hit ? rh.hit.primID[l] : SHEAF_INVALID_ID;               \
             j->t[k + l] = hit ? rh.ray.tfar[l] : INFINITY;                            \
+            if (j->inst)                                                              \
+                j->inst[k + l] = hit ? rh.hit.instID[0][l] : SHEAF_INVALID_ID;        \
         }                                                                             \
     }
 
@@ -547,7 +574,7 @@ static void embree_trace(Job *j, size_t b, size_t e)
 {
     struct RTCIntersectContext ctx;
     rtcInitIntersectContext(&ctx);
-    ctx.flags = RTC_INTERSECT_CONTEXT_FLAG_COHERENT;
+    ctx.flags = j->incoherent ? RTC_INTERSECT_CONTEXT_FLAG_INCOHERENT : RTC_INTERSECT_CONTEXT_FLAG_COHERENT;
     switch (j->width) {
     case 1:
         for (size_t k = b; k < e; k++) {
@@ -571,6 +598,8 @@ static void embree_trace(Job *j, size_t b, size_t e)
             int hit = rh.hit.geomID != RTC_INVALID_GEOMETRY_ID;
             j->prim[k] = hit ? rh.hit.primID : SHEAF_INVALID_ID;
             j->t[k] = hit ? rh.ray.tfar : INFINITY;
+            if (j->inst)
+                j->inst[k] = hit ? rh.hit.instID[0] : SHEAF_INVALID_ID;
         }
         break;
     case 4: TRACE_N(4, struct RTCRayHit4, rtcIntersect4) break;
@@ -583,7 +612,7 @@ static void embree_occluded(Job *j, const sheaf_ray *rays, uint8_t *occ, size_t 
 {
     struct RTCIntersectContext ctx;
     rtcInitIntersectContext(&ctx);
-    ctx.flags = RTC_INTERSECT_CONTEXT_FLAG_COHERENT;
+    ctx.flags = j->incoherent ? RTC_INTERSECT_CONTEXT_FLAG_INCOHERENT : RTC_INTERSECT_CONTEXT_FLAG_COHERENT;
     switch (j->width) {
     case 1:
         for (size_t k = 0; k < n; k++) {
@@ -1064,6 +1093,9 @@ typedef struct {
     const char *summary;
     const char *profile; /* --profile NAME: time one configuration only (for perf) */
     int profile_shadow;  /* --profile-shadow: its shadow rays, not camera rays */
+    const char *twolevel[3]; /* --twolevel ENV ANIM OBJ: the two-level scene's files */
+    int frames;              /* --frames: the two-level scene's frames (default 24) */
+    const char *ppm;         /* --ppm FILE: the two-level scene's frame 0 as sheaf sees it */
 } Options;
 
 /* ---- per-scene run --------------------------------------------------------------------- */
@@ -1160,6 +1192,39 @@ typedef struct {
     int best_st[4];
 } Bench;
 
+/* The frame of the scene's view (camera, light, W x H, shadows on) and its
+ * camera rays in packet order (*rays; *pix: each ray's pixel index). */
+static void camera_rays(const Scene *s, uint32_t W, uint32_t H, sheaf_frame *frame, sheaf_ray **rays, uint32_t **pix)
+{
+    size_t N = (size_t)W * H;
+    memset(frame, 0, sizeof *frame);
+    memcpy(frame->camera.eye, s->eye, sizeof s->eye);
+    memcpy(frame->camera.look_at, s->look_at, sizeof s->look_at);
+    memcpy(frame->camera.up, s->up, sizeof s->up);
+    frame->camera.fov_y_deg = s->fov;
+    memcpy(frame->light.position, s->light, sizeof s->light);
+    frame->light.color[0] = frame->light.color[1] = frame->light.color[2] = 1.0f;
+    frame->light.spot_direction[2] = -1.0f;
+    sheaf_shading_default(&frame->shading);
+    frame->shading.shadows = true;
+    frame->width = W;
+    frame->height = H;
+    sheaf_ray *r = *rays = xmalloc(N * sizeof **rays);
+    uint32_t *p = *pix = xmalloc(N * sizeof **pix);
+    size_t k = 0;
+    for (uint32_t ty = 0; ty < H; ty += 32)
+        for (uint32_t tx = 0; tx < W; tx += 32)
+            for (uint32_t q = 0; q < 256; q++) {
+                uint32_t qx, qy;
+                demorton(q, &qx, &qy);
+                for (uint32_t l = 0; l < 4; l++) {
+                    uint32_t x = tx + 2 * qx + (l & 1), y = ty + 2 * qy + (l >> 1);
+                    check_sheaf(NULL, sheaf_frame_camera_ray(frame, x, y, &r[k]), "camera ray");
+                    p[k++] = y * W + x;
+                }
+            }
+}
+
 /* Read the scene, make the camera rays in packet order, create the sheaf context. */
 static void setup_scene(Bench *b, const char *path)
 {
@@ -1174,35 +1239,7 @@ static void setup_scene(Bench *b, const char *path)
     b->load0 = load_average();
     progress("== %s: %u triangles, %u vertices, %ux%u, %s\n", b->name, b->s.nt, b->s.nv, b->W, b->H, b->s.view);
 
-    /* Camera rays in packet order. */
-    memset(&b->frame, 0, sizeof b->frame);
-    memcpy(b->frame.camera.eye, b->s.eye, sizeof b->s.eye);
-    memcpy(b->frame.camera.look_at, b->s.look_at, sizeof b->s.look_at);
-    memcpy(b->frame.camera.up, b->s.up, sizeof b->s.up);
-    b->frame.camera.fov_y_deg = b->s.fov;
-    memcpy(b->frame.light.position, b->s.light, sizeof b->s.light);
-    b->frame.light.color[0] = b->frame.light.color[1] = b->frame.light.color[2] = 1.0f;
-    b->frame.light.spot_direction[2] = -1.0f;
-    sheaf_shading_default(&b->frame.shading);
-    b->frame.shading.shadows = true;
-    b->frame.width = b->W;
-    b->frame.height = b->H;
-    b->rays = xmalloc(b->N * sizeof *b->rays);
-    b->pix = xmalloc(b->N * sizeof *b->pix);
-    {
-        size_t k = 0;
-        for (uint32_t ty = 0; ty < b->H; ty += 32)
-            for (uint32_t tx = 0; tx < b->W; tx += 32)
-                for (uint32_t q = 0; q < 256; q++) {
-                    uint32_t qx, qy;
-                    demorton(q, &qx, &qy);
-                    for (uint32_t l = 0; l < 4; l++) {
-                        uint32_t x = tx + 2 * qx + (l & 1), y = ty + 2 * qy + (l >> 1);
-                        check_sheaf(NULL, sheaf_frame_camera_ray(&b->frame, x, y, &b->rays[k]), "camera ray");
-                        b->pix[k++] = y * b->W + x;
-                    }
-                }
-    }
+    camera_rays(&b->s, b->W, b->H, &b->frame, &b->rays, &b->pix);
 
     /* The sheaf context: grid, BVH, kd-tree (and the deferred frame's pools). */
     sheaf_limits lim;
@@ -2119,6 +2156,690 @@ static void run_scene(const char *path, const Options *o)
     free(b);
 }
 
+/* ---- two-level scene (issue 19 item 7) ---------------------------------------------- */
+
+/* embree_bench --twolevel ENV.scene ANIM.scene OBJ.scene: one frame loop of
+ * an engine over a two-level scene, in both libraries, on the same
+ * instances and rays.
+ *
+ *  - geometry 0, ENV: static (sheaf STATIC, binned SAH; Embree child scene
+ *    at MEDIUM, committed once), one instance, the identity;
+ *  - geometry 1, ANIM (`sheaf export builtin:animated --frames F`): its
+ *    vertices change every frame (sheaf REFIT: sheaf_context_update_scene_
+ *    geometry; Embree child scene LOW + DYNAMIC, its geometry at
+ *    RTC_BUILD_QUALITY_REFIT: the frame's vertices copied into the shared
+ *    vertex buffer, rtcUpdateGeometryBuffer, rtcCommitGeometry,
+ *    rtcCommitScene), TL_ANIM instances side by side on the focus (ENV's
+ *    surface in front of the camera, see tl_setup), each TL_ANIM_SIZE of
+ *    ENV's diagonal;
+ *  - geometry 2, OBJ: static, TL_RING instances in a ring around the focus
+ *    whose transforms turn every frame (sheaf_context_set_instance;
+ *    rtcSetGeometryTransform + rtcCommitGeometry).
+ * The object-to-world transforms are the same 12 floats for both (row-major
+ * 3x4; instance ids 0, 1..TL_ANIM, then the ring, the same in both). Per
+ * frame f (animation frame f mod F): update + commit (sheaf: the update,
+ * the ring's set_instance, sheaf_context_commit_scene; Embree: the ANIM
+ * child, the instances' commits, rtcCommitScene of the top level, LOW +
+ * DYNAMIC), then ENV's camera rays (packet order as the single-scene mode)
+ * traced (sheaf_context_trace_scene, bvh-ranged 8x8; Embree rtcIntersect8
+ * or 16, whichever was faster on frame 0), then shadow rays toward ENV's
+ * light traced (sheaf_context_occluded_scene, bvh-ranged 8x8 shadow
+ * packets; Embree's fastest of rtcOccluded8/16 on frame 0, see tl_run).
+ * The shadow rays are made (untimed) from
+ * sheaf's hits: the hit triangle's world vertices (its geometry's vertices
+ * of this frame through its instance's transform) and shadow_ray_tri with
+ * ENV's light and offset, as the renderers make them; both libraries trace
+ * those same rays. Rays go to the threads in chunks as run_job hands them. */
+
+#define TL_ANIM 4                            /* instances of ANIM */
+#define TL_RING 16                           /* instances of OBJ */
+#define TL_INST (1 + TL_ANIM + TL_RING)
+#define TL_ANIM_SIZE 0.15f                   /* an ANIM copy's diagonal (every frame's bounds) over ENV's */
+#define TL_OBJ_SIZE 0.04f                    /* an OBJ copy's diagonal over ENV's */
+#define TL_RING_RADIUS 0.12f                 /* over ENV's diagonal, at most 0.6 of the eye's distance across */
+#define TL_RING_HEIGHT 0.03f                 /* the ring above the ANIM copies' tops, over ENV's diagonal */
+#define TL_LIFT 0.002f                       /* the ANIM copies above the focus, over ENV's diagonal */
+#define TL_TURN_FRAMES 48                    /* frames per turn of the ring */
+/* --check: most camera rays whose (instance, triangle) differ, and most
+ * shadow rays whose occlusion differs, as a fraction of the rays. */
+#define TL_MAX_DIFF_FRACTION 0.005
+#define TL_MAX_FRAMES 10000
+#define TL_PI 3.14159265358979323846
+
+enum { G_ENV, G_ANIM, G_OBJ, NGEOM }; /* geometry ids, sheaf's and the Embree child scenes' */
+enum { P_UPDATE, P_CAMERA, P_SHADOW, P_FRAME, NPHASE };
+
+typedef struct {
+    const Options *o;
+    Scene g[NGEOM];
+    char name[NGEOM][64];
+    uint32_t W, H;
+    size_t N;
+    int reps, frames;
+    double load0, load1;
+    sheaf_frame frame;
+    sheaf_ray *rays; /* ENV's camera rays in packet order */
+    uint32_t *pix;
+    float xf[TL_INST][12]; /* the instances' transforms now */
+    V3 look, up, e1, e2;   /* the focus; up, the view's direction across up, up x e1 */
+    V3 obj_center;
+    float obj_scale, ring_radius, ring_height;
+    sheaf_context *ctx;
+    sheaf_scene_hit *hits; /* sheaf's camera hits */
+    sheaf_ray *srays;      /* shadow rays, one slot per camera ray */
+    size_t ns;             /* active shadow rays of the frame */
+    uint8_t *socc, *eocc;
+    uint32_t *eprim, *einst;
+    float *et;
+    uint64_t scene_tris;   /* instanced triangles */
+    uint64_t sheaf_tris;   /* of those, the ones sheaf traces (sheaf_scene_info.instanced_triangles) */
+    double sheaf_setup_ms, embree_setup_ms[4];
+    /* Agreement over every frame of the first thread count's first run. */
+    size_t a_rays, a_differ, a_hits_s, a_hits_e, a_srays, a_sdiffer, a_occ_s, a_occ_e;
+    double ms[4][2][NPHASE]; /* [thread count][sheaf, Embree][phase]: median over frames x runs */
+    double mr[4][2];         /* Mrays/s: (camera + active shadow rays) / (camera + shadow time), median */
+    int pw[4], sw[4];        /* Embree's queries (tl_run's candidates) */
+    char equery[4][96];      /* their names */
+} TwoLevel;
+
+typedef struct {
+    RTCDevice dev;
+    EScene child[NGEOM];
+    RTCScene top;
+    RTCGeometry inst[TL_INST];
+} TLEmbree;
+
+static int tl_geom_of(uint32_t inst) { return inst == 0 ? G_ENV : inst <= TL_ANIM ? G_ANIM : G_OBJ; }
+
+/* Geometry g's vertices in frame f (ANIM: animation frame f mod F). */
+static const float *tl_verts(const TwoLevel *b, int g, uint32_t f)
+{
+    const Scene *s = &b->g[g];
+    return g == G_ANIM ? s->frames + 3 * (size_t)s->nv * (f % s->nframes) : s->verts;
+}
+
+static void grow_bounds(const float *v, uint32_t nv, float mn[3], float mx[3])
+{
+    for (size_t i = 0; i < nv; i++)
+        for (int k = 0; k < 3; k++) {
+            float x = v[3 * i + k];
+            if (x < mn[k]) mn[k] = x;
+            if (x > mx[k]) mx[k] = x;
+        }
+}
+
+static float diagonal(const float mn[3], const float mx[3])
+{
+    V3 d = {mx[0] - mn[0], mx[1] - mn[1], mx[2] - mn[2]};
+    return length(d);
+}
+
+/* m (row-major 3x4) applied to the point p. */
+static V3 xform_point(const float m[12], const float *p)
+{
+    V3 r = {m[0] * p[0] + m[1] * p[1] + m[2] * p[2] + m[3], m[4] * p[0] + m[5] * p[1] + m[6] * p[2] + m[7],
+            m[8] * p[0] + m[9] * p[1] + m[10] * p[2] + m[11]};
+    return r;
+}
+
+/* Object-to-world (row-major 3x4): the object's x, y, z axes to e1, e2 and
+ * up (right-handed), turned by `a` about up, scaled by `sc`, the object
+ * point c at `target`. */
+static void tl_place(const TwoLevel *b, float m[12], float sc, float a, V3 c, V3 target)
+{
+    float ca = cosf(a), sa = sinf(a);
+    V3 col[3] = {add(mul(b->e1, ca), mul(b->e2, sa)), add(mul(b->e1, -sa), mul(b->e2, ca)), b->up};
+    float t[3] = {target.x, target.y, target.z};
+    for (int r = 0; r < 3; r++) {
+        for (int k = 0; k < 3; k++) {
+            V3 v = col[k];
+            m[4 * r + k] = sc * (r == 0 ? v.x : r == 1 ? v.y : v.z);
+        }
+        m[4 * r + 3] = t[r] - (m[4 * r] * c.x + m[4 * r + 1] * c.y + m[4 * r + 2] * c.z);
+    }
+}
+
+/* The ring's transforms in frame f: OBJ copy k at angle 2 pi (k / TL_RING +
+ * f / TL_TURN_FRAMES) around look_at, turned about up by twice that. */
+static void tl_ring(TwoLevel *b, uint32_t f)
+{
+    for (int k = 0; k < TL_RING; k++) {
+        double a = 2.0 * TL_PI * ((double)k / TL_RING + (double)(f % TL_TURN_FRAMES) / TL_TURN_FRAMES);
+        V3 target = add(add(b->look, mul(b->up, b->ring_height)),
+                        add(mul(b->e1, b->ring_radius * (float)cos(a)), mul(b->e2, b->ring_radius * (float)sin(a))));
+        tl_place(b, b->xf[1 + TL_ANIM + k], b->obj_scale, (float)(2.0 * a), b->obj_center, target);
+    }
+}
+
+static sheaf_mesh tl_mesh(const TwoLevel *b, int g, uint32_t f)
+{
+    sheaf_mesh m;
+    m.vertices = tl_verts(b, g, f);
+    m.vertex_stride_bytes = 3 * sizeof(float);
+    m.vertex_count = b->g[g].nv;
+    m.indices = b->g[g].idx;
+    m.triangle_count = b->g[g].nt;
+    return m;
+}
+
+/* Read the scenes, place the instances, make the camera rays, set up sheaf's scene. */
+static void tl_setup(TwoLevel *b)
+{
+    const Options *o = b->o;
+    for (int g = 0; g < NGEOM; g++) {
+        read_scene(o->twolevel[g], &b->g[g]);
+        short_name(b->g[g].label, b->name[g], sizeof b->name[g]);
+    }
+    Scene *env = &b->g[G_ENV], *anim = &b->g[G_ANIM], *obj = &b->g[G_OBJ];
+    if (anim->nframes == 0)
+        die("%s: no animation frames (export it with `sheaf export builtin:animated --frames 48`)", o->twolevel[1]);
+    b->W = o->width ? o->width : env->width;
+    b->H = o->height ? o->height : env->height;
+    if (b->W % 32 || b->H % 32 || b->W == 0 || b->H == 0)
+        die("%s: image %ux%u: width and height must be multiples of 32 (32x32 tiles)", b->name[G_ENV], b->W, b->H);
+    b->N = (size_t)b->W * b->H;
+    b->reps = o->reps;
+    b->frames = o->frames;
+    b->load0 = load_average();
+    camera_rays(env, b->W, b->H, &b->frame, &b->rays, &b->pix);
+
+    /* The bounds: sizes are relative to ENV's bounding-box diagonal D. */
+    float emn[3] = {INFINITY, INFINITY, INFINITY}, emx[3] = {-INFINITY, -INFINITY, -INFINITY};
+    float amn[3] = {INFINITY, INFINITY, INFINITY}, amx[3] = {-INFINITY, -INFINITY, -INFINITY};
+    float omn[3] = {INFINITY, INFINITY, INFINITY}, omx[3] = {-INFINITY, -INFINITY, -INFINITY};
+    grow_bounds(env->verts, env->nv, emn, emx);
+    for (uint32_t f = 0; f < anim->nframes; f++) grow_bounds(tl_verts(b, G_ANIM, f), anim->nv, amn, amx);
+    grow_bounds(obj->verts, obj->nv, omn, omx);
+    float D = diagonal(emn, emx), Da = diagonal(amn, amx), Do = diagonal(omn, omx);
+    if (!(D > 0.0f) || !(Da > 0.0f) || !(Do > 0.0f) || !isfinite(D) || !isfinite(Da) || !isfinite(Do))
+        die("--twolevel: a scene with empty or non-finite bounds");
+    b->scene_tris = (uint64_t)env->nt + (uint64_t)TL_ANIM * anim->nt + (uint64_t)TL_RING * obj->nt;
+    progress("== two-level scene: %s (%u triangles) + %s (%u) x %d + %s (%u) x %d = %llu triangles, %ux%u, %s\n",
+             b->name[G_ENV], env->nt, b->name[G_ANIM], anim->nt, TL_ANIM, b->name[G_OBJ], obj->nt, TL_RING,
+             (unsigned long long)b->scene_tris, b->W, b->H, env->view);
+
+    /* sheaf: one context, the three geometries; ENV's instance first. */
+    int maxT = 1;
+    for (int ti = 0; ti < o->nthreads; ti++) if (o->threads[ti] > maxT) maxT = o->threads[ti];
+    sheaf_limits lim;
+    check_sheaf(NULL, sheaf_limits_default(16, &lim), "limits"); /* the single-mesh pools stay unused */
+    lim.structures = SHEAF_STRUCTURE_BVH;
+    lim.max_threads = (uint32_t)maxT;
+    lim.max_geometries = NGEOM;
+    lim.max_instances = TL_INST;
+    lim.max_scene_triangles = env->nt + anim->nt + obj->nt;
+    check_sheaf(NULL, sheaf_context_create(&lim, &b->ctx), "sheaf_context_create");
+    double t0 = now_s();
+    sheaf_geometry_params gp;
+    check_sheaf(NULL, sheaf_geometry_params_default(&gp), "geometry_params_default"); /* STATIC, binned SAH */
+    for (int g = 0; g < NGEOM; g++) {
+        sheaf_mesh m = tl_mesh(b, g, 0);
+        gp.mode = g == G_ANIM ? SHEAF_UPDATE_MODE_REFIT : SHEAF_UPDATE_MODE_STATIC;
+        check_sheaf(b->ctx, sheaf_context_set_scene_geometry(b->ctx, (uint32_t)g, &m, &gp), "set_scene_geometry");
+    }
+    double t_geom = now_s() - t0;
+    static const float ID[12] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0};
+    memcpy(b->xf[0], ID, sizeof ID);
+    check_sheaf(b->ctx, sheaf_context_set_instance(b->ctx, 0, G_ENV, b->xf[0], ~0u), "set_instance");
+    check_sheaf(b->ctx, sheaf_context_commit_scene(b->ctx, NULL), "commit_scene");
+
+    /* The focus: where the view's centre pixel meets ENV when that is
+     * before look_at (a view into a crowd of objects), else look_at; then
+     * dropped along -up onto ENV's surface below it (a floor) when there is
+     * one within D / 2. The basis: up, e1 the view direction across up,
+     * e2 = up x e1. */
+    b->look = v3(env->look_at);
+    b->up = normalize_or_zero(v3(env->up));
+    {
+        sheaf_ray cr;
+        sheaf_scene_hit ch;
+        check_sheaf(NULL, sheaf_frame_camera_ray(&b->frame, b->W / 2, b->H / 2, &cr), "camera ray");
+        check_sheaf(b->ctx, sheaf_context_trace_scene(b->ctx, NULL, &cr, &ch, 1, ~0u, 0), "trace_scene");
+        V3 d = v3(cr.dir), org = v3(cr.org);
+        float t_look = dot(sub(b->look, org), d) / dot(d, d);
+        if (ch.prim != SHEAF_INVALID_ID && ch.t < t_look)
+            b->look = add(org, mul(d, ch.t));
+        V3 start = add(b->look, mul(b->up, 1e-3f * D)), down = mul(b->up, -1.0f);
+        memcpy(cr.org, &start, sizeof cr.org);
+        memcpy(cr.dir, &down, sizeof cr.dir);
+        cr.tmin = 0.0f;
+        cr.tmax = 0.5f * D;
+        check_sheaf(b->ctx, sheaf_context_trace_scene(b->ctx, NULL, &cr, &ch, 1, ~0u, 0), "trace_scene");
+        if (ch.prim != SHEAF_INVALID_ID)
+            b->look = add(start, mul(down, ch.t));
+    }
+    V3 view = sub(b->look, v3(env->eye));
+    V3 across = sub(view, mul(b->up, dot(view, b->up)));
+    b->e1 = normalize_or_zero(across);
+    if (length(b->e1) == 0.0f) {
+        V3 x = {1, 0, 0}, y = {0, 1, 0};
+        b->e1 = normalize_or_zero(cross(b->up, fabsf(b->up.x) < 0.9f ? x : y));
+    }
+    b->e2 = cross(b->up, b->e1);
+    /* ANIM (its z axis up): 2 x 2 copies side by side on the focus, a gap
+     * of 12% of a copy's width between them (their ground planes never
+     * overlap), TL_LIFT above it (never coplanar with ENV's surface there),
+     * turned by quarter turns. */
+    float sa = TL_ANIM_SIZE * D / Da;
+    float ext = sa * fmaxf(amx[0] - amn[0], amx[1] - amn[1]), ah = sa * (amx[2] - amn[2]);
+    V3 ac = {0.5f * (amn[0] + amx[0]), 0.5f * (amn[1] + amx[1]), 0.5f * (amn[2] + amx[2])};
+    V3 base = add(b->look, mul(b->up, TL_LIFT * D + 0.5f * ah));
+    for (int k = 0; k < TL_ANIM; k++) {
+        float sx = (k & 1) ? 0.56f : -0.56f, sy = (k & 2) ? 0.56f : -0.56f;
+        V3 target = add(base, add(mul(b->e1, sx * ext), mul(b->e2, sy * ext)));
+        tl_place(b, b->xf[1 + k], sa, (float)(0.5 * TL_PI * k), ac, target);
+    }
+    /* OBJ: a ring around the focus, above the ANIM copies; its radius at
+     * most 0.6 of the eye's distance across, so the camera stays outside. */
+    b->obj_scale = TL_OBJ_SIZE * D / Do;
+    V3 oc = {0.5f * (omn[0] + omx[0]), 0.5f * (omn[1] + omx[1]), 0.5f * (omn[2] + omx[2])};
+    b->obj_center = oc;
+    b->ring_radius = fminf(TL_RING_RADIUS * D, 0.6f * length(across));
+    b->ring_height = TL_LIFT * D + ah + TL_RING_HEIGHT * D;
+    tl_ring(b, 0);
+
+    /* The other instances, and the commit. */
+    t0 = now_s();
+    for (uint32_t i = 1; i < TL_INST; i++)
+        check_sheaf(b->ctx, sheaf_context_set_instance(b->ctx, i, (uint32_t)tl_geom_of(i), b->xf[i], ~0u), "set_instance");
+    sheaf_scene_info si;
+    check_sheaf(b->ctx, sheaf_context_commit_scene(b->ctx, &si), "commit_scene");
+    b->sheaf_setup_ms = 1e3 * (t_geom + now_s() - t0);
+    if (si.instances != TL_INST || si.instanced_triangles > b->scene_tris)
+        die("sheaf's committed scene: %llu triangles in %u instances, expected up to %llu in %d",
+            (unsigned long long)si.instanced_triangles, si.instances, (unsigned long long)b->scene_tris, TL_INST);
+    b->sheaf_tris = si.instanced_triangles; /* without the triangles sheaf excludes (zero area, non-finite) */
+    progress("  focus (%.4g %.4g %.4g), ANIM copies %.4g wide, ring radius %.4g; world bounds (%.4g %.4g %.4g) - "
+             "(%.4g %.4g %.4g)\n", b->look.x, b->look.y, b->look.z, ext, b->ring_radius, si.bounds_min[0],
+             si.bounds_min[1], si.bounds_min[2], si.bounds_max[0], si.bounds_max[1], si.bounds_max[2]);
+    progress("  sheaf: 3 geometries built and the scene committed in %.1f ms (calling thread)\n", b->sheaf_setup_ms);
+    b->hits = xmalloc(b->N * sizeof *b->hits);
+    b->srays = xmalloc(b->N * sizeof *b->srays);
+    b->socc = xmalloc(b->N);
+    b->eocc = xmalloc(b->N);
+    b->eprim = xmalloc(b->N * sizeof *b->eprim);
+    b->einst = xmalloc(b->N * sizeof *b->einst);
+    b->et = xmalloc(b->N * sizeof *b->et);
+}
+
+/* Embree on "threads=T": the three child scenes, the top level with the
+ * instances (ring and ANIM at frame 0); seconds to the first top commit. */
+static double tl_embree_setup(TwoLevel *b, int T, TLEmbree *e)
+{
+    char cfg[64];
+    snprintf(cfg, sizeof cfg, "threads=%d", T);
+    e->dev = rtcNewDevice(cfg);
+    if (!e->dev)
+        die("rtcNewDevice(\"%s\") failed (error %d)", cfg, (int)rtcGetDeviceError(NULL));
+    rtcSetDeviceErrorFunction(e->dev, embree_error, NULL);
+    Scene *anim = &b->g[G_ANIM];
+    memcpy(anim->verts, tl_verts(b, G_ANIM, 0), 12 * (size_t)anim->nv);
+    double t0 = now_s();
+    embree_build(e->dev, &b->g[G_ENV], 1, &e->child[G_ENV]);        /* MEDIUM */
+    embree_build(e->dev, anim, Q_REFIT, &e->child[G_ANIM]);         /* LOW + DYNAMIC, geometry REFIT */
+    embree_build(e->dev, &b->g[G_OBJ], 1, &e->child[G_OBJ]);        /* MEDIUM */
+    e->top = rtcNewScene(e->dev);
+    rtcSetSceneFlags(e->top, RTC_SCENE_FLAG_DYNAMIC);
+    rtcSetSceneBuildQuality(e->top, RTC_BUILD_QUALITY_LOW);
+    for (uint32_t i = 0; i < TL_INST; i++) {
+        RTCGeometry g = rtcNewGeometry(e->dev, RTC_GEOMETRY_TYPE_INSTANCE);
+        rtcSetGeometryInstancedScene(g, e->child[tl_geom_of(i)].scene);
+        rtcSetGeometryTimeStepCount(g, 1);
+        rtcSetGeometryTransform(g, 0, RTC_FORMAT_FLOAT3X4_ROW_MAJOR, b->xf[i]);
+        rtcCommitGeometry(g);
+        rtcAttachGeometryByID(e->top, g, i);
+        e->inst[i] = g;
+    }
+    rtcCommitScene(e->top);
+    double t = now_s() - t0;
+    if (rtcGetDeviceError(e->dev) != RTC_ERROR_NONE)
+        die("Embree two-level build failed");
+    return t;
+}
+
+static void tl_embree_release(TLEmbree *e)
+{
+    for (int i = 0; i < TL_INST; i++) rtcReleaseGeometry(e->inst[i]);
+    rtcReleaseScene(e->top);
+    for (int g = 0; g < NGEOM; g++) embree_release(&e->child[g]);
+    rtcReleaseDevice(e->dev);
+}
+
+/* sheaf's update + commit of frame f (the ring's transforms in b->xf); seconds. */
+static double tl_sheaf_update(TwoLevel *b, uint32_t f)
+{
+    sheaf_mesh m = tl_mesh(b, G_ANIM, f);
+    double t0 = now_s();
+    check_sheaf(b->ctx, sheaf_context_update_scene_geometry(b->ctx, G_ANIM, &m, NULL), "update_scene_geometry");
+    for (uint32_t i = 1 + TL_ANIM; i < TL_INST; i++)
+        check_sheaf(b->ctx, sheaf_context_set_instance(b->ctx, i, G_OBJ, b->xf[i], ~0u), "set_instance");
+    check_sheaf(b->ctx, sheaf_context_commit_scene(b->ctx, NULL), "commit_scene");
+    return now_s() - t0;
+}
+
+/* Embree's update + commit of frame f: ANIM's vertices into its shared
+ * buffer and its child scene committed (a refit), its instances committed
+ * (their child changed), the ring's new transforms, the top level; seconds. */
+static double tl_embree_update(TwoLevel *b, TLEmbree *e, uint32_t f)
+{
+    Scene *anim = &b->g[G_ANIM];
+    double t0 = now_s();
+    memcpy(anim->verts, tl_verts(b, G_ANIM, f), 12 * (size_t)anim->nv);
+    embree_rebuild(&e->child[G_ANIM]);
+    for (uint32_t i = 1; i <= TL_ANIM; i++) rtcCommitGeometry(e->inst[i]);
+    for (uint32_t i = 1 + TL_ANIM; i < TL_INST; i++) {
+        rtcSetGeometryTransform(e->inst[i], 0, RTC_FORMAT_FLOAT3X4_ROW_MAJOR, b->xf[i]);
+        rtcCommitGeometry(e->inst[i]);
+    }
+    rtcCommitScene(e->top);
+    double t = now_s() - t0;
+    if (rtcGetDeviceError(e->dev) != RTC_ERROR_NONE)
+        die("Embree two-level update failed");
+    return t;
+}
+
+/* The shadow rays of sheaf's camera hits in frame f, one slot per camera
+ * ray (inactive for misses and unlit points): the hit triangle's world
+ * vertices (frame f's vertices through its instance's transform) and
+ * shadow_ray_tri toward ENV's light with ENV's offset. */
+static void tl_shadow_rays(TwoLevel *b, uint32_t f)
+{
+    const Scene *env = &b->g[G_ENV];
+    size_t ns = 0;
+    for (size_t k = 0; k < b->N; k++) {
+        const sheaf_scene_hit *h = &b->hits[k];
+        if (h->prim != SHEAF_INVALID_ID) {
+            if (h->geometry >= NGEOM || h->instance >= TL_INST || (int)h->geometry != tl_geom_of(h->instance) ||
+                h->prim >= b->g[h->geometry].nt)
+                die("sheaf scene hit %zu: geometry %u, instance %u, triangle %u out of range", k, h->geometry,
+                    h->instance, h->prim);
+            const float *v = tl_verts(b, (int)h->geometry, f), *m = b->xf[h->instance];
+            const uint32_t *ix = b->g[h->geometry].idx + 3 * (size_t)h->prim;
+            if (shadow_ray_tri(xform_point(m, v + 3 * (size_t)ix[0]), xform_point(m, v + 3 * (size_t)ix[1]),
+                               xform_point(m, v + 3 * (size_t)ix[2]), env->light, env->eps, &b->rays[k], h->t,
+                               &b->srays[k])) {
+                ns++;
+                continue;
+            }
+        }
+        inactive_ray(env, &b->srays[k]);
+    }
+    b->ns = ns;
+}
+
+/* Count this frame's disagreements: camera rays whose (instance, triangle)
+ * differ (Embree's instID[0] is the instance id, its primID the triangle in
+ * the instance's geometry), shadow rays whose occlusion differs. */
+static void tl_agree(TwoLevel *b)
+{
+    for (size_t k = 0; k < b->N; k++) {
+        const sheaf_scene_hit *h = &b->hits[k];
+        b->a_hits_s += h->prim != SHEAF_INVALID_ID;
+        b->a_hits_e += b->eprim[k] != SHEAF_INVALID_ID;
+        b->a_differ += h->prim != b->eprim[k] || (h->prim != SHEAF_INVALID_ID && h->instance != b->einst[k]);
+        b->a_srays += is_active(&b->srays[k]);
+        b->a_occ_s += b->socc[k];
+        b->a_occ_e += b->eocc[k];
+        b->a_sdiffer += b->socc[k] != b->eocc[k];
+    }
+    b->a_rays += b->N;
+}
+
+/* Frame 0 as sheaf traced it (sc: the camera job, ss: the shadow job), a
+ * binary PPM: a colour per geometry, shaded by the facing ratio, darker in
+ * shadow, misses blue. */
+static void tl_write_ppm(TwoLevel *b, const char *path)
+{
+    static const float COLOUR[NGEOM][3] = {{0.8f, 0.8f, 0.75f}, {0.9f, 0.3f, 0.2f}, {0.25f, 0.85f, 0.3f}};
+    unsigned char *img = xmalloc(3 * b->N);
+    for (size_t k = 0; k < b->N; k++) {
+        unsigned char *o = img + 3 * (size_t)b->pix[k];
+        const sheaf_scene_hit *h = &b->hits[k];
+        if (h->prim == SHEAF_INVALID_ID) {
+            o[0] = 90, o[1] = 120, o[2] = 170;
+            continue;
+        }
+        const float *v = tl_verts(b, (int)h->geometry, 0), *m = b->xf[h->instance];
+        const uint32_t *ix = b->g[h->geometry].idx + 3 * (size_t)h->prim;
+        V3 p0 = xform_point(m, v + 3 * (size_t)ix[0]), p1 = xform_point(m, v + 3 * (size_t)ix[1]);
+        V3 p2 = xform_point(m, v + 3 * (size_t)ix[2]);
+        V3 n = normalize_or_zero(cross(sub(p1, p0), sub(p2, p0)));
+        float c = fabsf(dot(n, normalize_or_zero(v3(b->rays[k].dir))));
+        float lit = is_active(&b->srays[k]) && !b->socc[k] ? 1.0f : 0.4f;
+        for (int a = 0; a < 3; a++) o[a] = (unsigned char)(255.0f * COLOUR[h->geometry][a] * (0.3f + 0.7f * c) * lit);
+    }
+    FILE *f = fopen(path, "wb");
+    if (!f)
+        die("cannot write %s: %s", path, strerror(errno));
+    fprintf(f, "P6\n%u %u\n255\n", b->W, b->H);
+    if (fwrite(img, 1, 3 * b->N, f) != 3 * b->N || fclose(f) != 0)
+        die("cannot write %s", path);
+    free(img);
+    progress("  frame 0 as sheaf traced it: %s\n", path);
+}
+
+/* The frame loop on thread count index ti. */
+static void tl_run(TwoLevel *b, int ti)
+{
+    int T = b->o->threads[ti];
+    TLEmbree e;
+    tl_ring(b, 0);
+    tl_sheaf_update(b, 0);
+    b->embree_setup_ms[ti] = 1e3 * tl_embree_setup(b, T, &e);
+    progress("  Embree on %d thread%s: child scenes and top level committed in %.1f ms\n", T, T > 1 ? "s" : "",
+             b->embree_setup_ms[ti]);
+
+    const Cfg *ranged = NULL;
+    for (size_t c = 0; c < N_PRIMARY_CFGS; c++)
+        if (!strcmp(PRIMARY_CFGS[c].name, "bvh-ranged 8x8")) ranged = &PRIMARY_CFGS[c];
+    if (!ranged) die("no bvh-ranged 8x8 configuration");
+    Job sc, ss, ec, es;
+    memset(&sc, 0, sizeof sc);
+    sc.lib = LIB_SHEAF;
+    sc.kind = K_SCENE_TRACE;
+    sc.ctx = b->ctx;
+    sc.s = &b->g[G_ENV];
+    sc.params = cfg_params(ranged, SHEAF_RAY_KIND_PRIMARY);
+    sc.rays = b->rays;
+    sc.n = b->N;
+    sc.shits = b->hits;
+    ss = sc;
+    ss.kind = K_SCENE_OCC;
+    ss.params = cfg_params(ranged, SHEAF_RAY_KIND_SHADOW);
+    ss.rays = b->srays;
+    ss.occ = b->socc;
+    memset(&ec, 0, sizeof ec);
+    ec.lib = LIB_EMBREE;
+    ec.kind = K_TRACE;
+    ec.s = &b->g[G_ENV];
+    ec.scene = e.top;
+    ec.rays = b->rays;
+    ec.n = b->N;
+    ec.prim = b->eprim;
+    ec.inst = b->einst;
+    ec.t = b->et;
+    es = ec;
+    es.kind = K_OCCLUDED;
+    es.rays = b->srays;
+    es.occ = b->eocc;
+
+    /* Frame 0, untimed: warm-up, and Embree's fastest query of each kind
+     * (median of the runs): camera rays 8 or 16 wide with the COHERENT
+     * context flag (Embree's advice for camera rays); shadow rays 8 wide
+     * COHERENT, or 8 or 16 wide INCOHERENT (its default and its advice for
+     * secondary rays). Not rtcOccluded16 with COHERENT: Embree 3.13.5's
+     * AVX-512 kernel never returns on some of these scenes (it depends on
+     * where its BVH nodes lie in memory; INCOHERENT, or AVX2, return). */
+    run_job(&sc, T);
+    tl_shadow_rays(b, 0);
+    run_job(&ss, T);
+    if (ti == 0 && b->o->ppm)
+        tl_write_ppm(b, b->o->ppm);
+    static const int CAM[2][2] = {{8, 0}, {16, 0}}, SHD[3][2] = {{8, 0}, {8, 1}, {16, 1}};
+    double bc = INFINITY, bs = INFINITY;
+    for (int c = 0; c < 2; c++) {
+        ec.width = CAM[c][0];
+        ec.incoherent = CAM[c][1];
+        double t = time_job(&ec, T, b->reps);
+        progress("  Embree frame 0, %d threads: rtcIntersect%d %s %.2f ms\n", T, ec.width,
+                 ec.incoherent ? "INCOHERENT" : "COHERENT", 1e3 * t);
+        if (t < bc) bc = t, b->pw[ti] = c;
+    }
+    for (int c = 0; c < 3; c++) {
+        es.width = SHD[c][0];
+        es.incoherent = SHD[c][1];
+        double t = time_job(&es, T, b->reps);
+        progress("  Embree frame 0, %d threads: rtcOccluded%d %s %.2f ms\n", T, es.width,
+                 es.incoherent ? "INCOHERENT" : "COHERENT", 1e3 * t);
+        if (t < bs) bs = t, b->sw[ti] = c;
+    }
+    ec.width = CAM[b->pw[ti]][0];
+    ec.incoherent = CAM[b->pw[ti]][1];
+    es.width = SHD[b->sw[ti]][0];
+    es.incoherent = SHD[b->sw[ti]][1];
+    snprintf(b->equery[ti], sizeof b->equery[ti], "rtcIntersect%d %s, rtcOccluded%d %s", ec.width,
+             ec.incoherent ? "INCOHERENT" : "COHERENT", es.width, es.incoherent ? "INCOHERENT" : "COHERENT");
+
+    int n = b->reps * b->frames;
+    double *t[2][NPHASE], *mr[2];
+    for (int l = 0; l < 2; l++) {
+        for (int p = 0; p < NPHASE; p++) t[l][p] = xmalloc((size_t)n * sizeof(double));
+        mr[l] = xmalloc((size_t)n * sizeof(double));
+    }
+    for (int r = 0; r < b->reps; r++)
+        for (int f = 0; f < b->frames; f++) {
+            int i = r * b->frames + f;
+            tl_ring(b, (uint32_t)f); /* the application's work: untimed */
+            t[0][P_UPDATE][i] = tl_sheaf_update(b, (uint32_t)f);
+            t[0][P_CAMERA][i] = run_job(&sc, T);
+            tl_shadow_rays(b, (uint32_t)f); /* untimed: the same rays for both */
+            t[0][P_SHADOW][i] = run_job(&ss, T);
+            t[1][P_UPDATE][i] = tl_embree_update(b, &e, (uint32_t)f);
+            t[1][P_CAMERA][i] = run_job(&ec, T);
+            t[1][P_SHADOW][i] = run_job(&es, T);
+            for (int l = 0; l < 2; l++) {
+                t[l][P_FRAME][i] = t[l][P_UPDATE][i] + t[l][P_CAMERA][i] + t[l][P_SHADOW][i];
+                mr[l][i] = mrays(b->N + b->ns, t[l][P_CAMERA][i] + t[l][P_SHADOW][i]);
+            }
+            if (ti == 0 && r == 0)
+                tl_agree(b);
+        }
+    for (int l = 0; l < 2; l++) {
+        for (int p = 0; p < NPHASE; p++) {
+            b->ms[ti][l][p] = 1e3 * median(t[l][p], n);
+            free(t[l][p]);
+        }
+        b->mr[ti][l] = median(mr[l], n);
+        free(mr[l]);
+    }
+    progress("  two-level frame, %d thread%s: sheaf %.2f ms, Embree %.2f ms (ratio %.2f)\n", T, T > 1 ? "s" : "",
+             b->ms[ti][0][P_FRAME], b->ms[ti][1][P_FRAME], b->ms[ti][0][P_FRAME] / b->ms[ti][1][P_FRAME]);
+    tl_embree_release(&e);
+}
+
+static double pct(size_t a, size_t n) { return n ? 100.0 * (double)a / (double)n : 0.0; }
+
+static void tl_report(TwoLevel *b)
+{
+    const Options *o = b->o;
+    const Scene *env = &b->g[G_ENV], *anim = &b->g[G_ANIM], *obj = &b->g[G_OBJ];
+    size_t na = (size_t)TL_ANIM * anim->nt, no = (size_t)TL_RING * obj->nt;
+    printf("\n### Two-level scene: %s + %s x %d + %s x %d\n\n", b->name[G_ENV], b->name[G_ANIM], TL_ANIM,
+           b->name[G_OBJ], TL_RING);
+    printf("Triangles: env %u (%s, one instance, static); anim %u x %d = %zu (%s, refit: its vertices move every "
+           "frame); obj %u x %d = %zu (%s, static, its %d instances turn every frame); %llu in all, of which "
+           "%.1f%% move per frame (%.1f%% deformed, %.1f%% moved by their instance's transform); sheaf traces %llu of them (it leaves out zero-area and non-finite "
+           "triangles).\n\n",
+           env->nt, b->name[G_ENV], anim->nt, TL_ANIM, na, b->name[G_ANIM], obj->nt, TL_RING, no, b->name[G_OBJ],
+           TL_RING, (unsigned long long)b->scene_tris, pct(na + no, b->scene_tris), pct(na, b->scene_tris),
+           pct(no, b->scene_tris), (unsigned long long)b->sheaf_tris);
+    printf("%ux%u camera rays of %s's view (%s) and one shadow-ray slot each toward its light; %d frames "
+           "(animation frame f mod %u, the ring turning 1/%d turn per frame), each library's median frame over "
+           "%d frames x %d runs; load average %.2f before, %.2f after. sheaf: a BVH per geometry (env and obj "
+           "STATIC, anim REFIT; binned SAH), sheaf_context_trace_scene / sheaf_context_occluded_scene with "
+           "bvh-ranged 8x8 packets (camera / shadow kind). Embree: env and obj child scenes at "
+           "RTC_BUILD_QUALITY_MEDIUM (committed once), the anim child LOW + DYNAMIC with its geometry at "
+           "RTC_BUILD_QUALITY_REFIT, the top level LOW + DYNAMIC; its fastest query width and context flag on frame 0 "
+           "(camera: 8 or 16 wide, COHERENT; shadows: 8 wide COHERENT, 8 or 16 wide INCOHERENT). Update + commit: "
+           "sheaf_context_update_scene_geometry + %d set_instance + commit_scene; Embree: the vertices copied into "
+           "the shared buffer, rtcUpdateGeometryBuffer + commits of the anim child, %d instance commits (%d with "
+           "new transforms), rtcCommitScene of the top. The shadow rays are made from sheaf's camera hits "
+           "(untimed) and traced by both. Ratios are sheaf / Embree: below 1 sheaf is faster for times, above 1 "
+           "for Mrays/s ((camera + shadow rays) / (camera + shadow time)).\n\n",
+           b->W, b->H, b->name[G_ENV], env->view, b->frames, anim->nframes, TL_TURN_FRAMES, b->frames, b->reps,
+           b->load0, b->load1, TL_RING, TL_ANIM + TL_RING, TL_RING);
+    for (int ti = 0; ti < o->nthreads; ti++) {
+        int T = o->threads[ti];
+        printf("**%d thread%s** (Embree: %s):\n\n", T, T > 1 ? "s" : "", b->equery[ti]);
+        printf("| | update + commit ms | camera ms | shadow ms | frame ms | Mrays/s |\n|---|--:|--:|--:|--:|--:|\n");
+        for (int l = 0; l < 2; l++)
+            printf("| %s | %.2f | %.2f | %.2f | %.2f | %.2f |\n", l ? "Embree" : "sheaf", b->ms[ti][l][P_UPDATE],
+                   b->ms[ti][l][P_CAMERA], b->ms[ti][l][P_SHADOW], b->ms[ti][l][P_FRAME], b->mr[ti][l]);
+        printf("| **sheaf / Embree** | %.2f | %.2f | %.2f | **%.2f** | %.2f |\n\n",
+               b->ms[ti][0][P_UPDATE] / b->ms[ti][1][P_UPDATE], b->ms[ti][0][P_CAMERA] / b->ms[ti][1][P_CAMERA],
+               b->ms[ti][0][P_SHADOW] / b->ms[ti][1][P_SHADOW], b->ms[ti][0][P_FRAME] / b->ms[ti][1][P_FRAME],
+               b->mr[ti][0] / b->mr[ti][1]);
+    }
+    printf("Agreement over the %d frames of the first run on %d thread%s: camera rays whose (instance, triangle) "
+           "differ: %zu of %zu (%.4f%%; hits sheaf %zu, Embree %zu); shadow rays whose occlusion differs: %zu of "
+           "%zu (%.4f%%; occluded sheaf %zu, Embree %zu).\n\n",
+           b->frames, o->threads[0], o->threads[0] > 1 ? "s" : "", b->a_differ, b->a_rays, pct(b->a_differ, b->a_rays),
+           b->a_hits_s, b->a_hits_e, b->a_sdiffer, b->a_srays, pct(b->a_sdiffer, b->a_srays), b->a_occ_s, b->a_occ_e);
+    printf("First builds (not in the frames): sheaf %.1f ms (three geometries and the first commit, calling thread); "
+           "Embree", b->sheaf_setup_ms);
+    for (int ti = 0; ti < o->nthreads; ti++)
+        printf("%s %.1f ms (%d thread%s)", ti ? "," : "", b->embree_setup_ms[ti], o->threads[ti], o->threads[ti] > 1 ? "s" : "");
+    printf(" (three child scenes and the top level).\n");
+    fflush(stdout);
+
+    summary("twolevel", "triangles", (double)b->scene_tris);
+    summary("twolevel", "moving_fraction", (double)(na + no) / (double)b->scene_tris);
+    summary("twolevel", "camera_rays", (double)b->a_rays);
+    summary("twolevel", "camera_differ", (double)b->a_differ);
+    summary("twolevel", "shadow_rays", (double)b->a_srays);
+    summary("twolevel", "shadow_differ", (double)b->a_sdiffer);
+    for (int ti = 0; ti < o->nthreads; ti++) {
+        static const char *PH[NPHASE] = {"update", "camera", "shadow", "frame"};
+        char k[64];
+        for (int p = 0; p < NPHASE; p++) {
+            snprintf(k, sizeof k, "T%d.%s_ratio", o->threads[ti], PH[p]);
+            summary("twolevel", k, b->ms[ti][0][p] / b->ms[ti][1][p]);
+            snprintf(k, sizeof k, "T%d.sheaf_%s_ms", o->threads[ti], PH[p]);
+            summary("twolevel", k, b->ms[ti][0][p]);
+            snprintf(k, sizeof k, "T%d.embree_%s_ms", o->threads[ti], PH[p]);
+            summary("twolevel", k, b->ms[ti][1][p]);
+        }
+        snprintf(k, sizeof k, "T%d.mrays_ratio", o->threads[ti]);
+        summary("twolevel", k, b->mr[ti][0] / b->mr[ti][1]);
+    }
+    if (o->check && ((double)b->a_differ > TL_MAX_DIFF_FRACTION * (double)b->a_rays ||
+                     (double)b->a_sdiffer > TL_MAX_DIFF_FRACTION * (double)b->a_srays)) {
+        fprintf(stderr, "embree_bench: two-level scene: agreement outside the bounds (TL_MAX_DIFF_FRACTION %g): "
+                        "%zu of %zu camera rays, %zu of %zu shadow rays differ\n", TL_MAX_DIFF_FRACTION, b->a_differ,
+                b->a_rays, b->a_sdiffer, b->a_srays);
+        g_fail = 1;
+    }
+}
+
+static void run_twolevel(const Options *o)
+{
+    TwoLevel *b = calloc(1, sizeof *b);
+    if (!b)
+        die("out of memory");
+    b->o = o;
+    tl_setup(b);
+    for (int ti = 0; ti < o->nthreads; ti++) tl_run(b, ti);
+    b->load1 = load_average();
+    tl_report(b);
+    sheaf_context_destroy(b->ctx);
+    free(b->rays); free(b->pix); free(b->hits); free(b->srays); free(b->socc); free(b->eocc);
+    free(b->eprim); free(b->einst); free(b->et);
+    for (int g = 0; g < NGEOM; g++) {
+        free(b->g[g].verts); free(b->g[g].idx); free(b->g[g].frames);
+    }
+    free(b);
+}
+
 /* ---- main ---------------------------------------------------------------------------- */
 
 static void usage(void)
@@ -2126,6 +2847,8 @@ static void usage(void)
     fprintf(stderr,
             "usage: embree_bench [--reps N] [--threads 1,2] [--size WxH] [--check] [--no-ray-check]\n"
             "                    [--summary FILE] SCENE.scene...\n"
+            "       embree_bench --twolevel ENV.scene ANIM.scene OBJ.scene [--frames N] [--reps N]\n"
+            "                    [--threads 1,2] [--size WxH] [--check] [--summary FILE]\n"
             "  SCENE.scene  written by `sheaf export` (one named view, its light)\n"
             "  --reps N     median of N timed runs (default 3)\n"
             "  --threads L  thread counts, comma-separated (default 1,2)\n"
@@ -2138,7 +2861,16 @@ static void usage(void)
             "  --profile NAME  time one configuration alone on 1 thread (for perf): a sheaf\n"
             "               method by its table name, or embree-1/4/8/16 (Embree LOW)\n"
             "  --profile-shadow  with --profile: the shadow rays instead of camera rays\n"
-            "  --explain    print every disagreement no tie, edge or end explains\n");
+            "  --explain    print every disagreement no tie, edge or end explains\n"
+            "  --twolevel ENV ANIM OBJ  the two-level scene instead: ENV static (one instance),\n"
+            "               ANIM (`sheaf export builtin:animated --frames F`) refit every frame (4\n"
+            "               instances), OBJ static in a ring of 16 instances turning every frame;\n"
+            "               ENV's view and light; sheaf and Embree frame times (see the README)\n"
+            "  --frames N   with --twolevel: frames per run (default 24; frame f shows the\n"
+            "               animation's frame f mod F); --check: at most 0.5%% of the camera\n"
+            "               and of the shadow rays may differ\n"
+            "  --ppm FILE   with --twolevel: write frame 0 as sheaf traced it (binary PPM; env grey,\n"
+            "               anim copies red, the ring green, darker in shadow)\n");
     exit(1);
 }
 
@@ -2151,6 +2883,7 @@ int main(int argc, char **argv)
     o.threads[1] = 2;
     o.nthreads = 2;
     o.check_rays = 1;
+    o.frames = 24;
     int first = 0;
     {
         uint32_t probe = 1;
@@ -2190,13 +2923,22 @@ int main(int argc, char **argv)
             o.profile = argv[++i];
         } else if (!strcmp(a, "--profile-shadow")) {
             o.profile_shadow = 1;
+        } else if (!strcmp(a, "--twolevel") && i + 3 < argc) {
+            for (int k = 0; k < 3; k++) o.twolevel[k] = argv[++i];
+        } else if (!strcmp(a, "--ppm") && i + 1 < argc) {
+            o.ppm = argv[++i];
+        } else if (!strcmp(a, "--frames") && i + 1 < argc) {
+            o.frames = atoi(argv[++i]);
+            if (o.frames < 1 || o.frames > TL_MAX_FRAMES) die("--frames: 1..%d", TL_MAX_FRAMES);
         } else if (a[0] == '-') {
             usage();
         } else {
             if (!first) first = i;
         }
     }
-    if (!first)
+    if (o.twolevel[0] && (first || o.profile))
+        die("--twolevel takes its three scenes and no other scene or --profile");
+    if (!first && !o.twolevel[0])
         usage();
     if (o.summary) {
         g_summary = fopen(o.summary, "w");
@@ -2246,10 +2988,12 @@ int main(int argc, char **argv)
     printf("; median of %d runs; load average at start %.2f.\n", o.reps, load_average());
     fflush(stdout);
 
-    for (int i = first; i < argc; i++) {
+    if (o.twolevel[0])
+        run_twolevel(&o);
+    for (int i = first; first && i < argc; i++) {
         const char *a = argv[i];
         if (!strcmp(a, "--reps") || !strcmp(a, "--threads") || !strcmp(a, "--size") || !strcmp(a, "--summary") ||
-            !strcmp(a, "--profile")) {
+            !strcmp(a, "--profile") || !strcmp(a, "--frames") || !strcmp(a, "--ppm")) {
             i++;
             continue;
         }

@@ -1,14 +1,23 @@
 #!/usr/bin/env bash
 # sheaf against Embree 3 on the same triangles and the same rays (issue 7).
 #
-#   benches/embree/run.sh            # the full run: 1024x1024, OBJ scenes + built-ins, 1 and 2 threads
+#   benches/embree/run.sh            # the full run: 1024x1024, OBJ scenes + built-ins, then the
+#                                    # two-level scene, 1 and 2 threads
 #   benches/embree/run.sh --quick    # smoke test: builtin:tetra at 256x256, one timed run
+#   benches/embree/run.sh --twolevel # the two-level scene alone (its section of the doc only)
+#   benches/embree/run.sh --twolevel --quick  # its smoke test: builtin:gears, 256x256, 3 frames
 #
 # Options: --quick, --reps N (default 3), --size WxH (default 1024x1024),
 # --scenes a,b,... (legocar, bunny, sibenik, sponza, conference, builtin names,
 # or .obj paths), --threads 1,2, --counters (link sheaf with its `counters`
 # feature; default: without, as an engine would ship it),
 # --no-install (never apt-get).
+# Two-level scene (issue 19 item 7; `embree_bench --twolevel`, see README.md):
+# --twolevel (run it alone), --no-twolevel (leave it out of the default run),
+# --env NAME (its static environment: sponza (default), conference, a builtin
+# name or an .obj path; without sponza's OBJ the default falls back to
+# conference), --frames N (frames per run, default 24). It runs in the default
+# full run (no --scenes) after the single scenes, and with --twolevel.
 #
 # 1. Installs Debian's libembree-dev with apt-get when it is missing and this
 #    runs as root; otherwise prints "Embree 3 not installed: skipped" and exits 0.
@@ -17,30 +26,45 @@
 #    `sheaf` CLI (cargo build --release -p sheaf-cli).
 # 3. Exports each scene with its view and light (`sheaf export`), builds
 #    benches/embree/embree_bench.c and runs it: progress on stderr, Markdown
-#    on stdout. The full run also writes docs/bench-embree/README.md.
+#    on stdout. The full run also writes docs/bench-embree/README.md (the
+#    two-level scene as its last section, which --twolevel replaces alone).
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 ROOT=$PWD
 export CARGO_TERM_COLOR=never
 
 quick=0 reps=3 size=1024x1024 scenes="" threads=1,2 counters=0 install=1
+twolevel=auto twolevel_asked=0 env="" tl_frames=24
 while [ $# -gt 0 ]; do
   case "$1" in
     --quick) quick=1 ;;
+    --twolevel) twolevel=only ;;
+    --no-twolevel) twolevel=no twolevel_asked=1 ;;
+    --env) env=$2; shift ;;
+    --frames) tl_frames=$2; shift ;;
     --reps) reps=$2; shift ;;
     --size) size=$2; shift ;;
     --scenes) scenes=$2; shift ;;
     --threads) threads=$2; shift ;;
     --counters) counters=1 ;;
     --no-install) install=0 ;;
-    -h|--help) sed -n '2,22p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,/^set -euo/p' "$0" | sed '$d'; exit 0 ;;
     *) echo "run.sh: unknown option $1 (see --help)" >&2; exit 1 ;;
   esac
   shift
 done
+# The two-level scene runs alone (--twolevel), or after the single scenes
+# of the default full run (no --scenes, not --quick, not --no-twolevel).
+if [ $twolevel = auto ]; then
+  if [ $quick = 0 ] && [ -z "$scenes" ]; then twolevel=after; else twolevel=no; fi
+fi
+anim_frames=48
 if [ $quick = 1 ]; then
   reps=1 size=256x256
   [ -n "$scenes" ] || scenes=tetra
+  # The two-level smoke test: a small built-in environment, few frames.
+  [ -n "$env" ] || env=gears
+  tl_frames=3 anim_frames=4
 fi
 [ -n "$scenes" ] || scenes=legocar,bunny,sibenik,sponza,conference,animated,balls
 
@@ -77,38 +101,74 @@ sheaf=$ROOT/target/release/sheaf
 
 # ---- scenes ---------------------------------------------------------------------
 shared=$ROOT/../shared/scenes
-files=()
-IFS=, read -r -a names <<< "$scenes"
-for n in "${names[@]}"; do
-  case "$n" in
-    legocar) src=$shared/legocar/legocar.obj ;;
-    bunny) src=$shared/bunny/bunny_tinybvh.obj ;;
-    sibenik) src=$shared/sibenik/sibenik.obj ;;
-    sponza) src=$shared/crytek_sponza/crytek_sponza.obj ;;
-    conference) src=$shared/conference/conference.obj ;;
-    tetra|balls|gears|animated) src=builtin:$n ;;
-    *.obj) src=$n ;;
-    *) echo "run.sh: unknown scene $n" >&2; exit 1 ;;
+# scene_src NAME: the OBJ path or builtin:NAME of a scene name (empty: unknown).
+scene_src() {
+  case "$1" in
+    legocar) echo "$shared/legocar/legocar.obj" ;;
+    bunny) echo "$shared/bunny/bunny_tinybvh.obj" ;;
+    sibenik) echo "$shared/sibenik/sibenik.obj" ;;
+    sponza) echo "$shared/crytek_sponza/crytek_sponza.obj" ;;
+    conference) echo "$shared/conference/conference.obj" ;;
+    tetra|balls|gears|animated) echo "builtin:$1" ;;
+    builtin:*|*.obj) echo "$1" ;;
   esac
-  if [ "${src#builtin:}" = "$src" ] && [ ! -f "$src" ]; then
-    echo "note: $n: $src not found, skipped" >&2
-    continue
-  fi
+}
+# export_scene SRC [FRAMES]: `sheaf export` at --size into $out/scenes; sets $f.
+export_scene() {
+  local src=$1 frames=()
   f=$out/scenes/$(basename "${src#builtin:}" .obj)-$size.scene
-  echo "== sheaf export $src --size $size" >&2
-  frames=()
-  # The animated scene carries its animation: per-frame rebuild and refit rows.
-  [ "$n" = animated ] && frames=(--frames 48)
+  if [ -n "${2:-}" ]; then
+    frames=(--frames "$2")
+    f=${f%.scene}-f$2.scene
+  fi
+  echo "== sheaf export $src --size $size ${frames[*]}" >&2
   "$sheaf" export "$src" --size "$size" --out "$f" "${frames[@]}" >&2
-  files+=("$f")
-done
-[ ${#files[@]} -gt 0 ] || { echo "run.sh: no scene to run" >&2; exit 1; }
+}
+files=()
+if [ $twolevel != only ]; then
+  IFS=, read -r -a names <<< "$scenes"
+  for n in "${names[@]}"; do
+    src=$(scene_src "$n")
+    [ -n "$src" ] || { echo "run.sh: unknown scene $n" >&2; exit 1; }
+    if [ "${src#builtin:}" = "$src" ] && [ ! -f "$src" ]; then
+      echo "note: $n: $src not found, skipped" >&2
+      continue
+    fi
+    # The animated scene carries its animation: per-frame rebuild and refit rows.
+    if [ "$n" = animated ]; then export_scene "$src" 48; else export_scene "$src"; fi
+    files+=("$f")
+  done
+  [ ${#files[@]} -gt 0 ] || { echo "run.sh: no scene to run" >&2; exit 1; }
+fi
+# The two-level scene: ENV (static), builtin:animated with its frames, builtin:tetra.
+tl_files=()
+if [ $twolevel != no ]; then
+  env_src=$(scene_src "${env:-sponza}")
+  [ -n "$env_src" ] || { echo "run.sh: unknown --env ${env}" >&2; exit 1; }
+  if [ -z "$env" ] && [ ! -f "$env_src" ]; then
+    echo "note: two-level scene: $env_src not found, trying conference" >&2
+    env_src=$(scene_src conference)
+  fi
+  if [ "${env_src#builtin:}" = "$env_src" ] && [ ! -f "$env_src" ]; then
+    echo "note: two-level scene: $env_src not found, skipped" >&2
+    [ $twolevel = only ] && exit 1
+    twolevel=no
+  else
+    export_scene "$env_src"; tl_files+=("$f")
+    export_scene builtin:animated "$anim_frames"; tl_files+=("$f")
+    export_scene builtin:tetra; tl_files+=("$f")
+  fi
+fi
 
 # ---- the program ------------------------------------------------------------------
 echo "== make -C benches/embree" >&2
 make -s -C benches/embree SHEAF_LIBDIR="$out/release" OUT="$out/embree_bench" >&2
 cmd=(benches/embree/run.sh)
 [ $quick = 1 ] && cmd+=(--quick)
+[ $twolevel = only ] && cmd+=(--twolevel)
+[ $twolevel = no ] && [ $twolevel_asked = 1 ] && cmd+=(--no-twolevel)
+[ -n "$env" ] && [ $quick = 0 ] && [ $twolevel != no ] && cmd+=(--env "$env")
+[ "$tl_frames" != 24 ] && [ $quick = 0 ] && [ $twolevel != no ] && cmd+=(--frames "$tl_frames")
 [ "$reps" != 3 ] && [ $quick = 0 ] && cmd+=(--reps "$reps")
 [ "$size" != 1024x1024 ] && [ $quick = 0 ] && cmd+=(--size "$size")
 [ "$threads" != 1,2 ] && cmd+=(--threads "$threads")
@@ -127,17 +187,71 @@ fi
 load_before=$(cut -d' ' -f1-3 /proc/loadavg)
 started=$(date -u '+%Y-%m-%d %H:%M UTC')
 t0=$(date +%s)
-tables=$out/tables.md
-set +e
-"$out/embree_bench" --reps "$reps" --threads "$threads" --summary "$out/summary.txt" "${files[@]}" | tee "$tables"
-status=${PIPESTATUS[0]}
-set -e
-[ "$status" = 0 ] || { echo "run.sh: embree_bench failed ($status)" >&2; exit "$status"; }
+tables=$out/tables.md tl_tables=$out/tables-twolevel.md
+if [ $twolevel != only ]; then
+  set +e
+  "$out/embree_bench" --reps "$reps" --threads "$threads" --summary "$out/summary.txt" "${files[@]}" | tee "$tables"
+  status=${PIPESTATUS[0]}
+  set -e
+  [ "$status" = 0 ] || { echo "run.sh: embree_bench failed ($status)" >&2; exit "$status"; }
+fi
 secs=$(( $(date +%s) - t0 ))
 load_after=$(cut -d' ' -f1-3 /proc/loadavg)
+if [ $twolevel != no ]; then
+  tl_load_before=$(cut -d' ' -f1-3 /proc/loadavg)
+  tl_started=$(date -u '+%Y-%m-%d %H:%M UTC')
+  tl_t0=$(date +%s)
+  tl_check=()
+  [ $quick = 1 ] && tl_check=(--check) # the smoke test fails on disagreement
+  set +e
+  "$out/embree_bench" --twolevel "${tl_files[@]}" --frames "$tl_frames" --reps "$reps" --threads "$threads" \
+    --summary "$out/summary-twolevel.txt" "${tl_check[@]}" | tee "$tl_tables"
+  status=${PIPESTATUS[0]}
+  set -e
+  [ "$status" = 0 ] || { echo "run.sh: embree_bench --twolevel failed ($status)" >&2; exit "$status"; }
+  tl_secs=$(( $(date +%s) - tl_t0 ))
+  tl_load_after=$(cut -d' ' -f1-3 /proc/loadavg)
+fi
 
-if [ $quick = 0 ]; then
-  doc=$ROOT/docs/bench-embree/README.md
+# The two-level section of the doc (its own header: it may be replaced alone).
+twolevel_section() {
+  echo "## Two-level scene (issue 19 item 7)"
+  echo
+  echo "Generated by \`${cmd[*]}\` on $tl_started in ${tl_secs} s (\`embree_bench --twolevel\`, $tl_frames frames"
+  echo "per run, median of $reps runs). Load average (1, 5, 15 min) before: $tl_load_before; after: $tl_load_after."
+  echo "One engine frame loop in both libraries over the same instances and rays: a static environment,"
+  echo "\`builtin:animated\` refit every frame (4 instances), \`builtin:tetra\` in a ring of 16 instances"
+  echo "turning every frame; per frame update + commit, the environment's camera rays and their shadow rays."
+  echo "See benches/embree/README.md (\"Two-level scene\") for how it is put together and measured."
+  echo
+  cat "$tl_tables"
+}
+
+doc=$ROOT/docs/bench-embree/README.md
+if [ $quick = 0 ] && [ $twolevel = only ]; then
+  # Replace the two-level section (the doc's last) or append it.
+  mkdir -p "$(dirname "$doc")"
+  rev=$(git rev-parse --short HEAD 2>/dev/null || echo unknown)
+  git diff --quiet HEAD 2>/dev/null || rev="$rev (with uncommitted changes)"
+  {
+    if [ -f "$doc" ]; then
+      # Everything before the old section, without trailing blank lines.
+      awk '/^## Two-level scene/ {exit} /^$/ {blank++; next} {for (; blank > 0; blank--) print ""; print}' "$doc"
+    else
+      echo "# sheaf against Embree 3"
+      echo
+      echo "Written by \`benches/embree/run.sh --twolevel\` alone (sheaf $rev; $(rustc --version 2>/dev/null || echo rustc);"
+      echo "$(gcc --version | head -1); sheaf built with $feat_note); a full run (\`benches/embree/run.sh\`)"
+      echo "puts the single-scene tables before this section."
+    fi
+    echo
+    twolevel_section
+  } > "$doc.tmp"
+  mv "$doc.tmp" "$doc"
+  echo "== wrote the two-level section of ${doc#"$ROOT"/}" >&2
+fi
+
+if [ $quick = 0 ] && [ $twolevel != only ]; then
   mkdir -p "$(dirname "$doc")"
   rev=$(git rev-parse --short HEAD 2>/dev/null || echo unknown)
   git diff --quiet HEAD 2>/dev/null || rev="$rev (with uncommitted changes)"
@@ -161,6 +275,10 @@ if [ $quick = 0 ]; then
     fi
     echo
     cat "$tables"
+    if [ $twolevel = after ]; then
+      echo
+      twolevel_section
+    fi
   } > "$doc"
   echo "== wrote ${doc#"$ROOT"/}" >&2
 fi
