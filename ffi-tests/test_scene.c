@@ -323,6 +323,8 @@ static bool test_flattened_scene_for_grid_and_kd(void) {
     sheaf_ray rays[64];
     sheaf_scene_hit dda[64], cgt[64], kd[64], two[64], out;
     sheaf_hit world;
+    sheaf_grid_params gp;
+    uint8_t occ[64];
     float xf[12];
     int k, hits = 0;
     CHECK_OK(sheaf_limits_default(64, &l));
@@ -382,10 +384,28 @@ static bool test_flattened_scene_for_grid_and_kd(void) {
     world.t = 1.0f;
     world.u = world.v = 0.25f;
     world.prim = 0;
-    CHECK_OK(sheaf_context_scene_prim(ctx, &world, &out));
+    CHECK_OK(sheaf_context_scene_prim(ctx, SHEAF_STRUCTURE_GRID, &world, &out));
     CHECK(out.instance == 0 && out.geometry == 0 && out.prim < 6 && out.t == 1.0f);
     world.prim = 18;
-    CHECK_STATUS(sheaf_context_scene_prim(ctx, &world, &out), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_scene_prim(ctx, SHEAF_STRUCTURE_GRID, &world, &out), SHEAF_STATUS_INVALID_ARGUMENT);
+    world.prim = SHEAF_INVALID_ID; /* a miss maps to a miss */
+    CHECK_OK(sheaf_context_scene_prim(ctx, SHEAF_STRUCTURE_KD, &world, &out));
+    CHECK(out.prim == SHEAF_INVALID_ID && out.instance == SHEAF_INVALID_ID);
+    CHECK_STATUS(sheaf_context_scene_prim(ctx, SHEAF_STRUCTURE_PGRID, &world, &out), SHEAF_STATUS_NOT_BUILT);
+    CHECK_STATUS(sheaf_context_scene_prim(ctx, SHEAF_STRUCTURE_BVH, &world, &out), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_scene_prim(ctx, SHEAF_STRUCTURE_GRID, NULL, &out), SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS(sheaf_context_scene_prim(ctx, SHEAF_STRUCTURE_GRID, &world, NULL), SHEAF_STATUS_NULL_POINTER);
+    /* kd packets' occlusion through the flattened scene. */
+    tp.method = SHEAF_METHOD_KD_PACKET;
+    CHECK_OK(sheaf_context_occluded_scene(ctx, &tp, rays, occ, 64, 3, 0));
+    for (k = 0; k < 64; ++k)
+        CHECK(occ[k] == (dda[k].prim != SHEAF_INVALID_ID));
+    /* A failed build (bad params) for another mask leaves the kd-tree
+     * answering for mask 3. */
+    CHECK_OK(sheaf_grid_params_default(&gp));
+    gp.lambda = -1.0f;
+    CHECK_STATUS(sheaf_context_build_scene_grid(ctx, &gp, 1), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_OK(sheaf_context_trace_scene(ctx, &tp, rays, kd, 64, 3, 0));
     /* Another mask than the build's, culling, then a new commit. */
     tp.method = SHEAF_METHOD_GRID_DDA;
     CHECK_STATUS(sheaf_context_trace_scene(ctx, &tp, rays, dda, 64, 3, SHEAF_RAY_FLAG_CULL_BACK_FACING),
@@ -395,6 +415,12 @@ static bool test_flattened_scene_for_grid_and_kd(void) {
     CHECK_STATUS(sheaf_context_trace_scene(ctx, &tp, rays, dda, 64, 3, 0), SHEAF_STATUS_NOT_BUILT);
     CHECK_OK(sheaf_context_build_scene_grid(ctx, NULL, 3));
     CHECK_OK(sheaf_context_trace_scene(ctx, &tp, rays, dda, 64, 3, 0));
+    /* A change without a commit: NOT_BUILT for the scene's traces and ids. */
+    placed(xf, 1.0f, -1.5f, 0.0f, 0.5f);
+    CHECK_OK(sheaf_context_set_instance(ctx, 0, 0, xf, 1));
+    CHECK_STATUS(sheaf_context_trace_scene(ctx, &tp, rays, dda, 64, 3, 0), SHEAF_STATUS_NOT_BUILT);
+    world.prim = 0;
+    CHECK_STATUS(sheaf_context_scene_prim(ctx, SHEAF_STRUCTURE_GRID, &world, &out), SHEAF_STATUS_NOT_BUILT);
     sheaf_context_destroy(ctx);
     return true;
 }

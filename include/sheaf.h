@@ -2309,19 +2309,23 @@ sheaf_status sheaf_context_build_scene_pgrid(struct sheaf_context *ctx,
                                              uint32_t mask);
 
 /**
- * `*hit`, a hit on the flattened scene (a deferred frame's pixel after
- * `sheaf_context_build_scene_pgrid`), as a scene hit into `*out`: the
- * same t, u, v with its geometry, instance and the geometry's own
- * triangle id. A miss maps to a miss.
+ * `*hit`, a hit of `structure` (`SHEAF_STRUCTURE_GRID`, `_KD` or
+ * `_PGRID`: a deferred frame's pixel after
+ * `sheaf_context_build_scene_pgrid`) on the flattened scene, as a scene
+ * hit into `*out`: the same t, u, v with its geometry, instance and the
+ * geometry's own triangle id. A miss maps to a miss.
  *
- * Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_NOT_BUILT` (no
- * flattening of the current commit), `SHEAF_STATUS_INVALID_ARGUMENT`
- * (`hit->prim` not a world triangle of it), `SHEAF_STATUS_CONTEXT_BUSY`,
- * `SHEAF_STATUS_POISONED`.
+ * Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_NOT_BUILT`
+ * (`structure` does not answer for the current commit: not built over
+ * it, the scene changed or was committed since, or a build for another
+ * mask flattened the scene again), `SHEAF_STATUS_INVALID_ARGUMENT`
+ * (another `structure`, or `hit->prim` not a world triangle of it),
+ * `SHEAF_STATUS_CONTEXT_BUSY`, `SHEAF_STATUS_POISONED`.
  *
  * Thread-safe: reads only.
  */
 sheaf_status sheaf_context_scene_prim(const struct sheaf_context *ctx,
+                                      uint32_t structure,
                                       const struct sheaf_hit *hit,
                                       struct sheaf_scene_hit *out);
 

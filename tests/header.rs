@@ -131,6 +131,14 @@ fn header_macros_match_the_crate() {
         format!("{}u", sheaf::Limits::BVH)
     );
     assert_eq!(
+        define("SHEAF_RAY_FLAG_CULL_BACK_FACING"),
+        format!("{}u", sheaf::ffi::SHEAF_RAY_FLAG_CULL_BACK_FACING)
+    );
+    assert_eq!(
+        define("SHEAF_RAY_FLAG_CULL_FRONT_FACING"),
+        format!("{}u", sheaf::ffi::SHEAF_RAY_FLAG_CULL_FRONT_FACING)
+    );
+    assert_eq!(
         define("SHEAF_DEPTH_BINS"),
         sheaf::trace::DEPTH_BINS.to_string()
     );

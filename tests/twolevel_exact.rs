@@ -411,6 +411,15 @@ fn grid_and_kd_trace_the_flattened_scene() {
         trace(&mut ctx, Method::GridDda, 2, 2),
         Err(sheaf::Error::NotBuilt)
     ));
+    // A failed build for another mask changes nothing the kd-tree answers.
+    let before = trace(&mut ctx, Method::KdSingle, 2, 2).unwrap();
+    let bad = sheaf::GridParams {
+        lambda: -1.0,
+        ..sheaf::GridParams::default()
+    };
+    assert!(ctx.build_grid_scene(&bad, 1).is_err());
+    let after = trace(&mut ctx, Method::KdSingle, 2, 2).unwrap();
+    assert!(before.iter().zip(&after).all(|(a, b)| same(a, b)));
 }
 
 /// Named tolerances of the oracle comparison, those of
@@ -509,10 +518,13 @@ fn every_family_agrees_with_the_oracle_on_the_flattened_scene() {
     let world: std::collections::HashMap<(u32, u32), u32> = (0..count)
         .map(|i| {
             let hit = ctx
-                .scene_prim(&sheaf::Hit {
-                    prim: i,
-                    ..sheaf::Hit::MISS
-                })
+                .scene_prim(
+                    Limits::GRID,
+                    &sheaf::Hit {
+                        prim: i,
+                        ..sheaf::Hit::MISS
+                    },
+                )
                 .unwrap();
             ((hit.instance, hit.prim), i)
         })
@@ -604,12 +616,22 @@ fn every_family_agrees_with_the_oracle_on_the_flattened_scene() {
             );
             hits += got.is_hit() as usize;
             if got.is_hit() {
-                let s = ctx.scene_prim(&got).unwrap();
+                let s = ctx.scene_prim(Limits::PGRID, &got).unwrap();
                 assert_eq!(world[&(s.instance, s.prim)], got.prim);
             }
         }
     }
     assert!(hits > camera.len() / 4, "{hits} pixels hit");
+    // A build for another mask flattens again: the frame's hits no longer
+    // map (the perspective grid was loaded from the other flattening).
+    let (px_hit, _) = ctx.deferred_pixel(w / 2, h / 2).unwrap();
+    ctx.build_grid_scene(&sheaf::GridParams::default(), 1)
+        .unwrap();
+    assert!(matches!(
+        ctx.scene_prim(Limits::PGRID, &px_hit),
+        Err(sheaf::Error::NotBuilt)
+    ));
+    assert!(ctx.scene_prim(Limits::GRID, &px_hit).is_ok() || !px_hit.is_hit());
 }
 
 /// Culling skips exactly one side, in the geometry's own space (instance 3

@@ -24,6 +24,7 @@ use crate::accel::twolevel::{GeometryParams, TwoLevelInfo, TwoLevelView, UpdateI
 use crate::counters::{Counters, elapsed_ns, now};
 use crate::error::{Error, Result};
 use crate::geom::{Affine, Cull, Culled, M4, Mt, Pt, Ray, Ray4, Scene, TriTest, Wt};
+use crate::mem::Limits;
 use crate::mem::par::{Par, Serial};
 use crate::trace::TraceParams;
 
@@ -82,9 +83,34 @@ pub(super) struct Sources {
     pub(super) pgrid: Option<Key>,
 }
 
+impl Sources {
+    /// What structure `s` (`Limits::GRID`, `KD` or `PGRID`) was built from.
+    fn of(&mut self, s: u32) -> Option<&mut Option<Key>> {
+        match s {
+            Limits::GRID => Some(&mut self.grid),
+            Limits::KD => Some(&mut self.kd),
+            Limits::PGRID => Some(&mut self.pgrid),
+            _ => None,
+        }
+    }
+
+    /// Whether structure `s` answers for the current commit's flattening
+    /// still in the pools (`None`: `s` is not a flattened structure).
+    fn current(&self, s: u32) -> Option<bool> {
+        let built = match s {
+            Limits::GRID => self.grid,
+            Limits::KD => self.kd,
+            Limits::PGRID => self.pgrid,
+            _ => return None,
+        };
+        Some(built.is_some() && built == self.flat && built.map(|k| k.0) == Some(self.commits))
+    }
+}
+
 impl<'a> Context<'a> {
     /// The flattened triangles of the current commit for `mask`,
-    /// flattened now unless they are already.
+    /// flattened now unless they are already. On error the pools and
+    /// `sources.flat` are unchanged (`Flat::flatten` writes nothing then).
     fn flat_for(&mut self, mask: u32, par: &dyn Par) -> Result<Key> {
         self.scene_pools()?;
         if self.flat.capacity() == 0 {
@@ -95,11 +121,41 @@ impl<'a> Context<'a> {
         let key = (self.sources.commits, mask);
         if self.sources.flat != Some(key) {
             let v = self.scene.view()?;
-            self.sources.flat = None;
             self.flat.flatten(&v, mask, par)?;
             self.sources.flat = Some(key);
         }
         Ok(key)
+    }
+
+    /// Structure `s` built by `build` over the current commit flattened
+    /// for `mask`. On success `s` answers for that flattening. On error
+    /// the builders keep `s` as it was (so its origin stays), and the
+    /// flattening the other structures were built from is put back when
+    /// it was replaced, so a failed build changes nothing they answer.
+    fn build_over_scene<R>(
+        &mut self,
+        s: u32,
+        mask: u32,
+        par: &dyn Par,
+        build: impl FnOnce(&mut Self, &Scene<'_>) -> Result<R>,
+    ) -> Result<R> {
+        let prev = self.sources.flat;
+        let key = self.flat_for(mask, par)?;
+        match self.over_flat(build) {
+            Ok(r) => {
+                if let Some(k) = self.sources.of(s) {
+                    *k = Some(key);
+                }
+                Ok(r)
+            }
+            Err(e) => {
+                if let Some(p) = prev.filter(|p| p.0 == self.sources.commits && *p != key) {
+                    // Fits: it did before, and nothing changed since.
+                    let _ = self.flat_for(p.1, par);
+                }
+                Err(e)
+            }
+        }
     }
 
     /// `f` with the flattened scene as a mesh, the pools lent out for the
@@ -117,8 +173,11 @@ impl<'a> Context<'a> {
     /// Rebuild the grid over the committed scene's instances that `mask`
     /// sees, flattened into world triangles (the grid paper's
     /// rebuild-everything model). `trace_scene_with` then traces it with
-    /// the grid's methods for that `mask`. On error the previous grid
-    /// stays valid (but no longer answers for the scene).
+    /// the grid's methods for that `mask`. The structures built over the
+    /// scene share one flattening: building one for another mask (or
+    /// after a new commit) flattens again, and the others answer
+    /// `NotBuilt` until they are rebuilt for it. On error nothing they
+    /// answer changes (`build_over_scene`).
     pub fn build_grid_scene(&mut self, params: &GridParams, mask: u32) -> Result<GridInfo> {
         self.build_grid_scene_with(params, mask, &Serial)
     }
@@ -131,11 +190,7 @@ impl<'a> Context<'a> {
         mask: u32,
         par: &dyn Par,
     ) -> Result<GridInfo> {
-        let key = self.flat_for(mask, par)?;
-        self.sources.grid = None;
-        let info = self.over_flat(|c, s| c.grid_over(s, params, par))?;
-        self.sources.grid = Some(key);
-        Ok(info)
+        self.build_over_scene(Limits::GRID, mask, par, |c, s| c.grid_over(s, params, par))
     }
 
     /// Rebuild the kd-tree over the committed scene's instances that
@@ -152,11 +207,7 @@ impl<'a> Context<'a> {
         mask: u32,
         par: &dyn Par,
     ) -> Result<KdInfo> {
-        let key = self.flat_for(mask, par)?;
-        self.sources.kd = None;
-        let info = self.over_flat(|c, s| c.kd_over(s, params))?;
-        self.sources.kd = Some(key);
-        Ok(info)
+        self.build_over_scene(Limits::KD, mask, par, |c, s| c.kd_over(s, params))
     }
 
     /// Load the committed scene's instances that `mask` sees for the
@@ -174,29 +225,44 @@ impl<'a> Context<'a> {
         mask: u32,
         par: &dyn Par,
     ) -> Result<SceneInfo> {
-        let key = self.flat_for(mask, par)?;
-        self.sources.pgrid = None;
-        let info = self.over_flat(|c, s| c.pgrid_over(s, params))?;
-        self.sources.pgrid = Some(key);
-        Ok(info)
+        self.build_over_scene(Limits::PGRID, mask, par, |c, s| c.pgrid_over(s, params))
     }
 
-    /// The last flattened scene as a mesh, with what it holds (`None`
-    /// before any `build_*_scene`): for oracles and shading.
+    /// The current commit's flattened scene as a mesh, with what it
+    /// holds (`None` before a `build_*_scene` of this commit): for oracles
+    /// and shading.
     pub fn flat_scene(&self) -> Option<(Scene<'_>, FlatInfo)> {
+        self.sources
+            .flat
+            .filter(|k| k.0 == self.sources.commits && self.scene.view().is_ok())?;
         Some((self.flat.scene()?, self.flat.info()?))
     }
 
-    /// Hit `h` on the flattened scene (a hit of a structure built by
-    /// `build_*_scene`) as a scene hit: `h` with its geometry, instance
-    /// and the geometry's own triangle id. Errors: `NotBuilt` without a
-    /// flattening of the current commit, `InvalidArgument` when `h.prim`
-    /// is not one of its triangles.
-    pub fn scene_prim(&self, h: &crate::geom::Hit) -> Result<SceneHit> {
+    /// Hit `h` of structure `structure` (`Limits::GRID`, `KD` or `PGRID`:
+    /// a deferred frame's pixel) built by `build_*_scene`, as a scene hit:
+    /// `h` with its geometry, instance and the geometry's own triangle id.
+    /// A miss is `SceneHit::MISS`, a kd packet's occlusion marker
+    /// `SceneHit::OCCLUDED`. Errors: `NotBuilt` when `structure` does not
+    /// answer for the current commit's flattening (not built from it,
+    /// built before a change or a commit, or another mask's flattening
+    /// replaced it), `InvalidArgument` for another `structure` or when
+    /// `h.prim` is not one of its triangles.
+    pub fn scene_prim(&self, structure: u32, h: &crate::geom::Hit) -> Result<SceneHit> {
         let v = self.scene_view()?;
-        match self.sources.flat {
-            Some((c, _)) if c == self.sources.commits => {}
-            _ => return Err(Error::NotBuilt),
+        match self.sources.current(structure) {
+            None => {
+                return Err(Error::InvalidArgument(
+                    "structure: Limits::GRID, KD or PGRID (built over the scene)",
+                ));
+            }
+            Some(false) => return Err(Error::NotBuilt),
+            Some(true) => {}
+        }
+        if !h.is_hit() {
+            return Ok(SceneHit::MISS);
+        }
+        if h.prim == crate::geom::Hit::OCCLUDED.prim {
+            return Ok(SceneHit::OCCLUDED);
         }
         self.flat_hit(&v, h).ok_or(Error::InvalidArgument(
             "not a triangle of the flattened scene",
@@ -212,19 +278,19 @@ impl<'a> Context<'a> {
         })
     }
 
-    /// The flattening structure `s` was built from, when it is the
-    /// current commit's for `mask` and still in the pools.
+    /// Whether structure `s` answers for the current commit's
+    /// flattening for `mask`.
     fn built_for(&self, s: Structure, mask: u32) -> Result<()> {
-        if self.flat.capacity() == 0 {
+        let (bit, built) = match s {
+            Structure::Grid => (Limits::GRID, self.sources.grid),
+            Structure::Kd => (Limits::KD, self.sources.kd),
+            Structure::Bvh => (Limits::BVH, None),
+        };
+        if self.flat.capacity() == 0 || !self.limits.has(bit) {
             return Err(Error::InvalidArgument(
-                "no flattened scene for the grid or kd-tree: Limits::structures lacks both",
+                "no grid or kd-tree over the scene: Limits::structures lacks it",
             ));
         }
-        let built = match s {
-            Structure::Grid => self.sources.grid,
-            Structure::Kd => self.sources.kd,
-            Structure::Bvh => None,
-        };
         let now = Some((self.sources.commits, mask));
         match built {
             Some(k) if Some(k) == now && self.sources.flat == now => Ok(()),
@@ -483,12 +549,12 @@ impl<'a> Context<'a> {
                     let sh = match self.flat_hit(v, &h) {
                         Some(sh) => sh,
                         // An occluded lane without an occluder's id (kd
-                        // packets: `Hit::OCCLUDED`) stays occluded.
-                        None if any && h.is_hit() => SceneHit {
-                            prim: h.prim,
-                            ..SceneHit::MISS
-                        },
-                        None => SceneHit::MISS,
+                        // packets' occlusion) stays occluded.
+                        None if h.prim == crate::geom::Hit::OCCLUDED.prim => SceneHit::OCCLUDED,
+                        None => {
+                            debug_assert!(!h.is_hit(), "a hit outside the flattened scene");
+                            SceneHit::MISS
+                        }
                     };
                     out(i, sh)
                 },

@@ -94,6 +94,7 @@ pub use pgrid::{
 };
 pub use ray::{sheaf_hit, sheaf_ray};
 pub use scene::{
+    SHEAF_RAY_FLAG_CULL_BACK_FACING, SHEAF_RAY_FLAG_CULL_FRONT_FACING,
     sheaf_context_build_scene_grid, sheaf_context_build_scene_kd, sheaf_context_build_scene_pgrid,
     sheaf_context_commit_scene, sheaf_context_occluded_scene, sheaf_context_remove_instance,
     sheaf_context_remove_scene_geometry, sheaf_context_scene_prim, sheaf_context_set_instance,

@@ -492,50 +492,56 @@ pub extern "C" fn sheaf_context_build_scene_pgrid(
     })
 }
 
-/// `*hit`, a hit on the flattened scene (a deferred frame's pixel after
-/// `sheaf_context_build_scene_pgrid`), as a scene hit into `*out`: the
-/// same t, u, v with its geometry, instance and the geometry's own
-/// triangle id. A miss maps to a miss.
+/// `*hit`, a hit of `structure` (`SHEAF_STRUCTURE_GRID`, `_KD` or
+/// `_PGRID`: a deferred frame's pixel after
+/// `sheaf_context_build_scene_pgrid`) on the flattened scene, as a scene
+/// hit into `*out`: the same t, u, v with its geometry, instance and the
+/// geometry's own triangle id. A miss maps to a miss.
 ///
-/// Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_NOT_BUILT` (no
-/// flattening of the current commit), `SHEAF_STATUS_INVALID_ARGUMENT`
-/// (`hit->prim` not a world triangle of it), `SHEAF_STATUS_CONTEXT_BUSY`,
-/// `SHEAF_STATUS_POISONED`.
+/// Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_NOT_BUILT`
+/// (`structure` does not answer for the current commit: not built over
+/// it, the scene changed or was committed since, or a build for another
+/// mask flattened the scene again), `SHEAF_STATUS_INVALID_ARGUMENT`
+/// (another `structure`, or `hit->prim` not a world triangle of it),
+/// `SHEAF_STATUS_CONTEXT_BUSY`, `SHEAF_STATUS_POISONED`.
 ///
 /// Thread-safe: reads only.
 #[unsafe(no_mangle)]
 pub extern "C" fn sheaf_context_scene_prim(
     ctx: *const sheaf_context,
+    structure: u32,
     hit: *const sheaf_hit,
     out: *mut sheaf_scene_hit,
 ) -> super::sheaf_status {
     with_ref(ctx, |h| {
         let hit = read_in(hit)?;
         check_non_null!(out);
-        let got = if hit.prim == crate::geom::INVALID_ID {
-            h.ctx.scene_view()?;
-            SceneHit::MISS
-        } else {
-            let hit = crate::geom::Hit {
-                t: hit.t,
-                prim: hit.prim,
-                u: hit.u,
-                v: hit.v,
-            };
-            h.ctx.scene_prim(&hit)?
+        let hit = crate::geom::Hit {
+            t: hit.t,
+            prim: hit.prim,
+            u: hit.u,
+            v: hit.v,
         };
-        write_out(out, got.into());
+        write_out(out, h.ctx.scene_prim(structure, &hit)?.into());
         Ok(())
     })
 }
 
+/// `flags` of `sheaf_context_trace_scene`: skip back-facing triangles
+/// (C: `SHEAF_RAY_FLAG_CULL_BACK_FACING`).
+pub const SHEAF_RAY_FLAG_CULL_BACK_FACING: u32 = 1;
+/// `flags` of `sheaf_context_trace_scene`: skip front-facing triangles
+/// (C: `SHEAF_RAY_FLAG_CULL_FRONT_FACING`).
+pub const SHEAF_RAY_FLAG_CULL_FRONT_FACING: u32 = 2;
+
 /// A scene trace's mask and `SHEAF_RAY_FLAG_*` bits as `RayControls`.
 fn controls(mask: u32, flags: u32) -> Result<RayControls> {
+    const BOTH: u32 = SHEAF_RAY_FLAG_CULL_BACK_FACING | SHEAF_RAY_FLAG_CULL_FRONT_FACING;
     let cull = match flags {
         0 => Cull::None,
-        1 => Cull::Back,
-        2 => Cull::Front,
-        3 => {
+        SHEAF_RAY_FLAG_CULL_BACK_FACING => Cull::Back,
+        SHEAF_RAY_FLAG_CULL_FRONT_FACING => Cull::Front,
+        BOTH => {
             return Err(Error::InvalidArgument(
                 "cull back-facing and front-facing triangles: at most one",
             ));

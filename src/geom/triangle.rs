@@ -539,6 +539,12 @@ pub enum Cull {
 /// `T::facing` is strictly on the kept side, so a ray in the triangle's
 /// plane never hits a culled test. The same operations in every lane
 /// width, so packets stay bitwise their single ray.
+///
+/// # Deviations
+/// The side is computed apart from the test's own determinant: where the
+/// winding normal overflows f32 (triangles of coordinates beyond about
+/// 1e19) or the facing product underflows to 0 or turns NaN, a hit is
+/// culled on both sides.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct Culled<T, const FRONT: bool>(core::marker::PhantomData<T>);
 

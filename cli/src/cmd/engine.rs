@@ -326,10 +326,12 @@ pub fn engine(a: &EngineArgs) -> Result<()> {
         Family::Bvh => Limits::for_triangles(16),
         Family::Grid | Family::Kd => Limits::for_triangles(flat_tris),
     };
+    // The two-level scene's BVH pools come with `max_geometries`; the
+    // grid or kd-tree family needs its own pools only.
     limits.structures = match a.family {
         Family::Bvh => Limits::BVH,
-        Family::Grid => Limits::BVH | Limits::GRID,
-        Family::Kd => Limits::BVH | Limits::KD,
+        Family::Grid => Limits::GRID,
+        Family::Kd => Limits::KD,
     };
     limits.max_threads = threads;
     limits.max_geometries = 4;

@@ -194,18 +194,6 @@ mod tests {
     use crate::geom::Affine;
     use crate::mem::par::Serial;
 
-    struct Two(usize);
-    impl Par for Two {
-        fn workers(&self) -> usize {
-            self.0
-        }
-        fn run(&self, task: &(dyn Fn(usize) + Sync)) {
-            for w in 0..self.0 {
-                task(w)
-            }
-        }
-    }
-
     #[test]
     fn flattening_maps_every_visible_instance_for_any_worker_count() {
         let mesh = crate::scenes::builtin("gears").unwrap().mesh;
@@ -247,8 +235,9 @@ mod tests {
         assert_eq!(inst, 2);
         assert_eq!(tri(&f, stored).v1, moved.point(scene.triangle(prim).v1));
         assert_eq!(f.id(2 * stored), None);
-        // Three workers write the same triangles.
-        f.flatten(&v, 3, &Two(3)).unwrap();
+        // Three workers (run in reverse) write the same triangles.
+        f.flatten(&v, 3, &crate::accel::testkit::Backwards(3))
+            .unwrap();
         assert!((0..info.triangles).all(|i| tri(&f, i) == one[i as usize]));
         // Too many triangles: refused, the last flattening kept.
         let mut small = Flat::new(FlatPools {
@@ -256,11 +245,12 @@ mod tests {
             indices: &mut idx[..3 * n],
             ids: &mut ids[..n],
         });
+        let one = small.flatten(&v, 1, &Serial).unwrap();
         assert!(matches!(
             small.flatten(&v, !0, &Serial),
             Err(Error::Capacity { .. })
         ));
-        assert_eq!(small.info(), None);
+        assert_eq!(small.info(), Some(one));
     }
 
     fn tri(f: &Flat<'_>, i: u32) -> TriVerts {

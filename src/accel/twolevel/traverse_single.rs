@@ -48,6 +48,16 @@ impl SceneHit {
         geometry: INVALID_ID,
         instance: INVALID_ID,
     };
+    /// An occluded ray whose occluder is not known (kd packets'
+    /// occlusion through the flattened scene: `Hit::OCCLUDED`).
+    pub const OCCLUDED: SceneHit = SceneHit {
+        t: 0.0,
+        u: 0.0,
+        v: 0.0,
+        prim: INVALID_ID - 1,
+        geometry: INVALID_ID,
+        instance: INVALID_ID,
+    };
     #[inline]
     pub fn is_hit(&self) -> bool {
         self.prim != INVALID_ID
