@@ -10,68 +10,17 @@
 //! - `T_REL`: on agreement, the f32 t must be within this relative distance
 //!   of the f64 t.
 //!
-//! Anything else fails the test with the ray, both hits and the difference.
+//! Anything else fails the test with the ray, both hits and the difference
+//! (`common::oracle`, shared with `tests/twolevel_exact.rs`).
 
 mod common;
 
+use common::oracle::{EDGE_BARY, TIE_REL, Tally, classify_hit};
 use common::{TestScene, builtin_scenes, obj_scenes, par_map, view_rays};
 use glam::Vec3;
 use sheaf::geom::INVALID_ID;
 use sheaf::reference::{self, RefHit};
-use sheaf::{GridParams, Hit, Limits, Method, OwnedContext, Ray, Scene, TriTest};
-
-const TIE_REL: f64 = 1e-5;
-const EDGE_BARY: f64 = 1e-5;
-const T_REL: f64 = 1e-4;
-
-#[derive(Default, Debug)]
-struct Tally {
-    rays: u64,
-    exact: u64,
-    ties: u64,
-    edges: u64,
-    errors: Vec<String>,
-}
-
-fn classify_hit(
-    scene: &Scene,
-    i: usize,
-    ray: &Ray,
-    got: &Hit,
-    want: &RefHit,
-    t: &mut Tally,
-    what: &str,
-) {
-    t.rays += 1;
-    let mut want = *want;
-    if got.prim != want.prim
-        || (got.prim != INVALID_ID && (got.t as f64 - want.t).abs() > T_REL * want.t.abs())
-    {
-        want = reference::with_edge_distance(scene, ray, want);
-    }
-    if got.prim == want.prim {
-        if got.prim != INVALID_ID {
-            let rel = (got.t as f64 - want.t).abs() / want.t.abs().max(1e-30);
-            if rel > T_REL && want.edge > EDGE_BARY {
-                t.errors.push(format!(
-                    "{what} ray {i} {ray:?}: same triangle {} but t {} vs f64 {} (rel {rel:e})",
-                    got.prim, got.t, want.t
-                ));
-                return;
-            }
-        }
-        t.exact += 1;
-    } else if want.gap <= TIE_REL {
-        t.ties += 1;
-    } else if want.edge <= EDGE_BARY {
-        t.edges += 1;
-    } else {
-        t.errors.push(format!(
-            "{what} ray {i} {ray:?}: got prim {} t {} / f64 prim {} t {} (gap {:e}, edge {:e})",
-            got.prim, got.t, want.prim, want.t, want.gap, want.edge
-        ));
-    }
-}
+use sheaf::{GridParams, Hit, Limits, Method, OwnedContext, Ray, TriTest};
 
 fn shadow_rays(primary: &[Ray], hits: &[Hit], light: Vec3, scale: f32) -> Vec<Ray> {
     primary

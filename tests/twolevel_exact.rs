@@ -14,6 +14,7 @@
 mod common;
 
 use common::exact::{RES, packets};
+use common::oracle::{Tally, classify_hit};
 use common::view_rays;
 use glam::Vec3;
 use sheaf::accel::bvh::{BuildQuality, BvhParams};
@@ -422,62 +423,6 @@ fn grid_and_kd_trace_the_flattened_scene() {
     assert!(before.iter().zip(&after).all(|(a, b)| same(a, b)));
 }
 
-/// Named tolerances of the oracle comparison, those of
-/// `tests/reference_equivalence.rs`: a tie of the f64 oracle's two
-/// nearest hits, a ray within a barycentric distance of an edge, and the
-/// relative t on agreement. The two-level BVH, which maps the ray into
-/// object space instead of meeting the flattening's rounded world
-/// triangles, is held to the same ones: no transform tolerance was needed
-/// on these rays (every ray agrees exactly).
-const TIE_REL: f64 = 1e-5;
-const EDGE_BARY: f64 = 1e-5;
-const T_REL: f64 = 1e-4;
-
-/// Counts of one comparison with the oracle.
-#[derive(Debug, Default)]
-struct Tally {
-    exact: usize,
-    ties: usize,
-    edges: usize,
-    errors: Vec<String>,
-}
-
-/// `got` (a world triangle index or `None` for a miss, and its t)
-/// against the oracle's `want`.
-fn classify(
-    s: &sheaf::Scene,
-    ray: &Ray,
-    got: Option<(u32, f32)>,
-    want: sheaf::reference::RefHit,
-    t: &mut Tally,
-) {
-    let miss = sheaf::geom::INVALID_ID;
-    let (prim, gt) = got.unwrap_or((miss, f32::INFINITY));
-    let want = if prim != want.prim {
-        sheaf::reference::with_edge_distance(s, ray, want)
-    } else {
-        want
-    };
-    if prim == want.prim {
-        let rel = (gt as f64 - want.t).abs() / want.t.abs().max(1e-30);
-        if prim == miss || rel <= T_REL {
-            t.exact += 1;
-        } else {
-            t.errors
-                .push(format!("{ray:?}: prim {prim} t {gt} vs f64 {}", want.t));
-        }
-    } else if want.gap <= TIE_REL {
-        t.ties += 1;
-    } else if want.edge <= EDGE_BARY {
-        t.edges += 1;
-    } else {
-        t.errors.push(format!(
-            "{ray:?}: prim {prim} t {gt} / f64 prim {} t {} (gap {:e}, edge {:e})",
-            want.prim, want.t, want.gap, want.edge
-        ));
-    }
-}
-
 /// Every family answers for the same scene: on the flattened scene, the
 /// grid's and the kd-tree's single rays and the two-level BVH agree with
 /// the f64 oracle within the named tolerances (the two-level BVH under
@@ -559,10 +504,21 @@ fn every_family_agrees_with_the_oracle_on_the_flattened_scene() {
             None => ctx.trace_scene(&rays, !0, &mut got),
         }
         .unwrap();
+        // The named tolerances of `reference_equivalence` (the two-level
+        // BVH, which maps rays into object space instead of meeting the
+        // flattening's rounded world triangles, needed no other).
         let mut t = Tally::default();
-        for ((r, g), o) in rays.iter().zip(&got).zip(&oracle) {
-            let g = g.is_hit().then(|| (world[&(g.instance, g.prim)], g.t));
-            classify(&flat, r, g, *o, &mut t);
+        for (k, ((r, g), o)) in rays.iter().zip(&got).zip(&oracle).enumerate() {
+            let hit = sheaf::Hit {
+                t: g.t,
+                prim: if g.is_hit() {
+                    world[&(g.instance, g.prim)]
+                } else {
+                    sheaf::geom::INVALID_ID
+                },
+                ..sheaf::Hit::MISS
+            };
+            classify_hit(&flat, k, r, &hit, o, &mut t, what);
         }
         report.push(format!("{what}: {t:?}"));
         assert!(
@@ -571,7 +527,7 @@ fn every_family_agrees_with_the_oracle_on_the_flattened_scene() {
             t.errors.len(),
             &t.errors[..t.errors.len().min(4)]
         );
-        assert!(t.exact > rays.len() * 9 / 10, "{what}: {t:?}");
+        assert!(t.exact as usize > rays.len() * 9 / 10, "{what}: {t:?}");
     }
     println!("{}", report.join("\n"));
     // The deferred frame against the flattened mesh's BVH single ray.

@@ -3,6 +3,7 @@
 #![allow(dead_code)]
 
 pub mod exact;
+pub mod oracle;
 
 use glam::Vec3;
 use sheaf::Ray;
