@@ -19,6 +19,36 @@ static sheaf_mesh square(void) {
     return m;
 }
 
+/* A pyramid of 6 triangles (a square base at y = 0, apex at y = 1.5). */
+static const float PYR_V[5][3] = {{-1, 0, -1}, {1, 0, -1}, {1, 0, 1}, {-1, 0, 1}, {0, 1.5f, 0}};
+static const uint32_t PYR_I[18] = {0, 1, 4, 1, 2, 4, 2, 3, 4, 3, 0, 4, 0, 2, 1, 0, 3, 2};
+
+static sheaf_mesh pyramid(void) {
+    sheaf_mesh m;
+    m.vertices = &PYR_V[0][0];
+    m.vertex_stride_bytes = 12;
+    m.vertex_count = 5;
+    m.indices = PYR_I;
+    m.triangle_count = 6;
+    return m;
+}
+
+/* The camera ray of pixel (x, y) of an n x n image looking down -z from
+ * (0, 0.8, 6) at the pyramids. */
+static sheaf_ray eye_ray(int x, int y, int n) {
+    sheaf_ray r;
+    float c = 0.5f * (float)(n - 1);
+    r.org[0] = 0.0f;
+    r.org[1] = 0.8f;
+    r.org[2] = 6.0f;
+    r.dir[0] = ((float)x - c) / (float)n * 0.8f;
+    r.dir[1] = ((float)y - c) / (float)n * 0.6f - 0.1f;
+    r.dir[2] = -1.0f;
+    r.tmin = 0.0f;
+    r.tmax = INFINITY;
+    return r;
+}
+
 static sheaf_context *scene_context(uint32_t geometries, uint32_t instances, uint32_t budget) {
     sheaf_limits l;
     sheaf_context *ctx = NULL;
@@ -245,8 +275,6 @@ static bool test_bad_input_changes_nothing(void) {
  * bit: a 16 x 16 grid of camera rays as 8 x 8 packets over three rotated,
  * mirrored and overlapping instances of a pyramid. */
 static bool test_packet_methods_equal_single_rays(void) {
-    static const float PYR_V[5][3] = {{-1, 0, -1}, {1, 0, -1}, {1, 0, 1}, {-1, 0, 1}, {0, 1.5f, 0}};
-    static const uint32_t PYR_I[18] = {0, 1, 4, 1, 2, 4, 2, 3, 4, 3, 0, 4, 0, 2, 1, 0, 3, 2};
     static const sheaf_method METHODS[7] = {SHEAF_METHOD_BVH_SINGLE, SHEAF_METHOD_BVH_WIDE, SHEAF_METHOD_BVH_SIMD,
                                             SHEAF_METHOD_BVH_MASKED, SHEAF_METHOD_BVH_RANGED,
                                             SHEAF_METHOD_BVH_PARTITION, SHEAF_METHOD_BVH_WIDE_RANGED};
@@ -259,11 +287,7 @@ static bool test_packet_methods_equal_single_rays(void) {
     float xf[12];
     int i, k, hits = 0;
     CHECK(ctx != NULL);
-    m.vertices = &PYR_V[0][0];
-    m.vertex_stride_bytes = 12;
-    m.vertex_count = 5;
-    m.indices = PYR_I;
-    m.triangle_count = 6;
+    m = pyramid();
     CHECK_OK(sheaf_context_set_scene_geometry(ctx, 0, &m, NULL));
     placed(xf, 1.0f, -1.5f, 0.0f, 0.0f);
     CHECK_OK(sheaf_context_set_instance(ctx, 0, 0, xf, ~0u));
@@ -277,14 +301,7 @@ static bool test_packet_methods_equal_single_rays(void) {
     for (k = 0; k < 256; ++k) {
         int packet = k / 64, q = (k % 64) / 4, l = k % 4;
         int x = (packet % 2) * 8 + (q % 4) * 2 + (l % 2), y = (packet / 2) * 8 + (q / 4) * 2 + (l / 2);
-        rays[k].org[0] = 0.0f;
-        rays[k].org[1] = 0.8f;
-        rays[k].org[2] = 6.0f;
-        rays[k].dir[0] = (x - 7.5f) / 16.0f * 0.8f;
-        rays[k].dir[1] = (y - 7.5f) / 16.0f * 0.6f - 0.1f;
-        rays[k].dir[2] = -1.0f;
-        rays[k].tmin = 0.0f;
-        rays[k].tmax = INFINITY;
+        rays[k] = eye_ray(x, y, 16);
     }
     CHECK_OK(sheaf_context_trace_scene(ctx, NULL, rays, want, 256, ~0u, 0));
     CHECK_OK(sheaf_context_occluded_scene(ctx, NULL, rays, occ_want, 256, ~0u, 0));
@@ -314,8 +331,6 @@ static bool test_packet_methods_equal_single_rays(void) {
  * single rays, both families give the same world hits, ids map back, and
  * another mask or a new commit is refused until they are rebuilt. */
 static bool test_flattened_scene_for_grid_and_kd(void) {
-    static const float PYR_V[5][3] = {{-1, 0, -1}, {1, 0, -1}, {1, 0, 1}, {-1, 0, 1}, {0, 1.5f, 0}};
-    static const uint32_t PYR_I[18] = {0, 1, 4, 1, 2, 4, 2, 3, 4, 3, 0, 4, 0, 2, 1, 0, 3, 2};
     sheaf_limits l;
     sheaf_context *ctx = NULL;
     sheaf_mesh m;
@@ -333,11 +348,7 @@ static bool test_flattened_scene_for_grid_and_kd(void) {
     l.max_instances = 3;
     l.max_scene_triangles = 6;
     CHECK_OK(sheaf_context_create(&l, &ctx));
-    m.vertices = &PYR_V[0][0];
-    m.vertex_stride_bytes = 12;
-    m.vertex_count = 5;
-    m.indices = PYR_I;
-    m.triangle_count = 6;
+    m = pyramid();
     CHECK_OK(sheaf_context_set_scene_geometry(ctx, 0, &m, NULL));
     placed(xf, 1.0f, -1.5f, 0.0f, 0.0f);
     CHECK_OK(sheaf_context_set_instance(ctx, 0, 0, xf, 1));
@@ -351,14 +362,7 @@ static bool test_flattened_scene_for_grid_and_kd(void) {
     CHECK_OK(sheaf_context_build_scene_kd(ctx, NULL, 3));
     for (k = 0; k < 64; ++k) {
         int q = k / 4, x = (q % 4) * 2 + (k % 2), y = (q / 4) * 2 + (k % 4) / 2;
-        rays[k].org[0] = 0.0f;
-        rays[k].org[1] = 0.8f;
-        rays[k].org[2] = 6.0f;
-        rays[k].dir[0] = (x - 3.5f) / 8.0f * 0.8f;
-        rays[k].dir[1] = (y - 3.5f) / 8.0f * 0.6f - 0.1f;
-        rays[k].dir[2] = -1.0f;
-        rays[k].tmin = 0.0f;
-        rays[k].tmax = INFINITY;
+        rays[k] = eye_ray(x, y, 8);
     }
     CHECK_OK(sheaf_trace_params_default(&tp));
     tp.packet = 8;
