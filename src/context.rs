@@ -458,7 +458,7 @@ impl<'a> Context<'a> {
     ) -> Result<GridInfo> {
         self.check_scene(scene)?;
         let info = self.grid_over(scene, params, par)?;
-        self.sources.grid = None;
+        self.sources.set(Limits::GRID, None);
         Ok(info)
     }
 
@@ -570,7 +570,7 @@ impl<'a> Context<'a> {
     pub fn build_kd(&mut self, scene: &Scene<'_>, params: &KdParams) -> Result<KdInfo> {
         self.check_scene(scene)?;
         let info = self.kd_over(scene, params)?;
-        self.sources.kd = None;
+        self.sources.set(Limits::KD, None);
         Ok(info)
     }
 
@@ -595,7 +595,7 @@ impl<'a> Context<'a> {
     pub fn build_pgrid(&mut self, scene: &Scene<'_>, params: &PgridParams) -> Result<SceneInfo> {
         self.check_scene(scene)?;
         let info = self.pgrid_over(scene, params)?;
-        self.sources.pgrid = None;
+        self.sources.set(Limits::PGRID, None);
         Ok(info)
     }
 

@@ -78,32 +78,40 @@ type Key = (u64, u32);
 pub(super) struct Sources {
     commits: u64,
     flat: Option<Key>,
-    pub(super) grid: Option<Key>,
-    pub(super) kd: Option<Key>,
-    pub(super) pgrid: Option<Key>,
+    /// The grid's, the kd-tree's and the perspective grids' (`slot`).
+    built: [Option<Key>; 3],
 }
 
 impl Sources {
-    /// What structure `s` (`Limits::GRID`, `KD` or `PGRID`) was built from.
-    fn of(&mut self, s: u32) -> Option<&mut Option<Key>> {
+    /// Where structure `s` (`Limits::GRID`, `KD` or `PGRID`) keeps its
+    /// origin (`None`: `s` is none of them).
+    fn slot(s: u32) -> Option<usize> {
         match s {
-            Limits::GRID => Some(&mut self.grid),
-            Limits::KD => Some(&mut self.kd),
-            Limits::PGRID => Some(&mut self.pgrid),
+            Limits::GRID => Some(0),
+            Limits::KD => Some(1),
+            Limits::PGRID => Some(2),
             _ => None,
         }
     }
 
-    /// Whether structure `s` answers for the current commit's flattening
-    /// still in the pools (`None`: `s` is not a flattened structure).
-    fn current(&self, s: u32) -> Option<bool> {
-        let built = match s {
-            Limits::GRID => self.grid,
-            Limits::KD => self.kd,
-            Limits::PGRID => self.pgrid,
-            _ => return None,
-        };
-        Some(built.is_some() && built == self.flat && built.map(|k| k.0) == Some(self.commits))
+    /// Structure `s` rebuilt from a mesh (or from the flattening `key`).
+    pub(super) fn set(&mut self, s: u32, key: Option<Key>) {
+        if let Some(i) = Self::slot(s) {
+            self.built[i] = key;
+        }
+    }
+
+    /// The flattening structure `s` answers for: built from it, still in
+    /// the pools, of the current commit (`Err(NotBuilt)` else,
+    /// `InvalidArgument` when `s` is not a flattened structure).
+    fn current(&self, s: u32) -> Result<Key> {
+        let i = Self::slot(s).ok_or(Error::InvalidArgument(
+            "structure: Limits::GRID, KD or PGRID (built over the scene)",
+        ))?;
+        match self.built[i] {
+            Some(k) if Some(k) == self.flat && k.0 == self.commits => Ok(k),
+            _ => Err(Error::NotBuilt),
+        }
     }
 }
 
@@ -143,9 +151,7 @@ impl<'a> Context<'a> {
         let key = self.flat_for(mask, par)?;
         match self.over_flat(build) {
             Ok(r) => {
-                if let Some(k) = self.sources.of(s) {
-                    *k = Some(key);
-                }
+                self.sources.set(s, Some(key));
                 Ok(r)
             }
             Err(e) => {
@@ -249,27 +255,23 @@ impl<'a> Context<'a> {
     /// `h.prim` is not one of its triangles.
     pub fn scene_prim(&self, structure: u32, h: &crate::geom::Hit) -> Result<SceneHit> {
         let v = self.scene_view()?;
-        match self.sources.current(structure) {
-            None => {
-                return Err(Error::InvalidArgument(
-                    "structure: Limits::GRID, KD or PGRID (built over the scene)",
-                ));
-            }
-            Some(false) => return Err(Error::NotBuilt),
-            Some(true) => {}
-        }
-        if !h.is_hit() {
-            return Ok(SceneHit::MISS);
-        }
-        if h.prim == crate::geom::Hit::OCCLUDED.prim {
-            return Ok(SceneHit::OCCLUDED);
-        }
+        self.sources.current(structure)?;
         self.flat_hit(&v, h).ok_or(Error::InvalidArgument(
             "not a triangle of the flattened scene",
         ))
     }
 
+    /// Hit `h` on the flattened scene as a scene hit: a miss a miss, kd
+    /// packets' occlusion marker (no occluder id) `SceneHit::OCCLUDED`,
+    /// a world triangle its (geometry, instance, triangle); `None` for
+    /// anything else.
     fn flat_hit(&self, v: &TwoLevelView<'_>, h: &crate::geom::Hit) -> Option<SceneHit> {
+        if !h.is_hit() {
+            return Some(SceneHit::MISS);
+        }
+        if h.prim == crate::geom::Hit::OCCLUDED.prim {
+            return Some(SceneHit::OCCLUDED);
+        }
         let [inst, prim] = self.flat.id(h.prim)?;
         let geometry = v.instance(inst)?.geometry;
         Some(SceneHit {
@@ -278,26 +280,24 @@ impl<'a> Context<'a> {
         })
     }
 
-    /// Whether structure `s` answers for the current commit's
-    /// flattening for `mask`.
+    /// Whether structure `s` (the grid or the kd-tree) answers for the
+    /// current commit's flattening for `mask`.
     fn built_for(&self, s: Structure, mask: u32) -> Result<()> {
-        let (bit, built) = match s {
-            Structure::Grid => (Limits::GRID, self.sources.grid),
-            Structure::Kd => (Limits::KD, self.sources.kd),
-            Structure::Bvh => (Limits::BVH, None),
+        let bit = match s {
+            Structure::Grid => Limits::GRID,
+            Structure::Kd => Limits::KD,
+            Structure::Bvh => Limits::BVH,
         };
         if self.flat.capacity() == 0 || !self.limits.has(bit) {
             return Err(Error::InvalidArgument(
                 "no grid or kd-tree over the scene: Limits::structures lacks it",
             ));
         }
-        let now = Some((self.sources.commits, mask));
-        match built {
-            Some(k) if Some(k) == now && self.sources.flat == now => Ok(()),
-            Some(k) if k.0 == self.sources.commits && k.1 != mask => Err(Error::InvalidArgument(
+        match self.sources.current(bit)? {
+            (_, m) if m == mask => Ok(()),
+            _ => Err(Error::InvalidArgument(
                 "the structure was built over the scene for another mask",
             )),
-            _ => Err(Error::NotBuilt),
         }
     }
 
@@ -516,16 +516,18 @@ impl<'a> Context<'a> {
         let RayControls { mask, cull } = ctl.into();
         let mut ctr = Counters::default();
         let Some(p) = p else {
-            let test = v.info.test;
-            for i in 0..count {
+            // One dispatch on the test and culling, not one per ray.
+            with_test!(v.info.test, cull, |T| for i in 0..count {
                 let r = read(i);
-                let h = with_test!(test, cull, |T| if any {
-                    traverse_single::any_hit::<T>(&v, &r, mask, &mut ctr)
-                } else {
-                    traverse_single::intersect::<T>(&v, &r, mask, &mut ctr)
-                });
-                out(i, h);
-            }
+                out(
+                    i,
+                    if any {
+                        traverse_single::any_hit::<T>(&v, &r, mask, &mut ctr)
+                    } else {
+                        traverse_single::intersect::<T>(&v, &r, mask, &mut ctr)
+                    },
+                );
+            });
             return Ok(ctr);
         };
         p.validate()?;
@@ -545,18 +547,9 @@ impl<'a> Context<'a> {
                 count,
                 read,
                 |i, h: &crate::geom::Hit4, lane| {
-                    let h = h.lane(lane);
-                    let sh = match self.flat_hit(v, &h) {
-                        Some(sh) => sh,
-                        // An occluded lane without an occluder's id (kd
-                        // packets' occlusion) stays occluded.
-                        None if h.prim == crate::geom::Hit::OCCLUDED.prim => SceneHit::OCCLUDED,
-                        None => {
-                            debug_assert!(!h.is_hit(), "a hit outside the flattened scene");
-                            SceneHit::MISS
-                        }
-                    };
-                    out(i, sh)
+                    let sh = self.flat_hit(v, &h.lane(lane));
+                    debug_assert!(sh.is_some(), "a hit outside the flattened scene");
+                    out(i, sh.unwrap_or(SceneHit::MISS))
                 },
                 any,
             );

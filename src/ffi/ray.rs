@@ -61,6 +61,18 @@ impl From<Ray> for sheaf_ray {
     }
 }
 
+impl From<sheaf_hit> for Hit {
+    #[inline]
+    fn from(h: sheaf_hit) -> Hit {
+        Hit {
+            t: h.t,
+            prim: h.prim,
+            u: h.u,
+            v: h.v,
+        }
+    }
+}
+
 impl From<Hit> for sheaf_hit {
     #[inline]
     fn from(h: Hit) -> sheaf_hit {

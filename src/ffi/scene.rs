@@ -420,8 +420,10 @@ pub extern "C" fn sheaf_context_occluded_scene(
 /// defaults). `sheaf_context_trace_scene` then traces it with the grid's
 /// methods for that `mask`. Needs `SHEAF_STRUCTURE_GRID` and a two-level
 /// scene; the flattening takes up to `max_triangles` world triangles.
-/// On error the previous grid stays valid but no longer answers for the
-/// scene.
+/// The structures built over the scene share one flattening: building
+/// one for another mask, or after a new commit, leaves the others
+/// answering `SHEAF_STATUS_NOT_BUILT` until they are rebuilt. On error
+/// nothing the structures answer changes.
 ///
 /// Errors: `SHEAF_STATUS_INVALID_ARGUMENT` (no two-level scene or grid
 /// pools, params), `SHEAF_STATUS_NOT_BUILT` (changed since the last
@@ -516,13 +518,7 @@ pub extern "C" fn sheaf_context_scene_prim(
     with_ref(ctx, |h| {
         let hit = read_in(hit)?;
         check_non_null!(out);
-        let hit = crate::geom::Hit {
-            t: hit.t,
-            prim: hit.prim,
-            u: hit.u,
-            v: hit.v,
-        };
-        write_out(out, h.ctx.scene_prim(structure, &hit)?.into());
+        write_out(out, h.ctx.scene_prim(structure, &hit.into())?.into());
         Ok(())
     })
 }

@@ -79,6 +79,20 @@ impl<'g> Scene<'g> {
         })
     }
 
+    /// Packed xyz vertices (stride 12) and indices the caller made valid
+    /// (every one below `vertex_count`, a multiple of 3 of them): no scan.
+    /// Crate-internal meshes only (the flattened two-level scene).
+    pub(crate) fn trusted(vertices: &'g [u8], vertex_count: u32, indices: &'g [u32]) -> Self {
+        debug_assert!(vertices.len() >= 12 * vertex_count as usize);
+        debug_assert!(indices.len().is_multiple_of(3) && indices.iter().all(|&i| i < vertex_count));
+        Scene {
+            vertices,
+            stride: 12,
+            vertex_count,
+            indices,
+        }
+    }
+
     /// Packed xyz vertices (stride 12).
     pub fn from_f32(vertices: &'g [f32], indices: &'g [u32]) -> Result<Self> {
         let count = u32::try_from(vertices.len() / 3)

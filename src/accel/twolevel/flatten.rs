@@ -117,13 +117,9 @@ impl<'a> Flat<'a> {
         }
         let n = total as usize;
         self.info = None;
-        let mut bounds = [0usize; par::MAX_WORKERS + 1];
-        for (w, b) in bounds.iter_mut().enumerate().take(workers + 1) {
-            *b = par::share(n, w, workers).start;
-        }
-        bounds[workers] = n;
-        let tris = Parts::at(&mut self.pools.tris[..n], &bounds[..workers + 1]);
-        let ids = Parts::at(&mut self.pools.ids[..n], &bounds[..workers + 1]);
+        // Both cut alike: the same length, even parts.
+        let tris = Parts::even(&mut self.pools.tris[..n], workers);
+        let ids = Parts::even(&mut self.pools.ids[..n], workers);
         par.run(&|w| {
             let (out, out_ids) = (tris.get(w), ids.get(w));
             expand(v, mask, tris.start(w), out, out_ids);
@@ -140,13 +136,13 @@ impl<'a> Flat<'a> {
     /// The last flattening as a mesh (`None` before one).
     pub fn scene(&self) -> Option<Scene<'_>> {
         let n = self.info?.triangles as usize;
-        Scene::new(
+        // The identity index buffer is valid by construction: no scan of
+        // its 3n indices per build.
+        Some(Scene::trusted(
             bytemuck::cast_slice(&self.pools.tris[..n]),
-            12,
             3 * n as u32,
             &self.pools.indices[..3 * n],
-        )
-        .ok()
+        ))
     }
 
     /// Instance and caller triangle id of world triangle `prim` of the
@@ -171,16 +167,15 @@ fn expand(v: &TwoLevelView<'_>, mask: u32, from: usize, out: &mut [TriVerts], id
             continue;
         };
         let count = g.info.triangles as usize;
-        let (a, b) = (from.max(at), end.min(at + count));
-        for k in a..b.max(a) {
-            let (s, t) = (k - at, &g.tris[k - at]);
-            let m = &inst.transform;
+        let m = &inst.transform;
+        for k in from.max(at)..end.min(at + count) {
+            let t = &g.tris[k - at];
             out[k - from] = TriVerts {
                 v0: m.point(t.v0),
                 v1: m.point(t.v1),
                 v2: m.point(t.v2),
             };
-            ids[k - from] = [id, g.tri_ids[s]];
+            ids[k - from] = [id, g.tri_ids[k - at]];
         }
         at += count;
     }
