@@ -107,6 +107,7 @@ static mesh level, cloth, cube;
 static sheaf_ray rays[W * H], shadow[W * H];
 static sheaf_scene_hit hits[W * H];
 static uint8_t occluded[W * H];
+static uint32_t pixel[W * H]; /* ray k's pixel, row-major */
 static unsigned char image[W * H * 3];
 
 int main(int argc, char **argv) {
@@ -158,13 +159,16 @@ int main(int argc, char **argv) {
     CHECK(sheaf_context_set_instance(ctx, 0, 0, xf, ~0u));
     CHECK(sheaf_context_set_instance(ctx, 1, 1, xf, ~0u));
 
-    /* Camera rays, 8x8 pixel tiles in order, 2x2 quads inside each tile
-     * (the packet layout sheaf_context_trace_scene takes). */
+    /* Camera rays, 8x8 pixel tiles in order, 2x2 quads row by row inside
+     * each tile: sheaf_context_trace_scene takes every run of 64 rays as
+     * one 8x8 packet of 2x2 quads, so neighbours go together. pixel[k]
+     * remembers ray k's pixel for shading. */
     for (k = 0; k < W * H; ++k) {
         uint32_t tile = k / 64, q = (k % 64) / 4, l = k % 4;
         uint32_t px = (tile % (W / 8)) * 8 + (q % 4) * 2 + (l % 2);
         uint32_t py = (tile / (W / 8)) * 8 + (q / 4) * 2 + (l / 2);
         float dx = (px + 0.5f - W / 2.0f) / H * 1.1f, dy = -(py + 0.5f - H / 2.0f) / H * 1.1f;
+        pixel[k] = py * W + px;
         memcpy(rays[k].org, eye, sizeof eye);
         rays[k].dir[0] = dx;
         rays[k].dir[1] = dy - 0.3f;
@@ -176,7 +180,7 @@ int main(int argc, char **argv) {
     tp.method = SHEAF_METHOD_BVH_RANGED;
     tp.packet = 8;
 
-    printf("%5s %9s %8s %10s %10s %9s %8s\n", "frame", "refit ms", "SAH x", "commit ms", "trace ms", "hits", "lit");
+    printf("%5s %9s %8s %10s %10s %9s %8s\n", "frame", "update ms", "SAH x", "commit ms", "trace ms", "hits", "lit");
     for (f = 0; f < frames; ++f) {
         float t = 0.3f * f;
         sheaf_refit_info ri;
@@ -214,10 +218,7 @@ int main(int argc, char **argv) {
         /* 3. Shade: a colour per geometry, darker in shadow. */
         for (k = 0; k < W * H; ++k) {
             static const unsigned char colour[3][3] = {{200, 190, 170}, {220, 90, 60}, {70, 200, 90}};
-            uint32_t tile = k / 64, q = (k % 64) / 4, l = k % 4;
-            uint32_t px = (tile % (W / 8)) * 8 + (q % 4) * 2 + (l % 2);
-            uint32_t py = (tile / (W / 8)) * 8 + (q / 4) * 2 + (l / 2);
-            unsigned char *o = &image[3 * (py * W + px)];
+            unsigned char *o = &image[3 * pixel[k]];
             int a;
             if (hits[k].prim == SHEAF_INVALID_ID) {
                 o[0] = 140, o[1] = 170, o[2] = 210;

@@ -318,8 +318,9 @@ fn c_scene_shared() {
 }
 
 /// `examples-c/engine.c`, the two-level frame loop, runs through the C
-/// ABI: three frames, a table line each, the PPM written, every camera
-/// ray of the view a hit on something and some of them lit.
+/// ABI: three frames, a table line each, the PPM written, most of the
+/// 76,800 camera rays a hit (the rest see the sky) and some of the hits
+/// lit, some in shadow.
 #[test]
 fn c_engine_example_runs() {
     check_layouts();

@@ -196,6 +196,7 @@ fn ten_animated_frames_allocate_nothing() {
             }
             ctx.commit_scene().unwrap();
             ctx.trace_scene(&rays, !0, &mut scene_hits).unwrap();
+            scene_hit_total += scene_hits.iter().filter(|h| h.is_hit()).count();
             // The grid and kd-tree over the flattened scene.
             ctx.build_grid_scene(&params, 2).unwrap();
             ctx.build_kd_scene(&sheaf::KdParams::default(), 2).unwrap();
@@ -208,7 +209,6 @@ fn ten_animated_frames_allocate_nothing() {
                 scene_hit_total += scene_hits.iter().filter(|h| h.is_hit()).count();
             }
             ctx.occluded_scene(&rays, 1, &mut occ).unwrap();
-            scene_hit_total += scene_hits.iter().filter(|h| h.is_hit()).count();
         }
         for ctx in [
             &mut owned as &mut dyn Frames,

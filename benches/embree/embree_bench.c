@@ -2202,7 +2202,7 @@ static void run_scene(const char *path, const Options *o)
 #define TL_TURN_FRAMES 48                    /* frames per turn of the ring */
 /* --check: most camera rays whose (instance, triangle) differ, and most
  * shadow rays whose occlusion differs, as a fraction of the rays. */
-#define TL_MAX_DIFF_FRACTION 0.005
+#define TL_MAX_DIFF_FRACTION 1e-4
 #define TL_MAX_FRAMES 10000
 #define TL_PI 3.14159265358979323846
 
@@ -2867,7 +2867,7 @@ static void usage(void)
             "               instances), OBJ static in a ring of 16 instances turning every frame;\n"
             "               ENV's view and light; sheaf and Embree frame times (see the README)\n"
             "  --frames N   with --twolevel: frames per run (default 24; frame f shows the\n"
-            "               animation's frame f mod F); --check: at most 0.5%% of the camera\n"
+            "               animation's frame f mod F); --check: at most 0.01%% of the camera\n"
             "               and of the shadow rays may differ\n"
             "  --ppm FILE   with --twolevel: write frame 0 as sheaf traced it (binary PPM; env grey,\n"
             "               anim copies red, the ring green, darker in shadow)\n");

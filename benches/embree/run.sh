@@ -16,8 +16,9 @@
 # --twolevel (run it alone), --no-twolevel (leave it out of the default run),
 # --env NAME (its static environment: sponza (default), conference, a builtin
 # name or an .obj path; without sponza's OBJ the default falls back to
-# conference), --frames N (frames per run, default 24). It runs in the default
-# full run (no --scenes) after the single scenes, and with --twolevel.
+# conference), --frames N (frames per run, default 24; --quick runs 3). It
+# runs in the default full run (no --scenes) after the single scenes, and
+# with --twolevel, which runs it alone (--scenes is then ignored).
 #
 # 1. Installs Debian's libembree-dev with apt-get when it is missing and this
 #    runs as root; otherwise prints "Embree 3 not installed: skipped" and exits 0.

@@ -243,7 +243,8 @@ fn sheaf_and_embree_agree_on_the_quick_scenes() {
 /// The two-level scene (issue 19): gears as the environment, the animated
 /// mesh refit in 4 instances, a ring of 16 tetrahedra; both libraries
 /// trace the same camera and shadow rays through their instances, and
-/// agree on all but the rays `--check` allows (0.5 %; ties and edges).
+/// agree on all but the rays `--check` allows (`TL_MAX_DIFF_FRACTION`,
+/// 1e-4 of the rays; not classified as ties or edges).
 #[test]
 fn sheaf_and_embree_agree_on_the_two_level_scene() {
     let Some((exe, dir)) = program("embree-bench-twolevel") else {
@@ -271,9 +272,8 @@ fn sheaf_and_embree_agree_on_the_two_level_scene() {
     let sum = read_summary(&summary);
     let m = &sum["twolevel"];
     let get = |k: &str| *m.get(k).unwrap_or_else(|| panic!("no {k} in the summary"));
+    // The agreement bound is `--check`'s exit status, asserted above.
     assert!(get("camera_rays") > 0.0 && get("shadow_rays") > 0.0);
-    assert!(get("camera_differ") <= 0.005 * get("camera_rays"));
-    assert!(get("shadow_differ") <= 0.005 * get("shadow_rays"));
     println!(
         "embree_bench: two-level: {} of {} camera rays and {} of {} shadow rays differ",
         get("camera_differ"),

@@ -2,9 +2,13 @@
 //! engine`) on the built-in gears environment, with each family: it runs
 //! to the end, prints a table line per frame (and with the BVH the
 //! comparison with the flattened frame), and writes every frame's PNG and
-//! the animated PNG. The three families see the same scene, so their
-//! images agree but for pixels whose nearest hit is decided differently
-//! (shared edges, transform rounding). Timing is printed, never asserted.
+//! the animated PNG. The grid and the kd-tree trace the same flattened
+//! triangles with the same test, so their frames are equal byte for byte;
+//! the two-level BVH meets the triangles in object space instead, so its
+//! frame may differ where transform rounding moves a hit across an edge
+//! (a check that the families see the same scene, not an exactness
+//! claim: that is `tests/twolevel_exact.rs`'s). Timing is printed, never
+//! asserted.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -66,19 +70,17 @@ fn engine_loop_runs_and_writes_its_frames() {
         stdout.contains("flattened"),
         "the flattened comparison:\n{stdout}"
     );
-    for family in ["grid", "kd"] {
-        let (dir, _) = run(family);
-        // The same scene: nearly every pixel as the BVH's.
-        let (a, b) = (
-            pixels(&bvh.join("frame_002.png")),
-            pixels(&dir.join("frame_002.png")),
-        );
-        assert_eq!(a.len(), b.len());
-        let differ = a.chunks(4).zip(b.chunks(4)).filter(|(x, y)| x != y).count();
-        assert!(
-            differ * 50 <= a.len() / 4,
-            "{family}: {differ} of {} pixels differ from the BVH's",
-            a.len() / 4
-        );
-    }
+    let frame = |dir: &Path| pixels(&dir.join("frame_002.png"));
+    let (grid, _) = run("grid");
+    let (kd, _) = run("kd");
+    assert!(frame(&grid) == frame(&kd), "grid and kd-tree frames differ");
+    // The BVH's frame: the same scene, up to transform rounding at edges.
+    let (a, b) = (frame(&bvh), frame(&grid));
+    assert_eq!(a.len(), b.len());
+    let differ = a.chunks(4).zip(b.chunks(4)).filter(|(x, y)| x != y).count();
+    assert!(
+        differ * 50 <= a.len() / 4,
+        "{differ} of {} pixels of the two-level BVH's frame differ from the flattened grid's",
+        a.len() / 4
+    );
 }

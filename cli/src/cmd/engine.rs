@@ -29,8 +29,8 @@ use sheaf::accel::bvh::{BuildQuality, BvhParams};
 use sheaf::render::{PointLight, PrimaryRays, SHADOW_OFFSET, demorton};
 use sheaf::scenes::animated::Animated;
 use sheaf::{
-    Affine, Camera, GeometryParams, Limits, Method, OwnedContext, Ray, Scene, SceneHit,
-    TraceParams, UpdateMode, required_bytes,
+    Affine, GeometryParams, Limits, Method, OwnedContext, Ray, Scene, SceneHit, TraceParams,
+    UpdateMode, required_bytes,
 };
 use std::path::PathBuf;
 use std::time::Instant;
@@ -143,8 +143,9 @@ fn environment(spec: &str) -> Result<(String, Mesh)> {
 }
 
 /// Camera rays of tile `(tx, ty)` (n x n pixels, quads in Morton order, the
-/// renderer's packet layout) and their pixels; off-image pixels repeat
-/// the image's last row or column.
+/// renderer's packet layout) and their pixels; off-image lanes repeat the
+/// image's last row or column (whole quads for the packets) and have no
+/// pixel.
 #[allow(clippy::too_many_arguments)] // the image, the tile, and the two outputs reused per tile
 fn tile_rays(
     pr: &PrimaryRays,
@@ -154,19 +155,16 @@ fn tile_rays(
     tx: u32,
     ty: u32,
     rays: &mut Vec<Ray>,
-    px: &mut Vec<(u32, u32)>,
+    px: &mut Vec<Option<(u32, u32)>>,
 ) {
     rays.clear();
     px.clear();
     for q in 0..(n / 2) * (n / 2) {
         let (qx, qy) = demorton(q as usize);
         for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
-            let (x, y) = (
-                (tx * n + 2 * qx + dx).min(w - 1),
-                (ty * n + 2 * qy + dy).min(h - 1),
-            );
-            rays.push(pr.ray(x, y));
-            px.push((x, y));
+            let (x, y) = (tx * n + 2 * qx + dx, ty * n + 2 * qy + dy);
+            rays.push(pr.ray(x.min(w - 1), y.min(h - 1)));
+            px.push((x < w && y < h).then_some((x, y)));
         }
     }
 }
@@ -176,7 +174,8 @@ type TraceFn<'a> = &'a (dyn Fn(usize, &[Ray], bool, &mut [SceneHit]) -> Result<(
 /// One tile's rays traced and its pixels: (x, y, RGBA).
 type TilePixels = Result<(u64, Vec<(u32, u32, [u8; 4])>)>;
 
-/// What one frame's trace gave: pixels, rays, time.
+/// What one frame's rays took: the camera rays of the image's pixels and
+/// the shadow rays made, and the time of tracing and shading them.
 struct Traced {
     rays: u64,
     ns: u64,
@@ -184,7 +183,8 @@ struct Traced {
 
 /// Camera rays, shadow rays and shading of one frame on the pool's threads
 /// (thread `i` on context slot `i`). `tri(hit)` is the world triangle of a
-/// hit; `palette(hit)` its colour.
+/// hit; `palette(hit)` its colour; `eps` the shadow rays' offset
+/// (`SHADOW_OFFSET` times the scene's size, as the renderers take it).
 #[allow(clippy::too_many_arguments)]
 fn render(
     trace: TraceFn<'_>,
@@ -192,6 +192,7 @@ fn render(
     palette: &(dyn Fn(&SceneHit) -> Vec3 + Sync),
     pr: &PrimaryRays,
     light: &PointLight,
+    eps: f32,
     (w, h): (u32, u32),
     n: u32,
     pixels: &mut [u8],
@@ -210,19 +211,13 @@ fn render(
                 trace(slot, &rays, false, &mut hits)?;
                 let mut shadow = Vec::with_capacity(rays.len());
                 let mut lit_lane = Vec::with_capacity(rays.len());
-                for (r, hit) in rays.iter().zip(&hits) {
-                    let s = hit
-                        .is_hit()
-                        .then(|| {
-                            sheaf::render::deferred::shadow_ray(
-                                r,
-                                hit.t,
-                                &tri(hit),
-                                light,
-                                SHADOW_OFFSET,
-                            )
-                        })
-                        .flatten();
+                // Each hit's world triangle once, for its shadow ray and
+                // its shading.
+                let tris: Vec<_> = hits.iter().map(|h| h.is_hit().then(|| tri(h))).collect();
+                for ((r, hit), t) in rays.iter().zip(&hits).zip(&tris) {
+                    let s = t
+                        .as_ref()
+                        .and_then(|t| sheaf::render::deferred::shadow_ray(r, hit.t, t, light, eps));
                     lit_lane.push(s.is_some());
                     // Lanes without a shadow ray: a zero ray (invalid: a miss).
                     shadow.push(s.unwrap_or(Ray {
@@ -235,10 +230,12 @@ fn render(
                 let mut occ = vec![SceneHit::MISS; rays.len()];
                 trace(slot, &shadow, true, &mut occ)?;
                 let mut out = Vec::with_capacity(rays.len());
+                let mut traced = 0u64;
                 for k in 0..rays.len() {
+                    let Some((x, y)) = px[k] else { continue };
+                    traced += 1 + lit_lane[k] as u64;
                     let hit = &hits[k];
-                    let c = if hit.is_hit() {
-                        let t = tri(hit);
+                    let c = if let Some(t) = &tris[k] {
                         let nrm = t.normal().normalize_or_zero();
                         let p = Vec3::from(rays[k].org) + hit.t * Vec3::from(rays[k].dir);
                         let l = (Vec3::from(light.position) - p).normalize_or_zero();
@@ -249,9 +246,9 @@ fn render(
                         Vec3::new(0.55, 0.65, 0.8)
                     };
                     let b = |x: f32| (x.clamp(0.0, 1.0) * 255.0) as u8;
-                    out.push((px[k].0, px[k].1, [b(c.x), b(c.y), b(c.z), 255]));
+                    out.push((x, y, [b(c.x), b(c.y), b(c.z), 255]));
                 }
-                Ok((2 * rays.len() as u64, out))
+                Ok((traced, out))
             })
             .collect()
     });
@@ -396,12 +393,7 @@ pub fn engine(a: &EngineArgs) -> Result<()> {
         Some(b) if env_name.starts_with("builtin:") => b.views[0],
         _ => crate::view::inside(&probe.tracer()?, lo, hi, Vec3::Y, crate::view::INSIDE_FOV),
     };
-    let camera = Camera {
-        eye: view.eye.to_array(),
-        look_at: view.look_at.to_array(),
-        up: view.up.to_array(),
-        fov_y_deg: view.fov_y_deg,
-    };
+    let camera = crate::view::camera(&view);
     // The light behind and above the eye, so what faces the camera is lit.
     let fwd = (view.look_at - view.eye).normalize_or_zero();
     let light_at = view.eye - 0.04 * d.max_element() * fwd + Vec3::new(0.0, 0.15 * d.y, 0.0);
@@ -439,7 +431,6 @@ pub fn engine(a: &EngineArgs) -> Result<()> {
     };
     let method = p.method.name();
     let mut pixels = vec![0u8; (w * h * 4) as usize];
-    let mut frames_rgba = Vec::new();
 
     let prog = Progress::new("sheaf demo", a.frames as u64);
     prog.say(format_args!(
@@ -455,7 +446,7 @@ pub fn engine(a: &EngineArgs) -> Result<()> {
         "rebuilt",
         "LOW ms",
         "moving",
-        "commit ms",
+        "place+commit",
         match a.family {
             Family::Bvh => "-",
             Family::Grid => "grid ms",
@@ -466,7 +457,9 @@ pub fn engine(a: &EngineArgs) -> Result<()> {
         "Mrays/s",
         "flat ms (build + trace)"
     ));
-    let mut sums = (0.0f64, 0.0f64, 0u64);
+    // The animated PNG, written frame by frame.
+    let mut apng = apng_writer(&a.out_dir.join("engine.png"), a.frames, w, h, a.dt)?;
+    let mut sums = (0.0f64, 0.0f64);
     for f in 0..a.frames {
         let time = f as f32 * a.dt;
         // 1. What moved: the animated mesh (refit), the balls' triangle count (rebuild).
@@ -512,12 +505,14 @@ pub fn engine(a: &EngineArgs) -> Result<()> {
                 );
             placed.push((3, place(ang * 2.0, s_tetra, at)));
         }
+        // The instances placed and the top level committed.
+        let t = Instant::now();
         for (i, (g, x)) in placed.iter().enumerate().skip(1) {
             ctx.set_instance(i as u32, *g, x, !0)?;
         }
-        let t = Instant::now();
-        ctx.commit_scene()?;
+        let info = ctx.commit_scene()?;
         let commit_ms = t.elapsed().as_secs_f64() * 1e3;
+        let eps = SHADOW_OFFSET * info.bounds.diagonal().length();
         // The grid or kd-tree: rebuilt over the flattened scene.
         let t = Instant::now();
         let par = run::Broadcast::of(threads);
@@ -579,13 +574,14 @@ pub fn engine(a: &EngineArgs) -> Result<()> {
             &colour,
             &pr,
             &light,
+            eps,
             (w, h),
             a.packet,
             &mut pixels,
             threads,
         )?;
         run::write_png(&a.out_dir.join(format!("frame_{f:03}.png")), &pixels, w, h)?;
-        frames_rgba.push(pixels.clone());
+        apng.write_image_data(&pixels)?;
 
         // 4. The flattened alternative: every instance's world triangles,
         // one BVH rebuilt (LOW, joined), the same rays.
@@ -656,6 +652,7 @@ pub fn engine(a: &EngineArgs) -> Result<()> {
                 &grey,
                 &pr,
                 &light,
+                eps,
                 (w, h),
                 a.packet,
                 &mut scratch,
@@ -685,9 +682,9 @@ pub fn engine(a: &EngineArgs) -> Result<()> {
         prog.step();
         sums.0 += frame_ms;
         sums.1 += flat_ms.map_or(0.0, |m| m.0);
-        sums.2 += 1;
     }
-    let n = sums.2 as f64;
+    apng.finish()?;
+    let n = a.frames as f64;
     if flat.is_none() {
         prog.say(format_args!("mean frame {:.2} ms", sums.0 / n));
     } else {
@@ -698,7 +695,6 @@ pub fn engine(a: &EngineArgs) -> Result<()> {
             sums.0 / sums.1
         ));
     }
-    write_apng(&a.out_dir.join("engine.png"), &frames_rgba, w, h, a.dt)?;
     prog.say(format_args!(
         "frames and the animated engine.png in {}",
         a.out_dir.display()
@@ -706,19 +702,21 @@ pub fn engine(a: &EngineArgs) -> Result<()> {
     Ok(())
 }
 
-/// The frames as one animated PNG (APNG), `dt` seconds each.
-fn write_apng(path: &std::path::Path, frames: &[Vec<u8>], w: u32, h: u32, dt: f32) -> Result<()> {
+/// An animated PNG (APNG) of `frames` RGBA frames, `dt` seconds each,
+/// taking one frame per `write_image_data` (none kept in memory).
+fn apng_writer(
+    path: &std::path::Path,
+    frames: u32,
+    w: u32,
+    h: u32,
+    dt: f32,
+) -> Result<png::Writer<std::io::BufWriter<std::fs::File>>> {
     let file =
         std::fs::File::create(path).with_context(|| format!("cannot create {}", path.display()))?;
     let mut enc = png::Encoder::new(std::io::BufWriter::new(file), w, h);
     enc.set_color(png::ColorType::Rgba);
     enc.set_depth(png::BitDepth::Eight);
-    enc.set_animated(frames.len() as u32, 0)?;
+    enc.set_animated(frames, 0)?;
     enc.set_frame_delay((dt * 1000.0).round().clamp(1.0, 65535.0) as u16, 1000)?;
-    let mut wr = enc.write_header()?;
-    for f in frames {
-        wr.write_image_data(f)?;
-    }
-    wr.finish()?;
-    Ok(())
+    Ok(enc.write_header()?)
 }
