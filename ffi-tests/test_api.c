@@ -739,8 +739,9 @@ static bool test_bvh_methods(void) {
     sheaf_frame f = default_frame(RW, RH);
     static uint8_t grid_img[RLEN], base[RLEN], img[RLEN];
     uint32_t sides[4] = {4, 8, 16, 32};
-    sheaf_method methods[6] = {SHEAF_METHOD_BVH_SIMD,      SHEAF_METHOD_BVH_MASKED, SHEAF_METHOD_BVH_RANGED,
-                               SHEAF_METHOD_BVH_PARTITION, SHEAF_METHOD_BVH_WIDE,   SHEAF_METHOD_BVH_WIDE_RANGED};
+    sheaf_method methods[7] = {SHEAF_METHOD_BVH_SIMD,      SHEAF_METHOD_BVH_MASKED, SHEAF_METHOD_BVH_RANGED,
+                               SHEAF_METHOD_BVH_PARTITION, SHEAF_METHOD_BVH_WIDE,   SHEAF_METHOD_BVH_WIDE_RANGED,
+                               SHEAF_METHOD_BVH_FRUSTUM};
     int i, k, m;
     CHECK(ctx != NULL);
     probe_rays(rays);
@@ -780,7 +781,7 @@ static bool test_bvh_methods(void) {
     CHECK_OK(sheaf_context_render_with(ctx, &single, &single, &f, base, RSTRIDE, RLEN));
     CHECK_OK(sheaf_context_render(ctx, SHEAF_METHOD_GRID_DDA, &f, grid_img, RSTRIDE, RLEN));
     CHECK(memcmp(grid_img, base, RLEN) == 0);
-    for (m = 0; m < 6; m++) {
+    for (m = 0; m < 7; m++) {
         for (k = 0; k < 4; k++) {
             p = single;
             p.method = methods[m];
@@ -808,7 +809,7 @@ static bool test_bvh_methods(void) {
     CHECK_STATUS(sheaf_context_build_bvh(ctx, &bad_bp), SHEAF_STATUS_INVALID_ARGUMENT);
     bp.quality = SHEAF_BUILD_QUALITY_LOW;
     CHECK_OK(sheaf_context_build_bvh(ctx, &bp));
-    for (m = 0; m < 6; m++) {
+    for (m = 0; m < 7; m++) {
         p = single;
         p.method = methods[m];
         p.packet = sides[m % 4];
@@ -910,9 +911,10 @@ static bool test_whitted(void) {
     sheaf_light lights[2];
     sheaf_frame f = default_frame(RW, RH);
     static uint8_t base[RLEN], img[RLEN], plain[RLEN];
-    sheaf_method methods[7] = {SHEAF_METHOD_GRID_CGT,      SHEAF_METHOD_BVH_SIMD, SHEAF_METHOD_BVH_MASKED,
+    sheaf_method methods[8] = {SHEAF_METHOD_GRID_CGT,      SHEAF_METHOD_BVH_SIMD, SHEAF_METHOD_BVH_MASKED,
                                SHEAF_METHOD_BVH_RANGED,    SHEAF_METHOD_BVH_PARTITION,
-                               SHEAF_METHOD_BVH_WIDE,      SHEAF_METHOD_BVH_WIDE_RANGED};
+                               SHEAF_METHOD_BVH_WIDE,      SHEAF_METHOD_BVH_WIDE_RANGED,
+                               SHEAF_METHOD_BVH_FRUSTUM};
     int m;
     CHECK(ctx != NULL);
     CHECK_OK(sheaf_context_build_bvh(ctx, NULL));
@@ -932,7 +934,7 @@ static bool test_whitted(void) {
     CHECK_OK(sheaf_context_render(ctx, SHEAF_METHOD_GRID_DDA, &f, plain, RSTRIDE, RLEN));
     CHECK(memcmp(img, plain, RLEN) == 0);
     CHECK(memcmp(base, plain, RLEN) != 0);
-    for (m = 0; m < 7; m++) {
+    for (m = 0; m < 8; m++) {
         p = single;
         p.method = methods[m];
         p.packet = 16;

@@ -275,9 +275,10 @@ static bool test_bad_input_changes_nothing(void) {
  * bit: a 16 x 16 grid of camera rays as 8 x 8 packets over three rotated,
  * mirrored and overlapping instances of a pyramid. */
 static bool test_packet_methods_equal_single_rays(void) {
-    static const sheaf_method METHODS[7] = {SHEAF_METHOD_BVH_SINGLE, SHEAF_METHOD_BVH_WIDE, SHEAF_METHOD_BVH_SIMD,
+    static const sheaf_method METHODS[8] = {SHEAF_METHOD_BVH_SINGLE, SHEAF_METHOD_BVH_WIDE, SHEAF_METHOD_BVH_SIMD,
                                             SHEAF_METHOD_BVH_MASKED, SHEAF_METHOD_BVH_RANGED,
-                                            SHEAF_METHOD_BVH_PARTITION, SHEAF_METHOD_BVH_WIDE_RANGED};
+                                            SHEAF_METHOD_BVH_PARTITION, SHEAF_METHOD_BVH_WIDE_RANGED,
+                                            SHEAF_METHOD_BVH_FRUSTUM};
     sheaf_context *ctx = scene_context(1, 3, 6);
     sheaf_mesh m;
     sheaf_trace_params tp;
@@ -308,7 +309,7 @@ static bool test_packet_methods_equal_single_rays(void) {
     for (k = 0; k < 256; ++k)
         hits += want[k].prim != SHEAF_INVALID_ID;
     CHECK(hits > 40);
-    for (i = 0; i < 7; ++i) {
+    for (i = 0; i < 8; ++i) {
         CHECK_OK(sheaf_trace_params_default(&tp));
         tp.method = METHODS[i];
         tp.packet = 8;

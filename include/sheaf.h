@@ -313,6 +313,14 @@ enum sheaf_method
      * point, or `width` 2, the binary Ranged traversal).
      */
     SHEAF_METHOD_BVH_WIDE_RANGED = 11,
+    /**
+     * BVH, n x n packets, frustum-first traversal of the 4-wide tree: the
+     * packet's interval frustum and first live ray against all four
+     * children of a node at once, per-lane tests only where they disagree
+     * and at leaves (from the root; with an entry point, or `width` 2, the
+     * binary Ranged traversal).
+     */
+    SHEAF_METHOD_BVH_FRUSTUM = 12,
 };
 #ifndef __cplusplus
 #if __STDC_VERSION__ >= 202311L

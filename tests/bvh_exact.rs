@@ -28,6 +28,7 @@ fn bvh_cases() -> Vec<(Method, usize, EntrySearch)> {
         Method::BvhRanged,
         Method::BvhPartition,
         Method::BvhWideRanged,
+        Method::BvhFrustum,
     ] {
         cases.extend([4, 8, 16, 32].map(|n| (m, n, EntrySearch::None)));
     }
@@ -243,6 +244,7 @@ fn context_calls_and_failed_builds() {
         Method::BvhRanged,
         Method::BvhPartition,
         Method::BvhWideRanged,
+        Method::BvhFrustum,
     ] {
         for n in [4, 8, 16, 32] {
             ctx.trace_with(&TraceParams::bvh(m, n), &rays, &mut hits)
@@ -282,7 +284,12 @@ fn context_calls_and_failed_builds() {
             ..BvhParams::default()
         };
         assert!(ctx.build_bvh(&s.scene(), &p).is_err());
-        for m in [Method::BvhWide, Method::BvhWideRanged, Method::BvhRanged] {
+        for m in [
+            Method::BvhWide,
+            Method::BvhWideRanged,
+            Method::BvhFrustum,
+            Method::BvhRanged,
+        ] {
             ctx.trace_with(&TraceParams::bvh(m, 8), &rays, &mut hits)
                 .unwrap();
             assert_eq!(hits, want, "{} after a failed {quality:?} build", m.name());

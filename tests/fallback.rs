@@ -148,6 +148,7 @@ fn methods(sides: &[u32]) -> Vec<TraceParams> {
             Method::BvhRanged,
             Method::BvhPartition,
             Method::BvhWideRanged,
+            Method::BvhFrustum,
         ] {
             v.push(TraceParams::bvh(m, n));
         }

@@ -292,7 +292,7 @@ macro_rules! impl_frames {
                 }
                 // The BVH beside the grid: build, then every BVH method.
                 self.build_bvh(s, &BvhParams { test: p.test, ..BvhParams::default() }).unwrap();
-                for m in [Method::BvhSingle, Method::BvhWide, Method::BvhSimd, Method::BvhMasked, Method::BvhRanged, Method::BvhPartition, Method::BvhWideRanged] {
+                for m in [Method::BvhSingle, Method::BvhWide, Method::BvhSimd, Method::BvhMasked, Method::BvhRanged, Method::BvhPartition, Method::BvhWideRanged, Method::BvhFrustum] {
                     let bp = TraceParams::bvh(m, 16);
                     self.trace_with(&bp, r, h).unwrap();
                     self.occluded_with(&bp, r, o).unwrap();

@@ -219,6 +219,7 @@ fn cases_on(single: Method, full: bool) -> Vec<TraceParams> {
                 Method::BvhRanged,
                 Method::BvhPartition,
                 Method::BvhWideRanged,
+                Method::BvhFrustum,
             ] {
                 v.push(e(m, 4, EntrySearch::Aepsa));
                 for &x in EntrySearch::ALL {

@@ -168,6 +168,7 @@ fn check(
         Method::BvhRanged,
         Method::BvhPartition,
         Method::BvhWideRanged,
+        Method::BvhFrustum,
     ] {
         methods.push((m, n));
     }

@@ -797,6 +797,7 @@ fn bvh_traversals_render_the_same_whitted_frames() {
             Method::BvhRanged,
             Method::BvhPartition,
             Method::BvhWideRanged,
+            Method::BvhFrustum,
         ] {
             for n in [4, 16, 32] {
                 for culling in [true, false] {

@@ -414,7 +414,10 @@ static void sheaf_occluded_n(Job *j, const sheaf_ray *rays, uint8_t *occ, size_t
         for (size_t k = 0; k < n && st == SHEAF_STATUS_OK; k++)
             occ[k] = h[k].prim != SHEAF_INVALID_ID;
     } else {
-        st = sheaf_context_occluded(j->ctx, j->occ_method, rays, occ, n);
+        /* The configuration's packet side (sheaf_context_occluded would take 8x8). */
+        sheaf_trace_params p = j->params;
+        p.method = j->occ_method;
+        st = sheaf_context_occluded_with(j->ctx, &p, rays, occ, n);
     }
     if (st != SHEAF_STATUS_OK)
         j->status = (int)st;
@@ -1037,6 +1040,10 @@ static const Cfg PRIMARY_CFGS[] = {
     {"bvh-ranged 8x8", S_BVH, SHEAF_METHOD_BVH_RANGED, 8, SHEAF_ENTRY_SEARCH_NONE, 1, 0},
     {"bvh-wide-ranged 8x8", S_BVH, SHEAF_METHOD_BVH_WIDE_RANGED, 8, SHEAF_ENTRY_SEARCH_NONE, 1, 0},
     {"bvh-ranged 16x16", S_BVH, SHEAF_METHOD_BVH_RANGED, 16, SHEAF_ENTRY_SEARCH_NONE, 1, 0},
+    {"bvh-frustum 4x4", S_BVH, SHEAF_METHOD_BVH_FRUSTUM, 4, SHEAF_ENTRY_SEARCH_NONE, 1, 0},
+    {"bvh-frustum 8x8", S_BVH, SHEAF_METHOD_BVH_FRUSTUM, 8, SHEAF_ENTRY_SEARCH_NONE, 1, 0},
+    {"bvh-frustum 16x16", S_BVH, SHEAF_METHOD_BVH_FRUSTUM, 16, SHEAF_ENTRY_SEARCH_NONE, 1, 0},
+    {"bvh-frustum 32x32", S_BVH, SHEAF_METHOD_BVH_FRUSTUM, 32, SHEAF_ENTRY_SEARCH_NONE, 1, 0},
     {"bvh-partition 8x8", S_BVH, SHEAF_METHOD_BVH_PARTITION, 8, SHEAF_ENTRY_SEARCH_NONE, 1, 0},
     {"bvh-partition 16x16", S_BVH, SHEAF_METHOD_BVH_PARTITION, 16, SHEAF_ENTRY_SEARCH_NONE, 1, 0},
     {"kd-single", S_KD, SHEAF_METHOD_KD_SINGLE, 8, SHEAF_ENTRY_SEARCH_NONE, 0, 0},
@@ -1058,6 +1065,9 @@ static const Cfg SHADOW_CFGS[] = {
     {"bvh-ranged 8x8", S_BVH, SHEAF_METHOD_BVH_RANGED, 8, SHEAF_ENTRY_SEARCH_NONE, 1, 0},
     {"bvh-wide-ranged 8x8", S_BVH, SHEAF_METHOD_BVH_WIDE_RANGED, 8, SHEAF_ENTRY_SEARCH_NONE, 1, 0},
     {"bvh-partition 8x8", S_BVH, SHEAF_METHOD_BVH_PARTITION, 8, SHEAF_ENTRY_SEARCH_NONE, 1, 0},
+    {"bvh-frustum 4x4", S_BVH, SHEAF_METHOD_BVH_FRUSTUM, 4, SHEAF_ENTRY_SEARCH_NONE, 1, 0},
+    {"bvh-frustum 8x8", S_BVH, SHEAF_METHOD_BVH_FRUSTUM, 8, SHEAF_ENTRY_SEARCH_NONE, 1, 0},
+    {"bvh-frustum 16x16", S_BVH, SHEAF_METHOD_BVH_FRUSTUM, 16, SHEAF_ENTRY_SEARCH_NONE, 1, 0},
     {"bvh-ranged 16x16 nearest", S_BVH, SHEAF_METHOD_BVH_RANGED, 16, SHEAF_ENTRY_SEARCH_NONE, 1, 1},
     {"bvh-partition 16x16 nearest", S_BVH, SHEAF_METHOD_BVH_PARTITION, 16, SHEAF_ENTRY_SEARCH_NONE, 1, 1},
     {"kd-single", S_KD, SHEAF_METHOD_KD_SINGLE, 8, SHEAF_ENTRY_SEARCH_NONE, 0, 0},
@@ -1093,6 +1103,7 @@ typedef struct {
     const char *summary;
     const char *profile; /* --profile NAME: time one configuration only (for perf) */
     int profile_shadow;  /* --profile-shadow: its shadow rays, not camera rays */
+    const char *ab;      /* --ab A,B,..: configurations timed in interleaved rounds */
     const char *twolevel[3]; /* --twolevel ENV ANIM OBJ: the two-level scene's files */
     int frames;              /* --frames: the two-level scene's frames (default 24) */
     const char *ppm;         /* --ppm FILE: the two-level scene's frame 0 as sheaf sees it */
@@ -2074,59 +2085,123 @@ static void finish_scene(Bench *b)
     sheaf_context_destroy(b->ctx);
 }
 
-/* --profile NAME: one configuration alone on one thread, reps times, so
- * `perf stat` / `perf record` see nothing else: a sheaf method by its table
- * name ("bvh-ranged 8x8") or "embree-N" (Embree LOW, rtcIntersectN /
- * rtcOccludedN). Camera rays, or the shadow rays with --profile-shadow. */
-static void profile_one(Bench *b)
+/* The job timing configuration `name` on this scene: a sheaf method by its
+ * table name ("bvh-ranged 8x8") or "embree-N" (Embree LOW, rtcIntersectN /
+ * rtcOccludedN; its scene built into *es on a device of `threads` threads,
+ * returned in *dev). Camera rays, or the shadow rays with `shadow`; *n is
+ * the rays counted for Mrays/s. Embree's outputs go to arrays of their own. */
+static Job named_job(Bench *b, const char *name, int shadow, int threads, size_t *n, EScene *es,
+                     RTCDevice *dev)
 {
-    const Options *o = b->o;
     Job j = b->job;
     j.hits = b->hits;
-    size_t n = b->N;
-    EScene es;
-    RTCDevice dev = NULL;
-    int w = 0;
-    if (!strncmp(o->profile, "embree-", 7)) {
-        w = atoi(o->profile + 7);
-        if (w != 1 && w != 4 && w != 8 && w != 16) die("--profile embree-N: N is 1, 4, 8 or 16");
-        dev = rtcNewDevice("threads=1");
-        if (!dev) die("rtcNewDevice failed");
-        embree_build(dev, &b->s, 0, &es);
+    *n = b->N;
+    *dev = NULL;
+    if (!strncmp(name, "embree-", 7)) {
+        int w = atoi(name + 7);
+        if (w != 1 && w != 4 && w != 8 && w != 16) die("embree-N: N is 1, 4, 8 or 16");
+        char cfg[32];
+        snprintf(cfg, sizeof cfg, "threads=%d", threads);
+        *dev = rtcNewDevice(cfg);
+        if (!*dev) die("rtcNewDevice failed");
+        embree_build(*dev, &b->s, 0, es);
         memset(&j, 0, sizeof j);
         j.lib = LIB_EMBREE;
         j.s = &b->s;
-        j.scene = es.scene;
+        j.scene = es->scene;
         j.width = w;
-        j.kind = o->profile_shadow ? K_OCCLUDED : K_TRACE;
-        j.rays = o->profile_shadow ? b->srays : b->rays;
-        j.n = o->profile_shadow ? b->NSL : b->N;
-        j.prim = b->eprim = xmalloc(b->N * sizeof *b->eprim);
-        j.t = b->et = xmalloc(b->N * sizeof *b->et);
-        j.occ = b->socc;
-        n = o->profile_shadow ? b->NS : b->N;
+        j.kind = shadow ? K_OCCLUDED : K_TRACE;
+        j.rays = shadow ? b->srays : b->rays;
+        j.n = shadow ? b->NSL : b->N;
+        j.prim = xmalloc(b->N * sizeof *j.prim);
+        j.t = xmalloc(b->N * sizeof *j.t);
+        j.occ = xmalloc(b->N);
+        *n = shadow ? b->NS : b->N;
     } else {
-        const Cfg *cfgs = o->profile_shadow ? SHADOW_CFGS : PRIMARY_CFGS;
-        size_t nc = o->profile_shadow ? N_SHADOW_CFGS : N_PRIMARY_CFGS, c = 0;
-        while (c < nc && strcmp(cfgs[c].name, o->profile)) c++;
-        if (c == nc) die("--profile: no configuration named \"%s\" (see the tables' names)", o->profile);
-        j.params = cfg_params(&cfgs[c], o->profile_shadow ? SHEAF_RAY_KIND_SHADOW : SHEAF_RAY_KIND_PRIMARY);
-        if (o->profile_shadow) {
+        const Cfg *cfgs = shadow ? SHADOW_CFGS : PRIMARY_CFGS;
+        size_t nc = shadow ? N_SHADOW_CFGS : N_PRIMARY_CFGS, c = 0;
+        while (c < nc && strcmp(cfgs[c].name, name)) c++;
+        if (c == nc) die("no %s configuration named \"%s\" (see the tables' names)", shadow ? "shadow" : "camera", name);
+        j.params = cfg_params(&cfgs[c], shadow ? SHEAF_RAY_KIND_SHADOW : SHEAF_RAY_KIND_PRIMARY);
+        if (shadow) {
             j.kind = cfgs[c].occ_via_trace ? K_TRACE_OCC : K_OCCLUDED;
             j.occ_method = cfgs[c].method;
             j.occ_via_trace = cfgs[c].occ_via_trace;
             j.rays = b->srays;
             j.n = b->NSL;
             j.occ = b->socc;
-            n = b->NS;
+            *n = b->NS;
         }
     }
+    return j;
+}
+
+static void release_job(Job *j, EScene *es, RTCDevice dev)
+{
+    if (!dev) return;
+    free(j->prim);
+    free(j->t);
+    free(j->occ);
+    embree_release(es);
+    rtcReleaseDevice(dev);
+}
+
+/* --profile NAME: one configuration alone on one thread, reps times, so
+ * `perf stat` / `perf record` see nothing else. Camera rays, or the shadow
+ * rays with --profile-shadow. */
+static void profile_one(Bench *b)
+{
+    const Options *o = b->o;
+    size_t n;
+    EScene es;
+    RTCDevice dev;
+    Job j = named_job(b, o->profile, o->profile_shadow, 1, &n, &es, &dev);
     double t = time_job(&j, 1, b->reps);
     printf("profile %s, %s rays: %.2f Mrays/s (median of %d; load average %.2f)\n", o->profile,
            o->profile_shadow ? "shadow" : "camera", mrays(n, t), b->reps, load_average());
-    if (dev) {
-        embree_release(&es);
-        rtcReleaseDevice(dev);
+    release_job(&j, &es, dev);
+}
+
+/* --ab "A,B,...": the named configurations timed in interleaved rounds (A B
+ * .. A B ..), camera and shadow rays, on each thread count: each one's
+ * median Mrays/s and the median over rounds of its per-round speed over the
+ * last one's (name Embree last to read sheaf / Embree). One Markdown table. */
+#define MAX_AB 8
+static void profile_ab(Bench *b, const char *scene)
+{
+    const Options *o = b->o;
+    char buf[512], *names[MAX_AB];
+    int k = 0;
+    snprintf(buf, sizeof buf, "%s", o->ab);
+    for (char *tok = strtok(buf, ","); tok && k < MAX_AB; tok = strtok(NULL, ",")) names[k++] = tok;
+    if (k < 1) die("--ab: no configuration");
+    printf("\n### %s: interleaved rounds (median of %d; load average %.2f at start)\n\n", scene, b->reps,
+           load_average());
+    printf("| rays | threads | configuration | Mrays/s | speed / %s |\n|---|--:|---|--:|--:|\n", names[k - 1]);
+    for (int shadow = 0; shadow < 2; shadow++) {
+        for (int ti = 0; ti < o->nthreads; ti++) {
+            int th = o->threads[ti];
+            Job j[MAX_AB];
+            EScene es[MAX_AB];
+            RTCDevice dev[MAX_AB];
+            size_t n[MAX_AB];
+            double t[MAX_AB][MAX_REPS], ratio[MAX_AB][MAX_REPS];
+            for (int c = 0; c < k; c++) {
+                j[c] = named_job(b, names[c], shadow, th, &n[c], &es[c], &dev[c]);
+                run_job(&j[c], th); /* warm-up */
+            }
+            for (int r = 0; r < b->reps; r++) {
+                for (int c = 0; c < k; c++) t[c][r] = run_job(&j[c], th);
+                for (int c = 0; c < k; c++)
+                    ratio[c][r] = mrays(n[c], t[c][r]) / mrays(n[k - 1], t[k - 1][r]);
+            }
+            for (int c = 0; c < k; c++) {
+                printf("| %s | %d | %s | %.2f | %.2f |\n", shadow ? "shadow" : "camera", th, names[c],
+                       mrays(n[c], median(t[c], b->reps)), median(ratio[c], b->reps));
+                fflush(stdout);
+                release_job(&j[c], &es[c], dev[c]);
+            }
+        }
     }
 }
 
@@ -2141,6 +2216,13 @@ static void run_scene(const char *path, const Options *o)
     make_reference(b);
     if (o->profile) {
         profile_one(b);
+        free(b);
+        return;
+    }
+    if (o->ab) {
+        char name[64];
+        short_name(path, name, sizeof name);
+        profile_ab(b, name);
         free(b);
         return;
     }
@@ -2861,6 +2943,9 @@ static void usage(void)
             "  --profile NAME  time one configuration alone on 1 thread (for perf): a sheaf\n"
             "               method by its table name, or embree-1/4/8/16 (Embree LOW)\n"
             "  --profile-shadow  with --profile: the shadow rays instead of camera rays\n"
+            "  --ab A,B,..     the named configurations (embree-N for Embree) in interleaved\n"
+            "                  rounds, camera and shadow rays, each thread count: Mrays/s and\n"
+            "                  the median per-round speed over the last one's\n"
             "  --explain    print every disagreement no tie, edge or end explains\n"
             "  --twolevel ENV ANIM OBJ  the two-level scene instead: ENV static (one instance),\n"
             "               ANIM (`sheaf export builtin:animated --frames F`) refit every frame (4\n"
@@ -2921,6 +3006,8 @@ int main(int argc, char **argv)
             o.summary = argv[++i];
         } else if (!strcmp(a, "--profile") && i + 1 < argc) {
             o.profile = argv[++i];
+        } else if (!strcmp(a, "--ab") && i + 1 < argc) {
+            o.ab = argv[++i];
         } else if (!strcmp(a, "--profile-shadow")) {
             o.profile_shadow = 1;
         } else if (!strcmp(a, "--twolevel") && i + 3 < argc) {

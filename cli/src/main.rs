@@ -141,6 +141,8 @@ pub enum MethodArg {
     BvhPartition,
     /// BVH, n x n packets, Ranged traversal of the 4-wide tree.
     BvhWideRanged,
+    /// BVH, n x n packets, frustum-first traversal of the 4-wide tree.
+    BvhFrustum,
     /// kd-tree, single-ray traversal (the kd baseline).
     KdSingle,
     /// kd-tree, 2x2 SIMD rays.
@@ -161,6 +163,7 @@ impl MethodArg {
             MethodArg::BvhRanged => sheaf::Method::BvhRanged,
             MethodArg::BvhPartition => sheaf::Method::BvhPartition,
             MethodArg::BvhWideRanged => sheaf::Method::BvhWideRanged,
+            MethodArg::BvhFrustum => sheaf::Method::BvhFrustum,
             MethodArg::KdSingle => sheaf::Method::KdSingle,
             MethodArg::KdSimd => sheaf::Method::KdSimd,
             MethodArg::KdPacket => sheaf::Method::KdPacket,

@@ -40,6 +40,11 @@ pub enum Method {
     /// (`accel::bvh::traverse_wide_ranged`): all four children tested at
     /// each node.
     BvhWideRanged = 11,
+    /// BVH, n x n packets, frustum-first traversal of the 4-wide tree
+    /// (`accel::bvh::traverse_frustum`): the packet's interval frustum and
+    /// its first live ray against all four children at once, lane groups
+    /// scanned only where they disagree and at leaves.
+    BvhFrustum = 12,
 }
 
 impl Method {
@@ -56,6 +61,7 @@ impl Method {
         Method::KdPacket,
         Method::BvhWide,
         Method::BvhWideRanged,
+        Method::BvhFrustum,
     ];
     pub fn name(self) -> &'static str {
         match self {
@@ -71,6 +77,7 @@ impl Method {
             Method::KdPacket => "kd-packet",
             Method::BvhWide => "bvh-wide",
             Method::BvhWideRanged => "bvh-wide-ranged",
+            Method::BvhFrustum => "bvh-frustum",
         }
     }
     /// Whether the method traces n x n packets (and so uses `TraceParams::packet`).
@@ -82,6 +89,7 @@ impl Method {
                 | Method::BvhRanged
                 | Method::BvhPartition
                 | Method::BvhWideRanged
+                | Method::BvhFrustum
                 | Method::KdPacket
         )
     }

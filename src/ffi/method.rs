@@ -40,6 +40,12 @@ pub enum sheaf_method {
     /// children of a node tested per quad (from the root; with an entry
     /// point, or `width` 2, the binary Ranged traversal).
     BvhWideRanged = 11,
+    /// BVH, n x n packets, frustum-first traversal of the 4-wide tree: the
+    /// packet's interval frustum and first live ray against all four
+    /// children of a node at once, per-lane tests only where they disagree
+    /// and at leaves (from the root; with an entry point, or `width` 2, the
+    /// binary Ranged traversal).
+    BvhFrustum = 12,
 }
 
 impl sheaf_method {
@@ -59,6 +65,7 @@ impl sheaf_method {
             Method::KdPacket => sheaf_method::KdPacket,
             Method::BvhWide => sheaf_method::BvhWide,
             Method::BvhWideRanged => sheaf_method::BvhWideRanged,
+            Method::BvhFrustum => sheaf_method::BvhFrustum,
         }
     }
 

@@ -36,6 +36,15 @@ pub trait Wide: Lane {
     fn mask_bits(m: Self::Mask) -> u32;
     /// Per-lane axes of the group's quads.
     fn join_axis(a: impl Fn(usize) -> Axis4) -> Self::Axis;
+    /// Per lane `if o > self { o } else { self }`: the slab test's running
+    /// entry (`select(o.gt(self), o, self)`, NaN in `o` never taken), one
+    /// max instruction on wide lanes.
+    fn raise(self, o: Self) -> Self;
+    /// Per lane `if o < self { o } else { self }` (the running exit).
+    fn lower(self, o: Self) -> Self;
+    /// Bits of the lanes where `self <= o` (`mask_bits(self.le(o))`, one
+    /// compare into a mask register on AVX-512).
+    fn le_bits(self, o: Self) -> u32;
 }
 
 impl Wide for F4 {
@@ -59,6 +68,18 @@ impl Wide for F4 {
     #[inline(always)]
     fn join_axis(a: impl Fn(usize) -> Axis4) -> Axis4 {
         a(0)
+    }
+    #[inline(always)]
+    fn raise(self, o: F4) -> F4 {
+        F4::select(o.cmpgt(self), o, self)
+    }
+    #[inline(always)]
+    fn lower(self, o: F4) -> F4 {
+        F4::select(o.cmplt(self), o, self)
+    }
+    #[inline(always)]
+    fn le_bits(self, o: F4) -> u32 {
+        self.cmple(o).bitmask()
     }
 }
 
@@ -279,10 +300,36 @@ macro_rules! wide_lane {
                 $M(r)
             }
             #[inline(always)]
-            fn mask_bits(m: $M) -> u32 {
+            fn raise(self, o: Self) -> Self {
+                let mut r = self.0;
+                for i in 0..$N {
+                    r[i] = if o.0[i] > r[i] { o.0[i] } else { r[i] };
+                }
+                $F(r)
+            }
+            #[inline(always)]
+            fn lower(self, o: Self) -> Self {
+                let mut r = self.0;
+                for i in 0..$N {
+                    r[i] = if o.0[i] < r[i] { o.0[i] } else { r[i] };
+                }
+                $F(r)
+            }
+            #[inline(always)]
+            fn le_bits(self, o: Self) -> u32 {
                 let mut b = 0u32;
                 for i in 0..$N {
-                    b |= (m.0[i] >> 31) << i;
+                    b |= u32::from(self.0[i] <= o.0[i]) << i;
+                }
+                b
+            }
+            #[inline(always)]
+            fn mask_bits(m: $M) -> u32 {
+                // A sign test per lane (one compare into a mask register),
+                // not a shift-and-or reduction.
+                let mut b = 0u32;
+                for i in 0..$N {
+                    b |= u32::from((m.0[i] as i32) < 0) << i;
                 }
                 b
             }

@@ -106,6 +106,7 @@ pub fn check_class(
                 | Method::BvhRanged
                 | Method::BvhPartition
                 | Method::BvhWideRanged
+                | Method::BvhFrustum
                 | Method::KdPacket
         );
         for &(culling, kind, isa) in &combos {

@@ -18,6 +18,7 @@
 //! | `wide.rs` | the 4-wide tree (`WideNode`): every built binary tree collapsed (and refit in place) into nodes of four children with their boxes side by side (Dammertz et al. 2008; Wald et al. 2008), in the reference pool |
 //! | `traverse_wide.rs` | the single ray through the 4-wide tree (`Method::BvhWide`): four boxes per SIMD test; the single-ray fallback of every packet traversal |
 //! | `traverse_wide_ranged.rs` | section 3.2's Ranged traversal of n x n packets through the 4-wide tree (`Method::BvhWideRanged`): every child of a node tested per quad, children front to back |
+//! | `traverse_frustum.rs` | n x n packets through the 4-wide tree, frustum first (`Method::BvhFrustum`; Wald, Boulos, Shirley 2007, section 4.3; Fuetterling et al. 2015, section 4): the packet's interval frustum and first live ray against all four children at once, lane groups scanned only where they disagree and at leaves |
 //! | `refit.rs` | refit: the built tree's boxes recomputed bottom-up for moved vertices (Embree's REFIT quality; the paper rebuilds every frame) |
 //! | `entry.rs` | the BVH as an `accel::entry::EntryTree`: MLRTA/AEPSA entry points (AEPSA paper, section 8), where the three packet traversals can start |
 //!
@@ -41,6 +42,7 @@ pub mod build_morton;
 pub mod entry;
 pub mod packet;
 pub mod refit;
+pub mod traverse_frustum;
 pub mod traverse_masked;
 pub mod traverse_partition;
 pub mod traverse_ranged;
@@ -528,7 +530,11 @@ impl crate::accel::Accel for BvhView<'_> {
         use crate::accel::packet::{self, Start};
         let large = matches!(
             p.method,
-            Method::BvhMasked | Method::BvhRanged | Method::BvhPartition | Method::BvhWideRanged
+            Method::BvhMasked
+                | Method::BvhRanged
+                | Method::BvhPartition
+                | Method::BvhWideRanged
+                | Method::BvhFrustum
         );
         if p.method == Method::BvhWide {
             let wide = |r: &Ray, c: &mut Counters| self.fastest::<T, ANY>(r, c);
@@ -569,6 +575,12 @@ impl crate::accel::Accel for BvhView<'_> {
             }
             (Method::BvhWideRanged, true) => {
                 traverse_wide_ranged::occluded::<T>(self, rays, active, hits, o, e, slot, ctr)
+            }
+            (Method::BvhFrustum, false) => {
+                traverse_frustum::intersect::<T>(self, rays, active, hits, o, e, slot, ctr)
+            }
+            (Method::BvhFrustum, true) => {
+                traverse_frustum::occluded::<T>(self, rays, active, hits, o, e, slot, ctr)
             }
             (Method::BvhRanged, false) => {
                 traverse_ranged::intersect::<T>(self, rays, active, hits, o, e, slot, ctr)

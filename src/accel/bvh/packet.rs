@@ -47,7 +47,10 @@ pub(crate) const SCRATCH: usize = bytes::<M4>(MAX_QUADS)
     )
     + bytes::<F4>(MAX_QUADS)
     + group::max_bytes(MAX_QUADS)
-    + max(bytes::<bool>(MAX_QUADS), bytes::<u16>(MAX_QUADS));
+    + max(
+        max(bytes::<bool>(MAX_QUADS), bytes::<u16>(MAX_QUADS)),
+        super::traverse_frustum::bytes(MAX_QUADS),
+    );
 
 /// A triangle test's per-quad precomputation.
 type Pre<T> = <T as TriangleTest>::Pre<F4>;
@@ -502,7 +505,9 @@ impl<'s, T: TriangleTest> Packet<'s, T> {
             pre: T::join_pre::<L>(|k| self.pre[q(k)]),
         };
         let (h, hb) = group::test(&grp, T::prim(b.store(), i), bits);
-        group::each_hit(&h, hb, |k, m, hit| self.take::<ANY>(hits, q(k), m, hit, id));
+        group::each_hit(&h, hb, |k, m, hit| {
+            self.take::<ANY>(hits, q(k), m, hit, id);
+        });
     }
 
     /// `test` for the quads `g L::G + k` of aligned group `g` (`group`)
@@ -532,7 +537,7 @@ impl<'s, T: TriangleTest> Packet<'s, T> {
         let (h, hb) = group::test(grp, T::prim(b.store(), i), bits);
         let g0 = g * L::G;
         group::each_hit(&h, hb, |k, m, hit| {
-            self.take::<ANY>(hits, g0 + k, m, hit, id)
+            self.take::<ANY>(hits, g0 + k, m, hit, id);
         });
     }
 
@@ -549,18 +554,19 @@ impl<'s, T: TriangleTest> Packet<'s, T> {
 
     /// Lanes `hm` of quad `q` hit triangle `id` at `(t, u, v)`: those
     /// nearer than their best so far (any, for occlusion) take it.
+    /// The lanes taken.
     #[inline(always)]
-    fn take<const ANY: bool>(
+    pub(crate) fn take<const ANY: bool>(
         &mut self,
         hits: &mut [Hit4],
         q: usize,
         hm: M4,
         hit: (F4, F4, F4),
         id: u32,
-    ) {
+    ) -> M4 {
         let take = group::take::<ANY>(&mut hits[q], hm, hit, id);
         if !take.any() {
-            return;
+            return take;
         }
         // A taken hit lies in [tmin, tmax) and not beyond best.t.
         self.tfar[q] = F4::select(take, hit.0, self.tfar[q]);
@@ -568,6 +574,13 @@ impl<'s, T: TriangleTest> Packet<'s, T> {
             self.live[q] &= !take;
             self.n_live -= take.bitmask().count_ones();
         }
+        take
+    }
+
+    /// Quad `q`'s per-lane far ends (`min(tmax, best.t)`).
+    #[inline(always)]
+    pub(crate) fn tfar(&self, q: usize) -> F4 {
+        self.tfar[q]
     }
 
     /// Whether every lane is done (occlusion).

@@ -1,0 +1,583 @@
+//! Frustum-first traversal of n x n packets through the 4-wide tree
+//! (`Method::BvhFrustum`, issue 32): a node visit costs a constant number
+//! of operations for the whole packet, not a scan of its quads.
+//!
+//! At a wide node the packet's interval frustum (the bounds of its live
+//! lanes' origins and reciprocal directions, Wald, Boulos, Shirley 2007,
+//! section 4.3; Embree 3's `node_intersector_frustum.h`) is tested against
+//! all four children at once, one 4-wide slab test whose lanes are the
+//! children. The children it admits are then tested with the packet's first
+//! live ray (Wald et al. 2007's "first active ray"; the group `i_a` carried
+//! on the stack as in Ranged traversal, BVH paper section 3.2), again all
+//! four at once; only a child the frustum admits but the first ray misses
+//! is scanned lane group by lane group from `i_a` (a group is `L::G` quads
+//! side by side: 16 rays per slab test with AVX-512) until a live lane
+//! enters it. The children are visited in the order of the frustum's near
+//! distance (no per-ray sorting), the others pushed with it, and a popped
+//! child whose near distance lies beyond every lane's nearest hit is
+//! dropped untested. At a leaf each group from `i_a` on gets one slab test
+//! against the leaf's box, and only groups with an entering live lane test
+//! its triangles, each triangle broadcast against the group's lanes
+//! (Fuetterling et al. 2015, section 4: large packets on a 4-wide tree).
+//!
+//! # Exactness
+//! The frustum test is conservative in floating point: each bound is a
+//! corner of the interval product (box plane - origin) x reciprocal,
+//! computed with the operations the lanes use (IEEE subtraction and
+//! multiplication are monotone in each argument), so its near bound never
+//! exceeds, and its far bound never falls below, any live lane's own slab
+//! terms; NaN bounds (0 x inf, an axis whose live lanes have mixed
+//! direction signs) constrain nothing, as NaN slab terms constrain nothing
+//! in the single ray's test. A child is therefore dropped only when no
+//! live lane's own slab test (the single ray's arithmetic, `QuadBox`, lane
+//! by lane) enters it by that lane's nearest hit so far, and a lane tests
+//! the triangles of every leaf whose box it enters: the set of triangles a
+//! lane tests contains its nearest one (module docs of `bvh`), and the tie
+//! rule makes the order irrelevant. Results equal `traverse_single` lane by
+//! lane, bitwise.
+//!
+//! # Deviations
+//! - Packets starting at an entry point (MLRTA, AEPSA: binary nodes),
+//!   packets with a live lane of tiny direction, and BVHs without a wide
+//!   tree run the binary Ranged traversal (as `traverse_wide_ranged`).
+//! - The plane frustum of section 4 (`Packet::frustum`) is not consulted:
+//!   the interval frustum replaces it at inner nodes, and the leaf's
+//!   per-group box test replaces its per-triangle culling.
+//! - The paper's frusta exist per ray kind; the interval frustum is the
+//!   same for every kind (it bounds the lanes, not a camera model), so
+//!   camera, shadow, reflection and refraction packets take one path.
+
+use super::packet::{Packet, Walk, dispatch};
+use super::traverse_ranged::Ranged;
+use super::wide::{WIDTH, WideNode, insert_by};
+use super::{BvhView, MAX_DEPTH, TriangleTest};
+use crate::accel::entry::EntryPoint;
+use crate::accel::fallback;
+use crate::accel::group::{self, Group};
+use crate::accel::method::TraceParams;
+use crate::accel::slot::Slot;
+use crate::counters::{Counters, count};
+use crate::geom::{F4, Hit4, M4, Ray4, Wide};
+use glam::Vec4;
+
+/// Stack entries: at most `WIDTH - 1` pushed per wide level.
+const STACK: usize = (WIDTH - 1) * MAX_DEPTH + 1;
+
+/// Nearest hits of the active lanes of `rays` into `hits`, frustum-first
+/// traversal of the 4-wide tree (contract of `traverse_masked::intersect`).
+// The packet, its options and where it starts, and the slot's scratch.
+#[allow(clippy::too_many_arguments)]
+pub fn intersect<T: TriangleTest>(
+    b: &BvhView<'_>,
+    rays: &[Ray4],
+    active: &[M4],
+    hits: &mut [Hit4],
+    opt: &TraceParams,
+    entry: Option<&EntryPoint>,
+    slot: &mut Slot<'_>,
+    ctr: &mut Counters,
+) {
+    dispatch::<FrustumFirst, T, false>(b, rays, active, hits, &no_planes(opt), entry, slot, ctr)
+}
+
+/// Occlusion of the active lanes, frustum-first traversal of the 4-wide tree.
+// The packet, its options and where it starts, and the slot's scratch.
+#[allow(clippy::too_many_arguments)]
+pub fn occluded<T: TriangleTest>(
+    b: &BvhView<'_>,
+    rays: &[Ray4],
+    active: &[M4],
+    hits: &mut [Hit4],
+    opt: &TraceParams,
+    entry: Option<&EntryPoint>,
+    slot: &mut Slot<'_>,
+    ctr: &mut Counters,
+) {
+    dispatch::<FrustumFirst, T, true>(b, rays, active, hits, &no_planes(opt), entry, slot, ctr)
+}
+
+/// `opt` without the plane frustum: the walk never reads it, so the
+/// packet setup does not build it (the binary fallback walks then run
+/// without frustum culling, which changes no answer).
+fn no_planes(opt: &TraceParams) -> TraceParams {
+    let mut o = *opt;
+    o.bvh.culling = false;
+    o
+}
+
+/// One lane group (`L::G` quads) as the slab tests read it: the single
+/// ray's `RayBox` terms lane by lane, the live lanes as bits, and each
+/// lane's far end `min(tmax, best.t)` (lanes not live: tmin +inf, tfar
+/// -inf, so they bound nothing and enter nothing).
+#[derive(Clone, Copy)]
+pub(crate) struct GroupBox<L: Wide> {
+    org: [L; 3],
+    rcp: [L; 3],
+    neg: [L::Mask; 3],
+    tmin: L,
+    tfar: L,
+    live: u32,
+}
+
+/// Scratch bytes of the groups of `nq` quads at the widest level.
+pub(crate) const fn bytes(nq: usize) -> usize {
+    use crate::geom::{F8, F16};
+    use crate::mem::scratch::bytes as b;
+    let (a, c, d) = (
+        b::<GroupBox<F4>>(nq),
+        b::<GroupBox<F8>>(nq.div_ceil(2)),
+        b::<GroupBox<F16>>(nq.div_ceil(4)),
+    );
+    let m = if a > c { a } else { c };
+    if m > d { m } else { d }
+}
+
+impl<L: Wide> GroupBox<L> {
+    /// Live lanes entering the box `(lo, hi)` by their far ends: `QuadBox::entry`'s
+    /// arithmetic on `L` lanes.
+    #[inline(always)]
+    fn enters(&self, lo: [f32; 3], hi: [f32; 3]) -> u32 {
+        let mut t0 = self.tmin;
+        let mut t1 = self.tfar;
+        for a in 0..3 {
+            let l = (L::splat(lo[a]) - self.org[a]) * self.rcp[a];
+            let h = (L::splat(hi[a]) - self.org[a]) * self.rcp[a];
+            let near = L::select(self.neg[a], h, l);
+            let far = L::select(self.neg[a], l, h);
+            t0 = t0.raise(near);
+            t1 = t1.lower(far);
+        }
+        t0.le_bits(t1) & self.live
+    }
+
+    /// `tfar` and `live` again from the packet's quads (after hits).
+    #[inline(always)]
+    fn refresh<T: TriangleTest>(&mut self, p: &Packet<'_, T>, g: usize) {
+        let nq = p.nq;
+        let q = |k: usize| (g * L::G + k).min(nq - 1);
+        self.live = group::lane_bits::<L>(g, group::all::<L>(g, nq), |i| p.live[i]);
+        let t = L::join(|k| p.tfar(q(k)));
+        self.tfar = L::select(L::mask_from_bits(self.live), t, L::splat(f32::NEG_INFINITY));
+    }
+}
+
+/// The packet's interval frustum, laid out for a 4-wide test whose lanes
+/// are a wide node's children. Per axis, with `s` the live lanes' common
+/// direction sign (+1 or -1; NaN bounds when they differ):
+/// - near bound `x * (x s < 0 ? big : small)`, `x = near plane - onear`;
+/// - far bound `y * (y s >= 0 ? big : small)`, `y = far plane - ofar`;
+///
+/// where the near plane is the box's min for `s = +1` (max for -1), `onear`
+/// the lanes' largest origin (smallest for -1), `ofar` the other extreme,
+/// `big` and `small` the reciprocals of largest and smallest magnitude.
+struct Frustum {
+    near_max: [bool; 3],
+    onear: [Vec4; 3],
+    ofar: [Vec4; 3],
+    s: [Vec4; 3],
+    big: [Vec4; 3],
+    small: [Vec4; 3],
+    tmin: Vec4,
+    /// The largest far end of a live lane.
+    tfar: f32,
+}
+
+impl Frustum {
+    #[inline(always)]
+    fn new<L: Wide>(gb: &[GroupBox<L>]) -> Frustum {
+        let inf = f32::INFINITY;
+        let (mut omin, mut omax) = ([L::splat(inf); 3], [L::splat(-inf); 3]);
+        let (mut rmin, mut rmax) = ([L::splat(inf); 3], [L::splat(-inf); 3]);
+        let (mut tmin, mut tfar) = (L::splat(inf), L::splat(-inf));
+        let (mut all_neg, mut all_pos) = ([true; 3], [true; 3]);
+        let mn = |a: L, b: L| a.lower(b);
+        let mx = |a: L, b: L| a.raise(b);
+        for g in gb.iter().filter(|g| g.live != 0) {
+            let m = L::mask_from_bits(g.live);
+            for a in 0..3 {
+                omin[a] = mn(omin[a], L::select(m, g.org[a], L::splat(inf)));
+                omax[a] = mx(omax[a], L::select(m, g.org[a], L::splat(-inf)));
+                rmin[a] = mn(rmin[a], L::select(m, g.rcp[a], L::splat(inf)));
+                rmax[a] = mx(rmax[a], L::select(m, g.rcp[a], L::splat(-inf)));
+                let nb = L::mask_bits(g.neg[a]) & g.live;
+                all_neg[a] &= nb == g.live;
+                all_pos[a] &= nb == 0;
+            }
+            tmin = mn(tmin, g.tmin);
+            tfar = mx(tfar, g.tfar);
+        }
+        let h = |v: L, max: bool| {
+            let mut r = v.get(0);
+            for i in 1..L::WIDTH {
+                let x = v.get(i);
+                if (max && x > r) || (!max && x < r) {
+                    r = x;
+                }
+            }
+            r
+        };
+        let mut f = Frustum {
+            near_max: [false; 3],
+            onear: [Vec4::ZERO; 3],
+            ofar: [Vec4::ZERO; 3],
+            s: [Vec4::ONE; 3],
+            big: [Vec4::NAN; 3],
+            small: [Vec4::NAN; 3],
+            tmin: Vec4::splat(h(tmin, false)),
+            tfar: h(tfar, true),
+        };
+        for a in 0..3 {
+            let (o0, o1) = (h(omin[a], false), h(omax[a], true));
+            let (r0, r1) = (h(rmin[a], false), h(rmax[a], true));
+            if all_pos[a] {
+                f.onear[a] = Vec4::splat(o1);
+                f.ofar[a] = Vec4::splat(o0);
+                f.big[a] = Vec4::splat(r1);
+                f.small[a] = Vec4::splat(r0);
+            } else if all_neg[a] {
+                f.near_max[a] = true;
+                f.s[a] = Vec4::NEG_ONE;
+                f.onear[a] = Vec4::splat(o0);
+                f.ofar[a] = Vec4::splat(o1);
+                f.big[a] = Vec4::splat(r0);
+                f.small[a] = Vec4::splat(r1);
+            }
+        }
+        f
+    }
+
+    /// Children of `n` some live lane may enter (bits), and the frustum's
+    /// near distance to each.
+    #[inline(always)]
+    fn test(&self, n: &WideNode) -> (u32, Vec4) {
+        let mut t0 = self.tmin;
+        let mut t1 = Vec4::splat(self.tfar);
+        for a in 0..3 {
+            let (lo, hi) = (Vec4::from_array(n.min[a]), Vec4::from_array(n.max[a]));
+            let (np, fp) = if self.near_max[a] { (hi, lo) } else { (lo, hi) };
+            let x = np - self.onear[a];
+            let near = x * Vec4::select(
+                (x * self.s[a]).cmplt(Vec4::ZERO),
+                self.big[a],
+                self.small[a],
+            );
+            let y = fp - self.ofar[a];
+            let far = y * Vec4::select(
+                (y * self.s[a]).cmpge(Vec4::ZERO),
+                self.big[a],
+                self.small[a],
+            );
+            t0 = Vec4::select(near.cmpgt(t0), near, t0);
+            t1 = Vec4::select(far.cmplt(t1), far, t1);
+        }
+        (t0.cmple(t1).bitmask(), t0)
+    }
+
+    /// The largest far end of a live lane, again.
+    #[inline(always)]
+    fn refresh<L: Wide>(&mut self, gb: &[GroupBox<L>]) {
+        let mut m = L::splat(f32::NEG_INFINITY);
+        for g in gb {
+            m = m.raise(g.tfar);
+        }
+        let mut r = m.get(0);
+        for i in 1..L::WIDTH {
+            if m.get(i) > r {
+                r = m.get(i);
+            }
+        }
+        self.tfar = r;
+    }
+}
+
+/// One ray's slab test against the four children of `n` (`traverse_wide`'s
+/// arithmetic): lane `i` of group `g`.
+#[inline(always)]
+fn first_ray<L: Wide>(g: &GroupBox<L>, i: usize, n: &WideNode) -> u32 {
+    let (mut t0, mut t1) = (Vec4::splat(g.tmin.get(i)), Vec4::splat(g.tfar.get(i)));
+    for a in 0..3 {
+        let (lo, hi) = (Vec4::from_array(n.min[a]), Vec4::from_array(n.max[a]));
+        let (o, r) = (Vec4::splat(g.org[a].get(i)), Vec4::splat(g.rcp[a].get(i)));
+        let (np, fp) = if L::mask_get(g.neg[a], i) {
+            (hi, lo)
+        } else {
+            (lo, hi)
+        };
+        let near = (np - o) * r;
+        let far = (fp - o) * r;
+        t0 = Vec4::select(near.cmpgt(t0), near, t0);
+        t1 = Vec4::select(far.cmplt(t1), far, t1);
+    }
+    t0.cmple(t1).bitmask()
+}
+
+/// Child `c`'s box.
+#[inline(always)]
+fn child_box(n: &WideNode, c: usize) -> ([f32; 3], [f32; 3]) {
+    (
+        [n.min[0][c], n.min[1][c], n.min[2][c]],
+        [n.max[0][c], n.max[1][c], n.max[2][c]],
+    )
+}
+
+/// The first group from `ia` on with a live lane entering `(lo, hi)`, or
+/// the group count.
+#[inline(always)]
+fn first_group<L: Wide>(
+    gb: &[GroupBox<L>],
+    ia: usize,
+    (lo, hi): ([f32; 3], [f32; 3]),
+    depth: usize,
+    ctr: &mut Counters,
+) -> usize {
+    for (g, x) in gb.iter().enumerate().skip(ia) {
+        if x.live == 0 {
+            continue;
+        }
+        ctr.aabb_at(depth, 1);
+        if x.enters(lo, hi) != 0 {
+            return g;
+        }
+    }
+    gb.len()
+}
+
+pub(crate) struct FrustumFirst;
+
+impl Walk for FrustumFirst {
+    #[inline(always)]
+    fn walk<L: Wide, T: TriangleTest, const ANY: bool>(
+        p: &mut Packet<'_, T>,
+        b: &BvhView<'_>,
+        rays: &[Ray4],
+        hits: &mut [Hit4],
+        start: (usize, usize),
+        slot: &mut Slot<'_>,
+        ctr: &mut Counters,
+    ) {
+        let tiny = (0..p.nq).any(|q| fallback::tiny(true, &rays[q], p.live[q]).any());
+        if start != (0, 0) || b.wide.is_empty() || tiny {
+            return Ranged::walk::<L, T, ANY>(p, b, rays, hits, start, slot, ctr);
+        }
+        let wide = b.wide;
+        let nq = p.nq;
+        let (grp, mut slot) = p.groups::<L>(rays, slot);
+        let grp: &[Group<L, T>] = grp;
+        let (gb, _) = slot.split_from(nq.div_ceil(L::G), |g| {
+            let r = &grp[g].r;
+            let q = |k: usize| (g * L::G + k).min(nq - 1);
+            let neg = |a: usize| {
+                let mut bits = 0u32;
+                for k in 0..L::G {
+                    bits |= rays[q(k)].dir[a].is_negative_bitmask() << (4 * k);
+                }
+                L::mask_from_bits(bits)
+            };
+            let live = group::lane_bits::<L>(g, group::all::<L>(g, nq), |i| p.live[i]);
+            let lm = L::mask_from_bits(live);
+            let one = L::splat(1.0);
+            GroupBox {
+                org: r.org,
+                rcp: [one / r.dir[0], one / r.dir[1], one / r.dir[2]],
+                neg: [neg(0), neg(1), neg(2)],
+                tmin: L::select(lm, r.tmin, L::splat(f32::INFINITY)),
+                tfar: L::select(lm, L::join(|k| p.tfar(q(k))), L::splat(f32::NEG_INFINITY)),
+                live,
+            }
+        });
+        let ng = gb.len();
+        let mut fr = Frustum::new::<L>(gb);
+
+        // Stack: wide node, child slot, first group, frustum near distance.
+        let mut st_w = [0u32; STACK];
+        let mut st_c = [0u8; STACK];
+        let mut st_ia = [0u16; STACK];
+        let mut st_t = [0f32; STACK];
+        let mut st_d = [0u8; STACK];
+        let mut sp = 0usize;
+        // The node being expanded (`None`: pop).
+        let mut cur = Some((0usize, first_group_live(gb), 0usize));
+        loop {
+            let (w, ia, depth) = match cur.take() {
+                Some(x) => x,
+                None => {
+                    // Pop until a child some lane may still enter.
+                    let mut next = None;
+                    while sp > 0 {
+                        sp -= 1;
+                        if st_t[sp] > fr.tfar {
+                            continue;
+                        }
+                        let (w, c) = (st_w[sp] as usize, st_c[sp] as usize);
+                        let (ia, depth) = (st_ia[sp] as usize, st_d[sp] as usize);
+                        let n = &wide[w];
+                        if n.count[c] == 0 {
+                            next = Some((n.child[c] as usize, ia, depth));
+                            break;
+                        }
+                        let (done, took) =
+                            leaf::<L, T, ANY>(p, b, hits, grp, gb, (w, c, ia), depth, ctr);
+                        if done {
+                            return;
+                        }
+                        if !ANY && took {
+                            fr.refresh::<L>(gb);
+                        }
+                    }
+                    match next {
+                        Some(x) => x,
+                        None => return,
+                    }
+                }
+            };
+            if ia >= ng {
+                continue;
+            }
+            let n = &wide[w];
+            let (fm, t0) = fr.test(n);
+            let valid = valid_children(n);
+            let mut fm = fm & valid;
+            ctr.aabb_at(depth + 1, WIDTH as u64);
+            count!(ctr.culled_nodes += (valid & !fm).count_ones() as u64);
+            if fm == 0 {
+                continue;
+            }
+            // The first live lane of group `ia` against the admitted children.
+            let lead = gb[ia].live;
+            let first = if lead != 0 {
+                first_ray::<L>(&gb[ia], lead.trailing_zeros() as usize, n)
+            } else {
+                0
+            };
+            let ts = t0.to_array();
+            let mut kids = [(0.0f32, 0usize, 0usize); WIDTH];
+            let mut k = 0;
+            while fm != 0 {
+                let c = fm.trailing_zeros() as usize;
+                fm &= fm - 1;
+                let ic = if first >> c & 1 != 0 {
+                    ia
+                } else {
+                    first_group::<L>(gb, ia, child_box(n, c), depth + 1, ctr)
+                };
+                if ic < ng {
+                    insert_by(&mut kids, k, (ts[c], c, ic), |e| e.0);
+                    k += 1;
+                }
+            }
+            // Far children on the stack, the nearest visited now.
+            for &(t, c, ic) in kids[..k].iter().rev() {
+                st_w[sp] = w as u32;
+                st_c[sp] = c as u8;
+                st_ia[sp] = ic as u16;
+                st_t[sp] = t;
+                st_d[sp] = (depth + 1) as u8;
+                sp += 1;
+            }
+        }
+    }
+}
+
+/// Slots of `n` that hold a child.
+#[inline(always)]
+fn valid_children(n: &WideNode) -> u32 {
+    let mut m = 0;
+    for c in 0..WIDTH {
+        m |= u32::from(n.child[c] != WideNode::EMPTY) << c;
+    }
+    m
+}
+
+/// The first group with a live lane.
+fn first_group_live<L: Wide>(gb: &[GroupBox<L>]) -> usize {
+    gb.iter().position(|g| g.live != 0).unwrap_or(gb.len())
+}
+
+/// Leaf child `c` of wide node `w`: every group from `ia` on with a live
+/// lane entering its box tests its triangles with those lanes. Whether
+/// every lane is done (occlusion), and whether a lane took a hit.
+// The packet, its groups and their boxes, the leaf, counters.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn leaf<L: Wide, T: TriangleTest, const ANY: bool>(
+    p: &mut Packet<'_, T>,
+    b: &BvhView<'_>,
+    hits: &mut [Hit4],
+    grp: &[Group<L, T>],
+    gb: &mut [GroupBox<L>],
+    (w, c, ia): (usize, usize, usize),
+    depth: usize,
+    ctr: &mut Counters,
+) -> (bool, bool) {
+    let n = &b.wide[w];
+    let mut any = false;
+    let bx = child_box(n, c);
+    let (first, count) = (n.child[c] as usize, n.count[c] as usize);
+    for g in ia..gb.len() {
+        if gb[g].live == 0 {
+            continue;
+        }
+        ctr.aabb_at(depth, 1);
+        let mut bits = gb[g].enters(bx.0, bx.1);
+        if bits == 0 {
+            // The group's lanes skip the leaf's triangles.
+            count!(ctr.culled += count as u64);
+            continue;
+        }
+        let mut took = false;
+        for j in first..first + count {
+            ctr.tri_at(depth, bits.count_ones() as u64);
+            let id = b.tri_ids[j];
+            let (h, hb) = group::test(&grp[g], T::prim(b.store(), j), bits);
+            if hb == 0 {
+                continue;
+            }
+            let g0 = g * L::G;
+            group::each_hit(&h, hb, |k, m, hit| {
+                took |= p.take::<ANY>(hits, g0 + k, m, hit, id).any();
+            });
+            if ANY {
+                bits &= !hb;
+                if bits == 0 {
+                    break;
+                }
+            }
+        }
+        if took {
+            any = true;
+            gb[g].refresh(p, g);
+            if ANY && p.done() {
+                return (true, true);
+            }
+        }
+    }
+    (false, any)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::FrustumFirst;
+    use crate::accel::bvh::traverse_masked::tests::{
+        check_builtin, check_edge_cases, check_lattice,
+    };
+
+    #[test]
+    fn frustum_matches_single_tetra_gears() {
+        check_builtin::<FrustumFirst>(&["tetra", "gears"]);
+    }
+
+    #[test]
+    fn frustum_matches_single_balls_animated() {
+        check_builtin::<FrustumFirst>(&["balls", "animated"]);
+    }
+
+    #[test]
+    fn frustum_edge_cases() {
+        check_edge_cases::<FrustumFirst>();
+    }
+
+    #[test]
+    fn frustum_lattice() {
+        check_lattice::<FrustumFirst>();
+    }
+}
