@@ -117,7 +117,13 @@ pub(crate) struct GroupBox<L: Wide> {
     tmin: L,
     tfar: L,
     live: u32,
+    /// Bit `a` set when every lane's direction has the sign bit on axis
+    /// `a`, clear when none has; `MIXED` otherwise.
+    signs: u32,
 }
+
+/// `GroupBox::signs` of a group whose lanes' direction signs differ.
+const MIXED: u32 = u32::MAX;
 
 /// Scratch bytes of the groups of `nq` quads at the widest level.
 pub(crate) const fn bytes(nq: usize) -> usize {
@@ -139,6 +145,23 @@ impl<L: Wide> GroupBox<L> {
     fn enters(&self, lo: [f32; 3], hi: [f32; 3]) -> u32 {
         let mut t0 = self.tmin;
         let mut t1 = self.tfar;
+        if self.signs != MIXED {
+            // Every lane has the same near plane per axis: the select
+            // below picks it lane by lane, so picking it once gives the
+            // same bits.
+            for a in 0..3 {
+                let (np, fp) = if self.signs >> a & 1 != 0 {
+                    (hi[a], lo[a])
+                } else {
+                    (lo[a], hi[a])
+                };
+                let near = (L::splat(np) - self.org[a]) * self.rcp[a];
+                let far = (L::splat(fp) - self.org[a]) * self.rcp[a];
+                t0 = t0.raise(near);
+                t1 = t1.lower(far);
+            }
+            return t0.le_bits(t1) & self.live;
+        }
         for a in 0..3 {
             let l = (L::splat(lo[a]) - self.org[a]) * self.rcp[a];
             let h = (L::splat(hi[a]) - self.org[a]) * self.rcp[a];
@@ -366,13 +389,27 @@ impl Walk for FrustumFirst {
         let (gb, _) = slot.split_from(nq.div_ceil(L::G), |g| {
             let r = &grp[g].r;
             let q = |k: usize| (g * L::G + k).min(nq - 1);
-            let neg = |a: usize| {
+            let neg_bits = |a: usize| {
                 let mut bits = 0u32;
                 for k in 0..L::G {
                     bits |= rays[q(k)].dir[a].is_negative_bitmask() << (4 * k);
                 }
-                L::mask_from_bits(bits)
+                bits
             };
+            let neg = |a: usize| L::mask_from_bits(neg_bits(a));
+            // All lanes of the group (live or not: the test reads them all).
+            let full = (1u32 << (4 * L::G)) - 1;
+            let mut signs = 0u32;
+            for a in 0..3 {
+                match neg_bits(a) {
+                    0 => {}
+                    b if b == full => signs |= 1 << a,
+                    _ => signs = MIXED,
+                }
+                if signs == MIXED {
+                    break;
+                }
+            }
             let live = group::lane_bits::<L>(g, group::all::<L>(g, nq), |i| p.live[i]);
             let lm = L::mask_from_bits(live);
             let one = L::splat(1.0);
@@ -383,6 +420,7 @@ impl Walk for FrustumFirst {
                 tmin: L::select(lm, r.tmin, L::splat(f32::INFINITY)),
                 tfar: L::select(lm, L::join(|k| p.tfar(q(k))), L::splat(f32::NEG_INFINITY)),
                 live,
+                signs,
             }
         });
         let ng = gb.len();
