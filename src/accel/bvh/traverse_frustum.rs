@@ -60,8 +60,11 @@ use crate::counters::{Counters, count};
 use crate::geom::{F4, Hit4, M4, Ray4, Wide};
 use glam::Vec4;
 
-/// Stack entries: at most `WIDTH - 1` pushed per wide level.
-const STACK: usize = (WIDTH - 1) * MAX_DEPTH + 1;
+/// Stack entries: an expansion pushes all (up to `WIDTH`) children it
+/// keeps and the walk pops the nearest at once, so at most `WIDTH - 1`
+/// stay per wide level above the node expanded, `WIDTH` at it: `WIDTH *
+/// MAX_DEPTH` leaves a level of margin over that bound.
+const STACK: usize = WIDTH * MAX_DEPTH;
 
 /// Nearest hits of the active lanes of `rays` into `hits`, frustum-first
 /// traversal of the 4-wide tree (contract of `traverse_masked::intersect`).
