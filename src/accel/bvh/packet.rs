@@ -105,6 +105,23 @@ impl QuadBox {
     }
 }
 
+/// Whether a walk of the 4-wide tree can take this packet: it starts at
+/// the root (entry points are binary nodes), the BVH has a wide tree, and
+/// no live lane has a tiny direction (left in the packet when the
+/// fallbacks are off; `traverse_wide`'s deviations). Otherwise the binary
+/// Ranged walk answers.
+#[inline(always)]
+pub(crate) fn wide_walk_applies<T: TriangleTest>(
+    p: &Packet<'_, T>,
+    b: &BvhView<'_>,
+    rays: &[Ray4],
+    start: (usize, usize),
+) -> bool {
+    start == (0, 0)
+        && !b.wide.is_empty()
+        && !(0..p.nq).any(|q| fallback::tiny(true, &rays[q], p.live[q]).any())
+}
+
 /// A large-packet traversal: walks one prepared packet through the tree.
 pub(crate) trait Walk {
     /// `start`: the node to start at and its depth (the root: `(0, 0)`);

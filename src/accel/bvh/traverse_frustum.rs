@@ -47,12 +47,11 @@
 //!   same for every kind (it bounds the lanes, not a camera model), so
 //!   camera, shadow, reflection and refraction packets take one path.
 
-use super::packet::{Packet, Walk, dispatch};
+use super::packet::{Packet, Walk, dispatch, wide_walk_applies};
 use super::traverse_ranged::Ranged;
 use super::wide::{WIDTH, WideNode, insert_by};
 use super::{BvhView, MAX_DEPTH, TriangleTest};
 use crate::accel::entry::EntryPoint;
-use crate::accel::fallback;
 use crate::accel::group::{self, Group};
 use crate::accel::method::TraceParams;
 use crate::accel::slot::Slot;
@@ -381,8 +380,7 @@ impl Walk for FrustumFirst {
         slot: &mut Slot<'_>,
         ctr: &mut Counters,
     ) {
-        let tiny = (0..p.nq).any(|q| fallback::tiny(true, &rays[q], p.live[q]).any());
-        if start != (0, 0) || b.wide.is_empty() || tiny {
+        if !wide_walk_applies(p, b, rays, start) {
             return Ranged::walk::<L, T, ANY>(p, b, rays, hits, start, slot, ctr);
         }
         let wide = b.wide;
@@ -392,34 +390,28 @@ impl Walk for FrustumFirst {
         let (gb, _) = slot.split_from(nq.div_ceil(L::G), |g| {
             let r = &grp[g].r;
             let q = |k: usize| (g * L::G + k).min(nq - 1);
-            let neg_bits = |a: usize| {
+            // Sign bits of each axis's directions, every lane of the group
+            // (live or not: the slab test reads them all).
+            let neg_bits: [u32; 3] = core::array::from_fn(|a| {
                 let mut bits = 0u32;
                 for k in 0..L::G {
                     bits |= rays[q(k)].dir[a].is_negative_bitmask() << (4 * k);
                 }
                 bits
-            };
-            let neg = |a: usize| L::mask_from_bits(neg_bits(a));
-            // All lanes of the group (live or not: the test reads them all).
+            });
             let full = (1u32 << (4 * L::G)) - 1;
-            let mut signs = 0u32;
-            for a in 0..3 {
-                match neg_bits(a) {
-                    0 => {}
-                    b if b == full => signs |= 1 << a,
-                    _ => signs = MIXED,
-                }
-                if signs == MIXED {
-                    break;
-                }
-            }
+            let signs = if neg_bits.iter().all(|&n| n == 0 || n == full) {
+                (0..3).fold(0, |s, a| s | u32::from(neg_bits[a] == full) << a)
+            } else {
+                MIXED
+            };
             let live = group::lane_bits::<L>(g, group::all::<L>(g, nq), |i| p.live[i]);
             let lm = L::mask_from_bits(live);
             let one = L::splat(1.0);
             GroupBox {
                 org: r.org,
                 rcp: [one / r.dir[0], one / r.dir[1], one / r.dir[2]],
-                neg: [neg(0), neg(1), neg(2)],
+                neg: neg_bits.map(L::mask_from_bits),
                 tmin: L::select(lm, r.tmin, L::splat(f32::INFINITY)),
                 tfar: L::select(lm, L::join(|k| p.tfar(q(k))), L::splat(f32::NEG_INFINITY)),
                 live,

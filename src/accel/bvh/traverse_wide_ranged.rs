@@ -27,12 +27,11 @@
 //! - The children's order is by the sum of each box's corners along the
 //!   packet's direction signs (the wide nodes keep no split axis).
 
-use super::packet::{Packet, Walk, dispatch};
+use super::packet::{Packet, Walk, dispatch, wide_walk_applies};
 use super::traverse_ranged::{Ranged, first_hit, last_hit, test_leaf};
 use super::wide::{WIDTH, WideNode, insert_by};
 use super::{BvhNode, BvhView, MAX_DEPTH, TriangleTest};
 use crate::accel::entry::EntryPoint;
-use crate::accel::fallback;
 use crate::accel::method::TraceParams;
 use crate::accel::slot::Slot;
 use crate::counters::Counters;
@@ -118,10 +117,7 @@ impl Walk for WideRanged {
         slot: &mut Slot<'_>,
         ctr: &mut Counters,
     ) {
-        // Tiny directions (left in the packet when the fallbacks are off):
-        // see `traverse_wide`'s deviations; the binary walk answers them.
-        let tiny = (0..p.nq).any(|q| fallback::tiny(true, &rays[q], p.live[q]).any());
-        if start != (0, 0) || b.wide.is_empty() || tiny {
+        if !wide_walk_applies(p, b, rays, start) {
             return Ranged::walk::<L, T, ANY>(p, b, rays, hits, start, slot, ctr);
         }
         let wide = b.wide;
