@@ -231,16 +231,6 @@ impl Frustum {
             tmin = mn(tmin, g.tmin);
             tfar = mx(tfar, g.tfar);
         }
-        let h = |v: L, max: bool| {
-            let mut r = v.get(0);
-            for i in 1..L::WIDTH {
-                let x = v.get(i);
-                if (max && x > r) || (!max && x < r) {
-                    r = x;
-                }
-            }
-            r
-        };
         let mut f = Frustum {
             near_max: [false; 3],
             onear: [Vec4::ZERO; 3],
@@ -305,14 +295,22 @@ impl Frustum {
         for g in gb {
             m = m.raise(g.tfar);
         }
-        let mut r = m.get(0);
-        for i in 1..L::WIDTH {
-            if m.get(i) > r {
-                r = m.get(i);
-            }
-        }
-        self.tfar = r;
+        self.tfar = h(m, true);
     }
+}
+
+/// The smallest (`max` false) or largest lane of `v` (NaN lanes skipped
+/// unless lane 0 is NaN).
+#[inline(always)]
+fn h<L: Wide>(v: L, max: bool) -> f32 {
+    let mut r = v.get(0);
+    for i in 1..L::WIDTH {
+        let x = v.get(i);
+        if (max && x > r) || (!max && x < r) {
+            r = x;
+        }
+    }
+    r
 }
 
 /// One ray's slab test against the four children of `n` (`traverse_wide`'s

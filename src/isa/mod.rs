@@ -13,10 +13,15 @@
 //! level and each wide-lane loop becomes one instruction. `fma` is never
 //! enabled: results are bitwise equal at every level (`geom::wide`).
 //!
+//! On x86-64 the AVX-512 level runs on `Z16` (`z16`: one `__m512` register
+//! per lane group, compares into mask registers), the emulated level and
+//! 32-bit x86 on the portable `F16`.
+//!
 //! This is one of the crate's small unsafe modules: calling a
 //! `#[target_feature]` function needs `unsafe`, and the one obligation (the
-//! CPU has the feature) is checked right before each call.
-#![allow(unsafe_code)] // only the two calls in `run`, each with a SAFETY comment
+//! CPU has the feature) is checked right before each call; `z16`'s
+//! intrinsics rest on the same check.
+#![allow(unsafe_code)] // the two calls in `run` and `z16`, each block with a SAFETY comment
 
 use crate::error::{Error, Result};
 use crate::geom::F4;
@@ -195,19 +200,31 @@ pub fn run<K: Kernel>(isa: Isa, k: K) -> K::Out {
     k.run::<F4>()
 }
 
+#[cfg(target_arch = "x86_64")]
+mod z16;
+
 #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
 mod x86 {
     use super::Kernel;
-    use crate::geom::{F8, F16};
+    use crate::geom::F8;
 
     #[target_feature(enable = "avx2")]
     pub(super) fn avx2<K: Kernel>(k: K) -> K::Out {
         k.run::<F8>()
     }
 
+    /// The kernel on `Z16` lanes (intrinsics; `z16` module docs), the only
+    /// place a `Z16` is created.
+    #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx512f")]
     pub(super) fn avx512<K: Kernel>(k: K) -> K::Out {
-        k.run::<F16>()
+        k.run::<super::z16::Z16>()
+    }
+
+    #[cfg(not(target_arch = "x86_64"))]
+    #[target_feature(enable = "avx512f")]
+    pub(super) fn avx512<K: Kernel>(k: K) -> K::Out {
+        k.run::<crate::geom::F16>()
     }
 }
 

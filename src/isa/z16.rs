@@ -1,0 +1,342 @@
+//! `Z16`: the AVX-512 level's lane type, sixteen f32 lanes in one `__m512`
+//! register with masks in a mask register (`__mmask16`), so a compare
+//! yields its lane bits directly and a select is one blend.
+//!
+//! `geom::wide::F16` states the same lanes as plain arrays. LLVM turns its
+//! arithmetic into zmm instructions, but not its mask-to-bits reductions:
+//! each `mask_bits` / `le_bits` became a chain of about ten shuffles and
+//! ors (8% of the frustum walk's samples on crytek sponza, issue 32), and
+//! it split some slab tests into scalar lanes to feed them. `Z16` is what
+//! `isa::run` instantiates inside its `avx512f` function; `F16` stays for
+//! the emulated level (`set_emulation`) on machines without AVX-512.
+//!
+//! # Exactness
+//! Every operation is the IEEE operation of `F16`'s lane loop: `vaddps`,
+//! `vsubps`, `vmulps`, `vdivps` (round to nearest, no FMA), ordered
+//! compares, `vmaxps`/`vminps` for `raise`/`lower` (`o > x ? o : x`, which is
+//! `maxps(o, x)` exactly, NaN in `o` not taken), a sign-bit xor for `-x`.
+//! `same_as_f16` checks each against `F16` bitwise.
+//!
+//! # Safety
+//! This module's `unsafe` blocks call AVX-512F intrinsics. They are sound
+//! because no code outside `isa` can name `Z16` (the type is private to this
+//! module's parent), and `isa` creates it only by instantiating a kernel
+//! with it inside `x86::avx512`, which `run` calls only after `detected()`
+//! reported AVX-512F usable (CPUID and XGETBV). Kernels are generic over the
+//! lane type and their output type does not depend on it, so no `Z16` value
+//! outlives that call. The methods are `#[inline(always)]`: inlined into the
+//! `avx512f` function, the intrinsics become single instructions.
+#![allow(unsafe_code)] // AVX-512F intrinsics; see the module's Safety section
+
+use crate::geom::lane::{Axis4, F4, Lane, shear1};
+use crate::geom::wide::Wide;
+use core::arch::x86_64::*;
+use core::ops::{Add, BitAnd, BitOr, Div, Mul, Neg, Not, Sub};
+
+/// Sixteen f32 lanes: four 2x2 quads, lanes `4k..4k+4` quad `k`.
+#[derive(Clone, Copy)]
+#[repr(transparent)]
+pub(super) struct Z16(__m512);
+
+/// Sixteen lane masks, bit `i` lane `i`.
+#[derive(Clone, Copy, PartialEq, Eq)]
+pub(super) struct K16(u16);
+
+/// Per-lane axis (x = 0, y = 1, z = 2) as two masks, as `Axis4`.
+#[derive(Clone, Copy)]
+pub(super) struct AxisZ {
+    is_x: K16,
+    is_y: K16,
+}
+
+impl Z16 {
+    // Bit casts, no instruction of their own: a kernel reads lanes of
+    // values in memory (a group's first ray), so these must not depend on
+    // being inlined into the `avx512f` function.
+    #[inline(always)]
+    fn from_array(a: [f32; 16]) -> Z16 {
+        // SAFETY: `[f32; 16]` and `__m512` are 64 plain bytes, every bit
+        // pattern valid in both.
+        Z16(unsafe { core::mem::transmute::<[f32; 16], __m512>(a) })
+    }
+    #[inline(always)]
+    fn to_array(self) -> [f32; 16] {
+        // SAFETY: as `from_array`.
+        unsafe { core::mem::transmute::<__m512, [f32; 16]>(self.0) }
+    }
+}
+
+macro_rules! arith {
+    ($Tr:ident, $f:ident, $op:ident) => {
+        impl $Tr for Z16 {
+            type Output = Z16;
+            #[inline(always)]
+            fn $f(self, o: Z16) -> Z16 {
+                // SAFETY: AVX-512F is usable wherever a Z16 exists (module docs).
+                Z16(unsafe { $op(self.0, o.0) })
+            }
+        }
+    };
+}
+arith!(Add, add, _mm512_add_ps);
+arith!(Sub, sub, _mm512_sub_ps);
+arith!(Mul, mul, _mm512_mul_ps);
+arith!(Div, div, _mm512_div_ps);
+
+impl Neg for Z16 {
+    type Output = Z16;
+    #[inline(always)]
+    fn neg(self) -> Z16 {
+        // SAFETY: AVX-512F is usable wherever a Z16 exists (module docs).
+        // Flipping the sign bit is what scalar `-x` does, NaN included.
+        Z16(unsafe {
+            _mm512_castsi512_ps(_mm512_xor_si512(
+                _mm512_castps_si512(self.0),
+                _mm512_set1_epi32(i32::MIN),
+            ))
+        })
+    }
+}
+
+impl BitAnd for K16 {
+    type Output = K16;
+    #[inline(always)]
+    fn bitand(self, o: K16) -> K16 {
+        K16(self.0 & o.0)
+    }
+}
+impl BitOr for K16 {
+    type Output = K16;
+    #[inline(always)]
+    fn bitor(self, o: K16) -> K16 {
+        K16(self.0 | o.0)
+    }
+}
+impl Not for K16 {
+    type Output = K16;
+    #[inline(always)]
+    fn not(self) -> K16 {
+        K16(!self.0)
+    }
+}
+
+impl Lane for Z16 {
+    type Mask = K16;
+    type Axis = AxisZ;
+    #[inline(always)]
+    fn splat(x: f32) -> Z16 {
+        // SAFETY: AVX-512F is usable wherever a Z16 exists (module docs).
+        Z16(unsafe { _mm512_set1_ps(x) })
+    }
+    #[inline(always)]
+    fn lt(self, o: Z16) -> K16 {
+        // SAFETY: as `splat`. Ordered, quiet: false on NaN, as `<`.
+        K16(unsafe { _mm512_cmp_ps_mask::<_CMP_LT_OQ>(self.0, o.0) })
+    }
+    #[inline(always)]
+    fn le(self, o: Z16) -> K16 {
+        // SAFETY: as `splat`.
+        K16(unsafe { _mm512_cmp_ps_mask::<_CMP_LE_OQ>(self.0, o.0) })
+    }
+    #[inline(always)]
+    fn eq(self, o: Z16) -> K16 {
+        // SAFETY: as `splat`.
+        K16(unsafe { _mm512_cmp_ps_mask::<_CMP_EQ_OQ>(self.0, o.0) })
+    }
+    #[inline(always)]
+    fn select(m: K16, a: Z16, b: Z16) -> Z16 {
+        // SAFETY: as `splat`. The blend takes its second operand where the
+        // mask is set.
+        Z16(unsafe { _mm512_mask_blend_ps(m.0, b.0, a.0) })
+    }
+    #[inline(always)]
+    fn any(m: K16) -> bool {
+        m.0 != 0
+    }
+    #[inline(always)]
+    fn pick(v: [Z16; 3], axis: AxisZ) -> Z16 {
+        Z16::select(axis.is_x, v[0], Z16::select(axis.is_y, v[1], v[2]))
+    }
+    #[inline(always)]
+    fn get(self, i: usize) -> f32 {
+        self.to_array()[i]
+    }
+    #[inline(always)]
+    fn set(&mut self, i: usize, x: f32) {
+        let mut a = self.to_array();
+        a[i] = x;
+        *self = Z16::from_array(a);
+    }
+    #[inline(always)]
+    fn mask_get(m: K16, i: usize) -> bool {
+        m.0 >> i & 1 != 0
+    }
+    #[inline]
+    fn shear_axes(d: [Z16; 3]) -> ([AxisZ; 3], [Z16; 3]) {
+        // Lane by lane with the scalar code, as every lane type.
+        let d = d.map(Z16::to_array);
+        let mut k = [[0usize; 3]; 16];
+        let mut s = [[0.0f32; 16]; 3];
+        for i in 0..16 {
+            let (ki, si) = shear1([d[0][i], d[1][i], d[2][i]]);
+            k[i] = ki;
+            for a in 0..3 {
+                s[a][i] = si[a];
+            }
+        }
+        let axis = |j: usize| {
+            let (mut x, mut y) = (0u16, 0u16);
+            for (i, ki) in k.iter().enumerate() {
+                x |= u16::from(ki[j] == 0) << i;
+                y |= u16::from(ki[j] == 1) << i;
+            }
+            AxisZ {
+                is_x: K16(x),
+                is_y: K16(y),
+            }
+        };
+        ([axis(0), axis(1), axis(2)], s.map(Z16::from_array))
+    }
+    const WIDTH: usize = 16;
+}
+
+impl Wide for Z16 {
+    const G: usize = 4;
+    #[inline(always)]
+    fn join(q: impl Fn(usize) -> F4) -> Z16 {
+        let mut a = [0.0f32; 16];
+        for k in 0..4 {
+            a[4 * k..4 * k + 4].copy_from_slice(&q(k).to_array());
+        }
+        Z16::from_array(a)
+    }
+    #[inline(always)]
+    fn quad(self, k: usize) -> F4 {
+        F4::from_slice(&self.to_array()[4 * k..4 * k + 4])
+    }
+    #[inline(always)]
+    fn mask_from_bits(bits: u32) -> K16 {
+        K16(bits as u16)
+    }
+    #[inline(always)]
+    fn mask_bits(m: K16) -> u32 {
+        u32::from(m.0)
+    }
+    #[inline(always)]
+    fn join_axis(a: impl Fn(usize) -> Axis4) -> AxisZ {
+        let (mut bx, mut by) = (0u32, 0u32);
+        for k in 0..4 {
+            let ak = a(k);
+            bx |= ak.is_x.bitmask() << (4 * k);
+            by |= ak.is_y.bitmask() << (4 * k);
+        }
+        AxisZ {
+            is_x: K16(bx as u16),
+            is_y: K16(by as u16),
+        }
+    }
+    #[inline(always)]
+    fn raise(self, o: Z16) -> Z16 {
+        // SAFETY: as `splat`. `maxps(o, x)` is `o > x ? o : x` lane by lane.
+        Z16(unsafe { _mm512_max_ps(o.0, self.0) })
+    }
+    #[inline(always)]
+    fn lower(self, o: Z16) -> Z16 {
+        // SAFETY: as `splat`. `minps(o, x)` is `o < x ? o : x` lane by lane.
+        Z16(unsafe { _mm512_min_ps(o.0, self.0) })
+    }
+    #[inline(always)]
+    fn le_bits(self, o: Z16) -> u32 {
+        Z16::mask_bits(self.le(o))
+    }
+}
+
+// The scratch budgets are sized with `F16`: a `Z16` must fit its slots.
+const _: () = {
+    assert!(core::mem::size_of::<Z16>() == core::mem::size_of::<crate::geom::F16>());
+    assert!(core::mem::align_of::<Z16>() == core::mem::align_of::<crate::geom::F16>());
+};
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geom::F16;
+
+    /// Deterministic lanes with signs, zeros, infinities and NaN.
+    fn lanes(seed: u32) -> [f32; 16] {
+        let mut s = seed;
+        core::array::from_fn(|_| {
+            s = s.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            match s % 23 {
+                0 => 0.0,
+                1 => -0.0,
+                2 => f32::INFINITY,
+                3 => f32::NEG_INFINITY,
+                4 => f32::NAN,
+                _ => ((s >> 8) as f32 / (1u32 << 24) as f32 - 0.5) * 8.0,
+            }
+        })
+    }
+
+    fn bits(a: [f32; 16]) -> [u32; 16] {
+        a.map(f32::to_bits)
+    }
+
+    /// Every `Lane` and `Wide` operation of `Z16` gives `F16`'s bits.
+    #[test]
+    fn same_as_f16() {
+        if !super::super::cpu_avx512::get() {
+            eprintln!("no AVX-512F on this CPU: Z16 not checked here");
+            return;
+        }
+        for seed in 0..500 {
+            let (a, b) = (lanes(seed), lanes(seed ^ 0x9e37_79b9));
+            let (za, zb) = (Z16::from_array(a), Z16::from_array(b));
+            let (fa, fb) = (F16(a), F16(b));
+            let same = |z: Z16, f: F16| assert_eq!(bits(z.to_array()), bits(f.0), "seed {seed}");
+            same(za + zb, fa + fb);
+            same(za - zb, fa - fb);
+            same(za * zb, fa * fb);
+            same(za / zb, fa / fb);
+            same(-za, -fa);
+            same(za.raise(zb), fa.raise(fb));
+            same(za.lower(zb), fa.lower(fb));
+            let km = [za.lt(zb), za.le(zb), za.eq(zb)];
+            let fm = [fa.lt(fb), fa.le(fb), fa.eq(fb)];
+            for (k, f) in km.iter().zip(&fm) {
+                assert_eq!(Z16::mask_bits(*k), F16::mask_bits(*f), "seed {seed}");
+                same(Z16::select(*k, za, zb), F16::select(*f, fa, fb));
+            }
+            assert_eq!(za.le_bits(zb), fa.le_bits(fb));
+            let m = seed.wrapping_mul(2_654_435_761) & 0xffff;
+            assert_eq!(Z16::mask_bits(Z16::mask_from_bits(m)), m);
+            assert_eq!(
+                Z16::any(Z16::mask_from_bits(m)),
+                F16::any(F16::mask_from_bits(m))
+            );
+            for (i, ai) in a.iter().enumerate() {
+                assert_eq!(za.get(i).to_bits(), ai.to_bits());
+                assert_eq!(Z16::mask_get(km[1], i), F16::mask_get(fm[1], i));
+            }
+            let mut zs = za;
+            zs.set(5, 1.5);
+            assert_eq!(zs.get(5), 1.5);
+            for k in 0..4 {
+                assert_eq!(bits(Z16::join(|j| za.quad(j)).to_array()), bits(a));
+                assert_eq!(
+                    za.quad(k).to_array().map(f32::to_bits),
+                    fa.quad(k).to_array().map(f32::to_bits)
+                );
+            }
+            let (zk, zs) = Z16::shear_axes([za, zb, za * zb]);
+            let (fk, fs) = F16::shear_axes([fa, fb, fa * fb]);
+            for j in 0..3 {
+                same(zs[j], fs[j]);
+                same(
+                    Z16::pick([za, zb, -za], zk[j]),
+                    F16::pick([fa, fb, -fa], fk[j]),
+                );
+            }
+        }
+    }
+}
