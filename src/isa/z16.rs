@@ -159,7 +159,10 @@ impl Lane for Z16 {
     }
     #[inline(always)]
     fn get(self, i: usize) -> f32 {
-        self.to_array()[i]
+        // A lane move, not a store and a reload: a 64-byte store read back
+        // in pieces misses store forwarding.
+        // SAFETY: as `splat`. The index is taken mod 16 by the permute.
+        unsafe { _mm512_cvtss_f32(_mm512_permutexvar_ps(_mm512_set1_epi32(i as i32), self.0)) }
     }
     #[inline(always)]
     fn set(&mut self, i: usize, x: f32) {
@@ -212,7 +215,15 @@ impl Wide for Z16 {
     }
     #[inline(always)]
     fn quad(self, k: usize) -> F4 {
-        F4::from_slice(&self.to_array()[4 * k..4 * k + 4])
+        // SAFETY: as `splat`; one 128-bit extract (see `get`).
+        F4::from(unsafe {
+            match k {
+                0 => _mm512_castps512_ps128(self.0),
+                1 => _mm512_extractf32x4_ps::<1>(self.0),
+                2 => _mm512_extractf32x4_ps::<2>(self.0),
+                _ => _mm512_extractf32x4_ps::<3>(self.0),
+            }
+        })
     }
     #[inline(always)]
     fn mask_from_bits(bits: u32) -> K16 {
