@@ -1530,6 +1530,18 @@ static void time_sheaf_methods(Bench *b)
     }
 }
 
+/* Embree's device configuration for T threads. With SHEAF_ISA=avx2 (or
+ * sse2) Embree is capped to the same level (its max_isa), so both libraries
+ * trace at one width on an AVX-512 machine standing in for an AVX2 one. */
+static void embree_cfg(char *cfg, size_t n, int T)
+{
+    const char *isa = getenv("SHEAF_ISA");
+    if (isa && (!strcmp(isa, "avx2") || !strcmp(isa, "sse2")))
+        snprintf(cfg, n, "threads=%d,max_isa=%s", T, !strcmp(isa, "avx2") ? "avx2" : "sse4.2");
+    else
+        snprintf(cfg, n, "threads=%d", T);
+}
+
 /* Embree builds, rays, agreement and its dynamic frame, per thread count and quality. */
 static void time_embree(Bench *b)
 {
@@ -1540,7 +1552,7 @@ static void time_embree(Bench *b)
     for (int ti = 0; ti < b->o->nthreads; ti++) {
         int T = b->o->threads[ti];
         char cfg[64];
-        snprintf(cfg, sizeof cfg, "threads=%d", T);
+        embree_cfg(cfg, sizeof cfg, T);
         RTCDevice dev = rtcNewDevice(cfg);
         if (!dev)
             die("rtcNewDevice(\"%s\") failed (error %d)", cfg, (int)rtcGetDeviceError(NULL));
@@ -1778,7 +1790,7 @@ static void time_animation(Bench *b)
     for (int ti = 0; ti < b->o->nthreads; ti++) {
         int T = b->o->threads[ti];
         char cfg[64];
-        snprintf(cfg, sizeof cfg, "threads=%d", T);
+        embree_cfg(cfg, sizeof cfg, T);
         RTCDevice dev = rtcNewDevice(cfg);
         if (!dev)
             die("rtcNewDevice(\"%s\") failed", cfg);
@@ -2100,8 +2112,8 @@ static Job named_job(Bench *b, const char *name, int shadow, int threads, size_t
     if (!strncmp(name, "embree-", 7)) {
         int w = atoi(name + 7);
         if (w != 1 && w != 4 && w != 8 && w != 16) die("embree-N: N is 1, 4, 8 or 16");
-        char cfg[32];
-        snprintf(cfg, sizeof cfg, "threads=%d", threads);
+        char cfg[64];
+        embree_cfg(cfg, sizeof cfg, threads);
         *dev = rtcNewDevice(cfg);
         if (!*dev) die("rtcNewDevice failed");
         embree_build(*dev, &b->s, 0, es);
@@ -2263,10 +2275,10 @@ static void run_scene(const char *path, const Options *o)
  * the ring's set_instance, sheaf_context_commit_scene; Embree: the ANIM
  * child, the instances' commits, rtcCommitScene of the top level, LOW +
  * DYNAMIC), then ENV's camera rays (packet order as the single-scene mode)
- * traced (sheaf_context_trace_scene, bvh-ranged 8x8; Embree rtcIntersect8
+ * traced (sheaf_context_trace_scene, TL_CFG's packets; Embree rtcIntersect8
  * or 16, whichever was faster on frame 0), then shadow rays toward ENV's
- * light traced (sheaf_context_occluded_scene, bvh-ranged 8x8 shadow
- * packets; Embree's fastest of rtcOccluded8/16 on frame 0, see tl_run).
+ * light traced (sheaf_context_occluded_scene, TL_CFG's shadow packets;
+ * Embree's fastest of rtcOccluded8/16 on frame 0, see tl_run).
  * The shadow rays are made (untimed) from
  * sheaf's hits: the hit triangle's world vertices (its geometry's vertices
  * of this frame through its instance's transform) and shadow_ray_tri with
@@ -2274,6 +2286,7 @@ static void run_scene(const char *path, const Options *o)
  * those same rays. Rays go to the threads in chunks as run_job hands them. */
 
 #define TL_ANIM 4                            /* instances of ANIM */
+#define TL_CFG "bvh-frustum 16x16"           /* sheaf's packets (env SHEAF_TL_CFG: another table name) */
 #define TL_RING 16                           /* instances of OBJ */
 #define TL_INST (1 + TL_ANIM + TL_RING)
 #define TL_ANIM_SIZE 0.15f                   /* an ANIM copy's diagonal (every frame's bounds) over ENV's */
@@ -2549,7 +2562,7 @@ static void tl_setup(TwoLevel *b)
 static double tl_embree_setup(TwoLevel *b, int T, TLEmbree *e)
 {
     char cfg[64];
-    snprintf(cfg, sizeof cfg, "threads=%d", T);
+    embree_cfg(cfg, sizeof cfg, T);
     e->dev = rtcNewDevice(cfg);
     if (!e->dev)
         die("rtcNewDevice(\"%s\") failed (error %d)", cfg, (int)rtcGetDeviceError(NULL));
@@ -2712,9 +2725,10 @@ static void tl_run(TwoLevel *b, int ti)
              b->embree_setup_ms[ti]);
 
     const Cfg *ranged = NULL;
+    const char *tl_cfg = getenv("SHEAF_TL_CFG") ? getenv("SHEAF_TL_CFG") : TL_CFG;
     for (size_t c = 0; c < N_PRIMARY_CFGS; c++)
-        if (!strcmp(PRIMARY_CFGS[c].name, "bvh-ranged 8x8")) ranged = &PRIMARY_CFGS[c];
-    if (!ranged) die("no bvh-ranged 8x8 configuration");
+        if (!strcmp(PRIMARY_CFGS[c].name, tl_cfg)) ranged = &PRIMARY_CFGS[c];
+    if (!ranged) die("no %s configuration", tl_cfg);
     Job sc, ss, ec, es;
     memset(&sc, 0, sizeof sc);
     sc.lib = LIB_SHEAF;
@@ -2839,7 +2853,7 @@ static void tl_report(TwoLevel *b)
            "(animation frame f mod %u, the ring turning 1/%d turn per frame), each library's median frame over "
            "%d frames x %d runs; load average %.2f before, %.2f after. sheaf: a BVH per geometry (env and obj "
            "STATIC, anim REFIT; binned SAH), sheaf_context_trace_scene / sheaf_context_occluded_scene with "
-           "bvh-ranged 8x8 packets (camera / shadow kind). Embree: env and obj child scenes at "
+           "%s packets (camera / shadow kind). Embree: env and obj child scenes at "
            "RTC_BUILD_QUALITY_MEDIUM (committed once), the anim child LOW + DYNAMIC with its geometry at "
            "RTC_BUILD_QUALITY_REFIT, the top level LOW + DYNAMIC; its fastest query width and context flag on frame 0 "
            "(camera: 8 or 16 wide, COHERENT; shadows: 8 wide COHERENT, 8 or 16 wide INCOHERENT). Update + commit: "
@@ -2849,7 +2863,8 @@ static void tl_report(TwoLevel *b)
            "(untimed) and traced by both. Ratios are sheaf / Embree: below 1 sheaf is faster for times, above 1 "
            "for Mrays/s ((camera + shadow rays) / (camera + shadow time)).\n\n",
            b->W, b->H, b->name[G_ENV], env->view, b->frames, anim->nframes, TL_TURN_FRAMES, b->frames, b->reps,
-           b->load0, b->load1, TL_RING, TL_ANIM + TL_RING, TL_RING);
+           b->load0, b->load1, getenv("SHEAF_TL_CFG") ? getenv("SHEAF_TL_CFG") : TL_CFG, TL_RING,
+           TL_ANIM + TL_RING, TL_RING);
     for (int ti = 0; ti < o->nthreads; ti++) {
         int T = o->threads[ti];
         printf("**%d thread%s** (Embree: %s):\n\n", T, T > 1 ? "s" : "", b->equery[ti]);

@@ -14,14 +14,14 @@
 //! enabled: results are bitwise equal at every level (`geom::wide`).
 //!
 //! On x86-64 the AVX-512 level runs on `Z16` (`z16`: one `__m512` register
-//! per lane group, compares into mask registers), the emulated level and
-//! 32-bit x86 on the portable `F16`.
+//! per lane group, compares into mask registers) and the AVX2 level on `Y8`
+//! (`y8`); the emulated levels and 32-bit x86 on the portable `F16`, `F8`.
 //!
 //! This is one of the crate's small unsafe modules: calling a
 //! `#[target_feature]` function needs `unsafe`, and the one obligation (the
 //! CPU has the feature) is checked right before each call; `z16`'s
 //! intrinsics rest on the same check.
-#![allow(unsafe_code)] // the two calls in `run` and `z16`, each block with a SAFETY comment
+#![allow(unsafe_code)] // the two calls in `run`, `y8` and `z16`, each block with a SAFETY comment
 
 use crate::error::{Error, Result};
 use crate::geom::F4;
@@ -201,16 +201,26 @@ pub fn run<K: Kernel>(isa: Isa, k: K) -> K::Out {
 }
 
 #[cfg(target_arch = "x86_64")]
+mod y8;
+#[cfg(target_arch = "x86_64")]
 mod z16;
 
 #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
 mod x86 {
     use super::Kernel;
-    use crate::geom::F8;
 
+    /// The kernel on `Y8` lanes (intrinsics; `y8` module docs), the only
+    /// place a `Y8` is created.
+    #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
     pub(super) fn avx2<K: Kernel>(k: K) -> K::Out {
-        k.run::<F8>()
+        k.run::<super::y8::Y8>()
+    }
+
+    #[cfg(not(target_arch = "x86_64"))]
+    #[target_feature(enable = "avx2")]
+    pub(super) fn avx2<K: Kernel>(k: K) -> K::Out {
+        k.run::<crate::geom::F8>()
     }
 
     /// The kernel on `Z16` lanes (intrinsics; `z16` module docs), the only

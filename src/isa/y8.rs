@@ -1,0 +1,347 @@
+//! `Y8`: the AVX2 level's lane type, eight f32 lanes in one `__m256`
+//! register, masks as all-ones or zero lanes of another (`vcmpps`,
+//! `vblendvps`, `vmovmskps`), the twin of `z16` for machines without
+//! AVX-512.
+//!
+//! `geom::wide::F8` states the same lanes as plain arrays; LLVM compiles
+//! its lane-to-bits reductions into shuffle chains (`z16` module docs).
+//! `Y8` is what `isa::run` instantiates inside its `avx2` function; `F8`
+//! stays for the emulated level.
+//!
+//! # Exactness
+//! Every operation is the IEEE operation of `F8`'s lane loop (no FMA),
+//! `vmaxps`/`vminps` for `raise`/`lower` as in `z16`; `same_as_f8` checks
+//! each against `F8` bitwise.
+//!
+//! # Safety
+//! As `z16`: no code outside `isa` can name `Y8`, and `isa` creates it
+//! only inside `x86::avx2`, which `run` calls only after `detected()`
+//! reported AVX2 usable.
+#![allow(unsafe_code)] // AVX2 intrinsics; see the module's Safety section
+
+use crate::geom::lane::{Axis4, F4, Lane, shear1};
+use crate::geom::wide::Wide;
+use core::arch::x86_64::*;
+use core::ops::{Add, BitAnd, BitOr, Div, Mul, Neg, Not, Sub};
+
+/// Eight f32 lanes: two 2x2 quads, lanes `4k..4k+4` quad `k`.
+#[derive(Clone, Copy)]
+#[repr(transparent)]
+pub(super) struct Y8(__m256);
+
+/// Eight lane masks: all ones (true) or zero per lane.
+#[derive(Clone, Copy)]
+#[repr(transparent)]
+pub(super) struct YM8(__m256);
+
+/// Per-lane axis (x = 0, y = 1, z = 2) as two masks, as `Axis4`.
+#[derive(Clone, Copy)]
+pub(super) struct AxisY {
+    is_x: YM8,
+    is_y: YM8,
+}
+
+impl Y8 {
+    // Bit casts (see `z16`).
+    #[inline(always)]
+    fn from_array(a: [f32; 8]) -> Y8 {
+        // SAFETY: `[f32; 8]` and `__m256` are 32 plain bytes, every bit
+        // pattern valid in both.
+        Y8(unsafe { core::mem::transmute::<[f32; 8], __m256>(a) })
+    }
+    #[inline(always)]
+    fn to_array(self) -> [f32; 8] {
+        // SAFETY: as `from_array`.
+        unsafe { core::mem::transmute::<__m256, [f32; 8]>(self.0) }
+    }
+}
+
+macro_rules! arith {
+    ($Tr:ident, $f:ident, $op:ident) => {
+        impl $Tr for Y8 {
+            type Output = Y8;
+            #[inline(always)]
+            fn $f(self, o: Y8) -> Y8 {
+                // SAFETY: AVX2 is usable wherever a Y8 exists (module docs).
+                Y8(unsafe { $op(self.0, o.0) })
+            }
+        }
+    };
+}
+arith!(Add, add, _mm256_add_ps);
+arith!(Sub, sub, _mm256_sub_ps);
+arith!(Mul, mul, _mm256_mul_ps);
+arith!(Div, div, _mm256_div_ps);
+
+impl Neg for Y8 {
+    type Output = Y8;
+    #[inline(always)]
+    fn neg(self) -> Y8 {
+        // SAFETY: as above. Flipping the sign bit is scalar `-x`.
+        Y8(unsafe { _mm256_xor_ps(self.0, _mm256_set1_ps(-0.0)) })
+    }
+}
+
+impl BitAnd for YM8 {
+    type Output = YM8;
+    #[inline(always)]
+    fn bitand(self, o: YM8) -> YM8 {
+        // SAFETY: AVX2 is usable wherever a mask exists (module docs).
+        YM8(unsafe { _mm256_and_ps(self.0, o.0) })
+    }
+}
+impl BitOr for YM8 {
+    type Output = YM8;
+    #[inline(always)]
+    fn bitor(self, o: YM8) -> YM8 {
+        // SAFETY: as `bitand`.
+        YM8(unsafe { _mm256_or_ps(self.0, o.0) })
+    }
+}
+impl Not for YM8 {
+    type Output = YM8;
+    #[inline(always)]
+    fn not(self) -> YM8 {
+        // SAFETY: as `bitand`. All-ones xor: the complement of each lane.
+        YM8(unsafe { _mm256_xor_ps(self.0, _mm256_castsi256_ps(_mm256_set1_epi32(-1))) })
+    }
+}
+
+impl Lane for Y8 {
+    type Mask = YM8;
+    type Axis = AxisY;
+    #[inline(always)]
+    fn splat(x: f32) -> Y8 {
+        // SAFETY: AVX2 is usable wherever a Y8 exists (module docs).
+        Y8(unsafe { _mm256_set1_ps(x) })
+    }
+    #[inline(always)]
+    fn lt(self, o: Y8) -> YM8 {
+        // SAFETY: as `splat`. Ordered, quiet: false on NaN, as `<`.
+        YM8(unsafe { _mm256_cmp_ps::<_CMP_LT_OQ>(self.0, o.0) })
+    }
+    #[inline(always)]
+    fn le(self, o: Y8) -> YM8 {
+        // SAFETY: as `splat`.
+        YM8(unsafe { _mm256_cmp_ps::<_CMP_LE_OQ>(self.0, o.0) })
+    }
+    #[inline(always)]
+    fn eq(self, o: Y8) -> YM8 {
+        // SAFETY: as `splat`.
+        YM8(unsafe { _mm256_cmp_ps::<_CMP_EQ_OQ>(self.0, o.0) })
+    }
+    #[inline(always)]
+    fn select(m: YM8, a: Y8, b: Y8) -> Y8 {
+        // SAFETY: as `splat`. The blend takes its second operand where the
+        // mask lane's sign bit is set (every bit, for these masks).
+        Y8(unsafe { _mm256_blendv_ps(b.0, a.0, m.0) })
+    }
+    #[inline(always)]
+    fn any(m: YM8) -> bool {
+        Y8::mask_bits(m) != 0
+    }
+    #[inline(always)]
+    fn pick(v: [Y8; 3], axis: AxisY) -> Y8 {
+        Y8::select(axis.is_x, v[0], Y8::select(axis.is_y, v[1], v[2]))
+    }
+    #[inline(always)]
+    fn get(self, i: usize) -> f32 {
+        // SAFETY: as `splat`; a lane move (see `z16::Z16::get`), index mod 8.
+        unsafe {
+            _mm256_cvtss_f32(_mm256_permutevar8x32_ps(
+                self.0,
+                _mm256_set1_epi32(i as i32),
+            ))
+        }
+    }
+    #[inline(always)]
+    fn set(&mut self, i: usize, x: f32) {
+        let mut a = self.to_array();
+        a[i] = x;
+        *self = Y8::from_array(a);
+    }
+    #[inline(always)]
+    fn mask_get(m: YM8, i: usize) -> bool {
+        Y8::mask_bits(m) >> i & 1 != 0
+    }
+    #[inline]
+    fn shear_axes(d: [Y8; 3]) -> ([AxisY; 3], [Y8; 3]) {
+        // Lane by lane with the scalar code, as every lane type.
+        let d = d.map(Y8::to_array);
+        let mut k = [[0usize; 3]; 8];
+        let mut s = [[0.0f32; 8]; 3];
+        for i in 0..8 {
+            let (ki, si) = shear1([d[0][i], d[1][i], d[2][i]]);
+            k[i] = ki;
+            for a in 0..3 {
+                s[a][i] = si[a];
+            }
+        }
+        let axis = |j: usize| {
+            let (mut x, mut y) = (0u32, 0u32);
+            for (i, ki) in k.iter().enumerate() {
+                x |= u32::from(ki[j] == 0) << i;
+                y |= u32::from(ki[j] == 1) << i;
+            }
+            AxisY {
+                is_x: Y8::mask_from_bits(x),
+                is_y: Y8::mask_from_bits(y),
+            }
+        };
+        ([axis(0), axis(1), axis(2)], s.map(Y8::from_array))
+    }
+    const WIDTH: usize = 8;
+}
+
+impl Wide for Y8 {
+    const G: usize = 2;
+    #[inline(always)]
+    fn join(q: impl Fn(usize) -> F4) -> Y8 {
+        let mut a = [0.0f32; 8];
+        for k in 0..2 {
+            a[4 * k..4 * k + 4].copy_from_slice(&q(k).to_array());
+        }
+        Y8::from_array(a)
+    }
+    #[inline(always)]
+    fn quad(self, k: usize) -> F4 {
+        // SAFETY: as `splat`; one 128-bit extract.
+        F4::from(unsafe {
+            if k == 0 {
+                _mm256_castps256_ps128(self.0)
+            } else {
+                _mm256_extractf128_ps::<1>(self.0)
+            }
+        })
+    }
+    #[inline(always)]
+    fn mask_from_bits(bits: u32) -> YM8 {
+        // SAFETY: as `splat`. Lane i: all ones when bit i is set.
+        YM8(unsafe {
+            let lane = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
+            let b = _mm256_and_si256(_mm256_set1_epi32(bits as i32), lane);
+            _mm256_castsi256_ps(_mm256_cmpeq_epi32(b, lane))
+        })
+    }
+    #[inline(always)]
+    fn mask_bits(m: YM8) -> u32 {
+        // SAFETY: as `splat`.
+        unsafe { _mm256_movemask_ps(m.0) as u32 }
+    }
+    #[inline(always)]
+    fn join_axis(a: impl Fn(usize) -> Axis4) -> AxisY {
+        let (mut bx, mut by) = (0u32, 0u32);
+        for k in 0..2 {
+            let ak = a(k);
+            bx |= ak.is_x.bitmask() << (4 * k);
+            by |= ak.is_y.bitmask() << (4 * k);
+        }
+        AxisY {
+            is_x: Y8::mask_from_bits(bx),
+            is_y: Y8::mask_from_bits(by),
+        }
+    }
+    #[inline(always)]
+    fn raise(self, o: Y8) -> Y8 {
+        // SAFETY: as `splat`. `maxps(o, x)` is `o > x ? o : x` lane by lane.
+        Y8(unsafe { _mm256_max_ps(o.0, self.0) })
+    }
+    #[inline(always)]
+    fn lower(self, o: Y8) -> Y8 {
+        // SAFETY: as `splat`. `minps(o, x)` is `o < x ? o : x` lane by lane.
+        Y8(unsafe { _mm256_min_ps(o.0, self.0) })
+    }
+    #[inline(always)]
+    fn le_bits(self, o: Y8) -> u32 {
+        Y8::mask_bits(self.le(o))
+    }
+}
+
+// The scratch budgets are sized with `F8`: a `Y8` must fit its slots.
+const _: () = {
+    assert!(core::mem::size_of::<Y8>() == core::mem::size_of::<crate::geom::F8>());
+    assert!(core::mem::align_of::<Y8>() == core::mem::align_of::<crate::geom::F8>());
+    assert!(core::mem::size_of::<YM8>() <= core::mem::size_of::<[u32; 8]>());
+};
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geom::F8;
+
+    /// Deterministic lanes with signs, zeros, infinities and NaN.
+    fn lanes(seed: u32) -> [f32; 8] {
+        let mut s = seed;
+        core::array::from_fn(|_| {
+            s = s.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            match s % 23 {
+                0 => 0.0,
+                1 => -0.0,
+                2 => f32::INFINITY,
+                3 => f32::NEG_INFINITY,
+                4 => f32::NAN,
+                _ => ((s >> 8) as f32 / (1u32 << 24) as f32 - 0.5) * 8.0,
+            }
+        })
+    }
+
+    fn bits(a: [f32; 8]) -> [u32; 8] {
+        a.map(f32::to_bits)
+    }
+
+    /// Every `Lane` and `Wide` operation of `Y8` gives `F8`'s bits.
+    #[test]
+    fn same_as_f8() {
+        if !super::super::cpu_avx2::get() {
+            eprintln!("no AVX2 on this CPU: Y8 not checked here");
+            return;
+        }
+        for seed in 0..500 {
+            let (a, b) = (lanes(seed), lanes(seed ^ 0x9e37_79b9));
+            let (ya, yb) = (Y8::from_array(a), Y8::from_array(b));
+            let (fa, fb) = (F8(a), F8(b));
+            let same = |y: Y8, f: F8| assert_eq!(bits(y.to_array()), bits(f.0), "seed {seed}");
+            same(ya + yb, fa + fb);
+            same(ya - yb, fa - fb);
+            same(ya * yb, fa * fb);
+            same(ya / yb, fa / fb);
+            same(-ya, -fa);
+            same(ya.raise(yb), fa.raise(fb));
+            same(ya.lower(yb), fa.lower(fb));
+            let ym = [ya.lt(yb), ya.le(yb), ya.eq(yb)];
+            let fm = [fa.lt(fb), fa.le(fb), fa.eq(fb)];
+            for (y, f) in ym.iter().zip(&fm) {
+                assert_eq!(Y8::mask_bits(*y), F8::mask_bits(*f), "seed {seed}");
+                assert_eq!(Y8::mask_bits(!*y), F8::mask_bits(!*f));
+                assert_eq!(Y8::mask_bits(*y & ym[0]), F8::mask_bits(*f & fm[0]));
+                assert_eq!(Y8::mask_bits(*y | ym[2]), F8::mask_bits(*f | fm[2]));
+                same(Y8::select(*y, ya, yb), F8::select(*f, fa, fb));
+            }
+            assert_eq!(ya.le_bits(yb), fa.le_bits(fb));
+            let m = seed.wrapping_mul(2_654_435_761) & 0xff;
+            assert_eq!(Y8::mask_bits(Y8::mask_from_bits(m)), m);
+            assert_eq!(Y8::any(Y8::mask_from_bits(m)), m != 0);
+            for (i, ai) in a.iter().enumerate() {
+                assert_eq!(ya.get(i).to_bits(), ai.to_bits());
+                assert_eq!(Y8::mask_get(ym[1], i), F8::mask_get(fm[1], i));
+            }
+            let mut ys = ya;
+            ys.set(5, 1.5);
+            assert_eq!(ys.get(5), 1.5);
+            assert_eq!(bits(Y8::join(|j| ya.quad(j)).to_array()), bits(a));
+            for k in 0..2 {
+                let q = |x: F4| x.to_array().map(f32::to_bits);
+                assert_eq!(q(ya.quad(k)), q(fa.quad(k)));
+            }
+            let (yk, ys) = Y8::shear_axes([ya, yb, ya * yb]);
+            let (fk, fs) = F8::shear_axes([fa, fb, fa * fb]);
+            for j in 0..3 {
+                same(ys[j], fs[j]);
+                same(
+                    Y8::pick([ya, yb, -ya], yk[j]),
+                    F8::pick([fa, fb, -fa], fk[j]),
+                );
+            }
+        }
+    }
+}
