@@ -7,7 +7,7 @@
  * buffer, vertices written in place), and a box placed 16 times in a ring
  * that turns (the geometry never changes; only the instances' transforms
  * do). Every frame: update what moved, move the instances, commit the top
- * level, trace camera rays as 8x8 Ranged packets and shadow rays toward a
+ * level, trace camera rays as 8x8 frustum-first packets and shadow rays toward a
  * light, shade by geometry, print a table line; the last frame is written
  * as a binary PPM.
  *
@@ -177,7 +177,7 @@ int main(int argc, char **argv) {
         rays[k].tmax = INFINITY;
     }
     CHECK(sheaf_trace_params_default(&tp));
-    tp.method = SHEAF_METHOD_BVH_RANGED;
+    tp.method = SHEAF_METHOD_BVH_FRUSTUM; /* the fastest packets through instances */
     tp.packet = 8;
 
     printf("%5s %9s %8s %10s %10s %9s %8s\n", "frame", "update ms", "SAH x", "commit ms", "trace ms", "hits", "lit");

@@ -10,7 +10,7 @@
 //! animated PNG.
 //!
 //! `--family bvh` (the default, the fastest here) traces through the
-//! instances with Ranged packets, and compares each frame with the
+//! instances with frustum-first packets (`bvh-frustum`), and compares each frame with the
 //! flattened alternative: every instance's world triangles in one mesh,
 //! its BVH rebuilt (LOW) and the same rays traced. `--family grid` and
 //! `--family kd` rebuild the grid (CGT packets) or the kd-tree (its packet
@@ -60,7 +60,7 @@ pub struct EngineArgs {
     /// conference, from ../shared/scenes, else builtin:gears).
     #[arg(long, default_value = "auto")]
     pub env: String,
-    /// Packet side of the camera and shadow rays (BVH Ranged packets).
+    /// Packet side of the camera and shadow rays (BVH frustum-first packets).
     #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(2..=32))]
     pub packet: u32,
     /// Skip the flattened comparison (one BVH over every instance's triangles).
@@ -71,7 +71,7 @@ pub struct EngineArgs {
 /// Which family traces the frames.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum Family {
-    /// The two-level BVH (Ranged packets through the instances).
+    /// The two-level BVH (frustum-first packets through the instances).
     Bvh,
     /// The uniform grid rebuilt over the flattened scene (CGT packets).
     Grid,
@@ -422,7 +422,9 @@ pub fn engine(a: &EngineArgs) -> Result<()> {
     };
     let p = TraceParams {
         method: match a.family {
-            Family::Bvh => Method::BvhRanged,
+            // The fastest packets through instances (two-level Embree
+            // comparison: frame 1.74x Embree's time against Ranged's 2.44x).
+            Family::Bvh => Method::BvhFrustum,
             Family::Grid => Method::GridCgt,
             Family::Kd => Method::KdPacket,
         },
