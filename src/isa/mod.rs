@@ -202,6 +202,17 @@ pub fn run<K: Kernel>(isa: Isa, k: K) -> K::Out {
 
 #[cfg(target_arch = "x86_64")]
 mod y8;
+
+/// A 128-bit register as glam's `Vec4` (by value, so also with glam's
+/// scalar backend, whose `Vec4` is not an `__m128`): `y8`'s and `z16`'s
+/// quad extracts.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn m128_to_f4(x: core::arch::x86_64::__m128) -> F4 {
+    // SAFETY: `__m128` and `[f32; 4]` are 16 plain bytes, every bit
+    // pattern valid in both.
+    F4::from_array(unsafe { core::mem::transmute::<core::arch::x86_64::__m128, [f32; 4]>(x) })
+}
 #[cfg(target_arch = "x86_64")]
 mod z16;
 

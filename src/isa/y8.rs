@@ -206,7 +206,7 @@ impl Wide for Y8 {
     #[inline(always)]
     fn quad(self, k: usize) -> F4 {
         // SAFETY: as `splat`; one 128-bit extract.
-        F4::from(unsafe {
+        super::m128_to_f4(unsafe {
             if k == 0 {
                 _mm256_castps256_ps128(self.0)
             } else {

@@ -216,7 +216,7 @@ impl Wide for Z16 {
     #[inline(always)]
     fn quad(self, k: usize) -> F4 {
         // SAFETY: as `splat`; one 128-bit extract (see `get`).
-        F4::from(unsafe {
+        super::m128_to_f4(unsafe {
             match k {
                 0 => _mm512_castps512_ps128(self.0),
                 1 => _mm512_extractf32x4_ps::<1>(self.0),
