@@ -249,6 +249,95 @@ mod x86 {
     }
 }
 
+/// Tests of `y8` and `z16`: a register lane type against its portable
+/// twin, operation by operation.
+#[cfg(all(test, target_arch = "x86_64"))]
+mod same_ops {
+    use crate::geom::lane::F4;
+    use crate::geom::wide::Wide;
+
+    /// Deterministic lanes with signs, zeros, infinities and NaN.
+    fn lanes(seed: u32, n: usize) -> [f32; 16] {
+        let mut s = seed;
+        core::array::from_fn(|i| {
+            s = s.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            match s % 23 {
+                _ if i >= n => 0.0,
+                0 => 0.0,
+                1 => -0.0,
+                2 => f32::INFINITY,
+                3 => f32::NEG_INFINITY,
+                4 => f32::NAN,
+                _ => ((s >> 8) as f32 / (1u32 << 24) as f32 - 0.5) * 8.0,
+            }
+        })
+    }
+
+    fn join<W: Wide>(v: &[f32; 16]) -> W {
+        W::join(|k| F4::from_slice(&v[4 * k..4 * k + 4]))
+    }
+
+    /// Every `Lane` and `Wide` operation of `A` gives `B`'s bits (`A` and
+    /// `B` of one width).
+    pub(super) fn check<A: Wide, B: Wide>() {
+        assert_eq!(A::WIDTH, B::WIDTH);
+        let n = A::WIDTH;
+        let full = (1u32 << n) - 1;
+        for seed in 0..500 {
+            let (a, b) = (lanes(seed, n), lanes(seed ^ 0x9e37_79b9, n));
+            let (xa, ya): (A, A) = (join(&a), join(&b));
+            let (xb, yb): (B, B) = (join(&a), join(&b));
+            let same = |x: A, y: B| {
+                for i in 0..n {
+                    assert_eq!(
+                        x.get(i).to_bits(),
+                        y.get(i).to_bits(),
+                        "seed {seed} lane {i}"
+                    );
+                }
+            };
+            same(xa, xb);
+            same(xa + ya, xb + yb);
+            same(xa - ya, xb - yb);
+            same(xa * ya, xb * yb);
+            same(xa / ya, xb / yb);
+            same(-xa, -xb);
+            same(xa.raise(ya), xb.raise(yb));
+            same(xa.lower(ya), xb.lower(yb));
+            let ma = [xa.lt(ya), xa.le(ya), xa.eq(ya)];
+            let mb = [xb.lt(yb), xb.le(yb), xb.eq(yb)];
+            for (p, q) in ma.iter().zip(&mb) {
+                let bits = |m: A::Mask| A::mask_bits(m) & full;
+                assert_eq!(bits(*p), B::mask_bits(*q) & full, "seed {seed}");
+                assert_eq!(bits(!*p), B::mask_bits(!*q) & full);
+                assert_eq!(bits(*p & ma[0]), B::mask_bits(*q & mb[0]) & full);
+                assert_eq!(bits(*p | ma[2]), B::mask_bits(*q | mb[2]) & full);
+                assert_eq!(A::any(*p), B::any(*q));
+                same(A::select(*p, xa, ya), B::select(*q, xb, yb));
+                for i in 0..n {
+                    assert_eq!(A::mask_get(*p, i), B::mask_get(*q, i));
+                }
+            }
+            assert_eq!(xa.le_bits(ya), xb.le_bits(yb));
+            let m = seed.wrapping_mul(2_654_435_761) & full;
+            assert_eq!(A::mask_bits(A::mask_from_bits(m)), m);
+            let mut xs = xa;
+            xs.set(n - 1, 1.5);
+            assert_eq!(xs.get(n - 1), 1.5);
+            for k in 0..A::G {
+                let q = |x: F4| x.to_array().map(f32::to_bits);
+                assert_eq!(q(xa.quad(k)), q(xb.quad(k)));
+            }
+            let (ka, sa) = A::shear_axes([xa, ya, xa * ya]);
+            let (kb, sb) = B::shear_axes([xb, yb, xb * yb]);
+            for j in 0..3 {
+                same(sa[j], sb[j]);
+                same(A::pick([xa, ya, -xa], ka[j]), B::pick([xb, yb, -xb], kb[j]));
+            }
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

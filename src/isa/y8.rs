@@ -266,29 +266,6 @@ const _: () = {
 
 #[cfg(test)]
 mod tests {
-    use super::*;
-    use crate::geom::F8;
-
-    /// Deterministic lanes with signs, zeros, infinities and NaN.
-    fn lanes(seed: u32) -> [f32; 8] {
-        let mut s = seed;
-        core::array::from_fn(|_| {
-            s = s.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
-            match s % 23 {
-                0 => 0.0,
-                1 => -0.0,
-                2 => f32::INFINITY,
-                3 => f32::NEG_INFINITY,
-                4 => f32::NAN,
-                _ => ((s >> 8) as f32 / (1u32 << 24) as f32 - 0.5) * 8.0,
-            }
-        })
-    }
-
-    fn bits(a: [f32; 8]) -> [u32; 8] {
-        a.map(f32::to_bits)
-    }
-
     /// Every `Lane` and `Wide` operation of `Y8` gives `F8`'s bits.
     #[test]
     fn same_as_f8() {
@@ -296,52 +273,6 @@ mod tests {
             eprintln!("no AVX2 on this CPU: Y8 not checked here");
             return;
         }
-        for seed in 0..500 {
-            let (a, b) = (lanes(seed), lanes(seed ^ 0x9e37_79b9));
-            let (ya, yb) = (Y8::from_array(a), Y8::from_array(b));
-            let (fa, fb) = (F8(a), F8(b));
-            let same = |y: Y8, f: F8| assert_eq!(bits(y.to_array()), bits(f.0), "seed {seed}");
-            same(ya + yb, fa + fb);
-            same(ya - yb, fa - fb);
-            same(ya * yb, fa * fb);
-            same(ya / yb, fa / fb);
-            same(-ya, -fa);
-            same(ya.raise(yb), fa.raise(fb));
-            same(ya.lower(yb), fa.lower(fb));
-            let ym = [ya.lt(yb), ya.le(yb), ya.eq(yb)];
-            let fm = [fa.lt(fb), fa.le(fb), fa.eq(fb)];
-            for (y, f) in ym.iter().zip(&fm) {
-                assert_eq!(Y8::mask_bits(*y), F8::mask_bits(*f), "seed {seed}");
-                assert_eq!(Y8::mask_bits(!*y), F8::mask_bits(!*f));
-                assert_eq!(Y8::mask_bits(*y & ym[0]), F8::mask_bits(*f & fm[0]));
-                assert_eq!(Y8::mask_bits(*y | ym[2]), F8::mask_bits(*f | fm[2]));
-                same(Y8::select(*y, ya, yb), F8::select(*f, fa, fb));
-            }
-            assert_eq!(ya.le_bits(yb), fa.le_bits(fb));
-            let m = seed.wrapping_mul(2_654_435_761) & 0xff;
-            assert_eq!(Y8::mask_bits(Y8::mask_from_bits(m)), m);
-            assert_eq!(Y8::any(Y8::mask_from_bits(m)), m != 0);
-            for (i, ai) in a.iter().enumerate() {
-                assert_eq!(ya.get(i).to_bits(), ai.to_bits());
-                assert_eq!(Y8::mask_get(ym[1], i), F8::mask_get(fm[1], i));
-            }
-            let mut ys = ya;
-            ys.set(5, 1.5);
-            assert_eq!(ys.get(5), 1.5);
-            assert_eq!(bits(Y8::join(|j| ya.quad(j)).to_array()), bits(a));
-            for k in 0..2 {
-                let q = |x: F4| x.to_array().map(f32::to_bits);
-                assert_eq!(q(ya.quad(k)), q(fa.quad(k)));
-            }
-            let (yk, ys) = Y8::shear_axes([ya, yb, ya * yb]);
-            let (fk, fs) = F8::shear_axes([fa, fb, fa * fb]);
-            for j in 0..3 {
-                same(ys[j], fs[j]);
-                same(
-                    Y8::pick([ya, yb, -ya], yk[j]),
-                    F8::pick([fa, fb, -fa], fk[j]),
-                );
-            }
-        }
+        super::super::same_ops::check::<super::Y8, crate::geom::F8>();
     }
 }

@@ -270,29 +270,6 @@ const _: () = {
 
 #[cfg(test)]
 mod tests {
-    use super::*;
-    use crate::geom::F16;
-
-    /// Deterministic lanes with signs, zeros, infinities and NaN.
-    fn lanes(seed: u32) -> [f32; 16] {
-        let mut s = seed;
-        core::array::from_fn(|_| {
-            s = s.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
-            match s % 23 {
-                0 => 0.0,
-                1 => -0.0,
-                2 => f32::INFINITY,
-                3 => f32::NEG_INFINITY,
-                4 => f32::NAN,
-                _ => ((s >> 8) as f32 / (1u32 << 24) as f32 - 0.5) * 8.0,
-            }
-        })
-    }
-
-    fn bits(a: [f32; 16]) -> [u32; 16] {
-        a.map(f32::to_bits)
-    }
-
     /// Every `Lane` and `Wide` operation of `Z16` gives `F16`'s bits.
     #[test]
     fn same_as_f16() {
@@ -300,54 +277,6 @@ mod tests {
             eprintln!("no AVX-512F on this CPU: Z16 not checked here");
             return;
         }
-        for seed in 0..500 {
-            let (a, b) = (lanes(seed), lanes(seed ^ 0x9e37_79b9));
-            let (za, zb) = (Z16::from_array(a), Z16::from_array(b));
-            let (fa, fb) = (F16(a), F16(b));
-            let same = |z: Z16, f: F16| assert_eq!(bits(z.to_array()), bits(f.0), "seed {seed}");
-            same(za + zb, fa + fb);
-            same(za - zb, fa - fb);
-            same(za * zb, fa * fb);
-            same(za / zb, fa / fb);
-            same(-za, -fa);
-            same(za.raise(zb), fa.raise(fb));
-            same(za.lower(zb), fa.lower(fb));
-            let km = [za.lt(zb), za.le(zb), za.eq(zb)];
-            let fm = [fa.lt(fb), fa.le(fb), fa.eq(fb)];
-            for (k, f) in km.iter().zip(&fm) {
-                assert_eq!(Z16::mask_bits(*k), F16::mask_bits(*f), "seed {seed}");
-                same(Z16::select(*k, za, zb), F16::select(*f, fa, fb));
-            }
-            assert_eq!(za.le_bits(zb), fa.le_bits(fb));
-            let m = seed.wrapping_mul(2_654_435_761) & 0xffff;
-            assert_eq!(Z16::mask_bits(Z16::mask_from_bits(m)), m);
-            assert_eq!(
-                Z16::any(Z16::mask_from_bits(m)),
-                F16::any(F16::mask_from_bits(m))
-            );
-            for (i, ai) in a.iter().enumerate() {
-                assert_eq!(za.get(i).to_bits(), ai.to_bits());
-                assert_eq!(Z16::mask_get(km[1], i), F16::mask_get(fm[1], i));
-            }
-            let mut zs = za;
-            zs.set(5, 1.5);
-            assert_eq!(zs.get(5), 1.5);
-            for k in 0..4 {
-                assert_eq!(bits(Z16::join(|j| za.quad(j)).to_array()), bits(a));
-                assert_eq!(
-                    za.quad(k).to_array().map(f32::to_bits),
-                    fa.quad(k).to_array().map(f32::to_bits)
-                );
-            }
-            let (zk, zs) = Z16::shear_axes([za, zb, za * zb]);
-            let (fk, fs) = F16::shear_axes([fa, fb, fa * fb]);
-            for j in 0..3 {
-                same(zs[j], fs[j]);
-                same(
-                    Z16::pick([za, zb, -za], zk[j]),
-                    F16::pick([fa, fb, -fa], fk[j]),
-                );
-            }
-        }
+        super::super::same_ops::check::<super::Z16, crate::geom::F16>();
     }
 }
