@@ -19,8 +19,8 @@
 //!
 //! This is one of the crate's small unsafe modules: calling a
 //! `#[target_feature]` function needs `unsafe`, and the one obligation (the
-//! CPU has the feature) is checked right before each call; `z16`'s
-//! intrinsics rest on the same check.
+//! CPU has the feature) is checked right before each call; `y8`'s and
+//! `z16`'s intrinsics rest on the same check.
 #![allow(unsafe_code)] // the two calls in `run`, `y8` and `z16`, each block with a SAFETY comment
 
 use crate::error::{Error, Result};
@@ -176,8 +176,9 @@ pub trait Kernel {
     fn run<W: Wide>(self) -> Self::Out;
 }
 
-/// Run `k` at level `effective(isa)`: with `F16` lanes in a function
-/// compiled for AVX-512F, `F8` in one for AVX2, else `F4`.
+/// Run `k` at level `effective(isa)`: with `Z16` lanes in a function
+/// compiled for AVX-512F, `Y8` in one for AVX2 (`F16`, `F8` on 32-bit
+/// x86), else `F4`; emulated levels on `F16`, `F8` in baseline code.
 #[inline]
 pub fn run<K: Kernel>(isa: Isa, k: K) -> K::Out {
     if isa > detected() && EMULATE.load(Ordering::Relaxed) {
@@ -268,6 +269,9 @@ mod same_ops {
                 2 => f32::INFINITY,
                 3 => f32::NEG_INFINITY,
                 4 => f32::NAN,
+                5 => -f32::NAN,
+                6 => f32::from_bits(s >> 9), // subnormals and small normals
+                7 => f32::MAX,
                 _ => ((s >> 8) as f32 / (1u32 << 24) as f32 - 0.5) * 8.0,
             }
         })
@@ -319,11 +323,34 @@ mod same_ops {
                 }
             }
             assert_eq!(xa.le_bits(ya), xb.le_bits(yb));
-            let m = seed.wrapping_mul(2_654_435_761) & full;
-            assert_eq!(A::mask_bits(A::mask_from_bits(m)), m);
-            let mut xs = xa;
-            xs.set(n - 1, 1.5);
-            assert_eq!(xs.get(n - 1), 1.5);
+            // Masks made from bits (bits above the width ignored).
+            let m = seed.wrapping_mul(2_654_435_761);
+            let (pa, pb) = (A::mask_from_bits(m), B::mask_from_bits(m));
+            assert_eq!(A::mask_bits(pa), m & full);
+            assert_eq!(A::mask_bits(pa), B::mask_bits(pb));
+            assert_eq!(A::mask_bits(!pa) & full, B::mask_bits(!pb) & full);
+            assert_eq!(A::any(pa), B::any(pb));
+            same(A::select(pa, xa, ya), B::select(pb, xb, yb));
+            same(A::select(!pa, xa, ya), B::select(!pb, xb, yb));
+            let i = seed as usize % n;
+            assert_eq!(A::mask_get(pa, i), B::mask_get(pb, i));
+            same(A::splat(a[i]), B::splat(a[i]));
+            let (mut xs, mut ys) = (xa, xb);
+            xs.set(i, b[i]);
+            ys.set(i, b[i]);
+            same(xs, ys);
+            let axis = |k: usize| {
+                let c =
+                    |v: u32| crate::geom::lane::mask_from_bits(m.rotate_right(v + 4 * k as u32));
+                crate::geom::lane::Axis4 {
+                    is_x: c(0),
+                    is_y: c(7) & !c(0),
+                }
+            };
+            same(
+                A::pick([xa, ya, -xa], A::join_axis(axis)),
+                B::pick([xb, yb, -xb], B::join_axis(axis)),
+            );
             for k in 0..A::G {
                 let q = |x: F4| x.to_array().map(f32::to_bits);
                 assert_eq!(q(xa.quad(k)), q(xb.quad(k)));

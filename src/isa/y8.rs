@@ -10,13 +10,13 @@
 //!
 //! # Exactness
 //! Every operation is the IEEE operation of `F8`'s lane loop (no FMA),
-//! `vmaxps`/`vminps` for `raise`/`lower` as in `z16`; `same_as_f8` checks
+//! `vmaxps`/`vminps` for `raise`/`lower` as in `z16`; `same_as_f8` (`isa::same_ops`) checks
 //! each against `F8` bitwise.
 //!
 //! # Safety
-//! As `z16`: no code outside `isa` can name `Y8`, and `isa` creates it
-//! only inside `x86::avx2`, which `run` calls only after `detected()`
-//! reported AVX2 usable.
+//! As `z16`: the only way to obtain a `Y8` is to be handed one inside
+//! `x86::avx2`, which `run` calls only after `detected()` reported AVX2
+//! usable; the emulated level uses `F8`.
 #![allow(unsafe_code)] // AVX2 intrinsics; see the module's Safety section
 
 use crate::geom::lane::{Axis4, F4, Lane, shear1};
@@ -146,6 +146,7 @@ impl Lane for Y8 {
     }
     #[inline(always)]
     fn get(self, i: usize) -> f32 {
+        debug_assert!(i < 8);
         // SAFETY: as `splat`; a lane move (see `z16::Z16::get`), index mod 8.
         unsafe {
             _mm256_cvtss_f32(_mm256_permutevar8x32_ps(
@@ -205,6 +206,7 @@ impl Wide for Y8 {
     }
     #[inline(always)]
     fn quad(self, k: usize) -> F4 {
+        debug_assert!(k < 2);
         // SAFETY: as `splat`; one 128-bit extract.
         super::m128_to_f4(unsafe {
             if k == 0 {

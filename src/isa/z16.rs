@@ -15,17 +15,19 @@
 //! `vsubps`, `vmulps`, `vdivps` (round to nearest, no FMA), ordered
 //! compares, `vmaxps`/`vminps` for `raise`/`lower` (`o > x ? o : x`, which is
 //! `maxps(o, x)` exactly, NaN in `o` not taken), a sign-bit xor for `-x`.
-//! `same_as_f16` checks each against `F16` bitwise.
+//! `same_as_f16` (`isa::same_ops`) checks each against `F16` bitwise.
 //!
 //! # Safety
-//! This module's `unsafe` blocks call AVX-512F intrinsics. They are sound
-//! because no code outside `isa` can name `Z16` (the type is private to this
-//! module's parent), and `isa` creates it only by instantiating a kernel
-//! with it inside `x86::avx512`, which `run` calls only after `detected()`
-//! reported AVX-512F usable (CPUID and XGETBV). Kernels are generic over the
-//! lane type and their output type does not depend on it, so no `Z16` value
-//! outlives that call. The methods are `#[inline(always)]`: inlined into the
-//! `avx512f` function, the intrinsics become single instructions.
+//! This module's `unsafe` blocks call AVX-512F intrinsics (and bit casts).
+//! They are sound because the only way to obtain a `Z16` is to be handed
+//! one inside `x86::avx512` (the type is private to `isa`; a `Kernel` sees
+//! it only as its generic lane type), which `run` calls only after
+//! `detected()` reported AVX-512F usable (CPUID and XGETBV); CPU features
+//! do not change within a process, so a value that escaped the call would
+//! still run on a CPU that has them. The emulated level uses `F16`. The
+//! methods are `#[inline(always)]`: inlined into the `avx512f` function,
+//! the intrinsics become single instructions (a kernel helper that is not
+//! inlined there would call them out of line: slower, still correct).
 #![allow(unsafe_code)] // AVX-512F intrinsics; see the module's Safety section
 
 use crate::geom::lane::{Axis4, F4, Lane, shear1};
@@ -159,6 +161,7 @@ impl Lane for Z16 {
     }
     #[inline(always)]
     fn get(self, i: usize) -> f32 {
+        debug_assert!(i < 16);
         // A lane move, not a store and a reload: a 64-byte store read back
         // in pieces misses store forwarding.
         // SAFETY: as `splat`. The index is taken mod 16 by the permute.
@@ -172,6 +175,7 @@ impl Lane for Z16 {
     }
     #[inline(always)]
     fn mask_get(m: K16, i: usize) -> bool {
+        debug_assert!(i < 16);
         m.0 >> i & 1 != 0
     }
     #[inline]
@@ -215,6 +219,7 @@ impl Wide for Z16 {
     }
     #[inline(always)]
     fn quad(self, k: usize) -> F4 {
+        debug_assert!(k < 4);
         // SAFETY: as `splat`; one 128-bit extract (see `get`).
         super::m128_to_f4(unsafe {
             match k {

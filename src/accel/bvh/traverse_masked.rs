@@ -124,6 +124,10 @@ pub fn occluded<T: TriangleTest>(
 /// Partition with the live quads from that first one. Every pending node
 /// is one the packet would have visited, and Partition is exact from any
 /// node, so the result is the same.
+// Inlined into the lane width's `#[target_feature]` function, like every
+// lane-generic helper (`isa::z16`'s intrinsics are single instructions
+// only there).
+#[inline(always)]
 pub(crate) fn to_partition<L: Wide, T: TriangleTest, const ANY: bool>(
     p: &mut Packet<'_, T>,
     b: &BvhView<'_>,
