@@ -2287,6 +2287,8 @@ static void run_scene(const char *path, const Options *o)
 
 #define TL_ANIM 4                            /* instances of ANIM */
 #define TL_CFG "bvh-frustum 16x16"           /* sheaf's packets (env SHEAF_TL_CFG: another table name) */
+/* The configuration the two-level mode traces with: SHEAF_TL_CFG, else TL_CFG. */
+static const char *tl_cfg(void) { return getenv("SHEAF_TL_CFG") ? getenv("SHEAF_TL_CFG") : TL_CFG; }
 #define TL_RING 16                           /* instances of OBJ */
 #define TL_INST (1 + TL_ANIM + TL_RING)
 #define TL_ANIM_SIZE 0.15f                   /* an ANIM copy's diagonal (every frame's bounds) over ENV's */
@@ -2724,24 +2726,23 @@ static void tl_run(TwoLevel *b, int ti)
     progress("  Embree on %d thread%s: child scenes and top level committed in %.1f ms\n", T, T > 1 ? "s" : "",
              b->embree_setup_ms[ti]);
 
-    const Cfg *ranged = NULL;
-    const char *tl_cfg = getenv("SHEAF_TL_CFG") ? getenv("SHEAF_TL_CFG") : TL_CFG;
+    const Cfg *cfg = NULL;
     for (size_t c = 0; c < N_PRIMARY_CFGS; c++)
-        if (!strcmp(PRIMARY_CFGS[c].name, tl_cfg)) ranged = &PRIMARY_CFGS[c];
-    if (!ranged) die("no %s configuration", tl_cfg);
+        if (!strcmp(PRIMARY_CFGS[c].name, tl_cfg())) cfg = &PRIMARY_CFGS[c];
+    if (!cfg) die("no %s configuration", tl_cfg());
     Job sc, ss, ec, es;
     memset(&sc, 0, sizeof sc);
     sc.lib = LIB_SHEAF;
     sc.kind = K_SCENE_TRACE;
     sc.ctx = b->ctx;
     sc.s = &b->g[G_ENV];
-    sc.params = cfg_params(ranged, SHEAF_RAY_KIND_PRIMARY);
+    sc.params = cfg_params(cfg, SHEAF_RAY_KIND_PRIMARY);
     sc.rays = b->rays;
     sc.n = b->N;
     sc.shits = b->hits;
     ss = sc;
     ss.kind = K_SCENE_OCC;
-    ss.params = cfg_params(ranged, SHEAF_RAY_KIND_SHADOW);
+    ss.params = cfg_params(cfg, SHEAF_RAY_KIND_SHADOW);
     ss.rays = b->srays;
     ss.occ = b->socc;
     memset(&ec, 0, sizeof ec);
@@ -2863,7 +2864,7 @@ static void tl_report(TwoLevel *b)
            "(untimed) and traced by both. Ratios are sheaf / Embree: below 1 sheaf is faster for times, above 1 "
            "for Mrays/s ((camera + shadow rays) / (camera + shadow time)).\n\n",
            b->W, b->H, b->name[G_ENV], env->view, b->frames, anim->nframes, TL_TURN_FRAMES, b->frames, b->reps,
-           b->load0, b->load1, getenv("SHEAF_TL_CFG") ? getenv("SHEAF_TL_CFG") : TL_CFG, TL_RING,
+           b->load0, b->load1, tl_cfg(), TL_RING,
            TL_ANIM + TL_RING, TL_RING);
     for (int ti = 0; ti < o->nthreads; ti++) {
         int T = o->threads[ti];

@@ -18,7 +18,7 @@
 //! `avx512f`, never `fma`). Masks are all-ones or zero per lane.
 #![forbid(unsafe_code)]
 
-use super::lane::{Axis4, F4, Lane, M4, mask_from_bits, shear1};
+use super::lane::{Axis4, F4, Lane, M4, mask_from_bits};
 use core::ops::{Add, BitAnd, BitOr, Div, Mul, Neg, Not, Sub};
 
 /// A lane type made of `G` quads side by side (`F4`: one; `F8`: two;
@@ -45,6 +45,26 @@ pub trait Wide: Lane {
     /// Bits of the lanes where `self <= o` (`mask_bits(self.le(o))`, one
     /// compare into a mask register on AVX-512).
     fn le_bits(self, o: Self) -> u32;
+}
+
+/// `Lane::shear_axes` of a wide lane type, quad by quad with `F4`'s (whose
+/// lanes run the scalar `shear1`): the same bits as lane by lane.
+#[inline]
+pub fn shear_by_quads<W: Wide>(d: [W; 3]) -> ([W::Axis; 3], [W; 3]) {
+    let mut q = [(
+        [Axis4 {
+            is_x: M4::FALSE,
+            is_y: M4::FALSE,
+        }; 3],
+        [F4::ZERO; 3],
+    ); 4];
+    for (k, qk) in q.iter_mut().enumerate().take(W::G) {
+        *qk = F4::shear_axes([d[0].quad(k), d[1].quad(k), d[2].quad(k)]);
+    }
+    (
+        core::array::from_fn(|j| W::join_axis(|k| q[k].0[j])),
+        core::array::from_fn(|a| W::join(|k| q[k].1[a])),
+    )
 }
 
 impl Wide for F4 {
@@ -252,27 +272,7 @@ macro_rules! wide_lane {
             }
             #[inline]
             fn shear_axes(d: [Self; 3]) -> ([$A; 3], [Self; 3]) {
-                let mut k = [[0usize; 3]; $N];
-                let mut s = [Self::splat(0.0); 3];
-                for i in 0..$N {
-                    let (ki, si) = shear1([d[0].0[i], d[1].0[i], d[2].0[i]]);
-                    k[i] = ki;
-                    for a in 0..3 {
-                        s[a].0[i] = si[a];
-                    }
-                }
-                let axis = |j: usize| {
-                    let (mut x, mut y) = ([0u32; $N], [0u32; $N]);
-                    for i in 0..$N {
-                        x[i] = 0u32.wrapping_sub((k[i][j] == 0) as u32);
-                        y[i] = 0u32.wrapping_sub((k[i][j] == 1) as u32);
-                    }
-                    $A {
-                        is_x: $M(x),
-                        is_y: $M(y),
-                    }
-                };
-                ([axis(0), axis(1), axis(2)], s)
+                shear_by_quads(d)
             }
             const WIDTH: usize = $N;
         }

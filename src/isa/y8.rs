@@ -19,8 +19,8 @@
 //! usable; the emulated level uses `F8`.
 #![allow(unsafe_code)] // AVX2 intrinsics; see the module's Safety section
 
-use crate::geom::lane::{Axis4, F4, Lane, shear1};
-use crate::geom::wide::Wide;
+use crate::geom::lane::{Axis4, F4, Lane};
+use crate::geom::wide::{Wide, shear_by_quads};
 use core::arch::x86_64::*;
 use core::ops::{Add, BitAnd, BitOr, Div, Mul, Neg, Not, Sub};
 
@@ -167,29 +167,7 @@ impl Lane for Y8 {
     }
     #[inline]
     fn shear_axes(d: [Y8; 3]) -> ([AxisY; 3], [Y8; 3]) {
-        // Lane by lane with the scalar code, as every lane type.
-        let d = d.map(Y8::to_array);
-        let mut k = [[0usize; 3]; 8];
-        let mut s = [[0.0f32; 8]; 3];
-        for i in 0..8 {
-            let (ki, si) = shear1([d[0][i], d[1][i], d[2][i]]);
-            k[i] = ki;
-            for a in 0..3 {
-                s[a][i] = si[a];
-            }
-        }
-        let axis = |j: usize| {
-            let (mut x, mut y) = (0u32, 0u32);
-            for (i, ki) in k.iter().enumerate() {
-                x |= u32::from(ki[j] == 0) << i;
-                y |= u32::from(ki[j] == 1) << i;
-            }
-            AxisY {
-                is_x: Y8::mask_from_bits(x),
-                is_y: Y8::mask_from_bits(y),
-            }
-        };
-        ([axis(0), axis(1), axis(2)], s.map(Y8::from_array))
+        shear_by_quads(d)
     }
     const WIDTH: usize = 8;
 }

@@ -30,8 +30,8 @@
 //! inlined there would call them out of line: slower, still correct).
 #![allow(unsafe_code)] // AVX-512F intrinsics; see the module's Safety section
 
-use crate::geom::lane::{Axis4, F4, Lane, shear1};
-use crate::geom::wide::Wide;
+use crate::geom::lane::{Axis4, F4, Lane};
+use crate::geom::wide::{Wide, shear_by_quads};
 use core::arch::x86_64::*;
 use core::ops::{Add, BitAnd, BitOr, Div, Mul, Neg, Not, Sub};
 
@@ -180,29 +180,7 @@ impl Lane for Z16 {
     }
     #[inline]
     fn shear_axes(d: [Z16; 3]) -> ([AxisZ; 3], [Z16; 3]) {
-        // Lane by lane with the scalar code, as every lane type.
-        let d = d.map(Z16::to_array);
-        let mut k = [[0usize; 3]; 16];
-        let mut s = [[0.0f32; 16]; 3];
-        for i in 0..16 {
-            let (ki, si) = shear1([d[0][i], d[1][i], d[2][i]]);
-            k[i] = ki;
-            for a in 0..3 {
-                s[a][i] = si[a];
-            }
-        }
-        let axis = |j: usize| {
-            let (mut x, mut y) = (0u16, 0u16);
-            for (i, ki) in k.iter().enumerate() {
-                x |= u16::from(ki[j] == 0) << i;
-                y |= u16::from(ki[j] == 1) << i;
-            }
-            AxisZ {
-                is_x: K16(x),
-                is_y: K16(y),
-            }
-        };
-        ([axis(0), axis(1), axis(2)], s.map(Z16::from_array))
+        shear_by_quads(d)
     }
     const WIDTH: usize = 16;
 }

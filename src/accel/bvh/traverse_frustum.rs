@@ -238,12 +238,12 @@ impl Frustum {
             s: [Vec4::ONE; 3],
             big: [Vec4::NAN; 3],
             small: [Vec4::NAN; 3],
-            tmin: Vec4::splat(h(tmin, false)),
-            tfar: h(tfar, true),
+            tmin: Vec4::splat(lane_extreme(tmin, false)),
+            tfar: lane_extreme(tfar, true),
         };
         for a in 0..3 {
-            let (o0, o1) = (h(omin[a], false), h(omax[a], true));
-            let (r0, r1) = (h(rmin[a], false), h(rmax[a], true));
+            let (o0, o1) = (lane_extreme(omin[a], false), lane_extreme(omax[a], true));
+            let (r0, r1) = (lane_extreme(rmin[a], false), lane_extreme(rmax[a], true));
             if all_pos[a] {
                 f.onear[a] = Vec4::splat(o1);
                 f.ofar[a] = Vec4::splat(o0);
@@ -295,14 +295,14 @@ impl Frustum {
         for g in gb {
             m = m.raise(g.tfar);
         }
-        self.tfar = h(m, true);
+        self.tfar = lane_extreme(m, true);
     }
 }
 
 /// The smallest (`max` false) or largest lane of `v` (NaN lanes skipped
 /// unless lane 0 is NaN).
 #[inline(always)]
-fn h<L: Wide>(v: L, max: bool) -> f32 {
+fn lane_extreme<L: Wide>(v: L, max: bool) -> f32 {
     let mut r = v.get(0);
     for i in 1..L::WIDTH {
         let x = v.get(i);
