@@ -17,7 +17,7 @@
  * and a spot light), then shading; it prints the phase times.
  *
  * Build and run from the repository root (the Makefile first runs
- * `cargo build --release --lib`, then links target/release/libsheaf.a):
+ * `cargo build -p sheaf --release --lib`, then links target/release/libsheaf.a):
  *   make -C examples-c            (static; `make -C examples-c shared` for the .so)
  *   examples-c/render [out.ppm] [width] [height] [whitted|deferred]
  */

@@ -94,8 +94,10 @@ if [ $counters = 1 ]; then
 else
   features=(--no-default-features --features std) feat_note="--no-default-features --features std (no counters)"
 fi
-echo "== cargo build --release --lib ${features[*]} (target/embree-bench)" >&2
-CARGO_TARGET_DIR=$out cargo build --release --lib "${features[@]}" >&2
+echo "== cargo build -p sheaf --release --lib ${features[*]} (target/embree-bench)" >&2
+# -p sheaf: from the workspace root a plain build also selects sheaf-cli,
+# whose `cli` feature would switch the counters on in this library too.
+CARGO_TARGET_DIR=$out cargo build -p sheaf --release --lib "${features[@]}" >&2
 echo "== cargo build --release -p sheaf-cli" >&2
 cargo build --release -p sheaf-cli >&2
 sheaf=$ROOT/target/release/sheaf
