@@ -56,7 +56,8 @@ use crate::accel::group::{self, Group};
 use crate::accel::method::TraceParams;
 use crate::accel::slot::Slot;
 use crate::counters::{Counters, count};
-use crate::geom::{F4, Hit4, M4, Ray4, Wide};
+use crate::geom::triangle::TriHit;
+use crate::geom::{F4, Hit4, INVALID_ID, M4, Ray4, Wide};
 use glam::Vec4;
 
 /// Stack entries: an expansion pushes all (up to `WIDTH`) children it
@@ -127,17 +128,93 @@ pub(crate) struct GroupBox<L: Wide> {
 /// `GroupBox::signs` of a group whose lanes' direction signs differ.
 const MIXED: u32 = u32::MAX;
 
-/// Scratch bytes of the groups of `nq` quads at the widest level.
+/// Scratch bytes of the groups of `nq` quads (their boxes and hit
+/// records) at the widest level.
 pub(crate) const fn bytes(nq: usize) -> usize {
     use crate::geom::{F8, F16};
     use crate::mem::scratch::bytes as b;
     let (a, c, d) = (
-        b::<GroupBox<F4>>(nq),
-        b::<GroupBox<F8>>(nq.div_ceil(2)),
-        b::<GroupBox<F16>>(nq.div_ceil(4)),
+        b::<GroupBox<F4>>(nq) + b::<GroupHit<F4>>(nq),
+        b::<GroupBox<F8>>(nq.div_ceil(2)) + b::<GroupHit<F8>>(nq.div_ceil(2)),
+        b::<GroupBox<F16>>(nq.div_ceil(4)) + b::<GroupHit<F16>>(nq.div_ceil(4)),
     );
     let m = if a > c { a } else { c };
     if m > d { m } else { d }
+}
+
+/// One lane group's nearest hits so far, kept as lanes during the walk
+/// (the hits' `Hit4` quads are read once before it and written once after
+/// it): a leaf's hit lanes are kept with one compare and three selects,
+/// not quad by quad.
+#[derive(Clone, Copy)]
+pub(crate) struct GroupHit<L: Wide> {
+    t: L,
+    u: L,
+    v: L,
+    prim: [u32; 16],
+}
+
+impl<L: Wide> GroupHit<L> {
+    /// Group `g`'s hits from the packet's `hits` (past the last quad the
+    /// group repeats it, as its lanes do).
+    #[inline(always)]
+    fn read(hits: &[Hit4], g: usize) -> Self {
+        let nq = hits.len();
+        let q = |k: usize| (g * L::G + k).min(nq - 1);
+        let mut prim = [INVALID_ID; 16];
+        for (i, p) in prim.iter_mut().enumerate().take(L::WIDTH) {
+            *p = hits[q(i / 4)].prim[i % 4];
+        }
+        GroupHit {
+            t: L::join(|k| hits[q(k)].t),
+            u: L::join(|k| hits[q(k)].u),
+            v: L::join(|k| hits[q(k)].v),
+            prim,
+        }
+    }
+
+    /// Back to the quads of group `g` that exist (lanes no hit was taken
+    /// for still hold what `read` found).
+    #[inline(always)]
+    fn write(&self, hits: &mut [Hit4], g: usize) {
+        let nq = hits.len();
+        for k in 0..L::G.min(nq - g * L::G) {
+            let h = &mut hits[g * L::G + k];
+            h.t = self.t.quad(k);
+            h.u = self.u.quad(k);
+            h.v = self.v.quad(k);
+            h.prim.copy_from_slice(&self.prim[4 * k..4 * k + 4]);
+        }
+    }
+
+    /// Lanes of `hb` (hit lanes of a test of triangle `id`) whose hit beats
+    /// the one kept: nearer, or as near with a smaller id (`Hit4::closer`).
+    #[inline(always)]
+    fn closer(&self, t: L, hb: u32, id: u32) -> u32 {
+        let lt = L::mask_bits(t.lt(self.t)) & hb;
+        let mut eq = L::mask_bits(t.eq(self.t)) & hb;
+        let mut take = lt;
+        while eq != 0 {
+            let i = eq.trailing_zeros() as usize;
+            eq &= eq - 1;
+            take |= u32::from(id < self.prim[i]) << i;
+        }
+        take
+    }
+
+    /// Lanes `take` keep the hit `h` on triangle `id`.
+    #[inline(always)]
+    fn keep(&mut self, h: &TriHit<L>, take: u32, id: u32) {
+        let m = L::mask_from_bits(take);
+        self.t = L::select(m, h.t, self.t);
+        self.u = L::select(m, h.u, self.u);
+        self.v = L::select(m, h.v, self.v);
+        let mut b = take;
+        while b != 0 {
+            self.prim[b.trailing_zeros() as usize] = id;
+            b &= b - 1;
+        }
+    }
 }
 
 impl<L: Wide> GroupBox<L> {
@@ -173,16 +250,6 @@ impl<L: Wide> GroupBox<L> {
             t1 = t1.lower(far);
         }
         t0.le_bits(t1) & self.live
-    }
-
-    /// `tfar` and `live` again from the packet's quads (after hits).
-    #[inline(always)]
-    fn refresh<T: TriangleTest>(&mut self, p: &Packet<'_, T>, g: usize) {
-        let nq = p.nq;
-        let q = |k: usize| (g * L::G + k).min(nq - 1);
-        self.live = group::lane_bits::<L>(g, group::all::<L>(g, nq), |i| p.live[i]);
-        let t = L::join(|k| p.tfar(q(k)));
-        self.tfar = L::select(L::mask_from_bits(self.live), t, L::splat(f32::NEG_INFINITY));
     }
 }
 
@@ -381,11 +448,10 @@ impl Walk for FrustumFirst {
         if !wide_walk_applies(p, b, rays, start) {
             return Ranged::walk::<L, T, ANY>(p, b, rays, hits, start, slot, ctr);
         }
-        let wide = b.wide;
         let nq = p.nq;
         let (grp, mut slot) = p.groups::<L>(rays, slot);
         let grp: &[Group<L, T>] = grp;
-        let (gb, _) = slot.split_from(nq.div_ceil(L::G), |g| {
+        let (gb, mut slot) = slot.split_from(nq.div_ceil(L::G), |g| {
             let r = &grp[g].r;
             let q = |k: usize| (g * L::G + k).min(nq - 1);
             // Sign bits of each axis's directions, every lane of the group
@@ -417,94 +483,127 @@ impl Walk for FrustumFirst {
             }
         });
         let ng = gb.len();
+        let (gh, _) = slot.split_from(ng, |g| GroupHit::<L>::read(&hits[..nq], g));
         let mut fr = Frustum::new::<L>(gb);
+        let mut n_live: u32 = gb.iter().map(|g| g.live.count_ones()).sum();
+        let leaves = Leaves {
+            b,
+            grp,
+            gb,
+            gh,
+            n_live: &mut n_live,
+        };
+        walk_tree::<L, T, ANY>(leaves, &mut fr, ctr);
+        for (g, h) in gh.iter().enumerate() {
+            h.write(&mut hits[..nq], g);
+        }
+    }
+}
 
-        // Stack: wide node, child slot, first group, frustum near distance.
-        let mut st_w = [0u32; STACK];
-        let mut st_c = [0u8; STACK];
-        let mut st_ia = [0u16; STACK];
-        let mut st_t = [0f32; STACK];
-        let mut st_d = [0u8; STACK];
-        let mut sp = 0usize;
-        // The node being expanded (`None`: pop).
-        let mut cur = Some((0usize, first_group_live(gb), 0usize));
-        loop {
-            let (w, ia, depth) = match cur.take() {
-                Some(x) => x,
-                None => {
-                    // Pop until a child some lane may still enter.
-                    let mut next = None;
-                    while sp > 0 {
-                        sp -= 1;
-                        if st_t[sp] > fr.tfar {
-                            continue;
-                        }
-                        let (w, c) = (st_w[sp] as usize, st_c[sp] as usize);
-                        let (ia, depth) = (st_ia[sp] as usize, st_d[sp] as usize);
-                        let n = &wide[w];
-                        if n.count[c] == 0 {
-                            next = Some((n.child[c] as usize, ia, depth));
-                            break;
-                        }
-                        let (done, took) =
-                            leaf::<L, T, ANY>(p, b, hits, grp, gb, (w, c, ia), depth, ctr);
-                        if done {
-                            return;
-                        }
-                        if !ANY && took {
-                            fr.refresh::<L>(gb);
-                        }
+/// What a leaf visit reads and updates: the tree, the packet's groups,
+/// their boxes and hit records, and the live lane count.
+struct Leaves<'x, 'b, L: Wide, T: TriangleTest> {
+    b: &'x BvhView<'b>,
+    grp: &'x [Group<L, T>],
+    gb: &'x mut [GroupBox<L>],
+    gh: &'x mut [GroupHit<L>],
+    n_live: &'x mut u32,
+}
+
+/// The frustum-first walk of the wide tree from its root.
+#[inline(always)]
+fn walk_tree<L: Wide, T: TriangleTest, const ANY: bool>(
+    mut lv: Leaves<'_, '_, L, T>,
+    fr: &mut Frustum,
+    ctr: &mut Counters,
+) {
+    let wide = lv.b.wide;
+    let ng = lv.gb.len();
+
+    // Stack: wide node, child slot, first group, frustum near distance.
+    let mut st_w = [0u32; STACK];
+    let mut st_c = [0u8; STACK];
+    let mut st_ia = [0u16; STACK];
+    let mut st_t = [0f32; STACK];
+    let mut st_d = [0u8; STACK];
+    let mut sp = 0usize;
+    // The node being expanded (`None`: pop).
+    let mut cur = Some((0usize, first_group_live(lv.gb), 0usize));
+    loop {
+        let (w, ia, depth) = match cur.take() {
+            Some(x) => x,
+            None => {
+                // Pop until a child some lane may still enter.
+                let mut next = None;
+                while sp > 0 {
+                    sp -= 1;
+                    if st_t[sp] > fr.tfar {
+                        continue;
                     }
-                    match next {
-                        Some(x) => x,
-                        None => return,
+                    let (w, c) = (st_w[sp] as usize, st_c[sp] as usize);
+                    let (ia, depth) = (st_ia[sp] as usize, st_d[sp] as usize);
+                    let n = &wide[w];
+                    if n.count[c] == 0 {
+                        next = Some((n.child[c] as usize, ia, depth));
+                        break;
+                    }
+                    let (done, took) = leaf::<L, T, ANY>(&mut lv, (w, c, ia), depth, ctr);
+                    if done {
+                        return;
+                    }
+                    if !ANY && took {
+                        fr.refresh::<L>(lv.gb);
                     }
                 }
-            };
-            if ia >= ng {
-                continue;
+                match next {
+                    Some(x) => x,
+                    None => return,
+                }
             }
-            let n = &wide[w];
-            let (fm, t0) = fr.test(n);
-            let valid = valid_children(n);
-            let mut fm = fm & valid;
-            ctr.aabb_at(depth + 1, WIDTH as u64);
-            count!(ctr.culled_nodes += (valid & !fm).count_ones() as u64);
-            if fm == 0 {
-                continue;
-            }
-            // The first live lane of group `ia` against the admitted children.
-            let lead = gb[ia].live;
-            let first = if lead != 0 {
-                first_ray::<L>(&gb[ia], lead.trailing_zeros() as usize, n)
+        };
+        if ia >= ng {
+            continue;
+        }
+        let n = &wide[w];
+        let (fm, t0) = fr.test(n);
+        let valid = valid_children(n);
+        let mut fm = fm & valid;
+        ctr.aabb_at(depth + 1, WIDTH as u64);
+        count!(ctr.culled_nodes += (valid & !fm).count_ones() as u64);
+        if fm == 0 {
+            continue;
+        }
+        // The first live lane of group `ia` against the admitted children.
+        let lead = lv.gb[ia].live;
+        let first = if lead != 0 {
+            first_ray::<L>(&lv.gb[ia], lead.trailing_zeros() as usize, n)
+        } else {
+            0
+        };
+        let ts = t0.to_array();
+        let mut kids = [(0.0f32, 0usize, 0usize); WIDTH];
+        let mut k = 0;
+        while fm != 0 {
+            let c = fm.trailing_zeros() as usize;
+            fm &= fm - 1;
+            let ic = if first >> c & 1 != 0 {
+                ia
             } else {
-                0
+                first_group::<L>(lv.gb, ia, child_box(n, c), depth + 1, ctr)
             };
-            let ts = t0.to_array();
-            let mut kids = [(0.0f32, 0usize, 0usize); WIDTH];
-            let mut k = 0;
-            while fm != 0 {
-                let c = fm.trailing_zeros() as usize;
-                fm &= fm - 1;
-                let ic = if first >> c & 1 != 0 {
-                    ia
-                } else {
-                    first_group::<L>(gb, ia, child_box(n, c), depth + 1, ctr)
-                };
-                if ic < ng {
-                    insert_by(&mut kids, k, (ts[c], c, ic), |e| e.0);
-                    k += 1;
-                }
+            if ic < ng {
+                insert_by(&mut kids, k, (ts[c], c, ic), |e| e.0);
+                k += 1;
             }
-            // Far children on the stack, the nearest visited now.
-            for &(t, c, ic) in kids[..k].iter().rev() {
-                st_w[sp] = w as u32;
-                st_c[sp] = c as u8;
-                st_ia[sp] = ic as u16;
-                st_t[sp] = t;
-                st_d[sp] = (depth + 1) as u8;
-                sp += 1;
-            }
+        }
+        // Far children on the stack, the nearest visited now.
+        for &(t, c, ic) in kids[..k].iter().rev() {
+            st_w[sp] = w as u32;
+            st_c[sp] = c as u8;
+            st_ia[sp] = ic as u16;
+            st_t[sp] = t;
+            st_d[sp] = (depth + 1) as u8;
+            sp += 1;
         }
     }
 }
@@ -527,58 +626,57 @@ fn first_group_live<L: Wide>(gb: &[GroupBox<L>]) -> usize {
 /// Leaf child `c` of wide node `w`: every group from `ia` on with a live
 /// lane entering its box tests its triangles with those lanes. Whether
 /// every lane is done (occlusion), and whether a lane took a hit.
-// The packet, its groups and their boxes, the leaf, counters.
-#[allow(clippy::too_many_arguments)]
 #[inline(always)]
 fn leaf<L: Wide, T: TriangleTest, const ANY: bool>(
-    p: &mut Packet<'_, T>,
-    b: &BvhView<'_>,
-    hits: &mut [Hit4],
-    grp: &[Group<L, T>],
-    gb: &mut [GroupBox<L>],
+    lv: &mut Leaves<'_, '_, L, T>,
     (w, c, ia): (usize, usize, usize),
     depth: usize,
     ctr: &mut Counters,
 ) -> (bool, bool) {
+    let b = lv.b;
     let n = &b.wide[w];
     let mut any = false;
     let bx = child_box(n, c);
     let (first, count) = (n.child[c] as usize, n.count[c] as usize);
-    for g in ia..gb.len() {
-        if gb[g].live == 0 {
+    for g in ia..lv.gb.len() {
+        let gb = &mut lv.gb[g];
+        if gb.live == 0 {
             continue;
         }
         ctr.aabb_at(depth, 1);
-        let mut bits = gb[g].enters(bx.0, bx.1);
+        let mut bits = gb.enters(bx.0, bx.1);
         if bits == 0 {
             // The group's lanes skip the leaf's triangles.
             count!(ctr.culled += count as u64);
             continue;
         }
-        let mut took = false;
+        let gh = &mut lv.gh[g];
         for j in first..first + count {
             ctr.tri_at(depth, bits.count_ones() as u64);
-            let id = b.tri_ids[j];
-            let (h, hb) = group::test(&grp[g], T::prim(b.store(), j), bits);
+            let (h, hb) = group::test(&lv.grp[g], T::prim(b.store(), j), bits);
             if hb == 0 {
                 continue;
             }
-            let g0 = g * L::G;
-            group::each_hit(&h, hb, |k, m, hit| {
-                took |= p.take::<ANY>(hits, g0 + k, m, hit, id).any();
-            });
+            let id = b.tri_ids[j];
+            // A hit lies in [tmin, tmax): for occlusion every hit lane is
+            // done, else the lanes it beats keep it (tie rule).
+            let take = if ANY { hb } else { gh.closer(h.t, hb, id) };
+            if take == 0 {
+                continue;
+            }
+            gh.keep(&h, take, id);
+            gb.tfar = L::select(L::mask_from_bits(take), h.t, gb.tfar);
+            any = true;
             if ANY {
-                bits &= !hb;
+                gb.live &= !take;
+                *lv.n_live -= take.count_ones();
+                if *lv.n_live == 0 {
+                    return (true, true);
+                }
+                bits &= !take;
                 if bits == 0 {
                     break;
                 }
-            }
-        }
-        if took {
-            any = true;
-            gb[g].refresh(p, g);
-            if ANY && p.done() {
-                return (true, true);
             }
         }
     }
