@@ -111,15 +111,18 @@ impl QuadBox {
 /// fallbacks are off; `traverse_wide`'s deviations). Otherwise the binary
 /// Ranged walk answers.
 #[inline(always)]
-pub(crate) fn wide_walk_applies<T: TriangleTest>(
-    p: &Packet<'_, T>,
+pub(crate) fn wide_walk_applies(
+    live: &[M4],
     b: &BvhView<'_>,
     rays: &[Ray4],
     start: (usize, usize),
 ) -> bool {
     start == (0, 0)
         && !b.wide.is_empty()
-        && !(0..p.nq).any(|q| fallback::tiny(true, &rays[q], p.live[q]).any())
+        && !live
+            .iter()
+            .zip(rays)
+            .any(|(&m, r)| fallback::tiny(true, r, m).any())
 }
 
 /// A large-packet traversal: walks one prepared packet through the tree.
@@ -135,6 +138,15 @@ pub(crate) trait Walk {
         slot: &mut Slot<'_>,
         ctr: &mut Counters,
     );
+
+    /// Whether the walk reads the per-quad slab data and triangle-test
+    /// precomputation (`QuadBox`, `Pre`) of this packet (its `live` lanes):
+    /// when not, the packet setup skips them.
+    #[inline(always)]
+    fn reads_quads(live: &[M4], b: &BvhView<'_>, rays: &[Ray4], start: (usize, usize)) -> bool {
+        let _ = (live, b, rays, start);
+        true
+    }
 }
 
 /// Split the input into packets of at most 256 quads (classes of 1, 4,
@@ -219,10 +231,15 @@ fn packet<W: Walk, T: TriangleTest, const ANY: bool>(
     if !lanes.coherent {
         return crate::accel::packet::alone::<BvhView, T, ANY>(b, rays, live, hits, ctr);
     }
-    // Per quad: slab data, triangle-test precomputation, far ends, each
-    // written once.
-    let (qb, mut slot) = slot.split_from(nq, |q| QuadBox::new(&rays[q]));
-    let (pre, mut slot) = slot.split_from(nq, |q| T::prepare(&RayLanes::from_ray4(&rays[q])));
+    // Per quad: slab data, triangle-test precomputation (none when the
+    // walk does not read them: an empty slice), far ends, each written once.
+    let nd = if W::reads_quads(live, b, rays, start) {
+        nq
+    } else {
+        0
+    };
+    let (qb, mut slot) = slot.split_from(nd, |q| QuadBox::new(&rays[q]));
+    let (pre, mut slot) = slot.split_from(nd, |q| T::prepare(&RayLanes::from_ray4(&rays[q])));
     let (tfar, mut slot) = slot.split_from(nq, |q| rays[q].tmax);
     let quads = Quads {
         live,

@@ -435,6 +435,13 @@ fn first_group<L: Wide>(
 pub(crate) struct FrustumFirst;
 
 impl Walk for FrustumFirst {
+    /// Only the binary fallback reads them: the wide walk makes its own
+    /// from the groups.
+    #[inline(always)]
+    fn reads_quads(live: &[M4], b: &BvhView<'_>, rays: &[Ray4], start: (usize, usize)) -> bool {
+        !wide_walk_applies(live, b, rays, start)
+    }
+
     #[inline(always)]
     fn walk<L: Wide, T: TriangleTest, const ANY: bool>(
         p: &mut Packet<'_, T>,
@@ -445,7 +452,7 @@ impl Walk for FrustumFirst {
         slot: &mut Slot<'_>,
         ctr: &mut Counters,
     ) {
-        if !wide_walk_applies(p, b, rays, start) {
+        if !wide_walk_applies(p.live, b, rays, start) {
             return Ranged::walk::<L, T, ANY>(p, b, rays, hits, start, slot, ctr);
         }
         let nq = p.nq;
