@@ -554,12 +554,18 @@ fn walk_tree<L: Wide, T: TriangleTest, const ANY: bool>(
                         next = Some((n.child[c] as usize, ia, depth));
                         break;
                     }
-                    let (done, took) = leaf::<L, T, ANY>(&mut lv, (w, c, ia), depth, ctr);
+                    let (done, shrank) = leaf::<L, T, ANY>(&mut lv, (w, c, ia), depth, ctr);
                     if done {
                         return;
                     }
-                    if !ANY && took {
-                        fr.refresh::<L>(lv.gb);
+                    if shrank {
+                        // Nearest hits: the far ends fell. Occlusion: a whole
+                        // group is done, its lanes bound nothing any more.
+                        if ANY {
+                            *fr = Frustum::new::<L>(lv.gb);
+                        } else {
+                            fr.refresh::<L>(lv.gb);
+                        }
                     }
                 }
                 match next {
@@ -632,7 +638,9 @@ fn first_group_live<L: Wide>(gb: &[GroupBox<L>]) -> usize {
 
 /// Leaf child `c` of wide node `w`: every group from `ia` on with a live
 /// lane entering its box tests its triangles with those lanes. Whether
-/// every lane is done (occlusion), and whether a lane took a hit.
+/// every lane is done (occlusion), and whether the frustum may shrink: a
+/// lane took a hit (nearest hits), a group has no live lane left
+/// (occlusion).
 #[inline(always)]
 fn leaf<L: Wide, T: TriangleTest, const ANY: bool>(
     lv: &mut Leaves<'_, '_, L, T>,
@@ -673,9 +681,10 @@ fn leaf<L: Wide, T: TriangleTest, const ANY: bool>(
             }
             gh.keep(&h, take, id);
             gb.tfar = L::select(L::mask_from_bits(take), h.t, gb.tfar);
-            any = true;
+            any |= !ANY;
             if ANY {
                 gb.live &= !take;
+                any |= gb.live == 0;
                 *lv.n_live -= take.count_ones();
                 if *lv.n_live == 0 {
                     return (true, true);
