@@ -19,6 +19,11 @@
 //! against the leaf's box, and only groups with an entering live lane test
 //! its triangles, each triangle broadcast against the group's lanes
 //! (Fuetterling et al. 2015, section 4: large packets on a 4-wide tree).
+//! Each group keeps its nearest hits as lanes (`GroupHit`), written back
+//! to the packet's quads once, after the walk. An occlusion packet left
+//! with at most `HYBRID_LANES` live lanes finishes them one by one with
+//! the wide single ray (`traverse_wide::walk_from`) over the subtrees
+//! still on its stack (Benthin, Wald, Woop, Ernst, Mark 2012, section 4).
 //!
 //! # Exactness
 //! The frustum test is conservative in floating point: each bound is a
@@ -34,7 +39,9 @@
 //! the triangles of every leaf whose box it enters: the set of triangles a
 //! lane tests contains its nearest one (module docs of `bvh`), and the tie
 //! rule makes the order irrelevant. Results equal `traverse_single` lane by
-//! lane, bitwise.
+//! lane, bitwise. The hybrid finish keeps this: the stack holds every
+//! subtree a live lane may still enter, and there each lane runs the
+//! single ray's own tests.
 //!
 //! # Deviations
 //! - Packets starting at an entry point (MLRTA, AEPSA: binary nodes),
@@ -49,6 +56,7 @@
 
 use super::packet::{Packet, Walk, dispatch, wide_walk_applies};
 use super::traverse_ranged::Ranged;
+use super::traverse_wide::{Stack, WideRay, walk_from};
 use super::wide::{WIDTH, WideNode, insert_by};
 use super::{BvhView, MAX_DEPTH, TriangleTest};
 use crate::accel::entry::EntryPoint;
@@ -57,7 +65,7 @@ use crate::accel::method::TraceParams;
 use crate::accel::slot::Slot;
 use crate::counters::{Counters, count};
 use crate::geom::triangle::TriHit;
-use crate::geom::{F4, Hit4, INVALID_ID, M4, Ray4, Wide};
+use crate::geom::{F4, Hit, Hit4, INVALID_ID, M4, Ray4, Wide};
 use glam::Vec4;
 
 /// Stack entries: an expansion pushes all (up to `WIDTH`) children it
@@ -495,6 +503,7 @@ impl Walk for FrustumFirst {
         let mut n_live: u32 = gb.iter().map(|g| g.live.count_ones()).sum();
         let leaves = Leaves {
             b,
+            rays,
             grp,
             gb,
             gh,
@@ -511,6 +520,7 @@ impl Walk for FrustumFirst {
 /// their boxes and hit records, and the live lane count.
 struct Leaves<'x, 'b, L: Wide, T: TriangleTest> {
     b: &'x BvhView<'b>,
+    rays: &'x [Ray4],
     grp: &'x [Group<L, T>],
     gb: &'x mut [GroupBox<L>],
     gh: &'x mut [GroupHit<L>],
@@ -557,6 +567,14 @@ fn walk_tree<L: Wide, T: TriangleTest, const ANY: bool>(
                     let (done, shrank) = leaf::<L, T, ANY>(&mut lv, (w, c, ia), depth, ctr);
                     if done {
                         return;
+                    }
+                    if ANY && *lv.n_live <= HYBRID_LANES {
+                        let pending = (0..sp).rev().map(|e| {
+                            let n = &wide[st_w[e] as usize];
+                            let c = st_c[e] as usize;
+                            (n.child[c], n.count[c], st_d[e] as usize)
+                        });
+                        return finish_alone::<L, T>(&mut lv, pending, ctr);
                     }
                     if shrank {
                         // Nearest hits: the far ends fell. Occlusion: a whole
@@ -619,6 +637,59 @@ fn walk_tree<L: Wide, T: TriangleTest, const ANY: bool>(
             sp += 1;
         }
     }
+}
+
+/// Occlusion packets with at most this many live lanes left finish them
+/// one by one (`finish_alone`).
+const HYBRID_LANES: u32 = 1024;
+
+/// Stack entries of the single ray walking one pending subtree: at most
+/// `WIDTH - 1` per wide level below it and `WIDTH` at the last, so it
+/// never overflows.
+const ALONE_STACK: usize = (WIDTH - 1) * MAX_DEPTH + 1;
+
+/// The hybrid finish (Benthin, Wald, Woop, Ernst, Mark 2012, section 4):
+/// each live lane walks the `pending` subtrees (child reference and depth,
+/// in the packet's pop order) alone with the wide single ray, and stops at
+/// its first hit. The pending subtrees hold every leaf a live lane may
+/// still enter (the packet dropped only what no live lane enters), and
+/// each lane runs its own slab tests there, so its answer is the single
+/// ray's.
+#[inline(always)]
+fn finish_alone<L: Wide, T: TriangleTest>(
+    lv: &mut Leaves<'_, '_, L, T>,
+    pending: impl Iterator<Item = (u32, u32, usize)> + Clone,
+    ctr: &mut Counters,
+) {
+    let mut st = Stack::<ALONE_STACK>::new();
+    for g in 0..lv.gb.len() {
+        let mut bits = lv.gb[g].live;
+        while bits != 0 {
+            let i = bits.trailing_zeros() as usize;
+            bits &= bits - 1;
+            let ray = lv.rays[g * L::G + i / 4].lane(i % 4);
+            let r = WideRay::<T>::new(&ray);
+            let mut best = Hit::MISS;
+            for start in pending.clone() {
+                let done =
+                    walk_from::<T, true, ALONE_STACK>(lv.b, &r, start, &mut best, &mut st, ctr);
+                // The stack holds every subtree: never `None`.
+                debug_assert!(done.is_some());
+                if done != Some(false) {
+                    break;
+                }
+            }
+            if best.prim != INVALID_ID {
+                let gh = &mut lv.gh[g];
+                gh.t.set(i, best.t);
+                gh.u.set(i, best.u);
+                gh.v.set(i, best.v);
+                gh.prim[i] = best.prim;
+            }
+        }
+        lv.gb[g].live = 0;
+    }
+    *lv.n_live = 0;
 }
 
 /// Slots of `n` that hold a child.

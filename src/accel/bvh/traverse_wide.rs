@@ -84,33 +84,98 @@ pub(crate) fn walk<T: TriangleTest, const ANY: bool>(
     if !ray.is_valid() {
         return best;
     }
-    let lanes = RayLanes::splat(&RayLanes::from_ray(ray));
-    let pre = T::prepare(&lanes);
-    let org = ray.org.map(Vec4::splat);
-    let rcp = ray.dir.map(|d| Vec4::splat(1.0 / d));
-    // The sign bit, not a comparison: -0 has its near plane at max.
-    let neg = ray.dir.map(f32::is_sign_negative);
-    let tmin = Vec4::splat(ray.tmin);
+    let r = WideRay::<T>::new(ray);
+    let mut st = Stack::<STACK>::new();
+    match walk_from::<T, ANY, STACK>(b, &r, (0, 0, 0), &mut best, &mut st, ctr) {
+        Some(_) => best,
+        None => {
+            // The binary walk counts this ray again (its box and triangle
+            // tests so far stay counted).
+            ctr.rays -= 1;
+            binary_walk::<T, ANY>(b, ray, ctr)
+        }
+    }
+}
 
-    let mut st = [0u64; STACK];
-    let mut st_t = [0.0f32; STACK];
-    let mut st_depth = [0u8; STACK];
+/// A valid ray (`Ray::is_valid`) prepared for the wide walk: its lanes
+/// for the leaf test and its slab-test terms splatted over the children.
+pub(crate) struct WideRay<T: TriangleTest> {
+    lanes: RayLanes<crate::geom::F4>,
+    pre: T::Pre<crate::geom::F4>,
+    org: [Vec4; 3],
+    rcp: [Vec4; 3],
+    neg: [bool; 3],
+    tmin: Vec4,
+    tmax: f32,
+}
+
+impl<T: TriangleTest> WideRay<T> {
+    #[inline(always)]
+    pub(crate) fn new(ray: &Ray) -> Self {
+        let lanes = RayLanes::splat(&RayLanes::from_ray(ray));
+        WideRay {
+            pre: T::prepare(&lanes),
+            lanes,
+            org: ray.org.map(Vec4::splat),
+            rcp: ray.dir.map(|d| Vec4::splat(1.0 / d)),
+            // The sign bit, not a comparison: -0 has its near plane at max.
+            neg: ray.dir.map(f32::is_sign_negative),
+            tmin: Vec4::splat(ray.tmin),
+            tmax: ray.tmax,
+        }
+    }
+}
+
+/// The walk's stack of `N` entries: child reference (`pack`), entry t,
+/// depth.
+pub(crate) struct Stack<const N: usize> {
+    e: [u64; N],
+    t: [f32; N],
+    depth: [u8; N],
+}
+
+impl<const N: usize> Stack<N> {
+    #[inline(always)]
+    pub(crate) fn new() -> Self {
+        Stack {
+            e: [0; N],
+            t: [0.0; N],
+            depth: [0; N],
+        }
+    }
+}
+
+/// The walk of the subtree at child reference `(child, count)` (wide node
+/// 0, count 0: the whole tree) at `depth`, keeping the nearest hit in
+/// `best` (any hit, with `ANY`). `Some(true)` when `ANY` found a hit,
+/// `None` when the walk would overflow `st` (nothing is then known about
+/// the subtree beyond what `best` holds).
+// The ray, where it starts, its hit, the stack and counters.
+#[inline(always)]
+pub(crate) fn walk_from<T: TriangleTest, const ANY: bool, const N: usize>(
+    b: &BvhView<'_>,
+    r: &WideRay<T>,
+    (mut child, mut count, mut depth): (u32, u32, usize),
+    best: &mut Hit,
+    st: &mut Stack<N>,
+    ctr: &mut Counters,
+) -> Option<bool> {
+    let wide = b.wide;
     let mut sp = 0usize;
-    let (mut child, mut count, mut depth) = (0u32, 0u32, 0usize);
     loop {
         if count > 0 {
-            if leaf4::<T, ANY>(b, &lanes, &pre, child, count, depth, &mut best, ctr) {
-                return best;
+            if leaf4::<T, ANY>(b, &r.lanes, &r.pre, child, count, depth, best, ctr) {
+                return Some(true);
             }
         } else {
             let n = &wide[child as usize];
-            let tmax = if best.t < ray.tmax { best.t } else { ray.tmax };
-            let (mut t0, mut t1) = (tmin, Vec4::splat(tmax));
+            let tmax = if best.t < r.tmax { best.t } else { r.tmax };
+            let (mut t0, mut t1) = (r.tmin, Vec4::splat(tmax));
             for a in 0..3 {
                 let (lo, hi) = (Vec4::from_array(n.min[a]), Vec4::from_array(n.max[a]));
-                let (np, fp) = if neg[a] { (hi, lo) } else { (lo, hi) };
-                let near = (np - org[a]) * rcp[a];
-                let far = (fp - org[a]) * rcp[a];
+                let (np, fp) = if r.neg[a] { (hi, lo) } else { (lo, hi) };
+                let near = (np - r.org[a]) * r.rcp[a];
+                let far = (fp - r.org[a]) * r.rcp[a];
                 t0 = Vec4::select(near.cmpgt(t0), near, t0);
                 t1 = Vec4::select(far.cmplt(t1), far, t1);
             }
@@ -134,16 +199,13 @@ pub(crate) fn walk<T: TriangleTest, const ANY: bool>(
                     insert_by(&mut order, k, c, |&c| ts[c]);
                     k += 1;
                 }
-                if sp + k > STACK {
-                    // The binary walk counts this ray again (its box and
-                    // triangle tests so far stay counted).
-                    ctr.rays -= 1;
-                    return binary_walk::<T, ANY>(b, ray, ctr);
+                if sp + k > N {
+                    return None;
                 }
                 for &c in order[1..k].iter().rev() {
-                    st[sp] = pack(n.child[c], n.count[c]);
-                    st_t[sp] = ts[c];
-                    st_depth[sp] = depth as u8;
+                    st.e[sp] = pack(n.child[c], n.count[c]);
+                    st.t[sp] = ts[c];
+                    st.depth[sp] = depth as u8;
                     sp += 1;
                 }
                 (child, count) = (n.child[order[0]], n.count[order[0]]);
@@ -153,13 +215,13 @@ pub(crate) fn walk<T: TriangleTest, const ANY: bool>(
         // Pop the next child whose entry is not beyond the nearest hit.
         loop {
             if sp == 0 {
-                return best;
+                return Some(false);
             }
             sp -= 1;
-            if st_t[sp] <= best.t {
-                let e = st[sp];
+            if st.t[sp] <= best.t {
+                let e = st.e[sp];
                 (child, count) = (e as u32, (e >> 32) as u32);
-                depth = st_depth[sp] as usize;
+                depth = st.depth[sp] as usize;
                 break;
             }
         }
