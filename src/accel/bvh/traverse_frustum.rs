@@ -640,8 +640,11 @@ fn walk_tree<L: Wide, T: TriangleTest, const ANY: bool>(
 }
 
 /// Occlusion packets with at most this many live lanes left finish them
-/// one by one (`finish_alone`).
-const HYBRID_LANES: u32 = 1024;
+/// one by one (`finish_alone`). Measured (AVX-512, 16x16 shadow packets,
+/// docs/studies.md, issue 32 third step): 0 to 16 lanes trace alike on
+/// sponza and conference, 64 lanes is 4 % slower; the frustum walk's
+/// leaves already test only the groups with an entering lane.
+const HYBRID_LANES: u32 = 4;
 
 /// Stack entries of the single ray walking one pending subtree: at most
 /// `WIDTH - 1` per wide level below it and `WIDTH` at the last, so it
