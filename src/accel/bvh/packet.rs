@@ -617,6 +617,13 @@ impl<'s, T: TriangleTest> Packet<'s, T> {
         self.tfar[q]
     }
 
+    /// Whether the setup prepared the per-quad slab data and triangle
+    /// precomputation (`Walk::reads_quads`).
+    #[inline(always)]
+    pub(crate) fn has_quads(&self) -> bool {
+        self.qb.len() == self.nq
+    }
+
     /// Whether every lane is done (occlusion).
     #[inline(always)]
     pub(crate) fn done(&self) -> bool {

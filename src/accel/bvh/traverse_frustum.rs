@@ -460,7 +460,9 @@ impl Walk for FrustumFirst {
         slot: &mut Slot<'_>,
         ctr: &mut Counters,
     ) {
-        if !wide_walk_applies(p.live, b, rays, start) {
+        // The setup prepared the quads exactly when `reads_quads` found
+        // that the wide walk does not apply: not asked twice per packet.
+        if p.has_quads() {
             return Ranged::walk::<L, T, ANY>(p, b, rays, hits, start, slot, ctr);
         }
         let nq = p.nq;
@@ -500,14 +502,13 @@ impl Walk for FrustumFirst {
         let ng = gb.len();
         let (gh, _) = slot.split_from(ng, |g| GroupHit::<L>::read(&hits[..nq], g));
         let mut fr = Frustum::new::<L>(gb);
-        let mut n_live: u32 = gb.iter().map(|g| g.live.count_ones()).sum();
         let leaves = Leaves {
             b,
             rays,
             grp,
+            n_live: gb.iter().map(|g| g.live.count_ones()).sum(),
             gb,
             gh,
-            n_live: &mut n_live,
         };
         walk_tree::<L, T, ANY>(leaves, &mut fr, ctr);
         for (g, h) in gh.iter().enumerate() {
@@ -524,7 +525,7 @@ struct Leaves<'x, 'b, L: Wide, T: TriangleTest> {
     grp: &'x [Group<L, T>],
     gb: &'x mut [GroupBox<L>],
     gh: &'x mut [GroupHit<L>],
-    n_live: &'x mut u32,
+    n_live: u32,
 }
 
 /// The frustum-first walk of the wide tree from its root.
@@ -568,7 +569,7 @@ fn walk_tree<L: Wide, T: TriangleTest, const ANY: bool>(
                     if done {
                         return;
                     }
-                    if ANY && *lv.n_live <= HYBRID_LANES {
+                    if ANY && lv.n_live <= HYBRID_LANES {
                         let pending = (0..sp).rev().map(|e| {
                             let n = &wide[st_w[e] as usize];
                             let c = st_c[e] as usize;
@@ -692,7 +693,7 @@ fn finish_alone<L: Wide, T: TriangleTest>(
         }
         lv.gb[g].live = 0;
     }
-    *lv.n_live = 0;
+    lv.n_live = 0;
 }
 
 /// Slots of `n` that hold a child.
@@ -724,7 +725,7 @@ fn leaf<L: Wide, T: TriangleTest, const ANY: bool>(
 ) -> (bool, bool) {
     let b = lv.b;
     let n = &b.wide[w];
-    let mut any = false;
+    let mut shrank = false;
     let bx = child_box(n, c);
     let (first, count) = (n.child[c] as usize, n.count[c] as usize);
     for g in ia..lv.gb.len() {
@@ -755,12 +756,12 @@ fn leaf<L: Wide, T: TriangleTest, const ANY: bool>(
             }
             gh.keep(&h, take, id);
             gb.tfar = L::select(L::mask_from_bits(take), h.t, gb.tfar);
-            any |= !ANY;
+            shrank |= !ANY;
             if ANY {
                 gb.live &= !take;
-                any |= gb.live == 0;
-                *lv.n_live -= take.count_ones();
-                if *lv.n_live == 0 {
+                shrank |= gb.live == 0;
+                lv.n_live -= take.count_ones();
+                if lv.n_live == 0 {
                     return (true, true);
                 }
                 bits &= !take;
@@ -770,7 +771,7 @@ fn leaf<L: Wide, T: TriangleTest, const ANY: bool>(
             }
         }
     }
-    (false, any)
+    (false, shrank)
 }
 
 #[cfg(test)]
