@@ -107,22 +107,12 @@ impl QuadBox {
 
 /// Whether a walk of the 4-wide tree can take this packet: it starts at
 /// the root (entry points are binary nodes), the BVH has a wide tree, and
-/// no live lane has a tiny direction (left in the packet when the
-/// fallbacks are off; `traverse_wide`'s deviations). Otherwise the binary
-/// Ranged walk answers.
+/// no live lane has a tiny direction (`tiny`: `Packet::tiny`, left in the
+/// packet when the fallbacks are off; `traverse_wide`'s deviations).
+/// Otherwise the binary Ranged walk answers.
 #[inline(always)]
-pub(crate) fn wide_walk_applies(
-    live: &[M4],
-    b: &BvhView<'_>,
-    rays: &[Ray4],
-    start: (usize, usize),
-) -> bool {
-    start == (0, 0)
-        && !b.wide.is_empty()
-        && !live
-            .iter()
-            .zip(rays)
-            .any(|(&m, r)| fallback::tiny(true, r, m).any())
+pub(crate) fn wide_walk_applies(tiny: bool, b: &BvhView<'_>, start: (usize, usize)) -> bool {
+    start == (0, 0) && !b.wide.is_empty() && !tiny
 }
 
 /// A large-packet traversal: walks one prepared packet through the tree.
@@ -139,14 +129,19 @@ pub(crate) trait Walk {
         ctr: &mut Counters,
     );
 
-    /// Whether the walk reads the per-quad slab data and triangle-test
-    /// precomputation (`QuadBox`, `Pre`) of this packet (its `live` lanes):
-    /// when not, the packet setup skips them.
+    /// Whether the walk reads the per-quad slab data, triangle-test
+    /// precomputation and far ends (`QuadBox`, `Pre`, `tfar`) of a packet
+    /// whose live lanes have a tiny direction (`tiny`): when not, the
+    /// packet setup skips them.
     #[inline(always)]
-    fn reads_quads(live: &[M4], b: &BvhView<'_>, rays: &[Ray4], start: (usize, usize)) -> bool {
-        let _ = (live, b, rays, start);
+    fn reads_quads(tiny: bool, b: &BvhView<'_>, start: (usize, usize)) -> bool {
+        let _ = (tiny, b, start);
         true
     }
+
+    /// Whether the setup pass also gathers the live lanes' bounds
+    /// (`LaneBounds`, `Packet::bounds`) for the walk.
+    const BOUNDS: bool = false;
 }
 
 /// Split the input into packets of at most 256 quads (classes of 1, 4,
@@ -209,8 +204,8 @@ impl<W: Walk, T: TriangleTest, const ANY: bool> SizeClass for Run<'_, '_, '_, W,
     }
 }
 
-/// One packet: its lanes first (a packet with none live, or incoherent,
-/// takes no more scratch), then its per-quad arrays, then the walk.
+/// One packet, set up and walked in one `isa::Kernel` (`WalkAt`), so the
+/// setup pass is compiled for the walk's ISA too.
 // `Run`'s fields, one packet's worth.
 #[allow(clippy::too_many_arguments)]
 fn packet<W: Walk, T: TriangleTest, const ANY: bool>(
@@ -223,63 +218,130 @@ fn packet<W: Walk, T: TriangleTest, const ANY: bool>(
     slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
-    let nq = rays.len().min(active.len()).min(hits.len());
-    let (live, mut slot) = slot.split(nq, M4::FALSE);
-    let Some(lanes) = Lanes::new(b, rays, active, hits, live, opt.fallbacks, ctr) else {
-        return;
-    };
-    if !lanes.coherent {
-        return crate::accel::packet::alone::<BvhView, T, ANY>(b, rays, live, hits, ctr);
-    }
-    // Per quad: slab data, triangle-test precomputation (none when the
-    // walk does not read them: an empty slice), far ends, each written once.
-    let nd = if W::reads_quads(live, b, rays, start) {
-        nq
-    } else {
-        0
-    };
-    let (qb, mut slot) = slot.split_from(nd, |q| QuadBox::new(&rays[q]));
-    let (pre, mut slot) = slot.split_from(nd, |q| T::prepare(&RayLanes::from_ray4(&rays[q])));
-    let (tfar, mut slot) = slot.split_from(nq, |q| rays[q].tmax);
-    let quads = Quads {
-        live,
-        qb,
-        pre,
-        tfar,
-    };
-    let mut p = Packet::<T>::new(b, rays, opt, lanes, quads, ctr);
     let k = WalkAt::<W, T, ANY> {
-        p: &mut p,
         b,
         rays,
+        active,
         hits,
+        opt,
         start,
-        slot: &mut slot,
+        slot,
         ctr,
         _w: core::marker::PhantomData,
     };
     isa::run(opt.isa, k);
 }
 
-/// A walk as an `isa::Kernel`: compiled at each lane width.
-struct WalkAt<'x, 'b, 's, 't, W, T: TriangleTest, const ANY: bool> {
-    p: &'x mut Packet<'s, T>,
+/// One packet as an `isa::Kernel`: set up and walked at each lane width.
+struct WalkAt<'x, 'b, 's, W, T: TriangleTest, const ANY: bool> {
     b: &'x BvhView<'b>,
     rays: &'x [Ray4],
+    active: &'x [M4],
     hits: &'x mut [Hit4],
+    opt: &'x TraceParams,
     start: (usize, usize),
-    slot: &'x mut Slot<'t>,
+    slot: &'x mut Slot<'s>,
     ctr: &'x mut Counters,
-    _w: core::marker::PhantomData<W>,
+    _w: core::marker::PhantomData<(W, T)>,
 }
 
-impl<W: Walk, T: TriangleTest, const ANY: bool> isa::Kernel for WalkAt<'_, '_, '_, '_, W, T, ANY> {
+impl<W: Walk, T: TriangleTest, const ANY: bool> isa::Kernel for WalkAt<'_, '_, '_, W, T, ANY> {
     type Out = ();
+    /// Its lanes first (a packet with none live, or incoherent, takes no
+    /// more scratch), then its per-quad arrays, then the walk.
     #[inline(always)]
     fn run<L: Wide>(self) {
-        W::walk::<L, T, ANY>(
-            self.p, self.b, self.rays, self.hits, self.start, self.slot, self.ctr,
-        )
+        let WalkAt {
+            b,
+            rays,
+            active,
+            hits,
+            opt,
+            start,
+            slot,
+            ctr,
+            ..
+        } = self;
+        let nq = rays.len().min(active.len()).min(hits.len());
+        let (live, mut slot) = slot.split(nq, M4::FALSE);
+        let Some(lanes) = Lanes::new::<W>(b, rays, active, hits, live, opt.fallbacks, ctr) else {
+            return;
+        };
+        if !lanes.coherent {
+            return crate::accel::packet::alone::<BvhView, T, ANY>(b, rays, live, hits, ctr);
+        }
+        // Per quad: slab data, triangle-test precomputation, far ends (none
+        // when the walk does not read them: empty slices), each written once.
+        let nd = if W::reads_quads(lanes.tiny, b, start) {
+            nq
+        } else {
+            0
+        };
+        let (qb, mut slot) = slot.split_from(nd, |q| QuadBox::new(&rays[q]));
+        let (pre, mut slot) =
+            slot.split_from(nd, |q| T::prepare(&RayLanes::from_ray4(&rays[q])));
+        let (tfar, mut slot) = slot.split_from(nd, |q| rays[q].tmax);
+        let quads = Quads {
+            live,
+            qb,
+            pre,
+            tfar,
+        };
+        let mut p = Packet::<T>::new(b, rays, opt, lanes, quads, ctr);
+        W::walk::<L, T, ANY>(&mut p, b, rays, hits, start, &mut slot, ctr)
+    }
+}
+
+/// The live lanes' extremes, gathered by the packet's setup pass when the
+/// walk asks (`Walk::BOUNDS`) for its interval frustum
+/// (`traverse_frustum`): per axis the lane-wise smallest and largest
+/// origin and direction, and which lanes' directions have the sign bit set
+/// and clear; the smallest `tmin` and largest `tmax`. Lanes that are not
+/// live leave every bound as it was.
+#[derive(Clone, Copy)]
+pub(crate) struct LaneBounds {
+    pub omin: [F4; 3],
+    pub omax: [F4; 3],
+    pub dmin: [F4; 3],
+    pub dmax: [F4; 3],
+    /// Per axis: bit `i` of some quad's live lane `i` whose direction has
+    /// the sign bit set (`neg`) or clear (`pos`).
+    pub neg: [u32; 3],
+    pub pos: [u32; 3],
+    pub tmin: F4,
+    pub tmax: F4,
+}
+
+impl LaneBounds {
+    const EMPTY: LaneBounds = LaneBounds {
+        omin: [F4::INFINITY; 3],
+        omax: [F4::NEG_INFINITY; 3],
+        dmin: [F4::INFINITY; 3],
+        dmax: [F4::NEG_INFINITY; 3],
+        neg: [0; 3],
+        pos: [0; 3],
+        tmin: F4::INFINITY,
+        tmax: F4::NEG_INFINITY,
+    };
+
+    /// Widen by the lanes `l` of quad `r` (a branch for quads with every
+    /// lane live measured no faster: sponza, AVX-512).
+    #[inline(always)]
+    fn add(&mut self, r: &Ray4, l: M4) {
+        let (inf, ninf) = (F4::INFINITY, F4::NEG_INFINITY);
+        let lb = l.bitmask();
+        for a in 0..3 {
+            let (o, d) = (r.org[a], r.dir[a]);
+            self.omin[a] = self.omin[a].min(F4::select(l, o, inf));
+            self.omax[a] = self.omax[a].max(F4::select(l, o, ninf));
+            self.dmin[a] = self.dmin[a].min(F4::select(l, d, inf));
+            self.dmax[a] = self.dmax[a].max(F4::select(l, d, ninf));
+            let nb = d.is_negative_bitmask();
+            self.neg[a] |= nb & lb;
+            self.pos[a] |= !nb & lb;
+        }
+        self.tmin = self.tmin.min(F4::select(l, r.tmin, inf));
+        self.tmax = self.tmax.max(F4::select(l, r.tmax, ninf));
     }
 }
 
@@ -290,13 +352,21 @@ struct Lanes {
     /// Whether the live lanes pass `fallback::coherent` (else the packet
     /// is traced lane by lane, and gets no `Packet`).
     coherent: bool,
+    /// Whether a live lane has a tiny direction (`fallback::tiny`, checked
+    /// whether the fallbacks are on or not).
+    tiny: bool,
+    /// With `Walk::BOUNDS`: the live lanes' bounds (else empty).
+    bounds: LaneBounds,
 }
 
 impl Lanes {
     /// Write `Hit::MISS` to every active lane, count the packet and its
     /// rays, and write the live lanes of its `live.len()` quads to `live`;
-    /// `None` when nothing is to be traced.
-    fn new(
+    /// `None` when nothing is to be traced. One pass over the quads, which
+    /// also finds tiny directions and, for walks that ask (`W::BOUNDS`),
+    /// the live lanes' bounds.
+    #[inline(always)]
+    fn new<W: Walk>(
         b: &BvhView<'_>,
         rays: &[Ray4],
         active: &[M4],
@@ -309,6 +379,8 @@ impl Lanes {
         ctr.packets += 1;
         let mut n_live = 0;
         let mut sum = [F4::ZERO; 3];
+        let mut tiny = M4::FALSE;
+        let mut bounds = LaneBounds::EMPTY;
         for q in 0..nq {
             let (r, m) = (&rays[q], active[q]);
             if !m.any() {
@@ -341,6 +413,10 @@ impl Lanes {
             }
             live[q] = l;
             n_live += l.bitmask().count_ones();
+            tiny |= fallback::tiny(true, r, l);
+            if W::BOUNDS {
+                bounds.add(r, l);
+            }
         }
         ctr.rays += n_live as u64;
         if n_live == 0 || b.nodes.is_empty() {
@@ -367,6 +443,8 @@ impl Lanes {
             n_live,
             neg,
             coherent,
+            tiny: tiny.any(),
+            bounds,
         })
     }
 }
@@ -400,6 +478,10 @@ pub(crate) struct Packet<'s, T: TriangleTest> {
     pub frustum: Option<Frustum>,
     /// `TraceParams::fallbacks` (Masked's switch to Partition).
     pub fallbacks: bool,
+    /// A live lane has a tiny direction (`wide_walk_applies`).
+    pub tiny: bool,
+    /// The live lanes' bounds as the setup pass found them (`Walk::BOUNDS`).
+    pub bounds: LaneBounds,
 }
 
 impl<'s, T: TriangleTest> Packet<'s, T> {
@@ -439,6 +521,8 @@ impl<'s, T: TriangleTest> Packet<'s, T> {
             neg: lanes.neg,
             frustum,
             fallbacks: opt.fallbacks,
+            tiny: lanes.tiny,
+            bounds: lanes.bounds,
         }
     }
 
@@ -611,14 +695,8 @@ impl<'s, T: TriangleTest> Packet<'s, T> {
         take
     }
 
-    /// Quad `q`'s per-lane far ends (`min(tmax, best.t)`).
-    #[inline(always)]
-    pub(crate) fn tfar(&self, q: usize) -> F4 {
-        self.tfar[q]
-    }
-
-    /// Whether the setup prepared the per-quad slab data and triangle
-    /// precomputation (`Walk::reads_quads`).
+    /// Whether the setup prepared the per-quad slab data, triangle
+    /// precomputation and far ends (`Walk::reads_quads`).
     #[inline(always)]
     pub(crate) fn has_quads(&self) -> bool {
         self.qb.len() == self.nq

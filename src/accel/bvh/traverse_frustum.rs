@@ -54,7 +54,7 @@
 //!   same for every kind (it bounds the lanes, not a camera model), so
 //!   camera, shadow, reflection and refraction packets take one path.
 
-use super::packet::{Packet, Walk, dispatch, wide_walk_applies};
+use super::packet::{LaneBounds, Packet, Walk, dispatch, wide_walk_applies};
 use super::traverse_ranged::Ranged;
 use super::traverse_wide::{Stack, WideRay, walk_from};
 use super::wide::{WIDTH, WideNode, insert_by};
@@ -282,7 +282,21 @@ struct Frustum {
     tfar: f32,
 }
 
+/// The live lanes' extremes a `Frustum` is made of: per axis the smallest
+/// and largest origin and reciprocal direction, and whether every live
+/// lane's direction has the sign bit set (`all_neg`) or clear (`all_pos`);
+/// the smallest `tmin` and largest far end.
+struct Extremes {
+    o: [(f32, f32); 3],
+    r: [(f32, f32); 3],
+    all_neg: [bool; 3],
+    all_pos: [bool; 3],
+    tmin: f32,
+    tfar: f32,
+}
+
 impl Frustum {
+    /// The frustum of the groups' live lanes.
     #[inline(always)]
     fn new<L: Wide>(gb: &[GroupBox<L>]) -> Frustum {
         let inf = f32::INFINITY;
@@ -306,6 +320,46 @@ impl Frustum {
             tmin = mn(tmin, g.tmin);
             tfar = mx(tfar, g.tfar);
         }
+        // Plain loops, not `map` closures: `lane_extreme` must inline into
+        // the caller's ISA (an outlined closure would call the wide lane
+        // reads as functions).
+        let mut e = Extremes {
+            o: [(0.0, 0.0); 3],
+            r: [(0.0, 0.0); 3],
+            all_neg,
+            all_pos,
+            tmin: lane_extreme(tmin, false),
+            tfar: lane_extreme(tfar, true),
+        };
+        for a in 0..3 {
+            e.o[a] = (lane_extreme(omin[a], false), lane_extreme(omax[a], true));
+            e.r[a] = (lane_extreme(rmin[a], false), lane_extreme(rmax[a], true));
+        }
+        Frustum::of(&e)
+    }
+
+    /// The frustum of a packet's live lanes from the bounds its setup pass
+    /// gathered (`Walk::BOUNDS`), before any group exists. On an axis
+    /// whose live directions share a sign, `1 / d` falls as `d` grows
+    /// (IEEE division is monotone), so the reciprocals' extremes are the
+    /// reciprocals of the directions' extremes: the same bits as `new`
+    /// finds from the groups' reciprocals.
+    #[inline(always)]
+    fn from_bounds(lb: &LaneBounds) -> Frustum {
+        let (lo, hi) = (|v: F4| v.min_element(), |v: F4| v.max_element());
+        Frustum::of(&Extremes {
+            o: core::array::from_fn(|a| (lo(lb.omin[a]), hi(lb.omax[a]))),
+            r: core::array::from_fn(|a| (1.0 / hi(lb.dmax[a]), 1.0 / lo(lb.dmin[a]))),
+            all_neg: core::array::from_fn(|a| lb.pos[a] == 0),
+            all_pos: core::array::from_fn(|a| lb.neg[a] == 0),
+            tmin: lo(lb.tmin),
+            tfar: hi(lb.tmax),
+        })
+    }
+
+    /// The frustum of `e` (the struct docs).
+    #[inline(always)]
+    fn of(e: &Extremes) -> Frustum {
         let mut f = Frustum {
             near_max: [false; 3],
             onear: [Vec4::ZERO; 3],
@@ -313,18 +367,17 @@ impl Frustum {
             s: [Vec4::ONE; 3],
             big: [Vec4::NAN; 3],
             small: [Vec4::NAN; 3],
-            tmin: Vec4::splat(lane_extreme(tmin, false)),
-            tfar: lane_extreme(tfar, true),
+            tmin: Vec4::splat(e.tmin),
+            tfar: e.tfar,
         };
         for a in 0..3 {
-            let (o0, o1) = (lane_extreme(omin[a], false), lane_extreme(omax[a], true));
-            let (r0, r1) = (lane_extreme(rmin[a], false), lane_extreme(rmax[a], true));
-            if all_pos[a] {
+            let ((o0, o1), (r0, r1)) = (e.o[a], e.r[a]);
+            if e.all_pos[a] {
                 f.onear[a] = Vec4::splat(o1);
                 f.ofar[a] = Vec4::splat(o0);
                 f.big[a] = Vec4::splat(r1);
                 f.small[a] = Vec4::splat(r0);
-            } else if all_neg[a] {
+            } else if e.all_neg[a] {
                 f.near_max[a] = true;
                 f.s[a] = Vec4::NEG_ONE;
                 f.onear[a] = Vec4::splat(o0);
@@ -446,9 +499,13 @@ impl Walk for FrustumFirst {
     /// Only the binary fallback reads them: the wide walk makes its own
     /// from the groups.
     #[inline(always)]
-    fn reads_quads(live: &[M4], b: &BvhView<'_>, rays: &[Ray4], start: (usize, usize)) -> bool {
-        !wide_walk_applies(live, b, rays, start)
+    fn reads_quads(tiny: bool, b: &BvhView<'_>, start: (usize, usize)) -> bool {
+        !wide_walk_applies(tiny, b, start)
     }
+
+    /// The frustum is made from the setup pass's bounds, so a packet the
+    /// root's children all refuse ends before its groups are made.
+    const BOUNDS: bool = true;
 
     #[inline(always)]
     fn walk<L: Wide, T: TriangleTest, const ANY: bool>(
@@ -464,6 +521,13 @@ impl Walk for FrustumFirst {
         // that the wide walk does not apply: not asked twice per packet.
         if p.has_quads() {
             return Ranged::walk::<L, T, ANY>(p, b, rays, hits, start, slot, ctr);
+        }
+        let mut fr = Frustum::from_bounds(&p.bounds);
+        let root = &b.wide[0];
+        if fr.test(root).0 & valid_children(root) == 0 {
+            // Every active lane keeps the miss the setup wrote.
+            count!(ctr.culled_nodes += valid_children(root).count_ones() as u64);
+            return;
         }
         let nq = p.nq;
         let (grp, mut slot) = p.groups::<L>(rays, slot);
@@ -494,14 +558,14 @@ impl Walk for FrustumFirst {
                 rcp: [one / r.dir[0], one / r.dir[1], one / r.dir[2]],
                 neg: neg_bits.map(L::mask_from_bits),
                 tmin: L::select(lm, r.tmin, L::splat(f32::INFINITY)),
-                tfar: L::select(lm, L::join(|k| p.tfar(q(k))), L::splat(f32::NEG_INFINITY)),
+                // The far ends start at tmax: the setup wrote misses.
+                tfar: L::select(lm, r.tmax, L::splat(f32::NEG_INFINITY)),
                 live,
                 signs,
             }
         });
         let ng = gb.len();
         let (gh, _) = slot.split_from(ng, |g| GroupHit::<L>::read(&hits[..nq], g));
-        let mut fr = Frustum::new::<L>(gb);
         let leaves = Leaves {
             b,
             rays,

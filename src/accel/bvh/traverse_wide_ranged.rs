@@ -117,7 +117,7 @@ impl Walk for WideRanged {
         slot: &mut Slot<'_>,
         ctr: &mut Counters,
     ) {
-        if !wide_walk_applies(p.live, b, rays, start) {
+        if !wide_walk_applies(p.tiny, b, start) {
             return Ranged::walk::<L, T, ANY>(p, b, rays, hits, start, slot, ctr);
         }
         let wide = b.wide;
