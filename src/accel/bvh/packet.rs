@@ -6,6 +6,15 @@
 //! `accel::packet::by_class`) and the lane-by-lane coherence fallback
 //! (`alone`). The 2x2 SIMD ray (`traverse_simd`) uses the same `QuadBox`.
 //!
+//! # Setup
+//! One pass over a packet's quads (`Lanes::new`) writes the misses, finds
+//! the live lanes, tiny directions and the direction sum, and for a walk
+//! that asks (`Walk::BOUNDS`) the live lanes' bounds. The coherence test
+//! reads the quads once more; then each walk makes what it reads per quad
+//! or per lane group (`Walk::reads_quads`). Setup and walk run in one `isa::Kernel`
+//! (`WalkAt`), so the setup is compiled for the walk's ISA (32 vector
+//! registers with AVX-512) and runs on the quads while they are in cache.
+//!
 //! # Scratch
 //! A packet's per-quad arrays (up to 256 quads: tens of KiB) are slices of
 //! the calling thread slot's scratch (`accel::slot`), `nq` long, not
@@ -278,8 +287,7 @@ impl<W: Walk, T: TriangleTest, const ANY: bool> isa::Kernel for WalkAt<'_, '_, '
             0
         };
         let (qb, mut slot) = slot.split_from(nd, |q| QuadBox::new(&rays[q]));
-        let (pre, mut slot) =
-            slot.split_from(nd, |q| T::prepare(&RayLanes::from_ray4(&rays[q])));
+        let (pre, mut slot) = slot.split_from(nd, |q| T::prepare(&RayLanes::from_ray4(&rays[q])));
         let (tfar, mut slot) = slot.split_from(nd, |q| rays[q].tmax);
         let quads = Quads {
             live,

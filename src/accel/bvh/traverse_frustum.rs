@@ -20,7 +20,11 @@
 //! its triangles, each triangle broadcast against the group's lanes
 //! (Fuetterling et al. 2015, section 4: large packets on a 4-wide tree).
 //! Each group keeps its nearest hits as lanes (`GroupHit`), written back
-//! to the packet's quads once, after the walk. An occlusion packet left
+//! to the packet's quads once, after the walk. The first frustum is made
+//! from the bounds the packet's one setup pass gathered (`LaneBounds`,
+//! `Walk::BOUNDS`), so a packet none of whose lanes may enter the root's
+//! children (a camera packet beside the model) ends there, before its
+//! lane groups are made. An occlusion packet left
 //! with at most `HYBRID_LANES` live lanes finishes them one by one with
 //! the wide single ray (`traverse_wide::walk_from`) over the subtrees
 //! still on its stack (Benthin, Wald, Woop, Ernst, Mark 2012, section 4).
