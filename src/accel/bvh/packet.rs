@@ -204,41 +204,23 @@ struct Run<'x, 'b, 's, W, T, const ANY: bool> {
 }
 
 impl<W: Walk, T: TriangleTest, const ANY: bool> SizeClass for Run<'_, '_, '_, W, T, ANY> {
+    /// One packet, set up and walked in one `isa::Kernel` (`WalkAt`), so
+    /// the setup pass is compiled for the walk's ISA too.
     #[inline]
     fn packet<const Q: usize>(&mut self, r: core::ops::Range<usize>) {
-        let (rays, active) = (&self.rays[r.clone()], &self.active[r.clone()]);
-        let hits = &mut self.hits[r];
-        let (b, opt, start) = (self.b, self.opt, self.start);
-        packet::<W, T, ANY>(b, rays, active, hits, opt, start, self.slot, self.ctr);
+        let k = WalkAt::<W, T, ANY> {
+            b: self.b,
+            rays: &self.rays[r.clone()],
+            active: &self.active[r.clone()],
+            hits: &mut self.hits[r],
+            opt: self.opt,
+            start: self.start,
+            slot: self.slot,
+            ctr: self.ctr,
+            _w: core::marker::PhantomData,
+        };
+        isa::run(self.opt.isa, k);
     }
-}
-
-/// One packet, set up and walked in one `isa::Kernel` (`WalkAt`), so the
-/// setup pass is compiled for the walk's ISA too.
-// `Run`'s fields, one packet's worth.
-#[allow(clippy::too_many_arguments)]
-fn packet<W: Walk, T: TriangleTest, const ANY: bool>(
-    b: &BvhView<'_>,
-    rays: &[Ray4],
-    active: &[M4],
-    hits: &mut [Hit4],
-    opt: &TraceParams,
-    start: (usize, usize),
-    slot: &mut Slot<'_>,
-    ctr: &mut Counters,
-) {
-    let k = WalkAt::<W, T, ANY> {
-        b,
-        rays,
-        active,
-        hits,
-        opt,
-        start,
-        slot,
-        ctr,
-        _w: core::marker::PhantomData,
-    };
-    isa::run(opt.isa, k);
 }
 
 /// One packet as an `isa::Kernel`: set up and walked at each lane width.
