@@ -186,6 +186,22 @@ impl Ray4 {
             tmax: F4::new(r[0].tmax, r[1].tmax, r[2].tmax, r[3].tmax),
         }
     }
+    /// `Ray::is_valid`, lane by lane: finite origin and direction, a
+    /// non-zero direction, `0 <= tmin <= tmax`.
+    #[inline(always)]
+    pub fn valid(&self) -> M4 {
+        let fin = |x: F4| x.abs().cmplt(F4::INFINITY);
+        let d = &self.dir;
+        fin(self.org[0])
+            & fin(self.org[1])
+            & fin(self.org[2])
+            & fin(d[0])
+            & fin(d[1])
+            & fin(d[2])
+            & (d[0].cmpne(F4::ZERO) | d[1].cmpne(F4::ZERO) | d[2].cmpne(F4::ZERO))
+            & self.tmin.cmpge(F4::ZERO)
+            & self.tmin.cmple(self.tmax)
+    }
     /// Lane `i` as a `Ray`.
     #[inline]
     pub fn lane(&self, i: usize) -> Ray {

@@ -10,7 +10,7 @@
 //! world-space t (the direction is mapped, not normalised).
 
 use crate::error::{Error, Result};
-use crate::geom::Aabb;
+use crate::geom::{Aabb, F4};
 use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
 
@@ -65,6 +65,27 @@ impl Affine {
     #[inline(always)]
     pub fn vector(&self, d: [f32; 3]) -> [f32; 3] {
         self.m.map(|r| (r[0] * d[0] + r[1] * d[1]) + r[2] * d[2])
+    }
+
+    /// Four points mapped (`point` lane by lane, the same f32 operations
+    /// in the same order, so each lane is bitwise `point`'s).
+    #[inline(always)]
+    pub fn point4(&self, p: &[F4; 3]) -> [F4; 3] {
+        let mut o = self.vector4(p);
+        for (o, r) in o.iter_mut().zip(&self.m) {
+            *o += F4::splat(r[3]);
+        }
+        o
+    }
+
+    /// Four vectors mapped (`vector` lane by lane, bitwise).
+    #[inline(always)]
+    pub fn vector4(&self, d: &[F4; 3]) -> [F4; 3] {
+        let mut o = [F4::ZERO; 3];
+        for (o, r) in o.iter_mut().zip(&self.m) {
+            *o = (F4::splat(r[0]) * d[0] + F4::splat(r[1]) * d[1]) + F4::splat(r[2]) * d[2];
+        }
+        o
     }
 
     fn f64(&self) -> [[f64; 4]; 3] {
@@ -206,6 +227,28 @@ mod tests {
                 }
             }
             assert!(a.condition(&inv) >= 1.0);
+        }
+    }
+
+    #[test]
+    fn four_lanes_map_as_one() {
+        let pts = [
+            [0.0, -0.0, 3.5],
+            [1.0e-30, -2.0, 7.25e20],
+            [100.0, 0.5, -7.0],
+            [-3.0e-7, 1.0e6, 0.1],
+        ];
+        let four = |k: usize| F4::from_array(core::array::from_fn(|i| pts[i][k]));
+        let p4 = [four(0), four(1), four(2)];
+        for a in [Affine::IDENTITY, rot(30.0, 2.0), rot(-75.0, 0.1)] {
+            let (q4, v4) = (a.point4(&p4), a.vector4(&p4));
+            for (i, p) in pts.iter().enumerate() {
+                let (q, v) = (a.point(*p), a.vector(*p));
+                for k in 0..3 {
+                    assert_eq!(q4[k][i].to_bits(), q[k].to_bits(), "{a:?} {p:?}");
+                    assert_eq!(v4[k][i].to_bits(), v[k].to_bits(), "{a:?} {p:?}");
+                }
+            }
         }
     }
 

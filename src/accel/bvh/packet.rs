@@ -303,7 +303,7 @@ pub(crate) struct LaneBounds {
 }
 
 impl LaneBounds {
-    const EMPTY: LaneBounds = LaneBounds {
+    pub(crate) const EMPTY: LaneBounds = LaneBounds {
         omin: [F4::INFINITY; 3],
         omax: [F4::NEG_INFINITY; 3],
         dmin: [F4::INFINITY; 3],
@@ -317,7 +317,7 @@ impl LaneBounds {
     /// Widen by the lanes `l` of quad `r` (a branch for quads with every
     /// lane live measured no faster: sponza, AVX-512).
     #[inline(always)]
-    fn add(&mut self, r: &Ray4, l: M4) {
+    pub(crate) fn add(&mut self, r: &Ray4, l: M4) {
         let (inf, ninf) = (F4::INFINITY, F4::NEG_INFINITY);
         let lb = l.bitmask();
         for a in 0..3 {
@@ -376,18 +376,7 @@ impl Lanes {
             if !m.any() {
                 continue;
             }
-            // Ray::is_valid, 4-wide: finite origin and direction, a
-            // non-zero direction, 0 <= tmin <= tmax.
-            let fin = |x: F4| x.abs().cmplt(F4::INFINITY);
-            let valid = fin(r.org[0])
-                & fin(r.org[1])
-                & fin(r.org[2])
-                & fin(r.dir[0])
-                & fin(r.dir[1])
-                & fin(r.dir[2])
-                & (r.dir[0].cmpne(F4::ZERO) | r.dir[1].cmpne(F4::ZERO) | r.dir[2].cmpne(F4::ZERO))
-                & r.tmin.cmpge(F4::ZERO)
-                & r.tmin.cmple(r.tmax);
+            let valid = r.valid();
             let h = &mut hits[q];
             h.t = F4::select(m, F4::INFINITY, h.t);
             h.u = F4::select(m, F4::ZERO, h.u);

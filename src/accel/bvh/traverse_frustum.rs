@@ -274,7 +274,7 @@ impl<L: Wide> GroupBox<L> {
 /// where the near plane is the box's min for `s = +1` (max for -1), `onear`
 /// the lanes' largest origin (smallest for -1), `ofar` the other extreme,
 /// `big` and `small` the reciprocals of largest and smallest magnitude.
-struct Frustum {
+pub(crate) struct Frustum {
     near_max: [bool; 3],
     onear: [Vec4; 3],
     ofar: [Vec4; 3],
@@ -349,7 +349,7 @@ impl Frustum {
     /// reciprocals of the directions' extremes: the same bits as `new`
     /// finds from the groups' reciprocals.
     #[inline(always)]
-    fn from_bounds(lb: &LaneBounds) -> Frustum {
+    pub(crate) fn from_bounds(lb: &LaneBounds) -> Frustum {
         let (lo, hi) = (|v: F4| v.min_element(), |v: F4| v.max_element());
         Frustum::of(&Extremes {
             o: core::array::from_fn(|a| (lo(lb.omin[a]), hi(lb.omax[a]))),
@@ -397,10 +397,17 @@ impl Frustum {
     /// near distance to each.
     #[inline(always)]
     fn test(&self, n: &WideNode) -> (u32, Vec4) {
+        self.test_boxes(&n.min, &n.max)
+    }
+
+    /// Of the four boxes `(min[..][i], max[..][i])`, those some live lane
+    /// may enter (bits), and the frustum's near distance to each.
+    #[inline(always)]
+    pub(crate) fn test_boxes(&self, min: &[[f32; 4]; 3], max: &[[f32; 4]; 3]) -> (u32, Vec4) {
         let mut t0 = self.tmin;
         let mut t1 = Vec4::splat(self.tfar);
         for a in 0..3 {
-            let (lo, hi) = (Vec4::from_array(n.min[a]), Vec4::from_array(n.max[a]));
+            let (lo, hi) = (Vec4::from_array(min[a]), Vec4::from_array(max[a]));
             let (np, fp) = if self.near_max[a] { (hi, lo) } else { (lo, hi) };
             let x = np - self.onear[a];
             let near = x * Vec4::select(
@@ -418,6 +425,19 @@ impl Frustum {
             t1 = Vec4::select(far.cmplt(t1), far, t1);
         }
         (t0.cmple(t1).bitmask(), t0)
+    }
+
+    /// The largest far end of a live lane.
+    #[inline(always)]
+    pub(crate) fn tfar(&self) -> f32 {
+        self.tfar
+    }
+
+    /// A live lane's largest far end is now `tfar` (its nearest hits have
+    /// come closer, or lanes have left).
+    #[inline(always)]
+    pub(crate) fn set_tfar(&mut self, tfar: f32) {
+        self.tfar = tfar;
     }
 
     /// The largest far end of a live lane, again.

@@ -1,46 +1,68 @@
 //! Packets through a two-level scene: the top level walked once per
-//! packet, and at each instance the packet's live rays mapped into the
-//! instance's space (each lane by the single ray's operations,
-//! `traverse_single::object_ray`) and traced through its geometry's BVH by
-//! the packet method asked for (Masked, Ranged, Partition, Ranged on the
-//! 4-wide tree, the 2x2 SIMD ray), through the generic packet driver
+//! packet by the packet's interval frustum (as the frustum walk of a
+//! geometry, `bvh::traverse_frustum`: Wald, Boulos, Shirley 2007, section
+//! 4.3), and at each instance the lanes that enter its box mapped into the
+//! instance's space, four at a time (the single ray's operations,
+//! `traverse_single::object_ray`), and traced through its geometry's BVH
+//! by the packet method asked for (the paper's three, the frustum walk,
+//! the 2x2 SIMD ray) through the generic packet driver
 //! (`accel::packet::trace`: tiny lanes and lane-by-lane fallbacks
-//! included). Each instance visit builds its packet's frustum from the
-//! mapped rays (Wald, Benthin, Slusallek 2003, section 3: rays enter an
-//! object in its own space).
+//! included), whose one setup pass makes the mapped packet's frustum
+//! (Wald, Benthin, Slusallek 2003, section 3: rays enter an object in its
+//! own space).
+//!
+//! The frustum is made once per packet from its live lanes' bounds
+//! (`LaneBounds`) and tested against both children of a top-level node
+//! at once; the nearer child (by the frustum's near distance) is visited
+//! first, and a node whose near distance lies beyond every live lane's
+//! nearest hit is dropped. At an instance each quad's lanes get the
+//! single ray's own box test (`QuadBox::entry`, lanes of `RayBox::entry`),
+//! and only the lanes that enter are mapped and traced.
 //!
 //! # Exactness
-//! A lane's object-space ray is its single ray's, bit for bit, with the
-//! same `tmax` rule (the nearest hit so far, one ulp up), and the
-//! geometry's packet traversal answers as its single ray does. The top
-//! level is walked while any live lane enters a node's box no later than
-//! its nearest hit (`RayBox::entry`, the single ray's test), so every
-//! instance a lane's single ray visits, the packet visits; extra visits
-//! find nothing nearer. Hits merge by (t, instance, triangle), so each
-//! lane gets its single ray's answer.
+//! A lane's object-space ray is its single ray's, bit for bit
+//! (`Affine::point4` and `vector4` are `point` and `vector` lane by lane,
+//! the same f32 operations in the same order), with the same `tmax` rule
+//! (the nearest hit so far, one ulp up), and the geometry's packet
+//! traversal answers as its single ray does. The frustum is conservative
+//! (`traverse_frustum`'s exactness), so an inner node is dropped only when
+//! no live lane enters it by its nearest hit, and at an instance a lane is
+//! traced when its single ray's test enters the instance's box by that
+//! hit: every instance that may hold a lane's nearest hit, the lane
+//! visits. Extra visits find nothing nearer. Hits merge by (t, instance,
+//! triangle), so each lane gets its single ray's answer whatever the
+//! order of visits.
 //!
 //! # Deviations
 //! - The frustum of an instance visit is built from the mapped rays, not
-//!   by mapping the world frustum's planes, and always as `RayKind::Auto`
-//!   (a mirroring transform turns the corner rays' winding).
-//! - The top-level box test runs lane by lane (stopping at the first lane
-//!   that enters): the top level is small.
+//!   by mapping the world frustum's planes, and the instance's packet is
+//!   always of `RayKind::Auto` (a mirroring transform turns the corner
+//!   rays' winding).
+//! - Inner top-level nodes get the frustum test only (no lane test): the
+//!   top level is small, and the lanes are tested at its leaves.
+//! - Occlusion packets keep their world frustum's bounds when lanes become
+//!   occluded (only its far end shrinks).
 
 use super::TwoLevelView;
 use super::build::MAX_TOP_DEPTH;
-use super::traverse_single::{SceneHit, object_ray};
-use crate::accel::bvh::traverse_single::RayBox;
+use super::traverse_single::SceneHit;
+use crate::accel::bvh::BvhNode;
+use crate::accel::bvh::packet::{LaneBounds, QuadBox};
+use crate::accel::bvh::traverse_frustum::Frustum;
 use crate::accel::method::TraceParams;
 use crate::accel::packet::{self, MAX_QUADS};
 use crate::accel::slot::Slot;
 use crate::counters::Counters;
 use crate::geom::frustum::RayKind;
-use crate::geom::{Hit4, M4, Ray, Ray4, TriangleTest};
+use crate::geom::{F4, Hit4, M4, Ray4, TriangleTest};
 use crate::mem::scratch::bytes;
 
-/// Slot scratch of one packet: its lanes' slab data, the mapped quads,
-/// their live lanes and hits; the geometry's traversal gets the rest.
-pub const SCRATCH: usize = bytes::<RayBox>(4 * MAX_QUADS)
+/// Slot scratch of one packet: its quads' slab data, live lanes and far
+/// ends, the mapped quads, their lanes and hits; the geometry's traversal
+/// gets the rest.
+pub const SCRATCH: usize = bytes::<QuadBox>(MAX_QUADS)
+    + bytes::<M4>(MAX_QUADS)
+    + bytes::<F4>(MAX_QUADS)
     + bytes::<Ray4>(MAX_QUADS)
     + bytes::<M4>(MAX_QUADS)
     + bytes::<Hit4>(MAX_QUADS);
@@ -60,22 +82,29 @@ pub fn trace<T: TriangleTest, const ANY: bool>(
     slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
-    let nq = rays.len().min(active.len()).min(MAX_QUADS);
+    let nq = rays
+        .len()
+        .min(active.len())
+        .min(MAX_QUADS)
+        .min(hits.len() / 4);
     if s.tlas.is_empty() || nq == 0 {
         return;
     }
-    let lane = |q: usize, i: usize| rays[q].lane(i);
-    let live = |q: usize, i: usize| active[q].bitmask() >> i & 1 != 0;
+    let (qb, mut sl) = slot.split_from(nq, |q| QuadBox::new(&rays[q]));
     // The single ray's validity rule: invalid lanes miss.
-    let (boxes, mut sl) = slot.split_from(4 * nq, |k| RayBox::new(&lane(k / 4, k % 4)));
-    let mut valid = [0u8; MAX_QUADS];
-    for (q, v) in valid.iter_mut().enumerate().take(nq) {
-        for i in 0..4 {
-            if live(q, i) && lane(q, i).is_valid() {
-                *v |= 1 << i;
-            }
-        }
+    let (live, mut sl) = sl.split_from(nq, |q| active[q] & rays[q].valid());
+    // Per lane the end of the interval a box must overlap: the nearest
+    // hit so far, or `tmax`.
+    let (tfar, mut sl) = sl.split_from(nq, |q| rays[q].tmax.min(t4(hits, q)));
+    let mut bounds = LaneBounds::EMPTY;
+    for (r, &l) in rays.iter().zip(live.iter()) {
+        bounds.add(r, l);
     }
+    if !live.iter().any(|l| l.any()) {
+        return;
+    }
+    let mut fr = Frustum::from_bounds(&bounds);
+    fr.set_tfar(far_end(live, tfar));
     let (orays, mut sl) = sl.split(nq, rays[0]);
     let (oact, mut sl) = sl.split(nq, M4::FALSE);
     let (ohits, mut sl) = sl.split(nq, Hit4::MISS);
@@ -87,37 +116,40 @@ pub fn trace<T: TriangleTest, const ANY: bool>(
         ..*p
     };
     let nodes = s.tlas;
-    let mut stack = [0u32; MAX_TOP_DEPTH + 2];
-    let mut sp = 1usize;
+    // Nodes to visit and the frustum's near distance to each.
+    let mut stack = [(0u32, 0f32); MAX_TOP_DEPTH + 2];
+    let mut sp = 0;
+    let (bits, t0) = pair(&fr, &nodes[0], &nodes[0]);
+    ctr.aabb_at(0, 1);
+    if bits & 1 != 0 {
+        stack[0] = (0, t0.x);
+        sp = 1;
+    }
     while sp > 0 {
         sp -= 1;
-        let n = &nodes[stack[sp] as usize];
-        // Some live lane enters the box no later than its nearest hit?
-        let enters = (0..4 * nq).any(|k| {
-            valid[k / 4] >> (k % 4) & 1 != 0 && {
-                // The lane's fields read directly: no `Ray` per lane per node.
-                let tmax = rays[k / 4].tmax[k % 4].min(hits[k].t);
-                boxes[k].entry(n, tmax).is_some()
-            }
-        });
-        ctr.aabb_at(1, 1);
-        if !enters {
+        let (id, near) = stack[sp];
+        // Beyond every live lane's far end (NaN: not known, visit).
+        if near > fr.tfar() {
             continue;
         }
+        let n = &nodes[id as usize];
         if !n.is_leaf() {
-            // Near child first, by the first live lane's direction sign.
-            let k = (0..4 * nq)
-                .find(|&k| valid[k / 4] >> (k % 4) & 1 != 0)
-                .unwrap_or(0);
-            let neg = rays[k / 4].dir[n.axis()][k % 4].is_sign_negative();
-            let (near, far) = if neg {
-                (n.first + 1, n.first)
+            // Both children at once, nearer (by the frustum) on top.
+            let (c0, c1) = (n.first, n.first + 1);
+            let (bits, t0) = pair(&fr, &nodes[c0 as usize], &nodes[c1 as usize]);
+            ctr.aabb_at(1, 2);
+            let (n0, n1) = (t0.x, t0.y);
+            let first_near = n0 <= n1;
+            for (c, t, on) in if first_near {
+                [(c1, n1, bits & 2 != 0), (c0, n0, bits & 1 != 0)]
             } else {
-                (n.first, n.first + 1)
-            };
-            stack[sp] = far;
-            stack[sp + 1] = near;
-            sp += 2;
+                [(c0, n0, bits & 1 != 0), (c1, n1, bits & 2 != 0)]
+            } {
+                if on {
+                    stack[sp] = (c, t);
+                    sp += 1;
+                }
+            }
             continue;
         }
         let id = s.order[n.first as usize];
@@ -125,17 +157,39 @@ pub fn trace<T: TriangleTest, const ANY: bool>(
         let Some(g) = s.visible(inst, mask) else {
             continue;
         };
+        // The lanes that enter the instance's box by their far end (the
+        // single ray's test, `RayBox::entry`, lane by lane), mapped into
+        // its space (`traverse_single::object_ray`, lane by lane).
         let mut any_live = false;
         for q in 0..nq {
-            let quad: [Ray; 4] =
-                core::array::from_fn(|i| object_ray(&inst.inverse, &lane(q, i), hits[4 * q + i].t));
-            orays[q] = Ray4::from_rays(&quad);
-            let m = valid[q] as u32;
-            oact[q] = crate::geom::lane::mask_from_bits(m);
-            any_live |= m != 0;
+            let m = live[q] & qb[q].entry(n, tfar[q]).0;
+            ctr.aabb_at(1, 1);
+            oact[q] = m;
+            if !m.any() {
+                continue;
+            }
+            any_live = true;
+            let r = &rays[q];
+            let dir = inst.inverse.vector4(&r.dir);
+            // `tmax` cut to just past the nearest hit so far.
+            let tmax = F4::from_array(core::array::from_fn(|i| {
+                let best = hits[4 * q + i].t;
+                if best < r.tmax[i] {
+                    best.next_up()
+                } else {
+                    r.tmax[i]
+                }
+            }));
+            orays[q] = Ray4 {
+                org: inst.inverse.point4(&r.org),
+                dir,
+                rcp: [F4::ONE / dir[0], F4::ONE / dir[1], F4::ONE / dir[2]],
+                tmin: r.tmin,
+                tmax,
+            };
         }
         if !any_live {
-            break;
+            continue;
         }
         ohits[..nq].fill(Hit4::MISS);
         packet::trace::<_, T, ANY>(
@@ -147,18 +201,63 @@ pub fn trace<T: TriangleTest, const ANY: bool>(
             &mut sl,
             ctr,
         );
+        let mut changed = false;
         for q in 0..nq {
+            let hit = oact[q] & ohits[q].hit_mask();
+            if !hit.any() {
+                continue;
+            }
             for i in 0..4 {
                 let h = ohits[q].lane(i);
                 let best = &mut hits[4 * q + i];
-                if valid[q] >> i & 1 != 0 && h.is_hit() && best.closer(h.t, id, h.prim) {
+                if hit.test(i) && best.closer(h.t, id, h.prim) {
                     *best = SceneHit::of(&h, inst.geometry, id);
+                    changed = true;
                     if ANY {
                         // Occluded: the lane is done.
-                        valid[q] &= !(1 << i);
+                        live[q].set(i, false);
                     }
                 }
             }
+            tfar[q] = rays[q].tmax.min(t4(hits, q));
+        }
+        if changed {
+            if ANY && !live[..nq].iter().any(|l| l.any()) {
+                break;
+            }
+            fr.set_tfar(far_end(live, tfar));
         }
     }
+}
+
+/// Quad `q`'s nearest hits' t.
+#[inline(always)]
+fn t4(hits: &[SceneHit], q: usize) -> F4 {
+    F4::new(
+        hits[4 * q].t,
+        hits[4 * q + 1].t,
+        hits[4 * q + 2].t,
+        hits[4 * q + 3].t,
+    )
+}
+
+/// The largest far end of a live lane.
+#[inline(always)]
+fn far_end(live: &[M4], tfar: &[F4]) -> f32 {
+    let mut m = F4::NEG_INFINITY;
+    for (l, t) in live.iter().zip(tfar) {
+        m = m.max(F4::select(*l, *t, F4::NEG_INFINITY));
+    }
+    m.max_element()
+}
+
+/// Which of the boxes of `a` (bit 0) and `b` (bit 1) the frustum admits,
+/// and its near distance to each (lanes x and y).
+#[inline(always)]
+fn pair(fr: &Frustum, a: &BvhNode, b: &BvhNode) -> (u32, F4) {
+    let lanes = |x: f32, y: f32| [x, y, x, y];
+    let min = core::array::from_fn(|k| lanes(a.min[k], b.min[k]));
+    let max = core::array::from_fn(|k| lanes(a.max[k], b.max[k]));
+    let (bits, t0) = fr.test_boxes(&min, &max);
+    (bits & 3, t0)
 }
