@@ -90,15 +90,16 @@ impl Ray {
 /// Four rays in structure-of-arrays form, one per lane.
 ///
 /// Lane order is the 2x2 pixel quad: lane 0 = (x, y), 1 = (x+1, y),
-/// 2 = (x, y+1), 3 = (x+1, y+1). `rcp` is `1 / dir` per component (IEEE:
-/// +-inf for zero components). Inactive lanes carry `tmax < tmin`... callers
-/// use the `active` mask of the packet instead; the struct holds no mask.
+/// 2 = (x, y+1), 3 = (x+1, y+1). The reciprocals are not stored: each
+/// traversal computes the ones it reads (a frustum walk per lane group, a
+/// slab test per quad), so packing a packet divides nothing. Inactive
+/// lanes carry whatever the caller left; callers use the `active` mask of
+/// the packet instead; the struct holds no mask.
 #[repr(C, align(16))]
 #[derive(Clone, Copy, Debug)]
 pub struct Ray4 {
     pub org: [F4; 3],
     pub dir: [F4; 3],
-    pub rcp: [F4; 3],
     pub tmin: F4,
     pub tmax: F4,
 }
@@ -115,7 +116,7 @@ pub struct Hit4 {
 
 const _: () = assert!(core::mem::size_of::<Ray>() == 32);
 const _: () = assert!(core::mem::size_of::<Hit>() == 16);
-const _: () = assert!(core::mem::size_of::<Ray4>() == 11 * 16);
+const _: () = assert!(core::mem::size_of::<Ray4>() == 8 * 16);
 const _: () = assert!(core::mem::align_of::<Ray4>() == 16);
 const _: () = assert!(core::mem::size_of::<Hit4>() == 4 * 16);
 
@@ -169,7 +170,7 @@ impl Hit4 {
 }
 
 impl Ray4 {
-    /// Pack four rays (reciprocals computed here).
+    /// Pack four rays.
     #[inline]
     pub fn from_rays(r: &[Ray; 4]) -> Ray4 {
         // Plain loads per lane (a 4x8 transpose the compiler can schedule).
@@ -177,11 +178,9 @@ impl Ray4 {
             core::array::from_fn(|a| F4::new(r[0].org[a], r[1].org[a], r[2].org[a], r[3].org[a]));
         let dir: [F4; 3] =
             core::array::from_fn(|a| F4::new(r[0].dir[a], r[1].dir[a], r[2].dir[a], r[3].dir[a]));
-        let one = F4::ONE;
         Ray4 {
             org,
             dir,
-            rcp: [one / dir[0], one / dir[1], one / dir[2]],
             tmin: F4::new(r[0].tmin, r[1].tmin, r[2].tmin, r[3].tmin),
             tmax: F4::new(r[0].tmax, r[1].tmax, r[2].tmax, r[3].tmax),
         }

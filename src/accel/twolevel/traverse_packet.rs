@@ -170,7 +170,6 @@ pub fn trace<T: TriangleTest, const ANY: bool>(
             }
             any_live = true;
             let r = &rays[q];
-            let dir = inst.inverse.vector4(&r.dir);
             // `tmax` cut to just past the nearest hit so far.
             let tmax = F4::from_array(core::array::from_fn(|i| {
                 let best = hits[4 * q + i].t;
@@ -182,8 +181,7 @@ pub fn trace<T: TriangleTest, const ANY: bool>(
             }));
             orays[q] = Ray4 {
                 org: inst.inverse.point4(&r.org),
-                dir,
-                rcp: [F4::ONE / dir[0], F4::ONE / dir[1], F4::ONE / dir[2]],
+                dir: inst.inverse.vector4(&r.dir),
                 tmin: r.tmin,
                 tmax,
             };
