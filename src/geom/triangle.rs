@@ -190,6 +190,17 @@ pub fn moller_trumbore<L: Lane>(r: &RayLanes<L>, tri: &TriVerts) -> TriHit<L> {
     moller_trumbore_lanes(r, [splat3(tri.v0), splat3(tri.v1), splat3(tri.v2)])
 }
 
+/// Whether the triangle tests leave as soon as no lane can hit: for a
+/// ray, a quad and 4-wide lanes. Eight and sixteen lanes compute on:
+/// their early exits mispredict often enough to cost more than the
+/// operations they skip (sponza, 16x16 frustum packets, AVX-512: camera
+/// +2.6 %, shadow +3.5 %). The answers do not change: lanes outside the
+/// mask are never read.
+#[inline(always)]
+const fn exits_early<L: Lane>() -> bool {
+    core::mem::size_of::<L>() < 32
+}
+
 /// `moller_trumbore` on vertices given lane by lane: one triangle per lane
 /// against one ray splatted into every lane (`Tri4`), or one triangle
 /// splatted against four rays. The same operations either way, so each
@@ -208,7 +219,7 @@ pub fn moller_trumbore_lanes<L: Lane>(r: &RayLanes<L>, tri: [[L; 3]; 3]) -> TriH
     let pos = zero.lt(det);
     let neg = det.lt(zero);
     let ok_u = (pos & zero.le(un) & un.le(det)) | (neg & det.le(un) & un.le(zero));
-    if !L::any(ok_u) {
+    if exits_early::<L>() && !L::any(ok_u) {
         return TriHit {
             mask: ok_u,
             t: zero,
@@ -220,7 +231,7 @@ pub fn moller_trumbore_lanes<L: Lane>(r: &RayLanes<L>, tri: [[L; 3]; 3]) -> TriH
     let vn = dot3(r.dir, q);
     let uvn = un + vn;
     let ok = ok_u & ((pos & zero.le(vn) & uvn.le(det)) | (neg & vn.le(zero) & det.le(uvn)));
-    if !L::any(ok) {
+    if exits_early::<L>() && !L::any(ok) {
         return TriHit {
             mask: ok,
             t: zero,
