@@ -261,6 +261,35 @@ fn check_test(test: TriTest) {
             &[!0],
         );
     }
+    // Packets with odd lanes (the top level's frustum and the lanes'
+    // own tests at instances): tmin > 0, short and mixed tmax, directions
+    // with zero (+-0) and tiny components, tiny directions, invalid lanes.
+    let edge: Vec<Ray> = packets(&camera, 8)
+        .iter()
+        .flat_map(|(_, idx)| idx.iter().map(|&i| camera[i]))
+        .enumerate()
+        .map(|(k, r)| {
+            let (o, mut d) = (Vec3::from(r.org), Vec3::from(r.dir));
+            let (mut tmin, mut tmax) = (0.0, f32::INFINITY);
+            match k % 11 {
+                1 => tmin = 0.4 * (c - o).length() / d.length(),
+                2 => tmax = 0.7 * (c - o).length() / d.length(),
+                3 => d.y = 0.0,
+                4 => d.x = -0.0,
+                5 => d *= 1e-20,
+                6 => d = Vec3::new(0.0, -1.0, 0.0),
+                7 => tmax = f32::from_bits(1),
+                8 => tmin = f32::NAN,
+                9 => tmax = -1.0,
+                _ => {}
+            }
+            if k % 64 == 63 {
+                d = Vec3::new(0.0, 0.0, -1e-19);
+            }
+            Ray::new(o, d, tmin, tmax)
+        })
+        .collect();
+    total += check(&mut ctx, "edge", &edge, 8, RayKind::Auto, &[!0]);
     // Incoherent rays through the scene.
     let random = random_rays(&info, 0x9e37_79b9_7f4a_7c15, 1024, 0.8, 0.3);
     total += check(&mut ctx, "random", &random, 8, RayKind::Secondary, &[!0, 2]);

@@ -266,7 +266,8 @@ impl<L: Wide> GroupBox<L> {
 }
 
 /// The packet's interval frustum, laid out for a 4-wide test whose lanes
-/// are a wide node's children. Per axis, with `s` the live lanes' common
+/// are a wide node's children (or, for the two-level top level, two
+/// binary nodes: `twolevel::traverse_packet`). Per axis, with `s` the live lanes' common
 /// direction sign (+1 or -1; NaN bounds when they differ):
 /// - near bound `x * (x s < 0 ? big : small)`, `x = near plane - onear`;
 /// - far bound `y * (y s >= 0 ? big : small)`, `y = far plane - ofar`;

@@ -13,9 +13,6 @@
 //! # Deviations
 //! - Each quad of the input is traced on its own (a packet of one `Ray4`);
 //!   larger packets are the Masked, Ranged and Partition traversals.
-//! - The reciprocal directions are recomputed from `dir` per quad (three
-//!   divisions) rather than read from `Ray4::rcp`, so a caller-built `Ray4`
-//!   cannot make the box test disagree with its directions.
 //! - The near child is chosen by the sign of the first live lane's
 //!   direction on the node's split axis; lanes going the other way still
 //!   visit both children, only in a worse order.

@@ -26,8 +26,6 @@
 //! - After them, a quad failing `accel::fallback::coherent` (directions
 //!   over more than a 30 degree cone, or origins far apart) is traced lane
 //!   by lane the same way.
-//! - The reciprocal directions are recomputed from `dir` (as
-//!   `traverse_single::KdRay` does) rather than read from `Ray4::rcp`.
 //!
 //! # Counters
 //! `rays` (valid active lanes), `packets` (one per call), `stray_lanes`,

@@ -15,7 +15,7 @@
 //! (`LaneBounds`) and tested against both children of a top-level node
 //! at once; the nearer child (by the frustum's near distance) is visited
 //! first, and a node whose near distance lies beyond every live lane's
-//! nearest hit is dropped. At an instance each quad's lanes get the
+//! far end (its nearest hit so far, or `tmax`) is dropped. At an instance each quad's lanes get the
 //! single ray's own box test (`QuadBox::entry`, lanes of `RayBox::entry`),
 //! and only the lanes that enter are mapped and traced.
 //!
@@ -25,13 +25,19 @@
 //! the same f32 operations in the same order), with the same `tmax` rule
 //! (the nearest hit so far, one ulp up), and the geometry's packet
 //! traversal answers as its single ray does. The frustum is conservative
-//! (`traverse_frustum`'s exactness), so an inner node is dropped only when
+//! (`traverse_frustum`'s exactness; its bounds use the same monotone
+//! operations for zero and tiny directions, whose reciprocals are
+//! infinite or huge), so an inner node is dropped only when
 //! no live lane enters it by its nearest hit, and at an instance a lane is
 //! traced when its single ray's test enters the instance's box by that
 //! hit: every instance that may hold a lane's nearest hit, the lane
 //! visits. Extra visits find nothing nearer. Hits merge by (t, instance,
 //! triangle), so each lane gets its single ray's answer whatever the
-//! order of visits.
+//! order of visits. For a tiny direction, whose slab terms overflow
+//! (`traverse_wide`'s deviations), "nothing nearer" rests on the geometry
+//! walk as it does for the single ray; the edge packets of
+//! `tests/twolevel_exact.rs` (tiny, zero-component and invalid lanes,
+//! `tmin > 0`, short `tmax`) check it.
 //!
 //! # Deviations
 //! - The frustum of an instance visit is built from the mapped rays, not
@@ -42,6 +48,8 @@
 //!   top level is small, and the lanes are tested at its leaves.
 //! - Occlusion packets keep their world frustum's bounds when lanes become
 //!   occluded (only its far end shrinks).
+//! - Counters: one box test for the root, two per inner node (both
+//!   children at once), and one per quad at an instance, not per lane.
 
 use super::TwoLevelView;
 use super::build::MAX_TOP_DEPTH;
@@ -128,7 +136,7 @@ pub fn trace<T: TriangleTest, const ANY: bool>(
     while sp > 0 {
         sp -= 1;
         let (id, near) = stack[sp];
-        // Beyond every live lane's far end (NaN: not known, visit).
+        // Beyond every live lane's far end (`t0` is never NaN).
         if near > fr.tfar() {
             continue;
         }
