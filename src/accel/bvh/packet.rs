@@ -151,6 +151,22 @@ pub(crate) trait Walk {
     /// Whether the setup pass also gathers the live lanes' bounds
     /// (`LaneBounds`, `Packet::bounds`) for the walk.
     const BOUNDS: bool = false;
+
+    /// With `BOUNDS`: whether the lanes' bounds already show that no live
+    /// lane enters the tree (then every active lane keeps the miss the
+    /// setup wrote, and the packet needs no coherence test, no per-quad
+    /// arrays and no walk).
+    #[inline(always)]
+    fn refuses(
+        b: &BvhView<'_>,
+        bounds: &LaneBounds,
+        tiny: bool,
+        start: (usize, usize),
+        ctr: &mut Counters,
+    ) -> bool {
+        let _ = (b, bounds, tiny, start, ctr);
+        false
+    }
 }
 
 /// Split the input into packets of at most 256 quads (classes of 1, 4,
@@ -255,7 +271,8 @@ impl<W: Walk, T: TriangleTest, const ANY: bool> isa::Kernel for WalkAt<'_, '_, '
         } = self;
         let nq = rays.len().min(active.len()).min(hits.len());
         let (live, mut slot) = slot.split(nq, M4::FALSE);
-        let Some(lanes) = Lanes::new::<W>(b, rays, active, hits, live, opt.fallbacks, ctr) else {
+        let Some(lanes) = Lanes::new::<W>(b, rays, active, hits, live, opt.fallbacks, start, ctr)
+        else {
             return;
         };
         if !lanes.coherent {
@@ -352,10 +369,13 @@ struct Lanes {
 impl Lanes {
     /// Write `Hit::MISS` to every active lane, count the packet and its
     /// rays, and write the live lanes of its `live.len()` quads to `live`;
-    /// `None` when nothing is to be traced. One pass over the quads, which
-    /// also finds tiny directions and, for walks that ask (`W::BOUNDS`),
-    /// the live lanes' bounds.
+    /// `None` when nothing is to be traced (no live lane, or the walk
+    /// `refuses` the lanes' bounds). One pass over the quads, which also
+    /// finds tiny directions and, for walks that ask (`W::BOUNDS`), the
+    /// live lanes' bounds.
     #[inline(always)]
+    // The packet's arrays, its option, where it starts (for `Walk::refuses`).
+    #[allow(clippy::too_many_arguments)]
     fn new<W: Walk>(
         b: &BvhView<'_>,
         rays: &[Ray4],
@@ -363,6 +383,7 @@ impl Lanes {
         hits: &mut [Hit4],
         live: &mut [M4],
         fallbacks: bool,
+        start: (usize, usize),
         ctr: &mut Counters,
     ) -> Option<Lanes> {
         let nq = live.len();
@@ -399,6 +420,9 @@ impl Lanes {
         }
         ctr.rays += n_live as u64;
         if n_live == 0 || b.nodes.is_empty() {
+            return None;
+        }
+        if W::BOUNDS && W::refuses(b, &bounds, tiny.any(), start, ctr) {
             return None;
         }
         let diag = b.info.bounds.diagonal().length();

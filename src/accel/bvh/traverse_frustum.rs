@@ -23,8 +23,8 @@
 //! to the packet's quads once, after the walk. The first frustum is made
 //! from the bounds the packet's one setup pass gathered (`LaneBounds`,
 //! `Walk::BOUNDS`), so a packet none of whose lanes may enter the root's
-//! children (a camera packet beside the model) ends there, before its
-//! lane groups are made. An occlusion packet left
+//! children (a camera packet beside the model) ends in the setup
+//! (`Walk::refuses`), before its coherence test and lane groups. An occlusion packet left
 //! with at most `HYBRID_LANES` live lanes finishes them one by one with
 //! the wide single ray (`traverse_wide::walk_from`) over the subtrees
 //! still on its stack (Benthin, Wald, Woop, Ernst, Mark 2012, section 4).
@@ -529,8 +529,31 @@ impl Walk for FrustumFirst {
     }
 
     /// The frustum is made from the setup pass's bounds, so a packet the
-    /// root's children all refuse ends before its groups are made.
+    /// root's children all refuse ends in the setup (`refuses`).
     const BOUNDS: bool = true;
+
+    /// The root's children all refuse the frustum: checked before the
+    /// coherence test, which such a packet (beside the model) skips.
+    #[inline(always)]
+    fn refuses(
+        b: &BvhView<'_>,
+        bounds: &LaneBounds,
+        tiny: bool,
+        start: (usize, usize),
+        ctr: &mut Counters,
+    ) -> bool {
+        if !wide_walk_applies(tiny, b, start) {
+            return false;
+        }
+        let root = &b.wide[0];
+        let valid = valid_children(root);
+        let refused = Frustum::from_bounds(bounds).test(root).0 & valid == 0;
+        let _ = &ctr; // read only with the `counters` feature
+        if refused {
+            count!(ctr.culled_nodes += valid.count_ones() as u64);
+        }
+        refused
+    }
 
     #[inline(always)]
     fn walk<L: Wide, T: TriangleTest, const ANY: bool>(
@@ -547,13 +570,8 @@ impl Walk for FrustumFirst {
         if p.has_quads() {
             return Ranged::walk::<L, T, ANY>(p, b, rays, hits, start, slot, ctr);
         }
+        // The setup ended packets the root's children all refuse (`refuses`).
         let mut fr = Frustum::from_bounds(&p.bounds);
-        let root = &b.wide[0];
-        if fr.test(root).0 & valid_children(root) == 0 {
-            // Every active lane keeps the miss the setup wrote.
-            count!(ctr.culled_nodes += valid_children(root).count_ones() as u64);
-            return;
-        }
         let nq = p.nq;
         let (grp, mut slot) = p.groups::<L>(rays, slot);
         let grp: &[Group<L, T>] = grp;
