@@ -397,7 +397,7 @@ impl<'a> Bvh<'a> {
     pub(crate) fn commit(&mut self, mut info: BvhInfo) -> BvhInfo {
         let nodes = &self.pools.nodes[..info.nodes as usize];
         info.wide_nodes = if self.params.width == wide::WIDTH as u32 {
-            wide::collapse(nodes, wide_pool(self.pools.refs), wide::MERGE)
+            wide::collapse_fitting(nodes, wide_pool(self.pools.refs))
         } else {
             0
         };

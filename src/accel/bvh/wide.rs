@@ -131,11 +131,15 @@ fn range(nodes: &[BvhNode], c: usize, merge: u32) -> Option<(u32, u32)> {
     (count <= merge).then_some((l.first, count))
 }
 
-/// Subtrees of at most this many triangles become one leaf of the wide
-/// tree (the default leaf size): without it a third of the wide nodes
-/// would hold only two or three small leaves, and the tree would not fit
-/// the reference pool (measured on the built-in scenes: 0.46-0.51 wide
-/// nodes per binary leaf against 0.18-0.30 with it).
+/// When the reference pool cannot hold the wide tree with the binary
+/// leaves as its leaves, subtrees of at most this many triangles become
+/// one leaf (the default leaf size; measured on the built-in scenes: 0.18-0.30
+/// wide nodes per binary leaf with it). Merging is the fallback, not the
+/// rule: a merged leaf is tested whole by every ray entering its box, and
+/// on the SAH trees it cost 2.7x the binary tree's triangle tests per
+/// camera ray (crytek sponza 13.4 against 5.0, conference 11.7 against
+/// 4.4; 4.3 and 4.5 with the binary leaves kept), which the frustum
+/// packets paid in full (docs/studies.md, issue 32 sixth step).
 pub const MERGE: u32 = 4;
 
 /// Inserts `x` into `list[..k]`, kept ascending by `key`; equal keys keep
@@ -157,9 +161,29 @@ pub(crate) fn capacity(bytes: usize) -> usize {
     bytes / core::mem::size_of::<WideNode>()
 }
 
+/// Collapse the binary tree `nodes` into `out` keeping its leaves, or,
+/// when `out` cannot hold that tree, merging subtrees of at most `MERGE`
+/// triangles into leaves (`collapse`). The wide nodes written, 0 when
+/// neither fits.
+pub(crate) fn collapse_fitting(nodes: &[BvhNode], out: &mut [WideNode]) -> u32 {
+    match collapse(nodes, out, 1) {
+        0 => collapse(nodes, out, MERGE),
+        n => n,
+    }
+}
+
 /// Collapse the binary tree `nodes` into `out`, root at 0, each node's
-/// wide children after it. Returns the wide nodes written, or 0 when `out`
-/// cannot hold them (or `nodes` is empty): then there is no wide tree.
+/// wide children after it, subtrees of at most `merge` triangles as one
+/// leaf. Returns the wide nodes written, or 0 when `out` cannot hold them
+/// (or `nodes` is empty): then there is no wide tree.
+///
+/// A child whose two children are both leaves (a twig) is opened before
+/// any other: left as a child it would become a wide node of two leaves.
+/// Opening twigs first makes 0.43 wide nodes per binary leaf on the SAH
+/// trees of the built-in scenes against 0.49 (largest surface first
+/// alone), which is what lets them fit the pool with their binary leaves;
+/// the triangle and box tests per ray did not change (crytek sponza and
+/// conference, camera and shadow rays, within 0.3 %).
 pub(crate) fn collapse(nodes: &[BvhNode], out: &mut [WideNode], merge: u32) -> u32 {
     if nodes.is_empty() || out.is_empty() {
         return 0;
@@ -184,13 +208,20 @@ pub(crate) fn collapse(nodes: &[BvhNode], out: &mut [WideNode], merge: u32) -> u
         let mut kids = [l, l + 1, 0, 0];
         let mut k = 2;
         while k < WIDTH {
-            // Open the inner child with the largest surface.
+            // Open a twig, else the inner child with the largest surface.
             let mut pick = None;
             let mut best = -1.0f32;
             for (i, &c) in kids[..k].iter().enumerate() {
                 if range(nodes, c, merge).is_none() {
                     let d = nodes[c].aabb().diagonal();
-                    let area = d.x * d.y + d.y * d.z + d.z * d.x;
+                    let l = nodes[c].first as usize;
+                    let twig =
+                        range(nodes, l, merge).is_some() && range(nodes, l + 1, merge).is_some();
+                    let area = if twig {
+                        f32::INFINITY
+                    } else {
+                        d.x * d.y + d.y * d.z + d.z * d.x
+                    };
                     if area > best {
                         best = area;
                         pick = Some(i);
@@ -354,6 +385,22 @@ mod tests {
                 assert!(info.wide_nodes > 0, "{name} {quality:?}: no wide tree");
                 check(v.nodes, v.wide);
                 assert!(info.wide_nodes <= info.nodes / 2 + 1);
+                // The SAH trees fit with their own leaves; trees of one
+                // triangle per leaf (as many leaves as triangles) do not,
+                // and get merged leaves.
+                let leaves = v
+                    .wide
+                    .iter()
+                    .flat_map(|w| (0..WIDTH).map(move |c| (w.child[c], w.count[c])));
+                let merged =
+                    leaves
+                        .filter(|&(c, n)| c != WideNode::EMPTY && n > 0)
+                        .any(|(c, n)| {
+                            !v.nodes
+                                .iter()
+                                .any(|b| b.is_leaf() && b.first == c && b.count() == n)
+                        });
+                assert_eq!(merged, leaf_size == 1, "{name} {quality:?}");
             }
         }
     }
