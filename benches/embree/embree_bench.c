@@ -2186,6 +2186,18 @@ static void profile_ab(Bench *b, const char *scene)
     snprintf(buf, sizeof buf, "%s", o->ab);
     for (char *tok = strtok(buf, ","); tok && k < MAX_AB; tok = strtok(NULL, ",")) names[k++] = tok;
     if (k < 1) die("--ab: no configuration");
+    /* "low:NAME": sheaf's configurations trace the LOW (Morton) tree, as the
+     * dynamic frame does; all of them or none (they share one context). */
+    int low = -1;
+    for (int c = 0; c < k; c++) {
+        int l = !strncmp(names[c], "low:", 4);
+        if (l) names[c] += 4;
+        if (strncmp(names[c], "embree-", 7)) {
+            if (low >= 0 && low != l) die("--ab: low: on every sheaf configuration or on none");
+            low = l;
+        }
+    }
+    if (low == 1) check_sheaf(b->ctx, sheaf_build(b->ctx, S_BVH_LOW), "build");
     printf("\n### %s: interleaved rounds (median of %d; load average %.2f at start)\n\n", scene, b->reps,
            load_average());
     printf("| rays | threads | configuration | Mrays/s | speed / %s |\n|---|--:|---|--:|--:|\n", names[k - 1]);
@@ -2960,7 +2972,8 @@ static void usage(void)
             "  --profile-shadow  with --profile: the shadow rays instead of camera rays\n"
             "  --ab A,B,..     the named configurations (embree-N for Embree) in interleaved\n"
             "                  rounds, camera and shadow rays, each thread count: Mrays/s and\n"
-            "                  the median per-round speed over the last one's\n"
+            "                  the median per-round speed over the last one's; low:NAME\n"
+            "                  traces sheaf's LOW tree (every sheaf configuration, or none)\n"
             "  --explain    print every disagreement no tie, edge or end explains\n"
             "  --twolevel ENV ANIM OBJ  the two-level scene instead: ENV static (one instance),\n"
             "               ANIM (`sheaf export builtin:animated --frames F`) refit every frame (4\n"
