@@ -156,14 +156,18 @@ pub(crate) const fn bytes(nq: usize) -> usize {
 
 /// One lane group's nearest hits so far, kept as lanes during the walk
 /// (the hits' `Hit4` quads are read once before it and written once after
-/// it): a leaf's hit lanes are kept with one compare and three selects,
+/// it): a leaf's hit lanes are kept with one compare and four selects,
 /// not quad by quad.
 #[derive(Clone, Copy)]
 pub(crate) struct GroupHit<L: Wide> {
     t: L,
     u: L,
     v: L,
-    prim: [u32; 16],
+    /// The triangle ids as the lanes' bits (`f32::from_bits`): kept by a
+    /// select like t, u and v, not lane by lane. Selects, joins and
+    /// splits only move bits (no arithmetic touches these lanes), so an id
+    /// that is a NaN pattern (`INVALID_ID`) comes back unchanged.
+    prim: L,
 }
 
 impl<L: Wide> GroupHit<L> {
@@ -173,15 +177,11 @@ impl<L: Wide> GroupHit<L> {
     fn read(hits: &[Hit4], g: usize) -> Self {
         let nq = hits.len();
         let q = |k: usize| (g * L::G + k).min(nq - 1);
-        let mut prim = [INVALID_ID; 16];
-        for (i, p) in prim.iter_mut().enumerate().take(L::WIDTH) {
-            *p = hits[q(i / 4)].prim[i % 4];
-        }
         GroupHit {
             t: L::join(|k| hits[q(k)].t),
             u: L::join(|k| hits[q(k)].u),
             v: L::join(|k| hits[q(k)].v),
-            prim,
+            prim: L::join(|k| F4::from_array(hits[q(k)].prim.map(f32::from_bits))),
         }
     }
 
@@ -195,7 +195,7 @@ impl<L: Wide> GroupHit<L> {
             h.t = self.t.quad(k);
             h.u = self.u.quad(k);
             h.v = self.v.quad(k);
-            h.prim.copy_from_slice(&self.prim[4 * k..4 * k + 4]);
+            h.prim = self.prim.quad(k).to_array().map(f32::to_bits);
         }
     }
 
@@ -209,7 +209,7 @@ impl<L: Wide> GroupHit<L> {
         while eq != 0 {
             let i = eq.trailing_zeros() as usize;
             eq &= eq - 1;
-            take |= u32::from(id < self.prim[i]) << i;
+            take |= u32::from(id < self.prim.get(i).to_bits()) << i;
         }
         take
     }
@@ -221,11 +221,7 @@ impl<L: Wide> GroupHit<L> {
         self.t = L::select(m, h.t, self.t);
         self.u = L::select(m, h.u, self.u);
         self.v = L::select(m, h.v, self.v);
-        let mut b = take;
-        while b != 0 {
-            self.prim[b.trailing_zeros() as usize] = id;
-            b &= b - 1;
-        }
+        self.prim = L::select(m, L::splat(f32::from_bits(id)), self.prim);
     }
 }
 
@@ -795,7 +791,7 @@ fn finish_alone<L: Wide, T: TriangleTest>(
                 gh.t.set(i, best.t);
                 gh.u.set(i, best.u);
                 gh.v.set(i, best.v);
-                gh.prim[i] = best.prim;
+                gh.prim.set(i, f32::from_bits(best.prim));
             }
         }
         lv.gb[g].live = 0;
