@@ -2136,11 +2136,18 @@ sheaf_status sheaf_geometry_params_default(struct sheaf_geometry_params *out);
  * during this call only. On error nothing changes. The scene must be
  * committed (`sheaf_context_commit_scene`) before it is traced again.
  *
+ * The budget does not fragment: when the free triangles suffice but no
+ * gap between the geometries' runs holds the reservation, the runs are
+ * slid together first (each BVH moves with its run, unchanged; a
+ * committed scene stays committed and answers as before, and nothing is
+ * allocated). A replaced geometry that does not fit its own run keeps
+ * it until the new one is built, so both must fit at once.
+ *
  * Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_INVALID_ARGUMENT`
  * (no two-level scene, id out of range, another triangle test than the
  * scene's, bad params or mesh), `SHEAF_STATUS_MISALIGNED`,
  * `SHEAF_STATUS_INDEX_OUT_OF_RANGE`, `SHEAF_STATUS_CAPACITY_TRIANGLES`
- * (no free run of the reserved triangles), `SHEAF_STATUS_CONTEXT_BUSY`,
+ * (fewer free triangles than the reservation), `SHEAF_STATUS_CONTEXT_BUSY`,
  * `SHEAF_STATUS_POISONED`.
  *
  * Not thread-safe: needs exclusive access to `ctx`.

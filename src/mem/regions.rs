@@ -1,14 +1,13 @@
 //! First-fit ranges of one pool shared by many owners: the two-level
 //! scene's geometries each take a run of the triangle budget
-//! (`accel::twolevel`), and give it back when removed, without moving any
-//! other owner's run (a geometry's structure is never touched by another's
-//! update).
+//! (`accel::twolevel`), and give it back when removed.
 //!
 //! The taken runs are kept sorted by start in a table carved at setup (one
 //! entry per possible owner), so taking and freeing scan at most that many
 //! entries and allocate nothing. Free space is what lies between runs; a
-//! request that fits no gap fails even when the gaps together would hold
-//! it (fragmentation is reported, not hidden: `largest_gap`).
+//! request that fits no gap but the gaps together would hold is served
+//! after `compact` slides the runs down (the owner moves its data with
+//! them), so only a short pool refuses.
 
 use bytemuck::{Pod, Zeroable};
 
@@ -85,6 +84,26 @@ impl<'a> Regions<'a> {
         Some(start)
     }
 
+    /// Slide every run down to close the gaps before it, in order, so the
+    /// free units form one gap at the end: `take` then fits any length up
+    /// to `capacity - taken`. `moved(from, to, len)` is called for each
+    /// run that moves (`to < from`), in order, so the caller moves its
+    /// data with `copy_within` before a later run lands where it was.
+    /// Returns the units moved.
+    pub fn compact(&mut self, mut moved: impl FnMut(u32, u32, u32)) -> u64 {
+        let mut at = 0u32;
+        let mut units = 0u64;
+        for r in self.runs[..self.used].iter_mut() {
+            if r.start != at {
+                moved(r.start, at, r.len);
+                units += u64::from(r.len);
+                r.start = at;
+            }
+            at += r.len;
+        }
+        units
+    }
+
     /// Give back the run `take` returned `start` (and `len`) for.
     /// Returns false (changing nothing) when there is no such run.
     pub fn free(&mut self, start: u32, len: u32) -> bool {
@@ -126,6 +145,26 @@ mod tests {
         // Fragmented: 60 units free in two gaps, no run of 40.
         assert_eq!(r.take(40), None);
         assert_eq!(r.take(30), Some(0));
+    }
+
+    #[test]
+    fn compaction_closes_every_gap() {
+        let mut table = [Run::default(); 6];
+        let mut r = Regions::new(&mut table, 100);
+        for _ in 0..5 {
+            assert!(r.take(20).is_some());
+        }
+        assert!(r.free(0, 20) && r.free(40, 20) && r.free(80, 20));
+        assert!(r.take(0).is_some(), "an empty run at the first gap");
+        assert_eq!(r.take(50), None, "60 units free in three gaps");
+        let mut moves = Vec::new();
+        let units = r.compact(|from, to, len| moves.push((from, to, len)));
+        // The empty run stays at 0; the runs at 20 and 60 slide down.
+        assert_eq!(moves, vec![(20, 0, 20), (60, 20, 20)]);
+        assert_eq!(units, 40);
+        assert_eq!(r.largest_gap(), 60);
+        assert_eq!(r.take(60), Some(40));
+        assert_eq!(r.compact(|_, _, _| panic!("nothing to move")), 0);
     }
 
     #[test]

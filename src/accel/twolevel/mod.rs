@@ -216,6 +216,9 @@ pub struct TwoLevel<'a> {
     test: Option<TriTest>,
     /// The last commit, `None` when something changed since.
     info: Option<TwoLevelInfo>,
+    /// Triangles moved by compactions, and compactions that moved any.
+    compacted: u64,
+    compactions: u32,
 }
 
 fn bad(what: &'static str) -> Error {
@@ -234,12 +237,50 @@ impl<'a> TwoLevel<'a> {
             order: p.order,
             test: None,
             info: None,
+            compacted: 0,
+            compactions: 0,
         }
     }
 
     /// Triangles the geometries may reserve in all, and reserve now.
     pub fn triangle_budget(&self) -> (u32, u32) {
         (self.regions.capacity(), self.regions.taken())
+    }
+
+    /// Slide the live geometries' runs down to close the gaps between
+    /// them, each run's pool entries moved with it (`Regions::compact`).
+    /// A BVH's nodes and leaves refer to its run relative to its start,
+    /// so a moved BVH is the same tree: a committed scene stays committed
+    /// and traces as before, bit for bit. Allocates nothing; counts the
+    /// triangles moved (`compacted`).
+    fn compact(&mut self) {
+        let (blas, geoms) = (&mut self.blas, &mut *self.geoms);
+        let units = self.regions.compact(|from, to, len| {
+            let (f, t, n) = (from as usize, to as usize, len as usize);
+            blas.nodes.copy_within(2 * f..2 * (f + n), 2 * t);
+            blas.tris.copy_within(f..f + n, t);
+            if !blas.proj.is_empty() {
+                blas.proj.copy_within(f..f + n, t);
+            }
+            blas.tri_ids.copy_within(f..f + n, t);
+            blas.slot_of.copy_within(f..f + n, t);
+            blas.refs.copy_within(f..f + n, t);
+            // Runs of length 0 may share a start: each moves to the same
+            // place, so every geometry on it follows.
+            for g in geoms.iter_mut().filter(|g| g.live) {
+                if g.run == (Run { start: from, len }) {
+                    g.run.start = to;
+                }
+            }
+        });
+        self.compacted += units;
+        self.compactions += u32::from(units > 0);
+    }
+
+    /// Triangles moved by compactions since the scene was made, and the
+    /// compactions that moved any.
+    pub fn compaction_cost(&self) -> (u64, u32) {
+        (self.compacted, self.compactions)
     }
 
     /// Geometry `id`'s BVH over its run of the shared pools.
@@ -314,11 +355,18 @@ impl<'a> TwoLevel<'a> {
         // (a failed build keeps its previous BVH, as every build does);
         // else it takes a new run first, so a failure changes nothing (the
         // run table has one entry more than geometries for that).
-        let old = self.geoms[id as usize];
+        let mut old = self.geoms[id as usize];
         let in_place = old.live && old.run.len >= cap;
         let run = if in_place {
             old.run
         } else {
+            if self.regions.largest_gap() < cap {
+                // Free units in several gaps: close them (the live runs
+                // slide down with their BVHs, the replaced one's too), so
+                // a reservation fails only when the budget is short.
+                self.compact();
+                old.run = self.geoms[id as usize].run;
+            }
             let Some(start) = self.regions.take(cap) else {
                 return Err(Error::Capacity {
                     pool: crate::error::Pool::Triangles,
@@ -1026,5 +1074,172 @@ mod tests {
         let mut ctr = Counters::default();
         let ray = Ray::new(glam::Vec3::ZERO, glam::Vec3::X, 0.0, f32::INFINITY);
         assert!(!intersect::<Mt>(&s.view().unwrap(), &ray, !0, &mut ctr).is_hit());
+    }
+
+    /// Streaming churn (issue 35): geometries of 20-400 triangles set,
+    /// replaced with other sizes, removed (their instances first) and
+    /// placed in random order at up to 90 % of the budget. Every set whose
+    /// reservation fits the free budget succeeds (compacting when no gap
+    /// holds it), and every commit traces bitwise as a fresh scene built
+    /// from the same geometries and instances.
+    #[test]
+    fn streaming_churn_never_refuses_a_reservation_that_fits() {
+        use crate::accel::testkit::Rng;
+        let (vs, ix) = &meshes()[1];
+        let total = ix.len() / 3;
+        let mesh = |k: usize| Scene::from_f32(vs, &ix[..3 * k]).unwrap();
+        const BUDGET: u32 = 4000;
+        const IDS: usize = 16;
+        let mut st = Store::new(BUDGET as usize, IDS, IDS, false);
+        let mut s = st.scene();
+        let mut rng = Rng(0x5eed_0035);
+        // The model: each geometry's (mesh prefix, reservation), each
+        // instance's (geometry, transform).
+        let mut geo: [Option<(usize, u32)>; IDS] = [None; IDS];
+        let mut ins: [Option<(u32, Affine)>; IDS] = [None; IDS];
+        let (mut sets, mut gapless, mut checks) = (0u32, 0u32, 0u32);
+        for step in 0..100_000u32 {
+            let id = (rng.next() % IDS as u64) as usize;
+            match rng.next() % 8 {
+                0..=2 => {
+                    let cap = 20 + (rng.next() % 381) as u32;
+                    let k = (cap as usize).min(total) - (rng.next() % 10) as usize;
+                    let (_, taken) = s.triangle_budget();
+                    let in_place = geo[id].is_some_and(|(_, c)| c >= cap);
+                    if !in_place && taken + cap > BUDGET * 9 / 10 {
+                        continue;
+                    }
+                    gapless += u32::from(!in_place && s.regions.largest_gap() < cap);
+                    let p = GeometryParams {
+                        max_triangles: cap,
+                        mode: UpdateMode::Rebuild,
+                        ..GeometryParams::default()
+                    };
+                    let r = s.set_geometry(id as u32, &mesh(k), &p, &Serial);
+                    assert!(r.is_ok(), "step {step}: set {id} cap {cap}: {r:?}");
+                    let kept = geo[id].map_or(cap, |(_, c)| if in_place { c } else { cap });
+                    geo[id] = Some((k, kept));
+                    sets += 1;
+                }
+                3 if geo[id].is_some() => {
+                    // Remove geometry `id` and the instances placing it.
+                    for (i, x) in ins.iter_mut().enumerate() {
+                        if x.is_some_and(|(g, _)| g == id as u32) {
+                            s.remove_instance(i as u32).unwrap();
+                            *x = None;
+                        }
+                    }
+                    s.remove_geometry(id as u32).unwrap();
+                    geo[id] = None;
+                }
+                4 | 5 => {
+                    let g = (rng.next() % IDS as u64) as u32;
+                    if geo[g as usize].is_some() {
+                        let t = [
+                            rng.range(-3.0, 3.0),
+                            rng.range(-3.0, 3.0),
+                            rng.range(-3.0, 3.0),
+                        ];
+                        let xf = rot(rng.range(0.0, 360.0), step as usize % 3, [1.0; 3], t);
+                        s.set_instance(id as u32, g, &xf, !0).unwrap();
+                        ins[id] = Some((g, xf));
+                    }
+                }
+                _ if step % 50 == 0 => {
+                    // Commit, and trace against a fresh scene of the model.
+                    s.commit();
+                    let mut fresh = Store::new(BUDGET as usize, IDS, IDS, false);
+                    let mut f = fresh.scene();
+                    for (g, m) in geo.iter().enumerate() {
+                        if let Some((k, cap)) = m {
+                            let p = GeometryParams {
+                                max_triangles: *cap,
+                                mode: UpdateMode::Rebuild,
+                                ..GeometryParams::default()
+                            };
+                            f.set_geometry(g as u32, &mesh(*k), &p, &Serial).unwrap();
+                        }
+                    }
+                    for (i, x) in ins.iter().enumerate() {
+                        if let Some((g, xf)) = x {
+                            f.set_instance(i as u32, *g, xf, !0).unwrap();
+                        }
+                    }
+                    f.commit();
+                    let (v, fv) = (s.view().unwrap(), f.view().unwrap());
+                    let mut ctr = Counters::default();
+                    let mut r = Rng(u64::from(step) | 1);
+                    for _ in 0..64 {
+                        let o = glam::Vec3::new(r.range(-6.0, 6.0), r.range(-6.0, 6.0), -8.0);
+                        let d = glam::Vec3::new(r.range(-0.6, 0.6), r.range(-0.6, 0.6), 1.0);
+                        let ray = Ray::new(o, d, 0.0, f32::INFINITY);
+                        let (x, y) = (
+                            intersect::<Mt>(&v, &ray, !0, &mut ctr),
+                            intersect::<Mt>(&fv, &ray, !0, &mut ctr),
+                        );
+                        assert!(same(&x, &y), "step {step}: {x:?} fresh {y:?}");
+                    }
+                    checks += 1;
+                }
+                _ => {}
+            }
+        }
+        let (moved, compactions) = s.compaction_cost();
+        std::eprintln!(
+            "churn: {sets} sets, {gapless} found no gap (served after a compaction), \
+             {compactions} compactions moved {moved} triangles, {checks} commits checked"
+        );
+        assert!(
+            sets > 25_000 && checks > 300,
+            "{sets} sets, {checks} checks"
+        );
+        assert!(
+            gapless > 0 && compactions > 0 && moved > 0,
+            "the churn must fragment the budget: {gapless} sets found no gap"
+        );
+    }
+
+    /// A compaction moves every run's BVH with it: the committed scene
+    /// stays committed and answers bitwise as before.
+    #[test]
+    fn compaction_keeps_the_committed_answers() {
+        let m = meshes();
+        let mut st = Store::new(budget(&m) + 100, 4, 8, false);
+        let mut s = st.scene();
+        let p = GeometryParams::default();
+        // A gap before each mesh: a geometry set and removed ahead of it.
+        for (g, (v, ix)) in m.iter().enumerate() {
+            let pad = Scene::from_f32(v, &ix[..30]).unwrap();
+            s.set_geometry(3, &pad, &p, &Serial).unwrap();
+            s.set_geometry(g as u32, &Scene::from_f32(v, ix).unwrap(), &p, &Serial)
+                .unwrap();
+            s.remove_geometry(3).unwrap();
+        }
+        place(&mut s);
+        s.commit();
+        let before: Vec<SceneHit> = {
+            let v = s.view().unwrap();
+            let mut ctr = Counters::default();
+            test_rays(&world_tris(&v, &m), &[], 11)
+                .iter()
+                .map(|r| intersect::<Mt>(&v, r, !0, &mut ctr))
+                .collect()
+        };
+        assert!(s.regions.largest_gap() < s.regions.capacity() - s.regions.taken());
+        s.compact();
+        assert_eq!(s.compaction_cost().1, 1);
+        assert_eq!(
+            s.regions.largest_gap(),
+            s.regions.capacity() - s.regions.taken(),
+            "one gap left"
+        );
+        let v = s.view().expect("still committed");
+        let mut ctr = Counters::default();
+        let rays = test_rays(&world_tris(&v, &m), &[], 11);
+        assert!(before.iter().filter(|h| h.is_hit()).count() > 100);
+        for (r, want) in rays.iter().zip(&before) {
+            assert!(same(&intersect::<Mt>(&v, r, !0, &mut ctr), want), "{r:?}");
+        }
+        assert!(check::<Mt>(&v, &m, 12) > 100);
     }
 }
