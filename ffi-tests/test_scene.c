@@ -117,6 +117,7 @@ static bool test_instances_ids_and_masks(void) {
     CHECK_STATUS(sheaf_context_trace_scene(ctx, NULL, rays, hits, 4, ~0u, 0), SHEAF_STATUS_NOT_BUILT);
     CHECK_OK(sheaf_context_commit_scene(ctx, &info));
     CHECK(info.geometries == 2 && info.instances == 3 && info.instanced_triangles == 6);
+    CHECK(info.free_triangles == 60 && info.largest_free_run == 60 && info.compactions == 0);
     CHECK(info.bounds_min[0] <= 0.0f && info.bounds_max[0] >= 4.0f && info.bounds_max[2] >= 3.0f);
     /* Mask 1: instances 0 and 1. */
     CHECK_OK(sheaf_context_trace_scene(ctx, NULL, rays, hits, 4, 1, 0));
@@ -430,6 +431,44 @@ static bool test_flattened_scene_for_grid_and_kd(void) {
     return true;
 }
 
+/* The triangle budget does not fragment: with 4 of 6 triangles free in
+ * two gaps of 2, a geometry reserving 4 is set after the runs slide
+ * together, and the committed scene answers as before. */
+static bool test_budget_compacts_instead_of_refusing(void) {
+    sheaf_context *ctx = scene_context(3, 2, 6);
+    sheaf_mesh m = square();
+    sheaf_geometry_params p;
+    sheaf_scene_info info;
+    sheaf_ray r = down_at(0.25f, 0.5f);
+    sheaf_scene_hit before, after;
+    float xf[12];
+    CHECK(ctx != NULL);
+    CHECK_OK(sheaf_geometry_params_default(&p));
+    CHECK_OK(sheaf_context_set_scene_geometry(ctx, 0, &m, &p));
+    CHECK_OK(sheaf_context_set_scene_geometry(ctx, 1, &m, &p));
+    CHECK_OK(sheaf_context_set_scene_geometry(ctx, 2, &m, &p));
+    CHECK_OK(sheaf_context_remove_scene_geometry(ctx, 0));
+    CHECK_OK(sheaf_context_remove_scene_geometry(ctx, 2));
+    placed(xf, 1.0f, 0.0f, 0.0f, 1.0f);
+    CHECK_OK(sheaf_context_set_instance(ctx, 0, 1, xf, ~0u));
+    CHECK_OK(sheaf_context_commit_scene(ctx, &info));
+    CHECK(info.free_triangles == 4 && info.largest_free_run == 2 && info.compactions == 0);
+    CHECK_OK(sheaf_context_trace_scene(ctx, NULL, &r, &before, 1, ~0u, 0));
+    CHECK(before.instance == 0 && before.geometry == 1 && before.t == 9.0f);
+    /* 5 is more than is free: refused, nothing changes. */
+    p.max_triangles = 5;
+    CHECK_STATUS(sheaf_context_set_scene_geometry(ctx, 0, &m, &p), SHEAF_STATUS_CAPACITY_TRIANGLES);
+    p.max_triangles = 4;
+    CHECK_OK(sheaf_context_set_scene_geometry(ctx, 0, &m, &p));
+    CHECK_OK(sheaf_context_commit_scene(ctx, &info));
+    CHECK(info.free_triangles == 0 && info.largest_free_run == 0);
+    CHECK(info.compactions == 1 && info.compacted_triangles == 2);
+    CHECK_OK(sheaf_context_trace_scene(ctx, NULL, &r, &after, 1, ~0u, 0));
+    CHECK(after.instance == 0 && after.geometry == 1 && after.prim == before.prim && after.t == before.t);
+    sheaf_context_destroy(ctx);
+    return true;
+}
+
 int main(void) {
     int passed = 0, failed = 0;
     run_test("test_instances_ids_and_masks", test_instances_ids_and_masks, &passed, &failed);
@@ -437,5 +476,6 @@ int main(void) {
     run_test("test_bad_input_changes_nothing", test_bad_input_changes_nothing, &passed, &failed);
     run_test("test_packet_methods_equal_single_rays", test_packet_methods_equal_single_rays, &passed, &failed);
     run_test("test_flattened_scene_for_grid_and_kd", test_flattened_scene_for_grid_and_kd, &passed, &failed);
+    run_test("test_budget_compacts_instead_of_refusing", test_budget_compacts_instead_of_refusing, &passed, &failed);
     return report(passed, failed);
 }

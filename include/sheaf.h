@@ -1314,6 +1314,19 @@ typedef struct sheaf_scene_info {
      */
     float bounds_min[3];
     float bounds_max[3];
+    /**
+     * The triangle budget (`max_scene_triangles`) left free, and its
+     * longest free run: a geometry set needing more than the run but no
+     * more than the free triangles first slides the runs together.
+     */
+    uint32_t free_triangles;
+    uint32_t largest_free_run;
+    /**
+     * Such compactions since the context was made, and the triangles they
+     * moved (140 bytes of pool entries each).
+     */
+    uint32_t compactions;
+    uint64_t compacted_triangles;
 } sheaf_scene_info;
 
 /**

@@ -150,6 +150,15 @@ pub struct sheaf_scene_info {
     /// World bounds of the instances.
     pub bounds_min: [f32; 3],
     pub bounds_max: [f32; 3],
+    /// The triangle budget (`max_scene_triangles`) left free, and its
+    /// longest free run: a geometry set needing more than the run but no
+    /// more than the free triangles first slides the runs together.
+    pub free_triangles: u32,
+    pub largest_free_run: u32,
+    /// Such compactions since the context was made, and the triangles they
+    /// moved (140 bytes of pool entries each).
+    pub compactions: u32,
+    pub compacted_triangles: u64,
 }
 
 impl sheaf_scene_info {
@@ -162,6 +171,10 @@ impl sheaf_scene_info {
             depth: i.depth,
             bounds_min: i.bounds.min.to_array(),
             bounds_max: i.bounds.max.to_array(),
+            free_triangles: i.free_triangles,
+            largest_free_run: i.largest_free_run,
+            compactions: i.compactions,
+            compacted_triangles: i.compacted_triangles,
         }
     }
 }

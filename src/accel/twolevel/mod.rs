@@ -202,6 +202,15 @@ pub struct TwoLevelInfo {
     pub bounds: Aabb,
     /// The scene's triangle test.
     pub test: TriTest,
+    /// The triangle budget's free triangles and its longest free run (a
+    /// set needing more than the run but no more than the free
+    /// triangles compacts first).
+    pub free_triangles: u32,
+    pub largest_free_run: u32,
+    /// Compactions since the scene was made, and the triangles they moved
+    /// (each moves 140 bytes of pool entries per triangle).
+    pub compactions: u32,
+    pub compacted_triangles: u64,
 }
 
 /// A two-level scene in fixed pools.
@@ -531,7 +540,10 @@ impl<'a> TwoLevel<'a> {
     /// Build the top level over the instances as they are now (their
     /// geometries' current boxes): after any change, before tracing.
     pub fn commit(&mut self) -> TwoLevelInfo {
-        let info = build::build(self);
+        let mut info = build::build(self);
+        info.free_triangles = self.regions.capacity() - self.regions.taken();
+        info.largest_free_run = self.regions.largest_gap();
+        (info.compacted_triangles, info.compactions) = self.compaction_cost();
         self.info = Some(info);
         info
     }
