@@ -458,6 +458,8 @@ static bool test_budget_compacts_instead_of_refusing(void) {
     /* 5 is more than is free: refused, nothing changes. */
     p.max_triangles = 5;
     CHECK_STATUS(sheaf_context_set_scene_geometry(ctx, 0, &m, &p), SHEAF_STATUS_CAPACITY_TRIANGLES);
+    CHECK_OK(sheaf_context_commit_scene(ctx, &info));
+    CHECK(info.compactions == 0 && info.largest_free_run == 2);
     p.max_triangles = 4;
     CHECK_OK(sheaf_context_set_scene_geometry(ctx, 0, &m, &p));
     CHECK_OK(sheaf_context_commit_scene(ctx, &info));

@@ -294,6 +294,27 @@ pub struct BvhPools<'a> {
     pub scratch: &'a mut [u8],
 }
 
+impl BvhPools<'_> {
+    /// Move the entries of triangle slots `from..from + len` of every pool
+    /// (nodes: two per slot) to `to..` (`copy_within`, overlap allowed).
+    /// A BVH built in those slots refers to them relative to their start,
+    /// so it is the same tree at `to`: a two-level scene's compaction.
+    /// Every pool a build writes is moved here, so a pool added to this
+    /// struct is added here too.
+    pub(crate) fn move_slots(&mut self, from: usize, to: usize, len: usize) {
+        let (f, n) = (from, len);
+        self.nodes.copy_within(2 * f..2 * (f + n), 2 * to);
+        self.tris.copy_within(f..f + n, to);
+        if !self.proj.is_empty() {
+            self.proj.copy_within(f..f + n, to);
+        }
+        self.tri_ids.copy_within(f..f + n, to);
+        self.slot_of.copy_within(f..f + n, to);
+        // The reference pool holds the 4-wide tree.
+        self.refs.copy_within(f..f + n, to);
+    }
+}
+
 /// A per-frame BVH: pools plus what the last successful build wrote.
 pub struct Bvh<'a> {
     pools: BvhPools<'a>,

@@ -265,15 +265,7 @@ impl<'a> TwoLevel<'a> {
     fn compact(&mut self) {
         let (blas, geoms) = (&mut self.blas, &mut *self.geoms);
         let units = self.regions.compact(|from, to, len| {
-            let (f, t, n) = (from as usize, to as usize, len as usize);
-            blas.nodes.copy_within(2 * f..2 * (f + n), 2 * t);
-            blas.tris.copy_within(f..f + n, t);
-            if !blas.proj.is_empty() {
-                blas.proj.copy_within(f..f + n, t);
-            }
-            blas.tri_ids.copy_within(f..f + n, t);
-            blas.slot_of.copy_within(f..f + n, t);
-            blas.refs.copy_within(f..f + n, t);
+            blas.move_slots(from as usize, to as usize, len as usize);
             // Runs of length 0 may share a start: each moves to the same
             // place, so every geometry on it follows.
             for g in geoms.iter_mut().filter(|g| g.live) {
@@ -369,10 +361,12 @@ impl<'a> TwoLevel<'a> {
         let run = if in_place {
             old.run
         } else {
-            if self.regions.largest_gap() < cap {
+            let free = self.regions.capacity() - self.regions.taken();
+            if self.regions.largest_gap() < cap && free >= cap {
                 // Free units in several gaps: close them (the live runs
                 // slide down with their BVHs, the replaced one's too), so
-                // a reservation fails only when the budget is short.
+                // a reservation fails only when the budget is short (and
+                // then without moving anything).
                 self.compact();
                 old.run = self.geoms[id as usize].run;
             }
