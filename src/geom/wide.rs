@@ -45,6 +45,25 @@ pub trait Wide: Lane {
     /// Bits of the lanes where `self <= o` (`mask_bits(self.le(o))`, one
     /// compare into a mask register on AVX-512).
     fn le_bits(self, o: Self) -> u32;
+    /// The smallest lane, quad by quad then across the last quad (lanes
+    /// must not be NaN: the extremes then are lane values, bit for bit).
+    #[inline(always)]
+    fn lane_min(self) -> f32 {
+        let mut m = self.quad(0);
+        for k in 1..Self::G {
+            m = m.lower(self.quad(k));
+        }
+        m.min_element()
+    }
+    /// The largest lane (as `lane_min`).
+    #[inline(always)]
+    fn lane_max(self) -> f32 {
+        let mut m = self.quad(0);
+        for k in 1..Self::G {
+            m = m.raise(self.quad(k));
+        }
+        m.max_element()
+    }
 }
 
 /// `Lane::shear_axes` of a wide lane type, quad by quad with `F4`'s (whose
