@@ -19,11 +19,12 @@
 //! against the leaf's box, and only groups with an entering live lane test
 //! its triangles, each triangle broadcast against the group's lanes
 //! (Fuetterling et al. 2015, section 4: large packets on a 4-wide tree).
-//! In packets of at least `FRUSTA_MIN_GROUPS` groups each group also has
+//! In packets of at least `FRUSTA_MIN_LANES` lanes each group also has
 //! its own interval frustum, the groups' frusta side by side as lanes
-//! (`GroupFrusta`): one wide test of the leaf's box against them picks the
-//! groups whose exact slab test runs (Wald et al. 2007's frustum, one per
-//! group rather than per packet).
+//! (`GroupFrusta`): one wide test of the leaf's box (and of a child box in
+//! `first_group`) against them picks the groups whose exact slab test
+//! runs, so such a leaf is box-tested only by the groups near it (Wald et
+//! al. 2007's frustum, one per group rather than per packet).
 //! Each group keeps its nearest hits as lanes (`GroupHit`), written back
 //! to the packet's quads once, after the walk. The first frustum is made
 //! from the bounds the packet's one setup pass gathered (`LaneBounds`,
@@ -42,7 +43,11 @@
 //! exceeds, and its far bound never falls below, any live lane's own slab
 //! terms; NaN bounds (0 x inf, an axis whose live lanes have mixed
 //! direction signs) constrain nothing, as NaN slab terms constrain nothing
-//! in the single ray's test. A child is therefore dropped only when no
+//! in the single ray's test. The group frusta are the same arithmetic with
+//! each group's own extremes as lanes (an axis whose live directions'
+//! signs differ across the packet is left out, which only admits more),
+//! and a group's far end there never falls below a live lane's. A child
+//! or a group is therefore dropped only when no
 //! live lane's own slab test (the single ray's arithmetic, `QuadBox`, lane
 //! by lane) enters it by that lane's nearest hit so far, and a lane tests
 //! the triangles of every leaf whose box it enters: the set of triangles a
@@ -145,8 +150,8 @@ pub(crate) struct GroupBox<L: Wide> {
 /// `GroupBox::signs` of a group whose lanes' direction signs differ.
 const MIXED: u32 = u32::MAX;
 
-/// Scratch bytes of the groups of `nq` quads (their boxes and hit
-/// records) at the widest level.
+/// Scratch bytes of the groups of `nq` quads (their boxes, hit records
+/// and frusta) at the lane width that needs the most.
 pub(crate) const fn bytes(nq: usize) -> usize {
     use crate::geom::{F8, F16};
     use crate::mem::scratch::bytes as b;
@@ -290,12 +295,16 @@ pub(crate) struct GroupFrusta<L: Wide> {
 /// the axis).
 type Signs = [i8; 3];
 
-/// Packets of fewer lane groups have no group frusta (and their own
-/// instance of the walk). Measured (AVX-512, interleaved A/B against
-/// Embree-16, docs/studies.md, issue 32 eighth step): with frusta, 8x8
-/// camera packets (4 groups of 16 lanes) traced 7 % slower on crytek
-/// sponza; 16x16 (16 groups) up to 10 % and 32x32 (64 groups) 30 % faster.
-const FRUSTA_MIN_GROUPS: usize = 8;
+/// Packets of fewer lanes (rays, counting a last group's padding) have no
+/// group frusta, and their own instance of the walk. Measured (AVX-512,
+/// interleaved A/B against Embree-16, docs/studies.md, issue 32 eighth
+/// step): with frusta, 8x8 camera packets (64 lanes, 4 groups) traced 7 %
+/// slower on crytek sponza; 16x16 (256 lanes) within -3 % .. +5 % on
+/// sponza and conference, 32x32 8-30 % faster on sponza, conference and
+/// legocar. Counted in lanes, not groups, so that narrower ISA levels
+/// (more, smaller groups) draw the line at the same packet size; only
+/// AVX-512 was measured.
+const FRUSTA_MIN_LANES: usize = 128;
 
 /// The packet's `Signs`, from its groups' live lanes.
 #[inline(always)]
@@ -798,14 +807,14 @@ impl Walk for FrustumFirst {
         });
         let ng = gb.len();
         let (gh, mut slot) = slot.split_from(ng, |g| GroupHit::<L>::read(&hits[..nq], g));
-        let signs = packet_signs(gb);
-        // Too few groups to cull many per leaf: no frusta, every group's
-        // exact test runs.
-        let nf = if ng >= FRUSTA_MIN_GROUPS {
+        // Too few rays to cull many groups per leaf: no frusta, every
+        // group's exact test runs.
+        let nf = if ng * L::WIDTH >= FRUSTA_MIN_LANES {
             ng.div_ceil(L::WIDTH)
         } else {
             0
         };
+        let signs = if nf > 0 { packet_signs(gb) } else { [0; 3] };
         // A plain loop, not `split_from`'s closure: the frusta's lane
         // reductions must inline into the caller's ISA.
         let empty = GroupFrusta::new(&[], &signs);
@@ -836,7 +845,7 @@ impl Walk for FrustumFirst {
 }
 
 /// What a leaf visit reads and updates: the tree, the packet's groups,
-/// their boxes and hit records, and the live lane count.
+/// their boxes, hit records and frusta, and the live lane count.
 struct Leaves<'x, 'b, L: Wide, T: TriangleTest> {
     b: &'x BvhView<'b>,
     rays: &'x [Ray4],
@@ -844,7 +853,7 @@ struct Leaves<'x, 'b, L: Wide, T: TriangleTest> {
     gb: &'x mut [GroupBox<L>],
     gh: &'x mut [GroupHit<L>],
     /// The groups' frusta, `L::WIDTH` groups per chunk (none for packets
-    /// of fewer than `FRUSTA_MIN_GROUPS` groups), and the packet's
+    /// of fewer than `FRUSTA_MIN_LANES` lanes), and the packet's
     /// direction signs they are made for.
     gf: &'x mut [GroupFrusta<L>],
     signs: Signs,
