@@ -1181,4 +1181,58 @@ mod tests {
     fn frustum_lattice() {
         check_lattice::<FrustumFirst>();
     }
+
+    /// Rays along -z whose x and y direction components are +0.0, -0.0 or
+    /// both within one packet (reciprocals +inf and -inf, 0 x inf products
+    /// in the frusta, axes left out for mixed signs), every fourth one
+    /// starting on the lattice's box planes, at every packet size (128
+    /// rays and more have group frusta): bitwise the single ray.
+    #[test]
+    fn frustum_axis_aligned_rays() {
+        use crate::accel::bvh::RayKind;
+        use crate::accel::bvh::build::testutil::Store;
+        use crate::accel::bvh::traverse_masked::tests::check_sets;
+        use crate::accel::testkit::{RaySet, built, lattice};
+        use crate::geom::{Mt, Ray, Wt};
+        use glam::Vec3;
+        let (v, ix, _) = lattice();
+        let (w, h) = (64u32, 64u32);
+        let mut sets = Vec::new();
+        for (name, zero) in [
+            ("axis-pos-zero", 0),
+            ("axis-mixed-zero", 1),
+            ("axis-neg-zero", 2),
+        ] {
+            let mut rays = Vec::new();
+            for y in 0..h {
+                for x in 0..w {
+                    let off = if x % 4 == 0 { 0.0 } else { 0.25 };
+                    let o = Vec3::new(x as f32 * 0.5 + off, y as f32 * 0.5, 10.0);
+                    let s = match zero {
+                        0 => 0.0,
+                        2 => -0.0,
+                        _ if (x / 8 + y / 8) % 2 == 0 => 0.0,
+                        _ => -0.0,
+                    };
+                    let d = Vec3::new(s, s, -1.0);
+                    rays.push(Some(Ray::new(o, d, 0.0, f32::INFINITY)));
+                }
+            }
+            sets.push(RaySet {
+                name,
+                w,
+                h,
+                rays,
+                kinds: &[RayKind::Auto],
+            });
+        }
+        for leaf in [1, 4] {
+            let mut st = Store::new(0, false);
+            let bvh = built::<Mt>(&mut st, &v, &ix, leaf);
+            check_sets::<FrustumFirst, Mt>("axis", &bvh.view().unwrap(), &sets);
+            let mut st = Store::new(0, false);
+            let bvh = built::<Wt>(&mut st, &v, &ix, leaf);
+            check_sets::<FrustumFirst, Wt>("axis", &bvh.view().unwrap(), &sets);
+        }
+    }
 }
