@@ -496,7 +496,7 @@ impl Frustum {
             tmin = mn(tmin, g.tmin);
             tfar = mx(tfar, g.tfar);
         }
-        // Plain loops, not `map` closures: `lane_extreme` must inline into
+        // Plain loops, not `map` closures: the lane reductions must inline into
         // the caller's ISA (an outlined closure would call the wide lane
         // reads as functions).
         let mut e = Extremes {
@@ -504,12 +504,12 @@ impl Frustum {
             r: [(0.0, 0.0); 3],
             all_neg,
             all_pos,
-            tmin: lane_extreme(tmin, false),
-            tfar: lane_extreme(tfar, true),
+            tmin: tmin.lane_min(),
+            tfar: tfar.lane_max(),
         };
         for a in 0..3 {
-            e.o[a] = (lane_extreme(omin[a], false), lane_extreme(omax[a], true));
-            e.r[a] = (lane_extreme(rmin[a], false), lane_extreme(rmax[a], true));
+            e.o[a] = (omin[a].lane_min(), omax[a].lane_max());
+            e.r[a] = (rmin[a].lane_min(), rmax[a].lane_max());
         }
         Frustum::of(&e)
     }
@@ -629,20 +629,6 @@ impl Frustum {
         }
         self.tfar = m.lane_max();
     }
-}
-
-/// The smallest (`max` false) or largest lane of `v` (NaN lanes skipped
-/// unless lane 0 is NaN).
-#[inline(always)]
-fn lane_extreme<L: Wide>(v: L, max: bool) -> f32 {
-    let mut r = v.get(0);
-    for i in 1..L::WIDTH {
-        let x = v.get(i);
-        if (max && x > r) || (!max && x < r) {
-            r = x;
-        }
-    }
-    r
 }
 
 /// One ray's slab test against the four children of `n` (`traverse_wide`'s
