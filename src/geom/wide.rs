@@ -64,6 +64,64 @@ pub trait Wide: Lane {
         }
         m.max_element()
     }
+    /// One level of `extremes_across`: `self`'s lanes in blocks of `2b`
+    /// folded to blocks of `b` (the smaller, with `MAX` the larger, of
+    /// lanes `2kb + j` and `2kb + b + j`) in the lower half of the result,
+    /// `o`'s in the upper half.
+    fn fold_pairs<const MAX: bool>(self, o: Self, b: usize) -> Self;
+    /// Lane `g` of the result: the smallest (with `MAX` the largest) lane
+    /// of `v[g]`, for `v` of `Self::WIDTH` vectors (overwritten): a
+    /// transposing reduction of `WIDTH - 1` folds (two permutes and one
+    /// min or max each), where `WIDTH` separate `lane_min`s, each blended
+    /// into its lane, take about four times the instructions. Lanes must
+    /// not be NaN; of two equal lanes (+0 and -0) either may come out.
+    #[inline(always)]
+    fn extremes_across<const MAX: bool>(v: &mut [Self]) -> Self {
+        debug_assert_eq!(v.len(), Self::WIDTH);
+        let (mut n, mut b) = (Self::WIDTH, Self::WIDTH / 2);
+        while n > 1 {
+            for i in 0..n / 2 {
+                v[i] = v[2 * i].fold_pairs::<MAX>(v[2 * i + 1], b);
+            }
+            n /= 2;
+            b /= 2;
+        }
+        v[0]
+    }
+}
+
+/// The lanes `Wide::fold_pairs` folds at block size `b` (`second`: the
+/// block's second half), as two-source indices: `i < N` lane `i` of
+/// `self`, `N + i` lane `i` of `o` (the intrinsic lane types' permutes).
+pub(crate) const fn fold_index<const N: usize>(b: usize, second: bool) -> [i32; N] {
+    let mut r = [0i32; N];
+    let mut i = 0;
+    while i < N {
+        let (from, ii) = if i < N / 2 { (0, i) } else { (N, i - N / 2) };
+        let base = 2 * b * (ii / b) + ii % b + if second { b } else { 0 };
+        r[i] = (from + base) as i32;
+        i += 1;
+    }
+    r
+}
+
+/// `Wide::fold_pairs` on lane arrays.
+#[inline(always)]
+fn fold_lanes<const N: usize, const MAX: bool>(s: &[f32; N], o: &[f32; N], b: usize) -> [f32; N] {
+    let mut r = [0.0f32; N];
+    for i in 0..N {
+        let (src, ii) = if i < N / 2 { (s, i) } else { (o, i - N / 2) };
+        let base = 2 * b * (ii / b) + ii % b;
+        let (x, y) = (src[base], src[base + b]);
+        r[i] = if MAX {
+            if y > x { y } else { x }
+        } else if y < x {
+            y
+        } else {
+            x
+        };
+    }
+    r
 }
 
 /// `Lane::shear_axes` of a wide lane type, quad by quad with `F4`'s (whose
@@ -119,6 +177,10 @@ impl Wide for F4 {
     #[inline(always)]
     fn le_bits(self, o: F4) -> u32 {
         self.cmple(o).bitmask()
+    }
+    #[inline(always)]
+    fn fold_pairs<const MAX: bool>(self, o: F4, b: usize) -> F4 {
+        F4::from_array(fold_lanes::<4, MAX>(&self.to_array(), &o.to_array(), b))
     }
 }
 
@@ -343,6 +405,10 @@ macro_rules! wide_lane {
                 b
             }
             #[inline(always)]
+            fn fold_pairs<const MAX: bool>(self, o: Self, b: usize) -> Self {
+                $F(fold_lanes::<$N, MAX>(&self.0, &o.0, b))
+            }
+            #[inline(always)]
             fn mask_bits(m: $M) -> u32 {
                 // A sign test per lane (one compare into a mask register),
                 // not a shift-and-or reduction.
@@ -471,6 +537,46 @@ mod tests {
     #[test]
     fn f16_tests_equal_f4() {
         same_as_quads::<F16>();
+    }
+
+    /// `extremes_across` against each vector's own `lane_min`/`lane_max`.
+    fn extremes_match<W: Wide>() {
+        let mut seed = 7u32;
+        let mut next = || {
+            seed = seed.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            match seed >> 28 {
+                0 => f32::INFINITY,
+                1 => f32::NEG_INFINITY,
+                2 => 0.0,
+                _ => (seed >> 8) as f32 * 1e-3 - 8000.0,
+            }
+        };
+        for _ in 0..50 {
+            let v: Vec<W> = (0..W::WIDTH)
+                .map(|_| {
+                    let q: Vec<F4> = (0..W::G)
+                        .map(|_| F4::new(next(), next(), next(), next()))
+                        .collect();
+                    W::join(|k| q[k])
+                })
+                .collect();
+            let (mut a, mut b) = (v.clone(), v.clone());
+            let (lo, hi) = (
+                W::extremes_across::<false>(&mut a),
+                W::extremes_across::<true>(&mut b),
+            );
+            for g in 0..W::WIDTH {
+                assert_eq!(lo.get(g), v[g].lane_min());
+                assert_eq!(hi.get(g), v[g].lane_max());
+            }
+        }
+    }
+
+    #[test]
+    fn extremes_across_each_width() {
+        extremes_match::<F4>();
+        extremes_match::<F8>();
+        extremes_match::<F16>();
     }
 
     #[test]

@@ -308,6 +308,15 @@ mod same_ops {
             same(-xa, -xb);
             same(xa.raise(ya), xb.raise(yb));
             same(xa.lower(ya), xb.lower(yb));
+            let mut b_ = 1;
+            while b_ < n {
+                same(
+                    xa.fold_pairs::<false>(ya, b_),
+                    xb.fold_pairs::<false>(yb, b_),
+                );
+                same(xa.fold_pairs::<true>(ya, b_), xb.fold_pairs::<true>(yb, b_));
+                b_ *= 2;
+            }
             let ma = [xa.lt(ya), xa.le(ya), xa.eq(ya)];
             let mb = [xb.lt(yb), xb.le(yb), xb.eq(yb)];
             for (p, q) in ma.iter().zip(&mb) {

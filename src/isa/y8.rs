@@ -20,7 +20,7 @@
 #![allow(unsafe_code)] // AVX2 intrinsics; see the module's Safety section
 
 use crate::geom::lane::{Axis4, F4, Lane};
-use crate::geom::wide::{Wide, shear_by_quads};
+use crate::geom::wide::{Wide, fold_index, shear_by_quads};
 use core::arch::x86_64::*;
 use core::ops::{Add, BitAnd, BitOr, Div, Mul, Neg, Not, Sub};
 
@@ -172,6 +172,27 @@ impl Lane for Y8 {
     const WIDTH: usize = 8;
 }
 
+/// `fold_index` at block sizes 1, 2 and 4 (first and second halves),
+/// modulo 8: each half of the result is permuted out of one source.
+const FOLD8: [[[i32; 8]; 2]; 3] = {
+    let mut t = [[[0; 8]; 2]; 3];
+    let mut k = 0;
+    while k < 3 {
+        let (x, y) = (
+            fold_index::<8>(1 << k, false),
+            fold_index::<8>(1 << k, true),
+        );
+        let mut i = 0;
+        while i < 8 {
+            t[k][0][i] = x[i] % 8;
+            t[k][1][i] = y[i] % 8;
+            i += 1;
+        }
+        k += 1;
+    }
+    t
+};
+
 impl Wide for Y8 {
     const G: usize = 2;
     #[inline(always)]
@@ -230,6 +251,30 @@ impl Wide for Y8 {
     fn lower(self, o: Y8) -> Y8 {
         // SAFETY: as `splat`. `minps(o, x)` is `o < x ? o : x` lane by lane.
         Y8(unsafe { _mm256_min_ps(o.0, self.0) })
+    }
+    #[inline(always)]
+    fn fold_pairs<const MAX: bool>(self, o: Y8, b: usize) -> Y8 {
+        let k = b.trailing_zeros() as usize;
+        // SAFETY: as `splat`; the index tables are 8 i32 each, read
+        // unaligned. Lanes 0..4 come from `self`, 4..8 from `o` (the
+        // tables' indices modulo 8 within each); min/max as `lower`/`raise`.
+        Y8(unsafe {
+            let ix = _mm256_loadu_si256(FOLD8[k][0].as_ptr().cast());
+            let iy = _mm256_loadu_si256(FOLD8[k][1].as_ptr().cast());
+            let x = _mm256_blend_ps::<0xf0>(
+                _mm256_permutevar8x32_ps(self.0, ix),
+                _mm256_permutevar8x32_ps(o.0, ix),
+            );
+            let y = _mm256_blend_ps::<0xf0>(
+                _mm256_permutevar8x32_ps(self.0, iy),
+                _mm256_permutevar8x32_ps(o.0, iy),
+            );
+            if MAX {
+                _mm256_max_ps(y, x)
+            } else {
+                _mm256_min_ps(y, x)
+            }
+        })
     }
     #[inline(always)]
     fn le_bits(self, o: Y8) -> u32 {

@@ -31,7 +31,7 @@
 #![allow(unsafe_code)] // AVX-512F intrinsics; see the module's Safety section
 
 use crate::geom::lane::{Axis4, F4, Lane};
-use crate::geom::wide::{Wide, shear_by_quads};
+use crate::geom::wide::{Wide, fold_index, shear_by_quads};
 use core::arch::x86_64::*;
 use core::ops::{Add, BitAnd, BitOr, Div, Mul, Neg, Not, Sub};
 
@@ -243,7 +243,39 @@ impl Wide for Z16 {
     fn le_bits(self, o: Z16) -> u32 {
         Z16::mask_bits(self.le(o))
     }
+    #[inline(always)]
+    fn fold_pairs<const MAX: bool>(self, o: Z16, b: usize) -> Z16 {
+        let k = b.trailing_zeros() as usize;
+        // SAFETY: as `splat`; the index tables are 16 i32 each, read
+        // unaligned. `permutex2var` picks lanes of `self` (0..16) and `o`
+        // (16..32); min/max as `lower`/`raise` (`y < x ? y : x`).
+        Z16(unsafe {
+            let ix = _mm512_loadu_si512(FOLD16[k][0].as_ptr().cast());
+            let iy = _mm512_loadu_si512(FOLD16[k][1].as_ptr().cast());
+            let x = _mm512_permutex2var_ps(self.0, ix, o.0);
+            let y = _mm512_permutex2var_ps(self.0, iy, o.0);
+            if MAX {
+                _mm512_max_ps(y, x)
+            } else {
+                _mm512_min_ps(y, x)
+            }
+        })
+    }
 }
+
+/// `fold_index` at block sizes 1, 2, 4 and 8 (first and second halves).
+const FOLD16: [[[i32; 16]; 2]; 4] = {
+    let mut t = [[[0; 16]; 2]; 4];
+    let mut k = 0;
+    while k < 4 {
+        t[k] = [
+            fold_index::<16>(1 << k, false),
+            fold_index::<16>(1 << k, true),
+        ];
+        k += 1;
+    }
+    t
+};
 
 // The scratch budgets are sized with `F16`: a `Z16` must fit its slots.
 const _: () = {

@@ -348,51 +348,84 @@ fn admitted<L: Wide>(
     }
 }
 
+/// What `across` reduces: a group's live origins or reciprocals on an
+/// axis, or its lanes' `tmin` or far ends (lanes not live hold +inf and
+/// -inf there already).
+#[derive(Clone, Copy)]
+enum Term {
+    Org(usize),
+    Rcp(usize),
+    Tmin,
+    Tfar,
+}
+
+/// Lane `i`: the smallest (`MAX`: largest) `term` of group `gb[i]`'s live
+/// lanes (+inf, `MAX` -inf, without one, and past the last group), by one
+/// transposing reduction (`Wide::extremes_across`) in `v`.
+#[inline(always)]
+fn across<L: Wide, const MAX: bool>(
+    v: &mut [L; 16],
+    gb: &[GroupBox<L>],
+    live: &[L::Mask; 16],
+    term: Term,
+) -> L {
+    let fill = L::splat(if MAX {
+        f32::NEG_INFINITY
+    } else {
+        f32::INFINITY
+    });
+    for i in 0..L::WIDTH {
+        v[i] = match (gb.get(i), term) {
+            (None, _) => fill,
+            (Some(g), Term::Org(a)) => L::select(live[i], g.org[a], fill),
+            (Some(g), Term::Rcp(a)) => L::select(live[i], g.rcp[a], fill),
+            (Some(g), Term::Tmin) => g.tmin,
+            (Some(g), Term::Tfar) => g.tfar,
+        };
+    }
+    L::extremes_across::<MAX>(&mut v[..L::WIDTH])
+}
+
 impl<L: Wide> GroupFrusta<L> {
-    /// The frusta of the groups `gb` (at most `L::WIDTH`): each group's
-    /// extremes by lane reductions (`Wide::lane_min`), blended into its
-    /// lane (register moves: a row written lane by lane in memory and read
-    /// back whole would miss store forwarding).
+    /// The frusta of the groups `gb` (at most `L::WIDTH`): each extreme of
+    /// every group at once, by transposing reductions (`across`). A group
+    /// without a live lane gets tmin +inf and far end -inf: it admits
+    /// nothing.
     #[inline(always)]
     fn new(gb: &[GroupBox<L>], signs: &Signs) -> Self {
-        let (inf, nan) = (L::splat(f32::INFINITY), L::splat(f32::NAN));
+        let nan = L::splat(f32::NAN);
         let mut f = GroupFrusta {
             onear: [nan; 3],
             ofar: [nan; 3],
             big: [nan; 3],
             small: [nan; 3],
-            tmin: inf,
-            tfar: -inf,
+            tmin: L::splat(f32::INFINITY),
+            tfar: L::splat(f32::NEG_INFINITY),
         };
-        for (i, g) in gb.iter().enumerate() {
-            if g.live == 0 {
+        if gb.is_empty() {
+            return f;
+        }
+        let mut live = [L::mask_from_bits(0); 16];
+        for (m, g) in live.iter_mut().zip(gb) {
+            *m = L::mask_from_bits(g.live);
+        }
+        let mut v = [L::splat(0.0); 16];
+        for (a, &sa) in signs.iter().enumerate() {
+            if sa == 0 {
                 continue;
             }
-            let m = L::mask_from_bits(g.live);
-            let one = L::mask_from_bits(1 << i);
-            let put = |row: &mut L, x: f32| *row = L::select(one, L::splat(x), *row);
-            for (a, &sa) in signs.iter().enumerate() {
-                if sa == 0 {
-                    continue;
-                }
-                let omin = L::select(m, g.org[a], inf).lane_min();
-                let omax = L::select(m, g.org[a], -inf).lane_max();
-                let rmin = L::select(m, g.rcp[a], inf).lane_min();
-                let rmax = L::select(m, g.rcp[a], -inf).lane_max();
-                let (onear, ofar, big, small) = if sa > 0 {
-                    (omax, omin, rmax, rmin)
-                } else {
-                    (omin, omax, rmin, rmax)
-                };
-                put(&mut f.onear[a], onear);
-                put(&mut f.ofar[a], ofar);
-                put(&mut f.big[a], big);
-                put(&mut f.small[a], small);
-            }
-            // Lanes not live hold tmin +inf and tfar -inf.
-            put(&mut f.tmin, g.tmin.lane_min());
-            put(&mut f.tfar, g.tfar.lane_max());
+            let omin = across::<L, false>(&mut v, gb, &live, Term::Org(a));
+            let omax = across::<L, true>(&mut v, gb, &live, Term::Org(a));
+            let rmin = across::<L, false>(&mut v, gb, &live, Term::Rcp(a));
+            let rmax = across::<L, true>(&mut v, gb, &live, Term::Rcp(a));
+            (f.onear[a], f.ofar[a], f.big[a], f.small[a]) = if sa > 0 {
+                (omax, omin, rmax, rmin)
+            } else {
+                (omin, omax, rmin, rmax)
+            };
         }
+        f.tmin = across::<L, false>(&mut v, gb, &live, Term::Tmin);
+        f.tfar = across::<L, true>(&mut v, gb, &live, Term::Tfar);
         f
     }
 
