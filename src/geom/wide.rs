@@ -109,11 +109,11 @@ pub(crate) const fn fold_index<const N: usize>(b: usize, second: bool) -> [i32; 
 #[inline(always)]
 fn fold_lanes<const N: usize, const MAX: bool>(s: &[f32; N], o: &[f32; N], b: usize) -> [f32; N] {
     let mut r = [0.0f32; N];
-    for i in 0..N {
+    for (i, ri) in r.iter_mut().enumerate() {
         let (src, ii) = if i < N / 2 { (s, i) } else { (o, i - N / 2) };
         let base = 2 * b * (ii / b) + ii % b;
         let (x, y) = (src[base], src[base + b]);
-        r[i] = if MAX {
+        *ri = if MAX {
             if y > x { y } else { x }
         } else if y < x {
             y
@@ -565,9 +565,9 @@ mod tests {
                 W::extremes_across::<false>(&mut a),
                 W::extremes_across::<true>(&mut b),
             );
-            for g in 0..W::WIDTH {
-                assert_eq!(lo.get(g), v[g].lane_min());
-                assert_eq!(hi.get(g), v[g].lane_max());
+            for (g, x) in v.iter().enumerate() {
+                assert_eq!(lo.get(g), x.lane_min());
+                assert_eq!(hi.get(g), x.lane_max());
             }
         }
     }
