@@ -108,11 +108,15 @@ pub(crate) const fn fold_index<const N: usize>(b: usize, second: bool) -> [i32; 
 /// `Wide::fold_pairs` on lane arrays.
 #[inline(always)]
 fn fold_lanes<const N: usize, const MAX: bool>(s: &[f32; N], o: &[f32; N], b: usize) -> [f32; N] {
+    // The intrinsic types' permute tables, read here as array indices.
+    let (ix, iy) = (fold_index::<N>(b, false), fold_index::<N>(b, true));
+    let at = |k: i32| {
+        let k = k as usize;
+        if k < N { s[k] } else { o[k - N] }
+    };
     let mut r = [0.0f32; N];
     for (i, ri) in r.iter_mut().enumerate() {
-        let (src, ii) = if i < N / 2 { (s, i) } else { (o, i - N / 2) };
-        let base = 2 * b * (ii / b) + ii % b;
-        let (x, y) = (src[base], src[base + b]);
+        let (x, y) = (at(ix[i]), at(iy[i]));
         *ri = if MAX {
             if y > x { y } else { x }
         } else if y < x {
