@@ -11,7 +11,8 @@
  * traces racing them; the test runs until both sides have seen it, and no
  * trace that returns OK ever has a wrong hit.
  *
- * Runs under helgrind in tests/c_abi.rs (SHEAF_TEST_QUICK=1 shortens it).
+ * Runs under helgrind and DRD in tests/c_abi.rs (SHEAF_TEST_QUICK=1
+ * shortens it).
  */
 #define _POSIX_C_SOURCE 200112L
 #include <pthread.h>
