@@ -219,6 +219,10 @@ pub struct BvhNode {
 }
 
 const _: () = assert!(core::mem::size_of::<BvhNode>() == 32);
+const _: () = assert!(
+    BvhPools::SLOT_BYTES == 140,
+    "the 140 bytes per triangle the docs give"
+);
 
 impl BvhNode {
     const COUNT_MASK: u32 = (1 << 30) - 1;
@@ -295,6 +299,16 @@ pub struct BvhPools<'a> {
 }
 
 impl BvhPools<'_> {
+    /// Bytes of pool entries per triangle slot, the ones `move_slots`
+    /// moves (two nodes, the triangle, its id and slot, its reference):
+    /// a two-level scene's budget per triangle and a compaction's cost per
+    /// moved triangle. The projection pool, when carved, adds
+    /// `size_of::<ProjTri>()` (48).
+    pub const SLOT_BYTES: usize = 2 * core::mem::size_of::<BvhNode>()
+        + core::mem::size_of::<TriVerts>()
+        + 2 * core::mem::size_of::<u32>()
+        + core::mem::size_of::<PrimRef>();
+
     /// Move the entries of triangle slots `from..from + len` of every pool
     /// (nodes: two per slot) to `to..` (`copy_within`, overlap allowed).
     /// A BVH built in those slots refers to them relative to their start,

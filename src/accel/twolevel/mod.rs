@@ -208,7 +208,11 @@ pub struct TwoLevelInfo {
     pub free_triangles: u32,
     pub largest_free_run: u32,
     /// Compactions since the scene was made, and the triangles they moved
-    /// (each moves 140 bytes of pool entries per triangle).
+    /// (each moves `BvhPools::SLOT_BYTES`, 140 bytes of pool entries, per
+    /// triangle). Difference two commits' values for the cost per commit.
+    /// The time is not measured in the no_std core: about 4-7 ns per moved
+    /// triangle on an Intel Xeon (AVX-512, release build, two runs of the
+    /// streaming churn test; `docs/studies.md`).
     pub compactions: u32,
     pub compacted_triangles: u64,
 }
@@ -1082,15 +1086,40 @@ mod tests {
         assert!(!intersect::<Mt>(&s.view().unwrap(), &ray, !0, &mut ctr).is_hit());
     }
 
+    /// What one fill of the streaming churn did (`churn`).
+    struct Churn {
+        sets: u32,
+        /// Sets that found no gap holding their reservation (each served
+        /// after a compaction).
+        gapless: u32,
+        checks: u32,
+        compactions: u32,
+        moved: u64,
+        /// Triangles moved up to the last commit, and the most moved
+        /// between two commits (the difference of their
+        /// `compacted_triangles`).
+        committed: u64,
+        moved_max: u64,
+        /// Wall time of the `set_geometry` calls that compacted and of
+        /// those that did not (ns), and the triangles those built.
+        compacting: (u32, u128, u64),
+        plain: (u32, u128, u64),
+        /// Least-squares fit of a set's time over its built and moved
+        /// triangles (ns): (per set, per built, per moved triangle).
+        fit: [f64; 3],
+    }
+
     /// Streaming churn (issue 35): geometries of 20-400 triangles set,
     /// replaced with other sizes, removed (their instances first) and
-    /// placed in random order at up to 90 % of the budget. Every set whose
-    /// reservation fits the free budget succeeds (compacting when no gap
-    /// holds it), and every commit traces bitwise as a fresh scene built
-    /// from the same geometries and instances.
-    #[test]
-    fn streaming_churn_never_refuses_a_reservation_that_fits() {
+    /// placed in random order, the reservations held to `fill` % of the
+    /// budget, for `steps` steps. Every set whose reservation fits the
+    /// free budget succeeds (compacting when no gap holds it), and every
+    /// commit traces bitwise as a fresh scene built from the same
+    /// geometries and instances. Counts and times what the compactions
+    /// cost.
+    fn churn(fill: u32, steps: u32) -> Churn {
         use crate::accel::testkit::Rng;
+        use std::time::Instant;
         let (vs, ix) = &meshes()[1];
         let total = ix.len() / 3;
         let mesh = |k: usize| Scene::from_f32(vs, &ix[..3 * k]).unwrap();
@@ -1104,7 +1133,11 @@ mod tests {
         let mut geo: [Option<(usize, u32)>; IDS] = [None; IDS];
         let mut ins: [Option<(u32, Affine)>; IDS] = [None; IDS];
         let (mut sets, mut gapless, mut checks) = (0u32, 0u32, 0u32);
-        for step in 0..100_000u32 {
+        let (mut committed, mut moved_max) = (0u64, 0u64);
+        let (mut compacting, mut plain) = ((0u32, 0u128, 0u64), (0u32, 0u128, 0u64));
+        // Normal equations of time ~ a + b * built + c * moved.
+        let (mut xtx, mut xty) = ([[0f64; 3]; 3], [0f64; 3]);
+        for step in 0..steps {
             let id = (rng.next() % IDS as u64) as usize;
             match rng.next() % 8 {
                 0..=2 => {
@@ -1112,7 +1145,7 @@ mod tests {
                     let k = (cap as usize).min(total) - (rng.next() % 10) as usize;
                     let (_, taken) = s.triangle_budget();
                     let in_place = geo[id].is_some_and(|(_, c)| c >= cap);
-                    if !in_place && taken + cap > BUDGET * 9 / 10 {
+                    if !in_place && taken + cap > BUDGET * fill / 100 {
                         continue;
                     }
                     gapless += u32::from(!in_place && s.regions.largest_gap() < cap);
@@ -1121,8 +1154,26 @@ mod tests {
                         mode: UpdateMode::Rebuild,
                         ..GeometryParams::default()
                     };
-                    let r = s.set_geometry(id as u32, &mesh(k), &p, &Serial);
+                    let scene = mesh(k);
+                    let before = s.compaction_cost().0;
+                    let t = Instant::now();
+                    let r = s.set_geometry(id as u32, &scene, &p, &Serial);
+                    let ns = t.elapsed().as_nanos();
                     assert!(r.is_ok(), "step {step}: set {id} cap {cap}: {r:?}");
+                    let moved = s.compaction_cost().0 - before;
+                    let group = if moved > 0 {
+                        &mut compacting
+                    } else {
+                        &mut plain
+                    };
+                    *group = (group.0 + 1, group.1 + ns, group.2 + k as u64);
+                    let x = [1.0, k as f64, moved as f64];
+                    for (i, row) in xtx.iter_mut().enumerate() {
+                        for (j, v) in row.iter_mut().enumerate() {
+                            *v += x[i] * x[j];
+                        }
+                        xty[i] += x[i] * ns as f64;
+                    }
                     let kept = geo[id].map_or(cap, |(_, c)| if in_place { c } else { cap });
                     geo[id] = Some((k, kept));
                     sets += 1;
@@ -1152,8 +1203,12 @@ mod tests {
                     }
                 }
                 _ if step % 50 == 0 => {
-                    // Commit, and trace against a fresh scene of the model.
-                    s.commit();
+                    // Commit (what it reports moved since the last one is
+                    // the cost an engine sees per commit), and trace
+                    // against a fresh scene of the model.
+                    let info = s.commit();
+                    moved_max = moved_max.max(info.compacted_triangles - committed);
+                    committed = info.compacted_triangles;
                     let mut fresh = Store::new(BUDGET as usize, IDS, IDS, false);
                     let mut f = fresh.scene();
                     for (g, m) in geo.iter().enumerate() {
@@ -1191,18 +1246,108 @@ mod tests {
             }
         }
         let (moved, compactions) = s.compaction_cost();
+        // Cramer's rule on the 3x3 normal equations.
+        let det = |m: &[[f64; 3]; 3]| {
+            m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
+                - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+                + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
+        };
+        let d = det(&xtx);
+        let fit = core::array::from_fn(|c| {
+            let mut m = xtx;
+            for (row, y) in m.iter_mut().zip(xty) {
+                row[c] = y;
+            }
+            if compactions > 0 { det(&m) / d } else { 0.0 }
+        });
+        Churn {
+            sets,
+            gapless,
+            checks,
+            compactions,
+            moved,
+            committed,
+            moved_max,
+            compacting,
+            plain,
+            fit,
+        }
+    }
+
+    /// The streaming churn at 10, 50 and 90 % of the budget, with a table
+    /// of what the compactions cost (`--nocapture`; the times are the
+    /// build's profile's, indicative only in debug). At 90 % the budget
+    /// must fragment: sets find no gap and are served after a compaction.
+    /// At 10 % and 50 % at least 3,600 and 2,000 triangles stay free for a
+    /// reservation of at most 400, in at most 17 gaps (around 16 runs),
+    /// and first fit keeps the runs low: a gap that holds it nearly always
+    /// remains (this seed never compacts at either), so the churn may
+    /// legitimately never compact there and only the refusals and the
+    /// answers are checked.
+    #[test]
+    fn streaming_churn_never_refuses_a_reservation_that_fits() {
+        // 90 % runs 100,000 steps in every profile; 10 % and 50 % run
+        // 30,000 in debug, where 100,000 would add about 30 s to a test of
+        // about a minute (neither compacts with this seed, so the steps
+        // left out check only more of the same).
+        let few = if cfg!(debug_assertions) {
+            30_000
+        } else {
+            100_000
+        };
         std::eprintln!(
-            "churn: {sets} sets, {gapless} found no gap (served after a compaction), \
-             {compactions} compactions moved {moved} triangles, {checks} commits checked"
+            "churn (4,000-triangle budget, {} bytes per moved triangle)\n\
+             fill | steps | sets | no gap | compactions | moved | MB moved | \
+             moved per commit mean / max | compacting set us (n, built) | \
+             other set us (n, built) | fit ns: per set + per built + per moved",
+            BvhPools::SLOT_BYTES
         );
-        assert!(
-            sets > 25_000 && checks > 300,
-            "{sets} sets, {checks} checks"
-        );
-        assert!(
-            gapless > 0 && compactions > 0 && moved > 0,
-            "the churn must fragment the budget: {gapless} sets found no gap"
-        );
+        // The lower the fill, the more reservations would pass it and are
+        // skipped: fewer sets.
+        for (fill, steps, min_sets) in [
+            (10, few, few / 25),
+            (50, few, few / 6),
+            (90, 100_000, 25_000),
+        ] {
+            let c = churn(fill, steps);
+            let mean = |(n, ns, built): (u32, u128, u64)| {
+                let n1 = f64::from(n.max(1));
+                (ns as f64 / n1 / 1e3, n, built as f64 / n1)
+            };
+            let (tc, nc, kc) = mean(c.compacting);
+            let (tp, np, kp) = mean(c.plain);
+            std::eprintln!(
+                "{fill}% | {steps} | {} | {} | {} | {} | {:.1} | {:.0} / {} | \
+                 {tc:.1} ({nc}, {kc:.0}) | {tp:.1} ({np}, {kp:.0}) | {:.0} + {:.1} + {:.1}",
+                c.sets,
+                c.gapless,
+                c.compactions,
+                c.moved,
+                (c.moved as usize * BvhPools::SLOT_BYTES) as f64 / 1e6,
+                c.committed as f64 / f64::from(c.checks.max(1)),
+                c.moved_max,
+                c.fit[0],
+                c.fit[1],
+                c.fit[2],
+            );
+            assert!(
+                c.sets > min_sets && c.checks > steps / 400,
+                "{fill}%: {} sets, {} checks",
+                c.sets,
+                c.checks
+            );
+            assert_eq!(
+                c.compactions, c.gapless,
+                "{fill}%: a compaction per set that found no gap"
+            );
+            if fill == 90 {
+                assert!(
+                    c.gapless > 0 && c.compactions > 0 && c.moved > 0,
+                    "{fill}%: the churn must fragment the budget: {} sets found no gap",
+                    c.gapless
+                );
+            }
+        }
     }
 
     /// A compaction moves every run's BVH with it: the committed scene
