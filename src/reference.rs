@@ -125,3 +125,56 @@ pub fn with_edge_distance(scene: &Scene<'_>, ray: &Ray, mut hit: RefHit) -> RefH
     hit.edge = edge;
     hit
 }
+
+// The oracle's named tolerances: each explains a disagreement between an
+// f32 method and the f64 oracle (`judge`).
+
+/// The oracle's two nearest hits within this relative t of each other:
+/// either triangle is a right answer in f32.
+pub const TIE_REL: f64 = 1e-5;
+/// The oracle's hit, or a triangle in front of it, within this barycentric
+/// distance of an edge: an f32 test may decide either way.
+pub const EDGE_BARY: f64 = 1e-5;
+/// On agreement, the f32 t within this relative distance of the f64 t.
+pub const T_REL: f64 = 1e-4;
+
+/// How an f32 answer compares with the oracle's.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Verdict {
+    /// The same triangle (or both miss), t within `T_REL` (or near an edge).
+    Exact,
+    /// Another triangle within `TIE_REL` of the oracle's.
+    Tie,
+    /// Another answer, the ray within `EDGE_BARY` of an edge.
+    Edge,
+    /// The same triangle with t off by more than `T_REL`, away from edges
+    /// (the oracle's answer with its edge distance).
+    WrongT(RefHit),
+    /// Another answer that no tolerance explains.
+    Wrong(RefHit),
+}
+
+/// Judge an f32 answer (`prim`, `t`) for `ray` against the oracle's `want`
+/// (from `nearest` on the same `scene`), under the named tolerances.
+pub fn judge(scene: &Scene<'_>, ray: &Ray, prim: u32, t: f32, want: RefHit) -> Verdict {
+    let mut want = want;
+    if prim != want.prim || (prim != INVALID_ID && (t as f64 - want.t).abs() > T_REL * want.t.abs())
+    {
+        want = with_edge_distance(scene, ray, want);
+    }
+    if prim == want.prim {
+        if prim != INVALID_ID {
+            let rel = (t as f64 - want.t).abs() / want.t.abs().max(1e-30);
+            if rel > T_REL && want.edge > EDGE_BARY {
+                return Verdict::WrongT(want);
+            }
+        }
+        Verdict::Exact
+    } else if want.gap <= TIE_REL {
+        Verdict::Tie
+    } else if want.edge <= EDGE_BARY {
+        Verdict::Edge
+    } else {
+        Verdict::Wrong(want)
+    }
+}
