@@ -39,6 +39,8 @@ use sheaf::render::material::{Material, MaterialRange};
 use sheaf::render::whitted::WhittedParams;
 use sheaf::{Camera, Limits, PointLight, Shading};
 
+mod scene;
+
 const OK: sheaf_status = sheaf_status::Ok;
 /// Contexts needing more bytes than this are only asked for their size and
 /// given a short caller buffer (libFuzzer reports mallocs over its limit).
@@ -46,6 +48,8 @@ const MAX_CONTEXT_BYTES: usize = 48 << 20;
 /// Sentinels for output buffers.
 const S_HIT: u8 = 0xA5;
 const S_PIX: u8 = 0x5A;
+/// `sheaf_method` values (0-12: every method, the 4-wide tree's too).
+const METHODS: u32 = 13;
 
 // ---- inputs --------------------------------------------------------------------
 
@@ -194,6 +198,11 @@ impl LimitsIn {
     }
 }
 
+/// A `sheaf_isa`: AUTO or a forced level (refused where the CPU lacks it).
+fn isa(n: N) -> u32 {
+    small(n, |v| [0, 0, 1, 2, 3][v as usize % 5])
+}
+
 /// A usable pool size: 0 (sheaf's default) for a third of the values, else
 /// `v % below`.
 fn default_or(v: u32, below: u32) -> u32 {
@@ -252,6 +261,8 @@ struct BvhIn {
     bins: N,
     traversal_cost: F,
     test: N,
+    quality: N,
+    width: N,
 }
 
 #[derive(Arbitrary, Debug)]
@@ -272,6 +283,64 @@ struct PgridIn {
     chunk: u16,
     test: N,
     cull_backfaces: bool,
+    isa: N,
+}
+
+impl GridIn {
+    fn get(&self) -> sheaf_grid_params {
+        sheaf_grid_params {
+            lambda: match self.lambda {
+                F::Small(v) => (v as f32 / 8.0).abs() + 0.25,
+                x => x.get(),
+            },
+            macrocell: small(self.macrocell, |v| v % 9),
+            test: small(self.test, |v| v % 3),
+            fit: self.fit.into(),
+        }
+    }
+}
+
+impl BvhIn {
+    fn get(&self) -> sheaf_bvh_params {
+        sheaf_bvh_params {
+            leaf_size: small(self.leaf_size, |v| 1 + v % 8),
+            bins: small(self.bins, |v| 2 + v % 31),
+            traversal_cost: positive(self.traversal_cost),
+            test: small(self.test, |v| v % 3),
+            quality: small(self.quality, |v| v % 3),
+            width: small(self.width, |v| [0, 4, 2][v as usize % 3]),
+        }
+    }
+}
+
+impl KdIn {
+    fn get(&self) -> sheaf_kd_params {
+        sheaf_kd_params {
+            max_depth: small(self.max_depth, |v| v % 49),
+            traversal_cost: positive(self.traversal_cost),
+            empty_bonus: match self.empty_bonus {
+                F::Small(v) => (v as f32).abs() / 130.0,
+                x => x.get(),
+            },
+            test: small(self.test, |v| v % 3),
+        }
+    }
+}
+
+impl PgridIn {
+    fn get(&self) -> sheaf_pgrid_params {
+        sheaf_pgrid_params {
+            tile: small(self.tile, |v| [2, 4, 8, 16, 32][v as usize % 5]),
+            group: small(self.group, |v| [1, 2, 4][v as usize % 3]),
+            slices: small(self.slices, |v| 1 + v),
+            light_tiles: small(self.light_tiles, |v| 1 + v),
+            light_slices: small(self.light_slices, |v| 1 + v),
+            chunk: self.chunk as u32,
+            test: small(self.test, |v| v % 3),
+            cull_backfaces: self.cull_backfaces.into(),
+            isa: isa(self.isa),
+        }
+    }
 }
 
 #[derive(Arbitrary, Debug, Clone, Copy)]
@@ -284,13 +353,14 @@ struct TraceIn {
     ray_kind: N,
     entry: N,
     split: F,
+    isa: N,
 }
 
 impl TraceIn {
     fn get(&self) -> sheaf_trace_params {
         sheaf_trace_params {
             method: match self.method {
-                N::Small(v) => v as u32 % 11,
+                N::Small(v) => v as u32 % METHODS,
                 N::Any(v) => v,
             },
             packet: match self.packet {
@@ -306,6 +376,7 @@ impl TraceIn {
                 F::Small(v) => (v as f32 / 8.0).abs().max(1.0),
                 s => s.get(),
             },
+            isa: isa(self.isa),
         }
     }
 }
@@ -532,6 +603,8 @@ enum Op {
     /// another call (trace on slot 1, render_rows, a build, set_geometry,
     /// a render); compared with the serial results.
     Concurrent(u8, TraceIn, RaysIn),
+    /// The two-level scene's calls (issue 35; `scene.rs`).
+    Scene(scene::SceneOp),
 }
 
 #[derive(Arbitrary, Debug)]
@@ -582,6 +655,8 @@ struct State {
     /// Any vertex or ray field outside +-1e4 or non-finite since the last
     /// successful builds: the exactness comparisons are skipped.
     wild_scene: bool,
+    /// The two-level scene as the calls made it.
+    scene: scene::SceneModel,
 }
 
 // ---- contract helpers ----------------------------------------------------------
@@ -736,7 +811,7 @@ fn moderate(x: f32) -> bool {
 fn reference_of(method: u32) -> Option<u32> {
     match method {
         0 | 1 => Some(0),
-        2..=6 => Some(2),
+        2..=6 | 10..=12 => Some(2),
         7..=9 => Some(7),
         _ => None,
     }
@@ -965,6 +1040,7 @@ fn default_trace() -> sheaf_trace_params {
         ray_kind: 0,
         entry: 0,
         split: 0.0,
+        isa: 0,
     };
     assert_eq!(ffi::sheaf_trace_params_default(&mut p), OK);
     p
@@ -1120,66 +1196,123 @@ fn canned(k: u8, shift: [F; 3]) -> GeomIn {
     }
 }
 
-fn set_geometry(st: &mut State, g: &GeomIn) {
-    let nv_real = g.verts.len().min(400);
-    let per = 3 + g.pad as usize % 4;
-    let off = g.offset as usize % 4;
-    let mut vertices = vec![-7777.0f32; off + nv_real * per];
-    let mut vertex_at = Vec::with_capacity(nv_real);
-    for (i, v) in g.verts.iter().take(nv_real).enumerate() {
-        let at = off + i * per;
-        vertices[at..at + 3].copy_from_slice(&v3(*v));
-        vertex_at.push(at);
-    }
-    let real_bytes = (vertices.len() - off) * 4;
-    let stride = match g.stride {
-        None => per * 4,
-        Some(s) => s as usize,
-    };
-    // Claimed vertex count: its span (count - 1) * stride + 12 stays inside.
-    let fits = |n: usize| n == 0 || (n - 1).saturating_mul(stride).saturating_add(12) <= real_bytes;
-    let mut nv = match g.claim_vertices {
-        None => nv_real as u32,
-        Some(c) => c.get(),
-    };
-    if !fits(nv as usize) {
-        nv = if stride == 0 {
-            if real_bytes >= 12 { nv } else { 0 }
-        } else if real_bytes >= 12 {
-            ((real_bytes - 12) / stride + 1).min(nv as usize) as u32
-        } else {
-            0
+/// The vertex and index buffers of `g` as a C caller would hold them (the
+/// claimed counts stay inside the real buffers; pointers may be NULL or
+/// misaligned as `g` says).
+struct MeshBuf {
+    vertices: Vec<f32>,
+    vertex_at: Vec<usize>,
+    index_words: Vec<u32>,
+    /// First vertex (floats) and index (bytes) offsets.
+    off: usize,
+    mis: usize,
+    stride: usize,
+    nv: u32,
+    nt: u32,
+    vp: *const f32,
+    ip: *const u32,
+}
+
+impl MeshBuf {
+    fn of(g: &GeomIn) -> MeshBuf {
+        let nv_real = g.verts.len().min(400);
+        let per = 3 + g.pad as usize % 4;
+        let off = g.offset as usize % 4;
+        let mut vertices = vec![-7777.0f32; off + nv_real * per];
+        let mut vertex_at = Vec::with_capacity(nv_real);
+        for (i, v) in g.verts.iter().take(nv_real).enumerate() {
+            let at = off + i * per;
+            vertices[at..at + 3].copy_from_slice(&v3(*v));
+            vertex_at.push(at);
+        }
+        let real_bytes = (vertices.len() - off) * 4;
+        let stride = match g.stride {
+            None => per * 4,
+            Some(s) => s as usize,
         };
-    }
-    let nt_real = g.tris.len().min(200);
-    let mut index_words = vec![0u32; 3 * nt_real + 1];
-    for (t, tri) in g.tris.iter().take(nt_real).enumerate() {
-        for k in 0..3 {
-            index_words[3 * t + k] = match tri[k] {
-                IndexIn::Vertex(i) => i as u32 % (nv_real.max(1) as u32),
-                IndexIn::Any(i) => i,
+        // Claimed vertex count: its span (count - 1) * stride + 12 stays inside.
+        let fits =
+            |n: usize| n == 0 || (n - 1).saturating_mul(stride).saturating_add(12) <= real_bytes;
+        let mut nv = match g.claim_vertices {
+            None => nv_real as u32,
+            Some(c) => c.get(),
+        };
+        if !fits(nv as usize) {
+            nv = if stride == 0 {
+                if real_bytes >= 12 { nv } else { 0 }
+            } else if real_bytes >= 12 {
+                ((real_bytes - 12) / stride + 1).min(nv as usize) as u32
+            } else {
+                0
             };
         }
+        let nt_real = g.tris.len().min(200);
+        let mut index_words = vec![0u32; 3 * nt_real + 1];
+        for (t, tri) in g.tris.iter().take(nt_real).enumerate() {
+            for k in 0..3 {
+                index_words[3 * t + k] = match tri[k] {
+                    IndexIn::Vertex(i) => i as u32 % (nv_real.max(1) as u32),
+                    IndexIn::Any(i) => i,
+                };
+            }
+        }
+        let mis = g.index_misalign as usize % 4;
+        let nt = match g.claim_triangles {
+            None => nt_real as u32,
+            // The claimed triangles stay inside the real buffer (its extra word
+            // covers a misaligned start).
+            Some(c) => c.get().min(nt_real as u32),
+        };
+        let vp: *const f32 = if g.null_vertices {
+            core::ptr::null()
+        } else {
+            // SAFETY: in bounds (off <= len).
+            unsafe { vertices.as_ptr().add(off) }
+        };
+        let ip: *const u32 = if g.null_indices {
+            core::ptr::null()
+        } else {
+            // SAFETY: in bounds (the extra word).
+            unsafe { index_words.as_ptr().cast::<u8>().add(mis).cast() }
+        };
+        MeshBuf {
+            vertices,
+            vertex_at,
+            index_words,
+            off,
+            mis,
+            stride,
+            nv,
+            nt,
+            vp,
+            ip,
+        }
     }
-    let mis = g.index_misalign as usize % 4;
-    let nt = match g.claim_triangles {
-        None => nt_real as u32,
-        // The claimed triangles stay inside the real buffer (its extra word
-        // covers a misaligned start).
-        Some(c) => c.get().min(nt_real as u32),
-    };
-    let vp: *const f32 = if g.null_vertices {
-        core::ptr::null()
-    } else {
-        // SAFETY: in bounds (off <= len).
-        unsafe { vertices.as_ptr().add(off) }
-    };
-    let ip: *const u32 = if g.null_indices {
-        core::ptr::null()
-    } else {
-        // SAFETY: in bounds (the extra word).
-        unsafe { index_words.as_ptr().cast::<u8>().add(mis).cast() }
-    };
+
+    /// Whether every claimed vertex is finite and within +-1e4 and the
+    /// stride is whole floats (the exactness checks apply).
+    fn moderate(&self) -> bool {
+        self.stride % 4 == 0
+            && (0..self.nv as usize).all(|i| {
+                let at = self.off + i * self.stride / 4;
+                self.vertices
+                    .get(at..at + 3)
+                    .is_some_and(|v| v.iter().all(|&x| moderate(x)))
+            })
+    }
+}
+
+fn set_geometry(st: &mut State, g: &GeomIn) {
+    let m = MeshBuf::of(g);
+    let MeshBuf {
+        mis,
+        stride,
+        nv,
+        nt,
+        vp,
+        ip,
+        ..
+    } = m;
     let before = stats_of(st.ctx);
     let s = ffi::sheaf_context_set_geometry(st.ctx, vp, stride, nv, ip, nt);
     if nv > 0 && g.null_vertices || nt > 0 && g.null_indices {
@@ -1200,15 +1333,15 @@ fn set_geometry(st: &mut State, g: &GeomIn) {
         if !(stride >= 12 && stride % 4 == 0) && nv > 1 {
             panic!("set_geometry accepted stride {stride}");
         }
-        let moderate_scene = (0..nv as usize).all(|i| {
-            let at = off + i * stride / 4;
-            vertices
-                .get(at..at + 3)
-                .is_some_and(|v| v.iter().all(|&x| moderate(x)))
-        });
-        if !moderate_scene || stride % 4 != 0 {
+        if !m.moderate() {
             st.wild_scene = true;
         }
+        let MeshBuf {
+            vertices,
+            vertex_at,
+            index_words,
+            ..
+        } = m;
         // The index view is shifted when misaligned; keep both buffers alive.
         st.geometry = Some(Geometry {
             vertices,
@@ -1232,6 +1365,7 @@ fn build(st: &mut State, what: &str, f: impl FnOnce(*mut sheaf_context) -> sheaf
         // New structure: earlier results may legitimately change.
         st.trace = None;
         st.render = None;
+        st.scene.flat_rebuilt();
     }
     st.after(s, &before, what);
 }
@@ -1321,6 +1455,7 @@ fn run(input: &Input) {
         trace: None,
         render: None,
         wild_scene: false,
+        scene: scene::SceneModel::new(&core_limits),
     };
     assert_eq!(last_error(st.ctx), "no error");
     for op in input.ops.iter().take(24) {
@@ -1376,69 +1511,39 @@ fn step(st: &mut State, op: &Op) {
             }
         }
         Op::BuildGrid(p) => {
-            let p = p.as_ref().map(|p| sheaf_grid_params {
-                lambda: match p.lambda {
-                    F::Small(v) => (v as f32 / 8.0).abs() + 0.25,
-                    x => x.get(),
-                },
-                macrocell: small(p.macrocell, |v| v % 9),
-                test: small(p.test, |v| v % 3),
-                fit: p.fit.into(),
-            });
+            let p = p.as_ref().map(GridIn::get);
             build(st, "build_grid", |c| {
                 ffi::sheaf_context_build_grid(c, p.as_ref().map_or(core::ptr::null(), |p| p))
             });
         }
         Op::BuildBvh(p) => {
-            let p = p.as_ref().map(|p| sheaf_bvh_params {
-                leaf_size: small(p.leaf_size, |v| 1 + v % 8),
-                bins: small(p.bins, |v| 2 + v % 31),
-                traversal_cost: positive(p.traversal_cost),
-                test: small(p.test, |v| v % 3),
-            });
+            let p = p.as_ref().map(BvhIn::get);
             build(st, "build_bvh", |c| {
                 ffi::sheaf_context_build_bvh(c, p.as_ref().map_or(core::ptr::null(), |p| p))
             });
         }
         Op::BuildKd(p) => {
-            let p = p.as_ref().map(|p| sheaf_kd_params {
-                max_depth: small(p.max_depth, |v| v % 49),
-                traversal_cost: positive(p.traversal_cost),
-                empty_bonus: match p.empty_bonus {
-                    F::Small(v) => (v as f32).abs() / 130.0,
-                    x => x.get(),
-                },
-                test: small(p.test, |v| v % 3),
-            });
+            let p = p.as_ref().map(KdIn::get);
             build(st, "build_kd", |c| {
                 ffi::sheaf_context_build_kd(c, p.as_ref().map_or(core::ptr::null(), |p| p))
             });
         }
         Op::BuildPgrid(p) => {
-            let p = p.as_ref().map(|p| sheaf_pgrid_params {
-                tile: small(p.tile, |v| [2, 4, 8, 16, 32][v as usize % 5]),
-                group: small(p.group, |v| [1, 2, 4][v as usize % 3]),
-                slices: small(p.slices, |v| 1 + v),
-                light_tiles: small(p.light_tiles, |v| 1 + v),
-                light_slices: small(p.light_slices, |v| 1 + v),
-                chunk: p.chunk as u32,
-                test: small(p.test, |v| v % 3),
-                cull_backfaces: p.cull_backfaces.into(),
-            });
+            let p = p.as_ref().map(PgridIn::get);
             // Loads triangles for the grids only: traces and renders stand.
             let before = stats_of(st.ctx);
             let s =
                 ffi::sheaf_context_build_pgrid(st.ctx, p.as_ref().map_or(core::ptr::null(), |p| p));
             st.after(s, &before, "build_pgrid");
         }
-        Op::Trace(m, r) => trace_call(st, None, m.get() % 11, false, r),
+        Op::Trace(m, r) => trace_call(st, None, m.get() % METHODS, false, r),
         // Bit 3 of the hit offset (which uses bits 0-2) picks occluded_with,
         // so the corpus of earlier runs decodes as before.
         Op::TraceWith(p, r) => trace_call(st, Some(p.get()), 0, r.hit_offset & 8 != 0, r),
-        Op::Occluded(m, r) => trace_call(st, None, m.get() % 11, true, r),
+        Op::Occluded(m, r) => trace_call(st, None, m.get() % METHODS, true, r),
         Op::Render(m, f, fb) => {
             let p = sheaf_trace_params {
-                method: m.get() % 11,
+                method: m.get() % METHODS,
                 ..default_trace()
             };
             render(st, p, p, None, f, fb);
@@ -1465,6 +1570,7 @@ fn step(st: &mut State, op: &Op) {
         }
         Op::BadArg(call, which, kind) => bad_arg(st, *call, *which, *kind),
         Op::Concurrent(other, p, r) => concurrent(st, *other, &p.get(), r),
+        Op::Scene(op) => scene::step(st, op),
         Op::DeferredPixel(x, y) => {
             let mut hit = sheaf_hit {
                 t: 1.5,
@@ -1622,15 +1728,16 @@ fn warmup(st: &mut State, k: u8) {
         ray_kind: N::Small(k % 4),
         entry: N::Small(k / 4 % 3),
         split: F::Small(k as i8),
+        isa: N::Small(0),
     };
-    let m = k % 10;
+    let m = k % 13;
     render(st, tp(m).get(), tp(m / 2).get(), Some(()), &frame, &fb);
     let d = DeferredIn {
         lights: vec![light; 1 + k as usize % 3],
         primary_pgrid: k % 3 != 1,
         shadow_light_grid: k % 3 != 2,
         primary: tp(m),
-        shadow: tp(9 - m),
+        shadow: tp(12 - m),
         null_lights: false,
     };
     deferred(st, &d, &frame, &fb);
