@@ -454,6 +454,38 @@ pub fn step(st: &mut State, op: &SceneOp) {
                 set_instance(st, i, i % n, &xf, !0, false);
             }
             commit(st, false);
+            // Traces of a fan of rays at the scene (the first run's corpus
+            // never reached a successful scene trace by mutation alone):
+            // single rays, then a method and packet chosen by `k`, nearest
+            // and occluded.
+            let rays = RaysIn {
+                rays: Vec::new(),
+                fan: Some((
+                    [F::Small(40), F::Small(-56), F::Small(24)],
+                    [F::Small(0); 3],
+                    *k,
+                )),
+                tmax: RayTmax::Inf,
+                claim: None,
+                ray_offset: 0,
+                hit_offset: 0,
+                overlap: false,
+                null_rays: false,
+                null_hits: false,
+            };
+            let p = TraceIn {
+                method: N::Small(2 + k % 11),
+                packet: N::Small(k / 11),
+                macrocells: false,
+                mailbox: false,
+                culling: false,
+                ray_kind: N::Small(0),
+                entry: N::Small(0),
+                split: F::Small(0),
+                isa: N::Small(k / 7),
+            };
+            trace(st, None, &rays, !0, 0, false);
+            trace(st, Some(p.get()), &rays, !0, 0, k % 2 == 0);
         }
     }
 }
