@@ -522,6 +522,17 @@ fn mesh_of(m: &MeshIn) -> (MeshBuf, bool) {
     }
 }
 
+/// `b` as a `sheaf_mesh`.
+fn mesh_ptrs(b: &MeshBuf) -> sheaf_mesh {
+    sheaf_mesh {
+        vertices: b.vp,
+        vertex_stride_bytes: b.stride,
+        vertex_count: b.nv,
+        indices: b.ip,
+        triangle_count: b.nt,
+    }
+}
+
 /// The triangles a successful call read from `b`.
 fn triangles(b: &MeshBuf) -> Vec<[[f32; 3]; 3]> {
     (0..b.nt as usize)
@@ -573,13 +584,7 @@ fn set(st: &mut State, id: u32, mesh: &MeshIn, params: Option<&GeomParamsIn>, nu
         };
         p.mask = g.mask.get();
     }
-    let mesh = sheaf_mesh {
-        vertices: b.vp,
-        vertex_stride_bytes: b.stride,
-        vertex_count: b.nv,
-        indices: b.ip,
-        triangle_count: b.nt,
-    };
+    let mesh = mesh_ptrs(&b);
     let m = &st.scene;
     let cap = if p.max_triangles == 0 {
         b.nt
@@ -649,13 +654,7 @@ fn update(st: &mut State, id: u32, mesh: &UpdateIn, want_info: bool) {
     let Some(g) = st.scene.geoms.get(id as usize).cloned().flatten() else {
         let before = stats_of(st.ctx);
         let (b, _) = mesh_of(&MeshIn::Canned(0, [F::Small(0); 3]));
-        let m = sheaf_mesh {
-            vertices: b.vp,
-            vertex_stride_bytes: b.stride,
-            vertex_count: b.nv,
-            indices: b.ip,
-            triangle_count: b.nt,
-        };
+        let m = mesh_ptrs(&b);
         let s = ffi::sheaf_context_update_scene_geometry(st.ctx, id, &m, core::ptr::null_mut());
         assert_ne!(s, OK, "update of unset geometry {id}");
         return scene_after(st, s, &before, "update_scene_geometry");
@@ -676,13 +675,7 @@ fn update(st: &mut State, id: u32, mesh: &UpdateIn, want_info: bool) {
         }
         UpdateIn::Mesh(m) => mesh_of(m),
     };
-    let m = sheaf_mesh {
-        vertices: b.vp,
-        vertex_stride_bytes: b.stride,
-        vertex_count: b.nv,
-        indices: b.ip,
-        triangle_count: b.nt,
-    };
+    let m = mesh_ptrs(&b);
     let mut info = sheaf_refit_info {
         ns: 7,
         sah_before: 7.0,
