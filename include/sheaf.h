@@ -1324,9 +1324,8 @@ typedef struct sheaf_scene_info {
     /**
      * Such compactions since the context was made, and the triangles they
      * moved (140 bytes of pool entries each). Difference two commits'
-     * values for the cost per commit. The time is not measured in the
-     * no_std core: about 4-7 ns per moved triangle on an Intel Xeon
-     * (AVX-512, release build; docs/studies.md).
+     * values for the cost per commit. The no_std core measures no time;
+     * docs/studies.md times the moves.
      */
     uint32_t compactions;
     uint64_t compacted_triangles;

@@ -157,9 +157,8 @@ pub struct sheaf_scene_info {
     pub largest_free_run: u32,
     /// Such compactions since the context was made, and the triangles they
     /// moved (140 bytes of pool entries each). Difference two commits'
-    /// values for the cost per commit. The time is not measured in the
-    /// no_std core: about 4-7 ns per moved triangle on an Intel Xeon
-    /// (AVX-512, release build; docs/studies.md).
+    /// values for the cost per commit. The no_std core measures no time;
+    /// docs/studies.md times the moves.
     pub compactions: u32,
     pub compacted_triangles: u64,
 }

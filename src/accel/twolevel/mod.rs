@@ -210,9 +210,8 @@ pub struct TwoLevelInfo {
     /// Compactions since the scene was made, and the triangles they moved
     /// (each moves `BvhPools::SLOT_BYTES`, 140 bytes of pool entries, per
     /// triangle). Difference two commits' values for the cost per commit.
-    /// The time is not measured in the no_std core: about 4-7 ns per moved
-    /// triangle on an Intel Xeon (AVX-512, release build, two runs of the
-    /// streaming churn test; `docs/studies.md`).
+    /// The no_std core measures no time; `docs/studies.md` times the moves
+    /// (the streaming churn test).
     pub compactions: u32,
     pub compacted_triangles: u64,
 }
