@@ -5,8 +5,8 @@ mod common;
 
 use sheaf::geom::INVALID_ID;
 use sheaf::{
-    Band, Context, Error, GridParams, Hit, Limits, Method, OwnedContext, Pool, Ray, Scene,
-    required_bytes,
+    Band, BuildQuality, BvhParams, Context, Error, GridParams, Hit, Limits, Method, OwnedContext,
+    Pool, Ray, Scene, required_bytes,
 };
 
 /// 64-byte aligned scratch buffer for `Context::new_in`.
@@ -274,6 +274,28 @@ fn capacity_errors_name_the_pool_and_keep_the_previous_grid() {
         )
         .unwrap();
     assert!(info.cells() <= 20 && info.lambda < 50.0, "{info:?}");
+}
+
+/// Fuzz run 8's one finding: a context whose limits hold no triangles
+/// carves no BVH build scratch, and the LOW build of the empty scene took
+/// that scratch before seeing it had nothing to sort (a panic, which the C
+/// ABI turned into `POISONED`). Every build quality builds the empty scene
+/// there, and rays miss.
+#[test]
+fn a_context_of_no_triangles_builds_the_empty_scene() {
+    let mut ctx = OwnedContext::new(&Limits::for_triangles(0)).unwrap();
+    for quality in [BuildQuality::Low, BuildQuality::Medium, BuildQuality::High] {
+        let p = BvhParams {
+            quality,
+            ..BvhParams::default()
+        };
+        let info = ctx.build_bvh(&Scene::empty(), &p).unwrap();
+        assert_eq!((info.triangles, info.quality), (0, quality));
+        let mut hits = vec![Hit::MISS; 16];
+        ctx.trace(Method::BvhRanged, &down_rays(), &mut hits)
+            .unwrap();
+        assert!(hits.iter().all(|h| h.prim == INVALID_ID));
+    }
 }
 
 #[test]

@@ -193,6 +193,17 @@ pub(super) fn build(
     if n_in > room {
         return Err(cap(n_in, room));
     }
+    if n_in == 0 {
+        // Nothing to sort; and pools of no triangles (a context whose
+        // limits hold none) carve no build scratch (fuzz run 8).
+        return Ok(BvhInfo {
+            leaf_size: p.leaf_size,
+            bins: p.bins,
+            test: p.test,
+            quality: p.quality,
+            ..BvhInfo::default()
+        });
+    }
     let BvhPools {
         nodes,
         tris,
