@@ -200,8 +200,9 @@ pub extern "C" fn sheaf_geometry_params_default(
 /// Set geometry `id` (`< max_geometries`) of the two-level scene to
 /// `*mesh` (replacing it if set), building its BVH with `*params` (NULL:
 /// the defaults) in a run of the scene's triangle budget. `*mesh` is read
-/// during this call only. On error nothing changes. The scene must be
-/// committed (`sheaf_context_commit_scene`) before it is traced again.
+/// during this call only. On error nothing changes (a committed scene
+/// stays committed). After a success the scene must be committed
+/// (`sheaf_context_commit_scene`) before it is traced again.
 ///
 /// The budget does not fragment: when the free triangles suffice but no
 /// gap between the geometries' runs holds the reservation, the runs are
@@ -212,9 +213,11 @@ pub extern "C" fn sheaf_geometry_params_default(
 ///
 /// Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_INVALID_ARGUMENT`
 /// (no two-level scene, id out of range, another triangle test than the
-/// scene's, bad params or mesh), `SHEAF_STATUS_MISALIGNED`,
+/// scene's, the projection test without `projection_test` in the limits,
+/// bad params or mesh), `SHEAF_STATUS_MISALIGNED`,
 /// `SHEAF_STATUS_INDEX_OUT_OF_RANGE`, `SHEAF_STATUS_CAPACITY_TRIANGLES`
-/// (fewer free triangles than the reservation), `SHEAF_STATUS_CONTEXT_BUSY`,
+/// (a mesh of more triangles than `params->max_triangles`, or fewer free
+/// triangles than the reservation), `SHEAF_STATUS_CONTEXT_BUSY`,
 /// `SHEAF_STATUS_POISONED`.
 ///
 /// Not thread-safe: needs exclusive access to `ctx`.
@@ -239,12 +242,16 @@ pub extern "C" fn sheaf_context_set_scene_geometry(
 
 /// Update geometry `id` to `*mesh` as its mode says: REFIT (the same
 /// triangles, vertices moved; `*out`, if not NULL, receives what the refit
-/// did) or REBUILD (new triangles, up to the reserved count; `*out` is
-/// zeroed). On error the previous BVH stays. Commit before tracing.
+/// did) or REBUILD (new triangles, up to the geometry's run: its
+/// reservation, or the larger run of a geometry it replaced in place;
+/// `*out` is zeroed). On error nothing changes (the previous BVH stays and
+/// a committed scene stays committed). After a success, commit before
+/// tracing.
 ///
 /// Errors: as `sheaf_context_set_scene_geometry`, and
 /// `SHEAF_STATUS_INVALID_ARGUMENT` for a STATIC geometry, an id not set,
-/// or (REFIT) another triangle count than the build's.
+/// or (REFIT) another triangle count than the build's;
+/// `SHEAF_STATUS_CAPACITY_TRIANGLES` for a REBUILD past the run.
 ///
 /// Not thread-safe: needs exclusive access to `ctx`.
 #[unsafe(no_mangle)]
@@ -271,8 +278,9 @@ pub extern "C" fn sheaf_context_update_scene_geometry(
 
 /// Remove geometry `id`, giving its triangles back to the budget.
 ///
-/// Errors: `SHEAF_STATUS_INVALID_ARGUMENT` (not set, or still placed by an
-/// instance), `SHEAF_STATUS_CONTEXT_BUSY`, `SHEAF_STATUS_POISONED`.
+/// Errors: `SHEAF_STATUS_INVALID_ARGUMENT` (no two-level scene, not set,
+/// or still placed by an instance), `SHEAF_STATUS_CONTEXT_BUSY`,
+/// `SHEAF_STATUS_POISONED`. Nothing changes on error.
 ///
 /// Not thread-safe: needs exclusive access to `ctx`.
 #[unsafe(no_mangle)]
@@ -289,8 +297,9 @@ pub extern "C" fn sheaf_context_remove_scene_geometry(
 /// shares a bit with `mask`. sheaf stores the inverse.
 ///
 /// Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_INVALID_ARGUMENT`
-/// (id out of range, geometry not set, a NaN or infinite entry, a
-/// singular transform or one whose inverse does not fit f32),
+/// (no two-level scene, id out of range, geometry not set, a NaN or
+/// infinite entry, a singular transform or one whose inverse does not
+/// fit f32),
 /// `SHEAF_STATUS_CONTEXT_BUSY`, `SHEAF_STATUS_POISONED`. Nothing changes
 /// on error.
 ///
@@ -311,8 +320,9 @@ pub extern "C" fn sheaf_context_set_instance(
 
 /// Remove instance `id`.
 ///
-/// Errors: `SHEAF_STATUS_INVALID_ARGUMENT` (not set),
-/// `SHEAF_STATUS_CONTEXT_BUSY`, `SHEAF_STATUS_POISONED`.
+/// Errors: `SHEAF_STATUS_INVALID_ARGUMENT` (no two-level scene, not set),
+/// `SHEAF_STATUS_CONTEXT_BUSY`, `SHEAF_STATUS_POISONED`. Nothing changes
+/// on error.
 ///
 /// Not thread-safe: needs exclusive access to `ctx`.
 #[unsafe(no_mangle)]

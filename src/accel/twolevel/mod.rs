@@ -317,14 +317,18 @@ impl<'a> TwoLevel<'a> {
     /// on `par`'s workers. A replaced geometry is rebuilt in its own run
     /// when that holds `max_triangles`, else in a new run taken before the
     /// old one is given back (both are reserved meanwhile). On error
-    /// nothing changes, except that a failed in-place rebuild may drop the
-    /// previous BVH's 4-wide tree (its walks then take the binary tree).
-    /// The scene must be committed again before it is traced.
+    /// nothing changes: everything a build can refuse is checked before
+    /// the old BVH or the runs are touched (only an injected fault,
+    /// `fault-injection`, fails a build later: then the previous BVH stays
+    /// without its 4-wide tree and the scene must be committed again).
+    /// After a success the scene must be committed before it is traced.
     ///
     /// Errors: `id >= max_geometries`; a triangle test other than the
-    /// scene's; invalid `p.bvh`; `Capacity { pool: Triangles }` when no run
-    /// of `max_triangles` (or the scene's count) is free; those of
-    /// `bvh::build`.
+    /// scene's, or the projection test without `Limits::projection_test`;
+    /// invalid `p.bvh`; `Capacity { pool: Triangles }` when the mesh has
+    /// more triangles than `max_triangles`, or the free triangles (the
+    /// replaced geometry's own run counted) are fewer than the
+    /// reservation; those of `bvh::build`.
     pub fn set_geometry(
         &mut self,
         id: u32,
@@ -342,6 +346,12 @@ impl<'a> TwoLevel<'a> {
         }
         p.bvh.validate()?;
         p.refit.validate()?;
+        // Checked here, not by the build: a build in place fails only
+        // after dropping the old BVH's wide tree, and one into a new run
+        // only after a compaction, both of which a refusal must not do.
+        if p.bvh.test == TriTest::Projection && self.blas.proj.is_empty() {
+            return Err(bad("the projection test needs Limits::projection_test"));
+        }
         let n = scene.triangle_count();
         let cap = if p.max_triangles == 0 {
             n
@@ -421,15 +431,17 @@ impl<'a> TwoLevel<'a> {
     }
 
     /// Update geometry `id` to `scene` as its mode says: a refit (same
-    /// index buffer) or a rebuild into its run. On error the previous BVH
-    /// stays, with two exceptions: a refit whose automatic rebuild fails
-    /// keeps the refit tree (exact, as every tree), and a failed rebuild
-    /// may drop the 4-wide tree. Either way the scene must be committed
-    /// again.
+    /// index buffer) or a rebuild into its run. On error nothing changes
+    /// and a committed scene stays committed: everything a refit or a
+    /// rebuild can refuse is checked before the BVH is touched. (Only an
+    /// injected fault, `fault-injection`, fails later: a refit whose
+    /// automatic rebuild fails keeps the refit tree, a failed rebuild the
+    /// previous tree without its 4-wide tree; either way the scene must be
+    /// committed again.)
     ///
     /// Errors: `id` not set; a `Static` geometry; those of `bvh::refit` /
-    /// `bvh::build` (a rebuild beyond the reserved triangles:
-    /// `Capacity { pool: Triangles }`).
+    /// `bvh::build`; a rebuild beyond the geometry's run (its reservation):
+    /// `Capacity { pool: Triangles }`.
     pub fn update_geometry(
         &mut self,
         id: u32,
@@ -437,6 +449,16 @@ impl<'a> TwoLevel<'a> {
         par: &dyn Par,
     ) -> Result<UpdateInfo> {
         let g = *self.geom(id)?;
+        let n = scene.triangle_count();
+        if g.mode == UpdateMode::Rebuild && n > g.run.len {
+            // Refused before the build, which would drop the wide tree
+            // (and so uncommit the scene) before finding it too large.
+            return Err(Error::Capacity {
+                pool: crate::error::Pool::Triangles,
+                needed: n as u64,
+                available: g.run.len as u64,
+            });
+        }
         let mut b = Self::bvh_of(&mut self.blas, &g);
         let p = b.params();
         let out = match g.mode {
@@ -1083,6 +1105,63 @@ mod tests {
         let mut ctr = Counters::default();
         let ray = Ray::new(glam::Vec3::ZERO, glam::Vec3::X, 0.0, f32::INFINITY);
         assert!(!intersect::<Mt>(&s.view().unwrap(), &ray, !0, &mut ctr).is_hit());
+    }
+
+    /// Fuzz run 8's review: a set in place with the projection test but no
+    /// projection pools, and a REBUILD update past its run, were refused
+    /// only after the build had dropped the old BVH's 4-wide tree, which
+    /// uncommitted the scene. Both are refused first now: the scene stays
+    /// committed, the wide tree and the budget's counts unchanged, and
+    /// every answer bitwise as before.
+    #[test]
+    fn refused_edits_keep_the_scene_committed() {
+        let m = meshes();
+        let tetra = Scene::from_f32(&m[0].0, &m[0].1).unwrap();
+        let gears = Scene::from_f32(&m[1].0, &m[1].1).unwrap();
+        let mut st = Store::new(budget(&m) + 10, 2, 2, false);
+        let mut s = st.scene();
+        let rebuild = GeometryParams {
+            mode: UpdateMode::Rebuild,
+            ..GeometryParams::default()
+        };
+        s.set_geometry(0, &tetra, &rebuild, &Serial).unwrap();
+        s.set_instance(0, 0, &rot(20.0, 1, [1.0; 3], [0.1, 0.0, 0.0]), !0)
+            .unwrap();
+        let info = s.commit();
+        let bvh = s.geoms[0].bvh;
+        assert!(bvh.info().unwrap().wide_nodes > 0, "a wide tree to keep");
+        let tris = world_tris(&s.view().unwrap(), &m[..1]);
+        let rays = test_rays(&tris, &[], 5);
+        let answers = |s: &TwoLevel<'_>| -> Vec<SceneHit> {
+            let v = s.view().expect("still committed");
+            let mut ctr = Counters::default();
+            rays.iter()
+                .map(|r| intersect::<Mt>(&v, r, !0, &mut ctr))
+                .collect()
+        };
+        let before = answers(&s);
+        assert!(before.iter().filter(|h| h.is_hit()).count() > 20);
+        let pt = GeometryParams {
+            bvh: BvhParams {
+                test: TriTest::Projection,
+                ..BvhParams::default()
+            },
+            ..rebuild
+        };
+        assert!(matches!(
+            s.set_geometry(0, &tetra, &pt, &Serial),
+            Err(Error::InvalidArgument(_))
+        ));
+        assert!(matches!(
+            s.update_geometry(0, &gears, &Serial),
+            Err(Error::Capacity { .. })
+        ));
+        assert_eq!(s.geoms[0].bvh, bvh, "the BVH and its wide tree stay");
+        let after = answers(&s);
+        for (r, (a, b)) in rays.iter().zip(after.iter().zip(&before)) {
+            assert!(same(a, b), "{r:?}");
+        }
+        assert_eq!(s.commit(), info, "nothing moved or changed");
     }
 
     /// What one fill of the streaming churn did (`churn`).
