@@ -245,6 +245,10 @@ fn transform(m: &[f32; 12], p: [f32; 3]) -> [f32; 3] {
 struct GeoModel {
     /// Object-space triangles as the last set or update read them.
     tris: Vec<[[f32; 3]; 3]>,
+    /// The vertices and indices the last set or update read (a REFIT
+    /// update sends these indices with moved vertices).
+    verts: Vec<[f32; 3]>,
+    idx: Vec<u32>,
     /// Left out by the last build (a refit keeps them out).
     out: Vec<bool>,
     /// Triangles of the budget the geometry holds.
@@ -438,9 +442,18 @@ pub fn step(st: &mut State, op: &SceneOp) {
         } => concurrent(st, params.map(|p| p.get()), rays, *instance as u32 % 12, xf),
         SceneOp::Warmup(k) => {
             let n = 1 + *k as u32 % 3;
+            // Geometry 0 in the mode `k` names (STATIC, REFIT, REBUILD),
+            // so the update below can succeed; the others the defaults.
+            let p0 = GeomParamsIn {
+                mode: N::Small(*k / 3),
+                reserve: N::Small(0),
+                bvh: None,
+                rebuild_above: F::Small((*k >> 4) as i8),
+                mask: MaskIn::All,
+            };
             for g in 0..n {
                 let mesh = MeshIn::Canned(k.wrapping_add(g as u8 * 5), [F::Small(g as i8 * 9); 3]);
-                set(st, g, &mesh, None, false);
+                set(st, g, &mesh, (g == 0).then_some(&p0), false);
             }
             for i in 0..n + 1 {
                 let xf = XformIn::Rigid {
@@ -486,6 +499,26 @@ pub fn step(st: &mut State, op: &SceneOp) {
             };
             trace(st, None, &rays, !0, 0, false);
             trace(st, Some(p.get()), &rays, !0, 0, k % 2 == 0);
+            // The rest of the scene API in one go (run 7's corpus reached
+            // no successful update, remove, flattened build or scene_prim
+            // by mutation): a flattened build and a lookup, an update of
+            // geometry 0 and the last geometry removed with its instances,
+            // each followed by a commit and a trace.
+            flatten(st, *k, &None, &None, &None, !0);
+            prim_of(st, N::Small(*k % 3), N::Small(*k >> 2), None);
+            let moved = UpdateIn::Moved {
+                which: *k,
+                by: [1, -2, 3],
+            };
+            update(st, 0, &moved, k & 8 != 0);
+            commit(st, false);
+            trace(st, Some(p.get()), &rays, !0, 0, k % 2 != 0);
+            for i in (0..n + 1).filter(|i| i % n == n - 1) {
+                step(st, &SceneOp::RemoveInstance(i as u8));
+            }
+            step(st, &SceneOp::Remove((n - 1) as u8));
+            commit(st, true);
+            trace(st, None, &rays, !0, 0, false);
         }
     }
 }
@@ -546,6 +579,30 @@ fn triangles(b: &MeshBuf) -> Vec<[[f32; 3]; 3]> {
             })
         })
         .collect()
+}
+
+/// The indices of `b`, a mesh the call accepted, and its vertices up to
+/// the last one they use (a claimed count may be far larger, at stride 0).
+fn arrays(b: &MeshBuf) -> (Vec<[f32; 3]>, Vec<u32>) {
+    // SAFETY: the call accepted the buffers: 3 * nt aligned indices, each
+    // below the vertex count, every vertex inside the buffer.
+    let idx: Vec<u32> = (0..3 * b.nt as usize)
+        .map(|k| unsafe { b.ip.add(k).read() })
+        .collect();
+    let used = idx.iter().max().map_or(0, |&i| i as usize + 1);
+    if used > 400 {
+        // More than a `MeshBuf` holds: a moved copy is refused (its
+        // indices past its vertices), which the update checks as any.
+        return (Vec::new(), idx);
+    }
+    let verts = (0..used)
+        .map(|i| {
+            // SAFETY: as above.
+            let p = unsafe { b.vp.cast::<u8>().add(i * b.stride).cast::<[f32; 3]>() };
+            unsafe { p.read_unaligned() }
+        })
+        .collect();
+    (verts, idx)
 }
 
 fn left_out(tris: &[[[f32; 3]; 3]]) -> Vec<bool> {
@@ -620,11 +677,14 @@ fn set(st: &mut State, id: u32, mesh: &MeshIn, params: Option<&GeomParamsIn>, nu
         assert!((id as usize) < m.geoms.len());
         let kept = if in_place { old.unwrap().kept } else { cap };
         let tris = triangles(&b);
+        let (verts, idx) = arrays(&b);
         let out = left_out(&tris);
         let moderate = b.moderate();
         st.scene.geoms[id as usize] = Some(GeoModel {
             oracle: canned && moderate && !out.contains(&true),
             tris,
+            verts,
+            idx,
             out,
             kept,
             mode: p.mode,
@@ -659,19 +719,20 @@ fn update(st: &mut State, id: u32, mesh: &UpdateIn, want_info: bool) {
         assert_ne!(s, OK, "update of unset geometry {id}");
         return scene_after(st, s, &before, "update_scene_geometry");
     };
-    // The moved mesh: the stored triangles as a triangle soup.
+    // The moved mesh: the stored vertices, one (or all) moved, with the
+    // stored indices (REFIT's contract: the same index buffer).
     let (b, canned) = match mesh {
         UpdateIn::Moved { which, by } => {
-            let mut tris = g.tris.clone();
-            let n = 3 * tris.len();
-            for (k, v) in tris.iter_mut().flatten().enumerate() {
+            let mut verts = g.verts.clone();
+            let n = verts.len();
+            for (k, v) in verts.iter_mut().enumerate() {
                 if *which as usize >= n || *which as usize == k {
                     for a in 0..3 {
                         v[a] += by[a] as f32 / 8.0;
                     }
                 }
             }
-            (soup(&tris), g.oracle)
+            (indexed(&verts, &g.idx), g.oracle)
         }
         UpdateIn::Mesh(m) => mesh_of(m),
     };
@@ -721,9 +782,12 @@ fn update(st: &mut State, id: u32, mesh: &UpdateIn, want_info: bool) {
             );
         }
         let moderate = b.moderate();
+        let (verts, idx) = arrays(&b);
         st.scene.geoms[id as usize] = Some(GeoModel {
             oracle: canned && known && moderate && !out.contains(&true),
             tris,
+            verts,
+            idx,
             out,
             moderate,
             ..g
@@ -735,20 +799,20 @@ fn update(st: &mut State, id: u32, mesh: &UpdateIn, want_info: bool) {
     scene_after(st, s, &before, "update_scene_geometry");
 }
 
-/// A triangle soup of `tris` (vertices 3t..3t+3, natural stride).
-fn soup(tris: &[[[f32; 3]; 3]]) -> MeshBuf {
+/// The mesh of `verts` and `idx` (natural stride).
+fn indexed(verts: &[[f32; 3]], idx: &[u32]) -> MeshBuf {
     let g = GeomIn {
-        verts: tris
+        verts: verts
             .iter()
-            .flatten()
             .map(|v| v.map(|x| F::Bits(x.to_bits())))
             .collect(),
         pad: 0,
         offset: 0,
         stride: None,
         claim_vertices: None,
-        tris: (0..tris.len())
-            .map(|t| [0, 1, 2].map(|k| IndexIn::Any((3 * t + k) as u32)))
+        tris: idx
+            .chunks_exact(3)
+            .map(|t| [0, 1, 2].map(|k| IndexIn::Any(t[k])))
             .collect(),
         claim_triangles: None,
         index_misalign: 0,
@@ -1075,8 +1139,8 @@ fn trace(
     });
 }
 
-/// Nearest hits equal in t, triangle, geometry and instance (or the same
-/// occlusion answers).
+/// Nearest hits equal bit for bit in t, u, v, triangle, geometry and
+/// instance (or the same occlusion answers), as the header promises.
 fn same_hits(
     rays: &[sheaf_ray],
     got: &[u8],
@@ -1091,7 +1155,7 @@ fn same_hits(
         }
         let (a, b) = (hit_at(got, k), hit_at(want, k));
         assert!(
-            a.t.to_bits() == b.t.to_bits()
+            [a.t, a.u, a.v].map(f32::to_bits) == [b.t, b.u, b.v].map(f32::to_bits)
                 && (a.prim, a.geometry, a.instance) == (b.prim, b.geometry, b.instance),
             "ray {k} {:?}: {p:?} gives {a:?}, its reference {b:?}",
             rays[k]
