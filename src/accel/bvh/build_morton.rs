@@ -193,16 +193,17 @@ pub(super) fn build(
     if n_in > room {
         return Err(cap(n_in, room));
     }
+    let base = BvhInfo {
+        leaf_size: p.leaf_size,
+        bins: p.bins,
+        test: p.test,
+        quality: p.quality,
+        ..BvhInfo::default()
+    };
     if n_in == 0 {
         // Nothing to sort; and pools of no triangles (a context whose
         // limits hold none) carve no build scratch (fuzz run 8).
-        return Ok(BvhInfo {
-            leaf_size: p.leaf_size,
-            bins: p.bins,
-            test: p.test,
-            quality: p.quality,
-            ..BvhInfo::default()
-        });
+        return Ok(base);
     }
     let BvhPools {
         nodes,
@@ -261,11 +262,7 @@ pub(super) fn build(
         triangles: n as u32,
         excluded_non_finite: all.non_finite,
         excluded_zero_area: all.zero_area,
-        leaf_size: p.leaf_size,
-        bins: p.bins,
-        test: p.test,
-        quality: p.quality,
-        ..BvhInfo::default()
+        ..base
     };
     slot_of[..n_in].fill(INVALID_ID);
     if n == 0 {
