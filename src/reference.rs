@@ -137,18 +137,40 @@ pub const TIE_REL: f64 = 1e-5;
 pub const EDGE_BARY: f64 = 1e-5;
 /// On agreement, the f32 t within this relative distance of the f64 t.
 pub const T_REL: f64 = 1e-4;
+/// An f32 position's uncertainty as a fraction of the largest coordinate
+/// magnitude involved (64 roundings; `tests/stress.rs` uses the same).
+/// On agreement, the f32 t is also right within `POS_EPS` times the ray's
+/// `t_scale`: a hit at the ray's origin has a t of rounding size (a
+/// two-level ray moved into object space, a world triangle rounded to
+/// f32), which no relative tolerance bounds (fuzz run 9: a hit at t
+/// 1.1e-27 against the oracle's 0 on a triangle through the origin).
+pub const POS_EPS: f64 = 64.0 * f32::EPSILON as f64;
+
+/// The size at which an f32 test rounds the t of `ray` against `tri`: the
+/// largest coordinate magnitude of the origin and the vertices (the hit
+/// point lies in their box) over the direction's length.
+pub fn t_scale(ray: &Ray, tri: &TriVerts) -> f64 {
+    let big = |p: [f32; 3]| p.iter().fold(0.0f64, |m, &x| m.max((x as f64).abs()));
+    let span = big(ray.org)
+        .max(big(tri.v0))
+        .max(big(tri.v1))
+        .max(big(tri.v2));
+    let d = ray.dir.map(|x| x as f64);
+    span / (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt()
+}
 
 /// How an f32 answer compares with the oracle's.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Verdict {
-    /// The same triangle (or both miss), t within `T_REL` (or near an edge).
+    /// The same triangle (or both miss), t within `T_REL` plus the
+    /// position term `POS_EPS` (or near an edge).
     Exact,
     /// Another triangle within `TIE_REL` of the oracle's.
     Tie,
     /// Another answer, the ray within `EDGE_BARY` of an edge.
     Edge,
-    /// The same triangle with t off by more than `T_REL`, away from edges
-    /// (the oracle's answer with its edge distance).
+    /// The same triangle with t off by more than `T_REL` plus the position
+    /// term, away from edges (the oracle's answer with its edge distance).
     WrongT(RefHit),
     /// Another answer that no tolerance explains.
     Wrong(RefHit),
@@ -157,17 +179,18 @@ pub enum Verdict {
 /// Judge an f32 answer (`prim`, `t`) for `ray` against the oracle's `want`
 /// (from `nearest` on the same `scene`), under the named tolerances.
 pub fn judge(scene: &Scene<'_>, ray: &Ray, prim: u32, t: f32, want: RefHit) -> Verdict {
+    // Only for a hit on the oracle's triangle.
+    let t_ok = |want: &RefHit| {
+        let pos = POS_EPS * t_scale(ray, &scene.triangle(want.prim));
+        (t as f64 - want.t).abs() <= T_REL * want.t.abs() + pos
+    };
     let mut want = want;
-    if prim != want.prim || (prim != INVALID_ID && (t as f64 - want.t).abs() > T_REL * want.t.abs())
-    {
+    if prim != want.prim || (prim != INVALID_ID && !t_ok(&want)) {
         want = with_edge_distance(scene, ray, want);
     }
     if prim == want.prim {
-        if prim != INVALID_ID {
-            let rel = (t as f64 - want.t).abs() / want.t.abs().max(1e-30);
-            if rel > T_REL && want.edge > EDGE_BARY {
-                return Verdict::WrongT(want);
-            }
+        if prim != INVALID_ID && !t_ok(&want) && want.edge > EDGE_BARY {
+            return Verdict::WrongT(want);
         }
         Verdict::Exact
     } else if want.gap <= TIE_REL {
@@ -176,5 +199,55 @@ pub fn judge(scene: &Scene<'_>, ray: &Ray, prim: u32, t: f32, want: RefHit) -> V
         Verdict::Edge
     } else {
         Verdict::Wrong(want)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Fuzz run 9's disagreement: a ray starting 5.6e-29 above a triangle
+    /// in the plane y = 0 hits it at t 1.1e-27, which an f32 method that
+    /// moved the ray (or the oracle's rounded world triangle) puts at 0.
+    /// Both answers are right to rounding; a t off by far more than
+    /// rounding, near the origin or not, is still wrong.
+    #[test]
+    fn a_hit_at_the_origin_is_judged_by_the_t_scale() {
+        let verts = [-1.0, 0.0, -1.0, 1.0, 0.0, -1.0, 0.0, 0.0, 1.0];
+        let scene = Scene::from_f32(&verts, &[0, 1, 2]).unwrap();
+        let ray = Ray {
+            org: [-0.375, 5.640_045_5e-29, 0.0],
+            tmin: 0.0,
+            dir: [0.325, -0.05, 0.0],
+            tmax: f32::INFINITY,
+        };
+        let want = nearest(&scene, &ray);
+        assert_eq!(want.prim, 0);
+        assert!(want.t > 0.0 && want.t < 1e-26, "{want:?}");
+        let scale = t_scale(&ray, &scene.triangle(0));
+        assert!((3.0..3.1).contains(&scale), "{scale}");
+        assert_eq!(judge(&scene, &ray, 0, want.t as f32, want), Verdict::Exact);
+        assert_eq!(judge(&scene, &ray, 0, 0.0, want), Verdict::Exact);
+        let at_origin = RefHit { t: 0.0, ..want };
+        assert_eq!(judge(&scene, &ray, 0, 1.128e-27, at_origin), Verdict::Exact);
+        // 1e-3 is about 40 times the position term at this ray's scale.
+        assert!(matches!(
+            judge(&scene, &ray, 0, 1e-3, want),
+            Verdict::WrongT(_)
+        ));
+        // Far from the origin the relative tolerance still decides.
+        let far = Ray {
+            org: [-0.375, 5.0, 0.0],
+            dir: [0.0, -1.0, 0.0],
+            ..ray
+        };
+        let want = nearest(&scene, &far);
+        assert_eq!(want.prim, 0);
+        let t = want.t as f32;
+        assert_eq!(judge(&scene, &far, 0, t, want), Verdict::Exact);
+        assert!(matches!(
+            judge(&scene, &far, 0, t * 1.001, want),
+            Verdict::WrongT(_)
+        ));
     }
 }

@@ -8,7 +8,8 @@
 //! - `EDGE_BARY`: the oracle's hit, or a triangle in front of it, is within
 //!   this barycentric distance of an edge (an f32 test may decide either way);
 //! - `T_REL`: on agreement, the f32 t must be within this relative distance
-//!   of the f64 t.
+//!   of the f64 t, plus `POS_EPS` times the ray's t scale (a hit at the
+//!   origin has a t of rounding size).
 //!
 //! Anything else fails the test with the ray, both hits and the difference
 //! (`common::oracle`, shared with `tests/twolevel_exact.rs`).

@@ -4,7 +4,8 @@
 //! - `EDGE_BARY`: the oracle's hit, or a triangle in front of it, is within
 //!   this barycentric distance of an edge (an f32 test may decide either way);
 //! - `T_REL`: on agreement, the f32 t must be within this relative distance
-//!   of the f64 t.
+//!   of the f64 t, plus `POS_EPS` times the ray's t scale (a hit at the
+//!   origin has a t of rounding size).
 
 // Each test binary names the tolerances it reports (not every one uses all).
 #[allow(unused_imports)]
