@@ -505,8 +505,9 @@ fn nearest(tris: &[Tri64], r: &Ray) -> Option<Crossing> {
 const TIE_REL: f64 = 1e-5;
 const EDGE_BARY: f64 = 1e-5;
 const T_REL: f64 = 1e-4;
-/// `pos` = `POS_EPS` x the largest coordinate magnitude involved.
-const POS_EPS: f64 = 64.0 * f32::EPSILON as f64;
+/// `pos` = `POS_EPS` x the largest coordinate magnitude involved (the
+/// library oracle's position term, `sheaf::reference::POS_EPS`).
+use sheaf::reference::POS_EPS;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
 enum Verdict {
