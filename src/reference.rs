@@ -156,7 +156,7 @@ pub fn t_scale(ray: &Ray, tri: &TriVerts) -> f64 {
         .max(big(tri.v1))
         .max(big(tri.v2));
     let d = ray.dir.map(|x| x as f64);
-    span / (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt()
+    span / libm::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
 }
 
 /// How an f32 answer compares with the oracle's.
