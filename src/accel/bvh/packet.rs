@@ -408,10 +408,16 @@ impl Lanes {
                 }
             }
             let l = m & valid;
+            live[q] = l;
+            if !l.any() {
+                // Every accumulator below takes live lanes only: a quad of
+                // inactive slots (a shadow batch's misses and unlit
+                // points) costs its miss write alone.
+                continue;
+            }
             for (sa, da) in sum.iter_mut().zip(&r.dir) {
                 *sa += F4::select(l, *da, F4::ZERO);
             }
-            live[q] = l;
             n_live += l.bitmask().count_ones();
             tiny |= fallback::tiny(true, r, l);
             if W::BOUNDS {
