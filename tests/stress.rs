@@ -502,12 +502,9 @@ fn nearest(tris: &[Tri64], r: &Ray) -> Option<Crossing> {
 }
 
 /// Named tolerances (module doc).
-const TIE_REL: f64 = 1e-5;
-const EDGE_BARY: f64 = 1e-5;
-const T_REL: f64 = 1e-4;
-/// `pos` = `POS_EPS` x the largest coordinate magnitude involved (the
-/// library oracle's position term, `sheaf::reference::POS_EPS`).
-use sheaf::reference::POS_EPS;
+/// The library oracle's tolerances (`sheaf::reference`); `pos` =
+/// `POS_EPS` x the largest coordinate magnitude involved.
+use sheaf::reference::{EDGE_BARY, POS_EPS, T_REL, TIE_REL};
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
 enum Verdict {

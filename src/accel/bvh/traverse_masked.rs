@@ -619,7 +619,29 @@ pub(crate) mod tests {
         let far: Vec<Option<Ray>> = (0..h)
             .flat_map(|y| (0..w).map(move |x| Some(Ray::new(Vec3::ZERO, grid(x, y), 1e3, 1e8))))
             .collect();
+        // Whole 2x2 quads of active but invalid rays (tmin > tmax) among
+        // valid ones, as a shadow batch's inactive slots: the setup pass
+        // skips such quads.
+        let holes: Vec<Option<Ray>> = (0..h)
+            .flat_map(|y| {
+                (0..w).map(move |x| {
+                    let (lo, hi) = if (x / 2 + y / 2) % 3 == 0 {
+                        (2.0, 1.0)
+                    } else {
+                        (0.0, f32::INFINITY)
+                    };
+                    Some(Ray::new(Vec3::ZERO, grid(x, y), lo, hi))
+                })
+            })
+            .collect();
         let sets = [
+            RaySet {
+                name: "deep-holes",
+                w,
+                h,
+                rays: holes,
+                kinds: &[RayKind::Primary, RayKind::Shadow],
+            },
             RaySet {
                 name: "deep",
                 w,
