@@ -841,6 +841,158 @@ static bool test_bvh_methods(void) {
     return true;
 }
 
+/* ---- ray streams ----------------------------------------------------------- */
+
+#define N_STREAM 37 /* ends inside a quad and inside a 4x4 packet */
+
+/* One ray per element of an array of structs: the interleaved layout. */
+typedef struct {
+    float ox, oy, oz, dx, dy, dz, tmin, tmax;
+} aos_ray;
+typedef struct {
+    float t, u, v;
+    uint32_t prim;
+} aos_hit;
+
+static bool test_streams(void) {
+    /* Rays as structures of arrays, packed (stride 4) and interleaved
+       (stride 32), give sheaf_context_trace_with's hits and
+       sheaf_context_occluded_with's answers bit for bit; every bad input
+       is refused and writes nothing. */
+    scene *s = ground_and_box();
+    sheaf_context *ctx = built_context(s, s->nt);
+    sheaf_ray probe[N_PROBE], rays[N_STREAM];
+    sheaf_hit want[N_STREAM];
+    uint8_t occ_want[N_STREAM], occ[N_STREAM];
+    static float col[8][N_STREAM];
+    static aos_ray ar[N_STREAM];
+    static aos_hit ah[N_STREAM];
+    float t[N_STREAM], u[N_STREAM], v[N_STREAM];
+    uint32_t prim[N_STREAM], geom[N_STREAM];
+    sheaf_ray_stream rs, ri, bad;
+    sheaf_hit_stream hs, hi, badh;
+    sheaf_trace_params p;
+    sheaf_method methods[4] = {SHEAF_METHOD_GRID_CGT, SHEAF_METHOD_BVH_SINGLE, SHEAF_METHOD_BVH_RANGED,
+                               SHEAF_METHOD_BVH_FRUSTUM};
+    static float raw[N_STREAM + 2]; /* 4-byte aligned: raw + 1 or 2 bytes is not */
+    int i, m;
+    CHECK(ctx != NULL);
+    CHECK_OK(sheaf_context_build_bvh(ctx, NULL));
+    probe_rays(probe);
+    for (i = 0; i < N_STREAM; ++i) {
+        rays[i] = probe[i % N_PROBE];
+        rays[i].org[0] += 0.01f * (float)(i / N_PROBE);
+        col[0][i] = rays[i].org[0];
+        col[1][i] = rays[i].org[1];
+        col[2][i] = rays[i].org[2];
+        col[3][i] = rays[i].dir[0];
+        col[4][i] = rays[i].dir[1];
+        col[5][i] = rays[i].dir[2];
+        col[6][i] = rays[i].tmin;
+        col[7][i] = rays[i].tmax;
+        ar[i].ox = col[0][i];
+        ar[i].oy = col[1][i];
+        ar[i].oz = col[2][i];
+        ar[i].dx = col[3][i];
+        ar[i].dy = col[4][i];
+        ar[i].dz = col[5][i];
+        ar[i].tmin = col[6][i];
+        ar[i].tmax = col[7][i];
+    }
+    rs.org_x = col[0], rs.org_y = col[1], rs.org_z = col[2];
+    rs.dir_x = col[3], rs.dir_y = col[4], rs.dir_z = col[5];
+    rs.tmin = col[6], rs.tmax = col[7], rs.stride = sizeof(float);
+    ri.org_x = &ar[0].ox, ri.org_y = &ar[0].oy, ri.org_z = &ar[0].oz;
+    ri.dir_x = &ar[0].dx, ri.dir_y = &ar[0].dy, ri.dir_z = &ar[0].dz;
+    ri.tmin = &ar[0].tmin, ri.tmax = &ar[0].tmax, ri.stride = sizeof(aos_ray);
+    hs.t = t, hs.u = u, hs.v = v, hs.prim = prim, hs.geometry = NULL, hs.instance = NULL;
+    hs.stride = sizeof(float);
+    hi.t = &ah[0].t, hi.u = &ah[0].u, hi.v = &ah[0].v, hi.prim = &ah[0].prim;
+    hi.geometry = NULL, hi.instance = NULL, hi.stride = sizeof(aos_hit);
+    CHECK_OK(sheaf_trace_params_default(&p));
+    for (m = 0; m < 4; ++m) {
+        p.method = methods[m];
+        p.packet = 4;
+        CHECK_OK(sheaf_context_trace_with(ctx, &p, rays, want, N_STREAM));
+        CHECK_OK(sheaf_context_occluded_with(ctx, &p, rays, occ_want, N_STREAM));
+        CHECK_OK(sheaf_context_trace_stream(ctx, &p, &rs, &hs, N_STREAM));
+        CHECK_OK(sheaf_context_trace_stream(ctx, &p, &ri, &hi, N_STREAM));
+        for (i = 0; i < N_STREAM; ++i) {
+            CHECK(float_bits(t[i]) == float_bits(want[i].t) && prim[i] == want[i].prim);
+            CHECK(float_bits(u[i]) == float_bits(want[i].u) && float_bits(v[i]) == float_bits(want[i].v));
+            CHECK(float_bits(ah[i].t) == float_bits(want[i].t) && ah[i].prim == want[i].prim);
+            CHECK(float_bits(ah[i].u) == float_bits(want[i].u) && float_bits(ah[i].v) == float_bits(want[i].v));
+        }
+        memset(occ, 7, sizeof occ);
+        CHECK_OK(sheaf_context_occluded_stream(ctx, &p, &rs, occ, N_STREAM));
+        CHECK(memcmp(occ, occ_want, sizeof occ) == 0);
+        memset(occ, 7, sizeof occ);
+        CHECK_OK(sheaf_context_occluded_stream(ctx, &p, &ri, occ, N_STREAM));
+        CHECK(memcmp(occ, occ_want, sizeof occ) == 0);
+    }
+    CHECK(want[2].prim != SHEAF_INVALID_ID && want[3].prim == SHEAF_INVALID_ID);
+    /* count 0: NULL arrays allowed, nothing written */
+    bad = rs;
+    bad.org_x = NULL;
+    CHECK_OK(sheaf_context_trace_stream(ctx, &p, &bad, &hs, 0));
+    /* bad input: a clear status, nothing written */
+    memset(t, 0xAB, sizeof t);
+    memset(occ, 7, sizeof occ);
+    CHECK_STATUS(sheaf_context_trace_stream(NULL, &p, &rs, &hs, N_STREAM), SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS(sheaf_context_trace_stream(ctx, NULL, &rs, &hs, N_STREAM), SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS(sheaf_context_trace_stream(ctx, &p, NULL, &hs, N_STREAM), SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS(sheaf_context_trace_stream(ctx, &p, &rs, NULL, N_STREAM), SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS(sheaf_context_occluded_stream(ctx, &p, &rs, NULL, N_STREAM), SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS(sheaf_context_trace_stream(ctx, &p, &bad, &hs, N_STREAM), SHEAF_STATUS_NULL_POINTER);
+    badh = hs;
+    badh.prim = NULL;
+    CHECK_STATUS(sheaf_context_trace_stream(ctx, &p, &rs, &badh, N_STREAM), SHEAF_STATUS_NULL_POINTER);
+    bad = rs;
+    bad.tmax = (const float *)(void *)((char *)raw + 1); /* misaligned */
+    CHECK_STATUS(sheaf_context_trace_stream(ctx, &p, &bad, &hs, N_STREAM), SHEAF_STATUS_MISALIGNED);
+    badh = hs;
+    badh.u = (float *)(void *)((char *)raw + 2);
+    CHECK_STATUS(sheaf_context_trace_stream(ctx, &p, &rs, &badh, N_STREAM), SHEAF_STATUS_MISALIGNED);
+    for (i = 0; i < 3; ++i) {
+        size_t strides[3] = {0, 2, 6};
+        bad = rs;
+        bad.stride = strides[i];
+        CHECK_STATUS(sheaf_context_trace_stream(ctx, &p, &bad, &hs, N_STREAM), SHEAF_STATUS_INVALID_ARGUMENT);
+        CHECK_STATUS(sheaf_context_occluded_stream(ctx, &p, &bad, occ, N_STREAM), SHEAF_STATUS_INVALID_ARGUMENT);
+        badh = hs;
+        badh.stride = strides[i];
+        CHECK_STATUS(sheaf_context_trace_stream(ctx, &p, &rs, &badh, N_STREAM), SHEAF_STATUS_INVALID_ARGUMENT);
+    }
+    bad = rs;
+    bad.stride = SIZE_MAX / 2; /* past the address space */
+    CHECK_STATUS(sheaf_context_trace_stream(ctx, &p, &bad, &hs, N_STREAM), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_trace_stream(ctx, &p, &rs, &hs, SIZE_MAX), SHEAF_STATUS_INVALID_ARGUMENT);
+    badh = hs;
+    badh.t = col[3]; /* an output over an input */
+    CHECK_STATUS(sheaf_context_trace_stream(ctx, &p, &rs, &badh, N_STREAM), SHEAF_STATUS_INVALID_ARGUMENT);
+    badh = hs;
+    badh.v = u; /* two outputs on one array */
+    CHECK_STATUS(sheaf_context_trace_stream(ctx, &p, &rs, &badh, N_STREAM), SHEAF_STATUS_INVALID_ARGUMENT);
+    badh = hi;
+    badh.v = &ah[1].t; /* interleaved, but on another field's elements */
+    CHECK_STATUS(sheaf_context_trace_stream(ctx, &p, &rs, &badh, N_STREAM), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_occluded_stream(ctx, &p, &rs, (uint8_t *)col[5], N_STREAM),
+                 SHEAF_STATUS_INVALID_ARGUMENT);
+    badh = hs;
+    badh.geometry = geom; /* a scene hit's field in a single-mesh call */
+    CHECK_STATUS(sheaf_context_trace_stream(ctx, &p, &rs, &badh, N_STREAM), SHEAF_STATUS_INVALID_ARGUMENT);
+    p.packet = 0;
+    CHECK_STATUS(sheaf_context_trace_stream(ctx, &p, &rs, &hs, N_STREAM), SHEAF_STATUS_INVALID_ARGUMENT);
+    for (i = 0; i < N_STREAM; ++i) CHECK(float_bits(t[i]) == 0xABABABABu && occ[i] == 7);
+    /* the scene calls without a two-level scene */
+    p.packet = 4;
+    CHECK_STATUS(sheaf_context_trace_scene_stream(ctx, &p, &rs, &hs, N_STREAM, ~0u, 0),
+                 SHEAF_STATUS_INVALID_ARGUMENT);
+    sheaf_context_destroy(ctx);
+    free(s);
+    return true;
+}
+
 static bool test_kd_methods(void) {
     /* The kd-tree next to the grid and the BVH: kd SIMD and kd packets of
        every side, from the root and from MLRTA and AEPSA entry points, give
@@ -1509,6 +1661,7 @@ int main(void) {
     run_test("test_trace_leaves_stats", test_trace_leaves_stats, &passed, &failed);
     run_test("test_render", test_render, &passed, &failed);
     run_test("test_bvh_methods", test_bvh_methods, &passed, &failed);
+    run_test("test_streams", test_streams, &passed, &failed);
     run_test("test_kd_methods", test_kd_methods, &passed, &failed);
     run_test("test_whitted", test_whitted, &passed, &failed);
     run_test("test_pgrid", test_pgrid, &passed, &failed);

@@ -322,6 +322,41 @@ static bool test_packet_methods_equal_single_rays(void) {
             CHECK(occ_got[k] == occ_want[k]);
         }
     }
+    {
+        /* The same rays as a stream (the sheaf_ray array read field by
+           field: stride 32) into interleaved hits (the sheaf_scene_hit
+           array: stride 24): single rays and the frustum packets give the
+           same answers, bit for bit. */
+        sheaf_ray_stream rs;
+        sheaf_hit_stream hs;
+        const sheaf_trace_params *ps[2];
+        int j;
+        rs.org_x = &rays[0].org[0], rs.org_y = &rays[0].org[1], rs.org_z = &rays[0].org[2];
+        rs.dir_x = &rays[0].dir[0], rs.dir_y = &rays[0].dir[1], rs.dir_z = &rays[0].dir[2];
+        rs.tmin = &rays[0].tmin, rs.tmax = &rays[0].tmax, rs.stride = sizeof(sheaf_ray);
+        hs.t = &got[0].t, hs.u = &got[0].u, hs.v = &got[0].v, hs.prim = &got[0].prim;
+        hs.geometry = &got[0].geometry, hs.instance = &got[0].instance, hs.stride = sizeof(sheaf_scene_hit);
+        CHECK_OK(sheaf_trace_params_default(&tp));
+        tp.method = SHEAF_METHOD_BVH_FRUSTUM;
+        tp.packet = 8;
+        ps[0] = NULL;
+        ps[1] = &tp;
+        for (j = 0; j < 2; ++j) {
+            memset(got, 0, sizeof got);
+            memset(occ_got, 7, sizeof occ_got);
+            CHECK_OK(sheaf_context_trace_scene_stream(ctx, ps[j], &rs, &hs, 256, ~0u, 0));
+            CHECK_OK(sheaf_context_occluded_scene_stream(ctx, ps[j], &rs, occ_got, 256, ~0u, 0));
+            CHECK(memcmp(got, want, sizeof got) == 0);
+            CHECK(memcmp(occ_got, occ_want, sizeof occ_got) == 0);
+        }
+        hs.instance = &got[0].geometry; /* two outputs on one array */
+        CHECK_STATUS(sheaf_context_trace_scene_stream(ctx, &tp, &rs, &hs, 256, ~0u, 0),
+                     SHEAF_STATUS_INVALID_ARGUMENT);
+        hs.instance = NULL; /* not written */
+        CHECK_OK(sheaf_context_trace_scene_stream(ctx, &tp, &rs, &hs, 256, ~0u, 0));
+        CHECK_STATUS(sheaf_context_trace_scene_stream(ctx, &tp, &rs, &hs, 256, ~0u, 3),
+                     SHEAF_STATUS_INVALID_ARGUMENT);
+    }
     CHECK_OK(sheaf_trace_params_default(&tp));
     tp.method = SHEAF_METHOD_GRID_CGT;
     CHECK_STATUS(sheaf_context_trace_scene(ctx, &tp, rays, got, 256, ~0u, 0), SHEAF_STATUS_INVALID_ARGUMENT);

@@ -1347,6 +1347,55 @@ typedef struct sheaf_scene_hit {
 } sheaf_scene_hit;
 
 /**
+ * Rays as structures of arrays: ray `i` is `org_x[i]`, `org_y[i]`, ...,
+ * `tmax[i]`, with the semantics of `sheaf_ray`.
+ *
+ * `stride` is the distance in bytes from one ray's element to the next
+ * in every array: `sizeof(float)` (4) for packed arrays, larger for
+ * arrays interleaved with other data; a multiple of 4. Every pointer is
+ * aligned to 4 bytes and may be NULL only when the call's count is 0.
+ * Packed arrays (stride 4) are the fast layout: packets load their 2x2
+ * quads from them directly.
+ */
+typedef struct sheaf_ray_stream {
+    const float *org_x;
+    const float *org_y;
+    const float *org_z;
+    const float *dir_x;
+    const float *dir_y;
+    const float *dir_z;
+    const float *tmin;
+    const float *tmax;
+    /**
+     * Bytes between consecutive rays' elements (4: packed).
+     */
+    size_t stride;
+} sheaf_ray_stream;
+
+/**
+ * Nearest hits as structures of arrays: hit `i` is `t[i]`, `u[i]`,
+ * `v[i]`, `prim[i]` (the fields of `sheaf_hit`), and for two-level
+ * scenes `geometry[i]`, `instance[i]` (those of `sheaf_scene_hit`).
+ *
+ * `stride` and the pointers' rules are those of `sheaf_ray_stream`;
+ * `geometry` and `instance` may be NULL in a scene call (not written)
+ * and must be NULL in a single-mesh call. No output array may share an
+ * element with another or with an input array.
+ */
+typedef struct sheaf_hit_stream {
+    float *t;
+    float *u;
+    float *v;
+    uint32_t *prim;
+    uint32_t *geometry;
+    uint32_t *instance;
+    /**
+     * Bytes between consecutive hits' elements (4: packed).
+     */
+    size_t stride;
+} sheaf_hit_stream;
+
+/**
  * Bounce limits (C: `sheaf_whitted_params`).
  */
 typedef struct sheaf_whitted_params {
@@ -2378,6 +2427,69 @@ sheaf_status sheaf_context_scene_prim(const struct sheaf_context *ctx,
  * string is static (never free it). Thread-safe.
  */
 const char *sheaf_status_string(sheaf_status status);
+
+/**
+ * Nearest hits of `count` rays given as a stream (`sheaf_ray_stream`)
+ * into a hit stream (`sheaf_hit_stream`, `geometry` and `instance`
+ * NULL), with `params`' method and packets as `sheaf_context_trace_with`
+ * forms them from the rays in order: its hits, bit for bit. Takes a free
+ * thread slot as `sheaf_context_trace` does, and is thread-safe like it.
+ *
+ * Errors: `SHEAF_STATUS_NULL_POINTER` (a NULL stream, or a NULL array
+ * with `count` > 0), `SHEAF_STATUS_MISALIGNED` (an array not 4-byte
+ * aligned), `SHEAF_STATUS_INVALID_ARGUMENT` (bad params, a stride that is
+ * not a multiple of 4 or below 4, `count` past the address space, an
+ * output array sharing elements with another array, `geometry` or
+ * `instance` not NULL), `SHEAF_STATUS_NOT_BUILT`,
+ * `SHEAF_STATUS_CAPACITY_THREADS`. The hits are written only on success.
+ */
+sheaf_status sheaf_context_trace_stream(const struct sheaf_context *ctx,
+                                        const struct sheaf_trace_params *params,
+                                        const struct sheaf_ray_stream *rays,
+                                        const struct sheaf_hit_stream *hits,
+                                        size_t count);
+
+/**
+ * Occlusion of `count` rays given as a stream: `occluded[i]` = 1 when
+ * ray `i` hits any triangle in `[tmin, tmax)`, else 0, as
+ * `sheaf_context_occluded_with` answers. Same rules and errors as
+ * `sheaf_context_trace_stream`; `occluded` (`count` bytes) may not
+ * overlap the rays.
+ */
+sheaf_status sheaf_context_occluded_stream(const struct sheaf_context *ctx,
+                                           const struct sheaf_trace_params *params,
+                                           const struct sheaf_ray_stream *rays,
+                                           uint8_t *occluded,
+                                           size_t count);
+
+/**
+ * `sheaf_context_trace_scene` on a ray stream into a hit stream
+ * (`geometry` and `instance` written where not NULL): `params` (NULL:
+ * single rays), `mask` and `flags` as there, and its hits, bit for bit.
+ * Thread-safe as `sheaf_context_trace_scene`. Errors: those of
+ * `sheaf_context_trace_scene` and the stream checks of
+ * `sheaf_context_trace_stream`.
+ */
+sheaf_status sheaf_context_trace_scene_stream(const struct sheaf_context *ctx,
+                                              const struct sheaf_trace_params *params,
+                                              const struct sheaf_ray_stream *rays,
+                                              const struct sheaf_hit_stream *hits,
+                                              size_t count,
+                                              uint32_t mask,
+                                              uint32_t flags);
+
+/**
+ * `sheaf_context_occluded_scene` on a ray stream: 1 or 0 into
+ * `occluded`. Rules and errors as `sheaf_context_trace_scene_stream`
+ * and `sheaf_context_occluded_stream`.
+ */
+sheaf_status sheaf_context_occluded_scene_stream(const struct sheaf_context *ctx,
+                                                 const struct sheaf_trace_params *params,
+                                                 const struct sheaf_ray_stream *rays,
+                                                 uint8_t *occluded,
+                                                 size_t count,
+                                                 uint32_t mask,
+                                                 uint32_t flags);
 
 /**
  * Write the defaults to `*out`: coherent grid traversal, 8x8 packets,

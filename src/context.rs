@@ -22,7 +22,7 @@ mod scene;
 
 pub use crate::trace::SceneTracer;
 pub use crate::trace::scene::{BvhTracer, GridTracer, KdTracer};
-use crate::trace::{Counters, Method, TraceParams, batch_on};
+use crate::trace::{Counters, HitStream, Method, RaySource, RayStream, TraceParams, batch_on};
 
 /// Scratch bytes of one thread slot: the most a caller of the packet
 /// driver holds (`trace::batch_on`'s packet, a render tile, a Whitted
@@ -941,22 +941,56 @@ impl<'a> Context<'a> {
     }
 
     /// Trace (`any`: test occlusion of) `count` rays, ray `i` being
-    /// `read(i)`, from any thread sharing `&self`, handing each result to
-    /// `out(i, hits, lane)`: packets as `trace_with` forms them, on thread
-    /// slot `slot` (see `with_slot`; `None` takes the highest free slot).
-    /// The calls of the C ABI come here. Does not update `stats`.
+    /// `rays.ray(i)` (a closure reading an array, or a `RayStream`), from
+    /// any thread sharing `&self`, handing each result to `out(i, hits,
+    /// lane)`: packets as `trace_with` forms them, on thread slot `slot`
+    /// (see `with_slot`; `None` takes the highest free slot). The calls of
+    /// the C ABI come here. Does not update `stats`.
     pub fn trace_each(
         &self,
         slot: Option<u32>,
         p: &TraceParams,
         count: usize,
-        read: impl Fn(usize) -> Ray,
+        rays: impl RaySource,
         out: impl FnMut(usize, &Hit4, usize),
         any: bool,
     ) -> Result<Counters> {
         p.validate()?;
         let tr = self.scene_tracer()?.with_single(p.method)?;
-        self.with_slot(slot, |slot| batch_on(&tr, slot, p, count, read, out, any))
+        self.with_slot(slot, |slot| batch_on(&tr, slot, p, count, rays, out, any))
+    }
+
+    /// Nearest hits of a ray stream (rays and hits as structures of
+    /// arrays, `trace::stream`) with `p.method`, from any thread sharing
+    /// `&self`, on thread slot `slot` as `trace_each`: the packets and the
+    /// hits of `trace_with` on the same rays, bit for bit, without the
+    /// array-of-structs conversion. Does not update `stats`.
+    pub fn trace_stream(
+        &self,
+        slot: Option<u32>,
+        p: &TraceParams,
+        rays: &RayStream<'_>,
+        hits: &mut HitStream<'_>,
+    ) -> Result<Counters> {
+        let n = rays.count()?;
+        hits.check(n)?;
+        self.trace_each(slot, p, n, *rays, |i, h, l| hits.put(i, h, l), false)
+    }
+
+    /// Occlusion of a ray stream into `occluded` (one per ray), as
+    /// `occluded_with` answers it, on thread slot `slot` as `trace_each`.
+    /// Does not update `stats`.
+    pub fn occluded_stream(
+        &self,
+        slot: Option<u32>,
+        p: &TraceParams,
+        rays: &RayStream<'_>,
+        occluded: &mut [bool],
+    ) -> Result<Counters> {
+        let n = rays.count()?;
+        crate::trace::stream::one_per_ray(&[occluded.len()], n)?;
+        let out = |i: usize, h: &Hit4, l: usize| occluded[i] = h.prim[l] != crate::geom::INVALID_ID;
+        self.trace_each(slot, p, n, *rays, out, true)
     }
 
     /// Run `f` with thread slot `slot` (its mailbox and scratch), claimed

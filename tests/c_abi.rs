@@ -230,6 +230,8 @@ fn check_layouts() {
             ("sheaf_geometry_params", size_of::<ffi::sheaf_geometry_params>(), align_of::<ffi::sheaf_geometry_params>()),
             ("sheaf_scene_hit", size_of::<ffi::sheaf_scene_hit>(), align_of::<ffi::sheaf_scene_hit>()),
             ("sheaf_scene_info", size_of::<ffi::sheaf_scene_info>(), align_of::<ffi::sheaf_scene_info>()),
+            ("sheaf_ray_stream", size_of::<ffi::sheaf_ray_stream>(), align_of::<ffi::sheaf_ray_stream>()),
+            ("sheaf_hit_stream", size_of::<ffi::sheaf_hit_stream>(), align_of::<ffi::sheaf_hit_stream>()),
         ];
         // Macros written by hand in cbindgen.toml that tests/header.rs does
         // not check, against the Rust values (printed after the layouts).

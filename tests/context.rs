@@ -585,3 +585,88 @@ fn threads_with_their_own_slots_render_the_same_frame() {
     ));
     assert!(band.iter().all(|&b| b == 7));
 }
+
+/// Ray streams (rays and hits as structures of arrays) answer as ray
+/// arrays do, bit for bit, for every method at two packet sides and a
+/// count that ends inside a quad and inside a packet, invalid rays
+/// included; occlusion likewise. Arrays of other lengths are refused and
+/// nothing is written.
+#[test]
+fn ray_streams_answer_as_ray_arrays() {
+    use sheaf::{HitStream, KdParams, RayStream, TraceParams};
+    let s = sheaf::scenes::builtin("gears").unwrap();
+    let scene = Scene::from_f32(&s.mesh.vertices, &s.mesh.indices).unwrap();
+    let mut ctx =
+        OwnedContext::new(&Limits::for_triangles(s.mesh.indices.len() as u32 / 3)).unwrap();
+    ctx.build_grid(&scene, &GridParams::default()).unwrap();
+    ctx.build_bvh(&scene, &BvhParams::default()).unwrap();
+    ctx.build_kd(&scene, &KdParams::default()).unwrap();
+    // 29 x 23 = 667 rays: neither a multiple of 4 nor of a packet.
+    let mut rays = common::view_rays(&s.views[0], 29, 23);
+    rays[5].tmin = -1.0;
+    rays[6].dir = [0.0; 3];
+    rays[7].org[0] = f32::NAN;
+    let n = rays.len();
+    let cols = common::ray_stream::Columns::of(&rays);
+    let stream = cols.stream();
+    let mut hits = 0;
+    for &method in Method::ALL {
+        for packet in [4, 16] {
+            let p = TraceParams {
+                method,
+                packet,
+                ..TraceParams::default()
+            };
+            let mut want = vec![Hit::MISS; n];
+            ctx.trace_in_slot(0, &p, &rays, &mut want).unwrap();
+            let (mut t, mut u, mut v, mut prim) =
+                (vec![0.0; n], vec![0.0; n], vec![0.0; n], vec![0; n]);
+            let mut out = HitStream {
+                t: &mut t,
+                u: &mut u,
+                v: &mut v,
+                prim: &mut prim,
+            };
+            ctx.trace_stream(Some(0), &p, &stream, &mut out).unwrap();
+            for (i, w) in want.iter().enumerate() {
+                let got = (t[i].to_bits(), u[i].to_bits(), v[i].to_bits(), prim[i]);
+                let w = (w.t.to_bits(), w.u.to_bits(), w.v.to_bits(), w.prim);
+                assert_eq!(got, w, "{} packet {packet}: ray {i}", method.name());
+            }
+            hits += want.iter().filter(|h| h.is_hit()).count();
+            let mut blocked = vec![false; n];
+            ctx.occluded_in_slot(0, &p, &rays, &mut blocked).unwrap();
+            let mut got = vec![true; n];
+            ctx.occluded_stream(None, &p, &stream, &mut got).unwrap();
+            assert_eq!(got, blocked, "{} packet {packet}: occlusion", method.name());
+        }
+    }
+    assert!(hits > 0, "the view sees the scene");
+    let short = RayStream {
+        tmax: &cols.0[7][1..],
+        ..stream
+    };
+    let p = TraceParams::default();
+    let (mut t, mut u, mut v, mut prim) = (vec![7.0; n], vec![0.0; n], vec![0.0; n], vec![0; n]);
+    let mut out = HitStream {
+        t: &mut t,
+        u: &mut u,
+        v: &mut v,
+        prim: &mut prim,
+    };
+    assert!(matches!(
+        ctx.trace_stream(None, &p, &short, &mut out),
+        Err(Error::InvalidArgument(_))
+    ));
+    let mut few = HitStream {
+        t: &mut t[1..],
+        u: &mut u[1..],
+        v: &mut v[1..],
+        prim: &mut prim[1..],
+    };
+    assert!(matches!(
+        ctx.trace_stream(None, &p, &stream, &mut few),
+        Err(Error::InvalidArgument(_))
+    ));
+    assert!(t.iter().all(|&x| x == 7.0), "a refused call writes nothing");
+}

@@ -10,6 +10,9 @@
 //! Its own test binary with one test, so no other test's allocations are
 //! counted.
 
+#[path = "common/ray_stream.rs"]
+mod ray_stream;
+
 use sheaf::accel::bvh::BvhParams;
 use sheaf::accel::kd::KdParams;
 use sheaf::render::{Camera, Frame, PointLight, Shading};
@@ -139,6 +142,12 @@ fn ten_animated_frames_allocate_nothing() {
     let tetra_scene = Scene::from_f32(&tetra.mesh.vertices, &tetra.mesh.indices).unwrap();
     let mut scene_hits = vec![SceneHit::MISS; rays.len()];
     let mut scene_hit_total = 0usize;
+    // The same rays as a ray stream, and a hit stream for them.
+    let cols = ray_stream::Columns::of(&rays);
+    let stream = cols.stream();
+    let n = rays.len();
+    let (mut st, mut su, mut sv) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
+    let (mut sp, mut sg, mut si) = (vec![0; n], vec![0; n], vec![0; n]);
     for ctx in [&mut owned, &mut borrowed] {
         let scene = Scene::from_f32(&anim.mesh.vertices, &anim.mesh.indices).unwrap();
         let at = |mode| GeometryParams {
@@ -209,6 +218,25 @@ fn ten_animated_frames_allocate_nothing() {
                 scene_hit_total += scene_hits.iter().filter(|h| h.is_hit()).count();
             }
             ctx.occluded_scene(&rays, 1, &mut occ).unwrap();
+            // Ray streams: the frustum packets and single rays.
+            let p = TraceParams {
+                method: Method::BvhFrustum,
+                packet: 16,
+                ..TraceParams::default()
+            };
+            let mut out = sheaf::SceneHitStream {
+                t: &mut st,
+                u: &mut su,
+                v: &mut sv,
+                prim: &mut sp,
+                geometry: &mut sg,
+                instance: &mut si,
+            };
+            ctx.trace_scene_stream(Some(&p), None, &stream, !0, &mut out)
+                .unwrap();
+            scene_hit_total += sp.iter().filter(|&&k| k != sheaf::geom::INVALID_ID).count();
+            ctx.occluded_scene_stream(None, None, &stream, 1, &mut occ)
+                .unwrap();
         }
         for ctx in [
             &mut owned as &mut dyn Frames,

@@ -212,9 +212,59 @@ fn check(
                 occ, want_occ,
                 "{what} {method:?} {packet} {ctl:?}: occlusion"
             );
+            if matches!(method, Method::BvhSingle | Method::BvhFrustum) {
+                check_stream(ctx, Some(&p), rays, ctl, &want, &want_occ, what);
+            }
         }
+        check_stream(ctx, None, rays, ctl, &want, &want_occ, what);
     }
     hits
+}
+
+/// `rays` as a ray stream (structures of arrays) give `want` and
+/// `want_occ` bit for bit, with `p` (or single rays).
+fn check_stream(
+    ctx: &OwnedContext,
+    p: Option<&TraceParams>,
+    rays: &[Ray],
+    ctl: RayControls,
+    want: &[SceneHit],
+    want_occ: &[bool],
+    what: &str,
+) {
+    let n = rays.len();
+    let cols = common::ray_stream::Columns::of(rays);
+    let stream = cols.stream();
+    let (mut t, mut u, mut v) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
+    let (mut prim, mut geometry, mut instance) = (vec![0; n], vec![0; n], vec![0; n]);
+    let mut out = sheaf::SceneHitStream {
+        t: &mut t,
+        u: &mut u,
+        v: &mut v,
+        prim: &mut prim,
+        geometry: &mut geometry,
+        instance: &mut instance,
+    };
+    ctx.trace_scene_stream(p, Some(0), &stream, ctl, &mut out)
+        .unwrap();
+    for (k, w) in want.iter().enumerate() {
+        let g = SceneHit {
+            t: t[k],
+            u: u[k],
+            v: v[k],
+            prim: prim[k],
+            geometry: geometry[k],
+            instance: instance[k],
+        };
+        assert!(
+            same(&g, w),
+            "{what} stream {p:?} {ctl:?} ray {k}: {g:?} want {w:?}"
+        );
+    }
+    let mut occ = vec![false; n];
+    ctx.occluded_scene_stream(p, None, &stream, ctl, &mut occ)
+        .unwrap();
+    assert_eq!(occ, want_occ, "{what} stream {p:?} {ctl:?}: occlusion");
 }
 
 fn check_test(test: TriTest) {

@@ -400,6 +400,11 @@ struct Job {
     uint8_t *occ;          /* K_OCCLUDED / K_TRACE_OCC output */
     size_t shadow_rays, occluded; /* K_FRAME_SHADOW counts, atomic */
     int status;            /* first sheaf error */
+    /* "soa:NAME" (sheaf): the rays as a stream (sheaf_ray_stream, packed
+     * arrays made before the timing) and the hits into a hit stream */
+    float *soa[8];         /* org x y z, dir x y z, tmin, tmax; NULL: sheaf_ray arrays */
+    float *sh[3];          /* stream hits t, u, v */
+    uint32_t *sh_prim;
 };
 
 static void embree_trace(Job *j, size_t b, size_t e);
@@ -458,8 +463,32 @@ static void frame_shadows(Job *j, size_t b, size_t e)
     __atomic_fetch_add(&j->occluded, o, __ATOMIC_RELAXED);
 }
 
+/* Rays b..e of the job's stream (soa:) and its hit stream. */
+static sheaf_ray_stream soa_rays(const Job *j, size_t b)
+{
+    sheaf_ray_stream r = {j->soa[0] + b, j->soa[1] + b, j->soa[2] + b, j->soa[3] + b,
+                          j->soa[4] + b, j->soa[5] + b, j->soa[6] + b, j->soa[7] + b, sizeof(float)};
+    return r;
+}
+
 static void run_chunk(Job *j, size_t b, size_t e)
 {
+    if (j->soa[0] && j->lib == LIB_SHEAF && (j->kind == K_TRACE || j->kind == K_OCCLUDED)) {
+        sheaf_ray_stream r = soa_rays(j, b);
+        sheaf_status st;
+        if (j->kind == K_TRACE) {
+            sheaf_hit_stream h = {j->sh[0] + b, j->sh[1] + b, j->sh[2] + b, j->sh_prim + b, NULL, NULL,
+                                  sizeof(float)};
+            st = sheaf_context_trace_stream(j->ctx, &j->params, &r, &h, e - b);
+        } else {
+            sheaf_trace_params p = j->params;
+            p.method = j->occ_method;
+            st = sheaf_context_occluded_stream(j->ctx, &p, &r, j->occ + b, e - b);
+        }
+        if (st != SHEAF_STATUS_OK)
+            j->status = (int)st;
+        return;
+    }
     if (j->kind == K_FRAME_SHADOW) {
         frame_shadows(j, b, e);
         return;
@@ -2130,6 +2159,9 @@ static Job named_job(Bench *b, const char *name, int shadow, int threads, size_t
         j.occ = xmalloc(b->N);
         *n = shadow ? b->NS : b->N;
     } else {
+        /* "soa:NAME": the configuration traced from a ray stream. */
+        int soa = !strncmp(name, "soa:", 4);
+        if (soa) name += 4;
         const Cfg *cfgs = shadow ? SHADOW_CFGS : PRIMARY_CFGS;
         size_t nc = shadow ? N_SHADOW_CFGS : N_PRIMARY_CFGS, c = 0;
         while (c < nc && strcmp(cfgs[c].name, name)) c++;
@@ -2144,12 +2176,28 @@ static Job named_job(Bench *b, const char *name, int shadow, int threads, size_t
             j.occ = b->socc;
             *n = b->NS;
         }
+        if (soa) {
+            if (j.kind != K_TRACE && j.kind != K_OCCLUDED) die("soa:%s: not a trace or occluded configuration", name);
+            for (int f = 0; f < 8; f++) j.soa[f] = xmalloc(j.n * sizeof(float));
+            for (size_t k = 0; k < j.n; k++) {
+                const sheaf_ray *r = &j.rays[k];
+                const float v[8] = {r->org[0], r->org[1], r->org[2], r->dir[0], r->dir[1], r->dir[2], r->tmin, r->tmax};
+                for (int f = 0; f < 8; f++) j.soa[f][k] = v[f];
+            }
+            for (int f = 0; f < 3; f++) j.sh[f] = xmalloc(j.n * sizeof(float));
+            j.sh_prim = xmalloc(j.n * sizeof(uint32_t));
+        }
     }
     return j;
 }
 
 static void release_job(Job *j, EScene *es, RTCDevice dev)
 {
+    if (j->soa[0]) {
+        for (int f = 0; f < 8; f++) free(j->soa[f]);
+        for (int f = 0; f < 3; f++) free(j->sh[f]);
+        free(j->sh_prim);
+    }
     if (!dev) return;
     free(j->prim);
     free(j->t);
@@ -2973,7 +3021,8 @@ static void usage(void)
             "  --profile-shadow  with --profile: the shadow rays instead of camera rays\n"
             "  --ab A,B,..     the named configurations (embree-N for Embree) in interleaved\n"
             "                  rounds, camera and shadow rays, each thread count: Mrays/s and\n"
-            "                  the median per-round speed over the last one's; low:NAME\n"
+            "                  the median per-round speed over the last one's; soa:NAME traces sheaf's\n"
+            "                  rays as a ray stream (sheaf_context_trace_stream / _occluded_stream); low:NAME\n"
             "                  traces sheaf's LOW tree (every sheaf configuration, or none)\n"
             "  --explain    print every disagreement no tie, edge or end explains\n"
             "  --twolevel ENV ANIM OBJ  the two-level scene instead: ENV static (one instance),\n"

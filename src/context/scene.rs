@@ -26,7 +26,7 @@ use crate::error::{Error, Result};
 use crate::geom::{Affine, Cull, Culled, M4, Mt, Pt, Ray, Ray4, Scene, TriTest, Wt};
 use crate::mem::Limits;
 use crate::mem::par::{Par, Serial};
-use crate::trace::TraceParams;
+use crate::trace::{RaySource, RayStream, SceneHitStream, TraceParams};
 
 /// Slot scratch a two-level packet batch holds (its quads, their lanes,
 /// their hits) with the top level's (`traverse_packet::SCRATCH`), under
@@ -492,7 +492,7 @@ impl<'a> Context<'a> {
     }
 
     /// The committed two-level scene's answer for `count` rays read by
-    /// `read(i)`, handed to `out(i, hit)`: the nearest hit, or with `any`
+    /// `rays.ray(i)` (a closure, or a `RayStream`), handed to `out(i, hit)`: the nearest hit, or with `any`
     /// some hit (occlusion), for the instances and triangle sides `ctl`
     /// lets the rays see (a mask, or `RayControls`). Without `p`, one
     /// single ray each; with `p`, `p.method` on thread slot `slot` (or the
@@ -508,7 +508,7 @@ impl<'a> Context<'a> {
         count: usize,
         ctl: impl Into<RayControls>,
         any: bool,
-        read: impl Fn(usize) -> Ray,
+        rays: impl RaySource,
         mut out: impl FnMut(usize, SceneHit),
     ) -> Result<Counters> {
         self.scene_pools()?;
@@ -518,7 +518,7 @@ impl<'a> Context<'a> {
         let Some(p) = p else {
             // One dispatch on the test and culling, not one per ray.
             with_test!(v.info.test, cull, |T| for i in 0..count {
-                let r = read(i);
+                let r = rays.ray(i);
                 out(
                     i,
                     if any {
@@ -545,7 +545,7 @@ impl<'a> Context<'a> {
                 slot,
                 p,
                 count,
-                read,
+                rays,
                 |i, h: &crate::geom::Hit4, lane| {
                     let sh = self.flat_hit(v, &h.lane(lane));
                     debug_assert!(sh.is_some(), "a hit outside the flattened scene");
@@ -568,7 +568,7 @@ impl<'a> Context<'a> {
             let mut start = 0;
             while start < count {
                 let n = (count - start).min(per);
-                let nq = crate::trace::pack_quads(n, |k| read(start + k), quads, active);
+                let nq = rays.pack(start, n, quads, active);
                 hits[..4 * nq].fill(SceneHit::MISS);
                 let (q, a, h) = (&quads[..nq], &active[..nq], &mut hits[..4 * nq]);
                 let (test, c) = (v.info.test, &mut ctr);
@@ -584,5 +584,38 @@ impl<'a> Context<'a> {
             }
         })?;
         Ok(ctr)
+    }
+
+    /// Nearest hits of a ray stream in the committed two-level scene
+    /// (`trace_scene_each` with rays and hits as structures of arrays,
+    /// `trace::stream`): `p` and `slot` as there, and the same hits as the
+    /// array-of-structs calls, bit for bit.
+    pub fn trace_scene_stream(
+        &self,
+        p: Option<&TraceParams>,
+        slot: Option<u32>,
+        rays: &RayStream<'_>,
+        ctl: impl Into<RayControls>,
+        hits: &mut SceneHitStream<'_>,
+    ) -> Result<Counters> {
+        let n = rays.count()?;
+        hits.check(n)?;
+        self.trace_scene_each(p, slot, n, ctl, false, *rays, |i, h| hits.put(i, &h))
+    }
+
+    /// Occlusion of a ray stream in the committed two-level scene into
+    /// `occluded` (one per ray), as `trace_scene_stream` takes its rays.
+    pub fn occluded_scene_stream(
+        &self,
+        p: Option<&TraceParams>,
+        slot: Option<u32>,
+        rays: &RayStream<'_>,
+        ctl: impl Into<RayControls>,
+        occluded: &mut [bool],
+    ) -> Result<Counters> {
+        let n = rays.count()?;
+        crate::trace::stream::one_per_ray(&[occluded.len()], n)?;
+        let out = |i: usize, h: SceneHit| occluded[i] = h.is_hit();
+        self.trace_scene_each(p, slot, n, ctl, true, *rays, out)
     }
 }

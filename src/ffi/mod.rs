@@ -19,6 +19,7 @@
 //! | `stats.rs` | `sheaf_stats` |
 //! | `version.rs` | `sheaf_version_string` |
 //! | `scene.rs` | `sheaf_mesh`, `sheaf_geometry_params`, `sheaf_update_mode`, `sheaf_scene_hit`, `sheaf_scene_info`: the two-level scene's geometries, instances, commit, trace and occluded, and its flattening for the grid, kd-tree and perspective grids (`sheaf_context_build_scene_*`, `sheaf_context_scene_prim`) |
+//! | `stream.rs` | `sheaf_ray_stream`, `sheaf_hit_stream` (rays and hits as structures of arrays), `sheaf_context_trace_stream`, `sheaf_context_occluded_stream`, `sheaf_context_trace_scene_stream`, `sheaf_context_occluded_scene_stream` |
 //! | `whitted.rs` | `sheaf_material`, `sheaf_material_range`, `sheaf_whitted_params`, `sheaf_context_render_whitted` |
 //!
 //! # Conventions (STYLE.md rule 9)
@@ -63,6 +64,7 @@ pub mod ray;
 pub mod scene;
 pub mod stats;
 pub mod status;
+pub mod stream;
 mod sync;
 pub mod trace_params;
 pub mod version;
@@ -104,6 +106,11 @@ pub use scene::{
 };
 pub use stats::sheaf_stats;
 pub use status::{sheaf_status, sheaf_status_string};
+pub use stream::{
+    sheaf_context_occluded_scene_stream, sheaf_context_occluded_stream,
+    sheaf_context_trace_scene_stream, sheaf_context_trace_stream, sheaf_hit_stream,
+    sheaf_ray_stream,
+};
 pub use trace_params::{sheaf_entry_search, sheaf_trace_params, sheaf_trace_params_default};
 pub use version::sheaf_version_string;
 pub use whitted::{sheaf_context_render_whitted, sheaf_whitted_params_default};

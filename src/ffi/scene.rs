@@ -563,7 +563,7 @@ pub const SHEAF_RAY_FLAG_CULL_BACK_FACING: u32 = 1;
 pub const SHEAF_RAY_FLAG_CULL_FRONT_FACING: u32 = 2;
 
 /// A scene trace's mask and `SHEAF_RAY_FLAG_*` bits as `RayControls`.
-fn controls(mask: u32, flags: u32) -> Result<RayControls> {
+pub(super) fn controls(mask: u32, flags: u32) -> Result<RayControls> {
     const BOTH: u32 = SHEAF_RAY_FLAG_CULL_BACK_FACING | SHEAF_RAY_FLAG_CULL_FRONT_FACING;
     let cull = match flags {
         0 => Cull::None,
@@ -580,7 +580,7 @@ fn controls(mask: u32, flags: u32) -> Result<RayControls> {
 }
 
 /// The trace parameters of a scene trace (`None`: single rays).
-fn params_of(params: *const sheaf_trace_params) -> Result<Option<TraceParams>> {
+pub(super) fn params_of(params: *const sheaf_trace_params) -> Result<Option<TraceParams>> {
     if params.is_null() {
         return Ok(None);
     }

@@ -6,7 +6,9 @@
 pub use crate::accel::fallback;
 
 pub mod scene;
+pub mod stream;
 pub use scene::{SceneTracer, Tracer, batch_on};
+pub use stream::{HitStream, RaySource, RayStream, SceneHitStream};
 
 pub use crate::counters::{Counters, DEPTH_BINS};
 

@@ -291,18 +291,19 @@ impl Tracer for SceneTracer<'_> {
     }
 }
 
-/// Trace `count` rays, ray `i` being `read(i)`, as packets of
+/// Trace `count` rays, ray `i` being `rays.ray(i)`, as packets of
 /// `p.packet`^2 rays (or 2x2 batches for single-ray methods) with mailbox
 /// `slot`, handing each result to `out(ray index, hits, lane)`. Shared by the
 /// Rust calls and the C ABI's, so both form the same packets. Generic over
-/// `read` and `out` so each caller's conversions inline into the packing
-/// loop (no indirect call per ray).
+/// `rays` (an array of structs read by index, or a ray stream whose quads
+/// are loads: `stream.rs`) and `out` so each caller's conversions inline
+/// into the packing loop (no indirect call per ray).
 pub fn batch_on(
     tr: &SceneTracer<'_>,
     slot: &mut Slot<'_>,
     p: &TraceParams,
     count: usize,
-    read: impl Fn(usize) -> Ray,
+    rays: impl super::RaySource,
     mut out: impl FnMut(usize, &Hit4, usize),
     any: bool,
 ) -> Counters {
@@ -320,7 +321,7 @@ pub fn batch_on(
     let mut start = 0;
     while start < count {
         let n = (count - start).min(per);
-        let nq = crate::trace::pack_quads(n, |k| read(start + k), quads, active);
+        let nq = rays.pack(start, n, quads, active);
         hits[..nq].fill(Hit4::MISS);
         if any {
             tr.occluded_packet(

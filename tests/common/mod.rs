@@ -4,6 +4,7 @@
 
 pub mod exact;
 pub mod oracle;
+pub mod ray_stream;
 
 use glam::Vec3;
 use sheaf::Ray;
