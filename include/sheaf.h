@@ -1380,7 +1380,8 @@ typedef struct sheaf_ray_stream {
  * `stride` and the pointers' rules are those of `sheaf_ray_stream`;
  * `geometry` and `instance` may be NULL in a scene call (not written)
  * and must be NULL in a single-mesh call. No output array may share an
- * element with another or with an input array.
+ * element with another or with an input array; arrays of different
+ * strides may not overlap at all (a conservative rule).
  */
 typedef struct sheaf_hit_stream {
     float *t;
@@ -2439,8 +2440,8 @@ const char *sheaf_status_string(sheaf_status status);
  * with `count` > 0), `SHEAF_STATUS_MISALIGNED` (an array not 4-byte
  * aligned), `SHEAF_STATUS_INVALID_ARGUMENT` (bad params, a stride that is
  * not a multiple of 4 or below 4, `count` past the address space, an
- * output array sharing elements with another array, `geometry` or
- * `instance` not NULL), `SHEAF_STATUS_NOT_BUILT`,
+ * output array sharing elements with another array or overlapping one of
+ * another stride, `geometry` or `instance` not NULL), `SHEAF_STATUS_NOT_BUILT`,
  * `SHEAF_STATUS_CAPACITY_THREADS`. The hits are written only on success.
  */
 sheaf_status sheaf_context_trace_stream(const struct sheaf_context *ctx,

@@ -1,8 +1,9 @@
 //! `sheaf_ray_stream`, `sheaf_hit_stream`: rays and hits as structures of
 //! arrays (Embree's `RTCRayHitNp` layout, with a stride), and the four
 //! stream calls: nearest hits and occlusion, for the context's single mesh
-//! and for its two-level scene. Packet methods load a stream's quads
-//! directly (`trace::stream`), without the 32-byte `sheaf_ray` transpose.
+//! and for its two-level scene. Packet methods load a packed stream's
+//! quads directly (`trace::stream`), without the 32-byte `sheaf_ray`
+//! transpose; other strides are read element by element.
 
 use super::context::{Handle, sheaf_context, with_ref};
 use super::scene::{controls, params_of};
@@ -43,7 +44,8 @@ pub struct sheaf_ray_stream {
 /// `stride` and the pointers' rules are those of `sheaf_ray_stream`;
 /// `geometry` and `instance` may be NULL in a scene call (not written)
 /// and must be NULL in a single-mesh call. No output array may share an
-/// element with another or with an input array.
+/// element with another or with an input array; arrays of different
+/// strides may not overlap at all (a conservative rule).
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
 pub struct sheaf_hit_stream {
@@ -164,7 +166,8 @@ impl CRays {
         }
         // SAFETY: `new` checked every pointer non-NULL and 4-byte aligned,
         // n * 4 bytes within isize::MAX; the C contract makes them
-        // readable and unchanged for the call.
+        // readable for the call, and the overlap checks (`CHits::new`,
+        // `check_occluded`) keep every write of the call out of them.
         let s = |k: usize| unsafe { core::slice::from_raw_parts(self.p[k], self.n) };
         Some(RayStream {
             org: [s(0), s(1), s(2)],
@@ -195,8 +198,8 @@ impl RaySource for CRays {
     }
 }
 
-/// A checked hit stream from C; `scene`: whether `geometry` and
-/// `instance` are written (else they must be NULL).
+/// A checked hit stream from C (`new`'s `scene`: whether `geometry` and
+/// `instance` may be given, else they must be NULL).
 #[derive(Clone, Copy)]
 struct CHits {
     h: sheaf_hit_stream,
@@ -295,8 +298,8 @@ fn put_occluded(occluded: *mut u8, i: usize, hit: bool) {
 /// with `count` > 0), `SHEAF_STATUS_MISALIGNED` (an array not 4-byte
 /// aligned), `SHEAF_STATUS_INVALID_ARGUMENT` (bad params, a stride that is
 /// not a multiple of 4 or below 4, `count` past the address space, an
-/// output array sharing elements with another array, `geometry` or
-/// `instance` not NULL), `SHEAF_STATUS_NOT_BUILT`,
+/// output array sharing elements with another array or overlapping one of
+/// another stride, `geometry` or `instance` not NULL), `SHEAF_STATUS_NOT_BUILT`,
 /// `SHEAF_STATUS_CAPACITY_THREADS`. The hits are written only on success.
 #[unsafe(no_mangle)]
 pub extern "C" fn sheaf_context_trace_stream(

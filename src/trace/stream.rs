@@ -13,8 +13,9 @@
 //! A stream's ray `i` is the `Ray` made of each array's element `i`, and
 //! its quads hold the same bits `pack_quads` gives for those rays (the
 //! last quad's unused lanes repeat the last ray, as there), so every
-//! method's answers equal the array-of-structs call's, bit for bit
-//! (`tests/stream.rs`).
+//! method's answers equal the array-of-structs call's, bit for bit (the
+//! unit test below for the quads; `tests/context.rs` and
+//! `tests/twolevel_exact.rs` for every method's answers).
 //!
 //! # Deviations
 //! Embree's `RTCRayNp` carries a mask, an id and flags per ray; a stream
