@@ -408,7 +408,7 @@ fn scene_rays(
     any: bool,
     out: impl FnMut(usize, crate::SceneHit),
 ) -> Result<()> {
-    h.ctx.scene_view()?;
+    // `trace_scene_each` checks the scene (pools, commit) before any write.
     h.ctx
         .trace_scene_each(p.as_ref(), None, count, ctl, any, r, out)?;
     Ok(())
