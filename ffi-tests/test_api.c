@@ -993,6 +993,101 @@ static bool test_streams(void) {
     return true;
 }
 
+/* ---- camera packets made in the kernel -------------------------------------- */
+
+#define CAM_W 23
+#define CAM_H 19
+
+static bool test_camera(void) {
+    /* The camera rays of a pixel rectangle, made by the kernel as packets,
+       give sheaf_context_trace_with's hits for sheaf_frame_camera_ray's
+       rays bit for bit, per pixel, rows hits_per_row apart with the gaps
+       left alone; every bad input is refused and writes nothing. */
+    scene *s = ground_and_box();
+    sheaf_context *ctx = built_context(s, s->nt);
+    sheaf_frame f;
+    sheaf_pixel_rect r = {2, 3, 2 + 17, 3 + 13}, bad;
+    enum { ROW = 20, LEN = 12 * ROW + 17 };
+    static sheaf_ray rays[CAM_W * CAM_H];
+    static sheaf_hit want[CAM_W * CAM_H], got[LEN];
+    sheaf_trace_params p;
+    sheaf_camera cam;
+    sheaf_method methods[4] = {SHEAF_METHOD_GRID_CGT, SHEAF_METHOD_BVH_SINGLE, SHEAF_METHOD_BVH_RANGED,
+                               SHEAF_METHOD_BVH_FRUSTUM};
+    uint32_t sides[3] = {2, 8, 32}, x, y;
+    int i, m, k, seen = 0;
+    CHECK(ctx != NULL);
+    CHECK_OK(sheaf_context_build_bvh(ctx, NULL));
+    memset(&f, 0, sizeof f);
+    f.camera.eye[0] = 2.5f, f.camera.eye[1] = -3.0f, f.camera.eye[2] = 2.0f;
+    f.camera.look_at[2] = 0.4f;
+    f.camera.up[2] = 1.0f;
+    f.camera.fov_y_deg = 50.0f;
+    f.width = CAM_W, f.height = CAM_H;
+    cam = f.camera;
+    for (y = 0; y < CAM_H; ++y)
+        for (x = 0; x < CAM_W; ++x) CHECK_OK(sheaf_frame_camera_ray(&f, x, y, &rays[y * CAM_W + x]));
+    CHECK_OK(sheaf_trace_params_default(&p));
+    for (m = 0; m < 4; ++m)
+        for (k = 0; k < 3; ++k) {
+            p.method = methods[m];
+            p.packet = sides[k];
+            CHECK_OK(sheaf_context_trace_with(ctx, &p, rays, want, CAM_W * CAM_H));
+            memset(got, 0xAB, sizeof got);
+            CHECK_OK(sheaf_context_trace_camera(ctx, &p, &cam, CAM_W, CAM_H, &r, got, ROW));
+            for (y = r.y0; y < r.y1; ++y)
+                for (x = r.x0; x < r.x1; ++x) {
+                    const sheaf_hit *g = &got[(y - r.y0) * ROW + (x - r.x0)];
+                    CHECK(hits_equal(g, &want[y * CAM_W + x], 1));
+                    seen += g->prim != SHEAF_INVALID_ID;
+                }
+            for (y = 0; y + 1 < r.y1 - r.y0; ++y)
+                for (x = r.x1 - r.x0; x < ROW; ++x) CHECK(got[y * ROW + x].prim == 0xABABABABu);
+        }
+    CHECK(seen > 0);
+    /* bad input: a clear status, nothing written */
+    memset(got, 0xAB, sizeof got);
+    CHECK_STATUS(sheaf_context_trace_camera(NULL, &p, &cam, CAM_W, CAM_H, &r, got, ROW),
+                 SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS(sheaf_context_trace_camera(ctx, NULL, &cam, CAM_W, CAM_H, &r, got, ROW),
+                 SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS(sheaf_context_trace_camera(ctx, &p, NULL, CAM_W, CAM_H, &r, got, ROW),
+                 SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS(sheaf_context_trace_camera(ctx, &p, &cam, CAM_W, CAM_H, NULL, got, ROW),
+                 SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS(sheaf_context_trace_camera(ctx, &p, &cam, CAM_W, CAM_H, &r, NULL, ROW),
+                 SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS(sheaf_context_trace_camera(ctx, &p, &cam, CAM_W, CAM_H, &r, got, 16),
+                 SHEAF_STATUS_INVALID_ARGUMENT); /* rows narrower than the rectangle */
+    CHECK_STATUS(sheaf_context_trace_camera(ctx, &p, &cam, CAM_W, CAM_H, &r, got, SIZE_MAX / 4),
+                 SHEAF_STATUS_INVALID_ARGUMENT); /* a buffer past the address space */
+    bad = r, bad.x1 = CAM_W + 1; /* outside the image */
+    CHECK_STATUS(sheaf_context_trace_camera(ctx, &p, &cam, CAM_W, CAM_H, &bad, got, ROW),
+                 SHEAF_STATUS_INVALID_ARGUMENT);
+    bad = r, bad.y1 = bad.y0; /* empty */
+    CHECK_STATUS(sheaf_context_trace_camera(ctx, &p, &cam, CAM_W, CAM_H, &bad, got, ROW),
+                 SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_trace_camera(ctx, &p, &cam, 0, 0, &r, got, ROW), SHEAF_STATUS_INVALID_ARGUMENT);
+    cam.fov_y_deg = NAN;
+    CHECK_STATUS(sheaf_context_trace_camera(ctx, &p, &cam, CAM_W, CAM_H, &r, got, ROW),
+                 SHEAF_STATUS_INVALID_ARGUMENT);
+    cam = f.camera;
+    memcpy(cam.look_at, cam.eye, sizeof cam.eye); /* degenerate: no view direction */
+    CHECK_STATUS(sheaf_context_trace_camera(ctx, &p, &cam, CAM_W, CAM_H, &r, got, ROW),
+                 SHEAF_STATUS_INVALID_ARGUMENT);
+    cam = f.camera;
+    p.packet = 6;
+    CHECK_STATUS(sheaf_context_trace_camera(ctx, &p, &cam, CAM_W, CAM_H, &r, got, ROW),
+                 SHEAF_STATUS_INVALID_ARGUMENT);
+    p.packet = 8;
+    CHECK_STATUS(sheaf_context_trace_scene_camera(ctx, &p, &cam, CAM_W, CAM_H, &r, NULL, ROW, ~0u, 0),
+                 SHEAF_STATUS_NULL_POINTER);
+    for (i = 0; i < LEN; ++i) CHECK(got[i].prim == 0xABABABABu);
+    sheaf_context_destroy(ctx);
+    free(s);
+    return true;
+}
+
 static bool test_kd_methods(void) {
     /* The kd-tree next to the grid and the BVH: kd SIMD and kd packets of
        every side, from the root and from MLRTA and AEPSA entry points, give
@@ -1662,6 +1757,7 @@ int main(void) {
     run_test("test_render", test_render, &passed, &failed);
     run_test("test_bvh_methods", test_bvh_methods, &passed, &failed);
     run_test("test_streams", test_streams, &passed, &failed);
+    run_test("test_camera", test_camera, &passed, &failed);
     run_test("test_kd_methods", test_kd_methods, &passed, &failed);
     run_test("test_whitted", test_whitted, &passed, &failed);
     run_test("test_pgrid", test_pgrid, &passed, &failed);

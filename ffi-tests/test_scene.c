@@ -357,6 +357,46 @@ static bool test_packet_methods_equal_single_rays(void) {
         CHECK_STATUS(sheaf_context_trace_scene_stream(ctx, &tp, &rs, &hs, 256, ~0u, 3),
                      SHEAF_STATUS_INVALID_ARGUMENT);
     }
+    {
+        /* Camera packets made in the kernel (sheaf_context_trace_scene_camera):
+           every pixel's hit is sheaf_frame_camera_ray's ray's, bit for bit,
+           single rays and frustum packets. */
+        sheaf_frame f;
+        sheaf_pixel_rect r = {1, 2, 16, 16};
+        sheaf_ray cr;
+        const sheaf_trace_params *ps[2];
+        int j;
+        uint32_t x, y;
+        memset(&f, 0, sizeof f);
+        f.camera.eye[1] = 0.8f, f.camera.eye[2] = 6.0f;
+        f.camera.look_at[1] = 0.3f;
+        f.camera.up[1] = 1.0f;
+        f.camera.fov_y_deg = 40.0f;
+        f.width = 16, f.height = 16;
+        CHECK_OK(sheaf_trace_params_default(&tp));
+        tp.method = SHEAF_METHOD_BVH_FRUSTUM;
+        tp.packet = 8;
+        ps[0] = NULL;
+        ps[1] = &tp;
+        for (j = 0; j < 2; ++j) {
+            memset(got, 0, sizeof got);
+            CHECK_OK(sheaf_context_trace_scene_camera(ctx, ps[j], &f.camera, 16, 16, &r, got, 15, ~0u, 0));
+            hits = 0;
+            for (y = r.y0; y < r.y1; ++y)
+                for (x = r.x0; x < r.x1; ++x) {
+                    const sheaf_scene_hit *g = &got[(y - r.y0) * 15 + (x - r.x0)];
+                    sheaf_scene_hit w;
+                    CHECK_OK(sheaf_frame_camera_ray(&f, x, y, &cr));
+                    CHECK_OK(sheaf_context_trace_scene(ctx, NULL, &cr, &w, 1, ~0u, 0));
+                    CHECK(g->prim == w.prim && g->instance == w.instance && g->geometry == w.geometry);
+                    CHECK(memcmp(&g->t, &w.t, sizeof(float)) == 0);
+                    hits += w.prim != SHEAF_INVALID_ID;
+                }
+            CHECK(hits > 20);
+        }
+        CHECK_STATUS(sheaf_context_trace_scene_camera(ctx, &tp, &f.camera, 16, 16, &r, got, 15, ~0u, 3),
+                     SHEAF_STATUS_INVALID_ARGUMENT);
+    }
     CHECK_OK(sheaf_trace_params_default(&tp));
     tp.method = SHEAF_METHOD_GRID_CGT;
     CHECK_STATUS(sheaf_context_trace_scene(ctx, &tp, rays, got, 256, ~0u, 0), SHEAF_STATUS_INVALID_ARGUMENT);

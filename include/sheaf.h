@@ -554,6 +554,119 @@ typedef struct sheaf_refit_params {
 } sheaf_refit_params;
 
 /**
+ * Method, packet side, CGT switches and BVH frustum settings for one class
+ * of rays (camera, shadow, or reflection and refraction). Start from `sheaf_trace_params_default`.
+ */
+typedef struct sheaf_trace_params {
+    /**
+     * A `sheaf_method` value.
+     */
+    sheaf_method method;
+    /**
+     * Packet side n (n x n rays) for packet methods: 2, 4, 8, 16 or 32.
+     */
+    uint32_t packet;
+    /**
+     * CGT: skip slices of empty macrocells (paper section 2.4). 0 or 1.
+     */
+    uint8_t macrocells;
+    /**
+     * CGT: test each triangle once per packet (section 2.3), with the
+     * thread slot's mailbox. 0 or 1.
+     */
+    uint8_t mailbox;
+    /**
+     * Frustum culling: CGT's SIMD corner-ray culling (CGT section 2.3) and
+     * the BVH packets' box and triangle culling (BVH paper section 4).
+     * 0 or 1.
+     */
+    uint8_t culling;
+    /**
+     * BVH and kd-tree packets: which frustum they get (a `sheaf_ray_kind`).
+     */
+    sheaf_ray_kind ray_kind;
+    /**
+     * Tree packets (`KD_PACKET`, `BVH_MASKED`, `BVH_RANGED`,
+     * `BVH_PARTITION`): entry-point search first (a `sheaf_entry_search`).
+     */
+    sheaf_entry_search entry;
+    /**
+     * Split shadow packets whose hit points' distances from the light
+     * differ by more than this ratio (section 4.7); 0 disables splitting.
+     */
+    float split;
+    /**
+     * Lane width of packet traversals (a `sheaf_isa`): `AUTO` (0, the
+     * default) or a forced level, which the CPU must support
+     * (`SHEAF_STATUS_INVALID_ARGUMENT` otherwise).
+     */
+    sheaf_isa isa;
+} sheaf_trace_params;
+
+/**
+ * Pinhole camera (C: `sheaf_camera`).
+ */
+typedef struct sheaf_camera {
+    float eye[3];
+    float look_at[3];
+    float up[3];
+    /**
+     * Vertical field of view in degrees, in (0, 180).
+     */
+    float fov_y_deg;
+} sheaf_camera;
+
+/**
+ * A rectangle of pixels, `x0 <= x < x1`, `y0 <= y < y1` (C:
+ * `sheaf_pixel_rect`); x grows to the right, y downwards.
+ */
+typedef struct sheaf_pixel_rect {
+    uint32_t x0;
+    uint32_t y0;
+    uint32_t x1;
+    uint32_t y1;
+} sheaf_pixel_rect;
+
+/**
+ * Nearest hit of a ray (16 bytes). A miss has `prim == SHEAF_INVALID_ID`,
+ * `t == INFINITY`, `u == v == 0`. Of two hits at the same `t` the lower
+ * triangle index wins, so results never depend on traversal order.
+ */
+typedef struct sheaf_hit {
+    /**
+     * Ray parameter of the hit.
+     */
+    float t;
+    /**
+     * Index of the triangle in the index buffer (`SHEAF_INVALID_ID`: miss).
+     */
+    uint32_t prim;
+    /**
+     * Barycentric weight of the triangle's second vertex.
+     */
+    float u;
+    /**
+     * Barycentric weight of the triangle's third vertex.
+     */
+    float v;
+} sheaf_hit;
+
+/**
+ * Nearest hit in a two-level scene (24 bytes): the triangle's index in
+ * its geometry's index buffer, the geometry and the instance. A miss has
+ * `prim == geometry == instance == SHEAF_INVALID_ID` and `t == INFINITY`.
+ * Of two hits at the same `t` the lower instance, then triangle, wins.
+ */
+typedef struct sheaf_scene_hit {
+    float t;
+    float u;
+    float v;
+    uint32_t prim;
+    uint32_t geometry;
+    uint32_t instance;
+} sheaf_scene_hit;
+
+/**
  * Capacities fixed at context creation: the crate's `Limits` field by
  * field (see its docs in `src/mem/limits.rs` for each default rule).
  * Start from `sheaf_limits_default`.
@@ -703,93 +816,6 @@ typedef struct sheaf_ray {
     float dir[3];
     float tmax;
 } sheaf_ray;
-
-/**
- * Nearest hit of a ray (16 bytes). A miss has `prim == SHEAF_INVALID_ID`,
- * `t == INFINITY`, `u == v == 0`. Of two hits at the same `t` the lower
- * triangle index wins, so results never depend on traversal order.
- */
-typedef struct sheaf_hit {
-    /**
-     * Ray parameter of the hit.
-     */
-    float t;
-    /**
-     * Index of the triangle in the index buffer (`SHEAF_INVALID_ID`: miss).
-     */
-    uint32_t prim;
-    /**
-     * Barycentric weight of the triangle's second vertex.
-     */
-    float u;
-    /**
-     * Barycentric weight of the triangle's third vertex.
-     */
-    float v;
-} sheaf_hit;
-
-/**
- * Method, packet side, CGT switches and BVH frustum settings for one class
- * of rays (camera, shadow, or reflection and refraction). Start from `sheaf_trace_params_default`.
- */
-typedef struct sheaf_trace_params {
-    /**
-     * A `sheaf_method` value.
-     */
-    sheaf_method method;
-    /**
-     * Packet side n (n x n rays) for packet methods: 2, 4, 8, 16 or 32.
-     */
-    uint32_t packet;
-    /**
-     * CGT: skip slices of empty macrocells (paper section 2.4). 0 or 1.
-     */
-    uint8_t macrocells;
-    /**
-     * CGT: test each triangle once per packet (section 2.3), with the
-     * thread slot's mailbox. 0 or 1.
-     */
-    uint8_t mailbox;
-    /**
-     * Frustum culling: CGT's SIMD corner-ray culling (CGT section 2.3) and
-     * the BVH packets' box and triangle culling (BVH paper section 4).
-     * 0 or 1.
-     */
-    uint8_t culling;
-    /**
-     * BVH and kd-tree packets: which frustum they get (a `sheaf_ray_kind`).
-     */
-    sheaf_ray_kind ray_kind;
-    /**
-     * Tree packets (`KD_PACKET`, `BVH_MASKED`, `BVH_RANGED`,
-     * `BVH_PARTITION`): entry-point search first (a `sheaf_entry_search`).
-     */
-    sheaf_entry_search entry;
-    /**
-     * Split shadow packets whose hit points' distances from the light
-     * differ by more than this ratio (section 4.7); 0 disables splitting.
-     */
-    float split;
-    /**
-     * Lane width of packet traversals (a `sheaf_isa`): `AUTO` (0, the
-     * default) or a forced level, which the CPU must support
-     * (`SHEAF_STATUS_INVALID_ARGUMENT` otherwise).
-     */
-    sheaf_isa isa;
-} sheaf_trace_params;
-
-/**
- * Pinhole camera (C: `sheaf_camera`).
- */
-typedef struct sheaf_camera {
-    float eye[3];
-    float look_at[3];
-    float up[3];
-    /**
-     * Vertical field of view in degrees, in (0, 180).
-     */
-    float fov_y_deg;
-} sheaf_camera;
 
 /**
  * Point light, optionally a spot light (C: `sheaf_light`; a zeroed spot
@@ -1332,21 +1358,6 @@ typedef struct sheaf_scene_info {
 } sheaf_scene_info;
 
 /**
- * Nearest hit in a two-level scene (24 bytes): the triangle's index in
- * its geometry's index buffer, the geometry and the instance. A miss has
- * `prim == geometry == instance == SHEAF_INVALID_ID` and `t == INFINITY`.
- * Of two hits at the same `t` the lower instance, then triangle, wins.
- */
-typedef struct sheaf_scene_hit {
-    float t;
-    float u;
-    float v;
-    uint32_t prim;
-    uint32_t geometry;
-    uint32_t instance;
-} sheaf_scene_hit;
-
-/**
  * Rays as structures of arrays: ray `i` is `org_x[i]`, `org_y[i]`, ...,
  * `tmax[i]`, with the semantics of `sheaf_ray`.
  *
@@ -1475,6 +1486,56 @@ sheaf_status sheaf_bvh_params_default(struct sheaf_bvh_params *out);
  * `out` must not be NULL. Thread-safe.
  */
 sheaf_status sheaf_refit_params_default(struct sheaf_refit_params *out);
+
+/**
+ * Nearest hits of the camera rays through the pixels of `*rect` of a
+ * `width` x `height` image seen by `*camera`, made by the kernel as
+ * packets of `params->packet`^2 pixels (2x2 quads in Morton order, tiles
+ * row by row over the rectangle) and traced with `params->method`:
+ * pixel (x, y)'s hit into `hits[(y - rect->y0) * hits_per_row + (x -
+ * rect->x0)]`; other elements are left alone. Each ray is bit for bit
+ * `sheaf_frame_camera_ray`'s for that pixel and each hit
+ * `sheaf_context_trace_with`'s for that ray. Takes a free thread slot as
+ * `sheaf_context_trace_with` does and is thread-safe like it: threads may
+ * trace disjoint rectangles (tiles, row bands) of one image into one
+ * `hits` buffer at once.
+ *
+ * Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_INVALID_ARGUMENT`
+ * (bad params; a camera with a NaN or infinite field, `eye == look_at`,
+ * `up` parallel to the view or a field of view outside (0, 180); a
+ * rectangle empty or outside the image; `hits_per_row` below the
+ * rectangle's width or a buffer past the address space),
+ * `SHEAF_STATUS_NOT_BUILT`, `SHEAF_STATUS_CAPACITY_THREADS`. `hits` is
+ * written only on success.
+ */
+sheaf_status sheaf_context_trace_camera(const struct sheaf_context *ctx,
+                                        const struct sheaf_trace_params *params,
+                                        const struct sheaf_camera *camera,
+                                        uint32_t width,
+                                        uint32_t height,
+                                        const struct sheaf_pixel_rect *rect,
+                                        struct sheaf_hit *hits,
+                                        size_t hits_per_row);
+
+/**
+ * `sheaf_context_trace_camera` in the committed two-level scene: `params`
+ * (NULL: single rays), `mask` and `flags` as in
+ * `sheaf_context_trace_scene`, and its hits for those rays, bit for bit,
+ * into `hits` laid out as in `sheaf_context_trace_camera`. Thread-safe
+ * as `sheaf_context_trace_scene`. Errors: those of
+ * `sheaf_context_trace_scene` and the camera checks of
+ * `sheaf_context_trace_camera`.
+ */
+sheaf_status sheaf_context_trace_scene_camera(const struct sheaf_context *ctx,
+                                              const struct sheaf_trace_params *params,
+                                              const struct sheaf_camera *camera,
+                                              uint32_t width,
+                                              uint32_t height,
+                                              const struct sheaf_pixel_rect *rect,
+                                              struct sheaf_scene_hit *hits,
+                                              size_t hits_per_row,
+                                              uint32_t mask,
+                                              uint32_t flags);
 
 /**
  * Bytes `sheaf_context_create_in` needs for `*limits`, written to `*out`.

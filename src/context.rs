@@ -17,12 +17,16 @@ use crate::render::deferred::{
     self, DeferredInfo, DeferredJob, FrameBuffers, PrimaryPass, ShadowPass, TileLayout, Workers,
 };
 use crate::render::whitted::{self, WhittedJob};
-use crate::render::{self, Band, Frame, PointLight, PrimaryRays, TileParams, Tracer};
+use crate::render::{
+    self, Band, CameraRays, Frame, PixelRect, PointLight, PrimaryRays, TileParams, Tracer,
+};
 mod scene;
 
 pub use crate::trace::SceneTracer;
 pub use crate::trace::scene::{BvhTracer, GridTracer, KdTracer};
-use crate::trace::{Counters, HitStream, Method, RaySource, RayStream, TraceParams, batch_on};
+use crate::trace::{
+    Counters, HitStream, Method, RaySource, RayStream, TraceParams, batch_on, per_ray,
+};
 
 /// Scratch bytes of one thread slot: the most a caller of the packet
 /// driver holds (`trace::batch_on`'s packet, a render tile, a Whitted
@@ -813,7 +817,7 @@ impl<'a> Context<'a> {
         self.batch(
             p,
             rays,
-            &mut |i, h: &Hit4, lane| hits[i] = h.lane(lane),
+            &mut |i, h: &Hit4, n| hits[i..i + n].copy_from_slice(&h.hits()[..n]),
             false,
         )
     }
@@ -851,13 +855,14 @@ impl<'a> Context<'a> {
         self.batch(
             p,
             rays,
-            &mut |i, h: &Hit4, lane| occluded[i] = h.prim[lane] != crate::geom::INVALID_ID,
+            &mut per_ray(|i, h: &Hit4, l| occluded[i] = h.prim[l] != crate::geom::INVALID_ID),
             true,
         )
     }
 
     /// Trace `rays` as packets (or one by one) on the calling thread with
-    /// slot 0's mailbox, handing each result to `out(ray index, hits, lane)`.
+    /// slot 0's mailbox, handing the results to `out` quad by quad
+    /// (`trace_quads`).
     fn batch(
         &mut self,
         p: &TraceParams,
@@ -901,7 +906,7 @@ impl<'a> Context<'a> {
             slot,
             p,
             rays,
-            &mut |i, h: &Hit4, lane| hits[i] = h.lane(lane),
+            &mut |i, h: &Hit4, n| hits[i..i + n].copy_from_slice(&h.hits()[..n]),
             false,
         )
     }
@@ -924,7 +929,7 @@ impl<'a> Context<'a> {
             slot,
             p,
             rays,
-            &mut |i, h: &Hit4, lane| occluded[i] = h.prim[lane] != crate::geom::INVALID_ID,
+            &mut per_ray(|i, h: &Hit4, l| occluded[i] = h.prim[l] != crate::geom::INVALID_ID),
             true,
         )
     }
@@ -937,7 +942,7 @@ impl<'a> Context<'a> {
         out: &mut dyn FnMut(usize, &Hit4, usize),
         any: bool,
     ) -> Result<Counters> {
-        self.trace_each(Some(slot), p, rays.len(), |i| rays[i], out, any)
+        self.trace_quads(Some(slot), p, rays.len(), |i| rays[i], out, any)
     }
 
     /// Trace (`any`: test occlusion of) `count` rays, ray `i` being
@@ -947,6 +952,22 @@ impl<'a> Context<'a> {
     /// (see `with_slot`; `None` takes the highest free slot). The calls of
     /// the C ABI come here. Does not update `stats`.
     pub fn trace_each(
+        &self,
+        slot: Option<u32>,
+        p: &TraceParams,
+        count: usize,
+        rays: impl RaySource,
+        out: impl FnMut(usize, &Hit4, usize),
+        any: bool,
+    ) -> Result<Counters> {
+        self.trace_quads(slot, p, count, rays, per_ray(out), any)
+    }
+
+    /// `trace_each` handing the results out quad by quad: `out(i, hits,
+    /// n)` for rays `i .. i + n` (lanes `0 .. n` of `hits`, `n <= 4`), so a
+    /// caller storing lanes side by side (hit streams, camera pixels)
+    /// writes whole quads.
+    pub fn trace_quads(
         &self,
         slot: Option<u32>,
         p: &TraceParams,
@@ -974,7 +995,7 @@ impl<'a> Context<'a> {
     ) -> Result<Counters> {
         let n = rays.count()?;
         hits.check(n)?;
-        self.trace_each(slot, p, n, *rays, |i, h, l| hits.put(i, h, l), false)
+        self.trace_quads(slot, p, n, *rays, |i, h, k| hits.put_quad(i, h, k), false)
     }
 
     /// Occlusion of a ray stream into `occluded` (one per ray), as
@@ -991,6 +1012,37 @@ impl<'a> Context<'a> {
         crate::trace::stream::one_per_ray(&[occluded.len()], n)?;
         let out = |i: usize, h: &Hit4, l: usize| occluded[i] = h.prim[l] != crate::geom::INVALID_ID;
         self.trace_each(slot, p, n, *rays, out, true)
+    }
+
+    /// Nearest hits of the camera rays through the pixels of `rect` (inside
+    /// `camera`'s image), made in the kernel as packets of `p.packet`^2
+    /// pixels (`render::CameraRays`: no ray array, no conversion), pixel
+    /// (x, y)'s hit into `hits[(y - rect.y0) * row + (x - rect.x0)]`;
+    /// other elements are left alone. The hits of `trace_with` on the rays
+    /// `camera.ray(x, y)`, bit for bit. From any thread sharing `&self`,
+    /// on thread slot `slot` as `trace_each` (threads tracing disjoint
+    /// tiles or row bands of one image into one buffer, each its own
+    /// slot). Does not update `stats`.
+    pub fn trace_camera(
+        &self,
+        slot: Option<u32>,
+        p: &TraceParams,
+        camera: &PrimaryRays,
+        rect: PixelRect,
+        hits: &mut [Hit],
+        row: usize,
+    ) -> Result<Counters> {
+        let rays = CameraRays::new(camera, rect, Some(p))?;
+        rect.check_results(hits.len(), row)?;
+        let mut at = rays.index(row);
+        let out = |i: usize, h: &Hit4, _: usize| {
+            for (k, hit) in at.quad(i).into_iter().zip(h.hits()) {
+                if let Some(k) = k {
+                    hits[k] = hit;
+                }
+            }
+        };
+        self.trace_quads(slot, p, rays.count(), rays, out, false)
     }
 
     /// Run `f` with thread slot `slot` (its mailbox and scratch), claimed

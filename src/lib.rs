@@ -91,7 +91,7 @@ pub use render::deferred::{
 };
 pub use render::material::{Material, MaterialRange, Materials};
 pub use render::whitted::{WhittedJob, WhittedParams};
-pub use render::{Band, Camera, Frame, PointLight, Shading};
+pub use render::{Band, Camera, Frame, PixelRect, PointLight, PrimaryRays, Shading};
 pub use trace::{
     BvhOptions, CgtOptions, Counters, EntrySearch, HitStream, Method, RayKind, RayStream,
     SceneHitStream, TraceParams,

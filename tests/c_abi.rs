@@ -213,6 +213,7 @@ fn check_layouts() {
             ("sheaf_ray", size_of::<sheaf_ray>(), align_of::<sheaf_ray>()),
             ("sheaf_hit", size_of::<sheaf_hit>(), align_of::<sheaf_hit>()),
             ("sheaf_camera", size_of::<Camera>(), align_of::<Camera>()),
+            ("sheaf_pixel_rect", size_of::<sheaf::PixelRect>(), align_of::<sheaf::PixelRect>()),
             ("sheaf_light", size_of::<PointLight>(), align_of::<PointLight>()),
             ("sheaf_shading", size_of::<ffi::sheaf_shading>(), align_of::<ffi::sheaf_shading>()),
             ("sheaf_frame", size_of::<sheaf_frame>(), align_of::<sheaf_frame>()),

@@ -670,3 +670,108 @@ fn ray_streams_answer_as_ray_arrays() {
     ));
     assert!(t.iter().all(|&x| x == 7.0), "a refused call writes nothing");
 }
+
+/// Camera packets made in the kernel (`trace_camera`) answer every pixel
+/// as the ray array of `sheaf_frame_camera_ray`'s rays does, bit for bit:
+/// every method, every packet side, a rectangle off the image's corner
+/// whose sides are no multiple of a packet, hits written `row` apart with
+/// the gaps left alone. Bad rectangles, rows and buffers are refused with
+/// nothing written.
+#[test]
+fn camera_packets_answer_as_ray_arrays() {
+    use sheaf::{KdParams, PixelRect, PrimaryRays, TraceParams};
+    let s = sheaf::scenes::builtin("gears").unwrap();
+    let scene = Scene::from_f32(&s.mesh.vertices, &s.mesh.indices).unwrap();
+    let mut ctx =
+        OwnedContext::new(&Limits::for_triangles(s.mesh.indices.len() as u32 / 3)).unwrap();
+    ctx.build_grid(&scene, &GridParams::default()).unwrap();
+    ctx.build_bvh(&scene, &BvhParams::default()).unwrap();
+    ctx.build_kd(&scene, &KdParams::default()).unwrap();
+    let v = &s.views[0];
+    let cam = sheaf::Camera {
+        eye: v.eye.to_array(),
+        look_at: v.look_at.to_array(),
+        up: v.up.to_array(),
+        fov_y_deg: v.fov_y_deg,
+    };
+    let (w, h) = (61, 47);
+    let pr = PrimaryRays::new(&cam, w, h).unwrap();
+    let rect = PixelRect {
+        x0: 3,
+        y0: 5,
+        x1: 3 + 37,
+        y1: 5 + 29,
+    };
+    let (rw, rh) = rect.size();
+    let row = rw as usize + 3;
+    let pixels: Vec<(u32, u32)> = (rect.y0..rect.y1)
+        .flat_map(|y| (rect.x0..rect.x1).map(move |x| (x, y)))
+        .collect();
+    let rays: Vec<Ray> = pixels.iter().map(|&(x, y)| pr.ray(x, y)).collect();
+    let gap = Hit {
+        t: -7.0,
+        ..Hit::MISS
+    };
+    let mut seen = 0;
+    for &method in Method::ALL {
+        for packet in [2, 4, 8, 16, 32] {
+            let p = TraceParams {
+                method,
+                packet,
+                ..TraceParams::default()
+            };
+            let mut want = vec![Hit::MISS; rays.len()];
+            ctx.trace_in_slot(0, &p, &rays, &mut want).unwrap();
+            let mut got = vec![gap; (rh as usize - 1) * row + rw as usize];
+            ctx.trace_camera(Some(0), &p, &pr, rect, &mut got, row)
+                .unwrap();
+            for (k, &(x, y)) in pixels.iter().enumerate() {
+                let g = got[(y - rect.y0) as usize * row + (x - rect.x0) as usize];
+                let bits = |h: &Hit| (h.t.to_bits(), h.u.to_bits(), h.v.to_bits(), h.prim);
+                assert_eq!(
+                    bits(&g),
+                    bits(&want[k]),
+                    "{} packet {packet}: pixel ({x}, {y})",
+                    method.name()
+                );
+            }
+            let gaps = got
+                .chunks(row)
+                .flat_map(|r| r.get(rw as usize..).unwrap_or(&[]))
+                .filter(|h| h.t == -7.0)
+                .count();
+            assert_eq!(gaps, (rh as usize - 1) * 3, "the gaps between rows stay");
+            seen += want.iter().filter(|h| h.is_hit()).count();
+        }
+    }
+    assert!(seen > 0, "the view sees the scene");
+    let p = TraceParams::default();
+    let mut got = vec![gap; (rh as usize - 1) * row + rw as usize];
+    let bad_rects = [
+        PixelRect { x1: 3, ..rect },
+        PixelRect { x1: w + 1, ..rect },
+        PixelRect {
+            y0: 30,
+            y1: 29,
+            ..rect
+        },
+    ];
+    for r in bad_rects {
+        let e = ctx.trace_camera(None, &p, &pr, r, &mut got, row);
+        assert!(matches!(e, Err(Error::InvalidArgument(_))), "{r:?}");
+    }
+    let n = got.len();
+    let short = ctx.trace_camera(None, &p, &pr, rect, &mut got[..n - 1], row);
+    assert!(matches!(short, Err(Error::InvalidArgument(_))));
+    let narrow = ctx.trace_camera(None, &p, &pr, rect, &mut got, rw as usize - 1);
+    assert!(matches!(narrow, Err(Error::InvalidArgument(_))));
+    assert!(
+        got.iter().all(|h| h.t == -7.0),
+        "a refused call writes nothing"
+    );
+    let nan = sheaf::Camera {
+        fov_y_deg: f32::NAN,
+        ..cam
+    };
+    assert!(PrimaryRays::new(&nan, w, h).is_err());
+}

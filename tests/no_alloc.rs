@@ -148,6 +148,7 @@ fn ten_animated_frames_allocate_nothing() {
     let n = rays.len();
     let (mut st, mut su, mut sv) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
     let (mut sp, mut sg, mut si) = (vec![0; n], vec![0; n], vec![0; n]);
+    let cam = sheaf::PrimaryRays::new(&frame.camera, frame.width, frame.height).unwrap();
     for ctx in [&mut owned, &mut borrowed] {
         let scene = Scene::from_f32(&anim.mesh.vertices, &anim.mesh.indices).unwrap();
         let at = |mode| GeometryParams {
@@ -237,6 +238,16 @@ fn ten_animated_frames_allocate_nothing() {
             scene_hit_total += sp.iter().filter(|&&k| k != sheaf::geom::INVALID_ID).count();
             ctx.occluded_scene_stream(None, None, &stream, 1, &mut occ)
                 .unwrap();
+            // Camera packets made in the kernel, a 16 x 16 tile.
+            let tile = sheaf::PixelRect {
+                x0: 0,
+                y0: 0,
+                x1: 16,
+                y1: 16,
+            };
+            ctx.trace_scene_camera(Some(&p), None, &cam, tile, !0, &mut scene_hits, 16)
+                .unwrap();
+            scene_hit_total += scene_hits.iter().filter(|h| h.is_hit()).count();
         }
         for ctx in [
             &mut owned as &mut dyn Frames,
@@ -325,6 +336,10 @@ macro_rules! impl_frames {
                     self.trace_with(&bp, r, h).unwrap();
                     self.occluded_with(&bp, r, o).unwrap();
                     self.render_with(&bp, &bp, f, px, stride).unwrap();
+                    // Camera packets made in the kernel: a 16 x 16 tile.
+                    let cam = sheaf::PrimaryRays::new(&f.camera, f.width, f.height).unwrap();
+                    let tile = sheaf::PixelRect { x0: 0, y0: 0, x1: 16, y1: 16 };
+                    self.trace_camera(None, &bp, &cam, tile, h, 16).unwrap();
                 }
                 // BVH packets from AEPSA entry points.
                 let bp = TraceParams::bvh(Method::BvhRanged, 16).with_entry(EntrySearch::Aepsa);

@@ -767,3 +767,78 @@ fn culling_skips_one_side(test: TriTest) {
         "{fronts} {backs} {mirrored}"
     );
 }
+
+/// Camera packets made in the kernel through instances
+/// (`trace_scene_camera`): every BVH method and single rays, each mask and
+/// culling side, give every pixel of a rectangle off the image's corner the
+/// single ray's hit of `PrimaryRays::ray`, bit for bit.
+#[test]
+fn camera_packets_through_instances() {
+    use sheaf::{PixelRect, PrimaryRays};
+    let mut ctx = scene(TriTest::Watertight);
+    let info = ctx.commit_scene().unwrap();
+    let v = view_of(&info, Vec3::new(0.7, 0.5, 1.1));
+    let cam = sheaf::Camera {
+        eye: v.eye.to_array(),
+        look_at: v.look_at.to_array(),
+        up: v.up.to_array(),
+        fov_y_deg: v.fov_y_deg,
+    };
+    let (w, h) = (RES as u32 + 5, RES as u32 + 2);
+    let pr = PrimaryRays::new(&cam, w, h).unwrap();
+    let rect = PixelRect {
+        x0: 2,
+        y0: 1,
+        x1: w - 1,
+        y1: h,
+    };
+    let (rw, rh) = rect.size();
+    let row = rw as usize;
+    let pixels: Vec<(u32, u32)> = (rect.y0..rect.y1)
+        .flat_map(|y| (rect.x0..rect.x1).map(move |x| (x, y)))
+        .collect();
+    let rays: Vec<Ray> = pixels.iter().map(|&(x, y)| pr.ray(x, y)).collect();
+    let mut total = 0;
+    let controls = [
+        RayControls::from(!0),
+        RayControls::from(2),
+        RayControls {
+            mask: !0,
+            cull: Cull::Back,
+        },
+    ];
+    for ctl in controls {
+        let mut want = vec![SceneHit::MISS; rays.len()];
+        ctx.trace_scene(&rays, ctl, &mut want).unwrap();
+        total += want.iter().filter(|h| h.is_hit()).count();
+        let mut params = vec![None];
+        for (method, packet) in [
+            (Method::BvhSimd, 2),
+            (Method::BvhMasked, 8),
+            (Method::BvhRanged, 16),
+            (Method::BvhFrustum, 8),
+            (Method::BvhFrustum, 16),
+            (Method::BvhFrustum, 32),
+        ] {
+            params.push(Some(TraceParams {
+                method,
+                packet,
+                ..TraceParams::default()
+            }));
+        }
+        for p in &params {
+            let mut got = vec![SceneHit::MISS; rh as usize * row];
+            ctx.trace_scene_camera(p.as_ref(), Some(0), &pr, rect, ctl, &mut got, row)
+                .unwrap();
+            for (k, &(x, y)) in pixels.iter().enumerate() {
+                let g = &got[(y - rect.y0) as usize * row + (x - rect.x0) as usize];
+                assert!(
+                    same(g, &want[k]),
+                    "{p:?} {ctl:?} pixel ({x}, {y}): {g:?} want {:?}",
+                    want[k]
+                );
+            }
+        }
+    }
+    assert!(total > 1000, "{total} hits");
+}

@@ -405,6 +405,10 @@ struct Job {
     float *soa[8];         /* org x y z, dir x y z, tmin, tmax; NULL: sheaf_ray arrays */
     float *sh[3];          /* stream hits t, u, v */
     uint32_t *sh_prim;
+    /* "cam:NAME" (sheaf): camera rays made in the kernel, one 32x32 tile
+     * per chunk (sheaf_context_trace_camera), hits per pixel into cam_hits */
+    const sheaf_frame *frame;
+    sheaf_hit *cam_hits;
 };
 
 static void embree_trace(Job *j, size_t b, size_t e);
@@ -471,8 +475,27 @@ static sheaf_ray_stream soa_rays(const Job *j, size_t b)
     return r;
 }
 
+/* The chunk of rays b..e (one 32x32 tile: camera_rays' order) traced as
+ * camera packets made in the kernel, hits per pixel. */
+static void camera_chunk(Job *j, size_t b)
+{
+    const sheaf_frame *f = j->frame;
+    uint32_t c = (uint32_t)(b / CHUNK), tiles_x = f->width / 32;
+    sheaf_pixel_rect r = {32 * (c % tiles_x), 32 * (c / tiles_x), 0, 0};
+    r.x1 = r.x0 + 32;
+    r.y1 = r.y0 + 32;
+    sheaf_status st = sheaf_context_trace_camera(j->ctx, &j->params, &f->camera, f->width, f->height, &r,
+                                                 j->cam_hits + (size_t)r.y0 * f->width + r.x0, f->width);
+    if (st != SHEAF_STATUS_OK)
+        j->status = (int)st;
+}
+
 static void run_chunk(Job *j, size_t b, size_t e)
 {
+    if (j->cam_hits) {
+        camera_chunk(j, b);
+        return;
+    }
     if (j->soa[0] && j->lib == LIB_SHEAF && (j->kind == K_TRACE || j->kind == K_OCCLUDED)) {
         sheaf_ray_stream r = soa_rays(j, b);
         sheaf_status st;
@@ -2159,9 +2182,14 @@ static Job named_job(Bench *b, const char *name, int shadow, int threads, size_t
         j.occ = xmalloc(b->N);
         *n = shadow ? b->NS : b->N;
     } else {
-        /* "soa:NAME": the configuration traced from a ray stream. */
-        int soa = !strncmp(name, "soa:", 4);
-        if (soa) name += 4;
+        /* "soa:NAME": the configuration traced from a ray stream; "cam:NAME"
+         * its camera rays made in the kernel. */
+        int soa = !strncmp(name, "soa:", 4), cam = !strncmp(name, "cam:", 4);
+        if (soa || cam) name += 4;
+        if (cam && shadow) {
+            /* Shadow rays come from hits: the ray-array configuration. */
+            cam = 0;
+        }
         const Cfg *cfgs = shadow ? SHADOW_CFGS : PRIMARY_CFGS;
         size_t nc = shadow ? N_SHADOW_CFGS : N_PRIMARY_CFGS, c = 0;
         while (c < nc && strcmp(cfgs[c].name, name)) c++;
@@ -2187,12 +2215,25 @@ static Job named_job(Bench *b, const char *name, int shadow, int threads, size_t
             for (int f = 0; f < 3; f++) j.sh[f] = xmalloc(j.n * sizeof(float));
             j.sh_prim = xmalloc(j.n * sizeof(uint32_t));
         }
+        if (cam) {
+            if (j.kind != K_TRACE) die("cam:%s: not a camera trace configuration", name);
+            j.frame = &b->frame;
+            j.cam_hits = xmalloc(j.n * sizeof *j.cam_hits);
+            run_job(&j, 1);
+            /* Every pixel's hit is the reference ray's, bit for bit. */
+            for (size_t k = 0; k < j.n; k++) {
+                const sheaf_hit *h = &j.cam_hits[b->pix[k]], *w = &b->ref[k];
+                if (h->prim != w->prim || memcmp(&h->t, &w->t, 4) != 0)
+                    die("cam:%s: pixel %u differs from the ray-array reference", name, b->pix[k]);
+            }
+        }
     }
     return j;
 }
 
 static void release_job(Job *j, EScene *es, RTCDevice dev)
 {
+    free(j->cam_hits);
     if (j->soa[0]) {
         for (int f = 0; f < 8; f++) free(j->soa[f]);
         for (int f = 0; f < 3; f++) free(j->sh[f]);
@@ -3021,7 +3062,9 @@ static void usage(void)
             "  --profile-shadow  with --profile: the shadow rays instead of camera rays\n"
             "  --ab A,B,..     the named configurations (embree-N for Embree) in interleaved\n"
             "                  rounds, camera and shadow rays, each thread count: Mrays/s and\n"
-            "                  the median per-round speed over the last one's; soa:NAME traces sheaf's\n"
+            "                  the median per-round speed over the last one's; cam:NAME traces the camera\n"
+            "                  rays made in the kernel (sheaf_context_trace_camera, one 32x32 tile per\n"
+            "                  call; shadow rows as NAME); soa:NAME traces sheaf's\n"
             "                  rays as a ray stream (sheaf_context_trace_stream / _occluded_stream); low:NAME\n"
             "                  traces sheaf's LOW tree (every sheaf configuration, or none)\n"
             "  --explain    print every disagreement no tie, edge or end explains\n"

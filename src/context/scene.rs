@@ -26,6 +26,7 @@ use crate::error::{Error, Result};
 use crate::geom::{Affine, Cull, Culled, M4, Mt, Pt, Ray, Ray4, Scene, TriTest, Wt};
 use crate::mem::Limits;
 use crate::mem::par::{Par, Serial};
+use crate::render::{CameraRays, PixelRect, PrimaryRays};
 use crate::trace::{RaySource, RayStream, SceneHitStream, TraceParams};
 
 /// Slot scratch a two-level packet batch holds (its quads, their lanes,
@@ -584,6 +585,33 @@ impl<'a> Context<'a> {
             }
         })?;
         Ok(ctr)
+    }
+
+    /// Nearest hits of the camera rays through the pixels of `rect` in the
+    /// committed two-level scene, made in the kernel as `trace_camera`
+    /// makes them, pixel (x, y)'s hit into `hits[(y - rect.y0) * row + (x
+    /// - rect.x0)]`: `p`, `slot` and `ctl` as `trace_scene_each`, and its
+    /// hits for the rays `camera.ray(x, y)`, bit for bit.
+    #[allow(clippy::too_many_arguments)] // the camera call's parts, as `trace_scene_each`
+    pub fn trace_scene_camera(
+        &self,
+        p: Option<&TraceParams>,
+        slot: Option<u32>,
+        camera: &PrimaryRays,
+        rect: PixelRect,
+        ctl: impl Into<RayControls>,
+        hits: &mut [SceneHit],
+        row: usize,
+    ) -> Result<Counters> {
+        let rays = CameraRays::new(camera, rect, p)?;
+        rect.check_results(hits.len(), row)?;
+        let mut at = rays.index(row);
+        let out = |i: usize, h: SceneHit| {
+            if let Some(k) = at.of(i) {
+                hits[k] = h;
+            }
+        };
+        self.trace_scene_each(p, slot, rays.count(), ctl, false, rays, out)
     }
 
     /// Nearest hits of a ray stream in the committed two-level scene

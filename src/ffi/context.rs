@@ -912,12 +912,21 @@ fn trace_impl(
     if overlaps(rays.cast(), rb, hits.cast_const().cast(), hb) {
         return Err(Error::InvalidArgument("rays and hits overlap"));
     }
-    trace_rays(h, slot, p, rays, count, false, |i, hit| {
-        // SAFETY: i < count, and `hits` was checked to be non-NULL (count
-        // > 0) and to span count writable elements (C contract); unaligned
-        // writes are allowed and it does not overlap the rays.
-        unsafe { hits.add(i).write_unaligned(hit.into()) }
-    })
+    // SAFETY: i < count for every call (trace_quads reads rays 0..count
+    // only); the caller checked `rays` spans count readable elements
+    // (unaligned allowed).
+    let read = |i: usize| Ray::from(unsafe { rays.add(i).read_unaligned() });
+    let emit = |i: usize, h4: &crate::geom::Hit4, n: usize| {
+        for (l, hit) in h4.hits().into_iter().enumerate().take(n) {
+            // SAFETY: i + l < count (the batch hands out quads inside its
+            // count), and `hits` was checked to be non-NULL (count > 0) and
+            // to span count writable elements (C contract); unaligned
+            // writes are allowed and it does not overlap the rays.
+            unsafe { hits.add(i + l).write_unaligned(hit.into()) }
+        }
+    };
+    h.ctx.trace_quads(slot, p, count, read, emit, false)?;
+    Ok(())
 }
 
 fn occluded_impl(

@@ -15,6 +15,7 @@
 //! | `trace_params.rs` | `sheaf_trace_params`, `sheaf_entry_search`, `sheaf_trace_params_default` |
 //! | `ray.rs` | `sheaf_ray`, `sheaf_hit` (the C twins of `Ray`, `Hit`) |
 //! | `pgrid.rs` | `sheaf_pgrid_params`, `sheaf_pgrid_params_default`, `sheaf_context_build_pgrid`, `sheaf_deferred_job`, `sheaf_context_render_deferred`, `sheaf_context_deferred_pixel`, `sheaf_context_deferred_shadow_ray` |
+//! | `camera.rs` | `sheaf_pixel_rect`, `sheaf_context_trace_camera`, `sheaf_context_trace_scene_camera` (camera rays made in the kernel as packets, hits per pixel) |
 //! | `frame.rs` | `sheaf_frame` (camera, light, shading, size), `sheaf_shading_default`, `sheaf_frame_camera_ray` |
 //! | `stats.rs` | `sheaf_stats` |
 //! | `version.rs` | `sheaf_version_string` |
@@ -51,6 +52,7 @@
 #![allow(clippy::not_unsafe_ptr_arg_deref)]
 
 pub mod bvh;
+pub mod camera;
 pub mod context;
 pub mod frame;
 pub mod grid;
@@ -74,6 +76,7 @@ pub use bvh::{
     sheaf_build_quality, sheaf_bvh_params, sheaf_bvh_params_default, sheaf_ray_kind,
     sheaf_refit_info, sheaf_refit_params, sheaf_refit_params_default,
 };
+pub use camera::{sheaf_context_trace_camera, sheaf_context_trace_scene_camera};
 #[cfg(feature = "std")]
 pub use context::sheaf_context_create;
 pub use context::{

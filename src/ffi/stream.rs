@@ -245,6 +245,49 @@ impl CHits {
         Ok(CHits { h })
     }
 
+    /// Lanes `0 .. n` of `h` as hits `i .. i + n`: a whole quad of a packed
+    /// stream as one 16-byte store per field.
+    #[inline(always)]
+    fn put_quad(&self, i: usize, h: &crate::geom::Hit4, n: usize) {
+        if n == 4 && self.h.stride == 4 {
+            let o = i * 4;
+            // SAFETY: i + 3 < n rays (the batch hands out whole quads
+            // inside its count); `new` checked each array non-NULL, 4-byte
+            // aligned, spanning n packed elements apart from every other
+            // array and the rays (C contract: writable for the call);
+            // unaligned 16-byte writes are allowed.
+            unsafe {
+                self.h
+                    .t
+                    .byte_add(o)
+                    .cast::<[f32; 4]>()
+                    .write_unaligned(h.t.to_array());
+                self.h
+                    .u
+                    .byte_add(o)
+                    .cast::<[f32; 4]>()
+                    .write_unaligned(h.u.to_array());
+                self.h
+                    .v
+                    .byte_add(o)
+                    .cast::<[f32; 4]>()
+                    .write_unaligned(h.v.to_array());
+                self.h
+                    .prim
+                    .byte_add(o)
+                    .cast::<[u32; 4]>()
+                    .write_unaligned(h.prim);
+            }
+            return;
+        }
+        for l in 0..4 {
+            if l < n {
+                let x = h.lane(l);
+                self.put(i + l, (x.t, x.u, x.v, x.prim), None);
+            }
+        }
+    }
+
     /// Hit `i`'s fields (geometry and instance: scene calls only).
     #[inline(always)]
     fn put(&self, i: usize, (t, u, v, prim): (f32, f32, f32, u32), scene: Option<(u32, u32)>) {
@@ -313,11 +356,8 @@ pub extern "C" fn sheaf_context_trace_stream(
         let p = read_in(params)?.to_core()?;
         let (r, spans) = CRays::new(rays, count)?;
         let out = CHits::new(hits, count, &spans, false)?;
-        let emit = |i: usize, h4: &crate::geom::Hit4, l: usize| {
-            let x = h4.lane(l);
-            out.put(i, (x.t, x.u, x.v, x.prim), None)
-        };
-        h.ctx.trace_each(None, &p, count, r, emit, false)?;
+        let emit = |i: usize, h4: &crate::geom::Hit4, n: usize| out.put_quad(i, h4, n);
+        h.ctx.trace_quads(None, &p, count, r, emit, false)?;
         Ok(())
     })
 }

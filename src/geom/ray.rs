@@ -137,6 +137,15 @@ impl Hit4 {
             v: self.v[i],
         }
     }
+    /// The four lanes as `Hit`s: `Hit4`'s rows (t, prim, u, v) are the
+    /// fields of `Hit` in its order, so this is a 4x4 transpose (shuffles,
+    /// which move bits unchanged) instead of sixteen lane picks.
+    #[inline(always)]
+    pub fn hits(&self) -> [Hit; 4] {
+        let prim = F4::from_array(self.prim.map(f32::from_bits));
+        let m = glam::Mat4::from_cols(self.t, prim, self.u, self.v).transpose();
+        [m.x_axis, m.y_axis, m.z_axis, m.w_axis].map(|c| bytemuck::cast(c.to_array()))
+    }
     #[inline]
     pub fn set_lane(&mut self, i: usize, h: Hit) {
         self.t[i] = h.t;
@@ -217,4 +226,24 @@ impl Ray4 {
 #[inline(always)]
 pub fn closer(t: f32, prim: u32, best: &Hit) -> bool {
     t < best.t || (t == best.t && prim < best.prim)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn hits_are_the_lanes_bit_for_bit() {
+        let h = Hit4 {
+            t: F4::new(1.5, f32::INFINITY, -0.0, 3.0e-39),
+            // Ids whose bits are NaNs (a miss, a signalling pattern).
+            prim: [7, INVALID_ID, 0x7f80_0001, 0xffc0_0000],
+            u: F4::new(0.25, 0.0, 1.0, f32::MIN_POSITIVE),
+            v: F4::new(0.5, 0.0, f32::EPSILON, 1.0),
+        };
+        let bits = |x: &Hit| (x.t.to_bits(), x.prim, x.u.to_bits(), x.v.to_bits());
+        for (l, got) in h.hits().iter().enumerate() {
+            assert_eq!(bits(got), bits(&h.lane(l)), "lane {l}");
+        }
+    }
 }

@@ -14,6 +14,7 @@
 //! Both paths shoot the same shadow rays, so they produce the same image.
 #![forbid(unsafe_code)]
 
+pub mod camera;
 pub mod deferred;
 pub mod material;
 pub mod whitted;
@@ -24,6 +25,7 @@ use crate::geom::{F4, Hit, Hit4, M4, Ray, Ray4, TriVerts};
 use crate::math;
 pub use crate::trace::Tracer;
 use crate::trace::{Counters, TraceParams};
+pub use camera::{Camera, CameraRays, PixelRect, PrimaryRays, demorton};
 use glam::Vec3;
 
 /// Slot scratch a packet tile of `render_tiles` holds while it traces:
@@ -33,17 +35,6 @@ pub const SCRATCH: usize = {
     const Q: usize = crate::accel::packet::MAX_QUADS;
     2 * (bytes::<Ray4>(Q) + bytes::<M4>(Q) + bytes::<Hit4>(Q)) + 2 * bytes::<F4>(Q)
 };
-
-/// Pinhole camera (C: `sheaf_camera`).
-#[repr(C)]
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Camera {
-    pub eye: [f32; 3],
-    pub look_at: [f32; 3],
-    pub up: [f32; 3],
-    /// Vertical field of view in degrees, in (0, 180).
-    pub fov_y_deg: f32,
-}
 
 /// Point light, optionally a spot light (C: `sheaf_light`; a zeroed spot
 /// part is a point light shining everywhere).
@@ -188,79 +179,6 @@ impl Default for Shading {
     }
 }
 
-/// Camera basis and per-pixel ray generation for a `width x height` image.
-#[derive(Clone, Copy, Debug)]
-pub struct PrimaryRays {
-    eye: Vec3,
-    corner: Vec3,
-    du: Vec3,
-    dv: Vec3,
-    pinhole: crate::accel::pgrid::Pinhole,
-}
-
-impl PrimaryRays {
-    pub fn new(cam: &Camera, width: u32, height: u32) -> Result<Self> {
-        let eye = Vec3::from(cam.eye);
-        let fwd = Vec3::from(cam.look_at) - eye;
-        let up = Vec3::from(cam.up);
-        // Stated as what is valid, so that NaN fails.
-        let valid = eye.is_finite()
-            && fwd.is_finite()
-            && up.is_finite()
-            && fwd.length_squared() > 0.0
-            && cam.fov_y_deg > 0.0
-            && cam.fov_y_deg < 180.0;
-        if !valid {
-            return Err(Error::InvalidArgument(
-                "camera: finite eye/look_at/up, eye != look_at, fov in (0, 180)",
-            ));
-        }
-        let w = fwd.normalize();
-        let u = w.cross(up);
-        let u2 = u.length_squared();
-        if u2.is_nan() || u2 <= 0.0 {
-            return Err(Error::InvalidArgument(
-                "camera: up must not be parallel to the view direction",
-            ));
-        }
-        let u = u.normalize();
-        let v = u.cross(w);
-        let half_h = math::tan(cam.fov_y_deg.to_radians() * 0.5);
-        let half_w = half_h * width as f32 / height as f32;
-        let du = u * (2.0 * half_w / width as f32);
-        let dv = -v * (2.0 * half_h / height as f32);
-        let corner = w - u * half_w + v * half_h;
-        Ok(PrimaryRays {
-            eye,
-            corner,
-            du,
-            dv,
-            pinhole: crate::accel::pgrid::Pinhole {
-                eye,
-                right: u,
-                down: -v,
-                fwd: w,
-                half_w,
-                half_h,
-                width,
-                height,
-            },
-        })
-    }
-
-    /// The camera as the perspective grid maps it.
-    pub fn pinhole(&self) -> crate::accel::pgrid::Pinhole {
-        self.pinhole
-    }
-
-    /// Ray through the centre of pixel (x, y); y grows downwards.
-    #[inline]
-    pub fn ray(&self, x: u32, y: u32) -> Ray {
-        let d = self.corner + self.du * (x as f32 + 0.5) + self.dv * (y as f32 + 0.5);
-        Ray::new(self.eye, d, 0.0, f32::INFINITY)
-    }
-}
-
 /// Everything a frame needs besides the structure and the pixels.
 #[derive(Clone, Copy, Debug)]
 pub struct Frame {
@@ -386,17 +304,6 @@ pub fn render_rows<T: Tracer + ?Sized>(
     }
 }
 
-/// Quad (x, y) of Morton index `i` (bits interleaved, x in the even bits).
-#[inline]
-pub fn demorton(i: usize) -> (u32, u32) {
-    let (mut x, mut y) = (0u32, 0u32);
-    for b in 0..5 {
-        x |= (((i >> (2 * b)) & 1) as u32) << b;
-        y |= (((i >> (2 * b + 1)) & 1) as u32) << b;
-    }
-    (x, y)
-}
-
 /// Render `band` (`y0` a multiple of the packet side) in n x n tiles with
 /// packet methods: `params.primary.method` for camera rays,
 /// `params.shadow.method` for shadow rays. Same output as `render_rows`
@@ -453,26 +360,19 @@ fn tiles<T: Tracer + ?Sized, const Q: usize>(
     let (shits, s) = s.take(Q, Hit4::MISS);
     let (sdist, s) = s.take(Q, F4::ZERO);
     let (cosines, mut slot) = s.take(Q, F4::ZERO);
+    let rect = PixelRect {
+        x0: 0,
+        y0,
+        x1: frame.width,
+        y1,
+    };
     let mut ty = y0;
     while ty < y1 {
         let mut tx = 0;
         while tx < frame.width {
-            // Primary packet.
-            for q in 0..Q {
-                let (qx, qy) = demorton(q);
-                let mut lanes = [Ray::new(Vec3::ZERO, Vec3::X, 0.0, 0.0); 4];
-                let mut m = [false; 4];
-                for (i, (dx, dy)) in lane_xy.iter().enumerate() {
-                    let (x, y) = (tx + 2 * qx + dx, ty + 2 * qy + dy);
-                    if x < frame.width && y < y1 {
-                        lanes[i] = rays.ray(x, y);
-                        m[i] = true;
-                    }
-                }
-                quads[q] = Ray4::from_rays(&lanes);
-                active[q] = M4::new(m[0], m[1], m[2], m[3]);
-                hits[q] = Hit4::MISS;
-            }
+            // Primary packet: the kernel's camera packet (`PrimaryRays::packet`).
+            rays.packet(tx, ty, n, &rect, quads, active);
+            hits.fill(Hit4::MISS);
             tracer.intersect_packet(primary, quads, active, hits, &mut slot, ctr);
             // Shadow packet from the light towards the lit hit points.
             for q in 0..Q {

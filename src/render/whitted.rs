@@ -88,8 +88,8 @@
 
 use super::material::{Material, Materials};
 use super::{
-    Band, Frame, PointLight, PrimaryRays, SHADOW_OFFSET, ShadowPacket, Tracer, demorton, encode,
-    shadow_packet,
+    Band, Frame, PixelRect, PointLight, PrimaryRays, SHADOW_OFFSET, ShadowPacket, Tracer, demorton,
+    encode, shadow_packet,
 };
 use crate::accel::slot::Slot;
 use crate::error::{Error, Result};
@@ -589,23 +589,17 @@ fn tiles<T: Tracer + ?Sized, const Q: usize>(
     // Camera rays have throughput 1.
     let (pk, s) = Packet::idle(slot.reborrow(), Q, F4::ONE);
     let (acc, mut slot) = s.take(Q, [Vec3::ZERO; 4]);
+    let rect = PixelRect {
+        x0: 0,
+        y0,
+        x1: width,
+        y1,
+    };
     let mut ty = y0;
     while ty < y1 {
         let mut tx = 0;
         while tx < width {
-            for q in 0..Q {
-                let (qx, qy) = demorton(q);
-                let mut lanes = [idle_ray(); 4];
-                let mut m = [false; 4];
-                for (i, (dx, dy)) in LANE_XY.iter().enumerate() {
-                    let (x, y) = (tx + 2 * qx + dx, ty + 2 * qy + dy);
-                    if x < width && y < y1 {
-                        lanes[i] = rays.ray(x, y);
-                        m[i] = true;
-                    }
-                }
-                (pk.rays[q], pk.active[q]) = pack(&mut lanes, &m);
-            }
+            rays.packet(tx, ty, n, &rect, pk.rays, pk.active);
             acc.fill([Vec3::ZERO; 4]);
             level::<T, Q>(&f, &primary, &pk, Depth::default(), acc, &mut slot, ctr);
             for (q, (quad, m)) in acc.iter().zip(pk.active.iter()).enumerate() {

@@ -293,11 +293,14 @@ impl Tracer for SceneTracer<'_> {
 
 /// Trace `count` rays, ray `i` being `rays.ray(i)`, as packets of
 /// `p.packet`^2 rays (or 2x2 batches for single-ray methods) with mailbox
-/// `slot`, handing each result to `out(ray index, hits, lane)`. Shared by the
-/// Rust calls and the C ABI's, so both form the same packets. Generic over
-/// `rays` (an array of structs read by index, or a ray stream whose quads
-/// are loads: `stream.rs`) and `out` so each caller's conversions inline
-/// into the packing loop (no indirect call per ray).
+/// `slot`, handing the results out quad by quad: `out(i, hits, n)` for
+/// rays `i .. i + n` (`n <= 4`, lanes `0 .. n` of `hits`; `per_ray` turns
+/// a per-ray closure into one). Shared by the Rust calls and the C ABI's,
+/// so both form the same packets. Generic over `rays` (an array of structs
+/// read by index, a ray stream whose quads are loads: `stream.rs`, or
+/// camera rays made in the kernel: `render::CameraRays`) and `out` so each
+/// caller's conversions inline into the packing loop (no indirect call per
+/// ray), and a quad's hits go out as whole lanes (no per-ray lane pick).
 pub fn batch_on(
     tr: &SceneTracer<'_>,
     slot: &mut Slot<'_>,
@@ -342,10 +345,24 @@ pub fn batch_on(
                 &mut ctr,
             );
         }
-        for k in 0..n {
-            out(start + k, &hits[k / 4], k % 4);
+        for (q, h) in hits[..nq].iter().enumerate() {
+            out(start + 4 * q, h, (n - 4 * q).min(4));
         }
         start += n;
     }
     ctr
+}
+
+/// A quad consumer for `batch_on` made of a per-ray one: `out(i, hits,
+/// lane)` for each ray `i` of the quad, lanes unrolled (each lane picked
+/// by a constant index).
+#[inline(always)]
+pub fn per_ray(mut out: impl FnMut(usize, &Hit4, usize)) -> impl FnMut(usize, &Hit4, usize) {
+    move |i, h, n| {
+        for l in 0..4 {
+            if l < n {
+                out(i + l, h, l)
+            }
+        }
+    }
 }

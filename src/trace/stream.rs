@@ -151,6 +151,22 @@ impl HitStream<'_> {
         )
     }
 
+    /// Lanes `0 .. n` of `h` as hits `i .. i + n` (a whole quad as four
+    /// stores per field).
+    #[inline(always)]
+    pub fn put_quad(&mut self, i: usize, h: &Hit4, n: usize) {
+        if n == 4 {
+            h.t.write_to_slice(&mut self.t[i..i + 4]);
+            h.u.write_to_slice(&mut self.u[i..i + 4]);
+            h.v.write_to_slice(&mut self.v[i..i + 4]);
+            self.prim[i..i + 4].copy_from_slice(&h.prim);
+        } else {
+            for l in 0..n {
+                self.put(i + l, h, l);
+            }
+        }
+    }
+
     /// Lane `lane` of `h` as hit `i`.
     #[inline(always)]
     pub fn put(&mut self, i: usize, h: &Hit4, lane: usize) {

@@ -27,8 +27,8 @@
 pub(crate) mod frame;
 
 use super::{
-    Frame, PointLight, PrimaryRays, SHADOW_OFFSET, ShadowPacket, Tracer, demorton, encode,
-    shadow_packet,
+    Frame, PixelRect, PointLight, PrimaryRays, SHADOW_OFFSET, ShadowPacket, Tracer, demorton,
+    encode, shadow_packet,
 };
 use crate::accel::packet::MAX_QUADS;
 use crate::accel::pgrid::{
@@ -487,21 +487,9 @@ fn traced_tile<T: Tracer + ?Sized>(
     let (quads, s) = slot.reborrow().take(nq, Ray4::from_rays(&[DUMMY; 4]));
     let (active, s) = s.take(nq, M4::FALSE);
     let (hits, mut slot) = s.take(nq, Hit4::MISS);
-    for q in 0..nq {
-        let (qx, qy) = demorton(q);
-        let mut lanes = [DUMMY; 4];
-        let mut m = [false; 4];
-        for (i, (dx, dy)) in LANES.iter().enumerate() {
-            let (x, y) = (x0 + 2 * qx + dx, y0 + 2 * qy + dy);
-            if x < lay.width && y < lay.height {
-                lanes[i] = rays.ray(x, y);
-                m[i] = true;
-            }
-        }
-        quads[q] = Ray4::from_rays(&lanes);
-        active[q] = M4::new(m[0], m[1], m[2], m[3]);
-        hits[q] = Hit4::MISS;
-    }
+    let rect = PixelRect::image(lay.width, lay.height);
+    rays.packet(x0, y0, side, &rect, quads, active);
+    hits.fill(Hit4::MISS);
     let p = TraceParams {
         packet: side,
         ..*params
