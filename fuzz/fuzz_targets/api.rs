@@ -605,6 +605,12 @@ enum Op {
     Concurrent(u8, TraceIn, RaysIn),
     /// The two-level scene's calls (issue 35; `scene.rs`).
     Scene(scene::SceneOp),
+    /// Camera packets made in the kernel: sheaf_context_trace_camera (bit 0
+    /// of the flags: the scene call, bit 1: its params NULL) on a rectangle
+    /// of the frame's image picked by the bytes (bit 2: one column past
+    /// the image; bit 3: rows narrower than the rectangle), rows `extra`
+    /// hits wider than it.
+    TraceCamera(TraceIn, FrameIn, [u8; 4], u8, u8),
 }
 
 #[derive(Arbitrary, Debug)]
@@ -859,6 +865,125 @@ fn make_rays(r: &RaysIn) -> Vec<sheaf_ray> {
 
 /// trace / trace_with / occluded / occluded_with through raw, possibly
 /// unaligned memory.
+/// `Op::TraceCamera`: a refused call writes nothing; an accepted one gives
+/// every pixel of the rectangle the hit the ray-array call gives
+/// `sheaf_frame_camera_ray`'s ray for it, bit for bit, and leaves the gaps
+/// between rows alone.
+fn trace_camera(
+    st: &mut State,
+    params: &sheaf_trace_params,
+    f: &FrameIn,
+    r: &[u8; 4],
+    extra: u8,
+    flags: u8,
+) {
+    let frame = f.get();
+    let (w, h) = (frame.width, frame.height);
+    let pick = |b: u8, n: u32| (u64::from(b) * (u64::from(n) + 1) / 256) as u32;
+    let mut rect = sheaf::PixelRect {
+        x0: pick(r[0], w),
+        y0: pick(r[1], h),
+        x1: pick(r[2], w),
+        y1: pick(r[3], h),
+    };
+    if flags & 4 != 0 {
+        rect.x1 = rect.x1.saturating_add(1);
+    }
+    let inside = rect.x0 < rect.x1 && rect.y0 < rect.y1 && rect.x1 <= w && rect.y1 <= h;
+    let rw = rect.x1.saturating_sub(rect.x0) as usize;
+    let rh = rect.y1.saturating_sub(rect.y0) as usize;
+    let row = if flags & 8 != 0 {
+        rw.saturating_sub(1)
+    } else {
+        rw + extra as usize % 5
+    };
+    let len = rh.saturating_sub(1) * row + rw;
+    if rw * rh > 1 << 14 || len > 1 << 16 {
+        return; // bounded work per op
+    }
+    let scene = flags & 1 != 0;
+    let pp: *const sheaf_trace_params = if scene && flags & 2 != 0 {
+        core::ptr::null()
+    } else {
+        params
+    };
+    let size = if scene { 24 } else { 16 };
+    let mut buf = vec![S_HIT; size * len.max(1)];
+    let s = if scene {
+        let out = buf.as_mut_ptr().cast();
+        ffi::sheaf_context_trace_scene_camera(
+            st.ctx,
+            pp,
+            &frame.camera,
+            w,
+            h,
+            &rect,
+            out,
+            row,
+            !0,
+            0,
+        )
+    } else {
+        let out = buf.as_mut_ptr().cast();
+        ffi::sheaf_context_trace_camera(st.ctx, pp, &frame.camera, w, h, &rect, out, row)
+    };
+    valid_status(s, "trace_camera");
+    if !inside || row < rw {
+        assert_ne!(
+            s, OK,
+            "camera rectangle {rect:?} with rows {row} apart accepted"
+        );
+    }
+    if s != OK {
+        assert!(
+            buf.iter().all(|&b| b == S_HIT),
+            "a failed camera trace wrote"
+        );
+        return;
+    }
+    // The same pixels' rays from sheaf_frame_camera_ray, as a ray array.
+    let mut rays = Vec::with_capacity(rw * rh);
+    for y in rect.y0..rect.y1 {
+        for x in rect.x0..rect.x1 {
+            let mut ray = sheaf_ray {
+                org: [0.0; 3],
+                tmin: 0.0,
+                dir: [0.0; 3],
+                tmax: 0.0,
+            };
+            assert_eq!(ffi::sheaf_frame_camera_ray(&frame, x, y, &mut ray), OK);
+            rays.push(ray);
+        }
+    }
+    let mut want = vec![0u8; size * rays.len()];
+    let ws = if scene {
+        let out = want.as_mut_ptr().cast();
+        ffi::sheaf_context_trace_scene(st.ctx, pp, rays.as_ptr(), out, rays.len(), !0, 0)
+    } else {
+        let out = want.as_mut_ptr().cast();
+        ffi::context::sheaf_context_trace_with(st.ctx, pp, rays.as_ptr(), out, rays.len())
+    };
+    assert_eq!(
+        ws, OK,
+        "the ray-array call refused what the camera call took"
+    );
+    for (k, want) in want.chunks(size).enumerate() {
+        let at = (k / rw) * row + k % rw;
+        assert_eq!(
+            &buf[size * at..size * (at + 1)],
+            want,
+            "camera pixel {k} of {rect:?} differs from its ray's hit"
+        );
+    }
+    for y in 0..rh.saturating_sub(1) {
+        let gap = &buf[size * (y * row + rw)..size * (y + 1) * row];
+        assert!(
+            gap.iter().all(|&b| b == S_HIT),
+            "a camera trace wrote between rows"
+        );
+    }
+}
+
 fn trace_call(
     st: &mut State,
     params: Option<sheaf_trace_params>,
@@ -1571,6 +1696,7 @@ fn step(st: &mut State, op: &Op) {
         Op::BadArg(call, which, kind) => bad_arg(st, *call, *which, *kind),
         Op::Concurrent(other, p, r) => concurrent(st, *other, &p.get(), r),
         Op::Scene(op) => scene::step(st, op),
+        Op::TraceCamera(p, f, r, extra, flags) => trace_camera(st, &p.get(), f, r, *extra, *flags),
         Op::DeferredPixel(x, y) => {
             let mut hit = sheaf_hit {
                 t: 1.5,
