@@ -325,18 +325,23 @@ pub struct PixelIndex<'c, 'a> {
 }
 
 impl PixelIndex<'_, '_> {
+    /// Pixel of ray `i`, the tile's origin worked out when the tile changes.
+    #[inline(always)]
+    fn at(&mut self, i: usize) -> (u32, u32) {
+        let k = i >> self.shift;
+        if k != self.tile {
+            self.tile = k;
+            self.origin = self.rays.tile(k);
+        }
+        self.rays.in_tile(self.origin, i & ((1 << self.shift) - 1))
+    }
+
     /// Buffer index of ray `i`'s pixel, `(y - y0) * row + (x - x0)`;
     /// `None` for a pixel outside the rectangle.
     #[inline(always)]
     pub fn of(&mut self, i: usize) -> Option<usize> {
-        let c = self.rays;
-        let k = i >> self.shift;
-        if k != self.tile {
-            self.tile = k;
-            self.origin = c.tile(k);
-        }
-        let (x, y) = c.in_tile(self.origin, i & ((1 << self.shift) - 1));
-        let r = &c.rect;
+        let (x, y) = self.at(i);
+        let r = &self.rays.rect;
         (x < r.x1 && y < r.y1).then(|| (y - r.y0) as usize * self.row + (x - r.x0) as usize)
     }
 
@@ -345,14 +350,8 @@ impl PixelIndex<'_, '_> {
     /// (x+1, y+1), two pairs side by side in the buffer.
     #[inline(always)]
     pub fn quad(&mut self, i: usize) -> [Option<usize>; 4] {
-        let c = self.rays;
-        let k = i >> self.shift;
-        if k != self.tile {
-            self.tile = k;
-            self.origin = c.tile(k);
-        }
-        let (x, y) = c.in_tile(self.origin, i & ((1 << self.shift) - 1));
-        let r = &c.rect;
+        let (x, y) = self.at(i);
+        let r = &self.rays.rect;
         let (ax, bx, ay, by) = (x < r.x1, x + 1 < r.x1, y < r.y1, y + 1 < r.y1);
         // Only formed for pixels inside, whose index is in the buffer.
         let at = |inside: bool, dx: u32, dy: u32| {
