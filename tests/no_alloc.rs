@@ -267,6 +267,23 @@ fn ten_animated_frames_allocate_nothing() {
             );
             hit_total += hits.iter().filter(|h| h.is_hit()).count();
         }
+        // Single-mesh ray streams on the frame's last structures.
+        for ctx in [&mut owned, &mut borrowed] {
+            let p = TraceParams {
+                method: Method::BvhFrustum,
+                packet: 16,
+                ..TraceParams::default()
+            };
+            let mut out = sheaf::HitStream {
+                t: &mut st,
+                u: &mut su,
+                v: &mut sv,
+                prim: &mut sp,
+            };
+            ctx.trace_stream(None, &p, &stream, &mut out).unwrap();
+            hit_total += sp.iter().filter(|&&k| k != sheaf::geom::INVALID_ID).count();
+            ctx.occluded_stream(Some(0), &p, &stream, &mut occ).unwrap();
+        }
     }
     let during = allocs() - start;
     assert_eq!(
