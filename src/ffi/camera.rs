@@ -12,25 +12,22 @@ use super::{check_array, read_in};
 use crate::error::Result;
 use crate::render::{Camera, CameraRays, PixelRect, PrimaryRays};
 
-/// The checked inputs of a camera call: the camera's rays, the rectangle
-/// and the number of hit elements its rows span (`hits_per_row` apart).
-fn camera_of(
+/// The checked inputs of a camera call: the camera's rays and the
+/// rectangle, after checking `hits` spans the rectangle's pixels
+/// `hits_per_row` apart (NULL, overflow).
+fn camera_of<T>(
     camera: *const Camera,
     width: u32,
     height: u32,
     rect: *const PixelRect,
+    hits: *const T,
     hits_per_row: usize,
-) -> Result<(PrimaryRays, PixelRect, usize)> {
+) -> Result<(PrimaryRays, PixelRect)> {
     let cam = read_in(camera)?;
     let r = read_in(rect)?;
     r.check(width, height)?;
-    let (w, h) = r.size();
-    let len = (h as usize - 1)
-        .checked_mul(hits_per_row)
-        .and_then(|n| n.checked_add(w as usize))
-        .unwrap_or(usize::MAX);
-    r.check_results(len, hits_per_row)?;
-    Ok((PrimaryRays::new(&cam, width, height)?, r, len))
+    check_array(hits, r.results(hits_per_row)?, "hit buffer too large")?;
+    Ok((PrimaryRays::new(&cam, width, height)?, r))
 }
 
 /// Nearest hits of the camera rays through the pixels of `*rect` of a
@@ -65,8 +62,7 @@ pub extern "C" fn sheaf_context_trace_camera(
 ) -> super::sheaf_status {
     with_ref(ctx, |h: &Handle| {
         let p = read_in(params)?.to_core()?;
-        let (pr, r, len) = camera_of(camera, width, height, rect, hits_per_row)?;
-        check_array(hits.cast_const(), len, "hit buffer too large")?;
+        let (pr, r) = camera_of(camera, width, height, rect, hits.cast_const(), hits_per_row)?;
         let rays = CameraRays::new(&pr, r, Some(&p))?;
         let mut at = rays.index(hits_per_row);
         let out = |i: usize, h4: &crate::geom::Hit4, _: usize| {
@@ -74,7 +70,7 @@ pub extern "C" fn sheaf_context_trace_camera(
                 if let Some(k) = k {
                     // SAFETY: k is a pixel of the rectangle, `(y - y0) *
                     // hits_per_row + (x - x0)` with x, y inside it, so below
-                    // `len`, which `check_array` checked `hits` spans (C
+                    // `r.results(hits_per_row)`, which `check_array` checked `hits` spans (C
                     // contract: writable for the call; unaligned writes
                     // allowed).
                     unsafe { hits.add(k).write_unaligned(hit.into()) }
@@ -110,8 +106,7 @@ pub extern "C" fn sheaf_context_trace_scene_camera(
     with_ref(ctx, |h: &Handle| {
         let ctl = controls(mask, flags)?;
         let p = params_of(params)?;
-        let (pr, r, len) = camera_of(camera, width, height, rect, hits_per_row)?;
-        check_array(hits.cast_const(), len, "hit buffer too large")?;
+        let (pr, r) = camera_of(camera, width, height, rect, hits.cast_const(), hits_per_row)?;
         let rays = CameraRays::new(&pr, r, p.as_ref())?;
         let mut at = rays.index(hits_per_row);
         let out = |i: usize, hit: crate::SceneHit| {

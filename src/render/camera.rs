@@ -195,19 +195,30 @@ impl PixelRect {
     pub fn size(&self) -> (u32, u32) {
         (self.x1 - self.x0, self.y1 - self.y0)
     }
-    /// `InvalidArgument` unless `len` results, `row` apart per pixel row,
-    /// hold one result per pixel of the rectangle (pixel (x, y) at
-    /// `(y - y0) * row + (x - x0)`; `row` at least the width).
-    pub fn check_results(&self, len: usize, row: usize) -> Result<()> {
+    /// The results a buffer of the rectangle's pixels needs, rows `row`
+    /// apart (pixel (x, y) at `(y - y0) * row + (x - x0)`):
+    /// `InvalidArgument` when `row` is below the width or the count
+    /// overflows.
+    pub fn results(&self, row: usize) -> Result<usize> {
         let (w, h) = self.size();
-        let need = (h as usize - 1)
+        let need = (h.max(1) as usize - 1)
             .checked_mul(row)
             .and_then(|n| n.checked_add(w as usize));
         match need {
-            Some(need) if row >= w as usize && len >= need => Ok(()),
+            Some(need) if row >= w as usize => Ok(need),
             _ => Err(Error::InvalidArgument(
                 "results must hold the rectangle's pixels, rows at least its width apart",
             )),
+        }
+    }
+    /// `results`, and `InvalidArgument` when `len` is fewer.
+    pub fn check_results(&self, len: usize, row: usize) -> Result<()> {
+        if len >= self.results(row)? {
+            Ok(())
+        } else {
+            Err(Error::InvalidArgument(
+                "results must hold the rectangle's pixels, rows at least its width apart",
+            ))
         }
     }
     /// `InvalidArgument` unless the rectangle is non-empty and inside a
@@ -301,7 +312,7 @@ impl<'a> CameraRays<'a> {
     }
 
     /// Where each ray's result goes in a buffer of the rectangle's pixels,
-    /// rows `row` apart (`PixelIndex::of`).
+    /// rows `row` apart (`PixelIndex`).
     pub fn index(&self, row: usize) -> PixelIndex<'_, 'a> {
         PixelIndex {
             rays: self,
@@ -337,7 +348,8 @@ impl PixelIndex<'_, '_> {
     }
 
     /// Buffer index of ray `i`'s pixel, `(y - y0) * row + (x - x0)`;
-    /// `None` for a pixel outside the rectangle.
+    /// `None` for a pixel outside the rectangle (the scene calls' per-ray
+    /// results).
     #[inline(always)]
     pub fn of(&mut self, i: usize) -> Option<usize> {
         let (x, y) = self.at(i);
@@ -345,7 +357,7 @@ impl PixelIndex<'_, '_> {
         (x < r.x1 && y < r.y1).then(|| (y - r.y0) as usize * self.row + (x - r.x0) as usize)
     }
 
-    /// `of` for the four rays `i .. i + 4` of a quad (`i` a multiple of
+    /// Buffer indices of the four rays `i .. i + 4` of a quad (`i` a multiple of
     /// 4), in `Ray4` lane order: pixels (x, y), (x+1, y), (x, y+1),
     /// (x+1, y+1), two pairs side by side in the buffer.
     #[inline(always)]
