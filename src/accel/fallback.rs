@@ -69,7 +69,7 @@
 //! (all threads; relaxed atomics, touched only by packets that fall back).
 //! They live here, not in `Counters`, whose layout is the C ABI's.
 
-use crate::geom::{F4, M4, Ray4};
+use crate::geom::{F4, Lane, M4, Ray4};
 // usize counters: every target with atomics has them (not all have 64-bit
 // atomics); they are statistics, a wrap on 32-bit targets is harmless.
 use core::sync::atomic::{AtomicUsize, Ordering};
@@ -143,57 +143,138 @@ pub fn coherent(on: bool, rays: &[Ray4], live: &[M4], scene_diag: f32) -> bool {
     if !on {
         return true;
     }
-    // Reference direction: the first live lane with a usable direction.
-    let mut r0 = None;
-    'find: for (r, m) in rays.iter().zip(live) {
-        for i in 0..4 {
-            if m.test(i) {
-                let d = glam::Vec3::new(r.dir[0][i], r.dir[1][i], r.dir[2][i]);
-                let l = d.length();
-                if l.is_finite() && l > 0.0 {
-                    r0 = Some(d / l);
-                    break 'find;
-                }
-            }
+    let mut c = Coherence::new();
+    for (r, m) in rays.iter().zip(live) {
+        if !c.add(r, *m) {
+            return false;
         }
     }
-    let Some(d0) = r0 else {
-        return true;
-    };
-    let (x0, y0, z0) = (F4::splat(d0.x), F4::splat(d0.y), F4::splat(d0.z));
-    let mut lo = [F4::INFINITY; 3];
-    let mut hi = [F4::NEG_INFINITY; 3];
-    let min_cos2 = F4::splat(MIN_COS * MIN_COS);
-    for (r, m) in rays.iter().zip(live) {
-        if !m.any() {
-            continue;
+    c.close(scene_diag)
+}
+
+/// `coherent` quad by quad, inside a setup pass that reads the quads
+/// anyway: `add` each quad's live lanes in order, then `close`.
+pub(crate) struct Coherence {
+    cone: Option<Cone<F4>>,
+    wide: bool,
+    lo: [F4; 3],
+    hi: [F4; 3],
+}
+
+impl Coherence {
+    pub(crate) fn new() -> Self {
+        Coherence {
+            cone: None,
+            wide: false,
+            lo: [F4::INFINITY; 3],
+            hi: [F4::NEG_INFINITY; 3],
         }
-        let [dx, dy, dz] = r.dir;
-        let len2 = dx * dx + dy * dy + dz * dz;
-        let dot = dx * x0 + dy * y0 + dz * z0;
-        // cos < MIN_COS  <=>  dot < MIN_COS |d|  <=>  dot < 0 or
-        // dot^2 < MIN_COS^2 |d|^2; NaN, zero and overflowing directions
-        // are ignored.
-        let usable = len2.cmpgt(F4::ZERO) & len2.cmplt(F4::INFINITY);
-        let wide = (dot.cmplt(F4::ZERO) | (dot * dot).cmplt(min_cos2 * len2)) & usable & *m;
-        if wide.any() {
-            return false;
+    }
+
+    /// Add the lanes `m` of quad `r`; false once a lane left the cone
+    /// around the first usable direction (the quads before it had no
+    /// usable direction, which the cone ignores, so finding it late
+    /// changes nothing).
+    #[inline(always)]
+    pub(crate) fn add(&mut self, r: &Ray4, m: M4) -> bool {
+        if !m.any() {
+            return !self.wide;
+        }
+        if self.cone.is_none() {
+            let lanes = (0..4).filter(|&i| m.test(i)).map(|i| lane_dir(r, i));
+            self.cone = Cone::first(lanes);
+        }
+        if let Some(c) = &self.cone {
+            self.wide |= c.leaves(&r.dir, m);
         }
         for a in 0..3 {
             let o = r.org[a];
-            let ok = *m & o.abs().cmplt(F4::INFINITY);
-            lo[a] = F4::select(ok, lo[a].min(o), lo[a]);
-            hi[a] = F4::select(ok, hi[a].max(o), hi[a]);
+            let ok = m & o.abs().cmplt(F4::INFINITY);
+            self.lo[a] = F4::select(ok, self.lo[a].min(o), self.lo[a]);
+            self.hi[a] = F4::select(ok, self.hi[a].max(o), self.hi[a]);
         }
+        !self.wide
     }
-    let ext = glam::Vec3::new(
-        hi[0].max_element() - lo[0].min_element(),
-        hi[1].max_element() - lo[1].min_element(),
-        hi[2].max_element() - lo[2].min_element(),
-    );
-    // No finite origin: nothing to compare (ext is -inf or NaN).
+
+    /// Whether the lanes added are coherent (`coherent`).
+    pub(crate) fn close(&self, scene_diag: f32) -> bool {
+        if self.wide {
+            return false;
+        }
+        if self.cone.is_none() {
+            return true;
+        }
+        let (lo, hi) = (&self.lo, &self.hi);
+        let lo = glam::Vec3::new(
+            lo[0].min_element(),
+            lo[1].min_element(),
+            lo[2].min_element(),
+        );
+        let hi = glam::Vec3::new(
+            hi[0].max_element(),
+            hi[1].max_element(),
+            hi[2].max_element(),
+        );
+        origins_close(lo, hi, scene_diag)
+    }
+}
+
+/// Lane `i`'s direction.
+#[inline(always)]
+fn lane_dir(r: &Ray4, i: usize) -> glam::Vec3 {
+    glam::Vec3::new(r.dir[0][i], r.dir[1][i], r.dir[2][i])
+}
+
+/// The coherence test's cone (module docs) at any lane width: around the
+/// first usable direction, `MAX_CONE_DEG` wide.
+#[derive(Clone, Copy)]
+pub(crate) struct Cone<L: Lane> {
+    d0: [L; 3],
+    min_cos2: L,
+}
+
+impl<L: Lane> Cone<L> {
+    /// The cone around the first of `dirs` whose length is finite and not
+    /// zero (`None` when none is: nothing to compare, the lanes pass).
+    #[inline(always)]
+    pub(crate) fn first(dirs: impl Iterator<Item = glam::Vec3>) -> Option<Self> {
+        for d in dirs {
+            let l = d.length();
+            if l.is_finite() && l > 0.0 {
+                let d0 = d / l;
+                return Some(Cone {
+                    d0: [L::splat(d0.x), L::splat(d0.y), L::splat(d0.z)],
+                    min_cos2: L::splat(MIN_COS * MIN_COS),
+                });
+            }
+        }
+        None
+    }
+
+    /// Whether a lane of `live` points out of the cone: cos < MIN_COS
+    /// <=> dot < MIN_COS |d| <=> dot < 0 or dot^2 < MIN_COS^2 |d|^2;
+    /// NaN, zero and overflowing directions are ignored.
+    #[inline(always)]
+    pub(crate) fn leaves(&self, dir: &[L; 3], live: L::Mask) -> bool {
+        let [dx, dy, dz] = *dir;
+        let [x0, y0, z0] = self.d0;
+        let len2 = dx * dx + dy * dy + dz * dz;
+        let dot = dx * x0 + dy * y0 + dz * z0;
+        let zero = L::splat(0.0);
+        let usable = zero.lt(len2) & len2.lt(L::splat(f32::INFINITY));
+        let out = dot.lt(zero) | (dot * dot).lt(self.min_cos2 * len2);
+        L::any(out & usable & live)
+    }
+}
+
+/// The coherence test's second half: whether the box `(lo, hi)` of the
+/// live lanes' finite origins spans at most `MAX_ORIGIN_SPREAD` of the
+/// scene's diagonal (true when there is no finite origin: `lo > hi`
+/// makes the extent negative infinity or NaN).
+#[inline(always)]
+pub(crate) fn origins_close(lo: glam::Vec3, hi: glam::Vec3, scene_diag: f32) -> bool {
     let limit = MAX_ORIGIN_SPREAD * scene_diag;
-    ext.length().partial_cmp(&limit) != Some(core::cmp::Ordering::Greater)
+    (hi - lo).length().partial_cmp(&limit) != Some(core::cmp::Ordering::Greater)
 }
 
 /// Directions whose largest component is below this are "tiny": they are

@@ -48,7 +48,7 @@ impl<'s> Slot<'s> {
     }
 
     /// The same slot, borrowed for a shorter time.
-    #[inline]
+    #[inline(always)]
     pub fn reborrow(&mut self) -> Slot<'_> {
         Slot {
             mailbox: self.mailbox.reborrow(),
@@ -58,13 +58,13 @@ impl<'s> Slot<'s> {
 
     /// `n` values of `T`, each `fill`, from the scratch, and the slot with
     /// the rest of it, both borrowed from `self` (`Scratch::split`).
-    #[inline]
+    #[inline(always)]
     pub fn split<T: Copy>(&mut self, n: usize, fill: T) -> (&mut [T], Slot<'_>) {
         self.reborrow().take(n, fill)
     }
 
     /// `split` with value `i` being `value(i)` (`Scratch::take_from`).
-    #[inline]
+    #[inline(always)]
     pub fn split_from<T: Copy>(
         &mut self,
         n: usize,
@@ -83,7 +83,7 @@ impl<'s> Slot<'s> {
 
     /// `split` for all of `'s` (`Scratch::take`): a function can carve
     /// several arrays and hand them and the rest back to its caller.
-    #[inline]
+    #[inline(always)]
     pub fn take<T: Copy>(self, n: usize, fill: T) -> (&'s mut [T], Slot<'s>) {
         let (vals, scratch) = self.scratch.take(n, fill);
         (

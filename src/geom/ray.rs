@@ -127,6 +127,18 @@ impl Hit4 {
         u: F4::ZERO,
         v: F4::ZERO,
     };
+    /// `Hit::MISS` in the lanes of `m`, the others unchanged.
+    #[inline(always)]
+    pub fn miss(&mut self, m: M4) {
+        self.t = F4::select(m, F4::INFINITY, self.t);
+        self.u = F4::select(m, F4::ZERO, self.u);
+        self.v = F4::select(m, F4::ZERO, self.v);
+        for i in 0..4 {
+            if m.test(i) {
+                self.prim[i] = INVALID_ID;
+            }
+        }
+    }
     /// Lane `i` as a `Hit`.
     #[inline]
     pub fn lane(&self, i: usize) -> Hit {

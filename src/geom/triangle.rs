@@ -490,7 +490,12 @@ impl TriangleTest for Wt {
             kx: W::join_axis(|k| pre(k).kx),
             ky: W::join_axis(|k| pre(k).ky),
             kz: W::join_axis(|k| pre(k).kz),
-            s: core::array::from_fn(|a| W::join(|k| pre(k).s[a])),
+            // Written out, not `array::from_fn` (`RayLanes::join`).
+            s: [
+                W::join(|k| pre(k).s[0]),
+                W::join(|k| pre(k).s[1]),
+                W::join(|k| pre(k).s[2]),
+            ],
         }
     }
 }
@@ -652,9 +657,14 @@ impl<W: Wide> RayLanes<W> {
     /// The group of quads `r(0) .. r(G - 1)` (`Wide::join`).
     #[inline(always)]
     pub fn join<'a>(r: impl Fn(usize) -> &'a crate::geom::ray::Ray4) -> Self {
+        // Arrays written out, not `array::from_fn`: its closure is called
+        // out of line, compiled for the baseline ISA, where a wide join's
+        // intrinsics become calls.
+        let org = |a: usize| W::join(|k| r(k).org[a]);
+        let dir = |a: usize| W::join(|k| r(k).dir[a]);
         RayLanes {
-            org: core::array::from_fn(|a| W::join(|k| r(k).org[a])),
-            dir: core::array::from_fn(|a| W::join(|k| r(k).dir[a])),
+            org: [org(0), org(1), org(2)],
+            dir: [dir(0), dir(1), dir(2)],
             tmin: W::join(|k| r(k).tmin),
             tmax: W::join(|k| r(k).tmax),
         }

@@ -214,6 +214,14 @@ fn m128_to_f4(x: core::arch::x86_64::__m128) -> F4 {
     // pattern valid in both.
     F4::from_array(unsafe { core::mem::transmute::<core::arch::x86_64::__m128, [f32; 4]>(x) })
 }
+/// `F4` as `__m128` (the inverse of `m128_to_f4`; no instruction when
+/// `F4` is an SSE register).
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn f4_to_m128(x: F4) -> core::arch::x86_64::__m128 {
+    // SAFETY: as `m128_to_f4`.
+    unsafe { core::mem::transmute::<[f32; 4], core::arch::x86_64::__m128>(x.to_array()) }
+}
 #[cfg(target_arch = "x86_64")]
 mod z16;
 

@@ -197,11 +197,10 @@ impl Wide for Y8 {
     const G: usize = 2;
     #[inline(always)]
     fn join(q: impl Fn(usize) -> F4) -> Y8 {
-        let mut a = [0.0f32; 8];
-        for k in 0..2 {
-            a[4 * k..4 * k + 4].copy_from_slice(&q(k).to_array());
-        }
-        Y8::from_array(a)
+        // Register inserts, not two 16-byte stores read back as one
+        // 32-byte load (`Z16::join`).
+        // SAFETY: as `splat`; one 128-bit pair made one register.
+        Y8(unsafe { _mm256_set_m128(super::f4_to_m128(q(1)), super::f4_to_m128(q(0))) })
     }
     #[inline(always)]
     fn quad(self, k: usize) -> F4 {

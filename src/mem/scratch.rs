@@ -44,14 +44,14 @@ impl<'a> Scratch<'a> {
     }
 
     /// The same bytes, borrowed for a shorter time.
-    #[inline]
+    #[inline(always)]
     pub fn reborrow(&mut self) -> Scratch<'_> {
         Scratch { buf: self.buf }
     }
 
     /// `n` values of `T`, each `fill`, from the front, and the rest, both
     /// borrowed from `self` (`take` on a reborrow).
-    #[inline]
+    #[inline(always)]
     pub fn split<T: Copy>(&mut self, n: usize, fill: T) -> (&mut [T], Scratch<'_>) {
         self.reborrow().take(n, fill)
     }
@@ -63,14 +63,14 @@ impl<'a> Scratch<'a> {
     /// When fewer than `bytes::<T>(n)` bytes are left: the slot constant
     /// does not cover some call path, a sheaf bug (the C ABI reports it as
     /// `SHEAF_STATUS_PANIC`).
-    #[inline]
+    #[inline(always)]
     pub fn take<T: Copy>(self, n: usize, fill: T) -> (&'a mut [T], Scratch<'a>) {
         self.take_copies(n, &fill)
     }
 
     /// `take` with `fill` read through a reference: for large `T` (pass a
     /// `const`'s address) no copy of it is made on the caller's stack.
-    #[inline]
+    #[inline(always)]
     pub fn take_copies<T: Copy>(self, n: usize, fill: &T) -> (&'a mut [T], Scratch<'a>) {
         self.take_from(n, |_| *fill)
     }
@@ -80,7 +80,10 @@ impl<'a> Scratch<'a> {
     ///
     /// # Panics
     /// As `take`.
-    #[inline]
+    // Always inlined, so that `value` is too and runs at the caller's ISA
+    // (an AVX-512 kernel's lane operations would be calls in a copy of
+    // this function compiled for the baseline).
+    #[inline(always)]
     pub fn take_from<T: Copy>(
         self,
         n: usize,
@@ -91,12 +94,11 @@ impl<'a> Scratch<'a> {
             .checked_mul(size_of::<T>())
             .and_then(|b| b.checked_add(pad));
         let Some(need) = need.filter(|&b| b <= self.buf.len()) else {
-            panic!(
-                "slot scratch exhausted: {} bytes of {} wanted, {} left (SLOT_SCRATCH_BYTES misses a call path)",
-                n * size_of::<T>(),
+            exhausted(
+                n.saturating_mul(size_of::<T>()),
                 core::any::type_name::<T>(),
-                self.buf.len()
-            );
+                self.buf.len(),
+            )
         };
         let (head, rest) = self.buf.split_at_mut(need);
         let p = head[pad..].as_mut_ptr().cast::<T>();
@@ -112,6 +114,15 @@ impl<'a> Scratch<'a> {
         let vals = unsafe { core::slice::from_raw_parts_mut(p, n) };
         (vals, Scratch { buf: rest })
     }
+}
+
+/// `take_from`'s panic, out of its inlined body.
+#[cold]
+#[inline(never)]
+fn exhausted(wanted: usize, ty: &str, left: usize) -> ! {
+    panic!(
+        "slot scratch exhausted: {wanted} bytes of {ty} wanted, {left} left (SLOT_SCRATCH_BYTES misses a call path)"
+    );
 }
 
 #[cfg(test)]

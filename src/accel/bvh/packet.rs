@@ -8,12 +8,14 @@
 //!
 //! # Setup
 //! One pass over a packet's quads (`Lanes::new`) writes the misses, finds
-//! the live lanes, tiny directions and the direction sum, and for a walk
-//! that asks (`Walk::BOUNDS`) the live lanes' bounds. The coherence test
-//! reads the quads once more; then each walk makes what it reads per quad
-//! or per lane group (`Walk::reads_quads`). Setup and walk run in one `isa::Kernel`
-//! (`WalkAt`), so the setup is compiled for the walk's ISA (32 vector
-//! registers with AVX-512) and runs on the quads while they are in cache.
+//! the live lanes, tiny directions, the direction sum and the coherence
+//! test's cone and origin box (`fallback::Coherence`); then the slab data,
+//! triangle-test precomputation and far ends are made per quad. A walk may instead set
+//! its packets up itself (`Walk::own_setup`): the frustum-first walk does,
+//! lane group by lane group at its lane width. Setup and walk run in one
+//! `isa::Kernel` (`WalkAt`), so the setup is compiled for the walk's ISA
+//! (32 vector registers with AVX-512) and runs on the quads while they
+//! are in cache.
 //!
 //! # Scratch
 //! A packet's per-quad arrays (up to 256 quads: tens of KiB) are slices of
@@ -39,7 +41,7 @@ use crate::accel::packet::{MAX_QUADS, SizeClass, by_class};
 use crate::accel::slot::Slot;
 use crate::counters::{Counters, count};
 use crate::geom::lane::mask_from_bits;
-use crate::geom::{F4, Hit4, INVALID_ID, M4, Mt, Pt, Ray4, RayLanes, Wide, Wt};
+use crate::geom::{F4, Hit4, M4, Mt, Pt, Ray4, RayLanes, Wide, Wt};
 use crate::isa;
 use crate::mem::scratch::bytes;
 
@@ -138,35 +140,30 @@ pub(crate) trait Walk {
         ctr: &mut Counters,
     );
 
-    /// Whether the walk reads the per-quad slab data, triangle-test
-    /// precomputation and far ends (`QuadBox`, `Pre`, `tfar`) of a packet
-    /// whose live lanes have a tiny direction (`tiny`): when not, the
-    /// packet setup skips them.
+    /// A walk that sets up its own packets: true when it traced the
+    /// packet (answers written, packet and rays counted), false when it
+    /// wrote and counted nothing and the generic setup (`Lanes::new`)
+    /// and `walk` are to take it.
     #[inline(always)]
-    fn reads_quads(tiny: bool, b: &BvhView<'_>, start: (usize, usize)) -> bool {
-        let _ = (tiny, b, start);
-        true
-    }
-
-    /// Whether the setup pass also gathers the live lanes' bounds
-    /// (`LaneBounds`, `Packet::bounds`) for the walk.
-    const BOUNDS: bool = false;
-
-    /// With `BOUNDS`: whether the lanes' bounds already show that no live
-    /// lane enters the tree (then every active lane keeps the miss the
-    /// setup wrote, and the packet needs no coherence test, no per-quad
-    /// arrays and no walk).
-    #[inline(always)]
-    fn refuses(
+    fn own_setup<L: Wide, T: TriangleTest, const ANY: bool>(
         b: &BvhView<'_>,
-        bounds: &LaneBounds,
-        tiny: bool,
+        pk: PacketIn<'_>,
         start: (usize, usize),
+        slot: &mut Slot<'_>,
         ctr: &mut Counters,
     ) -> bool {
-        let _ = (b, bounds, tiny, start, ctr);
+        let _ = (b, pk, start, slot, ctr);
         false
     }
+}
+
+/// One packet as `Walk::own_setup` takes it: its quads, their active
+/// lanes, their hits, and `TraceParams::fallbacks`.
+pub(crate) struct PacketIn<'x> {
+    pub rays: &'x [Ray4],
+    pub active: &'x [M4],
+    pub hits: &'x mut [Hit4],
+    pub fallbacks: bool,
 }
 
 /// Split the input into packets of at most 256 quads (classes of 1, 4,
@@ -269,22 +266,26 @@ impl<W: Walk, T: TriangleTest, const ANY: bool> isa::Kernel for WalkAt<'_, '_, '
             ctr,
             ..
         } = self;
+        let pk = PacketIn {
+            rays,
+            active,
+            hits: &mut *hits,
+            fallbacks: opt.fallbacks,
+        };
+        if W::own_setup::<L, T, ANY>(b, pk, start, &mut *slot, &mut *ctr) {
+            return;
+        }
         let nq = rays.len().min(active.len()).min(hits.len());
         let (live, mut slot) = slot.split(nq, M4::FALSE);
-        let Some(lanes) = Lanes::new::<W>(b, rays, active, hits, live, opt.fallbacks, start, ctr)
-        else {
+        let Some(lanes) = Lanes::new(b, rays, active, hits, live, opt.fallbacks, ctr) else {
             return;
         };
         if !lanes.coherent {
             return crate::accel::packet::alone::<BvhView, T, ANY>(b, rays, live, hits, ctr);
         }
-        // Per quad: slab data, triangle-test precomputation, far ends (none
-        // when the walk does not read them: empty slices), each written once.
-        let nd = if W::reads_quads(lanes.tiny, b, start) {
-            nq
-        } else {
-            0
-        };
+        // Per quad: slab data, triangle-test precomputation, far ends, each
+        // written once.
+        let nd = nq;
         let (qb, mut slot) = slot.split_from(nd, |q| QuadBox::new(&rays[q]));
         let (pre, mut slot) = slot.split_from(nd, |q| T::prepare(&RayLanes::from_ray4(&rays[q])));
         let (tfar, mut slot) = slot.split_from(nd, |q| rays[q].tmax);
@@ -299,9 +300,9 @@ impl<W: Walk, T: TriangleTest, const ANY: bool> isa::Kernel for WalkAt<'_, '_, '
     }
 }
 
-/// The live lanes' extremes, gathered by the packet's setup pass when the
-/// walk asks (`Walk::BOUNDS`) for its interval frustum
-/// (`traverse_frustum`): per axis the lane-wise smallest and largest
+/// The live lanes' extremes quad by quad, of which the two-level packet
+/// walk makes its interval frustum (`Frustum::from_bounds`; the
+/// frustum-first walk gathers them at its lane width): per axis the lane-wise smallest and largest
 /// origin and direction, and which lanes' directions have the sign bit set
 /// and clear; the smallest `tmin` and largest `tmax`. Lanes that are not
 /// live leave every bound as it was.
@@ -362,28 +363,24 @@ struct Lanes {
     /// Whether a live lane has a tiny direction (`fallback::tiny`, checked
     /// whether the fallbacks are on or not).
     tiny: bool,
-    /// With `Walk::BOUNDS`: the live lanes' bounds (else empty).
-    bounds: LaneBounds,
 }
 
 impl Lanes {
     /// Write `Hit::MISS` to every active lane, count the packet and its
     /// rays, and write the live lanes of its `live.len()` quads to `live`;
-    /// `None` when nothing is to be traced (no live lane, or the walk
-    /// `refuses` the lanes' bounds). One pass over the quads, which also
-    /// finds tiny directions and, for walks that ask (`W::BOUNDS`), the
-    /// live lanes' bounds.
+    /// `None` when nothing is to be traced (no live lane). One pass over
+    /// the quads, which also finds tiny directions, the direction sum and
+    /// (with the fallbacks) whether the live lanes are coherent.
     #[inline(always)]
-    // The packet's arrays, its option, where it starts (for `Walk::refuses`).
+    // The packet's arrays and its option.
     #[allow(clippy::too_many_arguments)]
-    fn new<W: Walk>(
+    fn new(
         b: &BvhView<'_>,
         rays: &[Ray4],
         active: &[M4],
         hits: &mut [Hit4],
         live: &mut [M4],
         fallbacks: bool,
-        start: (usize, usize),
         ctr: &mut Counters,
     ) -> Option<Lanes> {
         let nq = live.len();
@@ -391,22 +388,14 @@ impl Lanes {
         let mut n_live = 0;
         let mut sum = [F4::ZERO; 3];
         let mut tiny = M4::FALSE;
-        let mut bounds = LaneBounds::EMPTY;
+        let mut coherence = fallback::Coherence::new();
         for q in 0..nq {
             let (r, m) = (&rays[q], active[q]);
             if !m.any() {
                 continue;
             }
             let valid = r.valid();
-            let h = &mut hits[q];
-            h.t = F4::select(m, F4::INFINITY, h.t);
-            h.u = F4::select(m, F4::ZERO, h.u);
-            h.v = F4::select(m, F4::ZERO, h.v);
-            for i in 0..4 {
-                if m.test(i) {
-                    h.prim[i] = INVALID_ID;
-                }
-            }
+            hits[q].miss(m);
             let l = m & valid;
             live[q] = l;
             if !l.any() {
@@ -420,19 +409,16 @@ impl Lanes {
             }
             n_live += l.bitmask().count_ones();
             tiny |= fallback::tiny(true, r, l);
-            if W::BOUNDS {
-                bounds.add(r, l);
+            if fallbacks {
+                coherence.add(r, l);
             }
         }
         ctr.rays += n_live as u64;
         if n_live == 0 || b.nodes.is_empty() {
             return None;
         }
-        if W::BOUNDS && W::refuses(b, &bounds, tiny.any(), start, ctr) {
-            return None;
-        }
         let diag = b.info.bounds.diagonal().length();
-        let coherent = fallback::coherent(fallbacks, &rays[..nq], live, diag);
+        let coherent = !fallbacks || coherence.close(diag);
         // A zero sum on an axis: the first live lane decides.
         let q0 = live.iter().position(|m| m.any()).unwrap_or(0);
         let f = live[q0].bitmask().trailing_zeros() as usize;
@@ -453,7 +439,6 @@ impl Lanes {
             neg,
             coherent,
             tiny: tiny.any(),
-            bounds,
         })
     }
 }
@@ -489,8 +474,6 @@ pub(crate) struct Packet<'s, T: TriangleTest> {
     pub fallbacks: bool,
     /// A live lane has a tiny direction (`wide_walk_applies`).
     pub tiny: bool,
-    /// The live lanes' bounds as the setup pass found them (`Walk::BOUNDS`).
-    pub bounds: LaneBounds,
 }
 
 impl<'s, T: TriangleTest> Packet<'s, T> {
@@ -531,7 +514,6 @@ impl<'s, T: TriangleTest> Packet<'s, T> {
             frustum,
             fallbacks: opt.fallbacks,
             tiny: lanes.tiny,
-            bounds: lanes.bounds,
         }
     }
 
@@ -702,13 +684,6 @@ impl<'s, T: TriangleTest> Packet<'s, T> {
             self.n_live -= take.bitmask().count_ones();
         }
         take
-    }
-
-    /// Whether the setup prepared the per-quad slab data, triangle
-    /// precomputation and far ends (`Walk::reads_quads`).
-    #[inline(always)]
-    pub(crate) fn has_quads(&self) -> bool {
-        self.qb.len() == self.nq
     }
 
     /// Whether every lane is done (occlusion).

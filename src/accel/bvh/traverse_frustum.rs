@@ -26,13 +26,15 @@
 //! runs, so such a leaf is box-tested only by the groups near it (Wald et
 //! al. 2007's frustum, one per group rather than per packet).
 //! Each group keeps its nearest hits as lanes (`GroupHit`), written back
-//! to the packet's quads once, after the walk. The first frustum is made
-//! from the bounds the packet's one setup pass gathered (`LaneBounds`,
-//! `Walk::BOUNDS`), so a packet none of whose lanes may enter the root's
-//! children (a camera packet beside the model) ends in the setup
-//! (`Walk::refuses`), before its coherence test and lane groups. An occlusion packet left
-//! with at most `HYBRID_LANES` live lanes finishes them one by one with
-//! the wide single ray (`traverse_wide::walk_from`) over the subtrees
+//! to the packet's quads once, after the walk. The packet is set up lane
+//! group by lane group at the walk's width (`setup`: three passes over
+//! its lane groups instead of a dozen over its quads), and its first
+//! frustum is made from the live lanes' bounds gathered in the first
+//! (`GroupBounds`), so a packet none of whose lanes may enter the root's
+//! children (a camera packet beside the model) ends before its coherence
+//! test, reciprocals and triangle-test lanes are made. An occlusion packet
+//! left with at most `HYBRID_LANES` live lanes finishes them one by one
+//! with the wide single ray (`traverse_wide::walk_from`) over the subtrees
 //! still on its stack (Benthin, Wald, Woop, Ernst, Mark 2012, section 4).
 //!
 //! # Exactness
@@ -60,7 +62,8 @@
 //! # Deviations
 //! - Packets starting at an entry point (MLRTA, AEPSA: binary nodes),
 //!   packets with a live lane of tiny direction, and BVHs without a wide
-//!   tree run the binary Ranged traversal (as `traverse_wide_ranged`).
+//!   tree run the binary Ranged traversal (as `traverse_wide_ranged`),
+//!   set up by the generic quad-by-quad setup (`bvh::packet`).
 //! - The plane frustum of section 4 (`Packet::frustum`) is not consulted:
 //!   the interval frustum replaces it at inner nodes, and the leaf's
 //!   per-group box test replaces its per-triangle culling.
@@ -68,18 +71,20 @@
 //!   same for every kind (it bounds the lanes, not a camera model), so
 //!   camera, shadow, reflection and refraction packets take one path.
 
-use super::packet::{LaneBounds, Packet, Walk, dispatch, wide_walk_applies};
+use super::packet::{LaneBounds, Packet, PacketIn, Walk, dispatch, wide_walk_applies};
 use super::traverse_ranged::Ranged;
 use super::traverse_wide::{Stack, WideRay, walk_from};
 use super::wide::{WIDTH, WideNode, insert_by};
 use super::{BvhView, MAX_DEPTH, TriangleTest};
 use crate::accel::entry::EntryPoint;
+use crate::accel::fallback;
 use crate::accel::group::{self, Group};
 use crate::accel::method::TraceParams;
 use crate::accel::slot::Slot;
 use crate::counters::{Counters, count};
+use crate::geom::lane::mask_from_bits;
 use crate::geom::triangle::TriHit;
-use crate::geom::{F4, Hit, Hit4, INVALID_ID, M4, Ray4, Wide};
+use crate::geom::{F4, Hit, Hit4, INVALID_ID, M4, Ray4, RayLanes, Wide};
 use glam::Vec4;
 
 /// Stack entries: an expansion pushes all (up to `WIDTH`) children it
@@ -147,6 +152,24 @@ pub(crate) struct GroupBox<L: Wide> {
     signs: u32,
 }
 
+impl<L: Wide> GroupBox<L> {
+    /// A group without active lanes (its directions, where the setup keeps
+    /// them until they become reciprocals, are +x: finite and non-zero).
+    #[inline(always)]
+    fn dead() -> Self {
+        let (zero, no) = (L::splat(0.0), L::mask_from_bits(0));
+        GroupBox {
+            org: [zero; 3],
+            rcp: [L::splat(1.0), zero, zero],
+            neg: [no; 3],
+            tmin: L::splat(f32::INFINITY),
+            tfar: L::splat(f32::NEG_INFINITY),
+            live: 0,
+            signs: 0,
+        }
+    }
+}
+
 /// `GroupBox::signs` of a group whose lanes' direction signs differ.
 const MIXED: u32 = u32::MAX;
 
@@ -194,6 +217,29 @@ impl<L: Wide> GroupHit<L> {
             u: L::join(|k| hits[q(k)].u),
             v: L::join(|k| hits[q(k)].v),
             prim: L::join(|k| F4::from_array(hits[q(k)].prim.map(f32::from_bits))),
+        }
+    }
+
+    /// A group's record with no hit in any lane (`Hit::MISS`'s fields).
+    #[inline(always)]
+    fn miss() -> Self {
+        GroupHit {
+            t: L::splat(f32::INFINITY),
+            u: L::splat(0.0),
+            v: L::splat(0.0),
+            prim: L::splat(f32::from_bits(INVALID_ID)),
+        }
+    }
+
+    /// `other` in the lanes `bits`, this record in the rest.
+    #[inline(always)]
+    fn select(self, bits: u32, other: &Self) -> Self {
+        let m = L::mask_from_bits(bits);
+        GroupHit {
+            t: L::select(m, other.t, self.t),
+            u: L::select(m, other.u, self.u),
+            v: L::select(m, other.v, self.v),
+            prim: L::select(m, other.prim, self.prim),
         }
     }
 
@@ -305,30 +351,6 @@ type Signs = [i8; 3];
 /// (more, smaller groups) draw the line at the same packet size; only
 /// AVX-512 was measured.
 const FRUSTA_MIN_LANES: usize = 128;
-
-/// The packet's `Signs`, from its groups' live lanes.
-#[inline(always)]
-fn packet_signs<L: Wide>(gb: &[GroupBox<L>]) -> Signs {
-    let (mut all_neg, mut all_pos) = ([true; 3], [true; 3]);
-    for g in gb {
-        for a in 0..3 {
-            let nb = L::mask_bits(g.neg[a]) & g.live;
-            all_neg[a] &= nb == g.live;
-            all_pos[a] &= nb == 0;
-        }
-    }
-    let mut s = [0i8; 3];
-    for a in 0..3 {
-        s[a] = if all_pos[a] {
-            1
-        } else if all_neg[a] {
-            -1
-        } else {
-            0
-        };
-    }
-    s
-}
 
 /// Groups of chunk `c` (bits; `L::WIDTH` groups per chunk) from `ia` on
 /// whose frusta admit the box `(lo, hi)` (packets with group frusta).
@@ -547,8 +569,8 @@ impl Frustum {
         Frustum::of(&e)
     }
 
-    /// The frustum of a packet's live lanes from the bounds its setup pass
-    /// gathered (`Walk::BOUNDS`), before any group exists. On an axis
+    /// The frustum of a packet's live lanes from their bounds gathered quad
+    /// by quad (the two-level walk), before any group exists. On an axis
     /// whose live directions share a sign, `1 / d` falls as `d` grows
     /// (IEEE division is monotone), so the reciprocals' extremes are the
     /// reciprocals of the directions' extremes: the same bits as `new`
@@ -738,40 +760,22 @@ fn first_group<L: Wide, const FR: bool>(
 pub(crate) struct FrustumFirst;
 
 impl Walk for FrustumFirst {
-    /// Only the binary fallback reads them: the wide walk makes its own
-    /// from the groups.
+    /// Packets the wide walk takes are set up here, lane group by lane
+    /// group (`setup`); the others come back with the setup's answer.
     #[inline(always)]
-    fn reads_quads(tiny: bool, b: &BvhView<'_>, start: (usize, usize)) -> bool {
-        !wide_walk_applies(tiny, b, start)
-    }
-
-    /// The frustum is made from the setup pass's bounds, so a packet the
-    /// root's children all refuse ends in the setup (`refuses`).
-    const BOUNDS: bool = true;
-
-    /// The root's children all refuse the frustum: checked before the
-    /// coherence test, which such a packet (beside the model) skips.
-    #[inline(always)]
-    fn refuses(
+    fn own_setup<L: Wide, T: TriangleTest, const ANY: bool>(
         b: &BvhView<'_>,
-        bounds: &LaneBounds,
-        tiny: bool,
+        pk: PacketIn<'_>,
         start: (usize, usize),
+        slot: &mut Slot<'_>,
         ctr: &mut Counters,
     ) -> bool {
-        if !wide_walk_applies(tiny, b, start) {
-            return false;
-        }
-        let root = &b.wide[0];
-        let valid = valid_children(root);
-        let refused = Frustum::from_bounds(bounds).test(root).0 & valid == 0;
-        let _ = &ctr; // read only with the `counters` feature
-        if refused {
-            count!(ctr.culled_nodes += valid.count_ones() as u64);
-        }
-        refused
+        wide_walk_applies(false, b, start) && setup::<L, T, ANY>(b, pk, slot, ctr)
     }
 
+    /// Only the packets the wide walk does not take reach the generic
+    /// setup (entry points, no wide tree, tiny directions): the binary
+    /// Ranged walk answers them.
     #[inline(always)]
     fn walk<L: Wide, T: TriangleTest, const ANY: bool>(
         p: &mut Packet<'_, T>,
@@ -782,84 +786,372 @@ impl Walk for FrustumFirst {
         slot: &mut Slot<'_>,
         ctr: &mut Counters,
     ) {
-        // The setup prepared the quads exactly when `reads_quads` found
-        // that the wide walk does not apply: not asked twice per packet.
-        if p.has_quads() {
-            return Ranged::walk::<L, T, ANY>(p, b, rays, hits, start, slot, ctr);
+        Ranged::walk::<L, T, ANY>(p, b, rays, hits, start, slot, ctr)
+    }
+}
+
+/// The live lanes' extremes at the walk's lane width, gathered while the
+/// setup makes each group's `GroupBox`: the first frustum is made of
+/// them (`Frustum::of`), and the coherence test's origin box.
+struct GroupBounds<L: Wide> {
+    omin: [L; 3],
+    omax: [L; 3],
+    dmin: [L; 3],
+    dmax: [L; 3],
+    tmin: L,
+    tmax: L,
+    /// Per axis, whether some live lane's direction has the sign bit set
+    /// (`neg`) or clear (`pos`).
+    neg: [bool; 3],
+    pos: [bool; 3],
+}
+
+impl<L: Wide> GroupBounds<L> {
+    fn new() -> Self {
+        let (inf, ninf) = (L::splat(f32::INFINITY), L::splat(f32::NEG_INFINITY));
+        GroupBounds {
+            omin: [inf; 3],
+            omax: [ninf; 3],
+            dmin: [inf; 3],
+            dmax: [ninf; 3],
+            tmin: inf,
+            tmax: ninf,
+            neg: [false; 3],
+            pos: [false; 3],
         }
-        // The setup ended packets the root's children all refuse (`refuses`).
-        let mut fr = Frustum::from_bounds(&p.bounds);
-        let nq = p.nq;
-        let (grp, mut slot) = p.groups::<L>(rays, slot);
-        let grp: &[Group<L, T>] = grp;
-        let (gb, mut slot) = slot.split_from(nq.div_ceil(L::G), |g| {
-            let r = &grp[g].r;
-            let q = |k: usize| (g * L::G + k).min(nq - 1);
-            // Sign bits of each axis's directions, every lane of the group
-            // (live or not: the slab test reads them all).
-            let neg_bits: [u32; 3] = core::array::from_fn(|a| {
-                let mut bits = 0u32;
-                for k in 0..L::G {
-                    bits |= rays[q(k)].dir[a].is_negative_bitmask() << (4 * k);
-                }
-                bits
-            });
-            let full = (1u32 << (4 * L::G)) - 1;
-            let signs = if neg_bits.iter().all(|&n| n == 0 || n == full) {
-                (0..3).fold(0, |s, a| s | u32::from(neg_bits[a] == full) << a)
-            } else {
-                MIXED
-            };
-            let live = group::lane_bits::<L>(g, group::all::<L>(g, nq), |i| p.live[i]);
-            let lm = L::mask_from_bits(live);
-            let one = L::splat(1.0);
-            GroupBox {
-                org: r.org,
-                rcp: [one / r.dir[0], one / r.dir[1], one / r.dir[2]],
-                neg: neg_bits.map(L::mask_from_bits),
-                tmin: L::select(lm, r.tmin, L::splat(f32::INFINITY)),
-                // The far ends start at tmax: the setup wrote misses.
-                tfar: L::select(lm, r.tmax, L::splat(f32::NEG_INFINITY)),
-                live,
-                signs,
+    }
+
+    /// Widen by the lanes `live` (mask `m`) of a group with origins `org`,
+    /// directions `dir` and sign bits `neg`.
+    #[inline(always)]
+    fn add(
+        &mut self,
+        (org, dir): (&[L; 3], &[L; 3]),
+        (tmin, tmax): (L, L),
+        m: L::Mask,
+        live: u32,
+        neg: &[u32; 3],
+    ) {
+        let (inf, ninf) = (L::splat(f32::INFINITY), L::splat(f32::NEG_INFINITY));
+        for a in 0..3 {
+            self.omin[a] = self.omin[a].lower(L::select(m, org[a], inf));
+            self.omax[a] = self.omax[a].raise(L::select(m, org[a], ninf));
+            self.dmin[a] = self.dmin[a].lower(L::select(m, dir[a], inf));
+            self.dmax[a] = self.dmax[a].raise(L::select(m, dir[a], ninf));
+            self.neg[a] |= neg[a] & live != 0;
+            self.pos[a] |= !neg[a] & live != 0;
+        }
+        self.tmin = self.tmin.lower(L::select(m, tmin, inf));
+        self.tmax = self.tmax.raise(L::select(m, tmax, ninf));
+    }
+
+    /// The live lanes' frustum (`Frustum::from_bounds`'s arithmetic: on
+    /// an axis whose live directions share a sign the reciprocals'
+    /// extremes are those of the directions' extremes).
+    #[inline(always)]
+    fn frustum(&self) -> Frustum {
+        let mut e = Extremes {
+            o: [(0.0, 0.0); 3],
+            r: [(0.0, 0.0); 3],
+            all_neg: self.pos.map(|p| !p),
+            all_pos: self.neg.map(|n| !n),
+            tmin: self.tmin.lane_min(),
+            tfar: self.tmax.lane_max(),
+        };
+        for a in 0..3 {
+            e.o[a] = (self.omin[a].lane_min(), self.omax[a].lane_max());
+            e.r[a] = (1.0 / self.dmax[a].lane_max(), 1.0 / self.dmin[a].lane_min());
+        }
+        Frustum::of(&e)
+    }
+
+    /// The packet's `Signs`: +1 (-1) on an axis where no live lane's
+    /// direction has the sign bit set (clear), else 0.
+    fn signs(&self) -> Signs {
+        core::array::from_fn(|a| match (self.neg[a], self.pos[a]) {
+            (false, _) => 1,
+            (true, false) => -1,
+            _ => 0,
+        })
+    }
+}
+
+/// Lane bits of group `g`'s valid rays (`Ray4::valid` at the group's
+/// width: finite origin and direction, a non-zero direction,
+/// `0 <= tmin <= tmax`).
+#[inline(always)]
+fn valid_bits<L: Wide>(org: &[L; 3], dir: &[L; 3], tmin: L, tmax: L) -> u32 {
+    let (zero, inf, ninf) = (
+        L::splat(0.0),
+        L::splat(f32::INFINITY),
+        L::splat(f32::NEG_INFINITY),
+    );
+    let fin = |x: L| ninf.lt(x) & x.lt(inf);
+    let m = fin(org[0])
+        & fin(org[1])
+        & fin(org[2])
+        & fin(dir[0])
+        & fin(dir[1])
+        & fin(dir[2])
+        & !(dir[0].eq(zero) & dir[1].eq(zero) & dir[2].eq(zero))
+        & zero.le(tmin)
+        & tmin.le(tmax);
+    L::mask_bits(m)
+}
+
+/// Lane bits whose direction is tiny (`fallback::tiny`: every component's
+/// magnitude below `TINY_DIR`; a valid lane's direction is not zero).
+#[inline(always)]
+fn tiny_bits<L: Wide>(dir: &[L; 3]) -> u32 {
+    let (lo, hi) = (L::splat(-fallback::TINY_DIR), L::splat(fallback::TINY_DIR));
+    let small = |x: L| lo.lt(x) & x.lt(hi);
+    L::mask_bits(small(dir[0]) & small(dir[1]) & small(dir[2]))
+}
+
+/// Write `Hit::MISS` to the active lanes of `hits`.
+fn miss_active(hits: &mut [Hit4], active: &[M4]) {
+    for (h, m) in hits.iter_mut().zip(active) {
+        h.miss(*m);
+    }
+}
+
+/// The packet's setup at the walk's lane width, and the walk: three
+/// passes over its lane groups (not over its quads).
+/// 1. Each group's rays joined into lanes: the valid and live lanes, the
+///    misses' groups, direction signs, tiny directions, and the live
+///    lanes' bounds (`GroupBounds`), written as its `GroupBox` (its
+///    directions where the reciprocals go, until pass 2).
+/// 2. A packet with no live lane, or whose first frustum the root's
+///    children all refuse, writes its misses and ends; else each group's
+///    reciprocals and triangle-test lanes (`Group`, from the `GroupBox`:
+///    no second join) are made, and its live directions tested against
+///    the coherence cone.
+/// 3. Each group's hit record: `Hit::MISS` in its active lanes, the
+///    caller's hits in the others.
+///
+/// `false` (nothing written, nothing counted) for a packet with a live
+/// lane of tiny direction: the generic setup takes it.
+#[inline(always)]
+fn setup<L: Wide, T: TriangleTest, const ANY: bool>(
+    b: &BvhView<'_>,
+    pk: PacketIn<'_>,
+    slot: &mut Slot<'_>,
+    ctr: &mut Counters,
+) -> bool {
+    let PacketIn {
+        rays,
+        active,
+        hits,
+        fallbacks,
+    } = pk;
+    let nq = rays.len().min(active.len()).min(hits.len());
+    if nq == 0 || b.nodes.is_empty() {
+        return false;
+    }
+    let (rays, active, hits) = (&rays[..nq], &active[..nq], &mut hits[..nq]);
+    if !active.iter().any(|m| m.any()) {
+        // A shadow batch's packet of misses and unlit points only.
+        ctr.packets += 1;
+        return true;
+    }
+    let q = |g: usize, k: usize| (g * L::G + k).min(nq - 1);
+    let mut bounds = GroupBounds::<L>::new();
+    let (mut n_live, mut tiny) = (0u32, 0u32);
+    let (gb, mut slot) = slot.split_from(nq.div_ceil(L::G), |g| {
+        let act = group::lane_bits::<L>(g, group::all::<L>(g, nq), |i| active[i]);
+        if act == 0 {
+            // A shadow batch's misses and unlit points: nothing to join.
+            return GroupBox::dead();
+        }
+        let r = RayLanes::<L>::join(|k| &rays[q(g, k)]);
+        let live = act & valid_bits(&r.org, &r.dir, r.tmin, r.tmax);
+        // Sign bits of each axis's directions, every lane of the group
+        // (live or not: the slab test reads them all).
+        let mut neg = [0u32; 3];
+        for k in 0..L::G {
+            let d = &rays[q(g, k)].dir;
+            for a in 0..3 {
+                neg[a] |= d[a].is_negative_bitmask() << (4 * k);
             }
-        });
-        let ng = gb.len();
-        let (gh, mut slot) = slot.split_from(ng, |g| GroupHit::<L>::read(&hits[..nq], g));
-        // Too few rays to cull many groups per leaf: no frusta, every
-        // group's exact test runs.
-        let nf = if ng * L::WIDTH >= FRUSTA_MIN_LANES {
-            ng.div_ceil(L::WIDTH)
-        } else {
-            0
-        };
-        let signs = if nf > 0 { packet_signs(gb) } else { [0; 3] };
-        // A plain loop, not `split_from`'s closure: the frusta's lane
-        // reductions must inline into the caller's ISA.
-        let empty = GroupFrusta::new(&[], &signs);
-        let (gf, _) = slot.split(nf, empty);
-        for (c, f) in gf.iter_mut().enumerate() {
-            *f = GroupFrusta::new(&gb[c * L::WIDTH..ng.min((c + 1) * L::WIDTH)], &signs);
         }
-        let leaves = Leaves {
-            b,
-            rays,
-            grp,
-            n_live: gb.iter().map(|g| g.live.count_ones()).sum(),
-            gb,
-            gh,
-            gf,
+        let full = (1u32 << (4 * L::G)) - 1;
+        let signs = if neg.iter().all(|&n| n == 0 || n == full) {
+            (0..3).fold(0, |s, a| s | u32::from(neg[a] == full) << a)
+        } else {
+            MIXED
+        };
+        let lm = L::mask_from_bits(live);
+        if live != 0 {
+            n_live += live.count_ones();
+            tiny |= tiny_bits(&r.dir) & live;
+            bounds.add((&r.org, &r.dir), (r.tmin, r.tmax), lm, live, &neg);
+        }
+        GroupBox {
+            org: r.org,
+            // The directions until pass 2 makes them reciprocals.
+            rcp: r.dir,
+            neg: [
+                L::mask_from_bits(neg[0]),
+                L::mask_from_bits(neg[1]),
+                L::mask_from_bits(neg[2]),
+            ],
+            tmin: L::select(lm, r.tmin, L::splat(f32::INFINITY)),
+            tfar: L::select(lm, r.tmax, L::splat(f32::NEG_INFINITY)),
+            live,
             signs,
+        }
+    });
+    if tiny != 0 {
+        return false;
+    }
+    ctr.packets += 1;
+    ctr.rays += n_live as u64;
+    let mut fr = bounds.frustum();
+    if n_live == 0 || refused(b, &fr, ctr) {
+        miss_active(hits, active);
+        return true;
+    }
+    let gb: &mut [GroupBox<L>] = gb;
+    // Pass 2; the coherence cone around the first live lane's direction.
+    let cone = if fallbacks {
+        let first = gb.iter().enumerate().flat_map(|(g, x)| {
+            let mut bits = x.live;
+            core::iter::from_fn(move || {
+                let i = bits.trailing_zeros() as usize;
+                bits &= bits.wrapping_sub(1);
+                (i < 32).then(|| {
+                    let r = &rays[q(g, i / 4)];
+                    glam::Vec3::new(r.dir[0][i % 4], r.dir[1][i % 4], r.dir[2][i % 4])
+                })
+            })
+        });
+        fallback::Cone::<L>::first(first)
+    } else {
+        None
+    };
+    let mut wide = false;
+    let one = L::splat(1.0);
+    let (grp, mut slot) = slot.split_from(gb.len(), |g| {
+        let x = &mut gb[g];
+        if let Some(c) = &cone {
+            wide |= c.leaves(&x.rcp, L::mask_from_bits(x.live));
+        }
+        // The group's rays as pass 1 joined them: equal in the live lanes
+        // (the only ones a triangle test's result is read for).
+        let r = RayLanes {
+            org: x.org,
+            dir: x.rcp,
+            tmin: x.tmin,
+            tmax: x.tfar,
         };
-        // Two instances: packets without group frusta pay nothing for them.
-        if nf > 0 {
-            walk_tree::<L, T, ANY, true>(leaves, &mut fr, ctr);
-        } else {
-            walk_tree::<L, T, ANY, false>(leaves, &mut fr, ctr);
+        x.rcp = [one / x.rcp[0], one / x.rcp[1], one / x.rcp[2]];
+        Group {
+            pre: T::prepare(&r),
+            r,
         }
-        for (g, h) in gh.iter().enumerate() {
-            h.write(&mut hits[..nq], g);
-        }
+    });
+    let grp: &[Group<L, T>] = grp;
+    let close = || {
+        let (lo, hi) = (&bounds.omin, &bounds.omax);
+        let lo = glam::Vec3::new(lo[0].lane_min(), lo[1].lane_min(), lo[2].lane_min());
+        let hi = glam::Vec3::new(hi[0].lane_max(), hi[1].lane_max(), hi[2].lane_max());
+        let diag = b.info.bounds.diagonal().length();
+        fallback::origins_close(lo, hi, diag)
+    };
+    if fallbacks && (wide || !close()) {
+        miss_active(hits, active);
+        let (live, _) = slot.split_from(nq, |i| {
+            let x = &gb[i / L::G];
+            mask_from_bits(x.live >> (4 * (i % L::G)) & 15)
+        });
+        crate::accel::packet::alone::<BvhView, T, ANY>(b, rays, live, hits, ctr);
+        return true;
+    }
+    // Pass 3.
+    let miss = GroupHit::<L>::miss();
+    let (gh, slot) = slot.split_from(gb.len(), |g| {
+        let act = group::lane_bits::<L>(g, group::all::<L>(g, nq), |i| active[i]);
+        GroupHit::read(hits, g).select(act, &miss)
+    });
+    walk_groups::<L, T, ANY>(
+        b,
+        rays,
+        grp,
+        gb,
+        gh,
+        &mut fr,
+        bounds.signs(),
+        n_live,
+        slot,
+        ctr,
+    );
+    for (g, h) in gh.iter().enumerate() {
+        h.write(hits, g);
+    }
+    true
+}
+
+/// Whether the root's children all refuse the packet's first frustum.
+#[inline(always)]
+fn refused(b: &BvhView<'_>, fr: &Frustum, ctr: &mut Counters) -> bool {
+    let root = &b.wide[0];
+    let valid = valid_children(root);
+    let refused = fr.test(root).0 & valid == 0;
+    let _ = &ctr; // read only with the `counters` feature
+    if refused {
+        count!(ctr.culled_nodes += valid.count_ones() as u64);
+    }
+    refused
+}
+
+/// The walk of a set-up packet: its groups' frusta (packets of at least
+/// `FRUSTA_MIN_LANES` lanes), then the tree from the root.
+// The packet's groups, first frustum, signs and live lanes, the scratch.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn walk_groups<L: Wide, T: TriangleTest, const ANY: bool>(
+    b: &BvhView<'_>,
+    rays: &[Ray4],
+    grp: &[Group<L, T>],
+    gb: &mut [GroupBox<L>],
+    gh: &mut [GroupHit<L>],
+    fr: &mut Frustum,
+    signs: Signs,
+    n_live: u32,
+    mut slot: Slot<'_>,
+    ctr: &mut Counters,
+) {
+    let ng = gb.len();
+    // Too few rays to cull many groups per leaf: no frusta, every
+    // group's exact test runs.
+    let nf = if ng * L::WIDTH >= FRUSTA_MIN_LANES {
+        ng.div_ceil(L::WIDTH)
+    } else {
+        0
+    };
+    let signs = if nf > 0 { signs } else { [0; 3] };
+    // A plain loop, not `split_from`'s closure: the frusta's lane
+    // reductions must inline into the caller's ISA.
+    let empty = GroupFrusta::new(&[], &signs);
+    let (gf, _) = slot.split(nf, empty);
+    for (c, f) in gf.iter_mut().enumerate() {
+        *f = GroupFrusta::new(&gb[c * L::WIDTH..ng.min((c + 1) * L::WIDTH)], &signs);
+    }
+    let leaves = Leaves {
+        b,
+        rays,
+        grp,
+        n_live,
+        gb,
+        gh,
+        gf,
+        signs,
+    };
+    // Two instances: packets without group frusta pay nothing for them.
+    if nf > 0 {
+        walk_tree::<L, T, ANY, true>(leaves, fr, ctr);
+    } else {
+        walk_tree::<L, T, ANY, false>(leaves, fr, ctr);
     }
 }
 
