@@ -459,9 +459,9 @@ pub struct RenderArgs {
     /// Materials: the OBJ's .mtl (default), or every surface a mirror, glass, or both.
     #[arg(long, value_enum, default_value = "scene")]
     pub materials: MaterialsArg,
-    /// Method for reflection and refraction rays (default: bvh-partition when the primary
-    /// method is a BVH packet method at 16x16 or more, as the BVH paper recommends; else
-    /// the primary method).
+    /// Method for reflection and refraction rays (default: the primary method; bvh-partition
+    /// when that is bvh-masked or bvh-ranged at 16x16 or more, as the BVH paper recommends;
+    /// bvh-frustum's secondary packets are faster than Partition's, docs/studies.md).
     #[arg(long, value_enum)]
     pub secondary_method: Option<MethodArg>,
     /// Camera rays of a deferred frame: pgrid (a perspective grid built per frame) or a method

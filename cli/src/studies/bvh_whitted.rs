@@ -12,7 +12,8 @@
 //!   refractions; every surface reflects 30 % and transmits 30 %) with the
 //!   paper's recommended configuration (16x16, Ranged for primary and
 //!   shadow rays, Partition for reflection and refraction rays, culling
-//!   on) against 2x2 SIMD rays for every class; and the culling benefit.
+//!   on) against 2x2 SIMD rays for every class; and the culling benefit;
+//!   and the frustum-first walk (`bvh-frustum` 16x16) for every class.
 //! - Figure 6: ray-box and ray-triangle tests per BVH depth for Ranged and
 //!   Partition at 16x16, primary and reflection levels.
 //!
@@ -307,6 +308,14 @@ pub fn run(a: &BenchArgs) -> Result<()> {
             packet: 16,
             culling: true,
         },
+        // The frustum-first walk for every ray class (its interval frustum
+        // replaces the plane frustum, so culling is moot).
+        Config {
+            primary: Method::BvhFrustum,
+            secondary: Method::BvhFrustum,
+            packet: 16,
+            culling: true,
+        },
     ];
     // One step per frame measured.
     let per_scene = (LEVELS.len() * cfgs.len() + table2.len()) as u64;
@@ -552,7 +561,7 @@ fn markdown(
     };
     s.push_str("\n## Table 2: a Whitted frame, large packets against 2x2 SIMD rays\n\n");
     s.push_str("Shadows, 1 reflection bounce, 2-deep refractions; every surface reflects 30 % and transmits 30 % (index 1.5).\n\n");
-    s.push_str("| scene | single ms | 2x2 SIMD ms | 16x16 Ranged/Partition ms | speed-up vs SIMD | culling benefit | 16x16 Ranged ms | 16x16 Partition ms | diff |\n|---|--:|--:|--:|--:|--:|--:|--:|--:|\n");
+    s.push_str("| scene | single ms | 2x2 SIMD ms | 16x16 Ranged/Partition ms | speed-up vs SIMD | culling benefit | 16x16 Ranged ms | 16x16 Partition ms | 16x16 frustum ms | frustum speed-up vs SIMD | diff |\n|---|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|\n");
     for sc in &scenes {
         let get = |i: usize| t2.iter().filter(|r| r.scene == *sc).nth(i);
         let (Some(single), Some(simd), Some(rec), Some(nocull), Some(rg), Some(pt)) =
@@ -561,9 +570,15 @@ fn markdown(
             continue;
         };
         let diff: usize = t2.iter().filter(|r| r.scene == *sc).map(|r| r.diff).sum();
+        let (fr_ms, fr_x) = get(6).map_or(("-".into(), "-".into()), |f| {
+            (
+                format!("{:.1}", ms(f.ns)),
+                format!("{:.2}x", ratio(simd.ns, f.ns)),
+            )
+        });
         let _ = writeln!(
             s,
-            "| {sc} | {:.1} | {:.1} | {:.1} | {:.2}x | {:.2}x | {:.1} | {:.1} | {diff} |",
+            "| {sc} | {:.1} | {:.1} | {:.1} | {:.2}x | {:.2}x | {:.1} | {:.1} | {fr_ms} | {fr_x} | {diff} |",
             ms(single.ns),
             ms(simd.ns),
             ms(rec.ns),

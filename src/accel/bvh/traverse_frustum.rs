@@ -832,14 +832,28 @@ impl<L: Wide> GroupBounds<L> {
         live: u32,
         neg: &[u32; 3],
     ) {
+        for (a, &n) in neg.iter().enumerate() {
+            self.neg[a] |= n & live != 0;
+            self.pos[a] |= !n & live != 0;
+        }
+        if live == (1u32 << (4 * L::G)) - 1 {
+            // Every lane live (most camera groups): no selects.
+            for a in 0..3 {
+                self.omin[a] = self.omin[a].lower(org[a]);
+                self.omax[a] = self.omax[a].raise(org[a]);
+                self.dmin[a] = self.dmin[a].lower(dir[a]);
+                self.dmax[a] = self.dmax[a].raise(dir[a]);
+            }
+            self.tmin = self.tmin.lower(tmin);
+            self.tmax = self.tmax.raise(tmax);
+            return;
+        }
         let (inf, ninf) = (L::splat(f32::INFINITY), L::splat(f32::NEG_INFINITY));
         for a in 0..3 {
             self.omin[a] = self.omin[a].lower(L::select(m, org[a], inf));
             self.omax[a] = self.omax[a].raise(L::select(m, org[a], ninf));
             self.dmin[a] = self.dmin[a].lower(L::select(m, dir[a], inf));
             self.dmax[a] = self.dmax[a].raise(L::select(m, dir[a], ninf));
-            self.neg[a] |= neg[a] & live != 0;
-            self.pos[a] |= !neg[a] & live != 0;
         }
         self.tmin = self.tmin.lower(L::select(m, tmin, inf));
         self.tmax = self.tmax.raise(L::select(m, tmax, ninf));
