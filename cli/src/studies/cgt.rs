@@ -2048,8 +2048,8 @@ mod tests {
         let diff = head.iter().position(|h| *h == "pixels_differing").unwrap();
         assert_eq!(
             lines.len(),
-            1 + 4 * (1 + 3 * 2 + 2) + 6,
-            "header + 4 levels x 9 configurations + Table 2's 6"
+            1 + 4 * (1 + 3 * 2 + 2) + 7,
+            "header + 4 levels x 9 configurations + Table 2's 7"
         );
         for l in &lines[1..] {
             assert_eq!(l.split(',').nth(diff), Some("0"), "{l}");
