@@ -251,8 +251,9 @@ struct WalkAt<'x, 'b, 's, W, T: TriangleTest, const ANY: bool> {
 
 impl<W: Walk, T: TriangleTest, const ANY: bool> isa::Kernel for WalkAt<'_, '_, '_, W, T, ANY> {
     type Out = ();
-    /// Its lanes first (a packet with none live, or incoherent, takes no
-    /// more scratch), then its per-quad arrays, then the walk.
+    /// The walk's own setup when it takes the packet (`Walk::own_setup`);
+    /// else its lanes first (a packet with none live, or incoherent, takes
+    /// no more scratch), then its per-quad arrays, then the walk.
     #[inline(always)]
     fn run<L: Wide>(self) {
         let WalkAt {
@@ -285,10 +286,9 @@ impl<W: Walk, T: TriangleTest, const ANY: bool> isa::Kernel for WalkAt<'_, '_, '
         }
         // Per quad: slab data, triangle-test precomputation, far ends, each
         // written once.
-        let nd = nq;
-        let (qb, mut slot) = slot.split_from(nd, |q| QuadBox::new(&rays[q]));
-        let (pre, mut slot) = slot.split_from(nd, |q| T::prepare(&RayLanes::from_ray4(&rays[q])));
-        let (tfar, mut slot) = slot.split_from(nd, |q| rays[q].tmax);
+        let (qb, mut slot) = slot.split_from(nq, |q| QuadBox::new(&rays[q]));
+        let (pre, mut slot) = slot.split_from(nq, |q| T::prepare(&RayLanes::from_ray4(&rays[q])));
+        let (tfar, mut slot) = slot.split_from(nq, |q| rays[q].tmax);
         let quads = Quads {
             live,
             qb,
@@ -372,8 +372,6 @@ impl Lanes {
     /// the quads, which also finds tiny directions, the direction sum and
     /// (with the fallbacks) whether the live lanes are coherent.
     #[inline(always)]
-    // The packet's arrays and its option.
-    #[allow(clippy::too_many_arguments)]
     fn new(
         b: &BvhView<'_>,
         rays: &[Ray4],

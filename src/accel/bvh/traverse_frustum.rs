@@ -32,7 +32,9 @@
 //! frustum is made from the live lanes' bounds gathered in the first
 //! (`GroupBounds`), so a packet none of whose lanes may enter the root's
 //! children (a camera packet beside the model) ends before its coherence
-//! test, reciprocals and triangle-test lanes are made. An occlusion packet
+//! test, reciprocals and triangle-test lanes are made. A packet the
+//! coherence test fails is tried again as its four Morton quarters (down
+//! to 4x4 rays) before its lanes go alone. An occlusion packet
 //! left with at most `HYBRID_LANES` live lanes finishes them one by one
 //! with the wide single ray (`traverse_wide::walk_from`) over the subtrees
 //! still on its stack (Benthin, Wald, Woop, Ernst, Mark 2012, section 4).
@@ -82,7 +84,6 @@ use crate::accel::group::{self, Group};
 use crate::accel::method::TraceParams;
 use crate::accel::slot::Slot;
 use crate::counters::{Counters, count};
-use crate::geom::lane::mask_from_bits;
 use crate::geom::triangle::TriHit;
 use crate::geom::{F4, Hit, Hit4, INVALID_ID, M4, Ray4, RayLanes, Wide};
 use glam::Vec4;
@@ -761,7 +762,8 @@ pub(crate) struct FrustumFirst;
 
 impl Walk for FrustumFirst {
     /// Packets the wide walk takes are set up here, lane group by lane
-    /// group (`setup`); the others come back with the setup's answer.
+    /// group (`setup`); the others (tiny directions, entry points, no wide
+    /// tree) go to the generic setup and `walk`.
     #[inline(always)]
     fn own_setup<L: Wide, T: TriangleTest, const ANY: bool>(
         b: &BvhView<'_>,
@@ -807,6 +809,7 @@ struct GroupBounds<L: Wide> {
 }
 
 impl<L: Wide> GroupBounds<L> {
+    #[inline(always)]
     fn new() -> Self {
         let (inf, ninf) = (L::splat(f32::INFINITY), L::splat(f32::NEG_INFINITY));
         GroupBounds {
@@ -923,6 +926,7 @@ fn tiny_bits<L: Wide>(dir: &[L; 3]) -> u32 {
 }
 
 /// Write `Hit::MISS` to the active lanes of `hits`.
+#[inline(always)]
 fn miss_active(hits: &mut [Hit4], active: &[M4]) {
     for (h, m) in hits.iter_mut().zip(active) {
         h.miss(*m);
@@ -931,8 +935,8 @@ fn miss_active(hits: &mut [Hit4], active: &[M4]) {
 
 /// The packet's setup at the walk's lane width, and the walk: three
 /// passes over its lane groups (not over its quads).
-/// 1. Each group's rays joined into lanes: the valid and live lanes, the
-///    misses' groups, direction signs, tiny directions, and the live
+/// 1. Each group's rays joined into lanes: the valid and live lanes,
+///    direction signs, tiny directions, and the live
 ///    lanes' bounds (`GroupBounds`), written as its `GroupBox` (its
 ///    directions where the reciprocals go, until pass 2).
 /// 2. A packet with no live lane, or whose first frustum the root's
@@ -943,15 +947,15 @@ fn miss_active(hits: &mut [Hit4], active: &[M4]) {
 /// 3. Each group's hit record: `Hit::MISS` in its active lanes, the
 ///    caller's hits in the others.
 ///
-/// `false` (nothing written, nothing counted) for a packet with a live
-/// lane of tiny direction: the generic setup takes it.
+/// `Tiny` for a packet with a live lane of tiny direction, `Incoherent`
+/// for one the coherence test fails: nothing written, nothing counted.
 #[inline(always)]
-fn setup<L: Wide, T: TriangleTest, const ANY: bool>(
+fn one<L: Wide, T: TriangleTest, const ANY: bool>(
     b: &BvhView<'_>,
     pk: PacketIn<'_>,
     slot: &mut Slot<'_>,
     ctr: &mut Counters,
-) -> bool {
+) -> Outcome {
     let PacketIn {
         rays,
         active,
@@ -959,14 +963,14 @@ fn setup<L: Wide, T: TriangleTest, const ANY: bool>(
         fallbacks,
     } = pk;
     let nq = rays.len().min(active.len()).min(hits.len());
-    if nq == 0 || b.nodes.is_empty() {
-        return false;
+    if nq == 0 {
+        return Outcome::Done;
     }
     let (rays, active, hits) = (&rays[..nq], &active[..nq], &mut hits[..nq]);
     if !active.iter().any(|m| m.any()) {
         // A shadow batch's packet of misses and unlit points only.
         ctr.packets += 1;
-        return true;
+        return Outcome::Done;
     }
     let q = |g: usize, k: usize| (g * L::G + k).min(nq - 1);
     let mut bounds = GroupBounds::<L>::new();
@@ -1016,14 +1020,14 @@ fn setup<L: Wide, T: TriangleTest, const ANY: bool>(
         }
     });
     if tiny != 0 {
-        return false;
+        return Outcome::Tiny;
     }
-    ctr.packets += 1;
-    ctr.rays += n_live as u64;
     let mut fr = bounds.frustum();
     if n_live == 0 || refused(b, &fr, ctr) {
+        ctr.packets += 1;
+        ctr.rays += n_live as u64;
         miss_active(hits, active);
-        return true;
+        return Outcome::Done;
     }
     let gb: &mut [GroupBox<L>] = gb;
     // Pass 2; the coherence cone around the first live lane's direction.
@@ -1072,15 +1076,12 @@ fn setup<L: Wide, T: TriangleTest, const ANY: bool>(
         let diag = b.info.bounds.diagonal().length();
         fallback::origins_close(lo, hi, diag)
     };
-    if fallbacks && (wide || !close()) {
-        miss_active(hits, active);
-        let (live, _) = slot.split_from(nq, |i| {
-            let x = &gb[i / L::G];
-            mask_from_bits(x.live >> (4 * (i % L::G)) & 15)
-        });
-        crate::accel::packet::alone::<BvhView, T, ANY>(b, rays, live, hits, ctr);
-        return true;
+    // No usable direction: nothing to compare, the lanes pass (`coherent`).
+    if fallbacks && (wide || (cone.is_some() && !close())) {
+        return Outcome::Incoherent;
     }
+    ctr.packets += 1;
+    ctr.rays += n_live as u64;
     // Pass 3.
     let miss = GroupHit::<L>::miss();
     let (gh, slot) = slot.split_from(gb.len(), |g| {
@@ -1102,7 +1103,110 @@ fn setup<L: Wide, T: TriangleTest, const ANY: bool>(
     for (g, h) in gh.iter().enumerate() {
         h.write(hits, g);
     }
+    Outcome::Done
+}
+
+/// What `one` did with a packet.
+enum Outcome {
+    /// Traced (answers written, packet and rays counted).
+    Done,
+    /// A live lane has a tiny direction: nothing written or counted.
+    Tiny,
+    /// The coherence test failed: nothing written or counted.
+    Incoherent,
+}
+
+/// Parts of at most this many quads (a 4x4 sub-tile, or one lane group
+/// where that is larger) that fail the coherence test go lane by lane:
+/// smaller packets pay their setup for too few rays.
+const SPLIT_MIN: usize = 4;
+
+/// Most Morton quarters an incoherent packet is split into at once
+/// (`setup`'s work list: three levels below a packet of `MAX_QUADS`).
+const PARTS: usize = 16;
+
+/// A packet the wide walk takes: set up and walked by `one`. A packet the
+/// coherence test fails is split into its four Morton quarters (each a
+/// run of a quarter of its quads: in Morton order, a square sub-tile of
+/// a camera tile and of the secondary packets made from it), each tried
+/// as a packet in turn; a
+/// part of `SPLIT_MIN` quads that still fails goes lane by lane with the
+/// single ray. `false` (nothing written, nothing counted) for a packet
+/// with a live lane of tiny direction: the generic setup takes it.
+#[inline(always)]
+fn setup<L: Wide, T: TriangleTest, const ANY: bool>(
+    b: &BvhView<'_>,
+    pk: PacketIn<'_>,
+    slot: &mut Slot<'_>,
+    ctr: &mut Counters,
+) -> bool {
+    let PacketIn {
+        rays,
+        active,
+        hits,
+        fallbacks,
+    } = pk;
+    let nq = rays.len().min(active.len()).min(hits.len());
+    if b.nodes.is_empty() {
+        return false;
+    }
+    // The parts count as the one packet they are.
+    let packets = ctr.packets;
+    // A work list, not recursion: everything stays inlined at the ISA.
+    let mut todo = [(0usize, 0usize); PARTS];
+    let (mut n, mut top) = (1, true);
+    todo[0] = (0, nq);
+    while n > 0 {
+        n -= 1;
+        let (s, e) = todo[n];
+        let part = PacketIn {
+            rays: &rays[s..e],
+            active: &active[s..e],
+            hits: &mut hits[s..e],
+            fallbacks,
+        };
+        match one::<L, T, ANY>(b, part, slot, ctr) {
+            Outcome::Done => {}
+            // Only the whole packet can have a tiny lane (the parts are
+            // of a packet without one).
+            Outcome::Tiny if top => return false,
+            Outcome::Incoherent if e - s > SPLIT_MIN.max(L::G) && n + 4 <= PARTS => {
+                let q = (e - s).div_ceil(4);
+                for k in (0..4).rev() {
+                    let (ps, pe) = (s + k * q, (s + (k + 1) * q).min(e));
+                    if ps < pe {
+                        todo[n] = (ps, pe);
+                        n += 1;
+                    }
+                }
+            }
+            _ => alone_all::<T, ANY>(b, &rays[s..e], &active[s..e], &mut hits[s..e], slot, ctr),
+        }
+        top = false;
+    }
+    ctr.packets = packets + 1;
     true
+}
+
+/// Every live lane of the quads traced alone by the wide single ray,
+/// counted as one packet.
+#[inline(always)]
+fn alone_all<T: TriangleTest, const ANY: bool>(
+    b: &BvhView<'_>,
+    rays: &[Ray4],
+    active: &[M4],
+    hits: &mut [Hit4],
+    slot: &mut Slot<'_>,
+    ctr: &mut Counters,
+) {
+    miss_active(hits, active);
+    let (live, _) = slot.split_from(rays.len(), |q| active[q] & rays[q].valid());
+    ctr.packets += 1;
+    ctr.rays += live
+        .iter()
+        .map(|m| m.bitmask().count_ones() as u64)
+        .sum::<u64>();
+    crate::accel::packet::alone::<BvhView, T, ANY>(b, rays, live, hits, ctr);
 }
 
 /// Whether the root's children all refuse the packet's first frustum.
