@@ -81,7 +81,7 @@ use crate::accel::slot::Slot;
 use crate::counters::{Counters, count};
 use crate::geom::frustum::Frustum;
 use crate::geom::lane::mask_from_bits;
-use crate::geom::{Aabb, F4, Hit, Hit4, INVALID_ID, M4, Ray4, Wide};
+use crate::geom::{Aabb, F4, Hit, Hit4, M4, Ray4, Wide};
 use crate::isa::{self, Isa};
 use crate::mem::scratch::bytes;
 
@@ -282,15 +282,7 @@ fn packet<T: TriangleTest, const ANY: bool, const Q: usize>(
         if ANY {
             occ[q] = M4::FALSE;
         } else if m.any() {
-            let h = &mut hits[q];
-            h.t = F4::select(m, F4::INFINITY, h.t);
-            h.u = F4::select(m, F4::ZERO, h.u);
-            h.v = F4::select(m, F4::ZERO, h.v);
-            for i in 0..4 {
-                if m.test(i) {
-                    h.prim[i] = INVALID_ID;
-                }
-            }
+            hits[q].miss(m);
         }
         let l = m & valid4(&rays[q]);
         live[q] = l;
@@ -727,6 +719,7 @@ mod tests {
     use crate::accel::kd::traverse_single::{self, tests::same};
     use crate::accel::slot::SlotBuf;
     use crate::accel::testkit::{Packed, RaySet, lattice, packets, ray_sets};
+    use crate::geom::INVALID_ID;
     use crate::geom::TriangleTest;
     use crate::geom::{Mt, Pt, Ray, Wt};
     use glam::Vec3;
