@@ -956,17 +956,18 @@ fn one<L: Wide, T: TriangleTest, const ANY: bool>(
     slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) -> Outcome {
+    // `setup` hands over slices of one length.
     let PacketIn {
         rays,
         active,
         hits,
         fallbacks,
     } = pk;
-    let nq = rays.len().min(active.len()).min(hits.len());
+    let nq = rays.len();
+    debug_assert!(active.len() == nq && hits.len() == nq);
     if nq == 0 {
         return Outcome::Done;
     }
-    let (rays, active, hits) = (&rays[..nq], &active[..nq], &mut hits[..nq]);
     if !active.iter().any(|m| m.any()) {
         // A shadow batch's packet of misses and unlit points only.
         ctr.packets += 1;
@@ -1030,7 +1031,9 @@ fn one<L: Wide, T: TriangleTest, const ANY: bool>(
         return Outcome::Done;
     }
     let gb: &mut [GroupBox<L>] = gb;
-    // Pass 2; the coherence cone around the first live lane's direction.
+    // The coherence cone around the first live lane's direction, tested
+    // before pass 2 so that an incoherent packet (split, or traced lane by
+    // lane) makes no reciprocals it would throw away.
     let cone = if fallbacks {
         let first = gb.iter().enumerate().flat_map(|(g, x)| {
             let mut bits = x.live;
@@ -1047,13 +1050,30 @@ fn one<L: Wide, T: TriangleTest, const ANY: bool>(
     } else {
         None
     };
-    let mut wide = false;
+    // No usable direction (no cone): nothing to compare, the lanes pass
+    // (`coherent`).
+    if let Some(c) = &cone {
+        let close = {
+            let (lo, hi) = (&bounds.omin, &bounds.omax);
+            let lo = glam::Vec3::new(lo[0].lane_min(), lo[1].lane_min(), lo[2].lane_min());
+            let hi = glam::Vec3::new(hi[0].lane_max(), hi[1].lane_max(), hi[2].lane_max());
+            fallback::origins_close(lo, hi, b.info.bounds.diagonal().length())
+        };
+        if !close {
+            return Outcome::Incoherent;
+        }
+        // A plain loop, not a closure: it stays compiled at the ISA.
+        for x in gb.iter() {
+            // `x.rcp` still holds the directions.
+            if c.leaves(&x.rcp, L::mask_from_bits(x.live)) {
+                return Outcome::Incoherent;
+            }
+        }
+    }
+    // Pass 2.
     let one = L::splat(1.0);
     let (grp, mut slot) = slot.split_from(gb.len(), |g| {
         let x = &mut gb[g];
-        if let Some(c) = &cone {
-            wide |= c.leaves(&x.rcp, L::mask_from_bits(x.live));
-        }
         // The group's rays as pass 1 joined them: equal in the live lanes
         // (the only ones a triangle test's result is read for).
         let r = RayLanes {
@@ -1069,17 +1089,6 @@ fn one<L: Wide, T: TriangleTest, const ANY: bool>(
         }
     });
     let grp: &[Group<L, T>] = grp;
-    let close = || {
-        let (lo, hi) = (&bounds.omin, &bounds.omax);
-        let lo = glam::Vec3::new(lo[0].lane_min(), lo[1].lane_min(), lo[2].lane_min());
-        let hi = glam::Vec3::new(hi[0].lane_max(), hi[1].lane_max(), hi[2].lane_max());
-        let diag = b.info.bounds.diagonal().length();
-        fallback::origins_close(lo, hi, diag)
-    };
-    // No usable direction: nothing to compare, the lanes pass (`coherent`).
-    if fallbacks && (wide || (cone.is_some() && !close())) {
-        return Outcome::Incoherent;
-    }
     ctr.packets += 1;
     ctr.rays += n_live as u64;
     // Pass 3.
