@@ -940,10 +940,12 @@ fn miss_active(hits: &mut [Hit4], active: &[M4]) {
 ///    lanes' bounds (`GroupBounds`), written as its `GroupBox` (its
 ///    directions where the reciprocals go, until pass 2).
 /// 2. A packet with no live lane, or whose first frustum the root's
-///    children all refuse, writes its misses and ends; else each group's
+///    children all refuse, writes its misses and ends; one that fails
+///    the coherence test (the cone around its first live direction,
+///    read from the `GroupBox`es, and its origins' spread) ends as
+///    `Incoherent` before any reciprocal is made; else each group's
 ///    reciprocals and triangle-test lanes (`Group`, from the `GroupBox`:
-///    no second join) are made, and its live directions tested against
-///    the coherence cone.
+///    no second join) are made.
 /// 3. Each group's hit record: `Hit::MISS` in its active lanes, the
 ///    caller's hits in the others.
 ///
