@@ -27,7 +27,7 @@ use crate::geom::{Affine, Cull, Culled, M4, Mt, Pt, Ray, Ray4, Scene, TriTest, W
 use crate::mem::Limits;
 use crate::mem::par::{Par, Serial};
 use crate::render::{CameraRays, PixelRect, PrimaryRays};
-use crate::trace::{RaySource, RayStream, SceneHitStream, TraceParams};
+use crate::trace::{DynRays, RaySource, RayStream, SceneHitStream, TraceParams};
 
 /// Slot scratch a two-level packet batch holds (its quads, their lanes,
 /// their hits) with the top level's (`traverse_packet::SCRATCH`), under
@@ -512,9 +512,27 @@ impl<'a> Context<'a> {
         rays: impl RaySource,
         mut out: impl FnMut(usize, SceneHit),
     ) -> Result<Counters> {
+        self.trace_scene_dyn(p, slot, count, ctl.into(), any, DynRays(&rays), &mut out)
+    }
+
+    /// `trace_scene_each`'s body, not generic: its traversals (every
+    /// triangle test, culling and lane width) are compiled once, here,
+    /// not again for each caller's rays and closure in every crate that
+    /// calls it. The cost: one indirect call per packet and per hit.
+    #[allow(clippy::too_many_arguments)] // as `trace_scene_each`
+    fn trace_scene_dyn(
+        &self,
+        p: Option<&TraceParams>,
+        slot: Option<u32>,
+        count: usize,
+        ctl: RayControls,
+        any: bool,
+        rays: DynRays<'_>,
+        out: &mut dyn FnMut(usize, SceneHit),
+    ) -> Result<Counters> {
         self.scene_pools()?;
         let v = self.scene.view()?;
-        let RayControls { mask, cull } = ctl.into();
+        let RayControls { mask, cull } = ctl;
         let mut ctr = Counters::default();
         let Some(p) = p else {
             // One dispatch on the test and culling, not one per ray.
@@ -541,7 +559,7 @@ impl<'a> Context<'a> {
                     "culling is a BVH method's control: the grid and the kd-tree trace without it",
                 ));
             }
-            let (v, mut out) = (&v, out);
+            let v = &v;
             return self.trace_each(
                 slot,
                 p,

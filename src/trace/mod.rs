@@ -8,7 +8,7 @@ pub use crate::accel::fallback;
 pub mod scene;
 pub mod stream;
 pub use scene::{SceneTracer, Tracer, batch_on, per_ray};
-pub use stream::{HitStream, RaySource, RayStream, SceneHitStream};
+pub use stream::{DynRays, HitStream, RaySource, RayStream, SceneHitStream};
 
 pub use crate::counters::{Counters, DEPTH_BINS};
 

@@ -65,51 +65,61 @@ macro_rules! by_test {
     };
 }
 
-/// Every family is a `Tracer` through the contract and the driver.
-impl<A: Accel> Tracer for A {
-    #[inline]
-    fn intersect(&self, ray: &Ray, ctr: &mut Counters) -> Hit {
-        by_test!(self.test(), single::<A>(self, ray, ctr))
-    }
-    #[inline]
-    fn occluded(&self, ray: &Ray, ctr: &mut Counters) -> bool {
-        by_test!(self.test(), occluded::<A>(self, ray, ctr))
-    }
-    fn intersect_packet(
-        &self,
-        p: &TraceParams,
-        rays: &[Ray4],
-        active: &[M4],
-        hits: &mut [Hit4],
-        slot: &mut Slot<'_>,
-        ctr: &mut Counters,
-    ) {
-        by_test!(
-            self.test(),
-            nearest::<A>(self, p, rays, active, hits, slot, ctr)
-        )
-    }
-    fn occluded_packet(
-        &self,
-        p: &TraceParams,
-        rays: &[Ray4],
-        active: &[M4],
-        hits: &mut [Hit4],
-        slot: &mut Slot<'_>,
-        ctr: &mut Counters,
-    ) {
-        by_test!(
-            self.test(),
-            any::<A>(self, p, rays, active, hits, slot, ctr)
-        )
-    }
-    fn triangle(&self, prim: u32) -> Option<TriVerts> {
-        Accel::triangle(self, prim)
-    }
-    fn scene_scale(&self) -> f32 {
-        scale_of(&self.bounds())
-    }
+/// Every family is a `Tracer` through the contract and the driver. One
+/// impl per family, not a blanket `impl<A: Accel>`: the packet methods are
+/// then ordinary functions, compiled once in this crate, so a caller in
+/// another crate (a test, the CLI) links to them instead of instantiating
+/// the packet traversals again at every lane width.
+macro_rules! family_tracer {
+    ($($view:ident),*) => {$(
+        impl Tracer for $view<'_> {
+            #[inline]
+            fn intersect(&self, ray: &Ray, ctr: &mut Counters) -> Hit {
+                by_test!(self.test(), single::<Self>(self, ray, ctr))
+            }
+            #[inline]
+            fn occluded(&self, ray: &Ray, ctr: &mut Counters) -> bool {
+                by_test!(self.test(), occluded::<Self>(self, ray, ctr))
+            }
+            fn intersect_packet(
+                &self,
+                p: &TraceParams,
+                rays: &[Ray4],
+                active: &[M4],
+                hits: &mut [Hit4],
+                slot: &mut Slot<'_>,
+                ctr: &mut Counters,
+            ) {
+                by_test!(
+                    self.test(),
+                    nearest::<Self>(self, p, rays, active, hits, slot, ctr)
+                )
+            }
+            fn occluded_packet(
+                &self,
+                p: &TraceParams,
+                rays: &[Ray4],
+                active: &[M4],
+                hits: &mut [Hit4],
+                slot: &mut Slot<'_>,
+                ctr: &mut Counters,
+            ) {
+                by_test!(
+                    self.test(),
+                    any::<Self>(self, p, rays, active, hits, slot, ctr)
+                )
+            }
+            fn triangle(&self, prim: u32) -> Option<TriVerts> {
+                Accel::triangle(self, prim)
+            }
+            fn scene_scale(&self) -> f32 {
+                scale_of(&self.bounds())
+            }
+        }
+    )*};
 }
+
+family_tracer!(GridView, BvhView, KdView);
 
 /// The driver for nearest hits (`by_test!` passes types only).
 #[inline(always)]

@@ -38,6 +38,24 @@ pub trait RaySource {
     }
 }
 
+/// Any `RaySource` behind one type: the non-generic bodies of the scene
+/// calls (`Context::trace_scene_each`) take their rays so, and are then
+/// compiled once, in this crate, whoever calls them. One indirect call per
+/// packet (`pack`) or single ray (`ray`).
+#[derive(Clone, Copy)]
+pub struct DynRays<'a>(pub &'a dyn RaySource);
+
+impl RaySource for DynRays<'_> {
+    #[inline(always)]
+    fn ray(&self, i: usize) -> Ray {
+        self.0.ray(i)
+    }
+    #[inline(always)]
+    fn pack(&self, start: usize, n: usize, quads: &mut [Ray4], active: &mut [M4]) -> usize {
+        self.0.pack(start, n, quads, active)
+    }
+}
+
 /// A ray by index (the array-of-structs calls read `rays[i]`).
 impl<F: Fn(usize) -> Ray> RaySource for F {
     #[inline(always)]
