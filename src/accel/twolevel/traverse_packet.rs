@@ -12,7 +12,8 @@
 //! own space).
 //!
 //! The frustum is made once per packet from its live lanes' bounds
-//! (`LaneBounds`) and tested against both children of a top-level node
+//! (`LaneBounds`), in the one setup pass over the quads that also makes
+//! their slab data, live lanes and far ends, and tested against both children of a top-level node
 //! at once; the nearer child (by the frustum's near distance) is visited
 //! first, and a node whose near distance lies beyond every live lane's
 //! far end (its nearest hit so far, or `tmax`) is dropped. At an instance each quad's lanes get the
@@ -98,21 +99,29 @@ pub fn trace<T: TriangleTest, const ANY: bool>(
     if s.tlas.is_empty() || nq == 0 {
         return;
     }
-    let (qb, mut sl) = slot.split_from(nq, |q| QuadBox::new(&rays[q]));
-    // The single ray's validity rule: invalid lanes miss.
-    let (live, mut sl) = sl.split_from(nq, |q| active[q] & rays[q].valid());
-    // Per lane the end of the interval a box must overlap: the nearest
-    // hit so far, or `tmax`.
-    let (tfar, mut sl) = sl.split_from(nq, |q| rays[q].tmax.min(t4(hits, q)));
+    // One setup pass over the quads: each quad's slab data, live lanes
+    // (the single ray's validity rule: invalid lanes miss) and far ends
+    // (the end of the interval a box must overlap: the nearest hit so far,
+    // or `tmax`), and the frustum's lane bounds and far end.
+    let (live, mut sl) = slot.split(nq, M4::FALSE);
+    let (tfar, mut sl) = sl.split(nq, F4::ZERO);
     let mut bounds = LaneBounds::EMPTY;
-    for (r, &l) in rays.iter().zip(live.iter()) {
+    let (mut far, mut any_live) = (F4::NEG_INFINITY, false);
+    let (qb, mut sl) = sl.split_from(nq, |q| {
+        let r = &rays[q];
+        let (l, t) = (active[q] & r.valid(), r.tmax.min(t4(hits, q)));
+        (live[q], tfar[q]) = (l, t);
         bounds.add(r, l);
-    }
-    if !live.iter().any(|l| l.any()) {
+        far = far.max(F4::select(l, t, F4::NEG_INFINITY));
+        any_live |= l.any();
+        QuadBox::new(r)
+    });
+    if !any_live {
         return;
     }
     let mut fr = Frustum::from_bounds(&bounds);
-    fr.set_tfar(far_end(live, tfar));
+    // `far_end(live, tfar)`, accumulated above.
+    fr.set_tfar(far.max_element());
     let (orays, mut sl) = sl.split(nq, rays[0]);
     let (oact, mut sl) = sl.split(nq, M4::FALSE);
     let (ohits, mut sl) = sl.split(nq, Hit4::MISS);
