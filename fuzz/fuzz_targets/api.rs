@@ -609,7 +609,9 @@ enum Op {
     /// of the flags: the scene call, bit 1: its params NULL) on a rectangle
     /// of the frame's image picked by the bytes (bit 2: one column past
     /// the image; bit 3: rows narrower than the rectangle), rows `extra`
-    /// hits wider than it.
+    /// hits wider than it. Bit 4: the params as drawn; else sheaf's
+    /// defaults with the drawn method and a packet of 2 to 16, which the
+    /// call accepts (every drawn camera call was refused before).
     TraceCamera(TraceIn, FrameIn, [u8; 4], u8, u8),
 }
 
@@ -902,6 +904,8 @@ fn trace_camera(
         return; // bounded work per op
     }
     let scene = flags & 1 != 0;
+    let plausible = plausible_params(params);
+    let params = if flags & 16 != 0 { params } else { &plausible };
     let pp: *const sheaf_trace_params = if scene && flags & 2 != 0 {
         core::ptr::null()
     } else {
@@ -982,6 +986,17 @@ fn trace_camera(
             "a camera trace wrote between rows"
         );
     }
+}
+
+/// sheaf's default params with `p`'s method (any of them) and a packet of
+/// 2, 4, 8 or 16 rays a side: params a camera call accepts whenever the
+/// method's structure is built.
+fn plausible_params(p: &sheaf_trace_params) -> sheaf_trace_params {
+    let mut d = *p;
+    assert_eq!(ffi::sheaf_trace_params_default(&mut d), OK);
+    d.method = p.method % METHODS;
+    d.packet = 2 << (p.packet % 4);
+    d
 }
 
 fn trace_call(
@@ -1902,6 +1917,12 @@ fn warmup(st: &mut State, k: u8) {
     trace_call(st, Some(tp(m).get()), 0, false, &r);
     trace_call(st, None, m as u32, true, &r);
     trace_call(st, Some(tp(m).get()), 0, true, &r);
+    // Camera packets over the whole image, then a corner, each compared
+    // with the ray-array call (the single-mesh call; the scene's warm-up
+    // is `scene.rs`'s).
+    let whole = [0, 0, 255, 255];
+    trace_camera(st, &tp(m).get(), &frame, &whole, k % 3, 0);
+    trace_camera(st, &tp(k % 13).get(), &frame, &[k, k / 2, 200, 255], 0, 0);
 }
 
 fn render(
