@@ -512,13 +512,22 @@ impl<'a> Context<'a> {
         rays: impl RaySource,
         mut out: impl FnMut(usize, SceneHit),
     ) -> Result<Counters> {
-        self.trace_scene_dyn(p, slot, count, ctl.into(), any, DynRays(&rays), &mut out)
+        // Hits go out a run at a time (a packet's, a quad's or one), and
+        // this loop, made for the caller's `out`, inlines it.
+        let mut run = |start: usize, hits: &[SceneHit]| {
+            for (k, h) in hits.iter().enumerate() {
+                out(start + k, *h)
+            }
+        };
+        self.trace_scene_dyn(p, slot, count, ctl.into(), any, DynRays(&rays), &mut run)
     }
 
     /// `trace_scene_each`'s body, not generic: its traversals (every
     /// triangle test, culling and lane width) are compiled once, here,
     /// not again for each caller's rays and closure in every crate that
-    /// calls it. The cost: one indirect call per packet and per hit.
+    /// calls it. `out(start, hits)` takes the hits of rays `start ..`;
+    /// the cost is one indirect call per packet (a quad on the flattened
+    /// scene, a ray for single rays) for the rays and one for the hits.
     #[allow(clippy::too_many_arguments)] // as `trace_scene_each`
     fn trace_scene_dyn(
         &self,
@@ -528,7 +537,7 @@ impl<'a> Context<'a> {
         ctl: RayControls,
         any: bool,
         rays: DynRays<'_>,
-        out: &mut dyn FnMut(usize, SceneHit),
+        out: &mut dyn FnMut(usize, &[SceneHit]),
     ) -> Result<Counters> {
         self.scene_pools()?;
         let v = self.scene.view()?;
@@ -538,14 +547,12 @@ impl<'a> Context<'a> {
             // One dispatch on the test and culling, not one per ray.
             with_test!(v.info.test, cull, |T| for i in 0..count {
                 let r = rays.ray(i);
-                out(
-                    i,
-                    if any {
-                        traverse_single::any_hit::<T>(&v, &r, mask, &mut ctr)
-                    } else {
-                        traverse_single::intersect::<T>(&v, &r, mask, &mut ctr)
-                    },
-                );
+                let h = if any {
+                    traverse_single::any_hit::<T>(&v, &r, mask, &mut ctr)
+                } else {
+                    traverse_single::intersect::<T>(&v, &r, mask, &mut ctr)
+                };
+                out(i, &[h]);
             });
             return Ok(ctr);
         };
@@ -560,15 +567,22 @@ impl<'a> Context<'a> {
                 ));
             }
             let v = &v;
-            return self.trace_each(
+            return self.trace_quads(
                 slot,
                 p,
                 count,
                 rays,
-                |i, h: &crate::geom::Hit4, lane| {
-                    let sh = self.flat_hit(v, &h.lane(lane));
-                    debug_assert!(sh.is_some(), "a hit outside the flattened scene");
-                    out(i, sh.unwrap_or(SceneHit::MISS))
+                |i, h: &crate::geom::Hit4, n| {
+                    let quad: [SceneHit; 4] = core::array::from_fn(|l| {
+                        let sh = if l < n {
+                            self.flat_hit(v, &h.lane(l))
+                        } else {
+                            None
+                        };
+                        debug_assert!(l >= n || sh.is_some(), "a hit outside the flattened scene");
+                        sh.unwrap_or(SceneHit::MISS)
+                    });
+                    out(i, &quad[..n])
                 },
                 any,
             );
@@ -596,9 +610,7 @@ impl<'a> Context<'a> {
                 } else {
                     traverse_packet::trace::<T, false>(&v, p, q, a, mask, h, &mut sl, c)
                 });
-                for (k, hit) in hits[..n].iter().enumerate() {
-                    out(start + k, *hit);
-                }
+                out(start, &hits[..n]);
                 start += n;
             }
         })?;
