@@ -284,11 +284,15 @@ impl<W: Walk, T: TriangleTest, const ANY: bool> isa::Kernel for WalkAt<'_, '_, '
         if !lanes.coherent {
             return crate::accel::packet::alone::<BvhView, T, ANY>(b, rays, live, hits, ctr);
         }
-        // Per quad: slab data, triangle-test precomputation, far ends, each
-        // written once.
-        let (qb, mut slot) = slot.split_from(nq, |q| QuadBox::new(&rays[q]));
-        let (pre, mut slot) = slot.split_from(nq, |q| T::prepare(&RayLanes::from_ray4(&rays[q])));
-        let (tfar, mut slot) = slot.split_from(nq, |q| rays[q].tmax);
+        // Per quad, in one pass over the rays: triangle-test
+        // precomputation, far ends and slab data, each written once.
+        let (pre, mut slot) = slot.split(nq, T::prepare(&RayLanes::from_ray4(&rays[0])));
+        let (tfar, mut slot) = slot.split(nq, F4::ZERO);
+        let (qb, mut slot) = slot.split_from(nq, |q| {
+            let r = &rays[q];
+            (pre[q], tfar[q]) = (T::prepare(&RayLanes::from_ray4(r)), r.tmax);
+            QuadBox::new(r)
+        });
         let quads = Quads {
             live,
             qb,
