@@ -1,6 +1,6 @@
 /*
  * engine.c: an engine's frame loop on a two-level scene through sheaf's C
- * ABI (issue 19).
+ * ABI.
  *
  * Three geometries: a static level (a floor and four pillars, built once),
  * a cloth-like grid whose vertices move every frame (REFIT: the same index

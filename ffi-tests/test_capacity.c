@@ -1,8 +1,8 @@
 /*
  * A capacity error in the middle of a frame sequence leaves the previous
- * frame's results intact (DESIGN.md: "scene larger than the pools: capacity
- * error; nothing overwritten"; sheaf_status 200-299: "the context keeps its
- * previous state").
+ * frame's results intact (a scene larger than the pools gets a capacity
+ * error and nothing is overwritten; sheaf_status 200-299: "the context
+ * keeps its previous state").
  *
  * Each test builds a scene into every structure, keeps the results of
  * trace, occluded and render calls with several methods (grid, BVH, kd-tree)

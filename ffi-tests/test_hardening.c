@@ -1,10 +1,10 @@
 /*
- * The C ABI under misuse (issue 15): the geometry borrow ends at
- * clear_geometry (run under valgrind by tests/c_abi.rs: freed buffers are
- * never read again), one light check for every render call, boolean
- * fields received as bytes and checked, outputs that overlap inputs
- * refused, render_rows touching only its rows, and limits whose sizes
- * overflow refused. Every refused call changes nothing.
+ * The C ABI under misuse: the geometry borrow ends at clear_geometry (run
+ * under valgrind by tests/c_abi.rs: freed buffers are never read again),
+ * one light check for every render call, boolean fields received as bytes
+ * and checked, outputs that overlap inputs refused, render_rows touching
+ * only its rows, and limits whose sizes overflow refused. Every refused
+ * call changes nothing.
  */
 #include "common.h"
 

@@ -6,7 +6,8 @@
 //! `Context` is created; `ffi` exposes it to C and C++ (`include/sheaf.h`).
 //!
 //! Layers, data flowing down only: `ffi` / CLI -> `render` -> `trace` ->
-//! `accel::*` -> `geom` -> `mem`. See `DESIGN.md` in the project notes.
+//! `accel::*` -> `geom` -> `mem`. `docs/design.md` in the repository
+//! describes the design.
 //!
 //! # The API
 //!

@@ -3,7 +3,7 @@
 //! side, with and without frustum culling, return the same triangle and
 //! bitwise the same t (the same occlusion answer) as the single-ray BVH traversal, lane by lane, for
 //! primary, shadow, reflection and refraction rays on every scene and view
-//! (DESIGN.md "Correctness"; BVH paper sections 3 and 4).
+//! (BVH paper sections 3 and 4).
 
 mod common;
 
@@ -369,11 +369,11 @@ fn stale_structures_do_not_shade_new_frames() {
     ));
 }
 
-/// Refit (issue 18): the animated scene built at t = 0 and refit to later
-/// times. The refit tree's single ray equals a fresh build's bitwise (both
-/// equal a brute-force search over the same triangles), every packet
-/// method equals the refit tree's single ray, bad input changes nothing,
-/// and the automatic rebuild fires past its threshold.
+/// Refit: the animated scene built at t = 0 and refit to later times. The
+/// refit tree's single ray equals a fresh build's bitwise (both equal a
+/// brute-force search over the same triangles), every packet method equals
+/// the refit tree's single ray, bad input changes nothing, and the
+/// automatic rebuild fires past its threshold.
 #[test]
 fn refit_keeps_every_method_exact() {
     use sheaf::RefitParams;

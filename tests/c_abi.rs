@@ -378,11 +378,11 @@ fn c_scene_threads_shared() {
     run(&compile_c("test_scene_threads.c", Link::Shared));
 }
 
-/// Issue 15: the geometry borrow ends at clear_geometry, one light check
-/// for every render, boolean bytes checked, overlaps refused, render_rows
-/// touching its rows only, overflowing limits refused (memcheck runs it
-/// too: `c_tests_under_valgrind`, where freed geometry read again would
-/// fail the run).
+/// The C ABI under misuse: the geometry borrow ends at clear_geometry, one
+/// light check for every render, boolean bytes checked, overlaps refused,
+/// render_rows touching its rows only, overflowing limits refused (memcheck
+/// runs it too: `c_tests_under_valgrind`, where freed geometry read again
+/// would fail the run).
 #[test]
 fn c_hardening_static() {
     run(&compile_c("test_hardening.c", Link::Static));

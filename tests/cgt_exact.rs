@@ -1,7 +1,7 @@
 //! Coherent grid traversal is exact: every packet configuration returns the
 //! same triangle and bitwise the same t as the 3DDDA with the same triangle
-//! test (DESIGN.md "Correctness"), on every scene and view, for primary
-//! packets, shadow packets from the light, and adversarial packets.
+//! test, on every scene and view, for primary packets, shadow packets from
+//! the light, and adversarial packets.
 
 mod common;
 

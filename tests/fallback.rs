@@ -1,11 +1,10 @@
-//! The incoherence fallbacks (`sheaf::trace::fallback`, DESIGN.md "Where
-//! methods fail"): packets that trigger them (incoherent packets, wide CGT
-//! frusta, Masked and Ranged packets switching to Partition, lanes with
-//! tiny directions) return the single-ray baseline's triangle and bitwise
-//! t (and its occlusion answer), each fallback triggers where it should
-//! (its counters) and the coherence test passes camera packets, the switch
-//! turns every fallback off, and tracing with or without them allocates
-//! nothing.
+//! The incoherence fallbacks (`sheaf::trace::fallback`): packets that
+//! trigger them (incoherent packets, wide CGT frusta, Masked and Ranged
+//! packets switching to Partition, lanes with tiny directions) return the
+//! single-ray baseline's triangle and bitwise t (and its occlusion answer),
+//! each fallback triggers where it should (its counters) and the coherence
+//! test passes camera packets, the switch turns every fallback off, and
+//! tracing with or without them allocates nothing.
 //!
 //! The fallback switch and counters are process-wide, so every test here
 //! holds `LOCK`; the allocation count is per thread.

@@ -1,6 +1,6 @@
-//! A panic inside a call poisons the context (issue 15 item 3): with the
-//! `fault-injection` feature, each build and frame has a point that panics
-//! when armed (`sheaf::fault`). Through the C ABI the call returns
+//! A panic inside a call poisons the context: with the `fault-injection`
+//! feature, each build and frame has a point that panics when armed
+//! (`sheaf::fault`). Through the C ABI the call returns
 //! `SHEAF_STATUS_PANIC`, and from then on every call on that context but
 //! `sheaf_context_last_error` and `sheaf_context_destroy` returns
 //! `SHEAF_STATUS_POISONED` (nothing reads the half-built structure), while

@@ -3,9 +3,9 @@
 //! points MLRTA and AEPSA find, with and without frustum culling, return the
 //! same triangle and bitwise the same t (the same occlusion answer) as the
 //! single-ray kd traversal, lane by lane, for primary, shadow, reflection and
-//! refraction rays on every scene and view (DESIGN.md "Correctness"; AEPSA
-//! paper sections 2-3). The BVH packets with entry points are checked the
-//! same way against the BVH single ray.
+//! refraction rays on every scene and view (AEPSA paper sections 2-3). The
+//! BVH packets with entry points are checked the same way against the BVH
+//! single ray.
 
 mod common;
 

@@ -1,4 +1,4 @@
-//! No allocation after setup (DESIGN.md "Memory: fixed at setup"), proved
+//! No allocation after setup (every pool is carved then), proved
 //! with a counting global allocator over 10 frames of the animated scene:
 //! set geometry, rebuild the grid, trace, occlude and render every frame,
 //! with the 3DDDA and with coherent grid traversal, the BVH and kd-tree

@@ -1,7 +1,6 @@
-//! Perspective grids and spherical light grids are exact (DESIGN.md
-//! "Correctness"; perspective/light grid paper sections 3-4, and the
-//! exactness argument of `accel::pgrid`): in deferred frames
-//! (`Context::render_deferred`)
+//! Perspective grids and spherical light grids are exact (perspective/light
+//! grid paper sections 3-4, and the exactness argument of `accel::pgrid`):
+//! in deferred frames (`Context::render_deferred`)
 //! - every camera ray traced through the perspective grid returns the same
 //!   triangle and bitwise the same t as the BVH single ray with the same
 //!   triangle test, on every scene and view, for every triangle test and
@@ -964,7 +963,7 @@ fn mixed_passes_give_the_same_image() {
 /// A tracing tile of 64 pixels (pgrid tile 32 x group 2, or 16 x 4, both
 /// accepted by `build_pgrid` and within the default `max_tile`) with shadow
 /// packets traced per tile: the image must equal `render`'s (and the call
-/// must not panic: STYLE.md 8, no panic reachable from caller input).
+/// must not panic: no panic is reachable from caller input).
 #[test]
 fn pgrid_tracing_tile_of_64_with_traced_shadow_packets() {
     let scenes = builtin_scenes();
@@ -1852,7 +1851,7 @@ fn distant_light_shadows_equal_single_ray_occlusion() {
 }
 
 // ---------------------------------------------------------------------------
-// Joined frames (issue 18, item 4).
+// Joined frames: a deferred frame's phases on workers the caller joins (`Par`).
 
 /// A `Par` of real threads: each run spawns `self.0 - 1` scoped threads and
 /// runs worker 0 on the caller.

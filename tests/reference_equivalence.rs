@@ -1,5 +1,5 @@
 //! Every ray of several views of every scene, traced by the grid's 3DDDA, is
-//! compared with the f64 brute-force oracle (DESIGN.md "Correctness").
+//! compared with the f64 brute-force oracle.
 //!
 //! Disagreements are allowed only under named tolerances, each counted and
 //! printed:

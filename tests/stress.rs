@@ -1,6 +1,5 @@
-//! Stability where methods fail (DESIGN.md "Correctness" and "Where methods
-//! fail"; issue 7): every stress scene (`scenes::stress`) x every
-//! adversarial ray class x every method.
+//! Stability where methods fail: every stress scene (`scenes::stress`) x
+//! every adversarial ray class x every method.
 //!
 //! For each scene, triangle test (Moller-Trumbore, watertight, projection)
 //! and ray set (each class on the main view, mixed signs on two more views):
@@ -1448,20 +1447,20 @@ fn subnormal_directions_packets_equal_the_single_ray() {
 /// projection test, fallbacks off: packets must equal the single ray, and
 /// the three single rays each other.
 ///
-/// Known difference (reported with issue 7, not fixed here): for such a
-/// ray Moller-Trumbore's determinant (and the projection test's n . d) is
-/// rounding noise, so the test returns "hits" off the triangle (a ray along
-/// an edge's line 60 units away: t = -0, u = v = -0; skinny-diagonal
-/// triangle 459, ray from (12.243858, 77.55722, -58.494015) along
-/// (0, -0.1, 0.1)). Whether a traversal tests that triangle then decides
-/// the answer: the 3DDDA visits it with its cell, the BVH culls the box the
-/// hit point lies outside of, packets cull it with their frustum. The
-/// watertight test has no such hits: the main test compares these rays
-/// with it. Measured (990,000 ill-conditioned lanes): 228 differ with the
-/// fallbacks off; with them on 30, all of them
-/// between the three single rays, none between a packet and its single
-/// ray. Ignored until the two tests reject hits whose determinant is
-/// below its rounding error (which makes such rays misses everywhere).
+/// Known difference (not fixed here): for such a ray Moller-Trumbore's
+/// determinant (and the projection test's n . d) is rounding noise, so the
+/// test returns "hits" off the triangle (a ray along an edge's line 60
+/// units away: t = -0, u = v = -0; skinny-diagonal triangle 459, ray from
+/// (12.243858, 77.55722, -58.494015) along (0, -0.1, 0.1)). Whether a
+/// traversal tests that triangle then decides the answer: the 3DDDA visits
+/// it with its cell, the BVH culls the box the hit point lies outside of,
+/// packets cull it with their frustum. The watertight test has no such
+/// hits: the main test compares these rays with it. Measured (990,000
+/// ill-conditioned lanes): 228 differ with the fallbacks off; with them on
+/// 30, all of them between the three single rays, none between a packet and
+/// its single ray. Ignored until the two tests reject hits whose
+/// determinant is below its rounding error (which makes such rays misses
+/// everywhere).
 #[test]
 #[ignore = "known difference: Moller-Trumbore and projection-test noise on ill-conditioned rays"]
 fn ill_conditioned_rays_packets_equal_the_single_ray() {

@@ -5,11 +5,11 @@
 //! and its occlusion answer, lane by lane: camera rays in the renderer's
 //! packet layout, shadow rays toward a light, and incoherent rays, on
 //! instances rotated, scaled unevenly, mirrored and overlapping, with
-//! instance and geometry masks (issue 19; DESIGN.md "Correctness"). The
-//! grid and the kd-tree trace the same scene flattened into world
-//! triangles, each packet method bitwise its own single ray; every family,
-//! the two-level BVH included, agrees with the f64 oracle on the flattened
-//! scene, and the perspective grid equals the flattened mesh's BVH.
+//! instance and geometry masks. The grid and the kd-tree trace the same
+//! scene flattened into world triangles, each packet method bitwise its own
+//! single ray; every family, the two-level BVH included, agrees with the
+//! f64 oracle on the flattened scene, and the perspective grid equals the
+//! flattened mesh's BVH.
 
 mod common;
 

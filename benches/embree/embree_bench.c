@@ -1,6 +1,6 @@
 /*
  * embree_bench: sheaf against Embree 3 on the same triangles and the same
- * rays, from one C program (issue 7, part 1).
+ * rays, from one C program.
  *
  *   embree_bench [options] SCENE.scene...
  *
@@ -61,12 +61,12 @@
  *
  *   embree_bench --twolevel ENV.scene ANIM.scene OBJ.scene [--frames N] ...
  *
- * instead times an engine's frame over a two-level scene in both libraries
- * (issue 19 item 7): ENV static, ANIM's vertices refit every frame (4
- * instances), OBJ static in a ring of 16 instances turning every frame;
- * per frame update + commit, ENV's camera rays and shadow rays, each
- * library's median frame per thread count, and the (instance, triangle)
- * agreement. The section "two-level scene" below describes it.
+ * instead times an engine's frame over a two-level scene in both libraries:
+ * ENV static, ANIM's vertices refit every frame (4 instances), OBJ static
+ * in a ring of 16 instances turning every frame; per frame update + commit,
+ * ENV's camera rays and shadow rays, each library's median frame per thread
+ * count, and the (instance, triangle) agreement. The section "two-level
+ * scene" below describes it.
  */
 #define _POSIX_C_SOURCE 200809L
 
@@ -1663,16 +1663,16 @@ static void embree_cfg(char *cfg, size_t n, int T)
 
 /* Embree builds, rays, agreement and its dynamic frame, per thread count and quality. */
 /* The dynamic frame with each library's fastest interface, the two in
- * interleaved rounds on T threads (issue 33 item 5). sheaf: BVH LOW
- * rebuild joined by the T threads, camera packets made in the kernel
- * (sheaf_context_trace_camera, one 32x32 tile per call, the LOW tree's
- * fastest camera configuration), shadow rays handed over as packed ray
- * streams (its fastest shadow configuration). Embree: LOW + DYNAMIC
- * rebuild, rtcIntersect16 on RTCRayHit16 packets laid out before the
- * timing (each frame resets tfar and the hit ids), shadow rays written into
- * RTCRay16 for rtcOccluded16. The camera rays' layout is outside both
- * times (sheaf makes them in the kernel; Embree's are prepared); making the
- * shadow rays and converting them to each library's layout is inside both. */
+ * interleaved rounds on T threads. sheaf: BVH LOW rebuild joined by the T
+ * threads, camera packets made in the kernel (sheaf_context_trace_camera, one
+ * 32x32 tile per call, the LOW tree's fastest camera configuration), shadow
+ * rays handed over as packed ray streams (its fastest shadow configuration).
+ * Embree: LOW + DYNAMIC rebuild, rtcIntersect16 on RTCRayHit16 packets laid
+ * out before the timing (each frame resets tfar and the hit ids), shadow rays
+ * written into RTCRay16 for rtcOccluded16. The camera rays' layout is outside
+ * both times (sheaf makes them in the kernel; Embree's are prepared); making
+ * the shadow rays and converting them to each library's layout is inside
+ * both. */
 static void fastest_frames(Bench *b, EScene *es, int T, int ti)
 {
     size_t np = b->N / 16;
@@ -2512,7 +2512,7 @@ static void run_scene(const char *path, const Options *o)
     free(b);
 }
 
-/* ---- two-level scene (issue 19 item 7) ---------------------------------------------- */
+/* ---- two-level scene ---------------------------------------------------------------- */
 
 /* embree_bench --twolevel ENV.scene ANIM.scene OBJ.scene: one frame loop of
  * an engine over a two-level scene, in both libraries, on the same

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# sheaf against Embree 3 on the same triangles and the same rays (issue 7).
+# sheaf against Embree 3 on the same triangles and the same rays.
 #
 #   benches/embree/run.sh            # the full run: 1024x1024, OBJ scenes + built-ins, then the
 #                                    # two-level scene, 1 and 2 threads
@@ -12,7 +12,7 @@
 # or .obj paths), --threads 1,2, --counters (link sheaf with its `counters`
 # feature; default: without, as an engine would ship it),
 # --no-install (never apt-get).
-# Two-level scene (issue 19 item 7; `embree_bench --twolevel`, see README.md):
+# Two-level scene (`embree_bench --twolevel`, see README.md):
 # --twolevel (run it alone), --no-twolevel (leave it out of the default run),
 # --env NAME (its static environment: sponza (default), conference, a builtin
 # name or an .obj path; without sponza's OBJ the default falls back to

@@ -240,11 +240,11 @@ fn sheaf_and_embree_agree_on_the_quick_scenes() {
     }
 }
 
-/// The two-level scene (issue 19): gears as the environment, the animated
-/// mesh refit in 4 instances, a ring of 16 tetrahedra; both libraries
-/// trace the same camera and shadow rays through their instances, and
-/// agree on all but the rays `--check` allows (`TL_MAX_DIFF_FRACTION`,
-/// 1e-4 of the rays; not classified as ties or edges).
+/// The two-level scene: gears as the environment, the animated mesh refit
+/// in 4 instances, a ring of 16 tetrahedra; both libraries trace the same
+/// camera and shadow rays through their instances, and agree on all but the
+/// rays `--check` allows (`TL_MAX_DIFF_FRACTION`, 1e-4 of the rays; not
+/// classified as ties or edges).
 #[test]
 fn sheaf_and_embree_agree_on_the_two_level_scene() {
     let Some((exe, dir)) = program("embree-bench-twolevel") else {

@@ -1,14 +1,13 @@
-//! Smoke test of `sheaf demo` (issue 19's engine loop, alias `sheaf
-//! engine`) on the built-in gears environment, with each family: it runs
-//! to the end, prints a table line per frame (and with the BVH the
-//! comparison with the flattened frame), and writes every frame's PNG and
-//! the animated PNG. The grid and the kd-tree trace the same flattened
-//! triangles with the same test, so their frames are equal byte for byte;
-//! the two-level BVH meets the triangles in object space instead, so its
-//! frame may differ where transform rounding moves a hit across an edge
-//! (a check that the families see the same scene, not an exactness
-//! claim: that is `tests/twolevel_exact.rs`'s). Timing is printed, never
-//! asserted.
+//! Smoke test of `sheaf demo` (the engine loop, alias `sheaf engine`) on
+//! the built-in gears environment, with each family: it runs to the end,
+//! prints a table line per frame (and with the BVH the comparison with the
+//! flattened frame), and writes every frame's PNG and the animated PNG. The
+//! grid and the kd-tree trace the same flattened triangles with the same
+//! test, so their frames are equal byte for byte; the two-level BVH meets
+//! the triangles in object space instead, so its frame may differ where
+//! transform rounding moves a hit across an edge (a check that the families
+//! see the same scene, not an exactness claim: that is
+//! `tests/twolevel_exact.rs`'s). Timing is printed, never asserted.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;

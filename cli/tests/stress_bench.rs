@@ -1,8 +1,8 @@
-//! Smoke test of `sheaf bench --stress --quick` (the stability report of
-//! issue 7): it runs to the end, writes its four files, and its CSV shows
-//! for every packet configuration with the fallbacks on no ray that
-//! differs from the structure's single ray and no panicked call. Timing is
-//! printed by the bench, never asserted.
+//! Smoke test of `sheaf bench --stress --quick` (the report on stability
+//! where methods fail): it runs to the end, writes its four files, and its
+//! CSV shows for every packet configuration with the fallbacks on no ray
+//! that differs from the structure's single ray and no panicked call.
+//! Timing is printed by the bench, never asserted.
 
 use std::path::Path;
 use std::process::Command;

@@ -1,8 +1,8 @@
 /*
- * The no_std release library from C (issue 15 item 7): no allocator, so the
- * context lives in a caller buffer (sheaf_context_create_in); builds a BVH
- * over a small scene and traces rays single and in packets, checking every
- * packet hit against the single ray bit for bit.
+ * The no_std release library from C: no allocator, so the context lives in
+ * a caller buffer (sheaf_context_create_in); builds a BVH over a small
+ * scene and traces rays single and in packets, checking every packet hit
+ * against the single ray bit for bit.
  *
  *   cargo build -p sheaf --profile release-nostd --no-default-features --features panic-handler --lib
  *   gcc -std=c99 -Wall -Wextra -Werror -pedantic -Iinclude ffi-tests/nostd/create_in.c \

@@ -603,7 +603,7 @@ enum Op {
     /// another call (trace on slot 1, render_rows, a build, set_geometry,
     /// a render); compared with the serial results.
     Concurrent(u8, TraceIn, RaysIn),
-    /// The two-level scene's calls (issue 35; `scene.rs`).
+    /// The two-level scene's calls (`scene.rs`).
     Scene(scene::SceneOp),
     /// Camera packets made in the kernel: sheaf_context_trace_camera (bit 0
     /// of the flags: the scene call, bit 1: its params NULL) on a rectangle
@@ -2136,7 +2136,7 @@ fn deferred(st: &mut State, d: &DeferredIn, f: &FrameIn, fb: &FbIn) {
     }
 }
 
-// ---- slots, bad arguments, two threads (issue 15) -----------------------------------------
+// ---- slots, bad arguments, two threads ----------------------------------------------------
 
 /// trace_slot / occluded_slot: the same bytes as trace_with / occluded_with,
 /// or a refusal that writes nothing (slots past max_threads:

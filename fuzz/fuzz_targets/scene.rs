@@ -1,10 +1,10 @@
-//! The two-level scene through the C ABI (issue 35 item 3): geometries set
-//! in every update mode from any mesh buffers, updated, removed in any
-//! order; instances with any transform (rigid, mirrored, raw bits, NaN,
-//! singular, huge); commits; `trace_scene` / `occluded_scene` with every
-//! method, mask and flag; the flattened grid, kd-tree and perspective-grid
-//! builds and `scene_prim`; and a second thread tracing while the first
-//! moves an instance and commits.
+//! The two-level scene through the C ABI: geometries set in every update
+//! mode from any mesh buffers, updated, removed in any order; instances
+//! with any transform (rigid, mirrored, raw bits, NaN, singular, huge);
+//! commits; `trace_scene` / `occluded_scene` with every method, mask and
+//! flag; the flattened grid, kd-tree and perspective-grid builds and
+//! `scene_prim`; and a second thread tracing while the first moves an
+//! instance and commits.
 //!
 //! A model of the scene (each geometry's triangles as the call read them,
 //! its reservation, mode and mask; each instance's geometry, transform and

@@ -1,6 +1,7 @@
-//! Fallbacks for incoherent packets (DESIGN.md, "Where methods fail":
-//! "incoherent packets: frustum gets wide: fall back (partition traversal,
-//! packet splitting); never slower than 2x the single-ray baseline").
+//! Fallbacks for incoherent packets: where a packet's rays diverge (its
+//! frustum gets wide), it falls back to Partition traversal, smaller
+//! packets or its single rays, so that no packet method is more than 2x
+//! slower than its structure's single-ray baseline.
 //!
 //! Packet methods pay per packet what single rays pay per ray: when the
 //! rays of a packet go different ways, a packet visits the union of their

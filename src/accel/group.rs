@@ -1,4 +1,4 @@
-//! Leaf tests on wide lanes, shared by every family's packets (issue 17):
+//! Leaf tests on wide lanes, shared by every family's packets:
 //! a packet's 2x2 quads joined into aligned groups of `L::G` quads (one
 //! `F4`, `F8` or `F16` lane group per `isa` level, `geom::wide`), each leaf
 //! triangle tested against a group's live lanes in one call, the hits

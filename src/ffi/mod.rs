@@ -23,7 +23,7 @@
 //! | `stream.rs` | `sheaf_ray_stream`, `sheaf_hit_stream` (rays and hits as structures of arrays), `sheaf_context_trace_stream`, `sheaf_context_occluded_stream`, `sheaf_context_trace_scene_stream`, `sheaf_context_occluded_scene_stream` |
 //! | `whitted.rs` | `sheaf_material`, `sheaf_material_range`, `sheaf_whitted_params`, `sheaf_context_render_whitted` |
 //!
-//! # Conventions (STYLE.md rule 9)
+//! # Conventions
 //! - Every export is `#[unsafe(no_mangle)] pub extern "C" fn`, takes the
 //!   handle first, then inputs, then outputs, and returns a `sheaf_status`
 //!   (except the two functions returning static strings).
@@ -42,8 +42,8 @@
 //!   and checked, since a Rust enum holding an unknown value is undefined
 //!   behaviour; the header still shows the enum types.
 //! - No call allocates except `sheaf_context_create` (exactly once).
-// The one place besides mem/ with unsafe code (STYLE.md rule 7); every block
-// has a SAFETY comment.
+// Unsafe code is allowed only here, in mem/ and in isa/ (SIMD intrinsics);
+// every block has a SAFETY comment.
 #![allow(unsafe_code)]
 // C names: sheaf_context, sheaf_status, ...
 #![allow(non_camel_case_types)]

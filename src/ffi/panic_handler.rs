@@ -1,7 +1,7 @@
 //! The opt-in `#[panic_handler]` of the no_std library (feature
 //! `panic-handler`), for C programs that link the no_std staticlib or
-//! cdylib. Without std nothing can unwind, so a panic (a bug in sheaf: no
-//! caller input reaches one, see STYLE.md rule 8 and the fuzzing) cannot
+//! cdylib. Without std nothing can unwind, so a panic (a bug in sheaf:
+//! caller input is validated so that none reaches one, and fuzzed) cannot
 //! become `SHEAF_STATUS_PANIC`: it traps, stopping the program where a
 //! debugger shows it, instead of spinning forever.
 

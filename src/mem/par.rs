@@ -1,9 +1,9 @@
-//! Builds on the caller's threads (issue 18, item 4): sheaf never spawns a
-//! thread. A build that can use several threads takes a [`Par`], the
-//! caller's way to run one task on each of its workers (a thread pool's
-//! broadcast, rayon's `broadcast`, or the C ABI's [`Join`], where the
-//! caller's threads join one build as Embree's `rtcJoinCommitScene` lets
-//! them join a commit); [`Serial`] runs everything on the calling thread.
+//! Builds on the caller's threads: sheaf never spawns a thread. A build
+//! that can use several threads takes a [`Par`], the caller's way to run
+//! one task on each of its workers (a thread pool's broadcast, rayon's
+//! `broadcast`, or the C ABI's [`Join`], where the caller's threads join
+//! one build as Embree's `rtcJoinCommitScene` lets them join a commit);
+//! [`Serial`] runs everything on the calling thread.
 //!
 //! The phases of a joined build write disjoint parts of one pool from
 //! several workers: [`Parts`] hands each part out once, and [`atomic_u32`]

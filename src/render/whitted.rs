@@ -2,11 +2,11 @@
 //! refractions, one ray at a time (the reference) or in large packets.
 //!
 //! Source: Overbeck, Ramamoorthi, Mark 2008, "Large Ray Packets for
-//! Real-time Whitted Ray Tracing" (papers/large-ray-packets-whitted.txt),
-//! section 2.4 (secondary packets are grouped by the screen position of
-//! their ancestral camera rays, n x n) and section 6 (the Whitted tracer:
-//! camera packets, point-light shadow packets, reflection and refraction
-//! packets, each traced with its own method and frustum).
+//! Real-time Whitted Ray Tracing", section 2.4 (secondary packets are
+//! grouped by the screen position of their ancestral camera rays, n x n)
+//! and section 6 (the Whitted tracer: camera packets, point-light shadow
+//! packets, reflection and refraction packets, each traced with its own
+//! method and frustum).
 //!
 //! # Shading model
 //! A ray that misses gives `Shading::background`. A ray that hits a surface

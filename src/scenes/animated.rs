@@ -1,6 +1,6 @@
 //! A procedural animated scene: every frame moves or deforms most vertices,
-//! so acceleration structures must be rebuilt per frame (the dynamic-scene
-//! case of ECOSYSTEM.md section 5, "animate by per-frame transforms").
+//! so acceleration structures must be rebuilt per frame (the dynamic case;
+//! animated by per-frame transforms, as Haines' SPD scenes can be).
 //!
 //! Content (+Z up, like the SPD scenes):
 //! - a static ground grid, ±12 at z = 0;

@@ -1,5 +1,6 @@
 //! Adversarial scenes and rays: where acceleration structures and packet
-//! traversals fail (DESIGN.md "Where methods fail"; issue 7).
+//! traversals fail, so that tests can check every method stays exact there
+//! and `sheaf bench --stress` can measure how much slower it gets.
 //!
 //! Scenes ([`STRESS_SCENE_NAMES`], [`stress_scene`]), each a
 //! [`BuiltinScene`] with four views (`views[0]` the main one, then a second

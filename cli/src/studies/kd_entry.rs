@@ -1,5 +1,5 @@
-//! `sheaf bench --entry`: the AEPSA paper's section 5 on our scenes
-//! (papers/entry-point-search-aepsa.txt).
+//! `sheaf bench --entry`: section 5 of the AEPSA paper ("Accelerated Entry
+//! Point Search Algorithm for Real-Time Ray-Tracing") on our scenes.
 //!
 //! Per scene (the built-in scenes and the OBJ scenes of `--scenes-dir`),
 //! the scene's reference view (`bench::view_for`) at 512x512 with one point

@@ -1,6 +1,7 @@
-//! `sheaf bench --pgrid`: the perspective/light grid paper's section 5 on
-//! our scenes (papers/perspective-and-light-grids.txt), as deferred frames
-//! (`render::deferred`) whose work items run on `run::Threads`.
+//! `sheaf bench --pgrid`: the perspective/light grid paper's section 5
+//! ("Fast ray tracing of dynamic scenes with primary and shadow rays on
+//! grids", 2010) on our scenes, as deferred frames (`render::deferred`)
+//! whose work items run on `run::Threads`.
 //!
 //! Per scene (the built-in scenes and the OBJ scenes of `--scenes-dir`),
 //! the scene's reference view (`bench::view_for`) at 1024x1024 (the paper's

@@ -1,5 +1,5 @@
-//! `sheaf bench --stress`: stability where methods fail (DESIGN.md, "Where
-//! methods fail"; issue 7).
+//! `sheaf bench --stress`: stability where methods fail: whether every
+//! method stays exact on adversarial input, and how much slower it gets.
 //!
 //! Scenes: the adversarial scenes of `sheaf::scenes::stress` (teapot in a
 //! stadium, huge triangles, long skinny diagonal needles, coincident and
@@ -78,7 +78,7 @@ const QUICK_ORACLE_BUDGET: f64 = 2e7;
 /// bench`): relative t gap of a tie, barycentric distance to an edge.
 const TIE_REL: f64 = 1e-5;
 const EDGE_BARY: f64 = 1e-5;
-/// The slowdown the fallbacks must stay under (DESIGN.md).
+/// The slowdown over the single-ray baseline the fallbacks must stay under.
 const LIMIT: f64 = 2.0;
 
 const QUICK_SCENES: &[&str] = &["closed-box", "huge-triangles", "tetra"];

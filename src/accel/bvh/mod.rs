@@ -2,7 +2,7 @@
 //! single rays, 2x2 SIMD rays and large n x n packets.
 //!
 //! Source: Overbeck, Ramamoorthi, Mark 2008, "Large Ray Packets for
-//! Real-time Whitted Ray Tracing" (papers/large-ray-packets-whitted.txt).
+//! Real-time Whitted Ray Tracing".
 //!
 //! | file | implements |
 //! |---|---|
@@ -10,15 +10,15 @@
 //! | `build_morton.rs` | the fast build (`BuildQuality::Low`): centroids' Morton codes, a radix sort, the tree emitted top-down at the codes' highest differing bit (Lauterbach et al. 2009, LBVH), every phase on the caller's workers (`mem::par`) |
 //! | `traverse_single.rs` | the single-ray reference: stack traversal, near child first |
 //! | `traverse_simd.rs` | section 2.1: the 2x2 SIMD ray (`Ray4`) traversal, the "2x2 SIMD ray packets" of Table 2 |
-//! | `frustum.rs` | section 4: frusta for primary (4.1), point-light shadow (4.2), reflection and refraction (4.3) packets; plane test (Eq. 1-3) and corner-ray test |
-//! | `packet.rs` | what the three large-packet traversals share: the prepared packet (`Packet`, `QuadBox`), the `Walk` each implements, the lane-by-lane coherence fallback (section 5.2.1; `accel::fallback`) |
-//! | `traverse_masked.rs` | section 3.1, Figure 2: Masked traversal, and its switch to Partition when too many box tests find quads dead |
+//! | `geom::frustum` (not in this folder) | section 4: frusta for primary (4.1), point-light shadow (4.2), reflection and refraction (4.3) packets; plane test (Eq. 1-3) and corner-ray test; shared with the kd-tree packets and the entry-point searches |
+//! | `packet.rs` | what the large-packet traversals share: the prepared packet (`Packet`, `QuadBox`), the `Walk` each implements (the paper's three and the two on the 4-wide tree), the lane-by-lane coherence fallback (section 5.2.1; `accel::fallback`) |
+//! | `traverse_masked.rs` | section 3.1, Figure 2: Masked traversal, and its switch to Partition when too many box tests find quads dead; the exactness argument and tests of the paper's three traversals |
 //! | `traverse_ranged.rs` | section 3.2, Appendix A.1: Ranged traversal (first alive ray `i_a` on the stack, `getFirstHit`/`getLastHit`) |
 //! | `traverse_partition.rs` | section 3.3, Appendix A.2: Partition traversal (index list `I` partitioned in place by `partRays`) |
 //! | `wide.rs` | the 4-wide tree (`WideNode`): every built binary tree collapsed (and refit in place) into nodes of four children with their boxes side by side (Dammertz et al. 2008; Wald et al. 2008), in the reference pool |
 //! | `traverse_wide.rs` | the single ray through the 4-wide tree (`Method::BvhWide`): four boxes per SIMD test; the single-ray fallback of every packet traversal |
 //! | `traverse_wide_ranged.rs` | section 3.2's Ranged traversal of n x n packets through the 4-wide tree (`Method::BvhWideRanged`): every child of a node tested per quad, children front to back |
-//! | `traverse_frustum.rs` | n x n packets through the 4-wide tree, frustum first (`Method::BvhFrustum`; Wald, Boulos, Shirley 2007, section 4.3; Fuetterling et al. 2015, section 4): the packet's interval frustum and first live ray against all four children at once, lane groups scanned only where they disagree and at leaves |
+//! | `traverse_frustum.rs` | n x n packets through the 4-wide tree, frustum first (`Method::BvhFrustum`; Wald, Boulos, Shirley 2007, section 4.3; Fuetterling et al. 2015, section 4): a node visit costs a constant number of wide operations, not a scan of the quads: the packet's interval frustum, then its first live ray, against all four children at once, children visited in the frustum's near order, lane groups scanned only where the two disagree; at a leaf only the lane groups whose slab test enters it (picked by per-group frusta in large packets) test its triangles; the packet set up lane group by lane group, hits kept per group as lanes; an incoherent packet retried as its four Morton quarters; an occlusion packet left with few live lanes finished by the wide single ray (Benthin et al. 2012) |
 //! | `refit.rs` | refit: the built tree's boxes recomputed bottom-up for moved vertices (Embree's REFIT quality; the paper rebuilds every frame) |
 //! | `entry.rs` | the BVH as an `accel::entry::EntryTree`: MLRTA/AEPSA entry points (AEPSA paper, section 8), where the three packet traversals can start |
 //!

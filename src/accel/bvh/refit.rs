@@ -1,16 +1,16 @@
-//! Refit (issue 18, item 3): when only vertex positions moved (the same
-//! triangles from the same index buffer), the built tree keeps its shape
-//! and every box is recomputed bottom-up in place: a check pass and a
-//! copy pass over the stored triangles, the leaf boxes, then one reverse
-//! pass over the inner nodes. Embree's equivalent is a geometry committed
-//! with `RTC_BUILD_QUALITY_REFIT`; the BVH paper rebuilds every frame
-//! (section 5.1).
+//! Refit: when only vertex positions moved (the same triangles from the
+//! same index buffer), the built tree keeps its shape and every box is
+//! recomputed bottom-up in place: a check pass and a copy pass over the
+//! stored triangles, the leaf boxes, then one reverse pass over the inner
+//! nodes. Embree's equivalent is a geometry committed with
+//! `RTC_BUILD_QUALITY_REFIT`; the BVH paper rebuilds every frame (section
+//! 5.1).
 //!
-//! Children are stored after their parent (the build allocates them
-//! later), so visiting the nodes in reverse order meets every child before
-//! its parent: no stack, no recursion. The triangle passes and the leaf
-//! boxes split among the caller's workers (`refit_with`, issue 18 item 4);
-//! the inner pass (one union per node) stays on one.
+//! Children are stored after their parent (the build allocates them later),
+//! so visiting the nodes in reverse order meets every child before its
+//! parent: no stack, no recursion. The triangle passes and the leaf boxes
+//! split among the caller's workers (`refit_with`); the inner pass (one
+//! union per node) stays on one.
 //!
 //! # Exactness
 //! Leaf boxes are padded exactly as the build pads them (`BOX_PAD` times

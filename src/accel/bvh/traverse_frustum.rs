@@ -1,6 +1,6 @@
 //! Frustum-first traversal of n x n packets through the 4-wide tree
-//! (`Method::BvhFrustum`, issue 32): a node visit costs a constant number
-//! of operations for the whole packet, not a scan of its quads.
+//! (`Method::BvhFrustum`): a node visit costs a constant number of
+//! operations for the whole packet, not a scan of its quads.
 //!
 //! At a wide node the packet's interval frustum (the bounds of its live
 //! lanes' origins and reciprocal directions, Wald, Boulos, Shirley 2007,
@@ -344,11 +344,11 @@ type Signs = [i8; 3];
 
 /// Packets of fewer lanes (rays, counting a last group's padding) have no
 /// group frusta, and their own instance of the walk. Measured (AVX-512,
-/// interleaved A/B against Embree-16, docs/studies.md, issue 32 eighth
-/// step): with frusta, 8x8 camera packets (64 lanes, 4 groups) traced 7 %
-/// slower on crytek sponza; 16x16 (256 lanes) within -3 % .. +5 % on
-/// sponza and conference, 32x32 8-30 % faster on sponza, conference and
-/// legocar. Counted in lanes, not groups, so that narrower ISA levels
+/// interleaved A/B against Embree-16; docs/studies.md, "Group frusta made
+/// by reductions"): with frusta, 8x8 camera packets (64 lanes, 4 groups)
+/// traced 7 % slower on crytek sponza; 16x16 (256 lanes) within
+/// -3 % .. +5 % on sponza and conference, 32x32 8-30 % faster on sponza,
+/// conference and legocar. Counted in lanes, not groups, so that narrower ISA levels
 /// (more, smaller groups) draw the line at the same packet size; only
 /// AVX-512 was measured.
 const FRUSTA_MIN_LANES: usize = 128;
@@ -1412,11 +1412,12 @@ fn walk_tree<L: Wide, T: TriangleTest, const ANY: bool, const FR: bool>(
     }
 }
 
-/// Occlusion packets with at most this many live lanes left finish them
-/// one by one (`finish_alone`). Measured (AVX-512, 16x16 shadow packets,
-/// docs/studies.md, issue 32 third step): 0 to 16 lanes trace alike on
-/// sponza and conference, 64 lanes is 4 % slower; the frustum walk's
-/// leaves already test only the groups with an entering lane.
+/// Occlusion packets with at most this many live lanes left finish them one
+/// by one (`finish_alone`). Measured (AVX-512, 16x16 shadow packets;
+/// docs/studies.md, "Fewer instructions per hit and per packet"): 0 to 16
+/// lanes trace alike on sponza and conference, 64 lanes is 4 % slower; the
+/// frustum walk's leaves already test only the groups with an entering
+/// lane.
 const HYBRID_LANES: u32 = 4;
 
 /// Stack entries of the single ray walking one pending subtree: at most

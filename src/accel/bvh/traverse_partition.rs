@@ -9,8 +9,9 @@
 //! are again the quads alive in the popped cell's parent. At a leaf exactly
 //! the alive quads `I[0..i_a]` are tested against each unculled triangle.
 //!
-//! Shared machinery (packet setup, slab and triangle tests, exactness) is in
-//! `traverse_masked`. Results equal `traverse_single` lane by lane, bitwise.
+//! Shared machinery (packet setup, slab and triangle tests) is in `packet.rs`;
+//! the exactness argument and its tests are in `traverse_masked`. Results
+//! equal `traverse_single` lane by lane, bitwise.
 //!
 //! # Deviations
 //! - Two slips in the Appendix pseudo-code are corrected: `partRays`

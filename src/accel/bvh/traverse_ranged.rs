@@ -9,8 +9,9 @@
 //! finds `i_e`, one past the last alive quad, and every quad in `[i_a, i_e)`
 //! is tested against each unculled triangle, alive or not.
 //!
-//! Shared machinery (packet setup, slab and triangle tests, exactness) is in
-//! `traverse_masked`. Results equal `traverse_single` lane by lane, bitwise.
+//! Shared machinery (packet setup, slab and triangle tests) is in `packet.rs`;
+//! the exactness argument and its tests are in `traverse_masked`. Results
+//! equal `traverse_single` lane by lane, bitwise.
 //!
 //! # Deviations
 //! - Quads without live lanes (inactive, invalid, or occluded) never test

@@ -8,8 +8,8 @@
 //! and tested again when popped (the hits found meanwhile may cull them).
 //! A leaf child gets `getLastHit` and the Ranged leaf test. The wide tree
 //! is Wald, Benthin, Boulos 2008's (section 3) and Dammertz et al. 2008's
-//! (`wide.rs`); traversing it with large packets is what issue 18 asks of
-//! the packet traversals.
+//! (`wide.rs`); this walk lets large packets use it as the wide single ray
+//! does.
 //!
 //! # Exactness
 //! The per-quad box tests, the frustum tests and the leaf test are

@@ -9,10 +9,9 @@
 //! 5. Macrocell flags: one bit per M x M x M block of cells.
 //!
 //! Every step but the resolution runs on the caller's workers
-//! (`build_with`, issue 18 item 4): the triangles split among them in
-//! order, cell counts and the fill by atomic increments, then each cell's
-//! references sorted back into triangle order, so the grid is the same for
-//! any number of workers.
+//! (`build_with`): the triangles split among them in order, cell counts and
+//! the fill by atomic increments, then each cell's references sorted back
+//! into triangle order, so the grid is the same for any number of workers.
 
 use super::{Grid, GridInfo, GridParams};
 use crate::error::{Error, Pool, Result};

@@ -1,7 +1,7 @@
 //! Uniform grid rebuilt from scratch every frame, with a macrocell layer.
 //!
 //! Source: Wald, Ize, Kensler, Knoll, Parker 2006, "Ray Tracing Animated
-//! Scenes using Coherent Grid Traversal" (papers/coherent-grid-traversal.txt).
+//! Scenes using Coherent Grid Traversal".
 //!
 //! | file | implements |
 //! |---|---|

@@ -3,8 +3,7 @@
 //! (`accel::entry`: MLRTA, AEPSA).
 //!
 //! Source: "Accelerated Entry Point Search Algorithm for Real-Time
-//! Ray-Tracing" (papers/entry-point-search-aepsa.txt), on Reshetov,
-//! Soupikov, Hurley 2005 (MLRTA).
+//! Ray-Tracing" (AEPSA), on Reshetov, Soupikov, Hurley 2005 (MLRTA).
 //!
 //! | file | implements |
 //! |---|---|

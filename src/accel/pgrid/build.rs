@@ -3,7 +3,7 @@
 //!
 //! Both builds follow the paper: every triangle emits one (cell, triangle)
 //! pair per cell it spans into the pair pool, the pairs are radix sorted by
-//! cell id (`sort.rs`), and a scan over the sorted keys gives each cell's
+//! cell id (`mem::sort`), and a scan over the sorted keys gives each cell's
 //! range. Cells are `tiles x depth slices`; for the camera a tile is a
 //! square of pixels, for a light a rectangle of (a, b) space.
 //!

@@ -3,7 +3,7 @@
 //! crowded tiles split into chunks.
 //!
 //! Source: "Fast ray tracing of dynamic scenes with primary and shadow rays
-//! on grids", a GPU paper of 2010 (papers/perspective-and-light-grids.txt).
+//! on grids", a GPU paper of 2010.
 //! sheaf runs the same algorithm on CPU threads: a CUDA block becomes a
 //! work item (a tracing tile or a chunk) taken by a worker thread, the warp
 //! becomes the 2x2 SIMD ray, and shared memory becomes the cell's triangle

@@ -1187,14 +1187,13 @@ mod tests {
         fit: [f64; 3],
     }
 
-    /// Streaming churn (issue 35): geometries of 20-400 triangles set,
-    /// replaced with other sizes, removed (their instances first) and
-    /// placed in random order, the reservations held to `fill` % of the
-    /// budget, for `steps` steps. Every set whose reservation fits the
-    /// free budget succeeds (compacting when no gap holds it), and every
-    /// commit traces bitwise as a fresh scene built from the same
-    /// geometries and instances. Counts and times what the compactions
-    /// cost.
+    /// Streaming churn: geometries of 20-400 triangles set, replaced with
+    /// other sizes, removed (their instances first) and placed in random
+    /// order, the reservations held to `fill` % of the budget, for `steps`
+    /// steps. Every set whose reservation fits the free budget succeeds
+    /// (compacting when no gap holds it), and every commit traces bitwise
+    /// as a fresh scene built from the same geometries and instances.
+    /// Counts and times what the compactions cost.
     fn churn(fill: u32, steps: u32) -> Churn {
         use crate::accel::testkit::Rng;
         use std::time::Instant;
