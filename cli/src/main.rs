@@ -259,8 +259,8 @@ impl TraceOpts {
             packet: self.shadow_packet.unwrap_or(self.packet),
             ..primary
         };
-        run::validate(&primary)?;
-        run::validate(&shadow)?;
+        primary.validate()?;
+        shadow.validate()?;
         Ok((primary, shadow))
     }
     /// `grid-cgt 8x8 / shadows grid-cgt 8x8`, `kd-packet 8x8 aepsa / shadows kd-packet 8x8 aepsa`.
@@ -268,7 +268,7 @@ impl TraceOpts {
         let entry = self.entry.search();
         let name = |m: MethodArg, n: u32| {
             let m = m.method();
-            let mut s = if run::is_packet(m) {
+            let mut s = if m.is_packet() {
                 format!("{} {n}x{n}", m.name())
             } else {
                 m.name().to_string()

@@ -174,39 +174,12 @@ pub fn kd_limits(
     ))
 }
 
-/// Whether `m` traces n x n packets. `Method::is_packet` does not (yet)
-/// count `KdPacket`, which takes `TraceParams::packet` all the same.
-pub fn is_packet(m: Method) -> bool {
-    m.is_packet() || m == Method::KdPacket
-}
-
 /// Whether `m` runs `TraceParams::entry` before its packets.
 pub fn uses_entry(m: Method) -> bool {
     matches!(
         m,
         Method::KdPacket | Method::BvhMasked | Method::BvhRanged | Method::BvhPartition
     )
-}
-
-/// `TraceParams::tile_side`, with `KdPacket` tracing `packet` x `packet`
-/// tiles (see `is_packet`).
-pub fn tile_side(p: &TraceParams) -> u32 {
-    if p.method == Method::KdPacket {
-        p.packet
-    } else {
-        p.tile_side()
-    }
-}
-
-/// `TraceParams::validate`, plus the packet side of `KdPacket`.
-pub fn validate(p: &TraceParams) -> Result<(), Error> {
-    p.validate()?;
-    if is_packet(p.method) && !matches!(p.packet, 2 | 4 | 8 | 16 | 32) {
-        return Err(Error::InvalidArgument(
-            "packet side must be 2, 4, 8, 16 or 32",
-        ));
-    }
-    Ok(())
 }
 
 /// Render `frame` into `pixels` (RGBA8, stride `4 * width`) on `threads`
@@ -251,7 +224,7 @@ fn render_bands<T: Tracer>(
     whole: Band<'_>,
     slots: Vec<Slot<'_>>,
 ) -> Counters {
-    let side = tile_side(primary).max(tile_side(shadow));
+    let side = primary.tile_side().max(shadow.tile_side());
     let params = TileParams {
         primary: TraceParams {
             packet: side,
@@ -433,9 +406,11 @@ pub fn render_whitted_frame(
     tracer.with_single(job.secondary.method)?;
     let tracer = tracer.with_single(job.primary.method)?;
     let slots: Vec<Slot<'_>> = slots.take(threads as usize).collect();
-    let side = tile_side(&job.primary)
-        .max(tile_side(&job.shadow))
-        .max(tile_side(&job.secondary));
+    let side = job
+        .primary
+        .tile_side()
+        .max(job.shadow.tile_side())
+        .max(job.secondary.tile_side());
     let tiled = WhittedJob {
         primary: TraceParams {
             packet: side,

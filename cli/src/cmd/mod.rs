@@ -8,7 +8,7 @@ pub mod info;
 pub mod render;
 
 use crate::GridOpts;
-use crate::run::{self, ms, res};
+use crate::run::{ms, res};
 use sheaf::{GridInfo, PrimaryPass, ShadowPass, TraceParams};
 use std::fmt::Write as _;
 
@@ -58,7 +58,7 @@ pub fn kd_line(k: &sheaf::accel::kd::KdInfo, build_ns: u64) -> String {
 }
 
 fn traced_label(p: &TraceParams) -> String {
-    if run::is_packet(p.method) {
+    if p.method.is_packet() {
         format!("{} {}x{}", p.method.name(), p.packet, p.packet)
     } else {
         p.method.name().to_string()

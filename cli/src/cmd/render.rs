@@ -329,7 +329,7 @@ pub fn render(a: &RenderArgs) -> Result<()> {
             a.reflect,
             a.refract,
             a.materials,
-            if run::is_packet(secondary.method) {
+            if secondary.method.is_packet() {
                 format!(
                     "{} {}x{}",
                     secondary.method.name(),
@@ -403,7 +403,7 @@ fn passes(
         None => PrimaryPass::Traced(*primary),
     };
     if let PrimaryPass::Traced(t) = &p {
-        run::validate(t).context("--primary")?;
+        t.validate().context("--primary")?;
     }
     let side = sheaf::render::deferred::tile_side(&p, pgrid.tile, pgrid.group);
     let s = match a.shadows {
@@ -415,9 +415,9 @@ fn passes(
         None => ShadowPass::Traced(*shadow),
     };
     let s = match s {
-        ShadowPass::Traced(t) if run::is_packet(t.method) => {
+        ShadowPass::Traced(t) if t.method.is_packet() => {
             let t = TraceParams { packet: side, ..t };
-            run::validate(&t).with_context(|| {
+            t.validate().with_context(|| {
                 format!(
                     "shadow packets of a deferred frame take the tracing tile's side ({side}x{side})"
                 )

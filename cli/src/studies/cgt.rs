@@ -154,7 +154,7 @@ impl Config {
     }
     /// `grid-dda`, `grid-cgt 8x8`, `grid-cgt 8x8 no-mailbox`, `kd-packet 16x16 aepsa`.
     fn label(&self) -> String {
-        if !run::is_packet(self.method) {
+        if !self.method.is_packet() {
             return self.method.name().to_string();
         }
         let mut s = format!("{} {}x{}", self.method.name(), self.packet, self.packet);
@@ -475,7 +475,7 @@ fn trace_config(
     let mut occluded = vec![false; n];
     let mut timings = Vec::new();
     let (prim_ctr, shadow_ctr, shadow_rays);
-    if run::tile_side(&p) == 0 {
+    if p.tile_side() == 0 {
         let band = BAND_ROWS * vr.w as usize;
         // Untimed first runs (warm caches, counters, results).
         prim_ctr = trace_single(tr, &vr.rays, band, &mut hits, &mut mbs[..1]);
@@ -498,7 +498,7 @@ fn trace_config(
             });
         }
     } else {
-        let (tiling, quads, active) = &vr.packed[&run::tile_side(&p)];
+        let (tiling, quads, active) = &vr.packed[&p.tile_side()];
         let mut h4 = vec![Hit4::MISS; quads.len()];
         prim_ctr = trace_packets(tr, &p, tiling, quads, active, &mut h4, &mut mbs[..1]);
         tiling.unpack(&mut hits, &h4, |h, i| h.lane(i));
@@ -646,7 +646,7 @@ impl Accuracy {
 /// rays for packet methods: incoherent, but the answers are what counts).
 fn occlusion_of(tr: &GridTracer<'_>, cfg: &Config, rays: &[Ray], slot: &mut Slot<'_>) -> Vec<bool> {
     let mut ctr = Counters::default();
-    if !run::is_packet(cfg.method) {
+    if !cfg.method.is_packet() {
         return rays.iter().map(|r| tr.occluded(r, &mut ctr)).collect();
     }
     let p = cfg.params();
@@ -1239,7 +1239,7 @@ pub fn run(a: &BenchArgs) -> Result<()> {
                 // Every packet side a configuration uses (the ablations' 8 too).
                 let mut sides: Vec<u32> = cfgs
                     .iter()
-                    .map(|c| run::tile_side(&c.params()))
+                    .map(|c| c.params().tile_side())
                     .filter(|&n| n > 0)
                     .collect();
                 sides.sort_unstable();
