@@ -1,16 +1,18 @@
-//! What the three large-packet traversals share (BVH paper section 3):
-//! the prepared packet (`Packet`: live lanes, per-quad slab data
-//! `QuadBox`, triangle-test precomputation, per-lane far ends, the
-//! frustum of section 4), the `Walk` each traversal implements (Masked,
-//! Ranged, Partition), the packet size classes (through
+//! What the large-packet traversals share (BVH paper section 3): the
+//! prepared packet (`Packet`: live lanes, per-quad slab data `QuadBox`,
+//! triangle-test precomputation, per-lane far ends, the frustum of
+//! section 4), the `Walk` each traversal implements (the paper's Masked,
+//! Ranged and Partition; WideRanged and FrustumFirst on the 4-wide tree),
+//! the packet size classes (through
 //! `accel::packet::by_class`) and the lane-by-lane coherence fallback
 //! (`alone`). The 2x2 SIMD ray (`traverse_simd`) uses the same `QuadBox`.
 //!
 //! # Setup
 //! One pass over a packet's quads (`Lanes::new`) writes the misses, finds
 //! the live lanes, tiny directions, the direction sum and the coherence
-//! test's cone and origin box (`fallback::Coherence`); then the slab data,
-//! triangle-test precomputation and far ends are made per quad. A walk may instead set
+//! test's cone and origin box (`fallback::Coherence`); then a second pass
+//! writes each quad's triangle-test precomputation, far ends and slab data
+//! (the first two into slices filled first). A walk may instead set
 //! its packets up itself (`Walk::own_setup`): the frustum-first walk does,
 //! lane group by lane group at its lane width. Setup and walk run in one
 //! `isa::Kernel` (`WalkAt`), so the setup is compiled for the walk's ISA
