@@ -27,7 +27,7 @@
 #    `sheaf` CLI (cargo build --release -p sheaf-cli).
 # 3. Exports each scene with its view and light (`sheaf export`), builds
 #    benches/embree/embree_bench.c and runs it: progress on stderr, Markdown
-#    on stdout. The full run also writes docs/bench-embree/README.md (the
+#    on stdout. The full run (no --scenes) also writes docs/bench-embree/README.md (the
 #    two-level scene as its last section, which --twolevel replaces alone).
 set -euo pipefail
 cd "$(dirname "$0")/../.."
@@ -67,6 +67,8 @@ if [ $quick = 1 ]; then
   [ -n "$env" ] || env=gears
   tl_frames=3 anim_frames=4
 fi
+scenes_asked=0
+[ -z "$scenes" ] || scenes_asked=1
 [ -n "$scenes" ] || scenes=legocar,bunny,sibenik,sponza,conference,animated,balls
 
 # ---- Embree 3 ---------------------------------------------------------------
@@ -259,7 +261,9 @@ if [ $quick = 0 ] && [ $twolevel = only ]; then
   echo "== wrote the two-level section of ${doc#"$ROOT"/}" >&2
 fi
 
-if [ $quick = 0 ] && [ $twolevel != only ]; then
+# Only the full run (no --scenes) rewrites the doc: a run over some scenes
+# prints its tables and leaves the full run's doc alone.
+if [ $quick = 0 ] && [ $twolevel != only ] && [ $scenes_asked = 0 ]; then
   mkdir -p "$(dirname "$doc")"
   rev=$(git rev-parse --short HEAD 2>/dev/null || echo unknown)
   git diff --quiet HEAD 2>/dev/null || rev="$rev (with uncommitted changes)"
