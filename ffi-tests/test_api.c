@@ -86,6 +86,8 @@ static bool test_status_codes_and_strings(void) {
         {SHEAF_STATUS_CAPACITY_THREADS, 205},
         {SHEAF_STATUS_CAPACITY_PGRID_CELLS, 206},
         {SHEAF_STATUS_CAPACITY_PGRID_REFS, 207},
+        {SHEAF_STATUS_CAPACITY_PACKET_SIDE, 208},
+        {SHEAF_STATUS_CAPACITY_BOUNCES, 209},
         {SHEAF_STATUS_OUT_OF_MEMORY, 299},
         {SHEAF_STATUS_NO_GEOMETRY, 300},
         {SHEAF_STATUS_NOT_BUILT, 301},
@@ -164,6 +166,32 @@ static bool test_required_bytes(void) {
     bad.max_grid_cells = 0xFFFFFFFFu; /* above 2^32 - 1 entries */
     CHECK_STATUS(sheaf_required_bytes(&bad, &untouched), SHEAF_STATUS_INVALID_ARGUMENT);
     CHECK(untouched == 777);
+    {
+        /* Slot scratch follows the packet side, bounces and renderers. */
+        size_t all = 0, small = 0, ray_only = 0, a8 = 0;
+        CHECK(l.max_packet_side == 32 && l.max_bounces == 8 &&
+              l.renderers == (SHEAF_RENDERER_TILES | SHEAF_RENDERER_WHITTED | SHEAF_RENDERER_DEFERRED));
+        CHECK_OK(sheaf_slot_scratch_bytes(&l, &all));
+        bad = l;
+        bad.max_packet_side = 8;
+        CHECK_OK(sheaf_slot_scratch_bytes(&bad, &small));
+        CHECK_OK(sheaf_required_bytes(&bad, &a8));
+        CHECK(small * 8 < all && a8 < b);
+        bad.renderers = 0;
+        CHECK_OK(sheaf_slot_scratch_bytes(&bad, &ray_only));
+        CHECK(ray_only < small);
+        bad.max_packet_side = 12;
+        CHECK_STATUS(sheaf_slot_scratch_bytes(&bad, &untouched), SHEAF_STATUS_INVALID_ARGUMENT);
+        CHECK_STATUS(sheaf_required_bytes(&bad, &untouched), SHEAF_STATUS_INVALID_ARGUMENT);
+        bad = l;
+        bad.max_bounces = 9;
+        CHECK_STATUS(sheaf_slot_scratch_bytes(&bad, &untouched), SHEAF_STATUS_INVALID_ARGUMENT);
+        bad = l;
+        bad.renderers = 8;
+        CHECK_STATUS(sheaf_slot_scratch_bytes(&bad, &untouched), SHEAF_STATUS_INVALID_ARGUMENT);
+        CHECK_STATUS(sheaf_slot_scratch_bytes(&l, NULL), SHEAF_STATUS_NULL_POINTER);
+        CHECK(untouched == 777);
+    }
     return true;
 }
 
@@ -719,6 +747,16 @@ static bool test_trace_params(void) {
     CHECK_STATUS(sheaf_context_trace_with(ctx, NULL, rays, got, N_PROBE), SHEAF_STATUS_NULL_POINTER);
     CHECK_STATUS(sheaf_context_render_with(ctx, &cgt, NULL, &f, img, RSTRIDE, RLEN), SHEAF_STATUS_NULL_POINTER);
     CHECK_STATUS(sheaf_trace_params_default(NULL), SHEAF_STATUS_NULL_POINTER);
+    {
+        /* 32 x 32 packets used some of each slot's scratch, never more. */
+        sheaf_limits l;
+        size_t used = 0, per_slot = 0;
+        CHECK_OK(sheaf_limits_default(s->nt, &l));
+        CHECK_OK(sheaf_context_scratch_high_water(ctx, &used));
+        CHECK_OK(sheaf_slot_scratch_bytes(&l, &per_slot));
+        CHECK(used > 0 && used <= per_slot);
+        CHECK_STATUS(sheaf_context_scratch_high_water(ctx, NULL), SHEAF_STATUS_NULL_POINTER);
+    }
     sheaf_context_destroy(ctx);
     free(s);
     return true;

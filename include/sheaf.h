@@ -44,6 +44,11 @@
 #define SHEAF_STRUCTURE_KD 4u
 #define SHEAF_STRUCTURE_PGRID 8u
 
+/** sheaf_limits.renderers bits: which renderers get thread-slot scratch. */
+#define SHEAF_RENDERER_TILES 1u
+#define SHEAF_RENDERER_WHITTED 2u
+#define SHEAF_RENDERER_DEFERRED 4u
+
 /** Ray flags of sheaf_context_trace_scene and sheaf_context_occluded_scene
  * (DXR's culling ray flags): skip back-facing or front-facing triangles, the
  * front being the side the counter-clockwise winding faces in the geometry's
@@ -140,6 +145,14 @@ enum sheaf_status
      * `sheaf_limits.max_pgrid_refs`.
      */
     SHEAF_STATUS_CAPACITY_PGRID_REFS = 207,
+    /**
+     * A packet side larger than `sheaf_limits.max_packet_side`.
+     */
+    SHEAF_STATUS_CAPACITY_PACKET_SIDE = 208,
+    /**
+     * More Whitted bounces than `sheaf_limits.max_bounces`.
+     */
+    SHEAF_STATUS_CAPACITY_BOUNCES = 209,
     /**
      * `sheaf_context_create` could not allocate its memory.
      */
@@ -745,6 +758,24 @@ typedef struct sheaf_limits {
      * `max_triangles`.
      */
     uint32_t max_scene_triangles;
+    /**
+     * Largest packet side a call may ask for: 2, 4, 8, 16 or 32 (the
+     * default). Each thread slot's scratch grows with its square; a call
+     * asking for more gets `SHEAF_STATUS_CAPACITY_PACKET_SIDE`.
+     */
+    uint32_t max_packet_side;
+    /**
+     * Most bounces (`max_reflect + max_refract`) a Whitted frame may ask
+     * for, 0..=8 (default 8); more: `SHEAF_STATUS_CAPACITY_BOUNCES`.
+     */
+    uint32_t max_bounces;
+    /**
+     * Which renderers get thread-slot scratch: `SHEAF_RENDERER_TILES`,
+     * `_WHITTED`, `_DEFERRED` bits (default: all); 0 for a context that
+     * only traces rays. A render call whose renderer is left out gets
+     * `SHEAF_STATUS_INVALID_ARGUMENT`.
+     */
+    uint32_t renderers;
 } sheaf_limits;
 
 /**
@@ -1995,6 +2026,28 @@ sheaf_status sheaf_context_stats(const struct sheaf_context *ctx,
                                  struct sheaf_stats *out);
 
 /**
+ * Scratch bytes each thread slot of a context made with `*limits` holds
+ * (part of `sheaf_required_bytes`), written to `*out`: set by the largest
+ * packet side, the Whitted bounces, the renderers and the structures.
+ *
+ * Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_INVALID_ARGUMENT`
+ * (limits outside their domain). Thread-safe.
+ */
+sheaf_status sheaf_slot_scratch_bytes(const struct sheaf_limits *limits,
+                                      size_t *out);
+
+/**
+ * The most slot scratch any call on `ctx` has used since its creation, in
+ * bytes, written to `*out` (at most `sheaf_slot_scratch_bytes` of its
+ * limits): run a frame at its largest settings, then size the limits.
+ *
+ * Needs exclusive access (`SHEAF_STATUS_CONTEXT_BUSY` while another call
+ * runs). Errors: `SHEAF_STATUS_NULL_POINTER`.
+ */
+sheaf_status sheaf_context_scratch_high_water(struct sheaf_context *ctx,
+                                              size_t *out);
+
+/**
  * Text of the last failure of a call on `ctx` (it names the pool, what was
  * needed and what is available for capacity errors, the triangle and the
  * index for out-of-range indices...). "no error" before any failure; a
@@ -2081,7 +2134,8 @@ sheaf_status sheaf_context_build_kd(struct sheaf_context *ctx,
  * Write limits for scenes of up to `max_triangles` triangles to `*out`:
  * `3 * max_triangles` vertices, 4096 x 4096 images, 64-pixel tiles, 8
  * threads, grid pools derived from the triangle count (0 in
- * `max_grid_cells` / `max_grid_refs`). Adjust fields afterwards as needed.
+ * `max_grid_cells` / `max_grid_refs`), packets up to 32 x 32, 8 Whitted
+ * bounces and every renderer. Adjust fields afterwards as needed.
  *
  * `out` must not be NULL. Thread-safe.
  */

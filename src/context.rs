@@ -7,7 +7,7 @@ use crate::accel::bvh::{self, Bvh, BvhInfo, BvhParams, BvhPools};
 use crate::accel::grid::{self, Grid, GridInfo, GridParams, GridPools};
 use crate::accel::kd::{self, KdInfo, KdParams, KdPools, KdTree};
 use crate::accel::pgrid::{self, Pgrid, PgridParams, PgridPools, SceneInfo};
-use crate::accel::slot::{ACCEL_SCRATCH_BYTES, Slot, max};
+use crate::accel::slot::{Slot, accel_scratch, max};
 use crate::accel::twolevel::{self, TwoLevel};
 use crate::counters::{elapsed_ns, now};
 use crate::error::{Error, Pool, Result};
@@ -28,15 +28,40 @@ use crate::trace::{
     Counters, HitStream, Method, RaySource, RayStream, TraceParams, batch_on, per_ray,
 };
 
-/// Scratch bytes of one thread slot: the most a caller of the packet
-/// driver holds (`trace::batch_on`'s packet, a render tile, a Whitted
-/// tile's bounce levels, a deferred tile) plus what the driver and a
-/// family take under it (`accel::slot::ACCEL_SCRATCH_BYTES`).
-pub const SLOT_SCRATCH_BYTES: usize = (max(
-    max(crate::trace::scene::SCRATCH, render::SCRATCH),
-    max(max(whitted::SCRATCH, deferred::SCRATCH), scene::SCRATCH),
-) + ACCEL_SCRATCH_BYTES)
-    .next_multiple_of(crate::mem::arena::ARENA_ALIGN);
+/// Scratch bytes of one thread slot under `l`, the one sum of every
+/// module's declared scratch: over the calls `l` allows, the most a caller
+/// of the packet driver holds plus what the driver and a family of
+/// `structures` take under it (`accel::slot::accel_scratch`). The callers:
+/// `trace::batch_on`'s packet; a two-level batch with `max_geometries`
+/// (its geometries are BVHs, its flattened scene a grid or kd-tree); per renderer in `renderers`, a render tile,
+/// a Whitted tile's `max_bounces + 1` levels, a deferred frame's tiles
+/// (`deferred::scratch`, with its perspective and light grids). All for
+/// packets of up to `max_packet_side` squared rays: calls beyond these
+/// limits are refused with a status before they take any scratch.
+pub const fn slot_scratch_bytes(l: &Limits) -> usize {
+    let q = crate::accel::packet::quads(l.max_packet_side);
+    let accel = accel_scratch(q, l.structures);
+    let mut most = crate::trace::scene::scratch(q) + accel;
+    if l.max_geometries > 0 {
+        // The geometries' BVHs under the top level (which splits off tiny
+        // lanes itself, without the driver), or the flattened scene's grid
+        // or kd-tree under the driver.
+        let flat = l.structures & (Limits::GRID | Limits::KD);
+        let flat = if flat != 0 { accel_scratch(q, flat) } else { 0 };
+        let under = max(crate::accel::bvh::scratch(q), flat);
+        most = max(most, scene::scratch(q) + under);
+    }
+    if l.renders(Limits::TILES) {
+        most = max(most, render::scratch(q) + accel);
+    }
+    if l.renders(Limits::WHITTED) {
+        most = max(most, whitted::scratch(q, l.max_bounces) + accel);
+    }
+    if l.renders(Limits::DEFERRED) && l.has(Limits::PGRID) {
+        most = max(most, deferred::scratch(q, accel));
+    }
+    most.next_multiple_of(crate::mem::arena::ARENA_ALIGN)
+}
 
 /// Pool sizes derived from `Limits`, in the order they are carved. A
 /// structure left out of `Limits::structures` gets empty pools.
@@ -47,6 +72,8 @@ struct Layout {
     refs: usize,
     macro_words: usize,
     slots: usize,
+    /// Scratch bytes per thread slot (`slot_scratch_bytes`).
+    slot_scratch: usize,
     /// Mailbox stamps per thread slot: one per triangle with a grid or
     /// perspective grids (the structures that meet triangles repeatedly).
     stamps: usize,
@@ -116,6 +143,7 @@ impl Layout {
                 0
             },
             slots: l.max_threads as usize,
+            slot_scratch: slot_scratch_bytes(l),
             stamps: if grid || pg { n } else { 0 },
             bvh_tris,
             bvh_proj: if l.projection_test { bvh_tris } else { 0 },
@@ -165,12 +193,22 @@ impl Layout {
 /// Radix counts of the perspective grids' joined sorts.
 const PG_COUNTS: usize = crate::mem::par::MAX_WORKERS * crate::mem::sort::BUCKETS;
 
+/// The thread slots' pools: mailbox stamps, packet counters, scratch,
+/// scratch marks and claim flags (`Slots::new`).
+type SlotPools<'a> = (
+    &'a mut [u32],
+    &'a mut [u32],
+    &'a mut [u8],
+    &'a mut [u32],
+    &'a mut [u32],
+);
+
 /// Every pool of a context, as `carve` takes them.
 struct Pools<'a> {
     grid: GridPools<'a>,
-    /// Mailbox stamps, packet counters, scratch and claim flags of the
-    /// thread slots.
-    slots: (&'a mut [u32], &'a mut [u32], &'a mut [u8], &'a mut [u32]),
+    /// Mailbox stamps, packet counters, scratch, scratch marks and claim
+    /// flags of the thread slots.
+    slots: SlotPools<'a>,
     bvh: BvhPools<'a>,
     kd: KdPools<'a>,
     pg: PgridPools<'a>,
@@ -209,7 +247,8 @@ fn carve<'a>(a: &mut impl Carve<'a>, l: &Layout) -> Result<Pools<'a>> {
         slots: (
             a.take(l.stamps.checked_mul(l.slots).ok_or(big)?)?,
             a.take(l.slots)?,
-            a.take(SLOT_SCRATCH_BYTES.checked_mul(l.slots).ok_or(big)?)?,
+            a.take(l.slot_scratch.checked_mul(l.slots).ok_or(big)?)?,
+            a.take(l.slots)?,
             a.take(l.slots)?,
         ),
         bvh: BvhPools {
@@ -351,7 +390,7 @@ pub struct Context<'a> {
     frame_layout: Option<TileLayout>,
     frame_rays: Option<(PrimaryRays, f32)>,
     /// Per-thread slots, each a mailbox (CGT section 2.3: `max_triangles`
-    /// stamps and a packet counter) and `SLOT_SCRATCH_BYTES` of scratch
+    /// stamps and a packet counter) and `slot_scratch_bytes` of scratch
     /// (packets, traversal state), claimed by `*_in_slot` calls.
     slots: Slots<'a>,
     stats: Stats,
@@ -378,7 +417,7 @@ impl<'a> Context<'a> {
         let mut arena = Arena::new(buf)?;
         let Pools {
             grid: pools,
-            slots: (stamps, packets, scratch, busy),
+            slots: (stamps, packets, scratch, low, busy),
             bvh,
             kd,
             pg,
@@ -386,7 +425,7 @@ impl<'a> Context<'a> {
             scene: (sc, geom_bytes),
             flat,
         } = carve(&mut arena, &Layout::of(limits)?)?;
-        let slots = Slots::new(stamps, packets, scratch, busy);
+        let slots = Slots::new(stamps, packets, scratch, low, busy);
         let n_geoms = limits.max_geometries as usize;
         let (geoms, _) =
             crate::mem::Scratch::new(geom_bytes).take(n_geoms, twolevel::GeomState::default());
@@ -427,6 +466,14 @@ impl<'a> Context<'a> {
         &self.stats
     }
 
+    /// The most slot scratch any call has used since creation, in bytes,
+    /// against `slot_scratch_bytes(self.limits())` reserved per slot: what
+    /// a caller tuning `Limits` (packet side, bounces, renderers) can
+    /// measure on its own frames.
+    pub fn scratch_high_water(&mut self) -> usize {
+        self.slots.scratch_high_water()
+    }
+
     /// Check `scene` against the limits without building.
     pub fn check_scene(&self, scene: &Scene<'_>) -> Result<()> {
         if scene.triangle_count() > self.limits.max_triangles {
@@ -448,7 +495,7 @@ impl<'a> Context<'a> {
 
     /// Rebuild the grid from `scene`. On error the previous grid stays valid.
     pub fn build_grid(&mut self, scene: &Scene<'_>, params: &GridParams) -> Result<GridInfo> {
-        self.build_grid_with(scene, params, &crate::mem::par::Serial)
+        self.build_grid_with(scene, params, &crate::Serial)
     }
 
     /// `build_grid` on the caller's workers (as `build_bvh_with`): every
@@ -458,7 +505,7 @@ impl<'a> Context<'a> {
         &mut self,
         scene: &Scene<'_>,
         params: &GridParams,
-        par: &dyn crate::mem::par::Par,
+        par: &dyn crate::Par,
     ) -> Result<GridInfo> {
         self.check_scene(scene)?;
         let info = self.grid_over(scene, params, par)?;
@@ -472,7 +519,7 @@ impl<'a> Context<'a> {
         &mut self,
         scene: &Scene<'_>,
         params: &GridParams,
-        par: &dyn crate::mem::par::Par,
+        par: &dyn crate::Par,
     ) -> Result<GridInfo> {
         if !self.limits.has(Limits::GRID) {
             return Err(Error::InvalidArgument(
@@ -496,7 +543,7 @@ impl<'a> Context<'a> {
     /// Rebuild the BVH from `scene` (binned SAH, BVH paper section 5.1).
     /// On error the previous BVH stays valid.
     pub fn build_bvh(&mut self, scene: &Scene<'_>, params: &BvhParams) -> Result<BvhInfo> {
-        self.build_bvh_with(scene, params, &crate::mem::par::Serial)
+        self.build_bvh_with(scene, params, &crate::Serial)
     }
 
     /// `build_bvh` on the caller's workers (`mem::par::Par`: a thread
@@ -508,7 +555,7 @@ impl<'a> Context<'a> {
         &mut self,
         scene: &Scene<'_>,
         params: &BvhParams,
-        par: &dyn crate::mem::par::Par,
+        par: &dyn crate::Par,
     ) -> Result<BvhInfo> {
         if !self.limits.has(Limits::BVH) {
             return Err(Error::InvalidArgument(
@@ -529,7 +576,7 @@ impl<'a> Context<'a> {
     /// parameters instead. On error the previous BVH stays valid (when the
     /// rebuild fails, the refit tree: exact like any tree).
     pub fn refit_bvh(&mut self, scene: &Scene<'_>, params: &RefitParams) -> Result<RefitInfo> {
-        self.refit_bvh_with(scene, params, &crate::mem::par::Serial)
+        self.refit_bvh_with(scene, params, &crate::Serial)
     }
 
     /// `refit_bvh` on the caller's workers (as `build_bvh_with`): the
@@ -540,7 +587,7 @@ impl<'a> Context<'a> {
         &mut self,
         scene: &Scene<'_>,
         params: &RefitParams,
-        par: &dyn crate::mem::par::Par,
+        par: &dyn crate::Par,
     ) -> Result<RefitInfo> {
         if !self.limits.has(Limits::BVH) {
             return Err(Error::InvalidArgument(
@@ -611,6 +658,8 @@ impl<'a> Context<'a> {
             ));
         }
         params.validate()?;
+        // Its sorting tiles are traced as packets of that side.
+        self.limits.check_packet_side(params.tile)?;
         if params.test == crate::geom::TriTest::Projection && !self.limits.projection_test {
             return Err(Error::InvalidArgument(
                 "the projection test needs Limits::projection_test",
@@ -637,7 +686,7 @@ impl<'a> Context<'a> {
         stride: usize,
         workers: &mut W,
     ) -> Result<DeferredInfo> {
-        job.validate()?;
+        job.validate(&self.limits)?;
         // The joined phases take 1 to MAX_WORKERS workers.
         crate::mem::par::workers_of(workers.par())?;
         let rays = self.check_frame(job.frame, pixels.len(), stride)?;
@@ -769,6 +818,9 @@ impl<'a> Context<'a> {
 
     /// The built structures and one mailbox per thread slot, for tracing
     /// and rendering from several threads (each thread takes one mailbox).
+    /// A slot's scratch holds packets up to `Limits::max_packet_side`:
+    /// handing a `Tracer` larger packets with it panics (the context's own
+    /// calls refuse them with a status first).
     pub fn parts(&mut self) -> Result<(SceneTracer<'_>, impl Iterator<Item = Slot<'_>>)> {
         let t = SceneTracer {
             grid: self.grid.view(),
@@ -870,7 +922,7 @@ impl<'a> Context<'a> {
         out: &mut dyn FnMut(usize, &Hit4, usize),
         any: bool,
     ) -> Result<Counters> {
-        p.validate()?;
+        p.validate_for(&self.limits)?;
         let t = now();
         let ctr = {
             let (tr, mut mbs) = self.parts()?;
@@ -976,7 +1028,7 @@ impl<'a> Context<'a> {
         out: impl FnMut(usize, &Hit4, usize),
         any: bool,
     ) -> Result<Counters> {
-        p.validate()?;
+        p.validate_for(&self.limits)?;
         let tr = self.scene_tracer()?.with_single(p.method)?;
         self.with_slot(slot, |slot| batch_on(&tr, slot, p, count, rays, out, any))
     }
@@ -1049,7 +1101,8 @@ impl<'a> Context<'a> {
     /// for the call (`Error::SlotBusy` while another call holds it;
     /// `Capacity(Threads)` when `slot >= max_threads`). `None`: the highest
     /// free slot (`Capacity(Threads)` while every slot is held), which a
-    /// concurrent call naming that slot then finds busy.
+    /// concurrent call naming that slot then finds busy. The slot's scratch
+    /// holds packets up to `Limits::max_packet_side` (see `parts`).
     pub fn with_slot<R>(&self, slot: Option<u32>, f: impl FnOnce(&mut Slot<'_>) -> R) -> Result<R> {
         let mut guard = match slot {
             Some(s) => self.slots.claim(s)?,
@@ -1136,8 +1189,9 @@ impl<'a> Context<'a> {
         pixels: &mut [u8],
         stride: usize,
     ) -> Result<Counters> {
-        primary.validate()?;
-        shadow.validate()?;
+        self.limits.check_renderer(Limits::TILES)?;
+        primary.validate_for(&self.limits)?;
+        shadow.validate_for(&self.limits)?;
         // The one light check of every render call (Whitted and deferred
         // frames check theirs in their job's validate).
         frame.light.validate()?;
@@ -1182,8 +1236,9 @@ impl<'a> Context<'a> {
         frame: &Frame,
         band: Band<'_>,
     ) -> Result<Counters> {
-        primary.validate()?;
-        shadow.validate()?;
+        self.limits.check_renderer(Limits::TILES)?;
+        primary.validate_for(&self.limits)?;
+        shadow.validate_for(&self.limits)?;
         frame.light.validate()?;
         let rays = self.check_rows(frame, band.y0, band.y1, band.pixels.len(), band.stride)?;
         let tr = self.scene_tracer()?;
@@ -1211,7 +1266,7 @@ impl<'a> Context<'a> {
         pixels: &mut [u8],
         stride: usize,
     ) -> Result<Counters> {
-        job.validate()?;
+        job.validate(&self.limits)?;
         let rays = self.check_frame(job.frame, pixels.len(), stride)?;
         let t = now();
         let mut ctr = Counters::default();

@@ -23,6 +23,10 @@ pub enum Pool {
     /// (triangle, cell) pairs of a perspective or light grid
     /// (`Limits::max_pgrid_refs`).
     PgridRefs,
+    /// The side of a packet a call asks for (`Limits::max_packet_side`).
+    PacketSide,
+    /// Bounces of a Whitted frame (`Limits::max_bounces`).
+    Bounces,
 }
 
 impl Pool {
@@ -37,6 +41,8 @@ impl Pool {
             Pool::Threads => "threads",
             Pool::PgridCells => "pgrid_cells",
             Pool::PgridRefs => "pgrid_refs",
+            Pool::PacketSide => "packet_side",
+            Pool::Bounces => "bounces",
         }
     }
 }

@@ -82,11 +82,18 @@ pub use accel::twolevel::traverse_single::SceneHit;
 pub use accel::twolevel::{GeometryParams, RayControls, TwoLevelInfo, UpdateInfo, UpdateMode};
 #[cfg(feature = "std")]
 pub use context::OwnedContext;
-pub use context::{Context, Stats, required_bytes};
+pub use context::{Context, Stats, required_bytes, slot_scratch_bytes};
 pub use error::{Error, Pool, Result};
 pub use geom::{Affine, Cull, Hit, Ray, Scene, TriTest};
 pub use isa::Isa;
 pub use mem::Limits;
+// The caller's threads joining a build or a frame (`Context::build_bvh_with`,
+// `OnPar`): the `Par` a caller implements or takes (`Serial`, `Join`).
+pub use mem::par::{Helped, Join, MAX_WORKERS, Par, Serial};
+
+/// Alignment in bytes of the buffer `Context::new_in` takes (C:
+/// `SHEAF_CONTEXT_ALIGN`).
+pub const CONTEXT_ALIGN: usize = mem::ARENA_ALIGN;
 pub use render::deferred::{
     DeferredInfo, DeferredJob, OnCaller, OnPar, PhaseTimes, PrimaryPass, ShadowPass, Workers,
 };

@@ -239,6 +239,9 @@ fn check_layouts() {
         let macros: &[(&str, u64)] = &[
             ("SHEAF_STRUCTURE_KD", Limits::KD as u64),
             ("SHEAF_STRUCTURE_PGRID", Limits::PGRID as u64),
+            ("SHEAF_RENDERER_TILES", Limits::TILES as u64),
+            ("SHEAF_RENDERER_WHITTED", Limits::WHITTED as u64),
+            ("SHEAF_RENDERER_DEFERRED", Limits::DEFERRED as u64),
             ("SHEAF_DEFERRED_MAX_LIGHTS", ffi::SHEAF_DEFERRED_MAX_LIGHTS as u64),
         ];
         let mut c = String::from("#include \"sheaf.h\"\n#include <stdio.h>\n#include <stddef.h>\n");

@@ -20,6 +20,9 @@ use sheaf::{
     TraceParams,
 };
 
+/// Limits that hold any Whitted job (packets to 32 x 32, 8 bounces).
+const ANY_LIMITS: Limits = Limits::for_triangles(1);
+
 /// Packet methods checked against their structure's single-ray method.
 const METHODS: &[Method] = &[Method::GridCgt];
 const SIDES: &[u32] = &[4, 8, 16];
@@ -59,7 +62,7 @@ fn frame(v: &View, light: Vec3, w: u32, h: u32) -> Frame {
 /// tiles) or single rays (`render_whitted_rows`) with `job.primary.method`'s
 /// structure.
 fn render(ctx: &mut OwnedContext, job: &WhittedJob<'_>, packets: bool, band: u32) -> Vec<u8> {
-    job.validate().unwrap();
+    job.validate(&ANY_LIMITS).unwrap();
     let (w, h) = (job.frame.width, job.frame.height);
     let stride = w as usize * 4;
     let mut px = vec![0u8; stride * h as usize];
@@ -555,8 +558,9 @@ fn invalid_materials_and_limits_are_rejected() {
         WhittedParams::default(),
         TraceParams::cgt(8),
     );
-    assert!(ok.validate().is_ok());
-    let invalid = |j: WhittedJob<'_>| matches!(j.validate(), Err(Error::InvalidArgument(_)));
+    assert!(ok.validate(&ANY_LIMITS).is_ok());
+    let invalid =
+        |j: WhittedJob<'_>| matches!(j.validate(&ANY_LIMITS), Err(Error::InvalidArgument(_)));
     let bad_mats = [
         Material {
             reflect: 0.7,
@@ -638,7 +642,7 @@ fn invalid_materials_and_limits_are_rejected() {
             },
             ..ok
         }
-        .validate()
+        .validate(&ANY_LIMITS)
         .is_ok()
     );
     assert!(invalid(WhittedJob {
@@ -656,7 +660,7 @@ fn invalid_materials_and_limits_are_rejected() {
             },
             ..ok
         }
-        .validate()
+        .validate(&ANY_LIMITS)
         .is_ok()
     );
     let nan_light = [PointLight {

@@ -394,7 +394,7 @@ pub fn render_whitted_frame(
     pixels: &mut [u8],
     threads: u32,
 ) -> Result<Counters> {
-    job.validate().context("Whitted parameters")?;
+    job.validate(ctx.limits()).context("Whitted parameters")?;
     let frame = job.frame;
     let stride = frame.width as usize * 4;
     let rays = ctx

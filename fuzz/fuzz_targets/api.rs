@@ -146,6 +146,9 @@ struct LimitsIn {
     max_geometries: u32,
     max_instances: u32,
     max_scene_triangles: u32,
+    max_packet_side: u32,
+    max_bounces: u32,
+    renderers: u32,
 }
 
 impl LimitsIn {
@@ -169,6 +172,9 @@ impl LimitsIn {
                 max_geometries: self.max_geometries,
                 max_instances: self.max_instances,
                 max_scene_triangles: self.max_scene_triangles,
+                max_packet_side: self.max_packet_side,
+                max_bounces: self.max_bounces,
+                renderers: self.renderers,
             };
         }
         // Usable limits: small pools, every structure likely.
@@ -194,6 +200,11 @@ impl LimitsIn {
             max_geometries: self.max_geometries % 5,
             max_instances: self.max_instances % 9,
             max_scene_triangles: default_or(self.max_scene_triangles, 400),
+            // Mostly the defaults; else smaller packets, fewer bounces or
+            // renderers, whose calls must then be refused with a status.
+            max_packet_side: [32, 32, 2, 4, 8, 16][self.max_packet_side as usize % 6],
+            max_bounces: if self.max_bounces % 2 == 0 { 8 } else { self.max_bounces % 9 },
+            renderers: if self.renderers % 2 == 0 { 7 } else { self.renderers % 8 },
         }
     }
 }

@@ -235,6 +235,18 @@ impl TraceParams {
         crate::isa::resolve(self.isa)?;
         Ok(())
     }
+
+    /// `validate`, and a packet method's side within
+    /// `Limits::max_packet_side` (`Capacity { pool: PacketSide }`): the
+    /// check of every call that traces with these params, made once, before
+    /// the call takes any slot scratch.
+    pub fn validate_for(&self, l: &crate::mem::Limits) -> crate::Result<()> {
+        self.validate()?;
+        if self.method.is_packet() {
+            l.check_packet_side(self.packet)?;
+        }
+        Ok(())
+    }
 }
 
 /// Switches of the packet traversal (all on by default), for comparison runs.

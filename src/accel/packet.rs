@@ -33,15 +33,27 @@ use crate::mem::scratch::bytes;
 /// Quads in the largest packet: 32 x 32 rays.
 pub const MAX_QUADS: usize = 256;
 
-/// Slot scratch the driver holds while a family traces: the tiny-lane
-/// split of `quieted` (quieted quads, the packet's lanes, the tiny lanes).
-pub const SCRATCH: usize =
-    bytes::<Ray4>(MAX_QUADS) + bytes::<M4>(MAX_QUADS) + bytes::<M4>(MAX_QUADS);
+/// Quads of a packet of `side` x `side` rays (one for a 2x2 batch): the
+/// `q` every slot-scratch function below takes, from
+/// `Limits::max_packet_side`.
+pub const fn quads(side: u32) -> usize {
+    let h = (side / 2) as usize;
+    if h == 0 { 1 } else { h * h }
+}
+
+/// Slot scratch the driver holds while a family traces packets of up to
+/// `q` quads: the tiny-lane split of `quieted` (quieted quads, the
+/// packet's lanes, the tiny lanes).
+pub const fn scratch(q: usize) -> usize {
+    bytes::<Ray4>(q) + bytes::<M4>(q) + bytes::<M4>(q)
+}
 
 /// Slot scratch `start` takes (the live lanes, the entry search's
 /// candidate queue), given back before the family's traversal: a family's
-/// `SCRATCH` covers the larger of the two.
-pub const START_SCRATCH: usize = bytes::<M4>(MAX_QUADS) + bytes::<entry::CandidateQueue>(1);
+/// `scratch` covers the larger of the two.
+pub const fn start_scratch(q: usize) -> usize {
+    bytes::<M4>(q) + bytes::<entry::CandidateQueue>(1)
+}
 
 /// Trace the active lanes of `rays` (one packet, or consecutive packets)
 /// with `p.method` on `a`: nearest hits, or with `ANY` occlusion (some hit
@@ -79,7 +91,7 @@ fn any_tiny(rays: &[Ray4], active: &[M4]) -> bool {
 /// quads whose tiny lanes are replaced and inactive (`fallback::quieted`:
 /// no SIMD operation meets their subnormal numbers), then each tiny lane
 /// by the family's single ray. The single ray counts its own rays. The
-/// split lives in the slot's scratch (`SCRATCH`), the family gets the rest.
+/// split lives in the slot's scratch (`scratch`), the family gets the rest.
 #[inline(never)]
 fn quieted<A: Accel, T: TriangleTest, const ANY: bool>(
     a: &A,
@@ -217,7 +229,7 @@ pub enum Start {
 /// The packet's frustum (of `p.bvh.kind`; `None` without live lanes or when
 /// none can be built) and, with `p.entry`, the entry point MLRTA or AEPSA
 /// finds for it in `tree` (counted in `ctr`). The live lanes borrow the
-/// slot's scratch (`START_SCRATCH`) for the call.
+/// slot's scratch (`start_scratch`) for the call.
 pub fn start<E: EntryTree + ?Sized>(
     tree: &E,
     p: &TraceParams,
@@ -238,7 +250,7 @@ pub fn start<E: EntryTree + ?Sized>(
         return (f, Start::Root);
     };
     let neg = entry::dir_signs(&rays[..nq], live);
-    // Phase 1's candidate queue in the scratch too (`START_SCRATCH`).
+    // Phase 1's candidate queue in the scratch too (`start_scratch`).
     const EMPTY: entry::CandidateQueue = entry::CandidateQueue::new();
     let (q, _) = rest.scratch.reborrow().take_copies(1, &EMPTY);
     let e = match p.entry {

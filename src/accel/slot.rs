@@ -2,32 +2,41 @@
 //! its scratch (`mem::scratch`), where packets, hits, masks, traversal
 //! state and bounce levels live instead of on the caller's stack.
 //!
-//! `ACCEL_SCRATCH_BYTES` is what the packet driver and a family's
-//! traversal take at most (the driver's tiny-lane split, then the family's
-//! arrays), each part a constant of the module that takes it. A context's
-//! slot adds what its callers (`trace::batch_on`, the renderers) hold on
-//! top: `context::SLOT_SCRATCH_BYTES`, counted once per slot in
-//! `required_bytes`.
+//! `accel_scratch` is what the packet driver and a family's traversal
+//! take at most (the driver's tiny-lane split, then the family's arrays),
+//! each part a function of the packet size declared by the module that
+//! takes it. A context's slot adds what its callers (`trace::batch_on`,
+//! the renderers) hold on top: `context::slot_scratch_bytes`, counted once
+//! per slot in `required_bytes`.
 #![forbid(unsafe_code)]
 
 use super::mailbox::Mailbox;
 use crate::mem::Scratch;
 
-/// Scratch bytes the packet driver and any family's packet traversal take
-/// at most (a call from outside the renderers needs no more).
-pub const ACCEL_SCRATCH_BYTES: usize = super::packet::SCRATCH + family_max();
+/// Scratch bytes the packet driver and the packet traversal of any family
+/// in `structures` (a `Limits::GRID`-style bit set: the grid, BVH and
+/// kd-tree; the perspective grids are traced by the deferred frame alone,
+/// which counts them) take at most, for packets of up to `q` quads.
+pub const fn accel_scratch(q: usize, structures: u32) -> usize {
+    use crate::mem::Limits;
+    // A family's bytes when its structure has pools, else none.
+    const fn of(structures: u32, bit: u32, bytes: usize) -> usize {
+        if structures & bit != 0 { bytes } else { 0 }
+    }
+    let s = structures;
+    let family = max(
+        max(
+            of(s, Limits::BVH, super::bvh::scratch(q)),
+            of(s, Limits::GRID, super::grid::scratch(q)),
+        ),
+        of(s, Limits::KD, super::kd::scratch(q)),
+    );
+    super::packet::scratch(q) + family
+}
 
 /// The larger of two sizes (const).
 pub const fn max(a: usize, b: usize) -> usize {
     if a > b { a } else { b }
-}
-
-/// The most any family's packet traversal takes.
-const fn family_max() -> usize {
-    max(
-        max(super::bvh::SCRATCH, super::grid::SCRATCH),
-        max(super::kd::SCRATCH, super::pgrid::SCRATCH),
-    )
 }
 
 /// A claimed thread slot's mailbox and scratch, for one call.
@@ -43,8 +52,8 @@ impl<'s> Slot<'s> {
 
     /// A slot over its parts (`mem::SlotParts`).
     pub fn of(parts: crate::mem::SlotParts<'s>) -> Slot<'s> {
-        let (stamps, packet, scratch) = parts;
-        Slot::new(Mailbox::new(stamps, packet), Scratch::new(scratch))
+        let (stamps, packet, scratch, low) = parts;
+        Slot::new(Mailbox::new(stamps, packet), Scratch::tracked(scratch, low))
     }
 
     /// The same slot, borrowed for a shorter time.
@@ -109,12 +118,14 @@ pub struct SlotBuf {
 impl SlotBuf {
     /// A mailbox of `stamps` stamps (one per triangle of the structure a
     /// CGT packet with the mailbox traces; 0 for none) and the scratch of
-    /// the packet driver and a traversal (`ACCEL_SCRATCH_BYTES`).
+    /// the packet driver and any family's traversal of the largest packets
+    /// (`accel_scratch`).
     pub fn new(stamps: usize) -> SlotBuf {
+        let all = crate::mem::Limits::ALL_STRUCTURES;
         SlotBuf {
             stamps: std::vec![0; stamps],
             packet: 0,
-            scratch: std::vec![0; ACCEL_SCRATCH_BYTES],
+            scratch: std::vec![0; accel_scratch(super::packet::MAX_QUADS, all)],
         }
     }
 

@@ -29,13 +29,14 @@ use crate::mem::par::{Par, Serial};
 use crate::render::{CameraRays, PixelRect, PrimaryRays};
 use crate::trace::{DynRays, RaySource, RayStream, SceneHitStream, TraceParams};
 
-/// Slot scratch a two-level packet batch holds (its quads, their lanes,
-/// their hits) with the top level's (`traverse_packet::SCRATCH`), under
-/// which the geometries' packet traversals run.
-pub(super) const SCRATCH: usize = crate::mem::scratch::bytes::<Ray4>(MAX_QUADS)
-    + crate::mem::scratch::bytes::<M4>(MAX_QUADS)
-    + crate::mem::scratch::bytes::<SceneHit>(4 * MAX_QUADS)
-    + traverse_packet::SCRATCH;
+/// Slot scratch a two-level packet batch of up to `q` quads holds (its
+/// quads, their lanes, their hits) with the top level's
+/// (`traverse_packet::scratch`), under which the geometries' packet
+/// traversals run.
+pub(super) const fn scratch(q: usize) -> usize {
+    use crate::mem::scratch::bytes;
+    bytes::<Ray4>(q) + bytes::<M4>(q) + bytes::<SceneHit>(4 * q) + traverse_packet::scratch(q)
+}
 
 /// `$body` with `$T` the type of triangle test `$test` names, culled as
 /// `$cull` says (every traversal is compiled once per test and culling).
@@ -556,7 +557,7 @@ impl<'a> Context<'a> {
             });
             return Ok(ctr);
         };
-        p.validate()?;
+        p.validate_for(&self.limits)?;
         let structure = p.method.structure();
         if structure != Structure::Bvh {
             // The grid and the kd-tree trace the flattened scene.

@@ -17,13 +17,13 @@ use super::{
     sheaf_status, write_out,
 };
 use super::{sheaf_hit, sheaf_ray};
+use crate::Limits;
 use crate::accel::bvh::BvhParams;
 use crate::accel::bvh::refit::RefitParams;
 use crate::accel::grid::GridParams;
 use crate::context::{Context, required_bytes};
 use crate::error::{Error, Result};
 use crate::geom::{Ray, Scene};
-use crate::mem::Limits;
 use crate::render::Band;
 use crate::trace::TraceParams;
 use core::cell::UnsafeCell;
@@ -174,7 +174,7 @@ struct Header {
     /// caller's buffer).
     alloc_bytes: Option<usize>,
     /// Where the caller's threads join a build (`sheaf_context_build_bvh_joined`).
-    join: crate::mem::par::Join,
+    join: crate::Join,
     handle: UnsafeCell<Handle>,
 }
 
@@ -298,7 +298,7 @@ unsafe fn place(
             state: State::new(),
             last_error: Slot::new(None),
             alloc_bytes,
-            join: crate::mem::par::Join::new(),
+            join: crate::Join::new(),
             handle: UnsafeCell::new(Handle {
                 ctx,
                 geometry: None,
@@ -743,9 +743,9 @@ pub(super) fn joined(
     ctx: *mut sheaf_context,
     thread_index: u32,
     thread_count: u32,
-    work: impl FnOnce(&mut Handle, &dyn crate::mem::par::Par) -> Result<()>,
+    work: impl FnOnce(&mut Handle, &dyn crate::Par) -> Result<()>,
 ) -> sheaf_status {
-    use crate::mem::par::MAX_WORKERS;
+    use crate::MAX_WORKERS;
     let (me, count) = (thread_index as usize, thread_count as usize);
     if count == 0 || me >= count || count > MAX_WORKERS {
         return guard_free(|| {
@@ -759,11 +759,11 @@ pub(super) fn joined(
         let s = guard_free(|| {
             let hd = header(ctx)?;
             match hd.join.help(me) {
-                crate::mem::par::Helped::Done(x) => {
+                crate::Helped::Done(x) => {
                     outcome = x;
                     Ok(())
                 }
-                crate::mem::par::Helped::NotAWorker => Err(Error::InvalidArgument(
+                crate::Helped::NotAWorker => Err(Error::InvalidArgument(
                     "joined call: thread_index beyond the leader's thread_count",
                 )),
             }
@@ -1266,6 +1266,44 @@ pub extern "C" fn sheaf_context_stats(
     with_ref(ctx, |h| {
         check_non_null!(out);
         write_out(out, sheaf_stats::of(h.ctx.stats()));
+        Ok(())
+    })
+}
+
+/// Scratch bytes each thread slot of a context made with `*limits` holds
+/// (part of `sheaf_required_bytes`), written to `*out`: set by the largest
+/// packet side, the Whitted bounces, the renderers and the structures.
+///
+/// Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_INVALID_ARGUMENT`
+/// (limits outside their domain). Thread-safe.
+#[unsafe(no_mangle)]
+pub extern "C" fn sheaf_slot_scratch_bytes(
+    limits: *const sheaf_limits,
+    out: *mut usize,
+) -> sheaf_status {
+    guard_free(|| {
+        let limits = read_in(limits)?.to_core()?;
+        limits.validate()?;
+        check_non_null!(out);
+        write_out(out, crate::slot_scratch_bytes(&limits));
+        Ok(())
+    })
+}
+
+/// The most slot scratch any call on `ctx` has used since its creation, in
+/// bytes, written to `*out` (at most `sheaf_slot_scratch_bytes` of its
+/// limits): run a frame at its largest settings, then size the limits.
+///
+/// Needs exclusive access (`SHEAF_STATUS_CONTEXT_BUSY` while another call
+/// runs). Errors: `SHEAF_STATUS_NULL_POINTER`.
+#[unsafe(no_mangle)]
+pub extern "C" fn sheaf_context_scratch_high_water(
+    ctx: *mut sheaf_context,
+    out: *mut usize,
+) -> sheaf_status {
+    with_mut(ctx, |h| {
+        check_non_null!(out);
+        write_out(out, h.ctx.scratch_high_water());
         Ok(())
     })
 }

@@ -2,8 +2,8 @@
 //! field docs are the reference), with its one boolean received as a byte.
 
 use super::{check_non_null, flag, guard_free, write_out};
+use crate::Limits;
 use crate::error::Result;
-use crate::mem::Limits;
 
 /// Capacities fixed at context creation: the crate's `Limits` field by
 /// field (see its docs in `src/mem/limits.rs` for each default rule).
@@ -52,6 +52,18 @@ pub struct sheaf_limits {
     /// Triangles all geometries may reserve together (140 bytes each). 0:
     /// `max_triangles`.
     pub max_scene_triangles: u32,
+    /// Largest packet side a call may ask for: 2, 4, 8, 16 or 32 (the
+    /// default). Each thread slot's scratch grows with its square; a call
+    /// asking for more gets `SHEAF_STATUS_CAPACITY_PACKET_SIDE`.
+    pub max_packet_side: u32,
+    /// Most bounces (`max_reflect + max_refract`) a Whitted frame may ask
+    /// for, 0..=8 (default 8); more: `SHEAF_STATUS_CAPACITY_BOUNCES`.
+    pub max_bounces: u32,
+    /// Which renderers get thread-slot scratch: `SHEAF_RENDERER_TILES`,
+    /// `_WHITTED`, `_DEFERRED` bits (default: all); 0 for a context that
+    /// only traces rays. A render call whose renderer is left out gets
+    /// `SHEAF_STATUS_INVALID_ARGUMENT`.
+    pub renderers: u32,
 }
 
 impl sheaf_limits {
@@ -74,6 +86,9 @@ impl sheaf_limits {
             max_geometries: l.max_geometries,
             max_instances: l.max_instances,
             max_scene_triangles: l.max_scene_triangles,
+            max_packet_side: l.max_packet_side,
+            max_bounces: l.max_bounces,
+            renderers: l.renderers,
         }
     }
 
@@ -100,6 +115,9 @@ impl sheaf_limits {
             max_geometries: self.max_geometries,
             max_instances: self.max_instances,
             max_scene_triangles: self.max_scene_triangles,
+            max_packet_side: self.max_packet_side,
+            max_bounces: self.max_bounces,
+            renderers: self.renderers,
         })
     }
 }
@@ -107,7 +125,8 @@ impl sheaf_limits {
 /// Write limits for scenes of up to `max_triangles` triangles to `*out`:
 /// `3 * max_triangles` vertices, 4096 x 4096 images, 64-pixel tiles, 8
 /// threads, grid pools derived from the triangle count (0 in
-/// `max_grid_cells` / `max_grid_refs`). Adjust fields afterwards as needed.
+/// `max_grid_cells` / `max_grid_refs`), packets up to 32 x 32, 8 Whitted
+/// bounces and every renderer. Adjust fields afterwards as needed.
 ///
 /// `out` must not be NULL. Thread-safe.
 #[unsafe(no_mangle)]

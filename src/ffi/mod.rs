@@ -124,7 +124,7 @@ use core::panic::AssertUnwindSafe;
 
 /// Alignment `sheaf_context_create_in` requires of its buffer
 /// (C: `SHEAF_CONTEXT_ALIGN`).
-pub const SHEAF_CONTEXT_ALIGN: usize = crate::mem::ARENA_ALIGN;
+pub const SHEAF_CONTEXT_ALIGN: usize = crate::CONTEXT_ALIGN;
 /// Most lights of a deferred frame (C: `SHEAF_DEFERRED_MAX_LIGHTS`).
 pub const SHEAF_DEFERRED_MAX_LIGHTS: usize = crate::render::deferred::MAX_LIGHTS;
 /// `sheaf_hit.prim` of a miss (C: `SHEAF_INVALID_ID`).

@@ -54,6 +54,10 @@ pub enum sheaf_status {
     /// A perspective or light grid needs more (triangle, cell) pairs than
     /// `sheaf_limits.max_pgrid_refs`.
     CapacityPgridRefs = 207,
+    /// A packet side larger than `sheaf_limits.max_packet_side`.
+    CapacityPacketSide = 208,
+    /// More Whitted bounces than `sheaf_limits.max_bounces`.
+    CapacityBounces = 209,
     /// `sheaf_context_create` could not allocate its memory.
     OutOfMemory = 299,
     /// `sheaf_context_build_grid` before any successful `sheaf_context_set_geometry`.
@@ -95,6 +99,8 @@ impl sheaf_status {
         sheaf_status::CapacityThreads,
         sheaf_status::CapacityPgridCells,
         sheaf_status::CapacityPgridRefs,
+        sheaf_status::CapacityPacketSide,
+        sheaf_status::CapacityBounces,
         sheaf_status::OutOfMemory,
         sheaf_status::NoGeometry,
         sheaf_status::NotBuilt,
@@ -119,6 +125,8 @@ impl sheaf_status {
                 Pool::Threads => sheaf_status::CapacityThreads,
                 Pool::PgridCells => sheaf_status::CapacityPgridCells,
                 Pool::PgridRefs => sheaf_status::CapacityPgridRefs,
+                Pool::PacketSide => sheaf_status::CapacityPacketSide,
+                Pool::Bounces => sheaf_status::CapacityBounces,
             },
             Error::BufferTooSmall { .. } => sheaf_status::BufferTooSmall,
             Error::Misaligned { .. } => sheaf_status::Misaligned,
@@ -168,6 +176,12 @@ impl sheaf_status {
             }
             sheaf_status::CapacityPgridRefs => {
                 c"capacity exceeded: perspective/light grid pairs (sheaf_limits.max_pgrid_refs)"
+            }
+            sheaf_status::CapacityPacketSide => {
+                c"capacity exceeded: packet side (sheaf_limits.max_packet_side)"
+            }
+            sheaf_status::CapacityBounces => {
+                c"capacity exceeded: Whitted bounces (sheaf_limits.max_bounces)"
             }
             sheaf_status::OutOfMemory => c"out of memory",
             sheaf_status::NoGeometry => c"no geometry set",
@@ -223,6 +237,8 @@ mod tests {
                 | sheaf_status::CapacityThreads
                 | sheaf_status::CapacityPgridCells
                 | sheaf_status::CapacityPgridRefs
+                | sheaf_status::CapacityPacketSide
+                | sheaf_status::CapacityBounces
                 | sheaf_status::OutOfMemory => 200..300,
                 sheaf_status::NoGeometry
                 | sheaf_status::NotBuilt

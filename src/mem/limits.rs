@@ -74,6 +74,22 @@ pub struct Limits {
     /// Triangles all geometries may reserve together (140 bytes each, as
     /// the BVH). 0: `max_triangles`.
     pub max_scene_triangles: u32,
+    /// Largest packet side a call may ask for (`TraceParams::packet`, a
+    /// render tile's packets, a perspective grid's sorting tile): 2, 4, 8,
+    /// 16 or 32. Each slot's scratch grows with its square (about 1 KiB
+    /// per ray at 32 with every renderer; see `context::slot_scratch_bytes`);
+    /// a call asking for more gets `Capacity { pool: PacketSide }`.
+    pub max_packet_side: u32,
+    /// Most bounces a Whitted frame may ask for (`max_reflect +
+    /// max_refract`), 0..=8: each is one more level of packets in a slot's
+    /// scratch. More gets `Capacity { pool: Bounces }`.
+    pub max_bounces: u32,
+    /// Which renderers get slot scratch, a bit set of
+    /// `SHEAF_RENDERER_TILES` (`render_with`, `render_rows_in_slot`),
+    /// `SHEAF_RENDERER_WHITTED` and `SHEAF_RENDERER_DEFERRED`; 0: none,
+    /// for a context that only traces rays. A render call whose renderer
+    /// is left out gets `InvalidArgument`.
+    pub renderers: u32,
 }
 
 impl Limits {
@@ -96,6 +112,31 @@ impl Limits {
     /// Every structure bit this version knows.
     /// cbindgen:ignore
     pub const ALL_STRUCTURES: u32 = Self::GRID | Self::BVH | Self::KD | Self::PGRID;
+
+    /// `renderers` bit: packet tiles, `render_with` and
+    /// `render_rows_in_slot` (C: `SHEAF_RENDERER_TILES`).
+    /// cbindgen:ignore
+    pub const TILES: u32 = 1;
+    /// `renderers` bit: Whitted frames (C: `SHEAF_RENDERER_WHITTED`).
+    /// cbindgen:ignore
+    pub const WHITTED: u32 = 2;
+    /// `renderers` bit: deferred frames (C: `SHEAF_RENDERER_DEFERRED`).
+    /// cbindgen:ignore
+    pub const DEFERRED: u32 = 4;
+    /// Every renderer bit this version knows.
+    /// cbindgen:ignore
+    pub const ALL_RENDERERS: u32 = Self::TILES | Self::WHITTED | Self::DEFERRED;
+    /// Largest packet side any call can ask for (the default).
+    /// cbindgen:ignore
+    pub const PACKET_SIDE: u32 = 32;
+    /// Most Whitted bounces any frame can ask for (the default).
+    /// cbindgen:ignore
+    pub const BOUNCES: u32 = 8;
+
+    /// Whether `renderer` (a `Limits::TILES`-style bit) has slot scratch.
+    pub const fn renders(&self, renderer: u32) -> bool {
+        self.renderers & renderer != 0
+    }
 
     /// Whether `structure` (a `Limits::GRID`-style bit) has pools.
     pub const fn has(&self, structure: u32) -> bool {
@@ -122,7 +163,35 @@ impl Limits {
             max_geometries: 0,
             max_instances: 0,
             max_scene_triangles: 0,
+            max_packet_side: Self::PACKET_SIDE,
+            max_bounces: Self::BOUNCES,
+            renderers: Self::ALL_RENDERERS,
         }
+    }
+
+    /// `Capacity { pool: PacketSide }` unless `side <= max_packet_side`.
+    pub fn check_packet_side(&self, side: u32) -> Result<()> {
+        if side > self.max_packet_side {
+            return Err(Error::Capacity {
+                pool: crate::error::Pool::PacketSide,
+                needed: side.into(),
+                available: self.max_packet_side.into(),
+            });
+        }
+        Ok(())
+    }
+
+    /// `InvalidArgument` unless `renderer` (a `Limits::TILES`-style bit) is
+    /// in `renderers`.
+    pub fn check_renderer(&self, renderer: u32) -> Result<()> {
+        if self.renders(renderer) {
+            return Ok(());
+        }
+        Err(Error::InvalidArgument(match renderer {
+            Self::TILES => "no tile-renderer scratch: Limits::renderers lacks TILES",
+            Self::WHITTED => "no Whitted scratch: Limits::renderers lacks WHITTED",
+            _ => "no deferred-frame scratch: Limits::renderers lacks DEFERRED",
+        }))
     }
 
     /// Instance capacity of the two-level scene after the default rule (0
@@ -247,6 +316,19 @@ impl Limits {
         if self.max_image_width == 0 || self.max_image_height == 0 {
             return Err(Error::InvalidArgument(
                 "max_image_width and max_image_height must be > 0",
+            ));
+        }
+        if !matches!(self.max_packet_side, 2 | 4 | 8 | 16 | 32) {
+            return Err(Error::InvalidArgument(
+                "max_packet_side must be 2, 4, 8, 16 or 32",
+            ));
+        }
+        if self.max_bounces > Self::BOUNCES {
+            return Err(Error::InvalidArgument("max_bounces must be in 0..=8"));
+        }
+        if self.renderers & !Self::ALL_RENDERERS != 0 {
+            return Err(Error::InvalidArgument(
+                "renderers must name no unknown bits",
             ));
         }
         if self.structures & !Self::ALL_STRUCTURES != 0 || self.structures == 0 {

@@ -6,10 +6,13 @@
 //! typed slice from the front and the rest as a new, shorter `Scratch`, both
 //! borrowed from the parent, so a callee can only use what its caller left
 //! and everything is given back when the borrows end. Nothing is freed and
-//! nothing allocates; how many bytes a slot needs is a constant of the code
-//! (`context::SLOT_SCRATCH_BYTES`), counted in `required_bytes`.
+//! nothing allocates; how many bytes a slot needs follows from the limits
+//! (`context::slot_scratch_bytes`), counted in `required_bytes`. A slot's
+//! scratch keeps its high-water mark (the fewest bytes ever left after a
+//! take), so tests and users can see the bytes a call really used.
 
 use core::mem::{MaybeUninit, align_of, size_of};
+use core::sync::atomic::{AtomicU32, Ordering::Relaxed};
 
 /// Bytes `n` values of `T` may take from a [`Scratch`], alignment padding
 /// included (for the constants that size a slot's scratch).
@@ -20,6 +23,11 @@ pub const fn bytes<T>(n: usize) -> usize {
 /// Scratch bytes of one thread slot, borrowed for `'a`.
 pub struct Scratch<'a> {
     buf: &'a mut [MaybeUninit<u8>],
+    /// The fewest bytes left after any take, for a slot's scratch (its
+    /// high-water mark is its length less this). Atomic only so that a
+    /// slot can move between threads: one thread at a time uses it (the
+    /// slot's claim), so plain loads and stores suffice.
+    low: Option<&'a AtomicU32>,
 }
 
 impl<'a> Scratch<'a> {
@@ -30,12 +38,24 @@ impl<'a> Scratch<'a> {
         // `MaybeUninit` view (values of any `Copy` type, see `split`) leaves
         // `buf` valid as `u8` for its owner afterwards.
         let buf = unsafe { &mut *(buf as *mut [u8] as *mut [MaybeUninit<u8>]) };
-        Scratch { buf }
+        Scratch { buf, low: None }
+    }
+
+    /// Scratch over `buf` that lowers `low` to the fewest bytes ever left
+    /// after a take (a thread slot's high-water mark).
+    pub fn tracked(buf: &'a mut [u8], low: &'a AtomicU32) -> Scratch<'a> {
+        Scratch {
+            low: Some(low),
+            ..Scratch::new(buf)
+        }
     }
 
     /// No scratch at all (every `split` of more than nothing panics).
     pub fn empty() -> Scratch<'static> {
-        Scratch { buf: &mut [] }
+        Scratch {
+            buf: &mut [],
+            low: None,
+        }
     }
 
     /// Bytes left.
@@ -46,7 +66,10 @@ impl<'a> Scratch<'a> {
     /// The same bytes, borrowed for a shorter time.
     #[inline(always)]
     pub fn reborrow(&mut self) -> Scratch<'_> {
-        Scratch { buf: self.buf }
+        Scratch {
+            buf: self.buf,
+            low: self.low,
+        }
     }
 
     /// `n` values of `T`, each `fill`, from the front, and the rest, both
@@ -112,7 +135,19 @@ impl<'a> Scratch<'a> {
         // SAFETY: the `n` values were all written just above; the slice
         // borrows `head`, exclusively ours for 'a.
         let vals = unsafe { core::slice::from_raw_parts_mut(p, n) };
-        (vals, Scratch { buf: rest })
+        if let Some(low) = self.low {
+            let left = rest.len().min(u32::MAX as usize) as u32;
+            if left < low.load(Relaxed) {
+                low.store(left, Relaxed);
+            }
+        }
+        (
+            vals,
+            Scratch {
+                buf: rest,
+                low: self.low,
+            },
+        )
     }
 }
 
@@ -121,7 +156,7 @@ impl<'a> Scratch<'a> {
 #[inline(never)]
 fn exhausted(wanted: usize, ty: &str, left: usize) -> ! {
     panic!(
-        "slot scratch exhausted: {wanted} bytes of {ty} wanted, {left} left (SLOT_SCRATCH_BYTES misses a call path)"
+        "slot scratch exhausted: {wanted} bytes of {ty} wanted, {left} left (slot_scratch_bytes misses a call path, or a call exceeds the limits unchecked)"
     );
 }
 
@@ -146,6 +181,19 @@ mod tests {
         assert_eq!(a, &[7, 7, 7]);
         assert_eq!(b, &[1.5, 1.5, 1.5, 2.0]);
         assert!((255 - 3 - 32 - 7..=255 - 3 - 32).contains(&left));
+    }
+
+    #[test]
+    fn the_mark_keeps_the_deepest_take() {
+        let mut raw = [0u64; 32];
+        let low = AtomicU32::new(256);
+        let mut s = Scratch::tracked(bytemuck::cast_slice_mut(&mut raw), &low);
+        {
+            let (_, mut rest) = s.split(10, 0u64);
+            let _ = rest.split(6, 0u8);
+        }
+        let _ = s.split(4, 0u8);
+        assert_eq!(low.load(Relaxed), 256 - 80 - 6);
     }
 
     #[test]

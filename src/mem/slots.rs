@@ -20,13 +20,15 @@ const _: () = assert!(core::mem::align_of::<AtomicU32>() == core::mem::align_of:
 
 /// The slots' memory, carved from the context's arena: `count` runs of
 /// `per_slot` stamps, `count` packet counters, `count` runs of
-/// `scratch_per_slot` scratch bytes and `count` claim flags.
+/// `scratch_per_slot` scratch bytes, `count` scratch marks (the fewest
+/// bytes a slot's scratch ever had left) and `count` claim flags.
 pub struct Slots<'a> {
     stamps: NonNull<u32>,
     per_slot: usize,
     packets: NonNull<u32>,
     scratch: NonNull<u8>,
     scratch_per_slot: usize,
+    low: NonNull<u32>,
     busy: NonNull<u32>,
     count: usize,
     _pools: PhantomData<&'a mut [u32]>,
@@ -34,24 +36,26 @@ pub struct Slots<'a> {
 
 // SAFETY: the pools are plain u32s and bytes owned by this value for 'a. Shared access
 // (`&Slots` on several threads) touches only the claim flags, atomically,
-// and a slot's stamps, counter and scratch only while its flag is held (`claim`), so
-// no two threads ever reach the same non-atomic memory.
+// and a slot's stamps, counter, scratch and mark only while its flag is held
+// (`claim`), so no two threads ever reach the same non-atomic memory.
 unsafe impl Send for Slots<'_> {}
 // SAFETY: as for Send.
 unsafe impl Sync for Slots<'_> {}
 
 impl<'a> Slots<'a> {
     /// Slots over `stamps` (`per_slot` stamps per slot, `packets.len()`
-    /// slots) and `scratch` (equal runs per slot) with their claim flags
-    /// `busy` (one per slot, all released).
+    /// slots) and `scratch` (equal runs per slot) with their scratch marks
+    /// `low` and claim flags `busy` (one each per slot; all released).
     pub fn new(
         stamps: &'a mut [u32],
         packets: &'a mut [u32],
         scratch: &'a mut [u8],
+        low: &'a mut [u32],
         busy: &'a mut [u32],
     ) -> Self {
         let count = packets.len();
         assert_eq!(busy.len(), count, "one claim flag per slot");
+        assert_eq!(low.len(), count, "one scratch mark per slot");
         let per_slot = stamps.len().checked_div(count).unwrap_or(0);
         assert_eq!(per_slot * count, stamps.len(), "equal stamp runs per slot");
         let scratch_per_slot = scratch.len().checked_div(count).unwrap_or(0);
@@ -61,12 +65,14 @@ impl<'a> Slots<'a> {
             "equal scratch runs per slot"
         );
         busy.fill(0);
+        low.fill(scratch_per_slot.min(u32::MAX as usize) as u32);
         Slots {
             stamps: NonNull::from(stamps).cast(),
             per_slot,
             packets: NonNull::from(packets).cast(),
             scratch: NonNull::from(scratch).cast(),
             scratch_per_slot,
+            low: NonNull::from(low).cast(),
             busy: NonNull::from(busy).cast(),
             count,
             _pools: PhantomData,
@@ -78,7 +84,24 @@ impl<'a> Slots<'a> {
         self.count
     }
 
-    /// Slot `i`'s stamps, packet counter and scratch, as raw pointers: no reference
+    /// Scratch bytes of each slot.
+    pub fn scratch_per_slot(&self) -> usize {
+        self.scratch_per_slot
+    }
+
+    /// The most scratch bytes any call has used in any slot (the slots'
+    /// high-water mark). `&mut self`: no call holds a slot meanwhile.
+    pub fn scratch_high_water(&mut self) -> usize {
+        self.all()
+            .map(|(_, _, scratch, low)| {
+                let low = low.load(Ordering::Relaxed) as usize;
+                scratch.len() - low.min(scratch.len())
+            })
+            .max()
+            .unwrap_or(0)
+    }
+
+    /// Slot `i`'s stamps, packet counter, scratch and mark, as raw pointers: no reference
     /// is made here, so `&self` hands out nothing mutable. The references
     /// are made by whoever holds exclusive use of the slot (a
     /// [`SlotGuard`] through its `&mut self`, or [`Slots::all`] through
@@ -86,11 +109,11 @@ impl<'a> Slots<'a> {
     ///
     /// # Safety
     /// `i < count`.
-    unsafe fn raw_parts(&self, i: usize) -> (NonNull<[u32]>, NonNull<u32>, NonNull<[u8]>) {
+    unsafe fn raw_parts(&self, i: usize) -> RawParts {
         debug_assert!(i < self.count);
         let sc = self.scratch_per_slot;
         // SAFETY: `i < count`, so the runs `[i * per_slot, (i + 1) * per_slot)`
-        // of stamps and scratch and counter `i` lie inside the pools borrowed
+        // of stamps and scratch, counter `i` and mark `i` lie inside the pools borrowed
         // for 'a (offsets in bounds of one allocation); only pointers are
         // formed, nothing is read or written.
         unsafe {
@@ -98,6 +121,7 @@ impl<'a> Slots<'a> {
                 NonNull::slice_from_raw_parts(self.stamps.add(i * self.per_slot), self.per_slot),
                 self.packets.add(i),
                 NonNull::slice_from_raw_parts(self.scratch.add(i * sc), sc),
+                self.low.add(i),
             )
         }
     }
@@ -130,7 +154,7 @@ impl<'a> Slots<'a> {
         Ok(SlotGuard { slots: self, i })
     }
 
-    /// Every slot's stamps, counter and scratch at once (exclusive access:
+    /// Every slot's stamps, counter, scratch and mark at once (exclusive access:
     /// no guard can be alive while `self` is mutably borrowed).
     pub fn all(&mut self) -> impl Iterator<Item = SlotParts<'_>> + '_ {
         let this = &*self;
@@ -139,13 +163,15 @@ impl<'a> Slots<'a> {
             // for 'a; each slot is yielded once, so the references never
             // alias one another, and the `&mut self` borrow, held by the
             // iterator, rules out guards and other callers for as long as
-            // the references live.
+            // the references live. The mark is a u32 aligned for the atomic
+            // (const assert above), only ever accessed atomically after `new`.
             unsafe {
-                let (stamps, packet, scratch) = this.raw_parts(i);
+                let (stamps, packet, scratch, low) = this.raw_parts(i);
                 (
                     &mut *stamps.as_ptr(),
                     &mut *packet.as_ptr(),
                     &mut *scratch.as_ptr(),
+                    AtomicU32::from_ptr(low.as_ptr()),
                 )
             }
         })
@@ -167,8 +193,12 @@ impl<'a> Slots<'a> {
     }
 }
 
-/// A slot's stamps, packet counter and scratch bytes.
-pub type SlotParts<'s> = (&'s mut [u32], &'s mut u32, &'s mut [u8]);
+/// `SlotParts` as pointers.
+type RawParts = (NonNull<[u32]>, NonNull<u32>, NonNull<[u8]>, NonNull<u32>);
+
+/// A slot's stamps, packet counter, scratch bytes and scratch mark (the
+/// fewest scratch bytes ever left: `mem::Scratch::tracked`).
+pub type SlotParts<'s> = (&'s mut [u32], &'s mut u32, &'s mut [u8], &'s AtomicU32);
 
 /// A claimed slot; released on drop.
 pub struct SlotGuard<'s, 'a> {
@@ -177,19 +207,21 @@ pub struct SlotGuard<'s, 'a> {
 }
 
 impl SlotGuard<'_, '_> {
-    /// The slot's stamps, packet counter and scratch.
+    /// The slot's stamps, packet counter, scratch and scratch mark.
     pub fn parts(&mut self) -> SlotParts<'_> {
         // SAFETY: `i < count` (checked in `claim`), so the pointers are in
         // bounds and valid for 'a; this guard holds the slot's flag, so no
         // other thread or guard uses the slot; the references borrow from
         // `&mut self`, so a second call cannot overlap them and they end
-        // before the guard drops and releases the flag.
+        // before the guard drops and releases the flag. The mark is a u32
+        // aligned for the atomic, only ever accessed atomically after `new`.
         unsafe {
-            let (stamps, packet, scratch) = self.slots.raw_parts(self.i);
+            let (stamps, packet, scratch, low) = self.slots.raw_parts(self.i);
             (
                 &mut *stamps.as_ptr(),
                 &mut *packet.as_ptr(),
                 &mut *scratch.as_ptr(),
+                AtomicU32::from_ptr(low.as_ptr()),
             )
         }
     }
@@ -212,7 +244,8 @@ mod tests {
     fn a_slot_is_claimed_once_at_a_time() {
         let (mut st, mut pk, mut busy) = ([0u32; 6], [0u32; 3], [7u32; 3]);
         let mut sc = [0u8; 3 * 8];
-        let slots = Slots::new(&mut st, &mut pk, &mut sc, &mut busy);
+        let mut low = [0u32; 3];
+        let slots = Slots::new(&mut st, &mut pk, &mut sc, &mut low, &mut busy);
         let mut a = slots.claim(1).unwrap();
         assert_eq!(slots.claim(1).err(), Some(Error::SlotBusy { slot: 1 }));
         let mut b = slots.claim(2).unwrap();
@@ -242,14 +275,15 @@ mod tests {
     #[test]
     fn threads_with_their_own_slots_do_not_interfere() {
         let (mut st, mut pk, mut busy) = ([0u32; 4 * 64], [0u32; 4], [0u32; 4]);
-        let slots = Slots::new(&mut st, &mut pk, &mut [], &mut busy);
+        let mut low = [0u32; 4];
+        let slots = Slots::new(&mut st, &mut pk, &mut [], &mut low, &mut busy);
         std::thread::scope(|s| {
             for t in 0..4u32 {
                 let slots = &slots;
                 s.spawn(move || {
                     for round in 0..200u32 {
                         let mut g = slots.claim(t).unwrap();
-                        let (stamps, packet, _) = g.parts();
+                        let (stamps, packet, _, _) = g.parts();
                         stamps.fill(t * 1000 + round);
                         *packet = round;
                         assert!(stamps.iter().all(|&v| v == t * 1000 + round));
@@ -264,7 +298,7 @@ mod tests {
 
     #[test]
     fn no_slots() {
-        let slots = Slots::new(&mut [], &mut [], &mut [], &mut []);
+        let slots = Slots::new(&mut [], &mut [], &mut [], &mut [], &mut []);
         assert_eq!(slots.count(), 0);
         assert!(slots.claim(0).is_err());
     }

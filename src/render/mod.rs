@@ -28,13 +28,13 @@ use crate::trace::{Counters, TraceParams};
 pub use camera::{Camera, CameraRays, PixelRect, PrimaryRays, demorton};
 use glam::Vec3;
 
-/// Slot scratch a packet tile of `render_tiles` holds while it traces:
-/// camera and shadow quads, masks and hits, shadow distances, cosines.
-pub const SCRATCH: usize = {
+/// Slot scratch a packet tile of `render_tiles` of up to `q` quads holds
+/// while it traces: camera and shadow quads, masks and hits, shadow
+/// distances, cosines.
+pub const fn scratch(q: usize) -> usize {
     use crate::mem::scratch::bytes;
-    const Q: usize = crate::accel::packet::MAX_QUADS;
-    2 * (bytes::<Ray4>(Q) + bytes::<M4>(Q) + bytes::<Hit4>(Q)) + 2 * bytes::<F4>(Q)
-};
+    2 * (bytes::<Ray4>(q) + bytes::<M4>(q) + bytes::<Hit4>(q)) + 2 * bytes::<F4>(q)
+}
 
 /// Point light, optionally a spot light (C: `sheaf_light`; a zeroed spot
 /// part is a point light shining everywhere).
@@ -350,7 +350,7 @@ fn tiles<T: Tracer + ?Sized, const Q: usize>(
     let eps = SHADOW_OFFSET * tracer.scene_scale();
     let light = Vec3::from(frame.light.position);
     let lane_xy = [(0u32, 0u32), (1, 0), (0, 1), (1, 1)];
-    // The tile's packets live in the slot's scratch (`SCRATCH`).
+    // The tile's packets live in the slot's scratch (`scratch`).
     let blank = Ray4::from_rays(&[Ray::new(Vec3::ZERO, Vec3::X, 0.0, 0.0); 4]);
     let (quads, s) = slot.reborrow().take(Q, blank);
     let (active, s) = s.take(Q, M4::FALSE);

@@ -74,9 +74,9 @@
 //! # Memory
 //! No allocation, and the packet path keeps its packets in the calling
 //! thread slot's scratch, not on the stack: per recursion level (one per
-//! bounce, at most `1 + MAX_BOUNCES` levels) the level's hits and its child
-//! packet, once the tile, the shading of one level (surfaces, one shadow
-//! packet) and the traversal below it (`SCRATCH`, counted in
+//! bounce, at most `1 + Limits::max_bounces` levels) the level's hits and
+//! its child packet, once the tile, the shading of one level (surfaces, one
+//! shadow packet) and the traversal below it (`scratch`, counted in
 //! `required_bytes`).
 //!
 //! # Deviations
@@ -188,13 +188,23 @@ impl<'a> WhittedJob<'a> {
     }
 
     /// Checks the bounce limits, the materials, the three `TraceParams` and
-    /// that every light is finite.
-    pub fn validate(&self) -> Result<()> {
+    /// that every light is finite, and that the context's limits `l` hold
+    /// the frame (Whitted renderer, bounces, packet sides).
+    pub fn validate(&self, l: &crate::mem::Limits) -> Result<()> {
+        l.check_renderer(crate::mem::Limits::WHITTED)?;
         self.params.validate()?;
+        let bounces = self.params.max_reflect + self.params.max_refract;
+        if bounces > l.max_bounces {
+            return Err(Error::Capacity {
+                pool: crate::error::Pool::Bounces,
+                needed: bounces.into(),
+                available: l.max_bounces.into(),
+            });
+        }
         self.materials.validate()?;
-        self.primary.validate()?;
-        self.shadow.validate()?;
-        self.secondary.validate()?;
+        self.primary.validate_for(l)?;
+        self.shadow.validate_for(l)?;
+        self.secondary.validate_for(l)?;
         for l in self.lights() {
             l.validate()?;
         }
@@ -547,24 +557,23 @@ impl<'s> Packet<'s> {
     }
 }
 
-/// Slot scratch of a Whitted tile at the deepest level: the tile (camera
-/// packet, colours), per level a packet of hits and its child packet, and
-/// the largest shading scratch (`shade_packet`).
-pub const SCRATCH: usize = {
+/// Slot scratch of a Whitted tile of up to `q` quads at the deepest of
+/// `bounces` bounces: the tile (camera packet, colours), per level (the
+/// camera's and one per bounce) a packet of hits, per bounce the child
+/// packet, and the largest shading scratch (`shade_packet`).
+pub const fn scratch(q: usize, bounces: u32) -> usize {
     use crate::mem::scratch::bytes;
-    const Q: usize = crate::accel::packet::MAX_QUADS;
-    const PACKET: usize = bytes::<Ray4>(Q) + bytes::<M4>(Q) + bytes::<F4>(Q);
-    const LEVEL: usize = bytes::<Hit4>(Q) + PACKET;
-    const SHADE: usize = bytes::<[Option<Surface>; 4]>(Q)
-        + bytes::<[Vec3; 4]>(Q)
-        + bytes::<Ray4>(Q)
-        + bytes::<M4>(Q)
-        + bytes::<Hit4>(Q)
-        + 2 * bytes::<F4>(Q);
+    let packet = bytes::<Ray4>(q) + bytes::<M4>(q) + bytes::<F4>(q);
+    let shade = bytes::<[Option<Surface>; 4]>(q)
+        + bytes::<[Vec3; 4]>(q)
+        + bytes::<Ray4>(q)
+        + bytes::<M4>(q)
+        + bytes::<Hit4>(q)
+        + 2 * bytes::<F4>(q);
     // One level per bounce plus the camera level.
-    const LEVELS: usize = MAX_BOUNCES as usize + 1;
-    PACKET + bytes::<[Vec3; 4]>(Q) + LEVELS * LEVEL + SHADE
-};
+    let levels = bounces as usize + 1;
+    packet + bytes::<[Vec3; 4]>(q) + levels * bytes::<Hit4>(q) + (levels - 1) * packet + shade
+}
 
 // Not inlined: the five size classes would share one caller frame.
 #[inline(never)]

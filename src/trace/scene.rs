@@ -16,10 +16,11 @@ use crate::error::{Error, Result};
 use crate::geom::{Hit, Hit4, M4, Mt, Pt, Ray, Ray4, TriTest, TriVerts, Wt};
 
 /// Slot scratch `batch_on` holds while the driver runs: one packet's
-/// quads, lane masks and hits.
-pub const SCRATCH: usize = crate::mem::scratch::bytes::<Ray4>(MAX_QUADS)
-    + crate::mem::scratch::bytes::<M4>(MAX_QUADS)
-    + crate::mem::scratch::bytes::<Hit4>(MAX_QUADS);
+/// quads, lane masks and hits, for packets of up to `q` quads.
+pub const fn scratch(q: usize) -> usize {
+    use crate::mem::scratch::bytes;
+    bytes::<Ray4>(q) + bytes::<M4>(q) + bytes::<Hit4>(q)
+}
 
 /// What a structure offers the renderer: nearest hits and occlusion for
 /// single rays and for packets of 2x2 quads, and the triangle a hit refers

@@ -64,14 +64,13 @@ pub use crate::geom::frustum::RayKind;
 use crate::geom::{Aabb, Hit, Hit4, M4, ProjTri, Ray, Ray4, TriTest, TriVerts, TriangleTest};
 use bytemuck::{Pod, Zeroable};
 
-/// Slot scratch this module's packet code takes (`accel::slot`): the
-/// entry search's live lanes (`accel::packet::start`), then, given back,
-/// one large packet (`packet::SCRATCH`); the 2x2 SIMD ray takes none.
-pub const SCRATCH: usize = if packet::SCRATCH > crate::accel::packet::START_SCRATCH {
-    packet::SCRATCH
-} else {
-    crate::accel::packet::START_SCRATCH
-};
+/// Slot scratch this module's packet code takes (`accel::slot`) for
+/// packets of up to `q` quads: the entry search's live lanes
+/// (`accel::packet::start`), then, given back, one packet
+/// (`packet::scratch`); the 2x2 SIMD ray takes none.
+pub const fn scratch(q: usize) -> usize {
+    crate::accel::slot::max(packet::scratch(q), crate::accel::packet::start_scratch(q))
+}
 
 /// Deepest level a build creates (root = depth 0). Nodes at this depth
 /// become leaves whatever their size, so every traversal stack of

@@ -39,7 +39,7 @@ use crate::accel::entry::EntryPoint;
 use crate::accel::fallback;
 use crate::accel::group::{self, Group};
 use crate::accel::method::TraceParams;
-use crate::accel::packet::{MAX_QUADS, SizeClass, by_class};
+use crate::accel::packet::{SizeClass, by_class};
 use crate::accel::slot::Slot;
 use crate::counters::{Counters, count};
 use crate::geom::lane::mask_from_bits;
@@ -47,23 +47,26 @@ use crate::geom::{F4, Hit4, M4, Mt, Pt, Ray4, RayLanes, Wide, Wt};
 use crate::isa;
 use crate::mem::scratch::bytes;
 
-/// Slot scratch one packet of the largest class takes, for the triangle
-/// test whose precomputation is largest: the per-quad arrays of `Packet`
-/// (live lanes, `QuadBox`, precomputation, far ends), then the larger of
-/// what a walk takes (Masked's masks are given back before its switch to
-/// Partition takes the index list).
-pub(crate) const SCRATCH: usize = bytes::<M4>(MAX_QUADS)
-    + bytes::<QuadBox>(MAX_QUADS)
-    + max(
-        max(bytes::<Pre<Mt>>(MAX_QUADS), bytes::<Pre<Wt>>(MAX_QUADS)),
-        bytes::<Pre<Pt>>(MAX_QUADS),
-    )
-    + bytes::<F4>(MAX_QUADS)
-    + group::max_bytes(MAX_QUADS)
-    + max(
-        max(bytes::<bool>(MAX_QUADS), bytes::<u16>(MAX_QUADS)),
-        super::traverse_frustum::bytes(MAX_QUADS),
-    );
+/// Slot scratch one packet of up to `q` quads takes, for the triangle
+/// test whose precomputation is largest, in the larger of the two kinds of
+/// walk: the generic walks (the per-quad arrays of `Packet`: live lanes,
+/// `QuadBox`, precomputation, far ends; the lane groups; Masked's masks
+/// and Partition's index list, both held after a switch), or the frustum
+/// walk (its lane groups' boxes, hits and frusta, and the lane groups).
+pub(crate) const fn scratch(q: usize) -> usize {
+    let generic = bytes::<M4>(q)
+        + bytes::<QuadBox>(q)
+        + max(
+            max(bytes::<Pre<Mt>>(q), bytes::<Pre<Wt>>(q)),
+            bytes::<Pre<Pt>>(q),
+        )
+        + bytes::<F4>(q)
+        + group::max_bytes(q)
+        + bytes::<bool>(q)
+        + bytes::<u16>(q);
+    let frustum = super::traverse_frustum::bytes(q) + group::max_bytes(q);
+    max(generic, frustum)
+}
 
 /// A triangle test's per-quad precomputation.
 type Pre<T> = <T as TriangleTest>::Pre<F4>;

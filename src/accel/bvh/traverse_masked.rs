@@ -315,7 +315,7 @@ pub(crate) mod tests {
         let traced = !matches!(start, Start::Miss);
         // Exactly the scratch `bvh::SCRATCH` promises, misaligned: a
         // packet taking more panics.
-        let mut raw = vec![0u8; crate::accel::bvh::SCRATCH + 1];
+        let mut raw = vec![0u8; crate::accel::bvh::scratch(crate::accel::packet::MAX_QUADS) + 1];
         let mut pk = 0;
         let mut slot = Slot::new(Mailbox::new(&mut [], &mut pk), Scratch::new(&mut raw[1..]));
         let s = &mut slot;

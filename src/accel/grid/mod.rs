@@ -28,8 +28,10 @@ use crate::geom::{Aabb, Hit, Hit4, M4, ProjTri, Ray, Ray4, TriTest, TriVerts, Tr
 use glam::Vec3;
 
 /// Slot scratch this module's packet code takes (`accel::slot`): a CGT
-/// packet's per-quad state.
-pub const SCRATCH: usize = traverse_cgt::SCRATCH;
+/// packet's per-quad state, for packets of up to `q` quads.
+pub const fn scratch(q: usize) -> usize {
+    traverse_cgt::scratch(q)
+}
 
 /// Tunables of the grid (C: `sheaf_grid_params`).
 #[repr(C)]

@@ -82,12 +82,13 @@ const BOX_EPS: f32 = 1e-3;
 pub use crate::accel::mailbox::Mailbox;
 pub use crate::accel::method::CgtOptions;
 
-/// Slot scratch a packet takes: per quad the live lanes and six slice
-/// coordinates, and the quads' lane groups with the triangle test's
-/// precomputation (`accel::group`, the largest kind and width), for
-/// `MAX_QUADS` quads.
-pub const SCRATCH: usize =
-    bytes::<M4>(MAX_QUADS) + 6 * bytes::<F4>(MAX_QUADS) + group::max_bytes(MAX_QUADS);
+/// Slot scratch a packet of up to `q` quads takes: per quad the live
+/// lanes and six slice coordinates, and the quads' lane groups with the
+/// triangle test's precomputation (`accel::group`, the largest kind and
+/// width).
+pub const fn scratch(q: usize) -> usize {
+    bytes::<M4>(q) + 6 * bytes::<F4>(q) + group::max_bytes(q)
+}
 
 /// Nearest hits of the active lanes of `rays` (a packet of `rays.len()`
 /// quads; longer inputs are consecutive packets of `MAX_QUADS`) into

@@ -50,18 +50,14 @@ use crate::counters::Counters;
 use crate::geom::{Aabb, Hit, Hit4, M4, ProjTri, Ray, Ray4, TriTest, TriVerts, TriangleTest};
 use bytemuck::{Pod, Zeroable};
 
-/// Slot scratch this module's packet code takes (`accel::slot`): the
-/// occlusion masks of a packet and the packet traversal's scratch.
-pub const SCRATCH: usize = {
-    let walk = crate::mem::scratch::bytes::<M4>(crate::accel::packet::MAX_QUADS)
-        + traverse_packet::SCRATCH;
+/// Slot scratch this module's packet code takes (`accel::slot`) for
+/// packets of up to `q` quads: the occlusion masks of a packet and the
+/// packet traversal's scratch.
+pub const fn scratch(q: usize) -> usize {
+    let walk = crate::mem::scratch::bytes::<M4>(q) + traverse_packet::scratch(q);
     // `packet::start` runs first and gives its scratch back.
-    if walk > crate::accel::packet::START_SCRATCH {
-        walk
-    } else {
-        crate::accel::packet::START_SCRATCH
-    }
-};
+    crate::accel::slot::max(walk, crate::accel::packet::start_scratch(q))
+}
 
 /// Deepest level a build creates (root = depth 0); every traversal stack of
 /// `MAX_DEPTH + 1` entries suffices.

@@ -88,16 +88,18 @@ use crate::mem::scratch::bytes;
 /// Most quads traced as one packet (32 x 32 rays), for every family.
 pub use crate::accel::packet::MAX_QUADS;
 
-/// Slot scratch a packet of the largest class takes: per quad the live
+/// Slot scratch a packet of up to `q` quads takes: per quad the live
 /// lanes, origins and reciprocal directions (3 each), tmin, tmax, the
 /// interval (2), the split's t_s, the active list, the leaf's lanes, the
 /// quads' lane groups with the triangle test's precomputation
 /// (`accel::group`, the largest kind and width); and the stack.
-pub const SCRATCH: usize = 2 * bytes::<M4>(MAX_QUADS)
-    + 11 * bytes::<F4>(MAX_QUADS)
-    + bytes::<u16>(MAX_QUADS)
-    + group::max_bytes(MAX_QUADS)
-    + bytes::<Entry>(MAX_DEPTH + 1);
+pub const fn scratch(q: usize) -> usize {
+    2 * bytes::<M4>(q)
+        + 11 * bytes::<F4>(q)
+        + bytes::<u16>(q)
+        + group::max_bytes(q)
+        + bytes::<Entry>(MAX_DEPTH + 1)
+}
 
 /// `Q` values, each `fill`, from the slot's scratch as an array (indices
 /// masked with `Q - 1` need no bounds check), and the rest of the slot.

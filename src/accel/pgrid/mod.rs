@@ -357,14 +357,6 @@ impl<'r> CellsView<'r> {
 /// The scene's triangles by id (the pgrid's store).
 pub use crate::geom::TriStore as Triangles;
 
-/// Slot scratch this module's packet code takes (`accel::slot`): a camera
-/// tile's or a shadow batch's per-quad state, whichever is larger.
-pub const SCRATCH: usize = if traverse_primary::SCRATCH > traverse_shadow::SCRATCH {
-    traverse_primary::SCRATCH
-} else {
-    traverse_shadow::SCRATCH
-};
-
 /// Pools of the perspective and light grids, carved at context creation.
 pub struct PgridPools<'a> {
     /// Scene triangles by id, their projection data, and 1 for traceable.

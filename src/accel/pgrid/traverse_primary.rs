@@ -91,11 +91,13 @@ fn tile_at<T: TriangleTest>(
 /// Most quads traced as one packet (32 x 32 rays), for every family.
 pub use crate::accel::packet::MAX_QUADS;
 
-/// Slot scratch a tile takes: per quad the live lanes and the depth per
-/// unit t, and the quads' lane groups with the triangle test's
-/// precomputation (`accel::group`, the largest kind and width).
-pub const SCRATCH: usize =
-    bytes::<M4>(MAX_QUADS) + bytes::<F4>(MAX_QUADS) + group::max_bytes(MAX_QUADS);
+/// Slot scratch a sorting tile of up to `q` quads takes: per quad the
+/// live lanes and the depth per unit t, and the quads' lane groups with
+/// the triangle test's precomputation (`accel::group`, the largest kind
+/// and width).
+pub const fn scratch(q: usize) -> usize {
+    bytes::<M4>(q) + bytes::<F4>(q) + group::max_bytes(q)
+}
 
 /// The tile's walk, its triangle tests on `L`-wide lanes.
 #[inline(always)]

@@ -66,15 +66,17 @@ use crate::geom::frustum::RayKind;
 use crate::geom::{F4, Hit4, M4, Ray4, TriangleTest};
 use crate::mem::scratch::bytes;
 
-/// Slot scratch of one packet: its quads' slab data, live lanes and far
-/// ends, the mapped quads, their lanes and hits; the geometry's traversal
-/// gets the rest.
-pub const SCRATCH: usize = bytes::<QuadBox>(MAX_QUADS)
-    + bytes::<M4>(MAX_QUADS)
-    + bytes::<F4>(MAX_QUADS)
-    + bytes::<Ray4>(MAX_QUADS)
-    + bytes::<M4>(MAX_QUADS)
-    + bytes::<Hit4>(MAX_QUADS);
+/// Slot scratch of one packet of up to `q` quads: its quads' slab data,
+/// live lanes and far ends, the mapped quads, their lanes and hits; the
+/// geometry's traversal gets the rest.
+pub const fn scratch(q: usize) -> usize {
+    bytes::<QuadBox>(q)
+        + bytes::<M4>(q)
+        + bytes::<F4>(q)
+        + bytes::<Ray4>(q)
+        + bytes::<M4>(q)
+        + bytes::<Hit4>(q)
+}
 
 /// Trace the active lanes of `rays` (at most `MAX_QUADS` quads) with
 /// `p.method` among instances whose mask shares a bit with `mask`: hit

@@ -30,7 +30,6 @@ use super::{
     Frame, PixelRect, PointLight, PrimaryRays, SHADOW_OFFSET, ShadowPacket, Tracer, demorton,
     encode, shadow_packet,
 };
-use crate::accel::packet::MAX_QUADS;
 use crate::accel::pgrid::{
     self as pgrid, CamView, CellsInfo, Chunk, LightFrame, LightView, ReorderInfo, reorder,
     traverse_primary, traverse_shadow,
@@ -44,13 +43,24 @@ use core::ops::Range;
 use core::sync::atomic::Ordering;
 use glam::Vec3;
 
-/// Slot scratch a deferred tile holds while it traces: quads, masks, hits
-/// and shadow distances of one tile of at most 32 x 32 pixels.
-pub const SCRATCH: usize = {
+/// Slot scratch of a deferred frame whose tiles have up to `q` quads,
+/// `traced` being what the packet driver and a family take under a traced
+/// pass (`accel::slot::accel_scratch`): the most of a traced tile (quads,
+/// masks, hits, shadow distances, and the traced pass under them), a
+/// perspective-grid sorting tile (quads, masks, hits, and
+/// `traverse_primary::scratch`) and a light-grid shadow batch (quads,
+/// masks and occlusion of `traverse_shadow::MAX_QUADS` quads, and
+/// `traverse_shadow::SCRATCH`).
+pub const fn scratch(q: usize, traced: usize) -> usize {
+    use crate::accel::slot::max;
     use crate::mem::scratch::bytes;
-    const Q: usize = MAX_QUADS;
-    bytes::<Ray4>(Q) + bytes::<M4>(Q) + bytes::<Hit4>(Q) + bytes::<F4>(Q)
-};
+    let tile = bytes::<Ray4>(q) + bytes::<M4>(q) + bytes::<Hit4>(q);
+    let traced_tile = tile + bytes::<F4>(q) + traced;
+    let pgrid_tile = tile + crate::accel::pgrid::traverse_primary::scratch(q);
+    let s = traverse_shadow::MAX_QUADS;
+    let light_batch = bytes::<Ray4>(s) + 2 * bytes::<M4>(s) + traverse_shadow::SCRATCH;
+    max(traced_tile, max(pgrid_tile, light_batch))
+}
 
 /// How camera rays are traced.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -93,7 +103,11 @@ impl<'a> DeferredJob<'a> {
         }
     }
 
-    pub fn validate(&self) -> Result<()> {
+    /// Checks the lights and the passes' params, and that the context's
+    /// limits `l` hold the frame (deferred renderer, packet sides; the
+    /// perspective grid's tile is checked where it is built).
+    pub fn validate(&self, l: &crate::mem::Limits) -> Result<()> {
+        l.check_renderer(crate::mem::Limits::DEFERRED)?;
         if self.lights.len() > MAX_LIGHTS {
             return Err(Error::InvalidArgument(
                 "a deferred frame takes at most 8 lights",
@@ -103,10 +117,10 @@ impl<'a> DeferredJob<'a> {
             l.validate()?;
         }
         if let PrimaryPass::Traced(p) = &self.primary {
-            p.validate()?;
+            p.validate_for(l)?;
         }
         if let ShadowPass::Traced(p) = &self.shadow {
-            p.validate()?;
+            p.validate_for(l)?;
         }
         Ok(())
     }
@@ -947,7 +961,7 @@ fn trace_one_chunk(
     ctr: &mut Counters,
 ) {
     {
-        // A batch's quads in the slot's scratch (`SCRATCH` covers it).
+        // A batch's quads in the slot's scratch (`scratch` covers it).
         const Q: usize = traverse_shadow::MAX_QUADS;
         let (quads, s) = slot.reborrow().take(Q, Ray4::from_rays(&[DUMMY; 4]));
         let (active, s) = s.take(Q, M4::FALSE);
