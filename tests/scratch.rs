@@ -280,14 +280,8 @@ fn the_two_level_scene_uses_the_scratch_its_limits_declare() {
 }
 
 fn frame_of(s: &BuiltinScene) -> Frame {
-    let v = s.views[0];
     Frame {
-        camera: Camera {
-            eye: v.eye.to_array(),
-            look_at: v.look_at.to_array(),
-            up: v.up.to_array(),
-            fov_y_deg: v.fov_y_deg,
-        },
+        camera: s.views[0].camera(),
         light: PointLight::new(s.light.to_array(), [1.0; 3]),
         shading: Shading::default(),
         width: 64,

@@ -48,6 +48,16 @@ impl View {
             fov_y_deg: Self::SPD_FOV_Y_DEG,
         }
     }
+
+    /// The renderer's camera for this view.
+    pub fn camera(&self) -> crate::render::Camera {
+        crate::render::Camera {
+            eye: self.eye.to_array(),
+            look_at: self.look_at.to_array(),
+            up: self.up.to_array(),
+            fov_y_deg: self.fov_y_deg,
+        }
+    }
 }
 
 /// Triangle mesh in the layout sheaf's scene input borrows: packed xyz f32 vertices (stride 12 bytes), u32 index triples.
