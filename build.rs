@@ -21,6 +21,7 @@
 
 fn main() {
     println!("cargo:rerun-if-changed=build.rs");
+    emulated_levels();
     let os = std::env::var("CARGO_CFG_TARGET_OS").unwrap_or_default();
     let major =
         std::env::var("CARGO_PKG_VERSION_MAJOR").expect("cargo sets CARGO_PKG_VERSION_MAJOR");
@@ -30,6 +31,36 @@ fn main() {
     let soname = format!("libsheaf.so.{major}");
     println!("cargo:rustc-cdylib-link-arg=-Wl,-soname,{soname}");
     soname_links(&soname);
+}
+
+/// The lane widths compiled for emulation (`isa::set_emulation`, tests
+/// only: a level above the CPU's run in baseline code, so the exactness
+/// suites check every width on any machine). A level the build machine
+/// runs natively never runs emulated there, and its emulated copy of every
+/// packet traversal was 45 % of the library's machine code (and of its
+/// compile time), so it is left out: cfg `sheaf_emulate_avx2` /
+/// `sheaf_emulate_avx512` are set only for levels the build machine lacks,
+/// for every level when cross-compiling (or off x86), and for both with
+/// `SHEAF_EMULATE=all`.
+fn emulated_levels() {
+    println!("cargo::rustc-check-cfg=cfg(sheaf_emulate_avx2)");
+    println!("cargo::rustc-check-cfg=cfg(sheaf_emulate_avx512)");
+    println!("cargo:rerun-if-env-changed=SHEAF_EMULATE");
+    let all = std::env::var("SHEAF_EMULATE").is_ok_and(|v| v == "all");
+    let native = std::env::var("TARGET").ok() == std::env::var("HOST").ok();
+    let (mut avx2, mut avx512) = (false, false);
+    #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+    if native && !all {
+        avx2 = std::arch::is_x86_feature_detected!("avx2");
+        avx512 = std::arch::is_x86_feature_detected!("avx512f");
+    }
+    let _ = (native, all);
+    if !avx2 {
+        println!("cargo:rustc-cfg=sheaf_emulate_avx2");
+    }
+    if !avx512 {
+        println!("cargo:rustc-cfg=sheaf_emulate_avx512");
+    }
 }
 
 /// `<profile dir>/{,deps/}libsheaf.so.<MAJOR> -> libsheaf.so`, best effort.

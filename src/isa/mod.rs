@@ -141,7 +141,7 @@ pub fn env_cap() -> Isa {
 pub fn resolve(req: Isa) -> Result<Isa> {
     match req {
         Isa::Auto => Ok(detected().min(env_cap())),
-        r if r <= detected() || EMULATE.load(Ordering::Relaxed) => Ok(r),
+        r if r <= detected() || (EMULATE.load(Ordering::Relaxed) && emulated(r)) => Ok(r),
         _ => Err(Error::InvalidArgument(
             "TraceParams::isa: this CPU does not support that instruction set",
         )),
@@ -161,13 +161,26 @@ pub fn effective(req: Isa) -> Isa {
 /// Tests only: forced levels above the CPU's run their lane width in
 /// baseline code (each wide operation as 4-wide ones) instead of being
 /// rejected, so the exactness suites run every width's traversal logic on
-/// any machine. Process-wide.
+/// any machine. Process-wide. Only the levels the build machine lacks are
+/// compiled for emulation (`emulated`; the build script).
 #[doc(hidden)]
 pub fn set_emulation(on: bool) {
     EMULATE.store(on, Ordering::Relaxed);
 }
 
 static EMULATE: AtomicBool = AtomicBool::new(false);
+
+/// Whether `level` can run emulated (`set_emulation`): compiled only for
+/// the levels the build machine does not run natively, all of them when
+/// cross-compiling or with `SHEAF_EMULATE=all` (the build script's cfgs),
+/// since a level the machine has never runs emulated on it.
+pub const fn emulated(level: Isa) -> bool {
+    match level {
+        Isa::Avx2 => cfg!(sheaf_emulate_avx2),
+        Isa::Avx512 => cfg!(sheaf_emulate_avx512),
+        _ => false,
+    }
+}
 
 /// A packet traversal at a lane width: `run::<W>` is its body (mark the
 /// impl `#[inline(always)]` so it is compiled inside the level's function).
@@ -182,10 +195,15 @@ pub trait Kernel {
 #[inline]
 pub fn run<K: Kernel>(isa: Isa, k: K) -> K::Out {
     if isa > detected() && EMULATE.load(Ordering::Relaxed) {
-        return match isa {
-            Isa::Avx512 => k.run::<crate::geom::F16>(),
-            _ => k.run::<crate::geom::F8>(),
-        };
+        match isa {
+            #[cfg(sheaf_emulate_avx512)]
+            Isa::Avx512 => return k.run::<crate::geom::F16>(),
+            #[cfg(sheaf_emulate_avx2)]
+            Isa::Avx2 => return k.run::<crate::geom::F8>(),
+            // Not compiled for emulation (`emulated`): `resolve` refuses
+            // it, and the traversals run the CPU's widest level.
+            _ => {}
+        }
     }
     #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
     match effective(isa) {
