@@ -9,12 +9,12 @@
 //! The fallback switch and counters are process-wide, so every test here
 //! holds `LOCK`; the allocation count is per thread.
 
-use sheaf::scenes::stress::{self, RayClass};
 use sheaf::scenes::{Mesh, View};
 use sheaf::trace::{EntrySearch, Structure, fallback};
 use sheaf::{
     Camera, GridParams, Hit, Limits, Method, OwnedContext, Ray, Scene, TraceParams, TriTest,
 };
+use sheaf_stress::{self as stress, RayClass};
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
 use std::sync::{Mutex, MutexGuard};

@@ -1,4 +1,4 @@
-//! Stability where methods fail: every stress scene (`scenes::stress`) x
+//! Stability where methods fail: every stress scene (`sheaf_stress`, cli/stress) x
 //! every adversarial ray class x every method.
 //!
 //! For each scene, triangle test (Moller-Trumbore, watertight, projection)
@@ -71,7 +71,6 @@ use glam::{DVec3, Vec3};
 use sheaf::accel::bvh::BvhParams;
 use sheaf::accel::kd::KdParams;
 use sheaf::geom::INVALID_ID;
-use sheaf::scenes::stress::{self, RayClass, STRESS_SCENE_NAMES};
 use sheaf::scenes::{BuiltinScene, View};
 use sheaf::trace::{BvhOptions, EntrySearch, RayKind};
 use sheaf::{
@@ -79,6 +78,7 @@ use sheaf::{
     OnCaller, OwnedContext, PgridParams, PointLight, Pool, PrimaryPass, Ray, Scene, Shading,
     ShadowPass, TraceParams, TriTest,
 };
+use sheaf_stress::{self as stress, RayClass, STRESS_SCENE_NAMES};
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
 use std::fmt::Write as _;

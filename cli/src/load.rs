@@ -58,13 +58,13 @@ impl Loaded {
 }
 
 /// Load `spec`: `builtin:NAME`, `stress:NAME` (the adversarial scenes of
-/// `sheaf::scenes::stress`) or the path of an OBJ file.
+/// `sheaf_stress`) or the path of an OBJ file.
 pub fn load(spec: &str) -> Result<Loaded> {
     if let Some(name) = spec.strip_prefix("stress:") {
-        let s = scenes::stress::stress_scene(name).ok_or_else(|| {
+        let s = sheaf_stress::stress_scene(name).ok_or_else(|| {
             anyhow!(
                 "unknown stress scene '{name}' (known: {})",
-                scenes::stress::STRESS_SCENE_NAMES.join(", ")
+                sheaf_stress::STRESS_SCENE_NAMES.join(", ")
             )
         })?;
         return Ok(Loaded::from_builtin(spec, s));

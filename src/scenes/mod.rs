@@ -22,7 +22,6 @@
 
 pub mod animated;
 pub mod spd;
-pub mod stress;
 
 use glam::Vec3;
 
@@ -201,9 +200,10 @@ pub fn builtin(name: &str) -> Option<BuiltinScene> {
     Some(scene)
 }
 
-/// Shared checks for the scene tests.
-#[cfg(test)]
-pub(crate) mod check {
+/// Shared checks for the scene tests (and the stress scenes', in the
+/// CLI's `sheaf-stress` crate).
+#[doc(hidden)]
+pub mod check {
     use super::{Mesh, View};
     use glam::Vec3;
 

@@ -201,7 +201,7 @@ pub fn scene_specs(a: &BenchArgs) -> Result<Vec<SceneSpec>> {
 /// `names` as scenes to load: stress and built-in scene names, OBJ scene
 /// names (in `dir`) and OBJ paths; absent OBJ files skipped with a message.
 pub fn specs_of(names: &[String], dir: &Path) -> Result<Vec<SceneSpec>> {
-    use sheaf::scenes::stress::STRESS_SCENE_NAMES;
+    use sheaf_stress::STRESS_SCENE_NAMES;
     let mut out = Vec::new();
     for name in names.iter().map(|s| s.trim()).filter(|s| !s.is_empty()) {
         let name = name.to_string();

@@ -1,12 +1,12 @@
 //! `sheaf bench --stress`: stability where methods fail: whether every
 //! method stays exact on adversarial input, and how much slower it gets.
 //!
-//! Scenes: the adversarial scenes of `sheaf::scenes::stress` (teapot in a
+//! Scenes: the adversarial scenes of `sheaf_stress` (teapot in a
 //! stadium, huge triangles, long skinny diagonal needles, coincident and
 //! degenerate triangles, a closed box seen from inside), then the built-in
 //! scenes and the OBJ scenes of `--scenes-dir` (skipped with a note when
 //! absent). Ray classes: the view's camera rays (coherent) and the
-//! adversarial classes of `scenes::stress::RayClass` (every class on the
+//! adversarial classes of `sheaf_stress::RayClass` (every class on the
 //! stress scenes; random-in-packet and mixed-signs on the others), `RAYS`
 //! rays each, in the order `stress_rays` documents (every n x n packet an
 //! image tile).
@@ -51,10 +51,10 @@ use crate::run::{self, ms};
 use anyhow::{Context as _, Result, bail};
 use sheaf::reference::{self, RefHit};
 use sheaf::render::PrimaryRays;
-use sheaf::scenes::stress::{self, RayClass};
 use sheaf::scenes::{Mesh, View};
 use sheaf::trace::{EntrySearch, Structure, fallback};
 use sheaf::{GridParams, Hit, Limits, Method, OwnedContext, Ray, Scene, TraceParams};
+use sheaf_stress::{self as stress, RayClass};
 use std::fmt::Write as _;
 use std::time::Instant;
 
