@@ -90,6 +90,9 @@ pub use mem::Limits;
 // The caller's threads joining a build or a frame (`Context::build_bvh_with`,
 // `OnPar`): the `Par` a caller implements or takes (`Serial`, `Join`).
 pub use mem::par::{Helped, Join, MAX_WORKERS, Par, Serial};
+// Misuse detection for bindings that share a context between threads
+// without the borrow rules (the C ABI's state word and last-error lock).
+pub use mem::gate::{CallGate, ExclusiveGuard, Locked, SharedGuard};
 
 /// Alignment in bytes of the buffer `Context::new_in` takes (C:
 /// `SHEAF_CONTEXT_ALIGN`).

@@ -20,7 +20,7 @@
 //! the context (`context::scene`), and does not implement `Accel` either.
 //!
 //! Shared by the families: `packet` (the generic packet driver: lane-by-lane
-//! fallbacks, all-miss packets, the packet size classes), `fallback` (the
+//! fallbacks, all-miss packets, where a tree packet starts), `fallback` (the
 //! coherence test and the tiny-direction lanes), `group` (leaf tests on
 //! wide lanes), `entry` (entry-point search for both trees), `mailbox` (CGT
 //! section 2.3), `slot` (what a thread slot lends a call: its mailbox and

@@ -5,9 +5,6 @@
 //! not trace as a packet goes lane by lane through its single ray.
 //!
 //! - `MAX_QUADS`: the largest packet, 32 x 32 rays in 256 quads of 2x2.
-//! - `by_class`: the packet size classes (1, 4, 16, 64, 256 quads) that
-//!   size each traversal's per-quad scratch; longer inputs are consecutive
-//!   packets of 256 quads.
 //! - `lane_by_lane`: the single ray for each active lane (single-ray
 //!   methods, and methods a family lacks).
 //! - `quieted`: lanes with tiny directions (`fallback::tiny`) of every
@@ -145,30 +142,6 @@ fn single<A: Accel, T: TriangleTest, const ANY: bool>(a: &A, r: &Ray, c: &mut Co
         a.any_hit::<T>(r, c)
     } else {
         a.intersect::<T>(r, c)
-    }
-}
-
-/// A traversal sized by its packet class: `packet::<Q>(range)` traces the
-/// quads `range` (at most `Q`) as one packet.
-pub trait SizeClass {
-    fn packet<const Q: usize>(&mut self, range: core::ops::Range<usize>);
-}
-
-/// Run `k` over `n` quads: one packet of the smallest class holding them,
-/// or consecutive packets of `MAX_QUADS`.
-#[inline]
-pub fn by_class(n: usize, k: &mut impl SizeClass) {
-    match n {
-        0 => {}
-        1 => k.packet::<1>(0..n),
-        2..=4 => k.packet::<4>(0..n),
-        5..=16 => k.packet::<16>(0..n),
-        17..=64 => k.packet::<64>(0..n),
-        _ => {
-            for s in (0..n).step_by(MAX_QUADS) {
-                k.packet::<MAX_QUADS>(s..(s + MAX_QUADS).min(n));
-            }
-        }
     }
 }
 

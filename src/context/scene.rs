@@ -14,7 +14,6 @@ use crate::accel::bvh::BvhInfo;
 use crate::accel::grid::{GridInfo, GridParams};
 use crate::accel::kd::{KdInfo, KdParams};
 use crate::accel::method::Structure;
-use crate::accel::packet::MAX_QUADS;
 use crate::accel::pgrid::{PgridParams, SceneInfo};
 use crate::accel::twolevel::RayControls;
 use crate::accel::twolevel::flatten::{Flat, FlatInfo};
@@ -23,10 +22,11 @@ use crate::accel::twolevel::traverse_single::{self, SceneHit};
 use crate::accel::twolevel::{GeometryParams, TwoLevelInfo, TwoLevelView, UpdateInfo};
 use crate::counters::{Counters, elapsed_ns, now};
 use crate::error::{Error, Result};
-use crate::geom::{Affine, Cull, Culled, M4, Mt, Pt, Ray, Ray4, Scene, TriTest, Wt};
+use crate::geom::{Affine, Cull, M4, Ray, Ray4, Scene, with_test};
 use crate::mem::Limits;
 use crate::mem::par::{Par, Serial};
 use crate::render::{CameraRays, PixelRect, PrimaryRays};
+use crate::trace::scene::{packet_rays, packets};
 use crate::trace::{DynRays, RaySource, RayStream, SceneHitStream, TraceParams};
 
 /// Slot scratch a two-level packet batch of up to `q` quads holds (its
@@ -36,38 +36,6 @@ use crate::trace::{DynRays, RaySource, RayStream, SceneHitStream, TraceParams};
 pub(super) const fn scratch(q: usize) -> usize {
     use crate::mem::scratch::bytes;
     bytes::<Ray4>(q) + bytes::<M4>(q) + bytes::<SceneHit>(4 * q) + traverse_packet::scratch(q)
-}
-
-/// `$body` with `$T` the type of triangle test `$test` names, culled as
-/// `$cull` says (every traversal is compiled once per test and culling).
-macro_rules! with_test {
-    ($test:expr, $cull:expr, |$T:ident| $body:expr) => {
-        match $test {
-            TriTest::MollerTrumbore => with_cull!($cull, Mt, |$T| $body),
-            TriTest::Watertight => with_cull!($cull, Wt, |$T| $body),
-            TriTest::Projection => with_cull!($cull, Pt, |$T| $body),
-        }
-    };
-}
-
-/// `$body` with `$T` the test `$U`, or `$U` culled as `$cull` says.
-macro_rules! with_cull {
-    ($cull:expr, $U:ty, |$T:ident| $body:expr) => {
-        match $cull {
-            Cull::None => {
-                type $T = $U;
-                $body
-            }
-            Cull::Back => {
-                type $T = Culled<$U, false>;
-                $body
-            }
-            Cull::Front => {
-                type $T = Culled<$U, true>;
-                $body
-            }
-        }
-    };
 }
 
 /// A flattening's origin: the commit (counted by `Sources::commits`) and
@@ -588,32 +556,19 @@ impl<'a> Context<'a> {
                 any,
             );
         }
-        let per = if p.method.is_packet() {
-            (p.packet * p.packet) as usize
-        } else {
-            4
-        };
-        let nq_max = per.div_ceil(4).min(MAX_QUADS);
-        self.with_slot(slot, |sl| {
-            let blank = Ray4::from_rays(&[Ray::new(glam::Vec3::ZERO, glam::Vec3::X, 0.0, 0.0); 4]);
-            let (quads, mut sl) = sl.split(nq_max, blank);
-            let (active, mut sl) = sl.split(nq_max, M4::FALSE);
-            let (hits, mut sl) = sl.split(4 * nq_max, SceneHit::MISS);
-            let mut start = 0;
-            while start < count {
-                let n = (count - start).min(per);
-                let nq = rays.pack(start, n, quads, active);
-                hits[..4 * nq].fill(SceneHit::MISS);
-                let (q, a, h) = (&quads[..nq], &active[..nq], &mut hits[..4 * nq]);
-                let (test, c) = (v.info.test, &mut ctr);
+        let (test, c) = (v.info.test, &mut ctr);
+        let trace =
+            |q: &[Ray4], a: &[M4], h: &mut [SceneHit], sl: &mut crate::accel::slot::Slot<'_>| {
                 with_test!(test, cull, |T| if any {
-                    traverse_packet::trace::<T, true>(&v, p, q, a, mask, h, &mut sl, c)
+                    traverse_packet::trace::<T, true>(&v, p, q, a, mask, h, sl, c)
                 } else {
-                    traverse_packet::trace::<T, false>(&v, p, q, a, mask, h, &mut sl, c)
-                });
-                out(start, &hits[..n]);
-                start += n;
-            }
+                    traverse_packet::trace::<T, false>(&v, p, q, a, mask, h, sl, c)
+                })
+            };
+        let per = packet_rays(p);
+        self.with_slot(slot, |sl| {
+            let hits = |start: usize, h: &[SceneHit], n: usize| out(start, &h[..n]);
+            packets(sl, per, count, rays, SceneHit::MISS, 4, trace, hits)
         })?;
         Ok(ctr)
     }

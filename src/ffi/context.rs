@@ -9,7 +9,6 @@
 
 use super::bvh::{sheaf_bvh_params, sheaf_refit_info, sheaf_refit_params};
 use super::limits::sheaf_limits;
-use super::sync::{Slot, State};
 use super::trace_params::sheaf_trace_params;
 use super::{
     SHEAF_CONTEXT_ALIGN, SHEAF_ERROR_MESSAGE_MAX, array_bytes, check_array, check_non_null,
@@ -26,6 +25,7 @@ use crate::error::{Error, Result};
 use crate::geom::{Ray, Scene};
 use crate::render::Band;
 use crate::trace::TraceParams;
+use crate::{CallGate, Locked};
 use core::cell::UnsafeCell;
 use core::ffi::{c_char, c_void};
 use core::fmt::Write as _;
@@ -165,11 +165,11 @@ struct Header {
     /// context); destroy marks the state word instead, which also catches
     /// calls on a destroyed `create_in` context, whose memory stays valid.
     magic: AtomicU64,
-    /// Shared calls inside, an exclusive call, poisoned, destroyed (`sync.rs`).
-    state: State,
+    /// Shared calls inside, an exclusive call, poisoned, destroyed (`CallGate`).
+    state: CallGate,
     /// The last failure of a call on this context (never cleared by a
     /// success; busy refusals are not recorded).
-    last_error: Slot<Option<Error>>,
+    last_error: Locked<Option<Error>>,
     /// Size of the allocation made by `sheaf_context_create` (None: the
     /// caller's buffer).
     alloc_bytes: Option<usize>,
@@ -295,8 +295,8 @@ unsafe fn place(
     unsafe {
         h.write(Header {
             magic: AtomicU64::new(MAGIC),
-            state: State::new(),
-            last_error: Slot::new(None),
+            state: CallGate::new(),
+            last_error: Locked::new(None),
             alloc_bytes,
             join: crate::Join::new(),
             handle: UnsafeCell::new(Handle {

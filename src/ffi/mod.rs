@@ -67,7 +67,6 @@ pub mod scene;
 pub mod stats;
 pub mod status;
 pub mod stream;
-mod sync;
 pub mod trace_params;
 pub mod version;
 pub mod whitted;

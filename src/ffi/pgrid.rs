@@ -305,7 +305,7 @@ fn render_deferred(
             ShadowPass::Traced(j.shadow.to_core()?)
         },
     };
-    job.validate(h.ctx.limits())?;
+    // `render_deferred` validates the job (once, before anything else).
     let pixels = super::context::pixels(h, &frame, rgba, stride_bytes, rgba_len)?;
     h.ctx.render_deferred(&job, pixels, stride_bytes, workers)?;
     Ok(())

@@ -119,7 +119,8 @@ impl sheaf_trace_params {
             isa: sheaf_isa::of(p.isa) as u32,
         }
     }
-    /// The checked crate value.
+    /// The crate value, its enums and flags checked (the values by the
+    /// call that takes it: `TraceParams::validate_for`).
     pub fn to_core(&self) -> Result<TraceParams> {
         let culling = flag(self.culling, "sheaf_trace_params.culling must be 0 or 1")?;
         let p = TraceParams {
@@ -143,7 +144,8 @@ impl sheaf_trace_params {
             fallbacks: true,
             isa: sheaf_isa::to_core(self.isa)?,
         };
-        p.validate()?;
+        // Every call taking the params validates them once, against its
+        // context's limits, before it traces (`TraceParams::validate_for`).
         Ok(p)
     }
 }

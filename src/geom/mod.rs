@@ -15,6 +15,7 @@ pub use aabb::Aabb;
 pub use lane::{F4, Lane, M4};
 pub use ray::{Hit, Hit4, INVALID_ID, Ray, Ray4, closer};
 pub use scene::{Excluded, Scene};
+pub(crate) use triangle::with_test;
 pub use triangle::{
     Cull, Culled, Mt, ProjTri, Pt, RayLanes, TriStore, TriTest, TriVerts, TriangleTest, Wt,
 };

@@ -54,6 +54,60 @@ pub enum TriTest {
     Projection = 2,
 }
 
+/// `$body` with `$T` the triangle-test type `$test` (a `TriTest`) names
+/// (`Mt`, `Wt`, `Pt`), and with a `Cull` as well, that test culled as it
+/// says (`Culled`): the one match on the triangle test and culling between
+/// a call and a traversal, so each traversal is compiled once per test
+/// and culling and picked once per call.
+macro_rules! with_test {
+    ($test:expr, |$T:ident| $body:expr) => {
+        match $test {
+            $crate::geom::TriTest::MollerTrumbore => {
+                type $T = $crate::geom::Mt;
+                $body
+            }
+            $crate::geom::TriTest::Watertight => {
+                type $T = $crate::geom::Wt;
+                $body
+            }
+            $crate::geom::TriTest::Projection => {
+                type $T = $crate::geom::Pt;
+                $body
+            }
+        }
+    };
+    ($test:expr, $cull:expr, |$T:ident| $body:expr) => {
+        match $test {
+            $crate::geom::TriTest::MollerTrumbore => {
+                $crate::geom::with_test!(@cull $cull, $crate::geom::Mt, |$T| $body)
+            }
+            $crate::geom::TriTest::Watertight => {
+                $crate::geom::with_test!(@cull $cull, $crate::geom::Wt, |$T| $body)
+            }
+            $crate::geom::TriTest::Projection => {
+                $crate::geom::with_test!(@cull $cull, $crate::geom::Pt, |$T| $body)
+            }
+        }
+    };
+    (@cull $cull:expr, $U:ty, |$T:ident| $body:expr) => {
+        match $cull {
+            $crate::geom::Cull::None => {
+                type $T = $U;
+                $body
+            }
+            $crate::geom::Cull::Back => {
+                type $T = $crate::geom::Culled<$U, false>;
+                $body
+            }
+            $crate::geom::Cull::Front => {
+                type $T = $crate::geom::Culled<$U, true>;
+                $body
+            }
+        }
+    };
+}
+pub(crate) use with_test;
+
 /// Per-triangle data of the projection test (48 bytes, filled at build).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]

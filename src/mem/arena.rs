@@ -29,6 +29,21 @@ pub const fn pool_bytes_checked<T>(n: usize) -> Option<usize> {
     }
 }
 
+/// The error of limits whose pools do not fit the address space.
+pub const TOO_BIG: Error = Error::InvalidArgument("limits need more memory than can be addressed");
+
+/// A pool size from a `Limits` rule (u64), `TOO_BIG` when it does not fit
+/// a `usize` (32-bit targets).
+pub fn entries(v: u64) -> Result<usize> {
+    usize::try_from(v).map_err(|_| TOO_BIG)
+}
+
+/// `n`, or 0 when the pool's structure is left out of the limits.
+#[inline]
+pub const fn when(on: bool, n: usize) -> usize {
+    if on { n } else { 0 }
+}
+
 /// Hands out disjoint, aligned, zeroed pools from one buffer.
 pub struct Arena<'a> {
     rest: &'a mut [u8],
@@ -118,9 +133,7 @@ impl<'a> Carve<'a> for Sizer {
             .and_then(|b| self.bytes.checked_add(b))
             .filter(|&b| b <= isize::MAX as usize)
             .map(|b| self.bytes = b)
-            .ok_or(Error::InvalidArgument(
-                "limits need more memory than can be addressed",
-            ))?;
+            .ok_or(TOO_BIG)?;
         Ok(&mut [])
     }
 }

@@ -3,9 +3,10 @@
 //!
 //! Nothing in sheaf allocates after a context is created: the pools carved
 //! here are all the memory that build, trace and render ever touch.
-#![allow(unsafe_code)] // only owned.rs, slots.rs, scratch.rs, par.rs and hg.rs, each block with a SAFETY comment
+#![allow(unsafe_code)] // only owned.rs, slots.rs, scratch.rs, par.rs, gate.rs and hg.rs, each block with a SAFETY comment
 
 pub mod arena;
+pub mod gate;
 #[doc(hidden)]
 pub mod hg;
 pub mod limits;
@@ -17,7 +18,9 @@ pub mod scratch;
 pub mod slots;
 pub mod sort;
 
-pub use arena::{ARENA_ALIGN, Arena, Carve, Sizer, pool_bytes, pool_bytes_checked};
+pub use arena::{
+    ARENA_ALIGN, Arena, Carve, Sizer, TOO_BIG, entries, pool_bytes, pool_bytes_checked, when,
+};
 pub use limits::Limits;
 pub use scratch::Scratch;
 pub use slots::{SlotGuard, SlotParts, Slots};

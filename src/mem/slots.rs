@@ -43,6 +43,24 @@ unsafe impl Send for Slots<'_> {}
 unsafe impl Sync for Slots<'_> {}
 
 impl<'a> Slots<'a> {
+    /// `count` slots carved from `a`, each with `stamps` mailbox stamps
+    /// and `scratch` scratch bytes (`context::slot_scratch_bytes`).
+    #[deny(clippy::arithmetic_side_effects)]
+    pub fn carve(
+        a: &mut impl super::Carve<'a>,
+        count: usize,
+        stamps: usize,
+        scratch: usize,
+    ) -> Result<Self> {
+        let total = |per: usize| per.checked_mul(count).ok_or(super::TOO_BIG);
+        let stamps = a.take(total(stamps)?)?;
+        let packets = a.take(count)?;
+        let scratch = a.take(total(scratch)?)?;
+        let low = a.take(count)?;
+        let busy = a.take(count)?;
+        Ok(Slots::new(stamps, packets, scratch, low, busy))
+    }
+
     /// Slots over `stamps` (`per_slot` stamps per slot, `packets.len()`
     /// slots) and `scratch` (equal runs per slot) with their scratch marks
     /// `low` and claim flags `busy` (one each per slot; all released).

@@ -189,6 +189,52 @@ pub struct Frame {
     pub height: u32,
 }
 
+impl Frame {
+    /// Check the frame against `limits` (image size), and a band of its
+    /// rows `[y0, y1)` against the band's buffer (`pixels_len` bytes, row
+    /// `y0` first, `stride` bytes apart): its camera rays, or the error
+    /// every renderer returns before writing a pixel.
+    pub fn check_rows(
+        &self,
+        limits: &crate::mem::Limits,
+        y0: u32,
+        y1: u32,
+        pixels_len: usize,
+        stride: usize,
+    ) -> Result<PrimaryRays> {
+        let (w, h) = (self.width, self.height);
+        if w == 0 || h == 0 {
+            return Err(Error::InvalidArgument("image width and height must be > 0"));
+        }
+        if w > limits.max_image_width || h > limits.max_image_height {
+            return Err(Error::Capacity {
+                pool: crate::error::Pool::Image,
+                needed: w as u64 * h as u64,
+                available: limits.max_image_width as u64 * limits.max_image_height as u64,
+            });
+        }
+        if stride < w as usize * 4 {
+            return Err(Error::InvalidArgument(
+                "framebuffer stride must be >= 4 * width",
+            ));
+        }
+        if y0 >= y1 || y1 > h {
+            return Err(Error::InvalidArgument(
+                "rows must satisfy y0 < y1 <= height",
+            ));
+        }
+        let need = ((y1 - y0 - 1) as usize)
+            .checked_mul(stride)
+            .and_then(|b| b.checked_add(w as usize * 4));
+        if need.is_none_or(|n| pixels_len < n) {
+            return Err(Error::InvalidArgument(
+                "framebuffer smaller than height * stride",
+            ));
+        }
+        PrimaryRays::new(&self.camera, w, h)
+    }
+}
+
 /// Shadow-ray end point offset along the normal, relative to the scene
 /// scale: large enough to leave the surface's own rounding error, small
 /// enough not to skip contact shadows.

@@ -1,6 +1,6 @@
 //! The one dispatch of a trace call: `Method` picks the family
 //! (`Method::structure`), the structure's triangle test picks the
-//! monomorphised traversals (`by_test!`), and the generic packet driver
+//! monomorphised traversals (`geom::with_test!`), and the generic packet driver
 //! (`accel::packet`) runs the family's packet query or its single ray lane
 //! by lane. The renderer and the C ABI see every structure as a `Tracer`.
 #![forbid(unsafe_code)]
@@ -13,7 +13,7 @@ use crate::accel::slot::Slot;
 use crate::accel::{Accel, method::Method, method::Structure, method::TraceParams};
 use crate::counters::Counters;
 use crate::error::{Error, Result};
-use crate::geom::{Hit, Hit4, M4, Mt, Pt, Ray, Ray4, TriTest, TriVerts, Wt};
+use crate::geom::{Hit, Hit4, M4, Ray, Ray4, TriVerts, with_test};
 
 /// Slot scratch `batch_on` holds while the driver runs: one packet's
 /// quads, lane masks and hits, for packets of up to `q` quads.
@@ -54,18 +54,6 @@ pub trait Tracer: Sync {
     fn scene_scale(&self) -> f32;
 }
 
-/// Run `$f::<T>` with T the triangle-test type of `$test` (Mt, Wt or Pt):
-/// the only match on the triangle test between a call and a traversal.
-macro_rules! by_test {
-    ($test:expr, $f:ident :: <$($g:ty),*> ( $($a:expr),* )) => {
-        match $test {
-            TriTest::MollerTrumbore => $f::<$($g,)* Mt>($($a),*),
-            TriTest::Watertight => $f::<$($g,)* Wt>($($a),*),
-            TriTest::Projection => $f::<$($g,)* Pt>($($a),*),
-        }
-    };
-}
-
 /// Every family is a `Tracer` through the contract and the driver. One
 /// impl per family, not a blanket `impl<A: Accel>`: the packet methods are
 /// then ordinary functions, compiled once in this crate, so a caller in
@@ -76,11 +64,11 @@ macro_rules! family_tracer {
         impl Tracer for $view<'_> {
             #[inline]
             fn intersect(&self, ray: &Ray, ctr: &mut Counters) -> Hit {
-                by_test!(self.test(), single::<Self>(self, ray, ctr))
+                with_test!(self.test(), |T| single::<Self, T>(self, ray, ctr))
             }
             #[inline]
             fn occluded(&self, ray: &Ray, ctr: &mut Counters) -> bool {
-                by_test!(self.test(), occluded::<Self>(self, ray, ctr))
+                with_test!(self.test(), |T| occluded::<Self, T>(self, ray, ctr))
             }
             fn intersect_packet(
                 &self,
@@ -91,10 +79,9 @@ macro_rules! family_tracer {
                 slot: &mut Slot<'_>,
                 ctr: &mut Counters,
             ) {
-                by_test!(
-                    self.test(),
-                    nearest::<Self>(self, p, rays, active, hits, slot, ctr)
-                )
+                with_test!(self.test(), |T| nearest::<Self, T>(
+                    self, p, rays, active, hits, slot, ctr
+                ))
             }
             fn occluded_packet(
                 &self,
@@ -105,10 +92,9 @@ macro_rules! family_tracer {
                 slot: &mut Slot<'_>,
                 ctr: &mut Counters,
             ) {
-                by_test!(
-                    self.test(),
-                    any::<Self>(self, p, rays, active, hits, slot, ctr)
-                )
+                with_test!(self.test(), |T| any::<Self, T>(
+                    self, p, rays, active, hits, slot, ctr
+                ))
             }
             fn triangle(&self, prim: u32) -> Option<TriVerts> {
                 Accel::triangle(self, prim)
@@ -122,7 +108,7 @@ macro_rules! family_tracer {
 
 family_tracer!(GridView, BvhView, KdView);
 
-/// The driver for nearest hits (`by_test!` passes types only).
+/// The driver for nearest hits .
 #[inline(always)]
 fn nearest<A: Accel, T: crate::geom::TriangleTest>(
     a: &A,
@@ -302,16 +288,61 @@ impl Tracer for SceneTracer<'_> {
     }
 }
 
+/// Rays per packet of a trace call: `p.packet`^2 for packet methods, a
+/// 2x2 batch for single-ray methods.
+pub fn packet_rays(p: &TraceParams) -> usize {
+    if p.method.is_packet() {
+        (p.packet * p.packet) as usize
+    } else {
+        4
+    }
+}
+
+/// The one batch loop of every trace call, single mesh and two-level: the
+/// `count` rays `rays.ray(i)` packed `per` at a time into 2x2 quads in the
+/// slot's scratch (at most `MAX_QUADS`), each packet's `H` results (`k`
+/// per quad, starting as `miss`) traced by `trace(quads, active, results,
+/// rest of the slot)` and handed to `out(first ray, results, rays)`.
+/// Generic over the rays and both closures, so each caller's conversions
+/// inline into the packing loop (no indirect call per ray).
+#[allow(clippy::too_many_arguments)] // the loop's parts, each a caller's choice
+#[inline]
+pub fn packets<H: Copy>(
+    slot: &mut Slot<'_>,
+    per: usize,
+    count: usize,
+    rays: impl super::RaySource,
+    miss: H,
+    k: usize,
+    mut trace: impl FnMut(&[Ray4], &[M4], &mut [H], &mut Slot<'_>),
+    mut out: impl FnMut(usize, &[H], usize),
+) {
+    let nq_max = per.div_ceil(4).min(MAX_QUADS);
+    let blank = Ray4::from_rays(&[Ray::new(glam::Vec3::ZERO, glam::Vec3::X, 0.0, 0.0); 4]);
+    let (quads, s) = slot.reborrow().take(nq_max, blank);
+    let (active, s) = s.take(nq_max, M4::FALSE);
+    let (res, mut s) = s.take(k * nq_max, miss);
+    let mut start = 0;
+    while start < count {
+        let n = (count - start).min(per);
+        let nq = rays.pack(start, n, quads, active);
+        res[..k * nq].fill(miss);
+        trace(&quads[..nq], &active[..nq], &mut res[..k * nq], &mut s);
+        out(start, &res[..k * nq], n);
+        start += n;
+    }
+}
+
 /// Trace `count` rays, ray `i` being `rays.ray(i)`, as packets of
 /// `p.packet`^2 rays (or 2x2 batches for single-ray methods) with mailbox
-/// `slot`, handing the results out quad by quad: `out(i, hits, n)` for
-/// rays `i .. i + n` (`n <= 4`, lanes `0 .. n` of `hits`; `per_ray` turns
-/// a per-ray closure into one). Shared by the Rust calls and the C ABI's,
-/// so both form the same packets. Generic over `rays` (an array of structs
-/// read by index, a ray stream whose quads are loads: `stream.rs`, or
-/// camera rays made in the kernel: `render::CameraRays`) and `out` so each
-/// caller's conversions inline into the packing loop (no indirect call per
-/// ray), and a quad's hits go out as whole lanes (no per-ray lane pick).
+/// `slot` (`packets`), handing the results out quad by quad: `out(i,
+/// hits, n)` for rays `i .. i + n` (`n <= 4`, lanes `0 .. n` of `hits`;
+/// `per_ray` turns a per-ray closure into one). Shared by the Rust calls
+/// and the C ABI's, so both form the same packets. `rays` is an array of
+/// structs read by index, a ray stream whose quads are loads
+/// (`stream.rs`), or camera rays made in the kernel
+/// (`render::CameraRays`); a quad's hits go out as whole lanes (no
+/// per-ray lane pick).
 pub fn batch_on(
     tr: &SceneTracer<'_>,
     slot: &mut Slot<'_>,
@@ -322,45 +353,29 @@ pub fn batch_on(
     any: bool,
 ) -> Counters {
     let mut ctr = Counters::default();
-    let per = if p.method.is_packet() {
-        (p.packet * p.packet) as usize
-    } else {
-        4
-    };
-    let nq_max = per.div_ceil(4).min(MAX_QUADS);
-    let blank = Ray4::from_rays(&[Ray::new(glam::Vec3::ZERO, glam::Vec3::X, 0.0, 0.0); 4]);
-    let (quads, s) = slot.reborrow().take(nq_max, blank);
-    let (active, s) = s.take(nq_max, M4::FALSE);
-    let (hits, mut s) = s.take(nq_max, Hit4::MISS);
-    let mut start = 0;
-    while start < count {
-        let n = (count - start).min(per);
-        let nq = rays.pack(start, n, quads, active);
-        hits[..nq].fill(Hit4::MISS);
+    let c = &mut ctr;
+    let trace = |q: &[Ray4], a: &[M4], h: &mut [Hit4], s: &mut Slot<'_>| {
         if any {
-            tr.occluded_packet(
-                p,
-                &quads[..nq],
-                &active[..nq],
-                &mut hits[..nq],
-                &mut s,
-                &mut ctr,
-            );
+            tr.occluded_packet(p, q, a, h, s, c)
         } else {
-            tr.intersect_packet(
-                p,
-                &quads[..nq],
-                &active[..nq],
-                &mut hits[..nq],
-                &mut s,
-                &mut ctr,
-            );
+            tr.intersect_packet(p, q, a, h, s, c)
         }
-        for (q, h) in hits[..nq].iter().enumerate() {
+    };
+    let quads = |start: usize, hits: &[Hit4], n: usize| {
+        for (q, h) in hits.iter().enumerate() {
             out(start + 4 * q, h, (n - 4 * q).min(4));
         }
-        start += n;
-    }
+    };
+    packets(
+        slot,
+        packet_rays(p),
+        count,
+        rays,
+        Hit4::MISS,
+        1,
+        trace,
+        quads,
+    );
     ctr
 }
 

@@ -57,11 +57,13 @@ pub use crate::accel::method::BvhOptions;
 use crate::accel::method::{Method, TraceParams};
 use crate::accel::slot::Slot;
 use crate::counters::Counters;
+use crate::error::Result;
 /// The packet frusta (section 4) live in `geom` because the kd-tree
 /// packets use them too.
 pub use crate::geom::frustum;
 pub use crate::geom::frustum::RayKind;
 use crate::geom::{Aabb, Hit, Hit4, M4, ProjTri, Ray, Ray4, TriTest, TriVerts, TriangleTest};
+use crate::mem::{Carve, TOO_BIG, when};
 use bytemuck::{Pod, Zeroable};
 
 /// Slot scratch this module's packet code takes (`accel::slot`) for
@@ -295,6 +297,25 @@ pub struct BvhPools<'a> {
     /// The build's bins and work stack (`build::SCRATCH` bytes), so a build
     /// uses little of the caller's stack.
     pub scratch: &'a mut [u8],
+}
+
+impl<'a> BvhPools<'a> {
+    /// Pools for a BVH of up to `tris` triangles (none unless `on`): twice
+    /// as many nodes, the triangles with their ids, slots and references,
+    /// projection data when `proj`, and the build's scratch.
+    #[deny(clippy::arithmetic_side_effects)]
+    pub fn carve(a: &mut impl Carve<'a>, on: bool, tris: usize, proj: bool) -> Result<Self> {
+        let n = when(on, tris);
+        Ok(BvhPools {
+            nodes: a.take(n.checked_mul(2).ok_or(TOO_BIG)?)?,
+            tris: a.take(n)?,
+            proj: a.take(when(proj, n))?,
+            tri_ids: a.take(n)?,
+            slot_of: a.take(n)?,
+            refs: a.take(n)?,
+            scratch: a.take(when(on, build::SCRATCH))?,
+        })
+    }
 }
 
 impl BvhPools<'_> {
@@ -561,7 +582,7 @@ impl crate::accel::Accel for BvhView<'_> {
         slot: &mut Slot<'_>,
         ctr: &mut Counters,
     ) -> bool {
-        use crate::accel::packet::{self, Start};
+        use crate::accel::packet::Start;
         let large = matches!(
             p.method,
             Method::BvhMasked
@@ -581,53 +602,33 @@ impl crate::accel::Accel for BvhView<'_> {
         let mut entry = None;
         if large && p.entry != EntrySearch::None {
             let root = self.nodes.first().map_or(Aabb::EMPTY, |n| n.aabb());
-            match packet::start(self, p, rays, active, &root, slot, ctr).1 {
+            match crate::accel::packet::start(self, p, rays, active, &root, slot, ctr).1 {
                 Start::Root => {}
                 Start::At(e) => entry = Some(e),
                 Start::Miss => {
-                    packet::all_miss(active, hits, ctr);
+                    crate::accel::packet::all_miss(active, hits, ctr);
                     return true;
                 }
             }
         }
-        let (o, e) = (p, entry.as_ref());
-        match (p.method, ANY) {
-            (Method::BvhSimd, false) => {
-                traverse_simd::intersect::<T>(self, rays, active, hits, p.fallbacks, ctr)
+        use packet::dispatch;
+        let (e, (b, r, a, h)) = (entry.as_ref(), (self, rays, active, hits));
+        match p.method {
+            Method::BvhSimd if ANY => traverse_simd::occluded::<T>(b, r, a, h, p.fallbacks, ctr),
+            Method::BvhSimd => traverse_simd::intersect::<T>(b, r, a, h, p.fallbacks, ctr),
+            Method::BvhMasked => {
+                dispatch::<traverse_masked::Masked, T, ANY>(b, r, a, h, p, e, slot, ctr)
             }
-            (Method::BvhSimd, true) => {
-                traverse_simd::occluded::<T>(self, rays, active, hits, p.fallbacks, ctr)
+            Method::BvhRanged => {
+                dispatch::<traverse_ranged::Ranged, T, ANY>(b, r, a, h, p, e, slot, ctr)
             }
-            (Method::BvhMasked, false) => {
-                traverse_masked::intersect::<T>(self, rays, active, hits, o, e, slot, ctr)
+            Method::BvhWideRanged => {
+                dispatch::<traverse_wide_ranged::WideRanged, T, ANY>(b, r, a, h, p, e, slot, ctr)
             }
-            (Method::BvhMasked, true) => {
-                traverse_masked::occluded::<T>(self, rays, active, hits, o, e, slot, ctr)
+            Method::BvhFrustum => {
+                dispatch::<traverse_frustum::FrustumFirst, T, ANY>(b, r, a, h, p, e, slot, ctr)
             }
-            (Method::BvhWideRanged, false) => {
-                traverse_wide_ranged::intersect::<T>(self, rays, active, hits, o, e, slot, ctr)
-            }
-            (Method::BvhWideRanged, true) => {
-                traverse_wide_ranged::occluded::<T>(self, rays, active, hits, o, e, slot, ctr)
-            }
-            (Method::BvhFrustum, false) => {
-                traverse_frustum::intersect::<T>(self, rays, active, hits, o, e, slot, ctr)
-            }
-            (Method::BvhFrustum, true) => {
-                traverse_frustum::occluded::<T>(self, rays, active, hits, o, e, slot, ctr)
-            }
-            (Method::BvhRanged, false) => {
-                traverse_ranged::intersect::<T>(self, rays, active, hits, o, e, slot, ctr)
-            }
-            (Method::BvhRanged, true) => {
-                traverse_ranged::occluded::<T>(self, rays, active, hits, o, e, slot, ctr)
-            }
-            (_, false) => {
-                traverse_partition::intersect::<T>(self, rays, active, hits, o, e, slot, ctr)
-            }
-            (_, true) => {
-                traverse_partition::occluded::<T>(self, rays, active, hits, o, e, slot, ctr)
-            }
+            _ => dispatch::<traverse_partition::Partition, T, ANY>(b, r, a, h, p, e, slot, ctr),
         }
         true
     }

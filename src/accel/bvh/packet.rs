@@ -3,9 +3,8 @@
 //! triangle-test precomputation, per-lane far ends, the frustum of
 //! section 4), the `Walk` each traversal implements (the paper's Masked,
 //! Ranged and Partition; WideRanged and FrustumFirst on the 4-wide tree),
-//! the packet size classes (through
-//! `accel::packet::by_class`) and the lane-by-lane coherence fallback
-//! (`alone`). The 2x2 SIMD ray (`traverse_simd`) uses the same `QuadBox`.
+//! the split of long inputs into packets of `MAX_QUADS` quads and the
+//! lane-by-lane coherence fallback (`alone`). The 2x2 SIMD ray (`traverse_simd`) uses the same `QuadBox`.
 //!
 //! # Setup
 //! One pass over a packet's quads (`Lanes::new`) writes the misses, finds
@@ -39,7 +38,7 @@ use crate::accel::entry::EntryPoint;
 use crate::accel::fallback;
 use crate::accel::group::{self, Group};
 use crate::accel::method::TraceParams;
-use crate::accel::packet::{SizeClass, by_class};
+use crate::accel::packet::MAX_QUADS;
 use crate::accel::slot::Slot;
 use crate::counters::{Counters, count};
 use crate::geom::lane::mask_from_bits;
@@ -133,6 +132,11 @@ pub(crate) fn wide_walk_applies(tiny: bool, b: &BvhView<'_>, start: (usize, usiz
 
 /// A large-packet traversal: walks one prepared packet through the tree.
 pub(crate) trait Walk {
+    /// Whether the walk reads the packet's plane frustum (section 4);
+    /// without, the packet is set up without one (culling changes no
+    /// answer, only the work).
+    const PLANES: bool = true;
+
     /// `start`: the node to start at and its depth (the root: `(0, 0)`);
     /// `slot`: the scratch left after the packet's (for per-quad state).
     fn walk<L: Wide, T: TriangleTest, const ANY: bool>(
@@ -171,11 +175,19 @@ pub(crate) struct PacketIn<'x> {
     pub fallbacks: bool,
 }
 
-/// Split the input into packets of at most 256 quads (classes of 1, 4,
-/// 16, 64 or 256 quads), each traced with per-quad scratch from `slot`,
-/// from `entry` (every packet of the input) or the root. An entry node
-/// outside the tree starts at the root.
-// The public traversals' arguments, and the slot.
+/// Nearest hits (or with `ANY` occlusion) of the active lanes of `rays`
+/// into `hits` by the walk `W`, the contract of every large-packet
+/// traversal: `rays.len()` quads form one packet (longer inputs:
+/// consecutive packets of 256 quads); `rays`, `active` and `hits` are
+/// read up to the shortest length. Active lanes are written (`Hit::MISS`
+/// when nothing is hit, and for invalid rays; for occlusion `prim !=
+/// INVALID_ID` marks an occluded lane, with some occluder's t and id);
+/// inactive lanes are left untouched. `entry`: start every packet at this
+/// node instead of the root (an MLRTA or AEPSA entry point of a frustum
+/// bounding every live ray, see `bvh::entry`; a node outside the tree
+/// starts at the root). `slot`'s scratch holds the per-quad arrays
+/// (`scratch`).
+// The packet, its options and where it starts, and the slot's scratch.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn dispatch<W: Walk, T: TriangleTest, const ANY: bool>(
     b: &BvhView<'_>,
@@ -194,50 +206,33 @@ pub(crate) fn dispatch<W: Walk, T: TriangleTest, const ANY: bool>(
         _ => (0, 0),
     };
     let n = rays.len().min(active.len()).min(hits.len());
-    let mut run = Run::<W, T, ANY> {
-        b,
-        rays: &rays[..n],
-        active: &active[..n],
-        hits: &mut hits[..n],
-        opt,
-        start,
-        slot,
-        ctr,
-        _w: core::marker::PhantomData,
+    // A walk that never reads the plane frustum is set up without one.
+    let o = TraceParams {
+        bvh: crate::accel::method::BvhOptions {
+            culling: opt.bvh.culling && W::PLANES,
+            ..opt.bvh
+        },
+        ..*opt
     };
-    by_class(n, &mut run);
-}
-
-/// A large-packet call as the packet driver's size classes see it.
-struct Run<'x, 'b, 's, W, T, const ANY: bool> {
-    b: &'x BvhView<'b>,
-    rays: &'x [Ray4],
-    active: &'x [M4],
-    hits: &'x mut [Hit4],
-    opt: &'x TraceParams,
-    start: (usize, usize),
-    slot: &'x mut Slot<'s>,
-    ctr: &'x mut Counters,
-    _w: core::marker::PhantomData<(W, T)>,
-}
-
-impl<W: Walk, T: TriangleTest, const ANY: bool> SizeClass for Run<'_, '_, '_, W, T, ANY> {
-    /// One packet, set up and walked in one `isa::Kernel` (`WalkAt`), so
-    /// the setup pass is compiled for the walk's ISA too.
-    #[inline]
-    fn packet<const Q: usize>(&mut self, r: core::ops::Range<usize>) {
+    let opt = &o;
+    // Packets of up to `MAX_QUADS` quads, each set up and walked in one
+    // `isa::Kernel` (`WalkAt`), so the setup pass is compiled for the
+    // walk's ISA too. The per-quad arrays are slices of the slot's
+    // scratch, so no packet size class is needed.
+    for s in (0..n).step_by(MAX_QUADS) {
+        let r = s..(s + MAX_QUADS).min(n);
         let k = WalkAt::<W, T, ANY> {
-            b: self.b,
-            rays: &self.rays[r.clone()],
-            active: &self.active[r.clone()],
-            hits: &mut self.hits[r],
-            opt: self.opt,
-            start: self.start,
-            slot: self.slot,
-            ctr: self.ctr,
+            b,
+            rays: &rays[r.clone()],
+            active: &active[r.clone()],
+            hits: &mut hits[r],
+            opt,
+            start,
+            slot: &mut *slot,
+            ctr: &mut *ctr,
             _w: core::marker::PhantomData,
         };
-        isa::run(self.opt.isa, k);
+        isa::run(opt.isa, k);
     }
 }
 

@@ -73,15 +73,13 @@
 //!   same for every kind (it bounds the lanes, not a camera model), so
 //!   camera, shadow, reflection and refraction packets take one path.
 
-use super::packet::{LaneBounds, Packet, PacketIn, Walk, dispatch, wide_walk_applies};
+use super::packet::{LaneBounds, Packet, PacketIn, Walk, wide_walk_applies};
 use super::traverse_ranged::Ranged;
 use super::traverse_wide::{Stack, WideRay, walk_from};
 use super::wide::{WIDTH, WideNode, insert_by};
 use super::{BvhView, MAX_DEPTH, TriangleTest};
-use crate::accel::entry::EntryPoint;
 use crate::accel::fallback;
 use crate::accel::group::{self, Group};
-use crate::accel::method::TraceParams;
 use crate::accel::slot::Slot;
 use crate::counters::{Counters, count};
 use crate::geom::triangle::TriHit;
@@ -93,48 +91,6 @@ use glam::Vec4;
 /// stay per wide level above the node expanded, `WIDTH` at it: `WIDTH *
 /// MAX_DEPTH` leaves a level of margin over that bound.
 const STACK: usize = WIDTH * MAX_DEPTH;
-
-/// Nearest hits of the active lanes of `rays` into `hits`, frustum-first
-/// traversal of the 4-wide tree (contract of `traverse_masked::intersect`).
-// The packet, its options and where it starts, and the slot's scratch.
-#[allow(clippy::too_many_arguments)]
-pub fn intersect<T: TriangleTest>(
-    b: &BvhView<'_>,
-    rays: &[Ray4],
-    active: &[M4],
-    hits: &mut [Hit4],
-    opt: &TraceParams,
-    entry: Option<&EntryPoint>,
-    slot: &mut Slot<'_>,
-    ctr: &mut Counters,
-) {
-    dispatch::<FrustumFirst, T, false>(b, rays, active, hits, &no_planes(opt), entry, slot, ctr)
-}
-
-/// Occlusion of the active lanes, frustum-first traversal of the 4-wide tree.
-// The packet, its options and where it starts, and the slot's scratch.
-#[allow(clippy::too_many_arguments)]
-pub fn occluded<T: TriangleTest>(
-    b: &BvhView<'_>,
-    rays: &[Ray4],
-    active: &[M4],
-    hits: &mut [Hit4],
-    opt: &TraceParams,
-    entry: Option<&EntryPoint>,
-    slot: &mut Slot<'_>,
-    ctr: &mut Counters,
-) {
-    dispatch::<FrustumFirst, T, true>(b, rays, active, hits, &no_planes(opt), entry, slot, ctr)
-}
-
-/// `opt` without the plane frustum: the walk never reads it, so the
-/// packet setup does not build it (the binary fallback walks then run
-/// without frustum culling, which changes no answer).
-fn no_planes(opt: &TraceParams) -> TraceParams {
-    let mut o = *opt;
-    o.bvh.culling = false;
-    o
-}
 
 /// One lane group (`L::G` quads) as the slab tests read it: the single
 /// ray's `RayBox` terms lane by lane, the live lanes as bits, and each
@@ -761,6 +717,9 @@ fn first_group<L: Wide, const FR: bool>(
 pub(crate) struct FrustumFirst;
 
 impl Walk for FrustumFirst {
+    /// Its own frusta per lane group; the packet's planes are never read.
+    const PLANES: bool = false;
+
     /// Packets the wide walk takes are set up here, lane group by lane
     /// group (`setup`); the others (tiny directions, entry points, no wide
     /// tree) go to the generic setup and `walk`.

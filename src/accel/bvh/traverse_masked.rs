@@ -41,12 +41,12 @@
 //! # Fallbacks (`accel::fallback`)
 //! - Lanes with tiny directions (`fallback::tiny`) never reach these
 //!   traversals: the packet driver (`accel::packet`) traces them with
-//!   `traverse_single` and the packet on quads where they are replaced
+//!   the 4-wide single ray (`traverse_wide`, `Accel::fastest`) and the packet on quads where they are replaced
 //!   (their subnormal arithmetic slows every quad holding one).
 //! - Every packet of the three traversals is checked by
 //!   `fallback::coherent` after its setup; an incoherent one (directions
 //!   over more than a 30 degree cone, origins over a quarter of the scene)
-//!   is traced lane by lane by `traverse_single` (`alone`).
+//!   is traced lane by lane by the 4-wide single ray (`packet::alone`).
 //! - Masked traversal counts its box tests of quads with live lanes that
 //!   find them dead and alive (`fallback::Waste`); after a leaf, once more
 //!   than `fallback::MAX_DEAD_PER_ALIVE` tests per alive one were wasted,
@@ -62,61 +62,16 @@
 //! quad-triangle test, `culled_nodes` / `culled` for frustum rejections,
 //! `packets_no_cull` when culling is on but no frustum could be built.
 
-use super::packet::{Packet, Walk, dispatch};
+use super::packet::{Packet, Walk};
 use super::traverse_partition::Partition;
 use super::{BvhView, MAX_DEPTH, TriangleTest};
-use crate::accel::entry::EntryPoint;
 use crate::accel::fallback;
-use crate::accel::method::TraceParams;
 use crate::accel::slot::Slot;
 use crate::counters::Counters;
-use crate::geom::{Hit4, M4, Ray4, Wide};
+use crate::geom::{Hit4, Ray4, Wide};
 
 /// Most quads traced as one packet (32 x 32 rays), for every family.
 pub use crate::accel::packet::MAX_QUADS;
-
-/// Nearest hits of the active lanes of `rays` into `hits`, Masked traversal.
-/// `rays.len()` quads form one packet (longer inputs: consecutive packets
-/// of 256); `rays`, `active` and `hits` are read up to the shortest length.
-/// Active lanes are written (`Hit::MISS` when nothing is hit, and for
-/// invalid rays); inactive lanes are left untouched. `entry`: start at this
-/// node instead of the root (an MLRTA or AEPSA entry point of a frustum
-/// bounding every live ray of `rays`; see `bvh::entry`).
-/// `slot`: the calling thread's slot, whose scratch holds the packet's
-/// per-quad arrays (at most `bvh::SCRATCH` bytes of it).
-// The packet, its options and where it starts, and the slot's scratch.
-#[allow(clippy::too_many_arguments)]
-pub fn intersect<T: TriangleTest>(
-    b: &BvhView<'_>,
-    rays: &[Ray4],
-    active: &[M4],
-    hits: &mut [Hit4],
-    opt: &TraceParams,
-    entry: Option<&EntryPoint>,
-    slot: &mut Slot<'_>,
-    ctr: &mut Counters,
-) {
-    dispatch::<Masked, T, false>(b, rays, active, hits, opt, entry, slot, ctr)
-}
-
-/// Occlusion of the active lanes, Masked traversal: `hits[q].prim[i] !=
-/// INVALID_ID` marks an occluded lane (t and id of some occluder in `[tmin,
-/// tmax)`, not the nearest); other active lanes get `Hit::MISS`, inactive
-/// ones are untouched. `entry` as for `intersect`.
-// The packet, its options and where it starts, and the slot's scratch.
-#[allow(clippy::too_many_arguments)]
-pub fn occluded<T: TriangleTest>(
-    b: &BvhView<'_>,
-    rays: &[Ray4],
-    active: &[M4],
-    hits: &mut [Hit4],
-    opt: &TraceParams,
-    entry: Option<&EntryPoint>,
-    slot: &mut Slot<'_>,
-    ctr: &mut Counters,
-) {
-    dispatch::<Masked, T, true>(b, rays, active, hits, opt, entry, slot, ctr)
-}
 
 /// The switch of Masked traversal to Partition traversal
 /// (`trace::fallback`): the subtrees still on the stack (`pending`, next
@@ -246,13 +201,17 @@ pub(crate) mod tests {
     use super::*;
     use crate::accel::bvh::build::build;
     use crate::accel::bvh::build::testutil::Store;
+    use crate::accel::bvh::packet::dispatch;
     use crate::accel::bvh::traverse_single;
     use crate::accel::bvh::{BvhParams, RayKind};
+    use crate::accel::entry::EntryPoint;
     use crate::accel::mailbox::Mailbox;
     use crate::accel::method::BvhOptions;
+    use crate::accel::method::TraceParams;
     use crate::accel::slot::Slot;
     pub use crate::accel::testkit::{RaySet, built, camera, lattice, packets, ray_sets, same};
     use crate::counters::DEPTH_BINS;
+    use crate::geom::M4;
     use crate::geom::{Hit, INVALID_ID, Mt, Pt, Ray, Scene, TriTest, Wt};
     use crate::mem::Scratch;
     use glam::Vec3;

@@ -25,47 +25,11 @@
 //! - `walk_from` starts `I` at a given quad: Masked traversal hands its
 //!   stacked subtrees to it when it switches (`traverse_masked::to_partition`).
 
-use super::packet::{Packet, Walk, dispatch};
+use super::packet::{Packet, Walk};
 use super::{BvhNode, BvhView, MAX_DEPTH, TriangleTest};
-use crate::accel::entry::EntryPoint;
-use crate::accel::method::TraceParams;
 use crate::accel::slot::Slot;
 use crate::counters::Counters;
-use crate::geom::{Hit4, M4, Ray4, Wide};
-
-/// Nearest hits of the active lanes of `rays` into `hits`, Partition
-/// traversal (contract of `traverse_masked::intersect`, `entry` included).
-// The packet, its options and where it starts, and the slot's scratch.
-#[allow(clippy::too_many_arguments)]
-pub fn intersect<T: TriangleTest>(
-    b: &BvhView<'_>,
-    rays: &[Ray4],
-    active: &[M4],
-    hits: &mut [Hit4],
-    opt: &TraceParams,
-    entry: Option<&EntryPoint>,
-    slot: &mut Slot<'_>,
-    ctr: &mut Counters,
-) {
-    dispatch::<Partition, T, false>(b, rays, active, hits, opt, entry, slot, ctr)
-}
-
-/// Occlusion of the active lanes, Partition traversal (contract of
-/// `traverse_masked::occluded`, `entry` included).
-// The packet, its options and where it starts, and the slot's scratch.
-#[allow(clippy::too_many_arguments)]
-pub fn occluded<T: TriangleTest>(
-    b: &BvhView<'_>,
-    rays: &[Ray4],
-    active: &[M4],
-    hits: &mut [Hit4],
-    opt: &TraceParams,
-    entry: Option<&EntryPoint>,
-    slot: &mut Slot<'_>,
-    ctr: &mut Counters,
-) {
-    dispatch::<Partition, T, true>(b, rays, active, hits, opt, entry, slot, ctr)
-}
+use crate::geom::{Hit4, Ray4, Wide};
 
 /// `partRays`: move the quads of `idx[..ia]` alive in `n`'s box to the
 /// front (in place) and return how many there are.

@@ -19,55 +19,19 @@
 //!   `[i_a, i_e)` with live lanes are tested and counted (the cost the paper
 //!   attributes to Ranged traversal).
 //! - See `traverse_masked` for child order and occlusion, and for the
-//!   fallbacks every packet gets at its setup (`trace::fallback`: tiny
-//!   directions and incoherent packets lane by lane). Ranged traversal
+//!   fallbacks every packet gets (`accel::fallback`: tiny directions and
+//!   incoherent packets lane by lane, by the 4-wide single ray). Ranged traversal
 //!   does not switch to Partition traversal as Masked traversal does:
 //!   measured on coherent camera packets whose quads it scans past dead
 //!   (long needles, sliver triangles), the switch made it up to 2x slower,
 //!   and without it no stress class left Ranged above its single ray's
 //!   time once the coherence test is in (`sheaf bench --stress`).
 
-use super::packet::{Packet, Walk, dispatch};
+use super::packet::{Packet, Walk};
 use super::{BvhNode, BvhView, MAX_DEPTH, TriangleTest};
-use crate::accel::entry::EntryPoint;
-use crate::accel::method::TraceParams;
 use crate::accel::slot::Slot;
 use crate::counters::Counters;
-use crate::geom::{Hit4, M4, Ray4, Wide};
-
-/// Nearest hits of the active lanes of `rays` into `hits`, Ranged
-/// traversal (contract of `traverse_masked::intersect`, `entry` included).
-// The packet, its options and where it starts, and the slot's scratch.
-#[allow(clippy::too_many_arguments)]
-pub fn intersect<T: TriangleTest>(
-    b: &BvhView<'_>,
-    rays: &[Ray4],
-    active: &[M4],
-    hits: &mut [Hit4],
-    opt: &TraceParams,
-    entry: Option<&EntryPoint>,
-    slot: &mut Slot<'_>,
-    ctr: &mut Counters,
-) {
-    dispatch::<Ranged, T, false>(b, rays, active, hits, opt, entry, slot, ctr)
-}
-
-/// Occlusion of the active lanes, Ranged traversal (contract of
-/// `traverse_masked::occluded`, `entry` included).
-// The packet, its options and where it starts, and the slot's scratch.
-#[allow(clippy::too_many_arguments)]
-pub fn occluded<T: TriangleTest>(
-    b: &BvhView<'_>,
-    rays: &[Ray4],
-    active: &[M4],
-    hits: &mut [Hit4],
-    opt: &TraceParams,
-    entry: Option<&EntryPoint>,
-    slot: &mut Slot<'_>,
-    ctr: &mut Counters,
-) {
-    dispatch::<Ranged, T, true>(b, rays, active, hits, opt, entry, slot, ctr)
-}
+use crate::geom::{Hit4, Ray4, Wide};
 
 /// `getFirstHit`: the first quad from `ia` on alive in `n`'s box, or `nq`.
 #[inline(always)]

@@ -27,51 +27,16 @@
 //! - The children's order is by the sum of each box's corners along the
 //!   packet's direction signs (the wide nodes keep no split axis).
 
-use super::packet::{Packet, Walk, dispatch, wide_walk_applies};
+use super::packet::{Packet, Walk, wide_walk_applies};
 use super::traverse_ranged::{Ranged, first_hit, last_hit, test_leaf};
 use super::wide::{WIDTH, WideNode, insert_by};
 use super::{BvhNode, BvhView, MAX_DEPTH, TriangleTest};
-use crate::accel::entry::EntryPoint;
-use crate::accel::method::TraceParams;
 use crate::accel::slot::Slot;
 use crate::counters::Counters;
-use crate::geom::{Hit4, M4, Ray4, Wide};
+use crate::geom::{Hit4, Ray4, Wide};
 
 /// Stack entries: at most `WIDTH - 1` pushed per wide level.
 const STACK: usize = (WIDTH - 1) * MAX_DEPTH + 1;
-
-/// Nearest hits of the active lanes of `rays` into `hits`, Ranged traversal
-/// of the 4-wide tree (contract of `traverse_masked::intersect`).
-// The packet, its options and where it starts, and the slot's scratch.
-#[allow(clippy::too_many_arguments)]
-pub fn intersect<T: TriangleTest>(
-    b: &BvhView<'_>,
-    rays: &[Ray4],
-    active: &[M4],
-    hits: &mut [Hit4],
-    opt: &TraceParams,
-    entry: Option<&EntryPoint>,
-    slot: &mut Slot<'_>,
-    ctr: &mut Counters,
-) {
-    dispatch::<WideRanged, T, false>(b, rays, active, hits, opt, entry, slot, ctr)
-}
-
-/// Occlusion of the active lanes, Ranged traversal of the 4-wide tree.
-// The packet, its options and where it starts, and the slot's scratch.
-#[allow(clippy::too_many_arguments)]
-pub fn occluded<T: TriangleTest>(
-    b: &BvhView<'_>,
-    rays: &[Ray4],
-    active: &[M4],
-    hits: &mut [Hit4],
-    opt: &TraceParams,
-    entry: Option<&EntryPoint>,
-    slot: &mut Slot<'_>,
-    ctr: &mut Counters,
-) {
-    dispatch::<WideRanged, T, true>(b, rays, active, hits, opt, entry, slot, ctr)
-}
 
 /// Child `c`'s box as a binary node (what the packet's tests read).
 #[inline(always)]

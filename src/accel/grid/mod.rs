@@ -24,7 +24,9 @@ pub mod traverse_single;
 use crate::accel::method::{Method, TraceParams};
 use crate::accel::slot::Slot;
 use crate::counters::Counters;
+use crate::error::Result;
 use crate::geom::{Aabb, Hit, Hit4, M4, ProjTri, Ray, Ray4, TriTest, TriVerts, TriangleTest};
+use crate::mem::{Carve, Limits, TOO_BIG, entries, when};
 use glam::Vec3;
 
 /// Slot scratch this module's packet code takes (`accel::slot`): a CGT
@@ -103,6 +105,26 @@ pub struct GridPools<'a> {
     pub cell_start: &'a mut [u32],
     pub refs: &'a mut [u32],
     pub macro_bits: &'a mut [u32],
+}
+
+impl<'a> GridPools<'a> {
+    /// The grid's pools under `l` (empty without `Limits::GRID`): the
+    /// triangles, `grid_cells` cells (plus the end), `grid_refs`
+    /// references and a bit per 32 macrocells. Every size checked.
+    #[deny(clippy::arithmetic_side_effects)]
+    pub fn carve(a: &mut impl Carve<'a>, l: &Limits) -> Result<Self> {
+        let on = l.has(Limits::GRID);
+        let n = when(on, l.max_triangles as usize);
+        let cells = if on { entries(l.grid_cells())? } else { 0 };
+        Ok(GridPools {
+            tris: a.take(n)?,
+            proj: a.take(when(l.projection_test, n))?,
+            tri_ids: a.take(n)?,
+            cell_start: a.take(cells.checked_add(1).ok_or(TOO_BIG)?)?,
+            refs: a.take(if on { entries(l.grid_refs())? } else { 0 })?,
+            macro_bits: a.take(when(on, cells.div_ceil(32).checked_add(1).ok_or(TOO_BIG)?))?,
+        })
+    }
 }
 
 /// A per-frame grid: pools plus what the last successful build wrote.

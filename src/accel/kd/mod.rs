@@ -47,7 +47,9 @@ use crate::accel::entry::EntrySearch;
 use crate::accel::method::{Method, TraceParams};
 use crate::accel::slot::Slot;
 use crate::counters::Counters;
+use crate::error::Result;
 use crate::geom::{Aabb, Hit, Hit4, M4, ProjTri, Ray, Ray4, TriTest, TriVerts, TriangleTest};
+use crate::mem::{Carve, Limits, entries, when};
 use bytemuck::{Pod, Zeroable};
 
 /// Slot scratch this module's packet code takes (`accel::slot`) for
@@ -234,6 +236,27 @@ pub struct KdPools<'a> {
     pub events: &'a mut [u64],
     /// Build scratch: one side flag per stored triangle.
     pub side: &'a mut [u8],
+}
+
+impl<'a> KdPools<'a> {
+    /// The kd-tree's pools under `l` (empty without `Limits::KD`): the
+    /// `kd_nodes`, `kd_refs` and `kd_events` rules and the triangles.
+    #[deny(clippy::arithmetic_side_effects)]
+    pub fn carve(a: &mut impl Carve<'a>, l: &Limits) -> Result<Self> {
+        let on = l.has(Limits::KD);
+        let n = when(on, l.max_triangles as usize);
+        let rule = |v: u64| if on { entries(v) } else { Ok(0) };
+        Ok(KdPools {
+            nodes: a.take(rule(l.kd_nodes())?)?,
+            refs: a.take(rule(l.kd_refs())?)?,
+            tris: a.take(n)?,
+            proj: a.take(when(l.projection_test, n))?,
+            tri_ids: a.take(n)?,
+            slot_of: a.take(n)?,
+            events: a.take(rule(l.kd_events())?)?,
+            side: a.take(n)?,
+        })
+    }
 }
 
 /// A per-frame kd-tree: pools plus what the last successful build wrote.

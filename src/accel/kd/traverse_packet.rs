@@ -76,7 +76,6 @@ use crate::accel::entry::EntryPoint;
 use crate::accel::fallback;
 use crate::accel::group;
 use crate::accel::method::TraceParams;
-use crate::accel::packet::{SizeClass, by_class};
 use crate::accel::slot::Slot;
 use crate::counters::{Counters, count};
 use crate::geom::frustum::Frustum;
@@ -215,6 +214,32 @@ fn dispatch<T: TriangleTest, const ANY: bool>(
         _t: core::marker::PhantomData,
     };
     by_class(n, &mut run);
+}
+
+/// A kd packet traversal sized by its packet class (1, 4, 16, 64 or 256
+/// quads: its per-quad arrays are fixed-size, indices masked by the class,
+/// no bounds checks): `packet::<Q>(range)` traces the
+/// quads `range` (at most `Q`) as one packet.
+trait SizeClass {
+    fn packet<const Q: usize>(&mut self, range: core::ops::Range<usize>);
+}
+
+/// Run `k` over `n` quads: one packet of the smallest class holding them,
+/// or consecutive packets of `MAX_QUADS`.
+#[inline]
+fn by_class(n: usize, k: &mut impl SizeClass) {
+    match n {
+        0 => {}
+        1 => k.packet::<1>(0..n),
+        2..=4 => k.packet::<4>(0..n),
+        5..=16 => k.packet::<16>(0..n),
+        17..=64 => k.packet::<64>(0..n),
+        _ => {
+            for s in (0..n).step_by(MAX_QUADS) {
+                k.packet::<MAX_QUADS>(s..(s + MAX_QUADS).min(n));
+            }
+        }
+    }
 }
 
 /// A kd packet call as the packet driver's size classes see it: `hits`
@@ -1227,7 +1252,9 @@ mod tests {
     #[test]
     #[ignore]
     fn packet_speed() {
-        use crate::accel::bvh::{BvhOptions, traverse_masked, traverse_simd as bvh_simd};
+        use crate::accel::bvh::packet::dispatch;
+        use crate::accel::bvh::traverse_masked::Masked;
+        use crate::accel::bvh::{BvhOptions, traverse_simd as bvh_simd};
         use crate::accel::kd::traverse_simd;
         use crate::accel::testkit::camera;
         use std::time::Instant;
@@ -1374,7 +1401,7 @@ mod tests {
                     let mut x = 0;
                     for (q, a, _) in p16 {
                         let s = &mut own.slot();
-                        traverse_masked::intersect::<Mt>(b, q, a, &mut h16, &opt, None, s, c);
+                        dispatch::<Masked, Mt, false>(b, q, a, &mut h16, &opt, None, s, c);
                         x += sum(&h16);
                     }
                     x

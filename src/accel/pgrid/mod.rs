@@ -45,9 +45,11 @@ pub mod traverse_shadow;
 
 use core::cmp::Ordering;
 
+use crate::error::Result;
 use crate::geom::{Aabb, ProjTri, TriTest, TriVerts, TriangleTest};
 use crate::isa::Isa;
 use crate::math;
+use crate::mem::{Carve, Limits};
 use glam::Vec3;
 
 pub use reorder::{Chunk, ReorderInfo};
@@ -383,6 +385,40 @@ pub struct PgridPools<'a> {
     /// Radix counts of the joined sorts: `mem::sort::BUCKETS` per worker,
     /// `MAX_WORKERS` workers.
     pub counts: &'a mut [u32],
+}
+
+/// Radix counts of the perspective grids' joined sorts.
+const COUNTS: usize = crate::mem::par::MAX_WORKERS * crate::mem::sort::BUCKETS;
+
+impl<'a> PgridPools<'a> {
+    /// The perspective and light grids' pools under `l` (empty without
+    /// `Limits::PGRID`): the triangles, `pgrid_cells` cells (plus the end)
+    /// and `pgrid_refs` pairs per grid, sort scratch for the larger of
+    /// the pairs and the frame's pixels, and the sorts' radix counts.
+    #[deny(clippy::arithmetic_side_effects)]
+    pub fn carve(a: &mut impl Carve<'a>, l: &Limits) -> Result<Self> {
+        use crate::mem::{TOO_BIG, entries, when};
+        let on = l.has(Limits::PGRID);
+        let n = when(on, l.max_triangles as usize);
+        let rule = |v: u64| if on { entries(v) } else { Ok(0) };
+        let cells = when(on, rule(l.pgrid_cells())?.checked_add(1).ok_or(TOO_BIG)?);
+        let refs = rule(l.pgrid_refs())?;
+        let sort = rule(l.pgrid_refs().max(l.frame_pixels()))?;
+        Ok(PgridPools {
+            tris: a.take(n)?,
+            proj: a.take(when(l.projection_test, n))?,
+            ok: a.take(n)?,
+            px_box: a.take(n)?,
+            cam_start: a.take(cells)?,
+            cam_tris: a.take(refs)?,
+            light_start: a.take(cells)?,
+            light_tris: a.take(refs)?,
+            keys: a.take(refs)?,
+            tmp_keys: a.take(sort)?,
+            tmp_vals: a.take(sort)?,
+            counts: a.take(when(cells > 0, COUNTS))?,
+        })
+    }
 }
 
 /// The scene as loaded for the perspective grids.

@@ -14,7 +14,7 @@ use super::{CamView, TriangleTest};
 use crate::accel::group;
 use crate::accel::slot::Slot;
 use crate::counters::{Counters, count};
-use crate::geom::{F4, Hit4, M4, Mt, Pt, Ray4, TriTest, Wide, Wt};
+use crate::geom::{F4, Hit4, M4, Ray4, Wide};
 use crate::isa;
 use crate::math;
 use crate::mem::scratch::bytes;
@@ -31,11 +31,9 @@ pub fn trace_tile(
     slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
-    match g.test {
-        TriTest::MollerTrumbore => tile_at::<Mt>(g, tile, rays, active, hits, slot, ctr),
-        TriTest::Watertight => tile_at::<Wt>(g, tile, rays, active, hits, slot, ctr),
-        TriTest::Projection => tile_at::<Pt>(g, tile, rays, active, hits, slot, ctr),
-    }
+    crate::geom::with_test!(g.test, |T| tile_at::<T>(
+        g, tile, rays, active, hits, slot, ctr
+    ))
 }
 
 /// `walk` at the lane width of `g.isa` (`isa::run`).

@@ -10,7 +10,7 @@ use super::{LightView, TriangleTest};
 use crate::accel::group;
 use crate::accel::slot::Slot;
 use crate::counters::{Counters, count};
-use crate::geom::{M4, Mt, Pt, Ray4, TriTest, Wide, Wt};
+use crate::geom::{M4, Ray4, Wide};
 use crate::isa;
 use crate::math;
 use crate::mem::scratch::bytes;
@@ -42,11 +42,7 @@ pub fn trace_chunk(
     for s in (0..rays.len()).step_by(MAX_QUADS) {
         let e = (s + MAX_QUADS).min(rays.len());
         let (r, a, o) = (&rays[s..e], &active[s..e], &mut occluded[s..e]);
-        match g.test {
-            TriTest::MollerTrumbore => batch_at::<Mt>(g, tile, r, a, o, slot, ctr),
-            TriTest::Watertight => batch_at::<Wt>(g, tile, r, a, o, slot, ctr),
-            TriTest::Projection => batch_at::<Pt>(g, tile, r, a, o, slot, ctr),
-        }
+        crate::geom::with_test!(g.test, |T| batch_at::<T>(g, tile, r, a, o, slot, ctr))
     }
 }
 

@@ -47,6 +47,24 @@ pub struct FlatPools<'a> {
     pub ids: &'a mut [FlatId],
 }
 
+impl<'a> FlatPools<'a> {
+    /// The flattened scene's pools under `l`: `max_triangles` world
+    /// triangles when there is a two-level scene and a structure that
+    /// traces it flattened (the grid, the kd-tree, the perspective grids),
+    /// else none.
+    #[deny(clippy::arithmetic_side_effects)]
+    pub fn carve(a: &mut impl crate::mem::Carve<'a>, l: &crate::mem::Limits) -> Result<Self> {
+        use crate::mem::{Limits, TOO_BIG, when};
+        let on = l.max_geometries > 0 && l.has(Limits::GRID | Limits::KD | Limits::PGRID);
+        let n = when(on, l.max_triangles as usize);
+        Ok(FlatPools {
+            tris: a.take(n)?,
+            indices: a.take(n.checked_mul(3).ok_or(TOO_BIG)?)?,
+            ids: a.take(n)?,
+        })
+    }
+}
+
 /// What the last flattening wrote.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct FlatInfo {

@@ -188,6 +188,68 @@ pub struct TwoLevelPools<'a> {
     pub order: &'a mut [u32],
 }
 
+/// A two-level scene's pools as carved (`TwoLevelPools::carve`), the
+/// geometry table still bytes (`GeomState` is not plain data).
+pub struct CarvedPools<'a> {
+    blas: BvhPools<'a>,
+    runs: &'a mut [Run],
+    insts: &'a mut [Instance],
+    tlas: &'a mut [BvhNode],
+    order: &'a mut [u32],
+    geom_bytes: &'a mut [u8],
+    geometries: usize,
+}
+
+impl<'a> TwoLevelPools<'a> {
+    /// The pools under `l` (empty without `Limits::max_geometries`): the
+    /// geometries' BVH pools for the `scene_triangles` budget, a run per
+    /// geometry and one more, `scene_instances` instances and a top level
+    /// of twice as many nodes, and the geometry table.
+    #[deny(clippy::arithmetic_side_effects)]
+    pub fn carve(
+        a: &mut impl crate::mem::Carve<'a>,
+        l: &crate::mem::Limits,
+    ) -> Result<CarvedPools<'a>> {
+        use crate::mem::{TOO_BIG, when};
+        let geometries = l.max_geometries as usize;
+        let insts = l.scene_instances() as usize;
+        let tris = l.scene_triangles() as usize;
+        Ok(CarvedPools {
+            blas: BvhPools::carve(a, geometries > 0, tris, l.projection_test)?,
+            runs: a.take(when(
+                geometries > 0,
+                geometries.checked_add(1).ok_or(TOO_BIG)?,
+            ))?,
+            insts: a.take(insts)?,
+            tlas: a.take(insts.checked_mul(2).ok_or(TOO_BIG)?)?,
+            order: a.take(insts)?,
+            geom_bytes: a.take(
+                crate::mem::scratch::bytes::<GeomState>(1)
+                    .checked_mul(geometries)
+                    .ok_or(TOO_BIG)?,
+            )?,
+            geometries,
+        })
+    }
+}
+
+impl<'a> CarvedPools<'a> {
+    /// The pools, every geometry of the table free (from an arena: a
+    /// `Sizer`'s pools are empty).
+    pub fn pools(self) -> TwoLevelPools<'a> {
+        let (geoms, _) =
+            crate::mem::Scratch::new(self.geom_bytes).take(self.geometries, GeomState::default());
+        TwoLevelPools {
+            blas: self.blas,
+            runs: self.runs,
+            geoms,
+            insts: self.insts,
+            tlas: self.tlas,
+            order: self.order,
+        }
+    }
+}
+
 /// What the last commit built.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct TwoLevelInfo {

@@ -293,6 +293,36 @@ pub struct FrameBuffers<'a> {
     pub reach: &'a mut [u32],
 }
 
+impl<'a> FrameBuffers<'a> {
+    /// The buffers under `l` (empty without `Limits::PGRID`):
+    /// `frame_pixels` entries each, a chunk per `MIN_CHUNK` pixels plus
+    /// one per light tile, and the light tiles' reach.
+    #[deny(clippy::arithmetic_side_effects)]
+    pub fn carve(a: &mut impl crate::mem::Carve<'a>, l: &crate::mem::Limits) -> Result<Self> {
+        use crate::mem::{Limits, TOO_BIG, entries, when};
+        let px = if l.has(Limits::PGRID) {
+            entries(l.frame_pixels())?
+        } else {
+            0
+        };
+        let chunks = px
+            .checked_div(pgrid::MIN_CHUNK as usize)
+            .and_then(|c| c.checked_add(px.min(pgrid::MAX_LIGHT_TILES)))
+            .ok_or(TOO_BIG)?;
+        Ok(FrameBuffers {
+            prim: a.take(px)?,
+            t: a.take(px)?,
+            dirs: a.take(px)?,
+            shadow: a.take(px)?,
+            ray_tiles: a.take(px)?,
+            ray_ids: a.take(px)?,
+            occ: a.take(px)?,
+            chunks: a.take(chunks)?,
+            reach: a.take(when(px > 0, pgrid::MAX_LIGHT_TILES))?,
+        })
+    }
+}
+
 /// Tile-major layout of the frame buffers: tile `(tx, ty)` of `side`
 /// pixels owns `side^2` consecutive entries, row by row.
 #[derive(Clone, Copy, Debug)]

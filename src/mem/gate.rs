@@ -1,5 +1,8 @@
-//! Misuse detection across threads: each context's state word and the
-//! lock of its last error, both plain atomics, so they work without std.
+//! Misuse detection across threads for bindings that share one context
+//! between threads without Rust's borrow rules (the C ABI: a `const
+//! sheaf_context *` on many threads): a context's call gate and a lock for
+//! a small value (its last error), both plain atomics, so they work
+//! without std. Rust callers get the same guarantees from `&`/`&mut`.
 //!
 //! The state word counts the shared calls inside the context (trace,
 //! occluded, the `_slot` calls, render_rows, stats, deferred_pixel...) and
@@ -16,8 +19,8 @@
 //! suppressions for sheaf. Outside valgrind a client request is a few
 //! register rotations that change nothing.
 
+use super::hg;
 use crate::error::{Error, Result};
-use crate::mem::hg;
 use core::cell::UnsafeCell;
 use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
@@ -31,17 +34,25 @@ const DYING: u32 = 1 << 29;
 /// The bits of calls inside: the exclusive bit and the shared count.
 const INSIDE: u32 = EXCLUSIVE | (DYING - 1);
 
-/// One context's state word.
-pub(super) struct State(AtomicU32);
+/// One context's state word (`CallGate::enter_shared`, `enter_exclusive`,
+/// `enter_destroy`, `poison`).
+pub struct CallGate(AtomicU32);
 
-impl State {
-    pub(super) const fn new() -> State {
-        State(AtomicU32::new(0))
+impl Default for CallGate {
+    fn default() -> CallGate {
+        CallGate::new()
+    }
+}
+
+impl CallGate {
+    /// A gate with no call inside.
+    pub const fn new() -> CallGate {
+        CallGate(AtomicU32::new(0))
     }
 
     /// Register a shared call: `Err(ContextBusy)` while an exclusive call
     /// runs, `Err(Poisoned)` after a panic. The guard leaves on drop.
-    pub(super) fn enter_shared(&self) -> Result<SharedGuard<'_>> {
+    pub fn enter_shared(&self) -> Result<SharedGuard<'_>> {
         let prev = self.0.fetch_add(1, Ordering::Acquire);
         if prev & (EXCLUSIVE | POISONED | DYING) != 0 {
             self.0.fetch_sub(1, Ordering::Relaxed);
@@ -53,7 +64,7 @@ impl State {
 
     /// Take the context exclusively: `Err(ContextBusy)` while any other
     /// call is inside, `Err(Poisoned)` after a panic.
-    pub(super) fn enter_exclusive(&self) -> Result<ExclusiveGuard<'_>> {
+    pub fn enter_exclusive(&self) -> Result<ExclusiveGuard<'_>> {
         match self
             .0
             .compare_exchange(0, EXCLUSIVE, Ordering::Acquire, Ordering::Relaxed)
@@ -71,7 +82,7 @@ impl State {
     /// return.
     /// False when another destroy got here first (it does the work). The
     /// word is never released: the memory is freed or handed back.
-    pub(super) fn enter_destroy(&self) -> bool {
+    pub fn enter_destroy(&self) -> bool {
         if self.0.fetch_or(DYING, Ordering::Acquire) & DYING != 0 {
             return false;
         }
@@ -86,12 +97,12 @@ impl State {
 
     /// Whether destroy has started (a locked read: helgrind sees every
     /// access to the word as atomic).
-    pub(super) fn dead(&self) -> bool {
+    pub fn dead(&self) -> bool {
         self.0.fetch_or(0, Ordering::Acquire) & DYING != 0
     }
 
     /// Poison the context (a panic was caught inside a call).
-    pub(super) fn poison(&self) {
+    pub fn poison(&self) {
         self.0.fetch_or(POISONED, Ordering::Relaxed);
     }
 
@@ -111,7 +122,7 @@ fn refusal(state: u32) -> Error {
 }
 
 /// A registered shared call; leaves on drop.
-pub(super) struct SharedGuard<'s>(&'s State);
+pub struct SharedGuard<'s>(&'s CallGate);
 
 impl Drop for SharedGuard<'_> {
     fn drop(&mut self) {
@@ -121,7 +132,7 @@ impl Drop for SharedGuard<'_> {
 }
 
 /// An exclusive call; releases on drop.
-pub(super) struct ExclusiveGuard<'s>(&'s State);
+pub struct ExclusiveGuard<'s>(&'s CallGate);
 
 impl Drop for ExclusiveGuard<'_> {
     fn drop(&mut self) {
@@ -131,7 +142,7 @@ impl Drop for ExclusiveGuard<'_> {
 }
 
 /// A lock for a small `Copy` value (the last error), held for a copy only.
-pub(super) struct Slot<T: Copy> {
+pub struct Locked<T: Copy> {
     locked: AtomicBool,
     value: UnsafeCell<T>,
 }
@@ -139,11 +150,11 @@ pub(super) struct Slot<T: Copy> {
 // SAFETY: `value` is only accessed between a successful swap of `locked`
 // to true (Acquire) and its store back to false (Release), so by one
 // thread at a time; T is Copy + Send, copied in and out.
-unsafe impl<T: Copy + Send> Sync for Slot<T> {}
+unsafe impl<T: Copy + Send> Sync for Locked<T> {}
 
-impl<T: Copy> Slot<T> {
-    pub(super) const fn new(v: T) -> Slot<T> {
-        Slot {
+impl<T: Copy> Locked<T> {
+    pub const fn new(v: T) -> Locked<T> {
+        Locked {
             locked: AtomicBool::new(false),
             value: UnsafeCell::new(v),
         }
@@ -166,11 +177,11 @@ impl<T: Copy> Slot<T> {
         r
     }
 
-    pub(super) fn set(&self, v: T) {
+    pub fn set(&self, v: T) {
         self.with(|x| *x = v);
     }
 
-    pub(super) fn get(&self) -> T {
+    pub fn get(&self) -> T {
         self.with(|x| *x)
     }
 }
@@ -181,7 +192,7 @@ mod tests {
 
     #[test]
     fn shared_calls_share_and_exclusive_calls_wait_for_none() {
-        let s = State::new();
+        let s = CallGate::new();
         let a = s.enter_shared().unwrap();
         let b = s.enter_shared().unwrap();
         assert_eq!(s.enter_exclusive().err(), Some(Error::ContextBusy));
@@ -199,7 +210,7 @@ mod tests {
 
     #[test]
     fn a_poisoned_context_refuses_everything_but_destroy() {
-        let s = State::new();
+        let s = CallGate::new();
         s.poison();
         assert_eq!(s.enter_shared().err(), Some(Error::Poisoned));
         assert_eq!(s.enter_exclusive().err(), Some(Error::Poisoned));
@@ -211,7 +222,7 @@ mod tests {
 
     #[test]
     fn destroy_waits_for_the_calls_inside_and_refuses_new_ones() {
-        let s = State::new();
+        let s = CallGate::new();
         let inside = s.enter_shared().unwrap();
         std::thread::scope(|sc| {
             let d = sc.spawn(|| s.enter_destroy());
@@ -231,7 +242,7 @@ mod tests {
 
     #[test]
     fn the_last_error_slot_copies_in_and_out() {
-        let slot = Slot::new(None);
+        let slot = Locked::new(None);
         assert_eq!(slot.get(), None);
         slot.set(Some(Error::NotBuilt));
         assert_eq!(slot.get(), Some(Error::NotBuilt));
