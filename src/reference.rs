@@ -138,7 +138,7 @@ pub const EDGE_BARY: f64 = 1e-5;
 /// On agreement, the f32 t within this relative distance of the f64 t.
 pub const T_REL: f64 = 1e-4;
 /// An f32 position's uncertainty as a fraction of the largest coordinate
-/// magnitude involved (64 roundings; `tests/stress.rs` uses the same).
+/// magnitude involved (64 roundings; `cli/stress/tests/stress.rs` uses the same).
 /// On agreement, the f32 t is also right within `POS_EPS` times the ray's
 /// `t_scale`: a hit at the ray's origin has a t of rounding size (a
 /// two-level ray moved into object space, a world triangle rounded to

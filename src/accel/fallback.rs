@@ -61,7 +61,7 @@
 //! # Switch
 //! `TraceParams::fallbacks` (on by default) turns every fallback off for
 //! one call, so benches and tests can compare (`sheaf bench --stress`,
-//! tests/fallback.rs); the callers of `coherent`, `tiny` and `Waste` pass
+//! cli/stress/tests/fallback.rs); the callers of `coherent`, `tiny` and `Waste` pass
 //! it on. It is not part of the C ABI; the fallbacks are always on there.
 //!
 //! # Counters

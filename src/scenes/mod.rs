@@ -57,6 +57,15 @@ impl View {
             fov_y_deg: self.fov_y_deg,
         }
     }
+
+    /// The camera rays of a `w` x `h` image of this view, row by row.
+    pub fn rays(&self, w: u32, h: u32) -> std::vec::Vec<crate::Ray> {
+        let primary = crate::render::PrimaryRays::new(&self.camera(), w, h).expect("valid view");
+        (0..h)
+            .flat_map(|y| (0..w).map(move |x| (x, y)))
+            .map(|(x, y)| primary.ray(x, y))
+            .collect()
+    }
 }
 
 /// Triangle mesh in the layout sheaf's scene input borrows: packed xyz f32 vertices (stride 12 bytes), u32 index triples.

@@ -176,17 +176,7 @@ pub fn obj_scenes() -> Vec<TestScene> {
 
 /// Primary rays of `view` at `w x h`, row-major, through pixel centres.
 pub fn view_rays(view: &View, w: u32, h: u32) -> Vec<Ray> {
-    let cam = sheaf::Camera {
-        eye: view.eye.to_array(),
-        look_at: view.look_at.to_array(),
-        up: view.up.to_array(),
-        fov_y_deg: view.fov_y_deg,
-    };
-    let primary = sheaf::render::PrimaryRays::new(&cam, w, h).expect("valid view");
-    (0..h)
-        .flat_map(|y| (0..w).map(move |x| (x, y)))
-        .map(|(x, y)| primary.ray(x, y))
-        .collect()
+    view.rays(w, h)
 }
 
 /// Run `f` over `items` on all cores, keeping order.

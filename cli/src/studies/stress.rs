@@ -874,7 +874,7 @@ fn markdown(results: &[ClassResult], infos: &[SceneInfo], s: &Setup<'_>) -> Stri
         .max_by_key(|x| x.0);
     let _ = writeln!(
         m,
-        "\nCrashes: {}. Hangs: none (every call returned; the slowest single call took {}). Allocation: none after setup (tests/fallback.rs counts allocations while every method traces every stress class, fallbacks on and off; tests/no_alloc.rs covers builds and renders).\n",
+        "\nCrashes: {}. Hangs: none (every call returned; the slowest single call took {}). Allocation: none after setup (cli/stress/tests/fallback.rs counts allocations while every method traces every stress class, fallbacks on and off; tests/no_alloc.rs covers builds and renders).\n",
         if panics.is_empty() {
             "none (no call panicked)".to_string()
         } else {
@@ -1053,7 +1053,7 @@ fn markdown(results: &[ClassResult], infos: &[SceneInfo], s: &Setup<'_>) -> Stri
     let _ = writeln!(m, "## The baselines against the f64 oracle\n");
     let _ = writeln!(
         m,
-        "Every k-th ray (k chosen so the brute-force f64 oracle, `sheaf::reference`, spends at most {:.0e} ray-triangle tests per class) against each single-ray baseline: disagreements on the nearest triangle within the named tolerances (`TIE_REL` {TIE_REL:e}: the oracle's two nearest hits are that close, a tie; `EDGE_BARY` {EDGE_BARY:e}: the ray passes that close to an edge, barycentric) and outside them. The packet methods equal their baselines (previous section), so these counts are theirs too.\n\nOutside these two tolerances is not by itself wrong: these rays are built to be ill-posed. Most are rays with subnormal directions (zero-length: the f64 hit lies at t ~ 1e40, beyond f32's range, which no f32 answer can match), self-hits at t ~ 0 of origins on edges and vertices, and rays grazing a triangle or along an axis, where the f32 test's determinant is rounding noise. tests/stress.rs judges every ray class on the five stress scenes (1024 rays per class) with wider named tolerances that take the test's condition number and the coordinates' rounding into account (`illcond`, `origin`, `at-tmax`) and fails on any disagreement none of them explains.\n",
+        "Every k-th ray (k chosen so the brute-force f64 oracle, `sheaf::reference`, spends at most {:.0e} ray-triangle tests per class) against each single-ray baseline: disagreements on the nearest triangle within the named tolerances (`TIE_REL` {TIE_REL:e}: the oracle's two nearest hits are that close, a tie; `EDGE_BARY` {EDGE_BARY:e}: the ray passes that close to an edge, barycentric) and outside them. The packet methods equal their baselines (previous section), so these counts are theirs too.\n\nOutside these two tolerances is not by itself wrong: these rays are built to be ill-posed. Most are rays with subnormal directions (zero-length: the f64 hit lies at t ~ 1e40, beyond f32's range, which no f32 answer can match), self-hits at t ~ 0 of origins on edges and vertices, and rays grazing a triangle or along an axis, where the f32 test's determinant is rounding noise. cli/stress/tests/stress.rs judges every ray class on the five stress scenes (1024 rays per class) with wider named tolerances that take the test's condition number and the coordinates' rounding into account (`illcond`, `origin`, `at-tmax`) and fails on any disagreement none of them explains.\n",
         if s.quick {
             QUICK_ORACLE_BUDGET
         } else {
@@ -1153,7 +1153,7 @@ the switch; each traversal applies it:
 
 Exactness: a lane traced alone gets its baseline's answer by definition;
 Partition traversal from any node is exact (traverse_partition.rs), and the
-nodes handed to it are those the packet would have visited. tests/fallback.rs
+nodes handed to it are those the packet would have visited. cli/stress/tests/fallback.rs
 checks that packets which trigger each fallback return the single ray's
 triangle and bitwise t, and that the fallbacks trigger (their counters).
 ";

@@ -26,7 +26,7 @@
 //!   conservative, and the triangle test finds hits at rounding-noise t in
 //!   boxes the binary walk rejects but a merged wide leaf exposes (measured:
 //!   700 lanes on the stress suite's skinny-diagonal scene). The binary
-//!   walk's answer is the reference for them (`tests/stress.rs`).
+//!   walk's answer is the reference for them (`cli/stress/tests/stress.rs`).
 //! - A ray that would overflow the stack restarts on the binary walk; its
 //!   box and triangle tests so far stay in the counters.
 //! - Counters count wide levels as depth, and 4 box tests per wide node.

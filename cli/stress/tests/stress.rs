@@ -64,9 +64,6 @@
 //!
 //! Anything else fails with the ray, both answers and the crossings checked.
 
-mod common;
-
-use common::view_rays;
 use glam::{DVec3, Vec3};
 use sheaf::accel::bvh::BvhParams;
 use sheaf::accel::kd::KdParams;
@@ -1598,7 +1595,7 @@ fn stress_scenes_deferred_frames_equal_single_rays() {
             for (vi, v) in s.views.iter().enumerate() {
                 let what = format!("{name} view {vi} {test:?}");
                 *progress.lock().unwrap() = what.clone();
-                let rays = view_rays(v, WH.0, WH.1);
+                let rays = v.rays(WH.0, WH.1);
                 let mut want = vec![Hit::MISS; rays.len()];
                 ctx.trace(Method::BvhSingle, &rays, &mut want).unwrap();
                 let frame = frame(v, s.light);
