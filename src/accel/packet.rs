@@ -38,6 +38,15 @@ pub const fn quads(side: u32) -> usize {
     if h == 0 { 1 } else { h * h }
 }
 
+/// The packets an input of `n` quads is traced as: consecutive ranges of
+/// at most `MAX_QUADS` quads.
+#[inline]
+pub fn packet_ranges(n: usize) -> impl Iterator<Item = core::ops::Range<usize>> {
+    (0..n)
+        .step_by(MAX_QUADS)
+        .map(move |s| s..(s + MAX_QUADS).min(n))
+}
+
 /// Slot scratch the driver holds while a family traces packets of up to
 /// `q` quads: the tiny-lane split of `quieted` (quieted quads, the
 /// packet's lanes, the tiny lanes).
@@ -99,8 +108,8 @@ fn quieted<A: Accel, T: TriangleTest, const ANY: bool>(
     slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
-    for s in (0..rays.len()).step_by(MAX_QUADS) {
-        let e = (s + MAX_QUADS).min(rays.len());
+    for run in packet_ranges(rays.len()) {
+        let (s, e) = (run.start, run.end);
         let (r, h) = (&rays[s..e], &mut hits[s..e]);
         let (qr, mut slot) = slot.split(e - s, r[0]);
         let (qa, mut slot) = slot.split(e - s, M4::FALSE);

@@ -189,6 +189,32 @@ pub trait Kernel {
     fn run<W: Wide>(self) -> Self::Out;
 }
 
+/// A lane-generic function: `call::<W>(args)`, a traversal at one lane
+/// width, its arguments one tuple (`run_fn`). A marker type per traversal
+/// implements it (mark `call` `#[inline(always)]`, so the traversal is
+/// compiled inside the level's function).
+pub trait LaneFn {
+    type Args<'a>;
+    type Out;
+    fn call<W: Wide>(args: Self::Args<'_>) -> Self::Out;
+}
+
+/// `F::call(args)` at level `effective(isa)` (`run`): the one forwarding
+/// kernel, so no traversal writes a struct of its arguments to cross
+/// into the level's function.
+#[inline]
+pub fn run_fn<F: LaneFn>(isa: Isa, args: F::Args<'_>) -> F::Out {
+    struct Fwd<'a, F: LaneFn>(F::Args<'a>);
+    impl<F: LaneFn> Kernel for Fwd<'_, F> {
+        type Out = F::Out;
+        #[inline(always)]
+        fn run<W: Wide>(self) -> F::Out {
+            F::call::<W>(self.0)
+        }
+    }
+    run(isa, Fwd::<F>(args))
+}
+
 /// Run `k` at level `effective(isa)`: with `Z16` lanes in a function
 /// compiled for AVX-512F, `Y8` in one for AVX2 (`F16`, `F8` on 32-bit
 /// x86), else `F4`; emulated levels on `F16`, `F8` in baseline code.

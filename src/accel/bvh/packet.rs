@@ -14,7 +14,7 @@
 //! (the first two into slices filled first). A walk may instead set
 //! its packets up itself (`Walk::own_setup`): the frustum-first walk does,
 //! lane group by lane group at its lane width. Setup and walk run in one
-//! `isa::Kernel` (`WalkAt`), so the setup is compiled for the walk's ISA
+//! `isa::LaneFn` (`SetUpAndWalk`), so the setup is compiled for the walk's ISA
 //! (32 vector registers with AVX-512) and runs on the quads while they
 //! are in cache.
 //!
@@ -38,7 +38,6 @@ use crate::accel::entry::EntryPoint;
 use crate::accel::fallback;
 use crate::accel::group::{self, Group};
 use crate::accel::method::TraceParams;
-use crate::accel::packet::MAX_QUADS;
 use crate::accel::slot::Slot;
 use crate::counters::{Counters, count};
 use crate::geom::lane::mask_from_bits;
@@ -216,64 +215,52 @@ pub(crate) fn dispatch<W: Walk, T: TriangleTest, const ANY: bool>(
     };
     let opt = &o;
     // Packets of up to `MAX_QUADS` quads, each set up and walked in one
-    // `isa::Kernel` (`WalkAt`), so the setup pass is compiled for the
+    // `isa::LaneFn` (`SetUpAndWalk`), so the setup pass is compiled for the
     // walk's ISA too. The per-quad arrays are slices of the slot's
     // scratch, so no packet size class is needed.
-    for s in (0..n).step_by(MAX_QUADS) {
-        let r = s..(s + MAX_QUADS).min(n);
-        let k = WalkAt::<W, T, ANY> {
+    for r in crate::accel::packet::packet_ranges(n) {
+        let (rays, active) = (&rays[r.clone()], &active[r.clone()]);
+        let args = (
             b,
-            rays: &rays[r.clone()],
-            active: &active[r.clone()],
-            hits: &mut hits[r],
+            rays,
+            active,
+            &mut hits[r],
             opt,
             start,
-            slot: &mut *slot,
-            ctr: &mut *ctr,
-            _w: core::marker::PhantomData,
-        };
-        isa::run(opt.isa, k);
+            slot.reborrow(),
+            &mut *ctr,
+        );
+        isa::run_fn::<SetUpAndWalk<W, T, ANY>>(opt.isa, args);
     }
 }
 
-/// One packet as an `isa::Kernel`: set up and walked at each lane width.
-struct WalkAt<'x, 'b, 's, W, T: TriangleTest, const ANY: bool> {
-    b: &'x BvhView<'b>,
-    rays: &'x [Ray4],
-    active: &'x [M4],
-    hits: &'x mut [Hit4],
-    opt: &'x TraceParams,
-    start: (usize, usize),
-    slot: &'x mut Slot<'s>,
-    ctr: &'x mut Counters,
-    _w: core::marker::PhantomData<(W, T)>,
-}
+/// One packet set up and walked at a lane width (an `isa::LaneFn`).
+struct SetUpAndWalk<W, T, const ANY: bool>(core::marker::PhantomData<(W, T)>);
 
-impl<W: Walk, T: TriangleTest, const ANY: bool> isa::Kernel for WalkAt<'_, '_, '_, W, T, ANY> {
+impl<W: Walk, T: TriangleTest, const ANY: bool> isa::LaneFn for SetUpAndWalk<W, T, ANY> {
+    type Args<'a> = (
+        &'a BvhView<'a>,
+        &'a [Ray4],
+        &'a [M4],
+        &'a mut [Hit4],
+        &'a TraceParams,
+        (usize, usize),
+        Slot<'a>,
+        &'a mut Counters,
+    );
     type Out = ();
     /// The walk's own setup when it takes the packet (`Walk::own_setup`);
     /// else its lanes first (a packet with none live, or incoherent, takes
     /// no more scratch), then its per-quad arrays, then the walk.
     #[inline(always)]
-    fn run<L: Wide>(self) {
-        let WalkAt {
-            b,
-            rays,
-            active,
-            hits,
-            opt,
-            start,
-            slot,
-            ctr,
-            ..
-        } = self;
+    fn call<L: Wide>((b, rays, active, hits, opt, start, mut slot, ctr): Self::Args<'_>) {
         let pk = PacketIn {
             rays,
             active,
             hits: &mut *hits,
             fallbacks: opt.fallbacks,
         };
-        if W::own_setup::<L, T, ANY>(b, pk, start, &mut *slot, &mut *ctr) {
+        if W::own_setup::<L, T, ANY>(b, pk, start, &mut slot, &mut *ctr) {
             return;
         }
         let nq = rays.len().min(active.len()).min(hits.len());

@@ -61,7 +61,6 @@ use super::{GridView, TriangleTest};
 use crate::accel::fallback;
 use crate::accel::group;
 use crate::accel::method::TraceParams;
-use crate::accel::packet::MAX_QUADS;
 use crate::accel::slot::Slot;
 use crate::counters::{Counters, count};
 use crate::geom::{F4, Hit, Hit4, M4, Ray4, TriVerts, Wide};
@@ -132,51 +131,38 @@ fn dispatch<T: TriangleTest, const ANY: bool>(
     let n = rays.len().min(active.len()).min(hits.len());
     // Per-quad scratch comes from the slot, `nq` values per packet, so no
     // size classes are needed.
-    for s in (0..n).step_by(MAX_QUADS) {
-        let r = s..(s + MAX_QUADS).min(n);
+    for r in crate::accel::packet::packet_ranges(n) {
         let (rays, active) = (&rays[r.clone()], &active[r.clone()]);
-        let hits = &mut hits[r];
-        let k = PacketAt::<T, ANY> {
+        let args = (
             g,
             rays,
             active,
-            hits,
+            &mut hits[r],
             opt,
-            slot: &mut *slot,
-            ctr: &mut *ctr,
-            _t: core::marker::PhantomData,
-        };
-        isa::run(opt.isa, k);
+            slot.reborrow(),
+            &mut *ctr,
+        );
+        isa::run_fn::<Packet<T, ANY>>(opt.isa, args);
     }
 }
 
-/// One packet as an `isa::Kernel`: compiled at each lane width.
-struct PacketAt<'x, 'g, 's, T, const ANY: bool> {
-    g: &'x GridView<'g>,
-    rays: &'x [Ray4],
-    active: &'x [M4],
-    hits: &'x mut [Hit4],
-    opt: &'x TraceParams,
-    slot: &'x mut Slot<'s>,
-    ctr: &'x mut Counters,
-    _t: core::marker::PhantomData<T>,
-}
+/// `packet` as an `isa::LaneFn`: compiled at each lane width.
+struct Packet<T, const ANY: bool>(core::marker::PhantomData<T>);
 
-impl<T: TriangleTest, const ANY: bool> isa::Kernel for PacketAt<'_, '_, '_, T, ANY> {
+impl<T: TriangleTest, const ANY: bool> isa::LaneFn for Packet<T, ANY> {
+    type Args<'a> = (
+        &'a GridView<'a>,
+        &'a [Ray4],
+        &'a [M4],
+        &'a mut [Hit4],
+        &'a TraceParams,
+        Slot<'a>,
+        &'a mut Counters,
+    );
     type Out = ();
     #[inline(always)]
-    fn run<L: Wide>(self) {
-        let PacketAt {
-            g,
-            rays,
-            active,
-            hits,
-            opt,
-            slot,
-            ctr,
-            ..
-        } = self;
-        packet::<L, T, ANY>(g, rays, active, hits, opt, slot, ctr)
+    fn call<L: Wide>((g, rays, active, hits, opt, mut slot, ctr): Self::Args<'_>) {
+        packet::<L, T, ANY>(g, rays, active, hits, opt, &mut slot, ctr)
     }
 }
 

@@ -235,8 +235,8 @@ fn by_class(n: usize, k: &mut impl SizeClass) {
         5..=16 => k.packet::<16>(0..n),
         17..=64 => k.packet::<64>(0..n),
         _ => {
-            for s in (0..n).step_by(MAX_QUADS) {
-                k.packet::<MAX_QUADS>(s..(s + MAX_QUADS).min(n));
+            for r in crate::accel::packet::packet_ranges(n) {
+                k.packet::<MAX_QUADS>(r);
             }
         }
     }
@@ -302,7 +302,7 @@ fn packet<T: TriangleTest, const ANY: bool, const Q: usize>(
     let nq = rays.len().min(Q);
     ctr.packets += 1;
     // Outputs of the active lanes, and the live ones: active and valid.
-    let (live, mut slot) = carve::<M4, Q>(slot, M4::FALSE);
+    let (live, slot) = carve::<M4, Q>(slot, M4::FALSE);
     let mut n_live = 0u32;
     for q in 0..nq {
         let m = active[q];
@@ -372,61 +372,36 @@ fn packet<T: TriangleTest, const ANY: bool, const Q: usize>(
         });
         return;
     }
-    let w = WalkAt::<T, ANY, Q> {
-        k,
-        rays,
-        hits,
-        occ,
-        frustum,
-        live,
-        n_live,
-        neg,
-        start: (node0, depth0, bx0),
-        slot: &mut slot,
-        ctr,
-        _t: core::marker::PhantomData,
-    };
-    isa::run(isa, w);
+    let start = (node0, depth0, bx0);
+    let args = (
+        k, rays, hits, occ, frustum, live, n_live, neg, start, slot, ctr,
+    );
+    isa::run_fn::<Walk<T, ANY, Q>>(isa, args);
 }
 
-/// `walk` as an `isa::Kernel`: compiled at each lane width.
-struct WalkAt<'x, 'k, 's, T: TriangleTest, const ANY: bool, const Q: usize> {
-    k: &'x KdView<'k>,
-    rays: &'x [Ray4],
-    hits: &'x mut [Hit4],
-    occ: &'x mut [M4],
-    frustum: Option<&'x Frustum>,
-    live: &'x mut [M4; Q],
-    n_live: u32,
-    neg: [bool; 3],
-    start: (usize, usize, Aabb),
-    slot: &'x mut Slot<'s>,
-    ctr: &'x mut Counters,
-    _t: core::marker::PhantomData<T>,
-}
+/// `walk` as an `isa::LaneFn`: compiled at each lane width.
+struct Walk<T, const ANY: bool, const Q: usize>(core::marker::PhantomData<T>);
 
-impl<T: TriangleTest, const ANY: bool, const Q: usize> isa::Kernel
-    for WalkAt<'_, '_, '_, T, ANY, Q>
-{
+impl<T: TriangleTest, const ANY: bool, const Q: usize> isa::LaneFn for Walk<T, ANY, Q> {
+    type Args<'a> = (
+        &'a KdView<'a>,
+        &'a [Ray4],
+        &'a mut [Hit4],
+        &'a mut [M4],
+        Option<&'a Frustum>,
+        &'a mut [M4; Q],
+        u32,
+        [bool; 3],
+        (usize, usize, Aabb),
+        Slot<'a>,
+        &'a mut Counters,
+    );
     type Out = ();
     #[inline(always)]
-    fn run<L: Wide>(self) {
-        let WalkAt {
-            k,
-            rays,
-            hits,
-            occ,
-            frustum,
-            live,
-            n_live,
-            neg,
-            start,
-            slot,
-            ctr,
-            ..
-        } = self;
+    fn call<L: Wide>(args: Self::Args<'_>) {
+        let (k, rays, hits, occ, frustum, live, n_live, neg, start, mut slot, ctr) = args;
         walk::<L, T, ANY, Q>(
-            k, rays, hits, occ, frustum, live, n_live, neg, start, slot, ctr,
+            k, rays, hits, occ, frustum, live, n_live, neg, start, &mut slot, ctr,
         )
     }
 }

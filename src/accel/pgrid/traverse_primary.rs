@@ -36,7 +36,7 @@ pub fn trace_tile(
     ))
 }
 
-/// `walk` at the lane width of `g.isa` (`isa::run`).
+/// `walk` at the lane width of `g.isa` (`isa::run_fn`).
 fn tile_at<T: TriangleTest>(
     g: &CamView<'_>,
     tile: u32,
@@ -46,44 +46,27 @@ fn tile_at<T: TriangleTest>(
     slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
-    struct At<'x, 'g, 's, T> {
-        g: &'x CamView<'g>,
-        tile: u32,
-        rays: &'x [Ray4],
-        active: &'x [M4],
-        hits: &'x mut [Hit4],
-        slot: &'x mut Slot<'s>,
-        ctr: &'x mut Counters,
-        _t: core::marker::PhantomData<T>,
+    isa::run_fn::<Walk<T>>(g.isa, (g, tile, rays, active, hits, slot.reborrow(), ctr))
+}
+
+/// `walk` as an `isa::LaneFn`.
+struct Walk<T>(core::marker::PhantomData<T>);
+
+impl<T: TriangleTest> isa::LaneFn for Walk<T> {
+    type Args<'a> = (
+        &'a CamView<'a>,
+        u32,
+        &'a [Ray4],
+        &'a [M4],
+        &'a mut [Hit4],
+        Slot<'a>,
+        &'a mut Counters,
+    );
+    type Out = ();
+    #[inline(always)]
+    fn call<L: Wide>((g, tile, rays, active, hits, mut slot, ctr): Self::Args<'_>) {
+        walk::<L, T>(g, tile, rays, active, hits, &mut slot, ctr)
     }
-    impl<T: TriangleTest> isa::Kernel for At<'_, '_, '_, T> {
-        type Out = ();
-        #[inline(always)]
-        fn run<L: Wide>(self) {
-            let At {
-                g,
-                tile,
-                rays,
-                active,
-                hits,
-                slot,
-                ctr,
-                ..
-            } = self;
-            walk::<L, T>(g, tile, rays, active, hits, slot, ctr)
-        }
-    }
-    let k = At::<T> {
-        g,
-        tile,
-        rays,
-        active,
-        hits,
-        slot,
-        ctr,
-        _t: core::marker::PhantomData,
-    };
-    isa::run(g.isa, k)
 }
 
 /// Most quads traced as one packet (32 x 32 rays), for every family.

@@ -39,14 +39,13 @@ pub fn trace_chunk(
     slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
-    for s in (0..rays.len()).step_by(MAX_QUADS) {
-        let e = (s + MAX_QUADS).min(rays.len());
-        let (r, a, o) = (&rays[s..e], &active[s..e], &mut occluded[s..e]);
+    for p in crate::accel::packet::packet_ranges(rays.len()) {
+        let (r, a, o) = (&rays[p.clone()], &active[p.clone()], &mut occluded[p]);
         crate::geom::with_test!(g.test, |T| batch_at::<T>(g, tile, r, a, o, slot, ctr))
     }
 }
 
-/// `walk` at the lane width of `g.isa` (`isa::run`).
+/// `walk` at the lane width of `g.isa` (`isa::run_fn`).
 fn batch_at<T: TriangleTest>(
     g: &LightView<'_>,
     tile: u32,
@@ -56,44 +55,30 @@ fn batch_at<T: TriangleTest>(
     slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
-    struct At<'x, 'g, 's, T> {
-        g: &'x LightView<'g>,
-        tile: u32,
-        rays: &'x [Ray4],
-        active: &'x [M4],
-        occluded: &'x mut [M4],
-        slot: &'x mut Slot<'s>,
-        ctr: &'x mut Counters,
-        _t: core::marker::PhantomData<T>,
+    isa::run_fn::<Walk<T>>(
+        g.isa,
+        (g, tile, rays, active, occluded, slot.reborrow(), ctr),
+    )
+}
+
+/// `walk` as an `isa::LaneFn`.
+struct Walk<T>(core::marker::PhantomData<T>);
+
+impl<T: TriangleTest> isa::LaneFn for Walk<T> {
+    type Args<'a> = (
+        &'a LightView<'a>,
+        u32,
+        &'a [Ray4],
+        &'a [M4],
+        &'a mut [M4],
+        Slot<'a>,
+        &'a mut Counters,
+    );
+    type Out = ();
+    #[inline(always)]
+    fn call<L: Wide>((g, tile, rays, active, occluded, mut slot, ctr): Self::Args<'_>) {
+        walk::<L, T>(g, tile, rays, active, occluded, &mut slot, ctr)
     }
-    impl<T: TriangleTest> isa::Kernel for At<'_, '_, '_, T> {
-        type Out = ();
-        #[inline(always)]
-        fn run<L: Wide>(self) {
-            let At {
-                g,
-                tile,
-                rays,
-                active,
-                occluded,
-                slot,
-                ctr,
-                ..
-            } = self;
-            walk::<L, T>(g, tile, rays, active, occluded, slot, ctr)
-        }
-    }
-    let k = At::<T> {
-        g,
-        tile,
-        rays,
-        active,
-        occluded,
-        slot,
-        ctr,
-        _t: core::marker::PhantomData,
-    };
-    isa::run(g.isa, k)
 }
 
 /// One batch, its triangle tests on `L`-wide lanes.
