@@ -11,7 +11,6 @@ use sheaf::{Hit, Limits, Ray, Scene};
 /// Shared with the tests: OBJ loading (tobj) and the scenes folder.
 #[path = "../tests/common/mod.rs"]
 mod common;
-pub use common::view_rays;
 use common::{load_obj, scenes_dir};
 
 /// Image side of the traced view (rays per iteration: `SIDE * SIDE`).
@@ -160,7 +159,7 @@ pub fn limits(s: &BenchScene) -> Limits {
 }
 
 pub fn primary_rays(view: &View) -> Vec<Ray> {
-    view_rays(view, SIDE, SIDE)
+    view.rays(SIDE, SIDE)
 }
 
 /// Row-major rays reordered for `Context::trace_with`'s packet layout:

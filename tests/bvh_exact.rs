@@ -7,7 +7,7 @@
 
 mod common;
 
-use common::{TestScene, builtin_scenes, obj_scenes, par_map, view_rays};
+use common::{TestScene, builtin_scenes, obj_scenes, par_map};
 use glam::Vec3;
 use sheaf::accel::bvh::{BuildQuality, BvhParams};
 use sheaf::render::SHADOW_OFFSET;
@@ -71,7 +71,7 @@ fn check_scene(s: &TestScene) {
         let mut sum = Counters::default();
         for (vname, view) in &s.views {
             let what = format!("{} {vname} {test:?} {quality:?}", s.name);
-            let rays = view_rays(view, RES as u32, RES as u32);
+            let rays = view.rays(RES as u32, RES as u32);
             if quality != BuildQuality::Medium {
                 let sah = sah_tree.tracer().unwrap().bvh().unwrap();
                 let mut ctr = Counters::default();
@@ -228,7 +228,7 @@ fn context_calls_and_failed_builds() {
     );
     ctx.build_bvh(&s.scene(), &BvhParams::default()).unwrap();
     // A grid method without a grid is NotBuilt, not a wrong answer.
-    let rays = view_rays(&s.views[0].1, 32, 32);
+    let rays = s.views[0].1.rays(32, 32);
     let mut hits = vec![Hit::MISS; rays.len()];
     assert_eq!(
         ctx.trace(Method::GridDda, &rays, &mut hits).unwrap_err(),
@@ -391,7 +391,7 @@ fn refit_keeps_every_method_exact() {
         sheaf::Scene::from_f32(&a.mesh.vertices, &a.mesh.indices).unwrap()
     }
     ctx.build_bvh(&scene(&a), &BvhParams::default()).unwrap();
-    let rays = view_rays(&view, RES as u32, RES as u32);
+    let rays = view.rays(RES as u32, RES as u32);
     for t in [0.25f32, 1.0, 3.0] {
         a.set_time(t);
         let r = ctx.refit_bvh(&scene(&a), &RefitParams::default()).unwrap();

@@ -5,7 +5,7 @@
 
 mod common;
 
-use common::{TestScene, builtin_scenes, obj_scenes, view_rays};
+use common::{TestScene, builtin_scenes, obj_scenes};
 use glam::Vec3;
 use sheaf::accel::grid::traverse_cgt::{self, CgtOptions};
 use sheaf::accel::grid::{GridView, traverse_single};
@@ -170,7 +170,7 @@ fn check_scene(s: &TestScene, res: usize) {
         let mut sum = Counters::default();
         for (vname, view) in &s.views {
             let what = format!("{} {vname}", s.name);
-            let rays = view_rays(view, res as u32, res as u32);
+            let rays = view.rays(res as u32, res as u32);
             let c = match test {
                 TriTest::MollerTrumbore => run.check::<Mt>(&what, &rays, res, res, false),
                 TriTest::Watertight => run.check::<Wt>(&what, &rays, res, res, false),
@@ -285,7 +285,7 @@ fn adversarial_packets_stay_exact() {
     }
     // Active lanes with invalid rays are written as misses (the sentinel
     // below must not survive in them).
-    let mut bad = view_rays(&s.views[0].1, 4, 4);
+    let mut bad = s.views[0].1.rays(4, 4);
     bad[0].dir = [f32::NAN, 0.0, 1.0];
     bad[5].tmin = -1.0;
     let quads: Vec<Ray4> = packets(&bad, 4, 4, 4).remove(0).0;
@@ -312,7 +312,7 @@ fn adversarial_packets_stay_exact() {
         "{hits:?}"
     );
     // Inactive lanes are left untouched.
-    let rays = view_rays(&s.views[0].1, 4, 4);
+    let rays = s.views[0].1.rays(4, 4);
     let quads: Vec<Ray4> = packets(&rays, 4, 4, 4).remove(0).0;
     let active = vec![M4::new(true, false, true, false); quads.len()];
     let sentinel = Hit4 {
@@ -349,7 +349,7 @@ fn context_trace_with_cgt_matches_dda_and_renders_identical_images() {
         for (vname, view) in &s.views {
             // Rays in 2x2-quad order for packets: any order is exact, this
             // one is also coherent.
-            let rays = view_rays(view, 48, 48);
+            let rays = view.rays(48, 48);
             let mut want = vec![Hit::MISS; rays.len()];
             ctx.trace(Method::GridDda, &rays, &mut want).unwrap();
             for n in [2u32, 4, 8, 16, 32] {

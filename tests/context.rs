@@ -602,7 +602,7 @@ fn ray_streams_answer_as_ray_arrays() {
     ctx.build_bvh(&scene, &BvhParams::default()).unwrap();
     ctx.build_kd(&scene, &KdParams::default()).unwrap();
     // 29 x 23 = 667 rays: neither a multiple of 4 nor of a packet.
-    let mut rays = common::view_rays(&s.views[0], 29, 23);
+    let mut rays = s.views[0].rays(29, 23);
     rays[5].tmin = -1.0;
     rays[6].dir = [0.0; 3];
     rays[7].org[0] = f32::NAN;

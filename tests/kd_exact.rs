@@ -9,7 +9,7 @@
 
 mod common;
 
-use common::{TestScene, builtin_scenes, obj_scenes, par_map, view_rays};
+use common::{TestScene, builtin_scenes, obj_scenes, par_map};
 use glam::Vec3;
 use sheaf::accel::bvh::BvhParams;
 use sheaf::accel::kd::KdParams;
@@ -76,7 +76,7 @@ fn check_scene(s: &TestScene) {
         let mut sum = Counters::default();
         for (vname, view) in &s.views {
             let what = format!("{} {vname} {test:?}", s.name);
-            let rays = view_rays(view, RES as u32, RES as u32);
+            let rays = view.rays(RES as u32, RES as u32);
             let all = vec![true; rays.len()];
             let primary = Class {
                 name: "primary",
@@ -233,7 +233,7 @@ fn context_calls_and_failed_builds() {
         ctx.build_bvh(&s.scene(), &BvhParams::default()).is_err(),
         "no BVH pools"
     );
-    let rays = view_rays(&s.views[0].1, 32, 32);
+    let rays = s.views[0].1.rays(32, 32);
     let mut hits = vec![Hit::MISS; rays.len()];
     let mut want = vec![Hit::MISS; rays.len()];
     ctx.trace(Method::KdSingle, &rays, &mut want).unwrap();
@@ -277,7 +277,7 @@ fn occluded_packets_write_only_active_lanes() {
     let mut ctx = OwnedContext::new(&l).unwrap();
     ctx.build_kd(&s.scene(), &KdParams::default()).unwrap();
     let tr = ctx.tracer().unwrap().kd().unwrap();
-    let rays = view_rays(&s.views[0].1, 8, 8);
+    let rays = s.views[0].1.rays(8, 8);
     let quads: Vec<Ray4> = rays
         .chunks(4)
         .map(|c| Ray4::from_rays(&[c[0], c[1], c[2], c[3]]))

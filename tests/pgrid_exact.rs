@@ -18,7 +18,7 @@
 
 mod common;
 
-use common::{TestScene, builtin_scenes, obj_scenes, par_map, view_rays};
+use common::{TestScene, builtin_scenes, obj_scenes, par_map};
 use glam::Vec3;
 use sheaf::accel::bvh::BvhParams;
 use sheaf::scenes::View;
@@ -170,7 +170,7 @@ fn assert_none(bad: &[String], of: usize, what: &str) {
 
 /// Reference hits of the view's camera rays (row-major), BVH single ray.
 fn reference_hits(ctx: &mut OwnedContext, v: &View, wh: (u32, u32)) -> Vec<Hit> {
-    let rays = view_rays(v, wh.0, wh.1);
+    let rays = v.rays(wh.0, wh.1);
     let mut hits = vec![Hit::MISS; rays.len()];
     ctx.trace(Method::BvhSingle, &rays, &mut hits).unwrap();
     hits
@@ -297,7 +297,7 @@ fn test_lights(
     let (lo, hi) = bounds(s);
     let c = 0.5 * (lo + hi);
     let diag = hi - lo;
-    let rays = view_rays(v, wh.0, wh.1);
+    let rays = v.rays(wh.0, wh.1);
     let at = |x: u32, y: u32| -> Option<(Vec3, u32)> {
         let i = (y * wh.0 + x) as usize;
         let h = hits[i];

@@ -17,7 +17,7 @@
 mod common;
 
 use common::oracle::{EDGE_BARY, TIE_REL, Tally, classify_hit};
-use common::{TestScene, builtin_scenes, obj_scenes, par_map, view_rays};
+use common::{TestScene, builtin_scenes, obj_scenes, par_map};
 use glam::Vec3;
 use sheaf::geom::INVALID_ID;
 use sheaf::reference::{self, RefHit};
@@ -45,7 +45,7 @@ fn check_scene(s: &TestScene, res: u32) -> Tally {
     let mut ctx = OwnedContext::new(&limits).unwrap();
     let mut tally = Tally::default();
     for (vname, view) in &s.views {
-        let rays = view_rays(view, res, res);
+        let rays = view.rays(res, res);
         let want = par_map(&rays, |r| reference::nearest(&scene, r));
         let mut shadow: Option<(Vec<Ray>, Vec<RefHit>)> = None;
         for test in [

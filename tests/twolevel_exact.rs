@@ -15,7 +15,6 @@ mod common;
 
 use common::exact::{RES, packets};
 use common::oracle::{Tally, classify_hit};
-use common::view_rays;
 use glam::Vec3;
 use sheaf::accel::bvh::{BuildQuality, BvhParams};
 use sheaf::scenes::View;
@@ -273,7 +272,7 @@ fn check_test(test: TriTest) {
     let (lo, hi) = (info.bounds.min, info.bounds.max);
     let (c, d) = (0.5 * (lo + hi), hi - lo);
     let view = view_of(&info, Vec3::new(0.7, 0.5, 1.1));
-    let camera = view_rays(&view, RES as u32, RES as u32);
+    let camera = view.rays(RES as u32, RES as u32);
     let light = c + Vec3::new(-0.3, 1.2, 0.4) * d;
     let mut total = 0;
     for n in [4usize, 8, 16] {
@@ -381,7 +380,7 @@ fn moved_and_refit_instances_stay_exact() {
     let info = ctx.commit_scene().unwrap();
     assert_eq!(info.instances, 7);
     let view = view_of(&info, Vec3::new(-0.8, 0.4, 1.0));
-    let camera = view_rays(&view, RES as u32, RES as u32);
+    let camera = view.rays(RES as u32, RES as u32);
     let ordered: Vec<Ray> = packets(&camera, 8)
         .iter()
         .flat_map(|(_, idx)| idx.iter().map(|&i| camera[i]))
@@ -402,7 +401,7 @@ fn grid_and_kd_trace_the_flattened_scene() {
     let (lo, hi) = (info.bounds.min, info.bounds.max);
     let c = 0.5 * (lo + hi);
     let view = view_of(&info, Vec3::new(0.7, 0.5, 1.1));
-    let camera = view_rays(&view, RES as u32, RES as u32);
+    let camera = view.rays(RES as u32, RES as u32);
     let ordered: Vec<Ray> = packets(&camera, 8)
         .iter()
         .flat_map(|(_, idx)| idx.iter().map(|&i| camera[i]))
@@ -560,7 +559,7 @@ fn every_family_agrees_with_the_oracle_on_the_flattened_scene() {
         count as usize,
         "world triangles map one to one"
     );
-    let camera = view_rays(&view, w, h);
+    let camera = view.rays(w, h);
     // The camera rays and incoherent rays through the scene.
     let mut rays = camera.clone();
     rays.extend(random_rays(&info, 0x2545_f491_4f6c_dd1d, 4096, 0.8, 0.3));
@@ -691,7 +690,7 @@ fn culling_skips_one_side(test: TriTest) {
     // Camera rays (mostly front faces) and rays from points inside the
     // scene's box (also from inside closed meshes: back faces).
     let view = view_of(&info, Vec3::new(0.7, 0.5, 1.1));
-    let mut rays = view_rays(&view, RES as u32, RES as u32);
+    let mut rays = view.rays(RES as u32, RES as u32);
     rays.extend(random_rays(&info, 0x853c_49e6_748f_ea9b, 4096, 0.5, 0.5));
     let meshes: Vec<_> = NAMES
         .iter()

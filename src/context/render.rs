@@ -62,7 +62,6 @@ impl Context<'_> {
             ));
         }
         let lay = TileLayout::new(side, job.frame.width, job.frame.height);
-        let t_all = now();
         let tr = SceneTracer {
             grid: self.grid.view(),
             bvh: self.bvh.view(),
@@ -88,7 +87,6 @@ impl Context<'_> {
         };
         let (info, ctr, eps) =
             deferred::frame::run(parts, &tr, job, &rays, &lay, &pp, pixels, stride, workers)?;
-        let _ = t_all;
         self.stats.counters = ctr;
         self.stats.trace_ns = info.times.total();
         self.stats.deferred = info;
@@ -186,37 +184,19 @@ impl Context<'_> {
         pixels: &mut [u8],
         stride: usize,
     ) -> Result<Counters> {
-        self.limits.check_renderer(Limits::TILES)?;
-        primary.validate_for(&self.limits)?;
-        shadow.validate_for(&self.limits)?;
-        // The one light check of every render call (Whitted and deferred
-        // frames check theirs in their job's validate).
-        frame.light.validate()?;
-        let rays = self.check_frame(frame, pixels.len(), stride)?;
-        let t = now();
-        let mut ctr = Counters::default();
-        {
-            let (tr, mut mbs) = self.parts()?;
-            tr.check(shadow.method)?;
-            let tr = tr.with_single(primary.method)?;
-            let mut slot = mbs.next().ok_or(Error::Capacity {
-                pool: Pool::Threads,
-                needed: 1,
-                available: 0,
-            })?;
-            let shot = Shot { frame, rays: &rays };
-            let band = Band {
-                y0: 0,
-                y1: frame.height,
-                pixels,
-                stride,
-            };
-            shot.render(&tr, primary, shadow, band, &mut slot, &mut ctr);
+        // The whole frame as one band, on slot 0: `render_rows_in_slot`'s
+        // checks and image, its counters and time recorded.
+        let band = Band {
+            y0: 0,
+            y1: frame.height,
+            pixels,
+            stride,
+        };
+        self.timed(|c| {
+            let ctr = c.render_rows_in_slot(0, primary, shadow, frame, band)?;
             crate::fault_point!(Render);
-        }
-        self.stats.trace_ns = elapsed_ns(t);
-        self.stats.counters = ctr;
-        Ok(ctr)
+            Ok(ctr)
+        })
     }
 
     /// Render rows `[band.y0, band.y1)` of `*frame` from any thread sharing

@@ -6,9 +6,10 @@
 use super::Context;
 use crate::accel::slot::Slot;
 use crate::counters::{elapsed_ns, now};
-use crate::error::{Error, Pool, Result};
+use crate::error::{Error, Result};
 use crate::geom::{Hit, Hit4, Ray};
 use crate::render::{CameraRays, PixelRect, PrimaryRays};
+use crate::trace::stream::one_per_ray;
 use crate::trace::{
     Counters, HitStream, Method, RaySource, RayStream, SceneTracer, TraceParams, batch_on, per_ray,
 };
@@ -87,17 +88,8 @@ impl Context<'_> {
         rays: &[Ray],
         hits: &mut [Hit],
     ) -> Result<Counters> {
-        if rays.len() != hits.len() {
-            return Err(Error::InvalidArgument(
-                "rays and hits must have the same length",
-            ));
-        }
-        self.batch(
-            p,
-            rays,
-            &mut |i, h: &Hit4, n| hits[i..i + n].copy_from_slice(&h.hits()[..n]),
-            false,
-        )
+        one_per_ray(&[hits.len()], rays.len())?;
+        self.timed(|c| c.trace_quads(Some(0), p, rays.len(), |i| rays[i], into_hits(hits), false))
     }
 
     /// Occlusion of `rays` with `method` (default packet settings).
@@ -125,41 +117,16 @@ impl Context<'_> {
         rays: &[Ray],
         occluded: &mut [bool],
     ) -> Result<Counters> {
-        if rays.len() != occluded.len() {
-            return Err(Error::InvalidArgument(
-                "rays and results must have the same length",
-            ));
-        }
-        self.batch(
-            p,
-            rays,
-            &mut per_ray(|i, h: &Hit4, l| occluded[i] = h.prim[l] != crate::geom::INVALID_ID),
-            true,
-        )
+        one_per_ray(&[occluded.len()], rays.len())?;
+        let out = into_occluded(occluded);
+        self.timed(|c| c.trace_quads(Some(0), p, rays.len(), |i| rays[i], out, true))
     }
 
-    /// Trace `rays` as packets (or one by one) on the calling thread with
-    /// slot 0's mailbox, handing the results to `out` quad by quad
-    /// (`trace_quads`).
-    fn batch(
-        &mut self,
-        p: &TraceParams,
-        rays: &[Ray],
-        out: &mut dyn FnMut(usize, &Hit4, usize),
-        any: bool,
-    ) -> Result<Counters> {
-        p.validate_for(&self.limits)?;
+    /// `f` on this context, its counters and wall time recorded in `stats`
+    /// (the calls on the calling thread, which hold the context).
+    pub(super) fn timed(&mut self, f: impl FnOnce(&Self) -> Result<Counters>) -> Result<Counters> {
         let t = now();
-        let ctr = {
-            let (tr, mut mbs) = self.parts()?;
-            let tr = tr.with_single(p.method)?;
-            let mut slot = mbs.next().ok_or(Error::Capacity {
-                pool: Pool::Threads,
-                needed: 1,
-                available: 0,
-            })?;
-            batch_on(&tr, &mut slot, p, rays.len(), |i| rays[i], out, any)
-        };
+        let ctr = f(self)?;
         self.stats.trace_ns = elapsed_ns(t);
         self.stats.counters = ctr;
         Ok(ctr)
@@ -175,18 +142,9 @@ impl Context<'_> {
         rays: &[Ray],
         hits: &mut [Hit],
     ) -> Result<Counters> {
-        if rays.len() != hits.len() {
-            return Err(Error::InvalidArgument(
-                "rays and hits must have the same length",
-            ));
-        }
-        self.batch_in_slot(
-            slot,
-            p,
-            rays,
-            &mut |i, h: &Hit4, n| hits[i..i + n].copy_from_slice(&h.hits()[..n]),
-            false,
-        )
+        one_per_ray(&[hits.len()], rays.len())?;
+        let out = into_hits(hits);
+        self.trace_quads(Some(slot), p, rays.len(), |i| rays[i], out, false)
     }
 
     /// `occluded_with` from any thread sharing `&self`, with thread slot
@@ -198,29 +156,9 @@ impl Context<'_> {
         rays: &[Ray],
         occluded: &mut [bool],
     ) -> Result<Counters> {
-        if rays.len() != occluded.len() {
-            return Err(Error::InvalidArgument(
-                "rays and results must have the same length",
-            ));
-        }
-        self.batch_in_slot(
-            slot,
-            p,
-            rays,
-            &mut per_ray(|i, h: &Hit4, l| occluded[i] = h.prim[l] != crate::geom::INVALID_ID),
-            true,
-        )
-    }
-
-    fn batch_in_slot(
-        &self,
-        slot: u32,
-        p: &TraceParams,
-        rays: &[Ray],
-        out: &mut dyn FnMut(usize, &Hit4, usize),
-        any: bool,
-    ) -> Result<Counters> {
-        self.trace_quads(Some(slot), p, rays.len(), |i| rays[i], out, any)
+        one_per_ray(&[occluded.len()], rays.len())?;
+        let out = into_occluded(occluded);
+        self.trace_quads(Some(slot), p, rays.len(), |i| rays[i], out, true)
     }
 
     /// Trace (`any`: test occlusion of) `count` rays, ray `i` being
@@ -288,8 +226,7 @@ impl Context<'_> {
     ) -> Result<Counters> {
         let n = rays.count()?;
         crate::trace::stream::one_per_ray(&[occluded.len()], n)?;
-        let out = |i: usize, h: &Hit4, l: usize| occluded[i] = h.prim[l] != crate::geom::INVALID_ID;
-        self.trace_each(slot, p, n, *rays, out, true)
+        self.trace_quads(slot, p, n, *rays, into_occluded(occluded), true)
     }
 
     /// Nearest hits of the camera rays through the pixels of `rect` (inside
@@ -336,4 +273,15 @@ impl Context<'_> {
         };
         Ok(f(&mut Slot::of(guard.parts())))
     }
+}
+
+/// A batch's quad consumer writing ray `i`'s nearest hit to `hits[i]`.
+fn into_hits(hits: &mut [Hit]) -> impl FnMut(usize, &Hit4, usize) + '_ {
+    move |i, h, n| hits[i..i + n].copy_from_slice(&h.hits()[..n])
+}
+
+/// A batch's quad consumer writing whether ray `i` is occluded to
+/// `occluded[i]`.
+fn into_occluded(occluded: &mut [bool]) -> impl FnMut(usize, &Hit4, usize) + '_ {
+    per_ray(move |i, h: &Hit4, l| occluded[i] = h.prim[l] != crate::geom::INVALID_ID)
 }

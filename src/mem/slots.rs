@@ -102,11 +102,6 @@ impl<'a> Slots<'a> {
         self.count
     }
 
-    /// Scratch bytes of each slot.
-    pub fn scratch_per_slot(&self) -> usize {
-        self.scratch_per_slot
-    }
-
     /// The most scratch bytes any call has used in any slot (the slots'
     /// high-water mark). `&mut self`: no call holds a slot meanwhile.
     pub fn scratch_high_water(&mut self) -> usize {

@@ -7,7 +7,6 @@ pub mod oracle;
 pub mod ray_stream;
 
 use glam::Vec3;
-use sheaf::Ray;
 use sheaf::scenes::{self, View};
 use std::path::PathBuf;
 
@@ -172,11 +171,6 @@ pub fn obj_scenes() -> Vec<TestScene> {
         .iter()
         .filter_map(|(f, n)| obj_scene(f, n))
         .collect()
-}
-
-/// Primary rays of `view` at `w x h`, row-major, through pixel centres.
-pub fn view_rays(view: &View, w: u32, h: u32) -> Vec<Ray> {
-    view.rays(w, h)
 }
 
 /// Run `f` over `items` on all cores, keeping order.

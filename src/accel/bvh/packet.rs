@@ -205,15 +205,17 @@ pub(crate) fn dispatch<W: Walk, T: TriangleTest, const ANY: bool>(
         _ => (0, 0),
     };
     let n = rays.len().min(active.len()).min(hits.len());
-    // A walk that never reads the plane frustum is set up without one.
-    let o = TraceParams {
-        bvh: crate::accel::method::BvhOptions {
-            culling: opt.bvh.culling && W::PLANES,
-            ..opt.bvh
-        },
-        ..*opt
+    // A walk that never reads the plane frustum is set up without one
+    // (a copy of the params only then, once per call).
+    let planeless;
+    let opt = if W::PLANES || !opt.bvh.culling {
+        opt
+    } else {
+        let mut o = *opt;
+        o.bvh.culling = false;
+        planeless = o;
+        &planeless
     };
-    let opt = &o;
     // Packets of up to `MAX_QUADS` quads, each set up and walked in one
     // `isa::LaneFn` (`SetUpAndWalk`), so the setup pass is compiled for the
     // walk's ISA too. The per-quad arrays are slices of the slot's
