@@ -173,17 +173,31 @@ pub fn obj_scenes() -> Vec<TestScene> {
         .collect()
 }
 
-/// Run `f` over `items` on all cores, keeping order.
+/// Run `f` over `items` on all cores, keeping order: each thread takes
+/// the next item when it is done (items of very different cost, such as
+/// scenes, then end together instead of one thread finishing its fixed
+/// share alone).
 pub fn par_map<T: Sync, R: Send>(items: &[T], f: impl Fn(&T) -> R + Sync) -> Vec<R> {
+    use std::sync::atomic::{AtomicUsize, Ordering};
     let n = std::thread::available_parallelism()
         .map_or(1, |n| n.get())
-        .max(1);
-    let chunk = items.len().div_ceil(n).max(1);
-    std::thread::scope(|s| {
-        let hs: Vec<_> = items
-            .chunks(chunk)
-            .map(|c| s.spawn(|| c.iter().map(&f).collect::<Vec<_>>()))
+        .clamp(1, items.len().max(1));
+    let next = AtomicUsize::new(0);
+    let mut done: Vec<(usize, R)> = std::thread::scope(|s| {
+        let hs: Vec<_> = (0..n)
+            .map(|_| {
+                s.spawn(|| {
+                    let mut out = Vec::new();
+                    loop {
+                        let i = next.fetch_add(1, Ordering::Relaxed);
+                        let Some(item) = items.get(i) else { break out };
+                        out.push((i, f(item)));
+                    }
+                })
+            })
             .collect();
         hs.into_iter().flat_map(|h| h.join().unwrap()).collect()
-    })
+    });
+    done.sort_by_key(|(i, _)| *i);
+    done.into_iter().map(|(_, r)| r).collect()
 }
