@@ -36,7 +36,8 @@
 //!   x86 cores run hundreds of times slower) are traced alone, and the
 //!   rest of the packet on quads where those lanes are replaced
 //!   (`quieted`): masked lanes are computed all the same. For the n x n
-//!   methods the packet driver does this once (`accel::packet`); the 2x2
+//!   methods the trace call does this once per packet
+//!   (`trace::scene::Tracing`, `accel::packet::quieted`); the 2x2
 //!   SIMD rays do it quad by quad.
 //!
 //! Every fallback traces a lane with its structure's single-ray traversal

@@ -1,7 +1,7 @@
 //! What a trace call asks for: the method (which family, which traversal),
 //! the packet side and each family's switches (C: `sheaf_method`,
 //! `sheaf_trace_params`). It sits in `accel` so the families and the
-//! packet driver read it without importing from the trace layer above.
+//! packet traversals read it without importing from the trace layer above.
 #![forbid(unsafe_code)]
 
 use crate::geom::frustum::RayKind;

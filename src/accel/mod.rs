@@ -19,8 +19,9 @@
 //! BVH, by instances: it is made of `bvh`'s trees and walks, is traced by
 //! the context (`context::scene`), and does not implement `Accel` either.
 //!
-//! Shared by the families: `packet` (the generic packet driver: lane-by-lane
-//! fallbacks, all-miss packets, where a tree packet starts), `fallback` (the
+//! Shared by the families: `packet` (the packet contract `PacketSig` and
+//! the chosen `Kernel`; lane-by-lane fallbacks, the tiny-lane split,
+//! all-miss packets, where a tree packet starts), `fallback` (the
 //! coherence test and the tiny-direction lanes), `group` (leaf tests on
 //! wide lanes), `entry` (entry-point search for both trees), `mailbox` (CGT
 //! section 2.3), `slot` (what a thread slot lends a call: its mailbox and
@@ -44,14 +45,14 @@ pub(crate) mod testkit;
 pub mod twolevel;
 
 use crate::counters::Counters;
-use crate::geom::{Aabb, Hit, Hit4, M4, Ray, Ray4, TriTest, TriVerts, TriangleTest};
+use crate::geom::{Aabb, Hit, Ray, TriTest, TriVerts, TriangleTest};
 use method::TraceParams;
-use slot::Slot;
 
 /// The family contract: a built structure, shared across threads, as the
 /// trace layer sees it. Every query is generic over the triangle test the
 /// structure was built for (`test`), so traversals are monomorphised per
-/// test; `trace::scene` matches on `test` once per call.
+/// test; `trace::scene` matches on `test` and picks the `kernel` once per
+/// call.
 ///
 /// # Exactness
 /// Every packet traversal returns, lane by lane, the single ray's
@@ -80,18 +81,12 @@ pub trait Accel: Sync {
             self.intersect::<T>(ray, ctr)
         }
     }
-    /// The family's 2x2 SIMD ray and n x n packet traversals: trace the
-    /// active lanes of `rays` with `p.method` (nearest hits, or with `ANY`
-    /// occlusion: some hit marks an occluded lane) and return true; false
-    /// when `p.method` is none of them (the driver then traces lane by
-    /// lane). Inactive lanes of `hits` are left untouched.
-    fn packet<T: TriangleTest, const ANY: bool>(
-        &self,
-        p: &TraceParams,
-        rays: &[Ray4],
-        active: &[M4],
-        hits: &mut [Hit4],
-        slot: &mut Slot<'_>,
-        ctr: &mut Counters,
-    ) -> bool;
+    /// The family's traversal of `p.method` for packets of 2x2 quads
+    /// (`packet::Kernel`): an n x n packet walk at the lane width of
+    /// `p.isa`, the 2x2 SIMD ray, or the single ray lane by lane (for a
+    /// method the family lacks too). Nearest hits, or with `ANY`
+    /// occlusion (some hit marks an occluded lane). Chosen once per call.
+    fn kernel<T: TriangleTest, const ANY: bool>(p: &TraceParams) -> packet::Kernel<Self>
+    where
+        Self: Sized;
 }

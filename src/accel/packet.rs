@@ -1,10 +1,11 @@
-//! The generic packet driver: what every family's packet query shares,
-//! written once. A trace call reaches a family through `trace` (one
-//! dispatch on `Method` and the triangle test), which calls `trace` here;
-//! the family's `Accel::packet` runs its traversal, and whatever it does
-//! not trace as a packet goes lane by lane through its single ray.
+//! What every family's packet query shares, written once. A trace call
+//! chooses its family's `Kernel` once (`Accel::kernel`: method, triangle
+//! test, culling, occlusion and lane width; `trace::scene`) and calls it
+//! per packet; single-ray methods run the family's single ray lane by lane.
 //!
 //! - `MAX_QUADS`: the largest packet, 32 x 32 rays in 256 quads of 2x2.
+//! - `PacketSig`, `Kernel`: the packet contract and a chosen traversal
+//!   (`at`, `baseline`, `lane_by_lane_kernel`).
 //! - `lane_by_lane`: the single ray for each active lane (single-ray
 //!   methods, and methods a family lacks).
 //! - `quieted`: lanes with tiny directions (`fallback::tiny`) of every
@@ -24,8 +25,10 @@ use super::method::TraceParams;
 use super::slot::Slot;
 use crate::counters::Counters;
 use crate::geom::frustum::Frustum;
-use crate::geom::{Aabb, Hit, Hit4, M4, Ray, Ray4, TriangleTest};
+use crate::geom::{Aabb, Hit, Hit4, M4, Ray, Ray4, TriangleTest, Wide};
+use crate::isa;
 use crate::mem::scratch::bytes;
+use core::marker::PhantomData;
 
 /// Quads in the largest packet: 32 x 32 rays.
 pub const MAX_QUADS: usize = 256;
@@ -47,8 +50,8 @@ pub fn packet_ranges(n: usize) -> impl Iterator<Item = core::ops::Range<usize>> 
         .map(move |s| s..(s + MAX_QUADS).min(n))
 }
 
-/// Slot scratch the driver holds while a family traces packets of up to
-/// `q` quads: the tiny-lane split of `quieted` (quieted quads, the
+/// Slot scratch a call holds while a family traces packets of up to `q`
+/// quads: the tiny-lane split of `quieted` (quieted quads, the
 /// packet's lanes, the tiny lanes).
 pub const fn scratch(q: usize) -> usize {
     bytes::<Ray4>(q) + bytes::<M4>(q) + bytes::<M4>(q)
@@ -61,52 +64,69 @@ pub const fn start_scratch(q: usize) -> usize {
     bytes::<M4>(q) + bytes::<entry::CandidateQueue>(1)
 }
 
-/// Trace the active lanes of `rays` (one packet, or consecutive packets)
-/// with `p.method` on `a`: nearest hits, or with `ANY` occlusion (some hit
-/// marks an occluded lane). Inactive lanes of `hits` are left untouched.
-#[inline]
-pub fn trace<A: Accel, T: TriangleTest, const ANY: bool>(
-    a: &A,
-    p: &TraceParams,
-    rays: &[Ray4],
-    active: &[M4],
-    hits: &mut [Hit4],
-    slot: &mut Slot<'_>,
-    ctr: &mut Counters,
-) {
-    let n = rays.len().min(active.len()).min(hits.len());
-    let (rays, active, hits) = (&rays[..n], &active[..n], &mut hits[..n]);
-    if p.fallbacks && p.method.is_packet() && any_tiny(rays, active) {
-        return quieted::<A, T, ANY>(a, p, rays, active, hits, slot, ctr);
-    }
-    if !a.packet::<T, ANY>(p, rays, active, hits, slot, ctr) {
-        lane_by_lane(rays, active, hits, |r, c| single::<A, T, ANY>(a, r, c), ctr)
-    }
+/// The packet contract's signature (`isa::Sig`): the family's view, the
+/// call's parameters, the packet's quads, their active lanes and hits
+/// (inactive lanes are left untouched), the thread slot and the counters.
+/// Every family's packet traversals are `isa::LaneFn`s of it.
+pub struct PacketSig<A>(PhantomData<A>);
+
+impl<A: Accel> isa::Sig for PacketSig<A> {
+    type Args<'a>
+        = (
+        &'a A,
+        &'a TraceParams,
+        &'a [Ray4],
+        &'a [M4],
+        &'a mut [Hit4],
+        Slot<'a>,
+        &'a mut Counters,
+    )
+    where
+        Self: 'a;
+    type Out = ();
 }
 
-/// Whether some active lane has a tiny direction (`fallback::tiny`).
-#[inline]
-fn any_tiny(rays: &[Ray4], active: &[M4]) -> bool {
-    rays.iter()
-        .zip(active)
-        .any(|(r, m)| fallback::tiny(true, r, *m).any())
+/// The packet contract's arguments (`PacketSig`), one tuple.
+pub type PacketArgs<'a, A> = <PacketSig<A> as isa::Sig>::Args<'a>;
+
+/// A family's packet traversal for a trace call (`Accel::kernel`): the
+/// method, triangle test, culling, occlusion and lane width chosen once,
+/// called per packet with `PacketArgs`.
+pub type Kernel<A> = isa::Chosen<PacketSig<A>>;
+
+/// `F` at the lane width of `p.isa` (`Accel::kernel`).
+pub fn at<A: Accel, F: isa::LaneFn<PacketSig<A>>>(p: &TraceParams) -> Kernel<A> {
+    isa::Chosen::new::<F>(p.isa)
 }
 
-/// The tiny-direction fallback of every n x n packet method: each packet
-/// (at most `MAX_QUADS` quads, as the families split them) is traced on
-/// quads whose tiny lanes are replaced and inactive (`fallback::quieted`:
-/// no SIMD operation meets their subnormal numbers), then each tiny lane
-/// by the family's single ray. The single ray counts its own rays. The
-/// split lives in the slot's scratch (`scratch`), the family gets the rest.
+/// `F` in baseline code: traversals without wide lanes (the 2x2 SIMD
+/// ray, single rays lane by lane).
+pub fn baseline<A: Accel, F: isa::LaneFn<PacketSig<A>>>() -> Kernel<A> {
+    isa::Chosen::baseline::<F>()
+}
+
+/// The family's single ray, lane by lane (single-ray methods).
+pub fn lane_by_lane_kernel<A: Accel, T: TriangleTest, const ANY: bool>() -> Kernel<A> {
+    baseline::<A, LaneByLane<T, ANY>>()
+}
+
+/// The tiny-direction fallback of every n x n packet method (`Tracing`
+/// in `trace::scene` calls it when some active lane of `rays` has a tiny
+/// direction, `any_tiny`): each packet (at most `MAX_QUADS` quads, as the
+/// families split them) is traced by `packet` on quads whose tiny lanes
+/// are replaced and inactive (`fallback::quieted`: no SIMD operation meets
+/// their subnormal numbers), then each tiny lane by `single`, the family's
+/// single ray, which counts its own rays. The split lives in the slot's
+/// scratch (`scratch`), the family gets the rest.
 #[inline(never)]
-fn quieted<A: Accel, T: TriangleTest, const ANY: bool>(
-    a: &A,
-    p: &TraceParams,
+pub fn quieted(
     rays: &[Ray4],
     active: &[M4],
     hits: &mut [Hit4],
     slot: &mut Slot<'_>,
     ctr: &mut Counters,
+    mut packet: impl FnMut(&[Ray4], &[M4], &mut [Hit4], Slot<'_>, &mut Counters),
+    single: impl Fn(&Ray, &mut Counters) -> Hit,
 ) {
     for run in packet_ranges(rays.len()) {
         let (s, e) = (run.start, run.end);
@@ -115,14 +135,30 @@ fn quieted<A: Accel, T: TriangleTest, const ANY: bool>(
         let (qa, mut slot) = slot.split(e - s, M4::FALSE);
         let (tiny, mut slot) = slot.split(e - s, M4::FALSE);
         fallback::split_tiny(r, &active[s..e], qr, qa, tiny);
-        let (qr, qa) = (&*qr, &*qa);
-        if !a.packet::<T, ANY>(p, qr, qa, h, &mut slot, ctr) {
-            lane_by_lane(qr, qa, h, |r, c| single::<A, T, ANY>(a, r, c), ctr);
-        }
+        packet(qr, qa, h, slot.reborrow(), ctr);
         fallback::each_lane(tiny, |q, i| {
-            h[q].set_lane(i, a.fastest::<T, ANY>(&r[q].lane(i), ctr));
+            h[q].set_lane(i, single(&r[q].lane(i), ctr));
         });
     }
+}
+
+/// The family's single ray for each active lane (`lane_by_lane_kernel`).
+pub struct LaneByLane<T, const ANY: bool>(PhantomData<T>);
+
+impl<A: Accel, T: TriangleTest, const ANY: bool> isa::LaneFn<PacketSig<A>> for LaneByLane<T, ANY> {
+    #[inline(always)]
+    fn call<W: Wide>(args: PacketArgs<'_, A>) {
+        let (a, _, rays, active, hits, _, ctr) = args;
+        lane_by_lane(rays, active, hits, |r, c| single::<A, T, ANY>(a, r, c), ctr)
+    }
+}
+
+/// Whether some active lane has a tiny direction (`fallback::tiny`).
+#[inline]
+pub fn any_tiny(rays: &[Ray4], active: &[M4]) -> bool {
+    rays.iter()
+        .zip(active)
+        .any(|(r, m)| fallback::tiny(true, r, *m).any())
 }
 
 /// The coherence and budget fallbacks of every family's packets: each

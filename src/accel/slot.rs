@@ -2,8 +2,9 @@
 //! its scratch (`mem::scratch`), where packets, hits, masks, traversal
 //! state and bounce levels live instead of on the caller's stack.
 //!
-//! `accel_scratch` is what the packet driver and a family's traversal
-//! take at most (the driver's tiny-lane split, then the family's arrays),
+//! `accel_scratch` is what a packet call and a family's traversal take at
+//! most (the tiny-lane split, `accel::packet::quieted`, then the family's
+//! arrays),
 //! each part a function of the packet size declared by the module that
 //! takes it. A context's slot adds what its callers (`trace::batch_on`,
 //! the renderers) hold on top: `context::slot_scratch_bytes`, counted once
@@ -13,7 +14,7 @@
 use super::mailbox::Mailbox;
 use crate::mem::Scratch;
 
-/// Scratch bytes the packet driver and the packet traversal of any family
+/// Scratch bytes the tiny-lane split and the packet traversal of any family
 /// in `structures` (a `Limits::GRID`-style bit set: the grid, BVH and
 /// kd-tree; the perspective grids are traced by the deferred frame alone,
 /// which counts them) take at most, for packets of up to `q` quads.
@@ -118,7 +119,7 @@ pub struct SlotBuf {
 impl SlotBuf {
     /// A mailbox of `stamps` stamps (one per triangle of the structure a
     /// CGT packet with the mailbox traces; 0 for none) and the scratch of
-    /// the packet driver and any family's traversal of the largest packets
+    /// the tiny-lane split and any family's traversal of the largest packets
     /// (`accel_scratch`).
     pub fn new(stamps: usize) -> SlotBuf {
         let all = crate::mem::Limits::ALL_STRUCTURES;

@@ -10,11 +10,12 @@
 //! another flattening.
 
 use super::Context;
-use crate::accel::bvh::BvhInfo;
+use crate::accel::bvh::{BvhInfo, BvhView};
 use crate::accel::grid::{GridInfo, GridParams};
 use crate::accel::kd::{KdInfo, KdParams};
 use crate::accel::method::Structure;
 use crate::accel::pgrid::{PgridParams, SceneInfo};
+use crate::accel::slot::Slot;
 use crate::accel::twolevel::RayControls;
 use crate::accel::twolevel::flatten::{Flat, FlatInfo};
 use crate::accel::twolevel::traverse_packet;
@@ -26,7 +27,7 @@ use crate::geom::{Affine, Cull, M4, Ray, Ray4, Scene, with_test};
 use crate::mem::Limits;
 use crate::mem::par::{Par, Serial};
 use crate::render::{CameraRays, PixelRect, PrimaryRays};
-use crate::trace::scene::{packet_rays, packets};
+use crate::trace::scene::{Tracing, packet_rays, packets};
 use crate::trace::{DynRays, RaySource, RayStream, SceneHitStream, TraceParams};
 
 /// Slot scratch a two-level packet batch of up to `q` quads holds (its
@@ -556,15 +557,22 @@ impl<'a> Context<'a> {
                 any,
             );
         }
-        let (test, c) = (v.info.test, &mut ctr);
-        let trace =
-            |q: &[Ray4], a: &[M4], h: &mut [SceneHit], sl: &mut crate::accel::slot::Slot<'_>| {
-                with_test!(test, cull, |T| if any {
-                    traverse_packet::trace::<T, true>(&v, p, q, a, mask, h, sl, c)
-                } else {
-                    traverse_packet::trace::<T, false>(&v, p, q, a, mask, h, sl, c)
-                })
-            };
+        // The geometries' traversal (method, triangle test, culling, lane
+        // width) chosen once for the call.
+        let blas: Tracing<BvhView<'_>> = with_test!(v.info.test, cull, |T| if any {
+            Tracing::new::<T, true>(p)
+        } else {
+            Tracing::new::<T, false>(p)
+        });
+        let g = blas.as_fn();
+        let c = &mut ctr;
+        let trace = |q: &[Ray4], a: &[M4], h: &mut [SceneHit], sl: &mut Slot<'_>| {
+            if any {
+                traverse_packet::trace::<true>(&v, p, g, q, a, mask, h, sl, c)
+            } else {
+                traverse_packet::trace::<false>(&v, p, g, q, a, mask, h, sl, c)
+            }
+        };
         let per = packet_rays(p);
         self.with_slot(slot, |sl| {
             let hits = |start: usize, h: &[SceneHit], n: usize| out(start, &h[..n]);

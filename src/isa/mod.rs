@@ -7,10 +7,12 @@
 //! `Isa::Auto`, the `SHEAF_ISA` environment variable (std builds; read once,
 //! when the first context is created, like Embree's `max_isa=`).
 //!
-//! A packet traversal implements `Kernel` (generic over the lane type,
-//! `#[inline(always)]`); `run` calls it inside a function compiled with
-//! `avx2` or `avx512f` enabled, so the whole traversal is compiled for that
-//! level and each wide-lane loop becomes one instruction. `fma` is never
+//! A packet traversal implements `LaneFn` (generic over the lane type,
+//! `#[inline(always)]`); `Chosen::new` picks its instance inside a function
+//! compiled with `avx2` or `avx512f` enabled, so the whole traversal is
+//! compiled for that level and each wide-lane loop becomes one
+//! instruction. A trace call chooses once (`accel::packet::Kernel`) and
+//! calls the chosen pointer per packet. `fma` is never
 //! enabled: results are bitwise equal at every level (`geom::wide`).
 //!
 //! On x86-64 the AVX-512 level runs on `Z16` (`z16`: one `__m512` register
@@ -19,9 +21,9 @@
 //!
 //! This is one of the crate's small unsafe modules: calling a
 //! `#[target_feature]` function needs `unsafe`, and the one obligation (the
-//! CPU has the feature) is checked right before each call; `y8`'s and
-//! `z16`'s intrinsics rest on the same check.
-#![allow(unsafe_code)] // the two calls in `run`, `y8` and `z16`, each block with a SAFETY comment
+//! CPU has the feature) is checked when `Chosen::new` takes its pointer;
+//! `y8`'s and `z16`'s intrinsics rest on the same check.
+#![allow(unsafe_code)] // the pointer call in `Chosen::call`, `y8` and `z16`, each block with a SAFETY comment
 
 use crate::error::{Error, Result};
 use crate::geom::F4;
@@ -182,67 +184,116 @@ pub const fn emulated(level: Isa) -> bool {
     }
 }
 
-/// A packet traversal at a lane width: `run::<W>` is its body (mark the
-/// impl `#[inline(always)]` so it is compiled inside the level's function).
-pub trait Kernel {
+/// The signature of a family of lane functions (`LaneFn`): their
+/// arguments, one tuple, and their result. What a `Chosen` stores.
+pub trait Sig {
+    type Args<'a>
+    where
+        Self: 'a;
     type Out;
-    fn run<W: Wide>(self) -> Self::Out;
 }
 
-/// A lane-generic function: `call::<W>(args)`, a traversal at one lane
-/// width, its arguments one tuple (`run_fn`). A marker type per traversal
-/// implements it (mark `call` `#[inline(always)]`, so the traversal is
-/// compiled inside the level's function).
-pub trait LaneFn {
-    type Args<'a>;
-    type Out;
-    fn call<W: Wide>(args: Self::Args<'_>) -> Self::Out;
+/// A lane-generic function of signature `S`: `call::<W>(args)`, a
+/// traversal at one lane width. A marker type per traversal implements it
+/// (mark `call` `#[inline(always)]`, and everything it calls down to the
+/// hot loop, so all of it is compiled inside the level's function).
+pub trait LaneFn<S: Sig> {
+    fn call<W: Wide>(args: S::Args<'_>) -> S::Out;
 }
 
-/// `F::call(args)` at level `effective(isa)` (`run`): the one forwarding
-/// kernel, so no traversal writes a struct of its arguments to cross
-/// into the level's function.
-#[inline]
-pub fn run_fn<F: LaneFn>(isa: Isa, args: F::Args<'_>) -> F::Out {
-    struct Fwd<'a, F: LaneFn>(F::Args<'a>);
-    impl<F: LaneFn> Kernel for Fwd<'_, F> {
-        type Out = F::Out;
-        #[inline(always)]
-        fn run<W: Wide>(self) -> F::Out {
-            F::call::<W>(self.0)
-        }
+/// `S::Args<'a>` with its lifetime in plain sight, so a function taking
+/// it has a late-bound lifetime and coerces to `Chosen`'s pointer type.
+pub struct ArgsOf<'a, S: Sig + 'a>(S::Args<'a>);
+
+/// A `LaneFn` at a lane width chosen once (`new`), called many times
+/// (`call`): a pointer to its instance inside the level's function.
+/// Calls choose their traversal and width with it once, then call it
+/// per packet.
+pub struct Chosen<S: Sig> {
+    f: for<'a> unsafe fn(ArgsOf<'a, S>) -> S::Out,
+}
+
+impl<S: Sig> Clone for Chosen<S> {
+    fn clone(&self) -> Self {
+        *self
     }
-    run(isa, Fwd::<F>(args))
 }
+impl<S: Sig> Copy for Chosen<S> {}
 
-/// Run `k` at level `effective(isa)`: with `Z16` lanes in a function
-/// compiled for AVX-512F, `Y8` in one for AVX2 (`F16`, `F8` on 32-bit
-/// x86), else `F4`; emulated levels on `F16`, `F8` in baseline code.
-#[inline]
-pub fn run<K: Kernel>(isa: Isa, k: K) -> K::Out {
-    if isa > detected() && EMULATE.load(Ordering::Relaxed) {
-        match isa {
-            #[cfg(sheaf_emulate_avx512)]
-            Isa::Avx512 => return k.run::<crate::geom::F16>(),
-            #[cfg(sheaf_emulate_avx2)]
-            Isa::Avx2 => return k.run::<crate::geom::F8>(),
-            // Not compiled for emulation (`emulated`): `resolve` refuses
-            // it, and the traversals run the CPU's widest level.
+impl<S: Sig> Chosen<S> {
+    /// `F` at level `effective(isa)`: on `Z16` lanes in a function
+    /// compiled for AVX-512F, `Y8` in one for AVX2 (`F16`, `F8` on 32-bit
+    /// x86), else `F4`; emulated levels on `F16`, `F8` in baseline code.
+    pub fn new<F: LaneFn<S>>(isa: Isa) -> Self {
+        if isa > detected() && EMULATE.load(Ordering::Relaxed) {
+            match isa {
+                #[cfg(sheaf_emulate_avx512)]
+                Isa::Avx512 => {
+                    return Chosen {
+                        f: baseline::<S, F, crate::geom::F16>,
+                    };
+                }
+                #[cfg(sheaf_emulate_avx2)]
+                Isa::Avx2 => {
+                    return Chosen {
+                        f: baseline::<S, F, crate::geom::F8>,
+                    };
+                }
+                // Not compiled for emulation (`emulated`): `resolve` refuses
+                // it, and the traversals run the CPU's widest level.
+                _ => {}
+            }
+        }
+        #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+        match effective(isa) {
+            Isa::Avx512 => {
+                return Chosen {
+                    f: x86::avx512::<S, F>,
+                };
+            }
+            Isa::Avx2 => {
+                return Chosen {
+                    f: x86::avx2::<S, F>,
+                };
+            }
             _ => {}
         }
+        #[cfg(not(any(target_arch = "x86", target_arch = "x86_64")))]
+        let _ = isa;
+        Self::baseline::<F>()
     }
-    #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
-    match effective(isa) {
-        // SAFETY: `effective` returns Avx512 only when `detected()` does,
-        // i.e. when CPUID and XGETBV report AVX-512F usable.
-        Isa::Avx512 => return unsafe { x86::avx512(k) },
-        // SAFETY: as above, for AVX2.
-        Isa::Avx2 => return unsafe { x86::avx2(k) },
-        _ => {}
+
+    /// `F` on `F4` lanes in baseline code: for traversals without wide
+    /// lanes (single rays lane by lane, the 2x2 SIMD ray).
+    pub fn baseline<F: LaneFn<S>>() -> Self {
+        Chosen {
+            f: baseline::<S, F, F4>,
+        }
     }
-    #[cfg(not(any(target_arch = "x86", target_arch = "x86_64")))]
-    let _ = isa;
-    k.run::<F4>()
+
+    /// Call the chosen function.
+    #[inline(always)]
+    pub fn call(&self, args: S::Args<'_>) -> S::Out {
+        // SAFETY: `new` stores a function compiled for AVX2 or AVX-512F
+        // only when `effective` returns that level, i.e. when CPUID and
+        // XGETBV report it usable; every other pointer is baseline code.
+        unsafe { (self.f)(ArgsOf(args)) }
+    }
+}
+
+/// `F` on `W` lanes in baseline code (`Chosen`).
+///
+/// # Safety
+/// None: `unsafe` only for the pointer type `Chosen` stores.
+unsafe fn baseline<S: Sig, F: LaneFn<S>, W: Wide>(a: ArgsOf<'_, S>) -> S::Out {
+    F::call::<W>(a.0)
+}
+
+/// `F::call(args)` at level `effective(isa)` (`Chosen`), for a call that
+/// runs one traversal once.
+#[inline]
+pub fn run_fn<S: Sig, F: LaneFn<S>>(isa: Isa, args: S::Args<'_>) -> S::Out {
+    Chosen::<S>::new::<F>(isa).call(args)
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -271,34 +322,32 @@ mod z16;
 
 #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
 mod x86 {
-    use super::Kernel;
+    use super::{ArgsOf, LaneFn, Sig};
 
-    /// The kernel on `Y8` lanes (intrinsics; `y8` module docs), the only
-    /// place a `Y8` is created.
-    #[cfg(target_arch = "x86_64")]
+    /// `F` on `Y8` lanes (intrinsics; `y8` module docs), the only place a
+    /// `Y8` is created.
+    ///
+    /// # Safety
+    /// The CPU supports AVX2 (`Chosen::new`).
     #[target_feature(enable = "avx2")]
-    pub(super) fn avx2<K: Kernel>(k: K) -> K::Out {
-        k.run::<super::y8::Y8>()
+    pub(super) unsafe fn avx2<S: Sig, F: LaneFn<S>>(a: ArgsOf<'_, S>) -> S::Out {
+        #[cfg(target_arch = "x86_64")]
+        return F::call::<super::y8::Y8>(a.0);
+        #[cfg(not(target_arch = "x86_64"))]
+        return F::call::<crate::geom::F8>(a.0);
     }
 
-    #[cfg(not(target_arch = "x86_64"))]
-    #[target_feature(enable = "avx2")]
-    pub(super) fn avx2<K: Kernel>(k: K) -> K::Out {
-        k.run::<crate::geom::F8>()
-    }
-
-    /// The kernel on `Z16` lanes (intrinsics; `z16` module docs), the only
-    /// place a `Z16` is created.
-    #[cfg(target_arch = "x86_64")]
+    /// `F` on `Z16` lanes (intrinsics; `z16` module docs), the only place
+    /// a `Z16` is created.
+    ///
+    /// # Safety
+    /// The CPU supports AVX-512F (`Chosen::new`).
     #[target_feature(enable = "avx512f")]
-    pub(super) fn avx512<K: Kernel>(k: K) -> K::Out {
-        k.run::<super::z16::Z16>()
-    }
-
-    #[cfg(not(target_arch = "x86_64"))]
-    #[target_feature(enable = "avx512f")]
-    pub(super) fn avx512<K: Kernel>(k: K) -> K::Out {
-        k.run::<crate::geom::F16>()
+    pub(super) unsafe fn avx512<S: Sig, F: LaneFn<S>>(a: ArgsOf<'_, S>) -> S::Out {
+        #[cfg(target_arch = "x86_64")]
+        return F::call::<super::z16::Z16>(a.0);
+        #[cfg(not(target_arch = "x86_64"))]
+        return F::call::<crate::geom::F16>(a.0);
     }
 }
 
@@ -450,20 +499,27 @@ mod tests {
     }
 
     struct Width;
-    impl Kernel for Width {
+    impl Sig for Width {
+        type Args<'a> = ();
         type Out = usize;
+    }
+    impl LaneFn<Width> for Width {
         #[inline(always)]
-        fn run<W: Wide>(self) -> usize {
+        fn call<W: Wide>(_: ()) -> usize {
             W::WIDTH
         }
     }
 
     #[test]
     fn run_picks_the_width() {
-        assert_eq!(run(Isa::Sse2, Width), 4);
-        assert_eq!(run(Isa::Auto, Width), Isa::Auto.lanes());
+        assert_eq!(run_fn::<Width, Width>(Isa::Sse2, ()), 4);
+        assert_eq!(run_fn::<Width, Width>(Isa::Auto, ()), Isa::Auto.lanes());
+        assert_eq!(Chosen::<Width>::baseline::<Width>().call(()), 4);
         if detected() >= Isa::Avx2 {
-            assert_eq!(run(Isa::Avx2, Width), 8);
+            assert_eq!(run_fn::<Width, Width>(Isa::Avx2, ()), 8);
+        }
+        if detected() >= Isa::Avx512 {
+            assert_eq!(run_fn::<Width, Width>(Isa::Avx512, ()), 16);
         }
     }
 }

@@ -5,7 +5,7 @@
 //!
 //! `geom::wide::F8` states the same lanes as plain arrays; LLVM compiles
 //! its lane-to-bits reductions into shuffle chains (`z16` module docs).
-//! `Y8` is what `isa::run` instantiates inside its `avx2` function; `F8`
+//! `Y8` is what `isa::Chosen` instantiates inside its `avx2` function; `F8`
 //! stays for the emulated level.
 //!
 //! # Exactness

@@ -7,7 +7,7 @@
 //! each `mask_bits` / `le_bits` became a chain of about ten shuffles and
 //! ors (8% of the frustum walk's samples on crytek sponza; docs/studies.md,
 //! "Lanes in registers"), and it split some slab tests into scalar lanes to
-//! feed them. `Z16` is what `isa::run` instantiates inside its `avx512f`
+//! feed them. `Z16` is what `isa::Chosen` instantiates inside its `avx512f`
 //! function; `F16` stays for the emulated level (`set_emulation`) on
 //! machines without AVX-512.
 //!

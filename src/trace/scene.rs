@@ -1,21 +1,24 @@
 //! The one dispatch of a trace call: `Method` picks the family
 //! (`Method::structure`), the structure's triangle test picks the
-//! monomorphised traversals (`geom::with_test!`), and the generic packet driver
-//! (`accel::packet`) runs the family's packet query or its single ray lane
-//! by lane. The renderer and the C ABI see every structure as a `Tracer`.
+//! monomorphised traversals (`geom::with_test!`), and the family picks its
+//! kernel for the method at the lane width (`Accel::kernel`): a `Tracing`,
+//! chosen once per call (`batch_on`) and run per packet by the batch loop
+//! (`packets`).
+//! The renderer and the C ABI see every structure as a `Tracer` (which
+//! chooses per packet).
 #![forbid(unsafe_code)]
 
 use crate::accel::bvh::BvhView;
 use crate::accel::grid::GridView;
 use crate::accel::kd::KdView;
-use crate::accel::packet::{self, MAX_QUADS};
+use crate::accel::packet::{self, Kernel, MAX_QUADS};
 use crate::accel::slot::Slot;
 use crate::accel::{Accel, method::Method, method::Structure, method::TraceParams};
 use crate::counters::Counters;
 use crate::error::{Error, Result};
-use crate::geom::{Hit, Hit4, M4, Ray, Ray4, TriVerts, with_test};
+use crate::geom::{Hit, Hit4, M4, Ray, Ray4, TriVerts, TriangleTest, with_test};
 
-/// Slot scratch `batch_on` holds while the driver runs: one packet's
+/// Slot scratch `batch_on` holds while its kernel runs: one packet's
 /// quads, lane masks and hits, for packets of up to `q` quads.
 pub const fn scratch(q: usize) -> usize {
     use crate::mem::scratch::bytes;
@@ -54,7 +57,7 @@ pub trait Tracer: Sync {
     fn scene_scale(&self) -> f32;
 }
 
-/// Every family is a `Tracer` through the contract and the driver. One
+/// Every family is a `Tracer` through the contract (`tracing_of`). One
 /// impl per family, not a blanket `impl<A: Accel>`: the packet methods are
 /// then ordinary functions, compiled once in this crate, so a caller in
 /// another crate (a test, the CLI) links to them instead of instantiating
@@ -79,9 +82,7 @@ macro_rules! family_tracer {
                 slot: &mut Slot<'_>,
                 ctr: &mut Counters,
             ) {
-                with_test!(self.test(), |T| nearest::<Self, T>(
-                    self, p, rays, active, hits, slot, ctr
-                ))
+                tracing_of(self, p, false).run(self, p, rays, active, hits, slot, ctr)
             }
             fn occluded_packet(
                 &self,
@@ -92,9 +93,7 @@ macro_rules! family_tracer {
                 slot: &mut Slot<'_>,
                 ctr: &mut Counters,
             ) {
-                with_test!(self.test(), |T| any::<Self, T>(
-                    self, p, rays, active, hits, slot, ctr
-                ))
+                tracing_of(self, p, true).run(self, p, rays, active, hits, slot, ctr)
             }
             fn triangle(&self, prim: u32) -> Option<TriVerts> {
                 Accel::triangle(self, prim)
@@ -108,32 +107,84 @@ macro_rules! family_tracer {
 
 family_tracer!(GridView, BvhView, KdView);
 
-/// The driver for nearest hits .
-#[inline(always)]
-fn nearest<A: Accel, T: crate::geom::TriangleTest>(
-    a: &A,
-    p: &TraceParams,
-    rays: &[Ray4],
-    active: &[M4],
-    hits: &mut [Hit4],
-    slot: &mut Slot<'_>,
-    ctr: &mut Counters,
-) {
-    packet::trace::<A, T, false>(a, p, rays, active, hits, slot, ctr)
+/// The one choice of a trace call on family `a`: its kernel for `p`
+/// (method and lane width, `Accel::kernel`), triangle test and whether it
+/// answers occlusion (`any`).
+#[inline]
+pub fn tracing_of<A: Accel>(a: &A, p: &TraceParams, any: bool) -> Tracing<A> {
+    with_test!(a.test(), |T| if any {
+        Tracing::new::<T, true>(p)
+    } else {
+        Tracing::new::<T, false>(p)
+    })
 }
 
-/// The driver for occlusion.
-#[inline(always)]
-fn any<A: Accel, T: crate::geom::TriangleTest>(
-    a: &A,
-    p: &TraceParams,
-    rays: &[Ray4],
-    active: &[M4],
-    hits: &mut [Hit4],
-    slot: &mut Slot<'_>,
-    ctr: &mut Counters,
-) {
-    packet::trace::<A, T, true>(a, p, rays, active, hits, slot, ctr)
+/// A trace call's choice on one family, made once and run per packet
+/// (`run`): the family's kernel (`Accel::kernel`: the method's traversal
+/// at its lane width, the triangle test, culling and occlusion) and, for
+/// the n x n packet methods, the family's fastest single ray for the
+/// lanes with tiny directions (`accel::packet::quieted`).
+pub struct Tracing<A: Accel> {
+    kernel: Kernel<A>,
+    single: fn(&A, &Ray, &mut Counters) -> Hit,
+    split_tiny: bool,
+}
+
+impl<A: Accel> Tracing<A> {
+    /// `A`'s kernel for `p` with triangle test (and culling) `T`:
+    /// nearest hits, or with `ANY` occlusion.
+    pub fn new<T: TriangleTest, const ANY: bool>(p: &TraceParams) -> Self {
+        Tracing {
+            kernel: A::kernel::<T, ANY>(p),
+            single: fastest::<A, T, ANY>,
+            split_tiny: p.method.is_packet() && p.fallbacks,
+        }
+    }
+
+    /// Trace the active lanes of `rays` (one packet, or consecutive
+    /// packets of `MAX_QUADS` quads) on `a` with `p`, the parameters the
+    /// choice was made for. Inactive lanes of `hits` are left untouched.
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)] // the packet contract's
+    pub fn run(
+        &self,
+        a: &A,
+        p: &TraceParams,
+        rays: &[Ray4],
+        active: &[M4],
+        hits: &mut [Hit4],
+        slot: &mut Slot<'_>,
+        ctr: &mut Counters,
+    ) {
+        let n = rays.len().min(active.len()).min(hits.len());
+        let (rays, active, hits) = (&rays[..n], &active[..n], &mut hits[..n]);
+        if self.split_tiny && packet::any_tiny(rays, active) {
+            let k = &self.kernel;
+            let traced = |r: &[Ray4], m: &[M4], h: &mut [Hit4], s: Slot<'_>, c: &mut Counters| {
+                k.call((a, p, r, m, h, s, c))
+            };
+            let single = |r: &Ray, c: &mut Counters| (self.single)(a, r, c);
+            return packet::quieted(rays, active, hits, slot, ctr, traced, single);
+        }
+        self.kernel
+            .call((a, p, rays, active, hits, slot.reborrow(), ctr))
+    }
+}
+
+impl<A: Accel> Tracing<A> {
+    /// `run` as a closure (the two-level walk's per-geometry traversal).
+    #[allow(clippy::type_complexity)] // the packet contract's arguments
+    pub fn as_fn(
+        &self,
+    ) -> impl Fn(&A, &TraceParams, &[Ray4], &[M4], &mut [Hit4], &mut Slot<'_>, &mut Counters) + Copy + '_
+    {
+        move |a, p, r, m, h, s, c| self.run(a, p, r, m, h, s, c)
+    }
+}
+
+/// `Accel::fastest` as a function pointer (`Tracing::single`).
+fn fastest<A: Accel, T: TriangleTest, const ANY: bool>(a: &A, r: &Ray, c: &mut Counters) -> Hit {
+    a.fastest::<T, ANY>(r, c)
 }
 
 #[inline(always)]
@@ -354,27 +405,25 @@ pub fn batch_on(
 ) -> Counters {
     let mut ctr = Counters::default();
     let c = &mut ctr;
-    let trace = |q: &[Ray4], a: &[M4], h: &mut [Hit4], s: &mut Slot<'_>| {
-        if any {
-            tr.occluded_packet(p, q, a, h, s, c)
-        } else {
-            tr.intersect_packet(p, q, a, h, s, c)
-        }
-    };
     let quads = |start: usize, hits: &[Hit4], n: usize| {
         for (q, h) in hits.iter().enumerate() {
             out(start + 4 * q, h, (n - 4 * q).min(4));
         }
     };
-    packets(
-        slot,
-        packet_rays(p),
-        count,
-        rays,
-        Hit4::MISS,
-        1,
-        trace,
-        quads,
+    let per = packet_rays(p);
+    // The family, its kernel (method, triangle test, lane width) and
+    // occlusion chosen once; each packet is one call of the kernel.
+    on_family!(
+        tr,
+        p.method,
+        |a| {
+            let k = tracing_of(a, p, any);
+            let trace =
+                |q: &[Ray4], m: &[M4], h: &mut [Hit4], s: &mut Slot<'_>| k.run(a, p, q, m, h, s, c);
+            packets(slot, per, count, rays, Hit4::MISS, 1, trace, quads)
+        },
+        // Not built: `Context::trace_quads` refuses the call before.
+        ()
     );
     ctr
 }

@@ -52,17 +52,16 @@ pub mod traverse_wide;
 pub mod traverse_wide_ranged;
 pub mod wide;
 
-use crate::accel::entry::EntrySearch;
 pub use crate::accel::method::BvhOptions;
 use crate::accel::method::{Method, TraceParams};
-use crate::accel::slot::Slot;
+use crate::accel::packet::{Kernel, at, baseline, lane_by_lane_kernel};
 use crate::counters::Counters;
 use crate::error::Result;
 /// The packet frusta (section 4) live in `geom` because the kd-tree
 /// packets use them too.
 pub use crate::geom::frustum;
 pub use crate::geom::frustum::RayKind;
-use crate::geom::{Aabb, Hit, Hit4, M4, ProjTri, Ray, Ray4, TriTest, TriVerts, TriangleTest};
+use crate::geom::{Aabb, Hit, ProjTri, Ray, TriTest, TriVerts, TriangleTest};
 use crate::mem::{Carve, TOO_BIG, when};
 use bytemuck::{Pod, Zeroable};
 
@@ -573,63 +572,19 @@ impl crate::accel::Accel for BvhView<'_> {
     fn fastest<T: TriangleTest, const ANY: bool>(&self, ray: &Ray, ctr: &mut Counters) -> Hit {
         traverse_wide::walk::<T, ANY>(self, ray, ctr)
     }
-    fn packet<T: TriangleTest, const ANY: bool>(
-        &self,
-        p: &TraceParams,
-        rays: &[Ray4],
-        active: &[M4],
-        hits: &mut [Hit4],
-        slot: &mut Slot<'_>,
-        ctr: &mut Counters,
-    ) -> bool {
-        use crate::accel::packet::Start;
-        let large = matches!(
-            p.method,
-            Method::BvhMasked
-                | Method::BvhRanged
-                | Method::BvhPartition
-                | Method::BvhWideRanged
-                | Method::BvhFrustum
-        );
-        if p.method == Method::BvhWide {
-            let wide = |r: &Ray, c: &mut Counters| self.fastest::<T, ANY>(r, c);
-            crate::accel::packet::lane_by_lane(rays, active, hits, wide, ctr);
-            return true;
-        }
-        if !large && p.method != Method::BvhSimd {
-            return false;
-        }
-        let mut entry = None;
-        if large && p.entry != EntrySearch::None {
-            let root = self.nodes.first().map_or(Aabb::EMPTY, |n| n.aabb());
-            match crate::accel::packet::start(self, p, rays, active, &root, slot, ctr).1 {
-                Start::Root => {}
-                Start::At(e) => entry = Some(e),
-                Start::Miss => {
-                    crate::accel::packet::all_miss(active, hits, ctr);
-                    return true;
-                }
-            }
-        }
-        use packet::dispatch;
-        let (e, (b, r, a, h)) = (entry.as_ref(), (self, rays, active, hits));
+    fn kernel<T: TriangleTest, const ANY: bool>(p: &TraceParams) -> Kernel<Self> {
+        use packet::Walked;
         match p.method {
-            Method::BvhSimd if ANY => traverse_simd::occluded::<T>(b, r, a, h, p.fallbacks, ctr),
-            Method::BvhSimd => traverse_simd::intersect::<T>(b, r, a, h, p.fallbacks, ctr),
-            Method::BvhMasked => {
-                dispatch::<traverse_masked::Masked, T, ANY>(b, r, a, h, p, e, slot, ctr)
-            }
-            Method::BvhRanged => {
-                dispatch::<traverse_ranged::Ranged, T, ANY>(b, r, a, h, p, e, slot, ctr)
-            }
+            Method::BvhSimd => baseline::<Self, traverse_simd::Simd<T, ANY>>(),
+            Method::BvhWide => baseline::<Self, traverse_wide::ByLane<T, ANY>>(),
+            Method::BvhMasked => at::<Self, Walked<traverse_masked::Masked, T, ANY>>(p),
+            Method::BvhRanged => at::<Self, Walked<traverse_ranged::Ranged, T, ANY>>(p),
+            Method::BvhPartition => at::<Self, Walked<traverse_partition::Partition, T, ANY>>(p),
             Method::BvhWideRanged => {
-                dispatch::<traverse_wide_ranged::WideRanged, T, ANY>(b, r, a, h, p, e, slot, ctr)
+                at::<Self, Walked<traverse_wide_ranged::WideRanged, T, ANY>>(p)
             }
-            Method::BvhFrustum => {
-                dispatch::<traverse_frustum::FrustumFirst, T, ANY>(b, r, a, h, p, e, slot, ctr)
-            }
-            _ => dispatch::<traverse_partition::Partition, T, ANY>(b, r, a, h, p, e, slot, ctr),
+            Method::BvhFrustum => at::<Self, Walked<traverse_frustum::FrustumFirst, T, ANY>>(p),
+            _ => lane_by_lane_kernel::<Self, T, ANY>(),
         }
-        true
     }
 }

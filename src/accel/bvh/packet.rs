@@ -13,8 +13,8 @@
 //! writes each quad's triangle-test precomputation, far ends and slab data
 //! (the first two into slices filled first). A walk may instead set
 //! its packets up itself (`Walk::own_setup`): the frustum-first walk does,
-//! lane group by lane group at its lane width. Setup and walk run in one
-//! `isa::LaneFn` (`SetUpAndWalk`), so the setup is compiled for the walk's ISA
+//! lane group by lane group at its lane width. Setup and walk run in the
+//! walk's `isa::LaneFn` (`Walked`), so the setup is compiled for the walk's ISA
 //! (32 vector registers with AVX-512) and runs on the quads while they
 //! are in cache.
 //!
@@ -34,14 +34,15 @@
 
 use super::frustum::Frustum;
 use super::{BvhNode, BvhView, MAX_DEPTH, TriangleTest};
-use crate::accel::entry::EntryPoint;
+use crate::accel::entry::{EntryPoint, EntrySearch};
 use crate::accel::fallback;
 use crate::accel::group::{self, Group};
 use crate::accel::method::TraceParams;
+use crate::accel::packet::{self, PacketArgs, PacketSig, Start};
 use crate::accel::slot::Slot;
 use crate::counters::{Counters, count};
 use crate::geom::lane::mask_from_bits;
-use crate::geom::{F4, Hit4, M4, Mt, Pt, Ray4, RayLanes, Wide, Wt};
+use crate::geom::{Aabb, F4, Hit4, M4, Mt, Pt, Ray4, RayLanes, Wide, Wt};
 use crate::isa;
 use crate::mem::scratch::bytes;
 
@@ -174,21 +175,49 @@ pub(crate) struct PacketIn<'x> {
     pub fallbacks: bool,
 }
 
+/// A large-packet walk `Wk` on the packet contract
+/// (`accel::packet::PacketSig`) at a lane width: where the packet starts
+/// (the root, or with `TraceParams::entry` the MLRTA or AEPSA entry point
+/// of its frustum, `accel::packet::start`), then `dispatch`. Its `Kernel`
+/// is chosen once per call (`BvhView::kernel`).
+pub struct Walked<Wk, T, const ANY: bool>(core::marker::PhantomData<(Wk, T)>);
+
+impl<'b, Wk: Walk, T: TriangleTest, const ANY: bool> isa::LaneFn<PacketSig<BvhView<'b>>>
+    for Walked<Wk, T, ANY>
+{
+    #[inline(always)]
+    fn call<L: Wide>(args: PacketArgs<'_, BvhView<'b>>) {
+        let (b, p, rays, active, hits, mut slot, ctr) = args;
+        let mut entry = None;
+        if p.entry != EntrySearch::None {
+            let root = b.nodes.first().map_or(Aabb::EMPTY, |n| n.aabb());
+            match packet::start(b, p, rays, active, &root, &mut slot, ctr).1 {
+                Start::Root => {}
+                Start::At(e) => entry = Some(e),
+                Start::Miss => return packet::all_miss(active, hits, ctr),
+            }
+        }
+        let e = entry.as_ref();
+        dispatch::<L, Wk, T, ANY>(b, rays, active, hits, p, e, &mut slot, ctr)
+    }
+}
+
 /// Nearest hits (or with `ANY` occlusion) of the active lanes of `rays`
-/// into `hits` by the walk `W`, the contract of every large-packet
-/// traversal: `rays.len()` quads form one packet (longer inputs:
-/// consecutive packets of 256 quads); `rays`, `active` and `hits` are
-/// read up to the shortest length. Active lanes are written (`Hit::MISS`
-/// when nothing is hit, and for invalid rays; for occlusion `prim !=
-/// INVALID_ID` marks an occluded lane, with some occluder's t and id);
-/// inactive lanes are left untouched. `entry`: start every packet at this
-/// node instead of the root (an MLRTA or AEPSA entry point of a frustum
-/// bounding every live ray, see `bvh::entry`; a node outside the tree
-/// starts at the root). `slot`'s scratch holds the per-quad arrays
+/// into `hits` by the walk `Wk` on `L` lanes, the contract of every
+/// large-packet traversal: `rays.len()` quads form one packet (longer
+/// inputs: consecutive packets of 256 quads); `rays`, `active` and `hits`
+/// are read up to the shortest length. Active lanes are written
+/// (`Hit::MISS` when nothing is hit, and for invalid rays; for occlusion
+/// `prim != INVALID_ID` marks an occluded lane, with some occluder's t and
+/// id); inactive lanes are left untouched. `entry`: start every packet at
+/// this node instead of the root (an MLRTA or AEPSA entry point of a
+/// frustum bounding every live ray, see `bvh::entry`; a node outside the
+/// tree starts at the root). `slot`'s scratch holds the per-quad arrays
 /// (`scratch`).
 // The packet, its options and where it starts, and the slot's scratch.
 #[allow(clippy::too_many_arguments)]
-pub(crate) fn dispatch<W: Walk, T: TriangleTest, const ANY: bool>(
+#[inline(always)]
+fn dispatch<L: Wide, Wk: Walk, T: TriangleTest, const ANY: bool>(
     b: &BvhView<'_>,
     rays: &[Ray4],
     active: &[M4],
@@ -208,7 +237,7 @@ pub(crate) fn dispatch<W: Walk, T: TriangleTest, const ANY: bool>(
     // A walk that never reads the plane frustum is set up without one
     // (a copy of the params only then, once per call).
     let planeless;
-    let opt = if W::PLANES || !opt.bvh.culling {
+    let opt = if Wk::PLANES || !opt.bvh.culling {
         opt
     } else {
         let mut o = *opt;
@@ -216,81 +245,106 @@ pub(crate) fn dispatch<W: Walk, T: TriangleTest, const ANY: bool>(
         planeless = o;
         &planeless
     };
-    // Packets of up to `MAX_QUADS` quads, each set up and walked in one
-    // `isa::LaneFn` (`SetUpAndWalk`), so the setup pass is compiled for the
-    // walk's ISA too. The per-quad arrays are slices of the slot's
-    // scratch, so no packet size class is needed.
-    for r in crate::accel::packet::packet_ranges(n) {
+    // Packets of up to `MAX_QUADS` quads, each set up and walked at the
+    // kernel's lane width, so the setup pass is compiled for the walk's
+    // ISA too. The per-quad arrays are slices of the slot's scratch, so no
+    // packet size class is needed.
+    for r in packet::packet_ranges(n) {
         let (rays, active) = (&rays[r.clone()], &active[r.clone()]);
-        let args = (
-            b,
-            rays,
-            active,
-            &mut hits[r],
-            opt,
-            start,
-            slot.reborrow(),
-            &mut *ctr,
-        );
-        isa::run_fn::<SetUpAndWalk<W, T, ANY>>(opt.isa, args);
+        set_up_and_walk::<L, Wk, T, ANY>(b, rays, active, &mut hits[r], opt, start, slot, ctr);
     }
 }
 
-/// One packet set up and walked at a lane width (an `isa::LaneFn`).
-struct SetUpAndWalk<W, T, const ANY: bool>(core::marker::PhantomData<(W, T)>);
-
-impl<W: Walk, T: TriangleTest, const ANY: bool> isa::LaneFn for SetUpAndWalk<W, T, ANY> {
-    type Args<'a> = (
-        &'a BvhView<'a>,
-        &'a [Ray4],
-        &'a [M4],
-        &'a mut [Hit4],
-        &'a TraceParams,
-        (usize, usize),
-        Slot<'a>,
-        &'a mut Counters,
-    );
-    type Out = ();
-    /// The walk's own setup when it takes the packet (`Walk::own_setup`);
-    /// else its lanes first (a packet with none live, or incoherent, takes
-    /// no more scratch), then its per-quad arrays, then the walk.
-    #[inline(always)]
-    fn call<L: Wide>((b, rays, active, hits, opt, start, mut slot, ctr): Self::Args<'_>) {
-        let pk = PacketIn {
-            rays,
-            active,
-            hits: &mut *hits,
-            fallbacks: opt.fallbacks,
-        };
-        if W::own_setup::<L, T, ANY>(b, pk, start, &mut slot, &mut *ctr) {
-            return;
-        }
-        let nq = rays.len().min(active.len()).min(hits.len());
-        let (live, mut slot) = slot.split(nq, M4::FALSE);
-        let Some(lanes) = Lanes::new(b, rays, active, hits, live, opt.fallbacks, ctr) else {
-            return;
-        };
-        if !lanes.coherent {
-            return crate::accel::packet::alone::<BvhView, T, ANY>(b, rays, live, hits, ctr);
-        }
-        // Per quad, in one pass over the rays: triangle-test
-        // precomputation, far ends and slab data, each written once.
-        let (pre, mut slot) = slot.split(nq, T::prepare(&RayLanes::from_ray4(&rays[0])));
-        let (tfar, mut slot) = slot.split(nq, F4::ZERO);
-        let (qb, mut slot) = slot.split_from(nq, |q| {
-            let r = &rays[q];
-            (pre[q], tfar[q]) = (T::prepare(&RayLanes::from_ray4(r)), r.tmax);
-            QuadBox::new(r)
-        });
-        let quads = Quads {
-            live,
-            qb,
-            pre,
-            tfar,
-        };
-        let mut p = Packet::<T>::new(b, rays, opt, lanes, quads, ctr);
-        W::walk::<L, T, ANY>(&mut p, b, rays, hits, start, &mut slot, ctr)
+/// `dispatch` at the lane width of `opt.isa`, for tests and studies that
+/// drive one walk from a given entry point (a trace call runs `Walked`).
+#[cfg(test)]
+#[allow(clippy::too_many_arguments)] // `dispatch`'s
+pub(crate) fn dispatch_at<Wk: Walk, T: TriangleTest, const ANY: bool>(
+    b: &BvhView<'_>,
+    rays: &[Ray4],
+    active: &[M4],
+    hits: &mut [Hit4],
+    opt: &TraceParams,
+    entry: Option<&EntryPoint>,
+    slot: &mut Slot<'_>,
+    ctr: &mut Counters,
+) {
+    struct Sig;
+    impl isa::Sig for Sig {
+        type Args<'a> = (
+            &'a BvhView<'a>,
+            &'a [Ray4],
+            &'a [M4],
+            &'a mut [Hit4],
+            &'a TraceParams,
+            Option<&'a EntryPoint>,
+            Slot<'a>,
+            &'a mut Counters,
+        );
+        type Out = ();
     }
+    struct At<Wk, T, const ANY: bool>(core::marker::PhantomData<(Wk, T)>);
+    impl<Wk: Walk, T: TriangleTest, const ANY: bool> isa::LaneFn<Sig> for At<Wk, T, ANY> {
+        #[inline(always)]
+        fn call<L: Wide>(args: <Sig as isa::Sig>::Args<'_>) {
+            let (b, rays, active, hits, opt, entry, mut slot, ctr) = args;
+            dispatch::<L, Wk, T, ANY>(b, rays, active, hits, opt, entry, &mut slot, ctr)
+        }
+    }
+    let args = (b, rays, active, hits, opt, entry, slot.reborrow(), ctr);
+    isa::run_fn::<Sig, At<Wk, T, ANY>>(opt.isa, args)
+}
+
+/// One packet set up and walked on `L` lanes: the walk's own setup when
+/// it takes the packet (`Walk::own_setup`); else its lanes first (a packet
+/// with none live, or incoherent, takes no more scratch), then its
+/// per-quad arrays, then the walk.
+#[allow(clippy::too_many_arguments)] // `dispatch`'s, for one packet
+#[inline(always)]
+fn set_up_and_walk<L: Wide, Wk: Walk, T: TriangleTest, const ANY: bool>(
+    b: &BvhView<'_>,
+    rays: &[Ray4],
+    active: &[M4],
+    hits: &mut [Hit4],
+    opt: &TraceParams,
+    start: (usize, usize),
+    slot: &mut Slot<'_>,
+    ctr: &mut Counters,
+) {
+    let pk = PacketIn {
+        rays,
+        active,
+        hits: &mut *hits,
+        fallbacks: opt.fallbacks,
+    };
+    if Wk::own_setup::<L, T, ANY>(b, pk, start, slot, &mut *ctr) {
+        return;
+    }
+    let nq = rays.len().min(active.len()).min(hits.len());
+    let (live, mut slot) = slot.split(nq, M4::FALSE);
+    let Some(lanes) = Lanes::new(b, rays, active, hits, live, opt.fallbacks, ctr) else {
+        return;
+    };
+    if !lanes.coherent {
+        return packet::alone::<BvhView, T, ANY>(b, rays, live, hits, ctr);
+    }
+    // Per quad, in one pass over the rays: triangle-test
+    // precomputation, far ends and slab data, each written once.
+    let (pre, mut slot) = slot.split(nq, T::prepare(&RayLanes::from_ray4(&rays[0])));
+    let (tfar, mut slot) = slot.split(nq, F4::ZERO);
+    let (qb, mut slot) = slot.split_from(nq, |q| {
+        let r = &rays[q];
+        (pre[q], tfar[q]) = (T::prepare(&RayLanes::from_ray4(r)), r.tmax);
+        QuadBox::new(r)
+    });
+    let quads = Quads {
+        live,
+        qb,
+        pre,
+        tfar,
+    };
+    let mut p = Packet::<T>::new(b, rays, opt, lanes, quads, ctr);
+    Wk::walk::<L, T, ANY>(&mut p, b, rays, hits, start, &mut slot, ctr)
 }
 
 /// The live lanes' extremes quad by quad, of which the two-level packet

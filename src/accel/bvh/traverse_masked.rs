@@ -40,7 +40,8 @@
 //!
 //! # Fallbacks (`accel::fallback`)
 //! - Lanes with tiny directions (`fallback::tiny`) never reach these
-//!   traversals: the packet driver (`accel::packet`) traces them with
+//!   traversals: the trace call (`trace::scene::Tracing`, with
+//!   `accel::packet::quieted`) traces them with
 //!   the 4-wide single ray (`traverse_wide`, `Accel::fastest`) and the packet on quads where they are replaced
 //!   (their subnormal arithmetic slows every quad holding one).
 //! - Every packet of the three traversals is checked by
@@ -201,7 +202,7 @@ pub(crate) mod tests {
     use super::*;
     use crate::accel::bvh::build::build;
     use crate::accel::bvh::build::testutil::Store;
-    use crate::accel::bvh::packet::dispatch;
+    use crate::accel::bvh::packet::dispatch_at as dispatch;
     use crate::accel::bvh::traverse_single;
     use crate::accel::bvh::{BvhParams, RayKind};
     use crate::accel::entry::EntryPoint;

@@ -25,8 +25,10 @@
 use super::packet::QuadBox;
 use super::{BvhView, MAX_DEPTH, TriangleTest};
 use crate::accel::fallback;
+use crate::accel::packet::{PacketArgs, PacketSig};
 use crate::counters::Counters;
-use crate::geom::{F4, Hit, Hit4, INVALID_ID, M4, Ray4, RayLanes};
+use crate::geom::{F4, Hit, Hit4, INVALID_ID, M4, Ray4, RayLanes, Wide};
+use crate::isa::LaneFn;
 
 /// Nearest hits of the active lanes of `rays` into `hits` (one quad at a
 /// time; `rays`, `active` and `hits` are read up to the shortest length).
@@ -58,6 +60,20 @@ pub fn occluded<T: TriangleTest>(
 ) {
     for ((r, m), h) in rays.iter().zip(active).zip(hits.iter_mut()) {
         quad::<T, true>(b, r, *m, h, fallbacks, ctr);
+    }
+}
+
+/// The 2x2 SIMD ray on the packet contract (`accel::packet::PacketSig`),
+/// quad by quad: its `Kernel` runs it in baseline code.
+pub struct Simd<T, const ANY: bool>(core::marker::PhantomData<T>);
+
+impl<'b, T: TriangleTest, const ANY: bool> LaneFn<PacketSig<BvhView<'b>>> for Simd<T, ANY> {
+    #[inline(always)]
+    fn call<W: Wide>(args: PacketArgs<'_, BvhView<'b>>) {
+        let (b, p, rays, active, hits, _, ctr) = args;
+        for ((r, m), h) in rays.iter().zip(active).zip(hits.iter_mut()) {
+            quad::<T, ANY>(b, r, *m, h, p.fallbacks, ctr);
+        }
     }
 }
 

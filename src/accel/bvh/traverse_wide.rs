@@ -34,8 +34,10 @@
 use super::traverse_single::{leaf4, walk as binary_walk};
 use super::wide::{WIDTH, insert_by};
 use super::{BvhView, TriangleTest};
+use crate::accel::packet::{PacketArgs, PacketSig};
 use crate::counters::Counters;
-use crate::geom::{Hit, Ray, RayLanes};
+use crate::geom::{Hit, Ray, RayLanes, Wide};
+use crate::isa::LaneFn;
 use glam::Vec4;
 
 /// Stack entries. Up to `WIDTH - 1` may be pushed per wide level, so a
@@ -64,6 +66,19 @@ pub fn intersect<T: TriangleTest>(b: &BvhView<'_>, ray: &Ray, ctr: &mut Counters
 #[inline]
 pub fn any_hit<T: TriangleTest>(b: &BvhView<'_>, ray: &Ray, ctr: &mut Counters) -> Hit {
     walk::<T, true>(b, ray, ctr)
+}
+
+/// `Method::BvhWide` on the packet contract (`accel::packet::PacketSig`):
+/// the 4-wide single ray lane by lane, in baseline code.
+pub struct ByLane<T, const ANY: bool>(core::marker::PhantomData<T>);
+
+impl<'b, T: TriangleTest, const ANY: bool> LaneFn<PacketSig<BvhView<'b>>> for ByLane<T, ANY> {
+    #[inline(always)]
+    fn call<W: Wide>(args: PacketArgs<'_, BvhView<'b>>) {
+        let (b, _, rays, active, hits, _, ctr) = args;
+        let wide = |r: &Ray, c: &mut Counters| walk::<T, ANY>(b, r, c);
+        crate::accel::packet::lane_by_lane(rays, active, hits, wide, ctr);
+    }
 }
 
 /// The walk: a child reference is (`child`, `count`) as in `WideNode`

@@ -22,10 +22,10 @@ pub mod traverse_cgt;
 pub mod traverse_single;
 
 use crate::accel::method::{Method, TraceParams};
-use crate::accel::slot::Slot;
+use crate::accel::packet::{Kernel, at, lane_by_lane_kernel};
 use crate::counters::Counters;
 use crate::error::Result;
-use crate::geom::{Aabb, Hit, Hit4, M4, ProjTri, Ray, Ray4, TriTest, TriVerts, TriangleTest};
+use crate::geom::{Aabb, Hit, ProjTri, Ray, TriTest, TriVerts, TriangleTest};
 use crate::mem::{Carve, Limits, TOO_BIG, entries, when};
 use glam::Vec3;
 
@@ -246,23 +246,10 @@ impl crate::accel::Accel for GridView<'_> {
     fn any_hit<T: TriangleTest>(&self, ray: &Ray, ctr: &mut Counters) -> Hit {
         traverse_single::any_hit::<T>(self, ray, ctr)
     }
-    fn packet<T: TriangleTest, const ANY: bool>(
-        &self,
-        p: &TraceParams,
-        rays: &[Ray4],
-        active: &[M4],
-        hits: &mut [Hit4],
-        slot: &mut Slot<'_>,
-        ctr: &mut Counters,
-    ) -> bool {
-        if p.method != Method::GridCgt {
-            return false;
+    fn kernel<T: TriangleTest, const ANY: bool>(p: &TraceParams) -> Kernel<Self> {
+        match p.method {
+            Method::GridCgt => at::<Self, traverse_cgt::Cgt<T, ANY>>(p),
+            _ => lane_by_lane_kernel::<Self, T, ANY>(),
         }
-        if ANY {
-            traverse_cgt::occluded::<T>(self, rays, active, hits, p, slot, ctr);
-        } else {
-            traverse_cgt::intersect::<T>(self, rays, active, hits, p, slot, ctr);
-        }
-        true
     }
 }

@@ -42,7 +42,8 @@
 //! the stray lanes above, three checks keep CGT within about twice the
 //! 3DDDA:
 //! - lanes with tiny directions (`fallback::tiny`) never reach CGT: the
-//!   packet driver (`accel::packet`) sends them to the 3DDDA and the packet
+//!   trace call (`trace::scene::Tracing`, `accel::packet::quieted`) sends
+//!   them to the 3DDDA and the packet
 //!   here on quads where they are replaced (their subnormal arithmetic
 //!   would slow every quad holding one);
 //! - after the stray lanes leave, a packet failing `fallback::coherent`
@@ -61,6 +62,7 @@ use super::{GridView, TriangleTest};
 use crate::accel::fallback;
 use crate::accel::group;
 use crate::accel::method::TraceParams;
+use crate::accel::packet::{PacketArgs, PacketSig};
 use crate::accel::slot::Slot;
 use crate::counters::{Counters, count};
 use crate::geom::{F4, Hit, Hit4, M4, Ray4, TriVerts, Wide};
@@ -91,8 +93,10 @@ pub const fn scratch(q: usize) -> usize {
 
 /// Nearest hits of the active lanes of `rays` (a packet of `rays.len()`
 /// quads; longer inputs are consecutive packets of `MAX_QUADS`) into
-/// `hits`; inactive lanes are left untouched. The slot lends the mailbox
-/// and the per-quad scratch (`SCRATCH` bytes).
+/// `hits` at the lane width of `opt.isa`; inactive lanes are left
+/// untouched. The slot lends the mailbox and the per-quad scratch
+/// (`scratch`). For tests and studies: a trace call runs `Cgt` through
+/// its `Kernel`.
 pub fn intersect<T: TriangleTest>(
     g: &GridView<'_>,
     rays: &[Ray4],
@@ -102,7 +106,8 @@ pub fn intersect<T: TriangleTest>(
     slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
-    dispatch::<T, false>(g, rays, active, hits, opt, slot, ctr)
+    let args = (g, opt, rays, active, hits, slot.reborrow(), ctr);
+    isa::run_fn::<PacketSig<GridView>, Cgt<T, false>>(opt.isa, args)
 }
 
 /// Occlusion of the active lanes: `hits[q].prim[i] != INVALID_ID` marks an
@@ -116,53 +121,25 @@ pub fn occluded<T: TriangleTest>(
     slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
-    dispatch::<T, true>(g, rays, active, hits, opt, slot, ctr)
+    let args = (g, opt, rays, active, hits, slot.reborrow(), ctr);
+    isa::run_fn::<PacketSig<GridView>, Cgt<T, true>>(opt.isa, args)
 }
 
-fn dispatch<T: TriangleTest, const ANY: bool>(
-    g: &GridView<'_>,
-    rays: &[Ray4],
-    active: &[M4],
-    hits: &mut [Hit4],
-    opt: &TraceParams,
-    slot: &mut Slot<'_>,
-    ctr: &mut Counters,
-) {
-    let n = rays.len().min(active.len()).min(hits.len());
-    // Per-quad scratch comes from the slot, `nq` values per packet, so no
-    // size classes are needed.
-    for r in crate::accel::packet::packet_ranges(n) {
-        let (rays, active) = (&rays[r.clone()], &active[r.clone()]);
-        let args = (
-            g,
-            rays,
-            active,
-            &mut hits[r],
-            opt,
-            slot.reborrow(),
-            &mut *ctr,
-        );
-        isa::run_fn::<Packet<T, ANY>>(opt.isa, args);
-    }
-}
+/// CGT on the packet contract (`accel::packet::PacketSig`) at a lane
+/// width: packets of up to `MAX_QUADS` quads, each traced by `packet`.
+/// Per-quad scratch comes from the slot, `nq` values per packet, so no
+/// size classes are needed.
+pub struct Cgt<T, const ANY: bool>(core::marker::PhantomData<T>);
 
-/// `packet` as an `isa::LaneFn`: compiled at each lane width.
-struct Packet<T, const ANY: bool>(core::marker::PhantomData<T>);
-
-impl<T: TriangleTest, const ANY: bool> isa::LaneFn for Packet<T, ANY> {
-    type Args<'a> = (
-        &'a GridView<'a>,
-        &'a [Ray4],
-        &'a [M4],
-        &'a mut [Hit4],
-        &'a TraceParams,
-        Slot<'a>,
-        &'a mut Counters,
-    );
-    type Out = ();
+impl<'g, T: TriangleTest, const ANY: bool> isa::LaneFn<PacketSig<GridView<'g>>> for Cgt<T, ANY> {
     #[inline(always)]
-    fn call<L: Wide>((g, rays, active, hits, opt, mut slot, ctr): Self::Args<'_>) {
-        packet::<L, T, ANY>(g, rays, active, hits, opt, &mut slot, ctr)
+    fn call<L: Wide>(args: PacketArgs<'_, GridView<'g>>) {
+        let (g, opt, rays, active, hits, mut slot, ctr) = args;
+        let n = rays.len().min(active.len()).min(hits.len());
+        for r in crate::accel::packet::packet_ranges(n) {
+            let (rays, active) = (&rays[r.clone()], &active[r.clone()]);
+            packet::<L, T, ANY>(g, rays, active, &mut hits[r], opt, &mut slot, ctr)
+        }
     }
 }
 

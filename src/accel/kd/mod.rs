@@ -43,12 +43,11 @@ pub mod traverse_packet;
 pub mod traverse_simd;
 pub mod traverse_single;
 
-use crate::accel::entry::EntrySearch;
 use crate::accel::method::{Method, TraceParams};
-use crate::accel::slot::Slot;
+use crate::accel::packet::{Kernel, at, baseline, lane_by_lane_kernel};
 use crate::counters::Counters;
 use crate::error::Result;
-use crate::geom::{Aabb, Hit, Hit4, M4, ProjTri, Ray, Ray4, TriTest, TriVerts, TriangleTest};
+use crate::geom::{Aabb, Hit, M4, ProjTri, Ray, TriTest, TriVerts, TriangleTest};
 use crate::mem::{Carve, Limits, entries, when};
 use bytemuck::{Pod, Zeroable};
 
@@ -404,62 +403,15 @@ impl crate::accel::Accel for KdView<'_> {
     fn any_hit<T: TriangleTest>(&self, ray: &Ray, ctr: &mut Counters) -> Hit {
         traverse_single::any_hit::<T>(self, ray, ctr)
     }
-    fn packet<T: TriangleTest, const ANY: bool>(
-        &self,
-        p: &TraceParams,
-        rays: &[Ray4],
-        active: &[M4],
-        hits: &mut [Hit4],
-        slot: &mut Slot<'_>,
-        ctr: &mut Counters,
-    ) -> bool {
-        use crate::accel::packet::{self, MAX_QUADS, Start};
+    fn kernel<T: TriangleTest, const ANY: bool>(p: &TraceParams) -> Kernel<Self> {
         match p.method {
-            Method::KdSimd => {
-                for ((r, m), h) in rays.iter().zip(active).zip(hits.iter_mut()) {
-                    if ANY {
-                        let o = traverse_simd::occluded::<T>(self, r, *m, p.fallbacks, ctr);
-                        let (m, h) = (core::slice::from_ref(m), core::slice::from_mut(h));
-                        packet::mark_occluded(&[o], m, h);
-                    } else {
-                        let got = traverse_simd::intersect::<T>(self, r, *m, p.fallbacks, ctr);
-                        for i in (0..4).filter(|&i| m.test(i)) {
-                            h.set_lane(i, got.lane(i));
-                        }
-                    }
-                }
-                true
-            }
+            Method::KdSimd => baseline::<Self, traverse_simd::Simd<T, ANY>>(),
             Method::KdPacket => {
-                // The frustum only when culling is on.
-                let (f, start) = if !p.bvh.culling && p.entry == EntrySearch::None {
-                    (None, Start::Root)
-                } else {
-                    let (f, s) = packet::start(self, p, rays, active, &self.info.root, slot, ctr);
-                    (if p.bvh.culling { f } else { None }, s)
-                };
-                let e = match start {
-                    // Every ray misses: for occlusion too, a miss is `Hit::MISS`.
-                    Start::Miss => {
-                        packet::all_miss(active, hits, ctr);
-                        return true;
-                    }
-                    Start::Root => None,
-                    Start::At(e) => Some(e),
-                };
-                let (f, e) = (f.as_ref(), e.as_ref());
-                if ANY {
-                    let n = rays.len().min(active.len()).min(hits.len()).min(MAX_QUADS);
-                    let (occ, mut slot) = slot.split(n, M4::FALSE);
-                    let (r, a) = (&rays[..n], &active[..n]);
-                    traverse_packet::occluded::<T>(self, r, a, occ, f, e, p, &mut slot, ctr);
-                    packet::mark_occluded(occ, a, &mut hits[..n]);
-                } else {
-                    traverse_packet::intersect::<T>(self, rays, active, hits, f, e, p, slot, ctr);
-                }
-                true
+                use traverse_packet::{Packets, with_class};
+                let nq = crate::accel::packet::quads(p.packet);
+                with_class!(nq, |Q| at::<Self, Packets<T, ANY, Q>>(p))
             }
-            _ => false,
+            _ => lane_by_lane_kernel::<Self, T, ANY>(),
         }
     }
 }

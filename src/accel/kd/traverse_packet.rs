@@ -47,7 +47,8 @@
 //!   lane on some axis (`Counters::stray_lanes`) are traced one by one with
 //!   `traverse_single::from_node` from the packet's start node and box.
 //! - Lanes with tiny directions (`accel::fallback::tiny`) never reach this
-//!   traversal: the packet driver (`accel::packet`) traces them with
+//!   traversal: the trace call (`trace::scene::Tracing`, with
+//!   `accel::packet::quieted`) traces them with
 //!   `traverse_single` and the packet on quads where they are replaced
 //!   (their subnormal arithmetic slows every quad holding one).
 //! - After the stray lanes, a packet failing `accel::fallback::coherent`
@@ -72,17 +73,19 @@
 
 use super::traverse_simd::{clip4, lane_from, lane_signs, stray_bits, valid4};
 use super::{KdView, MAX_DEPTH, TriangleTest};
-use crate::accel::entry::EntryPoint;
+use crate::accel::entry::{EntryPoint, EntrySearch};
 use crate::accel::fallback;
 use crate::accel::group;
 use crate::accel::method::TraceParams;
+use crate::accel::packet::{self, PacketArgs, PacketSig, Start};
 use crate::accel::slot::Slot;
 use crate::counters::{Counters, count};
 use crate::geom::frustum::Frustum;
 use crate::geom::lane::mask_from_bits;
 use crate::geom::{Aabb, F4, Hit, Hit4, M4, Ray4, Wide};
-use crate::isa::{self, Isa};
+use crate::isa;
 use crate::mem::scratch::bytes;
+use core::marker::PhantomData;
 
 /// Most quads traced as one packet (32 x 32 rays), for every family.
 pub use crate::accel::packet::MAX_QUADS;
@@ -138,18 +141,20 @@ pub fn intersect<T: TriangleTest>(
     ctr: &mut Counters,
 ) {
     let n = rays.len().min(active.len()).min(hits.len());
-    dispatch::<T, false>(
+    let (r, a, h) = (&rays[..n], &active[..n], &mut hits[..n]);
+    let args = (
         k,
-        &rays[..n],
-        &active[..n],
-        &mut hits[..n],
-        &mut [],
+        r,
+        a,
+        h,
+        &mut [][..],
         frustum,
         entry,
         opt,
-        slot,
+        slot.reborrow(),
         ctr,
     );
+    with_class!(n, |Q| isa::run_fn::<Sig, At<T, false, Q>>(opt.isa, args))
 }
 
 /// Occlusion of the active lanes (anything in `[tmin, tmax)`): lane `i` of
@@ -168,25 +173,145 @@ pub fn occluded<T: TriangleTest>(
     ctr: &mut Counters,
 ) {
     let n = rays.len().min(active.len()).min(occluded.len());
-    dispatch::<T, true>(
+    let (r, a, o) = (&rays[..n], &active[..n], &mut occluded[..n]);
+    let args = (
         k,
-        &rays[..n],
-        &active[..n],
-        &mut [],
-        &mut occluded[..n],
+        r,
+        a,
+        &mut [][..],
+        o,
         frustum,
         entry,
         opt,
-        slot,
+        slot.reborrow(),
         ctr,
     );
+    with_class!(n, |Q| isa::run_fn::<Sig, At<T, true, Q>>(opt.isa, args))
 }
 
-/// Packets of at most 256 quads, each traced with scratch sized by its
-/// class. `hits` (nearest) or `occ` (ANY) has the length of `rays`.
+/// `dispatch`'s arguments, one tuple (`isa::Sig`), for `intersect` and
+/// `occluded`.
+struct Sig;
+
+impl isa::Sig for Sig {
+    type Args<'a> = (
+        &'a KdView<'a>,
+        &'a [Ray4],
+        &'a [M4],
+        &'a mut [Hit4],
+        &'a mut [M4],
+        Option<&'a Frustum>,
+        Option<&'a EntryPoint>,
+        &'a TraceParams,
+        Slot<'a>,
+        &'a mut Counters,
+    );
+    type Out = ();
+}
+
+/// `dispatch` at a lane width and size class (`intersect`, `occluded`).
+struct At<T, const ANY: bool, const Q: usize>(PhantomData<T>);
+
+impl<T: TriangleTest, const ANY: bool, const Q: usize> isa::LaneFn<Sig> for At<T, ANY, Q> {
+    #[inline(always)]
+    fn call<L: Wide>(args: <Sig as isa::Sig>::Args<'_>) {
+        let (k, rays, active, hits, occ, f, e, opt, mut slot, ctr) = args;
+        dispatch::<L, T, ANY, Q>(k, rays, active, hits, occ, f, e, opt, &mut slot, ctr)
+    }
+}
+
+/// `Method::KdPacket` on the packet contract (`accel::packet::PacketSig`)
+/// at a lane width, for packets of size class `Q` (`class`): the packet's
+/// frustum (when culling is on) and entry point (`TraceParams::entry`,
+/// `accel::packet::start`), then `dispatch`. Its `Kernel` is chosen once
+/// per call (`KdView::kernel`, the class of `TraceParams::packet`).
+pub struct Packets<T, const ANY: bool, const Q: usize>(PhantomData<T>);
+
+impl<'k, T: TriangleTest, const ANY: bool, const Q: usize> isa::LaneFn<PacketSig<KdView<'k>>>
+    for Packets<T, ANY, Q>
+{
+    #[inline(always)]
+    fn call<L: Wide>(args: PacketArgs<'_, KdView<'k>>) {
+        let (k, p, rays, active, hits, mut slot, ctr) = args;
+        // The frustum only when culling is on.
+        let (f, start) = if !p.bvh.culling && p.entry == EntrySearch::None {
+            (None, Start::Root)
+        } else {
+            let (f, s) = packet::start(k, p, rays, active, &k.info.root, &mut slot, ctr);
+            (if p.bvh.culling { f } else { None }, s)
+        };
+        let e = match start {
+            // Every ray misses: for occlusion too, a miss is `Hit::MISS`.
+            Start::Miss => return packet::all_miss(active, hits, ctr),
+            Start::Root => None,
+            Start::At(e) => Some(e),
+        };
+        let (f, e) = (f.as_ref(), e.as_ref());
+        if ANY {
+            let n = rays.len().min(active.len()).min(hits.len()).min(MAX_QUADS);
+            let (occ, mut slot) = slot.split(n, M4::FALSE);
+            let (r, a) = (&rays[..n], &active[..n]);
+            dispatch::<L, T, true, Q>(k, r, a, &mut [], occ, f, e, p, &mut slot, ctr);
+            packet::mark_occluded(occ, a, &mut hits[..n]);
+        } else {
+            let n = rays.len().min(active.len()).min(hits.len());
+            let (r, a, h) = (&rays[..n], &active[..n], &mut hits[..n]);
+            dispatch::<L, T, false, Q>(k, r, a, h, &mut [], f, e, p, &mut slot, ctr);
+        }
+    }
+}
+
+/// The size class of a packet of `nq` quads: 1, 4, 16, 64 or 256
+/// (`MAX_QUADS`) quads, the smallest holding it. A packet's per-quad
+/// arrays are fixed-size arrays of its class (indices masked with `Q - 1`
+/// need no bounds check).
+pub(crate) const fn class(nq: usize) -> usize {
+    match nq {
+        0 | 1 => 1,
+        2..=4 => 4,
+        5..=16 => 16,
+        17..=64 => 64,
+        _ => MAX_QUADS,
+    }
+}
+
+/// `$body` with `const $Q` the size class of `$nq` quads (`class`): the
+/// one place a class becomes a type.
+macro_rules! with_class {
+    ($nq:expr, |$Q:ident| $body:expr) => {
+        match $crate::accel::kd::traverse_packet::class($nq) {
+            1 => {
+                const $Q: usize = 1;
+                $body
+            }
+            4 => {
+                const $Q: usize = 4;
+                $body
+            }
+            16 => {
+                const $Q: usize = 16;
+                $body
+            }
+            64 => {
+                const $Q: usize = 64;
+                $body
+            }
+            _ => {
+                const $Q: usize = $crate::accel::packet::MAX_QUADS;
+                $body
+            }
+        }
+    };
+}
+pub(crate) use with_class;
+
+/// Consecutive packets of at most `Q` quads (a size class, `class`) on
+/// `L` lanes. `hits` (nearest) or `occ` (ANY) has the length of `rays`,
+/// the other is empty.
 // Monomorphised hot path: a struct would be rebuilt per packet.
 #[allow(clippy::too_many_arguments)]
-fn dispatch<T: TriangleTest, const ANY: bool>(
+#[inline(always)]
+fn dispatch<L: Wide, T: TriangleTest, const ANY: bool, const Q: usize>(
     k: &KdView<'_>,
     rays: &[Ray4],
     active: &[M4],
@@ -199,78 +324,18 @@ fn dispatch<T: TriangleTest, const ANY: bool>(
     ctr: &mut Counters,
 ) {
     let n = rays.len();
-    let mut run = Run::<T, ANY> {
-        k,
-        rays,
-        active,
-        hits,
-        occ,
-        frustum,
-        entry,
-        fallbacks: opt.fallbacks,
-        isa: opt.isa,
-        slot,
-        ctr,
-        _t: core::marker::PhantomData,
-    };
-    by_class(n, &mut run);
-}
-
-/// A kd packet traversal sized by its packet class (1, 4, 16, 64 or 256
-/// quads: its per-quad arrays are fixed-size, indices masked by the class,
-/// no bounds checks): `packet::<Q>(range)` traces the
-/// quads `range` (at most `Q`) as one packet.
-trait SizeClass {
-    fn packet<const Q: usize>(&mut self, range: core::ops::Range<usize>);
-}
-
-/// Run `k` over `n` quads: one packet of the smallest class holding them,
-/// or consecutive packets of `MAX_QUADS`.
-#[inline]
-fn by_class(n: usize, k: &mut impl SizeClass) {
-    match n {
-        0 => {}
-        1 => k.packet::<1>(0..n),
-        2..=4 => k.packet::<4>(0..n),
-        5..=16 => k.packet::<16>(0..n),
-        17..=64 => k.packet::<64>(0..n),
-        _ => {
-            for r in crate::accel::packet::packet_ranges(n) {
-                k.packet::<MAX_QUADS>(r);
-            }
-        }
-    }
-}
-
-/// A kd packet call as the packet driver's size classes see it: `hits`
-/// (nearest) or `occ` (ANY) has the length of `rays`, the other is empty.
-struct Run<'x, 'k, 's, T, const ANY: bool> {
-    k: &'x KdView<'k>,
-    rays: &'x [Ray4],
-    active: &'x [M4],
-    hits: &'x mut [Hit4],
-    occ: &'x mut [M4],
-    frustum: Option<&'x Frustum>,
-    entry: Option<&'x EntryPoint>,
-    fallbacks: bool,
-    isa: Isa,
-    slot: &'x mut Slot<'s>,
-    ctr: &'x mut Counters,
-    _t: core::marker::PhantomData<T>,
-}
-
-impl<T: TriangleTest, const ANY: bool> SizeClass for Run<'_, '_, '_, T, ANY> {
-    #[inline]
-    fn packet<const Q: usize>(&mut self, r: core::ops::Range<usize>) {
-        let (rays, active) = (&self.rays[r.clone()], &self.active[r.clone()]);
+    let mut s = 0;
+    while s < n {
+        let e = (s + Q).min(n);
+        let (r, a) = (&rays[s..e], &active[s..e]);
         let (h, o) = if ANY {
-            (&mut [][..], &mut self.occ[r])
+            (&mut [][..], &mut occ[s..e])
         } else {
-            (&mut self.hits[r], &mut [][..])
+            (&mut hits[s..e], &mut [][..])
         };
-        let (f, e) = (self.frustum, self.entry);
-        let on = (self.fallbacks, self.isa);
-        packet::<T, ANY, Q>(self.k, rays, active, h, o, f, e, on, self.slot, self.ctr);
+        let fb = opt.fallbacks;
+        packet::<L, T, ANY, Q>(k, r, a, h, o, frustum, entry, fb, slot, ctr);
+        s = e;
     }
 }
 
@@ -284,10 +349,12 @@ struct Entry {
     quads: [u64; MAX_QUADS / 64],
 }
 
-/// One packet of `rays.len() <= Q` quads (`Q` a power of two).
+/// One packet of `rays.len() <= Q` quads (`Q` a power of two) on `L`
+/// lanes.
 // Monomorphised hot path: a struct would be rebuilt per packet.
 #[allow(clippy::too_many_arguments)]
-fn packet<T: TriangleTest, const ANY: bool, const Q: usize>(
+#[inline(always)]
+fn packet<L: Wide, T: TriangleTest, const ANY: bool, const Q: usize>(
     k: &KdView<'_>,
     rays: &[Ray4],
     active: &[M4],
@@ -295,14 +362,14 @@ fn packet<T: TriangleTest, const ANY: bool, const Q: usize>(
     occ: &mut [M4],
     frustum: Option<&Frustum>,
     entry: Option<&EntryPoint>,
-    (fallbacks, isa): (bool, Isa),
+    fallbacks: bool,
     slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
     let nq = rays.len().min(Q);
     ctr.packets += 1;
     // Outputs of the active lanes, and the live ones: active and valid.
-    let (live, slot) = carve::<M4, Q>(slot, M4::FALSE);
+    let (live, mut slot) = carve::<M4, Q>(slot, M4::FALSE);
     let mut n_live = 0u32;
     for q in 0..nq {
         let m = active[q];
@@ -373,37 +440,9 @@ fn packet<T: TriangleTest, const ANY: bool, const Q: usize>(
         return;
     }
     let start = (node0, depth0, bx0);
-    let args = (
-        k, rays, hits, occ, frustum, live, n_live, neg, start, slot, ctr,
-    );
-    isa::run_fn::<Walk<T, ANY, Q>>(isa, args);
-}
-
-/// `walk` as an `isa::LaneFn`: compiled at each lane width.
-struct Walk<T, const ANY: bool, const Q: usize>(core::marker::PhantomData<T>);
-
-impl<T: TriangleTest, const ANY: bool, const Q: usize> isa::LaneFn for Walk<T, ANY, Q> {
-    type Args<'a> = (
-        &'a KdView<'a>,
-        &'a [Ray4],
-        &'a mut [Hit4],
-        &'a mut [M4],
-        Option<&'a Frustum>,
-        &'a mut [M4; Q],
-        u32,
-        [bool; 3],
-        (usize, usize, Aabb),
-        Slot<'a>,
-        &'a mut Counters,
-    );
-    type Out = ();
-    #[inline(always)]
-    fn call<L: Wide>(args: Self::Args<'_>) {
-        let (k, rays, hits, occ, frustum, live, n_live, neg, start, mut slot, ctr) = args;
-        walk::<L, T, ANY, Q>(
-            k, rays, hits, occ, frustum, live, n_live, neg, start, &mut slot, ctr,
-        )
-    }
+    walk::<L, T, ANY, Q>(
+        k, rays, hits, occ, frustum, live, n_live, neg, start, &mut slot, ctr,
+    )
 }
 
 #[inline(always)]
@@ -1227,7 +1266,7 @@ mod tests {
     #[test]
     #[ignore]
     fn packet_speed() {
-        use crate::accel::bvh::packet::dispatch;
+        use crate::accel::bvh::packet::dispatch_at as dispatch;
         use crate::accel::bvh::traverse_masked::Masked;
         use crate::accel::bvh::{BvhOptions, traverse_simd as bvh_simd};
         use crate::accel::kd::traverse_simd;

@@ -35,8 +35,33 @@
 use super::traverse_single::{KdRay, from_node};
 use super::{KdView, MAX_DEPTH, TriangleTest};
 use crate::accel::fallback;
+use crate::accel::packet::{PacketArgs, PacketSig};
 use crate::counters::Counters;
-use crate::geom::{Aabb, F4, Hit, Hit4, M4, Ray4, RayLanes};
+use crate::geom::{Aabb, F4, Hit, Hit4, M4, Ray4, RayLanes, Wide};
+use crate::isa::LaneFn;
+
+/// `Method::KdSimd` on the packet contract (`accel::packet::PacketSig`),
+/// quad by quad: its `Kernel` runs it in baseline code.
+pub struct Simd<T, const ANY: bool>(core::marker::PhantomData<T>);
+
+impl<'k, T: TriangleTest, const ANY: bool> LaneFn<PacketSig<KdView<'k>>> for Simd<T, ANY> {
+    #[inline(always)]
+    fn call<W: Wide>(args: PacketArgs<'_, KdView<'k>>) {
+        let (k, p, rays, active, hits, _, ctr) = args;
+        for ((r, m), h) in rays.iter().zip(active).zip(hits.iter_mut()) {
+            if ANY {
+                let o = occluded::<T>(k, r, *m, p.fallbacks, ctr);
+                let (m, h) = (core::slice::from_ref(m), core::slice::from_mut(h));
+                crate::accel::packet::mark_occluded(&[o], m, h);
+            } else {
+                let got = intersect::<T>(k, r, *m, p.fallbacks, ctr);
+                for i in (0..4).filter(|&i| m.test(i)) {
+                    h.set_lane(i, got.lane(i));
+                }
+            }
+        }
+    }
+}
 
 /// Nearest hits of the active lanes of `r` (inactive and invalid lanes,
 /// see `Ray::is_valid`: `Hit::MISS`).

@@ -46,13 +46,13 @@ fn tile_at<T: TriangleTest>(
     slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
-    isa::run_fn::<Walk<T>>(g.isa, (g, tile, rays, active, hits, slot.reborrow(), ctr))
+    isa::run_fn::<Walk<T>, Walk<T>>(g.isa, (g, tile, rays, active, hits, slot.reborrow(), ctr))
 }
 
-/// `walk` as an `isa::LaneFn`.
+/// `walk` as an `isa::LaneFn` (its own signature).
 struct Walk<T>(core::marker::PhantomData<T>);
 
-impl<T: TriangleTest> isa::LaneFn for Walk<T> {
+impl<T: TriangleTest> isa::Sig for Walk<T> {
     type Args<'a> = (
         &'a CamView<'a>,
         u32,
@@ -63,8 +63,11 @@ impl<T: TriangleTest> isa::LaneFn for Walk<T> {
         &'a mut Counters,
     );
     type Out = ();
+}
+
+impl<T: TriangleTest> isa::LaneFn<Walk<T>> for Walk<T> {
     #[inline(always)]
-    fn call<L: Wide>((g, tile, rays, active, hits, mut slot, ctr): Self::Args<'_>) {
+    fn call<L: Wide>((g, tile, rays, active, hits, mut slot, ctr): <Self as isa::Sig>::Args<'_>) {
         walk::<L, T>(g, tile, rays, active, hits, &mut slot, ctr)
     }
 }

@@ -55,16 +55,16 @@ fn batch_at<T: TriangleTest>(
     slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
-    isa::run_fn::<Walk<T>>(
+    isa::run_fn::<Walk<T>, Walk<T>>(
         g.isa,
         (g, tile, rays, active, occluded, slot.reborrow(), ctr),
     )
 }
 
-/// `walk` as an `isa::LaneFn`.
+/// `walk` as an `isa::LaneFn` (its own signature).
 struct Walk<T>(core::marker::PhantomData<T>);
 
-impl<T: TriangleTest> isa::LaneFn for Walk<T> {
+impl<T: TriangleTest> isa::Sig for Walk<T> {
     type Args<'a> = (
         &'a LightView<'a>,
         u32,
@@ -75,8 +75,13 @@ impl<T: TriangleTest> isa::LaneFn for Walk<T> {
         &'a mut Counters,
     );
     type Out = ();
+}
+
+impl<T: TriangleTest> isa::LaneFn<Walk<T>> for Walk<T> {
     #[inline(always)]
-    fn call<L: Wide>((g, tile, rays, active, occluded, mut slot, ctr): Self::Args<'_>) {
+    fn call<L: Wide>(
+        (g, tile, rays, active, occluded, mut slot, ctr): <Self as isa::Sig>::Args<'_>,
+    ) {
         walk::<L, T>(g, tile, rays, active, occluded, &mut slot, ctr)
     }
 }

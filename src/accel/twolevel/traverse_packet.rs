@@ -5,8 +5,8 @@
 //! instance's space, four at a time (the single ray's operations,
 //! `traverse_single::object_ray`), and traced through its geometry's BVH
 //! by the packet method asked for (the paper's three, the frustum walk,
-//! the 2x2 SIMD ray) through the generic packet driver
-//! (`accel::packet::trace`: tiny lanes and lane-by-lane fallbacks
+//! the 2x2 SIMD ray) through the geometries' kernel the call chose once
+//! (`trace::scene::Tracing`: tiny lanes and lane-by-lane fallbacks
 //! included), whose one setup pass makes the mapped packet's frustum
 //! (Wald, Benthin, Slusallek 2003, section 3: rays enter an object in its
 //! own space).
@@ -56,14 +56,15 @@ use super::TwoLevelView;
 use super::build::MAX_TOP_DEPTH;
 use super::traverse_single::SceneHit;
 use crate::accel::bvh::BvhNode;
+use crate::accel::bvh::BvhView;
 use crate::accel::bvh::packet::{LaneBounds, QuadBox};
 use crate::accel::bvh::traverse_frustum::Frustum;
 use crate::accel::method::TraceParams;
-use crate::accel::packet::{self, MAX_QUADS};
+use crate::accel::packet::MAX_QUADS;
 use crate::accel::slot::Slot;
 use crate::counters::Counters;
 use crate::geom::frustum::RayKind;
-use crate::geom::{F4, Hit4, M4, Ray4, TriangleTest};
+use crate::geom::{F4, Hit4, M4, Ray4};
 use crate::mem::scratch::bytes;
 
 /// Slot scratch of one packet of up to `q` quads: its quads' slab data,
@@ -81,11 +82,23 @@ pub const fn scratch(q: usize) -> usize {
 /// Trace the active lanes of `rays` (at most `MAX_QUADS` quads) with
 /// `p.method` among instances whose mask shares a bit with `mask`: hit
 /// `4 q + i` of `hits` is lane `i` of quad `q`'s nearest hit, or with
-/// `ANY` some hit. Active lanes of `hits` must come in as misses.
-#[allow(clippy::too_many_arguments)] // the packet contract's arguments and the mask
-pub fn trace<T: TriangleTest, const ANY: bool>(
-    s: &TwoLevelView<'_>,
+/// `ANY` some hit. Active lanes of `hits` must come in as misses. `blas`
+/// traces each instance's packet in its geometry's BVH (the trace call's
+/// kernel for `p.method` with the scene's triangle test and culling,
+/// chosen once per call: `trace::scene::Tracing`).
+#[allow(clippy::too_many_arguments)] // the packet contract's arguments, the geometries' traversal and the mask
+pub fn trace<'v, const ANY: bool>(
+    s: &TwoLevelView<'v>,
     p: &TraceParams,
+    mut blas: impl FnMut(
+        &BvhView<'v>,
+        &TraceParams,
+        &[Ray4],
+        &[M4],
+        &mut [Hit4],
+        &mut Slot<'_>,
+        &mut Counters,
+    ),
     rays: &[Ray4],
     active: &[M4],
     mask: u32,
@@ -209,7 +222,7 @@ pub fn trace<T: TriangleTest, const ANY: bool>(
             continue;
         }
         ohits[..nq].fill(Hit4::MISS);
-        packet::trace::<_, T, ANY>(
+        blas(
             &g,
             &op,
             &orays[..nq],
