@@ -28,8 +28,9 @@ pub use crate::trace::scene::{BvhTracer, GridTracer, KdTracer};
 
 /// Scratch bytes of one thread slot under `l`, the one sum of every
 /// module's declared scratch: over the calls `l` allows, the most a caller
-/// of the packet driver holds plus what the driver and a family of
-/// `structures` take under it (`accel::slot::accel_scratch`). The callers:
+/// of a packet traversal holds plus what the tiny-lane split and a family
+/// of `structures` take under it (`accel::slot::accel_scratch`). The
+/// callers:
 /// `trace::batch_on`'s packet; a two-level batch with `max_geometries`
 /// (its geometries are BVHs, its flattened scene a grid or kd-tree); per renderer in `renderers`, a render tile,
 /// a Whitted tile's `max_bounces + 1` levels, a deferred frame's tiles
@@ -41,12 +42,13 @@ pub const fn slot_scratch_bytes(l: &Limits) -> usize {
     let accel = accel_scratch(q, l.structures);
     let mut most = crate::trace::scene::scratch(q) + accel;
     if l.max_geometries > 0 {
-        // The geometries' BVHs under the top level (which splits off tiny
-        // lanes itself, without the driver), or the flattened scene's grid
-        // or kd-tree under the driver.
-        let flat = l.structures & (Limits::GRID | Limits::KD);
-        let flat = if flat != 0 { accel_scratch(q, flat) } else { 0 };
-        let under = max(crate::accel::bvh::scratch(q), flat);
+        // The geometries' BVHs under the top level, or the flattened
+        // scene's grid or kd-tree, each with the tiny-lane split
+        // (`trace::scene::Tracing`) above it.
+        let under = accel_scratch(
+            q,
+            Limits::BVH | (l.structures & (Limits::GRID | Limits::KD)),
+        );
         most = max(most, scene::scratch(q) + under);
     }
     if l.renders(Limits::TILES) {

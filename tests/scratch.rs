@@ -1,7 +1,7 @@
 //! Thread-slot scratch follows the limits: each family's calls, driven at
 //! the largest packet side the limits allow (every packet method, triangle
 //! test, entry search and frustum kind, nearest and occlusion, with a
-//! tiny-direction lane so the driver's fallback split runs too), use at
+//! tiny-direction lane so the tiny-lane split runs too), use at
 //! most the bytes `slot_scratch_bytes` declares for those limits, and no
 //! more than a little alignment padding less (the slots' high-water mark,
 //! `Context::scratch_high_water`). Calls beyond the limits get a status,
@@ -45,7 +45,7 @@ fn limits(s: &BuiltinScene, structures: u32, side: u32, renderers: u32) -> Limit
 }
 
 /// `side` x `side` rays from the scene's reference view, lane 0 with a
-/// tiny direction (the driver's fallback split), and as many again from
+/// tiny direction towards the scene (the tiny-lane split), and as many again from
 /// the light towards the scene (finite, for the shadow kinds).
 fn rays(s: &BuiltinScene, side: u32) -> Vec<Ray> {
     let v = s.views[0];
@@ -70,7 +70,9 @@ fn rays(s: &BuiltinScene, side: u32) -> Vec<Ray> {
             });
         }
     }
-    rays[0].dir = [1e-20, 1e-20, 1e-20];
+    // Tiny, and aimed at the scene, so it enters the two-level scene's
+    // instances too (the split under the top level).
+    rays[0].dir = (fwd * 1e-20).to_array();
     rays
 }
 
@@ -311,7 +313,7 @@ fn each_bvh_method(
     }
 }
 
-/// The packet driver's tiny-direction split (a quad, its lanes, its tiny
+/// The tiny-direction split (`accel::packet::quieted`: a quad, its lanes, its tiny
 /// lanes per quad), which rendered rays, none of them tiny, never take.
 fn tiny_split(side: u32) -> usize {
     use sheaf::accel::packet::{quads, scratch};

@@ -3,9 +3,9 @@
 
 use super::grid::sheaf_tri_test;
 use super::{check_non_null, guard_free, raw, write_out};
-use crate::accel::bvh::refit::{RefitInfo, RefitParams};
-use crate::accel::bvh::{BuildQuality, BvhParams, RayKind};
 use crate::error::{Error, Result};
+use crate::{BuildQuality, BvhParams, RayKind};
+use crate::{RefitInfo, RefitParams};
 
 /// Which BVH build (the crate's `BuildQuality`), numbered as Embree's
 /// `RTCBuildQuality`. Every traversal is exact on every tree; the shape
@@ -211,7 +211,7 @@ pub extern "C" fn sheaf_refit_params_default(out: *mut sheaf_refit_params) -> su
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geom::TriTest;
+    use crate::TriTest;
 
     #[test]
     fn params_round_trip() {

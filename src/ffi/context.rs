@@ -16,16 +16,16 @@ use super::{
     sheaf_status, write_out,
 };
 use super::{sheaf_hit, sheaf_ray};
+use crate::Band;
+use crate::BvhParams;
+use crate::GridParams;
 use crate::Limits;
-use crate::accel::bvh::BvhParams;
-use crate::accel::bvh::refit::RefitParams;
-use crate::accel::grid::GridParams;
+use crate::RefitParams;
+use crate::TraceParams;
 use crate::context::{Context, required_bytes};
 use crate::error::{Error, Result};
-use crate::geom::{Ray, Scene};
-use crate::render::Band;
-use crate::trace::TraceParams;
 use crate::{CallGate, Locked};
+use crate::{Ray, Scene};
 use core::cell::UnsafeCell;
 use core::ffi::{c_char, c_void};
 use core::fmt::Write as _;
@@ -959,7 +959,7 @@ fn trace_rays(
     rays: *const sheaf_ray,
     count: usize,
     any: bool,
-    mut out: impl FnMut(usize, crate::geom::Hit),
+    mut out: impl FnMut(usize, crate::Hit),
 ) -> Result<()> {
     // SAFETY: i < count for every call (trace_each reads rays 0..count
     // only); the caller checked `rays` spans count readable elements
@@ -1203,7 +1203,7 @@ fn render_impl(
 /// built structure) before anything is written.
 pub(super) fn framebuffer<'p>(
     h: &Handle,
-    frame: &crate::render::Frame,
+    frame: &crate::Frame,
     rgba: *mut u8,
     stride_bytes: usize,
     rgba_len: usize,
@@ -1218,7 +1218,7 @@ pub(super) fn framebuffer<'p>(
 /// frames may use only the perspective and light grids).
 pub(super) fn pixels<'p>(
     h: &Handle,
-    frame: &crate::render::Frame,
+    frame: &crate::Frame,
     rgba: *mut u8,
     stride_bytes: usize,
     rgba_len: usize,

@@ -4,7 +4,7 @@
 
 use super::{check_non_null, flag, guard_free, read_in, sheaf_ray, write_out};
 use crate::error::{Error, Result};
-use crate::render::{Camera, Frame, PointLight, PrimaryRays, Shading};
+use crate::{Camera, Frame, PointLight, PrimaryRays, Shading};
 
 /// One frame to render: pinhole camera, one point light with hard shadows,
 /// Lambert shading, image size in pixels.

@@ -1,9 +1,9 @@
 //! `sheaf_grid_params` and `sheaf_tri_test`: the tunables of the uniform grid.
 
 use super::{check_non_null, flag, guard_free, raw, write_out};
-use crate::accel::grid::GridParams;
+use crate::GridParams;
+use crate::TriTest;
 use crate::error::{Error, Result};
-use crate::geom::TriTest;
 
 /// Ray-triangle test used by every traversal of a structure (a build
 /// parameter; the crate's `TriTest`).

@@ -5,7 +5,7 @@
 use super::context::{sheaf_context, with_mut};
 use super::grid::sheaf_tri_test;
 use super::{check_non_null, guard_free, raw, read_in, sheaf_status, write_out};
-use crate::accel::kd::KdParams;
+use crate::KdParams;
 use crate::error::{Error, Result};
 
 /// Tunables of the kd-tree (an O(N log N) SAH build with perfect splits).
@@ -91,7 +91,7 @@ pub extern "C" fn sheaf_context_build_kd(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geom::TriTest;
+    use crate::TriTest;
 
     #[test]
     fn params_and_entry_round_trip() {

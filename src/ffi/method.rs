@@ -1,7 +1,7 @@
 //! `sheaf_method`: which traversal a trace, occluded or render call uses.
 
+use crate::Method;
 use crate::error::{Error, Result};
-use crate::trace::Method;
 
 /// Traversal method of a trace, occluded or render call (the crate's
 /// `Method`). Codes are stable; later methods get new numbers.

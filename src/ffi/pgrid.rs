@@ -14,10 +14,10 @@ use super::{
     check_array, check_non_null, flag, guard_free, raw, read_in, sheaf_hit, sheaf_ray,
     sheaf_status, write_out,
 };
-use crate::accel::pgrid::PgridParams;
+use crate::Hit;
+use crate::PgridParams;
+use crate::PointLight;
 use crate::error::{Error, Result};
-use crate::geom::Hit;
-use crate::render::PointLight;
 use crate::render::deferred::{
     DeferredJob, MAX_LIGHTS, OnCaller, OnPar, PrimaryPass, ShadowPass, Workers,
 };
@@ -397,7 +397,7 @@ const _: () = assert!(core::mem::size_of::<sheaf_pgrid_params>() == 36);
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geom::TriTest;
+    use crate::TriTest;
 
     #[test]
     fn params_round_trip() {

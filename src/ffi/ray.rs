@@ -3,7 +3,7 @@
 //! carries none of the Rust-only associated items such as `Hit::MISS`, which
 //! cbindgen would emit as a macro that does not compile in C).
 
-use crate::geom::{Hit, Ray};
+use crate::{Hit, Ray};
 
 /// One ray: the points `org + t * dir` for `t` in `[tmin, tmax)` (32 bytes).
 ///

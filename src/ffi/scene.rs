@@ -12,14 +12,14 @@ use super::pgrid::sheaf_pgrid_params;
 use super::ray::{sheaf_hit, sheaf_ray};
 use super::trace_params::sheaf_trace_params;
 use super::{check_array, check_non_null, guard_free, overlaps, read_in, write_out};
-use crate::accel::grid::GridParams;
-use crate::accel::kd::KdParams;
-use crate::accel::pgrid::PgridParams;
-use crate::accel::twolevel::traverse_single::SceneHit;
-use crate::accel::twolevel::{GeometryParams, RayControls, TwoLevelInfo, UpdateMode};
+use crate::GridParams;
+use crate::KdParams;
+use crate::PgridParams;
+use crate::SceneHit;
+use crate::TraceParams;
 use crate::error::{Error, Result};
-use crate::geom::{Affine, Cull, Ray};
-use crate::trace::TraceParams;
+use crate::{Affine, Cull, Ray};
+use crate::{GeometryParams, RayControls, TwoLevelInfo, UpdateMode};
 
 /// A mesh as the caller holds it: `vertex_count` vertices of three floats
 /// (x, y, z), `vertex_stride_bytes` apart (>= 12, a multiple of 4), and

@@ -1,7 +1,7 @@
 //! `sheaf_stats`: what the last build and the last render produced.
 
+use crate::Counters;
 use crate::context::Stats;
-use crate::trace::Counters;
 
 /// Statistics of a context: the last successful build of each structure,
 /// the last render, and the last deferred frame (`sheaf_context_stats`).

@@ -441,10 +441,10 @@ pub extern "C" fn sheaf_context_occluded_scene_stream(
 /// The scene stream calls' trace, after their checks.
 fn scene_rays(
     h: &Handle,
-    p: Option<crate::trace::TraceParams>,
+    p: Option<crate::TraceParams>,
     r: CRays,
     count: usize,
-    ctl: crate::accel::twolevel::RayControls,
+    ctl: crate::RayControls,
     any: bool,
     out: impl FnMut(usize, crate::SceneHit),
 ) -> Result<()> {

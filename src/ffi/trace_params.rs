@@ -3,10 +3,10 @@
 
 use super::method::sheaf_method;
 use super::{check_non_null, flag, guard_free, raw, write_out};
-use crate::accel::entry::EntrySearch;
+use crate::EntrySearch;
 use crate::error::{Error, Result};
 use crate::isa::Isa;
-use crate::trace::{CgtOptions, TraceParams};
+use crate::{CgtOptions, TraceParams};
 
 /// Entry-point search before each tree packet (the crate's `EntrySearch`).
 #[repr(u32)]
@@ -134,7 +134,7 @@ impl sheaf_trace_params {
                 mailbox: flag(self.mailbox, "sheaf_trace_params.mailbox must be 0 or 1")?,
                 culling,
             },
-            bvh: crate::trace::BvhOptions {
+            bvh: crate::BvhOptions {
                 culling,
                 kind: super::bvh::sheaf_ray_kind::to_core(self.ray_kind)?,
             },

@@ -6,10 +6,10 @@ use super::context::{Handle, sheaf_context, with_mut};
 use super::frame::sheaf_frame;
 use super::trace_params::sheaf_trace_params;
 use super::{check_array, check_non_null, guard_free, overlaps, read_in, write_out};
+use crate::PointLight;
 use crate::error::{Error, Result};
-use crate::render::PointLight;
-use crate::render::material::{Material, MaterialRange, Materials};
-use crate::render::whitted::{WhittedJob, WhittedParams};
+use crate::{Material, MaterialRange, Materials};
+use crate::{WhittedJob, WhittedParams};
 
 /// Write the default bounce limits (2 reflections, 2 refractions) to `*out`.
 ///

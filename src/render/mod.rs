@@ -289,7 +289,8 @@ pub struct Band<'p> {
 }
 
 /// How `render_tiles` traces a frame: `primary` for camera rays (its
-/// `packet` is the tile side), `shadow` for shadow rays.
+/// `packet` is the tile side), `shadow` for shadow rays (traced as
+/// packets of the tile, or its quarters).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TileParams {
     pub primary: TraceParams,
@@ -393,6 +394,13 @@ fn tiles<T: Tracer + ?Sized, const Q: usize>(
         stride,
     } = band;
     let n = 2 * (Q as u32).isqrt();
+    // Shadow packets are the tile's (or its Morton quarters): their side
+    // is the tile's, whatever `shadow.packet` says (a kd-tree kernel's
+    // size class comes from it).
+    let shadow = &TraceParams {
+        packet: n,
+        ..*shadow
+    };
     let eps = SHADOW_OFFSET * tracer.scene_scale();
     let light = Vec3::from(frame.light.position);
     let lane_xy = [(0u32, 0u32), (1, 0), (0, 1), (1, 1)];

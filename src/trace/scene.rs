@@ -4,8 +4,8 @@
 //! kernel for the method at the lane width (`Accel::kernel`): a `Tracing`,
 //! chosen once per call (`batch_on`) and run per packet by the batch loop
 //! (`packets`).
-//! The renderer and the C ABI see every structure as a `Tracer` (which
-//! chooses per packet).
+//! The renderers see every structure as a `Tracer` (which chooses per
+//! packet); the Rust and C trace calls go through `batch_on`.
 #![forbid(unsafe_code)]
 
 use crate::accel::bvh::BvhView;
@@ -82,7 +82,7 @@ macro_rules! family_tracer {
                 slot: &mut Slot<'_>,
                 ctr: &mut Counters,
             ) {
-                tracing_of(self, p, false).run(self, p, rays, active, hits, slot, ctr)
+                self.tracing(p, false).run(self, p, rays, active, hits, slot, ctr)
             }
             fn occluded_packet(
                 &self,
@@ -93,7 +93,7 @@ macro_rules! family_tracer {
                 slot: &mut Slot<'_>,
                 ctr: &mut Counters,
             ) {
-                tracing_of(self, p, true).run(self, p, rays, active, hits, slot, ctr)
+                self.tracing(p, true).run(self, p, rays, active, hits, slot, ctr)
             }
             fn triangle(&self, prim: u32) -> Option<TriVerts> {
                 Accel::triangle(self, prim)
@@ -107,11 +107,28 @@ macro_rules! family_tracer {
 
 family_tracer!(GridView, BvhView, KdView);
 
+macro_rules! family_tracing {
+    ($($view:ident),*) => {$(
+        impl<'r> $view<'r> {
+            /// The family's `Tracing` for a trace call (`tracing_of`): an
+            /// ordinary function, compiled once in this crate, so generic
+            /// callers (`batch_on` in another crate) do not instantiate the
+            /// family's kernels again.
+            pub fn tracing(&self, p: &TraceParams, any: bool) -> Tracing<$view<'r>> {
+                tracing_of(self, p, any)
+            }
+        }
+    )*};
+}
+
+family_tracing!(GridView, BvhView, KdView);
+
 /// The one choice of a trace call on family `a`: its kernel for `p`
 /// (method and lane width, `Accel::kernel`), triangle test and whether it
-/// answers occlusion (`any`).
+/// answers occlusion (`any`). Callers outside this module use the
+/// families' `tracing`.
 #[inline]
-pub fn tracing_of<A: Accel>(a: &A, p: &TraceParams, any: bool) -> Tracing<A> {
+fn tracing_of<A: Accel>(a: &A, p: &TraceParams, any: bool) -> Tracing<A> {
     with_test!(a.test(), |T| if any {
         Tracing::new::<T, true>(p)
     } else {
@@ -142,8 +159,10 @@ impl<A: Accel> Tracing<A> {
     }
 
     /// Trace the active lanes of `rays` (one packet, or consecutive
-    /// packets of `MAX_QUADS` quads) on `a` with `p`, the parameters the
-    /// choice was made for. Inactive lanes of `hits` are left untouched.
+    /// packets of `MAX_QUADS` quads) on `a` with `p`: the parameters the
+    /// choice was made for, or ones differing only in what the kernels
+    /// read per packet (the two-level walk's `bvh.kind`). Inactive lanes of
+    /// `hits` are left untouched.
     #[inline(always)]
     #[allow(clippy::too_many_arguments)] // the packet contract's
     pub fn run(
@@ -157,17 +176,21 @@ impl<A: Accel> Tracing<A> {
         ctr: &mut Counters,
     ) {
         let n = rays.len().min(active.len()).min(hits.len());
-        let (rays, active, hits) = (&rays[..n], &active[..n], &mut hits[..n]);
-        if self.split_tiny && packet::any_tiny(rays, active) {
-            let k = &self.kernel;
-            let traced = |r: &[Ray4], m: &[M4], h: &mut [Hit4], s: Slot<'_>, c: &mut Counters| {
-                k.call((a, p, r, m, h, s, c))
-            };
-            let single = |r: &Ray, c: &mut Counters| (self.single)(a, r, c);
-            return packet::quieted(rays, active, hits, slot, ctr, traced, single);
+        for r in packet::packet_ranges(n) {
+            let (rays, active, hits) = (&rays[r.clone()], &active[r.clone()], &mut hits[r]);
+            if self.split_tiny && packet::any_tiny(rays, active) {
+                let k = &self.kernel;
+                let traced =
+                    |r: &[Ray4], m: &[M4], h: &mut [Hit4], s: Slot<'_>, c: &mut Counters| {
+                        k.call((a, p, r, m, h, s, c))
+                    };
+                let single = |r: &Ray, c: &mut Counters| (self.single)(a, r, c);
+                packet::quieted(rays, active, hits, slot, ctr, traced, single);
+            } else {
+                self.kernel
+                    .call((a, p, rays, active, hits, slot.reborrow(), ctr))
+            }
         }
-        self.kernel
-            .call((a, p, rays, active, hits, slot.reborrow(), ctr))
     }
 }
 
@@ -417,13 +440,23 @@ pub fn batch_on(
         tr,
         p.method,
         |a| {
-            let k = tracing_of(a, p, any);
+            let k = a.tracing(p, any);
             let trace =
                 |q: &[Ray4], m: &[M4], h: &mut [Hit4], s: &mut Slot<'_>| k.run(a, p, q, m, h, s, c);
             packets(slot, per, count, rays, Hit4::MISS, 1, trace, quads)
         },
-        // Not built: `Context::trace_quads` refuses the call before.
-        ()
+        // Not built (`Context::trace_quads` refuses the call before):
+        // every ray misses.
+        packets(
+            slot,
+            per,
+            count,
+            rays,
+            Hit4::MISS,
+            1,
+            |_, _, _, _| {},
+            quads
+        )
     );
     ctr
 }

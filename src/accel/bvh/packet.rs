@@ -235,7 +235,7 @@ fn dispatch<L: Wide, Wk: Walk, T: TriangleTest, const ANY: bool>(
     };
     let n = rays.len().min(active.len()).min(hits.len());
     // A walk that never reads the plane frustum is set up without one
-    // (a copy of the params only then, once per call).
+    // (a copy of the params only then).
     let planeless;
     let opt = if Wk::PLANES || !opt.bvh.culling {
         opt
@@ -255,7 +255,7 @@ fn dispatch<L: Wide, Wk: Walk, T: TriangleTest, const ANY: bool>(
     }
 }
 
-/// `dispatch` at the lane width of `opt.isa`, for tests and studies that
+/// `dispatch` at the lane width of `opt.isa`, for the unit tests that
 /// drive one walk from a given entry point (a trace call runs `Walked`).
 #[cfg(test)]
 #[allow(clippy::too_many_arguments)] // `dispatch`'s

@@ -44,7 +44,7 @@ pub fn aepsa<E: EntryTree + ?Sized>(
     aepsa_in(tree, f, neg, &mut CandidateQueue::new(), ctr)
 }
 
-/// `aepsa` with phase 1's queue in `q` (the packet driver's, in the
+/// `aepsa` with phase 1's queue in `q` (`accel::packet::start`'s, in the
 /// slot's scratch).
 pub fn aepsa_in<E: EntryTree + ?Sized>(
     tree: &E,

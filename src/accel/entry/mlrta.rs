@@ -39,7 +39,7 @@ pub fn mlrta<E: EntryTree + ?Sized>(
     mlrta_in(tree, f, neg, &mut CandidateQueue::new(), ctr)
 }
 
-/// `mlrta` with phase 1's queue in `q` (the packet driver's, in the
+/// `mlrta` with phase 1's queue in `q` (`accel::packet::start`'s, in the
 /// slot's scratch).
 pub fn mlrta_in<E: EntryTree + ?Sized>(
     tree: &E,

@@ -317,7 +317,7 @@ pub fn find_candidates<E: EntryTree + ?Sized>(
     q
 }
 
-/// `find_candidates` into `q` (emptied first): the packet driver keeps the
+/// `find_candidates` into `q` (emptied first): `accel::packet::start` keeps the
 /// queue (about 3 KiB) in the slot's scratch, not on the caller's stack.
 #[inline(never)]
 pub fn find_candidates_into<E: EntryTree + ?Sized>(

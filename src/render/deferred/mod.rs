@@ -44,7 +44,7 @@ use core::sync::atomic::Ordering;
 use glam::Vec3;
 
 /// Slot scratch of a deferred frame whose tiles have up to `q` quads,
-/// `traced` being what the packet driver and a family take under a traced
+/// `traced` being what the tiny-lane split and a family take under a traced
 /// pass (`accel::slot::accel_scratch`): the most of a traced tile (quads,
 /// masks, hits, shadow distances, and the traced pass under them), a
 /// perspective-grid sorting tile (quads, masks, hits, and
