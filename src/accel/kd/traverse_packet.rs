@@ -350,7 +350,8 @@ struct Entry {
 }
 
 /// One packet of `rays.len() <= Q` quads (`Q` a power of two) on `L`
-/// lanes.
+/// lanes: its setup (`set_up`, in baseline code: it has no wide lanes),
+/// then the walk.
 // Monomorphised hot path: a struct would be rebuilt per packet.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
@@ -366,10 +367,41 @@ fn packet<L: Wide, T: TriangleTest, const ANY: bool, const Q: usize>(
     slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
-    let nq = rays.len().min(Q);
-    ctr.packets += 1;
     // Outputs of the active lanes, and the live ones: active and valid.
     let (live, mut slot) = carve::<M4, Q>(slot, M4::FALSE);
+    let how = (frustum, entry, fallbacks);
+    let Some((n_live, neg, start)) =
+        set_up::<T, ANY, Q>(k, rays, active, hits, occ, how, live, ctr)
+    else {
+        return;
+    };
+    walk::<L, T, ANY, Q>(
+        k, rays, hits, occ, frustum, live, n_live, neg, start, &mut slot, ctr,
+    )
+}
+
+/// Where a packet's walk starts: node, depth and box.
+type WalkStart = (usize, usize, Aabb);
+
+/// A packet's setup: its active lanes' outputs written (misses), its live
+/// lanes (active and valid) into `live`, where it starts (`entry` or the
+/// root, culled by `frustum`), its stray lanes (`lane_signs`) and, when
+/// incoherent, all its lanes traced alone. The walk's live lane count,
+/// near sides and start, or `None` when nothing is left to walk.
+#[allow(clippy::too_many_arguments)] // `packet`'s
+#[inline(never)]
+fn set_up<T: TriangleTest, const ANY: bool, const Q: usize>(
+    k: &KdView<'_>,
+    rays: &[Ray4],
+    active: &[M4],
+    hits: &mut [Hit4],
+    occ: &mut [M4],
+    (frustum, entry, fallbacks): (Option<&Frustum>, Option<&EntryPoint>, bool),
+    live: &mut [M4; Q],
+    ctr: &mut Counters,
+) -> Option<(u32, [bool; 3], WalkStart)> {
+    let nq = rays.len().min(Q);
+    ctr.packets += 1;
     let mut n_live = 0u32;
     for q in 0..nq {
         let m = active[q];
@@ -384,7 +416,7 @@ fn packet<L: Wide, T: TriangleTest, const ANY: bool, const Q: usize>(
     }
     ctr.rays += n_live as u64;
     if n_live == 0 || k.nodes.is_empty() || k.info.triangles == 0 {
-        return;
+        return None;
     }
     let (node0, depth0, bx0) = match entry {
         Some(e) if (e.node as usize) < k.nodes.len() => (e.node as usize, e.depth as usize, e.aabb),
@@ -394,7 +426,7 @@ fn packet<L: Wide, T: TriangleTest, const ANY: bool, const Q: usize>(
         && f.cull_box(&bx0.min.to_array(), &bx0.max.to_array())
     {
         count!(ctr.culled_nodes += 1);
-        return;
+        return None;
     }
     // Near sides from the first live lane; lanes going another way alone.
     let q0 = live[..nq].iter().position(|m| m.any()).unwrap_or(0);
@@ -419,7 +451,7 @@ fn packet<L: Wide, T: TriangleTest, const ANY: bool, const Q: usize>(
         n_live -= s.count_ones();
     }
     if n_live == 0 {
-        return;
+        return None;
     }
     // Incoherent packets (`trace::fallback`): every lane still live (all
     // with the first lane's direction signs) alone.
@@ -437,12 +469,9 @@ fn packet<L: Wide, T: TriangleTest, const ANY: bool, const Q: usize>(
                 hits[q].set_lane(i, h);
             }
         });
-        return;
+        return None;
     }
-    let start = (node0, depth0, bx0);
-    walk::<L, T, ANY, Q>(
-        k, rays, hits, occ, frustum, live, n_live, neg, start, &mut slot, ctr,
-    )
+    Some((n_live, neg, (node0, depth0, bx0)))
 }
 
 #[inline(always)]
