@@ -111,13 +111,13 @@ pub fn lane_by_lane_kernel<A: Accel, T: TriangleTest, const ANY: bool>() -> Kern
 }
 
 /// The tiny-direction fallback of every n x n packet method (`Tracing`
-/// in `trace::scene` calls it when some active lane of `rays` has a tiny
-/// direction, `any_tiny`): each packet (at most `MAX_QUADS` quads, as the
-/// families split them) is traced by `packet` on quads whose tiny lanes
-/// are replaced and inactive (`fallback::quieted`: no SIMD operation meets
-/// their subnormal numbers), then each tiny lane by `single`, the family's
-/// single ray, which counts its own rays. The split lives in the slot's
-/// scratch (`scratch`), the family gets the rest.
+/// in `trace::scene` calls it when some active lane of its packet, at most
+/// `MAX_QUADS` quads, has a tiny direction, `any_tiny`): the packet is
+/// traced by `packet` on quads whose tiny lanes are replaced and inactive
+/// (`fallback::quieted`: no SIMD operation meets their subnormal
+/// numbers), then each tiny lane by `single`, the family's single ray,
+/// which counts its own rays. The split lives in the slot's scratch
+/// (`scratch`), the family gets the rest.
 #[inline(never)]
 pub fn quieted(
     rays: &[Ray4],
@@ -125,21 +125,22 @@ pub fn quieted(
     hits: &mut [Hit4],
     slot: &mut Slot<'_>,
     ctr: &mut Counters,
-    mut packet: impl FnMut(&[Ray4], &[M4], &mut [Hit4], Slot<'_>, &mut Counters),
+    packet: impl FnOnce(&[Ray4], &[M4], &mut [Hit4], Slot<'_>, &mut Counters),
     single: impl Fn(&Ray, &mut Counters) -> Hit,
 ) {
-    for run in packet_ranges(rays.len()) {
-        let (s, e) = (run.start, run.end);
-        let (r, h) = (&rays[s..e], &mut hits[s..e]);
-        let (qr, mut slot) = slot.split(e - s, r[0]);
-        let (qa, mut slot) = slot.split(e - s, M4::FALSE);
-        let (tiny, mut slot) = slot.split(e - s, M4::FALSE);
-        fallback::split_tiny(r, &active[s..e], qr, qa, tiny);
-        packet(qr, qa, h, slot.reborrow(), ctr);
-        fallback::each_lane(tiny, |q, i| {
-            h[q].set_lane(i, single(&r[q].lane(i), ctr));
-        });
+    let n = rays.len().min(active.len()).min(hits.len()).min(MAX_QUADS);
+    if n == 0 {
+        return;
     }
+    let (r, h) = (&rays[..n], &mut hits[..n]);
+    let (qr, mut slot) = slot.split(n, r[0]);
+    let (qa, mut slot) = slot.split(n, M4::FALSE);
+    let (tiny, mut slot) = slot.split(n, M4::FALSE);
+    fallback::split_tiny(r, &active[..n], qr, qa, tiny);
+    packet(qr, qa, h, slot.reborrow(), ctr);
+    fallback::each_lane(tiny, |q, i| {
+        h[q].set_lane(i, single(&r[q].lane(i), ctr));
+    });
 }
 
 /// The family's single ray for each active lane (`lane_by_lane_kernel`).

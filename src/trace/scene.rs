@@ -192,9 +192,7 @@ impl<A: Accel> Tracing<A> {
             }
         }
     }
-}
 
-impl<A: Accel> Tracing<A> {
     /// `run` as a closure (the two-level walk's per-geometry traversal).
     #[allow(clippy::type_complexity)] // the packet contract's arguments
     pub fn as_fn(

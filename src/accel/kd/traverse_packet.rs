@@ -126,10 +126,13 @@ const CORNER_TEST_QUADS: usize = 8;
 /// untouched. `frustum` must bound every active valid ray (as
 /// `Frustum::new` builds it), `entry` must hold every leaf with a triangle
 /// that frustum does not cull (see the module docs); either may be `None`.
-/// The slot lends the scratch (`SCRATCH` bytes).
+/// The slot lends the scratch (`SCRATCH` bytes). For the unit tests,
+/// which drive the walk with a given frustum and entry point; a trace call
+/// runs `Packets` through its kernel.
 // One argument per traversal input, as the other packet traversals.
+#[cfg(test)]
 #[allow(clippy::too_many_arguments)]
-pub fn intersect<T: TriangleTest>(
+pub(crate) fn intersect<T: TriangleTest>(
     k: &KdView<'_>,
     rays: &[Ray4],
     active: &[M4],
@@ -160,8 +163,9 @@ pub fn intersect<T: TriangleTest>(
 /// Occlusion of the active lanes (anything in `[tmin, tmax)`): lane `i` of
 /// `occluded[q]` is set when it is active and occluded, cleared otherwise
 /// (every quad read is written). Arguments as `intersect`.
+#[cfg(test)]
 #[allow(clippy::too_many_arguments)]
-pub fn occluded<T: TriangleTest>(
+pub(crate) fn occluded<T: TriangleTest>(
     k: &KdView<'_>,
     rays: &[Ray4],
     active: &[M4],
@@ -191,8 +195,10 @@ pub fn occluded<T: TriangleTest>(
 
 /// `dispatch`'s arguments, one tuple (`isa::Sig`), for `intersect` and
 /// `occluded`.
+#[cfg(test)]
 struct Sig;
 
+#[cfg(test)]
 impl isa::Sig for Sig {
     type Args<'a> = (
         &'a KdView<'a>,
@@ -210,8 +216,10 @@ impl isa::Sig for Sig {
 }
 
 /// `dispatch` at a lane width and size class (`intersect`, `occluded`).
+#[cfg(test)]
 struct At<T, const ANY: bool, const Q: usize>(PhantomData<T>);
 
+#[cfg(test)]
 impl<T: TriangleTest, const ANY: bool, const Q: usize> isa::LaneFn<Sig> for At<T, ANY, Q> {
     #[inline(always)]
     fn call<L: Wide>(args: <Sig as isa::Sig>::Args<'_>) {
