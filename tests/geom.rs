@@ -226,3 +226,32 @@ fn watertight_has_no_cracks_on_shared_edges_and_vertices() {
         }
     }
 }
+
+/// `isa::Chosen` runs a lane function at the width asked for (the library
+/// as it ships: its own unit tests compile every traversal at 4 lanes).
+#[test]
+fn chosen_runs_the_width_asked_for() {
+    use sheaf::Isa;
+    use sheaf::geom::wide::Wide;
+    use sheaf::isa::{Chosen, LaneFn, Sig, detected, run_fn};
+    struct Width;
+    impl Sig for Width {
+        type Args<'a> = ();
+        type Out = usize;
+    }
+    impl LaneFn<Width> for Width {
+        #[inline(always)]
+        fn call<W: Wide>(_: ()) -> usize {
+            W::WIDTH
+        }
+    }
+    assert_eq!(run_fn::<Width, Width>(Isa::Sse2, ()), 4);
+    assert_eq!(run_fn::<Width, Width>(Isa::Auto, ()), Isa::Auto.lanes());
+    assert_eq!(Chosen::<Width>::baseline::<Width>().call(()), 4);
+    if detected() >= Isa::Avx2 {
+        assert_eq!(run_fn::<Width, Width>(Isa::Avx2, ()), 8);
+    }
+    if detected() >= Isa::Avx512 {
+        assert_eq!(run_fn::<Width, Width>(Isa::Avx512, ()), 16);
+    }
+}
