@@ -23,8 +23,8 @@ use crate::accel::slot::Slot;
 use crate::error::{Error, Result};
 use crate::geom::{F4, Hit, Hit4, M4, Ray, Ray4, TriVerts};
 use crate::math;
-pub use crate::trace::Tracer;
 use crate::trace::{Counters, TraceParams};
+pub use crate::trace::{Packets, Tracer};
 pub use camera::{Camera, CameraRays, PixelRect, PrimaryRays, demorton};
 use glam::Vec3;
 
@@ -401,6 +401,8 @@ fn tiles<T: Tracer + ?Sized, const Q: usize>(
         packet: n,
         ..*shadow
     };
+    // The band's traversals, chosen once for all its tiles.
+    let (traced, shadowed) = (tracer.packets(primary, false), tracer.packets(shadow, true));
     let eps = SHADOW_OFFSET * tracer.scene_scale();
     let light = Vec3::from(frame.light.position);
     let lane_xy = [(0u32, 0u32), (1, 0), (0, 1), (1, 1)];
@@ -427,7 +429,7 @@ fn tiles<T: Tracer + ?Sized, const Q: usize>(
             // Primary packet: the kernel's camera packet (`PrimaryRays::packet`).
             rays.packet(tx, ty, n, &rect, quads, active);
             hits.fill(Hit4::MISS);
-            tracer.intersect_packet(primary, quads, active, hits, &mut slot, ctr);
+            traced.run(primary, quads, active, hits, &mut slot, ctr);
             // Shadow packet from the light towards the lit hit points.
             for q in 0..Q {
                 let mut lanes = [Ray::new(light, Vec3::X, 0.0, 0.0); 4];
@@ -457,7 +459,7 @@ fn tiles<T: Tracer + ?Sized, const Q: usize>(
                 active: sactive,
                 dist: sdist,
             };
-            shadow_packet(tracer, shadow, packet, shits, &mut slot, ctr);
+            shadow_packet(&shadowed, shadow, packet, shits, &mut slot, ctr);
             // Shade and store.
             for q in 0..Q {
                 let (qx, qy) = demorton(q);
@@ -482,10 +484,11 @@ fn tiles<T: Tracer + ?Sized, const Q: usize>(
     }
 }
 
-/// Trace a shadow packet, splitting it into its four Morton quarters while
-/// its hit points' distances from the light spread by more than `p.split`.
-pub fn shadow_packet<T: Tracer + ?Sized>(
-    tracer: &T,
+/// Trace a shadow packet with `shadowed` (occlusion, chosen for `p`),
+/// splitting it into its four Morton quarters while its hit points'
+/// distances from the light spread by more than `p.split`.
+pub fn shadow_packet(
+    shadowed: &Packets<'_>,
     p: &TraceParams,
     packet: ShadowPacket<'_>,
     hits: &mut [Hit4],
@@ -512,12 +515,12 @@ pub fn shadow_packet<T: Tracer + ?Sized>(
                     active: &active[r.clone()],
                     dist: &dist[r.clone()],
                 };
-                shadow_packet(tracer, p, quarter, &mut hits[r], slot, ctr);
+                shadow_packet(shadowed, p, quarter, &mut hits[r], slot, ctr);
             }
             return;
         }
     }
-    tracer.occluded_packet(p, rays, active, hits, slot, ctr);
+    shadowed.run(p, rays, active, hits, slot, ctr);
 }
 
 #[inline]

@@ -88,8 +88,8 @@
 
 use super::material::{Material, Materials};
 use super::{
-    Band, Frame, PixelRect, PointLight, PrimaryRays, SHADOW_OFFSET, ShadowPacket, Tracer, demorton,
-    encode, shadow_packet,
+    Band, Frame, Packets, PixelRect, PointLight, PrimaryRays, SHADOW_OFFSET, ShadowPacket, Tracer,
+    demorton, encode, shadow_packet,
 };
 use crate::accel::slot::Slot;
 use crate::error::{Error, Result};
@@ -363,20 +363,64 @@ fn pixel(c: Vec3) -> [u8; 4] {
 // ---------------------------------------------------------------------------
 // Single rays.
 
-/// What every node of a frame's ray trees shares: the tracer, the job and
-/// the offset of shadow and secondary rays off surfaces.
+/// What every node of a frame's ray trees shares: the tracer, the job,
+/// the offset of shadow and secondary rays off surfaces and, for packets,
+/// each ray type's parameters with its traversal chosen once.
 struct Trees<'a, T: ?Sized> {
     tracer: &'a T,
     job: &'a WhittedJob<'a>,
     eps: f32,
+    /// Camera rays, reflection and refraction rays.
+    primary: Traced<'a>,
+    secondary: Traced<'a>,
+    /// Shadow rays from the camera rays' hits, and from deeper hits.
+    shadow: Traced<'a>,
+    secondary_shadow: Traced<'a>,
+}
+
+/// A ray type's parameters (with its frustum kind) and its traversal.
+struct Traced<'a> {
+    p: TraceParams,
+    packets: Packets<'a>,
+}
+
+impl<'a> Traced<'a> {
+    fn new<T: Tracer + ?Sized>(tracer: &'a T, p: &TraceParams, kind: RayKind, any: bool) -> Self {
+        let p = p.with_kind(kind);
+        Traced {
+            p,
+            packets: tracer.packets(&p, any),
+        }
+    }
+    fn none(p: &TraceParams) -> Self {
+        Traced {
+            p: *p,
+            packets: Packets::Unbuilt,
+        }
+    }
 }
 
 impl<'a, T: Tracer + ?Sized> Trees<'a, T> {
+    /// For single rays (no packet traversal chosen).
     fn new(tracer: &'a T, job: &'a WhittedJob<'a>) -> Self {
         Trees {
             tracer,
             job,
             eps: SHADOW_OFFSET * tracer.scene_scale(),
+            primary: Traced::none(&job.primary),
+            secondary: Traced::none(&job.secondary),
+            shadow: Traced::none(&job.shadow),
+            secondary_shadow: Traced::none(&job.secondary),
+        }
+    }
+    /// For packets: each ray type's traversal chosen once.
+    fn packets(tracer: &'a T, job: &'a WhittedJob<'a>) -> Self {
+        Trees {
+            primary: Traced::new(tracer, &job.primary, RayKind::Primary, false),
+            secondary: Traced::new(tracer, &job.secondary, RayKind::Secondary, false),
+            shadow: Traced::new(tracer, &job.shadow, RayKind::Shadow, true),
+            secondary_shadow: Traced::new(tracer, &job.secondary, RayKind::Shadow, true),
+            ..Trees::new(tracer, job)
         }
     }
 }
@@ -390,6 +434,10 @@ struct Depth {
 }
 
 impl Depth {
+    /// A camera ray's (no bounce yet).
+    fn is_camera(self) -> bool {
+        self.reflections + self.refractions == 0
+    }
     fn reflected(self) -> Self {
         Depth {
             reflections: self.reflections + 1,
@@ -592,8 +640,7 @@ fn tiles<T: Tracer + ?Sized, const Q: usize>(
         stride,
     } = band;
     let n = 2 * (Q as u32).isqrt();
-    let f = Trees::new(tracer, job);
-    let primary = job.primary.with_kind(RayKind::Primary);
+    let f = Trees::packets(tracer, job);
     let width = job.frame.width;
     // Camera rays have throughput 1.
     let (pk, s) = Packet::idle(slot.reborrow(), Q, F4::ONE);
@@ -610,7 +657,7 @@ fn tiles<T: Tracer + ?Sized, const Q: usize>(
         while tx < width {
             rays.packet(tx, ty, n, &rect, pk.rays, pk.active);
             acc.fill([Vec3::ZERO; 4]);
-            level::<T, Q>(&f, &primary, &pk, Depth::default(), acc, &mut slot, ctr);
+            level::<T, Q>(&f, &pk, Depth::default(), acc, &mut slot, ctr);
             for (q, (quad, m)) in acc.iter().zip(pk.active.iter()).enumerate() {
                 let (qx, qy) = demorton(q);
                 for (i, (dx, dy)) in LANE_XY.iter().enumerate() {
@@ -646,21 +693,24 @@ fn packets(p: &TraceParams, q: usize) -> impl Iterator<Item = core::ops::Range<u
 #[inline(never)]
 fn level<T: Tracer + ?Sized, const Q: usize>(
     f: &Trees<'_, T>,
-    p: &TraceParams,
     pk: &Packet<'_>,
     depth: Depth,
     acc: &mut [[Vec3; 4]],
     slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
-    let (tracer, job) = (f.tracer, f.job);
+    let Traced { p, packets: traced } = if depth.is_camera() {
+        &f.primary
+    } else {
+        &f.secondary
+    };
     let (rays, active) = (&pk.rays, &pk.active);
     // This level's hits and child packet stay in the slot's scratch while
     // the deeper levels use the rest of it.
     let (hits, mut slot) = slot.split(Q, Hit4::MISS);
     for r in packets(p, Q) {
         if active[r.clone()].iter().any(|m| m.any()) {
-            tracer.intersect_packet(
+            traced.run(
                 p,
                 &rays[r.clone()],
                 &active[r.clone()],
@@ -674,13 +724,12 @@ fn level<T: Tracer + ?Sized, const Q: usize>(
     if !(want_r || want_t) {
         return;
     }
-    let secondary = job.secondary.with_kind(RayKind::Secondary);
     let (mut cpk, mut slot) = Packet::idle(slot, Q, F4::ZERO);
     if want_r && child::<T, Q>(f, true, pk, hits, depth, &mut cpk) {
-        level::<T, Q>(f, &secondary, &cpk, depth.reflected(), acc, &mut slot, ctr);
+        level::<T, Q>(f, &cpk, depth.reflected(), acc, &mut slot, ctr);
     }
     if want_t && child::<T, Q>(f, false, pk, hits, depth, &mut cpk) {
-        level::<T, Q>(f, &secondary, &cpk, depth.refracted(), acc, &mut slot, ctr);
+        level::<T, Q>(f, &cpk, depth.refracted(), acc, &mut slot, ctr);
     }
 }
 
@@ -716,12 +765,14 @@ fn shade_packet<T: Tracer + ?Sized, const Q: usize>(
         }
     }
     if any_hit {
-        let shadow = if reflections + refractions == 0 {
-            job.shadow
+        let Traced {
+            p: shadow,
+            packets: shadowed,
+        } = if depth.is_camera() {
+            &f.shadow
         } else {
-            job.secondary
+            &f.secondary_shadow
         };
-        let shadow = shadow.with_kind(RayKind::Shadow);
         let (squads, s) = s.take(Q, Ray4::from_rays(&[idle_ray(); 4]));
         let (sactive, s) = s.take(Q, M4::FALSE);
         let (shits, s) = s.take(Q, Hit4::MISS);
@@ -746,13 +797,13 @@ fn shade_packet<T: Tracer + ?Sized, const Q: usize>(
                 (squads[q], sactive[q]) = pack(&mut lanes, &m);
                 shits[q] = Hit4::MISS;
             }
-            for r in packets(&shadow, Q) {
+            for r in packets(shadow, Q) {
                 let packet = ShadowPacket {
                     rays: &squads[r.clone()],
                     active: &sactive[r.clone()],
                     dist: &sdist[r.clone()],
                 };
-                shadow_packet(tracer, &shadow, packet, &mut shits[r], &mut slot, ctr);
+                shadow_packet(shadowed, shadow, packet, &mut shits[r], &mut slot, ctr);
             }
             for q in 0..Q {
                 for i in 0..4 {

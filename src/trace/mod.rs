@@ -7,7 +7,7 @@ pub use crate::accel::fallback;
 
 pub mod scene;
 pub mod stream;
-pub use scene::{SceneTracer, Tracer, batch_on, per_ray};
+pub use scene::{Packets, SceneTracer, Tracer, batch_on, per_ray};
 pub use stream::{DynRays, HitStream, RaySource, RayStream, SceneHitStream};
 
 pub use crate::counters::{Counters, DEPTH_BINS};

@@ -4,8 +4,9 @@
 //! kernel for the method at the lane width (`Accel::kernel`): a `Tracing`,
 //! chosen once per call (`batch_on`) and run per packet by the batch loop
 //! (`packets`).
-//! The renderers see every structure as a `Tracer` (which chooses per
-//! packet); the Rust and C trace calls go through `batch_on`.
+//! The renderers see every structure as a `Tracer` and choose with
+//! `Tracer::packets` once per frame (per band of tiles); the Rust and C
+//! trace calls go through `batch_on`.
 #![forbid(unsafe_code)]
 
 use crate::accel::bvh::BvhView;
@@ -31,8 +32,14 @@ pub const fn scratch(q: usize) -> usize {
 pub trait Tracer: Sync {
     fn intersect(&self, ray: &Ray, ctr: &mut Counters) -> Hit;
     fn occluded(&self, ray: &Ray, ctr: &mut Counters) -> bool;
-    /// Nearest hits of the active lanes of a packet (`p.method` decides how;
-    /// single-ray methods trace lane by lane). `slot` is the calling thread's.
+    /// The packet traversal of `p` (nearest hits, or with `any` occlusion),
+    /// chosen once (`Tracing`) for the many packets of a frame or a call:
+    /// `Packets::run` traces each.
+    fn packets(&self, p: &TraceParams, any: bool) -> Packets<'_>;
+    /// Nearest hits of the active lanes of one packet (`p.method` decides
+    /// how; single-ray methods trace lane by lane). `slot` is the calling
+    /// thread's. Chooses the traversal for this packet: loops over packets
+    /// choose once with `packets`.
     fn intersect_packet(
         &self,
         p: &TraceParams,
@@ -41,8 +48,11 @@ pub trait Tracer: Sync {
         hits: &mut [Hit4],
         slot: &mut Slot<'_>,
         ctr: &mut Counters,
-    );
-    /// Occlusion of the active lanes: a hit (`prim != INVALID_ID`) marks an occluded lane.
+    ) {
+        self.packets(p, false).run(p, rays, active, hits, slot, ctr)
+    }
+    /// Occlusion of the active lanes of one packet: a hit (`prim !=
+    /// INVALID_ID`) marks an occluded lane. As `intersect_packet`.
     fn occluded_packet(
         &self,
         p: &TraceParams,
@@ -51,10 +61,46 @@ pub trait Tracer: Sync {
         hits: &mut [Hit4],
         slot: &mut Slot<'_>,
         ctr: &mut Counters,
-    );
+    ) {
+        self.packets(p, true).run(p, rays, active, hits, slot, ctr)
+    }
     fn triangle(&self, prim: u32) -> Option<TriVerts>;
     /// Scale of the scene, for the shadow-ray origin offset.
     fn scene_scale(&self) -> f32;
+}
+
+/// A packet traversal chosen once (`Tracer::packets`): the family's view
+/// with its `Tracing`, or no structure.
+#[derive(Clone, Copy)]
+pub enum Packets<'r> {
+    Grid(GridView<'r>, Tracing<GridView<'r>>),
+    Bvh(BvhView<'r>, Tracing<BvhView<'r>>),
+    Kd(KdView<'r>, Tracing<KdView<'r>>),
+    /// The method's structure is not built: every active lane misses.
+    Unbuilt,
+}
+
+impl Packets<'_> {
+    /// Trace the active lanes of `rays` (`Tracing::run`) with `p`, the
+    /// parameters the choice was made for (or ones differing only in what
+    /// the kernels read per packet: `bvh.kind`, `split`).
+    #[inline]
+    pub fn run(
+        &self,
+        p: &TraceParams,
+        rays: &[Ray4],
+        active: &[M4],
+        hits: &mut [Hit4],
+        slot: &mut Slot<'_>,
+        ctr: &mut Counters,
+    ) {
+        match self {
+            Packets::Grid(a, k) => k.run(a, p, rays, active, hits, slot, ctr),
+            Packets::Bvh(a, k) => k.run(a, p, rays, active, hits, slot, ctr),
+            Packets::Kd(a, k) => k.run(a, p, rays, active, hits, slot, ctr),
+            Packets::Unbuilt => packet::lane_by_lane(rays, active, hits, |_, _| Hit::MISS, ctr),
+        }
+    }
 }
 
 /// Every family is a `Tracer` through the contract (`tracing_of`). One
@@ -63,7 +109,7 @@ pub trait Tracer: Sync {
 /// another crate (a test, the CLI) links to them instead of instantiating
 /// the packet traversals again at every lane width.
 macro_rules! family_tracer {
-    ($($view:ident),*) => {$(
+    ($($view:ident => $variant:ident),*) => {$(
         impl Tracer for $view<'_> {
             #[inline]
             fn intersect(&self, ray: &Ray, ctr: &mut Counters) -> Hit {
@@ -73,27 +119,9 @@ macro_rules! family_tracer {
             fn occluded(&self, ray: &Ray, ctr: &mut Counters) -> bool {
                 with_test!(self.test(), |T| occluded::<Self, T>(self, ray, ctr))
             }
-            fn intersect_packet(
-                &self,
-                p: &TraceParams,
-                rays: &[Ray4],
-                active: &[M4],
-                hits: &mut [Hit4],
-                slot: &mut Slot<'_>,
-                ctr: &mut Counters,
-            ) {
-                self.tracing(p, false).run(self, p, rays, active, hits, slot, ctr)
-            }
-            fn occluded_packet(
-                &self,
-                p: &TraceParams,
-                rays: &[Ray4],
-                active: &[M4],
-                hits: &mut [Hit4],
-                slot: &mut Slot<'_>,
-                ctr: &mut Counters,
-            ) {
-                self.tracing(p, true).run(self, p, rays, active, hits, slot, ctr)
+            fn packets(&self, p: &TraceParams, any: bool) -> Packets<'_> {
+                let v: $view<'_> = *self;
+                Packets::$variant(v, v.tracing(p, any))
             }
             fn triangle(&self, prim: u32) -> Option<TriVerts> {
                 Accel::triangle(self, prim)
@@ -105,7 +133,7 @@ macro_rules! family_tracer {
     )*};
 }
 
-family_tracer!(GridView, BvhView, KdView);
+family_tracer!(GridView => Grid, BvhView => Bvh, KdView => Kd);
 
 macro_rules! family_tracing {
     ($($view:ident),*) => {$(
@@ -146,6 +174,13 @@ pub struct Tracing<A: Accel> {
     single: fn(&A, &Ray, &mut Counters) -> Hit,
     split_tiny: bool,
 }
+
+impl<A: Accel> Clone for Tracing<A> {
+    fn clone(&self) -> Self {
+        *self
+    }
+}
+impl<A: Accel> Copy for Tracing<A> {}
 
 impl<A: Accel> Tracing<A> {
     /// `A`'s kernel for `p` with triangle test (and culling) `T`:
@@ -316,37 +351,8 @@ impl Tracer for SceneTracer<'_> {
     fn occluded(&self, ray: &Ray, ctr: &mut Counters) -> bool {
         on_family!(self, self.single, |t| Tracer::occluded(t, ray, ctr), false)
     }
-    fn intersect_packet(
-        &self,
-        p: &TraceParams,
-        rays: &[Ray4],
-        active: &[M4],
-        hits: &mut [Hit4],
-        slot: &mut Slot<'_>,
-        ctr: &mut Counters,
-    ) {
-        on_family!(
-            self,
-            p.method,
-            |t| Tracer::intersect_packet(t, p, rays, active, hits, slot, ctr),
-            packet::lane_by_lane(rays, active, hits, |_, _| Hit::MISS, ctr)
-        )
-    }
-    fn occluded_packet(
-        &self,
-        p: &TraceParams,
-        rays: &[Ray4],
-        active: &[M4],
-        hits: &mut [Hit4],
-        slot: &mut Slot<'_>,
-        ctr: &mut Counters,
-    ) {
-        on_family!(
-            self,
-            p.method,
-            |t| Tracer::occluded_packet(t, p, rays, active, hits, slot, ctr),
-            packet::lane_by_lane(rays, active, hits, |_, _| Hit::MISS, ctr)
-        )
+    fn packets(&self, p: &TraceParams, any: bool) -> Packets<'_> {
+        on_family!(self, p.method, |t| t.packets(p, any), Packets::Unbuilt)
     }
     /// The triangle from the structure of `single` (the primary method's):
     /// a structure left over from an older frame is never consulted.

@@ -391,9 +391,10 @@ fn trace_packets(
         .par_chunks(t.band)
         .zip(active.par_chunks(t.band))
         .zip(hits.par_chunks_mut(t.band));
+    let traced = tr.packets(p, false);
     par_bands(bands, mbs, |((r, a), h), slot, ctr| {
         for ((r, a), h) in r.chunks(t.q).zip(a.chunks(t.q)).zip(h.chunks_mut(t.q)) {
-            tr.intersect_packet(p, r, a, h, slot, ctr);
+            traced.run(p, r, a, h, slot, ctr);
         }
     })
 }
@@ -408,6 +409,7 @@ fn occlude_packets(
     mbs: &mut [Slot<'_>],
 ) -> Counters {
     let ShadowPacket { rays, active, dist } = shadow;
+    let shadowed = tr.packets(p, true);
     let bands = rays
         .par_chunks(t.band)
         .zip(active.par_chunks(t.band))
@@ -428,7 +430,7 @@ fn occlude_packets(
                 active: a,
                 dist: d,
             };
-            shadow_packet(tr, p, packet, h, slot, ctr);
+            shadow_packet(&shadowed, p, packet, h, slot, ctr);
         }
     })
 }

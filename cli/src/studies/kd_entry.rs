@@ -804,11 +804,12 @@ pub fn run(a: &BenchArgs) -> Result<()> {
                             slot: &mut Slot<'_>,
                             ctr: &mut Counters,
                             hits: &mut [Hit4]| {
+                    let traced = kt.packets(p, false);
                     for i in 0..pk.count() {
                         let (r, m) = pk.packet(i);
                         let hq = &mut hits[i * pk.q..(i + 1) * pk.q];
                         hq.fill(Hit4::MISS);
-                        kt.intersect_packet(p, r, m, hq, slot, ctr);
+                        traced.run(p, r, m, hq, slot, ctr);
                     }
                 };
                 for (k, p) in ps.iter().enumerate() {

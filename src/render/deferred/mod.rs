@@ -27,8 +27,8 @@
 pub(crate) mod frame;
 
 use super::{
-    Frame, PixelRect, PointLight, PrimaryRays, SHADOW_OFFSET, ShadowPacket, Tracer, demorton,
-    encode, shadow_packet,
+    Frame, Packets, PixelRect, PointLight, PrimaryRays, SHADOW_OFFSET, ShadowPacket, Tracer,
+    demorton, encode, shadow_packet,
 };
 use crate::accel::pgrid::{
     self as pgrid, CamView, CellsInfo, Chunk, LightFrame, LightView, ReorderInfo, reorder,
@@ -411,18 +411,26 @@ pub fn primary_pass<'m, T: Tracer + ?Sized, W: Workers>(
         .chunks_mut(ss)
         .zip(t[..n].chunks_mut(ss))
         .enumerate();
+    // A traced pass's packets (tiles of `lay.side`) and their traversal,
+    // chosen once for every tile.
+    let traced = match primary {
+        PrimaryPass::Traced(params) => {
+            let p = TraceParams {
+                packet: lay.side,
+                ..*params
+            };
+            Some((p, tracer.packets(&p, false)))
+        }
+        PrimaryPass::Pgrid => None,
+    };
     let work = |(tile, (p, tt)): (usize, (&mut [u32], &mut [f32])),
                 slot: &mut Slot<'_>,
                 ctr: &mut Counters| {
         let (x0, y0) = lay.pixel(tile * ss);
-        match (primary, cam) {
-            (PrimaryPass::Pgrid, Some(cam)) => {
-                pgrid_tile(cam, rays, lay, sort, x0, y0, p, tt, slot, ctr)
-            }
-            (PrimaryPass::Traced(params), _) => {
-                traced_tile(tracer, params, rays, lay, x0, y0, p, tt, slot, ctr)
-            }
-            _ => p.fill(INVALID_ID),
+        match (&traced, cam) {
+            (Some(traced), _) => traced_tile(tracer, traced, rays, lay, x0, y0, p, tt, slot, ctr),
+            (None, Some(cam)) => pgrid_tile(cam, rays, lay, sort, x0, y0, p, tt, slot, ctr),
+            (None, None) => p.fill(INVALID_ID),
         }
     };
     workers.run(slots, &mut items, &work)
@@ -495,14 +503,14 @@ fn pgrid_tile(
 /// Lane (dx, dy) of a 2x2 quad, in `Ray4` lane order.
 const LANES: [(u32, u32); 4] = [(0, 0), (1, 0), (0, 1), (1, 1)];
 
-/// One tile traced with a packet method (Morton quads, as `render_tiles`)
-/// or ray by ray.
+/// One tile traced with a packet method (Morton quads, as `render_tiles`,
+/// with the pass's parameters and traversal `traced`) or ray by ray.
 // Per-item worker of a phase, called from its closure: the phase's
 // inputs plus the item's own slices of the pools.
 #[allow(clippy::too_many_arguments)]
 fn traced_tile<T: Tracer + ?Sized>(
     tracer: &T,
-    params: &TraceParams,
+    traced: &(TraceParams, Packets<'_>),
     rays: &PrimaryRays,
     lay: &TileLayout,
     x0: u32,
@@ -513,8 +521,9 @@ fn traced_tile<T: Tracer + ?Sized>(
     ctr: &mut Counters,
 ) {
     let side = lay.side;
+    let (p, packets) = traced;
     prim.fill(INVALID_ID);
-    if params.tile_side() == 0 {
+    if p.tile_side() == 0 {
         for ly in 0..side {
             for lx in 0..side {
                 let (x, y) = (x0 + lx, y0 + ly);
@@ -534,11 +543,7 @@ fn traced_tile<T: Tracer + ?Sized>(
     let rect = PixelRect::image(lay.width, lay.height);
     rays.packet(x0, y0, side, &rect, quads, active);
     hits.fill(Hit4::MISS);
-    let p = TraceParams {
-        packet: side,
-        ..*params
-    };
-    tracer.intersect_packet(&p, quads, active, hits, &mut slot, ctr);
+    packets.run(p, quads, active, hits, &mut slot, ctr);
     for q in 0..nq {
         let (qx, qy) = demorton(q);
         for (i, (dx, dy)) in LANES.iter().enumerate() {
@@ -1051,6 +1056,12 @@ pub fn traced_shadow_pass<'m, T: Tracer + ?Sized, W: Workers>(
     let mut items = shadow[..n].chunks_mut(ss).zip(dirs[..n].chunks(ss));
     let side = lay.side;
     let packet = params.tile_side() > 0;
+    // The tiles' shadow packets and their traversal, chosen once.
+    let p = TraceParams {
+        packet: side,
+        ..*params
+    };
+    let shadowed = tracer.packets(&p, true);
     let work = |(sh, d): (&mut [u8], &[[f32; 3]]), slot: &mut Slot<'_>, ctr: &mut Counters| {
         if !packet {
             for k in 0..ss {
@@ -1085,16 +1096,12 @@ pub fn traced_shadow_pass<'m, T: Tracer + ?Sized, W: Workers>(
             active[q] = M4::new(m[0], m[1], m[2], m[3]);
             hits[q] = Hit4::MISS;
         }
-        let p = TraceParams {
-            packet: side,
-            ..*params
-        };
         let packet = ShadowPacket {
             rays: quads,
             active,
             dist,
         };
-        shadow_packet(tracer, &p, packet, hits, &mut slot, ctr);
+        shadow_packet(&shadowed, &p, packet, hits, &mut slot, ctr);
         for q in 0..nq {
             let (qx, qy) = demorton(q);
             for (i, (dx, dy)) in LANES.iter().enumerate() {
