@@ -273,17 +273,25 @@ pub(crate) mod tests {
             }
         };
         let traced = !matches!(start, Start::Miss);
-        // Exactly the scratch `bvh::SCRATCH` promises, misaligned: a
-        // packet taking more panics.
-        let mut raw = vec![0u8; crate::accel::bvh::scratch(crate::accel::packet::MAX_QUADS) + 1];
-        let mut pk = 0;
-        let mut slot = Slot::new(Mailbox::new(&mut [], &mut pk), Scratch::new(&mut raw[1..]));
-        let s = &mut slot;
-        if traced && any {
-            dispatch::<W, T, true>(b, quads, active, &mut hits, opt, entry, s, &mut ctr);
-        } else if traced {
-            dispatch::<W, T, false>(b, quads, active, &mut hits, opt, entry, s, &mut ctr);
+        // Exactly the scratch `bvh::scratch` promises, misaligned: a
+        // packet taking more panics. One buffer per thread: zeroing a new
+        // one per packet was a quarter of these tests' time.
+        thread_local! {
+            static RAW: core::cell::RefCell<Vec<u8>> = core::cell::RefCell::new(vec![
+                0u8;
+                crate::accel::bvh::scratch(crate::accel::packet::MAX_QUADS) + 1
+            ]);
         }
+        RAW.with_borrow_mut(|raw| {
+            let mut pk = 0;
+            let mut slot = Slot::new(Mailbox::new(&mut [], &mut pk), Scratch::new(&mut raw[1..]));
+            let s = &mut slot;
+            if traced && any {
+                dispatch::<W, T, true>(b, quads, active, &mut hits, opt, entry, s, &mut ctr);
+            } else if traced {
+                dispatch::<W, T, false>(b, quads, active, &mut hits, opt, entry, s, &mut ctr);
+            }
+        });
         let mut valid = 0;
         for (q, (h, m)) in hits.iter().zip(active).enumerate() {
             for i in 0..4 {

@@ -80,6 +80,15 @@ fn check(b: &BvhView<'_>, quads: &[Ray4], live: &[M4], f: &Frustum, what: &str, 
         r.tmin = F4::ZERO;
         r.tmax = F4::INFINITY;
     }
+    // Each quad's lanes and watertight precomputation, made once.
+    let prepared: Vec<_> = unbounded
+        .iter()
+        .map(|r| {
+            let l = RayLanes::from_ray4(r);
+            let pre = Wt::prepare(&l);
+            (l, pre)
+        })
+        .collect();
     for (i, t) in b.tris.iter().enumerate() {
         let culled = f.cull_triangle(t);
         tally.tris += 1;
@@ -87,9 +96,8 @@ fn check(b: &BvhView<'_>, quads: &[Ray4], live: &[M4], f: &Frustum, what: &str, 
         if !culled {
             continue;
         }
-        for (q, r) in unbounded.iter().enumerate() {
-            let l = RayLanes::from_ray4(r);
-            let hm = Mt::intersect(&l, &(), t).mask | Wt::intersect(&l, &Wt::prepare(&l), t).mask;
+        for (q, (l, pre)) in prepared.iter().enumerate() {
+            let hm = Mt::intersect(l, &(), t).mask | Wt::intersect(l, pre, t).mask;
             assert!(
                 !(hm & live[q]).any(),
                 "{what}: triangle {i} {t:?} culled but hit by quad {q} {:?}",
