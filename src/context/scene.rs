@@ -559,11 +559,7 @@ impl<'a> Context<'a> {
         }
         // The geometries' traversal (method, triangle test, culling, lane
         // width) chosen once for the call.
-        let blas: Tracing<BvhView<'_>> = with_test!(v.info.test, cull, |T| if any {
-            Tracing::new::<T, true>(p)
-        } else {
-            Tracing::new::<T, false>(p)
-        });
+        let blas: Tracing<BvhView<'_>> = Tracing::culled(v.info.test, cull, p, any);
         let g = blas.as_fn();
         let c = &mut ctr;
         let trace = |q: &[Ray4], a: &[M4], h: &mut [SceneHit], sl: &mut Slot<'_>| {

@@ -17,7 +17,7 @@ use crate::accel::slot::Slot;
 use crate::accel::{Accel, method::Method, method::Structure, method::TraceParams};
 use crate::counters::Counters;
 use crate::error::{Error, Result};
-use crate::geom::{Hit, Hit4, M4, Ray, Ray4, TriVerts, TriangleTest, with_test};
+use crate::geom::{Cull, Hit, Hit4, M4, Ray, Ray4, TriTest, TriVerts, TriangleTest, with_test};
 
 /// Slot scratch `batch_on` holds while its kernel runs: one packet's
 /// quads, lane masks and hits, for packets of up to `q` quads.
@@ -157,11 +157,16 @@ family_tracing!(GridView, BvhView, KdView);
 /// families' `tracing`.
 #[inline]
 fn tracing_of<A: Accel>(a: &A, p: &TraceParams, any: bool) -> Tracing<A> {
-    with_test!(a.test(), |T| if any {
-        Tracing::new::<T, true>(p)
-    } else {
-        Tracing::new::<T, false>(p)
-    })
+    with_test!(a.test(), |T| Tracing::either::<T>(p, any))
+}
+
+impl<'r> Tracing<BvhView<'r>> {
+    /// The choice `tracing_of` makes, on BVHs built with triangle test
+    /// `test`, with back- or front-face culling `cull` (only BVHs cull:
+    /// the two-level scene's geometries, `Context::trace_scene_each`).
+    pub fn culled(test: TriTest, cull: Cull, p: &TraceParams, any: bool) -> Self {
+        with_test!(test, cull, |T| Tracing::either::<T>(p, any))
+    }
 }
 
 /// A trace call's choice on one family, made once and run per packet
@@ -190,6 +195,16 @@ impl<A: Accel> Tracing<A> {
             kernel: A::kernel::<T, ANY>(p),
             single: fastest::<A, T, ANY>,
             split_tiny: p.method.is_packet() && p.fallbacks,
+        }
+    }
+
+    /// `new` with `ANY` = `any`.
+    #[inline]
+    fn either<T: TriangleTest>(p: &TraceParams, any: bool) -> Self {
+        if any {
+            Self::new::<T, true>(p)
+        } else {
+            Self::new::<T, false>(p)
         }
     }
 
