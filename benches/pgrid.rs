@@ -51,7 +51,7 @@ fn context(s: &BenchScene) -> OwnedContext {
     l.structures = Limits::BVH | Limits::PGRID;
     l.max_image_width = SIDE;
     l.max_image_height = SIDE;
-    // As tests/pgrid_exact.rs: room for lights close to surfaces, whose
+    // As tests/exact/pgrid_exact.rs: room for lights close to surfaces, whose
     // nearby triangles span many light tiles.
     l.max_pgrid_refs = 8 * s.triangles() + (1 << 21);
     // Light grids of up to 128 x 128 tiles of the default 32 slices.

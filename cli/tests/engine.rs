@@ -7,7 +7,7 @@
 //! the triangles in object space instead, so its frame may differ where
 //! transform rounding moves a hit across an edge (a check that the families
 //! see the same scene, not an exactness claim: that is
-//! `tests/twolevel_exact.rs`'s). Timing is printed, never asserted.
+//! `tests/exact/twolevel_exact.rs`'s). Timing is printed, never asserted.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;

@@ -15,7 +15,7 @@
 //! last quad's unused lanes repeat the last ray, as there), so every
 //! method's answers equal the array-of-structs call's, bit for bit (the
 //! unit test below for the quads; `tests/context.rs` and
-//! `tests/twolevel_exact.rs` for every method's answers).
+//! `tests/exact/twolevel_exact.rs` for every method's answers).
 //!
 //! # Deviations
 //! Embree's `RTCRayNp` carries a mask, an id and flags per ray; a stream

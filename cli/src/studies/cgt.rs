@@ -26,7 +26,7 @@
 //! mismatch is a ray whose nearest triangle differs from the oracle's; it is
 //! "within tolerance" when the oracle's two nearest hits are a tie
 //! (`TIE_REL`) or the ray passes within `EDGE_BARY` of an edge in front of
-//! its hit (the tolerances of tests/reference_equivalence.rs). A shadow
+//! its hit (the tolerances of tests/exact/reference_equivalence.rs). A shadow
 //! mismatch is an occlusion answer that differs; it is within tolerance near
 //! an edge or when the occluder lies within `END_REL` of the ray's end.
 #![forbid(unsafe_code)]

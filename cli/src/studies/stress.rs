@@ -74,7 +74,7 @@ const CAP_NS: u64 = 200_000_000;
 /// Ray-triangle tests the f64 oracle may spend per scene and class.
 const ORACLE_BUDGET: f64 = 4e7;
 const QUICK_ORACLE_BUDGET: f64 = 2e7;
-/// Named tolerances (those of tests/reference_equivalence.rs and `sheaf
+/// Named tolerances (those of tests/exact/reference_equivalence.rs and `sheaf
 /// bench`): relative t gap of a tie, barycentric distance to an edge.
 const TIE_REL: f64 = 1e-5;
 const EDGE_BARY: f64 = 1e-5;

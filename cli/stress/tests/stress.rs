@@ -37,7 +37,7 @@
 //! off, see there); the watertight test compares those too. The
 //! last test renders deferred frames (perspective grid, light grids) of
 //! every stress scene and view and checks camera hits and shadow bits
-//! against BVH single rays, as tests/pgrid_exact.rs does.
+//! against BVH single rays, as tests/exact/pgrid_exact.rs does.
 //!
 //! # Tolerances (f32 baseline vs f64 oracle)
 //! A disagreement, or a same-triangle t off by more than `T_REL`, is allowed

@@ -37,7 +37,7 @@
 //! The boxes are exactly those the binned build would give the same
 //! shape (padded, `refit::leaf_box`); every traversal's guarantee holds
 //! whatever the shape, so every method returns on this tree the triangle
-//! and bitwise t it returns on the SAH tree. `tests/bvh_exact.rs` runs every
+//! and bitwise t it returns on the SAH tree. `tests/exact/bvh_exact.rs` runs every
 //! method on it and checks its single ray against the SAH tree's.
 //!
 //! # Deviations

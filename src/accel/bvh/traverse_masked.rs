@@ -508,7 +508,7 @@ pub(crate) mod tests {
 
     /// `check_scene` for every built-in scene with Moller-Trumbore and
     /// watertight tests (and the projection test on one scene), on the
-    /// scene's first view (tests/bvh_exact.rs checks every view, through
+    /// scene's first view (tests/exact/bvh_exact.rs checks every view, through
     /// the trace calls, at every lane width).
     pub fn check_builtin<W: Walk>(scenes: &[&str]) {
         for &name in scenes {

@@ -15,7 +15,7 @@
 //! The world triangles are a plain mesh, so every family's packets equal
 //! its own single ray on them, bitwise, as on any mesh. Against the
 //! two-level BVH (which maps the ray into object space instead) they
-//! differ by the rounding of the mapped vertices: `tests/twolevel_exact.rs`
+//! differ by the rounding of the mapped vertices: `tests/exact/twolevel_exact.rs`
 //! compares both with the f64 oracle on the flattened scene and counts
 //! that difference under its own tolerance.
 //!

@@ -37,7 +37,7 @@
 //! order of visits. For a tiny direction, whose slab terms overflow
 //! (`traverse_wide`'s deviations), "nothing nearer" rests on the geometry
 //! walk as it does for the single ray; the edge packets of
-//! `tests/twolevel_exact.rs` (tiny, zero-component and invalid lanes,
+//! `tests/exact/twolevel_exact.rs` (tiny, zero-component and invalid lanes,
 //! `tmin > 0`, short `tmax`) check it.
 //!
 //! # Deviations

@@ -11,7 +11,7 @@
 //! f64 oracle on the flattened scene, and the perspective grid equals the
 //! flattened mesh's BVH.
 
-mod common;
+use crate::common;
 
 use common::exact::{RES, packets};
 use common::oracle::{Tally, classify_hit};

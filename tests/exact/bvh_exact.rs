@@ -5,7 +5,7 @@
 //! primary, shadow, reflection and refraction rays on every scene and view
 //! (BVH paper sections 3 and 4).
 
-mod common;
+use crate::common;
 
 use common::{TestScene, builtin_scenes, obj_scenes, par_map};
 use glam::Vec3;

@@ -7,7 +7,7 @@
 //! BVH packets with entry points are checked the same way against the BVH
 //! single ray.
 
-mod common;
+use crate::common;
 
 use common::{TestScene, builtin_scenes, obj_scenes, par_map};
 use glam::Vec3;

@@ -3,7 +3,7 @@
 //! test, on every scene and view, for primary packets, shadow packets from
 //! the light, and adversarial packets.
 
-mod common;
+use crate::common;
 
 use common::{TestScene, builtin_scenes, obj_scenes};
 use glam::Vec3;

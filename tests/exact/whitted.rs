@@ -5,7 +5,7 @@
 //! bounce limits are rejected. Every BVH traversal renders the BVH single
 //! ray's image, which is also the grid's.
 
-mod common;
+use crate::common;
 
 use common::{TestScene, builtin_scenes};
 use glam::Vec3;
@@ -678,7 +678,7 @@ fn invalid_materials_and_limits_are_rejected() {
     }));
 }
 
-/// Timings for the report: `cargo test --release --test whitted -- --ignored --nocapture`.
+/// Timings for the report: `cargo test --release --test exact whitted:: -- --ignored --nocapture`.
 #[test]
 #[ignore]
 fn timing_512() {

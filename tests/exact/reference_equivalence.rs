@@ -12,9 +12,9 @@
 //!   origin has a t of rounding size).
 //!
 //! Anything else fails the test with the ray, both hits and the difference
-//! (`common::oracle`, shared with `tests/twolevel_exact.rs`).
+//! (`common::oracle`, shared with `tests/exact/twolevel_exact.rs`).
 
-mod common;
+use crate::common;
 
 use common::oracle::{EDGE_BARY, TIE_REL, Tally, classify_hit};
 use common::{TestScene, builtin_scenes, obj_scenes, par_map};

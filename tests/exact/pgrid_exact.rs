@@ -16,7 +16,7 @@
 //! - bad input is rejected with the documented error, and the next frame
 //!   works.
 
-mod common;
+use crate::common;
 
 use common::{TestScene, builtin_scenes, obj_scenes, par_map};
 use glam::Vec3;
