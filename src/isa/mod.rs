@@ -229,8 +229,8 @@ impl<S: Sig> Chosen<S> {
     /// `F4` only, whatever `isa` says: the library is compiled twice by
     /// `cargo test`, and its wide instances were half the unit tests'
     /// compile time. Every width is checked bitwise against the single ray
-    /// by the integration suites (`tests/*_exact.rs`, `cli/stress`), which
-    /// link the library as it ships.
+    /// by the integration suites (`tests/exact`, `cli/stress`), which link
+    /// the library as it ships.
     pub fn new<F: LaneFn<S>>(isa: Isa) -> Self {
         #[cfg(test)]
         {
