@@ -124,6 +124,8 @@ pub fn check_class(
                     isa,
                     ..TraceParams::default()
                 };
+                // One choice for the whole class, as a renderer makes it.
+                let traced = tr.packets(&p, c.any);
                 for (quads, idx) in packets(&c.rays, n) {
                     let active: Vec<M4> = idx
                         .chunks(4)
@@ -137,11 +139,7 @@ pub fn check_class(
                         })
                         .collect();
                     let mut hits = vec![Hit4::MISS; quads.len()];
-                    if c.any {
-                        tr.occluded_packet(&p, &quads, &active, &mut hits, &mut slot, &mut total);
-                    } else {
-                        tr.intersect_packet(&p, &quads, &active, &mut hits, &mut slot, &mut total);
-                    }
+                    traced.run(&p, &quads, &active, &mut hits, &mut slot, &mut total);
                     for (k, &ri) in idx.iter().enumerate() {
                         if !c.active[ri] {
                             continue;

@@ -653,6 +653,7 @@ fn occlusion_of(tr: &GridTracer<'_>, cfg: &Config, rays: &[Ray], slot: &mut Slot
     }
     let p = cfg.params();
     let q = (cfg.packet as usize / 2).pow(2);
+    let shadowed = tr.packets(&p, true);
     let mut out = Vec::with_capacity(rays.len());
     for chunk in rays.chunks(4 * q) {
         let (quads, active): (Vec<Ray4>, Vec<M4>) = chunk
@@ -666,7 +667,7 @@ fn occlusion_of(tr: &GridTracer<'_>, cfg: &Config, rays: &[Ray], slot: &mut Slot
             })
             .unzip();
         let mut hits = vec![Hit4::MISS; quads.len()];
-        tr.occluded_packet(&p, &quads, &active, &mut hits, slot, &mut ctr);
+        shadowed.run(&p, &quads, &active, &mut hits, slot, &mut ctr);
         out.extend((0..chunk.len()).map(|k| hits[k / 4].prim[k % 4] != INVALID_ID));
     }
     out
