@@ -515,6 +515,10 @@ pub(crate) mod tests {
         /// By node (`n`: the tree's node count): (parent, depth) when
         /// reached (the root is its own parent), else `u32::MAX`.
         pub up: Vec<(u32, u32)>,
+        /// By node: its place in the depth-first order of the reached
+        /// nodes and its reached subtree's size, so a subtree is one range
+        /// of places (`covers` in constant time).
+        order: Vec<(u32, u32)>,
         /// Reached leaves.
         pub leaves: Vec<u32>,
     }
@@ -523,6 +527,7 @@ pub(crate) mod tests {
         pub fn new<E: EntryTree + ?Sized>(tree: &E, f: &Frustum, n: usize) -> Reach {
             let mut r = Reach {
                 up: vec![(u32::MAX, u32::MAX); n],
+                order: vec![(u32::MAX, 0); n],
                 leaves: Vec::new(),
             };
             let Some((root, b)) = tree.root() else {
@@ -531,9 +536,14 @@ pub(crate) mod tests {
             if !admits(f, &b) {
                 return r;
             }
+            // Depth first from a stack: a node's descendants are popped
+            // right after it, so its subtree is the next `size` places.
+            let mut popped = Vec::new();
             let mut st = vec![(root, b, root, 0u32)];
             while let Some((n, b, p, d)) = st.pop() {
                 r.up[n as usize] = (p, d);
+                r.order[n as usize] = (popped.len() as u32, 1);
+                popped.push(n);
                 match tree.children(n, &b) {
                     None => r.leaves.push(n),
                     Some(ch) => {
@@ -545,6 +555,10 @@ pub(crate) mod tests {
                     }
                 }
             }
+            for &n in popped[1..].iter().rev() {
+                let (p, size) = (r.up[n as usize].0, r.order[n as usize].1);
+                r.order[p as usize].1 += size;
+            }
             r
         }
         pub fn depth(&self, n: u32) -> u32 {
@@ -553,28 +567,29 @@ pub(crate) mod tests {
             d
         }
         /// Whether `a` is `x` or one of its ancestors.
-        pub fn covers(&self, a: u32, mut x: u32) -> bool {
-            let da = self.depth(a);
-            while self.depth(x) > da {
+        pub fn covers(&self, a: u32, x: u32) -> bool {
+            let _ = (self.depth(a), self.depth(x));
+            let ((pa, size), (px, _)) = (self.order[a as usize], self.order[x as usize]);
+            pa <= px && px < pa + size
+        }
+        /// The lowest common ancestor of `nodes` (`None` when empty): that
+        /// of the first and the last of them in depth-first order.
+        pub fn lca(&self, nodes: &[u32]) -> Option<u32> {
+            let place = |&n: &u32| {
+                let _ = self.depth(n);
+                self.order[n as usize].0
+            };
+            let mut a = nodes.iter().copied().min_by_key(place)?;
+            let mut x = nodes.iter().copied().max_by_key(place)?;
+            while self.depth(x) > self.depth(a) {
                 x = self.up[x as usize].0;
             }
-            x == a
-        }
-        /// The lowest common ancestor of `nodes` (`None` when empty).
-        pub fn lca(&self, nodes: &[u32]) -> Option<u32> {
-            let mut a = *nodes.first()?;
-            for &x in &nodes[1..] {
-                let mut x = x;
-                while self.depth(x) > self.depth(a) {
-                    x = self.up[x as usize].0;
-                }
-                while self.depth(a) > self.depth(x) {
-                    a = self.up[a as usize].0;
-                }
-                while a != x {
-                    a = self.up[a as usize].0;
-                    x = self.up[x as usize].0;
-                }
+            while self.depth(a) > self.depth(x) {
+                a = self.up[a as usize].0;
+            }
+            while a != x {
+                a = self.up[a as usize].0;
+                x = self.up[x as usize].0;
             }
             Some(a)
         }
