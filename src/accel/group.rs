@@ -22,7 +22,7 @@
 use super::slot::Slot;
 use crate::geom::lane::mask_from_bits;
 use crate::geom::triangle::TriHit;
-use crate::geom::{F4, Hit4, M4, Ray4, RayLanes, TriangleTest, Wide};
+use crate::geom::{Cull, F4, Hit4, M4, Ray4, RayLanes, TriangleTest, Wide};
 
 /// `L::G` consecutive quads joined into `L`-wide lanes, with their
 /// triangle-test precomputation.
@@ -98,15 +98,17 @@ pub(crate) fn quads_in(bits: u32) -> u32 {
     (0..8).filter(|k| bits >> (4 * k) & 15 != 0).count() as u32
 }
 
-/// Triangle `prim` against the lanes `bits` of `grp`: the test's result
-/// and the lane bits that hit.
+/// Triangle `prim` against the lanes `bits` of `grp`, without its `cull`
+/// side (`Cull::apply`): the test's result and the lane bits that hit.
 #[inline(always)]
 pub(crate) fn test<L: Wide, T: TriangleTest>(
     grp: &Group<L, T>,
     prim: &T::Prim,
     bits: u32,
+    cull: Cull,
 ) -> (TriHit<L>, u32) {
-    let h = T::intersect(&grp.r, &grp.pre, prim);
+    let mut h = T::intersect(&grp.r, &grp.pre, prim);
+    cull.apply::<T, L>(&grp.r.dir, prim, &mut h);
     let hb = L::mask_bits(h.mask) & bits;
     (h, hb)
 }

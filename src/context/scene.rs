@@ -514,13 +514,13 @@ impl<'a> Context<'a> {
         let RayControls { mask, cull } = ctl;
         let mut ctr = Counters::default();
         let Some(p) = p else {
-            // One dispatch on the test and culling, not one per ray.
-            with_test!(v.info.test, cull, |T| for i in 0..count {
+            // One dispatch on the test, not one per ray.
+            with_test!(v.info.test, |T| for i in 0..count {
                 let r = rays.ray(i);
                 let h = if any {
-                    traverse_single::any_hit::<T>(&v, &r, mask, &mut ctr)
+                    traverse_single::any_hit::<T>(&v, &r, ctl, &mut ctr)
                 } else {
-                    traverse_single::intersect::<T>(&v, &r, mask, &mut ctr)
+                    traverse_single::intersect::<T>(&v, &r, ctl, &mut ctr)
                 };
                 out(i, &[h]);
             });
@@ -557,16 +557,16 @@ impl<'a> Context<'a> {
                 any,
             );
         }
-        // The geometries' traversal (method, triangle test, culling, lane
-        // width) chosen once for the call.
-        let blas: Tracing<BvhView<'_>> = Tracing::culled(v.info.test, cull, p, any);
+        // The geometries' traversal (method, triangle test, lane width)
+        // chosen once for the call; culling is the views' (`BvhView::cull`).
+        let blas: Tracing<BvhView<'_>> = Tracing::of_test(v.info.test, p, any);
         let g = blas.as_fn();
         let c = &mut ctr;
         let trace = |q: &[Ray4], a: &[M4], h: &mut [SceneHit], sl: &mut Slot<'_>| {
             if any {
-                traverse_packet::trace::<true>(&v, p, g, q, a, mask, h, sl, c)
+                traverse_packet::trace::<true>(&v, p, g, q, a, ctl, h, sl, c)
             } else {
-                traverse_packet::trace::<false>(&v, p, g, q, a, mask, h, sl, c)
+                traverse_packet::trace::<false>(&v, p, g, q, a, ctl, h, sl, c)
             }
         };
         let per = packet_rays(p);

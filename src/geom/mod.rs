@@ -17,7 +17,7 @@ pub use ray::{Hit, Hit4, INVALID_ID, Ray, Ray4, closer};
 pub use scene::{Excluded, Scene};
 pub(crate) use triangle::with_test;
 pub use triangle::{
-    Cull, Culled, Mt, ProjTri, Pt, RayLanes, TriStore, TriTest, TriVerts, TriangleTest, Wt,
+    Cull, Mt, ProjTri, Pt, RayLanes, TriStore, TriTest, TriVerts, TriangleTest, Wt,
 };
 pub use wide::{F8, F16, Wide};
 pub use xform::Affine;

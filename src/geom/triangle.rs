@@ -55,10 +55,9 @@ pub enum TriTest {
 }
 
 /// `$body` with `$T` the triangle-test type `$test` (a `TriTest`) names
-/// (`Mt`, `Wt`, `Pt`), and with a `Cull` as well, that test culled as it
-/// says (`Culled`): the one match on the triangle test and culling between
-/// a call and a traversal, so each traversal is compiled once per test
-/// and culling and picked once per call.
+/// (`Mt`, `Wt`, `Pt`): the one match on the triangle test between a call
+/// and a traversal, so each traversal is compiled once per test and picked
+/// once per call (culling is a run-time value: `Cull::apply`).
 macro_rules! with_test {
     ($test:expr, |$T:ident| $body:expr) => {
         match $test {
@@ -72,35 +71,6 @@ macro_rules! with_test {
             }
             $crate::geom::TriTest::Projection => {
                 type $T = $crate::geom::Pt;
-                $body
-            }
-        }
-    };
-    ($test:expr, $cull:expr, |$T:ident| $body:expr) => {
-        match $test {
-            $crate::geom::TriTest::MollerTrumbore => {
-                $crate::geom::with_test!(@cull $cull, $crate::geom::Mt, |$T| $body)
-            }
-            $crate::geom::TriTest::Watertight => {
-                $crate::geom::with_test!(@cull $cull, $crate::geom::Wt, |$T| $body)
-            }
-            $crate::geom::TriTest::Projection => {
-                $crate::geom::with_test!(@cull $cull, $crate::geom::Pt, |$T| $body)
-            }
-        }
-    };
-    (@cull $cull:expr, $U:ty, |$T:ident| $body:expr) => {
-        match $cull {
-            $crate::geom::Cull::None => {
-                type $T = $U;
-                $body
-            }
-            $crate::geom::Cull::Back => {
-                type $T = $crate::geom::Culled<$U, false>;
-                $body
-            }
-            $crate::geom::Cull::Front => {
-                type $T = $crate::geom::Culled<$U, true>;
                 $body
             }
         }
@@ -424,7 +394,7 @@ pub trait TriangleTest: Copy + Default + Send + Sync + 'static {
     /// `dir` dotted with triangle `tri`'s winding normal, up to a positive
     /// factor: negative when the ray meets its front (the side its
     /// counter-clockwise winding `(v1 - v0) x (v2 - v0)` faces), positive
-    /// at its back (`Culled`).
+    /// at its back (`Cull::apply`).
     fn facing<L: Lane>(dir: &[L; 3], tri: &Self::Prim) -> L;
     /// The precomputation of a group of quads (`Wide::join`) from each
     /// quad's: the same values, lane for lane.
@@ -604,72 +574,54 @@ pub enum Cull {
     Front = 2,
 }
 
-/// Test `T` skipping one side of every triangle: back faces
-/// (`FRONT == false`) or front faces. A lane hits when `T` hits and
-/// `T::facing` is strictly on the kept side, so a ray in the triangle's
-/// plane never hits a culled test. The same operations in every lane
-/// width, so packets stay bitwise their single ray.
-///
-/// # Deviations
-/// The side is computed apart from the test's own determinant: where the
-/// winding normal overflows f32 (triangles of coordinates beyond about
-/// 1e19) or the facing product underflows to 0 or turns NaN, a hit is
-/// culled on both sides.
-#[derive(Clone, Copy, Debug, Default)]
-pub struct Culled<T, const FRONT: bool>(core::marker::PhantomData<T>);
-
-impl<T: TriangleTest, const FRONT: bool> Culled<T, FRONT> {
-    /// Lanes whose facing value is on the kept side.
+impl Cull {
+    /// Lanes whose facing value (`TriangleTest::facing`) is on the kept
+    /// side: strictly, so a ray in the triangle's plane never hits a culled
+    /// test.
     #[inline(always)]
-    fn kept<L: Lane>(f: L) -> L::Mask {
+    fn kept<L: Lane>(self, f: L) -> L::Mask {
         let zero = L::splat(0.0);
-        if FRONT { zero.lt(f) } else { f.lt(zero) }
-    }
-}
-
-impl<T: TriangleTest, const FRONT: bool> TriangleTest for Culled<T, FRONT> {
-    type Pre<L: Lane> = T::Pre<L>;
-    type Prim = T::Prim;
-    const KIND: TriTest = T::KIND;
-    #[inline(always)]
-    fn prim<'r>(s: TriStore<'r>, i: usize) -> &'r T::Prim {
-        T::prim(s, i)
-    }
-    #[inline(always)]
-    fn prepare<L: Lane>(r: &RayLanes<L>) -> T::Pre<L> {
-        T::prepare(r)
-    }
-    #[inline(always)]
-    fn intersect<L: Lane>(r: &RayLanes<L>, pre: &T::Pre<L>, tri: &T::Prim) -> TriHit<L> {
-        let mut h = T::intersect(r, pre, tri);
-        if L::any(h.mask) {
-            h.mask = h.mask & Self::kept(T::facing(&r.dir, tri));
+        if self == Cull::Front {
+            zero.lt(f)
+        } else {
+            f.lt(zero)
         }
-        h
     }
+
+    /// `h`, triangle `tri`'s test result for rays of direction `dir`,
+    /// without the lanes that met the culled side. The same operations in
+    /// every lane width, so packets stay bitwise their single ray. Culling
+    /// is a run-time value, not a type: each traversal is compiled once per
+    /// triangle test, and the check runs only when some lane hit.
+    ///
+    /// # Deviations
+    /// The side is computed apart from the test's own determinant: where
+    /// the winding normal overflows f32 (triangles of coordinates beyond
+    /// about 1e19) or the facing product underflows to 0 or turns NaN, a
+    /// hit is culled on both sides.
     #[inline(always)]
-    fn facing<L: Lane>(dir: &[L; 3], tri: &T::Prim) -> L {
-        T::facing(dir, tri)
+    pub fn apply<T: TriangleTest, L: Lane>(self, dir: &[L; 3], tri: &T::Prim, h: &mut TriHit<L>) {
+        if self != Cull::None && L::any(h.mask) {
+            h.mask = h.mask & self.kept(T::facing(dir, tri));
+        }
     }
+
+    /// `apply` for `TriangleTest::intersect_tri4`'s result: one ray (`r`,
+    /// splatted) against stored triangles `i[0..4]`, one per lane, each
+    /// lane's facing the scalar one.
     #[inline(always)]
-    fn join_pre<W: Wide>(pre: impl Fn(usize) -> T::Pre<F4>) -> T::Pre<W> {
-        T::join_pre(pre)
-    }
-    #[inline(always)]
-    fn intersect_tri4(
+    pub fn apply4<T: TriangleTest>(
+        self,
         r: &RayLanes<F4>,
-        pre: &T::Pre<F4>,
         s: TriStore<'_>,
         i: [usize; 4],
-    ) -> TriHit<F4> {
-        let mut h = T::intersect_tri4(r, pre, s, i);
-        if F4::any(h.mask) {
-            // One ray in every lane: each lane's facing is the scalar one.
+        h: &mut TriHit<F4>,
+    ) {
+        if self != Cull::None && F4::any(h.mask) {
             let d = r.dir.map(|x| x.x);
             let f = F4::from_array(i.map(|k| T::facing::<f32>(&d, T::prim(s, k))));
-            h.mask &= Self::kept(f);
+            h.mask &= self.kept(f);
         }
-        h
     }
 }
 

@@ -17,7 +17,7 @@ use crate::accel::slot::Slot;
 use crate::accel::{Accel, method::Method, method::Structure, method::TraceParams};
 use crate::counters::Counters;
 use crate::error::{Error, Result};
-use crate::geom::{Cull, Hit, Hit4, M4, Ray, Ray4, TriTest, TriVerts, TriangleTest, with_test};
+use crate::geom::{Hit, Hit4, M4, Ray, Ray4, TriTest, TriVerts, TriangleTest, with_test};
 
 /// Slot scratch `batch_on` holds while its kernel runs: one packet's
 /// quads, lane masks and hits, for packets of up to `q` quads.
@@ -162,10 +162,10 @@ fn tracing_of<A: Accel>(a: &A, p: &TraceParams, any: bool) -> Tracing<A> {
 
 impl<'r> Tracing<BvhView<'r>> {
     /// The choice `tracing_of` makes, on BVHs built with triangle test
-    /// `test`, with back- or front-face culling `cull` (only BVHs cull:
-    /// the two-level scene's geometries, `Context::trace_scene_each`).
-    pub fn culled(test: TriTest, cull: Cull, p: &TraceParams, any: bool) -> Self {
-        with_test!(test, cull, |T| Tracing::either::<T>(p, any))
+    /// `test` (the two-level scene's geometries, `Context::trace_scene_each`;
+    /// their views carry the call's culling, `BvhView::cull`).
+    pub fn of_test(test: TriTest, p: &TraceParams, any: bool) -> Self {
+        with_test!(test, |T| Tracing::either::<T>(p, any))
     }
 }
 

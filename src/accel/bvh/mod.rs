@@ -61,7 +61,7 @@ use crate::error::Result;
 /// packets use them too.
 pub use crate::geom::frustum;
 pub use crate::geom::frustum::RayKind;
-use crate::geom::{Aabb, Hit, ProjTri, Ray, TriTest, TriVerts, TriangleTest};
+use crate::geom::{Aabb, Cull, Hit, ProjTri, Ray, TriTest, TriVerts, TriangleTest};
 use crate::mem::{Carve, TOO_BIG, when};
 use bytemuck::{Pod, Zeroable};
 
@@ -372,6 +372,10 @@ pub struct BvhView<'r> {
     pub slot_of: &'r [u32],
     /// The 4-wide tree (empty when there is none: see `BvhInfo::wide_nodes`).
     pub wide: &'r [wide::WideNode],
+    /// The side of every triangle a ray may not hit (`Cull::apply` after
+    /// each triangle test): none, but for the two-level scene's geometries
+    /// when the call culls (`culled`).
+    pub cull: Cull,
 }
 
 /// The reference pool as wide nodes (4 references per node; both are
@@ -516,7 +520,14 @@ impl<'r> BvhView<'r> {
             tri_ids: &tri_ids[..n],
             slot_of: &slot_of[..info.triangles_in as usize],
             wide: &wide_view(refs)[..info.wide_nodes as usize],
+            cull: Cull::None,
         }
+    }
+
+    /// This view with triangles' `cull` side skipped.
+    #[inline(always)]
+    pub fn culled(self, cull: Cull) -> Self {
+        BvhView { cull, ..self }
     }
 
     /// The stored triangles, as every triangle test reads them.

@@ -658,7 +658,7 @@ impl<'s, T: TriangleTest> Packet<'s, T> {
             r: RayLanes::<L>::join(|k| &rays[q(k)]),
             pre: T::join_pre::<L>(|k| self.pre[q(k)]),
         };
-        let (h, hb) = group::test(&grp, T::prim(b.store(), i), bits);
+        let (h, hb) = group::test(&grp, T::prim(b.store(), i), bits, b.cull);
         group::each_hit(&h, hb, |k, m, hit| {
             self.take::<ANY>(hits, q(k), m, hit, id);
         });
@@ -688,7 +688,7 @@ impl<'s, T: TriangleTest> Packet<'s, T> {
             return;
         }
         ctr.tri_at(depth, bits.count_ones() as u64);
-        let (h, hb) = group::test(grp, T::prim(b.store(), i), bits);
+        let (h, hb) = group::test(grp, T::prim(b.store(), i), bits, b.cull);
         let g0 = g * L::G;
         group::each_hit(&h, hb, |k, m, hit| {
             self.take::<ANY>(hits, g0 + k, m, hit, id);

@@ -1526,7 +1526,7 @@ fn leaf_group<L: Wide, T: TriangleTest, const ANY: bool>(
     let mut took = false;
     for j in first..first + count {
         ctr.tri_at(depth, bits.count_ones() as u64);
-        let (h, hb) = group::test(&lv.grp[g], T::prim(b.store(), j), bits);
+        let (h, hb) = group::test(&lv.grp[g], T::prim(b.store(), j), bits, b.cull);
         if hb == 0 {
             continue;
         }

@@ -218,7 +218,9 @@ fn walk<T: TriangleTest, const ANY: bool>(
             let mut live_n = live.bitmask().count_ones() as u64;
             for i in first..first + n.count() as usize {
                 ctr.tri_at(depth, live_n);
-                let h = T::intersect(&lanes, &pre, T::prim(b.store(), i));
+                let tri = T::prim(b.store(), i);
+                let mut h = T::intersect(&lanes, &pre, tri);
+                b.cull.apply::<T, F4>(&lanes.dir, tri, &mut h);
                 let hm = h.mask & live;
                 if hm.any() {
                     let id = b.tri_ids[i];

@@ -192,7 +192,9 @@ pub(crate) fn leaf<T: TriangleTest, const ANY: bool>(
     let first = first as usize;
     for i in first..first + count as usize {
         ctr.tri_at(depth, 1);
-        let h = T::intersect(lanes, pre, T::prim(b.store(), i));
+        let tri = T::prim(b.store(), i);
+        let mut h = T::intersect(lanes, pre, tri);
+        b.cull.apply::<T, f32>(&lanes.dir, tri, &mut h);
         if h.mask && take(best, h.t, b.tri_ids[i], h.u, h.v) && ANY {
             return true;
         }
@@ -234,7 +236,8 @@ pub(crate) fn leaf4<T: TriangleTest, const ANY: bool>(
     while g < end {
         let idx = core::array::from_fn(|k| (g + k).min(end - 1));
         ctr.tri_at(depth, (end - g).min(4) as u64);
-        let h = T::intersect_tri4(lanes4, pre4, b.store(), idx);
+        let mut h = T::intersect_tri4(lanes4, pre4, b.store(), idx);
+        b.cull.apply4::<T>(lanes4, b.store(), idx, &mut h);
         let mut m = h.mask.bitmask();
         if m != 0 {
             let (t, u, v) = (h.t.to_array(), h.u.to_array(), h.v.to_array());

@@ -482,7 +482,7 @@ fn packet<L: Wide, T: TriangleTest, const ANY: bool>(
                             // The budget counts quad tests, at any width.
                             work += group::quads_in(bits);
                             count!(ctr.tri_tests += bits.count_ones() as u64);
-                            let (h, hb) = group::test(gr, prim, bits);
+                            let (h, hb) = group::test(gr, prim, bits, crate::geom::Cull::None);
                             group::each_hit(&h, hb, |k, hm, hit| {
                                 let q = gi * L::G + k;
                                 let take = group::take::<ANY>(&mut hits[q], hm, hit, id);

@@ -716,7 +716,7 @@ fn walk<L: Wide, T: TriangleTest, const ANY: bool, const Q: usize>(
                         continue;
                     }
                     ctr.tri_at(depth, bits.count_ones() as u64);
-                    let (h, hb) = group::test(&grp[gi], prim, bits);
+                    let (h, hb) = group::test(&grp[gi], prim, bits, crate::geom::Cull::None);
                     group::each_hit(&h, hb, |kq, hm, hit| {
                         let q = (gi * L::G + kq) & (Q - 1);
                         if ANY {

@@ -163,7 +163,7 @@ fn walk<L: Wide, T: TriangleTest>(
                         continue;
                     }
                     count!(ctr.tri_tests += bits.count_ones() as u64);
-                    let (h, hb) = group::test(&grp[gi], prim, bits);
+                    let (h, hb) = group::test(&grp[gi], prim, bits, crate::geom::Cull::None);
                     group::each_hit(&h, hb, |k, hm, hit| {
                         group::take::<false>(&mut hits[gi * L::G + k], hm, hit, tri);
                     });

@@ -176,7 +176,7 @@ fn walk<L: Wide, T: TriangleTest>(
                 }
                 let bits = group::lane_bits::<L>(gi, sel, |q| live[q]);
                 count!(ctr.tri_tests += bits.count_ones() as u64);
-                let (h, hb) = group::test(gr, prim, bits);
+                let (h, hb) = group::test(gr, prim, bits, crate::geom::Cull::None);
                 group::each_hit(&h, hb, |k, hm, _| {
                     let q = gi * L::G + k;
                     occluded[q] |= hm;

@@ -821,13 +821,13 @@ mod tests {
         for (k, ray) in rays.iter().enumerate() {
             for mask in [!0u32, 1, 2] {
                 let want = every_instance::<T>(v, ray, mask);
-                let got = intersect::<T>(v, ray, mask, &mut ctr);
+                let got = intersect::<T>(v, ray, mask.into(), &mut ctr);
                 assert!(
                     same(&got, &want),
                     "ray {k} {ray:?} mask {mask}: {got:?} want {want:?}"
                 );
                 assert_eq!(
-                    occluded::<T>(v, ray, mask, &mut ctr),
+                    occluded::<T>(v, ray, mask.into(), &mut ctr),
                     want.is_hit(),
                     "ray {k}"
                 );
@@ -949,7 +949,7 @@ mod tests {
                 continue;
             }
             let want = traverse_single::intersect::<Mt>(&bv, &ray, &mut ctr);
-            let got = intersect::<Mt>(&v, &ray, !0, &mut ctr);
+            let got = intersect::<Mt>(&v, &ray, RayControls::default(), &mut ctr);
             assert_eq!(got.is_hit(), want.is_hit(), "{ray:?}");
             if want.is_hit() {
                 assert_eq!(
@@ -1025,8 +1025,8 @@ mod tests {
         let mut ctr = Counters::default();
         for ray in test_rays(&world_tris(&v, &ms), &[], 5) {
             let (x, y) = (
-                intersect::<Mt>(&v, &ray, !0, &mut ctr),
-                intersect::<Mt>(&fv, &ray, !0, &mut ctr),
+                intersect::<Mt>(&v, &ray, RayControls::default(), &mut ctr),
+                intersect::<Mt>(&fv, &ray, RayControls::default(), &mut ctr),
             );
             assert!(same(&x, &y), "{ray:?}: refit {x:?} fresh {y:?}");
         }
@@ -1166,7 +1166,9 @@ mod tests {
         assert_eq!(info.instances, 0);
         let mut ctr = Counters::default();
         let ray = Ray::new(glam::Vec3::ZERO, glam::Vec3::X, 0.0, f32::INFINITY);
-        assert!(!intersect::<Mt>(&s.view().unwrap(), &ray, !0, &mut ctr).is_hit());
+        assert!(
+            !intersect::<Mt>(&s.view().unwrap(), &ray, RayControls::default(), &mut ctr).is_hit()
+        );
     }
 
     /// Fuzz run 8's review: a set in place with the projection test but no
@@ -1198,7 +1200,7 @@ mod tests {
             let v = s.view().expect("still committed");
             let mut ctr = Counters::default();
             rays.iter()
-                .map(|r| intersect::<Mt>(&v, r, !0, &mut ctr))
+                .map(|r| intersect::<Mt>(&v, r, RayControls::default(), &mut ctr))
                 .collect()
         };
         let before = answers(&s);
@@ -1374,8 +1376,8 @@ mod tests {
                         let d = glam::Vec3::new(r.range(-0.6, 0.6), r.range(-0.6, 0.6), 1.0);
                         let ray = Ray::new(o, d, 0.0, f32::INFINITY);
                         let (x, y) = (
-                            intersect::<Mt>(&v, &ray, !0, &mut ctr),
-                            intersect::<Mt>(&fv, &ray, !0, &mut ctr),
+                            intersect::<Mt>(&v, &ray, RayControls::default(), &mut ctr),
+                            intersect::<Mt>(&fv, &ray, RayControls::default(), &mut ctr),
                         );
                         assert!(same(&x, &y), "step {step}: {x:?} fresh {y:?}");
                     }
@@ -1512,7 +1514,7 @@ mod tests {
             let mut ctr = Counters::default();
             test_rays(&world_tris(&v, &m), &[], 11)
                 .iter()
-                .map(|r| intersect::<Mt>(&v, r, !0, &mut ctr))
+                .map(|r| intersect::<Mt>(&v, r, RayControls::default(), &mut ctr))
                 .collect()
         };
         assert!(s.regions.largest_gap() < s.regions.capacity() - s.regions.taken());
@@ -1528,7 +1530,13 @@ mod tests {
         let rays = test_rays(&world_tris(&v, &m), &[], 11);
         assert!(before.iter().filter(|h| h.is_hit()).count() > 100);
         for (r, want) in rays.iter().zip(&before) {
-            assert!(same(&intersect::<Mt>(&v, r, !0, &mut ctr), want), "{r:?}");
+            assert!(
+                same(
+                    &intersect::<Mt>(&v, r, RayControls::default(), &mut ctr),
+                    want
+                ),
+                "{r:?}"
+            );
         }
         assert!(check::<Mt>(&v, &m, 12) > 100);
     }

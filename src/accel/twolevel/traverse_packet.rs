@@ -52,9 +52,9 @@
 //! - Counters: one box test for the root, two per inner node (both
 //!   children at once), and one per quad at an instance, not per lane.
 
-use super::TwoLevelView;
 use super::build::MAX_TOP_DEPTH;
 use super::traverse_single::SceneHit;
+use super::{RayControls, TwoLevelView};
 use crate::accel::bvh::BvhNode;
 use crate::accel::bvh::BvhView;
 use crate::accel::bvh::packet::{LaneBounds, QuadBox};
@@ -80,13 +80,14 @@ pub const fn scratch(q: usize) -> usize {
 }
 
 /// Trace the active lanes of `rays` (at most `MAX_QUADS` quads) with
-/// `p.method` among instances whose mask shares a bit with `mask`: hit
+/// `p.method` among instances whose mask shares a bit with `ctl.mask`,
+/// without the triangle side `ctl.cull`: hit
 /// `4 q + i` of `hits` is lane `i` of quad `q`'s nearest hit, or with
 /// `ANY` some hit. Active lanes of `hits` must come in as misses. `blas`
 /// traces each instance's packet in its geometry's BVH (the trace call's
-/// kernel for `p.method` with the scene's triangle test and culling,
-/// chosen once per call: `trace::scene::Tracing`).
-#[allow(clippy::too_many_arguments)] // the packet contract's arguments, the geometries' traversal and the mask
+/// kernel for `p.method` with the scene's triangle test, chosen once per
+/// call: `trace::scene::Tracing`; the view it gets culls `ctl.cull`).
+#[allow(clippy::too_many_arguments)] // the packet contract's arguments, the geometries' traversal and the ray controls
 pub fn trace<'v, const ANY: bool>(
     s: &TwoLevelView<'v>,
     p: &TraceParams,
@@ -101,7 +102,7 @@ pub fn trace<'v, const ANY: bool>(
     ),
     rays: &[Ray4],
     active: &[M4],
-    mask: u32,
+    ctl: RayControls,
     hits: &mut [SceneHit],
     slot: &mut Slot<'_>,
     ctr: &mut Counters,
@@ -186,7 +187,7 @@ pub fn trace<'v, const ANY: bool>(
         }
         let id = s.order[n.first as usize];
         let inst = &s.insts[id as usize];
-        let Some(g) = s.visible(inst, mask) else {
+        let Some(g) = s.visible(inst, ctl.mask).map(|g| g.culled(ctl.cull)) else {
             continue;
         };
         // The lanes that enter the instance's box by their far end (the

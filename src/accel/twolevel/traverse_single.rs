@@ -17,7 +17,7 @@
 //! # Deviations
 //! - Counters count the top level's box tests and each geometry walk's.
 
-use super::TwoLevelView;
+use super::{RayControls, TwoLevelView};
 use crate::accel::bvh::traverse_single::RayBox;
 use crate::accel::bvh::{BvhNode, traverse_wide};
 use crate::counters::Counters;
@@ -99,14 +99,15 @@ pub(crate) fn object_ray(inv: &crate::geom::Affine, ray: &Ray, best: f32) -> Ray
 }
 
 /// The nearest hit of `ray` among instances whose mask, and whose
-/// geometry's, shares a bit with `mask` (a miss for invalid rays).
+/// geometry's, shares a bit with `ctl.mask`, without the triangle side
+/// `ctl.cull` (a miss for invalid rays).
 pub fn intersect<T: TriangleTest>(
     s: &TwoLevelView<'_>,
     ray: &Ray,
-    mask: u32,
+    ctl: RayControls,
     ctr: &mut Counters,
 ) -> SceneHit {
-    walk::<T, false>(s, ray, mask, ctr)
+    walk::<T, false>(s, ray, ctl, ctr)
 }
 
 /// Whether anything blocks `ray` in `[tmin, tmax)` (instances as in
@@ -114,26 +115,26 @@ pub fn intersect<T: TriangleTest>(
 pub fn occluded<T: TriangleTest>(
     s: &TwoLevelView<'_>,
     ray: &Ray,
-    mask: u32,
+    ctl: RayControls,
     ctr: &mut Counters,
 ) -> bool {
-    any_hit::<T>(s, ray, mask, ctr).is_hit()
+    any_hit::<T>(s, ray, ctl, ctr).is_hit()
 }
 
 /// Some hit of `ray` in `[tmin, tmax)` (the first found), or a miss.
 pub fn any_hit<T: TriangleTest>(
     s: &TwoLevelView<'_>,
     ray: &Ray,
-    mask: u32,
+    ctl: RayControls,
     ctr: &mut Counters,
 ) -> SceneHit {
-    walk::<T, true>(s, ray, mask, ctr)
+    walk::<T, true>(s, ray, ctl, ctr)
 }
 
 fn walk<T: TriangleTest, const ANY: bool>(
     s: &TwoLevelView<'_>,
     ray: &Ray,
-    mask: u32,
+    ctl: RayControls,
     ctr: &mut Counters,
 ) -> SceneHit {
     let mut best = SceneHit::MISS;
@@ -187,7 +188,7 @@ fn walk<T: TriangleTest, const ANY: bool>(
         } else {
             let id = s.order[n.first as usize];
             let inst = &s.insts[id as usize];
-            if let Some(g) = s.visible(inst, mask) {
+            if let Some(g) = s.visible(inst, ctl.mask).map(|g| g.culled(ctl.cull)) {
                 let r = object_ray(&inst.inverse, ray, best.t);
                 let h: Hit = traverse_wide::walk::<T, ANY>(&g, &r, ctr);
                 if h.is_hit() && best.closer(h.t, id, h.prim) {
