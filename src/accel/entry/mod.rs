@@ -568,6 +568,7 @@ pub(crate) mod tests {
         }
         /// Whether `a` is `x` or one of its ancestors.
         pub fn covers(&self, a: u32, x: u32) -> bool {
+            // `depth` asserts both were reached.
             let _ = (self.depth(a), self.depth(x));
             let ((pa, size), (px, _)) = (self.order[a as usize], self.order[x as usize]);
             pa <= px && px < pa + size

@@ -676,15 +676,16 @@ impl<'r> TwoLevelView<'r> {
         self.insts.get(id as usize).filter(|i| i.live != 0)
     }
 
-    /// The BVH of instance `inst`'s geometry when a ray of `mask` sees
-    /// it: its mask and its geometry's both share a bit with `mask`.
+    /// The BVH of instance `inst`'s geometry when a ray of `ctl` sees it
+    /// (its mask and its geometry's both share a bit with `ctl.mask`),
+    /// culling `ctl.cull` (`BvhView::cull`).
     #[inline]
-    pub fn visible(&self, inst: &Instance, mask: u32) -> Option<BvhView<'r>> {
+    pub fn visible(&self, inst: &Instance, ctl: RayControls) -> Option<BvhView<'r>> {
         let g = self.geoms.get(inst.geometry as usize)?;
-        if inst.mask & mask == 0 || g.mask & mask == 0 {
+        if inst.mask & ctl.mask == 0 || g.mask & ctl.mask == 0 {
             return None;
         }
-        self.geometry(inst.geometry)
+        Some(self.geometry(inst.geometry)?.culled(ctl.cull))
     }
 
     /// Geometry `id`'s BVH (`None`: not set or never built).
