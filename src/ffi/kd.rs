@@ -2,6 +2,7 @@
 //! the kd-tree (AEPSA paper section 5.1) and the entry-point searches its
 //! and the BVH's packets may run first.
 
+use super::bvh::sheaf_build_quality;
 use super::context::{sheaf_context, with_mut};
 use super::grid::sheaf_tri_test;
 use super::{check_non_null, guard_free, raw, read_in, sheaf_status, write_out};
@@ -21,6 +22,13 @@ pub struct sheaf_kd_params {
     pub empty_bonus: f32,
     /// Ray-triangle test of every traversal of this tree (a `sheaf_tri_test`).
     pub test: raw::sheaf_tri_test,
+    /// Which build (a `sheaf_build_quality`): MEDIUM (the default) the
+    /// binned SAH build with perfect splits, LOW the same with clipped
+    /// boxes, both joined by `sheaf_context_build_kd_joined`'s threads;
+    /// HIGH the exact O(N log N) sweep on one thread.
+    pub quality: raw::sheaf_build_quality,
+    /// SAH bins per axis of LOW and MEDIUM (2..=64, default 32).
+    pub bins: u32,
 }
 
 impl sheaf_kd_params {
@@ -30,6 +38,8 @@ impl sheaf_kd_params {
             traversal_cost: p.traversal_cost,
             empty_bonus: p.empty_bonus,
             test: sheaf_tri_test::of(p.test) as u32,
+            quality: sheaf_build_quality::of(p.quality) as u32,
+            bins: p.bins,
         }
     }
     /// The checked crate value.
@@ -39,6 +49,8 @@ impl sheaf_kd_params {
             traversal_cost: self.traversal_cost,
             empty_bonus: self.empty_bonus,
             test: sheaf_tri_test::to_core(self.test)?,
+            quality: sheaf_build_quality::to_core(self.quality)?,
+            bins: self.bins,
         };
         p.validate()?;
         Ok(p)
@@ -100,6 +112,8 @@ mod tests {
             traversal_cost: 1.5,
             empty_bonus: 0.1,
             test: TriTest::Watertight,
+            quality: crate::BuildQuality::High,
+            bins: 8,
         };
         assert_eq!(sheaf_kd_params::of(&p).to_core(), Ok(p));
         assert!(
@@ -118,6 +132,22 @@ mod tests {
             .to_core()
             .is_err()
         );
+        for bad in [
+            sheaf_kd_params {
+                quality: 3,
+                ..sheaf_kd_params::of(&p)
+            },
+            sheaf_kd_params {
+                bins: 1,
+                ..sheaf_kd_params::of(&p)
+            },
+            sheaf_kd_params {
+                bins: 65,
+                ..sheaf_kd_params::of(&p)
+            },
+        ] {
+            assert!(bad.to_core().is_err());
+        }
         assert!(
             sheaf_kd_params {
                 empty_bonus: 1.0,

@@ -36,10 +36,12 @@
 //! - When the node, reference or event pool cannot hold a split the SAH
 //!   wants, the node becomes a leaf and `KdInfo::forced_leaves` counts it.
 
-use super::{KdInfo, KdNode, KdParams, KdTree, MAX_DEPTH, ROOT_PAD};
+use super::{KdInfo, KdNode, KdParams, KdPools, KdTree, MAX_DEPTH, ROOT_PAD};
+use crate::accel::bvh::BuildQuality;
 use crate::error::{Error, Pool, Result};
 use crate::geom::{Aabb, Excluded, INVALID_ID, ProjTri, Scene, TriTest, TriVerts};
 use crate::math;
+use crate::mem::par::{MAX_WORKERS, Par, Parts, Serial, workers_of};
 use glam::Vec3;
 
 /// Events per stored triangle (start and end on each axis).
@@ -91,7 +93,7 @@ fn ev_slot(e: u64) -> usize {
     (e & SLOT_MASK) as usize
 }
 #[inline(always)]
-fn half_area(b: &Aabb) -> f32 {
+pub(super) fn half_area(b: &Aabb) -> f32 {
     let d = (b.max - b.min).max(Vec3::ZERO);
     d.x * d.y + d.y * d.z + d.z * d.x
 }
@@ -128,7 +130,7 @@ fn merge(
 
 /// The box of triangle `t` clipped to box `b` (Sutherland-Hodgman in f64
 /// against the six planes), or `None` when they do not meet.
-fn clip_triangle(t: &TriVerts, b: &Aabb) -> Option<Aabb> {
+pub(super) fn clip_triangle(t: &TriVerts, b: &Aabb) -> Option<Aabb> {
     let mut poly = [[0.0f64; 3]; 10];
     let mut tmp = [[0.0f64; 3]; 10];
     for (p, v) in poly.iter_mut().zip([t.v0, t.v1, t.v2]) {
@@ -259,59 +261,131 @@ struct Tally {
     sah_leaf: f64,
 }
 
-/// Rebuild `kd` from `scene`. On error the previous build stays valid.
+/// Rebuild `kd` from `scene` on the calling thread. On error the previous
+/// build stays valid.
 pub fn build(kd: &mut KdTree<'_>, scene: &Scene<'_>, p: &KdParams) -> Result<KdInfo> {
+    build_with(kd, scene, p, &Serial)
+}
+
+/// Rebuild `kd` from `scene` by `p.quality`'s build, the binned ones on
+/// `par`'s workers (the tree is the same for any worker count; `High`
+/// runs on the calling thread). On error the previous build stays valid.
+pub fn build_with(
+    kd: &mut KdTree<'_>,
+    scene: &Scene<'_>,
+    p: &KdParams,
+    par: &dyn Par,
+) -> Result<KdInfo> {
     p.validate()?;
-    let n_in = scene.triangle_count();
-    let pools = kd.pools_mut();
-    let cap = |pool: Pool, needed: u64, available: usize| Error::Capacity {
-        pool,
-        needed,
+    let workers = workers_of(par)?;
+    let info = if p.quality == BuildQuality::High {
+        sweep(kd.pools_mut(), scene, p)?
+    } else {
+        super::build_binned::build(kd.pools_mut(), scene, p, par, workers)?
+    };
+    kd.set_info(Some(info));
+    Ok(info)
+}
+
+/// What one worker found in its share of the triangles.
+#[derive(Clone, Copy, Default)]
+struct Found {
+    valid: u32,
+    non_finite: u32,
+    zero_area: u32,
+    bounds: Option<Aabb>,
+}
+
+/// The stored triangles (step 1 of both builds).
+pub(super) struct Stored {
+    /// Stored triangles.
+    pub n: usize,
+    /// The counts, bounds, root box and parameters filled in.
+    pub info: KdInfo,
+    /// The padding of every reference box (`ROOT_PAD` of the scene's scale).
+    pub pad: Vec3,
+}
+
+/// Step 1 of both builds on `par`'s workers: classify the triangles (flags
+/// in `side`), check the pools (`fits(pools, n)` adds a build's own
+/// checks), then store the traceable triangles in caller order. Nothing a
+/// traversal reads is written before every check passed. With no
+/// traceable triangle the tree is one empty leaf, and `Ok(None)` says the
+/// build is done.
+pub(super) fn store(
+    pools: &mut KdPools<'_>,
+    scene: &Scene<'_>,
+    p: &KdParams,
+    par: &dyn Par,
+    workers: usize,
+    fits: impl FnOnce(&KdPools<'_>, usize) -> Result<()>,
+) -> Result<core::result::Result<Stored, KdInfo>> {
+    let n_in = scene.triangle_count() as usize;
+    let cap = |needed: usize, available: usize| Error::Capacity {
+        pool: Pool::Triangles,
+        needed: needed as u64,
         available: available as u64,
     };
-    if n_in as usize > pools.slot_of.len() {
-        return Err(cap(Pool::Triangles, n_in as u64, pools.slot_of.len()));
+    let room = pools.slot_of.len().min(pools.side.len());
+    if n_in > room {
+        return Err(cap(n_in, room));
     }
-
-    // 1. Count (nothing is written before every capacity is known to fit).
+    let mut found = [Found::default(); MAX_WORKERS];
+    {
+        let (fs, sd) = (
+            Parts::even(&mut found[..workers], workers),
+            Parts::even(&mut pools.side[..n_in], workers),
+        );
+        par.run(&|w| {
+            let (side, first) = (sd.get(w), sd.start(w));
+            let mut f = Found::default();
+            for (k, flag) in side.iter_mut().enumerate() {
+                let tri = scene.triangle((first + k) as u32);
+                *flag = match Scene::classify(&tri) {
+                    None => {
+                        let b = f.bounds.get_or_insert(Aabb::EMPTY);
+                        for v in [tri.v0, tri.v1, tri.v2] {
+                            b.grow(Vec3::from(v));
+                        }
+                        f.valid += 1;
+                        0
+                    }
+                    Some(Excluded::NonFinite) => {
+                        f.non_finite += 1;
+                        1
+                    }
+                    Some(Excluded::ZeroArea) => {
+                        f.zero_area += 1;
+                        2
+                    }
+                };
+            }
+            fs.get(w)[0] = f;
+        });
+    }
     let (mut n, mut bad_nf, mut bad_za) = (0usize, 0u32, 0u32);
     let mut bounds = Aabb::EMPTY;
-    for t in 0..n_in {
-        let tri = scene.triangle(t);
-        match Scene::classify(&tri) {
-            None => {
-                for v in [tri.v0, tri.v1, tri.v2] {
-                    bounds.grow(Vec3::from(v));
-                }
-                n += 1;
-            }
-            Some(Excluded::NonFinite) => bad_nf += 1,
-            Some(Excluded::ZeroArea) => bad_za += 1,
+    let mut start = [0usize; MAX_WORKERS + 1];
+    for (w, f) in found[..workers].iter().enumerate() {
+        n += f.valid as usize;
+        start[w + 1] = n;
+        bad_nf += f.non_finite;
+        bad_za += f.zero_area;
+        if let Some(b) = f.bounds {
+            bounds.grow(b.min);
+            bounds.grow(b.max);
         }
     }
     if n > MAX_TRIS as usize {
-        return Err(cap(Pool::Triangles, n as u64, MAX_TRIS as usize));
+        return Err(cap(n, MAX_TRIS as usize));
     }
-    for avail in [
-        pools.tris.len(),
-        pools.tri_ids.len(),
-        pools.side.len(),
-        pools.refs.len(),
-    ] {
+    for avail in [pools.tris.len(), pools.tri_ids.len(), pools.refs.len()] {
         if n > avail {
-            return Err(cap(Pool::Triangles, n as u64, avail));
+            return Err(cap(n, avail));
         }
     }
-    // (`Limits::validate` keeps these pools above the triangle count.)
-    if pools.events.len() < EVENTS_PER_TRI * n {
-        return Err(cap(
-            Pool::Triangles,
-            n as u64,
-            pools.events.len() / EVENTS_PER_TRI,
-        ));
-    }
     if pools.nodes.is_empty() {
-        return Err(cap(Pool::Triangles, n as u64, 0));
+        return Err(cap(n, 0));
     }
     let proj = p.test == TriTest::Projection;
     if proj && pools.proj.len() < n {
@@ -319,58 +393,106 @@ pub fn build(kd: &mut KdTree<'_>, scene: &Scene<'_>, p: &KdParams) -> Result<KdI
             "the projection test needs Limits::projection_test",
         ));
     }
+    fits(pools, n)?;
 
     // From here on nothing fails.
     crate::fault_point!(KdBuild);
-    let max_depth = p.depth_for(n as u32);
+    let n_tris = n as u32;
     let mut info = KdInfo {
-        triangles_in: n_in,
-        triangles: n as u32,
+        triangles_in: n_in as u32,
+        triangles: n_tris,
         excluded_non_finite: bad_nf,
         excluded_zero_area: bad_za,
-        max_depth,
+        max_depth: p.depth_for(n_tris),
         test: p.test,
+        quality: p.quality,
+        bins: if p.quality == BuildQuality::High {
+            0
+        } else {
+            p.bins
+        },
         ..KdInfo::default()
     };
-    pools.slot_of[..n_in as usize].fill(INVALID_ID);
     if n == 0 {
+        pools.slot_of[..n_in].fill(INVALID_ID);
         pools.nodes[0] = KdNode::leaf(0, 0);
         info.nodes = 1;
         info.leaves = 1;
         info.empty_leaves = 1;
-        kd.set_info(Some(info));
-        return Ok(info);
+        return Ok(Err(info));
+    }
+    {
+        let bd = &start[..workers + 1];
+        let (ts, is) = (
+            Parts::at(&mut pools.tris[..n], bd),
+            Parts::at(&mut pools.tri_ids[..n], bd),
+        );
+        let ps = Parts::at(if proj { &mut pools.proj[..n] } else { &mut [] }, {
+            if proj { bd } else { &[] }
+        });
+        let ss = Parts::even(&mut pools.slot_of[..n_in], workers);
+        let side = &pools.side[..n_in];
+        par.run(&|w| {
+            let (tris, ids, slots) = (ts.get(w), is.get(w), ss.get(w));
+            let pj = if proj { ps.get(w) } else { &mut [] };
+            let first = ss.start(w);
+            let mut k = 0usize;
+            for (j, slot) in slots.iter_mut().enumerate() {
+                let t = first + j;
+                if side[t] != 0 {
+                    *slot = INVALID_ID;
+                    continue;
+                }
+                let tri = scene.triangle(t as u32);
+                tris[k] = tri;
+                if let Some(x) = pj.get_mut(k) {
+                    *x = ProjTri::new(&tri);
+                }
+                ids[k] = t as u32;
+                *slot = (start[w] + k) as u32;
+                k += 1;
+            }
+        });
     }
     info.bounds = bounds;
     let m = bounds.min.abs().max(bounds.max.abs()).max_element();
     let diag = bounds.diagonal();
     let pad = Vec3::splat(ROOT_PAD * (m + math::sqrt(diag.dot(diag))));
-    let root = Aabb {
+    info.root = Aabb {
         min: bounds.min - pad,
         max: bounds.max + pad,
     };
-    info.root = root;
+    Ok(Ok(Stored { n, info, pad }))
+}
 
-    // 1b. Store the triangles; 2. their events.
-    let mut s = 0usize;
-    for t in 0..n_in {
-        let tri = scene.triangle(t);
-        if Scene::classify(&tri).is_some() {
-            continue;
+/// The exact build (`BuildQuality::High`), steps 1-4 of the module docs.
+fn sweep(pools: &mut KdPools<'_>, scene: &Scene<'_>, p: &KdParams) -> Result<KdInfo> {
+    let stored = store(pools, scene, p, &Serial, 1, |pools, n| {
+        // (`Limits::validate` keeps these pools above the triangle count.)
+        if pools.events.len() < EVENTS_PER_TRI * n {
+            return Err(Error::Capacity {
+                pool: Pool::Triangles,
+                needed: n as u64,
+                available: (pools.events.len() / EVENTS_PER_TRI) as u64,
+            });
         }
-        pools.tris[s] = tri;
-        if proj {
-            pools.proj[s] = ProjTri::new(&tri);
-        }
-        pools.tri_ids[s] = t;
-        pools.slot_of[t as usize] = s as u32;
+        Ok(())
+    })?;
+    let Stored { n, mut info, pad } = match stored {
+        Ok(s) => s,
+        Err(empty) => return Ok(empty),
+    };
+    let (root, max_depth) = (info.root, info.max_depth);
+
+    // 2. The events of the stored triangles.
+    for s in 0..n {
+        let tri = pools.tris[s];
         for a in 0..3 {
             let lo = tri.v0[a].min(tri.v1[a]).min(tri.v2[a]);
             let hi = tri.v0[a].max(tri.v1[a]).max(tri.v2[a]);
             pools.events[2 * s + 2 * n * a] = event(a, lo - pad.x, false, s as u32);
             pools.events[2 * s + 1 + 2 * n * a] = event(a, hi + pad.x, true, s as u32);
         }
-        s += 1;
     }
     pools.events[..EVENTS_PER_TRI * n].sort_unstable();
 
@@ -564,7 +686,6 @@ pub fn build(kd: &mut KdTree<'_>, scene: &Scene<'_>, p: &KdParams) -> Result<KdI
     info.forced_leaves = t.forced;
     info.events_peak = peak as u32;
     info.sah_cost = ((p.traversal_cost as f64 * t.sah_inner + t.sah_leaf) / root_area) as f32;
-    kd.set_info(Some(info));
     Ok(info)
 }
 
@@ -665,18 +786,97 @@ mod tests {
             let sc = crate::scenes::builtin(name).unwrap();
             let scene = Scene::from_f32(&sc.mesh.vertices, &sc.mesh.indices).unwrap();
             let mut st = Store::new(scene.triangle_count() as usize, false);
-            // Roomy pools: gears' fan triangles need 20 references and 6
-            // nodes each (the default limits make forced leaves there).
-            st.refs.resize(32 * scene.triangle_count() as usize, 0);
-            st.nodes
-                .resize(16 * scene.triangle_count() as usize, KdNode::default());
+            roomy(&mut st, scene.triangle_count() as usize);
             let mut kd = st.kd();
-            let info = build(&mut kd, &scene, &KdParams::default()).unwrap();
-            check_invariants(&kd.view().unwrap());
-            assert!(
-                info.empty_leaves > 0 && info.forced_leaves == 0,
-                "{name}: {info:?}"
-            );
+            for quality in QUALITIES {
+                let p = KdParams {
+                    quality,
+                    ..KdParams::default()
+                };
+                let info = build(&mut kd, &scene, &p).unwrap();
+                check_invariants(&kd.view().unwrap());
+                assert!(
+                    info.empty_leaves > 0 && info.forced_leaves == 0 && info.quality == quality,
+                    "{name}: {info:?}"
+                );
+            }
+        }
+    }
+
+    /// Roomy pools: gears' fan triangles need 20 references and 6 nodes
+    /// each, and the `Low` build's lists as many (the default limits make
+    /// forced leaves there).
+    fn roomy(st: &mut Store, n: usize) {
+        st.refs.resize(32 * n, 0);
+        st.nodes.resize(16 * n, KdNode::default());
+        st.events.resize(64 * n, 0);
+    }
+
+    const QUALITIES: [BuildQuality; 3] =
+        [BuildQuality::Low, BuildQuality::Medium, BuildQuality::High];
+
+    /// The binned builds make the same tree on any number of workers, in
+    /// any order and on real threads: the same nodes, references and
+    /// stored triangles, and the same `KdInfo`.
+    #[test]
+    fn workers_build_the_same_tree() {
+        use crate::accel::testkit::Backwards;
+        use crate::mem::par::{Helped, Join};
+        for &name in crate::scenes::BUILTIN_NAMES {
+            let sc = crate::scenes::builtin(name).unwrap();
+            let scene = Scene::from_f32(&sc.mesh.vertices, &sc.mesh.indices).unwrap();
+            let n = scene.triangle_count() as usize;
+            let mut big = Store::new(n, false);
+            roomy(&mut big, n);
+            // Pools too small for the tree the SAH wants: forced leaves,
+            // in the same places for any worker count.
+            let mut tight = Store::new(n, false);
+            tight.refs.truncate(n + n / 2 + 8);
+            tight.nodes.truncate(n / 2 + 8);
+            tight.events.truncate(9 * n + 1024);
+            for (st, forced) in [(&mut big, false), (&mut tight, true)] {
+                let mut kd = st.kd();
+                for quality in [BuildQuality::Low, BuildQuality::Medium] {
+                    let p = KdParams {
+                        quality,
+                        ..KdParams::default()
+                    };
+                    let snap = |kd: &KdTree<'_>| {
+                        let v = kd.view().unwrap();
+                        (
+                            *v.info,
+                            v.nodes.to_vec(),
+                            v.refs.to_vec(),
+                            v.tri_ids.to_vec(),
+                        )
+                    };
+                    build(&mut kd, &scene, &p).unwrap();
+                    let want = snap(&kd);
+                    check_invariants(&kd.view().unwrap());
+                    assert!(want.0.nodes > 1, "{name}: one leaf");
+                    assert_eq!(
+                        want.0.forced_leaves > 0,
+                        forced,
+                        "{name} {quality:?}: {:?}",
+                        want.0
+                    );
+                    for workers in [2usize, 3, 16] {
+                        build_with(&mut kd, &scene, &p, &Backwards(workers)).unwrap();
+                        assert!(
+                            snap(&kd) == want,
+                            "{name} {quality:?}: {workers} workers backwards"
+                        );
+                    }
+                    let join = Join::new();
+                    std::thread::scope(|t| {
+                        let j = &join;
+                        t.spawn(move || assert_eq!(j.help(1), Helped::Done(0)));
+                        join.lead(2, |par| build_with(&mut kd, &scene, &p, par))
+                    })
+                    .unwrap();
+                    assert!(snap(&kd) == want, "{name} {quality:?}: 2 threads");
+                }
+            }
         }
     }
 
@@ -719,7 +919,15 @@ mod tests {
         let mut st = Store::new(n, false);
         st.events.truncate(EVENTS_PER_TRI * n);
         let mut kd = st.kd();
-        let info = build(&mut kd, &scene, &KdParams::default()).unwrap();
+        // The binned builds need their job list and two root lists: a
+        // capacity error, nothing written.
+        assert!(build(&mut kd, &scene, &KdParams::default()).is_err());
+        assert!(kd.view().is_none());
+        let high = KdParams {
+            quality: BuildQuality::High,
+            ..KdParams::default()
+        };
+        let info = build(&mut kd, &scene, &high).unwrap();
         assert_eq!(
             (info.leaves, info.forced_leaves, info.refs as usize),
             (1, 1, n)
@@ -745,6 +953,9 @@ mod tests {
             "crytek_sponza/crytek_sponza.obj",
             "conference/conference.obj",
         ] {
+            if std::env::var("KD_ONLY").is_ok_and(|f| !file.contains(&f)) {
+                continue;
+            }
             let Ok((models, _)) = tobj::load_obj(
                 dir.join(file),
                 &tobj::LoadOptions {
@@ -764,31 +975,73 @@ mod tests {
             let scene = Scene::from_f32(&v, &ix).unwrap();
             let mut st = Store::new(scene.triangle_count() as usize, false);
             let mut kd = st.kd();
-            let mut p = KdParams::default();
-            if let Ok(c) = std::env::var("KD_TRAV") {
-                p.traversal_cost = c.parse().unwrap();
+            let time = |f: &mut dyn FnMut()| {
+                let mut t = [0.0f64; 5];
+                for x in &mut t {
+                    let t0 = std::time::Instant::now();
+                    f();
+                    *x = t0.elapsed().as_secs_f64() * 1e3;
+                }
+                t.sort_by(f64::total_cmp);
+                t[2]
+            };
+            let mut bst = crate::accel::testkit::Store::new(scene.triangle_count() as usize, false);
+            let mut bvh = bst.bvh();
+            for q in [BuildQuality::Low, BuildQuality::Medium] {
+                let bp = crate::BvhParams {
+                    quality: q,
+                    ..crate::BvhParams::default()
+                };
+                let ms = time(&mut || {
+                    crate::accel::bvh::build::build(&mut bvh, &scene, &bp).unwrap();
+                });
+                println!("{file}: BVH {q:?} build {ms:.1} ms");
             }
-            let mut info = build(&mut kd, &scene, &p).unwrap();
-            let t = std::time::Instant::now();
-            for _ in 0..3 {
-                info = build(&mut kd, &scene, &p).unwrap();
+            for q in [BuildQuality::Low, BuildQuality::Medium, BuildQuality::High] {
+                let mut p = KdParams {
+                    quality: q,
+                    ..KdParams::default()
+                };
+                if let Ok(c) = std::env::var("KD_TRAV") {
+                    p.traversal_cost = c.parse().unwrap();
+                }
+                if let Ok(c) = std::env::var("KD_BINS") {
+                    p.bins = c.parse().unwrap();
+                }
+                let mut info = build(&mut kd, &scene, &p).unwrap();
+                let ms = time(&mut || info = build(&mut kd, &scene, &p).unwrap());
+                if q != BuildQuality::High {
+                    use crate::mem::par::Join;
+                    let join = Join::new();
+                    let ms2 = time(&mut || {
+                        std::thread::scope(|t| {
+                            let j = &join;
+                            t.spawn(move || j.help(1));
+                            join.lead(2, |par| build_with(&mut kd, &scene, &p, par))
+                        })
+                        .unwrap();
+                    });
+                    println!(
+                        "{file} {q:?}: 2 joined threads {ms2:.1} ms ({:.2}x)",
+                        ms / ms2
+                    );
+                }
+                check_invariants(&kd.view().unwrap());
+                println!(
+                    "{file} {q:?}: tris {} leaves {} empty {:.2}% avg depth {:.2} max {} refs/tri {:.2} nodes/tri {:.2} events/tri {:.2} forced {} sah {:.1} build {:.1} ms",
+                    info.triangles,
+                    info.leaves,
+                    100.0 * info.empty_leaves as f64 / info.leaves as f64,
+                    info.avg_leaf_depth,
+                    info.depth,
+                    info.refs as f64 / info.triangles as f64,
+                    info.nodes as f64 / info.triangles as f64,
+                    info.events_peak as f64 / info.triangles as f64,
+                    info.forced_leaves,
+                    info.sah_cost,
+                    ms
+                );
             }
-            let ms = t.elapsed().as_secs_f64() * 1e3 / 3.0;
-            check_invariants(&kd.view().unwrap());
-            println!(
-                "{file}: tris {} leaves {} empty {:.2}% avg depth {:.2} max {} refs/tri {:.2} nodes/tri {:.2} events/tri {:.2} forced {} sah {:.1} build {:.1} ms",
-                info.triangles,
-                info.leaves,
-                100.0 * info.empty_leaves as f64 / info.leaves as f64,
-                info.avg_leaf_depth,
-                info.depth,
-                info.refs as f64 / info.triangles as f64,
-                info.nodes as f64 / info.triangles as f64,
-                info.events_peak as f64 / info.triangles as f64,
-                info.forced_leaves,
-                info.sah_cost,
-                ms
-            );
         }
     }
 }

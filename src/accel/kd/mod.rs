@@ -7,6 +7,7 @@
 //!
 //! | file | implements |
 //! |---|---|
+//! | `build_binned.rs` | the fast build (Shevtsov, Soupikov, Kapustin 2007): binned SAH, the top level by level and the subtrees depth first, on the caller's threads |
 //! | `build.rs` | section 5.1: the O(N log N) SAH compiler (Wald and Havran 2006: split events sorted once, kept sorted by stable partition), biased towards cutting off empty space, SAH termination, a depth limit |
 //! | `traverse_single.rs` | the single-ray reference: front-to-back stack traversal with early termination |
 //! | `traverse_simd.rs` | the 2x2 SIMD ray (`Ray4`) traversal (Wald 2004) |
@@ -38,11 +39,13 @@
 //! lie below the entry point.
 
 pub mod build;
+pub mod build_binned;
 mod entry;
 pub mod traverse_packet;
 pub mod traverse_simd;
 pub mod traverse_single;
 
+use crate::accel::bvh::BuildQuality;
 use crate::accel::method::{Method, TraceParams};
 use crate::accel::packet::{Kernel, at, baseline, lane_by_lane_kernel};
 use crate::counters::Counters;
@@ -84,6 +87,16 @@ pub struct KdParams {
     pub empty_bonus: f32,
     /// Ray-triangle test used by every traversal of this tree.
     pub test: TriTest,
+    /// Which build (named as the BVH's): `Medium` (the default) and `Low`
+    /// are the binned SAH build on the caller's threads
+    /// (`build_binned.rs`), `Medium` with perfect splits (straddling
+    /// triangles clipped to each child), `Low` with their boxes clipped
+    /// instead; `High` is the exact O(N log N) sweep with perfect splits
+    /// (`build.rs`, single-threaded). Every traversal is exact on every
+    /// tree; the shape decides speed only.
+    pub quality: BuildQuality,
+    /// SAH bins per axis of the binned builds (2..=64, default 32).
+    pub bins: u32,
 }
 
 impl Default for KdParams {
@@ -93,6 +106,8 @@ impl Default for KdParams {
             traversal_cost: 2.0,
             empty_bonus: 0.2,
             test: TriTest::MollerTrumbore,
+            quality: BuildQuality::Medium,
+            bins: 32,
         }
     }
 }
@@ -113,6 +128,9 @@ impl KdParams {
             return Err(crate::Error::InvalidArgument(
                 "kd empty_bonus must be in [0, 1)",
             ));
+        }
+        if !(2..=crate::accel::bvh::MAX_BINS).contains(&self.bins) {
+            return Err(crate::Error::InvalidArgument("kd bins must be in 2..=64"));
         }
         Ok(())
     }
@@ -157,6 +175,9 @@ pub struct KdInfo {
     /// surface area relative to the root).
     pub sah_cost: f32,
     pub test: TriTest,
+    /// The build that made the tree, and its bins (0 for `High`).
+    pub quality: BuildQuality,
+    pub bins: u32,
 }
 
 /// One node (8 bytes). `b`: low 2 bits the split axis (0..2) or 3 for a
