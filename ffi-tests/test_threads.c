@@ -302,6 +302,90 @@ static bool test_joined_grid_builds(void) {
     return true;
 }
 
+/* Joined kd builds: thread i of n calls sheaf_context_build_kd_joined. */
+static sheaf_kd_params g_kdp;
+
+static void *kd_joiner(void *arg) {
+    grid_arg *a = arg;
+    a->status = sheaf_context_build_kd_joined(g_ctx, &g_kdp, a->index, a->count);
+    return NULL;
+}
+
+static bool test_joined_kd_builds(void) {
+    /* The caller's threads join one binned kd build (LOW and MEDIUM): on
+       1, 2 and 3 threads the tree's counts and the kd single ray's and
+       packets' hits are the calling-thread build's bit for bit; every
+       thread returns the leader's status; bad parameters and thread
+       arguments change nothing. */
+    scene *s = box_field();
+    sheaf_limits l;
+    sheaf_hit want_pk[NRAYS], got[NRAYS];
+    sheaf_trace_params tp;
+    sheaf_kd_params exact, bad;
+    sheaf_stats want_st, st;
+    pthread_t th[8];
+    grid_arg a[8];
+    uint32_t count, i, q;
+    CHECK_OK(sheaf_limits_default(s->nt, &l));
+    l.structures = SHEAF_STRUCTURE_KD;
+    CHECK_OK(sheaf_context_create(&l, &g_ctx));
+    CHECK_OK(scene_set(g_ctx, s));
+    make_rays();
+    CHECK_OK(sheaf_trace_params_default(&tp));
+    tp.method = SHEAF_METHOD_KD_PACKET;
+    CHECK_OK(sheaf_kd_params_default(&exact));
+    exact.quality = SHEAF_BUILD_QUALITY_HIGH;
+    for (q = 0; q < 2; ++q) {
+        CHECK_OK(sheaf_kd_params_default(&g_kdp));
+        CHECK(g_kdp.quality == SHEAF_BUILD_QUALITY_MEDIUM && g_kdp.bins == 32);
+        g_kdp.quality = q == 0 ? SHEAF_BUILD_QUALITY_LOW : SHEAF_BUILD_QUALITY_MEDIUM;
+        CHECK_OK(sheaf_context_build_kd(g_ctx, &g_kdp));
+        CHECK_OK(sheaf_context_stats(g_ctx, &want_st));
+        CHECK_OK(sheaf_context_trace(g_ctx, SHEAF_METHOD_KD_SINGLE, g_rays, g_want_hits, NRAYS));
+        CHECK_OK(sheaf_context_trace_with(g_ctx, &tp, g_rays, want_pk, NRAYS));
+        CHECK(memcmp(want_pk, g_want_hits, sizeof want_pk) == 0);
+        for (count = 1; count <= 3; ++count) {
+            /* The exact tree first, so each joined build must rewrite it. */
+            CHECK_OK(sheaf_context_build_kd(g_ctx, &exact));
+            CHECK_OK(sheaf_context_stats(g_ctx, &st));
+            CHECK(st.kd_nodes != want_st.kd_nodes || st.kd_refs != want_st.kd_refs);
+            for (i = 0; i < count; ++i) {
+                a[i].index = i;
+                a[i].count = count;
+            }
+            for (i = 1; i < count; ++i) CHECK(pthread_create(&th[i], NULL, kd_joiner, &a[i]) == 0);
+            kd_joiner(&a[0]);
+            for (i = 1; i < count; ++i) CHECK(pthread_join(th[i], NULL) == 0);
+            for (i = 0; i < count; ++i) CHECK_OK(a[i].status);
+            CHECK_OK(sheaf_context_stats(g_ctx, &st));
+            CHECK(st.kd_nodes == want_st.kd_nodes && st.kd_refs == want_st.kd_refs &&
+                  st.kd_leaves == want_st.kd_leaves && st.kd_depth == want_st.kd_depth);
+            CHECK_OK(sheaf_context_trace(g_ctx, SHEAF_METHOD_KD_SINGLE, g_rays, got, NRAYS));
+            CHECK(memcmp(got, g_want_hits, sizeof got) == 0);
+            CHECK_OK(sheaf_context_trace_with(g_ctx, &tp, g_rays, got, NRAYS));
+            CHECK(memcmp(got, want_pk, sizeof got) == 0);
+        }
+    }
+    /* Bad input: refused, the tree unchanged. */
+    bad = g_kdp;
+    bad.bins = 1;
+    CHECK_STATUS(sheaf_context_build_kd_joined(g_ctx, &bad, 0, 1), SHEAF_STATUS_INVALID_ARGUMENT);
+    bad = g_kdp;
+    bad.quality = 7;
+    CHECK_STATUS(sheaf_context_build_kd_joined(g_ctx, &bad, 0, 1), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_build_kd_joined(g_ctx, NULL, 0, 0), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_build_kd_joined(g_ctx, NULL, 1, 1), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_build_kd_joined(g_ctx, NULL, 0, 17), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_build_kd_joined(NULL, NULL, 0, 1), SHEAF_STATUS_NULL_POINTER);
+    CHECK_OK(sheaf_context_stats(g_ctx, &st));
+    CHECK(st.kd_nodes == want_st.kd_nodes && st.kd_refs == want_st.kd_refs);
+    CHECK_OK(sheaf_context_trace(g_ctx, SHEAF_METHOD_KD_SINGLE, g_rays, got, NRAYS));
+    CHECK(memcmp(got, g_want_hits, sizeof got) == 0);
+    sheaf_context_destroy(g_ctx);
+    free(s);
+    return true;
+}
+
 /* Joined deferred frames: thread i of n calls sheaf_context_render_deferred_joined. */
 #define DW 67
 #define DH 45
@@ -835,6 +919,7 @@ int main(void) {
     run_test("test_joined_builds", test_joined_builds, &passed, &failed);
     run_test("test_joined_refits", test_joined_refits, &passed, &failed);
     run_test("test_joined_grid_builds", test_joined_grid_builds, &passed, &failed);
+    run_test("test_joined_kd_builds", test_joined_kd_builds, &passed, &failed);
     run_test("test_joined_deferred_frames", test_joined_deferred_frames, &passed, &failed);
     return report(passed, failed);
 }

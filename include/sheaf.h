@@ -1200,6 +1200,17 @@ typedef struct sheaf_kd_params {
      * Ray-triangle test of every traversal of this tree (a `sheaf_tri_test`).
      */
     sheaf_tri_test test;
+    /**
+     * Which build (a `sheaf_build_quality`): MEDIUM (the default) the
+     * binned SAH build with perfect splits, LOW the same with clipped
+     * boxes, both joined by `sheaf_context_build_kd_joined`'s threads;
+     * HIGH the exact O(N log N) sweep on one thread.
+     */
+    sheaf_build_quality quality;
+    /**
+     * SAH bins per axis of LOW and MEDIUM (2..=64, default 32).
+     */
+    uint32_t bins;
 } sheaf_kd_params;
 
 /**
@@ -2114,8 +2125,8 @@ sheaf_status sheaf_kd_params_default(struct sheaf_kd_params *out);
 
 /**
  * Rebuild the kd-tree from the geometry with `*params` (copied; NULL: the
- * defaults of `sheaf_kd_params_default`). The grid and the BVH, if built,
- * are untouched.
+ * defaults of `sheaf_kd_params_default`: the binned SAH build). The grid
+ * and the BVH, if built, are untouched.
  *
  * Reads the geometry buffers (see `sheaf_context_set_geometry`); never
  * allocates. On error the previous kd-tree stays valid and traces exactly
@@ -2129,6 +2140,39 @@ sheaf_status sheaf_kd_params_default(struct sheaf_kd_params *out);
  */
 sheaf_status sheaf_context_build_kd(struct sheaf_context *ctx,
                                     const struct sheaf_kd_params *params);
+
+/**
+ * `sheaf_context_build_kd` on `thread_count` of the caller's threads,
+ * joined as `sheaf_context_build_bvh_joined` joins them (same protocol,
+ * same misuse notes): thread 0 leads and passes `params` (the helpers'
+ * are not read), the others run their share of every step and return
+ * the leader's status. The LOW and MEDIUM builds run every step on all
+ * threads and give the same tree for any `thread_count`; HIGH runs on
+ * the leader alone (the helpers wait and return).
+ *
+ * Errors: as `sheaf_context_build_kd`; `SHEAF_STATUS_INVALID_ARGUMENT`
+ * for `thread_count` 0 or above 16 or `thread_index >= thread_count`
+ * (returned at once by every thread, none waits).
+ */
+sheaf_status sheaf_context_build_kd_joined(struct sheaf_context *ctx,
+                                           const struct sheaf_kd_params *params,
+                                           uint32_t thread_index,
+                                           uint32_t thread_count);
+
+/**
+ * `sheaf_context_build_scene_kd` on `thread_count` of the caller's
+ * threads, joined as `sheaf_context_build_kd_joined` joins them: the
+ * flattening and the kd-tree's build run on all of them.
+ *
+ * Errors: as `sheaf_context_build_scene_kd`;
+ * `SHEAF_STATUS_INVALID_ARGUMENT` for `thread_count` 0 or above 16 or
+ * `thread_index >= thread_count`.
+ */
+sheaf_status sheaf_context_build_scene_kd_joined(struct sheaf_context *ctx,
+                                                 const struct sheaf_kd_params *params,
+                                                 uint32_t mask,
+                                                 uint32_t thread_index,
+                                                 uint32_t thread_count);
 
 /**
  * Write limits for scenes of up to `max_triangles` triangles to `*out`:

@@ -370,25 +370,43 @@ impl<'a> Context<'a> {
         Ok(r)
     }
 
-    /// Rebuild the kd-tree from `scene` (O(N log N) SAH with perfect
-    /// splits, AEPSA paper section 5.1). On error the previous tree stays
+    /// Rebuild the kd-tree from `scene` by `params.quality`'s build (the
+    /// binned SAH build by default, the exact O(N log N) sweep of the AEPSA
+    /// paper's section 5.1 with `High`). On error the previous tree stays
     /// valid.
     pub fn build_kd(&mut self, scene: &Scene<'_>, params: &KdParams) -> Result<KdInfo> {
+        self.build_kd_with(scene, params, &crate::Serial)
+    }
+
+    /// `build_kd` on the caller's workers (as `build_bvh_with`): the
+    /// binned builds split every step among them and make the same tree
+    /// for any number of workers; `High` runs on the calling thread.
+    pub fn build_kd_with(
+        &mut self,
+        scene: &Scene<'_>,
+        params: &KdParams,
+        par: &dyn crate::Par,
+    ) -> Result<KdInfo> {
         self.check_scene(scene)?;
-        let info = self.kd_over(scene, params)?;
+        let info = self.kd_over(scene, params, par)?;
         self.sources.set(Limits::KD, None);
         Ok(info)
     }
 
     /// The kd-tree build after the scene's checks.
-    fn kd_over(&mut self, scene: &Scene<'_>, params: &KdParams) -> Result<KdInfo> {
+    fn kd_over(
+        &mut self,
+        scene: &Scene<'_>,
+        params: &KdParams,
+        par: &dyn crate::Par,
+    ) -> Result<KdInfo> {
         if !self.limits.has(Limits::KD) {
             return Err(Error::InvalidArgument(
                 "no kd-tree pools: Limits::structures lacks KD",
             ));
         }
         let t = now();
-        let info = kd::build::build(&mut self.kd, scene, params)?;
+        let info = kd::build::build_with(&mut self.kd, scene, params, par)?;
         self.stats.kd_build_ns = elapsed_ns(t);
         self.stats.kd = info;
         Ok(info)

@@ -176,15 +176,15 @@ impl<'a> Context<'a> {
         self.build_kd_scene_with(params, mask, &Serial)
     }
 
-    /// `build_kd_scene` with the flattening on the caller's workers (the
-    /// kd-tree build itself is serial).
+    /// `build_kd_scene` with the flattening and the kd-tree's build on the
+    /// caller's workers (`build_kd_with`).
     pub fn build_kd_scene_with(
         &mut self,
         params: &KdParams,
         mask: u32,
         par: &dyn Par,
     ) -> Result<KdInfo> {
-        self.build_over_scene(Limits::KD, mask, par, |c, s| c.kd_over(s, params))
+        self.build_over_scene(Limits::KD, mask, par, |c, s| c.kd_over(s, params, par))
     }
 
     /// Load the committed scene's instances that `mask` sees for the

@@ -3,7 +3,7 @@
 //! and the BVH's packets may run first.
 
 use super::bvh::sheaf_build_quality;
-use super::context::{sheaf_context, with_mut};
+use super::context::{joined, sheaf_context, with_mut};
 use super::grid::sheaf_tri_test;
 use super::{check_non_null, guard_free, raw, read_in, sheaf_status, write_out};
 use crate::KdParams;
@@ -71,8 +71,8 @@ pub extern "C" fn sheaf_kd_params_default(out: *mut sheaf_kd_params) -> sheaf_st
 }
 
 /// Rebuild the kd-tree from the geometry with `*params` (copied; NULL: the
-/// defaults of `sheaf_kd_params_default`). The grid and the BVH, if built,
-/// are untouched.
+/// defaults of `sheaf_kd_params_default`: the binned SAH build). The grid
+/// and the BVH, if built, are untouched.
 ///
 /// Reads the geometry buffers (see `sheaf_context_set_geometry`); never
 /// allocates. On error the previous kd-tree stays valid and traces exactly
@@ -96,6 +96,62 @@ pub extern "C" fn sheaf_context_build_kd(
         };
         let g = h.geometry.as_ref().ok_or(Error::NoGeometry)?;
         h.ctx.build_kd(&g.scene()?, &params)?;
+        Ok(())
+    })
+}
+
+/// `sheaf_context_build_kd` on `thread_count` of the caller's threads,
+/// joined as `sheaf_context_build_bvh_joined` joins them (same protocol,
+/// same misuse notes): thread 0 leads and passes `params` (the helpers'
+/// are not read), the others run their share of every step and return
+/// the leader's status. The LOW and MEDIUM builds run every step on all
+/// threads and give the same tree for any `thread_count`; HIGH runs on
+/// the leader alone (the helpers wait and return).
+///
+/// Errors: as `sheaf_context_build_kd`; `SHEAF_STATUS_INVALID_ARGUMENT`
+/// for `thread_count` 0 or above 16 or `thread_index >= thread_count`
+/// (returned at once by every thread, none waits).
+#[unsafe(no_mangle)]
+pub extern "C" fn sheaf_context_build_kd_joined(
+    ctx: *mut sheaf_context,
+    params: *const sheaf_kd_params,
+    thread_index: u32,
+    thread_count: u32,
+) -> sheaf_status {
+    joined(ctx, thread_index, thread_count, |h, par| {
+        let params = if params.is_null() {
+            KdParams::default()
+        } else {
+            read_in(params)?.to_core()?
+        };
+        let g = h.geometry.as_ref().ok_or(Error::NoGeometry)?;
+        h.ctx.build_kd_with(&g.scene()?, &params, par)?;
+        Ok(())
+    })
+}
+
+/// `sheaf_context_build_scene_kd` on `thread_count` of the caller's
+/// threads, joined as `sheaf_context_build_kd_joined` joins them: the
+/// flattening and the kd-tree's build run on all of them.
+///
+/// Errors: as `sheaf_context_build_scene_kd`;
+/// `SHEAF_STATUS_INVALID_ARGUMENT` for `thread_count` 0 or above 16 or
+/// `thread_index >= thread_count`.
+#[unsafe(no_mangle)]
+pub extern "C" fn sheaf_context_build_scene_kd_joined(
+    ctx: *mut sheaf_context,
+    params: *const sheaf_kd_params,
+    mask: u32,
+    thread_index: u32,
+    thread_count: u32,
+) -> sheaf_status {
+    joined(ctx, thread_index, thread_count, |h, par| {
+        let p = if params.is_null() {
+            KdParams::default()
+        } else {
+            read_in(params)?.to_core()?
+        };
+        h.ctx.build_kd_scene_with(&p, mask, par)?;
         Ok(())
     })
 }

@@ -10,7 +10,7 @@
 //! | `limits.rs` | `sheaf_limits` (the crate's `Limits`), `sheaf_limits_default` |
 //! | `grid.rs` | `sheaf_grid_params`, `sheaf_tri_test`, `sheaf_grid_params_default` |
 //! | `bvh.rs` | `sheaf_bvh_params`, `sheaf_build_quality`, `sheaf_ray_kind`, `sheaf_bvh_params_default` |
-//! | `kd.rs` | `sheaf_kd_params`, `sheaf_kd_params_default`, `sheaf_context_build_kd` |
+//! | `kd.rs` | `sheaf_kd_params`, `sheaf_kd_params_default`, `sheaf_context_build_kd`, its joined forms |
 //! | `method.rs` | `sheaf_method` |
 //! | `trace_params.rs` | `sheaf_trace_params`, `sheaf_entry_search`, `sheaf_trace_params_default` |
 //! | `ray.rs` | `sheaf_ray`, `sheaf_hit` (the C twins of `Ray`, `Hit`) |
@@ -88,7 +88,10 @@ pub use context::{
 };
 pub use frame::{sheaf_frame, sheaf_frame_camera_ray, sheaf_shading, sheaf_shading_default};
 pub use grid::{sheaf_grid_params, sheaf_grid_params_default, sheaf_tri_test};
-pub use kd::{sheaf_context_build_kd, sheaf_kd_params, sheaf_kd_params_default};
+pub use kd::{
+    sheaf_context_build_kd, sheaf_context_build_kd_joined, sheaf_context_build_scene_kd_joined,
+    sheaf_kd_params, sheaf_kd_params_default,
+};
 pub use limits::{sheaf_limits, sheaf_limits_default};
 pub use method::sheaf_method;
 pub use pgrid::{
