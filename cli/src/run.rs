@@ -112,13 +112,15 @@ pub fn build_bvh_if_used(
         .context("building the BVH")
 }
 
-/// Build the kd-tree (default `KdParams`, triangle test `test`) when one of
-/// `params` traces it; returns its info then.
+/// Build the kd-tree (default `KdParams`: the binned build, on `threads`
+/// joined threads; triangle test `test`) when one of `params` traces it;
+/// returns its info then.
 pub fn build_kd_if_used(
     ctx: &mut OwnedContext,
     scene: &Scene<'_>,
     test: sheaf::TriTest,
     params: &[TraceParams],
+    threads: u32,
 ) -> Result<Option<sheaf::accel::kd::KdInfo>> {
     if !params
         .iter()
@@ -130,7 +132,7 @@ pub fn build_kd_if_used(
         test,
         ..Default::default()
     };
-    ctx.build_kd(scene, &p)
+    ctx.build_kd_with(scene, &p, &Broadcast::of(threads))
         .map(Some)
         .context("building the kd-tree")
 }

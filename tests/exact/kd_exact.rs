@@ -19,7 +19,7 @@ use sheaf::trace::EntrySearch;
 use sheaf::geom::{Hit4, M4, Ray4};
 use sheaf::render::{SHADOW_OFFSET, Tracer};
 use sheaf::trace::RayKind;
-use sheaf::{Counters, Hit, Limits, Method, OwnedContext, Ray, TraceParams, TriTest};
+use sheaf::{BuildQuality, Counters, Hit, Limits, Method, OwnedContext, Ray, TraceParams, TriTest};
 
 use common::exact::{Class, RES, check_class, reference, secondary};
 
@@ -46,14 +46,20 @@ fn bvh_entry_cases() -> Vec<(Method, usize, EntrySearch)> {
     cases
 }
 
-/// Each scene with each triangle test: the items the suites spread over
-/// the cores (a scene's two trees are independent checks).
-fn with_tests(scenes: &[TestScene]) -> Vec<(&TestScene, TriTest)> {
-    let tests = [TriTest::MollerTrumbore, TriTest::Watertight];
-    scenes.iter().flat_map(|s| tests.map(|t| (s, t))).collect()
+/// Each scene with each kd build, each build with a triangle test: the
+/// items the suites spread over the cores (independent checks). The
+/// default binned tree and the exact one take both tests.
+fn with_tests(scenes: &[TestScene]) -> Vec<(&TestScene, TriTest, BuildQuality)> {
+    use BuildQuality::{High, Low, Medium};
+    use TriTest::{MollerTrumbore as Mt, Watertight as Wt};
+    let items = [(Mt, Medium), (Wt, High), (Wt, Medium), (Mt, Low)];
+    scenes
+        .iter()
+        .flat_map(|s| items.map(|(t, q)| (s, t, q)))
+        .collect()
 }
 
-fn check_scene(&(s, test): &(&TestScene, TriTest)) {
+fn check_scene(&(s, test, quality): &(&TestScene, TriTest, BuildQuality)) {
     {
         let mut l = Limits::for_triangles(s.triangles());
         l.max_vertices = (s.vertices.len() / 3) as u32;
@@ -64,6 +70,7 @@ fn check_scene(&(s, test): &(&TestScene, TriTest)) {
                 &s.scene(),
                 &KdParams {
                     test,
+                    quality,
                     ..KdParams::default()
                 },
             )
@@ -78,11 +85,17 @@ fn check_scene(&(s, test): &(&TestScene, TriTest)) {
         .unwrap();
         let all = ctx.tracer().unwrap();
         let (tr, bvh) = (all.kd().unwrap(), all.bvh().unwrap());
-        let (kd_cases, bvh_cases) = (kd_cases(), bvh_entry_cases());
+        // The BVH's entry cases once per test (with the default kd tree).
+        let bvh_cases = if quality == BuildQuality::Medium {
+            bvh_entry_cases()
+        } else {
+            Vec::new()
+        };
+        let kd_cases = kd_cases();
         let eps = SHADOW_OFFSET * info.bounds.diagonal().length();
         let mut sum = Counters::default();
         for (vname, view) in &s.views {
-            let what = format!("{} {vname} {test:?}", s.name);
+            let what = format!("{} {vname} {test:?} {quality:?}", s.name);
             let rays = view.rays(RES as u32, RES as u32);
             let all = vec![true; rays.len()];
             let primary = Class {
@@ -93,7 +106,9 @@ fn check_scene(&(s, test): &(&TestScene, TriTest)) {
                 any: false,
             };
             sum.add(&check_class(&tr, &kd_cases, &what, &primary));
-            check_class(&bvh, &bvh_cases, &what, &primary);
+            if !bvh_cases.is_empty() {
+                check_class(&bvh, &bvh_cases, &what, &primary);
+            }
             let hits = reference(&tr, &primary);
             // Shadow rays from the light to just off the hit surfaces.
             let mut shadow = Class {
@@ -115,13 +130,15 @@ fn check_scene(&(s, test): &(&TestScene, TriTest)) {
                 }
             }
             sum.add(&check_class(&tr, &kd_cases, &what, &shadow));
-            check_class(&bvh, &bvh_cases, &what, &shadow);
+            if !bvh_cases.is_empty() {
+                check_class(&bvh, &bvh_cases, &what, &shadow);
+            }
             let (refl, refr) = secondary(&tr, &rays, &hits, eps);
             sum.add(&check_class(&tr, &kd_cases, &what, &refl));
             sum.add(&check_class(&tr, &kd_cases, &what, &refr));
         }
         println!(
-            "{:>10} {test:?}: {} nodes, depth {}: {} packets, {} rays, {} split steps, {} triangle tests, {} nodes and {} triangles culled, {} entry searches (mean depth {:.1}, {} misses)",
+            "{:>10} {test:?} {quality:?}: {} nodes, depth {}: {} packets, {} rays, {} split steps, {} triangle tests, {} nodes and {} triangles culled, {} entry searches (mean depth {:.1}, {} misses)",
             s.name,
             info.nodes,
             info.depth,

@@ -73,7 +73,7 @@ pub fn demo(a: &DemoArgs) -> Result<()> {
             .with_context(|| format!("frame {f}: building the grid"))?;
         let bvh =
             run::build_bvh_if_used(&mut ctx, &scene, params.test, &[primary, shadow], threads)?;
-        let kd = run::build_kd_if_used(&mut ctx, &scene, params.test, &[primary, shadow])?;
+        let kd = run::build_kd_if_used(&mut ctx, &scene, params.test, &[primary, shadow], threads)?;
         let b = ctx.stats().build_ns
             + if bvh.is_some() {
                 ctx.stats().bvh_build_ns

@@ -137,7 +137,13 @@ pub fn render(a: &RenderArgs) -> Result<()> {
                 &[primary, shadow, secondary],
                 threads,
             )?,
-            run::build_kd_if_used(&mut ctx, &scene, params.test, &[primary, shadow, secondary])?,
+            run::build_kd_if_used(
+                &mut ctx,
+                &scene,
+                params.test,
+                &[primary, shadow, secondary],
+                threads,
+            )?,
         )
     };
 

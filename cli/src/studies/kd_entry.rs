@@ -49,6 +49,7 @@ use crate::BenchArgs;
 use crate::run::{self, ms};
 use anyhow::{Context as _, Result, anyhow, bail};
 use glam::Vec3;
+use sheaf::BuildQuality;
 use sheaf::Slot;
 use sheaf::accel::entry::{CandidateQueue, EntryResult, LeafGoal, dir_signs, live_mask};
 use sheaf::accel::entry::{aepsa as traverse_aepsa, mlrta as traverse_mlrta};
@@ -78,6 +79,13 @@ const HEADLINE: u32 = 16;
 const BVH_SIDE: u32 = 16;
 
 const SEARCHES: [EntrySearch; 3] = [EntrySearch::None, EntrySearch::Mlrta, EntrySearch::Aepsa];
+/// The kd-trees each scene is studied on (its rows are named
+/// `scene-binned` and `scene-exact`): the default binned SAH build and the
+/// exact O(N log N) sweep of the paper's section 5.1.
+const TREES: [(BuildQuality, &str); 2] = [
+    (BuildQuality::Medium, "binned"),
+    (BuildQuality::High, "exact"),
+];
 
 /// The primary rays of a frame as n x n packets: `q` quads each, quads in
 /// Morton order within a tile (as `render::render_tiles` packs them), tiles
@@ -600,6 +608,21 @@ pub fn run(a: &BenchArgs) -> Result<()> {
     } else {
         scene_specs(a)?
     };
+    let specs: Vec<(SceneSpec, BuildQuality)> = specs
+        .iter()
+        .flat_map(|s| {
+            TREES.map(|(q, tag)| {
+                let name = format!("{}-{tag}", s.name);
+                (
+                    SceneSpec {
+                        name,
+                        load: s.load.clone(),
+                    },
+                    q,
+                )
+            })
+        })
+        .collect();
     let out_dir = a.out_dir();
     create_dir(&out_dir)?;
     let machine = machine_line();
@@ -645,7 +668,7 @@ pub fn run(a: &BenchArgs) -> Result<()> {
     let mut rows: Vec<EntryRow> = Vec::new();
     let mut nests: Vec<Nesting> = Vec::new();
     let mut fps: Vec<FpsRow> = Vec::new();
-    for spec in &specs {
+    for (spec, quality) in &specs {
         prog.doing(spec.name.clone());
         let obj = !spec.load.starts_with("builtin:");
         let Some(loaded) = load_or_skip(spec, &prog) else {
@@ -658,6 +681,7 @@ pub fn run(a: &BenchArgs) -> Result<()> {
         limits.projection_test = test == sheaf::TriTest::Projection;
         let kp = KdParams {
             test,
+            quality: *quality,
             ..KdParams::default()
         };
         // kd pools large enough that no leaf is forced (gears needs more
@@ -1188,7 +1212,7 @@ fn markdown(
     );
     let _ = writeln!(
         o,
-        "- kd-tree: default `KdParams` (SAH, traversal cost 2, empty-space bonus 0.2, depth limit 8 + 1.3 log2 N), triangle test {:?}; build = median of {BUILD_REPS}",
+        "- kd-trees: each scene twice, `-binned` the default `KdParams` (binned SAH, 32 bins, perfect splits, on one thread) and `-exact` `BuildQuality::High` (the O(N log N) sweep of section 5.1); both SAH with traversal cost 2, empty-space bonus 0.2, depth limit 8 + 1.3 log2 N; triangle test {:?}; build = median of {BUILD_REPS}",
         st.test
     );
     let _ = writeln!(
@@ -1925,7 +1949,11 @@ mod tests {
         crate::studies::bench(&a).unwrap();
         let search = std::fs::read_to_string(dir.join("entry_search.csv")).unwrap();
         let lines: Vec<&str> = search.lines().collect();
-        assert_eq!(lines.len(), 1 + 2 * 2, "header + 2 scenes x 2 sides");
+        assert_eq!(
+            lines.len(),
+            1 + 2 * 2 * 2,
+            "header + 2 scenes x 2 trees x 2 sides"
+        );
         let head: Vec<&str> = lines[0].split(',').collect();
         let col = |n: &str| head.iter().position(|h| *h == n).unwrap();
         for l in &lines[1..] {
@@ -1945,8 +1973,8 @@ mod tests {
         let lines: Vec<&str> = fps.lines().collect();
         assert_eq!(
             lines.len(),
-            1 + 2 * 2 * (2 + 2 * 3 + 2),
-            "header + scenes x threads x configurations"
+            1 + 2 * 2 * 2 * (2 + 2 * 3 + 2),
+            "header + scenes x trees x threads x configurations"
         );
         let head: Vec<&str> = lines[0].split(',').collect();
         let diff = head.iter().position(|h| *h == "pixels_differing").unwrap();
@@ -1958,12 +1986,17 @@ mod tests {
             }
         }
         let md = std::fs::read_to_string(dir.join("entry.md")).unwrap();
-        assert!(md.contains("## Table 1") && md.contains("| tetra | 16x16 |"));
+        assert!(
+            md.contains("## Table 1")
+                && md.contains("| tetra-binned | 16x16 |")
+                && md.contains("| tetra-exact | 16x16 |")
+        );
         for f in [
             "entry_table1.csv",
             "entry.svg",
             "entry.png",
-            "entry_tetra.png",
+            "entry_tetra-binned.png",
+            "entry_tetra-exact.png",
         ] {
             assert!(std::fs::metadata(dir.join(f)).unwrap().len() > 0, "{f}");
         }
