@@ -1,11 +1,13 @@
-//! kd-tree: per-frame SAH build (O(N log N) with perfect splits, AEPSA
-//! paper section 5.1) and traversal by single rays, 2x2 SIMD rays (Wald
+//! kd-tree: per-frame SAH builds (the default binned build and the exact
+//! O(N log N) sweep with perfect splits, AEPSA paper section 5.1) and
+//! traversal by single rays, 2x2 SIMD rays (Wald
 //! 2004) and n x n frustum packets started at the root or at the entry
 //! point MLRTA or AEPSA finds (AEPSA paper sections 2.2 and 3).
 //!
 //! Groups, each over the scenes of `bench_scenes.rs`:
-//! - `kd_build`: one full rebuild, `Throughput::Elements` = triangles
-//!   (flat sampling: sponza's build alone takes about 3 s).
+//! - `kd_build`: one full rebuild by each build (`exact`, `binned`),
+//!   `Throughput::Elements` = triangles (flat sampling: sponza's exact
+//!   build alone takes about 1.3 s).
 //! - `kd_trace`: the scene view's camera rays at 256 x 256 through
 //!   `Context::trace_with` on one thread: `single`, `simd`, and `packet`
 //!   at 8x8 and 16x16 with entry search none, MLRTA and AEPSA,
@@ -98,16 +100,24 @@ fn kd(c: &mut Criterion) {
         ctxs.push((ctx, rays, shadow, hits));
     }
 
-    // Builds take 0.1-3 s on the OBJ scenes: flat sampling runs each of the
+    // Builds take up to 1.3 s on the OBJ scenes: flat sampling runs each of the
     // 10 samples once instead of criterion's 1 + 2 + ... + 10 iterations.
     let mut g = c.benchmark_group("kd_build");
     g.sampling_mode(SamplingMode::Flat);
     for (s, (ctx, ..)) in scenes.iter().zip(ctxs.iter_mut()) {
         let scene = s.scene();
         g.throughput(Throughput::Elements(s.triangles() as u64));
-        g.bench_function(BenchmarkId::from_parameter(s.name), |b| {
-            b.iter(|| ctx.build_kd(black_box(&scene), &params).expect("kd build"))
-        });
+        // The exact sweep first: the binned tree, built last, is the one
+        // the trace groups walk.
+        let exact = KdParams {
+            quality: sheaf::BuildQuality::High,
+            ..params
+        };
+        for (label, p) in [("exact", &exact), ("binned", &params)] {
+            g.bench_function(BenchmarkId::new(s.name, label), |b| {
+                b.iter(|| ctx.build_kd(black_box(&scene), p).expect("kd build"))
+            });
+        }
     }
     g.finish();
 

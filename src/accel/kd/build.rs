@@ -941,6 +941,163 @@ mod tests {
         assert!(kd.view().is_none());
     }
 
+    /// An OBJ scene of `../shared/scenes` as one mesh, or `None` when absent.
+    fn obj(file: &str) -> Option<(Vec<f32>, Vec<u32>)> {
+        let dir = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/scenes");
+        let opts = tobj::LoadOptions {
+            triangulate: true,
+            ..Default::default()
+        };
+        let (models, _) = tobj::load_obj(dir.join(file), &opts).ok()?;
+        let (mut v, mut ix) = (Vec::new(), Vec::new());
+        for m in models {
+            let base = (v.len() / 3) as u32;
+            v.extend_from_slice(&m.mesh.positions);
+            ix.extend(m.mesh.indices.iter().map(|i| i + base));
+        }
+        Some((v, ix))
+    }
+
+    /// The binned builds against the BVH SAH build and the exact kd build,
+    /// and the binned tree's camera rays against the exact tree's, in
+    /// interleaved rounds (each round times every configuration once; the
+    /// medians of the per-round ratios are printed). 1024x1024 camera
+    /// rays from inside the scene's box looking along x, kd packets 16x16
+    /// from the root, one thread. `KD_ROUNDS` rounds (default 7).
+    #[test]
+    #[ignore]
+    fn binned_against_exact() {
+        use crate::mem::par::Join;
+        use crate::render::{PixelRect, PrimaryRays};
+        use crate::{BvhParams, Limits, Method, OwnedContext, TraceParams};
+        use std::time::Instant;
+        let rounds: usize = std::env::var("KD_ROUNDS").map_or(7, |r| r.parse().unwrap());
+        let load = std::fs::read_to_string("/proc/loadavg").unwrap_or_default();
+        println!("load at start: {}", load.trim());
+        println!(
+            "| scene | tris | kd Medium / BVH SAH build | kd Low / BVH SAH | Medium 1 / 2 threads | Low 1 / 2 threads | exact / Medium build | Medium SAH / exact SAH | refs/tri Medium, exact | camera Mrays/s Medium / exact | hits differing |"
+        );
+        println!("|---|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|");
+        for file in [
+            "bunny/bunny_tinybvh.obj",
+            "conference/conference.obj",
+            "crytek_sponza/crytek_sponza.obj",
+            "sibenik/sibenik.obj",
+        ] {
+            let Some((v, ix)) = obj(file) else {
+                println!("{file}: not found, skipped");
+                continue;
+            };
+            let scene = Scene::from_f32(&v, &ix).unwrap();
+            let n = scene.triangle_count();
+            let mut l = Limits::for_triangles(n);
+            l.max_vertices = (v.len() / 3) as u32;
+            l.structures = Limits::KD | Limits::BVH;
+            let (mut fast, mut exact) = (
+                OwnedContext::new(&l).unwrap(),
+                OwnedContext::new(&l).unwrap(),
+            );
+            let q = |quality| KdParams {
+                quality,
+                ..KdParams::default()
+            };
+            let (low, med, high) = (
+                q(BuildQuality::Low),
+                q(BuildQuality::Medium),
+                q(BuildQuality::High),
+            );
+            let hi_info = exact.build_kd(&scene, &high).unwrap();
+            let info = fast.build_kd(&scene, &med).unwrap();
+            println!("{file}: Medium {info:?}\n{file}: High {hi_info:?}");
+            let b = info.bounds;
+            let (c, e) = ((b.min + b.max) * 0.5, b.max - b.min);
+            let cam = crate::Camera {
+                eye: (c - Vec3::new(0.45 * e.x, 0.0, 0.0)).to_array(),
+                look_at: (c + Vec3::new(e.x, 0.0, 0.0)).to_array(),
+                up: [0.0, 1.0, 0.0],
+                fov_y_deg: 60.0,
+            };
+            let (w, h) = (1024u32, 1024u32);
+            let rays = PrimaryRays::new(&cam, w, h).unwrap();
+            let tp = TraceParams {
+                method: Method::KdPacket,
+                packet: 16,
+                ..TraceParams::default()
+            };
+            let trace = |ctx: &OwnedContext, hits: &mut Vec<crate::Hit>| {
+                let t = Instant::now();
+                ctx.trace_camera(None, &tp, &rays, PixelRect::image(w, h), hits, w as usize)
+                    .unwrap();
+                t.elapsed().as_secs_f64()
+            };
+            let timed = |f: &mut dyn FnMut()| {
+                let t = Instant::now();
+                f();
+                t.elapsed().as_secs_f64()
+            };
+            let joined = |ctx: &mut OwnedContext, p: &KdParams| {
+                let join = Join::new();
+                std::thread::scope(|t| {
+                    let j = &join;
+                    t.spawn(move || j.help(1));
+                    join.lead(2, |par| ctx.build_kd_with(&scene, p, par))
+                })
+                .unwrap();
+            };
+            let (mut hf, mut he) = (
+                vec![crate::Hit::MISS; (w * h) as usize],
+                vec![crate::Hit::MISS; (w * h) as usize],
+            );
+            let mut r: [Vec<f64>; 6] = Default::default();
+            for _ in 0..rounds {
+                let bvh = timed(&mut || {
+                    exact.build_bvh(&scene, &BvhParams::default()).unwrap();
+                });
+                let l1 = timed(&mut || {
+                    fast.build_kd(&scene, &low).unwrap();
+                });
+                let l2 = timed(&mut || joined(&mut fast, &low));
+                let m2 = timed(&mut || joined(&mut fast, &med));
+                let m1 = timed(&mut || {
+                    fast.build_kd(&scene, &med).unwrap();
+                });
+                let hb = timed(&mut || {
+                    exact.build_kd(&scene, &high).unwrap();
+                });
+                let (tf, te) = (trace(&fast, &mut hf), trace(&exact, &mut he));
+                for (k, x) in [m1 / bvh, l1 / bvh, m1 / m2, l1 / l2, hb / m1, te / tf]
+                    .into_iter()
+                    .enumerate()
+                {
+                    r[k].push(x);
+                }
+            }
+            let med_of = |v: &mut Vec<f64>| {
+                v.sort_by(f64::total_cmp);
+                v[v.len() / 2]
+            };
+            let differ = hf
+                .iter()
+                .zip(&he)
+                .filter(|(a, b)| a.prim != b.prim || a.t.to_bits() != b.t.to_bits())
+                .count();
+            let m: Vec<f64> = r.iter_mut().map(med_of).collect();
+            println!(
+                "| {} | {n} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.3} | {:.2}, {:.2} | {:.2} | {differ} |",
+                file.split('/').next().unwrap(),
+                m[0],
+                m[1],
+                m[2],
+                m[3],
+                m[4],
+                info.sah_cost / hi_info.sah_cost,
+                info.refs as f64 / info.triangles as f64,
+                hi_info.refs as f64 / hi_info.triangles as f64,
+                m[5]
+            );
+        }
+    }
+
     /// Table 1 of the AEPSA paper for the OBJ scenes (skips absent files).
     #[test]
     #[ignore]

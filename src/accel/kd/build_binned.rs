@@ -659,6 +659,12 @@ pub(super) fn build(
         .filter(|j| j.overflow == 1)
         .map(|j| j.n as usize)
         .sum();
+    let mut retry_ends = [0usize; MAX_JOBS];
+    let mut retries = 0usize;
+    for j in jobs.iter().filter(|j| j.overflow == 1) {
+        retry_ends[retries] = region(j.at as usize).0;
+        retries += 1;
+    }
     for again in [false, true] {
         for j in jobs.iter_mut() {
             if (j.overflow == 1) != again {
@@ -666,7 +672,14 @@ pub(super) fn build(
             }
             let (from, rfrom) = if again {
                 owed -= j.n as usize;
-                let (s0, s1) = (region(j.at as usize).0, region((j.at + j.n) as usize).0);
+                // The scratch up to the next retried job's list (the
+                // finished jobs' lists are dead).
+                let s0 = region(j.at as usize).0;
+                let s1 = retry_ends[..retries]
+                    .iter()
+                    .copied()
+                    .find(|&e| e > s0)
+                    .unwrap_or(ref_cap);
                 let out = Share {
                     nodes: &mut nodes[to..nodes_len],
                     nodes_at: to,
@@ -760,8 +773,9 @@ struct Task {
 /// Step 3: job `j`'s subtree, depth first, its list at the start of its
 /// scratch region `sc` (left there), its nodes in `nodes` (the pool's
 /// `nodes_at..`), its references in `refs` (the pool's `refs_at..`). On
-/// the `first_try`, a split that does not fit the node or reference share
-/// stops the job (`overflow`); otherwise it makes a forced leaf.
+/// the `first_try`, a split that does not fit the scratch, node or
+/// reference share stops the job (`overflow`); otherwise it makes a
+/// forced leaf.
 fn subtree(j: &mut Node, sc: &mut [Ref], out: Share<'_>, cx: &Cx<'_>, first_try: bool) {
     let Share {
         nodes,
@@ -800,24 +814,35 @@ fn subtree(j: &mut Node, sc: &mut [Ref], out: Share<'_>, cx: &Cx<'_>, first_try:
         let (nn, base) = (task.n, task.base);
         let area = half_area(&task.bounds) as f64;
         if let Some(pl) = wanted(&sc[base..base + nn], &task.bounds, task.depth, cx) {
-            let (cl, cr) = count(&sc[base..base + nn], &pl);
             let top = base + nn;
-            let room = next + 2 <= nodes.len() && nref + pending + cl + cr <= refs.len();
+            // Each child's list holds at most `nn`: with room for both
+            // bounds, counting first decides nothing (what fits them fits
+            // the counts).
+            let (cl, cr) = if top + 2 * nn <= sc.len() && nref + pending + 2 * nn <= refs.len() {
+                (nn, nn)
+            } else {
+                count(&sc[base..base + nn], &pl)
+            };
+            let room = next + 2 <= nodes.len()
+                && nref + pending + cl + cr <= refs.len()
+                && top + cl + cr <= sc.len();
             if !room && first_try {
                 // Out of this job's share: the leader builds it again in
                 // what the other jobs left (its list is still at the start).
                 j.overflow = 1;
                 return;
             }
-            if room && top + cl + cr <= sc.len() {
-                peak = peak.max(top + cl + cr);
+            if room {
                 let (src, dst) = sc.split_at_mut(top);
                 let (r, l) = dst[..cl + cr].split_at_mut(cr);
                 let (wl, wr) = divide(&src[base..], &pl, &task.bounds, cx, l, r);
+                peak = peak.max(top + cr + wl);
+
                 // The right list at the bottom (pending), the left above
                 // it; the job's own list stays where it is.
                 let (rb_at, lb_at) = if task.node == j.node as usize {
-                    (top, top + cr)
+                    sc.copy_within(top + cr..top + cr + wl, top + wr);
+                    (top, top + wr)
                 } else {
                     sc.copy_within(top..top + wr, base);
                     sc.copy_within(top + cr..top + cr + wl, base + wr);
