@@ -337,7 +337,7 @@ static bool test_joined_kd_builds(void) {
     exact.quality = SHEAF_BUILD_QUALITY_HIGH;
     for (q = 0; q < 2; ++q) {
         CHECK_OK(sheaf_kd_params_default(&g_kdp));
-        CHECK(g_kdp.quality == SHEAF_BUILD_QUALITY_MEDIUM && g_kdp.bins == 32);
+        CHECK(g_kdp.quality == SHEAF_BUILD_QUALITY_LOW && g_kdp.bins == 32);
         g_kdp.quality = q == 0 ? SHEAF_BUILD_QUALITY_LOW : SHEAF_BUILD_QUALITY_MEDIUM;
         CHECK_OK(sheaf_context_build_kd(g_ctx, &g_kdp));
         CHECK_OK(sheaf_context_stats(g_ctx, &want_st));

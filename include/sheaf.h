@@ -1201,10 +1201,10 @@ typedef struct sheaf_kd_params {
      */
     sheaf_tri_test test;
     /**
-     * Which build (a `sheaf_build_quality`): MEDIUM (the default) the
-     * binned SAH build with perfect splits, LOW the same with clipped
-     * boxes, both joined by `sheaf_context_build_kd_joined`'s threads;
-     * HIGH the exact O(N log N) sweep on one thread.
+     * Which build (a `sheaf_build_quality`): LOW (the default) the binned
+     * SAH build with clipped boxes, MEDIUM the same with perfect splits,
+     * both joined by `sheaf_context_build_kd_joined`'s threads; HIGH the
+     * exact O(N log N) sweep on one thread.
      */
     sheaf_build_quality quality;
     /**
@@ -2117,7 +2117,8 @@ sheaf_status sheaf_grid_params_default(struct sheaf_grid_params *out);
 
 /**
  * Write the default kd-tree parameters (automatic depth limit, traversal
- * cost 2, empty bonus 0.2, Moller-Trumbore) to `*out`.
+ * cost 2, empty bonus 0.2, Moller-Trumbore, the LOW binned build with 32
+ * bins) to `*out`.
  *
  * `out` must not be NULL. Thread-safe.
  */

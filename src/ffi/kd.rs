@@ -22,10 +22,10 @@ pub struct sheaf_kd_params {
     pub empty_bonus: f32,
     /// Ray-triangle test of every traversal of this tree (a `sheaf_tri_test`).
     pub test: raw::sheaf_tri_test,
-    /// Which build (a `sheaf_build_quality`): MEDIUM (the default) the
-    /// binned SAH build with perfect splits, LOW the same with clipped
-    /// boxes, both joined by `sheaf_context_build_kd_joined`'s threads;
-    /// HIGH the exact O(N log N) sweep on one thread.
+    /// Which build (a `sheaf_build_quality`): LOW (the default) the binned
+    /// SAH build with clipped boxes, MEDIUM the same with perfect splits,
+    /// both joined by `sheaf_context_build_kd_joined`'s threads; HIGH the
+    /// exact O(N log N) sweep on one thread.
     pub quality: raw::sheaf_build_quality,
     /// SAH bins per axis of LOW and MEDIUM (2..=64, default 32).
     pub bins: u32,
@@ -58,7 +58,8 @@ impl sheaf_kd_params {
 }
 
 /// Write the default kd-tree parameters (automatic depth limit, traversal
-/// cost 2, empty bonus 0.2, Moller-Trumbore) to `*out`.
+/// cost 2, empty bonus 0.2, Moller-Trumbore, the LOW binned build with 32
+/// bins) to `*out`.
 ///
 /// `out` must not be NULL. Thread-safe.
 #[unsafe(no_mangle)]

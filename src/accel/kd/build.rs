@@ -975,9 +975,9 @@ mod tests {
         let load = std::fs::read_to_string("/proc/loadavg").unwrap_or_default();
         println!("load at start: {}", load.trim());
         println!(
-            "| scene | tris | kd Medium / BVH SAH build | kd Low / BVH SAH | Medium 1 / 2 threads | Low 1 / 2 threads | exact / Medium build | Medium SAH / exact SAH | refs/tri Medium, exact | camera Mrays/s Medium / exact | hits differing |"
+            "| scene | tris | kd Medium / BVH SAH build | kd Low / BVH SAH | Medium 1 / 2 threads | Low 1 / 2 threads | exact / Medium build | Medium SAH / exact SAH | refs/tri Medium, exact | camera Mrays/s Medium / exact | Low / exact | hits differing |"
         );
-        println!("|---|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|");
+        println!("|---|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|");
         for file in [
             "bunny/bunny_tinybvh.obj",
             "conference/conference.obj",
@@ -993,10 +993,8 @@ mod tests {
             let mut l = Limits::for_triangles(n);
             l.max_vertices = (v.len() / 3) as u32;
             l.structures = Limits::KD | Limits::BVH;
-            let (mut fast, mut exact) = (
-                OwnedContext::new(&l).unwrap(),
-                OwnedContext::new(&l).unwrap(),
-            );
+            let new = || OwnedContext::new(&l).unwrap();
+            let (mut fast, mut exact, mut coarse) = (new(), new(), new());
             let q = |quality| KdParams {
                 quality,
                 ..KdParams::default()
@@ -1008,7 +1006,7 @@ mod tests {
             );
             let hi_info = exact.build_kd(&scene, &high).unwrap();
             let info = fast.build_kd(&scene, &med).unwrap();
-            println!("{file}: Medium {info:?}\n{file}: High {hi_info:?}");
+            coarse.build_kd(&scene, &low).unwrap();
             let b = info.bounds;
             let (c, e) = ((b.min + b.max) * 0.5, b.max - b.min);
             let cam = crate::Camera {
@@ -1048,7 +1046,8 @@ mod tests {
                 vec![crate::Hit::MISS; (w * h) as usize],
                 vec![crate::Hit::MISS; (w * h) as usize],
             );
-            let mut r: [Vec<f64>; 6] = Default::default();
+            let mut hl = hf.clone();
+            let mut r: [Vec<f64>; 7] = Default::default();
             for _ in 0..rounds {
                 let bvh = timed(&mut || {
                     exact.build_bvh(&scene, &BvhParams::default()).unwrap();
@@ -1064,10 +1063,22 @@ mod tests {
                 let hb = timed(&mut || {
                     exact.build_kd(&scene, &high).unwrap();
                 });
-                let (tf, te) = (trace(&fast, &mut hf), trace(&exact, &mut he));
-                for (k, x) in [m1 / bvh, l1 / bvh, m1 / m2, l1 / l2, hb / m1, te / tf]
-                    .into_iter()
-                    .enumerate()
+                let (tf, te, tl) = (
+                    trace(&fast, &mut hf),
+                    trace(&exact, &mut he),
+                    trace(&coarse, &mut hl),
+                );
+                for (k, x) in [
+                    m1 / bvh,
+                    l1 / bvh,
+                    m1 / m2,
+                    l1 / l2,
+                    hb / m1,
+                    te / tf,
+                    te / tl,
+                ]
+                .into_iter()
+                .enumerate()
                 {
                     r[k].push(x);
                 }
@@ -1078,12 +1089,13 @@ mod tests {
             };
             let differ = hf
                 .iter()
-                .zip(&he)
+                .chain(&hl)
+                .zip(he.iter().chain(&he))
                 .filter(|(a, b)| a.prim != b.prim || a.t.to_bits() != b.t.to_bits())
                 .count();
             let m: Vec<f64> = r.iter_mut().map(med_of).collect();
             println!(
-                "| {} | {n} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.3} | {:.2}, {:.2} | {:.2} | {differ} |",
+                "| {} | {n} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.3} | {:.2}, {:.2} | {:.2} | {:.2} | {differ} |",
                 file.split('/').next().unwrap(),
                 m[0],
                 m[1],
@@ -1093,7 +1105,8 @@ mod tests {
                 info.sah_cost / hi_info.sah_cost,
                 info.refs as f64 / info.triangles as f64,
                 hi_info.refs as f64 / hi_info.triangles as f64,
-                m[5]
+                m[5],
+                m[6]
             );
         }
     }

@@ -1,4 +1,4 @@
-//! The fast kd build (`BuildQuality::Medium`, the default, and `Low`):
+//! The fast kd build (`BuildQuality::Low`, the default, and `Medium`):
 //! binned SAH after Shevtsov, Soupikov and Kapustin 2007 ("Highly
 //! parallel fast kd-tree construction for interactive ray tracing of
 //! dynamic scenes", sections 3-4; Wald and Havran 2006, section 5, name
