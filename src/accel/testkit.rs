@@ -546,3 +546,27 @@ impl crate::mem::par::Par for Backwards {
         (0..self.0).rev().for_each(task)
     }
 }
+
+/// An OBJ file as one mesh (vertices, indices), or `None` when it cannot
+/// be read (the scene tests skip absent scenes).
+pub fn load_obj(path: &std::path::Path) -> Option<(Vec<f32>, Vec<u32>)> {
+    let opts = tobj::LoadOptions {
+        triangulate: true,
+        single_index: false,
+        ..Default::default()
+    };
+    let (models, _) = tobj::load_obj(path, &opts).ok()?;
+    let (mut v, mut ix) = (Vec::new(), Vec::new());
+    for m in models {
+        let base = (v.len() / 3) as u32;
+        v.extend_from_slice(&m.mesh.positions);
+        ix.extend(m.mesh.indices.iter().map(|i| i + base));
+    }
+    Some((v, ix))
+}
+
+/// `file` of `../shared/scenes` (`load_obj`).
+pub fn shared_scene(file: &str) -> Option<(Vec<f32>, Vec<u32>)> {
+    let dir = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/scenes");
+    load_obj(&dir.join(file))
+}

@@ -1199,21 +1199,7 @@ mod perf {
             .map_or(0.0, |ns| ns as f64 * 1e-9)
     }
 
-    fn load(path: &std::path::Path) -> Option<(Vec<f32>, Vec<u32>)> {
-        let opts = tobj::LoadOptions {
-            triangulate: true,
-            single_index: false,
-            ..Default::default()
-        };
-        let (models, _) = tobj::load_obj(path, &opts).ok()?;
-        let (mut v, mut ix) = (Vec::new(), Vec::new());
-        for m in models {
-            let base = (v.len() / 3) as u32;
-            v.extend_from_slice(&m.mesh.positions);
-            ix.extend(m.mesh.indices.iter().map(|i| i + base));
-        }
-        Some((v, ix))
-    }
+    use crate::accel::testkit::load_obj as load;
 
     #[test]
     #[ignore]

@@ -310,8 +310,8 @@ pub(super) struct Stored {
 /// in `side`), check the pools (`fits(pools, n)` adds a build's own
 /// checks), then store the traceable triangles in caller order. Nothing a
 /// traversal reads is written before every check passed. With no
-/// traceable triangle the tree is one empty leaf, and `Ok(None)` says the
-/// build is done.
+/// traceable triangle the tree is one empty leaf, returned as
+/// `Ok(Err(info))`: the build is done.
 pub(super) fn store(
     pools: &mut KdPools<'_>,
     scene: &Scene<'_>,
@@ -757,8 +757,19 @@ mod tests {
                 empty += (node.count() == 0) as u32;
                 refs += node.count() as u32;
                 depth_sum += d as u64;
+                // Every triangle of a leaf meets its box (padded by far
+                // more than the build's padding): a leaf naming another
+                // part of the reference pool fails here.
+                let slack = 1e-3 * info.root.diagonal().length();
                 for &s in v.leaf_refs(node) {
                     seen[s as usize] = true;
+                    let t = &v.tris[s as usize];
+                    let lo = Vec3::from(t.v0).min(t.v1.into()).min(t.v2.into());
+                    let hi = Vec3::from(t.v0).max(t.v1.into()).max(t.v2.into());
+                    assert!(
+                        (lo - slack).cmple(b.max).all() && (hi + slack).cmpge(b.min).all(),
+                        "leaf {n}: triangle {s} outside its box"
+                    );
                 }
                 continue;
             }
@@ -834,7 +845,12 @@ mod tests {
             tight.refs.truncate(n + n / 2 + 8);
             tight.nodes.truncate(n / 2 + 8);
             tight.events.truncate(9 * n + 1024);
-            for (st, forced) in [(&mut big, false), (&mut tight, true)] {
+            // Few nodes, many references: most jobs outgrow their node
+            // shares and are built again in the rest.
+            let mut lean = Store::new(n, false);
+            roomy(&mut lean, n);
+            lean.nodes.truncate(n / 8 + 8);
+            for (st, forced) in [(&mut big, false), (&mut tight, true), (&mut lean, true)] {
                 let mut kd = st.kd();
                 for quality in [BuildQuality::Low, BuildQuality::Medium] {
                     let p = KdParams {
@@ -941,22 +957,7 @@ mod tests {
         assert!(kd.view().is_none());
     }
 
-    /// An OBJ scene of `../shared/scenes` as one mesh, or `None` when absent.
-    fn obj(file: &str) -> Option<(Vec<f32>, Vec<u32>)> {
-        let dir = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/scenes");
-        let opts = tobj::LoadOptions {
-            triangulate: true,
-            ..Default::default()
-        };
-        let (models, _) = tobj::load_obj(dir.join(file), &opts).ok()?;
-        let (mut v, mut ix) = (Vec::new(), Vec::new());
-        for m in models {
-            let base = (v.len() / 3) as u32;
-            v.extend_from_slice(&m.mesh.positions);
-            ix.extend(m.mesh.indices.iter().map(|i| i + base));
-        }
-        Some((v, ix))
-    }
+    use crate::accel::testkit::shared_scene as obj;
 
     /// The binned builds against the BVH SAH build and the exact kd build,
     /// and the binned tree's camera rays against the exact tree's, in
@@ -1115,7 +1116,6 @@ mod tests {
     #[test]
     #[ignore]
     fn table1_obj_scenes() {
-        let dir = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/scenes");
         for file in [
             "legocar/legocar.obj",
             "bunny/bunny_tinybvh.obj",
@@ -1126,22 +1126,10 @@ mod tests {
             if std::env::var("KD_ONLY").is_ok_and(|f| !file.contains(&f)) {
                 continue;
             }
-            let Ok((models, _)) = tobj::load_obj(
-                dir.join(file),
-                &tobj::LoadOptions {
-                    triangulate: true,
-                    ..Default::default()
-                },
-            ) else {
+            let Some((v, ix)) = obj(file) else {
                 eprintln!("{file}: not found, skipped");
                 continue;
             };
-            let (mut v, mut ix) = (Vec::new(), Vec::new());
-            for m in models {
-                let base = (v.len() / 3) as u32;
-                v.extend_from_slice(&m.mesh.positions);
-                ix.extend(m.mesh.indices.iter().map(|i| i + base));
-            }
             let scene = Scene::from_f32(&v, &ix).unwrap();
             let mut st = Store::new(scene.triangle_count() as usize, false);
             let mut kd = st.kd();

@@ -22,7 +22,9 @@
 //!    and a worker builds its subtree there depth first (the pending right
 //!    children's lists at the bottom of the region, as in `build.rs`).
 //! 4. The leader closes the gaps between the regions (nodes and
-//!    references moved down, child and reference indices shifted).
+//!    references moved down, child and reference indices shifted), then
+//!    builds the jobs that outgrew their shares again, in order, in the
+//!    pools' rest and the scratch up to the next such job's list.
 //!
 //! Each node's plane: every reference is binned by its box's lower and
 //! upper end on each axis ("min-max binning": `KdParams::bins` bins over
@@ -53,9 +55,12 @@
 //! - A bin index is the clamped place rounded by adding 2^23 (the float
 //!   to integer conversion of the baseline ISA is scalar); the bins only
 //!   estimate the counts, which `count` then takes by comparing floats.
-//! - A job's subtree has its share of the pools; a job that fills its
-//!   share makes leaves early (`KdInfo::forced_leaves`) where the exact
-//!   build, with one pool for the whole tree, may not.
+//! - A job's subtree has its share of the pools; a job that outgrows it
+//!   stops and the leader builds it again, after the others, in what they
+//!   left (its list stays at the start of its scratch share). Leaves are
+//!   forced (`KdInfo::forced_leaves`) only in that second build, where
+//!   the exact build, with one pool for the whole tree, may not force
+//!   them.
 //! - `KdInfo::events_peak` counts the scratch words the top's two levels
 //!   and the jobs' lists held (the regions are spread over the whole
 //!   scratch).
@@ -249,10 +254,20 @@ fn binned<const K: usize>(
 fn count(refs: &[Ref], pl: &Plane) -> (usize, usize) {
     let (mut l, mut r) = (0usize, 0usize);
     for q in refs {
-        l += (q.lo[pl.axis] < pl.pos) as usize;
-        r += (q.hi[pl.axis] > pl.pos) as usize;
+        let (left, right) = sides(q, pl);
+        l += left as usize;
+        r += right as usize;
     }
     (l, r)
+}
+
+/// Whether reference `q` goes left (its box starts below the plane) and
+/// right (it ends above it, or does not go left: a box of no width on the
+/// plane goes right), for `count` and `divide` alike.
+#[inline(always)]
+fn sides(q: &Ref, pl: &Plane) -> (bool, bool) {
+    let left = q.lo[pl.axis] < pl.pos;
+    (left, q.hi[pl.axis] > pl.pos || !left)
 }
 
 /// The children boxes of `b` at `pl`.
@@ -277,7 +292,7 @@ fn divide(
     let perfect = cx.p.quality != BuildQuality::Low;
     let (mut wl, mut wr) = (0usize, 0usize);
     for q in src {
-        let (l, r) = (q.lo[pl.axis] < pl.pos, q.hi[pl.axis] > pl.pos);
+        let (l, r) = sides(q, pl);
         if !(l && r) {
             if l {
                 left[wl] = *q;
@@ -701,13 +716,19 @@ pub(super) fn build(
                     KdNode::inner(nd.axis(), nd.split(), nd.left() as u32 - shift)
                 }
             };
+            // Either pool's region may move alone: the leaves name
+            // references, the inner nodes children.
             if shift > 0 {
                 nodes.copy_within(from..from + used, to);
+            }
+            if shift > 0 || rshift > 0 {
                 for nd in &mut nodes[to..to + used] {
                     *nd = moved(*nd);
                 }
             }
-            refs.copy_within(rfrom..rfrom + rused, rto);
+            if rshift > 0 {
+                refs.copy_within(rfrom..rfrom + rused, rto);
+            }
             nodes[j.node as usize] = moved(KdNode {
                 a: j.root_a,
                 b: j.root_b,
@@ -741,8 +762,9 @@ fn runs_of(nodes: &[Node], workers: usize) -> [usize; MAX_WORKERS + 1] {
     let mut b = [nodes.len(); MAX_WORKERS + 1];
     b[0] = 0;
     let (mut k, mut acc) = (0usize, 0usize);
+    let each = share(total, 0, workers).len();
     for (w, bw) in b.iter_mut().enumerate().take(workers).skip(1) {
-        while k < nodes.len() && acc < share(total, 0, workers).len() * w {
+        while k < nodes.len() && acc < each * w {
             acc += weight(&nodes[k]);
             k += 1;
         }
