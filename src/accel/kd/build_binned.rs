@@ -499,7 +499,7 @@ pub(super) fn build(
         // The leader numbers the children and places their lists; a node
         // splits only when every later node of the level can still be
         // carried (one job entry and its list each).
-        let (mut k, mut at, mut total, mut any) = (0usize, 0usize, 0usize, false);
+        let (mut k, mut at, mut any) = (0usize, 0usize, false);
         let mut later: usize = lv.iter().map(|nd| nd.n as usize).sum();
         let nodes_len = nodes.len().min(KdNode::MAX_COUNT as usize);
         for (i, nd) in lv.iter_mut().enumerate() {
@@ -508,7 +508,7 @@ pub(super) fn build(
             let splits = nd.split == 1
                 && k + 2 + rest <= jobs_cap
                 && at + c + later <= half
-                && total + c + later <= refs.len()
+                && at + c + later <= refs.len()
                 && next_node + 2 <= nodes_len;
             if splits {
                 let (l, r) = children(
@@ -533,7 +533,7 @@ pub(super) fn build(
                     };
                 }
                 next_node += 2;
-                (k, at, total, any) = (k + 2, at + c, total + c, true);
+                (k, at, any) = (k + 2, at + c, true);
             } else {
                 // Carried: the checks above kept room for it.
                 nd.split = 0;
@@ -541,7 +541,7 @@ pub(super) fn build(
                     off: at as u32,
                     ..*nd
                 };
-                (k, at, total) = (k + 1, at + nd.n as usize, total + nd.n as usize);
+                (k, at) = (k + 1, at + nd.n as usize);
             }
         }
         if !any {
