@@ -1046,8 +1046,8 @@ static const char *STRUCT_NAME[NSTRUCT + 1] = {"grid", "BVH", "BVH LOW", "kd", "
 enum { F_PGRID = NSTRUCT, NFRAME };
 
 /* What the caller's threads join. */
-enum { J_BVH_LOW, J_REFIT, J_GRID, J_DEFERRED };
-static const char *JOIN_NAME[] = {"BVH LOW build", "refit", "grid build", "deferred frame"};
+enum { J_BVH_LOW, J_REFIT, J_GRID, J_DEFERRED, J_KD };
+static const char *JOIN_NAME[] = {"BVH LOW build", "refit", "grid build", "deferred frame", "kd build"};
 
 /* One thread of a joined call (sheaf_context_build_bvh_joined,
  * sheaf_context_refit_bvh_joined, sheaf_context_build_grid_joined). */
@@ -1068,6 +1068,7 @@ static void *join_thread(void *arg)
     JoinArg *a = arg;
     a->status = a->what == J_REFIT ? sheaf_context_refit_bvh_joined(a->ctx, NULL, NULL, a->index, a->count)
               : a->what == J_GRID  ? sheaf_context_build_grid_joined(a->ctx, NULL, a->index, a->count)
+              : a->what == J_KD    ? sheaf_context_build_kd_joined(a->ctx, NULL, a->index, a->count)
               : a->what == J_DEFERRED
                   ? sheaf_context_render_deferred_joined(a->ctx, a->job, a->rgba, 4 * (size_t)a->job->frame.width,
                                                          a->rgba_len, a->index, a->count)
@@ -1111,6 +1112,7 @@ static sheaf_status sheaf_joined(sheaf_context *ctx, int T, int what) { return s
 static sheaf_status sheaf_build_low_joined(sheaf_context *ctx, int T) { return sheaf_joined(ctx, T, J_BVH_LOW); }
 static sheaf_status sheaf_refit_joined(sheaf_context *ctx, int T) { return sheaf_joined(ctx, T, J_REFIT); }
 static sheaf_status sheaf_grid_joined(sheaf_context *ctx, int T) { return sheaf_joined(ctx, T, J_GRID); }
+static sheaf_status sheaf_kd_joined(sheaf_context *ctx, int T) { return sheaf_joined(ctx, T, J_KD); }
 
 /* Build structure st into the context (the BVH at MEDIUM or LOW), the BVH
  * with `width` children per node for single rays (4: also the wide tree). */
@@ -1308,6 +1310,7 @@ typedef struct {
     double refit_ms[4];              /* [threads]: sheaf_context_refit_bvh_joined, the same vertices */
     double low_ms[4];                /* [threads]: the BVH LOW build joined by that many threads */
     double grid_ms[4];               /* [threads]: the grid build joined by that many threads */
+    double kd_ms[4];                 /* [threads]: the kd build joined by that many threads */
     double anim[4][4], anim_parts[4][4][3]; /* [ANIM mode][threads]: mean ms per frame; update, camera, shadows */
     size_t anim_differ;              /* frames whose sheaf refit-tree hits differ from the rebuilt tree's */
     double e_refit_first[4], e_refit[4]; /* [threads]: Embree LOW + geometry REFIT */
@@ -1424,22 +1427,25 @@ static void time_sheaf_builds(Bench *b)
         b->build_ms[st] = 1e3 * median(t, reps);
         progress("  sheaf %s build %.1f ms\n", STRUCT_NAME[st], b->build_ms[st]);
     }
-    /* The LOW build and the grid joined by each thread count (1: the
-     * calling thread). */
-    for (int g = 0; g < 2; g++)
+    /* The LOW build, the grid and the kd-tree joined by each thread count
+     * (1: the calling thread; the kd-tree is the same for any count). */
+    for (int g = 0; g < 3; g++)
         for (int ti = 0; ti < b->o->nthreads; ti++) {
             int T = b->o->threads[ti];
             double t[MAX_REPS];
             int reps = b->o->profile ? 1 : b->reps;
             for (int r = 0; r < reps; r++) {
                 double t0 = now_s();
-                sheaf_status e = g ? sheaf_grid_joined(b->ctx, T) : sheaf_build_low_joined(b->ctx, T);
+                sheaf_status e = g == 2 ? sheaf_kd_joined(b->ctx, T)
+                               : g      ? sheaf_grid_joined(b->ctx, T)
+                                        : sheaf_build_low_joined(b->ctx, T);
                 t[r] = now_s() - t0;
                 check_sheaf(b->ctx, e, "joined build");
             }
-            (g ? b->grid_ms : b->low_ms)[ti] = 1e3 * median(t, reps);
-            progress("  sheaf %s joined by %d threads %.1f ms\n", g ? "grid" : "BVH LOW build", T,
-                     (g ? b->grid_ms : b->low_ms)[ti]);
+            double *ms = g == 2 ? b->kd_ms : g ? b->grid_ms : b->low_ms;
+            ms[ti] = 1e3 * median(t, reps);
+            progress("  sheaf %s joined by %d threads %.1f ms\n", g == 2 ? "kd build" : g ? "grid" : "BVH LOW build", T,
+                     ms[ti]);
         }
     /* The reference, the checks and the method tables use the SAH tree. */
     check_sheaf(b->ctx, sheaf_build(b->ctx, S_BVH), "build");
@@ -1852,6 +1858,7 @@ static void time_sheaf_frames(Bench *b)
                 double t0 = now_s();
                 sheaf_status e = st == S_BVH_LOW ? sheaf_build_low_joined(b->ctx, T)
                                : st == S_GRID    ? sheaf_grid_joined(b->ctx, T)
+                               : st == S_KD      ? sheaf_kd_joined(b->ctx, T)
                                                  : sheaf_build(b->ctx, st);
                 tb[r] = now_s() - t0;
                 check_sheaf(b->ctx, e, "build");
@@ -2069,9 +2076,9 @@ static void print_tables(Bench *b)
     printf("%u triangles (%u excluded by sheaf: non-finite or zero area), %ux%u, %s; "
            "%zu camera rays (%zu hit), %zu shadow rays (%zu occluded); load average %.2f before, %.2f after.\n\n",
            b->s.nt, b->s.excluded, b->W, b->H, b->s.view, b->N, b->nhits, b->NS, b->nocc, b->load0, b->load1);
-    printf("**Builds**, ms (median of %d; sheaf's grid, BVH LOW build and refit run on the caller's threads, "
+    printf("**Builds**, ms (median of %d; sheaf's grid, BVH LOW build, kd build and refit run on the caller's threads, "
            "which join them (sheaf_context_build_grid_joined, sheaf_context_build_bvh_joined, "
-           "sheaf_context_refit_bvh_joined; the bench starts those threads per call, inside the timing, as it "
+           "sheaf_context_build_kd_joined, sheaf_context_refit_bvh_joined; the bench starts those threads per call, inside the timing, as it "
            "does for its ray jobs), its other builds on the calling thread; Embree's on its device threads):\n\n",
            b->reps);
     printf("| structure |");
@@ -2080,9 +2087,13 @@ static void print_tables(Bench *b)
     for (int ti = 0; ti < b->o->nthreads; ti++) printf("--:|");
     printf("\n");
     for (int st = 0; st < NSTRUCT; st++) {
-        printf("| sheaf %s%s |", STRUCT_NAME[st], st == S_BVH_LOW || st == S_GRID ? " (joined by the thread count)" : "");
+        int joined = st == S_BVH_LOW || st == S_GRID || st == S_KD;
+        printf("| sheaf %s%s |", STRUCT_NAME[st], joined ? " (joined by the thread count)" : "");
         for (int ti = 0; ti < b->o->nthreads; ti++)
-            printf(" %.1f |", st == S_BVH_LOW ? b->low_ms[ti] : st == S_GRID ? b->grid_ms[ti] : b->build_ms[st]);
+            printf(" %.1f |", st == S_BVH_LOW ? b->low_ms[ti]
+                             : st == S_GRID   ? b->grid_ms[ti]
+                             : st == S_KD     ? b->kd_ms[ti]
+                                              : b->build_ms[st]);
         printf("\n");
     }
     for (int q = 0; q < 3; q++) {

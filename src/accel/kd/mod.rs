@@ -93,7 +93,7 @@ pub struct KdParams {
     /// triangles' boxes clipped to each child, `Medium` with the triangles
     /// clipped (perfect splits: a 5-10% lower SAH cost, a 20-25% longer
     /// build); `High` is the exact O(N log N) sweep with perfect splits
-    /// (`build.rs`, single-threaded, 5-6x the binned build's time). Every
+    /// (`build.rs`, single-threaded, 6-7x the `Low` build's time). Every
     /// traversal is exact on every tree; the shape decides speed only.
     pub quality: BuildQuality,
     /// SAH bins per axis of the binned builds (2..=64, default 32).
