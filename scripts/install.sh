@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Install sheaf for C and C++ users under PREFIX (the layout of cargo-c):
 #
-#   PREFIX/include/sheaf/sheaf.h
+#   PREFIX/include/sheaf/sheaf.h, sheaf.hpp
 #   PREFIX/lib/libsheaf.a
 #   PREFIX/lib/libsheaf.so.X.Y.Z, libsheaf.so.X -> it (the soname), libsheaf.so -> libsheaf.so.X
 #   PREFIX/lib/pkgconfig/sheaf.pc, sheaf-static.pc
@@ -71,6 +71,7 @@ cmake_native="$(printf '%s\n' $native | sed -n 's/^-l//p' | paste -sd ';' -)"
 echo "== installing sheaf $version into ${dest}"
 install -d "$dest/include/sheaf" "$dest/lib/pkgconfig" "$dest/lib/cmake/sheaf"
 install -m 644 "$root/include/sheaf.h" "$dest/include/sheaf/sheaf.h"
+install -m 644 "$root/include/sheaf.hpp" "$dest/include/sheaf/sheaf.hpp"
 install -m 644 "$libdir_in/libsheaf.a" "$dest/lib/libsheaf.a"
 install -m 755 "$libdir_in/libsheaf.so" "$dest/lib/libsheaf.so.$version"
 ln -sfn "libsheaf.so.$version" "$dest/lib/libsheaf.so.$major"
@@ -93,6 +94,6 @@ if command -v readelf >/dev/null 2>&1; then
     echo "warning: libsheaf.so has soname '${soname:-none}', expected libsheaf.so.$major (build.rs sets it on Linux)" >&2
   fi
 fi
-echo "installed: include/sheaf/sheaf.h, lib/libsheaf.{a,so.$version,so.$major,so}, lib/pkgconfig/sheaf{,-static}.pc, lib/cmake/sheaf/"
+echo "installed: include/sheaf/sheaf.h, sheaf.hpp, lib/libsheaf.{a,so.$version,so.$major,so}, lib/pkgconfig/sheaf{,-static}.pc, lib/cmake/sheaf/"
 echo "use: PKG_CONFIG_PATH=$prefix/lib/pkgconfig pkg-config --cflags --libs sheaf"
 echo "     cmake -DCMAKE_PREFIX_PATH=$prefix ...   (find_package(sheaf CONFIG REQUIRED))"

@@ -542,6 +542,17 @@ fn race_free(tool: RaceTool, src: &str) {
     }
 }
 
+/// `include/sheaf.hpp` as C++17 and C++20 (spans): its owners, both error
+/// policies, owners released while an exception unwinds.
+#[test]
+fn hpp_owners_as_cpp17_and_cpp20() {
+    for std in ["-std=c++17", "-std=c++20"] {
+        for link in [Link::Static, Link::Shared] {
+            run(&compile("g++", &[std], "test_hpp.cpp", link));
+        }
+    }
+}
+
 #[test]
 fn cpp_static_and_shared() {
     for link in [Link::Static, Link::Shared] {

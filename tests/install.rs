@@ -160,6 +160,7 @@ fn install_then_build_the_example_against_it() {
     let lib = prefix.join("lib");
     for f in [
         "include/sheaf/sheaf.h",
+        "include/sheaf/sheaf.hpp",
         "lib/libsheaf.a",
         &format!("lib/libsheaf.so.{version}"),
         "lib/pkgconfig/sheaf.pc",

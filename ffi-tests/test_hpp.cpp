@@ -1,0 +1,171 @@
+// include/sheaf.hpp under g++ -std=c++17 and -std=c++20 (-Wall -Wextra
+// -Werror -pedantic): the owners, both error policies, the ray overloads
+// (spans with C++20), and owners released while an exception unwinds.
+#include "sheaf.hpp"
+
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <limits>
+#include <stdexcept>
+#include <vector>
+
+#define CHECK(cond)                                                                           \
+    do {                                                                                      \
+        if (!(cond)) {                                                                        \
+            std::fprintf(stderr, "    %s:%d: check failed: %s\n", __FILE__, __LINE__, #cond); \
+            return false;                                                                     \
+        }                                                                                     \
+    } while (0)
+
+namespace {
+
+const std::vector<float> kVertices = {0, 0, 0, 1, 0, 0, 1, 1, 0, 0, 1, 0};
+const std::vector<uint32_t> kIndices = {0, 1, 2, 0, 2, 3};
+
+std::vector<sheaf_ray> rays() {
+    const float inf = std::numeric_limits<float>::infinity();
+    return {sheaf_ray{{0.75f, 0.25f, 1.0f}, 0.0f, {0.0f, 0.0f, -1.0f}, inf},
+            sheaf_ray{{2.0f, 2.0f, 1.0f}, 0.0f, {0.0f, 0.0f, -1.0f}, inf}};
+}
+
+bool test_trace_through_the_owner() {
+    sheaf::Context ctx;
+    ctx.create(2);
+    CHECK(ctx);
+    ctx.set_geometry(kVertices, kIndices);
+    ctx.build_bvh();
+    const std::vector<sheaf_ray> r = rays();
+    std::vector<sheaf_hit> hits;
+    ctx.trace(SHEAF_METHOD_BVH_SINGLE, r, hits);
+    CHECK(hits.size() == 2 && hits[0].prim == 0 && std::fabs(hits[0].t - 1.0f) < 1e-6f);
+    CHECK(hits[1].prim == SHEAF_INVALID_ID);
+    // The (pointer, count) form and the C call give the same bits.
+    std::vector<sheaf_hit> raw(r.size()), c(r.size());
+    ctx.trace(SHEAF_METHOD_BVH_SINGLE, r.data(), r.size(), raw.data());
+    CHECK(sheaf_context_trace(ctx.get(), SHEAF_METHOD_BVH_SINGLE, r.data(), c.data(), r.size()) == SHEAF_STATUS_OK);
+    CHECK(std::memcmp(raw.data(), c.data(), sizeof(sheaf_hit) * c.size()) == 0);
+    std::vector<uint8_t> occ;
+    ctx.occluded(SHEAF_METHOD_BVH_SINGLE, r, occ);
+    CHECK(occ.size() == 2 && occ[0] == 1 && occ[1] == 0);
+#ifdef SHEAF_HPP_SPAN
+    std::vector<sheaf_hit> spanned(r.size());
+    ctx.trace(SHEAF_METHOD_BVH_SINGLE, std::span<const sheaf_ray>(r), std::span<sheaf_hit>(spanned));
+    CHECK(std::memcmp(spanned.data(), c.data(), sizeof(sheaf_hit) * c.size()) == 0);
+    bool threw = false;
+    try {
+        ctx.trace(SHEAF_METHOD_BVH_SINGLE, std::span<const sheaf_ray>(r), std::span<sheaf_hit>(spanned).first(1));
+    } catch (const sheaf::Error &e) {
+        threw = e.status() == SHEAF_STATUS_INVALID_ARGUMENT;
+    }
+    CHECK(threw);
+#endif
+    // Moved: the new owner holds the context, the old one nothing.
+    sheaf::Context moved = std::move(ctx);
+    CHECK(moved && !ctx);
+    sheaf_stats st;
+    moved.stats(st);
+    CHECK(st.bvh_triangles == 2);
+    return true;
+}
+
+bool test_error_policies() {
+    // Throw: the status and the context's message.
+    sheaf::Context ctx;
+    ctx.create(2);
+    bool threw = false;
+    try {
+        ctx.build_bvh();  // no geometry yet
+    } catch (const sheaf::Error &e) {
+        threw = e.status() == SHEAF_STATUS_NO_GEOMETRY && std::strlen(e.what()) > 0;
+    }
+    CHECK(threw);
+    // Return: the same status, nothing thrown.
+    sheaf::ContextNoThrow quiet;
+    CHECK(quiet.create(2) == SHEAF_STATUS_OK);
+    CHECK(quiet.build_bvh() == SHEAF_STATUS_NO_GEOMETRY);
+    sheaf_kd_params bad;
+    CHECK(sheaf_kd_params_default(&bad) == SHEAF_STATUS_OK);
+    bad.bins = 1;
+    CHECK(quiet.set_geometry(kVertices, kIndices) == SHEAF_STATUS_OK);
+    CHECK(quiet.build_kd(&bad) == SHEAF_STATUS_INVALID_ARGUMENT);
+    sheaf_limits l;
+    CHECK(sheaf_limits_default(2, &l) == SHEAF_STATUS_OK);
+    l.structures = 0x80000000u;  // no such structure
+    sheaf::ContextNoThrow none;
+    CHECK(none.create(l) != SHEAF_STATUS_OK && !none);
+    return true;
+}
+
+sheaf_scene_info committed(sheaf::Context &ctx) {
+    sheaf_scene_info info;
+    ctx.commit_scene(&info);
+    return info;
+}
+
+bool test_scene_owners_and_unwinding() {
+    sheaf_limits l;
+    CHECK(sheaf_limits_default(16, &l) == SHEAF_STATUS_OK);
+    l.structures = SHEAF_STRUCTURE_BVH;
+    l.max_geometries = 2;
+    l.max_instances = 2;
+    l.max_scene_triangles = 16;
+    sheaf::Context ctx;
+    ctx.create(l);
+    const sheaf_mesh mesh = {kVertices.data(), 3 * sizeof(float), 4, kIndices.data(), 2};
+    const float xf[12] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0};
+    sheaf::Context::SceneGeometry geometry;
+    sheaf::Context::Instance instance;
+    ctx.set_scene_geometry(0, mesh, nullptr, geometry);
+    ctx.set_instance(0, 0, xf, ~0u, instance);
+    CHECK(geometry && instance && geometry.id() == 0);
+    sheaf_scene_info info = committed(ctx);
+    CHECK(info.geometries == 1 && info.instances == 1);
+    // Owners made in a scope that throws remove their ids as it unwinds.
+    try {
+        sheaf::Context::SceneGeometry g1;
+        sheaf::Context::Instance i1;
+        ctx.set_scene_geometry(1, mesh, nullptr, g1);
+        ctx.set_instance(1, 1, xf, ~0u, i1);
+        throw std::runtime_error("unwind");
+    } catch (const std::runtime_error &) {
+    }
+    info = committed(ctx);
+    CHECK(info.geometries == 1 && info.instances == 1);
+    // A refused call leaves the owner as it was.
+    sheaf::Context::Instance other;
+    bool threw = false;
+    try {
+        ctx.set_instance(1, 7, xf, ~0u, other);  // no geometry 7
+    } catch (const sheaf::Error &) {
+        threw = true;
+    }
+    CHECK(threw && !other);
+    instance.reset();
+    geometry.reset();
+    info = committed(ctx);
+    CHECK(info.geometries == 0 && info.instances == 0);
+    return true;
+}
+
+void run_test(const char *name, bool (*test)(), int &passed, int &failed) {
+    bool ok = false;
+    try {
+        ok = test();
+    } catch (const std::exception &e) {
+        std::fprintf(stderr, "    unexpected exception: %s\n", e.what());
+    }
+    std::printf("%s: %s\n", ok ? "PASSED" : "FAILED", name);
+    (ok ? passed : failed) += 1;
+}
+
+}  // namespace
+
+int main() {
+    int passed = 0, failed = 0;
+    run_test("test_trace_through_the_owner", test_trace_through_the_owner, passed, failed);
+    run_test("test_error_policies", test_error_policies, passed, failed);
+    run_test("test_scene_owners_and_unwinding", test_scene_owners_and_unwinding, passed, failed);
+    std::printf("%d passed, %d failed\n", passed, failed);
+    return failed == 0 ? 0 : 1;
+}

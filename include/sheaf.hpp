@@ -1,0 +1,247 @@
+// sheaf.hpp: C++17 owners over the C ABI of sheaf.h (header only).
+//
+// - sheaf::BasicContext<Policy> owns one sheaf_context (move-only; the
+//   destructor destroys it), sheaf::BasicSceneGeometry and
+//   sheaf::BasicInstance own one two-level scene geometry or instance id
+//   (the destructor removes it). An owner of an id must be destroyed or
+//   released before its context.
+// - Policy picks how a status other than SHEAF_STATUS_OK is reported:
+//   sheaf::Throw (the default: `sheaf::Context`) throws sheaf::Error with
+//   the status and the context's last error message; sheaf::Return
+//   (`sheaf::ContextNoThrow`) returns the sheaf_status and never throws.
+// - Rays and hits are taken as (pointer, count), as std::vector, and as
+//   std::span where the standard library has it (C++20).
+//
+// Every call forwards to the C function of the same name; its contract
+// (thread safety, what a failed call leaves unchanged) is the C one.
+#ifndef SHEAF_HPP
+#define SHEAF_HPP
+
+#include "sheaf.h"
+
+#include <cstddef>
+#include <cstdint>
+#include <stdexcept>
+#include <string>
+#include <utility>
+#include <vector>
+
+#if defined(__has_include)
+#if __has_include(<version>)
+#include <version>
+#endif
+#endif
+#if defined(__cpp_lib_span) && __cpp_lib_span >= 202002L
+#include <span>
+#define SHEAF_HPP_SPAN 1
+#endif
+
+namespace sheaf {
+
+/// A failed call under the Throw policy.
+class Error : public std::runtime_error {
+public:
+    Error(sheaf_status status, const std::string &what) : std::runtime_error(what), status_(status) {}
+    sheaf_status status() const noexcept { return status_; }
+
+private:
+    sheaf_status status_;
+};
+
+namespace detail {
+/// The status's text, and the context's last error message when it has one.
+inline std::string message(sheaf_status s, const sheaf_context *ctx) {
+    std::string m = sheaf_status_string(s);
+    if (ctx != nullptr) {
+        char buf[512];
+        size_t written = 0;
+        if (sheaf_context_last_error(ctx, buf, sizeof buf, &written) == SHEAF_STATUS_OK && written > 0) {
+            m += ": ";
+            m += buf;
+        }
+    }
+    return m;
+}
+} // namespace detail
+
+/// Throw sheaf::Error on failure; calls return void.
+struct Throw {
+    using Result = void;
+    static void check(sheaf_status s, const sheaf_context *ctx) {
+        if (s != SHEAF_STATUS_OK) throw Error(s, detail::message(s, ctx));
+    }
+};
+
+/// Return the sheaf_status; never throw.
+struct Return {
+    using Result = sheaf_status;
+    static sheaf_status check(sheaf_status s, const sheaf_context *) noexcept { return s; }
+};
+
+template <class Policy> class BasicContext;
+
+/// Owner of a two-level scene object id (`Remove` removes it).
+template <class Policy, sheaf_status (*Remove)(sheaf_context *, uint32_t)> class BasicOwnedId {
+public:
+    BasicOwnedId() noexcept = default;
+    BasicOwnedId(const BasicOwnedId &) = delete;
+    BasicOwnedId &operator=(const BasicOwnedId &) = delete;
+    BasicOwnedId(BasicOwnedId &&o) noexcept : ctx_(std::exchange(o.ctx_, nullptr)), id_(o.id_) {}
+    BasicOwnedId &operator=(BasicOwnedId &&o) noexcept {
+        if (this != &o) {
+            reset();
+            ctx_ = std::exchange(o.ctx_, nullptr);
+            id_ = o.id_;
+        }
+        return *this;
+    }
+    ~BasicOwnedId() { reset(); }
+    /// Whether it owns an id.
+    explicit operator bool() const noexcept { return ctx_ != nullptr; }
+    uint32_t id() const noexcept { return id_; }
+    /// Remove the id now (its status is ignored, as in the destructor).
+    void reset() noexcept {
+        if (ctx_ != nullptr) (void)Remove(std::exchange(ctx_, nullptr), id_);
+    }
+    /// Stop owning the id without removing it.
+    uint32_t release() noexcept {
+        ctx_ = nullptr;
+        return id_;
+    }
+
+private:
+    friend class BasicContext<Policy>;
+    BasicOwnedId(sheaf_context *ctx, uint32_t id) noexcept : ctx_(ctx), id_(id) {}
+    sheaf_context *ctx_ = nullptr;
+    uint32_t id_ = 0;
+};
+
+template <class Policy>
+using BasicSceneGeometry = BasicOwnedId<Policy, sheaf_context_remove_scene_geometry>;
+template <class Policy> using BasicInstance = BasicOwnedId<Policy, sheaf_context_remove_instance>;
+
+/// Owner of a sheaf_context.
+template <class Policy = Throw> class BasicContext {
+public:
+    using Result = typename Policy::Result;
+    using SceneGeometry = BasicSceneGeometry<Policy>;
+    using Instance = BasicInstance<Policy>;
+
+    BasicContext() noexcept = default;
+    BasicContext(const BasicContext &) = delete;
+    BasicContext &operator=(const BasicContext &) = delete;
+    BasicContext(BasicContext &&o) noexcept : ctx_(std::exchange(o.ctx_, nullptr)) {}
+    BasicContext &operator=(BasicContext &&o) noexcept {
+        if (this != &o) {
+            reset();
+            ctx_ = std::exchange(o.ctx_, nullptr);
+        }
+        return *this;
+    }
+    ~BasicContext() { reset(); }
+
+    /// Create the context for `limits` (destroying the one held, if any).
+    Result create(const sheaf_limits &limits) {
+        reset();
+        return Policy::check(sheaf_context_create(&limits, &ctx_), nullptr);
+    }
+    /// `create` with the default limits for `max_triangles`.
+    Result create(uint32_t max_triangles) {
+        sheaf_limits l;
+        sheaf_status s = sheaf_limits_default(max_triangles, &l);
+        if (s != SHEAF_STATUS_OK) return Policy::check(s, nullptr);
+        return create(l);
+    }
+    void reset() noexcept {
+        if (ctx_ != nullptr) sheaf_context_destroy(std::exchange(ctx_, nullptr));
+    }
+    sheaf_context *get() const noexcept { return ctx_; }
+    sheaf_context *release() noexcept { return std::exchange(ctx_, nullptr); }
+    explicit operator bool() const noexcept { return ctx_ != nullptr; }
+
+    // Single mesh.
+    Result set_geometry(const float *vertices, size_t vertex_stride_bytes, uint32_t vertex_count,
+                        const uint32_t *indices, uint32_t triangle_count) {
+        return check(sheaf_context_set_geometry(ctx_, vertices, vertex_stride_bytes, vertex_count, indices,
+                                                triangle_count));
+    }
+    /// Packed xyz vertices and three indices per triangle.
+    Result set_geometry(const std::vector<float> &vertices, const std::vector<uint32_t> &indices) {
+        return set_geometry(vertices.data(), 3 * sizeof(float), static_cast<uint32_t>(vertices.size() / 3),
+                            indices.data(), static_cast<uint32_t>(indices.size() / 3));
+    }
+    Result build_grid(const sheaf_grid_params *p = nullptr) { return check(sheaf_context_build_grid(ctx_, p)); }
+    Result build_bvh(const sheaf_bvh_params *p = nullptr) { return check(sheaf_context_build_bvh(ctx_, p)); }
+    Result build_kd(const sheaf_kd_params *p = nullptr) { return check(sheaf_context_build_kd(ctx_, p)); }
+    /// One of `count` threads joining a kd build (`sheaf_context_build_kd_joined`).
+    Result build_kd_joined(const sheaf_kd_params *p, uint32_t index, uint32_t count) {
+        return check(sheaf_context_build_kd_joined(ctx_, p, index, count));
+    }
+    Result refit_bvh(const sheaf_refit_params *p = nullptr, sheaf_refit_info *out = nullptr) {
+        return check(sheaf_context_refit_bvh(ctx_, p, out));
+    }
+
+    // Rays: (pointer, count), vectors, spans.
+    Result trace(sheaf_method m, const sheaf_ray *rays, size_t count, sheaf_hit *hits) const {
+        return check(sheaf_context_trace(ctx_, m, rays, hits, count));
+    }
+    Result trace(sheaf_method m, const std::vector<sheaf_ray> &rays, std::vector<sheaf_hit> &hits) const {
+        hits.resize(rays.size());
+        return trace(m, rays.data(), rays.size(), hits.data());
+    }
+    Result trace_with(const sheaf_trace_params &p, const sheaf_ray *rays, size_t count, sheaf_hit *hits) const {
+        return check(sheaf_context_trace_with(ctx_, &p, rays, hits, count));
+    }
+    Result occluded(sheaf_method m, const sheaf_ray *rays, size_t count, uint8_t *occluded) const {
+        return check(sheaf_context_occluded(ctx_, m, rays, occluded, count));
+    }
+    Result occluded(sheaf_method m, const std::vector<sheaf_ray> &rays, std::vector<uint8_t> &occluded) const {
+        occluded.resize(rays.size());
+        return this->occluded(m, rays.data(), rays.size(), occluded.data());
+    }
+#ifdef SHEAF_HPP_SPAN
+    /// `rays.size()` must equal `hits.size()` (else SHEAF_STATUS_INVALID_ARGUMENT
+    /// from the C call's length check is not possible: the shorter count is
+    /// refused here).
+    Result trace(sheaf_method m, std::span<const sheaf_ray> rays, std::span<sheaf_hit> hits) const {
+        if (rays.size() != hits.size()) return check(SHEAF_STATUS_INVALID_ARGUMENT);
+        return trace(m, rays.data(), rays.size(), hits.data());
+    }
+    Result occluded(sheaf_method m, std::span<const sheaf_ray> rays, std::span<uint8_t> occluded) const {
+        if (rays.size() != occluded.size()) return check(SHEAF_STATUS_INVALID_ARGUMENT);
+        return this->occluded(m, rays.data(), rays.size(), occluded.data());
+    }
+#endif
+
+    // Two-level scenes: the owners remove their ids when destroyed.
+    Result set_scene_geometry(uint32_t id, const sheaf_mesh &mesh, const sheaf_geometry_params *p,
+                              SceneGeometry &owner) {
+        sheaf_status s = sheaf_context_set_scene_geometry(ctx_, id, &mesh, p);
+        if (s == SHEAF_STATUS_OK && !(owner && owner.id() == id && owner.ctx_ == ctx_)) owner = SceneGeometry(ctx_, id);
+        return check(s);
+    }
+    /// `transform`: 12 floats, row-major 3x4.
+    Result set_instance(uint32_t id, uint32_t geometry, const float *transform, uint32_t mask, Instance &owner) {
+        sheaf_status s = sheaf_context_set_instance(ctx_, id, geometry, transform, mask);
+        if (s == SHEAF_STATUS_OK && !(owner && owner.id() == id && owner.ctx_ == ctx_)) owner = Instance(ctx_, id);
+        return check(s);
+    }
+    Result commit_scene(sheaf_scene_info *out = nullptr) { return check(sheaf_context_commit_scene(ctx_, out)); }
+    Result trace_scene(const sheaf_trace_params *p, const sheaf_ray *rays, size_t count, sheaf_scene_hit *hits,
+                       uint32_t mask = ~0u, uint32_t flags = 0) const {
+        return check(sheaf_context_trace_scene(ctx_, p, rays, hits, count, mask, flags));
+    }
+
+    Result stats(sheaf_stats &out) const { return check(sheaf_context_stats(ctx_, &out)); }
+
+private:
+    Result check(sheaf_status s) const { return Policy::check(s, ctx_); }
+    sheaf_context *ctx_ = nullptr;
+};
+
+using Context = BasicContext<Throw>;
+using ContextNoThrow = BasicContext<Return>;
+
+} // namespace sheaf
+
+#endif // SHEAF_HPP
