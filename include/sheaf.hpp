@@ -200,9 +200,8 @@ public:
         return this->occluded(m, rays.data(), rays.size(), occluded.data());
     }
 #ifdef SHEAF_HPP_SPAN
-    /// `rays.size()` must equal `hits.size()` (else SHEAF_STATUS_INVALID_ARGUMENT
-    /// from the C call's length check is not possible: the shorter count is
-    /// refused here).
+    /// `rays` and `hits` must have the same length; otherwise the call
+    /// reports SHEAF_STATUS_INVALID_ARGUMENT and traces nothing.
     Result trace(sheaf_method m, std::span<const sheaf_ray> rays, std::span<sheaf_hit> hits) const {
         if (rays.size() != hits.size()) return check(SHEAF_STATUS_INVALID_ARGUMENT);
         return trace(m, rays.data(), rays.size(), hits.data());
@@ -213,7 +212,9 @@ public:
     }
 #endif
 
-    // Two-level scenes: the owners remove their ids when destroyed.
+    // Two-level scenes: the owners remove their ids when destroyed. On
+    // success `owner` takes the id (removing another id it held); on
+    // failure it is left as it was.
     Result set_scene_geometry(uint32_t id, const sheaf_mesh &mesh, const sheaf_geometry_params *p,
                               SceneGeometry &owner) {
         sheaf_status s = sheaf_context_set_scene_geometry(ctx_, id, &mesh, p);
