@@ -2,6 +2,7 @@
 // extern "C" guards, the fixed-width enums (sheaf_status, sheaf_method and
 // sheaf_tri_test are real enum types in C++), and a few calls.
 #include "sheaf.h"
+#include "cpp_check.h"
 
 #include <cmath>
 #include <cstdio>
@@ -18,14 +19,6 @@ static_assert(SHEAF_STATUS_OK == 0 && SHEAF_STATUS_PANIC == 900, "status codes a
 static_assert(SHEAF_STATUS_CAPACITY_PGRID_CELLS == 206 && SHEAF_STATUS_CAPACITY_PGRID_REFS == 207,
               "status codes are never renumbered");
 static_assert(sizeof(sheaf_pgrid_params) == 36, "sheaf_pgrid_params is 36 bytes");
-
-#define CHECK(cond)                                                                 \
-    do {                                                                            \
-        if (!(cond)) {                                                              \
-            std::fprintf(stderr, "    %s:%d: check failed: %s\n", __FILE__, __LINE__, #cond); \
-            return false;                                                           \
-        }                                                                           \
-    } while (0)
 
 namespace {
 
@@ -166,19 +159,13 @@ bool test_errors_and_strings() {
     return true;
 }
 
-void run_test(const char *name, bool (*test)(), int &passed, int &failed) {
-    const bool ok = test();
-    std::printf("%s: %s\n", ok ? "PASSED" : "FAILED", name);
-    (ok ? passed : failed) += 1;
-}
-
 }  // namespace
 
 int main() {
-    int passed = 0, failed = 0;
-    run_test("test_trace_a_quad", test_trace_a_quad, passed, failed);
-    run_test("test_errors_and_strings", test_errors_and_strings, passed, failed);
-    run_test("test_deferred_frame", test_deferred_frame, passed, failed);
-    std::printf("%d passed, %d failed\n", passed, failed);
-    return failed == 0 ? 0 : 1;
+    const NamedTest tests[] = {
+        {"test_trace_a_quad", test_trace_a_quad},
+        {"test_errors_and_strings", test_errors_and_strings},
+        {"test_deferred_frame", test_deferred_frame},
+    };
+    return run_tests(tests);
 }

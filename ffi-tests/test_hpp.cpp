@@ -2,6 +2,7 @@
 // -Werror -pedantic): the owners, both error policies, the ray overloads
 // (spans with C++20), and owners released while an exception unwinds.
 #include "sheaf.hpp"
+#include "cpp_check.h"
 
 #include <cmath>
 #include <cstdio>
@@ -9,14 +10,6 @@
 #include <limits>
 #include <stdexcept>
 #include <vector>
-
-#define CHECK(cond)                                                                           \
-    do {                                                                                      \
-        if (!(cond)) {                                                                        \
-            std::fprintf(stderr, "    %s:%d: check failed: %s\n", __FILE__, __LINE__, #cond); \
-            return false;                                                                     \
-        }                                                                                     \
-    } while (0)
 
 namespace {
 
@@ -148,24 +141,13 @@ bool test_scene_owners_and_unwinding() {
     return true;
 }
 
-void run_test(const char *name, bool (*test)(), int &passed, int &failed) {
-    bool ok = false;
-    try {
-        ok = test();
-    } catch (const std::exception &e) {
-        std::fprintf(stderr, "    unexpected exception: %s\n", e.what());
-    }
-    std::printf("%s: %s\n", ok ? "PASSED" : "FAILED", name);
-    (ok ? passed : failed) += 1;
-}
-
 }  // namespace
 
 int main() {
-    int passed = 0, failed = 0;
-    run_test("test_trace_through_the_owner", test_trace_through_the_owner, passed, failed);
-    run_test("test_error_policies", test_error_policies, passed, failed);
-    run_test("test_scene_owners_and_unwinding", test_scene_owners_and_unwinding, passed, failed);
-    std::printf("%d passed, %d failed\n", passed, failed);
-    return failed == 0 ? 0 : 1;
+    const NamedTest tests[] = {
+        {"test_trace_through_the_owner", test_trace_through_the_owner},
+        {"test_error_policies", test_error_policies},
+        {"test_scene_owners_and_unwinding", test_scene_owners_and_unwinding},
+    };
+    return run_tests(tests);
 }

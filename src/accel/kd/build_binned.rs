@@ -132,6 +132,10 @@ struct Node {
     at: u32,
     /// 1: the job outgrew its share of the pools (built again at the end).
     overflow: u32,
+    /// 1: the SAH (or the depth limit) made it a leaf; carried nodes and
+    /// job roots are not searched again.
+    settled: u32,
+    _pad: u32,
 }
 
 const NODE_WORDS: usize = core::mem::size_of::<Node>() / 8;
@@ -401,7 +405,9 @@ pub(super) fn build(
     // The job list (two levels) at the start of the event pool, the
     // references after it, in two halves for the top's levels.
     let words = pools.events.len();
-    let jobs_cap = (words / (64 * NODE_WORDS)).min(MAX_JOBS);
+    // One job per 1024 words of the pool (the two lists take about a
+    // thirtieth of it), at most `MAX_JOBS`.
+    let jobs_cap = (words / 1024).min(MAX_JOBS);
     let ref_words = words - 2 * jobs_cap * NODE_WORDS;
     let ref_cap = ref_words * 8 / core::mem::size_of::<Ref>();
     let stored = store(pools, scene, p, par, workers, |_, n| {
@@ -484,14 +490,17 @@ pub(super) fn build(
             par.run(&|w| {
                 for nd in ls.get(w).iter_mut() {
                     nd.split = 0;
-                    if (nd.n as usize) <= big {
+                    if (nd.n as usize) <= big || nd.settled == 1 {
                         continue;
                     }
                     let list = &sc[src_at + nd.off as usize..][..nd.n as usize];
-                    if let Some(pl) = wanted(list, &nd.bounds(), nd.depth, &cx) {
-                        let (l, r) = count(list, &pl);
-                        (nd.axis, nd.pos, nd.split) = (pl.axis as u32, pl.pos, 1);
-                        (nd.nl, nd.nr) = (l as u32, r as u32);
+                    match wanted(list, &nd.bounds(), nd.depth, &cx) {
+                        Some(pl) => {
+                            let (l, r) = count(list, &pl);
+                            (nd.axis, nd.pos, nd.split) = (pl.axis as u32, pl.pos, 1);
+                            (nd.nl, nd.nr) = (l as u32, r as u32);
+                        }
+                        None => nd.settled = 1,
                     }
                 }
             });
@@ -835,7 +844,14 @@ fn subtree(j: &mut Node, sc: &mut [Ref], out: Share<'_>, cx: &Cx<'_>, first_try:
     loop {
         let (nn, base) = (task.n, task.base);
         let area = half_area(&task.bounds) as f64;
-        if let Some(pl) = wanted(&sc[base..base + nn], &task.bounds, task.depth, cx) {
+        // A root the top already searched in vain is a leaf.
+        let settled = task.node == j.node as usize && j.settled == 1;
+        let plane = if settled {
+            None
+        } else {
+            wanted(&sc[base..base + nn], &task.bounds, task.depth, cx)
+        };
+        if let Some(pl) = plane {
             let top = base + nn;
             // Each child's list holds at most `nn`: with room for both
             // bounds, counting first decides nothing (what fits them fits
