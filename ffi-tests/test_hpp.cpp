@@ -1,6 +1,7 @@
 // include/sheaf.hpp under g++ -std=c++17 and -std=c++20 (-Wall -Wextra
 // -Werror -pedantic): the owners, both error policies, the ray overloads
-// (spans with C++20), and owners released while an exception unwinds.
+// (spans with C++20), owners released while an exception unwinds, and
+// filters as C functions and as lambdas.
 #include "sheaf.hpp"
 #include "cpp_check.h"
 
@@ -141,6 +142,66 @@ bool test_scene_owners_and_unwinding() {
     return true;
 }
 
+// A checkerboard cut-out of the (u, v) cells, as a C function.
+bool checker(void *calls, const sheaf_candidate *c) {
+    ++*static_cast<unsigned *>(calls);
+    return (static_cast<int>(c->u * 4.0f) + static_cast<int>(c->v * 4.0f)) % 2 == 0;
+}
+
+bool test_filters() {
+    sheaf::Context ctx;
+    ctx.create(2);
+    ctx.set_geometry(kVertices, kIndices);
+    ctx.build_bvh();
+    const float inf = std::numeric_limits<float>::infinity();
+    std::vector<sheaf_ray> r;
+    for (int y = 0; y < 16; ++y)
+        for (int x = 0; x < 16; ++x)
+            r.push_back(sheaf_ray{{(x + 0.5f) / 16, (y + 0.5f) / 16, 1.0f}, 0.0f, {0.0f, 0.0f, -1.0f}, inf});
+    // A lambda the context refers to, and the same cut-out as a C function.
+    unsigned lambda_calls = 0, c_calls = 0;
+    auto cut = [&lambda_calls](const sheaf_candidate &c) {
+        return checker(&lambda_calls, &c);
+    };
+    std::vector<sheaf_hit> by_lambda, by_c, open;
+    ctx.trace(SHEAF_METHOD_BVH_SINGLE, r, open);
+    ctx.set_filter(cut);
+    ctx.trace(SHEAF_METHOD_BVH_SINGLE, r, by_lambda);
+    ctx.set_filter(checker, &c_calls);
+    ctx.trace(SHEAF_METHOD_BVH_SINGLE, r, by_c);
+    CHECK(lambda_calls > 0 && lambda_calls == c_calls);
+    CHECK(std::memcmp(by_lambda.data(), by_c.data(), sizeof(sheaf_hit) * r.size()) == 0);
+    size_t misses = 0;
+    for (const sheaf_hit &h : by_c) misses += h.prim == SHEAF_INVALID_ID;
+    CHECK(misses > 0 && misses < r.size());
+    ctx.set_filter(nullptr);
+    std::vector<sheaf_hit> again;
+    ctx.trace(SHEAF_METHOD_BVH_SINGLE, r, again);
+    CHECK(std::memcmp(again.data(), open.data(), sizeof(sheaf_hit) * r.size()) == 0);
+    // A scene geometry's filter; an id not set is refused.
+    sheaf_limits l;
+    CHECK(sheaf_limits_default(16, &l) == SHEAF_STATUS_OK);
+    l.structures = SHEAF_STRUCTURE_BVH;
+    l.max_geometries = 1;
+    l.max_instances = 1;
+    l.max_scene_triangles = 16;
+    sheaf::ContextNoThrow scene;
+    CHECK(scene.create(l) == SHEAF_STATUS_OK);
+    const sheaf_mesh mesh = {kVertices.data(), 3 * sizeof(float), 4, kIndices.data(), 2};
+    const float xf[12] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0};
+    sheaf::ContextNoThrow::SceneGeometry geometry;
+    sheaf::ContextNoThrow::Instance instance;
+    CHECK(scene.set_scene_geometry(0, mesh, nullptr, geometry) == SHEAF_STATUS_OK);
+    CHECK(scene.set_instance(0, 0, xf, ~0u, instance) == SHEAF_STATUS_OK);
+    CHECK(scene.commit_scene() == SHEAF_STATUS_OK);
+    CHECK(scene.set_scene_geometry_filter(0, cut) == SHEAF_STATUS_OK);
+    CHECK(scene.set_scene_geometry_filter(5, cut) == SHEAF_STATUS_INVALID_ARGUMENT);
+    std::vector<sheaf_scene_hit> sh(r.size());
+    CHECK(scene.trace_scene(nullptr, r.data(), r.size(), sh.data()) == SHEAF_STATUS_OK);
+    for (size_t i = 0; i < r.size(); ++i) CHECK(sh[i].prim == by_c[i].prim);
+    return true;
+}
+
 }  // namespace
 
 int main() {
@@ -148,6 +209,7 @@ int main() {
         {"test_trace_through_the_owner", test_trace_through_the_owner},
         {"test_error_policies", test_error_policies},
         {"test_scene_owners_and_unwinding", test_scene_owners_and_unwinding},
+        {"test_filters", test_filters},
     };
     return run_tests(tests);
 }

@@ -164,7 +164,7 @@ static bool test_instances_ids_and_masks(void) {
     CHECK_OK(sheaf_context_trace_scene(ctx, NULL, rays, hits, 1, ~0u, SHEAF_RAY_FLAG_CULL_FRONT_FACING));
     CHECK(hits[0].instance == 0 && hits[0].t == 11.0f);
     CHECK_STATUS(sheaf_context_trace_scene(ctx, NULL, rays, hits, 4, ~0u, 3u), SHEAF_STATUS_INVALID_ARGUMENT);
-    CHECK_STATUS(sheaf_context_occluded_scene(ctx, NULL, rays, occ, 4, ~0u, 4u), SHEAF_STATUS_INVALID_ARGUMENT);
+    CHECK_STATUS(sheaf_context_occluded_scene(ctx, NULL, rays, occ, 4, ~0u, 8u), SHEAF_STATUS_INVALID_ARGUMENT);
     sheaf_context_destroy(ctx);
     return true;
 }

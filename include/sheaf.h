@@ -55,6 +55,8 @@
  * own space. At most one of them. */
 #define SHEAF_RAY_FLAG_CULL_BACK_FACING 1u
 #define SHEAF_RAY_FLAG_CULL_FRONT_FACING 2u
+/** Ray flag: skip every filter function (DXR's RAY_FLAG_FORCE_OPAQUE). */
+#define SHEAF_RAY_FLAG_FORCE_OPAQUE 4u
 
 /** Most lights of a sheaf_deferred_job (one shadow bit each). */
 #define SHEAF_DEFERRED_MAX_LIGHTS 8
@@ -185,6 +187,12 @@ enum sheaf_status
      * returns this until the context is destroyed.
      */
     SHEAF_STATUS_POISONED = 304,
+    /**
+     * A filter function (`sheaf_filter_fn`) called into sheaf: every call
+     * on a context made from inside a filter is refused and changes
+     * nothing (the last error is not touched).
+     */
+    SHEAF_STATUS_REENTRANT = 305,
     /**
      * A panic was caught at the C boundary (a bug in sheaf: please report).
      */
@@ -614,6 +622,11 @@ typedef struct sheaf_trace_params {
      * (`SHEAF_STATUS_INVALID_ARGUMENT` otherwise).
      */
     sheaf_isa isa;
+    /**
+     * Skip every filter (`sheaf_filter_fn`; DXR's
+     * `RAY_FLAG_FORCE_OPAQUE`): 0 (the default) or 1.
+     */
+    uint8_t force_opaque;
 } sheaf_trace_params;
 
 /**
@@ -1180,6 +1193,64 @@ typedef struct sheaf_stats {
 } sheaf_stats;
 
 /**
+ * A candidate hit, as a filter sees it (C: `sheaf_candidate`).
+ */
+typedef struct sheaf_candidate {
+    /**
+     * The ray's origin and direction in the space of the triangles tested:
+     * an instance's object space for a two-level scene's BVH methods
+     * (t is the same parameter in both spaces), the world otherwise.
+     */
+    float org[3];
+    float dir[3];
+    /**
+     * Ray parameter of the hit.
+     */
+    float t;
+    /**
+     * Barycentric weights of the triangle's second and third vertex.
+     */
+    float u;
+    float v;
+    /**
+     * The triangle's index in its geometry's index buffer.
+     */
+    uint32_t prim;
+    /**
+     * The geometry's id (0 for a context's single mesh).
+     */
+    uint32_t geometry;
+    /**
+     * The instance's id (`INVALID_ID`, C `SHEAF_INVALID_ID`, for a
+     * single mesh).
+     */
+    uint32_t instance;
+} sheaf_candidate;
+
+/**
+ * An any-hit filter: called with the caller's `user` pointer and a
+ * candidate hit before a trace accepts it; returns true to accept it,
+ * false to reject it (the ray goes on as if the triangle were not there).
+ * Nearest-hit traces keep the nearest accepted candidate; occlusion
+ * stops at the first accepted one.
+ *
+ * When: only for candidates a trace would take (nearer than its best so
+ * far, or any hit for occlusion), so most hits behind the nearest are
+ * never asked about; possibly more than once for one candidate (a
+ * triangle in several cells or leaves, a lane traced again by a
+ * fallback), lanes of a packet in any order, on the threads of the call
+ * (concurrently when several threads trace).
+ *
+ * What it must be: a pure function of its arguments (then every method
+ * returns its single ray's hits bit for bit, with the same filter), and
+ * thread-safe; it must return (no longjmp, no C++ exception through
+ * sheaf) and make no sheaf call: a call on a context from inside a filter
+ * returns `SHEAF_STATUS_REENTRANT` and changes nothing.
+ */
+typedef bool (*sheaf_filter_fn)(void *user,
+                                const struct sheaf_candidate *candidate);
+
+/**
  * Tunables of the kd-tree (an O(N log N) SAH build with perfect splits).
  * Start from `sheaf_kd_params_default`.
  */
@@ -1341,6 +1412,17 @@ typedef struct sheaf_geometry_params {
      * geometry (default all bits).
      */
     uint32_t mask;
+    /**
+     * Skip its filter (DXR's opaque geometry flag): 0 (the default) or 1.
+     */
+    uint8_t opaque;
+    /**
+     * Its any-hit filter (NULL, the default: none), called with
+     * `filter_user`; see `sheaf_filter_fn` and
+     * `sheaf_context_set_scene_geometry_filter`.
+     */
+    sheaf_filter_fn filter;
+    void *filter_user;
 } sheaf_geometry_params;
 
 /**
@@ -2081,6 +2163,47 @@ sheaf_status sheaf_context_last_error(const struct sheaf_context *ctx,
                                       char *buf,
                                       size_t len,
                                       size_t *written);
+
+/**
+ * Candidate hits on the single mesh (`sheaf_context_set_geometry`) go to
+ * `filter` with `user` from now on (NULL: every candidate is accepted), in
+ * every structure built from the mesh and every method, with geometry 0
+ * and instance `SHEAF_INVALID_ID`; calls with
+ * `sheaf_trace_params.force_opaque` skip it. Takes effect at once (no
+ * rebuild). See `sheaf_filter_fn` for when it is called.
+ *
+ * Errors: `SHEAF_STATUS_NULL_POINTER` (`ctx`),
+ * `SHEAF_STATUS_INVALID_ARGUMENT` (a NULL `filter` with a non-NULL
+ * `user`), `SHEAF_STATUS_REENTRANT`. On error nothing changes.
+ *
+ * Not thread-safe: needs exclusive access to `ctx`.
+ */
+sheaf_status sheaf_context_set_filter(struct sheaf_context *ctx,
+                                      sheaf_filter_fn filter,
+                                      void *user);
+
+/**
+ * Candidate hits on geometry `id` of the two-level scene go to `filter`
+ * with `user` from now on (NULL: every candidate is accepted), in every
+ * instance of it, through every method, and in the grid, kd-tree and
+ * perspective grids built over the scene (the candidate then carries the
+ * geometry's own triangle id and the instance's); a geometry set
+ * `opaque` (`sheaf_geometry_params.opaque`) and calls with
+ * `SHEAF_RAY_FLAG_FORCE_OPAQUE` or `sheaf_trace_params.force_opaque`
+ * skip it. Takes effect at once (no commit). The same as
+ * `sheaf_geometry_params.filter` at `sheaf_context_set_scene_geometry`.
+ *
+ * Errors: `SHEAF_STATUS_NULL_POINTER` (`ctx`),
+ * `SHEAF_STATUS_INVALID_ARGUMENT` (no two-level scene, geometry `id` not
+ * set, a NULL `filter` with a non-NULL `user`), `SHEAF_STATUS_REENTRANT`.
+ * On error nothing changes.
+ *
+ * Not thread-safe: needs exclusive access to `ctx`.
+ */
+sheaf_status sheaf_context_set_scene_geometry_filter(struct sheaf_context *ctx,
+                                                     uint32_t id,
+                                                     sheaf_filter_fn filter,
+                                                     void *user);
 
 /**
  * Write the default shading (a warm grey albedo, 12% ambient, a blue

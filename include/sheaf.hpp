@@ -11,6 +11,8 @@
 //   (`sheaf::ContextNoThrow`) returns the sheaf_status and never throws.
 // - Rays and hits are taken as (pointer, count), as std::vector, and as
 //   std::span where the standard library has it (C++20).
+// - Any-hit filters are set as a C function and pointer or as a callable
+//   the context refers to (set_filter, set_scene_geometry_filter).
 //
 // Every call forwards to the C function of the same name; its contract
 // (thread safety, what a failed call leaves unchanged) is the C one.
@@ -233,10 +235,28 @@ public:
         return check(sheaf_context_trace_scene(ctx_, p, rays, hits, count, mask, flags));
     }
 
+    // Any-hit filters (sheaf_filter_fn): a C function and its pointer, or a
+    // callable `bool(const sheaf_candidate &)` the context refers to (it
+    // must outlive its use, be thread-safe and pure, and not throw: an
+    // exception escaping it calls std::terminate). nullptr removes it.
+    Result set_filter(sheaf_filter_fn f, void *user = nullptr) {
+        return check(sheaf_context_set_filter(ctx_, f, user));
+    }
+    template <class F> Result set_filter(F &filter) { return set_filter(&call<F>, &filter); }
+    Result set_scene_geometry_filter(uint32_t id, sheaf_filter_fn f, void *user = nullptr) {
+        return check(sheaf_context_set_scene_geometry_filter(ctx_, id, f, user));
+    }
+    template <class F> Result set_scene_geometry_filter(uint32_t id, F &filter) {
+        return set_scene_geometry_filter(id, &call<F>, &filter);
+    }
+
     Result stats(sheaf_stats &out) const { return check(sheaf_context_stats(ctx_, &out)); }
 
 private:
     Result check(sheaf_status s) const { return Policy::check(s, ctx_); }
+    template <class F> static bool call(void *user, const sheaf_candidate *c) noexcept {
+        return (*static_cast<F *>(user))(*c);
+    }
     sheaf_context *ctx_ = nullptr;
 };
 

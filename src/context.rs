@@ -144,13 +144,12 @@ pub struct Context<'a> {
     bvh: Bvh<'a>,
     kd: KdTree<'a>,
     pgrid: Pgrid<'a>,
-    /// The two-level scene (`accel::twolevel`; empty pools without
-    /// `Limits::max_geometries`).
-    scene: TwoLevel<'a>,
-    /// The two-level scene in world triangles, and which commit each
-    /// structure was built from (`context::scene`).
-    flat: Flat<'a>,
+    /// The two-level scene and its world triangles (`context::scene`).
+    world: scene::World<'a>,
+    /// Which commit each structure was built from.
     sources: scene::Sources,
+    /// The single mesh's filter (`set_filter`).
+    mesh_filter: Option<crate::geom::Filter>,
     frame: FrameBuffers<'a>,
     /// Layout of the frame buffers in the last deferred frame, its
     /// camera rays and shadow-ray offset.
@@ -166,6 +165,32 @@ pub struct Context<'a> {
     #[cfg(feature = "std")]
     owned: Option<crate::mem::owned::OwnedBuffer>,
 }
+
+/// The context's structures as a `SceneTracer` (single rays to the
+/// grid), each view with its filter hook (`scene::hook`), borrowing only
+/// the fields it reads: a deferred frame lends the others out.
+macro_rules! structures {
+    ($c:ident) => {{
+        let hook = |s| crate::context::scene::hook(&$c.sources, s, $c.mesh_filter, &$c.world);
+        crate::trace::SceneTracer {
+            grid: $c
+                .grid
+                .view()
+                .map(|v| v.filtered(hook(crate::mem::Limits::GRID))),
+            bvh: $c
+                .bvh
+                .view()
+                .map(|v| v.filtered(hook(crate::mem::Limits::BVH))),
+            kd: $c
+                .kd
+                .view()
+                .map(|v| v.filtered(hook(crate::mem::Limits::KD))),
+            single: crate::trace::Method::GridDda,
+            pgrid: hook(crate::mem::Limits::PGRID),
+        }
+    }};
+}
+pub(crate) use structures;
 
 impl<'a> Context<'a> {
     /// Create a context over `buf` (at least `required_bytes(limits)` bytes,
@@ -199,9 +224,12 @@ impl<'a> Context<'a> {
             bvh: Bvh::new(bvh),
             kd: KdTree::new(kd),
             pgrid: Pgrid::new(pg),
-            scene: TwoLevel::new(scene.pools()),
-            flat: Flat::new(flat),
+            world: scene::World {
+                scene: TwoLevel::new(scene.pools()),
+                flat: Flat::new(flat),
+            },
             sources: scene::Sources::default(),
+            mesh_filter: None,
             frame,
             frame_layout: None,
             frame_rays: None,
@@ -210,6 +238,14 @@ impl<'a> Context<'a> {
             #[cfg(feature = "std")]
             owned: None,
         })
+    }
+
+    /// The single mesh's filter from now on (`geom::filter`; `None`:
+    /// every candidate accepted), asked by every structure built from the
+    /// mesh (geometry 0, no instance), unless a call forces opacity
+    /// (`TraceParams::opaque`).
+    pub fn set_filter(&mut self, filter: Option<crate::geom::Filter>) {
+        self.mesh_filter = filter;
     }
 
     pub fn limits(&self) -> &Limits {

@@ -86,6 +86,9 @@ pub enum Error {
     /// its structures may be half-built, so every call but last_error and
     /// destroy is refused until destroy.
     Poisoned,
+    /// A filter (`geom::filter`) called into sheaf: refused, nothing
+    /// changed (C ABI, with `std`).
+    Reentrant,
     /// A panic was caught at the C boundary (a bug in sheaf: please report).
     Panic,
 }
@@ -133,6 +136,10 @@ impl fmt::Display for Error {
             Error::Poisoned => write!(
                 f,
                 "context poisoned by an earlier internal error (panic): destroy it and create a new one"
+            ),
+            Error::Reentrant => write!(
+                f,
+                "called from inside a filter: sheaf calls are refused there"
             ),
             Error::Panic => write!(f, "internal error (panic caught at the C boundary)"),
         }

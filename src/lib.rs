@@ -84,7 +84,7 @@ pub use accel::twolevel::{GeometryParams, RayControls, TwoLevelInfo, UpdateInfo,
 pub use context::OwnedContext;
 pub use context::{Context, Stats, required_bytes, slot_scratch_bytes};
 pub use error::{Error, Pool, Result};
-pub use geom::{Affine, Cull, Hit, Ray, Scene, TriTest};
+pub use geom::{Affine, Candidate, Cull, Filter, FilterFn, Hit, Ray, Scene, TriTest};
 pub use isa::Isa;
 pub use mem::Limits;
 // The caller's threads joining a build or a frame (`Context::build_bvh_with`,

@@ -325,8 +325,8 @@ fn c_scene_shared() {
 
 /// `examples-c/engine.c`, the two-level frame loop, runs through the C
 /// ABI: three frames, a table line each, the PPM written, most of the
-/// 76,800 camera rays a hit (the rest see the sky) and some of the hits
-/// lit, some in shadow.
+/// 76,800 camera rays a hit (the rest see the sky), some of the hits lit,
+/// some in shadow, and the grilles' filter asked every frame.
 #[test]
 fn c_engine_example_runs() {
     check_layouts();
@@ -347,15 +347,29 @@ fn c_engine_example_runs() {
     let rows: Vec<Vec<&str>> = stdout
         .lines()
         .map(|l| l.split_whitespace().collect::<Vec<_>>())
-        .filter(|f| f.len() == 7 && f.iter().all(|w| w.parse::<f64>().is_ok()))
+        .filter(|f| f.len() == 8 && f.iter().all(|w| w.parse::<f64>().is_ok()))
         .collect();
     assert_eq!(rows.len(), 3, "{stdout}");
     for f in &rows {
         let (hits, lit): (u32, u32) = (f[5].parse().unwrap(), f[6].parse().unwrap());
-        assert!(hits > 30_000 && lit > 0 && lit < hits, "{stdout}");
+        let calls: u64 = f[7].parse().unwrap();
+        assert!(
+            hits > 30_000 && lit > 0 && lit < hits && calls > 0,
+            "{stdout}"
+        );
     }
-    assert!(stdout.contains("18 instances"), "{stdout}");
+    assert!(stdout.contains("20 instances"), "{stdout}");
     assert!(std::fs::metadata(&ppm).map(|m| m.len()).unwrap_or(0) == 320 * 240 * 3 + 15);
+}
+
+#[test]
+fn c_filters_static() {
+    run(&compile_c("test_filter.c", Link::Static));
+}
+
+#[test]
+fn c_filters_shared() {
+    run(&compile_c("test_filter.c", Link::Shared));
 }
 
 #[test]

@@ -139,6 +139,10 @@ fn header_macros_match_the_crate() {
         format!("{}u", sheaf::ffi::SHEAF_RAY_FLAG_CULL_FRONT_FACING)
     );
     assert_eq!(
+        define("SHEAF_RAY_FLAG_FORCE_OPAQUE"),
+        format!("{}u", sheaf::ffi::SHEAF_RAY_FLAG_FORCE_OPAQUE)
+    );
+    assert_eq!(
         define("SHEAF_DEPTH_BINS"),
         sheaf::trace::DEPTH_BINS.to_string()
     );

@@ -253,6 +253,7 @@ impl TraceOpts {
             split: self.split,
             fallbacks: true,
             isa: sheaf::Isa::Auto,
+            opaque: false,
         };
         let shadow = sheaf::TraceParams {
             method: self.shadow_method.unwrap_or(self.method).method(),

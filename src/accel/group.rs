@@ -22,7 +22,7 @@
 use super::slot::Slot;
 use crate::geom::lane::mask_from_bits;
 use crate::geom::triangle::TriHit;
-use crate::geom::{Cull, F4, Hit4, M4, Ray4, RayLanes, TriangleTest, Wide};
+use crate::geom::{Cull, F4, Hit4, Hook, M4, Ray4, RayLanes, TriangleTest, Wide};
 
 /// `L::G` consecutive quads joined into `L`-wide lanes, with their
 /// triangle-test precomputation.
@@ -113,6 +113,12 @@ pub(crate) fn test<L: Wide, T: TriangleTest>(
     (h, hb)
 }
 
+/// Quad `k` of `r`: its origins and directions.
+#[inline(always)]
+pub(crate) fn quad_ray<L: Wide>(r: &RayLanes<L>, k: usize) -> ([F4; 3], [F4; 3]) {
+    (r.org.map(|x| x.quad(k)), r.dir.map(|x| x.quad(k)))
+}
+
 /// For each quad `k` of a group with hit lanes in `hb`: `f(k, lanes, (t,
 /// u, v))`.
 #[inline(always)]
@@ -133,12 +139,24 @@ pub(crate) fn each_hit<L: Wide>(
     }
 }
 
-/// Lanes `hm` of `hq` hit triangle `id` at `(t, u, v)`: those nearer than
-/// their best so far (all of them, with `ANY`) take it; the taken lanes.
+/// Lanes `hm` of `hq`, rays `ray()` (origins, directions), hit triangle
+/// `id` at `(t, u, v)`: those nearer than their best so far (all of them,
+/// with `ANY`) and accepted by `filter` take it; the taken lanes.
 #[inline(always)]
-pub(crate) fn take<const ANY: bool>(hq: &mut Hit4, hm: M4, hit: (F4, F4, F4), id: u32) -> M4 {
+pub(crate) fn take<const ANY: bool>(
+    hq: &mut Hit4,
+    hm: M4,
+    hit: (F4, F4, F4),
+    id: u32,
+    filter: &Hook<'_>,
+    ray: impl Fn() -> ([F4; 3], [F4; 3]),
+) -> M4 {
     let (t, u, v) = hit;
-    let take = if ANY { hm } else { hm & hq.closer(t, id) };
+    let mut take = if ANY { hm } else { hm & hq.closer(t, id) };
+    if take.any() && filter.on() {
+        let (org, dir) = ray();
+        take = filter.quad(&org, &dir, take, hit, id);
+    }
     if take.any() {
         hq.t = F4::select(take, t, hq.t);
         hq.u = F4::select(take, u, hq.u);

@@ -151,6 +151,9 @@ pub struct TraceParams {
     /// CPU's widest, capped by `SHEAF_ISA`) or a forced level. Results are
     /// bitwise equal at every level.
     pub isa: crate::isa::Isa,
+    /// Force opacity: no filter is asked (DXR's `RAY_FLAG_FORCE_OPAQUE`;
+    /// `geom::filter`). Default false.
+    pub opaque: bool,
 }
 
 impl Default for TraceParams {
@@ -164,6 +167,7 @@ impl Default for TraceParams {
             split: 2.0,
             fallbacks: true,
             isa: crate::isa::Isa::Auto,
+            opaque: false,
         }
     }
 }

@@ -62,12 +62,7 @@ impl Context<'_> {
             ));
         }
         let lay = TileLayout::new(side, job.frame.width, job.frame.height);
-        let tr = SceneTracer {
-            grid: self.grid.view(),
-            bvh: self.bvh.view(),
-            kd: self.kd.view(),
-            single: Method::GridDda,
-        };
+        let tr = super::structures!(self);
         let tr = match (&job.primary, &job.shadow) {
             (PrimaryPass::Traced(p), ShadowPass::Traced(s)) => {
                 tr.check(s.method)?;

@@ -17,18 +17,80 @@ use crate::accel::method::Structure;
 use crate::accel::pgrid::{PgridParams, SceneInfo};
 use crate::accel::slot::Slot;
 use crate::accel::twolevel::RayControls;
+use crate::accel::twolevel::TwoLevel;
 use crate::accel::twolevel::flatten::{Flat, FlatInfo};
 use crate::accel::twolevel::traverse_packet;
 use crate::accel::twolevel::traverse_single::{self, SceneHit};
 use crate::accel::twolevel::{GeometryParams, TwoLevelInfo, TwoLevelView, UpdateInfo};
 use crate::counters::{Counters, elapsed_ns, now};
 use crate::error::{Error, Result};
-use crate::geom::{Affine, Cull, M4, Ray, Ray4, Scene, with_test};
+use crate::geom::{
+    Accept, Affine, Candidate, Cull, Filter, Hook, M4, OneFilter, Ray, Ray4, Scene, with_test,
+};
 use crate::mem::Limits;
 use crate::mem::par::{Par, Serial};
 use crate::render::{CameraRays, PixelRect, PrimaryRays};
 use crate::trace::scene::{Tracing, packet_rays, packets};
 use crate::trace::{DynRays, RaySource, RayStream, SceneHitStream, TraceParams};
+
+/// The two-level scene and its flattening into world triangles: one field
+/// of the context, so the structures built over the flattening can ask
+/// its geometries' filters (`Accept`) while a deferred frame lends the
+/// context's other fields out.
+pub(super) struct World<'a> {
+    pub scene: TwoLevel<'a>,
+    pub flat: Flat<'a>,
+}
+
+impl World<'_> {
+    /// Whether a committed geometry has a filter (its candidates on the
+    /// flattened scene go to `accept`).
+    fn filtering(&self) -> bool {
+        self.scene.view().is_ok_and(|v| v.filtering())
+    }
+}
+
+/// Candidates on world triangles go to their geometry's filter, with its
+/// own triangle id and the instance's, and the world ray.
+impl Accept for World<'_> {
+    fn accept(&self, org: [f32; 3], dir: [f32; 3], t: f32, u: f32, v: f32, prim: u32) -> bool {
+        let (Ok(s), Some([instance, prim])) = (self.scene.view(), self.flat.id(prim)) else {
+            return true;
+        };
+        let Some(geometry) = s.instance(instance).map(|i| i.geometry) else {
+            return true;
+        };
+        s.filter_of(geometry).is_none_or(|f| {
+            f.call(&Candidate {
+                org,
+                dir,
+                t,
+                u,
+                v,
+                prim,
+                geometry,
+                instance,
+            })
+        })
+    }
+}
+
+/// Who decides on the candidates of structure `s` (`Limits::GRID`, `BVH`,
+/// `KD`, `PGRID`): the single mesh's filter when `s` was built from the
+/// mesh, the scene geometries' when it answers for the current
+/// flattening, nobody when it was built from an older one.
+pub(super) fn hook<'r>(
+    sources: &Sources,
+    s: u32,
+    mesh: Option<Filter>,
+    world: &'r World<'_>,
+) -> Hook<'r> {
+    match Sources::slot(s).and_then(|i| sources.built[i]) {
+        None => mesh.map_or(Hook::None, |f| Hook::One(OneFilter::mesh(f))),
+        Some(_) if sources.current(s).is_ok() && world.filtering() => Hook::Map(world),
+        Some(_) => Hook::None,
+    }
+}
 
 /// Slot scratch a two-level packet batch of up to `q` quads holds (its
 /// quads, their lanes, their hits) with the top level's
@@ -92,15 +154,15 @@ impl<'a> Context<'a> {
     /// `sources.flat` are unchanged (`Flat::flatten` writes nothing then).
     fn flat_for(&mut self, mask: u32, par: &dyn Par) -> Result<Key> {
         self.scene_pools()?;
-        if self.flat.capacity() == 0 {
+        if self.world.flat.capacity() == 0 {
             return Err(Error::InvalidArgument(
                 "no flattened scene: Limits::structures lacks GRID, KD and PGRID",
             ));
         }
         let key = (self.sources.commits, mask);
         if self.sources.flat != Some(key) {
-            let v = self.scene.view()?;
-            self.flat.flatten(&v, mask, par)?;
+            let v = self.world.scene.view()?;
+            self.world.flat.flatten(&v, mask, par)?;
             self.sources.flat = Some(key);
         }
         Ok(key)
@@ -138,12 +200,12 @@ impl<'a> Context<'a> {
     /// `f` with the flattened scene as a mesh, the pools lent out for the
     /// call (a structure's build borrows the context mutably).
     fn over_flat<R>(&mut self, f: impl FnOnce(&mut Self, &Scene<'_>) -> Result<R>) -> Result<R> {
-        let flat = core::mem::replace(&mut self.flat, Flat::empty());
+        let flat = core::mem::replace(&mut self.world.flat, Flat::empty());
         let r = match flat.scene() {
             Some(scene) => f(self, &scene),
             None => Err(Error::NotBuilt),
         };
-        self.flat = flat;
+        self.world.flat = flat;
         r
     }
 
@@ -211,8 +273,8 @@ impl<'a> Context<'a> {
     pub fn flat_scene(&self) -> Option<(Scene<'_>, FlatInfo)> {
         self.sources
             .flat
-            .filter(|k| k.0 == self.sources.commits && self.scene.view().is_ok())?;
-        Some((self.flat.scene()?, self.flat.info()?))
+            .filter(|k| k.0 == self.sources.commits && self.world.scene.view().is_ok())?;
+        Some((self.world.flat.scene()?, self.world.flat.info()?))
     }
 
     /// Hit `h` of structure `structure` (`Limits::GRID`, `KD` or `PGRID`:
@@ -243,7 +305,7 @@ impl<'a> Context<'a> {
         if h.prim == crate::geom::Hit::OCCLUDED.prim {
             return Some(SceneHit::OCCLUDED);
         }
-        let [inst, prim] = self.flat.id(h.prim)?;
+        let [inst, prim] = self.world.flat.id(h.prim)?;
         let geometry = v.instance(inst)?.geometry;
         Some(SceneHit {
             prim,
@@ -259,7 +321,7 @@ impl<'a> Context<'a> {
             Structure::Kd => Limits::KD,
             Structure::Bvh => Limits::BVH,
         };
-        if self.flat.capacity() == 0 || !self.limits.has(bit) {
+        if self.world.flat.capacity() == 0 || !self.limits.has(bit) {
             return Err(Error::InvalidArgument(
                 "no grid or kd-tree over the scene: Limits::structures lacks it",
             ));
@@ -270,6 +332,15 @@ impl<'a> Context<'a> {
                 "the structure was built over the scene for another mask",
             )),
         }
+    }
+
+    /// Geometry `id`'s filter from now on (`GeometryParams::filter`;
+    /// `None`: every candidate accepted), for every method and the
+    /// structures built over the scene. `InvalidArgument` when `id` is
+    /// not set; nothing changes then.
+    pub fn set_geometry_filter(&mut self, id: u32, filter: Option<Filter>) -> Result<()> {
+        self.scene_pools()?;
+        self.world.scene.set_filter(id, filter)
     }
 
     fn scene_pools(&self) -> Result<()> {
@@ -303,7 +374,7 @@ impl<'a> Context<'a> {
         par: &dyn Par,
     ) -> Result<BvhInfo> {
         self.scene_pools()?;
-        self.scene.set_geometry(id, scene, p, par)
+        self.world.scene.set_geometry(id, scene, p, par)
     }
 
     /// Update geometry `id` to `scene`'s moved vertices (`Refit`) or new
@@ -321,13 +392,13 @@ impl<'a> Context<'a> {
         par: &dyn Par,
     ) -> Result<UpdateInfo> {
         self.scene_pools()?;
-        self.scene.update_geometry(id, scene, par)
+        self.world.scene.update_geometry(id, scene, par)
     }
 
     /// Remove geometry `id` (refused while an instance places it).
     pub fn remove_geometry(&mut self, id: u32) -> Result<()> {
         self.scene_pools()?;
-        self.scene.remove_geometry(id)
+        self.world.scene.remove_geometry(id)
     }
 
     /// Set instance `id`: geometry `geometry` placed by `transform`
@@ -341,13 +412,13 @@ impl<'a> Context<'a> {
         mask: u32,
     ) -> Result<()> {
         self.scene_pools()?;
-        self.scene.set_instance(id, geometry, transform, mask)
+        self.world.scene.set_instance(id, geometry, transform, mask)
     }
 
     /// Remove instance `id`.
     pub fn remove_instance(&mut self, id: u32) -> Result<()> {
         self.scene_pools()?;
-        self.scene.remove_instance(id)
+        self.world.scene.remove_instance(id)
     }
 
     /// Build the top level over the instances: after any change to the
@@ -355,13 +426,13 @@ impl<'a> Context<'a> {
     pub fn commit_scene(&mut self) -> Result<TwoLevelInfo> {
         self.scene_pools()?;
         self.sources.commits += 1;
-        Ok(self.scene.commit())
+        Ok(self.world.scene.commit())
     }
 
     /// The committed two-level scene (`NotBuilt` when it changed since).
     pub fn scene_view(&self) -> Result<TwoLevelView<'_>> {
         self.scene_pools()?;
-        self.scene.view()
+        self.world.scene.view()
     }
 
     /// Nearest hits of `rays` in the committed two-level scene, among
@@ -510,8 +581,8 @@ impl<'a> Context<'a> {
         out: &mut dyn FnMut(usize, &[SceneHit]),
     ) -> Result<Counters> {
         self.scene_pools()?;
-        let v = self.scene.view()?;
-        let RayControls { mask, cull } = ctl;
+        let v = self.world.scene.view()?;
+        let RayControls { mask, cull, .. } = ctl;
         let mut ctr = Counters::default();
         let Some(p) = p else {
             // One dispatch on the test, not one per ray.
@@ -527,6 +598,11 @@ impl<'a> Context<'a> {
             return Ok(ctr);
         };
         p.validate_for(&self.limits)?;
+        // Forced opacity by the parameters or the ray flags.
+        let ctl = RayControls {
+            opaque: ctl.opaque || p.opaque,
+            ..ctl
+        };
         let structure = p.method.structure();
         if structure != Structure::Bvh {
             // The grid and the kd-tree trace the flattened scene.
@@ -537,6 +613,10 @@ impl<'a> Context<'a> {
                 ));
             }
             let v = &v;
+            let p = &TraceParams {
+                opaque: ctl.opaque,
+                ..*p
+            };
             return self.trace_quads(
                 slot,
                 p,

@@ -15,15 +15,15 @@ use crate::trace::{
 };
 
 impl Context<'_> {
+    /// The built structures (`structures!`), single rays to the grid.
+    fn structures(&self) -> SceneTracer<'_> {
+        super::structures!(self)
+    }
+
     /// The built structures with single-ray calls going to the first built
     /// of grid, BVH, kd-tree.
     pub(super) fn scene_tracer(&self) -> Result<SceneTracer<'_>> {
-        let t = SceneTracer {
-            grid: self.grid.view(),
-            bvh: self.bvh.view(),
-            kd: self.kd.view(),
-            single: Method::GridDda,
-        };
+        let t = self.structures();
         let single = if t.grid.is_some() {
             Method::GridDda
         } else if t.bvh.is_some() {
@@ -49,16 +49,9 @@ impl Context<'_> {
     /// handing a `Tracer` larger packets with it panics (the context's own
     /// calls refuse them with a status first).
     pub fn parts(&mut self) -> Result<(SceneTracer<'_>, impl Iterator<Item = Slot<'_>>)> {
-        let t = SceneTracer {
-            grid: self.grid.view(),
-            bvh: self.bvh.view(),
-            kd: self.kd.view(),
-            single: Method::GridDda,
-        };
-        let t = SceneTracer {
-            single: self.scene_tracer()?.single,
-            ..t
-        };
+        let single = self.scene_tracer()?.single;
+        let t = super::structures!(self);
+        let t = SceneTracer { single, ..t };
         // One mailbox and scratch per thread slot; without grid pools (no
         // stamps) the mailboxes are empty, which only the grid's CGT uses.
         let mbs = self.slots.all().map(Slot::of);
@@ -193,7 +186,7 @@ impl Context<'_> {
         any: bool,
     ) -> Result<Counters> {
         p.validate_for(&self.limits)?;
-        let tr = self.scene_tracer()?.with_single(p.method)?;
+        let tr = self.scene_tracer()?.with_single(p.method)?.opaque(p.opaque);
         self.with_slot(slot, |slot| batch_on(&tr, slot, p, count, rays, out, any))
     }
 

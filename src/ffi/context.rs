@@ -202,6 +202,9 @@ fn total_bytes(limits: &Limits) -> Result<usize> {
 /// Check a handle pointer: non-NULL, aligned, alive.
 fn header<'h>(ctx: *const sheaf_context) -> Result<&'h Header> {
     check_non_null!(ctx);
+    if crate::geom::filter::inside() {
+        return Err(Error::Reentrant);
+    }
     let h = ctx.cast::<Header>();
     if !h.is_aligned() {
         return Err(Error::InvalidArgument("not a sheaf_context"));

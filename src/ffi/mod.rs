@@ -16,6 +16,7 @@
 //! | `ray.rs` | `sheaf_ray`, `sheaf_hit` (the C twins of `Ray`, `Hit`) |
 //! | `pgrid.rs` | `sheaf_pgrid_params`, `sheaf_pgrid_params_default`, `sheaf_context_build_pgrid`, `sheaf_deferred_job`, `sheaf_context_render_deferred`, `sheaf_context_deferred_pixel`, `sheaf_context_deferred_shadow_ray` |
 //! | `camera.rs` | `sheaf_pixel_rect`, `sheaf_context_trace_camera`, `sheaf_context_trace_scene_camera` (camera rays made in the kernel as packets, hits per pixel) |
+//! | `filter.rs` | `sheaf_filter_fn`, `sheaf_candidate`, `sheaf_context_set_filter`, `sheaf_context_set_scene_geometry_filter` (any-hit filters) |
 //! | `frame.rs` | `sheaf_frame` (camera, light, shading, size), `sheaf_shading_default`, `sheaf_frame_camera_ray` |
 //! | `stats.rs` | `sheaf_stats` |
 //! | `version.rs` | `sheaf_version_string` |
@@ -54,6 +55,7 @@
 pub mod bvh;
 pub mod camera;
 pub mod context;
+pub mod filter;
 pub mod frame;
 pub mod grid;
 pub mod kd;
@@ -86,6 +88,9 @@ pub use context::{
     sheaf_context_render_rows, sheaf_context_set_geometry, sheaf_context_stats,
     sheaf_context_trace, sheaf_context_trace_slot, sheaf_context_trace_with, sheaf_required_bytes,
 };
+pub use filter::{
+    sheaf_context_set_filter, sheaf_context_set_scene_geometry_filter, sheaf_filter_fn,
+};
 pub use frame::{sheaf_frame, sheaf_frame_camera_ray, sheaf_shading, sheaf_shading_default};
 pub use grid::{sheaf_grid_params, sheaf_grid_params_default, sheaf_tri_test};
 pub use kd::{
@@ -101,7 +106,7 @@ pub use pgrid::{
 };
 pub use ray::{sheaf_hit, sheaf_ray};
 pub use scene::{
-    SHEAF_RAY_FLAG_CULL_BACK_FACING, SHEAF_RAY_FLAG_CULL_FRONT_FACING,
+    SHEAF_RAY_FLAG_CULL_BACK_FACING, SHEAF_RAY_FLAG_CULL_FRONT_FACING, SHEAF_RAY_FLAG_FORCE_OPAQUE,
     sheaf_context_build_scene_grid, sheaf_context_build_scene_kd, sheaf_context_build_scene_pgrid,
     sheaf_context_commit_scene, sheaf_context_occluded_scene, sheaf_context_remove_instance,
     sheaf_context_remove_scene_geometry, sheaf_context_scene_prim, sheaf_context_set_instance,

@@ -20,6 +20,7 @@ use crate::TraceParams;
 use crate::error::{Error, Result};
 use crate::{Affine, Cull, Ray};
 use crate::{GeometryParams, RayControls, TwoLevelInfo, UpdateMode};
+use core::ffi::c_void;
 
 /// A mesh as the caller holds it: `vertex_count` vertices of three floats
 /// (x, y, z), `vertex_stride_bytes` apart (>= 12, a multiple of 4), and
@@ -64,7 +65,7 @@ pub enum sheaf_update_mode {
 /// How a geometry is built and updated (the crate's `GeometryParams`).
 /// Start from `sheaf_geometry_params_default`.
 #[repr(C)]
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug)]
 pub struct sheaf_geometry_params {
     pub mode: super::raw::sheaf_update_mode,
     /// Triangles reserved in the scene's budget (0: the mesh's count). A
@@ -77,6 +78,13 @@ pub struct sheaf_geometry_params {
     /// Rays whose mask shares no bit with it skip every instance of the
     /// geometry (default all bits).
     pub mask: u32,
+    /// Skip its filter (DXR's opaque geometry flag): 0 (the default) or 1.
+    pub opaque: u8,
+    /// Its any-hit filter (NULL, the default: none), called with
+    /// `filter_user`; see `sheaf_filter_fn` and
+    /// `sheaf_context_set_scene_geometry_filter`.
+    pub filter: super::filter::sheaf_filter_fn,
+    pub filter_user: *mut c_void,
 }
 
 impl sheaf_geometry_params {
@@ -87,6 +95,9 @@ impl sheaf_geometry_params {
             bvh: sheaf_bvh_params::of(&p.bvh),
             refit: sheaf_refit_params::of(&p.refit),
             mask: p.mask,
+            opaque: p.opaque.into(),
+            filter: p.filter.map(|f| f.func),
+            filter_user: p.filter.map_or(core::ptr::null_mut(), |f| f.user()),
         }
     }
     pub fn to_core(&self) -> Result<GeometryParams> {
@@ -100,6 +111,8 @@ impl sheaf_geometry_params {
             bvh: self.bvh.to_core()?,
             refit: self.refit.to_core()?,
             mask: self.mask,
+            filter: super::filter::filter_of(self.filter, self.filter_user)?,
+            opaque: super::flag(self.opaque, "sheaf_geometry_params.opaque must be 0 or 1")?,
         })
     }
 }
@@ -562,10 +575,15 @@ pub const SHEAF_RAY_FLAG_CULL_BACK_FACING: u32 = 1;
 /// (C: `SHEAF_RAY_FLAG_CULL_FRONT_FACING`).
 pub const SHEAF_RAY_FLAG_CULL_FRONT_FACING: u32 = 2;
 
+/// `flags` of `sheaf_context_trace_scene`: skip every filter (DXR's
+/// `RAY_FLAG_FORCE_OPAQUE`; C: `SHEAF_RAY_FLAG_FORCE_OPAQUE`).
+pub const SHEAF_RAY_FLAG_FORCE_OPAQUE: u32 = 4;
+
 /// A scene trace's mask and `SHEAF_RAY_FLAG_*` bits as `RayControls`.
 pub(super) fn controls(mask: u32, flags: u32) -> Result<RayControls> {
     const BOTH: u32 = SHEAF_RAY_FLAG_CULL_BACK_FACING | SHEAF_RAY_FLAG_CULL_FRONT_FACING;
-    let cull = match flags {
+    let opaque = flags & SHEAF_RAY_FLAG_FORCE_OPAQUE != 0;
+    let cull = match flags & !SHEAF_RAY_FLAG_FORCE_OPAQUE {
         0 => Cull::None,
         SHEAF_RAY_FLAG_CULL_BACK_FACING => Cull::Back,
         SHEAF_RAY_FLAG_CULL_FRONT_FACING => Cull::Front,
@@ -576,7 +594,7 @@ pub(super) fn controls(mask: u32, flags: u32) -> Result<RayControls> {
         }
         _ => return Err(Error::InvalidArgument("unknown SHEAF_RAY_FLAG_* bits")),
     };
-    Ok(RayControls { mask, cull })
+    Ok(RayControls { mask, cull, opaque })
 }
 
 /// The trace parameters of a scene trace (`None`: single rays).

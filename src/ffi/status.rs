@@ -78,6 +78,10 @@ pub enum sheaf_status {
     /// call but `sheaf_context_last_error` and `sheaf_context_destroy`
     /// returns this until the context is destroyed.
     Poisoned = 304,
+    /// A filter function (`sheaf_filter_fn`) called into sheaf: every call
+    /// on a context made from inside a filter is refused and changes
+    /// nothing (the last error is not touched).
+    Reentrant = 305,
     /// A panic was caught at the C boundary (a bug in sheaf: please report).
     Panic = 900,
 }
@@ -107,6 +111,7 @@ impl sheaf_status {
         sheaf_status::SlotBusy,
         sheaf_status::ContextBusy,
         sheaf_status::Poisoned,
+        sheaf_status::Reentrant,
         sheaf_status::Panic,
     ];
 
@@ -135,6 +140,7 @@ impl sheaf_status {
             Error::SlotBusy { .. } => sheaf_status::SlotBusy,
             Error::ContextBusy => sheaf_status::ContextBusy,
             Error::Poisoned => sheaf_status::Poisoned,
+            Error::Reentrant => sheaf_status::Reentrant,
             Error::Panic => sheaf_status::Panic,
         }
     }
@@ -189,6 +195,7 @@ impl sheaf_status {
             sheaf_status::SlotBusy => c"thread slot in use by another call",
             sheaf_status::ContextBusy => c"context busy: another call on it is running",
             sheaf_status::Poisoned => c"context poisoned by an earlier panic: destroy it",
+            sheaf_status::Reentrant => c"called from inside a filter function: refused",
             sheaf_status::Panic => c"internal error (panic caught at the C boundary)",
         }
     }
@@ -244,7 +251,8 @@ mod tests {
                 | sheaf_status::NotBuilt
                 | sheaf_status::SlotBusy
                 | sheaf_status::ContextBusy
-                | sheaf_status::Poisoned => 300..400,
+                | sheaf_status::Poisoned
+                | sheaf_status::Reentrant => 300..400,
                 sheaf_status::Panic => 900..1000,
             };
             assert!(range.contains(&c), "{s:?} = {c}");

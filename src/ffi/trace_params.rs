@@ -103,6 +103,9 @@ pub struct sheaf_trace_params {
     /// default) or a forced level, which the CPU must support
     /// (`SHEAF_STATUS_INVALID_ARGUMENT` otherwise).
     pub isa: raw::sheaf_isa,
+    /// Skip every filter (`sheaf_filter_fn`; DXR's
+    /// `RAY_FLAG_FORCE_OPAQUE`): 0 (the default) or 1.
+    pub force_opaque: u8,
 }
 
 impl sheaf_trace_params {
@@ -117,6 +120,7 @@ impl sheaf_trace_params {
             entry: sheaf_entry_search::of(p.entry) as u32,
             split: p.split,
             isa: sheaf_isa::of(p.isa) as u32,
+            force_opaque: p.opaque.into(),
         }
     }
     /// The crate value, its enums and flags checked (the values by the
@@ -143,6 +147,10 @@ impl sheaf_trace_params {
             // Always on in C (module `accel::fallback`).
             fallbacks: true,
             isa: sheaf_isa::to_core(self.isa)?,
+            opaque: flag(
+                self.force_opaque,
+                "sheaf_trace_params.force_opaque must be 0 or 1",
+            )?,
         };
         // Every call taking the params validates them once, against its
         // context's limits, before it traces (`TraceParams::validate_for`).

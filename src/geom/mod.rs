@@ -3,6 +3,7 @@
 #![forbid(unsafe_code)]
 
 pub mod aabb;
+pub mod filter;
 pub mod frustum;
 pub mod lane;
 pub mod ray;
@@ -12,6 +13,7 @@ pub mod wide;
 pub mod xform;
 
 pub use aabb::Aabb;
+pub use filter::{Accept, Candidate, Filter, FilterFn, Hook, OneFilter};
 pub use lane::{F4, Lane, M4};
 pub use ray::{Hit, Hit4, INVALID_ID, Ray, Ray4, closer};
 pub use scene::{Excluded, Scene};

@@ -17,7 +17,7 @@ use crate::accel::slot::Slot;
 use crate::accel::{Accel, method::Method, method::Structure, method::TraceParams};
 use crate::counters::Counters;
 use crate::error::{Error, Result};
-use crate::geom::{Hit, Hit4, M4, Ray, Ray4, TriTest, TriVerts, TriangleTest, with_test};
+use crate::geom::{Hit, Hit4, Hook, M4, Ray, Ray4, TriTest, TriVerts, TriangleTest, with_test};
 
 /// Slot scratch `batch_on` holds while its kernel runs: one packet's
 /// quads, lane masks and hits, for packets of up to `q` quads.
@@ -296,9 +296,26 @@ pub struct SceneTracer<'r> {
     pub kd: Option<KdView<'r>>,
     /// `Method::GridDda`, `Method::BvhSingle` or `Method::KdSingle`.
     pub single: Method,
+    /// The perspective grids' filter hook (`geom::filter`; the others'
+    /// are their views').
+    pub pgrid: Hook<'r>,
 }
 
 impl<'r> SceneTracer<'r> {
+    /// The same structures with every filter skipped when `opaque`
+    /// (`TraceParams::opaque`).
+    pub fn opaque(self, opaque: bool) -> SceneTracer<'r> {
+        if !opaque {
+            return self;
+        }
+        SceneTracer {
+            grid: self.grid.map(|v| v.filtered(Hook::None)),
+            bvh: self.bvh.map(|v| v.filtered(Hook::None)),
+            kd: self.kd.map(|v| v.filtered(Hook::None)),
+            pgrid: Hook::None,
+            ..self
+        }
+    }
     /// The same structures with single-ray calls going to `method`'s
     /// structure; `NotBuilt` when that structure has not been built.
     pub fn with_single(&self, method: Method) -> Result<SceneTracer<'r>> {

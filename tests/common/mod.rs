@@ -3,6 +3,7 @@
 #![allow(dead_code)]
 
 pub mod exact;
+pub mod filter;
 pub mod oracle;
 pub mod ray_stream;
 

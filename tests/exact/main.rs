@@ -15,6 +15,7 @@ mod common;
 
 mod bvh_exact;
 mod cgt_exact;
+mod filter_exact;
 mod kd_exact;
 mod pgrid_exact;
 mod reference_equivalence;

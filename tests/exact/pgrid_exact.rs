@@ -372,8 +372,10 @@ fn check_primary(
     wh: (u32, u32),
     tests: &[TriTest],
     params: &[(u32, u32, u32)],
+    filter: Option<sheaf::Filter>,
 ) -> String {
     let mut ctx = context(s, wh, Limits::BVH);
+    ctx.set_filter(filter);
     let mut report = String::new();
     for &test in tests {
         build_bvh(&mut ctx, s, test);
@@ -435,7 +437,7 @@ fn check_primary(
 #[test]
 fn builtin_primary_hits_equal_the_bvh_single_ray() {
     for r in par_map(&builtin_scenes(), |s| {
-        check_primary(s, BUILTIN_WH, &TESTS, PRIMARY_PARAMS)
+        check_primary(s, BUILTIN_WH, &TESTS, PRIMARY_PARAMS, None)
     }) {
         print!("{r}");
     }
@@ -449,7 +451,7 @@ fn obj_primary_hits_equal_the_bvh_single_ray() {
         return;
     }
     let params = &[(8, 2, 32), (4, 4, 64), (16, 1, 8)];
-    for r in par_map(&scenes, |s| check_primary(s, OBJ_WH, &TESTS, params)) {
+    for r in par_map(&scenes, |s| check_primary(s, OBJ_WH, &TESTS, params, None)) {
         print!("{r}");
     }
 }
@@ -469,8 +471,10 @@ fn check_shadows(
     wh: (u32, u32),
     tests: &[TriTest],
     params: &[(u32, u32)],
+    filter: Option<sheaf::Filter>,
 ) -> String {
     let mut ctx = context(s, wh, Limits::BVH);
+    ctx.set_filter(filter);
     let mut report = String::new();
     for &test in tests {
         build_bvh(&mut ctx, s, test);
@@ -581,7 +585,22 @@ fn check_shadows(
 #[test]
 fn builtin_shadow_bits_equal_single_ray_occlusion() {
     for r in par_map(&builtin_scenes(), |s| {
-        check_shadows(s, BUILTIN_WH, &TESTS, SHADOW_PARAMS)
+        check_shadows(s, BUILTIN_WH, &TESTS, SHADOW_PARAMS, None)
+    }) {
+        print!("{r}");
+    }
+}
+
+/// With the cut-out filter (`common::filter`) on the mesh, the
+/// perspective grid's hits and the light grid's shadow bits are the BVH
+/// single ray's with the same filter: the grids ask it for the caller's
+/// triangle ids.
+#[test]
+fn filtered_hits_and_shadows_equal_the_filtered_single_ray() {
+    let filter = Some(common::filter::plain());
+    for r in par_map(&builtin_scenes(), |s| {
+        check_primary(s, BUILTIN_WH, &TESTS[..1], &PRIMARY_PARAMS[..3], filter)
+            + &check_shadows(s, BUILTIN_WH, &TESTS[..1], &SHADOW_PARAMS[..2], filter)
     }) {
         print!("{r}");
     }
@@ -595,7 +614,13 @@ fn obj_shadow_bits_equal_single_ray_occlusion() {
         return;
     }
     for r in par_map(&scenes, |s| {
-        check_shadows(s, OBJ_WH, &[TriTest::MollerTrumbore], &[(256, 64), (16, 7)])
+        check_shadows(
+            s,
+            OBJ_WH,
+            &[TriTest::MollerTrumbore],
+            &[(256, 64), (16, 7)],
+            None,
+        )
     }) {
         print!("{r}");
     }

@@ -26,7 +26,7 @@ use sheaf::{
 
 /// A view of the committed scene from its centre plus `dir` times its
 /// extent.
-fn view_of(info: &sheaf::TwoLevelInfo, dir: Vec3) -> View {
+pub(crate) fn view_of(info: &sheaf::TwoLevelInfo, dir: Vec3) -> View {
     let (lo, hi) = (info.bounds.min, info.bounds.max);
     let c = 0.5 * (lo + hi);
     View {
@@ -39,7 +39,13 @@ fn view_of(info: &sheaf::TwoLevelInfo, dir: Vec3) -> View {
 
 /// `n` rays from points within `from` of the scene's half extent around
 /// its centre toward points within `to` of it (xorshift from `seed`).
-fn random_rays(info: &sheaf::TwoLevelInfo, seed: u64, n: usize, from: f32, to: f32) -> Vec<Ray> {
+pub(crate) fn random_rays(
+    info: &sheaf::TwoLevelInfo,
+    seed: u64,
+    n: usize,
+    from: f32,
+    to: f32,
+) -> Vec<Ray> {
     let (lo, hi) = (info.bounds.min, info.bounds.max);
     let (c, d) = (0.5 * (lo + hi), hi - lo);
     let mut seed = seed;
@@ -61,7 +67,7 @@ fn random_rays(info: &sheaf::TwoLevelInfo, seed: u64, n: usize, from: f32, to: f
 const NAMES: [&str; 4] = ["tetra", "gears", "balls", "animated"];
 
 /// Triangles of the built-in meshes the scene places.
-fn mesh_triangles() -> u32 {
+pub(crate) fn mesh_triangles() -> u32 {
     NAMES
         .iter()
         .map(|n| sheaf::scenes::builtin(n).unwrap().mesh.indices.len() as u32 / 3)
@@ -77,7 +83,7 @@ fn scene(test: TriTest) -> OwnedContext {
 }
 
 /// The scene in a context of limits `l` (its two-level fields set here).
-fn scene_in(test: TriTest, mut l: Limits) -> OwnedContext {
+pub(crate) fn scene_in(test: TriTest, mut l: Limits) -> OwnedContext {
     let meshes: Vec<_> = NAMES
         .iter()
         .map(|n| sheaf::scenes::builtin(n).unwrap().mesh)
@@ -140,7 +146,7 @@ fn placements() -> [(u32, Affine, u32); 8] {
     ]
 }
 
-fn same(a: &SceneHit, b: &SceneHit) -> bool {
+pub(crate) fn same(a: &SceneHit, b: &SceneHit) -> bool {
     (a.prim, a.geometry, a.instance) == (b.prim, b.geometry, b.instance)
         && a.t.to_bits() == b.t.to_bits()
         && a.u.to_bits() == b.u.to_bits()
@@ -148,7 +154,7 @@ fn same(a: &SceneHit, b: &SceneHit) -> bool {
 }
 
 /// Every method on `rays` (packets in their order) against the single ray.
-fn check(
+pub(crate) fn check(
     ctx: &mut OwnedContext,
     what: &str,
     rays: &[Ray],
@@ -179,6 +185,7 @@ fn check(
             .chain([Cull::Back, Cull::Front].map(|cull| RayControls {
                 mask: masks[0],
                 cull,
+                ..RayControls::default()
             }));
     for ctl in controls {
         let mut want = vec![SceneHit::MISS; rays.len()];
@@ -723,8 +730,16 @@ fn culling_skips_one_side(test: TriTest) {
     };
     let trace = |ctx: &mut OwnedContext, cull| {
         let mut h = vec![SceneHit::MISS; rays.len()];
-        ctx.trace_scene(&rays, RayControls { mask: !0, cull }, &mut h)
-            .unwrap();
+        ctx.trace_scene(
+            &rays,
+            RayControls {
+                mask: !0,
+                cull,
+                ..RayControls::default()
+            },
+            &mut h,
+        )
+        .unwrap();
         h
     };
     let (all, back, front) = (
@@ -804,6 +819,7 @@ fn camera_packets_through_instances() {
         RayControls {
             mask: !0,
             cull: Cull::Back,
+            ..RayControls::default()
         },
     ];
     for ctl in controls {

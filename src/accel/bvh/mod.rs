@@ -61,7 +61,7 @@ use crate::error::Result;
 /// packets use them too.
 pub use crate::geom::frustum;
 pub use crate::geom::frustum::RayKind;
-use crate::geom::{Aabb, Cull, Hit, ProjTri, Ray, TriTest, TriVerts, TriangleTest};
+use crate::geom::{Aabb, Cull, Hit, Hook, ProjTri, Ray, TriTest, TriVerts, TriangleTest};
 use crate::mem::{Carve, TOO_BIG, when};
 use bytemuck::{Pod, Zeroable};
 
@@ -376,6 +376,9 @@ pub struct BvhView<'r> {
     /// each triangle test): none, but for the two-level scene's geometries
     /// when the call culls (`culled`).
     pub cull: Cull,
+    /// Who decides on each candidate hit (`geom::filter`): nobody, but
+    /// when the call's geometry has a filter.
+    pub filter: Hook<'r>,
 }
 
 /// The reference pool as wide nodes (4 references per node; both are
@@ -521,6 +524,7 @@ impl<'r> BvhView<'r> {
             slot_of: &slot_of[..info.triangles_in as usize],
             wide: &wide_view(refs)[..info.wide_nodes as usize],
             cull: Cull::None,
+            filter: Hook::None,
         }
     }
 
@@ -528,6 +532,12 @@ impl<'r> BvhView<'r> {
     #[inline(always)]
     pub fn culled(self, cull: Cull) -> Self {
         BvhView { cull, ..self }
+    }
+
+    /// This view with candidate hits decided by `filter`.
+    #[inline(always)]
+    pub fn filtered(self, filter: Hook<'r>) -> Self {
+        BvhView { filter, ..self }
     }
 
     /// The stored triangles, as every triangle test reads them.

@@ -42,7 +42,7 @@ use crate::accel::packet::{self, PacketArgs, PacketSig, Start};
 use crate::accel::slot::Slot;
 use crate::counters::{Counters, count};
 use crate::geom::lane::mask_from_bits;
-use crate::geom::{Aabb, F4, Hit4, M4, Mt, Pt, Ray4, RayLanes, Wide, Wt};
+use crate::geom::{Aabb, F4, Hit4, Hook, M4, Mt, Pt, Ray4, RayLanes, Wide, Wt};
 use crate::isa;
 use crate::mem::scratch::bytes;
 
@@ -660,7 +660,8 @@ impl<'s, T: TriangleTest> Packet<'s, T> {
         };
         let (h, hb) = group::test(&grp, T::prim(b.store(), i), bits, b.cull);
         group::each_hit(&h, hb, |k, m, hit| {
-            self.take::<ANY>(hits, q(k), m, hit, id);
+            let ray = || (rays[q(k)].org, rays[q(k)].dir);
+            self.take::<ANY>(hits, q(k), m, hit, id, &b.filter, ray);
         });
     }
 
@@ -691,7 +692,8 @@ impl<'s, T: TriangleTest> Packet<'s, T> {
         let (h, hb) = group::test(grp, T::prim(b.store(), i), bits, b.cull);
         let g0 = g * L::G;
         group::each_hit(&h, hb, |k, m, hit| {
-            self.take::<ANY>(hits, g0 + k, m, hit, id);
+            let ray = || group::quad_ray(&grp.r, k);
+            self.take::<ANY>(hits, g0 + k, m, hit, id, &b.filter, ray);
         });
     }
 
@@ -710,6 +712,7 @@ impl<'s, T: TriangleTest> Packet<'s, T> {
     /// nearer than their best so far (any, for occlusion) take it.
     /// The lanes taken.
     #[inline(always)]
+    #[allow(clippy::too_many_arguments)] // the hit, its lanes, and the filter with its rays
     pub(crate) fn take<const ANY: bool>(
         &mut self,
         hits: &mut [Hit4],
@@ -717,8 +720,10 @@ impl<'s, T: TriangleTest> Packet<'s, T> {
         hm: M4,
         hit: (F4, F4, F4),
         id: u32,
+        filter: &Hook<'_>,
+        ray: impl Fn() -> ([F4; 3], [F4; 3]),
     ) -> M4 {
-        let take = group::take::<ANY>(&mut hits[q], hm, hit, id);
+        let take = group::take::<ANY>(&mut hits[q], hm, hit, id, filter, ray);
         if !take.any() {
             return take;
         }

@@ -1533,7 +1533,16 @@ fn leaf_group<L: Wide, T: TriangleTest, const ANY: bool>(
         let id = b.tri_ids[j];
         // A hit lies in [tmin, tmax): for occlusion every hit lane is
         // done, else the lanes it beats keep it (tie rule).
-        let take = if ANY { hb } else { gh.closer(h.t, hb, id) };
+        let mut take = if ANY { hb } else { gh.closer(h.t, hb, id) };
+        if take != 0 && b.filter.on() {
+            let r = &lv.grp[g].r;
+            take = b.filter.bits(take, id, |k, i| {
+                let (org, dir) = group::quad_ray(r, k);
+                let lane = |x: [F4; 3]| [x[0][i], x[1][i], x[2][i]];
+                let hit = (h.t.quad(k)[i], h.u.quad(k)[i], h.v.quad(k)[i]);
+                (lane(org), lane(dir), hit)
+            });
+        }
         if take == 0 {
             continue;
         }

@@ -25,6 +25,7 @@
 use super::packet::QuadBox;
 use super::{BvhView, MAX_DEPTH, TriangleTest};
 use crate::accel::fallback;
+use crate::accel::group;
 use crate::accel::packet::{PacketArgs, PacketSig};
 use crate::counters::Counters;
 use crate::geom::{F4, Hit, Hit4, INVALID_ID, M4, Ray4, RayLanes, Wide};
@@ -224,23 +225,14 @@ fn walk<T: TriangleTest, const ANY: bool>(
                 let hm = h.mask & live;
                 if hm.any() {
                     let id = b.tri_ids[i];
-                    let take = if ANY { hm } else { hm & best.closer(h.t, id) };
-                    if take.any() {
-                        best.t = F4::select(take, h.t, best.t);
-                        best.u = F4::select(take, h.u, best.u);
-                        best.v = F4::select(take, h.v, best.v);
-                        for k in 0..4 {
-                            if take.test(k) {
-                                best.prim[k] = id;
-                            }
+                    let ray = || (lanes.org, lanes.dir);
+                    let take = group::take::<ANY>(best, hm, (h.t, h.u, h.v), id, &b.filter, ray);
+                    if ANY && take.any() {
+                        live &= !take;
+                        if !live.any() {
+                            return;
                         }
-                        if ANY {
-                            live &= !take;
-                            if !live.any() {
-                                return;
-                            }
-                            live_n = live.bitmask().count_ones() as u64;
-                        }
+                        live_n = live.bitmask().count_ones() as u64;
                     }
                 }
             }

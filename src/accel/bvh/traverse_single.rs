@@ -195,18 +195,35 @@ pub(crate) fn leaf<T: TriangleTest, const ANY: bool>(
         let tri = T::prim(b.store(), i);
         let mut h = T::intersect(lanes, pre, tri);
         b.cull.apply::<T, f32>(&lanes.dir, tri, &mut h);
-        if h.mask && take(best, h.t, b.tri_ids[i], h.u, h.v) && ANY {
+        if h.mask
+            && take(
+                b,
+                (lanes.org, lanes.dir),
+                best,
+                (h.t, h.u, h.v),
+                b.tri_ids[i],
+            )
+            && ANY
+        {
             return true;
         }
     }
     false
 }
 
-/// A hit on triangle `id` at `(t, u, v)` replaces `best` when `closer`;
-/// whether it did. The one update of both leaf tests.
+/// A hit on triangle `id` at `(t, u, v)` replaces `best` when `closer`
+/// and the view's filter accepts it; whether it did. The one update of
+/// both leaf tests.
 #[inline(always)]
-fn take(best: &mut Hit, t: f32, id: u32, u: f32, v: f32) -> bool {
-    let c = closer(t, id, best);
+fn take(
+    b: &BvhView<'_>,
+    ray: ([f32; 3], [f32; 3]),
+    best: &mut Hit,
+    hit: (f32, f32, f32),
+    id: u32,
+) -> bool {
+    let (t, u, v) = hit;
+    let c = closer(t, id, best) && b.filter.one(ray.0, ray.1, t, u, v, id);
     if c {
         *best = Hit { t, prim: id, u, v };
     }
@@ -244,7 +261,8 @@ pub(crate) fn leaf4<T: TriangleTest, const ANY: bool>(
             while m != 0 {
                 let k = m.trailing_zeros() as usize;
                 m &= m - 1;
-                if take(best, t[k], b.tri_ids[idx[k]], u[k], v[k]) && ANY {
+                let ray = (lanes4.org.map(|x| x[0]), lanes4.dir.map(|x| x[0]));
+                if take(b, ray, best, (t[k], u[k], v[k]), b.tri_ids[idx[k]]) && ANY {
                     return true;
                 }
             }

@@ -177,6 +177,7 @@ pub(crate) mod tests {
                 proj: &[],
                 tri_ids: &self.ids,
                 slot_of: &self.ids,
+                filter: crate::geom::Hook::None,
             }
         }
     }

@@ -25,7 +25,7 @@ use crate::accel::method::{Method, TraceParams};
 use crate::accel::packet::{Kernel, at, lane_by_lane_kernel};
 use crate::counters::Counters;
 use crate::error::Result;
-use crate::geom::{Aabb, Hit, ProjTri, Ray, TriTest, TriVerts, TriangleTest};
+use crate::geom::{Aabb, Hit, Hook, ProjTri, Ray, TriTest, TriVerts, TriangleTest};
 use crate::mem::{Carve, Limits, TOO_BIG, entries, when};
 use glam::Vec3;
 
@@ -147,6 +147,8 @@ pub struct GridView<'r> {
     pub refs: &'r [u32],
     /// One bit per macrocell, set when any of its cells holds a reference.
     pub macro_bits: &'r [u32],
+    /// Who decides on each candidate hit (`geom::filter`).
+    pub filter: Hook<'r>,
 }
 
 impl<'a> Grid<'a> {
@@ -175,6 +177,7 @@ impl<'a> Grid<'a> {
             cell_start: &self.pools.cell_start[..cells + 1],
             refs: &self.pools.refs[..info.refs as usize],
             macro_bits: &self.pools.macro_bits[..],
+            filter: Hook::None,
         })
     }
     pub fn info(&self) -> Option<&GridInfo> {
@@ -183,6 +186,11 @@ impl<'a> Grid<'a> {
 }
 
 impl<'r> GridView<'r> {
+    /// This view with candidate hits decided by `filter`.
+    #[inline(always)]
+    pub fn filtered(self, filter: Hook<'r>) -> Self {
+        GridView { filter, ..self }
+    }
     /// The stored triangles, as every triangle test reads them.
     #[inline(always)]
     pub fn store(&self) -> crate::geom::TriStore<'r> {

@@ -485,7 +485,9 @@ fn packet<L: Wide, T: TriangleTest, const ANY: bool>(
                             let (h, hb) = group::test(gr, prim, bits, crate::geom::Cull::None);
                             group::each_hit(&h, hb, |k, hm, hit| {
                                 let q = gi * L::G + k;
-                                let take = group::take::<ANY>(&mut hits[q], hm, hit, id);
+                                let ray = || group::quad_ray(&gr.r, k);
+                                let take =
+                                    group::take::<ANY>(&mut hits[q], hm, hit, id, &g.filter, ray);
                                 if ANY {
                                     live[q] &= !take;
                                 }

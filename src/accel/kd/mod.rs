@@ -50,7 +50,7 @@ use crate::accel::method::{Method, TraceParams};
 use crate::accel::packet::{Kernel, at, baseline, lane_by_lane_kernel};
 use crate::counters::Counters;
 use crate::error::Result;
-use crate::geom::{Aabb, Hit, M4, ProjTri, Ray, TriTest, TriVerts, TriangleTest};
+use crate::geom::{Aabb, Hit, Hook, M4, ProjTri, Ray, TriTest, TriVerts, TriangleTest};
 use crate::mem::{Carve, Limits, entries, when};
 use bytemuck::{Pod, Zeroable};
 
@@ -296,6 +296,16 @@ pub struct KdView<'r> {
     pub proj: &'r [ProjTri],
     pub tri_ids: &'r [u32],
     pub slot_of: &'r [u32],
+    /// Who decides on each candidate hit (`geom::filter`).
+    pub filter: Hook<'r>,
+}
+
+impl<'r> KdView<'r> {
+    /// This view with candidate hits decided by `filter`.
+    #[inline(always)]
+    pub fn filtered(self, filter: Hook<'r>) -> Self {
+        KdView { filter, ..self }
+    }
 }
 
 impl<'a> KdTree<'a> {
@@ -327,6 +337,7 @@ impl<'a> KdTree<'a> {
             },
             tri_ids: &self.pools.tri_ids[..n],
             slot_of: &self.pools.slot_of[..info.triangles_in as usize],
+            filter: Hook::None,
         })
     }
 }

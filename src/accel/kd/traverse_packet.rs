@@ -719,7 +719,12 @@ fn walk<L: Wide, T: TriangleTest, const ANY: bool, const Q: usize>(
                     let (h, hb) = group::test(&grp[gi], prim, bits, crate::geom::Cull::None);
                     group::each_hit(&h, hb, |kq, hm, hit| {
                         let q = (gi * L::G + kq) & (Q - 1);
+                        let ray = || group::quad_ray(&grp[gi].r, kq);
                         if ANY {
+                            let hm = k.filter.quad_with(hm, hit, id, ray);
+                            if !hm.any() {
+                                return;
+                            }
                             // Occlusion: a lane with a hit is done.
                             occ[q] |= hm;
                             live[q] &= !hm;
@@ -730,7 +735,7 @@ fn walk<L: Wide, T: TriangleTest, const ANY: bool, const Q: usize>(
                                 }
                             }
                         } else {
-                            group::take::<false>(&mut hits[q], hm, hit, id);
+                            group::take::<false>(&mut hits[q], hm, hit, id, &k.filter, ray);
                         }
                     });
                     if ANY && n_live == 0 {

@@ -35,6 +35,7 @@
 use super::traverse_single::{KdRay, from_node};
 use super::{KdView, MAX_DEPTH, TriangleTest};
 use crate::accel::fallback;
+use crate::accel::group;
 use crate::accel::packet::{PacketArgs, PacketSig};
 use crate::counters::Counters;
 use crate::geom::{Aabb, F4, Hit, Hit4, M4, Ray4, RayLanes, Wide};
@@ -319,23 +320,14 @@ fn walk<T: TriangleTest, const ANY: bool>(
                 let hm = h.mask & m;
                 if hm.any() {
                     let id = k.tri_ids[s];
-                    let take = if ANY { hm } else { hm & best.closer(h.t, id) };
-                    if take.any() {
-                        best.t = F4::select(take, h.t, best.t);
-                        best.u = F4::select(take, h.u, best.u);
-                        best.v = F4::select(take, h.v, best.v);
-                        for i in 0..4 {
-                            if take.test(i) {
-                                best.prim[i] = id;
-                            }
-                        }
-                        if ANY {
-                            // Occlusion: a lane with a hit is done.
-                            m &= !take;
-                            live &= !take;
-                            if !m.any() {
-                                break;
-                            }
+                    let ray = || (lanes.org, lanes.dir);
+                    let take = group::take::<ANY>(best, hm, (h.t, h.u, h.v), id, &k.filter, ray);
+                    if ANY && take.any() {
+                        // Occlusion: a lane with a hit is done.
+                        m &= !take;
+                        live &= !take;
+                        if !m.any() {
+                            break;
                         }
                     }
                 }

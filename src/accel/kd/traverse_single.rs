@@ -138,7 +138,9 @@ pub(crate) fn from_node<T: TriangleTest, const ANY: bool>(
                 let h = T::intersect(&lanes, &pre, T::prim(k.store(), s));
                 if h.mask {
                     let id = k.tri_ids[s];
-                    if closer(h.t, id, best) {
+                    if closer(h.t, id, best)
+                        && k.filter.one(lanes.org, lanes.dir, h.t, h.u, h.v, id)
+                    {
                         *best = Hit {
                             t: h.t,
                             prim: id,

@@ -487,6 +487,7 @@ impl<'a> Pgrid<'a> {
             isa: self.scene.params?.isa,
             tile: self.scene.params?.tile,
             px_box: &self.pools.px_box[..self.scene.triangles as usize],
+            filter: crate::geom::Hook::None,
         })
     }
 
@@ -506,6 +507,7 @@ impl<'a> Pgrid<'a> {
             test: self.scene.params?.test,
             isa: self.scene.params?.isa,
             ab_box: &self.pools.px_box[..self.scene.triangles as usize],
+            filter: crate::geom::Hook::None,
         })
     }
 }
@@ -523,6 +525,8 @@ pub struct CamView<'r> {
     pub tile: u32,
     /// Padded pixel bounds of every triangle.
     pub px_box: &'r [[f32; 4]],
+    /// Who decides on each candidate hit (`geom::filter`).
+    pub filter: crate::geom::Hook<'r>,
 }
 
 /// A built light grid, ready to trace shadow rays from its light.
@@ -536,4 +540,6 @@ pub struct LightView<'r> {
     pub isa: Isa,
     /// Padded (a, b) bounds of every triangle listed in the grid.
     pub ab_box: &'r [[f32; 4]],
+    /// Who decides on each candidate hit (`geom::filter`).
+    pub filter: crate::geom::Hook<'r>,
 }

@@ -153,7 +153,8 @@ fn walk<L: Wide, T: TriangleTest>(
                 if qx0 > qx1 || a >= nq {
                     continue;
                 }
-                for gi in a / L::G..=b / L::G {
+                let (g0, g1) = (a / L::G, b / L::G);
+                for (gi, gr) in grp.iter().enumerate().take(g1 + 1).skip(g0) {
                     let mut sel = 0u32;
                     for k in 0..L::G {
                         sel |= u32::from((a..=b).contains(&(gi * L::G + k))) << k;
@@ -163,9 +164,11 @@ fn walk<L: Wide, T: TriangleTest>(
                         continue;
                     }
                     count!(ctr.tri_tests += bits.count_ones() as u64);
-                    let (h, hb) = group::test(&grp[gi], prim, bits, crate::geom::Cull::None);
+                    let (h, hb) = group::test(gr, prim, bits, crate::geom::Cull::None);
                     group::each_hit(&h, hb, |k, hm, hit| {
-                        group::take::<false>(&mut hits[gi * L::G + k], hm, hit, tri);
+                        let ray = || group::quad_ray(&gr.r, k);
+                        let q = gi * L::G + k;
+                        group::take::<false>(&mut hits[q], hm, hit, tri, &g.filter, ray);
                     });
                 }
             }

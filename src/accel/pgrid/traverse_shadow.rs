@@ -177,8 +177,11 @@ fn walk<L: Wide, T: TriangleTest>(
                 let bits = group::lane_bits::<L>(gi, sel, |q| live[q]);
                 count!(ctr.tri_tests += bits.count_ones() as u64);
                 let (h, hb) = group::test(gr, prim, bits, crate::geom::Cull::None);
-                group::each_hit(&h, hb, |k, hm, _| {
+                group::each_hit(&h, hb, |k, hm, hit| {
                     let q = gi * L::G + k;
+                    let hm = g
+                        .filter
+                        .quad_with(hm, hit, tri, || group::quad_ray(&gr.r, k));
                     occluded[q] |= hm;
                     live[q] &= !hm;
                 });

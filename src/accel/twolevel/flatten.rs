@@ -121,7 +121,7 @@ impl<'a> Flat<'a> {
         let workers = par::workers_of(par)?;
         let (mut total, mut instances) = (0u64, 0u32);
         for id in 0..v.instance_slots() {
-            if let Some(g) = v.instance(id).and_then(|i| v.visible(i, mask.into())) {
+            if let Some(g) = v.instance(id).and_then(|i| v.visible(i, id, mask.into())) {
                 total += g.info.triangles as u64;
                 instances += 1;
             }
@@ -181,7 +181,7 @@ fn expand(v: &TwoLevelView<'_>, mask: u32, from: usize, out: &mut [TriVerts], id
             break;
         }
         let Some(inst) = v.instance(id) else { continue };
-        let Some(g) = v.visible(inst, mask.into()) else {
+        let Some(g) = v.visible(inst, id, mask.into()) else {
             continue;
         };
         let count = g.info.triangles as usize;

@@ -49,7 +49,7 @@ use crate::accel::bvh::{
     self, Bvh, BvhInfo, BvhNode, BvhParams, BvhPools, BvhState, BvhView, PrimRef,
 };
 use crate::error::{Error, Result};
-use crate::geom::{Aabb, Affine, ProjTri, Scene, TriTest, TriVerts};
+use crate::geom::{Aabb, Affine, Filter, Hook, OneFilter, ProjTri, Scene, TriTest, TriVerts};
 use crate::mem::par::Par;
 use crate::mem::regions::{Regions, Run};
 use bytemuck::{Pod, Zeroable};
@@ -86,6 +86,12 @@ pub struct GeometryParams {
     /// geometry (as they skip an instance by its own mask). Default all
     /// bits.
     pub mask: u32,
+    /// Candidate hits on its triangles are asked to `filter`
+    /// (`geom::filter`) unless it is `opaque` or the call forces opacity
+    /// (`RayControls::opaque`, `TraceParams::opaque`). Default: none.
+    pub filter: Option<Filter>,
+    /// Skip its filter (DXR's opaque geometry flag). Default false.
+    pub opaque: bool,
 }
 
 impl Default for GeometryParams {
@@ -96,6 +102,8 @@ impl Default for GeometryParams {
             bvh: BvhParams::default(),
             refit: bvh::refit::RefitParams::default(),
             mask: !0,
+            filter: None,
+            opaque: false,
         }
     }
 }
@@ -109,6 +117,8 @@ impl Default for GeometryParams {
 pub struct RayControls {
     pub mask: u32,
     pub cull: crate::geom::Cull,
+    /// Skip every filter (DXR's `RAY_FLAG_FORCE_OPAQUE`).
+    pub opaque: bool,
 }
 
 impl Default for RayControls {
@@ -116,6 +126,7 @@ impl Default for RayControls {
         RayControls {
             mask: !0,
             cull: crate::geom::Cull::None,
+            opaque: false,
         }
     }
 }
@@ -150,6 +161,9 @@ pub struct GeomState {
     /// Instances that place it (it cannot be removed while any do).
     instances: u32,
     bvh: BvhState,
+    /// `GeometryParams::filter` and `opaque`.
+    filter: Option<Filter>,
+    opaque: bool,
 }
 
 /// An instance: a geometry placed by a transform (C: `sheaf_instance`).
@@ -460,6 +474,8 @@ impl<'a> TwoLevel<'a> {
             mode: p.mode,
             refit: p.refit,
             mask: p.mask,
+            filter: p.filter,
+            opaque: p.opaque,
             instances: old.instances,
             bvh: if in_place {
                 old.bvh
@@ -563,6 +579,15 @@ impl<'a> TwoLevel<'a> {
             self.test = None;
         }
         self.info = None;
+        Ok(())
+    }
+
+    /// Geometry `id`'s filter from now on (`None`: its candidates are
+    /// all accepted). `InvalidArgument` when `id` is not set; nothing
+    /// changes then. Takes effect at once (no commit needed).
+    pub fn set_filter(&mut self, id: u32, filter: Option<Filter>) -> Result<()> {
+        self.geom(id)?;
+        self.geoms[id as usize].filter = filter;
         Ok(())
     }
 
@@ -680,12 +705,38 @@ impl<'r> TwoLevelView<'r> {
     /// (its mask and its geometry's both share a bit with `ctl.mask`),
     /// culling `ctl.cull` (`BvhView::cull`).
     #[inline]
-    pub fn visible(&self, inst: &Instance, ctl: RayControls) -> Option<BvhView<'r>> {
+    /// Candidates go to the geometry's filter as instance `id`'s, unless
+    /// `ctl.opaque`.
+    pub fn visible(&self, inst: &Instance, id: u32, ctl: RayControls) -> Option<BvhView<'r>> {
         let g = self.geoms.get(inst.geometry as usize)?;
         if inst.mask & ctl.mask == 0 || g.mask & ctl.mask == 0 {
             return None;
         }
-        Some(self.geometry(inst.geometry)?.culled(ctl.cull))
+        let v = self.geometry(inst.geometry)?.culled(ctl.cull);
+        Some(match g.filter {
+            Some(filter) if !ctl.opaque && !g.opaque => v.filtered(Hook::One(OneFilter {
+                filter,
+                geometry: inst.geometry,
+                instance: id,
+            })),
+            _ => v,
+        })
+    }
+
+    /// Geometry `id`'s filter (`None`: none, opaque, or not set).
+    pub fn filter_of(&self, id: u32) -> Option<Filter> {
+        let g = self
+            .geoms
+            .get(id as usize)
+            .filter(|g| g.live && !g.opaque)?;
+        g.filter
+    }
+
+    /// Whether any geometry has a filter it is not opaque to.
+    pub fn filtering(&self) -> bool {
+        self.geoms
+            .iter()
+            .any(|g| g.live && !g.opaque && g.filter.is_some())
     }
 
     /// Geometry `id`'s BVH (`None`: not set or never built).

@@ -187,7 +187,7 @@ pub fn trace<'v, const ANY: bool>(
         }
         let id = s.order[n.first as usize];
         let inst = &s.insts[id as usize];
-        let Some(g) = s.visible(inst, ctl) else {
+        let Some(g) = s.visible(inst, id, ctl) else {
             continue;
         };
         // The lanes that enter the instance's box by their far end (the

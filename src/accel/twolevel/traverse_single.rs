@@ -188,7 +188,7 @@ fn walk<T: TriangleTest, const ANY: bool>(
         } else {
             let id = s.order[n.first as usize];
             let inst = &s.insts[id as usize];
-            if let Some(g) = s.visible(inst, ctl) {
+            if let Some(g) = s.visible(inst, id, ctl) {
                 let r = object_ray(&inst.inverse, ray, best.t);
                 let h: Hit = traverse_wide::walk::<T, ANY>(&g, &r, ctr);
                 if h.is_hit() && best.closer(h.t, id, h.prim) {

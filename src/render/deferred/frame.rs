@@ -10,7 +10,7 @@ use super as deferred;
 use super::{
     DeferredInfo, DeferredJob, FrameBuffers, PrimaryPass, ShadowPass, TileLayout, Workers,
 };
-use crate::accel::pgrid::{self, Pgrid, PgridParams};
+use crate::accel::pgrid::{self, CamView, LightView, Pgrid, PgridParams};
 use crate::accel::slot::Slot;
 use crate::counters::{Counters, elapsed_ns, now};
 use crate::error::{Error, Result};
@@ -56,7 +56,10 @@ pub(crate) fn run<W: Workers>(
     }
     // Phase 2: camera rays.
     let t = now();
-    let cam = pg.camera();
+    let cam = pg.camera().map(|c| CamView {
+        filter: tr.pgrid,
+        ..c
+    });
     ctr.add(&deferred::primary_pass(
         &tr,
         cam.as_ref(),
@@ -189,6 +192,10 @@ pub(crate) fn run<W: Workers>(
                     // Phase 5: chunks.
                     let t = now();
                     let g = pg.light_view().ok_or(Error::NotBuilt)?;
+                    let g = LightView {
+                        filter: tr.pgrid,
+                        ..g
+                    };
                     ctr.add(&deferred::light_grid_pass(
                         &g,
                         &buf.chunks[..r.chunks as usize],
