@@ -2,11 +2,14 @@
  * engine.c: an engine's frame loop on a two-level scene through sheaf's C
  * ABI.
  *
- * Three geometries: a static level (a floor and four pillars, built once),
+ * Four geometries: a static level (a floor and four pillars, built once),
  * a cloth-like grid whose vertices move every frame (REFIT: the same index
- * buffer, vertices written in place), and a box placed 16 times in a ring
+ * buffer, vertices written in place), a box placed 16 times in a ring
  * that turns (the geometry never changes; only the instances' transforms
- * do). Every frame: update what moved, move the instances, commit the top
+ * do), and a perforated grille placed twice: an alpha-tested mesh whose
+ * holes are cut out by an any-hit filter (sheaf_filter_fn) from each
+ * candidate's (u, v), so its shadow on the floor has the holes too. Every
+ * frame: update what moved, move the instances, commit the top
  * level, trace camera rays as 8x8 frustum-first packets and shadow rays toward a
  * light, shade by geometry, print a table line; the last frame is written
  * as a binary PPM.
@@ -19,6 +22,7 @@
 #include "sheaf.h"
 
 #include <math.h>
+#include <stdbool.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -29,6 +33,7 @@
 #define H 240
 #define GRID 32 /* the cloth: GRID x GRID quads */
 #define RING 16
+#define GRILLE 10 /* the grille: GRILLE x GRILLE quads */
 
 static double now_ms(void) {
     struct timespec t;
@@ -94,6 +99,15 @@ static void placed(float m[12], float a, float s, float x, float y, float z) {
     memcpy(m, r, sizeof r);
 }
 
+/* The grille's cut-out: a round hole in every triangle, around its
+ * centroid (u = v = 1/3). A pure function of the candidate; `user` counts
+ * the calls (one thread traces here, so a plain counter will do). */
+static bool grille_filter(void *user, const sheaf_candidate *c) {
+    float du = c->u - 1.0f / 3.0f, dv = c->v - 1.0f / 3.0f;
+    ++*(unsigned long *)user;
+    return du * du + dv * dv + du * dv > 0.018f;
+}
+
 #define CHECK(call)                                                                          \
     do {                                                                                     \
         sheaf_status st_ = (call);                                                           \
@@ -103,7 +117,7 @@ static void placed(float m[12], float a, float s, float x, float y, float z) {
         }                                                                                    \
     } while (0)
 
-static mesh level, cloth, cube;
+static mesh level, cloth, cube, grille;
 static sheaf_ray rays[W * H], shadow[W * H];
 static sheaf_scene_hit hits[W * H];
 static uint8_t occluded[W * H];
@@ -121,6 +135,7 @@ int main(int argc, char **argv) {
     sheaf_mesh m;
     float xf[12];
     uint32_t x, z, k, n = 0;
+    unsigned long filter_calls = 0, calls_before;
     int f;
 
     /* The level: a floor and four pillars. The cloth: a GRID x GRID grid. */
@@ -137,13 +152,22 @@ int main(int argc, char **argv) {
             quad(&cloth, a, a + GRID + 1, a + GRID + 2, a + 1);
         }
     box(&cube, -0.3f, 0.0f, -0.3f, 0.3f, 0.6f, 0.3f);
+    /* The grille: upright, 2.4 wide and high, in the plane z = 0. */
+    for (z = 0; z <= GRILLE; ++z)
+        for (x = 0; x <= GRILLE; ++x)
+            vtx(&grille, -1.2f + 2.4f * x / GRILLE, 0.2f + 2.4f * z / GRILLE, 0.0f);
+    for (z = 0; z < GRILLE; ++z)
+        for (x = 0; x < GRILLE; ++x) {
+            uint32_t a = z * (GRILLE + 1) + x;
+            quad(&grille, a, a + 1, a + GRILLE + 2, a + GRILLE + 1);
+        }
 
     CHECK(sheaf_limits_default(16, &limits));
     limits.structures = SHEAF_STRUCTURE_BVH;
     limits.max_threads = 1;
-    limits.max_geometries = 3;
-    limits.max_instances = 2 + RING;
-    limits.max_scene_triangles = level.nt + cloth.nt + cube.nt;
+    limits.max_geometries = 4;
+    limits.max_instances = 4 + RING;
+    limits.max_scene_triangles = level.nt + cloth.nt + cube.nt + grille.nt;
     CHECK(sheaf_context_create(&limits, &ctx));
 
     CHECK(sheaf_geometry_params_default(&gp)); /* STATIC, binned SAH */
@@ -151,6 +175,12 @@ int main(int argc, char **argv) {
     CHECK(sheaf_context_set_scene_geometry(ctx, 0, &m, &gp));
     m = as_mesh(&cube);
     CHECK(sheaf_context_set_scene_geometry(ctx, 2, &m, &gp));
+    gp.filter = grille_filter; /* the grille: alpha-tested */
+    gp.filter_user = &filter_calls;
+    m = as_mesh(&grille);
+    CHECK(sheaf_context_set_scene_geometry(ctx, 3, &m, &gp));
+    gp.filter = NULL;
+    gp.filter_user = NULL;
     gp.mode = SHEAF_UPDATE_MODE_REFIT;
     wave(&cloth, 0.0f);
     m = as_mesh(&cloth);
@@ -158,6 +188,11 @@ int main(int argc, char **argv) {
     placed(xf, 0.0f, 1.0f, 0.0f, 0.0f, 0.0f);
     CHECK(sheaf_context_set_instance(ctx, 0, 0, xf, ~0u));
     CHECK(sheaf_context_set_instance(ctx, 1, 1, xf, ~0u));
+    /* Two grilles between the light and the floor, turned a little. */
+    placed(xf, 0.4f, 1.0f, -1.6f, 0.0f, 2.5f);
+    CHECK(sheaf_context_set_instance(ctx, 2 + RING, 3, xf, ~0u));
+    placed(xf, -0.5f, 1.0f, 1.8f, 0.0f, 3.0f);
+    CHECK(sheaf_context_set_instance(ctx, 3 + RING, 3, xf, ~0u));
 
     /* Camera rays, 8x8 pixel tiles in order, 2x2 quads row by row inside
      * each tile: sheaf_context_trace_scene takes every run of 64 rays as
@@ -180,7 +215,8 @@ int main(int argc, char **argv) {
     tp.method = SHEAF_METHOD_BVH_FRUSTUM; /* the fastest packets through instances */
     tp.packet = 8;
 
-    printf("%5s %9s %8s %10s %10s %9s %8s\n", "frame", "update ms", "SAH x", "commit ms", "trace ms", "hits", "lit");
+    printf("%5s %9s %8s %10s %10s %9s %8s %13s\n", "frame", "update ms", "SAH x", "commit ms", "trace ms", "hits", "lit",
+           "filter calls");
     for (f = 0; f < frames; ++f) {
         float t = 0.3f * f;
         sheaf_refit_info ri;
@@ -200,6 +236,7 @@ int main(int argc, char **argv) {
         t1 = now_ms();
         CHECK(sheaf_context_commit_scene(ctx, &si));
         t2 = now_ms();
+        calls_before = filter_calls;
         /* 2. Camera rays, then shadow rays from their hits to the light. */
         CHECK(sheaf_context_trace_scene(ctx, &tp, rays, hits, W * H, ~0u, 0));
         for (k = 0; k < W * H; ++k) {
@@ -217,7 +254,8 @@ int main(int argc, char **argv) {
         t3 = now_ms();
         /* 3. Shade: a colour per geometry, darker in shadow. */
         for (k = 0; k < W * H; ++k) {
-            static const unsigned char colour[3][3] = {{200, 190, 170}, {220, 90, 60}, {70, 200, 90}};
+            static const unsigned char colour[4][3] = {
+                {200, 190, 170}, {220, 90, 60}, {70, 200, 90}, {240, 200, 60}};
             unsigned char *o = &image[3 * pixel[k]];
             int a;
             if (hits[k].prim == SHEAF_INVALID_ID) {
@@ -230,8 +268,9 @@ int main(int argc, char **argv) {
                 o[a] = (unsigned char)(colour[hits[k].geometry][a] * (occluded[k] ? 0.35f : 1.0f));
         }
         n = si.instances;
-        printf("%5d %9.3f %8.3f %10.3f %10.2f %9u %8u\n", f, t1 - t0, ri.sah_before > 0 ? ri.sah_after / ri.sah_before : 1.0,
-               t2 - t1, t3 - t2, n_hit, n_lit);
+        printf("%5d %9.3f %8.3f %10.3f %10.2f %9u %8u %13lu\n", f, t1 - t0,
+               ri.sah_before > 0 ? ri.sah_after / ri.sah_before : 1.0, t2 - t1, t3 - t2, n_hit, n_lit,
+               filter_calls - calls_before);
     }
     printf("%u instances; the last frame in %s\n", n, out);
     {

@@ -1227,6 +1227,7 @@ typedef struct {
     const char *twolevel[3]; /* --twolevel ENV ANIM OBJ: the two-level scene's files */
     int frames;              /* --frames: the two-level scene's frames (default 24) */
     const char *ppm;         /* --ppm FILE: the two-level scene's frame 0 as sheaf sees it */
+    int filter;              /* --filter: the two-level scene's ANIM cut out by any-hit filters */
 } Options;
 
 /* ---- per-scene run --------------------------------------------------------------------- */
@@ -2619,6 +2620,36 @@ typedef struct {
     RTCGeometry inst[TL_INST];
 } TLEmbree;
 
+/* --filter: ANIM's triangles are alpha-tested, a cut-out of each candidate's
+ * (u, v) cells shifted by its triangle (a pure function of the candidate),
+ * through sheaf_filter_fn in sheaf and the intersection and occlusion filter
+ * functions of ANIM's geometry in Embree; u and v weigh the second and third
+ * vertex in both. */
+static int tl_keep(float u, float v, uint32_t prim)
+{
+    return ((uint32_t)(u * 6.0f) + (uint32_t)(v * 6.0f) + prim) % 3u != 0u;
+}
+
+static bool tl_sheaf_cutout(void *user, const sheaf_candidate *c)
+{
+    (void)user;
+    return tl_keep(c->u, c->v, c->prim);
+}
+
+/* RTCHitN is N-wide structure of arrays (Ng_x, Ng_y, Ng_z, u, v, primID,
+ * ...); its accessors RTCHitN_u etc. exist in C++ only. */
+static void tl_embree_cutout(const struct RTCFilterFunctionNArguments *a)
+{
+    const float *f = (const float *)a->hit;
+    const unsigned *id = (const unsigned *)a->hit;
+    unsigned n = a->N;
+    for (unsigned i = 0; i < n; i++) {
+        if (a->valid[i] != -1) continue;
+        if (!tl_keep(f[3 * n + i], f[4 * n + i], id[5 * n + i]))
+            a->valid[i] = 0;
+    }
+}
+
 static int tl_geom_of(uint32_t inst) { return inst == 0 ? G_ENV : inst <= TL_ANIM ? G_ANIM : G_OBJ; }
 
 /* Geometry g's vertices in frame f (ANIM: animation frame f mod F). */
@@ -2809,6 +2840,9 @@ static void tl_setup(TwoLevel *b)
     tl_ring(b, 0);
 
     /* The other instances, and the commit. */
+    if (b->o->filter)
+        check_sheaf(b->ctx, sheaf_context_set_scene_geometry_filter(b->ctx, G_ANIM, tl_sheaf_cutout, NULL),
+                    "set_scene_geometry_filter");
     t0 = now_s();
     for (uint32_t i = 1; i < TL_INST; i++)
         check_sheaf(b->ctx, sheaf_context_set_instance(b->ctx, i, (uint32_t)tl_geom_of(i), b->xf[i], ~0u), "set_instance");
@@ -2847,6 +2881,12 @@ static double tl_embree_setup(TwoLevel *b, int T, TLEmbree *e)
     double t0 = now_s();
     embree_build(e->dev, &b->g[G_ENV], 1, &e->child[G_ENV]);        /* MEDIUM */
     embree_build(e->dev, anim, Q_REFIT, &e->child[G_ANIM]);         /* LOW + DYNAMIC, geometry REFIT */
+    if (b->o->filter) {
+        rtcSetGeometryIntersectFilterFunction(e->child[G_ANIM].geom, tl_embree_cutout);
+        rtcSetGeometryOccludedFilterFunction(e->child[G_ANIM].geom, tl_embree_cutout);
+        rtcCommitGeometry(e->child[G_ANIM].geom);
+        rtcCommitScene(e->child[G_ANIM].scene);
+    }
     embree_build(e->dev, &b->g[G_OBJ], 1, &e->child[G_OBJ]);        /* MEDIUM */
     e->top = rtcNewScene(e->dev);
     rtcSetSceneFlags(e->top, RTC_SCENE_FLAG_DYNAMIC);
@@ -3114,8 +3154,14 @@ static void tl_report(TwoLevel *b)
     const Options *o = b->o;
     const Scene *env = &b->g[G_ENV], *anim = &b->g[G_ANIM], *obj = &b->g[G_OBJ];
     size_t na = (size_t)TL_ANIM * anim->nt, no = (size_t)TL_RING * obj->nt;
-    printf("\n### Two-level scene: %s + %s x %d + %s x %d\n\n", b->name[G_ENV], b->name[G_ANIM], TL_ANIM,
-           b->name[G_OBJ], TL_RING);
+    printf("\n### Two-level scene: %s + %s x %d + %s x %d%s\n\n", b->name[G_ENV], b->name[G_ANIM], TL_ANIM,
+           b->name[G_OBJ], TL_RING, o->filter ? ", anim alpha-tested by any-hit filters" : "");
+    if (o->filter)
+        printf("Filtered (--filter): anim's triangles are cut out by a pure function of each candidate's (u, v) "
+               "and triangle (a third of each triangle's area), in sheaf by sheaf_filter_fn on the geometry "
+               "(sheaf_context_set_scene_geometry_filter), in Embree by rtcSetGeometryIntersectFilterFunction and "
+               "rtcSetGeometryOccludedFilterFunction on anim's geometry, called for the candidates each library "
+               "would accept.\n\n");
     printf("Triangles: env %u (%s, one instance, static); anim %u x %d = %zu (%s, refit: its vertices move every "
            "frame); obj %u x %d = %zu (%s, static, its %d instances turn every frame); %llu in all, of which "
            "%.1f%% move per frame (%.1f%% deformed, %.1f%% moved by their instance's transform); sheaf traces %llu of them (it leaves out zero-area and non-finite "
@@ -3248,7 +3294,9 @@ static void usage(void)
             "               animation's frame f mod F); --check: at most 0.01%% of the camera\n"
             "               and of the shadow rays may differ\n"
             "  --ppm FILE   with --twolevel: write frame 0 as sheaf traced it (binary PPM; env grey,\n"
-            "               anim copies red, the ring green, darker in shadow)\n");
+            "               anim copies red, the ring green, darker in shadow)\n"
+            "  --filter     with --twolevel: anim alpha-tested (a cut-out) by any-hit filters in both\n"
+            "               libraries (sheaf_filter_fn; Embree's filter functions)\n");
     exit(1);
 }
 
@@ -3305,6 +3353,8 @@ int main(int argc, char **argv)
             o.profile_shadow = 1;
         } else if (!strcmp(a, "--twolevel") && i + 3 < argc) {
             for (int k = 0; k < 3; k++) o.twolevel[k] = argv[++i];
+        } else if (!strcmp(a, "--filter")) {
+            o.filter = 1;
         } else if (!strcmp(a, "--ppm") && i + 1 < argc) {
             o.ppm = argv[++i];
         } else if (!strcmp(a, "--frames") && i + 1 < argc) {

@@ -19,6 +19,8 @@
 # conference), --frames N (frames per run, default 24; --quick runs 3). It
 # runs in the default full run (no --scenes) after the single scenes, and
 # with --twolevel, which runs it alone (--scenes is then ignored).
+# --filter: the two-level scene again with its animated geometry
+# alpha-tested by any-hit filters in both libraries (a second table).
 #
 # 1. Installs Debian's libembree-dev with apt-get when it is missing and this
 #    runs as root; otherwise prints "Embree 3 not installed: skipped" and exits 0.
@@ -35,7 +37,7 @@ ROOT=$PWD
 export CARGO_TERM_COLOR=never
 
 quick=0 reps=3 size=1024x1024 scenes="" threads=1,2 counters=0 install=1
-twolevel=auto twolevel_asked=0 env="" tl_frames=24
+twolevel=auto twolevel_asked=0 env="" tl_frames=24 tl_filter=0
 while [ $# -gt 0 ]; do
   case "$1" in
     --quick) quick=1 ;;
@@ -43,6 +45,7 @@ while [ $# -gt 0 ]; do
     --no-twolevel) twolevel=no twolevel_asked=1 ;;
     --env) env=$2; shift ;;
     --frames) tl_frames=$2; shift ;;
+    --filter) tl_filter=1 ;;
     --reps) reps=$2; shift ;;
     --size) size=$2; shift ;;
     --scenes) scenes=$2; shift ;;
@@ -174,6 +177,7 @@ cmd=(benches/embree/run.sh)
 [ $twolevel = no ] && [ $twolevel_asked = 1 ] && cmd+=(--no-twolevel)
 [ -n "$env" ] && [ $quick = 0 ] && [ $twolevel != no ] && cmd+=(--env "$env")
 [ "$tl_frames" != 24 ] && [ $quick = 0 ] && [ $twolevel != no ] && cmd+=(--frames "$tl_frames")
+[ $tl_filter = 1 ] && [ $twolevel != no ] && cmd+=(--filter)
 [ "$reps" != 3 ] && [ $quick = 0 ] && cmd+=(--reps "$reps")
 [ "$size" != 1024x1024 ] && [ $quick = 0 ] && cmd+=(--size "$size")
 [ "$threads" != 1,2 ] && cmd+=(--threads "$threads")
@@ -219,6 +223,15 @@ if [ $twolevel != no ]; then
   status=${PIPESTATUS[0]}
   set -e
   [ "$status" = 0 ] || { echo "run.sh: embree_bench --twolevel failed ($status)" >&2; exit "$status"; }
+  if [ $tl_filter = 1 ]; then
+    wait_quiet
+    set +e
+    "$out/embree_bench" --twolevel "${tl_files[@]}" --frames "$tl_frames" --reps "$reps" --threads "$threads" \
+      --filter --summary "$out/summary-twolevel-filter.txt" "${tl_check[@]}" | tee -a "$tl_tables"
+    status=${PIPESTATUS[0]}
+    set -e
+    [ "$status" = 0 ] || { echo "run.sh: embree_bench --twolevel --filter failed ($status)" >&2; exit "$status"; }
+  fi
   tl_secs=$(( $(date +%s) - tl_t0 ))
   tl_load_after=$(cut -d' ' -f1-3 /proc/loadavg)
 fi

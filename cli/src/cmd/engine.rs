@@ -4,7 +4,10 @@
 //! present, else the built-in gears) is built once; an animated mesh is
 //! refit every frame and placed four times, a mesh whose triangle count
 //! changes is rebuilt every frame and placed twice, and a static
-//! tetrahedron is placed 16 times in a turning ring. Every frame updates
+//! tetrahedron is placed 16 times in a turning ring; two perforated panels
+//! (an alpha-tested mesh: its holes are an any-hit filter's cut-out of
+//! each triangle's (u, v), `geom::filter`) stand among them and cast
+//! perforated shadows. Every frame updates
 //! what moved, commits the top level and traces camera and shadow rays as
 //! packets on all threads; one table line per frame, PNG frames and an
 //! animated PNG.
@@ -29,10 +32,11 @@ use sheaf::accel::bvh::{BuildQuality, BvhParams};
 use sheaf::render::{PointLight, PrimaryRays, SHADOW_OFFSET, demorton};
 use sheaf::scenes::animated::Animated;
 use sheaf::{
-    Affine, GeometryParams, Limits, Method, OwnedContext, Ray, Scene, SceneHit, TraceParams,
-    UpdateMode, required_bytes,
+    Affine, Candidate, Filter, GeometryParams, Limits, Method, OwnedContext, Ray, Scene, SceneHit,
+    TraceParams, UpdateMode, required_bytes,
 };
 use std::path::PathBuf;
+use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::Instant;
 
 #[derive(Args)]
@@ -77,6 +81,51 @@ pub enum Family {
     Grid,
     /// The kd-tree rebuilt over the flattened scene (its packet traversal).
     Kd,
+}
+
+/// Cells per side of the perforated panel (two triangles each).
+const PANEL_CELLS: u32 = 12;
+
+/// The perforated panel: a unit square of cells, upright once placed (in
+/// the built-in meshes' z-up frame: x across, z up), `x` in [-0.5, 0.5].
+fn panel() -> Mesh {
+    let n = PANEL_CELLS;
+    let mut vertices = Vec::new();
+    for k in 0..=n {
+        for i in 0..=n {
+            vertices.extend([i as f32 / n as f32 - 0.5, 0.0, k as f32 / n as f32]);
+        }
+    }
+    let at = |i: u32, k: u32| k * (n + 1) + i;
+    let mut indices = Vec::new();
+    for k in 0..n {
+        for i in 0..n {
+            let (a, b, c, d) = (at(i, k), at(i + 1, k), at(i + 1, k + 1), at(i, k + 1));
+            indices.extend([a, b, c, a, c, d]);
+        }
+    }
+    Mesh { vertices, indices }
+}
+
+/// The panel's cut-out: a round hole in every triangle, around its
+/// centroid (u = v = 1/3): a pure function of the candidate.
+fn perforated(u: f32, v: f32) -> bool {
+    let (du, dv) = (u - 1.0 / 3.0, v - 1.0 / 3.0);
+    du * du + dv * dv + du * dv > 0.018
+}
+
+/// The panel's filter (geometry 4 of the two-level scene).
+extern "C" fn panel_filter(_: *mut std::ffi::c_void, c: &Candidate) -> bool {
+    perforated(c.u, c.v)
+}
+
+/// The first panel triangle of the flattened alternative's mesh (the
+/// panels come last), for its filter.
+static FLAT_PANELS_FROM: AtomicU32 = AtomicU32::new(u32::MAX);
+
+/// The panel's filter on the flattened alternative's one mesh.
+extern "C" fn flat_filter(_: *mut std::ffi::c_void, c: &Candidate) -> bool {
+    c.prim < FLAT_PANELS_FROM.load(Ordering::Relaxed) || perforated(c.u, c.v)
 }
 
 /// Triangles of the animated scene's ground grid at detail 1 (first).
@@ -289,6 +338,7 @@ pub fn engine(a: &EngineArgs) -> Result<()> {
         vertices: tetra.vertices,
         indices: tetra.indices,
     };
+    let fence = panel();
     let anim_mesh = |a: &Animated| Mesh {
         vertices: a.mesh.vertices.clone(),
         indices: a.mesh.indices[3 * ANIMATED_GROUND..].to_vec(),
@@ -302,22 +352,25 @@ pub fn engine(a: &EngineArgs) -> Result<()> {
         let (a, b) = m.bounds();
         frac * size / (b - a).max_element().max(1e-12)
     };
-    let (s_anim, s_balls, s_tetra) = (
+    let (s_anim, s_balls, s_tetra, s_fence) = (
         fit(&anim_mesh(&anim), 0.12),
         fit(&balls, 0.08),
         fit(&tetra, 0.035),
+        fit(&fence, 0.16),
     );
 
     // Ids: geometries 0 environment, 1 animated (refit), 2 balls (rebuilt),
-    // 3 tetra; instances 0 environment, 1-4 animated, 5-6 balls, 7-22 tetra.
-    let (n_env, n_anim, n_balls, n_tetra) = (
+    // 3 tetra, 4 the perforated panel; instances 0 environment, 1-4
+    // animated, 5-6 balls, 7-22 tetra, 23-24 panels.
+    let (n_env, n_anim, n_balls, n_tetra, n_fence) = (
         env.triangles(),
         anim_mesh(&anim).triangles(),
         balls.triangles(),
         tetra.triangles(),
+        fence.triangles(),
     );
-    let budget = n_env + n_anim + n_balls + n_tetra;
-    let flat_tris = n_env + 4 * n_anim + 2 * n_balls + 16 * n_tetra;
+    let budget = n_env + n_anim + n_balls + n_tetra + n_fence;
+    let flat_tris = n_env + 4 * n_anim + 2 * n_balls + 16 * n_tetra + 2 * n_fence;
     // The grid or kd-tree family: pools for the flattened scene.
     let mut limits = match a.family {
         Family::Bvh => Limits::for_triangles(16),
@@ -331,8 +384,8 @@ pub fn engine(a: &EngineArgs) -> Result<()> {
         Family::Kd => Limits::KD,
     };
     limits.max_threads = threads;
-    limits.max_geometries = 4;
-    limits.max_instances = 23;
+    limits.max_geometries = 5;
+    limits.max_instances = 25;
     limits.max_scene_triangles = budget;
     let mut ctx = OwnedContext::new(&limits)?;
     let bytes = required_bytes(&limits)?;
@@ -365,6 +418,14 @@ pub fn engine(a: &EngineArgs) -> Result<()> {
         },
     )?;
     ctx.set_geometry(3, &tetra.scene()?, &GeometryParams::default())?;
+    ctx.set_geometry(
+        4,
+        &fence.scene()?,
+        &GeometryParams {
+            filter: Some(Filter::new(panel_filter, std::ptr::null_mut())),
+            ..GeometryParams::default()
+        },
+    )?;
     ctx.set_instance(0, 0, &Affine::IDENTITY, !0)?;
 
     // The flattened alternative's context: one BVH over every instance.
@@ -375,7 +436,9 @@ pub fn engine(a: &EngineArgs) -> Result<()> {
         l.structures = Limits::BVH;
         l.max_threads = threads;
         l.max_vertices = 3 * flat_tris;
-        Some(OwnedContext::new(&l)?)
+        let mut fc = OwnedContext::new(&l)?;
+        fc.set_filter(Some(Filter::new(flat_filter, std::ptr::null_mut())));
+        Some(fc)
     };
 
     std::fs::create_dir_all(&a.out_dir)
@@ -436,7 +499,7 @@ pub fn engine(a: &EngineArgs) -> Result<()> {
 
     let prog = Progress::new("sheaf demo", a.frames as u64);
     prog.say(format_args!(
-        "sheaf demo: {env_name} ({n_env} triangles, built once in {env_ms:.1} ms) + animated ({n_anim}, refit, 4 instances) + balls (up to {n_balls}, rebuilt, 2) + tetra ({n_tetra}, static, 16); {flat_tris} instanced triangles; {w}x{h}, {method} {0}x{0} packets, {threads} threads, context {1:.1} MiB",
+        "sheaf demo: {env_name} ({n_env} triangles, built once in {env_ms:.1} ms) + animated ({n_anim}, refit, 4 instances) + balls (up to {n_balls}, rebuilt, 2) + tetra ({n_tetra}, static, 16) + perforated panels ({n_fence}, any-hit filter, 2); {flat_tris} instanced triangles; {w}x{h}, {method} {0}x{0} packets, {threads} threads, context {1:.1} MiB",
         a.packet,
         mib(bytes)
     ));
@@ -507,6 +570,11 @@ pub fn engine(a: &EngineArgs) -> Result<()> {
                 );
             placed.push((3, place(ang * 2.0, s_tetra, at)));
         }
+        // The panels stand still, across the ring from the light.
+        for i in 0..2 {
+            let at = centre + Vec3::new((i as f32 - 0.5) * 0.3 * size, 0.0, 0.18 * size);
+            placed.push((4, place(0.3 - 0.6 * i as f32, s_fence, at)));
+        }
         // The instances placed and the top level committed.
         let t = Instant::now();
         for (i, (g, x)) in placed.iter().enumerate().skip(1) {
@@ -533,7 +601,7 @@ pub fn engine(a: &EngineArgs) -> Result<()> {
 
         // 3. Camera and shadow rays through the two-level scene.
         let view = &ctx;
-        let meshes: [&Mesh; 4] = [&env, &am, &bm, &tetra];
+        let meshes: [&Mesh; 5] = [&env, &am, &bm, &tetra, &fence];
         let scene_trace =
             |slot: usize, rays: &[Ray], any: bool, out: &mut [SceneHit]| -> Result<()> {
                 view.trace_scene_each(
@@ -568,6 +636,7 @@ pub fn engine(a: &EngineArgs) -> Result<()> {
             0 => Vec3::new(0.85, 0.8, 0.7),
             1 => Vec3::new(0.9, 0.35, 0.2),
             2 => Vec3::new(0.25, 0.55, 0.95),
+            4 => Vec3::new(0.95, 0.8, 0.25),
             _ => Vec3::new(0.3, 0.85, 0.35),
         };
         let tr = render(
@@ -608,6 +677,8 @@ pub fn engine(a: &EngineArgs) -> Result<()> {
                 }
             }
             let fs = Scene::from_f32(&fv, &fi)?;
+            // The panels are the last instances: their triangles the last.
+            FLAT_PANELS_FROM.store(fi.len() as u32 / 3 - 2 * n_fence, Ordering::Relaxed);
             let bp = BvhParams {
                 quality: BuildQuality::Low,
                 width: 2,
