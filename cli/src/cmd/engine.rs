@@ -356,7 +356,7 @@ pub fn engine(a: &EngineArgs) -> Result<()> {
         fit(&anim_mesh(&anim), 0.12),
         fit(&balls, 0.08),
         fit(&tetra, 0.035),
-        fit(&fence, 0.16),
+        fit(&fence, 0.1),
     );
 
     // Ids: geometries 0 environment, 1 animated (refit), 2 balls (rebuilt),
@@ -570,10 +570,15 @@ pub fn engine(a: &EngineArgs) -> Result<()> {
                 );
             placed.push((3, place(ang * 2.0, s_tetra, at)));
         }
-        // The panels stand still, across the ring from the light.
+        // The panels stand still on either side, nearer the camera than
+        // the ring and facing it, between the light and the floor.
+        let flat_fwd = Vec3::new(fwd.x, 0.0, fwd.z).normalize_or_zero();
+        let side = flat_fwd.cross(Vec3::Y);
+        let facing = flat_fwd.x.atan2(flat_fwd.z);
         for i in 0..2 {
-            let at = centre + Vec3::new((i as f32 - 0.5) * 0.3 * size, 0.0, 0.18 * size);
-            placed.push((4, place(0.3 - 0.6 * i as f32, s_fence, at)));
+            let s = if i == 0 { -1.0 } else { 1.0 };
+            let at = centre + flat_fwd * 0.1 * size + side * s * 0.07 * size;
+            placed.push((4, place(facing + s * 0.4, s_fence, at)));
         }
         // The instances placed and the top level committed.
         let t = Instant::now();
