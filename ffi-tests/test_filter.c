@@ -18,7 +18,8 @@ typedef struct seen {
     sheaf_status inner[3];
 } seen;
 
-/* The cut-out: holes in a pattern of (u, v) cells shifted by the triangle. */
+/* The cut-out: holes in a pattern of (u, v) cells shifted by the triangle
+ * (the same for every instance, so scene hits check it without ids). */
 static bool keep(float u, float v, uint32_t prim) {
     return ((uint32_t)(u * 8.0f) + (uint32_t)(v * 8.0f) + prim) % 3u != 0u;
 }
@@ -96,6 +97,7 @@ static bool test_single_mesh_methods_with_a_filter(void) {
     sheaf_context *ctx = NULL;
     static sheaf_ray rays[NRAYS];
     static sheaf_hit open[NRAYS], want[NRAYS], got[NRAYS];
+    static uint8_t occ[NRAYS];
     seen sn;
     sheaf_trace_params p;
     int f, m, i, moved = 0;
@@ -119,6 +121,9 @@ static bool test_single_mesh_methods_with_a_filter(void) {
             CHECK(want[i].prim == SHEAF_INVALID_ID || keep(want[i].u, want[i].v, want[i].prim));
             moved += f == 1 && !same_hit(&want[i], &open[i]);
         }
+        /* Occlusion: whether a filtered hit exists. */
+        CHECK_OK(sheaf_context_occluded(ctx, single[f], rays, occ, NRAYS));
+        for (i = 0; i < NRAYS; ++i) CHECK(occ[i] == (want[i].prim != SHEAF_INVALID_ID));
         for (m = 0; m < 4; ++m) {
             p = params(packets[f][m]);
             p.packet = m == 3 ? 16 : 8;

@@ -144,7 +144,7 @@ bool test_scene_owners_and_unwinding() {
 
 // A checkerboard cut-out of the (u, v) cells, as a C function.
 bool checker(void *calls, const sheaf_candidate *c) {
-    ++*static_cast<unsigned *>(calls);
+    if (calls != nullptr) ++*static_cast<unsigned *>(calls);
     return (static_cast<int>(c->u * 4.0f) + static_cast<int>(c->v * 4.0f)) % 2 == 0;
 }
 
@@ -178,6 +178,12 @@ bool test_filters() {
     std::vector<sheaf_hit> again;
     ctx.trace(SHEAF_METHOD_BVH_SINGLE, r, again);
     CHECK(std::memcmp(again.data(), open.data(), sizeof(sheaf_hit) * r.size()) == 0);
+    // A const callable works too.
+    const auto const_cut = [](const sheaf_candidate &c) { return checker(nullptr, &c); };
+    ctx.set_filter(const_cut);
+    std::vector<sheaf_hit> by_const;
+    ctx.trace(SHEAF_METHOD_BVH_SINGLE, r, by_const);
+    CHECK(std::memcmp(by_const.data(), by_c.data(), sizeof(sheaf_hit) * r.size()) == 0);
     // A scene geometry's filter; an id not set is refused.
     sheaf_limits l;
     CHECK(sheaf_limits_default(16, &l) == SHEAF_STATUS_OK);

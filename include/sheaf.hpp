@@ -242,12 +242,12 @@ public:
     Result set_filter(sheaf_filter_fn f, void *user = nullptr) {
         return check(sheaf_context_set_filter(ctx_, f, user));
     }
-    template <class F> Result set_filter(F &filter) { return set_filter(&call<F>, &filter); }
+    template <class F> Result set_filter(F &filter) { return set_filter(&call<F>, pointer(filter)); }
     Result set_scene_geometry_filter(uint32_t id, sheaf_filter_fn f, void *user = nullptr) {
         return check(sheaf_context_set_scene_geometry_filter(ctx_, id, f, user));
     }
     template <class F> Result set_scene_geometry_filter(uint32_t id, F &filter) {
-        return set_scene_geometry_filter(id, &call<F>, &filter);
+        return set_scene_geometry_filter(id, &call<F>, pointer(filter));
     }
 
     Result stats(sheaf_stats &out) const { return check(sheaf_context_stats(ctx_, &out)); }
@@ -256,6 +256,11 @@ private:
     Result check(sheaf_status s) const { return Policy::check(s, ctx_); }
     template <class F> static bool call(void *user, const sheaf_candidate *c) noexcept {
         return (*static_cast<F *>(user))(*c);
+    }
+    // The callable's address as the C user pointer (const callables too:
+    // `call<const F>` casts it back to `const F *`).
+    template <class F> static void *pointer(F &filter) noexcept {
+        return const_cast<void *>(static_cast<const void *>(&filter));
     }
     sheaf_context *ctx_ = nullptr;
 };

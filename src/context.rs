@@ -186,7 +186,7 @@ macro_rules! structures {
                 .view()
                 .map(|v| v.filtered(hook(crate::mem::Limits::KD))),
             single: crate::trace::Method::GridDda,
-            pgrid: hook(crate::mem::Limits::PGRID),
+            pgrid_filter: hook(crate::mem::Limits::PGRID),
         }
     }};
 }

@@ -152,11 +152,8 @@ pub(crate) fn take<const ANY: bool>(
     ray: impl Fn() -> ([F4; 3], [F4; 3]),
 ) -> M4 {
     let (t, u, v) = hit;
-    let mut take = if ANY { hm } else { hm & hq.closer(t, id) };
-    if take.any() && filter.on() {
-        let (org, dir) = ray();
-        take = filter.quad(&org, &dir, take, hit, id);
-    }
+    let take = if ANY { hm } else { hm & hq.closer(t, id) };
+    let take = filter.quad_with(take, hit, id, ray);
     if take.any() {
         hq.t = F4::select(take, t, hq.t);
         hq.u = F4::select(take, u, hq.u);

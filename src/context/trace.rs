@@ -15,25 +15,10 @@ use crate::trace::{
 };
 
 impl Context<'_> {
-    /// The built structures (`structures!`), single rays to the grid.
-    fn structures(&self) -> SceneTracer<'_> {
-        super::structures!(self)
-    }
-
     /// The built structures with single-ray calls going to the first built
     /// of grid, BVH, kd-tree.
     pub(super) fn scene_tracer(&self) -> Result<SceneTracer<'_>> {
-        let t = self.structures();
-        let single = if t.grid.is_some() {
-            Method::GridDda
-        } else if t.bvh.is_some() {
-            Method::BvhSingle
-        } else if t.kd.is_some() {
-            Method::KdSingle
-        } else {
-            return Err(Error::NotBuilt);
-        };
-        Ok(SceneTracer { single, ..t })
+        with_first_single(super::structures!(self))
     }
 
     /// The built structures, for tracing from several threads. Single-ray
@@ -49,9 +34,7 @@ impl Context<'_> {
     /// handing a `Tracer` larger packets with it panics (the context's own
     /// calls refuse them with a status first).
     pub fn parts(&mut self) -> Result<(SceneTracer<'_>, impl Iterator<Item = Slot<'_>>)> {
-        let single = self.scene_tracer()?.single;
-        let t = super::structures!(self);
-        let t = SceneTracer { single, ..t };
+        let t = with_first_single(super::structures!(self))?;
         // One mailbox and scratch per thread slot; without grid pools (no
         // stamps) the mailboxes are empty, which only the grid's CGT uses.
         let mbs = self.slots.all().map(Slot::of);
@@ -186,7 +169,7 @@ impl Context<'_> {
         any: bool,
     ) -> Result<Counters> {
         p.validate_for(&self.limits)?;
-        let tr = self.scene_tracer()?.with_single(p.method)?.opaque(p.opaque);
+        let tr = self.scene_tracer()?.with_single(p.method)?;
         self.with_slot(slot, |slot| batch_on(&tr, slot, p, count, rays, out, any))
     }
 
@@ -277,4 +260,19 @@ fn into_hits(hits: &mut [Hit]) -> impl FnMut(usize, &Hit4, usize) + '_ {
 /// `occluded[i]`.
 fn into_occluded(occluded: &mut [bool]) -> impl FnMut(usize, &Hit4, usize) + '_ {
     per_ray(move |i, h: &Hit4, l| occluded[i] = h.prim[l] != crate::geom::INVALID_ID)
+}
+
+/// `t` with single-ray calls going to the first built of grid, BVH,
+/// kd-tree (`NotBuilt`: none is).
+fn with_first_single(t: SceneTracer<'_>) -> Result<SceneTracer<'_>> {
+    let single = if t.grid.is_some() {
+        Method::GridDda
+    } else if t.bvh.is_some() {
+        Method::BvhSingle
+    } else if t.kd.is_some() {
+        Method::KdSingle
+    } else {
+        return Err(Error::NotBuilt);
+    };
+    Ok(SceneTracer { single, ..t })
 }

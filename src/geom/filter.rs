@@ -141,6 +141,9 @@ pub trait Accept: Sync {
     fn accept(&self, org: [f32; 3], dir: [f32; 3], t: f32, u: f32, v: f32, prim: u32) -> bool;
 }
 
+/// One lane's ray (origin, direction) and hit (t, u, v).
+pub type Lane = ([f32; 3], [f32; 3], (f32, f32, f32));
+
 /// A structure's view's filter hook: none (every candidate accepted), one
 /// geometry's filter (a single mesh, an instance), or a map from stored
 /// triangle ids to geometries (a flattened two-level scene).
@@ -180,22 +183,13 @@ impl Hook<'_> {
             Hook::Map(a) => a.accept(org, dir, t, u, v, prim),
         }
     }
-    /// One ray's candidate.
+    /// Whether one ray's candidate is accepted.
     #[inline(always)]
-    pub fn one(&self, org: [f32; 3], dir: [f32; 3], t: f32, u: f32, v: f32, prim: u32) -> bool {
+    pub fn accepts(&self, org: [f32; 3], dir: [f32; 3], t: f32, u: f32, v: f32, prim: u32) -> bool {
         !self.on() || self.accept(org, dir, t, u, v, prim)
     }
-    /// The lanes `m` of a quad (`org`, `dir`) hitting `prim` at `(t, u,
-    /// v)`: those accepted.
-    #[inline(always)]
-    pub fn quad(&self, org: &[F4; 3], dir: &[F4; 3], m: M4, hit: (F4, F4, F4), prim: u32) -> M4 {
-        if self.on() {
-            quad(self, org, dir, m, hit, prim)
-        } else {
-            m
-        }
-    }
-    /// `quad`, the rays read by `ray()` only when a filter is asked.
+    /// The lanes of `m` (a quad whose rays `ray()` reads, only when a
+    /// filter is asked) hitting `prim` at `(t, u, v)` that are accepted.
     #[inline(always)]
     pub fn quad_with(
         &self,
@@ -211,25 +205,19 @@ impl Hook<'_> {
             m
         }
     }
-    /// `quad` on the lanes `bits` (bit `4k + i`: lane `i` of quad `k`) of
+    /// `quad_with` on the lanes `bits` (bit `4k + i`: lane `i` of quad `k`) of
     /// a wide group, each lane's ray and hit read by `lane(k, i)`.
     #[inline(always)]
-    pub fn bits(
-        &self,
-        bits: u32,
-        prim: u32,
-        lane: impl Fn(usize, usize) -> ([f32; 3], [f32; 3], (f32, f32, f32)),
-    ) -> u32 {
-        if self.on() { self.bits_on(bits, prim, &lane) } else { bits }
+    pub fn bits(&self, bits: u32, prim: u32, lane: impl Fn(usize, usize) -> Lane) -> u32 {
+        if self.on() {
+            self.bits_on(bits, prim, &lane)
+        } else {
+            bits
+        }
     }
     #[cold]
     #[inline(never)]
-    fn bits_on(
-        &self,
-        bits: u32,
-        prim: u32,
-        lane: &dyn Fn(usize, usize) -> ([f32; 3], [f32; 3], (f32, f32, f32)),
-    ) -> u32 {
+    fn bits_on(&self, bits: u32, prim: u32, lane: &dyn Fn(usize, usize) -> Lane) -> u32 {
         let mut out = bits;
         let mut m = bits;
         while m != 0 {
@@ -319,15 +307,16 @@ mod tests {
             core::ptr::null_mut(),
         )));
         assert!(!inside());
-        assert!(h.one([0.0; 3], [1.0; 3], 1.0, 0.0, 0.0, 3));
-        assert!(!h.one([0.0; 3], [1.0; 3], 1.0, 0.0, 0.0, 2));
+        assert!(h.accepts([0.0; 3], [1.0; 3], 1.0, 0.0, 0.0, 3));
+        assert!(!h.accepts([0.0; 3], [1.0; 3], 1.0, 0.0, 0.0, 2));
         assert!(!inside());
         let z = [F4::ZERO; 3];
         let hit = (F4::ONE, F4::ZERO, F4::ZERO);
         let m = M4::new(true, false, true, true);
-        assert_eq!(h.quad(&z, &z, m, hit, 4).bitmask(), 0);
-        assert_eq!(h.quad(&z, &z, m, hit, 5).bitmask(), m.bitmask());
-        assert_eq!(Hook::None.quad(&z, &z, m, hit, 4).bitmask(), m.bitmask());
+        let ray = || (z, z);
+        assert_eq!(h.quad_with(m, hit, 4, ray).bitmask(), 0);
+        assert_eq!(h.quad_with(m, hit, 5, ray).bitmask(), m.bitmask());
+        assert_eq!(Hook::None.quad_with(m, hit, 4, ray).bitmask(), m.bitmask());
         let lane = |_: usize, _: usize| ([0.0; 3], [1.0; 3], (1.0, 0.0, 0.0));
         assert_eq!(h.bits(0b1011_0001, 2, lane), 0);
         assert_eq!(h.bits(0b1011_0001, 7, lane), 0b1011_0001);

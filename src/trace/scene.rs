@@ -120,7 +120,7 @@ macro_rules! family_tracer {
                 with_test!(self.test(), |T| occluded::<Self, T>(self, ray, ctr))
             }
             fn packets(&self, p: &TraceParams, any: bool) -> Packets<'_> {
-                let v: $view<'_> = *self;
+                let v = self.opaque_if(p.opaque);
                 Packets::$variant(v, v.tracing(p, any))
             }
             fn triangle(&self, prim: u32) -> Option<TriVerts> {
@@ -298,24 +298,10 @@ pub struct SceneTracer<'r> {
     pub single: Method,
     /// The perspective grids' filter hook (`geom::filter`; the others'
     /// are their views').
-    pub pgrid: Hook<'r>,
+    pub pgrid_filter: Hook<'r>,
 }
 
 impl<'r> SceneTracer<'r> {
-    /// The same structures with every filter skipped when `opaque`
-    /// (`TraceParams::opaque`).
-    pub fn opaque(self, opaque: bool) -> SceneTracer<'r> {
-        if !opaque {
-            return self;
-        }
-        SceneTracer {
-            grid: self.grid.map(|v| v.filtered(Hook::None)),
-            bvh: self.bvh.map(|v| v.filtered(Hook::None)),
-            kd: self.kd.map(|v| v.filtered(Hook::None)),
-            pgrid: Hook::None,
-            ..self
-        }
-    }
     /// The same structures with single-ray calls going to `method`'s
     /// structure; `NotBuilt` when that structure has not been built.
     pub fn with_single(&self, method: Method) -> Result<SceneTracer<'r>> {
@@ -476,6 +462,7 @@ pub fn batch_on(
         tr,
         p.method,
         |a| {
+            let a = &a.opaque_if(p.opaque);
             let k = a.tracing(p, any);
             let trace =
                 |q: &[Ray4], m: &[M4], h: &mut [Hit4], s: &mut Slot<'_>| k.run(a, p, q, m, h, s, c);

@@ -1,6 +1,7 @@
 //! The filter of the filter suites: a cut-out that is a pure function of
 //! the candidate (holes in a pattern of the barycentric coordinates,
-//! shifted by the triangle id), counting its calls when given a counter.
+//! shifted by the triangle, instance and geometry ids, so a hit checked
+//! with wrong ids disagrees), counting its calls when given a counter.
 
 use sheaf::{Candidate, Filter};
 use std::ffi::c_void;
@@ -9,7 +10,10 @@ use std::sync::atomic::{AtomicU64, Ordering};
 /// Whether the cut-out keeps a candidate: about two thirds of each
 /// triangle's area.
 pub fn keep(c: &Candidate) -> bool {
-    let cell = (c.u * 4.0) as u32 + (c.v * 4.0) as u32 + c.prim;
+    let cell = ((c.u * 4.0) as u32 + (c.v * 4.0) as u32)
+        .wrapping_add(c.prim)
+        .wrapping_add(c.instance)
+        .wrapping_add(2 * c.geometry);
     !cell.is_multiple_of(3)
 }
 

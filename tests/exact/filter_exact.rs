@@ -148,20 +148,28 @@ fn check_scene(&(s, test): &(&TestScene, TriTest)) -> String {
     for (vname, view) in &s.views {
         let what = format!("{} {vname} {test:?}", s.name);
         let rays = view.rays(RES as u32, RES as u32);
-        // The filter moves hits, and leaves only hits it accepts.
+        // The filter moves hits, and every family's single ray leaves
+        // only hits it accepts, never nearer than the unfiltered hit; its
+        // occlusion answer is whether a filtered hit exists.
         ctx.set_filter(None);
-        let single = params(Method::BvhSingle);
-        let open = traced(&mut ctx, &single, &rays);
+        let open = traced(&mut ctx, &params(Method::BvhSingle), &rays);
         ctx.set_filter(Some(counted(&calls)));
-        let cut = traced(&mut ctx, &single, &rays);
-        let moved = open.iter().zip(&cut).filter(|(a, b)| a != b).count();
-        total.0 += moved;
+        let cut = traced(&mut ctx, &params(Method::BvhSingle), &rays);
+        total.0 += open.iter().zip(&cut).filter(|(a, b)| a != b).count();
         total.1 += open.iter().filter(|h| h.is_hit()).count();
-        for (k, (o, c)) in open.iter().zip(&cut).enumerate() {
-            assert!(
-                !c.is_hit() || (keep(&candidate(&rays[k], c)) && c.t >= o.t),
-                "{what} ray {k}: filtered hit {c:?}, unfiltered {o:?}"
-            );
+        for single in [Method::GridDda, Method::BvhSingle, Method::KdSingle] {
+            let cut = traced(&mut ctx, &params(single), &rays);
+            for (k, (o, c)) in open.iter().zip(&cut).enumerate() {
+                assert!(
+                    !c.is_hit() || (keep(&candidate(&rays[k], c)) && c.t >= o.t),
+                    "{what} {single:?} ray {k}: filtered hit {c:?}, unfiltered {o:?}"
+                );
+            }
+            let mut occ = vec![false; rays.len()];
+            ctx.occluded_with(&params(single), &rays, &mut occ).unwrap();
+            for (k, (o, c)) in occ.iter().zip(&cut).enumerate() {
+                assert_eq!(*o, c.is_hit(), "{what} {single:?} ray {k}: occluded");
+            }
         }
         // Force-opaque calls skip the filter: the unfiltered hits, no call.
         let before = calls.load(Ordering::Relaxed);
@@ -337,7 +345,7 @@ fn instances_and_the_flattened_scene_with_filters() {
         h
     };
     let open = single(&mut ctx, RayControls::default());
-    // Geometries 1 and 3 cut out; filters on unset ids are refused.
+    // The geometries of `CUT` cut out; filters on unset ids are refused.
     let calls = AtomicU64::new(0);
     for g in CUT {
         ctx.set_geometry_filter(g, Some(counted(&calls))).unwrap();
@@ -424,6 +432,117 @@ fn instances_and_the_flattened_scene_with_filters() {
     ctx.set_geometry_filter(0, None).unwrap();
     ctx.set_geometry_filter(2, None).unwrap();
     ctx.commit_scene().unwrap();
+    let at = calls.load(Ordering::Relaxed);
     let after = single(&mut ctx, RayControls::default());
     assert!(after.iter().zip(&open).all(|(a, b)| same(a, b)));
+    assert_eq!(
+        calls.load(Ordering::Relaxed),
+        at,
+        "an opaque geometry's filter was asked"
+    );
+}
+
+/// Candidates seen by `record`, which keeps what `keep` keeps.
+struct Seen(std::sync::Mutex<Vec<Candidate>>);
+
+extern "C" fn record(user: *mut std::ffi::c_void, c: &Candidate) -> bool {
+    // SAFETY: the test passes a pointer to a `Seen` that outlives its traces.
+    let seen = unsafe { &*(user as *const Seen) };
+    seen.0.lock().unwrap().push(*c);
+    keep(c)
+}
+
+/// Every method hands the filter the ray it traces (its origin and
+/// direction, bit for bit) and the single mesh's ids; renders take the
+/// calls' force-opaque flag too.
+#[test]
+fn candidates_carry_the_ray_and_renders_force_opacity() {
+    let s = builtin_scenes()
+        .into_iter()
+        .find(|s| s.name == "gears")
+        .unwrap();
+    let mut ctx = context(&s, TriTest::MollerTrumbore);
+    let seen = Seen(std::sync::Mutex::new(Vec::new()));
+    let user = &seen as *const Seen as *mut std::ffi::c_void;
+    ctx.set_filter(Some(sheaf::Filter::new(record, user)));
+    let (_, view) = &s.views[0];
+    let rays = view.rays(RES as u32, RES as u32);
+    let ordered: Vec<Ray> = packets(&rays, 8)
+        .into_iter()
+        .flat_map(|(_, idx)| idx.into_iter().map(|i| rays[i]))
+        .collect();
+    let bits = |o: [f32; 3], d: [f32; 3]| (o.map(f32::to_bits), d.map(f32::to_bits));
+    let known: std::collections::HashSet<_> = ordered.iter().map(|r| bits(r.org, r.dir)).collect();
+    for m in [
+        Method::GridDda,
+        Method::GridCgt,
+        Method::BvhSingle,
+        Method::BvhSimd,
+        Method::BvhMasked,
+        Method::BvhFrustum,
+        Method::KdSingle,
+        Method::KdSimd,
+        Method::KdPacket,
+    ] {
+        seen.0.lock().unwrap().clear();
+        let p = TraceParams {
+            packet: 8,
+            ..params(m)
+        };
+        traced(&mut ctx, &p, &ordered);
+        let got = std::mem::take(&mut *seen.0.lock().unwrap());
+        assert!(!got.is_empty(), "{m:?}: no candidate");
+        for c in &got {
+            assert!(
+                known.contains(&bits(c.org, c.dir)),
+                "{m:?}: a candidate of another ray: {c:?}"
+            );
+            assert!(
+                c.geometry == 0 && c.instance == sheaf::geom::INVALID_ID,
+                "{m:?}: {c:?}"
+            );
+            assert!(
+                c.t > 0.0 && c.u >= 0.0 && c.v >= 0.0 && c.u + c.v <= 1.0 + 1e-6,
+                "{m:?}: {c:?}"
+            );
+        }
+    }
+    // A frame (camera and shadow rays) with force-opaque parameters is the
+    // unfiltered frame, without a call; without the flag the cut-out shows.
+    let frame = sheaf::Frame {
+        camera: sheaf::Camera {
+            eye: view.eye.to_array(),
+            look_at: view.look_at.to_array(),
+            up: view.up.to_array(),
+            fov_y_deg: view.fov_y_deg,
+        },
+        light: sheaf::PointLight::new(s.light.to_array(), [0.9, 0.8, 0.7]),
+        shading: sheaf::Shading::default(),
+        width: 64,
+        height: 48,
+    };
+    let render = |ctx: &mut OwnedContext, opaque: bool| {
+        let p = TraceParams {
+            packet: 8,
+            opaque,
+            ..params(Method::BvhFrustum)
+        };
+        let mut px = vec![0u8; 64 * 48 * 4];
+        ctx.render_with(&p, &p, &frame, &mut px, 64 * 4).unwrap();
+        px
+    };
+    ctx.set_filter(None);
+    let open = render(&mut ctx, false);
+    ctx.set_filter(Some(sheaf::Filter::new(record, user)));
+    seen.0.lock().unwrap().clear();
+    assert_eq!(render(&mut ctx, true), open, "force-opaque frame");
+    assert!(
+        seen.0.lock().unwrap().is_empty(),
+        "force-opaque frame asked the filter"
+    );
+    assert_ne!(
+        render(&mut ctx, false),
+        open,
+        "the cut-out does not show in the frame"
+    );
 }

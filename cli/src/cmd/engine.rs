@@ -36,7 +36,6 @@ use sheaf::{
     TraceParams, UpdateMode, required_bytes,
 };
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::Instant;
 
 #[derive(Args)]
@@ -119,13 +118,11 @@ extern "C" fn panel_filter(_: *mut std::ffi::c_void, c: &Candidate) -> bool {
     perforated(c.u, c.v)
 }
 
-/// The first panel triangle of the flattened alternative's mesh (the
-/// panels come last), for its filter.
-static FLAT_PANELS_FROM: AtomicU32 = AtomicU32::new(u32::MAX);
-
-/// The panel's filter on the flattened alternative's one mesh.
-extern "C" fn flat_filter(_: *mut std::ffi::c_void, c: &Candidate) -> bool {
-    c.prim < FLAT_PANELS_FROM.load(Ordering::Relaxed) || perforated(c.u, c.v)
+/// The panel's filter on the flattened alternative's one mesh, whose
+/// triangles from `from` on are the panels' (they come last): `from` is
+/// the user pointer's value, never dereferenced.
+extern "C" fn flat_filter(from: *mut std::ffi::c_void, c: &Candidate) -> bool {
+    (c.prim as usize) < from as usize || perforated(c.u, c.v)
 }
 
 /// Triangles of the animated scene's ground grid at detail 1 (first).
@@ -436,9 +433,7 @@ pub fn engine(a: &EngineArgs) -> Result<()> {
         l.structures = Limits::BVH;
         l.max_threads = threads;
         l.max_vertices = 3 * flat_tris;
-        let mut fc = OwnedContext::new(&l)?;
-        fc.set_filter(Some(Filter::new(flat_filter, std::ptr::null_mut())));
-        Some(fc)
+        Some(OwnedContext::new(&l)?)
     };
 
     std::fs::create_dir_all(&a.out_dir)
@@ -683,7 +678,11 @@ pub fn engine(a: &EngineArgs) -> Result<()> {
             }
             let fs = Scene::from_f32(&fv, &fi)?;
             // The panels are the last instances: their triangles the last.
-            FLAT_PANELS_FROM.store(fi.len() as u32 / 3 - 2 * n_fence, Ordering::Relaxed);
+            let from = fi.len() / 3 - 2 * n_fence as usize;
+            fc.set_filter(Some(Filter::new(
+                flat_filter,
+                from as *mut std::ffi::c_void,
+            )));
             let bp = BvhParams {
                 quality: BuildQuality::Low,
                 width: 2,

@@ -540,6 +540,17 @@ impl<'r> BvhView<'r> {
         BvhView { filter, ..self }
     }
 
+    /// This view, without its filter when a call forces opacity
+    /// (`TraceParams::opaque`).
+    #[inline(always)]
+    pub fn opaque_if(&self, opaque: bool) -> Self {
+        if opaque {
+            self.filtered(Hook::None)
+        } else {
+            *self
+        }
+    }
+
     /// The stored triangles, as every triangle test reads them.
     #[inline(always)]
     pub fn store(&self) -> crate::geom::TriStore<'r> {

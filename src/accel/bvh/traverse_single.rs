@@ -198,7 +198,7 @@ pub(crate) fn leaf<T: TriangleTest, const ANY: bool>(
         if h.mask
             && take(
                 b,
-                (lanes.org, lanes.dir),
+                || (lanes.org, lanes.dir),
                 best,
                 (h.t, h.u, h.v),
                 b.tri_ids[i],
@@ -217,13 +217,16 @@ pub(crate) fn leaf<T: TriangleTest, const ANY: bool>(
 #[inline(always)]
 fn take(
     b: &BvhView<'_>,
-    ray: ([f32; 3], [f32; 3]),
+    ray: impl Fn() -> ([f32; 3], [f32; 3]),
     best: &mut Hit,
     hit: (f32, f32, f32),
     id: u32,
 ) -> bool {
     let (t, u, v) = hit;
-    let c = closer(t, id, best) && b.filter.one(ray.0, ray.1, t, u, v, id);
+    let c = closer(t, id, best) && {
+        let (org, dir) = ray();
+        b.filter.accepts(org, dir, t, u, v, id)
+    };
     if c {
         *best = Hit { t, prim: id, u, v };
     }
@@ -261,7 +264,7 @@ pub(crate) fn leaf4<T: TriangleTest, const ANY: bool>(
             while m != 0 {
                 let k = m.trailing_zeros() as usize;
                 m &= m - 1;
-                let ray = (lanes4.org.map(|x| x[0]), lanes4.dir.map(|x| x[0]));
+                let ray = || (lanes4.org.map(|x| x[0]), lanes4.dir.map(|x| x[0]));
                 if take(b, ray, best, (t[k], u[k], v[k]), b.tri_ids[idx[k]]) && ANY {
                     return true;
                 }

@@ -154,7 +154,9 @@ fn walk<T: TriangleTest, const ANY: bool>(g: &GridView<'_>, ray: &Ray, ctr: &mut
             let h = T::intersect(&lanes, &pre, T::prim(g.store(), r as usize));
             if h.mask {
                 let id = g.tri_ids[r as usize];
-                if closer(h.t, id, &best) && g.filter.one(lanes.org, lanes.dir, h.t, h.u, h.v, id) {
+                if closer(h.t, id, &best)
+                    && g.filter.accepts(lanes.org, lanes.dir, h.t, h.u, h.v, id)
+                {
                     best = Hit {
                         t: h.t,
                         prim: id,

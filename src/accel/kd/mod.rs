@@ -306,6 +306,17 @@ impl<'r> KdView<'r> {
     pub fn filtered(self, filter: Hook<'r>) -> Self {
         KdView { filter, ..self }
     }
+
+    /// This view, without its filter when a call forces opacity
+    /// (`TraceParams::opaque`).
+    #[inline(always)]
+    pub fn opaque_if(&self, opaque: bool) -> Self {
+        if opaque {
+            self.filtered(Hook::None)
+        } else {
+            *self
+        }
+    }
 }
 
 impl<'a> KdTree<'a> {

@@ -139,7 +139,7 @@ pub(crate) fn from_node<T: TriangleTest, const ANY: bool>(
                 if h.mask {
                     let id = k.tri_ids[s];
                     if closer(h.t, id, best)
-                        && k.filter.one(lanes.org, lanes.dir, h.t, h.u, h.v, id)
+                        && k.filter.accepts(lanes.org, lanes.dir, h.t, h.u, h.v, id)
                     {
                         *best = Hit {
                             t: h.t,

@@ -701,20 +701,20 @@ impl<'r> TwoLevelView<'r> {
         self.insts.get(id as usize).filter(|i| i.live != 0)
     }
 
-    /// The BVH of instance `inst`'s geometry when a ray of `ctl` sees it
-    /// (its mask and its geometry's both share a bit with `ctl.mask`),
-    /// culling `ctl.cull` (`BvhView::cull`).
-    #[inline]
-    /// Candidates go to the geometry's filter as instance `id`'s, unless
+    /// The BVH of instance `inst` (id `id`)'s geometry when a ray of `ctl`
+    /// sees it (its mask and its geometry's both share a bit with
+    /// `ctl.mask`), culling `ctl.cull` (`BvhView::cull`), its candidates
+    /// going to the geometry's filter as instance `id`'s unless
     /// `ctl.opaque`.
+    #[inline]
     pub fn visible(&self, inst: &Instance, id: u32, ctl: RayControls) -> Option<BvhView<'r>> {
         let g = self.geoms.get(inst.geometry as usize)?;
         if inst.mask & ctl.mask == 0 || g.mask & ctl.mask == 0 {
             return None;
         }
         let v = self.geometry(inst.geometry)?.culled(ctl.cull);
-        Some(match g.filter {
-            Some(filter) if !ctl.opaque && !g.opaque => v.filtered(Hook::One(OneFilter {
+        Some(match self.filter_of(inst.geometry) {
+            Some(filter) if !ctl.opaque => v.filtered(Hook::One(OneFilter {
                 filter,
                 geometry: inst.geometry,
                 instance: id,

@@ -57,7 +57,7 @@ pub(crate) fn run<W: Workers>(
     // Phase 2: camera rays.
     let t = now();
     let cam = pg.camera().map(|c| CamView {
-        filter: tr.pgrid,
+        filter: tr.pgrid_filter,
         ..c
     });
     ctr.add(&deferred::primary_pass(
@@ -193,7 +193,7 @@ pub(crate) fn run<W: Workers>(
                     let t = now();
                     let g = pg.light_view().ok_or(Error::NotBuilt)?;
                     let g = LightView {
-                        filter: tr.pgrid,
+                        filter: tr.pgrid_filter,
                         ..g
                     };
                     ctr.add(&deferred::light_grid_pass(
