@@ -166,6 +166,31 @@ pub fn check_class(
     total
 }
 
+/// Shadow rays from `light` to just off (`eps` along the normal, toward
+/// the ray) the surfaces the primary `rays` hit (`hits`); rays that miss
+/// are inactive.
+pub fn shadow(tr: &impl Tracer, rays: &[Ray], hits: &[Hit], light: Vec3, eps: f32) -> Class {
+    let mut shadow = Class {
+        name: "shadow",
+        rays: rays.to_vec(),
+        active: vec![false; rays.len()],
+        kind: RayKind::Shadow,
+        any: true,
+    };
+    for (i, (r, h)) in rays.iter().zip(hits).enumerate() {
+        if let Some(tri) = h.is_hit().then(|| tr.triangle(h.prim)).flatten() {
+            let mut n = tri.normal().normalize_or_zero();
+            if n.dot(Vec3::from(r.dir)) > 0.0 {
+                n = -n;
+            }
+            let end = Vec3::from(r.org) + Vec3::from(r.dir) * h.t + n * eps;
+            shadow.rays[i] = Ray::new(light, end - light, 0.0, 1.0);
+            shadow.active[i] = true;
+        }
+    }
+    shadow
+}
+
 /// Reflection and refraction rays of the primary hits (every hit reflects
 /// and refracts with index 1.5; total internal reflection gives no ray).
 pub fn secondary(tr: &impl Tracer, rays: &[Ray], hits: &[Hit], eps: f32) -> (Class, Class) {

@@ -14,7 +14,7 @@ use sheaf::render::SHADOW_OFFSET;
 use sheaf::trace::{EntrySearch, RayKind, Tracer};
 use sheaf::{Counters, Hit, Limits, Method, OwnedContext, Ray, TraceParams, TriTest};
 
-use common::exact::{Class, RES, check_class, reference, secondary};
+use common::exact::{Class, RES, check_class, reference, secondary, shadow};
 
 /// The BVH packet methods from the root: SIMD, Masked, Ranged, Partition at
 /// every side (entry points: kd_exact.rs).
@@ -94,24 +94,7 @@ fn check_scene(s: &TestScene) {
             sum.add(&check_class(&tr, &bvh_cases(), &what, &primary));
             let hits = reference(&tr, &primary);
             // Shadow rays from the light to just off the hit surfaces.
-            let mut shadow = Class {
-                name: "shadow",
-                rays: rays.clone(),
-                active: vec![false; rays.len()],
-                kind: RayKind::Shadow,
-                any: true,
-            };
-            for (i, (r, h)) in rays.iter().zip(&hits).enumerate() {
-                if let Some(tri) = h.is_hit().then(|| tr.triangle(h.prim)).flatten() {
-                    let mut n = tri.normal().normalize_or_zero();
-                    if n.dot(Vec3::from(r.dir)) > 0.0 {
-                        n = -n;
-                    }
-                    let end = Vec3::from(r.org) + Vec3::from(r.dir) * h.t + n * eps;
-                    shadow.rays[i] = Ray::new(s.light, end - s.light, 0.0, 1.0);
-                    shadow.active[i] = true;
-                }
-            }
+            let shadow = shadow(&tr, &rays, &hits, s.light, eps);
             sum.add(&check_class(&tr, &bvh_cases(), &what, &shadow));
             let (refl, refr) = secondary(&tr, &rays, &hits, eps);
             sum.add(&check_class(&tr, &bvh_cases(), &what, &refl));

@@ -14,7 +14,7 @@
 use crate::common;
 use crate::twolevel_exact::{check, mesh_triangles, same, scene_in, view_of};
 
-use common::exact::{Class, RES, check_class, packets, reference, secondary};
+use common::exact::{Class, RES, check_class, packets, reference, secondary, shadow};
 use common::filter::{counted, keep, plain};
 use common::{TestScene, builtin_scenes, par_map};
 use glam::Vec3;
@@ -196,24 +196,8 @@ fn check_scene(&(s, test): &(&TestScene, TriTest)) -> String {
             any: false,
         };
         let hits = reference(&tr, &primary);
-        let mut shadow = Class {
-            name: "shadow",
-            rays: rays.clone(),
-            active: vec![false; rays.len()],
-            kind: RayKind::Shadow,
-            any: true,
-        };
-        for (i, (r, h)) in rays.iter().zip(&hits).enumerate() {
-            if let Some(tri) = h.is_hit().then(|| tr.triangle(h.prim)).flatten() {
-                let mut n = tri.normal().normalize_or_zero();
-                if n.dot(Vec3::from(r.dir)) > 0.0 {
-                    n = -n;
-                }
-                let end = Vec3::from(r.org) + Vec3::from(r.dir) * h.t + n * eps;
-                shadow.rays[i] = Ray::new(s.light, end - s.light, 0.0, 1.0);
-                shadow.active[i] = true;
-            }
-        }
+        // Shadow rays from the light to just off the hit surfaces.
+        let shadow = shadow(&tr, &rays, &hits, s.light, eps);
         let (refl, refr) = secondary(&tr, &rays, &hits, eps);
         let classes = [primary, shadow, refl, refr];
         let [bvh, kd] = cases();

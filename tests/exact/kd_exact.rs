@@ -21,7 +21,7 @@ use sheaf::render::{SHADOW_OFFSET, Tracer};
 use sheaf::trace::RayKind;
 use sheaf::{BuildQuality, Counters, Hit, Limits, Method, OwnedContext, Ray, TraceParams, TriTest};
 
-use common::exact::{Class, RES, check_class, reference, secondary};
+use common::exact::{Class, RES, check_class, reference, secondary, shadow};
 
 /// The kd methods: SIMD, and packets of every side with every entry search.
 fn kd_cases() -> Vec<(Method, usize, EntrySearch)> {
@@ -111,24 +111,7 @@ fn check_scene(&(s, test, quality): &(&TestScene, TriTest, BuildQuality)) {
             }
             let hits = reference(&tr, &primary);
             // Shadow rays from the light to just off the hit surfaces.
-            let mut shadow = Class {
-                name: "shadow",
-                rays: rays.clone(),
-                active: vec![false; rays.len()],
-                kind: RayKind::Shadow,
-                any: true,
-            };
-            for (i, (r, h)) in rays.iter().zip(&hits).enumerate() {
-                if let Some(tri) = h.is_hit().then(|| tr.triangle(h.prim)).flatten() {
-                    let mut n = tri.normal().normalize_or_zero();
-                    if n.dot(Vec3::from(r.dir)) > 0.0 {
-                        n = -n;
-                    }
-                    let end = Vec3::from(r.org) + Vec3::from(r.dir) * h.t + n * eps;
-                    shadow.rays[i] = Ray::new(s.light, end - s.light, 0.0, 1.0);
-                    shadow.active[i] = true;
-                }
-            }
+            let shadow = shadow(&tr, &rays, &hits, s.light, eps);
             sum.add(&check_class(&tr, &kd_cases, &what, &shadow));
             if !bvh_cases.is_empty() {
                 check_class(&bvh, &bvh_cases, &what, &shadow);
