@@ -150,6 +150,17 @@ static bool test_single_mesh_methods_with_a_filter(void) {
     return true;
 }
 
+/* `s` as a sheaf_mesh (read during the call that takes it). */
+static sheaf_mesh scene_mesh(const scene *s) {
+    sheaf_mesh m;
+    m.vertices = &s->v[0][0];
+    m.vertex_stride_bytes = SCENE_STRIDE;
+    m.vertex_count = s->nv;
+    m.indices = s->idx;
+    m.triangle_count = s->nt;
+    return m;
+}
+
 static bool scene_ctx(sheaf_context **out, const scene *s) {
     sheaf_limits l;
     sheaf_mesh m;
@@ -161,11 +172,7 @@ static bool scene_ctx(sheaf_context **out, const scene *s) {
     l.max_instances = 3;
     l.max_scene_triangles = 2 * s->nt;
     CHECK_OK(sheaf_context_create(&l, out));
-    m.vertices = &s->v[0][0];
-    m.vertex_stride_bytes = SCENE_STRIDE;
-    m.vertex_count = s->nv;
-    m.indices = s->idx;
-    m.triangle_count = s->nt;
+    m = scene_mesh(s);
     CHECK_OK(sheaf_context_set_scene_geometry(*out, 0, &m, NULL));
     CHECK_OK(sheaf_context_set_scene_geometry(*out, 1, &m, NULL));
     CHECK_OK(sheaf_context_set_instance(*out, 0, 0, x, ~0u));
@@ -235,11 +242,7 @@ static bool test_scene_filters_ids_and_opacity(void) {
     gp.filter = cutout;
     gp.filter_user = &sn;
     gp.opaque = 1;
-    m.vertices = &s->v[0][0];
-    m.vertex_stride_bytes = SCENE_STRIDE;
-    m.vertex_count = s->nv;
-    m.indices = s->idx;
-    m.triangle_count = s->nt;
+    m = scene_mesh(s);
     CHECK_OK(sheaf_context_set_scene_geometry(ctx, 0, &m, &gp));
     CHECK_OK(sheaf_context_commit_scene(ctx, NULL));
     CHECK_OK(sheaf_context_trace_scene(ctx, NULL, rays, got, NRAYS, ~0u, 0));
@@ -288,11 +291,7 @@ static bool test_bad_filter_input_changes_nothing(void) {
     CHECK_STATUS(sheaf_context_set_filter(NULL, cutout, NULL), SHEAF_STATUS_NULL_POINTER);
     CHECK_OK(sheaf_geometry_params_default(&gp));
     gp.filter_user = &dummy;
-    m.vertices = &s->v[0][0];
-    m.vertex_stride_bytes = SCENE_STRIDE;
-    m.vertex_count = s->nv;
-    m.indices = s->idx;
-    m.triangle_count = s->nt;
+    m = scene_mesh(s);
     CHECK_STATUS(sheaf_context_set_scene_geometry(ctx, 0, &m, &gp), SHEAF_STATUS_INVALID_ARGUMENT);
     gp.filter_user = NULL;
     gp.opaque = 2;

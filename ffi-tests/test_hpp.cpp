@@ -97,15 +97,21 @@ sheaf_scene_info committed(sheaf::Context &ctx) {
     return info;
 }
 
-bool test_scene_owners_and_unwinding() {
+// Limits of a BVH-only context with a two-level scene of `n` geometries
+// and `n` instances.
+sheaf_limits scene_limits(uint32_t n) {
     sheaf_limits l;
-    CHECK(sheaf_limits_default(16, &l) == SHEAF_STATUS_OK);
+    sheaf_limits_default(16, &l);
     l.structures = SHEAF_STRUCTURE_BVH;
-    l.max_geometries = 2;
-    l.max_instances = 2;
+    l.max_geometries = n;
+    l.max_instances = n;
     l.max_scene_triangles = 16;
+    return l;
+}
+
+bool test_scene_owners_and_unwinding() {
     sheaf::Context ctx;
-    ctx.create(l);
+    ctx.create(scene_limits(2));
     const sheaf_mesh mesh = {kVertices.data(), 3 * sizeof(float), 4, kIndices.data(), 2};
     const float xf[12] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0};
     sheaf::Context::SceneGeometry geometry;
@@ -185,14 +191,8 @@ bool test_filters() {
     ctx.trace(SHEAF_METHOD_BVH_SINGLE, r, by_const);
     CHECK(std::memcmp(by_const.data(), by_c.data(), sizeof(sheaf_hit) * r.size()) == 0);
     // A scene geometry's filter; an id not set is refused.
-    sheaf_limits l;
-    CHECK(sheaf_limits_default(16, &l) == SHEAF_STATUS_OK);
-    l.structures = SHEAF_STRUCTURE_BVH;
-    l.max_geometries = 1;
-    l.max_instances = 1;
-    l.max_scene_triangles = 16;
     sheaf::ContextNoThrow scene;
-    CHECK(scene.create(l) == SHEAF_STATUS_OK);
+    CHECK(scene.create(scene_limits(1)) == SHEAF_STATUS_OK);
     const sheaf_mesh mesh = {kVertices.data(), 3 * sizeof(float), 4, kIndices.data(), 2};
     const float xf[12] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0};
     sheaf::ContextNoThrow::SceneGeometry geometry;

@@ -46,7 +46,7 @@ impl World<'_> {
     /// Whether a committed geometry has a filter (its candidates on the
     /// flattened scene go to `accept`).
     fn filtering(&self) -> bool {
-        self.scene.view().is_ok_and(|v| v.filtering())
+        self.scene.filtering()
     }
 }
 
@@ -54,24 +54,23 @@ impl World<'_> {
 /// own triangle id and the instance's, and the world ray.
 impl Accept for World<'_> {
     fn accept(&self, org: [f32; 3], dir: [f32; 3], t: f32, u: f32, v: f32, prim: u32) -> bool {
-        let (Ok(s), Some([instance, prim])) = (self.scene.view(), self.flat.id(prim)) else {
+        let Some([instance, prim]) = self.flat.id(prim) else {
             return true;
         };
-        let Some(geometry) = s.instance(instance).map(|i| i.geometry) else {
-            return true;
-        };
-        s.filter_of(geometry).is_none_or(|f| {
-            f.call(&Candidate {
-                org,
-                dir,
-                t,
-                u,
-                v,
-                prim,
-                geometry,
-                instance,
+        self.scene
+            .instance_filter(instance)
+            .is_none_or(|(f, geometry)| {
+                f.call(&Candidate {
+                    org,
+                    dir,
+                    t,
+                    u,
+                    v,
+                    prim,
+                    geometry,
+                    instance,
+                })
             })
-        })
     }
 }
 

@@ -18,7 +18,7 @@ use common::exact::{Class, RES, check_class, reference, secondary, shadow};
 
 /// The BVH packet methods from the root: SIMD, Masked, Ranged, Partition at
 /// every side (entry points: kd_exact.rs).
-fn bvh_cases() -> Vec<(Method, usize, EntrySearch)> {
+pub(crate) fn bvh_cases() -> Vec<(Method, usize, EntrySearch)> {
     let mut cases = vec![
         (Method::BvhSimd, 2, EntrySearch::None),
         (Method::BvhWide, 2, EntrySearch::None),

@@ -11,7 +11,9 @@
 //! geometries skip it (no call, the unfiltered hits), and each method's
 //! filter calls are printed against its single ray's.
 
+use crate::bvh_exact::bvh_cases;
 use crate::common;
+use crate::kd_exact::kd_cases;
 use crate::twolevel_exact::{check, mesh_triangles, same, scene_in, view_of};
 
 use common::exact::{Class, RES, check_class, packets, reference, secondary, shadow};
@@ -19,35 +21,12 @@ use common::filter::{counted, keep, plain};
 use common::{TestScene, builtin_scenes, par_map};
 use glam::Vec3;
 use sheaf::render::SHADOW_OFFSET;
-use sheaf::trace::{EntrySearch, RayKind};
+use sheaf::trace::RayKind;
 use sheaf::{
     Candidate, GeometryParams, Hit, Isa, Limits, Method, OwnedContext, Ray, RayControls, SceneHit,
     TraceParams, TriTest,
 };
 use std::sync::atomic::{AtomicU64, Ordering};
-
-/// The BVH's and the kd-tree's packet and SIMD methods at every side,
-/// the kd-tree's with every entry search.
-fn cases() -> [Vec<(Method, usize, EntrySearch)>; 2] {
-    let none = EntrySearch::None;
-    let mut bvh = vec![(Method::BvhSimd, 2, none), (Method::BvhWide, 2, none)];
-    for m in [
-        Method::BvhMasked,
-        Method::BvhRanged,
-        Method::BvhPartition,
-        Method::BvhWideRanged,
-        Method::BvhFrustum,
-    ] {
-        bvh.extend([4, 8, 16].map(|n| (m, n, none)));
-    }
-    let mut kd = vec![(Method::KdSimd, 2, none)];
-    for n in [4, 8, 16] {
-        for &e in EntrySearch::ALL {
-            kd.push((Method::KdPacket, n, e));
-        }
-    }
-    [bvh, kd]
-}
 
 /// Class `c`'s answers with `p` (occlusion as a hit on triangle 0 or a
 /// miss, as `common::exact::reference`).
@@ -200,7 +179,7 @@ fn check_scene(&(s, test): &(&TestScene, TriTest)) -> String {
         let shadow = shadow(&tr, &rays, &hits, s.light, eps);
         let (refl, refr) = secondary(&tr, &rays, &hits, eps);
         let classes = [primary, shadow, refl, refr];
-        let [bvh, kd] = cases();
+        let (bvh, kd) = (bvh_cases(), kd_cases());
         for c in &classes {
             check_class(&all.bvh().unwrap(), &bvh, &what, c);
             check_class(&all.kd().unwrap(), &kd, &what, c);
@@ -245,18 +224,7 @@ fn check_scene(&(s, test): &(&TestScene, TriTest)) -> String {
             .flat_map(|(_, idx)| idx.into_iter().map(|i| rays[i]))
             .collect();
         let mut row = format!("{what}: filter calls per 1000 camera rays:");
-        for m in [
-            Method::GridDda,
-            Method::GridCgt,
-            Method::BvhSingle,
-            Method::BvhSimd,
-            Method::BvhMasked,
-            Method::BvhRanged,
-            Method::BvhPartition,
-            Method::BvhFrustum,
-            Method::KdSingle,
-            Method::KdPacket,
-        ] {
+        for &m in Method::ALL {
             let p = TraceParams {
                 packet: 8,
                 ..params(m)
@@ -457,17 +425,7 @@ fn candidates_carry_the_ray_and_renders_force_opacity() {
         .collect();
     let bits = |o: [f32; 3], d: [f32; 3]| (o.map(f32::to_bits), d.map(f32::to_bits));
     let known: std::collections::HashSet<_> = ordered.iter().map(|r| bits(r.org, r.dir)).collect();
-    for m in [
-        Method::GridDda,
-        Method::GridCgt,
-        Method::BvhSingle,
-        Method::BvhSimd,
-        Method::BvhMasked,
-        Method::BvhFrustum,
-        Method::KdSingle,
-        Method::KdSimd,
-        Method::KdPacket,
-    ] {
+    for &m in Method::ALL {
         seen.0.lock().unwrap().clear();
         let p = TraceParams {
             packet: 8,

@@ -24,7 +24,7 @@ use sheaf::{BuildQuality, Counters, Hit, Limits, Method, OwnedContext, Ray, Trac
 use common::exact::{Class, RES, check_class, reference, secondary, shadow};
 
 /// The kd methods: SIMD, and packets of every side with every entry search.
-fn kd_cases() -> Vec<(Method, usize, EntrySearch)> {
+pub(crate) fn kd_cases() -> Vec<(Method, usize, EntrySearch)> {
     let mut cases = vec![(Method::KdSimd, 2, EntrySearch::None)];
     for n in [4, 8, 16, 32] {
         for &e in EntrySearch::ALL {

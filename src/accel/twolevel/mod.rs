@@ -166,6 +166,14 @@ pub struct GeomState {
     opaque: bool,
 }
 
+impl GeomState {
+    /// The filter candidates on this geometry are asked: none when it is
+    /// not set, has none, or is opaque.
+    fn asked(&self) -> Option<Filter> {
+        self.filter.filter(|_| self.live && !self.opaque)
+    }
+}
+
 /// An instance: a geometry placed by a transform (C: `sheaf_instance`).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
@@ -591,6 +599,21 @@ impl<'a> TwoLevel<'a> {
         Ok(())
     }
 
+    /// The committed scene's instance `id`: its geometry's filter
+    /// (`GeomState::asked`) and the geometry's id. Without a view: the
+    /// flattened scene asks it per candidate.
+    pub fn instance_filter(&self, id: u32) -> Option<(Filter, u32)> {
+        self.info.as_ref()?;
+        let inst = self.insts.get(id as usize).filter(|i| i.live != 0)?;
+        let f = self.geoms.get(inst.geometry as usize)?.asked()?;
+        Some((f, inst.geometry))
+    }
+
+    /// Whether the committed scene has a geometry whose filter is asked.
+    pub fn filtering(&self) -> bool {
+        self.info.is_some() && self.geoms.iter().any(|g| g.asked().is_some())
+    }
+
     fn live_geometries(&self) -> u32 {
         self.geoms.iter().filter(|g| g.live).count() as u32
     }
@@ -723,20 +746,9 @@ impl<'r> TwoLevelView<'r> {
         })
     }
 
-    /// Geometry `id`'s filter (`None`: none, opaque, or not set).
+    /// Geometry `id`'s filter (`GeomState::asked`).
     pub fn filter_of(&self, id: u32) -> Option<Filter> {
-        let g = self
-            .geoms
-            .get(id as usize)
-            .filter(|g| g.live && !g.opaque)?;
-        g.filter
-    }
-
-    /// Whether any geometry has a filter it is not opaque to.
-    pub fn filtering(&self) -> bool {
-        self.geoms
-            .iter()
-            .any(|g| g.live && !g.opaque && g.filter.is_some())
+        self.geoms.get(id as usize)?.asked()
     }
 
     /// Geometry `id`'s BVH (`None`: not set or never built).
