@@ -396,6 +396,43 @@ static bool test_packet_methods_equal_single_rays(void) {
         }
         CHECK_STATUS(sheaf_context_trace_scene_camera(ctx, &tp, &f.camera, 16, 16, &r, got, 15, ~0u, 3),
                      SHEAF_STATUS_INVALID_ARGUMENT);
+        {
+            /* A rectangle at the u32 edge of a UINT32_MAX x 2 image and of
+               a 2 x UINT32_MAX one: accepted, its pixels written and
+               nothing else (the buffer is exactly the rectangle's, so
+               ASan and valgrind see a write past it), at every packet
+               side (packets overhang the rectangle past 2^32). */
+            uint32_t sides[5] = {2, 4, 8, 16, 32}, k, e;
+            for (e = 0; e < 2; ++e) {
+                sheaf_pixel_rect edge;
+                uint32_t w = e ? 2u : UINT32_MAX, h = e ? UINT32_MAX : 2u;
+                size_t row, n;
+                sheaf_scene_hit *buf;
+                if (e) edge.x0 = 0, edge.y0 = UINT32_MAX - 5, edge.x1 = 2, edge.y1 = UINT32_MAX;
+                else edge.x0 = UINT32_MAX - 5, edge.y0 = 0, edge.x1 = UINT32_MAX, edge.y1 = 2;
+                row = edge.x1 - edge.x0;
+                n = row * (edge.y1 - edge.y0);
+                buf = (sheaf_scene_hit *)malloc(n * sizeof *buf);
+                CHECK(buf != NULL);
+                f.width = w, f.height = h;
+                for (k = 0; k < 5; ++k) {
+                    tp.packet = sides[k];
+                    memset(buf, 0xAB, n * sizeof *buf);
+                    CHECK_OK(sheaf_context_trace_scene_camera(ctx, &tp, &f.camera, w, h, &edge, buf, row, ~0u, 0));
+                    for (y = edge.y0; y < edge.y1; ++y)
+                        for (x = edge.x0; x < edge.x1; ++x) {
+                            const sheaf_scene_hit *g = &buf[(y - edge.y0) * row + (x - edge.x0)];
+                            sheaf_scene_hit w1;
+                            CHECK_OK(sheaf_frame_camera_ray(&f, x, y, &cr));
+                            CHECK_OK(sheaf_context_trace_scene(ctx, NULL, &cr, &w1, 1, ~0u, 0));
+                            CHECK(g->prim == w1.prim && g->instance == w1.instance);
+                            CHECK(memcmp(&g->t, &w1.t, sizeof(float)) == 0);
+                        }
+                }
+                free(buf);
+            }
+            f.width = 16, f.height = 16;
+        }
     }
     CHECK_OK(sheaf_trace_params_default(&tp));
     tp.method = SHEAF_METHOD_GRID_CGT;

@@ -44,7 +44,8 @@ fn camera_of<T>(
 ///
 /// Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_INVALID_ARGUMENT`
 /// (bad params; a camera with a NaN or infinite field, `eye == look_at`,
-/// `up` parallel to the view or a field of view outside (0, 180); a
+/// `up` zero or within 1e-6 radians of the view or a field of view outside (0, 180):
+/// vectors of any finite length are normalised first; a
 /// rectangle empty or outside the image; `hits_per_row` below the
 /// rectangle's width or a buffer past the address space),
 /// `SHEAF_STATUS_NOT_BUILT`, `SHEAF_STATUS_CAPACITY_THREADS`. `hits` is

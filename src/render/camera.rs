@@ -31,7 +31,10 @@ use crate::math;
 use crate::trace::{RaySource, TraceParams};
 use glam::Vec3;
 
-/// Pinhole camera (C: `sheaf_camera`).
+/// Pinhole camera (C: `sheaf_camera`). Any finite camera is valid whose
+/// `look_at` differs from `eye` and whose `up` is neither zero nor
+/// parallel to the view (within 1e-6 radians): the vectors are normalised
+/// (at any finite scale) before use.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Camera {
@@ -53,33 +56,45 @@ pub struct PrimaryRays {
 }
 
 impl PrimaryRays {
+    /// The camera's basis, normalised whatever the scale of its vectors
+    /// (an `up` of 1e20 or 1e-30, an eye 3e19 from its target): only a
+    /// camera degenerate after normalisation (`eye == look_at`, `up` zero
+    /// or parallel to the view) or with a non-finite field is refused.
     pub fn new(cam: &Camera, width: u32, height: u32) -> Result<Self> {
         let eye = Vec3::from(cam.eye);
-        let fwd = Vec3::from(cam.look_at) - eye;
+        // In f64: the difference of two finite f32 points never overflows.
+        let fwd = glam::DVec3::from(cam.look_at.map(f64::from)) - eye.as_dvec3();
         let up = Vec3::from(cam.up);
         // Stated as what is valid, so that NaN fails.
         let valid = eye.is_finite()
-            && fwd.is_finite()
+            && Vec3::from(cam.look_at).is_finite()
             && up.is_finite()
-            && fwd.length_squared() > 0.0
             && cam.fov_y_deg > 0.0
             && cam.fov_y_deg < 180.0
             && width > 0
             && height > 0;
         if !valid {
             return Err(Error::InvalidArgument(
-                "camera: finite eye/look_at/up, eye != look_at, fov in (0, 180), a non-empty image",
+                "camera: finite eye/look_at/up, fov in (0, 180), a non-empty image",
             ));
         }
-        let w = fwd.normalize();
-        let u = w.cross(up);
-        let u2 = u.length_squared();
-        if u2.is_nan() || u2 <= 0.0 {
+        let m = fwd.abs().max_element();
+        if m <= 0.0 {
             return Err(Error::InvalidArgument(
-                "camera: up must not be parallel to the view direction",
+                "camera: eye and look_at must differ",
             ));
         }
-        let u = u.normalize();
+        let w = (fwd / m).normalize().as_vec3();
+        // Parallel: within rounding of the view direction (the sine of
+        // the angle between the unit vectors below 1e-6), where the
+        // basis would be rounding noise.
+        let u = unit(up)
+            .map(|up| w.cross(up))
+            .filter(|u| u.length() >= 1e-6)
+            .and_then(unit)
+            .ok_or(Error::InvalidArgument(
+                "camera: up must be non-zero and not parallel to the view direction",
+            ))?;
         let v = u.cross(w);
         let half_h = math::tan(cam.fov_y_deg.to_radians() * 0.5);
         let half_w = half_h * width as f32 / height as f32;
@@ -112,6 +127,14 @@ impl PrimaryRays {
     /// Ray through the centre of pixel (x, y); y grows downwards.
     #[inline]
     pub fn ray(&self, x: u32, y: u32) -> Ray {
+        self.ray_at(x.into(), y.into())
+    }
+
+    /// `ray` of a pixel coordinate that may lie past the image (the lanes
+    /// of a packet overhanging it at the u32 edge): the same operations,
+    /// since a u64 and a u32 of one value convert to the same f32.
+    #[inline(always)]
+    fn ray_at(&self, x: u64, y: u64) -> Ray {
         let d = self.corner + self.du * (x as f32 + 0.5) + self.dv * (y as f32 + 0.5);
         Ray::new(self.eye, d, 0.0, f32::INFINITY)
     }
@@ -124,8 +147,10 @@ impl PrimaryRays {
     /// The 2x2 quad of pixels (x, y), (x+1, y), (x, y+1), (x+1, y+1) in
     /// `Ray4` lane order, each lane bit for bit `ray` of its pixel: the
     /// same IEEE operations in the same order, four lanes at once.
+    /// Pixel coordinates are u64 so that a quad overhanging the image at
+    /// the u32 edge has its own (finite) rays, not wrapped ones.
     #[inline(always)]
-    pub fn quad(&self, x: u32, y: u32) -> Ray4 {
+    pub fn quad(&self, x: u64, y: u64) -> Ray4 {
         let fx = F4::new(x as f32, (x + 1) as f32, x as f32, (x + 1) as f32) + F4::splat(0.5);
         let fy = F4::new(y as f32, y as f32, (y + 1) as f32, (y + 1) as f32) + F4::splat(0.5);
         let (c, du, dv) = (self.corner, self.du, self.dv);
@@ -141,7 +166,8 @@ impl PrimaryRays {
     /// The camera packet of the `side` x `side` pixels from (x0, y0):
     /// `(side / 2)^2` quads in Morton order (`demorton`), lanes of pixels
     /// outside `rect` inactive (they still hold their pixel's finite ray).
-    /// The renderers' and `CameraRays`' one packet generator.
+    /// The renderers' and `CameraRays`' one packet generator; (x0, y0) is
+    /// a pixel of the image, the packet may reach past `u32::MAX`.
     #[inline]
     pub fn packet(
         &self,
@@ -153,16 +179,19 @@ impl PrimaryRays {
         active: &mut [M4],
     ) -> usize {
         let nq = ((side / 2) * (side / 2)) as usize;
-        let inside = x0 + side <= rect.x1 && y0 + side <= rect.y1;
+        // In u64: a packet may overhang a rectangle that ends at u32::MAX.
+        let (x0, y0, side) = (u64::from(x0), u64::from(y0), u64::from(side));
+        let (x1, y1) = (u64::from(rect.x1), u64::from(rect.y1));
+        let inside = x0 + side <= x1 && y0 + side <= y1;
         for (q, (quad, act)) in quads[..nq].iter_mut().zip(&mut active[..nq]).enumerate() {
             let (qx, qy) = demorton(q);
-            let (x, y) = (x0 + 2 * qx, y0 + 2 * qy);
+            let (x, y) = (x0 + 2 * u64::from(qx), y0 + 2 * u64::from(qy));
             *quad = self.quad(x, y);
             *act = if inside {
                 M4::TRUE
             } else {
-                let (cx, cy) = (x + 1 < rect.x1, y + 1 < rect.y1);
-                let (ax, ay) = (x < rect.x1, y < rect.y1);
+                let (cx, cy) = (x + 1 < x1, y + 1 < y1);
+                let (ax, ay) = (x < x1, y < y1);
                 M4::new(ax && ay, cx && ay, ax && cy, cx && cy)
             };
         }
@@ -267,40 +296,63 @@ impl<'a> CameraRays<'a> {
             _ => 2,
         };
         let (rw, rh) = rect.size();
+        let (tiles_x, tiles_y) = (rw.div_ceil(side), rh.div_ceil(side));
+        // `count` in a usize: whole tiles may hold more rays than pixels.
+        (tiles_x as usize)
+            .checked_mul(tiles_y as usize)
+            .and_then(|n| n.checked_mul((side * side) as usize))
+            .ok_or(Error::InvalidArgument(
+                "pixel rectangle: more rays than the address space",
+            ))?;
         Ok(CameraRays {
             rays,
             rect,
             side,
-            tiles_x: rw.div_ceil(side),
-            tiles_y: rh.div_ceil(side),
+            tiles_x,
+            tiles_y,
         })
     }
 
-    /// Rays in all: whole tiles, so a multiple of the packet's rays.
+    /// Rays in all: whole tiles, so a multiple of the packet's rays
+    /// (`new` checked that it fits a `usize`).
     pub fn count(&self) -> usize {
         self.tiles_x as usize * self.tiles_y as usize * (self.side * self.side) as usize
     }
 
-    /// Top-left pixel of tile `k`.
+    /// Top-left pixel of tile `k`: inside the rectangle, so a u32.
     #[inline(always)]
     fn tile(&self, k: usize) -> (u32, u32) {
-        let (tx, ty) = (k as u32 % self.tiles_x, k as u32 / self.tiles_x);
+        // `k` may pass u32::MAX (2^32 tiles of 2x2 pixels); the quotient
+        // and remainder are below `tiles_y` and `tiles_x`.
+        let tiles_x = self.tiles_x as usize;
+        let (tx, ty) = ((k % tiles_x) as u32, (k / tiles_x) as u32);
         (self.rect.x0 + tx * self.side, self.rect.y0 + ty * self.side)
     }
 
-    /// Pixel of ray `j` of a tile whose top-left pixel is (x0, y0).
+    /// Pixel of ray `j` of a tile whose top-left pixel is (x0, y0), in u64:
+    /// a part-empty tile at a rectangle ending at u32::MAX reaches past it.
     #[inline(always)]
-    fn in_tile(&self, (x0, y0): (u32, u32), j: usize) -> (u32, u32) {
+    fn in_tile(&self, (x0, y0): (u32, u32), j: usize) -> (u64, u64) {
         let (qx, qy) = demorton(j >> 2);
-        let l = (j & 3) as u32;
-        (x0 + 2 * qx + (l & 1), y0 + 2 * qy + (l >> 1))
+        let l = (j & 3) as u64;
+        (
+            u64::from(x0) + 2 * u64::from(qx) + (l & 1),
+            u64::from(y0) + 2 * u64::from(qy) + (l >> 1),
+        )
     }
 
     /// Pixel of ray `i` (any `i < count`; may lie outside the rectangle).
     #[inline(always)]
-    fn at(&self, i: usize) -> (u32, u32) {
+    fn at(&self, i: usize) -> (u64, u64) {
         let per = (self.side * self.side) as usize;
         self.in_tile(self.tile(i / per), i % per)
+    }
+
+    /// Whether pixel (x, y) of `at` lies inside the rectangle (it is at
+    /// or right of and below its corner by construction).
+    #[inline(always)]
+    fn inside(&self, (x, y): (u64, u64)) -> bool {
+        x < u64::from(self.rect.x1) && y < u64::from(self.rect.y1)
     }
 
     /// The pixel ray `i` is shot through, relative to the rectangle's
@@ -308,7 +360,13 @@ impl<'a> CameraRays<'a> {
     #[inline(always)]
     pub fn pixel(&self, i: usize) -> Option<(u32, u32)> {
         let (x, y) = self.at(i);
-        (x < self.rect.x1 && y < self.rect.y1).then(|| (x - self.rect.x0, y - self.rect.y0))
+        // Inside: below x1 and y1, so the offsets fit a u32.
+        self.inside((x, y)).then(|| {
+            (
+                (x - u64::from(self.rect.x0)) as u32,
+                (y - u64::from(self.rect.y0)) as u32,
+            )
+        })
     }
 
     /// Where each ray's result goes in a buffer of the rectangle's pixels,
@@ -338,7 +396,7 @@ pub struct PixelIndex<'c, 'a> {
 impl PixelIndex<'_, '_> {
     /// Pixel of ray `i`, the tile's origin worked out when the tile changes.
     #[inline(always)]
-    fn at(&mut self, i: usize) -> (u32, u32) {
+    fn at(&mut self, i: usize) -> (u64, u64) {
         let k = i >> self.shift;
         if k != self.tile {
             self.tile = k;
@@ -353,8 +411,15 @@ impl PixelIndex<'_, '_> {
     #[inline(always)]
     pub fn of(&mut self, i: usize) -> Option<usize> {
         let (x, y) = self.at(i);
+        self.rays.inside((x, y)).then(|| self.index((x, y)))
+    }
+
+    /// `(y - y0) * row + (x - x0)` of a pixel inside the rectangle: at most
+    /// `PixelRect::results(row)`, which the caller checked fits a `usize`.
+    #[inline(always)]
+    fn index(&self, (x, y): (u64, u64)) -> usize {
         let r = &self.rays.rect;
-        (x < r.x1 && y < r.y1).then(|| (y - r.y0) as usize * self.row + (x - r.x0) as usize)
+        (y - u64::from(r.y0)) as usize * self.row + (x - u64::from(r.x0)) as usize
     }
 
     /// Buffer indices of the four rays `i .. i + 4` of a quad (`i` a multiple of
@@ -363,18 +428,13 @@ impl PixelIndex<'_, '_> {
     #[inline(always)]
     pub fn quad(&mut self, i: usize) -> [Option<usize>; 4] {
         let (x, y) = self.at(i);
-        let r = &self.rays.rect;
-        let (ax, bx, ay, by) = (x < r.x1, x + 1 < r.x1, y < r.y1, y + 1 < r.y1);
+        let c = self.rays;
         // Only formed for pixels inside, whose index is in the buffer.
-        let at = |inside: bool, dx: u32, dy: u32| {
-            inside.then(|| (y + dy - r.y0) as usize * self.row + (x + dx - r.x0) as usize)
+        let at = |dx: u64, dy: u64| {
+            let p = (x + dx, y + dy);
+            c.inside(p).then(|| self.index(p))
         };
-        [
-            at(ax && ay, 0, 0),
-            at(bx && ay, 1, 0),
-            at(ax && by, 0, 1),
-            at(bx && by, 1, 1),
-        ]
+        [at(0, 0), at(1, 0), at(0, 1), at(1, 1)]
     }
 }
 
@@ -382,7 +442,7 @@ impl RaySource for CameraRays<'_> {
     #[inline(always)]
     fn ray(&self, i: usize) -> Ray {
         let (x, y) = self.at(i);
-        self.rays.ray(x, y)
+        self.rays.ray_at(x, y)
     }
 
     #[inline(always)]
@@ -405,6 +465,13 @@ impl RaySource for CameraRays<'_> {
         }
         nq
     }
+}
+
+/// `v` scaled to length 1, its largest component made 1 first so that
+/// no square overflows or underflows; `None` for a zero vector.
+fn unit(v: Vec3) -> Option<Vec3> {
+    let m = v.abs().max_element();
+    (m > 0.0).then(|| (v / m).normalize())
 }
 
 /// Quad (x, y) of Morton index `i` (bits interleaved, x in the even bits).
@@ -450,7 +517,7 @@ mod tests {
     fn quads_are_the_pixel_rays_bit_for_bit() {
         let pr = camera();
         for (x, y) in [(0, 0), (510, 257), (1021, 515), (1022, 516), (77, 3)] {
-            let q = pr.quad(x, y);
+            let q = pr.quad(x.into(), y.into());
             for (l, (dx, dy)) in [(0, 0), (1, 0), (0, 1), (1, 1)].into_iter().enumerate() {
                 assert_eq!(
                     bits(&q.lane(l)),
@@ -461,26 +528,23 @@ mod tests {
         }
     }
 
-    #[test]
-    fn camera_rays_cover_the_rectangle_once() {
-        let pr = camera();
-        let rect = PixelRect {
-            x0: 5,
-            y0: 9,
-            x1: 5 + 37,
-            y1: 9 + 21,
-        };
+    /// Every pixel of `rect` is one active lane's, at its index in a
+    /// buffer of rows `row` apart (below `results(row)`), with its pixel's
+    /// ray bit for bit; every other lane is inactive and has no index.
+    fn covers_once(pr: &PrimaryRays, rect: PixelRect, row: usize) {
+        let (w, h) = rect.size();
+        let need = rect.results(row).unwrap();
         for side in [2, 4, 8, 16, 32] {
             let p = TraceParams {
                 method: Method::BvhFrustum,
                 packet: side,
                 ..TraceParams::default()
             };
-            let cr = CameraRays::new(&pr, rect, Some(&p)).unwrap();
+            let cr = CameraRays::new(pr, rect, Some(&p)).unwrap();
             let n = cr.count();
             assert_eq!(n % (side * side) as usize, 0);
-            let mut seen = [[0u8; 37]; 21];
-            let (mut index, mut quads_at) = (cr.index(40), cr.index(40));
+            let mut seen = vec![0u8; (w * h) as usize];
+            let (mut index, mut quads_at) = (cr.index(row), cr.index(row));
             let nq = (side * side / 4) as usize;
             let mut quads = [Ray4::from_rays(&[pr.ray(0, 0); 4]); 256];
             let mut active = [M4::FALSE; 256];
@@ -490,19 +554,126 @@ mod tests {
                     let (q, l) = (k / 4, k % 4);
                     let px = cr.pixel(start + k);
                     assert_eq!(active[q].test(l), px.is_some());
-                    let at = px.map(|(x, y)| y as usize * 40 + x as usize);
+                    let at = px.map(|(x, y)| y as usize * row + x as usize);
                     assert_eq!(index.of(start + k), at);
                     assert_eq!(quads_at.quad(start + 4 * q)[l], at);
+                    assert!(at.is_none_or(|a| a < need), "side {side}: {at:?} >= {need}");
+                    // Every lane holds a finite ray, outside ones too.
+                    assert!(Vec3::from(quads[q].lane(l).dir).is_finite());
                     if let Some((x, y)) = px {
-                        seen[y as usize][x as usize] += 1;
+                        seen[(y * w + x) as usize] += 1;
                         let r = pr.ray(rect.x0 + x, rect.y0 + y);
                         assert_eq!(bits(&quads[q].lane(l)), bits(&r));
                         assert_eq!(bits(&cr.ray(start + k)), bits(&r));
                     }
                 }
             }
-            assert!(seen.iter().flatten().all(|&c| c == 1), "side {side}");
+            assert!(seen.iter().all(|&c| c == 1), "{rect:?} side {side}");
         }
+    }
+
+    #[test]
+    fn camera_rays_cover_the_rectangle_once() {
+        let rect = PixelRect {
+            x0: 5,
+            y0: 9,
+            x1: 5 + 37,
+            y1: 9 + 21,
+        };
+        covers_once(&camera(), rect, 40);
+    }
+
+    /// Rectangles ending at `u32::MAX`, where a packet overhanging the
+    /// rectangle has pixels past the u32 range: no lane wraps onto a
+    /// pixel inside, every index stays in the buffer, at every side.
+    #[test]
+    fn camera_rays_at_the_u32_edge() {
+        let cam = Camera {
+            eye: [0.0, 0.0, 3.0],
+            look_at: [0.0, 0.0, 0.0],
+            up: [0.0, 1.0, 0.0],
+            fov_y_deg: 40.0,
+        };
+        let m = u32::MAX;
+        for (w, h, rect) in [
+            (
+                m,
+                2,
+                PixelRect {
+                    x0: m - 5,
+                    y0: 0,
+                    x1: m,
+                    y1: 2,
+                },
+            ),
+            (
+                2,
+                m,
+                PixelRect {
+                    x0: 0,
+                    y0: m - 3,
+                    x1: 2,
+                    y1: m,
+                },
+            ),
+            (
+                m,
+                m,
+                PixelRect {
+                    x0: m - 7,
+                    y0: m - 9,
+                    x1: m,
+                    y1: m,
+                },
+            ),
+            (
+                m,
+                m,
+                PixelRect {
+                    x0: m - 1,
+                    y0: m - 1,
+                    x1: m,
+                    y1: m,
+                },
+            ),
+            (
+                m,
+                3,
+                PixelRect {
+                    x0: 0,
+                    y0: 0,
+                    x1: 3,
+                    y1: 3,
+                },
+            ),
+        ] {
+            let pr = PrimaryRays::new(&cam, w, h).unwrap();
+            let (rw, _) = rect.size();
+            covers_once(&pr, rect, rw as usize);
+            covers_once(&pr, rect, rw as usize + 3);
+        }
+    }
+
+    /// A rectangle of more than 2^32 tiles: tile numbers past u32.
+    #[test]
+    fn tiles_past_u32_are_numbered_in_usize() {
+        let pr = PrimaryRays::new(
+            &Camera {
+                eye: [0.0, 0.0, 3.0],
+                look_at: [0.0, 0.0, 0.0],
+                up: [0.0, 1.0, 0.0],
+                fov_y_deg: 40.0,
+            },
+            1 << 18,
+            1 << 18,
+        )
+        .unwrap();
+        let rect = PixelRect::image(1 << 18, 1 << 18);
+        let cr = CameraRays::new(&pr, rect, None).unwrap();
+        // Tile (2^17 - 1, 2^16 + 5) is number 2^33 + ...; ray 0 of it.
+        let tile = (((1usize << 16) + 5) << 17) + (1 << 17) - 1;
+        assert!(tile > u32::MAX as usize);
+        assert_eq!(cr.pixel(4 * tile), Some(((1 << 18) - 2, (1 << 17) + 10)));
     }
 
     #[test]
@@ -515,6 +686,105 @@ mod tests {
             }
             assert_eq!(demorton(i), (x, y), "{i}");
         }
+    }
+
+    /// Any finite camera whose basis is not degenerate after normalisation
+    /// gives its proper rays: the same as the camera at unit scale,
+    /// whatever the length of `up` or the eye's distance; only a zero or
+    /// parallel `up` and `eye == look_at` are refused.
+    #[test]
+    fn cameras_are_normalised_whatever_their_scale() {
+        let base = Camera {
+            eye: [0.0, -4.0, 0.0],
+            look_at: [0.0, 0.0, 0.0],
+            up: [0.0, 0.0, 1.0],
+            fov_y_deg: 50.0,
+        };
+        let want = PrimaryRays::new(&base, 64, 48).unwrap();
+        let dir = |pr: &PrimaryRays, x, y| Vec3::from(pr.ray(x, y).dir).normalize();
+        let scaled = [
+            Camera {
+                up: [0.0, 0.0, 1e20],
+                ..base
+            },
+            Camera {
+                up: [0.0, 0.0, 1e-30],
+                ..base
+            },
+            Camera {
+                up: [0.0, 0.0, 1e-44],
+                ..base
+            },
+            Camera {
+                up: [0.0, 0.0, f32::MAX],
+                ..base
+            },
+            Camera {
+                eye: [0.0, -3e19, 0.0],
+                ..base
+            },
+            Camera {
+                eye: [0.0, -f32::MAX, 0.0],
+                look_at: [0.0, f32::MAX, 0.0],
+                ..base
+            },
+            Camera {
+                eye: [0.0, -1e-38, 0.0],
+                ..base
+            },
+        ];
+        for cam in scaled {
+            let pr = PrimaryRays::new(&cam, 64, 48).unwrap_or_else(|e| panic!("{cam:?}: {e}"));
+            for (x, y) in [(0, 0), (63, 0), (0, 47), (63, 47), (31, 20)] {
+                let (a, b) = (dir(&pr, x, y), dir(&want, x, y));
+                assert!(
+                    (a - b).length() < 1e-5,
+                    "{cam:?} ({x}, {y}): {a} against {b}"
+                );
+            }
+            // Distinct pixels, distinct rays (the bug: one ray for all).
+            assert_ne!(dir(&pr, 0, 0), dir(&pr, 63, 47), "{cam:?}");
+        }
+        let degenerate = [
+            Camera {
+                up: [0.0, 0.0, 0.0],
+                ..base
+            },
+            Camera {
+                up: [0.0, 3e-30, 0.0],
+                ..base
+            },
+            Camera {
+                up: [0.0, -7e25, 0.0],
+                ..base
+            },
+            Camera {
+                look_at: base.eye,
+                ..base
+            },
+            Camera {
+                up: [0.0, 0.0, f32::INFINITY],
+                ..base
+            },
+            Camera {
+                eye: [f32::NAN, 0.0, 0.0],
+                ..base
+            },
+        ];
+        for cam in degenerate {
+            assert!(PrimaryRays::new(&cam, 64, 48).is_err(), "{cam:?}");
+        }
+        // `up` the view direction as f32 arithmetic gives it: parallel
+        // to rounding, refused.
+        let (eye, at) = ([0.3f32, -1.7, 2.9], [0.1f32, 0.4, -0.2]);
+        let up = [at[0] - eye[0], at[1] - eye[1], at[2] - eye[2]];
+        let cam = Camera {
+            eye,
+            look_at: at,
+            up,
+            fov_y_deg: 50.0,
+        };
+        assert!(PrimaryRays::new(&cam, 64, 48).is_err());
     }
 
     #[test]
