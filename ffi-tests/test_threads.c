@@ -24,6 +24,8 @@
 #define NRAYS 2000
 /* Rounds per test; SHEAF_TEST_QUICK=1 (the helgrind run) takes fewer. */
 static int g_rounds = 20, g_slot_rounds = 12;
+/* The head start of a helper that must wait before a build opens. */
+static long g_head_ms = 50;
 
 static sheaf_context *g_ctx;
 static sheaf_ray g_rays[NRAYS];
@@ -544,6 +546,142 @@ static bool test_joined_builds(void) {
     return true;
 }
 
+/* Misjoined builds: helpers with a duplicate index or another thread
+   count. Each helper runs on its own thread and reports when it returns. */
+typedef struct {
+    int kd; /* 1: sheaf_context_build_kd_joined, 0: _bvh_joined */
+    uint32_t index, count;
+    sheaf_status status;
+    int done;
+} mis_arg;
+
+static pthread_mutex_t g_mis_lock = PTHREAD_MUTEX_INITIALIZER;
+
+static void *mis_joiner(void *arg) {
+    mis_arg *a = arg;
+    sheaf_status st = a->kd ? sheaf_context_build_kd_joined(g_ctx, NULL, a->index, a->count)
+                            : sheaf_context_build_bvh_joined(g_ctx, NULL, a->index, a->count);
+    pthread_mutex_lock(&g_mis_lock);
+    a->status = st;
+    a->done = 1;
+    pthread_mutex_unlock(&g_mis_lock);
+    return NULL;
+}
+
+static void sleep_ms(long ms) {
+    struct timespec t;
+    t.tv_sec = ms / 1000;
+    t.tv_nsec = (ms % 1000) * 1000000L;
+    nanosleep(&t, NULL);
+}
+
+/* Whether `a` returned within about `ms` milliseconds. */
+static int returned_within(mis_arg *a, long ms) {
+    long waited;
+    for (waited = 0;; ++waited) {
+        int d;
+        pthread_mutex_lock(&g_mis_lock);
+        d = a->done;
+        pthread_mutex_unlock(&g_mis_lock);
+        if (d || waited >= ms) return d;
+        sleep_ms(1);
+    }
+}
+
+static mis_arg mis(int kd, uint32_t index, uint32_t count) {
+    mis_arg a;
+    a.kd = kd;
+    a.index = index;
+    a.count = count;
+    a.status = SHEAF_STATUS_PANIC;
+    a.done = 0;
+    return a;
+}
+
+static bool test_misjoined_builds_are_refused(void) {
+    /* Two helpers passing one thread_index beside a leader, and a helper
+       (2, 3) waiting beside a (0, 2) + (1, 2) group: the extra helper gets
+       SHEAF_STATUS_INVALID_ARGUMENT, the build and its other helper OK,
+       and the context stays usable (the same hits after). A helper
+       waiting when the build opens is always looked at by it; one that
+       arrives after its build ended waits for the next, so the test
+       releases it with another build (never needed when the helpers were
+       waiting, the head start), and counts the refusals it saw. */
+    scene *s = box_field();
+    sheaf_limits l;
+    sheaf_hit got[NRAYS], want[2][NRAYS];
+    int kd, round, refused = 0;
+    CHECK_OK(sheaf_limits_default(s->nt, &l));
+    CHECK_OK(sheaf_context_create(&l, &g_ctx));
+    CHECK_OK(scene_set(g_ctx, s));
+    make_rays();
+    CHECK_OK(sheaf_context_build_bvh(g_ctx, NULL));
+    CHECK_OK(sheaf_context_build_kd(g_ctx, NULL));
+    CHECK_OK(sheaf_context_trace(g_ctx, SHEAF_METHOD_BVH_SINGLE, g_rays, want[0], NRAYS));
+    CHECK_OK(sheaf_context_trace(g_ctx, SHEAF_METHOD_KD_SINGLE, g_rays, want[1], NRAYS));
+    for (kd = 0; kd < 2; ++kd) {
+        sheaf_method m = kd ? SHEAF_METHOD_KD_SINGLE : SHEAF_METHOD_BVH_SINGLE;
+        for (round = 0; round < g_slot_rounds; ++round) {
+            pthread_t th[3];
+            mis_arg a[3], b[2];
+            int i, ok = 0, bad = 0;
+            /* A duplicate index. */
+            a[0] = mis(kd, 1, 2), a[1] = mis(kd, 1, 2);
+            for (i = 0; i < 2; ++i) CHECK(pthread_create(&th[i], NULL, mis_joiner, &a[i]) == 0);
+            sleep_ms(g_head_ms);
+            b[0] = mis(kd, 0, 2);
+            mis_joiner(&b[0]);
+            CHECK_OK(b[0].status);
+            if (!(returned_within(&a[0], 2000) && returned_within(&a[1], 2000))) {
+                b[1] = mis(kd, 0, 2); /* release a late duplicate */
+                mis_joiner(&b[1]);
+                CHECK_OK(b[1].status);
+            }
+            for (i = 0; i < 2; ++i) {
+                CHECK(pthread_join(th[i], NULL) == 0);
+                ok += a[i].status == SHEAF_STATUS_OK;
+                bad += a[i].status == SHEAF_STATUS_INVALID_ARGUMENT;
+            }
+            CHECK(ok + bad == 2 && ok >= 1);
+            refused += bad;
+            CHECK_OK(sheaf_context_trace(g_ctx, m, g_rays, got, NRAYS));
+            CHECK(memcmp(got, want[kd], sizeof got) == 0);
+            /* A helper of another thread count waiting beside a group. */
+            a[2] = mis(kd, 2, 3);
+            CHECK(pthread_create(&th[2], NULL, mis_joiner, &a[2]) == 0);
+            sleep_ms(g_head_ms);
+            a[0] = mis(kd, 1, 2);
+            CHECK(pthread_create(&th[0], NULL, mis_joiner, &a[0]) == 0);
+            b[0] = mis(kd, 0, 2);
+            mis_joiner(&b[0]);
+            CHECK_OK(b[0].status);
+            CHECK(pthread_join(th[0], NULL) == 0);
+            CHECK_OK(a[0].status);
+            if (!returned_within(&a[2], 2000)) {
+                /* It missed the group (it was not waiting yet): a group of
+                   three takes it. */
+                a[1] = mis(kd, 1, 3);
+                CHECK(pthread_create(&th[1], NULL, mis_joiner, &a[1]) == 0);
+                b[1] = mis(kd, 0, 3);
+                mis_joiner(&b[1]);
+                CHECK(pthread_join(th[1], NULL) == 0);
+                CHECK_OK(b[1].status);
+            }
+            CHECK(pthread_join(th[2], NULL) == 0);
+            CHECK(a[2].status == SHEAF_STATUS_INVALID_ARGUMENT || a[2].status == SHEAF_STATUS_OK);
+            refused += a[2].status == SHEAF_STATUS_INVALID_ARGUMENT;
+            CHECK_OK(sheaf_context_trace(g_ctx, m, g_rays, got, NRAYS));
+            CHECK(memcmp(got, want[kd], sizeof got) == 0);
+        }
+    }
+    /* The head start puts the extra helpers at the door before the
+       build opens: refusals are what the test sees, not the exception. */
+    CHECK(refused >= 2 * g_slot_rounds);
+    sheaf_context_destroy(g_ctx);
+    free(s);
+    return true;
+}
+
 /* Several contexts on several threads: independent. */
 static void *own_context(void *arg) {
     scene *s = (scene *)arg;
@@ -917,6 +1055,7 @@ int main(void) {
              &failed);
     run_test("test_destroy_waits_for_calls_inside", test_destroy_waits_for_calls_inside, &passed, &failed);
     run_test("test_joined_builds", test_joined_builds, &passed, &failed);
+    run_test("test_misjoined_builds_are_refused", test_misjoined_builds_are_refused, &passed, &failed);
     run_test("test_joined_refits", test_joined_refits, &passed, &failed);
     run_test("test_joined_grid_builds", test_joined_grid_builds, &passed, &failed);
     run_test("test_joined_kd_builds", test_joined_kd_builds, &passed, &failed);

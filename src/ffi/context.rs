@@ -674,15 +674,21 @@ pub extern "C" fn sheaf_context_build_bvh(
 /// `thread_count` 1 is `sheaf_context_build_bvh`. At most 16 threads.
 ///
 /// The leader returns only after every helper has left the build, so the
-/// context may be destroyed once thread 0 returned. Misuse that cannot be
-/// detected: a thread of `0..thread_count` that never calls leaves the
-/// others waiting forever; destroying the context while helpers wait for a
-/// leader that has not called yet; two groups of threads joining builds on
-/// one context at once (a second leader waits for the first, but their
-/// helpers may take each other's work: a caught panic, status
-/// `SHEAF_STATUS_PANIC`). A helper whose index is beyond the leader's
-/// `thread_count` gets `SHEAF_STATUS_INVALID_ARGUMENT`. A panic in any
-/// thread's part poisons the context (`SHEAF_STATUS_PANIC` on the leader).
+/// context may be destroyed once thread 0 returned. A helper joins the
+/// build open when it calls, or the next one to open: it gets
+/// `SHEAF_STATUS_INVALID_ARGUMENT` at once, and the build goes on without
+/// it, when its `thread_count` is not the leader's or another helper
+/// already took its `thread_index` (a helper waiting when a build opens
+/// is always looked at by that build, never kept for a later one).
+/// Misuse that cannot be detected: a thread of `0..thread_count` that
+/// never calls leaves the others waiting forever (so does a duplicate
+/// index that arrives after the build it duplicates ended: it waits for
+/// the next one); destroying the context while helpers wait for a leader
+/// that has not called yet; two groups of threads joining builds on one
+/// context at once (a second leader waits for the first; a helper of one
+/// group may serve or be refused by the other group's build, whose
+/// leader then waits for it). A panic in any thread's part poisons the
+/// context (`SHEAF_STATUS_PANIC` on the leader).
 ///
 /// Errors: as `sheaf_context_build_bvh`; `SHEAF_STATUS_INVALID_ARGUMENT`
 /// for `thread_count` 0 or above 16 or `thread_index >= thread_count`
@@ -761,13 +767,16 @@ pub(super) fn joined(
         let mut outcome = 0u32;
         let s = guard_free(|| {
             let hd = header(ctx)?;
-            match hd.join.help(me) {
+            match hd.join.help(me, count) {
                 crate::Helped::Done(x) => {
                     outcome = x;
                     Ok(())
                 }
                 crate::Helped::NotAWorker => Err(Error::InvalidArgument(
-                    "joined call: thread_index beyond the leader's thread_count",
+                    "joined call: thread_count differs from the leader's",
+                )),
+                crate::Helped::Taken => Err(Error::InvalidArgument(
+                    "joined call: thread_index already taken by another thread of this build",
                 )),
             }
         });

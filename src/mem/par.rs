@@ -191,32 +191,37 @@ impl<T> Turns<T> {
 /// leader publishes until it closes the session.
 ///
 /// Protocol: the leader takes the join (one leader at a time; a second
-/// waits), opens a session for `workers` threads; each `Par::run`
-/// publishes a task (the ticket's task count goes up by one), runs it as
-/// worker 0 and waits until the `workers - 1` helpers have run it, even
-/// when its own part panics. At the end it waits until every helper has
-/// arrived, closes the session, and waits until every helper has left
-/// (read the outcome and stopped touching the join) before it returns. A
-/// helper runs every task published after it arrived, in order (it cannot
-/// miss one: no task is published before all helpers finished the
-/// previous). A helper's panic is caught (with `std`), counted as done and
-/// re-raised on the leader. Every helper must arrive: a missing one leaves
-/// the leader waiting, and helpers of two groups joining one context at
-/// once may run each other's tasks (a caught panic, not a race).
+/// waits) and opens a session for `workers` threads. Arrival goes through
+/// the door (a short lock): a helper looks at the open session, or at the
+/// next one to open if none is, exactly once, and either claims its index
+/// (the index is free and its thread count is the session's) or is
+/// refused ([`Helped::NotAWorker`], [`Helped::Taken`]) without touching
+/// the session. The leader closes the session only when every helper
+/// index is claimed and every helper that was waiting when it opened has
+/// looked at it, so a helper waiting beside a group it does not fit is
+/// refused, never kept for a later group. Each `Par::run` publishes a task
+/// (the ticket's task count goes up by one), runs it as worker 0 and waits
+/// until the `workers - 1` claimed helpers have run it, even when its own
+/// part panics; after the body the leader waits until every helper has
+/// left (read the outcome and stopped touching the join) before it
+/// returns. A helper runs every task published in its session, in order.
+/// A helper's panic is caught (with `std`), counted as done and re-raised
+/// on the leader. Every helper must arrive: a missing one leaves the
+/// leader waiting.
 pub struct Join {
     /// A leader holds the join (one joined build at a time).
     leading: AtomicBool,
     /// What the session's leader reported (the C ABI's status), for its
     /// helpers to return.
     outcome: AtomicU32,
-    open: AtomicBool,
-    workers: AtomicUsize,
+    /// Who may join: changed only under its lock.
+    door: Turns<Door>,
+    /// The number of the last session opened, for waiting helpers to
+    /// watch without the lock.
+    opened: AtomicU64,
     /// The session number (high half) and the tasks published in it (low
     /// half), in one word: a helper never runs another session's task.
     ticket: AtomicU64,
-    /// Helpers that joined this session: the leader closes it only when
-    /// all have, so a session with few or no tasks still takes its helpers.
-    arrived: AtomicUsize,
     /// Helpers that left this session: the leader returns only when all
     /// have, so its caller may reuse or free the join afterwards.
     departed: AtomicUsize,
@@ -230,16 +235,32 @@ pub struct Join {
     task: UnsafeCell<Option<TaskPtr>>,
 }
 
+/// The join's arrival state.
+struct Door {
+    /// The last session opened (0: none yet).
+    session: u64,
+    open: bool,
+    workers: usize,
+    /// Bit `i`: helper index `i` of the open session is taken.
+    claimed: u32,
+    /// Helpers waiting for the next session to open.
+    waiting: u32,
+    /// Helpers that were waiting when the open session opened and have not
+    /// looked at it yet: the leader does not close it before they have.
+    lookers: u32,
+}
+
 /// A task trait object, as the leader's `run` borrows it.
 #[derive(Clone, Copy)]
 struct TaskPtr(*const (dyn Fn(usize) + Sync));
 
-// SAFETY: the only non-atomic field, `task`, is written by the leader
-// (one leader at a time, `leading`; one run at a time, `running`) before
-// the release increment of `ticket` that publishes it and read by helpers
-// after their acquire load of `ticket`; the leader does not write it again
-// until every helper has signalled (`pending`, release/acquire) that it is
-// done with it.
+// SAFETY: the only non-atomic fields are `task` and `door`'s value;
+// `door` is reached only through `Turns::with`. `task` is written by the
+// leader (one leader at a time, `leading`; one run at a time, `running`)
+// before the release increment of `ticket` that publishes it and read by
+// helpers after their acquire load of `ticket`; the leader does not write
+// it again until every helper has signalled (`pending`, release/acquire)
+// that it is done with it.
 unsafe impl Sync for Join {}
 // SAFETY: as above; the raw task pointer is only dereferenced inside a
 // session, while the leader's borrow lives.
@@ -256,8 +277,16 @@ impl Default for Join {
 pub enum Helped {
     /// The session ended; the leader's outcome.
     Done(u32),
-    /// `me` is not a helper index of the session that opened.
+    /// `me` is not a helper index of the session it looked at, or its
+    /// thread count is not the session's.
     NotAWorker,
+    /// Another helper of the session took `me` first.
+    Taken,
+}
+
+/// Bits 1..workers: every helper index of a session of `workers`.
+fn helper_bits(workers: usize) -> u32 {
+    ((1u64 << workers) - 2) as u32
 }
 
 impl Join {
@@ -265,10 +294,16 @@ impl Join {
         Join {
             leading: AtomicBool::new(false),
             outcome: AtomicU32::new(0),
-            open: AtomicBool::new(false),
-            workers: AtomicUsize::new(1),
+            door: Turns::new(Door {
+                session: 0,
+                open: false,
+                workers: 1,
+                claimed: 0,
+                waiting: 0,
+                lookers: 0,
+            }),
+            opened: AtomicU64::new(0),
             ticket: AtomicU64::new(0),
-            arrived: AtomicUsize::new(0),
             departed: AtomicUsize::new(0),
             pending: AtomicUsize::new(0),
             failed: AtomicBool::new(false),
@@ -299,24 +334,38 @@ impl Join {
         }
         let workers = workers.clamp(1, MAX_WORKERS);
         // Read-modify-writes only (helgrind sees no race on them; see `hg`).
-        self.workers.swap(workers, Ordering::Relaxed);
-        self.arrived.swap(0, Ordering::Relaxed);
         self.departed.swap(0, Ordering::Relaxed);
         self.failed.swap(false, Ordering::Relaxed);
-        let session = (self.ticket.load(Ordering::Relaxed) >> 32) + 1;
+        let session = self.door.with(|d| {
+            d.session += 1;
+            d.open = true;
+            d.workers = workers;
+            d.claimed = 0;
+            d.lookers = d.waiting;
+            d.waiting = 0;
+            d.session
+        });
         self.ticket.swap(session << 32, Ordering::Relaxed);
         hg::released(self.tag());
-        self.open.swap(true, Ordering::Release);
+        // Waiting helpers go to the door once they see the number change;
+        // the ticket's session is published to them through the door.
+        self.opened.swap(session, Ordering::Release);
         // Close and wait for the helpers however `body` ends (a panic too).
         struct Close<'j>(&'j Join, usize);
         impl Drop for Close<'_> {
             fn drop(&mut self) {
-                let (j, helpers) = (self.0, self.1 - 1);
-                while j.arrived.load(Ordering::Acquire) < helpers {
+                let (j, workers) = (self.0, self.1);
+                let all = helper_bits(workers);
+                // Closed only when every helper is in and every waiting
+                // helper has looked (checked and closed in one turn).
+                while !j.door.with(|d| {
+                    let ready = d.claimed == all && d.lookers == 0;
+                    d.open &= !ready;
+                    ready
+                }) {
                     backoff();
                 }
-                j.open.swap(false, Ordering::Release);
-                while j.departed.load(Ordering::Acquire) < helpers {
+                while j.departed.load(Ordering::Acquire) < workers - 1 {
                     backoff();
                 }
                 hg::acquired(j.tag());
@@ -330,20 +379,49 @@ impl Join {
         })
     }
 
-    /// Help the open (or next) session as worker `me` (1..workers) until it
-    /// closes.
-    pub fn help(&self, me: usize) -> Helped {
-        // Wait for a session to open.
-        while !self.open.load(Ordering::Acquire) {
-            backoff();
+    /// Help the open (or next) session as worker `me` of `workers` until
+    /// it closes; refused at once if `me` is not one of its helper indices
+    /// (`me` 0 or past its thread count), `workers` is not its thread
+    /// count, or another helper took `me` first.
+    pub fn help(&self, me: usize, workers: usize) -> Helped {
+        let look = |d: &mut Door| {
+            if me == 0 || me >= d.workers || workers != d.workers {
+                Helped::NotAWorker
+            } else if d.claimed & (1 << me) != 0 {
+                Helped::Taken
+            } else {
+                d.claimed |= 1 << me;
+                Helped::Done(0)
+            }
+        };
+        let first = self.door.with(|d| {
+            if d.open {
+                Ok(look(d))
+            } else {
+                d.waiting += 1;
+                Err(d.session)
+            }
+        });
+        let verdict = match first {
+            Ok(v) => v,
+            Err(seen) => {
+                while self.opened.load(Ordering::Acquire) == seen {
+                    backoff();
+                }
+                // Still open: its leader waits for this look.
+                self.door.with(|d| {
+                    debug_assert!(d.open && d.session == seen + 1);
+                    d.lookers -= 1;
+                    look(d)
+                })
+            }
+        };
+        if verdict != Helped::Done(0) {
+            return verdict;
         }
         hg::acquired(self.tag());
-        // The leader cannot leave this session before this helper arrived.
+        // The leader cannot leave this session before this helper left.
         let session = self.ticket.load(Ordering::Acquire) >> 32;
-        if me == 0 || me >= self.workers.load(Ordering::Relaxed) {
-            return Helped::NotAWorker;
-        }
-        self.arrived.fetch_add(1, Ordering::AcqRel);
         let mut done = 0u64;
         loop {
             let t = self.ticket.load(Ordering::Acquire);
@@ -373,7 +451,7 @@ impl Join {
                 self.pending.fetch_sub(1, Ordering::Release);
                 continue;
             }
-            if !self.open.load(Ordering::Acquire) {
+            if !self.door.with(|d| d.open) {
                 let outcome = self.outcome.load(Ordering::Acquire);
                 hg::released(self.tag());
                 // The last touch of the join: the leader may return after it.
@@ -477,7 +555,7 @@ mod tests {
         let join = Join::new();
         for bad in [0usize, 1] {
             std::thread::scope(|s| {
-                s.spawn(|| assert_eq!(join.help(1), Helped::Done(7)));
+                s.spawn(|| assert_eq!(join.help(1, 2), Helped::Done(7)));
                 let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
                     join.lead(2, |par| {
                         join.set_outcome(7);
@@ -495,12 +573,74 @@ mod tests {
             });
         }
         std::thread::scope(|s| {
-            s.spawn(|| assert_eq!(join.help(1), Helped::Done(0)));
+            s.spawn(|| assert_eq!(join.help(1, 2), Helped::Done(0)));
             join.lead(2, |par| {
                 join.set_outcome(0);
                 par.run(&|_| {});
             });
         });
+    }
+
+    /// Until `n` helpers wait at the door for the next session.
+    fn until_waiting(join: &Join, n: u32) {
+        while join.door.with(|d| d.waiting) < n {
+            std::thread::yield_now();
+        }
+    }
+
+    /// Two helpers claiming one index, both waiting when the session
+    /// opens: one joins, the other is refused at once; the build, its
+    /// tasks and the next session are unharmed.
+    #[test]
+    fn a_taken_index_is_refused() {
+        let join = Join::new();
+        let sum = AtomicU64::new(0);
+        std::thread::scope(|s| {
+            let a = s.spawn(|| join.help(1, 2));
+            let b = s.spawn(|| join.help(1, 2));
+            until_waiting(&join, 2);
+            join.lead(2, |par| {
+                join.set_outcome(5);
+                for _ in 0..20 {
+                    par.run(&|w| {
+                        sum.fetch_add(w as u64 + 1, Ordering::Relaxed);
+                    });
+                }
+            });
+            let mut got = [a.join().unwrap(), b.join().unwrap()];
+            got.sort_by_key(|h| *h == Helped::Taken);
+            assert_eq!(got, [Helped::Done(5), Helped::Taken]);
+        });
+        assert_eq!(
+            sum.load(Ordering::Relaxed),
+            20 * 3,
+            "every task on both workers once"
+        );
+        std::thread::scope(|s| {
+            s.spawn(|| assert_eq!(join.help(1, 2), Helped::Done(0)));
+            join.lead(2, |par| {
+                join.set_outcome(0);
+                par.run(&|_| {});
+            });
+        });
+    }
+
+    /// A helper waiting beside a group it does not fit (index 2 of 3 by a
+    /// session of 2, or index 1 of 3) is refused by that session, never
+    /// kept for a later one; helpers that fit join it.
+    #[test]
+    fn a_waiting_helper_that_does_not_fit_is_refused() {
+        for (me, count) in [(2usize, 3usize), (1, 3), (5, 16)] {
+            let join = Join::new();
+            std::thread::scope(|s| {
+                let odd = s.spawn(|| join.help(me, count));
+                until_waiting(&join, 1);
+                let fits = s.spawn(|| join.help(1, 2));
+                join.lead(2, |par| par.run(&|_| {}));
+                assert_eq!(odd.join().unwrap(), Helped::NotAWorker, "({me}, {count})");
+                assert_eq!(fits.join().unwrap(), Helped::Done(0));
+            });
+        }
     }
 
     #[test]
@@ -509,7 +649,7 @@ mod tests {
         std::thread::scope(|s| {
             s.spawn(|| {
                 for _ in 0..100 {
-                    assert_eq!(join.help(1), Helped::Done(0));
+                    assert_eq!(join.help(1, 2), Helped::Done(0));
                 }
             });
             for k in 0..100 {
@@ -530,7 +670,7 @@ mod tests {
             std::thread::scope(|s| {
                 for me in 1..workers {
                     let j = &join;
-                    s.spawn(move || assert_eq!(j.help(me), Helped::Done(0)));
+                    s.spawn(move || assert_eq!(j.help(me, workers), Helped::Done(0)));
                 }
                 join.lead(workers, |par| {
                     assert_eq!(par.workers(), workers);

@@ -886,7 +886,7 @@ mod tests {
                     let join = Join::new();
                     std::thread::scope(|t| {
                         let j = &join;
-                        t.spawn(move || assert_eq!(j.help(1), Helped::Done(0)));
+                        t.spawn(move || assert_eq!(j.help(1, 2), Helped::Done(0)));
                         join.lead(2, |par| build_with(&mut kd, &scene, &p, par))
                     })
                     .unwrap();
@@ -1038,7 +1038,7 @@ mod tests {
                 let join = Join::new();
                 std::thread::scope(|t| {
                     let j = &join;
-                    t.spawn(move || j.help(1));
+                    t.spawn(move || j.help(1, 2));
                     join.lead(2, |par| ctx.build_kd_with(&scene, p, par))
                 })
                 .unwrap();
@@ -1174,7 +1174,7 @@ mod tests {
                     let ms2 = time(&mut || {
                         std::thread::scope(|t| {
                             let j = &join;
-                            t.spawn(move || j.help(1));
+                            t.spawn(move || j.help(1, 2));
                             join.lead(2, |par| build_with(&mut kd, &scene, &p, par))
                         })
                         .unwrap();
