@@ -284,7 +284,8 @@ static bool test_limits_that_overflow_are_refused(void) {
     l.max_kd_nodes = 0xFFFFFFFFu;
     l.max_kd_refs = 0xFFFFFFFFu;
     l.projection_test = 1;
-    l.structures = SHEAF_STRUCTURE_GRID | SHEAF_STRUCTURE_BVH | SHEAF_STRUCTURE_KD;
+    /* (A BVH of more than 2^31 triangles is refused outright.) */
+    l.structures = SHEAF_STRUCTURE_GRID | SHEAF_STRUCTURE_KD;
     need = 0;
     {
         sheaf_status st = sheaf_required_bytes(&l, &need);
@@ -296,6 +297,153 @@ static bool test_limits_that_overflow_are_refused(void) {
     return true;
 }
 
+/* The hits of rectangle `r` of a `w` x `h` image by `cam` with `p`, each
+   sheaf_context_trace_with's hit of sheaf_frame_camera_ray's ray, into a
+   buffer of exactly the rectangle's pixels (ASan and valgrind report a
+   write past it). */
+static bool camera_rect_is_exact(sheaf_context *ctx, const sheaf_trace_params *p, const sheaf_camera *cam,
+                                 uint32_t w, uint32_t h, sheaf_pixel_rect r) {
+    size_t row = r.x1 - r.x0, n = row * (r.y1 - r.y0);
+    sheaf_hit *got = (sheaf_hit *)malloc(n * sizeof *got), want;
+    sheaf_frame f;
+    sheaf_ray ray;
+    uint32_t x, y;
+    bool ok = got != NULL;
+    memset(&f, 0, sizeof f);
+    f.camera = *cam, f.width = w, f.height = h;
+    ok = ok && sheaf_context_trace_camera(ctx, p, cam, w, h, &r, got, row) == SHEAF_STATUS_OK;
+    for (y = r.y0; ok && y < r.y1; ++y)
+        for (x = r.x0; ok && x < r.x1; ++x) {
+            const sheaf_hit *g = &got[(y - r.y0) * row + (x - r.x0)];
+            ok = sheaf_frame_camera_ray(&f, x, y, &ray) == SHEAF_STATUS_OK &&
+                 sheaf_context_trace_with(ctx, p, &ray, &want, 1) == SHEAF_STATUS_OK && g->prim == want.prim &&
+                 memcmp(&g->t, &want.t, sizeof(float)) == 0;
+        }
+    free(got);
+    return ok;
+}
+
+static bool test_camera_rectangles_at_the_u32_edge(void) {
+    /* Rectangles inside UINT32_MAX x 2, 2 x UINT32_MAX and UINT32_MAX^2
+       images at their far edges, for packet methods of every side (whose
+       packets overhang the rectangle past 2^32) and single rays: accepted,
+       exactly the rectangle's pixels written, each the single ray's hit. */
+    scene *s = ground_and_box();
+    sheaf_context *ctx = context_for(s, SHEAF_STRUCTURE_BVH | SHEAF_STRUCTURE_GRID);
+    sheaf_camera cam;
+    sheaf_trace_params p;
+    const uint32_t M = UINT32_MAX;
+    uint32_t sides[5] = {2, 4, 8, 16, 32};
+    sheaf_method methods[3] = {SHEAF_METHOD_BVH_FRUSTUM, SHEAF_METHOD_BVH_RANGED, SHEAF_METHOD_GRID_CGT};
+    struct {
+        uint32_t w, h;
+        sheaf_pixel_rect r;
+    } cases[5] = {{M, 2, {M - 5, 0, M, 2}},
+                  {2, M, {0, M - 5, 2, M}},
+                  {M, M, {M - 7, M - 3, M, M}},
+                  {M, M, {M - 1, M - 1, M, M}},
+                  {M, 3, {M - 33, 0, M, 3}}};
+    int c, m, k;
+    CHECK(ctx != NULL);
+    CHECK_OK(scene_set(ctx, s));
+    CHECK_OK(sheaf_context_build_bvh(ctx, NULL));
+    CHECK_OK(sheaf_context_build_grid(ctx, NULL));
+    memset(&cam, 0, sizeof cam);
+    cam.eye[0] = 6.0f, cam.eye[1] = -8.0f, cam.eye[2] = 5.0f;
+    cam.look_at[2] = 0.5f;
+    cam.up[2] = 1.0f;
+    cam.fov_y_deg = 40.0f;
+    CHECK_OK(sheaf_trace_params_default(&p));
+    for (c = 0; c < 5; ++c)
+        for (m = 0; m < 3; ++m)
+            for (k = 0; k < 5; ++k) {
+                p.method = methods[m];
+                p.packet = sides[k];
+                CHECK(camera_rect_is_exact(ctx, &p, &cam, cases[c].w, cases[c].h, cases[c].r));
+            }
+    p.method = SHEAF_METHOD_BVH_SINGLE;
+    CHECK(camera_rect_is_exact(ctx, &p, &cam, M, 2, cases[0].r));
+    sheaf_context_destroy(ctx);
+    free(s);
+    return true;
+}
+
+static bool test_cameras_of_any_scale(void) {
+    /* A camera's vectors are normalised at any finite scale: up of 1e20
+       or 1e-30, an eye 3e19 away give the unit camera's rays (distinct per
+       pixel); only a degenerate basis is refused. */
+    sheaf_frame f, g;
+    sheaf_ray a, b;
+    uint32_t x, y, k;
+    memset(&f, 0, sizeof f);
+    f.camera.eye[1] = -4.0f;
+    f.camera.up[2] = 1.0f;
+    f.camera.fov_y_deg = 50.0f;
+    f.width = 64, f.height = 48;
+    for (k = 0; k < 3; ++k) {
+        g = f;
+        if (k == 0) g.camera.up[2] = 1e20f;
+        if (k == 1) g.camera.up[2] = 1e-30f;
+        if (k == 2) g.camera.eye[1] = -3e19f;
+        for (y = 0; y < 48; y += 47)
+            for (x = 0; x < 64; x += 63) {
+                float la, lb;
+                int i;
+                CHECK_OK(sheaf_frame_camera_ray(&f, x, y, &a));
+                CHECK_OK(sheaf_frame_camera_ray(&g, x, y, &b));
+                la = sqrtf(a.dir[0] * a.dir[0] + a.dir[1] * a.dir[1] + a.dir[2] * a.dir[2]);
+                lb = sqrtf(b.dir[0] * b.dir[0] + b.dir[1] * b.dir[1] + b.dir[2] * b.dir[2]);
+                for (i = 0; i < 3; ++i) CHECK(fabsf(a.dir[i] / la - b.dir[i] / lb) < 1e-5f);
+            }
+    }
+    g = f;
+    g.camera.up[2] = 0.0f;
+    CHECK_STATUS(sheaf_frame_camera_ray(&g, 0, 0, &b), SHEAF_STATUS_INVALID_ARGUMENT);
+    g.camera.up[1] = 1e25f; /* parallel to the view */
+    CHECK_STATUS(sheaf_frame_camera_ray(&g, 0, 0, &b), SHEAF_STATUS_INVALID_ARGUMENT);
+    return true;
+}
+
+static bool test_refused_bvh_builds_keep_both_trees(void) {
+    /* A BVH build refused after its parameters passed (the projection
+       test without its pool; capacity is refused earlier, at
+       set_geometry) keeps the previous trees: the frustum walk (the 4-wide tree) gives the
+       same hits and the same counters as before. */
+    scene *s = ground_and_box();
+    sheaf_context *ctx = context_for(s, SHEAF_STRUCTURE_BVH);
+    sheaf_trace_params p;
+    sheaf_bvh_params bp;
+    sheaf_stats before, after;
+    sheaf_hit h0[64], h1[64];
+    sheaf_ray rays[64];
+    int i;
+    CHECK(ctx != NULL);
+    for (i = 0; i < 64; ++i)
+        rays[i] = make_ray(-1.5f + 0.05f * (float)i, -0.7f + 0.02f * (float)i, 5.0f, 0.01f, 0.02f, -1.0f, 0.0f,
+                           INFINITY);
+    CHECK_OK(scene_set(ctx, s));
+    CHECK_OK(sheaf_bvh_params_default(&bp));
+    CHECK_OK(sheaf_trace_params_default(&p));
+    p.method = SHEAF_METHOD_BVH_FRUSTUM;
+    p.packet = 8;
+    for (i = 0; i < 2; ++i) {
+        bp.quality = i ? SHEAF_BUILD_QUALITY_LOW : SHEAF_BUILD_QUALITY_MEDIUM;
+        CHECK_OK(sheaf_context_build_bvh(ctx, &bp));
+        CHECK_OK(sheaf_context_trace_with(ctx, &p, rays, h0, 64));
+        CHECK_OK(sheaf_context_stats(ctx, &before));
+        bp.test = SHEAF_TRI_TEST_PROJECTION; /* no projection pool */
+        CHECK_STATUS(sheaf_context_build_bvh(ctx, &bp), SHEAF_STATUS_INVALID_ARGUMENT);
+        bp.test = SHEAF_TRI_TEST_MOLLER_TRUMBORE;
+        CHECK_OK(sheaf_context_trace_with(ctx, &p, rays, h1, 64));
+        CHECK_OK(sheaf_context_stats(ctx, &after));
+        CHECK(memcmp(h0, h1, sizeof h0) == 0);
+        CHECK(memcmp(&before.counters, &after.counters, sizeof before.counters) == 0);
+    }
+    sheaf_context_destroy(ctx);
+    free(s);
+    return true;
+}
+
 int main(void) {
     int passed = 0, failed = 0;
     run_test("test_clear_geometry_ends_the_borrow", test_clear_geometry_ends_the_borrow, &passed, &failed);
@@ -303,5 +451,8 @@ int main(void) {
     run_test("test_boolean_bytes_are_checked", test_boolean_bytes_are_checked, &passed, &failed);
     run_test("test_overlapping_outputs_are_refused", test_overlapping_outputs_are_refused, &passed, &failed);
     run_test("test_limits_that_overflow_are_refused", test_limits_that_overflow_are_refused, &passed, &failed);
+    run_test("test_camera_rectangles_at_the_u32_edge", test_camera_rectangles_at_the_u32_edge, &passed, &failed);
+    run_test("test_cameras_of_any_scale", test_cameras_of_any_scale, &passed, &failed);
+    run_test("test_refused_bvh_builds_keep_both_trees", test_refused_bvh_builds_keep_both_trees, &passed, &failed);
     return report(passed, failed);
 }

@@ -564,6 +564,67 @@ pub(super) struct Gathered {
     pub info: BvhInfo,
 }
 
+/// The capacity error of a build of `needed` triangles in a pool of
+/// `available`.
+fn capacity(needed: usize, available: usize) -> Error {
+    Error::Capacity {
+        pool: Pool::Triangles,
+        needed: needed as u64,
+        available: available as u64,
+    }
+}
+
+/// Whether the pools hold a tree of `n` traceable triangles built with
+/// `p` (the checks of both builds once their triangles are counted).
+pub(super) fn room_for(pools: &BvhPools<'_>, p: &BvhParams, n: usize) -> Result<()> {
+    // The LOW build writes its references at the triangles' own indices
+    // (checked against the input count); the SAH builds one per traceable
+    // triangle.
+    let refs = if p.quality == BuildQuality::Low {
+        usize::MAX
+    } else {
+        pools.refs.len()
+    };
+    for avail in [refs, pools.tris.len(), pools.tri_ids.len()] {
+        if n > avail {
+            return Err(capacity(n, avail));
+        }
+    }
+    if (2 * n).saturating_sub(1) > pools.nodes.len() {
+        return Err(capacity(n, pools.nodes.len() / 2));
+    }
+    if p.test == TriTest::Projection && pools.proj.len() < n {
+        return Err(Error::InvalidArgument(
+            "the projection test needs Limits::projection_test",
+        ));
+    }
+    Ok(())
+}
+
+/// Every refusal of a build of `scene`, before it writes anything: the
+/// input count against the pools indexed by triangle, then `room_for` the
+/// input count, which suffices unless the pools are smaller than the
+/// input; only then are the traceable triangles counted (a pass the
+/// build makes again).
+fn check_room(pools: &BvhPools<'_>, scene: &Scene<'_>, p: &BvhParams) -> Result<()> {
+    let n_in = scene.triangle_count() as usize;
+    let room = if p.quality == BuildQuality::Low {
+        pools.slot_of.len().min(pools.refs.len())
+    } else {
+        pools.slot_of.len()
+    };
+    if n_in > room {
+        return Err(capacity(n_in, room));
+    }
+    if room_for(pools, p, n_in).is_ok() {
+        return Ok(());
+    }
+    let n = (0..n_in as u32)
+        .filter(|&t| Scene::classify(&scene.triangle(t)).is_none())
+        .count();
+    room_for(pools, p, n)
+}
+
 /// Pass 1 of every build: read and classify the triangles, write one
 /// `PrimRef` per traceable one (the build scratch only), and check every
 /// pool's capacity. On error nothing a traversal reads has changed.
@@ -605,24 +666,7 @@ pub(super) fn gather(
             Some(Excluded::ZeroArea) => bad_za += 1,
         }
     }
-    let need_nodes = (2 * n).saturating_sub(1);
-    for avail in [refs_cap, pools.tris.len(), pools.tri_ids.len()] {
-        if n > avail {
-            return Err(cap(n as u64, avail));
-        }
-    }
-    if need_nodes > pools.nodes.len() {
-        return Err(Error::Capacity {
-            pool: Pool::Triangles,
-            needed: n as u64,
-            available: (pools.nodes.len() / 2) as u64,
-        });
-    }
-    if p.test == TriTest::Projection && pools.proj.len() < n {
-        return Err(Error::InvalidArgument(
-            "the projection test needs Limits::projection_test",
-        ));
-    }
+    room_for(pools, p, n)?;
     let info = BvhInfo {
         bounds: if n > 0 {
             bounds.aabb()
@@ -732,9 +776,10 @@ pub fn build_with(
     par: &dyn crate::mem::par::Par,
 ) -> Result<BvhInfo> {
     p.validate()?;
-    // Both builds write the reference pool, where the wide tree lives,
-    // before their last checks: a build that fails leaves the previous
-    // binary tree valid and no wide tree (its walks take the binary one).
+    // Both builds write the reference pool, where the wide tree lives:
+    // every refusal is decided before the wide tree is dropped, so a
+    // refused build leaves both trees as they were.
+    check_room(bvh.pools_mut(), scene, p)?;
     bvh.drop_wide();
     let pools = bvh.pools_mut();
     if p.quality == BuildQuality::Low {
@@ -1095,77 +1140,104 @@ mod tests {
         assert_eq!((info.triangles, info.nodes, info.leaves), (1, 1, 1));
     }
 
+    /// A refused build, whichever check refuses it, leaves both trees as
+    /// they were: the binary tree, and the wide tree in the reference
+    /// pool (every refusal comes before the pool is written).
     #[test]
     fn errors_leave_previous_build() {
         let s = crate::scenes::builtin("tetra").unwrap();
         let scene = Scene::from_f32(&s.mesh.vertices, &s.mesh.indices).unwrap();
         let n = scene.triangle_count() as usize;
-        let mut st = Store::new(n, false);
-        let mut bvh = st.bvh();
-        let p = BvhParams::default();
-        let first = build(&mut bvh, &scene, &p).unwrap();
-        let nodes: Vec<BvhNode> = bvh.view().unwrap().nodes.to_vec();
-        let ids: Vec<u32> = bvh.view().unwrap().tri_ids.to_vec();
-        // Too many triangles.
-        let big = crate::scenes::builtin("balls").unwrap();
-        let big_scene = Scene::from_f32(&big.mesh.vertices, &big.mesh.indices).unwrap();
-        assert!(matches!(
-            build(&mut bvh, &big_scene, &p),
-            Err(Error::Capacity {
-                pool: Pool::Triangles,
-                ..
-            })
-        ));
-        // Bad parameters, projection without its pool.
-        for bad in [
-            BvhParams { leaf_size: 0, ..p },
-            BvhParams { leaf_size: 65, ..p },
-            BvhParams { bins: 1, ..p },
-            BvhParams { bins: 65, ..p },
-            BvhParams {
-                traversal_cost: f32::NAN,
-                ..p
-            },
-            BvhParams {
-                traversal_cost: 0.0,
-                ..p
-            },
-            BvhParams {
-                test: TriTest::Projection,
-                ..p
-            },
-        ] {
+        for quality in [BuildQuality::Low, BuildQuality::Medium] {
+            let mut st = Store::new(n, false);
+            let mut bvh = st.bvh();
+            let p = BvhParams {
+                quality,
+                ..BvhParams::default()
+            };
+            let first = build(&mut bvh, &scene, &p).unwrap();
+            let nodes: Vec<BvhNode> = bvh.view().unwrap().nodes.to_vec();
+            let ids: Vec<u32> = bvh.view().unwrap().tri_ids.to_vec();
+            let wide: Vec<PrimRef> = bvh.pools_mut().refs.to_vec();
+            // Too many triangles.
+            let big = crate::scenes::builtin("balls").unwrap();
+            let big_scene = Scene::from_f32(&big.mesh.vertices, &big.mesh.indices).unwrap();
+            assert!(matches!(
+                build(&mut bvh, &big_scene, &p),
+                Err(Error::Capacity {
+                    pool: Pool::Triangles,
+                    ..
+                })
+            ));
+            // Bad parameters, projection without its pool.
+            for bad in [
+                BvhParams { leaf_size: 0, ..p },
+                BvhParams { leaf_size: 65, ..p },
+                BvhParams { bins: 1, ..p },
+                BvhParams { bins: 65, ..p },
+                BvhParams {
+                    traversal_cost: f32::NAN,
+                    ..p
+                },
+                BvhParams {
+                    traversal_cost: 0.0,
+                    ..p
+                },
+                BvhParams {
+                    test: TriTest::Projection,
+                    ..p
+                },
+            ] {
+                assert!(
+                    matches!(
+                        build(&mut bvh, &scene, &bad),
+                        Err(Error::InvalidArgument(_))
+                    ),
+                    "{bad:?}"
+                );
+            }
+            let v = bvh.view().unwrap();
+            assert!(first.wide_nodes > 0);
+            assert_eq!(*v.info, first, "{quality:?}");
+            assert_eq!(v.nodes, &nodes[..]);
+            assert_eq!(v.tri_ids, &ids[..]);
+            check_invariants(&v, &scene, &p);
             assert!(
-                matches!(
-                    build(&mut bvh, &scene, &bad),
-                    Err(Error::InvalidArgument(_))
-                ),
-                "{bad:?}"
+                bvh.pools_mut().refs == &wide[..],
+                "{quality:?}: the wide tree's pool"
             );
+            // Node pool too small (the other pools large enough).
+            let mut st2 = Store::new(n, false);
+            st2.nodes.truncate(n);
+            let mut bvh2 = st2.bvh();
+            assert!(matches!(
+                build(&mut bvh2, &scene, &p),
+                Err(Error::Capacity { .. })
+            ));
+            assert!(bvh2.view().is_none());
         }
-        // The binary tree is kept; the wide one is dropped by a build that
-        // got past validation (its pool was overwritten).
-        let v = bvh.view().unwrap();
-        assert!(first.wide_nodes > 0 && v.info.wide_nodes == 0);
-        assert_eq!(
-            BvhInfo {
-                wide_nodes: first.wide_nodes,
-                ..*v.info
-            },
-            first
-        );
-        assert_eq!(v.nodes, &nodes[..]);
-        assert_eq!(v.tri_ids, &ids[..]);
-        check_invariants(&v, &scene, &p);
-        // Node pool too small (the other pools large enough).
-        let mut st2 = Store::new(n, false);
-        st2.nodes.truncate(n);
-        let mut bvh2 = st2.bvh();
-        assert!(matches!(
-            build(&mut bvh2, &scene, &p),
-            Err(Error::Capacity { .. })
-        ));
-        assert!(bvh2.view().is_none());
+    }
+
+    /// Pools smaller than the input but large enough for its traceable
+    /// triangles: the build is accepted (the check counts them).
+    #[test]
+    fn excluded_triangles_do_not_count_against_the_pools() {
+        let t = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
+        let flat = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0]];
+        let (v, ix) = soup(&[t, flat, flat, t]);
+        let scene = Scene::from_f32(&v, &ix).unwrap();
+        for quality in [BuildQuality::Low, BuildQuality::Medium] {
+            let mut st = Store::new(4, false);
+            st.tris.truncate(2);
+            st.nodes.truncate(3);
+            let mut bvh = st.bvh();
+            let p = BvhParams {
+                quality,
+                ..BvhParams::default()
+            };
+            let info = build(&mut bvh, &scene, &p).unwrap();
+            assert_eq!((info.triangles, info.excluded_zero_area), (2, 2));
+        }
     }
 
     #[test]
@@ -1271,7 +1343,7 @@ mod perf {
                 std::thread::scope(|sc| {
                     sc.spawn(|| {
                         while !stop.load(core::sync::atomic::Ordering::Relaxed) {
-                            let _ = join.help(1);
+                            let _ = join.help(1, 2);
                         }
                     });
                     // Every session (the 21 builds and the last, empty one

@@ -174,7 +174,8 @@ impl Quantizer {
 }
 
 /// Build `pools` from `scene` on `par`'s workers (`p.quality` is `Low`,
-/// `p` validated). On error nothing a traversal reads has changed.
+/// `p` validated, the pools' room checked by `build::check_room`). On
+/// error nothing a traversal reads has changed.
 pub(super) fn build(
     pools: &mut BvhPools<'_>,
     scene: &Scene<'_>,
@@ -236,20 +237,14 @@ pub(super) fn build(
         all.cent.grow(&f.cent);
     }
     let n = all.valid as usize;
-    for avail in [tris.len(), tri_ids.len()] {
-        if n > avail {
-            return Err(cap(n, avail));
-        }
-    }
-    if (2 * n).saturating_sub(1) > nodes.len() {
-        return Err(cap(n, nodes.len() / 2));
-    }
     let proj_on = p.test == TriTest::Projection;
-    if proj_on && proj.len() < n {
-        return Err(Error::InvalidArgument(
-            "the projection test needs Limits::projection_test",
-        ));
-    }
+    // `build::check_room` refused, before anything was written, every
+    // build whose traceable triangles the pools cannot hold.
+    debug_assert!(
+        n <= tris.len().min(tri_ids.len())
+            && (2 * n).saturating_sub(1) <= nodes.len()
+            && (!proj_on || n <= proj.len())
+    );
 
     // From here on nothing fails.
     let mut info = BvhInfo {
@@ -629,7 +624,7 @@ mod tests {
                 let got = std::thread::scope(|sc| {
                     for me in 1..workers {
                         let j = &join;
-                        sc.spawn(move || assert_eq!(j.help(me), Helped::Done(0)));
+                        sc.spawn(move || assert_eq!(j.help(me, workers), Helped::Done(0)));
                     }
                     join.lead(workers, |par| build(bvh.pools_mut(), &scene, &p, par))
                 })
