@@ -358,6 +358,33 @@ impl Limits {
                 "grid pools must stay below 2^32 entries",
             ));
         }
+        // A BVH of n triangles has 2n - 1 nodes numbered in a u32 (the
+        // binary builds step node numbers by 2), as has the two-level
+        // scene's top level over its instances.
+        let bvh_triangles = if self.has(Self::BVH) {
+            self.max_triangles
+        } else {
+            0
+        };
+        if bvh_triangles
+            .max(self.scene_triangles())
+            .max(self.scene_instances())
+            > 1 << 31
+        {
+            return Err(Error::InvalidArgument(
+                "a BVH holds at most 2^31 triangles, a two-level scene 2^31 instances",
+            ));
+        }
+        // A flattened scene is a mesh of 3 indices per world triangle,
+        // counted in a u32.
+        if self.max_geometries != 0
+            && self.structures & !Self::BVH != 0
+            && self.max_triangles > u32::MAX / 3
+        {
+            return Err(Error::InvalidArgument(
+                "a flattened two-level scene holds at most 2^32 / 3 world triangles",
+            ));
+        }
         Ok(())
     }
 }
@@ -378,6 +405,43 @@ mod tests {
         assert!(l.validate().is_err());
         assert_eq!(l.kd_events(), 14 * u32::MAX as u64 + 1024);
         assert!(l.pgrid_cells() < u64::MAX && l.pgrid_cells() > 1 << 50);
+    }
+
+    /// Counts that node numbers or flattened indices in a u32 could not
+    /// hold are refused; their edges are accepted.
+    #[test]
+    fn counts_past_u32_numbering_are_refused() {
+        let ok = |f: &dyn Fn(&mut Limits)| {
+            let mut l = Limits::for_triangles(1 << 10);
+            // The grid's own bounds apply whatever the structures.
+            (l.max_grid_cells, l.max_grid_refs) = (16, 16);
+            f(&mut l);
+            l.validate().is_ok()
+        };
+        assert!(ok(&|l| {
+            l.structures = Limits::BVH;
+            l.max_triangles = 1 << 31;
+        }));
+        assert!(!ok(&|l| {
+            l.structures = Limits::BVH;
+            l.max_triangles = (1 << 31) + 1;
+        }));
+        assert!(!ok(&|l| {
+            l.max_geometries = 1;
+            l.max_instances = (1 << 31) + 1;
+        }));
+        assert!(!ok(&|l| {
+            l.structures = Limits::KD;
+            l.max_geometries = 1;
+            l.max_scene_triangles = 16;
+            l.max_triangles = u32::MAX / 3 + 1;
+        }));
+        assert!(ok(&|l| {
+            l.structures = Limits::KD;
+            l.max_geometries = 1;
+            l.max_scene_triangles = 16;
+            l.max_triangles = u32::MAX / 3;
+        }));
     }
 
     #[test]

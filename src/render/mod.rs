@@ -422,10 +422,9 @@ fn tiles<T: Tracer + ?Sized, const Q: usize>(
         x1: frame.width,
         y1,
     };
-    let mut ty = y0;
-    while ty < y1 {
-        let mut tx = 0;
-        while tx < frame.width {
+    // Stepped ranges: a tile origin past u32::MAX is never formed.
+    for ty in (y0..y1).step_by(n as usize) {
+        for tx in (0..frame.width).step_by(n as usize) {
             // Primary packet: the kernel's camera packet (`PrimaryRays::packet`).
             rays.packet(tx, ty, n, &rect, quads, active);
             hits.fill(Hit4::MISS);
@@ -478,9 +477,7 @@ fn tiles<T: Tracer + ?Sized, const Q: usize>(
                     pixels[at..at + 4].copy_from_slice(&shade(frame, hit, lit));
                 }
             }
-            tx += n;
         }
-        ty += n;
     }
 }
 

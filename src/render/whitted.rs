@@ -651,10 +651,9 @@ fn tiles<T: Tracer + ?Sized, const Q: usize>(
         x1: width,
         y1,
     };
-    let mut ty = y0;
-    while ty < y1 {
-        let mut tx = 0;
-        while tx < width {
+    // Stepped ranges: a tile origin past u32::MAX is never formed.
+    for ty in (y0..y1).step_by(n as usize) {
+        for tx in (0..width).step_by(n as usize) {
             rays.packet(tx, ty, n, &rect, pk.rays, pk.active);
             acc.fill([Vec3::ZERO; 4]);
             level::<T, Q>(&f, &pk, Depth::default(), acc, &mut slot, ctr);
@@ -668,9 +667,7 @@ fn tiles<T: Tracer + ?Sized, const Q: usize>(
                     }
                 }
             }
-            tx += n;
         }
-        ty += n;
     }
 }
 

@@ -184,7 +184,8 @@ pub(crate) fn run<W: Workers>(
                         pp.chunk,
                         par,
                     );
-                    info.reorder.rays += r.rays;
+                    // Saturating: up to 8 lights of 2^30 pixels each.
+                    info.reorder.rays = info.reorder.rays.saturating_add(r.rays);
                     info.reorder.tiles_used += r.tiles_used;
                     info.reorder.chunks += r.chunks;
                     info.reorder.max_tile_rays = info.reorder.max_tile_rays.max(r.max_tile_rays);

@@ -907,7 +907,8 @@ pub fn light_grid_pass<'m, W: Workers>(
     };
     let rays: u64 = chunks.iter().map(|c| c.count as u64).sum();
     let total: u64 = chunks.iter().map(|c| c.count as u64 * cost(c)).sum();
-    let budget = (total * r as u64 / rays.max(1)).max(1);
+    // In u128: `total` may pass 2^52 before it is scaled by the chunk.
+    let budget = (u128::from(total) * u128::from(r) / u128::from(rays.max(1))).max(1) as u64;
     let mut rest = &mut occ[..];
     let (mut k, mut o) = (0usize, 0u32);
     let mut items = core::iter::from_fn(move || {
@@ -1141,7 +1142,10 @@ pub fn shade<'m, W: Workers>(
     let sh = &frame.shading;
     let h = frame.height as usize;
     let len = pixels.len().min(h * stride);
-    let mut items = pixels[..len].chunks_mut(BAND * stride).enumerate();
+    // Saturating: a one-row frame accepts any stride.
+    let mut items = pixels[..len]
+        .chunks_mut(BAND.saturating_mul(stride))
+        .enumerate();
     let work = |(b, rows): (usize, &mut [u8]), _: &mut Slot<'_>, _: &mut Counters| {
         for ry in 0..BAND {
             let y = (b * BAND + ry) as u32;
