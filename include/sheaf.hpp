@@ -4,10 +4,16 @@
 //   destructor destroys it), sheaf::BasicSceneGeometry and
 //   sheaf::BasicInstance own one two-level scene geometry or instance id
 //   (the destructor removes it). An owner of an id must be destroyed or
-//   released before its context.
+//   released before its context, but the id owners of one context may be
+//   destroyed in any order: instances keep their geometry as shared_ptrs
+//   would. A geometry whose owner goes while instances still place it
+//   stays set until the last of them is removed through its owner or
+//   replaced by set_instance (removed through the C API: until the next
+//   commit_scene), and is removed then.
 // - Policy picks how a status other than SHEAF_STATUS_OK is reported:
 //   sheaf::Throw (the default: `sheaf::Context`) throws sheaf::Error with
-//   the status and the context's last error message; sheaf::Return
+//   the status and a message saying what failed once (the context's last
+//   error message, else the status's text); sheaf::Return
 //   (`sheaf::ContextNoThrow`) returns the sheaf_status and never throws.
 // - Rays and hits are taken as (pointer, count), as std::vector, and as
 //   std::span where the standard library has it (C++20).
@@ -21,8 +27,10 @@
 
 #include "sheaf.h"
 
+#include <algorithm>
 #include <cstddef>
 #include <cstdint>
+#include <memory>
 #include <stdexcept>
 #include <string>
 #include <utility>
@@ -51,18 +59,69 @@ private:
 };
 
 namespace detail {
-/// The status's text, and the context's last error message when it has one.
+/// What failed, said once. The context's last error message is a whole
+/// sentence that already names the kind of failure ("invalid argument:
+/// kd bins must be in 2..=64", "no geometry set"), so it is the message
+/// alone: prefixing the status's text would say it twice. The status's
+/// text is the message when the last error is not this failure's: no
+/// context (`ctx` NULL, also for checks made in this header), or a
+/// refusal sheaf does not record (busy, poisoned, reentrant).
 inline std::string message(sheaf_status s, const sheaf_context *ctx) {
-    std::string m = sheaf_status_string(s);
-    if (ctx != nullptr) {
-        char buf[512];
+    const bool recorded =
+        s != SHEAF_STATUS_CONTEXT_BUSY && s != SHEAF_STATUS_POISONED && s != SHEAF_STATUS_REENTRANT;
+    if (ctx != nullptr && recorded) {
+        char buf[SHEAF_ERROR_MESSAGE_MAX];
         size_t written = 0;
-        if (sheaf_context_last_error(ctx, buf, sizeof buf, &written) == SHEAF_STATUS_OK && written > 0) {
-            m += ": ";
-            m += buf;
-        }
+        if (sheaf_context_last_error(ctx, buf, sizeof buf, &written) == SHEAF_STATUS_OK && written > 0)
+            return std::string(buf, written);
     }
-    return m;
+    return sheaf_status_string(s);
+}
+
+/// What the id owners of one context share: the scene geometries whose
+/// owner went while instances still placed them ("orphans"). sheaf
+/// refuses to remove such a geometry (SHEAF_STATUS_INVALID_ARGUMENT,
+/// nothing changes) and a destructor can neither throw nor return that,
+/// so instead of leaving it set for good it is kept here and removed when
+/// an instance that placed it goes and nothing places it any more. Used
+/// only by calls that need exclusive access to the context, like them.
+/// An orphan's id still belongs to this header: set it again through
+/// set_scene_geometry (which adopts it), not through the C API alone.
+struct Scene {
+    std::vector<uint32_t> orphans;
+
+    /// An instance placing `geometry` went: remove it if it is an orphan
+    /// nothing places now. (One C call at most, however many orphans.)
+    void unplaced(sheaf_context *ctx, uint32_t geometry) noexcept {
+        const auto it = std::find(orphans.begin(), orphans.end(), geometry);
+        if (it != orphans.end() && sheaf_context_remove_scene_geometry(ctx, geometry) == SHEAF_STATUS_OK)
+            orphans.erase(it);
+    }
+    /// Remove every orphan nothing places any more (also those whose last
+    /// instance was removed through the C API).
+    void sweep(sheaf_context *ctx) noexcept {
+        size_t kept = 0;
+        for (uint32_t id : orphans)
+            if (sheaf_context_remove_scene_geometry(ctx, id) != SHEAF_STATUS_OK) orphans[kept++] = id;
+        orphans.erase(orphans.begin() + static_cast<std::ptrdiff_t>(kept), orphans.end());
+    }
+    /// Geometry `id` was set again: it has an owner, it is no orphan.
+    void adopt(uint32_t id) noexcept { orphans.erase(std::remove(orphans.begin(), orphans.end(), id), orphans.end()); }
+};
+
+// How each owner removes its id (`geometry`: what an instance places).
+inline void remove_geometry(Scene &scene, sheaf_context *ctx, uint32_t id, uint32_t) noexcept {
+    if (sheaf_context_remove_scene_geometry(ctx, id) == SHEAF_STATUS_OK) return;
+    try {
+        scene.orphans.push_back(id); // refused: instances still place it
+    } catch (...) {
+        // Out of memory: the geometry stays set until the context goes.
+    }
+}
+inline void remove_instance(Scene &scene, sheaf_context *ctx, uint32_t id, uint32_t geometry) noexcept {
+    // Refused only when the id is no longer set, or on misuse (a busy or
+    // poisoned context): nothing to keep then.
+    if (sheaf_context_remove_instance(ctx, id) == SHEAF_STATUS_OK) scene.unplaced(ctx, geometry);
 }
 } // namespace detail
 
@@ -83,17 +142,21 @@ struct Return {
 template <class Policy> class BasicContext;
 
 /// Owner of a two-level scene object id (`Remove` removes it).
-template <class Policy, sheaf_status (*Remove)(sheaf_context *, uint32_t)> class BasicOwnedId {
+template <class Policy, void (*Remove)(detail::Scene &, sheaf_context *, uint32_t, uint32_t) noexcept>
+class BasicOwnedId {
 public:
     BasicOwnedId() noexcept = default;
     BasicOwnedId(const BasicOwnedId &) = delete;
     BasicOwnedId &operator=(const BasicOwnedId &) = delete;
-    BasicOwnedId(BasicOwnedId &&o) noexcept : ctx_(std::exchange(o.ctx_, nullptr)), id_(o.id_) {}
+    BasicOwnedId(BasicOwnedId &&o) noexcept
+        : ctx_(std::exchange(o.ctx_, nullptr)), id_(o.id_), geometry_(o.geometry_), scene_(std::move(o.scene_)) {}
     BasicOwnedId &operator=(BasicOwnedId &&o) noexcept {
         if (this != &o) {
             reset();
             ctx_ = std::exchange(o.ctx_, nullptr);
             id_ = o.id_;
+            geometry_ = o.geometry_;
+            scene_ = std::move(o.scene_);
         }
         return *this;
     }
@@ -101,26 +164,34 @@ public:
     /// Whether it owns an id.
     explicit operator bool() const noexcept { return ctx_ != nullptr; }
     uint32_t id() const noexcept { return id_; }
-    /// Remove the id now (its status is ignored, as in the destructor).
+    /// Remove the id now, as the destructor does: never throws; a geometry
+    /// still placed by instances is removed with the last of them.
     void reset() noexcept {
-        if (ctx_ != nullptr) (void)Remove(std::exchange(ctx_, nullptr), id_);
+        if (ctx_ != nullptr) Remove(*scene_, std::exchange(ctx_, nullptr), id_, geometry_);
+        scene_.reset();
     }
     /// Stop owning the id without removing it.
     uint32_t release() noexcept {
         ctx_ = nullptr;
+        scene_.reset();
         return id_;
     }
 
 private:
     friend class BasicContext<Policy>;
-    BasicOwnedId(sheaf_context *ctx, uint32_t id) noexcept : ctx_(ctx), id_(id) {}
+    BasicOwnedId(sheaf_context *ctx, uint32_t id, uint32_t geometry, std::shared_ptr<detail::Scene> scene) noexcept
+        : ctx_(ctx), id_(id), geometry_(geometry), scene_(std::move(scene)) {}
     sheaf_context *ctx_ = nullptr;
     uint32_t id_ = 0;
+    // An instance's geometry, whose removal its own removal may complete.
+    uint32_t geometry_ = SHEAF_INVALID_ID;
+    // Shared with the context's owner and its other id owners; it outlives
+    // a BasicContext that released its context.
+    std::shared_ptr<detail::Scene> scene_;
 };
 
-template <class Policy>
-using BasicSceneGeometry = BasicOwnedId<Policy, sheaf_context_remove_scene_geometry>;
-template <class Policy> using BasicInstance = BasicOwnedId<Policy, sheaf_context_remove_instance>;
+template <class Policy> using BasicSceneGeometry = BasicOwnedId<Policy, detail::remove_geometry>;
+template <class Policy> using BasicInstance = BasicOwnedId<Policy, detail::remove_instance>;
 
 /// Owner of a sheaf_context.
 template <class Policy = Throw> class BasicContext {
@@ -132,11 +203,12 @@ public:
     BasicContext() noexcept = default;
     BasicContext(const BasicContext &) = delete;
     BasicContext &operator=(const BasicContext &) = delete;
-    BasicContext(BasicContext &&o) noexcept : ctx_(std::exchange(o.ctx_, nullptr)) {}
+    BasicContext(BasicContext &&o) noexcept : ctx_(std::exchange(o.ctx_, nullptr)), scene_(std::move(o.scene_)) {}
     BasicContext &operator=(BasicContext &&o) noexcept {
         if (this != &o) {
             reset();
             ctx_ = std::exchange(o.ctx_, nullptr);
+            scene_ = std::move(o.scene_);
         }
         return *this;
     }
@@ -156,9 +228,13 @@ public:
     }
     void reset() noexcept {
         if (ctx_ != nullptr) sheaf_context_destroy(std::exchange(ctx_, nullptr));
+        scene_.reset();
     }
     sheaf_context *get() const noexcept { return ctx_; }
-    sheaf_context *release() noexcept { return std::exchange(ctx_, nullptr); }
+    sheaf_context *release() noexcept {
+        scene_.reset();
+        return std::exchange(ctx_, nullptr);
+    }
     explicit operator bool() const noexcept { return ctx_ != nullptr; }
 
     // Single mesh.
@@ -204,32 +280,51 @@ public:
 #ifdef SHEAF_HPP_SPAN
     /// `rays` and `hits` must have the same length; otherwise the call
     /// reports SHEAF_STATUS_INVALID_ARGUMENT and traces nothing.
+    /// (Checked here, so no context message: the last one is another call's.)
     Result trace(sheaf_method m, std::span<const sheaf_ray> rays, std::span<sheaf_hit> hits) const {
-        if (rays.size() != hits.size()) return check(SHEAF_STATUS_INVALID_ARGUMENT);
+        if (rays.size() != hits.size()) return Policy::check(SHEAF_STATUS_INVALID_ARGUMENT, nullptr);
         return trace(m, rays.data(), rays.size(), hits.data());
     }
     Result occluded(sheaf_method m, std::span<const sheaf_ray> rays, std::span<uint8_t> occluded) const {
-        if (rays.size() != occluded.size()) return check(SHEAF_STATUS_INVALID_ARGUMENT);
+        if (rays.size() != occluded.size()) return Policy::check(SHEAF_STATUS_INVALID_ARGUMENT, nullptr);
         return this->occluded(m, rays.data(), rays.size(), occluded.data());
     }
 #endif
 
-    // Two-level scenes: the owners remove their ids when destroyed. On
-    // success `owner` takes the id (removing another id it held); on
-    // failure it is left as it was.
+    // Two-level scenes: the owners remove their ids when destroyed, in any
+    // order (a geometry still placed by instances goes with the last of
+    // them: see detail::Scene). On success `owner` takes the id (removing
+    // another id it held); on failure it is left as it was.
     Result set_scene_geometry(uint32_t id, const sheaf_mesh &mesh, const sheaf_geometry_params *p,
                               SceneGeometry &owner) {
+        std::shared_ptr<detail::Scene> scene = shared_scene(); // may throw std::bad_alloc: nothing set yet
         sheaf_status s = sheaf_context_set_scene_geometry(ctx_, id, &mesh, p);
-        if (s == SHEAF_STATUS_OK && !(owner && owner.id() == id && owner.ctx_ == ctx_)) owner = SceneGeometry(ctx_, id);
+        if (s == SHEAF_STATUS_OK) {
+            scene->adopt(id); // an orphan set again is owned again: keep it
+            if (!owns(owner, id)) owner = SceneGeometry(ctx_, id, SHEAF_INVALID_ID, scene);
+        }
         return check(s);
     }
     /// `transform`: 12 floats, row-major 3x4.
     Result set_instance(uint32_t id, uint32_t geometry, const float *transform, uint32_t mask, Instance &owner) {
+        std::shared_ptr<detail::Scene> scene = shared_scene();
         sheaf_status s = sheaf_context_set_instance(ctx_, id, geometry, transform, mask);
-        if (s == SHEAF_STATUS_OK && !(owner && owner.id() == id && owner.ctx_ == ctx_)) owner = Instance(ctx_, id);
+        if (s == SHEAF_STATUS_OK) {
+            if (owns(owner, id)) {
+                // Replaced in place: it may have been the last to place an orphan.
+                scene->unplaced(ctx_, std::exchange(owner.geometry_, geometry));
+            } else {
+                owner = Instance(ctx_, id, geometry, scene);
+            }
+        }
         return check(s);
     }
-    Result commit_scene(sheaf_scene_info *out = nullptr) { return check(sheaf_context_commit_scene(ctx_, out)); }
+    /// Also removes the orphans whose last instance was removed or
+    /// replaced other than through its owner (through the C API).
+    Result commit_scene(sheaf_scene_info *out = nullptr) {
+        if (scene_) scene_->sweep(ctx_);
+        return check(sheaf_context_commit_scene(ctx_, out));
+    }
     Result trace_scene(const sheaf_trace_params *p, const sheaf_ray *rays, size_t count, sheaf_scene_hit *hits,
                        uint32_t mask = ~0u, uint32_t flags = 0) const {
         return check(sheaf_context_trace_scene(ctx_, p, rays, hits, count, mask, flags));
@@ -262,7 +357,16 @@ private:
     template <class F> static void *pointer(F &filter) noexcept {
         return const_cast<void *>(static_cast<const void *>(&filter));
     }
+    template <class Owner> bool owns(const Owner &owner, uint32_t id) const noexcept {
+        return owner && owner.id() == id && owner.ctx_ == ctx_;
+    }
+    /// The state this context's id owners share, made with the first.
+    const std::shared_ptr<detail::Scene> &shared_scene() {
+        if (!scene_) scene_ = std::make_shared<detail::Scene>();
+        return scene_;
+    }
     sheaf_context *ctx_ = nullptr;
+    std::shared_ptr<detail::Scene> scene_;
 };
 
 using Context = BasicContext<Throw>;
