@@ -630,7 +630,10 @@ typedef struct sheaf_trace_params {
 } sheaf_trace_params;
 
 /**
- * Pinhole camera (C: `sheaf_camera`).
+ * Pinhole camera (C: `sheaf_camera`). Any finite camera is valid whose
+ * `look_at` differs from `eye` and whose `up` is neither zero nor
+ * parallel to the view (within 1e-6 radians): the vectors are normalised
+ * (at any finite scale) before use.
  */
 typedef struct sheaf_camera {
     float eye[3];
@@ -1231,6 +1234,11 @@ typedef struct sheaf_candidate {
  * An any-hit filter: called with the caller's `user` pointer and a
  * candidate hit before a trace accepts it; returns true to accept it,
  * false to reject it (the ray goes on as if the triangle were not there).
+ * The return type is C's `bool`, whose only values are 0 and 1 (C and C++
+ * convert any other value on return): a function of another type cast to
+ * this one that returns another byte is undefined behaviour, in sheaf as
+ * in C, and is not checked (unlike the `uint8_t` flags of the parameter
+ * structs, which are refused unless 0 or 1).
  * Nearest-hit traces keep the nearest accepted candidate; occlusion
  * stops at the first accepted one.
  *
@@ -1626,7 +1634,8 @@ sheaf_status sheaf_refit_params_default(struct sheaf_refit_params *out);
  *
  * Errors: `SHEAF_STATUS_NULL_POINTER`, `SHEAF_STATUS_INVALID_ARGUMENT`
  * (bad params; a camera with a NaN or infinite field, `eye == look_at`,
- * `up` parallel to the view or a field of view outside (0, 180); a
+ * `up` zero or within 1e-6 radians of the view or a field of view outside (0, 180):
+ * vectors of any finite length are normalised first; a
  * rectangle empty or outside the image; `hits_per_row` below the
  * rectangle's width or a buffer past the address space),
  * `SHEAF_STATUS_NOT_BUILT`, `SHEAF_STATUS_CAPACITY_THREADS`. `hits` is
@@ -1865,15 +1874,21 @@ sheaf_status sheaf_context_build_bvh(struct sheaf_context *ctx,
  * `thread_count` 1 is `sheaf_context_build_bvh`. At most 16 threads.
  *
  * The leader returns only after every helper has left the build, so the
- * context may be destroyed once thread 0 returned. Misuse that cannot be
- * detected: a thread of `0..thread_count` that never calls leaves the
- * others waiting forever; destroying the context while helpers wait for a
- * leader that has not called yet; two groups of threads joining builds on
- * one context at once (a second leader waits for the first, but their
- * helpers may take each other's work: a caught panic, status
- * `SHEAF_STATUS_PANIC`). A helper whose index is beyond the leader's
- * `thread_count` gets `SHEAF_STATUS_INVALID_ARGUMENT`. A panic in any
- * thread's part poisons the context (`SHEAF_STATUS_PANIC` on the leader).
+ * context may be destroyed once thread 0 returned. A helper joins the
+ * build open when it calls, or the next one to open: it gets
+ * `SHEAF_STATUS_INVALID_ARGUMENT` at once, and the build goes on without
+ * it, when its `thread_count` is not the leader's or another helper
+ * already took its `thread_index` (a helper waiting when a build opens
+ * is always looked at by that build, never kept for a later one).
+ * Misuse that cannot be detected: a thread of `0..thread_count` that
+ * never calls leaves the others waiting forever (so does a duplicate
+ * index that arrives after the build it duplicates ended: it waits for
+ * the next one); destroying the context while helpers wait for a leader
+ * that has not called yet; two groups of threads joining builds on one
+ * context at once (a second leader waits for the first; a helper of one
+ * group may serve or be refused by the other group's build, whose
+ * leader then waits for it). A panic in any thread's part poisons the
+ * context (`SHEAF_STATUS_PANIC` on the leader).
  *
  * Errors: as `sheaf_context_build_bvh`; `SHEAF_STATUS_INVALID_ARGUMENT`
  * for `thread_count` 0 or above 16 or `thread_index >= thread_count`

@@ -11,6 +11,11 @@ use core::ffi::c_void;
 /// An any-hit filter: called with the caller's `user` pointer and a
 /// candidate hit before a trace accepts it; returns true to accept it,
 /// false to reject it (the ray goes on as if the triangle were not there).
+/// The return type is C's `bool`, whose only values are 0 and 1 (C and C++
+/// convert any other value on return): a function of another type cast to
+/// this one that returns another byte is undefined behaviour, in sheaf as
+/// in C, and is not checked (unlike the `uint8_t` flags of the parameter
+/// structs, which are refused unless 0 or 1).
 /// Nearest-hit traces keep the nearest accepted candidate; occlusion
 /// stops at the first accepted one.
 ///
