@@ -444,6 +444,43 @@ static bool test_refused_bvh_builds_keep_both_trees(void) {
     return true;
 }
 
+static bool test_row_bands_at_the_u32_edge(void) {
+    /* The last rows of a 2 x UINT32_MAX frame as a band, with packets of
+       every side (tile origins stepped past 2^32 wrapped to row 0): OK,
+       only the band's bytes written (a buffer of exactly its rows), the
+       same pixels as the single-ray render of those rows. */
+    scene *s = ground_and_box();
+    sheaf_limits l;
+    sheaf_context *ctx = NULL;
+    sheaf_frame f = default_frame(2, UINT32_MAX);
+    sheaf_trace_params p, single;
+    uint32_t sides[5] = {2, 4, 8, 16, 32}, k;
+    uint8_t want[3 * 8], *got = (uint8_t *)malloc(3 * 8);
+    CHECK(got != NULL);
+    CHECK_OK(sheaf_limits_default(s->nt, &l));
+    l.structures = SHEAF_STRUCTURE_BVH;
+    l.max_image_width = 2;
+    l.max_image_height = UINT32_MAX;
+    CHECK_OK(sheaf_context_create(&l, &ctx));
+    CHECK_OK(scene_set(ctx, s));
+    CHECK_OK(sheaf_context_build_bvh(ctx, NULL));
+    CHECK_OK(sheaf_trace_params_default(&single));
+    single.method = SHEAF_METHOD_BVH_SINGLE;
+    CHECK_OK(sheaf_context_render_rows(ctx, 0, &single, &single, &f, UINT32_MAX - 3, UINT32_MAX, want, 8, 24));
+    p = single;
+    p.method = SHEAF_METHOD_BVH_RANGED;
+    for (k = 0; k < 5; ++k) {
+        p.packet = sides[k];
+        memset(got, 0, 24);
+        CHECK_OK(sheaf_context_render_rows(ctx, 0, &p, &p, &f, UINT32_MAX - 3, UINT32_MAX, got, 8, 24));
+        CHECK(memcmp(got, want, 24) == 0);
+    }
+    free(got);
+    sheaf_context_destroy(ctx);
+    free(s);
+    return true;
+}
+
 int main(void) {
     int passed = 0, failed = 0;
     run_test("test_clear_geometry_ends_the_borrow", test_clear_geometry_ends_the_borrow, &passed, &failed);
@@ -454,5 +491,6 @@ int main(void) {
     run_test("test_camera_rectangles_at_the_u32_edge", test_camera_rectangles_at_the_u32_edge, &passed, &failed);
     run_test("test_cameras_of_any_scale", test_cameras_of_any_scale, &passed, &failed);
     run_test("test_refused_bvh_builds_keep_both_trees", test_refused_bvh_builds_keep_both_trees, &passed, &failed);
+    run_test("test_row_bands_at_the_u32_edge", test_row_bands_at_the_u32_edge, &passed, &failed);
     return report(passed, failed);
 }
