@@ -407,19 +407,27 @@ static bool test_cameras_of_any_scale(void) {
 static bool test_refused_bvh_builds_keep_both_trees(void) {
     /* A BVH build refused after its parameters passed (the projection
        test without its pool; capacity is refused earlier, at
-       set_geometry) keeps the previous trees: the frustum walk (the 4-wide tree) gives the
-       same hits and the same counters as before. */
-    scene *s = ground_and_box();
-    sheaf_context *ctx = context_for(s, SHEAF_STRUCTURE_BVH);
+       set_geometry) keeps the previous trees: the frustum walk gives the
+       same hits and the stats the same tree. */
+    scene *s = scene_new();
+    sheaf_context *ctx;
     sheaf_trace_params p;
     sheaf_bvh_params bp;
     sheaf_stats before, after;
     sheaf_hit h0[64], h1[64];
     sheaf_ray rays[64];
-    int i;
+    int i, j;
+    /* A field of boxes: a tree deep enough that the 4-wide walk and the
+       binary one count different node tests. */
+    scene_ground(s, 10.0f);
+    for (i = -4; i <= 4; ++i)
+        for (j = -4; j <= 4; ++j)
+            scene_box(s, 2.0f * (float)i - 0.5f, 2.0f * (float)j - 0.5f, 0.0f, 2.0f * (float)i + 0.5f,
+                      2.0f * (float)j + 0.5f, 0.5f + 0.1f * (float)((i * 3 + j + 40) % 7));
+    ctx = context_for(s, SHEAF_STRUCTURE_BVH);
     CHECK(ctx != NULL);
     for (i = 0; i < 64; ++i)
-        rays[i] = make_ray(-1.5f + 0.05f * (float)i, -0.7f + 0.02f * (float)i, 5.0f, 0.01f, 0.02f, -1.0f, 0.0f,
+        rays[i] = make_ray(-7.5f + 0.23f * (float)i, -7.0f + 0.21f * (float)i, 5.0f, 0.01f, 0.02f, -1.0f, 0.0f,
                            INFINITY);
     CHECK_OK(scene_set(ctx, s));
     CHECK_OK(sheaf_bvh_params_default(&bp));
@@ -437,7 +445,11 @@ static bool test_refused_bvh_builds_keep_both_trees(void) {
         CHECK_OK(sheaf_context_trace_with(ctx, &p, rays, h1, 64));
         CHECK_OK(sheaf_context_stats(ctx, &after));
         CHECK(memcmp(h0, h1, sizeof h0) == 0);
-        CHECK(memcmp(&before.counters, &after.counters, sizeof before.counters) == 0);
+        /* The last build's figures stand (the wide tree itself is checked
+           by the Rust test errors_leave_previous_build: C sees no counter
+           of it). */
+        CHECK(before.bvh_nodes == after.bvh_nodes && before.bvh_leaves == after.bvh_leaves &&
+              before.bvh_triangles == after.bvh_triangles && before.bvh_nodes > 0);
     }
     sheaf_context_destroy(ctx);
     free(s);
