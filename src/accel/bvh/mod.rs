@@ -359,6 +359,10 @@ pub struct Bvh<'a> {
     /// (`refit::refit_with`), so the next refit need not sum it again;
     /// `None` after a build.
     refit_sah: Option<f64>,
+    /// The wide tree's pool also holds, per wide child, the binary node
+    /// its box is copied from (`wide::collapse`): a refit copies the
+    /// binary boxes instead of fitting the wide tree again.
+    wide_map: bool,
 }
 
 /// Read-only view of a built BVH; `Sync`, shared by all tracing threads.
@@ -403,6 +407,7 @@ pub struct BvhState {
     info: Option<BvhInfo>,
     params: BvhParams,
     refit_sah: Option<f64>,
+    wide_map: bool,
 }
 
 impl BvhState {
@@ -424,6 +429,7 @@ impl<'a> Bvh<'a> {
             info: state.info,
             params: state.params,
             refit_sah: state.refit_sah,
+            wide_map: state.wide_map,
         }
     }
     /// What to keep to rebuild this `Bvh` over the same pools later.
@@ -432,6 +438,7 @@ impl<'a> Bvh<'a> {
             info: self.info,
             params: self.params,
             refit_sah: self.refit_sah,
+            wide_map: self.wide_map,
         }
     }
     /// The last successful build's parameters (the defaults before one).
@@ -457,10 +464,10 @@ impl<'a> Bvh<'a> {
     /// 4-wide tree (`wide.rs`) in the reference pool, free now.
     pub(crate) fn commit(&mut self, mut info: BvhInfo) -> BvhInfo {
         let nodes = &self.pools.nodes[..info.nodes as usize];
-        info.wide_nodes = if self.params.width == wide::WIDTH as u32 {
+        (info.wide_nodes, self.wide_map) = if self.params.width == wide::WIDTH as u32 {
             wide::collapse_fitting(nodes, wide_pool(self.pools.refs))
         } else {
-            0
+            (0, false)
         };
         self.info = Some(info);
         self.refit_sah = None;
@@ -482,7 +489,10 @@ impl<'a> Bvh<'a> {
         par: &dyn crate::mem::par::Par,
     ) {
         let n = info.wide_nodes as usize;
-        if n > 0 {
+        if n > 0 && self.wide_map {
+            let nodes = &self.pools.nodes[..info.nodes as usize];
+            wide::refit_from_map(wide_pool(self.pools.refs), n, nodes, par);
+        } else if n > 0 {
             let tris = &self.pools.tris[..info.triangles as usize];
             wide::refit(&mut wide_pool(self.pools.refs)[..n], tris, pad, par);
         }

@@ -33,7 +33,8 @@
 use super::{Bvh, BvhNode};
 use crate::error::{Error, Result};
 use crate::geom::{INVALID_ID, ProjTri, Scene, TriTest, TriVerts};
-use crate::mem::par::{MAX_WORKERS, Par, Parts, Serial, share};
+use crate::mem::par::{MAX_WORKERS, Par, Parts, Serial, atomic_u32, share};
+use core::sync::atomic::{AtomicU32, Ordering};
 use glam::Vec3A;
 
 /// When a refit becomes a rebuild (C: `sheaf_refit_params`).
@@ -89,6 +90,36 @@ impl RefitInfo {
     }
 }
 
+// The word counts pass 2 stores per slot.
+const _: () =
+    assert!(core::mem::size_of::<TriVerts>() == 36 && core::mem::size_of::<ProjTri>() == 48);
+
+/// Write the words of `bytes` (a whole number of them) into `to`.
+#[inline(always)]
+fn store(to: &[AtomicU32], bytes: &[u8]) {
+    for (w, x) in to.iter().zip(bytes.chunks_exact(4)) {
+        w.store(
+            u32::from_ne_bytes([x[0], x[1], x[2], x[3]]),
+            Ordering::Relaxed,
+        );
+    }
+}
+
+/// Every leaf box of `nodes` padded by `pad` (`leaf_box`'s padding of the
+/// same bounds), split among `par`'s workers.
+fn pad_leaves(nodes: &mut [BvhNode], pad: Vec3A, par: &dyn Par) {
+    let workers = par.workers();
+    let ns = Parts::even(nodes, workers);
+    par.run(&|w| {
+        for nd in ns.get(w).iter_mut().filter(|nd| nd.is_leaf()) {
+            (nd.min, nd.max) = (
+                (Vec3A::from(nd.min) - pad).into(),
+                (Vec3A::from(nd.max) + pad).into(),
+            );
+        }
+    });
+}
+
 /// Half area of a node's stored (padded) box.
 pub(super) fn half_area(n: &BvhNode) -> f64 {
     let d = Vec3A::from(n.max) - Vec3A::from(n.min);
@@ -128,29 +159,6 @@ pub(super) fn leaf_box(tris: &[TriVerts], pad: Vec3A) -> (Vec3A, Vec3A) {
         }
     }
     (a - pad, b + pad)
-}
-
-/// Every box of the first `upto` nodes of `part` recomputed bottom-up
-/// (children follow their parent, so one reverse pass meets them first).
-/// `part` holds the nodes `base..base + part.len()` of a tree, and the
-/// children of those nodes lie in `part` (the fast build fits each
-/// worker's region and then its top this way).
-pub(super) fn fit(part: &mut [BvhNode], base: usize, upto: usize, tris: &[TriVerts], pad: Vec3A) {
-    for i in (0..upto).rev() {
-        let nd = part[i];
-        let first = nd.first as usize;
-        let (bmin, bmax) = if nd.is_leaf() {
-            leaf_box(&tris[first..first + nd.count() as usize], pad)
-        } else {
-            let (l, r) = (&part[first - base], &part[first - base + 1]);
-            (
-                Vec3A::from(l.min).min(Vec3A::from(r.min)),
-                Vec3A::from(l.max).max(Vec3A::from(r.max)),
-            )
-        };
-        part[i].min = bmin.into();
-        part[i].max = bmax.into();
-    }
 }
 
 /// Refit the built tree of `bvh` to `scene`'s current vertex positions,
@@ -275,35 +283,42 @@ pub fn refit_with(bvh: &mut Bvh<'_>, scene: &Scene<'_>, par: &dyn Par) -> Result
     }
     crate::fault_point!(BvhBuild);
 
-    // 2. The stored triangles, in slot order (scattering them in the
-    // caller's order measured slower), and their bounds.
+    // 2. Leaf by leaf on every worker: its stored triangles (each slot is
+    // one leaf's, so each is written once, through word atomics: the
+    // leaves of a node share are scattered over the slots) and its box,
+    // unpadded (the pad needs every triangle's bounds), in one pass.
     let before =
         cached_sah.unwrap_or_else(|| inner_pass(&mut pools.nodes[..nn], traversal_cost, false));
     let proj_on = info.test == TriTest::Projection;
     let mut bounds = [(Vec3A::INFINITY, Vec3A::NEG_INFINITY); MAX_WORKERS];
     {
         let ids = &pools.tri_ids[..n];
-        let ts = Parts::even(&mut pools.tris[..n], workers);
-        let ps = Parts::even(
-            if proj_on {
-                &mut pools.proj[..n]
-            } else {
-                &mut []
-            },
-            workers,
-        );
+        let tris = atomic_u32(bytemuck::cast_slice_mut(&mut pools.tris[..n]));
+        let proj = atomic_u32(bytemuck::cast_slice_mut(if proj_on {
+            &mut pools.proj[..n]
+        } else {
+            &mut []
+        }));
+        let ns = Parts::even(&mut pools.nodes[..nn], workers);
         let bs = Parts::even(&mut bounds[..workers], workers);
         par.run(&|w| {
-            let (t, p, at) = (ts.get(w), ps.get(w), ts.start(w));
             let (mut lo, mut hi) = (Vec3A::INFINITY, Vec3A::NEG_INFINITY);
-            for (slot, &id) in t.iter_mut().zip(&ids[at..]) {
-                *slot = scene.triangle(id);
-                for v in [slot.v0, slot.v1, slot.v2] {
-                    (lo, hi) = (lo.min(v.into()), hi.max(v.into()));
+            for nd in ns.get(w).iter_mut().filter(|nd| nd.is_leaf()) {
+                let first = nd.first as usize;
+                let (mut a, mut b) = (Vec3A::INFINITY, Vec3A::NEG_INFINITY);
+                for s in first..first + nd.count() as usize {
+                    let t = scene.triangle(ids[s]);
+                    store(&tris[9 * s..9 * s + 9], bytemuck::bytes_of(&t));
+                    if proj_on {
+                        let p = ProjTri::new(&t);
+                        store(&proj[12 * s..12 * s + 12], bytemuck::bytes_of(&p));
+                    }
+                    for v in [t.v0, t.v1, t.v2] {
+                        (a, b) = (a.min(v.into()), b.max(v.into()));
+                    }
                 }
-            }
-            for (slot, t) in p.iter_mut().zip(t.iter()) {
-                *slot = ProjTri::new(t);
+                (nd.min, nd.max) = (a.into(), b.into());
+                (lo, hi) = (lo.min(a), hi.max(b));
             }
             bs.get(w)[0] = (lo, hi);
         });
@@ -312,19 +327,9 @@ pub fn refit_with(bvh: &mut Bvh<'_>, scene: &Scene<'_>, par: &dyn Par) -> Result
         .iter()
         .fold(bounds[0], |(a, b), &(l, h)| (a.min(l), b.max(h)));
 
-    // 3. The leaf boxes on every worker, then the inner boxes bottom-up.
+    // 3. The leaf boxes padded, then the inner boxes bottom-up.
     let pad = super::box_pad(lo, hi);
-    {
-        let tris = &pools.tris[..n];
-        let ns = Parts::even(&mut pools.nodes[..nn], workers);
-        par.run(&|w| {
-            for nd in ns.get(w).iter_mut().filter(|nd| nd.is_leaf()) {
-                let first = nd.first as usize;
-                let (a, b) = leaf_box(&tris[first..first + nd.count() as usize], pad);
-                (nd.min, nd.max) = (a.into(), b.into());
-            }
-        });
-    }
+    pad_leaves(&mut pools.nodes[..nn], pad, par);
     let after = inner_pass(&mut pools.nodes[..nn], traversal_cost, true);
     if before > 0.0 {
         info.sah_cost = (info.sah_cost as f64 * after / before) as f32;

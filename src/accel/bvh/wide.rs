@@ -164,19 +164,41 @@ pub(crate) fn capacity(bytes: usize) -> usize {
 
 /// Collapse the binary tree `nodes` into `out` keeping its leaves, or,
 /// when `out` cannot hold that tree, merging subtrees of at most `MERGE`
-/// triangles into leaves (`collapse`). The wide nodes written, 0 when
-/// neither fits.
-pub(crate) fn collapse_fitting(nodes: &[BvhNode], out: &mut [WideNode]) -> u32 {
+/// triangles into leaves (`collapse`). The wide nodes written (0 when
+/// neither fits) and whether the pool also holds their map (`Map`).
+pub(crate) fn collapse_fitting(nodes: &[BvhNode], out: &mut [WideNode]) -> (u32, bool) {
     match collapse(nodes, out, 1) {
-        0 => collapse(nodes, out, MERGE),
+        (0, _) => collapse(nodes, out, MERGE),
         n => n,
+    }
+}
+
+/// Where each wide child's box comes from: the binary node it copies,
+/// 16 bytes per wide node, stored from the end of the wide tree's pool
+/// backwards (wide node `w` at entry `len - 1 - w` of the pool seen as
+/// `[u32; 4]`s, eight to a node), where it fits beside the nodes. A refit
+/// then copies the refit binary boxes (`refit_from_map`) instead of
+/// reading the triangles and uniting boxes bottom-up again.
+struct Map;
+
+impl Map {
+    /// Entries of a pool of `nodes` wide nodes.
+    const PER_NODE: usize = core::mem::size_of::<WideNode>() / 16;
+    /// Whether `used` wide nodes and their map fit a pool of `cap`.
+    fn fits(used: usize, cap: usize) -> bool {
+        used * (Self::PER_NODE + 1) <= cap * Self::PER_NODE
+    }
+    /// Entry of wide node `w` in a pool of `cap` wide nodes.
+    fn at(cap: usize, w: usize) -> usize {
+        cap * Self::PER_NODE - 1 - w
     }
 }
 
 /// Collapse the binary tree `nodes` into `out`, root at 0, each node's
 /// wide children after it, subtrees of at most `merge` triangles as one
 /// leaf. Returns the wide nodes written, or 0 when `out` cannot hold them
-/// (or `nodes` is empty): then there is no wide tree.
+/// (or `nodes` is empty): then there is no wide tree; and whether their
+/// `Map` fits beside them (then it is written).
 ///
 /// A child whose two children are both leaves (a twig) is opened before
 /// any other: left as a child it would become a wide node of two leaves.
@@ -185,15 +207,20 @@ pub(crate) fn collapse_fitting(nodes: &[BvhNode], out: &mut [WideNode]) -> u32 {
 /// alone), which is what lets them fit the pool with their binary leaves;
 /// the triangle and box tests per ray did not change (crytek sponza and
 /// conference, camera and shadow rays, within 0.3 %).
-pub(crate) fn collapse(nodes: &[BvhNode], out: &mut [WideNode], merge: u32) -> u32 {
+pub(crate) fn collapse(nodes: &[BvhNode], out: &mut [WideNode], merge: u32) -> (u32, bool) {
     if nodes.is_empty() || out.is_empty() {
-        return 0;
+        return (0, false);
     }
+    let cap = out.len();
+    let mut mapped = Map::fits(1, cap);
     let root = &nodes[0];
     if root.is_leaf() {
         out[0] = WideNode::NONE;
         out[0].set(0, root, root.first, root.count());
-        return 1;
+        if mapped {
+            bytemuck::cast_slice_mut::<_, [u32; WIDTH]>(out)[Map::at(cap, 0)] = [0; WIDTH];
+        }
+        return (1, mapped);
     }
     // Binary inner nodes still to become wide node `st_wide`; a wide node
     // is pushed only at a deeper binary level than its parent, so the
@@ -242,18 +269,54 @@ pub(crate) fn collapse(nodes: &[BvhNode], out: &mut [WideNode], merge: u32) -> u
                 wn.set(c, n, first, count);
             } else {
                 if used == out.len() || sp == st_bin.len() {
-                    return 0;
+                    return (0, false);
                 }
                 wn.set(c, n, used as u32, 0);
                 st_bin[sp] = kid as u32;
                 st_wide[sp] = used as u32;
                 sp += 1;
                 used += 1;
+                mapped &= Map::fits(used, cap);
             }
         }
         out[w] = wn;
+        if mapped {
+            let mut m = [0u32; WIDTH];
+            for (m, &kid) in m.iter_mut().zip(&kids[..k]) {
+                *m = kid as u32;
+            }
+            bytemuck::cast_slice_mut::<_, [u32; WIDTH]>(out)[Map::at(cap, w)] = m;
+        }
     }
-    used as u32
+    (used as u32, mapped)
+}
+
+/// Refit the first `n` wide nodes of the pool `pool` (collapsed from the
+/// binary tree `nodes` with their `Map`, same shapes since) by copying
+/// each child's box from its binary node, whose refit boxes are final:
+/// bitwise the boxes a collapse of the refit tree would copy. Every node
+/// on its own, split among `par`'s workers.
+pub(crate) fn refit_from_map(pool: &mut [WideNode], n: usize, nodes: &[BvhNode], par: &dyn Par) {
+    let cap = pool.len();
+    let (wide, rest) = pool.split_at_mut(n);
+    let map: &[[u32; WIDTH]] = bytemuck::cast_slice(rest);
+    // Entry of wide node w within `rest`, which starts after n nodes.
+    let entry = |w: usize| Map::at(cap, w) - n * Map::PER_NODE;
+    let workers = par.workers();
+    debug_assert!((1..=MAX_WORKERS).contains(&workers));
+    let parts = Parts::even(wide, workers);
+    par.run(&|w| {
+        let at = parts.start(w);
+        for (i, node) in parts.get(w).iter_mut().enumerate() {
+            let m = &map[entry(at + i)];
+            for c in 0..WIDTH {
+                if node.child[c] != WideNode::EMPTY {
+                    let b = &nodes[m[c] as usize];
+                    node.set_box(c, (Vec3A::from(b.min), Vec3A::from(b.max)));
+                }
+            }
+        }
+    });
 }
 
 /// Refit the wide tree `wide` (collapsed from a tree since refit, same
@@ -424,6 +487,12 @@ mod tests {
         assert_eq!(v.info.wide_nodes, before.wide_nodes);
         assert_ne!(v.wide, &boxes0[..], "the boxes moved");
         check(v.nodes, v.wide);
+        // The map's copies are the boxes fitted from the triangles.
+        let mut fitted = v.wide.to_vec();
+        let b = v.info.bounds;
+        let pad = crate::accel::bvh::box_pad(Vec3A::from(b.min), Vec3A::from(b.max));
+        refit(&mut fitted, v.tris, pad, &crate::mem::par::Serial);
+        assert_eq!(v.wide, &fitted[..]);
     }
 
     #[test]
@@ -440,10 +509,14 @@ mod tests {
         let info = build(&mut bvh, &scene, &p).unwrap();
         let nodes = bvh.view().unwrap().nodes.to_vec();
         let mut out = vec![WideNode::NONE; nodes.len()];
-        let n = collapse(&nodes, &mut out, MERGE) as usize;
+        let n = collapse(&nodes, &mut out, MERGE).0 as usize;
         assert!(n > 0 && info.depth as usize == MAX_DEPTH);
         check(&nodes, &out[..n]);
-        assert_eq!(collapse(&nodes, &mut out[..n - 1], MERGE), 0);
-        assert_eq!(collapse(&[], &mut out, 1), 0);
+        assert_eq!(collapse(&nodes, &mut out[..n - 1], MERGE), (0, false));
+        assert_eq!(collapse(&[], &mut out, 1), (0, false));
+        // A pool of exactly the nodes holds no map: the tree stands alone.
+        let mut exact = out[..n].to_vec();
+        assert_eq!(collapse(&nodes, &mut exact, MERGE), (n as u32, false));
+        check(&nodes, &exact);
     }
 }
