@@ -1228,6 +1228,7 @@ typedef struct {
     int frames;              /* --frames: the two-level scene's frames (default 24) */
     const char *ppm;         /* --ppm FILE: the two-level scene's frame 0 as sheaf sees it */
     int filter;              /* --filter: the two-level scene's ANIM cut out by any-hit filters */
+    int updates;             /* --updates: the LOW build and the refit against Embree's, interleaved */
 } Options;
 
 /* ---- per-scene run --------------------------------------------------------------------- */
@@ -2436,6 +2437,53 @@ static void profile_one(Bench *b)
     release_job(&j, &es, dev);
 }
 
+/* --updates: sheaf's LOW build (joined by T threads) and Embree's LOW
+ * rebuild, then sheaf's refit of its SAH tree (width 4; after an untimed
+ * refit, so the cached SAH is in steady state, as a frame loop has it) and
+ * Embree's LOW + geometry REFIT commit, in interleaved rounds (sheaf,
+ * Embree, sheaf, Embree, ...) on the same vertices: each median and the
+ * median of the per-round ratios (above 1: sheaf slower). */
+static void profile_updates(Bench *b, const char *scene)
+{
+    const Options *o = b->o;
+    int reps = o->reps < 3 ? 3 : o->reps;
+    printf("\n### Updates: %s, %zu triangles, %d interleaved rounds, load %.2f\n\n", scene, (size_t)b->s.nt, reps,
+           load_average());
+    printf("| threads | sheaf LOW build ms | Embree LOW rebuild ms | build ratio | sheaf refit ms | Embree refit ms | "
+           "refit ratio |\n|--:|--:|--:|--:|--:|--:|--:|\n");
+    for (int ti = 0; ti < o->nthreads; ti++) {
+        int T = o->threads[ti];
+        char cfg[64];
+        embree_cfg(cfg, sizeof cfg, T);
+        RTCDevice dev = rtcNewDevice(cfg);
+        if (!dev) die("rtcNewDevice(\"%s\") failed", cfg);
+        EScene low, ref;
+        (void)embree_build(dev, &b->s, 0, &low);
+        (void)embree_build(dev, &b->s, Q_REFIT, &ref);
+        double sb[MAX_REPS], eb[MAX_REPS], sr[MAX_REPS], er[MAX_REPS], rb[MAX_REPS], rr[MAX_REPS];
+        for (int r = 0; r < reps; r++) {
+            double t0 = now_s();
+            check_sheaf(b->ctx, sheaf_build_low_joined(b->ctx, T), "LOW build");
+            sb[r] = now_s() - t0;
+            eb[r] = embree_rebuild(&low);
+            check_sheaf(b->ctx, sheaf_build_width(b->ctx, S_BVH, 4), "build");
+            check_sheaf(b->ctx, sheaf_refit_joined(b->ctx, T), "refit");
+            t0 = now_s();
+            check_sheaf(b->ctx, sheaf_refit_joined(b->ctx, T), "refit");
+            sr[r] = now_s() - t0;
+            er[r] = embree_rebuild(&ref);
+            rb[r] = sb[r] / eb[r];
+            rr[r] = sr[r] / er[r];
+        }
+        printf("| %d | %.2f | %.2f | %.2f | %.2f | %.2f | %.2f |\n", T, 1e3 * median(sb, reps), 1e3 * median(eb, reps),
+               median(rb, reps), 1e3 * median(sr, reps), 1e3 * median(er, reps), median(rr, reps));
+        fflush(stdout);
+        embree_release(&low);
+        embree_release(&ref);
+        rtcReleaseDevice(dev);
+    }
+}
+
 /* --ab "A,B,...": the named configurations timed in interleaved rounds (A B
  * .. A B ..), camera and shadow rays, on each thread count: each one's
  * median Mrays/s and the median over rounds of its per-round speed over the
@@ -2498,6 +2546,13 @@ static void run_scene(const char *path, const Options *o)
         die("out of memory");
     b->o = o;
     setup_scene(b, path);
+    if (o->updates) {
+        char name[64];
+        short_name(path, name, sizeof name);
+        profile_updates(b, name);
+        free(b);
+        return;
+    }
     time_sheaf_builds(b);
     make_reference(b);
     if (o->profile) {
@@ -3285,6 +3340,9 @@ static void usage(void)
             "                  call; shadow rows as NAME); soa:NAME traces sheaf's\n"
             "                  rays as a ray stream (sheaf_context_trace_stream / _occluded_stream); low:NAME\n"
             "                  traces sheaf's LOW tree (every sheaf configuration, or none)\n"
+            "  --updates    the per-frame updates alone: sheaf's BVH LOW build against Embree's LOW\n"
+            "               rebuild and sheaf's refit (SAH tree, width 4) against Embree's LOW + REFIT,\n"
+            "               in interleaved rounds per thread count: medians and the median per-round ratio\n"
             "  --explain    print every disagreement no tie, edge or end explains\n"
             "  --twolevel ENV ANIM OBJ  the two-level scene instead: ENV static (one instance),\n"
             "               ANIM (`sheaf export builtin:animated --frames F`) refit every frame (4\n"
@@ -3351,6 +3409,8 @@ int main(int argc, char **argv)
             o.ab = argv[++i];
         } else if (!strcmp(a, "--profile-shadow")) {
             o.profile_shadow = 1;
+        } else if (!strcmp(a, "--updates")) {
+            o.updates = 1;
         } else if (!strcmp(a, "--twolevel") && i + 3 < argc) {
             for (int k = 0; k < 3; k++) o.twolevel[k] = argv[++i];
         } else if (!strcmp(a, "--filter")) {
