@@ -233,39 +233,48 @@ pub(crate) fn collapse(nodes: &[BvhNode], out: &mut [WideNode], merge: u32) -> (
         sp -= 1;
         let (b, w) = (st_bin[sp] as usize, st_wide[sp] as usize);
         let l = nodes[b].first as usize;
-        let mut kids = [l, l + 1, 0, 0];
+        // Each candidate's leaf range and opening priority, worked out
+        // once when it enters (not again in every round).
+        let look = |c: usize| {
+            let r = range(nodes, c, merge);
+            // A leaf range is never opened (key -1); a twig first
+            // (infinite key); else the largest surface.
+            let key = if r.is_some() {
+                -1.0f32
+            } else {
+                let l = nodes[c].first as usize;
+                if range(nodes, l, merge).is_some() && range(nodes, l + 1, merge).is_some() {
+                    f32::INFINITY
+                } else {
+                    let d = nodes[c].aabb().diagonal();
+                    d.x * d.y + d.y * d.z + d.z * d.x
+                }
+            };
+            (c, r, key)
+        };
+        let mut kids = [look(l), look(l + 1), (0, None, 0.0), (0, None, 0.0)];
         let mut k = 2;
         while k < WIDTH {
-            // Open a twig, else the inner child with the largest surface.
+            // The first candidate of the largest key above -1 (as the
+            // strict comparison of a scan in order picks it).
             let mut pick = None;
             let mut best = -1.0f32;
-            for (i, &c) in kids[..k].iter().enumerate() {
-                if range(nodes, c, merge).is_none() {
-                    let d = nodes[c].aabb().diagonal();
-                    let l = nodes[c].first as usize;
-                    let twig =
-                        range(nodes, l, merge).is_some() && range(nodes, l + 1, merge).is_some();
-                    let area = if twig {
-                        f32::INFINITY
-                    } else {
-                        d.x * d.y + d.y * d.z + d.z * d.x
-                    };
-                    if area > best {
-                        best = area;
-                        pick = Some(i);
-                    }
+            for (i, &(_, _, key)) in kids[..k].iter().enumerate() {
+                if key > best {
+                    best = key;
+                    pick = Some(i);
                 }
             }
             let Some(i) = pick else { break };
-            let cl = nodes[kids[i]].first as usize;
-            kids[i] = cl;
-            kids[k] = cl + 1;
+            let cl = nodes[kids[i].0].first as usize;
+            kids[i] = look(cl);
+            kids[k] = look(cl + 1);
             k += 1;
         }
         let mut wn = WideNode::NONE;
-        for (c, &kid) in kids[..k].iter().enumerate() {
+        for (c, &(kid, r, _)) in kids[..k].iter().enumerate() {
             let n = &nodes[kid];
-            if let Some((first, count)) = range(nodes, kid, merge) {
+            if let Some((first, count)) = r {
                 wn.set(c, n, first, count);
             } else {
                 if used == out.len() || sp == st_bin.len() {
@@ -282,7 +291,7 @@ pub(crate) fn collapse(nodes: &[BvhNode], out: &mut [WideNode], merge: u32) -> (
         out[w] = wn;
         if mapped {
             let mut m = [0u32; WIDTH];
-            for (m, &kid) in m.iter_mut().zip(&kids[..k]) {
+            for (m, &(kid, _, _)) in m.iter_mut().zip(&kids[..k]) {
                 *m = kid as u32;
             }
             bytemuck::cast_slice_mut::<_, [u32; WIDTH]>(out)[Map::at(cap, w)] = m;
