@@ -78,23 +78,42 @@ impl PrimaryRays {
                 "camera: finite eye/look_at/up, fov in (0, 180), a non-empty image",
             ));
         }
-        let m = fwd.abs().max_element();
-        if m <= 0.0 {
-            return Err(Error::InvalidArgument(
-                "camera: eye and look_at must differ",
-            ));
-        }
-        let w = (fwd / m).normalize().as_vec3();
-        // Parallel: within rounding of the view direction (the sine of
-        // the angle between the unit vectors below 1e-6), where the
-        // basis would be rounding noise.
-        let u = unit(up)
-            .map(|up| w.cross(up))
-            .filter(|u| u.length() >= 1e-6)
-            .and_then(unit)
-            .ok_or(Error::InvalidArgument(
-                "camera: up must be non-zero and not parallel to the view direction",
-            ))?;
+        // The plain basis where every square is a normal f32 (every
+        // ordinary camera: its bits are the ones sheaf always made), else
+        // the same basis normalised at any scale.
+        let plain = || {
+            let f = Vec3::from(cam.look_at) - eye;
+            if !f.length_squared().is_normal() {
+                return None;
+            }
+            let w = f.normalize();
+            let u = w.cross(up);
+            let u2 = u.length_squared();
+            (u2.is_normal() && u2 >= 1e-12 * up.length_squared()).then(|| (w, u.normalize()))
+        };
+        let (w, u) = match plain() {
+            Some(b) => b,
+            None => {
+                let m = fwd.abs().max_element();
+                if m <= 0.0 {
+                    return Err(Error::InvalidArgument(
+                        "camera: eye and look_at must differ",
+                    ));
+                }
+                let w = (fwd / m).normalize().as_vec3();
+                // Parallel: within rounding of the view direction (the
+                // sine of the angle between the unit vectors below 1e-6),
+                // where the basis would be rounding noise.
+                let u = unit(up)
+                    .map(|up| w.cross(up))
+                    .filter(|u| u.length() >= 1e-6)
+                    .and_then(unit)
+                    .ok_or(Error::InvalidArgument(
+                        "camera: up must be non-zero and not parallel to the view direction",
+                    ))?;
+                (w, u)
+            }
+        };
         let v = u.cross(w);
         let half_h = math::tan(cam.fov_y_deg.to_radians() * 0.5);
         let half_w = half_h * width as f32 / height as f32;
