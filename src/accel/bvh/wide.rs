@@ -109,6 +109,11 @@ fn range(nodes: &[BvhNode], c: usize, merge: u32) -> Option<(u32, u32)> {
     if n.is_leaf() {
         return Some((n.first, n.count()));
     }
+    // An inner node holds at least two triangles: past a `merge` of 1
+    // without walking its spines (the collapse's usual case).
+    if merge <= 1 {
+        return None;
+    }
     // A subtree of at most `merge` triangles has at most `merge` leaves,
     // so both spines reach a leaf within `merge` steps: a longer one
     // settles the answer without walking a large subtree's spines.
