@@ -334,6 +334,10 @@ impl KdIn {
                 x => x.get(),
             },
             test: small(self.test, |v| v % 3),
+            // The binned build's knobs: the test's byte picks them too
+            // (the corpus of earlier runs decodes as before).
+            quality: small(self.test, |v| (v / 3) % 3),
+            bins: small(self.test, |v| [0, 2, 16, 64, 65][(v / 9) as usize % 5]),
         }
     }
 }
@@ -388,6 +392,7 @@ impl TraceIn {
                 s => s.get(),
             },
             isa: isa(self.isa),
+            force_opaque: 0,
         }
     }
 }
@@ -624,6 +629,11 @@ enum Op {
     /// defaults with the drawn method and a packet of 2 to 16, which the
     /// call accepts (every drawn camera call was refused before).
     TraceCamera(TraceIn, FrameIn, [u8; 4], u8, u8),
+    /// A joined build (kind % 4: BVH LOW, BVH MEDIUM, kd-tree, grid) led
+    /// by thread (0, n) (n = 1 + count % 4) beside up to 4 drawn helpers
+    /// (index % 5, count % 5): duplicates, other counts, index 0 or past
+    /// the count among them.
+    Joined(u8, u8, Vec<(u8, u8)>),
 }
 
 #[derive(Arbitrary, Debug)]
@@ -786,9 +796,10 @@ fn run_trace(
     rays: &[sheaf_ray],
 ) -> Option<Vec<u8>> {
     if occluded {
+        // With `p` whole: the method's default packet may be past the
+        // limits' `max_packet_side` where `p`'s is not.
         let mut o = vec![S_HIT; rays.len()];
-        let s =
-            ffi::sheaf_context_occluded(ctx, p.method, rays.as_ptr(), o.as_mut_ptr(), rays.len());
+        let s = ffi::sheaf_context_occluded_with(ctx, p, rays.as_ptr(), o.as_mut_ptr(), rays.len());
         (s == OK).then_some(o)
     } else {
         let mut h = vec![
@@ -890,15 +901,37 @@ fn trace_camera(
     extra: u8,
     flags: u8,
 ) {
-    let frame = f.get();
-    let (w, h) = (frame.width, frame.height);
+    let mut frame = f.get();
     let pick = |b: u8, n: u32| (u64::from(b) * (u64::from(n) + 1) / 256) as u32;
-    let mut rect = sheaf::PixelRect {
-        x0: pick(r[0], w),
-        y0: pick(r[1], h),
-        x1: pick(r[2], w),
-        y1: pick(r[3], h),
+    // Bit 5: the image reaches the u32 edge in x (bit 6: in y, bit 7:
+    // both) and the rectangle lies at its far side, up to 40 pixels from
+    // it, so packets overhang past 2^32.
+    let edge = flags & 32 != 0;
+    if edge {
+        let (ex, ey) = match flags >> 6 {
+            0 => (true, false),
+            1 => (false, true),
+            _ => (true, true),
+        };
+        if ex {
+            frame.width = u32::MAX - u32::from(r[2] % 3);
+        }
+        if ey {
+            frame.height = u32::MAX - u32::from(r[3] % 3);
+        }
+    }
+    let (w, h) = (frame.width, frame.height);
+    let near = |b0: u8, b1: u8, n: u32, far: bool| {
+        if far {
+            let x1 = n - u32::from(b1 % 4);
+            (x1 - 1 - u32::from(b0 % 40).min(x1 - 1), x1)
+        } else {
+            (pick(b0, n), pick(b1, n))
+        }
     };
+    let (x0, x1) = near(r[0], r[2], w, edge && w > 1 << 31);
+    let (y0, y1) = near(r[1], r[3], h, edge && h > 1 << 31);
+    let mut rect = sheaf::PixelRect { x0, y0, x1, y1 };
     if flags & 4 != 0 {
         rect.x1 = rect.x1.saturating_add(1);
     }
@@ -999,14 +1032,109 @@ fn trace_camera(
     }
 }
 
+/// One joined call of `kind` as thread `(index, count)`.
+fn joined_call(ctx: *mut sheaf_context, kind: u8, index: u32, count: u32) -> sheaf_status {
+    // SAFETY: plain integers and floats; filled by the defaults call.
+    let mut low: sheaf_bvh_params = unsafe { core::mem::zeroed() };
+    assert_eq!(ffi::sheaf_bvh_params_default(&mut low), OK);
+    low.quality = 0; // SHEAF_BUILD_QUALITY_LOW
+    match kind {
+        0 => ffi::context::sheaf_context_build_bvh_joined(ctx, &low, index, count),
+        1 => ffi::context::sheaf_context_build_bvh_joined(ctx, core::ptr::null(), index, count),
+        2 => ffi::sheaf_context_build_kd_joined(ctx, core::ptr::null(), index, count),
+        _ => ffi::context::sheaf_context_build_grid_joined(ctx, core::ptr::null(), index, count),
+    }
+}
+
+/// `Op::Joined`: the leader `(0, n)` and the drawn helpers, each on its
+/// own thread. A helper that is refused (a count other than the open
+/// build's, an index taken or out of range) returns
+/// `INVALID_ARGUMENT` at once; one that joins returns the leader's
+/// status; none may crash, hang the leader or panic. A helper that
+/// arrived after the build it would have joined waits for the next one
+/// (the documented contract), so the harness leads rescue builds for the
+/// helpers still waiting until all have returned. Every build gets a
+/// fresh helper for each index no waiting helper of its count holds, so
+/// the fresh ones never compete (a fresh one that lost its index to a
+/// waiting one would itself be left waiting, round after round). A
+/// helper counts as waiting once no helper has returned for 100 ms.
+/// Returns the first leader's status.
+fn joined(ctx: *mut sheaf_context, kind: u8, n: u32, helpers: &[(u32, u32)]) -> sheaf_status {
+    use std::time::{Duration, Instant};
+    let addr = ctx as usize;
+    let call = move |i: u32, c: u32| joined_call(addr as *mut sheaf_context, kind, i, c);
+    let bad = |i: u32, c: u32| c == 0 || i == 0 || i >= c || c as usize > 16;
+    std::thread::scope(|sc| {
+        let mut pending: Vec<_> = helpers
+            .iter()
+            .map(|&(i, c)| (i, c, sc.spawn(move || call(i, c))))
+            .collect();
+        // A build of `c`: fresh helpers for the indices no pending helper
+        // of that count holds.
+        let session = |c: u32, held: &[u32]| {
+            let fresh: Vec<_> = (1..c)
+                .filter(|i| !held.contains(i))
+                .map(|i| sc.spawn(move || call(i, c)))
+                .collect();
+            let s = call(0, c);
+            valid_status(s, "joined build (leader)");
+            for f in fresh {
+                let h = f.join().expect("a helper thread panicked");
+                valid_status(h, "joined build (helper)");
+                assert_eq!(h, s, "a fresh helper's status is its leader's");
+            }
+            s
+        };
+        // The first build: the drawn helpers of its count hold their
+        // indices (they are running, and the build waits for them).
+        let held: Vec<u32> = pending
+            .iter()
+            .filter(|d| d.1 == n && !bad(d.0, d.1))
+            .map(|d| d.0)
+            .collect();
+        let first = session(n, &held);
+        for _round in 0..64 {
+            // Collect the helpers that return, until none has for 100 ms.
+            let mut quiet = Instant::now();
+            loop {
+                let (done, rest): (Vec<_>, Vec<_>) =
+                    pending.into_iter().partition(|d| d.2.is_finished());
+                pending = rest;
+                if !done.is_empty() {
+                    quiet = Instant::now();
+                }
+                for (i, c, t) in done {
+                    let h = t.join().expect("a helper thread panicked");
+                    valid_status(h, "joined build (drawn helper)");
+                    if bad(i, c) {
+                        assert_eq!(h, sheaf_status::InvalidArgument, "helper ({i}, {c})");
+                    }
+                }
+                if pending.is_empty() {
+                    return first;
+                }
+                if quiet.elapsed() > Duration::from_millis(100) {
+                    break;
+                }
+                std::thread::sleep(Duration::from_millis(1));
+            }
+            // The rest wait for a build of their count: lead one.
+            let c = pending[0].1;
+            let held: Vec<u32> = pending.iter().filter(|d| d.1 == c).map(|d| d.0).collect();
+            session(c, &held);
+        }
+        panic!("joined helpers still waiting after 64 rescue builds");
+    })
+}
+
 /// sheaf's default params with `p`'s method (any of them) and a packet of
-/// 2, 4, 8 or 16 rays a side: params a camera call accepts whenever the
-/// method's structure is built.
+/// 2 to 32 rays a side: params a camera call accepts whenever the
+/// method's structure is built (32: where `max_packet_side` allows it).
 fn plausible_params(p: &sheaf_trace_params) -> sheaf_trace_params {
     let mut d = *p;
     assert_eq!(ffi::sheaf_trace_params_default(&mut d), OK);
     d.method = p.method % METHODS;
-    d.packet = 2 << (p.packet % 4);
+    d.packet = 2 << (p.packet % 5);
     d
 }
 
@@ -1192,6 +1320,7 @@ fn default_trace() -> sheaf_trace_params {
         entry: 0,
         split: 0.0,
         isa: 0,
+        force_opaque: 0,
     };
     assert_eq!(ffi::sheaf_trace_params_default(&mut p), OK);
     p
@@ -1723,6 +1852,20 @@ fn step(st: &mut State, op: &Op) {
         Op::Concurrent(other, p, r) => concurrent(st, *other, &p.get(), r),
         Op::Scene(op) => scene::step(st, op),
         Op::TraceCamera(p, f, r, extra, flags) => trace_camera(st, &p.get(), f, r, *extra, *flags),
+        Op::Joined(kind, n, helpers) => {
+            let helpers: Vec<(u32, u32)> = helpers
+                .iter()
+                .take(4)
+                // Index 0 only with a bad count: a second leader is
+                // another group (documented misuse), not a helper.
+                .map(|&(i, c)| match (u32::from(i % 5), u32::from(c % 5)) {
+                    (0, _) => (0, 0),
+                    ic => ic,
+                })
+                .collect();
+            let n = 1 + u32::from(*n % 4);
+            build(st, "joined build", |c| joined(c, *kind % 4, n, &helpers));
+        }
         Op::DeferredPixel(x, y) => {
             let mut hit = sheaf_hit {
                 t: 1.5,

@@ -627,6 +627,9 @@ fn set(st: &mut State, id: u32, mesh: &MeshIn, params: Option<&GeomParamsIn>, nu
         bvh: default_bvh(),
         refit: sheaf_refit_params { rebuild_above: 0.0 },
         mask: !0,
+        opaque: 0,
+        filter: None,
+        filter_user: core::ptr::null_mut(),
     };
     assert_eq!(ffi::sheaf_geometry_params_default(&mut p), OK);
     if let Some(g) = params {
