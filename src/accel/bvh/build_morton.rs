@@ -17,8 +17,8 @@
 //!    bit of each triple); the (code, triangle id) pairs of the traceable
 //!    triangles go to the node pool, which the tree has not reached yet.
 //! 3. The pairs are radix sorted, three 10-bit passes, each worker
-//!    counting and scattering its share (`radix_pass`); the ids are kept
-//!    in that order (the triangles themselves are stored in step 5).
+//!    counting and scattering its share (`radix_pass`), and the triangles
+//!    are stored in that order.
 //! 4. The tree is emitted top-down with an explicit stack: a range of
 //!    sorted codes splits where its highest differing bit flips (a binary
 //!    search; the node's axis is that bit's axis, the left child lower on
@@ -28,11 +28,10 @@
 //!    `job_size(n)` triangles; those subtrees are the workers' jobs, each
 //!    emitted into a region of the node pool big enough for any subtree of
 //!    its size (`2c - 2` nodes below a root of `c` triangles).
-//! 5. The workers fit each region's boxes bottom-up (`Store::fit`),
-//!    storing each leaf's triangles as they box them (read once, not
-//!    stored in one pass and read again for the boxes); the leader closes
-//!    the gaps between the regions and fits and stores the top (children
-//!    follow their parent everywhere, as refit's reverse pass needs).
+//! 5. The workers fit each region's boxes bottom-up (`refit::fit`), the
+//!    leader closes the gaps between the regions and fits the top
+//!    (children follow their parent everywhere, as refit's reverse pass
+//!    needs).
 //!
 //! # Exactness
 //! The boxes are exactly those the binned build would give the same
@@ -55,10 +54,10 @@
 //!   (`SCRATCH`) are fixed.
 
 use super::build::Box3;
-use super::refit::{half_area, sah_sum};
+use super::refit::{fit, half_area, sah_sum};
 use super::{BvhInfo, BvhNode, BvhParams, BvhPools, MAX_DEPTH, PrimRef};
 use crate::error::{Error, Pool, Result};
-use crate::geom::{Aabb, Excluded, INVALID_ID, ProjTri, Scene, TriTest, TriVerts};
+use crate::geom::{Aabb, Excluded, INVALID_ID, ProjTri, Scene, TriTest};
 use crate::mem::par::{MAX_WORKERS, Par, Parts, atomic_u32, share};
 use crate::mem::sort::{even_parts, radix_pass};
 use core::sync::atomic::Ordering;
@@ -313,20 +312,24 @@ pub(super) fn build(
             counts,
             par,
         );
-        // The codes and ids leave the node pool before the nodes are
-        // written; the triangles are stored later, leaf by leaf, where
-        // their boxes are fitted (`Store`: read once, while in cache).
         let (keys, vals) = (&*tmp_keys, &*tmp_vals);
         let codes: &mut [u32] = bytemuck::cast_slice_mut(&mut refs[..n]);
         let cs = Parts::even(&mut codes[..n], workers);
+        let ts = Parts::even(&mut tris[..n], workers);
+        let ps = Parts::even(if proj_on { &mut proj[..n] } else { &mut [] }, workers);
         let is = Parts::even(&mut tri_ids[..n], workers);
         let slots = atomic_u32(&mut slot_of[..n_in]);
         par.run(&|w| {
-            let (c, ids) = (cs.get(w), is.get(w));
+            let (c, t, pj, ids) = (cs.get(w), ts.get(w), ps.get(w), is.get(w));
             let at = cs.start(w);
             c.copy_from_slice(&keys[at..at + c.len()]);
-            ids.copy_from_slice(&vals[at..at + c.len()]);
-            for (k, &id) in ids.iter().enumerate() {
+            for (k, &id) in vals[at..at + c.len()].iter().enumerate() {
+                let tri = scene.triangle(id);
+                t[k] = tri;
+                if let Some(x) = pj.get_mut(k) {
+                    *x = ProjTri::new(&tri);
+                }
+                ids[k] = id;
                 slots[id as usize].store((at + k) as u32, Ordering::Relaxed);
             }
         });
@@ -386,36 +389,15 @@ pub(super) fn build(
         jb[workers] = jobs.len();
         nb[workers] = region as usize;
     }
-    // Each worker's run of jobs stores the triangles of its slots: slot
-    // bounds at the first job of each run (slots of leaves in the top
-    // between runs are the leader's, stored with the top).
-    let mut sb = [n; MAX_WORKERS + 1];
-    sb[0] = 0;
-    for w in 1..workers {
-        sb[w] = jobs.get(jb[w]).map_or(n, |j| j.begin as usize);
-    }
-    let tri_ids = &tri_ids[..n];
     {
         let (js, ns) = (
             Parts::at(&mut *jobs, &jb[..workers + 1]),
             Parts::at(&mut *nodes, &nb[..workers + 1]),
         );
-        let ts = Parts::at(&mut tris[..n], &sb[..workers + 1]);
-        let ps = if proj_on {
-            Parts::at(&mut proj[..n], &sb[..workers + 1])
-        } else {
-            Parts::even(&mut [], workers)
-        };
+        let tris = &tris[..n];
         par.run(&|w| {
             let (mine, part) = (js.get(w), ns.get(w));
             let base = ns.start(w);
-            let mut store = Store {
-                scene,
-                ids: tri_ids,
-                tris: ts.get(w),
-                proj: ps.get(w),
-                first: ts.start(w),
-            };
             for j in mine.iter_mut() {
                 let mut e = Emitted::default();
                 let d = j.depth + 1;
@@ -439,7 +421,7 @@ pub(super) fn build(
                 j.max_depth = e.depth;
                 // 5. The region's boxes bottom-up (children in the region).
                 let (a, b) = (j.region as usize - base, end as usize - base);
-                store.fit(&mut part[a..b], j.region as usize, b - a, pad);
+                fit(&mut part[a..b], j.region as usize, b - a, tris, pad);
                 j.sah = sah_sum(&part[a..b], traversal_cost);
             }
         });
@@ -468,64 +450,12 @@ pub(super) fn build(
     }
     let nn = to;
     // The top last: a job root's children are its (moved) region's first pair.
-    Store {
-        scene,
-        ids: tri_ids,
-        tris: &mut tris[..n],
-        proj: if proj_on { &mut proj[..n] } else { &mut [] },
-        first: 0,
-    }
-    .fit(&mut nodes[..nn], 0, top_next as usize, pad);
+    fit(&mut nodes[..nn], 0, top_next as usize, &tris[..n], pad);
     info.nodes = nn as u32;
     let sum = sah_sum(&nodes[..top_next as usize], traversal_cost)
         + jobs.iter().map(|j| j.sah).sum::<f64>();
     info.sah_cost = (sum / half_area(&nodes[0]).max(f64::MIN_POSITIVE)) as f32;
     Ok(info)
-}
-
-/// Where a fit stores the triangles of the leaves it meets: the slots
-/// `first..first + tris.len()` (and their projection data when `proj` is
-/// not empty), each slot's triangle the caller's `ids[slot]`.
-struct Store<'s, 'm> {
-    scene: &'s Scene<'m>,
-    ids: &'s [u32],
-    tris: &'s mut [TriVerts],
-    proj: &'s mut [ProjTri],
-    first: usize,
-}
-
-impl Store<'_, '_> {
-    /// `refit::fit`, storing each leaf's triangles as it boxes them: the
-    /// box from the triangles just read, bitwise `leaf_box` of the
-    /// stored ones.
-    fn fit(&mut self, part: &mut [BvhNode], base: usize, upto: usize, pad: Vec3A) {
-        for i in (0..upto).rev() {
-            let nd = part[i];
-            let first = nd.first as usize;
-            let (bmin, bmax) = if nd.is_leaf() {
-                let (mut a, mut b) = (Vec3A::INFINITY, Vec3A::NEG_INFINITY);
-                for s in first..first + nd.count() as usize {
-                    let t = self.scene.triangle(self.ids[s]);
-                    for v in [t.v0, t.v1, t.v2] {
-                        (a, b) = (a.min(v.into()), b.max(v.into()));
-                    }
-                    self.tris[s - self.first] = t;
-                    if let Some(p) = self.proj.get_mut(s - self.first) {
-                        *p = ProjTri::new(&t);
-                    }
-                }
-                (a - pad, b + pad)
-            } else {
-                let (l, r) = (&part[first - base], &part[first - base + 1]);
-                (
-                    Vec3A::from(l.min).min(Vec3A::from(r.min)),
-                    Vec3A::from(l.max).max(Vec3A::from(r.max)),
-                )
-            };
-            part[i].min = bmin.into();
-            part[i].max = bmax.into();
-        }
-    }
 }
 
 /// Step 1 for the triangles `first..first + out.len()`: their references

@@ -161,6 +161,29 @@ pub(super) fn leaf_box(tris: &[TriVerts], pad: Vec3A) -> (Vec3A, Vec3A) {
     (a - pad, b + pad)
 }
 
+/// Every box of the first `upto` nodes of `part` recomputed bottom-up
+/// (children follow their parent, so one reverse pass meets them first).
+/// `part` holds the nodes `base..base + part.len()` of a tree, and the
+/// children of those nodes lie in `part` (the fast build fits each
+/// worker's region and then its top this way).
+pub(super) fn fit(part: &mut [BvhNode], base: usize, upto: usize, tris: &[TriVerts], pad: Vec3A) {
+    for i in (0..upto).rev() {
+        let nd = part[i];
+        let first = nd.first as usize;
+        let (bmin, bmax) = if nd.is_leaf() {
+            leaf_box(&tris[first..first + nd.count() as usize], pad)
+        } else {
+            let (l, r) = (&part[first - base], &part[first - base + 1]);
+            (
+                Vec3A::from(l.min).min(Vec3A::from(r.min)),
+                Vec3A::from(l.max).max(Vec3A::from(r.max)),
+            )
+        };
+        part[i].min = bmin.into();
+        part[i].max = bmax.into();
+    }
+}
+
 /// Refit the built tree of `bvh` to `scene`'s current vertex positions,
 /// on the calling thread (`refit_with` on `Serial`).
 pub fn refit(bvh: &mut Bvh<'_>, scene: &Scene<'_>) -> Result<RefitInfo> {
