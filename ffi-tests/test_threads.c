@@ -1046,6 +1046,7 @@ int main(void) {
     if (quick && *quick == '1') {
         g_rounds = 2;
         g_slot_rounds = 2;
+        g_head_ms = 500; /* threads start slowly under helgrind and DRD */
     }
     run_test("test_concurrent_trace_matches_single_thread", test_concurrent_trace_matches_single_thread, &passed,
              &failed);
