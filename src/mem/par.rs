@@ -216,6 +216,9 @@ pub struct Join {
     outcome: AtomicU32,
     /// Who may join: changed only under its lock.
     door: Turns<Door>,
+    /// `door`'s `open`, mirrored (written under the lock, released) for
+    /// helpers between tasks to poll without taking the lock.
+    live: AtomicBool,
     /// The number of the last session opened, for waiting helpers to
     /// watch without the lock.
     opened: AtomicU64,
@@ -302,6 +305,7 @@ impl Join {
                 waiting: 0,
                 lookers: 0,
             }),
+            live: AtomicBool::new(false),
             opened: AtomicU64::new(0),
             ticket: AtomicU64::new(0),
             departed: AtomicUsize::new(0),
@@ -343,6 +347,7 @@ impl Join {
             d.claimed = 0;
             d.lookers = d.waiting;
             d.waiting = 0;
+            self.live.swap(true, Ordering::Release);
             d.session
         });
         self.ticket.swap(session << 32, Ordering::Relaxed);
@@ -360,7 +365,10 @@ impl Join {
                 // helper has looked (checked and closed in one turn).
                 while !j.door.with(|d| {
                     let ready = d.claimed == all && d.lookers == 0;
-                    d.open &= !ready;
+                    if ready {
+                        d.open = false;
+                        j.live.swap(false, Ordering::Release);
+                    }
                     ready
                 }) {
                     backoff();
@@ -451,7 +459,7 @@ impl Join {
                 self.pending.fetch_sub(1, Ordering::Release);
                 continue;
             }
-            if !self.door.with(|d| d.open) {
+            if !self.live.load(Ordering::Acquire) {
                 let outcome = self.outcome.load(Ordering::Acquire);
                 hg::released(self.tag());
                 // The last touch of the join: the leader may return after it.
