@@ -404,7 +404,7 @@ static bool test_cameras_of_any_scale(void) {
     return true;
 }
 
-static bool test_refused_bvh_builds_keep_both_trees(void) {
+static bool test_refused_bvh_builds_keep_the_tree(void) {
     /* A BVH build refused after its parameters passed (the projection
        test without its pool; capacity is refused earlier, at
        set_geometry) keeps the previous trees: the frustum walk gives the
@@ -502,7 +502,7 @@ int main(void) {
     run_test("test_limits_that_overflow_are_refused", test_limits_that_overflow_are_refused, &passed, &failed);
     run_test("test_camera_rectangles_at_the_u32_edge", test_camera_rectangles_at_the_u32_edge, &passed, &failed);
     run_test("test_cameras_of_any_scale", test_cameras_of_any_scale, &passed, &failed);
-    run_test("test_refused_bvh_builds_keep_both_trees", test_refused_bvh_builds_keep_both_trees, &passed, &failed);
+    run_test("test_refused_bvh_builds_keep_the_tree", test_refused_bvh_builds_keep_the_tree, &passed, &failed);
     run_test("test_row_bands_at_the_u32_edge", test_row_bands_at_the_u32_edge, &passed, &failed);
     return report(passed, failed);
 }
