@@ -27,6 +27,9 @@ pub enum Excluded {
     ZeroArea,
 }
 
+/// How many triangles ahead `Scene::prefetch_ahead` requests vertices.
+const GATHER_AHEAD: usize = 32;
+
 impl<'g> Scene<'g> {
     /// Borrow `vertex_count` vertices of three `f32` each, `stride` bytes
     /// apart, from `vertices`, and `indices.len() / 3` triangles.
@@ -134,6 +137,28 @@ impl<'g> Scene<'g> {
             v0: self.vertex(self.indices[k]),
             v1: self.vertex(self.indices[k + 1]),
             v2: self.vertex(self.indices[k + 2]),
+        }
+    }
+
+    /// A hint for walks that read triangles in an order of their own (the
+    /// refit's leaf order, the fast build's Morton order), at slot `k` of
+    /// `ids`: triangle `ids[k + GATHER_AHEAD]`'s vertices are requested,
+    /// and the index entries of the one `GATHER_AHEAD` further, so both
+    /// dependent loads of each gather have arrived when it is read. These
+    /// gathers miss the cache in large meshes; measured (crytek sponza and
+    /// conference, refit on 1 thread, interleaved): 14.6 -> 10.7 ms and
+    /// 17.7 -> 13.7 ms at a distance of 16, 3 % less again at 32.
+    #[inline(always)]
+    pub(crate) fn prefetch_ahead(&self, ids: &[u32], k: usize) {
+        use crate::mem::prefetch::prefetch;
+        if let Some(&t) = ids.get(k + 2 * GATHER_AHEAD) {
+            prefetch(&self.indices[t as usize * 3]);
+        }
+        if let Some(&t) = ids.get(k + GATHER_AHEAD) {
+            let at = t as usize * 3;
+            for &i in &self.indices[at..at + 3] {
+                prefetch(&self.vertices[i as usize * self.stride]);
+            }
         }
     }
 

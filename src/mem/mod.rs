@@ -3,7 +3,7 @@
 //!
 //! Nothing in sheaf allocates after a context is created: the pools carved
 //! here are all the memory that build, trace and render ever touch.
-#![allow(unsafe_code)] // only owned.rs, slots.rs, scratch.rs, par.rs, gate.rs and hg.rs, each block with a SAFETY comment
+#![allow(unsafe_code)] // only owned.rs, slots.rs, scratch.rs, par.rs, gate.rs, hg.rs and prefetch.rs, each block with a SAFETY comment
 
 pub mod arena;
 pub mod gate;
@@ -13,6 +13,7 @@ pub mod limits;
 #[cfg(feature = "std")]
 pub mod owned;
 pub mod par;
+pub mod prefetch;
 pub mod regions;
 pub mod scratch;
 pub mod slots;

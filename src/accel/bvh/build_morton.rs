@@ -323,7 +323,9 @@ pub(super) fn build(
             let (c, t, pj, ids) = (cs.get(w), ts.get(w), ps.get(w), is.get(w));
             let at = cs.start(w);
             c.copy_from_slice(&keys[at..at + c.len()]);
-            for (k, &id) in vals[at..at + c.len()].iter().enumerate() {
+            let mine = &vals[..at + c.len()];
+            for (k, &id) in mine[at..].iter().enumerate() {
+                scene.prefetch_ahead(mine, at + k);
                 let tri = scene.triangle(id);
                 t[k] = tri;
                 if let Some(x) = pj.get_mut(k) {

@@ -330,6 +330,7 @@ pub fn refit_with(bvh: &mut Bvh<'_>, scene: &Scene<'_>, par: &dyn Par) -> Result
                 let first = nd.first as usize;
                 let (mut a, mut b) = (Vec3A::INFINITY, Vec3A::NEG_INFINITY);
                 for s in first..first + nd.count() as usize {
+                    scene.prefetch_ahead(ids, s);
                     let t = scene.triangle(ids[s]);
                     store(&tris[9 * s..9 * s + 9], bytemuck::bytes_of(&t));
                     if proj_on {

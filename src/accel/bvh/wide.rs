@@ -48,6 +48,7 @@
 use super::{BvhNode, MAX_DEPTH};
 use crate::geom::TriVerts;
 use crate::mem::par::{MAX_WORKERS, Par, Parts};
+use crate::mem::prefetch::prefetch;
 use bytemuck::{Pod, Zeroable};
 use glam::Vec3A;
 
@@ -212,6 +213,12 @@ impl Map {
 /// alone), which is what lets them fit the pool with their binary leaves;
 /// the triangle and box tests per ray did not change (crytek sponza and
 /// conference, camera and shadow rays, within 0.3 %).
+///
+/// The walk waits on cache misses (each candidate's children, then the
+/// wide node it writes), not on its arithmetic: the grandchildren are
+/// prefetched when a candidate is looked at and a wide node's lines when
+/// it is numbered. Measured on the LOW trees (1 thread, interleaved
+/// rounds): crytek sponza 8.2 -> 5.8 ms, conference 10.3 -> 7.2 ms.
 pub(crate) fn collapse(nodes: &[BvhNode], out: &mut [WideNode], merge: u32) -> (u32, bool) {
     if nodes.is_empty() || out.is_empty() {
         return (0, false);
@@ -248,6 +255,15 @@ pub(crate) fn collapse(nodes: &[BvhNode], out: &mut [WideNode], merge: u32) -> (
                 -1.0f32
             } else {
                 let l = nodes[c].first as usize;
+                // The grandchildren are read when `c` is opened or its
+                // wide node expanded: their lines on the way now (the
+                // walk is bound by these misses, not by its arithmetic).
+                for g in [&nodes[l], &nodes[l + 1]] {
+                    if !g.is_leaf() {
+                        prefetch(&nodes[g.first as usize]);
+                        prefetch(&nodes[g.first as usize + 1]);
+                    }
+                }
                 if range(nodes, l, merge).is_some() && range(nodes, l + 1, merge).is_some() {
                     f32::INFINITY
                 } else {
@@ -286,6 +302,8 @@ pub(crate) fn collapse(nodes: &[BvhNode], out: &mut [WideNode], merge: u32) -> (
                     return (0, false);
                 }
                 wn.set(c, n, used as u32, 0);
+                // Its two lines are written when it is popped.
+                prefetch(&out[used]);
                 st_bin[sp] = kid as u32;
                 st_wide[sp] = used as u32;
                 sp += 1;
@@ -305,6 +323,9 @@ pub(crate) fn collapse(nodes: &[BvhNode], out: &mut [WideNode], merge: u32) -> (
     (used as u32, mapped)
 }
 
+/// How many wide nodes ahead `refit_from_map` requests binary nodes.
+const MAP_AHEAD: usize = 8;
+
 /// Refit the first `n` wide nodes of the pool `pool` (collapsed from the
 /// binary tree `nodes` with their `Map`, same shapes since) by copying
 /// each child's box from its binary node, whose refit boxes are final:
@@ -321,7 +342,18 @@ pub(crate) fn refit_from_map(pool: &mut [WideNode], n: usize, nodes: &[BvhNode],
     let parts = Parts::even(wide, workers);
     par.run(&|w| {
         let at = parts.start(w);
-        for (i, node) in parts.get(w).iter_mut().enumerate() {
+        let part = parts.get(w);
+        let end = at + part.len();
+        for (i, node) in part.iter_mut().enumerate() {
+            // The binary nodes a few wide nodes on, which lie anywhere in
+            // the pool: their lines on the way (the copy waits on them).
+            if at + i + MAP_AHEAD < end {
+                for &b in &map[entry(at + i + MAP_AHEAD)] {
+                    if let Some(b) = nodes.get(b as usize) {
+                        prefetch(b);
+                    }
+                }
+            }
             let m = &map[entry(at + i)];
             for c in 0..WIDTH {
                 if node.child[c] != WideNode::EMPTY {
