@@ -1279,7 +1279,7 @@ fn walk_tree<L: Wide, T: TriangleTest, const ANY: bool, const FR: bool>(
     // The node being expanded (`None`: pop).
     let mut cur = Some((0usize, first_group_live(lv.gb), 0usize));
     loop {
-        let (w, ia, depth) = match cur.take() {
+        let (w, mut ia, depth) = match cur.take() {
             Some(x) => x,
             None => {
                 // Pop until a child some lane may still enter.
@@ -1324,6 +1324,16 @@ fn walk_tree<L: Wide, T: TriangleTest, const ANY: bool, const FR: bool>(
                 }
             }
         };
+        if ANY {
+            // Occlusion: groups die during the walk. The first group
+            // carried may have ended (its lanes all occluded): the first
+            // ray then comes from the next live group, not from a scan of
+            // every admitted child from a dead one. Dead groups enter
+            // nothing, so skipping them drops no child a live lane enters.
+            while ia < ng && lv.gb[ia].live == 0 {
+                ia += 1;
+            }
+        }
         if ia >= ng {
             continue;
         }
