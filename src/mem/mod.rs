@@ -13,7 +13,7 @@ pub mod limits;
 #[cfg(feature = "std")]
 pub mod owned;
 pub mod par;
-pub mod prefetch;
+pub(crate) mod prefetch;
 pub mod regions;
 pub mod scratch;
 pub mod slots;

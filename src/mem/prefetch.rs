@@ -5,7 +5,7 @@
 /// Ask the CPU to bring the cache line holding `x` closer (x86-64:
 /// `prefetcht0`; elsewhere nothing).
 #[inline(always)]
-pub fn prefetch<T>(x: &T) {
+pub(crate) fn prefetch<T>(x: &T) {
     #[cfg(target_arch = "x86_64")]
     // SAFETY: `prefetcht0` needs SSE, which every x86-64 CPU has (it is in
     // the target's baseline), and it reads nothing architecturally: a
