@@ -94,6 +94,7 @@ fn carve<'a>(a: &mut impl Carve<'a>, l: &Limits) -> Result<Pools<'a>> {
             a,
             l.has(Limits::BVH),
             l.max_triangles as usize,
+            l.bvh_refs() as usize,
             l.projection_test,
         )?,
         kd: KdPools::carve(a, l)?,

@@ -27,13 +27,18 @@ pub struct Store {
 impl Store {
     /// Pools for `n` triangles (with projection data when `proj`).
     pub fn new(n: usize, proj: bool) -> Store {
+        Store::with_refs(n, n, proj)
+    }
+    /// Pools for `n` triangles and `refs` references: `refs - n` of them
+    /// the `High` build's spatial-split reserve.
+    pub fn with_refs(n: usize, refs: usize, proj: bool) -> Store {
         Store {
-            nodes: vec![BvhNode::default(); 2 * n],
-            tris: vec![TriVerts::default(); n],
-            proj: vec![ProjTri::default(); if proj { n } else { 0 }],
-            ids: vec![0; n],
+            nodes: vec![BvhNode::default(); 2 * refs],
+            tris: vec![TriVerts::default(); refs],
+            proj: vec![ProjTri::default(); if proj { refs } else { 0 }],
+            ids: vec![0; refs],
             slot: vec![0; n],
-            refs: vec![PrimRef::default(); n],
+            refs: vec![PrimRef::default(); refs],
             scratch: vec![0; crate::accel::bvh::build::SCRATCH],
         }
     }

@@ -64,6 +64,11 @@ pub struct sheaf_limits {
     /// only traces rays. A render call whose renderer is left out gets
     /// `SHEAF_STATUS_INVALID_ARGUMENT`.
     pub renderers: u32,
+    /// Most triangle references of the BVH's leaves. 0: `max_triangles`;
+    /// the excess is the reserve of `SHEAF_BUILD_QUALITY_HIGH`'s spatial
+    /// splits (136 bytes per reference, 184 with the projection test);
+    /// fewer than `max_triangles`: `SHEAF_STATUS_INVALID_ARGUMENT`.
+    pub max_bvh_refs: u32,
 }
 
 impl sheaf_limits {
@@ -89,6 +94,7 @@ impl sheaf_limits {
             max_packet_side: l.max_packet_side,
             max_bounces: l.max_bounces,
             renderers: l.renderers,
+            max_bvh_refs: l.max_bvh_refs,
         }
     }
 
@@ -118,6 +124,7 @@ impl sheaf_limits {
             max_packet_side: self.max_packet_side,
             max_bounces: self.max_bounces,
             renderers: self.renderers,
+            max_bvh_refs: self.max_bvh_refs,
         })
     }
 }

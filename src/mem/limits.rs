@@ -90,6 +90,15 @@ pub struct Limits {
     /// for a context that only traces rays. A render call whose renderer
     /// is left out gets `InvalidArgument`.
     pub renderers: u32,
+    /// Most triangle references of the BVH's leaves. 0: `max_triangles`,
+    /// one per triangle. Above `max_triangles` the difference is the
+    /// reserve of the `High` build's spatial splits (`accel::bvh::
+    /// build_spatial`), which may reference a triangle from several
+    /// leaves: 136 bytes per reserved reference (184 with
+    /// `projection_test`); a quarter of `max_triangles` (34 bytes per
+    /// triangle) holds every split the test scenes' HIGH trees take.
+    /// Fewer than `max_triangles` is `InvalidArgument`.
+    pub max_bvh_refs: u32,
 }
 
 impl Limits {
@@ -166,6 +175,19 @@ impl Limits {
             max_packet_side: Self::PACKET_SIDE,
             max_bounces: Self::BOUNCES,
             renderers: Self::ALL_RENDERERS,
+            max_bvh_refs: 0,
+        }
+    }
+
+    /// Triangle references of the BVH's leaves after the default rule (0
+    /// without a BVH).
+    pub const fn bvh_refs(&self) -> u32 {
+        if !self.has(Self::BVH) {
+            0
+        } else if self.max_bvh_refs != 0 {
+            self.max_bvh_refs
+        } else {
+            self.max_triangles
         }
     }
 
@@ -358,14 +380,15 @@ impl Limits {
                 "grid pools must stay below 2^32 entries",
             ));
         }
-        // A BVH of n triangles has 2n - 1 nodes numbered in a u32 (the
+        if self.has(Self::BVH) && self.max_bvh_refs != 0 && self.max_bvh_refs < self.max_triangles {
+            return Err(Error::InvalidArgument(
+                "max_bvh_refs must be 0 or at least max_triangles (every triangle needs a leaf reference)",
+            ));
+        }
+        // A BVH of n references has 2n - 1 nodes numbered in a u32 (the
         // binary builds step node numbers by 2), as has the two-level
         // scene's top level over its instances.
-        let bvh_triangles = if self.has(Self::BVH) {
-            self.max_triangles
-        } else {
-            0
-        };
+        let bvh_triangles = self.bvh_refs();
         if bvh_triangles
             .max(self.scene_triangles())
             .max(self.scene_instances())

@@ -47,7 +47,11 @@ fn check_scene(s: &TestScene) {
         (TriTest::MollerTrumbore, BuildQuality::Medium),
         (TriTest::Watertight, BuildQuality::Medium),
         (TriTest::Watertight, BuildQuality::Low),
+        (TriTest::MollerTrumbore, BuildQuality::High),
     ] {
+        // The HIGH tree with a reserve of spatial splits.
+        let mut l = l;
+        l.max_bvh_refs = l.max_triangles + l.max_triangles / 4;
         let mut ctx = OwnedContext::new(&l).unwrap();
         let p = BvhParams {
             test,
@@ -373,36 +377,49 @@ fn refit_keeps_every_method_exact() {
     fn scene(a: &Animated) -> sheaf::Scene<'_> {
         sheaf::Scene::from_f32(&a.mesh.vertices, &a.mesh.indices).unwrap()
     }
+    // The HIGH tree's spatial splits refit too: its clipped leaf boxes
+    // become its triangles' whole boxes.
+    let mut lr = l;
+    lr.max_bvh_refs = l.max_triangles + l.max_triangles / 4;
+    let mut split = OwnedContext::new(&lr).unwrap();
+    let high = BvhParams {
+        quality: BuildQuality::High,
+        ..BvhParams::default()
+    };
+    let info = split.build_bvh(&scene(&a), &high).unwrap();
+    assert!(info.references > info.triangles, "{info:?}");
     ctx.build_bvh(&scene(&a), &BvhParams::default()).unwrap();
     let rays = view.rays(RES as u32, RES as u32);
     for t in [0.25f32, 1.0, 3.0] {
         a.set_time(t);
-        let r = ctx.refit_bvh(&scene(&a), &RefitParams::default()).unwrap();
-        assert!(
-            !r.rebuilt && r.sah_before > 0.0 && r.sah_after > 0.0,
-            "{r:?}"
-        );
-        fresh.build_bvh(&scene(&a), &BvhParams::default()).unwrap();
-        let mut want = vec![Hit::MISS; rays.len()];
-        let mut got = vec![Hit::MISS; rays.len()];
-        fresh.trace(Method::BvhSingle, &rays, &mut want).unwrap();
-        ctx.trace(Method::BvhSingle, &rays, &mut got).unwrap();
-        for (i, (g, w)) in got.iter().zip(&want).enumerate() {
+        for ctx in [&mut ctx, &mut split] {
+            let r = ctx.refit_bvh(&scene(&a), &RefitParams::default()).unwrap();
             assert!(
-                g.prim == w.prim && g.t.to_bits() == w.t.to_bits(),
-                "t {t} ray {i}: refit {g:?}, rebuild {w:?}"
+                !r.rebuilt && r.sah_before > 0.0 && r.sah_after > 0.0,
+                "{r:?}"
             );
+            fresh.build_bvh(&scene(&a), &BvhParams::default()).unwrap();
+            let mut want = vec![Hit::MISS; rays.len()];
+            let mut got = vec![Hit::MISS; rays.len()];
+            fresh.trace(Method::BvhSingle, &rays, &mut want).unwrap();
+            ctx.trace(Method::BvhSingle, &rays, &mut got).unwrap();
+            for (i, (g, w)) in got.iter().zip(&want).enumerate() {
+                assert!(
+                    g.prim == w.prim && g.t.to_bits() == w.t.to_bits(),
+                    "t {t} ray {i}: refit {g:?}, rebuild {w:?}"
+                );
+            }
+            assert!(want.iter().any(|h| h.is_hit()));
+            let tr = ctx.tracer().unwrap().bvh().unwrap();
+            let primary = Class {
+                name: "primary",
+                rays: rays.clone(),
+                active: vec![true; rays.len()],
+                kind: RayKind::Primary,
+                any: false,
+            };
+            check_class(&tr, &bvh_cases(), &format!("refit t {t}"), &primary);
         }
-        assert!(want.iter().any(|h| h.is_hit()));
-        let tr = ctx.tracer().unwrap().bvh().unwrap();
-        let primary = Class {
-            name: "primary",
-            rays: rays.clone(),
-            active: vec![true; rays.len()],
-            kind: RayKind::Primary,
-            any: false,
-        };
-        check_class(&tr, &bvh_cases(), &format!("refit t {t}"), &primary);
     }
 
     // Bad input: a non-finite vertex, another triangle count: errors, and

@@ -41,6 +41,7 @@
 //! two bin sets, the SIMD bin index and the side-by-side axis sweeps; see
 //! the `perf` test below for times.
 
+use super::build_spatial as spatial;
 use super::{
     BuildQuality, Bvh, BvhInfo, BvhNode, BvhParams, BvhPools, MAX_BINS, MAX_DEPTH, PrimRef,
 };
@@ -154,6 +155,9 @@ struct Task {
     node: u32,
     begin: u32,
     end: u32,
+    /// End of the node's share of the references: `refs[end..cap]` is its
+    /// part of the spatial-split reserve.
+    cap: u32,
     depth: u32,
     bounds: Box3,
     cent: Box3,
@@ -187,13 +191,16 @@ const NO_TASK: Task = Task {
     node: 0,
     begin: 0,
     end: 0,
+    cap: 0,
     depth: 0,
     bounds: Box3::EMPTY,
     cent: Box3::EMPTY,
 };
 
-/// Bytes of the SAH build's scratch: the bins and the work stack.
+/// Bytes of the SAH build's scratch: the bins, the spatial bins and the
+/// work stack.
 const SAH_SCRATCH: usize = (crate::mem::scratch::bytes::<Bins>(1)
+    + crate::mem::scratch::bytes::<spatial::SpatialBins>(1)
     + crate::mem::scratch::bytes::<Task>(MAX_DEPTH + 1))
 .next_multiple_of(64);
 
@@ -551,6 +558,16 @@ fn bounds_of(refs: &[PrimRef]) -> (Box3, Box3) {
     (b, c)
 }
 
+/// The object median of `refs` (at least two), for nodes whose
+/// centroids coincide: axis 0, the left count, the references used, and
+/// the children's boxes and centroid boxes.
+fn median(refs: &[PrimRef]) -> (usize, usize, usize, Box3, Box3, Box3, Box3) {
+    let nl = refs.len() / 2;
+    let (bl, cl) = bounds_of(&refs[..nl]);
+    let (br, cr) = bounds_of(&refs[nl..]);
+    (0, nl, refs.len(), bl, br, cl, cr)
+}
+
 /// What the first pass over the scene found (`gather`).
 pub(super) struct Gathered {
     /// Traceable triangles (their `PrimRef`s are `refs[..n]`).
@@ -675,6 +692,7 @@ pub(super) fn gather(
         },
         triangles_in: n_in,
         triangles: n as u32,
+        references: n as u32,
         excluded_non_finite: bad_nf,
         excluded_zero_area: bad_za,
         leaf_size: p.leaf_size,
@@ -801,17 +819,42 @@ pub fn build_with(
     Ok(bvh.commit(info))
 }
 
-/// Step 2 of the module docs: the top-down binned SAH over `refs[..g.n]`.
+/// References the build may use: the `n` traceable triangles' and, for
+/// the `High` build, the spatial-split reserve the limits sized (the
+/// reference pool beyond the triangle slots; a two-level scene's
+/// geometries have none), as far as every pool a reference fills holds it.
+fn reference_capacity(pools: &BvhPools<'_>, p: &BvhParams, n: usize) -> usize {
+    if p.quality != BuildQuality::High {
+        return n;
+    }
+    let reserve = pools.refs.len().saturating_sub(pools.slot_of.len());
+    let mut cap = (n + reserve)
+        .min(pools.refs.len())
+        .min(pools.tris.len())
+        .min(pools.tri_ids.len())
+        .min(pools.nodes.len() / 2);
+    if p.test == TriTest::Projection {
+        cap = cap.min(pools.proj.len());
+    }
+    cap.max(n)
+}
+
+/// Step 2 of the module docs: the top-down binned SAH over `refs[..g.n]`,
+/// with spatial splits (`build_spatial.rs`) into `refs[g.n..]` when the
+/// `High` build has a reserve.
 fn binned_sah(pools: &mut BvhPools<'_>, scene: &Scene<'_>, p: &BvhParams, g: &Gathered) -> BvhInfo {
     let (n, pad, bounds) = (g.n, g.pad, g.bounds);
     let mut info = g.info;
+    let total = reference_capacity(pools, p, n);
     let (nodes, mut stored, refs, scratch) = split(pools, p);
-    let refs = &mut refs[..n];
+    let refs = &mut refs[..total];
     let high = p.quality == BuildQuality::High;
+    let spatial_on = total > n;
     let sweep_max = if high { SWEEP_HIGH } else { SWEEP_MAX };
     let leaf_size = p.leaf_size as usize;
     let scratch = crate::mem::Scratch::new(scratch);
     let (bins, scratch) = scratch.take_copies(1, &EMPTY_BINS);
+    let (sbins, scratch) = scratch.take_copies(1, &spatial::EMPTY_SPATIAL);
     let (stack, _) = scratch.take_copies(MAX_DEPTH + 1, &NO_TASK);
     let mut binner = Binner {
         bins: if high {
@@ -824,66 +867,119 @@ fn binned_sah(pools: &mut BvhPools<'_>, scene: &Scene<'_>, p: &BvhParams, g: &Ga
     let root_area = bounds.half_area();
     let (mut sah_inner, mut sah_leaf) = (0.0f64, 0.0f64);
     let mut next = 1u32;
+    let mut slot = 0usize;
     let mut sp = 0usize;
     let mut task = Task {
         node: 0,
         begin: 0,
         end: n as u32,
+        cap: total as u32,
         depth: 0,
         bounds,
         cent: g.cent,
     };
     loop {
-        let (begin, end) = (task.begin as usize, task.end as usize);
+        let (begin, end, cap) = (task.begin as usize, task.end as usize, task.cap as usize);
         let count = end - begin;
-        // Some((axis, left count, left box, right box, left cent, right cent)).
+        let area = task.bounds.half_area();
+        let splits = |cost: f32| {
+            let split_cost = p.traversal_cost + cost / area;
+            // NaN costs (overflowing coordinates) split rather than keep
+            // a large leaf.
+            count > leaf_size || count as f32 > split_cost || split_cost.is_nan()
+        };
+        // Some((axis, left count, references used, left box, right box,
+        // left cent, right cent)).
         let mut split = None;
-        if count > 1 && count <= sweep_max && (task.depth as usize) < MAX_DEPTH {
-            let (axis, nl, cost, bl, br, cl, cr) = sweep_split(&mut refs[begin..end]);
-            let split_cost = p.traversal_cost + cost / task.bounds.half_area();
-            // NaN costs (overflowing coordinates) split rather than keep a
-            // large leaf.
-            if count > leaf_size || count as f32 > split_cost || split_cost.is_nan() {
-                split = Some((axis, nl, bl, br, cl, cr));
+        if count > 1 && (task.depth as usize) < MAX_DEPTH {
+            // The best object split, its references not yet partitioned.
+            enum Object {
+                Swept(Cut),
+                Binned(Split, BinMap),
+                Median,
             }
-        } else if count > 1 && (task.depth as usize) < MAX_DEPTH {
-            let map = BinMap::new(&task.cent, binner.bins);
-            let mut median = count > leaf_size;
-            if let Some(s) = binner.find(&refs[begin..end], &map) {
-                let split_cost = p.traversal_cost + s.cost / task.bounds.half_area();
-                median = false;
-                if count > leaf_size || count as f32 > split_cost || split_cost.is_nan() {
-                    let (nl, cl, cr) = partition(&mut refs[begin..end], &map, &s);
-                    if nl > 0 && nl < count {
-                        split = Some((s.axis, nl, s.left, s.right, cl, cr));
-                    } else {
-                        // Cannot happen (binning and partition agree); stay safe.
-                        median = true;
+            let object = if count <= sweep_max {
+                let cut = sweep_split(&mut refs[begin..end]);
+                Object::Swept(cut)
+            } else {
+                let map = BinMap::new(&task.cent, binner.bins);
+                match binner.find(&refs[begin..end], &map) {
+                    Some(s) => Object::Binned(s, map),
+                    None => Object::Median,
+                }
+            };
+            let (ocost, ol, or) = match &object {
+                Object::Swept(c) => (c.2, c.3, c.4),
+                Object::Binned(s, _) => (s.cost, s.left, s.right),
+                Object::Median => (f32::INFINITY, Box3::EMPTY, Box3::EMPTY),
+            };
+            // Section 4.3: space is binned only where the object split's
+            // children overlap by more than alpha of the root's area.
+            let overlap = Box3 {
+                min: ol.min.max(or.min),
+                max: ol.max.min(or.max),
+            };
+            let overlapping = matches!(object, Object::Median)
+                || (overlap.min.cmple(overlap.max).all()
+                    && overlap.half_area() > spatial::ALPHA * root_area);
+            let room = cap - end;
+            let spatial = if spatial_on && room > 0 && overlapping {
+                spatial::find(&mut sbins[0], &refs[begin..end], scene, &task.bounds, room)
+                    .filter(|(s, _)| s.cost < ocost)
+            } else {
+                None
+            };
+            if let Some((s, slabs)) = spatial {
+                if splits(s.cost) {
+                    let q = spatial::partition(&mut refs[begin..cap], count, scene, &slabs, &s);
+                    if q.left > 0 && q.left < q.used {
+                        split = Some((s.axis, q.left, q.used, q.bl, q.br, q.cl, q.cr));
                     }
                 }
             }
-            if median {
-                // All centroids coincide: object median.
-                let nl = count / 2;
-                let (bl, cl) = bounds_of(&refs[begin..begin + nl]);
-                let (br, cr) = bounds_of(&refs[begin + nl..end]);
-                split = Some((0, nl, bl, br, cl, cr));
+            if split.is_none() {
+                split = match object {
+                    Object::Swept((axis, nl, cost, bl, br, cl, cr)) => {
+                        splits(cost).then_some((axis, nl, count, bl, br, cl, cr))
+                    }
+                    Object::Binned(s, map) if splits(s.cost) => {
+                        let (nl, cl, cr) = partition(&mut refs[begin..end], &map, &s);
+                        Some(if nl > 0 && nl < count {
+                            (s.axis, nl, count, s.left, s.right, cl, cr)
+                        } else {
+                            // Cannot happen (binning and partition agree); stay safe.
+                            median(&refs[begin..end])
+                        })
+                    }
+                    Object::Binned(..) => None,
+                    // All centroids coincide: object median.
+                    Object::Median => (count > leaf_size).then(|| median(&refs[begin..end])),
+                };
             }
         }
-        let area = task.bounds.half_area() as f64;
         let padded = task.bounds.padded(pad);
         match split {
-            Some((axis, nl, bl, br, cl, cr)) => {
+            Some((axis, nl, used, bl, br, cl, cr)) => {
                 let left = next;
                 next += 2;
                 nodes[task.node as usize] = BvhNode::inner(&padded, left, axis);
-                sah_inner += area;
-                let mid = task.begin + nl as u32;
+                sah_inner += area as f64;
+                // The reserve left over is shared by the children's
+                // reference counts: the right block moves up past the left
+                // child's share.
+                let free = cap - begin - used;
+                let left_share = (free as u64 * nl as u64 / used as u64) as usize;
+                let mid = begin + nl;
+                let right = mid + left_share;
+                if left_share > 0 {
+                    refs.copy_within(mid..begin + used, right);
+                }
                 let depth = task.depth + 1;
                 stack[sp] = Task {
                     node: left + 1,
-                    begin: mid,
-                    end: task.end,
+                    begin: right as u32,
+                    end: (right + used - nl) as u32,
+                    cap: task.cap,
                     depth,
                     bounds: br,
                     cent: cr,
@@ -892,7 +988,8 @@ fn binned_sah(pools: &mut BvhPools<'_>, scene: &Scene<'_>, p: &BvhParams, g: &Ga
                 task = Task {
                     node: left,
                     begin: task.begin,
-                    end: mid,
+                    end: mid as u32,
+                    cap: right as u32,
                     depth,
                     bounds: bl,
                     cent: cl,
@@ -900,12 +997,13 @@ fn binned_sah(pools: &mut BvhPools<'_>, scene: &Scene<'_>, p: &BvhParams, g: &Ga
                 continue;
             }
             None => {
-                nodes[task.node as usize] = BvhNode::leaf(&padded, task.begin, count as u32);
-                sah_leaf += area * count as f64;
+                nodes[task.node as usize] = BvhNode::leaf(&padded, slot as u32, count as u32);
+                sah_leaf += area as f64 * count as f64;
                 info.leaves += 1;
                 info.depth = info.depth.max(task.depth);
-                for (s, r) in refs.iter().enumerate().take(end).skip(begin) {
-                    stored.put(scene, s, r.id);
+                for r in &refs[begin..end] {
+                    stored.put(scene, slot, r.id);
+                    slot += 1;
                 }
             }
         }
@@ -916,6 +1014,7 @@ fn binned_sah(pools: &mut BvhPools<'_>, scene: &Scene<'_>, p: &BvhParams, g: &Ga
         task = stack[sp];
     }
     info.nodes = next;
+    info.references = slot as u32;
     info.sah_cost = ((p.traversal_cost as f64 * sah_inner + sah_leaf) / root_area as f64) as f32;
     info
 }
@@ -932,19 +1031,24 @@ mod tests {
 
     fn check_invariants(v: &BvhView<'_>, scene: &Scene<'_>, p: &BvhParams) {
         let info = v.info;
-        let n = info.triangles as usize;
+        let n = info.references as usize;
+        let split = info.references != info.triangles;
+        assert!(info.references >= info.triangles);
+        assert!(!split || p.quality == BuildQuality::High);
         assert_eq!(info.triangles_in, scene.triangle_count());
         assert_eq!(
             info.triangles + info.excluded_non_finite + info.excluded_zero_area,
             info.triangles_in
         );
-        // Every valid triangle exactly once, slot_of consistent.
+        // Every valid triangle stored (exactly once without spatial
+        // splits), slot_of naming one of its slots.
         let mut seen = vec![false; info.triangles_in as usize];
         for s in 0..n {
             let id = v.tri_ids[s] as usize;
-            assert!(!seen[id], "triangle {id} stored twice");
+            assert!(split || !seen[id], "triangle {id} stored twice");
             seen[id] = true;
-            assert_eq!(v.slot_of[id] as usize, s);
+            assert_eq!(v.tri_ids[v.slot_of[id] as usize] as usize, id);
+            assert!(split || v.slot_of[id] as usize == s);
             assert_eq!(v.tris[s], scene.triangle(id as u32));
             if p.test == TriTest::Projection {
                 assert_eq!(v.proj[s], ProjTri::new(&v.tris[s]));
@@ -961,6 +1065,9 @@ mod tests {
             assert_eq!(info.nodes, 0);
             return;
         }
+        // The leaves that name each triangle, for the split trees' check
+        // that their boxes cover it.
+        let mut boxes_of: Vec<Vec<Aabb>> = vec![Vec::new(); info.triangles_in as usize];
         // Walk the tree.
         let contains = |outer: &Aabb, inner: &Aabb| {
             inner.min.cmpge(outer.min).all() && inner.max.cmple(outer.max).all()
@@ -982,9 +1089,18 @@ mod tests {
                 );
                 for s in node.first..node.first + c {
                     covered[s as usize] += 1;
+                    let id = v.tri_ids[s as usize] as usize;
+                    assert!(
+                        !boxes_of[id].contains(&b),
+                        "triangle {id} named twice by a leaf"
+                    );
+                    boxes_of[id].push(b);
                     let t = &v.tris[s as usize];
                     for p in [t.v0, t.v1, t.v2] {
-                        assert!(b.contains(Vec3::from(p)), "triangle {s} outside its leaf");
+                        assert!(
+                            split || b.contains(Vec3::from(p)),
+                            "triangle {s} outside its leaf"
+                        );
                     }
                 }
             } else {
@@ -1020,6 +1136,28 @@ mod tests {
             }
         }
         assert_eq!(bb, info.bounds);
+        // Split trees: points all over each triangle lie in a box of a
+        // leaf that names it.
+        if split {
+            for (id, boxes) in boxes_of.iter().enumerate() {
+                if boxes.is_empty() {
+                    continue;
+                }
+                let t = scene.triangle(id as u32);
+                for i in 0..=8 {
+                    for j in 0..=8 - i {
+                        let (u, w) = (i as f32 / 8.0, j as f32 / 8.0);
+                        let q = Vec3::from(t.v0) * (1.0 - u - w)
+                            + Vec3::from(t.v1) * u
+                            + Vec3::from(t.v2) * w;
+                        assert!(
+                            boxes.iter().any(|b| b.contains(q)),
+                            "triangle {id}: {q} in none of its leaves' boxes"
+                        );
+                    }
+                }
+            }
+        }
         assert!(contains(&v.nodes[0].aabb(), &bb));
         assert!(
             info.sah_cost.is_finite() && info.sah_cost >= 1.0,
@@ -1029,11 +1167,14 @@ mod tests {
     }
 
     fn build_check(v: &[f32], ix: &[u32], p: &BvhParams) -> BvhInfo {
+        build_check_in(v, ix, p, 0)
+    }
+
+    /// `build_check` with a spatial-split reserve of `reserve` references.
+    fn build_check_in(v: &[f32], ix: &[u32], p: &BvhParams, reserve: usize) -> BvhInfo {
         let scene = Scene::from_f32(v, ix).unwrap();
-        let mut st = Store::new(
-            scene.triangle_count() as usize,
-            p.test == TriTest::Projection,
-        );
+        let n = scene.triangle_count() as usize;
+        let mut st = Store::with_refs(n, n + reserve, p.test == TriTest::Projection);
         let mut bvh = st.bvh();
         let info = build(&mut bvh, &scene, p).unwrap();
         let view = bvh.view().unwrap();
@@ -1068,6 +1209,77 @@ mod tests {
                 assert_eq!(info.triangles as usize, s.mesh.triangle_count(), "{name}");
             }
         }
+    }
+
+    /// The `High` build's spatial splits: within the reserve, each
+    /// triangle's parts covering it (`check_invariants`), a lower SAH than
+    /// the same build without a reserve where it splits, none at all on
+    /// the other qualities.
+    #[test]
+    fn spatial_splits_stay_in_their_reserve() {
+        let (mut split_any, mut lower) = (false, 0usize);
+        for &name in crate::scenes::BUILTIN_NAMES {
+            let s = crate::scenes::builtin(name).unwrap();
+            let (v, ix) = (&s.mesh.vertices, &s.mesh.indices);
+            let n = s.mesh.triangle_count();
+            for test in [TriTest::MollerTrumbore, TriTest::Projection] {
+                let p = BvhParams {
+                    test,
+                    quality: BuildQuality::High,
+                    ..BvhParams::default()
+                };
+                let plain = build_check(v, ix, &p);
+                assert_eq!(plain.references, plain.triangles);
+                for reserve in [1, 7, n / 4, 2 * n] {
+                    let info = build_check_in(v, ix, &p, reserve);
+                    assert!(info.references as usize <= n + reserve, "{name}");
+                    if info.references > info.triangles {
+                        split_any = true;
+                        eprintln!(
+                            "{name} {test:?} reserve {reserve}: {} references for {n}, SAH {} against {}",
+                            info.references, info.sah_cost, plain.sah_cost
+                        );
+                        lower += usize::from(info.sah_cost < plain.sah_cost);
+                    }
+                }
+                for quality in [BuildQuality::Low, BuildQuality::Medium] {
+                    let info = build_check_in(v, ix, &BvhParams { quality, ..p }, n);
+                    assert_eq!(info.references, info.triangles, "{name} {quality:?}");
+                }
+            }
+        }
+        assert!(
+            split_any && lower > 0,
+            "no built-in scene split a reference"
+        );
+    }
+
+    /// Large crossing triangles (a fan of long slivers through one point):
+    /// the case spatial splits exist for. The split tree's SAH is well
+    /// below the object-split tree's.
+    #[test]
+    fn spatial_splits_cut_long_slivers() {
+        let tris: Vec<[[f32; 3]; 3]> = (0..64)
+            .map(|i| {
+                let a = i as f32 * core::f32::consts::PI / 64.0;
+                let (c, s) = (a.cos() * 10.0, a.sin() * 10.0);
+                [[-c, -s, 0.0], [c, s, 0.0], [c, s, 0.05]]
+            })
+            .collect();
+        let (v, ix) = soup(&tris);
+        let p = BvhParams {
+            quality: BuildQuality::High,
+            ..BvhParams::default()
+        };
+        let plain = build_check(&v, &ix, &p);
+        let split = build_check_in(&v, &ix, &p, 64);
+        assert!(split.references > 64 && split.references <= 128);
+        assert!(
+            split.sah_cost < plain.sah_cost,
+            "{} against {}",
+            split.sah_cost,
+            plain.sah_cost
+        );
     }
 
     #[test]

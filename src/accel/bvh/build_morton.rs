@@ -255,6 +255,7 @@ pub(super) fn build(
         },
         triangles_in: n_in as u32,
         triangles: n as u32,
+        references: n as u32,
         excluded_non_finite: all.non_finite,
         excluded_zero_area: all.zero_area,
         ..base

@@ -7,6 +7,7 @@
 //! | file | implements |
 //! |---|---|
 //! | `build.rs` | section 5.1: single-threaded binned SAH build (Wald 2007), an explicit work stack, into preallocated pools (`BuildQuality::Medium` and `High`) |
+//! | `build_spatial.rs` | the `High` build's spatial splits (Stich, Friedrich, Dietrich 2009, SBVH, sections 3-4): slabs binned with clipped triangles, references split where object splits overlap, within the reserve `Limits::max_bvh_refs` sizes |
 //! | `build_morton.rs` | the fast build (`BuildQuality::Low`): centroids' Morton codes, a radix sort, the tree emitted top-down at the codes' highest differing bit (Lauterbach et al. 2009, LBVH), every phase on the caller's workers (`mem::par`) |
 //! | `traverse_single.rs` | the single-ray reference: stack traversal, near child first |
 //! | `traverse_simd.rs` | section 2.1: the 2x2 SIMD ray (`Ray4`) traversal, the "2x2 SIMD ray packets" of Table 2 |
@@ -39,6 +40,7 @@
 
 pub mod build;
 pub mod build_morton;
+pub mod build_spatial;
 pub mod entry;
 pub mod packet;
 pub mod refit;
@@ -111,8 +113,10 @@ pub enum BuildQuality {
     /// Binned SAH (the BVH paper's build, section 5.1) with `bins` bins.
     #[default]
     Medium = 1,
-    /// Binned SAH with `MAX_BINS` bins, and the full SAH sweep over every
-    /// object split in nodes of up to `build::SWEEP_HIGH` triangles.
+    /// Binned SAH with `MAX_BINS` bins, the full SAH sweep over every
+    /// object split in nodes of up to `build::SWEEP_HIGH` triangles, and
+    /// spatial splits (`build_spatial.rs`, SBVH) into the reference
+    /// reserve `Limits::max_bvh_refs` sizes (none without one).
     High = 2,
 }
 
@@ -189,6 +193,10 @@ pub struct BvhInfo {
     /// Triangles in the scene, stored, and excluded (non-finite / zero area).
     pub triangles_in: u32,
     pub triangles: u32,
+    /// Stored triangle references, the slots the leaves name: `triangles`
+    /// unless the `High` build split references spatially, when a triangle
+    /// may be named by several leaves (once per leaf).
+    pub references: u32,
     pub excluded_non_finite: u32,
     pub excluded_zero_area: u32,
     /// SAH cost of the tree (traversal_cost per inner node and 1 per
@@ -299,19 +307,29 @@ pub struct BvhPools<'a> {
 }
 
 impl<'a> BvhPools<'a> {
-    /// Pools for a BVH of up to `tris` triangles (none unless `on`): twice
-    /// as many nodes, the triangles with their ids, slots and references,
-    /// projection data when `proj`, and the build's scratch.
+    /// Pools for a BVH of up to `tris` triangles and `refs` (at least
+    /// `tris`) leaf references (none unless `on`): the triangles' slots
+    /// (`slot_of`), and per reference two nodes, a stored triangle with its
+    /// id, a build reference and projection data when `proj`, then the
+    /// build's scratch. References beyond `tris` are the `High` build's
+    /// spatial-split reserve.
     #[deny(clippy::arithmetic_side_effects)]
-    pub fn carve(a: &mut impl Carve<'a>, on: bool, tris: usize, proj: bool) -> Result<Self> {
+    pub fn carve(
+        a: &mut impl Carve<'a>,
+        on: bool,
+        tris: usize,
+        refs: usize,
+        proj: bool,
+    ) -> Result<Self> {
         let n = when(on, tris);
+        let r = when(on, refs.max(tris));
         Ok(BvhPools {
-            nodes: a.take(n.checked_mul(2).ok_or(TOO_BIG)?)?,
-            tris: a.take(n)?,
-            proj: a.take(when(proj, n))?,
-            tri_ids: a.take(n)?,
+            nodes: a.take(r.checked_mul(2).ok_or(TOO_BIG)?)?,
+            tris: a.take(r)?,
+            proj: a.take(when(proj, r))?,
+            tri_ids: a.take(r)?,
             slot_of: a.take(n)?,
-            refs: a.take(n)?,
+            refs: a.take(r)?,
             scratch: a.take(when(on, build::SCRATCH))?,
         })
     }
@@ -493,7 +511,7 @@ impl<'a> Bvh<'a> {
             let nodes = &self.pools.nodes[..info.nodes as usize];
             wide::refit_from_map(wide_pool(self.pools.refs), n, nodes, par);
         } else if n > 0 {
-            let tris = &self.pools.tris[..info.triangles as usize];
+            let tris = &self.pools.tris[..info.references as usize];
             wide::refit(&mut wide_pool(self.pools.refs)[..n], tris, pad, par);
         }
         self.info = Some(info);
@@ -520,7 +538,7 @@ impl<'r> BvhView<'r> {
         slot_of: &'r [u32],
         refs: &'r [PrimRef],
     ) -> Self {
-        let n = info.triangles as usize;
+        let n = info.references as usize;
         BvhView {
             info,
             nodes: &nodes[..info.nodes as usize],

@@ -249,7 +249,7 @@ pub fn refit_with(bvh: &mut Bvh<'_>, scene: &Scene<'_>, par: &dyn Par) -> Result
     let cached_sah = bvh.refit_sah();
     let workers = crate::mem::par::workers_of(par)?;
     let pools = bvh.pools_mut();
-    let n = info.triangles as usize;
+    let n = info.references as usize;
     let nn = info.nodes as usize;
 
     // 1. Check, writing nothing: every stored triangle finite. First one
@@ -382,7 +382,12 @@ mod tests {
     fn workers_refit_as_the_calling_thread() {
         let mut a = crate::scenes::animated::Animated::new(1);
         let n = a.mesh.indices.len() / 3;
-        for quality in [BuildQuality::Medium, BuildQuality::Low] {
+        // The HIGH tree with spatial splits in a reserve of n / 4.
+        for (quality, reserve) in [
+            (BuildQuality::Medium, 0),
+            (BuildQuality::Low, 0),
+            (BuildQuality::High, n / 4),
+        ] {
             let p = BvhParams {
                 quality,
                 ..BvhParams::default()
@@ -390,7 +395,7 @@ mod tests {
             let mut results = Vec::new();
             for workers in [0, 1, 2, 3, 7] {
                 a.set_time(0.0);
-                let mut st = Store::new(n, false);
+                let mut st = Store::with_refs(n, n + reserve, false);
                 let mut bvh = st.bvh();
                 let scene = Scene::from_f32(&a.mesh.vertices, &a.mesh.indices).unwrap();
                 build(&mut bvh, &scene, &p).unwrap();

@@ -237,7 +237,7 @@ impl<'a> TwoLevelPools<'a> {
         let insts = l.scene_instances() as usize;
         let tris = l.scene_triangles() as usize;
         Ok(CarvedPools {
-            blas: BvhPools::carve(a, geometries > 0, tris, l.projection_test)?,
+            blas: BvhPools::carve(a, geometries > 0, tris, tris, l.projection_test)?,
             runs: a.take(when(
                 geometries > 0,
                 geometries.checked_add(1).ok_or(TOO_BIG)?,
