@@ -929,12 +929,12 @@ fn binned_sah(pools: &mut BvhPools<'_>, scene: &Scene<'_>, p: &BvhParams, g: &Ga
             } else {
                 None
             };
-            if let Some((s, slabs)) = spatial {
-                if splits(s.cost) {
-                    let q = spatial::partition(&mut refs[begin..cap], count, scene, &slabs, &s);
-                    if q.left > 0 && q.left < q.used {
-                        split = Some((s.axis, q.left, q.used, q.bl, q.br, q.cl, q.cr));
-                    }
+            if let Some((s, slabs)) = spatial
+                && splits(s.cost)
+            {
+                let q = spatial::partition(&mut refs[begin..cap], count, scene, &slabs, &s);
+                if q.left > 0 && q.left < q.used {
+                    split = Some((s.axis, q.left, q.used, q.bl, q.br, q.cl, q.cr));
                 }
             }
             if split.is_none() {

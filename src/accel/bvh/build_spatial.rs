@@ -277,7 +277,9 @@ pub(super) fn partition(
                     put(&mut refs[j], &l, LEFT);
                     end += 1;
                 }
-                (_, true) => put(&mut refs[j], &r, 0),
+                // No room (which `find`'s count rules out): whole, left.
+                (true, true) => refs[j]._pad = LEFT,
+                (false, true) => put(&mut refs[j], &r, 0),
                 // The left part alone, or (rounding) neither: the whole
                 // reference stays left.
                 (true, false) => put(&mut refs[j], &l, LEFT),
