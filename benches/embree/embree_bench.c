@@ -14,8 +14,13 @@
  *     (lanes (x,y), (x+1,y), (x,y+1), (x+1,y+1)), so every run of 4, 16,
  *     64 or 256 rays is a 2x2, 4x4, 8x8 or 16x16 pixel packet; Embree's
  *     4/8/16-wide packets take the same rays in the same order;
- *  2. builds sheaf's grid, BVH and kd-tree (median build time) and traces
- *     the camera rays with the BVH single ray: the reference hits;
+ *  2. builds sheaf's grid, BVH (LOW, MEDIUM and HIGH) and kd-tree (median
+ *     build time) and traces the camera rays with the BVH single ray on the
+ *     MEDIUM tree: the reference hits. HIGH splits references spatially
+ *     (SBVH) into the reference reserve of the context's limits:
+ *     `--bvh-reserve PERCENT` (default BVH_RESERVE_PERCENT, 50) sets
+ *     sheaf_limits.max_bvh_refs to max_triangles plus that percentage of
+ *     it (0: no reserve, HIGH without spatial splits);
  *  3. makes the shadow ray of every lit reference hit exactly as sheaf's
  *     renderers do (PointLight::at: from the light to the hit point moved
  *     off the surface along its facing normal by max(eps, 1e-5 |light - p|),
@@ -28,7 +33,9 @@
  *     camera rays; sheaf_context_occluded, whose packets are 8x8, and
  *     trace_with at 16x16 for shadow rays), checks each against the
  *     reference, and times the fastest method of each structure (a packet
- *     method unless the single ray is faster) on every thread count;
+ *     method unless the single ray is faster) on every thread count, and
+ *     the MEDIUM tree's fastest methods on the LOW and on the HIGH tree
+ *     (each answer checked against the reference too);
  *  6. builds Embree scenes at RTC_BUILD_QUALITY_LOW (with
  *     RTC_SCENE_FLAG_DYNAMIC), MEDIUM and HIGH on devices "threads=N"
  *     (first commit, and rebuilds: rtcUpdateGeometryBuffer + commits), one
@@ -112,6 +119,11 @@
 #define SHADOW_OFFSET_REL 1e-5f
 #define MAX_THREADS 16
 #define MAX_REPS 31
+/* The BVH's reference reserve for SHEAF_BUILD_QUALITY_HIGH's spatial splits,
+ * percent of the triangles (--bvh-reserve): sheaf_limits.max_bvh_refs =
+ * max_triangles + max_triangles * BVH_RESERVE_PERCENT / 100. */
+#define BVH_RESERVE_PERCENT 50
+#define MAX_BVH_RESERVE_PERCENT 1000
 
 /* ---- small utilities ----------------------------------------------------- */
 
@@ -1038,12 +1050,18 @@ static void agree_shadow(const Scene *s, const sheaf_context *ctx, RTCScene scen
 
 /* ---- sheaf configurations ---------------------------------------------------------- */
 
-/* S_BVH_LOW: the BVH's fast (Morton, LOW) build, traced with the methods
- * that were fastest on the SAH (MEDIUM) tree. */
-enum { S_GRID, S_BVH, S_BVH_LOW, S_KD, NSTRUCT };
-static const char *STRUCT_NAME[NSTRUCT + 1] = {"grid", "BVH", "BVH LOW", "kd", "perspective/light grids"};
+/* S_BVH: the BVH's binned SAH (MEDIUM) build, whose methods are all timed.
+ * S_BVH_LOW: its fast (Morton, LOW) build, S_BVH_HIGH: its HIGH build
+ * (spatial splits into the reserve --bvh-reserve sizes), each traced with
+ * the methods that were fastest on the MEDIUM tree. */
+enum { S_GRID, S_BVH, S_BVH_LOW, S_BVH_HIGH, S_KD, NSTRUCT };
+static const char *STRUCT_NAME[NSTRUCT + 1] = {"grid", "BVH MEDIUM", "BVH LOW", "BVH HIGH", "kd",
+                                               "perspective/light grids"};
 /* The dynamic frame's rows: the structures, then the perspective/light grids' deferred frame. */
 enum { F_PGRID = NSTRUCT, NFRAME };
+/* The dynamic frame leaves the HIGH build out (a build for static scenes;
+ * Embree's frame is LOW + DYNAMIC). */
+static int in_frame(int st) { return st != S_BVH_HIGH; }
 
 /* What the caller's threads join. */
 enum { J_BVH_LOW, J_REFIT, J_GRID, J_DEFERRED, J_KD };
@@ -1114,13 +1132,15 @@ static sheaf_status sheaf_refit_joined(sheaf_context *ctx, int T) { return sheaf
 static sheaf_status sheaf_grid_joined(sheaf_context *ctx, int T) { return sheaf_joined(ctx, T, J_GRID); }
 static sheaf_status sheaf_kd_joined(sheaf_context *ctx, int T) { return sheaf_joined(ctx, T, J_KD); }
 
-/* Build structure st into the context (the BVH at MEDIUM or LOW), the BVH
- * with `width` children per node for single rays (4: also the wide tree). */
+/* Build structure st into the context (the BVH at MEDIUM, LOW or HIGH), the
+ * BVH with `width` children per node for single rays (4: also the wide tree). */
 static sheaf_status sheaf_build_width(sheaf_context *ctx, int st, uint32_t width)
 {
     sheaf_bvh_params bp;
     sheaf_bvh_params_default(&bp);
-    bp.quality = st == S_BVH_LOW ? SHEAF_BUILD_QUALITY_LOW : SHEAF_BUILD_QUALITY_MEDIUM;
+    bp.quality = st == S_BVH_LOW    ? SHEAF_BUILD_QUALITY_LOW
+               : st == S_BVH_HIGH   ? SHEAF_BUILD_QUALITY_HIGH
+                                    : SHEAF_BUILD_QUALITY_MEDIUM;
     bp.width = width;
     return st == S_GRID ? sheaf_context_build_grid(ctx, NULL)
          : st == S_KD   ? sheaf_context_build_kd(ctx, NULL)
@@ -1229,7 +1249,19 @@ typedef struct {
     const char *ppm;         /* --ppm FILE: the two-level scene's frame 0 as sheaf sees it */
     int filter;              /* --filter: the two-level scene's ANIM cut out by any-hit filters */
     int updates;             /* --updates: the LOW build and the refit against Embree's, interleaved */
+    int bvh_reserve;         /* --bvh-reserve: the HIGH build's reference reserve, percent of the triangles */
 } Options;
+
+/* sheaf_limits.max_bvh_refs for `nt` triangles: nt and the spatial-split
+ * reserve, --bvh-reserve percent of nt (0: nt, no reserve). */
+static uint32_t bvh_refs(const Options *o, uint32_t nt)
+{
+    uint64_t refs = (uint64_t)nt + (uint64_t)nt * (uint64_t)o->bvh_reserve / 100u;
+    if (refs > UINT32_MAX)
+        die("--bvh-reserve %d: %llu BVH references for %u triangles do not fit sheaf_limits.max_bvh_refs",
+            o->bvh_reserve, (unsigned long long)refs, nt);
+    return (uint32_t)refs;
+}
 
 /* ---- per-scene run --------------------------------------------------------------------- */
 
@@ -1297,7 +1329,10 @@ typedef struct {
     sheaf_ray *rays;  /* camera rays in packet order */
     uint32_t *pix;    /* pixel index of each camera ray */
     sheaf_context *ctx;
+    sheaf_limits lim;      /* ctx's limits */
+    sheaf_context *hctx;   /* --ab / --profile: a BVH-only context holding the HIGH tree (high_context) */
     double build_ms[NSTRUCT];
+    sheaf_stats bvh_stats[NSTRUCT]; /* S_BVH, S_BVH_HIGH: the tree of the last timed build */
     sheaf_hit *ref, *hits; /* reference hits; scratch */
     Job job;               /* sheaf camera-ray job template */
     size_t nhits, NS, NSL, nocc, internal; /* hits, shadow rays, shadow slots, occluded, self-check mismatches */
@@ -1386,6 +1421,8 @@ static void setup_scene(Bench *b, const char *path)
     lim.max_threads = MAX_THREADS;
     lim.structures = SHEAF_STRUCTURE_GRID | SHEAF_STRUCTURE_BVH | SHEAF_STRUCTURE_KD |
                      (b->o->check_rays ? SHEAF_STRUCTURE_PGRID : 0);
+    /* The HIGH build's spatial splits go into this reserve. */
+    lim.max_bvh_refs = bvh_refs(b->o, b->s.nt);
     b->ctx = NULL;
     for (int attempt = 0;; attempt++) {
         size_t bytes = 0;
@@ -1407,6 +1444,25 @@ static void setup_scene(Bench *b, const char *path)
         }
         check_sheaf(b->ctx, st, "build_grid");
     }
+    b->lim = lim;
+}
+
+/* The context of the HIGH tree for --ab and --profile (made on first use):
+ * ctx's limits with only the BVH's pools (the same reference reserve), the
+ * scene set, the BVH built at HIGH with its wide tree. Those modes trace
+ * HIGH-tree configurations beside MEDIUM (or LOW) ones, so the two trees
+ * live in two contexts; the tables rebuild ctx instead (time_sheaf_methods). */
+static sheaf_context *high_context(Bench *b)
+{
+    if (!b->hctx) {
+        sheaf_limits lim = b->lim;
+        lim.structures = SHEAF_STRUCTURE_BVH;
+        check_sheaf(NULL, sheaf_context_create(&lim, &b->hctx), "sheaf_context_create (HIGH tree)");
+        check_sheaf(b->hctx, sheaf_context_set_geometry(b->hctx, b->s.verts, 12, b->s.nv, b->s.idx, b->s.nt),
+                    "set_geometry (HIGH tree)");
+        check_sheaf(b->hctx, sheaf_build(b->hctx, S_BVH_HIGH), "build (HIGH tree)");
+    }
+    return b->hctx;
 }
 
 /* sheaf's builds, median of reps, on the calling thread. */
@@ -1420,6 +1476,9 @@ static void time_sheaf_builds(Bench *b)
         int reps = b->o->profile ? 1 : b->reps;
         if (b->o->profile && st == S_KD && strncmp(b->o->profile, "kd-", 3))
             continue;
+        /* --profile traces the HIGH tree in a context of its own (high_context). */
+        if (b->o->profile && st == S_BVH_HIGH)
+            continue;
         for (int r = 0; r < reps; r++) {
             double t0 = now_s();
             sheaf_status e = sheaf_build(b->ctx, st);
@@ -1427,7 +1486,13 @@ static void time_sheaf_builds(Bench *b)
             check_sheaf(b->ctx, e, "build");
         }
         b->build_ms[st] = 1e3 * median(t, reps);
-        progress("  sheaf %s build %.1f ms\n", STRUCT_NAME[st], b->build_ms[st]);
+        if (st == S_BVH || st == S_BVH_HIGH) {
+            const sheaf_stats *bs = &b->bvh_stats[st];
+            check_sheaf(b->ctx, sheaf_context_stats(b->ctx, &b->bvh_stats[st]), "stats");
+            progress("  sheaf %s build %.1f ms (%u nodes, %u leaves, depth %u, SAH cost %.2f)\n", STRUCT_NAME[st],
+                     b->build_ms[st], bs->bvh_nodes, bs->bvh_leaves, bs->bvh_depth, bs->bvh_sah_cost);
+        } else
+            progress("  sheaf %s build %.1f ms\n", STRUCT_NAME[st], b->build_ms[st]);
     }
     /* The LOW build, the grid and the kd-tree joined by each thread count
      * (1: the calling thread; the kd-tree is the same for any count). */
@@ -1623,16 +1688,20 @@ static void time_sheaf_methods(Bench *b)
      * (named so in the tables); then that method on every thread count. */
     for (int st = 0; st < NSTRUCT; st++) {
         b->pbest[st] = b->sbest[st] = -1;
-        if (st == S_BVH_LOW) {
-            /* The SAH tree's fastest methods on the LOW tree, every thread
-             * count: trace speed of the fast build against the SAH build. */
+        if (st == S_BVH_LOW || st == S_BVH_HIGH) {
+            /* The SAH tree's fastest methods on the LOW (HIGH) tree, every
+             * thread count: trace speed of the fast (spatial-split) build
+             * against the SAH build; every answer checked against the
+             * reference (time_best). */
             b->pbest[st] = b->pbest[S_BVH];
             b->sbest[st] = b->sbest[S_BVH];
-            check_sheaf(b->ctx, sheaf_build(b->ctx, S_BVH_LOW), "build");
+            check_sheaf(b->ctx, sheaf_build(b->ctx, st), "build");
             for (int ti = 0; ti < b->o->nthreads; ti++) {
+                size_t before = b->internal;
                 time_best(b, st, ti);
-                progress("  sheaf BVH LOW tree, %d threads: primary %.2f, shadow %.2f Mrays/s\n",
-                         b->o->threads[ti], b->pbest_mr[st][ti], b->sbest_mr[st][ti]);
+                progress("  sheaf %s tree, %d threads: primary %.2f, shadow %.2f Mrays/s%s\n", STRUCT_NAME[st],
+                         b->o->threads[ti], b->pbest_mr[st][ti], b->sbest_mr[st][ti],
+                         b->internal != before ? " MISMATCH" : "");
             }
             check_sheaf(b->ctx, sheaf_build(b->ctx, S_BVH), "build");
             continue;
@@ -1853,7 +1922,7 @@ static void time_sheaf_frames(Bench *b)
 {
     /* sheaf dynamic frames: each structure with its best methods. */
     for (int st = 0; st < NSTRUCT; st++)
-        for (int ti = 0; ti < b->o->nthreads; ti++) {
+        for (int ti = 0; ti < b->o->nthreads && in_frame(st); ti++) {
             int T = b->o->threads[ti];
             double tf[MAX_REPS], tb[MAX_REPS], tp[MAX_REPS], ts[MAX_REPS];
             for (int r = 0; r < b->reps; r++) {
@@ -1901,6 +1970,7 @@ static sheaf_context *pgrid_context(Bench *b, uint32_t refs)
     lim.max_threads = MAX_THREADS;
     lim.structures = SHEAF_STRUCTURE_PGRID;
     lim.max_pgrid_refs = refs;
+    lim.max_bvh_refs = bvh_refs(b->o, b->s.nt); /* as setup_scene's (no BVH pools here: no memory) */
     check_sheaf(NULL, sheaf_context_create(&lim, &ctx), "sheaf_context_create (perspective/light grids)");
     check_sheaf(ctx, sheaf_context_set_geometry(ctx, b->s.verts, 12, b->s.nv, b->s.idx, b->s.nt), "set_geometry");
     return ctx;
@@ -2081,26 +2151,35 @@ static void print_tables(Bench *b)
     printf("**Builds**, ms (median of %d; sheaf's grid, BVH LOW build, kd build and refit run on the caller's threads, "
            "which join them (sheaf_context_build_grid_joined, sheaf_context_build_bvh_joined, "
            "sheaf_context_build_kd_joined, sheaf_context_refit_bvh_joined; the bench starts those threads per call, inside the timing, as it "
-           "does for its ray jobs), its other builds on the calling thread; Embree's on its device threads):\n\n",
-           b->reps);
+           "does for its ray jobs), its BVH MEDIUM and HIGH builds on the calling thread (a joined call runs them on "
+           "its leader alone); sheaf's HIGH build splits references spatially into a reserve of %d%% of the "
+           "triangles (--bvh-reserve%s); Embree's on its device threads; each sheaf BVH quality beside Embree's):\n\n",
+           b->reps, b->o->bvh_reserve, b->o->bvh_reserve ? "" : " 0: none, so no spatial splits");
     printf("| structure |");
     for (int ti = 0; ti < b->o->nthreads; ti++) printf(" %d thread%s |", b->o->threads[ti], b->o->threads[ti] > 1 ? "s" : "");
     printf("\n|---|");
     for (int ti = 0; ti < b->o->nthreads; ti++) printf("--:|");
     printf("\n");
-    for (int st = 0; st < NSTRUCT; st++) {
+    /* The grid and the kd-tree, then per quality sheaf's BVH and Embree's. */
+    static const int BUILD_ROWS[] = {S_GRID, S_KD, S_BVH_LOW, -1, S_BVH, -2, S_BVH_HIGH, -3};
+    for (size_t row = 0; row < sizeof BUILD_ROWS / sizeof BUILD_ROWS[0]; row++) {
+        int st = BUILD_ROWS[row];
+        if (st < 0) {
+            int q = -st - 1;
+            printf("| Embree %s%s: rebuild (first commit) |", QUALITY_NAME[q], q == 0 ? " + DYNAMIC" : "");
+            for (int ti = 0; ti < b->o->nthreads; ti++) printf(" %.1f (%.1f) |", b->e_rebuild[ti][q], b->e_first[ti][q]);
+            printf("\n");
+            continue;
+        }
         int joined = st == S_BVH_LOW || st == S_GRID || st == S_KD;
-        printf("| sheaf %s%s |", STRUCT_NAME[st], joined ? " (joined by the thread count)" : "");
+        printf("| sheaf %s%s |", STRUCT_NAME[st], joined ? " (joined by the thread count)"
+                                               : st == S_BVH_HIGH ? " (spatial splits; calling thread)"
+                                               : st == S_BVH      ? " (calling thread)" : "");
         for (int ti = 0; ti < b->o->nthreads; ti++)
             printf(" %.1f |", st == S_BVH_LOW ? b->low_ms[ti]
                              : st == S_GRID   ? b->grid_ms[ti]
                              : st == S_KD     ? b->kd_ms[ti]
                                               : b->build_ms[st]);
-        printf("\n");
-    }
-    for (int q = 0; q < 3; q++) {
-        printf("| Embree %s%s: rebuild (first commit) |", QUALITY_NAME[q], q == 0 ? " + DYNAMIC" : "");
-        for (int ti = 0; ti < b->o->nthreads; ti++) printf(" %.1f (%.1f) |", b->e_rebuild[ti][q], b->e_first[ti][q]);
         printf("\n");
     }
     printf("| sheaf BVH refit (joined by the thread count) |");
@@ -2109,7 +2188,8 @@ static void print_tables(Bench *b)
     for (int ti = 0; ti < b->o->nthreads; ti++) printf(" %.1f (%.1f) |", b->e_refit[ti], b->e_refit_first[ti]);
     printf("\n");
     printf("\n**Rays**, Mrays/s (median of %d; sheaf: the fastest method of each structure on 1 thread, "
-           "camera rays / shadow rays; Embree: LOW / MEDIUM / HIGH):\n\n", b->reps);
+           "camera rays / shadow rays, the BVH's on its MEDIUM (binned SAH) tree, then the same methods on its "
+           "LOW and HIGH (spatial splits) trees; Embree: LOW / MEDIUM / HIGH):\n\n", b->reps);
     printf("| configuration |");
     for (int ti = 0; ti < b->o->nthreads; ti++) printf(" primary, %dT |", b->o->threads[ti]);
     for (int ti = 0; ti < b->o->nthreads; ti++) printf(" shadow, %dT |", b->o->threads[ti]);
@@ -2146,8 +2226,8 @@ static void print_tables(Bench *b)
     for (int ti = 0; ti < b->o->nthreads; ti++) printf(" **%.2f** |", b->sheaf_best_p[ti] / b->emb_best_p[ti]);
     for (int ti = 0; ti < b->o->nthreads; ti++) printf(" **%.2f** |", b->sheaf_best_s[ti] / b->emb_best_s[ti]);
     printf("\n\n**Dynamic frame**, ms (median of %d): rebuild + camera rays + shadow-ray making + shadow rays "
-           "(sheaf: each structure with its best methods; Embree: LOW + DYNAMIC, rtcUpdateGeometryBuffer + "
-           "commits, its fastest widths):\n\n", b->reps);
+           "(sheaf: each structure with its best methods, the BVH HIGH build left out as Embree's HIGH is; "
+           "Embree: LOW + DYNAMIC, rtcUpdateGeometryBuffer + commits, its fastest widths):\n\n", b->reps);
     printf("| |");
     for (int ti = 0; ti < b->o->nthreads; ti++) printf(" %d thread%s: frame (rebuild + primary + shadows) |", b->o->threads[ti], b->o->threads[ti] > 1 ? "s" : "");
     printf("\n|---|");
@@ -2156,10 +2236,12 @@ static void print_tables(Bench *b)
     for (int ti = 0; ti < b->o->nthreads; ti++) {
         b->best_st[ti] = 0;
         for (int st = 1; st < NFRAME; st++)
-            if (b->frame_s[st][ti] < b->frame_s[b->best_st[ti]][ti]) b->best_st[ti] = st;
+            if (in_frame(st) && b->frame_s[st][ti] < b->frame_s[b->best_st[ti]][ti]) b->best_st[ti] = st;
         b->best_frame[ti] = b->frame_s[b->best_st[ti]][ti];
     }
     for (int st = 0; st < NFRAME; st++) {
+        if (!in_frame(st))
+            continue;
         printf("| sheaf %s%s |", STRUCT_NAME[st], st == F_PGRID ? " (deferred frame, no shading; every phase joined)" : "");
         for (int ti = 0; ti < b->o->nthreads; ti++)
             printf(" %s%.1f%s (%.1f + %.1f + %.1f) |", b->best_st[ti] == st ? "**" : "", b->frame_s[st][ti],
@@ -2226,8 +2308,8 @@ static void print_tables(Bench *b)
         printf("| shadow | %s | %zu | %zu / %zu occluded | %zu | – | %zu | %zu | %zu | %zu |\n", QUALITY_NAME[q], b->NS,
                b->as[q].hits_sheaf, b->as[q].hits_embree, b->as[q].differ, b->as[q].edges, b->as[q].ends, b->as[q].other,
                b->as[q].width_differ);
-    printf("\nsheaf self-check: %zu answers of %zu timed sheaf runs differ from the reference", b->internal,
-           N_PRIMARY_CFGS + N_SHADOW_CFGS);
+    printf("\nsheaf self-check: %zu answers of %zu timed sheaf runs (and of the BVH LOW and HIGH trees' runs) differ "
+           "from the reference", b->internal, N_PRIMARY_CFGS + N_SHADOW_CFGS);
     if (b->ray_check >= 0)
         printf("; camera and shadow rays equal to sheaf's deferred frame on %zu of %zu pixels", b->N - (size_t)b->ray_check, b->N);
     printf(".\n\n<details><summary>every sheaf method, 1 thread (Mrays/s)</summary>\n\n");
@@ -2321,13 +2403,57 @@ static void finish_scene(Bench *b)
     free(b->eprim); free(b->eprim1); free(b->et);
     free(b->s.verts); free(b->s.idx); free(b->s.frames);
     sheaf_context_destroy(b->ctx);
+    if (b->hctx) sheaf_context_destroy(b->hctx);
+}
+
+/* A sheaf configuration on the HIGH tree (--ab, --profile): "high:NAME"
+ * (as --ab's low:NAME) or "NAME high", e.g. "bvh-frustum 16x16 high": 1 and
+ * NAME in out (n bytes), else 0 and `name` in out. */
+static int high_name(const char *name, char *out, size_t n)
+{
+    size_t len = strlen(name);
+    if (!strncmp(name, "high:", 5)) {
+        snprintf(out, n, "%s", name + 5);
+        return 1;
+    }
+    if (len > 5 && !strcmp(name + len - 5, " high")) {
+        snprintf(out, n, "%.*s", (int)(len - 5), name);
+        return 1;
+    }
+    snprintf(out, n, "%s", name);
+    return 0;
+}
+
+/* A sheaf job's answers (camera hits, or shadow occlusion with `shadow`)
+ * against the reference (the MEDIUM tree's BVH single ray), bit for bit:
+ * run once on one thread, then the first that differs is fatal. */
+static void check_job(Bench *b, Job *j, int shadow, const char *name)
+{
+    run_job(j, 1);
+    size_t bad = 0, first = 0;
+    if (shadow) {
+        for (size_t k = 0; k < b->NSL; k++)
+            if (j->occ[k] != b->sref[k] && !bad++) first = k;
+    } else {
+        for (size_t k = 0; k < b->N; k++) {
+            uint32_t prim = j->soa[0] ? j->sh_prim[k] : j->hits[k].prim;
+            float t = j->soa[0] ? j->sh[0][k] : j->hits[k].t;
+            if ((prim != b->ref[k].prim || memcmp(&t, &b->ref[k].t, 4) != 0) && !bad++) first = k;
+        }
+    }
+    if (bad)
+        die("%s: %zu %s rays differ from the reference (the MEDIUM tree's BVH single ray), the first ray %zu", name,
+            bad, shadow ? "shadow" : "camera", first);
 }
 
 /* The job timing configuration `name` on this scene: a sheaf method by its
- * table name ("bvh-ranged 8x8") or "embree-N" (Embree LOW, rtcIntersectN /
- * rtcOccludedN; its scene built into *es on a device of `threads` threads,
- * returned in *dev). Camera rays, or the shadow rays with `shadow`; *n is
- * the rays counted for Mrays/s. Embree's outputs go to arrays of their own. */
+ * table name ("bvh-ranged 8x8"), on the HIGH tree as "high:NAME" or "NAME
+ * high" (a context of its own, high_context; its answers checked against the
+ * reference first), or "embree-N" (Embree LOW + DYNAMIC), "embree-N-medium",
+ * "embree-N-high" (rtcIntersectN / rtcOccludedN; its scene built into *es on
+ * a device of `threads` threads, returned in *dev). Camera rays, or the
+ * shadow rays with `shadow`; *n is the rays counted for Mrays/s. Embree's
+ * outputs go to arrays of their own. */
 static Job named_job(Bench *b, const char *name, int shadow, int threads, size_t *n, EScene *es,
                      RTCDevice *dev)
 {
@@ -2336,18 +2462,21 @@ static Job named_job(Bench *b, const char *name, int shadow, int threads, size_t
     *n = b->N;
     *dev = NULL;
     if (!strncmp(name, "embree-", 7)) {
-        int w = atoi(name + 7);
-        if (w != 1 && w != 4 && w != 8 && w != 16) die("embree-N: N is 1, 4, 8 or 16");
+        char *end;
+        long w = strtol(name + 7, &end, 10);
+        int q = !*end || !strcmp(end, "-low") ? 0 : !strcmp(end, "-medium") ? 1 : !strcmp(end, "-high") ? 2 : -1;
+        if ((w != 1 && w != 4 && w != 8 && w != 16) || q < 0)
+            die("%s: embree-N (LOW + DYNAMIC), embree-N-medium or embree-N-high, N 1, 4, 8 or 16", name);
         char cfg[64];
         embree_cfg(cfg, sizeof cfg, threads);
         *dev = rtcNewDevice(cfg);
         if (!*dev) die("rtcNewDevice failed");
-        embree_build(*dev, &b->s, 0, es);
+        embree_build(*dev, &b->s, q, es);
         memset(&j, 0, sizeof j);
         j.lib = LIB_EMBREE;
         j.s = &b->s;
         j.scene = es->scene;
-        j.width = w;
+        j.width = (int)w;
         j.kind = shadow ? K_OCCLUDED : K_TRACE;
         j.rays = shadow ? b->srays : b->rays;
         j.n = shadow ? b->NSL : b->N;
@@ -2356,6 +2485,14 @@ static Job named_job(Bench *b, const char *name, int shadow, int threads, size_t
         j.occ = xmalloc(b->N);
         *n = shadow ? b->NS : b->N;
     } else {
+        const char *full = name;
+        char base[256];
+        int high = high_name(name, base, sizeof base);
+        name = base;
+        if (high && !strncmp(name, "embree-", 7))
+            die("%s: Embree's HIGH tree is embree-N-high", full);
+        if (high)
+            j.ctx = high_context(b);
         /* "soa:NAME": the configuration traced from a ray stream; "cam:NAME"
          * its camera rays made in the kernel. */
         int soa = !strncmp(name, "soa:", 4), cam = !strncmp(name, "cam:", 4);
@@ -2400,6 +2537,9 @@ static Job named_job(Bench *b, const char *name, int shadow, int threads, size_t
                 if (h->prim != w->prim || memcmp(&h->t, &w->t, 4) != 0)
                     die("cam:%s: pixel %u differs from the ray-array reference", name, b->pix[k]);
             }
+        } else if (high) {
+            /* The HIGH tree's answers are the reference's, bit for bit. */
+            check_job(b, &j, shadow, full);
         }
     }
     return j;
@@ -2498,13 +2638,18 @@ static void profile_ab(Bench *b, const char *scene)
     for (char *tok = strtok(buf, ","); tok && k < MAX_AB; tok = strtok(NULL, ",")) names[k++] = tok;
     if (k < 1) die("--ab: no configuration");
     /* "low:NAME": sheaf's configurations trace the LOW (Morton) tree, as the
-     * dynamic frame does; all of them or none (they share one context). */
+     * dynamic frame does; all of them or none (they share one context).
+     * "high:NAME" or "NAME high" trace the HIGH tree, which lives in a
+     * context of its own (high_context), so they mix with either. */
     int low = -1;
     for (int c = 0; c < k; c++) {
         int l = !strncmp(names[c], "low:", 4);
         if (l) names[c] += 4;
-        if (strncmp(names[c], "embree-", 7)) {
-            if (low >= 0 && low != l) die("--ab: low: on every sheaf configuration or on none");
+        char base[256];
+        int h = high_name(names[c], base, sizeof base);
+        if (h && l) die("--ab: low:%s: the LOW or the HIGH tree, not both", names[c]);
+        if (strncmp(names[c], "embree-", 7) && !h) {
+            if (low >= 0 && low != l) die("--ab: low: on every sheaf configuration of the MEDIUM/LOW context or on none");
             low = l;
         }
     }
@@ -2557,6 +2702,7 @@ static void run_scene(const char *path, const Options *o)
     make_reference(b);
     if (o->profile) {
         profile_one(b);
+        if (b->hctx) sheaf_context_destroy(b->hctx);
         free(b);
         return;
     }
@@ -2564,6 +2710,7 @@ static void run_scene(const char *path, const Options *o)
         char name[64];
         short_name(path, name, sizeof name);
         profile_ab(b, name);
+        if (b->hctx) sheaf_context_destroy(b->hctx);
         free(b);
         return;
     }
@@ -3318,7 +3465,7 @@ static void usage(void)
 {
     fprintf(stderr,
             "usage: embree_bench [--reps N] [--threads 1,2] [--size WxH] [--check] [--no-ray-check]\n"
-            "                    [--summary FILE] SCENE.scene...\n"
+            "                    [--bvh-reserve PERCENT] [--summary FILE] SCENE.scene...\n"
             "       embree_bench --twolevel ENV.scene ANIM.scene OBJ.scene [--frames N] [--reps N]\n"
             "                    [--threads 1,2] [--size WxH] [--check] [--summary FILE]\n"
             "  SCENE.scene  written by `sheaf export` (one named view, its light)\n"
@@ -3327,19 +3474,25 @@ static void usage(void)
             "  --size WxH   image size, multiples of 32 (default: the one the file was framed for)\n"
             "  --check      exit 2 when sheaf and Embree disagree beyond the named bounds\n"
             "  --no-ray-check  skip checking the rays against sheaf's deferred frame\n"
+            "  --bvh-reserve PERCENT  the BVH HIGH build's spatial-split reserve: max_bvh_refs =\n"
+            "               triangles + PERCENT%% of them (default %d; 0: no reserve, no spatial splits)\n"
             "  --compact-shadows  pack the shadow rays (default: one slot per camera ray, the\n"
             "               renderer's packets, inactive slots for misses and unlit points)\n"
             "  --summary F  key=value agreement and ratio lines to F\n"
             "  --profile NAME  time one configuration alone on 1 thread (for perf): a sheaf\n"
-            "               method by its table name, or embree-1/4/8/16 (Embree LOW)\n"
+            "               method by its table name (on the HIGH tree: high:NAME or NAME high), or\n"
+            "               embree-1/4/8/16 (Embree LOW), embree-N-medium, embree-N-high\n"
             "  --profile-shadow  with --profile: the shadow rays instead of camera rays\n"
-            "  --ab A,B,..     the named configurations (embree-N for Embree) in interleaved\n"
+            "  --ab A,B,..     the named configurations (embree-N for Embree LOW, embree-N-medium,\n"
+            "                  embree-N-high for its MEDIUM and HIGH trees) in interleaved\n"
             "                  rounds, camera and shadow rays, each thread count: Mrays/s and\n"
             "                  the median per-round speed over the last one's; cam:NAME traces the camera\n"
             "                  rays made in the kernel (sheaf_context_trace_camera, one 32x32 tile per\n"
             "                  call; shadow rows as NAME); soa:NAME traces sheaf's\n"
             "                  rays as a ray stream (sheaf_context_trace_stream / _occluded_stream); low:NAME\n"
-            "                  traces sheaf's LOW tree (every sheaf configuration, or none)\n"
+            "                  traces sheaf's LOW tree (every sheaf configuration, or none); high:NAME or\n"
+            "                  \"NAME high\" traces sheaf's HIGH tree (a context of its own; mixes with the\n"
+            "                  others; its answers checked against the reference first)\n"
             "  --updates    the per-frame updates alone: sheaf's BVH LOW build against Embree's LOW\n"
             "               rebuild and sheaf's refit (SAH tree, width 4) against Embree's LOW + REFIT,\n"
             "               in interleaved rounds per thread count: medians and the median per-round ratio\n"
@@ -3354,7 +3507,8 @@ static void usage(void)
             "  --ppm FILE   with --twolevel: write frame 0 as sheaf traced it (binary PPM; env grey,\n"
             "               anim copies red, the ring green, darker in shadow)\n"
             "  --filter     with --twolevel: anim alpha-tested (a cut-out) by any-hit filters in both\n"
-            "               libraries (sheaf_filter_fn; Embree's filter functions)\n");
+            "               libraries (sheaf_filter_fn; Embree's filter functions)\n",
+            BVH_RESERVE_PERCENT);
     exit(1);
 }
 
@@ -3368,6 +3522,7 @@ int main(int argc, char **argv)
     o.nthreads = 2;
     o.check_rays = 1;
     o.frames = 24;
+    o.bvh_reserve = BVH_RESERVE_PERCENT;
     int first = 0;
     {
         uint32_t probe = 1;
@@ -3407,6 +3562,12 @@ int main(int argc, char **argv)
             o.profile = argv[++i];
         } else if (!strcmp(a, "--ab") && i + 1 < argc) {
             o.ab = argv[++i];
+        } else if (!strcmp(a, "--bvh-reserve") && i + 1 < argc) {
+            char *end;
+            long pc = strtol(argv[++i], &end, 10);
+            if (*end || end == argv[i] || pc < 0 || pc > MAX_BVH_RESERVE_PERCENT)
+                die("--bvh-reserve PERCENT: 0..%d", MAX_BVH_RESERVE_PERCENT);
+            o.bvh_reserve = (int)pc;
         } else if (!strcmp(a, "--profile-shadow")) {
             o.profile_shadow = 1;
         } else if (!strcmp(a, "--updates")) {
@@ -3483,7 +3644,8 @@ int main(int argc, char **argv)
     for (int i = first; first && i < argc; i++) {
         const char *a = argv[i];
         if (!strcmp(a, "--reps") || !strcmp(a, "--threads") || !strcmp(a, "--size") || !strcmp(a, "--summary") ||
-            !strcmp(a, "--profile") || !strcmp(a, "--frames") || !strcmp(a, "--ppm")) {
+            !strcmp(a, "--profile") || !strcmp(a, "--frames") || !strcmp(a, "--ppm") || !strcmp(a, "--ab") ||
+            !strcmp(a, "--bvh-reserve")) {
             i++;
             continue;
         }
@@ -3493,7 +3655,7 @@ int main(int argc, char **argv)
     }
     if (g_nresults > 0) {
         printf("\n### Summary: sheaf / Embree\n\n"
-               "Rays: sheaf's fastest method over Embree's fastest width and quality, Mrays/s ratio (below 1: "
+               "Rays: sheaf's fastest method (any structure, the BVH at any quality) over Embree's fastest width and quality, Mrays/s ratio (below 1: "
                "sheaf slower). Dynamic frame: sheaf's fastest structure over Embree LOW + DYNAMIC, time ratio "
                "(above 1: sheaf slower). Build: sheaf's BVH LOW build (joined by the thread count) over Embree's LOW "
                "rebuild, refit: sheaf's BVH refit over Embree's, time ratios. Differing rays: against Embree "

@@ -914,18 +914,24 @@ fn binned_sah(pools: &mut BvhPools<'_>, scene: &Scene<'_>, p: &BvhParams, g: &Ga
                 Object::Median => (f32::INFINITY, Box3::EMPTY, Box3::EMPTY),
             };
             // Section 4.3: space is binned only where the object split's
-            // children overlap by more than alpha of the root's area.
+            // children overlap (by `OVERLAP` of the node's area), in nodes
+            // not too small to matter.
             let overlap = Box3 {
                 min: ol.min.max(or.min),
                 max: ol.max.min(or.max),
             };
             let overlapping = matches!(object, Object::Median)
                 || (overlap.min.cmple(overlap.max).all()
-                    && overlap.half_area() > spatial::ALPHA * root_area);
+                    && overlap.half_area() > spatial::OVERLAP * area);
             let room = cap - end;
-            let spatial = if spatial_on && room > 0 && overlapping {
+            let spatial = if spatial_on
+                && room > 0
+                && count >= spatial::MIN_COUNT
+                && overlapping
+                && area >= spatial::MIN_AREA * root_area
+            {
                 spatial::find(&mut sbins[0], &refs[begin..end], scene, &task.bounds, room)
-                    .filter(|(s, _)| s.cost < ocost)
+                    .filter(|(s, _)| s.cost < spatial::GAIN * ocost)
             } else {
                 None
             };
@@ -1259,9 +1265,9 @@ mod tests {
     /// below the object-split tree's.
     #[test]
     fn spatial_splits_cut_long_slivers() {
-        let tris: Vec<[[f32; 3]; 3]> = (0..64)
+        let tris: Vec<[[f32; 3]; 3]> = (0..256)
             .map(|i| {
-                let a = i as f32 * core::f32::consts::PI / 64.0;
+                let a = i as f32 * core::f32::consts::PI / 256.0;
                 let (c, s) = (a.cos() * 10.0, a.sin() * 10.0);
                 [[-c, -s, 0.0], [c, s, 0.0], [c, s, 0.05]]
             })
@@ -1272,8 +1278,8 @@ mod tests {
             ..BvhParams::default()
         };
         let plain = build_check(&v, &ix, &p);
-        let split = build_check_in(&v, &ix, &p, 64);
-        assert!(split.references > 64 && split.references <= 128);
+        let split = build_check_in(&v, &ix, &p, 256);
+        assert!(split.references > 256 && split.references <= 512);
         assert!(
             split.sah_cost < plain.sah_cost,
             "{} against {}",
@@ -1493,6 +1499,8 @@ mod perf {
             "bunny/bunny_tinybvh.obj",
             "crytek_sponza/crytek_sponza.obj",
             "conference/conference.obj",
+            "sibenik/sibenik.obj",
+            "legocar/legocar.obj",
         ] {
             let Some((v, ix)) = load(&dir.join(file)) else {
                 eprintln!("{file}: not found, skipped");
@@ -1500,7 +1508,9 @@ mod perf {
             };
             let scene = Scene::from_f32(&v, &ix).unwrap();
             let n = scene.triangle_count() as usize;
-            let mut st = Store::new(n, false);
+            // SHEAF_PERF_RESERVE=P: a spatial-split reserve of P% (HIGH).
+            let reserve = std::env::var("SHEAF_PERF_RESERVE").map_or(0, |r| r.parse().unwrap());
+            let mut st = Store::with_refs(n, n + n * reserve / 100, false);
             let mut bvh = st.bvh();
             // SHEAF_PERF_QUALITY=low|medium|high: one build alone (for perf);
             // SHEAF_PERF_WIDTH=2: without the 4-wide tree (its collapse).
@@ -1535,7 +1545,7 @@ mod perf {
             }
             let mean = (cpu() - t0) / reps as f64;
             println!(
-                "{file} {:?}: {n} tris, build: mean thread CPU time {:.2} ms ({:.2} Mtris/s) over {reps} builds, fastest wall {:.2} ms ({:.2} Mtris/s); nodes {} leaves {} depth {} sah {:.1}",
+                "{file} {:?}: {n} tris, build: mean thread CPU time {:.2} ms ({:.2} Mtris/s) over {reps} builds, fastest wall {:.2} ms ({:.2} Mtris/s); nodes {} leaves {} depth {} sah {:.1} references {:.3} per triangle",
                 p.quality,
                 mean * 1e3,
                 n as f64 / mean / 1e6,
@@ -1544,7 +1554,8 @@ mod perf {
                 info.nodes,
                 info.leaves,
                 info.depth,
-                info.sah_cost
+                info.sah_cost,
+                info.references as f64 / info.triangles.max(1) as f64
             );
             if p.quality == BuildQuality::Low {
                 // Two joined workers (this thread and one helper): wall time,
