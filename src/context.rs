@@ -341,8 +341,9 @@ impl<'a> Context<'a> {
     /// `build_bvh` on the caller's workers (`mem::par::Par`: a thread
     /// pool's broadcast, or threads joined through `mem::par::Join`); sheaf
     /// starts no thread. The fast build (`BuildQuality::Low`) runs every
-    /// step on them and gives the same tree for any number of workers; the
-    /// SAH builds run on the calling thread.
+    /// step on them; the SAH builds split the top of the tree on the
+    /// calling thread and the subtrees below it on the workers. Every
+    /// quality gives the same tree for any number of workers.
     pub fn build_bvh_with(
         &mut self,
         scene: &Scene<'_>,

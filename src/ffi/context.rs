@@ -667,9 +667,9 @@ pub extern "C" fn sheaf_context_build_bvh(
 /// `sheaf_context_build_bvh` does and runs the build's serial steps); the
 /// others run their share of each parallel step and return when the build
 /// ends, with the leader's status. The LOW build (`sheaf_build_quality`)
-/// runs every step on all threads and gives the same tree for any
-/// `thread_count`; MEDIUM and HIGH run on the leader alone (the helpers
-/// wait and return).
+/// runs every step on all threads; MEDIUM and HIGH split the top of the
+/// tree on the leader and the subtrees below it on all threads. Every
+/// quality gives the same tree for any `thread_count`.
 ///
 /// `thread_count` 1 is `sheaf_context_build_bvh`. At most 16 threads.
 ///

@@ -47,6 +47,8 @@ use super::{
 };
 use crate::error::{Error, Pool, Result};
 use crate::geom::{Aabb, Excluded, F4, INVALID_ID, M4, ProjTri, Scene, TriTest, TriVerts};
+use crate::mem::par::{MAX_WORKERS, Par, Parts, atomic_u32};
+use core::sync::atomic::AtomicU32;
 use glam::Vec3A;
 
 /// A box in SIMD registers (build-internal).
@@ -196,13 +198,6 @@ const NO_TASK: Task = Task {
     bounds: Box3::EMPTY,
     cent: Box3::EMPTY,
 };
-
-/// Bytes of the SAH build's scratch: the bins, the spatial bins and the
-/// work stack.
-const SAH_SCRATCH: usize = (crate::mem::scratch::bytes::<Bins>(1)
-    + crate::mem::scratch::bytes::<spatial::SpatialBins>(1)
-    + crate::mem::scratch::bytes::<Task>(MAX_DEPTH + 1))
-.next_multiple_of(64);
 
 /// Bytes of `BvhPools::scratch`: the larger of the SAH build's and the
 /// fast build's (per-worker radix counts, jobs).
@@ -714,63 +709,6 @@ pub(super) fn gather(
     })
 }
 
-/// The pools a build stores triangles into, in leaf order.
-pub(super) struct Stored<'p> {
-    pub tris: &'p mut [TriVerts],
-    /// Empty unless the projection test's data is filled.
-    pub proj: &'p mut [ProjTri],
-    pub tri_ids: &'p mut [u32],
-    pub slot_of: &'p mut [u32],
-}
-
-impl Stored<'_> {
-    /// Store the triangle with caller id `id` at slot `s`.
-    #[inline(always)]
-    pub fn put(&mut self, scene: &Scene<'_>, s: usize, id: u32) {
-        let tri = scene.triangle(id);
-        self.tris[s] = tri;
-        if let Some(p) = self.proj.get_mut(s) {
-            *p = ProjTri::new(&tri);
-        }
-        self.tri_ids[s] = id;
-        self.slot_of[id as usize] = s as u32;
-    }
-}
-
-/// The pools split for a build: nodes, the stored triangles, references,
-/// scratch.
-pub(super) fn split<'p>(
-    pools: &'p mut BvhPools<'_>,
-    p: &BvhParams,
-) -> (
-    &'p mut [BvhNode],
-    Stored<'p>,
-    &'p mut [PrimRef],
-    &'p mut [u8],
-) {
-    let BvhPools {
-        nodes,
-        tris,
-        proj,
-        tri_ids,
-        slot_of,
-        refs,
-        scratch,
-    } = pools;
-    let proj: &mut [ProjTri] = if p.test == TriTest::Projection {
-        proj
-    } else {
-        &mut []
-    };
-    let st = Stored {
-        tris,
-        proj,
-        tri_ids,
-        slot_of,
-    };
-    (nodes, st, refs, scratch)
-}
-
 /// Rebuild `bvh` from `scene` with the build `p.quality` names. On error
 /// the previous build stays valid and every traversal answers as before;
 /// an error found after validation drops its 4-wide tree (the builds
@@ -784,9 +722,10 @@ pub fn build(bvh: &mut Bvh<'_>, scene: &Scene<'_>, p: &BvhParams) -> Result<BvhI
     build_with(bvh, scene, p, &crate::mem::par::Serial)
 }
 
-/// `build` on the caller's workers (`mem::par`): the fast build (`Low`)
-/// runs every phase on them and gives the same tree for any number; the
-/// SAH builds run on the calling thread.
+/// `build` on the caller's workers (`mem::par`), the same tree for any
+/// number: the fast build (`Low`) runs every phase on them; the SAH builds
+/// split the top of the tree on the calling thread and the subtrees below
+/// it on the workers.
 pub fn build_with(
     bvh: &mut Bvh<'_>,
     scene: &Scene<'_>,
@@ -805,6 +744,7 @@ pub fn build_with(
         bvh.set_params(*p);
         return Ok(bvh.commit(info));
     }
+    let workers = crate::mem::par::workers_of(par)?;
     let g = gather(pools, scene, p)?;
 
     // From here on nothing fails.
@@ -813,7 +753,7 @@ pub fn build_with(
         g.info
     } else {
         crate::fault_point!(BvhBuild);
-        binned_sah(pools, scene, p, &g)
+        binned_sah(pools, scene, p, &g, par, workers)
     };
     bvh.set_params(*p);
     Ok(bvh.commit(info))
@@ -839,48 +779,157 @@ fn reference_capacity(pools: &BvhPools<'_>, p: &BvhParams, n: usize) -> usize {
     cap.max(n)
 }
 
-/// Step 2 of the module docs: the top-down binned SAH over `refs[..g.n]`,
-/// with spatial splits (`build_spatial.rs`) into `refs[g.n..]` when the
-/// `High` build has a reserve.
-fn binned_sah(pools: &mut BvhPools<'_>, scene: &Scene<'_>, p: &BvhParams, g: &Gathered) -> BvhInfo {
-    let (n, pad, bounds) = (g.n, g.pad, g.bounds);
-    let mut info = g.info;
-    let total = reference_capacity(pools, p, n);
-    let (nodes, mut stored, refs, scratch) = split(pools, p);
-    let refs = &mut refs[..total];
-    let high = p.quality == BuildQuality::High;
-    let spatial_on = total > n;
-    let sweep_max = if high { SWEEP_HIGH } else { SWEEP_MAX };
-    let leaf_size = p.leaf_size as usize;
-    let scratch = crate::mem::Scratch::new(scratch);
-    let (bins, scratch) = scratch.take_copies(1, &EMPTY_BINS);
-    let (sbins, scratch) = scratch.take_copies(1, &spatial::EMPTY_SPATIAL);
-    let (stack, _) = scratch.take_copies(MAX_DEPTH + 1, &NO_TASK);
-    let mut binner = Binner {
-        bins: if high {
-            MAX_BINS as usize
-        } else {
-            p.bins as usize
-        },
-        m: &mut bins[0],
-    };
-    let root_area = bounds.half_area();
-    let (mut sah_inner, mut sah_leaf) = (0.0f64, 0.0f64);
-    let mut next = 1u32;
-    let mut slot = 0usize;
-    let mut sp = 0usize;
-    let mut task = Task {
-        node: 0,
-        begin: 0,
-        end: n as u32,
-        cap: total as u32,
+/// Most subtrees the calling thread hands to the workers.
+const MAX_JOBS: usize = 256;
+
+/// References of a node below which the calling thread hands its subtree
+/// to a worker: about 64 jobs per build.
+fn job_size(n: usize) -> usize {
+    (n / 64).max(256)
+}
+
+/// A subtree built by one worker (`binned_sah`): its root task (the root's
+/// node is in the top), the region of nodes below its root, and what it
+/// built.
+#[derive(Clone, Copy, Debug)]
+struct Job {
+    task: Task,
+    region: u32,
+    root: BvhNode,
+    nodes: u32,
+    refs: u32,
+    sums: Sums,
+}
+
+/// What a part of the build adds to the tree's figures.
+#[derive(Clone, Copy, Debug, Default)]
+struct Sums {
+    inner: f64,
+    leaf: f64,
+    leaves: u32,
+    depth: u32,
+}
+
+const NO_JOB: Job = Job {
+    task: NO_TASK,
+    region: 0,
+    root: BvhNode {
+        min: [0.0; 3],
+        first: 0,
+        max: [0.0; 3],
+        meta: 0,
+    },
+    nodes: 0,
+    refs: 0,
+    sums: Sums {
+        inner: 0.0,
+        leaf: 0.0,
+        leaves: 0,
         depth: 0,
-        bounds,
-        cent: g.cent,
-    };
+    },
+};
+
+/// Bytes of the SAH build's scratch: per worker the bins, the spatial bins
+/// and a work stack, then the jobs.
+const SAH_SCRATCH: usize = (crate::mem::scratch::bytes::<Bins>(MAX_WORKERS)
+    + crate::mem::scratch::bytes::<spatial::SpatialBins>(MAX_WORKERS)
+    + crate::mem::scratch::bytes::<Task>(MAX_WORKERS * (MAX_DEPTH + 1))
+    + crate::mem::scratch::bytes::<Job>(MAX_JOBS))
+.next_multiple_of(64);
+
+/// Where one worker (or the calling thread, for the top) writes: nodes
+/// `base..` and the stored triangles of slots `slot_base..`; the node at
+/// index `root`, which lies outside (in the top), goes to `root_node`.
+struct Out<'a> {
+    nodes: &'a mut [BvhNode],
+    base: u32,
+    root: u32,
+    root_node: BvhNode,
+    tris: &'a mut [TriVerts],
+    proj: &'a mut [ProjTri],
+    ids: &'a mut [u32],
+    slot_base: usize,
+    /// `slot_of`, written here when no triangle is stored twice (else
+    /// after the build, lowest slot first).
+    slot_of: Option<&'a [AtomicU32]>,
+}
+
+impl Out<'_> {
+    #[inline(always)]
+    fn node(&mut self, i: u32, n: BvhNode) {
+        if i == self.root {
+            self.root_node = n;
+        } else {
+            self.nodes[(i - self.base) as usize] = n;
+        }
+    }
+    #[inline(always)]
+    fn put(&mut self, scene: &Scene<'_>, s: usize, id: u32) {
+        let k = s - self.slot_base;
+        let tri = scene.triangle(id);
+        self.tris[k] = tri;
+        if let Some(p) = self.proj.get_mut(k) {
+            *p = ProjTri::new(&tri);
+        }
+        self.ids[k] = id;
+        if let Some(so) = self.slot_of {
+            so[id as usize].store(s as u32, core::sync::atomic::Ordering::Relaxed);
+        }
+    }
+}
+
+/// What every node split reads: the build's parameters and constants.
+struct Frame<'a> {
+    scene: &'a Scene<'a>,
+    p: &'a BvhParams,
+    pad: Vec3A,
+    root_area: f32,
+    sweep_max: usize,
+    bins: usize,
+    spatial_on: bool,
+}
+
+/// Split `task` and its descendants (depth first, left child first,
+/// children numbered from `next`), over `refs`, which holds references
+/// `rbase..`. With `job`, the calling thread's top: a task the closure
+/// takes becomes a job (it returns false when the jobs are full) instead
+/// of being split here. Returns the next node number and the next slot.
+#[allow(clippy::too_many_arguments)]
+fn grow(
+    f: &Frame<'_>,
+    refs: &mut [PrimRef],
+    rbase: usize,
+    first: Task,
+    mut next: u32,
+    mut slot: usize,
+    out: &mut Out<'_>,
+    m: &mut Bins,
+    sbins: &mut spatial::SpatialBins,
+    stack: &mut [Task],
+    sums: &mut Sums,
+    mut job: Option<&mut dyn FnMut(Task, usize) -> bool>,
+) -> (u32, usize) {
+    let (p, scene, leaf_size) = (f.p, f.scene, f.p.leaf_size as usize);
+    let mut binner = Binner { bins: f.bins, m };
+    let mut sp = 0usize;
+    let mut task = first;
     loop {
-        let (begin, end, cap) = (task.begin as usize, task.end as usize, task.cap as usize);
+        let (begin, end, cap) = (
+            task.begin as usize - rbase,
+            task.end as usize - rbase,
+            task.cap as usize - rbase,
+        );
         let count = end - begin;
+        if let Some(take) = job.as_mut()
+            && take(task, sp)
+        {
+            if sp == 0 {
+                break;
+            }
+            sp -= 1;
+            task = stack[sp];
+            continue;
+        }
         let area = task.bounds.half_area();
         let splits = |cost: f32| {
             let split_cost = p.traversal_cost + cost / area;
@@ -898,7 +947,7 @@ fn binned_sah(pools: &mut BvhPools<'_>, scene: &Scene<'_>, p: &BvhParams, g: &Ga
                 Binned(Split, BinMap),
                 Median,
             }
-            let object = if count <= sweep_max {
+            let object = if count <= f.sweep_max {
                 let cut = sweep_split(&mut refs[begin..end]);
                 Object::Swept(cut)
             } else {
@@ -924,13 +973,13 @@ fn binned_sah(pools: &mut BvhPools<'_>, scene: &Scene<'_>, p: &BvhParams, g: &Ga
                 || (overlap.min.cmple(overlap.max).all()
                     && overlap.half_area() > spatial::OVERLAP * area);
             let room = cap - end;
-            let spatial = if spatial_on
+            let spatial = if f.spatial_on
                 && room > 0
                 && count >= spatial::MIN_COUNT
                 && overlapping
-                && area >= spatial::MIN_AREA * root_area
+                && area >= spatial::MIN_AREA * f.root_area
             {
-                spatial::find(&mut sbins[0], &refs[begin..end], scene, &task.bounds, room)
+                spatial::find(sbins, &refs[begin..end], scene, &task.bounds, room)
                     .filter(|(s, _)| s.cost < spatial::GAIN * ocost)
             } else {
                 None
@@ -963,13 +1012,13 @@ fn binned_sah(pools: &mut BvhPools<'_>, scene: &Scene<'_>, p: &BvhParams, g: &Ga
                 };
             }
         }
-        let padded = task.bounds.padded(pad);
+        let padded = task.bounds.padded(f.pad);
         match split {
             Some((axis, nl, used, bl, br, cl, cr)) => {
                 let left = next;
                 next += 2;
-                nodes[task.node as usize] = BvhNode::inner(&padded, left, axis);
-                sah_inner += area as f64;
+                out.node(task.node, BvhNode::inner(&padded, left, axis));
+                sums.inner += area as f64;
                 // The reserve left over is shared by the children's
                 // reference counts: the right block moves up past the left
                 // child's share.
@@ -983,8 +1032,8 @@ fn binned_sah(pools: &mut BvhPools<'_>, scene: &Scene<'_>, p: &BvhParams, g: &Ga
                 let depth = task.depth + 1;
                 stack[sp] = Task {
                     node: left + 1,
-                    begin: right as u32,
-                    end: (right + used - nl) as u32,
+                    begin: (rbase + right) as u32,
+                    end: (rbase + right + used - nl) as u32,
                     cap: task.cap,
                     depth,
                     bounds: br,
@@ -994,8 +1043,8 @@ fn binned_sah(pools: &mut BvhPools<'_>, scene: &Scene<'_>, p: &BvhParams, g: &Ga
                 task = Task {
                     node: left,
                     begin: task.begin,
-                    end: mid as u32,
-                    cap: right as u32,
+                    end: (rbase + mid) as u32,
+                    cap: (rbase + right) as u32,
                     depth,
                     bounds: bl,
                     cent: cl,
@@ -1003,12 +1052,12 @@ fn binned_sah(pools: &mut BvhPools<'_>, scene: &Scene<'_>, p: &BvhParams, g: &Ga
                 continue;
             }
             None => {
-                nodes[task.node as usize] = BvhNode::leaf(&padded, slot as u32, count as u32);
-                sah_leaf += area as f64 * count as f64;
-                info.leaves += 1;
-                info.depth = info.depth.max(task.depth);
+                out.node(task.node, BvhNode::leaf(&padded, slot as u32, count as u32));
+                sums.leaf += area as f64 * count as f64;
+                sums.leaves += 1;
+                sums.depth = sums.depth.max(task.depth);
                 for r in &refs[begin..end] {
-                    stored.put(scene, slot, r.id);
+                    out.put(scene, slot, r.id);
                     slot += 1;
                 }
             }
@@ -1019,9 +1068,243 @@ fn binned_sah(pools: &mut BvhPools<'_>, scene: &Scene<'_>, p: &BvhParams, g: &Ga
         sp -= 1;
         task = stack[sp];
     }
-    info.nodes = next;
-    info.references = slot as u32;
-    info.sah_cost = ((p.traversal_cost as f64 * sah_inner + sah_leaf) / root_area as f64) as f32;
+    (next, slot)
+}
+
+/// Step 2 of the module docs: the top-down binned SAH over `refs[..g.n]`,
+/// with spatial splits (`build_spatial.rs`) into `refs[g.n..]` when the
+/// `High` build has a reserve. The calling thread splits the top down to
+/// subtrees of at most `job_size` references, the workers build those
+/// (each into its own region of nodes and slots), and the regions are
+/// moved together in job order: the same tree for any number of workers.
+fn binned_sah(
+    pools: &mut BvhPools<'_>,
+    scene: &Scene<'_>,
+    p: &BvhParams,
+    g: &Gathered,
+    par: &dyn Par,
+    workers: usize,
+) -> BvhInfo {
+    let n = g.n;
+    let mut info = g.info;
+    let total = reference_capacity(pools, p, n);
+    let high = p.quality == BuildQuality::High;
+    let f = Frame {
+        scene,
+        p,
+        pad: g.pad,
+        root_area: g.bounds.half_area(),
+        sweep_max: if high { SWEEP_HIGH } else { SWEEP_MAX },
+        bins: if high {
+            MAX_BINS as usize
+        } else {
+            p.bins as usize
+        },
+        spatial_on: total > n,
+    };
+    let proj_on = p.test == TriTest::Projection;
+    let BvhPools {
+        nodes,
+        tris,
+        proj,
+        tri_ids,
+        slot_of,
+        refs,
+        scratch,
+    } = pools;
+    let refs = &mut refs[..total];
+    let scratch = crate::mem::Scratch::new(scratch);
+    let (bins, scratch) = scratch.take_copies(MAX_WORKERS, &EMPTY_BINS);
+    let (sbins, scratch) = scratch.take_copies(MAX_WORKERS, &spatial::EMPTY_SPATIAL);
+    let (stacks, scratch) = scratch.take_copies(MAX_WORKERS * (MAX_DEPTH + 1), &NO_TASK);
+    let (jobs, _) = scratch.take_copies(MAX_JOBS, &NO_JOB);
+
+    // 1. The top on the calling thread, down to the jobs (in depth-first
+    // order, so their reference ranges follow each other).
+    let root = Task {
+        node: 0,
+        begin: 0,
+        end: n as u32,
+        cap: total as u32,
+        depth: 0,
+        bounds: g.bounds,
+        cent: g.cent,
+    };
+    let cut = job_size(n);
+    let mut n_jobs = 0usize;
+    let mut top = Sums::default();
+    let top_next = {
+        let mut out = Out {
+            nodes: &mut nodes[..],
+            base: 0,
+            root: u32::MAX,
+            root_node: BvhNode::default(),
+            tris: &mut [],
+            proj: &mut [],
+            ids: &mut [],
+            slot_base: 0,
+            slot_of: None,
+        };
+        let mut take = |t: Task, pending: usize| {
+            let count = (t.end - t.begin) as usize;
+            // A split adds one task; the jobs must hold every pending one.
+            let full = n_jobs + pending + 2 > MAX_JOBS;
+            if count <= cut || t.depth as usize >= MAX_DEPTH || full {
+                jobs[n_jobs] = Job { task: t, ..NO_JOB };
+                n_jobs += 1;
+                true
+            } else {
+                false
+            }
+        };
+        let (next, _) = grow(
+            &f,
+            refs,
+            0,
+            root,
+            1,
+            0,
+            &mut out,
+            &mut bins[0],
+            &mut sbins[0],
+            &mut stacks[..MAX_DEPTH + 1],
+            &mut top,
+            Some(&mut take),
+        );
+        next
+    };
+    let jobs = &mut jobs[..n_jobs];
+
+    // 2. Each job's region: `2c - 2` nodes below a root of `c` references
+    // (its share of the reserve included), after the top and the regions
+    // before it; the jobs in runs of about equal reference counts, one run
+    // per worker.
+    let mut region = top_next;
+    for j in jobs.iter_mut() {
+        j.region = region;
+        region += 2 * (j.task.cap - j.task.begin) - 2;
+    }
+    let mut jb = [0usize; MAX_WORKERS + 1];
+    let mut nb = [top_next as usize; MAX_WORKERS + 1];
+    let mut rb = [0usize; MAX_WORKERS + 1];
+    {
+        let (mut k, mut acc) = (0usize, 0usize);
+        for w in 1..workers {
+            while k < jobs.len() && acc < total * w / workers {
+                acc += (jobs[k].task.cap - jobs[k].task.begin) as usize;
+                k += 1;
+            }
+            jb[w] = k;
+            nb[w] = jobs.get(k).map_or(region as usize, |j| j.region as usize);
+            rb[w] = jobs.get(k).map_or(total, |j| j.task.begin as usize);
+        }
+        jb[workers] = jobs.len();
+        nb[workers] = region as usize;
+        rb[workers] = total;
+    }
+    // A triangle stored twice (spatial splits) takes its lowest slot,
+    // after the build; else each job writes its triangles' slots.
+    let dedup = f.spatial_on;
+    let pb = if proj_on { rb } else { [0; MAX_WORKERS + 1] };
+    let w1 = workers + 1;
+    {
+        let js = Parts::at(&mut *jobs, &jb[..w1]);
+        let ns = Parts::at(&mut nodes[..region as usize], &nb[..w1]);
+        let rs = Parts::at(&mut *refs, &rb[..w1]);
+        let ts = Parts::at(&mut tris[..total], &rb[..w1]);
+        let ps = Parts::at(
+            if proj_on { &mut proj[..total] } else { &mut [] },
+            &pb[..w1],
+        );
+        let is = Parts::at(&mut tri_ids[..total], &rb[..w1]);
+        let bs = Parts::even(&mut bins[..workers], workers);
+        let ss = Parts::even(&mut sbins[..workers], workers);
+        let ks = Parts::even(&mut stacks[..workers * (MAX_DEPTH + 1)], workers);
+        let so = (!dedup).then(|| atomic_u32(&mut slot_of[..]));
+        par.run(&|w| {
+            let (mine, part, rp) = (js.get(w), ns.get(w), rs.get(w));
+            let (tp, pp, ip) = (ts.get(w), ps.get(w), is.get(w));
+            let (m, sb, stack) = (&mut bs.get(w)[0], &mut ss.get(w)[0], ks.get(w));
+            let (base, rbase) = (ns.start(w) as u32, rs.start(w));
+            let mut out = Out {
+                nodes: part,
+                base,
+                root: 0,
+                root_node: BvhNode::default(),
+                tris: tp,
+                proj: pp,
+                ids: ip,
+                slot_base: rbase,
+                slot_of: so,
+            };
+            for j in mine.iter_mut() {
+                out.root = j.task.node;
+                let mut sums = Sums::default();
+                let (next, slot) = grow(
+                    &f,
+                    rp,
+                    rbase,
+                    j.task,
+                    j.region,
+                    j.task.begin as usize,
+                    &mut out,
+                    m,
+                    sb,
+                    stack,
+                    &mut sums,
+                    None,
+                );
+                j.root = out.root_node;
+                j.nodes = next - j.region;
+                j.refs = (slot - j.task.begin as usize) as u32;
+                j.sums = sums;
+            }
+        });
+    }
+
+    // 3. The regions moved down in job order (nodes, and with a reserve the
+    // stored triangles), their links shifted, the roots written.
+    let (mut to, mut slot_to) = (top_next as usize, 0usize);
+    let mut sums = top;
+    for j in jobs.iter() {
+        let (from, used) = (j.region as usize, j.nodes as usize);
+        let (sfrom, sused) = (j.task.begin as usize, j.refs as usize);
+        let (shift, sshift) = ((from - to) as u32, (sfrom - slot_to) as u32);
+        if sshift > 0 {
+            tris.copy_within(sfrom..sfrom + sused, slot_to);
+            if proj_on {
+                proj.copy_within(sfrom..sfrom + sused, slot_to);
+            }
+            tri_ids.copy_within(sfrom..sfrom + sused, slot_to);
+        }
+        let fix = |nd: &mut BvhNode| {
+            nd.first -= if nd.is_leaf() { sshift } else { shift };
+        };
+        if shift > 0 || sshift > 0 {
+            nodes.copy_within(from..from + used, to);
+            nodes[to..to + used].iter_mut().for_each(fix);
+        }
+        let mut r = j.root;
+        fix(&mut r);
+        nodes[j.task.node as usize] = r;
+        to += used;
+        slot_to += sused;
+        sums.inner += j.sums.inner;
+        sums.leaf += j.sums.leaf;
+        sums.leaves += j.sums.leaves;
+        sums.depth = sums.depth.max(j.sums.depth);
+    }
+    if dedup {
+        for (s, &id) in tri_ids[..slot_to].iter().enumerate().rev() {
+            slot_of[id as usize] = s as u32;
+        }
+    }
+    info.nodes = to as u32;
+    info.references = slot_to as u32;
+    info.leaves = sums.leaves;
+    info.depth = sums.depth;
+    info.sah_cost =
+        ((p.traversal_cost as f64 * sums.inner + sums.leaf) / f.root_area as f64) as f32;
     info
 }
 
@@ -1286,6 +1569,66 @@ mod tests {
             split.sah_cost,
             plain.sah_cost
         );
+    }
+
+    /// The SAH builds on any number of workers (run in reverse order) give
+    /// the calling thread's tree bit for bit: nodes, stored triangles,
+    /// ids, slots and figures, with and without spatial splits.
+    #[test]
+    fn workers_build_as_the_calling_thread() {
+        use crate::accel::testkit::Backwards;
+        for name in ["gears", "animated", "balls"] {
+            let s = crate::scenes::builtin(name).unwrap();
+            let scene = Scene::from_f32(&s.mesh.vertices, &s.mesh.indices).unwrap();
+            let n = scene.triangle_count() as usize;
+            for (quality, reserve, test) in [
+                (BuildQuality::Medium, 0, TriTest::MollerTrumbore),
+                (BuildQuality::High, n / 2, TriTest::Projection),
+                (BuildQuality::High, 0, TriTest::MollerTrumbore),
+            ] {
+                let p = BvhParams {
+                    quality,
+                    test,
+                    ..BvhParams::default()
+                };
+                let mut results = Vec::new();
+                for workers in [0, 1, 2, 3, 16] {
+                    let mut st = Store::with_refs(n, n + reserve, test == TriTest::Projection);
+                    let mut bvh = st.bvh();
+                    let info = if workers == 0 {
+                        build(&mut bvh, &scene, &p).unwrap()
+                    } else {
+                        build_with(&mut bvh, &scene, &p, &Backwards(workers)).unwrap()
+                    };
+                    let v = bvh.view().unwrap();
+                    check_invariants(&v, &scene, &p);
+                    let bits = |x: &[f32]| x.iter().map(|f| f.to_bits()).collect::<Vec<_>>();
+                    let nodes: Vec<u8> = bytemuck::cast_slice(v.nodes).to_vec();
+                    let tris: Vec<f32> = v
+                        .tris
+                        .iter()
+                        .flat_map(|t| t.v0.into_iter().chain(t.v1).chain(t.v2))
+                        .collect();
+                    let proj: Vec<u8> = bytemuck::cast_slice(v.proj).to_vec();
+                    results.push((
+                        info,
+                        nodes,
+                        bits(&tris),
+                        proj,
+                        v.tri_ids.to_vec(),
+                        v.slot_of.to_vec(),
+                    ));
+                }
+                let first = &results[0];
+                assert!(first.0.nodes > 1, "{name}");
+                for r in &results[1..] {
+                    assert!(
+                        r == first,
+                        "{name} {quality:?} reserve {reserve}: a worker count changed the tree"
+                    );
+                }
+            }
+        }
     }
 
     #[test]
