@@ -98,10 +98,10 @@ pub(crate) fn scene_in(test: TriTest, mut l: Limits) -> OwnedContext {
             mode: UpdateMode::Refit,
             bvh: BvhParams {
                 test,
-                quality: if g % 2 == 0 {
-                    BuildQuality::Medium
-                } else {
-                    BuildQuality::Low
+                quality: match g % 3 {
+                    0 => BuildQuality::Medium,
+                    1 => BuildQuality::Low,
+                    _ => BuildQuality::High,
                 },
                 ..BvhParams::default()
             },

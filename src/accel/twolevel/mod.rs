@@ -78,7 +78,10 @@ pub struct GeometryParams {
     /// `Rebuild` geometry may grow to it.
     pub max_triangles: u32,
     /// The geometry's BVH (its `test` must be the scene's: the first
-    /// geometry's).
+    /// geometry's). A static geometry may ask for `BuildQuality::High`:
+    /// its 64 bins and exact sweeps, but no spatial splits (a geometry's
+    /// slots hold one reference per triangle, which the flattened scene
+    /// reads).
     pub bvh: BvhParams,
     /// The refit's automatic rebuild (`Refit` geometries).
     pub refit: bvh::refit::RefitParams,
