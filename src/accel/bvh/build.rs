@@ -894,6 +894,8 @@ struct Frame<'a> {
 /// `rbase..`. With `job`, the calling thread's top: a task the closure
 /// takes becomes a job (it returns false when the jobs are full) instead
 /// of being split here. Returns the next node number and the next slot.
+// The top and every job call it with their own parts of the pools and of
+// the scratch, which cannot live in one struct shared by the workers.
 #[allow(clippy::too_many_arguments)]
 fn grow(
     f: &Frame<'_>,
@@ -1114,9 +1116,11 @@ fn binned_sah(
     } = pools;
     let refs = &mut refs[..total];
     let scratch = crate::mem::Scratch::new(scratch);
-    let (bins, scratch) = scratch.take_copies(MAX_WORKERS, &EMPTY_BINS);
-    let (sbins, scratch) = scratch.take_copies(MAX_WORKERS, &spatial::EMPTY_SPATIAL);
-    let (stacks, scratch) = scratch.take_copies(MAX_WORKERS * (MAX_DEPTH + 1), &NO_TASK);
+    // Per worker of this build only (the scratch holds `MAX_WORKERS`):
+    // a small geometry's build does not fill sixteen sets of bins.
+    let (bins, scratch) = scratch.take_copies(workers, &EMPTY_BINS);
+    let (sbins, scratch) = scratch.take_copies(workers, &spatial::EMPTY_SPATIAL);
+    let (stacks, scratch) = scratch.take_copies(workers * (MAX_DEPTH + 1), &NO_TASK);
     let (jobs, _) = scratch.take_copies(MAX_JOBS, &NO_JOB);
 
     // 1. The top on the calling thread, down to the jobs (in depth-first
