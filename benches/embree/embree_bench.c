@@ -1064,8 +1064,9 @@ enum { F_PGRID = NSTRUCT, NFRAME };
 static int in_frame(int st) { return st != S_BVH_HIGH; }
 
 /* What the caller's threads join. */
-enum { J_BVH_LOW, J_REFIT, J_GRID, J_DEFERRED, J_KD };
-static const char *JOIN_NAME[] = {"BVH LOW build", "refit", "grid build", "deferred frame", "kd build"};
+enum { J_BVH_LOW, J_REFIT, J_GRID, J_DEFERRED, J_KD, J_BVH_MEDIUM, J_BVH_HIGH };
+static const char *JOIN_NAME[] = {"BVH LOW build", "refit",         "grid build",   "deferred frame",
+                                  "kd build",      "BVH MEDIUM build", "BVH HIGH build"};
 
 /* One thread of a joined call (sheaf_context_build_bvh_joined,
  * sheaf_context_refit_bvh_joined, sheaf_context_build_grid_joined). */
@@ -1105,8 +1106,10 @@ static sheaf_status sheaf_joined_call(sheaf_context *ctx, int T, int what, const
     for (int i = 0; i < T; i++) {
         a[i].ctx = ctx;
         sheaf_bvh_params_default(&a[i].p);
-        a[i].p.quality = SHEAF_BUILD_QUALITY_LOW;
-        a[i].p.width = 4; /* as sheaf_build(S_BVH_LOW) */
+        a[i].p.quality = what == J_BVH_MEDIUM ? SHEAF_BUILD_QUALITY_MEDIUM
+                       : what == J_BVH_HIGH   ? SHEAF_BUILD_QUALITY_HIGH
+                                              : SHEAF_BUILD_QUALITY_LOW;
+        a[i].p.width = 4; /* as sheaf_build */
         a[i].what = what;
         a[i].job = job;
         a[i].rgba = rgba;
@@ -1346,6 +1349,7 @@ typedef struct {
     double e_first[4][3], e_rebuild[4][3], e_prim[4][3][4], e_shad[4][3][4]; /* [threads][quality][width] */
     double refit_ms[4];              /* [threads]: sheaf_context_refit_bvh_joined, the same vertices */
     double low_ms[4];                /* [threads]: the BVH LOW build joined by that many threads */
+    double sah_ms[2][4];             /* [MEDIUM, HIGH][threads]: the SAH builds joined likewise */
     double grid_ms[4];               /* [threads]: the grid build joined by that many threads */
     double kd_ms[4];                 /* [threads]: the kd build joined by that many threads */
     double anim[4][4], anim_parts[4][4][3]; /* [ANIM mode][threads]: mean ms per frame; update, camera, shadows */
@@ -1494,25 +1498,33 @@ static void time_sheaf_builds(Bench *b)
         } else
             progress("  sheaf %s build %.1f ms\n", STRUCT_NAME[st], b->build_ms[st]);
     }
-    /* The LOW build, the grid and the kd-tree joined by each thread count
-     * (1: the calling thread; the kd-tree is the same for any count). */
-    for (int g = 0; g < 3; g++)
+    /* The LOW build, the grid, the kd-tree and the MEDIUM and HIGH builds
+     * joined by each thread count (1: the calling thread; every one is the
+     * same for any count). */
+    for (int g = 0; g < 5; g++)
         for (int ti = 0; ti < b->o->nthreads; ti++) {
             int T = b->o->threads[ti];
             double t[MAX_REPS];
             int reps = b->o->profile ? 1 : b->reps;
             for (int r = 0; r < reps; r++) {
                 double t0 = now_s();
-                sheaf_status e = g == 2 ? sheaf_kd_joined(b->ctx, T)
+                sheaf_status e = g == 4 ? sheaf_joined(b->ctx, T, J_BVH_HIGH)
+                               : g == 3 ? sheaf_joined(b->ctx, T, J_BVH_MEDIUM)
+                               : g == 2 ? sheaf_kd_joined(b->ctx, T)
                                : g      ? sheaf_grid_joined(b->ctx, T)
                                         : sheaf_build_low_joined(b->ctx, T);
                 t[r] = now_s() - t0;
                 check_sheaf(b->ctx, e, "joined build");
             }
-            double *ms = g == 2 ? b->kd_ms : g ? b->grid_ms : b->low_ms;
+            double *ms = g >= 3 ? b->sah_ms[g - 3] : g == 2 ? b->kd_ms : g ? b->grid_ms : b->low_ms;
             ms[ti] = 1e3 * median(t, reps);
-            progress("  sheaf %s joined by %d threads %.1f ms\n", g == 2 ? "kd build" : g ? "grid" : "BVH LOW build", T,
-                     ms[ti]);
+            progress("  sheaf %s joined by %d threads %.1f ms\n",
+                     g == 4   ? "BVH HIGH build"
+                     : g == 3 ? "BVH MEDIUM build"
+                     : g == 2 ? "kd build"
+                     : g      ? "grid"
+                              : "BVH LOW build",
+                     T, ms[ti]);
         }
     /* The reference, the checks and the method tables use the SAH tree. */
     check_sheaf(b->ctx, sheaf_build(b->ctx, S_BVH), "build");
@@ -2148,11 +2160,10 @@ static void print_tables(Bench *b)
     printf("%u triangles (%u excluded by sheaf: non-finite or zero area), %ux%u, %s; "
            "%zu camera rays (%zu hit), %zu shadow rays (%zu occluded); load average %.2f before, %.2f after.\n\n",
            b->s.nt, b->s.excluded, b->W, b->H, b->s.view, b->N, b->nhits, b->NS, b->nocc, b->load0, b->load1);
-    printf("**Builds**, ms (median of %d; sheaf's grid, BVH LOW build, kd build and refit run on the caller's threads, "
+    printf("**Builds**, ms (median of %d; sheaf's grid, BVH builds, kd build and refit run on the caller's threads, "
            "which join them (sheaf_context_build_grid_joined, sheaf_context_build_bvh_joined, "
            "sheaf_context_build_kd_joined, sheaf_context_refit_bvh_joined; the bench starts those threads per call, inside the timing, as it "
-           "does for its ray jobs), its BVH MEDIUM and HIGH builds on the calling thread (a joined call runs them on "
-           "its leader alone); sheaf's HIGH build splits references spatially into a reserve of %d%% of the "
+           "does for its ray jobs); sheaf's HIGH build splits references spatially into a reserve of %d%% of the "
            "triangles (--bvh-reserve%s); Embree's on its device threads; each sheaf BVH quality beside Embree's):\n\n",
            b->reps, b->o->bvh_reserve, b->o->bvh_reserve ? "" : " 0: none, so no spatial splits");
     printf("| structure |");
@@ -2171,15 +2182,14 @@ static void print_tables(Bench *b)
             printf("\n");
             continue;
         }
-        int joined = st == S_BVH_LOW || st == S_GRID || st == S_KD;
-        printf("| sheaf %s%s |", STRUCT_NAME[st], joined ? " (joined by the thread count)"
-                                               : st == S_BVH_HIGH ? " (spatial splits; calling thread)"
-                                               : st == S_BVH      ? " (calling thread)" : "");
+        printf("| sheaf %s%s (joined by the thread count) |", STRUCT_NAME[st],
+               st == S_BVH_HIGH ? " (spatial splits)" : "");
         for (int ti = 0; ti < b->o->nthreads; ti++)
-            printf(" %.1f |", st == S_BVH_LOW ? b->low_ms[ti]
-                             : st == S_GRID   ? b->grid_ms[ti]
-                             : st == S_KD     ? b->kd_ms[ti]
-                                              : b->build_ms[st]);
+            printf(" %.1f |", st == S_BVH_LOW    ? b->low_ms[ti]
+                             : st == S_GRID     ? b->grid_ms[ti]
+                             : st == S_KD       ? b->kd_ms[ti]
+                             : st == S_BVH      ? b->sah_ms[0][ti]
+                                                : b->sah_ms[1][ti]);
         printf("\n");
     }
     printf("| sheaf BVH refit (joined by the thread count) |");
