@@ -165,16 +165,22 @@ struct Task {
     cent: Box3,
 }
 
-/// Binning of one node along the three axes, in two interleaved sets (even
-/// and odd references) merged before the sweep.
-///
-/// NOTE(perf): references in mesh order are spatially coherent, so
-/// consecutive ones mostly fall into the same bins; with one set each bin
-/// update waits for the previous one's store.
+/// Binning of one node along the three axes (objects) and in space
+/// (`build_spatial.rs`). The calling thread's top bins its large nodes on
+/// every worker of `par`, each a share of the references into its own
+/// bins, merged in worker order: bin boxes and counts are minima, maxima
+/// and sums, the same whatever the shares, so the tree is too. A job's
+/// binner has one set of bins and runs alone.
 struct Binner<'s> {
     bins: usize,
-    m: &'s mut Bins,
+    /// One per worker of `par`.
+    m: &'s mut [Bins],
+    sm: &'s mut [spatial::SpatialBins],
+    par: &'s dyn Par,
 }
+
+/// Nodes of at least this many references bin on every worker.
+const PAR_BINNING: usize = 4096;
 
 /// The bins of a `Binner`: two sets of three axes (in the build scratch,
 /// not on the caller's stack).
@@ -278,7 +284,7 @@ impl BinMap {
 /// Nodes of at least this many references bin into two sets.
 const TWO_SETS: usize = 64;
 
-impl Binner<'_> {
+impl Bins {
     #[inline(always)]
     fn add(&mut self, set: usize, r: &PrimRef, map: &BinMap) {
         let bx = Box3::of(r);
@@ -286,20 +292,33 @@ impl Binner<'_> {
         for (a, &ia) in i.iter().enumerate() {
             // `& 63`: in range already; lets the compiler drop the checks.
             let b = ia & (MAX_BINS as usize - 1);
-            self.m.boxes[set][a][b].grow(&bx);
-            self.m.counts[set][a][b] += 1;
+            self.boxes[set][a][b].grow(&bx);
+            self.counts[set][a][b] += 1;
         }
     }
 
-    /// Bin `refs` and return the cheapest plane, or `None` when no plane has
-    /// references on both sides (all centroids in one bin on every axis).
-    fn find(&mut self, refs: &[PrimRef], map: &BinMap) -> Option<Split> {
-        let nb = self.bins;
+    /// `other`'s first `nb` bins of set 0 merged into these.
+    fn merge(&mut self, other: &Bins, nb: usize) {
+        for a in 0..3 {
+            for i in 0..nb {
+                self.boxes[0][a][i].grow(&other.boxes[0][a][i]);
+                self.counts[0][a][i] += other.counts[0][a][i];
+            }
+        }
+    }
+
+    /// `refs` binned into set 0's first `nb` bins, through two interleaved
+    /// sets (even and odd references) in large nodes.
+    ///
+    /// NOTE(perf): references in mesh order are spatially coherent, so
+    /// consecutive ones mostly fall into the same bins; with one set each
+    /// bin update waits for the previous one's store.
+    fn fill(&mut self, refs: &[PrimRef], map: &BinMap, nb: usize) {
         let sets = if refs.len() >= TWO_SETS { 2 } else { 1 };
         for set in 0..sets {
             for a in 0..3 {
-                self.m.boxes[set][a][..nb].fill(Box3::EMPTY);
-                self.m.counts[set][a][..nb].fill(0);
+                self.boxes[set][a][..nb].fill(Box3::EMPTY);
+                self.counts[set][a][..nb].fill(0);
             }
         }
         if sets == 2 {
@@ -311,22 +330,47 @@ impl Binner<'_> {
             if let [r] = pairs.remainder() {
                 self.add(0, r, map);
             }
+            for a in 0..3 {
+                for i in 0..nb {
+                    let (b1, n1) = (self.boxes[1][a][i], self.counts[1][a][i]);
+                    self.boxes[0][a][i].grow(&b1);
+                    self.counts[0][a][i] += n1;
+                }
+            }
         } else {
             for r in refs {
                 self.add(0, r, map);
             }
         }
-        if sets == 2 {
-            for a in 0..3 {
-                for i in 0..nb {
-                    let (b1, n1) = (self.m.boxes[1][a][i], self.m.counts[1][a][i]);
-                    self.m.boxes[0][a][i].grow(&b1);
-                    self.m.counts[0][a][i] += n1;
-                }
+    }
+}
+
+impl Binner<'_> {
+    /// The workers that bin a node of `n` references.
+    fn workers(&self, n: usize) -> usize {
+        if n >= PAR_BINNING { self.m.len() } else { 1 }
+    }
+
+    /// Bin `refs` and return the cheapest plane, or `None` when no plane has
+    /// references on both sides (all centroids in one bin on every axis).
+    fn find(&mut self, refs: &[PrimRef], map: &BinMap) -> Option<Split> {
+        let nb = self.bins;
+        let w = self.workers(refs.len());
+        if w == 1 {
+            self.m[0].fill(refs, map, nb);
+        } else {
+            let parts = Parts::even(&mut self.m[..w], w);
+            self.par.run(&|k| {
+                let part = &refs[crate::mem::par::share(refs.len(), k, w)];
+                parts.get(k)[0].fill(part, map, nb);
+            });
+            let (first, rest) = self.m.split_at_mut(1);
+            for o in &rest[..w - 1] {
+                first[0].merge(o, nb);
             }
         }
         // The three axes' sweeps run side by side, one per lane.
-        let (counts, boxes) = (&self.m.counts[0], &self.m.boxes[0]);
+        let (counts, boxes) = (&self.m[0].counts[0], &self.m[0].boxes[0]);
         let count3 = |i: usize| {
             Vec3A::new(
                 counts[0][i] as f32,
@@ -369,7 +413,7 @@ impl Binner<'_> {
             left: Box3::EMPTY,
             right: Box3::EMPTY,
         };
-        for (i, b) in self.m.boxes[0][s.axis][..nb].iter().enumerate() {
+        for (i, b) in self.m[0].boxes[0][s.axis][..nb].iter().enumerate() {
             if i < s.pos {
                 s.left.grow(b);
             } else {
@@ -377,6 +421,35 @@ impl Binner<'_> {
             }
         }
         Some(s)
+    }
+}
+
+impl Binner<'_> {
+    /// Bin `refs` (a node's, within `bounds`) in space and return the
+    /// cheapest slab plane whose duplicates fit `room`, or `None`.
+    fn spatial(
+        &mut self,
+        refs: &[PrimRef],
+        scene: &Scene<'_>,
+        bounds: &Box3,
+        room: usize,
+    ) -> Option<(spatial::SpatialSplit, spatial::Slabs)> {
+        let slabs = spatial::Slabs::new(bounds);
+        let w = self.workers(refs.len());
+        if w == 1 {
+            spatial::fill(&mut self.sm[0], refs, scene, &slabs);
+        } else {
+            let parts = Parts::even(&mut self.sm[..w], w);
+            self.par.run(&|k| {
+                let part = &refs[crate::mem::par::share(refs.len(), k, w)];
+                spatial::fill(&mut parts.get(k)[0], part, scene, &slabs);
+            });
+            let (first, rest) = self.sm.split_at_mut(1);
+            for o in &rest[..w - 1] {
+                spatial::merge(&mut first[0], o);
+            }
+        }
+        spatial::best(&self.sm[0], slabs, refs.len(), room)
     }
 }
 
@@ -905,14 +978,12 @@ fn grow(
     mut next: u32,
     mut slot: usize,
     out: &mut Out<'_>,
-    m: &mut Bins,
-    sbins: &mut spatial::SpatialBins,
+    binner: &mut Binner<'_>,
     stack: &mut [Task],
     sums: &mut Sums,
     mut job: Option<&mut dyn FnMut(Task, usize) -> bool>,
 ) -> (u32, usize) {
     let (p, scene, leaf_size) = (f.p, f.scene, f.p.leaf_size as usize);
-    let mut binner = Binner { bins: f.bins, m };
     let mut sp = 0usize;
     let mut task = first;
     loop {
@@ -981,7 +1052,8 @@ fn grow(
                 && overlapping
                 && area >= spatial::MIN_AREA * f.root_area
             {
-                spatial::find(sbins, &refs[begin..end], scene, &task.bounds, room)
+                binner
+                    .spatial(&refs[begin..end], scene, &task.bounds, room)
                     .filter(|(s, _)| s.cost < spatial::GAIN * ocost)
             } else {
                 None
@@ -1169,8 +1241,12 @@ fn binned_sah(
             1,
             0,
             &mut out,
-            &mut bins[0],
-            &mut sbins[0],
+            &mut Binner {
+                bins: f.bins,
+                m: &mut bins[..],
+                sm: &mut sbins[..],
+                par,
+            },
             &mut stacks[..MAX_DEPTH + 1],
             &mut top,
             Some(&mut take),
@@ -1228,7 +1304,13 @@ fn binned_sah(
         par.run(&|w| {
             let (mine, part, rp) = (js.get(w), ns.get(w), rs.get(w));
             let (tp, pp, ip) = (ts.get(w), ps.get(w), is.get(w));
-            let (m, sb, stack) = (&mut bs.get(w)[0], &mut ss.get(w)[0], ks.get(w));
+            let mut binner = Binner {
+                bins: f.bins,
+                m: bs.get(w),
+                sm: ss.get(w),
+                par: &crate::mem::par::Serial,
+            };
+            let stack = ks.get(w);
             let (base, rbase) = (ns.start(w) as u32, rs.start(w));
             let mut out = Out {
                 nodes: part,
@@ -1252,8 +1334,7 @@ fn binned_sah(
                     j.region,
                     j.task.begin as usize,
                     &mut out,
-                    m,
-                    sb,
+                    &mut binner,
                     stack,
                     &mut sums,
                     None,
@@ -1581,10 +1662,12 @@ mod tests {
     #[test]
     fn workers_build_as_the_calling_thread() {
         use crate::accel::testkit::Backwards;
+        let mut largest = 0;
         for name in ["gears", "animated", "balls"] {
             let s = crate::scenes::builtin(name).unwrap();
             let scene = Scene::from_f32(&s.mesh.vertices, &s.mesh.indices).unwrap();
             let n = scene.triangle_count() as usize;
+            largest = largest.max(n);
             for (quality, reserve, test) in [
                 (BuildQuality::Medium, 0, TriTest::MollerTrumbore),
                 (BuildQuality::High, n / 2, TriTest::Projection),
@@ -1633,6 +1716,8 @@ mod tests {
                 }
             }
         }
+        // The top's nodes bin on every worker in at least one scene.
+        assert!(largest >= 2 * PAR_BINNING, "{largest} triangles");
     }
 
     #[test]
@@ -1904,33 +1989,45 @@ mod perf {
                 info.sah_cost,
                 info.references as f64 / info.triangles.max(1) as f64
             );
-            if p.quality == BuildQuality::Low {
-                // Two joined workers (this thread and one helper): wall time,
-                // median of 21 builds.
+            {
+                // One worker, then two joined (this thread and one helper),
+                // in 11 interleaved rounds: the median wall times and the
+                // median of the rounds' ratios.
                 let join = crate::mem::par::Join::new();
                 let stop = core::sync::atomic::AtomicBool::new(false);
-                let mut walls = std::vec::Vec::new();
+                let (mut one, mut two, mut gain) = (Vec::new(), Vec::new(), Vec::new());
                 std::thread::scope(|sc| {
                     sc.spawn(|| {
                         while !stop.load(core::sync::atomic::Ordering::Relaxed) {
                             let _ = join.help(1, 2);
                         }
                     });
-                    // Every session (the 21 builds and the last, empty one
+                    // Every session (the 11 builds and the last, empty one
                     // after `stop`) takes the helper once.
-                    for _ in 0..21 {
+                    for _ in 0..11 {
+                        let t = std::time::Instant::now();
+                        build(bvh, scene, p).unwrap();
+                        let a = t.elapsed().as_secs_f64();
                         let t = std::time::Instant::now();
                         join.lead(2, |par| build_with(bvh, scene, p, par).unwrap());
-                        walls.push(t.elapsed().as_secs_f64());
+                        let b = t.elapsed().as_secs_f64();
+                        one.push(a);
+                        two.push(b);
+                        gain.push(a / b);
                     }
                     stop.store(true, core::sync::atomic::Ordering::Relaxed);
                     join.lead(2, |_| ());
                 });
-                walls.sort_by(f64::total_cmp);
+                let median = |v: &mut Vec<f64>| {
+                    v.sort_by(f64::total_cmp);
+                    v[v.len() / 2]
+                };
                 println!(
-                    "{file} Low, 2 joined workers: median wall {:.2} ms over {} builds",
-                    walls[walls.len() / 2] * 1e3,
-                    walls.len()
+                    "{file} {:?}: 1 worker {:.2} ms, 2 joined workers {:.2} ms (median walls), 2-worker gain {:.2}x (median of 11 rounds)",
+                    p.quality,
+                    median(&mut one) * 1e3,
+                    median(&mut two) * 1e3,
+                    median(&mut gain)
                 );
             }
             if p.quality == BuildQuality::Medium {

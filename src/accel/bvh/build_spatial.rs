@@ -174,17 +174,9 @@ pub(super) struct SpatialSplit {
     pub right_n: usize,
 }
 
-/// Bin `refs` (the node's, within `bounds`) in space and return the
-/// cheapest plane whose duplicated references number at most `room`, or
-/// `None`.
-pub(super) fn find(
-    m: &mut SpatialBins,
-    refs: &[PrimRef],
-    scene: &Scene<'_>,
-    bounds: &Box3,
-    room: usize,
-) -> Option<(SpatialSplit, Slabs)> {
-    let slabs = Slabs::new(bounds);
+/// `refs` (a node's, or a share of them) binned into `m` on the node's
+/// `slabs`.
+pub(super) fn fill(m: &mut SpatialBins, refs: &[PrimRef], scene: &Scene<'_>, slabs: &Slabs) {
     *m = EMPTY_SPATIAL;
     for r in refs {
         let b = Box3::of(r);
@@ -214,7 +206,27 @@ pub(super) fn find(
             }
         }
     }
-    let count = refs.len();
+}
+
+/// `other`'s bins merged into `m` (the bins of the references of both).
+pub(super) fn merge(m: &mut SpatialBins, other: &SpatialBins) {
+    for a in 0..3 {
+        for i in 0..SPATIAL_BINS {
+            m.boxes[a][i].grow(&other.boxes[a][i]);
+            m.enter[a][i] += other.enter[a][i];
+            m.exit[a][i] += other.exit[a][i];
+        }
+    }
+}
+
+/// The cheapest slab plane of a node of `count` references binned into
+/// `m` whose duplicated references number at most `room`, or `None`.
+pub(super) fn best(
+    m: &SpatialBins,
+    slabs: Slabs,
+    count: usize,
+    room: usize,
+) -> Option<(SpatialSplit, Slabs)> {
     let mut best: Option<SpatialSplit> = None;
     for a in 0..3 {
         if slabs.width[a] == 0.0 {
