@@ -1,23 +1,28 @@
 //! Build script: gives the shared library (cdylib) an ELF soname on Linux,
-//! `libsheaf.so.<MAJOR>` (`libsheaf.so.0` for every 0.x release).
+//! `libsheaf.so.<MAJOR>`, or `libsheaf.so.0.<MINOR>` while the major
+//! version is 0 (`0.0.<PATCH>` for 0.0.x): cargo-c's rule, the soname
+//! `cargo cinstall` would give.
 //!
 //! Rust's cdylib has no soname (rust-lang/cargo#5045), so a program linked
 //! with `-lsheaf` would record the bare file path it was linked against.
-//! With the soname it records `libsheaf.so.0`, which `scripts/install.sh`
+//! With the soname it records `libsheaf.so.0.3`, which `scripts/install.sh`
 //! installs as a symlink to the real file `libsheaf.so.MAJOR.MINOR.PATCH`.
 //!
 //! So that programs linked against the build tree still run (README's
 //! `-Ltarget/release -lsheaf -Wl,-rpath,...`, `make -C examples-c shared`,
 //! the shared-library C tests), this script also puts the symlink
-//! `libsheaf.so.<MAJOR> -> libsheaf.so` next to the library in
+//! `libsheaf.so.<soname version> -> libsheaf.so` next to the library in
 //! `target/<profile>/` and `target/<profile>/deps/` (dangling until the
 //! library is linked). These are the only files it writes outside OUT_DIR.
 //!
-//! Versioning (pkg/README.md): the soname carries the package's major
-//! version. sheaf's C ABI only grows (new functions, new status codes,
-//! never renumbered); a release that breaks it must raise the major
-//! version, which changes the soname. The static library and the no_std
-//! build are unaffected (the argument applies to cdylib links only).
+//! Versioning (docs/c-api.md, "Upgrading"; pkg/README.md): within one
+//! soname the C ABI only grows (new functions, new status codes never
+//! renumbered, parameter structs grown at their end, which carry their
+//! size); a release that breaks it raises the minor version while the
+//! major is 0 (the major after), which changes the soname, and CI's
+//! `abidiff` against `abi/libsheaf.abi` refuses a break that keeps it.
+//! The static library and the no_std build are unaffected (the argument
+//! applies to cdylib links only).
 
 fn main() {
     println!("cargo:rerun-if-changed=build.rs");
@@ -28,7 +33,16 @@ fn main() {
     if os != "linux" {
         return;
     }
-    let soname = format!("libsheaf.so.{major}");
+    let minor =
+        std::env::var("CARGO_PKG_VERSION_MINOR").expect("cargo sets CARGO_PKG_VERSION_MINOR");
+    let patch =
+        std::env::var("CARGO_PKG_VERSION_PATCH").expect("cargo sets CARGO_PKG_VERSION_PATCH");
+    // cargo-c's `sover`: 0.0.PATCH, 0.MINOR, or MAJOR.
+    let soname = match (major.as_str(), minor.as_str()) {
+        ("0", "0") => format!("libsheaf.so.0.0.{patch}"),
+        ("0", _) => format!("libsheaf.so.0.{minor}"),
+        _ => format!("libsheaf.so.{major}"),
+    };
     println!("cargo:rustc-cdylib-link-arg=-Wl,-soname,{soname}");
     soname_links(&soname);
 }

@@ -131,10 +131,10 @@ static bool test_defaults(void) {
     CHECK(l.max_triangles == 100 && l.max_vertices == 300 && l.max_threads == 8 && l.max_tile == 64);
     CHECK(l.max_image_width == 4096 && l.max_image_height == 4096);
     CHECK(l.max_grid_cells == 0 && l.max_grid_refs == 0);
-    CHECK_STATUS(sheaf_limits_default(1, NULL), SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS((sheaf_limits_default)(1, NULL, sizeof(sheaf_limits)), SHEAF_STATUS_NULL_POINTER);
     CHECK_OK(sheaf_grid_params_default(&p));
     CHECK(p.lambda == 5.0f && p.macrocell == 6 && p.test == SHEAF_TRI_TEST_MOLLER_TRUMBORE && !p.fit);
-    CHECK_STATUS(sheaf_grid_params_default(NULL), SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS((sheaf_grid_params_default)(NULL, sizeof(sheaf_grid_params)), SHEAF_STATUS_NULL_POINTER);
     CHECK_OK(sheaf_shading_default(&sh));
     CHECK(sh.shadows && sh.ambient > 0.0f);
     CHECK_STATUS(sheaf_shading_default(NULL), SHEAF_STATUS_NULL_POINTER);
@@ -746,7 +746,7 @@ static bool test_trace_params(void) {
     CHECK_STATUS(sheaf_context_trace_with(ctx, &bad, rays, got, N_PROBE), SHEAF_STATUS_INVALID_ARGUMENT);
     CHECK_STATUS(sheaf_context_trace_with(ctx, NULL, rays, got, N_PROBE), SHEAF_STATUS_NULL_POINTER);
     CHECK_STATUS(sheaf_context_render_with(ctx, &cgt, NULL, &f, img, RSTRIDE, RLEN), SHEAF_STATUS_NULL_POINTER);
-    CHECK_STATUS(sheaf_trace_params_default(NULL), SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS((sheaf_trace_params_default)(NULL, sizeof(sheaf_trace_params)), SHEAF_STATUS_NULL_POINTER);
     {
         /* 32 x 32 packets used some of each slot's scratch, never more. */
         sheaf_limits l;
@@ -812,7 +812,7 @@ static bool test_bvh_methods(void) {
         CHECK_STATUS(sheaf_context_refit_bvh(ctx, &rp, &ri), SHEAF_STATUS_INVALID_ARGUMENT);
         CHECK_OK(sheaf_context_refit_bvh(ctx, NULL, NULL));
         CHECK_STATUS(sheaf_context_refit_bvh(NULL, NULL, NULL), SHEAF_STATUS_NULL_POINTER);
-        CHECK_STATUS(sheaf_refit_params_default(NULL), SHEAF_STATUS_NULL_POINTER);
+        CHECK_STATUS((sheaf_refit_params_default)(NULL, sizeof(sheaf_refit_params)), SHEAF_STATUS_NULL_POINTER);
     }
     CHECK_OK(sheaf_trace_params_default(&single));
     single.method = SHEAF_METHOD_BVH_SINGLE;
@@ -872,7 +872,7 @@ static bool test_bvh_methods(void) {
     CHECK(hits_equal(got, want, N_PROBE));
     CHECK_OK(sheaf_context_occluded(ctx, SHEAF_METHOD_BVH_WIDE, rays, occ_got, N_PROBE));
     CHECK(memcmp(occ_got, occ_want, N_PROBE) == 0);
-    CHECK_STATUS(sheaf_bvh_params_default(NULL), SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS((sheaf_bvh_params_default)(NULL, sizeof(sheaf_bvh_params)), SHEAF_STATUS_NULL_POINTER);
     CHECK_STATUS(sheaf_context_build_bvh(NULL, &bp), SHEAF_STATUS_NULL_POINTER);
     sheaf_context_destroy(ctx);
     free(s);
@@ -1176,7 +1176,7 @@ static bool test_kd_methods(void) {
     }
     p.entry = 3;
     CHECK_STATUS(sheaf_context_trace_with(ctx, &p, rays, got, N_PROBE), SHEAF_STATUS_INVALID_ARGUMENT);
-    CHECK_STATUS(sheaf_kd_params_default(NULL), SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS((sheaf_kd_params_default)(NULL, sizeof(sheaf_kd_params)), SHEAF_STATUS_NULL_POINTER);
     CHECK_STATUS(sheaf_context_build_kd(NULL, &kp), SHEAF_STATUS_NULL_POINTER);
     sheaf_context_destroy(ctx);
     free(s);
@@ -1249,7 +1249,7 @@ static bool test_whitted(void) {
     CHECK_STATUS(sheaf_context_render_whitted(ctx, &p, &p, &p, NULL, &f, NULL, 2, mats, 2, ranges, 2, img, RSTRIDE, RLEN),
                  SHEAF_STATUS_NULL_POINTER);
     CHECK(img[0] == 0xAB && img[RLEN - 1] == 0xAB);
-    CHECK_STATUS(sheaf_whitted_params_default(NULL), SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS((sheaf_whitted_params_default)(NULL, sizeof(sheaf_whitted_params)), SHEAF_STATUS_NULL_POINTER);
     sheaf_context_destroy(ctx);
     free(s);
     return true;
@@ -1533,10 +1533,11 @@ static bool test_pgrid(void) {
     traced = job;
     traced.primary_pgrid = false;
     traced.shadow_light_grid = false;
-    traced.primary = single;
-    traced.shadow = single;
-    traced.shadow.method = SHEAF_METHOD_BVH_PARTITION;
-    traced.shadow.packet = 8;
+    sheaf_trace_params traced_shadow = single;
+    traced_shadow.method = SHEAF_METHOD_BVH_PARTITION;
+    traced_shadow.packet = 8;
+    traced.primary = &single;
+    traced.shadow = &traced_shadow;
     CHECK_OK(sheaf_context_render_deferred(ctx, &traced, two_traced, RSTRIDE, RLEN));
     CHECK(same_pixels(two, two_traced));
     CHECK_OK(sheaf_context_stats(ctx, &st));
@@ -1593,14 +1594,16 @@ static bool test_pgrid_bad_arguments(void) {
     j = job;
     j.primary_pgrid = false;
     j.shadow_light_grid = false;
-    CHECK_OK(sheaf_trace_params_default(&j.primary));
-    j.primary.method = SHEAF_METHOD_BVH_SINGLE;
-    j.shadow = j.primary;
+    sheaf_trace_params jp;
+    CHECK_OK(sheaf_trace_params_default(&jp));
+    jp.method = SHEAF_METHOD_BVH_SINGLE;
+    j.primary = &jp;
+    j.shadow = &jp;
     CHECK_STATUS(sheaf_context_render_deferred(ctx, &j, img, RSTRIDE, RLEN), SHEAF_STATUS_NOT_BUILT);
     CHECK(memcmp(img, copy, sizeof img) == 0);
 
     /* Parameters. */
-    CHECK_STATUS(sheaf_pgrid_params_default(NULL), SHEAF_STATUS_NULL_POINTER);
+    CHECK_STATUS((sheaf_pgrid_params_default)(NULL, sizeof(sheaf_pgrid_params)), SHEAF_STATUS_NULL_POINTER);
     CHECK_OK(sheaf_pgrid_params_default(&pp));
     bad = pp;
     bad.tile = 6;
@@ -1623,8 +1626,7 @@ static bool test_pgrid_bad_arguments(void) {
     /* No pools: a context without SHEAF_STRUCTURE_PGRID. */
     CHECK_STATUS(sheaf_context_build_pgrid(plain, NULL), SHEAF_STATUS_INVALID_ARGUMENT);
     CHECK(last_error_contains(plain, "PGRID"));
-    j.primary.method = SHEAF_METHOD_GRID_DDA; /* built in `plain` */
-    j.shadow = j.primary;
+    jp.method = SHEAF_METHOD_GRID_DDA; /* built in `plain` */
     CHECK_STATUS(sheaf_context_render_deferred(plain, &j, img, RSTRIDE, RLEN), SHEAF_STATUS_INVALID_ARGUMENT);
     CHECK(last_error_contains(plain, "PGRID"));
 
@@ -1662,7 +1664,8 @@ static bool test_pgrid_bad_arguments(void) {
     lights[1].position[2] = f.light.position[2];
     j = job;
     j.primary_pgrid = false;
-    j.primary.method = (sheaf_method)77; /* checked once used */
+    jp.method = (sheaf_method)77; /* checked once used */
+    j.primary = &jp;
     CHECK_STATUS(sheaf_context_render_deferred(ctx, &j, img, RSTRIDE, RLEN), SHEAF_STATUS_INVALID_ARGUMENT);
     j = job;
     j.frame.width = RW + 1; /* beyond the limits */
@@ -1695,8 +1698,9 @@ static bool test_pgrid_bad_arguments(void) {
     /* A failed frame (after the arguments were checked) leaves no pixels. */
     j = job;
     j.primary_pgrid = false;
-    j.primary.method = SHEAF_METHOD_KD_SINGLE; /* no kd-tree */
-    j.primary.packet = 8;
+    jp.method = SHEAF_METHOD_KD_SINGLE; /* no kd-tree */
+    jp.packet = 8;
+    j.primary = &jp;
     CHECK_STATUS(sheaf_context_render_deferred(ctx, &j, img, RSTRIDE, RLEN), SHEAF_STATUS_NOT_BUILT);
     CHECK(memcmp(img, copy, sizeof img) == 0);
     sheaf_context_destroy(ctx);

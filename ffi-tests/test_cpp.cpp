@@ -18,7 +18,7 @@ static_assert(sizeof(sheaf_method) == 4, "sheaf_method is a uint32_t");
 static_assert(SHEAF_STATUS_OK == 0 && SHEAF_STATUS_PANIC == 900, "status codes are never renumbered");
 static_assert(SHEAF_STATUS_CAPACITY_PGRID_CELLS == 206 && SHEAF_STATUS_CAPACITY_PGRID_REFS == 207,
               "status codes are never renumbered");
-static_assert(sizeof(sheaf_pgrid_params) == 36, "sheaf_pgrid_params is 36 bytes");
+static_assert(sizeof(sheaf_pgrid_params) == 40, "sheaf_pgrid_params is 40 bytes");
 
 namespace {
 
@@ -122,8 +122,10 @@ bool test_deferred_frame() {
     CHECK(sheaf_context_render_deferred(ctx.get(), &job, rgba.data(), w * 4, rgba.size()) == SHEAF_STATUS_OK);
     job.primary_pgrid = false;
     job.shadow_light_grid = false;
-    CHECK(sheaf_trace_params_default(&job.primary) == SHEAF_STATUS_OK);
-    job.shadow = job.primary;
+    sheaf_trace_params tp;
+    CHECK(sheaf_trace_params_default(&tp) == SHEAF_STATUS_OK);
+    job.primary = &tp;
+    job.shadow = &tp;
     CHECK(sheaf_context_render_deferred(ctx.get(), &job, traced.data(), w * 4, traced.size()) == SHEAF_STATUS_OK);
     CHECK(rgba == traced);
 

@@ -182,13 +182,15 @@ static bool test_boolean_bytes_are_checked(void) {
     /* Fields documented as ignored are not checked: garbage in the unused
        trace params of a grid-only deferred frame is fine. */
     job.shadow_light_grid = 1;
-    memset(&job.primary, 0xEE, sizeof job.primary);
-    memset(&job.shadow, 0xEE, sizeof job.shadow);
+    sheaf_trace_params garbage;
+    memset(&garbage, 0xEE, sizeof garbage);
+    job.primary = &garbage;
+    job.shadow = &garbage;
     CHECK_OK(sheaf_context_render_deferred(ctx, &job, img, STRIDE, LEN));
     job.primary_pgrid = 0;
     job.shadow_light_grid = 0;
-    job.primary = p;
-    job.shadow = p;
+    job.primary = &p;
+    job.shadow = &p;
     memset(ok_img, 0x33, sizeof ok_img); /* the same bytes between rows */
     CHECK_OK(sheaf_context_render_deferred(ctx, &job, ok_img, STRIDE, LEN));
     CHECK(memcmp(img, ok_img, LEN) == 0);

@@ -241,7 +241,10 @@ static bool test_bad_input_changes_nothing(void) {
     CHECK_OK(sheaf_context_set_scene_geometry(ctx, 0, &m, &p));
     /* 3 triangles in the budget: 2 taken, a second square does not fit. */
     CHECK_STATUS(sheaf_context_set_scene_geometry(ctx, 1, &m, &p), SHEAF_STATUS_CAPACITY_TRIANGLES);
-    p.bvh.test = SHEAF_TRI_TEST_WATERTIGHT;
+    sheaf_bvh_params watertight;
+    CHECK_OK(sheaf_bvh_params_default(&watertight));
+    watertight.test = SHEAF_TRI_TEST_WATERTIGHT;
+    p.bvh = &watertight;
     m.triangle_count = 1;
     CHECK_STATUS(sheaf_context_set_scene_geometry(ctx, 1, &m, &p), SHEAF_STATUS_INVALID_ARGUMENT);
     m.triangle_count = 2;

@@ -110,6 +110,7 @@ static sheaf_status run_whitted(job *j) {
     static const sheaf_material_range ranges[2] = {{0, 0}, {2, 1}};
     sheaf_trace_params p = params_of(j);
     sheaf_whitted_params wp;
+    (void)sheaf_whitted_params_default(&wp);
     sheaf_light lights[2];
     wp.max_reflect = 4;
     wp.max_refract = 4;
@@ -135,9 +136,10 @@ static sheaf_status run_deferred(job *j) {
     /* packet 0: the perspective and light grids; else traced passes */
     d.primary_pgrid = j->packet == 0;
     d.shadow_light_grid = j->packet == 0;
-    d.primary = params_of(j);
-    d.shadow = params_of(j);
-    if (j->packet == 0) d.primary.packet = d.shadow.packet = 32;
+    sheaf_trace_params tp = params_of(j);
+    if (j->packet == 0) tp.packet = 32;
+    d.primary = &tp;
+    d.shadow = &tp;
     return sheaf_context_render_deferred(g_ctx, &d, g_img, STRIDE, LEN);
 }
 

@@ -14,7 +14,9 @@
  * context may return SHEAF_STATUS_CONTEXT_BUSY (another thread is inside it
  * in a way this call may not join) and SHEAF_STATUS_POISONED (an earlier
  * call caught a panic). Boolean fields are uint8_t: 0 or 1, anything else is
- * SHEAF_STATUS_INVALID_ARGUMENT.
+ * SHEAF_STATUS_INVALID_ARGUMENT (the parameter structs' flags are uint32_t).
+ * Parameter structs begin with their size, which their *_default macro
+ * sets (docs/c-api.md, "Upgrading"): always start from it.
  * Link: -l:libsheaf.a -lm -lpthread -ldl (static) or -lsheaf (shared).
  */
 
@@ -23,11 +25,11 @@
 #include <stdbool.h>
 /** Version of this header (compare with sheaf_version_string()). */
 #define SHEAF_VERSION_MAJOR 0
-#define SHEAF_VERSION_MINOR 2
+#define SHEAF_VERSION_MINOR 3
 #define SHEAF_VERSION_PATCH 0
 /** The same as one number, MAJOR * 10000 + MINOR * 100 + PATCH (as Embree's
  * RTC_VERSION); sheaf_version() returns the loaded library's. */
-#define SHEAF_VERSION 200
+#define SHEAF_VERSION 300
 
 /** Alignment in bytes sheaf_context_create_in requires of its buffer. */
 #define SHEAF_CONTEXT_ALIGN 64
@@ -530,6 +532,11 @@ typedef struct sheaf_context sheaf_context;
  */
 typedef struct sheaf_bvh_params {
     /**
+     * `sizeof` the caller's struct, set by `sheaf_bvh_params_default`
+     * (docs/c-api.md, "Upgrading").
+     */
+    uint32_t size;
+    /**
      * Most triangles in a leaf before the build must split (1..=64, default 4).
      */
     uint32_t leaf_size;
@@ -567,6 +574,10 @@ typedef struct sheaf_bvh_params {
  */
 typedef struct sheaf_refit_params {
     /**
+     * `sizeof` the caller's struct, set by `sheaf_refit_params_default`.
+     */
+    uint32_t size;
+    /**
      * Rebuild (with the last build's `sheaf_bvh_params`) instead once the
      * tree's SAH cost has grown past this ratio; 0 (default) never
      * rebuilds. 0 or a finite value of at least 1.
@@ -580,6 +591,11 @@ typedef struct sheaf_refit_params {
  */
 typedef struct sheaf_trace_params {
     /**
+     * `sizeof` the caller's struct, set by `sheaf_trace_params_default`
+     * (docs/c-api.md, "Upgrading").
+     */
+    uint32_t size;
+    /**
      * A `sheaf_method` value.
      */
     sheaf_method method;
@@ -590,18 +606,18 @@ typedef struct sheaf_trace_params {
     /**
      * CGT: skip slices of empty macrocells (paper section 2.4). 0 or 1.
      */
-    uint8_t macrocells;
+    uint32_t macrocells;
     /**
      * CGT: test each triangle once per packet (section 2.3), with the
      * thread slot's mailbox. 0 or 1.
      */
-    uint8_t mailbox;
+    uint32_t mailbox;
     /**
      * Frustum culling: CGT's SIMD corner-ray culling (CGT section 2.3) and
      * the BVH packets' box and triangle culling (BVH paper section 4).
      * 0 or 1.
      */
-    uint8_t culling;
+    uint32_t culling;
     /**
      * BVH and kd-tree packets: which frustum they get (a `sheaf_ray_kind`).
      */
@@ -626,7 +642,7 @@ typedef struct sheaf_trace_params {
      * Skip every filter (`sheaf_filter_fn`; DXR's
      * `RAY_FLAG_FORCE_OPAQUE`): 0 (the default) or 1.
      */
-    uint8_t force_opaque;
+    uint32_t force_opaque;
 } sheaf_trace_params;
 
 /**
@@ -702,6 +718,11 @@ typedef struct sheaf_scene_hit {
  */
 typedef struct sheaf_limits {
     /**
+     * `sizeof` the struct the caller was built with, set by
+     * `sheaf_limits_default` (docs/c-api.md, "Upgrading").
+     */
+    uint32_t size;
+    /**
      * Most triangles a scene may have (including ones excluded at build).
      */
     uint32_t max_triangles;
@@ -736,7 +757,7 @@ typedef struct sheaf_limits {
      * (`SHEAF_TRI_TEST_PROJECTION`); 0: that test cannot be selected.
      * Other values: `SHEAF_STATUS_INVALID_ARGUMENT`.
      */
-    uint8_t projection_test;
+    uint32_t projection_test;
     /**
      * Which structures get pools: `SHEAF_STRUCTURE_GRID`, `_BVH`, `_KD`,
      * `_PGRID` bits, at least one.
@@ -808,6 +829,11 @@ typedef struct sheaf_limits {
  */
 typedef struct sheaf_grid_params {
     /**
+     * `sizeof` the caller's struct, set by `sheaf_grid_params_default`
+     * (docs/c-api.md, "Upgrading").
+     */
+    uint32_t size;
+    /**
      * Cells per triangle, lambda (section 3, Figure 6: best near 5;
      * default 5). Must be in (0, 1024].
      */
@@ -826,7 +852,7 @@ typedef struct sheaf_grid_params {
      * When the cells for `lambda` exceed `sheaf_limits.max_grid_cells`,
      * lower lambda to fit instead of failing (0 or 1; default 0).
      */
-    uint8_t fit;
+    uint32_t fit;
 } sheaf_grid_params;
 
 /**
@@ -1271,6 +1297,11 @@ typedef bool (*sheaf_filter_fn)(void *user,
  */
 typedef struct sheaf_kd_params {
     /**
+     * `sizeof` the caller's struct, set by `sheaf_kd_params_default`
+     * (docs/c-api.md, "Upgrading").
+     */
+    uint32_t size;
+    /**
      * Depth limit (1..=48); 0: `8 + 1.3 log2 N` capped at 48.
      */
     uint32_t max_depth;
@@ -1306,6 +1337,11 @@ typedef struct sheaf_kd_params {
  * `sheaf_pgrid_params_default`.
  */
 typedef struct sheaf_pgrid_params {
+    /**
+     * `sizeof` the caller's struct, set by `sheaf_pgrid_params_default`
+     * (docs/c-api.md, "Upgrading").
+     */
+    uint32_t size;
     /**
      * Side of a sorting tile in pixels: 2, 4, 8, 16 or 32 (default 8).
      */
@@ -1343,7 +1379,7 @@ typedef struct sheaf_pgrid_params {
      * Leave out triangles facing away from the eye (default false). Changes
      * results on open models: every other structure is two-sided. 0 or 1.
      */
-    uint8_t cull_backfaces;
+    uint32_t cull_backfaces;
     /**
      * Lane width of both grids' triangle tests (a `sheaf_isa`, as
      * `sheaf_trace_params.isa`): `AUTO` (0, default) or a forced level,
@@ -1392,36 +1428,52 @@ typedef struct sheaf_deferred_job {
     uint8_t shadow_light_grid;
     /**
      * Method of camera rays when `primary_pgrid` is false (ignored, not
-     * checked, otherwise). Packet methods trace tiles of `primary.packet`
-     * pixels; single-ray methods tiles of 8.
+     * checked, otherwise; NULL: `sheaf_trace_params_default`). Packet
+     * methods trace tiles of `primary->packet` pixels; single-ray methods
+     * tiles of 8. Read during the call only.
      */
-    struct sheaf_trace_params primary;
+    const struct sheaf_trace_params *primary;
     /**
      * Method of shadow rays when `shadow_light_grid` is false (ignored,
-     * not checked, otherwise).
+     * not checked, otherwise; NULL: the defaults).
      */
-    struct sheaf_trace_params shadow;
+    const struct sheaf_trace_params *shadow;
 } sheaf_deferred_job;
 
 /**
  * How a geometry is built and updated (the crate's `GeometryParams`).
- * Start from `sheaf_geometry_params_default`.
+ * Start from `sheaf_geometry_params_default`. Its BVH and refit
+ * parameters are pointed to (each struct grows on its own; see
+ * docs/c-api.md, "Upgrading") and read during the call only.
  */
 typedef struct sheaf_geometry_params {
+    /**
+     * `sizeof` the caller's struct, set by `sheaf_geometry_params_default`.
+     */
+    uint32_t size;
     sheaf_update_mode mode;
+    /**
+     * Its BVH (NULL, the default: `sheaf_bvh_params_default`; every
+     * geometry of a scene uses the first one's test).
+     */
+    const struct sheaf_bvh_params *bvh;
+    /**
+     * When a refit becomes a rebuild (REFIT geometries; NULL, the
+     * default: never).
+     */
+    const struct sheaf_refit_params *refit;
+    /**
+     * Its any-hit filter (NULL, the default: none), called with
+     * `filter_user`; see `sheaf_filter_fn` and
+     * `sheaf_context_set_scene_geometry_filter`.
+     */
+    sheaf_filter_fn filter;
+    void *filter_user;
     /**
      * Triangles reserved in the scene's budget (0: the mesh's count). A
      * REBUILD geometry may grow to it.
      */
     uint32_t max_triangles;
-    /**
-     * Its BVH (every geometry of a scene uses the first one's test).
-     */
-    struct sheaf_bvh_params bvh;
-    /**
-     * When a refit becomes a rebuild (REFIT geometries).
-     */
-    struct sheaf_refit_params refit;
     /**
      * Rays whose mask shares no bit with it skip every instance of the
      * geometry (default all bits).
@@ -1430,14 +1482,11 @@ typedef struct sheaf_geometry_params {
     /**
      * Skip its filter (DXR's opaque geometry flag): 0 (the default) or 1.
      */
-    uint8_t opaque;
+    uint32_t opaque;
     /**
-     * Its any-hit filter (NULL, the default: none), called with
-     * `filter_user`; see `sheaf_filter_fn` and
-     * `sheaf_context_set_scene_geometry_filter`.
+     * Reserved for a future field: 0 (it keeps the struct free of padding).
      */
-    sheaf_filter_fn filter;
-    void *filter_user;
+    uint32_t reserved;
 } sheaf_geometry_params;
 
 /**
@@ -1547,17 +1596,21 @@ typedef struct sheaf_hit_stream {
 } sheaf_hit_stream;
 
 /**
- * Bounce limits (C: `sheaf_whitted_params`).
+ * Bounce limits of a Whitted frame (the crate's `WhittedParams`). Start
+ * from `sheaf_whitted_params_default`.
  */
 typedef struct sheaf_whitted_params {
     /**
-     * Most mirror reflections on a path. Default 2 (the paper's
-     * "2-bounce reflections", section 5.2).
+     * `sizeof` the caller's struct, set by `sheaf_whitted_params_default`
+     * (docs/c-api.md, "Upgrading").
+     */
+    uint32_t size;
+    /**
+     * Most mirror reflections on a path (default 2).
      */
     uint32_t max_reflect;
     /**
-     * Most refractions on a path. Default 2 (the paper's "2-deep
-     * refractions", section 5.2).
+     * Most refractions on a path (default 2).
      */
     uint32_t max_refract;
 } sheaf_whitted_params;
@@ -1613,18 +1666,24 @@ extern "C" {
 
 /**
  * Write the default BVH parameters (leaves of up to 4 triangles, 16 bins,
- * traversal cost 1, Moller-Trumbore) to `*out`.
+ * traversal cost 1, Moller-Trumbore) to `*out`, a struct of `size` bytes
+ * (sheaf.h's macro passes `sizeof *out`; see `sheaf_limits_default`).
  *
- * `out` must not be NULL. Thread-safe.
+ * `out` must not be NULL. Errors: `SHEAF_STATUS_INVALID_ARGUMENT` when
+ * `size` is no size of this struct. Thread-safe.
  */
-sheaf_status sheaf_bvh_params_default(struct sheaf_bvh_params *out);
+sheaf_status sheaf_bvh_params_default(struct sheaf_bvh_params *out,
+                                      size_t size);
 
 /**
- * Write the default refit parameters (never rebuild) to `*out`.
+ * Write the default refit parameters (never rebuild) to `*out`, a struct
+ * of `size` bytes (sheaf.h's macro passes `sizeof *out`).
  *
- * `out` must not be NULL. Thread-safe.
+ * `out` must not be NULL. Errors: `SHEAF_STATUS_INVALID_ARGUMENT` when
+ * `size` is no size of this struct. Thread-safe.
  */
-sheaf_status sheaf_refit_params_default(struct sheaf_refit_params *out);
+sheaf_status sheaf_refit_params_default(struct sheaf_refit_params *out,
+                                        size_t size);
 
 /**
  * Nearest hits of the camera rays through the pixels of `*rect` of a
@@ -2256,18 +2315,28 @@ sheaf_status sheaf_frame_camera_ray(const struct sheaf_frame *frame,
  * Write the default grid parameters (lambda 5, macrocells of 6, Moller-
  * Trumbore, no fit) to `*out`.
  *
- * `out` must not be NULL. Thread-safe.
+ * `*out` is a struct of `size` bytes (sheaf.h's macro passes `sizeof
+ * *out`; see `sheaf_limits_default`).
+ *
+ * `out` must not be NULL. Errors: `SHEAF_STATUS_INVALID_ARGUMENT` when
+ * `size` is no size of this struct. Thread-safe.
  */
-sheaf_status sheaf_grid_params_default(struct sheaf_grid_params *out);
+sheaf_status sheaf_grid_params_default(struct sheaf_grid_params *out,
+                                       size_t size);
 
 /**
  * Write the default kd-tree parameters (automatic depth limit, traversal
  * cost 2, empty bonus 0.2, Moller-Trumbore, the LOW binned build with 32
  * bins) to `*out`.
  *
- * `out` must not be NULL. Thread-safe.
+ * `*out` is a struct of `size` bytes (sheaf.h's macro passes `sizeof
+ * *out`; see `sheaf_limits_default`).
+ *
+ * `out` must not be NULL. Errors: `SHEAF_STATUS_INVALID_ARGUMENT` when
+ * `size` is no size of this struct. Thread-safe.
  */
-sheaf_status sheaf_kd_params_default(struct sheaf_kd_params *out);
+sheaf_status sheaf_kd_params_default(struct sheaf_kd_params *out,
+                                     size_t size);
 
 /**
  * Rebuild the kd-tree from the geometry with `*params` (copied; NULL: the
@@ -2327,10 +2396,16 @@ sheaf_status sheaf_context_build_scene_kd_joined(struct sheaf_context *ctx,
  * `max_grid_cells` / `max_grid_refs`), packets up to 32 x 32, 8 Whitted
  * bounces and every renderer. Adjust fields afterwards as needed.
  *
- * `out` must not be NULL. Thread-safe.
+ * `size` is `sizeof *out` as the caller was compiled (sheaf.h's
+ * `sheaf_limits_default(n, out)` macro passes it): an older header's
+ * struct gets the fields it has, a newer one's unknown fields zeros.
+ *
+ * `out` must not be NULL. Errors: `SHEAF_STATUS_INVALID_ARGUMENT` when
+ * `size` is no size of this struct. Thread-safe.
  */
 sheaf_status sheaf_limits_default(uint32_t max_triangles,
-                                  struct sheaf_limits *out);
+                                  struct sheaf_limits *out,
+                                  size_t size);
 
 /**
  * The precompiled `core` the no_std library links was built to unwind and
@@ -2348,9 +2423,14 @@ void rust_eh_personality(void);
  * of 32 slices, chunks of 256 shadow rays, no back-face culling,
  * Moller-Trumbore) to `*out`.
  *
- * `out` must not be NULL. Thread-safe.
+ * `*out` is a struct of `size` bytes (sheaf.h's macro passes `sizeof
+ * *out`; see `sheaf_limits_default`).
+ *
+ * `out` must not be NULL. Errors: `SHEAF_STATUS_INVALID_ARGUMENT` when
+ * `size` is no size of this struct. Thread-safe.
  */
-sheaf_status sheaf_pgrid_params_default(struct sheaf_pgrid_params *out);
+sheaf_status sheaf_pgrid_params_default(struct sheaf_pgrid_params *out,
+                                        size_t size);
 
 /**
  * Load the geometry for perspective and light grids with `*params`
@@ -2492,12 +2572,15 @@ sheaf_status sheaf_context_deferred_shadow_ray(const struct sheaf_context *ctx,
 
 /**
  * Write the default geometry parameters (STATIC, the mesh's triangle
- * count reserved, `sheaf_bvh_params_default`, never rebuild on refit,
- * every mask bit) to `*out`.
+ * count reserved, NULL BVH and refit parameters: their defaults, every
+ * mask bit) to `*out`, a struct of `size` bytes (sheaf.h's macro passes
+ * `sizeof *out`; see `sheaf_limits_default`).
  *
- * `out` must not be NULL. Thread-safe.
+ * `out` must not be NULL. Errors: `SHEAF_STATUS_INVALID_ARGUMENT` when
+ * `size` is no size of this struct. Thread-safe.
  */
-sheaf_status sheaf_geometry_params_default(struct sheaf_geometry_params *out);
+sheaf_status sheaf_geometry_params_default(struct sheaf_geometry_params *out,
+                                           size_t size);
 
 /**
  * Set geometry `id` (`< max_geometries`) of the two-level scene to
@@ -2801,9 +2884,14 @@ sheaf_status sheaf_context_occluded_scene_stream(const struct sheaf_context *ctx
  * Write the defaults to `*out`: coherent grid traversal, 8x8 packets,
  * macrocells, mailbox and culling on, shadow split ratio 2.
  *
- * Thread-safe. Errors: `SHEAF_STATUS_NULL_POINTER`.
+ * `*out` is a struct of `size` bytes (sheaf.h's macro passes `sizeof
+ * *out`; see `sheaf_limits_default`).
+ *
+ * `out` must not be NULL. Errors: `SHEAF_STATUS_INVALID_ARGUMENT` when
+ * `size` is no size of this struct. Thread-safe.
  */
-sheaf_status sheaf_trace_params_default(struct sheaf_trace_params *out);
+sheaf_status sheaf_trace_params_default(struct sheaf_trace_params *out,
+                                        size_t size);
 
 /**
  * The library's version, "MAJOR.MINOR.PATCH" (compare with the header's
@@ -2829,11 +2917,15 @@ const char *sheaf_version_string(void);
 uint32_t sheaf_version(void);
 
 /**
- * Write the default bounce limits (2 reflections, 2 refractions) to `*out`.
+ * Write the default bounce limits (2 reflections, 2 refractions) to
+ * `*out`, a struct of `size` bytes (sheaf.h's macro passes `sizeof *out`;
+ * see `sheaf_limits_default`).
  *
- * `out` must not be NULL. Thread-safe.
+ * `out` must not be NULL. Errors: `SHEAF_STATUS_INVALID_ARGUMENT` when
+ * `size` is no size of this struct. Thread-safe.
  */
-sheaf_status sheaf_whitted_params_default(struct sheaf_whitted_params *out);
+sheaf_status sheaf_whitted_params_default(struct sheaf_whitted_params *out,
+                                          size_t size);
 
 /**
  * Render a Whitted frame into the caller's RGBA8 framebuffer (same
@@ -2890,3 +2982,23 @@ sheaf_status sheaf_context_render_whitted(struct sheaf_context *ctx,
 #endif  // __cplusplus
 
 #endif  /* SHEAF_H */
+
+#ifndef SHEAF_H_DEFAULT_MACROS
+#define SHEAF_H_DEFAULT_MACROS
+/* Parameter structs carry their size (docs/c-api.md, "Upgrading"): each
+ * *_default macro passes the size of the struct this program was compiled
+ * with, so the library writes and later reads only the fields it has. To
+ * pass a size yourself, call the function in parentheses:
+ * (sheaf_limits_default)(n, &limits, sizeof limits). */
+#define sheaf_limits_default(max_triangles, out) \
+    (sheaf_limits_default)((max_triangles), (out), sizeof *(out))
+#define sheaf_bvh_params_default(out) (sheaf_bvh_params_default)((out), sizeof *(out))
+#define sheaf_refit_params_default(out) (sheaf_refit_params_default)((out), sizeof *(out))
+#define sheaf_trace_params_default(out) (sheaf_trace_params_default)((out), sizeof *(out))
+#define sheaf_grid_params_default(out) (sheaf_grid_params_default)((out), sizeof *(out))
+#define sheaf_kd_params_default(out) (sheaf_kd_params_default)((out), sizeof *(out))
+#define sheaf_pgrid_params_default(out) (sheaf_pgrid_params_default)((out), sizeof *(out))
+#define sheaf_geometry_params_default(out) \
+    (sheaf_geometry_params_default)((out), sizeof *(out))
+#define sheaf_whitted_params_default(out) (sheaf_whitted_params_default)((out), sizeof *(out))
+#endif  /* SHEAF_H_DEFAULT_MACROS */

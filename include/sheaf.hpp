@@ -22,6 +22,9 @@
 //
 // Every call forwards to the C function of the same name; its contract
 // (thread safety, what a failed call leaves unchanged) is the C one.
+// Parameter structs are only ever made by their *_default macros (the
+// size-carrying rule of docs/c-api.md, "Upgrading"), so an engine built
+// with this header runs against later libraries of the same soname.
 #ifndef SHEAF_HPP
 #define SHEAF_HPP
 

@@ -39,6 +39,11 @@ case "$version" in
   *) echo "cannot read the package version from $root/Cargo.toml" >&2; exit 1 ;;
 esac
 major="${version%%.*}"
+# The soname's version (pkg/README.md): MAJOR, or 0.MINOR while MAJOR is 0
+# (cargo-c's rule: a 0.x minor release may break the ABI).
+minor="${version#*.}"; minor="${minor%%.*}"
+if [ "$major.$minor" = 0.0 ]; then sover="0.0.${version##*.}"
+elif [ "$major" = 0 ]; then sover="0.$minor"; else sover="$major"; fi
 rest="${version#*.}"
 minor="${rest%%.*}"
 
@@ -74,8 +79,8 @@ install -m 644 "$root/include/sheaf.h" "$dest/include/sheaf/sheaf.h"
 install -m 644 "$root/include/sheaf.hpp" "$dest/include/sheaf/sheaf.hpp"
 install -m 644 "$libdir_in/libsheaf.a" "$dest/lib/libsheaf.a"
 install -m 755 "$libdir_in/libsheaf.so" "$dest/lib/libsheaf.so.$version"
-ln -sfn "libsheaf.so.$version" "$dest/lib/libsheaf.so.$major"
-ln -sfn "libsheaf.so.$major" "$dest/lib/libsheaf.so"
+ln -sfn "libsheaf.so.$version" "$dest/lib/libsheaf.so.$sover"
+ln -sfn "libsheaf.so.$sover" "$dest/lib/libsheaf.so"
 
 subst() {
   sed -e "s|@PREFIX@|$prefix|g" -e "s|@VERSION@|$version|g" -e "s|@MAJOR@|$major|g" \
@@ -90,10 +95,10 @@ subst "$root/pkg/sheafConfigVersion.cmake.in" "$dest/lib/cmake/sheaf/sheafConfig
 
 if command -v readelf >/dev/null 2>&1; then
   soname="$(readelf -d "$dest/lib/libsheaf.so.$version" | sed -n 's/.*Library soname: \[\(.*\)\].*/\1/p')"
-  if [ "$soname" != "libsheaf.so.$major" ]; then
-    echo "warning: libsheaf.so has soname '${soname:-none}', expected libsheaf.so.$major (build.rs sets it on Linux)" >&2
+  if [ "$soname" != "libsheaf.so.$sover" ]; then
+    echo "warning: libsheaf.so has soname '${soname:-none}', expected libsheaf.so.$sover (build.rs sets it on Linux)" >&2
   fi
 fi
-echo "installed: include/sheaf/sheaf.h, sheaf.hpp, lib/libsheaf.{a,so.$version,so.$major,so}, lib/pkgconfig/sheaf{,-static}.pc, lib/cmake/sheaf/"
+echo "installed: include/sheaf/sheaf.h, sheaf.hpp, lib/libsheaf.{a,so.$version,so.$sover,so}, lib/pkgconfig/sheaf{,-static}.pc, lib/cmake/sheaf/"
 echo "use: PKG_CONFIG_PATH=$prefix/lib/pkgconfig pkg-config --cflags --libs sheaf"
 echo "     cmake -DCMAKE_PREFIX_PATH=$prefix ...   (find_package(sheaf CONFIG REQUIRED))"

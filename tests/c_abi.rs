@@ -410,6 +410,18 @@ fn c_hardening_shared() {
     run(&compile_c("test_hardening.c", Link::Shared));
 }
 
+/// `test_old_abi.c`: a program built against an older header (parameter
+/// structs that end before the fields added since 0.2, declared without
+/// sheaf.h) runs against this shared library: the defaults functions write
+/// only its bytes, the missing fields take their defaults, every packet
+/// method's hits equal the single ray's; a newer header's struct is read
+/// while its unknown bytes are zero and refused once one is set
+/// (docs/c-api.md, "Upgrading").
+#[test]
+fn c_old_abi_shared() {
+    run(&compile_c("test_old_abi.c", Link::Shared));
+}
+
 /// `test_threads.c` under valgrind's helgrind (`SHEAF_TEST_QUICK=1`: fewer
 /// rounds): no data race reported, and the only suppressions used are
 /// valgrind's own defaults for glibc internals (`default.supp`, names
@@ -1052,12 +1064,13 @@ fn session(ctx: *mut ffi::sheaf_context, x: &mut Inputs) -> u32 {
     );
     assert_eq!(ffi::sheaf_context_build_grid(ctx, std::ptr::null()), OK);
     let mut p = sheaf_grid_params {
+        size: 0,
         lambda: 0.0,
         macrocell: 0,
         test: 0,
         fit: 0,
     };
-    assert_eq!(ffi::sheaf_grid_params_default(&mut p), OK);
+    assert_eq!(ffi::sheaf_grid_params_default(&mut p, size_of_val(&p)), OK);
     p.test = 1;
     assert_eq!(ffi::sheaf_context_build_grid(ctx, &p), OK);
     p.lambda = f32::NAN;
@@ -1133,7 +1146,10 @@ fn session(ctx: *mut ffi::sheaf_context, x: &mut Inputs) -> u32 {
     assert!(!ffi::sheaf_status_string(4711).is_null());
     assert!(!ffi::sheaf_version_string().is_null());
     let mut limits = ffi::sheaf_limits::of(&Limits::for_triangles(1));
-    assert_eq!(ffi::sheaf_limits_default(nt, &mut limits), OK);
+    assert_eq!(
+        ffi::sheaf_limits_default(nt, &mut limits, size_of_val(&limits)),
+        OK
+    );
     let mut need = 0usize;
     assert_eq!(ffi::sheaf_required_bytes(&limits, &mut need), OK);
     failures
@@ -1299,8 +1315,8 @@ fn deferred_frames_equal_rust_and_never_allocate() {
         light_count: lights.len(),
         primary_pgrid: 1,
         shadow_light_grid: 1,
-        primary: tp,
-        shadow: tp,
+        primary: &tp,
+        shadow: &tp,
     };
     let too_many = ffi::sheaf_deferred_job {
         lights: nine.as_ptr(),

@@ -7,7 +7,8 @@
 //!    header in `include/sheaf/`, `libsheaf.so.X.Y.Z` with the
 //!    `libsheaf.so.X` and `libsheaf.so` symlinks, both pkg-config files and
 //!    both CMake files.
-//! 2. `readelf -d` shows the soname `libsheaf.so.<major>`.
+//! 2. `readelf -d` shows the soname `libsheaf.so.0.<minor>` (0.x) or
+//!    `libsheaf.so.<major>`.
 //! 3. Builds `examples-c/render.c` with `make installed` (shared, through
 //!    pkg-config) and `make installed-static` (static, sheaf-static.pc),
 //!    and with CMake (`find_package(sheaf CONFIG REQUIRED)`, `sheaf::sheaf`
@@ -147,7 +148,10 @@ fn install_then_build_the_example_against_it() {
     }
     let work = work_dir();
     let prefix = work.join("prefix");
-    let major = env!("CARGO_PKG_VERSION_MAJOR");
+    let major = match env!("CARGO_PKG_VERSION_MAJOR") {
+        "0" => concat!("0.", env!("CARGO_PKG_VERSION_MINOR")),
+        m => m,
+    };
     let version = env!("CARGO_PKG_VERSION");
 
     // 1. Install.
@@ -287,10 +291,10 @@ fn install_then_build_the_example_against_it() {
 
     // The version file refuses an incompatible request.
     for (request, found) in [
-        ("0.2", true),
-        ("0.2.0", true),
-        ("0.1", false),
-        ("0.3", false),
+        ("0.3", true),
+        ("0.3.0", true),
+        ("0.2", false),
+        ("0.4", false),
         ("1.0", false),
     ] {
         let dir = work.join(format!("cmake-version-{request}"));

@@ -1612,8 +1612,10 @@ static void check_rays(Bench *b)
         sheaf_deferred_job dj;
         memset(&dj, 0, sizeof dj);
         dj.frame = b->frame;
-        dj.primary = cfg_params(&PRIMARY_CFGS[9], SHEAF_RAY_KIND_PRIMARY);
-        dj.shadow = cfg_params(&PRIMARY_CFGS[9], SHEAF_RAY_KIND_SHADOW);
+        sheaf_trace_params pp = cfg_params(&PRIMARY_CFGS[9], SHEAF_RAY_KIND_PRIMARY);
+        sheaf_trace_params sp = cfg_params(&PRIMARY_CFGS[9], SHEAF_RAY_KIND_SHADOW);
+        dj.primary = &pp;
+        dj.shadow = &sp;
         uint8_t *rgba = xmalloc(4 * b->N);
         check_sheaf(b->ctx, sheaf_context_render_deferred(b->ctx, &dj, rgba, 4 * (size_t)b->W, 4 * b->N), "render_deferred");
         free(rgba);

@@ -2,7 +2,8 @@
 //! tunables of the BVH and the frustum its large packets get.
 
 use super::grid::sheaf_tri_test;
-use super::{check_non_null, guard_free, raw, write_out};
+use super::sized::{self, versioned};
+use super::{guard_free, raw};
 use crate::error::{Error, Result};
 use crate::{BuildQuality, BvhParams, RayKind};
 use crate::{RefitInfo, RefitParams};
@@ -43,6 +44,9 @@ impl sheaf_build_quality {
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct sheaf_bvh_params {
+    /// `sizeof` the caller's struct, set by `sheaf_bvh_params_default`
+    /// (docs/c-api.md, "Upgrading").
+    pub size: u32,
     /// Most triangles in a leaf before the build must split (1..=64, default 4).
     pub leaf_size: u32,
     /// SAH bins per axis (2..=64, default 16).
@@ -66,6 +70,7 @@ pub struct sheaf_bvh_params {
 impl sheaf_bvh_params {
     pub fn of(p: &BvhParams) -> sheaf_bvh_params {
         sheaf_bvh_params {
+            size: core::mem::size_of::<sheaf_bvh_params>() as u32,
             leaf_size: p.leaf_size,
             bins: p.bins,
             traversal_cost: p.traversal_cost,
@@ -127,17 +132,24 @@ impl sheaf_ray_kind {
     }
 }
 
+versioned!(
+    sheaf_bvh_params,
+    [leaf_size, bins, traversal_cost, test, quality, width],
+    sheaf_bvh_params::of(&BvhParams::default())
+);
+
 /// Write the default BVH parameters (leaves of up to 4 triangles, 16 bins,
-/// traversal cost 1, Moller-Trumbore) to `*out`.
+/// traversal cost 1, Moller-Trumbore) to `*out`, a struct of `size` bytes
+/// (sheaf.h's macro passes `sizeof *out`; see `sheaf_limits_default`).
 ///
-/// `out` must not be NULL. Thread-safe.
+/// `out` must not be NULL. Errors: `SHEAF_STATUS_INVALID_ARGUMENT` when
+/// `size` is no size of this struct. Thread-safe.
 #[unsafe(no_mangle)]
-pub extern "C" fn sheaf_bvh_params_default(out: *mut sheaf_bvh_params) -> super::sheaf_status {
-    guard_free(|| {
-        check_non_null!(out);
-        write_out(out, sheaf_bvh_params::of(&BvhParams::default()));
-        Ok(())
-    })
+pub extern "C" fn sheaf_bvh_params_default(
+    out: *mut sheaf_bvh_params,
+    size: usize,
+) -> super::sheaf_status {
+    guard_free(|| sized::write(out, size, sheaf_bvh_params::of(&BvhParams::default())))
 }
 
 /// When a BVH refit becomes a rebuild (`sheaf_context_refit_bvh`), the
@@ -145,6 +157,8 @@ pub extern "C" fn sheaf_bvh_params_default(out: *mut sheaf_bvh_params) -> super:
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct sheaf_refit_params {
+    /// `sizeof` the caller's struct, set by `sheaf_refit_params_default`.
+    pub size: u32,
     /// Rebuild (with the last build's `sheaf_bvh_params`) instead once the
     /// tree's SAH cost has grown past this ratio; 0 (default) never
     /// rebuilds. 0 or a finite value of at least 1.
@@ -154,6 +168,7 @@ pub struct sheaf_refit_params {
 impl sheaf_refit_params {
     pub fn of(p: &RefitParams) -> sheaf_refit_params {
         sheaf_refit_params {
+            size: core::mem::size_of::<sheaf_refit_params>() as u32,
             rebuild_above: p.rebuild_above,
         }
     }
@@ -196,16 +211,23 @@ impl sheaf_refit_info {
     }
 }
 
-/// Write the default refit parameters (never rebuild) to `*out`.
+versioned!(
+    sheaf_refit_params,
+    [rebuild_above],
+    sheaf_refit_params::of(&RefitParams::default())
+);
+
+/// Write the default refit parameters (never rebuild) to `*out`, a struct
+/// of `size` bytes (sheaf.h's macro passes `sizeof *out`).
 ///
-/// `out` must not be NULL. Thread-safe.
+/// `out` must not be NULL. Errors: `SHEAF_STATUS_INVALID_ARGUMENT` when
+/// `size` is no size of this struct. Thread-safe.
 #[unsafe(no_mangle)]
-pub extern "C" fn sheaf_refit_params_default(out: *mut sheaf_refit_params) -> super::sheaf_status {
-    guard_free(|| {
-        check_non_null!(out);
-        write_out(out, sheaf_refit_params::of(&RefitParams::default()));
-        Ok(())
-    })
+pub extern "C" fn sheaf_refit_params_default(
+    out: *mut sheaf_refit_params,
+    size: usize,
+) -> super::sheaf_status {
+    guard_free(|| sized::write(out, size, sheaf_refit_params::of(&RefitParams::default())))
 }
 
 #[cfg(test)]

@@ -7,6 +7,7 @@
 use super::context::{Handle, sheaf_context, with_ref};
 use super::ray::sheaf_hit;
 use super::scene::{controls, params_of, sheaf_scene_hit};
+use super::sized;
 use super::trace_params::sheaf_trace_params;
 use super::{check_array, read_in};
 use crate::error::Result;
@@ -62,7 +63,7 @@ pub extern "C" fn sheaf_context_trace_camera(
     hits_per_row: usize,
 ) -> super::sheaf_status {
     with_ref(ctx, |h: &Handle| {
-        let p = read_in(params)?.to_core()?;
+        let p = sized::read(params)?.to_core()?;
         let (pr, r) = camera_of(camera, width, height, rect, hits.cast_const(), hits_per_row)?;
         let rays = CameraRays::new(&pr, r, Some(&p))?;
         let mut at = rays.index(hits_per_row);

@@ -9,6 +9,7 @@
 
 use super::bvh::{sheaf_bvh_params, sheaf_refit_info, sheaf_refit_params};
 use super::limits::sheaf_limits;
+use super::sized;
 use super::trace_params::sheaf_trace_params;
 use super::{
     SHEAF_CONTEXT_ALIGN, SHEAF_ERROR_MESSAGE_MAX, array_bytes, check_array, check_non_null,
@@ -327,7 +328,7 @@ pub extern "C" fn sheaf_required_bytes(
     out: *mut usize,
 ) -> sheaf_status {
     guard_free(|| {
-        let limits = read_in(limits)?.to_core()?;
+        let limits = sized::read(limits)?.to_core()?;
         check_non_null!(out);
         let need = total_bytes(&limits)?;
         write_out(out, need);
@@ -359,7 +360,7 @@ pub extern "C" fn sheaf_context_create_in(
 ) -> sheaf_status {
     guard_free(|| {
         check_non_null!(buf);
-        let limits = read_in(limits)?.to_core()?;
+        let limits = sized::read(limits)?.to_core()?;
         check_non_null!(out);
         let need = total_bytes(&limits)?;
         if !(buf as usize).is_multiple_of(SHEAF_CONTEXT_ALIGN) {
@@ -413,7 +414,7 @@ pub extern "C" fn sheaf_context_create(
 ) -> sheaf_status {
     let mut oom = false;
     let s = guard_free(|| {
-        let limits = read_in(limits)?.to_core()?;
+        let limits = sized::read(limits)?.to_core()?;
         check_non_null!(out);
         let need = total_bytes(&limits)?;
         let layout = std::alloc::Layout::from_size_align(need, SHEAF_CONTEXT_ALIGN)
@@ -592,7 +593,7 @@ pub extern "C" fn sheaf_context_build_grid(
         let params = if params.is_null() {
             GridParams::default()
         } else {
-            read_in(params)?.to_core()?
+            sized::read(params)?.to_core()?
         };
         let g = h.geometry.as_ref().ok_or(Error::NoGeometry)?;
         h.ctx.build_grid(&g.scene()?, &params)?;
@@ -620,7 +621,7 @@ pub extern "C" fn sheaf_context_build_grid_joined(
         let params = if params.is_null() {
             GridParams::default()
         } else {
-            read_in(params)?.to_core()?
+            sized::read(params)?.to_core()?
         };
         let g = h.geometry.as_ref().ok_or(Error::NoGeometry)?;
         h.ctx.build_grid_with(&g.scene()?, &params, par)?;
@@ -651,7 +652,7 @@ pub extern "C" fn sheaf_context_build_bvh(
         let params = if params.is_null() {
             BvhParams::default()
         } else {
-            read_in(params)?.to_core()?
+            sized::read(params)?.to_core()?
         };
         let g = h.geometry.as_ref().ok_or(Error::NoGeometry)?;
         h.ctx.build_bvh(&g.scene()?, &params)?;
@@ -704,7 +705,7 @@ pub extern "C" fn sheaf_context_build_bvh_joined(
         let params = if params.is_null() {
             BvhParams::default()
         } else {
-            read_in(params)?.to_core()?
+            sized::read(params)?.to_core()?
         };
         let g = h.geometry.as_ref().ok_or(Error::NoGeometry)?;
         h.ctx.build_bvh_with(&g.scene()?, &params, par)?;
@@ -734,7 +735,7 @@ pub extern "C" fn sheaf_context_refit_bvh_joined(
         let params = if params.is_null() {
             RefitParams::default()
         } else {
-            read_in(params)?.to_core()?
+            sized::read(params)?.to_core()?
         };
         let g = h.geometry.as_ref().ok_or(Error::NoGeometry)?;
         let r = h.ctx.refit_bvh_with(&g.scene()?, &params, par)?;
@@ -876,7 +877,7 @@ pub extern "C" fn sheaf_context_refit_bvh(
         let params = if params.is_null() {
             RefitParams::default()
         } else {
-            read_in(params)?.to_core()?
+            sized::read(params)?.to_core()?
         };
         let g = h.geometry.as_ref().ok_or(Error::NoGeometry)?;
         let r = h.ctx.refit_bvh(&g.scene()?, &params)?;
@@ -906,7 +907,7 @@ pub extern "C" fn sheaf_context_trace_with(
     count: usize,
 ) -> sheaf_status {
     with_ref(ctx, |h| {
-        let p = read_in(params)?.to_core()?;
+        let p = sized::read(params)?.to_core()?;
         trace_impl(h, None, &p, rays, hits, count)
     })
 }
@@ -1005,7 +1006,7 @@ pub extern "C" fn sheaf_context_trace_slot(
     count: usize,
 ) -> sheaf_status {
     with_ref(ctx, |h| {
-        let p = read_in(params)?.to_core()?;
+        let p = sized::read(params)?.to_core()?;
         trace_impl(h, Some(slot), &p, rays, hits, count)
     })
 }
@@ -1026,7 +1027,7 @@ pub extern "C" fn sheaf_context_occluded_slot(
     count: usize,
 ) -> sheaf_status {
     with_ref(ctx, |h| {
-        let p = read_in(params)?.to_core()?;
+        let p = sized::read(params)?.to_core()?;
         occluded_impl(h, Some(slot), &p, rays, occluded, count)
     })
 }
@@ -1072,7 +1073,7 @@ pub extern "C" fn sheaf_context_occluded_with(
     count: usize,
 ) -> sheaf_status {
     with_ref(ctx, |h| {
-        let p = read_in(params)?.to_core()?;
+        let p = sized::read(params)?.to_core()?;
         occluded_impl(h, None, &p, rays, occluded, count)
     })
 }
@@ -1126,8 +1127,8 @@ pub extern "C" fn sheaf_context_render_with(
     rgba_len: usize,
 ) -> sheaf_status {
     with_mut(ctx, |h| {
-        let p = read_in(primary)?.to_core()?;
-        let s = read_in(shadow)?.to_core()?;
+        let p = sized::read(primary)?.to_core()?;
+        let s = sized::read(shadow)?.to_core()?;
         render_impl(h, &p, &s, frame, rgba, stride_bytes, rgba_len)
     })
 }
@@ -1162,8 +1163,8 @@ pub extern "C" fn sheaf_context_render_rows(
     rgba_len: usize,
 ) -> sheaf_status {
     with_ref(ctx, |h| {
-        let p = read_in(primary)?.to_core()?;
-        let s = read_in(shadow)?.to_core()?;
+        let p = sized::read(primary)?.to_core()?;
+        let s = sized::read(shadow)?.to_core()?;
         let frame = read_in(frame)?.to_core()?;
         check_non_null!(rgba);
         if rgba_len > isize::MAX as usize {
@@ -1294,7 +1295,7 @@ pub extern "C" fn sheaf_slot_scratch_bytes(
     out: *mut usize,
 ) -> sheaf_status {
     guard_free(|| {
-        let limits = read_in(limits)?.to_core()?;
+        let limits = sized::read(limits)?.to_core()?;
         limits.validate()?;
         check_non_null!(out);
         write_out(out, crate::slot_scratch_bytes(&limits));

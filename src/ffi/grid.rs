@@ -1,6 +1,7 @@
 //! `sheaf_grid_params` and `sheaf_tri_test`: the tunables of the uniform grid.
 
-use super::{check_non_null, flag, guard_free, raw, write_out};
+use super::sized::{self, versioned};
+use super::{flag, guard_free, raw};
 use crate::GridParams;
 use crate::TriTest;
 use crate::error::{Error, Result};
@@ -48,6 +49,9 @@ impl sheaf_tri_test {
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct sheaf_grid_params {
+    /// `sizeof` the caller's struct, set by `sheaf_grid_params_default`
+    /// (docs/c-api.md, "Upgrading").
+    pub size: u32,
     /// Cells per triangle, lambda (section 3, Figure 6: best near 5;
     /// default 5). Must be in (0, 1024].
     pub lambda: f32,
@@ -59,12 +63,13 @@ pub struct sheaf_grid_params {
     pub test: raw::sheaf_tri_test,
     /// When the cells for `lambda` exceed `sheaf_limits.max_grid_cells`,
     /// lower lambda to fit instead of failing (0 or 1; default 0).
-    pub fit: u8,
+    pub fit: u32,
 }
 
 impl sheaf_grid_params {
     pub fn of(p: &GridParams) -> sheaf_grid_params {
         sheaf_grid_params {
+            size: core::mem::size_of::<sheaf_grid_params>() as u32,
             lambda: p.lambda,
             macrocell: p.macrocell,
             test: sheaf_tri_test::of(p.test) as u32,
@@ -82,17 +87,26 @@ impl sheaf_grid_params {
     }
 }
 
+versioned!(
+    sheaf_grid_params,
+    [lambda, macrocell, test, fit],
+    sheaf_grid_params::of(&GridParams::default())
+);
+
 /// Write the default grid parameters (lambda 5, macrocells of 6, Moller-
 /// Trumbore, no fit) to `*out`.
 ///
-/// `out` must not be NULL. Thread-safe.
+/// `*out` is a struct of `size` bytes (sheaf.h's macro passes `sizeof
+/// *out`; see `sheaf_limits_default`).
+///
+/// `out` must not be NULL. Errors: `SHEAF_STATUS_INVALID_ARGUMENT` when
+/// `size` is no size of this struct. Thread-safe.
 #[unsafe(no_mangle)]
-pub extern "C" fn sheaf_grid_params_default(out: *mut sheaf_grid_params) -> super::sheaf_status {
-    guard_free(|| {
-        check_non_null!(out);
-        write_out(out, sheaf_grid_params::of(&GridParams::default()));
-        Ok(())
-    })
+pub extern "C" fn sheaf_grid_params_default(
+    out: *mut sheaf_grid_params,
+    size: usize,
+) -> super::sheaf_status {
+    guard_free(|| sized::write(out, size, sheaf_grid_params::of(&GridParams::default())))
 }
 
 #[cfg(test)]

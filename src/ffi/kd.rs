@@ -5,7 +5,8 @@
 use super::bvh::sheaf_build_quality;
 use super::context::{joined, sheaf_context, with_mut};
 use super::grid::sheaf_tri_test;
-use super::{check_non_null, guard_free, raw, read_in, sheaf_status, write_out};
+use super::sized::{self, versioned};
+use super::{guard_free, raw, sheaf_status};
 use crate::KdParams;
 use crate::error::{Error, Result};
 
@@ -14,6 +15,9 @@ use crate::error::{Error, Result};
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct sheaf_kd_params {
+    /// `sizeof` the caller's struct, set by `sheaf_kd_params_default`
+    /// (docs/c-api.md, "Upgrading").
+    pub size: u32,
     /// Depth limit (1..=48); 0: `8 + 1.3 log2 N` capped at 48.
     pub max_depth: u32,
     /// SAH cost of a traversal step relative to a triangle test (> 0, default 2).
@@ -34,6 +38,7 @@ pub struct sheaf_kd_params {
 impl sheaf_kd_params {
     pub fn of(p: &KdParams) -> sheaf_kd_params {
         sheaf_kd_params {
+            size: core::mem::size_of::<sheaf_kd_params>() as u32,
             max_depth: p.max_depth,
             traversal_cost: p.traversal_cost,
             empty_bonus: p.empty_bonus,
@@ -57,18 +62,24 @@ impl sheaf_kd_params {
     }
 }
 
+versioned!(
+    sheaf_kd_params,
+    [max_depth, traversal_cost, empty_bonus, test, quality, bins],
+    sheaf_kd_params::of(&KdParams::default())
+);
+
 /// Write the default kd-tree parameters (automatic depth limit, traversal
 /// cost 2, empty bonus 0.2, Moller-Trumbore, the LOW binned build with 32
 /// bins) to `*out`.
 ///
-/// `out` must not be NULL. Thread-safe.
+/// `*out` is a struct of `size` bytes (sheaf.h's macro passes `sizeof
+/// *out`; see `sheaf_limits_default`).
+///
+/// `out` must not be NULL. Errors: `SHEAF_STATUS_INVALID_ARGUMENT` when
+/// `size` is no size of this struct. Thread-safe.
 #[unsafe(no_mangle)]
-pub extern "C" fn sheaf_kd_params_default(out: *mut sheaf_kd_params) -> sheaf_status {
-    guard_free(|| {
-        check_non_null!(out);
-        write_out(out, sheaf_kd_params::of(&KdParams::default()));
-        Ok(())
-    })
+pub extern "C" fn sheaf_kd_params_default(out: *mut sheaf_kd_params, size: usize) -> sheaf_status {
+    guard_free(|| sized::write(out, size, sheaf_kd_params::of(&KdParams::default())))
 }
 
 /// Rebuild the kd-tree from the geometry with `*params` (copied; NULL: the
@@ -93,7 +104,7 @@ pub extern "C" fn sheaf_context_build_kd(
         let params = if params.is_null() {
             KdParams::default()
         } else {
-            read_in(params)?.to_core()?
+            sized::read(params)?.to_core()?
         };
         let g = h.geometry.as_ref().ok_or(Error::NoGeometry)?;
         h.ctx.build_kd(&g.scene()?, &params)?;
@@ -123,7 +134,7 @@ pub extern "C" fn sheaf_context_build_kd_joined(
         let params = if params.is_null() {
             KdParams::default()
         } else {
-            read_in(params)?.to_core()?
+            sized::read(params)?.to_core()?
         };
         let g = h.geometry.as_ref().ok_or(Error::NoGeometry)?;
         h.ctx.build_kd_with(&g.scene()?, &params, par)?;
@@ -150,7 +161,7 @@ pub extern "C" fn sheaf_context_build_scene_kd_joined(
         let p = if params.is_null() {
             KdParams::default()
         } else {
-            read_in(params)?.to_core()?
+            sized::read(params)?.to_core()?
         };
         h.ctx.build_kd_scene_with(&p, mask, par)?;
         Ok(())

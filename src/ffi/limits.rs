@@ -1,7 +1,8 @@
 //! `sheaf_limits`: every pool size of a context (the crate's `Limits`, whose
 //! field docs are the reference), with its one boolean received as a byte.
 
-use super::{check_non_null, flag, guard_free, write_out};
+use super::sized::{self, versioned};
+use super::{flag, guard_free};
 use crate::Limits;
 use crate::error::Result;
 
@@ -11,6 +12,9 @@ use crate::error::Result;
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct sheaf_limits {
+    /// `sizeof` the struct the caller was built with, set by
+    /// `sheaf_limits_default` (docs/c-api.md, "Upgrading").
+    pub size: u32,
     /// Most triangles a scene may have (including ones excluded at build).
     pub max_triangles: u32,
     /// Most vertices a scene may have.
@@ -30,7 +34,7 @@ pub struct sheaf_limits {
     /// 1: reserve 48 bytes per triangle for the precomputed projection test
     /// (`SHEAF_TRI_TEST_PROJECTION`); 0: that test cannot be selected.
     /// Other values: `SHEAF_STATUS_INVALID_ARGUMENT`.
-    pub projection_test: u8,
+    pub projection_test: u32,
     /// Which structures get pools: `SHEAF_STRUCTURE_GRID`, `_BVH`, `_KD`,
     /// `_PGRID` bits, at least one.
     pub structures: u32,
@@ -74,6 +78,7 @@ pub struct sheaf_limits {
 impl sheaf_limits {
     pub fn of(l: &Limits) -> sheaf_limits {
         sheaf_limits {
+            size: core::mem::size_of::<sheaf_limits>() as u32,
             max_triangles: l.max_triangles,
             max_vertices: l.max_vertices,
             max_image_width: l.max_image_width,
@@ -129,21 +134,57 @@ impl sheaf_limits {
     }
 }
 
+versioned!(
+    sheaf_limits,
+    [
+        max_triangles,
+        max_vertices,
+        max_image_width,
+        max_image_height,
+        max_tile,
+        max_threads,
+        max_grid_cells,
+        max_grid_refs,
+        projection_test,
+        structures,
+        max_kd_nodes,
+        max_kd_refs,
+        max_pgrid_cells,
+        max_pgrid_refs,
+        max_geometries,
+        max_instances,
+        max_scene_triangles,
+        max_packet_side,
+        max_bounces,
+        renderers,
+        max_bvh_refs,
+    ],
+    sheaf_limits::of(&Limits::for_triangles(0))
+);
+
 /// Write limits for scenes of up to `max_triangles` triangles to `*out`:
 /// `3 * max_triangles` vertices, 4096 x 4096 images, 64-pixel tiles, 8
 /// threads, grid pools derived from the triangle count (0 in
 /// `max_grid_cells` / `max_grid_refs`), packets up to 32 x 32, 8 Whitted
 /// bounces and every renderer. Adjust fields afterwards as needed.
 ///
-/// `out` must not be NULL. Thread-safe.
+/// `size` is `sizeof *out` as the caller was compiled (sheaf.h's
+/// `sheaf_limits_default(n, out)` macro passes it): an older header's
+/// struct gets the fields it has, a newer one's unknown fields zeros.
+///
+/// `out` must not be NULL. Errors: `SHEAF_STATUS_INVALID_ARGUMENT` when
+/// `size` is no size of this struct. Thread-safe.
 #[unsafe(no_mangle)]
 pub extern "C" fn sheaf_limits_default(
     max_triangles: u32,
     out: *mut sheaf_limits,
+    size: usize,
 ) -> super::sheaf_status {
     guard_free(|| {
-        check_non_null!(out);
-        write_out(out, sheaf_limits::of(&Limits::for_triangles(max_triangles)));
-        Ok(())
+        sized::write(
+            out,
+            size,
+            sheaf_limits::of(&Limits::for_triangles(max_triangles)),
+        )
     })
 }

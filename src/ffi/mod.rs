@@ -66,6 +66,7 @@ mod panic_handler;
 pub mod pgrid;
 pub mod ray;
 pub mod scene;
+pub(crate) mod sized;
 pub mod stats;
 pub mod status;
 pub mod stream;
@@ -123,7 +124,9 @@ pub use stream::{
 };
 pub use trace_params::{sheaf_entry_search, sheaf_trace_params, sheaf_trace_params_default};
 pub use version::sheaf_version_string;
-pub use whitted::{sheaf_context_render_whitted, sheaf_whitted_params_default};
+pub use whitted::{
+    sheaf_context_render_whitted, sheaf_whitted_params, sheaf_whitted_params_default,
+};
 
 use crate::error::{Error, Result};
 #[cfg(feature = "std")]
@@ -232,8 +235,8 @@ pub(crate) fn write_out<T: Copy>(p: *mut T, v: T) {
 /// from C memory holding 2 would be undefined behaviour): 0 is false, 1 is
 /// true, anything else is `InvalidArgument` naming the field. The header
 /// shows these fields as `uint8_t`; C's `true` and `false` convert to 1 and 0.
-pub(crate) fn flag(b: u8, what: &'static str) -> Result<bool> {
-    match b {
+pub(crate) fn flag(b: impl Into<u32>, what: &'static str) -> Result<bool> {
+    match b.into() {
         0 => Ok(false),
         1 => Ok(true),
         _ => Err(Error::InvalidArgument(what)),

@@ -9,6 +9,7 @@
 use super::context::{Handle, sheaf_context, with_mut, with_ref};
 use super::frame::sheaf_frame;
 use super::grid::sheaf_tri_test;
+use super::sized::{self, versioned};
 use super::trace_params::{sheaf_isa, sheaf_trace_params};
 use super::{
     check_array, check_non_null, flag, guard_free, raw, read_in, sheaf_hit, sheaf_ray,
@@ -29,6 +30,9 @@ use crate::render::deferred::{
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct sheaf_pgrid_params {
+    /// `sizeof` the caller's struct, set by `sheaf_pgrid_params_default`
+    /// (docs/c-api.md, "Upgrading").
+    pub size: u32,
     /// Side of a sorting tile in pixels: 2, 4, 8, 16 or 32 (default 8).
     pub tile: u32,
     /// Sorting tiles per side of a tracing tile (indirect mapping): 1, 2
@@ -50,7 +54,7 @@ pub struct sheaf_pgrid_params {
     pub test: raw::sheaf_tri_test,
     /// Leave out triangles facing away from the eye (default false). Changes
     /// results on open models: every other structure is two-sided. 0 or 1.
-    pub cull_backfaces: u8,
+    pub cull_backfaces: u32,
     /// Lane width of both grids' triangle tests (a `sheaf_isa`, as
     /// `sheaf_trace_params.isa`): `AUTO` (0, default) or a forced level,
     /// `SHEAF_STATUS_INVALID_ARGUMENT` when the CPU lacks it.
@@ -60,6 +64,7 @@ pub struct sheaf_pgrid_params {
 impl sheaf_pgrid_params {
     pub fn of(p: &PgridParams) -> sheaf_pgrid_params {
         sheaf_pgrid_params {
+            size: core::mem::size_of::<sheaf_pgrid_params>() as u32,
             tile: p.tile,
             group: p.group,
             slices: p.slices,
@@ -92,19 +97,38 @@ impl sheaf_pgrid_params {
     }
 }
 
+versioned!(
+    sheaf_pgrid_params,
+    [
+        tile,
+        group,
+        slices,
+        light_tiles,
+        light_slices,
+        chunk,
+        test,
+        cull_backfaces,
+        isa
+    ],
+    sheaf_pgrid_params::of(&PgridParams::default())
+);
+
 /// Write the default perspective/light grid parameters (8-pixel sorting
 /// tiles traced in 2 x 2 groups, 32 depth slices, up to 64 x 64 light tiles
 /// of 32 slices, chunks of 256 shadow rays, no back-face culling,
 /// Moller-Trumbore) to `*out`.
 ///
-/// `out` must not be NULL. Thread-safe.
+/// `*out` is a struct of `size` bytes (sheaf.h's macro passes `sizeof
+/// *out`; see `sheaf_limits_default`).
+///
+/// `out` must not be NULL. Errors: `SHEAF_STATUS_INVALID_ARGUMENT` when
+/// `size` is no size of this struct. Thread-safe.
 #[unsafe(no_mangle)]
-pub extern "C" fn sheaf_pgrid_params_default(out: *mut sheaf_pgrid_params) -> sheaf_status {
-    guard_free(|| {
-        check_non_null!(out);
-        write_out(out, sheaf_pgrid_params::of(&PgridParams::default()));
-        Ok(())
-    })
+pub extern "C" fn sheaf_pgrid_params_default(
+    out: *mut sheaf_pgrid_params,
+    size: usize,
+) -> sheaf_status {
+    guard_free(|| sized::write(out, size, sheaf_pgrid_params::of(&PgridParams::default())))
 }
 
 /// Load the geometry for perspective and light grids with `*params`
@@ -133,7 +157,7 @@ pub extern "C" fn sheaf_context_build_pgrid(
         let params = if params.is_null() {
             PgridParams::default()
         } else {
-            read_in(params)?.to_core()?
+            sized::read(params)?.to_core()?
         };
         let g = h.geometry.as_ref().ok_or(Error::NoGeometry)?;
         h.ctx.build_pgrid(&g.scene()?, &params)?;
@@ -170,12 +194,13 @@ pub struct sheaf_deferred_job {
     /// traced with `shadow`. 0 or 1.
     pub shadow_light_grid: u8,
     /// Method of camera rays when `primary_pgrid` is false (ignored, not
-    /// checked, otherwise). Packet methods trace tiles of `primary.packet`
-    /// pixels; single-ray methods tiles of 8.
-    pub primary: sheaf_trace_params,
+    /// checked, otherwise; NULL: `sheaf_trace_params_default`). Packet
+    /// methods trace tiles of `primary->packet` pixels; single-ray methods
+    /// tiles of 8. Read during the call only.
+    pub primary: *const sheaf_trace_params,
     /// Method of shadow rays when `shadow_light_grid` is false (ignored,
-    /// not checked, otherwise).
-    pub shadow: sheaf_trace_params,
+    /// not checked, otherwise; NULL: the defaults).
+    pub shadow: *const sheaf_trace_params,
 }
 
 /// Render a deferred frame into the caller's RGBA8 framebuffer (same
@@ -294,7 +319,7 @@ fn render_deferred(
         )? {
             PrimaryPass::Pgrid
         } else {
-            PrimaryPass::Traced(j.primary.to_core()?)
+            PrimaryPass::Traced(traced(j.primary)?)
         },
         shadow: if flag(
             j.shadow_light_grid,
@@ -302,13 +327,22 @@ fn render_deferred(
         )? {
             ShadowPass::LightGrid
         } else {
-            ShadowPass::Traced(j.shadow.to_core()?)
+            ShadowPass::Traced(traced(j.shadow)?)
         },
     };
     // `render_deferred` validates the job (once, before anything else).
     let pixels = super::context::pixels(h, &frame, rgba, stride_bytes, rgba_len)?;
     h.ctx.render_deferred(&job, pixels, stride_bytes, workers)?;
     Ok(())
+}
+
+/// A deferred pass's trace parameters (NULL: the defaults).
+fn traced(p: *const sheaf_trace_params) -> Result<crate::TraceParams> {
+    if p.is_null() {
+        Ok(crate::TraceParams::default())
+    } else {
+        sized::read(p)?.to_core()
+    }
 }
 
 /// Check that a deferred frame exists and contains pixel (x, y): its hit
@@ -390,9 +424,9 @@ pub extern "C" fn sheaf_context_deferred_shadow_ray(
     })
 }
 
-// Seven u32, a byte (padded to four) and a u32: 36 bytes on every ABI
-// (tests/c_abi.rs compares every header struct's size and alignment with C's).
-const _: () = assert!(core::mem::size_of::<sheaf_pgrid_params>() == 36);
+// Ten u32: 40 bytes on every ABI (tests/c_abi.rs compares every header
+// struct's size and alignment with C's).
+const _: () = assert!(core::mem::size_of::<sheaf_pgrid_params>() == 40);
 
 #[cfg(test)]
 mod tests {

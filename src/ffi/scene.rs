@@ -10,6 +10,7 @@ use super::grid::sheaf_grid_params;
 use super::kd::sheaf_kd_params;
 use super::pgrid::sheaf_pgrid_params;
 use super::ray::{sheaf_hit, sheaf_ray};
+use super::sized::{self, versioned};
 use super::trace_params::sheaf_trace_params;
 use super::{check_array, check_non_null, guard_free, overlaps, read_in, write_out};
 use crate::GridParams;
@@ -63,41 +64,53 @@ pub enum sheaf_update_mode {
 }
 
 /// How a geometry is built and updated (the crate's `GeometryParams`).
-/// Start from `sheaf_geometry_params_default`.
+/// Start from `sheaf_geometry_params_default`. Its BVH and refit
+/// parameters are pointed to (each struct grows on its own; see
+/// docs/c-api.md, "Upgrading") and read during the call only.
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
 pub struct sheaf_geometry_params {
+    /// `sizeof` the caller's struct, set by `sheaf_geometry_params_default`.
+    pub size: u32,
     pub mode: super::raw::sheaf_update_mode,
-    /// Triangles reserved in the scene's budget (0: the mesh's count). A
-    /// REBUILD geometry may grow to it.
-    pub max_triangles: u32,
-    /// Its BVH (every geometry of a scene uses the first one's test).
-    pub bvh: sheaf_bvh_params,
-    /// When a refit becomes a rebuild (REFIT geometries).
-    pub refit: sheaf_refit_params,
-    /// Rays whose mask shares no bit with it skip every instance of the
-    /// geometry (default all bits).
-    pub mask: u32,
-    /// Skip its filter (DXR's opaque geometry flag): 0 (the default) or 1.
-    pub opaque: u8,
+    /// Its BVH (NULL, the default: `sheaf_bvh_params_default`; every
+    /// geometry of a scene uses the first one's test).
+    pub bvh: *const sheaf_bvh_params,
+    /// When a refit becomes a rebuild (REFIT geometries; NULL, the
+    /// default: never).
+    pub refit: *const sheaf_refit_params,
     /// Its any-hit filter (NULL, the default: none), called with
     /// `filter_user`; see `sheaf_filter_fn` and
     /// `sheaf_context_set_scene_geometry_filter`.
     pub filter: super::filter::sheaf_filter_fn,
     pub filter_user: *mut c_void,
+    /// Triangles reserved in the scene's budget (0: the mesh's count). A
+    /// REBUILD geometry may grow to it.
+    pub max_triangles: u32,
+    /// Rays whose mask shares no bit with it skip every instance of the
+    /// geometry (default all bits).
+    pub mask: u32,
+    /// Skip its filter (DXR's opaque geometry flag): 0 (the default) or 1.
+    pub opaque: u32,
+    /// Reserved for a future field: 0 (it keeps the struct free of padding).
+    pub reserved: u32,
 }
 
 impl sheaf_geometry_params {
+    /// `p` with its BVH and refit parameters left to their defaults (NULL):
+    /// the C struct cannot point at values that do not outlive the call.
     pub fn of(p: &GeometryParams) -> Self {
         sheaf_geometry_params {
+            size: core::mem::size_of::<sheaf_geometry_params>() as u32,
             mode: p.mode as u32,
-            max_triangles: p.max_triangles,
-            bvh: sheaf_bvh_params::of(&p.bvh),
-            refit: sheaf_refit_params::of(&p.refit),
-            mask: p.mask,
-            opaque: p.opaque.into(),
+            bvh: core::ptr::null(),
+            refit: core::ptr::null(),
             filter: p.filter.map(|f| f.func),
             filter_user: p.filter.map_or(core::ptr::null_mut(), |f| f.user()),
+            max_triangles: p.max_triangles,
+            mask: p.mask,
+            opaque: p.opaque.into(),
+            reserved: 0,
         }
     }
     pub fn to_core(&self) -> Result<GeometryParams> {
@@ -105,17 +118,47 @@ impl sheaf_geometry_params {
             .into_iter()
             .find(|&m| m as u32 == self.mode)
             .ok_or(Error::InvalidArgument("unknown sheaf_update_mode"))?;
+        if self.reserved != 0 {
+            return Err(Error::InvalidArgument(
+                "sheaf_geometry_params.reserved must be 0",
+            ));
+        }
+        let defaults = GeometryParams::default();
         Ok(GeometryParams {
             mode,
             max_triangles: self.max_triangles,
-            bvh: self.bvh.to_core()?,
-            refit: self.refit.to_core()?,
+            bvh: if self.bvh.is_null() {
+                defaults.bvh
+            } else {
+                sized::read(self.bvh)?.to_core()?
+            },
+            refit: if self.refit.is_null() {
+                defaults.refit
+            } else {
+                sized::read(self.refit)?.to_core()?
+            },
             mask: self.mask,
             filter: super::filter::filter_of(self.filter, self.filter_user)?,
             opaque: super::flag(self.opaque, "sheaf_geometry_params.opaque must be 0 or 1")?,
         })
     }
 }
+
+versioned!(
+    sheaf_geometry_params,
+    [
+        mode,
+        bvh,
+        refit,
+        filter,
+        filter_user,
+        max_triangles,
+        mask,
+        opaque,
+        reserved
+    ],
+    sheaf_geometry_params::of(&GeometryParams::default())
+);
 
 /// Nearest hit in a two-level scene (24 bytes): the triangle's index in
 /// its geometry's index buffer, the geometry and the instance. A miss has
@@ -195,18 +238,23 @@ impl sheaf_scene_info {
 }
 
 /// Write the default geometry parameters (STATIC, the mesh's triangle
-/// count reserved, `sheaf_bvh_params_default`, never rebuild on refit,
-/// every mask bit) to `*out`.
+/// count reserved, NULL BVH and refit parameters: their defaults, every
+/// mask bit) to `*out`, a struct of `size` bytes (sheaf.h's macro passes
+/// `sizeof *out`; see `sheaf_limits_default`).
 ///
-/// `out` must not be NULL. Thread-safe.
+/// `out` must not be NULL. Errors: `SHEAF_STATUS_INVALID_ARGUMENT` when
+/// `size` is no size of this struct. Thread-safe.
 #[unsafe(no_mangle)]
 pub extern "C" fn sheaf_geometry_params_default(
     out: *mut sheaf_geometry_params,
+    size: usize,
 ) -> super::sheaf_status {
     guard_free(|| {
-        check_non_null!(out);
-        write_out(out, sheaf_geometry_params::of(&GeometryParams::default()));
-        Ok(())
+        sized::write(
+            out,
+            size,
+            sheaf_geometry_params::of(&GeometryParams::default()),
+        )
     })
 }
 
@@ -246,7 +294,7 @@ pub extern "C" fn sheaf_context_set_scene_geometry(
         let p = if params.is_null() {
             GeometryParams::default()
         } else {
-            read_in(params)?.to_core()?
+            sized::read(params)?.to_core()?
         };
         h.ctx.set_geometry(id, &g.scene()?, &p)?;
         Ok(())
@@ -487,7 +535,7 @@ pub extern "C" fn sheaf_context_build_scene_grid(
         let p = if params.is_null() {
             GridParams::default()
         } else {
-            read_in(params)?.to_core()?
+            sized::read(params)?.to_core()?
         };
         h.ctx.build_grid_scene(&p, mask)?;
         Ok(())
@@ -508,7 +556,7 @@ pub extern "C" fn sheaf_context_build_scene_kd(
         let p = if params.is_null() {
             KdParams::default()
         } else {
-            read_in(params)?.to_core()?
+            sized::read(params)?.to_core()?
         };
         h.ctx.build_kd_scene(&p, mask)?;
         Ok(())
@@ -532,7 +580,7 @@ pub extern "C" fn sheaf_context_build_scene_pgrid(
         let p = if params.is_null() {
             PgridParams::default()
         } else {
-            read_in(params)?.to_core()?
+            sized::read(params)?.to_core()?
         };
         h.ctx.build_pgrid_scene(&p, mask)?;
         Ok(())
@@ -602,7 +650,7 @@ pub(super) fn params_of(params: *const sheaf_trace_params) -> Result<Option<Trac
     if params.is_null() {
         return Ok(None);
     }
-    Ok(Some(read_in(params)?.to_core()?))
+    Ok(Some(sized::read(params)?.to_core()?))
 }
 
 #[cfg(test)]

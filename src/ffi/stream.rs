@@ -7,6 +7,7 @@
 
 use super::context::{Handle, sheaf_context, with_ref};
 use super::scene::{controls, params_of};
+use super::sized;
 use super::trace_params::sheaf_trace_params;
 use super::{overlaps, read_in};
 use crate::error::{Error, Result};
@@ -353,7 +354,7 @@ pub extern "C" fn sheaf_context_trace_stream(
     count: usize,
 ) -> super::sheaf_status {
     with_ref(ctx, |h| {
-        let p = read_in(params)?.to_core()?;
+        let p = sized::read(params)?.to_core()?;
         let (r, spans) = CRays::new(rays, count)?;
         let out = CHits::new(hits, count, &spans, false)?;
         let emit = |i: usize, h4: &crate::geom::Hit4, n: usize| out.put_quad(i, h4, n);
@@ -376,7 +377,7 @@ pub extern "C" fn sheaf_context_occluded_stream(
     count: usize,
 ) -> super::sheaf_status {
     with_ref(ctx, |h| {
-        let p = read_in(params)?.to_core()?;
+        let p = sized::read(params)?.to_core()?;
         let (r, spans) = CRays::new(rays, count)?;
         check_occluded(occluded, count, &spans)?;
         let emit = |i: usize, h4: &crate::geom::Hit4, l: usize| {

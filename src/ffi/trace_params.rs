@@ -2,7 +2,8 @@
 //! `TraceParams`, with the method received as a raw integer and checked).
 
 use super::method::sheaf_method;
-use super::{check_non_null, flag, guard_free, raw, write_out};
+use super::sized::{self, versioned};
+use super::{flag, guard_free, raw};
 use crate::EntrySearch;
 use crate::error::{Error, Result};
 use crate::isa::Isa;
@@ -78,19 +79,22 @@ impl sheaf_isa {
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct sheaf_trace_params {
+    /// `sizeof` the caller's struct, set by `sheaf_trace_params_default`
+    /// (docs/c-api.md, "Upgrading").
+    pub size: u32,
     /// A `sheaf_method` value.
     pub method: raw::sheaf_method,
     /// Packet side n (n x n rays) for packet methods: 2, 4, 8, 16 or 32.
     pub packet: u32,
     /// CGT: skip slices of empty macrocells (paper section 2.4). 0 or 1.
-    pub macrocells: u8,
+    pub macrocells: u32,
     /// CGT: test each triangle once per packet (section 2.3), with the
     /// thread slot's mailbox. 0 or 1.
-    pub mailbox: u8,
+    pub mailbox: u32,
     /// Frustum culling: CGT's SIMD corner-ray culling (CGT section 2.3) and
     /// the BVH packets' box and triangle culling (BVH paper section 4).
     /// 0 or 1.
-    pub culling: u8,
+    pub culling: u32,
     /// BVH and kd-tree packets: which frustum they get (a `sheaf_ray_kind`).
     pub ray_kind: raw::sheaf_ray_kind,
     /// Tree packets (`KD_PACKET`, `BVH_MASKED`, `BVH_RANGED`,
@@ -105,12 +109,13 @@ pub struct sheaf_trace_params {
     pub isa: raw::sheaf_isa,
     /// Skip every filter (`sheaf_filter_fn`; DXR's
     /// `RAY_FLAG_FORCE_OPAQUE`): 0 (the default) or 1.
-    pub force_opaque: u8,
+    pub force_opaque: u32,
 }
 
 impl sheaf_trace_params {
     pub fn of(p: &TraceParams) -> Self {
         sheaf_trace_params {
+            size: core::mem::size_of::<sheaf_trace_params>() as u32,
             method: sheaf_method::of(p.method) as u32,
             packet: p.packet,
             macrocells: p.cgt.macrocells.into(),
@@ -158,17 +163,37 @@ impl sheaf_trace_params {
     }
 }
 
+versioned!(
+    sheaf_trace_params,
+    [
+        method,
+        packet,
+        macrocells,
+        mailbox,
+        culling,
+        ray_kind,
+        entry,
+        split,
+        isa,
+        force_opaque
+    ],
+    sheaf_trace_params::of(&TraceParams::default())
+);
+
 /// Write the defaults to `*out`: coherent grid traversal, 8x8 packets,
 /// macrocells, mailbox and culling on, shadow split ratio 2.
 ///
-/// Thread-safe. Errors: `SHEAF_STATUS_NULL_POINTER`.
+/// `*out` is a struct of `size` bytes (sheaf.h's macro passes `sizeof
+/// *out`; see `sheaf_limits_default`).
+///
+/// `out` must not be NULL. Errors: `SHEAF_STATUS_INVALID_ARGUMENT` when
+/// `size` is no size of this struct. Thread-safe.
 #[unsafe(no_mangle)]
-pub extern "C" fn sheaf_trace_params_default(out: *mut sheaf_trace_params) -> super::sheaf_status {
-    guard_free(|| {
-        check_non_null!(out);
-        write_out(out, sheaf_trace_params::of(&TraceParams::default()));
-        Ok(())
-    })
+pub extern "C" fn sheaf_trace_params_default(
+    out: *mut sheaf_trace_params,
+    size: usize,
+) -> super::sheaf_status {
+    guard_free(|| sized::write(out, size, sheaf_trace_params::of(&TraceParams::default())))
 }
 
 #[cfg(test)]

@@ -4,22 +4,69 @@
 
 use super::context::{Handle, sheaf_context, with_mut};
 use super::frame::sheaf_frame;
+use super::sized::{self, versioned};
 use super::trace_params::sheaf_trace_params;
-use super::{check_array, check_non_null, guard_free, overlaps, read_in, write_out};
+use super::{check_array, guard_free, overlaps, read_in};
 use crate::PointLight;
 use crate::error::{Error, Result};
 use crate::{Material, MaterialRange, Materials};
 use crate::{WhittedJob, WhittedParams};
 
-/// Write the default bounce limits (2 reflections, 2 refractions) to `*out`.
+/// Bounce limits of a Whitted frame (the crate's `WhittedParams`). Start
+/// from `sheaf_whitted_params_default`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct sheaf_whitted_params {
+    /// `sizeof` the caller's struct, set by `sheaf_whitted_params_default`
+    /// (docs/c-api.md, "Upgrading").
+    pub size: u32,
+    /// Most mirror reflections on a path (default 2).
+    pub max_reflect: u32,
+    /// Most refractions on a path (default 2).
+    pub max_refract: u32,
+}
+
+impl sheaf_whitted_params {
+    pub fn of(p: &WhittedParams) -> Self {
+        sheaf_whitted_params {
+            size: core::mem::size_of::<sheaf_whitted_params>() as u32,
+            max_reflect: p.max_reflect,
+            max_refract: p.max_refract,
+        }
+    }
+    pub fn to_core(&self) -> Result<WhittedParams> {
+        let p = WhittedParams {
+            max_reflect: self.max_reflect,
+            max_refract: self.max_refract,
+        };
+        p.validate()?;
+        Ok(p)
+    }
+}
+
+versioned!(
+    sheaf_whitted_params,
+    [max_reflect, max_refract],
+    sheaf_whitted_params::of(&WhittedParams::default())
+);
+
+/// Write the default bounce limits (2 reflections, 2 refractions) to
+/// `*out`, a struct of `size` bytes (sheaf.h's macro passes `sizeof *out`;
+/// see `sheaf_limits_default`).
 ///
-/// `out` must not be NULL. Thread-safe.
+/// `out` must not be NULL. Errors: `SHEAF_STATUS_INVALID_ARGUMENT` when
+/// `size` is no size of this struct. Thread-safe.
 #[unsafe(no_mangle)]
-pub extern "C" fn sheaf_whitted_params_default(out: *mut WhittedParams) -> super::sheaf_status {
+pub extern "C" fn sheaf_whitted_params_default(
+    out: *mut sheaf_whitted_params,
+    size: usize,
+) -> super::sheaf_status {
     guard_free(|| {
-        check_non_null!(out);
-        write_out(out, WhittedParams::default());
-        Ok(())
+        sized::write(
+            out,
+            size,
+            sheaf_whitted_params::of(&WhittedParams::default()),
+        )
     })
 }
 
@@ -78,7 +125,7 @@ pub extern "C" fn sheaf_context_render_whitted(
     primary: *const sheaf_trace_params,
     shadow: *const sheaf_trace_params,
     secondary: *const sheaf_trace_params,
-    params: *const WhittedParams,
+    params: *const sheaf_whitted_params,
     frame: *const sheaf_frame,
     lights: *const PointLight,
     light_count: usize,
@@ -95,7 +142,7 @@ pub extern "C" fn sheaf_context_render_whitted(
         let params = if params.is_null() {
             WhittedParams::default()
         } else {
-            read_in(params)?
+            sized::read(params)?.to_core()?
         };
         let job = WhittedJob {
             frame: &frame,
@@ -105,9 +152,9 @@ pub extern "C" fn sheaf_context_render_whitted(
                 ranges: borrow(ranges, range_count, "range count too large")?,
             },
             params,
-            primary: read_in(primary)?.to_core()?,
-            shadow: read_in(shadow)?.to_core()?,
-            secondary: read_in(secondary)?.to_core()?,
+            primary: sized::read(primary)?.to_core()?,
+            shadow: sized::read(shadow)?.to_core()?,
+            secondary: sized::read(secondary)?.to_core()?,
         };
         // The framebuffer is written while the arrays are read: they must
         // not share a byte (checked before the framebuffer is borrowed).
