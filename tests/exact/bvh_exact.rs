@@ -401,32 +401,43 @@ fn refit_of_a_split_tree_stays_exact() {
     fresh.build_bvh(&scene, &BvhParams::default()).unwrap();
     for (vname, view) in &s.views {
         let rays = view.rays(RES as u32, RES as u32);
-        let mut want = vec![Hit::MISS; rays.len()];
-        let mut got = vec![Hit::MISS; rays.len()];
-        fresh.trace(Method::BvhSingle, &rays, &mut want).unwrap();
-        ctx.trace(Method::BvhSingle, &rays, &mut got).unwrap();
-        for (i, (g, w)) in got.iter().zip(&want).enumerate() {
-            assert!(
-                g.prim == w.prim && g.t.to_bits() == w.t.to_bits(),
-                "{vname} ray {i}: refit split tree {g:?}, rebuild {w:?}"
-            );
-        }
-        assert!(want.iter().any(|h| h.is_hit()));
-        let tr = ctx.tracer().unwrap().bvh().unwrap();
-        let primary = Class {
-            name: "primary",
-            rays: rays.clone(),
-            active: vec![true; rays.len()],
-            kind: RayKind::Primary,
-            any: false,
-        };
-        check_class(
-            &tr,
-            &bvh_cases(),
+        refit_equals_rebuild(
+            &mut ctx,
+            &mut fresh,
+            &rays,
             &format!("refit split tree {vname}"),
-            &primary,
         );
     }
+}
+
+/// The refit tree of `ctx` answers `rays` as the fresh build of `fresh`,
+/// bit for bit, and every packet method on it as its single ray.
+fn refit_equals_rebuild(
+    ctx: &mut OwnedContext,
+    fresh: &mut OwnedContext,
+    rays: &[Ray],
+    what: &str,
+) {
+    let mut want = vec![Hit::MISS; rays.len()];
+    let mut got = vec![Hit::MISS; rays.len()];
+    fresh.trace(Method::BvhSingle, rays, &mut want).unwrap();
+    ctx.trace(Method::BvhSingle, rays, &mut got).unwrap();
+    for (i, (g, w)) in got.iter().zip(&want).enumerate() {
+        assert!(
+            g.prim == w.prim && g.t.to_bits() == w.t.to_bits(),
+            "{what} ray {i}: refit {g:?}, rebuild {w:?}"
+        );
+    }
+    assert!(want.iter().any(|h| h.is_hit()), "{what}: no hit");
+    let tr = ctx.tracer().unwrap().bvh().unwrap();
+    let primary = Class {
+        name: "primary",
+        rays: rays.to_vec(),
+        active: vec![true; rays.len()],
+        kind: RayKind::Primary,
+        any: false,
+    };
+    check_class(&tr, &bvh_cases(), what, &primary);
 }
 
 #[test]
@@ -455,26 +466,7 @@ fn refit_keeps_every_method_exact() {
             "{r:?}"
         );
         fresh.build_bvh(&scene(&a), &BvhParams::default()).unwrap();
-        let mut want = vec![Hit::MISS; rays.len()];
-        let mut got = vec![Hit::MISS; rays.len()];
-        fresh.trace(Method::BvhSingle, &rays, &mut want).unwrap();
-        ctx.trace(Method::BvhSingle, &rays, &mut got).unwrap();
-        for (i, (g, w)) in got.iter().zip(&want).enumerate() {
-            assert!(
-                g.prim == w.prim && g.t.to_bits() == w.t.to_bits(),
-                "t {t} ray {i}: refit {g:?}, rebuild {w:?}"
-            );
-        }
-        assert!(want.iter().any(|h| h.is_hit()));
-        let tr = ctx.tracer().unwrap().bvh().unwrap();
-        let primary = Class {
-            name: "primary",
-            rays: rays.clone(),
-            active: vec![true; rays.len()],
-            kind: RayKind::Primary,
-            any: false,
-        };
-        check_class(&tr, &bvh_cases(), &format!("refit t {t}"), &primary);
+        refit_equals_rebuild(&mut ctx, &mut fresh, &rays, &format!("refit t {t}"));
     }
 
     // Bad input: a non-finite vertex, another triangle count: errors, and

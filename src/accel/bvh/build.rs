@@ -1145,7 +1145,7 @@ fn grow(
     (next, slot)
 }
 
-/// Step 2 of the module docs: the top-down binned SAH over `refs[..g.n]`,
+/// The top-down binned SAH (the module docs' second pass) over `refs[..g.n]`,
 /// with spatial splits (`build_spatial.rs`) into `refs[g.n..]` when the
 /// `High` build has a reserve. The calling thread splits the top down to
 /// subtrees of at most `job_size` references, the workers build those
