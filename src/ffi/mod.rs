@@ -231,10 +231,11 @@ pub(crate) fn write_out<T: Copy>(p: *mut T, v: T) {
     unsafe { p.write_unaligned(v) }
 }
 
-/// A boolean field of a C struct, received as its byte (a Rust `bool` read
-/// from C memory holding 2 would be undefined behaviour): 0 is false, 1 is
-/// true, anything else is `InvalidArgument` naming the field. The header
-/// shows these fields as `uint8_t`; C's `true` and `false` convert to 1 and 0.
+/// A boolean field of a C struct, received as its integer (a Rust `bool`
+/// read from C memory holding 2 would be undefined behaviour): 0 is false,
+/// 1 is true, anything else is `InvalidArgument` naming the field. The
+/// header shows these fields as `uint8_t`, or `uint32_t` in the parameter
+/// structs (no padding there); C's `true` and `false` convert to 1 and 0.
 pub(crate) fn flag(b: impl Into<u32>, what: &'static str) -> Result<bool> {
     match b.into() {
         0 => Ok(false),
