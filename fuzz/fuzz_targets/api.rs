@@ -36,7 +36,6 @@ use sheaf::ffi::{
     sheaf_trace_params,
 };
 use sheaf::render::material::{Material, MaterialRange};
-use sheaf::render::whitted::WhittedParams;
 use sheaf::{Camera, Limits, PointLight, Shading};
 
 mod scene;
@@ -175,9 +174,11 @@ impl LimitsIn {
                 max_packet_side: self.max_packet_side,
                 max_bounces: self.max_bounces,
                 renderers: self.renderers,
+                max_bvh_refs: bvh_refs(self.max_triangles, self.max_tile >> 3, true),
             };
         }
         // Usable limits: small pools, every structure likely.
+        let max_bvh_refs = bvh_refs(self.max_triangles % 160, self.max_tile >> 3, false);
         Limits {
             max_triangles: self.max_triangles % 160,
             max_vertices: self.max_vertices % 480,
@@ -205,7 +206,22 @@ impl LimitsIn {
             max_packet_side: [32, 32, 2, 4, 8, 16][self.max_packet_side as usize % 6],
             max_bounces: if self.max_bounces % 2 == 0 { 8 } else { self.max_bounces % 9 },
             renderers: if self.renderers % 2 == 0 { 7 } else { self.renderers % 8 },
+            max_bvh_refs,
         }
+    }
+}
+
+/// `max_bvh_refs` for `max_triangles` `t`, picked by `k` (bits of
+/// `max_tile` its usable `% 8` leaves, so the corpus of earlier runs
+/// decodes as before): the default 0 (one reference per triangle), a
+/// reserve for the HIGH build's spatial splits, or (`wild`) fewer than
+/// `t`, which creation refuses.
+fn bvh_refs(t: u32, k: u32, wild: bool) -> u32 {
+    match k % 4 {
+        1 if wild => t / 2,
+        0 | 1 => 0,
+        2 => t.saturating_add(t / 4),
+        _ => t.saturating_mul(2),
     }
 }
 
@@ -300,6 +316,7 @@ struct PgridIn {
 impl GridIn {
     fn get(&self) -> sheaf_grid_params {
         sheaf_grid_params {
+            size: core::mem::size_of::<sheaf_grid_params>() as u32,
             lambda: match self.lambda {
                 F::Small(v) => (v as f32 / 8.0).abs() + 0.25,
                 x => x.get(),
@@ -314,6 +331,7 @@ impl GridIn {
 impl BvhIn {
     fn get(&self) -> sheaf_bvh_params {
         sheaf_bvh_params {
+            size: core::mem::size_of::<sheaf_bvh_params>() as u32,
             leaf_size: small(self.leaf_size, |v| 1 + v % 8),
             bins: small(self.bins, |v| 2 + v % 31),
             traversal_cost: positive(self.traversal_cost),
@@ -327,6 +345,7 @@ impl BvhIn {
 impl KdIn {
     fn get(&self) -> sheaf_kd_params {
         sheaf_kd_params {
+            size: core::mem::size_of::<sheaf_kd_params>() as u32,
             max_depth: small(self.max_depth, |v| v % 49),
             traversal_cost: positive(self.traversal_cost),
             empty_bonus: match self.empty_bonus {
@@ -345,6 +364,7 @@ impl KdIn {
 impl PgridIn {
     fn get(&self) -> sheaf_pgrid_params {
         sheaf_pgrid_params {
+            size: core::mem::size_of::<sheaf_pgrid_params>() as u32,
             tile: small(self.tile, |v| [2, 4, 8, 16, 32][v as usize % 5]),
             group: small(self.group, |v| [1, 2, 4][v as usize % 3]),
             slices: small(self.slices, |v| 1 + v),
@@ -374,6 +394,7 @@ struct TraceIn {
 impl TraceIn {
     fn get(&self) -> sheaf_trace_params {
         sheaf_trace_params {
+            size: core::mem::size_of::<sheaf_trace_params>() as u32,
             method: match self.method {
                 N::Small(v) => v as u32 % METHODS,
                 N::Any(v) => v,
@@ -1036,7 +1057,10 @@ fn trace_camera(
 fn joined_call(ctx: *mut sheaf_context, kind: u8, index: u32, count: u32) -> sheaf_status {
     // SAFETY: plain integers and floats; filled by the defaults call.
     let mut low: sheaf_bvh_params = unsafe { core::mem::zeroed() };
-    assert_eq!(ffi::sheaf_bvh_params_default(&mut low), OK);
+    assert_eq!(
+        ffi::sheaf_bvh_params_default(&mut low, core::mem::size_of_val(&low)),
+        OK
+    );
     low.quality = 0; // SHEAF_BUILD_QUALITY_LOW
     match kind {
         0 => ffi::context::sheaf_context_build_bvh_joined(ctx, &low, index, count),
@@ -1132,7 +1156,10 @@ fn joined(ctx: *mut sheaf_context, kind: u8, n: u32, helpers: &[(u32, u32)]) -> 
 /// method's structure is built (32: where `max_packet_side` allows it).
 fn plausible_params(p: &sheaf_trace_params) -> sheaf_trace_params {
     let mut d = *p;
-    assert_eq!(ffi::sheaf_trace_params_default(&mut d), OK);
+    assert_eq!(
+        ffi::sheaf_trace_params_default(&mut d, core::mem::size_of_val(&d)),
+        OK
+    );
     d.method = p.method % METHODS;
     d.packet = 2 << (p.packet % 5);
     d
@@ -1311,6 +1338,7 @@ fn decode(h: &[u8]) -> (f32, u32) {
 
 fn default_trace() -> sheaf_trace_params {
     let mut p = sheaf_trace_params {
+        size: 0,
         method: 0,
         packet: 0,
         macrocells: 0,
@@ -1322,7 +1350,10 @@ fn default_trace() -> sheaf_trace_params {
         isa: 0,
         force_opaque: 0,
     };
-    assert_eq!(ffi::sheaf_trace_params_default(&mut p), OK);
+    assert_eq!(
+        ffi::sheaf_trace_params_default(&mut p, core::mem::size_of_val(&p)),
+        OK
+    );
     p
 }
 
@@ -2169,7 +2200,8 @@ fn whitted(st: &mut State, w: &WhittedIn, f: &FrameIn, fb: &FbIn) {
             },
         })
         .collect();
-    let params = w.bounces.map(|(r, t)| WhittedParams {
+    let params = w.bounces.map(|(r, t)| ffi::sheaf_whitted_params {
+        size: core::mem::size_of::<ffi::sheaf_whitted_params>() as u32,
         max_reflect: r as u32 % 10,
         max_refract: t as u32 % 10,
     });
@@ -2234,6 +2266,8 @@ fn deferred(st: &mut State, d: &DeferredIn, f: &FrameIn, fb: &FbIn) {
         buf.as_mut_ptr()
     };
     let lights: Vec<PointLight> = d.lights.iter().take(10).map(LightIn::get).collect();
+    // The job points to its trace params: they live through the call.
+    let (primary, shadow) = (d.primary.get(), d.shadow.get());
     let job = sheaf_deferred_job {
         frame,
         lights: if d.null_lights {
@@ -2244,8 +2278,8 @@ fn deferred(st: &mut State, d: &DeferredIn, f: &FrameIn, fb: &FbIn) {
         light_count: lights.len(),
         primary_pgrid: d.primary_pgrid.into(),
         shadow_light_grid: d.shadow_light_grid.into(),
-        primary: d.primary.get(),
-        shadow: d.shadow.get(),
+        primary: &primary,
+        shadow: &shadow,
     };
     let before = stats_of(st.ctx);
     let s = ffi::sheaf_context_render_deferred(st.ctx, &job, ptr, stride, len);

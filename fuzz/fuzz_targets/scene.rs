@@ -622,26 +622,37 @@ fn set(st: &mut State, id: u32, mesh: &MeshIn, params: Option<&GeomParamsIn>, nu
     let id = id % 6;
     let (b, canned) = mesh_of(mesh);
     let mut p = sheaf_geometry_params {
+        size: 0,
         mode: 0,
-        max_triangles: 0,
-        bvh: default_bvh(),
-        refit: sheaf_refit_params { rebuild_above: 0.0 },
-        mask: !0,
-        opaque: 0,
+        bvh: core::ptr::null(),
+        refit: core::ptr::null(),
         filter: None,
         filter_user: core::ptr::null_mut(),
+        max_triangles: 0,
+        mask: !0,
+        opaque: 0,
+        reserved: 0,
     };
-    assert_eq!(ffi::sheaf_geometry_params_default(&mut p), OK);
+    assert_eq!(
+        ffi::sheaf_geometry_params_default(&mut p, core::mem::size_of_val(&p)),
+        OK
+    );
+    // The params point to their BVH and refit params: these live through
+    // the call.
+    let mut bvh = default_bvh();
+    let mut refit = default_refit();
     if let Some(g) = params {
         p.mode = small(g.mode, |v| v % 3);
         p.max_triangles = small(g.reserve, |v| v * 4);
-        if let Some(bvh) = &g.bvh {
-            p.bvh = bvh.get();
+        if let Some(b) = &g.bvh {
+            bvh = b.get();
         }
-        p.refit.rebuild_above = match g.rebuild_above {
+        refit.rebuild_above = match g.rebuild_above {
             F::Small(v) => [0.0, 1.0, 1.5, 4.0][v as usize % 4],
             x => x.get(),
         };
+        p.bvh = &bvh;
+        p.refit = &refit;
         p.mask = g.mask.get();
     }
     let mesh = mesh_ptrs(&b);
@@ -701,6 +712,7 @@ fn set(st: &mut State, id: u32, mesh: &MeshIn, params: Option<&GeomParamsIn>, nu
 
 fn default_bvh() -> sheaf_bvh_params {
     let mut b = sheaf_bvh_params {
+        size: 0,
         leaf_size: 0,
         bins: 0,
         traversal_cost: 0.0,
@@ -708,8 +720,23 @@ fn default_bvh() -> sheaf_bvh_params {
         quality: 0,
         width: 0,
     };
-    assert_eq!(ffi::sheaf_bvh_params_default(&mut b), OK);
+    assert_eq!(
+        ffi::sheaf_bvh_params_default(&mut b, core::mem::size_of_val(&b)),
+        OK
+    );
     b
+}
+
+fn default_refit() -> sheaf_refit_params {
+    let mut r = sheaf_refit_params {
+        size: 0,
+        rebuild_above: 0.0,
+    };
+    assert_eq!(
+        ffi::sheaf_refit_params_default(&mut r, core::mem::size_of_val(&r)),
+        OK
+    );
+    r
 }
 
 fn update(st: &mut State, id: u32, mesh: &UpdateIn, want_info: bool) {
