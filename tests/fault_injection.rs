@@ -162,8 +162,8 @@ impl Ctx {
                     light_count: 0,
                     primary_pgrid: 1,
                     shadow_light_grid: 1,
-                    primary: tp,
-                    shadow: tp,
+                    primary: &tp,
+                    shadow: &tp,
                 };
                 ffi::sheaf_context_render_deferred(
                     self.ctx,
