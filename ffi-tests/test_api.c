@@ -846,6 +846,13 @@ static bool test_bvh_methods(void) {
     bad_bp.quality = 7;
     CHECK_STATUS(sheaf_context_build_bvh(ctx, &bad_bp), SHEAF_STATUS_INVALID_ARGUMENT);
     bp.quality = SHEAF_BUILD_QUALITY_LOW;
+    /* presplit: 0 (default) or 1 (this context has no reserve to split
+       into, so the tree is the same); anything else is refused. */
+    CHECK(bp.presplit == 0);
+    bad_bp = bp;
+    bad_bp.presplit = 2;
+    CHECK_STATUS(sheaf_context_build_bvh(ctx, &bad_bp), SHEAF_STATUS_INVALID_ARGUMENT);
+    bp.presplit = 1;
     CHECK_OK(sheaf_context_build_bvh(ctx, &bp));
     for (m = 0; m < 7; m++) {
         p = single;

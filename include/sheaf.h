@@ -566,6 +566,13 @@ typedef struct sheaf_bvh_params {
      * alone (a cheaper build for binary packets only).
      */
     uint32_t width;
+    /**
+     * 1: the LOW build pre-splits large, thin triangles into the
+     * reference reserve `sheaf_limits.max_bvh_refs` sizes (none without
+     * one); 0 (default): it does not. It pays only where a build is traced
+     * by many rays (docs/studies.md, "Pre-splitting the fast build").
+     */
+    uint32_t presplit;
 } sheaf_bvh_params;
 
 /**

@@ -290,6 +290,7 @@ struct BvhIn {
     test: N,
     quality: N,
     width: N,
+    presplit: N,
 }
 
 #[derive(Arbitrary, Debug)]
@@ -338,6 +339,7 @@ impl BvhIn {
             test: small(self.test, |v| v % 3),
             quality: small(self.quality, |v| v % 3),
             width: small(self.width, |v| [0, 4, 2][v as usize % 3]),
+            presplit: small(self.presplit, |v| v % 2),
         }
     }
 }

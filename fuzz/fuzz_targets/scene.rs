@@ -719,6 +719,7 @@ fn default_bvh() -> sheaf_bvh_params {
         test: 0,
         quality: 0,
         width: 0,
+        presplit: 0,
     };
     assert_eq!(
         ffi::sheaf_bvh_params_default(&mut b, core::mem::size_of_val(&b)),

@@ -65,6 +65,11 @@ pub struct sheaf_bvh_params {
     /// single-ray fallback) after every build; 2 keeps the binary tree
     /// alone (a cheaper build for binary packets only).
     pub width: u32,
+    /// 1: the LOW build pre-splits large, thin triangles into the
+    /// reference reserve `sheaf_limits.max_bvh_refs` sizes (none without
+    /// one); 0 (default): it does not. It pays only where a build is traced
+    /// by many rays (docs/studies.md, "Pre-splitting the fast build").
+    pub presplit: u32,
 }
 
 impl sheaf_bvh_params {
@@ -77,6 +82,7 @@ impl sheaf_bvh_params {
             test: sheaf_tri_test::of(p.test) as u32,
             quality: sheaf_build_quality::of(p.quality) as u32,
             width: p.width,
+            presplit: p.presplit as u32,
         }
     }
     /// The checked crate value.
@@ -88,6 +94,15 @@ impl sheaf_bvh_params {
             test: sheaf_tri_test::to_core(self.test)?,
             quality: sheaf_build_quality::to_core(self.quality)?,
             width: if self.width == 0 { 4 } else { self.width },
+            presplit: match self.presplit {
+                0 => false,
+                1 => true,
+                _ => {
+                    return Err(Error::InvalidArgument(
+                        "sheaf_bvh_params.presplit must be 0 or 1",
+                    ));
+                }
+            },
         };
         p.validate()?;
         Ok(p)
@@ -134,7 +149,15 @@ impl sheaf_ray_kind {
 
 versioned!(
     sheaf_bvh_params,
-    [leaf_size, bins, traversal_cost, test, quality, width],
+    [
+        leaf_size,
+        bins,
+        traversal_cost,
+        test,
+        quality,
+        width,
+        presplit
+    ],
     sheaf_bvh_params::of(&BvhParams::default())
 );
 
@@ -244,8 +267,17 @@ mod tests {
             test: TriTest::Watertight,
             quality: BuildQuality::Low,
             width: 2,
+            presplit: true,
         };
         assert_eq!(sheaf_bvh_params::of(&p).to_core(), Ok(p));
+        assert!(
+            sheaf_bvh_params {
+                presplit: 2,
+                ..sheaf_bvh_params::of(&p)
+            }
+            .to_core()
+            .is_err()
+        );
         let zero_width = sheaf_bvh_params {
             width: 0,
             ..sheaf_bvh_params::of(&p)

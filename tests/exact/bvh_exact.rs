@@ -43,19 +43,24 @@ fn check_scene(s: &TestScene) {
     l.max_vertices = (s.vertices.len() / 3) as u32;
     l.structures = Limits::BVH;
     let mut sah_tree = OwnedContext::new(&l).unwrap();
-    for (test, quality) in [
-        (TriTest::MollerTrumbore, BuildQuality::Medium),
-        (TriTest::Watertight, BuildQuality::Medium),
-        (TriTest::Watertight, BuildQuality::Low),
-        (TriTest::MollerTrumbore, BuildQuality::High),
+    for (test, quality, reserve) in [
+        (TriTest::MollerTrumbore, BuildQuality::Medium, true),
+        (TriTest::Watertight, BuildQuality::Medium, false),
+        (TriTest::Watertight, BuildQuality::Low, false),
+        (TriTest::MollerTrumbore, BuildQuality::Low, true),
+        (TriTest::MollerTrumbore, BuildQuality::High, true),
     ] {
-        // The HIGH tree with a reserve of spatial splits.
+        // A reserve of references: the HIGH tree's spatial splits, the
+        // LOW tree's pre-split triangles (`presplit`).
         let mut l = l;
-        l.max_bvh_refs = l.max_triangles + l.max_triangles / 4;
+        if reserve {
+            l.max_bvh_refs = l.max_triangles + l.max_triangles / 4;
+        }
         let mut ctx = OwnedContext::new(&l).unwrap();
         let p = BvhParams {
             test,
             quality,
+            presplit: reserve,
             ..BvhParams::default()
         };
         let info = ctx.build_bvh(&s.scene(), &p).unwrap();

@@ -1408,7 +1408,7 @@ mod tests {
         let n = info.references as usize;
         let split = info.references != info.triangles;
         assert!(info.references >= info.triangles);
-        assert!(!split || p.quality == BuildQuality::High);
+        assert!(!split || p.quality != BuildQuality::Medium);
         assert_eq!(info.triangles_in, scene.triangle_count());
         assert_eq!(
             info.triangles + info.excluded_non_finite + info.excluded_zero_area,
@@ -1461,13 +1461,16 @@ mod tests {
                     c <= info.leaf_size || d as usize == MAX_DEPTH,
                     "leaf of {c} at depth {d}"
                 );
+                let ids = &v.tri_ids[node.first as usize..(node.first + c) as usize];
+                for (k, id) in ids.iter().enumerate() {
+                    assert!(
+                        !ids[..k].contains(id),
+                        "triangle {id} named twice by a leaf"
+                    );
+                }
                 for s in node.first..node.first + c {
                     covered[s as usize] += 1;
                     let id = v.tri_ids[s as usize] as usize;
-                    assert!(
-                        !boxes_of[id].contains(&b),
-                        "triangle {id} named twice by a leaf"
-                    );
                     boxes_of[id].push(b);
                     let t = &v.tris[s as usize];
                     for p in [t.v0, t.v1, t.v2] {
@@ -1578,6 +1581,7 @@ mod tests {
                     test,
                     quality,
                     width: 4,
+                    presplit: false,
                 };
                 let info = build_check(&s.mesh.vertices, &s.mesh.indices, &p);
                 assert_eq!(info.triangles as usize, s.mesh.triangle_count(), "{name}");
@@ -1616,9 +1620,27 @@ mod tests {
                         lower += usize::from(info.sah_cost < plain.sah_cost);
                     }
                 }
-                for quality in [BuildQuality::Low, BuildQuality::Medium] {
-                    let info = build_check_in(v, ix, &BvhParams { quality, ..p }, n);
-                    assert_eq!(info.references, info.triangles, "{name} {quality:?}");
+                // MEDIUM leaves the reserve alone; LOW pre-splits into it
+                // when asked.
+                let medium = BvhParams {
+                    quality: BuildQuality::Medium,
+                    ..p
+                };
+                let info = build_check_in(v, ix, &medium, n);
+                assert_eq!(info.references, info.triangles, "{name}");
+                let low = BvhParams {
+                    quality: BuildQuality::Low,
+                    ..p
+                };
+                let info = build_check_in(v, ix, &low, n);
+                assert_eq!(info.references, info.triangles, "{name} LOW");
+                for reserve in [1, 7, n / 4] {
+                    let low = BvhParams {
+                        presplit: true,
+                        ..low
+                    };
+                    let info = build_check_in(v, ix, &low, reserve);
+                    assert!(info.references as usize <= n + reserve, "{name}");
                 }
             }
         }
@@ -1654,11 +1676,27 @@ mod tests {
             split.sah_cost,
             plain.sah_cost
         );
+        // The fast build pre-splits them into the same reserve.
+        let low = BvhParams {
+            quality: BuildQuality::Low,
+            presplit: true,
+            ..p
+        };
+        let plain = build_check(&v, &ix, &low);
+        let split = build_check_in(&v, &ix, &low, 256);
+        assert!(split.references > 256 && split.references <= 512);
+        assert!(
+            split.sah_cost < 0.8 * plain.sah_cost,
+            "LOW {} against {}",
+            split.sah_cost,
+            plain.sah_cost
+        );
     }
 
-    /// The SAH builds on any number of workers (run in reverse order) give
+    /// The builds on any number of workers (run in reverse order) give
     /// the calling thread's tree bit for bit: nodes, stored triangles,
-    /// ids, slots and figures, with and without spatial splits.
+    /// ids, slots and figures, with and without spatial splits, and the
+    /// fast build's pre-splits.
     #[test]
     fn workers_build_as_the_calling_thread() {
         use crate::accel::testkit::Backwards;
@@ -1672,10 +1710,12 @@ mod tests {
                 (BuildQuality::Medium, 0, TriTest::MollerTrumbore),
                 (BuildQuality::High, n / 2, TriTest::Projection),
                 (BuildQuality::High, 0, TriTest::MollerTrumbore),
+                (BuildQuality::Low, n / 4, TriTest::Projection),
             ] {
                 let p = BvhParams {
                     quality,
                     test,
+                    presplit: true,
                     ..BvhParams::default()
                 };
                 let mut results = Vec::new();
@@ -1940,7 +1980,8 @@ mod perf {
             };
             let scene = Scene::from_f32(&v, &ix).unwrap();
             let n = scene.triangle_count() as usize;
-            // SHEAF_PERF_RESERVE=P: a spatial-split reserve of P% (HIGH).
+            // SHEAF_PERF_RESERVE=P: a reference reserve of P% (HIGH's
+            // spatial splits, LOW's pre-splits).
             let reserve = std::env::var("SHEAF_PERF_RESERVE").map_or(0, |r| r.parse().unwrap());
             let mut st = Store::with_refs(n, n + n * reserve / 100, false);
             let mut bvh = st.bvh();
@@ -1952,9 +1993,12 @@ mod perf {
                 if !only.is_empty() && !format!("{quality:?}").eq_ignore_ascii_case(&only) {
                     continue;
                 }
+                // SHEAF_PERF_PRESPLIT=1: LOW pre-splits into the reserve.
+                let presplit = std::env::var("SHEAF_PERF_PRESPLIT").is_ok_and(|v| v == "1");
                 let p = BvhParams {
                     quality,
                     width,
+                    presplit,
                     ..BvhParams::default()
                 };
                 perf_one(file, &scene, &mut bvh, &p);

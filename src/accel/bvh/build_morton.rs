@@ -54,10 +54,11 @@
 //!   (`SCRATCH`) are fixed.
 
 use super::build::Box3;
+use super::presplit;
 use super::refit::{fit, half_area, sah_sum};
 use super::{BvhInfo, BvhNode, BvhParams, BvhPools, MAX_DEPTH, PrimRef};
 use crate::error::{Error, Pool, Result};
-use crate::geom::{Aabb, Excluded, INVALID_ID, ProjTri, Scene, TriTest};
+use crate::geom::{Aabb, Excluded, INVALID_ID, ProjTri, Scene, TriTest, TriVerts};
 use crate::mem::par::{MAX_WORKERS, Par, Parts, atomic_u32, share};
 use crate::mem::sort::{even_parts, radix_pass};
 use core::sync::atomic::Ordering;
@@ -220,13 +221,15 @@ pub(super) fn build(
     let (counts, scratch) = scratch.take(workers, [0u32; BUCKETS]);
     let (jobs, _) = scratch.take(MAX_JOBS, Job::default());
 
-    // 1. References and findings per worker.
+    // 1. References and findings per worker (with a reserve, each
+    // triangle's `presplit::excess` too).
+    let may_split = p.presplit && refs.len() > slot_of.len();
     {
         let (rs, fs) = (
             Parts::even(&mut refs[..n_in], workers),
             Parts::even(&mut *found, workers),
         );
-        par.run(&|w| fs.get(w)[0] = find(scene, rs.start(w), rs.get(w)));
+        par.run(&|w| fs.get(w)[0] = find(scene, rs.start(w), rs.get(w), may_split));
     }
     let mut all = NOT_FOUND;
     for f in found.iter() {
@@ -267,30 +270,93 @@ pub(super) fn build(
     crate::fault_point!(BvhBuild);
     let pad = super::box_pad(all.bounds.min, all.bounds.max);
 
-    // 2-3. Codes and ids in the node pool (2n - 1 nodes of 8 words hold
-    // the four arrays of n words), sorted; the triangles stored in order.
+    // 1b. Pre-splitting into the reserve, when the limits give one.
+    let reserve = presplit_room(
+        refs.len(),
+        slot_of.len(),
+        n_in,
+        n,
+        &[
+            tris.len(),
+            tri_ids.len(),
+            nodes.len() / 2,
+            if proj_on { proj.len() } else { usize::MAX },
+        ],
+    );
+    let added = (may_split && reserve > 0)
+        .then(|| presplit::presplit(refs, n_in, reserve, scene, &all.bounds, par, workers));
+    let (big_n, cent) = match &added {
+        Some(a) => (n + a.valid, a.cent),
+        None => (n, all.cent),
+    };
+    let n = big_n;
+    info.references = n as u32;
+
+    // 2-3. Codes and reference indices in the node pool (2n - 1 nodes of 8
+    // words hold the four arrays of n words), sorted; the triangles (with
+    // pre-splitting, first the parts' boxes) stored in that order.
     {
         let words: &mut [u32] = bytemuck::cast_slice_mut(&mut nodes[..2 * n - 1]);
         let (keys, rest) = words.split_at_mut(n);
         let (vals, rest) = rest.split_at_mut(n);
         let (tmp_keys, rest) = rest.split_at_mut(n);
         let tmp_vals = &mut rest[..n];
-        let qz = Quantizer::new(&all.cent);
-        // Worker w's pairs start after the traceable triangles before its share.
+        let qz = Quantizer::new(&cent);
+        // Worker w's pairs start after the valid references before its
+        // share: its triangles' own, then (pre-split) its parts' slots.
+        let n_own = all.valid as usize;
         let mut start = [0usize; MAX_WORKERS + 1];
+        let mut start_x = [n_own; MAX_WORKERS + 1];
         for w in 0..workers {
             start[w + 1] = start[w] + found[w].valid as usize;
+            start_x[w + 1] = start_x[w] + added.as_ref().map_or(0, |a| a.valid_per[w]);
         }
         {
-            let bounds = &start[..workers + 1];
-            let (ks, vs) = (Parts::at(&mut *keys, bounds), Parts::at(&mut *vals, bounds));
-            let refs = &refs[..n_in];
+            let (own_k, x_k) = keys.split_at_mut(n_own);
+            let (own_v, x_v) = vals.split_at_mut(n_own);
+            let xb = start_x.map(|x| x - n_own);
+            let (ks, vs) = (
+                Parts::at(own_k, &start[..workers + 1]),
+                Parts::at(own_v, &start[..workers + 1]),
+            );
+            let (xks, xvs) = (
+                Parts::at(x_k, &xb[..workers + 1]),
+                Parts::at(x_v, &xb[..workers + 1]),
+            );
+            let slots = added.as_ref().map(|a| a.slot_bounds);
+            let refs = &refs[..];
             par.run(&|w| {
-                let (k, v) = (ks.get(w), vs.get(w));
-                let mine = refs[share(n_in, w, workers)].iter().filter(|r| r._pad == 0);
-                for ((k, v), r) in k.iter_mut().zip(v.iter_mut()).zip(mine) {
-                    *k = qz.code(Vec3A::from(r.min) + Vec3A::from(r.max));
-                    *v = r.id;
+                let code = |(i, r): (usize, &PrimRef)| {
+                    (qz.code(Vec3A::from(r.min) + Vec3A::from(r.max)), i as u32)
+                };
+                let own = share(n_in, w, workers);
+                let mine = refs[own.clone()]
+                    .iter()
+                    .enumerate()
+                    .map(|(i, r)| (own.start + i, r));
+                let valid = |(_, r): &(usize, &PrimRef)| r._pad != presplit::EXCLUDED;
+                for ((k, v), (c, i)) in ks
+                    .get(w)
+                    .iter_mut()
+                    .zip(vs.get(w))
+                    .zip(mine.filter(valid).map(code))
+                {
+                    (*k, *v) = (c, i);
+                }
+                if let Some(sb) = slots {
+                    let part = sb[w]..sb[w + 1];
+                    let mine = refs[part.clone()]
+                        .iter()
+                        .enumerate()
+                        .map(|(i, r)| (part.start + i, r));
+                    for ((k, v), (c, i)) in xks
+                        .get(w)
+                        .iter_mut()
+                        .zip(xvs.get(w))
+                        .zip(mine.filter(valid).map(code))
+                    {
+                        (*k, *v) = (c, i);
+                    }
                 }
             });
         }
@@ -314,56 +380,84 @@ pub(super) fn build(
             par,
         );
         let (keys, vals) = (&*tmp_keys, &*tmp_vals);
-        let codes: &mut [u32] = bytemuck::cast_slice_mut(&mut refs[..n]);
-        let cs = Parts::even(&mut codes[..n], workers);
         let ts = Parts::even(&mut tris[..n], workers);
-        let ps = Parts::even(if proj_on { &mut proj[..n] } else { &mut [] }, workers);
         let is = Parts::even(&mut tri_ids[..n], workers);
-        let slots = atomic_u32(&mut slot_of[..n_in]);
-        par.run(&|w| {
-            let (c, t, pj, ids) = (cs.get(w), ts.get(w), ps.get(w), is.get(w));
-            let at = cs.start(w);
-            c.copy_from_slice(&keys[at..at + c.len()]);
-            let mine = &vals[..at + c.len()];
-            for (k, &id) in mine[at..].iter().enumerate() {
-                scene.prefetch_ahead(mine, at + k);
-                let tri = scene.triangle(id);
-                t[k] = tri;
-                if let Some(x) = pj.get_mut(k) {
-                    *x = ProjTri::new(&tri);
+        if added.is_some() {
+            // The parts' boxes (as the stored triangles' corners, which
+            // `refit::fit` unites) and ids, read before the codes
+            // overwrite the references.
+            let all_refs = &refs[..];
+            par.run(&|w| {
+                let (t, ids) = (ts.get(w), is.get(w));
+                let at = ts.start(w);
+                for (k, &v) in vals[at..at + t.len()].iter().enumerate() {
+                    let r = &all_refs[v as usize];
+                    t[k] = TriVerts {
+                        v0: r.min,
+                        v1: r.max,
+                        v2: r.min,
+                    };
+                    ids[k] = r.id;
                 }
-                ids[k] = id;
-                slots[id as usize].store((at + k) as u32, Ordering::Relaxed);
-            }
-        });
+            });
+            let codes: &mut [u32] = bytemuck::cast_slice_mut(&mut refs[..n]);
+            let cs = Parts::even(&mut codes[..n], workers);
+            par.run(&|w| {
+                let c = cs.get(w);
+                let at = cs.start(w);
+                c.copy_from_slice(&keys[at..at + c.len()]);
+            });
+        } else {
+            let codes: &mut [u32] = bytemuck::cast_slice_mut(&mut refs[..n]);
+            let cs = Parts::even(&mut codes[..n], workers);
+            let ps = Parts::even(if proj_on { &mut proj[..n] } else { &mut [] }, workers);
+            let slots = atomic_u32(&mut slot_of[..n_in]);
+            par.run(&|w| {
+                let (c, t, pj, ids) = (cs.get(w), ts.get(w), ps.get(w), is.get(w));
+                let at = cs.start(w);
+                c.copy_from_slice(&keys[at..at + c.len()]);
+                // Without pre-splitting a reference's index is its triangle's id.
+                let mine = &vals[..at + c.len()];
+                for (k, &id) in mine[at..].iter().enumerate() {
+                    scene.prefetch_ahead(mine, at + k);
+                    let tri = scene.triangle(id);
+                    t[k] = tri;
+                    if let Some(x) = pj.get_mut(k) {
+                        *x = ProjTri::new(&tri);
+                    }
+                    ids[k] = id;
+                    slots[id as usize].store((at + k) as u32, Ordering::Relaxed);
+                }
+            });
+        }
     }
 
     // 4. The top on the leader, down to the jobs.
+    let split_on = added.is_some();
     let codes: &[u32] = &bytemuck::cast_slice::<_, u32>(&refs[..n])[..n];
     let leaf_size = p.leaf_size as usize;
     let traversal_cost = p.traversal_cost;
     let nodes = &mut nodes[..2 * n - 1];
     let mut top = Emitted::default();
-    let mut n_jobs = 0usize;
-    let top_next = emit(
-        codes,
-        nodes,
-        0,
-        &[(0, 0, n as u32, 0)],
-        1,
-        leaf_size,
-        job_size(n),
-        &mut top,
-        &mut |j| {
-            if n_jobs < MAX_JOBS {
-                jobs[n_jobs] = j;
-                n_jobs += 1;
-                true
-            } else {
-                false
-            }
-        },
-    );
+    let (top_next, n_jobs) = {
+        let mut sink = Sink {
+            jobs: &mut jobs[..],
+            n_jobs: 0,
+            ids: split_on.then_some(&tri_ids[..n]),
+        };
+        let next = emit(
+            codes,
+            nodes,
+            0,
+            &[(0, 0, n as u32, 0)],
+            1,
+            leaf_size,
+            job_size(n),
+            &mut top,
+            &mut sink,
+        );
+        (next, sink.n_jobs)
+    };
     // Each job's root split here, its region after the top and the
     // regions before it: `2c - 2` nodes below a root of `c` triangles.
     let jobs = &mut jobs[..n_jobs];
@@ -397,10 +491,15 @@ pub(super) fn build(
             Parts::at(&mut *jobs, &jb[..workers + 1]),
             Parts::at(&mut *nodes, &nb[..workers + 1]),
         );
-        let tris = &tris[..n];
+        let (tris, ids) = (&tris[..n], split_on.then_some(&tri_ids[..n]));
         par.run(&|w| {
             let (mine, part) = (js.get(w), ns.get(w));
             let base = ns.start(w);
+            let mut sink = Sink {
+                jobs: &mut [],
+                n_jobs: 0,
+                ids,
+            };
             for j in mine.iter_mut() {
                 let mut e = Emitted::default();
                 let d = j.depth + 1;
@@ -417,7 +516,7 @@ pub(super) fn build(
                     leaf_size,
                     0,
                     &mut e,
-                    &mut |_| false,
+                    &mut sink,
                 );
                 j.used = end - j.region;
                 j.leaves = e.leaves;
@@ -458,12 +557,80 @@ pub(super) fn build(
     let sum = sah_sum(&nodes[..top_next as usize], traversal_cost)
         + jobs.iter().map(|j| j.sah).sum::<f64>();
     info.sah_cost = (sum / half_area(&nodes[0]).max(f64::MIN_POSITIVE)) as f32;
+
+    // 6. Pre-split: the stored triangles in place of the parts' boxes, and
+    // each triangle's lowest slot (the same for any number of workers).
+    if split_on {
+        let ts = Parts::even(&mut tris[..n], workers);
+        let ps = Parts::even(if proj_on { &mut proj[..n] } else { &mut [] }, workers);
+        let ids = &tri_ids[..n];
+        let slots = atomic_u32(&mut slot_of[..n_in]);
+        par.run(&|w| {
+            let (t, pj) = (ts.get(w), ps.get(w));
+            let at = ts.start(w);
+            let mine = &ids[..at + t.len()];
+            for (k, &id) in mine[at..].iter().enumerate() {
+                scene.prefetch_ahead(mine, at + k);
+                let tri = scene.triangle(id);
+                t[k] = tri;
+                if let Some(x) = pj.get_mut(k) {
+                    *x = ProjTri::new(&tri);
+                }
+                slots[id as usize].fetch_min((at + k) as u32, Ordering::Relaxed);
+            }
+        });
+    }
     Ok(info)
 }
 
+/// The references the reserve adds to `n` traceable triangles of `n_in`
+/// (0: no pre-splitting): `refs - slots` (the limits' reserve), within
+/// the reference pool after the triangles' own and every pool a stored
+/// reference fills (`pools`: their lengths, nodes counted in pairs).
+fn presplit_room(refs: usize, slots: usize, n_in: usize, n: usize, pools: &[usize]) -> usize {
+    pools
+        .iter()
+        .fold(refs.saturating_sub(slots), |r, &p| {
+            r.min(p.saturating_sub(n))
+        })
+        .min(refs.saturating_sub(n_in))
+}
+
+/// What `emit` hands out: subtrees as jobs (the top's), and with
+/// pre-splitting the stored references' triangle ids (`ids`), so that a
+/// leaf never names one triangle twice.
+struct Sink<'a> {
+    jobs: &'a mut [Job],
+    n_jobs: usize,
+    ids: Option<&'a [u32]>,
+}
+
+impl Sink<'_> {
+    fn job(&mut self, j: Job) -> bool {
+        match self.jobs.get_mut(self.n_jobs) {
+            Some(x) => {
+                *x = j;
+                self.n_jobs += 1;
+                true
+            }
+            None => false,
+        }
+    }
+    /// The first reference of `begin..end` whose triangle an earlier one
+    /// names (two parts of one pre-split triangle), where the range is
+    /// split instead of becoming a leaf.
+    fn repeat(&self, begin: usize, end: usize) -> Option<usize> {
+        let ids = &self.ids?[begin..end];
+        (1..ids.len())
+            .find(|&i| ids[..i].contains(&ids[i]))
+            .map(|i| begin + i)
+    }
+}
+
 /// Step 1 for the triangles `first..first + out.len()`: their references
-/// (`_pad` 1: excluded) and what they hold.
-fn find(scene: &Scene<'_>, first: usize, out: &mut [PrimRef]) -> Found {
+/// (`_pad` `presplit::EXCLUDED`: excluded; else 0, or with `excess` the
+/// bits of the triangle's `presplit::excess`) and what they hold.
+fn find(scene: &Scene<'_>, first: usize, out: &mut [PrimRef], excess: bool) -> Found {
     let mut f = NOT_FOUND;
     for (k, r) in out.iter_mut().enumerate() {
         let t = (first + k) as u32;
@@ -477,14 +644,18 @@ fn find(scene: &Scene<'_>, first: usize, out: &mut [PrimRef]) -> Found {
                     min: bx.min.into(),
                     id: t,
                     max: bx.max.into(),
-                    _pad: 0,
+                    _pad: if excess {
+                        presplit::excess(&tri, &bx).to_bits()
+                    } else {
+                        0
+                    },
                 };
                 f.valid += 1;
             }
             Some(e) => {
                 *r = PrimRef {
                     id: t,
-                    _pad: 1,
+                    _pad: presplit::EXCLUDED,
                     ..PrimRef::default()
                 };
                 match e {
@@ -523,7 +694,8 @@ struct Emitted {
 /// Step 4 from the ranges `starts` (node, begin, end, depth; emitted in
 /// order), children allocated from `next` on, into `part` (the nodes
 /// `base..`); ranges of more than `leaf_size` and at most `stop` triangles
-/// are offered to `job` (which takes them, or they are emitted here).
+/// are offered to `sink` as jobs (which takes them, or they are emitted
+/// here).
 /// Returns the next free node.
 #[allow(clippy::too_many_arguments)]
 fn emit(
@@ -535,7 +707,7 @@ fn emit(
     leaf_size: usize,
     stop: usize,
     out: &mut Emitted,
-    job: &mut dyn FnMut(Job) -> bool,
+    sink: &mut Sink<'_>,
 ) -> u32 {
     // (node, begin, end, depth) of ranges still to emit.
     let mut stack = [(0u32, 0u32, 0u32, 0u32); MAX_DEPTH + 2];
@@ -550,10 +722,17 @@ fn emit(
         let (begin, mut end) = (b as usize, e as usize);
         loop {
             let count = end - begin;
-            let inner = count > leaf_size && (depth as usize) < MAX_DEPTH;
+            let deep = (depth as usize) >= MAX_DEPTH;
+            // A leaf-sized range naming a triangle twice splits before
+            // the repeat.
+            let repeat = (count <= leaf_size && !deep)
+                .then(|| sink.repeat(begin, end))
+                .flatten();
+            let inner = (count > leaf_size && !deep) || repeat.is_some();
             let taken = inner
+                && repeat.is_none()
                 && count <= stop
-                && job(Job {
+                && sink.job(Job {
                     root: node,
                     begin: begin as u32,
                     end: end as u32,
@@ -571,7 +750,10 @@ fn emit(
                 out.depth = out.depth.max(depth);
                 break;
             }
-            let (mid, axis) = split(codes, begin, end);
+            let (mut mid, axis) = split(codes, begin, end);
+            if let Some(r) = repeat {
+                mid = r;
+            }
             let left = next;
             next += 2;
             part[node as usize - base] = BvhNode::inner(&Aabb::EMPTY, left, axis);

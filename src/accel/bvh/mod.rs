@@ -9,6 +9,7 @@
 //! | `build.rs` | section 5.1: single-threaded binned SAH build (Wald 2007), an explicit work stack, into preallocated pools (`BuildQuality::Medium` and `High`) |
 //! | `build_spatial.rs` | the `High` build's spatial splits (Stich, Friedrich, Dietrich 2009, SBVH, sections 3-4): slabs binned with clipped triangles, references split where object splits overlap, within the reserve `Limits::max_bvh_refs` sizes |
 //! | `build_morton.rs` | the fast build (`BuildQuality::Low`): centroids' Morton codes, a radix sort, the tree emitted top-down at the codes' highest differing bit (Lauterbach et al. 2009, LBVH), every phase on the caller's workers (`mem::par`) |
+//! | `presplit.rs` | the fast build's pre-splitting (Karras, Aila 2013, section 5): large, thin triangles split at a Morton grid's coarsest planes into several references before the sort, within the reserve `Limits::max_bvh_refs` sizes |
 //! | `traverse_single.rs` | the single-ray reference: stack traversal, near child first |
 //! | `traverse_simd.rs` | section 2.1: the 2x2 SIMD ray (`Ray4`) traversal, the "2x2 SIMD ray packets" of Table 2 |
 //! | `geom::frustum` (not in this folder) | section 4: frusta for primary (4.1), point-light shadow (4.2), reflection and refraction (4.3) packets; plane test (Eq. 1-3) and corner-ray test; shared with the kd-tree packets and the entry-point searches |
@@ -43,6 +44,7 @@ pub mod build_morton;
 pub mod build_spatial;
 pub mod entry;
 pub mod packet;
+pub mod presplit;
 pub mod refit;
 pub mod traverse_frustum;
 pub mod traverse_masked;
@@ -144,6 +146,13 @@ pub struct BvhParams {
     /// alone, which saves the collapse (about 1.3 ms per 46k binary nodes)
     /// on trees rebuilt every frame and traced by binary packets only.
     pub width: u32,
+    /// `Low` only: pre-split large, thin triangles (`presplit.rs`) into
+    /// the reference reserve `Limits::max_bvh_refs` sizes (nothing without
+    /// one). Off by default: on crytek sponza it cuts a camera ray's box
+    /// tests by a fifth, but it doubles the build's time and leaves the
+    /// other test scenes' trees alike (docs/studies.md, "Pre-splitting the
+    /// fast build"), so it pays only where a build is traced by many rays.
+    pub presplit: bool,
 }
 
 impl Default for BvhParams {
@@ -155,6 +164,7 @@ impl Default for BvhParams {
             test: TriTest::MollerTrumbore,
             quality: BuildQuality::Medium,
             width: 4,
+            presplit: false,
         }
     }
 }

@@ -568,6 +568,7 @@ pub(crate) mod tests {
                 test: TriTest::Watertight,
                 quality: crate::accel::bvh::BuildQuality::Medium,
                 width: 4,
+                presplit: false,
             },
         )
         .unwrap();

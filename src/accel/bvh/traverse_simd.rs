@@ -379,6 +379,7 @@ mod tests {
                     BuildQuality::Low
                 },
                 width: 4,
+                presplit: false,
             };
             match test {
                 TriTest::MollerTrumbore => check::<Mt>(v, ix, views, &p),

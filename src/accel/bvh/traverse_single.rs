@@ -372,6 +372,7 @@ pub(crate) mod tests {
                 test,
                 quality,
                 width: 2,
+                presplit: false,
             };
             match test {
                 TriTest::MollerTrumbore => check_scene::<Mt>(v, ix, views, &p),
@@ -423,6 +424,7 @@ pub(crate) mod tests {
                 test,
                 quality,
                 width: 2,
+                presplit: false,
             };
             match test {
                 TriTest::MollerTrumbore => check_scene::<Mt>(&v, &ix, &[], &p),

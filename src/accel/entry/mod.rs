@@ -824,6 +824,7 @@ pub(crate) mod tests {
                     test: crate::geom::TriTest::Watertight,
                     quality: crate::accel::bvh::BuildQuality::Medium,
                     width: 4,
+                    presplit: false,
                 };
                 crate::accel::bvh::build::build(&mut bvh, &scene, &p).unwrap();
                 bvh
