@@ -198,7 +198,7 @@ int main(void) {
     /* A newer header's bvh params: this library's fields, then one it does not know. */
     struct {
         old_bvh_params p;
-        uint32_t quality, width, future;
+        uint32_t quality, width, presplit, future;
     } newer;
     sheaf_context *ctx = NULL;
     hit ref[N], got[N], kd[N];
@@ -263,7 +263,8 @@ int main(void) {
     /* A newer header's struct: zero unknown bytes are accepted ... */
     memset(&newer, 0, sizeof newer);
     CHECK((sheaf_bvh_params_default)((old_bvh_params *)&newer, sizeof newer) == OK);
-    CHECK(newer.p.size == sizeof newer && newer.width == 4 && newer.future == 0);
+    CHECK(newer.p.size == sizeof newer && newer.width == 4 && newer.presplit == 0 &&
+          newer.future == 0);
     CHECK(sheaf_context_build_bvh(ctx, &newer.p) == OK);
     CHECK(sheaf_context_trace(ctx, BVH_SINGLE, rays, got, N) == OK);
     /* ... a set one is refused and changes nothing ... */
