@@ -37,12 +37,14 @@ pub(crate) fn bvh_cases() -> Vec<(Method, usize, EntrySearch)> {
 
 /// Every packet method on the binned SAH tree with both triangle tests,
 /// and on the fast (Morton) tree, whose single ray must also answer as the
-/// SAH tree's does: the shape decides speed only.
-fn check_scene(s: &TestScene) {
+/// SAH tree's does: the shape decides speed only. Returns whether the
+/// pre-split LOW tree holds more references than triangles.
+fn check_scene(s: &TestScene) -> bool {
     let mut l = Limits::for_triangles(s.triangles());
     l.max_vertices = (s.vertices.len() / 3) as u32;
     l.structures = Limits::BVH;
     let mut sah_tree = OwnedContext::new(&l).unwrap();
+    let mut presplit = false;
     for (test, quality, reserve) in [
         (TriTest::MollerTrumbore, BuildQuality::Medium, true),
         (TriTest::Watertight, BuildQuality::Medium, false),
@@ -64,6 +66,9 @@ fn check_scene(s: &TestScene) {
             ..BvhParams::default()
         };
         let info = ctx.build_bvh(&s.scene(), &p).unwrap();
+        if quality == BuildQuality::Low && reserve {
+            presplit = info.references > info.triangles;
+        }
         if quality != BuildQuality::Medium {
             sah_tree
                 .build_bvh(
@@ -130,11 +135,16 @@ fn check_scene(s: &TestScene) {
             );
         }
     }
+    presplit
 }
 
 #[test]
 fn builtin_scenes_every_packet_method_equals_the_single_ray() {
-    par_map(&builtin_scenes(), check_scene);
+    let split = par_map(&builtin_scenes(), check_scene);
+    assert!(
+        split.iter().any(|&s| s),
+        "no built-in scene's LOW tree was pre-split"
+    );
 }
 
 #[test]

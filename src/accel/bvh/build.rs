@@ -832,22 +832,60 @@ pub fn build_with(
     Ok(bvh.commit(info))
 }
 
-/// References the build may use: the `n` traceable triangles' and, for
-/// the `High` build, the spatial-split reserve the limits sized (the
-/// reference pool beyond the triangle slots; a two-level scene's
-/// geometries have none), as far as every pool a reference fills holds it.
-fn reference_capacity(pools: &BvhPools<'_>, p: &BvhParams, n: usize) -> usize {
-    if p.quality != BuildQuality::High {
+/// The lengths of the pools a stored reference fills, read before a build
+/// splits the pools into its own borrows.
+#[derive(Clone, Copy)]
+pub(super) struct PoolRoom {
+    refs: usize,
+    slots: usize,
+    tris: usize,
+    ids: usize,
+    nodes: usize,
+    /// The projection pool's, when the build's test uses it.
+    proj: Option<usize>,
+}
+
+impl PoolRoom {
+    pub(super) fn of(pools: &BvhPools<'_>, p: &BvhParams) -> PoolRoom {
+        PoolRoom {
+            refs: pools.refs.len(),
+            slots: pools.slot_of.len(),
+            tris: pools.tris.len(),
+            ids: pools.tri_ids.len(),
+            nodes: pools.nodes.len(),
+            proj: (p.test == TriTest::Projection).then_some(pools.proj.len()),
+        }
+    }
+    /// The reserve the limits sized: the reference pool beyond the
+    /// triangle slots (a two-level scene's geometries have none).
+    pub(super) fn reserve(&self) -> usize {
+        self.refs.saturating_sub(self.slots)
+    }
+}
+
+/// References a build of `n` traceable triangles (of `n_in`) may use: the
+/// triangles' own and, where the build splits references (`High`'s
+/// spatial splits, `Low`'s pre-splits when `p.presplit`), the reserve, as
+/// far as every pool a reference fills holds it. The `Low` build writes
+/// its references at the triangles' own indices, so its parts follow all
+/// `n_in` of them.
+pub(super) fn reference_capacity(r: &PoolRoom, p: &BvhParams, n: usize, n_in: usize) -> usize {
+    let splits = match p.quality {
+        BuildQuality::High => true,
+        BuildQuality::Low => p.presplit,
+        BuildQuality::Medium => false,
+    };
+    if !splits {
         return n;
     }
-    let reserve = pools.refs.len().saturating_sub(pools.slot_of.len());
-    let mut cap = (n + reserve)
-        .min(pools.refs.len())
-        .min(pools.tris.len())
-        .min(pools.tri_ids.len())
-        .min(pools.nodes.len() / 2);
-    if p.test == TriTest::Projection {
-        cap = cap.min(pools.proj.len());
+    let mut cap = (n + r.reserve())
+        .min(r.refs)
+        .min(r.tris)
+        .min(r.ids)
+        .min(r.nodes / 2)
+        .min(r.proj.unwrap_or(usize::MAX));
+    if p.quality == BuildQuality::Low {
+        cap = cap.min(n + r.refs.saturating_sub(n_in));
     }
     cap.max(n)
 }
@@ -1161,7 +1199,7 @@ fn binned_sah(
 ) -> BvhInfo {
     let n = g.n;
     let mut info = g.info;
-    let total = reference_capacity(pools, p, n);
+    let total = reference_capacity(&PoolRoom::of(pools, p), p, n, n);
     let high = p.quality == BuildQuality::High;
     let f = Frame {
         scene,
@@ -1595,7 +1633,7 @@ mod tests {
     /// the other qualities.
     #[test]
     fn spatial_splits_stay_in_their_reserve() {
-        let (mut split_any, mut lower) = (false, 0usize);
+        let (mut split_any, mut lower, mut presplit_any) = (false, 0usize, false);
         for &name in crate::scenes::BUILTIN_NAMES {
             let s = crate::scenes::builtin(name).unwrap();
             let (v, ix) = (&s.mesh.vertices, &s.mesh.indices);
@@ -1641,6 +1679,7 @@ mod tests {
                     };
                     let info = build_check_in(v, ix, &low, reserve);
                     assert!(info.references as usize <= n + reserve, "{name}");
+                    presplit_any |= info.references > info.triangles;
                 }
             }
         }
@@ -1648,6 +1687,7 @@ mod tests {
             split_any && lower > 0,
             "no built-in scene split a reference"
         );
+        assert!(presplit_any, "no built-in scene pre-split a triangle");
     }
 
     /// Large crossing triangles (a fan of long slivers through one point):

@@ -12,18 +12,24 @@
 //!    references (box and id) in place; the leader merges the bounds and
 //!    counts and checks every pool's capacity (nothing a traversal reads
 //!    is written before).
+//!    With `BvhParams::presplit` and a reserve of references, large, thin
+//!    triangles are then split into parts (`presplit.rs`), written after
+//!    the triangles' own references.
 //! 2. Each centroid is quantised to 10 bits per axis over the centroid
 //!    bounds and interleaved into a 30-bit Morton code (x in the highest
-//!    bit of each triple); the (code, triangle id) pairs of the traceable
-//!    triangles go to the node pool, which the tree has not reached yet.
+//!    bit of each triple); the (code, reference index) pairs of the valid
+//!    references go to the node pool, which the tree has not reached yet.
 //! 3. The pairs are radix sorted, three 10-bit passes, each worker
 //!    counting and scattering its share (`radix_pass`), and the triangles
-//!    are stored in that order.
+//!    are stored in that order (pre-split: first the parts' boxes, from
+//!    which the leaf boxes are fitted, then the triangles in their place).
 //! 4. The tree is emitted top-down with an explicit stack: a range of
 //!    sorted codes splits where its highest differing bit flips (a binary
 //!    search; the node's axis is that bit's axis, the left child lower on
 //!    it); a range whose codes are all equal splits at its middle; a range
-//!    of at most `leaf_size` triangles, or at `MAX_DEPTH`, is a leaf. The
+//!    of at most `leaf_size` triangles, or at `MAX_DEPTH`, is a leaf (a
+//!    leaf-sized range naming one pre-split triangle twice is split before
+//!    the repeat, so a leaf names each triangle once). The
 //!    leader emits the top of the tree down to ranges of at most
 //!    `job_size(n)` triangles; those subtrees are the workers' jobs, each
 //!    emitted into a region of the node pool big enough for any subtree of
@@ -37,8 +43,11 @@
 //! The boxes are exactly those the binned build would give the same
 //! shape (padded, `refit::leaf_box`); every traversal's guarantee holds
 //! whatever the shape, so every method returns on this tree the triangle
-//! and bitwise t it returns on the SAH tree. `tests/exact/bvh_exact.rs` runs every
-//! method on it and checks its single ray against the SAH tree's.
+//! and bitwise t it returns on the SAH tree. A pre-split tree's leaf boxes
+//! are fitted to the parts' boxes instead, which hold every hit point of
+//! the parts (`presplit.rs`, "Exactness"). `tests/exact/bvh_exact.rs`
+//! runs every method on both and checks their single ray against the SAH
+//! tree's.
 //!
 //! # Deviations
 //! - The codes' 10 bits per axis separate up to 1024 cells per axis of the
@@ -53,7 +62,7 @@
 //!   memory per triangle the SAH build does not; its per-worker counts
 //!   (`SCRATCH`) are fixed.
 
-use super::build::Box3;
+use super::build::{Box3, PoolRoom, reference_capacity};
 use super::presplit;
 use super::refit::{fit, half_area, sah_sum};
 use super::{BvhInfo, BvhNode, BvhParams, BvhPools, MAX_DEPTH, PrimRef};
@@ -61,7 +70,7 @@ use crate::error::{Error, Pool, Result};
 use crate::geom::{Aabb, Excluded, INVALID_ID, ProjTri, Scene, TriTest, TriVerts};
 use crate::mem::par::{MAX_WORKERS, Par, Parts, atomic_u32, share};
 use crate::mem::sort::{even_parts, radix_pass};
-use core::sync::atomic::Ordering;
+use core::sync::atomic::{AtomicU32, Ordering};
 use glam::Vec3A;
 
 /// Bits per axis of a Morton code.
@@ -195,6 +204,7 @@ pub(super) fn build(
     if n_in > room {
         return Err(cap(n_in, room));
     }
+    let pool_room = PoolRoom::of(pools, p);
     let base = BvhInfo {
         leaf_size: p.leaf_size,
         bins: p.bins,
@@ -223,7 +233,7 @@ pub(super) fn build(
 
     // 1. References and findings per worker (with a reserve, each
     // triangle's `presplit::excess` too).
-    let may_split = p.presplit && refs.len() > slot_of.len();
+    let may_split = p.presplit && pool_room.reserve() > 0;
     {
         let (rs, fs) = (
             Parts::even(&mut refs[..n_in], workers),
@@ -270,20 +280,9 @@ pub(super) fn build(
     crate::fault_point!(BvhBuild);
     let pad = super::box_pad(all.bounds.min, all.bounds.max);
 
-    // 1b. Pre-splitting into the reserve, when the limits give one.
-    let reserve = presplit_room(
-        refs.len(),
-        slot_of.len(),
-        n_in,
-        n,
-        &[
-            tris.len(),
-            tri_ids.len(),
-            nodes.len() / 2,
-            if proj_on { proj.len() } else { usize::MAX },
-        ],
-    );
-    let added = (may_split && reserve > 0)
+    // 1b. Pre-splitting into the reserve, when asked and the limits give one.
+    let reserve = reference_capacity(&pool_room, p, n, n_in) - n;
+    let added = (reserve > 0)
         .then(|| presplit::presplit(refs, n_in, reserve, scene, &all.bounds, par, workers));
     let (big_n, cent) = match &added {
         Some(a) => (n + a.valid, a.cent),
@@ -326,37 +325,20 @@ pub(super) fn build(
             let slots = added.as_ref().map(|a| a.slot_bounds);
             let refs = &refs[..];
             par.run(&|w| {
-                let code = |(i, r): (usize, &PrimRef)| {
-                    (qz.code(Vec3A::from(r.min) + Vec3A::from(r.max)), i as u32)
-                };
-                let own = share(n_in, w, workers);
-                let mine = refs[own.clone()]
-                    .iter()
-                    .enumerate()
-                    .map(|(i, r)| (own.start + i, r));
-                let valid = |(_, r): &(usize, &PrimRef)| r._pad != presplit::EXCLUDED;
-                for ((k, v), (c, i)) in ks
-                    .get(w)
-                    .iter_mut()
-                    .zip(vs.get(w))
-                    .zip(mine.filter(valid).map(code))
-                {
-                    (*k, *v) = (c, i);
-                }
-                if let Some(sb) = slots {
-                    let part = sb[w]..sb[w + 1];
-                    let mine = refs[part.clone()]
+                // The valid references of `range`: codes and indices.
+                let put = |k: &mut [u32], v: &mut [u32], range: core::ops::Range<usize>| {
+                    let valid = refs[range.clone()]
                         .iter()
-                        .enumerate()
-                        .map(|(i, r)| (part.start + i, r));
-                    for ((k, v), (c, i)) in xks
-                        .get(w)
-                        .iter_mut()
-                        .zip(xvs.get(w))
-                        .zip(mine.filter(valid).map(code))
-                    {
-                        (*k, *v) = (c, i);
+                        .zip(range)
+                        .filter(|(r, _)| r._pad != presplit::EXCLUDED);
+                    for ((k, v), (r, i)) in k.iter_mut().zip(v).zip(valid) {
+                        *k = qz.code(Vec3A::from(r.min) + Vec3A::from(r.max));
+                        *v = i as u32;
                     }
+                };
+                put(ks.get(w), vs.get(w), share(n_in, w, workers));
+                if let Some(sb) = slots {
+                    put(xks.get(w), xvs.get(w), sb[w]..sb[w + 1]);
                 }
             });
         }
@@ -417,17 +399,8 @@ pub(super) fn build(
                 let at = cs.start(w);
                 c.copy_from_slice(&keys[at..at + c.len()]);
                 // Without pre-splitting a reference's index is its triangle's id.
-                let mine = &vals[..at + c.len()];
-                for (k, &id) in mine[at..].iter().enumerate() {
-                    scene.prefetch_ahead(mine, at + k);
-                    let tri = scene.triangle(id);
-                    t[k] = tri;
-                    if let Some(x) = pj.get_mut(k) {
-                        *x = ProjTri::new(&tri);
-                    }
-                    ids[k] = id;
-                    slots[id as usize].store((at + k) as u32, Ordering::Relaxed);
-                }
+                ids.copy_from_slice(&vals[at..at + c.len()]);
+                store(scene, vals, at, t, pj, slots, false);
             });
         }
     }
@@ -565,35 +538,39 @@ pub(super) fn build(
         let ps = Parts::even(if proj_on { &mut proj[..n] } else { &mut [] }, workers);
         let ids = &tri_ids[..n];
         let slots = atomic_u32(&mut slot_of[..n_in]);
-        par.run(&|w| {
-            let (t, pj) = (ts.get(w), ps.get(w));
-            let at = ts.start(w);
-            let mine = &ids[..at + t.len()];
-            for (k, &id) in mine[at..].iter().enumerate() {
-                scene.prefetch_ahead(mine, at + k);
-                let tri = scene.triangle(id);
-                t[k] = tri;
-                if let Some(x) = pj.get_mut(k) {
-                    *x = ProjTri::new(&tri);
-                }
-                slots[id as usize].fetch_min((at + k) as u32, Ordering::Relaxed);
-            }
-        });
+        par.run(&|w| store(scene, ids, ts.start(w), ts.get(w), ps.get(w), slots, true));
     }
     Ok(info)
 }
 
-/// The references the reserve adds to `n` traceable triangles of `n_in`
-/// (0: no pre-splitting): `refs - slots` (the limits' reserve), within
-/// the reference pool after the triangles' own and every pool a stored
-/// reference fills (`pools`: their lengths, nodes counted in pairs).
-fn presplit_room(refs: usize, slots: usize, n_in: usize, n: usize, pools: &[usize]) -> usize {
-    pools
-        .iter()
-        .fold(refs.saturating_sub(slots), |r, &p| {
-            r.min(p.saturating_sub(n))
-        })
-        .min(refs.saturating_sub(n_in))
+/// The stored triangles of slots `at..at + t.len()`, whose ids are
+/// `ids[at..]` (read ahead), with their projection data when `pj` has
+/// room, each slot recorded in `slots` by its triangle (with `lowest`, the
+/// lowest of a pre-split triangle's slots, whichever worker comes first).
+fn store(
+    scene: &Scene<'_>,
+    ids: &[u32],
+    at: usize,
+    t: &mut [TriVerts],
+    pj: &mut [ProjTri],
+    slots: &[AtomicU32],
+    lowest: bool,
+) {
+    let mine = &ids[..at + t.len()];
+    for (k, &id) in mine[at..].iter().enumerate() {
+        scene.prefetch_ahead(mine, at + k);
+        let tri = scene.triangle(id);
+        t[k] = tri;
+        if let Some(x) = pj.get_mut(k) {
+            *x = ProjTri::new(&tri);
+        }
+        let (slot, s) = (&slots[id as usize], (at + k) as u32);
+        if lowest {
+            slot.fetch_min(s, Ordering::Relaxed);
+        } else {
+            slot.store(s, Ordering::Relaxed);
+        }
+    }
 }
 
 /// What `emit` hands out: subtrees as jobs (the top's), and with

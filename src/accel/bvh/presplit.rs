@@ -125,7 +125,7 @@ impl SplitGrid {
     }
 }
 
-/// The half area of a triangle's box beyond the triangle (step 1's
+/// The half area of a triangle's box beyond the triangle (the priority's
 /// measure before weighting), 0 for a triangle in an axis plane: twice the
 /// triangle's area projected on each axis plane sums to the box's half
 /// area for a triangle filling half of an axis face.
@@ -136,7 +136,7 @@ pub(super) fn excess(t: &TriVerts, b: &Box3) -> f32 {
     (b.half_area() - proj).max(0.0)
 }
 
-/// Step 1: the fixed-point priority of a triangle with box `b` and
+/// The fixed-point priority of a triangle with box `b` and
 /// `excess` in a scene of half area `root_area`.
 #[inline]
 fn priority(grid: &SplitGrid, excess: f32, b: &Box3, root_area: f32) -> u32 {
@@ -148,7 +148,7 @@ fn priority(grid: &SplitGrid, excess: f32, b: &Box3, root_area: f32) -> u32 {
     if p.is_finite() { (p * ONE) as u32 } else { 0 }
 }
 
-/// Step 3: triangle `t` (box `b`) split into at most `pieces` parts, each
+/// Triangle `t` (box `b`) split into at most `pieces` parts, each
 /// handed to `out` in order (left side first).
 #[inline]
 fn split(grid: &SplitGrid, t: &TriVerts, b: Box3, pieces: u32, out: &mut impl FnMut(Box3)) {
@@ -188,7 +188,7 @@ pub(super) struct Added {
 }
 
 /// Pre-split the references `refs[..n_in]` (written by the fast build's
-/// step 1, in place, `_pad` `EXCLUDED` for excluded triangles, else the
+/// first pass, in place, `_pad` `EXCLUDED` for excluded triangles, else the
 /// bits of the triangle's `excess`) into at
 /// most `reserve` more, after them; `bounds` is the scene's box.
 /// `refs.len()` is at least `n_in + reserve`.
@@ -333,13 +333,17 @@ mod tests {
         }
     }
 
+    /// The splitting grid of the cube from the origin to `side`.
+    fn grid(side: f32) -> SplitGrid {
+        SplitGrid::new(&Box3 {
+            min: Vec3A::ZERO,
+            max: Vec3A::splat(side),
+        })
+    }
+
     #[test]
     fn a_triangle_in_an_axis_plane_has_no_priority_and_a_diagonal_one_has() {
-        let bounds = Box3 {
-            min: Vec3A::ZERO,
-            max: Vec3A::splat(8.0),
-        };
-        let g = SplitGrid::new(&bounds);
+        let g = grid(8.0);
         let p = |t: &TriVerts| priority(&g, excess(t, &Box3::of_tri(t)), &Box3::of_tri(t), 192.0);
         let flat = tri([0.0, 0.0, 1.0], [8.0, 0.0, 1.0], [0.0, 8.0, 1.0]);
         assert_eq!(p(&flat), 0);
@@ -349,11 +353,7 @@ mod tests {
 
     #[test]
     fn the_parts_cover_the_triangle_and_lie_in_its_box() {
-        let bounds = Box3 {
-            min: Vec3A::ZERO,
-            max: Vec3A::splat(10.0),
-        };
-        let g = SplitGrid::new(&bounds);
+        let g = grid(10.0);
         let t = tri([0.1, 0.2, 0.3], [9.7, 9.1, 9.9], [9.9, 8.7, 9.6]);
         let b = Box3::of_tri(&t);
         for pieces in [2u32, 3, 8, 32] {
