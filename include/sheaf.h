@@ -823,7 +823,8 @@ typedef struct sheaf_limits {
     /**
      * Most triangle references of the BVH's leaves. 0: `max_triangles`;
      * the excess is the reserve of `SHEAF_BUILD_QUALITY_HIGH`'s spatial
-     * splits (136 bytes per reference, 184 with the projection test);
+     * splits and of the LOW build's pre-splits (`sheaf_bvh_params.
+     * presplit`; 136 bytes per reference, 184 with the projection test);
      * fewer than `max_triangles`: `SHEAF_STATUS_INVALID_ARGUMENT`.
      */
     uint32_t max_bvh_refs;

@@ -93,8 +93,9 @@ pub struct Limits {
     /// Most triangle references of the BVH's leaves. 0: `max_triangles`,
     /// one per triangle. Above `max_triangles` the difference is the
     /// reserve of the `High` build's spatial splits (`accel::bvh::
-    /// build_spatial`), which may reference a triangle from several
-    /// leaves: 136 bytes per reserved reference (184 with
+    /// build_spatial`) and, with `BvhParams::presplit`, of the `Low`
+    /// build's pre-splits (`accel::bvh::presplit`), which may reference a
+    /// triangle from several leaves: 136 bytes per reserved reference (184 with
     /// `projection_test`). A quarter of `max_triangles` (34 bytes per
     /// triangle) gives the OBJ test scenes' HIGH trees SAH costs within 3 %
     /// of a reserve as large as `max_triangles`. Fewer than `max_triangles`
