@@ -239,7 +239,14 @@ pub(super) fn build(
             Parts::even(&mut refs[..n_in], workers),
             Parts::even(&mut *found, workers),
         );
-        par.run(&|w| fs.get(w)[0] = find(scene, rs.start(w), rs.get(w), may_split));
+        par.run(&|w| {
+            let (first, out) = (rs.start(w), rs.get(w));
+            fs.get(w)[0] = if may_split {
+                find::<true>(scene, first, out)
+            } else {
+                find::<false>(scene, first, out)
+            };
+        });
     }
     let mut all = NOT_FOUND;
     for f in found.iter() {
@@ -400,7 +407,7 @@ pub(super) fn build(
                 c.copy_from_slice(&keys[at..at + c.len()]);
                 // Without pre-splitting a reference's index is its triangle's id.
                 ids.copy_from_slice(&vals[at..at + c.len()]);
-                store(scene, vals, at, t, pj, slots, false);
+                store::<false>(scene, vals, at, t, pj, slots);
             });
         }
     }
@@ -538,23 +545,22 @@ pub(super) fn build(
         let ps = Parts::even(if proj_on { &mut proj[..n] } else { &mut [] }, workers);
         let ids = &tri_ids[..n];
         let slots = atomic_u32(&mut slot_of[..n_in]);
-        par.run(&|w| store(scene, ids, ts.start(w), ts.get(w), ps.get(w), slots, true));
+        par.run(&|w| store::<true>(scene, ids, ts.start(w), ts.get(w), ps.get(w), slots));
     }
     Ok(info)
 }
 
 /// The stored triangles of slots `at..at + t.len()`, whose ids are
 /// `ids[at..]` (read ahead), with their projection data when `pj` has
-/// room, each slot recorded in `slots` by its triangle (with `lowest`, the
+/// room, each slot recorded in `slots` by its triangle (with `LOWEST`, the
 /// lowest of a pre-split triangle's slots, whichever worker comes first).
-fn store(
+fn store<const LOWEST: bool>(
     scene: &Scene<'_>,
     ids: &[u32],
     at: usize,
     t: &mut [TriVerts],
     pj: &mut [ProjTri],
     slots: &[AtomicU32],
-    lowest: bool,
 ) {
     let mine = &ids[..at + t.len()];
     for (k, &id) in mine[at..].iter().enumerate() {
@@ -565,7 +571,7 @@ fn store(
             *x = ProjTri::new(&tri);
         }
         let (slot, s) = (&slots[id as usize], (at + k) as u32);
-        if lowest {
+        if LOWEST {
             slot.fetch_min(s, Ordering::Relaxed);
         } else {
             slot.store(s, Ordering::Relaxed);
@@ -605,9 +611,9 @@ impl Sink<'_> {
 }
 
 /// Step 1 for the triangles `first..first + out.len()`: their references
-/// (`_pad` `presplit::EXCLUDED`: excluded; else 0, or with `excess` the
+/// (`_pad` `presplit::EXCLUDED`: excluded; else 0, or with `EXCESS` the
 /// bits of the triangle's `presplit::excess`) and what they hold.
-fn find(scene: &Scene<'_>, first: usize, out: &mut [PrimRef], excess: bool) -> Found {
+fn find<const EXCESS: bool>(scene: &Scene<'_>, first: usize, out: &mut [PrimRef]) -> Found {
     let mut f = NOT_FOUND;
     for (k, r) in out.iter_mut().enumerate() {
         let t = (first + k) as u32;
@@ -621,7 +627,7 @@ fn find(scene: &Scene<'_>, first: usize, out: &mut [PrimRef], excess: bool) -> F
                     min: bx.min.into(),
                     id: t,
                     max: bx.max.into(),
-                    _pad: if excess {
+                    _pad: if EXCESS {
                         presplit::excess(&tri, &bx).to_bits()
                     } else {
                         0
@@ -702,7 +708,7 @@ fn emit(
             let deep = (depth as usize) >= MAX_DEPTH;
             // A leaf-sized range naming a triangle twice splits before
             // the repeat.
-            let repeat = (count <= leaf_size && !deep)
+            let repeat = (count <= leaf_size && !deep && sink.ids.is_some())
                 .then(|| sink.repeat(begin, end))
                 .flatten();
             let inner = (count > leaf_size && !deep) || repeat.is_some();
