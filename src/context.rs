@@ -7,7 +7,7 @@ use crate::accel::bvh::{self, Bvh, BvhInfo, BvhParams, BvhPools};
 use crate::accel::grid::{self, Grid, GridInfo, GridParams, GridPools};
 use crate::accel::kd::{self, KdInfo, KdParams, KdPools, KdTree};
 use crate::accel::pgrid::{self, Pgrid, PgridParams, PgridPools, SceneInfo};
-use crate::accel::slot::{accel_scratch, max};
+use crate::accel::slot::max;
 use crate::accel::twolevel::flatten::{Flat, FlatPools};
 use crate::accel::twolevel::{self, TwoLevel, TwoLevelPools};
 use crate::counters::{Counters, elapsed_ns, now};
@@ -26,10 +26,53 @@ use crate::render::scratch as tile_scratch;
 pub use crate::trace::SceneTracer;
 pub use crate::trace::scene::{BvhTracer, GridTracer, KdTracer};
 
+/// Scratch bytes the tiny-lane split and the packet traversal of any family
+/// in `structures` (a `Limits::GRID`-style bit set: the grid, BVH and
+/// kd-tree; the perspective grids are traced by the deferred frame alone,
+/// which counts them) take at most, for packets of up to `q` quads: the
+/// sum of what each family declares beside its code (`grid::scratch`,
+/// `bvh::scratch`, `kd::scratch`), here above the families so that none
+/// of them imports the others. Every family of `Structure` is named (an
+/// exhaustive match): a new family fails to compile until its bytes are
+/// summed; `tests/exact/scratch.rs` drives every `Method::ALL` at its
+/// limits against this sum.
+pub const fn accel_scratch(q: usize, structures: u32) -> usize {
+    use crate::accel::method::Structure;
+    let mut family = 0;
+    let mut i = 0;
+    while i < Structure::ALL.len() {
+        let s = Structure::ALL[i];
+        let (bit, bytes) = match s {
+            Structure::Grid => (Limits::GRID, grid::scratch(q)),
+            Structure::Bvh => (Limits::BVH, bvh::scratch(q)),
+            Structure::Kd => (Limits::KD, kd::scratch(q)),
+        };
+        if structures & bit != 0 {
+            family = max(family, bytes);
+        }
+        i += 1;
+    }
+    crate::accel::packet::scratch(q) + family
+}
+
+/// A thread slot outside any context sized for every family's largest
+/// packets (`accel_scratch`): for tools and tests that call the packet
+/// traversals directly.
+#[cfg(feature = "std")]
+impl crate::accel::slot::SlotBuf {
+    /// A mailbox of `stamps` stamps (one per triangle of the structure a
+    /// CGT packet with the mailbox traces; 0 for none) and the scratch of
+    /// the tiny-lane split and any family's traversal of the largest packets.
+    pub fn new(stamps: usize) -> Self {
+        let all = Limits::ALL_STRUCTURES;
+        Self::with_scratch(stamps, accel_scratch(crate::accel::packet::MAX_QUADS, all))
+    }
+}
+
 /// Scratch bytes of one thread slot under `l`, the one sum of every
 /// module's declared scratch: over the calls `l` allows, the most a caller
 /// of a packet traversal holds plus what the tiny-lane split and a family
-/// of `structures` take under it (`accel::slot::accel_scratch`). The
+/// of `structures` take under it (`accel_scratch`). The
 /// callers:
 /// `trace::batch_on`'s packet; a two-level batch with `max_geometries`
 /// (its geometries are BVHs, its flattened scene a grid or kd-tree); per renderer in `renderers`, a render tile,

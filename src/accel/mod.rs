@@ -46,7 +46,6 @@ pub mod twolevel;
 
 use crate::counters::Counters;
 use crate::geom::{Aabb, Hit, Ray, TriTest, TriVerts, TriangleTest};
-use method::TraceParams;
 
 /// The family contract: a built structure, shared across threads, as the
 /// trace layer sees it. Every query is generic over the triangle test the
@@ -81,12 +80,4 @@ pub trait Accel: Sync {
             self.intersect::<T>(ray, ctr)
         }
     }
-    /// The family's traversal of `p.method` for packets of 2x2 quads
-    /// (`packet::Kernel`): an n x n packet walk at the lane width of
-    /// `p.isa`, the 2x2 SIMD ray, or the single ray lane by lane (for a
-    /// method the family lacks too). Nearest hits, or with `ANY`
-    /// occlusion (some hit marks an occluded lane). Chosen once per call.
-    fn kernel<T: TriangleTest, const ANY: bool>(p: &TraceParams) -> packet::Kernel<Self>
-    where
-        Self: Sized;
 }

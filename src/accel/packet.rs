@@ -1,11 +1,11 @@
 //! What every family's packet query shares, written once. A trace call
-//! chooses its family's `Kernel` once (`Accel::kernel`: method, triangle
-//! test, culling, occlusion and lane width; `trace::scene`) and calls it
-//! per packet; single-ray methods run the family's single ray lane by lane.
+//! chooses its family's `Kernel` once (method, triangle test, culling,
+//! occlusion and lane width: the kernel table of `trace::scene`) and calls
+//! it per packet; single-ray methods run the family's single ray lane by
+//! lane (`LaneByLane`).
 //!
 //! - `MAX_QUADS`: the largest packet, 32 x 32 rays in 256 quads of 2x2.
-//! - `PacketSig`, `Kernel`: the packet contract and a chosen traversal
-//!   (`at`, `baseline`, `lane_by_lane_kernel`).
+//! - `PacketSig`, `Kernel`: the packet contract and a chosen traversal.
 //! - `lane_by_lane`: the single ray for each active lane (single-ray
 //!   methods, and methods a family lacks).
 //! - `quieted`: lanes with tiny directions (`fallback::tiny`) of every
@@ -89,26 +89,11 @@ impl<A: Accel> isa::Sig for PacketSig<A> {
 /// The packet contract's arguments (`PacketSig`), one tuple.
 pub type PacketArgs<'a, A> = <PacketSig<A> as isa::Sig>::Args<'a>;
 
-/// A family's packet traversal for a trace call (`Accel::kernel`): the
-/// method, triangle test, culling, occlusion and lane width chosen once,
-/// called per packet with `PacketArgs`.
+/// A family's packet traversal for a trace call (`trace::scene`'s kernel
+/// table): the method, triangle test, culling, occlusion and lane width
+/// chosen once, called per packet with `PacketArgs` on one packet of at
+/// most `MAX_QUADS` quads (`Tracing::run` splits longer inputs).
 pub type Kernel<A> = isa::Chosen<PacketSig<A>>;
-
-/// `F` at the lane width of `p.isa` (`Accel::kernel`).
-pub fn at<A: Accel, F: isa::LaneFn<PacketSig<A>>>(p: &TraceParams) -> Kernel<A> {
-    isa::Chosen::new::<F>(p.isa)
-}
-
-/// `F` in baseline code: traversals without wide lanes (the 2x2 SIMD
-/// ray, single rays lane by lane).
-pub fn baseline<A: Accel, F: isa::LaneFn<PacketSig<A>>>() -> Kernel<A> {
-    isa::Chosen::baseline::<F>()
-}
-
-/// The family's single ray, lane by lane (single-ray methods).
-pub fn lane_by_lane_kernel<A: Accel, T: TriangleTest, const ANY: bool>() -> Kernel<A> {
-    baseline::<A, LaneByLane<T, ANY>>()
-}
 
 /// The tiny-direction fallback of every n x n packet method (`Tracing`
 /// in `trace::scene` calls it when some active lane of its packet, at most
@@ -143,7 +128,9 @@ pub fn quieted(
     });
 }
 
-/// The family's single ray for each active lane (`lane_by_lane_kernel`).
+/// The family's single ray for each active lane: the kernel of a
+/// single-ray method, and of a method the family lacks
+/// (`trace::scene`'s kernel table).
 pub struct LaneByLane<T, const ANY: bool>(PhantomData<T>);
 
 impl<A: Accel, T: TriangleTest, const ANY: bool> isa::LaneFn<PacketSig<A>> for LaneByLane<T, ANY> {

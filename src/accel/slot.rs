@@ -2,38 +2,16 @@
 //! its scratch (`mem::scratch`), where packets, hits, masks, traversal
 //! state and bounce levels live instead of on the caller's stack.
 //!
-//! `accel_scratch` is what a packet call and a family's traversal take at
-//! most (the tiny-lane split, `accel::packet::quieted`, then the family's
-//! arrays),
-//! each part a function of the packet size declared by the module that
-//! takes it. A context's slot adds what its callers (`trace::batch_on`,
-//! the renderers) hold on top: `context::slot_scratch_bytes`, counted once
-//! per slot in `required_bytes`.
+//! Each module that takes scratch declares its bytes beside its code, as a
+//! `const fn` of the packet's quads (`accel::packet::scratch`, each
+//! family's `scratch`); the sums live above the families, in the context:
+//! `context::accel_scratch` (the tiny-lane split and the largest family
+//! traversal) and `context::slot_scratch_bytes` (what the callers hold on
+//! top), counted once per slot in `required_bytes`.
 #![forbid(unsafe_code)]
 
 use super::mailbox::Mailbox;
 use crate::mem::Scratch;
-
-/// Scratch bytes the tiny-lane split and the packet traversal of any family
-/// in `structures` (a `Limits::GRID`-style bit set: the grid, BVH and
-/// kd-tree; the perspective grids are traced by the deferred frame alone,
-/// which counts them) take at most, for packets of up to `q` quads.
-pub const fn accel_scratch(q: usize, structures: u32) -> usize {
-    use crate::mem::Limits;
-    // A family's bytes when its structure has pools, else none.
-    const fn of(structures: u32, bit: u32, bytes: usize) -> usize {
-        if structures & bit != 0 { bytes } else { 0 }
-    }
-    let s = structures;
-    let family = max(
-        max(
-            of(s, Limits::BVH, super::bvh::scratch(q)),
-            of(s, Limits::GRID, super::grid::scratch(q)),
-        ),
-        of(s, Limits::KD, super::kd::scratch(q)),
-    );
-    super::packet::scratch(q) + family
-}
 
 /// The larger of two sizes (const).
 pub const fn max(a: usize, b: usize) -> usize {
@@ -118,15 +96,14 @@ pub struct SlotBuf {
 #[cfg(feature = "std")]
 impl SlotBuf {
     /// A mailbox of `stamps` stamps (one per triangle of the structure a
-    /// CGT packet with the mailbox traces; 0 for none) and the scratch of
-    /// the tiny-lane split and any family's traversal of the largest packets
-    /// (`accel_scratch`).
-    pub fn new(stamps: usize) -> SlotBuf {
-        let all = crate::mem::Limits::ALL_STRUCTURES;
+    /// CGT packet with the mailbox traces; 0 for none) and `scratch` bytes
+    /// of scratch. `SlotBuf::new` (in `context`, where the families'
+    /// scratch is summed) sizes it for any family's largest packets.
+    pub fn with_scratch(stamps: usize, scratch: usize) -> SlotBuf {
         SlotBuf {
             stamps: std::vec![0; stamps],
             packet: 0,
-            scratch: std::vec![0; accel_scratch(super::packet::MAX_QUADS, all)],
+            scratch: std::vec![0; scratch],
         }
     }
 

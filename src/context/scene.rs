@@ -30,7 +30,7 @@ use crate::geom::{
 use crate::mem::Limits;
 use crate::mem::par::{Par, Serial};
 use crate::render::{CameraRays, PixelRect, PrimaryRays};
-use crate::trace::scene::{Tracing, packet_rays, packets};
+use crate::trace::scene::{Batch, Tracing, packet_rays, packets};
 use crate::trace::{DynRays, RaySource, RayStream, SceneHitStream, TraceParams};
 
 /// The two-level scene and its flattening into world triangles: one field
@@ -651,7 +651,13 @@ impl<'a> Context<'a> {
         let per = packet_rays(p);
         self.with_slot(slot, |sl| {
             let hits = |start: usize, h: &[SceneHit], n: usize| out(start, &h[..n]);
-            packets(sl, per, count, rays, SceneHit::MISS, 4, trace, hits)
+            let batch = Batch {
+                count,
+                per,
+                miss: SceneHit::MISS,
+                k: 4,
+            };
+            packets(sl, batch, rays, trace, hits)
         })?;
         Ok(ctr)
     }

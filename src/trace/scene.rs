@@ -1,9 +1,11 @@
-//! The one dispatch of a trace call: `Method` picks the family
-//! (`Method::structure`), the structure's triangle test picks the
-//! monomorphised traversals (`geom::with_test!`), and the family picks its
-//! kernel for the method at the lane width (`Accel::kernel`): a `Tracing`,
-//! chosen once per call (`batch_on`) and run per packet by the batch loop
-//! (`packets`).
+//! The one dispatch of a trace call, made once per call in one place
+//! (`Tracing::new`, from `batch_on`): `Method` picks the family
+//! (`Method::structure`), the structure's triangle test (and its culling)
+//! picks the monomorphised traversals (`geom::with_test!`), the kernel
+//! table (`Kernels`, one row per method and family) picks the traversal,
+//! and `TraceParams::isa` its lane width (`isa::Chosen`). The batch loop
+//! (`packets`) forms each packet once, and `Tracing::run` calls the
+//! chosen kernel on it.
 //! The renderers see every structure as a `Tracer` and choose with
 //! `Tracer::packets` once per frame (per band of tiles); the Rust and C
 //! trace calls go through `batch_on`.
@@ -12,12 +14,13 @@
 use crate::accel::bvh::BvhView;
 use crate::accel::grid::GridView;
 use crate::accel::kd::KdView;
-use crate::accel::packet::{self, Kernel, MAX_QUADS};
+use crate::accel::packet::{self, Kernel, LaneByLane, MAX_QUADS};
 use crate::accel::slot::Slot;
 use crate::accel::{Accel, method::Method, method::Structure, method::TraceParams};
 use crate::counters::Counters;
 use crate::error::{Error, Result};
 use crate::geom::{Hit, Hit4, Hook, M4, Ray, Ray4, TriTest, TriVerts, TriangleTest, with_test};
+use crate::isa::Chosen;
 
 /// Slot scratch `batch_on` holds while its kernel runs: one packet's
 /// quads, lane masks and hits, for packets of up to `q` quads.
@@ -152,11 +155,11 @@ macro_rules! family_tracing {
 family_tracing!(GridView, BvhView, KdView);
 
 /// The one choice of a trace call on family `a`: its kernel for `p`
-/// (method and lane width, `Accel::kernel`), triangle test and whether it
+/// (method and lane width, `Kernels::kernel`), triangle test and whether it
 /// answers occlusion (`any`). Callers outside this module use the
 /// families' `tracing`.
 #[inline]
-fn tracing_of<A: Accel>(a: &A, p: &TraceParams, any: bool) -> Tracing<A> {
+fn tracing_of<A: Kernels>(a: &A, p: &TraceParams, any: bool) -> Tracing<A> {
     with_test!(a.test(), |T| Tracing::either::<T>(p, any))
 }
 
@@ -170,10 +173,10 @@ impl<'r> Tracing<BvhView<'r>> {
 }
 
 /// A trace call's choice on one family, made once and run per packet
-/// (`run`): the family's kernel (`Accel::kernel`: the method's traversal
-/// at its lane width, the triangle test, culling and occlusion) and, for
-/// the n x n packet methods, the family's fastest single ray for the
-/// lanes with tiny directions (`accel::packet::quieted`).
+/// (`run`): the family's kernel (the kernel table's traversal for the
+/// method at its lane width, with the triangle test, culling and
+/// occlusion) and, for the n x n packet methods, the family's fastest
+/// single ray for the lanes with tiny directions (`accel::packet::quieted`).
 pub struct Tracing<A: Accel> {
     kernel: Kernel<A>,
     single: fn(&A, &Ray, &mut Counters) -> Hit,
@@ -187,7 +190,91 @@ impl<A: Accel> Clone for Tracing<A> {
 }
 impl<A: Accel> Copy for Tracing<A> {}
 
-impl<A: Accel> Tracing<A> {
+/// The kernel table: each family's packet traversal for each method, with
+/// triangle test (and culling) `T`, nearest hits or with `ANY` occlusion,
+/// at the lane width of `p.isa` (`Chosen::new`; `Chosen::baseline` for
+/// traversals without wide lanes). Every method is named in every
+/// family's row (no wildcard): a new `Method` fails to compile until each
+/// family says how it traces it. A method of another family runs the
+/// family's single ray lane by lane (`LaneByLane`).
+pub trait Kernels: Accel + Sized {
+    fn kernel<T: TriangleTest, const ANY: bool>(p: &TraceParams) -> Kernel<Self>;
+}
+
+impl Kernels for GridView<'_> {
+    fn kernel<T: TriangleTest, const ANY: bool>(p: &TraceParams) -> Kernel<Self> {
+        use crate::accel::grid::traverse_cgt::Cgt;
+        match p.method {
+            Method::GridCgt => Chosen::new::<Cgt<T, ANY>>(p.isa),
+            Method::GridDda
+            | Method::BvhSingle
+            | Method::BvhSimd
+            | Method::BvhMasked
+            | Method::BvhRanged
+            | Method::BvhPartition
+            | Method::BvhWide
+            | Method::BvhWideRanged
+            | Method::BvhFrustum
+            | Method::KdSingle
+            | Method::KdSimd
+            | Method::KdPacket => Chosen::baseline::<LaneByLane<T, ANY>>(),
+        }
+    }
+}
+
+impl Kernels for BvhView<'_> {
+    fn kernel<T: TriangleTest, const ANY: bool>(p: &TraceParams) -> Kernel<Self> {
+        use crate::accel::bvh::packet::Walked;
+        use crate::accel::bvh::traverse_frustum::FrustumFirst;
+        use crate::accel::bvh::traverse_masked::Masked;
+        use crate::accel::bvh::traverse_partition::Partition;
+        use crate::accel::bvh::traverse_ranged::Ranged;
+        use crate::accel::bvh::traverse_wide_ranged::WideRanged;
+        use crate::accel::bvh::{traverse_simd, traverse_wide};
+        match p.method {
+            Method::BvhFrustum => Chosen::new::<FrustumFirst<T, ANY>>(p.isa),
+            Method::BvhMasked => Chosen::new::<Walked<Masked, T, ANY>>(p.isa),
+            Method::BvhRanged => Chosen::new::<Walked<Ranged, T, ANY>>(p.isa),
+            Method::BvhPartition => Chosen::new::<Walked<Partition, T, ANY>>(p.isa),
+            Method::BvhWideRanged => Chosen::new::<Walked<WideRanged, T, ANY>>(p.isa),
+            Method::BvhSimd => Chosen::baseline::<traverse_simd::Simd<T, ANY>>(),
+            Method::BvhWide => Chosen::baseline::<traverse_wide::ByLane<T, ANY>>(),
+            Method::BvhSingle
+            | Method::GridDda
+            | Method::GridCgt
+            | Method::KdSingle
+            | Method::KdSimd
+            | Method::KdPacket => Chosen::baseline::<LaneByLane<T, ANY>>(),
+        }
+    }
+}
+
+impl Kernels for KdView<'_> {
+    fn kernel<T: TriangleTest, const ANY: bool>(p: &TraceParams) -> Kernel<Self> {
+        use crate::accel::kd::traverse_packet::{Packets, with_class};
+        use crate::accel::kd::traverse_simd::Simd;
+        match p.method {
+            Method::KdPacket => {
+                let nq = packet::quads(p.packet);
+                with_class!(nq, |Q| Chosen::new::<Packets<T, ANY, Q>>(p.isa))
+            }
+            Method::KdSimd => Chosen::baseline::<Simd<T, ANY>>(),
+            Method::KdSingle
+            | Method::GridDda
+            | Method::GridCgt
+            | Method::BvhSingle
+            | Method::BvhSimd
+            | Method::BvhMasked
+            | Method::BvhRanged
+            | Method::BvhPartition
+            | Method::BvhWide
+            | Method::BvhWideRanged
+            | Method::BvhFrustum => Chosen::baseline::<LaneByLane<T, ANY>>(),
+        }
+    }
+}
+
+impl<A: Kernels> Tracing<A> {
     /// `A`'s kernel for `p` with triangle test (and culling) `T`:
     /// nearest hits, or with `ANY` occlusion.
     pub fn new<T: TriangleTest, const ANY: bool>(p: &TraceParams) -> Self {
@@ -394,25 +481,39 @@ pub fn packet_rays(p: &TraceParams) -> usize {
     }
 }
 
+/// How the batch loop (`packets`) forms packets: `count` rays, `per` to a
+/// packet (at most `MAX_QUADS` quads: the call's limits were checked), each
+/// packet's results `k` per quad, starting as `miss`.
+#[derive(Clone, Copy)]
+pub struct Batch<H> {
+    pub count: usize,
+    pub per: usize,
+    pub miss: H,
+    pub k: usize,
+}
+
 /// The one batch loop of every trace call, single mesh and two-level: the
 /// `count` rays `rays.ray(i)` packed `per` at a time into 2x2 quads in the
-/// slot's scratch (at most `MAX_QUADS`), each packet's `H` results (`k`
-/// per quad, starting as `miss`) traced by `trace(quads, active, results,
-/// rest of the slot)` and handed to `out(first ray, results, rays)`.
-/// Generic over the rays and both closures, so each caller's conversions
-/// inline into the packing loop (no indirect call per ray).
-#[allow(clippy::too_many_arguments)] // the loop's parts, each a caller's choice
+/// slot's scratch, each packet's `H` results traced by `trace(quads,
+/// active, results, rest of the slot)` and handed to `out(first ray,
+/// results, rays)`. Each packet is formed here once (`Tracing::run` finds
+/// it within `MAX_QUADS`). Generic over the rays and both closures, so
+/// each caller's conversions inline into the packing loop (no indirect
+/// call per ray).
 #[inline]
 pub fn packets<H: Copy>(
     slot: &mut Slot<'_>,
-    per: usize,
-    count: usize,
+    b: Batch<H>,
     rays: impl super::RaySource,
-    miss: H,
-    k: usize,
     mut trace: impl FnMut(&[Ray4], &[M4], &mut [H], &mut Slot<'_>),
     mut out: impl FnMut(usize, &[H], usize),
 ) {
+    let Batch {
+        count,
+        per,
+        miss,
+        k,
+    } = b;
     let nq_max = per.div_ceil(4).min(MAX_QUADS);
     let blank = Ray4::from_rays(&[Ray::new(glam::Vec3::ZERO, glam::Vec3::X, 0.0, 0.0); 4]);
     let (quads, s) = slot.reborrow().take(nq_max, blank);
@@ -455,7 +556,12 @@ pub fn batch_on(
             out(start + 4 * q, h, (n - 4 * q).min(4));
         }
     };
-    let per = packet_rays(p);
+    let batch = Batch {
+        count,
+        per: packet_rays(p),
+        miss: Hit4::MISS,
+        k: 1,
+    };
     // The family, its kernel (method, triangle test, lane width) and
     // occlusion chosen once; each packet is one call of the kernel.
     on_family!(
@@ -466,20 +572,11 @@ pub fn batch_on(
             let k = a.tracing(p, any);
             let trace =
                 |q: &[Ray4], m: &[M4], h: &mut [Hit4], s: &mut Slot<'_>| k.run(a, p, q, m, h, s, c);
-            packets(slot, per, count, rays, Hit4::MISS, 1, trace, quads)
+            packets(slot, batch, rays, trace, quads)
         },
         // Not built (`Context::trace_quads` refuses the call before):
         // every ray misses.
-        packets(
-            slot,
-            per,
-            count,
-            rays,
-            Hit4::MISS,
-            1,
-            |_, _, _, _| {},
-            quads
-        )
+        packets(slot, batch, rays, |_, _, _, _| {}, quads)
     );
     ctr
 }

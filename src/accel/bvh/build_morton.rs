@@ -62,9 +62,9 @@
 //!   memory per triangle the SAH build does not; its per-worker counts
 //!   (`SCRATCH`) are fixed.
 
-use super::build::{Box3, PoolRoom, reference_capacity};
 use super::presplit;
 use super::refit::{fit, half_area, sah_sum};
+use super::refs::{Box3, PoolRoom, reference_capacity};
 use super::{BvhInfo, BvhNode, BvhParams, BvhPools, MAX_DEPTH, PrimRef};
 use crate::error::{Error, Pool, Result};
 use crate::geom::{Aabb, Excluded, INVALID_ID, ProjTri, Scene, TriTest, TriVerts};
@@ -421,6 +421,8 @@ pub(super) fn build(
     let mut top = Emitted::default();
     let (top_next, n_jobs) = {
         let mut sink = Sink {
+            leaf_size,
+            stop: job_size(n),
             jobs: &mut jobs[..],
             n_jobs: 0,
             ids: split_on.then_some(&tri_ids[..n]),
@@ -431,8 +433,6 @@ pub(super) fn build(
             0,
             &[(0, 0, n as u32, 0)],
             1,
-            leaf_size,
-            job_size(n),
             &mut top,
             &mut sink,
         );
@@ -476,6 +476,8 @@ pub(super) fn build(
             let (mine, part) = (js.get(w), ns.get(w));
             let base = ns.start(w);
             let mut sink = Sink {
+                leaf_size,
+                stop: 0,
                 jobs: &mut [],
                 n_jobs: 0,
                 ids,
@@ -487,17 +489,7 @@ pub(super) fn build(
                     (j.region, j.begin, j.mid, d),
                     (j.region + 1, j.mid, j.end, d),
                 ];
-                let end = emit(
-                    codes,
-                    part,
-                    base,
-                    &kids,
-                    j.region + 2,
-                    leaf_size,
-                    0,
-                    &mut e,
-                    &mut sink,
-                );
+                let end = emit(codes, part, base, &kids, j.region + 2, &mut e, &mut sink);
                 j.used = end - j.region;
                 j.leaves = e.leaves;
                 j.max_depth = e.depth;
@@ -583,6 +575,10 @@ fn store<const LOWEST: bool>(
 /// pre-splitting the stored references' triangle ids (`ids`), so that a
 /// leaf never names one triangle twice.
 struct Sink<'a> {
+    /// Ranges of more than `leaf_size` and at most `stop` triangles are
+    /// offered as jobs.
+    leaf_size: usize,
+    stop: usize,
     jobs: &'a mut [Job],
     n_jobs: usize,
     ids: Option<&'a [u32]>,
@@ -676,22 +672,20 @@ struct Emitted {
 
 /// Step 4 from the ranges `starts` (node, begin, end, depth; emitted in
 /// order), children allocated from `next` on, into `part` (the nodes
-/// `base..`); ranges of more than `leaf_size` and at most `stop` triangles
-/// are offered to `sink` as jobs (which takes them, or they are emitted
-/// here).
+/// `base..`); ranges of more than `sink.leaf_size` and at most
+/// `sink.stop` triangles are offered to `sink` as jobs (which takes them,
+/// or they are emitted here).
 /// Returns the next free node.
-#[allow(clippy::too_many_arguments)]
 fn emit(
     codes: &[u32],
     part: &mut [BvhNode],
     base: usize,
     starts: &[(u32, u32, u32, u32)],
     mut next: u32,
-    leaf_size: usize,
-    stop: usize,
     out: &mut Emitted,
     sink: &mut Sink<'_>,
 ) -> u32 {
+    let (leaf_size, stop) = (sink.leaf_size, sink.stop);
     // (node, begin, end, depth) of ranges still to emit.
     let mut stack = [(0u32, 0u32, 0u32, 0u32); MAX_DEPTH + 2];
     let mut sp = 0usize;

@@ -40,7 +40,7 @@
 //!   first served, so a subtree's references depend on it alone.
 
 use super::PrimRef;
-use super::build::Box3;
+use super::refs::Box3;
 use crate::geom::{Scene, TriVerts};
 use glam::Vec3A;
 

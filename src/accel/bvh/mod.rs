@@ -21,6 +21,7 @@
 //! | `traverse_wide.rs` | the single ray through the 4-wide tree (`Method::BvhWide`): four boxes per SIMD test; the single-ray fallback of every packet traversal |
 //! | `traverse_wide_ranged.rs` | section 3.2's Ranged traversal of n x n packets through the 4-wide tree (`Method::BvhWideRanged`): every child of a node tested per quad, children front to back |
 //! | `traverse_frustum.rs` | n x n packets through the 4-wide tree, frustum first (`Method::BvhFrustum`; Wald, Boulos, Shirley 2007, section 4.3; Fuetterling et al. 2015, section 4): a node visit costs a constant number of wide operations, not a scan of the quads: the packet's interval frustum, then its first live ray, against all four children at once, children visited in the frustum's near order, lane groups scanned only where the two disagree; at a leaf only the lane groups whose slab test enters it (picked by per-group frusta in large packets) test its triangles; the packet set up lane group by lane group, hits kept per group as lanes; an incoherent packet retried as its four Morton quarters; an occlusion packet left with few live lanes finished by the wide single ray (Benthin et al. 2012) |
+//! | `refs.rs` | what the builds share about references: their boxes in SIMD registers (`Box3`) and how many a build may write (`reference_capacity`) |
 //! | `refit.rs` | refit: the built tree's boxes recomputed bottom-up for moved vertices (Embree's REFIT quality; the paper rebuilds every frame) |
 //! | `entry.rs` | the BVH as an `accel::entry::EntryTree`: MLRTA/AEPSA entry points (AEPSA paper, section 8), where the three packet traversals can start |
 //!
@@ -46,6 +47,7 @@ pub mod entry;
 pub mod packet;
 pub mod presplit;
 pub mod refit;
+pub mod refs;
 pub mod traverse_frustum;
 pub mod traverse_masked;
 pub mod traverse_partition;
@@ -57,8 +59,6 @@ pub mod traverse_wide_ranged;
 pub mod wide;
 
 pub use crate::accel::method::BvhOptions;
-use crate::accel::method::{Method, TraceParams};
-use crate::accel::packet::{Kernel, at, baseline, lane_by_lane_kernel};
 use crate::counters::Counters;
 use crate::error::Result;
 /// The packet frusta (section 4) live in `geom` because the kd-tree
@@ -71,10 +71,26 @@ use bytemuck::{Pod, Zeroable};
 
 /// Slot scratch this module's packet code takes (`accel::slot`) for
 /// packets of up to `q` quads: the entry search's live lanes
-/// (`accel::packet::start`), then, given back, one packet
-/// (`packet::scratch`); the 2x2 SIMD ray takes none.
+/// (`accel::packet::start`), then, given back, one packet in the larger
+/// of the two kinds of walk: the generic walks (`packet::scratch`) or the
+/// frustum walk (its lane groups' boxes, hits and frusta, and the lane
+/// groups: `traverse_frustum::bytes`); the 2x2 SIMD ray takes none.
 pub const fn scratch(q: usize) -> usize {
-    crate::accel::slot::max(packet::scratch(q), crate::accel::packet::start_scratch(q))
+    use crate::accel::slot::max;
+    let frustum = traverse_frustum::bytes(q) + crate::accel::group::max_bytes(q);
+    max(
+        max(packet::scratch(q), frustum),
+        crate::accel::packet::start_scratch(q),
+    )
+}
+
+/// A leaf's stored triangles (`first .. first + count`) and its depth (for
+/// the per-depth counters): what every leaf test reads of the node.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct LeafAt {
+    pub first: u32,
+    pub count: u32,
+    pub depth: usize,
 }
 
 /// Deepest level a build creates (root = depth 0). Nodes at this depth
@@ -252,6 +268,15 @@ impl BvhNode {
     #[inline(always)]
     pub fn count(&self) -> u32 {
         self.meta & Self::COUNT_MASK
+    }
+    /// A leaf's triangles, at depth `depth`.
+    #[inline(always)]
+    pub(crate) fn leaf_at(&self, depth: usize) -> LeafAt {
+        LeafAt {
+            first: self.first,
+            count: self.count(),
+            depth,
+        }
     }
     /// Split axis of an inner node (0, 1, 2).
     #[inline(always)]
@@ -641,20 +666,5 @@ impl crate::accel::Accel for BvhView<'_> {
     #[inline(always)]
     fn fastest<T: TriangleTest, const ANY: bool>(&self, ray: &Ray, ctr: &mut Counters) -> Hit {
         traverse_wide::walk::<T, ANY>(self, ray, ctr)
-    }
-    fn kernel<T: TriangleTest, const ANY: bool>(p: &TraceParams) -> Kernel<Self> {
-        use packet::Walked;
-        match p.method {
-            Method::BvhSimd => baseline::<Self, traverse_simd::Simd<T, ANY>>(),
-            Method::BvhWide => baseline::<Self, traverse_wide::ByLane<T, ANY>>(),
-            Method::BvhMasked => at::<Self, Walked<traverse_masked::Masked, T, ANY>>(p),
-            Method::BvhRanged => at::<Self, Walked<traverse_ranged::Ranged, T, ANY>>(p),
-            Method::BvhPartition => at::<Self, Walked<traverse_partition::Partition, T, ANY>>(p),
-            Method::BvhWideRanged => {
-                at::<Self, Walked<traverse_wide_ranged::WideRanged, T, ANY>>(p)
-            }
-            Method::BvhFrustum => at::<Self, Walked<traverse_frustum::FrustumFirst, T, ANY>>(p),
-            _ => lane_by_lane_kernel::<Self, T, ANY>(),
-        }
     }
 }

@@ -11,9 +11,10 @@
 //! the live lanes, tiny directions, the direction sum and the coherence
 //! test's cone and origin box (`fallback::Coherence`); then a second pass
 //! writes each quad's triangle-test precomputation, far ends and slab data
-//! (the first two into slices filled first). A walk may instead set
-//! its packets up itself (`Walk::own_setup`): the frustum-first walk does,
-//! lane group by lane group at its lane width. Setup and walk run in the
+//! (the first two into slices filled first). The frustum-first walk sets
+//! its packets up itself, lane group by lane group at its lane width
+//! (`traverse_frustum`), and hands the packets it does not take to
+//! `walk_from`. Setup and walk run in the
 //! walk's `isa::LaneFn` (`Walked`), so the setup is compiled for the walk's ISA
 //! (32 vector registers with AVX-512) and runs on the quads while they
 //! are in cache.
@@ -46,14 +47,13 @@ use crate::geom::{Aabb, F4, Hit4, Hook, M4, Mt, Pt, Ray4, RayLanes, Wide, Wt};
 use crate::isa;
 use crate::mem::scratch::bytes;
 
-/// Slot scratch one packet of up to `q` quads takes, for the triangle
-/// test whose precomputation is largest, in the larger of the two kinds of
-/// walk: the generic walks (the per-quad arrays of `Packet`: live lanes,
-/// `QuadBox`, precomputation, far ends; the lane groups; Masked's masks
-/// and Partition's index list, both held after a switch), or the frustum
-/// walk (its lane groups' boxes, hits and frusta, and the lane groups).
+/// Slot scratch one packet of up to `q` quads takes in the generic walks,
+/// for the triangle test whose precomputation is largest: the per-quad
+/// arrays of `Packet` (live lanes, `QuadBox`, precomputation, far ends),
+/// the lane groups, Masked's masks and Partition's index list (both held
+/// after a switch). `bvh::scratch` adds the frustum walk's.
 pub(crate) const fn scratch(q: usize) -> usize {
-    let generic = bytes::<M4>(q)
+    bytes::<M4>(q)
         + bytes::<QuadBox>(q)
         + max(
             max(bytes::<Pre<Mt>>(q), bytes::<Pre<Wt>>(q)),
@@ -62,9 +62,7 @@ pub(crate) const fn scratch(q: usize) -> usize {
         + bytes::<F4>(q)
         + group::max_bytes(q)
         + bytes::<bool>(q)
-        + bytes::<u16>(q);
-    let frustum = super::traverse_frustum::bytes(q) + group::max_bytes(q);
-    max(generic, frustum)
+        + bytes::<u16>(q)
 }
 
 /// A triangle test's per-quad precomputation.
@@ -132,11 +130,6 @@ pub(crate) fn wide_walk_applies(tiny: bool, b: &BvhView<'_>, start: (usize, usiz
 
 /// A large-packet traversal: walks one prepared packet through the tree.
 pub(crate) trait Walk {
-    /// Whether the walk reads the packet's plane frustum (section 4);
-    /// without, the packet is set up without one (culling changes no
-    /// answer, only the work).
-    const PLANES: bool = true;
-
     /// `start`: the node to start at and its depth (the root: `(0, 0)`);
     /// `slot`: the scratch left after the packet's (for per-quad state).
     fn walk<L: Wide, T: TriangleTest, const ANY: bool>(
@@ -148,38 +141,21 @@ pub(crate) trait Walk {
         slot: &mut Slot<'_>,
         ctr: &mut Counters,
     );
-
-    /// A walk that sets up its own packets: true when it traced the
-    /// packet (answers written, packet and rays counted), false when it
-    /// wrote and counted nothing and the generic setup (`Lanes::new`)
-    /// and `walk` are to take it.
-    #[inline(always)]
-    fn own_setup<L: Wide, T: TriangleTest, const ANY: bool>(
-        b: &BvhView<'_>,
-        pk: PacketIn<'_>,
-        start: (usize, usize),
-        slot: &mut Slot<'_>,
-        ctr: &mut Counters,
-    ) -> bool {
-        let _ = (b, pk, start, slot, ctr);
-        false
-    }
 }
 
-/// One packet as `Walk::own_setup` takes it: its quads, their active
-/// lanes, their hits, and `TraceParams::fallbacks`.
+/// One packet of at most `MAX_QUADS` quads (`trace::scene::Tracing::run`
+/// splits longer inputs): its quads, their active lanes and their hits,
+/// read up to the shortest length.
 pub(crate) struct PacketIn<'x> {
     pub rays: &'x [Ray4],
     pub active: &'x [M4],
     pub hits: &'x mut [Hit4],
-    pub fallbacks: bool,
 }
 
 /// A large-packet walk `Wk` on the packet contract
 /// (`accel::packet::PacketSig`) at a lane width: where the packet starts
-/// (the root, or with `TraceParams::entry` the MLRTA or AEPSA entry point
-/// of its frustum, `accel::packet::start`), then `dispatch`. Its `Kernel`
-/// is chosen once per call (`BvhView::kernel`).
+/// (`start`), then `walk_from`. Its `Kernel` is chosen once per call
+/// (`trace::scene`'s kernel table).
 pub struct Walked<Wk, T, const ANY: bool>(core::marker::PhantomData<(Wk, T)>);
 
 impl<'b, Wk: Walk, T: TriangleTest, const ANY: bool> isa::LaneFn<PacketSig<BvhView<'b>>>
@@ -188,41 +164,50 @@ impl<'b, Wk: Walk, T: TriangleTest, const ANY: bool> isa::LaneFn<PacketSig<BvhVi
     #[inline(always)]
     fn call<L: Wide>(args: PacketArgs<'_, BvhView<'b>>) {
         let (b, p, rays, active, hits, mut slot, ctr) = args;
-        let mut entry = None;
-        if p.entry != EntrySearch::None {
-            let root = b.nodes.first().map_or(Aabb::EMPTY, |n| n.aabb());
-            match packet::start(b, p, rays, active, &root, &mut slot, ctr).1 {
-                Start::Root => {}
-                Start::At(e) => entry = Some(e),
-                Start::Miss => return packet::all_miss(active, hits, ctr),
-            }
-        }
-        let e = entry.as_ref();
-        dispatch::<L, Wk, T, ANY>(b, rays, active, hits, p, e, &mut slot, ctr)
+        let pk = PacketIn { rays, active, hits };
+        let e = match start(b, p, &pk, &mut slot, ctr) {
+            Start::Root => None,
+            Start::At(e) => Some(e),
+            Start::Miss => return packet::all_miss(active, pk.hits, ctr),
+        };
+        walk_from::<L, Wk, T, ANY>(b, p, pk, e.as_ref(), &mut slot, ctr)
     }
 }
 
-/// Nearest hits (or with `ANY` occlusion) of the active lanes of `rays`
-/// into `hits` by the walk `Wk` on `L` lanes, the contract of every
-/// large-packet traversal: `rays.len()` quads form one packet (longer
-/// inputs: consecutive packets of 256 quads); `rays`, `active` and `hits`
-/// are read up to the shortest length. Active lanes are written
-/// (`Hit::MISS` when nothing is hit, and for invalid rays; for occlusion
-/// `prim != INVALID_ID` marks an occluded lane, with some occluder's t and
-/// id); inactive lanes are left untouched. `entry`: start every packet at
-/// this node instead of the root (an MLRTA or AEPSA entry point of a
-/// frustum bounding every live ray, see `bvh::entry`; a node outside the
-/// tree starts at the root). `slot`'s scratch holds the per-quad arrays
-/// (`scratch`).
-// The packet, its options and where it starts, and the slot's scratch.
-#[allow(clippy::too_many_arguments)]
+/// Where a packet starts: the root, or with `TraceParams::entry` the
+/// MLRTA or AEPSA entry point of its frustum (`accel::packet::start`;
+/// `Start::Miss` when the search proved every ray misses).
 #[inline(always)]
-fn dispatch<L: Wide, Wk: Walk, T: TriangleTest, const ANY: bool>(
+pub(crate) fn start(
     b: &BvhView<'_>,
-    rays: &[Ray4],
-    active: &[M4],
-    hits: &mut [Hit4],
+    p: &TraceParams,
+    pk: &PacketIn<'_>,
+    slot: &mut Slot<'_>,
+    ctr: &mut Counters,
+) -> Start {
+    if p.entry == EntrySearch::None {
+        return Start::Root;
+    }
+    let root = b.nodes.first().map_or(Aabb::EMPTY, |n| n.aabb());
+    packet::start(b, p, pk.rays, pk.active, &root, slot, ctr).1
+}
+
+/// Nearest hits (or with `ANY` occlusion) of the active lanes of one
+/// packet into its hits by the walk `Wk` on `L` lanes, the contract of
+/// every large-packet traversal: active lanes are written (`Hit::MISS`
+/// when nothing is hit, and for invalid rays; for occlusion `prim !=
+/// INVALID_ID` marks an occluded lane, with some occluder's t and id);
+/// inactive lanes are left untouched. `entry`: start at this node instead
+/// of the root (an MLRTA or AEPSA entry point of a frustum bounding every
+/// live ray, see `bvh::entry`; a node outside the tree starts at the
+/// root). `slot`'s scratch holds the per-quad arrays (`scratch`). The
+/// packet is set up and walked at the kernel's lane width, so the setup
+/// pass is compiled for the walk's ISA too.
+#[inline(always)]
+pub(crate) fn walk_from<L: Wide, Wk: Walk, T: TriangleTest, const ANY: bool>(
+    b: &BvhView<'_>,
     opt: &TraceParams,
+    pk: PacketIn<'_>,
     entry: Option<&EntryPoint>,
     slot: &mut Slot<'_>,
     ctr: &mut Counters,
@@ -233,93 +218,9 @@ fn dispatch<L: Wide, Wk: Walk, T: TriangleTest, const ANY: bool>(
         }
         _ => (0, 0),
     };
-    let n = rays.len().min(active.len()).min(hits.len());
-    // A walk that never reads the plane frustum is set up without one
-    // (a copy of the params only then).
-    let planeless;
-    let opt = if Wk::PLANES || !opt.bvh.culling {
-        opt
-    } else {
-        let mut o = *opt;
-        o.bvh.culling = false;
-        planeless = o;
-        &planeless
-    };
-    // Packets of up to `MAX_QUADS` quads, each set up and walked at the
-    // kernel's lane width, so the setup pass is compiled for the walk's
-    // ISA too. The per-quad arrays are slices of the slot's scratch, so no
-    // packet size class is needed.
-    for r in packet::packet_ranges(n) {
-        let (rays, active) = (&rays[r.clone()], &active[r.clone()]);
-        set_up_and_walk::<L, Wk, T, ANY>(b, rays, active, &mut hits[r], opt, start, slot, ctr);
-    }
-}
-
-/// `dispatch` at the lane width of `opt.isa`, for the unit tests that
-/// drive one walk from a given entry point (a trace call runs `Walked`).
-#[cfg(test)]
-#[allow(clippy::too_many_arguments)] // `dispatch`'s
-pub(crate) fn dispatch_at<Wk: Walk, T: TriangleTest, const ANY: bool>(
-    b: &BvhView<'_>,
-    rays: &[Ray4],
-    active: &[M4],
-    hits: &mut [Hit4],
-    opt: &TraceParams,
-    entry: Option<&EntryPoint>,
-    slot: &mut Slot<'_>,
-    ctr: &mut Counters,
-) {
-    struct Sig;
-    impl isa::Sig for Sig {
-        type Args<'a> = (
-            &'a BvhView<'a>,
-            &'a [Ray4],
-            &'a [M4],
-            &'a mut [Hit4],
-            &'a TraceParams,
-            Option<&'a EntryPoint>,
-            Slot<'a>,
-            &'a mut Counters,
-        );
-        type Out = ();
-    }
-    struct At<Wk, T, const ANY: bool>(core::marker::PhantomData<(Wk, T)>);
-    impl<Wk: Walk, T: TriangleTest, const ANY: bool> isa::LaneFn<Sig> for At<Wk, T, ANY> {
-        #[inline(always)]
-        fn call<L: Wide>(args: <Sig as isa::Sig>::Args<'_>) {
-            let (b, rays, active, hits, opt, entry, mut slot, ctr) = args;
-            dispatch::<L, Wk, T, ANY>(b, rays, active, hits, opt, entry, &mut slot, ctr)
-        }
-    }
-    let args = (b, rays, active, hits, opt, entry, slot.reborrow(), ctr);
-    isa::run_fn::<Sig, At<Wk, T, ANY>>(opt.isa, args)
-}
-
-/// One packet set up and walked on `L` lanes: the walk's own setup when
-/// it takes the packet (`Walk::own_setup`); else its lanes first (a packet
-/// with none live, or incoherent, takes no more scratch), then its
-/// per-quad arrays, then the walk.
-#[allow(clippy::too_many_arguments)] // `dispatch`'s, for one packet
-#[inline(always)]
-fn set_up_and_walk<L: Wide, Wk: Walk, T: TriangleTest, const ANY: bool>(
-    b: &BvhView<'_>,
-    rays: &[Ray4],
-    active: &[M4],
-    hits: &mut [Hit4],
-    opt: &TraceParams,
-    start: (usize, usize),
-    slot: &mut Slot<'_>,
-    ctr: &mut Counters,
-) {
-    let pk = PacketIn {
-        rays,
-        active,
-        hits: &mut *hits,
-        fallbacks: opt.fallbacks,
-    };
-    if Wk::own_setup::<L, T, ANY>(b, pk, start, slot, &mut *ctr) {
-        return;
-    }
+    let PacketIn { rays, active, hits } = pk;
+    // Its lanes first (a packet with none live, or incoherent, takes no
+    // more scratch), then its per-quad arrays, then the walk.
     let nq = rays.len().min(active.len()).min(hits.len());
     let (live, mut slot) = slot.split(nq, M4::FALSE);
     let Some(lanes) = Lanes::new(b, rays, active, hits, live, opt.fallbacks, ctr) else {
@@ -345,6 +246,82 @@ fn set_up_and_walk<L: Wide, Wk: Walk, T: TriangleTest, const ANY: bool>(
     };
     let mut p = Packet::<T>::new(b, rays, opt, lanes, quads, ctr);
     Wk::walk::<L, T, ANY>(&mut p, b, rays, hits, start, &mut slot, ctr)
+}
+
+/// A large-packet traversal the unit tests drive from a given entry point
+/// (`dispatch_at`): each `Walk` by `walk_from`; the frustum-first walk
+/// by its own start (`traverse_frustum::FrustumFirst::from`).
+#[cfg(test)]
+pub(crate) trait TestWalk {
+    fn packet<L: Wide, T: TriangleTest, const ANY: bool>(
+        b: &BvhView<'_>,
+        opt: &TraceParams,
+        pk: PacketIn<'_>,
+        entry: Option<&EntryPoint>,
+        slot: &mut Slot<'_>,
+        ctr: &mut Counters,
+    );
+}
+
+#[cfg(test)]
+impl<Wk: Walk> TestWalk for Wk {
+    #[inline(always)]
+    fn packet<L: Wide, T: TriangleTest, const ANY: bool>(
+        b: &BvhView<'_>,
+        opt: &TraceParams,
+        pk: PacketIn<'_>,
+        entry: Option<&EntryPoint>,
+        slot: &mut Slot<'_>,
+        ctr: &mut Counters,
+    ) {
+        walk_from::<L, Wk, T, ANY>(b, opt, pk, entry, slot, ctr)
+    }
+}
+
+/// `TestWalk::packet` at the lane width of `opt.isa` on an input of any
+/// length (consecutive packets of `MAX_QUADS` quads, as `Tracing::run`
+/// splits them), for the unit tests that drive one walk from a given entry
+/// point (a trace call runs the kernel table's choice).
+#[cfg(test)]
+pub(crate) fn dispatch_at<Wk: TestWalk, T: TriangleTest, const ANY: bool>(
+    b: &BvhView<'_>,
+    pk: PacketIn<'_>,
+    opt: &TraceParams,
+    entry: Option<&EntryPoint>,
+    slot: &mut Slot<'_>,
+    ctr: &mut Counters,
+) {
+    struct Sig;
+    impl isa::Sig for Sig {
+        type Args<'a> = (
+            &'a BvhView<'a>,
+            PacketIn<'a>,
+            &'a TraceParams,
+            Option<&'a EntryPoint>,
+            Slot<'a>,
+            &'a mut Counters,
+        );
+        type Out = ();
+    }
+    struct At<Wk, T, const ANY: bool>(core::marker::PhantomData<(Wk, T)>);
+    impl<Wk: TestWalk, T: TriangleTest, const ANY: bool> isa::LaneFn<Sig> for At<Wk, T, ANY> {
+        #[inline(always)]
+        fn call<L: Wide>(args: <Sig as isa::Sig>::Args<'_>) {
+            let (b, pk, opt, entry, mut slot, ctr) = args;
+            let PacketIn { rays, active, hits } = pk;
+            let n = rays.len().min(active.len()).min(hits.len());
+            for r in packet::packet_ranges(n) {
+                let pk = PacketIn {
+                    rays: &rays[r.clone()],
+                    active: &active[r.clone()],
+                    hits: &mut hits[r],
+                };
+                Wk::packet::<L, T, ANY>(b, opt, pk, entry, &mut slot, ctr)
+            }
+        }
+    }
+    let args = (b, pk, opt, entry, slot.reborrow(), ctr);
+    isa::run_fn::<Sig, At<Wk, T, ANY>>(opt.isa, args)
 }
 
 /// The live lanes' extremes quad by quad, of which the two-level packet

@@ -41,8 +41,8 @@
 //!   hold one triangle twice; it is tested twice and gives the same t.
 
 use super::PrimRef;
-use super::build::Box3;
 use super::build_spatial::clip;
+use super::refs::Box3;
 use crate::geom::{Scene, TriVerts};
 use crate::mem::par::{MAX_WORKERS, Par, Parts, share};
 use glam::Vec3A;

@@ -73,17 +73,19 @@
 //!   same for every kind (it bounds the lanes, not a camera model), so
 //!   camera, shadow, reflection and refraction packets take one path.
 
-use super::packet::{LaneBounds, Packet, PacketIn, Walk, wide_walk_applies};
+use super::packet::{self, LaneBounds, PacketIn};
 use super::traverse_ranged::Ranged;
 use super::traverse_wide::{Stack, WideRay, walk_from};
 use super::wide::{WIDTH, WideNode, insert_by};
 use super::{BvhView, MAX_DEPTH, TriangleTest};
 use crate::accel::fallback;
 use crate::accel::group::{self, Group};
+use crate::accel::packet::{PacketArgs, PacketSig, Start};
 use crate::accel::slot::Slot;
 use crate::counters::{Counters, count};
 use crate::geom::triangle::TriHit;
 use crate::geom::{F4, Hit, Hit4, INVALID_ID, M4, Ray4, RayLanes, Wide};
+use crate::isa;
 use glam::Vec4;
 
 /// Stack entries: an expansion pushes all (up to `WIDTH`) children it
@@ -714,40 +716,55 @@ fn first_group<L: Wide, const FR: bool>(
     lv.gb.len()
 }
 
-pub(crate) struct FrustumFirst;
+/// `Method::BvhFrustum` on the packet contract (`accel::packet::PacketSig`)
+/// at a lane width, its `Kernel` chosen once per call (`trace::scene`'s
+/// kernel table): a packet the wide walk takes (from the root, on a BVH
+/// with a wide tree, no live lane of tiny direction) is set up and walked
+/// here (`setup`); the others go to the binary Ranged walk with the
+/// generic setup (`bvh::packet::walk_from`).
+pub struct FrustumFirst<T, const ANY: bool>(core::marker::PhantomData<T>);
 
-impl Walk for FrustumFirst {
-    /// Its own frusta per lane group; the packet's planes are never read.
-    const PLANES: bool = false;
-
-    /// Packets the wide walk takes are set up here, lane group by lane
-    /// group (`setup`); the others (tiny directions, entry points, no wide
-    /// tree) go to the generic setup and `walk`.
+impl<'b, T: TriangleTest, const ANY: bool> isa::LaneFn<PacketSig<BvhView<'b>>>
+    for FrustumFirst<T, ANY>
+{
     #[inline(always)]
-    fn own_setup<L: Wide, T: TriangleTest, const ANY: bool>(
-        b: &BvhView<'_>,
-        pk: PacketIn<'_>,
-        start: (usize, usize),
-        slot: &mut Slot<'_>,
-        ctr: &mut Counters,
-    ) -> bool {
-        wide_walk_applies(false, b, start) && setup::<L, T, ANY>(b, pk, slot, ctr)
+    fn call<L: Wide>(args: PacketArgs<'_, BvhView<'b>>) {
+        let (b, p, rays, active, hits, mut slot, ctr) = args;
+        let pk = PacketIn { rays, active, hits };
+        let entry = match packet::start(b, p, &pk, &mut slot, ctr) {
+            Start::Root => None,
+            Start::At(e) => Some(e),
+            Start::Miss => return crate::accel::packet::all_miss(active, pk.hits, ctr),
+        };
+        Self::from::<L>(b, p, pk, entry.as_ref(), &mut slot, ctr)
     }
+}
 
-    /// Only the packets the wide walk does not take reach the generic
-    /// setup (entry points, no wide tree, tiny directions): the binary
-    /// Ranged walk answers them.
+impl<T: TriangleTest, const ANY: bool> FrustumFirst<T, ANY> {
+    /// One packet from `entry` (the root when `None`): the wide walk when
+    /// it takes the packet, else the binary Ranged walk.
     #[inline(always)]
-    fn walk<L: Wide, T: TriangleTest, const ANY: bool>(
-        p: &mut Packet<'_, T>,
+    pub(crate) fn from<L: Wide>(
         b: &BvhView<'_>,
-        rays: &[Ray4],
-        hits: &mut [Hit4],
-        start: (usize, usize),
+        p: &crate::accel::method::TraceParams,
+        pk: PacketIn<'_>,
+        entry: Option<&crate::accel::entry::EntryPoint>,
         slot: &mut Slot<'_>,
         ctr: &mut Counters,
     ) {
-        Ranged::walk::<L, T, ANY>(p, b, rays, hits, start, slot, ctr)
+        let PacketIn { rays, active, hits } = pk;
+        if entry.is_none() && !b.wide.is_empty() {
+            let whole = PacketIn {
+                rays,
+                active,
+                hits: &mut *hits,
+            };
+            if setup::<L, T, ANY>(b, whole, p.fallbacks, slot, ctr) {
+                return;
+            }
+        }
+        let pk = PacketIn { rays, active, hits };
+        packet::walk_from::<L, Ranged, T, ANY>(b, p, pk, entry, slot, ctr)
     }
 }
 
@@ -914,16 +931,12 @@ fn miss_active(hits: &mut [Hit4], active: &[M4]) {
 fn one<L: Wide, T: TriangleTest, const ANY: bool>(
     b: &BvhView<'_>,
     pk: PacketIn<'_>,
+    fallbacks: bool,
     slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) -> Outcome {
     // `setup` hands over slices of one length.
-    let PacketIn {
-        rays,
-        active,
-        hits,
-        fallbacks,
-    } = pk;
+    let PacketIn { rays, active, hits } = pk;
     let nq = rays.len();
     debug_assert!(active.len() == nq && hits.len() == nq);
     if nq == 0 {
@@ -1107,15 +1120,11 @@ const PARTS: usize = 16;
 fn setup<L: Wide, T: TriangleTest, const ANY: bool>(
     b: &BvhView<'_>,
     pk: PacketIn<'_>,
+    fallbacks: bool,
     slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) -> bool {
-    let PacketIn {
-        rays,
-        active,
-        hits,
-        fallbacks,
-    } = pk;
+    let PacketIn { rays, active, hits } = pk;
     let nq = rays.len().min(active.len()).min(hits.len());
     if b.nodes.is_empty() {
         return false;
@@ -1133,9 +1142,8 @@ fn setup<L: Wide, T: TriangleTest, const ANY: bool>(
             rays: &rays[s..e],
             active: &active[s..e],
             hits: &mut hits[s..e],
-            fallbacks,
         };
-        match one::<L, T, ANY>(b, part, slot, ctr) {
+        match one::<L, T, ANY>(b, part, fallbacks, slot, ctr) {
             Outcome::Done => {}
             // Only the whole packet can have a tiny lane (the parts are
             // of a packet without one).
@@ -1577,29 +1585,31 @@ fn leaf_group<L: Wide, T: TriangleTest, const ANY: bool>(
 #[cfg(test)]
 mod tests {
     use super::FrustumFirst;
-    use crate::accel::bvh::traverse_masked::tests::{
-        check_builtin, check_edge_cases, check_lattice,
-    };
+    use crate::accel::bvh::packet::{PacketIn, TestWalk};
+    use crate::accel::bvh::{BvhView, TriangleTest};
+    use crate::accel::entry::EntryPoint;
+    use crate::accel::method::TraceParams;
+    use crate::accel::slot::Slot;
+    use crate::counters::Counters;
+    use crate::geom::Wide;
 
-    #[test]
-    fn frustum_matches_single_tetra_gears() {
-        check_builtin::<FrustumFirst>(&["tetra", "gears"]);
+    /// The frustum-first walk as the shared walk checks drive it.
+    struct Frustum;
+
+    impl TestWalk for Frustum {
+        fn packet<L: Wide, T: TriangleTest, const ANY: bool>(
+            b: &BvhView<'_>,
+            opt: &TraceParams,
+            pk: PacketIn<'_>,
+            entry: Option<&EntryPoint>,
+            slot: &mut Slot<'_>,
+            ctr: &mut Counters,
+        ) {
+            FrustumFirst::<T, ANY>::from::<L>(b, opt, pk, entry, slot, ctr)
+        }
     }
 
-    #[test]
-    fn frustum_matches_single_balls_animated() {
-        check_builtin::<FrustumFirst>(&["balls", "animated"]);
-    }
-
-    #[test]
-    fn frustum_edge_cases() {
-        check_edge_cases::<FrustumFirst>();
-    }
-
-    #[test]
-    fn frustum_lattice() {
-        check_lattice::<FrustumFirst>();
-    }
+    crate::accel::bvh::traverse_masked::tests::walk_matches_single!(Frustum);
 
     /// Rays along -z whose x and y direction components are +0.0, -0.0 or
     /// both within one packet (reciprocals +inf and -inf, 0 x inf products
@@ -1648,10 +1658,10 @@ mod tests {
         for leaf in [1, 4] {
             let mut st = Store::new(0, false);
             let bvh = built::<Mt>(&mut st, &v, &ix, leaf);
-            check_sets::<FrustumFirst, Mt>("axis", &bvh.view().unwrap(), &sets);
+            check_sets::<Frustum, Mt>("axis", &bvh.view().unwrap(), &sets);
             let mut st = Store::new(0, false);
             let bvh = built::<Wt>(&mut st, &v, &ix, leaf);
-            check_sets::<FrustumFirst, Wt>("axis", &bvh.view().unwrap(), &sets);
+            check_sets::<Frustum, Wt>("axis", &bvh.view().unwrap(), &sets);
         }
     }
 }

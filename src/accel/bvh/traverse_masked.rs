@@ -64,7 +64,7 @@
 //! `packets_no_cull` when culling is on but no frustum could be built.
 
 use super::packet::{Packet, Walk};
-use super::traverse_partition::Partition;
+use super::traverse_partition::{Partition, Subtree};
 use super::{BvhView, MAX_DEPTH, TriangleTest};
 use crate::accel::fallback;
 use crate::accel::slot::Slot;
@@ -97,7 +97,8 @@ pub(crate) fn to_partition<L: Wide, T: TriangleTest, const ANY: bool>(
     // One index list for every subtree: each walk refills it.
     let (idx, _) = slot.split(p.nq, 0u16);
     for (node, depth, first) in pending {
-        Partition::walk_from::<L, T, ANY>(p, b, rays, hits, (node, depth), first, idx, ctr);
+        let from = Subtree { node, depth, first };
+        Partition::walk_from::<L, T, ANY>(p, b, rays, hits, from, idx, ctr);
         if ANY && p.done() {
             return;
         }
@@ -203,6 +204,7 @@ pub(crate) mod tests {
     use crate::accel::bvh::build::build;
     use crate::accel::bvh::build::testutil::Store;
     use crate::accel::bvh::packet::dispatch_at as dispatch;
+    use crate::accel::bvh::packet::{PacketIn, TestWalk};
     use crate::accel::bvh::traverse_single;
     use crate::accel::bvh::{BvhParams, RayKind};
     use crate::accel::entry::EntryPoint;
@@ -236,21 +238,26 @@ pub(crate) mod tests {
     /// An entry-point search per packet: `(tree, quads, active, options)`.
     pub type Search<'s> = &'s dyn Fn(&BvhView<'_>, &[Ray4], &[M4], &TraceParams) -> Start;
 
+    /// What a checked packet's lanes must answer: `reference(quad, lane)`,
+    /// the single ray's hit, and `what()`, the case named in a failure.
+    pub struct Expect<'a> {
+        pub reference: &'a dyn Fn(usize, usize) -> Hit,
+        pub what: &'a dyn Fn() -> String,
+    }
+
     /// Trace `quads` (a packet, or several concatenated) with traversal `W`
     /// from `start` and compare every lane with `traverse_single`; returns
     /// the counters.
-    // Test harness: one argument per traversal input and reference.
-    #[allow(clippy::too_many_arguments)]
-    pub fn check_packet<W: Walk, T: TriangleTest>(
+    pub fn check_packet<W: TestWalk, T: TriangleTest>(
         b: &BvhView<'_>,
         quads: &[Ray4],
         active: &[M4],
         opt: &TraceParams,
         start: Start,
         any: bool,
-        reference: &dyn Fn(usize, usize) -> Hit,
-        what: &dyn Fn() -> String,
+        expect: Expect<'_>,
     ) -> Counters {
+        let Expect { reference, what } = expect;
         let mut fill = Hit4::MISS;
         for i in 0..4 {
             fill.set_lane(i, SENTINEL);
@@ -287,9 +294,19 @@ pub(crate) mod tests {
             let mut slot = Slot::new(Mailbox::new(&mut [], &mut pk), Scratch::new(&mut raw[1..]));
             let s = &mut slot;
             if traced && any {
-                dispatch::<W, T, true>(b, quads, active, &mut hits, opt, entry, s, &mut ctr);
+                let pk = PacketIn {
+                    rays: quads,
+                    active,
+                    hits: &mut hits,
+                };
+                dispatch::<W, T, true>(b, pk, opt, entry, s, &mut ctr);
             } else if traced {
-                dispatch::<W, T, false>(b, quads, active, &mut hits, opt, entry, s, &mut ctr);
+                let pk = PacketIn {
+                    rays: quads,
+                    active,
+                    hits: &mut hits,
+                };
+                dispatch::<W, T, false>(b, pk, opt, entry, s, &mut ctr);
             }
         });
         let mut valid = 0;
@@ -348,7 +365,7 @@ pub(crate) mod tests {
     /// Every set at every packet side, culling on and off, every kind of
     /// the set, nearest hit and occlusion; then the whole image as one input
     /// (chunks of 256 quads) and a 3-quad packet.
-    pub fn check_sets<W: Walk, T: TriangleTest>(
+    pub fn check_sets<W: TestWalk, T: TriangleTest>(
         name: &str,
         b: &BvhView<'_>,
         sets: &[RaySet],
@@ -358,7 +375,7 @@ pub(crate) mod tests {
 
     /// `check_sets` with every packet (and every whole input) started
     /// where `search` says.
-    pub fn check_sets_from<W: Walk, T: TriangleTest>(
+    pub fn check_sets_from<W: TestWalk, T: TriangleTest>(
         name: &str,
         b: &BvhView<'_>,
         sets: &[RaySet],
@@ -419,8 +436,10 @@ pub(crate) mod tests {
                                     &opt,
                                     start,
                                     any,
-                                    &|q, i| reference(&pix, q, i, any),
-                                    &what,
+                                    Expect {
+                                        reference: &|q, i| reference(&pix, q, i, any),
+                                        what: &what,
+                                    },
                                 );
                                 total.add(&c);
                             }
@@ -455,8 +474,10 @@ pub(crate) mod tests {
                         &opt,
                         start,
                         any,
-                        &|q, i| reference(&pix, s + q, i, any),
-                        &what,
+                        Expect {
+                            reference: &|q, i| reference(&pix, s + q, i, any),
+                            what: &what,
+                        },
                     );
                 }
             }
@@ -465,7 +486,7 @@ pub(crate) mod tests {
     }
 
     /// `check_sets` over the ray sets of every view of a scene.
-    pub fn check_scene<W: Walk, T: TriangleTest>(
+    pub fn check_scene<W: TestWalk, T: TriangleTest>(
         name: &str,
         v: &[f32],
         ix: &[u32],
@@ -491,7 +512,7 @@ pub(crate) mod tests {
         total
     }
 
-    pub fn check_lattice<W: Walk>() {
+    pub fn check_lattice<W: TestWalk>() {
         let (v, ix, sets) = lattice();
         for leaf in [1, 4] {
             let mut st = Store::new(0, false);
@@ -510,7 +531,7 @@ pub(crate) mod tests {
     /// watertight tests (and the projection test on one scene), on the
     /// scene's first view (tests/exact/bvh_exact.rs checks every view, through
     /// the trace calls, at every lane width).
-    pub fn check_builtin<W: Walk>(scenes: &[&str]) {
+    pub fn check_builtin<W: TestWalk>(scenes: &[&str]) {
         for &name in scenes {
             let s = crate::scenes::builtin(name).unwrap();
             let views = &s.views[..1];
@@ -530,7 +551,7 @@ pub(crate) mod tests {
     }
 
     /// Degenerate inputs: an empty BVH, coincident triangles (ties).
-    pub fn check_edge_cases<W: Walk>() {
+    pub fn check_edge_cases<W: TestWalk>() {
         let view = crate::scenes::View {
             eye: Vec3::new(0.3, 0.2, 3.0),
             look_at: Vec3::new(0.3, 0.2, 0.0),
@@ -649,6 +670,9 @@ pub(crate) mod tests {
         use crate::accel::bvh::traverse_simd;
         use crate::accel::slot::SlotBuf;
         use std::time::Instant;
+        fn packet_in<'x>(rays: &'x [Ray4], active: &'x [M4], hits: &'x mut [Hit4]) -> PacketIn<'x> {
+            PacketIn { rays, active, hits }
+        }
         let mut scenes: Vec<(String, Vec<f32>, Vec<u32>, crate::scenes::View)> = Vec::new();
         let s = crate::scenes::builtin("balls").unwrap();
         scenes.push((
@@ -759,7 +783,14 @@ pub(crate) mod tests {
                     Box::new({
                         let mut own = SlotBuf::new(0);
                         move |q, a, hs, c| {
-                            dispatch::<Masked, Mt, false>(b, q, a, hs, &o, None, &mut own.slot(), c)
+                            dispatch::<Masked, Mt, false>(
+                                b,
+                                packet_in(q, a, hs),
+                                &o,
+                                None,
+                                &mut own.slot(),
+                                c,
+                            )
                         }
                     }),
                 ));
@@ -769,7 +800,14 @@ pub(crate) mod tests {
                     Box::new({
                         let mut own = SlotBuf::new(0);
                         move |q, a, hs, c| {
-                            dispatch::<Ranged, Mt, false>(b, q, a, hs, &o, None, &mut own.slot(), c)
+                            dispatch::<Ranged, Mt, false>(
+                                b,
+                                packet_in(q, a, hs),
+                                &o,
+                                None,
+                                &mut own.slot(),
+                                c,
+                            )
                         }
                     }),
                 ));
@@ -781,9 +819,7 @@ pub(crate) mod tests {
                         move |q, a, hs, c| {
                             dispatch::<Partition, Mt, false>(
                                 b,
-                                q,
-                                a,
-                                hs,
+                                packet_in(q, a, hs),
                                 &o,
                                 None,
                                 &mut own.slot(),
@@ -828,23 +864,37 @@ pub(crate) mod tests {
         }
     }
 
-    #[test]
-    fn masked_matches_single_tetra_gears() {
-        check_builtin::<Masked>(&["tetra", "gears"]);
-    }
+    /// The checks every large-packet walk `$W` (a `TestWalk`) runs
+    /// against the single ray, written once: the built-in scenes, the
+    /// edge cases, the lattice.
+    macro_rules! walk_matches_single {
+        ($W:ty) => {
+            #[test]
+            fn matches_single_tetra_gears() {
+                $crate::accel::bvh::traverse_masked::tests::check_builtin::<$W>(&[
+                    "tetra", "gears",
+                ]);
+            }
 
-    #[test]
-    fn masked_matches_single_balls_animated() {
-        check_builtin::<Masked>(&["balls", "animated"]);
-    }
+            #[test]
+            fn matches_single_balls_animated() {
+                $crate::accel::bvh::traverse_masked::tests::check_builtin::<$W>(&[
+                    "balls", "animated",
+                ]);
+            }
 
-    #[test]
-    fn masked_edge_cases() {
-        check_edge_cases::<Masked>();
-    }
+            #[test]
+            fn matches_single_edge_cases() {
+                $crate::accel::bvh::traverse_masked::tests::check_edge_cases::<$W>();
+            }
 
-    #[test]
-    fn masked_lattice() {
-        check_lattice::<Masked>();
+            #[test]
+            fn matches_single_lattice() {
+                $crate::accel::bvh::traverse_masked::tests::check_lattice::<$W>();
+            }
+        };
     }
+    pub(crate) use walk_matches_single;
+
+    walk_matches_single!(Masked);
 }

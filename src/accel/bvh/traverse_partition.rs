@@ -70,28 +70,39 @@ impl Walk for Partition {
         ctr: &mut Counters,
     ) {
         let (idx, _) = slot.split(p.nq, 0u16);
-        Self::walk_from::<L, T, ANY>(p, b, rays, hits, start, 0, idx, ctr)
+        let from = Subtree {
+            node: start.0,
+            depth: start.1,
+            first: 0,
+        };
+        Self::walk_from::<L, T, ANY>(p, b, rays, hits, from, idx, ctr)
     }
 }
 
+/// Where a Partition walk starts: at `node` (at `depth`), with `I`
+/// holding the live quads from `first` on (quads before it known dead
+/// below `node`, as Ranged's `i_a`; a walk from the root passes 0).
+#[derive(Clone, Copy)]
+pub(crate) struct Subtree {
+    pub node: usize,
+    pub depth: usize,
+    pub first: usize,
+}
+
 impl Partition {
-    /// `walk` with `I` holding the live quads from `first` on (quads
-    /// before it known dead below `start`, as Ranged's `i_a`; Masked
-    /// passes 0). `idx`: room for `I` (`p.nq` entries, from the slot's
-    /// scratch; its contents are not read).
-    // `walk`'s arguments, and where `I` starts and lives.
-    #[allow(clippy::too_many_arguments)]
+    /// `walk` from `from`. `idx`: room for `I` (`p.nq` entries, from the
+    /// slot's scratch; its contents are not read).
     #[inline(always)]
     pub(crate) fn walk_from<L: Wide, T: TriangleTest, const ANY: bool>(
         p: &mut Packet<'_, T>,
         b: &BvhView<'_>,
         rays: &[Ray4],
         hits: &mut [Hit4],
-        start: (usize, usize),
-        first: usize,
+        from: Subtree,
         idx: &mut [u16],
         ctr: &mut Counters,
     ) {
+        let (start, first) = ((from.node, from.depth), from.first);
         let nodes = b.nodes;
         // I: the quads with live lanes.
         let mut ia = 0usize;
@@ -153,27 +164,5 @@ impl Partition {
 #[cfg(test)]
 mod tests {
     use super::Partition;
-    use crate::accel::bvh::traverse_masked::tests::{
-        check_builtin, check_edge_cases, check_lattice,
-    };
-
-    #[test]
-    fn partition_matches_single_tetra_gears() {
-        check_builtin::<Partition>(&["tetra", "gears"]);
-    }
-
-    #[test]
-    fn partition_matches_single_balls_animated() {
-        check_builtin::<Partition>(&["balls", "animated"]);
-    }
-
-    #[test]
-    fn partition_edge_cases() {
-        check_edge_cases::<Partition>();
-    }
-
-    #[test]
-    fn partition_lattice() {
-        check_lattice::<Partition>();
-    }
+    crate::accel::bvh::traverse_masked::tests::walk_matches_single!(Partition);
 }

@@ -28,7 +28,7 @@
 //!   time once the coherence test is in (`sheaf bench --stress`).
 
 use super::packet::{Packet, Walk};
-use super::{BvhNode, BvhView, MAX_DEPTH, TriangleTest};
+use super::{BvhNode, BvhView, LeafAt, MAX_DEPTH, TriangleTest};
 use crate::accel::slot::Slot;
 use crate::counters::Counters;
 use crate::geom::{Hit4, Ray4, Wide};
@@ -78,23 +78,20 @@ pub(crate) fn last_hit<T: TriangleTest>(
 }
 
 /// Appendix A.1's leaf: every quad in `[ia, ie)` against each stored
-/// triangle of `leaf` (first, count) the frustum does not cull. True when
-/// every lane is done (occlusion).
-// The packet and its quad groups, the leaf and its quad range, counters.
-#[allow(clippy::too_many_arguments)]
+/// triangle of leaf `at` the frustum does not cull. True when every lane
+/// is done (occlusion).
 #[inline(always)]
 pub(crate) fn test_leaf<L: Wide, T: TriangleTest, const ANY: bool>(
     p: &mut Packet<'_, T>,
     b: &BvhView<'_>,
     hits: &mut [Hit4],
     grp: &[crate::accel::group::Group<L, T>],
-    leaf: (u32, u32),
+    at: LeafAt,
     (ia, ie): (usize, usize),
-    depth: usize,
     ctr: &mut Counters,
 ) -> bool {
-    let first = leaf.0 as usize;
-    for j in first..first + leaf.1 as usize {
+    let (first, depth) = (at.first as usize, at.depth);
+    for j in first..first + at.count as usize {
         if p.frustum_culls(b, j, ctr) {
             continue;
         }
@@ -151,8 +148,8 @@ impl Walk for Ranged {
                     continue;
                 }
                 let ie = last_hit(p, n, ia, depth, ctr);
-                let leaf = (n.first, n.count());
-                if test_leaf::<L, T, ANY>(p, b, hits, grp, leaf, (ia, ie), depth, ctr) {
+                let leaf = n.leaf_at(depth);
+                if test_leaf::<L, T, ANY>(p, b, hits, grp, leaf, (ia, ie), ctr) {
                     return;
                 }
             }
@@ -170,27 +167,5 @@ impl Walk for Ranged {
 #[cfg(test)]
 mod tests {
     use super::Ranged;
-    use crate::accel::bvh::traverse_masked::tests::{
-        check_builtin, check_edge_cases, check_lattice,
-    };
-
-    #[test]
-    fn ranged_matches_single_tetra_gears() {
-        check_builtin::<Ranged>(&["tetra", "gears"]);
-    }
-
-    #[test]
-    fn ranged_matches_single_balls_animated() {
-        check_builtin::<Ranged>(&["balls", "animated"]);
-    }
-
-    #[test]
-    fn ranged_edge_cases() {
-        check_edge_cases::<Ranged>();
-    }
-
-    #[test]
-    fn ranged_lattice() {
-        check_lattice::<Ranged>();
-    }
+    crate::accel::bvh::traverse_masked::tests::walk_matches_single!(Ranged);
 }

@@ -12,7 +12,7 @@
 //! `[tmin, min(tmax, best.t)]` (inclusive) misses it, so a triangle at
 //! exactly `best.t` with a lower id is still found.
 
-use super::{BvhNode, BvhView, MAX_DEPTH, TriangleTest};
+use super::{BvhNode, BvhView, LeafAt, MAX_DEPTH, TriangleTest};
 use crate::counters::Counters;
 use crate::geom::closer;
 use crate::geom::{Hit, Ray, RayLanes};
@@ -154,7 +154,7 @@ pub(crate) fn walk<T: TriangleTest, const ANY: bool>(
                 }
                 (None, None) => {}
             }
-        } else if leaf::<T, ANY>(b, &lanes, &pre, n.first, n.count(), depth, &mut best, ctr) {
+        } else if leaf::<T, ANY>(b, &lanes, &pre, n.leaf_at(depth), &mut best, ctr) {
             return best;
         }
         // Pop the next node whose entry is not beyond the nearest hit.
@@ -172,25 +172,21 @@ pub(crate) fn walk<T: TriangleTest, const ANY: bool>(
     }
 }
 
-/// Test the `count` stored triangles from `first` against the ray, keeping
-/// the nearest hit in `best` (the tie rule of `geom::closer`); with `ANY`,
+/// Test the stored triangles of leaf `at` against the ray, keeping the
+/// nearest hit in `best` (the tie rule of `geom::closer`); with `ANY`,
 /// true as soon as one is hit (the walk may stop). The leaf test of both
 /// single-ray walks, binary and wide.
-// The ray's lanes and precomputation, the leaf, the running hit, counters.
-#[allow(clippy::too_many_arguments)]
 #[inline(always)]
 pub(crate) fn leaf<T: TriangleTest, const ANY: bool>(
     b: &BvhView<'_>,
     lanes: &RayLanes<f32>,
     pre: &T::Pre<f32>,
-    first: u32,
-    count: u32,
-    depth: usize,
+    at: LeafAt,
     best: &mut Hit,
     ctr: &mut Counters,
 ) -> bool {
-    let first = first as usize;
-    for i in first..first + count as usize {
+    let (first, depth) = (at.first as usize, at.depth);
+    for i in first..first + at.count as usize {
         ctr.tri_at(depth, 1);
         let tri = T::prim(b.store(), i);
         let mut h = T::intersect(lanes, pre, tri);
@@ -238,20 +234,17 @@ fn take(
 /// (a repeat never beats itself under `closer`). Lanes are taken in order
 /// and `closer` orders hits by (t, id), so the nearest is the scalar
 /// loop's, and each lane's t, u, v are the scalar test's bits.
-// The ray in both forms, the leaf, the running hit, counters.
-#[allow(clippy::too_many_arguments)]
 #[inline(always)]
 pub(crate) fn leaf4<T: TriangleTest, const ANY: bool>(
     b: &BvhView<'_>,
     lanes4: &RayLanes<crate::geom::F4>,
     pre4: &T::Pre<crate::geom::F4>,
-    first: u32,
-    count: u32,
-    depth: usize,
+    at: LeafAt,
     best: &mut Hit,
     ctr: &mut Counters,
 ) -> bool {
-    let (first, end) = (first as usize, (first + count) as usize);
+    let depth = at.depth;
+    let (first, end) = (at.first as usize, (at.first + at.count) as usize);
     let mut g = first;
     while g < end {
         let idx = core::array::from_fn(|k| (g + k).min(end - 1));

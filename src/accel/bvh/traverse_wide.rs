@@ -33,7 +33,7 @@
 
 use super::traverse_single::{leaf4, walk as binary_walk};
 use super::wide::{WIDTH, insert_by};
-use super::{BvhView, TriangleTest};
+use super::{BvhView, LeafAt, TriangleTest};
 use crate::accel::packet::{PacketArgs, PacketSig};
 use crate::counters::Counters;
 use crate::geom::{Hit, Ray, RayLanes, Wide};
@@ -179,7 +179,12 @@ pub(crate) fn walk_from<T: TriangleTest, const ANY: bool, const N: usize>(
     let mut sp = 0usize;
     loop {
         if count > 0 {
-            if leaf4::<T, ANY>(b, &r.lanes, &r.pre, child, count, depth, best, ctr) {
+            let at = LeafAt {
+                first: child,
+                count,
+                depth,
+            };
+            if leaf4::<T, ANY>(b, &r.lanes, &r.pre, at, best, ctr) {
                 return Some(true);
             }
         } else {

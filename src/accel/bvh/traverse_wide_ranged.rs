@@ -30,7 +30,7 @@
 use super::packet::{Packet, Walk, wide_walk_applies};
 use super::traverse_ranged::{Ranged, first_hit, last_hit, test_leaf};
 use super::wide::{WIDTH, WideNode, insert_by};
-use super::{BvhNode, BvhView, MAX_DEPTH, TriangleTest};
+use super::{BvhNode, BvhView, LeafAt, MAX_DEPTH, TriangleTest};
 use crate::accel::slot::Slot;
 use crate::counters::Counters;
 use crate::geom::{Hit4, Ray4, Wide};
@@ -137,8 +137,12 @@ impl Walk for WideRanged {
                         }
                     } else {
                         let ie = last_hit(p, &cb, ia, depth, ctr);
-                        let leaf = (n.child[c], n.count[c]);
-                        if test_leaf::<L, T, ANY>(p, b, hits, grp, leaf, (ia, ie), depth, ctr) {
+                        let leaf = LeafAt {
+                            first: n.child[c],
+                            count: n.count[c],
+                            depth,
+                        };
+                        if test_leaf::<L, T, ANY>(p, b, hits, grp, leaf, (ia, ie), ctr) {
                             return;
                         }
                         Step::Pop
@@ -187,27 +191,5 @@ impl Walk for WideRanged {
 #[cfg(test)]
 mod tests {
     use super::WideRanged;
-    use crate::accel::bvh::traverse_masked::tests::{
-        check_builtin, check_edge_cases, check_lattice,
-    };
-
-    #[test]
-    fn wide_ranged_matches_single_tetra_gears() {
-        check_builtin::<WideRanged>(&["tetra", "gears"]);
-    }
-
-    #[test]
-    fn wide_ranged_matches_single_balls_animated() {
-        check_builtin::<WideRanged>(&["balls", "animated"]);
-    }
-
-    #[test]
-    fn wide_ranged_edge_cases() {
-        check_edge_cases::<WideRanged>();
-    }
-
-    #[test]
-    fn wide_ranged_lattice() {
-        check_lattice::<WideRanged>();
-    }
+    crate::accel::bvh::traverse_masked::tests::walk_matches_single!(WideRanged);
 }

@@ -21,8 +21,6 @@ pub mod build;
 pub mod traverse_cgt;
 pub mod traverse_single;
 
-use crate::accel::method::{Method, TraceParams};
-use crate::accel::packet::{Kernel, at, lane_by_lane_kernel};
 use crate::counters::Counters;
 use crate::error::Result;
 use crate::geom::{Aabb, Hit, Hook, ProjTri, Ray, TriTest, TriVerts, TriangleTest};
@@ -264,11 +262,5 @@ impl crate::accel::Accel for GridView<'_> {
     #[inline]
     fn any_hit<T: TriangleTest>(&self, ray: &Ray, ctr: &mut Counters) -> Hit {
         traverse_single::any_hit::<T>(self, ray, ctr)
-    }
-    fn kernel<T: TriangleTest, const ANY: bool>(p: &TraceParams) -> Kernel<Self> {
-        match p.method {
-            Method::GridCgt => at::<Self, traverse_cgt::Cgt<T, ANY>>(p),
-            _ => lane_by_lane_kernel::<Self, T, ANY>(),
-        }
     }
 }

@@ -46,8 +46,6 @@ pub mod traverse_simd;
 pub mod traverse_single;
 
 use crate::accel::bvh::BuildQuality;
-use crate::accel::method::{Method, TraceParams};
-use crate::accel::packet::{Kernel, at, baseline, lane_by_lane_kernel};
 use crate::counters::Counters;
 use crate::error::Result;
 use crate::geom::{Aabb, Hit, Hook, M4, ProjTri, Ray, TriTest, TriVerts, TriangleTest};
@@ -446,16 +444,5 @@ impl crate::accel::Accel for KdView<'_> {
     #[inline]
     fn any_hit<T: TriangleTest>(&self, ray: &Ray, ctr: &mut Counters) -> Hit {
         traverse_single::any_hit::<T>(self, ray, ctr)
-    }
-    fn kernel<T: TriangleTest, const ANY: bool>(p: &TraceParams) -> Kernel<Self> {
-        match p.method {
-            Method::KdSimd => baseline::<Self, traverse_simd::Simd<T, ANY>>(),
-            Method::KdPacket => {
-                use traverse_packet::{Packets, with_class};
-                let nq = crate::accel::packet::quads(p.packet);
-                with_class!(nq, |Q| at::<Self, Packets<T, ANY, Q>>(p))
-            }
-            _ => lane_by_lane_kernel::<Self, T, ANY>(),
-        }
     }
 }

@@ -1457,7 +1457,12 @@ mod tests {
                     let mut x = 0;
                     for (q, a, _) in p16 {
                         let s = &mut own.slot();
-                        dispatch::<Masked, Mt, false>(b, q, a, &mut h16, &opt, None, s, c);
+                        let pk = crate::accel::bvh::packet::PacketIn {
+                            rays: q,
+                            active: a,
+                            hits: &mut h16,
+                        };
+                        dispatch::<Masked, Mt, false>(b, pk, &opt, None, s, c);
                         x += sum(&h16);
                     }
                     x

@@ -45,7 +45,7 @@ use glam::Vec3;
 
 /// Slot scratch of a deferred frame whose tiles have up to `q` quads,
 /// `traced` being what the tiny-lane split and a family take under a traced
-/// pass (`accel::slot::accel_scratch`): the most of a traced tile (quads,
+/// pass (`context::accel_scratch`): the most of a traced tile (quads,
 /// masks, hits, shadow distances, and the traced pass under them), a
 /// perspective-grid sorting tile (quads, masks, hits, and
 /// `traverse_primary::scratch`) and a light-grid shadow batch (quads,
