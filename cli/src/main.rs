@@ -462,7 +462,7 @@ pub struct RenderArgs {
     pub materials: MaterialsArg,
     /// Method for reflection and refraction rays (default: the primary method; bvh-partition
     /// when that is bvh-masked or bvh-ranged at 16x16 or more, as the BVH paper recommends;
-    /// bvh-frustum's secondary packets are faster than Partition's, docs/studies.md).
+    /// bvh-frustum's secondary packets are faster than Partition's, docs/studies/whitted.md).
     #[arg(long, value_enum)]
     pub secondary_method: Option<MethodArg>,
     /// Camera rays of a deferred frame: pgrid (a perspective grid built per frame) or a method

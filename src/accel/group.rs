@@ -8,7 +8,7 @@
 //! 4-wide quads; only the triangle test, where the cycles of a leaf go,
 //! runs wide. Groups are joined once per packet (`join`), not per test:
 //! joining per test was measured slower than the 4-wide test it feeds
-//! (docs/studies.md, "Lane widths and the packet setup").
+//! (docs/studies/lane-widths.md, "The packet setup and the first wide lanes").
 //!
 //! # Exactness
 //! The wide triangle tests are the 4-wide tests lane for lane (element-wise

@@ -173,7 +173,7 @@ impl Hook<'_> {
     }
     /// Out of line and cold, as `bits_on` and `quad`: the walks' hot loops
     /// keep only the test of `on` (inlined, unfiltered conference camera
-    /// packets lost 2.7 %; out of line, within noise: docs/studies.md).
+    /// packets lost 2.7 %; out of line, within noise: docs/studies/filters.md).
     #[cold]
     #[inline(never)]
     fn accept(&self, org: [f32; 3], dir: [f32; 3], t: f32, u: f32, v: f32, prim: u32) -> bool {

@@ -5,8 +5,8 @@
 //! `geom::wide::F16` states the same lanes as plain arrays. LLVM turns its
 //! arithmetic into zmm instructions, but not its mask-to-bits reductions:
 //! each `mask_bits` / `le_bits` became a chain of about ten shuffles and
-//! ors (8% of the frustum walk's samples on crytek sponza; docs/studies.md,
-//! "Lanes in registers"), and it split some slab tests into scalar lanes to
+//! ors (8% of the frustum walk's samples on crytek sponza;
+//! docs/studies/lane-widths.md, "Lanes in registers"), and it split some slab tests into scalar lanes to
 //! feed them. `Z16` is what `isa::Chosen` instantiates inside its `avx512f`
 //! function; `F16` stays for the emulated level (`set_emulation`) on
 //! machines without AVX-512.

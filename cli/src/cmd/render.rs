@@ -110,7 +110,7 @@ pub fn render(a: &RenderArgs) -> Result<()> {
         },
         // The paper's recommendation for its own traversals; the frustum
         // walk's secondary packets beat Partition's (Whitted frames 1.05-1.29x
-        // faster on four scenes, docs/studies.md).
+        // faster on four scenes, docs/studies/whitted.md).
         None if matches!(
             primary.method,
             sheaf::Method::BvhMasked | sheaf::Method::BvhRanged

@@ -166,7 +166,7 @@ pub struct BvhParams {
     /// the reference reserve `Limits::max_bvh_refs` sizes (nothing without
     /// one). Off by default: on crytek sponza it cuts a camera ray's box
     /// tests by a fifth, but it doubles the build's time and leaves the
-    /// other test scenes' trees alike (docs/studies.md, "Pre-splitting the
+    /// other test scenes' trees alike (docs/studies/bvh-build.md, "Pre-splitting the
     /// fast build"), so it pays only where a build is traced by many rays.
     pub presplit: bool,
 }

@@ -302,8 +302,8 @@ type Signs = [i8; 3];
 
 /// Packets of fewer lanes (rays, counting a last group's padding) have no
 /// group frusta, and their own instance of the walk. Measured (AVX-512,
-/// interleaved A/B against Embree-16; docs/studies.md, "Group frusta made
-/// by reductions"): with frusta, 8x8 camera packets (64 lanes, 4 groups)
+/// interleaved A/B against Embree-16; docs/studies/bvh-traversal.md, "How
+/// the walk got here"): with frusta, 8x8 camera packets (64 lanes, 4 groups)
 /// traced 7 % slower on crytek sponza; 16x16 (256 lanes) within
 /// -3 % .. +5 % on sponza and conference, 32x32 8-30 % faster on sponza,
 /// conference and legocar. Counted in lanes, not groups, so that narrower ISA levels
@@ -1391,7 +1391,7 @@ fn walk_tree<L: Wide, T: TriangleTest, const ANY: bool, const FR: bool>(
 
 /// Occlusion packets with at most this many live lanes left finish them one
 /// by one (`finish_alone`). Measured (AVX-512, 16x16 shadow packets;
-/// docs/studies.md, "Fewer instructions per hit and per packet"): 0 to 16
+/// docs/studies/bvh-traversal.md, "Tried and dropped"): 0 to 16
 /// lanes trace alike on sponza and conference, 64 lanes is 4 % slower; the
 /// frustum walk's leaves already test only the groups with an entering
 /// lane.

@@ -145,8 +145,7 @@ fn range(nodes: &[BvhNode], c: usize, merge: u32) -> Option<(u32, u32)> {
 /// on the SAH trees it cost 2.7x the binary tree's triangle tests per
 /// camera ray (crytek sponza 13.4 against 5.0, conference 11.7 against
 /// 4.4; 4.3 and 4.5 with the binary leaves kept), which the frustum
-/// packets paid in full (docs/studies.md, "The wide tree's own leaves, and
-/// hit ids as lanes").
+/// packets paid in full (docs/studies/bvh-build.md, "The 4-wide tree").
 pub const MERGE: u32 = 4;
 
 /// Inserts `x` into `list[..k]`, kept ascending by `key`; equal keys keep

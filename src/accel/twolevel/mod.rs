@@ -297,7 +297,7 @@ pub struct TwoLevelInfo {
     /// Compactions since the scene was made, and the triangles they moved
     /// (each moves `BvhPools::SLOT_BYTES`, 140 bytes of pool entries, per
     /// triangle). Difference two commits' values for the cost per commit.
-    /// The no_std core measures no time; `docs/studies.md` times the moves
+    /// The no_std core measures no time; `docs/studies/two-level.md` times the moves
     /// (the streaming churn test).
     pub compactions: u32,
     pub compacted_triangles: u64,
