@@ -125,7 +125,7 @@ mod tests {
     use crate::accel::entry::{EntryTree, dir_signs};
     use crate::accel::kd::build::build;
     use crate::accel::kd::build::testutil::Store;
-    use crate::accel::kd::traverse_single::{self, KdRay};
+    use crate::accel::kd::traverse_single::{self, KdRay, Visit};
     use crate::accel::kd::{KdParams, KdView, clip};
     use crate::geom::{Hit, M4, Mt, Ray4, Scene};
 
@@ -474,16 +474,14 @@ mod tests {
                             ray.tmax,
                         );
                         if t0 <= t1 {
-                            traverse_single::from_node::<Mt, false>(
-                                k,
-                                &ray,
-                                &kr,
-                                e.node as usize,
-                                e.depth as usize,
+                            let at = Visit {
+                                node: e.node as usize,
+                                depth: e.depth as usize,
                                 t0,
                                 t1,
-                                &mut got,
-                                &mut ctr,
+                            };
+                            traverse_single::from_node::<Mt, false>(
+                                k, &ray, &kr, at, &mut got, &mut ctr,
                             );
                         }
                     }
