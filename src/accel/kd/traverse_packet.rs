@@ -643,18 +643,7 @@ fn walk<L: Wide, T: TriangleTest, const ANY: bool, const Q: usize>(
                     node = near;
                     bx = nb;
                     if cut_near.any() {
-                        // Near child: [t0, min(t1, t_s)]; keep the quads inside.
-                        let mut j = 0;
-                        for i in 0..na {
-                            let qi = act[i];
-                            let q = qi as usize & (Q - 1);
-                            let (ts, a1) = (tsb[i], t1[q]);
-                            let near_hi = F4::select(ts.cmplt(a1), ts, a1);
-                            t1[q] = near_hi;
-                            act[j] = qi;
-                            j += (live[q] & t0[q].cmple(near_hi)).any() as usize;
-                        }
-                        na = j;
+                        na = enter_child::<true, Q>(act, na, tsb, t0, t1, live);
                     }
                     continue;
                 }
@@ -662,18 +651,7 @@ fn walk<L: Wide, T: TriangleTest, const ANY: bool, const Q: usize>(
                     node = far;
                     bx = fb;
                     if cut_far.any() {
-                        // Far child: [max(t0, t_s), t1].
-                        let mut j = 0;
-                        for i in 0..na {
-                            let qi = act[i];
-                            let q = qi as usize & (Q - 1);
-                            let (ts, a0) = (tsb[i], t0[q]);
-                            let far_lo = F4::select(ts.cmpgt(a0), ts, a0);
-                            t0[q] = far_lo;
-                            act[j] = qi;
-                            j += (live[q] & far_lo.cmple(t1[q])).any() as usize;
-                        }
-                        na = j;
+                        na = enter_child::<false, Q>(act, na, tsb, t0, t1, live);
                     }
                     continue;
                 }
@@ -792,6 +770,42 @@ fn walk<L: Wide, T: TriangleTest, const ANY: bool, const Q: usize>(
             }
         }
     }
+}
+
+/// The intervals of the child `walk` enters, from the node's, for the
+/// quads `act[..na]` with the split's t_s in `tsb` (by place in `act`):
+/// the near child's `[t0, min(t1, t_s)]` (`NEAR`) or the far child's
+/// `[max(t0, t_s), t1]` (`split_interval`, lane by lane). `act` keeps the
+/// quads with a live lane inside; returns how many.
+#[inline(always)]
+fn enter_child<const NEAR: bool, const Q: usize>(
+    act: &mut [u16; Q],
+    na: usize,
+    tsb: &[F4; Q],
+    t0: &mut [F4; Q],
+    t1: &mut [F4; Q],
+    live: &[M4; Q],
+) -> usize {
+    let mut j = 0;
+    for i in 0..na {
+        let qi = act[i];
+        let q = qi as usize & (Q - 1);
+        let ts = tsb[i];
+        let (lo, hi) = if NEAR {
+            let a1 = t1[q];
+            let near_hi = F4::select(ts.cmplt(a1), ts, a1);
+            t1[q] = near_hi;
+            (t0[q], near_hi)
+        } else {
+            let a0 = t0[q];
+            let far_lo = F4::select(ts.cmpgt(a0), ts, a0);
+            t0[q] = far_lo;
+            (far_lo, t1[q])
+        };
+        act[j] = qi;
+        j += (live[q] & lo.cmple(hi)).any() as usize;
+    }
+    j
 }
 
 /// Packet exactness: every packet side, frustum kind and start (root,
