@@ -5,7 +5,7 @@
 
 use glam::Vec3;
 use sheaf::accel::slot::SlotBuf;
-use sheaf::geom::{Hit4, M4, Ray4};
+use sheaf::geom::{Aabb, Hit4, M4, Ray4};
 use sheaf::render::{Tracer, demorton};
 use sheaf::trace::{BvhOptions, EntrySearch, RayKind};
 use sheaf::{Counters, Hit, Isa, Method, Ray, TraceParams};
@@ -233,4 +233,57 @@ pub fn secondary(tr: &impl Tracer, rays: &[Ray], hits: &[Hit], eps: f32) -> (Cla
         }
     }
     (refl, refr)
+}
+
+/// Incoherent packets: random directions (mixed signs) from one origin
+/// near the center of `bounds` and from origins scattered over it, some
+/// lanes inactive, some invalid (a NaN origin, a zero direction); every
+/// method of `cases` against the single ray, nearest hits and occlusion.
+/// `scene` names the scene in failures.
+pub fn check_random_packets(
+    tr: &impl Tracer,
+    cases: &[(Method, usize, EntrySearch)],
+    scene: &str,
+    bounds: &Aabb,
+) {
+    let (c, r) = (bounds.min.lerp(bounds.max, 0.5), bounds.diagonal().length());
+    let mut seed = 0x9e3779b9u32;
+    let mut rnd = move || {
+        seed ^= seed << 13;
+        seed ^= seed >> 17;
+        seed ^= seed << 5;
+        seed as f32 / u32::MAX as f32 * 2.0 - 1.0
+    };
+    for common_origin in [true, false] {
+        let mut rays = Vec::new();
+        let mut active = Vec::new();
+        for i in 0..RES * RES {
+            let o = if common_origin {
+                c + Vec3::new(0.1, 0.2, 0.3) * r
+            } else {
+                c + Vec3::new(rnd(), rnd(), rnd()) * r
+            };
+            let mut d = Vec3::new(rnd(), rnd(), rnd());
+            if i % 97 == 0 {
+                d = Vec3::ZERO;
+            }
+            let mut ray = Ray::new(o, d, 0.0, f32::INFINITY);
+            if i % 89 == 0 {
+                ray.org[1] = f32::NAN;
+            }
+            rays.push(ray);
+            active.push(i % 7 != 0);
+        }
+        for any in [false, true] {
+            let class = Class {
+                name: if any { "random occlusion" } else { "random" },
+                rays: rays.clone(),
+                active: active.clone(),
+                kind: RayKind::Auto,
+                any,
+            };
+            let what = format!("{scene} common origin {common_origin}");
+            check_class(tr, cases, &what, &class);
+        }
+    }
 }

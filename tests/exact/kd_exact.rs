@@ -10,7 +10,6 @@
 use crate::common;
 
 use common::{TestScene, builtin_scenes, obj_scenes, par_map};
-use glam::Vec3;
 use sheaf::accel::bvh::BvhParams;
 use sheaf::accel::kd::KdParams;
 use sheaf::accel::slot::SlotBuf;
@@ -21,7 +20,7 @@ use sheaf::render::{SHADOW_OFFSET, Tracer};
 use sheaf::trace::RayKind;
 use sheaf::{BuildQuality, Counters, Hit, Limits, Method, OwnedContext, Ray, TraceParams, TriTest};
 
-use common::exact::{Class, RES, check_class, reference, secondary, shadow};
+use common::exact::{Class, RES, check_class, check_random_packets, reference, secondary, shadow};
 
 /// The kd methods: SIMD, and packets of every side with every entry search.
 pub(crate) fn kd_cases() -> Vec<(Method, usize, EntrySearch)> {
@@ -172,53 +171,7 @@ fn random_packets_equal_the_single_ray() {
     let mut ctx = OwnedContext::new(&l).unwrap();
     let info = ctx.build_kd(&s.scene(), &KdParams::default()).unwrap();
     let tr = ctx.tracer().unwrap().kd().unwrap();
-    let (c, r) = (
-        info.bounds.min.lerp(info.bounds.max, 0.5),
-        info.bounds.diagonal().length(),
-    );
-    let mut seed = 0x9e3779b9u32;
-    let mut rnd = move || {
-        seed ^= seed << 13;
-        seed ^= seed >> 17;
-        seed ^= seed << 5;
-        seed as f32 / u32::MAX as f32 * 2.0 - 1.0
-    };
-    for common_origin in [true, false] {
-        let mut rays = Vec::new();
-        let mut active = Vec::new();
-        for i in 0..RES * RES {
-            let o = if common_origin {
-                c + Vec3::new(0.1, 0.2, 0.3) * r
-            } else {
-                c + Vec3::new(rnd(), rnd(), rnd()) * r
-            };
-            let mut d = Vec3::new(rnd(), rnd(), rnd());
-            if i % 97 == 0 {
-                d = Vec3::ZERO;
-            }
-            let mut ray = Ray::new(o, d, 0.0, f32::INFINITY);
-            if i % 89 == 0 {
-                ray.org[1] = f32::NAN;
-            }
-            rays.push(ray);
-            active.push(i % 7 != 0);
-        }
-        for any in [false, true] {
-            let class = Class {
-                name: if any { "random occlusion" } else { "random" },
-                rays: rays.clone(),
-                active: active.clone(),
-                kind: RayKind::Auto,
-                any,
-            };
-            check_class(
-                &tr,
-                &kd_cases(),
-                &format!("{} common origin {common_origin}", s.name),
-                &class,
-            );
-        }
-    }
+    check_random_packets(&tr, &kd_cases(), &s.name, &info.bounds);
 }
 
 /// The context's calls: `trace_with` gives the single ray's answers for

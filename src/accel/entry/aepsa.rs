@@ -14,7 +14,9 @@
 //!
 //! `phase2_with` runs phase 2 on any candidate list with either leaf test,
 //! for the paper's Figure 6 comparison (MLRTA's phase 1 for both searches).
-//! See `accel::entry` for the reading of the spec shared with MLRTA.
+//! See `accel::entry` for the reading of the spec shared with MLRTA, and
+//! `entry::Search` for the rest of a search; this module holds what is
+//! AEPSA's own: its leaf goal and its phase 2 (`Aepsa`).
 //!
 //! # Deviations
 //! - Phase 2 asks each branch for a leaf with an overlapped triangle (the
@@ -24,28 +26,35 @@
 //!   search may go on past occupied leaves MLRTA would stop at.
 //!
 //! # Counters
-//! As `mlrta`: `aepsa` counts, `search` and the phases do not.
+//! As `mlrta`: `aepsa_in` counts, `search` and the phases do not.
 
 use crate::accel::entry::{
-    CandidateQueue, EntryPoint, EntryResult, EntryTree, LeafGoal, Phase2, branch_holds,
-    find_candidates, find_candidates_into,
+    CandidateQueue, EntryPoint, EntryResult, EntryTree, LeafGoal, Phase2, Search, branch_holds,
 };
 use crate::counters::Counters;
 use crate::geom::frustum::Frustum;
 
-/// AEPSA's entry point for the rays `f` bounds (`None`: all miss), counted
-/// in `ctr`. `neg`: the packet's direction signs (`entry::dir_signs`).
-pub fn aepsa<E: EntryTree + ?Sized>(
-    tree: &E,
-    f: &Frustum,
-    neg: [bool; 3],
-    ctr: &mut Counters,
-) -> Option<EntryPoint> {
-    aepsa_in(tree, f, neg, &mut CandidateQueue::new(), ctr)
+/// AEPSA as a `Search`: phase 1 freezes at the first leaf with an
+/// overlapped triangle; phase 2 takes the candidates top-down with the
+/// same test.
+pub struct Aepsa;
+
+impl Search for Aepsa {
+    const GOAL: LeafGoal = LeafGoal::Overlapped;
+
+    /// Phase 2 with the triangle test (`phase2_with`).
+    fn phase2<E: EntryTree + ?Sized>(
+        tree: &E,
+        f: &Frustum,
+        neg: [bool; 3],
+        q: &CandidateQueue,
+    ) -> Option<Phase2> {
+        phase2_with(tree, f, neg, q, Self::GOAL)
+    }
 }
 
-/// `aepsa` with phase 1's queue in `q` (`accel::packet::start`'s, in the
-/// slot's scratch).
+/// AEPSA's entry point, counted (`Search::counted`; the queue is
+/// `accel::packet::start`'s, in the slot's scratch).
 pub fn aepsa_in<E: EntryTree + ?Sized>(
     tree: &E,
     f: &Frustum,
@@ -53,32 +62,18 @@ pub fn aepsa_in<E: EntryTree + ?Sized>(
     q: &mut CandidateQueue,
     ctr: &mut Counters,
 ) -> Option<EntryPoint> {
-    find_candidates_into(tree, f, neg, LeafGoal::Overlapped, q);
-    let r = EntryResult::from_phases(q, phase2(tree, f, neg, q));
-    r.record(tree, ctr);
-    r.entry
+    Aepsa::counted(tree, f, neg, q, ctr)
 }
 
-/// Both phases, with their statistics; counts nothing.
+/// Both phases, with their statistics; counts nothing (`Search::search`).
 pub fn search<E: EntryTree + ?Sized>(tree: &E, f: &Frustum, neg: [bool; 3]) -> EntryResult {
-    let q = phase1(tree, f, neg);
-    EntryResult::from_phases(&q, phase2(tree, f, neg, &q))
+    Aepsa::search(tree, f, neg)
 }
 
 /// Phase 1: the candidate queue (root first, the first leaf with an
 /// overlapped triangle last; empty when there is none on the frustum's way).
 pub fn phase1<E: EntryTree + ?Sized>(tree: &E, f: &Frustum, neg: [bool; 3]) -> CandidateQueue {
-    find_candidates(tree, f, neg, LeafGoal::Overlapped)
-}
-
-/// Phase 2 with the triangle test (`None` for an empty list).
-pub fn phase2<E: EntryTree + ?Sized>(
-    tree: &E,
-    f: &Frustum,
-    neg: [bool; 3],
-    q: &CandidateQueue,
-) -> Option<Phase2> {
-    phase2_with(tree, f, neg, q, LeafGoal::Overlapped)
+    Aepsa::phase1(tree, f, neg)
 }
 
 /// Phase 2 on any candidate list (AEPSA's or MLRTA's; `None` when empty):
@@ -120,29 +115,15 @@ mod tests {
     use crate::accel::bvh::traverse_masked::tests::built;
     use crate::accel::entry::EntryPoint;
     use crate::accel::entry::mlrta;
-    use crate::accel::entry::mlrta::tests::{Figure, Logged, figure2, figure3, figure4, run_mlrta};
+    use crate::accel::entry::mlrta::Mlrta;
+    use crate::accel::entry::mlrta::tests::{Logged, figure2, figure3, figure4, run};
     use crate::accel::entry::tests::{Reach, scene_packets};
     use crate::accel::entry::{EntryTree, dir_signs};
     use crate::accel::kd::build::build;
     use crate::accel::kd::build::testutil::Store;
-    use crate::accel::kd::traverse_single::{self, KdRay};
+    use crate::accel::kd::traverse_single::{self, KdRay, Visit};
     use crate::accel::kd::{KdParams, KdView, clip};
     use crate::geom::{Hit, M4, Mt, Ray4, Scene};
-
-    /// AEPSA on a figure, as `run_mlrta`.
-    fn run_aepsa(fig: &Figure) -> (Vec<u32>, Vec<u32>, Vec<u32>, u32, u32, u32) {
-        let v = fig.tree.view();
-        let lg = Logged::new(&v);
-        let q = phase1(&lg, &fig.f, fig.neg);
-        let p1 = fig.fig(&lg.take());
-        assert_eq!(p1.len() as u32, q.visited);
-        let cands: Vec<u32> = q.as_slice().iter().map(|c| c.node).collect();
-        let p = phase2(&lg, &fig.f, fig.neg, &q).unwrap();
-        let p2 = fig.fig(&lg.take());
-        assert_eq!(p2.len() as u32, p.visited);
-        let e = fig.fig(&[p.entry.node])[0];
-        (p1, fig.fig(&cands), p2, e, p.entry.depth, p.tested)
-    }
 
     /// Figure 2: AEPSA passes leaf 2 (its triangles lie outside the
     /// frustum), drops 0 and 1 on the way back, and freezes the queue [9]:
@@ -150,12 +131,12 @@ mod tests {
     #[test]
     fn figure2_aepsa_enters_at_leaf_9() {
         let fig = figure2();
-        let (p1, cands, p2, e, depth, tested) = run_aepsa(&fig);
+        let (p1, cands, p2, e, depth, tested) = run::<Aepsa>(&fig);
         assert_eq!(p1, [0, 1, 2, 3, 4, 5, 6, 7, 8, 9]);
         assert_eq!(cands, [9]);
         assert!(p2.is_empty());
         assert_eq!((e, depth, tested), (9, 3, 0));
-        assert_eq!(run_mlrta(&fig).3, 0);
+        assert_eq!(run::<Mlrta>(&fig).3, 0);
         // The entry point's box is leaf 9's.
         let r = search(&fig.tree.view(), &fig.f, fig.neg);
         let e = r.entry.unwrap();
@@ -180,12 +161,12 @@ mod tests {
     #[test]
     fn figure3_aepsa_tests_one_candidate() {
         let fig = figure3();
-        let (p1, cands, p2, e, depth, tested) = run_aepsa(&fig);
+        let (p1, cands, p2, e, depth, tested) = run::<Aepsa>(&fig);
         assert_eq!(p1, [0, 1, 3]);
         assert_eq!(cands, [0, 1, 3]);
         assert_eq!(p2, [2, 5]);
         assert_eq!((e, depth, tested), (0, 0, 1));
-        let m = run_mlrta(&fig);
+        let m = run::<Mlrta>(&fig);
         assert_eq!((m.3, m.5), (0, 2));
     }
 
@@ -194,8 +175,8 @@ mod tests {
     #[test]
     fn figure4_aepsa_visits_what_mlrta_visits() {
         let fig = figure4();
-        let a = run_aepsa(&fig);
-        let m = run_mlrta(&fig);
+        let a = run::<Aepsa>(&fig);
+        let m = run::<Mlrta>(&fig);
         assert_eq!(a.0, [0, 1, 3]);
         assert_eq!(a.1, [0, 1, 3]);
         assert_eq!(a.2, [2, 5, 4]);
@@ -224,7 +205,8 @@ mod tests {
             [[2.65, 0.2], [2.95, 0.2], [2.95, 0.8], [2.65, 0.8]].map(|[y, z]| Vec3::new(4.0, y, z));
         let (f, _) = corner_frustum(Vec3::new(-200.0, 2.8, 0.5), c, &root);
         let mut ctr = Counters::default();
-        assert_eq!(aepsa(&v, &f, fig.neg, &mut ctr), None);
+        let q = &mut CandidateQueue::new();
+        assert_eq!(Aepsa::counted(&v, &f, fig.neg, q, &mut ctr), None);
         let r = search(&v, &f, fig.neg);
         assert_eq!((r.candidates, r.tested, r.phase2_nodes), (0, 0, 0));
         assert!(r.phase1_nodes > 0);
@@ -234,10 +216,10 @@ mod tests {
         assert_eq!(ctr.entry_depth_sum, v.miss_depth() as u64);
         // MLRTA freezes at occupied leaf 5 (candidates [0, 5]), and 0's
         // untaken branch holds occupied leaf 9, whose box the band crosses.
-        let e = mlrta::mlrta(&v, &f, fig.neg, &mut ctr).unwrap();
+        let e = Mlrta::counted(&v, &f, fig.neg, q, &mut ctr).unwrap();
         assert_eq!((fig.fig(&[e.node]), e.depth), (vec![0], 0));
-        let q = mlrta::phase1(&v, &f, fig.neg);
-        let c: Vec<u32> = q.as_slice().iter().map(|c| c.node).collect();
+        let p1 = mlrta::phase1(&v, &f, fig.neg);
+        let c: Vec<u32> = p1.as_slice().iter().map(|c| c.node).collect();
         assert_eq!(fig.fig(&c), [0, 5]);
         assert_eq!(ctr.entry_searches, 2);
         assert_eq!(ctr.entry_misses, 1);
@@ -250,7 +232,7 @@ mod tests {
         }
         // Figure 2 counted: 10 + 0 nodes, depth 3.
         let mut ctr = Counters::default();
-        aepsa(&v, &fig.f, fig.neg, &mut ctr);
+        Aepsa::counted(&v, &fig.f, fig.neg, q, &mut ctr);
         assert_eq!(
             (ctr.entry_nodes, ctr.entry_depth_sum, ctr.entry_misses),
             (10, 3, 0)
@@ -474,16 +456,14 @@ mod tests {
                             ray.tmax,
                         );
                         if t0 <= t1 {
-                            traverse_single::from_node::<Mt, false>(
-                                k,
-                                &ray,
-                                &kr,
-                                e.node as usize,
-                                e.depth as usize,
+                            let at = Visit {
+                                node: e.node as usize,
+                                depth: e.depth as usize,
                                 t0,
                                 t1,
-                                &mut got,
-                                &mut ctr,
+                            };
+                            traverse_single::from_node::<Mt, false>(
+                                k, &ray, &kr, at, &mut got, &mut ctr,
                             );
                         }
                     }

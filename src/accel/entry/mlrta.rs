@@ -12,35 +12,69 @@
 //!    shallowest) is returned with its box.
 //!
 //! See `accel::entry` for the reading of the spec (backtracking, near/far
-//! order, misses) shared with AEPSA.
+//! order, misses) shared with AEPSA, and `entry::Search` for the rest of
+//! a search; this module holds what is MLRTA's own: its leaf goal and its
+//! phase 2 (`Mlrta`).
 //!
 //! # Counters
-//! `mlrta` adds one search to `entry_searches`, its entry depth (the tree's
-//! average leaf depth on a miss) to `entry_depth_sum`, both phases' visited
-//! nodes to `entry_nodes` and misses to `entry_misses`; `search`, `phase1`
-//! and `phase2` count nothing (for benchmarks), `EntryResult::record` does
-//! it for them.
+//! `mlrta_in` (`Search::counted`) adds one search to `entry_searches`, its
+//! entry depth (the tree's average leaf depth on a miss) to
+//! `entry_depth_sum`, both phases' visited nodes to `entry_nodes` and
+//! misses to `entry_misses`; `search`, `phase1` and `phase2` count nothing
+//! (for benchmarks), `EntryResult::record` does it for them.
 
 use crate::accel::entry::{
-    CandidateQueue, EntryPoint, EntryResult, EntryTree, LeafGoal, Phase2, branch_holds,
-    find_candidates, find_candidates_into,
+    CandidateQueue, EntryPoint, EntryResult, EntryTree, LeafGoal, Phase2, Search, branch_holds,
 };
 use crate::counters::Counters;
 use crate::geom::frustum::Frustum;
 
-/// MLRTA's entry point for the rays `f` bounds (`None`: all miss), counted
-/// in `ctr`. `neg`: the packet's direction signs (`entry::dir_signs`).
-pub fn mlrta<E: EntryTree + ?Sized>(
-    tree: &E,
-    f: &Frustum,
-    neg: [bool; 3],
-    ctr: &mut Counters,
-) -> Option<EntryPoint> {
-    mlrta_in(tree, f, neg, &mut CandidateQueue::new(), ctr)
+/// MLRTA as a `Search`: phase 1 freezes at the first occupied leaf; phase 2
+/// tests every candidate, bottom-up.
+pub struct Mlrta;
+
+impl Search for Mlrta {
+    const GOAL: LeafGoal = LeafGoal::Occupied;
+
+    /// Phase 2 on any candidate list (`None` when it is empty): the leaf
+    /// (last candidate) is the entry point until a candidate above it,
+    /// tested bottom-up, all of them, has an occupied leaf with an
+    /// overlapped box in its untaken branch.
+    fn phase2<E: EntryTree + ?Sized>(
+        tree: &E,
+        f: &Frustum,
+        neg: [bool; 3],
+        q: &CandidateQueue,
+    ) -> Option<Phase2> {
+        let c = q.as_slice();
+        let mut p = Phase2 {
+            entry: c.last()?.entry_point(),
+            visited: 0,
+            tested: 0,
+        };
+        for c in c.iter().rev() {
+            let Some(branch) = c.untaken else {
+                continue;
+            };
+            p.tested += 1;
+            if branch_holds(
+                tree,
+                f,
+                neg,
+                branch,
+                c.depth + 1,
+                Self::GOAL,
+                &mut p.visited,
+            ) {
+                p.entry = c.entry_point();
+            }
+        }
+        Some(p)
+    }
 }
 
-/// `mlrta` with phase 1's queue in `q` (`accel::packet::start`'s, in the
-/// slot's scratch).
+/// MLRTA's entry point, counted (`Search::counted`; the queue is
+/// `accel::packet::start`'s, in the slot's scratch).
 pub fn mlrta_in<E: EntryTree + ?Sized>(
     tree: &E,
     f: &Frustum,
@@ -48,51 +82,28 @@ pub fn mlrta_in<E: EntryTree + ?Sized>(
     q: &mut CandidateQueue,
     ctr: &mut Counters,
 ) -> Option<EntryPoint> {
-    find_candidates_into(tree, f, neg, LeafGoal::Occupied, q);
-    let r = EntryResult::from_phases(q, phase2(tree, f, neg, q));
-    r.record(tree, ctr);
-    r.entry
+    Mlrta::counted(tree, f, neg, q, ctr)
 }
 
-/// Both phases, with their statistics; counts nothing.
+/// Both phases, with their statistics; counts nothing (`Search::search`).
 pub fn search<E: EntryTree + ?Sized>(tree: &E, f: &Frustum, neg: [bool; 3]) -> EntryResult {
-    let q = phase1(tree, f, neg);
-    EntryResult::from_phases(&q, phase2(tree, f, neg, &q))
+    Mlrta::search(tree, f, neg)
 }
 
 /// Phase 1: the bifurcation stack (root first, the first occupied leaf
 /// last; empty when the frustum reaches no occupied leaf).
 pub fn phase1<E: EntryTree + ?Sized>(tree: &E, f: &Frustum, neg: [bool; 3]) -> CandidateQueue {
-    find_candidates(tree, f, neg, LeafGoal::Occupied)
+    Mlrta::phase1(tree, f, neg)
 }
 
-/// Phase 2 on any candidate list (`None` when it is empty): the leaf (last
-/// candidate) is the entry point until a candidate above it, tested
-/// bottom-up, all of them, has an occupied leaf with an overlapped box in
-/// its untaken branch.
+/// MLRTA's phase 2 (`Mlrta`) on any candidate list.
 pub fn phase2<E: EntryTree + ?Sized>(
     tree: &E,
     f: &Frustum,
     neg: [bool; 3],
     q: &CandidateQueue,
 ) -> Option<Phase2> {
-    let c = q.as_slice();
-    let mut p = Phase2 {
-        entry: c.last()?.entry_point(),
-        visited: 0,
-        tested: 0,
-    };
-    for c in c.iter().rev() {
-        let Some(branch) = c.untaken else {
-            continue;
-        };
-        p.tested += 1;
-        let goal = LeafGoal::Occupied;
-        if branch_holds(tree, f, neg, branch, c.depth + 1, goal, &mut p.visited) {
-            p.entry = c.entry_point();
-        }
-    }
-    Some(p)
+    Mlrta::phase2(tree, f, neg, q)
 }
 
 #[cfg(test)]
@@ -396,16 +407,16 @@ pub(crate) mod tests {
         }
     }
 
-    /// MLRTA on a figure: (phase-1 visits, candidates, phase-2 visits,
-    /// entry, depth), in figure numbers.
-    pub fn run_mlrta(fig: &Figure) -> (Vec<u32>, Vec<u32>, Vec<u32>, u32, u32, u32) {
+    /// Search `S` on a figure: (phase-1 visits, candidates, phase-2 visits,
+    /// entry, depth, candidates tested), in figure numbers.
+    pub fn run<S: Search>(fig: &Figure) -> (Vec<u32>, Vec<u32>, Vec<u32>, u32, u32, u32) {
         let v = fig.tree.view();
         let lg = Logged::new(&v);
-        let q = phase1(&lg, &fig.f, fig.neg);
+        let q = S::phase1(&lg, &fig.f, fig.neg);
         let p1 = fig.fig(&lg.take());
         assert_eq!(p1.len() as u32, q.visited);
         let cands: Vec<u32> = q.as_slice().iter().map(|c| c.node).collect();
-        let p = phase2(&lg, &fig.f, fig.neg, &q).unwrap();
+        let p = S::phase2(&lg, &fig.f, fig.neg, &q).unwrap();
         let p2 = fig.fig(&lg.take());
         assert_eq!(p2.len() as u32, p.visited);
         let e = fig.fig(&[p.entry.node])[0];
@@ -415,7 +426,7 @@ pub(crate) mod tests {
     #[test]
     fn figure2_mlrta_returns_the_root() {
         let fig = figure2();
-        let (p1, cands, p2, e, depth, tested) = run_mlrta(&fig);
+        let (p1, cands, p2, e, depth, tested) = run::<Mlrta>(&fig);
         // Stack [2, 1, 0] (2 on top); 1's branch finds occupied leaf 5,
         // 0's finds leaf 9: the root is returned.
         assert_eq!(p1, [0, 1, 2]);
@@ -427,7 +438,7 @@ pub(crate) mod tests {
     #[test]
     fn figure3_mlrta_tests_every_candidate() {
         let fig = figure3();
-        let (p1, cands, p2, e, depth, tested) = run_mlrta(&fig);
+        let (p1, cands, p2, e, depth, tested) = run::<Mlrta>(&fig);
         // Stack [3, 1, 0]: 1 -> 4 occupied (entry 1), 0 -> 2 -> 5 (entry 0).
         assert_eq!(p1, [0, 1, 3]);
         assert_eq!(cands, [0, 1, 3]);
@@ -438,7 +449,7 @@ pub(crate) mod tests {
     #[test]
     fn figure4_mlrta_keeps_the_leaf() {
         let fig = figure4();
-        let (p1, cands, p2, e, depth, tested) = run_mlrta(&fig);
+        let (p1, cands, p2, e, depth, tested) = run::<Mlrta>(&fig);
         // 1 -> 4 empty; 0 -> 2 -> 5 empty (6's box not overlapped).
         assert_eq!(p1, [0, 1, 3]);
         assert_eq!(cands, [0, 1, 3]);

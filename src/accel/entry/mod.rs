@@ -5,7 +5,9 @@
 //! (the kd-tree, and the BVH as the paper's further work, section 8):
 //! `EntryTree`, the `CandidateQueue` both searches fill in phase 1, the
 //! phase-1 descent (`find_candidates`) and phase 2's branch test
-//! (`branch_holds`) they share.
+//! (`branch_holds`) they share, and `Search`: a whole search (both phases,
+//! counted or not), given what sets MLRTA and AEPSA apart, the leaf that
+//! freezes phase 1 and phase 2.
 //!
 //! # Reading of the spec
 //! Sections 2.2, 3.1-3.3 and the appendix leave the traversal order and the
@@ -441,6 +443,54 @@ pub fn branch_holds<E: EntryTree + ?Sized>(
         }
         sp -= 1;
         (node, aabb, depth) = st[sp];
+    }
+}
+
+// ---------------------------------------------------------------------------
+// A whole search.
+
+/// What sets one search apart from the other (`mlrta::Mlrta`,
+/// `aepsa::Aepsa`): the leaf its phase 1 freezes at and its phase 2. A
+/// whole search, from phase 1 to the counters, is written here once.
+pub trait Search {
+    /// The leaf phase 1's descent freezes at (`find_candidates`).
+    const GOAL: LeafGoal;
+
+    /// Phase 2 on phase 1's candidates (`None` when there are none).
+    fn phase2<E: EntryTree + ?Sized>(
+        tree: &E,
+        f: &Frustum,
+        neg: [bool; 3],
+        q: &CandidateQueue,
+    ) -> Option<Phase2>;
+
+    /// Phase 1: the candidates, root first, the first leaf reaching `GOAL`
+    /// last (empty when the frustum reaches none).
+    fn phase1<E: EntryTree + ?Sized>(tree: &E, f: &Frustum, neg: [bool; 3]) -> CandidateQueue {
+        find_candidates(tree, f, neg, Self::GOAL)
+    }
+
+    /// Both phases, with their statistics; counts nothing.
+    fn search<E: EntryTree + ?Sized>(tree: &E, f: &Frustum, neg: [bool; 3]) -> EntryResult {
+        let q = Self::phase1(tree, f, neg);
+        EntryResult::from_phases(&q, Self::phase2(tree, f, neg, &q))
+    }
+
+    /// The entry point for the rays `f` bounds (`None`: all miss), counted
+    /// in `ctr` (`EntryResult::record`), with phase 1's queue in `q`
+    /// (`accel::packet::start`'s, in the slot's scratch). `neg`: the
+    /// packet's direction signs (`dir_signs`).
+    fn counted<E: EntryTree + ?Sized>(
+        tree: &E,
+        f: &Frustum,
+        neg: [bool; 3],
+        q: &mut CandidateQueue,
+        ctr: &mut Counters,
+    ) -> Option<EntryPoint> {
+        find_candidates_into(tree, f, neg, Self::GOAL, q);
+        let r = EntryResult::from_phases(q, Self::phase2(tree, f, neg, q));
+        r.record(tree, ctr);
+        r.entry
     }
 }
 

@@ -6,8 +6,8 @@
 //! (`mem::par`), the same tree for any worker count.
 //!
 //! 1. The triangles are classified and stored as the exact build stores
-//!    them (`build::store`, each worker its share); each worker then makes
-//!    the references of its share: the triangle's box padded by
+//!    them (`store`, each worker its share); each worker then makes the
+//!    references of its share: the triangle's box padded by
 //!    `ROOT_PAD` of the scene's scale, and its slot.
 //! 2. The top of the tree, level by level (breadth first), in two passes
 //!    per level: each worker takes a run of the level's nodes and picks
@@ -20,7 +20,7 @@
 //! 3. The carried nodes are the jobs: each gets a region of the scratch,
 //!    the node pool and the reference pool in proportion to its references,
 //!    and a worker builds its subtree there depth first (the pending right
-//!    children's lists at the bottom of the region, as in `build.rs`).
+//!    children's lists at the bottom of the region, as in `build_sweep.rs`).
 //! 4. The leader closes the gaps between the regions (nodes and
 //!    references moved down, child and reference indices shifted), then
 //!    builds the jobs that outgrew their shares again, in order, in the
@@ -29,7 +29,7 @@
 //! Each node's plane: every reference is binned by its box's lower and
 //! upper end on each axis ("min-max binning": `KdParams::bins` bins over
 //! the node's box, fewer in small nodes, about two references per bin);
-//! the bin boundary of least SAH cost (`build.rs`'s formula, the
+//! the bin boundary of least SAH cost (`build_sweep.rs`'s formula, the
 //! empty-space bonus included) splits when it beats the leaf cost. Nodes
 //! of at most `traversal_cost` references are leaves without a search
 //! (no split can cost less). A reference goes left when its box starts
@@ -37,10 +37,10 @@
 //! sides is clipped to each child: `Medium` clips the triangle to the
 //! split plane moved by the padding towards the other child, pads the
 //! part's box and intersects it with the reference's box (the box of the
-//! triangle clipped to the child box, as `build.rs`'s perfect splits, or
-//! a little larger: the cut by the ancestors' planes is kept from the
-//! reference's box); `Low` intersects the reference's box with the
-//! child's padded box.
+//! triangle clipped to the child box, as `build_sweep.rs`'s perfect
+//! splits, or a little larger: the cut by the ancestors' planes is kept
+//! from the reference's box); `Low` intersects the reference's box with
+//! the child's padded box.
 //!
 //! # Exactness
 //! Each leaf holds every triangle whose padded, clipped box meets the
@@ -65,7 +65,7 @@
 //!   and the jobs' lists held (the regions are spread over the whole
 //!   scratch).
 
-use super::build::{Stored, half_area, store};
+use super::store::{Stored, half_area, store};
 use super::{KdInfo, KdNode, KdParams, KdPools, MAX_DEPTH};
 use crate::accel::bvh::BuildQuality;
 use crate::error::{Error, Pool, Result};

@@ -7,8 +7,10 @@
 //!
 //! | file | implements |
 //! |---|---|
+//! | `build.rs` | the build: `KdParams::quality` chooses between the two below |
 //! | `build_binned.rs` | the fast build (Shevtsov, Soupikov, Kapustin 2007): binned SAH, the top level by level and the subtrees depth first, on the caller's threads |
-//! | `build.rs` | section 5.1: the O(N log N) SAH compiler (Wald and Havran 2006: split events sorted once, kept sorted by stable partition), biased towards cutting off empty space, SAH termination, a depth limit |
+//! | `build_sweep.rs` | section 5.1: the O(N log N) SAH compiler (Wald and Havran 2006: split events sorted once, kept sorted by stable partition), biased towards cutting off empty space, SAH termination, a depth limit |
+//! | `store.rs` | what both builds share: the triangles classified and stored (their step 1), the SAH's area |
 //! | `traverse_single.rs` | the single-ray reference: front-to-back stack traversal with early termination |
 //! | `traverse_simd.rs` | the 2x2 SIMD ray (`Ray4`) traversal (Wald 2004) |
 //! | `traverse_packet.rs` | n x n packets driven by the packet's frustum, from the root or from an entry point and its AABB |
@@ -40,7 +42,9 @@
 
 pub mod build;
 pub mod build_binned;
+pub mod build_sweep;
 mod entry;
+pub mod store;
 pub mod traverse_packet;
 pub mod traverse_simd;
 pub mod traverse_single;
@@ -91,8 +95,9 @@ pub struct KdParams {
     /// triangles' boxes clipped to each child, `Medium` with the triangles
     /// clipped (perfect splits: a 5-10% lower SAH cost, a 20-25% longer
     /// build); `High` is the exact O(N log N) sweep with perfect splits
-    /// (`build.rs`, single-threaded, 6-7x the `Low` build's time). Every
-    /// traversal is exact on every tree; the shape decides speed only.
+    /// (`build_sweep.rs`, single-threaded, 6-7x the `Low` build's time).
+    /// Every traversal is exact on every tree; the shape decides speed
+    /// only.
     pub quality: BuildQuality,
     /// SAH bins per axis of the binned builds (2..=64, default 32).
     pub bins: u32,
@@ -251,7 +256,7 @@ pub struct KdPools<'a> {
     pub tri_ids: &'a mut [u32],
     /// Stored slot of each caller triangle id (`INVALID_ID`: excluded).
     pub slot_of: &'a mut [u32],
-    /// Build scratch: split events (see `build.rs`).
+    /// Build scratch (see `build_sweep.rs` and `build_binned.rs`).
     pub events: &'a mut [u64],
     /// Build scratch: one side flag per stored triangle.
     pub side: &'a mut [u8],

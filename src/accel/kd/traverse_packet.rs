@@ -76,7 +76,6 @@ use super::{KdView, MAX_DEPTH, TriangleTest};
 use crate::accel::entry::{EntryPoint, EntrySearch};
 use crate::accel::fallback;
 use crate::accel::group;
-use crate::accel::method::TraceParams;
 use crate::accel::packet::{self, PacketArgs, PacketSig, Start};
 use crate::accel::slot::Slot;
 use crate::counters::{Counters, count};
@@ -119,82 +118,85 @@ fn carve<'s, T: Copy, const Q: usize>(
 /// only (`Frustum::cull_triangle_planes`).
 const CORNER_TEST_QUADS: usize = 8;
 
-/// Nearest hits of the active lanes of `rays` (one packet of `(n/2)^2`
-/// quads; `rays`, `active` and `hits` are read up to the shortest length)
-/// into `hits`. Active lanes are written (`Hit::MISS` when nothing is hit,
-/// and for invalid rays, see `Ray::is_valid`); inactive lanes are left
-/// untouched. `frustum` must bound every active valid ray (as
-/// `Frustum::new` builds it), `entry` must hold every leaf with a triangle
-/// that frustum does not cull (see the module docs); either may be `None`.
-/// The slot lends the scratch (`SCRATCH` bytes). For the unit tests,
-/// which drive the walk with a given frustum and entry point; a trace call
-/// runs `Packets` through its kernel.
-// One argument per traversal input, as the other packet traversals.
+/// One packet as the traversal takes it: its quads, their active lanes,
+/// and where its answers go: nearest hits, or with `ANY` occlusion masks
+/// (the other one empty).
+struct Packet<'p> {
+    rays: &'p [Ray4],
+    active: &'p [M4],
+    hits: &'p mut [Hit4],
+    occ: &'p mut [M4],
+}
+
+impl<'p> Packet<'p> {
+    /// Nearest hits of the active lanes of `rays` into `hits`, the three
+    /// read up to the shortest length.
+    fn nearest(rays: &'p [Ray4], active: &'p [M4], hits: &'p mut [Hit4]) -> Self {
+        let n = rays.len().min(active.len()).min(hits.len());
+        Packet {
+            rays: &rays[..n],
+            active: &active[..n],
+            hits: &mut hits[..n],
+            occ: &mut [],
+        }
+    }
+    /// Occlusion of the active lanes of `rays` into `occ`, the three read
+    /// up to the shortest length.
+    fn occlusion(rays: &'p [Ray4], active: &'p [M4], occ: &'p mut [M4]) -> Self {
+        let n = rays.len().min(active.len()).min(occ.len());
+        Packet {
+            rays: &rays[..n],
+            active: &active[..n],
+            hits: &mut [],
+            occ: &mut occ[..n],
+        }
+    }
+    /// The same packet, borrowed again.
+    #[inline(always)]
+    fn reborrow(&mut self) -> Packet<'_> {
+        Packet {
+            rays: self.rays,
+            active: self.active,
+            hits: &mut *self.hits,
+            occ: &mut *self.occ,
+        }
+    }
+}
+
+/// What guides a packet through the tree besides its rays: the frustum
+/// bounding every active valid ray (culling; `None`: none), an entry point
+/// whose subtree holds every leaf with a triangle that frustum does not
+/// cull (`None`: the root; see the module docs) and
+/// `TraceParams::fallbacks`.
+#[derive(Clone, Copy)]
+struct Guides<'g> {
+    frustum: Option<&'g Frustum>,
+    entry: Option<&'g EntryPoint>,
+    fallbacks: bool,
+}
+
+/// `pk`'s answers (`ANY`: occlusion, anything in `[tmin, tmax)`): active
+/// lanes are written (`Hit::MISS` when nothing is hit, and for invalid
+/// rays, see `Ray::is_valid`; an occlusion mask lane set when active and
+/// occluded, cleared otherwise); inactive lanes of hits are left untouched.
+/// Guided by `g`, at the lane width of `isa`; the slot lends the scratch
+/// (`SCRATCH` bytes). For the unit tests, which drive the walk with a given
+/// frustum and entry point; a trace call runs `Packets` through its kernel.
 #[cfg(test)]
-#[allow(clippy::too_many_arguments)]
-pub(crate) fn intersect<T: TriangleTest>(
+fn traced<T: TriangleTest, const ANY: bool>(
     k: &KdView<'_>,
-    rays: &[Ray4],
-    active: &[M4],
-    hits: &mut [Hit4],
-    frustum: Option<&Frustum>,
-    entry: Option<&EntryPoint>,
-    opt: &TraceParams,
+    pk: Packet<'_>,
+    g: Guides<'_>,
+    isa: isa::Isa,
     slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
-    let n = rays.len().min(active.len()).min(hits.len());
-    let (r, a, h) = (&rays[..n], &active[..n], &mut hits[..n]);
-    let args = (
-        k,
-        r,
-        a,
-        h,
-        &mut [][..],
-        frustum,
-        entry,
-        opt,
-        slot.reborrow(),
-        ctr,
-    );
-    with_class!(n, |Q| isa::run_fn::<Sig, At<T, false, Q>>(opt.isa, args))
+    let n = pk.rays.len();
+    let args = (k, pk, g, slot.reborrow(), ctr);
+    with_class!(n, |Q| isa::run_fn::<Sig, At<T, ANY, Q>>(isa, args))
 }
 
-/// Occlusion of the active lanes (anything in `[tmin, tmax)`): lane `i` of
-/// `occluded[q]` is set when it is active and occluded, cleared otherwise
-/// (every quad read is written). Arguments as `intersect`.
-#[cfg(test)]
-#[allow(clippy::too_many_arguments)]
-pub(crate) fn occluded<T: TriangleTest>(
-    k: &KdView<'_>,
-    rays: &[Ray4],
-    active: &[M4],
-    occluded: &mut [M4],
-    frustum: Option<&Frustum>,
-    entry: Option<&EntryPoint>,
-    opt: &TraceParams,
-    slot: &mut Slot<'_>,
-    ctr: &mut Counters,
-) {
-    let n = rays.len().min(active.len()).min(occluded.len());
-    let (r, a, o) = (&rays[..n], &active[..n], &mut occluded[..n]);
-    let args = (
-        k,
-        r,
-        a,
-        &mut [][..],
-        o,
-        frustum,
-        entry,
-        opt,
-        slot.reborrow(),
-        ctr,
-    );
-    with_class!(n, |Q| isa::run_fn::<Sig, At<T, true, Q>>(opt.isa, args))
-}
-
-/// `dispatch`'s arguments, one tuple (`isa::Sig`), for `intersect` and
-/// `occluded`.
+/// `dispatch`'s arguments, one tuple (`isa::Sig`), for `traced`.
 #[cfg(test)]
 struct Sig;
 
@@ -202,20 +204,15 @@ struct Sig;
 impl isa::Sig for Sig {
     type Args<'a> = (
         &'a KdView<'a>,
-        &'a [Ray4],
-        &'a [M4],
-        &'a mut [Hit4],
-        &'a mut [M4],
-        Option<&'a Frustum>,
-        Option<&'a EntryPoint>,
-        &'a TraceParams,
+        Packet<'a>,
+        Guides<'a>,
         Slot<'a>,
         &'a mut Counters,
     );
     type Out = ();
 }
 
-/// `dispatch` at a lane width and size class (`intersect`, `occluded`).
+/// `dispatch` at a lane width and size class (`traced`).
 #[cfg(test)]
 struct At<T, const ANY: bool, const Q: usize>(PhantomData<T>);
 
@@ -223,8 +220,8 @@ struct At<T, const ANY: bool, const Q: usize>(PhantomData<T>);
 impl<T: TriangleTest, const ANY: bool, const Q: usize> isa::LaneFn<Sig> for At<T, ANY, Q> {
     #[inline(always)]
     fn call<L: Wide>(args: <Sig as isa::Sig>::Args<'_>) {
-        let (k, rays, active, hits, occ, f, e, opt, mut slot, ctr) = args;
-        dispatch::<L, T, ANY, Q>(k, rays, active, hits, occ, f, e, opt, &mut slot, ctr)
+        let (k, pk, g, mut slot, ctr) = args;
+        dispatch::<L, T, ANY, Q>(k, pk, g, &mut slot, ctr)
     }
 }
 
@@ -254,17 +251,20 @@ impl<'k, T: TriangleTest, const ANY: bool, const Q: usize> isa::LaneFn<PacketSig
             Start::Root => None,
             Start::At(e) => Some(e),
         };
-        let (f, e) = (f.as_ref(), e.as_ref());
+        let g = Guides {
+            frustum: f.as_ref(),
+            entry: e.as_ref(),
+            fallbacks: p.fallbacks,
+        };
         if ANY {
             let n = rays.len().min(active.len()).min(hits.len()).min(MAX_QUADS);
             let (occ, mut slot) = slot.split(n, M4::FALSE);
-            let (r, a) = (&rays[..n], &active[..n]);
-            dispatch::<L, T, true, Q>(k, r, a, &mut [], occ, f, e, p, &mut slot, ctr);
-            packet::mark_occluded(occ, a, &mut hits[..n]);
+            let pk = Packet::occlusion(rays, active, occ);
+            dispatch::<L, T, true, Q>(k, pk, g, &mut slot, ctr);
+            packet::mark_occluded(occ, &active[..n], &mut hits[..n]);
         } else {
-            let n = rays.len().min(active.len()).min(hits.len());
-            let (r, a, h) = (&rays[..n], &active[..n], &mut hits[..n]);
-            dispatch::<L, T, false, Q>(k, r, a, h, &mut [], f, e, p, &mut slot, ctr);
+            let pk = Packet::nearest(rays, active, hits);
+            dispatch::<L, T, false, Q>(k, pk, g, &mut slot, ctr);
         }
     }
 }
@@ -314,35 +314,31 @@ macro_rules! with_class {
 pub(crate) use with_class;
 
 /// Consecutive packets of at most `Q` quads (a size class, `class`) on
-/// `L` lanes. `hits` (nearest) or `occ` (ANY) has the length of `rays`,
-/// the other is empty.
-// Monomorphised hot path: a struct would be rebuilt per packet.
-#[allow(clippy::too_many_arguments)]
+/// `L` lanes: `pk` cut into packets.
 #[inline(always)]
 fn dispatch<L: Wide, T: TriangleTest, const ANY: bool, const Q: usize>(
     k: &KdView<'_>,
-    rays: &[Ray4],
-    active: &[M4],
-    hits: &mut [Hit4],
-    occ: &mut [M4],
-    frustum: Option<&Frustum>,
-    entry: Option<&EntryPoint>,
-    opt: &TraceParams,
+    pk: Packet<'_>,
+    g: Guides<'_>,
     slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
-    let n = rays.len();
+    let n = pk.rays.len();
     let mut s = 0;
     while s < n {
         let e = (s + Q).min(n);
-        let (r, a) = (&rays[s..e], &active[s..e]);
         let (h, o) = if ANY {
-            (&mut [][..], &mut occ[s..e])
+            (&mut [][..], &mut pk.occ[s..e])
         } else {
-            (&mut hits[s..e], &mut [][..])
+            (&mut pk.hits[s..e], &mut [][..])
         };
-        let fb = opt.fallbacks;
-        packet::<L, T, ANY, Q>(k, r, a, h, o, frustum, entry, fb, slot, ctr);
+        let part = Packet {
+            rays: &pk.rays[s..e],
+            active: &pk.active[s..e],
+            hits: h,
+            occ: o,
+        };
+        packet::<L, T, ANY, Q>(k, part, g, slot, ctr);
         s = e;
     }
 }
@@ -357,57 +353,56 @@ struct Entry {
     quads: [u64; MAX_QUADS / 64],
 }
 
-/// One packet of `rays.len() <= Q` quads (`Q` a power of two) on `L`
+/// One packet of `pk.rays.len() <= Q` quads (`Q` a power of two) on `L`
 /// lanes: its setup (`set_up`, in baseline code: it has no wide lanes),
 /// then the walk.
-// Monomorphised hot path: a struct would be rebuilt per packet.
-#[allow(clippy::too_many_arguments)]
 #[inline(always)]
 fn packet<L: Wide, T: TriangleTest, const ANY: bool, const Q: usize>(
     k: &KdView<'_>,
-    rays: &[Ray4],
-    active: &[M4],
-    hits: &mut [Hit4],
-    occ: &mut [M4],
-    frustum: Option<&Frustum>,
-    entry: Option<&EntryPoint>,
-    fallbacks: bool,
+    mut pk: Packet<'_>,
+    g: Guides<'_>,
     slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
     // Outputs of the active lanes, and the live ones: active and valid.
     let (live, mut slot) = carve::<M4, Q>(slot, M4::FALSE);
-    let how = (frustum, entry, fallbacks);
-    let Some((n_live, neg, start)) =
-        set_up::<T, ANY, Q>(k, rays, active, hits, occ, how, live, ctr)
-    else {
+    let Some(ready) = set_up::<T, ANY, Q>(k, pk.reborrow(), g, live, ctr) else {
         return;
     };
-    walk::<L, T, ANY, Q>(
-        k, rays, hits, occ, frustum, live, n_live, neg, start, &mut slot, ctr,
-    )
+    walk::<L, T, ANY, Q>(k, pk, g.frustum, ready, &mut slot, ctr)
 }
 
-/// Where a packet's walk starts: node, depth and box.
-type WalkStart = (usize, usize, Aabb);
+/// A packet ready to walk (`set_up`'s answer): its live lanes and their
+/// count, the near side of every split (`neg`: the first live lane's
+/// direction signs), and where the walk starts: node, depth and box.
+struct Ready<'l, const Q: usize> {
+    live: &'l mut [M4; Q],
+    n_live: u32,
+    neg: [bool; 3],
+    node: usize,
+    depth: usize,
+    bx: Aabb,
+}
 
 /// A packet's setup: its active lanes' outputs written (misses), its live
-/// lanes (active and valid) into `live`, where it starts (`entry` or the
-/// root, culled by `frustum`), its stray lanes (`lane_signs`) and, when
-/// incoherent, all its lanes traced alone. The walk's live lane count,
-/// near sides and start, or `None` when nothing is left to walk.
-#[allow(clippy::too_many_arguments)] // `packet`'s
+/// lanes (active and valid) into `live`, where it starts (`g.entry` or
+/// the root, culled by `g.frustum`), its stray lanes (`lane_signs`) and,
+/// when incoherent, all its lanes traced alone. The walk's lanes and
+/// start, or `None` when nothing is left to walk.
 #[inline(never)]
-fn set_up<T: TriangleTest, const ANY: bool, const Q: usize>(
+fn set_up<'l, T: TriangleTest, const ANY: bool, const Q: usize>(
     k: &KdView<'_>,
-    rays: &[Ray4],
-    active: &[M4],
-    hits: &mut [Hit4],
-    occ: &mut [M4],
-    (frustum, entry, fallbacks): (Option<&Frustum>, Option<&EntryPoint>, bool),
-    live: &mut [M4; Q],
+    pk: Packet<'_>,
+    g: Guides<'_>,
+    live: &'l mut [M4; Q],
     ctr: &mut Counters,
-) -> Option<(u32, [bool; 3], WalkStart)> {
+) -> Option<Ready<'l, Q>> {
+    let Packet {
+        rays,
+        active,
+        hits,
+        occ,
+    } = pk;
     let nq = rays.len().min(Q);
     ctr.packets += 1;
     let mut n_live = 0u32;
@@ -426,11 +421,11 @@ fn set_up<T: TriangleTest, const ANY: bool, const Q: usize>(
     if n_live == 0 || k.nodes.is_empty() || k.info.triangles == 0 {
         return None;
     }
-    let (node0, depth0, bx0) = match entry {
+    let (node0, depth0, bx0) = match g.entry {
         Some(e) if (e.node as usize) < k.nodes.len() => (e.node as usize, e.depth as usize, e.aabb),
         _ => (0, 0, k.info.root),
     };
-    if let Some(f) = frustum
+    if let Some(f) = g.frustum
         && f.cull_box(&bx0.min.to_array(), &bx0.max.to_array())
     {
         count!(ctr.culled_nodes += 1);
@@ -439,6 +434,15 @@ fn set_up<T: TriangleTest, const ANY: bool, const Q: usize>(
     // Near sides from the first live lane; lanes going another way alone.
     let q0 = live[..nq].iter().position(|m| m.any()).unwrap_or(0);
     let neg = lane_signs(&rays[q0], live[q0].bitmask().trailing_zeros() as usize);
+    // A lane traced alone from the start: its answer into the output.
+    let mut alone = |q: usize, i: usize, ctr: &mut Counters| {
+        let h: Hit = lane_from::<T, ANY>(k, &rays[q], i, node0, depth0, &bx0, ctr);
+        if ANY {
+            occ[q].set(i, h.is_hit());
+        } else {
+            hits[q].set_lane(i, h);
+        }
+    };
     for q in 0..nq {
         let s = stray_bits(&rays[q], neg) & live[q].bitmask();
         if s == 0 {
@@ -447,12 +451,7 @@ fn set_up<T: TriangleTest, const ANY: bool, const Q: usize>(
         ctr.stray_lanes += s.count_ones() as u64;
         for i in 0..4 {
             if s & (1 << i) != 0 {
-                let h: Hit = lane_from::<T, ANY>(k, &rays[q], i, node0, depth0, &bx0, ctr);
-                if ANY {
-                    occ[q].set(i, h.is_hit());
-                } else {
-                    hits[q].set_lane(i, h);
-                }
+                alone(q, i, ctr);
             }
         }
         live[q] &= !mask_from_bits(s);
@@ -464,40 +463,44 @@ fn set_up<T: TriangleTest, const ANY: bool, const Q: usize>(
     // Incoherent packets (`trace::fallback`): every lane still live (all
     // with the first lane's direction signs) alone.
     if !fallback::coherent(
-        fallbacks,
+        g.fallbacks,
         rays,
         &live[..nq],
         k.info.bounds.diagonal().length(),
     ) {
-        fallback::each_lane(&live[..nq], |q, i| {
-            let h: Hit = lane_from::<T, ANY>(k, &rays[q], i, node0, depth0, &bx0, ctr);
-            if ANY {
-                occ[q].set(i, h.is_hit());
-            } else {
-                hits[q].set_lane(i, h);
-            }
-        });
+        fallback::each_lane(&live[..nq], |q, i| alone(q, i, ctr));
         return None;
     }
-    Some((n_live, neg, (node0, depth0, bx0)))
+    Some(Ready {
+        live,
+        n_live,
+        neg,
+        node: node0,
+        depth: depth0,
+        bx: bx0,
+    })
 }
 
 #[inline(always)]
-// Monomorphised hot path: a struct would be rebuilt per packet.
-#[allow(clippy::too_many_arguments)]
 fn walk<L: Wide, T: TriangleTest, const ANY: bool, const Q: usize>(
     k: &KdView<'_>,
-    rays: &[Ray4],
-    hits: &mut [Hit4],
-    occ: &mut [M4],
+    pk: Packet<'_>,
     frustum: Option<&Frustum>,
-    live: &mut [M4; Q],
-    mut n_live: u32,
-    neg: [bool; 3],
-    start: (usize, usize, Aabb),
+    ready: Ready<'_, Q>,
     slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
+    let Packet {
+        rays, hits, occ, ..
+    } = pk;
+    let Ready {
+        live,
+        mut n_live,
+        neg,
+        mut node,
+        mut depth,
+        mut bx,
+    } = ready;
     let nq = rays.len().min(Q);
     // Per-quad constants from the slot's scratch; past nq they stay as
     // filled (never read: only quads below nq enter `act`).
@@ -541,7 +544,6 @@ fn walk<L: Wide, T: TriangleTest, const ANY: bool, const Q: usize>(
             tmax[q],
         )
     };
-    let (mut node, mut depth, mut bx) = start;
     let mut na = 0usize;
     for q in 0..nq {
         if live[q].any() {
@@ -641,18 +643,7 @@ fn walk<L: Wide, T: TriangleTest, const ANY: bool, const Q: usize>(
                     node = near;
                     bx = nb;
                     if cut_near.any() {
-                        // Near child: [t0, min(t1, t_s)]; keep the quads inside.
-                        let mut j = 0;
-                        for i in 0..na {
-                            let qi = act[i];
-                            let q = qi as usize & (Q - 1);
-                            let (ts, a1) = (tsb[i], t1[q]);
-                            let near_hi = F4::select(ts.cmplt(a1), ts, a1);
-                            t1[q] = near_hi;
-                            act[j] = qi;
-                            j += (live[q] & t0[q].cmple(near_hi)).any() as usize;
-                        }
-                        na = j;
+                        na = enter_child::<true, Q>(act, na, tsb, t0, t1, live);
                     }
                     continue;
                 }
@@ -660,18 +651,7 @@ fn walk<L: Wide, T: TriangleTest, const ANY: bool, const Q: usize>(
                     node = far;
                     bx = fb;
                     if cut_far.any() {
-                        // Far child: [max(t0, t_s), t1].
-                        let mut j = 0;
-                        for i in 0..na {
-                            let qi = act[i];
-                            let q = qi as usize & (Q - 1);
-                            let (ts, a0) = (tsb[i], t0[q]);
-                            let far_lo = F4::select(ts.cmpgt(a0), ts, a0);
-                            t0[q] = far_lo;
-                            act[j] = qi;
-                            j += (live[q] & far_lo.cmple(t1[q])).any() as usize;
-                        }
-                        na = j;
+                        na = enter_child::<false, Q>(act, na, tsb, t0, t1, live);
                     }
                     continue;
                 }
@@ -792,6 +772,42 @@ fn walk<L: Wide, T: TriangleTest, const ANY: bool, const Q: usize>(
     }
 }
 
+/// The intervals of the child `walk` enters, from the node's, for the
+/// quads `act[..na]` with the split's t_s in `tsb` (by place in `act`):
+/// the near child's `[t0, min(t1, t_s)]` (`NEAR`) or the far child's
+/// `[max(t0, t_s), t1]` (`split_interval`, lane by lane). `act` keeps the
+/// quads with a live lane inside; returns how many.
+#[inline(always)]
+fn enter_child<const NEAR: bool, const Q: usize>(
+    act: &mut [u16; Q],
+    na: usize,
+    tsb: &[F4; Q],
+    t0: &mut [F4; Q],
+    t1: &mut [F4; Q],
+    live: &[M4; Q],
+) -> usize {
+    let mut j = 0;
+    for i in 0..na {
+        let qi = act[i];
+        let q = qi as usize & (Q - 1);
+        let ts = tsb[i];
+        let (lo, hi) = if NEAR {
+            let a1 = t1[q];
+            let near_hi = F4::select(ts.cmplt(a1), ts, a1);
+            t1[q] = near_hi;
+            (t0[q], near_hi)
+        } else {
+            let a0 = t0[q];
+            let far_lo = F4::select(ts.cmpgt(a0), ts, a0);
+            t0[q] = far_lo;
+            (far_lo, t1[q])
+        };
+        act[j] = qi;
+        j += (live[q] & lo.cmple(hi)).any() as usize;
+    }
+    j
+}
+
 /// Packet exactness: every packet side, frustum kind and start (root,
 /// entry point) against `traverse_single`, lane by lane, bitwise.
 #[cfg(test)]
@@ -800,6 +816,7 @@ mod tests {
     use crate::accel::bvh::{BvhView, RayKind};
     use crate::accel::kd::traverse_simd::tests::{deep_rays, ties, with_trees};
     use crate::accel::kd::traverse_single::{self, tests::same};
+    use crate::accel::method::TraceParams;
     use crate::accel::slot::SlotBuf;
     use crate::accel::testkit::{Packed, RaySet, lattice, packets, ray_sets};
     use crate::geom::INVALID_ID;
@@ -959,18 +976,30 @@ mod tests {
             .collect()
     }
 
-    /// One input through `intersect` and `occluded`, every lane compared
-    /// with the single-ray results `near` and `occl` (by quad and lane).
-    // Test harness: one argument per traversal input and reference.
-    #[allow(clippy::too_many_arguments)]
+    /// The single ray's answers to an input, by quad and lane: the nearest
+    /// hit and occlusion.
+    struct Single<'s> {
+        near: &'s dyn Fn(usize, usize) -> Hit,
+        occl: &'s dyn Fn(usize, usize) -> bool,
+    }
+
+    /// `Guides` as a trace call with the default parameters has them.
+    fn guides<'g>(frustum: Option<&'g Frustum>, entry: Option<&'g EntryPoint>) -> Guides<'g> {
+        Guides {
+            frustum,
+            entry,
+            fallbacks: TraceParams::default().fallbacks,
+        }
+    }
+
+    /// One input through `traced` for nearest hits and for occlusion,
+    /// every lane compared with `single`.
     fn check_packet<T: TriangleTest>(
         k: &KdView<'_>,
         quads: &[Ray4],
         active: &[M4],
-        f: Option<&Frustum>,
-        e: Option<&EntryPoint>,
-        near: &dyn Fn(usize, usize) -> Hit,
-        occl: &dyn Fn(usize, usize) -> bool,
+        g: Guides<'_>,
+        single: &Single<'_>,
         what: &dyn Fn() -> String,
         slot: &mut Slot<'_>,
     ) -> Counters {
@@ -981,9 +1010,11 @@ mod tests {
         let mut hits = vec![fill; quads.len()];
         let mut occ = vec![M4::TRUE; quads.len()];
         let mut ctr = Counters::default();
-        let p = TraceParams::default();
-        intersect::<T>(k, quads, active, &mut hits, f, e, &p, slot, &mut ctr);
-        occluded::<T>(k, quads, active, &mut occ, f, e, &p, slot, &mut ctr);
+        let isa = TraceParams::default().isa;
+        let pk = Packet::nearest(quads, active, &mut hits);
+        traced::<T, false>(k, pk, g, isa, slot, &mut ctr);
+        let pk = Packet::occlusion(quads, active, &mut occ);
+        traced::<T, true>(k, pk, g, isa, slot, &mut ctr);
         let mut valid = 0;
         for (q, (h, m)) in hits.iter().zip(active).enumerate() {
             for i in 0..4 {
@@ -999,7 +1030,7 @@ mod tests {
                 }
                 let ray = quads[q].lane(i);
                 valid += ray.is_valid() as u64;
-                let want = near(q, i);
+                let want = (single.near)(q, i);
                 assert!(
                     same(&got, &want),
                     "{} ({:?}): quad {q} lane {i} {ray:?}: packet {got:?} single {want:?}",
@@ -1008,7 +1039,7 @@ mod tests {
                 );
                 assert_eq!(
                     occ[q].test(i),
-                    occl(q, i),
+                    (single.occl)(q, i),
                     "{} ({:?}): quad {q} lane {i} {ray:?} occluded",
                     what(),
                     T::KIND
@@ -1061,6 +1092,10 @@ mod tests {
             let mut run = |quads: &[Ray4], active: &[M4], pix: &[[Option<usize>; 4]], n: u32| {
                 let near = |q: usize, i: usize| single[pix[q][i].unwrap()].0;
                 let occl = |q: usize, i: usize| single[pix[q][i].unwrap()].1;
+                let want = Single {
+                    near: &near,
+                    occl: &occl,
+                };
                 let live = live_of(quads, active);
                 let mut configs: Vec<(Option<Frustum>, Option<EntryPoint>, String)> = vec![
                     (None, None, "no frustum, root".into()),
@@ -1076,17 +1111,8 @@ mod tests {
                 }
                 for (f, e, c) in &configs {
                     let what = || format!("{name} {} n={n} {c}", set.name);
-                    let ctr = check_packet::<T>(
-                        k,
-                        quads,
-                        active,
-                        f.as_ref(),
-                        e.as_ref(),
-                        &near,
-                        &occl,
-                        &what,
-                        &mut own.slot(),
-                    );
+                    let g = guides(f.as_ref(), e.as_ref());
+                    let ctr = check_packet::<T>(k, quads, active, g, &want, &what, &mut own.slot());
                     total.add(&ctr);
                 }
             };
@@ -1251,10 +1277,11 @@ mod tests {
                     k,
                     &quads,
                     &active,
-                    None,
-                    Some(&bad),
-                    &near,
-                    &occl,
+                    guides(None, Some(&bad)),
+                    &Single {
+                        near: &near,
+                        occl: &occl,
+                    },
                     &|| "bad entry".into(),
                     &mut SlotBuf::new(0).slot(),
                 ));
@@ -1392,17 +1419,10 @@ mod tests {
                                 } else {
                                     None
                                 };
-                                intersect::<Mt>(
-                                    k,
-                                    q,
-                                    a,
-                                    &mut hits,
-                                    f.as_ref(),
-                                    None,
-                                    &TraceParams::default(),
-                                    &mut own.slot(),
-                                    c,
-                                );
+                                let pk = Packet::nearest(q, a, &mut hits);
+                                let g = guides(f.as_ref(), None);
+                                let isa = TraceParams::default().isa;
+                                traced::<Mt, false>(k, pk, g, isa, &mut own.slot(), c);
                                 x += sum(&hits);
                             }
                             x

@@ -32,7 +32,7 @@
 //! `aabb_at` one per split step of the 2x2 ray, `tri_at` the lanes of each
 //! 4-wide triangle test.
 
-use super::traverse_single::{KdRay, from_node};
+use super::traverse_single::{KdRay, Visit, from_node};
 use super::{KdView, MAX_DEPTH, TriangleTest};
 use crate::accel::fallback;
 use crate::accel::group;
@@ -178,7 +178,13 @@ pub(crate) fn lane_from<T: TriangleTest, const ANY: bool>(
     );
     let mut best = Hit::MISS;
     if t0 <= t1 {
-        from_node::<T, ANY>(k, &ray, &kr, node, depth, t0, t1, &mut best, ctr);
+        let at = Visit {
+            node,
+            depth,
+            t0,
+            t1,
+        };
+        from_node::<T, ANY>(k, &ray, &kr, at, &mut best, ctr);
     }
     best
 }

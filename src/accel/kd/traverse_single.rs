@@ -76,25 +76,36 @@ fn walk<T: TriangleTest, const ANY: bool>(k: &KdView<'_>, ray: &Ray, ctr: &mut C
     );
     // A NaN bound misses as an empty interval does.
     if t0 <= t1 {
-        from_node::<T, ANY>(k, ray, &kr, 0, 0, t0, t1, &mut best, ctr);
+        let at = Visit {
+            node: 0,
+            depth: 0,
+            t0,
+            t1,
+        };
+        from_node::<T, ANY>(k, ray, &kr, at, &mut best, ctr);
     }
     best
 }
 
-/// Traverse the subtree of `node` (at `depth`) with the ray's interval
-/// `[t0, t1]` in it, updating `best`. Used from the root and from entry
-/// points (packets whose lanes fall back to single rays).
+/// Where a ray's walk starts: a node, its depth (root 0), and the ray's
+/// interval `[t0, t1]` in it.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Visit {
+    pub node: usize,
+    pub depth: usize,
+    pub t0: f32,
+    pub t1: f32,
+}
+
+/// Traverse the subtree of `at.node` with the ray's interval there,
+/// updating `best`. Used from the root and from entry points (packets
+/// whose lanes fall back to single rays).
 #[inline]
-// Recursive hot path (per node): a struct would be rebuilt per call.
-#[allow(clippy::too_many_arguments)]
 pub(crate) fn from_node<T: TriangleTest, const ANY: bool>(
     k: &KdView<'_>,
     ray: &Ray,
     kr: &KdRay,
-    node: usize,
-    depth: usize,
-    t0: f32,
-    t1: f32,
+    at: Visit,
     best: &mut Hit,
     ctr: &mut Counters,
 ) {
@@ -104,7 +115,12 @@ pub(crate) fn from_node<T: TriangleTest, const ANY: bool>(
     // (node, depth, t0, t1) of pushed far children.
     let mut st = [(0u32, 0u8, 0.0f32, 0.0f32); MAX_DEPTH + 1];
     let mut sp = 0usize;
-    let (mut node, mut depth, mut t0, mut t1) = (node, depth, t0, t1);
+    let Visit {
+        mut node,
+        mut depth,
+        mut t0,
+        mut t1,
+    } = at;
     loop {
         let n = &nodes[node];
         if !n.is_leaf() {
