@@ -2,8 +2,8 @@
 //! tunables of the BVH and the frustum its large packets get.
 
 use super::grid::sheaf_tri_test;
+use super::raw;
 use super::sized::{self, versioned};
-use super::{guard_free, raw};
 use crate::error::{Error, Result};
 use crate::{BuildQuality, BvhParams, RayKind};
 use crate::{RefitInfo, RefitParams};
@@ -148,7 +148,7 @@ impl sheaf_ray_kind {
 }
 
 versioned!(
-    sheaf_bvh_params,
+    sheaf_bvh_params => BvhParams,
     [
         leaf_size,
         bins,
@@ -172,7 +172,7 @@ pub extern "C" fn sheaf_bvh_params_default(
     out: *mut sheaf_bvh_params,
     size: usize,
 ) -> super::sheaf_status {
-    guard_free(|| sized::write(out, size, sheaf_bvh_params::of(&BvhParams::default())))
+    sized::write_defaults(out, size)
 }
 
 /// When a BVH refit becomes a rebuild (`sheaf_context_refit_bvh`), the
@@ -235,7 +235,7 @@ impl sheaf_refit_info {
 }
 
 versioned!(
-    sheaf_refit_params,
+    sheaf_refit_params => RefitParams,
     [rebuild_above],
     sheaf_refit_params::of(&RefitParams::default())
 );
@@ -250,7 +250,7 @@ pub extern "C" fn sheaf_refit_params_default(
     out: *mut sheaf_refit_params,
     size: usize,
 ) -> super::sheaf_status {
-    guard_free(|| sized::write(out, size, sheaf_refit_params::of(&RefitParams::default())))
+    sized::write_defaults(out, size)
 }
 
 #[cfg(test)]

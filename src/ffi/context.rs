@@ -18,10 +18,7 @@ use super::{
 };
 use super::{sheaf_hit, sheaf_ray};
 use crate::Band;
-use crate::BvhParams;
-use crate::GridParams;
 use crate::Limits;
-use crate::RefitParams;
 use crate::TraceParams;
 use crate::context::{Context, required_bytes};
 use crate::error::{Error, Result};
@@ -328,7 +325,7 @@ pub extern "C" fn sheaf_required_bytes(
     out: *mut usize,
 ) -> sheaf_status {
     guard_free(|| {
-        let limits = sized::read(limits)?.to_core()?;
+        let limits = sized::to_core(limits)?;
         check_non_null!(out);
         let need = total_bytes(&limits)?;
         write_out(out, need);
@@ -360,7 +357,7 @@ pub extern "C" fn sheaf_context_create_in(
 ) -> sheaf_status {
     guard_free(|| {
         check_non_null!(buf);
-        let limits = sized::read(limits)?.to_core()?;
+        let limits = sized::to_core(limits)?;
         check_non_null!(out);
         let need = total_bytes(&limits)?;
         if !(buf as usize).is_multiple_of(SHEAF_CONTEXT_ALIGN) {
@@ -414,7 +411,7 @@ pub extern "C" fn sheaf_context_create(
 ) -> sheaf_status {
     let mut oom = false;
     let s = guard_free(|| {
-        let limits = sized::read(limits)?.to_core()?;
+        let limits = sized::to_core(limits)?;
         check_non_null!(out);
         let need = total_bytes(&limits)?;
         let layout = std::alloc::Layout::from_size_align(need, SHEAF_CONTEXT_ALIGN)
@@ -590,11 +587,7 @@ pub extern "C" fn sheaf_context_build_grid(
     params: *const sheaf_grid_params,
 ) -> sheaf_status {
     with_mut(ctx, |h| {
-        let params = if params.is_null() {
-            GridParams::default()
-        } else {
-            sized::read(params)?.to_core()?
-        };
+        let params = sized::or_default(params)?;
         let g = h.geometry.as_ref().ok_or(Error::NoGeometry)?;
         h.ctx.build_grid(&g.scene()?, &params)?;
         Ok(())
@@ -618,11 +611,7 @@ pub extern "C" fn sheaf_context_build_grid_joined(
     thread_count: u32,
 ) -> sheaf_status {
     joined(ctx, thread_index, thread_count, |h, par| {
-        let params = if params.is_null() {
-            GridParams::default()
-        } else {
-            sized::read(params)?.to_core()?
-        };
+        let params = sized::or_default(params)?;
         let g = h.geometry.as_ref().ok_or(Error::NoGeometry)?;
         h.ctx.build_grid_with(&g.scene()?, &params, par)?;
         Ok(())
@@ -649,11 +638,7 @@ pub extern "C" fn sheaf_context_build_bvh(
     params: *const sheaf_bvh_params,
 ) -> sheaf_status {
     with_mut(ctx, |h| {
-        let params = if params.is_null() {
-            BvhParams::default()
-        } else {
-            sized::read(params)?.to_core()?
-        };
+        let params = sized::or_default(params)?;
         let g = h.geometry.as_ref().ok_or(Error::NoGeometry)?;
         h.ctx.build_bvh(&g.scene()?, &params)?;
         Ok(())
@@ -702,11 +687,7 @@ pub extern "C" fn sheaf_context_build_bvh_joined(
     thread_count: u32,
 ) -> sheaf_status {
     joined(ctx, thread_index, thread_count, |h, par| {
-        let params = if params.is_null() {
-            BvhParams::default()
-        } else {
-            sized::read(params)?.to_core()?
-        };
+        let params = sized::or_default(params)?;
         let g = h.geometry.as_ref().ok_or(Error::NoGeometry)?;
         h.ctx.build_bvh_with(&g.scene()?, &params, par)?;
         Ok(())
@@ -732,11 +713,7 @@ pub extern "C" fn sheaf_context_refit_bvh_joined(
     thread_count: u32,
 ) -> sheaf_status {
     joined(ctx, thread_index, thread_count, |h, par| {
-        let params = if params.is_null() {
-            RefitParams::default()
-        } else {
-            sized::read(params)?.to_core()?
-        };
+        let params = sized::or_default(params)?;
         let g = h.geometry.as_ref().ok_or(Error::NoGeometry)?;
         let r = h.ctx.refit_bvh_with(&g.scene()?, &params, par)?;
         if !out.is_null() {
@@ -874,11 +851,7 @@ pub extern "C" fn sheaf_context_refit_bvh(
     out: *mut sheaf_refit_info,
 ) -> sheaf_status {
     with_mut(ctx, |h| {
-        let params = if params.is_null() {
-            RefitParams::default()
-        } else {
-            sized::read(params)?.to_core()?
-        };
+        let params = sized::or_default(params)?;
         let g = h.geometry.as_ref().ok_or(Error::NoGeometry)?;
         let r = h.ctx.refit_bvh(&g.scene()?, &params)?;
         if !out.is_null() {
@@ -907,7 +880,7 @@ pub extern "C" fn sheaf_context_trace_with(
     count: usize,
 ) -> sheaf_status {
     with_ref(ctx, |h| {
-        let p = sized::read(params)?.to_core()?;
+        let p = sized::to_core(params)?;
         trace_impl(h, None, &p, rays, hits, count)
     })
 }
@@ -1006,7 +979,7 @@ pub extern "C" fn sheaf_context_trace_slot(
     count: usize,
 ) -> sheaf_status {
     with_ref(ctx, |h| {
-        let p = sized::read(params)?.to_core()?;
+        let p = sized::to_core(params)?;
         trace_impl(h, Some(slot), &p, rays, hits, count)
     })
 }
@@ -1027,7 +1000,7 @@ pub extern "C" fn sheaf_context_occluded_slot(
     count: usize,
 ) -> sheaf_status {
     with_ref(ctx, |h| {
-        let p = sized::read(params)?.to_core()?;
+        let p = sized::to_core(params)?;
         occluded_impl(h, Some(slot), &p, rays, occluded, count)
     })
 }
@@ -1073,7 +1046,7 @@ pub extern "C" fn sheaf_context_occluded_with(
     count: usize,
 ) -> sheaf_status {
     with_ref(ctx, |h| {
-        let p = sized::read(params)?.to_core()?;
+        let p = sized::to_core(params)?;
         occluded_impl(h, None, &p, rays, occluded, count)
     })
 }
@@ -1127,8 +1100,8 @@ pub extern "C" fn sheaf_context_render_with(
     rgba_len: usize,
 ) -> sheaf_status {
     with_mut(ctx, |h| {
-        let p = sized::read(primary)?.to_core()?;
-        let s = sized::read(shadow)?.to_core()?;
+        let p = sized::to_core(primary)?;
+        let s = sized::to_core(shadow)?;
         render_impl(h, &p, &s, frame, rgba, stride_bytes, rgba_len)
     })
 }
@@ -1163,8 +1136,8 @@ pub extern "C" fn sheaf_context_render_rows(
     rgba_len: usize,
 ) -> sheaf_status {
     with_ref(ctx, |h| {
-        let p = sized::read(primary)?.to_core()?;
-        let s = sized::read(shadow)?.to_core()?;
+        let p = sized::to_core(primary)?;
+        let s = sized::to_core(shadow)?;
         let frame = read_in(frame)?.to_core()?;
         check_non_null!(rgba);
         if rgba_len > isize::MAX as usize {
@@ -1295,7 +1268,7 @@ pub extern "C" fn sheaf_slot_scratch_bytes(
     out: *mut usize,
 ) -> sheaf_status {
     guard_free(|| {
-        let limits = sized::read(limits)?.to_core()?;
+        let limits = sized::to_core(limits)?;
         limits.validate()?;
         check_non_null!(out);
         write_out(out, crate::slot_scratch_bytes(&limits));

@@ -6,7 +6,7 @@ use super::bvh::sheaf_build_quality;
 use super::context::{joined, sheaf_context, with_mut};
 use super::grid::sheaf_tri_test;
 use super::sized::{self, versioned};
-use super::{guard_free, raw, sheaf_status};
+use super::{raw, sheaf_status};
 use crate::KdParams;
 use crate::error::{Error, Result};
 
@@ -63,7 +63,7 @@ impl sheaf_kd_params {
 }
 
 versioned!(
-    sheaf_kd_params,
+    sheaf_kd_params => KdParams,
     [max_depth, traversal_cost, empty_bonus, test, quality, bins],
     sheaf_kd_params::of(&KdParams::default())
 );
@@ -79,7 +79,7 @@ versioned!(
 /// `size` is no size of this struct. Thread-safe.
 #[unsafe(no_mangle)]
 pub extern "C" fn sheaf_kd_params_default(out: *mut sheaf_kd_params, size: usize) -> sheaf_status {
-    guard_free(|| sized::write(out, size, sheaf_kd_params::of(&KdParams::default())))
+    sized::write_defaults(out, size)
 }
 
 /// Rebuild the kd-tree from the geometry with `*params` (copied; NULL: the
@@ -101,11 +101,7 @@ pub extern "C" fn sheaf_context_build_kd(
     params: *const sheaf_kd_params,
 ) -> sheaf_status {
     with_mut(ctx, |h| {
-        let params = if params.is_null() {
-            KdParams::default()
-        } else {
-            sized::read(params)?.to_core()?
-        };
+        let params = sized::or_default(params)?;
         let g = h.geometry.as_ref().ok_or(Error::NoGeometry)?;
         h.ctx.build_kd(&g.scene()?, &params)?;
         Ok(())
@@ -131,11 +127,7 @@ pub extern "C" fn sheaf_context_build_kd_joined(
     thread_count: u32,
 ) -> sheaf_status {
     joined(ctx, thread_index, thread_count, |h, par| {
-        let params = if params.is_null() {
-            KdParams::default()
-        } else {
-            sized::read(params)?.to_core()?
-        };
+        let params = sized::or_default(params)?;
         let g = h.geometry.as_ref().ok_or(Error::NoGeometry)?;
         h.ctx.build_kd_with(&g.scene()?, &params, par)?;
         Ok(())
@@ -158,11 +150,7 @@ pub extern "C" fn sheaf_context_build_scene_kd_joined(
     thread_count: u32,
 ) -> sheaf_status {
     joined(ctx, thread_index, thread_count, |h, par| {
-        let p = if params.is_null() {
-            KdParams::default()
-        } else {
-            sized::read(params)?.to_core()?
-        };
+        let p = sized::or_default(params)?;
         h.ctx.build_kd_scene_with(&p, mask, par)?;
         Ok(())
     })

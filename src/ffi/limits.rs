@@ -136,7 +136,7 @@ impl sheaf_limits {
 }
 
 versioned!(
-    sheaf_limits,
+    sheaf_limits => Limits,
     [
         max_triangles,
         max_vertices,

@@ -12,8 +12,7 @@ use super::grid::sheaf_tri_test;
 use super::sized::{self, versioned};
 use super::trace_params::{sheaf_isa, sheaf_trace_params};
 use super::{
-    check_array, check_non_null, flag, guard_free, raw, read_in, sheaf_hit, sheaf_ray,
-    sheaf_status, write_out,
+    check_array, check_non_null, flag, raw, read_in, sheaf_hit, sheaf_ray, sheaf_status, write_out,
 };
 use crate::Hit;
 use crate::PgridParams;
@@ -98,7 +97,7 @@ impl sheaf_pgrid_params {
 }
 
 versioned!(
-    sheaf_pgrid_params,
+    sheaf_pgrid_params => PgridParams,
     [
         tile,
         group,
@@ -128,7 +127,7 @@ pub extern "C" fn sheaf_pgrid_params_default(
     out: *mut sheaf_pgrid_params,
     size: usize,
 ) -> sheaf_status {
-    guard_free(|| sized::write(out, size, sheaf_pgrid_params::of(&PgridParams::default())))
+    sized::write_defaults(out, size)
 }
 
 /// Load the geometry for perspective and light grids with `*params`
@@ -154,11 +153,7 @@ pub extern "C" fn sheaf_context_build_pgrid(
     params: *const sheaf_pgrid_params,
 ) -> sheaf_status {
     with_mut(ctx, |h| {
-        let params = if params.is_null() {
-            PgridParams::default()
-        } else {
-            sized::read(params)?.to_core()?
-        };
+        let params = sized::or_default(params)?;
         let g = h.geometry.as_ref().ok_or(Error::NoGeometry)?;
         h.ctx.build_pgrid(&g.scene()?, &params)?;
         Ok(())
@@ -319,7 +314,7 @@ fn render_deferred(
         )? {
             PrimaryPass::Pgrid
         } else {
-            PrimaryPass::Traced(traced(j.primary)?)
+            PrimaryPass::Traced(sized::or_default(j.primary)?)
         },
         shadow: if flag(
             j.shadow_light_grid,
@@ -327,22 +322,13 @@ fn render_deferred(
         )? {
             ShadowPass::LightGrid
         } else {
-            ShadowPass::Traced(traced(j.shadow)?)
+            ShadowPass::Traced(sized::or_default(j.shadow)?)
         },
     };
     // `render_deferred` validates the job (once, before anything else).
     let pixels = super::context::pixels(h, &frame, rgba, stride_bytes, rgba_len)?;
     h.ctx.render_deferred(&job, pixels, stride_bytes, workers)?;
     Ok(())
-}
-
-/// A deferred pass's trace parameters (NULL: the defaults).
-fn traced(p: *const sheaf_trace_params) -> Result<crate::TraceParams> {
-    if p.is_null() {
-        Ok(crate::TraceParams::default())
-    } else {
-        sized::read(p)?.to_core()
-    }
 }
 
 /// Check that a deferred frame exists and contains pixel (x, y): its hit

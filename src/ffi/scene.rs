@@ -12,12 +12,8 @@ use super::pgrid::sheaf_pgrid_params;
 use super::ray::{sheaf_hit, sheaf_ray};
 use super::sized::{self, versioned};
 use super::trace_params::sheaf_trace_params;
-use super::{check_array, check_non_null, guard_free, overlaps, read_in, write_out};
-use crate::GridParams;
-use crate::KdParams;
-use crate::PgridParams;
+use super::{check_array, check_non_null, overlaps, read_in, write_out};
 use crate::SceneHit;
-use crate::TraceParams;
 use crate::error::{Error, Result};
 use crate::{Affine, Cull, Ray};
 use crate::{GeometryParams, RayControls, TwoLevelInfo, UpdateMode};
@@ -123,20 +119,11 @@ impl sheaf_geometry_params {
                 "sheaf_geometry_params.reserved must be 0",
             ));
         }
-        let defaults = GeometryParams::default();
         Ok(GeometryParams {
             mode,
             max_triangles: self.max_triangles,
-            bvh: if self.bvh.is_null() {
-                defaults.bvh
-            } else {
-                sized::read(self.bvh)?.to_core()?
-            },
-            refit: if self.refit.is_null() {
-                defaults.refit
-            } else {
-                sized::read(self.refit)?.to_core()?
-            },
+            bvh: sized::or_default(self.bvh)?,
+            refit: sized::or_default(self.refit)?,
             mask: self.mask,
             filter: super::filter::filter_of(self.filter, self.filter_user)?,
             opaque: super::flag(self.opaque, "sheaf_geometry_params.opaque must be 0 or 1")?,
@@ -145,7 +132,7 @@ impl sheaf_geometry_params {
 }
 
 versioned!(
-    sheaf_geometry_params,
+    sheaf_geometry_params => GeometryParams,
     [
         mode,
         bvh,
@@ -249,13 +236,7 @@ pub extern "C" fn sheaf_geometry_params_default(
     out: *mut sheaf_geometry_params,
     size: usize,
 ) -> super::sheaf_status {
-    guard_free(|| {
-        sized::write(
-            out,
-            size,
-            sheaf_geometry_params::of(&GeometryParams::default()),
-        )
-    })
+    sized::write_defaults(out, size)
 }
 
 /// Set geometry `id` (`< max_geometries`) of the two-level scene to
@@ -291,11 +272,7 @@ pub extern "C" fn sheaf_context_set_scene_geometry(
 ) -> super::sheaf_status {
     with_mut(ctx, |h| {
         let g = read_in(mesh)?.geometry()?;
-        let p = if params.is_null() {
-            GeometryParams::default()
-        } else {
-            sized::read(params)?.to_core()?
-        };
+        let p = sized::or_default(params)?;
         h.ctx.set_geometry(id, &g.scene()?, &p)?;
         Ok(())
     })
@@ -459,7 +436,7 @@ pub extern "C" fn sheaf_context_trace_scene(
         if overlaps(rays.cast(), rb, hits.cast_const().cast(), hb) {
             return Err(Error::InvalidArgument("rays and hits overlap"));
         }
-        let p = params_of(params)?;
+        let p = sized::optional(params)?; // NULL: single rays
         h.ctx.scene_view()?;
         // SAFETY: i < count; `rays` checked to span count readable
         // elements (C contract; unaligned reads allowed).
@@ -495,7 +472,7 @@ pub extern "C" fn sheaf_context_occluded_scene(
         if overlaps(rays.cast(), rb, occluded.cast_const(), count) {
             return Err(Error::InvalidArgument("rays and results overlap"));
         }
-        let p = params_of(params)?;
+        let p = sized::optional(params)?; // NULL: single rays
         h.ctx.scene_view()?;
         // SAFETY: as in sheaf_context_trace_scene.
         let read = |i: usize| Ray::from(unsafe { rays.add(i).read_unaligned() });
@@ -532,11 +509,7 @@ pub extern "C" fn sheaf_context_build_scene_grid(
     mask: u32,
 ) -> super::sheaf_status {
     with_mut(ctx, |h| {
-        let p = if params.is_null() {
-            GridParams::default()
-        } else {
-            sized::read(params)?.to_core()?
-        };
+        let p = sized::or_default(params)?;
         h.ctx.build_grid_scene(&p, mask)?;
         Ok(())
     })
@@ -553,11 +526,7 @@ pub extern "C" fn sheaf_context_build_scene_kd(
     mask: u32,
 ) -> super::sheaf_status {
     with_mut(ctx, |h| {
-        let p = if params.is_null() {
-            KdParams::default()
-        } else {
-            sized::read(params)?.to_core()?
-        };
+        let p = sized::or_default(params)?;
         h.ctx.build_kd_scene(&p, mask)?;
         Ok(())
     })
@@ -577,11 +546,7 @@ pub extern "C" fn sheaf_context_build_scene_pgrid(
     mask: u32,
 ) -> super::sheaf_status {
     with_mut(ctx, |h| {
-        let p = if params.is_null() {
-            PgridParams::default()
-        } else {
-            sized::read(params)?.to_core()?
-        };
+        let p = sized::or_default(params)?;
         h.ctx.build_pgrid_scene(&p, mask)?;
         Ok(())
     })
@@ -643,14 +608,6 @@ pub(super) fn controls(mask: u32, flags: u32) -> Result<RayControls> {
         _ => return Err(Error::InvalidArgument("unknown SHEAF_RAY_FLAG_* bits")),
     };
     Ok(RayControls { mask, cull, opaque })
-}
-
-/// The trace parameters of a scene trace (`None`: single rays).
-pub(super) fn params_of(params: *const sheaf_trace_params) -> Result<Option<TraceParams>> {
-    if params.is_null() {
-        return Ok(None);
-    }
-    Ok(Some(sized::read(params)?.to_core()?))
 }
 
 #[cfg(test)]
