@@ -7,6 +7,7 @@
 //! allocation of the same size and layout and frees it in
 //! `sheaf_context_destroy`.
 
+use super::build::{build, build_joined};
 use super::bvh::{sheaf_bvh_params, sheaf_refit_info, sheaf_refit_params};
 use super::limits::sheaf_limits;
 use super::sized;
@@ -14,7 +15,7 @@ use super::trace_params::sheaf_trace_params;
 use super::{
     SHEAF_CONTEXT_ALIGN, SHEAF_ERROR_MESSAGE_MAX, array_bytes, check_array, check_non_null,
     guard_free, overlaps, raw, read_in, sheaf_frame, sheaf_grid_params, sheaf_method, sheaf_stats,
-    sheaf_status, write_out,
+    sheaf_status, write_out, write_wanted,
 };
 use super::{sheaf_hit, sheaf_ray};
 use crate::Band;
@@ -22,7 +23,7 @@ use crate::Limits;
 use crate::TraceParams;
 use crate::context::{Context, required_bytes};
 use crate::error::{Error, Result};
-use crate::{CallGate, Locked};
+use crate::{CallGate, Locked, Par};
 use crate::{Ray, Scene};
 use core::cell::UnsafeCell;
 use core::ffi::{c_char, c_void};
@@ -586,12 +587,7 @@ pub extern "C" fn sheaf_context_build_grid(
     ctx: *mut sheaf_context,
     params: *const sheaf_grid_params,
 ) -> sheaf_status {
-    with_mut(ctx, |h| {
-        let params = sized::or_default(params)?;
-        let g = h.geometry.as_ref().ok_or(Error::NoGeometry)?;
-        h.ctx.build_grid(&g.scene()?, &params)?;
-        Ok(())
-    })
+    build(ctx, params, |c, scene, p| c.build_grid(scene, p))
 }
 
 /// `sheaf_context_build_grid` on `thread_count` of the caller's threads,
@@ -610,12 +606,13 @@ pub extern "C" fn sheaf_context_build_grid_joined(
     thread_index: u32,
     thread_count: u32,
 ) -> sheaf_status {
-    joined(ctx, thread_index, thread_count, |h, par| {
-        let params = sized::or_default(params)?;
-        let g = h.geometry.as_ref().ok_or(Error::NoGeometry)?;
-        h.ctx.build_grid_with(&g.scene()?, &params, par)?;
-        Ok(())
-    })
+    build_joined(
+        ctx,
+        params,
+        thread_index,
+        thread_count,
+        |c, scene, p, par| c.build_grid_with(scene, p, par),
+    )
 }
 
 /// Rebuild the BVH from the geometry with `*params` (copied; NULL: the
@@ -637,12 +634,7 @@ pub extern "C" fn sheaf_context_build_bvh(
     ctx: *mut sheaf_context,
     params: *const sheaf_bvh_params,
 ) -> sheaf_status {
-    with_mut(ctx, |h| {
-        let params = sized::or_default(params)?;
-        let g = h.geometry.as_ref().ok_or(Error::NoGeometry)?;
-        h.ctx.build_bvh(&g.scene()?, &params)?;
-        Ok(())
-    })
+    build(ctx, params, |c, scene, p| c.build_bvh(scene, p))
 }
 
 /// Build the BVH on `thread_count` of the caller's threads, which join
@@ -686,12 +678,13 @@ pub extern "C" fn sheaf_context_build_bvh_joined(
     thread_index: u32,
     thread_count: u32,
 ) -> sheaf_status {
-    joined(ctx, thread_index, thread_count, |h, par| {
-        let params = sized::or_default(params)?;
-        let g = h.geometry.as_ref().ok_or(Error::NoGeometry)?;
-        h.ctx.build_bvh_with(&g.scene()?, &params, par)?;
-        Ok(())
-    })
+    build_joined(
+        ctx,
+        params,
+        thread_index,
+        thread_count,
+        |c, scene, p, par| c.build_bvh_with(scene, p, par),
+    )
 }
 
 /// `sheaf_context_refit_bvh` on `thread_count` of the caller's threads,
@@ -712,15 +705,17 @@ pub extern "C" fn sheaf_context_refit_bvh_joined(
     thread_index: u32,
     thread_count: u32,
 ) -> sheaf_status {
-    joined(ctx, thread_index, thread_count, |h, par| {
-        let params = sized::or_default(params)?;
-        let g = h.geometry.as_ref().ok_or(Error::NoGeometry)?;
-        let r = h.ctx.refit_bvh_with(&g.scene()?, &params, par)?;
-        if !out.is_null() {
-            write_out(out, sheaf_refit_info::of(&r));
-        }
-        Ok(())
-    })
+    build_joined(
+        ctx,
+        params,
+        thread_index,
+        thread_count,
+        |c, scene, p, par| {
+            let r = c.refit_bvh_with(scene, p, par)?;
+            write_wanted(out, sheaf_refit_info::of(&r));
+            Ok(())
+        },
+    )
 }
 
 /// The joined calls' protocol: thread 0 leads (takes the context as an
@@ -730,7 +725,7 @@ pub(super) fn joined(
     ctx: *mut sheaf_context,
     thread_index: u32,
     thread_count: u32,
-    work: impl FnOnce(&mut Handle, &dyn crate::Par) -> Result<()>,
+    work: impl FnOnce(&mut Handle, &dyn Par) -> Result<()>,
 ) -> sheaf_status {
     use crate::MAX_WORKERS;
     let (me, count) = (thread_index as usize, thread_count as usize);
@@ -850,13 +845,9 @@ pub extern "C" fn sheaf_context_refit_bvh(
     params: *const sheaf_refit_params,
     out: *mut sheaf_refit_info,
 ) -> sheaf_status {
-    with_mut(ctx, |h| {
-        let params = sized::or_default(params)?;
-        let g = h.geometry.as_ref().ok_or(Error::NoGeometry)?;
-        let r = h.ctx.refit_bvh(&g.scene()?, &params)?;
-        if !out.is_null() {
-            write_out(out, sheaf_refit_info::of(&r));
-        }
+    build(ctx, params, |c, scene, p| {
+        let r = c.refit_bvh(scene, p)?;
+        write_wanted(out, sheaf_refit_info::of(&r));
         Ok(())
     })
 }

@@ -6,6 +6,7 @@
 //! `sheaf_context_render_deferred`, `sheaf_context_deferred_pixel`,
 //! `sheaf_context_deferred_shadow_ray`.
 
+use super::build::build;
 use super::context::{Handle, sheaf_context, with_mut, with_ref};
 use super::frame::sheaf_frame;
 use super::grid::sheaf_tri_test;
@@ -152,12 +153,7 @@ pub extern "C" fn sheaf_context_build_pgrid(
     ctx: *mut sheaf_context,
     params: *const sheaf_pgrid_params,
 ) -> sheaf_status {
-    with_mut(ctx, |h| {
-        let params = sized::or_default(params)?;
-        let g = h.geometry.as_ref().ok_or(Error::NoGeometry)?;
-        h.ctx.build_pgrid(&g.scene()?, &params)?;
-        Ok(())
-    })
+    build(ctx, params, |c, scene, p| c.build_pgrid(scene, p))
 }
 
 /// A deferred frame (the crate's `DeferredJob`).

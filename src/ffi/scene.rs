@@ -4,6 +4,7 @@
 //! placing them with 3x4 transforms, a commit, and rays traced through it.
 //! Needs `sheaf_limits.max_geometries` > 0.
 
+use super::build::build_scene;
 use super::bvh::{sheaf_bvh_params, sheaf_refit_info, sheaf_refit_params};
 use super::context::{Geometry, sheaf_context, with_mut, with_ref};
 use super::grid::sheaf_grid_params;
@@ -12,7 +13,7 @@ use super::pgrid::sheaf_pgrid_params;
 use super::ray::{sheaf_hit, sheaf_ray};
 use super::sized::{self, versioned};
 use super::trace_params::sheaf_trace_params;
-use super::{check_array, check_non_null, overlaps, read_in, write_out};
+use super::{check_array, check_non_null, overlaps, read_in, write_out, write_wanted};
 use crate::SceneHit;
 use crate::error::{Error, Result};
 use crate::{Affine, Cull, Ray};
@@ -302,14 +303,12 @@ pub extern "C" fn sheaf_context_update_scene_geometry(
     with_mut(ctx, |h| {
         let g = read_in(mesh)?.geometry()?;
         let u = h.ctx.update_geometry(id, &g.scene()?)?;
-        if !out.is_null() {
-            write_out(
-                out,
-                u.refit
-                    .map(|r| sheaf_refit_info::of(&r))
-                    .unwrap_or_default(),
-            );
-        }
+        write_wanted(
+            out,
+            u.refit
+                .map(|r| sheaf_refit_info::of(&r))
+                .unwrap_or_default(),
+        );
         Ok(())
     })
 }
@@ -385,9 +384,7 @@ pub extern "C" fn sheaf_context_commit_scene(
 ) -> super::sheaf_status {
     with_mut(ctx, |h| {
         let info = h.ctx.commit_scene()?;
-        if !out.is_null() {
-            write_out(out, sheaf_scene_info::of(&info));
-        }
+        write_wanted(out, sheaf_scene_info::of(&info));
         Ok(())
     })
 }
@@ -508,11 +505,7 @@ pub extern "C" fn sheaf_context_build_scene_grid(
     params: *const sheaf_grid_params,
     mask: u32,
 ) -> super::sheaf_status {
-    with_mut(ctx, |h| {
-        let p = sized::or_default(params)?;
-        h.ctx.build_grid_scene(&p, mask)?;
-        Ok(())
-    })
+    build_scene(ctx, params, |c, p| c.build_grid_scene(p, mask))
 }
 
 /// Rebuild the kd-tree over the committed scene's instances that `mask`
@@ -525,11 +518,7 @@ pub extern "C" fn sheaf_context_build_scene_kd(
     params: *const sheaf_kd_params,
     mask: u32,
 ) -> super::sheaf_status {
-    with_mut(ctx, |h| {
-        let p = sized::or_default(params)?;
-        h.ctx.build_kd_scene(&p, mask)?;
-        Ok(())
-    })
+    build_scene(ctx, params, |c, p| c.build_kd_scene(p, mask))
 }
 
 /// Load the committed scene's instances that `mask` sees for the
@@ -545,11 +534,7 @@ pub extern "C" fn sheaf_context_build_scene_pgrid(
     params: *const sheaf_pgrid_params,
     mask: u32,
 ) -> super::sheaf_status {
-    with_mut(ctx, |h| {
-        let p = sized::or_default(params)?;
-        h.ctx.build_pgrid_scene(&p, mask)?;
-        Ok(())
-    })
+    build_scene(ctx, params, |c, p| c.build_pgrid_scene(p, mask))
 }
 
 /// `*hit`, a hit of `structure` (`SHEAF_STRUCTURE_GRID`, `_KD` or
