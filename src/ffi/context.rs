@@ -13,7 +13,7 @@ use super::limits::sheaf_limits;
 use super::sized;
 use super::trace_params::sheaf_trace_params;
 use super::{
-    SHEAF_CONTEXT_ALIGN, SHEAF_ERROR_MESSAGE_MAX, array_bytes, check_array, check_non_null,
+    SHEAF_CONTEXT_ALIGN, SHEAF_ERROR_MESSAGE_MAX, array_bytes, check_non_null, check_rays_out,
     guard_free, overlaps, raw, read_in, sheaf_frame, sheaf_grid_params, sheaf_method, sheaf_stats,
     sheaf_status, write_out, write_wanted,
 };
@@ -884,11 +884,7 @@ fn trace_impl(
     hits: *mut sheaf_hit,
     count: usize,
 ) -> Result<()> {
-    let rb = check_array(rays, count, "ray count too large")?;
-    let hb = check_array(hits.cast_const(), count, "ray count too large")?;
-    if overlaps(rays.cast(), rb, hits.cast_const().cast(), hb) {
-        return Err(Error::InvalidArgument("rays and hits overlap"));
-    }
+    check_rays_out(rays, hits.cast_const(), count, "rays and hits overlap")?;
     // SAFETY: i < count for every call (trace_quads reads rays 0..count
     // only); the caller checked `rays` spans count readable elements
     // (unaligned allowed).
@@ -914,11 +910,12 @@ fn occluded_impl(
     occluded: *mut u8,
     count: usize,
 ) -> Result<()> {
-    let rb = check_array(rays, count, "ray count too large")?;
-    check_array(occluded.cast_const(), count, "ray count too large")?;
-    if overlaps(rays.cast(), rb, occluded.cast_const(), count) {
-        return Err(Error::InvalidArgument("rays and results overlap"));
-    }
+    check_rays_out(
+        rays,
+        occluded.cast_const(),
+        count,
+        "rays and results overlap",
+    )?;
     trace_rays(h, slot, p, rays, count, true, |i, hit| {
         // SAFETY: i < count, `occluded` checked as `hits` in trace_impl.
         unsafe { occluded.add(i).write(u8::from(hit.is_hit())) }

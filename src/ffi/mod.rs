@@ -274,6 +274,23 @@ pub(crate) fn check_array<T>(p: *const T, n: usize, what: &'static str) -> Resul
     array_bytes::<T>(n, what)
 }
 
+/// Check the arrays of a call that traces `count` rays into `count`
+/// results: each NULL only when `count` is 0 and within the address space,
+/// and no byte of one in the other (`overlap` names that refusal).
+pub(crate) fn check_rays_out<T>(
+    rays: *const sheaf_ray,
+    out: *const T,
+    count: usize,
+    overlap: &'static str,
+) -> Result<()> {
+    let rb = check_array(rays, count, "ray count too large")?;
+    let ob = check_array(out, count, "ray count too large")?;
+    if overlaps(rays.cast(), rb, out.cast(), ob) {
+        return Err(Error::InvalidArgument(overlap));
+    }
+    Ok(())
+}
+
 /// Whether the byte ranges `[a, a + alen)` and `[b, b + blen)` overlap.
 pub(crate) fn overlaps(a: *const u8, alen: usize, b: *const u8, blen: usize) -> bool {
     let (a, b) = (a as usize, b as usize);

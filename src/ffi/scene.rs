@@ -6,14 +6,14 @@
 
 use super::build::build_scene;
 use super::bvh::{sheaf_bvh_params, sheaf_refit_info, sheaf_refit_params};
-use super::context::{Geometry, sheaf_context, with_mut, with_ref};
+use super::context::{Geometry, Handle, sheaf_context, with_mut, with_ref};
 use super::grid::sheaf_grid_params;
 use super::kd::sheaf_kd_params;
 use super::pgrid::sheaf_pgrid_params;
 use super::ray::{sheaf_hit, sheaf_ray};
 use super::sized::{self, versioned};
 use super::trace_params::sheaf_trace_params;
-use super::{check_array, check_non_null, overlaps, read_in, write_out, write_wanted};
+use super::{check_non_null, check_rays_out, read_in, write_out, write_wanted};
 use crate::SceneHit;
 use crate::error::{Error, Result};
 use crate::{Affine, Cull, Ray};
@@ -428,23 +428,12 @@ pub extern "C" fn sheaf_context_trace_scene(
 ) -> super::sheaf_status {
     with_ref(ctx, |h| {
         let ctl = controls(mask, flags)?;
-        let rb = check_array(rays, count, "ray count too large")?;
-        let hb = check_array(hits.cast_const(), count, "ray count too large")?;
-        if overlaps(rays.cast(), rb, hits.cast_const().cast(), hb) {
-            return Err(Error::InvalidArgument("rays and hits overlap"));
-        }
-        let p = sized::optional(params)?; // NULL: single rays
-        h.ctx.scene_view()?;
-        // SAFETY: i < count; `rays` checked to span count readable
-        // elements (C contract; unaligned reads allowed).
-        let read = |i: usize| Ray::from(unsafe { rays.add(i).read_unaligned() });
-        h.ctx
-            .trace_scene_each(p.as_ref(), None, count, ctl, false, read, |i, hit| {
-                // SAFETY: i < count; `hits` checked to span count writable
-                // elements, not overlapping the rays.
-                unsafe { hits.add(i).write_unaligned(hit.into()) }
-            })?;
-        Ok(())
+        check_rays_out(rays, hits.cast_const(), count, "rays and hits overlap")?;
+        trace_scene_rays(h, params, rays, count, ctl, false, |i, hit| {
+            // SAFETY: i < count; `hits` checked to span count writable
+            // elements, not overlapping the rays.
+            unsafe { hits.add(i).write_unaligned(hit.into()) }
+        })
     })
 }
 
@@ -464,22 +453,40 @@ pub extern "C" fn sheaf_context_occluded_scene(
 ) -> super::sheaf_status {
     with_ref(ctx, |h| {
         let ctl = controls(mask, flags)?;
-        let rb = check_array(rays, count, "ray count too large")?;
-        check_array(occluded.cast_const(), count, "ray count too large")?;
-        if overlaps(rays.cast(), rb, occluded.cast_const(), count) {
-            return Err(Error::InvalidArgument("rays and results overlap"));
-        }
-        let p = sized::optional(params)?; // NULL: single rays
-        h.ctx.scene_view()?;
-        // SAFETY: as in sheaf_context_trace_scene.
-        let read = |i: usize| Ray::from(unsafe { rays.add(i).read_unaligned() });
-        h.ctx
-            .trace_scene_each(p.as_ref(), None, count, ctl, true, read, |i, hit| {
-                // SAFETY: i < count; `occluded` checked to span count bytes.
-                unsafe { occluded.add(i).write(u8::from(hit.is_hit())) }
-            })?;
-        Ok(())
+        check_rays_out(
+            rays,
+            occluded.cast_const(),
+            count,
+            "rays and results overlap",
+        )?;
+        trace_scene_rays(h, params, rays, count, ctl, true, |i, hit| {
+            // SAFETY: i < count; `occluded` checked to span count bytes.
+            unsafe { occluded.add(i).write(u8::from(hit.is_hit())) }
+        })
     })
+}
+
+/// The two scene trace calls once their arrays are checked: `count` rays
+/// read from `rays` and traced (`any`: for occlusion) with `*params` (NULL:
+/// single rays) among the instances `ctl` lets through, each result handed
+/// to `out`.
+fn trace_scene_rays(
+    h: &Handle,
+    params: *const sheaf_trace_params,
+    rays: *const sheaf_ray,
+    count: usize,
+    ctl: RayControls,
+    any: bool,
+    out: impl FnMut(usize, SceneHit),
+) -> Result<()> {
+    let p = sized::optional(params)?;
+    h.ctx.scene_view()?;
+    // SAFETY: i < count; the caller checked `rays` spans count readable
+    // elements (C contract; unaligned reads allowed).
+    let read = |i: usize| Ray::from(unsafe { rays.add(i).read_unaligned() });
+    h.ctx
+        .trace_scene_each(p.as_ref(), None, count, ctl, any, read, out)?;
+    Ok(())
 }
 
 /// Rebuild the uniform grid over the committed scene's instances that
