@@ -2,8 +2,8 @@
 //! tunables of the BVH and the frustum its large packets get.
 
 use super::grid::sheaf_tri_test;
-use super::raw;
 use super::sized::{self, versioned};
+use super::{flag, raw};
 use crate::error::{Error, Result};
 use crate::{BuildQuality, BvhParams, RayKind};
 use crate::{RefitInfo, RefitParams};
@@ -82,7 +82,7 @@ impl sheaf_bvh_params {
             test: sheaf_tri_test::of(p.test) as u32,
             quality: sheaf_build_quality::of(p.quality) as u32,
             width: p.width,
-            presplit: p.presplit as u32,
+            presplit: p.presplit.into(),
         }
     }
     /// The checked crate value.
@@ -94,15 +94,7 @@ impl sheaf_bvh_params {
             test: sheaf_tri_test::to_core(self.test)?,
             quality: sheaf_build_quality::to_core(self.quality)?,
             width: if self.width == 0 { 4 } else { self.width },
-            presplit: match self.presplit {
-                0 => false,
-                1 => true,
-                _ => {
-                    return Err(Error::InvalidArgument(
-                        "sheaf_bvh_params.presplit must be 0 or 1",
-                    ));
-                }
-            },
+            presplit: flag(self.presplit, "sheaf_bvh_params.presplit must be 0 or 1")?,
         };
         p.validate()?;
         Ok(p)
