@@ -3,7 +3,7 @@
 
 use super::grid::sheaf_tri_test;
 use super::sized::{self, versioned};
-use super::{guard_free, raw};
+use super::{flag, raw};
 use crate::error::{Error, Result};
 use crate::{BuildQuality, BvhParams, RayKind};
 use crate::{RefitInfo, RefitParams};
@@ -82,7 +82,7 @@ impl sheaf_bvh_params {
             test: sheaf_tri_test::of(p.test) as u32,
             quality: sheaf_build_quality::of(p.quality) as u32,
             width: p.width,
-            presplit: p.presplit as u32,
+            presplit: p.presplit.into(),
         }
     }
     /// The checked crate value.
@@ -94,15 +94,7 @@ impl sheaf_bvh_params {
             test: sheaf_tri_test::to_core(self.test)?,
             quality: sheaf_build_quality::to_core(self.quality)?,
             width: if self.width == 0 { 4 } else { self.width },
-            presplit: match self.presplit {
-                0 => false,
-                1 => true,
-                _ => {
-                    return Err(Error::InvalidArgument(
-                        "sheaf_bvh_params.presplit must be 0 or 1",
-                    ));
-                }
-            },
+            presplit: flag(self.presplit, "sheaf_bvh_params.presplit must be 0 or 1")?,
         };
         p.validate()?;
         Ok(p)
@@ -148,7 +140,7 @@ impl sheaf_ray_kind {
 }
 
 versioned!(
-    sheaf_bvh_params,
+    sheaf_bvh_params => BvhParams,
     [
         leaf_size,
         bins,
@@ -172,7 +164,7 @@ pub extern "C" fn sheaf_bvh_params_default(
     out: *mut sheaf_bvh_params,
     size: usize,
 ) -> super::sheaf_status {
-    guard_free(|| sized::write(out, size, sheaf_bvh_params::of(&BvhParams::default())))
+    sized::write_defaults(out, size)
 }
 
 /// When a BVH refit becomes a rebuild (`sheaf_context_refit_bvh`), the
@@ -235,7 +227,7 @@ impl sheaf_refit_info {
 }
 
 versioned!(
-    sheaf_refit_params,
+    sheaf_refit_params => RefitParams,
     [rebuild_above],
     sheaf_refit_params::of(&RefitParams::default())
 );
@@ -250,7 +242,7 @@ pub extern "C" fn sheaf_refit_params_default(
     out: *mut sheaf_refit_params,
     size: usize,
 ) -> super::sheaf_status {
-    guard_free(|| sized::write(out, size, sheaf_refit_params::of(&RefitParams::default())))
+    sized::write_defaults(out, size)
 }
 
 #[cfg(test)]

@@ -6,7 +6,7 @@
 
 use super::context::{Handle, sheaf_context, with_ref};
 use super::ray::sheaf_hit;
-use super::scene::{controls, params_of, sheaf_scene_hit};
+use super::scene::{controls, sheaf_scene_hit};
 use super::sized;
 use super::trace_params::sheaf_trace_params;
 use super::{check_array, read_in};
@@ -63,7 +63,7 @@ pub extern "C" fn sheaf_context_trace_camera(
     hits_per_row: usize,
 ) -> super::sheaf_status {
     with_ref(ctx, |h: &Handle| {
-        let p = sized::read(params)?.to_core()?;
+        let p = sized::to_core(params)?;
         let (pr, r) = camera_of(camera, width, height, rect, hits.cast_const(), hits_per_row)?;
         let rays = CameraRays::new(&pr, r, Some(&p))?;
         let mut at = rays.index(hits_per_row);
@@ -107,7 +107,7 @@ pub extern "C" fn sheaf_context_trace_scene_camera(
 ) -> super::sheaf_status {
     with_ref(ctx, |h: &Handle| {
         let ctl = controls(mask, flags)?;
-        let p = params_of(params)?;
+        let p = sized::optional(params)?; // NULL: single rays
         let (pr, r) = camera_of(camera, width, height, rect, hits.cast_const(), hits_per_row)?;
         let rays = CameraRays::new(&pr, r, p.as_ref())?;
         let mut at = rays.index(hits_per_row);

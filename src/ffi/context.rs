@@ -7,25 +7,23 @@
 //! allocation of the same size and layout and frees it in
 //! `sheaf_context_destroy`.
 
+use super::build::{build, build_joined};
 use super::bvh::{sheaf_bvh_params, sheaf_refit_info, sheaf_refit_params};
 use super::limits::sheaf_limits;
 use super::sized;
 use super::trace_params::sheaf_trace_params;
 use super::{
-    SHEAF_CONTEXT_ALIGN, SHEAF_ERROR_MESSAGE_MAX, array_bytes, check_array, check_non_null,
+    SHEAF_CONTEXT_ALIGN, SHEAF_ERROR_MESSAGE_MAX, array_bytes, check_non_null, check_rays_out,
     guard_free, overlaps, raw, read_in, sheaf_frame, sheaf_grid_params, sheaf_method, sheaf_stats,
-    sheaf_status, write_out,
+    sheaf_status, write_out, write_wanted,
 };
 use super::{sheaf_hit, sheaf_ray};
 use crate::Band;
-use crate::BvhParams;
-use crate::GridParams;
 use crate::Limits;
-use crate::RefitParams;
 use crate::TraceParams;
 use crate::context::{Context, required_bytes};
 use crate::error::{Error, Result};
-use crate::{CallGate, Locked};
+use crate::{CallGate, Locked, Par};
 use crate::{Ray, Scene};
 use core::cell::UnsafeCell;
 use core::ffi::{c_char, c_void};
@@ -328,7 +326,7 @@ pub extern "C" fn sheaf_required_bytes(
     out: *mut usize,
 ) -> sheaf_status {
     guard_free(|| {
-        let limits = sized::read(limits)?.to_core()?;
+        let limits = sized::to_core(limits)?;
         check_non_null!(out);
         let need = total_bytes(&limits)?;
         write_out(out, need);
@@ -360,7 +358,7 @@ pub extern "C" fn sheaf_context_create_in(
 ) -> sheaf_status {
     guard_free(|| {
         check_non_null!(buf);
-        let limits = sized::read(limits)?.to_core()?;
+        let limits = sized::to_core(limits)?;
         check_non_null!(out);
         let need = total_bytes(&limits)?;
         if !(buf as usize).is_multiple_of(SHEAF_CONTEXT_ALIGN) {
@@ -414,7 +412,7 @@ pub extern "C" fn sheaf_context_create(
 ) -> sheaf_status {
     let mut oom = false;
     let s = guard_free(|| {
-        let limits = sized::read(limits)?.to_core()?;
+        let limits = sized::to_core(limits)?;
         check_non_null!(out);
         let need = total_bytes(&limits)?;
         let layout = std::alloc::Layout::from_size_align(need, SHEAF_CONTEXT_ALIGN)
@@ -589,16 +587,7 @@ pub extern "C" fn sheaf_context_build_grid(
     ctx: *mut sheaf_context,
     params: *const sheaf_grid_params,
 ) -> sheaf_status {
-    with_mut(ctx, |h| {
-        let params = if params.is_null() {
-            GridParams::default()
-        } else {
-            sized::read(params)?.to_core()?
-        };
-        let g = h.geometry.as_ref().ok_or(Error::NoGeometry)?;
-        h.ctx.build_grid(&g.scene()?, &params)?;
-        Ok(())
-    })
+    build(ctx, params, |c, scene, p| c.build_grid(scene, p))
 }
 
 /// `sheaf_context_build_grid` on `thread_count` of the caller's threads,
@@ -617,16 +606,13 @@ pub extern "C" fn sheaf_context_build_grid_joined(
     thread_index: u32,
     thread_count: u32,
 ) -> sheaf_status {
-    joined(ctx, thread_index, thread_count, |h, par| {
-        let params = if params.is_null() {
-            GridParams::default()
-        } else {
-            sized::read(params)?.to_core()?
-        };
-        let g = h.geometry.as_ref().ok_or(Error::NoGeometry)?;
-        h.ctx.build_grid_with(&g.scene()?, &params, par)?;
-        Ok(())
-    })
+    build_joined(
+        ctx,
+        params,
+        thread_index,
+        thread_count,
+        |c, scene, p, par| c.build_grid_with(scene, p, par),
+    )
 }
 
 /// Rebuild the BVH from the geometry with `*params` (copied; NULL: the
@@ -648,16 +634,7 @@ pub extern "C" fn sheaf_context_build_bvh(
     ctx: *mut sheaf_context,
     params: *const sheaf_bvh_params,
 ) -> sheaf_status {
-    with_mut(ctx, |h| {
-        let params = if params.is_null() {
-            BvhParams::default()
-        } else {
-            sized::read(params)?.to_core()?
-        };
-        let g = h.geometry.as_ref().ok_or(Error::NoGeometry)?;
-        h.ctx.build_bvh(&g.scene()?, &params)?;
-        Ok(())
-    })
+    build(ctx, params, |c, scene, p| c.build_bvh(scene, p))
 }
 
 /// Build the BVH on `thread_count` of the caller's threads, which join
@@ -701,16 +678,13 @@ pub extern "C" fn sheaf_context_build_bvh_joined(
     thread_index: u32,
     thread_count: u32,
 ) -> sheaf_status {
-    joined(ctx, thread_index, thread_count, |h, par| {
-        let params = if params.is_null() {
-            BvhParams::default()
-        } else {
-            sized::read(params)?.to_core()?
-        };
-        let g = h.geometry.as_ref().ok_or(Error::NoGeometry)?;
-        h.ctx.build_bvh_with(&g.scene()?, &params, par)?;
-        Ok(())
-    })
+    build_joined(
+        ctx,
+        params,
+        thread_index,
+        thread_count,
+        |c, scene, p, par| c.build_bvh_with(scene, p, par),
+    )
 }
 
 /// `sheaf_context_refit_bvh` on `thread_count` of the caller's threads,
@@ -731,19 +705,17 @@ pub extern "C" fn sheaf_context_refit_bvh_joined(
     thread_index: u32,
     thread_count: u32,
 ) -> sheaf_status {
-    joined(ctx, thread_index, thread_count, |h, par| {
-        let params = if params.is_null() {
-            RefitParams::default()
-        } else {
-            sized::read(params)?.to_core()?
-        };
-        let g = h.geometry.as_ref().ok_or(Error::NoGeometry)?;
-        let r = h.ctx.refit_bvh_with(&g.scene()?, &params, par)?;
-        if !out.is_null() {
-            write_out(out, sheaf_refit_info::of(&r));
-        }
-        Ok(())
-    })
+    build_joined(
+        ctx,
+        params,
+        thread_index,
+        thread_count,
+        |c, scene, p, par| {
+            let r = c.refit_bvh_with(scene, p, par)?;
+            write_wanted(out, sheaf_refit_info::of(&r));
+            Ok(())
+        },
+    )
 }
 
 /// The joined calls' protocol: thread 0 leads (takes the context as an
@@ -753,7 +725,7 @@ pub(super) fn joined(
     ctx: *mut sheaf_context,
     thread_index: u32,
     thread_count: u32,
-    work: impl FnOnce(&mut Handle, &dyn crate::Par) -> Result<()>,
+    work: impl FnOnce(&mut Handle, &dyn Par) -> Result<()>,
 ) -> sheaf_status {
     use crate::MAX_WORKERS;
     let (me, count) = (thread_index as usize, thread_count as usize);
@@ -873,17 +845,9 @@ pub extern "C" fn sheaf_context_refit_bvh(
     params: *const sheaf_refit_params,
     out: *mut sheaf_refit_info,
 ) -> sheaf_status {
-    with_mut(ctx, |h| {
-        let params = if params.is_null() {
-            RefitParams::default()
-        } else {
-            sized::read(params)?.to_core()?
-        };
-        let g = h.geometry.as_ref().ok_or(Error::NoGeometry)?;
-        let r = h.ctx.refit_bvh(&g.scene()?, &params)?;
-        if !out.is_null() {
-            write_out(out, sheaf_refit_info::of(&r));
-        }
+    build(ctx, params, |c, scene, p| {
+        let r = c.refit_bvh(scene, p)?;
+        write_wanted(out, sheaf_refit_info::of(&r));
         Ok(())
     })
 }
@@ -907,7 +871,7 @@ pub extern "C" fn sheaf_context_trace_with(
     count: usize,
 ) -> sheaf_status {
     with_ref(ctx, |h| {
-        let p = sized::read(params)?.to_core()?;
+        let p = sized::to_core(params)?;
         trace_impl(h, None, &p, rays, hits, count)
     })
 }
@@ -920,11 +884,7 @@ fn trace_impl(
     hits: *mut sheaf_hit,
     count: usize,
 ) -> Result<()> {
-    let rb = check_array(rays, count, "ray count too large")?;
-    let hb = check_array(hits.cast_const(), count, "ray count too large")?;
-    if overlaps(rays.cast(), rb, hits.cast_const().cast(), hb) {
-        return Err(Error::InvalidArgument("rays and hits overlap"));
-    }
+    check_rays_out(rays, hits.cast_const(), count, "rays and hits overlap")?;
     // SAFETY: i < count for every call (trace_quads reads rays 0..count
     // only); the caller checked `rays` spans count readable elements
     // (unaligned allowed).
@@ -950,11 +910,12 @@ fn occluded_impl(
     occluded: *mut u8,
     count: usize,
 ) -> Result<()> {
-    let rb = check_array(rays, count, "ray count too large")?;
-    check_array(occluded.cast_const(), count, "ray count too large")?;
-    if overlaps(rays.cast(), rb, occluded.cast_const(), count) {
-        return Err(Error::InvalidArgument("rays and results overlap"));
-    }
+    check_rays_out(
+        rays,
+        occluded.cast_const(),
+        count,
+        "rays and results overlap",
+    )?;
     trace_rays(h, slot, p, rays, count, true, |i, hit| {
         // SAFETY: i < count, `occluded` checked as `hits` in trace_impl.
         unsafe { occluded.add(i).write(u8::from(hit.is_hit())) }
@@ -1006,7 +967,7 @@ pub extern "C" fn sheaf_context_trace_slot(
     count: usize,
 ) -> sheaf_status {
     with_ref(ctx, |h| {
-        let p = sized::read(params)?.to_core()?;
+        let p = sized::to_core(params)?;
         trace_impl(h, Some(slot), &p, rays, hits, count)
     })
 }
@@ -1027,7 +988,7 @@ pub extern "C" fn sheaf_context_occluded_slot(
     count: usize,
 ) -> sheaf_status {
     with_ref(ctx, |h| {
-        let p = sized::read(params)?.to_core()?;
+        let p = sized::to_core(params)?;
         occluded_impl(h, Some(slot), &p, rays, occluded, count)
     })
 }
@@ -1073,7 +1034,7 @@ pub extern "C" fn sheaf_context_occluded_with(
     count: usize,
 ) -> sheaf_status {
     with_ref(ctx, |h| {
-        let p = sized::read(params)?.to_core()?;
+        let p = sized::to_core(params)?;
         occluded_impl(h, None, &p, rays, occluded, count)
     })
 }
@@ -1127,8 +1088,8 @@ pub extern "C" fn sheaf_context_render_with(
     rgba_len: usize,
 ) -> sheaf_status {
     with_mut(ctx, |h| {
-        let p = sized::read(primary)?.to_core()?;
-        let s = sized::read(shadow)?.to_core()?;
+        let p = sized::to_core(primary)?;
+        let s = sized::to_core(shadow)?;
         render_impl(h, &p, &s, frame, rgba, stride_bytes, rgba_len)
     })
 }
@@ -1163,8 +1124,8 @@ pub extern "C" fn sheaf_context_render_rows(
     rgba_len: usize,
 ) -> sheaf_status {
     with_ref(ctx, |h| {
-        let p = sized::read(primary)?.to_core()?;
-        let s = sized::read(shadow)?.to_core()?;
+        let p = sized::to_core(primary)?;
+        let s = sized::to_core(shadow)?;
         let frame = read_in(frame)?.to_core()?;
         check_non_null!(rgba);
         if rgba_len > isize::MAX as usize {
@@ -1295,7 +1256,7 @@ pub extern "C" fn sheaf_slot_scratch_bytes(
     out: *mut usize,
 ) -> sheaf_status {
     guard_free(|| {
-        let limits = sized::read(limits)?.to_core()?;
+        let limits = sized::to_core(limits)?;
         limits.validate()?;
         check_non_null!(out);
         write_out(out, crate::slot_scratch_bytes(&limits));

@@ -1,7 +1,7 @@
 //! `sheaf_grid_params` and `sheaf_tri_test`: the tunables of the uniform grid.
 
 use super::sized::{self, versioned};
-use super::{flag, guard_free, raw};
+use super::{flag, raw};
 use crate::GridParams;
 use crate::TriTest;
 use crate::error::{Error, Result};
@@ -88,7 +88,7 @@ impl sheaf_grid_params {
 }
 
 versioned!(
-    sheaf_grid_params,
+    sheaf_grid_params => GridParams,
     [lambda, macrocell, test, fit],
     sheaf_grid_params::of(&GridParams::default())
 );
@@ -106,7 +106,7 @@ pub extern "C" fn sheaf_grid_params_default(
     out: *mut sheaf_grid_params,
     size: usize,
 ) -> super::sheaf_status {
-    guard_free(|| sized::write(out, size, sheaf_grid_params::of(&GridParams::default())))
+    sized::write_defaults(out, size)
 }
 
 #[cfg(test)]

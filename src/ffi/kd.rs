@@ -2,13 +2,14 @@
 //! the kd-tree (AEPSA paper section 5.1) and the entry-point searches its
 //! and the BVH's packets may run first.
 
+use super::build::{build, build_joined, build_scene_joined};
 use super::bvh::sheaf_build_quality;
-use super::context::{joined, sheaf_context, with_mut};
+use super::context::sheaf_context;
 use super::grid::sheaf_tri_test;
 use super::sized::{self, versioned};
-use super::{guard_free, raw, sheaf_status};
+use super::{raw, sheaf_status};
 use crate::KdParams;
-use crate::error::{Error, Result};
+use crate::error::Result;
 
 /// Tunables of the kd-tree (an O(N log N) SAH build with perfect splits).
 /// Start from `sheaf_kd_params_default`.
@@ -63,7 +64,7 @@ impl sheaf_kd_params {
 }
 
 versioned!(
-    sheaf_kd_params,
+    sheaf_kd_params => KdParams,
     [max_depth, traversal_cost, empty_bonus, test, quality, bins],
     sheaf_kd_params::of(&KdParams::default())
 );
@@ -79,7 +80,7 @@ versioned!(
 /// `size` is no size of this struct. Thread-safe.
 #[unsafe(no_mangle)]
 pub extern "C" fn sheaf_kd_params_default(out: *mut sheaf_kd_params, size: usize) -> sheaf_status {
-    guard_free(|| sized::write(out, size, sheaf_kd_params::of(&KdParams::default())))
+    sized::write_defaults(out, size)
 }
 
 /// Rebuild the kd-tree from the geometry with `*params` (copied; NULL: the
@@ -100,16 +101,7 @@ pub extern "C" fn sheaf_context_build_kd(
     ctx: *mut sheaf_context,
     params: *const sheaf_kd_params,
 ) -> sheaf_status {
-    with_mut(ctx, |h| {
-        let params = if params.is_null() {
-            KdParams::default()
-        } else {
-            sized::read(params)?.to_core()?
-        };
-        let g = h.geometry.as_ref().ok_or(Error::NoGeometry)?;
-        h.ctx.build_kd(&g.scene()?, &params)?;
-        Ok(())
-    })
+    build(ctx, params, |c, scene, p| c.build_kd(scene, p))
 }
 
 /// `sheaf_context_build_kd` on `thread_count` of the caller's threads,
@@ -130,16 +122,13 @@ pub extern "C" fn sheaf_context_build_kd_joined(
     thread_index: u32,
     thread_count: u32,
 ) -> sheaf_status {
-    joined(ctx, thread_index, thread_count, |h, par| {
-        let params = if params.is_null() {
-            KdParams::default()
-        } else {
-            sized::read(params)?.to_core()?
-        };
-        let g = h.geometry.as_ref().ok_or(Error::NoGeometry)?;
-        h.ctx.build_kd_with(&g.scene()?, &params, par)?;
-        Ok(())
-    })
+    build_joined(
+        ctx,
+        params,
+        thread_index,
+        thread_count,
+        |c, scene, p, par| c.build_kd_with(scene, p, par),
+    )
 }
 
 /// `sheaf_context_build_scene_kd` on `thread_count` of the caller's
@@ -157,14 +146,8 @@ pub extern "C" fn sheaf_context_build_scene_kd_joined(
     thread_index: u32,
     thread_count: u32,
 ) -> sheaf_status {
-    joined(ctx, thread_index, thread_count, |h, par| {
-        let p = if params.is_null() {
-            KdParams::default()
-        } else {
-            sized::read(params)?.to_core()?
-        };
-        h.ctx.build_kd_scene_with(&p, mask, par)?;
-        Ok(())
+    build_scene_joined(ctx, params, thread_index, thread_count, |c, p, par| {
+        c.build_kd_scene_with(p, mask, par)
     })
 }
 

@@ -1,5 +1,17 @@
 //! `sheaf_limits`: every pool size of a context (the crate's `Limits`, whose
-//! field docs are the reference), with its one boolean received as a byte.
+//! field docs are the reference), with its one boolean received as a
+//! `uint32_t` 0 or 1.
+//!
+//! The C struct is written out field by field (cbindgen reads it for
+//! sheaf.h, and its layout is the ABI); everything else about the mirror
+//! comes from one list, `mirror!`'s, which cannot drift from either
+//! struct: a field of `Limits` missing from it leaves `to_core`'s `Limits`
+//! incomplete, one of `sheaf_limits` leaves `of`'s struct incomplete and
+//! `versioned!`'s size assertion short; a name in it that either struct
+//! lacks, a type other than a count or a boolean, or a list out of the C
+//! struct's order is a compile error; and each field goes to the field of
+//! its own name. Fields are appended to all three at the end
+//! (docs/c-api.md, "Upgrading").
 
 use super::sized::{self, versioned};
 use super::{flag, guard_free};
@@ -76,91 +88,89 @@ pub struct sheaf_limits {
     pub max_bvh_refs: u32,
 }
 
-impl sheaf_limits {
-    pub fn of(l: &Limits) -> sheaf_limits {
-        sheaf_limits {
-            size: core::mem::size_of::<sheaf_limits>() as u32,
-            max_triangles: l.max_triangles,
-            max_vertices: l.max_vertices,
-            max_image_width: l.max_image_width,
-            max_image_height: l.max_image_height,
-            max_tile: l.max_tile,
-            max_threads: l.max_threads,
-            max_grid_cells: l.max_grid_cells,
-            max_grid_refs: l.max_grid_refs,
-            projection_test: l.projection_test.into(),
-            structures: l.structures,
-            max_kd_nodes: l.max_kd_nodes,
-            max_kd_refs: l.max_kd_refs,
-            max_pgrid_cells: l.max_pgrid_cells,
-            max_pgrid_refs: l.max_pgrid_refs,
-            max_geometries: l.max_geometries,
-            max_instances: l.max_instances,
-            max_scene_triangles: l.max_scene_triangles,
-            max_packet_side: l.max_packet_side,
-            max_bounces: l.max_bounces,
-            renderers: l.renderers,
-            max_bvh_refs: l.max_bvh_refs,
-        }
-    }
+/// How one field of `Limits` crosses the C ABI: a count as itself, the
+/// boolean as a `uint32_t` 0 or 1 (checked coming in, as [`flag`] checks).
+trait Field: Sized {
+    /// The field for C.
+    fn to_c(self) -> u32;
+    /// The field from C; `bad` names the field's refusal.
+    fn from_c(c: u32, bad: &'static str) -> Result<Self>;
+}
 
-    /// The crate's limits (the byte checked; the rest by `Limits::validate`).
-    pub fn to_core(&self) -> Result<Limits> {
-        Ok(Limits {
-            max_triangles: self.max_triangles,
-            max_vertices: self.max_vertices,
-            max_image_width: self.max_image_width,
-            max_image_height: self.max_image_height,
-            max_tile: self.max_tile,
-            max_threads: self.max_threads,
-            max_grid_cells: self.max_grid_cells,
-            max_grid_refs: self.max_grid_refs,
-            projection_test: flag(
-                self.projection_test,
-                "sheaf_limits.projection_test must be 0 or 1",
-            )?,
-            structures: self.structures,
-            max_kd_nodes: self.max_kd_nodes,
-            max_kd_refs: self.max_kd_refs,
-            max_pgrid_cells: self.max_pgrid_cells,
-            max_pgrid_refs: self.max_pgrid_refs,
-            max_geometries: self.max_geometries,
-            max_instances: self.max_instances,
-            max_scene_triangles: self.max_scene_triangles,
-            max_packet_side: self.max_packet_side,
-            max_bounces: self.max_bounces,
-            renderers: self.renderers,
-            max_bvh_refs: self.max_bvh_refs,
-        })
+impl Field for u32 {
+    fn to_c(self) -> u32 {
+        self
+    }
+    fn from_c(c: u32, _: &'static str) -> Result<u32> {
+        Ok(c)
     }
 }
 
-versioned!(
-    sheaf_limits,
-    [
-        max_triangles,
-        max_vertices,
-        max_image_width,
-        max_image_height,
-        max_tile,
-        max_threads,
-        max_grid_cells,
-        max_grid_refs,
-        projection_test,
-        structures,
-        max_kd_nodes,
-        max_kd_refs,
-        max_pgrid_cells,
-        max_pgrid_refs,
-        max_geometries,
-        max_instances,
-        max_scene_triangles,
-        max_packet_side,
-        max_bounces,
-        renderers,
-        max_bvh_refs,
-    ],
-    sheaf_limits::of(&Limits::for_triangles(0))
+impl Field for bool {
+    fn to_c(self) -> u32 {
+        self.into()
+    }
+    fn from_c(c: u32, bad: &'static str) -> Result<bool> {
+        flag(c, bad)
+    }
+}
+
+/// The mirror of `Limits`, written once: the fields of `sheaf_limits`
+/// after `size`, in declaration order, give `sheaf_limits::of`,
+/// `sheaf_limits::to_core` and the versioned field list (see the module
+/// docs for why it cannot drift).
+macro_rules! mirror {
+    ($($f:ident),+ $(,)?) => {
+        impl sheaf_limits {
+            pub fn of(l: &Limits) -> sheaf_limits {
+                sheaf_limits {
+                    size: core::mem::size_of::<sheaf_limits>() as u32,
+                    $($f: Field::to_c(l.$f),)+
+                }
+            }
+
+            /// The crate's limits (the boolean checked; the rest by
+            /// `Limits::validate`).
+            pub fn to_core(&self) -> Result<Limits> {
+                Ok(Limits {
+                    $($f: Field::from_c(
+                        self.$f,
+                        concat!("sheaf_limits.", stringify!($f), " must be 0 or 1"),
+                    )?,)+
+                })
+            }
+        }
+
+        versioned!(
+            sheaf_limits => Limits,
+            [$($f),+],
+            sheaf_limits::of(&Limits::for_triangles(0))
+        );
+    };
+}
+
+mirror!(
+    max_triangles,
+    max_vertices,
+    max_image_width,
+    max_image_height,
+    max_tile,
+    max_threads,
+    max_grid_cells,
+    max_grid_refs,
+    projection_test,
+    structures,
+    max_kd_nodes,
+    max_kd_refs,
+    max_pgrid_cells,
+    max_pgrid_refs,
+    max_geometries,
+    max_instances,
+    max_scene_triangles,
+    max_packet_side,
+    max_bounces,
+    renderers,
+    max_bvh_refs,
 );
 
 /// Write limits for scenes of up to `max_triangles` triangles to `*out`:

@@ -24,6 +24,10 @@
 //! | `stream.rs` | `sheaf_ray_stream`, `sheaf_hit_stream` (rays and hits as structures of arrays), `sheaf_context_trace_stream`, `sheaf_context_occluded_stream`, `sheaf_context_trace_scene_stream`, `sheaf_context_occluded_scene_stream` |
 //! | `whitted.rs` | `sheaf_material`, `sheaf_material_range`, `sheaf_whitted_params`, `sheaf_context_render_whitted` |
 //!
+//! Two files export nothing: `sized.rs` reads and writes the parameter
+//! structs by their size (the versioning rule), and `build.rs` is the body
+//! every build call shares.
+//!
 //! # Conventions
 //! - Every export is `#[unsafe(no_mangle)] pub extern "C" fn`, takes the
 //!   handle first, then inputs, then outputs, and returns a `sheaf_status`
@@ -52,6 +56,7 @@
 // contract is the C header's (valid or NULL pointers), checked where possible.
 #![allow(clippy::not_unsafe_ptr_arg_deref)]
 
+mod build;
 pub mod bvh;
 pub mod camera;
 pub mod context;
@@ -231,6 +236,14 @@ pub(crate) fn write_out<T: Copy>(p: *mut T, v: T) {
     unsafe { p.write_unaligned(v) }
 }
 
+/// Write one output value the caller may decline with NULL (any
+/// alignment); call only once the call has succeeded.
+pub(crate) fn write_wanted<T: Copy>(p: *mut T, v: T) {
+    if !p.is_null() {
+        write_out(p, v);
+    }
+}
+
 /// A boolean field of a C struct, received as its integer (a Rust `bool`
 /// read from C memory holding 2 would be undefined behaviour): 0 is false,
 /// 1 is true, anything else is `InvalidArgument` naming the field. The
@@ -259,6 +272,23 @@ pub(crate) fn check_array<T>(p: *const T, n: usize, what: &'static str) -> Resul
         return Err(Error::NullPointer);
     }
     array_bytes::<T>(n, what)
+}
+
+/// Check the arrays of a call that traces `count` rays into `count`
+/// results: each NULL only when `count` is 0 and within the address space,
+/// and no byte of one in the other (`overlap` names that refusal).
+pub(crate) fn check_rays_out<T>(
+    rays: *const sheaf_ray,
+    out: *const T,
+    count: usize,
+    overlap: &'static str,
+) -> Result<()> {
+    let rb = check_array(rays, count, "ray count too large")?;
+    let ob = check_array(out, count, "ray count too large")?;
+    if overlaps(rays.cast(), rb, out.cast(), ob) {
+        return Err(Error::InvalidArgument(overlap));
+    }
+    Ok(())
 }
 
 /// Whether the byte ranges `[a, a + alen)` and `[b, b + blen)` overlap.

@@ -6,14 +6,14 @@
 //! `sheaf_context_render_deferred`, `sheaf_context_deferred_pixel`,
 //! `sheaf_context_deferred_shadow_ray`.
 
+use super::build::build;
 use super::context::{Handle, sheaf_context, with_mut, with_ref};
 use super::frame::sheaf_frame;
 use super::grid::sheaf_tri_test;
 use super::sized::{self, versioned};
 use super::trace_params::{sheaf_isa, sheaf_trace_params};
 use super::{
-    check_array, check_non_null, flag, guard_free, raw, read_in, sheaf_hit, sheaf_ray,
-    sheaf_status, write_out,
+    check_array, check_non_null, flag, raw, read_in, sheaf_hit, sheaf_ray, sheaf_status, write_out,
 };
 use crate::Hit;
 use crate::PgridParams;
@@ -98,7 +98,7 @@ impl sheaf_pgrid_params {
 }
 
 versioned!(
-    sheaf_pgrid_params,
+    sheaf_pgrid_params => PgridParams,
     [
         tile,
         group,
@@ -128,7 +128,7 @@ pub extern "C" fn sheaf_pgrid_params_default(
     out: *mut sheaf_pgrid_params,
     size: usize,
 ) -> sheaf_status {
-    guard_free(|| sized::write(out, size, sheaf_pgrid_params::of(&PgridParams::default())))
+    sized::write_defaults(out, size)
 }
 
 /// Load the geometry for perspective and light grids with `*params`
@@ -153,16 +153,7 @@ pub extern "C" fn sheaf_context_build_pgrid(
     ctx: *mut sheaf_context,
     params: *const sheaf_pgrid_params,
 ) -> sheaf_status {
-    with_mut(ctx, |h| {
-        let params = if params.is_null() {
-            PgridParams::default()
-        } else {
-            sized::read(params)?.to_core()?
-        };
-        let g = h.geometry.as_ref().ok_or(Error::NoGeometry)?;
-        h.ctx.build_pgrid(&g.scene()?, &params)?;
-        Ok(())
-    })
+    build(ctx, params, |c, scene, p| c.build_pgrid(scene, p))
 }
 
 /// A deferred frame (the crate's `DeferredJob`).
@@ -319,7 +310,7 @@ fn render_deferred(
         )? {
             PrimaryPass::Pgrid
         } else {
-            PrimaryPass::Traced(traced(j.primary)?)
+            PrimaryPass::Traced(sized::or_default(j.primary)?)
         },
         shadow: if flag(
             j.shadow_light_grid,
@@ -327,22 +318,13 @@ fn render_deferred(
         )? {
             ShadowPass::LightGrid
         } else {
-            ShadowPass::Traced(traced(j.shadow)?)
+            ShadowPass::Traced(sized::or_default(j.shadow)?)
         },
     };
     // `render_deferred` validates the job (once, before anything else).
     let pixels = super::context::pixels(h, &frame, rgba, stride_bytes, rgba_len)?;
     h.ctx.render_deferred(&job, pixels, stride_bytes, workers)?;
     Ok(())
-}
-
-/// A deferred pass's trace parameters (NULL: the defaults).
-fn traced(p: *const sheaf_trace_params) -> Result<crate::TraceParams> {
-    if p.is_null() {
-        Ok(crate::TraceParams::default())
-    } else {
-        sized::read(p)?.to_core()
-    }
 }
 
 /// Check that a deferred frame exists and contains pixel (x, y): its hit

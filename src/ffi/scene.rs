@@ -4,20 +4,17 @@
 //! placing them with 3x4 transforms, a commit, and rays traced through it.
 //! Needs `sheaf_limits.max_geometries` > 0.
 
+use super::build::build_scene;
 use super::bvh::{sheaf_bvh_params, sheaf_refit_info, sheaf_refit_params};
-use super::context::{Geometry, sheaf_context, with_mut, with_ref};
+use super::context::{Geometry, Handle, sheaf_context, with_mut, with_ref};
 use super::grid::sheaf_grid_params;
 use super::kd::sheaf_kd_params;
 use super::pgrid::sheaf_pgrid_params;
 use super::ray::{sheaf_hit, sheaf_ray};
 use super::sized::{self, versioned};
 use super::trace_params::sheaf_trace_params;
-use super::{check_array, check_non_null, guard_free, overlaps, read_in, write_out};
-use crate::GridParams;
-use crate::KdParams;
-use crate::PgridParams;
+use super::{check_non_null, check_rays_out, read_in, write_out, write_wanted};
 use crate::SceneHit;
-use crate::TraceParams;
 use crate::error::{Error, Result};
 use crate::{Affine, Cull, Ray};
 use crate::{GeometryParams, RayControls, TwoLevelInfo, UpdateMode};
@@ -123,20 +120,11 @@ impl sheaf_geometry_params {
                 "sheaf_geometry_params.reserved must be 0",
             ));
         }
-        let defaults = GeometryParams::default();
         Ok(GeometryParams {
             mode,
             max_triangles: self.max_triangles,
-            bvh: if self.bvh.is_null() {
-                defaults.bvh
-            } else {
-                sized::read(self.bvh)?.to_core()?
-            },
-            refit: if self.refit.is_null() {
-                defaults.refit
-            } else {
-                sized::read(self.refit)?.to_core()?
-            },
+            bvh: sized::or_default(self.bvh)?,
+            refit: sized::or_default(self.refit)?,
             mask: self.mask,
             filter: super::filter::filter_of(self.filter, self.filter_user)?,
             opaque: super::flag(self.opaque, "sheaf_geometry_params.opaque must be 0 or 1")?,
@@ -145,7 +133,7 @@ impl sheaf_geometry_params {
 }
 
 versioned!(
-    sheaf_geometry_params,
+    sheaf_geometry_params => GeometryParams,
     [
         mode,
         bvh,
@@ -249,13 +237,7 @@ pub extern "C" fn sheaf_geometry_params_default(
     out: *mut sheaf_geometry_params,
     size: usize,
 ) -> super::sheaf_status {
-    guard_free(|| {
-        sized::write(
-            out,
-            size,
-            sheaf_geometry_params::of(&GeometryParams::default()),
-        )
-    })
+    sized::write_defaults(out, size)
 }
 
 /// Set geometry `id` (`< max_geometries`) of the two-level scene to
@@ -291,11 +273,7 @@ pub extern "C" fn sheaf_context_set_scene_geometry(
 ) -> super::sheaf_status {
     with_mut(ctx, |h| {
         let g = read_in(mesh)?.geometry()?;
-        let p = if params.is_null() {
-            GeometryParams::default()
-        } else {
-            sized::read(params)?.to_core()?
-        };
+        let p = sized::or_default(params)?;
         h.ctx.set_geometry(id, &g.scene()?, &p)?;
         Ok(())
     })
@@ -325,14 +303,12 @@ pub extern "C" fn sheaf_context_update_scene_geometry(
     with_mut(ctx, |h| {
         let g = read_in(mesh)?.geometry()?;
         let u = h.ctx.update_geometry(id, &g.scene()?)?;
-        if !out.is_null() {
-            write_out(
-                out,
-                u.refit
-                    .map(|r| sheaf_refit_info::of(&r))
-                    .unwrap_or_default(),
-            );
-        }
+        write_wanted(
+            out,
+            u.refit
+                .map(|r| sheaf_refit_info::of(&r))
+                .unwrap_or_default(),
+        );
         Ok(())
     })
 }
@@ -408,9 +384,7 @@ pub extern "C" fn sheaf_context_commit_scene(
 ) -> super::sheaf_status {
     with_mut(ctx, |h| {
         let info = h.ctx.commit_scene()?;
-        if !out.is_null() {
-            write_out(out, sheaf_scene_info::of(&info));
-        }
+        write_wanted(out, sheaf_scene_info::of(&info));
         Ok(())
     })
 }
@@ -454,23 +428,12 @@ pub extern "C" fn sheaf_context_trace_scene(
 ) -> super::sheaf_status {
     with_ref(ctx, |h| {
         let ctl = controls(mask, flags)?;
-        let rb = check_array(rays, count, "ray count too large")?;
-        let hb = check_array(hits.cast_const(), count, "ray count too large")?;
-        if overlaps(rays.cast(), rb, hits.cast_const().cast(), hb) {
-            return Err(Error::InvalidArgument("rays and hits overlap"));
-        }
-        let p = params_of(params)?;
-        h.ctx.scene_view()?;
-        // SAFETY: i < count; `rays` checked to span count readable
-        // elements (C contract; unaligned reads allowed).
-        let read = |i: usize| Ray::from(unsafe { rays.add(i).read_unaligned() });
-        h.ctx
-            .trace_scene_each(p.as_ref(), None, count, ctl, false, read, |i, hit| {
-                // SAFETY: i < count; `hits` checked to span count writable
-                // elements, not overlapping the rays.
-                unsafe { hits.add(i).write_unaligned(hit.into()) }
-            })?;
-        Ok(())
+        check_rays_out(rays, hits.cast_const(), count, "rays and hits overlap")?;
+        trace_scene_rays(h, params, rays, count, ctl, false, |i, hit| {
+            // SAFETY: i < count; `hits` checked to span count writable
+            // elements, not overlapping the rays.
+            unsafe { hits.add(i).write_unaligned(hit.into()) }
+        })
     })
 }
 
@@ -490,22 +453,40 @@ pub extern "C" fn sheaf_context_occluded_scene(
 ) -> super::sheaf_status {
     with_ref(ctx, |h| {
         let ctl = controls(mask, flags)?;
-        let rb = check_array(rays, count, "ray count too large")?;
-        check_array(occluded.cast_const(), count, "ray count too large")?;
-        if overlaps(rays.cast(), rb, occluded.cast_const(), count) {
-            return Err(Error::InvalidArgument("rays and results overlap"));
-        }
-        let p = params_of(params)?;
-        h.ctx.scene_view()?;
-        // SAFETY: as in sheaf_context_trace_scene.
-        let read = |i: usize| Ray::from(unsafe { rays.add(i).read_unaligned() });
-        h.ctx
-            .trace_scene_each(p.as_ref(), None, count, ctl, true, read, |i, hit| {
-                // SAFETY: i < count; `occluded` checked to span count bytes.
-                unsafe { occluded.add(i).write(u8::from(hit.is_hit())) }
-            })?;
-        Ok(())
+        check_rays_out(
+            rays,
+            occluded.cast_const(),
+            count,
+            "rays and results overlap",
+        )?;
+        trace_scene_rays(h, params, rays, count, ctl, true, |i, hit| {
+            // SAFETY: i < count; `occluded` checked to span count bytes.
+            unsafe { occluded.add(i).write(u8::from(hit.is_hit())) }
+        })
     })
+}
+
+/// The two scene trace calls once their arrays are checked: `count` rays
+/// read from `rays` and traced (`any`: for occlusion) with `*params` (NULL:
+/// single rays) among the instances `ctl` lets through, each result handed
+/// to `out`.
+fn trace_scene_rays(
+    h: &Handle,
+    params: *const sheaf_trace_params,
+    rays: *const sheaf_ray,
+    count: usize,
+    ctl: RayControls,
+    any: bool,
+    out: impl FnMut(usize, SceneHit),
+) -> Result<()> {
+    let p = sized::optional(params)?;
+    h.ctx.scene_view()?;
+    // SAFETY: i < count; the caller checked `rays` spans count readable
+    // elements (C contract; unaligned reads allowed).
+    let read = |i: usize| Ray::from(unsafe { rays.add(i).read_unaligned() });
+    h.ctx
+        .trace_scene_each(p.as_ref(), None, count, ctl, any, read, out)?;
+    Ok(())
 }
 
 /// Rebuild the uniform grid over the committed scene's instances that
@@ -531,15 +512,7 @@ pub extern "C" fn sheaf_context_build_scene_grid(
     params: *const sheaf_grid_params,
     mask: u32,
 ) -> super::sheaf_status {
-    with_mut(ctx, |h| {
-        let p = if params.is_null() {
-            GridParams::default()
-        } else {
-            sized::read(params)?.to_core()?
-        };
-        h.ctx.build_grid_scene(&p, mask)?;
-        Ok(())
-    })
+    build_scene(ctx, params, |c, p| c.build_grid_scene(p, mask))
 }
 
 /// Rebuild the kd-tree over the committed scene's instances that `mask`
@@ -552,15 +525,7 @@ pub extern "C" fn sheaf_context_build_scene_kd(
     params: *const sheaf_kd_params,
     mask: u32,
 ) -> super::sheaf_status {
-    with_mut(ctx, |h| {
-        let p = if params.is_null() {
-            KdParams::default()
-        } else {
-            sized::read(params)?.to_core()?
-        };
-        h.ctx.build_kd_scene(&p, mask)?;
-        Ok(())
-    })
+    build_scene(ctx, params, |c, p| c.build_kd_scene(p, mask))
 }
 
 /// Load the committed scene's instances that `mask` sees for the
@@ -576,15 +541,7 @@ pub extern "C" fn sheaf_context_build_scene_pgrid(
     params: *const sheaf_pgrid_params,
     mask: u32,
 ) -> super::sheaf_status {
-    with_mut(ctx, |h| {
-        let p = if params.is_null() {
-            PgridParams::default()
-        } else {
-            sized::read(params)?.to_core()?
-        };
-        h.ctx.build_pgrid_scene(&p, mask)?;
-        Ok(())
-    })
+    build_scene(ctx, params, |c, p| c.build_pgrid_scene(p, mask))
 }
 
 /// `*hit`, a hit of `structure` (`SHEAF_STRUCTURE_GRID`, `_KD` or
@@ -643,14 +600,6 @@ pub(super) fn controls(mask: u32, flags: u32) -> Result<RayControls> {
         _ => return Err(Error::InvalidArgument("unknown SHEAF_RAY_FLAG_* bits")),
     };
     Ok(RayControls { mask, cull, opaque })
-}
-
-/// The trace parameters of a scene trace (`None`: single rays).
-pub(super) fn params_of(params: *const sheaf_trace_params) -> Result<Option<TraceParams>> {
-    if params.is_null() {
-        return Ok(None);
-    }
-    Ok(Some(sized::read(params)?.to_core()?))
 }
 
 #[cfg(test)]

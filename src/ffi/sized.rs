@@ -16,8 +16,13 @@
 //! Fields are only ever appended, and no layout may have padding (a const
 //! assertion per struct), so every older layout is a prefix of this one
 //! and no byte of it is left undefined by a `*_default` function.
+//!
+//! The calls share three readers: [`to_core`] for a struct the call
+//! needs, [`or_default`] for one NULL leaves at the crate's defaults, and
+//! [`optional`] for one whose NULL means something else; the `*_default`
+//! functions are [`write_defaults`].
 
-use super::check_non_null;
+use super::{check_non_null, guard_free, sheaf_status};
 use crate::error::{Error, Result};
 
 /// Largest size a newer header's struct may declare.
@@ -26,6 +31,10 @@ const MAX_BYTES: usize = 4096;
 /// A parameter struct that begins with its `u32` size (declared with
 /// [`versioned!`]).
 pub(crate) trait Versioned: Copy {
+    /// The crate value the struct stands for.
+    type Core;
+    /// The checked crate value (the struct's own `to_core`).
+    fn core(&self) -> Result<Self::Core>;
     /// This library's defaults, `size` set to this struct's size.
     fn defaults() -> Self;
     /// The sizes of this struct's older layouts: the offset of each field
@@ -79,6 +88,34 @@ pub(crate) fn read<T: Versioned>(p: *const T) -> Result<T> {
     Ok(v)
 }
 
+/// The checked crate value of a parameter struct from C (NULL refused).
+pub(crate) fn to_core<T: Versioned>(p: *const T) -> Result<T::Core> {
+    read(p)?.core()
+}
+
+/// The checked crate value of a parameter struct from C, `None` for NULL.
+pub(crate) fn optional<T: Versioned>(p: *const T) -> Result<Option<T::Core>> {
+    if p.is_null() {
+        return Ok(None);
+    }
+    to_core(p).map(Some)
+}
+
+/// The checked crate value of a parameter struct from C, the crate's
+/// defaults for NULL (the documented meaning of a NULL parameter struct).
+pub(crate) fn or_default<T: Versioned>(p: *const T) -> Result<T::Core>
+where
+    T::Core: Default,
+{
+    Ok(optional(p)?.unwrap_or_default())
+}
+
+/// The body of a `*_default` function: this library's defaults written to
+/// the caller's struct of `size` bytes, as [`write`] writes them.
+pub(crate) fn write_defaults<T: Versioned>(out: *mut T, size: usize) -> sheaf_status {
+    guard_free(|| write(out, size, T::defaults()))
+}
+
 /// Write `v` (its `size` replaced) to a caller's struct of `size` bytes:
 /// the fields an older layout has, or this whole struct and zeros after it
 /// for a newer one. Refuses sizes [`read`] would refuse.
@@ -104,13 +141,18 @@ pub(crate) fn write<T: Versioned>(out: *mut T, size: usize, v: T) -> Result<()> 
     Ok(())
 }
 
-/// Declare a parameter struct [`Versioned`]: its name, the fields after
-/// `size` in declaration order (the first is in every layout), and its
-/// defaults. Asserts at compile time that `size` comes first and that the
-/// fields leave no padding.
+/// Declare a parameter struct [`Versioned`]: its name and the crate type
+/// its `to_core` returns, the fields after `size` in declaration order (the
+/// first is in every layout), and its defaults. Asserts at compile time
+/// that `size` comes first, that the list is every other field in
+/// declaration order, and that the fields leave no padding.
 macro_rules! versioned {
-    ($t:ident, [$first:ident $(, $f:ident)* $(,)?], $defaults:expr) => {
+    ($t:ident => $core:ty, [$first:ident $(, $f:ident)* $(,)?], $defaults:expr) => {
         impl $crate::ffi::sized::Versioned for $t {
+            type Core = $core;
+            fn core(&self) -> $crate::error::Result<$core> {
+                $t::to_core(self)
+            }
             fn defaults() -> Self {
                 let mut v: $t = $defaults;
                 v.size = core::mem::size_of::<$t>() as u32;
@@ -142,6 +184,24 @@ macro_rules! versioned {
                 fields == core::mem::size_of::<$t>(),
                 concat!(stringify!($t), ": fields missing from versioned! or padding")
             );
+            // In declaration order from the first after `size`, so that
+            // `PREFIXES` are the older layouts' sizes.
+            let offsets = [
+                core::mem::offset_of!($t, $first)
+                $(, core::mem::offset_of!($t, $f))*
+            ];
+            assert!(
+                offsets[0] == core::mem::size_of_val(&v.size),
+                concat!(stringify!($t), ": versioned! must start at the field after size")
+            );
+            let mut i = 1;
+            while i < offsets.len() {
+                assert!(
+                    offsets[i - 1] < offsets[i],
+                    concat!(stringify!($t), ": versioned! lists fields out of order")
+                );
+                i += 1;
+            }
         };
     };
 }

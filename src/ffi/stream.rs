@@ -6,7 +6,7 @@
 //! transpose; other strides are read element by element.
 
 use super::context::{Handle, sheaf_context, with_ref};
-use super::scene::{controls, params_of};
+use super::scene::controls;
 use super::sized;
 use super::trace_params::sheaf_trace_params;
 use super::{overlaps, read_in};
@@ -354,7 +354,7 @@ pub extern "C" fn sheaf_context_trace_stream(
     count: usize,
 ) -> super::sheaf_status {
     with_ref(ctx, |h| {
-        let p = sized::read(params)?.to_core()?;
+        let p = sized::to_core(params)?;
         let (r, spans) = CRays::new(rays, count)?;
         let out = CHits::new(hits, count, &spans, false)?;
         let emit = |i: usize, h4: &crate::geom::Hit4, n: usize| out.put_quad(i, h4, n);
@@ -377,7 +377,7 @@ pub extern "C" fn sheaf_context_occluded_stream(
     count: usize,
 ) -> super::sheaf_status {
     with_ref(ctx, |h| {
-        let p = sized::read(params)?.to_core()?;
+        let p = sized::to_core(params)?;
         let (r, spans) = CRays::new(rays, count)?;
         check_occluded(occluded, count, &spans)?;
         let emit = |i: usize, h4: &crate::geom::Hit4, l: usize| {
@@ -408,7 +408,7 @@ pub extern "C" fn sheaf_context_trace_scene_stream(
         let ctl = controls(mask, flags)?;
         let (r, spans) = CRays::new(rays, count)?;
         let out = CHits::new(hits, count, &spans, true)?;
-        let p = params_of(params)?;
+        let p = sized::optional(params)?; // NULL: single rays
         scene_rays(h, p, r, count, ctl, false, |i, x| {
             out.put(i, (x.t, x.u, x.v, x.prim), Some((x.geometry, x.instance)))
         })
@@ -432,7 +432,7 @@ pub extern "C" fn sheaf_context_occluded_scene_stream(
         let ctl = controls(mask, flags)?;
         let (r, spans) = CRays::new(rays, count)?;
         check_occluded(occluded, count, &spans)?;
-        let p = params_of(params)?;
+        let p = sized::optional(params)?; // NULL: single rays
         scene_rays(h, p, r, count, ctl, true, |i, x| {
             put_occluded(occluded, i, x.is_hit())
         })

@@ -3,7 +3,7 @@
 
 use super::method::sheaf_method;
 use super::sized::{self, versioned};
-use super::{flag, guard_free, raw};
+use super::{flag, raw};
 use crate::EntrySearch;
 use crate::error::{Error, Result};
 use crate::isa::Isa;
@@ -164,7 +164,7 @@ impl sheaf_trace_params {
 }
 
 versioned!(
-    sheaf_trace_params,
+    sheaf_trace_params => TraceParams,
     [
         method,
         packet,
@@ -193,7 +193,7 @@ pub extern "C" fn sheaf_trace_params_default(
     out: *mut sheaf_trace_params,
     size: usize,
 ) -> super::sheaf_status {
-    guard_free(|| sized::write(out, size, sheaf_trace_params::of(&TraceParams::default())))
+    sized::write_defaults(out, size)
 }
 
 #[cfg(test)]

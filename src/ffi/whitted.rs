@@ -6,7 +6,7 @@ use super::context::{Handle, sheaf_context, with_mut};
 use super::frame::sheaf_frame;
 use super::sized::{self, versioned};
 use super::trace_params::sheaf_trace_params;
-use super::{check_array, guard_free, overlaps, read_in};
+use super::{check_array, overlaps, read_in};
 use crate::PointLight;
 use crate::error::{Error, Result};
 use crate::{Material, MaterialRange, Materials};
@@ -45,7 +45,7 @@ impl sheaf_whitted_params {
 }
 
 versioned!(
-    sheaf_whitted_params,
+    sheaf_whitted_params => WhittedParams,
     [max_reflect, max_refract],
     sheaf_whitted_params::of(&WhittedParams::default())
 );
@@ -61,13 +61,7 @@ pub extern "C" fn sheaf_whitted_params_default(
     out: *mut sheaf_whitted_params,
     size: usize,
 ) -> super::sheaf_status {
-    guard_free(|| {
-        sized::write(
-            out,
-            size,
-            sheaf_whitted_params::of(&WhittedParams::default()),
-        )
-    })
+    sized::write_defaults(out, size)
 }
 
 /// Borrow a C array as a slice: NULL only when `n == 0`, naturally aligned.
@@ -139,11 +133,7 @@ pub extern "C" fn sheaf_context_render_whitted(
 ) -> super::sheaf_status {
     with_mut(ctx, |h: &mut Handle| {
         let frame = read_in(frame)?.to_core()?;
-        let params = if params.is_null() {
-            WhittedParams::default()
-        } else {
-            sized::read(params)?.to_core()?
-        };
+        let params = sized::or_default(params)?;
         let job = WhittedJob {
             frame: &frame,
             lights: borrow(lights, light_count, "light count too large")?,
@@ -152,9 +142,9 @@ pub extern "C" fn sheaf_context_render_whitted(
                 ranges: borrow(ranges, range_count, "range count too large")?,
             },
             params,
-            primary: sized::read(primary)?.to_core()?,
-            shadow: sized::read(shadow)?.to_core()?,
-            secondary: sized::read(secondary)?.to_core()?,
+            primary: sized::to_core(primary)?,
+            shadow: sized::to_core(shadow)?,
+            secondary: sized::to_core(secondary)?,
         };
         // The framebuffer is written while the arrays are read: they must
         // not share a byte (checked before the framebuffer is borrowed).
