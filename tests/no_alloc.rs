@@ -262,18 +262,18 @@ fn ten_animated_frames_allocate_nothing() {
             &mut owned as &mut dyn Frames,
             &mut borrowed as &mut dyn Frames,
         ] {
-            ctx.frame(
-                &scene,
-                &params,
-                &rays,
-                &mut hits,
-                &mut occ,
-                &frame,
-                &lights,
-                &mut pixels,
+            let traced = Traced {
+                rays: &rays,
+                hits: &mut hits,
+                occluded: &mut occ,
+            };
+            let image = Image {
+                frame: &frame,
+                lights: &lights,
+                pixels: &mut pixels,
                 stride,
-                &mut deferred,
-            );
+            };
+            ctx.frame(&scene, &params, traced, image, &mut deferred);
             hit_total += hits.iter().filter(|h| h.is_hit()).count();
         }
         // Single-mesh ray streams on the frame's last structures.
@@ -322,28 +322,39 @@ struct Deferred {
     chunks: u64,
 }
 
+/// The rays a frame traces, and their hits and occlusion.
+struct Traced<'a> {
+    rays: &'a [Ray],
+    hits: &'a mut [Hit],
+    occluded: &'a mut [bool],
+}
+
+/// The image a frame renders: its frame and lights, and its pixels
+/// (`stride` bytes per row).
+struct Image<'a> {
+    frame: &'a Frame,
+    lights: &'a [PointLight],
+    pixels: &'a mut [u8],
+    stride: usize,
+}
+
 /// One frame on either kind of context.
 trait Frames {
-    // One argument per input of a frame, as the context's own calls take them.
-    #[allow(clippy::too_many_arguments)]
     fn frame(
         &mut self,
         s: &Scene,
         p: &GridParams,
-        r: &[Ray],
-        h: &mut [Hit],
-        o: &mut [bool],
-        f: &Frame,
-        lights: &[PointLight],
-        px: &mut [u8],
-        stride: usize,
+        traced: Traced<'_>,
+        image: Image<'_>,
         d: &mut Deferred,
     );
 }
 macro_rules! impl_frames {
     ($($t:ty),*) => {$(
         impl Frames for $t {
-            fn frame(&mut self, s: &Scene, p: &GridParams, r: &[Ray], h: &mut [Hit], o: &mut [bool], f: &Frame, lights: &[PointLight], px: &mut [u8], stride: usize, d: &mut Deferred) {
+            fn frame(&mut self, s: &Scene, p: &GridParams, traced: Traced<'_>, image: Image<'_>, d: &mut Deferred) {
+                let Traced { rays: r, hits: h, occluded: o } = traced;
+                let Image { frame: f, lights, pixels: px, stride } = image;
                 self.build_grid(s, p).unwrap();
                 self.trace(Method::GridDda, r, h).unwrap();
                 self.occluded(Method::GridDda, r, o).unwrap();

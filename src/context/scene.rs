@@ -19,7 +19,7 @@ use crate::accel::slot::Slot;
 use crate::accel::twolevel::RayControls;
 use crate::accel::twolevel::TwoLevel;
 use crate::accel::twolevel::flatten::{Flat, FlatInfo};
-use crate::accel::twolevel::traverse_packet;
+use crate::accel::twolevel::traverse_packet::{self, SceneCall};
 use crate::accel::twolevel::traverse_single::{self, SceneHit};
 use crate::accel::twolevel::{GeometryParams, TwoLevelInfo, TwoLevelView, UpdateInfo};
 use crate::counters::{Counters, elapsed_ns, now};
@@ -98,6 +98,17 @@ pub(super) fn hook<'r>(
 pub(super) const fn scratch(q: usize) -> usize {
     use crate::mem::scratch::bytes;
     bytes::<Ray4>(q) + bytes::<M4>(q) + bytes::<SceneHit>(4 * q) + traverse_packet::scratch(q)
+}
+
+/// What a scene trace asks, as `Context::trace_scene_each` takes it: the
+/// method `p` (None: single rays) on thread slot `slot`, the rays'
+/// controls, and whether any hit will do (occlusion).
+#[derive(Clone, Copy)]
+struct SceneQuery<'p> {
+    p: Option<&'p TraceParams>,
+    slot: Option<u32>,
+    ctl: RayControls,
+    any: bool,
 }
 
 /// A flattening's origin: the commit (counted by `Sources::commits`) and
@@ -541,6 +552,7 @@ impl<'a> Context<'a> {
     /// grid or kd-tree method on the flattened scene (`trace_scene_with`;
     /// without culling). Read-only: many threads may call it at once (the
     /// C ABI's scene traces do), each with its own slot for packets.
+    // Kept as it is: the C ABI's scene traces (ffi/) and the CLI call it.
     #[allow(clippy::too_many_arguments)] // the batch's parts, as `batch_on`
     pub fn trace_scene_each(
         &self,
@@ -559,7 +571,13 @@ impl<'a> Context<'a> {
                 out(start + k, *h)
             }
         };
-        self.trace_scene_dyn(p, slot, count, ctl.into(), any, DynRays(&rays), &mut run)
+        let q = SceneQuery {
+            p,
+            slot,
+            ctl: ctl.into(),
+            any,
+        };
+        self.trace_scene_dyn(q, count, DynRays(&rays), &mut run)
     }
 
     /// `trace_scene_each`'s body, not generic: its traversals (every
@@ -568,17 +586,14 @@ impl<'a> Context<'a> {
     /// calls it. `out(start, hits)` takes the hits of rays `start ..`;
     /// the cost is one indirect call per packet (a quad on the flattened
     /// scene, a ray for single rays) for the rays and one for the hits.
-    #[allow(clippy::too_many_arguments)] // as `trace_scene_each`
     fn trace_scene_dyn(
         &self,
-        p: Option<&TraceParams>,
-        slot: Option<u32>,
+        q: SceneQuery<'_>,
         count: usize,
-        ctl: RayControls,
-        any: bool,
         rays: DynRays<'_>,
         out: &mut dyn FnMut(usize, &[SceneHit]),
     ) -> Result<Counters> {
+        let SceneQuery { p, slot, ctl, any } = q;
         self.scene_pools()?;
         let v = self.world.scene.view()?;
         let RayControls { mask, cull, .. } = ctl;
@@ -641,11 +656,16 @@ impl<'a> Context<'a> {
         let blas: Tracing<BvhView<'_>> = Tracing::of_test(v.info.test, p, any);
         let g = blas.as_fn();
         let c = &mut ctr;
+        let call = SceneCall {
+            scene: &v,
+            params: p,
+            ctl,
+        };
         let trace = |q: &[Ray4], a: &[M4], h: &mut [SceneHit], sl: &mut Slot<'_>| {
             if any {
-                traverse_packet::trace::<true>(&v, p, g, q, a, ctl, h, sl, c)
+                traverse_packet::trace::<true>(&call, g, q, a, h, sl, c)
             } else {
-                traverse_packet::trace::<false>(&v, p, g, q, a, ctl, h, sl, c)
+                traverse_packet::trace::<false>(&call, g, q, a, h, sl, c)
             }
         };
         let per = packet_rays(p);
@@ -667,6 +687,7 @@ impl<'a> Context<'a> {
     /// makes them, pixel (x, y)'s hit into `hits[(y - rect.y0) * row + (x
     /// - rect.x0)]`: `p`, `slot` and `ctl` as `trace_scene_each`, and its
     /// hits for the rays `camera.ray(x, y)`, bit for bit.
+    // Kept as it is: tests/exact/twolevel_exact.rs calls it.
     #[allow(clippy::too_many_arguments)] // the camera call's parts, as `trace_scene_each`
     pub fn trace_scene_camera(
         &self,

@@ -32,6 +32,14 @@ pub fn even_parts(n: usize, workers: usize) -> [Range<usize>; MAX_WORKERS] {
     })
 }
 
+/// The scratch of a sort: key and value pools at least as long as the
+/// pairs, and the radix counts ([`BUCKETS`] per worker).
+pub struct SortScratch<'a> {
+    pub tmp_keys: &'a mut [u32],
+    pub tmp_vals: &'a mut [u32],
+    pub counts: &'a mut [u32],
+}
+
 /// Sort (stably, least significant digit first) the pairs at `parts` of
 /// `keys` and `vals` (one part per worker of
 /// `par`, in order, disjoint) by key into `keys[..total]` and
@@ -41,7 +49,8 @@ pub fn even_parts(n: usize, workers: usize) -> [Range<usize>; MAX_WORKERS] {
 /// the first pass gathers them, so several workers can each emit pairs into
 /// their own region of one pool and sort them without a compaction.
 // The pool pairs, their scratch pairs, and the parts, bits, counts and
-// workers of one sort.
+// workers of one sort; kept as it is for its caller `accel::pgrid::build`
+// (`reorder` passes a `SortScratch` on).
 #[allow(clippy::too_many_arguments)]
 pub fn radix_sort_with(
     keys: &mut [u32],
@@ -98,7 +107,8 @@ pub fn radix_sort_with(
 /// counts its part, the counts become each worker's first position per
 /// digit (digit-major, then worker order: stable), each worker scatters its
 /// part. `counts` holds `workers << digit` entries.
-// A pass's source and destination pairs, and its parts, digit and workers.
+// A pass's source and destination pairs, and its parts, digit and workers;
+// kept as it is for its caller `accel::bvh::build_morton`.
 #[allow(clippy::too_many_arguments)]
 pub fn radix_pass(
     sk: &[u32],

@@ -188,21 +188,35 @@ fn environment(spec: &str) -> Result<(String, Mesh)> {
     pick("builtin:gears")
 }
 
-/// Camera rays of tile `(tx, ty)` (n x n pixels, quads in Morton order, the
-/// renderer's packet layout) and their pixels; off-image lanes repeat the
-/// image's last row or column (whole quads for the packets) and have no
-/// pixel.
-#[allow(clippy::too_many_arguments)] // the image, the tile, and the two outputs reused per tile
-fn tile_rays(
-    pr: &PrimaryRays,
+/// The image a frame renders: its camera rays, its size and the side of
+/// its tiles (n x n pixels, each a packet).
+struct Image<'a> {
+    pr: &'a PrimaryRays,
     w: u32,
     h: u32,
     n: u32,
+}
+
+/// A scene as `render` traces and colours it: the trace, a hit's world
+/// triangle and its colour.
+struct TracedScene<'a> {
+    trace: TraceFn<'a>,
+    tri: &'a (dyn Fn(&SceneHit) -> sheaf::geom::TriVerts + Sync),
+    palette: &'a (dyn Fn(&SceneHit) -> Vec3 + Sync),
+}
+
+/// Camera rays of tile `(tx, ty)` of `img` (quads in Morton order, the
+/// renderer's packet layout) and their pixels; off-image lanes repeat the
+/// image's last row or column (whole quads for the packets) and have no
+/// pixel.
+fn tile_rays(
+    img: &Image<'_>,
     tx: u32,
     ty: u32,
     rays: &mut Vec<Ray>,
     px: &mut Vec<Option<(u32, u32)>>,
 ) {
+    let Image { pr, w, h, n } = *img;
     rays.clear();
     px.clear();
     for q in 0..(n / 2) * (n / 2) {
@@ -227,23 +241,24 @@ struct Traced {
     ns: u64,
 }
 
-/// Camera rays, shadow rays and shading of one frame on the pool's threads
-/// (thread `i` on context slot `i`). `tri(hit)` is the world triangle of a
-/// hit; `palette(hit)` its colour; `eps` the shadow rays' offset
-/// (`SHADOW_OFFSET` times the scene's size, as the renderers take it).
-#[allow(clippy::too_many_arguments)]
+/// Camera rays, shadow rays and shading of `img` on the pool's threads
+/// (thread `i` on context slot `i`), as `scene` traces and colours them.
+/// `eps` is the shadow rays' offset (`SHADOW_OFFSET` times the scene's
+/// size, as the renderers take it).
 fn render(
-    trace: TraceFn<'_>,
-    tri: &(dyn Fn(&SceneHit) -> sheaf::geom::TriVerts + Sync),
-    palette: &(dyn Fn(&SceneHit) -> Vec3 + Sync),
-    pr: &PrimaryRays,
+    scene: &TracedScene<'_>,
+    img: &Image<'_>,
     light: &PointLight,
     eps: f32,
-    (w, h): (u32, u32),
-    n: u32,
     pixels: &mut [u8],
     threads: u32,
 ) -> Result<Traced> {
+    let TracedScene {
+        trace,
+        tri,
+        palette,
+    } = *scene;
+    let Image { w, h, n, .. } = *img;
     let (tw, th) = (w.div_ceil(n), h.div_ceil(n));
     let t0 = Instant::now();
     let rows: Vec<TilePixels> = run::pool(threads as usize).install(|| {
@@ -252,7 +267,7 @@ fn render(
             .map(|t| {
                 let slot = rayon::current_thread_index().unwrap_or(0);
                 let (mut rays, mut px) = (Vec::new(), Vec::new());
-                tile_rays(pr, w, h, n, t % tw, t / tw, &mut rays, &mut px);
+                tile_rays(img, t % tw, t / tw, &mut rays, &mut px);
                 let mut hits = vec![SceneHit::MISS; rays.len()];
                 trace(slot, &rays, false, &mut hits)?;
                 let mut shadow = Vec::with_capacity(rays.len());
@@ -639,18 +654,18 @@ pub fn engine(a: &EngineArgs) -> Result<()> {
             4 => Vec3::new(0.95, 0.8, 0.25),
             _ => Vec3::new(0.3, 0.85, 0.35),
         };
-        let tr = render(
-            &scene_trace,
-            &world_tri,
-            &colour,
-            &pr,
-            &light,
-            eps,
-            (w, h),
-            a.packet,
-            &mut pixels,
-            threads,
-        )?;
+        let img = Image {
+            pr: &pr,
+            w,
+            h,
+            n: a.packet,
+        };
+        let scene = TracedScene {
+            trace: &scene_trace,
+            tri: &world_tri,
+            palette: &colour,
+        };
+        let tr = render(&scene, &img, &light, eps, &mut pixels, threads)?;
         run::write_png(&a.out_dir.join(format!("frame_{f:03}.png")), &pixels, w, h)?;
         apng.write_image_data(&pixels)?;
 
@@ -723,18 +738,12 @@ pub fn engine(a: &EngineArgs) -> Result<()> {
             };
             let grey = |_: &SceneHit| Vec3::splat(0.8);
             let mut scratch = vec![0u8; pixels.len()];
-            let ft = render(
-                &flat_trace,
-                &flat_tri,
-                &grey,
-                &pr,
-                &light,
-                eps,
-                (w, h),
-                a.packet,
-                &mut scratch,
-                threads,
-            )?;
+            let flat_scene = TracedScene {
+                trace: &flat_trace,
+                tri: &flat_tri,
+                palette: &grey,
+            };
+            let ft = render(&flat_scene, &img, &light, eps, &mut scratch, threads)?;
             Some((t.elapsed().as_secs_f64() * 1e3, build_ms, ms(ft.ns)))
         } else {
             None

@@ -451,16 +451,15 @@ pub fn run(a: &BenchArgs) -> Result<()> {
             }
         }
     }
-    let md = markdown(
-        &rows,
-        &t2,
-        &notes,
-        &machine,
-        (w, h),
+    let header = Header {
+        notes: &notes,
+        machine: &machine,
+        size: (w, h),
         threads,
         reps,
-        start.elapsed().as_secs_f64(),
-    );
+        secs: start.elapsed().as_secs_f64(),
+    };
+    let md = markdown(&rows, &t2, &header);
     let md_path = out_dir.join("whitted.md");
     write_text(&md_path, &md)?;
     let csv_path = out_dir.join("whitted.csv");
@@ -528,18 +527,27 @@ fn csv(rows: &[Row], t2: &[Row]) -> (Vec<String>, Vec<Vec<String>>) {
     (head, records)
 }
 
-// Report writer: one argument per section of the report.
-#[allow(clippy::too_many_arguments)]
-fn markdown(
-    rows: &[Row],
-    t2: &[Row],
-    notes: &[String],
-    machine: &str,
-    (w, h): (u32, u32),
+/// What the report's head says of the run: its notes, the machine, the
+/// frame size, threads and rounds, and the seconds it took.
+struct Header<'a> {
+    notes: &'a [String],
+    machine: &'a str,
+    size: (u32, u32),
     threads: u32,
     reps: u32,
     secs: f64,
-) -> String {
+}
+
+/// whitted.md: the run's `header`, Table 2 (`t2`) and Figure 5 (`rows`).
+fn markdown(rows: &[Row], t2: &[Row], header: &Header<'_>) -> String {
+    let Header {
+        notes,
+        machine,
+        size: (w, h),
+        threads,
+        reps,
+        secs,
+    } = *header;
     let mut s = String::from("# sheaf bench --whitted\n\n");
     let _ = writeln!(s, "- command: `{}`", command_line());
     let _ = writeln!(s, "- machine (at the start): {machine}");

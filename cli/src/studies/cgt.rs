@@ -455,18 +455,25 @@ struct Traced {
     timings: Vec<Timing>,
 }
 
-// One study configuration: its inputs as the study's loop holds them.
-#[allow(clippy::too_many_arguments)]
+/// A view's frame as each configuration traces it: the primary rays, the
+/// point light and the shadow rays' offset.
+struct ViewFrame<'a> {
+    vr: &'a ViewRays,
+    light: Vec3,
+    eps: f32,
+}
+
+/// The frame traced with `cfg`: untimed (hits, occlusion, counters), then
+/// timed on each of `threads` thread counts (the median of `reps` runs).
 fn trace_config(
     tr: &GridTracer<'_>,
     mbs: &mut [Slot<'_>],
     cfg: &Config,
-    vr: &ViewRays,
-    light: Vec3,
-    eps: f32,
+    frame: &ViewFrame<'_>,
     threads: &[u32],
     reps: u32,
 ) -> Traced {
+    let ViewFrame { vr, light, eps } = *frame;
     let n = vr.rays.len();
     let tr = &tr
         .with_single(cfg.method)
@@ -1344,8 +1351,13 @@ pub fn run(a: &BenchArgs) -> Result<()> {
             let (tr, mbs) = ctx.parts()?;
             let mut mbs: Vec<Slot<'_>> = mbs.take(max_threads as usize).collect();
             let mut dda: Option<(Vec<u32>, Vec<bool>)> = None;
+            let frame = ViewFrame {
+                vr,
+                light: *light,
+                eps: *eps,
+            };
             for cfg in &cfgs {
-                let t = trace_config(&tr, &mut mbs, cfg, vr, *light, *eps, &threads, reps);
+                let t = trace_config(&tr, &mut mbs, cfg, &frame, &threads, reps);
                 let occl = occlusion_of(&tr, cfg, &oracle.shadow_rays, &mut mbs[0]);
                 let mut found = Vec::new();
                 let acc = accuracy(&scene, oracle, w, &vr.rays, &t.hits, &occl, &mut found);

@@ -443,6 +443,15 @@ pub fn run(a: &BenchArgs) -> Result<()> {
         pp.light_slices,
         pp.chunk
     ));
+    let plan = Plan {
+        w,
+        h,
+        threads,
+        reps,
+        grid: &grid,
+        pp: &pp,
+        out_dir: &out_dir,
+    };
     let mut results: Vec<SceneResult> = Vec::new();
     // Scenes for Figure 11 when neither named one runs: after the others,
     // the two largest (re-run then).
@@ -450,18 +459,7 @@ pub fn run(a: &BenchArgs) -> Result<()> {
     for spec in &specs {
         let fig11 = fig11_names.contains(&spec.name);
         prog.doing(spec.name.clone());
-        match scene(
-            spec,
-            (w, h),
-            threads,
-            reps,
-            &grid,
-            &pp,
-            &cfgs,
-            fig11,
-            &out_dir,
-            &prog,
-        )? {
+        match scene(spec, &plan, &cfgs, fig11, &prog)? {
             Some(r) => {
                 if fig11_names.is_empty() {
                     deferred_fig11.push((
@@ -491,18 +489,7 @@ pub fn run(a: &BenchArgs) -> Result<()> {
         prog.add(deferred_fig11.len() as u64 * fig11_steps);
         for (_, spec) in &deferred_fig11 {
             prog.doing(format!("{}: Figure 11", spec.name));
-            if let Some(r) = scene(
-                spec,
-                (w, h),
-                threads,
-                reps,
-                &grid,
-                &pp,
-                &[],
-                true,
-                &out_dir,
-                &prog,
-            )? {
+            if let Some(r) = scene(spec, &plan, &[], true, &prog)? {
                 if let Some(x) = results.iter_mut().find(|x| x.name == r.name) {
                     x.fig11 = r.fig11;
                     x.fig11_dir = r.fig11_dir;
@@ -609,22 +596,38 @@ fn configs(pp: &PgridParams, side: u32) -> Vec<Config> {
     v
 }
 
-/// One scene: load, build, the configurations in rounds, Figure 11 when
-/// `fig11`. None: skipped (with a note).
-// Study driver: the run's settings as the command line gives them.
-#[allow(clippy::too_many_arguments)]
-fn scene(
-    spec: &SceneSpec,
-    (w, h): (u32, u32),
+/// What every scene of the run shares, as the command line sets it: the
+/// frame size, the threads, the rounds, the structures' parameters and
+/// where the images go.
+#[derive(Clone, Copy)]
+struct Plan<'a> {
+    w: u32,
+    h: u32,
     threads: u32,
     reps: u32,
-    grid: &GridParams,
-    pp: &PgridParams,
+    grid: &'a GridParams,
+    pp: &'a PgridParams,
+    out_dir: &'a Path,
+}
+
+/// One scene: load, build, the configurations in rounds, Figure 11 when
+/// `fig11`. None: skipped (with a note).
+fn scene(
+    spec: &SceneSpec,
+    plan: &Plan<'_>,
     cfgs: &[Config],
     fig11: bool,
-    out_dir: &Path,
     prog: &Progress,
 ) -> Result<Option<SceneResult>> {
+    let Plan {
+        w,
+        h,
+        threads,
+        reps,
+        grid,
+        pp,
+        out_dir,
+    } = *plan;
     // The steps this scene stands for, done when it is skipped.
     let steps =
         if cfgs.is_empty() { 0 } else { reps as u64 } + if fig11 { FIG11_STEPS as u64 } else { 0 };
@@ -1560,23 +1563,33 @@ mod charts {
         RGBColor(148, 103, 189),
     ];
 
-    /// A bar chart over scenes: `stacks` per scene of (value per series),
-    /// stacked when `stacked`, else side by side.
-    // Chart helper: one argument per chart option.
-    #[allow(clippy::too_many_arguments)]
-    fn bars<DB: DrawingBackend>(
-        area: &DrawingArea<DB, Shift>,
-        caption: &str,
-        scenes: &[String],
-        series: &[(String, RGBColor)],
-        values: &[Vec<f64>],
+    /// A bar chart over `scenes`: per scene a value per series in `values`,
+    /// stacked when `stacked` (their sum above each bar with `totals`),
+    /// else side by side; the y axis in `ylabel`.
+    struct Bars<'a> {
+        caption: &'a str,
+        scenes: &'a [String],
+        series: &'a [(String, RGBColor)],
+        values: &'a [Vec<f64>],
         stacked: bool,
-        ylabel: &str,
+        ylabel: &'a str,
         totals: bool,
-    ) -> Result<()>
+    }
+
+    /// Draw `chart` on `area`.
+    fn bars<DB: DrawingBackend>(area: &DrawingArea<DB, Shift>, chart: &Bars<'_>) -> Result<()>
     where
         DB::ErrorType: 'static,
     {
+        let Bars {
+            caption,
+            scenes,
+            series,
+            values,
+            stacked,
+            ylabel,
+            totals,
+        } = *chart;
         let n = scenes.len().max(1);
         let top = values
             .iter()
@@ -1703,19 +1716,27 @@ mod charts {
             s.w, s.h, s.threads
         );
         let size = (150 * scenes.len() as u32 + 420, 560);
-        let cap = "ms per frame: each phase's median, stacked (their sum above each bar)";
+        let chart = Bars {
+            caption: "ms per frame: each phase's median, stacked (their sum above each bar)",
+            scenes: &scenes,
+            series: &series,
+            values: &values,
+            stacked: true,
+            ylabel: "ms",
+            totals: true,
+        };
         save(
             size,
             svg,
             png,
             |root| {
                 let body = title(&root, &t)?;
-                bars(&body, cap, &scenes, &series, &values, true, "ms", true)?;
+                bars(&body, &chart)?;
                 Ok(root.present()?)
             },
             |root| {
                 let body = title(&root, &t)?;
-                bars(&body, cap, &scenes, &series, &values, true, "ms", true)?;
+                bars(&body, &chart)?;
                 Ok(root.present()?)
             },
         )
@@ -1756,20 +1777,28 @@ mod charts {
             "sheaf shadow rays: light grid vs shadow packets, {}x{}, {} threads",
             s.w, s.h, s.threads
         );
-        let cap = "shadow phase ms (rearrangement + build + traversal), lower is better";
         let size = (190 * scenes.len() as u32 + 420, 560);
+        let chart = Bars {
+            caption: "shadow phase ms (rearrangement + build + traversal), lower is better",
+            scenes: &scenes,
+            series: &series,
+            values: &values,
+            stacked: false,
+            ylabel: "ms",
+            totals: false,
+        };
         save(
             size,
             svg,
             png,
             |root| {
                 let body = title(&root, &t)?;
-                bars(&body, cap, &scenes, &series, &values, false, "ms", false)?;
+                bars(&body, &chart)?;
                 Ok(root.present()?)
             },
             |root| {
                 let body = title(&root, &t)?;
-                bars(&body, cap, &scenes, &series, &values, false, "ms", false)?;
+                bars(&body, &chart)?;
                 Ok(root.present()?)
             },
         )

@@ -345,7 +345,15 @@ pub fn run(a: &BenchArgs) -> Result<()> {
             loaded,
             stress,
         };
-        let found = scene(&s, a, test, (nrays, ncam), reps, &cfgs, budget, &prog)?;
+        let plan = Plan {
+            test,
+            nrays,
+            ncam,
+            reps,
+            cfgs: &cfgs,
+            budget,
+        };
+        let found = scene(&s, a, &plan, &prog)?;
         if let Some((info, mut r)) = found {
             infos.push(info);
             results.append(&mut r);
@@ -429,18 +437,29 @@ fn classes_of(quick: bool, stress: bool) -> Vec<Option<RayClass>> {
         .collect()
 }
 
-// Study driver: the run's settings as the command line gives them.
-#[allow(clippy::too_many_arguments)]
+/// How every scene and class runs, as the command line sets it: the
+/// triangle test, the rays per adversarial class and camera rays, the
+/// rounds, the configurations and the f64 oracle's budget.
+struct Plan<'a> {
+    test: sheaf::TriTest,
+    nrays: usize,
+    ncam: usize,
+    reps: usize,
+    cfgs: &'a [Cfg],
+    budget: f64,
+}
+
+/// One scene: its structures built, then every ray class of it run
+/// (`class_run`). None: skipped (with a note).
 fn scene(
     s: &SceneIn,
     a: &BenchArgs,
-    test: sheaf::TriTest,
-    (nrays, ncam): (usize, usize),
-    reps: usize,
-    cfgs: &[Cfg],
-    budget: f64,
+    plan: &Plan<'_>,
     prog: &Progress,
 ) -> Result<Option<(SceneInfo, Vec<ClassResult>)>> {
+    let Plan {
+        test, nrays, ncam, ..
+    } = *plan;
     let t0 = Instant::now();
     let classes = classes_of(a.quick, s.stress);
     let scene = s.loaded.scene()?;
@@ -510,7 +529,7 @@ fn scene(
             Some(_) => nrays.min(OTHER_RAYS),
         };
         let rays = rays_of(class, &mesh, &view, n)?;
-        let r = class_run(&mut ctx, &scene, &s.name, &cname, &rays, cfgs, reps, budget);
+        let r = class_run(&mut ctx, &scene, &s.name, &cname, &rays, plan);
         prog.say(progress(&r));
         prog.step();
         out.push(r);
@@ -518,18 +537,20 @@ fn scene(
     Ok(Some((info, out)))
 }
 
-// Study driver: the run's settings as the command line gives them.
-#[allow(clippy::too_many_arguments)]
+/// The configurations of `plan` on the rays of class `cname` of scene
+/// `sname`: timed in rounds, compared with their structure's baseline,
+/// the baselines checked against the f64 oracle.
 fn class_run(
     ctx: &mut OwnedContext,
     scene: &Scene<'_>,
     sname: &str,
     cname: &str,
     rays: &[Ray],
-    cfgs: &[Cfg],
-    reps: usize,
-    budget: f64,
+    plan: &Plan<'_>,
 ) -> ClassResult {
+    let Plan {
+        cfgs, reps, budget, ..
+    } = *plan;
     let n = rays.len();
     // Untimed first calls: hits, fallback counts, panics, repeat counts.
     let mut cells: Vec<Cell> = Vec::with_capacity(cfgs.len());

@@ -19,7 +19,7 @@
 //! synchronisation.
 
 use crate::mem::par::{MAX_WORKERS, Par, Parts, share};
-use crate::mem::sort::{bits_for, radix_sort_with};
+use crate::mem::sort::{SortScratch, bits_for, radix_sort_with};
 use bytemuck::{Pod, Zeroable};
 use core::ops::Range;
 
@@ -31,6 +31,13 @@ pub struct Chunk {
     pub tile: u32,
     pub start: u32,
     pub count: u32,
+}
+
+/// The (light tile, ray id) pairs of the shadow rays, key and value pools
+/// of the sort.
+pub struct Pairs<'a> {
+    pub tiles: &'a mut [u32],
+    pub ids: &'a mut [u32],
 }
 
 /// What the reordering produced.
@@ -46,41 +53,36 @@ pub struct ReorderInfo {
     pub max_tile_rays: u32,
 }
 
-/// Sort the (light tile, ray id) pairs at `parts` of `tiles` and `ids`
-/// (tiles below `tile_count`; one part per worker of `par`, in order) into
-/// `tiles[..rays]` and `ids[..rays]`, then fill `chunks` with chunks of at
-/// most `r` rays. `chunks` must hold `rays / r + min(rays, tile_count)`
-/// records (one per tile plus one per full r); `counts` holds the sort's
-/// radix counts (`mem::sort::BUCKETS` per worker).
+/// Sort the pairs at `parts` of `pairs` (tiles below `tile_count`; one
+/// part per worker of `par`, in order) into `pairs.tiles[..rays]` and
+/// `pairs.ids[..rays]`, then fill `chunks` with chunks of at most `r`
+/// rays. `chunks` must hold `rays / r + min(rays, tile_count)` records
+/// (one per tile plus one per full r); `scratch` is the sort's.
 ///
 /// On several workers, each takes the tiles whose first ray lies in its
 /// share of the sorted rays, counts their chunks, and writes them after the
 /// chunks of the workers before it: the same chunks as one thread makes.
 /// Panics unless `parts` holds one range per worker of `par` (at most
 /// `MAX_WORKERS`).
-// The ray pairs, their parts and scratch, and the chunking's inputs.
-#[allow(clippy::too_many_arguments)]
 pub fn reorder(
-    tiles: &mut [u32],
-    ids: &mut [u32],
+    pairs: Pairs<'_>,
     parts: &[Range<usize>],
-    tmp_keys: &mut [u32],
-    tmp_vals: &mut [u32],
-    counts: &mut [u32],
+    scratch: SortScratch<'_>,
     tile_count: u32,
     r: u32,
     chunks: &mut [Chunk],
     par: &dyn Par,
 ) -> ReorderInfo {
     let workers = parts.len();
+    let Pairs { tiles, ids } = pairs;
     let n = radix_sort_with(
         tiles,
         ids,
-        tmp_keys,
-        tmp_vals,
+        scratch.tmp_keys,
+        scratch.tmp_vals,
         parts,
         bits_for(tile_count),
-        counts,
+        scratch.counts,
         par,
     );
     let tiles = &tiles[..n];
@@ -166,13 +168,15 @@ mod tests {
         let (mut tk, mut tv) = (vec![0u32; n], vec![0u32; n]);
         let mut counts = vec![0u32; workers * BUCKETS];
         let parts: Vec<_> = (0..workers).map(|w| share(n, w, workers)).collect();
+        let scratch = SortScratch {
+            tmp_keys: &mut tk,
+            tmp_vals: &mut tv,
+            counts: &mut counts,
+        };
         let info = reorder(
-            tiles,
-            ids,
+            Pairs { tiles, ids },
             &parts,
-            &mut tk,
-            &mut tv,
-            &mut counts,
+            scratch,
             tile_count,
             r,
             chunks,

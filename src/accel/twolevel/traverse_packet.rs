@@ -79,18 +79,25 @@ pub const fn scratch(q: usize) -> usize {
         + bytes::<Hit4>(q)
 }
 
-/// Trace the active lanes of `rays` (at most `MAX_QUADS` quads) with
-/// `p.method` among instances whose mask shares a bit with `ctl.mask`,
-/// without the triangle side `ctl.cull`: hit
-/// `4 q + i` of `hits` is lane `i` of quad `q`'s nearest hit, or with
+/// What a scene trace call fixes for all its packets: the scene, the
+/// method's parameters and the ray controls.
+#[derive(Clone, Copy)]
+pub struct SceneCall<'c, 'v> {
+    pub scene: &'c TwoLevelView<'v>,
+    pub params: &'c TraceParams,
+    pub ctl: RayControls,
+}
+
+/// Trace the active lanes of `rays` (at most `MAX_QUADS` quads) in
+/// `call.scene` with `call.params.method` among instances whose mask shares
+/// a bit with `call.ctl.mask`, without the triangle side `call.ctl.cull`:
+/// hit `4 q + i` of `hits` is lane `i` of quad `q`'s nearest hit, or with
 /// `ANY` some hit. Active lanes of `hits` must come in as misses. `blas`
 /// traces each instance's packet in its geometry's BVH (the trace call's
-/// kernel for `p.method` with the scene's triangle test, chosen once per
+/// kernel for the method with the scene's triangle test, chosen once per
 /// call: `trace::scene::Tracing`; the view it gets culls `ctl.cull`).
-#[allow(clippy::too_many_arguments)] // the packet contract's arguments, the geometries' traversal and the ray controls
 pub fn trace<'v, const ANY: bool>(
-    s: &TwoLevelView<'v>,
-    p: &TraceParams,
+    call: &SceneCall<'_, 'v>,
     mut blas: impl FnMut(
         &BvhView<'v>,
         &TraceParams,
@@ -102,11 +109,15 @@ pub fn trace<'v, const ANY: bool>(
     ),
     rays: &[Ray4],
     active: &[M4],
-    ctl: RayControls,
     hits: &mut [SceneHit],
     slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
+    let SceneCall {
+        scene: s,
+        params: p,
+        ctl,
+    } = *call;
     let nq = rays
         .len()
         .min(active.len())

@@ -8,14 +8,16 @@
 
 use super as deferred;
 use super::{
-    DeferredInfo, DeferredJob, FrameBuffers, PrimaryPass, ShadowPass, TileLayout, Workers,
+    Crew, DeferredInfo, DeferredJob, FrameBuffers, Nearest, PrimaryPass, ShadowBits, ShadowPass,
+    SortedRays, Surfaces, TileLayout, Workers,
 };
+use crate::accel::pgrid::reorder::{self, Pairs};
 use crate::accel::pgrid::{self, CamView, LightView, Pgrid, PgridParams};
-use crate::accel::slot::Slot;
 use crate::counters::{Counters, elapsed_ns, now};
 use crate::error::{Error, Result};
 use crate::geom::TriVerts;
 use crate::mem::Slots;
+use crate::mem::sort::SortScratch;
 use crate::render::{PrimaryRays, Tracer};
 use crate::trace::SceneTracer;
 
@@ -28,7 +30,8 @@ pub(crate) struct Parts<'c, 'a> {
 
 /// Run the six phases of `job` (checked by the caller) into `pixels`:
 /// the frame's statistics, its counters and the shadow-ray offset used.
-// The six phases' inputs: the context's pools, the checked job and its layout.
+// `Context::render_deferred` (context/render.rs) calls it with these
+// arguments: the context's pools, the checked job and its layout.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn run<W: Workers>(
     parts: Parts<'_, '_>,
@@ -51,50 +54,59 @@ pub(crate) fn run<W: Workers>(
         info.times.primary_build = elapsed_ns(t);
     }
     let Parts { pg, buf, slots } = parts;
-    macro_rules! slots {
-        () => {{ slots.all().map(Slot::of) }};
-    }
+    let mut crew = Crew { workers, slots };
     // Phase 2: camera rays.
     let t = now();
     let cam = pg.camera().map(|c| CamView {
         filter: tr.pgrid_filter,
         ..c
     });
+    let hits = Nearest {
+        prim: buf.prim,
+        t: buf.t,
+    };
     ctr.add(&deferred::primary_pass(
         &tr,
         cam.as_ref(),
         &job.primary,
         &rays,
         &lay,
-        pp.tile,
-        buf.prim,
-        buf.t,
-        workers,
-        &mut slots!(),
+        hits,
+        &mut crew,
     ));
     info.times.primary_trace = elapsed_ns(t);
     let from_pgrid = job.primary == PrimaryPass::Pgrid;
-    // Hits are looked up where the primary pass found them.
-    macro_rules! tri_of {
-        () => {{
-            let pg_tris = pg.triangles();
-            let pg_ok = &*pg.pools.ok;
-            move |id: u32| -> Option<TriVerts> {
-                if from_pgrid {
-                    let t = pg_tris?;
-                    (pg_ok.get(id as usize) == Some(&1)).then(|| t.tris[id as usize])
-                } else {
-                    tr.triangle(id)
-                }
-            }
-        }};
-    }
     let scale = if from_pgrid {
         crate::trace::scene::scale_of(&pg.scene.bounds)
     } else {
         tr.scene_scale()
     };
     let eps = deferred::shadow_eps(scale);
+    // Hits are looked up where the primary pass found them (anew for each
+    // phase: the light grid builds in between borrow the grid's pools).
+    macro_rules! surfaces {
+        () => {
+            Surfaces {
+                tri_of: &{
+                    let pg_tris = pg.triangles();
+                    let pg_ok = &*pg.pools.ok;
+                    move |id: u32| -> Option<TriVerts> {
+                        if from_pgrid {
+                            let t = pg_tris?;
+                            (pg_ok.get(id as usize) == Some(&1)).then(|| t.tris[id as usize])
+                        } else {
+                            tr.triangle(id)
+                        }
+                    }
+                },
+                rays: &rays,
+                lay: &lay,
+                eps,
+                prim: buf.prim,
+                t: buf.t,
+            }
+        };
+    }
     info.hits = buf.prim[..lay.len()]
         .iter()
         .filter(|&&p| p != crate::geom::INVALID_ID)
@@ -105,46 +117,38 @@ pub(crate) fn run<W: Workers>(
         for (l, light) in lights.iter().enumerate() {
             // Phase 3: shadow rays, mapped and sorted into light tiles.
             let t = now();
-            let s = deferred::make_shadow_rays(
-                &tri_of!(),
-                light,
-                &rays,
-                &lay,
-                eps,
-                buf.prim,
-                buf.t,
-                buf.dirs,
-                workers,
-                &mut slots!(),
-            );
+            let s = deferred::make_shadow_rays(&surfaces!(), light, buf.dirs, &mut crew);
             info.shadow_rays += s.count as u64;
             match job.shadow {
                 ShadowPass::Traced(p) => {
                     info.times.rearrange += elapsed_ns(t);
                     let t = now();
+                    let bits = ShadowBits {
+                        shadow: buf.shadow,
+                        bit: l as u8,
+                    };
                     ctr.add(&deferred::traced_shadow_pass(
-                        &tr,
-                        &p,
-                        light,
-                        &lay,
-                        buf.dirs,
-                        buf.shadow,
-                        l as u8,
-                        workers,
-                        &mut slots!(),
+                        &tr, &p, light, &lay, buf.dirs, bits, &mut crew,
                     ));
                     info.times.shadow_trace += elapsed_ns(t);
                 }
                 ShadowPass::LightGrid => {
+                    macro_rules! pairs {
+                        () => {
+                            Pairs {
+                                tiles: buf.ray_tiles,
+                                ids: buf.ray_ids,
+                            }
+                        };
+                    }
                     let f = deferred::light_frame(
                         light,
                         &s,
                         deferred::light_tiles(pp.light_tiles, s.count),
                         &lay,
                         buf.dirs,
-                        buf.ray_tiles,
-                        buf.ray_ids,
-                        workers.par(),
+                        pairs!(),
+                        crew.par(),
                     );
                     let depth =
                         pgrid::Slices::new(s.near, s.far, pp.light_slices, pgrid::LIGHT_DEPTH_PAD);
@@ -153,10 +157,9 @@ pub(crate) fn run<W: Workers>(
                         &depth,
                         &lay,
                         buf.dirs,
-                        buf.ray_tiles,
-                        buf.ray_ids,
+                        pairs!(),
                         buf.reach,
-                        workers.par(),
+                        crew.par(),
                     );
                     info.times.rearrange += elapsed_ns(t);
                     // Phase 4: the light grid, over the tiles and
@@ -169,19 +172,24 @@ pub(crate) fn run<W: Workers>(
                         s.far,
                         pp.light_slices,
                         buf.reach,
-                        workers.par(),
+                        crew.par(),
                     )?;
                     info.times.shadow_build += elapsed_ns(t);
+                    // Phase 3d: the pairs sorted by light tile and chunked.
                     let t = now();
-                    let par = workers.par();
-                    let r = deferred::rearrange(
-                        &f,
+                    let par = crew.par();
+                    let scratch = SortScratch {
+                        tmp_keys: pg.pools.tmp_keys,
+                        tmp_vals: pg.pools.tmp_vals,
+                        counts: pg.pools.counts,
+                    };
+                    let r = reorder::reorder(
+                        pairs!(),
                         &mapped[..par.workers()],
-                        buf,
-                        pg.pools.tmp_keys,
-                        pg.pools.tmp_vals,
-                        pg.pools.counts,
+                        scratch,
+                        f.tiles[0] * f.tiles[1],
                         pp.chunk,
+                        buf.chunks,
                         par,
                     );
                     // Saturating: up to 8 lights of 2^30 pixels each.
@@ -197,17 +205,17 @@ pub(crate) fn run<W: Workers>(
                         filter: tr.pgrid_filter,
                         ..g
                     };
+                    let sorted = SortedRays {
+                        chunks: &buf.chunks[..r.chunks as usize],
+                        ids: buf.ray_ids,
+                        dirs: buf.dirs,
+                    };
+                    let bits = ShadowBits {
+                        shadow: buf.shadow,
+                        bit: l as u8,
+                    };
                     ctr.add(&deferred::light_grid_pass(
-                        &g,
-                        &buf.chunks[..r.chunks as usize],
-                        buf.ray_ids,
-                        buf.dirs,
-                        buf.occ,
-                        buf.shadow,
-                        l as u8,
-                        pp.chunk,
-                        workers,
-                        &mut slots!(),
+                        &g, &sorted, buf.occ, bits, pp.chunk, &mut crew,
                     ));
                     info.times.shadow_trace += elapsed_ns(t);
                 }
@@ -217,19 +225,13 @@ pub(crate) fn run<W: Workers>(
     // Phase 6: shading.
     let t = now();
     deferred::shade(
-        &tri_of!(),
+        &surfaces!(),
         job.frame,
         lights,
-        &rays,
-        &lay,
-        eps,
-        buf.prim,
-        buf.t,
         buf.shadow,
         pixels,
         stride,
-        workers,
-        &mut slots!(),
+        &mut crew,
     );
     info.times.shade = elapsed_ns(t);
     Ok((info, ctr, eps))

@@ -30,13 +30,15 @@ use super::{
     Frame, Packets, PixelRect, PointLight, PrimaryRays, SHADOW_OFFSET, ShadowPacket, Tracer,
     demorton, encode, shadow_packet,
 };
+use crate::accel::pgrid::reorder::Pairs;
 use crate::accel::pgrid::{
-    self as pgrid, CamView, CellsInfo, Chunk, LightFrame, LightView, ReorderInfo, reorder,
-    traverse_primary, traverse_shadow,
+    self as pgrid, CamView, CellsInfo, Chunk, LightFrame, LightView, ReorderInfo, traverse_primary,
+    traverse_shadow,
 };
 use crate::accel::slot::Slot;
 use crate::error::{Error, Result};
 use crate::geom::{F4, Hit4, INVALID_ID, M4, Ray, Ray4, TriVerts};
+use crate::mem::Slots;
 use crate::mem::par::{MAX_WORKERS, Par, Parts, Serial, atomic_u32, share};
 use crate::trace::{Counters, TraceParams};
 use core::ops::Range;
@@ -272,6 +274,30 @@ impl Workers for OnPar<'_> {
     }
 }
 
+/// The threads of a deferred frame and the context's slots their work
+/// items take: each phase hands every slot out afresh.
+pub struct Crew<'c, 'a, W> {
+    pub workers: &'c mut W,
+    pub slots: &'c mut Slots<'a>,
+}
+
+impl<W: Workers> Crew<'_, '_, W> {
+    /// `Workers::run` on every slot.
+    fn run<I, F>(&mut self, items: &mut (dyn Iterator<Item = I> + Send), work: &F) -> Counters
+    where
+        I: Send,
+        F: Fn(I, &mut Slot<'_>, &mut Counters) + Sync,
+    {
+        self.workers
+            .run(&mut self.slots.all().map(Slot::of), items, work)
+    }
+
+    /// `Workers::par`: the threads of the joined phases.
+    pub fn par(&self) -> &dyn Par {
+        self.workers.par()
+    }
+}
+
 /// Per-pixel buffers of deferred frames, carved at context creation
 /// (`Limits::frame_pixels` entries each, laid out tile by tile).
 pub struct FrameBuffers<'a> {
@@ -386,30 +412,38 @@ const DUMMY: Ray = Ray {
     tmax: 0.0,
 };
 
-/// Phase 2: nearest hits of every camera ray into `prim`/`t` (layout
-/// `lay`). `cam` is the perspective grid when `primary` is `Pgrid`, whose
-/// sorting tiles are `lay.side / group` pixels.
-// A phase of `frame::run`: one argument per `FrameBuffers` pool it reads or
-// writes (lent field by field, so phases can share the frame buffers) plus
-// the threads it runs on.
-#[allow(clippy::too_many_arguments)]
-pub fn primary_pass<'m, T: Tracer + ?Sized, W: Workers>(
+/// Nearest hits per entry of a `TileLayout`: the triangle (`INVALID_ID`:
+/// a miss) and its t; the frame buffers' `prim` and `t`, or a tile's share.
+pub struct Nearest<'a> {
+    pub prim: &'a mut [u32],
+    pub t: &'a mut [f32],
+}
+
+/// One tracing tile, a work item of the camera pass: its first pixel
+/// (x0, y0) and its `side^2` entries of the hit buffers, row by row.
+struct Tile<'a> {
+    x0: u32,
+    y0: u32,
+    hits: Nearest<'a>,
+}
+
+/// Phase 2: nearest hits of every camera ray into `hits` (layout `lay`).
+/// `cam` is the perspective grid when `primary` is `Pgrid`, whose sorting
+/// tiles are `cam.tile` pixels (`lay.side / group`).
+pub fn primary_pass<T: Tracer + ?Sized, W: Workers>(
     tracer: &T,
     cam: Option<&CamView<'_>>,
     primary: &PrimaryPass,
     rays: &PrimaryRays,
     lay: &TileLayout,
-    sort: u32,
-    prim: &mut [u32],
-    t: &mut [f32],
-    workers: &mut W,
-    slots: &mut dyn Iterator<Item = Slot<'m>>,
+    hits: Nearest<'_>,
+    crew: &mut Crew<'_, '_, W>,
 ) -> Counters {
     let ss = (lay.side * lay.side) as usize;
     let n = lay.len();
-    let mut items = prim[..n]
+    let mut items = hits.prim[..n]
         .chunks_mut(ss)
-        .zip(t[..n].chunks_mut(ss))
+        .zip(hits.t[..n].chunks_mut(ss))
         .enumerate();
     // A traced pass's packets (tiles of `lay.side`) and their traversal,
     // chosen once for every tile.
@@ -427,32 +461,36 @@ pub fn primary_pass<'m, T: Tracer + ?Sized, W: Workers>(
                 slot: &mut Slot<'_>,
                 ctr: &mut Counters| {
         let (x0, y0) = lay.pixel(tile * ss);
+        let tile = Tile {
+            x0,
+            y0,
+            hits: Nearest { prim: p, t: tt },
+        };
         match (&traced, cam) {
-            (Some(traced), _) => traced_tile(tracer, traced, rays, lay, x0, y0, p, tt, slot, ctr),
-            (None, Some(cam)) => pgrid_tile(cam, rays, lay, sort, x0, y0, p, tt, slot, ctr),
-            (None, None) => p.fill(INVALID_ID),
+            (Some(traced), _) => traced_tile(tracer, traced, rays, lay, tile, slot, ctr),
+            (None, Some(cam)) => pgrid_tile(cam, rays, lay, tile, slot, ctr),
+            (None, None) => tile.hits.prim.fill(INVALID_ID),
         }
     };
-    workers.run(slots, &mut items, &work)
+    crew.run(&mut items, &work)
 }
 
 /// One tracing tile through the perspective grid: its k x k sorting tiles,
 /// each with its own cells (indirect mapping).
-// Per-item worker of a phase, called from its closure: the phase's
-// inputs plus the item's own slices of the pools.
-#[allow(clippy::too_many_arguments)]
 fn pgrid_tile(
     cam: &CamView<'_>,
     rays: &PrimaryRays,
     lay: &TileLayout,
-    sort: u32,
-    x0: u32,
-    y0: u32,
-    prim: &mut [u32],
-    t: &mut [f32],
+    tile: Tile<'_>,
     slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
+    let Tile {
+        x0,
+        y0,
+        hits: Nearest { prim, t },
+    } = tile;
+    let sort = cam.tile;
     let st = cam.cells.info.tiles;
     let side = lay.side;
     let ts = side / sort;
@@ -505,21 +543,20 @@ const LANES: [(u32, u32); 4] = [(0, 0), (1, 0), (0, 1), (1, 1)];
 
 /// One tile traced with a packet method (Morton quads, as `render_tiles`,
 /// with the pass's parameters and traversal `traced`) or ray by ray.
-// Per-item worker of a phase, called from its closure: the phase's
-// inputs plus the item's own slices of the pools.
-#[allow(clippy::too_many_arguments)]
 fn traced_tile<T: Tracer + ?Sized>(
     tracer: &T,
     traced: &(TraceParams, Packets<'_>),
     rays: &PrimaryRays,
     lay: &TileLayout,
-    x0: u32,
-    y0: u32,
-    prim: &mut [u32],
-    t: &mut [f32],
+    tile: Tile<'_>,
     slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
+    let Tile {
+        x0,
+        y0,
+        hits: Nearest { prim, t },
+    } = tile;
     let side = lay.side;
     let (p, packets) = traced;
     prim.fill(INVALID_ID);
@@ -589,25 +626,36 @@ pub struct ShadowRays {
 /// A triangle by id, from the structure that found the hits.
 pub type TriOf<'a> = &'a (dyn Fn(u32) -> Option<TriVerts> + Sync);
 
+/// The surfaces the camera rays hit, what shadow rays and shading are made
+/// from: per entry of `lay` the nearest triangle `prim` (`tri_of` looks it
+/// up) at `t` along camera ray `rays`, and the shadow rays' offset `eps`.
+#[derive(Clone, Copy)]
+pub struct Surfaces<'a> {
+    pub tri_of: TriOf<'a>,
+    pub rays: &'a PrimaryRays,
+    pub lay: &'a TileLayout,
+    pub eps: f32,
+    pub prim: &'a [u32],
+    pub t: &'a [f32],
+}
+
 /// Phase 3a: the shadow ray of every pixel for `light` into `dirs` (x NaN
 /// where there is none: miss, facing away, outside a spot's cone), tiles
 /// as work items; then their count, length range and mean direction.
-// A phase of `frame::run`: one argument per `FrameBuffers` pool it reads or
-// writes (lent field by field, so phases can share the frame buffers) plus
-// the threads it runs on.
-#[allow(clippy::too_many_arguments)]
-pub fn make_shadow_rays<'m, W: Workers>(
-    tri_of: TriOf<'_>,
+pub fn make_shadow_rays<W: Workers>(
+    hits: &Surfaces<'_>,
     light: &PointLight,
-    rays: &PrimaryRays,
-    lay: &TileLayout,
-    eps: f32,
-    prim: &[u32],
-    t: &[f32],
     dirs: &mut [[f32; 3]],
-    workers: &mut W,
-    slots: &mut dyn Iterator<Item = Slot<'m>>,
+    crew: &mut Crew<'_, '_, W>,
 ) -> ShadowRays {
+    let Surfaces {
+        tri_of,
+        rays,
+        lay,
+        eps,
+        prim,
+        t,
+    } = *hits;
     let ss = (lay.side * lay.side) as usize;
     let n = lay.len();
     let mut items = dirs[..n].chunks_mut(ss).enumerate();
@@ -625,8 +673,8 @@ pub fn make_shadow_rays<'m, W: Workers>(
             }
         }
     };
-    workers.run(slots, &mut items, &work);
-    shadow_stats(&dirs[..n], workers.par())
+    crew.run(&mut items, &work);
+    shadow_stats(&dirs[..n], crew.par())
 }
 
 /// Blocks the shadow rays' statistics are summed in: fixed, so the mean
@@ -682,19 +730,15 @@ pub fn light_tiles(max: u32, rays: u32) -> u32 {
 
 /// Phase 3b: the light's frustum, `tiles` per side, over the (a, b)
 /// rectangle of this frame's shadow rays (and a spot's cone), and each
-/// ray's (a, b) into `ab_a`/`ab_b` (as bits) for `map_to_tiles`, the
-/// pixels split among `par`'s workers.
-// A phase of `frame::run`: the light, its rays, the pools it reads and
-// writes, and the threads it runs on.
-#[allow(clippy::too_many_arguments)]
+/// ray's (a, b) into the pools of `ab` (a in `tiles`, b in `ids`, as bits)
+/// for `map_to_tiles`, the pixels split among `par`'s workers.
 pub(crate) fn light_frame(
     light: &PointLight,
     s: &ShadowRays,
     tiles: u32,
     lay: &TileLayout,
     dirs: &[[f32; 3]],
-    ab_a: &mut [u32],
-    ab_b: &mut [u32],
+    ab: Pairs<'_>,
     par: &dyn Par,
 ) -> LightFrame {
     let fwd = if light.is_spot() {
@@ -725,8 +769,8 @@ pub(crate) fn light_frame(
     ]; MAX_WORKERS];
     {
         let (aa, bb) = (
-            Parts::even(&mut ab_a[..n], workers),
-            Parts::even(&mut ab_b[..n], workers),
+            Parts::even(&mut ab.tiles[..n], workers),
+            Parts::even(&mut ab.ids[..n], workers),
         );
         let out = Parts::even(&mut ranges[..workers], workers);
         par.run(&|w| {
@@ -779,21 +823,17 @@ pub(crate) fn light_frame(
 }
 
 /// Phase 3c (the map step): compact the shadow rays into (light tile,
-/// pixel) pairs in `ray_tiles`/`ray_ids`, reading the (a, b) bits
-/// `light_frame` left there, and fill `reach` (per tile, 1 + the last
-/// slice of `depth` its rays reach; 0: no ray). Each worker of `par`
-/// compacts its share of the pixels to the start of that share: the pairs'
-/// parts of the two pools, one per worker, are returned for `rearrange`.
-// A phase of `frame::run`: the light frame, the pools it reads and writes,
-// and the threads it runs on.
-#[allow(clippy::too_many_arguments)]
+/// pixel) `pairs`, reading the (a, b) bits `light_frame` left there, and
+/// fill `reach` (per tile, 1 + the last slice of `depth` its rays reach;
+/// 0: no ray). Each worker of `par` compacts its share of the pixels to
+/// the start of that share: the pairs' parts of the two pools, one per
+/// worker, are returned for the sort (`reorder::reorder`, phase 3d).
 pub(crate) fn map_to_tiles(
     f: &LightFrame,
     depth: &crate::accel::pgrid::Slices,
     lay: &TileLayout,
     dirs: &[[f32; 3]],
-    ray_tiles: &mut [u32],
-    ray_ids: &mut [u32],
+    pairs: Pairs<'_>,
     reach: &mut [u32],
     par: &dyn Par,
 ) -> [Range<usize>; MAX_WORKERS] {
@@ -803,8 +843,8 @@ pub(crate) fn map_to_tiles(
     let mut got = [0usize; MAX_WORKERS];
     {
         let (ts, is) = (
-            Parts::even(&mut ray_tiles[..n], workers),
-            Parts::even(&mut ray_ids[..n], workers),
+            Parts::even(&mut pairs.tiles[..n], workers),
+            Parts::even(&mut pairs.ids[..n], workers),
         );
         let out = Parts::even(&mut got[..workers], workers);
         par.run(&|w| {
@@ -844,56 +884,36 @@ pub(crate) fn map_to_tiles(
     })
 }
 
-/// Phase 3d: sort and chunk the mapped rays at `parts`
-/// (`accel::pgrid::reorder`), on `par`'s workers.
-// A phase of `frame::run`: the light frame, the rays' parts, the pools it
-// reads and writes, and the threads it runs on.
-#[allow(clippy::too_many_arguments)]
-pub(crate) fn rearrange(
-    f: &LightFrame,
-    parts: &[Range<usize>],
-    buf: &mut FrameBuffers<'_>,
-    tmp_keys: &mut [u32],
-    tmp_vals: &mut [u32],
-    counts: &mut [u32],
-    r: u32,
-    par: &dyn Par,
-) -> ReorderInfo {
-    reorder::reorder(
-        buf.ray_tiles,
-        buf.ray_ids,
-        parts,
-        tmp_keys,
-        tmp_vals,
-        counts,
-        f.tiles[0] * f.tiles[1],
-        r,
-        buf.chunks,
-        par,
-    )
+/// The shadow rays of a light sorted into its light tiles: their
+/// `chunks`, the pixel of each sorted ray (`ids`), and each pixel's ray
+/// direction (`dirs`, from the light).
+#[derive(Clone, Copy)]
+pub struct SortedRays<'a> {
+    pub chunks: &'a [Chunk],
+    pub ids: &'a [u32],
+    pub dirs: &'a [[f32; 3]],
+}
+
+/// Where a light's occluded pixels are marked: bit `bit` of each pixel's
+/// `shadow` byte.
+pub struct ShadowBits<'a> {
+    pub shadow: &'a mut [u8],
+    pub bit: u8,
 }
 
 /// Phase 5 with the light grid: the chunks' rays traced in work items cut
 /// by estimated cost (see below), each writing the occlusion of its rays
-/// to its range of `occ`; then the shadow bit `bit` of
-/// every occluded ray's pixel is set.
-// A phase of `frame::run`: one argument per `FrameBuffers` pool it reads or
-// writes (lent field by field, so phases can share the frame buffers) plus
-// the threads it runs on.
-#[allow(clippy::too_many_arguments)]
-pub fn light_grid_pass<'m, W: Workers>(
+/// to its range of `occ`; then the shadow bit of every occluded ray's
+/// pixel is set.
+pub fn light_grid_pass<W: Workers>(
     g: &LightView<'_>,
-    chunks: &[Chunk],
-    ray_ids: &[u32],
-    dirs: &[[f32; 3]],
+    sorted: &SortedRays<'_>,
     occ: &mut [u8],
-    shadow: &mut [u8],
-    bit: u8,
+    bits: ShadowBits<'_>,
     r: u32,
-    workers: &mut W,
-    slots: &mut dyn Iterator<Item = Slot<'m>>,
+    crew: &mut Crew<'_, '_, W>,
 ) -> Counters {
-    let light = g.frame.pos;
+    let chunks = sorted.chunks;
     // Work items by estimated cost, a ray costing its light tile's pairs:
     // each item about the cost of r average rays. Crowded, dense tiles are
     // cut finer than their chunks (down to 16 rays), sparse ones bundled
@@ -957,104 +977,85 @@ pub fn light_grid_pass<'m, W: Workers>(
                     start: c.start + o,
                     count: take as u32,
                 };
-                trace_one_chunk(
-                    g,
-                    &piece,
-                    ray_ids,
-                    dirs,
-                    light,
-                    &mut out[at..at + take],
-                    slot,
-                    ctr,
-                );
+                trace_one_chunk(g, sorted, &piece, &mut out[at..at + take], slot, ctr);
                 at += take;
                 k += 1;
                 o = 0;
             }
         };
-    let ctr = workers.run(slots, &mut items, &work);
+    let ctr = crew.run(&mut items, &work);
     let n: usize = chunks.iter().map(|c| c.count as usize).sum();
-    for k in 0..n {
-        if occ[k] != 0 {
-            shadow[ray_ids[k] as usize] |= 1 << bit;
+    for (&o, &id) in occ[..n].iter().zip(&sorted.ids[..n]) {
+        if o != 0 {
+            bits.shadow[id as usize] |= 1 << bits.bit;
         }
     }
     ctr
 }
 
-/// One chunk: its rays as 2x2 rays in sorted order, traced in batches.
-// Per-item worker of a phase, called from its closure: the phase's
-// inputs plus the item's own slices of the pools.
-#[allow(clippy::too_many_arguments)]
+/// Chunk `c` of `sorted`: its rays as 2x2 rays in sorted order, traced in
+/// batches, their occlusion into `out`.
 fn trace_one_chunk(
     g: &LightView<'_>,
+    sorted: &SortedRays<'_>,
     c: &Chunk,
-    ray_ids: &[u32],
-    dirs: &[[f32; 3]],
-    light: Vec3,
     out: &mut [u8],
     slot: &mut Slot<'_>,
     ctr: &mut Counters,
 ) {
-    {
-        // A batch's quads in the slot's scratch (`scratch` covers it).
-        const Q: usize = traverse_shadow::MAX_QUADS;
-        let (quads, s) = slot.reborrow().take(Q, Ray4::from_rays(&[DUMMY; 4]));
-        let (active, s) = s.take(Q, M4::FALSE);
-        let (occluded, mut slot) = s.take(Q, M4::FALSE);
-        let ids = &ray_ids[c.start as usize..(c.start + c.count) as usize];
-        for (b, batch) in ids.chunks(4 * traverse_shadow::MAX_QUADS).enumerate() {
-            let nq = batch.len().div_ceil(4);
-            for q in 0..nq {
-                let mut lanes = [DUMMY; 4];
-                let mut m = [false; 4];
-                for i in 0..4 {
-                    if let Some(&id) = batch.get(4 * q + i) {
-                        lanes[i] = Ray::new(light, Vec3::from(dirs[id as usize]), 0.0, 1.0);
-                        m[i] = true;
-                    }
+    let (light, ray_ids, dirs) = (g.frame.pos, sorted.ids, sorted.dirs);
+    // A batch's quads in the slot's scratch (`scratch` covers it).
+    const Q: usize = traverse_shadow::MAX_QUADS;
+    let (quads, s) = slot.reborrow().take(Q, Ray4::from_rays(&[DUMMY; 4]));
+    let (active, s) = s.take(Q, M4::FALSE);
+    let (occluded, mut slot) = s.take(Q, M4::FALSE);
+    let ids = &ray_ids[c.start as usize..(c.start + c.count) as usize];
+    for (b, batch) in ids.chunks(4 * traverse_shadow::MAX_QUADS).enumerate() {
+        let nq = batch.len().div_ceil(4);
+        for q in 0..nq {
+            let mut lanes = [DUMMY; 4];
+            let mut m = [false; 4];
+            for i in 0..4 {
+                if let Some(&id) = batch.get(4 * q + i) {
+                    lanes[i] = Ray::new(light, Vec3::from(dirs[id as usize]), 0.0, 1.0);
+                    m[i] = true;
                 }
-                quads[q] = Ray4::from_rays(&lanes);
-                active[q] = M4::new(m[0], m[1], m[2], m[3]);
             }
-            traverse_shadow::trace_chunk(
-                g,
-                c.tile,
-                &quads[..nq],
-                &active[..nq],
-                &mut occluded[..nq],
-                &mut slot,
-                ctr,
-            );
-            let base = b * 4 * traverse_shadow::MAX_QUADS;
-            for k in 0..batch.len() {
-                out[base + k] = occluded[k / 4].test(k % 4) as u8;
-            }
+            quads[q] = Ray4::from_rays(&lanes);
+            active[q] = M4::new(m[0], m[1], m[2], m[3]);
+        }
+        traverse_shadow::trace_chunk(
+            g,
+            c.tile,
+            &quads[..nq],
+            &active[..nq],
+            &mut occluded[..nq],
+            &mut slot,
+            ctr,
+        );
+        let base = b * 4 * traverse_shadow::MAX_QUADS;
+        for k in 0..batch.len() {
+            out[base + k] = occluded[k / 4].test(k % 4) as u8;
         }
     }
 }
 
 /// Phase 5 with another method: shadow packets from the light per tile of
 /// the layout (split in depth as `render_tiles` does), or ray by ray.
-// A phase of `frame::run`: one argument per `FrameBuffers` pool it reads or
-// writes (lent field by field, so phases can share the frame buffers) plus
-// the threads it runs on.
-#[allow(clippy::too_many_arguments)]
-pub fn traced_shadow_pass<'m, T: Tracer + ?Sized, W: Workers>(
+pub fn traced_shadow_pass<T: Tracer + ?Sized, W: Workers>(
     tracer: &T,
     params: &TraceParams,
     light: &PointLight,
     lay: &TileLayout,
     dirs: &[[f32; 3]],
-    shadow: &mut [u8],
-    bit: u8,
-    workers: &mut W,
-    slots: &mut dyn Iterator<Item = Slot<'m>>,
+    bits: ShadowBits<'_>,
+    crew: &mut Crew<'_, '_, W>,
 ) -> Counters {
     let org = Vec3::from(light.position);
+    let bit = bits.bit;
     let ss = (lay.side * lay.side) as usize;
     let n = lay.len();
-    let mut items = shadow[..n].chunks_mut(ss).zip(dirs[..n].chunks(ss));
+    let mut items = bits.shadow[..n].chunks_mut(ss).zip(dirs[..n].chunks(ss));
     let side = lay.side;
     let packet = params.tile_side() > 0;
     // The tiles' shadow packets and their traversal, chosen once.
@@ -1113,31 +1114,29 @@ pub fn traced_shadow_pass<'m, T: Tracer + ?Sized, W: Workers>(
             }
         }
     };
-    workers.run(slots, &mut items, &work)
+    crew.run(&mut items, &work)
 }
 
 /// Phase 6: Lambert shading of every pixel with every light, a light whose
 /// shadow bit is set contributing nothing; RGBA8 into `pixels` (`stride`
 /// bytes per row), bands of rows as work items.
-// A phase of `frame::run`: one argument per `FrameBuffers` pool it reads or
-// writes (lent field by field, so phases can share the frame buffers) plus
-// the threads it runs on.
-#[allow(clippy::too_many_arguments)]
-pub fn shade<'m, W: Workers>(
-    tri_of: TriOf<'_>,
+pub fn shade<W: Workers>(
+    hits: &Surfaces<'_>,
     frame: &Frame,
     lights: &[PointLight],
-    rays: &PrimaryRays,
-    lay: &TileLayout,
-    eps: f32,
-    prim: &[u32],
-    t: &[f32],
     shadow: &[u8],
     pixels: &mut [u8],
     stride: usize,
-    workers: &mut W,
-    slots: &mut dyn Iterator<Item = Slot<'m>>,
+    crew: &mut Crew<'_, '_, W>,
 ) {
+    let Surfaces {
+        tri_of,
+        rays,
+        lay,
+        eps,
+        prim,
+        t,
+    } = *hits;
     const BAND: usize = 8;
     let sh = &frame.shading;
     let h = frame.height as usize;
@@ -1181,7 +1180,7 @@ pub fn shade<'m, W: Workers>(
             }
         }
     };
-    workers.run(slots, &mut items, &work);
+    crew.run(&mut items, &work);
 }
 
 /// Shadow-ray end point offset for a scene of `scale`.
