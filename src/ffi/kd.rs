@@ -2,9 +2,8 @@
 //! the kd-tree (AEPSA paper section 5.1) and the entry-point searches its
 //! and the BVH's packets may run first.
 
-use super::build::{build, build_joined, build_scene_joined};
 use super::bvh::sheaf_build_quality;
-use super::context::sheaf_context;
+use super::context::{build, build_joined, build_scene_joined, sheaf_context};
 use super::grid::sheaf_tri_test;
 use super::sized::{self, versioned};
 use super::{raw, sheaf_status};

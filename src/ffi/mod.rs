@@ -24,9 +24,10 @@
 //! | `stream.rs` | `sheaf_ray_stream`, `sheaf_hit_stream` (rays and hits as structures of arrays), `sheaf_context_trace_stream`, `sheaf_context_occluded_stream`, `sheaf_context_trace_scene_stream`, `sheaf_context_occluded_scene_stream` |
 //! | `whitted.rs` | `sheaf_material`, `sheaf_material_range`, `sheaf_whitted_params`, `sheaf_context_render_whitted` |
 //!
-//! Two files export nothing: `sized.rs` reads and writes the parameter
-//! structs by their size (the versioning rule), and `build.rs` is the body
-//! every build call shares.
+//! `sized.rs` exports nothing: it reads and writes the parameter structs
+//! by their size (the versioning rule). The body every build call shares
+//! (`build`, `build_joined`) lives in `context.rs`, beside the handle
+//! boundary it wraps (`with_mut`, `joined`).
 //!
 //! # Conventions
 //! - Every export is `#[unsafe(no_mangle)] pub extern "C" fn`, takes the
@@ -56,7 +57,6 @@
 // contract is the C header's (valid or NULL pointers), checked where possible.
 #![allow(clippy::not_unsafe_ptr_arg_deref)]
 
-mod build;
 pub mod bvh;
 pub mod camera;
 pub mod context;

@@ -6,8 +6,7 @@
 //! `sheaf_context_render_deferred`, `sheaf_context_deferred_pixel`,
 //! `sheaf_context_deferred_shadow_ray`.
 
-use super::build::build;
-use super::context::{Handle, sheaf_context, with_mut, with_ref};
+use super::context::{Handle, build, sheaf_context, with_mut, with_ref};
 use super::frame::sheaf_frame;
 use super::grid::sheaf_tri_test;
 use super::sized::{self, versioned};

@@ -4,9 +4,8 @@
 //! placing them with 3x4 transforms, a commit, and rays traced through it.
 //! Needs `sheaf_limits.max_geometries` > 0.
 
-use super::build::build_scene;
 use super::bvh::{sheaf_bvh_params, sheaf_refit_info, sheaf_refit_params};
-use super::context::{Geometry, Handle, sheaf_context, with_mut, with_ref};
+use super::context::{Geometry, Handle, build_scene, sheaf_context, with_mut, with_ref};
 use super::grid::sheaf_grid_params;
 use super::kd::sheaf_kd_params;
 use super::pgrid::sheaf_pgrid_params;
