@@ -48,9 +48,8 @@ pub struct SortScratch<'a> {
 /// `counts` (`workers * BUCKETS` entries) as scratch. Parts may leave gaps:
 /// the first pass gathers them, so several workers can each emit pairs into
 /// their own region of one pool and sort them without a compaction.
-// The pool pairs, their scratch pairs, and the parts, bits, counts and
-// workers of one sort; kept as it is for its caller `accel::pgrid::build`
-// (`reorder` passes a `SortScratch` on).
+// The pools, their scratch and the parts are separate borrows of the
+// caller's pools (`accel::pgrid::build`, `reorder`), each sort its own.
 #[allow(clippy::too_many_arguments)]
 pub fn radix_sort_with(
     keys: &mut [u32],
@@ -82,9 +81,11 @@ pub fn radix_sort_with(
     for p in 0..passes {
         let (shift, src) = (p * DIGIT, if p == 0 { parts } else { &even[..workers] });
         if p % 2 == 0 {
-            radix_pass(keys, vals, tk, tv, src, shift, DIGIT, counts, par);
+            let (from, to) = (Pairs { keys, vals }, PairsMut { keys: tk, vals: tv });
+            radix_pass(from, to, src, shift, DIGIT, counts, par);
         } else {
-            radix_pass(tk, tv, keys, vals, src, shift, DIGIT, counts, par);
+            let (from, to) = (Pairs { keys: tk, vals: tv }, PairsMut { keys, vals });
+            radix_pass(from, to, src, shift, DIGIT, counts, par);
         }
     }
     if passes % 2 == 1 {
@@ -102,25 +103,34 @@ pub fn radix_sort_with(
     total
 }
 
+/// Keys and their values side by side: a radix pass's source.
+#[derive(Clone, Copy)]
+pub struct Pairs<'a> {
+    pub keys: &'a [u32],
+    pub vals: &'a [u32],
+}
+
+/// Keys and their values side by side: a radix pass's destination.
+pub struct PairsMut<'a> {
+    pub keys: &'a mut [u32],
+    pub vals: &'a mut [u32],
+}
+
 /// One stable counting pass on digit `shift..shift + digit` from the parts
-/// `src` of `s*` (one per worker, in order) into `d*[..total]`: each worker
+/// `src` of `from` (one per worker, in order) into `to[..total]`: each worker
 /// counts its part, the counts become each worker's first position per
 /// digit (digit-major, then worker order: stable), each worker scatters its
 /// part. `counts` holds `workers << digit` entries.
-// A pass's source and destination pairs, and its parts, digit and workers;
-// kept as it is for its caller `accel::bvh::build_morton`.
-#[allow(clippy::too_many_arguments)]
 pub fn radix_pass(
-    sk: &[u32],
-    sv: &[u32],
-    dk: &mut [u32],
-    dv: &mut [u32],
+    from: Pairs<'_>,
+    to: PairsMut<'_>,
     src: &[Range<usize>],
     shift: u32,
     digit: u32,
     counts: &mut [u32],
     par: &dyn Par,
 ) {
+    let (sk, sv, dk, dv) = (from.keys, from.vals, to.keys, to.vals);
     let (buckets, workers) = (1usize << digit, src.len());
     let mask = (buckets - 1) as u32;
     let counts = &mut counts[..workers * buckets];

@@ -69,7 +69,7 @@ use super::{BvhInfo, BvhNode, BvhParams, BvhPools, MAX_DEPTH, PrimRef};
 use crate::error::{Error, Pool, Result};
 use crate::geom::{Aabb, Excluded, INVALID_ID, ProjTri, Scene, TriTest, TriVerts};
 use crate::mem::par::{MAX_WORKERS, Par, Parts, atomic_u32, share};
-use crate::mem::sort::{even_parts, radix_pass};
+use crate::mem::sort::{Pairs, PairsMut, even_parts, radix_pass};
 use core::sync::atomic::{AtomicU32, Ordering};
 use glam::Vec3A;
 
@@ -353,21 +353,25 @@ pub(super) fn build(
             counts.as_flattened_mut(),
             &even_parts(n, workers)[..workers],
         );
-        radix_pass(keys, vals, tmp_keys, tmp_vals, even, 0, DIGIT, counts, par);
-        radix_pass(
-            tmp_keys, tmp_vals, keys, vals, even, DIGIT, DIGIT, counts, par,
-        );
-        radix_pass(
-            keys,
-            vals,
-            tmp_keys,
-            tmp_vals,
-            even,
-            2 * DIGIT,
-            DIGIT,
-            counts,
-            par,
-        );
+        // Three passes of DIGIT bits, the pairs ending in the tmp arrays.
+        for pass in 0..3 {
+            let (from, to) = if pass % 2 == 0 {
+                let to = PairsMut {
+                    keys: &mut *tmp_keys,
+                    vals: &mut *tmp_vals,
+                };
+                (Pairs { keys, vals }, to)
+            } else {
+                (
+                    Pairs {
+                        keys: tmp_keys,
+                        vals: tmp_vals,
+                    },
+                    PairsMut { keys, vals },
+                )
+            };
+            radix_pass(from, to, even, pass * DIGIT, DIGIT, counts, par);
+        }
         let (keys, vals) = (&*tmp_keys, &*tmp_vals);
         let ts = Parts::even(&mut tris[..n], workers);
         let is = Parts::even(&mut tri_ids[..n], workers);
