@@ -38,10 +38,11 @@ pub use crate::trace::scene::{BvhTracer, GridTracer, KdTracer};
 /// limits against this sum.
 pub const fn accel_scratch(q: usize, structures: u32) -> usize {
     use crate::accel::method::Structure;
+    const FAMILIES: [Structure; 3] = [Structure::Grid, Structure::Bvh, Structure::Kd];
     let mut family = 0;
     let mut i = 0;
-    while i < Structure::ALL.len() {
-        let s = Structure::ALL[i];
+    while i < FAMILIES.len() {
+        let s = FAMILIES[i];
         let (bit, bytes) = match s {
             Structure::Grid => (Limits::GRID, grid::scratch(q)),
             Structure::Bvh => (Limits::BVH, bvh::scratch(q)),

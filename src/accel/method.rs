@@ -122,11 +122,6 @@ pub enum Structure {
     Kd,
 }
 
-impl Structure {
-    /// Every family, for sums over them (`context::accel_scratch`).
-    pub const ALL: [Structure; 3] = [Structure::Grid, Structure::Bvh, Structure::Kd];
-}
-
 /// How one class of rays is traced (C: `sheaf_trace_params`).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq)]
