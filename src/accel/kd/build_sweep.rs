@@ -192,7 +192,7 @@ struct Split {
     cost: f32,
 }
 
-/// Step 3's sweep: the cheapest event plane strictly inside the node's box.
+/// The sweep: the cheapest event plane strictly inside the node's box.
 fn find_split(ev: &[u64], n: usize, b: &Aabb, p: &KdParams) -> Option<Split> {
     let area = half_area(b);
     // A flat or NaN box has no split.

@@ -10,7 +10,7 @@
 //! | `build.rs` | the build: `KdParams::quality` chooses between the two below |
 //! | `build_binned.rs` | the fast build (Shevtsov, Soupikov, Kapustin 2007): binned SAH, the top level by level and the subtrees depth first, on the caller's threads |
 //! | `build_sweep.rs` | section 5.1: the O(N log N) SAH compiler (Wald and Havran 2006: split events sorted once, kept sorted by stable partition), biased towards cutting off empty space, SAH termination, a depth limit |
-//! | `store.rs` | what both builds share: the triangles classified and stored (their step 1), the SAH's area |
+//! | `store.rs` | what both builds share: the triangles classified and stored (their first pass), the SAH's area |
 //! | `traverse_single.rs` | the single-ray reference: front-to-back stack traversal with early termination |
 //! | `traverse_simd.rs` | the 2x2 SIMD ray (`Ray4`) traversal (Wald 2004) |
 //! | `traverse_packet.rs` | n x n packets driven by the packet's frustum, from the root or from an entry point and its AABB |

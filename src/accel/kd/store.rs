@@ -1,4 +1,4 @@
-//! What both kd builds (`build_sweep`, `build_binned`) share: step 1, the
+//! What both kd builds (`build_sweep`, `build_binned`) share: the first pass, the
 //! stored triangles (`store`: classify the scene's triangles, check the
 //! pools, store the traceable ones), and the SAH's area measure
 //! (`half_area`).
@@ -36,7 +36,7 @@ struct Found {
     bounds: Option<Aabb>,
 }
 
-/// The stored triangles (step 1 of both builds).
+/// The stored triangles (the first pass of both builds).
 pub(super) struct Stored {
     /// Stored triangles.
     pub n: usize,
@@ -46,7 +46,7 @@ pub(super) struct Stored {
     pub pad: Vec3,
 }
 
-/// Step 1 of both builds on `par`'s workers: classify the triangles (flags
+/// The first pass of both builds on `par`'s workers: classify the triangles (flags
 /// in `side`), check the pools (`fits(pools, n)` adds a build's own
 /// checks), then store the traceable triangles in caller order. Nothing a
 /// traversal reads is written before every check passed. With no
