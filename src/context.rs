@@ -32,10 +32,11 @@ pub use crate::trace::scene::{BvhTracer, GridTracer, KdTracer};
 /// which counts them) take at most, for packets of up to `q` quads: the
 /// sum of what each family declares beside its code (`grid::scratch`,
 /// `bvh::scratch`, `kd::scratch`), here above the families so that none
-/// of them imports the others. Every family of `Structure` is named (an
-/// exhaustive match): a new family fails to compile until its bytes are
-/// summed; `tests/exact/scratch.rs` drives every `Method::ALL` at its
-/// limits against this sum.
+/// of them imports the others. The match over `Structure` is exhaustive,
+/// so a new family fails to compile until it names its bytes (it must also
+/// join `FAMILIES`, which the compiler cannot check);
+/// `tests/exact/scratch.rs` drives every `Method::ALL` at its limits
+/// against this sum, which a missing term fails.
 pub const fn accel_scratch(q: usize, structures: u32) -> usize {
     use crate::accel::method::Structure;
     const FAMILIES: [Structure; 3] = [Structure::Grid, Structure::Bvh, Structure::Kd];
